@@ -1,0 +1,8 @@
+//! kincal host library: calibrate tracker arms from artefact touches.
+//!
+//! The model (parameters, kinematics, effects) is kept apart from the solver and from the
+//! reports: [`model`] knows geometry, [`solver`] knows residual vectors and bounds,
+//! [`calibrate`] joins them, [`report`] reads results and never recomputes them.
+
+pub mod fsutil;
+pub mod model;

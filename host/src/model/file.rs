@@ -1,0 +1,219 @@
+//! The model file (`kincal-arm/1`), TOML or JSON by extension.
+//!
+//! ```toml
+//! format = "kincal-arm/1"
+//! name = "SUTA nominal"
+//! convention = "classic"          # or "modified"
+//! tcp_mm = [0.0, 0.0, 253.0]
+//! scale_ppm = 0.0                 # optional
+//! [[joint]]                       # six rows, base to tip
+//! offset_deg = -1.6
+//! d_mm = 47.0
+//! a_mm = 0.0
+//! alpha_deg = 90.0
+//! axis_deg = 0.0                  # optional
+//! [free]                          # parameters the calibration may move: [lower, upper]
+//! "offset:2" = [10.7, 30.7]
+//! ```
+
+use super::{ArmModel, Convention, FreeParam, Joint, ParamId, JOINTS};
+use crate::fsutil;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The format tag every model file carries.
+pub const MODEL_FORMAT: &str = "kincal-arm/1";
+
+/// Why a model file could not be read or written.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// The file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The operating-system error.
+        source: std::io::Error,
+    },
+    /// The file is not valid TOML/JSON of the expected shape.
+    #[error("{path}: {message}")]
+    Syntax {
+        /// The file.
+        path: PathBuf,
+        /// What the parser said.
+        message: String,
+    },
+    /// One field holds a value the model cannot take.
+    #[error("{path}: field `{field}`: {message}")]
+    Field {
+        /// The file.
+        path: PathBuf,
+        /// The field, e.g. `joint[2].d_mm` or `free."offset:9"`.
+        field: String,
+        /// What was expected.
+        message: String,
+    },
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ModelFile {
+    format: String,
+    #[serde(default)]
+    name: String,
+    convention: Convention,
+    tcp_mm: [f64; 3],
+    #[serde(default)]
+    scale_ppm: f64,
+    joint: Vec<Joint>,
+    #[serde(default)]
+    free: BTreeMap<String, [f64; 2]>,
+}
+
+fn is_json(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"))
+}
+
+impl ArmModel {
+    /// Read a model file (`.toml`, or `.json`).
+    pub fn load(path: &Path) -> Result<ArmModel, ModelError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        let syntax = |message: String| ModelError::Syntax {
+            path: path.to_owned(),
+            message,
+        };
+        let file: ModelFile = if is_json(path) {
+            serde_json::from_str(&text).map_err(|e| syntax(e.to_string()))?
+        } else {
+            toml::from_str(&text).map_err(|e| syntax(e.to_string()))?
+        };
+        ArmModel::from_file(file, path)
+    }
+
+    fn from_file(file: ModelFile, path: &Path) -> Result<ArmModel, ModelError> {
+        let field = |field: String, message: String| ModelError::Field {
+            path: path.to_owned(),
+            field,
+            message,
+        };
+        if file.format != MODEL_FORMAT {
+            return Err(field(
+                "format".into(),
+                format!("expected \"{MODEL_FORMAT}\", found \"{}\"", file.format),
+            ));
+        }
+        let joints: [Joint; JOINTS] = file.joint.clone().try_into().map_err(|_| {
+            field("joint".into(), format!("expected {JOINTS} [[joint]] rows, found {}", file.joint.len()))
+        })?;
+        for (j, row) in joints.iter().enumerate() {
+            let values = [
+                ("offset_deg", row.offset_deg),
+                ("d_mm", row.d_mm),
+                ("a_mm", row.a_mm),
+                ("alpha_deg", row.alpha_deg),
+                ("axis_deg", row.axis_deg),
+            ];
+            for (name, v) in values {
+                if !v.is_finite() {
+                    return Err(field(format!("joint[{}].{name}", j + 1), "must be a finite number".into()));
+                }
+            }
+        }
+        if !file.tcp_mm.iter().chain([&file.scale_ppm]).all(|v| v.is_finite()) {
+            return Err(field("tcp_mm".into(), "must be finite numbers".into()));
+        }
+        let mut model = ArmModel {
+            name: file.name,
+            convention: file.convention,
+            joints,
+            tcp_mm: file.tcp_mm,
+            scale_ppm: file.scale_ppm,
+            free: Vec::new(),
+        };
+        for (name, [lower, upper]) in file.free {
+            let key = format!("free.\"{name}\"");
+            let id = ParamId::parse(&name).ok_or_else(|| {
+                field(key.clone(), "unknown parameter; expected e.g. offset:1, length:3, link_offset:2, twist:5, axis:2, tcp.z, scale".into())
+            })?;
+            if !(lower.is_finite() && upper.is_finite() && lower <= upper) {
+                return Err(field(key, format!("bounds must be finite with lower <= upper, found [{lower}, {upper}]")));
+            }
+            let value = model.get(id);
+            if !(lower..=upper).contains(&value) {
+                return Err(field(key, format!("current value {value} lies outside its bounds [{lower}, {upper}]")));
+            }
+            model.free.push(FreeParam { id, lower, upper });
+        }
+        model.free.sort_by_key(|f| f.id.dense_index());
+        Ok(model)
+    }
+
+    /// The model as file text (TOML, or JSON when `json`).
+    pub fn to_text(&self, json: bool) -> String {
+        let file = ModelFile {
+            format: MODEL_FORMAT.into(),
+            name: self.name.clone(),
+            convention: self.convention,
+            tcp_mm: self.tcp_mm,
+            scale_ppm: self.scale_ppm,
+            joint: self.joints.to_vec(),
+            free: self.free.iter().map(|f| (f.id.to_string(), [f.lower, f.upper])).collect(),
+        };
+        if json {
+            serde_json::to_string_pretty(&file).unwrap_or_default()
+        } else {
+            toml::to_string_pretty(&file).unwrap_or_default()
+        }
+    }
+
+    /// Write the model atomically (`.json` by extension, otherwise TOML).
+    pub fn save(&self, path: &Path) -> Result<(), ModelError> {
+        fsutil::write_atomic(path, self.to_text(is_json(path)).as_bytes()).map_err(|source| ModelError::Io {
+            path: path.to_owned(),
+            source,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn model_round_trips_through_toml_and_json() {
+        let dir = std::env::temp_dir().join(format!("kincal-model-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut model = ArmModel::suta_nominal();
+        model.joints[4].axis_deg = 0.125;
+        model.free_param(ParamId::Scale, -500.0, 500.0);
+        for name in ["m.toml", "m.json"] {
+            let path = dir.join(name);
+            model.save(&path).unwrap();
+            assert_eq!(ArmModel::load(&path).unwrap(), model, "{name}");
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn bad_model_files_name_the_field() {
+        let dir = std::env::temp_dir().join(format!("kincal-badmodel-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let good = ArmModel::suta_nominal().to_text(false);
+        let cases = [
+            (good.replace("kincal-arm/1", "arm/9"), "format"),
+            (good.replace("\"offset:1\"", "\"offset:9\""), "free.\"offset:9\""),
+            (good.replacen("[[joint]]", "", 1).replacen("offset_deg = -1.6\n", "", 1), ""),
+        ];
+        for (i, (text, field)) in cases.iter().enumerate() {
+            let path = dir.join(format!("bad{i}.toml"));
+            std::fs::write(&path, text).unwrap();
+            let err = ArmModel::load(&path).unwrap_err().to_string();
+            assert!(err.contains("bad"), "{err}");
+            assert!(err.contains(field), "{err} should name {field}");
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

@@ -1,0 +1,160 @@
+//! The arm model: nominal geometry, the parameters a calibration may move, and the model file.
+//!
+//! Every scalar the kinematics reads is a parameter named `KIND:JOINT` (joints 1-based) or `KIND`
+//! for whole-arm terms (`tcp.x`, `scale`). Angles are stored in degrees, lengths in millimetres,
+//! the scale in parts per million. A parameter is *free* when the model file gives it bounds.
+
+pub mod file;
+pub mod kinematics;
+pub mod params;
+
+pub use file::ModelError;
+pub use params::ParamId;
+
+/// Number of joints of the SUTA arm.
+pub const JOINTS: usize = 6;
+
+/// Which Denavit–Hartenberg convention the joint rows follow.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Convention {
+    /// Classic DH: link matrix Rz(θ)·Tz(d)·Tx(a)·Rx(α) (thesis eq. 2.1).
+    Classic,
+    /// Modified (Craig) DH: Rx(α)·Tx(a)·Rz(θ)·Tz(d), row i holding α_{i−1}, a_{i−1}.
+    Modified,
+}
+
+/// Geometry of one joint row. θ = encoder + `offset_deg` (+ joint-angle effects).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Joint {
+    /// Encoder zero offset δθ, degrees.
+    pub offset_deg: f64,
+    /// Link offset along z, millimetres.
+    pub d_mm: f64,
+    /// Link length along x, millimetres.
+    pub a_mm: f64,
+    /// Link twist about x, degrees.
+    pub alpha_deg: f64,
+    /// Hayati misalignment about y (for near-parallel consecutive axes), degrees.
+    #[serde(default)]
+    pub axis_deg: f64,
+}
+
+/// A parameter the solver may move, with its bounds in the parameter's own unit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FreeParam {
+    /// Which parameter.
+    pub id: ParamId,
+    /// Lower bound (deg, mm or ppm).
+    pub lower: f64,
+    /// Upper bound (deg, mm or ppm).
+    pub upper: f64,
+}
+
+/// A kinematic arm model: geometry plus the set of free parameters.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ArmModel {
+    /// Free text naming the arm.
+    pub name: String,
+    /// DH convention of the joint rows.
+    pub convention: Convention,
+    /// Joint rows, base to tip.
+    pub joints: [Joint; JOINTS],
+    /// Tool centre point in the last frame, millimetres.
+    pub tcp_mm: [f64; 3],
+    /// Length scale error, parts per million (thermal expansion, artefact scale).
+    pub scale_ppm: f64,
+    /// Parameters the calibration may move, in file order.
+    pub free: Vec<FreeParam>,
+}
+
+impl ArmModel {
+    /// The value of one parameter, in its unit.
+    pub fn get(&self, id: ParamId) -> f64 {
+        match id {
+            ParamId::Offset(j) => self.joints[j].offset_deg,
+            ParamId::Length(j) => self.joints[j].d_mm,
+            ParamId::LinkOffset(j) => self.joints[j].a_mm,
+            ParamId::Twist(j) => self.joints[j].alpha_deg,
+            ParamId::Axis(j) => self.joints[j].axis_deg,
+            ParamId::Tcp(k) => self.tcp_mm[k],
+            ParamId::Scale => self.scale_ppm,
+        }
+    }
+
+    /// Set one parameter, in its unit.
+    pub fn set(&mut self, id: ParamId, value: f64) {
+        let slot = match id {
+            ParamId::Offset(j) => &mut self.joints[j].offset_deg,
+            ParamId::Length(j) => &mut self.joints[j].d_mm,
+            ParamId::LinkOffset(j) => &mut self.joints[j].a_mm,
+            ParamId::Twist(j) => &mut self.joints[j].alpha_deg,
+            ParamId::Axis(j) => &mut self.joints[j].axis_deg,
+            ParamId::Tcp(k) => &mut self.tcp_mm[k],
+            ParamId::Scale => &mut self.scale_ppm,
+        };
+        *slot = value;
+    }
+
+    /// Values of the free parameters, in `free` order.
+    pub fn free_values(&self) -> Vec<f64> {
+        self.free.iter().map(|f| self.get(f.id)).collect()
+    }
+
+    /// Copy of the model with the free parameters set to `values` (in `free` order).
+    pub fn with_free_values(&self, values: &[f64]) -> ArmModel {
+        let mut out = self.clone();
+        for (f, &v) in self.free.iter().zip(values) {
+            out.set(f.id, v);
+        }
+        out
+    }
+
+    /// Make `id` free with bounds, or update its bounds if it is free already.
+    pub fn free_param(&mut self, id: ParamId, lower: f64, upper: f64) {
+        match self.free.iter_mut().find(|f| f.id == id) {
+            Some(f) => {
+                f.lower = lower;
+                f.upper = upper;
+            }
+            None => self.free.push(FreeParam { id, lower, upper }),
+        }
+    }
+
+    /// Remove `id` from the free set (it keeps its current value).
+    pub fn fix_param(&mut self, id: ParamId) {
+        self.free.retain(|f| f.id != id);
+    }
+
+    /// The thesis Table 3.2 nominal SUTA model with its 13 calibrated parameters free
+    /// (six encoder offsets ±10°, six lengths d ±10 mm, TCP length ±10 mm).
+    pub fn suta_nominal() -> ArmModel {
+        let d = [47.0, 0.0, 571.0, 0.0, 371.0, 0.0];
+        let alpha = [90.0, 90.0, -90.0, 90.0, 90.0, 90.0];
+        let offset = [-1.6, 20.7, 201.3, 117.1, 88.7, -11.6];
+        let joints = std::array::from_fn(|j| Joint {
+            offset_deg: offset[j],
+            d_mm: d[j],
+            a_mm: 0.0,
+            alpha_deg: alpha[j],
+            axis_deg: 0.0,
+        });
+        let mut model = ArmModel {
+            name: "SUTA nominal (thesis Table 3.2)".into(),
+            convention: Convention::Classic,
+            joints,
+            tcp_mm: [0.0, 0.0, 253.0],
+            scale_ppm: 0.0,
+            free: Vec::new(),
+        };
+        for j in 0..JOINTS {
+            let o = offset[j];
+            model.free_param(ParamId::Offset(j), o - 10.0, o + 10.0);
+        }
+        for j in 0..JOINTS {
+            model.free_param(ParamId::Length(j), d[j] - 10.0, d[j] + 10.0);
+        }
+        model.free_param(ParamId::Tcp(2), 243.0, 263.0);
+        model
+    }
+}

@@ -4,5 +4,7 @@
 //! reports: [`model`] knows geometry, [`solver`] knows residual vectors and bounds,
 //! [`calibrate`] joins them, [`report`] reads results and never recomputes them.
 
+pub mod data;
 pub mod fsutil;
 pub mod model;
+pub mod solver;

@@ -1,0 +1,297 @@
+//! Bounded nonlinear least squares with a robust loss: a Levenberg–Marquardt trust-region method.
+//!
+//! The solver knows residual vectors, Jacobians and bounds — nothing about arms.
+//! Cost = Σ ρ(r_i) with ρ(r) = ½r² for |r| ≤ δ and δ|r| − ½δ² beyond (Huber), the same
+//! cost as SciPy's `least_squares(loss='huber', f_scale=δ)`. Each iteration solves
+//! (H + λ·diag H) s = −g on the variables not held by an active bound, where
+//! g = Σ ρ′(r_i) r_i ∇r_i and H = Σ w_i ∇r_i ∇r_iᵀ with IRLS weights w_i = ρ′(r_i)/r_i·r_i;
+//! the step is projected onto the bounds and accepted on a positive gain ratio
+//! (Nielsen's update of λ).
+
+use nalgebra::{DMatrix, DVector};
+
+/// A residual vector r(x) ∈ ℝᵐ and its Jacobian.
+pub trait Residuals {
+    /// Number of residuals m.
+    fn len(&self) -> usize;
+    /// True when there are no residuals.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Write r(x) into `r`; when `jacobian` is given also ∂r/∂x, row-major m × n.
+    fn evaluate(&self, x: &[f64], r: &mut [f64], jacobian: Option<&mut [f64]>);
+}
+
+/// Robust loss applied to each residual.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Loss {
+    /// Plain least squares: ρ(r) = ½r².
+    Linear,
+    /// Huber loss with threshold δ (same unit as the residuals).
+    Huber(f64),
+}
+
+impl Loss {
+    /// ρ(r).
+    pub fn rho(self, r: f64) -> f64 {
+        match self {
+            Loss::Huber(d) if r.abs() > d => d * r.abs() - 0.5 * d * d,
+            _ => 0.5 * r * r,
+        }
+    }
+
+    /// ρ′(r)/r: the weight of residual r in the gradient and in the IRLS normal matrix.
+    pub fn weight(self, r: f64) -> f64 {
+        match self {
+            Loss::Huber(d) if r.abs() > d => d / r.abs(),
+            _ => 1.0,
+        }
+    }
+
+    /// Total cost Σ ρ(r_i).
+    pub fn cost(self, r: &[f64]) -> f64 {
+        r.iter().map(|&v| self.rho(v)).sum()
+    }
+}
+
+/// Solver settings.
+#[derive(Clone, Copy, Debug)]
+pub struct SolverOptions {
+    /// Loss applied to every residual.
+    pub loss: Loss,
+    /// Most iterations (Jacobian evaluations) before giving up.
+    pub max_iterations: usize,
+    /// Stop when an accepted step lowers the cost by less than `ftol`·cost.
+    pub ftol: f64,
+    /// Stop when a step is shorter than `xtol`·(‖x‖ + `xtol`).
+    pub xtol: f64,
+    /// Stop when the projected gradient's largest entry is below `gtol`.
+    pub gtol: f64,
+}
+
+impl Default for SolverOptions {
+    fn default() -> Self {
+        SolverOptions { loss: Loss::Linear, max_iterations: 200, ftol: 1e-12, xtol: 1e-12, gtol: 1e-10 }
+    }
+}
+
+/// Why the solver stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopReason {
+    /// The cost stopped falling.
+    CostConverged,
+    /// The step became negligible.
+    StepConverged,
+    /// The projected gradient vanished.
+    GradientConverged,
+    /// No step could lower the cost any more.
+    NoProgress,
+    /// The iteration limit was hit.
+    IterationLimit,
+}
+
+/// Result of one solve.
+#[derive(Clone, Debug)]
+pub struct Solution {
+    /// Parameters at the end.
+    pub x: Vec<f64>,
+    /// Cost Σρ(r) at `x`.
+    pub cost: f64,
+    /// Residuals at `x`.
+    pub residuals: Vec<f64>,
+    /// Jacobian evaluations.
+    pub iterations: usize,
+    /// Why it stopped.
+    pub stop: StopReason,
+}
+
+/// Normal matrix JᵀWJ and gradient JᵀWr of a row-major Jacobian with per-row weights.
+pub fn normal_equations(jacobian: &[f64], r: &[f64], weights: &[f64], n: usize) -> (DMatrix<f64>, DVector<f64>) {
+    let mut h = DMatrix::zeros(n, n);
+    let mut g = DVector::zeros(n);
+    for (i, row) in jacobian.chunks_exact(n).enumerate() {
+        let w = weights[i];
+        for a in 0..n {
+            let wa = w * row[a];
+            if wa == 0.0 {
+                continue;
+            }
+            g[a] += wa * r[i];
+            for b in a..n {
+                h[(a, b)] += wa * row[b];
+            }
+        }
+    }
+    for a in 0..n {
+        for b in 0..a {
+            h[(a, b)] = h[(b, a)];
+        }
+    }
+    (h, g)
+}
+
+/// Minimise Σρ(r(x)) over lower ≤ x ≤ upper from `x0` (clamped into the bounds first).
+pub fn solve(problem: &dyn Residuals, x0: &[f64], lower: &[f64], upper: &[f64], options: &SolverOptions) -> Solution {
+    let n = x0.len();
+    let m = problem.len();
+    let loss = options.loss;
+    let clamp = |x: &mut [f64]| {
+        for i in 0..n {
+            x[i] = x[i].clamp(lower[i], upper[i]);
+        }
+    };
+    let mut x = x0.to_vec();
+    clamp(&mut x);
+    let mut r = vec![0.0; m];
+    let mut jac = vec![0.0; m * n];
+    problem.evaluate(&x, &mut r, Some(&mut jac));
+    let mut cost = loss.cost(&r);
+    let mut lambda = 1e-3;
+    let mut nu = 2.0;
+    let mut trial = vec![0.0; n];
+    let mut r_trial = vec![0.0; m];
+    let mut iterations = 1;
+    let mut need_jacobian = false;
+    let (mut h, mut g) = (DMatrix::zeros(0, 0), DVector::zeros(0));
+    let mut fresh = true;
+    let stop = loop {
+        if need_jacobian {
+            if iterations >= options.max_iterations {
+                break StopReason::IterationLimit;
+            }
+            problem.evaluate(&x, &mut r, Some(&mut jac));
+            iterations += 1;
+            need_jacobian = false;
+            fresh = true;
+        }
+        if fresh {
+            let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
+            (h, g) = normal_equations(&jac, &r, &weights, n);
+            fresh = false;
+        }
+        // Variables held by a bound the gradient pushes against are left out of the step.
+        let at_bound = |i: usize| (x[i] <= lower[i] && g[i] > 0.0) || (x[i] >= upper[i] && g[i] < 0.0);
+        let active: Vec<usize> = (0..n).filter(|&i| !at_bound(i)).collect();
+        let projected_gradient = active.iter().map(|&i| g[i].abs()).fold(0.0, f64::max);
+        if projected_gradient < options.gtol {
+            break StopReason::GradientConverged;
+        }
+        let k = active.len();
+        let mut a = DMatrix::zeros(k, k);
+        let mut b = DVector::zeros(k);
+        for (p, &i) in active.iter().enumerate() {
+            b[p] = -g[i];
+            for (q, &j) in active.iter().enumerate() {
+                a[(p, q)] = h[(i, j)];
+            }
+            a[(p, p)] += lambda * h[(i, i)].max(1e-12);
+        }
+        let Some(step) = a.cholesky().map(|c| c.solve(&b)) else {
+            lambda *= nu;
+            nu *= 2.0;
+            if lambda > 1e20 {
+                break StopReason::NoProgress;
+            }
+            continue;
+        };
+        trial.copy_from_slice(&x);
+        for (p, &i) in active.iter().enumerate() {
+            trial[i] += step[p];
+        }
+        clamp(&mut trial);
+        let s = DVector::from_iterator(n, trial.iter().zip(&x).map(|(t, v)| t - v));
+        let predicted = -(g.dot(&s) + 0.5 * s.dot(&(&h * &s)));
+        problem.evaluate(&trial, &mut r_trial, None);
+        let trial_cost = loss.cost(&r_trial);
+        let actual = cost - trial_cost;
+        if actual > 0.0 && predicted > 0.0 {
+            let ratio = actual / predicted;
+            let x_norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+            x.copy_from_slice(&trial);
+            cost = trial_cost;
+            lambda *= (1.0_f64 / 3.0).max(1.0 - (2.0 * ratio - 1.0).powi(3));
+            nu = 2.0;
+            need_jacobian = true;
+            if actual < options.ftol * cost {
+                break StopReason::CostConverged;
+            }
+            if s.norm() < options.xtol * (x_norm + options.xtol) {
+                break StopReason::StepConverged;
+            }
+        } else {
+            lambda *= nu;
+            nu *= 2.0;
+            if lambda > 1e20 {
+                break StopReason::NoProgress;
+            }
+        }
+    };
+    problem.evaluate(&x, &mut r, None);
+    Solution { cost: loss.cost(&r), x, residuals: r, iterations, stop }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rosenbrock as residuals: r = (10(y − x²), 1 − x).
+    struct Rosenbrock;
+    impl Residuals for Rosenbrock {
+        fn len(&self) -> usize {
+            2
+        }
+        fn evaluate(&self, x: &[f64], r: &mut [f64], jacobian: Option<&mut [f64]>) {
+            r[0] = 10.0 * (x[1] - x[0] * x[0]);
+            r[1] = 1.0 - x[0];
+            if let Some(j) = jacobian {
+                j.copy_from_slice(&[-20.0 * x[0], 10.0, -1.0, 0.0]);
+            }
+        }
+    }
+
+    #[test]
+    fn finds_the_rosenbrock_minimum() {
+        let s = solve(&Rosenbrock, &[-1.2, 1.0], &[-5.0; 2], &[5.0; 2], &SolverOptions::default());
+        assert!((s.x[0] - 1.0).abs() < 1e-6 && (s.x[1] - 1.0).abs() < 1e-6, "{:?}", s);
+    }
+
+    #[test]
+    fn respects_bounds_and_stops_on_the_boundary_optimum() {
+        // Unconstrained optimum (1, 1) lies outside x ≤ 0.5; constrained optimum has x = 0.5, y = 0.25.
+        let s = solve(&Rosenbrock, &[-1.2, 1.0], &[-5.0, -5.0], &[0.5, 5.0], &SolverOptions::default());
+        assert!((s.x[0] - 0.5).abs() < 1e-9 && (s.x[1] - 0.25).abs() < 1e-6, "{:?}", s.x);
+    }
+
+    /// Line fit y = a + b t with one gross outlier.
+    struct Line(Vec<(f64, f64)>);
+    impl Residuals for Line {
+        fn len(&self) -> usize {
+            self.0.len()
+        }
+        fn evaluate(&self, x: &[f64], r: &mut [f64], jacobian: Option<&mut [f64]>) {
+            for (i, (t, y)) in self.0.iter().enumerate() {
+                r[i] = x[0] + x[1] * t - y;
+            }
+            if let Some(j) = jacobian {
+                for (i, (t, _)) in self.0.iter().enumerate() {
+                    j[2 * i] = 1.0;
+                    j[2 * i + 1] = *t;
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn huber_loss_resists_an_outlier() {
+        let mut pts: Vec<(f64, f64)> = (0..20).map(|i| (i as f64, 1.0 + 0.5 * i as f64 + 0.01 * ((i * 7 % 5) as f64 - 2.0))).collect();
+        pts[10].1 += 50.0;
+        let line = Line(pts);
+        let opts = |loss| SolverOptions { loss, ..SolverOptions::default() };
+        let plain = solve(&line, &[0.0, 0.0], &[-1e3; 2], &[1e3; 2], &opts(Loss::Linear));
+        let huber = solve(&line, &[0.0, 0.0], &[-1e3; 2], &[1e3; 2], &opts(Loss::Huber(0.1)));
+        assert!((huber.x[1] - 0.5).abs() < 0.01, "huber slope {}", huber.x[1]);
+        assert!((plain.x[0] - 1.0).abs() > (huber.x[0] - 1.0).abs() * 5.0, "plain {:?} huber {:?}", plain.x, huber.x);
+        assert!((Loss::Huber(1.35).rho(3.0) - (1.35 * 3.0 - 0.5 * 1.35 * 1.35)).abs() < 1e-12);
+    }
+}

@@ -4,7 +4,12 @@
 //! reports: [`model`] knows geometry, [`solver`] knows residual vectors and bounds,
 //! [`calibrate`] joins them, [`report`] reads results and never recomputes them.
 
+pub mod calibrate;
 pub mod data;
 pub mod fsutil;
+pub mod identify;
 pub mod model;
+pub mod objective;
+pub mod simulate;
 pub mod solver;
+pub mod validate;

@@ -1,0 +1,214 @@
+//! Calibration: identifiability, base parameters, seeded restarts, covariance.
+
+use crate::data::{Artefact, Dataset};
+use crate::identify::{self, Identifiability};
+use crate::model::{ArmModel, ParamId};
+use crate::objective::{CalibrationProblem, Objective};
+use crate::solver::{self, Loss, Residuals, SolverOptions, StopReason};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Settings of one calibration.
+#[derive(Clone, Copy, Debug)]
+pub struct CalibrationOptions {
+    /// Huber threshold δ, mm (thesis: 1.35 mm).
+    pub huber_delta_mm: f64,
+    /// Random starts inside the bounds, in addition to the start at the nominal values.
+    pub restarts: usize,
+    /// Seed of the random starts.
+    pub seed: u64,
+    /// Residual blocks minimised.
+    pub objective: Objective,
+    /// Solver settings other than the loss.
+    pub solver: SolverOptions,
+}
+
+impl Default for CalibrationOptions {
+    fn default() -> Self {
+        CalibrationOptions { huber_delta_mm: 1.35, restarts: 8, seed: 1, objective: Objective::Distance, solver: SolverOptions::default() }
+    }
+}
+
+/// Why a calibration could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrationError {
+    /// Too few distances for the free parameters.
+    #[error("{pairs} landmark pairs cannot determine {params} parameters: touch more landmarks per placement and repeat")]
+    TooFewPairs {
+        /// Distance residuals available.
+        pairs: usize,
+        /// Parameters to determine.
+        params: usize,
+    },
+    /// The model has no free parameter.
+    #[error("the model has no free parameter: give bounds in its [free] table")]
+    NothingFree,
+}
+
+/// The outcome of one start of the solver.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StartOutcome {
+    /// 0 for the nominal start, then 1.. for random starts.
+    pub start: usize,
+    /// Cost at the start.
+    pub initial_cost: f64,
+    /// Cost reached.
+    pub final_cost: f64,
+    /// Jacobian evaluations.
+    pub iterations: usize,
+    /// Why it stopped.
+    pub stop: StopReason,
+}
+
+/// How one parameter came out.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Estimate {
+    /// Parameter name.
+    pub param: String,
+    /// Unit of the values.
+    pub unit: &'static str,
+    /// Nominal value.
+    pub nominal: f64,
+    /// Calibrated value.
+    pub value: f64,
+    /// One standard deviation from the covariance, when estimated.
+    pub std: Option<f64>,
+    /// `estimated`, or `fixed: unidentifiable` when the data cannot determine it.
+    pub status: String,
+}
+
+/// The result of a calibration.
+#[derive(Clone, Debug)]
+pub struct Calibration {
+    /// The calibrated model (same free set and bounds as the nominal one).
+    pub model: ArmModel,
+    /// Robust cost at the solution.
+    pub cost: f64,
+    /// RMS of the distance residuals on the calibration data, mm.
+    pub rms_mm: f64,
+    /// Identifiability of all free parameters at the nominal values.
+    pub before: Identifiability,
+    /// Identifiability of all free parameters at the solution.
+    pub after: Identifiability,
+    /// Parameters fixed because the data cannot determine them.
+    pub fixed: Vec<ParamId>,
+    /// Parameters estimated.
+    pub estimated: Vec<ParamId>,
+    /// Estimates with standard deviations.
+    pub estimates: Vec<Estimate>,
+    /// Parameter pairs correlated beyond ±0.9.
+    pub correlations: Vec<(String, String, f64)>,
+    /// Every start, in order.
+    pub starts: Vec<StartOutcome>,
+}
+
+fn jacobian_at(problem: &CalibrationProblem, x: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let m = problem.len();
+    let mut r = vec![0.0; m];
+    let mut jac = vec![0.0; m * x.len()];
+    problem.evaluate(x, &mut r, Some(&mut jac));
+    (r, jac)
+}
+
+/// Most times the base set is re-checked at a solution and the problem solved again.
+const MAX_IDENTIFIABILITY_PASSES: usize = 3;
+
+/// Solve from the nominal values, then from `restarts` random points inside the bounds.
+fn solve_from_starts(problem: &CalibrationProblem, x_nominal: &[f64], lower: &[f64], upper: &[f64], options: &CalibrationOptions) -> (solver::Solution, Vec<StartOutcome>) {
+    let solver_options = SolverOptions { loss: Loss::Huber(options.huber_delta_mm), ..options.solver };
+    let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
+    let mut starts = Vec::new();
+    let mut best: Option<solver::Solution> = None;
+    let mut r0 = vec![0.0; problem.len()];
+    for start in 0..=options.restarts {
+        let x0: Vec<f64> = if start == 0 { x_nominal.to_vec() } else { lower.iter().zip(upper).map(|(l, u)| l + (u - l) * rng.random::<f64>()).collect() };
+        problem.evaluate(&x0, &mut r0, None);
+        let s = solver::solve(problem, &x0, lower, upper, &solver_options);
+        starts.push(StartOutcome { start, initial_cost: solver_options.loss.cost(&r0), final_cost: s.cost, iterations: s.iterations, stop: s.stop });
+        if best.as_ref().is_none_or(|b| s.cost < b.cost) {
+            best = Some(s);
+        }
+    }
+    let best = best.unwrap_or_else(|| solver::solve(problem, x_nominal, lower, upper, &solver_options));
+    (best, starts)
+}
+
+/// Calibrate the free parameters of `nominal` on `data`.
+///
+/// The identifiable base set is chosen at the nominal values; after solving it is checked again
+/// at the solution (a parameter can lose its lever once the model fits, e.g. the tool length
+/// when every touch holds the tool vertical) and the problem is solved again without the
+/// parameters that became unidentifiable, which stay at their nominal values.
+pub fn calibrate(nominal: &ArmModel, artefact: &Artefact, data: &Dataset, options: &CalibrationOptions) -> Result<Calibration, CalibrationError> {
+    let all: Vec<ParamId> = nominal.free.iter().map(|f| f.id).collect();
+    if all.is_empty() {
+        return Err(CalibrationError::NothingFree);
+    }
+    let range_of = |id: ParamId| nominal.free.iter().find(|f| f.id == id).map_or(1.0, |f| (f.upper - f.lower).max(1e-9));
+    let full = CalibrationProblem::new(nominal, all.clone(), artefact, data, options.objective);
+    if full.distance_rows() < all.len() {
+        return Err(CalibrationError::TooFewPairs { pairs: full.distance_rows(), params: all.len() });
+    }
+    let all_ranges: Vec<f64> = all.iter().map(|&id| range_of(id)).collect();
+    let (_, jac) = jacobian_at(&full, &nominal.free_values());
+    let before = identify::analyse(&jac, &all, &all_ranges);
+    let (kept, _) = identify::base_columns(&jac, all.len(), &all_ranges);
+    let mut estimated: Vec<ParamId> = kept.iter().map(|&c| all[c]).collect();
+    let mut pass = 0;
+    let (problem, best, starts) = loop {
+        pass += 1;
+        let bounds: Vec<_> = estimated.iter().filter_map(|id| nominal.free.iter().find(|f| f.id == *id)).collect();
+        let lower: Vec<f64> = bounds.iter().map(|b| b.lower).collect();
+        let upper: Vec<f64> = bounds.iter().map(|b| b.upper).collect();
+        let ranges: Vec<f64> = estimated.iter().map(|&id| range_of(id)).collect();
+        let problem = CalibrationProblem::new(nominal, estimated.clone(), artefact, data, options.objective);
+        let x_nominal: Vec<f64> = estimated.iter().map(|&id| nominal.get(id)).collect();
+        let (best, starts) = solve_from_starts(&problem, &x_nominal, &lower, &upper, options);
+        let (_, jac) = jacobian_at(&problem, &best.x);
+        let (kept, dropped) = identify::base_columns(&jac, estimated.len(), &ranges);
+        if dropped.is_empty() || pass >= MAX_IDENTIFIABILITY_PASSES {
+            break (problem, best, starts);
+        }
+        estimated = kept.iter().map(|&c| estimated[c]).collect();
+    };
+    let fixed: Vec<ParamId> = all.iter().filter(|id| !estimated.contains(id)).copied().collect();
+    let model = problem.model_at(&best.x);
+    let (r, jac) = jacobian_at(&problem, &best.x);
+    let (_, full_jac) = jacobian_at(&full, &model.free_values());
+    let after = identify::analyse(&full_jac, &all, &all_ranges);
+    let loss = Loss::Huber(options.huber_delta_mm);
+    let n = estimated.len();
+    let dof = (r.len() as f64 - n as f64).max(1.0);
+    let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
+    let variance = r.iter().zip(&weights).map(|(v, w)| w * v * v).sum::<f64>() / dof;
+    let cov = identify::covariance(&jac, &weights, n, variance);
+    let std_of = |k: usize| cov.as_ref().map(|c| c[(k, k)].max(0.0).sqrt());
+    let mut correlations = Vec::new();
+    if let Some(c) = &cov {
+        for a in 0..n {
+            for b in a + 1..n {
+                let rho = c[(a, b)] / (c[(a, a)] * c[(b, b)]).sqrt();
+                if rho.abs() > 0.9 {
+                    correlations.push((estimated[a].to_string(), estimated[b].to_string(), rho));
+                }
+            }
+        }
+    }
+    let estimates = all
+        .iter()
+        .map(|&id| {
+            let k = estimated.iter().position(|e| *e == id);
+            Estimate {
+                param: id.to_string(),
+                unit: id.unit(),
+                nominal: nominal.get(id),
+                value: model.get(id),
+                std: k.and_then(std_of),
+                status: if k.is_some() { "estimated".into() } else { "fixed: unidentifiable".into() },
+            }
+        })
+        .collect();
+    let d = problem.distance_rows();
+    let rms_mm = (best.residuals[..d].iter().map(|v| v * v).sum::<f64>() / d as f64).sqrt();
+    Ok(Calibration { model, cost: best.cost, rms_mm, before, after, fixed, estimated, estimates, correlations, starts })
+}

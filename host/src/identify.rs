@@ -1,0 +1,204 @@
+//! Identifiability: which parameters (and combinations) the data can determine.
+//!
+//! Each Jacobian column is first scaled by its parameter's plausible range (the width of its
+//! bounds), so a column measures how much the residuals move over that range and units do not
+//! decide. The singular values σ₁ ≥ … ≥ σ_n give the condition number σ₁/σ_n; a right singular
+//! vector whose σ is negligible against σ₁ names an unidentifiable combination, spelled in
+//! parameter names and physical units. A column-pivoted Gram–Schmidt (rank-revealing QR) picks a base set of identifiable
+//! parameters; the rest are fixed at their current values rather than left to drift.
+
+use crate::model::ParamId;
+use nalgebra::{DMatrix, DVector};
+
+/// Column norm, relative to the largest, below which a parameter is taken to move nothing.
+pub const ZERO_COLUMN_BELOW: f64 = 1e-9;
+/// σ/σ₁ below which a direction is reported unidentifiable and fixed.
+pub const UNIDENTIFIABLE_BELOW: f64 = 1e-4;
+/// Residual norm of a range-scaled column after projecting out the kept ones, relative to the
+/// largest column, below which a parameter is left out of the base set.
+pub const BASE_SET_TOLERANCE: f64 = UNIDENTIFIABLE_BELOW;
+/// σ/σ₁ below which a direction is reported poorly identified.
+pub const POORLY_IDENTIFIED_BELOW: f64 = 1e-2;
+
+/// A direction in parameter space the data hardly sees.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Combination {
+    /// σ/σ₁ of this direction.
+    pub relative_singular_value: f64,
+    /// Parameters and their share of the direction, in physical units, largest first,
+    /// scaled so the largest is ±1.
+    pub terms: Vec<(String, f64)>,
+    /// Human-readable form, e.g. `length:6 −1.000 mm ↔ tcp.z +1.000 mm`.
+    pub text: String,
+}
+
+/// Identifiability of a parameter set at one point.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Identifiability {
+    /// Parameter names, in column order.
+    pub params: Vec<String>,
+    /// Singular values of the column-scaled Jacobian, largest first.
+    pub singular_values: Vec<f64>,
+    /// σ₁/σ_n (infinite when rank-deficient).
+    pub condition_number: f64,
+    /// Directions the data cannot determine at all.
+    pub unidentifiable: Vec<Combination>,
+    /// Directions the data determines only weakly.
+    pub poorly_identified: Vec<Combination>,
+}
+
+/// Norms of the range-scaled columns, with columns negligible against the largest set to
+/// exactly zero.
+fn column_norms(jac: &[f64], n: usize, ranges: &[f64]) -> Vec<f64> {
+    let mut norms = vec![0.0; n];
+    for row in jac.chunks_exact(n) {
+        for (c, v) in row.iter().enumerate() {
+            norms[c] += (v * ranges[c]).powi(2);
+        }
+    }
+    let norms: Vec<f64> = norms.iter().map(|s| s.sqrt()).collect();
+    let largest = norms.iter().cloned().fold(0.0, f64::max);
+    norms.into_iter().map(|v| if v <= ZERO_COLUMN_BELOW * largest { 0.0 } else { v }).collect()
+}
+
+/// The Jacobian restricted to `cols`, each column scaled by its range.
+fn scaled(jac: &[f64], n: usize, ranges: &[f64], cols: &[usize]) -> DMatrix<f64> {
+    let m = jac.len() / n.max(1);
+    DMatrix::from_fn(m, cols.len(), |i, k| jac[i * n + cols[k]] * ranges[cols[k]])
+}
+
+fn describe(params: &[ParamId], direction: &[f64], relative: f64, unidentifiable: bool) -> Combination {
+    let biggest = direction.iter().fold(0.0_f64, |a, v| a.max(v.abs())).max(1e-300);
+    let mut terms: Vec<(ParamId, f64)> = params.iter().zip(direction).map(|(p, v)| (*p, v / biggest)).filter(|(_, v)| v.abs() > 0.05).collect();
+    terms.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
+    if terms.first().is_some_and(|t| t.1 < 0.0) {
+        terms.iter_mut().for_each(|t| t.1 = -t.1);
+    }
+    let text = if terms.len() == 1 {
+        let effect = if unidentifiable { "changes no residual" } else { "barely changes the residuals" };
+        format!("{} ({effect})", terms[0].0)
+    } else {
+        terms.iter().map(|(p, v)| format!("{p} {v:+.3} {}", p.unit())).collect::<Vec<_>>().join(" ↔ ")
+    };
+    Combination { relative_singular_value: relative, terms: terms.into_iter().map(|(p, v)| (p.to_string(), v)).collect(), text }
+}
+
+/// Analyse a row-major Jacobian (m × `params.len()`); `ranges` are the parameters' plausible
+/// ranges (bound widths) in their units.
+pub fn analyse(jac: &[f64], params: &[ParamId], ranges: &[f64]) -> Identifiability {
+    let n = params.len();
+    let mut out = Identifiability {
+        params: params.iter().map(|p| p.to_string()).collect(),
+        singular_values: vec![],
+        condition_number: f64::INFINITY,
+        unidentifiable: vec![],
+        poorly_identified: vec![],
+    };
+    if n == 0 || jac.is_empty() {
+        return out;
+    }
+    let norms = column_norms(jac, n, ranges);
+    // A parameter that moves no residual is unidentifiable on its own.
+    for c in (0..n).filter(|&c| norms[c] == 0.0) {
+        let mut dir = vec![0.0; n];
+        dir[c] = 1.0;
+        out.unidentifiable.push(describe(params, &dir, 0.0, true));
+    }
+    let live: Vec<usize> = (0..n).filter(|&c| norms[c] > 0.0).collect();
+    if live.is_empty() {
+        return out;
+    }
+    let svd = scaled(jac, n, ranges, &live).svd(false, true);
+    let Some(v_t) = svd.v_t else { return out };
+    let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
+    order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
+    let sv: Vec<f64> = order.iter().map(|&i| svd.singular_values[i]).collect();
+    let top = sv.first().copied().unwrap_or(0.0).max(1e-300);
+    for (&i, &s) in order.iter().zip(&sv) {
+        let relative = s / top;
+        if relative >= POORLY_IDENTIFIED_BELOW {
+            continue;
+        }
+        // Direction in physical units: δq_c = v_c · range_c.
+        let mut dir = vec![0.0; n];
+        for (k, &c) in live.iter().enumerate() {
+            dir[c] = v_t[(i, k)] * ranges[c];
+        }
+        let combo = describe(params, &dir, relative, relative < UNIDENTIFIABLE_BELOW);
+        if relative < UNIDENTIFIABLE_BELOW {
+            out.unidentifiable.push(combo);
+        } else {
+            out.poorly_identified.push(combo);
+        }
+    }
+    let smallest = if live.len() < n || sv.len() < n { 0.0 } else { sv[n - 1] };
+    out.condition_number = if smallest > 0.0 { top / smallest } else { f64::INFINITY };
+    out.singular_values = sv;
+    out
+}
+
+/// Split columns into an identifiable base set and the rest, by column-pivoted Gram–Schmidt
+/// on the range-scaled Jacobian. Returns (kept, dropped) column indices, each ascending.
+pub fn base_columns(jac: &[f64], n: usize, ranges: &[f64]) -> (Vec<usize>, Vec<usize>) {
+    let norms = column_norms(jac, n, ranges);
+    let live: Vec<usize> = (0..n).filter(|&c| norms[c] > 0.0).collect();
+    let largest = norms.iter().cloned().fold(0.0, f64::max);
+    let a = scaled(jac, n, ranges, &live);
+    let mut residual: Vec<DVector<f64>> = (0..live.len()).map(|k| a.column(k).into_owned()).collect();
+    let mut kept = Vec::new();
+    let mut remaining: Vec<usize> = (0..live.len()).collect();
+    while !remaining.is_empty() {
+        // Largest remaining residual norm; ties go to the earlier parameter.
+        let (pos, best) = remaining.iter().enumerate().fold((0, -1.0), |acc, (pos, &k)| {
+            let v = residual[k].norm();
+            if v > acc.1 * (1.0 + 1e-9) { (pos, v) } else { acc }
+        });
+        if best < BASE_SET_TOLERANCE * largest {
+            break;
+        }
+        let k = remaining.remove(pos);
+        let q = &residual[k] / best;
+        for &o in &remaining {
+            let proj = q.dot(&residual[o]);
+            residual[o] -= &q * proj;
+        }
+        kept.push(live[k]);
+    }
+    kept.sort_unstable();
+    let dropped = (0..n).filter(|c| !kept.contains(c)).collect();
+    (kept, dropped)
+}
+
+/// Parameter covariance σ²·(JᵀWJ)⁻¹ from a row-major Jacobian, IRLS weights and the residual
+/// variance σ²; `None` when JᵀWJ is singular.
+pub fn covariance(jac: &[f64], weights: &[f64], n: usize, variance: f64) -> Option<DMatrix<f64>> {
+    let zeros = vec![0.0; weights.len()];
+    let (h, _) = crate::solver::normal_equations(jac, &zeros, weights, n);
+    h.cholesky().map(|c| c.inverse() * variance)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_a_zero_column_and_a_collinear_pair() {
+        // Columns: a, b = 2a (collinear), c independent, d zero.
+        let rows: Vec<[f64; 4]> = (0..10).map(|i| {
+            let t = i as f64;
+            [t, 2.0 * t, (t * 0.7).sin(), 0.0]
+        }).collect();
+        let jac: Vec<f64> = rows.iter().flatten().copied().collect();
+        let params = [ParamId::Length(0), ParamId::Tcp(2), ParamId::Offset(1), ParamId::Offset(0)];
+        let id = analyse(&jac, &params, &[1.0; 4]);
+        let texts: Vec<&str> = id.unidentifiable.iter().map(|c| c.text.as_str()).collect();
+        assert!(texts.iter().any(|t| t.contains("offset:1") && t.contains("changes no residual")), "{texts:?}");
+        let pair = id.unidentifiable.iter().find(|c| c.terms.len() == 2).expect("collinear pair");
+        // δ(length:1) = −2·δ(tcp.z) leaves the residuals unchanged.
+        assert!((pair.terms[0].1.abs() - 1.0).abs() < 1e-9 && (pair.terms[1].1.abs() - 0.5).abs() < 1e-6, "{:?}", pair.terms);
+        let (kept, dropped) = base_columns(&jac, 4, &[1.0; 4]);
+        // The larger of two collinear columns stays in the base set.
+        assert_eq!(kept, vec![1, 2]);
+        assert_eq!(dropped, vec![0, 3]);
+    }
+}

@@ -1,0 +1,337 @@
+//! `kincal simulate`: an artefact and measurement sessions from a "true" arm with known errors.
+//!
+//! The true arm is the nominal model with its free parameters perturbed (seeded). Every touch
+//! is found by inverse kinematics on the true arm: tip on the landmark (plus seating noise), tool
+//! axis perpendicular to the base plate, tool x axis at the pillar's yaw. The forward path here
+//! is deliberately independent of [`crate::model::kinematics`] (plain 4×4 homogeneous matrices),
+//! so a bug there cannot hide in data made here. Touches the arm cannot reach without passing
+//! a joint below the table are skipped, as an operator would.
+
+use crate::data::{Artefact, Landmark, Measurement, Session, ARTEFACT_FORMAT, SESSION_FORMAT};
+use crate::model::{ArmModel, Convention, ParamId, JOINTS};
+use crate::solver::{self, Residuals, SolverOptions};
+use nalgebra::{Matrix4, Vector3};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+/// Settings of a simulated dataset.
+#[derive(Clone, Debug)]
+pub struct SimulationOptions {
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// Perturbation of free angle parameters: uniform magnitude in [½x, x], random sign, degrees.
+    pub perturb_deg: f64,
+    /// Perturbation of free length parameters: uniform magnitude in [½x, x], random sign, mm.
+    pub perturb_mm: f64,
+    /// Seating noise of the tip in the pillar cup, standard deviation per axis, mm.
+    pub seating_noise_mm: f64,
+    /// Noise of each averaged encoder reading, standard deviation, degrees.
+    pub encoder_noise_deg: f64,
+    /// Repeats of every landmark per placement.
+    pub repeats: u32,
+}
+
+impl Default for SimulationOptions {
+    fn default() -> Self {
+        SimulationOptions { seed: 1, perturb_deg: 2.0, perturb_mm: 2.0, seating_noise_mm: 0.1, encoder_noise_deg: 0.003, repeats: 3 }
+    }
+}
+
+/// A simulated dataset: the truth and what an operator would have recorded.
+#[derive(Clone, Debug)]
+pub struct SimulatedData {
+    /// The arm the touches were made with.
+    pub truth: ArmModel,
+    /// The artefact, as certified.
+    pub artefact: Artefact,
+    /// Calibration sessions.
+    pub calibration: Vec<Session>,
+    /// Validation sessions.
+    pub validation: Vec<Session>,
+    /// Touches skipped as unreachable.
+    pub skipped: usize,
+}
+
+/// An artefact placement in the arm's base frame.
+#[derive(Clone, Debug)]
+pub struct Placement {
+    /// Name, e.g. `A_O`.
+    pub name: String,
+    /// Artefact origin in the base frame, mm.
+    pub origin_mm: [f64; 3],
+    /// Rotation of the artefact about the base z axis, degrees.
+    pub yaw_deg: f64,
+}
+
+fn placement(name: &str, x: f64, y: f64, z: f64, yaw_deg: f64) -> Placement {
+    Placement { name: name.into(), origin_mm: [x, y, z], yaw_deg }
+}
+
+/// The thesis placements: A_O at (512.5, 12.5, 0) mm and four offsets for calibration.
+pub fn calibration_placements() -> Vec<Placement> {
+    vec![
+        placement("A_O", 512.5, 12.5, 0.0, 0.0),
+        placement("C_A", 612.5, 112.5, 0.0, 15.0),
+        placement("C_B", 612.5, -87.5, 0.0, -20.0),
+        placement("C_C", 412.5, 112.5, 0.0, 30.0),
+        placement("C_D", 412.5, -87.5, 0.0, -10.0),
+    ]
+}
+
+/// Four other ground placements and one elevated by 110 mm, for validation.
+pub fn validation_placements() -> Vec<Placement> {
+    vec![
+        placement("V_A", 662.5, 12.5, 0.0, 45.0),
+        placement("V_B", 362.5, 12.5, 0.0, -45.0),
+        placement("V_C", 512.5, 162.5, 0.0, 90.0),
+        placement("V_D", 512.5, -137.5, 0.0, 10.0),
+        placement("V_E", 512.5, 12.5, 110.0, 0.0),
+    ]
+}
+
+/// The 15-pillar artefact (O, M1–M6 at 40 mm, L1–L4 at 60 mm, S1–S4 at 20 mm), random yaws.
+pub fn suta_artefact(rng: &mut ChaCha8Rng) -> Artefact {
+    let mut landmarks = vec![("O".to_string(), [0.0, 0.0, 40.0])];
+    for k in 0..6 {
+        let a = (k as f64 * 60.0 + 30.0).to_radians();
+        landmarks.push((format!("M{}", k + 1), [50.0 * a.cos(), 50.0 * a.sin(), 40.0]));
+    }
+    for (k, (x, y)) in [(70.0, 70.0), (-70.0, 70.0), (-70.0, -70.0), (70.0, -70.0)].into_iter().enumerate() {
+        landmarks.push((format!("L{}", k + 1), [x, y, 60.0]));
+    }
+    for (k, (x, y)) in [(85.0, 0.0), (0.0, 85.0), (-85.0, 0.0), (0.0, -85.0)].into_iter().enumerate() {
+        landmarks.push((format!("S{}", k + 1), [x, y, 20.0]));
+    }
+    let landmarks = landmarks
+        .into_iter()
+        .map(|(id, xyz_mm)| Landmark { id, xyz_mm, yaw_deg: (rng.random::<f64>() * 360.0 - 180.0).round() })
+        .collect();
+    Artefact { format: ARTEFACT_FORMAT.into(), landmarks }
+}
+
+/// Plain homogeneous-matrix forward kinematics of `model` (the independent path).
+pub fn reference_tool_frame(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> (Matrix4<f64>, [Vector3<f64>; JOINTS]) {
+    let rz = |t: f64| Matrix4::new(t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.);
+    let rx = |t: f64| Matrix4::new(1., 0., 0., 0., 0., t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1.);
+    let ry = |t: f64| Matrix4::new(t.cos(), 0., t.sin(), 0., 0., 1., 0., 0., -t.sin(), 0., t.cos(), 0., 0., 0., 0., 1.);
+    let tr = |x: f64, y: f64, z: f64| Matrix4::new(1., 0., 0., x, 0., 1., 0., y, 0., 0., 1., z, 0., 0., 0., 1.);
+    let mut t = Matrix4::identity();
+    let mut origins = [Vector3::zeros(); JOINTS];
+    for (j, row) in model.joints.iter().enumerate() {
+        let theta = (enc_deg[j] + row.offset_deg).to_radians();
+        let (alpha, beta) = (row.alpha_deg.to_radians(), row.axis_deg.to_radians());
+        let link = match model.convention {
+            Convention::Classic => rz(theta) * tr(0., 0., row.d_mm) * tr(row.a_mm, 0., 0.) * rx(alpha) * ry(beta),
+            Convention::Modified => rx(alpha) * ry(beta) * tr(row.a_mm, 0., 0.) * rz(theta) * tr(0., 0., row.d_mm),
+        };
+        t *= link;
+        origins[j] = t.fixed_view::<3, 1>(0, 3).into_owned();
+    }
+    t *= tr(model.tcp_mm[0], model.tcp_mm[1], model.tcp_mm[2]);
+    let s = 1.0 + model.scale_ppm * 1e-6;
+    for k in 0..3 {
+        t[(k, 3)] *= s;
+    }
+    (t, origins.map(|o| o * s))
+}
+
+/// Inverse kinematics target: tip position and tool axes in the base frame.
+struct PoseTarget<'a> {
+    model: &'a ArmModel,
+    position_mm: Vector3<f64>,
+    z_axis: Vector3<f64>,
+    x_axis: Vector3<f64>,
+}
+
+/// mm per radian used to weigh orientation against position in the IK.
+const IK_LEVER_MM: f64 = 300.0;
+
+impl PoseTarget<'_> {
+    fn error(&self, enc: &[f64]) -> [f64; 9] {
+        let enc: [f64; JOINTS] = std::array::from_fn(|k| enc[k]);
+        let (t, _) = reference_tool_frame(self.model, &enc);
+        let p = t.fixed_view::<3, 1>(0, 3).into_owned() - self.position_mm;
+        let x = t.fixed_view::<3, 1>(0, 0).into_owned();
+        let z = t.fixed_view::<3, 1>(0, 2).into_owned();
+        let (dx, dz) = ((x - self.x_axis) * IK_LEVER_MM, (z - self.z_axis) * IK_LEVER_MM);
+        [p[0], p[1], p[2], dx[0], dx[1], dx[2], dz[0], dz[1], dz[2]]
+    }
+}
+
+impl Residuals for PoseTarget<'_> {
+    fn len(&self) -> usize {
+        9
+    }
+    fn evaluate(&self, x: &[f64], r: &mut [f64], jacobian: Option<&mut [f64]>) {
+        r.copy_from_slice(&self.error(x));
+        if let Some(j) = jacobian {
+            let h = 1e-6;
+            for c in 0..JOINTS {
+                let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
+                xp[c] += h;
+                xm[c] -= h;
+                let (ep, em) = (self.error(&xp), self.error(&xm));
+                for i in 0..9 {
+                    j[i * JOINTS + c] = (ep[i] - em[i]) / (2.0 * h);
+                }
+            }
+        }
+    }
+}
+
+/// Encoder angles that put the true arm's tool at the target, or `None` if unreachable.
+fn solve_touch(truth: &ArmModel, target: &PoseTarget, rng: &mut ChaCha8Rng) -> Option<[f64; JOINTS]> {
+    let options = SolverOptions { max_iterations: 100, ..SolverOptions::default() };
+    for _attempt in 0..25 {
+        let start: Vec<f64> = (0..JOINTS).map(|_| rng.random::<f64>() * 360.0).collect();
+        let s = solver::solve(target, &start, &[-1e4; JOINTS], &[1e4; JOINTS], &options);
+        let err: f64 = s.residuals.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if err > 1e-6 {
+            continue;
+        }
+        let enc: [f64; JOINTS] = std::array::from_fn(|k| s.x[k].rem_euclid(360.0));
+        let (_, origins) = reference_tool_frame(truth, &enc);
+        if origins.iter().all(|o| o[2] > 0.0) {
+            return Some(enc);
+        }
+    }
+    None
+}
+
+/// Perturb every free parameter of `nominal` (angles by `perturb_deg`, lengths by `perturb_mm`).
+pub fn perturbed_truth(nominal: &ArmModel, options: &SimulationOptions, rng: &mut ChaCha8Rng) -> ArmModel {
+    let mut truth = nominal.clone();
+    truth.name = format!("simulated truth (seed {})", options.seed);
+    for f in &nominal.free {
+        let size = match f.id.unit() {
+            "deg" => options.perturb_deg,
+            "mm" => options.perturb_mm,
+            _ => 0.0,
+        };
+        let magnitude = size * (0.5 + 0.5 * rng.random::<f64>());
+        let sign = if rng.random::<bool>() { 1.0 } else { -1.0 };
+        let value = (nominal.get(f.id) + sign * magnitude).clamp(f.lower, f.upper);
+        truth.set(f.id, value);
+    }
+    truth
+}
+
+/// Record every landmark of `artefact` at `place` with the true arm, `repeats` times.
+pub fn record_placement(truth: &ArmModel, artefact: &Artefact, place: &Placement, purpose: &str, options: &SimulationOptions, rng: &mut ChaCha8Rng) -> (Session, usize) {
+    let seat = Normal::new(0.0, options.seating_noise_mm.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
+    let enc_noise = Normal::new(0.0, options.encoder_noise_deg.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
+    let (sy, cy) = place.yaw_deg.to_radians().sin_cos();
+    let mut measurements = Vec::new();
+    let mut skipped = 0;
+    for repeat in 1..=options.repeats {
+        for l in &artefact.landmarks {
+            let [x, y, z] = l.xyz_mm;
+            let noise = Vector3::new(seat.sample(rng), seat.sample(rng), seat.sample(rng));
+            let position_mm = Vector3::new(place.origin_mm[0] + cy * x - sy * y, place.origin_mm[1] + sy * x + cy * y, place.origin_mm[2] + z) + noise;
+            let yaw = (place.yaw_deg + l.yaw_deg).to_radians();
+            let target = PoseTarget { model: truth, position_mm, z_axis: -Vector3::z(), x_axis: Vector3::new(yaw.cos(), yaw.sin(), 0.0) };
+            let Some(enc) = solve_touch(truth, &target, rng) else {
+                skipped += 1;
+                continue;
+            };
+            let joints_deg = enc.iter().map(|v| (v + enc_noise.sample(rng)).rem_euclid(360.0)).collect();
+            measurements.push(Measurement { landmark: l.id.clone(), repeat, joints_deg, std_deg: Some(vec![options.encoder_noise_deg * 39.2; JOINTS]), samples: Some(1536), rejected: Some(0) });
+        }
+    }
+    (Session { format: SESSION_FORMAT.into(), placement: place.name.clone(), purpose: purpose.into(), measurements }, skipped)
+}
+
+/// Simulate a full dataset from `nominal`: truth, artefact, calibration and validation sessions.
+pub fn simulate(nominal: &ArmModel, options: &SimulationOptions) -> SimulatedData {
+    simulate_with_truth(nominal, options, |truth| truth)
+}
+
+/// As [`simulate`], with `alter` applied to the perturbed truth before any touch is made.
+pub fn simulate_with_truth(nominal: &ArmModel, options: &SimulationOptions, alter: impl FnOnce(ArmModel) -> ArmModel) -> SimulatedData {
+    let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
+    let truth = alter(perturbed_truth(nominal, options, &mut rng));
+    let artefact = suta_artefact(&mut rng);
+    let mut skipped = 0;
+    let mut sessions = |places: Vec<Placement>, purpose: &str| -> Vec<Session> {
+        places
+            .iter()
+            .map(|p| {
+                let (s, k) = record_placement(&truth, &artefact, p, purpose, options, &mut rng);
+                skipped += k;
+                s
+            })
+            .collect()
+    };
+    let calibration = sessions(calibration_placements(), "calibration");
+    let validation = sessions(validation_placements(), "validation");
+    SimulatedData { truth, artefact, calibration, validation, skipped }
+}
+
+impl SimulatedData {
+    /// Write `artefact.json`, `truth.toml`, `cal/*.json` and `val/*.json` under `dir`.
+    pub fn write(&self, dir: &std::path::Path) -> Result<(), crate::data::DataError> {
+        let io = |path: &std::path::Path| {
+            let path = path.to_owned();
+            move |source| crate::data::DataError::Io { path, source }
+        };
+        for sub in ["cal", "val"] {
+            std::fs::create_dir_all(dir.join(sub)).map_err(io(&dir.join(sub)))?;
+        }
+        self.artefact.save(&dir.join("artefact.json"))?;
+        self.truth.save(&dir.join("truth.toml")).map_err(|e| crate::data::DataError::Syntax { path: dir.join("truth.toml"), message: e.to_string() })?;
+        for (sub, sessions) in [("cal", &self.calibration), ("val", &self.validation)] {
+            for s in sessions {
+                s.save(&dir.join(sub).join(format!("{}.json", s.placement)))?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Names of the parameters that [`perturbed_truth`] moves.
+pub fn perturbed_parameters(nominal: &ArmModel) -> Vec<ParamId> {
+    nominal.free.iter().map(|f| f.id).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::kinematics::tool_pose;
+
+    #[test]
+    fn independent_forward_path_agrees_with_the_model_kinematics() {
+        let mut model = ArmModel::suta_nominal();
+        model.joints[1].a_mm = 2.0;
+        model.joints[4].axis_deg = 0.3;
+        model.tcp_mm = [1.0, -3.0, 250.0];
+        model.scale_ppm = 200.0;
+        for convention in [Convention::Classic, Convention::Modified] {
+            model.convention = convention;
+            let enc = [12.0, 250.0, 77.0, 310.0, 5.0, 200.0];
+            let (t, _) = reference_tool_frame(&model, &enc);
+            let p = tool_pose(&model, &enc).position_mm;
+            assert!((t.fixed_view::<3, 1>(0, 3) - p).norm() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn touches_land_on_their_landmarks() {
+        let nominal = ArmModel::suta_nominal();
+        let options = SimulationOptions { seating_noise_mm: 0.0, encoder_noise_deg: 0.0, repeats: 1, ..SimulationOptions::default() };
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let truth = perturbed_truth(&nominal, &options, &mut rng);
+        let artefact = suta_artefact(&mut rng);
+        let place = &calibration_placements()[0];
+        let (session, skipped) = record_placement(&truth, &artefact, place, "calibration", &options, &mut rng);
+        assert!(skipped <= 2, "{skipped} of 15 touches unreachable");
+        for m in &session.measurements {
+            let l = &artefact.landmarks[artefact.index_of(&m.landmark).unwrap()];
+            let enc: [f64; 6] = std::array::from_fn(|k| m.joints_deg[k]);
+            let (t, _) = reference_tool_frame(&truth, &enc);
+            let expect = Vector3::new(place.origin_mm[0] + l.xyz_mm[0], place.origin_mm[1] + l.xyz_mm[1], l.xyz_mm[2]);
+            assert!((t.fixed_view::<3, 1>(0, 3) - expect).norm() < 1e-5, "{}", m.landmark);
+            assert!((t[(2, 2)] + 1.0).abs() < 1e-9, "tool axis must point down");
+        }
+    }
+}

@@ -113,32 +113,37 @@ fn jacobian_at(problem: &CalibrationProblem, x: &[f64]) -> (Vec<f64>, Vec<f64>) 
 /// Most times the base set is re-checked at a solution and the problem solved again.
 const MAX_IDENTIFIABILITY_PASSES: usize = 3;
 
-/// Solve from the nominal values, then from `restarts` random points inside the bounds.
-fn solve_from_starts(problem: &CalibrationProblem, x_nominal: &[f64], lower: &[f64], upper: &[f64], options: &CalibrationOptions) -> (solver::Solution, Vec<StartOutcome>) {
+/// Solve from the nominal values (start 0) or from random points inside the bounds (starts 1..),
+/// keeping the lowest cost. Random start k is the same point whichever starts are run.
+fn solve_from_starts(problem: &CalibrationProblem, x_nominal: &[f64], lower: &[f64], upper: &[f64], options: &CalibrationOptions, starts: std::ops::RangeInclusive<usize>) -> (solver::Solution, Vec<StartOutcome>) {
     let solver_options = SolverOptions { loss: Loss::Huber(options.huber_delta_mm), ..options.solver };
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
-    let mut starts = Vec::new();
+    let mut outcomes = Vec::new();
     let mut best: Option<solver::Solution> = None;
     let mut r0 = vec![0.0; problem.len()];
-    for start in 0..=options.restarts {
+    for start in 0..=*starts.end() {
         let x0: Vec<f64> = if start == 0 { x_nominal.to_vec() } else { lower.iter().zip(upper).map(|(l, u)| l + (u - l) * rng.random::<f64>()).collect() };
+        if !starts.contains(&start) {
+            continue;
+        }
         problem.evaluate(&x0, &mut r0, None);
         let s = solver::solve(problem, &x0, lower, upper, &solver_options);
-        starts.push(StartOutcome { start, initial_cost: solver_options.loss.cost(&r0), final_cost: s.cost, iterations: s.iterations, stop: s.stop });
+        outcomes.push(StartOutcome { start, initial_cost: solver_options.loss.cost(&r0), final_cost: s.cost, iterations: s.iterations, stop: s.stop });
         if best.as_ref().is_none_or(|b| s.cost < b.cost) {
             best = Some(s);
         }
     }
     let best = best.unwrap_or_else(|| solver::solve(problem, x_nominal, lower, upper, &solver_options));
-    (best, starts)
+    (best, outcomes)
 }
 
 /// Calibrate the free parameters of `nominal` on `data`.
 ///
-/// The identifiable base set is chosen at the nominal values; after solving it is checked again
-/// at the solution (a parameter can lose its lever once the model fits, e.g. the tool length
-/// when every touch holds the tool vertical) and the problem is solved again without the
-/// parameters that became unidentifiable, which stay at their nominal values.
+/// The identifiable base set is chosen at the nominal values; after solving from the nominal
+/// start it is checked again at the solution (a parameter can lose its lever once the model
+/// fits, e.g. the tool length when every touch holds the tool vertical) and the problem is
+/// solved again without the parameters that became unidentifiable, which stay at their nominal
+/// values. The random restarts then run once, on the final base set.
 pub fn calibrate(nominal: &ArmModel, artefact: &Artefact, data: &Dataset, options: &CalibrationOptions) -> Result<Calibration, CalibrationError> {
     let all: Vec<ParamId> = nominal.free.iter().map(|f| f.id).collect();
     if all.is_empty() {
@@ -163,10 +168,18 @@ pub fn calibrate(nominal: &ArmModel, artefact: &Artefact, data: &Dataset, option
         let ranges: Vec<f64> = estimated.iter().map(|&id| range_of(id)).collect();
         let problem = CalibrationProblem::new(nominal, estimated.clone(), artefact, data, options.objective);
         let x_nominal: Vec<f64> = estimated.iter().map(|&id| nominal.get(id)).collect();
-        let (best, starts) = solve_from_starts(&problem, &x_nominal, &lower, &upper, options);
-        let (_, jac) = jacobian_at(&problem, &best.x);
+        let (nominal_start, mut starts) = solve_from_starts(&problem, &x_nominal, &lower, &upper, options, 0..=0);
+        let (_, jac) = jacobian_at(&problem, &nominal_start.x);
         let (kept, dropped) = identify::base_columns(&jac, estimated.len(), &ranges);
         if dropped.is_empty() || pass >= MAX_IDENTIFIABILITY_PASSES {
+            let mut best = nominal_start;
+            if options.restarts > 0 {
+                let (restarted, more) = solve_from_starts(&problem, &x_nominal, &lower, &upper, options, 1..=options.restarts);
+                starts.extend(more);
+                if restarted.cost < best.cost {
+                    best = restarted;
+                }
+            }
             break (problem, best, starts);
         }
         estimated = kept.iter().map(|&c| estimated[c]).collect();

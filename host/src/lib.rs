@@ -4,12 +4,18 @@
 //! reports: [`model`] knows geometry, [`solver`] knows residual vectors and bounds,
 //! [`calibrate`] joins them, [`report`] reads results and never recomputes them.
 
+pub mod bench;
 pub mod calibrate;
 pub mod data;
 pub mod fsutil;
 pub mod identify;
 pub mod model;
 pub mod objective;
+pub mod outliers;
+pub mod report;
+pub mod run;
 pub mod simulate;
 pub mod solver;
+pub mod study;
+pub mod svg;
 pub mod validate;

@@ -1,12 +1,277 @@
-use rand::SeedableRng;
-use rand_distr::Distribution;
-fn main(){
-    let mut r = rand_chacha::ChaCha8Rng::seed_from_u64(1);
-    let n = rand_distr::Normal::new(0.0f64, 1.0).unwrap();
-    let u = rand_distr::Uniform::new(0.0f64, 1.0).unwrap();
-    println!("{} {}", n.sample(&mut r), u.sample(&mut r));
-    use rand::RngExt;
-    let x: f64 = r.random();
-    let k = r.random_range(0..10usize);
-    println!("{x} {k}");
+//! `kincal`: the command-line edge. Parses arguments, calls the library, prints.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use kincal::calibrate::CalibrationOptions;
+use kincal::data::{Artefact, Dataset};
+use kincal::model::ArmModel;
+use kincal::objective::Objective;
+use kincal::run::{run, RunInputs};
+use kincal::simulate::{simulate, SimulationOptions};
+use kincal::study::{study, study_report, StudyOptions};
+use std::path::{Path, PathBuf};
+
+#[derive(Parser)]
+#[command(name = "kincal", version, about = "Calibrate tracker arms from artefact touches")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Write an artefact and calibration/validation sessions from a simulated "true" arm.
+    Simulate(SimulateArgs),
+    /// Calibrate the arm model from artefact touches and validate it on held-out sessions.
+    Calibrate(CalibrateArgs),
+    /// Dataset-size study: calibrate on random subsets of placements, validate each.
+    Study(StudyArgs),
+    /// Simulate, calibrate and report on the shipped example (no hardware needed).
+    Demo(DemoArgs),
+    /// Benchmarks: calibration time, study throughput, and SciPy on the same problem.
+    Bench(kincal::bench::BenchArgs),
+}
+
+#[derive(Args)]
+struct SimulateArgs {
+    /// Nominal arm model; the truth is this model with its free parameters perturbed.
+    #[arg(long, default_value = "examples/suta/model.toml")]
+    model: PathBuf,
+    /// Output folder: artefact.json, truth.toml, cal/, val/.
+    #[arg(long)]
+    out: PathBuf,
+    /// Seed of every random choice.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Size of the angle perturbations, degrees.
+    #[arg(long, default_value_t = 2.0)]
+    perturb_deg: f64,
+    /// Size of the length perturbations, mm.
+    #[arg(long, default_value_t = 2.0)]
+    perturb_mm: f64,
+    /// Seating noise per axis, mm (standard deviation).
+    #[arg(long, default_value_t = 0.1)]
+    seating_noise_mm: f64,
+    /// Noise of each averaged encoder angle, degrees (standard deviation).
+    #[arg(long, default_value_t = 0.003)]
+    encoder_noise_deg: f64,
+    /// Repeats of each landmark per placement.
+    #[arg(long, default_value_t = 3)]
+    repeats: u32,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ObjectiveArg {
+    /// Pairwise distances (thesis eq. 3.1).
+    Distance,
+    /// Distances plus relative orientation from the asymmetric pillars.
+    SixDof,
+}
+
+#[derive(Args)]
+struct SolveArgs {
+    /// Seed of the random restarts.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Random restarts inside the bounds (besides the nominal start).
+    #[arg(long, default_value_t = 8)]
+    restarts: usize,
+    /// Huber threshold δ, mm.
+    #[arg(long, default_value_t = 1.35)]
+    huber_delta_mm: f64,
+    /// Residual blocks to minimise.
+    #[arg(long, value_enum, default_value_t = ObjectiveArg::Distance)]
+    objective: ObjectiveArg,
+    /// Millimetres per radian of orientation error (six-dof objective).
+    #[arg(long, default_value_t = 100.0)]
+    lever_mm: f64,
+}
+
+impl SolveArgs {
+    fn options(&self) -> CalibrationOptions {
+        let objective = match self.objective {
+            ObjectiveArg::Distance => Objective::Distance,
+            ObjectiveArg::SixDof => Objective::SixDof { lever_mm: self.lever_mm },
+        };
+        CalibrationOptions { huber_delta_mm: self.huber_delta_mm, restarts: self.restarts, seed: self.seed, objective, ..CalibrationOptions::default() }
+    }
+}
+
+#[derive(Args)]
+struct InputArgs {
+    /// Arm model file (kincal-arm/1, .toml or .json).
+    #[arg(long)]
+    model: PathBuf,
+    /// Artefact file (suta-artefact/1).
+    #[arg(long)]
+    artefact: PathBuf,
+    /// Folder of calibration sessions (suta-session/1).
+    #[arg(long)]
+    data: PathBuf,
+    /// Folder of validation sessions.
+    #[arg(long)]
+    validate: PathBuf,
+}
+
+#[derive(Args)]
+struct CalibrateArgs {
+    #[command(flatten)]
+    inputs: InputArgs,
+    /// Output folder RUN: model.toml, summary.json, report.html.
+    #[arg(long)]
+    out: PathBuf,
+    #[command(flatten)]
+    solve: SolveArgs,
+    /// Print summary.json to stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+struct StudyArgs {
+    #[command(flatten)]
+    inputs: InputArgs,
+    /// Output folder: study.json and report.html.
+    #[arg(long)]
+    out: PathBuf,
+    /// Random subsets per number of placements.
+    #[arg(long, default_value_t = 100)]
+    subsets: usize,
+    /// Seed of the subset draws and restarts.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Random restarts per calibration (besides the nominal start).
+    #[arg(long, default_value_t = 0)]
+    restarts: usize,
+    /// Print study.json to stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+struct DemoArgs {
+    /// Nominal arm model.
+    #[arg(long, default_value = "examples/suta/model.toml")]
+    model: PathBuf,
+    /// Folder for the simulated data and the run.
+    #[arg(long, default_value = "runs/demo")]
+    out: PathBuf,
+    /// Seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Simulate(a) => cmd_simulate(&a),
+        Command::Calibrate(a) => cmd_calibrate(&a),
+        Command::Study(a) => cmd_study(&a),
+        Command::Demo(a) => cmd_demo(&a),
+        Command::Bench(a) => kincal::bench::run_benchmarks(&a).map_err(anyhow::Error::from),
+    };
+    if let Err(e) = result {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn simulate_to(model: &Path, out: &Path, options: &SimulationOptions) -> Result<()> {
+    let nominal = ArmModel::load(model)?;
+    let sim = simulate(&nominal, options);
+    sim.write(out)?;
+    let count = |s: &[kincal::data::Session]| s.iter().map(|s| s.measurements.len()).sum::<usize>();
+    println!(
+        "simulated {} calibration and {} validation touches ({} unreachable, skipped) into {}",
+        count(&sim.calibration),
+        count(&sim.validation),
+        sim.skipped,
+        out.display()
+    );
+    Ok(())
+}
+
+fn cmd_simulate(a: &SimulateArgs) -> Result<()> {
+    let options = SimulationOptions { seed: a.seed, perturb_deg: a.perturb_deg, perturb_mm: a.perturb_mm, seating_noise_mm: a.seating_noise_mm, encoder_noise_deg: a.encoder_noise_deg, repeats: a.repeats };
+    simulate_to(&a.model, &a.out, &options)
+}
+
+fn inputs(a: &InputArgs) -> RunInputs {
+    RunInputs { model: a.model.clone(), artefact: a.artefact.clone(), calibration: a.data.clone(), validation: a.validate.clone() }
+}
+
+fn calibrate_and_report(inputs: &RunInputs, out: &Path, options: &CalibrationOptions, json: bool) -> Result<()> {
+    let started = std::time::Instant::now();
+    let result = run(inputs, options)?;
+    result.write(out)?;
+    let s = &result.summary;
+    if json {
+        println!("{}", serde_json::to_string_pretty(s)?);
+        return Ok(());
+    }
+    println!("calibrated {} touches ({} pairs) in {:.2} s", s.calibration.touches, s.calibration.pairs, started.elapsed().as_secs_f64());
+    println!("  calibration RMS            {:8.3} mm", s.calibration.rms_mm);
+    println!("  validation RMS  nominal    {:8.3} mm   (mean {:+.3}, max {:.3}, {} pairs)", s.nominal_validation.rms_mm, s.nominal_validation.mean_mm, s.nominal_validation.max_mm, s.nominal_validation.pairs);
+    println!("  validation RMS  calibrated {:8.3} mm   (mean {:+.3}, max {:.3}, {} pairs)", s.validation.rms_mm, s.validation.mean_mm, s.validation.max_mm, s.validation.pairs);
+    if !s.calibration.fixed_unidentifiable.is_empty() {
+        println!("  fixed at nominal, not identifiable from this data: {}", s.calibration.fixed_unidentifiable.join(", "));
+    }
+    for c in &s.identifiability.after.poorly_identified {
+        println!("  poorly identified: {}", c.text);
+    }
+    for o in s.outliers.iter().filter(|o| o.flagged) {
+        println!("  landmark {} flagged as outlier ({})", o.landmark, o.exceeded.join(", "));
+    }
+    println!("  report: {}", out.join("report.html").display());
+    Ok(())
+}
+
+fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
+    calibrate_and_report(&inputs(&a.inputs), &a.out, &a.solve.options(), a.json)
+}
+
+fn cmd_study(a: &StudyArgs) -> Result<()> {
+    let nominal = ArmModel::load(&a.inputs.model)?;
+    let artefact = Artefact::load(&a.inputs.artefact)?;
+    let cal = Dataset::load_dir(&a.inputs.data, &artefact)?;
+    let val = Dataset::load_dir(&a.inputs.validate, &artefact)?;
+    if a.subsets == 0 {
+        bail!("--subsets must be at least 1");
+    }
+    let calibration = CalibrationOptions { restarts: a.restarts, seed: a.seed, ..CalibrationOptions::default() };
+    let options = StudyOptions { subsets: a.subsets, seed: a.seed, calibration, progress: !a.json };
+    let started = std::time::Instant::now();
+    let rows = study(&nominal, &artefact, &cal, &val, &options);
+    let elapsed = started.elapsed().as_secs_f64();
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let json = serde_json::to_string_pretty(&rows)?;
+    kincal::fsutil::write_atomic(&a.out.join("study.json"), json.as_bytes()).with_context(|| format!("writing {}", a.out.join("study.json").display()))?;
+    kincal::fsutil::write_atomic(&a.out.join("report.html"), study_report(&rows).as_bytes()).with_context(|| format!("writing {}", a.out.join("report.html").display()))?;
+    if a.json {
+        println!("{json}");
+        return Ok(());
+    }
+    let total: usize = rows.iter().map(|r| r.calibrations + r.failed).sum();
+    println!("{total} calibrations in {elapsed:.2} s on {} threads", rayon::current_num_threads());
+    println!("placements  calibrations  mean mm   std mm    min mm    max mm");
+    for r in &rows {
+        println!("{:>10}  {:>12}  {:7.3}  {:7.3}  {:7.3}  {:7.3}", r.placements, r.calibrations, r.mean_mm, r.std_mm, r.min_mm, r.max_mm);
+    }
+    println!("report: {}", a.out.join("report.html").display());
+    Ok(())
+}
+
+fn cmd_demo(a: &DemoArgs) -> Result<()> {
+    let data = a.out.join("data");
+    println!("1/2 simulate: a true arm off the nominal model by degrees and millimetres");
+    simulate_to(&a.model, &data, &SimulationOptions { seed: a.seed, ..SimulationOptions::default() })?;
+    println!("2/2 calibrate on {} and validate on {}", data.join("cal").display(), data.join("val").display());
+    let inputs = RunInputs { model: a.model.clone(), artefact: data.join("artefact.json"), calibration: data.join("cal"), validation: data.join("val") };
+    calibrate_and_report(&inputs, &a.out.join("run"), &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() }, false)?;
+    let truth = ArmModel::load(&data.join("truth.toml"))?;
+    let artefact = Artefact::load(&inputs.artefact)?;
+    let val = Dataset::load_dir(&inputs.validation, &artefact)?;
+    let floor = kincal::validate::validate(&truth, &artefact, &val).overall;
+    println!("  noise floor (true arm on the same validation data) {:.3} mm", floor.rms_mm);
+    Ok(())
 }

@@ -72,25 +72,26 @@ fn placement(name: &str, x: f64, y: f64, z: f64, yaw_deg: f64) -> Placement {
 pub fn calibration_placements() -> Vec<Placement> {
     vec![
         placement("A_O", 512.5, 12.5, 0.0, 0.0),
-        placement("C_A", 612.5, 112.5, 0.0, 15.0),
-        placement("C_B", 612.5, -87.5, 0.0, -20.0),
-        placement("C_C", 412.5, 112.5, 0.0, 30.0),
-        placement("C_D", 412.5, -87.5, 0.0, -10.0),
+        placement("C_A", 612.5, 112.5, 0.0, 10.0),
+        placement("C_B", 612.5, -87.5, 0.0, -10.0),
+        placement("C_C", 412.5, 112.5, 0.0, 5.0),
+        placement("C_D", 412.5, -87.5, 0.0, -5.0),
     ]
 }
 
 /// Four other ground placements and one elevated by 110 mm, for validation.
 pub fn validation_placements() -> Vec<Placement> {
     vec![
-        placement("V_A", 662.5, 12.5, 0.0, 45.0),
-        placement("V_B", 362.5, 12.5, 0.0, -45.0),
-        placement("V_C", 512.5, 162.5, 0.0, 90.0),
-        placement("V_D", 512.5, -137.5, 0.0, 10.0),
+        placement("V_A", 662.5, 12.5, 0.0, 5.0),
+        placement("V_B", 362.5, 12.5, 0.0, -5.0),
+        placement("V_C", 512.5, 162.5, 0.0, 10.0),
+        placement("V_D", 512.5, -137.5, 0.0, -10.0),
         placement("V_E", 512.5, 12.5, 110.0, 0.0),
     ]
 }
 
-/// The 15-pillar artefact (O, M1–M6 at 40 mm, L1–L4 at 60 mm, S1–S4 at 20 mm), random yaws.
+/// The 15-pillar artefact (O, M1–M6 at 40 mm, L1–L4 at 60 mm, S1–S4 at 20 mm) with random
+/// plug yaws within ±45°, the range in which the stylus can seat from this arm.
 pub fn suta_artefact(rng: &mut ChaCha8Rng) -> Artefact {
     let mut landmarks = vec![("O".to_string(), [0.0, 0.0, 40.0])];
     for k in 0..6 {
@@ -105,7 +106,7 @@ pub fn suta_artefact(rng: &mut ChaCha8Rng) -> Artefact {
     }
     let landmarks = landmarks
         .into_iter()
-        .map(|(id, xyz_mm)| Landmark { id, xyz_mm, yaw_deg: (rng.random::<f64>() * 360.0 - 180.0).round() })
+        .map(|(id, xyz_mm)| Landmark { id, xyz_mm, yaw_deg: (rng.random::<f64>() * 90.0 - 45.0).round() })
         .collect();
     Artefact { format: ARTEFACT_FORMAT.into(), landmarks }
 }

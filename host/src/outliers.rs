@@ -1,0 +1,150 @@
+//! Per-landmark outlier diagnostics (thesis appendix F), each metric with the thesis threshold:
+//!
+//! * error contribution: Σ_{pairs ∋ i} e² / (2 Σ_pairs e²) · 100 %, flagged above 1.5 × 100/L %;
+//! * Cook's distance D_i = Δβᵀ JᵀJ Δβ / (p · MSE), Δβ the change of the estimates when landmark
+//!   i is left out, flagged above 4/L;
+//! * leave-one-landmark-out impact (RMS_full − RMS_without_i)/RMS_full · 100 % on the validation
+//!   data (calibration data if none), flagged above 5 %;
+//! * systematic bias: RMS of the landmark's residual after a rigid fit of the artefact to the
+//!   measured positions of each placement, flagged above 1.0 mm.
+//!
+//! A landmark is flagged when at least two metrics exceed their thresholds.
+
+use crate::calibrate::{calibrate, Calibration, CalibrationOptions};
+use crate::data::{Artefact, Dataset};
+use crate::model::ArmModel;
+use crate::objective::{CalibrationProblem, Objective};
+use crate::solver::Residuals;
+use crate::validate::{distance_errors, positions, ErrorStats};
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+
+/// Leave-one-out impact (percent) above which a landmark is suspicious.
+pub const LOO_IMPACT_PCT: f64 = 5.0;
+/// Systematic bias (mm) above which a landmark is suspicious.
+pub const BIAS_MM: f64 = 1.0;
+
+/// The four metrics of one landmark.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct LandmarkOutlier {
+    /// Landmark id.
+    pub landmark: String,
+    /// Share of the squared calibration error, percent.
+    pub contribution_pct: f64,
+    /// Cook's distance of leaving the landmark out.
+    pub cooks_distance: f64,
+    /// Validation RMS improvement when the landmark is left out, percent.
+    pub loo_impact_pct: f64,
+    /// Residual after a rigid fit of the artefact per placement, RMS, mm.
+    pub bias_mm: f64,
+    /// Metrics beyond their thresholds.
+    pub exceeded: Vec<&'static str>,
+    /// At least two metrics exceeded.
+    pub flagged: bool,
+}
+
+/// Rigid transform (R, t) minimising Σ‖R·q + t − p‖² (Kabsch).
+pub fn rigid_fit(q: &[Vector3<f64>], p: &[Vector3<f64>]) -> (Matrix3<f64>, Vector3<f64>) {
+    let n = q.len().max(1) as f64;
+    let (cq, cp) = (q.iter().sum::<Vector3<f64>>() / n, p.iter().sum::<Vector3<f64>>() / n);
+    let h: Matrix3<f64> = q.iter().zip(p).map(|(a, b)| (a - cq) * (b - cp).transpose()).sum();
+    let svd = h.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else { return (Matrix3::identity(), cp - cq) };
+    let mut d = Matrix3::identity();
+    if (v_t.transpose() * u.transpose()).determinant() < 0.0 {
+        d[(2, 2)] = -1.0;
+    }
+    let r = v_t.transpose() * d * u.transpose();
+    (r, cp - r * cq)
+}
+
+/// Per-landmark RMS residual after a rigid fit of the artefact in every placement, mm.
+pub fn landmark_bias(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<f64> {
+    let p = positions(model, data);
+    let mut sum = vec![0.0; artefact.landmarks.len()];
+    let mut count = vec![0usize; artefact.landmarks.len()];
+    for placement in 0..data.placements.len() {
+        let idx: Vec<usize> = (0..data.touches.len()).filter(|&k| data.touches[k].placement == placement).collect();
+        if idx.len() < 3 {
+            continue;
+        }
+        let q: Vec<Vector3<f64>> = idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
+        let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
+        let (r, t) = rigid_fit(&q, &pm);
+        for (i, &k) in idx.iter().enumerate() {
+            let l = data.touches[k].landmark;
+            sum[l] += (r * q[i] + t - pm[i]).norm_squared();
+            count[l] += 1;
+        }
+    }
+    sum.iter().zip(&count).map(|(s, &c)| if c > 0 { (s / c as f64).sqrt() } else { 0.0 }).collect()
+}
+
+/// Run the four metrics for every landmark touched in `cal`.
+pub fn landmark_outliers(fit: &Calibration, artefact: &Artefact, cal: &Dataset, val: Option<&Dataset>, options: &CalibrationOptions) -> Vec<LandmarkOutlier> {
+    let errors = distance_errors(&fit.model, artefact, cal);
+    let total: f64 = errors.iter().map(|e| e.error_mm.powi(2)).sum::<f64>().max(1e-300);
+    let touched: Vec<usize> = (0..artefact.landmarks.len()).filter(|&l| cal.touches.iter().any(|t| t.landmark == l)).collect();
+    let count = touched.len().max(1) as f64;
+    let rms_on = |model: &ArmModel| {
+        let data = val.unwrap_or(cal);
+        ErrorStats::of(&distance_errors(model, artefact, data).iter().map(|e| e.error_mm).collect::<Vec<_>>()).rms_mm
+    };
+    let full_rms = rms_on(&fit.model).max(1e-300);
+    // Cook's distance needs JᵀJ and the MSE of the full fit over the estimated parameters.
+    let problem = CalibrationProblem::new(&fit.model, fit.estimated.clone(), artefact, cal, Objective::Distance);
+    let x_hat: Vec<f64> = fit.estimated.iter().map(|&id| fit.model.get(id)).collect();
+    let (m, p) = (problem.distance_rows(), x_hat.len());
+    let mut r = vec![0.0; problem.len()];
+    let mut jac = vec![0.0; problem.len() * p];
+    problem.evaluate(&x_hat, &mut r, Some(&mut jac));
+    let mse = r[..m].iter().map(|v| v * v).sum::<f64>() / (m as f64 - p as f64).max(1.0);
+    let (jtj, _) = crate::solver::normal_equations(&jac[..m * p], &r[..m], &vec![1.0; m], p);
+    let bias = landmark_bias(&fit.model, artefact, cal);
+    // Refits without one landmark start from the full fit, without random restarts.
+    let warm = fit.model.clone();
+    let refit_options = CalibrationOptions { restarts: 0, ..*options };
+    touched
+        .par_iter()
+        .map(|&l| {
+            let contribution_pct = 100.0 * errors.iter().filter(|e| e.landmarks.0 == l || e.landmarks.1 == l).map(|e| e.error_mm.powi(2)).sum::<f64>() / (2.0 * total);
+            let (cooks_distance, loo_impact_pct) = match calibrate(&warm, artefact, &cal.without_landmark(l), &refit_options) {
+                Ok(refit) => {
+                    let delta = nalgebra::DVector::from_iterator(p, fit.estimated.iter().map(|&id| refit.model.get(id) - fit.model.get(id)));
+                    let cook = delta.dot(&(&jtj * &delta)) / (p as f64 * mse.max(1e-300));
+                    (cook, 100.0 * (full_rms - rms_on(&refit.model)) / full_rms)
+                }
+                Err(_) => (f64::NAN, f64::NAN),
+            };
+            let mut exceeded = Vec::new();
+            if contribution_pct > 1.5 * 100.0 / count {
+                exceeded.push("contribution");
+            }
+            if cooks_distance > 4.0 / count {
+                exceeded.push("cooks_distance");
+            }
+            if loo_impact_pct > LOO_IMPACT_PCT {
+                exceeded.push("leave_one_out");
+            }
+            if bias[l] > BIAS_MM {
+                exceeded.push("bias");
+            }
+            LandmarkOutlier { landmark: artefact.landmarks[l].id.clone(), contribution_pct, cooks_distance, loo_impact_pct, bias_mm: bias[l], flagged: exceeded.len() >= 2, exceeded }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rigid_fit_recovers_a_rotation_and_shift() {
+        let q: Vec<Vector3<f64>> = vec![Vector3::new(0., 0., 0.), Vector3::new(10., 0., 0.), Vector3::new(0., 20., 0.), Vector3::new(0., 0., 5.)];
+        let r = nalgebra::Rotation3::from_euler_angles(0.1, -0.2, 0.3).into_inner();
+        let t = Vector3::new(500.0, 10.0, -3.0);
+        let p: Vec<Vector3<f64>> = q.iter().map(|v| r * v + t).collect();
+        let (rf, tf) = rigid_fit(&q, &p);
+        assert!((rf - r).norm() < 1e-9 && (tf - t).norm() < 1e-9);
+    }
+}

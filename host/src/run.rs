@@ -1,0 +1,257 @@
+//! `kincal calibrate`: the whole job from input files to a RUN folder.
+//!
+//! RUN/ holds `model.toml` (the calibrated model, loadable again), `summary.json` and
+//! `report.html`. The folder is written under a temporary name and renamed when complete, so a
+//! half-written RUN is never presented as done.
+
+use crate::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome};
+use crate::data::{Artefact, DataError, Dataset};
+use crate::identify::{self, Identifiability};
+use crate::model::{ArmModel, ModelError};
+use crate::objective::{CalibrationProblem, Objective};
+use crate::outliers::{landmark_outliers, LandmarkOutlier};
+use crate::solver::Residuals;
+use crate::validate::{validate, ErrorStats, GroupStats, Repeatability, Validation};
+use std::path::{Path, PathBuf};
+
+/// Why a run failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// An input file was unusable.
+    #[error(transparent)]
+    Data(#[from] DataError),
+    /// The model file was unusable.
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    /// The calibration could not run.
+    #[error("calibration: {0}")]
+    Calibration(#[from] CalibrationError),
+    /// The RUN folder could not be written.
+    #[error("{path}: {source}")]
+    Output {
+        /// The file or folder.
+        path: PathBuf,
+        /// The operating-system error.
+        source: std::io::Error,
+    },
+}
+
+/// Input files of a run.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct RunInputs {
+    /// Arm model file.
+    pub model: PathBuf,
+    /// Artefact file.
+    pub artefact: PathBuf,
+    /// Folder of calibration sessions.
+    pub calibration: PathBuf,
+    /// Folder of validation sessions.
+    pub validation: PathBuf,
+}
+
+/// What one objective can determine at the calibrated model.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ObjectiveComparison {
+    /// Free parameters identifiable from distances alone.
+    pub identifiable_by_distance: Vec<String>,
+    /// Free parameters identifiable with distances plus relative orientation.
+    pub identifiable_by_six_dof: Vec<String>,
+    /// Identifiable with orientation but not with distances.
+    pub gained_by_orientation: Vec<String>,
+    /// Standard deviations of each estimated parameter under both objectives (same residual
+    /// variance), `[param, distance, six_dof]`.
+    pub std: Vec<(String, Option<f64>, Option<f64>)>,
+}
+
+/// Everything `summary.json` holds.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Summary {
+    /// Tool version.
+    pub kincal_version: &'static str,
+    /// Input files.
+    pub inputs: RunInputs,
+    /// Options used.
+    pub options: SummaryOptions,
+    /// Calibration figures.
+    pub calibration: CalibrationSummary,
+    /// Identifiability before and after solving.
+    pub identifiability: IdentifiabilitySummary,
+    /// Calibrated model on the validation sessions.
+    pub validation: ErrorStats,
+    /// Nominal model on the validation sessions.
+    pub nominal_validation: ErrorStats,
+    /// Per landmark and per placement, nominal vs calibrated.
+    pub validation_detail: ValidationDetail,
+    /// Appendix-F outlier metrics per landmark (calibration data).
+    pub outliers: Vec<LandmarkOutlier>,
+    /// What relative orientation adds to distances.
+    pub objective_comparison: ObjectiveComparison,
+}
+
+/// Options recorded in the summary.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SummaryOptions {
+    /// Huber threshold, mm.
+    pub huber_delta_mm: f64,
+    /// Random restarts.
+    pub restarts: usize,
+    /// Seed.
+    pub seed: u64,
+    /// Objective minimised.
+    pub objective: Objective,
+}
+
+/// Calibration figures in the summary.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct CalibrationSummary {
+    /// RMS distance residual on the calibration data, mm.
+    pub rms_mm: f64,
+    /// Robust cost Σρ at the solution.
+    pub cost: f64,
+    /// Distance pairs used.
+    pub pairs: usize,
+    /// Touches used.
+    pub touches: usize,
+    /// Each parameter: nominal, calibrated, std, status.
+    pub estimates: Vec<Estimate>,
+    /// Parameters fixed at nominal because the data cannot determine them.
+    pub fixed_unidentifiable: Vec<String>,
+    /// Strongly correlated estimated pairs.
+    pub correlations: Vec<(String, String, f64)>,
+    /// Every solver start.
+    pub starts: Vec<StartOutcome>,
+}
+
+/// Identifiability in the summary.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct IdentifiabilitySummary {
+    /// At the nominal values.
+    pub before: Identifiability,
+    /// At the solution.
+    pub after: Identifiability,
+}
+
+/// Validation detail in the summary.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ValidationDetail {
+    /// Calibrated model, per landmark.
+    pub per_landmark: Vec<GroupStats>,
+    /// Nominal model, per landmark.
+    pub nominal_per_landmark: Vec<GroupStats>,
+    /// Calibrated model, per placement.
+    pub per_placement: Vec<GroupStats>,
+    /// Nominal model, per placement.
+    pub nominal_per_placement: Vec<GroupStats>,
+    /// Repeatability per landmark (calibrated model, validation data).
+    pub repeatability: Vec<Repeatability>,
+}
+
+/// A finished run: results plus what the report draws.
+pub struct Run {
+    /// The summary written to `summary.json`.
+    pub summary: Summary,
+    /// The calibration itself.
+    pub calibration: Calibration,
+    /// Calibrated model on the validation data.
+    pub validation: Validation,
+    /// Nominal model on the validation data.
+    pub nominal_validation: Validation,
+    /// The data, for plots.
+    pub artefact: Artefact,
+    /// Validation touches, for plots.
+    pub validation_data: Dataset,
+}
+
+fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -> ObjectiveComparison {
+    let all: Vec<_> = fit.model.free.iter().map(|f| f.id).collect();
+    let ranges: Vec<f64> = fit.model.free.iter().map(|f| (f.upper - f.lower).max(1e-9)).collect();
+    let x = fit.model.free_values();
+    let jacobian = |objective| {
+        let problem = CalibrationProblem::new(&fit.model, all.clone(), artefact, cal, objective);
+        let mut r = vec![0.0; problem.len()];
+        let mut jac = vec![0.0; problem.len() * all.len()];
+        problem.evaluate(&x, &mut r, Some(&mut jac));
+        jac
+    };
+    let (distance, six_dof) = (jacobian(Objective::Distance), jacobian(Objective::SixDof { lever_mm: 100.0 }));
+    let names = |jac: &[f64]| -> Vec<String> { identify::base_columns(jac, all.len(), &ranges).0.into_iter().map(|c| all[c].to_string()).collect() };
+    let (by_distance, by_six_dof) = (names(&distance), names(&six_dof));
+    let gained = by_six_dof.iter().filter(|p| !by_distance.contains(p)).cloned().collect();
+    let variance = fit.rms_mm.powi(2);
+    let stds = |jac: &[f64]| -> Vec<Option<f64>> {
+        let n = all.len();
+        let cols: Vec<usize> = fit.estimated.iter().filter_map(|id| all.iter().position(|a| a == id)).collect();
+        let rows = jac.len() / n;
+        let sub: Vec<f64> = (0..rows).flat_map(|i| cols.iter().map(move |&c| jac[i * n + c])).collect();
+        match identify::covariance(&sub, &vec![1.0; rows], cols.len(), variance) {
+            Some(c) => (0..cols.len()).map(|k| Some(c[(k, k)].max(0.0).sqrt())).collect(),
+            None => vec![None; cols.len()],
+        }
+    };
+    let (sd, s6) = (stds(&distance), stds(&six_dof));
+    let std = fit.estimated.iter().enumerate().map(|(k, id)| (id.to_string(), sd[k], s6[k])).collect();
+    ObjectiveComparison { identifiable_by_distance: by_distance, identifiable_by_six_dof: by_six_dof, gained_by_orientation: gained, std }
+}
+
+/// Load the inputs, calibrate, validate and diagnose.
+pub fn run(inputs: &RunInputs, options: &CalibrationOptions) -> Result<Run, RunError> {
+    let nominal = ArmModel::load(&inputs.model)?;
+    let artefact = Artefact::load(&inputs.artefact)?;
+    let cal = Dataset::load_dir(&inputs.calibration, &artefact)?;
+    let val = Dataset::load_dir(&inputs.validation, &artefact)?;
+    let fit = calibrate(&nominal, &artefact, &cal, options)?;
+    let validation = validate(&fit.model, &artefact, &val);
+    let nominal_validation = validate(&nominal, &artefact, &val);
+    let outliers = landmark_outliers(&fit, &artefact, &cal, Some(&val), options);
+    let summary = Summary {
+        kincal_version: env!("CARGO_PKG_VERSION"),
+        inputs: inputs.clone(),
+        options: SummaryOptions { huber_delta_mm: options.huber_delta_mm, restarts: options.restarts, seed: options.seed, objective: options.objective },
+        calibration: CalibrationSummary {
+            rms_mm: fit.rms_mm,
+            cost: fit.cost,
+            pairs: cal.touch_pairs().len(),
+            touches: cal.touches.len(),
+            estimates: fit.estimates.clone(),
+            fixed_unidentifiable: fit.fixed.iter().map(|p| p.to_string()).collect(),
+            correlations: fit.correlations.clone(),
+            starts: fit.starts.clone(),
+        },
+        identifiability: IdentifiabilitySummary { before: fit.before.clone(), after: fit.after.clone() },
+        validation: validation.overall,
+        nominal_validation: nominal_validation.overall,
+        validation_detail: ValidationDetail {
+            per_landmark: validation.per_landmark.clone(),
+            nominal_per_landmark: nominal_validation.per_landmark.clone(),
+            per_placement: validation.per_placement.clone(),
+            nominal_per_placement: nominal_validation.per_placement.clone(),
+            repeatability: validation.repeatability.clone(),
+        },
+        outliers,
+        objective_comparison: objective_comparison(&fit, &artefact, &cal),
+    };
+    Ok(Run { summary, calibration: fit, validation, nominal_validation, artefact, validation_data: val })
+}
+
+impl Run {
+    /// Write RUN/ (model.toml, summary.json, report.html) atomically as one folder.
+    pub fn write(&self, dir: &Path) -> Result<(), RunError> {
+        let out = |path: &Path| {
+            let path = path.to_owned();
+            move |source| RunError::Output { path, source }
+        };
+        let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        std::fs::create_dir_all(parent).map_err(out(parent))?;
+        let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "run".into());
+        let staged = parent.join(format!(".{name}.partial-{}", std::process::id()));
+        if staged.exists() {
+            std::fs::remove_dir_all(&staged).map_err(out(&staged))?;
+        }
+        std::fs::create_dir_all(&staged).map_err(out(&staged))?;
+        self.calibration.model.save(&staged.join("model.toml"))?;
+        let json = serde_json::to_string_pretty(&self.summary).unwrap_or_default();
+        std::fs::write(staged.join("summary.json"), json).map_err(out(&staged.join("summary.json")))?;
+        std::fs::write(staged.join("report.html"), crate::report::calibration_report(self)).map_err(out(&staged.join("report.html")))?;
+        crate::fsutil::replace_dir(&staged, dir).map_err(out(dir))
+    }
+}

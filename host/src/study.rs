@@ -1,0 +1,103 @@
+//! `kincal study`: the dataset-size study (thesis §4.3). For 1..N calibration placements,
+//! K random subsets each are calibrated and validated on the held-out sessions; the table gives
+//! mean, standard deviation and range of the validation RMS per subset size.
+
+use crate::calibrate::{calibrate, CalibrationOptions};
+use crate::data::{Artefact, Dataset};
+use crate::model::ArmModel;
+use crate::validate::{distance_errors, ErrorStats};
+use indicatif::{ProgressBar, ProgressStyle};
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+/// Settings of a study.
+#[derive(Clone, Copy, Debug)]
+pub struct StudyOptions {
+    /// Random subsets per subset size.
+    pub subsets: usize,
+    /// Seed of the subset draws.
+    pub seed: u64,
+    /// Settings of each calibration.
+    pub calibration: CalibrationOptions,
+    /// Draw a progress bar on stderr.
+    pub progress: bool,
+}
+
+/// Results for one subset size.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct StudyRow {
+    /// Placements used for calibration.
+    pub placements: usize,
+    /// Calibrations run (failed ones are counted in `failed`).
+    pub calibrations: usize,
+    /// Calibrations that could not run (too few pairs).
+    pub failed: usize,
+    /// Mean validation RMS, mm.
+    pub mean_mm: f64,
+    /// Standard deviation of the validation RMS, mm.
+    pub std_mm: f64,
+    /// Smallest validation RMS, mm.
+    pub min_mm: f64,
+    /// Largest validation RMS, mm.
+    pub max_mm: f64,
+    /// Every validation RMS, mm.
+    pub rms_mm: Vec<f64>,
+}
+
+/// Run the study. Uses every core rayon is given.
+pub fn study(nominal: &ArmModel, artefact: &Artefact, cal: &Dataset, val: &Dataset, options: &StudyOptions) -> Vec<StudyRow> {
+    let n = cal.placements.len();
+    let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
+    let mut tasks = Vec::new();
+    for k in 1..=n {
+        for _ in 0..options.subsets {
+            let mut all: Vec<usize> = (0..n).collect();
+            all.shuffle(&mut rng);
+            all.truncate(k);
+            all.sort_unstable();
+            tasks.push((k, all));
+        }
+    }
+    let bar = if options.progress { ProgressBar::new(tasks.len() as u64) } else { ProgressBar::hidden() };
+    if let Ok(style) = ProgressStyle::with_template("{bar:40} {pos}/{len} calibrations, {elapsed} elapsed, ETA {eta}") {
+        bar.set_style(style);
+    }
+    let results: Vec<(usize, Option<f64>)> = tasks
+        .par_iter()
+        .map(|(k, subset)| {
+            let rms = calibrate(nominal, artefact, &cal.subset(subset), &options.calibration).ok().map(|fit| {
+                let e: Vec<f64> = distance_errors(&fit.model, artefact, val).iter().map(|e| e.error_mm).collect();
+                ErrorStats::of(&e).rms_mm
+            });
+            bar.inc(1);
+            (*k, rms)
+        })
+        .collect();
+    bar.finish_and_clear();
+    (1..=n)
+        .map(|k| {
+            let rms_mm: Vec<f64> = results.iter().filter(|r| r.0 == k).filter_map(|r| r.1).collect();
+            let failed = results.iter().filter(|r| r.0 == k && r.1.is_none()).count();
+            let count = rms_mm.len().max(1) as f64;
+            let mean = rms_mm.iter().sum::<f64>() / count;
+            let std = (rms_mm.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / count).sqrt();
+            let (min, max) = rms_mm.iter().fold((f64::INFINITY, 0.0_f64), |(a, b), v| (a.min(*v), b.max(*v)));
+            StudyRow { placements: k, calibrations: rms_mm.len(), failed, mean_mm: mean, std_mm: std, min_mm: min, max_mm: max, rms_mm }
+        })
+        .collect()
+}
+
+/// The study's HTML page: table and box plot.
+pub fn study_report(rows: &[StudyRow]) -> String {
+    use crate::report::{page, table};
+    let cells: Vec<Vec<String>> = rows.iter().map(|r| vec![r.placements.to_string(), r.calibrations.to_string(), format!("{:.3}", r.mean_mm), format!("{:.3}", r.std_mm), format!("{:.3}", r.min_mm), format!("{:.3}", r.max_mm)]).collect();
+    let groups: Vec<(String, Vec<f64>)> = rows.iter().map(|r| (r.placements.to_string(), r.rms_mm.clone())).collect();
+    let body = format!(
+        "<p>Validation RMS of calibrations on random subsets of the calibration placements.</p>{}{}",
+        table(&["placements", "calibrations", "mean mm", "std mm", "min mm", "max mm"], &cells),
+        crate::svg::boxplot(&groups, "validation RMS (mm)")
+    );
+    page("kincal dataset-size study", &body)
+}

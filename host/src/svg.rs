@@ -1,0 +1,162 @@
+//! Minimal SVG charts for self-contained HTML reports (no scripts, no external files).
+
+use std::fmt::Write;
+
+/// Series colours, colour-blind friendly.
+pub const COLORS: [&str; 4] = ["#d55e00", "#0072b2", "#009e73", "#cc79a7"];
+
+/// Plot area in pixels.
+struct Frame {
+    width: f64,
+    height: f64,
+    left: f64,
+    bottom: f64,
+    x: (f64, f64),
+    y: (f64, f64),
+}
+
+impl Frame {
+    fn new(width: f64, height: f64, x: (f64, f64), y: (f64, f64)) -> Frame {
+        let pad = |(a, b): (f64, f64)| if (b - a).abs() < 1e-12 { (a - 0.5, b + 0.5) } else { (a, b) };
+        Frame { width, height, left: 56.0, bottom: 36.0, x: pad(x), y: pad(y) }
+    }
+    fn px(&self, x: f64) -> f64 {
+        self.left + (x - self.x.0) / (self.x.1 - self.x.0) * (self.width - self.left - 12.0)
+    }
+    fn py(&self, y: f64) -> f64 {
+        12.0 + (self.y.1 - y) / (self.y.1 - self.y.0) * (self.height - self.bottom - 12.0)
+    }
+    fn open(&self, out: &mut String, x_label: &str, y_label: &str, x_ticks: bool) {
+        let _ = write!(out, r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11">"#, w = self.width, h = self.height);
+        let (x0, x1, y0, y1) = (self.px(self.x.0), self.px(self.x.1), self.py(self.y.0), self.py(self.y.1));
+        let _ = write!(out, r##"<rect x="{x0}" y="{y1}" width="{}" height="{}" fill="none" stroke="#888"/>"##, x1 - x0, y0 - y1);
+        for k in 0..=4 {
+            let v = self.y.0 + (self.y.1 - self.y.0) * k as f64 / 4.0;
+            let y = self.py(v);
+            let _ = write!(out, r##"<line x1="{x0}" x2="{x1}" y1="{y}" y2="{y}" stroke="#eee"/><text x="{}" y="{}" text-anchor="end">{}</text>"##, x0 - 4.0, y + 4.0, tick(v));
+            if x_ticks {
+                let u = self.x.0 + (self.x.1 - self.x.0) * k as f64 / 4.0;
+                let _ = write!(out, r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#, self.px(u), y0 + 14.0, tick(u));
+            }
+        }
+        let _ = write!(out, r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#, (x0 + x1) / 2.0, self.height - 4.0, escape(x_label));
+        let _ = write!(out, r#"<text transform="translate(12,{}) rotate(-90)" text-anchor="middle">{}</text>"#, (y0 + y1) / 2.0, escape(y_label));
+    }
+}
+
+fn tick(v: f64) -> String {
+    if v.abs() >= 100.0 { format!("{v:.0}") } else if v.abs() >= 1.0 { format!("{v:.2}") } else { format!("{v:.3}") }
+}
+
+/// Escape text for HTML/SVG.
+pub fn escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+fn legend(out: &mut String, frame: &Frame, names: &[&str]) {
+    for (k, name) in names.iter().enumerate() {
+        let x = frame.width - 170.0;
+        let y = 22.0 + 16.0 * k as f64;
+        let _ = write!(out, r#"<rect x="{x}" y="{}" width="10" height="10" fill="{}"/><text x="{}" y="{}">{}</text>"#, y - 9.0, COLORS[k % COLORS.len()], x + 14.0, y, escape(name));
+    }
+}
+
+fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    values.filter(|v| v.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)))
+}
+
+/// Overlaid histograms of several series over a common range.
+pub fn histogram(series: &[(&str, &[f64])], bins: usize, x_label: &str) -> String {
+    let (lo, hi) = range(series.iter().flat_map(|(_, v)| v.iter().copied()));
+    if !lo.is_finite() {
+        return String::new();
+    }
+    let width = (hi - lo).max(1e-9) / bins as f64;
+    let counts: Vec<Vec<usize>> = series
+        .iter()
+        .map(|(_, v)| {
+            let mut c = vec![0; bins];
+            for x in v.iter().filter(|x| x.is_finite()) {
+                c[(((x - lo) / width) as usize).min(bins - 1)] += 1;
+            }
+            c
+        })
+        .collect();
+    let top = counts.iter().flatten().copied().max().unwrap_or(1) as f64;
+    let frame = Frame::new(640.0, 280.0, (lo, hi), (0.0, top));
+    let mut out = String::new();
+    frame.open(&mut out, x_label, "count", true);
+    for (k, c) in counts.iter().enumerate() {
+        for (b, &n) in c.iter().enumerate() {
+            let (x0, x1) = (frame.px(lo + width * b as f64), frame.px(lo + width * (b + 1) as f64));
+            let _ = write!(out, r#"<rect x="{x0}" y="{}" width="{}" height="{}" fill="{}" fill-opacity="0.55"/>"#, frame.py(n as f64), (x1 - x0).max(0.5), frame.py(0.0) - frame.py(n as f64), COLORS[k % COLORS.len()]);
+        }
+    }
+    legend(&mut out, &frame, &series.iter().map(|s| s.0).collect::<Vec<_>>());
+    out + "</svg>"
+}
+
+/// Grouped bars: one group per category, one bar per series.
+pub fn bars(categories: &[String], series: &[(&str, Vec<f64>)], y_label: &str) -> String {
+    let top = range(series.iter().flat_map(|(_, v)| v.iter().copied())).1.max(1e-9);
+    let frame = Frame::new(640.0, 280.0, (0.0, categories.len().max(1) as f64), (0.0, top));
+    let mut out = String::new();
+    frame.open(&mut out, "", y_label, false);
+    let group = frame.px(1.0) - frame.px(0.0);
+    let bar = group * 0.8 / series.len().max(1) as f64;
+    for (i, name) in categories.iter().enumerate() {
+        for (k, (_, values)) in series.iter().enumerate() {
+            let v = values.get(i).copied().unwrap_or(0.0);
+            let x = frame.px(i as f64) + group * 0.1 + bar * k as f64;
+            let _ = write!(out, r#"<rect x="{x}" y="{}" width="{bar}" height="{}" fill="{}"/>"#, frame.py(v), frame.py(0.0) - frame.py(v), COLORS[k % COLORS.len()]);
+        }
+        let _ = write!(out, r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#, frame.px(i as f64 + 0.5), frame.py(0.0) + 14.0, escape(name));
+    }
+    legend(&mut out, &frame, &series.iter().map(|s| s.0).collect::<Vec<_>>());
+    out + "</svg>"
+}
+
+/// Scatter plot, optionally with a line drawn through `curve` points.
+pub fn scatter(points: &[(f64, f64)], curve: &[(f64, f64)], x_label: &str, y_label: &str) -> String {
+    let (x0, x1) = range(points.iter().map(|p| p.0));
+    let (y0, y1) = range(points.iter().chain(curve).map(|p| p.1));
+    if !x0.is_finite() {
+        return String::new();
+    }
+    let frame = Frame::new(310.0, 210.0, (x0, x1), (y0, y1));
+    let mut out = String::new();
+    frame.open(&mut out, x_label, y_label, true);
+    for (x, y) in points {
+        let _ = write!(out, r#"<circle cx="{:.1}" cy="{:.1}" r="1.6" fill="{}" fill-opacity="0.5"/>"#, frame.px(*x), frame.py(*y), COLORS[1]);
+    }
+    if curve.len() > 1 {
+        let path: Vec<String> = curve.iter().map(|(x, y)| format!("{:.1},{:.1}", frame.px(*x), frame.py(*y))).collect();
+        let _ = write!(out, r#"<polyline points="{}" fill="none" stroke="{}" stroke-width="2"/>"#, path.join(" "), COLORS[0]);
+    }
+    out + "</svg>"
+}
+
+/// Box plot (quartiles, whiskers at min/max) per group.
+pub fn boxplot(groups: &[(String, Vec<f64>)], y_label: &str) -> String {
+    let (lo, hi) = range(groups.iter().flat_map(|(_, v)| v.iter().copied()));
+    if !lo.is_finite() {
+        return String::new();
+    }
+    let frame = Frame::new(640.0, 280.0, (0.0, groups.len() as f64), (lo.min(0.0), hi));
+    let mut out = String::new();
+    frame.open(&mut out, "placements used for calibration", y_label, false);
+    for (i, (name, values)) in groups.iter().enumerate() {
+        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            continue;
+        }
+        v.sort_by(f64::total_cmp);
+        let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+        let (cx, w) = (frame.px(i as f64 + 0.5), (frame.px(1.0) - frame.px(0.0)) * 0.3);
+        let _ = write!(out, r##"<line x1="{cx}" x2="{cx}" y1="{}" y2="{}" stroke="#333"/>"##, frame.py(q(0.0)), frame.py(q(1.0)));
+        let _ = write!(out, r##"<rect x="{}" y="{}" width="{}" height="{}" fill="{}" stroke="#333"/>"##, cx - w / 2.0, frame.py(q(0.75)), w, (frame.py(q(0.25)) - frame.py(q(0.75))).max(0.5), COLORS[1]);
+        let _ = write!(out, r##"<line x1="{}" x2="{}" y1="{m}" y2="{m}" stroke="#fff" stroke-width="2"/>"##, cx - w / 2.0, cx + w / 2.0, m = frame.py(q(0.5)));
+        let _ = write!(out, r#"<text x="{cx}" y="{}" text-anchor="middle">{}</text>"#, frame.py(frame.y.0) + 14.0, escape(name));
+    }
+    out + "</svg>"
+}

@@ -1,0 +1,103 @@
+//! The `kincal` binary: output contract and bad-input handling.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn kincal(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_kincal")).args(args).output().expect("kincal runs")
+}
+
+fn example_model() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/suta/model.toml")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("kincal-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn simulate_into(dir: &Path) {
+    let out = kincal(&["simulate", "--model", example_model().to_str().unwrap(), "--out", dir.to_str().unwrap(), "--seed", "4", "--repeats", "1"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
+fn calibrate_args<'a>(data: &'a str, run: &'a str, model: &'a str) -> Vec<String> {
+    ["calibrate", "--model", model, "--artefact", &format!("{data}/artefact.json"), "--data", &format!("{data}/cal"), "--validate", &format!("{data}/val"), "--out", run, "--restarts", "1"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+}
+
+#[test]
+fn calibrate_writes_a_run_whose_model_loads_again() {
+    let dir = scratch("ok");
+    let data = dir.join("data");
+    simulate_into(&data);
+    let run = dir.join("run");
+    let model = example_model();
+    let mut args = calibrate_args(data.to_str().unwrap(), run.to_str().unwrap(), model.to_str().unwrap());
+    args.push("--json".into());
+    let out = Command::new(env!("CARGO_BIN_EXE_kincal")).args(&args).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let printed: serde_json::Value = serde_json::from_slice(&out.stdout).expect("--json prints summary.json");
+    let stored: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(printed, stored);
+    for key in ["rms_mm", "mean_mm", "std_mm", "max_mm", "pairs"] {
+        assert!(stored["validation"][key].is_number() && stored["nominal_validation"][key].is_number(), "{key}");
+    }
+    assert!(stored["calibration"]["rms_mm"].as_f64().unwrap() < stored["nominal_validation"]["rms_mm"].as_f64().unwrap());
+    let calibrated = kincal::model::ArmModel::load(&run.join("model.toml")).expect("calibrated model loads again");
+    assert_eq!(calibrated.free.len(), kincal::model::ArmModel::load(&model).unwrap().free.len());
+    let html = std::fs::read_to_string(run.join("report.html")).unwrap();
+    assert!(html.contains("<svg") && html.contains("Outlier diagnostics"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn bad_input_names_file_and_field_and_leaves_no_run() {
+    let dir = scratch("bad");
+    let data = dir.join("data");
+    simulate_into(&data);
+    let session = data.join("cal/A_O.json");
+    let good = std::fs::read_to_string(&session).unwrap();
+    let parsed: serde_json::Value = serde_json::from_str(&good).unwrap();
+    let first_angle = parsed["measurements"][0]["joints_deg"][0].to_string();
+    let mut five_joints = parsed.clone();
+    if let Some(joints) = five_joints["measurements"][0]["joints_deg"].as_array_mut() {
+        joints.pop();
+    }
+    let cases: Vec<(&str, String, &str)> = vec![
+        ("malformed JSON", good[..good.len() / 2].to_string(), "A_O.json"),
+        ("wrong format tag", good.replacen("suta-session/1", "suta-session/7", 1), "`format`"),
+        ("unknown landmark", good.replacen("\"landmark\": \"O\"", "\"landmark\": \"Q7\"", 1), "measurements[0].landmark"),
+        ("NaN", good.replacen(&first_angle, "NaN", 1), "A_O.json"),
+        ("wrong joint count", five_joints.to_string(), "measurements[0].joints_deg"),
+    ];
+    let model = example_model();
+    for (what, text, expect) in cases {
+        assert!(text != good, "{what}: the corruption must change the file");
+        std::fs::write(&session, &text).unwrap();
+        let run = dir.join("run");
+        let args = calibrate_args(data.to_str().unwrap(), run.to_str().unwrap(), model.to_str().unwrap());
+        let out = Command::new(env!("CARGO_BIN_EXE_kincal")).args(&args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{what}: {stderr}");
+        assert!(stderr.contains("A_O.json") && stderr.contains(expect), "{what}: `{stderr}` should name {expect}");
+        assert!(!stderr.contains("panicked"), "{what}: {stderr}");
+        assert!(!run.exists(), "{what}: no RUN folder may be left behind");
+    }
+    std::fs::write(&session, &good).unwrap();
+    // An empty calibration folder.
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = kincal(&["calibrate", "--model", model.to_str().unwrap(), "--artefact", data.join("artefact.json").to_str().unwrap(), "--data", empty.to_str().unwrap(), "--validate", data.join("val").to_str().unwrap(), "--out", dir.join("run").to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no session files"), "{}", String::from_utf8_lossy(&out.stderr));
+    // A missing model file.
+    let out = kincal(&["calibrate", "--model", "/nonexistent/model.toml", "--artefact", "a", "--data", "b", "--validate", "c", "--out", "d"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/model.toml"));
+    std::fs::remove_dir_all(&dir).ok();
+}

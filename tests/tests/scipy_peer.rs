@@ -1,0 +1,31 @@
+//! Agreement with an independent peer: SciPy's least_squares(method='trf', loss='huber',
+//! f_scale=1.35) on the same objective, from the same start, with its own numpy kinematics.
+//! Needs python3 with numpy and scipy (`scripts/test.sh` installs them); set KINCAL_NO_PEER=1 to
+//! skip it deliberately (the skip is printed).
+
+use kincal::bench::{run_peer, thesis_sized_problem, write_peer_problem};
+use kincal::calibrate::{calibrate, CalibrationOptions};
+use kincal::data::Dataset;
+
+#[test]
+fn kincal_reaches_scipys_cost_or_lower() {
+    if std::env::var_os("KINCAL_NO_PEER").is_some() {
+        eprintln!("SKIPPED on request (KINCAL_NO_PEER): SciPy peer comparison");
+        return;
+    }
+    let (nominal, sim) = thesis_sized_problem(2);
+    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
+    let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
+    let fit = calibrate(&nominal, &sim.artefact, &cal, &options).expect("calibrates");
+    let dir = std::env::temp_dir().join(format!("kincal-peer-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let problem = dir.join("problem.json");
+    write_peer_problem(&problem, &nominal, &fit.estimated, &sim.artefact, &cal, options.huber_delta_mm).unwrap();
+    let peer = run_peer("python3", &problem).unwrap_or_else(|e| panic!("{e}\ninstall the peer with `pip install numpy scipy`, or set KINCAL_NO_PEER=1"));
+    std::fs::remove_dir_all(&dir).ok();
+    eprintln!("kincal cost {:.9}, SciPy cost {:.9} ({} evaluations, {:.0} ms)", fit.cost, peer.cost, peer.nfev, peer.seconds * 1e3);
+    assert!(fit.cost <= peer.cost * (1.0 + 1e-6), "kincal cost {} is above SciPy's {}", fit.cost, peer.cost);
+    for (k, id) in fit.estimated.iter().enumerate() {
+        assert!((fit.model.get(*id) - peer.x[k]).abs() < 1e-3, "{id}: kincal {} SciPy {}", fit.model.get(*id), peer.x[k]);
+    }
+}

@@ -122,6 +122,9 @@ struct CalibrateArgs {
     out: PathBuf,
     #[command(flatten)]
     solve: SolveArgs,
+    /// Also run the dataset-size study with this many subsets per placement count (0: no study).
+    #[arg(long, default_value_t = 0)]
+    study_subsets: usize,
     /// Print summary.json to stdout.
     #[arg(long)]
     json: bool,
@@ -200,9 +203,9 @@ fn inputs(a: &InputArgs) -> RunInputs {
     RunInputs { model: a.model.clone(), artefact: a.artefact.clone(), calibration: a.data.clone(), validation: a.validate.clone() }
 }
 
-fn calibrate_and_report(inputs: &RunInputs, out: &Path, options: &CalibrationOptions, json: bool) -> Result<()> {
+fn calibrate_and_report(inputs: &RunInputs, out: &Path, options: &CalibrationOptions, study_subsets: usize, json: bool) -> Result<()> {
     let started = std::time::Instant::now();
-    let result = run(inputs, options)?;
+    let result = run(inputs, options, study_subsets)?;
     result.write(out)?;
     let s = &result.summary;
     if json {
@@ -222,12 +225,16 @@ fn calibrate_and_report(inputs: &RunInputs, out: &Path, options: &CalibrationOpt
     for o in s.outliers.iter().filter(|o| o.flagged) {
         println!("  landmark {} flagged as outlier ({})", o.landmark, o.exceeded.join(", "));
     }
+    if let Some(rows) = &s.study {
+        let means: Vec<String> = rows.iter().map(|r| format!("{}: {:.3}", r.placements, r.mean_mm)).collect();
+        println!("  study, mean validation RMS by placements used: {} mm", means.join(", "));
+    }
     println!("  report: {}", out.join("report.html").display());
     Ok(())
 }
 
 fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
-    calibrate_and_report(&inputs(&a.inputs), &a.out, &a.solve.options(), a.json)
+    calibrate_and_report(&inputs(&a.inputs), &a.out, &a.solve.options(), a.study_subsets, a.json)
 }
 
 fn cmd_study(a: &StudyArgs) -> Result<()> {
@@ -267,7 +274,7 @@ fn cmd_demo(a: &DemoArgs) -> Result<()> {
     simulate_to(&a.model, &data, &SimulationOptions { seed: a.seed, ..SimulationOptions::default() })?;
     println!("2/2 calibrate on {} and validate on {}", data.join("cal").display(), data.join("val").display());
     let inputs = RunInputs { model: a.model.clone(), artefact: data.join("artefact.json"), calibration: data.join("cal"), validation: data.join("val") };
-    calibrate_and_report(&inputs, &a.out.join("run"), &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() }, false)?;
+    calibrate_and_report(&inputs, &a.out.join("run"), &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() }, 20, false)?;
     let truth = ArmModel::load(&data.join("truth.toml"))?;
     let artefact = Artefact::load(&inputs.artefact)?;
     let val = Dataset::load_dir(&inputs.validation, &artefact)?;

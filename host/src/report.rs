@@ -78,6 +78,9 @@ pub fn calibration_report(run: &Run) -> String {
         })
         .collect();
     let _ = write!(body, "<h2>Outlier diagnostics (thesis appendix F)</h2><p>Thresholds: contribution &gt; 1.5× its share, Cook's distance &gt; 4/L, leave-one-out improvement &gt; 5 %, bias &gt; 1 mm; flagged when two or more exceed.</p>{}", table(&["landmark", "contribution %", "Cook's D", "LOO impact %", "bias mm", ""], &out_rows));
+    if let Some(rows) = &s.study {
+        let _ = write!(body, "<h2>Dataset-size study</h2>{}", crate::study::study_body(rows));
+    }
     let starts: Vec<Vec<String>> = s.calibration.starts.iter().map(|st| vec![st.start.to_string(), format!("{:.4}", st.initial_cost), format!("{:.6}", st.final_cost), st.iterations.to_string(), format!("{:?}", st.stop)]).collect();
     let _ = write!(body, "<h2>Solver starts</h2>{}", table(&["start", "initial cost", "final cost", "iterations", "stop"], &starts));
     page("kincal calibration report", &body)

@@ -11,6 +11,7 @@ use crate::model::{ArmModel, ModelError};
 use crate::objective::{CalibrationProblem, Objective};
 use crate::outliers::{landmark_outliers, LandmarkOutlier};
 use crate::solver::Residuals;
+use crate::study::{study, StudyOptions, StudyRow};
 use crate::validate::{validate, ErrorStats, GroupStats, Repeatability, Validation};
 use std::path::{Path, PathBuf};
 
@@ -86,6 +87,9 @@ pub struct Summary {
     pub outliers: Vec<LandmarkOutlier>,
     /// What relative orientation adds to distances.
     pub objective_comparison: ObjectiveComparison,
+    /// Dataset-size study, when asked for (`--study-subsets`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub study: Option<Vec<StudyRow>>,
 }
 
 /// Options recorded in the summary.
@@ -193,8 +197,9 @@ fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -
     ObjectiveComparison { identifiable_by_distance: by_distance, identifiable_by_six_dof: by_six_dof, gained_by_orientation: gained, std }
 }
 
-/// Load the inputs, calibrate, validate and diagnose.
-pub fn run(inputs: &RunInputs, options: &CalibrationOptions) -> Result<Run, RunError> {
+/// Load the inputs, calibrate, validate and diagnose; with `study_subsets` > 0 also run the
+/// dataset-size study with that many random subsets per placement count.
+pub fn run(inputs: &RunInputs, options: &CalibrationOptions, study_subsets: usize) -> Result<Run, RunError> {
     let nominal = ArmModel::load(&inputs.model)?;
     let artefact = Artefact::load(&inputs.artefact)?;
     let cal = Dataset::load_dir(&inputs.calibration, &artefact)?;
@@ -229,6 +234,10 @@ pub fn run(inputs: &RunInputs, options: &CalibrationOptions) -> Result<Run, RunE
         },
         outliers,
         objective_comparison: objective_comparison(&fit, &artefact, &cal),
+        study: (study_subsets > 0).then(|| {
+            let calibration = CalibrationOptions { restarts: 0, ..*options };
+            study(&nominal, &artefact, &cal, &val, &StudyOptions { subsets: study_subsets, seed: options.seed, calibration, progress: false })
+        }),
     };
     Ok(Run { summary, calibration: fit, validation, nominal_validation, artefact, validation_data: val })
 }

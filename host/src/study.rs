@@ -91,13 +91,17 @@ pub fn study(nominal: &ArmModel, artefact: &Artefact, cal: &Dataset, val: &Datas
 
 /// The study's HTML page: table and box plot.
 pub fn study_report(rows: &[StudyRow]) -> String {
-    use crate::report::{page, table};
+    crate::report::page("kincal dataset-size study", &study_body(rows))
+}
+
+/// The study's table and box plot as an HTML fragment.
+pub fn study_body(rows: &[StudyRow]) -> String {
+    use crate::report::table;
     let cells: Vec<Vec<String>> = rows.iter().map(|r| vec![r.placements.to_string(), r.calibrations.to_string(), format!("{:.3}", r.mean_mm), format!("{:.3}", r.std_mm), format!("{:.3}", r.min_mm), format!("{:.3}", r.max_mm)]).collect();
     let groups: Vec<(String, Vec<f64>)> = rows.iter().map(|r| (r.placements.to_string(), r.rms_mm.clone())).collect();
-    let body = format!(
+    format!(
         "<p>Validation RMS of calibrations on random subsets of the calibration placements.</p>{}{}",
         table(&["placements", "calibrations", "mean mm", "std mm", "min mm", "max mm"], &cells),
         crate::svg::boxplot(&groups, "validation RMS (mm)")
-    );
-    page("kincal dataset-size study", &body)
+    )
 }

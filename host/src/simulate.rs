@@ -1,6 +1,7 @@
 //! `kincal simulate`: an artefact and measurement sessions from a "true" arm with known errors.
 //!
-//! The true arm is the nominal model with its free parameters perturbed (seeded). Every touch
+//! The true arm is the nominal model with its free parameters perturbed (seeded), plus any hidden
+//! effects (parameter deltas the nominal model does not free, e.g. an eccentricity). Every touch
 //! is found by inverse kinematics on the true arm: tip on the landmark (plus seating noise), tool
 //! axis perpendicular to the base plate, tool x axis at the pillar's yaw. The forward path here
 //! is deliberately independent of [`crate::model::kinematics`] (plain 4×4 homogeneous matrices),
@@ -30,11 +31,13 @@ pub struct SimulationOptions {
     pub encoder_noise_deg: f64,
     /// Repeats of every landmark per placement.
     pub repeats: u32,
+    /// Hidden effects: deltas added to the true arm's parameters after the perturbation.
+    pub hidden: Vec<(ParamId, f64)>,
 }
 
 impl Default for SimulationOptions {
     fn default() -> Self {
-        SimulationOptions { seed: 1, perturb_deg: 2.0, perturb_mm: 2.0, seating_noise_mm: 0.1, encoder_noise_deg: 0.003, repeats: 3 }
+        SimulationOptions { seed: 1, perturb_deg: 2.0, perturb_mm: 2.0, seating_noise_mm: 0.1, encoder_noise_deg: 0.003, repeats: 3, hidden: Vec::new() }
     }
 }
 
@@ -111,30 +114,69 @@ pub fn suta_artefact(rng: &mut ChaCha8Rng) -> Artefact {
     Artefact { format: ARTEFACT_FORMAT.into(), landmarks }
 }
 
-/// Plain homogeneous-matrix forward kinematics of `model` (the independent path).
+/// Plain homogeneous-matrix forward kinematics of `model` (the independent path), with the
+/// eccentricity and gravity-compliance effects written out again from their definitions.
+/// Returns the tool frame and the frame origins after each joint.
 pub fn reference_tool_frame(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> (Matrix4<f64>, [Vector3<f64>; JOINTS]) {
+    let rigid: [f64; JOINTS] = std::array::from_fn(|j| {
+        let row = &model.joints[j];
+        let phi = enc_deg[j].to_radians();
+        let harmonics = row.eccentricity_sin_deg * phi.sin() + row.eccentricity_cos_deg * phi.cos() + row.eccentricity2_sin_deg * (2.0 * phi).sin() + row.eccentricity2_cos_deg * (2.0 * phi).cos();
+        enc_deg[j] + row.offset_deg + harmonics
+    });
+    let (frames, axes) = frames_at(model, &rigid);
+    let mut theta = rigid;
+    if model.joints.iter().any(|j| j.compliance_deg_per_m != 0.0) {
+        // Unit weights at every frame origin beyond the joint and at the tool point, pulled by -z.
+        let gravity = Vector3::new(0.0, 0.0, -1.0);
+        for j in 0..JOINTS {
+            let (axis_point, axis) = axes[j];
+            let mut lever_mm = 0.0;
+            for mass in frames[j..].iter().map(|f| f.fixed_view::<3, 1>(0, 3).into_owned()) {
+                lever_mm += axis.dot(&(mass - axis_point).cross(&gravity));
+            }
+            theta[j] += model.joints[j].compliance_deg_per_m * lever_mm / 1000.0;
+        }
+    }
+    let (frames, _) = frames_at(model, &theta);
+    let s = 1.0 + model.scale_ppm * 1e-6;
+    let mut tool = frames[JOINTS];
+    for k in 0..3 {
+        tool[(k, 3)] *= s;
+    }
+    let origins = std::array::from_fn(|j| frames[j].fixed_view::<3, 1>(0, 3).into_owned() * s);
+    (tool, origins)
+}
+
+/// Frames after each joint (and the tool frame last) for joint angles `theta_deg`, and each
+/// joint's axis (point, direction), all before the length scale is applied.
+fn frames_at(model: &ArmModel, theta_deg: &[f64; JOINTS]) -> ([Matrix4<f64>; JOINTS + 1], [(Vector3<f64>, Vector3<f64>); JOINTS]) {
     let rz = |t: f64| Matrix4::new(t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.);
     let rx = |t: f64| Matrix4::new(1., 0., 0., 0., 0., t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1.);
     let ry = |t: f64| Matrix4::new(t.cos(), 0., t.sin(), 0., 0., 1., 0., 0., -t.sin(), 0., t.cos(), 0., 0., 0., 0., 1.);
     let tr = |x: f64, y: f64, z: f64| Matrix4::new(1., 0., 0., x, 0., 1., 0., y, 0., 0., 1., z, 0., 0., 0., 1.);
+    let axis_of = |m: &Matrix4<f64>| (m.fixed_view::<3, 1>(0, 3).into_owned(), m.fixed_view::<3, 1>(0, 2).into_owned());
     let mut t = Matrix4::identity();
-    let mut origins = [Vector3::zeros(); JOINTS];
+    let mut frames = [Matrix4::identity(); JOINTS + 1];
+    let mut axes = [(Vector3::zeros(), Vector3::z()); JOINTS];
     for (j, row) in model.joints.iter().enumerate() {
-        let theta = (enc_deg[j] + row.offset_deg).to_radians();
+        let theta = theta_deg[j].to_radians();
         let (alpha, beta) = (row.alpha_deg.to_radians(), row.axis_deg.to_radians());
-        let link = match model.convention {
-            Convention::Classic => rz(theta) * tr(0., 0., row.d_mm) * tr(row.a_mm, 0., 0.) * rx(alpha) * ry(beta),
-            Convention::Modified => rx(alpha) * ry(beta) * tr(row.a_mm, 0., 0.) * rz(theta) * tr(0., 0., row.d_mm),
-        };
-        t *= link;
-        origins[j] = t.fixed_view::<3, 1>(0, 3).into_owned();
+        match model.convention {
+            Convention::Classic => {
+                axes[j] = axis_of(&t);
+                t = t * rz(theta) * tr(0., 0., row.d_mm) * tr(row.a_mm, 0., 0.) * rx(alpha) * ry(beta);
+            }
+            Convention::Modified => {
+                t = t * rx(alpha) * ry(beta) * tr(row.a_mm, 0., 0.);
+                axes[j] = axis_of(&t);
+                t = t * rz(theta) * tr(0., 0., row.d_mm);
+            }
+        }
+        frames[j] = t;
     }
-    t *= tr(model.tcp_mm[0], model.tcp_mm[1], model.tcp_mm[2]);
-    let s = 1.0 + model.scale_ppm * 1e-6;
-    for k in 0..3 {
-        t[(k, 3)] *= s;
-    }
-    (t, origins.map(|o| o * s))
+    frames[JOINTS] = t * tr(model.tcp_mm[0], model.tcp_mm[1], model.tcp_mm[2]);
+    (frames, axes)
 }
 
 /// Inverse kinematics target: tip position and tool axes in the base frame.
@@ -248,10 +290,15 @@ pub fn simulate(nominal: &ArmModel, options: &SimulationOptions) -> SimulatedDat
     simulate_with_truth(nominal, options, |truth| truth)
 }
 
-/// As [`simulate`], with `alter` applied to the perturbed truth before any touch is made.
+/// As [`simulate`], with `alter` applied to the perturbed truth (after the hidden effects)
+/// before any touch is made.
 pub fn simulate_with_truth(nominal: &ArmModel, options: &SimulationOptions, alter: impl FnOnce(ArmModel) -> ArmModel) -> SimulatedData {
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
-    let truth = alter(perturbed_truth(nominal, options, &mut rng));
+    let mut truth = perturbed_truth(nominal, options, &mut rng);
+    for (id, delta) in &options.hidden {
+        truth.set(*id, truth.get(*id) + delta);
+    }
+    let truth = alter(truth);
     let artefact = suta_artefact(&mut rng);
     let mut skipped = 0;
     let mut sessions = |places: Vec<Placement>, purpose: &str| -> Vec<Session> {
@@ -305,6 +352,10 @@ mod tests {
         let mut model = ArmModel::suta_nominal();
         model.joints[1].a_mm = 2.0;
         model.joints[4].axis_deg = 0.3;
+        model.joints[2].eccentricity_sin_deg = 0.4;
+        model.joints[3].eccentricity2_cos_deg = -0.2;
+        model.joints[1].compliance_deg_per_m = 0.3;
+        model.joints[3].compliance_deg_per_m = -0.2;
         model.tcp_mm = [1.0, -3.0, 250.0];
         model.scale_ppm = 200.0;
         for convention in [Convention::Classic, Convention::Modified] {

@@ -12,11 +12,13 @@
 //! a_mm = 0.0
 //! alpha_deg = 90.0
 //! axis_deg = 0.0                  # optional
+//! effects = ["eccentricity:5"]    # optional: effects whose parameters are free (default bounds)
 //! [free]                          # parameters the calibration may move: [lower, upper]
 //! "offset:2" = [10.7, 30.7]
 //! ```
 
 use super::{ArmModel, Convention, FreeParam, Joint, ParamId, JOINTS};
+use crate::effects::Effect;
 use crate::fsutil;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -66,6 +68,8 @@ struct ModelFile {
     #[serde(default)]
     scale_ppm: f64,
     joint: Vec<Joint>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    effects: Vec<String>,
     #[serde(default)]
     free: BTreeMap<String, [f64; 2]>,
 }
@@ -108,23 +112,6 @@ impl ArmModel {
         let joints: [Joint; JOINTS] = file.joint.clone().try_into().map_err(|_| {
             field("joint".into(), format!("expected {JOINTS} [[joint]] rows, found {}", file.joint.len()))
         })?;
-        for (j, row) in joints.iter().enumerate() {
-            let values = [
-                ("offset_deg", row.offset_deg),
-                ("d_mm", row.d_mm),
-                ("a_mm", row.a_mm),
-                ("alpha_deg", row.alpha_deg),
-                ("axis_deg", row.axis_deg),
-            ];
-            for (name, v) in values {
-                if !v.is_finite() {
-                    return Err(field(format!("joint[{}].{name}", j + 1), "must be a finite number".into()));
-                }
-            }
-        }
-        if !file.tcp_mm.iter().chain([&file.scale_ppm]).all(|v| v.is_finite()) {
-            return Err(field("tcp_mm".into(), "must be finite numbers".into()));
-        }
         let mut model = ArmModel {
             name: file.name,
             convention: file.convention,
@@ -133,6 +120,13 @@ impl ArmModel {
             scale_ppm: file.scale_ppm,
             free: Vec::new(),
         };
+        if let Some(id) = ParamId::all().into_iter().find(|id| !model.get(*id).is_finite()) {
+            return Err(field(id.to_string(), "must be a finite number".into()));
+        }
+        for name in &file.effects {
+            let effect = Effect::parse(name).ok_or_else(|| field(format!("effects[\"{name}\"]"), "unknown effect; expected e.g. eccentricity:5, compliance:2, twist:3, tcp, scale".into()))?;
+            effect.add_to(&mut model);
+        }
         for (name, [lower, upper]) in file.free {
             let key = format!("free.\"{name}\"");
             let id = ParamId::parse(&name).ok_or_else(|| {
@@ -145,6 +139,7 @@ impl ArmModel {
             if !(lower..=upper).contains(&value) {
                 return Err(field(key, format!("current value {value} lies outside its bounds [{lower}, {upper}]")));
             }
+            model.fix_param(id);
             model.free.push(FreeParam { id, lower, upper });
         }
         model.free.sort_by_key(|f| f.id.dense_index());
@@ -160,6 +155,11 @@ impl ArmModel {
             tcp_mm: self.tcp_mm,
             scale_ppm: self.scale_ppm,
             joint: self.joints.to_vec(),
+            effects: crate::effects::Effect::library()
+                .into_iter()
+                .filter(|e| e.is_in(self) && e.kind.is_non_geometric())
+                .map(|e| e.to_string())
+                .collect(),
             free: self.free.iter().map(|f| (f.id.to_string(), [f.lower, f.upper])).collect(),
         };
         if json {

@@ -6,9 +6,15 @@
 //! the ops before m and v_{>m} is the tool point expressed in the frame after op m. For a rotation
 //! about axis a that is a × (E_m v_{>m}); for a translation along a it is a. One forward pass for
 //! the prefix rotations and one backward pass for the tool point give every column exactly.
+//!
+//! The joint rotation θ_j = φ_j + δθ_j + Δθ_ecc(φ_j) + c_j·λ_j (see [`crate::effects`]) depends on
+//! several parameters; its op carries each with ∂θ/∂q. The gravity lever λ_j is itself a
+//! function of the geometry; that second-order dependence (c·∂λ/∂q) is left out of the Jacobian,
+//! which is exact whenever the compliances are zero.
 
 use super::params::PARAM_SLOTS;
 use super::{ArmModel, Convention, ParamId, JOINTS};
+use crate::effects::{compliance, eccentricity};
 use nalgebra::{Matrix3, Vector3};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
@@ -83,12 +89,27 @@ enum OpKind {
     Translate(Axis),
 }
 
-/// One elementary transform; `param` is the parameter its value moves with and dvalue/dparam.
+/// Parameters a joint angle depends on: offset, four eccentricity terms, compliance.
+const ANGLE_DEPS: usize = 6;
+
+/// ∂θ_j/∂q (rad per parameter unit) for the parameters θ_j depends on.
+type AnglePartials = [(ParamId, f64); ANGLE_DEPS];
+
+/// What an op's value depends on.
+#[derive(Clone, Copy)]
+enum Dep {
+    /// One parameter, with dvalue/dparam.
+    Param(ParamId, f64),
+    /// Joint j's angle (see [`AnglePartials`]).
+    JointAngle(usize),
+}
+
+/// One elementary transform.
 #[derive(Clone, Copy)]
 struct Op {
     kind: OpKind,
     value: f64,
-    param: Option<(ParamId, f64)>,
+    dep: Dep,
 }
 
 impl Op {
@@ -111,18 +132,44 @@ const OPS_PER_JOINT: usize = 5;
 const OPS: usize = JOINTS * OPS_PER_JOINT + 3;
 
 fn rot(axis: Axis, value_deg: f64, id: ParamId) -> Op {
-    Op { kind: OpKind::Rotate(axis), value: value_deg * DEG, param: Some((id, DEG)) }
+    Op { kind: OpKind::Rotate(axis), value: value_deg * DEG, dep: Dep::Param(id, DEG) }
 }
 
 fn shift(axis: Axis, value_mm: f64, id: ParamId) -> Op {
-    Op { kind: OpKind::Translate(axis), value: value_mm, param: Some((id, 1.0)) }
+    Op { kind: OpKind::Translate(axis), value: value_mm, dep: Dep::Param(id, 1.0) }
 }
 
-/// The elementary ops of the chain for encoder angles `enc_deg`.
-fn chain(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> [Op; OPS] {
-    let mut ops = [Op { kind: OpKind::Translate(Axis::X), value: 0.0, param: None }; OPS];
+/// Joint angle θ = φ + δθ + Δθ_ecc(φ) + c·λ (degrees) and its partials. The harmonics are
+/// evaluated only when `harmonics` (some eccentricity is non-zero or wanted).
+fn joint_angle(model: &ArmModel, j: usize, enc_deg: f64, lever_m: f64, harmonics: bool) -> (f64, AnglePartials) {
+    let joint = &model.joints[j];
+    let [s1, c1, s2, c2] = if harmonics { eccentricity::partials(enc_deg) } else { [0.0; 4] };
+    let ecc = joint.eccentricity_sin_deg * s1 + joint.eccentricity_cos_deg * c1 + joint.eccentricity2_sin_deg * s2 + joint.eccentricity2_cos_deg * c2;
+    let theta = enc_deg + joint.offset_deg + ecc + joint.compliance_deg_per_m * lever_m;
+    let partials = [
+        (ParamId::Offset(j), DEG),
+        (ParamId::EccSin(j), DEG * s1),
+        (ParamId::EccCos(j), DEG * c1),
+        (ParamId::Ecc2Sin(j), DEG * s2),
+        (ParamId::Ecc2Cos(j), DEG * c2),
+        (ParamId::Compliance(j), DEG * lever_m),
+    ];
+    (theta, partials)
+}
+
+/// Index of joint j's rotation op within its row.
+fn joint_op_in_row(convention: Convention) -> usize {
+    match convention {
+        Convention::Classic => 0,
+        Convention::Modified => 3,
+    }
+}
+
+/// The elementary ops of the chain for joint angles `theta_deg`.
+fn chain(model: &ArmModel, theta_deg: &[f64; JOINTS]) -> [Op; OPS] {
+    let mut ops = [Op { kind: OpKind::Translate(Axis::X), value: 0.0, dep: Dep::JointAngle(0) }; OPS];
     for (j, joint) in model.joints.iter().enumerate() {
-        let theta = rot(Axis::Z, enc_deg[j] + joint.offset_deg, ParamId::Offset(j));
+        let theta = Op { kind: OpKind::Rotate(Axis::Z), value: theta_deg[j] * DEG, dep: Dep::JointAngle(j) };
         let d = shift(Axis::Z, joint.d_mm, ParamId::Length(j));
         let a = shift(Axis::X, joint.a_mm, ParamId::LinkOffset(j));
         let alpha = rot(Axis::X, joint.alpha_deg, ParamId::Twist(j));
@@ -156,12 +203,47 @@ pub fn tool_pose_with_jacobian(
     evaluate(model, enc_deg, Some((columns, jacobian)))
 }
 
+/// Gravity levers λ_j (m) of every joint on the arm without compliance deflection.
+fn gravity_levers(model: &ArmModel, theta_deg: &[f64; JOINTS]) -> [f64; JOINTS] {
+    let ops = chain(model, theta_deg);
+    // Pose (rotation, origin) before each op, and the tool point after all.
+    let mut rotation = Matrix3::identity();
+    let mut origin = Vector3::zeros();
+    let mut before = [(Matrix3::identity(), Vector3::zeros()); OPS + 1];
+    for (m, op) in ops.iter().enumerate() {
+        before[m] = (rotation, origin);
+        match op.kind {
+            OpKind::Translate(axis) => origin += rotation * axis.unit() * op.value,
+            OpKind::Rotate(_) => rotation *= op.rotation(),
+        }
+    }
+    before[OPS] = (rotation, origin);
+    let row_end = |j: usize| before[(j + 1) * OPS_PER_JOINT].1;
+    let tool = before[OPS].1;
+    let at = joint_op_in_row(model.convention);
+    std::array::from_fn(|j| {
+        let (r, o) = before[j * OPS_PER_JOINT + at];
+        let masses: Vec<Vector3<f64>> = (j..JOINTS).map(row_end).chain([tool]).collect();
+        compliance::gravity_lever_m(&o, &(r * Vector3::z()), &masses)
+    })
+}
+
 fn evaluate(
     model: &ArmModel,
     enc_deg: &[f64; JOINTS],
     mut wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
 ) -> ToolPose {
-    let ops = chain(model, enc_deg);
+    let wants = |kind: fn(usize) -> ParamId| wanted.as_ref().is_some_and(|(c, _)| (0..JOINTS).any(|j| c.column(kind(j)).is_some()));
+    let harmonics = [ParamId::EccSin, ParamId::EccCos, ParamId::Ecc2Sin, ParamId::Ecc2Cos].into_iter().any(wants)
+        || model.joints.iter().any(|j| j.eccentricity_sin_deg != 0.0 || j.eccentricity_cos_deg != 0.0 || j.eccentricity2_sin_deg != 0.0 || j.eccentricity2_cos_deg != 0.0);
+    let rigid: [(f64, AnglePartials); JOINTS] = std::array::from_fn(|j| joint_angle(model, j, enc_deg[j], 0.0, harmonics));
+    let angles = if wants(ParamId::Compliance) || model.joints.iter().any(|j| j.compliance_deg_per_m != 0.0) {
+        let levers = gravity_levers(model, &rigid.map(|a| a.0));
+        std::array::from_fn(|j| joint_angle(model, j, enc_deg[j], levers[j], harmonics))
+    } else {
+        rigid
+    };
+    let ops = chain(model, &angles.map(|a| a.0));
     let rotations: [Matrix3<f64>; OPS] = std::array::from_fn(|m| ops[m].rotation());
     // prefix[m] = rotation of ops 0..m (exclusive).
     let mut prefix = [Matrix3::identity(); OPS + 1];
@@ -187,22 +269,35 @@ fn evaluate(
             }
         }
         let Some((columns, jac)) = wanted.as_mut() else { continue };
-        let Some((id, dvalue)) = op.param else { continue };
-        let Some(c) = columns.column(id) else { continue };
-        let (dp, dx, dz) = match op.kind {
-            OpKind::Translate(axis) => (axis.unit(), Vector3::zeros(), Vector3::zeros()),
-            OpKind::Rotate(axis) => {
-                let a = axis.unit();
-                (a.cross(&point), a.cross(&x_axis), a.cross(&z_axis))
+        let single;
+        let deps: &[(ParamId, f64)] = match op.dep {
+            Dep::Param(id, d) => {
+                single = [(id, d)];
+                &single
             }
+            Dep::JointAngle(j) => &angles[j].1,
         };
-        let r = &prefix[m];
-        let (dp, dx, dz) = (r * dp * (scale * dvalue), r * dx * dvalue, r * dz * dvalue);
-        let col = &mut jac[c];
-        for k in 0..3 {
-            col[k] += dp[k];
-            col[3 + k] += dx[k];
-            col[6 + k] += dz[k];
+        let mut unit_derivative = None;
+        for (id, dvalue) in deps {
+            let Some(c) = columns.column(*id) else { continue };
+            // Derivative of the pose per unit of this op's value, computed once per op.
+            let (dp, dx, dz) = *unit_derivative.get_or_insert_with(|| {
+                let (dp, dx, dz) = match op.kind {
+                    OpKind::Translate(axis) => (axis.unit(), Vector3::zeros(), Vector3::zeros()),
+                    OpKind::Rotate(axis) => {
+                        let a = axis.unit();
+                        (a.cross(&point), a.cross(&x_axis), a.cross(&z_axis))
+                    }
+                };
+                let r = &prefix[m];
+                (r * dp * scale, r * dx, r * dz)
+            });
+            let col = &mut jac[c];
+            for k in 0..3 {
+                col[k] += dp[k] * dvalue;
+                col[3 + k] += dx[k] * dvalue;
+                col[6 + k] += dz[k] * dvalue;
+            }
         }
     }
     if let Some((columns, jac)) = wanted {
@@ -243,6 +338,33 @@ mod tests {
     }
 
     #[test]
+    fn compliance_bends_joints_down_and_its_column_is_exact() {
+        let mut model = ArmModel::suta_nominal();
+        let enc = [31.0, 170.0, 80.0, 250.0, 10.0, 95.0];
+        let rigid = tool_pose(&model, &enc).position_mm;
+        model.joints[1].compliance_deg_per_m = 0.5;
+        let bent = tool_pose(&model, &enc).position_mm;
+        assert!(bent.z < rigid.z, "gravity pulls the tool down: {} vs {}", bent.z, rigid.z);
+        // Joint 1 has a vertical axis: gravity exerts no torque about it.
+        let mut vertical = ArmModel::suta_nominal();
+        vertical.joints[0].compliance_deg_per_m = 5.0;
+        assert!((tool_pose(&vertical, &enc).position_mm - rigid).norm() < 1e-9);
+        let params = [ParamId::Compliance(1), ParamId::Compliance(3)];
+        let mut jac = vec![[0.0; 9]; 2];
+        tool_pose_with_jacobian(&model, &enc, &ColumnMap::new(&params), &mut jac);
+        for (c, &id) in params.iter().enumerate() {
+            let h = 1e-5;
+            let (mut plus, mut minus) = (model.clone(), model.clone());
+            plus.set(id, model.get(id) + h);
+            minus.set(id, model.get(id) - h);
+            let fd = (tool_pose(&plus, &enc).position_mm - tool_pose(&minus, &enc).position_mm) / (2.0 * h);
+            for k in 0..3 {
+                assert!((jac[c][k] - fd[k]).abs() < 1e-5 * (1.0 + fd[k].abs()), "{id}[{k}]: {} vs {}", jac[c][k], fd[k]);
+            }
+        }
+    }
+
+    #[test]
     fn jacobian_matches_central_differences_for_every_parameter() {
         for convention in [Convention::Classic, Convention::Modified] {
             let mut model = ArmModel::suta_nominal();
@@ -251,6 +373,9 @@ mod tests {
             model.joints[3].axis_deg = 0.7;
             model.tcp_mm = [4.0, -2.0, 253.0];
             model.scale_ppm = 150.0;
+            model.joints[1].eccentricity_sin_deg = 0.3;
+            model.joints[4].eccentricity_cos_deg = -0.2;
+            model.joints[2].eccentricity2_sin_deg = 0.1;
             let params = ParamId::all();
             let columns = ColumnMap::new(&params);
             let mut jac = vec![[0.0; 9]; params.len()];

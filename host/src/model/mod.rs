@@ -25,7 +25,7 @@ pub enum Convention {
 }
 
 /// Geometry of one joint row. θ = encoder + `offset_deg` (+ joint-angle effects).
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Joint {
     /// Encoder zero offset δθ, degrees.
     pub offset_deg: f64,
@@ -38,6 +38,44 @@ pub struct Joint {
     /// Hayati misalignment about y (for near-parallel consecutive axes), degrees.
     #[serde(default)]
     pub axis_deg: f64,
+    /// Eccentricity, first harmonic, sine part (see [`crate::effects::eccentricity`]), degrees.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub eccentricity_sin_deg: f64,
+    /// Eccentricity, first harmonic, cosine part, degrees.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub eccentricity_cos_deg: f64,
+    /// Eccentricity, second harmonic, sine part, degrees.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub eccentricity2_sin_deg: f64,
+    /// Eccentricity, second harmonic, cosine part, degrees.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub eccentricity2_cos_deg: f64,
+    /// Gravity compliance (see [`crate::effects::compliance`]), degrees per metre of lever.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub compliance_deg_per_m: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
+impl Joint {
+    /// The field a per-joint parameter lives in (whole-arm parameters map to `offset_deg`,
+    /// never asked for by [`ArmModel`]).
+    fn slot(&mut self, id: ParamId) -> &mut f64 {
+        match id {
+            ParamId::Length(_) => &mut self.d_mm,
+            ParamId::LinkOffset(_) => &mut self.a_mm,
+            ParamId::Twist(_) => &mut self.alpha_deg,
+            ParamId::Axis(_) => &mut self.axis_deg,
+            ParamId::EccSin(_) => &mut self.eccentricity_sin_deg,
+            ParamId::EccCos(_) => &mut self.eccentricity_cos_deg,
+            ParamId::Ecc2Sin(_) => &mut self.eccentricity2_sin_deg,
+            ParamId::Ecc2Cos(_) => &mut self.eccentricity2_cos_deg,
+            ParamId::Compliance(_) => &mut self.compliance_deg_per_m,
+            ParamId::Offset(_) | ParamId::Tcp(_) | ParamId::Scale => &mut self.offset_deg,
+        }
+    }
 }
 
 /// A parameter the solver may move, with its bounds in the parameter's own unit.
@@ -72,28 +110,27 @@ impl ArmModel {
     /// The value of one parameter, in its unit.
     pub fn get(&self, id: ParamId) -> f64 {
         match id {
-            ParamId::Offset(j) => self.joints[j].offset_deg,
-            ParamId::Length(j) => self.joints[j].d_mm,
-            ParamId::LinkOffset(j) => self.joints[j].a_mm,
-            ParamId::Twist(j) => self.joints[j].alpha_deg,
-            ParamId::Axis(j) => self.joints[j].axis_deg,
             ParamId::Tcp(k) => self.tcp_mm[k],
             ParamId::Scale => self.scale_ppm,
+            _ => {
+                let j = id.joint().unwrap_or(0);
+                let mut joint = self.joints[j];
+                *joint.slot(id)
+            }
         }
     }
 
     /// Set one parameter, in its unit.
     pub fn set(&mut self, id: ParamId, value: f64) {
-        let slot = match id {
-            ParamId::Offset(j) => &mut self.joints[j].offset_deg,
-            ParamId::Length(j) => &mut self.joints[j].d_mm,
-            ParamId::LinkOffset(j) => &mut self.joints[j].a_mm,
-            ParamId::Twist(j) => &mut self.joints[j].alpha_deg,
-            ParamId::Axis(j) => &mut self.joints[j].axis_deg,
+        *self.slot(id) = value;
+    }
+
+    fn slot(&mut self, id: ParamId) -> &mut f64 {
+        match id {
             ParamId::Tcp(k) => &mut self.tcp_mm[k],
             ParamId::Scale => &mut self.scale_ppm,
-        };
-        *slot = value;
+            _ => self.joints[id.joint().unwrap_or(0)].slot(id),
+        }
     }
 
     /// Values of the free parameters, in `free` order.
@@ -137,7 +174,7 @@ impl ArmModel {
             d_mm: d[j],
             a_mm: 0.0,
             alpha_deg: alpha[j],
-            axis_deg: 0.0,
+            ..Joint::default()
         });
         let mut model = ArmModel {
             name: "SUTA nominal (thesis Table 3.2)".into(),

@@ -15,6 +15,16 @@ pub enum ParamId {
     Twist(usize),
     /// `axis:j` — Hayati β_j about y (deg).
     Axis(usize),
+    /// `eccentricity_sin:j` — first-harmonic angle error, sine part (deg).
+    EccSin(usize),
+    /// `eccentricity_cos:j` — first-harmonic angle error, cosine part (deg).
+    EccCos(usize),
+    /// `eccentricity2_sin:j` — second-harmonic angle error, sine part (deg).
+    Ecc2Sin(usize),
+    /// `eccentricity2_cos:j` — second-harmonic angle error, cosine part (deg).
+    Ecc2Cos(usize),
+    /// `compliance:j` — joint deflection per metre of unit-weight gravity lever (deg/m).
+    Compliance(usize),
     /// `tcp.x`, `tcp.y`, `tcp.z` — tool centre point in the last frame (mm).
     Tcp(usize),
     /// `scale` — length scale error (ppm).
@@ -22,9 +32,10 @@ pub enum ParamId {
 }
 
 /// Number of distinct parameter slots (see [`ParamId::dense_index`]).
-pub const PARAM_SLOTS: usize = 5 * super::JOINTS + 4;
+pub const PARAM_SLOTS: usize = JOINT_KINDS.len() * super::JOINTS + 4;
 
-const JOINT_KINDS: [&str; 5] = ["offset", "length", "link_offset", "twist", "axis"];
+const JOINT_KINDS: [&str; 10] = ["offset", "length", "link_offset", "twist", "axis", "eccentricity_sin", "eccentricity_cos", "eccentricity2_sin", "eccentricity2_cos", "compliance"];
+const TCP_SLOT: usize = JOINT_KINDS.len() * super::JOINTS;
 const TCP_AXES: [&str; 3] = ["x", "y", "z"];
 
 impl ParamId {
@@ -35,36 +46,59 @@ impl ParamId {
 
     /// A dense index in `0..PARAM_SLOTS`, for lookup tables.
     pub fn dense_index(self) -> usize {
-        let n = super::JOINTS;
-        match self {
-            ParamId::Offset(j) => j,
-            ParamId::Length(j) => n + j,
-            ParamId::LinkOffset(j) => 2 * n + j,
-            ParamId::Twist(j) => 3 * n + j,
-            ParamId::Axis(j) => 4 * n + j,
-            ParamId::Tcp(k) => 5 * n + k,
-            ParamId::Scale => 5 * n + 3,
+        match self.joint_kind() {
+            Some((kind, j)) => kind * super::JOINTS + j,
+            None => match self {
+                ParamId::Tcp(k) => TCP_SLOT + k,
+                _ => TCP_SLOT + 3,
+            },
         }
+    }
+
+    /// (index into the per-joint kinds, joint) for per-joint parameters.
+    fn joint_kind(self) -> Option<(usize, usize)> {
+        Some(match self {
+            ParamId::Offset(j) => (0, j),
+            ParamId::Length(j) => (1, j),
+            ParamId::LinkOffset(j) => (2, j),
+            ParamId::Twist(j) => (3, j),
+            ParamId::Axis(j) => (4, j),
+            ParamId::EccSin(j) => (5, j),
+            ParamId::EccCos(j) => (6, j),
+            ParamId::Ecc2Sin(j) => (7, j),
+            ParamId::Ecc2Cos(j) => (8, j),
+            ParamId::Compliance(j) => (9, j),
+            ParamId::Tcp(_) | ParamId::Scale => return None,
+        })
+    }
+
+    fn from_joint_kind(kind: usize, j: usize) -> ParamId {
+        [ParamId::Offset, ParamId::Length, ParamId::LinkOffset, ParamId::Twist, ParamId::Axis, ParamId::EccSin, ParamId::EccCos, ParamId::Ecc2Sin, ParamId::Ecc2Cos, ParamId::Compliance][kind](j)
     }
 
     fn from_dense_index(i: usize) -> ParamId {
         let n = super::JOINTS;
-        match i / n {
-            0 => ParamId::Offset(i % n),
-            1 => ParamId::Length(i % n),
-            2 => ParamId::LinkOffset(i % n),
-            3 => ParamId::Twist(i % n),
-            4 => ParamId::Axis(i % n),
-            _ if i - 5 * n < 3 => ParamId::Tcp(i - 5 * n),
-            _ => ParamId::Scale,
+        if i < TCP_SLOT {
+            ParamId::from_joint_kind(i / n, i % n)
+        } else if i < TCP_SLOT + 3 {
+            ParamId::Tcp(i - TCP_SLOT)
+        } else {
+            ParamId::Scale
         }
+    }
+
+    /// The joint (0-based) of a per-joint parameter.
+    pub fn joint(self) -> Option<usize> {
+        self.joint_kind().map(|(_, j)| j)
     }
 
     /// The unit of the parameter's value.
     pub fn unit(self) -> &'static str {
         match self {
             ParamId::Offset(_) | ParamId::Twist(_) | ParamId::Axis(_) => "deg",
+            ParamId::EccSin(_) | ParamId::EccCos(_) | ParamId::Ecc2Sin(_) | ParamId::Ecc2Cos(_) => "deg",
             ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) => "mm",
+            ParamId::Compliance(_) => "deg/m",
             ParamId::Scale => "ppm",
         }
     }
@@ -82,27 +116,16 @@ impl ParamId {
         if !(1..=super::JOINTS).contains(&j) {
             return None;
         }
-        let j = j - 1;
-        Some(match JOINT_KINDS.iter().position(|k| *k == kind)? {
-            0 => ParamId::Offset(j),
-            1 => ParamId::Length(j),
-            2 => ParamId::LinkOffset(j),
-            3 => ParamId::Twist(j),
-            _ => ParamId::Axis(j),
-        })
+        Some(ParamId::from_joint_kind(JOINT_KINDS.iter().position(|k| *k == kind)?, j - 1))
     }
 }
 
 impl fmt::Display for ParamId {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match *self {
-            ParamId::Offset(j) => write!(f, "offset:{}", j + 1),
-            ParamId::Length(j) => write!(f, "length:{}", j + 1),
-            ParamId::LinkOffset(j) => write!(f, "link_offset:{}", j + 1),
-            ParamId::Twist(j) => write!(f, "twist:{}", j + 1),
-            ParamId::Axis(j) => write!(f, "axis:{}", j + 1),
-            ParamId::Tcp(k) => write!(f, "tcp.{}", TCP_AXES[k]),
-            ParamId::Scale => write!(f, "scale"),
+        match (self.joint_kind(), *self) {
+            (Some((kind, j)), _) => write!(f, "{}:{}", JOINT_KINDS[kind], j + 1),
+            (None, ParamId::Tcp(k)) => write!(f, "tcp.{}", TCP_AXES[k]),
+            (None, _) => write!(f, "scale"),
         }
     }
 }

@@ -4,7 +4,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use kincal::calibrate::CalibrationOptions;
 use kincal::data::{Artefact, Dataset};
-use kincal::model::ArmModel;
+use kincal::model::{ArmModel, ParamId};
 use kincal::objective::Objective;
 use kincal::run::{run, RunInputs};
 use kincal::simulate::{simulate, SimulationOptions};
@@ -58,6 +58,19 @@ struct SimulateArgs {
     /// Repeats of each landmark per placement.
     #[arg(long, default_value_t = 3)]
     repeats: u32,
+    /// Hidden effect: PARAM=DELTA added to the true arm, e.g. eccentricity_sin:5=0.3 (repeatable).
+    #[arg(long, value_parser = parse_hidden)]
+    hidden: Vec<(ParamId, f64)>,
+}
+
+fn parse_hidden(text: &str) -> Result<(ParamId, f64), String> {
+    let (name, value) = text.split_once('=').ok_or("expected PARAM=DELTA, e.g. eccentricity_sin:5=0.3")?;
+    let id = ParamId::parse(name.trim()).ok_or_else(|| format!("unknown parameter `{name}`"))?;
+    let delta: f64 = value.trim().parse().map_err(|_| format!("`{value}` is not a number"))?;
+    if !delta.is_finite() {
+        return Err(format!("`{value}` is not finite"));
+    }
+    Ok((id, delta))
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -195,7 +208,7 @@ fn simulate_to(model: &Path, out: &Path, options: &SimulationOptions) -> Result<
 }
 
 fn cmd_simulate(a: &SimulateArgs) -> Result<()> {
-    let options = SimulationOptions { seed: a.seed, perturb_deg: a.perturb_deg, perturb_mm: a.perturb_mm, seating_noise_mm: a.seating_noise_mm, encoder_noise_deg: a.encoder_noise_deg, repeats: a.repeats };
+    let options = SimulationOptions { seed: a.seed, perturb_deg: a.perturb_deg, perturb_mm: a.perturb_mm, seating_noise_mm: a.seating_noise_mm, encoder_noise_deg: a.encoder_noise_deg, repeats: a.repeats, hidden: a.hidden.clone() };
     simulate_to(&a.model, &a.out, &options)
 }
 

@@ -337,11 +337,6 @@ impl SimulatedData {
     }
 }
 
-/// Names of the parameters that [`perturbed_truth`] moves.
-pub fn perturbed_parameters(nominal: &ArmModel) -> Vec<ParamId> {
-    nominal.free.iter().map(|f| f.id).collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

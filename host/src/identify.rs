@@ -202,3 +202,60 @@ mod tests {
         assert_eq!(dropped, vec![0, 3]);
     }
 }
+
+/// How candidate columns `extra` relate to the identifiable columns `base` (both indices into a
+/// row-major m × n Jacobian, ranges as in [`analyse`]). Each extra column is projected on the
+/// base columns and on the extras before it: it adds rank when the part left is at least
+/// [`BASE_SET_TOLERANCE`] of the largest base column.
+pub fn added_rank(jac: &[f64], n: usize, ranges: &[f64], base: &[usize], extra: &[usize]) -> Vec<AddedRank> {
+    let m = jac.len() / n.max(1);
+    let col = |c: usize| DVector::from_fn(m, |i, _| jac[i * n + c] * ranges[c]);
+    let largest = base.iter().chain(extra).map(|&c| col(c).norm()).fold(0.0, f64::max);
+    let b = DMatrix::from_fn(m, base.len(), |i, k| jac[i * n + base[k]] * ranges[base[k]]);
+    let btb = b.transpose() * &b;
+    let mut basis: Vec<DVector<f64>> = Vec::new();
+    // Orthonormal basis of the base columns.
+    for k in 0..base.len() {
+        let mut v = b.column(k).into_owned();
+        for q in &basis {
+            v -= q * q.dot(&v);
+        }
+        let norm = v.norm();
+        if norm > 1e-12 * largest.max(1e-300) {
+            basis.push(v / norm);
+        }
+    }
+    extra
+        .iter()
+        .map(|&c| {
+            let original = col(c);
+            let mut v = original.clone();
+            for q in &basis {
+                v -= q * q.dot(&v);
+            }
+            let norm = v.norm();
+            let adds = norm >= BASE_SET_TOLERANCE * largest;
+            if adds {
+                basis.push(v / norm);
+            }
+            let scaled = btb.clone().cholesky().map(|ch| ch.solve(&(b.transpose() * &original))).map(|x| x.iter().copied().collect()).unwrap_or_else(|| vec![0.0; base.len()]);
+            let like = scaled.iter().enumerate().map(|(k, v)| v * ranges[base[k]] / ranges[c]).collect();
+            AddedRank { adds, moves_nothing: original.norm() <= ZERO_COLUMN_BELOW * largest, like, share: scaled }
+        })
+        .collect()
+}
+
+/// How one candidate column relates to the base columns (see [`added_rank`]).
+#[derive(Clone, Debug)]
+pub struct AddedRank {
+    /// The column adds rank: the parameter is identifiable next to the base set.
+    pub adds: bool,
+    /// The column is negligible: the parameter changes no residual at all.
+    pub moves_nothing: bool,
+    /// Least-squares coefficients on the base columns in physical units: one unit of the
+    /// candidate moves the residuals like `like[k]` units of base parameter k.
+    pub like: Vec<f64>,
+    /// The same coefficients on range-scaled columns (share of each base parameter's range
+    /// per range of the candidate), for judging which matter.
+    pub share: Vec<f64>,
+}

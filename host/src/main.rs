@@ -4,6 +4,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use kincal::calibrate::CalibrationOptions;
 use kincal::data::{Artefact, Dataset};
+use kincal::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
 use kincal::objective::Objective;
 use kincal::run::{run, RunInputs};
@@ -26,6 +27,10 @@ enum Command {
     Calibrate(CalibrateArgs),
     /// Dataset-size study: calibrate on random subsets of placements, validate each.
     Study(StudyArgs),
+    /// Where the calibrated model of RUN fails and which physical effect is missing.
+    Diagnose(DiagnoseArgs),
+    /// Compare two runs: validation errors, per landmark, residual plots side by side.
+    Compare(CompareArgs),
     /// Simulate, calibrate and report on the shipped example (no hardware needed).
     Demo(DemoArgs),
     /// Benchmarks: calibration time, study throughput, and SciPy on the same problem.
@@ -61,6 +66,30 @@ struct SimulateArgs {
     /// Hidden effect: PARAM=DELTA added to the true arm, e.g. eccentricity_sin:5=0.3 (repeatable).
     #[arg(long, value_parser = parse_hidden)]
     hidden: Vec<(ParamId, f64)>,
+}
+
+fn parse_effect(text: &str) -> Result<Effect, String> {
+    Effect::parse(text).ok_or_else(|| format!("unknown effect `{text}`; expected e.g. eccentricity:5, eccentricity2:3, compliance:2, twist:4, link_offset:3, axis:2, tcp, scale"))
+}
+
+#[derive(Args)]
+struct DiagnoseArgs {
+    /// A RUN folder written by `kincal calibrate`.
+    run: PathBuf,
+    /// Print diagnosis.json to stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+struct CompareArgs {
+    /// The run before.
+    before: PathBuf,
+    /// The run after.
+    after: PathBuf,
+    /// Where to write the side-by-side HTML.
+    #[arg(long, default_value = "compare.html")]
+    out: PathBuf,
 }
 
 fn parse_hidden(text: &str) -> Result<(ParamId, f64), String> {
@@ -138,6 +167,9 @@ struct CalibrateArgs {
     /// Also run the dataset-size study with this many subsets per placement count (0: no study).
     #[arg(long, default_value_t = 0)]
     study_subsets: usize,
+    /// Add an effect of the library to the model, e.g. eccentricity:5 (repeatable).
+    #[arg(long = "add", value_parser = parse_effect)]
+    add: Vec<Effect>,
     /// Print summary.json to stdout.
     #[arg(long)]
     json: bool,
@@ -183,6 +215,8 @@ fn main() {
         Command::Simulate(a) => cmd_simulate(&a),
         Command::Calibrate(a) => cmd_calibrate(&a),
         Command::Study(a) => cmd_study(&a),
+        Command::Diagnose(a) => cmd_diagnose(&a),
+        Command::Compare(a) => cmd_compare(&a),
         Command::Demo(a) => cmd_demo(&a),
         Command::Bench(a) => kincal::bench::run_benchmarks(&a).map_err(anyhow::Error::from),
     };
@@ -216,9 +250,9 @@ fn inputs(a: &InputArgs) -> RunInputs {
     RunInputs { model: a.model.clone(), artefact: a.artefact.clone(), calibration: a.data.clone(), validation: a.validate.clone() }
 }
 
-fn calibrate_and_report(inputs: &RunInputs, out: &Path, options: &CalibrationOptions, study_subsets: usize, json: bool) -> Result<()> {
+fn calibrate_and_report(inputs: &RunInputs, out: &Path, options: &CalibrationOptions, effects: &[Effect], study_subsets: usize, json: bool) -> Result<()> {
     let started = std::time::Instant::now();
-    let result = run(inputs, options, study_subsets)?;
+    let result = run(inputs, options, effects, study_subsets)?;
     result.write(out)?;
     let s = &result.summary;
     if json {
@@ -247,7 +281,7 @@ fn calibrate_and_report(inputs: &RunInputs, out: &Path, options: &CalibrationOpt
 }
 
 fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
-    calibrate_and_report(&inputs(&a.inputs), &a.out, &a.solve.options(), a.study_subsets, a.json)
+    calibrate_and_report(&inputs(&a.inputs), &a.out, &a.solve.options(), &a.add, a.study_subsets, a.json)
 }
 
 fn cmd_study(a: &StudyArgs) -> Result<()> {
@@ -287,11 +321,53 @@ fn cmd_demo(a: &DemoArgs) -> Result<()> {
     simulate_to(&a.model, &data, &SimulationOptions { seed: a.seed, ..SimulationOptions::default() })?;
     println!("2/2 calibrate on {} and validate on {}", data.join("cal").display(), data.join("val").display());
     let inputs = RunInputs { model: a.model.clone(), artefact: data.join("artefact.json"), calibration: data.join("cal"), validation: data.join("val") };
-    calibrate_and_report(&inputs, &a.out.join("run"), &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() }, 20, false)?;
+    calibrate_and_report(&inputs, &a.out.join("run"), &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() }, &[], 20, false)?;
     let truth = ArmModel::load(&data.join("truth.toml"))?;
     let artefact = Artefact::load(&inputs.artefact)?;
     let val = Dataset::load_dir(&inputs.validation, &artefact)?;
     let floor = kincal::validate::validate(&truth, &artefact, &val).overall;
     println!("  noise floor (true arm on the same validation data) {:.3} mm", floor.rms_mm);
+    Ok(())
+}
+
+fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
+    let folder = kincal::run::RunFolder::load(&a.run)?;
+    let (artefact, cal, val) = folder.data()?;
+    let started = std::time::Instant::now();
+    let diagnosis = kincal::diagnose::diagnose(&folder.model, &artefact, &cal, &val, &folder.record.options.calibration_options());
+    let elapsed = started.elapsed().as_secs_f64();
+    let json = serde_json::to_string_pretty(&diagnosis)?;
+    kincal::fsutil::write_atomic(&a.run.join("diagnosis.json"), json.as_bytes()).with_context(|| format!("writing {}", a.run.join("diagnosis.json").display()))?;
+    let html = kincal::report::diagnosis_report(&diagnosis);
+    kincal::fsutil::write_atomic(&a.run.join("diagnosis.html"), html.as_bytes()).with_context(|| format!("writing {}", a.run.join("diagnosis.html").display()))?;
+    if a.json {
+        println!("{json}");
+        return Ok(());
+    }
+    for line in &diagnosis.summary {
+        println!("{line}");
+    }
+    println!("\n{} candidate effects scored in {elapsed:.2} s (held-out validation RMS, best first):", diagnosis.candidates.len());
+    println!("  {:<16} {:>10} {:>9} {:>8}  {}", "effect", "val RMS mm", "explained", "blocks", "significant");
+    for c in diagnosis.candidates.iter().filter(|c| c.equivalent_to.is_none()).take(8) {
+        let blocks = format!("{}/{}", c.blocks_improved.0, c.blocks_improved.1);
+        let same = if c.equivalent.is_empty() { String::new() } else { format!("  (indistinguishable here: {})", c.equivalent.join(", ")) };
+        println!("  {:<16} {:>10.3} {:>9.2} {:>8}  {}{same}", c.effect, c.validation_rms_mm, c.explained, blocks, if c.significant { "yes" } else { "no" });
+    }
+    if !diagnosis.not_identifiable.is_empty() {
+        let names: Vec<&str> = diagnosis.not_identifiable.iter().map(|n| n.effect.as_str()).collect();
+        println!("  not identifiable from these touches: {}", names.join(", "));
+    }
+    println!("report: {}", a.run.join("diagnosis.html").display());
+    Ok(())
+}
+
+fn cmd_compare(a: &CompareArgs) -> Result<()> {
+    let comparison = kincal::report::Comparison::load(&a.before, &a.after)?;
+    for line in comparison.table_lines() {
+        println!("{line}");
+    }
+    kincal::fsutil::write_atomic(&a.out, comparison.html().as_bytes()).with_context(|| format!("writing {}", a.out.display()))?;
+    println!("side by side: {}", a.out.display());
     Ok(())
 }

@@ -15,7 +15,7 @@ use crate::solver::Residuals;
 use nalgebra::Vector3;
 
 /// Which residual blocks the calibration minimises.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Objective {
     /// Pairwise distances only (the thesis).

@@ -1,11 +1,13 @@
 //! `kincal calibrate`: the whole job from input files to a RUN folder.
 //!
-//! RUN/ holds `model.toml` (the calibrated model, loadable again), `summary.json` and
-//! `report.html`. The folder is written under a temporary name and renamed when complete, so a
+//! RUN/ holds `model.toml` (the calibrated model, loadable again), `nominal.toml` (the model it
+//! started from, with any added effects), `summary.json`, `residuals.json` (every validation
+//! distance error, for `kincal compare`) and `report.html`. The folder is written under a temporary name and renamed when complete, so a
 //! half-written RUN is never presented as done.
 
 use crate::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome};
 use crate::data::{Artefact, DataError, Dataset};
+use crate::effects::Effect;
 use crate::identify::{self, Identifiability};
 use crate::model::{ArmModel, ModelError};
 use crate::objective::{CalibrationProblem, Objective};
@@ -37,8 +39,8 @@ pub enum RunError {
     },
 }
 
-/// Input files of a run.
-#[derive(Clone, Debug, serde::Serialize)]
+/// Input files of a run (absolute once the run has loaded them).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct RunInputs {
     /// Arm model file.
     pub model: PathBuf,
@@ -93,7 +95,7 @@ pub struct Summary {
 }
 
 /// Options recorded in the summary.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct SummaryOptions {
     /// Huber threshold, mm.
     pub huber_delta_mm: f64,
@@ -103,6 +105,67 @@ pub struct SummaryOptions {
     pub seed: u64,
     /// Objective minimised.
     pub objective: Objective,
+    /// Effects added to the input model with `--add`.
+    #[serde(default)]
+    pub added_effects: Vec<String>,
+}
+
+impl SummaryOptions {
+    /// The calibration options these record.
+    pub fn calibration_options(&self) -> CalibrationOptions {
+        CalibrationOptions { huber_delta_mm: self.huber_delta_mm, restarts: self.restarts, seed: self.seed, objective: self.objective, ..CalibrationOptions::default() }
+    }
+}
+
+/// What `kincal diagnose` and `kincal compare` read back from a RUN folder.
+#[derive(Clone, Debug, serde::Deserialize)]
+pub struct RunRecord {
+    /// Input files.
+    pub inputs: RunInputs,
+    /// Options.
+    pub options: SummaryOptions,
+}
+
+/// One validation distance error as stored in `residuals.json`.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct StoredPairError {
+    /// Placement name.
+    pub placement: String,
+    /// Landmark ids.
+    pub landmarks: (String, String),
+    /// Repeat.
+    pub repeat: u32,
+    /// Measured minus certified distance, mm.
+    pub error_mm: f64,
+    /// Raw encoder angles of the two touches, degrees.
+    pub enc_deg: ([f64; crate::model::JOINTS], [f64; crate::model::JOINTS]),
+}
+
+/// A RUN folder's files.
+pub struct RunFolder {
+    /// The calibrated model.
+    pub model: ArmModel,
+    /// What the run recorded.
+    pub record: RunRecord,
+}
+
+impl RunFolder {
+    /// Read `model.toml` and `summary.json` of a RUN folder.
+    pub fn load(dir: &Path) -> Result<RunFolder, RunError> {
+        let model = ArmModel::load(&dir.join("model.toml"))?;
+        let path = dir.join("summary.json");
+        let text = std::fs::read_to_string(&path).map_err(|source| RunError::Output { path: path.clone(), source })?;
+        let record = serde_json::from_str(&text).map_err(|e| DataError::Syntax { path, message: e.to_string() })?;
+        Ok(RunFolder { model, record })
+    }
+
+    /// Load the artefact and both datasets the run used.
+    pub fn data(&self) -> Result<(Artefact, Dataset, Dataset), RunError> {
+        let artefact = Artefact::load(&self.record.inputs.artefact)?;
+        let cal = Dataset::load_dir(&self.record.inputs.calibration, &artefact)?;
+        let val = Dataset::load_dir(&self.record.inputs.validation, &artefact)?;
+        Ok((artefact, cal, val))
+    }
 }
 
 /// Calibration figures in the summary.
@@ -152,6 +215,8 @@ pub struct ValidationDetail {
 
 /// A finished run: results plus what the report draws.
 pub struct Run {
+    /// The model calibration started from (input model plus added effects).
+    pub nominal: ArmModel,
     /// The summary written to `summary.json`.
     pub summary: Summary,
     /// The calibration itself.
@@ -197,10 +262,16 @@ fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -
     ObjectiveComparison { identifiable_by_distance: by_distance, identifiable_by_six_dof: by_six_dof, gained_by_orientation: gained, std }
 }
 
-/// Load the inputs, calibrate, validate and diagnose; with `study_subsets` > 0 also run the
-/// dataset-size study with that many random subsets per placement count.
-pub fn run(inputs: &RunInputs, options: &CalibrationOptions, study_subsets: usize) -> Result<Run, RunError> {
-    let nominal = ArmModel::load(&inputs.model)?;
+/// Load the inputs, add `effects` to the model, calibrate, validate and diagnose outliers; with
+/// `study_subsets` > 0 also run the dataset-size study with that many random subsets per
+/// placement count.
+pub fn run(inputs: &RunInputs, options: &CalibrationOptions, effects: &[Effect], study_subsets: usize) -> Result<Run, RunError> {
+    let absolute = |p: &Path| std::fs::canonicalize(p).map_err(|source| RunError::Output { path: p.to_owned(), source });
+    let inputs = &RunInputs { model: absolute(&inputs.model)?, artefact: absolute(&inputs.artefact)?, calibration: absolute(&inputs.calibration)?, validation: absolute(&inputs.validation)? };
+    let mut nominal = ArmModel::load(&inputs.model)?;
+    for effect in effects {
+        effect.add_to(&mut nominal);
+    }
     let artefact = Artefact::load(&inputs.artefact)?;
     let cal = Dataset::load_dir(&inputs.calibration, &artefact)?;
     let val = Dataset::load_dir(&inputs.validation, &artefact)?;
@@ -211,7 +282,7 @@ pub fn run(inputs: &RunInputs, options: &CalibrationOptions, study_subsets: usiz
     let summary = Summary {
         kincal_version: env!("CARGO_PKG_VERSION"),
         inputs: inputs.clone(),
-        options: SummaryOptions { huber_delta_mm: options.huber_delta_mm, restarts: options.restarts, seed: options.seed, objective: options.objective },
+        options: SummaryOptions { huber_delta_mm: options.huber_delta_mm, restarts: options.restarts, seed: options.seed, objective: options.objective, added_effects: effects.iter().map(|e| e.to_string()).collect() },
         calibration: CalibrationSummary {
             rms_mm: fit.rms_mm,
             cost: fit.cost,
@@ -239,7 +310,7 @@ pub fn run(inputs: &RunInputs, options: &CalibrationOptions, study_subsets: usiz
             study(&nominal, &artefact, &cal, &val, &StudyOptions { subsets: study_subsets, seed: options.seed, calibration, progress: false })
         }),
     };
-    Ok(Run { summary, calibration: fit, validation, nominal_validation, artefact, validation_data: val })
+    Ok(Run { nominal, summary, calibration: fit, validation, nominal_validation, artefact, validation_data: val })
 }
 
 impl Run {
@@ -258,6 +329,22 @@ impl Run {
         }
         std::fs::create_dir_all(&staged).map_err(out(&staged))?;
         self.calibration.model.save(&staged.join("model.toml"))?;
+        self.nominal.save(&staged.join("nominal.toml"))?;
+        let val = &self.validation_data;
+        let stored: Vec<StoredPairError> = self
+            .validation
+            .errors
+            .iter()
+            .map(|e| StoredPairError {
+                placement: val.placements[e.placement].clone(),
+                landmarks: (self.artefact.landmarks[e.landmarks.0].id.clone(), self.artefact.landmarks[e.landmarks.1].id.clone()),
+                repeat: val.touches[e.touches.0].repeat,
+                error_mm: e.error_mm,
+                enc_deg: (val.touches[e.touches.0].enc_deg, val.touches[e.touches.1].enc_deg),
+            })
+            .collect();
+        let residuals = serde_json::to_string(&stored).unwrap_or_default();
+        std::fs::write(staged.join("residuals.json"), residuals).map_err(out(&staged.join("residuals.json")))?;
         let json = serde_json::to_string_pretty(&self.summary).unwrap_or_default();
         std::fs::write(staged.join("summary.json"), json).map_err(out(&staged.join("summary.json")))?;
         std::fs::write(staged.join("report.html"), crate::report::calibration_report(self)).map_err(out(&staged.join("report.html")))?;

@@ -1,0 +1,472 @@
+//! Model diagnostics: where the calibrated model fails, which physical effect is missing.
+//!
+//! *Where it fails* reads the residuals of the calibrated model on the held-out placements:
+//! after a rigid fit of the artefact to the touched positions of each placement, every touch
+//! leaves a 3-D residual r. Projected on ∂p/∂θ_j it becomes the *apparent error of joint j*,
+//! e_j = (g_j·r)/‖g_j‖² with g_j = ∂p/∂θ_j — what joint j would have to be off by to explain the
+//! residual. e_j is binned against θ_j and fitted with a sinusoid a·sin φ + b·cos φ + c
+//! (weighted by ‖g_j‖²), against the joint's gravity lever, and |r| against height and reach.
+//!
+//! *Which effect is missing*: every library effect not yet in the model is checked for
+//! identifiability (does it add rank to the Jacobian of the identifiable parameters?), then
+//! refitted on the calibration data from the calibrated values and scored on the validation
+//! data. `significant` needs all of: a one-sided sign test over (placement, repeat) blocks of the
+//! validation data — how many blocks' mean square error fell — with p below
+//! [`FAMILY_ALPHA`] / (number of candidates); a lower BIC on the calibration data; and at least
+//! [`SIGNIFICANT_GAIN`] lower validation RMS. The sign test does not assume the improvement is
+//! the same size everywhere (a real effect helps some poses far more than others); an effect
+//! that only fits noise improves about half the blocks.
+//!
+//! An effect with several parameters (`tcp`, `eccentricity`) keeps those that are identifiable;
+//! the rest stay at zero and are named in the evidence. Candidates whose refits change the
+//! held-out errors the same way (correlation of the changes ≥ [`EQUIVALENT_CORRELATION`]) are
+//! reported as equivalent: a tool-tip offset along the last joint axis and the link length d6,
+//! say, move every touch alike and no data of this kind separates them.
+
+use crate::calibrate::{calibrate, CalibrationOptions};
+use crate::data::{Artefact, Dataset};
+use crate::effects::{Effect, EffectKind};
+use crate::identify;
+use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
+use crate::model::{ArmModel, ParamId, JOINTS};
+use crate::objective::{CalibrationProblem, Objective};
+use crate::outliers::rigid_fit;
+use crate::solver::Residuals;
+use crate::validate::{distance_errors, ErrorStats, PairError};
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+
+/// Family-wise false-alarm rate of the significance test over all candidates.
+pub const FAMILY_ALPHA: f64 = 0.05;
+/// Correlation of two candidates' changes to the held-out errors above which they are reported
+/// as equivalent.
+pub const EQUIVALENT_CORRELATION: f64 = 0.98;
+/// Relative drop of validation RMS a candidate must reach to be called significant.
+pub const SIGNIFICANT_GAIN: f64 = 0.02;
+/// Angle bins for the residual-vs-joint-angle plots.
+const ANGLE_BINS: usize = 12;
+
+/// A fitted first harmonic e ≈ a·sin φ + b·cos φ + c of the apparent joint error.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct Sinusoid {
+    /// √(a² + b²), degrees.
+    pub amplitude_deg: f64,
+    /// atan2(b, a), degrees.
+    pub phase_deg: f64,
+    /// Constant part c, degrees.
+    pub mean_deg: f64,
+    /// Share of the weighted variance the sinusoid explains (0–1).
+    pub explained: f64,
+}
+
+/// Apparent error of one joint against its angle and its gravity lever.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct JointResiduals {
+    /// Joint, 1-based.
+    pub joint: usize,
+    /// (raw encoder angle deg, apparent error deg, weight ‖g‖²) per touch.
+    pub points: Vec<(f64, f64, f64)>,
+    /// (bin centre deg, weighted mean apparent error deg, touches) per angle bin.
+    pub bins: Vec<(f64, f64, usize)>,
+    /// First harmonic of the apparent error.
+    pub sinusoid: Sinusoid,
+    /// (gravity lever m, apparent error deg) per touch.
+    pub gravity: Vec<(f64, f64)>,
+    /// Weighted slope of apparent error against gravity lever, deg/m.
+    pub gravity_slope_deg_per_m: f64,
+}
+
+/// One candidate effect, scored on held-out data.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Candidate {
+    /// Effect name, e.g. `eccentricity:5`.
+    pub effect: String,
+    /// Validation RMS with the effect added and refitted, mm.
+    pub validation_rms_mm: f64,
+    /// Share of the validation mean square error removed (0–1).
+    pub explained: f64,
+    /// Improvement beyond what noise explains (see module doc).
+    pub significant: bool,
+    /// Validation blocks (placement, repeat) whose error fell, and blocks compared.
+    pub blocks_improved: (usize, usize),
+    /// One-sided sign-test p-value of that count.
+    pub p_value: f64,
+    /// Change of BIC on the calibration data (negative favours the effect).
+    pub delta_bic: f64,
+    /// Fitted change of each of the effect's parameters from the calibrated model (name,
+    /// change, unit).
+    pub fitted: Vec<(String, f64, &'static str)>,
+    /// Plain-words reason.
+    pub evidence: String,
+    /// Other candidates that change the held-out errors the same way: the data cannot tell
+    /// them apart from this one.
+    pub equivalent: Vec<String>,
+    /// The better-ranked candidate this one is equivalent to, if any.
+    pub equivalent_to: Option<String>,
+}
+
+/// An effect the data cannot identify next to the current model.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct NotIdentifiable {
+    /// Effect name.
+    pub effect: String,
+    /// What absorbs it.
+    pub reason: String,
+}
+
+/// A large held-out distance error.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct WorstPair {
+    /// Placement name.
+    pub placement: String,
+    /// Landmark ids.
+    pub landmarks: (String, String),
+    /// Measured minus certified, mm.
+    pub error_mm: f64,
+}
+
+/// Everything `kincal diagnose` finds.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Diagnosis {
+    /// Calibrated model on the validation data.
+    pub baseline: ErrorStats,
+    /// Candidates, best (lowest validation RMS) first.
+    pub candidates: Vec<Candidate>,
+    /// Effects the data cannot identify next to the model.
+    pub not_identifiable: Vec<NotIdentifiable>,
+    /// Apparent joint errors.
+    pub joints: Vec<JointResiduals>,
+    /// (height z mm, |residual| mm) per validation touch.
+    pub by_height: Vec<(f64, f64)>,
+    /// (reach √(x²+y²) mm, |residual| mm) per validation touch.
+    pub by_reach: Vec<(f64, f64)>,
+    /// Largest validation distance errors.
+    pub worst: Vec<WorstPair>,
+    /// Placement RMS, mm.
+    pub by_placement: Vec<(String, f64)>,
+    /// Short text summary.
+    pub summary: Vec<String>,
+}
+
+/// Per-touch residual vectors after a rigid fit of the artefact in each placement.
+fn touch_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<Option<Vector3<f64>>> {
+    let p: Vec<Vector3<f64>> = data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
+    let mut out = vec![None; p.len()];
+    for placement in 0..data.placements.len() {
+        let idx: Vec<usize> = (0..p.len()).filter(|&k| data.touches[k].placement == placement).collect();
+        if idx.len() < 4 {
+            continue;
+        }
+        let q: Vec<Vector3<f64>> = idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
+        let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
+        let (r, t): (Matrix3<f64>, Vector3<f64>) = rigid_fit(&q, &pm);
+        for (i, &k) in idx.iter().enumerate() {
+            out[k] = Some(pm[i] - (r * q[i] + t));
+        }
+    }
+    out
+}
+
+/// Weighted least squares e ≈ a sin φ + b cos φ + c.
+fn fit_sinusoid(points: &[(f64, f64, f64)]) -> Sinusoid {
+    let mut ata = Matrix3::zeros();
+    let mut atb = Vector3::zeros();
+    for &(phi, e, w) in points {
+        let x = Vector3::new(phi.to_radians().sin(), phi.to_radians().cos(), 1.0);
+        ata += x * x.transpose() * w;
+        atb += x * (e * w);
+    }
+    let coef = ata.cholesky().map(|c| c.solve(&atb)).unwrap_or_else(Vector3::zeros);
+    let total_w: f64 = points.iter().map(|p| p.2).sum::<f64>().max(1e-300);
+    let mean = points.iter().map(|p| p.1 * p.2).sum::<f64>() / total_w;
+    let (mut ss_tot, mut ss_res) = (0.0, 0.0);
+    for &(phi, e, w) in points {
+        let fit = coef[0] * phi.to_radians().sin() + coef[1] * phi.to_radians().cos() + coef[2];
+        ss_tot += w * (e - mean).powi(2);
+        ss_res += w * (e - fit).powi(2);
+    }
+    Sinusoid { amplitude_deg: coef[0].hypot(coef[1]), phase_deg: coef[1].atan2(coef[0]).to_degrees(), mean_deg: coef[2], explained: if ss_tot > 0.0 { (1.0 - ss_res / ss_tot).max(0.0) } else { 0.0 } }
+}
+
+/// Apparent joint errors of `model` on `data`.
+fn joint_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> (Vec<JointResiduals>, Vec<(f64, f64)>, Vec<(f64, f64)>) {
+    let residuals = touch_residuals(model, artefact, data);
+    let offsets: Vec<ParamId> = (0..JOINTS).map(ParamId::Offset).collect();
+    let columns = ColumnMap::new(&offsets);
+    let mut per_joint: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); JOINTS];
+    let mut gravity: Vec<Vec<(f64, f64)>> = vec![Vec::new(); JOINTS];
+    let (mut by_height, mut by_reach) = (Vec::new(), Vec::new());
+    for (t, r) in data.touches.iter().zip(&residuals) {
+        let Some(r) = r else { continue };
+        let mut jac = vec![[0.0; 9]; JOINTS];
+        let pose = tool_pose_with_jacobian(model, &t.enc_deg, &columns, &mut jac);
+        let levers = gravity_levers(model, &t.enc_deg);
+        by_height.push((pose.position_mm.z, r.norm()));
+        by_reach.push((pose.position_mm.xy().norm(), r.norm()));
+        for j in 0..JOINTS {
+            let g = Vector3::new(jac[j][0], jac[j][1], jac[j][2]); // mm per degree
+            let w = g.norm_squared();
+            if w < 1e-9 {
+                continue;
+            }
+            let e = g.dot(r) / w;
+            per_joint[j].push((t.enc_deg[j], e, w));
+            gravity[j].push((levers[j], e));
+        }
+    }
+    let joints = (0..JOINTS)
+        .map(|j| {
+            let points = std::mem::take(&mut per_joint[j]);
+            let bins = (0..ANGLE_BINS)
+                .map(|b| {
+                    let width = 360.0 / ANGLE_BINS as f64;
+                    let inside: Vec<&(f64, f64, f64)> = points.iter().filter(|p| ((p.0 / width) as usize).min(ANGLE_BINS - 1) == b).collect();
+                    let w: f64 = inside.iter().map(|p| p.2).sum();
+                    let mean = if w > 0.0 { inside.iter().map(|p| p.1 * p.2).sum::<f64>() / w } else { 0.0 };
+                    ((b as f64 + 0.5) * width, mean, inside.len())
+                })
+                .collect();
+            let g = &gravity[j];
+            let (sxx, sxy) = g.iter().fold((0.0, 0.0), |(a, b), (x, y)| (a + x * x, b + x * y));
+            JointResiduals { joint: j + 1, sinusoid: fit_sinusoid(&points), bins, points, gravity: g.clone(), gravity_slope_deg_per_m: if sxx > 0.0 { sxy / sxx } else { 0.0 } }
+        })
+        .collect();
+    (joints, by_height, by_reach)
+}
+
+/// Gravity lever of each joint at a touch (the compliance regressor), metres.
+fn gravity_levers(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> [f64; JOINTS] {
+    // ∂p/∂compliance_j = ∂p/∂θ_j · λ_j: the ratio of the two columns gives λ_j.
+    let params: Vec<ParamId> = (0..JOINTS).flat_map(|j| [ParamId::Offset(j), ParamId::Compliance(j)]).collect();
+    let mut jac = vec![[0.0; 9]; params.len()];
+    tool_pose_with_jacobian(model, enc_deg, &ColumnMap::new(&params), &mut jac);
+    std::array::from_fn(|j| {
+        let (dtheta, dc) = (&jac[2 * j], &jac[2 * j + 1]);
+        let n: f64 = (0..3).map(|k| dtheta[k] * dtheta[k]).sum();
+        if n > 1e-12 { (0..3).map(|k| dc[k] * dtheta[k]).sum::<f64>() / n } else { 0.0 }
+    })
+}
+
+/// Mean square validation error per (placement, repeat) block.
+fn block_mse(errors: &[PairError], data: &Dataset) -> Vec<((usize, u32), f64)> {
+    let mut blocks: Vec<((usize, u32), f64, usize)> = Vec::new();
+    for e in errors {
+        let key = (e.placement, data.touches[e.touches.0].repeat);
+        match blocks.iter_mut().find(|b| b.0 == key) {
+            Some(b) => {
+                b.1 += e.error_mm * e.error_mm;
+                b.2 += 1;
+            }
+            None => blocks.push((key, e.error_mm * e.error_mm, 1)),
+        }
+    }
+    blocks.into_iter().map(|(k, s, n)| (k, s / n as f64)).collect()
+}
+
+/// One-sided sign test: P(X ≥ k) for X ~ Binomial(n, ½).
+fn sign_test_p(k: usize, n: usize) -> f64 {
+    let mut p = 0.0;
+    let mut choose = 1.0_f64; // C(n, 0)
+    for i in 0..=n {
+        if i >= k {
+            p += choose;
+        }
+        choose = choose * (n - i) as f64 / (i + 1) as f64;
+    }
+    p / 2f64.powi(n as i32)
+}
+
+fn rms(errors: &[PairError]) -> f64 {
+    ErrorStats::of(&errors.iter().map(|e| e.error_mm).collect::<Vec<_>>()).rms_mm
+}
+
+/// BIC of a fit with `params` parameters from its distance residuals.
+fn bic(residuals: &[f64], params: usize) -> f64 {
+    let m = residuals.len().max(1) as f64;
+    let rss = residuals.iter().map(|r| r * r).sum::<f64>().max(1e-300);
+    m * (rss / m).ln() + params as f64 * m.ln()
+}
+
+fn distance_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<f64> {
+    distance_errors(model, artefact, data).iter().map(|e| e.error_mm).collect()
+}
+
+/// Plain words for a fitted effect.
+fn evidence(effect: Effect, fitted: &[(String, f64, &'static str)], joints: &[JointResiduals], before: f64, after: f64) -> String {
+    let gain = format!("would bring validation RMS from {before:.3} to {after:.3} mm");
+    let value = |k: usize| fitted.get(k).map_or(0.0, |f| f.1);
+    let j = effect.joint.map_or(0, |j| j + 1);
+    match effect.kind {
+        EffectKind::Eccentricity | EffectKind::Eccentricity2 => {
+            let harmonic = if effect.kind == EffectKind::Eccentricity { "" } else { "2" };
+            let seen = joints.get(j.saturating_sub(1)).map(|r| r.sinusoid);
+            let residual = match (effect.kind, seen) {
+                (EffectKind::Eccentricity, Some(s)) if s.explained > 0.1 => format!("the residual follows sin θ{j} with {:.3}° amplitude ({:.0} % of its variance); ", s.amplitude_deg, 100.0 * s.explained),
+                _ => String::new(),
+            };
+            format!("{residual}encoder eccentricity of joint {j} (Δθ = {:.3}°·sin {harmonic}φ {:+.3}°·cos {harmonic}φ, amplitude {:.3}°) {gain}", value(0), value(1), value(0).hypot(value(1)))
+        }
+        EffectKind::Compliance => {
+            let slope = joints.get(j.saturating_sub(1)).map_or(0.0, |r| r.gravity_slope_deg_per_m);
+            format!("joint {j} sags under gravity: the residual grows with its gravity lever ({slope:+.3} °/m seen, {:+.3} °/m fitted); compliance of joint {j} {gain}", value(0))
+        }
+        EffectKind::Twist => format!("the axis after joint {j} is twisted by {:+.3}° more than the model says; twist of joint {j} {gain}", value(0)),
+        EffectKind::Axis => format!("consecutive axes at joint {j} are tilted by {:+.3}° about y; axis misalignment of joint {j} {gain}", value(0)),
+        EffectKind::LinkOffset => format!("axes at joint {j} miss each other by {:+.3} mm; link offset a{j} {gain}", value(0)),
+        EffectKind::Length => format!("link length d{j} is off by {:+.3} mm; {gain}", value(0)),
+        EffectKind::Offset => format!("encoder {j} zero is off by {:+.3}°; {gain}", value(0)),
+        EffectKind::Tcp => format!("the tool tip sits off by ({:+.3}, {:+.3}, {:+.3}) mm in the last frame; a 3-D tool offset {gain}", value(0), value(1), value(2)),
+        EffectKind::Scale => format!("lengths scale by {:+.0} ppm (temperature or artefact scale); {gain}", value(0)),
+    }
+}
+
+/// Diagnose `calibrated` (whose free set and bounds are those it was calibrated with).
+pub fn diagnose(calibrated: &ArmModel, artefact: &Artefact, cal: &Dataset, val: &Dataset, options: &CalibrationOptions) -> Diagnosis {
+    let baseline_errors = distance_errors(calibrated, artefact, val);
+    let baseline = ErrorStats::of(&baseline_errors.iter().map(|e| e.error_mm).collect::<Vec<_>>());
+    let (joints, by_height, by_reach) = joint_residuals(calibrated, artefact, val);
+    let current: Vec<ParamId> = calibrated.free.iter().map(|f| f.id).collect();
+    let baseline_bic = bic(&distance_residuals(calibrated, artefact, cal), current.len());
+    let baseline_blocks = block_mse(&baseline_errors, val);
+    let candidates_effects: Vec<Effect> = Effect::library().into_iter().filter(|e| !e.is_in(calibrated)).collect();
+    let candidate_count = candidates_effects.len().max(1) as f64;
+    let results: Vec<Result<(Candidate, Vec<f64>), NotIdentifiable>> = candidates_effects
+        .par_iter()
+        .map(|&effect| {
+            let mut model = calibrated.clone();
+            effect.add_to(&mut model);
+            let all: Vec<ParamId> = model.free.iter().map(|f| f.id).collect();
+            let ranges: Vec<f64> = model.free.iter().map(|f| (f.upper - f.lower).max(1e-9)).collect();
+            let problem = CalibrationProblem::new(&model, all.clone(), artefact, cal, Objective::Distance);
+            let mut r = vec![0.0; problem.len()];
+            let mut jac = vec![0.0; problem.len() * all.len()];
+            problem.evaluate(&model.free_values(), &mut r, Some(&mut jac));
+            // The identifiable base set of the current parameters, then what the effect adds to it.
+            let existing: Vec<usize> = (0..all.len()).filter(|&c| current.contains(&all[c])).collect();
+            let existing_ranges: Vec<f64> = existing.iter().map(|&c| ranges[c]).collect();
+            let base: Vec<usize> = identify::base_columns(&subset_jacobian(&jac, all.len(), &existing), existing.len(), &existing_ranges).0.into_iter().map(|k| existing[k]).collect();
+            let extra: Vec<usize> = (0..all.len()).filter(|c| !current.contains(&all[*c])).collect();
+            let rank = identify::added_rank(&jac, all.len(), &ranges, &base, &extra);
+            let describe = |k: usize| {
+                let r = &rank[k];
+                if r.moves_nothing {
+                    return format!("{} changes no distance", all[extra[k]]);
+                }
+                let mut terms: Vec<(ParamId, f64, f64)> = base.iter().enumerate().map(|(i, &c)| (all[c], -r.like[i], r.share[i])).filter(|t| t.2.abs() > 1e-3).collect();
+                terms.sort_by(|a, b| b.2.abs().total_cmp(&a.2.abs()));
+                let list: Vec<String> = terms.iter().take(4).map(|(p, b, _)| format!("{p} ({b:+.4} {} per {})", p.unit(), all[extra[k]].unit())).collect();
+                format!("{}'s effect on distances is absorbed by {}", all[extra[k]], list.join(", "))
+            };
+            let unidentified: Vec<usize> = (0..extra.len()).filter(|&k| !rank[k].adds).collect();
+            if unidentified.len() == extra.len() {
+                let reasons: Vec<String> = unidentified.iter().map(|&k| describe(k)).collect();
+                return Err(NotIdentifiable { effect: effect.to_string(), reason: format!("not identifiable from these touches: {}", reasons.join("; ")) });
+            }
+            for &k in &unidentified {
+                model.fix_param(all[extra[k]]);
+            }
+            let partial: Vec<String> = unidentified.iter().map(|&k| describe(k)).collect();
+            let refit = calibrate(&model, artefact, cal, &CalibrationOptions { restarts: 0, ..*options }).map_err(|e| NotIdentifiable { effect: effect.to_string(), reason: e.to_string() })?;
+            let errors = distance_errors(&refit.model, artefact, val);
+            let after = rms(&errors);
+            let blocks = block_mse(&errors, val);
+            let compared: Vec<bool> = baseline_blocks.iter().filter_map(|(k, before)| blocks.iter().find(|b| b.0 == *k).map(|b| b.1 < *before)).collect();
+            let blocks_improved = (compared.iter().filter(|i| **i).count(), compared.len());
+            let p_value = sign_test_p(blocks_improved.0, blocks_improved.1);
+            let delta_bic = bic(&distance_residuals(&refit.model, artefact, cal), model.free.len()) - baseline_bic;
+            let explained = ((baseline.rms_mm.powi(2) - after.powi(2)) / baseline.rms_mm.powi(2).max(1e-300)).clamp(0.0, 1.0);
+            let significant = p_value < FAMILY_ALPHA / candidate_count && delta_bic < 0.0 && after <= (1.0 - SIGNIFICANT_GAIN) * baseline.rms_mm;
+            let fitted: Vec<(String, f64, &'static str)> = effect.params().iter().map(|p| (p.to_string(), refit.model.get(*p) - calibrated.get(*p), p.unit())).collect();
+            let mut evidence = evidence(effect, &fitted, &joints, baseline.rms_mm, after);
+            if !partial.is_empty() {
+                evidence.push_str(&format!(" (held at zero: {})", partial.join("; ")));
+            }
+            let change: Vec<f64> = errors.iter().zip(&baseline_errors).map(|(a, b)| a.error_mm - b.error_mm).collect();
+            Ok((Candidate { effect: effect.to_string(), validation_rms_mm: after, explained, significant, blocks_improved, p_value, delta_bic, fitted, evidence, equivalent: Vec::new(), equivalent_to: None }, change))
+        })
+        .collect();
+    let mut scored = Vec::new();
+    let mut not_identifiable = Vec::new();
+    for r in results {
+        match r {
+            Ok(c) => scored.push(c),
+            Err(n) => not_identifiable.push(n),
+        }
+    }
+    scored.sort_by(|a, b| a.0.validation_rms_mm.total_cmp(&b.0.validation_rms_mm));
+    let candidates = group_equivalents(scored);
+    let mut worst: Vec<&PairError> = baseline_errors.iter().collect();
+    worst.sort_by(|a, b| b.error_mm.abs().total_cmp(&a.error_mm.abs()));
+    let worst = worst
+        .into_iter()
+        .take(10)
+        .map(|e| WorstPair { placement: val.placements[e.placement].clone(), landmarks: (artefact.landmarks[e.landmarks.0].id.clone(), artefact.landmarks[e.landmarks.1].id.clone()), error_mm: e.error_mm })
+        .collect();
+    let by_placement = val.placements.iter().enumerate().map(|(p, name)| (name.clone(), rms(&baseline_errors.iter().filter(|e| e.placement == p).cloned().collect::<Vec<_>>()))).collect();
+    let summary = summarise(&baseline, &candidates, &joints);
+    Diagnosis { baseline, candidates, not_identifiable, joints, by_height, by_reach, worst, by_placement, summary }
+}
+
+/// Mark candidates (sorted best first, with their changes to the held-out errors) that are
+/// equivalent to a better-ranked one.
+fn group_equivalents(scored: Vec<(Candidate, Vec<f64>)>) -> Vec<Candidate> {
+    let correlation = |a: &[f64], b: &[f64]| {
+        let (ab, aa, bb) = a.iter().zip(b).fold((0.0, 0.0, 0.0), |(ab, aa, bb), (x, y)| (ab + x * y, aa + x * x, bb + y * y));
+        if aa > 0.0 && bb > 0.0 { ab / (aa * bb).sqrt() } else { 0.0 }
+    };
+    let mut out: Vec<Candidate> = Vec::with_capacity(scored.len());
+    let mut leaders: Vec<(usize, &[f64])> = Vec::new();
+    for (i, (candidate, change)) in scored.iter().enumerate() {
+        let mut c = candidate.clone();
+        match leaders.iter().find(|(_, lc)| correlation(lc, change) >= EQUIVALENT_CORRELATION) {
+            Some(&(leader, _)) => {
+                c.equivalent_to = Some(out[leader].effect.clone());
+                out[leader].equivalent.push(c.effect.clone());
+            }
+            None => leaders.push((i, change)),
+        }
+        out.push(c);
+    }
+    out
+}
+
+fn subset_jacobian(jac: &[f64], n: usize, cols: &[usize]) -> Vec<f64> {
+    jac.chunks_exact(n).flat_map(|row| cols.iter().map(move |&c| row[c])).collect()
+}
+
+fn summarise(baseline: &ErrorStats, candidates: &[Candidate], joints: &[JointResiduals]) -> Vec<String> {
+    let mut lines = vec![format!("validation RMS of the calibrated model: {:.3} mm over {} pairs", baseline.rms_mm, baseline.pairs)];
+    if let Some(j) = joints.iter().max_by(|a, b| (a.sinusoid.amplitude_deg * a.sinusoid.explained).total_cmp(&(b.sinusoid.amplitude_deg * b.sinusoid.explained))) {
+        if j.sinusoid.explained > 0.1 {
+            lines.push(format!("largest periodic residual: joint {} apparent error follows sin θ{} with {:.3}° amplitude ({:.0} % of its variance)", j.joint, j.joint, j.sinusoid.amplitude_deg, 100.0 * j.sinusoid.explained));
+        }
+    }
+    match candidates.iter().find(|c| c.significant) {
+        Some(best) if !best.equivalent.is_empty() => lines.push(format!("missing effect: {} — {} (these touches cannot tell it from {})", best.effect, best.evidence, best.equivalent.join(", "))),
+        Some(best) => lines.push(format!("missing effect: {} — {}", best.effect, best.evidence)),
+        None => lines.push("no candidate effect improves the held-out error beyond noise: the model explains the data".into()),
+    }
+    lines
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sign_test_tail_probabilities() {
+        assert!((sign_test_p(15, 15) - 1.0 / 32768.0).abs() < 1e-15);
+        assert!((sign_test_p(14, 15) - 16.0 / 32768.0).abs() < 1e-15);
+        assert!((sign_test_p(0, 15) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn sinusoid_fit_recovers_amplitude_and_phase() {
+        let points: Vec<(f64, f64, f64)> = (0..72).map(|k| {
+            let phi = k as f64 * 5.0;
+            (phi, 0.3 * (phi.to_radians() + 0.5).sin() + 0.01, 1.0)
+        }).collect();
+        let s = fit_sinusoid(&points);
+        assert!((s.amplitude_deg - 0.3).abs() < 1e-9 && (s.mean_deg - 0.01).abs() < 1e-9 && s.explained > 0.999, "{s:?}");
+    }
+}

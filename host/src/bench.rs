@@ -132,6 +132,13 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<(), BenchError> {
     let study_s = t.elapsed().as_secs_f64();
     let count: usize = rows.iter().map(|r| r.calibrations + r.failed).sum();
     println!("study: {count} calibrations on {} threads: {study_s:.2} s  (target <= 10 s on 2 cores)", rayon::current_num_threads());
+    let hidden = SimulationOptions { seed: 1, hidden: vec![(ParamId::EccSin(4), 0.2), (ParamId::EccCos(4), -0.1)], ..SimulationOptions::default() };
+    let sim_hidden = simulate(&nominal, &hidden);
+    let (cal_h, val_h) = (Dataset::from_sessions(&sim_hidden.calibration, &sim_hidden.artefact), Dataset::from_sessions(&sim_hidden.validation, &sim_hidden.artefact));
+    let fit_h = calibrate(&nominal, &sim_hidden.artefact, &cal_h, &options)?;
+    let t = Instant::now();
+    let diagnosis = crate::diagnose::diagnose(&fit_h.model, &sim_hidden.artefact, &cal_h, &val_h, &options);
+    println!("diagnose, whole library ({} candidates scored, {} not identifiable), {} threads: {:.2} s  (target <= 2 s on 2 cores)", diagnosis.candidates.len(), diagnosis.not_identifiable.len(), rayon::current_num_threads(), t.elapsed().as_secs_f64());
     if args.no_scipy {
         return Ok(());
     }

@@ -210,6 +210,12 @@ struct DemoArgs {
 }
 
 fn main() {
+    // Behave like other command-line tools when the reader of stdout goes away (`| head`).
+    #[cfg(unix)]
+    // SAFETY: resetting a signal disposition to its default before any thread is started.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Simulate(a) => cmd_simulate(&a),

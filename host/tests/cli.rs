@@ -101,3 +101,50 @@ fn bad_input_names_file_and_field_and_leaves_no_run() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/model.toml"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
+    let dir = scratch("loop");
+    let data = dir.join("data");
+    let model = example_model();
+    let out = kincal(&["simulate", "--model", model.to_str().unwrap(), "--out", data.to_str().unwrap(), "--seed", "5", "--hidden", "eccentricity_sin:5=0.2", "--hidden", "eccentricity_cos:5=-0.1"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (before, after) = (dir.join("before"), dir.join("after"));
+    let base = calibrate_args(data.to_str().unwrap(), before.to_str().unwrap(), model.to_str().unwrap());
+    assert!(Command::new(env!("CARGO_BIN_EXE_kincal")).args(&base).status().unwrap().success());
+    let out = kincal(&["diagnose", before.to_str().unwrap(), "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let d: serde_json::Value = serde_json::from_slice(&out.stdout).expect("--json prints the diagnosis");
+    let first = &d["candidates"][0];
+    assert_eq!(first["effect"], "eccentricity:5");
+    assert_eq!(first["significant"], true);
+    let explained = first["explained"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&explained) && explained > 0.5, "{explained}");
+    assert!(first["evidence"].as_str().unwrap().contains("eccentricity"), "{}", first["evidence"]);
+    assert!(first["validation_rms_mm"].as_f64().unwrap() < d["baseline"]["rms_mm"].as_f64().unwrap());
+    assert!(before.join("diagnosis.html").exists());
+    let mut with = calibrate_args(data.to_str().unwrap(), after.to_str().unwrap(), model.to_str().unwrap());
+    with.extend(["--add".to_string(), "eccentricity:5".to_string()]);
+    assert!(Command::new(env!("CARGO_BIN_EXE_kincal")).args(&with).status().unwrap().success());
+    let calibrated = kincal::model::ArmModel::load(&after.join("model.toml")).unwrap();
+    assert!(kincal::effects::Effect::parse("eccentricity:5").unwrap().is_in(&calibrated), "the added effect is saved with the model");
+    let page = dir.join("compare.html");
+    let out = kincal(&["compare", before.to_str().unwrap(), after.to_str().unwrap(), "--out", page.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && text.contains("rms_mm") && text.contains("eccentricity:5"), "{text}");
+    let rms = |run: &Path| -> f64 {
+        let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
+        s["validation"]["rms_mm"].as_f64().unwrap()
+    };
+    assert!(rms(&after) < 0.6 * rms(&before), "{} → {}", rms(&before), rms(&after));
+    assert!(std::fs::read_to_string(&page).unwrap().contains("<svg"));
+    // Bad effect names and bad runs are reported, not panicked on.
+    let mut bad = base.clone();
+    bad.extend(["--add".to_string(), "wobble:9".to_string()]);
+    let out = Command::new(env!("CARGO_BIN_EXE_kincal")).args(&bad).output().unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("unknown effect"));
+    let out = kincal(&["diagnose", dir.join("nope").to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("model.toml"));
+    std::fs::remove_dir_all(&dir).ok();
+}

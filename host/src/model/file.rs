@@ -198,6 +198,29 @@ mod tests {
     }
 
     #[test]
+    fn listed_effects_become_free_with_default_bounds() {
+        let dir = std::env::temp_dir().join(format!("kincal-effects-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("m.toml");
+        // A key after a [[joint]] table belongs to that joint: it must be refused, not ignored.
+        let misplaced = ArmModel::suta_nominal().to_text(false).replace("[free]", "effects = [\"eccentricity:5\"]\n\n[free]");
+        std::fs::write(&path, &misplaced).unwrap();
+        let err = ArmModel::load(&path).unwrap_err().to_string();
+        assert!(err.contains("effects"), "{err}");
+        let text = format!("effects = [\"eccentricity:5\", \"compliance:2\"]\n{}", ArmModel::suta_nominal().to_text(false));
+        std::fs::write(&path, &text).unwrap();
+        let model = ArmModel::load(&path).unwrap();
+        for id in [ParamId::EccSin(4), ParamId::EccCos(4), ParamId::Compliance(1)] {
+            assert!(model.free.iter().any(|f| f.id == id), "{id} should be free");
+        }
+        assert!(model.to_text(false).contains("eccentricity:5"), "saved files list their effects");
+        std::fs::write(&path, text.replace("compliance:2", "wobble:2")).unwrap();
+        let err = ArmModel::load(&path).unwrap_err().to_string();
+        assert!(err.contains("wobble:2") && err.contains("unknown effect"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
     fn bad_model_files_name_the_field() {
         let dir = std::env::temp_dir().join(format!("kincal-badmodel-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();

@@ -26,6 +26,7 @@ pub enum Convention {
 
 /// Geometry of one joint row. θ = encoder + `offset_deg` (+ joint-angle effects).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Joint {
     /// Encoder zero offset δθ, degrees.
     pub offset_deg: f64,

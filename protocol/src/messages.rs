@@ -1,0 +1,334 @@
+//! Messages between host and controller.
+//!
+//! The host sends [`HostFrame`]s (a request with its sequence number); the controller answers
+//! each with a [`DeviceFrame::Response`] carrying the same sequence number, and sends streamed
+//! data as [`DeviceFrame::Stream`] with its own wrapping counter so the host sees any loss.
+//! On connect the host sends [`Request::Hello`] with [`PROTOCOL_VERSION`] and [`SCHEMA_HASH`];
+//! a controller with another version or schema answers [`WireError::VersionMismatch`] and the
+//! host reports both sides' versions.
+
+use serde::{Deserialize, Serialize};
+
+/// Protocol version; bump on any incompatible change.
+pub const PROTOCOL_VERSION: u16 = 1;
+/// Largest parameter chunk carried by one message, bytes.
+pub const PARAM_CHUNK: usize = 48;
+/// Joints read every tick.
+pub const JOINTS: usize = 6;
+
+/// FNV-1a over the schema text, usable in consts.
+pub const fn fnv1a(text: &str) -> u32 {
+    let bytes = text.as_bytes();
+    let mut hash: u32 = 0x811c_9dc5;
+    let mut i = 0;
+    while i < bytes.len() {
+        hash ^= bytes[i] as u32;
+        hash = hash.wrapping_mul(0x0100_0193);
+        i += 1;
+    }
+    hash
+}
+
+macro_rules! wire_types {
+    ($($item:item)*) => {
+        $($item)*
+        /// The text of every wire type definition; its hash is [`SCHEMA_HASH`].
+        pub const SCHEMA_TEXT: &str = stringify!($($item)*);
+    };
+}
+
+/// Hash of the wire type definitions: any change to a message changes it.
+pub const SCHEMA_HASH: u32 = fnv1a(SCHEMA_TEXT);
+
+wire_types! {
+    /// A request from the host, numbered so its response can be matched.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    pub struct HostFrame {
+        /// Sequence number chosen by the host, echoed in the response.
+        pub seq: u16,
+        /// The request.
+        pub request: Request,
+    }
+
+    /// What the host can ask.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    pub enum Request {
+        /// Version and schema check; must come first.
+        Hello {
+            /// The host's [`PROTOCOL_VERSION`].
+            version: u16,
+            /// The host's [`SCHEMA_HASH`].
+            schema: u32,
+        },
+        /// Firmware identity, stored parameters and encoder health.
+        GetInfo,
+        /// Average the next `ticks` fresh samples (1536 = 2 s at 768 Hz) and send a window.
+        StartWindow {
+            /// Samples to average.
+            ticks: u16,
+        },
+        /// Stream every raw sample (true) or stop (false).
+        StreamRaw(bool),
+        /// Stream the calibrated tool pose every `divider` ticks (0 stops).
+        StreamPose(u16),
+        /// Start a parameter upload of `len` bytes whose CRC-32 is `crc`.
+        ParamBegin {
+            /// Blob length, bytes.
+            len: u16,
+            /// CRC-32 (ISO-HDLC) of the blob.
+            crc: u32,
+        },
+        /// One chunk of the upload.
+        ParamChunk {
+            /// Offset of the chunk in the blob.
+            offset: u16,
+            /// Bytes.
+            data: heapless::Vec<u8, PARAM_CHUNK>,
+        },
+        /// Read back part of the pending upload (before commit) or of the stored blob.
+        ParamRead {
+            /// Offset, bytes.
+            offset: u16,
+            /// Read the pending upload (true) or the stored parameters (false).
+            pending: bool,
+        },
+        /// Check the pending upload and make it the stored parameters (power-loss safe).
+        ParamCommit,
+        /// Restart the controller.
+        Reset,
+        /// Emulated board only: set the joint positions the emulated encoders report.
+        SimSetPose {
+            /// Position of each encoder, counts.
+            counts: [u32; JOINTS],
+        },
+        /// Emulated board only: noise and faults of the emulated encoder bus.
+        SimFaults {
+            /// Standard deviation of position noise, counts.
+            noise_counts: u16,
+            /// Frames per 10 000 sent with a corrupted CRC.
+            crc_errors_per_10k: u16,
+            /// Frames per 10 000 with no answer.
+            dropouts_per_10k: u16,
+            /// Frames per 10 000 with the error bit set.
+            error_bits_per_10k: u16,
+            /// Frames per 10 000 with the warning bit set.
+            warnings_per_10k: u16,
+        },
+    }
+
+    /// A frame from the controller.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    pub enum DeviceFrame {
+        /// The answer to the request with sequence number `seq`.
+        Response {
+            /// The request's sequence number.
+            seq: u16,
+            /// The answer.
+            response: Result<Response, WireError>,
+        },
+        /// Streamed data; `seq` counts stream frames (wrapping) so gaps show.
+        Stream {
+            /// Stream frame counter.
+            seq: u16,
+            /// The data.
+            item: Stream,
+        },
+    }
+
+    /// Successful answers.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    pub enum Response {
+        /// Answer to [`Request::Hello`].
+        Hello {
+            /// Controller's protocol version.
+            version: u16,
+            /// Controller's schema hash.
+            schema: u32,
+        },
+        /// Answer to [`Request::GetInfo`].
+        Info(Info),
+        /// The request was carried out.
+        Ack,
+        /// Answer to [`Request::ParamRead`].
+        ParamData {
+            /// Offset of the bytes.
+            offset: u16,
+            /// Bytes (empty past the end).
+            data: heapless::Vec<u8, PARAM_CHUNK>,
+        },
+    }
+
+    /// Errors that cross the wire.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+    pub enum WireError {
+        /// Version or schema differ; the controller's are given.
+        VersionMismatch {
+            /// Controller's protocol version.
+            version: u16,
+            /// Controller's schema hash.
+            schema: u32,
+        },
+        /// The request frame could not be decoded.
+        BadFrame,
+        /// A window is already being measured.
+        Busy,
+        /// The request needs [`Request::Hello`] first.
+        NoHello,
+        /// Window length out of range (1..=4096 ticks).
+        BadWindowLength,
+        /// Upload larger than the parameter area.
+        ParamTooLarge,
+        /// Chunk outside the announced upload, or out of order.
+        ParamOffset,
+        /// No upload in progress.
+        NoUpload,
+        /// Upload incomplete at commit.
+        ParamIncomplete,
+        /// Upload's CRC or content invalid at commit; nothing was stored.
+        ParamInvalid,
+        /// Writing flash failed; the previous parameters are still active.
+        FlashWrite,
+        /// Only the emulated board supports this request.
+        NotSupported,
+    }
+
+    /// Controller identity and health.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    pub struct Info {
+        /// Firmware name and version.
+        pub firmware: heapless::String<24>,
+        /// Board name.
+        pub board: heapless::String<16>,
+        /// Version number of the stored parameters (0: none stored).
+        pub param_version: u32,
+        /// CRC-32 of the stored parameter blob (0: none).
+        pub param_crc: u32,
+        /// Ticks since boot.
+        pub ticks: u32,
+        /// Per-joint encoder health since boot.
+        pub encoders: [EncoderHealth; JOINTS],
+    }
+
+    /// Encoder frame counters of one joint.
+    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+    pub struct EncoderHealth {
+        /// Frames accepted.
+        pub accepted: u32,
+        /// Frames rejected for a bad CRC.
+        pub crc_errors: u32,
+        /// Frames rejected for the error bit.
+        pub error_bits: u32,
+        /// Frames accepted with the warning bit.
+        pub warnings: u32,
+        /// Frames with no answer (no start bit, truncated, bad CDS).
+        pub dropouts: u32,
+    }
+
+    /// What the controller streams.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    pub enum Stream {
+        /// One tick's raw positions.
+        Raw(RawSample),
+        /// A finished measurement window.
+        Window(WindowReport),
+        /// Calibrated tool pose.
+        Pose(PoseReport),
+    }
+
+    /// Raw positions of one tick: six 22-bit counts packed into 17 bytes (see [`pack_counts`]).
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+    pub struct RawSample {
+        /// Tick number (wrapping).
+        pub tick: u16,
+        /// Six 22-bit positions, packed big-endian.
+        pub packed: [u8; 17],
+        /// Bit j set: joint j's frame was rejected this tick (its count repeats the last good one).
+        pub rejected: u8,
+    }
+
+    /// A finished measurement window.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    pub struct WindowReport {
+        /// Ticks requested.
+        pub ticks: u16,
+        /// Per joint statistics.
+        pub joints: [JointWindow; JOINTS],
+        /// Some joint had more rejected samples than allowed; do not use the means.
+        pub flagged: bool,
+    }
+
+    /// Window statistics of one joint.
+    #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+    pub struct JointWindow {
+        /// Wrap-safe mean position, counts in [0, 2²²), with sub-count resolution.
+        pub mean_counts: f64,
+        /// Standard deviation, counts.
+        pub std_counts: f32,
+        /// Smallest sample, counts relative to the mean (≤ 0).
+        pub min_counts: i32,
+        /// Largest sample, counts relative to the mean (≥ 0).
+        pub max_counts: i32,
+        /// Samples accepted.
+        pub accepted: u16,
+        /// Samples rejected.
+        pub rejected: u16,
+    }
+
+    /// Calibrated tool pose computed on the controller.
+    #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+    pub struct PoseReport {
+        /// Tick number (wrapping).
+        pub tick: u16,
+        /// Tool point, mm.
+        pub position_mm: [f32; 3],
+        /// Tool z axis (unit).
+        pub z_axis: [f32; 3],
+        /// Tool x axis (unit).
+        pub x_axis: [f32; 3],
+    }
+}
+
+/// Pack six 22-bit counts into 17 bytes (132 bits, big-endian, last 4 bits zero).
+pub fn pack_counts(counts: &[u32; JOINTS]) -> [u8; 17] {
+    let mut out = [0u8; 17];
+    let mut bit = 0usize;
+    for &c in counts {
+        for k in (0..22).rev() {
+            if (c >> k) & 1 == 1 {
+                out[bit / 8] |= 0x80 >> (bit % 8);
+            }
+            bit += 1;
+        }
+    }
+    out
+}
+
+/// Unpack what [`pack_counts`] packed.
+pub fn unpack_counts(packed: &[u8; 17]) -> [u32; JOINTS] {
+    let mut out = [0u32; JOINTS];
+    let mut bit = 0usize;
+    for c in out.iter_mut() {
+        for _ in 0..22 {
+            *c = (*c << 1) | ((packed[bit / 8] >> (7 - bit % 8)) & 1) as u32;
+            bit += 1;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn counts_pack_and_unpack() {
+        let counts = [0, 1, 0x3F_FFFF, 0x2A_AAAA, 0x15_5555, 123_456];
+        assert_eq!(unpack_counts(&pack_counts(&counts)), counts);
+    }
+
+    #[test]
+    fn schema_hash_covers_the_definitions() {
+        assert!(SCHEMA_TEXT.contains("SimSetPose") && SCHEMA_TEXT.contains("mean_counts"));
+        assert_ne!(SCHEMA_HASH, fnv1a(""));
+    }
+}

@@ -1,0 +1,285 @@
+//! The protocol state machine: requests in, responses and streams out. Board independent.
+
+use crate::encoders::Sample;
+use crate::flash::{NorFlash, ParamStore};
+use crate::kinematics::tool_pose;
+use crate::window::Window;
+use kincal_protocol::messages::{DeviceFrame, HostFrame, Info, PoseReport, RawSample, Request, Response, Stream, WireError, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH};
+use kincal_protocol::messages::{pack_counts, EncoderHealth, JOINTS};
+use kincal_protocol::params::{decode_blob, ArmParams, BLOB_CRC, MAX_PARAM_BLOB};
+
+/// Longest window accepted, ticks.
+pub const MAX_WINDOW_TICKS: u16 = 4096;
+
+/// What the board must do after a request.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Action {
+    /// Nothing more.
+    None,
+    /// Restart the controller (after the response has been sent).
+    Reset,
+    /// Emulated board: apply this simulation request (already acknowledged).
+    Simulate(Request),
+}
+
+struct Upload {
+    len: usize,
+    crc: u32,
+    received: usize,
+    buf: [u8; MAX_PARAM_BLOB],
+}
+
+/// Controller state.
+pub struct Controller<F: NorFlash> {
+    firmware: &'static str,
+    board: &'static str,
+    simulated: bool,
+    hello: bool,
+    window: Option<Window>,
+    raw: bool,
+    pose_divider: u16,
+    tick: u32,
+    stream_seq: u16,
+    upload: Option<Upload>,
+    store: ParamStore<F>,
+    params: Option<ArmParams>,
+}
+
+impl<F: NorFlash> Controller<F> {
+    /// A controller on `flash`; loads the stored parameters if any are valid.
+    /// `simulated`: the board accepts the emulated-encoder requests.
+    pub fn new(firmware: &'static str, board: &'static str, simulated: bool, flash: F) -> Self {
+        let mut store = ParamStore::mount(flash);
+        let mut buf = [0u8; MAX_PARAM_BLOB];
+        let params = store.load(&mut buf).and_then(|b| decode_blob(b).ok());
+        Controller { firmware, board, simulated, hello: false, window: None, raw: false, pose_divider: 0, tick: 0, stream_seq: 0, upload: None, store, params }
+    }
+
+    /// The active parameters.
+    pub fn params(&self) -> Option<&ArmParams> {
+        self.params.as_ref()
+    }
+
+    fn stream(&mut self, item: Stream, emit: &mut impl FnMut(&DeviceFrame)) {
+        emit(&DeviceFrame::Stream { seq: self.stream_seq, item });
+        self.stream_seq = self.stream_seq.wrapping_add(1);
+    }
+
+    /// Process one tick's sample.
+    pub fn on_tick(&mut self, sample: &Sample, emit: &mut impl FnMut(&DeviceFrame)) {
+        self.tick = self.tick.wrapping_add(1);
+        let tick = self.tick as u16;
+        if let Some(report) = self.window.as_mut().and_then(|w| w.push(&sample.counts, sample.rejected)) {
+            self.window = None;
+            self.stream(Stream::Window(report), emit);
+        }
+        if self.raw {
+            self.stream(Stream::Raw(RawSample { tick, packed: pack_counts(&sample.counts), rejected: sample.rejected }), emit);
+        }
+        if self.pose_divider > 0 && self.tick % self.pose_divider as u32 == 0 {
+            if let Some(p) = &self.params {
+                let pose = tool_pose(p, &sample.counts);
+                self.stream(Stream::Pose(PoseReport { tick, position_mm: pose.position_mm, z_axis: pose.z_axis, x_axis: pose.x_axis }), emit);
+            }
+        }
+    }
+
+    /// Answer one request; `health` is the sampler's counters for [`Request::GetInfo`].
+    pub fn handle(&mut self, frame: HostFrame, health: &[EncoderHealth; JOINTS], emit: &mut impl FnMut(&DeviceFrame)) -> Action {
+        let (response, action) = self.respond(frame.request, health);
+        emit(&DeviceFrame::Response { seq: frame.seq, response });
+        action
+    }
+
+    /// Answer a frame that could not be decoded.
+    pub fn bad_frame(&mut self, emit: &mut impl FnMut(&DeviceFrame)) {
+        emit(&DeviceFrame::Response { seq: u16::MAX, response: Err(WireError::BadFrame) });
+    }
+
+    fn respond(&mut self, request: Request, health: &[EncoderHealth; JOINTS]) -> (Result<Response, WireError>, Action) {
+        let ok = |r| (Ok(r), Action::None);
+        let err = |e| (Err(e), Action::None);
+        if let Request::Hello { version, schema } = request {
+            if version != PROTOCOL_VERSION || schema != SCHEMA_HASH {
+                self.hello = false;
+                return err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH });
+            }
+            self.hello = true;
+            return ok(Response::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH });
+        }
+        if !self.hello {
+            return err(WireError::NoHello);
+        }
+        match request {
+            Request::Hello { .. } => err(WireError::BadFrame),
+            Request::GetInfo => {
+                let stored = self.store.active();
+                let info = Info {
+                    firmware: heapless::String::try_from(self.firmware).unwrap_or_default(),
+                    board: heapless::String::try_from(self.board).unwrap_or_default(),
+                    param_version: self.params.map_or(0, |p| p.version),
+                    param_crc: stored.map_or(0, |s| s.crc),
+                    ticks: self.tick,
+                    encoders: *health,
+                };
+                ok(Response::Info(info))
+            }
+            Request::StartWindow { ticks } => {
+                if self.window.is_some() {
+                    err(WireError::Busy)
+                } else if ticks == 0 || ticks > MAX_WINDOW_TICKS {
+                    err(WireError::BadWindowLength)
+                } else {
+                    self.window = Some(Window::new(ticks));
+                    ok(Response::Ack)
+                }
+            }
+            Request::StreamRaw(on) => {
+                self.raw = on;
+                ok(Response::Ack)
+            }
+            Request::StreamPose(divider) => {
+                self.pose_divider = divider;
+                ok(Response::Ack)
+            }
+            Request::ParamBegin { len, crc } => {
+                if len as usize > MAX_PARAM_BLOB || len == 0 {
+                    return err(WireError::ParamTooLarge);
+                }
+                self.upload = Some(Upload { len: len as usize, crc, received: 0, buf: [0; MAX_PARAM_BLOB] });
+                ok(Response::Ack)
+            }
+            Request::ParamChunk { offset, data } => {
+                let Some(u) = self.upload.as_mut() else { return err(WireError::NoUpload) };
+                let offset = offset as usize;
+                if offset != u.received || offset + data.len() > u.len {
+                    return err(WireError::ParamOffset);
+                }
+                u.buf[offset..offset + data.len()].copy_from_slice(&data);
+                u.received += data.len();
+                ok(Response::Ack)
+            }
+            Request::ParamRead { offset, pending } => {
+                let mut stored = [0u8; MAX_PARAM_BLOB];
+                let bytes: &[u8] = if pending {
+                    match &self.upload {
+                        Some(u) => &u.buf[..u.received],
+                        None => return err(WireError::NoUpload),
+                    }
+                } else {
+                    self.store.load(&mut stored).unwrap_or(&[])
+                };
+                let from = (offset as usize).min(bytes.len());
+                let to = (from + PARAM_CHUNK).min(bytes.len());
+                ok(Response::ParamData { offset, data: heapless::Vec::from_slice(&bytes[from..to]).unwrap_or_default() })
+            }
+            Request::ParamCommit => {
+                let Some(u) = self.upload.take() else { return err(WireError::NoUpload) };
+                if u.received != u.len {
+                    self.upload = Some(u);
+                    return err(WireError::ParamIncomplete);
+                }
+                let blob = &u.buf[..u.len];
+                let Ok(params) = decode_blob(blob).map_err(|_| ()).and_then(|p| if BLOB_CRC.checksum(blob) == u.crc { Ok(p) } else { Err(()) }) else {
+                    return err(WireError::ParamInvalid);
+                };
+                match self.store.store(blob) {
+                    Ok(()) => {
+                        self.params = Some(params);
+                        ok(Response::Ack)
+                    }
+                    Err(_) => err(WireError::FlashWrite),
+                }
+            }
+            Request::Reset => (Ok(Response::Ack), Action::Reset),
+            Request::SimSetPose { .. } | Request::SimFaults { .. } => {
+                if self.simulated {
+                    (Ok(Response::Ack), Action::Simulate(request))
+                } else {
+                    err(WireError::NotSupported)
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::flash::RamNor;
+    use kincal_protocol::params::encode_blob;
+
+    type Ctl = Controller<RamNor<4096>>;
+
+    fn ask(c: &mut Ctl, request: Request) -> Result<Response, WireError> {
+        let mut out = Vec::new();
+        c.handle(HostFrame { seq: 5, request }, &[EncoderHealth::default(); JOINTS], &mut |f| out.push(f.clone()));
+        match out.pop() {
+            Some(DeviceFrame::Response { seq: 5, response }) => response,
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+
+    fn hello(c: &mut Ctl) {
+        assert!(ask(c, Request::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }).is_ok());
+    }
+
+    #[test]
+    fn requests_need_a_matching_hello() {
+        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        assert_eq!(ask(&mut c, Request::GetInfo), Err(WireError::NoHello));
+        assert_eq!(ask(&mut c, Request::Hello { version: 99, schema: SCHEMA_HASH }), Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }));
+        assert_eq!(ask(&mut c, Request::Hello { version: PROTOCOL_VERSION, schema: 1 }), Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }));
+        hello(&mut c);
+        assert!(matches!(ask(&mut c, Request::GetInfo), Ok(Response::Info(_))));
+        assert_eq!(ask(&mut c, Request::SimSetPose { counts: [0; 6] }), Err(WireError::NotSupported));
+    }
+
+    #[test]
+    fn a_window_takes_only_samples_after_the_request() {
+        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        hello(&mut c);
+        let mut frames = Vec::new();
+        let stale = Sample { counts: [4_000_000; 6], rejected: 0 };
+        for _ in 0..10 {
+            c.on_tick(&stale, &mut |f| frames.push(f.clone()));
+        }
+        assert_eq!(ask(&mut c, Request::StartWindow { ticks: 3 }), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::StartWindow { ticks: 3 }), Err(WireError::Busy));
+        let fresh = Sample { counts: [1000; 6], rejected: 0 };
+        for _ in 0..3 {
+            c.on_tick(&fresh, &mut |f| frames.push(f.clone()));
+        }
+        let Some(DeviceFrame::Stream { item: Stream::Window(w), .. }) = frames.last() else { panic!("{frames:?}") };
+        assert_eq!(w.joints[0].mean_counts, 1000.0);
+        assert_eq!(w.joints[0].accepted, 3);
+    }
+
+    #[test]
+    fn upload_is_checked_committed_and_survives_a_reboot() {
+        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        hello(&mut c);
+        let params = ArmParams { version: 42, tcp_mm: [0.0, 0.0, 253.0], ..ArmParams::default() };
+        let mut blob = [0u8; MAX_PARAM_BLOB];
+        let n = encode_blob(&params, &mut blob).unwrap();
+        let crc = BLOB_CRC.checksum(&blob[..n]);
+        assert_eq!(ask(&mut c, Request::ParamCommit), Err(WireError::NoUpload));
+        assert_eq!(ask(&mut c, Request::ParamBegin { len: n as u16, crc: crc ^ 1 }), Ok(Response::Ack));
+        for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
+            assert_eq!(ask(&mut c, Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data: heapless::Vec::from_slice(chunk).unwrap() }), Ok(Response::Ack));
+        }
+        assert_eq!(ask(&mut c, Request::ParamCommit), Err(WireError::ParamInvalid), "wrong upload CRC");
+        assert!(c.params().is_none());
+        assert_eq!(ask(&mut c, Request::ParamBegin { len: n as u16, crc }), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::ParamChunk { offset: 48, data: heapless::Vec::new() }), Err(WireError::ParamOffset));
+        for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
+            ask(&mut c, Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data: heapless::Vec::from_slice(chunk).unwrap() }).unwrap();
+        }
+        let Ok(Response::ParamData { data, .. }) = ask(&mut c, Request::ParamRead { offset: 0, pending: true }) else { panic!() };
+        assert_eq!(&data[..], &blob[..PARAM_CHUNK.min(n)]);
+        assert_eq!(ask(&mut c, Request::ParamCommit), Ok(Response::Ack));
+        assert_eq!(c.params().map(|p| p.version), Some(42));
+        let rebooted = Ctl::new("fw", "test", false, c.store.into_flash());
+        assert_eq!(rebooted.params().map(|p| p.version), Some(42));
+    }
+}

@@ -1,0 +1,20 @@
+//! kincal controller firmware: the board-independent part.
+//!
+//! Everything here is plain `no_std` logic, tested on the host: reading and rejecting encoder
+//! frames ([`encoders`]), measurement windows ([`window`]), power-loss-safe parameter storage
+//! ([`flash`]), the on-device kinematics ([`kinematics`]) and the protocol state machine
+//! ([`controller`]). Board specifics (time driver, UART, encoder bus, flash) live in one module
+//! per board under `src/bin/`.
+#![cfg_attr(not(test), no_std)]
+#![deny(missing_docs)]
+
+pub mod controller;
+pub mod encoders;
+pub mod flash;
+pub mod kinematics;
+pub mod window;
+
+/// Encoder sampling rate, Hz.
+pub const TICK_HZ: u32 = 768;
+/// Default window length: 2 s.
+pub const DEFAULT_WINDOW_TICKS: u16 = 1536;

@@ -7,6 +7,7 @@
 pub mod bench;
 pub mod calibrate;
 pub mod data;
+pub mod device;
 pub mod diagnose;
 pub mod effects;
 pub mod fsutil;

@@ -8,6 +8,8 @@
 #![cfg_attr(not(test), no_std)]
 #![deny(missing_docs)]
 
+#[cfg(feature = "app")]
+pub mod app;
 pub mod controller;
 pub mod encoders;
 pub mod flash;

@@ -1,0 +1,65 @@
+//! CMSDK APB UART0 of the mps2: the host link (QEMU connects it to a pty or a TCP socket).
+
+use cortex_m::peripheral::NVIC;
+use kincal_firmware::app::{FROM_HOST, TO_HOST};
+
+const UART0: usize = 0x4000_4000;
+const DATA: usize = 0x0;
+const STATE: usize = 0x4;
+const CTRL: usize = 0x8;
+const INT: usize = 0xC;
+const BAUDDIV: usize = 0x10;
+const TX_FULL: u32 = 1;
+const RX_FULL: u32 = 2;
+/// UART0 receive interrupt number.
+pub const RX_IRQ: u16 = 0;
+
+#[derive(Clone, Copy)]
+struct Irq(u16);
+// SAFETY: UART0 RX is IRQ 0 on the mps2-an386.
+unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
+    fn number(self) -> u16 {
+        self.0
+    }
+}
+
+fn reg(offset: usize) -> *mut u32 {
+    (UART0 + offset) as *mut u32
+}
+
+/// Enable transmit, receive and the receive interrupt.
+pub fn init() {
+    // SAFETY: UART0 registers of the mps2 memory map.
+    unsafe {
+        core::ptr::write_volatile(reg(BAUDDIV), 16);
+        core::ptr::write_volatile(reg(CTRL), 0b1011); // TX, RX, RX interrupt
+        NVIC::unmask(Irq(RX_IRQ));
+    }
+}
+
+/// Receive interrupt: move every waiting byte into [`FROM_HOST`].
+pub fn on_rx() {
+    // SAFETY: UART0 registers of the mps2 memory map.
+    unsafe {
+        core::ptr::write_volatile(reg(INT), 2);
+        while core::ptr::read_volatile(reg(STATE)) & RX_FULL != 0 {
+            let byte = core::ptr::read_volatile(reg(DATA)) as u8;
+            let _ = FROM_HOST.try_write(&[byte]);
+        }
+    }
+}
+
+/// Drain [`TO_HOST`] into the transmitter, forever.
+pub async fn send_to_host() -> ! {
+    let mut buf = [0u8; 256];
+    loop {
+        let n = TO_HOST.read(&mut buf).await;
+        for &byte in &buf[..n] {
+            // SAFETY: UART0 registers of the mps2 memory map.
+            unsafe {
+                while core::ptr::read_volatile(reg(STATE)) & TX_FULL != 0 {}
+                core::ptr::write_volatile(reg(DATA), byte as u32);
+            }
+        }
+    }
+}

@@ -46,12 +46,20 @@ pub struct Shared<F: NorFlash, B: EncoderBus> {
 /// The shared state, behind a critical-section mutex.
 pub type SharedCell<F, B> = Mutex<CriticalSectionRawMutex, RefCell<Option<Shared<F, B>>>>;
 
-/// Encode `frame` into [`TO_HOST`], whole or not at all.
+/// Encode `frame` into [`TO_HOST`], whole or not at all. Call with the shared state locked.
 pub fn send_frame(frame: &DeviceFrame) {
     let mut buf = [0u8; MAX_FRAME];
     let Ok(bytes) = framing::encode(frame, &mut buf) else { return };
     if TO_HOST.free_capacity() >= bytes.len() {
-        let _ = TO_HOST.try_write(bytes);
+        // try_write stops at the ring buffer's wrap point: write the rest too. Callers hold the
+        // shared critical section, so no other writer interleaves and the space stays free.
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            match TO_HOST.try_write(rest) {
+                Ok(n) => rest = &rest[n..],
+                Err(_) => break,
+            }
+        }
     } else {
         DROPPED_FRAMES.fetch_add(1, Ordering::Relaxed);
     }

@@ -198,7 +198,7 @@ wire_types! {
         /// Firmware name and version.
         pub firmware: heapless::String<24>,
         /// Board name.
-        pub board: heapless::String<16>,
+        pub board: heapless::String<24>,
         /// Version number of the stored parameters (0: none stored).
         pub param_version: u32,
         /// CRC-32 of the stored parameter blob (0: none).

@@ -1,0 +1,76 @@
+//! Start the emulated controller (QEMU mps2-an386 running the firmware) and connect to it.
+//!
+//! The host binds a TCP listener on 127.0.0.1:0 and QEMU connects its UART0 to it, so nothing
+//! is lost before the host is ready and no fixed port is needed. The [`Emulator`] guard kills
+//! QEMU when dropped, also when a test fails.
+
+use crate::link::{Link, LinkError};
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// The running emulator; QEMU is killed on drop.
+pub struct Emulator {
+    child: Child,
+}
+
+impl Drop for Emulator {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Where the emulated firmware is built (`cargo build-emulated`).
+pub fn firmware_elf() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/target/thumbv7em-none-eabihf/release/emulated")
+}
+
+/// Build the emulated firmware (no-op when it is up to date).
+pub fn build_firmware() -> Result<PathBuf, LinkError> {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/Cargo.toml");
+    let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+        .args(["build", "--quiet", "--manifest-path"])
+        .arg(&manifest)
+        .args(["--release", "--target", "thumbv7em-none-eabihf", "--features", "board-mps2", "--bin", "emulated"])
+        .status()
+        .map_err(|e| LinkError::Open { port: "firmware build".into(), message: e.to_string() })?;
+    if !status.success() {
+        return Err(LinkError::Open { port: "firmware build".into(), message: "cargo build of the emulated firmware failed (is the thumbv7em-none-eabihf target installed? rustup target add thumbv7em-none-eabihf)".into() });
+    }
+    Ok(firmware_elf())
+}
+
+impl Emulator {
+    /// Start QEMU on `elf` and return the guard with a connected (not yet greeted) link.
+    pub fn start(elf: &Path) -> Result<(Emulator, Link), LinkError> {
+        let open_error = |message: String| LinkError::Open { port: "emulated controller".into(), message };
+        let listener = TcpListener::bind("127.0.0.1:0")?;
+        let port = listener.local_addr()?.port();
+        let child = Command::new("qemu-system-arm")
+            .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
+            .args(["-semihosting-config", "enable=on,target=native"])
+            .arg("-serial")
+            .arg(format!("tcp:127.0.0.1:{port},nodelay=on"))
+            .arg("-kernel")
+            .arg(elf)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|e| open_error(format!("cannot start qemu-system-arm ({e}); install it with apt-get install qemu-system-arm")))?;
+        let guard = Emulator { child };
+        listener.set_nonblocking(true)?;
+        let deadline = Instant::now() + Duration::from_secs(10);
+        let stream = loop {
+            match listener.accept() {
+                Ok((s, _)) => break s,
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock && Instant::now() < deadline => std::thread::sleep(Duration::from_millis(10)),
+                Err(e) => return Err(open_error(format!("QEMU did not connect its UART: {e}"))),
+            }
+        };
+        stream.set_nonblocking(false)?;
+        stream.set_nodelay(true)?;
+        Ok((guard, Link::over(Box::new(stream))))
+    }
+}

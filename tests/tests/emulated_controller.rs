@@ -1,0 +1,133 @@
+//! The firmware running on the emulated controller (QEMU mps2-an386), end to end.
+//! QEMU is started per test and killed by a guard, also when the test fails.
+
+use kincal::emulator::{build_firmware, Emulator};
+use kincal::link::{Link, LinkError};
+use kincal_protocol::biss::COUNTS_PER_TURN;
+use kincal_protocol::messages::{Request, Stream, WindowReport, PROTOCOL_VERSION, SCHEMA_HASH};
+use std::sync::{Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+/// One emulator at a time: the timing tests need the cores.
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+fn start() -> (std::sync::MutexGuard<'static, ()>, Emulator, Link) {
+    static ELF: OnceLock<std::path::PathBuf> = OnceLock::new();
+    let guard = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let elf = ELF.get_or_init(|| build_firmware().expect("emulated firmware builds"));
+    let (emulator, mut link) = Emulator::start(elf).expect("QEMU starts");
+    link.hello().expect("handshake");
+    (guard, emulator, link)
+}
+
+fn window(link: &mut Link, ticks: u16) -> WindowReport {
+    link.command(Request::StartWindow { ticks }, "window").unwrap();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while Instant::now() < deadline {
+        if let Some((_, Stream::Window(w))) = link.next_stream(Duration::from_millis(500)).unwrap() {
+            return w;
+        }
+    }
+    panic!("no window report");
+}
+
+fn circular_distance(a: f64, b: f64) -> f64 {
+    let d = (a - b).rem_euclid(COUNTS_PER_TURN as f64);
+    d.min(COUNTS_PER_TURN as f64 - d)
+}
+
+#[test]
+fn boots_and_checks_the_protocol_version() {
+    let (_g, _emu, mut link) = start();
+    let info = link.info().unwrap();
+    assert!(info.firmware.starts_with("kincal-fw") && info.board.contains("mps2"), "{info:?}");
+    assert_eq!(info.param_version, 0, "a fresh controller has no parameters");
+    match link.hello_as(PROTOCOL_VERSION + 1, SCHEMA_HASH) {
+        Err(LinkError::VersionMismatch { device_version, .. }) => assert_eq!(device_version, PROTOCOL_VERSION),
+        other => panic!("expected a version mismatch, got {other:?}"),
+    }
+    assert!(matches!(link.info(), Err(LinkError::Refused(_, _))), "requests after a failed handshake are refused");
+    link.hello().unwrap();
+    assert!(link.info().is_ok());
+}
+
+#[test]
+fn a_two_second_window_returns_the_set_pose_including_one_at_the_wrap() {
+    let (_g, _emu, mut link) = start();
+    let counts = [100_000, COUNTS_PER_TURN - 2, 1, 2_097_152, 3_000_000, COUNTS_PER_TURN - 1];
+    link.command(Request::SimSetPose { counts }, "pose").unwrap();
+    link.command(Request::SimFaults { noise_counts: 3, crc_errors_per_10k: 0, dropouts_per_10k: 0, error_bits_per_10k: 0, warnings_per_10k: 0 }, "faults").unwrap();
+    let started = Instant::now();
+    let w = window(&mut link, 1536);
+    let elapsed = started.elapsed();
+    assert!(!w.flagged);
+    for (j, jw) in w.joints.iter().enumerate() {
+        assert_eq!(jw.accepted, 1536, "joint {j}");
+        let off = circular_distance(jw.mean_counts, counts[j] as f64);
+        assert!(off < 0.5, "joint {j}: mean {} vs set {} ({off} counts off)", jw.mean_counts, counts[j]);
+        assert!(jw.std_counts > 1.0 && jw.std_counts < 6.0, "joint {j}: std {}", jw.std_counts);
+    }
+    assert!(elapsed > Duration::from_millis(1800), "a 2 s window took {elapsed:?}");
+}
+
+#[test]
+fn injected_crc_errors_are_counted_and_excluded() {
+    let (_g, _emu, mut link) = start();
+    let counts = [1_000_000; 6];
+    link.command(Request::SimSetPose { counts }, "pose").unwrap();
+    link.command(Request::SimFaults { noise_counts: 0, crc_errors_per_10k: 500, dropouts_per_10k: 100, error_bits_per_10k: 0, warnings_per_10k: 0 }, "faults").unwrap();
+    let w = window(&mut link, 768);
+    for jw in &w.joints {
+        assert!(jw.rejected > 10, "about 6 % of 768 samples rejected, got {}", jw.rejected);
+        assert_eq!(jw.accepted + jw.rejected, 768);
+        assert_eq!(jw.mean_counts, 1_000_000.0, "corrupted frames must not reach the mean");
+    }
+    assert!(w.flagged, "6 % rejects exceeds the limit: the window is flagged");
+    let info = link.info().unwrap();
+    assert!(info.encoders.iter().all(|h| h.crc_errors > 0 && h.dropouts > 0), "{:?}", info.encoders);
+}
+
+#[test]
+fn uploaded_parameters_survive_a_controller_reset() {
+    let (_g, _emu, mut link) = start();
+    let model = kincal::model::ArmModel::suta_nominal();
+    let blob = kincal::device::parameter_blob(&model, 7);
+    link.upload(&blob).unwrap();
+    assert_eq!(link.info().unwrap().param_version, 7);
+    link.command(Request::Reset, "reset").unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    // After the reset the controller wants a new handshake.
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while link.hello().is_err() {
+        assert!(Instant::now() < deadline, "controller did not come back after reset");
+    }
+    let info = link.info().unwrap();
+    assert_eq!(info.param_version, 7, "parameters must survive the reset");
+    assert!(info.ticks < 768 * 3, "the controller restarted ({} ticks since boot)", info.ticks);
+    assert_eq!(link.read_params(false, 4096).unwrap(), blob);
+}
+
+#[test]
+fn a_ten_second_raw_stream_arrives_without_gaps() {
+    let (_g, _emu, mut link) = start();
+    link.command(Request::StreamRaw(true), "raw stream").unwrap();
+    let started = Instant::now();
+    let mut frames = 0u32;
+    let mut last: Option<u16> = None;
+    let mut gaps = 0u32;
+    while started.elapsed() < Duration::from_secs(10) {
+        if let Some((seq, Stream::Raw(_))) = link.next_stream(Duration::from_millis(200)).unwrap() {
+            if let Some(l) = last {
+                gaps += seq.wrapping_sub(l).wrapping_sub(1) as u32;
+            }
+            last = Some(seq);
+            frames += 1;
+        }
+    }
+    link.command(Request::StreamRaw(false), "raw stream off").unwrap();
+    let rate = frames as f64 / started.elapsed().as_secs_f64();
+    eprintln!("raw stream: {frames} frames in 10 s ({rate:.1} Hz), {gaps} lost, {} corrupt", link.stats.bad_frames);
+    assert_eq!(gaps, 0, "sequence gaps in the raw stream");
+    assert_eq!(link.stats.bad_frames, 0);
+    assert!(frames >= 7000, "expected ~7680 frames, got {frames}");
+}

@@ -2,7 +2,7 @@
 
 use crate::encoders::Sample;
 use crate::flash::{NorFlash, ParamStore};
-use crate::kinematics::tool_pose;
+use crate::kinematics::Kinematics;
 use crate::window::Window;
 use kincal_protocol::messages::{DeviceFrame, HostFrame, Info, PoseReport, RawSample, Request, Response, Stream, WireError, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH};
 use kincal_protocol::messages::{pack_counts, EncoderHealth, JOINTS};
@@ -42,7 +42,7 @@ pub struct Controller<F: NorFlash> {
     stream_seq: u16,
     upload: Option<Upload>,
     store: ParamStore<F>,
-    params: Option<ArmParams>,
+    params: Option<(ArmParams, Kinematics)>,
 }
 
 impl<F: NorFlash> Controller<F> {
@@ -51,13 +51,13 @@ impl<F: NorFlash> Controller<F> {
     pub fn new(firmware: &'static str, board: &'static str, simulated: bool, flash: F) -> Self {
         let mut store = ParamStore::mount(flash);
         let mut buf = [0u8; MAX_PARAM_BLOB];
-        let params = store.load(&mut buf).and_then(|b| decode_blob(b).ok());
+        let params = store.load(&mut buf).and_then(|b| decode_blob(b).ok()).map(|p| (p, Kinematics::new(&p)));
         Controller { firmware, board, simulated, hello: false, window: None, raw: false, pose_divider: 0, tick: 0, stream_seq: 0, upload: None, store, params }
     }
 
     /// The active parameters.
     pub fn params(&self) -> Option<&ArmParams> {
-        self.params.as_ref()
+        self.params.as_ref().map(|p| &p.0)
     }
 
     fn stream(&mut self, item: Stream, emit: &mut impl FnMut(&DeviceFrame)) {
@@ -77,8 +77,8 @@ impl<F: NorFlash> Controller<F> {
             self.stream(Stream::Raw(RawSample { tick, packed: pack_counts(&sample.counts), rejected: sample.rejected }), emit);
         }
         if self.pose_divider > 0 && self.tick % self.pose_divider as u32 == 0 {
-            if let Some(p) = &self.params {
-                let pose = tool_pose(p, &sample.counts);
+            if let Some((_, kinematics)) = &self.params {
+                let pose = kinematics.tool_pose(&sample.counts);
                 self.stream(Stream::Pose(PoseReport { tick, position_mm: pose.position_mm, z_axis: pose.z_axis, x_axis: pose.x_axis }), emit);
             }
         }
@@ -117,7 +117,7 @@ impl<F: NorFlash> Controller<F> {
                 let info = Info {
                     firmware: heapless::String::try_from(self.firmware).unwrap_or_default(),
                     board: heapless::String::try_from(self.board).unwrap_or_default(),
-                    param_version: self.params.map_or(0, |p| p.version),
+                    param_version: self.params().map_or(0, |p| p.version),
                     param_crc: stored.map_or(0, |s| s.crc),
                     ticks: self.tick,
                     encoders: *health,
@@ -185,7 +185,7 @@ impl<F: NorFlash> Controller<F> {
                 };
                 match self.store.store(blob) {
                     Ok(()) => {
-                        self.params = Some(params);
+                        self.params = Some((params, Kinematics::new(&params)));
                         ok(Response::Ack)
                     }
                     Err(_) => err(WireError::FlashWrite),

@@ -3,9 +3,13 @@
 //! Same definitions as the host (`kincal::model::kinematics`, `kincal::effects`): θ_j = φ_j + δθ_j
 //! + a·sin φ + b·cos φ + a₂·sin 2φ + b₂·cos 2φ + c·λ_j, link Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)
 //! (classic) or Rx(α)·Ry(β)·Tx(a)·Rz(θ)·Tz(d) (modified), tool point, length scale. λ_j is the
-//! unit-weight gravity lever on the undeflected, unscaled arm. The joint angle is formed and
-//! reduced to ±180° in f64 (a handful of operations) so the f32 trigonometry starts from a
-//! small, exact argument; the chain is f32.
+//! unit-weight gravity lever on the undeflected, unscaled arm.
+//!
+//! Cost on a Cortex-M4F (single-precision FPU only): everything that depends only on the
+//! parameters — the constant rotations Rx(α)·Ry(β), lengths, tool point — is computed once in
+//! [`Kinematics::new`]. Per pose, each joint angle is formed in f64 degrees (additions only),
+//! reduced to its quadrant exactly, and its sine and cosine come from f32 polynomials; the chain
+//! is f32. No f64 transcendental runs per tick.
 
 use kincal_protocol::biss::COUNTS_PER_TURN;
 use kincal_protocol::messages::JOINTS;
@@ -25,27 +29,24 @@ pub struct Pose {
     pub z_axis: V3,
 }
 
-fn mul(a: &M3, b: &M3) -> M3 {
-    core::array::from_fn(|i| core::array::from_fn(|j| a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j]))
-}
-
-fn apply(a: &M3, v: &V3) -> V3 {
-    core::array::from_fn(|i| a[i][0] * v[0] + a[i][1] * v[1] + a[i][2] * v[2])
-}
-
-fn rot(axis: usize, angle_rad: f32) -> M3 {
-    let (s, c) = (libm::sinf(angle_rad), libm::cosf(angle_rad));
-    match axis {
-        0 => [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]],
-        1 => [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]],
-        _ => [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]],
+/// sin and cos of an angle in degrees: exact reduction to |r| ≤ 45° in f64, then f32
+/// polynomials (Taylor to r¹¹ / r¹⁰, error below 2·10⁻⁹ before f32 rounding).
+pub fn sincos_deg(deg: f64) -> (f32, f32) {
+    let q = libm::round(deg * (1.0 / 90.0));
+    let r = ((deg - q * 90.0) as f32) * (core::f32::consts::PI / 180.0);
+    let r2 = r * r;
+    let s = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362_880.0)))));
+    let c = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40_320.0 + r2 * (-1.0 / 3_628_800.0)))));
+    match (q as i64).rem_euclid(4) {
+        0 => (s, c),
+        1 => (c, -s),
+        2 => (-s, -c),
+        _ => (-c, s),
     }
 }
 
-/// Angle in degrees (f64) reduced to (−180°, 180°] and converted to f32 radians.
-fn reduced_rad(deg: f64) -> f32 {
-    let r = deg - 360.0 * libm::round(deg / 360.0);
-    (r * core::f64::consts::PI / 180.0) as f32
+fn mul(a: &M3, b: &M3) -> M3 {
+    core::array::from_fn(|i| core::array::from_fn(|j| a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j]))
 }
 
 /// A rigid frame: rotation and origin.
@@ -57,75 +58,137 @@ struct Frame {
 
 impl Frame {
     fn translate(&mut self, local: V3) {
-        let d = apply(&self.r, &local);
-        for k in 0..3 {
-            self.p[k] += d[k];
+        for i in 0..3 {
+            self.p[i] += self.r[i][0] * local[0] + self.r[i][1] * local[1] + self.r[i][2] * local[2];
         }
     }
-    fn rotate(&mut self, axis: usize, angle_rad: f32) {
-        self.r = mul(&self.r, &rot(axis, angle_rad));
-    }
-}
 
-/// Walk the chain for joint angles `theta_deg`; returns the tool frame, each joint's axis frame
-/// (before its rotation) and the frame after each joint row.
-fn chain(params: &ArmParams, theta_deg: &[f64; JOINTS]) -> (Frame, [Frame; JOINTS], [Frame; JOINTS]) {
-    let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    let mut f = Frame { r: identity, p: [0.0; 3] };
-    let mut axes = [f; JOINTS];
-    let mut rows = [f; JOINTS];
-    for (j, row) in params.joints.iter().enumerate() {
-        let theta = reduced_rad(theta_deg[j]);
-        let (alpha, beta) = (reduced_rad(row.alpha_deg), reduced_rad(row.axis_deg));
-        if params.modified_dh {
-            f.rotate(0, alpha);
-            f.rotate(1, beta);
-            f.translate([row.a_mm as f32, 0.0, 0.0]);
-            axes[j] = f;
-            f.rotate(2, theta);
-            f.translate([0.0, 0.0, row.d_mm as f32]);
-        } else {
-            axes[j] = f;
-            f.rotate(2, theta);
-            f.translate([0.0, 0.0, row.d_mm as f32]);
-            f.translate([row.a_mm as f32, 0.0, 0.0]);
-            f.rotate(0, alpha);
-            f.rotate(1, beta);
+    /// self ← self · Rz(θ), from sin and cos.
+    fn rotate_z(&mut self, (s, c): (f32, f32)) {
+        for row in self.r.iter_mut() {
+            let (x, y) = (row[0], row[1]);
+            row[0] = c * x + s * y;
+            row[1] = -s * x + c * y;
         }
-        rows[j] = f;
     }
-    f.translate([params.tcp_mm[0] as f32, params.tcp_mm[1] as f32, params.tcp_mm[2] as f32]);
-    (f, axes, rows)
 }
 
-/// Joint angles (degrees, f64) before compliance.
-fn rigid_angles(params: &ArmParams, counts: &[u32; JOINTS]) -> [f64; JOINTS] {
-    core::array::from_fn(|j| {
-        let row = &params.joints[j];
-        let phi = counts[j] as f64 * (360.0 / COUNTS_PER_TURN as f64);
-        let p = phi.to_radians();
-        let ecc = row.eccentricity_deg[0] * libm::sin(p) + row.eccentricity_deg[1] * libm::cos(p) + row.eccentricity2_deg[0] * libm::sin(2.0 * p) + row.eccentricity2_deg[1] * libm::cos(2.0 * p);
-        phi + row.offset_deg + ecc
-    })
+/// Precomputed device kinematics of one parameter set.
+#[derive(Clone, Debug)]
+pub struct Kinematics {
+    modified: bool,
+    offset_deg: [f64; JOINTS],
+    harmonics: [[f32; 4]; JOINTS],
+    compliance_deg_per_m: [f64; JOINTS],
+    fixed: [M3; JOINTS],
+    d_mm: [f32; JOINTS],
+    a_mm: [f32; JOINTS],
+    tcp_mm: V3,
+    scale: f32,
 }
 
-/// Tool pose for raw encoder positions `counts`.
-pub fn tool_pose(params: &ArmParams, counts: &[u32; JOINTS]) -> Pose {
-    let mut theta = rigid_angles(params, counts);
-    if params.joints.iter().any(|j| j.compliance_deg_per_m != 0.0) {
-        let (tool, axes, rows) = chain(params, &theta);
+fn rotation_x_then_y(alpha_deg: f64, beta_deg: f64) -> M3 {
+    let (sa, ca) = (libm::sin(alpha_deg.to_radians()), libm::cos(alpha_deg.to_radians()));
+    let (sb, cb) = (libm::sin(beta_deg.to_radians()), libm::cos(beta_deg.to_radians()));
+    let rx = [[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]];
+    let ry = [[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]];
+    let m: [[f64; 3]; 3] = core::array::from_fn(|i| core::array::from_fn(|j| rx[i][0] * ry[0][j] + rx[i][1] * ry[1][j] + rx[i][2] * ry[2][j]));
+    m.map(|row| row.map(|v| v as f32))
+}
+
+impl Kinematics {
+    /// Precompute what depends only on `params` (runs once per parameter upload).
+    pub fn new(params: &ArmParams) -> Kinematics {
+        let j = &params.joints;
+        Kinematics {
+            modified: params.modified_dh,
+            offset_deg: j.map(|r| r.offset_deg),
+            harmonics: j.map(|r| [r.eccentricity_deg[0] as f32, r.eccentricity_deg[1] as f32, r.eccentricity2_deg[0] as f32, r.eccentricity2_deg[1] as f32]),
+            compliance_deg_per_m: j.map(|r| r.compliance_deg_per_m),
+            fixed: j.map(|r| rotation_x_then_y(r.alpha_deg, r.axis_deg)),
+            d_mm: j.map(|r| r.d_mm as f32),
+            a_mm: j.map(|r| r.a_mm as f32),
+            tcp_mm: params.tcp_mm.map(|v| v as f32),
+            scale: (1.0 + params.scale_ppm * 1e-6) as f32,
+        }
+    }
+
+    /// Joint angles (degrees) before compliance: the raw angle is exact in f32 (22 bits), the
+    /// harmonics are small terms evaluated in f32.
+    fn rigid_angles(&self, counts: &[u32; JOINTS]) -> [f64; JOINTS] {
+        core::array::from_fn(|j| {
+            let phi = counts[j] as f64 * (360.0 / COUNTS_PER_TURN as f64);
+            let h = &self.harmonics[j];
+            let ecc = if *h == [0.0; 4] {
+                0.0
+            } else {
+                let (s1, c1) = sincos_deg(phi);
+                let (s2, c2) = (2.0 * s1 * c1, c1 * c1 - s1 * s1);
+                (h[0] * s1 + h[1] * c1 + h[2] * s2 + h[3] * c2) as f64
+            };
+            phi + self.offset_deg[j] + ecc
+        })
+    }
+
+    /// Walk the chain; returns the tool frame, each joint's axis frame and each row's end frame.
+    fn chain(&self, theta_deg: &[f64; JOINTS]) -> (Frame, [Frame; JOINTS], [Frame; JOINTS]) {
+        let mut f = Frame { r: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], p: [0.0; 3] };
+        let mut axes = [f; JOINTS];
+        let mut rows = [f; JOINTS];
         for j in 0..JOINTS {
-            let (o, z) = (axes[j].p, [axes[j].r[0][2], axes[j].r[1][2], axes[j].r[2][2]]);
-            // Σ ((m − o) × ĝ)·z with ĝ = −z_base: (m − o) × (0,0,−1) = (−dy, dx, 0).
-            let lever_mm: f32 = rows[j..].iter().map(|f| f.p).chain([tool.p]).map(|m| -(m[1] - o[1]) * z[0] + (m[0] - o[0]) * z[1]).sum();
-            theta[j] += params.joints[j].compliance_deg_per_m * lever_mm as f64 / 1000.0;
+            let sc = sincos_deg(theta_deg[j]);
+            if self.modified {
+                f.r = mul(&f.r, &self.fixed[j]);
+                f.translate([self.a_mm[j], 0.0, 0.0]);
+                axes[j] = f;
+                f.rotate_z(sc);
+                f.translate([0.0, 0.0, self.d_mm[j]]);
+            } else {
+                axes[j] = f;
+                f.rotate_z(sc);
+                f.translate([self.a_mm[j], 0.0, self.d_mm[j]]);
+                f.r = mul(&f.r, &self.fixed[j]);
+            }
+            rows[j] = f;
+        }
+        f.translate(self.tcp_mm);
+        (f, axes, rows)
+    }
+
+    /// Tool pose for raw encoder positions `counts`.
+    pub fn tool_pose(&self, counts: &[u32; JOINTS]) -> Pose {
+        let mut theta = self.rigid_angles(counts);
+        if self.compliance_deg_per_m.iter().any(|c| *c != 0.0) {
+            let (tool, axes, rows) = self.chain(&theta);
+            for j in 0..JOINTS {
+                let (o, z) = (axes[j].p, [axes[j].r[0][2], axes[j].r[1][2], axes[j].r[2][2]]);
+                // Σ ((m − o) × ĝ)·z with ĝ = −z_base: (m − o) × (0,0,−1) = (−dy, dx, 0).
+                let lever_mm: f32 = rows[j..].iter().map(|f| f.p).chain([tool.p]).map(|m| -(m[1] - o[1]) * z[0] + (m[0] - o[0]) * z[1]).sum();
+                theta[j] += self.compliance_deg_per_m[j] * lever_mm as f64 / 1000.0;
+            }
+        }
+        let (tool, _, _) = self.chain(&theta);
+        Pose {
+            position_mm: tool.p.map(|v| v * self.scale),
+            x_axis: [tool.r[0][0], tool.r[1][0], tool.r[2][0]],
+            z_axis: [tool.r[0][2], tool.r[1][2], tool.r[2][2]],
         }
     }
-    let (tool, _, _) = chain(params, &theta);
-    let s = (1.0 + params.scale_ppm * 1e-6) as f32;
-    Pose {
-        position_mm: tool.p.map(|v| v * s),
-        x_axis: [tool.r[0][0], tool.r[1][0], tool.r[2][0]],
-        z_axis: [tool.r[0][2], tool.r[1][2], tool.r[2][2]],
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sincos_matches_the_library_everywhere() {
+        let mut worst: f64 = 0.0;
+        for k in -200_000..=200_000 {
+            let deg = k as f64 * 0.0037 + 0.001;
+            let (s, c) = sincos_deg(deg);
+            let r = deg.to_radians();
+            worst = worst.max((s as f64 - r.sin()).abs()).max((c as f64 - r.cos()).abs());
+        }
+        assert!(worst < 2e-7, "{worst}");
     }
 }

@@ -39,11 +39,12 @@ fn device_pose_matches_the_host_within_a_micrometre() {
         // The blob round trip is part of the path the controller takes.
         let params = decode_blob(&parameter_blob(&model, 3)).expect("blob decodes");
         assert_eq!(params, device_params(&model, 3));
+        let kinematics = device::Kinematics::new(&params);
         for _ in 0..20_000 {
             let counts: [u32; 6] = std::array::from_fn(|_| rng.random_range(0..COUNTS_PER_TURN));
             let enc_deg = counts.map(|c| c as f64 * 360.0 / COUNTS_PER_TURN as f64);
             let host = tool_pose(&model, &enc_deg);
-            let dev = device::tool_pose(&params, &counts);
+            let dev = kinematics.tool_pose(&counts);
             let dp = (0..3).map(|k| (host.position_mm[k] - dev.position_mm[k] as f64).powi(2)).sum::<f64>().sqrt();
             worst_um = worst_um.max(dp * 1000.0);
             let dz = (0..3).map(|k| (host.z_axis[k] - dev.z_axis[k] as f64).abs()).fold(0.0, f64::max);

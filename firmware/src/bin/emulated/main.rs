@@ -5,6 +5,8 @@
 #![no_main]
 
 mod bus;
+#[cfg(feature = "tick-bench")]
+mod tick_bench;
 mod nor;
 mod time_driver;
 mod uart;
@@ -17,9 +19,12 @@ use cortex_m_rt::{entry, exception};
 use cortex_m_semihosting::hprintln;
 use embassy_executor::raw::Executor;
 use embassy_sync::blocking_mutex::Mutex;
-use kincal_firmware::app::{self, Shared, SharedCell};
-use kincal_firmware::controller::{Action, Controller};
-use kincal_firmware::encoders::Sampler;
+#[cfg(not(feature = "tick-bench"))]
+use kincal_firmware::app::Shared;
+use kincal_firmware::app::{self, SharedCell};
+use kincal_firmware::controller::Action;
+#[cfg(not(feature = "tick-bench"))]
+use kincal_firmware::{controller::Controller, encoders::Sampler};
 use nor::EmulatedNor;
 
 static SHARED: SharedCell<EmulatedNor, EmulatedBus> = Mutex::new(RefCell::new(None));
@@ -48,6 +53,16 @@ async fn send_to_host() -> ! {
 
 #[entry]
 fn main() -> ! {
+    #[cfg(feature = "tick-bench")]
+    {
+        tick_bench::run()
+    }
+    #[cfg(not(feature = "tick-bench"))]
+    run()
+}
+
+#[cfg(not(feature = "tick-bench"))]
+fn run() -> ! {
     let controller = Controller::new(concat!("kincal-fw ", env!("CARGO_PKG_VERSION")), "mps2-an386 (emulated)", true, EmulatedNor::take());
     let has_params = controller.params().is_some();
     SHARED.lock(|s| *s.borrow_mut() = Some(Shared { controller, sampler: Sampler::default(), bus: EmulatedBus::new() }));

@@ -21,8 +21,8 @@ use embassy_time::{Duration, Ticker, Timer};
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
 use kincal_protocol::messages::{DeviceFrame, HostFrame};
 
-/// Bytes buffered towards the host (≈ 0.3 s of raw stream).
-pub const TO_HOST_BYTES: usize = 8192;
+/// Bytes buffered towards the host (≈ 0.26 s of raw stream).
+pub const TO_HOST_BYTES: usize = 6144;
 /// Bytes buffered from the host.
 pub const FROM_HOST_BYTES: usize = 1024;
 

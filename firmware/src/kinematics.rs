@@ -7,11 +7,10 @@
 //!
 //! Cost on a Cortex-M4F (single-precision FPU only): everything that depends only on the
 //! parameters — the constant rotations Rx(α)·Ry(β), lengths, tool point — is computed once in
-//! [`Kinematics::new`]. Per pose, each joint angle is formed in f64 degrees (additions only),
-//! reduced to its quadrant exactly, and its sine and cosine come from f32 polynomials; the chain
-//! is f32. No f64 transcendental runs per tick.
+//! [`Kinematics::new`]. Per pose, joint angles are fixed-point integers (one turn = 2³² units,
+//! 2¹⁰ units per encoder count), reduced to their quadrant exactly, and sine and cosine come
+//! from f32 polynomials; the chain is f32. No f64 arithmetic runs per pose.
 
-use kincal_protocol::biss::COUNTS_PER_TURN;
 use kincal_protocol::messages::JOINTS;
 use kincal_protocol::params::ArmParams;
 
@@ -29,15 +28,25 @@ pub struct Pose {
     pub z_axis: V3,
 }
 
-/// sin and cos of an angle in degrees: exact reduction to |r| ≤ 45° in f64, then f32
+/// Fixed-point angle units per turn.
+const UNITS_PER_TURN: f64 = 4_294_967_296.0;
+/// Fixed-point units per encoder count.
+const UNITS_PER_COUNT_SHIFT: u32 = 32 - 22;
+
+/// An angle in degrees as fixed-point units.
+fn units_from_deg(deg: f64) -> i64 {
+    libm::round(deg * (UNITS_PER_TURN / 360.0)) as i64
+}
+
+/// sin and cos of a fixed-point angle: exact reduction to |r| ≤ 45° in integers, then f32
 /// polynomials (Taylor to r¹¹ / r¹⁰, error below 2·10⁻⁹ before f32 rounding).
-pub fn sincos_deg(deg: f64) -> (f32, f32) {
-    let q = libm::round(deg * (1.0 / 90.0));
-    let r = ((deg - q * 90.0) as f32) * (core::f32::consts::PI / 180.0);
+pub fn sincos_units(angle: i64) -> (f32, f32) {
+    let q = (angle + (1 << 29)) >> 30; // nearest quarter turn
+    let r = (angle - (q << 30)) as f32 * (core::f32::consts::TAU / 4_294_967_296.0);
     let r2 = r * r;
     let s = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362_880.0)))));
     let c = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40_320.0 + r2 * (-1.0 / 3_628_800.0)))));
-    match (q as i64).rem_euclid(4) {
+    match q & 3 {
         0 => (s, c),
         1 => (c, -s),
         2 => (-s, -c),
@@ -77,9 +86,11 @@ impl Frame {
 #[derive(Clone, Debug)]
 pub struct Kinematics {
     modified: bool,
-    offset_deg: [f64; JOINTS],
+    offset_units: [i64; JOINTS],
+    /// Harmonic amplitudes in fixed-point units (sin φ, cos φ, sin 2φ, cos 2φ).
     harmonics: [[f32; 4]; JOINTS],
-    compliance_deg_per_m: [f64; JOINTS],
+    /// Compliance in fixed-point units per mm of lever.
+    compliance_units_per_mm: [f32; JOINTS],
     fixed: [M3; JOINTS],
     d_mm: [f32; JOINTS],
     a_mm: [f32; JOINTS],
@@ -102,9 +113,9 @@ impl Kinematics {
         let j = &params.joints;
         Kinematics {
             modified: params.modified_dh,
-            offset_deg: j.map(|r| r.offset_deg),
-            harmonics: j.map(|r| [r.eccentricity_deg[0] as f32, r.eccentricity_deg[1] as f32, r.eccentricity2_deg[0] as f32, r.eccentricity2_deg[1] as f32]),
-            compliance_deg_per_m: j.map(|r| r.compliance_deg_per_m),
+            offset_units: j.map(|r| units_from_deg(r.offset_deg)),
+            harmonics: j.map(|r| [r.eccentricity_deg[0], r.eccentricity_deg[1], r.eccentricity2_deg[0], r.eccentricity2_deg[1]].map(|a| (a * UNITS_PER_TURN / 360.0) as f32)),
+            compliance_units_per_mm: j.map(|r| (r.compliance_deg_per_m / 1000.0 * UNITS_PER_TURN / 360.0) as f32),
             fixed: j.map(|r| rotation_x_then_y(r.alpha_deg, r.axis_deg)),
             d_mm: j.map(|r| r.d_mm as f32),
             a_mm: j.map(|r| r.a_mm as f32),
@@ -113,30 +124,30 @@ impl Kinematics {
         }
     }
 
-    /// Joint angles (degrees) before compliance: the raw angle is exact in f32 (22 bits), the
-    /// harmonics are small terms evaluated in f32.
-    fn rigid_angles(&self, counts: &[u32; JOINTS]) -> [f64; JOINTS] {
+    /// Joint angles (fixed-point units) before compliance; the harmonics are small terms
+    /// evaluated in f32.
+    fn rigid_angles(&self, counts: &[u32; JOINTS]) -> [i64; JOINTS] {
         core::array::from_fn(|j| {
-            let phi = counts[j] as f64 * (360.0 / COUNTS_PER_TURN as f64);
+            let phi = (counts[j] as i64) << UNITS_PER_COUNT_SHIFT;
             let h = &self.harmonics[j];
             let ecc = if *h == [0.0; 4] {
-                0.0
+                0
             } else {
-                let (s1, c1) = sincos_deg(phi);
+                let (s1, c1) = sincos_units(phi);
                 let (s2, c2) = (2.0 * s1 * c1, c1 * c1 - s1 * s1);
-                (h[0] * s1 + h[1] * c1 + h[2] * s2 + h[3] * c2) as f64
+                (h[0] * s1 + h[1] * c1 + h[2] * s2 + h[3] * c2) as i64
             };
-            phi + self.offset_deg[j] + ecc
+            phi + self.offset_units[j] + ecc
         })
     }
 
     /// Walk the chain; returns the tool frame, each joint's axis frame and each row's end frame.
-    fn chain(&self, theta_deg: &[f64; JOINTS]) -> (Frame, [Frame; JOINTS], [Frame; JOINTS]) {
+    fn chain(&self, theta: &[i64; JOINTS]) -> (Frame, [Frame; JOINTS], [Frame; JOINTS]) {
         let mut f = Frame { r: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], p: [0.0; 3] };
         let mut axes = [f; JOINTS];
         let mut rows = [f; JOINTS];
         for j in 0..JOINTS {
-            let sc = sincos_deg(theta_deg[j]);
+            let sc = sincos_units(theta[j]);
             if self.modified {
                 f.r = mul(&f.r, &self.fixed[j]);
                 f.translate([self.a_mm[j], 0.0, 0.0]);
@@ -158,13 +169,13 @@ impl Kinematics {
     /// Tool pose for raw encoder positions `counts`.
     pub fn tool_pose(&self, counts: &[u32; JOINTS]) -> Pose {
         let mut theta = self.rigid_angles(counts);
-        if self.compliance_deg_per_m.iter().any(|c| *c != 0.0) {
+        if self.compliance_units_per_mm.iter().any(|c| *c != 0.0) {
             let (tool, axes, rows) = self.chain(&theta);
             for j in 0..JOINTS {
                 let (o, z) = (axes[j].p, [axes[j].r[0][2], axes[j].r[1][2], axes[j].r[2][2]]);
                 // Σ ((m − o) × ĝ)·z with ĝ = −z_base: (m − o) × (0,0,−1) = (−dy, dx, 0).
                 let lever_mm: f32 = rows[j..].iter().map(|f| f.p).chain([tool.p]).map(|m| -(m[1] - o[1]) * z[0] + (m[0] - o[0]) * z[1]).sum();
-                theta[j] += self.compliance_deg_per_m[j] * lever_mm as f64 / 1000.0;
+                theta[j] += (self.compliance_units_per_mm[j] * lever_mm) as i64;
             }
         }
         let (tool, _, _) = self.chain(&theta);
@@ -185,7 +196,7 @@ mod tests {
         let mut worst: f64 = 0.0;
         for k in -200_000..=200_000 {
             let deg = k as f64 * 0.0037 + 0.001;
-            let (s, c) = sincos_deg(deg);
+            let (s, c) = sincos_units(units_from_deg(deg));
             let r = deg.to_radians();
             worst = worst.max((s as f64 - r.sin()).abs()).max((c as f64 - r.cos()).abs());
         }

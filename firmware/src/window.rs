@@ -4,7 +4,8 @@
 //! buffered before the request leaks in. Per joint the first accepted sample is the reference
 //! r; every later sample c enters as its signed shortest distance from r,
 //! δ = ((c − r + 2²¹) mod 2²²) − 2²¹, so an encoder sitting at 359.99°/0.01° averages to ~0°.
-//! Σδ and Σδ² are exact integers; mean = r + Σδ/n (mod 2²²). A window in which any joint
+//! Σδ and Σδ² are exact integers (|δ| ≤ 2²¹ and at most 4096 samples keep Σδ² below 2⁶⁴);
+//! mean = r + Σδ/n (mod 2²²). A window in which any joint
 //! rejected more than [`MAX_REJECT_PER_1000`]‰ of its samples is flagged, not silently averaged.
 
 use kincal_protocol::biss::COUNTS_PER_TURN;
@@ -24,7 +25,7 @@ pub fn wrapped_delta(counts: u32, reference: u32) -> i64 {
 struct JointSums {
     reference: Option<u32>,
     sum: i64,
-    sum_sq: u128,
+    sum_sq: u64,
     min: i64,
     max: i64,
     accepted: u16,
@@ -56,7 +57,7 @@ impl Window {
             let r = *s.reference.get_or_insert(counts[j]);
             let d = wrapped_delta(counts[j], r);
             s.sum += d;
-            s.sum_sq += (d * d) as u128;
+            s.sum_sq += (d * d) as u64;
             s.min = s.min.min(d);
             s.max = s.max.max(d);
             s.accepted += 1;

@@ -72,20 +72,29 @@ pub fn encode(position_counts: u32, error: bool, warning: bool, ack_bits: u32) -
     Frame { bits: body, len: FRAME_BITS + ack_bits.min(MAX_ACK_BITS) }
 }
 
-/// Decode a received frame.
+/// Decode a received frame (shifts and masks only: cheap on the controller).
 pub fn decode(frame: Frame) -> Result<Reading, BissError> {
     let len = frame.len.min(64);
-    let bit = |i: u32| (frame.bits >> (len - 1 - i)) & 1; // i-th received bit
-    let start = (0..len.min(MAX_ACK_BITS + 1)).find(|&i| bit(i) == 1).ok_or(BissError::NoStart)?;
-    if len - start < FRAME_BITS {
+    let bits = if len == 64 { frame.bits } else { frame.bits & ((1u64 << len) - 1) };
+    if bits == 0 {
+        return Err(BissError::NoStart);
+    }
+    // Zeros received before the start bit (the ACK period).
+    let ack = bits.leading_zeros() - (64 - len);
+    if ack > MAX_ACK_BITS {
+        return Err(BissError::NoStart);
+    }
+    let after_start = len - ack - 1;
+    if after_start < FRAME_BITS - 1 {
         return Err(BissError::Truncated);
     }
-    if bit(start + 1) != 0 {
+    // Align the 32 frame bits (start … CRC) at the bottom.
+    let body = (bits >> (after_start - (FRAME_BITS - 1))) as u32;
+    if (body >> 30) & 1 != 0 {
         return Err(BissError::BadCds);
     }
-    let field = |from: u32, n: u32| (0..n).fold(0u32, |acc, k| (acc << 1) | bit(from + k) as u32);
-    let data24 = field(start + 2, POSITION_BITS + 2);
-    let received = field(start + 2 + POSITION_BITS + 2, 6) as u8;
+    let data24 = (body >> 6) & 0x00FF_FFFF;
+    let received = (body & 0x3F) as u8;
     let computed = crc6(data24);
     if computed != received {
         return Err(BissError::Crc { computed, received });

@@ -7,7 +7,7 @@
 use serde::{de::DeserializeOwned, Serialize};
 
 /// Largest encoded message (postcard bytes, before CRC and COBS).
-pub const MAX_MESSAGE: usize = 192;
+pub const MAX_MESSAGE: usize = 256;
 /// Largest frame on the wire: COBS overhead, CRC and delimiter included.
 pub const MAX_FRAME: usize = MAX_MESSAGE + 2 + MAX_MESSAGE / 254 + 2 + 1;
 
@@ -171,6 +171,13 @@ mod tests {
         for m in requests() {
             round_trip(&m);
         }
+    }
+
+    #[test]
+    fn the_largest_info_response_encodes() {
+        let health = EncoderHealth { accepted: u32::MAX, crc_errors: u32::MAX, error_bits: u32::MAX, warnings: u32::MAX, dropouts: u32::MAX };
+        let info = Info { firmware: heapless::String::try_from("x".repeat(24).as_str()).unwrap(), board: heapless::String::try_from("y".repeat(24).as_str()).unwrap(), param_version: u32::MAX, param_crc: u32::MAX, ticks: u32::MAX, encoders: [health; JOINTS] };
+        round_trip(&DeviceFrame::Response { seq: u16::MAX, response: Ok(Response::Info(info)) });
     }
 
     #[test]

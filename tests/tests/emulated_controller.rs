@@ -131,3 +131,31 @@ fn a_ten_second_raw_stream_arrives_without_gaps() {
     assert_eq!(link.stats.bad_frames, 0);
     assert!(frames >= 7000, "expected ~7680 frames, got {frames}");
 }
+
+#[test]
+fn the_controller_streams_the_calibrated_pose_the_host_computes() {
+    let (_g, _emu, mut link) = start();
+    let mut model = kincal::model::ArmModel::suta_nominal();
+    model.joints[4].eccentricity_sin_deg = 0.2;
+    model.joints[1].compliance_deg_per_m = 0.1;
+    model.tcp_mm = [0.5, -0.3, 253.0];
+    link.upload(&kincal::device::parameter_blob(&model, 11)).unwrap();
+    let counts = [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, COUNTS_PER_TURN - 5];
+    link.command(Request::SimSetPose { counts }, "pose").unwrap();
+    link.command(Request::StreamPose(4), "pose stream").unwrap();
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let mut poses = Vec::new();
+    while poses.len() < 20 && Instant::now() < deadline {
+        if let Some((_, Stream::Pose(p))) = link.next_stream(Duration::from_millis(200)).unwrap() {
+            poses.push(p);
+        }
+    }
+    link.command(Request::StreamPose(0), "pose stream off").unwrap();
+    assert!(poses.len() >= 20, "pose frames: {}", poses.len());
+    let enc_deg = counts.map(|c| c as f64 * 360.0 / COUNTS_PER_TURN as f64);
+    let host = kincal::model::kinematics::tool_pose(&model, &enc_deg);
+    for p in poses.iter().skip(5) {
+        let d = (0..3).map(|k| (p.position_mm[k] as f64 - host.position_mm[k]).powi(2)).sum::<f64>().sqrt();
+        assert!(d < 1e-3, "controller pose {:?} vs host {} ({d} mm)", p.position_mm, host.position_mm);
+    }
+}

@@ -3,6 +3,8 @@
 //! Start it with `cargo emulator` (see README): QEMU prints the pty to connect to.
 #![no_std]
 #![no_main]
+// The tick-bench build runs the measurement instead of the tasks.
+#![cfg_attr(feature = "tick-bench", allow(dead_code, unused_imports))]
 
 mod bus;
 #[cfg(feature = "tick-bench")]
@@ -27,6 +29,7 @@ use kincal_firmware::controller::Action;
 use kincal_firmware::{controller::Controller, encoders::Sampler};
 use nor::EmulatedNor;
 
+#[cfg_attr(feature = "tick-bench", allow(dead_code))]
 static SHARED: SharedCell<EmulatedNor, EmulatedBus> = Mutex::new(RefCell::new(None));
 static WORK_PENDING: AtomicBool = AtomicBool::new(true);
 static mut EXECUTOR: MaybeUninit<Executor> = MaybeUninit::uninit();

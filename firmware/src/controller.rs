@@ -55,6 +55,11 @@ impl<F: NorFlash> Controller<F> {
         Controller { firmware, board, simulated, hello: false, window: None, raw: false, pose_divider: 0, tick: 0, stream_seq: 0, upload: None, store, params }
     }
 
+    /// Give the flash back (a reboot keeps what is stored, nothing else).
+    pub fn into_flash(self) -> F {
+        self.store.into_flash()
+    }
+
     /// The active parameters.
     pub fn params(&self) -> Option<&ArmParams> {
         self.params.as_ref().map(|p| &p.0)

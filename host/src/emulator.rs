@@ -43,6 +43,35 @@ pub fn build_firmware() -> Result<PathBuf, LinkError> {
 }
 
 impl Emulator {
+    /// Start QEMU with UART0 as a TCP server on 127.0.0.1; returns the guard and the port
+    /// (`tcp:127.0.0.1:PORT`) to open links to — several in turn, as a serial port.
+    pub fn start_server(elf: &Path) -> Result<(Emulator, String), LinkError> {
+        let open_error = |message: String| LinkError::Open { port: "emulated controller".into(), message };
+        let port = TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+        let child = Command::new("qemu-system-arm")
+            .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
+            .args(["-semihosting-config", "enable=on,target=native"])
+            .arg("-serial")
+            .arg(format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on"))
+            .arg("-kernel")
+            .arg(elf)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|e| open_error(format!("cannot start qemu-system-arm ({e}); install it with apt-get install qemu-system-arm")))?;
+        let guard = Emulator { child };
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+            if Instant::now() > deadline {
+                return Err(open_error("QEMU did not open its UART port".into()));
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        // That probe connection took QEMU's one client slot until it noticed the close.
+        std::thread::sleep(Duration::from_millis(100));
+        Ok((guard, format!("tcp:127.0.0.1:{port}")))
+    }
+
     /// Start QEMU on `elf` and return the guard with a connected (not yet greeted) link.
     pub fn start(elf: &Path) -> Result<(Emulator, Link), LinkError> {
         let open_error = |message: String| LinkError::Open { port: "emulated controller".into(), message };

@@ -247,6 +247,12 @@ impl Link {
         }
     }
 
+    /// Forget stream frames received so far. The controller answers requests in order, so after
+    /// a request's response every queued frame predates that request.
+    pub fn clear_streams(&mut self) {
+        self.streams.clear();
+    }
+
     /// The next streamed frame, waiting up to `timeout`.
     pub fn next_stream(&mut self, timeout: Duration) -> Result<Option<(u16, Stream)>, LinkError> {
         let deadline = Instant::now() + timeout;

@@ -260,21 +260,27 @@ pub fn perturbed_truth(nominal: &ArmModel, options: &SimulationOptions, rng: &mu
     truth
 }
 
+/// Encoder angles (degrees) at which the true arm seats its tool on `landmark` at `place`, with
+/// seating noise `noise_mm` added to the tip; `None` when unreachable.
+pub fn touch_encoders(truth: &ArmModel, place: &Placement, landmark: &Landmark, noise_mm: Vector3<f64>, rng: &mut ChaCha8Rng) -> Option<[f64; JOINTS]> {
+    let (sy, cy) = place.yaw_deg.to_radians().sin_cos();
+    let [x, y, z] = landmark.xyz_mm;
+    let position_mm = Vector3::new(place.origin_mm[0] + cy * x - sy * y, place.origin_mm[1] + sy * x + cy * y, place.origin_mm[2] + z) + noise_mm;
+    let yaw = (place.yaw_deg + landmark.yaw_deg).to_radians();
+    let target = PoseTarget { model: truth, position_mm, z_axis: -Vector3::z(), x_axis: Vector3::new(yaw.cos(), yaw.sin(), 0.0) };
+    solve_touch(truth, &target, rng)
+}
+
 /// Record every landmark of `artefact` at `place` with the true arm, `repeats` times.
 pub fn record_placement(truth: &ArmModel, artefact: &Artefact, place: &Placement, purpose: &str, options: &SimulationOptions, rng: &mut ChaCha8Rng) -> (Session, usize) {
     let seat = Normal::new(0.0, options.seating_noise_mm.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
     let enc_noise = Normal::new(0.0, options.encoder_noise_deg.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
-    let (sy, cy) = place.yaw_deg.to_radians().sin_cos();
     let mut measurements = Vec::new();
     let mut skipped = 0;
     for repeat in 1..=options.repeats {
         for l in &artefact.landmarks {
-            let [x, y, z] = l.xyz_mm;
             let noise = Vector3::new(seat.sample(rng), seat.sample(rng), seat.sample(rng));
-            let position_mm = Vector3::new(place.origin_mm[0] + cy * x - sy * y, place.origin_mm[1] + sy * x + cy * y, place.origin_mm[2] + z) + noise;
-            let yaw = (place.yaw_deg + l.yaw_deg).to_radians();
-            let target = PoseTarget { model: truth, position_mm, z_axis: -Vector3::z(), x_axis: Vector3::new(yaw.cos(), yaw.sin(), 0.0) };
-            let Some(enc) = solve_touch(truth, &target, rng) else {
+            let Some(enc) = touch_encoders(truth, place, l, noise, rng) else {
                 skipped += 1;
                 continue;
             };

@@ -1,0 +1,224 @@
+//! The whole loop on a controller with an emulated arm: record calibration and validation
+//! placements (the arm posed by inverse kinematics of a "true" arm at every landmark), calibrate,
+//! upload, stream the calibrated pose and measure its error against the truth — nominal vs
+//! calibrated.
+//!
+//! Absolute pose error includes what no artefact touch can observe (rotation about and shift
+//! along the base axis, the tool length with a vertical tool): the pose error is therefore taken
+//! after a rigid registration of the streamed tool points to the true ones, as a navigation
+//! system registers the tracker to the patient.
+
+use crate::calibrate::CalibrationOptions;
+use crate::data::Artefact;
+use crate::link::{Link, LinkError};
+use crate::model::ArmModel;
+use crate::outliers::rigid_fit;
+use crate::record::{record, Guide, Plan, Quality, RecordError, Step};
+use crate::run::{run, RunError, RunInputs};
+use crate::simulate::{calibration_placements, perturbed_truth, reference_tool_frame, suta_artefact, touch_encoders, validation_placements, Placement, SimulationOptions};
+use kincal_protocol::biss::COUNTS_PER_TURN;
+use kincal_protocol::messages::{Request, Stream};
+use nalgebra::Vector3;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// Settings of the loop.
+#[derive(Clone, Debug)]
+pub struct LoopOptions {
+    /// Seed of the true arm, the artefact and the noise.
+    pub seed: u64,
+    /// Window per touch, ticks (1536 = 2 s as on the real arm; fewer to go faster).
+    pub window_ticks: u16,
+    /// Repeats of every landmark per placement.
+    pub repeats: u32,
+    /// Seating noise of the tip, mm (standard deviation per axis).
+    pub seating_noise_mm: f64,
+    /// Emulated encoder noise, counts (standard deviation).
+    pub encoder_noise_counts: u16,
+    /// Calibration placements used (of the thesis' five).
+    pub calibration_placements: usize,
+    /// Where data and the run go.
+    pub out: PathBuf,
+}
+
+impl Default for LoopOptions {
+    fn default() -> Self {
+        LoopOptions { seed: 1, window_ticks: 96, repeats: 3, seating_noise_mm: 0.1, encoder_noise_counts: 3, calibration_placements: 5, out: PathBuf::from("runs/loop") }
+    }
+}
+
+/// Why the loop stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum LoopError {
+    /// Talking to the controller failed.
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    /// Recording failed.
+    #[error(transparent)]
+    Record(#[from] RecordError),
+    /// Calibration or its files failed.
+    #[error(transparent)]
+    Run(#[from] RunError),
+    /// Writing the inputs failed.
+    #[error("{0}")]
+    Files(String),
+}
+
+/// What the loop measured.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct LoopReport {
+    /// Touches recorded (calibration + validation).
+    pub touches: usize,
+    /// Validation distance RMS of the nominal model, mm.
+    pub nominal_validation_rms_mm: f64,
+    /// Validation distance RMS of the calibrated model, mm.
+    pub calibrated_validation_rms_mm: f64,
+    /// Validation distance RMS of the true arm on the same recorded data: the noise floor, mm.
+    pub truth_validation_rms_mm: f64,
+    /// Pose error the host predicts for the calibrated model at the same touches, mm.
+    pub host_calibrated_pose_rms_mm: f64,
+    /// Pose error streamed by the controller with the nominal parameters (RMS after rigid
+    /// registration to the true tool points), mm.
+    pub nominal_pose_rms_mm: f64,
+    /// The same with the calibrated parameters, mm.
+    pub calibrated_pose_rms_mm: f64,
+    /// The same with the true arm's parameters uploaded: what encoder noise and the controller's
+    /// arithmetic alone leave (the floor), mm.
+    pub floor_pose_rms_mm: f64,
+    /// Poses compared.
+    pub poses: usize,
+    /// Time to upload one parameter set, s.
+    pub upload_seconds: f64,
+    /// Wall time of the whole loop, s.
+    pub seconds: f64,
+}
+
+fn counts_of(enc_deg: &[f64; 6]) -> [u32; 6] {
+    enc_deg.map(|d| ((d.rem_euclid(360.0) / 360.0 * COUNTS_PER_TURN as f64).round() as u32) % COUNTS_PER_TURN)
+}
+
+fn degrees_of(counts: &[u32; 6]) -> [f64; 6] {
+    counts.map(|c| c as f64 * 360.0 / COUNTS_PER_TURN as f64)
+}
+
+/// Poses the emulated arm by inverse kinematics of the true arm, with seating noise.
+struct PosingGuide<'a> {
+    truth: &'a ArmModel,
+    artefact: &'a Artefact,
+    place: Placement,
+    rng: &'a mut ChaCha8Rng,
+    seat: Normal<f64>,
+}
+
+impl Guide for PosingGuide<'_> {
+    fn approach(&mut self, link: &mut Link, landmark: &str, _repeat: u32) -> Result<Step, RecordError> {
+        let Some(l) = self.artefact.landmarks.iter().find(|l| l.id == landmark) else { return Ok(Step::Skip) };
+        let noise = Vector3::new(self.seat.sample(self.rng), self.seat.sample(self.rng), self.seat.sample(self.rng));
+        let Some(enc) = touch_encoders(self.truth, &self.place, l, noise, self.rng) else { return Ok(Step::Skip) };
+        link.command(Request::SimSetPose { counts: counts_of(&enc) }, "emulated pose")?;
+        Ok(Step::Measure)
+    }
+
+    fn accept(&mut self, _landmark: &str, _m: &crate::data::Measurement, _q: &Quality) -> bool {
+        true
+    }
+}
+
+/// Average the controller's streamed tool point over `frames` pose frames at `counts`.
+fn streamed_point(link: &mut Link, counts: [u32; 6], frames: usize) -> Result<Vector3<f64>, LinkError> {
+    link.command(Request::SimSetPose { counts }, "emulated pose")?;
+    link.command(Request::StreamPose(1), "pose stream")?;
+    link.clear_streams();
+    let mut sum = Vector3::zeros();
+    let mut n = 0;
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while n < frames && Instant::now() < deadline {
+        if let Some((_, Stream::Pose(p))) = link.next_stream(Duration::from_millis(100))? {
+            sum += Vector3::new(p.position_mm[0] as f64, p.position_mm[1] as f64, p.position_mm[2] as f64);
+            n += 1;
+        }
+    }
+    link.command(Request::StreamPose(0), "pose stream off")?;
+    if n == 0 {
+        return Err(LinkError::Timeout(Duration::from_secs(5), "pose frames"));
+    }
+    Ok(sum / n as f64)
+}
+
+fn registered_rms(measured: &[Vector3<f64>], truth: &[Vector3<f64>]) -> f64 {
+    let (r, t) = rigid_fit(measured, truth);
+    let sum: f64 = measured.iter().zip(truth).map(|(m, q)| (r * m + t - q).norm_squared()).sum();
+    (sum / measured.len().max(1) as f64).sqrt()
+}
+
+/// Run the loop on `link` (greeted) with `nominal` as the model to calibrate.
+pub fn run_loop(link: &mut Link, nominal: &ArmModel, options: &LoopOptions, progress: &mut dyn FnMut(&str)) -> Result<LoopReport, LoopError> {
+    let started = Instant::now();
+    let files = |e: &dyn std::fmt::Display| LoopError::Files(e.to_string());
+    let sim = SimulationOptions { seed: options.seed, ..SimulationOptions::default() };
+    let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
+    let truth = perturbed_truth(nominal, &sim, &mut rng);
+    let artefact = suta_artefact(&mut rng);
+    let data = options.out.join("data");
+    std::fs::create_dir_all(&data).map_err(|e| files(&e))?;
+    artefact.save(&data.join("artefact.json")).map_err(|e| files(&e))?;
+    truth.save(&data.join("truth.toml")).map_err(|e| files(&e))?;
+    nominal.save(&data.join("nominal.toml")).map_err(|e| files(&e))?;
+    link.command(Request::SimFaults { noise_counts: options.encoder_noise_counts, crc_errors_per_10k: 0, dropouts_per_10k: 0, error_bits_per_10k: 0, warnings_per_10k: 0 }, "encoder noise")?;
+    let seat = Normal::new(0.0, options.seating_noise_mm.max(0.0)).map_err(|e| files(&e))?;
+    let order: Vec<String> = artefact.landmarks.iter().map(|l| l.id.clone()).collect();
+    let mut touches = 0;
+    let groups = [("calibration", "cal", calibration_placements().into_iter().take(options.calibration_placements).collect::<Vec<_>>()), ("validation", "val", validation_placements())];
+    for (purpose, folder, places) in groups {
+        for place in places {
+            progress(&format!("recording {purpose} placement {} ({} landmarks × {} repeats)", place.name, order.len(), options.repeats));
+            let plan = Plan { placement: place.name.clone(), purpose: purpose.into(), order: order.clone(), repeats: options.repeats, window_ticks: options.window_ticks, out: data.join(folder) };
+            let mut guide = PosingGuide { truth: &truth, artefact: &artefact, place, rng: &mut rng, seat };
+            let done = record(link, &artefact, &plan, &mut guide)?;
+            touches += done.measured + done.resumed;
+        }
+    }
+    progress("calibrating");
+    let inputs = RunInputs { model: data.join("nominal.toml"), artefact: data.join("artefact.json"), calibration: data.join("cal"), validation: data.join("val") };
+    let result = run(&inputs, &CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() }, &[], 0)?;
+    result.write(&options.out.join("run"))?;
+    // Pose check at one noise-free touch of every landmark of every validation placement.
+    let mut check_counts = Vec::new();
+    for place in validation_placements() {
+        for l in &artefact.landmarks {
+            if let Some(enc) = touch_encoders(&truth, &place, l, Vector3::zeros(), &mut rng) {
+                check_counts.push(counts_of(&enc));
+            }
+        }
+    }
+    let truth_points: Vec<Vector3<f64>> = check_counts.iter().map(|c| reference_tool_frame(&truth, &degrees_of(c)).0.fixed_view::<3, 1>(0, 3).into_owned()).collect();
+    let mut pose_rms = |model: &ArmModel, version: u32, label: &str, link: &mut Link| -> Result<(f64, f64), LoopError> {
+        progress(&format!("uploading the {label} parameters and streaming the pose at {} validation touches", check_counts.len()));
+        let t = Instant::now();
+        link.upload(&crate::device::parameter_blob(model, version))?;
+        let upload = t.elapsed().as_secs_f64();
+        let points = check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;
+        Ok((registered_rms(&points, &truth_points), upload))
+    };
+    let (nominal_pose, _) = pose_rms(nominal, 1, "nominal", link)?;
+    let (floor_pose, _) = pose_rms(&truth, 3, "true arm's", link)?;
+    let (calibrated_pose, upload_seconds) = pose_rms(&result.calibration.model, 2, "calibrated", link)?;
+    let host_points: Vec<Vector3<f64>> = check_counts.iter().map(|c| crate::model::kinematics::tool_pose(&result.calibration.model, &degrees_of(c)).position_mm).collect();
+    let truth_validation = crate::validate::validate(&truth, &artefact, &result.validation_data).overall.rms_mm;
+    Ok(LoopReport {
+        truth_validation_rms_mm: truth_validation,
+        host_calibrated_pose_rms_mm: registered_rms(&host_points, &truth_points),
+        touches,
+        nominal_validation_rms_mm: result.summary.nominal_validation.rms_mm,
+        calibrated_validation_rms_mm: result.summary.validation.rms_mm,
+        nominal_pose_rms_mm: nominal_pose,
+        calibrated_pose_rms_mm: calibrated_pose,
+        floor_pose_rms_mm: floor_pose,
+        poses: check_counts.len(),
+        upload_seconds,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}

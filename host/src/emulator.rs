@@ -42,24 +42,28 @@ pub fn build_firmware() -> Result<PathBuf, LinkError> {
     Ok(firmware_elf())
 }
 
+/// Start QEMU on `elf` with UART0 on the chardev `serial`.
+fn qemu(elf: &Path, serial: &str) -> Result<Emulator, LinkError> {
+    let child = Command::new("qemu-system-arm")
+        .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
+        .args(["-semihosting-config", "enable=on,target=native"])
+        .args(["-serial", serial])
+        .arg("-kernel")
+        .arg(elf)
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .map_err(|e| LinkError::Open { port: "emulated controller".into(), message: format!("cannot start qemu-system-arm ({e}); install it with apt-get install qemu-system-arm") })?;
+    Ok(Emulator { child })
+}
+
 impl Emulator {
     /// Start QEMU with UART0 as a TCP server on 127.0.0.1; returns the guard and the port
     /// (`tcp:127.0.0.1:PORT`) to open links to — several in turn, as a serial port.
     pub fn start_server(elf: &Path) -> Result<(Emulator, String), LinkError> {
         let open_error = |message: String| LinkError::Open { port: "emulated controller".into(), message };
         let port = TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-        let child = Command::new("qemu-system-arm")
-            .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
-            .args(["-semihosting-config", "enable=on,target=native"])
-            .arg("-serial")
-            .arg(format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on"))
-            .arg("-kernel")
-            .arg(elf)
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .map_err(|e| open_error(format!("cannot start qemu-system-arm ({e}); install it with apt-get install qemu-system-arm")))?;
-        let guard = Emulator { child };
+        let guard = qemu(elf, &format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on"))?;
         let deadline = Instant::now() + Duration::from_secs(10);
         while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
             if Instant::now() > deadline {
@@ -77,18 +81,7 @@ impl Emulator {
         let open_error = |message: String| LinkError::Open { port: "emulated controller".into(), message };
         let listener = TcpListener::bind("127.0.0.1:0")?;
         let port = listener.local_addr()?.port();
-        let child = Command::new("qemu-system-arm")
-            .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
-            .args(["-semihosting-config", "enable=on,target=native"])
-            .arg("-serial")
-            .arg(format!("tcp:127.0.0.1:{port},nodelay=on"))
-            .arg("-kernel")
-            .arg(elf)
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .map_err(|e| open_error(format!("cannot start qemu-system-arm ({e}); install it with apt-get install qemu-system-arm")))?;
-        let guard = Emulator { child };
+        let guard = qemu(elf, &format!("tcp:127.0.0.1:{port},nodelay=on"))?;
         listener.set_nonblocking(true)?;
         let deadline = Instant::now() + Duration::from_secs(10);
         let stream = loop {

@@ -9,7 +9,7 @@ use crate::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOpti
 use crate::data::{Artefact, DataError, Dataset};
 use crate::effects::Effect;
 use crate::identify::{self, Identifiability};
-use crate::model::{ArmModel, ModelError};
+use crate::model::ArmModel;
 use crate::objective::{CalibrationProblem, Objective};
 use crate::outliers::{landmark_outliers, LandmarkOutlier};
 use crate::solver::Residuals;
@@ -23,9 +23,6 @@ pub enum RunError {
     /// An input file was unusable.
     #[error(transparent)]
     Data(#[from] DataError),
-    /// The model file was unusable.
-    #[error(transparent)]
-    Model(#[from] ModelError),
     /// The calibration could not run.
     #[error("calibration: {0}")]
     Calibration(#[from] CalibrationError),

@@ -333,7 +333,7 @@ impl SimulatedData {
             std::fs::create_dir_all(dir.join(sub)).map_err(io(&dir.join(sub)))?;
         }
         self.artefact.save(&dir.join("artefact.json"))?;
-        self.truth.save(&dir.join("truth.toml")).map_err(|e| crate::data::DataError::Syntax { path: dir.join("truth.toml"), message: e.to_string() })?;
+        self.truth.save(&dir.join("truth.toml"))?;
         for (sub, sessions) in [("cal", &self.calibration), ("val", &self.validation)] {
             for s in sessions {
                 s.save(&dir.join(sub).join(format!("{}.json", s.placement)))?;

@@ -21,41 +21,13 @@ use super::{ArmModel, Convention, FreeParam, Joint, ParamId, JOINTS};
 use crate::effects::Effect;
 use crate::fsutil;
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// The format tag every model file carries.
 pub const MODEL_FORMAT: &str = "kincal-arm/1";
 
-/// Why a model file could not be read or written.
-#[derive(Debug, thiserror::Error)]
-pub enum ModelError {
-    /// The file could not be read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The operating-system error.
-        source: std::io::Error,
-    },
-    /// The file is not valid TOML/JSON of the expected shape.
-    #[error("{path}: {message}")]
-    Syntax {
-        /// The file.
-        path: PathBuf,
-        /// What the parser said.
-        message: String,
-    },
-    /// One field holds a value the model cannot take.
-    #[error("{path}: field `{field}`: {message}")]
-    Field {
-        /// The file.
-        path: PathBuf,
-        /// The field, e.g. `joint[2].d_mm` or `free."offset:9"`.
-        field: String,
-        /// What was expected.
-        message: String,
-    },
-}
+/// Why a model file could not be read or written (the same error as for the other input files).
+pub type ModelError = crate::data::DataError;
 
 #[derive(serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]

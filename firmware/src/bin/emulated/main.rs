@@ -7,6 +7,7 @@
 #![cfg_attr(feature = "tick-bench", allow(dead_code, unused_imports))]
 
 mod bus;
+mod irq;
 #[cfg(feature = "tick-bench")]
 mod tick_bench;
 mod nor;

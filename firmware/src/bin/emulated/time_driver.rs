@@ -6,6 +6,7 @@
 
 use core::cell::{Cell, RefCell};
 use core::task::Waker;
+use crate::irq::Irq;
 use cortex_m::peripheral::NVIC;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
@@ -27,14 +28,6 @@ pub const TIMER0_IRQ: u16 = 8;
 /// IRQ number of the alarm timer.
 pub const TIMER1_IRQ: u16 = 9;
 
-#[derive(Clone, Copy)]
-struct Irq(u16);
-// SAFETY: the IRQ numbers are those of the mps2-an386's CMSDK timers.
-unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
-    fn number(self) -> u16 {
-        self.0
-    }
-}
 
 fn write(base: usize, reg: usize, value: u32) {
     // SAFETY: a CMSDK timer register of the mps2 memory map.

@@ -1,5 +1,6 @@
 //! CMSDK APB UART0 of the mps2: the host link (QEMU connects it to a pty or a TCP socket).
 
+use crate::irq::Irq;
 use cortex_m::peripheral::NVIC;
 use kincal_firmware::app::{FROM_HOST, TO_HOST};
 
@@ -14,14 +15,6 @@ const RX_FULL: u32 = 2;
 /// UART0 receive interrupt number.
 pub const RX_IRQ: u16 = 0;
 
-#[derive(Clone, Copy)]
-struct Irq(u16);
-// SAFETY: UART0 RX is IRQ 0 on the mps2-an386.
-unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
-    fn number(self) -> u16 {
-        self.0
-    }
-}
 
 fn reg(offset: usize) -> *mut u32 {
     (UART0 + offset) as *mut u32

@@ -214,6 +214,18 @@ impl Link {
         }
     }
 
+    /// Send a request that may safely be repeated, trying up to three times on a timeout.
+    pub fn request_idempotent(&mut self, request: Request, what: &'static str) -> Result<Response, LinkError> {
+        let mut attempt = 0;
+        loop {
+            attempt += 1;
+            match self.request(request.clone(), what, DEFAULT_TIMEOUT) {
+                Err(LinkError::Timeout(..)) if attempt < 3 => continue,
+                other => return other,
+            }
+        }
+    }
+
     /// Version and schema handshake; must come first.
     pub fn hello(&mut self) -> Result<(), LinkError> {
         self.hello_as(PROTOCOL_VERSION, SCHEMA_HASH)
@@ -221,7 +233,7 @@ impl Link {
 
     /// Handshake announcing `version` and `schema` (tests use it to provoke a mismatch).
     pub fn hello_as(&mut self, version: u16, schema: u32) -> Result<(), LinkError> {
-        match self.request(Request::Hello { version, schema }, "hello", DEFAULT_TIMEOUT) {
+        match self.request_idempotent(Request::Hello { version, schema }, "hello") {
             Ok(Response::Hello { .. }) => Ok(()),
             Err(LinkError::Refused(_, WireError::VersionMismatch { version: device_version, schema: device_schema })) => {
                 Err(LinkError::VersionMismatch { host_version: version, host_schema: schema, device_version, device_schema })
@@ -233,7 +245,7 @@ impl Link {
 
     /// Controller identity and health.
     pub fn info(&mut self) -> Result<Info, LinkError> {
-        match self.request(Request::GetInfo, "info", DEFAULT_TIMEOUT)? {
+        match self.request_idempotent(Request::GetInfo, "info")? {
             Response::Info(info) => Ok(info),
             _ => Err(LinkError::Unexpected("info")),
         }
@@ -283,7 +295,7 @@ impl Link {
     pub fn read_params(&mut self, pending: bool, limit: usize) -> Result<Vec<u8>, LinkError> {
         let mut out = Vec::new();
         while out.len() < limit {
-            match self.request(Request::ParamRead { offset: out.len() as u16, pending }, "parameter read", DEFAULT_TIMEOUT)? {
+            match self.request_idempotent(Request::ParamRead { offset: out.len() as u16, pending }, "parameter read")? {
                 Response::ParamData { data, .. } if data.is_empty() => break,
                 Response::ParamData { data, .. } => out.extend_from_slice(&data),
                 _ => return Err(LinkError::Unexpected("parameter read")),

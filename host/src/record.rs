@@ -84,6 +84,10 @@ pub trait Guide {
     fn approach(&mut self, link: &mut Link, landmark: &str, repeat: u32) -> Result<Step, RecordError>;
     /// After a window: accept it (true) or measure again (false).
     fn accept(&mut self, landmark: &str, measurement: &Measurement, quality: &Quality) -> bool;
+    /// A window of `seconds` is being measured; the returned guard ends any display on drop.
+    fn measuring(&mut self, _seconds: f64) -> Option<Box<dyn std::any::Any>> {
+        None
+    }
 }
 
 /// What one placement's recording needs.
@@ -200,7 +204,10 @@ pub fn record(link: &mut Link, artefact: &Artefact, plan: &Plan, guide: &mut dyn
                 Step::Measure => {}
             }
             let measurement = loop {
-                let window = measure_window(link, plan.window_ticks)?;
+                let progress = guide.measuring(plan.window_ticks as f64 / 768.0);
+                let window = measure_window(link, plan.window_ticks);
+                drop(progress);
+                let window = window?;
                 let (m, quality) = to_measurement(landmark, repeat, &window);
                 if guide.accept(landmark, &m, &quality) {
                     break m;
@@ -281,6 +288,42 @@ impl Guide for Script {
 /// A person at the keyboard: prompts on stderr, answers on stdin.
 pub struct Operator;
 
+/// A progress bar that fills over the window's duration until dropped.
+struct WindowBar {
+    bar: indicatif::ProgressBar,
+    done: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl WindowBar {
+    fn start(seconds: f64) -> WindowBar {
+        let bar = indicatif::ProgressBar::new(100);
+        if let Ok(style) = indicatif::ProgressStyle::with_template("  hold still {bar:30} {percent:>3}%") {
+            bar.set_style(style);
+        }
+        let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let (b, d) = (bar.clone(), done.clone());
+        let started = Instant::now();
+        let thread = std::thread::spawn(move || {
+            while !d.load(std::sync::atomic::Ordering::SeqCst) {
+                b.set_position(((started.elapsed().as_secs_f64() / seconds.max(1e-3)) * 100.0).min(99.0) as u64);
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        });
+        WindowBar { bar, done, thread: Some(thread) }
+    }
+}
+
+impl Drop for WindowBar {
+    fn drop(&mut self) {
+        self.done.store(true, std::sync::atomic::Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        self.bar.finish_and_clear();
+    }
+}
+
 fn ask(prompt: &str) -> String {
     eprint!("{prompt}");
     let mut line = String::new();
@@ -291,6 +334,10 @@ fn ask(prompt: &str) -> String {
 }
 
 impl Guide for Operator {
+    fn measuring(&mut self, seconds: f64) -> Option<Box<dyn std::any::Any>> {
+        Some(Box::new(WindowBar::start(seconds)))
+    }
+
     fn approach(&mut self, _link: &mut Link, landmark: &str, repeat: u32) -> Result<Step, RecordError> {
         Ok(match ask(&format!("attach to {landmark} (repeat {repeat}), then Enter — s to skip, q to stop: ")).as_str() {
             "s" => Step::Skip,

@@ -49,7 +49,7 @@ pub type SharedCell<F, B> = Mutex<CriticalSectionRawMutex, RefCell<Option<Shared
 /// Encode `frame` into [`TO_HOST`], whole or not at all. Call with the shared state locked.
 pub fn send_frame(frame: &DeviceFrame) {
     let mut buf = [0u8; MAX_FRAME];
-    let Ok(bytes) = framing::encode(frame, &mut buf) else { return };
+    let Ok(bytes) = framing::encode_device_frame(frame, &mut buf) else { return };
     if TO_HOST.free_capacity() >= bytes.len() {
         // try_write stops at the ring buffer's wrap point: write the rest too. Callers hold the
         // shared critical section, so no other writer interleaves and the space stays free.

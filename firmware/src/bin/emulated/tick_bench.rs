@@ -72,7 +72,7 @@ pub fn run() -> ! {
     bus.apply(&Request::SimFaults { noise_counts: 3, crc_errors_per_10k: 0, dropouts_per_10k: 0, error_bits_per_10k: 0, warnings_per_10k: 0 });
     let mut sink = |f: &kincal_protocol::messages::DeviceFrame| {
         let mut buf = [0u8; MAX_FRAME];
-        let _ = framing::encode(f, &mut buf);
+        let _ = framing::encode_device_frame(f, &mut buf);
     };
     let health = sampler.health;
     let mut blob = [0u8; MAX_PARAM_BLOB];

@@ -18,5 +18,3 @@ pub mod window;
 
 /// Encoder sampling rate, Hz.
 pub const TICK_HZ: u32 = 768;
-/// Default window length: 2 s.
-pub const DEFAULT_WINDOW_TICKS: u16 = 1536;

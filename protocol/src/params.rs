@@ -105,15 +105,6 @@ pub fn decode_blob(blob: &[u8]) -> Result<ArmParams, BlobError> {
     Ok(params)
 }
 
-/// Length of the blob at the start of `bytes` (header + body), if the header is plausible.
-pub fn blob_len(bytes: &[u8]) -> Option<usize> {
-    if bytes.len() < HEADER || bytes[..4] != MAGIC {
-        return None;
-    }
-    let len = HEADER + u16::from_le_bytes([bytes[6], bytes[7]]) as usize;
-    (len <= MAX_PARAM_BLOB).then_some(len)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -131,7 +122,6 @@ mod tests {
         let mut out = [0u8; MAX_PARAM_BLOB];
         let n = encode_blob(&sample(), &mut out).unwrap();
         assert!(n <= MAX_PARAM_BLOB);
-        assert_eq!(blob_len(&out), Some(n));
         assert_eq!(decode_blob(&out[..n]), Ok(sample()));
     }
 

@@ -189,7 +189,10 @@ fn fit_sinusoid(points: &[(f64, f64, f64)]) -> Sinusoid {
 }
 
 /// Apparent joint errors of `model` on `data`.
-fn joint_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> (Vec<JointResiduals>, Vec<(f64, f64)>, Vec<(f64, f64)>) {
+/// Points (x, y) of a scatter plot.
+type Points = Vec<(f64, f64)>;
+
+fn joint_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> (Vec<JointResiduals>, Points, Points) {
     let residuals = touch_residuals(model, artefact, data);
     let offsets: Vec<ParamId> = (0..JOINTS).map(ParamId::Offset).collect();
     let columns = ColumnMap::new(&offsets);

@@ -589,7 +589,7 @@ fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
         println!("{line}");
     }
     println!("\n{} candidate effects scored in {elapsed:.2} s (held-out validation RMS, best first):", diagnosis.candidates.len());
-    println!("  {:<16} {:>10} {:>9} {:>8}  {}", "effect", "val RMS mm", "explained", "blocks", "significant");
+    println!("  {:<16} {:>10} {:>9} {:>8}  significant", "effect", "val RMS mm", "explained", "blocks");
     for c in diagnosis.candidates.iter().filter(|c| c.equivalent_to.is_none()).take(8) {
         let blocks = format!("{}/{}", c.blocks_improved.0, c.blocks_improved.1);
         let same = if c.equivalent.is_empty() { String::new() } else { format!("  (indistinguishable here: {})", c.equivalent.join(", ")) };

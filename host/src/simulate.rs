@@ -150,7 +150,10 @@ pub fn reference_tool_frame(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> (Matri
 
 /// Frames after each joint (and the tool frame last) for joint angles `theta_deg`, and each
 /// joint's axis (point, direction), all before the length scale is applied.
-fn frames_at(model: &ArmModel, theta_deg: &[f64; JOINTS]) -> ([Matrix4<f64>; JOINTS + 1], [(Vector3<f64>, Vector3<f64>); JOINTS]) {
+/// A joint axis: a point on it and its direction.
+type AxisLine = (Vector3<f64>, Vector3<f64>);
+
+fn frames_at(model: &ArmModel, theta_deg: &[f64; JOINTS]) -> ([Matrix4<f64>; JOINTS + 1], [AxisLine; JOINTS]) {
     let rz = |t: f64| Matrix4::new(t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.);
     let rx = |t: f64| Matrix4::new(1., 0., 0., 0., 0., t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1.);
     let ry = |t: f64| Matrix4::new(t.cos(), 0., t.sin(), 0., 0., 1., 0., 0., -t.sin(), 0., t.cos(), 0., 0., 0., 0., 1.);

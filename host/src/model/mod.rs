@@ -185,12 +185,11 @@ impl ArmModel {
             scale_ppm: 0.0,
             free: Vec::new(),
         };
-        for j in 0..JOINTS {
-            let o = offset[j];
+        for (j, o) in offset.iter().enumerate() {
             model.free_param(ParamId::Offset(j), o - 10.0, o + 10.0);
         }
-        for j in 0..JOINTS {
-            model.free_param(ParamId::Length(j), d[j] - 10.0, d[j] + 10.0);
+        for (j, length) in d.iter().enumerate() {
+            model.free_param(ParamId::Length(j), length - 10.0, length + 10.0);
         }
         model.free_param(ParamId::Tcp(2), 243.0, 263.0);
         model

@@ -30,7 +30,7 @@ use crate::identify;
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
 use crate::model::{ArmModel, ParamId, JOINTS};
 use crate::objective::{CalibrationProblem, Objective};
-use crate::outliers::rigid_fit;
+use crate::geometry::absolute_orientation;
 use crate::solver::Residuals;
 use crate::validate::{distance_errors, ErrorStats, PairError};
 use nalgebra::{Matrix3, Vector3};
@@ -159,7 +159,7 @@ fn touch_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec
         }
         let q: Vec<Vector3<f64>> = idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
         let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
-        let (r, t): (Matrix3<f64>, Vector3<f64>) = rigid_fit(&q, &pm);
+        let (r, t): (Matrix3<f64>, Vector3<f64>) = absolute_orientation(&q, &pm);
         for (i, &k) in idx.iter().enumerate() {
             out[k] = Some(pm[i] - (r * q[i] + t));
         }

@@ -12,6 +12,8 @@ pub mod diagnose;
 pub mod effects;
 pub mod emulator;
 pub mod fsutil;
+pub mod geometry;
+pub mod haptic;
 pub mod identify;
 pub mod link;
 pub mod model;

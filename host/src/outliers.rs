@@ -16,7 +16,8 @@ use crate::model::ArmModel;
 use crate::objective::{CalibrationProblem, Objective};
 use crate::solver::Residuals;
 use crate::validate::{distance_errors, positions, ErrorStats};
-use nalgebra::{Matrix3, Vector3};
+use crate::geometry::absolute_orientation;
+use nalgebra::Vector3;
 use rayon::prelude::*;
 
 /// Leave-one-out impact (percent) above which a landmark is suspicious.
@@ -43,21 +44,6 @@ pub struct LandmarkOutlier {
     pub flagged: bool,
 }
 
-/// Rigid transform (R, t) minimising Σ‖R·q + t − p‖² (Kabsch).
-pub fn rigid_fit(q: &[Vector3<f64>], p: &[Vector3<f64>]) -> (Matrix3<f64>, Vector3<f64>) {
-    let n = q.len().max(1) as f64;
-    let (cq, cp) = (q.iter().sum::<Vector3<f64>>() / n, p.iter().sum::<Vector3<f64>>() / n);
-    let h: Matrix3<f64> = q.iter().zip(p).map(|(a, b)| (a - cq) * (b - cp).transpose()).sum();
-    let svd = h.svd(true, true);
-    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else { return (Matrix3::identity(), cp - cq) };
-    let mut d = Matrix3::identity();
-    if (v_t.transpose() * u.transpose()).determinant() < 0.0 {
-        d[(2, 2)] = -1.0;
-    }
-    let r = v_t.transpose() * d * u.transpose();
-    (r, cp - r * cq)
-}
-
 /// Per-landmark RMS residual after a rigid fit of the artefact in every placement, mm.
 pub fn landmark_bias(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<f64> {
     let p = positions(model, data);
@@ -70,7 +56,7 @@ pub fn landmark_bias(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> V
         }
         let q: Vec<Vector3<f64>> = idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
         let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
-        let (r, t) = rigid_fit(&q, &pm);
+        let (r, t) = absolute_orientation(&q, &pm);
         for (i, &k) in idx.iter().enumerate() {
             let l = data.touches[k].landmark;
             sum[l] += (r * q[i] + t - pm[i]).norm_squared();
@@ -132,19 +118,4 @@ pub fn landmark_outliers(fit: &Calibration, artefact: &Artefact, cal: &Dataset, 
             LandmarkOutlier { landmark: artefact.landmarks[l].id.clone(), contribution_pct, cooks_distance, loo_impact_pct, bias_mm: bias[l], flagged: exceeded.len() >= 2, exceeded }
         })
         .collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn rigid_fit_recovers_a_rotation_and_shift() {
-        let q: Vec<Vector3<f64>> = vec![Vector3::new(0., 0., 0.), Vector3::new(10., 0., 0.), Vector3::new(0., 20., 0.), Vector3::new(0., 0., 5.)];
-        let r = nalgebra::Rotation3::from_euler_angles(0.1, -0.2, 0.3).into_inner();
-        let t = Vector3::new(500.0, 10.0, -3.0);
-        let p: Vec<Vector3<f64>> = q.iter().map(|v| r * v + t).collect();
-        let (rf, tf) = rigid_fit(&q, &p);
-        assert!((rf - r).norm() < 1e-9 && (tf - t).norm() < 1e-9);
-    }
 }

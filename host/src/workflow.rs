@@ -12,7 +12,7 @@ use crate::calibrate::CalibrationOptions;
 use crate::data::Artefact;
 use crate::link::{Link, LinkError};
 use crate::model::ArmModel;
-use crate::outliers::rigid_fit;
+use crate::geometry::absolute_orientation;
 use crate::record::{record, Guide, Plan, Quality, RecordError, Step};
 use crate::run::{run, RunError, RunInputs};
 use crate::simulate::{calibration_placements, perturbed_truth, reference_tool_frame, suta_artefact, touch_encoders, validation_placements, Placement, SimulationOptions};
@@ -149,7 +149,7 @@ fn streamed_point(link: &mut Link, counts: [u32; 6], frames: usize) -> Result<Ve
 }
 
 fn registered_rms(measured: &[Vector3<f64>], truth: &[Vector3<f64>]) -> f64 {
-    let (r, t) = rigid_fit(measured, truth);
+    let (r, t) = absolute_orientation(measured, truth);
     let sum: f64 = measured.iter().zip(truth).map(|(m, q)| (r * m + t - q).norm_squared()).sum();
     (sum / measured.len().max(1) as f64).sqrt()
 }

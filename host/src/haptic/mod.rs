@@ -8,4 +8,6 @@
 
 pub mod delay;
 pub mod kinematics;
+pub mod landmarks;
 pub mod pivot;
+pub mod recording;

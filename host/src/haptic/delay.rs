@@ -59,7 +59,7 @@ pub struct Signal<'a> {
 }
 
 fn check(s: &Signal) -> Result<(), DelayError> {
-    if let Some(i) = s.t_s.windows(2).position(|w| !(w[1] > w[0])) {
+    if let Some(i) = s.t_s.windows(2).position(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater)) {
         return Err(DelayError::NotMonotonic { stream: s.name, index: i + 1, before: s.t_s[i], after: s.t_s[i + 1] });
     }
     Ok(())

@@ -10,4 +10,5 @@ pub mod delay;
 pub mod kinematics;
 pub mod landmarks;
 pub mod pivot;
+pub mod position;
 pub mod recording;

@@ -5,9 +5,10 @@
 //!    samples within [`EH_RADIUS_MM`] of the device origin and at least `dd` apart (5 mm, relaxed
 //!    by 0.9 every iteration), and
 //! 2. Levenberg–Marquardt on linear corrections θ_j = k_j·raw_j + m_j of joints 1–3, the residual
-//!    of each sample being the distance ‖FK(θ) − EH⁻¹·ref‖ (not its square),
-//! until the mean error changes by less than 10⁻⁴ mm; a step that makes the error worse is
-//! retried from the previous result, and the loop stops after three failures to improve.
+//!    of each sample being the distance ‖FK(θ) − EH⁻¹·ref‖ (not its square).
+//!
+//! The loop stops when the mean error changes by less than 10⁻⁴ mm; a step that makes the error
+//! worse is retried from the previous result, and it stops after three failures to improve.
 
 use super::kinematics::{Device, SensorModel};
 use crate::geometry::absolute_orientation;

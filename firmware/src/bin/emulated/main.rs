@@ -8,6 +8,7 @@
 
 mod bus;
 mod irq;
+mod mmio;
 #[cfg(feature = "tick-bench")]
 mod tick_bench;
 mod nor;

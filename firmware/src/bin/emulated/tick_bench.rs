@@ -6,6 +6,7 @@
 //! encode a raw-sample frame and a pose frame (f32 kinematics with every effect).
 
 use crate::bus::EmulatedBus;
+use crate::mmio::{read, write};
 use cortex_m_semihosting::{debug, hprintln};
 use kincal_firmware::controller::Controller;
 use kincal_firmware::encoders::{EncoderBus, Sampler};
@@ -36,17 +37,14 @@ impl EncoderBus for Replay {
 const TICKS: u32 = 768;
 
 fn timer() -> u32 {
-    // SAFETY: TIMER0 VALUE register, free running down from 0xFFFF_FFFF.
-    u32::MAX - unsafe { core::ptr::read_volatile((TIMER0 + 4) as *const u32) }
+    // TIMER0 VALUE, free running down from 0xFFFF_FFFF.
+    u32::MAX - read(TIMER0, 4)
 }
 
 fn start_timer() {
-    // SAFETY: TIMER0 registers.
-    unsafe {
-        core::ptr::write_volatile((TIMER0 + 8) as *mut u32, u32::MAX);
-        core::ptr::write_volatile((TIMER0 + 4) as *mut u32, u32::MAX);
-        core::ptr::write_volatile(TIMER0 as *mut u32, 1);
-    }
+    write(TIMER0, 8, u32::MAX);
+    write(TIMER0, 4, u32::MAX);
+    write(TIMER0, 0, 1);
 }
 
 fn params() -> ArmParams {

@@ -7,6 +7,7 @@
 use core::cell::{Cell, RefCell};
 use core::task::Waker;
 use crate::irq::Irq;
+use crate::mmio::{read, write};
 use cortex_m::peripheral::NVIC;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
@@ -28,16 +29,6 @@ pub const TIMER0_IRQ: u16 = 8;
 /// IRQ number of the alarm timer.
 pub const TIMER1_IRQ: u16 = 9;
 
-
-fn write(base: usize, reg: usize, value: u32) {
-    // SAFETY: a CMSDK timer register of the mps2 memory map.
-    unsafe { core::ptr::write_volatile((base + reg) as *mut u32, value) }
-}
-
-fn read(base: usize, reg: usize) -> u32 {
-    // SAFETY: a CMSDK timer register of the mps2 memory map.
-    unsafe { core::ptr::read_volatile((base + reg) as *const u32) }
-}
 
 struct Mps2Time {
     periods: Mutex<CriticalSectionRawMutex, Cell<u64>>,

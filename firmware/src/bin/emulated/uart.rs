@@ -1,6 +1,7 @@
 //! CMSDK APB UART0 of the mps2: the host link (QEMU connects it to a pty or a TCP socket).
 
 use crate::irq::Irq;
+use crate::mmio::{read, write};
 use cortex_m::peripheral::NVIC;
 use kincal_firmware::app::{FROM_HOST, TO_HOST};
 
@@ -16,29 +17,20 @@ const RX_FULL: u32 = 2;
 pub const RX_IRQ: u16 = 0;
 
 
-fn reg(offset: usize) -> *mut u32 {
-    (UART0 + offset) as *mut u32
-}
-
 /// Enable transmit, receive and the receive interrupt.
 pub fn init() {
-    // SAFETY: UART0 registers of the mps2 memory map.
-    unsafe {
-        core::ptr::write_volatile(reg(BAUDDIV), 16);
-        core::ptr::write_volatile(reg(CTRL), 0b1011); // TX, RX, RX interrupt
-        NVIC::unmask(Irq(RX_IRQ));
-    }
+    write(UART0, BAUDDIV, 16);
+    write(UART0, CTRL, 0b1011); // TX, RX, RX interrupt
+    // SAFETY: the receive handler is installed (DefaultHandler dispatch).
+    unsafe { NVIC::unmask(Irq(RX_IRQ)) };
 }
 
 /// Receive interrupt: move every waiting byte into [`FROM_HOST`].
 pub fn on_rx() {
-    // SAFETY: UART0 registers of the mps2 memory map.
-    unsafe {
-        core::ptr::write_volatile(reg(INT), 2);
-        while core::ptr::read_volatile(reg(STATE)) & RX_FULL != 0 {
-            let byte = core::ptr::read_volatile(reg(DATA)) as u8;
-            let _ = FROM_HOST.try_write(&[byte]);
-        }
+    write(UART0, INT, 2);
+    while read(UART0, STATE) & RX_FULL != 0 {
+        let byte = read(UART0, DATA) as u8;
+        let _ = FROM_HOST.try_write(&[byte]);
     }
 }
 
@@ -48,11 +40,8 @@ pub async fn send_to_host() -> ! {
     loop {
         let n = TO_HOST.read(&mut buf).await;
         for &byte in &buf[..n] {
-            // SAFETY: UART0 registers of the mps2 memory map.
-            unsafe {
-                while core::ptr::read_volatile(reg(STATE)) & TX_FULL != 0 {}
-                core::ptr::write_volatile(reg(DATA), byte as u32);
-            }
+            while read(UART0, STATE) & TX_FULL != 0 {}
+            write(UART0, DATA, byte as u32);
         }
     }
 }

@@ -7,13 +7,15 @@
 //!   [`crate::geometry::absolute_orientation`];
 //! * [`landmarks`] — the landmark-based initial transform (eqs. 1–6);
 //! * [`position`] — iterative joint-angle calibration (Harders) with the paper's filters;
+//! * [`reference`] — the orientation reference from the roll step (marker circles, axis by SVD,
+//!   eq. 14, θ6 origin from the gap in the marker angles);
 //! * [`gimbal`] — gimbal calibration against a reference axis and roll, linear or quadratic
 //!   sensor models chosen on held-out error;
 //! * [`kinematics`] — the 6-DoF forward kinematics and sensor models.
 //!
-//! Not built yet: the orientation reference from marker circles (eqs. 12–14, θ6 origin from the
-//! gap in the marker-angle histogram), k-means/KD-tree sample selection, the recording simulator,
-//! the `kincal haptic` command and its report.
+//! Not built yet: k-means/KD-tree sample selection, the recording simulator, the pipeline that
+//! chains the steps over a recording, the `kincal haptic` command, its report (Hammer-projection
+//! heat map) and benchmark.
 
 pub mod delay;
 pub mod gimbal;
@@ -22,3 +24,4 @@ pub mod landmarks;
 pub mod pivot;
 pub mod position;
 pub mod recording;
+pub mod reference;

@@ -95,7 +95,8 @@ pub fn orientation_reference(targets: &[Pose], frames: &[Pose], eh: &Pose) -> Re
         rf.transpose() * (re.transpose() * (v - te) - tf)
     };
     let mut centres = vec![Vector3::zeros()];
-    let mut best: Option<(f64, Vec<Vector2<f64>>, Vector2<f64>, f64)> = None;
+    // The circle with the largest radius over residual: (quality, its points, centre).
+    let mut best: Option<(f64, Vec<Vector2<f64>>, Vector2<f64>)> = None;
     let mut rms_all = 0.0;
     for m in &MARKERS_MM {
         let pts: Vec<Vector3<f64>> = (0..n).map(|i| local(i, m)).collect();
@@ -106,7 +107,7 @@ pub fn orientation_reference(targets: &[Pose], frames: &[Pose], eh: &Pose) -> Re
         centres.push(Vector3::new(c.x, c.y, height));
         let quality = r / rms.max(1e-9);
         if best.as_ref().is_none_or(|b| quality > b.0) {
-            best = Some((quality, flat, c, r));
+            best = Some((quality, flat, c));
         }
     }
     // Axis through the stylus origin and the centres (SVD of the centred points).
@@ -121,7 +122,7 @@ pub fn orientation_reference(targets: &[Pose], frames: &[Pose], eh: &Pose) -> Re
     let sum: Vector3<f64> = (0..n).map(|i| targets[i].0.transpose() * (re * (frames[i].0 * z))).sum();
     let axis_in_target = sum.normalize();
     // θ6 origin from the gap in the marker angles around the best circle.
-    let (_, flat, c, _) = best.unwrap_or((0.0, Vec::new(), Vector2::zeros(), 0.0));
+    let (_, flat, c) = best.unwrap_or((0.0, Vec::new(), Vector2::zeros()));
     let angles: Vec<f64> = flat.iter().map(|p| (p.y - c.y).atan2(p.x - c.x)).collect();
     let mut bins = [false; 360];
     for a in &angles {

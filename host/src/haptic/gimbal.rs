@@ -23,8 +23,8 @@ pub struct GimbalSample {
     pub raw: [f64; 3],
     /// Reference stylus axis in device coordinates (unit).
     pub axis: Vector3<f64>,
-    /// Reference roll θ6, radians.
-    pub roll: f64,
+    /// Reference roll θ6, radians, where known (the roll step).
+    pub roll: Option<f64>,
 }
 
 /// Which sensor model a gimbal uses.
@@ -115,10 +115,11 @@ fn fit(device: &Device, samples: &[GimbalSample], quadratic: bool) -> [SensorMod
     };
     let solved = solver::solve(&problem, &x0, &lower, &upper, &SolverOptions { max_iterations: 100, ..SolverOptions::default() });
     let (g4, g5) = problem.models(&solved.x);
-    // θ6 by linear least squares on (raw², raw, 1) or (raw, 1).
+    // θ6 by linear least squares on (raw², raw, 1) or (raw, 1), over the samples with a roll.
     let cols = if quadratic { 3 } else { 2 };
-    let a = DMatrix::from_fn(samples.len(), cols, |i, c| samples[i].raw[2].powi((cols - 1 - c) as i32));
-    let b = DVector::from_iterator(samples.len(), samples.iter().map(|s| s.roll));
+    let rolls: Vec<(f64, f64)> = samples.iter().filter_map(|s| s.roll.map(|r| (s.raw[2], r))).collect();
+    let a = DMatrix::from_fn(rolls.len(), cols, |i, c| rolls[i].0.powi((cols - 1 - c) as i32));
+    let b = DVector::from_iterator(rolls.len(), rolls.iter().map(|r| r.1));
     let coef = a.svd(true, true).solve(&b, 1e-12).unwrap_or_else(|_| DVector::zeros(cols));
     let g6 = if quadratic { SensorModel { j: coef[0], k: coef[1], m: coef[2] } } else { SensorModel { j: 0.0, k: coef[0], m: coef[1] } };
     [g4, g5, g6]
@@ -152,9 +153,9 @@ mod tests {
                 let s = k as f64 * 0.37 + seed as f64;
                 let raw = [0.9 * (0.7 * s).sin(), 0.8 * (1.3 * s).cos(), 1.5 * (0.45 * s).sin()];
                 let theta123 = [0.3 * (0.2 * s).sin(), 0.4 + 0.2 * (0.3 * s).cos(), 0.3 + 0.2 * (0.5 * s).sin()];
-                let s0 = GimbalSample { theta123, raw, axis: Vector3::z(), roll: 0.0 };
+                let s0 = GimbalSample { theta123, raw, axis: Vector3::z(), roll: None };
                 let true_axis = axis(&device, &s0, truth[0].angle(raw[0]) + noise.sample(&mut rng), truth[1].angle(raw[1]) + noise.sample(&mut rng));
-                GimbalSample { axis: true_axis, roll: truth[2].angle(raw[2]) + noise.sample(&mut rng), ..s0 }
+                GimbalSample { axis: true_axis, roll: Some(truth[2].angle(raw[2]) + noise.sample(&mut rng)), ..s0 }
             })
             .collect()
     }

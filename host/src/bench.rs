@@ -139,6 +139,13 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<(), BenchError> {
     let t = Instant::now();
     let diagnosis = crate::diagnose::diagnose(&fit_h.model, &sim_hidden.artefact, &cal_h, &val_h, &options);
     println!("diagnose, whole library ({} candidates scored, {} not identifiable), {} threads: {:.2} s  (target <= 2 s on 2 cores)", diagnosis.candidates.len(), diagnosis.not_identifiable.len(), rayon::current_num_threads(), t.elapsed().as_secs_f64());
+    // Haptic: a 5-minute recording (100 s of fixed steps + 200 s of free motion).
+    let (recording, _) = crate::haptic::simulate::simulate_recording(&crate::haptic::simulate::HapticSimOptions { joints_seconds: 200.0, ..Default::default() });
+    let t = Instant::now();
+    match crate::haptic::pipeline::calibrate_recording(&recording) {
+        Ok(h) => println!("haptic pipeline on a 5-minute recording: {:.2} s  (target <= 1 s); delay {:.2} ms, position {:.3} mm, orientation {:.3} deg", t.elapsed().as_secs_f64(), h.delay_ms, h.position_mm.after, h.orientation_deg.after),
+        Err(e) => println!("haptic pipeline failed: {e}"),
+    }
     if args.no_scipy {
         return Ok(());
     }

@@ -43,6 +43,9 @@ enum Command {
     Stream(StreamArgs),
     /// Guided measurement of one artefact placement; resumes an interrupted session.
     Record(RecordArgs),
+    /// Haptic device (PHANToM) workspace calibration.
+    #[command(subcommand)]
+    Haptic(HapticCommand),
     /// Benchmarks: calibration time, study throughput, and SciPy on the same problem.
     Bench(kincal::bench::BenchArgs),
 }
@@ -225,6 +228,45 @@ struct DemoArgs {
     offline: bool,
 }
 
+#[derive(Subcommand)]
+enum HapticCommand {
+    /// Write a simulated recording (device, tracker, delay, sensor errors) with known truth.
+    Simulate(HapticSimulateArgs),
+    /// Calibrate from a recording folder: delay, position, orientation.
+    Calibrate(HapticCalibrateArgs),
+}
+
+#[derive(Args)]
+struct HapticSimulateArgs {
+    /// Output recording folder.
+    #[arg(long)]
+    out: PathBuf,
+    /// Seed of the noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Tracker delay behind the device, ms.
+    #[arg(long, default_value_t = 13.0)]
+    delay_ms: f64,
+    /// Linear gimbal sensors instead of potentiometer-like quadratic ones.
+    #[arg(long)]
+    linear_gimbals: bool,
+    /// Seconds of free motion in joints/.
+    #[arg(long, default_value_t = 60.0)]
+    joints_seconds: f64,
+}
+
+#[derive(Args)]
+struct HapticCalibrateArgs {
+    /// Recording folder (haptic-recording/1).
+    recording: PathBuf,
+    /// Output folder: summary.json, report.html.
+    #[arg(long)]
+    out: PathBuf,
+    /// Print summary.json.
+    #[arg(long)]
+    json: bool,
+}
+
 #[derive(Args)]
 struct PortArgs {
     /// Serial device or pty path (/dev/ttyUSB0, /dev/pts/3) or tcp:HOST:PORT.
@@ -311,6 +353,8 @@ fn main() {
         Command::Upload(a) => cmd_upload(&a),
         Command::Stream(a) => cmd_stream(&a),
         Command::Record(a) => cmd_record(&a),
+        Command::Haptic(HapticCommand::Simulate(a)) => cmd_haptic_simulate(&a),
+        Command::Haptic(HapticCommand::Calibrate(a)) => cmd_haptic_calibrate(&a),
         Command::Bench(a) => kincal::bench::run_benchmarks(&a).map_err(anyhow::Error::from),
     };
     if let Err(e) = result {
@@ -610,5 +654,36 @@ fn cmd_compare(a: &CompareArgs) -> Result<()> {
     }
     kincal::fsutil::write_atomic(&a.out, comparison.html().as_bytes()).with_context(|| format!("writing {}", a.out.display()))?;
     println!("side by side: {}", a.out.display());
+    Ok(())
+}
+
+fn cmd_haptic_simulate(a: &HapticSimulateArgs) -> Result<()> {
+    let options = kincal::haptic::simulate::HapticSimOptions { seed: a.seed, delay_ms: a.delay_ms, quadratic_gimbals: !a.linear_gimbals, joints_seconds: a.joints_seconds, ..Default::default() };
+    let (recording, _) = kincal::haptic::simulate::simulate_recording(&options);
+    kincal::haptic::simulate::write_recording(&recording, &a.out).with_context(|| format!("writing {}", a.out.display()))?;
+    println!("simulated recording (delay {} ms, {} gimbals) in {}", a.delay_ms, if a.linear_gimbals { "linear" } else { "quadratic" }, a.out.display());
+    Ok(())
+}
+
+fn cmd_haptic_calibrate(a: &HapticCalibrateArgs) -> Result<()> {
+    let recording = kincal::haptic::recording::load(&a.recording)?;
+    let started = std::time::Instant::now();
+    let result = kincal::haptic::pipeline::calibrate_recording(&recording)?;
+    let seconds = started.elapsed().as_secs_f64();
+    let summary = result.summary();
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let json = serde_json::to_string_pretty(&summary)?;
+    kincal::fsutil::write_atomic(&a.out.join("summary.json"), json.as_bytes()).with_context(|| format!("writing {}", a.out.join("summary.json").display()))?;
+    kincal::fsutil::write_atomic(&a.out.join("report.html"), kincal::report::haptic_report(&summary).as_bytes()).with_context(|| format!("writing {}", a.out.join("report.html").display()))?;
+    if a.json {
+        println!("{json}");
+        return Ok(());
+    }
+    println!("calibrated in {seconds:.2} s");
+    println!("  delay        {:8.2} ms (tracker behind device)", summary.delay_ms);
+    println!("  position     {:8.3} mm → {:.3} mm (RMS, {} held-out samples)", summary.position.before_mm, summary.position.after_mm, result.held_out);
+    println!("  orientation  {:8.3} °  → {:.3} °", summary.orientation.before_deg, summary.orientation.after_deg);
+    println!("  gimbals      {:?} sensor model (chosen on held-out error)", summary.gimbal_model);
+    println!("  report: {}", a.out.join("report.html").display());
     Ok(())
 }

@@ -160,3 +160,25 @@ pub fn boxplot(groups: &[(String, Vec<f64>)], y_label: &str) -> String {
     }
     out + "</svg>"
 }
+
+/// Directions on a Hammer (equal-area) projection, coloured by value from blue (0) to red (max):
+/// longitude = atan2(x, z), latitude = asin(y) of each unit direction.
+pub fn hammer_map(points: &[(f64, f64, f64)], label: &str) -> String {
+    let (w, h) = (640.0, 340.0);
+    let top = points.iter().map(|p| p.2).fold(1e-12, f64::max);
+    let project = |lon: f64, lat: f64| {
+        let d = (1.0 + lat.cos() * (lon / 2.0).cos()).sqrt().max(1e-9);
+        let x = 2.0 * 2f64.sqrt() * lat.cos() * (lon / 2.0).sin() / d;
+        let y = 2f64.sqrt() * lat.sin() / d;
+        (w / 2.0 + x * (w / 2.0 - 20.0) / (2.0 * 2f64.sqrt()), h / 2.0 - 10.0 - y * (h / 2.0 - 30.0) / 2f64.sqrt())
+    };
+    let mut out = String::new();
+    let _ = write!(out, r##"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11"><ellipse cx="{}" cy="{}" rx="{}" ry="{}" fill="#f8f8f8" stroke="#888"/>"##, w / 2.0, h / 2.0 - 10.0, w / 2.0 - 20.0, h / 2.0 - 30.0);
+    for &(lon, lat, v) in points {
+        let (x, y) = project(lon, lat);
+        let f = (v / top).clamp(0.0, 1.0);
+        let _ = write!(out, r#"<circle cx="{x:.1}" cy="{y:.1}" r="2.2" fill="rgb({},{},{})"/>"#, (255.0 * f) as u8, 60, (255.0 * (1.0 - f)) as u8);
+    }
+    let _ = write!(out, r#"<text x="10" y="{}">{} — blue 0, red {:.3}</text></svg>"#, h - 6.0, escape(label), top);
+    out
+}

@@ -148,3 +148,31 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("model.toml"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn haptic_simulate_and_calibrate_write_the_summary_and_refuse_bad_recordings() {
+    let dir = scratch("haptic");
+    let rec = dir.join("rec");
+    let out = kincal(&["haptic", "simulate", "--out", rec.to_str().unwrap(), "--delay-ms", "17", "--joints-seconds", "30"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let run = dir.join("run");
+    let out = kincal(&["haptic", "calibrate", rec.to_str().unwrap(), "--out", run.to_str().unwrap(), "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!((s["delay_ms"].as_f64().unwrap() - 17.0).abs() < 0.25, "{}", s["delay_ms"]);
+    assert!(s["position"]["after_mm"].as_f64().unwrap() < 0.3 && s["position"]["before_mm"].as_f64().unwrap() > 3.0);
+    assert!(s["orientation"]["after_deg"].as_f64().unwrap() < 0.15 && s["orientation"]["before_deg"].as_f64().unwrap() > 1.0);
+    assert_eq!(s["gimbal_model"], "quadratic");
+    assert!(std::fs::read_to_string(run.join("report.html")).unwrap().contains("Hammer"));
+    // A stream with a time going backwards is named by file and line; nothing panics.
+    let device = rec.join("joints/device.csv");
+    let text = std::fs::read_to_string(&device).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    lines.swap(100, 101);
+    std::fs::write(&device, lines.join("\n")).unwrap();
+    let out = kincal(&["haptic", "calibrate", rec.to_str().unwrap(), "--out", run.to_str().unwrap()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("joints/device.csv:102") && stderr.contains("does not increase"), "{stderr}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -1,4 +1,4 @@
-//! Haptic device (PHANToM) workspace calibration for visuo-haptic AR — building blocks.
+//! Haptic device (PHANToM) workspace calibration for visuo-haptic AR.
 //!
 //! Follows the workspace-calibration paper (shared/papers):
 //! * [`recording`] — the recording folder (`haptic-recording/1`), checked sample by sample;
@@ -13,9 +13,10 @@
 //!   sensor models chosen on held-out error;
 //! * [`kinematics`] — the 6-DoF forward kinematics and sensor models.
 //!
-//! Not built yet: k-means/KD-tree sample selection, the recording simulator, the pipeline that
-//! chains the steps over a recording, the `kincal haptic` command, its report (Hammer-projection
-//! heat map) and benchmark.
+//! * [`pipeline`] — the whole procedure over a recording; [`simulate`] — recordings with known
+//!   truth.
+//!
+//! Sample selection spreads samples ≥ 5 mm apart instead of the paper's k-means + KD-tree.
 
 pub mod delay;
 pub mod gimbal;

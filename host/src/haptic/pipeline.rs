@@ -68,6 +68,56 @@ pub struct HapticCalibration {
     pub device_to_tracker: ([f64; 9], [f64; 3]),
     /// Held-out samples the errors were measured on.
     pub held_out: usize,
+    /// Per held-out sample: stylus direction in device coordinates (unit), axis error after
+    /// calibration (degrees), position error after calibration (mm).
+    #[serde(skip)]
+    pub samples: Vec<(Vector3<f64>, f64, f64)>,
+}
+
+/// `summary.json` of a haptic run.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct HapticSummary {
+    /// Tracker delay behind the device, ms.
+    pub delay_ms: f64,
+    /// Position error RMS before and after, mm.
+    pub position: PositionSummary,
+    /// Stylus-axis error RMS before and after, degrees.
+    pub orientation: OrientationSummary,
+    /// Gimbal sensor model chosen on held-out error.
+    pub gimbal_model: GimbalModel,
+    /// The full result.
+    pub calibration: HapticCalibration,
+}
+
+/// Position errors in `summary.json`.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct PositionSummary {
+    /// Before calibration, mm.
+    pub before_mm: f64,
+    /// After calibration, mm.
+    pub after_mm: f64,
+}
+
+/// Orientation errors in `summary.json`.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct OrientationSummary {
+    /// Before calibration, degrees.
+    pub before_deg: f64,
+    /// After calibration, degrees.
+    pub after_deg: f64,
+}
+
+impl HapticCalibration {
+    /// The summary written to `summary.json`.
+    pub fn summary(&self) -> HapticSummary {
+        HapticSummary {
+            delay_ms: self.delay_ms,
+            position: PositionSummary { before_mm: self.position_mm.before, after_mm: self.position_mm.after },
+            orientation: OrientationSummary { before_deg: self.orientation_deg.before, after_deg: self.orientation_deg.after },
+            gimbal_model: self.gimbal_model,
+            calibration: self.clone(),
+        }
+    }
 }
 
 fn step<'a>(rec: &'a Recording, name: &'static str) -> Result<&'a Step, HapticError> {
@@ -104,6 +154,21 @@ fn circle_centre(points: &[Vector3<f64>]) -> Vector3<f64> {
     let flat: Vec<Vector2<f64>> = points.iter().map(|p| Vector2::new((p - mean).dot(&u), (p - mean).dot(&w))).collect();
     let (c, _, _) = fit_circle(&flat);
     mean + u * c.x + w * c.y
+}
+
+/// Minimum spacing of the samples used to fit, mm (the paper's dd).
+pub const SAMPLE_SPACING_MM: f64 = 5.0;
+
+/// Indices of samples at least `spacing_mm` apart (greedy, in time order): an even spread over
+/// the workspace instead of every tracker sample.
+fn spread_out(points: &[Vector3<f64>], spacing_mm: f64) -> Vec<usize> {
+    let mut kept: Vec<usize> = Vec::new();
+    for (i, p) in points.iter().enumerate() {
+        if kept.iter().rev().take(400).all(|&k| (points[k] - p).norm() >= spacing_mm) {
+            kept.push(i);
+        }
+    }
+    kept
 }
 
 fn rms(v: &[f64]) -> f64 {
@@ -154,14 +219,20 @@ pub fn calibrate_recording(rec: &Recording) -> Result<HapticCalibration, HapticE
         Ok(hip.t_s.iter().zip(poses(hip)).filter(|(t, _)| **t - lag >= s.device.t_s[0] && **t - lag <= *s.device.t_s.last().unwrap_or(&0.0)).map(|(t, pose)| (raw_at(&s.device, t - lag), pose)).collect())
     };
     let correspondences_of = |samples: &[([f64; 6], Pose)]| -> Vec<Correspondence> { samples.iter().map(|(raw, (r, p))| Correspondence { raw: [raw[0], raw[1], raw[2]], reference_mm: r * tip + p }).collect() };
+    // The samples used to fit: spread over the workspace.
+    let spread = |samples: Vec<([f64; 6], Pose)>| -> Vec<([f64; 6], Pose)> {
+        let points: Vec<Vector3<f64>> = samples.iter().map(|(_, (r, p))| r * tip + p).collect();
+        spread_out(&points, SAMPLE_SPACING_MM).into_iter().map(|i| samples[i]).collect()
+    };
     // 4. Joint angles, then the delay again with the calibrated joints (the uncalibrated model
     //    distorts the distance signal and biases the first estimate), and the joints again.
     let joints_step = step(rec, "joints")?;
     let first_delay = estimate_delay(&[SensorModel::IDENTITY; 3], &eh_init)?;
-    let first = calibrate_position(&device, &correspondences_of(&aligned(joints_step, first_delay / 1000.0)?), eh_init, [SensorModel::IDENTITY; 3], 20);
+    let first = calibrate_position(&device, &correspondences_of(&spread(aligned(joints_step, first_delay / 1000.0)?)), eh_init, [SensorModel::IDENTITY; 3], 20);
     let delay_ms = estimate_delay(&first.joints, &first.transform)?;
     let lag = delay_ms / 1000.0;
-    let joints = aligned(joints_step, lag)?;
+    let all_joints = aligned(joints_step, lag)?;
+    let joints = spread(all_joints.clone());
     let correspondences = correspondences_of(&joints);
     let position = calibrate_position(&device, &correspondences, first.transform, first.joints, 20);
     let eh = position.transform;
@@ -177,7 +248,7 @@ pub fn calibrate_recording(rec: &Recording) -> Result<HapticCalibration, HapticE
     let reference = orientation_reference(&targets, &frames, &eh)?;
     // 6. Gimbals: axis samples from gimbal/ and joints/, roll samples from reference/.
     let mut gimbal_samples: Vec<GimbalSample> = Vec::new();
-    for (raw, (r_target, _)) in aligned(gimbal_step, lag)?.iter().chain(joints.iter()) {
+    for (raw, (r_target, _)) in spread(aligned(gimbal_step, lag)?).iter().chain(joints.iter()) {
         let th = angles(&sensors, raw);
         gimbal_samples.push(GimbalSample { theta123: [th[0], th[1], th[2]], raw: [raw[3], raw[4], raw[5]], axis: eh.0.transpose() * (r_target * reference.axis_in_target), roll: None });
     }
@@ -193,7 +264,7 @@ pub fn calibrate_recording(rec: &Recording) -> Result<HapticCalibration, HapticE
     // 7. Held-out errors: verify/ if recorded, else the held-out quarter of joints/.
     let verify = match rec.steps.get("verify") {
         Some(s) => aligned(s, lag)?,
-        None => joints.iter().enumerate().filter(|(i, _)| i % 4 == 0).map(|(_, s)| *s).collect(),
+        None => all_joints.iter().enumerate().filter(|(i, _)| i % 4 == 0).map(|(_, s)| *s).collect(),
     };
     let verify_corr = correspondences_of(&verify);
     let before_eh = pose_based_transform(&device, &correspondences);
@@ -206,8 +277,12 @@ pub fn calibrate_recording(rec: &Recording) -> Result<HapticCalibration, HapticE
         before: rms(&axis_errors_deg(&device, &[SensorModel::IDENTITY; 6], &before_eh, &verify_axes, &reference.axis_in_target)),
         after: rms(&axis_errors_deg(&device, &sensors, &eh, &verify_axes, &reference.axis_in_target)),
     };
+    let after_axes = axis_errors_deg(&device, &sensors, &eh, &verify_axes, &reference.axis_in_target);
+    let after_positions = position_errors(&device, &position.joints, &eh, &verify_corr);
+    let samples = verify_axes.iter().zip(after_axes.iter().zip(&after_positions)).map(|((raw, _), (a, p))| (device.rotation(&angles(&sensors, raw)).column(2).into_owned(), *a, *p)).collect();
     let r = eh.0;
     Ok(HapticCalibration {
+        samples,
         delay_ms,
         position_mm,
         orientation_deg,

@@ -16,7 +16,7 @@
 //! * [`pipeline`] — the whole procedure over a recording; [`simulate`] — recordings with known
 //!   truth.
 //!
-//! Sample selection spreads samples ≥ 5 mm apart instead of the paper's k-means + KD-tree.
+//! * [`select`] — k-means sample selection (N = 200, seeded, re-clustered every iteration).
 
 pub mod delay;
 pub mod gimbal;
@@ -27,4 +27,5 @@ pub mod pivot;
 pub mod position;
 pub mod recording;
 pub mod reference;
+pub mod select;
 pub mod simulate;

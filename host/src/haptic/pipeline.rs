@@ -156,6 +156,9 @@ fn circle_centre(points: &[Vector3<f64>]) -> Vector3<f64> {
     mean + u * c.x + w * c.y
 }
 
+/// k-means clusters selecting the joint-calibration samples of each iteration (paper: 200).
+pub const CLUSTERS: usize = 200;
+
 /// Minimum spacing of the samples used to fit, mm (the paper's dd).
 pub const SAMPLE_SPACING_MM: f64 = 5.0;
 
@@ -228,13 +231,13 @@ pub fn calibrate_recording(rec: &Recording) -> Result<HapticCalibration, HapticE
     //    distorts the distance signal and biases the first estimate), and the joints again.
     let joints_step = step(rec, "joints")?;
     let first_delay = estimate_delay(&[SensorModel::IDENTITY; 3], &eh_init)?;
-    let first = calibrate_position(&device, &correspondences_of(&spread(aligned(joints_step, first_delay / 1000.0)?)), eh_init, [SensorModel::IDENTITY; 3], 20);
+    let first = calibrate_position(&device, &correspondences_of(&spread(aligned(joints_step, first_delay / 1000.0)?)), eh_init, [SensorModel::IDENTITY; 3], 20, Some((CLUSTERS, 1)));
     let delay_ms = estimate_delay(&first.joints, &first.transform)?;
     let lag = delay_ms / 1000.0;
     let all_joints = aligned(joints_step, lag)?;
     let joints = spread(all_joints.clone());
     let correspondences = correspondences_of(&joints);
-    let position = calibrate_position(&device, &correspondences, first.transform, first.joints, 20);
+    let position = calibrate_position(&device, &correspondences, first.transform, first.joints, 20, Some((CLUSTERS, 101)));
     let eh = position.transform;
     let mut sensors = [SensorModel::IDENTITY; 6];
     sensors[..3].copy_from_slice(&position.joints);
@@ -256,9 +259,9 @@ pub fn calibrate_recording(rec: &Recording) -> Result<HapticCalibration, HapticE
         let th = angles(&sensors, raw);
         gimbal_samples.push(GimbalSample { theta123: [th[0], th[1], th[2]], raw: [raw[3], raw[4], raw[5]], axis: eh.0.transpose() * (r_target * reference.axis_in_target), roll: Some(*roll) });
     }
-    let (fit, held): (Vec<(usize, GimbalSample)>, Vec<(usize, GimbalSample)>) = gimbal_samples.into_iter().enumerate().partition(|(i, _)| i % 4 != 0);
-    let fit: Vec<GimbalSample> = fit.into_iter().map(|s| s.1).collect();
-    let held: Vec<GimbalSample> = held.into_iter().map(|s| s.1).collect();
+    // Every fourth sample is held out to choose the gimbal model.
+    let held: Vec<GimbalSample> = gimbal_samples.iter().step_by(4).copied().collect();
+    let fit: Vec<GimbalSample> = gimbal_samples.iter().enumerate().filter(|(i, _)| i % 4 != 0).map(|(_, s)| *s).collect();
     let gimbals = calibrate_gimbals(&device, &fit, &held);
     sensors[3..].copy_from_slice(&gimbals.sensors);
     // 7. Held-out errors: verify/ if recorded, else the held-out quarter of joints/.

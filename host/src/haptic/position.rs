@@ -5,7 +5,8 @@
 //!    samples within [`EH_RADIUS_MM`] of the device origin and at least `dd` apart (5 mm, relaxed
 //!    by 0.9 every iteration), and
 //! 2. Levenberg–Marquardt on linear corrections θ_j = k_j·raw_j + m_j of joints 1–3, the residual
-//!    of each sample being the distance ‖FK(θ) − EH⁻¹·ref‖ (not its square).
+//!    of each sample being the distance ‖FK(θ) − EH⁻¹·ref‖ (not its square), over the samples of
+//!    a [`Clustering`] selection.
 //!
 //! The loop stops when the mean error changes by less than 10⁻⁴ mm; a step that makes the error
 //! worse is retried from the previous result, and it stops after three failures to improve.
@@ -117,18 +118,28 @@ impl Residuals for JointProblem<'_> {
     }
 }
 
+/// Samples the LM step of each iteration uses: `Some((n, seed))` re-clusters the samples into `n`
+/// k-means centroids every iteration (seed + iteration) and uses the nearest real samples
+/// (paper §2.2); `None` uses every sample.
+pub type Clustering = Option<(usize, u64)>;
+
 /// Calibrate joints 1–3 starting from `transform` (pose- or landmark-based) and `start` models.
-pub fn calibrate_position(device: &Device, samples: &[Correspondence], transform: Transform, start: [SensorModel; 3], max_iterations: usize) -> PositionCalibration {
+pub fn calibrate_position(device: &Device, samples: &[Correspondence], transform: Transform, start: [SensorModel; 3], max_iterations: usize, clustering: Clustering) -> PositionCalibration {
     let mut joints = start;
     let mut eh = transform;
     let mut history = Vec::new();
     let mut best = f64::INFINITY;
     let mut failures = 0;
     let mut spacing = EH_SPACING_MM;
-    for _ in 0..max_iterations {
+    let reference_points: Vec<Vector3<f64>> = samples.iter().map(|s| s.reference_mm).collect();
+    for iteration in 0..max_iterations {
         let (r, t) = eh;
-        let references: Vec<Vector3<f64>> = samples.iter().map(|s| r.transpose() * (s.reference_mm - t)).collect();
-        let problem = JointProblem { device, samples, references };
+        let chosen: Vec<Correspondence> = match clustering {
+            Some((n, seed)) => super::select::kmeans_select(&reference_points, n, seed + iteration as u64).into_iter().map(|i| samples[i]).collect(),
+            None => samples.to_vec(),
+        };
+        let references: Vec<Vector3<f64>> = chosen.iter().map(|s| r.transpose() * (s.reference_mm - t)).collect();
+        let problem = JointProblem { device, samples: &chosen, references };
         let x0: Vec<f64> = (0..6).map(|i| if i < 3 { joints[i].k } else { joints[i - 3].m }).collect();
         let lower = [0.5, 0.5, 0.5, -1.0, -1.0, -1.0];
         let upper = [1.5, 1.5, 1.5, 1.0, 1.0, 1.0];
@@ -222,8 +233,8 @@ mod tests {
             let [p1, p2, p3] = b.landmarks;
             let landmark_eh = initial_transform(&b.device, p1, p2, p3).unwrap();
             let iterations = 4;
-            let with_landmarks = calibrate_position(&b.device, &b.calibration, landmark_eh, [SensorModel::IDENTITY; 3], iterations);
-            let with_poses = calibrate_position(&b.device, &b.calibration, pose_based_transform(&b.device, &b.calibration), [SensorModel::IDENTITY; 3], iterations);
+            let with_landmarks = calibrate_position(&b.device, &b.calibration, landmark_eh, [SensorModel::IDENTITY; 3], iterations, None);
+            let with_poses = calibrate_position(&b.device, &b.calibration, pose_based_transform(&b.device, &b.calibration), [SensorModel::IDENTITY; 3], iterations, None);
             let after_landmarks = rms(&position_errors(&b.device, &with_landmarks.joints, &with_landmarks.transform, &b.verify));
             let after_poses = rms(&position_errors(&b.device, &with_poses.joints, &with_poses.transform, &b.verify));
             eprintln!("seed {seed}: before {before:.3} mm, after (landmarks) {after_landmarks:.3} mm, after (poses) {after_poses:.3} mm, floor {:.3} mm, iterations {:?}", b.noise_floor_mm, with_landmarks.mean_error_mm);

@@ -68,11 +68,14 @@ pub struct HapticCalibration {
     pub device_to_tracker: ([f64; 9], [f64; 3]),
     /// Held-out samples the errors were measured on.
     pub held_out: usize,
-    /// Per held-out sample: stylus direction in device coordinates (unit), axis error after
-    /// calibration (degrees), position error after calibration (mm).
+    /// Per held-out sample: see [`HeldOut`].
     #[serde(skip)]
-    pub samples: Vec<(Vector3<f64>, f64, f64)>,
+    pub samples: Vec<HeldOut>,
 }
+
+/// One held-out sample: stylus direction in device coordinates (unit), axis error after
+/// calibration (degrees), position error after calibration (mm).
+pub type HeldOut = (Vector3<f64>, f64, f64);
 
 /// `summary.json` of a haptic run.
 #[derive(Clone, Debug, serde::Serialize)]

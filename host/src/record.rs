@@ -127,7 +127,7 @@ fn next_window(link: &mut Link, timeout: Duration) -> Result<WindowReport, LinkE
 /// Measure one window of fresh samples on the controller. A window still running from an
 /// earlier, interrupted session is waited for and discarded first.
 pub fn measure_window(link: &mut Link, ticks: u16) -> Result<WindowReport, LinkError> {
-    let longest = Duration::from_secs_f64(crate::record::MAX_WINDOW_SECONDS);
+    let longest = Duration::from_secs_f64(MAX_WINDOW_SECONDS);
     match link.command(Request::StartWindow { ticks }, "measurement window") {
         Err(LinkError::Refused(_, WireError::Busy)) => {
             next_window(link, longest)?;

@@ -142,7 +142,7 @@ fn info_params_and_upload_commands_work_through_the_cli() {
 #[test]
 fn a_controller_that_disappears_mid_stream_is_reported() {
     let fake = FakeController::start(1);
-    let mut child = Command::new(kincal_bin()).args(["stream", "--port", &fake.port, "--raw", "--seconds", "30"]).stderr(std::process::Stdio::piped()).stdout(std::process::Stdio::piped()).spawn().unwrap();
+    let child = Command::new(kincal_bin()).args(["stream", "--port", &fake.port, "--raw", "--seconds", "30"]).stderr(std::process::Stdio::piped()).stdout(std::process::Stdio::piped()).spawn().unwrap();
     std::thread::sleep(Duration::from_millis(1500));
     drop(fake); // the port goes away
     let out = child.wait_with_output().unwrap();

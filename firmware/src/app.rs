@@ -76,7 +76,10 @@ pub async fn sample_encoders<F: NorFlash, B: EncoderBus>(shared: &SharedCell<F, 
 }
 
 /// Answer the host. `act` carries out board actions (reset, emulated-encoder settings).
-pub async fn serve_host<F: NorFlash, B: EncoderBus>(shared: &SharedCell<F, B>, mut act: impl FnMut(Action, &mut B)) -> ! {
+pub async fn serve_host<F: NorFlash, B: EncoderBus>(
+    shared: &SharedCell<F, B>,
+    mut act: impl FnMut(Action, &mut B),
+) -> ! {
     let mut decoder = Decoder::new();
     let mut buf = [0u8; 64];
     loop {

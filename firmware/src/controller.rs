@@ -4,8 +4,11 @@ use crate::encoders::Sample;
 use crate::flash::{NorFlash, ParamStore};
 use crate::kinematics::Kinematics;
 use crate::window::Window;
-use kincal_protocol::messages::{DeviceFrame, HostFrame, Info, PoseReport, RawSample, Request, Response, Stream, WireError, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH};
 use kincal_protocol::messages::{pack_counts, EncoderHealth, JOINTS};
+use kincal_protocol::messages::{
+    DeviceFrame, HostFrame, Info, PoseReport, RawSample, Request, Response, Stream, WireError, PARAM_CHUNK,
+    PROTOCOL_VERSION, SCHEMA_HASH,
+};
 use kincal_protocol::params::{decode_blob, ArmParams, BLOB_CRC, MAX_PARAM_BLOB};
 
 /// Longest window accepted, ticks.
@@ -52,7 +55,20 @@ impl<F: NorFlash> Controller<F> {
         let mut store = ParamStore::mount(flash);
         let mut buf = [0u8; MAX_PARAM_BLOB];
         let params = store.load(&mut buf).and_then(|b| decode_blob(b).ok()).map(|p| (p, Kinematics::new(&p)));
-        Controller { firmware, board, simulated, hello: false, window: None, raw: false, pose_divider: 0, tick: 0, stream_seq: 0, upload: None, store, params }
+        Controller {
+            firmware,
+            board,
+            simulated,
+            hello: false,
+            window: None,
+            raw: false,
+            pose_divider: 0,
+            tick: 0,
+            stream_seq: 0,
+            upload: None,
+            store,
+            params,
+        }
     }
 
     /// Give the flash back (a reboot keeps what is stored, nothing else).
@@ -79,18 +95,38 @@ impl<F: NorFlash> Controller<F> {
             self.stream(Stream::Window(report), emit);
         }
         if self.raw {
-            self.stream(Stream::Raw(RawSample { tick, packed: pack_counts(&sample.counts), rejected: sample.rejected }), emit);
+            self.stream(
+                Stream::Raw(RawSample {
+                    tick,
+                    packed: pack_counts(&sample.counts),
+                    rejected: sample.rejected,
+                }),
+                emit,
+            );
         }
         if self.pose_divider > 0 && self.tick % self.pose_divider as u32 == 0 {
             if let Some((_, kinematics)) = &self.params {
                 let pose = kinematics.tool_pose(&sample.counts);
-                self.stream(Stream::Pose(PoseReport { tick, position_mm: pose.position_mm, z_axis: pose.z_axis, x_axis: pose.x_axis }), emit);
+                self.stream(
+                    Stream::Pose(PoseReport {
+                        tick,
+                        position_mm: pose.position_mm,
+                        z_axis: pose.z_axis,
+                        x_axis: pose.x_axis,
+                    }),
+                    emit,
+                );
             }
         }
     }
 
     /// Answer one request; `health` is the sampler's counters for [`Request::GetInfo`].
-    pub fn handle(&mut self, frame: HostFrame, health: &[EncoderHealth; JOINTS], emit: &mut impl FnMut(&DeviceFrame)) -> Action {
+    pub fn handle(
+        &mut self,
+        frame: HostFrame,
+        health: &[EncoderHealth; JOINTS],
+        emit: &mut impl FnMut(&DeviceFrame),
+    ) -> Action {
         let (response, action) = self.respond(frame.request, health);
         emit(&DeviceFrame::Response { seq: frame.seq, response });
         action
@@ -101,7 +137,11 @@ impl<F: NorFlash> Controller<F> {
         emit(&DeviceFrame::Response { seq: u16::MAX, response: Err(WireError::BadFrame) });
     }
 
-    fn respond(&mut self, request: Request, health: &[EncoderHealth; JOINTS]) -> (Result<Response, WireError>, Action) {
+    fn respond(
+        &mut self,
+        request: Request,
+        health: &[EncoderHealth; JOINTS],
+    ) -> (Result<Response, WireError>, Action) {
         let ok = |r| (Ok(r), Action::None);
         let err = |e| (Err(e), Action::None);
         if let Request::Hello { version, schema } = request {
@@ -176,7 +216,10 @@ impl<F: NorFlash> Controller<F> {
                 };
                 let from = (offset as usize).min(bytes.len());
                 let to = (from + PARAM_CHUNK).min(bytes.len());
-                ok(Response::ParamData { offset, data: heapless::Vec::from_slice(&bytes[from..to]).unwrap_or_default() })
+                ok(Response::ParamData {
+                    offset,
+                    data: heapless::Vec::from_slice(&bytes[from..to]).unwrap_or_default(),
+                })
             }
             Request::ParamCommit => {
                 let Some(u) = self.upload.take() else { return err(WireError::NoUpload) };
@@ -185,7 +228,13 @@ impl<F: NorFlash> Controller<F> {
                     return err(WireError::ParamIncomplete);
                 }
                 let blob = &u.buf[..u.len];
-                let Ok(params) = decode_blob(blob).map_err(|_| ()).and_then(|p| if BLOB_CRC.checksum(blob) == u.crc { Ok(p) } else { Err(()) }) else {
+                let Ok(params) = decode_blob(blob).map_err(|_| ()).and_then(|p| {
+                    if BLOB_CRC.checksum(blob) == u.crc {
+                        Ok(p)
+                    } else {
+                        Err(())
+                    }
+                }) else {
                     return err(WireError::ParamInvalid);
                 };
                 match self.store.store(blob) {
@@ -218,7 +267,9 @@ mod tests {
 
     fn ask(c: &mut Ctl, request: Request) -> Result<Response, WireError> {
         let mut out = Vec::new();
-        c.handle(HostFrame { seq: 5, request }, &[EncoderHealth::default(); JOINTS], &mut |f| out.push(f.clone()));
+        c.handle(HostFrame { seq: 5, request }, &[EncoderHealth::default(); JOINTS], &mut |f| {
+            out.push(f.clone())
+        });
         match out.pop() {
             Some(DeviceFrame::Response { seq: 5, response }) => response,
             other => panic!("unexpected {other:?}"),
@@ -233,8 +284,14 @@ mod tests {
     fn requests_need_a_matching_hello() {
         let mut c = Ctl::new("fw", "test", false, RamNor::new());
         assert_eq!(ask(&mut c, Request::GetInfo), Err(WireError::NoHello));
-        assert_eq!(ask(&mut c, Request::Hello { version: 99, schema: SCHEMA_HASH }), Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }));
-        assert_eq!(ask(&mut c, Request::Hello { version: PROTOCOL_VERSION, schema: 1 }), Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }));
+        assert_eq!(
+            ask(&mut c, Request::Hello { version: 99, schema: SCHEMA_HASH }),
+            Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH })
+        );
+        assert_eq!(
+            ask(&mut c, Request::Hello { version: PROTOCOL_VERSION, schema: 1 }),
+            Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH })
+        );
         hello(&mut c);
         assert!(matches!(ask(&mut c, Request::GetInfo), Ok(Response::Info(_))));
         assert_eq!(ask(&mut c, Request::SimSetPose { counts: [0; 6] }), Err(WireError::NotSupported));
@@ -255,7 +312,9 @@ mod tests {
         for _ in 0..3 {
             c.on_tick(&fresh, &mut |f| frames.push(f.clone()));
         }
-        let Some(DeviceFrame::Stream { item: Stream::Window(w), .. }) = frames.last() else { panic!("{frames:?}") };
+        let Some(DeviceFrame::Stream { item: Stream::Window(w), .. }) = frames.last() else {
+            panic!("{frames:?}")
+        };
         assert_eq!(w.joints[0].mean_counts, 1000.0);
         assert_eq!(w.joints[0].accepted, 3);
     }
@@ -271,16 +330,39 @@ mod tests {
         assert_eq!(ask(&mut c, Request::ParamCommit), Err(WireError::NoUpload));
         assert_eq!(ask(&mut c, Request::ParamBegin { len: n as u16, crc: crc ^ 1 }), Ok(Response::Ack));
         for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
-            assert_eq!(ask(&mut c, Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data: heapless::Vec::from_slice(chunk).unwrap() }), Ok(Response::Ack));
+            assert_eq!(
+                ask(
+                    &mut c,
+                    Request::ParamChunk {
+                        offset: (k * PARAM_CHUNK) as u16,
+                        data: heapless::Vec::from_slice(chunk).unwrap()
+                    }
+                ),
+                Ok(Response::Ack)
+            );
         }
         assert_eq!(ask(&mut c, Request::ParamCommit), Err(WireError::ParamInvalid), "wrong upload CRC");
         assert!(c.params().is_none());
         assert_eq!(ask(&mut c, Request::ParamBegin { len: n as u16, crc }), Ok(Response::Ack));
-        assert_eq!(ask(&mut c, Request::ParamChunk { offset: 48, data: heapless::Vec::new() }), Err(WireError::ParamOffset));
+        assert_eq!(
+            ask(&mut c, Request::ParamChunk { offset: 48, data: heapless::Vec::new() }),
+            Err(WireError::ParamOffset)
+        );
         for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
-            ask(&mut c, Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data: heapless::Vec::from_slice(chunk).unwrap() }).unwrap();
+            ask(
+                &mut c,
+                Request::ParamChunk {
+                    offset: (k * PARAM_CHUNK) as u16,
+                    data: heapless::Vec::from_slice(chunk).unwrap(),
+                },
+            )
+            .unwrap();
         }
-        let Ok(Response::ParamData { data, .. }) = ask(&mut c, Request::ParamRead { offset: 0, pending: true }) else { panic!() };
+        let Ok(Response::ParamData { data, .. }) =
+            ask(&mut c, Request::ParamRead { offset: 0, pending: true })
+        else {
+            panic!()
+        };
         assert_eq!(&data[..], &blob[..PARAM_CHUNK.min(n)]);
         assert_eq!(ask(&mut c, Request::ParamCommit), Ok(Response::Ack));
         assert_eq!(c.params().map(|p| p.version), Some(42));

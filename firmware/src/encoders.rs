@@ -80,7 +80,14 @@ mod tests {
         crc.bits ^= 1 << 3;
         let ticks = vec![
             [good(10), good(20), good(30), good(40), good(50), good(60)],
-            [Some(crc), Some(biss::encode(1, true, false, 1)), None, Some(biss::encode(41, false, true, 1)), good(51), Some(Frame { bits: 0, len: 40 })],
+            [
+                Some(crc),
+                Some(biss::encode(1, true, false, 1)),
+                None,
+                Some(biss::encode(41, false, true, 1)),
+                good(51),
+                Some(Frame { bits: 0, len: 40 }),
+            ],
         ];
         let mut s = Sampler::default();
         let mut bus = Script(ticks);

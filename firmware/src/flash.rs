@@ -93,7 +93,8 @@ impl<F: NorFlash> ParamStore<F> {
         }
         let crc = BLOB_CRC.checksum(blob);
         let len = (blob.len() as u16).to_le_bytes();
-        let words: [[u8; WORD]; 4] = [MAGIC, sequence.to_le_bytes(), [len[0], len[1], 0xFF, 0xFF], crc.to_le_bytes()];
+        let words: [[u8; WORD]; 4] =
+            [MAGIC, sequence.to_le_bytes(), [len[0], len[1], 0xFF, 0xFF], crc.to_le_bytes()];
         for (k, w) in words.into_iter().enumerate() {
             self.flash.program(base + k * WORD, w)?;
         }
@@ -197,7 +198,11 @@ impl<const N: usize> NorFlash for RamNor<N> {
         for k in 0..n {
             self.bytes[offset + k] &= word[k];
         }
-        if interrupted { Err(FlashError::Failed) } else { Ok(()) }
+        if interrupted {
+            Err(FlashError::Failed)
+        } else {
+            Ok(())
+        }
     }
 }
 

@@ -44,8 +44,11 @@ pub fn sincos_units(angle: i64) -> (f32, f32) {
     let q = (angle + (1 << 29)) >> 30; // nearest quarter turn
     let r = (angle - (q << 30)) as f32 * (core::f32::consts::TAU / 4_294_967_296.0);
     let r2 = r * r;
-    let s = r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362_880.0)))));
-    let c = 1.0 + r2 * (-0.5 + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40_320.0 + r2 * (-1.0 / 3_628_800.0)))));
+    let s =
+        r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362_880.0)))));
+    let c = 1.0
+        + r2 * (-0.5
+            + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40_320.0 + r2 * (-1.0 / 3_628_800.0)))));
     match q & 3 {
         0 => (s, c),
         1 => (c, -s),
@@ -55,7 +58,9 @@ pub fn sincos_units(angle: i64) -> (f32, f32) {
 }
 
 fn mul(a: &M3, b: &M3) -> M3 {
-    core::array::from_fn(|i| core::array::from_fn(|j| a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j]))
+    core::array::from_fn(|i| {
+        core::array::from_fn(|j| a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j])
+    })
 }
 
 /// A rigid frame: rotation and origin.
@@ -103,7 +108,9 @@ fn rotation_x_then_y(alpha_deg: f64, beta_deg: f64) -> M3 {
     let (sb, cb) = (libm::sin(beta_deg.to_radians()), libm::cos(beta_deg.to_radians()));
     let rx = [[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]];
     let ry = [[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]];
-    let m: [[f64; 3]; 3] = core::array::from_fn(|i| core::array::from_fn(|j| rx[i][0] * ry[0][j] + rx[i][1] * ry[1][j] + rx[i][2] * ry[2][j]));
+    let m: [[f64; 3]; 3] = core::array::from_fn(|i| {
+        core::array::from_fn(|j| rx[i][0] * ry[0][j] + rx[i][1] * ry[1][j] + rx[i][2] * ry[2][j])
+    });
     m.map(|row| row.map(|v| v as f32))
 }
 
@@ -114,8 +121,12 @@ impl Kinematics {
         Kinematics {
             modified: params.modified_dh,
             offset_units: j.map(|r| units_from_deg(r.offset_deg)),
-            harmonics: j.map(|r| [r.eccentricity_deg[0], r.eccentricity_deg[1], r.eccentricity2_deg[0], r.eccentricity2_deg[1]].map(|a| (a * UNITS_PER_TURN / 360.0) as f32)),
-            compliance_units_per_mm: j.map(|r| (r.compliance_deg_per_m / 1000.0 * UNITS_PER_TURN / 360.0) as f32),
+            harmonics: j.map(|r| {
+                [r.eccentricity_deg[0], r.eccentricity_deg[1], r.eccentricity2_deg[0], r.eccentricity2_deg[1]]
+                    .map(|a| (a * UNITS_PER_TURN / 360.0) as f32)
+            }),
+            compliance_units_per_mm: j
+                .map(|r| (r.compliance_deg_per_m / 1000.0 * UNITS_PER_TURN / 360.0) as f32),
             fixed: j.map(|r| rotation_x_then_y(r.alpha_deg, r.axis_deg)),
             d_mm: j.map(|r| r.d_mm as f32),
             a_mm: j.map(|r| r.a_mm as f32),
@@ -174,7 +185,12 @@ impl Kinematics {
             for j in 0..JOINTS {
                 let (o, z) = (axes[j].p, [axes[j].r[0][2], axes[j].r[1][2], axes[j].r[2][2]]);
                 // Σ ((m − o) × ĝ)·z with ĝ = −z_base: (m − o) × (0,0,−1) = (−dy, dx, 0).
-                let lever_mm: f32 = rows[j..].iter().map(|f| f.p).chain([tool.p]).map(|m| -(m[1] - o[1]) * z[0] + (m[0] - o[0]) * z[1]).sum();
+                let lever_mm: f32 = rows[j..]
+                    .iter()
+                    .map(|f| f.p)
+                    .chain([tool.p])
+                    .map(|m| -(m[1] - o[1]) * z[0] + (m[0] - o[0]) * z[1])
+                    .sum();
                 theta[j] += (self.compliance_units_per_mm[j] * lever_mm) as i64;
             }
         }

@@ -71,9 +71,26 @@ pub fn thesis_sized_problem(seed: u64) -> (ArmModel, SimulatedData) {
 }
 
 /// Write the peer problem file for `params` starting at the nominal values.
-pub fn write_peer_problem(path: &Path, nominal: &ArmModel, params: &[ParamId], artefact: &Artefact, data: &Dataset, huber_delta_mm: f64) -> Result<(), BenchError> {
-    let bounds: Vec<_> = params.iter().map(|id| nominal.free.iter().find(|f| f.id == *id).map_or((f64::NEG_INFINITY, f64::INFINITY), |f| (f.lower, f.upper))).collect();
-    let model: serde_json::Value = serde_json::from_str(&nominal.to_text(true)).map_err(|e| BenchError::Peer(e.to_string()))?;
+pub fn write_peer_problem(
+    path: &Path,
+    nominal: &ArmModel,
+    params: &[ParamId],
+    artefact: &Artefact,
+    data: &Dataset,
+    huber_delta_mm: f64,
+) -> Result<(), BenchError> {
+    let bounds: Vec<_> = params
+        .iter()
+        .map(|id| {
+            nominal
+                .free
+                .iter()
+                .find(|f| f.id == *id)
+                .map_or((f64::NEG_INFINITY, f64::INFINITY), |f| (f.lower, f.upper))
+        })
+        .collect();
+    let model: serde_json::Value =
+        serde_json::from_str(&nominal.to_text(true)).map_err(|e| BenchError::Peer(e.to_string()))?;
     let problem = serde_json::json!({
         "model": model,
         "landmarks_mm": artefact.landmarks.iter().map(|l| l.xyz_mm).collect::<Vec<_>>(),
@@ -84,7 +101,8 @@ pub fn write_peer_problem(path: &Path, nominal: &ArmModel, params: &[ParamId], a
         "upper": bounds.iter().map(|b| b.1).collect::<Vec<_>>(),
         "huber_delta_mm": huber_delta_mm,
     });
-    std::fs::write(path, problem.to_string()).map_err(|source| BenchError::Io { path: path.to_owned(), source })
+    std::fs::write(path, problem.to_string())
+        .map_err(|source| BenchError::Io { path: path.to_owned(), source })
 }
 
 /// The peer script's path in the source tree.
@@ -100,9 +118,15 @@ pub fn run_peer(python: &str, problem: &Path) -> Result<PeerResult, BenchError> 
         .output()
         .map_err(|e| BenchError::Peer(format!("could not start {python}: {e}")))?;
     if !output.status.success() {
-        return Err(BenchError::Peer(format!("{} failed: {}", peer_script().display(), String::from_utf8_lossy(&output.stderr).trim())));
+        return Err(BenchError::Peer(format!(
+            "{} failed: {}",
+            peer_script().display(),
+            String::from_utf8_lossy(&output.stderr).trim()
+        )));
     }
-    serde_json::from_slice(&output.stdout).map_err(|e| BenchError::Peer(format!("unexpected output ({e}): {}", String::from_utf8_lossy(&output.stdout))))
+    serde_json::from_slice(&output.stdout).map_err(|e| {
+        BenchError::Peer(format!("unexpected output ({e}): {}", String::from_utf8_lossy(&output.stdout)))
+    })
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -126,21 +150,40 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<(), BenchError> {
     }
     let single_ms = median(times.clone());
     println!("one calibration (one core):        median {single_ms:.1} ms, min {:.1} ms over {} runs  (target <= 50 ms)", times.iter().cloned().fold(f64::INFINITY, f64::min), times.len());
-    let study_options = StudyOptions { subsets: args.study_subsets, seed: 1, calibration: CalibrationOptions { restarts: 0, ..options }, progress: false };
+    let study_options = StudyOptions {
+        subsets: args.study_subsets,
+        seed: 1,
+        calibration: CalibrationOptions { restarts: 0, ..options },
+        progress: false,
+    };
     let t = Instant::now();
     let rows = study(&nominal, &sim.artefact, &cal, &val, &study_options);
     let study_s = t.elapsed().as_secs_f64();
     let count: usize = rows.iter().map(|r| r.calibrations + r.failed).sum();
-    println!("study: {count} calibrations on {} threads: {study_s:.2} s  (target <= 10 s on 2 cores)", rayon::current_num_threads());
-    let hidden = SimulationOptions { seed: 1, hidden: vec![(ParamId::EccSin(4), 0.2), (ParamId::EccCos(4), -0.1)], ..SimulationOptions::default() };
+    println!(
+        "study: {count} calibrations on {} threads: {study_s:.2} s  (target <= 10 s on 2 cores)",
+        rayon::current_num_threads()
+    );
+    let hidden = SimulationOptions {
+        seed: 1,
+        hidden: vec![(ParamId::EccSin(4), 0.2), (ParamId::EccCos(4), -0.1)],
+        ..SimulationOptions::default()
+    };
     let sim_hidden = simulate(&nominal, &hidden);
-    let (cal_h, val_h) = (Dataset::from_sessions(&sim_hidden.calibration, &sim_hidden.artefact), Dataset::from_sessions(&sim_hidden.validation, &sim_hidden.artefact));
+    let (cal_h, val_h) = (
+        Dataset::from_sessions(&sim_hidden.calibration, &sim_hidden.artefact),
+        Dataset::from_sessions(&sim_hidden.validation, &sim_hidden.artefact),
+    );
     let fit_h = calibrate(&nominal, &sim_hidden.artefact, &cal_h, &options)?;
     let t = Instant::now();
     let diagnosis = crate::diagnose::diagnose(&fit_h.model, &sim_hidden.artefact, &cal_h, &val_h, &options);
     println!("diagnose, whole library ({} candidates scored, {} not identifiable), {} threads: {:.2} s  (target <= 2 s on 2 cores)", diagnosis.candidates.len(), diagnosis.not_identifiable.len(), rayon::current_num_threads(), t.elapsed().as_secs_f64());
     // Haptic: a 5-minute recording (100 s of fixed steps + 200 s of free motion).
-    let (recording, _) = crate::haptic::simulate::simulate_recording(&crate::haptic::simulate::HapticSimOptions { joints_seconds: 200.0, ..Default::default() });
+    let (recording, _) =
+        crate::haptic::simulate::simulate_recording(&crate::haptic::simulate::HapticSimOptions {
+            joints_seconds: 200.0,
+            ..Default::default()
+        });
     let t = Instant::now();
     match crate::haptic::pipeline::calibrate_recording(&recording) {
         Ok(h) => println!("haptic pipeline on a 5-minute recording: {:.2} s  (target <= 1 s); delay {:.2} ms, position {:.3} mm, orientation {:.3} deg", t.elapsed().as_secs_f64(), h.delay_ms, h.position_mm.after, h.orientation_deg.after),
@@ -162,9 +205,18 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<(), BenchError> {
     write_peer_problem(&problem, &nominal, &single.estimated, &sim.artefact, &cal, options.huber_delta_mm)?;
     let peer = run_peer(&args.python, &problem)?;
     std::fs::remove_dir_all(&dir).ok();
-    println!("SciPy least_squares(trf, huber), one start: {:.1} ms, {} evaluations, cost {:.9}", peer.seconds * 1e3, peer.nfev, peer.cost);
+    println!(
+        "SciPy least_squares(trf, huber), one start: {:.1} ms, {} evaluations, cost {:.9}",
+        peer.seconds * 1e3,
+        peer.nfev,
+        peer.cost
+    );
     println!("kincal, same start and parameters:       {single_start_ms:.2} ms, cost {:.9}", single.cost);
-    println!("speed-up {:.0}x (target >= 300x); cost ratio kincal/SciPy {:.9}", peer.seconds * 1e3 / single_start_ms, single.cost / peer.cost);
+    println!(
+        "speed-up {:.0}x (target >= 300x); cost ratio kincal/SciPy {:.9}",
+        peer.seconds * 1e3 / single_start_ms,
+        single.cost / peer.cost
+    );
     if let Some(fit) = fit {
         println!("kincal with restarts: cost {:.9}; full 8-restart calibration is {:.0}x faster than one SciPy start", fit.cost, peer.seconds * 1e3 / single_ms);
     }

@@ -25,7 +25,13 @@ pub struct CalibrationOptions {
 
 impl Default for CalibrationOptions {
     fn default() -> Self {
-        CalibrationOptions { huber_delta_mm: 1.35, restarts: 8, seed: 1, objective: Objective::Distance, solver: SolverOptions::default() }
+        CalibrationOptions {
+            huber_delta_mm: 1.35,
+            restarts: 8,
+            seed: 1,
+            objective: Objective::Distance,
+            solver: SolverOptions::default(),
+        }
     }
 }
 
@@ -115,20 +121,37 @@ const MAX_IDENTIFIABILITY_PASSES: usize = 3;
 
 /// Solve from the nominal values (start 0) or from random points inside the bounds (starts 1..),
 /// keeping the lowest cost. Random start k is the same point whichever starts are run.
-fn solve_from_starts(problem: &CalibrationProblem, x_nominal: &[f64], lower: &[f64], upper: &[f64], options: &CalibrationOptions, starts: std::ops::RangeInclusive<usize>) -> (solver::Solution, Vec<StartOutcome>) {
+fn solve_from_starts(
+    problem: &CalibrationProblem,
+    x_nominal: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    options: &CalibrationOptions,
+    starts: std::ops::RangeInclusive<usize>,
+) -> (solver::Solution, Vec<StartOutcome>) {
     let solver_options = SolverOptions { loss: Loss::Huber(options.huber_delta_mm), ..options.solver };
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let mut outcomes = Vec::new();
     let mut best: Option<solver::Solution> = None;
     let mut r0 = vec![0.0; problem.len()];
     for start in 0..=*starts.end() {
-        let x0: Vec<f64> = if start == 0 { x_nominal.to_vec() } else { lower.iter().zip(upper).map(|(l, u)| l + (u - l) * rng.random::<f64>()).collect() };
+        let x0: Vec<f64> = if start == 0 {
+            x_nominal.to_vec()
+        } else {
+            lower.iter().zip(upper).map(|(l, u)| l + (u - l) * rng.random::<f64>()).collect()
+        };
         if !starts.contains(&start) {
             continue;
         }
         problem.evaluate(&x0, &mut r0, None);
         let s = solver::solve(problem, &x0, lower, upper, &solver_options);
-        outcomes.push(StartOutcome { start, initial_cost: solver_options.loss.cost(&r0), final_cost: s.cost, iterations: s.iterations, stop: s.stop });
+        outcomes.push(StartOutcome {
+            start,
+            initial_cost: solver_options.loss.cost(&r0),
+            final_cost: s.cost,
+            iterations: s.iterations,
+            stop: s.stop,
+        });
         if best.as_ref().is_none_or(|b| s.cost < b.cost) {
             best = Some(s);
         }
@@ -144,12 +167,18 @@ fn solve_from_starts(problem: &CalibrationProblem, x_nominal: &[f64], lower: &[f
 /// fits, e.g. the tool length when every touch holds the tool vertical) and the problem is
 /// solved again without the parameters that became unidentifiable, which stay at their nominal
 /// values. The random restarts then run once, on the final base set.
-pub fn calibrate(nominal: &ArmModel, artefact: &Artefact, data: &Dataset, options: &CalibrationOptions) -> Result<Calibration, CalibrationError> {
+pub fn calibrate(
+    nominal: &ArmModel,
+    artefact: &Artefact,
+    data: &Dataset,
+    options: &CalibrationOptions,
+) -> Result<Calibration, CalibrationError> {
     let all: Vec<ParamId> = nominal.free.iter().map(|f| f.id).collect();
     if all.is_empty() {
         return Err(CalibrationError::NothingFree);
     }
-    let range_of = |id: ParamId| nominal.free.iter().find(|f| f.id == id).map_or(1.0, |f| (f.upper - f.lower).max(1e-9));
+    let range_of =
+        |id: ParamId| nominal.free.iter().find(|f| f.id == id).map_or(1.0, |f| (f.upper - f.lower).max(1e-9));
     let full = CalibrationProblem::new(nominal, all.clone(), artefact, data, options.objective);
     if full.distance_rows() < all.len() {
         return Err(CalibrationError::TooFewPairs { pairs: full.distance_rows(), params: all.len() });
@@ -162,19 +191,22 @@ pub fn calibrate(nominal: &ArmModel, artefact: &Artefact, data: &Dataset, option
     let mut pass = 0;
     let (problem, best, starts) = loop {
         pass += 1;
-        let bounds: Vec<_> = estimated.iter().filter_map(|id| nominal.free.iter().find(|f| f.id == *id)).collect();
+        let bounds: Vec<_> =
+            estimated.iter().filter_map(|id| nominal.free.iter().find(|f| f.id == *id)).collect();
         let lower: Vec<f64> = bounds.iter().map(|b| b.lower).collect();
         let upper: Vec<f64> = bounds.iter().map(|b| b.upper).collect();
         let ranges: Vec<f64> = estimated.iter().map(|&id| range_of(id)).collect();
         let problem = CalibrationProblem::new(nominal, estimated.clone(), artefact, data, options.objective);
         let x_nominal: Vec<f64> = estimated.iter().map(|&id| nominal.get(id)).collect();
-        let (nominal_start, mut starts) = solve_from_starts(&problem, &x_nominal, &lower, &upper, options, 0..=0);
+        let (nominal_start, mut starts) =
+            solve_from_starts(&problem, &x_nominal, &lower, &upper, options, 0..=0);
         let (_, jac) = jacobian_at(&problem, &nominal_start.x);
         let (kept, dropped) = identify::base_columns(&jac, estimated.len(), &ranges);
         if dropped.is_empty() || pass >= MAX_IDENTIFIABILITY_PASSES {
             let mut best = nominal_start;
             if options.restarts > 0 {
-                let (restarted, more) = solve_from_starts(&problem, &x_nominal, &lower, &upper, options, 1..=options.restarts);
+                let (restarted, more) =
+                    solve_from_starts(&problem, &x_nominal, &lower, &upper, options, 1..=options.restarts);
                 starts.extend(more);
                 if restarted.cost < best.cost {
                     best = restarted;
@@ -223,5 +255,16 @@ pub fn calibrate(nominal: &ArmModel, artefact: &Artefact, data: &Dataset, option
         .collect();
     let d = problem.distance_rows();
     let rms_mm = (best.residuals[..d].iter().map(|v| v * v).sum::<f64>() / d as f64).sqrt();
-    Ok(Calibration { model, cost: best.cost, rms_mm, before, after, fixed, estimated, estimates, correlations, starts })
+    Ok(Calibration {
+        model,
+        cost: best.cost,
+        rms_mm,
+        before,
+        after,
+        fixed,
+        estimated,
+        estimates,
+        correlations,
+        starts,
+    })
 }

@@ -110,8 +110,10 @@ pub struct Session {
 }
 
 fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, DataError> {
-    let text = std::fs::read_to_string(path).map_err(|source| DataError::Io { path: path.to_owned(), source })?;
-    serde_json::from_str(&text).map_err(|e| DataError::Syntax { path: path.to_owned(), message: e.to_string() })
+    let text =
+        std::fs::read_to_string(path).map_err(|source| DataError::Io { path: path.to_owned(), source })?;
+    serde_json::from_str(&text)
+        .map_err(|e| DataError::Syntax { path: path.to_owned(), message: e.to_string() })
 }
 
 fn field_error(path: &Path, field: impl Into<String>, message: impl Into<String>) -> DataError {
@@ -123,7 +125,11 @@ impl Artefact {
     pub fn load(path: &Path) -> Result<Artefact, DataError> {
         let artefact: Artefact = read_json(path)?;
         if artefact.format != ARTEFACT_FORMAT {
-            return Err(field_error(path, "format", format!("expected \"{ARTEFACT_FORMAT}\", found \"{}\"", artefact.format)));
+            return Err(field_error(
+                path,
+                "format",
+                format!("expected \"{ARTEFACT_FORMAT}\", found \"{}\"", artefact.format),
+            ));
         }
         if artefact.landmarks.len() < 2 {
             return Err(field_error(path, "landmarks", "at least two landmarks are needed"));
@@ -131,10 +137,18 @@ impl Artefact {
         let mut seen = HashMap::new();
         for (i, l) in artefact.landmarks.iter().enumerate() {
             if !l.xyz_mm.iter().chain([&l.yaw_deg]).all(|v| v.is_finite()) {
-                return Err(field_error(path, format!("landmarks[{i}]"), "xyz_mm and yaw_deg must be finite"));
+                return Err(field_error(
+                    path,
+                    format!("landmarks[{i}]"),
+                    "xyz_mm and yaw_deg must be finite",
+                ));
             }
             if seen.insert(l.id.clone(), i).is_some() {
-                return Err(field_error(path, format!("landmarks[{i}].id"), format!("duplicate landmark id \"{}\"", l.id)));
+                return Err(field_error(
+                    path,
+                    format!("landmarks[{i}].id"),
+                    format!("duplicate landmark id \"{}\"", l.id),
+                ));
             }
         }
         Ok(artefact)
@@ -162,7 +176,11 @@ impl Session {
     pub fn load(path: &Path, artefact: &Artefact) -> Result<Session, DataError> {
         let session: Session = read_json(path)?;
         if session.format != SESSION_FORMAT {
-            return Err(field_error(path, "format", format!("expected \"{SESSION_FORMAT}\", found \"{}\"", session.format)));
+            return Err(field_error(
+                path,
+                "format",
+                format!("expected \"{SESSION_FORMAT}\", found \"{}\"", session.format),
+            ));
         }
         if session.placement.is_empty() {
             return Err(field_error(path, "placement", "must name the placement"));
@@ -170,17 +188,33 @@ impl Session {
         for (i, m) in session.measurements.iter().enumerate() {
             let at = |f: &str| format!("measurements[{i}].{f}");
             if artefact.index_of(&m.landmark).is_none() {
-                return Err(field_error(path, at("landmark"), format!("unknown landmark \"{}\" (not in the artefact file)", m.landmark)));
+                return Err(field_error(
+                    path,
+                    at("landmark"),
+                    format!("unknown landmark \"{}\" (not in the artefact file)", m.landmark),
+                ));
             }
             if m.joints_deg.len() != JOINTS {
-                return Err(field_error(path, at("joints_deg"), format!("expected {JOINTS} encoder angles, found {}", m.joints_deg.len())));
+                return Err(field_error(
+                    path,
+                    at("joints_deg"),
+                    format!("expected {JOINTS} encoder angles, found {}", m.joints_deg.len()),
+                ));
             }
             if let Some(k) = m.joints_deg.iter().position(|v| !(v.is_finite() && (0.0..360.0).contains(v))) {
-                return Err(field_error(path, at(&format!("joints_deg[{k}]")), format!("expected a raw encoder angle in [0, 360) degrees, found {}", m.joints_deg[k])));
+                return Err(field_error(
+                    path,
+                    at(&format!("joints_deg[{k}]")),
+                    format!("expected a raw encoder angle in [0, 360) degrees, found {}", m.joints_deg[k]),
+                ));
             }
             if let Some(std) = &m.std_deg {
                 if std.len() != JOINTS || std.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
-                    return Err(field_error(path, at("std_deg"), format!("expected {JOINTS} finite non-negative values")));
+                    return Err(field_error(
+                        path,
+                        at("std_deg"),
+                        format!("expected {JOINTS} finite non-negative values"),
+                    ));
                 }
             }
         }
@@ -195,7 +229,8 @@ impl Session {
 
 fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<(), DataError> {
     let text = serde_json::to_string_pretty(value).unwrap_or_default();
-    fsutil::write_atomic(path, text.as_bytes()).map_err(|source| DataError::Io { path: path.to_owned(), source })
+    fsutil::write_atomic(path, text.as_bytes())
+        .map_err(|source| DataError::Io { path: path.to_owned(), source })
 }
 
 /// One touch ready for the kinematics.
@@ -238,7 +273,8 @@ impl Dataset {
 
     /// Read every `*.json` session in `dir` (sorted by file name).
     pub fn load_dir(dir: &Path, artefact: &Artefact) -> Result<Dataset, DataError> {
-        let entries = std::fs::read_dir(dir).map_err(|source| DataError::Io { path: dir.to_owned(), source })?;
+        let entries =
+            std::fs::read_dir(dir).map_err(|source| DataError::Io { path: dir.to_owned(), source })?;
         let mut files: Vec<PathBuf> = entries
             .filter_map(|e| e.ok().map(|e| e.path()))
             .filter(|p| p.extension().is_some_and(|e| e == "json"))
@@ -257,14 +293,22 @@ impl Dataset {
         for &p in placements {
             let new = out.placements.len();
             out.placements.push(self.placements[p].clone());
-            out.touches.extend(self.touches.iter().filter(|t| t.placement == p).map(|t| Touch { placement: new, ..t.clone() }));
+            out.touches.extend(
+                self.touches
+                    .iter()
+                    .filter(|t| t.placement == p)
+                    .map(|t| Touch { placement: new, ..t.clone() }),
+            );
         }
         out
     }
 
     /// A copy without the touches of one landmark.
     pub fn without_landmark(&self, landmark: usize) -> Dataset {
-        Dataset { placements: self.placements.clone(), touches: self.touches.iter().filter(|t| t.landmark != landmark).cloned().collect() }
+        Dataset {
+            placements: self.placements.clone(),
+            touches: self.touches.iter().filter(|t| t.landmark != landmark).cloned().collect(),
+        }
     }
 
     /// Pairs of touches of different landmarks taken in the same placement and repeat
@@ -299,7 +343,10 @@ mod tests {
     #[test]
     fn pairs_stay_within_one_placement_and_repeat() {
         let t = |placement, landmark, repeat| Touch { placement, landmark, repeat, enc_deg: [0.0; 6] };
-        let data = Dataset { placements: vec!["A".into(), "B".into()], touches: vec![t(0, 0, 1), t(0, 1, 1), t(0, 1, 2), t(1, 0, 1), t(1, 1, 1)] };
+        let data = Dataset {
+            placements: vec!["A".into(), "B".into()],
+            touches: vec![t(0, 0, 1), t(0, 1, 1), t(0, 1, 2), t(1, 0, 1), t(1, 1, 1)],
+        };
         assert_eq!(data.touch_pairs(), vec![(0, 1), (3, 4)]);
         assert!((artefact().distance_mm(0, 1) - 50.0).abs() < 1e-12);
     }
@@ -321,7 +368,10 @@ mod tests {
             let path = dir.join(format!("s{i}.json"));
             std::fs::write(&path, text).unwrap();
             let err = Session::load(&path, &artefact()).unwrap_err().to_string();
-            assert!(err.contains(&format!("s{i}.json")) && err.contains(expect), "{err} should name {expect}");
+            assert!(
+                err.contains(&format!("s{i}.json")) && err.contains(expect),
+                "{err} should name {expect}"
+            );
         }
         let path = dir.join("good.json");
         std::fs::write(&path, ok).unwrap();

@@ -26,11 +26,11 @@
 use crate::calibrate::{calibrate, CalibrationOptions};
 use crate::data::{Artefact, Dataset};
 use crate::effects::{Effect, EffectKind};
+use crate::geometry::absolute_orientation;
 use crate::identify;
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
 use crate::model::{ArmModel, ParamId, JOINTS};
 use crate::objective::{CalibrationProblem, Objective};
-use crate::geometry::absolute_orientation;
 use crate::solver::Residuals;
 use crate::validate::{distance_errors, ErrorStats, PairError};
 use nalgebra::{Matrix3, Vector3};
@@ -150,14 +150,16 @@ pub struct Diagnosis {
 
 /// Per-touch residual vectors after a rigid fit of the artefact in each placement.
 fn touch_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<Option<Vector3<f64>>> {
-    let p: Vec<Vector3<f64>> = data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
+    let p: Vec<Vector3<f64>> =
+        data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
     let mut out = vec![None; p.len()];
     for placement in 0..data.placements.len() {
         let idx: Vec<usize> = (0..p.len()).filter(|&k| data.touches[k].placement == placement).collect();
         if idx.len() < 4 {
             continue;
         }
-        let q: Vec<Vector3<f64>> = idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
+        let q: Vec<Vector3<f64>> =
+            idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
         let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
         let (r, t): (Matrix3<f64>, Vector3<f64>) = absolute_orientation(&q, &pm);
         for (i, &k) in idx.iter().enumerate() {
@@ -185,14 +187,23 @@ fn fit_sinusoid(points: &[(f64, f64, f64)]) -> Sinusoid {
         ss_tot += w * (e - mean).powi(2);
         ss_res += w * (e - fit).powi(2);
     }
-    Sinusoid { amplitude_deg: coef[0].hypot(coef[1]), phase_deg: coef[1].atan2(coef[0]).to_degrees(), mean_deg: coef[2], explained: if ss_tot > 0.0 { (1.0 - ss_res / ss_tot).max(0.0) } else { 0.0 } }
+    Sinusoid {
+        amplitude_deg: coef[0].hypot(coef[1]),
+        phase_deg: coef[1].atan2(coef[0]).to_degrees(),
+        mean_deg: coef[2],
+        explained: if ss_tot > 0.0 { (1.0 - ss_res / ss_tot).max(0.0) } else { 0.0 },
+    }
 }
 
 /// Apparent joint errors of `model` on `data`.
 /// Points (x, y) of a scatter plot.
 type Points = Vec<(f64, f64)>;
 
-fn joint_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> (Vec<JointResiduals>, Points, Points) {
+fn joint_residuals(
+    model: &ArmModel,
+    artefact: &Artefact,
+    data: &Dataset,
+) -> (Vec<JointResiduals>, Points, Points) {
     let residuals = touch_residuals(model, artefact, data);
     let offsets: Vec<ParamId> = (0..JOINTS).map(ParamId::Offset).collect();
     let columns = ColumnMap::new(&offsets);
@@ -223,7 +234,8 @@ fn joint_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> (Ve
             let bins = (0..ANGLE_BINS)
                 .map(|b| {
                     let width = 360.0 / ANGLE_BINS as f64;
-                    let inside: Vec<&(f64, f64, f64)> = points.iter().filter(|p| ((p.0 / width) as usize).min(ANGLE_BINS - 1) == b).collect();
+                    let inside: Vec<&(f64, f64, f64)> =
+                        points.iter().filter(|p| ((p.0 / width) as usize).min(ANGLE_BINS - 1) == b).collect();
                     let w: f64 = inside.iter().map(|p| p.2).sum();
                     let mean = if w > 0.0 { inside.iter().map(|p| p.1 * p.2).sum::<f64>() / w } else { 0.0 };
                     ((b as f64 + 0.5) * width, mean, inside.len())
@@ -231,7 +243,14 @@ fn joint_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> (Ve
                 .collect();
             let g = &gravity[j];
             let (sxx, sxy) = g.iter().fold((0.0, 0.0), |(a, b), (x, y)| (a + x * x, b + x * y));
-            JointResiduals { joint: j + 1, sinusoid: fit_sinusoid(&points), bins, points, gravity: g.clone(), gravity_slope_deg_per_m: if sxx > 0.0 { sxy / sxx } else { 0.0 } }
+            JointResiduals {
+                joint: j + 1,
+                sinusoid: fit_sinusoid(&points),
+                bins,
+                points,
+                gravity: g.clone(),
+                gravity_slope_deg_per_m: if sxx > 0.0 { sxy / sxx } else { 0.0 },
+            }
         })
         .collect();
     (joints, by_height, by_reach)
@@ -240,13 +259,18 @@ fn joint_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> (Ve
 /// Gravity lever of each joint at a touch (the compliance regressor), metres.
 fn gravity_levers(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> [f64; JOINTS] {
     // ∂p/∂compliance_j = ∂p/∂θ_j · λ_j: the ratio of the two columns gives λ_j.
-    let params: Vec<ParamId> = (0..JOINTS).flat_map(|j| [ParamId::Offset(j), ParamId::Compliance(j)]).collect();
+    let params: Vec<ParamId> =
+        (0..JOINTS).flat_map(|j| [ParamId::Offset(j), ParamId::Compliance(j)]).collect();
     let mut jac = vec![[0.0; 9]; params.len()];
     tool_pose_with_jacobian(model, enc_deg, &ColumnMap::new(&params), &mut jac);
     std::array::from_fn(|j| {
         let (dtheta, dc) = (&jac[2 * j], &jac[2 * j + 1]);
         let n: f64 = (0..3).map(|k| dtheta[k] * dtheta[k]).sum();
-        if n > 1e-12 { (0..3).map(|k| dc[k] * dtheta[k]).sum::<f64>() / n } else { 0.0 }
+        if n > 1e-12 {
+            (0..3).map(|k| dc[k] * dtheta[k]).sum::<f64>() / n
+        } else {
+            0.0
+        }
     })
 }
 
@@ -295,7 +319,13 @@ fn distance_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> 
 }
 
 /// Plain words for a fitted effect.
-fn evidence(effect: Effect, fitted: &[(String, f64, &'static str)], joints: &[JointResiduals], before: f64, after: f64) -> String {
+fn evidence(
+    effect: Effect,
+    fitted: &[(String, f64, &'static str)],
+    joints: &[JointResiduals],
+    before: f64,
+    after: f64,
+) -> String {
     let gain = format!("would bring validation RMS from {before:.3} to {after:.3} mm");
     let value = |k: usize| fitted.get(k).map_or(0.0, |f| f.1);
     let j = effect.joint.map_or(0, |j| j + 1);
@@ -324,14 +354,21 @@ fn evidence(effect: Effect, fitted: &[(String, f64, &'static str)], joints: &[Jo
 }
 
 /// Diagnose `calibrated` (whose free set and bounds are those it was calibrated with).
-pub fn diagnose(calibrated: &ArmModel, artefact: &Artefact, cal: &Dataset, val: &Dataset, options: &CalibrationOptions) -> Diagnosis {
+pub fn diagnose(
+    calibrated: &ArmModel,
+    artefact: &Artefact,
+    cal: &Dataset,
+    val: &Dataset,
+    options: &CalibrationOptions,
+) -> Diagnosis {
     let baseline_errors = distance_errors(calibrated, artefact, val);
     let baseline = ErrorStats::of(&baseline_errors.iter().map(|e| e.error_mm).collect::<Vec<_>>());
     let (joints, by_height, by_reach) = joint_residuals(calibrated, artefact, val);
     let current: Vec<ParamId> = calibrated.free.iter().map(|f| f.id).collect();
     let baseline_bic = bic(&distance_residuals(calibrated, artefact, cal), current.len());
     let baseline_blocks = block_mse(&baseline_errors, val);
-    let candidates_effects: Vec<Effect> = Effect::library().into_iter().filter(|e| !e.is_in(calibrated)).collect();
+    let candidates_effects: Vec<Effect> =
+        Effect::library().into_iter().filter(|e| !e.is_in(calibrated)).collect();
     let candidate_count = candidates_effects.len().max(1) as f64;
     let results: Vec<Result<(Candidate, Vec<f64>), NotIdentifiable>> = candidates_effects
         .par_iter()
@@ -347,7 +384,15 @@ pub fn diagnose(calibrated: &ArmModel, artefact: &Artefact, cal: &Dataset, val: 
             // The identifiable base set of the current parameters, then what the effect adds to it.
             let existing: Vec<usize> = (0..all.len()).filter(|&c| current.contains(&all[c])).collect();
             let existing_ranges: Vec<f64> = existing.iter().map(|&c| ranges[c]).collect();
-            let base: Vec<usize> = identify::base_columns(&subset_jacobian(&jac, all.len(), &existing), existing.len(), &existing_ranges).0.into_iter().map(|k| existing[k]).collect();
+            let base: Vec<usize> = identify::base_columns(
+                &subset_jacobian(&jac, all.len(), &existing),
+                existing.len(),
+                &existing_ranges,
+            )
+            .0
+            .into_iter()
+            .map(|k| existing[k])
+            .collect();
             let extra: Vec<usize> = (0..all.len()).filter(|c| !current.contains(&all[*c])).collect();
             let rank = identify::added_rank(&jac, all.len(), &ranges, &base, &extra);
             let describe = |k: usize| {
@@ -355,37 +400,77 @@ pub fn diagnose(calibrated: &ArmModel, artefact: &Artefact, cal: &Dataset, val: 
                 if r.moves_nothing {
                     return format!("{} changes no distance", all[extra[k]]);
                 }
-                let mut terms: Vec<(ParamId, f64, f64)> = base.iter().enumerate().map(|(i, &c)| (all[c], -r.like[i], r.share[i])).filter(|t| t.2.abs() > 1e-3).collect();
+                let mut terms: Vec<(ParamId, f64, f64)> = base
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &c)| (all[c], -r.like[i], r.share[i]))
+                    .filter(|t| t.2.abs() > 1e-3)
+                    .collect();
                 terms.sort_by(|a, b| b.2.abs().total_cmp(&a.2.abs()));
-                let list: Vec<String> = terms.iter().take(4).map(|(p, b, _)| format!("{p} ({b:+.4} {} per {})", p.unit(), all[extra[k]].unit())).collect();
+                let list: Vec<String> = terms
+                    .iter()
+                    .take(4)
+                    .map(|(p, b, _)| format!("{p} ({b:+.4} {} per {})", p.unit(), all[extra[k]].unit()))
+                    .collect();
                 format!("{}'s effect on distances is absorbed by {}", all[extra[k]], list.join(", "))
             };
             let unidentified: Vec<usize> = (0..extra.len()).filter(|&k| !rank[k].adds).collect();
             if unidentified.len() == extra.len() {
                 let reasons: Vec<String> = unidentified.iter().map(|&k| describe(k)).collect();
-                return Err(NotIdentifiable { effect: effect.to_string(), reason: format!("not identifiable from these touches: {}", reasons.join("; ")) });
+                return Err(NotIdentifiable {
+                    effect: effect.to_string(),
+                    reason: format!("not identifiable from these touches: {}", reasons.join("; ")),
+                });
             }
             for &k in &unidentified {
                 model.fix_param(all[extra[k]]);
             }
             let partial: Vec<String> = unidentified.iter().map(|&k| describe(k)).collect();
-            let refit = calibrate(&model, artefact, cal, &CalibrationOptions { restarts: 0, ..*options }).map_err(|e| NotIdentifiable { effect: effect.to_string(), reason: e.to_string() })?;
+            let refit = calibrate(&model, artefact, cal, &CalibrationOptions { restarts: 0, ..*options })
+                .map_err(|e| NotIdentifiable { effect: effect.to_string(), reason: e.to_string() })?;
             let errors = distance_errors(&refit.model, artefact, val);
             let after = rms(&errors);
             let blocks = block_mse(&errors, val);
-            let compared: Vec<bool> = baseline_blocks.iter().filter_map(|(k, before)| blocks.iter().find(|b| b.0 == *k).map(|b| b.1 < *before)).collect();
+            let compared: Vec<bool> = baseline_blocks
+                .iter()
+                .filter_map(|(k, before)| blocks.iter().find(|b| b.0 == *k).map(|b| b.1 < *before))
+                .collect();
             let blocks_improved = (compared.iter().filter(|i| **i).count(), compared.len());
             let p_value = sign_test_p(blocks_improved.0, blocks_improved.1);
-            let delta_bic = bic(&distance_residuals(&refit.model, artefact, cal), model.free.len()) - baseline_bic;
-            let explained = ((baseline.rms_mm.powi(2) - after.powi(2)) / baseline.rms_mm.powi(2).max(1e-300)).clamp(0.0, 1.0);
-            let significant = p_value < FAMILY_ALPHA / candidate_count && delta_bic < 0.0 && after <= (1.0 - SIGNIFICANT_GAIN) * baseline.rms_mm;
-            let fitted: Vec<(String, f64, &'static str)> = effect.params().iter().map(|p| (p.to_string(), refit.model.get(*p) - calibrated.get(*p), p.unit())).collect();
+            let delta_bic =
+                bic(&distance_residuals(&refit.model, artefact, cal), model.free.len()) - baseline_bic;
+            let explained = ((baseline.rms_mm.powi(2) - after.powi(2)) / baseline.rms_mm.powi(2).max(1e-300))
+                .clamp(0.0, 1.0);
+            let significant = p_value < FAMILY_ALPHA / candidate_count
+                && delta_bic < 0.0
+                && after <= (1.0 - SIGNIFICANT_GAIN) * baseline.rms_mm;
+            let fitted: Vec<(String, f64, &'static str)> = effect
+                .params()
+                .iter()
+                .map(|p| (p.to_string(), refit.model.get(*p) - calibrated.get(*p), p.unit()))
+                .collect();
             let mut evidence = evidence(effect, &fitted, &joints, baseline.rms_mm, after);
             if !partial.is_empty() {
                 evidence.push_str(&format!(" (held at zero: {})", partial.join("; ")));
             }
-            let change: Vec<f64> = errors.iter().zip(&baseline_errors).map(|(a, b)| a.error_mm - b.error_mm).collect();
-            Ok((Candidate { effect: effect.to_string(), validation_rms_mm: after, explained, significant, blocks_improved, p_value, delta_bic, fitted, evidence, equivalent: Vec::new(), equivalent_to: None }, change))
+            let change: Vec<f64> =
+                errors.iter().zip(&baseline_errors).map(|(a, b)| a.error_mm - b.error_mm).collect();
+            Ok((
+                Candidate {
+                    effect: effect.to_string(),
+                    validation_rms_mm: after,
+                    explained,
+                    significant,
+                    blocks_improved,
+                    p_value,
+                    delta_bic,
+                    fitted,
+                    evidence,
+                    equivalent: Vec::new(),
+                    equivalent_to: None,
+                },
+                change,
+            ))
         })
         .collect();
     let mut scored = Vec::new();
@@ -403,19 +488,53 @@ pub fn diagnose(calibrated: &ArmModel, artefact: &Artefact, cal: &Dataset, val: 
     let worst = worst
         .into_iter()
         .take(10)
-        .map(|e| WorstPair { placement: val.placements[e.placement].clone(), landmarks: (artefact.landmarks[e.landmarks.0].id.clone(), artefact.landmarks[e.landmarks.1].id.clone()), error_mm: e.error_mm })
+        .map(|e| WorstPair {
+            placement: val.placements[e.placement].clone(),
+            landmarks: (
+                artefact.landmarks[e.landmarks.0].id.clone(),
+                artefact.landmarks[e.landmarks.1].id.clone(),
+            ),
+            error_mm: e.error_mm,
+        })
         .collect();
-    let by_placement = val.placements.iter().enumerate().map(|(p, name)| (name.clone(), rms(&baseline_errors.iter().filter(|e| e.placement == p).cloned().collect::<Vec<_>>()))).collect();
+    let by_placement = val
+        .placements
+        .iter()
+        .enumerate()
+        .map(|(p, name)| {
+            (
+                name.clone(),
+                rms(&baseline_errors.iter().filter(|e| e.placement == p).cloned().collect::<Vec<_>>()),
+            )
+        })
+        .collect();
     let summary = summarise(&baseline, &candidates, &joints);
-    Diagnosis { baseline, candidates, not_identifiable, joints, by_height, by_reach, worst, by_placement, summary }
+    Diagnosis {
+        baseline,
+        candidates,
+        not_identifiable,
+        joints,
+        by_height,
+        by_reach,
+        worst,
+        by_placement,
+        summary,
+    }
 }
 
 /// Mark candidates (sorted best first, with their changes to the held-out errors) that are
 /// equivalent to a better-ranked one.
 fn group_equivalents(scored: Vec<(Candidate, Vec<f64>)>) -> Vec<Candidate> {
     let correlation = |a: &[f64], b: &[f64]| {
-        let (ab, aa, bb) = a.iter().zip(b).fold((0.0, 0.0, 0.0), |(ab, aa, bb), (x, y)| (ab + x * y, aa + x * x, bb + y * y));
-        if aa > 0.0 && bb > 0.0 { ab / (aa * bb).sqrt() } else { 0.0 }
+        let (ab, aa, bb) = a
+            .iter()
+            .zip(b)
+            .fold((0.0, 0.0, 0.0), |(ab, aa, bb), (x, y)| (ab + x * y, aa + x * x, bb + y * y));
+        if aa > 0.0 && bb > 0.0 {
+            ab / (aa * bb).sqrt()
+        } else {
+            0.0
+        }
     };
     let mut out: Vec<Candidate> = Vec::with_capacity(scored.len());
     let mut leaders: Vec<(usize, &[f64])> = Vec::new();
@@ -438,16 +557,30 @@ fn subset_jacobian(jac: &[f64], n: usize, cols: &[usize]) -> Vec<f64> {
 }
 
 fn summarise(baseline: &ErrorStats, candidates: &[Candidate], joints: &[JointResiduals]) -> Vec<String> {
-    let mut lines = vec![format!("validation RMS of the calibrated model: {:.3} mm over {} pairs", baseline.rms_mm, baseline.pairs)];
-    if let Some(j) = joints.iter().max_by(|a, b| (a.sinusoid.amplitude_deg * a.sinusoid.explained).total_cmp(&(b.sinusoid.amplitude_deg * b.sinusoid.explained))) {
+    let mut lines = vec![format!(
+        "validation RMS of the calibrated model: {:.3} mm over {} pairs",
+        baseline.rms_mm, baseline.pairs
+    )];
+    if let Some(j) = joints.iter().max_by(|a, b| {
+        (a.sinusoid.amplitude_deg * a.sinusoid.explained)
+            .total_cmp(&(b.sinusoid.amplitude_deg * b.sinusoid.explained))
+    }) {
         if j.sinusoid.explained > 0.1 {
             lines.push(format!("largest periodic residual: joint {} apparent error follows sin θ{} with {:.3}° amplitude ({:.0} % of its variance)", j.joint, j.joint, j.sinusoid.amplitude_deg, 100.0 * j.sinusoid.explained));
         }
     }
     match candidates.iter().find(|c| c.significant) {
-        Some(best) if !best.equivalent.is_empty() => lines.push(format!("missing effect: {} — {} (these touches cannot tell it from {})", best.effect, best.evidence, best.equivalent.join(", "))),
+        Some(best) if !best.equivalent.is_empty() => lines.push(format!(
+            "missing effect: {} — {} (these touches cannot tell it from {})",
+            best.effect,
+            best.evidence,
+            best.equivalent.join(", ")
+        )),
         Some(best) => lines.push(format!("missing effect: {} — {}", best.effect, best.evidence)),
-        None => lines.push("no candidate effect improves the held-out error beyond noise: the model explains the data".into()),
+        None => lines.push(
+            "no candidate effect improves the held-out error beyond noise: the model explains the data"
+                .into(),
+        ),
     }
     lines
 }
@@ -465,11 +598,16 @@ mod tests {
 
     #[test]
     fn sinusoid_fit_recovers_amplitude_and_phase() {
-        let points: Vec<(f64, f64, f64)> = (0..72).map(|k| {
-            let phi = k as f64 * 5.0;
-            (phi, 0.3 * (phi.to_radians() + 0.5).sin() + 0.01, 1.0)
-        }).collect();
+        let points: Vec<(f64, f64, f64)> = (0..72)
+            .map(|k| {
+                let phi = k as f64 * 5.0;
+                (phi, 0.3 * (phi.to_radians() + 0.5).sin() + 0.01, 1.0)
+            })
+            .collect();
         let s = fit_sinusoid(&points);
-        assert!((s.amplitude_deg - 0.3).abs() < 1e-9 && (s.mean_deg - 0.01).abs() < 1e-9 && s.explained > 0.999, "{s:?}");
+        assert!(
+            (s.amplitude_deg - 0.3).abs() < 1e-9 && (s.mean_deg - 0.01).abs() < 1e-9 && s.explained > 0.999,
+            "{s:?}"
+        );
     }
 }

@@ -33,7 +33,15 @@ pub fn build_firmware() -> Result<PathBuf, LinkError> {
     let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
         .args(["build", "--quiet", "--manifest-path"])
         .arg(&manifest)
-        .args(["--release", "--target", "thumbv7em-none-eabihf", "--features", "board-mps2", "--bin", "emulated"])
+        .args([
+            "--release",
+            "--target",
+            "thumbv7em-none-eabihf",
+            "--features",
+            "board-mps2",
+            "--bin",
+            "emulated",
+        ])
         .status()
         .map_err(|e| LinkError::Open { port: "firmware build".into(), message: e.to_string() })?;
     if !status.success() {
@@ -53,7 +61,12 @@ fn qemu(elf: &Path, serial: &str) -> Result<Emulator, LinkError> {
         .stdout(Stdio::null())
         .stderr(Stdio::inherit())
         .spawn()
-        .map_err(|e| LinkError::Open { port: "emulated controller".into(), message: format!("cannot start qemu-system-arm ({e}); install it with apt-get install qemu-system-arm") })?;
+        .map_err(|e| LinkError::Open {
+            port: "emulated controller".into(),
+            message: format!(
+                "cannot start qemu-system-arm ({e}); install it with apt-get install qemu-system-arm"
+            ),
+        })?;
     Ok(Emulator { child })
 }
 
@@ -87,7 +100,9 @@ impl Emulator {
         let stream = loop {
             match listener.accept() {
                 Ok((s, _)) => break s,
-                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock && Instant::now() < deadline => std::thread::sleep(Duration::from_millis(10)),
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock && Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(10))
+                }
                 Err(e) => return Err(open_error(format!("QEMU did not connect its UART: {e}"))),
             }
         };

@@ -10,7 +10,8 @@ pub fn absolute_orientation(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> (Matrix3<
     let n = a.len().min(b.len()).max(1) as f64;
     let (ca, cb) = (a.iter().sum::<Vector3<f64>>() / n, b.iter().sum::<Vector3<f64>>() / n);
     let s: Matrix3<f64> = a.iter().zip(b).map(|(p, q)| (p - ca) * (q - cb).transpose()).sum();
-    let (sxx, sxy, sxz, syx, syy, syz, szx, szy, szz) = (s[(0, 0)], s[(0, 1)], s[(0, 2)], s[(1, 0)], s[(1, 1)], s[(1, 2)], s[(2, 0)], s[(2, 1)], s[(2, 2)]);
+    let (sxx, sxy, sxz, syx, syy, syz, szx, szy, szz) =
+        (s[(0, 0)], s[(0, 1)], s[(0, 2)], s[(1, 0)], s[(1, 1)], s[(1, 2)], s[(2, 0)], s[(2, 1)], s[(2, 2)]);
     #[rustfmt::skip]
     let k = Matrix4::new(
         sxx + syy + szz, syz - szy,        szx - sxz,        sxy - syx,
@@ -33,7 +34,13 @@ mod tests {
 
     #[test]
     fn recovers_a_rotation_and_shift() {
-        let a: Vec<Vector3<f64>> = vec![Vector3::new(0., 0., 0.), Vector3::new(10., 0., 0.), Vector3::new(0., 20., 0.), Vector3::new(0., 0., 5.), Vector3::new(3., -4., 7.)];
+        let a: Vec<Vector3<f64>> = vec![
+            Vector3::new(0., 0., 0.),
+            Vector3::new(10., 0., 0.),
+            Vector3::new(0., 20., 0.),
+            Vector3::new(0., 0., 5.),
+            Vector3::new(3., -4., 7.),
+        ];
         for (roll, pitch, yaw) in [(0.1, -0.2, 0.3), (3.0, 0.1, -2.5), (0.0, 0.0, 0.0)] {
             let r = Rotation3::from_euler_angles(roll, pitch, yaw).into_inner();
             let t = Vector3::new(500.0, 10.0, -3.0);

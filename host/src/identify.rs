@@ -69,7 +69,12 @@ fn scaled(jac: &[f64], n: usize, ranges: &[f64], cols: &[usize]) -> DMatrix<f64>
 
 fn describe(params: &[ParamId], direction: &[f64], relative: f64, unidentifiable: bool) -> Combination {
     let biggest = direction.iter().fold(0.0_f64, |a, v| a.max(v.abs())).max(1e-300);
-    let mut terms: Vec<(ParamId, f64)> = params.iter().zip(direction).map(|(p, v)| (*p, v / biggest)).filter(|(_, v)| v.abs() > 0.05).collect();
+    let mut terms: Vec<(ParamId, f64)> = params
+        .iter()
+        .zip(direction)
+        .map(|(p, v)| (*p, v / biggest))
+        .filter(|(_, v)| v.abs() > 0.05)
+        .collect();
     terms.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
     if terms.first().is_some_and(|t| t.1 < 0.0) {
         terms.iter_mut().for_each(|t| t.1 = -t.1);
@@ -80,7 +85,11 @@ fn describe(params: &[ParamId], direction: &[f64], relative: f64, unidentifiable
     } else {
         terms.iter().map(|(p, v)| format!("{p} {v:+.3} {}", p.unit())).collect::<Vec<_>>().join(" ↔ ")
     };
-    Combination { relative_singular_value: relative, terms: terms.into_iter().map(|(p, v)| (p.to_string(), v)).collect(), text }
+    Combination {
+        relative_singular_value: relative,
+        terms: terms.into_iter().map(|(p, v)| (p.to_string(), v)).collect(),
+        text,
+    }
 }
 
 /// Analyse a row-major Jacobian (m × `params.len()`); `ranges` are the parameters' plausible
@@ -151,7 +160,11 @@ pub fn base_columns(jac: &[f64], n: usize, ranges: &[f64]) -> (Vec<usize>, Vec<u
         // Largest remaining residual norm; ties go to the earlier parameter.
         let (pos, best) = remaining.iter().enumerate().fold((0, -1.0), |acc, (pos, &k)| {
             let v = residual[k].norm();
-            if v > acc.1 * (1.0 + 1e-9) { (pos, v) } else { acc }
+            if v > acc.1 * (1.0 + 1e-9) {
+                (pos, v)
+            } else {
+                acc
+            }
         });
         if best < BASE_SET_TOLERANCE * largest {
             break;
@@ -184,18 +197,27 @@ mod tests {
     #[test]
     fn names_a_zero_column_and_a_collinear_pair() {
         // Columns: a, b = 2a (collinear), c independent, d zero.
-        let rows: Vec<[f64; 4]> = (0..10).map(|i| {
-            let t = i as f64;
-            [t, 2.0 * t, (t * 0.7).sin(), 0.0]
-        }).collect();
+        let rows: Vec<[f64; 4]> = (0..10)
+            .map(|i| {
+                let t = i as f64;
+                [t, 2.0 * t, (t * 0.7).sin(), 0.0]
+            })
+            .collect();
         let jac: Vec<f64> = rows.iter().flatten().copied().collect();
         let params = [ParamId::Length(0), ParamId::Tcp(2), ParamId::Offset(1), ParamId::Offset(0)];
         let id = analyse(&jac, &params, &[1.0; 4]);
         let texts: Vec<&str> = id.unidentifiable.iter().map(|c| c.text.as_str()).collect();
-        assert!(texts.iter().any(|t| t.contains("offset:1") && t.contains("changes no residual")), "{texts:?}");
+        assert!(
+            texts.iter().any(|t| t.contains("offset:1") && t.contains("changes no residual")),
+            "{texts:?}"
+        );
         let pair = id.unidentifiable.iter().find(|c| c.terms.len() == 2).expect("collinear pair");
         // δ(length:1) = −2·δ(tcp.z) leaves the residuals unchanged.
-        assert!((pair.terms[0].1.abs() - 1.0).abs() < 1e-9 && (pair.terms[1].1.abs() - 0.5).abs() < 1e-6, "{:?}", pair.terms);
+        assert!(
+            (pair.terms[0].1.abs() - 1.0).abs() < 1e-9 && (pair.terms[1].1.abs() - 0.5).abs() < 1e-6,
+            "{:?}",
+            pair.terms
+        );
         let (kept, dropped) = base_columns(&jac, 4, &[1.0; 4]);
         // The larger of two collinear columns stays in the base set.
         assert_eq!(kept, vec![1, 2]);
@@ -238,9 +260,19 @@ pub fn added_rank(jac: &[f64], n: usize, ranges: &[f64], base: &[usize], extra: 
             if adds {
                 basis.push(v / norm);
             }
-            let scaled = btb.clone().cholesky().map(|ch| ch.solve(&(b.transpose() * &original))).map(|x| x.iter().copied().collect()).unwrap_or_else(|| vec![0.0; base.len()]);
+            let scaled = btb
+                .clone()
+                .cholesky()
+                .map(|ch| ch.solve(&(b.transpose() * &original)))
+                .map(|x| x.iter().copied().collect())
+                .unwrap_or_else(|| vec![0.0; base.len()]);
             let like = scaled.iter().enumerate().map(|(k, v)| v * ranges[base[k]] / ranges[c]).collect();
-            AddedRank { adds, moves_nothing: original.norm() <= ZERO_COLUMN_BELOW * largest, like, share: scaled }
+            AddedRank {
+                adds,
+                moves_nothing: original.norm() <= ZERO_COLUMN_BELOW * largest,
+                like,
+                share: scaled,
+            }
         })
         .collect()
 }

@@ -7,7 +7,10 @@
 //! reported as such.
 
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
-use kincal_protocol::messages::{DeviceFrame, HostFrame, Info, Request, Response, Stream, WireError, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH};
+use kincal_protocol::messages::{
+    DeviceFrame, HostFrame, Info, Request, Response, Stream, WireError, PARAM_CHUNK, PROTOCOL_VERSION,
+    SCHEMA_HASH,
+};
 use kincal_protocol::params::BLOB_CRC;
 use std::collections::VecDeque;
 use std::io::{Read, Write};
@@ -127,14 +130,26 @@ impl Link {
                 stream.set_nodelay(true).map_err(|e| open_error(e.to_string()))?;
                 Box::new(stream)
             }
-            None => Box::new(Serial(serialport::new(port, 460_800).timeout(DEFAULT_TIMEOUT).open().map_err(|e| open_error(e.to_string()))?)),
+            None => Box::new(Serial(
+                serialport::new(port, 460_800)
+                    .timeout(DEFAULT_TIMEOUT)
+                    .open()
+                    .map_err(|e| open_error(e.to_string()))?,
+            )),
         };
         Ok(Link::over(transport))
     }
 
     /// A link over an already open transport.
     pub fn over(transport: Box<dyn Transport>) -> Link {
-        Link { transport, decoder: Decoder::new(), seq: 0, streams: VecDeque::new(), last_stream_seq: None, stats: LinkStats::default() }
+        Link {
+            transport,
+            decoder: Decoder::new(),
+            seq: 0,
+            streams: VecDeque::new(),
+            last_stream_seq: None,
+            stats: LinkStats::default(),
+        }
     }
 
     fn send(&mut self, request: Request) -> Result<u16, LinkError> {
@@ -143,7 +158,8 @@ impl Link {
             self.seq = 0; // u16::MAX is the controller's "undecodable request" answer
         }
         let mut buf = [0u8; MAX_FRAME];
-        let frame = framing::encode(&HostFrame { seq: self.seq, request }, &mut buf).map_err(|_| LinkError::Unexpected("encoding"))?;
+        let frame = framing::encode(&HostFrame { seq: self.seq, request }, &mut buf)
+            .map_err(|_| LinkError::Unexpected("encoding"))?;
         self.transport.write_all(frame)?;
         self.transport.flush()?;
         Ok(self.seq)
@@ -161,8 +177,17 @@ impl Link {
             let n = match self.transport.read(&mut byte) {
                 Ok(0) => return Err(LinkError::Closed),
                 Ok(n) => n,
-                Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => continue,
-                Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe || e.kind() == std::io::ErrorKind::ConnectionReset => return Err(LinkError::Closed),
+                Err(e)
+                    if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) =>
+                {
+                    continue
+                }
+                Err(e)
+                    if e.kind() == std::io::ErrorKind::BrokenPipe
+                        || e.kind() == std::io::ErrorKind::ConnectionReset =>
+                {
+                    return Err(LinkError::Closed)
+                }
                 Err(e) => return Err(e.into()),
             };
             // Stream frames are queued; the first response is returned.
@@ -202,20 +227,31 @@ impl Link {
     }
 
     /// Send `request` and wait for its response.
-    pub fn request(&mut self, request: Request, what: &'static str, timeout: Duration) -> Result<Response, LinkError> {
+    pub fn request(
+        &mut self,
+        request: Request,
+        what: &'static str,
+        timeout: Duration,
+    ) -> Result<Response, LinkError> {
         let seq = self.send(request)?;
         let deadline = Instant::now() + timeout;
         loop {
             match self.receive(deadline)? {
                 None => return Err(LinkError::Timeout(timeout, what)),
-                Some(DeviceFrame::Response { seq: s, response }) if s == seq => return response.map_err(|e| LinkError::Refused(what, e)),
+                Some(DeviceFrame::Response { seq: s, response }) if s == seq => {
+                    return response.map_err(|e| LinkError::Refused(what, e))
+                }
                 Some(_) => {} // a stale response to an earlier, timed-out request
             }
         }
     }
 
     /// Send a request that may safely be repeated, trying up to three times on a timeout.
-    pub fn request_idempotent(&mut self, request: Request, what: &'static str) -> Result<Response, LinkError> {
+    pub fn request_idempotent(
+        &mut self,
+        request: Request,
+        what: &'static str,
+    ) -> Result<Response, LinkError> {
         let mut attempt = 0;
         loop {
             attempt += 1;
@@ -235,9 +271,15 @@ impl Link {
     pub fn hello_as(&mut self, version: u16, schema: u32) -> Result<(), LinkError> {
         match self.request_idempotent(Request::Hello { version, schema }, "hello") {
             Ok(Response::Hello { .. }) => Ok(()),
-            Err(LinkError::Refused(_, WireError::VersionMismatch { version: device_version, schema: device_schema })) => {
-                Err(LinkError::VersionMismatch { host_version: version, host_schema: schema, device_version, device_schema })
-            }
+            Err(LinkError::Refused(
+                _,
+                WireError::VersionMismatch { version: device_version, schema: device_schema },
+            )) => Err(LinkError::VersionMismatch {
+                host_version: version,
+                host_schema: schema,
+                device_version,
+                device_schema,
+            }),
             Err(e) => Err(e),
             Ok(_) => Err(LinkError::Unexpected("hello")),
         }
@@ -279,13 +321,21 @@ impl Link {
     /// Upload a parameter blob: begin, chunks, read back and compare, commit.
     /// On any failure nothing is committed and the controller keeps its parameters.
     pub fn upload(&mut self, blob: &[u8]) -> Result<(), LinkError> {
-        self.command(Request::ParamBegin { len: blob.len() as u16, crc: BLOB_CRC.checksum(blob) }, "parameter upload")?;
+        self.command(
+            Request::ParamBegin { len: blob.len() as u16, crc: BLOB_CRC.checksum(blob) },
+            "parameter upload",
+        )?;
         for (k, chunk) in blob.chunks(PARAM_CHUNK).enumerate() {
             let data = heapless::Vec::from_slice(chunk).map_err(|_| LinkError::Unexpected("chunk"))?;
             self.command(Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data }, "parameter chunk")?;
         }
         let back = self.read_params(true, blob.len())?;
-        if let Some(i) = back.iter().zip(blob).position(|(a, b)| a != b).or((back.len() != blob.len()).then_some(back.len())) {
+        if let Some(i) = back
+            .iter()
+            .zip(blob)
+            .position(|(a, b)| a != b)
+            .or((back.len() != blob.len()).then_some(back.len()))
+        {
             return Err(LinkError::ReadBack(i));
         }
         self.command(Request::ParamCommit, "parameter commit")
@@ -295,7 +345,10 @@ impl Link {
     pub fn read_params(&mut self, pending: bool, limit: usize) -> Result<Vec<u8>, LinkError> {
         let mut out = Vec::new();
         while out.len() < limit {
-            match self.request_idempotent(Request::ParamRead { offset: out.len() as u16, pending }, "parameter read")? {
+            match self.request_idempotent(
+                Request::ParamRead { offset: out.len() as u16, pending },
+                "parameter read",
+            )? {
                 Response::ParamData { data, .. } if data.is_empty() => break,
                 Response::ParamData { data, .. } => out.extend_from_slice(&data),
                 _ => return Err(LinkError::Unexpected("parameter read")),

@@ -148,7 +148,13 @@ impl SolveArgs {
             ObjectiveArg::Distance => Objective::Distance,
             ObjectiveArg::SixDof => Objective::SixDof { lever_mm: self.lever_mm },
         };
-        CalibrationOptions { huber_delta_mm: self.huber_delta_mm, restarts: self.restarts, seed: self.seed, objective, ..CalibrationOptions::default() }
+        CalibrationOptions {
+            huber_delta_mm: self.huber_delta_mm,
+            restarts: self.restarts,
+            seed: self.seed,
+            objective,
+            ..CalibrationOptions::default()
+        }
     }
 }
 
@@ -379,15 +385,35 @@ fn simulate_to(model: &Path, out: &Path, options: &SimulationOptions) -> Result<
 }
 
 fn cmd_simulate(a: &SimulateArgs) -> Result<()> {
-    let options = SimulationOptions { seed: a.seed, perturb_deg: a.perturb_deg, perturb_mm: a.perturb_mm, seating_noise_mm: a.seating_noise_mm, encoder_noise_deg: a.encoder_noise_deg, repeats: a.repeats, hidden: a.hidden.clone() };
+    let options = SimulationOptions {
+        seed: a.seed,
+        perturb_deg: a.perturb_deg,
+        perturb_mm: a.perturb_mm,
+        seating_noise_mm: a.seating_noise_mm,
+        encoder_noise_deg: a.encoder_noise_deg,
+        repeats: a.repeats,
+        hidden: a.hidden.clone(),
+    };
     simulate_to(&a.model, &a.out, &options)
 }
 
 fn inputs(a: &InputArgs) -> RunInputs {
-    RunInputs { model: a.model.clone(), artefact: a.artefact.clone(), calibration: a.data.clone(), validation: a.validate.clone() }
+    RunInputs {
+        model: a.model.clone(),
+        artefact: a.artefact.clone(),
+        calibration: a.data.clone(),
+        validation: a.validate.clone(),
+    }
 }
 
-fn calibrate_and_report(inputs: &RunInputs, out: &Path, options: &CalibrationOptions, effects: &[Effect], study_subsets: usize, json: bool) -> Result<()> {
+fn calibrate_and_report(
+    inputs: &RunInputs,
+    out: &Path,
+    options: &CalibrationOptions,
+    effects: &[Effect],
+    study_subsets: usize,
+    json: bool,
+) -> Result<()> {
     let started = std::time::Instant::now();
     let result = run(inputs, options, effects, study_subsets)?;
     result.write(out)?;
@@ -396,12 +422,29 @@ fn calibrate_and_report(inputs: &RunInputs, out: &Path, options: &CalibrationOpt
         println!("{}", serde_json::to_string_pretty(s)?);
         return Ok(());
     }
-    println!("calibrated {} touches ({} pairs) in {:.2} s", s.calibration.touches, s.calibration.pairs, started.elapsed().as_secs_f64());
+    println!(
+        "calibrated {} touches ({} pairs) in {:.2} s",
+        s.calibration.touches,
+        s.calibration.pairs,
+        started.elapsed().as_secs_f64()
+    );
     println!("  calibration RMS            {:8.3} mm", s.calibration.rms_mm);
-    println!("  validation RMS  nominal    {:8.3} mm   (mean {:+.3}, max {:.3}, {} pairs)", s.nominal_validation.rms_mm, s.nominal_validation.mean_mm, s.nominal_validation.max_mm, s.nominal_validation.pairs);
-    println!("  validation RMS  calibrated {:8.3} mm   (mean {:+.3}, max {:.3}, {} pairs)", s.validation.rms_mm, s.validation.mean_mm, s.validation.max_mm, s.validation.pairs);
+    println!(
+        "  validation RMS  nominal    {:8.3} mm   (mean {:+.3}, max {:.3}, {} pairs)",
+        s.nominal_validation.rms_mm,
+        s.nominal_validation.mean_mm,
+        s.nominal_validation.max_mm,
+        s.nominal_validation.pairs
+    );
+    println!(
+        "  validation RMS  calibrated {:8.3} mm   (mean {:+.3}, max {:.3}, {} pairs)",
+        s.validation.rms_mm, s.validation.mean_mm, s.validation.max_mm, s.validation.pairs
+    );
     if !s.calibration.fixed_unidentifiable.is_empty() {
-        println!("  fixed at nominal, not identifiable from this data: {}", s.calibration.fixed_unidentifiable.join(", "));
+        println!(
+            "  fixed at nominal, not identifiable from this data: {}",
+            s.calibration.fixed_unidentifiable.join(", ")
+        );
     }
     for c in &s.identifiability.after.poorly_identified {
         println!("  poorly identified: {}", c.text);
@@ -429,15 +472,18 @@ fn cmd_study(a: &StudyArgs) -> Result<()> {
     if a.subsets == 0 {
         bail!("--subsets must be at least 1");
     }
-    let calibration = CalibrationOptions { restarts: a.restarts, seed: a.seed, ..CalibrationOptions::default() };
+    let calibration =
+        CalibrationOptions { restarts: a.restarts, seed: a.seed, ..CalibrationOptions::default() };
     let options = StudyOptions { subsets: a.subsets, seed: a.seed, calibration, progress: !a.json };
     let started = std::time::Instant::now();
     let rows = study(&nominal, &artefact, &cal, &val, &options);
     let elapsed = started.elapsed().as_secs_f64();
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let json = serde_json::to_string_pretty(&rows)?;
-    kincal::fsutil::write_atomic(&a.out.join("study.json"), json.as_bytes()).with_context(|| format!("writing {}", a.out.join("study.json").display()))?;
-    kincal::fsutil::write_atomic(&a.out.join("report.html"), study_report(&rows).as_bytes()).with_context(|| format!("writing {}", a.out.join("report.html").display()))?;
+    kincal::fsutil::write_atomic(&a.out.join("study.json"), json.as_bytes())
+        .with_context(|| format!("writing {}", a.out.join("study.json").display()))?;
+    kincal::fsutil::write_atomic(&a.out.join("report.html"), study_report(&rows).as_bytes())
+        .with_context(|| format!("writing {}", a.out.join("report.html").display()))?;
     if a.json {
         println!("{json}");
         return Ok(());
@@ -446,7 +492,10 @@ fn cmd_study(a: &StudyArgs) -> Result<()> {
     println!("{total} calibrations in {elapsed:.2} s on {} threads", rayon::current_num_threads());
     println!("placements  calibrations  mean mm   std mm    min mm    max mm");
     for r in &rows {
-        println!("{:>10}  {:>12}  {:7.3}  {:7.3}  {:7.3}  {:7.3}", r.placements, r.calibrations, r.mean_mm, r.std_mm, r.min_mm, r.max_mm);
+        println!(
+            "{:>10}  {:>12}  {:7.3}  {:7.3}  {:7.3}  {:7.3}",
+            r.placements, r.calibrations, r.mean_mm, r.std_mm, r.min_mm, r.max_mm
+        );
     }
     println!("report: {}", a.out.join("report.html").display());
     Ok(())
@@ -463,14 +512,25 @@ fn cmd_demo(a: &DemoArgs) -> Result<()> {
     link.hello()?;
     let info = link.info()?;
     println!("connected: {} on {}", info.firmware, info.board);
-    let options = kincal::workflow::LoopOptions { seed: a.seed, window_ticks: a.window_ticks, out: a.out.clone(), ..Default::default() };
+    let options = kincal::workflow::LoopOptions {
+        seed: a.seed,
+        window_ticks: a.window_ticks,
+        out: a.out.clone(),
+        ..Default::default()
+    };
     let report = kincal::workflow::run_loop(&mut link, &nominal, &options, &mut |step| println!("  {step}"))?;
     println!("recorded {} touches through the controller; loop took {:.0} s", report.touches, report.seconds);
     println!("validation distance RMS   nominal {:8.3} mm   calibrated {:7.3} mm   true arm on the same data {:.3} mm (noise floor)", report.nominal_validation_rms_mm, report.calibrated_validation_rms_mm, report.truth_validation_rms_mm);
     println!("streamed pose error (RMS after rigid registration, {} validation touches):", report.poses);
     println!("  nominal parameters    {:8.3} mm", report.nominal_pose_rms_mm);
-    println!("  calibrated parameters {:8.3} mm   (the host predicts {:.3} mm for this model)", report.calibrated_pose_rms_mm, report.host_calibrated_pose_rms_mm);
-    println!("  true arm's parameters {:8.3} mm   (floor: encoder noise and f32 on the controller)", report.floor_pose_rms_mm);
+    println!(
+        "  calibrated parameters {:8.3} mm   (the host predicts {:.3} mm for this model)",
+        report.calibrated_pose_rms_mm, report.host_calibrated_pose_rms_mm
+    );
+    println!(
+        "  true arm's parameters {:8.3} mm   (floor: encoder noise and f32 on the controller)",
+        report.floor_pose_rms_mm
+    );
     println!("parameter upload took {:.2} s; run: {}", report.upload_seconds, a.out.join("run").display());
     Ok(())
 }
@@ -485,7 +545,11 @@ fn cmd_info(a: &PortArgs) -> Result<()> {
     let mut link = connect(a)?;
     let info = link.info()?;
     println!("firmware   {} on {}", info.firmware, info.board);
-    println!("protocol   version {} schema {:08x}: matches this host", kincal_protocol::messages::PROTOCOL_VERSION, kincal_protocol::messages::SCHEMA_HASH);
+    println!(
+        "protocol   version {} schema {:08x}: matches this host",
+        kincal_protocol::messages::PROTOCOL_VERSION,
+        kincal_protocol::messages::SCHEMA_HASH
+    );
     if info.param_version == 0 {
         println!("parameters none stored");
     } else {
@@ -494,7 +558,15 @@ fn cmd_info(a: &PortArgs) -> Result<()> {
     println!("uptime     {} ticks ({:.1} s)", info.ticks, info.ticks as f64 / 768.0);
     println!("joint  accepted  crc-errors  error-bits  warnings  dropouts");
     for (j, h) in info.encoders.iter().enumerate() {
-        println!("{:>5}  {:>8}  {:>10}  {:>10}  {:>8}  {:>8}", j + 1, h.accepted, h.crc_errors, h.error_bits, h.warnings, h.dropouts);
+        println!(
+            "{:>5}  {:>8}  {:>10}  {:>10}  {:>8}  {:>8}",
+            j + 1,
+            h.accepted,
+            h.crc_errors,
+            h.error_bits,
+            h.warnings,
+            h.dropouts
+        );
     }
     Ok(())
 }
@@ -506,7 +578,8 @@ fn cmd_params(a: &PortArgs) -> Result<()> {
         println!("no parameters stored");
         return Ok(());
     }
-    let params = kincal_protocol::params::decode_blob(&blob).map_err(|e| anyhow::anyhow!("the stored parameter blob does not decode: {e:?}"))?;
+    let params = kincal_protocol::params::decode_blob(&blob)
+        .map_err(|e| anyhow::anyhow!("the stored parameter blob does not decode: {e:?}"))?;
     println!("{}", serde_json::to_string_pretty(&params)?);
     Ok(())
 }
@@ -530,38 +603,76 @@ fn cmd_stream(a: &StreamArgs) -> Result<()> {
     let mut link = connect(&a.port)?;
     catch_ctrl_c();
     let mut csv = match &a.csv {
-        Some(path) => Some(std::io::BufWriter::new(std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?)),
+        Some(path) => Some(std::io::BufWriter::new(
+            std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+        )),
         None => None,
     };
     use std::io::Write;
     if let Some(w) = csv.as_mut() {
-        writeln!(w, "{}", if a.pose { "seq,tick,x_mm,y_mm,z_mm,zx,zy,zz" } else { "seq,tick,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg,rejected" })?;
+        writeln!(
+            w,
+            "{}",
+            if a.pose {
+                "seq,tick,x_mm,y_mm,z_mm,zx,zy,zz"
+            } else {
+                "seq,tick,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg,rejected"
+            }
+        )?;
     }
     link.command(if a.pose { Request::StreamPose(1) } else { Request::StreamRaw(true) }, "stream")?;
     let started = std::time::Instant::now();
     let mut frames = 0u64;
     let mut last_report = started;
-    while !INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst) && a.seconds.is_none_or(|s| started.elapsed().as_secs_f64() < s) {
+    while !INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst)
+        && a.seconds.is_none_or(|s| started.elapsed().as_secs_f64() < s)
+    {
         let Some((seq, item)) = link.next_stream(std::time::Duration::from_millis(200))? else { continue };
         frames += 1;
         if let Some(w) = csv.as_mut() {
             match item {
                 Stream::Raw(r) => {
-                    let deg = kincal_protocol::messages::unpack_counts(&r.packed).map(|c| c as f64 * 360.0 / kincal_protocol::biss::COUNTS_PER_TURN as f64);
-                    writeln!(w, "{seq},{},{},{},{},{},{},{},{}", r.tick, deg[0], deg[1], deg[2], deg[3], deg[4], deg[5], r.rejected)?;
+                    let deg = kincal_protocol::messages::unpack_counts(&r.packed)
+                        .map(|c| c as f64 * 360.0 / kincal_protocol::biss::COUNTS_PER_TURN as f64);
+                    writeln!(
+                        w,
+                        "{seq},{},{},{},{},{},{},{},{}",
+                        r.tick, deg[0], deg[1], deg[2], deg[3], deg[4], deg[5], r.rejected
+                    )?;
                 }
-                Stream::Pose(p) => writeln!(w, "{seq},{},{},{},{},{},{},{}", p.tick, p.position_mm[0], p.position_mm[1], p.position_mm[2], p.z_axis[0], p.z_axis[1], p.z_axis[2])?,
+                Stream::Pose(p) => writeln!(
+                    w,
+                    "{seq},{},{},{},{},{},{},{}",
+                    p.tick,
+                    p.position_mm[0],
+                    p.position_mm[1],
+                    p.position_mm[2],
+                    p.z_axis[0],
+                    p.z_axis[1],
+                    p.z_axis[2]
+                )?,
                 Stream::Window(_) => {}
             }
         }
         if last_report.elapsed().as_secs_f64() >= 1.0 {
             last_report = std::time::Instant::now();
-            eprintln!("{:.0} frames/s, {} lost, {} corrupt", frames as f64 / started.elapsed().as_secs_f64(), link.stats.stream_gaps, link.stats.bad_frames);
+            eprintln!(
+                "{:.0} frames/s, {} lost, {} corrupt",
+                frames as f64 / started.elapsed().as_secs_f64(),
+                link.stats.stream_gaps,
+                link.stats.bad_frames
+            );
         }
     }
     let _ = link.command(Request::StreamRaw(false), "stop stream");
     let _ = link.command(Request::StreamPose(0), "stop stream");
-    println!("{frames} frames in {:.1} s ({:.1} Hz), {} lost, {} corrupt", started.elapsed().as_secs_f64(), frames as f64 / started.elapsed().as_secs_f64(), link.stats.stream_gaps, link.stats.bad_frames);
+    println!(
+        "{frames} frames in {:.1} s ({:.1} Hz), {} lost, {} corrupt",
+        started.elapsed().as_secs_f64(),
+        frames as f64 / started.elapsed().as_secs_f64(),
+        link.stats.stream_gaps,
+        link.stats.bad_frames
+    );
     Ok(())
 }
 
@@ -583,8 +694,19 @@ fn catch_ctrl_c() {
 
 fn cmd_record(a: &RecordArgs) -> Result<()> {
     let artefact = Artefact::load(&a.artefact)?;
-    let order = if a.order.is_empty() { artefact.landmarks.iter().map(|l| l.id.clone()).collect() } else { a.order.clone() };
-    let plan = kincal::record::Plan { placement: a.placement.clone(), purpose: a.purpose.clone(), order, repeats: a.repeats, window_ticks: a.window_ticks, out: a.out.clone() };
+    let order = if a.order.is_empty() {
+        artefact.landmarks.iter().map(|l| l.id.clone()).collect()
+    } else {
+        a.order.clone()
+    };
+    let plan = kincal::record::Plan {
+        placement: a.placement.clone(),
+        purpose: a.purpose.clone(),
+        order,
+        repeats: a.repeats,
+        window_ticks: a.window_ticks,
+        out: a.out.clone(),
+    };
     let mut link = connect(&a.port)?;
     let mut script;
     let mut operator = kincal::record::Operator;
@@ -596,7 +718,15 @@ fn cmd_record(a: &RecordArgs) -> Result<()> {
         None => &mut operator,
     };
     let done = kincal::record::record(&mut link, &artefact, &plan, guide)?;
-    println!("{}: {} measured now, {} resumed from disk, {} skipped, {} re-taken → {}", plan.placement, done.measured, done.resumed, done.skipped, done.retakes, plan.session_path().display());
+    println!(
+        "{}: {} measured now, {} resumed from disk, {} skipped, {} re-taken → {}",
+        plan.placement,
+        done.measured,
+        done.resumed,
+        done.skipped,
+        done.retakes,
+        plan.session_path().display()
+    );
     Ok(())
 }
 
@@ -604,9 +734,25 @@ fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
     let data = a.out.join("data");
     println!("1/2 simulate: a true arm off the nominal model by degrees and millimetres");
     simulate_to(&a.model, &data, &SimulationOptions { seed: a.seed, ..SimulationOptions::default() })?;
-    println!("2/2 calibrate on {} and validate on {}", data.join("cal").display(), data.join("val").display());
-    let inputs = RunInputs { model: a.model.clone(), artefact: data.join("artefact.json"), calibration: data.join("cal"), validation: data.join("val") };
-    calibrate_and_report(&inputs, &a.out.join("run"), &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() }, &[], 20, false)?;
+    println!(
+        "2/2 calibrate on {} and validate on {}",
+        data.join("cal").display(),
+        data.join("val").display()
+    );
+    let inputs = RunInputs {
+        model: a.model.clone(),
+        artefact: data.join("artefact.json"),
+        calibration: data.join("cal"),
+        validation: data.join("val"),
+    };
+    calibrate_and_report(
+        &inputs,
+        &a.out.join("run"),
+        &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() },
+        &[],
+        20,
+        false,
+    )?;
     let truth = ArmModel::load(&data.join("truth.toml"))?;
     let artefact = Artefact::load(&inputs.artefact)?;
     let val = Dataset::load_dir(&inputs.validation, &artefact)?;
@@ -619,12 +765,20 @@ fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
     let folder = kincal::run::RunFolder::load(&a.run)?;
     let (artefact, cal, val) = folder.data()?;
     let started = std::time::Instant::now();
-    let diagnosis = kincal::diagnose::diagnose(&folder.model, &artefact, &cal, &val, &folder.record.options.calibration_options());
+    let diagnosis = kincal::diagnose::diagnose(
+        &folder.model,
+        &artefact,
+        &cal,
+        &val,
+        &folder.record.options.calibration_options(),
+    );
     let elapsed = started.elapsed().as_secs_f64();
     let json = serde_json::to_string_pretty(&diagnosis)?;
-    kincal::fsutil::write_atomic(&a.run.join("diagnosis.json"), json.as_bytes()).with_context(|| format!("writing {}", a.run.join("diagnosis.json").display()))?;
+    kincal::fsutil::write_atomic(&a.run.join("diagnosis.json"), json.as_bytes())
+        .with_context(|| format!("writing {}", a.run.join("diagnosis.json").display()))?;
     let html = kincal::report::diagnosis_report(&diagnosis);
-    kincal::fsutil::write_atomic(&a.run.join("diagnosis.html"), html.as_bytes()).with_context(|| format!("writing {}", a.run.join("diagnosis.html").display()))?;
+    kincal::fsutil::write_atomic(&a.run.join("diagnosis.html"), html.as_bytes())
+        .with_context(|| format!("writing {}", a.run.join("diagnosis.html").display()))?;
     if a.json {
         println!("{json}");
         return Ok(());
@@ -632,12 +786,26 @@ fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
     for line in &diagnosis.summary {
         println!("{line}");
     }
-    println!("\n{} candidate effects scored in {elapsed:.2} s (held-out validation RMS, best first):", diagnosis.candidates.len());
+    println!(
+        "\n{} candidate effects scored in {elapsed:.2} s (held-out validation RMS, best first):",
+        diagnosis.candidates.len()
+    );
     println!("  {:<16} {:>10} {:>9} {:>8}  significant", "effect", "val RMS mm", "explained", "blocks");
     for c in diagnosis.candidates.iter().filter(|c| c.equivalent_to.is_none()).take(8) {
         let blocks = format!("{}/{}", c.blocks_improved.0, c.blocks_improved.1);
-        let same = if c.equivalent.is_empty() { String::new() } else { format!("  (indistinguishable here: {})", c.equivalent.join(", ")) };
-        println!("  {:<16} {:>10.3} {:>9.2} {:>8}  {}{same}", c.effect, c.validation_rms_mm, c.explained, blocks, if c.significant { "yes" } else { "no" });
+        let same = if c.equivalent.is_empty() {
+            String::new()
+        } else {
+            format!("  (indistinguishable here: {})", c.equivalent.join(", "))
+        };
+        println!(
+            "  {:<16} {:>10.3} {:>9.2} {:>8}  {}{same}",
+            c.effect,
+            c.validation_rms_mm,
+            c.explained,
+            blocks,
+            if c.significant { "yes" } else { "no" }
+        );
     }
     if !diagnosis.not_identifiable.is_empty() {
         let names: Vec<&str> = diagnosis.not_identifiable.iter().map(|n| n.effect.as_str()).collect();
@@ -652,16 +820,29 @@ fn cmd_compare(a: &CompareArgs) -> Result<()> {
     for line in comparison.table_lines() {
         println!("{line}");
     }
-    kincal::fsutil::write_atomic(&a.out, comparison.html().as_bytes()).with_context(|| format!("writing {}", a.out.display()))?;
+    kincal::fsutil::write_atomic(&a.out, comparison.html().as_bytes())
+        .with_context(|| format!("writing {}", a.out.display()))?;
     println!("side by side: {}", a.out.display());
     Ok(())
 }
 
 fn cmd_haptic_simulate(a: &HapticSimulateArgs) -> Result<()> {
-    let options = kincal::haptic::simulate::HapticSimOptions { seed: a.seed, delay_ms: a.delay_ms, quadratic_gimbals: !a.linear_gimbals, joints_seconds: a.joints_seconds, ..Default::default() };
+    let options = kincal::haptic::simulate::HapticSimOptions {
+        seed: a.seed,
+        delay_ms: a.delay_ms,
+        quadratic_gimbals: !a.linear_gimbals,
+        joints_seconds: a.joints_seconds,
+        ..Default::default()
+    };
     let (recording, _) = kincal::haptic::simulate::simulate_recording(&options);
-    kincal::haptic::simulate::write_recording(&recording, &a.out).with_context(|| format!("writing {}", a.out.display()))?;
-    println!("simulated recording (delay {} ms, {} gimbals) in {}", a.delay_ms, if a.linear_gimbals { "linear" } else { "quadratic" }, a.out.display());
+    kincal::haptic::simulate::write_recording(&recording, &a.out)
+        .with_context(|| format!("writing {}", a.out.display()))?;
+    println!(
+        "simulated recording (delay {} ms, {} gimbals) in {}",
+        a.delay_ms,
+        if a.linear_gimbals { "linear" } else { "quadratic" },
+        a.out.display()
+    );
     Ok(())
 }
 
@@ -673,16 +854,27 @@ fn cmd_haptic_calibrate(a: &HapticCalibrateArgs) -> Result<()> {
     let summary = result.summary();
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let json = serde_json::to_string_pretty(&summary)?;
-    kincal::fsutil::write_atomic(&a.out.join("summary.json"), json.as_bytes()).with_context(|| format!("writing {}", a.out.join("summary.json").display()))?;
-    kincal::fsutil::write_atomic(&a.out.join("report.html"), kincal::report::haptic_report(&summary).as_bytes()).with_context(|| format!("writing {}", a.out.join("report.html").display()))?;
+    kincal::fsutil::write_atomic(&a.out.join("summary.json"), json.as_bytes())
+        .with_context(|| format!("writing {}", a.out.join("summary.json").display()))?;
+    kincal::fsutil::write_atomic(
+        &a.out.join("report.html"),
+        kincal::report::haptic_report(&summary).as_bytes(),
+    )
+    .with_context(|| format!("writing {}", a.out.join("report.html").display()))?;
     if a.json {
         println!("{json}");
         return Ok(());
     }
     println!("calibrated in {seconds:.2} s");
     println!("  delay        {:8.2} ms (tracker behind device)", summary.delay_ms);
-    println!("  position     {:8.3} mm → {:.3} mm (RMS, {} held-out samples)", summary.position.before_mm, summary.position.after_mm, result.held_out);
-    println!("  orientation  {:8.3} °  → {:.3} °", summary.orientation.before_deg, summary.orientation.after_deg);
+    println!(
+        "  position     {:8.3} mm → {:.3} mm (RMS, {} held-out samples)",
+        summary.position.before_mm, summary.position.after_mm, result.held_out
+    );
+    println!(
+        "  orientation  {:8.3} °  → {:.3} °",
+        summary.orientation.before_deg, summary.orientation.after_deg
+    );
     println!("  gimbals      {:?} sensor model (chosen on held-out error)", summary.gimbal_model);
     println!("  report: {}", a.out.join("report.html").display());
     Ok(())

@@ -43,7 +43,13 @@ pub struct CalibrationProblem<'a> {
 
 impl<'a> CalibrationProblem<'a> {
     /// Set up the problem; parameters not in `params` keep their values in `base`.
-    pub fn new(base: &'a ArmModel, params: Vec<ParamId>, artefact: &Artefact, data: &'a Dataset, objective: Objective) -> Self {
+    pub fn new(
+        base: &'a ArmModel,
+        params: Vec<ParamId>,
+        artefact: &Artefact,
+        data: &'a Dataset,
+        objective: Objective,
+    ) -> Self {
         let pairs = data
             .touch_pairs()
             .into_iter()
@@ -57,7 +63,14 @@ impl<'a> CalibrationProblem<'a> {
             Objective::Distance => None,
             Objective::SixDof { lever_mm } => Some(lever_mm),
         };
-        CalibrationProblem { base, columns: ColumnMap::new(&params), params, touches: &data.touches, pairs, lever_mm }
+        CalibrationProblem {
+            base,
+            columns: ColumnMap::new(&params),
+            params,
+            touches: &data.touches,
+            pairs,
+            lever_mm,
+        }
     }
 
     /// The free parameters, in column order.
@@ -114,7 +127,13 @@ impl Residuals for CalibrationProblem<'_> {
 }
 
 impl CalibrationProblem<'_> {
-    fn fill(&self, poses: &[ToolPose], derivs: Option<&[PoseDerivative]>, r: &mut [f64], mut jac: Option<&mut [f64]>) {
+    fn fill(
+        &self,
+        poses: &[ToolPose],
+        derivs: Option<&[PoseDerivative]>,
+        r: &mut [f64],
+        mut jac: Option<&mut [f64]>,
+    ) {
         let n = self.params.len();
         let d_of = |touch: usize, c: usize| derivs.map(|d| &d[touch * n + c]);
         for (row, &(a, b, distance, _)) in self.pairs.iter().enumerate() {
@@ -173,15 +192,31 @@ mod tests {
         let model = ArmModel::suta_nominal();
         let artefact = Artefact {
             format: crate::data::ARTEFACT_FORMAT.into(),
-            landmarks: (0..3).map(|i| Landmark { id: format!("L{i}"), xyz_mm: [10.0 * i as f64, 5.0, 20.0], yaw_deg: 30.0 * i as f64 }).collect(),
+            landmarks: (0..3)
+                .map(|i| Landmark {
+                    id: format!("L{i}"),
+                    xyz_mm: [10.0 * i as f64, 5.0, 20.0],
+                    yaw_deg: 30.0 * i as f64,
+                })
+                .collect(),
         };
         let touch = |landmark, enc_deg| Touch { placement: 0, landmark, repeat: 1, enc_deg };
         let data = Dataset {
             placements: vec!["A".into()],
-            touches: vec![touch(0, [10.0, 200.0, 30.0, 300.0, 40.0, 120.0]), touch(1, [12.0, 205.0, 28.0, 290.0, 45.0, 100.0]), touch(2, [8.0, 190.0, 35.0, 310.0, 50.0, 80.0])],
+            touches: vec![
+                touch(0, [10.0, 200.0, 30.0, 300.0, 40.0, 120.0]),
+                touch(1, [12.0, 205.0, 28.0, 290.0, 45.0, 100.0]),
+                touch(2, [8.0, 190.0, 35.0, 310.0, 50.0, 80.0]),
+            ],
         };
         let params: Vec<ParamId> = ParamId::all();
-        let problem = CalibrationProblem::new(&model, params.clone(), &artefact, &data, Objective::SixDof { lever_mm: 100.0 });
+        let problem = CalibrationProblem::new(
+            &model,
+            params.clone(),
+            &artefact,
+            &data,
+            Objective::SixDof { lever_mm: 100.0 },
+        );
         let x: Vec<f64> = params.iter().map(|p| model.get(*p)).collect();
         let (m, n) = (problem.len(), x.len());
         let mut r = vec![0.0; m];
@@ -197,7 +232,12 @@ mod tests {
             problem.evaluate(&xm, &mut rm, None);
             for i in 0..m {
                 let fd = (rp[i] - rm[i]) / (2.0 * h);
-                assert!((jac[i * n + c] - fd).abs() < 1e-4 * (1.0 + fd.abs()), "row {i} {}: {} vs {fd}", params[c], jac[i * n + c]);
+                assert!(
+                    (jac[i * n + c] - fd).abs() < 1e-4 * (1.0 + fd.abs()),
+                    "row {i} {}: {} vs {fd}",
+                    params[c],
+                    jac[i * n + c]
+                );
             }
         }
     }

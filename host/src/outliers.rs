@@ -12,11 +12,11 @@
 
 use crate::calibrate::{calibrate, Calibration, CalibrationOptions};
 use crate::data::{Artefact, Dataset};
+use crate::geometry::absolute_orientation;
 use crate::model::ArmModel;
 use crate::objective::{CalibrationProblem, Objective};
 use crate::solver::Residuals;
 use crate::validate::{distance_errors, positions, ErrorStats};
-use crate::geometry::absolute_orientation;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -50,11 +50,13 @@ pub fn landmark_bias(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> V
     let mut sum = vec![0.0; artefact.landmarks.len()];
     let mut count = vec![0usize; artefact.landmarks.len()];
     for placement in 0..data.placements.len() {
-        let idx: Vec<usize> = (0..data.touches.len()).filter(|&k| data.touches[k].placement == placement).collect();
+        let idx: Vec<usize> =
+            (0..data.touches.len()).filter(|&k| data.touches[k].placement == placement).collect();
         if idx.len() < 3 {
             continue;
         }
-        let q: Vec<Vector3<f64>> = idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
+        let q: Vec<Vector3<f64>> =
+            idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
         let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
         let (r, t) = absolute_orientation(&q, &pm);
         for (i, &k) in idx.iter().enumerate() {
@@ -67,18 +69,27 @@ pub fn landmark_bias(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> V
 }
 
 /// Run the four metrics for every landmark touched in `cal`.
-pub fn landmark_outliers(fit: &Calibration, artefact: &Artefact, cal: &Dataset, val: Option<&Dataset>, options: &CalibrationOptions) -> Vec<LandmarkOutlier> {
+pub fn landmark_outliers(
+    fit: &Calibration,
+    artefact: &Artefact,
+    cal: &Dataset,
+    val: Option<&Dataset>,
+    options: &CalibrationOptions,
+) -> Vec<LandmarkOutlier> {
     let errors = distance_errors(&fit.model, artefact, cal);
     let total: f64 = errors.iter().map(|e| e.error_mm.powi(2)).sum::<f64>().max(1e-300);
-    let touched: Vec<usize> = (0..artefact.landmarks.len()).filter(|&l| cal.touches.iter().any(|t| t.landmark == l)).collect();
+    let touched: Vec<usize> =
+        (0..artefact.landmarks.len()).filter(|&l| cal.touches.iter().any(|t| t.landmark == l)).collect();
     let count = touched.len().max(1) as f64;
     let rms_on = |model: &ArmModel| {
         let data = val.unwrap_or(cal);
-        ErrorStats::of(&distance_errors(model, artefact, data).iter().map(|e| e.error_mm).collect::<Vec<_>>()).rms_mm
+        ErrorStats::of(&distance_errors(model, artefact, data).iter().map(|e| e.error_mm).collect::<Vec<_>>())
+            .rms_mm
     };
     let full_rms = rms_on(&fit.model).max(1e-300);
     // Cook's distance needs JᵀJ and the MSE of the full fit over the estimated parameters.
-    let problem = CalibrationProblem::new(&fit.model, fit.estimated.clone(), artefact, cal, Objective::Distance);
+    let problem =
+        CalibrationProblem::new(&fit.model, fit.estimated.clone(), artefact, cal, Objective::Distance);
     let x_hat: Vec<f64> = fit.estimated.iter().map(|&id| fit.model.get(id)).collect();
     let (m, p) = (problem.distance_rows(), x_hat.len());
     let mut r = vec![0.0; problem.len()];
@@ -93,15 +104,25 @@ pub fn landmark_outliers(fit: &Calibration, artefact: &Artefact, cal: &Dataset, 
     touched
         .par_iter()
         .map(|&l| {
-            let contribution_pct = 100.0 * errors.iter().filter(|e| e.landmarks.0 == l || e.landmarks.1 == l).map(|e| e.error_mm.powi(2)).sum::<f64>() / (2.0 * total);
-            let (cooks_distance, loo_impact_pct) = match calibrate(&warm, artefact, &cal.without_landmark(l), &refit_options) {
-                Ok(refit) => {
-                    let delta = nalgebra::DVector::from_iterator(p, fit.estimated.iter().map(|&id| refit.model.get(id) - fit.model.get(id)));
-                    let cook = delta.dot(&(&jtj * &delta)) / (p as f64 * mse.max(1e-300));
-                    (cook, 100.0 * (full_rms - rms_on(&refit.model)) / full_rms)
-                }
-                Err(_) => (f64::NAN, f64::NAN),
-            };
+            let contribution_pct = 100.0
+                * errors
+                    .iter()
+                    .filter(|e| e.landmarks.0 == l || e.landmarks.1 == l)
+                    .map(|e| e.error_mm.powi(2))
+                    .sum::<f64>()
+                / (2.0 * total);
+            let (cooks_distance, loo_impact_pct) =
+                match calibrate(&warm, artefact, &cal.without_landmark(l), &refit_options) {
+                    Ok(refit) => {
+                        let delta = nalgebra::DVector::from_iterator(
+                            p,
+                            fit.estimated.iter().map(|&id| refit.model.get(id) - fit.model.get(id)),
+                        );
+                        let cook = delta.dot(&(&jtj * &delta)) / (p as f64 * mse.max(1e-300));
+                        (cook, 100.0 * (full_rms - rms_on(&refit.model)) / full_rms)
+                    }
+                    Err(_) => (f64::NAN, f64::NAN),
+                };
             let mut exceeded = Vec::new();
             if contribution_pct > 1.5 * 100.0 / count {
                 exceeded.push("contribution");
@@ -115,7 +136,15 @@ pub fn landmark_outliers(fit: &Calibration, artefact: &Artefact, cal: &Dataset, 
             if bias[l] > BIAS_MM {
                 exceeded.push("bias");
             }
-            LandmarkOutlier { landmark: artefact.landmarks[l].id.clone(), contribution_pct, cooks_distance, loo_impact_pct, bias_mm: bias[l], flagged: exceeded.len() >= 2, exceeded }
+            LandmarkOutlier {
+                landmark: artefact.landmarks[l].id.clone(),
+                contribution_pct,
+                cooks_distance,
+                loo_impact_pct,
+                bias_mm: bias[l],
+                flagged: exceeded.len() >= 2,
+                exceeded,
+            }
         })
         .collect()
 }

@@ -153,18 +153,39 @@ pub fn to_measurement(landmark: &str, repeat: u32, w: &WindowReport) -> (Measure
         flagged: w.flagged,
     };
     let samples = w.joints.iter().map(|j| j.accepted as u32).min().unwrap_or(0);
-    (Measurement { landmark: landmark.to_string(), repeat, joints_deg, std_deg: Some(std_deg), samples: Some(samples), rejected: Some(quality.rejected) }, quality)
+    (
+        Measurement {
+            landmark: landmark.to_string(),
+            repeat,
+            joints_deg,
+            std_deg: Some(std_deg),
+            samples: Some(samples),
+            rejected: Some(quality.rejected),
+        },
+        quality,
+    )
 }
 
 /// Load the session to resume, or start an empty one.
 fn resume(plan: &Plan, artefact: &Artefact) -> Result<Session, RecordError> {
     let path = plan.session_path();
     if !path.exists() {
-        return Ok(Session { format: SESSION_FORMAT.into(), placement: plan.placement.clone(), purpose: plan.purpose.clone(), measurements: Vec::new() });
+        return Ok(Session {
+            format: SESSION_FORMAT.into(),
+            placement: plan.placement.clone(),
+            purpose: plan.purpose.clone(),
+            measurements: Vec::new(),
+        });
     }
     let session = Session::load(&path, artefact)?;
     if session.placement != plan.placement || session.purpose != plan.purpose {
-        return Err(RecordError::Mismatch { path, placement: plan.placement.clone(), purpose: plan.purpose.clone(), found_placement: session.placement, found_purpose: session.purpose });
+        return Err(RecordError::Mismatch {
+            path,
+            placement: plan.placement.clone(),
+            purpose: plan.purpose.clone(),
+            found_placement: session.placement,
+            found_purpose: session.purpose,
+        });
     }
     Ok(session)
 }
@@ -183,7 +204,12 @@ pub struct Recorded {
 }
 
 /// Run the guided sequence of `plan`, resuming what is on disk.
-pub fn record(link: &mut Link, artefact: &Artefact, plan: &Plan, guide: &mut dyn Guide) -> Result<Recorded, RecordError> {
+pub fn record(
+    link: &mut Link,
+    artefact: &Artefact,
+    plan: &Plan,
+    guide: &mut dyn Guide,
+) -> Result<Recorded, RecordError> {
     if let Some(unknown) = plan.order.iter().find(|id| artefact.index_of(id).is_none()) {
         return Err(RecordError::UnknownLandmark(unknown.clone()));
     }
@@ -258,8 +284,10 @@ fn one() -> u32 {
 impl Script {
     /// Read a script file.
     pub fn load(path: &Path) -> Result<Script, DataError> {
-        let text = std::fs::read_to_string(path).map_err(|source| DataError::Io { path: path.to_owned(), source })?;
-        serde_json::from_str(&text).map_err(|e| DataError::Syntax { path: path.to_owned(), message: e.to_string() })
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| DataError::Io { path: path.to_owned(), source })?;
+        serde_json::from_str(&text)
+            .map_err(|e| DataError::Syntax { path: path.to_owned(), message: e.to_string() })
     }
 }
 
@@ -306,7 +334,9 @@ impl WindowBar {
         let started = Instant::now();
         let thread = std::thread::spawn(move || {
             while !d.load(std::sync::atomic::Ordering::SeqCst) {
-                b.set_position(((started.elapsed().as_secs_f64() / seconds.max(1e-3)) * 100.0).min(99.0) as u64);
+                b.set_position(
+                    ((started.elapsed().as_secs_f64() / seconds.max(1e-3)) * 100.0).min(99.0) as u64
+                );
                 std::thread::sleep(Duration::from_millis(50));
             }
         });
@@ -339,16 +369,26 @@ impl Guide for Operator {
     }
 
     fn approach(&mut self, _link: &mut Link, landmark: &str, repeat: u32) -> Result<Step, RecordError> {
-        Ok(match ask(&format!("attach to {landmark} (repeat {repeat}), then Enter — s to skip, q to stop: ")).as_str() {
-            "s" => Step::Skip,
-            "q" => Step::Stop,
-            _ => Step::Measure,
-        })
+        Ok(
+            match ask(&format!("attach to {landmark} (repeat {repeat}), then Enter — s to skip, q to stop: "))
+                .as_str()
+            {
+                "s" => Step::Skip,
+                "q" => Step::Stop,
+                _ => Step::Measure,
+            },
+        )
     }
 
     fn accept(&mut self, landmark: &str, m: &Measurement, q: &Quality) -> bool {
         let angles: Vec<String> = m.joints_deg.iter().map(|a| format!("{a:.3}")).collect();
-        eprintln!("  {landmark}: [{}]°  std ≤ {:.4}°  rejected {}{}", angles.join(", "), q.worst_std_deg, q.rejected, if q.flagged { "  (flagged)" } else { "" });
+        eprintln!(
+            "  {landmark}: [{}]°  std ≤ {:.4}°  rejected {}{}",
+            angles.join(", "),
+            q.worst_std_deg,
+            q.rejected,
+            if q.flagged { "  (flagged)" } else { "" }
+        );
         if q.poor() {
             return ask("  the arm moved or the encoders were noisy: take it again? [Y/n] ") == "n";
         }

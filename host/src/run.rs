@@ -5,7 +5,9 @@
 //! distance error, for `kincal compare`) and `report.html`. The folder is written under a temporary name and renamed when complete, so a
 //! half-written RUN is never presented as done.
 
-use crate::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome};
+use crate::calibrate::{
+    calibrate, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome,
+};
 use crate::data::{Artefact, DataError, Dataset};
 use crate::effects::Effect;
 use crate::identify::{self, Identifiability};
@@ -110,7 +112,13 @@ pub struct SummaryOptions {
 impl SummaryOptions {
     /// The calibration options these record.
     pub fn calibration_options(&self) -> CalibrationOptions {
-        CalibrationOptions { huber_delta_mm: self.huber_delta_mm, restarts: self.restarts, seed: self.seed, objective: self.objective, ..CalibrationOptions::default() }
+        CalibrationOptions {
+            huber_delta_mm: self.huber_delta_mm,
+            restarts: self.restarts,
+            seed: self.seed,
+            objective: self.objective,
+            ..CalibrationOptions::default()
+        }
     }
 }
 
@@ -151,8 +159,10 @@ impl RunFolder {
     pub fn load(dir: &Path) -> Result<RunFolder, RunError> {
         let model = ArmModel::load(&dir.join("model.toml"))?;
         let path = dir.join("summary.json");
-        let text = std::fs::read_to_string(&path).map_err(|source| RunError::Output { path: path.clone(), source })?;
-        let record = serde_json::from_str(&text).map_err(|e| DataError::Syntax { path, message: e.to_string() })?;
+        let text = std::fs::read_to_string(&path)
+            .map_err(|source| RunError::Output { path: path.clone(), source })?;
+        let record =
+            serde_json::from_str(&text).map_err(|e| DataError::Syntax { path, message: e.to_string() })?;
         Ok(RunFolder { model, record })
     }
 
@@ -239,14 +249,18 @@ fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -
         problem.evaluate(&x, &mut r, Some(&mut jac));
         jac
     };
-    let (distance, six_dof) = (jacobian(Objective::Distance), jacobian(Objective::SixDof { lever_mm: 100.0 }));
-    let names = |jac: &[f64]| -> Vec<String> { identify::base_columns(jac, all.len(), &ranges).0.into_iter().map(|c| all[c].to_string()).collect() };
+    let (distance, six_dof) =
+        (jacobian(Objective::Distance), jacobian(Objective::SixDof { lever_mm: 100.0 }));
+    let names = |jac: &[f64]| -> Vec<String> {
+        identify::base_columns(jac, all.len(), &ranges).0.into_iter().map(|c| all[c].to_string()).collect()
+    };
     let (by_distance, by_six_dof) = (names(&distance), names(&six_dof));
     let gained = by_six_dof.iter().filter(|p| !by_distance.contains(p)).cloned().collect();
     let variance = fit.rms_mm.powi(2);
     let stds = |jac: &[f64]| -> Vec<Option<f64>> {
         let n = all.len();
-        let cols: Vec<usize> = fit.estimated.iter().filter_map(|id| all.iter().position(|a| a == id)).collect();
+        let cols: Vec<usize> =
+            fit.estimated.iter().filter_map(|id| all.iter().position(|a| a == id)).collect();
         let rows = jac.len() / n;
         let sub: Vec<f64> = (0..rows).flat_map(|i| cols.iter().map(move |&c| jac[i * n + c])).collect();
         match identify::covariance(&sub, &vec![1.0; rows], cols.len(), variance) {
@@ -256,15 +270,31 @@ fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -
     };
     let (sd, s6) = (stds(&distance), stds(&six_dof));
     let std = fit.estimated.iter().enumerate().map(|(k, id)| (id.to_string(), sd[k], s6[k])).collect();
-    ObjectiveComparison { identifiable_by_distance: by_distance, identifiable_by_six_dof: by_six_dof, gained_by_orientation: gained, std }
+    ObjectiveComparison {
+        identifiable_by_distance: by_distance,
+        identifiable_by_six_dof: by_six_dof,
+        gained_by_orientation: gained,
+        std,
+    }
 }
 
 /// Load the inputs, add `effects` to the model, calibrate, validate and diagnose outliers; with
 /// `study_subsets` > 0 also run the dataset-size study with that many random subsets per
 /// placement count.
-pub fn run(inputs: &RunInputs, options: &CalibrationOptions, effects: &[Effect], study_subsets: usize) -> Result<Run, RunError> {
-    let absolute = |p: &Path| std::fs::canonicalize(p).map_err(|source| RunError::Output { path: p.to_owned(), source });
-    let inputs = &RunInputs { model: absolute(&inputs.model)?, artefact: absolute(&inputs.artefact)?, calibration: absolute(&inputs.calibration)?, validation: absolute(&inputs.validation)? };
+pub fn run(
+    inputs: &RunInputs,
+    options: &CalibrationOptions,
+    effects: &[Effect],
+    study_subsets: usize,
+) -> Result<Run, RunError> {
+    let absolute =
+        |p: &Path| std::fs::canonicalize(p).map_err(|source| RunError::Output { path: p.to_owned(), source });
+    let inputs = &RunInputs {
+        model: absolute(&inputs.model)?,
+        artefact: absolute(&inputs.artefact)?,
+        calibration: absolute(&inputs.calibration)?,
+        validation: absolute(&inputs.validation)?,
+    };
     let mut nominal = ArmModel::load(&inputs.model)?;
     for effect in effects {
         effect.add_to(&mut nominal);
@@ -279,7 +309,13 @@ pub fn run(inputs: &RunInputs, options: &CalibrationOptions, effects: &[Effect],
     let summary = Summary {
         kincal_version: env!("CARGO_PKG_VERSION"),
         inputs: inputs.clone(),
-        options: SummaryOptions { huber_delta_mm: options.huber_delta_mm, restarts: options.restarts, seed: options.seed, objective: options.objective, added_effects: effects.iter().map(|e| e.to_string()).collect() },
+        options: SummaryOptions {
+            huber_delta_mm: options.huber_delta_mm,
+            restarts: options.restarts,
+            seed: options.seed,
+            objective: options.objective,
+            added_effects: effects.iter().map(|e| e.to_string()).collect(),
+        },
         calibration: CalibrationSummary {
             rms_mm: fit.rms_mm,
             cost: fit.cost,
@@ -304,10 +340,24 @@ pub fn run(inputs: &RunInputs, options: &CalibrationOptions, effects: &[Effect],
         objective_comparison: objective_comparison(&fit, &artefact, &cal),
         study: (study_subsets > 0).then(|| {
             let calibration = CalibrationOptions { restarts: 0, ..*options };
-            study(&nominal, &artefact, &cal, &val, &StudyOptions { subsets: study_subsets, seed: options.seed, calibration, progress: false })
+            study(
+                &nominal,
+                &artefact,
+                &cal,
+                &val,
+                &StudyOptions { subsets: study_subsets, seed: options.seed, calibration, progress: false },
+            )
         }),
     };
-    Ok(Run { nominal, summary, calibration: fit, validation, nominal_validation, artefact, validation_data: val })
+    Ok(Run {
+        nominal,
+        summary,
+        calibration: fit,
+        validation,
+        nominal_validation,
+        artefact,
+        validation_data: val,
+    })
 }
 
 impl Run {
@@ -334,17 +384,22 @@ impl Run {
             .iter()
             .map(|e| StoredPairError {
                 placement: val.placements[e.placement].clone(),
-                landmarks: (self.artefact.landmarks[e.landmarks.0].id.clone(), self.artefact.landmarks[e.landmarks.1].id.clone()),
+                landmarks: (
+                    self.artefact.landmarks[e.landmarks.0].id.clone(),
+                    self.artefact.landmarks[e.landmarks.1].id.clone(),
+                ),
                 repeat: val.touches[e.touches.0].repeat,
                 error_mm: e.error_mm,
                 enc_deg: (val.touches[e.touches.0].enc_deg, val.touches[e.touches.1].enc_deg),
             })
             .collect();
         let residuals = serde_json::to_string(&stored).unwrap_or_default();
-        std::fs::write(staged.join("residuals.json"), residuals).map_err(out(&staged.join("residuals.json")))?;
+        std::fs::write(staged.join("residuals.json"), residuals)
+            .map_err(out(&staged.join("residuals.json")))?;
         let json = serde_json::to_string_pretty(&self.summary).unwrap_or_default();
         std::fs::write(staged.join("summary.json"), json).map_err(out(&staged.join("summary.json")))?;
-        std::fs::write(staged.join("report.html"), crate::report::calibration_report(self)).map_err(out(&staged.join("report.html")))?;
+        std::fs::write(staged.join("report.html"), crate::report::calibration_report(self))
+            .map_err(out(&staged.join("report.html")))?;
         crate::fsutil::replace_dir(&staged, dir).map_err(out(dir))
     }
 }

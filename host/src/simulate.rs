@@ -37,7 +37,15 @@ pub struct SimulationOptions {
 
 impl Default for SimulationOptions {
     fn default() -> Self {
-        SimulationOptions { seed: 1, perturb_deg: 2.0, perturb_mm: 2.0, seating_noise_mm: 0.1, encoder_noise_deg: 0.003, repeats: 3, hidden: Vec::new() }
+        SimulationOptions {
+            seed: 1,
+            perturb_deg: 2.0,
+            perturb_mm: 2.0,
+            seating_noise_mm: 0.1,
+            encoder_noise_deg: 0.003,
+            repeats: 3,
+            hidden: Vec::new(),
+        }
     }
 }
 
@@ -117,11 +125,17 @@ pub fn suta_artefact(rng: &mut ChaCha8Rng) -> Artefact {
 /// Plain homogeneous-matrix forward kinematics of `model` (the independent path), with the
 /// eccentricity and gravity-compliance effects written out again from their definitions.
 /// Returns the tool frame and the frame origins after each joint.
-pub fn reference_tool_frame(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> (Matrix4<f64>, [Vector3<f64>; JOINTS]) {
+pub fn reference_tool_frame(
+    model: &ArmModel,
+    enc_deg: &[f64; JOINTS],
+) -> (Matrix4<f64>, [Vector3<f64>; JOINTS]) {
     let rigid: [f64; JOINTS] = std::array::from_fn(|j| {
         let row = &model.joints[j];
         let phi = enc_deg[j].to_radians();
-        let harmonics = row.eccentricity_sin_deg * phi.sin() + row.eccentricity_cos_deg * phi.cos() + row.eccentricity2_sin_deg * (2.0 * phi).sin() + row.eccentricity2_cos_deg * (2.0 * phi).cos();
+        let harmonics = row.eccentricity_sin_deg * phi.sin()
+            + row.eccentricity_cos_deg * phi.cos()
+            + row.eccentricity2_sin_deg * (2.0 * phi).sin()
+            + row.eccentricity2_cos_deg * (2.0 * phi).cos();
         enc_deg[j] + row.offset_deg + harmonics
     });
     let (frames, axes) = frames_at(model, &rigid);
@@ -153,12 +167,23 @@ pub fn reference_tool_frame(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> (Matri
 /// A joint axis: a point on it and its direction.
 type AxisLine = (Vector3<f64>, Vector3<f64>);
 
-fn frames_at(model: &ArmModel, theta_deg: &[f64; JOINTS]) -> ([Matrix4<f64>; JOINTS + 1], [AxisLine; JOINTS]) {
-    let rz = |t: f64| Matrix4::new(t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.);
-    let rx = |t: f64| Matrix4::new(1., 0., 0., 0., 0., t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1.);
-    let ry = |t: f64| Matrix4::new(t.cos(), 0., t.sin(), 0., 0., 1., 0., 0., -t.sin(), 0., t.cos(), 0., 0., 0., 0., 1.);
-    let tr = |x: f64, y: f64, z: f64| Matrix4::new(1., 0., 0., x, 0., 1., 0., y, 0., 0., 1., z, 0., 0., 0., 1.);
-    let axis_of = |m: &Matrix4<f64>| (m.fixed_view::<3, 1>(0, 3).into_owned(), m.fixed_view::<3, 1>(0, 2).into_owned());
+fn frames_at(
+    model: &ArmModel,
+    theta_deg: &[f64; JOINTS],
+) -> ([Matrix4<f64>; JOINTS + 1], [AxisLine; JOINTS]) {
+    let rz = |t: f64| {
+        Matrix4::new(t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.)
+    };
+    let rx = |t: f64| {
+        Matrix4::new(1., 0., 0., 0., 0., t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1.)
+    };
+    let ry = |t: f64| {
+        Matrix4::new(t.cos(), 0., t.sin(), 0., 0., 1., 0., 0., -t.sin(), 0., t.cos(), 0., 0., 0., 0., 1.)
+    };
+    let tr =
+        |x: f64, y: f64, z: f64| Matrix4::new(1., 0., 0., x, 0., 1., 0., y, 0., 0., 1., z, 0., 0., 0., 1.);
+    let axis_of =
+        |m: &Matrix4<f64>| (m.fixed_view::<3, 1>(0, 3).into_owned(), m.fixed_view::<3, 1>(0, 2).into_owned());
     let mut t = Matrix4::identity();
     let mut frames = [Matrix4::identity(); JOINTS + 1];
     let mut axes = [(Vector3::zeros(), Vector3::z()); JOINTS];
@@ -265,19 +290,43 @@ pub fn perturbed_truth(nominal: &ArmModel, options: &SimulationOptions, rng: &mu
 
 /// Encoder angles (degrees) at which the true arm seats its tool on `landmark` at `place`, with
 /// seating noise `noise_mm` added to the tip; `None` when unreachable.
-pub fn touch_encoders(truth: &ArmModel, place: &Placement, landmark: &Landmark, noise_mm: Vector3<f64>, rng: &mut ChaCha8Rng) -> Option<[f64; JOINTS]> {
+pub fn touch_encoders(
+    truth: &ArmModel,
+    place: &Placement,
+    landmark: &Landmark,
+    noise_mm: Vector3<f64>,
+    rng: &mut ChaCha8Rng,
+) -> Option<[f64; JOINTS]> {
     let (sy, cy) = place.yaw_deg.to_radians().sin_cos();
     let [x, y, z] = landmark.xyz_mm;
-    let position_mm = Vector3::new(place.origin_mm[0] + cy * x - sy * y, place.origin_mm[1] + sy * x + cy * y, place.origin_mm[2] + z) + noise_mm;
+    let position_mm = Vector3::new(
+        place.origin_mm[0] + cy * x - sy * y,
+        place.origin_mm[1] + sy * x + cy * y,
+        place.origin_mm[2] + z,
+    ) + noise_mm;
     let yaw = (place.yaw_deg + landmark.yaw_deg).to_radians();
-    let target = PoseTarget { model: truth, position_mm, z_axis: -Vector3::z(), x_axis: Vector3::new(yaw.cos(), yaw.sin(), 0.0) };
+    let target = PoseTarget {
+        model: truth,
+        position_mm,
+        z_axis: -Vector3::z(),
+        x_axis: Vector3::new(yaw.cos(), yaw.sin(), 0.0),
+    };
     solve_touch(truth, &target, rng)
 }
 
 /// Record every landmark of `artefact` at `place` with the true arm, `repeats` times.
-pub fn record_placement(truth: &ArmModel, artefact: &Artefact, place: &Placement, purpose: &str, options: &SimulationOptions, rng: &mut ChaCha8Rng) -> (Session, usize) {
-    let seat = Normal::new(0.0, options.seating_noise_mm.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
-    let enc_noise = Normal::new(0.0, options.encoder_noise_deg.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
+pub fn record_placement(
+    truth: &ArmModel,
+    artefact: &Artefact,
+    place: &Placement,
+    purpose: &str,
+    options: &SimulationOptions,
+    rng: &mut ChaCha8Rng,
+) -> (Session, usize) {
+    let seat = Normal::new(0.0, options.seating_noise_mm.max(0.0))
+        .unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
+    let enc_noise = Normal::new(0.0, options.encoder_noise_deg.max(0.0))
+        .unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
     let mut measurements = Vec::new();
     let mut skipped = 0;
     for repeat in 1..=options.repeats {
@@ -288,10 +337,25 @@ pub fn record_placement(truth: &ArmModel, artefact: &Artefact, place: &Placement
                 continue;
             };
             let joints_deg = enc.iter().map(|v| (v + enc_noise.sample(rng)).rem_euclid(360.0)).collect();
-            measurements.push(Measurement { landmark: l.id.clone(), repeat, joints_deg, std_deg: Some(vec![options.encoder_noise_deg * 39.2; JOINTS]), samples: Some(1536), rejected: Some(0) });
+            measurements.push(Measurement {
+                landmark: l.id.clone(),
+                repeat,
+                joints_deg,
+                std_deg: Some(vec![options.encoder_noise_deg * 39.2; JOINTS]),
+                samples: Some(1536),
+                rejected: Some(0),
+            });
         }
     }
-    (Session { format: SESSION_FORMAT.into(), placement: place.name.clone(), purpose: purpose.into(), measurements }, skipped)
+    (
+        Session {
+            format: SESSION_FORMAT.into(),
+            placement: place.name.clone(),
+            purpose: purpose.into(),
+            measurements,
+        },
+        skipped,
+    )
 }
 
 /// Simulate a full dataset from `nominal`: truth, artefact, calibration and validation sessions.
@@ -301,7 +365,11 @@ pub fn simulate(nominal: &ArmModel, options: &SimulationOptions) -> SimulatedDat
 
 /// As [`simulate`], with `alter` applied to the perturbed truth (after the hidden effects)
 /// before any touch is made.
-pub fn simulate_with_truth(nominal: &ArmModel, options: &SimulationOptions, alter: impl FnOnce(ArmModel) -> ArmModel) -> SimulatedData {
+pub fn simulate_with_truth(
+    nominal: &ArmModel,
+    options: &SimulationOptions,
+    alter: impl FnOnce(ArmModel) -> ArmModel,
+) -> SimulatedData {
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let mut truth = perturbed_truth(nominal, options, &mut rng);
     for (id, delta) in &options.hidden {
@@ -374,18 +442,25 @@ mod tests {
     #[test]
     fn touches_land_on_their_landmarks() {
         let nominal = ArmModel::suta_nominal();
-        let options = SimulationOptions { seating_noise_mm: 0.0, encoder_noise_deg: 0.0, repeats: 1, ..SimulationOptions::default() };
+        let options = SimulationOptions {
+            seating_noise_mm: 0.0,
+            encoder_noise_deg: 0.0,
+            repeats: 1,
+            ..SimulationOptions::default()
+        };
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let truth = perturbed_truth(&nominal, &options, &mut rng);
         let artefact = suta_artefact(&mut rng);
         let place = &calibration_placements()[0];
-        let (session, skipped) = record_placement(&truth, &artefact, place, "calibration", &options, &mut rng);
+        let (session, skipped) =
+            record_placement(&truth, &artefact, place, "calibration", &options, &mut rng);
         assert!(skipped <= 2, "{skipped} of 15 touches unreachable");
         for m in &session.measurements {
             let l = &artefact.landmarks[artefact.index_of(&m.landmark).unwrap()];
             let enc: [f64; 6] = std::array::from_fn(|k| m.joints_deg[k]);
             let (t, _) = reference_tool_frame(&truth, &enc);
-            let expect = Vector3::new(place.origin_mm[0] + l.xyz_mm[0], place.origin_mm[1] + l.xyz_mm[1], l.xyz_mm[2]);
+            let expect =
+                Vector3::new(place.origin_mm[0] + l.xyz_mm[0], place.origin_mm[1] + l.xyz_mm[1], l.xyz_mm[2]);
             assert!((t.fixed_view::<3, 1>(0, 3) - expect).norm() < 1e-5, "{}", m.landmark);
             assert!((t[(2, 2)] + 1.0).abs() < 1e-9, "tool axis must point down");
         }

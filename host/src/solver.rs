@@ -107,7 +107,12 @@ pub struct Solution {
 }
 
 /// Normal matrix JᵀWJ and gradient JᵀWr of a row-major Jacobian with per-row weights.
-pub fn normal_equations(jacobian: &[f64], r: &[f64], weights: &[f64], n: usize) -> (DMatrix<f64>, DVector<f64>) {
+pub fn normal_equations(
+    jacobian: &[f64],
+    r: &[f64],
+    weights: &[f64],
+    n: usize,
+) -> (DMatrix<f64>, DVector<f64>) {
     let mut h = DMatrix::zeros(n, n);
     let mut g = DVector::zeros(n);
     for (i, row) in jacobian.chunks_exact(n).enumerate() {
@@ -132,7 +137,13 @@ pub fn normal_equations(jacobian: &[f64], r: &[f64], weights: &[f64], n: usize) 
 }
 
 /// Minimise Σρ(r(x)) over lower ≤ x ≤ upper from `x0` (clamped into the bounds first).
-pub fn solve(problem: &dyn Residuals, x0: &[f64], lower: &[f64], upper: &[f64], options: &SolverOptions) -> Solution {
+pub fn solve(
+    problem: &dyn Residuals,
+    x0: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    options: &SolverOptions,
+) -> Solution {
     let n = x0.len();
     let m = problem.len();
     let loss = options.loss;
@@ -284,14 +295,20 @@ mod tests {
 
     #[test]
     fn huber_loss_resists_an_outlier() {
-        let mut pts: Vec<(f64, f64)> = (0..20).map(|i| (i as f64, 1.0 + 0.5 * i as f64 + 0.01 * ((i * 7 % 5) as f64 - 2.0))).collect();
+        let mut pts: Vec<(f64, f64)> =
+            (0..20).map(|i| (i as f64, 1.0 + 0.5 * i as f64 + 0.01 * ((i * 7 % 5) as f64 - 2.0))).collect();
         pts[10].1 += 50.0;
         let line = Line(pts);
         let opts = |loss| SolverOptions { loss, ..SolverOptions::default() };
         let plain = solve(&line, &[0.0, 0.0], &[-1e3; 2], &[1e3; 2], &opts(Loss::Linear));
         let huber = solve(&line, &[0.0, 0.0], &[-1e3; 2], &[1e3; 2], &opts(Loss::Huber(0.1)));
         assert!((huber.x[1] - 0.5).abs() < 0.01, "huber slope {}", huber.x[1]);
-        assert!((plain.x[0] - 1.0).abs() > (huber.x[0] - 1.0).abs() * 5.0, "plain {:?} huber {:?}", plain.x, huber.x);
+        assert!(
+            (plain.x[0] - 1.0).abs() > (huber.x[0] - 1.0).abs() * 5.0,
+            "plain {:?} huber {:?}",
+            plain.x,
+            huber.x
+        );
         assert!((Loss::Huber(1.35).rho(3.0) - (1.35 * 3.0 - 0.5 * 1.35 * 1.35)).abs() < 1e-12);
     }
 }

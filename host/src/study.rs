@@ -47,7 +47,13 @@ pub struct StudyRow {
 }
 
 /// Run the study. Uses every core rayon is given.
-pub fn study(nominal: &ArmModel, artefact: &Artefact, cal: &Dataset, val: &Dataset, options: &StudyOptions) -> Vec<StudyRow> {
+pub fn study(
+    nominal: &ArmModel,
+    artefact: &Artefact,
+    cal: &Dataset,
+    val: &Dataset,
+    options: &StudyOptions,
+) -> Vec<StudyRow> {
     let n = cal.placements.len();
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let mut tasks = Vec::new();
@@ -61,16 +67,20 @@ pub fn study(nominal: &ArmModel, artefact: &Artefact, cal: &Dataset, val: &Datas
         }
     }
     let bar = if options.progress { ProgressBar::new(tasks.len() as u64) } else { ProgressBar::hidden() };
-    if let Ok(style) = ProgressStyle::with_template("{bar:40} {pos}/{len} calibrations, {elapsed} elapsed, ETA {eta}") {
+    if let Ok(style) =
+        ProgressStyle::with_template("{bar:40} {pos}/{len} calibrations, {elapsed} elapsed, ETA {eta}")
+    {
         bar.set_style(style);
     }
     let results: Vec<(usize, Option<f64>)> = tasks
         .par_iter()
         .map(|(k, subset)| {
-            let rms = calibrate(nominal, artefact, &cal.subset(subset), &options.calibration).ok().map(|fit| {
-                let e: Vec<f64> = distance_errors(&fit.model, artefact, val).iter().map(|e| e.error_mm).collect();
-                ErrorStats::of(&e).rms_mm
-            });
+            let rms =
+                calibrate(nominal, artefact, &cal.subset(subset), &options.calibration).ok().map(|fit| {
+                    let e: Vec<f64> =
+                        distance_errors(&fit.model, artefact, val).iter().map(|e| e.error_mm).collect();
+                    ErrorStats::of(&e).rms_mm
+                });
             bar.inc(1);
             (*k, rms)
         })
@@ -84,7 +94,16 @@ pub fn study(nominal: &ArmModel, artefact: &Artefact, cal: &Dataset, val: &Datas
             let mean = rms_mm.iter().sum::<f64>() / count;
             let std = (rms_mm.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / count).sqrt();
             let (min, max) = rms_mm.iter().fold((f64::INFINITY, 0.0_f64), |(a, b), v| (a.min(*v), b.max(*v)));
-            StudyRow { placements: k, calibrations: rms_mm.len(), failed, mean_mm: mean, std_mm: std, min_mm: min, max_mm: max, rms_mm }
+            StudyRow {
+                placements: k,
+                calibrations: rms_mm.len(),
+                failed,
+                mean_mm: mean,
+                std_mm: std,
+                min_mm: min,
+                max_mm: max,
+                rms_mm,
+            }
         })
         .collect()
 }
@@ -97,8 +116,21 @@ pub fn study_report(rows: &[StudyRow]) -> String {
 /// The study's table and box plot as an HTML fragment.
 pub fn study_body(rows: &[StudyRow]) -> String {
     use crate::report::table;
-    let cells: Vec<Vec<String>> = rows.iter().map(|r| vec![r.placements.to_string(), r.calibrations.to_string(), format!("{:.3}", r.mean_mm), format!("{:.3}", r.std_mm), format!("{:.3}", r.min_mm), format!("{:.3}", r.max_mm)]).collect();
-    let groups: Vec<(String, Vec<f64>)> = rows.iter().map(|r| (r.placements.to_string(), r.rms_mm.clone())).collect();
+    let cells: Vec<Vec<String>> = rows
+        .iter()
+        .map(|r| {
+            vec![
+                r.placements.to_string(),
+                r.calibrations.to_string(),
+                format!("{:.3}", r.mean_mm),
+                format!("{:.3}", r.std_mm),
+                format!("{:.3}", r.min_mm),
+                format!("{:.3}", r.max_mm),
+            ]
+        })
+        .collect();
+    let groups: Vec<(String, Vec<f64>)> =
+        rows.iter().map(|r| (r.placements.to_string(), r.rms_mm.clone())).collect();
     format!(
         "<p>Validation RMS of calibrations on random subsets of the calibration placements.</p>{}{}",
         table(&["placements", "calibrations", "mean mm", "std mm", "min mm", "max mm"], &cells),

@@ -27,25 +27,64 @@ impl Frame {
         12.0 + (self.y.1 - y) / (self.y.1 - self.y.0) * (self.height - self.bottom - 12.0)
     }
     fn open(&self, out: &mut String, x_label: &str, y_label: &str, x_ticks: bool) {
-        let _ = write!(out, r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11">"#, w = self.width, h = self.height);
+        let _ = write!(
+            out,
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11">"#,
+            w = self.width,
+            h = self.height
+        );
         let (x0, x1, y0, y1) = (self.px(self.x.0), self.px(self.x.1), self.py(self.y.0), self.py(self.y.1));
-        let _ = write!(out, r##"<rect x="{x0}" y="{y1}" width="{}" height="{}" fill="none" stroke="#888"/>"##, x1 - x0, y0 - y1);
+        let _ = write!(
+            out,
+            r##"<rect x="{x0}" y="{y1}" width="{}" height="{}" fill="none" stroke="#888"/>"##,
+            x1 - x0,
+            y0 - y1
+        );
         for k in 0..=4 {
             let v = self.y.0 + (self.y.1 - self.y.0) * k as f64 / 4.0;
             let y = self.py(v);
-            let _ = write!(out, r##"<line x1="{x0}" x2="{x1}" y1="{y}" y2="{y}" stroke="#eee"/><text x="{}" y="{}" text-anchor="end">{}</text>"##, x0 - 4.0, y + 4.0, tick(v));
+            let _ = write!(
+                out,
+                r##"<line x1="{x0}" x2="{x1}" y1="{y}" y2="{y}" stroke="#eee"/><text x="{}" y="{}" text-anchor="end">{}</text>"##,
+                x0 - 4.0,
+                y + 4.0,
+                tick(v)
+            );
             if x_ticks {
                 let u = self.x.0 + (self.x.1 - self.x.0) * k as f64 / 4.0;
-                let _ = write!(out, r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#, self.px(u), y0 + 14.0, tick(u));
+                let _ = write!(
+                    out,
+                    r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
+                    self.px(u),
+                    y0 + 14.0,
+                    tick(u)
+                );
             }
         }
-        let _ = write!(out, r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#, (x0 + x1) / 2.0, self.height - 4.0, escape(x_label));
-        let _ = write!(out, r#"<text transform="translate(12,{}) rotate(-90)" text-anchor="middle">{}</text>"#, (y0 + y1) / 2.0, escape(y_label));
+        let _ = write!(
+            out,
+            r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
+            (x0 + x1) / 2.0,
+            self.height - 4.0,
+            escape(x_label)
+        );
+        let _ = write!(
+            out,
+            r#"<text transform="translate(12,{}) rotate(-90)" text-anchor="middle">{}</text>"#,
+            (y0 + y1) / 2.0,
+            escape(y_label)
+        );
     }
 }
 
 fn tick(v: f64) -> String {
-    if v.abs() >= 100.0 { format!("{v:.0}") } else if v.abs() >= 1.0 { format!("{v:.2}") } else { format!("{v:.3}") }
+    if v.abs() >= 100.0 {
+        format!("{v:.0}")
+    } else if v.abs() >= 1.0 {
+        format!("{v:.2}")
+    } else {
+        format!("{v:.3}")
+    }
 }
 
 /// Escape text for HTML/SVG.
@@ -57,12 +96,22 @@ fn legend(out: &mut String, frame: &Frame, names: &[&str]) {
     for (k, name) in names.iter().enumerate() {
         let x = frame.width - 170.0;
         let y = 22.0 + 16.0 * k as f64;
-        let _ = write!(out, r#"<rect x="{x}" y="{}" width="10" height="10" fill="{}"/><text x="{}" y="{}">{}</text>"#, y - 9.0, COLORS[k % COLORS.len()], x + 14.0, y, escape(name));
+        let _ = write!(
+            out,
+            r#"<rect x="{x}" y="{}" width="10" height="10" fill="{}"/><text x="{}" y="{}">{}</text>"#,
+            y - 9.0,
+            COLORS[k % COLORS.len()],
+            x + 14.0,
+            y,
+            escape(name)
+        );
     }
 }
 
 fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
-    values.filter(|v| v.is_finite()).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)))
+    values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)))
 }
 
 /// Overlaid histograms of several series over a common range.
@@ -89,7 +138,14 @@ pub fn histogram(series: &[(&str, &[f64])], bins: usize, x_label: &str) -> Strin
     for (k, c) in counts.iter().enumerate() {
         for (b, &n) in c.iter().enumerate() {
             let (x0, x1) = (frame.px(lo + width * b as f64), frame.px(lo + width * (b + 1) as f64));
-            let _ = write!(out, r#"<rect x="{x0}" y="{}" width="{}" height="{}" fill="{}" fill-opacity="0.55"/>"#, frame.py(n as f64), (x1 - x0).max(0.5), frame.py(0.0) - frame.py(n as f64), COLORS[k % COLORS.len()]);
+            let _ = write!(
+                out,
+                r#"<rect x="{x0}" y="{}" width="{}" height="{}" fill="{}" fill-opacity="0.55"/>"#,
+                frame.py(n as f64),
+                (x1 - x0).max(0.5),
+                frame.py(0.0) - frame.py(n as f64),
+                COLORS[k % COLORS.len()]
+            );
         }
     }
     legend(&mut out, &frame, &series.iter().map(|s| s.0).collect::<Vec<_>>());
@@ -108,9 +164,21 @@ pub fn bars(categories: &[String], series: &[(&str, Vec<f64>)], y_label: &str) -
         for (k, (_, values)) in series.iter().enumerate() {
             let v = values.get(i).copied().unwrap_or(0.0);
             let x = frame.px(i as f64) + group * 0.1 + bar * k as f64;
-            let _ = write!(out, r#"<rect x="{x}" y="{}" width="{bar}" height="{}" fill="{}"/>"#, frame.py(v), frame.py(0.0) - frame.py(v), COLORS[k % COLORS.len()]);
+            let _ = write!(
+                out,
+                r#"<rect x="{x}" y="{}" width="{bar}" height="{}" fill="{}"/>"#,
+                frame.py(v),
+                frame.py(0.0) - frame.py(v),
+                COLORS[k % COLORS.len()]
+            );
         }
-        let _ = write!(out, r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#, frame.px(i as f64 + 0.5), frame.py(0.0) + 14.0, escape(name));
+        let _ = write!(
+            out,
+            r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
+            frame.px(i as f64 + 0.5),
+            frame.py(0.0) + 14.0,
+            escape(name)
+        );
     }
     legend(&mut out, &frame, &series.iter().map(|s| s.0).collect::<Vec<_>>());
     out + "</svg>"
@@ -127,11 +195,23 @@ pub fn scatter(points: &[(f64, f64)], curve: &[(f64, f64)], x_label: &str, y_lab
     let mut out = String::new();
     frame.open(&mut out, x_label, y_label, true);
     for (x, y) in points {
-        let _ = write!(out, r#"<circle cx="{:.1}" cy="{:.1}" r="1.6" fill="{}" fill-opacity="0.5"/>"#, frame.px(*x), frame.py(*y), COLORS[1]);
+        let _ = write!(
+            out,
+            r#"<circle cx="{:.1}" cy="{:.1}" r="1.6" fill="{}" fill-opacity="0.5"/>"#,
+            frame.px(*x),
+            frame.py(*y),
+            COLORS[1]
+        );
     }
     if curve.len() > 1 {
-        let path: Vec<String> = curve.iter().map(|(x, y)| format!("{:.1},{:.1}", frame.px(*x), frame.py(*y))).collect();
-        let _ = write!(out, r#"<polyline points="{}" fill="none" stroke="{}" stroke-width="2"/>"#, path.join(" "), COLORS[0]);
+        let path: Vec<String> =
+            curve.iter().map(|(x, y)| format!("{:.1},{:.1}", frame.px(*x), frame.py(*y))).collect();
+        let _ = write!(
+            out,
+            r#"<polyline points="{}" fill="none" stroke="{}" stroke-width="2"/>"#,
+            path.join(" "),
+            COLORS[0]
+        );
     }
     out + "</svg>"
 }
@@ -153,10 +233,34 @@ pub fn boxplot(groups: &[(String, Vec<f64>)], y_label: &str) -> String {
         v.sort_by(f64::total_cmp);
         let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
         let (cx, w) = (frame.px(i as f64 + 0.5), (frame.px(1.0) - frame.px(0.0)) * 0.3);
-        let _ = write!(out, r##"<line x1="{cx}" x2="{cx}" y1="{}" y2="{}" stroke="#333"/>"##, frame.py(q(0.0)), frame.py(q(1.0)));
-        let _ = write!(out, r##"<rect x="{}" y="{}" width="{}" height="{}" fill="{}" stroke="#333"/>"##, cx - w / 2.0, frame.py(q(0.75)), w, (frame.py(q(0.25)) - frame.py(q(0.75))).max(0.5), COLORS[1]);
-        let _ = write!(out, r##"<line x1="{}" x2="{}" y1="{m}" y2="{m}" stroke="#fff" stroke-width="2"/>"##, cx - w / 2.0, cx + w / 2.0, m = frame.py(q(0.5)));
-        let _ = write!(out, r#"<text x="{cx}" y="{}" text-anchor="middle">{}</text>"#, frame.py(frame.y.0) + 14.0, escape(name));
+        let _ = write!(
+            out,
+            r##"<line x1="{cx}" x2="{cx}" y1="{}" y2="{}" stroke="#333"/>"##,
+            frame.py(q(0.0)),
+            frame.py(q(1.0))
+        );
+        let _ = write!(
+            out,
+            r##"<rect x="{}" y="{}" width="{}" height="{}" fill="{}" stroke="#333"/>"##,
+            cx - w / 2.0,
+            frame.py(q(0.75)),
+            w,
+            (frame.py(q(0.25)) - frame.py(q(0.75))).max(0.5),
+            COLORS[1]
+        );
+        let _ = write!(
+            out,
+            r##"<line x1="{}" x2="{}" y1="{m}" y2="{m}" stroke="#fff" stroke-width="2"/>"##,
+            cx - w / 2.0,
+            cx + w / 2.0,
+            m = frame.py(q(0.5))
+        );
+        let _ = write!(
+            out,
+            r#"<text x="{cx}" y="{}" text-anchor="middle">{}</text>"#,
+            frame.py(frame.y.0) + 14.0,
+            escape(name)
+        );
     }
     out + "</svg>"
 }
@@ -170,15 +274,37 @@ pub fn hammer_map(points: &[(f64, f64, f64)], label: &str) -> String {
         let d = (1.0 + lat.cos() * (lon / 2.0).cos()).sqrt().max(1e-9);
         let x = 2.0 * 2f64.sqrt() * lat.cos() * (lon / 2.0).sin() / d;
         let y = 2f64.sqrt() * lat.sin() / d;
-        (w / 2.0 + x * (w / 2.0 - 20.0) / (2.0 * 2f64.sqrt()), h / 2.0 - 10.0 - y * (h / 2.0 - 30.0) / 2f64.sqrt())
+        (
+            w / 2.0 + x * (w / 2.0 - 20.0) / (2.0 * 2f64.sqrt()),
+            h / 2.0 - 10.0 - y * (h / 2.0 - 30.0) / 2f64.sqrt(),
+        )
     };
     let mut out = String::new();
-    let _ = write!(out, r##"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11"><ellipse cx="{}" cy="{}" rx="{}" ry="{}" fill="#f8f8f8" stroke="#888"/>"##, w / 2.0, h / 2.0 - 10.0, w / 2.0 - 20.0, h / 2.0 - 30.0);
+    let _ = write!(
+        out,
+        r##"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="11"><ellipse cx="{}" cy="{}" rx="{}" ry="{}" fill="#f8f8f8" stroke="#888"/>"##,
+        w / 2.0,
+        h / 2.0 - 10.0,
+        w / 2.0 - 20.0,
+        h / 2.0 - 30.0
+    );
     for &(lon, lat, v) in points {
         let (x, y) = project(lon, lat);
         let f = (v / top).clamp(0.0, 1.0);
-        let _ = write!(out, r#"<circle cx="{x:.1}" cy="{y:.1}" r="2.2" fill="rgb({},{},{})"/>"#, (255.0 * f) as u8, 60, (255.0 * (1.0 - f)) as u8);
+        let _ = write!(
+            out,
+            r#"<circle cx="{x:.1}" cy="{y:.1}" r="2.2" fill="rgb({},{},{})"/>"#,
+            (255.0 * f) as u8,
+            60,
+            (255.0 * (1.0 - f)) as u8
+        );
     }
-    let _ = write!(out, r#"<text x="10" y="{}">{} — blue 0, red {:.3}</text></svg>"#, h - 6.0, escape(label), top);
+    let _ = write!(
+        out,
+        r#"<text x="10" y="{}">{} — blue 0, red {:.3}</text></svg>"#,
+        h - 6.0,
+        escape(label),
+        top
+    );
     out
 }

@@ -118,7 +118,11 @@ pub fn validate(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Valida
         .iter()
         .enumerate()
         .map(|(i, l)| {
-            let e: Vec<f64> = errors.iter().filter(|e| e.landmarks.0 == i || e.landmarks.1 == i).map(|e| e.error_mm).collect();
+            let e: Vec<f64> = errors
+                .iter()
+                .filter(|e| e.landmarks.0 == i || e.landmarks.1 == i)
+                .map(|e| e.error_mm)
+                .collect();
             GroupStats { name: l.id.clone(), stats: ErrorStats::of(&e) }
         })
         .filter(|g| g.stats.pairs > 0)
@@ -132,7 +136,13 @@ pub fn validate(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Valida
             GroupStats { name: name.clone(), stats: ErrorStats::of(&e) }
         })
         .collect();
-    Validation { overall: ErrorStats::of(&all), per_landmark, per_placement, repeatability: repeatability(model, artefact, data), errors }
+    Validation {
+        overall: ErrorStats::of(&all),
+        per_landmark,
+        per_placement,
+        repeatability: repeatability(model, artefact, data),
+        errors,
+    }
 }
 
 /// Repeatability per landmark from touches repeated within one placement.
@@ -142,7 +152,9 @@ pub fn repeatability(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> V
     for (i, l) in artefact.landmarks.iter().enumerate() {
         let mut spreads = Vec::new();
         for placement in 0..data.placements.len() {
-            let idx: Vec<usize> = (0..data.touches.len()).filter(|&k| data.touches[k].landmark == i && data.touches[k].placement == placement).collect();
+            let idx: Vec<usize> = (0..data.touches.len())
+                .filter(|&k| data.touches[k].landmark == i && data.touches[k].placement == placement)
+                .collect();
             if idx.len() < 2 {
                 continue;
             }
@@ -156,7 +168,12 @@ pub fn repeatability(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> V
         let mean = spreads.iter().sum::<f64>() / n;
         let std = (spreads.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
         let rms = (spreads.iter().map(|s| s * s).sum::<f64>() / n).sqrt();
-        out.push(Repeatability { landmark: l.id.clone(), touches: spreads.len(), rms_mm: rms, rp_mm: mean + 3.0 * std });
+        out.push(Repeatability {
+            landmark: l.id.clone(),
+            touches: spreads.len(),
+            rms_mm: rms,
+            rp_mm: mean + 3.0 * std,
+        });
     }
     out
 }

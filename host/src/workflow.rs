@@ -10,12 +10,15 @@
 
 use crate::calibrate::CalibrationOptions;
 use crate::data::Artefact;
+use crate::geometry::absolute_orientation;
 use crate::link::{Link, LinkError};
 use crate::model::ArmModel;
-use crate::geometry::absolute_orientation;
 use crate::record::{record, Guide, Plan, Quality, RecordError, Step};
 use crate::run::{run, RunError, RunInputs};
-use crate::simulate::{calibration_placements, perturbed_truth, reference_tool_frame, suta_artefact, touch_encoders, validation_placements, Placement, SimulationOptions};
+use crate::simulate::{
+    calibration_placements, perturbed_truth, reference_tool_frame, suta_artefact, touch_encoders,
+    validation_placements, Placement, SimulationOptions,
+};
 use kincal_protocol::biss::COUNTS_PER_TURN;
 use kincal_protocol::messages::{Request, Stream};
 use nalgebra::Vector3;
@@ -46,7 +49,15 @@ pub struct LoopOptions {
 
 impl Default for LoopOptions {
     fn default() -> Self {
-        LoopOptions { seed: 1, window_ticks: 96, repeats: 3, seating_noise_mm: 0.1, encoder_noise_counts: 3, calibration_placements: 5, out: PathBuf::from("runs/loop") }
+        LoopOptions {
+            seed: 1,
+            window_ticks: 96,
+            repeats: 3,
+            seating_noise_mm: 0.1,
+            encoder_noise_counts: 3,
+            calibration_placements: 5,
+            out: PathBuf::from("runs/loop"),
+        }
     }
 }
 
@@ -115,9 +126,14 @@ struct PosingGuide<'a> {
 
 impl Guide for PosingGuide<'_> {
     fn approach(&mut self, link: &mut Link, landmark: &str, _repeat: u32) -> Result<Step, RecordError> {
-        let Some(l) = self.artefact.landmarks.iter().find(|l| l.id == landmark) else { return Ok(Step::Skip) };
-        let noise = Vector3::new(self.seat.sample(self.rng), self.seat.sample(self.rng), self.seat.sample(self.rng));
-        let Some(enc) = touch_encoders(self.truth, &self.place, l, noise, self.rng) else { return Ok(Step::Skip) };
+        let Some(l) = self.artefact.landmarks.iter().find(|l| l.id == landmark) else {
+            return Ok(Step::Skip);
+        };
+        let noise =
+            Vector3::new(self.seat.sample(self.rng), self.seat.sample(self.rng), self.seat.sample(self.rng));
+        let Some(enc) = touch_encoders(self.truth, &self.place, l, noise, self.rng) else {
+            return Ok(Step::Skip);
+        };
         link.command(Request::SimSetPose { counts: counts_of(&enc) }, "emulated pose")?;
         Ok(Step::Measure)
     }
@@ -155,7 +171,12 @@ fn registered_rms(measured: &[Vector3<f64>], truth: &[Vector3<f64>]) -> f64 {
 }
 
 /// Run the loop on `link` (greeted) with `nominal` as the model to calibrate.
-pub fn run_loop(link: &mut Link, nominal: &ArmModel, options: &LoopOptions, progress: &mut dyn FnMut(&str)) -> Result<LoopReport, LoopError> {
+pub fn run_loop(
+    link: &mut Link,
+    nominal: &ArmModel,
+    options: &LoopOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<LoopReport, LoopError> {
     let started = Instant::now();
     let files = |e: &dyn std::fmt::Display| LoopError::Files(e.to_string());
     let sim = SimulationOptions { seed: options.seed, ..SimulationOptions::default() };
@@ -167,23 +188,57 @@ pub fn run_loop(link: &mut Link, nominal: &ArmModel, options: &LoopOptions, prog
     artefact.save(&data.join("artefact.json")).map_err(|e| files(&e))?;
     truth.save(&data.join("truth.toml")).map_err(|e| files(&e))?;
     nominal.save(&data.join("nominal.toml")).map_err(|e| files(&e))?;
-    link.command(Request::SimFaults { noise_counts: options.encoder_noise_counts, crc_errors_per_10k: 0, dropouts_per_10k: 0, error_bits_per_10k: 0, warnings_per_10k: 0 }, "encoder noise")?;
+    link.command(
+        Request::SimFaults {
+            noise_counts: options.encoder_noise_counts,
+            crc_errors_per_10k: 0,
+            dropouts_per_10k: 0,
+            error_bits_per_10k: 0,
+            warnings_per_10k: 0,
+        },
+        "encoder noise",
+    )?;
     let seat = Normal::new(0.0, options.seating_noise_mm.max(0.0)).map_err(|e| files(&e))?;
     let order: Vec<String> = artefact.landmarks.iter().map(|l| l.id.clone()).collect();
     let mut touches = 0;
-    let groups = [("calibration", "cal", calibration_placements().into_iter().take(options.calibration_placements).collect::<Vec<_>>()), ("validation", "val", validation_placements())];
+    let groups = [
+        (
+            "calibration",
+            "cal",
+            calibration_placements().into_iter().take(options.calibration_placements).collect::<Vec<_>>(),
+        ),
+        ("validation", "val", validation_placements()),
+    ];
     for (purpose, folder, places) in groups {
         for place in places {
-            progress(&format!("recording {purpose} placement {} ({} landmarks × {} repeats)", place.name, order.len(), options.repeats));
-            let plan = Plan { placement: place.name.clone(), purpose: purpose.into(), order: order.clone(), repeats: options.repeats, window_ticks: options.window_ticks, out: data.join(folder) };
+            progress(&format!(
+                "recording {purpose} placement {} ({} landmarks × {} repeats)",
+                place.name,
+                order.len(),
+                options.repeats
+            ));
+            let plan = Plan {
+                placement: place.name.clone(),
+                purpose: purpose.into(),
+                order: order.clone(),
+                repeats: options.repeats,
+                window_ticks: options.window_ticks,
+                out: data.join(folder),
+            };
             let mut guide = PosingGuide { truth: &truth, artefact: &artefact, place, rng: &mut rng, seat };
             let done = record(link, &artefact, &plan, &mut guide)?;
             touches += done.measured + done.resumed;
         }
     }
     progress("calibrating");
-    let inputs = RunInputs { model: data.join("nominal.toml"), artefact: data.join("artefact.json"), calibration: data.join("cal"), validation: data.join("val") };
-    let result = run(&inputs, &CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() }, &[], 0)?;
+    let inputs = RunInputs {
+        model: data.join("nominal.toml"),
+        artefact: data.join("artefact.json"),
+        calibration: data.join("cal"),
+        validation: data.join("val"),
+    };
+    let result =
+        run(&inputs, &CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() }, &[], 0)?;
     result.write(&options.out.join("run"))?;
     // Pose check at one noise-free touch of every landmark of every validation placement.
     let mut check_counts = Vec::new();
@@ -194,20 +249,32 @@ pub fn run_loop(link: &mut Link, nominal: &ArmModel, options: &LoopOptions, prog
             }
         }
     }
-    let truth_points: Vec<Vector3<f64>> = check_counts.iter().map(|c| reference_tool_frame(&truth, &degrees_of(c)).0.fixed_view::<3, 1>(0, 3).into_owned()).collect();
-    let mut pose_rms = |model: &ArmModel, version: u32, label: &str, link: &mut Link| -> Result<(f64, f64), LoopError> {
-        progress(&format!("uploading the {label} parameters and streaming the pose at {} validation touches", check_counts.len()));
-        let t = Instant::now();
-        link.upload(&crate::device::parameter_blob(model, version))?;
-        let upload = t.elapsed().as_secs_f64();
-        let points = check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;
-        Ok((registered_rms(&points, &truth_points), upload))
-    };
+    let truth_points: Vec<Vector3<f64>> = check_counts
+        .iter()
+        .map(|c| reference_tool_frame(&truth, &degrees_of(c)).0.fixed_view::<3, 1>(0, 3).into_owned())
+        .collect();
+    let mut pose_rms =
+        |model: &ArmModel, version: u32, label: &str, link: &mut Link| -> Result<(f64, f64), LoopError> {
+            progress(&format!(
+                "uploading the {label} parameters and streaming the pose at {} validation touches",
+                check_counts.len()
+            ));
+            let t = Instant::now();
+            link.upload(&crate::device::parameter_blob(model, version))?;
+            let upload = t.elapsed().as_secs_f64();
+            let points =
+                check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;
+            Ok((registered_rms(&points, &truth_points), upload))
+        };
     let (nominal_pose, _) = pose_rms(nominal, 1, "nominal", link)?;
     let (floor_pose, _) = pose_rms(&truth, 3, "true arm's", link)?;
     let (calibrated_pose, upload_seconds) = pose_rms(&result.calibration.model, 2, "calibrated", link)?;
-    let host_points: Vec<Vector3<f64>> = check_counts.iter().map(|c| crate::model::kinematics::tool_pose(&result.calibration.model, &degrees_of(c)).position_mm).collect();
-    let truth_validation = crate::validate::validate(&truth, &artefact, &result.validation_data).overall.rms_mm;
+    let host_points: Vec<Vector3<f64>> = check_counts
+        .iter()
+        .map(|c| crate::model::kinematics::tool_pose(&result.calibration.model, &degrees_of(c)).position_mm)
+        .collect();
+    let truth_validation =
+        crate::validate::validate(&truth, &artefact, &result.validation_data).overall.rms_mm;
     Ok(LoopReport {
         truth_validation_rms_mm: truth_validation,
         host_calibrated_pose_rms_mm: registered_rms(&host_points, &truth_points),

@@ -19,15 +19,39 @@ fn scratch(name: &str) -> PathBuf {
 }
 
 fn simulate_into(dir: &Path) {
-    let out = kincal(&["simulate", "--model", example_model().to_str().unwrap(), "--out", dir.to_str().unwrap(), "--seed", "4", "--repeats", "1"]);
+    let out = kincal(&[
+        "simulate",
+        "--model",
+        example_model().to_str().unwrap(),
+        "--out",
+        dir.to_str().unwrap(),
+        "--seed",
+        "4",
+        "--repeats",
+        "1",
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 }
 
 fn calibrate_args<'a>(data: &'a str, run: &'a str, model: &'a str) -> Vec<String> {
-    ["calibrate", "--model", model, "--artefact", &format!("{data}/artefact.json"), "--data", &format!("{data}/cal"), "--validate", &format!("{data}/val"), "--out", run, "--restarts", "1"]
-        .iter()
-        .map(|s| s.to_string())
-        .collect()
+    [
+        "calibrate",
+        "--model",
+        model,
+        "--artefact",
+        &format!("{data}/artefact.json"),
+        "--data",
+        &format!("{data}/cal"),
+        "--validate",
+        &format!("{data}/val"),
+        "--out",
+        run,
+        "--restarts",
+        "1",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect()
 }
 
 #[test]
@@ -42,13 +66,21 @@ fn calibrate_writes_a_run_whose_model_loads_again() {
     let out = Command::new(env!("CARGO_BIN_EXE_kincal")).args(&args).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let printed: serde_json::Value = serde_json::from_slice(&out.stdout).expect("--json prints summary.json");
-    let stored: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
+    let stored: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
     assert_eq!(printed, stored);
     for key in ["rms_mm", "mean_mm", "std_mm", "max_mm", "pairs"] {
-        assert!(stored["validation"][key].is_number() && stored["nominal_validation"][key].is_number(), "{key}");
+        assert!(
+            stored["validation"][key].is_number() && stored["nominal_validation"][key].is_number(),
+            "{key}"
+        );
     }
-    assert!(stored["calibration"]["rms_mm"].as_f64().unwrap() < stored["nominal_validation"]["rms_mm"].as_f64().unwrap());
-    let calibrated = kincal::model::ArmModel::load(&run.join("model.toml")).expect("calibrated model loads again");
+    assert!(
+        stored["calibration"]["rms_mm"].as_f64().unwrap()
+            < stored["nominal_validation"]["rms_mm"].as_f64().unwrap()
+    );
+    let calibrated =
+        kincal::model::ArmModel::load(&run.join("model.toml")).expect("calibrated model loads again");
     assert_eq!(calibrated.free.len(), kincal::model::ArmModel::load(&model).unwrap().free.len());
     let html = std::fs::read_to_string(run.join("report.html")).unwrap();
     assert!(html.contains("<svg") && html.contains("Outlier diagnostics"));
@@ -71,7 +103,11 @@ fn bad_input_names_file_and_field_and_leaves_no_run() {
     let cases: Vec<(&str, String, &str)> = vec![
         ("malformed JSON", good[..good.len() / 2].to_string(), "A_O.json"),
         ("wrong format tag", good.replacen("suta-session/1", "suta-session/7", 1), "`format`"),
-        ("unknown landmark", good.replacen("\"landmark\": \"O\"", "\"landmark\": \"Q7\"", 1), "measurements[0].landmark"),
+        (
+            "unknown landmark",
+            good.replacen("\"landmark\": \"O\"", "\"landmark\": \"Q7\"", 1),
+            "measurements[0].landmark",
+        ),
         ("NaN", good.replacen(&first_angle, "NaN", 1), "A_O.json"),
         ("wrong joint count", five_joints.to_string(), "measurements[0].joints_deg"),
     ];
@@ -84,7 +120,10 @@ fn bad_input_names_file_and_field_and_leaves_no_run() {
         let out = Command::new(env!("CARGO_BIN_EXE_kincal")).args(&args).output().unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(1), "{what}: {stderr}");
-        assert!(stderr.contains("A_O.json") && stderr.contains(expect), "{what}: `{stderr}` should name {expect}");
+        assert!(
+            stderr.contains("A_O.json") && stderr.contains(expect),
+            "{what}: `{stderr}` should name {expect}"
+        );
         assert!(!stderr.contains("panicked"), "{what}: {stderr}");
         assert!(!run.exists(), "{what}: no RUN folder may be left behind");
     }
@@ -92,11 +131,39 @@ fn bad_input_names_file_and_field_and_leaves_no_run() {
     // An empty calibration folder.
     let empty = dir.join("empty");
     std::fs::create_dir_all(&empty).unwrap();
-    let out = kincal(&["calibrate", "--model", model.to_str().unwrap(), "--artefact", data.join("artefact.json").to_str().unwrap(), "--data", empty.to_str().unwrap(), "--validate", data.join("val").to_str().unwrap(), "--out", dir.join("run").to_str().unwrap()]);
+    let out = kincal(&[
+        "calibrate",
+        "--model",
+        model.to_str().unwrap(),
+        "--artefact",
+        data.join("artefact.json").to_str().unwrap(),
+        "--data",
+        empty.to_str().unwrap(),
+        "--validate",
+        data.join("val").to_str().unwrap(),
+        "--out",
+        dir.join("run").to_str().unwrap(),
+    ]);
     assert_eq!(out.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("no session files"), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("no session files"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     // A missing model file.
-    let out = kincal(&["calibrate", "--model", "/nonexistent/model.toml", "--artefact", "a", "--data", "b", "--validate", "c", "--out", "d"]);
+    let out = kincal(&[
+        "calibrate",
+        "--model",
+        "/nonexistent/model.toml",
+        "--artefact",
+        "a",
+        "--data",
+        "b",
+        "--validate",
+        "c",
+        "--out",
+        "d",
+    ]);
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("/nonexistent/model.toml"));
     std::fs::remove_dir_all(&dir).ok();
@@ -107,7 +174,19 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     let dir = scratch("loop");
     let data = dir.join("data");
     let model = example_model();
-    let out = kincal(&["simulate", "--model", model.to_str().unwrap(), "--out", data.to_str().unwrap(), "--seed", "5", "--hidden", "eccentricity_sin:5=0.2", "--hidden", "eccentricity_cos:5=-0.1"]);
+    let out = kincal(&[
+        "simulate",
+        "--model",
+        model.to_str().unwrap(),
+        "--out",
+        data.to_str().unwrap(),
+        "--seed",
+        "5",
+        "--hidden",
+        "eccentricity_sin:5=0.2",
+        "--hidden",
+        "eccentricity_cos:5=-0.1",
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let (before, after) = (dir.join("before"), dir.join("after"));
     let base = calibrate_args(data.to_str().unwrap(), before.to_str().unwrap(), model.to_str().unwrap());
@@ -127,13 +206,23 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     with.extend(["--add".to_string(), "eccentricity:5".to_string()]);
     assert!(Command::new(env!("CARGO_BIN_EXE_kincal")).args(&with).status().unwrap().success());
     let calibrated = kincal::model::ArmModel::load(&after.join("model.toml")).unwrap();
-    assert!(kincal::effects::Effect::parse("eccentricity:5").unwrap().is_in(&calibrated), "the added effect is saved with the model");
+    assert!(
+        kincal::effects::Effect::parse("eccentricity:5").unwrap().is_in(&calibrated),
+        "the added effect is saved with the model"
+    );
     let page = dir.join("compare.html");
-    let out = kincal(&["compare", before.to_str().unwrap(), after.to_str().unwrap(), "--out", page.to_str().unwrap()]);
+    let out = kincal(&[
+        "compare",
+        before.to_str().unwrap(),
+        after.to_str().unwrap(),
+        "--out",
+        page.to_str().unwrap(),
+    ]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success() && text.contains("rms_mm") && text.contains("eccentricity:5"), "{text}");
     let rms = |run: &Path| -> f64 {
-        let s: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
+        let s: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
         s["validation"]["rms_mm"].as_f64().unwrap()
     };
     assert!(rms(&after) < 0.6 * rms(&before), "{} → {}", rms(&before), rms(&after));
@@ -153,15 +242,31 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
 fn haptic_simulate_and_calibrate_write_the_summary_and_refuse_bad_recordings() {
     let dir = scratch("haptic");
     let rec = dir.join("rec");
-    let out = kincal(&["haptic", "simulate", "--out", rec.to_str().unwrap(), "--delay-ms", "17", "--joints-seconds", "30"]);
+    let out = kincal(&[
+        "haptic",
+        "simulate",
+        "--out",
+        rec.to_str().unwrap(),
+        "--delay-ms",
+        "17",
+        "--joints-seconds",
+        "30",
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let run = dir.join("run");
-    let out = kincal(&["haptic", "calibrate", rec.to_str().unwrap(), "--out", run.to_str().unwrap(), "--json"]);
+    let out =
+        kincal(&["haptic", "calibrate", rec.to_str().unwrap(), "--out", run.to_str().unwrap(), "--json"]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!((s["delay_ms"].as_f64().unwrap() - 17.0).abs() < 0.25, "{}", s["delay_ms"]);
-    assert!(s["position"]["after_mm"].as_f64().unwrap() < 0.3 && s["position"]["before_mm"].as_f64().unwrap() > 3.0);
-    assert!(s["orientation"]["after_deg"].as_f64().unwrap() < 0.15 && s["orientation"]["before_deg"].as_f64().unwrap() > 1.0);
+    assert!(
+        s["position"]["after_mm"].as_f64().unwrap() < 0.3
+            && s["position"]["before_mm"].as_f64().unwrap() > 3.0
+    );
+    assert!(
+        s["orientation"]["after_deg"].as_f64().unwrap() < 0.15
+            && s["orientation"]["before_deg"].as_f64().unwrap() > 1.0
+    );
     assert_eq!(s["gimbal_model"], "quadratic");
     assert!(std::fs::read_to_string(run.join("report.html")).unwrap().contains("Hammer"));
     // A stream with a time going backwards is named by file and line; nothing panics.

@@ -12,19 +12,73 @@ fn size<T: serde::Serialize>(m: &T) -> usize {
 
 fn main() {
     let stream = |item| DeviceFrame::Stream { seq: u16::MAX, item };
-    let joint = JointWindow { mean_counts: 4_194_303.999, std_counts: 123.4, min_counts: -100_000, max_counts: 100_000, accepted: 4096, rejected: 4096 };
-    let health = EncoderHealth { accepted: u32::MAX, crc_errors: u32::MAX, error_bits: u32::MAX, warnings: u32::MAX, dropouts: u32::MAX };
-    let info = Info { firmware: heapless::String::try_from("kincal-fw 0.1.0").unwrap_or_default(), board: heapless::String::try_from("mps2-an386 (emulated)").unwrap_or_default(), param_version: u32::MAX, param_crc: u32::MAX, ticks: u32::MAX, encoders: [health; JOINTS] };
+    let joint = JointWindow {
+        mean_counts: 4_194_303.999,
+        std_counts: 123.4,
+        min_counts: -100_000,
+        max_counts: 100_000,
+        accepted: 4096,
+        rejected: 4096,
+    };
+    let health = EncoderHealth {
+        accepted: u32::MAX,
+        crc_errors: u32::MAX,
+        error_bits: u32::MAX,
+        warnings: u32::MAX,
+        dropouts: u32::MAX,
+    };
+    let info = Info {
+        firmware: heapless::String::try_from("kincal-fw 0.1.0").unwrap_or_default(),
+        board: heapless::String::try_from("mps2-an386 (emulated)").unwrap_or_default(),
+        param_version: u32::MAX,
+        param_crc: u32::MAX,
+        ticks: u32::MAX,
+        encoders: [health; JOINTS],
+    };
     let rows = [
-        ("raw sample (stream)", size(&stream(Stream::Raw(RawSample { tick: u16::MAX, packed: [0xFF; 17], rejected: 0x3F })))),
-        ("pose (stream)", size(&stream(Stream::Pose(PoseReport { tick: u16::MAX, position_mm: [1e3; 3], z_axis: [1.0; 3], x_axis: [1.0; 3] })))),
-        ("window (stream)", size(&stream(Stream::Window(WindowReport { ticks: 4096, joints: [joint; JOINTS], flagged: true })))),
-        ("info (response)", size(&DeviceFrame::Response { seq: u16::MAX, response: Ok(Response::Info(info)) })),
-        ("parameter chunk (request)", size(&HostFrame { seq: u16::MAX, request: Request::ParamChunk { offset: 1000, data: heapless::Vec::from_slice(&[0xFF; PARAM_CHUNK]).unwrap_or_default() } })),
+        (
+            "raw sample (stream)",
+            size(&stream(Stream::Raw(RawSample { tick: u16::MAX, packed: [0xFF; 17], rejected: 0x3F }))),
+        ),
+        (
+            "pose (stream)",
+            size(&stream(Stream::Pose(PoseReport {
+                tick: u16::MAX,
+                position_mm: [1e3; 3],
+                z_axis: [1.0; 3],
+                x_axis: [1.0; 3],
+            }))),
+        ),
+        (
+            "window (stream)",
+            size(&stream(Stream::Window(WindowReport {
+                ticks: 4096,
+                joints: [joint; JOINTS],
+                flagged: true,
+            }))),
+        ),
+        (
+            "info (response)",
+            size(&DeviceFrame::Response { seq: u16::MAX, response: Ok(Response::Info(info)) }),
+        ),
+        (
+            "parameter chunk (request)",
+            size(&HostFrame {
+                seq: u16::MAX,
+                request: Request::ParamChunk {
+                    offset: 1000,
+                    data: heapless::Vec::from_slice(&[0xFF; PARAM_CHUNK]).unwrap_or_default(),
+                },
+            }),
+        ),
     ];
     for (name, n) in rows {
         println!("{name:<28} {n:4} B");
     }
     let raw = rows[0].1;
-    println!("raw stream at 768 Hz: {} B/s = {:.0} % of a 460800-baud link (10 bits per byte)", raw * 768, raw as f64 * 768.0 * 10.0 / 460_800.0 * 100.0);
+    println!(
+        "raw stream at 768 Hz: {} B/s = {:.0} % of a 460800-baud link (10 bits per byte)",
+        raw * 768,
+        raw as f64 * 768.0 * 10.0 / 460_800.0 * 100.0
+    );
 }

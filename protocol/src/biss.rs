@@ -16,7 +16,16 @@ pub const FRAME_BITS: u32 = 2 + POSITION_BITS + 2 + 6;
 pub const MAX_ACK_BITS: u32 = 8;
 
 /// The BiSS-C CRC-6 (see the module doc).
-pub const CRC6_BISS: crc::Algorithm<u8> = crc::Algorithm { width: 6, poly: 0x03, init: 0x00, refin: false, refout: false, xorout: 0x3F, check: 0x2E, residue: 0x02 };
+pub const CRC6_BISS: crc::Algorithm<u8> = crc::Algorithm {
+    width: 6,
+    poly: 0x03,
+    init: 0x00,
+    refin: false,
+    refout: false,
+    xorout: 0x3F,
+    check: 0x2E,
+    residue: 0x02,
+};
 
 const CRC6: crc::Crc<u8> = crc::Crc::<u8>::new(&CRC6_BISS);
 
@@ -66,7 +75,8 @@ pub enum BissError {
 
 /// Build the frame an encoder sends, with `ack_bits` ACK clocks before the start bit.
 pub fn encode(position_counts: u32, error: bool, warning: bool, ack_bits: u32) -> Frame {
-    let data24 = ((position_counts & (COUNTS_PER_TURN - 1)) << 2) | ((!error as u32) << 1) | (!warning as u32);
+    let data24 =
+        ((position_counts & (COUNTS_PER_TURN - 1)) << 2) | ((!error as u32) << 1) | (!warning as u32);
     let crc = crc6(data24) as u64;
     let body = (0b10u64 << 30) | ((data24 as u64) << 6) | crc;
     Frame { bits: body, len: FRAME_BITS + ack_bits.min(MAX_ACK_BITS) }

@@ -44,7 +44,11 @@ pub fn encode<'a, T: Serialize>(message: &T, out: &'a mut [u8; MAX_FRAME]) -> Re
 /// these per second. The bytes are exactly those of [`encode`] for
 /// `DeviceFrame::Stream { seq, item: Stream::Raw(sample) }` (postcard: variant indices and
 /// integers as varints, arrays and `u8` as raw bytes) — a test holds the two paths together.
-pub fn encode_raw_sample<'a>(seq: u16, sample: &crate::messages::RawSample, out: &'a mut [u8; MAX_FRAME]) -> &'a [u8] {
+pub fn encode_raw_sample<'a>(
+    seq: u16,
+    sample: &crate::messages::RawSample,
+    out: &'a mut [u8; MAX_FRAME],
+) -> &'a [u8] {
     fn varint(mut v: u16, buf: &mut [u8], at: &mut usize) {
         loop {
             let byte = (v & 0x7F) as u8;
@@ -97,7 +101,10 @@ fn cobs_short(src: &[u8], dst: &mut [u8]) -> usize {
 
 /// Encode a frame from the controller, raw samples by [`encode_raw_sample`], the rest by
 /// [`encode`].
-pub fn encode_device_frame<'a>(frame: &crate::messages::DeviceFrame, out: &'a mut [u8; MAX_FRAME]) -> Result<&'a [u8], FrameError> {
+pub fn encode_device_frame<'a>(
+    frame: &crate::messages::DeviceFrame,
+    out: &'a mut [u8; MAX_FRAME],
+) -> Result<&'a [u8], FrameError> {
     use crate::messages::{DeviceFrame, Stream};
     match frame {
         DeviceFrame::Stream { seq, item: Stream::Raw(sample) } => Ok(encode_raw_sample(*seq, sample, out)),
@@ -169,9 +176,23 @@ mod tests {
     use rand::{RngExt, SeedableRng};
 
     fn samples() -> Vec<DeviceFrame> {
-        let window = JointWindow { mean_counts: 4_194_303.75, std_counts: 1.5, min_counts: -3, max_counts: 4, accepted: 1530, rejected: 6 };
+        let window = JointWindow {
+            mean_counts: 4_194_303.75,
+            std_counts: 1.5,
+            min_counts: -3,
+            max_counts: 4,
+            accepted: 1530,
+            rejected: 6,
+        };
         let health = EncoderHealth { accepted: 10, crc_errors: 1, error_bits: 2, warnings: 3, dropouts: 4 };
-        let info = Info { firmware: heapless::String::try_from("kincal-fw 0.1.0").unwrap(), board: heapless::String::try_from("mps2-an386").unwrap(), param_version: 3, param_crc: 0xDEAD_BEEF, ticks: 99, encoders: [health; JOINTS] };
+        let info = Info {
+            firmware: heapless::String::try_from("kincal-fw 0.1.0").unwrap(),
+            board: heapless::String::try_from("mps2-an386").unwrap(),
+            param_version: 3,
+            param_crc: 0xDEAD_BEEF,
+            ticks: 99,
+            encoders: [health; JOINTS],
+        };
         let chunk = heapless::Vec::from_slice(&[1, 2, 0, 0, 255]).unwrap();
         let responses = [
             Ok(Response::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }),
@@ -181,13 +202,28 @@ mod tests {
             Err(WireError::VersionMismatch { version: 9, schema: 1 }),
             Err(WireError::ParamInvalid),
         ];
-        let mut out: Vec<DeviceFrame> = responses.into_iter().enumerate().map(|(i, response)| DeviceFrame::Response { seq: i as u16, response }).collect();
+        let mut out: Vec<DeviceFrame> = responses
+            .into_iter()
+            .enumerate()
+            .map(|(i, response)| DeviceFrame::Response { seq: i as u16, response })
+            .collect();
         let streams = [
-            Stream::Raw(RawSample { tick: 65535, packed: pack_counts(&[0, 1, 2, 0x3F_FFFF, 5, 6]), rejected: 0b10_0001 }),
+            Stream::Raw(RawSample {
+                tick: 65535,
+                packed: pack_counts(&[0, 1, 2, 0x3F_FFFF, 5, 6]),
+                rejected: 0b10_0001,
+            }),
             Stream::Window(WindowReport { ticks: 1536, joints: [window; JOINTS], flagged: true }),
-            Stream::Pose(PoseReport { tick: 7, position_mm: [512.5, 12.5, 40.0], z_axis: [0.0, 0.0, -1.0], x_axis: [1.0, 0.0, 0.0] }),
+            Stream::Pose(PoseReport {
+                tick: 7,
+                position_mm: [512.5, 12.5, 40.0],
+                z_axis: [0.0, 0.0, -1.0],
+                x_axis: [1.0, 0.0, 0.0],
+            }),
         ];
-        out.extend(streams.into_iter().enumerate().map(|(i, item)| DeviceFrame::Stream { seq: i as u16, item }));
+        out.extend(
+            streams.into_iter().enumerate().map(|(i, item)| DeviceFrame::Stream { seq: i as u16, item }),
+        );
         out
     }
 
@@ -205,7 +241,13 @@ mod tests {
             Request::ParamCommit,
             Request::Reset,
             Request::SimSetPose { counts: [1, 2, 3, 4, 5, 0x3F_FFFF] },
-            Request::SimFaults { noise_counts: 3, crc_errors_per_10k: 100, dropouts_per_10k: 5, error_bits_per_10k: 1, warnings_per_10k: 2 },
+            Request::SimFaults {
+                noise_counts: 3,
+                crc_errors_per_10k: 100,
+                dropouts_per_10k: 5,
+                error_bits_per_10k: 1,
+                warnings_per_10k: 2,
+            },
         ]
         .into_iter()
         .enumerate()
@@ -243,7 +285,11 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         for _ in 0..20_000 {
             let seq: u16 = rng.random();
-            let sample = RawSample { tick: rng.random(), packed: core::array::from_fn(|_| rng.random()), rejected: rng.random_range(0..64) };
+            let sample = RawSample {
+                tick: rng.random(),
+                packed: core::array::from_fn(|_| rng.random()),
+                rejected: rng.random_range(0..64),
+            };
             let (mut a, mut b) = ([0u8; MAX_FRAME], [0u8; MAX_FRAME]);
             let generic = encode(&DeviceFrame::Stream { seq, item: Stream::Raw(sample) }, &mut a).unwrap();
             assert_eq!(encode_raw_sample(seq, &sample, &mut b), generic);
@@ -252,14 +298,30 @@ mod tests {
 
     #[test]
     fn the_largest_info_response_encodes() {
-        let health = EncoderHealth { accepted: u32::MAX, crc_errors: u32::MAX, error_bits: u32::MAX, warnings: u32::MAX, dropouts: u32::MAX };
-        let info = Info { firmware: heapless::String::try_from("x".repeat(24).as_str()).unwrap(), board: heapless::String::try_from("y".repeat(24).as_str()).unwrap(), param_version: u32::MAX, param_crc: u32::MAX, ticks: u32::MAX, encoders: [health; JOINTS] };
+        let health = EncoderHealth {
+            accepted: u32::MAX,
+            crc_errors: u32::MAX,
+            error_bits: u32::MAX,
+            warnings: u32::MAX,
+            dropouts: u32::MAX,
+        };
+        let info = Info {
+            firmware: heapless::String::try_from("x".repeat(24).as_str()).unwrap(),
+            board: heapless::String::try_from("y".repeat(24).as_str()).unwrap(),
+            param_version: u32::MAX,
+            param_crc: u32::MAX,
+            ticks: u32::MAX,
+            encoders: [health; JOINTS],
+        };
         round_trip(&DeviceFrame::Response { seq: u16::MAX, response: Ok(Response::Info(info)) });
     }
 
     #[test]
     fn a_raw_sample_frame_fits_32_bytes() {
-        let raw = DeviceFrame::Stream { seq: 65535, item: Stream::Raw(RawSample { tick: 65535, packed: [0xFF; 17], rejected: 0x3F }) };
+        let raw = DeviceFrame::Stream {
+            seq: 65535,
+            item: Stream::Raw(RawSample { tick: 65535, packed: [0xFF; 17], rejected: 0x3F }),
+        };
         let n = round_trip(&raw);
         assert!(n <= 32, "raw sample frame is {n} bytes");
     }
@@ -270,10 +332,13 @@ mod tests {
     fn decoder_survives_a_million_mutated_frames_and_resyncs() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let messages = samples();
-        let encoded: Vec<Vec<u8>> = messages.iter().map(|m| {
-            let mut out = [0u8; MAX_FRAME];
-            encode(m, &mut out).unwrap().to_vec()
-        }).collect();
+        let encoded: Vec<Vec<u8>> = messages
+            .iter()
+            .map(|m| {
+                let mut out = [0u8; MAX_FRAME];
+                encode(m, &mut out).unwrap().to_vec()
+            })
+            .collect();
         let mut decoder = Decoder::new();
         let (mut errors, mut resynced) = (0u64, 0u64);
         for round in 0..1_000_000u32 {
@@ -287,7 +352,8 @@ mod tests {
                 1 => bad.truncate(rng.random_range(0..bad.len())),
                 2 => bad = (0..rng.random_range(1..80)).map(|_| rng.random::<u8>()).collect(),
                 _ => {
-                    let extra: Vec<u8> = (0..rng.random_range(0..300)).map(|_| rng.random_range(1..=255u8)).collect();
+                    let extra: Vec<u8> =
+                        (0..rng.random_range(0..300)).map(|_| rng.random_range(1..=255u8)).collect();
                     bad.splice(0..0, extra);
                 }
             }

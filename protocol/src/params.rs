@@ -96,7 +96,20 @@ pub fn decode_blob(blob: &[u8]) -> Result<ArmParams, BlobError> {
     }
     let params: ArmParams = postcard::from_bytes(body).map_err(|_| BlobError::Body)?;
     let finite = params.joints.iter().all(|j| {
-        [j.offset_deg, j.d_mm, j.a_mm, j.alpha_deg, j.axis_deg, j.eccentricity_deg[0], j.eccentricity_deg[1], j.eccentricity2_deg[0], j.eccentricity2_deg[1], j.compliance_deg_per_m].iter().all(|v| v.is_finite())
+        [
+            j.offset_deg,
+            j.d_mm,
+            j.a_mm,
+            j.alpha_deg,
+            j.axis_deg,
+            j.eccentricity_deg[0],
+            j.eccentricity_deg[1],
+            j.eccentricity2_deg[0],
+            j.eccentricity2_deg[1],
+            j.compliance_deg_per_m,
+        ]
+        .iter()
+        .all(|v| v.is_finite())
     }) && params.tcp_mm.iter().all(|v| v.is_finite())
         && params.scale_ppm.is_finite();
     if !finite {
@@ -110,9 +123,22 @@ mod tests {
     use super::*;
 
     fn sample() -> ArmParams {
-        let mut p = ArmParams { version: 7, modified_dh: false, tcp_mm: [0.1, -0.2, 253.0], scale_ppm: 12.0, ..ArmParams::default() };
+        let mut p = ArmParams {
+            version: 7,
+            modified_dh: false,
+            tcp_mm: [0.1, -0.2, 253.0],
+            scale_ppm: 12.0,
+            ..ArmParams::default()
+        };
         for (j, row) in p.joints.iter_mut().enumerate() {
-            *row = JointParams { offset_deg: j as f64 * 10.5, d_mm: 571.0, alpha_deg: 90.0, eccentricity_deg: [0.1, -0.2], compliance_deg_per_m: 0.05, ..JointParams::default() };
+            *row = JointParams {
+                offset_deg: j as f64 * 10.5,
+                d_mm: 571.0,
+                alpha_deg: 90.0,
+                eccentricity_deg: [0.1, -0.2],
+                compliance_deg_per_m: 0.05,
+                ..JointParams::default()
+            };
         }
         p
     }

@@ -90,7 +90,9 @@ fn serve(listener: TcpListener, stop: Arc<AtomicBool>, speedup: u32) {
                         let Some(decoded) = decoder.push::<HostFrame>(b) else { continue };
                         let mut out = Vec::new();
                         let action = match decoded {
-                            Ok(frame) => controller.handle(frame, &sampler.health, &mut |f| out.push(f.clone())),
+                            Ok(frame) => {
+                                controller.handle(frame, &sampler.health, &mut |f| out.push(f.clone()))
+                            }
                             Err(_) => {
                                 controller.bad_frame(&mut |f| out.push(f.clone()));
                                 Action::None
@@ -145,4 +147,3 @@ pub fn kincal_bin() -> PathBuf {
         })
         .clone()
 }
-

@@ -8,16 +8,23 @@ use kincal::simulate::{simulate, SimulationOptions};
 use kincal::validate::validate;
 
 fn example_model() -> ArmModel {
-    ArmModel::load(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/suta/model.toml")).expect("shipped example model loads")
+    ArmModel::load(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/suta/model.toml"))
+        .expect("shipped example model loads")
 }
 
 #[test]
 fn shipped_example_is_the_thesis_model() {
     let (shipped, thesis) = (example_model(), ArmModel::suta_nominal());
-    assert_eq!((shipped.convention, shipped.joints, shipped.tcp_mm), (thesis.convention, thesis.joints, thesis.tcp_mm));
+    assert_eq!(
+        (shipped.convention, shipped.joints, shipped.tcp_mm),
+        (thesis.convention, thesis.joints, thesis.tcp_mm)
+    );
     assert_eq!(shipped.free.len(), thesis.free.len());
     for (a, b) in shipped.free.iter().zip(&thesis.free) {
-        assert!(a.id == b.id && (a.lower - b.lower).abs() < 1e-9 && (a.upper - b.upper).abs() < 1e-9, "{a:?} vs {b:?}");
+        assert!(
+            a.id == b.id && (a.lower - b.lower).abs() < 1e-9 && (a.upper - b.upper).abs() < 1e-9,
+            "{a:?} vs {b:?}"
+        );
     }
 }
 
@@ -28,17 +35,34 @@ fn calibration_reaches_the_noise_floor_on_held_out_placements() {
         let sim = simulate(&nominal, &SimulationOptions { seed, ..SimulationOptions::default() });
         let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
         let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-        let fit = calibrate(&nominal, &sim.artefact, &cal, &CalibrationOptions { seed, ..CalibrationOptions::default() }).expect("calibrates");
+        let fit = calibrate(
+            &nominal,
+            &sim.artefact,
+            &cal,
+            &CalibrationOptions { seed, ..CalibrationOptions::default() },
+        )
+        .expect("calibrates");
         let nominal_rms = validate(&nominal, &sim.artefact, &val).overall.rms_mm;
         let calibrated = validate(&fit.model, &sim.artefact, &val).overall.rms_mm;
         let floor = validate(&sim.truth, &sim.artefact, &val).overall.rms_mm;
         eprintln!("seed {seed}: nominal {nominal_rms:.3} mm, calibrated {calibrated:.4} mm, noise floor {floor:.4} mm");
-        assert!(nominal_rms > 10.0 * floor, "the nominal model must be visibly off: {nominal_rms} vs {floor}");
-        assert!(calibrated <= 1.10 * floor, "seed {seed}: calibrated {calibrated} mm is not within 10 % of the noise floor {floor} mm");
+        assert!(
+            nominal_rms > 10.0 * floor,
+            "the nominal model must be visibly off: {nominal_rms} vs {floor}"
+        );
+        assert!(
+            calibrated <= 1.10 * floor,
+            "seed {seed}: calibrated {calibrated} mm is not within 10 % of the noise floor {floor} mm"
+        );
         // Identifiable parameters are recovered close to the truth.
         for id in &fit.estimated {
             let unit_tolerance = if id.unit() == "deg" { 0.02 } else { 0.3 };
-            assert!((fit.model.get(*id) - sim.truth.get(*id)).abs() < unit_tolerance, "{id}: {} vs true {}", fit.model.get(*id), sim.truth.get(*id));
+            assert!(
+                (fit.model.get(*id) - sim.truth.get(*id)).abs() < unit_tolerance,
+                "{id}: {} vs true {}",
+                fit.model.get(*id),
+                sim.truth.get(*id)
+            );
         }
     }
 }
@@ -52,13 +76,28 @@ fn unobservable_thesis_parameters_are_reported_and_fixed() {
     let before: Vec<&str> = fit.before.unidentifiable.iter().map(|c| c.text.as_str()).collect();
     // A rotation about the base axis and a shift along it change no distance.
     for name in ["offset:1", "length:1"] {
-        assert!(before.iter().any(|t| t.starts_with(name) && t.contains("changes no residual")), "{name} not reported: {before:?}");
+        assert!(
+            before.iter().any(|t| t.starts_with(name) && t.contains("changes no residual")),
+            "{name} not reported: {before:?}"
+        );
         assert!(fit.fixed.contains(&ParamId::parse(name).unwrap()), "{name} should be fixed");
-        assert_eq!(fit.model.get(ParamId::parse(name).unwrap()), nominal.get(ParamId::parse(name).unwrap()), "{name} must not drift");
+        assert_eq!(
+            fit.model.get(ParamId::parse(name).unwrap()),
+            nominal.get(ParamId::parse(name).unwrap()),
+            "{name} must not drift"
+        );
     }
     // With the tool held vertical at every touch, the tool length shifts all touches alike.
-    assert!(fit.fixed.contains(&ParamId::Tcp(2)), "tcp.z should be found unidentifiable at the solution: fixed {:?}", fit.fixed);
-    assert!(fit.after.unidentifiable.iter().any(|c| c.terms.iter().any(|t| t.0 == "tcp.z")), "{:?}", fit.after.unidentifiable);
+    assert!(
+        fit.fixed.contains(&ParamId::Tcp(2)),
+        "tcp.z should be found unidentifiable at the solution: fixed {:?}",
+        fit.fixed
+    );
+    assert!(
+        fit.after.unidentifiable.iter().any(|c| c.terms.iter().any(|t| t.0 == "tcp.z")),
+        "{:?}",
+        fit.after.unidentifiable
+    );
     // Everything else is estimated with a finite, small standard deviation.
     for e in fit.estimates.iter().filter(|e| e.status == "estimated") {
         let std = e.std.expect("estimated parameters have a std");
@@ -86,7 +125,11 @@ fn six_dof_objective_also_reaches_the_noise_floor() {
     let sim = simulate(&nominal, &SimulationOptions { seed: 5, ..SimulationOptions::default() });
     let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
     let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let options = CalibrationOptions { objective: Objective::SixDof { lever_mm: 100.0 }, restarts: 2, ..CalibrationOptions::default() };
+    let options = CalibrationOptions {
+        objective: Objective::SixDof { lever_mm: 100.0 },
+        restarts: 2,
+        ..CalibrationOptions::default()
+    };
     let fit = calibrate(&nominal, &sim.artefact, &cal, &options).expect("calibrates");
     let calibrated = validate(&fit.model, &sim.artefact, &val).overall.rms_mm;
     let floor = validate(&sim.truth, &sim.artefact, &val).overall.rms_mm;

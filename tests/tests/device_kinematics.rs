@@ -45,7 +45,8 @@ fn device_pose_matches_the_host_within_a_micrometre() {
             let enc_deg = counts.map(|c| c as f64 * 360.0 / COUNTS_PER_TURN as f64);
             let host = tool_pose(&model, &enc_deg);
             let dev = kinematics.tool_pose(&counts);
-            let dp = (0..3).map(|k| (host.position_mm[k] - dev.position_mm[k] as f64).powi(2)).sum::<f64>().sqrt();
+            let dp =
+                (0..3).map(|k| (host.position_mm[k] - dev.position_mm[k] as f64).powi(2)).sum::<f64>().sqrt();
             worst_um = worst_um.max(dp * 1000.0);
             let dz = (0..3).map(|k| (host.z_axis[k] - dev.z_axis[k] as f64).abs()).fold(0.0, f64::max);
             assert!(dz < 1e-6, "tool axis differs by {dz}");

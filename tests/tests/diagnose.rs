@@ -37,10 +37,18 @@ fn run_case(case: &Case) -> Outcome {
     for id in &case.fixed {
         nominal.fix_param(*id);
     }
-    let sim = simulate(&nominal, &SimulationOptions { seed: case.seed, hidden: case.hidden.clone(), ..SimulationOptions::default() });
+    let sim = simulate(
+        &nominal,
+        &SimulationOptions { seed: case.seed, hidden: case.hidden.clone(), ..SimulationOptions::default() },
+    );
     let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
     let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let options = CalibrationOptions { restarts: 2, seed: case.seed, objective: case.objective, ..CalibrationOptions::default() };
+    let options = CalibrationOptions {
+        restarts: 2,
+        seed: case.seed,
+        objective: case.objective,
+        ..CalibrationOptions::default()
+    };
     let fit = calibrate(&nominal, &sim.artefact, &cal, &options).expect("calibrates");
     let floor = validate(&sim.truth, &sim.artefact, &val).overall.rms_mm;
     let before = validate(&fit.model, &sim.artefact, &val).overall.rms_mm;
@@ -48,7 +56,11 @@ fn run_case(case: &Case) -> Outcome {
     let leader = d.candidates.first().expect("some candidate");
     // Effects the data cannot tell apart are reported together; the hidden one must lead or be
     // named in the leading group.
-    let first = if leader.equivalent.iter().any(|e| e == case.effect) { case.effect.to_string() } else { leader.effect.clone() };
+    let first = if leader.equivalent.iter().any(|e| e == case.effect) {
+        case.effect.to_string()
+    } else {
+        leader.effect.clone()
+    };
     let significant = leader.significant;
     if !leader.equivalent.is_empty() {
         eprintln!("  leading group: {} ≡ {}", leader.effect, leader.equivalent.join(", "));
@@ -63,35 +75,101 @@ fn run_case(case: &Case) -> Outcome {
 
 fn check(case: Case) {
     let o = run_case(&case);
-    assert!(o.before >= 1.3 * o.floor, "{}: the hidden effect must lift validation RMS by 30 %: {} vs floor {}", case.effect, o.before, o.floor);
+    assert!(
+        o.before >= 1.3 * o.floor,
+        "{}: the hidden effect must lift validation RMS by 30 %: {} vs floor {}",
+        case.effect,
+        o.before,
+        o.floor
+    );
     assert_eq!(o.first, case.effect, "{}: ranked first instead: {}", case.effect, o.first);
     assert!(o.significant, "{}: not marked significant", case.effect);
-    assert!(o.after <= 1.15 * o.floor, "{}: with the effect added validation RMS {} is not within 15 % of the floor {}", case.effect, o.after, o.floor);
+    assert!(
+        o.after <= 1.15 * o.floor,
+        "{}: with the effect added validation RMS {} is not within 15 % of the floor {}",
+        case.effect,
+        o.after,
+        o.floor
+    );
 }
 
 #[test]
 fn eccentricity_is_found_on_several_joints() {
-    check(Case { hidden: vec![(p("eccentricity_sin:5"), 0.2), (p("eccentricity_cos:5"), -0.1)], effect: "eccentricity:5", fixed: vec![], seed: 21, objective: Objective::Distance });
-    check(Case { hidden: vec![(p("eccentricity_sin:2"), 0.25), (p("eccentricity_cos:2"), 0.15)], effect: "eccentricity:2", fixed: vec![], seed: 22, objective: Objective::Distance });
-    check(Case { hidden: vec![(p("eccentricity_cos:4"), 0.15)], effect: "eccentricity:4", fixed: vec![], seed: 23, objective: Objective::Distance });
+    check(Case {
+        hidden: vec![(p("eccentricity_sin:5"), 0.2), (p("eccentricity_cos:5"), -0.1)],
+        effect: "eccentricity:5",
+        fixed: vec![],
+        seed: 21,
+        objective: Objective::Distance,
+    });
+    check(Case {
+        hidden: vec![(p("eccentricity_sin:2"), 0.25), (p("eccentricity_cos:2"), 0.15)],
+        effect: "eccentricity:2",
+        fixed: vec![],
+        seed: 22,
+        objective: Objective::Distance,
+    });
+    check(Case {
+        hidden: vec![(p("eccentricity_cos:4"), 0.15)],
+        effect: "eccentricity:4",
+        fixed: vec![],
+        seed: 23,
+        objective: Objective::Distance,
+    });
 }
 
 #[test]
 fn twist_is_found_on_several_joints() {
-    check(Case { hidden: vec![(p("twist:2"), 0.3)], effect: "twist:2", fixed: vec![], seed: 31, objective: Objective::Distance });
-    check(Case { hidden: vec![(p("twist:4"), -0.3)], effect: "twist:4", fixed: vec![], seed: 32, objective: Objective::Distance });
+    check(Case {
+        hidden: vec![(p("twist:2"), 0.3)],
+        effect: "twist:2",
+        fixed: vec![],
+        seed: 31,
+        objective: Objective::Distance,
+    });
+    check(Case {
+        hidden: vec![(p("twist:4"), -0.3)],
+        effect: "twist:4",
+        fixed: vec![],
+        seed: 32,
+        objective: Objective::Distance,
+    });
 }
 
 #[test]
 fn link_offset_is_found_on_several_joints() {
-    check(Case { hidden: vec![(p("link_offset:3"), 1.0)], effect: "link_offset:3", fixed: vec![], seed: 41, objective: Objective::Distance });
-    check(Case { hidden: vec![(p("link_offset:4"), -1.0)], effect: "link_offset:4", fixed: vec![], seed: 42, objective: Objective::Distance });
+    check(Case {
+        hidden: vec![(p("link_offset:3"), 1.0)],
+        effect: "link_offset:3",
+        fixed: vec![],
+        seed: 41,
+        objective: Objective::Distance,
+    });
+    check(Case {
+        hidden: vec![(p("link_offset:4"), -1.0)],
+        effect: "link_offset:4",
+        fixed: vec![],
+        seed: 42,
+        objective: Objective::Distance,
+    });
 }
 
 #[test]
 fn compliance_is_found_on_several_joints() {
-    check(Case { hidden: vec![(p("compliance:2"), 0.3)], effect: "compliance:2", fixed: vec![], seed: 51, objective: Objective::Distance });
-    check(Case { hidden: vec![(p("compliance:4"), 0.1)], effect: "compliance:4", fixed: vec![], seed: 52, objective: Objective::Distance });
+    check(Case {
+        hidden: vec![(p("compliance:2"), 0.3)],
+        effect: "compliance:2",
+        fixed: vec![],
+        seed: 51,
+        objective: Objective::Distance,
+    });
+    check(Case {
+        hidden: vec![(p("compliance:4"), 0.1)],
+        effect: "compliance:4",
+        fixed: vec![],
+        seed: 52,
+        objective: Objective::Distance,
+    });
 }
 
 #[test]
@@ -100,7 +178,13 @@ fn tool_offset_is_found_when_the_tool_flange_length_is_trusted() {
     // a user who trusts d6 = 0 by construction fixes it. Distances alone still cannot tell the
     // tip offset from a stylus tilt (twist:6): both move the tip alike. The orientation
     // residuals of the asymmetric pillars can — a tilt turns the tool axis, an offset does not.
-    check(Case { hidden: vec![(p("tcp.y"), 1.0)], effect: "tcp", fixed: vec![p("length:6")], seed: 61, objective: Objective::SixDof { lever_mm: 100.0 } });
+    check(Case {
+        hidden: vec![(p("tcp.y"), 1.0)],
+        effect: "tcp",
+        fixed: vec![p("length:6")],
+        seed: 61,
+        objective: Objective::SixDof { lever_mm: 100.0 },
+    });
 }
 
 #[test]
@@ -108,7 +192,13 @@ fn scale_is_found_when_link_lengths_are_trusted() {
     // With every length free a uniform scale is absorbed by them (reported as not identifiable);
     // with lengths measured on a CMM and fixed, the scale shows.
     let lengths: Vec<ParamId> = (0..6).map(ParamId::Length).chain([p("tcp.z")]).collect();
-    check(Case { hidden: vec![(p("scale"), 1500.0)], effect: "scale", fixed: lengths, seed: 71, objective: Objective::Distance });
+    check(Case {
+        hidden: vec![(p("scale"), 1500.0)],
+        effect: "scale",
+        fixed: lengths,
+        seed: 71,
+        objective: Objective::Distance,
+    });
 }
 
 #[test]
@@ -121,7 +211,8 @@ fn with_no_hidden_effect_nothing_is_significant_and_a_wrong_effect_does_not_help
         let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
         let fit = calibrate(&nominal, &sim.artefact, &cal, &options).unwrap();
         let d = diagnose(&fit.model, &sim.artefact, &cal, &val, &options);
-        let significant: Vec<&str> = d.candidates.iter().filter(|c| c.significant).map(|c| c.effect.as_str()).collect();
+        let significant: Vec<&str> =
+            d.candidates.iter().filter(|c| c.significant).map(|c| c.effect.as_str()).collect();
         assert!(significant.is_empty(), "seed {seed}: spurious effects {significant:?}");
         let before = validate(&fit.model, &sim.artefact, &val).overall.rms_mm;
         for wrong in ["eccentricity:3", "compliance:2", "twist:2"] {
@@ -129,7 +220,10 @@ fn with_no_hidden_effect_nothing_is_significant_and_a_wrong_effect_does_not_help
             Effect::parse(wrong).unwrap().add_to(&mut with);
             let refit = calibrate(&with, &sim.artefact, &cal, &options).unwrap();
             let after = validate(&refit.model, &sim.artefact, &val).overall.rms_mm;
-            assert!(after >= 0.99 * before, "seed {seed}: adding {wrong} lowered validation RMS {before} → {after}");
+            assert!(
+                after >= 0.99 * before,
+                "seed {seed}: adding {wrong} lowered validation RMS {before} → {after}"
+            );
         }
     }
 }

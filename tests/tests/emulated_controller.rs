@@ -43,10 +43,15 @@ fn boots_and_checks_the_protocol_version() {
     assert!(info.firmware.starts_with("kincal-fw") && info.board.contains("mps2"), "{info:?}");
     assert_eq!(info.param_version, 0, "a fresh controller has no parameters");
     match link.hello_as(PROTOCOL_VERSION + 1, SCHEMA_HASH) {
-        Err(LinkError::VersionMismatch { device_version, .. }) => assert_eq!(device_version, PROTOCOL_VERSION),
+        Err(LinkError::VersionMismatch { device_version, .. }) => {
+            assert_eq!(device_version, PROTOCOL_VERSION)
+        }
         other => panic!("expected a version mismatch, got {other:?}"),
     }
-    assert!(matches!(link.info(), Err(LinkError::Refused(_, _))), "requests after a failed handshake are refused");
+    assert!(
+        matches!(link.info(), Err(LinkError::Refused(_, _))),
+        "requests after a failed handshake are refused"
+    );
     link.hello().unwrap();
     assert!(link.info().is_ok());
 }
@@ -56,7 +61,17 @@ fn a_two_second_window_returns_the_set_pose_including_one_at_the_wrap() {
     let (_g, _emu, mut link) = start();
     let counts = [100_000, COUNTS_PER_TURN - 2, 1, 2_097_152, 3_000_000, COUNTS_PER_TURN - 1];
     link.command(Request::SimSetPose { counts }, "pose").unwrap();
-    link.command(Request::SimFaults { noise_counts: 3, crc_errors_per_10k: 0, dropouts_per_10k: 0, error_bits_per_10k: 0, warnings_per_10k: 0 }, "faults").unwrap();
+    link.command(
+        Request::SimFaults {
+            noise_counts: 3,
+            crc_errors_per_10k: 0,
+            dropouts_per_10k: 0,
+            error_bits_per_10k: 0,
+            warnings_per_10k: 0,
+        },
+        "faults",
+    )
+    .unwrap();
     let started = Instant::now();
     let w = window(&mut link, 1536);
     let elapsed = started.elapsed();
@@ -75,7 +90,17 @@ fn injected_crc_errors_are_counted_and_excluded() {
     let (_g, _emu, mut link) = start();
     let counts = [1_000_000; 6];
     link.command(Request::SimSetPose { counts }, "pose").unwrap();
-    link.command(Request::SimFaults { noise_counts: 0, crc_errors_per_10k: 500, dropouts_per_10k: 100, error_bits_per_10k: 0, warnings_per_10k: 0 }, "faults").unwrap();
+    link.command(
+        Request::SimFaults {
+            noise_counts: 0,
+            crc_errors_per_10k: 500,
+            dropouts_per_10k: 100,
+            error_bits_per_10k: 0,
+            warnings_per_10k: 0,
+        },
+        "faults",
+    )
+    .unwrap();
     let w = window(&mut link, 768);
     for jw in &w.joints {
         assert!(jw.rejected > 10, "about 6 % of 768 samples rejected, got {}", jw.rejected);
@@ -126,7 +151,10 @@ fn a_ten_second_raw_stream_arrives_without_gaps() {
     }
     link.command(Request::StreamRaw(false), "raw stream off").unwrap();
     let rate = frames as f64 / started.elapsed().as_secs_f64();
-    eprintln!("raw stream: {frames} frames in 10 s ({rate:.1} Hz), {gaps} lost, {} corrupt", link.stats.bad_frames);
+    eprintln!(
+        "raw stream: {frames} frames in 10 s ({rate:.1} Hz), {gaps} lost, {} corrupt",
+        link.stats.bad_frames
+    );
     assert_eq!(gaps, 0, "sequence gaps in the raw stream");
     assert_eq!(link.stats.bad_frames, 0);
     assert!(frames >= 7000, "expected ~7680 frames, got {frames}");

@@ -33,13 +33,37 @@ fn the_whole_loop_brings_the_streamed_pose_to_the_noise_floor() {
     let (_emulator, mut link) = Emulator::start(&elf()).unwrap();
     link.hello().unwrap();
     let dir = scratch("whole");
-    let options = LoopOptions { seed: 3, window_ticks: 16, repeats: 2, calibration_placements: 5, out: dir.clone(), ..LoopOptions::default() };
-    let r = run_loop(&mut link, &kincal::model::ArmModel::suta_nominal(), &options, &mut |s| eprintln!("  {s}")).unwrap();
+    let options = LoopOptions {
+        seed: 3,
+        window_ticks: 16,
+        repeats: 2,
+        calibration_placements: 5,
+        out: dir.clone(),
+        ..LoopOptions::default()
+    };
+    let r =
+        run_loop(&mut link, &kincal::model::ArmModel::suta_nominal(), &options, &mut |s| eprintln!("  {s}"))
+            .unwrap();
     eprintln!("{r:#?}");
     assert!(r.touches >= 200, "{} touches", r.touches);
-    assert!(r.calibrated_validation_rms_mm <= 1.15 * r.truth_validation_rms_mm, "validation {} vs noise floor {}", r.calibrated_validation_rms_mm, r.truth_validation_rms_mm);
-    assert!(r.nominal_pose_rms_mm > 20.0 * r.calibrated_pose_rms_mm, "nominal {} vs calibrated {}", r.nominal_pose_rms_mm, r.calibrated_pose_rms_mm);
-    assert!((r.calibrated_pose_rms_mm - r.host_calibrated_pose_rms_mm).abs() < 0.01, "controller {} vs host {}", r.calibrated_pose_rms_mm, r.host_calibrated_pose_rms_mm);
+    assert!(
+        r.calibrated_validation_rms_mm <= 1.15 * r.truth_validation_rms_mm,
+        "validation {} vs noise floor {}",
+        r.calibrated_validation_rms_mm,
+        r.truth_validation_rms_mm
+    );
+    assert!(
+        r.nominal_pose_rms_mm > 20.0 * r.calibrated_pose_rms_mm,
+        "nominal {} vs calibrated {}",
+        r.nominal_pose_rms_mm,
+        r.calibrated_pose_rms_mm
+    );
+    assert!(
+        (r.calibrated_pose_rms_mm - r.host_calibrated_pose_rms_mm).abs() < 0.01,
+        "controller {} vs host {}",
+        r.calibrated_pose_rms_mm,
+        r.host_calibrated_pose_rms_mm
+    );
     assert!(r.calibrated_pose_rms_mm < 0.15, "calibrated pose error {} mm", r.calibrated_pose_rms_mm);
     assert!(r.floor_pose_rms_mm < 0.01, "floor {}", r.floor_pose_rms_mm);
     assert!(dir.join("run/summary.json").exists() && dir.join("data/cal/A_O.json").exists());
@@ -59,9 +83,17 @@ fn an_upload_cut_off_midway_keeps_the_old_parameters_and_a_retry_succeeds() {
     let mut model = kincal::model::ArmModel::suta_nominal();
     model.joints[3].offset_deg += 0.4;
     let new = kincal::device::parameter_blob(&model, 2);
-    link.command(Request::ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }, "begin").unwrap();
+    link.command(Request::ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }, "begin")
+        .unwrap();
     for (k, chunk) in new.chunks(PARAM_CHUNK).take(4).enumerate() {
-        link.command(Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data: heapless::Vec::from_slice(chunk).unwrap() }, "chunk").unwrap();
+        link.command(
+            Request::ParamChunk {
+                offset: (k * PARAM_CHUNK) as u16,
+                data: heapless::Vec::from_slice(chunk).unwrap(),
+            },
+            "chunk",
+        )
+        .unwrap();
     }
     drop(link); // the host goes away halfway through
     let deadline = Instant::now() + Duration::from_secs(5);
@@ -93,12 +125,38 @@ fn a_recording_killed_midway_resumes_on_the_emulated_controller() {
     let artefact: Artefact = kincal::simulate::suta_artefact(&mut rng);
     let artefact_path = dir.join("artefact.json");
     artefact.save(&artefact_path).unwrap();
-    let steps: Vec<serde_json::Value> = artefact.landmarks.iter().enumerate().map(|(k, l)| serde_json::json!({"landmark": l.id, "pose_counts": [k * 5000 + 7, 1, 2, 3, 4, 5]})).collect();
+    let steps: Vec<serde_json::Value> = artefact
+        .landmarks
+        .iter()
+        .enumerate()
+        .map(|(k, l)| serde_json::json!({"landmark": l.id, "pose_counts": [k * 5000 + 7, 1, 2, 3, 4, 5]}))
+        .collect();
     let script = dir.join("script.json");
     std::fs::write(&script, serde_json::json!({ "steps": steps }).to_string()).unwrap();
     let out = dir.join("sessions");
     let session = out.join("V_A.json");
-    let args: Vec<String> = ["record", "--port", &port, "--artefact", artefact_path.to_str().unwrap(), "--placement", "V_A", "--purpose", "validation", "--out", out.to_str().unwrap(), "--repeats", "1", "--window-ticks", "192", "--script", script.to_str().unwrap()].iter().map(|s| s.to_string()).collect();
+    let args: Vec<String> = [
+        "record",
+        "--port",
+        &port,
+        "--artefact",
+        artefact_path.to_str().unwrap(),
+        "--placement",
+        "V_A",
+        "--purpose",
+        "validation",
+        "--out",
+        out.to_str().unwrap(),
+        "--repeats",
+        "1",
+        "--window-ticks",
+        "192",
+        "--script",
+        script.to_str().unwrap(),
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
     let count = || Session::load(&session, &artefact).map(|s| s.measurements.len()).unwrap_or(0);
     let mut child = Command::new(kincal_bin()).args(&args).spawn().unwrap();
     let deadline = Instant::now() + Duration::from_secs(60);

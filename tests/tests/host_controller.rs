@@ -33,7 +33,9 @@ fn script(dir: &Path, artefact: &Artefact) -> PathBuf {
 }
 
 fn measured(path: &Path, artefact: &Artefact) -> Vec<(String, u32)> {
-    Session::load(path, artefact).map(|s| s.measurements.into_iter().map(|m| (m.landmark, m.repeat)).collect()).unwrap_or_default()
+    Session::load(path, artefact)
+        .map(|s| s.measurements.into_iter().map(|m| (m.landmark, m.repeat)).collect())
+        .unwrap_or_default()
 }
 
 #[test]
@@ -45,7 +47,26 @@ fn a_killed_record_resumes_without_losing_or_repeating_landmarks() {
     let out = dir.join("sessions");
     let session = out.join("C_A.json");
     let args = |window: &str| -> Vec<String> {
-        ["record", "--port", &fake.port, "--artefact", artefact_path.to_str().unwrap(), "--placement", "C_A", "--out", out.to_str().unwrap(), "--repeats", "1", "--window-ticks", window, "--script", script.to_str().unwrap()].iter().map(|s| s.to_string()).collect()
+        [
+            "record",
+            "--port",
+            &fake.port,
+            "--artefact",
+            artefact_path.to_str().unwrap(),
+            "--placement",
+            "C_A",
+            "--out",
+            out.to_str().unwrap(),
+            "--repeats",
+            "1",
+            "--window-ticks",
+            window,
+            "--script",
+            script.to_str().unwrap(),
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
     };
     // Kill the recorder once a few landmarks are on disk.
     let mut child = Command::new(kincal_bin()).args(args("384")).spawn().unwrap();
@@ -87,16 +108,27 @@ fn an_interrupted_upload_keeps_the_old_parameters_and_a_retry_succeeds() {
     let mut new_model = kincal::model::ArmModel::suta_nominal();
     new_model.joints[2].d_mm += 1.5;
     let new = kincal::device::parameter_blob(&new_model, 2);
-    link.command(Request::ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }, "begin").unwrap();
+    link.command(Request::ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }, "begin")
+        .unwrap();
     for (k, chunk) in new.chunks(PARAM_CHUNK).take(3).enumerate() {
-        link.command(Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data: heapless::Vec::from_slice(chunk).unwrap() }, "chunk").unwrap();
+        link.command(
+            Request::ParamChunk {
+                offset: (k * PARAM_CHUNK) as u16,
+                data: heapless::Vec::from_slice(chunk).unwrap(),
+            },
+            "chunk",
+        )
+        .unwrap();
     }
     drop(link); // the connection closes halfway through the upload
     let mut link = Link::open(&fake.port).unwrap();
     link.hello().unwrap();
     assert_eq!(link.info().unwrap().param_version, 1, "the old parameters stay active");
     assert_eq!(link.read_params(false, 4096).unwrap(), old);
-    assert!(matches!(link.command(Request::ParamCommit, "commit"), Err(LinkError::Refused(_, _))), "a half upload cannot be committed");
+    assert!(
+        matches!(link.command(Request::ParamCommit, "commit"), Err(LinkError::Refused(_, _))),
+        "a half upload cannot be committed"
+    );
     link.upload(&new).unwrap();
     assert_eq!(link.info().unwrap().param_version, 2);
     assert_eq!(link.read_params(false, 4096).unwrap(), new);
@@ -108,7 +140,12 @@ fn a_version_mismatch_is_reported_with_both_versions() {
     let mut link = Link::open(&fake.port).unwrap();
     let err = link.hello_as(PROTOCOL_VERSION + 3, SCHEMA_HASH ^ 1).unwrap_err();
     let text = err.to_string();
-    assert!(text.contains("protocol mismatch") && text.contains(&format!("version {}", PROTOCOL_VERSION + 3)) && text.contains(&format!("controller version {PROTOCOL_VERSION}")), "{text}");
+    assert!(
+        text.contains("protocol mismatch")
+            && text.contains(&format!("version {}", PROTOCOL_VERSION + 3))
+            && text.contains(&format!("controller version {PROTOCOL_VERSION}")),
+        "{text}"
+    );
 }
 
 #[test]
@@ -128,7 +165,16 @@ fn info_params_and_upload_commands_work_through_the_cli() {
     let info = run(&["info", "--port", &fake.port]);
     assert!(info.contains("version 5") && info.contains("matches this host"), "{info}");
     assert!(run(&["params", "--port", &fake.port]).contains("\"version\": 5"));
-    let stream = run(&["stream", "--port", &fake.port, "--raw", "--seconds", "1", "--csv", dir.join("raw.csv").to_str().unwrap()]);
+    let stream = run(&[
+        "stream",
+        "--port",
+        &fake.port,
+        "--raw",
+        "--seconds",
+        "1",
+        "--csv",
+        dir.join("raw.csv").to_str().unwrap(),
+    ]);
     assert!(stream.contains("0 lost, 0 corrupt"), "{stream}");
     let rows = std::fs::read_to_string(dir.join("raw.csv")).unwrap().lines().count();
     assert!(rows > 500, "{rows} CSV rows for one second at 768 Hz");
@@ -142,7 +188,12 @@ fn info_params_and_upload_commands_work_through_the_cli() {
 #[test]
 fn a_controller_that_disappears_mid_stream_is_reported() {
     let fake = FakeController::start(1);
-    let child = Command::new(kincal_bin()).args(["stream", "--port", &fake.port, "--raw", "--seconds", "30"]).stderr(std::process::Stdio::piped()).stdout(std::process::Stdio::piped()).spawn().unwrap();
+    let child = Command::new(kincal_bin())
+        .args(["stream", "--port", &fake.port, "--raw", "--seconds", "30"])
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
     std::thread::sleep(Duration::from_millis(1500));
     drop(fake); // the port goes away
     let out = child.wait_with_output().unwrap();

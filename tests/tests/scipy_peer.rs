@@ -20,12 +20,26 @@ fn kincal_reaches_scipys_cost_or_lower() {
     let dir = std::env::temp_dir().join(format!("kincal-peer-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let problem = dir.join("problem.json");
-    write_peer_problem(&problem, &nominal, &fit.estimated, &sim.artefact, &cal, options.huber_delta_mm).unwrap();
-    let peer = run_peer("python3", &problem).unwrap_or_else(|e| panic!("{e}\ninstall the peer with `pip install numpy scipy`, or set KINCAL_NO_PEER=1"));
+    write_peer_problem(&problem, &nominal, &fit.estimated, &sim.artefact, &cal, options.huber_delta_mm)
+        .unwrap();
+    let peer = run_peer("python3", &problem).unwrap_or_else(|e| {
+        panic!("{e}\ninstall the peer with `pip install numpy scipy`, or set KINCAL_NO_PEER=1")
+    });
     std::fs::remove_dir_all(&dir).ok();
-    eprintln!("kincal cost {:.9}, SciPy cost {:.9} ({} evaluations, {:.0} ms)", fit.cost, peer.cost, peer.nfev, peer.seconds * 1e3);
+    eprintln!(
+        "kincal cost {:.9}, SciPy cost {:.9} ({} evaluations, {:.0} ms)",
+        fit.cost,
+        peer.cost,
+        peer.nfev,
+        peer.seconds * 1e3
+    );
     assert!(fit.cost <= peer.cost * (1.0 + 1e-6), "kincal cost {} is above SciPy's {}", fit.cost, peer.cost);
     for (k, id) in fit.estimated.iter().enumerate() {
-        assert!((fit.model.get(*id) - peer.x[k]).abs() < 1e-3, "{id}: kincal {} SciPy {}", fit.model.get(*id), peer.x[k]);
+        assert!(
+            (fit.model.get(*id) - peer.x[k]).abs() < 1e-3,
+            "{id}: kincal {} SciPy {}",
+            fit.model.get(*id),
+            peer.x[k]
+        );
     }
 }

@@ -12,15 +12,28 @@ fn more_placements_give_lower_validation_error() {
     let sim = simulate(&nominal, &SimulationOptions { seed: 11, ..SimulationOptions::default() });
     let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
     let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let options = StudyOptions { subsets: 6, seed: 1, calibration: CalibrationOptions { restarts: 0, ..CalibrationOptions::default() }, progress: false };
+    let options = StudyOptions {
+        subsets: 6,
+        seed: 1,
+        calibration: CalibrationOptions { restarts: 0, ..CalibrationOptions::default() },
+        progress: false,
+    };
     let rows = study(&nominal, &sim.artefact, &cal, &val, &options);
     assert_eq!(rows.len(), 5);
     for r in &rows {
         assert_eq!(r.calibrations + r.failed, 6);
         assert!(r.min_mm <= r.mean_mm + 1e-12 && r.mean_mm <= r.max_mm + 1e-12, "{r:?}");
     }
-    assert!(rows[4].mean_mm <= rows[0].mean_mm, "5 placements {} vs 1 placement {}", rows[4].mean_mm, rows[0].mean_mm);
+    assert!(
+        rows[4].mean_mm <= rows[0].mean_mm,
+        "5 placements {} vs 1 placement {}",
+        rows[4].mean_mm,
+        rows[0].mean_mm
+    );
     // Same seed, same study.
     let again = study(&nominal, &sim.artefact, &cal, &val, &options);
-    assert_eq!(rows.iter().map(|r| r.rms_mm.clone()).collect::<Vec<_>>(), again.iter().map(|r| r.rms_mm.clone()).collect::<Vec<_>>());
+    assert_eq!(
+        rows.iter().map(|r| r.rms_mm.clone()).collect::<Vec<_>>(),
+        again.iter().map(|r| r.rms_mm.clone()).collect::<Vec<_>>()
+    );
 }

@@ -33,7 +33,9 @@ pub enum DelayError {
         after: f64,
     },
     /// The streams overlap too briefly for one chunk plus the lag window.
-    #[error("the streams overlap for {overlap_ms:.0} ms; at least {needed_ms} ms of common motion are needed")]
+    #[error(
+        "the streams overlap for {overlap_ms:.0} ms; at least {needed_ms} ms of common motion are needed"
+    )]
     TooShort {
         /// Overlap, ms.
         overlap_ms: f64,
@@ -59,8 +61,15 @@ pub struct Signal<'a> {
 }
 
 fn check(s: &Signal) -> Result<(), DelayError> {
-    if let Some(i) = s.t_s.windows(2).position(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater)) {
-        return Err(DelayError::NotMonotonic { stream: s.name, index: i + 1, before: s.t_s[i], after: s.t_s[i + 1] });
+    if let Some(i) =
+        s.t_s.windows(2).position(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater))
+    {
+        return Err(DelayError::NotMonotonic {
+            stream: s.name,
+            index: i + 1,
+            before: s.t_s[i],
+            after: s.t_s[i + 1],
+        });
     }
     Ok(())
 }
@@ -83,7 +92,11 @@ fn pearson(a: &[f64], b: &[f64]) -> f64 {
         aa += dx * dx;
         bb += dy * dy;
     }
-    if aa > 0.0 && bb > 0.0 { ab / (aa * bb).sqrt() } else { 0.0 }
+    if aa > 0.0 && bb > 0.0 {
+        ab / (aa * bb).sqrt()
+    } else {
+        0.0
+    }
 }
 
 /// Estimate by how much `tracker` lags `device`, in milliseconds.
@@ -98,7 +111,9 @@ pub fn estimate_delay_ms(device: &Signal, tracker: &Signal) -> Result<f64, Delay
         return Err(DelayError::TooShort { overlap_ms: overlap_ms.max(0.0), needed_ms });
     }
     let n = (overlap_ms / STEP_MS) as usize;
-    let grid = |s: &Signal| -> Vec<f64> { (0..n).map(|k| interpolate(s.t_s, s.value, start + k as f64 * STEP_MS / 1000.0)).collect() };
+    let grid = |s: &Signal| -> Vec<f64> {
+        (0..n).map(|k| interpolate(s.t_s, s.value, start + k as f64 * STEP_MS / 1000.0)).collect()
+    };
     let (d, t) = (grid(device), grid(tracker));
     let mean = t.iter().sum::<f64>() / n as f64;
     let std_mm = (t.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n as f64).sqrt();
@@ -107,7 +122,8 @@ pub fn estimate_delay_ms(device: &Signal, tracker: &Signal) -> Result<f64, Delay
     }
     // Chunks of the tracker signal, kept clear of the ends by the lag window.
     let lag_max = MAX_LAG_MS as usize;
-    let chunk_starts: Vec<usize> = (lag_max..n.saturating_sub(CHUNK_MS + lag_max) + 1).step_by(CHUNK_MS).collect();
+    let chunk_starts: Vec<usize> =
+        (lag_max..n.saturating_sub(CHUNK_MS + lag_max) + 1).step_by(CHUNK_MS).collect();
     let score = |lag: i64| -> f64 {
         chunk_starts
             .iter()
@@ -143,11 +159,20 @@ mod tests {
     fn recovers_a_delay_below_the_grid_step() {
         for true_ms in [9.0, 13.4, 18.7, -6.2] {
             // Device at 1 kHz with jittered timestamps, tracker at 90 Hz with noise, delayed.
-            let dev_t: Vec<f64> = (0..30_000).map(|k| k as f64 * 1e-3 + 1e-5 * ((k * 7 % 13) as f64)).collect();
+            let dev_t: Vec<f64> =
+                (0..30_000).map(|k| k as f64 * 1e-3 + 1e-5 * ((k * 7 % 13) as f64)).collect();
             let dev_v: Vec<f64> = dev_t.iter().map(|&t| motion(t)).collect();
             let trk_t: Vec<f64> = (0..2_700).map(|k| 0.05 + k as f64 / 90.0).collect();
-            let trk_v: Vec<f64> = trk_t.iter().enumerate().map(|(k, &t)| motion(t - true_ms / 1000.0) + 0.05 * (((k * 31) % 17) as f64 - 8.0) / 8.0).collect();
-            let got = estimate_delay_ms(&Signal { name: "device", t_s: &dev_t, value: &dev_v }, &Signal { name: "tracker", t_s: &trk_t, value: &trk_v }).unwrap();
+            let trk_v: Vec<f64> = trk_t
+                .iter()
+                .enumerate()
+                .map(|(k, &t)| motion(t - true_ms / 1000.0) + 0.05 * (((k * 31) % 17) as f64 - 8.0) / 8.0)
+                .collect();
+            let got = estimate_delay_ms(
+                &Signal { name: "device", t_s: &dev_t, value: &dev_v },
+                &Signal { name: "tracker", t_s: &trk_t, value: &trk_v },
+            )
+            .unwrap();
             assert!((got - true_ms).abs() < 0.25, "true {true_ms} ms, estimated {got} ms");
         }
     }
@@ -160,8 +185,17 @@ mod tests {
         let mut back = t.clone();
         back[100] = back[99];
         let s = |name, t_s, value| Signal { name, t_s, value };
-        assert!(matches!(estimate_delay_ms(&s("device", &back, &v), &s("tracker", &t, &v)), Err(DelayError::NotMonotonic { stream: "device", index: 100, .. })));
-        assert!(matches!(estimate_delay_ms(&s("device", &t, &still), &s("tracker", &t, &still)), Err(DelayError::TooLittleMotion { .. })));
-        assert!(matches!(estimate_delay_ms(&s("device", &t[..1000], &v[..1000]), &s("tracker", &t[..1000], &v[..1000])), Err(DelayError::TooShort { .. })));
+        assert!(matches!(
+            estimate_delay_ms(&s("device", &back, &v), &s("tracker", &t, &v)),
+            Err(DelayError::NotMonotonic { stream: "device", index: 100, .. })
+        ));
+        assert!(matches!(
+            estimate_delay_ms(&s("device", &t, &still), &s("tracker", &t, &still)),
+            Err(DelayError::TooLittleMotion { .. })
+        ));
+        assert!(matches!(
+            estimate_delay_ms(&s("device", &t[..1000], &v[..1000]), &s("tracker", &t[..1000], &v[..1000])),
+            Err(DelayError::TooShort { .. })
+        ));
     }
 }

@@ -55,7 +55,16 @@ fn axis(device: &Device, s: &GimbalSample, t4: f64, t5: f64) -> Vector3<f64> {
 
 /// Axis errors of `sensors` on `samples`, degrees.
 pub fn axis_errors_deg(device: &Device, sensors: &[SensorModel; 3], samples: &[GimbalSample]) -> Vec<f64> {
-    samples.iter().map(|s| axis(device, s, sensors[0].angle(s.raw[0]), sensors[1].angle(s.raw[1])).dot(&s.axis).clamp(-1.0, 1.0).acos().to_degrees()).collect()
+    samples
+        .iter()
+        .map(|s| {
+            axis(device, s, sensors[0].angle(s.raw[0]), sensors[1].angle(s.raw[1]))
+                .dot(&s.axis)
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees()
+        })
+        .collect()
 }
 
 struct AxisProblem<'a> {
@@ -109,11 +118,21 @@ impl Residuals for AxisProblem<'_> {
 fn fit(device: &Device, samples: &[GimbalSample], quadratic: bool) -> [SensorModel; 3] {
     let problem = AxisProblem { device, samples, quadratic };
     let (x0, lower, upper): (Vec<f64>, Vec<f64>, Vec<f64>) = if quadratic {
-        (vec![1.0, 0.0, 1.0, 0.0, 0.0, 0.0], vec![0.5, -1.0, 0.5, -1.0, -0.5, -0.5], vec![1.5, 1.0, 1.5, 1.0, 0.5, 0.5])
+        (
+            vec![1.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+            vec![0.5, -1.0, 0.5, -1.0, -0.5, -0.5],
+            vec![1.5, 1.0, 1.5, 1.0, 0.5, 0.5],
+        )
     } else {
         (vec![1.0, 0.0, 1.0, 0.0], vec![0.5, -1.0, 0.5, -1.0], vec![1.5, 1.0, 1.5, 1.0])
     };
-    let solved = solver::solve(&problem, &x0, &lower, &upper, &SolverOptions { max_iterations: 100, ..SolverOptions::default() });
+    let solved = solver::solve(
+        &problem,
+        &x0,
+        &lower,
+        &upper,
+        &SolverOptions { max_iterations: 100, ..SolverOptions::default() },
+    );
     let (g4, g5) = problem.models(&solved.x);
     // θ6 by linear least squares on (raw², raw, 1) or (raw, 1), over the samples with a roll.
     let cols = if quadratic { 3 } else { 2 };
@@ -121,7 +140,11 @@ fn fit(device: &Device, samples: &[GimbalSample], quadratic: bool) -> [SensorMod
     let a = DMatrix::from_fn(rolls.len(), cols, |i, c| rolls[i].0.powi((cols - 1 - c) as i32));
     let b = DVector::from_iterator(rolls.len(), rolls.iter().map(|r| r.1));
     let coef = a.svd(true, true).solve(&b, 1e-12).unwrap_or_else(|_| DVector::zeros(cols));
-    let g6 = if quadratic { SensorModel { j: coef[0], k: coef[1], m: coef[2] } } else { SensorModel { j: 0.0, k: coef[0], m: coef[1] } };
+    let g6 = if quadratic {
+        SensorModel { j: coef[0], k: coef[1], m: coef[2] }
+    } else {
+        SensorModel { j: 0.0, k: coef[0], m: coef[1] }
+    };
     [g4, g5, g6]
 }
 
@@ -130,11 +153,22 @@ fn rms(v: &[f64]) -> f64 {
 }
 
 /// Fit both sensor models on `calibration` and choose by the error on `held_out`.
-pub fn calibrate_gimbals(device: &Device, calibration: &[GimbalSample], held_out: &[GimbalSample]) -> GimbalCalibration {
+pub fn calibrate_gimbals(
+    device: &Device,
+    calibration: &[GimbalSample],
+    held_out: &[GimbalSample],
+) -> GimbalCalibration {
     let linear = fit(device, calibration, false);
     let quadratic = fit(device, calibration, true);
-    let (e_lin, e_quad) = (rms(&axis_errors_deg(device, &linear, held_out)), rms(&axis_errors_deg(device, &quadratic, held_out)));
-    let (sensors, model) = if e_quad < (1.0 - QUADRATIC_GAIN) * e_lin { (quadratic, GimbalModel::Quadratic) } else { (linear, GimbalModel::Linear) };
+    let (e_lin, e_quad) = (
+        rms(&axis_errors_deg(device, &linear, held_out)),
+        rms(&axis_errors_deg(device, &quadratic, held_out)),
+    );
+    let (sensors, model) = if e_quad < (1.0 - QUADRATIC_GAIN) * e_lin {
+        (quadratic, GimbalModel::Quadratic)
+    } else {
+        (linear, GimbalModel::Linear)
+    };
     GimbalCalibration { sensors, model, held_out_deg: (e_lin, e_quad) }
 }
 
@@ -152,10 +186,20 @@ mod tests {
             .map(|k| {
                 let s = k as f64 * 0.37 + seed as f64;
                 let raw = [0.9 * (0.7 * s).sin(), 0.8 * (1.3 * s).cos(), 1.5 * (0.45 * s).sin()];
-                let theta123 = [0.3 * (0.2 * s).sin(), 0.4 + 0.2 * (0.3 * s).cos(), 0.3 + 0.2 * (0.5 * s).sin()];
+                let theta123 =
+                    [0.3 * (0.2 * s).sin(), 0.4 + 0.2 * (0.3 * s).cos(), 0.3 + 0.2 * (0.5 * s).sin()];
                 let s0 = GimbalSample { theta123, raw, axis: Vector3::z(), roll: None };
-                let true_axis = axis(&device, &s0, truth[0].angle(raw[0]) + noise.sample(&mut rng), truth[1].angle(raw[1]) + noise.sample(&mut rng));
-                GimbalSample { axis: true_axis, roll: Some(truth[2].angle(raw[2]) + noise.sample(&mut rng)), ..s0 }
+                let true_axis = axis(
+                    &device,
+                    &s0,
+                    truth[0].angle(raw[0]) + noise.sample(&mut rng),
+                    truth[1].angle(raw[1]) + noise.sample(&mut rng),
+                );
+                GimbalSample {
+                    axis: true_axis,
+                    roll: Some(truth[2].angle(raw[2]) + noise.sample(&mut rng)),
+                    ..s0
+                }
             })
             .collect()
     }
@@ -163,8 +207,16 @@ mod tests {
     #[test]
     fn the_model_is_chosen_by_held_out_error() {
         let device = Device::omni();
-        let linear = [SensorModel { j: 0.0, k: 1.05, m: 0.04 }, SensorModel { j: 0.0, k: 0.96, m: -0.06 }, SensorModel { j: 0.0, k: 1.02, m: 0.1 }];
-        let pot = [SensorModel { j: 0.12, k: 1.05, m: 0.04 }, SensorModel { j: -0.1, k: 0.96, m: -0.06 }, SensorModel { j: 0.08, k: 1.02, m: 0.1 }];
+        let linear = [
+            SensorModel { j: 0.0, k: 1.05, m: 0.04 },
+            SensorModel { j: 0.0, k: 0.96, m: -0.06 },
+            SensorModel { j: 0.0, k: 1.02, m: 0.1 },
+        ];
+        let pot = [
+            SensorModel { j: 0.12, k: 1.05, m: 0.04 },
+            SensorModel { j: -0.1, k: 0.96, m: -0.06 },
+            SensorModel { j: 0.08, k: 1.02, m: 0.1 },
+        ];
         let got = calibrate_gimbals(&device, &samples(&linear, 300, 1), &samples(&linear, 150, 2));
         assert_eq!(got.model, GimbalModel::Linear, "{:?}", got.held_out_deg);
         assert!(got.held_out_deg.0 < 0.1, "linear held-out error {}°", got.held_out_deg.0);

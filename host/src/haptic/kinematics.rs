@@ -37,7 +37,11 @@ impl Device {
     pub fn position_mm(&self, theta: &[f64; 6]) -> Vector3<f64> {
         let (l1, l2, c) = (self.l1_mm, self.l2_mm, self.origin_mm);
         let reach = l1 * theta[1].cos() + l2 * theta[2].sin();
-        Vector3::new(c[0] - reach * theta[0].sin(), c[1] + l1 * theta[1].sin() - l2 * theta[2].cos() + l2, c[2] - l1 + reach * theta[0].cos())
+        Vector3::new(
+            c[0] - reach * theta[0].sin(),
+            c[1] + l1 * theta[1].sin() - l2 * theta[2].cos() + l2,
+            c[2] - l1 + reach * theta[0].cos(),
+        )
     }
 
     /// Stylus orientation for joint angles θ1…θ6 (radians).

@@ -22,7 +22,12 @@ pub enum LandmarkError {
 }
 
 /// Device → tracker transform from the three landmarks (tracker coordinates, mm).
-pub fn initial_transform(device: &Device, p1: Vector3<f64>, p2: Vector3<f64>, p3: Vector3<f64>) -> Result<(Matrix3<f64>, Vector3<f64>), LandmarkError> {
+pub fn initial_transform(
+    device: &Device,
+    p1: Vector3<f64>,
+    p2: Vector3<f64>,
+    p3: Vector3<f64>,
+) -> Result<(Matrix3<f64>, Vector3<f64>), LandmarkError> {
     let y = p2 - p1;
     if y.norm() < 1.0 {
         return Err(LandmarkError::NoYAxis(y.norm()));

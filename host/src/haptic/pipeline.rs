@@ -115,8 +115,14 @@ impl HapticCalibration {
     pub fn summary(&self) -> HapticSummary {
         HapticSummary {
             delay_ms: self.delay_ms,
-            position: PositionSummary { before_mm: self.position_mm.before, after_mm: self.position_mm.after },
-            orientation: OrientationSummary { before_deg: self.orientation_deg.before, after_deg: self.orientation_deg.after },
+            position: PositionSummary {
+                before_mm: self.position_mm.before,
+                after_mm: self.position_mm.after,
+            },
+            orientation: OrientationSummary {
+                before_deg: self.orientation_deg.before,
+                after_deg: self.orientation_deg.after,
+            },
             gimbal_model: self.gimbal_model,
             calibration: self.clone(),
         }
@@ -153,8 +159,10 @@ fn circle_centre(points: &[Vector3<f64>]) -> Vector3<f64> {
     let mean = points.iter().sum::<Vector3<f64>>() / n;
     let m = nalgebra::DMatrix::from_fn(points.len(), 3, |i, k| points[i][k] - mean[k]);
     let v = m.svd(false, true).v_t.unwrap_or_else(|| nalgebra::DMatrix::identity(3, 3));
-    let (u, w) = (Vector3::new(v[(0, 0)], v[(0, 1)], v[(0, 2)]), Vector3::new(v[(1, 0)], v[(1, 1)], v[(1, 2)]));
-    let flat: Vec<Vector2<f64>> = points.iter().map(|p| Vector2::new((p - mean).dot(&u), (p - mean).dot(&w))).collect();
+    let (u, w) =
+        (Vector3::new(v[(0, 0)], v[(0, 1)], v[(0, 2)]), Vector3::new(v[(1, 0)], v[(1, 1)], v[(1, 2)]));
+    let flat: Vec<Vector2<f64>> =
+        points.iter().map(|p| Vector2::new((p - mean).dot(&u), (p - mean).dot(&w))).collect();
     let (c, _, _) = fit_circle(&flat);
     mean + u * c.x + w * c.y
 }
@@ -182,7 +190,13 @@ fn rms(v: &[f64]) -> f64 {
 }
 
 /// Stylus-axis error (degrees) of a sensor set against the reference axis in the target frame.
-fn axis_errors_deg(device: &Device, sensors: &[SensorModel; 6], eh: &Pose, samples: &[([f64; 6], Matrix3<f64>)], axis_in_target: &Vector3<f64>) -> Vec<f64> {
+fn axis_errors_deg(
+    device: &Device,
+    sensors: &[SensorModel; 6],
+    eh: &Pose,
+    samples: &[([f64; 6], Matrix3<f64>)],
+    axis_in_target: &Vector3<f64>,
+) -> Vec<f64> {
     samples
         .iter()
         .map(|(raw, r_target)| {
@@ -197,16 +211,27 @@ pub fn calibrate_recording(rec: &Recording) -> Result<HapticCalibration, HapticE
     let device = rec.device;
     // 1. The HIP in the stylus target frame.
     let gimbal_step = step(rec, "gimbal")?;
-    let pivot = pivot_calibration(&poses(target(gimbal_step, "hip")?)).map_err(|e| HapticError::Pivot("gimbal/hip.csv", e))?;
+    let pivot = pivot_calibration(&poses(target(gimbal_step, "hip")?))
+        .map_err(|e| HapticError::Pivot("gimbal/hip.csv", e))?;
     let tip = pivot.tip_mm;
-    let hip_of = |s: &TargetStream| -> Vec<Vector3<f64>> { s.rotation.iter().zip(&s.position_mm).map(|(q, p)| q * tip + p).collect() };
+    let hip_of = |s: &TargetStream| -> Vec<Vector3<f64>> {
+        s.rotation.iter().zip(&s.position_mm).map(|(q, p)| q * tip + p).collect()
+    };
     // 2. Landmark-based initial transform.
     let landmarks = step(rec, "landmarks")?;
-    let p1 = pivot_calibration(&poses(target(landmarks, "t1")?)).map_err(|e| HapticError::Pivot("landmarks/t1.csv", e))?.pivot_mm;
+    let p1 = pivot_calibration(&poses(target(landmarks, "t1")?))
+        .map_err(|e| HapticError::Pivot("landmarks/t1.csv", e))?
+        .pivot_mm;
     let p2 = circle_centre(&target(landmarks, "t2")?.position_mm);
     let hip_l = target(landmarks, "hip")?;
     let hip_l_points = hip_of(hip_l);
-    let p3_index = (0..hip_l.t_s.len()).min_by(|&a, &b| raw_at(&landmarks.device, hip_l.t_s[a])[0].abs().total_cmp(&raw_at(&landmarks.device, hip_l.t_s[b])[0].abs())).ok_or(HapticError::Missing("landmarks/hip.csv samples"))?;
+    let p3_index = (0..hip_l.t_s.len())
+        .min_by(|&a, &b| {
+            raw_at(&landmarks.device, hip_l.t_s[a])[0]
+                .abs()
+                .total_cmp(&raw_at(&landmarks.device, hip_l.t_s[b])[0].abs())
+        })
+        .ok_or(HapticError::Missing("landmarks/hip.csv samples"))?;
     let eh_init = initial_transform(&device, p1, p2, hip_l_points[p3_index])?;
     // 3. Delay: distance from the device origin in both streams.
     let delay_step = step(rec, "delay")?;
@@ -214,17 +239,46 @@ pub fn calibrate_recording(rec: &Recording) -> Result<HapticCalibration, HapticE
     let hip_d_points = hip_of(hip_d);
     let origin = Vector3::from(device.origin_mm);
     let estimate_delay = |joints: &[SensorModel; 3], eh: &Pose| -> Result<f64, HapticError> {
-        let sensors = [joints[0], joints[1], joints[2], SensorModel::IDENTITY, SensorModel::IDENTITY, SensorModel::IDENTITY];
-        let dev_signal: Vec<f64> = delay_step.device.raw.iter().map(|r| (device.position_mm(&angles(&sensors, r)) - origin).norm()).collect();
-        let trk_signal: Vec<f64> = hip_d_points.iter().map(|p| (eh.0.transpose() * (p - eh.1) - origin).norm()).collect();
-        Ok(estimate_delay_ms(&Signal { name: "delay/device.csv", t_s: &delay_step.device.t_s, value: &dev_signal }, &Signal { name: "delay/hip.csv", t_s: &hip_d.t_s, value: &trk_signal })?)
+        let sensors = [
+            joints[0],
+            joints[1],
+            joints[2],
+            SensorModel::IDENTITY,
+            SensorModel::IDENTITY,
+            SensorModel::IDENTITY,
+        ];
+        let dev_signal: Vec<f64> = delay_step
+            .device
+            .raw
+            .iter()
+            .map(|r| (device.position_mm(&angles(&sensors, r)) - origin).norm())
+            .collect();
+        let trk_signal: Vec<f64> =
+            hip_d_points.iter().map(|p| (eh.0.transpose() * (p - eh.1) - origin).norm()).collect();
+        Ok(estimate_delay_ms(
+            &Signal { name: "delay/device.csv", t_s: &delay_step.device.t_s, value: &dev_signal },
+            &Signal { name: "delay/hip.csv", t_s: &hip_d.t_s, value: &trk_signal },
+        )?)
     };
     // Aligned samples of a step: raw device readings at the tracker's times, the target pose.
     let aligned = |s: &Step, lag: f64| -> Result<Vec<([f64; 6], Pose)>, HapticError> {
         let hip = target(s, "hip")?;
-        Ok(hip.t_s.iter().zip(poses(hip)).filter(|(t, _)| **t - lag >= s.device.t_s[0] && **t - lag <= *s.device.t_s.last().unwrap_or(&0.0)).map(|(t, pose)| (raw_at(&s.device, t - lag), pose)).collect())
+        Ok(hip
+            .t_s
+            .iter()
+            .zip(poses(hip))
+            .filter(|(t, _)| {
+                **t - lag >= s.device.t_s[0] && **t - lag <= *s.device.t_s.last().unwrap_or(&0.0)
+            })
+            .map(|(t, pose)| (raw_at(&s.device, t - lag), pose))
+            .collect())
     };
-    let correspondences_of = |samples: &[([f64; 6], Pose)]| -> Vec<Correspondence> { samples.iter().map(|(raw, (r, p))| Correspondence { raw: [raw[0], raw[1], raw[2]], reference_mm: r * tip + p }).collect() };
+    let correspondences_of = |samples: &[([f64; 6], Pose)]| -> Vec<Correspondence> {
+        samples
+            .iter()
+            .map(|(raw, (r, p))| Correspondence { raw: [raw[0], raw[1], raw[2]], reference_mm: r * tip + p })
+            .collect()
+    };
     // The samples used to fit: spread over the workspace.
     let spread = |samples: Vec<([f64; 6], Pose)>| -> Vec<([f64; 6], Pose)> {
         let points: Vec<Vector3<f64>> = samples.iter().map(|(_, (r, p))| r * tip + p).collect();
@@ -234,37 +288,65 @@ pub fn calibrate_recording(rec: &Recording) -> Result<HapticCalibration, HapticE
     //    distorts the distance signal and biases the first estimate), and the joints again.
     let joints_step = step(rec, "joints")?;
     let first_delay = estimate_delay(&[SensorModel::IDENTITY; 3], &eh_init)?;
-    let first = calibrate_position(&device, &correspondences_of(&spread(aligned(joints_step, first_delay / 1000.0)?)), eh_init, [SensorModel::IDENTITY; 3], 20, Some((CLUSTERS, 1)));
+    let first = calibrate_position(
+        &device,
+        &correspondences_of(&spread(aligned(joints_step, first_delay / 1000.0)?)),
+        eh_init,
+        [SensorModel::IDENTITY; 3],
+        20,
+        Some((CLUSTERS, 1)),
+    );
     let delay_ms = estimate_delay(&first.joints, &first.transform)?;
     let lag = delay_ms / 1000.0;
     let all_joints = aligned(joints_step, lag)?;
     let joints = spread(all_joints.clone());
     let correspondences = correspondences_of(&joints);
-    let position = calibrate_position(&device, &correspondences, first.transform, first.joints, 20, Some((CLUSTERS, 101)));
+    let position = calibrate_position(
+        &device,
+        &correspondences,
+        first.transform,
+        first.joints,
+        20,
+        Some((CLUSTERS, 101)),
+    );
     let eh = position.transform;
     let mut sensors = [SensorModel::IDENTITY; 6];
     sensors[..3].copy_from_slice(&position.joints);
     // 5. Orientation reference from the roll.
     let roll_samples = aligned(step(rec, "reference")?, lag)?;
-    let frames: Vec<Pose> = roll_samples.iter().map(|(raw, _)| {
-        let th = angles(&sensors, &[raw[0], raw[1], raw[2], raw[3], raw[4], 0.0]);
-        (device.rotation(&th), device.position_mm(&th))
-    }).collect();
+    let frames: Vec<Pose> = roll_samples
+        .iter()
+        .map(|(raw, _)| {
+            let th = angles(&sensors, &[raw[0], raw[1], raw[2], raw[3], raw[4], 0.0]);
+            (device.rotation(&th), device.position_mm(&th))
+        })
+        .collect();
     let targets: Vec<Pose> = roll_samples.iter().map(|(_, pose)| *pose).collect();
     let reference = orientation_reference(&targets, &frames, &eh)?;
     // 6. Gimbals: axis samples from gimbal/ and joints/, roll samples from reference/.
     let mut gimbal_samples: Vec<GimbalSample> = Vec::new();
     for (raw, (r_target, _)) in spread(aligned(gimbal_step, lag)?).iter().chain(joints.iter()) {
         let th = angles(&sensors, raw);
-        gimbal_samples.push(GimbalSample { theta123: [th[0], th[1], th[2]], raw: [raw[3], raw[4], raw[5]], axis: eh.0.transpose() * (r_target * reference.axis_in_target), roll: None });
+        gimbal_samples.push(GimbalSample {
+            theta123: [th[0], th[1], th[2]],
+            raw: [raw[3], raw[4], raw[5]],
+            axis: eh.0.transpose() * (r_target * reference.axis_in_target),
+            roll: None,
+        });
     }
     for ((raw, (r_target, _)), roll) in roll_samples.iter().zip(&reference.roll) {
         let th = angles(&sensors, raw);
-        gimbal_samples.push(GimbalSample { theta123: [th[0], th[1], th[2]], raw: [raw[3], raw[4], raw[5]], axis: eh.0.transpose() * (r_target * reference.axis_in_target), roll: Some(*roll) });
+        gimbal_samples.push(GimbalSample {
+            theta123: [th[0], th[1], th[2]],
+            raw: [raw[3], raw[4], raw[5]],
+            axis: eh.0.transpose() * (r_target * reference.axis_in_target),
+            roll: Some(*roll),
+        });
     }
     // Every fourth sample is held out to choose the gimbal model.
     let held: Vec<GimbalSample> = gimbal_samples.iter().step_by(4).copied().collect();
-    let fit: Vec<GimbalSample> = gimbal_samples.iter().enumerate().filter(|(i, _)| i % 4 != 0).map(|(_, s)| *s).collect();
+    let fit: Vec<GimbalSample> =
+        gimbal_samples.iter().enumerate().filter(|(i, _)| i % 4 != 0).map(|(_, s)| *s).collect();
     let gimbals = calibrate_gimbals(&device, &fit, &held);
     sensors[3..].copy_from_slice(&gimbals.sensors);
     // 7. Held-out errors: verify/ if recorded, else the held-out quarter of joints/.
@@ -280,12 +362,22 @@ pub fn calibrate_recording(rec: &Recording) -> Result<HapticCalibration, HapticE
         after: rms(&position_errors(&device, &position.joints, &eh, &verify_corr)),
     };
     let orientation_deg = BeforeAfter {
-        before: rms(&axis_errors_deg(&device, &[SensorModel::IDENTITY; 6], &before_eh, &verify_axes, &reference.axis_in_target)),
+        before: rms(&axis_errors_deg(
+            &device,
+            &[SensorModel::IDENTITY; 6],
+            &before_eh,
+            &verify_axes,
+            &reference.axis_in_target,
+        )),
         after: rms(&axis_errors_deg(&device, &sensors, &eh, &verify_axes, &reference.axis_in_target)),
     };
     let after_axes = axis_errors_deg(&device, &sensors, &eh, &verify_axes, &reference.axis_in_target);
     let after_positions = position_errors(&device, &position.joints, &eh, &verify_corr);
-    let samples = verify_axes.iter().zip(after_axes.iter().zip(&after_positions)).map(|((raw, _), (a, p))| (device.rotation(&angles(&sensors, raw)).column(2).into_owned(), *a, *p)).collect();
+    let samples = verify_axes
+        .iter()
+        .zip(after_axes.iter().zip(&after_positions))
+        .map(|((raw, _), (a, p))| (device.rotation(&angles(&sensors, raw)).column(2).into_owned(), *a, *p))
+        .collect();
     let r = eh.0;
     Ok(HapticCalibration {
         samples,
@@ -328,16 +420,38 @@ mod tests {
     #[test]
     fn a_simulated_recording_calibrates_to_the_tracker_noise_floor() {
         for quadratic in [true, false] {
-            let options = HapticSimOptions { seed: 5, delay_ms: 13.3, quadratic_gimbals: quadratic, joints_seconds: 40.0, ..HapticSimOptions::default() };
+            let options = HapticSimOptions {
+                seed: 5,
+                delay_ms: 13.3,
+                quadratic_gimbals: quadratic,
+                joints_seconds: 40.0,
+                ..HapticSimOptions::default()
+            };
             let (rec, truth) = simulate_recording(&options);
             let result = calibrate_recording(&rec).expect("calibrates");
             let (floor_mm, floor_deg) = floors(&rec, &truth);
             eprintln!("quadratic {quadratic}: delay {:.3} ms, position {:.3} → {:.3} mm (floor {floor_mm:.3}), orientation {:.3} → {:.3}° (floor {floor_deg:.3}), gimbals {:?}", result.delay_ms, result.position_mm.before, result.position_mm.after, result.orientation_deg.before, result.orientation_deg.after, result.gimbal_model);
-            assert!((result.delay_ms - options.delay_ms).abs() < 0.25, "delay {} vs {}", result.delay_ms, options.delay_ms);
+            assert!(
+                (result.delay_ms - options.delay_ms).abs() < 0.25,
+                "delay {} vs {}",
+                result.delay_ms,
+                options.delay_ms
+            );
             assert!(result.position_mm.before > 3.0 * result.position_mm.after);
-            assert!(result.position_mm.after <= 1.10 * floor_mm, "position {} vs floor {floor_mm}", result.position_mm.after);
-            assert!(result.orientation_deg.after <= 1.10 * floor_deg, "orientation {} vs floor {floor_deg}", result.orientation_deg.after);
-            assert_eq!(result.gimbal_model, if quadratic { GimbalModel::Quadratic } else { GimbalModel::Linear });
+            assert!(
+                result.position_mm.after <= 1.10 * floor_mm,
+                "position {} vs floor {floor_mm}",
+                result.position_mm.after
+            );
+            assert!(
+                result.orientation_deg.after <= 1.10 * floor_deg,
+                "orientation {} vs floor {floor_deg}",
+                result.orientation_deg.after
+            );
+            assert_eq!(
+                result.gimbal_model,
+                if quadratic { GimbalModel::Quadratic } else { GimbalModel::Linear }
+            );
         }
     }
 }

@@ -44,7 +44,10 @@ pub fn pivot_calibration(poses: &[(Matrix3<f64>, Vector3<f64>)]) -> Result<Pivot
         return Err(PivotError::TooFewPoses(poses.len()));
     }
     // Spread: the largest angle from the first pose, then from that pose (two passes suffice).
-    let far = poses.iter().max_by(|a, b| angle_deg(&poses[0].0, &a.0).total_cmp(&angle_deg(&poses[0].0, &b.0))).map_or(poses[0].0, |p| p.0);
+    let far = poses
+        .iter()
+        .max_by(|a, b| angle_deg(&poses[0].0, &a.0).total_cmp(&angle_deg(&poses[0].0, &b.0)))
+        .map_or(poses[0].0, |p| p.0);
     let spread_deg = poses.iter().map(|p| angle_deg(&far, &p.0)).fold(0.0, f64::max);
     if spread_deg < MIN_ROTATION_DEG {
         return Err(PivotError::TooLittleRotation { spread_deg });
@@ -64,7 +67,9 @@ pub fn pivot_calibration(poses: &[(Matrix3<f64>, Vector3<f64>)]) -> Result<Pivot
     let x = a.clone().svd(true, true).solve(&b, 1e-12).unwrap_or_else(|_| DVector::zeros(6));
     let tip_mm = Vector3::new(x[0], x[1], x[2]);
     let pivot_mm = Vector3::new(x[3], x[4], x[5]);
-    let rms_mm = (poses.iter().map(|(r, t)| (r * tip_mm + t - pivot_mm).norm_squared()).sum::<f64>() / n as f64).sqrt();
+    let rms_mm = (poses.iter().map(|(r, t)| (r * tip_mm + t - pivot_mm).norm_squared()).sum::<f64>()
+        / n as f64)
+        .sqrt();
     Ok(Pivot { tip_mm, pivot_mm, rms_mm })
 }
 
@@ -79,8 +84,17 @@ mod tests {
         (0..60)
             .map(|k| {
                 let a = k as f64 * 0.37;
-                let r = Rotation3::from_euler_angles(tilt_deg.to_radians() * a.sin(), tilt_deg.to_radians() * (1.7 * a).cos(), 0.8 * a).into_inner();
-                let wobble = Vector3::new((k * 13 % 7) as f64 - 3.0, (k * 5 % 11) as f64 - 5.0, (k * 3 % 5) as f64 - 2.0) * (noise_mm / 5.0);
+                let r = Rotation3::from_euler_angles(
+                    tilt_deg.to_radians() * a.sin(),
+                    tilt_deg.to_radians() * (1.7 * a).cos(),
+                    0.8 * a,
+                )
+                .into_inner();
+                let wobble = Vector3::new(
+                    (k * 13 % 7) as f64 - 3.0,
+                    (k * 5 % 11) as f64 - 5.0,
+                    (k * 3 % 5) as f64 - 2.0,
+                ) * (noise_mm / 5.0);
                 (r, pivot - r * tip + wobble)
             })
             .collect()

@@ -17,7 +17,13 @@ use std::path::{Path, PathBuf};
 /// Format tag of `recording.json`.
 pub const RECORDING_FORMAT: &str = "haptic-recording/1";
 /// Steps every recording has, and the target files each needs besides `device.csv`.
-pub const REQUIRED_STEPS: [(&str, &[&str]); 5] = [("delay", &["hip"]), ("gimbal", &["hip"]), ("reference", &["hip"]), ("joints", &["hip"]), ("landmarks", &["hip", "t1", "t2"])];
+pub const REQUIRED_STEPS: [(&str, &[&str]); 5] = [
+    ("delay", &["hip"]),
+    ("gimbal", &["hip"]),
+    ("reference", &["hip"]),
+    ("joints", &["hip"]),
+    ("landmarks", &["hip", "t1", "t2"]),
+];
 /// A gap longer than this many median sample periods is an error.
 pub const MAX_GAP_FACTOR: f64 = 10.0;
 /// … but never shorter than this, s.
@@ -115,7 +121,10 @@ struct Header {
 
 fn read(path: &Path) -> Result<String, RecordingError> {
     if !path.exists() {
-        return Err(RecordingError::Missing { path: path.to_owned(), what: "required by the haptic recording layout" });
+        return Err(RecordingError::Missing {
+            path: path.to_owned(),
+            what: "required by the haptic recording layout",
+        });
     }
     std::fs::read_to_string(path).map_err(|source| RecordingError::Io { path: path.to_owned(), source })
 }
@@ -123,7 +132,8 @@ fn read(path: &Path) -> Result<String, RecordingError> {
 /// Parse a CSV with `header` into rows of `columns` finite numbers; checks time order and gaps.
 fn rows(path: &Path, header: &str, columns: usize) -> Result<(Vec<f64>, Vec<Vec<f64>>), RecordingError> {
     let text = read(path)?;
-    let line_error = |line: usize, message: String| RecordingError::Line { path: path.to_owned(), line, message };
+    let line_error =
+        |line: usize, message: String| RecordingError::Line { path: path.to_owned(), line, message };
     let mut lines = text.lines().enumerate();
     match lines.next() {
         Some((_, h)) if h.trim() == header => {}
@@ -142,15 +152,26 @@ fn rows(path: &Path, header: &str, columns: usize) -> Result<(Vec<f64>, Vec<Vec<
         }
         let mut row = Vec::with_capacity(columns);
         for (k, f) in fields.iter().enumerate() {
-            let v: f64 = f.parse().map_err(|_| line_error(n, format!("field {} (`{f}`) is not a number", header.split(',').nth(k).unwrap_or("?"))))?;
+            let v: f64 = f.parse().map_err(|_| {
+                line_error(
+                    n,
+                    format!("field {} (`{f}`) is not a number", header.split(',').nth(k).unwrap_or("?")),
+                )
+            })?;
             if !v.is_finite() {
-                return Err(line_error(n, format!("field {} is not finite", header.split(',').nth(k).unwrap_or("?"))));
+                return Err(line_error(
+                    n,
+                    format!("field {} is not finite", header.split(',').nth(k).unwrap_or("?")),
+                ));
             }
             row.push(v);
         }
         if let Some(&last) = times.last() {
             if row[0] <= last {
-                return Err(line_error(n, format!("time {} s does not increase (previous {last} s)", row[0])));
+                return Err(line_error(
+                    n,
+                    format!("time {} s does not increase (previous {last} s)", row[0]),
+                ));
             }
         }
         times.push(row[0]);
@@ -163,7 +184,14 @@ fn rows(path: &Path, header: &str, columns: usize) -> Result<(Vec<f64>, Vec<Vec<
     periods.sort_by(f64::total_cmp);
     let limit = (periods[periods.len() / 2] * MAX_GAP_FACTOR).max(MIN_GAP_S);
     if let Some(k) = times.windows(2).position(|w| w[1] - w[0] > limit) {
-        return Err(line_error(k + 3, format!("gap of {:.0} ms before this sample (longest allowed {:.0} ms): the stream dropped out", (times[k + 1] - times[k]) * 1e3, limit * 1e3)));
+        return Err(line_error(
+            k + 3,
+            format!(
+                "gap of {:.0} ms before this sample (longest allowed {:.0} ms): the stream dropped out",
+                (times[k + 1] - times[k]) * 1e3,
+                limit * 1e3
+            ),
+        ));
     }
     Ok((times, values))
 }
@@ -179,7 +207,11 @@ fn target_stream(path: &Path) -> Result<TargetStream, RecordingError> {
     for (i, r) in rows.iter().enumerate() {
         let q = Quaternion::new(r[4], r[5], r[6], r[7]);
         if (q.norm() - 1.0).abs() > 0.01 {
-            return Err(RecordingError::Line { path: path.to_owned(), line: i + 2, message: format!("quaternion norm {:.4}, expected a unit quaternion", q.norm()) });
+            return Err(RecordingError::Line {
+                path: path.to_owned(),
+                line: i + 2,
+                message: format!("quaternion norm {:.4}, expected a unit quaternion", q.norm()),
+            });
         }
         out.position_mm.push(Vector3::new(r[1], r[2], r[3]));
         out.rotation.push(UnitQuaternion::from_quaternion(q));
@@ -191,14 +223,22 @@ fn target_stream(path: &Path) -> Result<TargetStream, RecordingError> {
 pub fn load(dir: &Path) -> Result<Recording, RecordingError> {
     let header_path = dir.join("recording.json");
     let header_error = |message: String| RecordingError::Header { path: header_path.clone(), message };
-    let header: Header = serde_json::from_str(&read(&header_path)?).map_err(|e| header_error(e.to_string()))?;
+    let header: Header =
+        serde_json::from_str(&read(&header_path)?).map_err(|e| header_error(e.to_string()))?;
     if header.format != RECORDING_FORMAT {
-        return Err(header_error(format!("field `format`: expected \"{RECORDING_FORMAT}\", found \"{}\"", header.format)));
+        return Err(header_error(format!(
+            "field `format`: expected \"{RECORDING_FORMAT}\", found \"{}\"",
+            header.format
+        )));
     }
     let nominal = match header.device.as_str() {
         "omni" => Device::omni(),
         "premium15" => Device::premium15(),
-        other => return Err(header_error(format!("field `device`: expected \"omni\" or \"premium15\", found \"{other}\""))),
+        other => {
+            return Err(header_error(format!(
+                "field `device`: expected \"omni\" or \"premium15\", found \"{other}\""
+            )))
+        }
     };
     for (name, v) in [("l1_mm", header.l1_mm), ("l2_mm", header.l2_mm)] {
         if !(v.is_finite() && v > 10.0 && v < 1000.0) {
@@ -214,7 +254,10 @@ pub fn load(dir: &Path) -> Result<Recording, RecordingError> {
             if *name == "verify" {
                 continue;
             }
-            return Err(RecordingError::Missing { path: folder, what: "a step of the calibration procedure" });
+            return Err(RecordingError::Missing {
+                path: folder,
+                what: "a step of the calibration procedure",
+            });
         }
         let mut step = Step { device: device_stream(&folder.join("device.csv"))?, targets: BTreeMap::new() };
         for t in targets.iter() {
@@ -231,11 +274,17 @@ mod tests {
 
     fn write_recording(dir: &Path) {
         std::fs::create_dir_all(dir).unwrap();
-        std::fs::write(dir.join("recording.json"), r#"{"format":"haptic-recording/1","device":"omni","l1_mm":133.35,"l2_mm":133.0}"#).unwrap();
+        std::fs::write(
+            dir.join("recording.json"),
+            r#"{"format":"haptic-recording/1","device":"omni","l1_mm":133.35,"l2_mm":133.0}"#,
+        )
+        .unwrap();
         for (step, targets) in REQUIRED_STEPS {
             let folder = dir.join(step);
             std::fs::create_dir_all(&folder).unwrap();
-            let device: String = (0..100).map(|k| format!("{},{},0.1,0.2,0.3,0.4,0.5\n", k as f64 * 1e-3, k as f64 * 1e-3)).collect();
+            let device: String = (0..100)
+                .map(|k| format!("{},{},0.1,0.2,0.3,0.4,0.5\n", k as f64 * 1e-3, k as f64 * 1e-3))
+                .collect();
             std::fs::write(folder.join("device.csv"), format!("{DEVICE_HEADER}\n{device}")).unwrap();
             for t in targets {
                 let rows: String = (0..20).map(|k| format!("{},1,2,3,1,0,0,0\n", k as f64 / 60.0)).collect();
@@ -260,7 +309,15 @@ mod tests {
             (good.replacen("0.05,", "0.0,", 1), "hip.csv:5", "does not increase"),
             (good.replacen("1,2,3,1,0,0,0", "1,2,x,1,0,0,0", 1), "hip.csv:2", "z_mm"),
             (good.replacen("1,2,3,1,0,0,0", "1,2,3,2,0,0,0", 1), "hip.csv:2", "quaternion"),
-            (good.lines().enumerate().filter(|(i, _)| !(3..18).contains(i)).map(|(_, l)| format!("{l}\n")).collect::<String>(), "hip.csv:4", "gap of 267 ms"),
+            (
+                good.lines()
+                    .enumerate()
+                    .filter(|(i, _)| !(3..18).contains(i))
+                    .map(|(_, l)| format!("{l}\n"))
+                    .collect::<String>(),
+                "hip.csv:4",
+                "gap of 267 ms",
+            ),
             (good.replacen("t_s,x_mm", "time,x_mm", 1), "hip.csv:1", "header"),
         ];
         for (text, place, what) in cases {

@@ -81,7 +81,11 @@ pub fn fit_circle(points: &[Vector2<f64>]) -> (Vector2<f64>, f64, f64) {
 
 /// Derive the reference from target poses `targets` (target → tracker), device poses `frames`
 /// (θ1…θ5, device coordinates) and the device → tracker transform `eh`.
-pub fn orientation_reference(targets: &[Pose], frames: &[Pose], eh: &Pose) -> Result<OrientationReference, ReferenceError> {
+pub fn orientation_reference(
+    targets: &[Pose],
+    frames: &[Pose],
+    eh: &Pose,
+) -> Result<OrientationReference, ReferenceError> {
     let n = targets.len().min(frames.len());
     if n < 50 {
         return Err(ReferenceError::TooFewSamples(n));
@@ -151,7 +155,12 @@ pub fn orientation_reference(targets: &[Pose], frames: &[Pose], eh: &Pose) -> Re
     let origin = gap_centre + std::f64::consts::PI;
     // The roll turns markers by −θ6 about z (R6 = Rz(−θ6)): θ6 = origin angle − marker angle.
     let roll = angles.iter().map(|a| wrap(origin - a)).collect();
-    Ok(OrientationReference { axis_in_target, roll, range_deg, circle_rms_mm: (rms_all / MARKERS_MM.len() as f64).sqrt() })
+    Ok(OrientationReference {
+        axis_in_target,
+        roll,
+        range_deg,
+        circle_rms_mm: (rms_all / MARKERS_MM.len() as f64).sqrt(),
+    })
 }
 
 fn wrap(a: f64) -> f64 {
@@ -167,18 +176,25 @@ mod tests {
 
     #[test]
     fn circle_fit_recovers_centre_and_radius() {
-        let pts: Vec<Vector2<f64>> = (0..40).map(|k| {
-            let a = k as f64 * 0.1;
-            Vector2::new(3.0 + 20.0 * a.cos(), -7.0 + 20.0 * a.sin()) + Vector2::new(0.01 * ((k * 7 % 5) as f64 - 2.0), 0.0)
-        }).collect();
+        let pts: Vec<Vector2<f64>> = (0..40)
+            .map(|k| {
+                let a = k as f64 * 0.1;
+                Vector2::new(3.0 + 20.0 * a.cos(), -7.0 + 20.0 * a.sin())
+                    + Vector2::new(0.01 * ((k * 7 % 5) as f64 - 2.0), 0.0)
+            })
+            .collect();
         let (c, r, rms) = fit_circle(&pts);
-        assert!((c - Vector2::new(3.0, -7.0)).norm() < 0.05 && (r - 20.0).abs() < 0.05 && rms < 0.05, "{c} {r} {rms}");
+        assert!(
+            (c - Vector2::new(3.0, -7.0)).norm() < 0.05 && (r - 20.0).abs() < 0.05 && rms < 0.05,
+            "{c} {r} {rms}"
+        );
     }
 
     #[test]
     fn recovers_the_stylus_axis_and_roll_origin() {
         let device = Device::omni();
-        let eh: Pose = (Rotation3::from_euler_angles(0.3, -0.5, 0.9).into_inner(), Vector3::new(200.0, 50.0, 800.0));
+        let eh: Pose =
+            (Rotation3::from_euler_angles(0.3, -0.5, 0.9).into_inner(), Vector3::new(200.0, 50.0, 800.0));
         // The target sits on the stylus 40 mm from the HIP, turned against it.
         let mount = Rotation3::from_euler_angles(0.4, 0.2, -0.7).into_inner();
         let mount_offset = Vector3::new(12.0, -5.0, 40.0);
@@ -211,6 +227,9 @@ mod tests {
         let spread = offsets.iter().map(|o| (o - mean).abs()).fold(0.0, f64::max);
         assert!(spread.to_degrees() < 1.0, "roll reference spread {}°", spread.to_degrees());
         assert!(mean.to_degrees().abs() < 1.5, "θ6 origin off by {}°", mean.to_degrees());
-        assert!(matches!(orientation_reference(&targets[..10], &frames[..10], &eh), Err(ReferenceError::TooFewSamples(10))));
+        assert!(matches!(
+            orientation_reference(&targets[..10], &frames[..10], &eh),
+            Err(ReferenceError::TooFewSamples(10))
+        ));
     }
 }

@@ -21,7 +21,12 @@ pub fn kmeans_select(points: &[Vector3<f64>], n: usize, seed: u64) -> Vec<usize>
     let mut order: Vec<usize> = (0..points.len()).collect();
     order.shuffle(&mut rng);
     let mut centroids: Vec<Vector3<f64>> = order[..n].iter().map(|&i| points[i]).collect();
-    let nearest = |p: &Vector3<f64>, cs: &[Vector3<f64>]| cs.iter().enumerate().min_by(|a, b| (a.1 - p).norm_squared().total_cmp(&(b.1 - p).norm_squared())).map_or(0, |c| c.0);
+    let nearest = |p: &Vector3<f64>, cs: &[Vector3<f64>]| {
+        cs.iter()
+            .enumerate()
+            .min_by(|a, b| (a.1 - p).norm_squared().total_cmp(&(b.1 - p).norm_squared()))
+            .map_or(0, |c| c.0)
+    };
     for _ in 0..ITERATIONS {
         let mut sums = vec![(Vector3::zeros(), 0usize); n];
         for p in points {
@@ -48,7 +53,8 @@ mod tests {
     #[test]
     fn selects_a_seeded_spread_of_real_samples() {
         // Dense cluster plus a sparse line: the selection must reach the sparse part too.
-        let mut points: Vec<Vector3<f64>> = (0..2000).map(|k| Vector3::new((k % 40) as f64 * 0.1, (k / 40) as f64 * 0.1, 0.0)).collect();
+        let mut points: Vec<Vector3<f64>> =
+            (0..2000).map(|k| Vector3::new((k % 40) as f64 * 0.1, (k / 40) as f64 * 0.1, 0.0)).collect();
         points.extend((0..50).map(|k| Vector3::new(100.0 + k as f64 * 4.0, 0.0, 0.0)));
         let a = kmeans_select(&points, 100, 7);
         assert_eq!(a, kmeans_select(&points, 100, 7), "seeded");

@@ -35,7 +35,15 @@ pub struct HapticSimOptions {
 
 impl Default for HapticSimOptions {
     fn default() -> Self {
-        HapticSimOptions { seed: 1, delay_ms: 13.0, quadratic_gimbals: true, tracker_hz: 90.0, noise_mm: 0.1, noise_deg: 0.05, joints_seconds: 60.0 }
+        HapticSimOptions {
+            seed: 1,
+            delay_ms: 13.0,
+            quadratic_gimbals: true,
+            tracker_hz: 90.0,
+            noise_mm: 0.1,
+            noise_deg: 0.05,
+            joints_seconds: 60.0,
+        }
     }
 }
 
@@ -81,12 +89,33 @@ fn raw_for(model: &SensorModel, theta: f64) -> f64 {
 fn motion(step: &str, t: f64) -> [f64; 6] {
     let phase = step.len() as f64;
     let s = t + phase;
-    let free = [0.5 * (0.7 * s).sin() + 0.15 * (1.9 * s).sin(), 0.45 + 0.3 * (0.5 * s + 1.0).sin(), 0.3 + 0.35 * (0.83 * s).cos(), 0.6 * (0.9 * s).sin(), 0.5 * (1.1 * s + 0.3).sin(), 1.5 * (0.6 * s).sin()];
+    let free = [
+        0.5 * (0.7 * s).sin() + 0.15 * (1.9 * s).sin(),
+        0.45 + 0.3 * (0.5 * s + 1.0).sin(),
+        0.3 + 0.35 * (0.83 * s).cos(),
+        0.6 * (0.9 * s).sin(),
+        0.5 * (1.1 * s + 0.3).sin(),
+        1.5 * (0.6 * s).sin(),
+    ];
     match step {
         // Towards and away from the device, briskly, as the delay step asks.
-        "delay" => [0.3 * (1.7 * t).sin(), 0.45 + 0.25 * (2.3 * t).sin() + 0.1 * (5.1 * t).sin(), 0.3 + 0.3 * (3.1 * t).cos() + 0.1 * (6.7 * t).sin(), 0.3 * (1.3 * t).sin(), 0.3 * (0.9 * t).sin(), 0.5 * (0.7 * t).sin()],
+        "delay" => [
+            0.3 * (1.7 * t).sin(),
+            0.45 + 0.25 * (2.3 * t).sin() + 0.1 * (5.1 * t).sin(),
+            0.3 + 0.3 * (3.1 * t).cos() + 0.1 * (6.7 * t).sin(),
+            0.3 * (1.3 * t).sin(),
+            0.3 * (0.9 * t).sin(),
+            0.5 * (0.7 * t).sin(),
+        ],
         "gimbal" => [0.1, 0.4, 0.3, 0.8 * (0.8 * t).sin(), 0.7 * (1.3 * t).sin(), 1.0 * (0.5 * t).sin()],
-        "reference" => [0.1, 0.4, 0.3, 0.2 + 0.03 * (0.9 * t).sin(), -0.1 + 0.02 * (0.7 * t).cos(), -2.6 + 5.2 * (0.5 - 0.5 * (std::f64::consts::TAU * t / 10.0).cos())],
+        "reference" => [
+            0.1,
+            0.4,
+            0.3,
+            0.2 + 0.03 * (0.9 * t).sin(),
+            -0.1 + 0.02 * (0.7 * t).cos(),
+            -2.6 + 5.2 * (0.5 - 0.5 * (std::f64::consts::TAU * t / 10.0).cos()),
+        ],
         _ => free,
     }
 }
@@ -102,7 +131,8 @@ fn step_seconds(step: &str, options: &HapticSimOptions) -> f64 {
 /// Simulate a whole recording.
 pub fn simulate_recording(options: &HapticSimOptions) -> (Recording, HapticTruth) {
     let device = Device::omni();
-    let gimbal = |j: f64, k: f64, m: f64| SensorModel { j: if options.quadratic_gimbals { j } else { 0.0 }, k, m };
+    let gimbal =
+        |j: f64, k: f64, m: f64| SensorModel { j: if options.quadratic_gimbals { j } else { 0.0 }, k, m };
     let sensors = [
         SensorModel { j: 0.0, k: 1.02, m: 0.05 },
         SensorModel { j: 0.0, k: 0.97, m: -0.09 },
@@ -111,15 +141,20 @@ pub fn simulate_recording(options: &HapticSimOptions) -> (Recording, HapticTruth
         gimbal(-0.07, 0.97, -0.04),
         gimbal(0.05, 1.02, 0.08),
     ];
-    let eh: Pose = (Rotation3::from_euler_angles(0.1, 0.6, -0.2).into_inner(), Vector3::new(220.0, -80.0, 950.0));
-    let mount: Pose = (Rotation3::from_euler_angles(0.4, 0.2, -0.7).into_inner(), Vector3::new(12.0, -5.0, 40.0));
+    let eh: Pose =
+        (Rotation3::from_euler_angles(0.1, 0.6, -0.2).into_inner(), Vector3::new(220.0, -80.0, 950.0));
+    let mount: Pose =
+        (Rotation3::from_euler_angles(0.4, 0.2, -0.7).into_inner(), Vector3::new(12.0, -5.0, 40.0));
     let truth = HapticTruth { device, sensors, eh, mount, delay_ms: options.delay_ms };
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
-    let pos_noise = Normal::new(0.0, options.noise_mm.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
-    let rot_noise = Normal::new(0.0, options.noise_deg.max(0.0).to_radians()).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
+    let pos_noise = Normal::new(0.0, options.noise_mm.max(0.0))
+        .unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
+    let rot_noise = Normal::new(0.0, options.noise_deg.max(0.0).to_radians())
+        .unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
     let central = Vector3::from(device.origin_mm) + Vector3::new(0.0, device.l2_mm, -device.l1_mm);
     let mut steps = BTreeMap::new();
-    let names = REQUIRED_STEPS.iter().map(|(n, targets)| (*n, targets.to_vec())).chain([("verify", vec!["hip"])]);
+    let names =
+        REQUIRED_STEPS.iter().map(|(n, targets)| (*n, targets.to_vec())).chain([("verify", vec!["hip"])]);
     for (name, targets) in names {
         let seconds = step_seconds(name, options);
         let mut device_stream = DeviceStream::default();
@@ -142,19 +177,38 @@ pub fn simulate_recording(options: &HapticSimOptions) -> (Recording, HapticTruth
                 let (r, p): (Matrix3<f64>, Vector3<f64>) = match target {
                     "t1" => {
                         // On the first link: rotates about the central joint with θ1 and θ2.
-                        let link = (Rotation3::from_axis_angle(&Vector3::y_axis(), -theta[0]) * Rotation3::from_axis_angle(&Vector3::x_axis(), -theta[1])).into_inner();
+                        let link = (Rotation3::from_axis_angle(&Vector3::y_axis(), -theta[0])
+                            * Rotation3::from_axis_angle(&Vector3::x_axis(), -theta[1]))
+                        .into_inner();
                         (eh.0 * link, eh.0 * (central + link * Vector3::new(10.0, 30.0, 60.0)) + eh.1)
                     }
                     "t2" => {
                         // On the turret, above the central joint: circles the y axis with θ1.
                         let turret = Rotation3::from_axis_angle(&Vector3::y_axis(), -theta[0]).into_inner();
-                        (eh.0 * turret, eh.0 * (central + Vector3::new(0.0, 50.0, 0.0) + turret * Vector3::new(0.0, 0.0, 70.0)) + eh.1)
+                        (
+                            eh.0 * turret,
+                            eh.0 * (central
+                                + Vector3::new(0.0, 50.0, 0.0)
+                                + turret * Vector3::new(0.0, 0.0, 70.0))
+                                + eh.1,
+                        )
                     }
                     _ => truth.stylus_target(&theta),
                 };
-                let noise_r = Rotation3::from_euler_angles(rot_noise.sample(&mut rng), rot_noise.sample(&mut rng), rot_noise.sample(&mut rng)).into_inner();
+                let noise_r = Rotation3::from_euler_angles(
+                    rot_noise.sample(&mut rng),
+                    rot_noise.sample(&mut rng),
+                    rot_noise.sample(&mut rng),
+                )
+                .into_inner();
                 stream.t_s.push(t);
-                stream.position_mm.push(p + Vector3::new(pos_noise.sample(&mut rng), pos_noise.sample(&mut rng), pos_noise.sample(&mut rng)));
+                stream.position_mm.push(
+                    p + Vector3::new(
+                        pos_noise.sample(&mut rng),
+                        pos_noise.sample(&mut rng),
+                        pos_noise.sample(&mut rng),
+                    ),
+                );
                 stream.rotation.push(UnitQuaternion::from_matrix(&(r * noise_r)));
             }
             step.targets.insert(target.to_string(), stream);
@@ -175,13 +229,21 @@ pub fn write_recording(recording: &Recording, dir: &std::path::Path) -> std::io:
         std::fs::create_dir_all(&folder)?;
         let mut text = String::from("t_s,raw1,raw2,raw3,raw4,raw5,raw6\n");
         for (t, r) in step.device.t_s.iter().zip(&step.device.raw) {
-            let _ = writeln!(text, "{t:.6},{:.9},{:.9},{:.9},{:.9},{:.9},{:.9}", r[0], r[1], r[2], r[3], r[4], r[5]);
+            let _ = writeln!(
+                text,
+                "{t:.6},{:.9},{:.9},{:.9},{:.9},{:.9},{:.9}",
+                r[0], r[1], r[2], r[3], r[4], r[5]
+            );
         }
         crate::fsutil::write_atomic(&folder.join("device.csv"), text.as_bytes())?;
         for (target, s) in &step.targets {
             let mut text = String::from("t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz\n");
             for ((t, p), q) in s.t_s.iter().zip(&s.position_mm).zip(&s.rotation) {
-                let _ = writeln!(text, "{t:.6},{:.6},{:.6},{:.6},{:.9},{:.9},{:.9},{:.9}", p.x, p.y, p.z, q.w, q.i, q.j, q.k);
+                let _ = writeln!(
+                    text,
+                    "{t:.6},{:.6},{:.6},{:.6},{:.9},{:.9},{:.9},{:.9}",
+                    p.x, p.y, p.z, q.w, q.i, q.j, q.k
+                );
             }
             crate::fsutil::write_atomic(&folder.join(format!("{target}.csv")), text.as_bytes())?;
         }

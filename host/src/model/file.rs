@@ -53,14 +53,9 @@ fn is_json(path: &Path) -> bool {
 impl ArmModel {
     /// Read a model file (`.toml`, or `.json`).
     pub fn load(path: &Path) -> Result<ArmModel, ModelError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
-            path: path.to_owned(),
-            source,
-        })?;
-        let syntax = |message: String| ModelError::Syntax {
-            path: path.to_owned(),
-            message,
-        };
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| ModelError::Io { path: path.to_owned(), source })?;
+        let syntax = |message: String| ModelError::Syntax { path: path.to_owned(), message };
         let file: ModelFile = if is_json(path) {
             serde_json::from_str(&text).map_err(|e| syntax(e.to_string()))?
         } else {
@@ -70,11 +65,8 @@ impl ArmModel {
     }
 
     fn from_file(file: ModelFile, path: &Path) -> Result<ArmModel, ModelError> {
-        let field = |field: String, message: String| ModelError::Field {
-            path: path.to_owned(),
-            field,
-            message,
-        };
+        let field =
+            |field: String, message: String| ModelError::Field { path: path.to_owned(), field, message };
         if file.format != MODEL_FORMAT {
             return Err(field(
                 "format".into(),
@@ -96,7 +88,12 @@ impl ArmModel {
             return Err(field(id.to_string(), "must be a finite number".into()));
         }
         for name in &file.effects {
-            let effect = Effect::parse(name).ok_or_else(|| field(format!("effects[\"{name}\"]"), "unknown effect; expected e.g. eccentricity:5, compliance:2, twist:3, tcp, scale".into()))?;
+            let effect = Effect::parse(name).ok_or_else(|| {
+                field(
+                    format!("effects[\"{name}\"]"),
+                    "unknown effect; expected e.g. eccentricity:5, compliance:2, twist:3, tcp, scale".into(),
+                )
+            })?;
             effect.add_to(&mut model);
         }
         for (name, [lower, upper]) in file.free {
@@ -105,11 +102,17 @@ impl ArmModel {
                 field(key.clone(), "unknown parameter; expected e.g. offset:1, length:3, link_offset:2, twist:5, axis:2, tcp.z, scale".into())
             })?;
             if !(lower.is_finite() && upper.is_finite() && lower <= upper) {
-                return Err(field(key, format!("bounds must be finite with lower <= upper, found [{lower}, {upper}]")));
+                return Err(field(
+                    key,
+                    format!("bounds must be finite with lower <= upper, found [{lower}, {upper}]"),
+                ));
             }
             let value = model.get(id);
             if !(lower..=upper).contains(&value) {
-                return Err(field(key, format!("current value {value} lies outside its bounds [{lower}, {upper}]")));
+                return Err(field(
+                    key,
+                    format!("current value {value} lies outside its bounds [{lower}, {upper}]"),
+                ));
             }
             model.fix_param(id);
             model.free.push(FreeParam { id, lower, upper });
@@ -143,10 +146,8 @@ impl ArmModel {
 
     /// Write the model atomically (`.json` by extension, otherwise TOML).
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
-        fsutil::write_atomic(path, self.to_text(is_json(path)).as_bytes()).map_err(|source| ModelError::Io {
-            path: path.to_owned(),
-            source,
-        })
+        fsutil::write_atomic(path, self.to_text(is_json(path)).as_bytes())
+            .map_err(|source| ModelError::Io { path: path.to_owned(), source })
     }
 }
 
@@ -175,11 +176,16 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("m.toml");
         // A key after a [[joint]] table belongs to that joint: it must be refused, not ignored.
-        let misplaced = ArmModel::suta_nominal().to_text(false).replace("[free]", "effects = [\"eccentricity:5\"]\n\n[free]");
+        let misplaced = ArmModel::suta_nominal()
+            .to_text(false)
+            .replace("[free]", "effects = [\"eccentricity:5\"]\n\n[free]");
         std::fs::write(&path, &misplaced).unwrap();
         let err = ArmModel::load(&path).unwrap_err().to_string();
         assert!(err.contains("effects"), "{err}");
-        let text = format!("effects = [\"eccentricity:5\", \"compliance:2\"]\n{}", ArmModel::suta_nominal().to_text(false));
+        let text = format!(
+            "effects = [\"eccentricity:5\", \"compliance:2\"]\n{}",
+            ArmModel::suta_nominal().to_text(false)
+        );
         std::fs::write(&path, &text).unwrap();
         let model = ArmModel::load(&path).unwrap();
         for id in [ParamId::EccSin(4), ParamId::EccCos(4), ParamId::Compliance(1)] {

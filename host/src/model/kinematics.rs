@@ -141,10 +141,19 @@ fn shift(axis: Axis, value_mm: f64, id: ParamId) -> Op {
 
 /// Joint angle θ = φ + δθ + Δθ_ecc(φ) + c·λ (degrees) and its partials. The harmonics are
 /// evaluated only when `harmonics` (some eccentricity is non-zero or wanted).
-fn joint_angle(model: &ArmModel, j: usize, enc_deg: f64, lever_m: f64, harmonics: bool) -> (f64, AnglePartials) {
+fn joint_angle(
+    model: &ArmModel,
+    j: usize,
+    enc_deg: f64,
+    lever_m: f64,
+    harmonics: bool,
+) -> (f64, AnglePartials) {
     let joint = &model.joints[j];
     let [s1, c1, s2, c2] = if harmonics { eccentricity::partials(enc_deg) } else { [0.0; 4] };
-    let ecc = joint.eccentricity_sin_deg * s1 + joint.eccentricity_cos_deg * c1 + joint.eccentricity2_sin_deg * s2 + joint.eccentricity2_cos_deg * c2;
+    let ecc = joint.eccentricity_sin_deg * s1
+        + joint.eccentricity_cos_deg * c1
+        + joint.eccentricity2_sin_deg * s2
+        + joint.eccentricity2_cos_deg * c2;
     let theta = enc_deg + joint.offset_deg + ecc + joint.compliance_deg_per_m * lever_m;
     let partials = [
         (ParamId::Offset(j), DEG),
@@ -233,10 +242,19 @@ fn evaluate(
     enc_deg: &[f64; JOINTS],
     mut wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
 ) -> ToolPose {
-    let wants = |kind: fn(usize) -> ParamId| wanted.as_ref().is_some_and(|(c, _)| (0..JOINTS).any(|j| c.column(kind(j)).is_some()));
-    let harmonics = [ParamId::EccSin, ParamId::EccCos, ParamId::Ecc2Sin, ParamId::Ecc2Cos].into_iter().any(wants)
-        || model.joints.iter().any(|j| j.eccentricity_sin_deg != 0.0 || j.eccentricity_cos_deg != 0.0 || j.eccentricity2_sin_deg != 0.0 || j.eccentricity2_cos_deg != 0.0);
-    let rigid: [(f64, AnglePartials); JOINTS] = std::array::from_fn(|j| joint_angle(model, j, enc_deg[j], 0.0, harmonics));
+    let wants = |kind: fn(usize) -> ParamId| {
+        wanted.as_ref().is_some_and(|(c, _)| (0..JOINTS).any(|j| c.column(kind(j)).is_some()))
+    };
+    let harmonics =
+        [ParamId::EccSin, ParamId::EccCos, ParamId::Ecc2Sin, ParamId::Ecc2Cos].into_iter().any(wants)
+            || model.joints.iter().any(|j| {
+                j.eccentricity_sin_deg != 0.0
+                    || j.eccentricity_cos_deg != 0.0
+                    || j.eccentricity2_sin_deg != 0.0
+                    || j.eccentricity2_cos_deg != 0.0
+            });
+    let rigid: [(f64, AnglePartials); JOINTS] =
+        std::array::from_fn(|j| joint_angle(model, j, enc_deg[j], 0.0, harmonics));
     let angles = if wants(ParamId::Compliance) || model.joints.iter().any(|j| j.compliance_deg_per_m != 0.0) {
         let levers = gravity_levers(model, &rigid.map(|a| a.0));
         std::array::from_fn(|j| joint_angle(model, j, enc_deg[j], levers[j], harmonics))
@@ -318,12 +336,22 @@ mod tests {
     /// Independent forward path: 4×4 homogeneous matrices multiplied row by row.
     fn fk_by_matrices(model: &ArmModel, enc: &[f64; 6]) -> nalgebra::Vector4<f64> {
         use nalgebra::Matrix4;
-        let rz = |t: f64| Matrix4::new(t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.);
-        let rx = |t: f64| Matrix4::new(1., 0., 0., 0., 0., t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1.);
-        let tr = |x: f64, y: f64, z: f64| Matrix4::new(1., 0., 0., x, 0., 1., 0., y, 0., 0., 1., z, 0., 0., 0., 1.);
+        let rz = |t: f64| {
+            Matrix4::new(t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.)
+        };
+        let rx = |t: f64| {
+            Matrix4::new(1., 0., 0., 0., 0., t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1.)
+        };
+        let tr = |x: f64, y: f64, z: f64| {
+            Matrix4::new(1., 0., 0., x, 0., 1., 0., y, 0., 0., 1., z, 0., 0., 0., 1.)
+        };
         let mut t = Matrix4::identity();
         for (j, row) in model.joints.iter().enumerate() {
-            t = t * rz((enc[j] + row.offset_deg).to_radians()) * tr(0., 0., row.d_mm) * tr(row.a_mm, 0., 0.) * rx(row.alpha_deg.to_radians());
+            t = t
+                * rz((enc[j] + row.offset_deg).to_radians())
+                * tr(0., 0., row.d_mm)
+                * tr(row.a_mm, 0., 0.)
+                * rx(row.alpha_deg.to_radians());
         }
         t * nalgebra::Vector4::new(model.tcp_mm[0], model.tcp_mm[1], model.tcp_mm[2], 1.0)
     }
@@ -359,7 +387,12 @@ mod tests {
             minus.set(id, model.get(id) - h);
             let fd = (tool_pose(&plus, &enc).position_mm - tool_pose(&minus, &enc).position_mm) / (2.0 * h);
             for k in 0..3 {
-                assert!((jac[c][k] - fd[k]).abs() < 1e-5 * (1.0 + fd[k].abs()), "{id}[{k}]: {} vs {}", jac[c][k], fd[k]);
+                assert!(
+                    (jac[c][k] - fd[k]).abs() < 1e-5 * (1.0 + fd[k].abs()),
+                    "{id}[{k}]: {} vs {}",
+                    jac[c][k],
+                    fd[k]
+                );
             }
         }
     }
@@ -388,10 +421,19 @@ mod tests {
                 let mut minus = model.clone();
                 minus.set(id, model.get(id) - h);
                 let (a, b) = (tool_pose(&plus, &enc), tool_pose(&minus, &enc));
-                let fd = [(a.position_mm - b.position_mm) / (2.0 * h), (a.x_axis - b.x_axis) / (2.0 * h), (a.z_axis - b.z_axis) / (2.0 * h)];
+                let fd = [
+                    (a.position_mm - b.position_mm) / (2.0 * h),
+                    (a.x_axis - b.x_axis) / (2.0 * h),
+                    (a.z_axis - b.z_axis) / (2.0 * h),
+                ];
                 for k in 0..9 {
                     let expect = fd[k / 3][k % 3];
-                    assert!((jac[c][k] - expect).abs() < 1e-5 * (1.0 + expect.abs()), "{convention:?} {id} [{k}]: {} vs {}", jac[c][k], expect);
+                    assert!(
+                        (jac[c][k] - expect).abs() < 1e-5 * (1.0 + expect.abs()),
+                        "{convention:?} {id} [{k}]: {} vs {}",
+                        jac[c][k],
+                        expect
+                    );
                 }
             }
         }

@@ -34,7 +34,18 @@ pub enum ParamId {
 /// Number of distinct parameter slots (see [`ParamId::dense_index`]).
 pub const PARAM_SLOTS: usize = JOINT_KINDS.len() * super::JOINTS + 4;
 
-const JOINT_KINDS: [&str; 10] = ["offset", "length", "link_offset", "twist", "axis", "eccentricity_sin", "eccentricity_cos", "eccentricity2_sin", "eccentricity2_cos", "compliance"];
+const JOINT_KINDS: [&str; 10] = [
+    "offset",
+    "length",
+    "link_offset",
+    "twist",
+    "axis",
+    "eccentricity_sin",
+    "eccentricity_cos",
+    "eccentricity2_sin",
+    "eccentricity2_cos",
+    "compliance",
+];
 const TCP_SLOT: usize = JOINT_KINDS.len() * super::JOINTS;
 const TCP_AXES: [&str; 3] = ["x", "y", "z"];
 
@@ -73,7 +84,18 @@ impl ParamId {
     }
 
     fn from_joint_kind(kind: usize, j: usize) -> ParamId {
-        [ParamId::Offset, ParamId::Length, ParamId::LinkOffset, ParamId::Twist, ParamId::Axis, ParamId::EccSin, ParamId::EccCos, ParamId::Ecc2Sin, ParamId::Ecc2Cos, ParamId::Compliance][kind](j)
+        [
+            ParamId::Offset,
+            ParamId::Length,
+            ParamId::LinkOffset,
+            ParamId::Twist,
+            ParamId::Axis,
+            ParamId::EccSin,
+            ParamId::EccCos,
+            ParamId::Ecc2Sin,
+            ParamId::Ecc2Cos,
+            ParamId::Compliance,
+        ][kind](j)
     }
 
     fn from_dense_index(i: usize) -> ParamId {

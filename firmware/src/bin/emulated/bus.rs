@@ -19,14 +19,28 @@ pub struct EmulatedBus {
 impl EmulatedBus {
     /// Encoders at zero, no noise, no faults.
     pub const fn new() -> Self {
-        EmulatedBus { counts: [0; JOINTS], noise_counts: 0, crc_errors: 0, dropouts: 0, error_bits: 0, warnings: 0, rng: 0x1234_5678 }
+        EmulatedBus {
+            counts: [0; JOINTS],
+            noise_counts: 0,
+            crc_errors: 0,
+            dropouts: 0,
+            error_bits: 0,
+            warnings: 0,
+            rng: 0x1234_5678,
+        }
     }
 
     /// Apply a simulation request.
     pub fn apply(&mut self, request: &Request) {
         match *request {
             Request::SimSetPose { counts } => self.counts = counts.map(|c| c % COUNTS_PER_TURN),
-            Request::SimFaults { noise_counts, crc_errors_per_10k, dropouts_per_10k, error_bits_per_10k, warnings_per_10k } => {
+            Request::SimFaults {
+                noise_counts,
+                crc_errors_per_10k,
+                dropouts_per_10k,
+                error_bits_per_10k,
+                warnings_per_10k,
+            } => {
                 self.noise_counts = noise_counts;
                 self.crc_errors = crc_errors_per_10k;
                 self.dropouts = dropouts_per_10k;
@@ -67,7 +81,8 @@ impl EncoderBus for EmulatedBus {
         if self.chance(self.dropouts) {
             return None;
         }
-        let position = (self.counts[joint] as i64 + self.noise() as i64).rem_euclid(COUNTS_PER_TURN as i64) as u32;
+        let position =
+            (self.counts[joint] as i64 + self.noise() as i64).rem_euclid(COUNTS_PER_TURN as i64) as u32;
         let error = self.chance(self.error_bits);
         let warning = self.chance(self.warnings);
         let mut frame = biss::encode(position, error, warning, 1 + self.next() % 3);

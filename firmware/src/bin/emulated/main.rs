@@ -9,9 +9,9 @@
 mod bus;
 mod irq;
 mod mmio;
+mod nor;
 #[cfg(feature = "tick-bench")]
 mod tick_bench;
-mod nor;
 mod time_driver;
 mod uart;
 
@@ -68,12 +68,22 @@ fn main() -> ! {
 
 #[cfg(not(feature = "tick-bench"))]
 fn run() -> ! {
-    let controller = Controller::new(concat!("kincal-fw ", env!("CARGO_PKG_VERSION")), "mps2-an386 (emulated)", true, EmulatedNor::take());
+    let controller = Controller::new(
+        concat!("kincal-fw ", env!("CARGO_PKG_VERSION")),
+        "mps2-an386 (emulated)",
+        true,
+        EmulatedNor::take(),
+    );
     let has_params = controller.params().is_some();
-    SHARED.lock(|s| *s.borrow_mut() = Some(Shared { controller, sampler: Sampler::default(), bus: EmulatedBus::new() }));
+    SHARED.lock(|s| {
+        *s.borrow_mut() = Some(Shared { controller, sampler: Sampler::default(), bus: EmulatedBus::new() })
+    });
     uart::init();
     time_driver::init();
-    hprintln!("kincal emulated controller ready on UART0 (stored parameters: {})", if has_params { "yes" } else { "none" });
+    hprintln!(
+        "kincal emulated controller ready on UART0 (stored parameters: {})",
+        if has_params { "yes" } else { "none" }
+    );
     // SAFETY: written once here, before anything can read it; lives for the whole program.
     let executor: &'static Executor = unsafe {
         let slot = &mut *core::ptr::addr_of_mut!(EXECUTOR);

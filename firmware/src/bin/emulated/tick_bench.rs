@@ -10,9 +10,9 @@ use crate::mmio::{read, write};
 use cortex_m_semihosting::{debug, hprintln};
 use kincal_firmware::controller::Controller;
 use kincal_firmware::encoders::{EncoderBus, Sampler};
-use kincal_protocol::biss::Frame;
 use kincal_firmware::flash::RamNor;
 use kincal_firmware::kinematics::Kinematics;
+use kincal_protocol::biss::Frame;
 use kincal_protocol::framing::{self, MAX_FRAME};
 use kincal_protocol::messages::{HostFrame, Request, PROTOCOL_VERSION, SCHEMA_HASH};
 use kincal_protocol::params::{encode_blob, ArmParams, JointParams, BLOB_CRC, MAX_PARAM_BLOB};
@@ -54,7 +54,15 @@ fn params() -> ArmParams {
     ArmParams {
         version: 1,
         modified_dh: false,
-        joints: core::array::from_fn(|j| JointParams { offset_deg: offset[j], d_mm: d[j], alpha_deg: alpha[j], eccentricity_deg: [0.1, 0.05], eccentricity2_deg: [0.01, 0.0], compliance_deg_per_m: 0.05, ..JointParams::default() }),
+        joints: core::array::from_fn(|j| JointParams {
+            offset_deg: offset[j],
+            d_mm: d[j],
+            alpha_deg: alpha[j],
+            eccentricity_deg: [0.1, 0.05],
+            eccentricity2_deg: [0.01, 0.0],
+            compliance_deg_per_m: 0.05,
+            ..JointParams::default()
+        }),
         tcp_mm: [0.0, 0.0, 253.0],
         scale_ppm: 0.0,
     }
@@ -67,7 +75,13 @@ pub fn run() -> ! {
     let mut sampler = Sampler::default();
     let mut bus = EmulatedBus::new();
     bus.apply(&Request::SimSetPose { counts: [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, 500] });
-    bus.apply(&Request::SimFaults { noise_counts: 3, crc_errors_per_10k: 0, dropouts_per_10k: 0, error_bits_per_10k: 0, warnings_per_10k: 0 });
+    bus.apply(&Request::SimFaults {
+        noise_counts: 3,
+        crc_errors_per_10k: 0,
+        dropouts_per_10k: 0,
+        error_bits_per_10k: 0,
+        warnings_per_10k: 0,
+    });
     let mut sink = |f: &kincal_protocol::messages::DeviceFrame| {
         let mut buf = [0u8; MAX_FRAME];
         let _ = framing::encode_device_frame(f, &mut buf);
@@ -83,13 +97,24 @@ pub fn run() -> ! {
     }
     for (k, chunk) in blob[..n].chunks(48).enumerate() {
         let data = heapless::Vec::from_slice(chunk).unwrap_or_default();
-        controller.handle(HostFrame { seq: 2, request: Request::ParamChunk { offset: (k * 48) as u16, data } }, &health, &mut sink);
+        controller.handle(
+            HostFrame { seq: 2, request: Request::ParamChunk { offset: (k * 48) as u16, data } },
+            &health,
+            &mut sink,
+        );
     }
-    for request in [Request::ParamCommit, Request::StartWindow { ticks: 4096 }, Request::StreamRaw(true), Request::StreamPose(1)] {
+    for request in [
+        Request::ParamCommit,
+        Request::StartWindow { ticks: 4096 },
+        Request::StreamRaw(true),
+        Request::StreamPose(1),
+    ] {
         controller.handle(HostFrame { seq: 3, request }, &health, &mut sink);
     }
     // Frames as the bus delivers them (generating them is the emulator's work, not measured).
-    let frames: [[Frame; 6]; 8] = core::array::from_fn(|_| core::array::from_fn(|j| bus.transfer(j).unwrap_or(Frame { bits: 0, len: 0 })));
+    let frames: [[Frame; 6]; 8] = core::array::from_fn(|_| {
+        core::array::from_fn(|j| bus.transfer(j).unwrap_or(Frame { bits: 0, len: 0 }))
+    });
     let mut replay = Replay { frames, tick: 0 };
     let measure = |f: &mut dyn FnMut()| {
         let start = timer();
@@ -104,7 +129,14 @@ pub fn run() -> ! {
     let window_cost = measure(&mut || {
         let _ = window.push(&sample.counts, sample.rejected);
     });
-    let raw = kincal_protocol::messages::DeviceFrame::Stream { seq: 1, item: kincal_protocol::messages::Stream::Raw(kincal_protocol::messages::RawSample { tick: 1, packed: kincal_protocol::messages::pack_counts(&sample.counts), rejected: 0 }) };
+    let raw = kincal_protocol::messages::DeviceFrame::Stream {
+        seq: 1,
+        item: kincal_protocol::messages::Stream::Raw(kincal_protocol::messages::RawSample {
+            tick: 1,
+            packed: kincal_protocol::messages::pack_counts(&sample.counts),
+            rejected: 0,
+        }),
+    };
     let raw_frame = measure(&mut || sink(&raw));
     let full = measure(&mut || {
         let s = sampler.sample(&mut replay);
@@ -134,9 +166,21 @@ pub fn run() -> ! {
     hprintln!("  decode+check six BiSS-C frames  {:6}", decode);
     hprintln!("  window accumulate               {:6}", window_cost);
     hprintln!("  encode raw-sample frame         {:6}", raw_frame);
-    hprintln!("  = per tick, raw stream + window {:6}  ({:.2} % of 84 MHz at 1 instruction/cycle)", base, pct(base));
-    hprintln!("  pose, DH + tool only            {:6}  ({:.2} % if streamed every tick)", pose_plain, pct(pose_plain));
-    hprintln!("  pose, every effect (ecc+compl.) {:6}  ({:.2} % if streamed every tick)", pose_all, pct(pose_all));
+    hprintln!(
+        "  = per tick, raw stream + window {:6}  ({:.2} % of 84 MHz at 1 instruction/cycle)",
+        base,
+        pct(base)
+    );
+    hprintln!(
+        "  pose, DH + tool only            {:6}  ({:.2} % if streamed every tick)",
+        pose_plain,
+        pct(pose_plain)
+    );
+    hprintln!(
+        "  pose, every effect (ecc+compl.) {:6}  ({:.2} % if streamed every tick)",
+        pose_all,
+        pct(pose_all)
+    );
     hprintln!("  whole tick, window+raw+pose(all){:6}  ({:.2} %)", full, pct(full));
     debug::exit(debug::EXIT_SUCCESS);
     loop {}

@@ -4,10 +4,10 @@
 //! one-shot alarm for the earliest timer-queue deadline. embassy ticks are 12 MHz (768 Hz divides
 //! it exactly), converted from the 25 MHz timer counts.
 
-use core::cell::{Cell, RefCell};
-use core::task::Waker;
 use crate::irq::Irq;
 use crate::mmio::{read, write};
+use core::cell::{Cell, RefCell};
+use core::task::Waker;
 use cortex_m::peripheral::NVIC;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
@@ -28,7 +28,6 @@ const COUNTS_HZ: u64 = 25_000_000;
 pub const TIMER0_IRQ: u16 = 8;
 /// IRQ number of the alarm timer.
 pub const TIMER1_IRQ: u16 = 9;
-
 
 struct Mps2Time {
     periods: Mutex<CriticalSectionRawMutex, Cell<u64>>,
@@ -67,7 +66,8 @@ impl Mps2Time {
         if at_ticks == u64::MAX {
             return;
         }
-        let delta = counts_from_ticks(at_ticks).saturating_sub(self.now_counts()).clamp(2, u32::MAX as u64) as u32;
+        let delta =
+            counts_from_ticks(at_ticks).saturating_sub(self.now_counts()).clamp(2, u32::MAX as u64) as u32;
         write(TIMER1, RELOAD, delta);
         write(TIMER1, VALUE, delta);
         write(TIMER1, CTRL, ENABLE | IRQ_ENABLE);

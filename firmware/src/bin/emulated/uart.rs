@@ -16,12 +16,11 @@ const RX_FULL: u32 = 2;
 /// UART0 receive interrupt number.
 pub const RX_IRQ: u16 = 0;
 
-
 /// Enable transmit, receive and the receive interrupt.
 pub fn init() {
     write(UART0, BAUDDIV, 16);
     write(UART0, CTRL, 0b1011); // TX, RX, RX interrupt
-    // SAFETY: the receive handler is installed (DefaultHandler dispatch).
+                                // SAFETY: the receive handler is installed (DefaultHandler dispatch).
     unsafe { NVIC::unmask(Irq(RX_IRQ)) };
 }
 

@@ -20,7 +20,11 @@ pub struct Rs485Bus {
 
 impl Rs485Bus {
     /// MA line, its transmitter's driver enable, and the six SLO inputs.
-    pub fn new(ma: Peri<'static, impl embassy_stm32::gpio::Pin>, driver_enable: Peri<'static, impl embassy_stm32::gpio::Pin>, slo: [Peri<'static, AnyPin>; JOINTS]) -> Self {
+    pub fn new(
+        ma: Peri<'static, impl embassy_stm32::gpio::Pin>,
+        driver_enable: Peri<'static, impl embassy_stm32::gpio::Pin>,
+        slo: [Peri<'static, AnyPin>; JOINTS],
+    ) -> Self {
         Rs485Bus {
             ma: Output::new(ma, Level::High, Speed::VeryHigh),
             _driver_enable: Output::new(driver_enable, Level::High, Speed::Low),

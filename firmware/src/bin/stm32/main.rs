@@ -71,7 +71,13 @@ fn clocks() -> embassy_stm32::Config {
     // 8 MHz crystal → 168 MHz core, APB1 42 MHz (timers 84 MHz: 12 MHz ticks divide it by 7).
     config.rcc.hse = Some(Hse { freq: Hertz(8_000_000), mode: HseMode::Oscillator });
     config.rcc.pll_src = PllSource::HSE;
-    config.rcc.pll = Some(Pll { prediv: PllPreDiv::DIV4, mul: PllMul::MUL168, divp: Some(PllPDiv::DIV2), divq: Some(PllQDiv::DIV7), divr: None });
+    config.rcc.pll = Some(Pll {
+        prediv: PllPreDiv::DIV4,
+        mul: PllMul::MUL168,
+        divp: Some(PllPDiv::DIV2),
+        divq: Some(PllQDiv::DIV7),
+        divr: None,
+    });
     config.rcc.ahb_pre = AHBPrescaler::DIV1;
     config.rcc.apb1_pre = APBPrescaler::DIV4;
     config.rcc.apb2_pre = APBPrescaler::DIV2;
@@ -84,9 +90,20 @@ async fn main(spawner: Spawner) {
     let p = embassy_stm32::init(clocks());
     let mut uart_config = usart::Config::default();
     uart_config.baudrate = 460_800;
-    let Ok(uart) = Uart::new(p.USART2, p.PA3, p.PA2, p.DMA1_CH6, p.DMA1_CH5, Irqs, uart_config) else { panic!("USART2 configuration") };
-    let bus = Rs485Bus::new(p.PB0, p.PB1, [p.PC0.into(), p.PC1.into(), p.PC2.into(), p.PC3.into(), p.PC4.into(), p.PC5.into()]);
-    let controller = Controller::new(concat!("kincal-fw ", env!("CARGO_PKG_VERSION")), "stm32f405", false, Stm32Nor::new(p.FLASH));
+    let Ok(uart) = Uart::new(p.USART2, p.PA3, p.PA2, p.DMA1_CH6, p.DMA1_CH5, Irqs, uart_config) else {
+        panic!("USART2 configuration")
+    };
+    let bus = Rs485Bus::new(
+        p.PB0,
+        p.PB1,
+        [p.PC0.into(), p.PC1.into(), p.PC2.into(), p.PC3.into(), p.PC4.into(), p.PC5.into()],
+    );
+    let controller = Controller::new(
+        concat!("kincal-fw ", env!("CARGO_PKG_VERSION")),
+        "stm32f405",
+        false,
+        Stm32Nor::new(p.FLASH),
+    );
     SHARED.lock(|s| *s.borrow_mut() = Some(Shared { controller, sampler: Sampler::default(), bus }));
     match (sample_encoders(), serve_host(), host_link(uart)) {
         (Ok(a), Ok(b), Ok(c)) => {

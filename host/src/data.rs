@@ -9,7 +9,7 @@
 //! ```
 //! `std_deg`, `samples` and `rejected` are optional; sessions may miss landmarks.
 
-use crate::fsutil;
+use crate::files::{self, FileError};
 use crate::model::JOINTS;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -18,43 +18,6 @@ use std::path::{Path, PathBuf};
 pub const ARTEFACT_FORMAT: &str = "suta-artefact/1";
 /// Format tag of session files.
 pub const SESSION_FORMAT: &str = "suta-session/1";
-
-/// Why an input file could not be used.
-#[derive(Debug, thiserror::Error)]
-pub enum DataError {
-    /// The file or folder could not be read or written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file or folder.
-        path: PathBuf,
-        /// The operating-system error.
-        source: std::io::Error,
-    },
-    /// The file is not JSON of the expected shape.
-    #[error("{path}: {message}")]
-    Syntax {
-        /// The file.
-        path: PathBuf,
-        /// What the parser said (with line and column).
-        message: String,
-    },
-    /// A field holds a value that cannot be used.
-    #[error("{path}: field `{field}`: {message}")]
-    Field {
-        /// The file.
-        path: PathBuf,
-        /// The field, e.g. `measurements[4].joints_deg`.
-        field: String,
-        /// What was expected.
-        message: String,
-    },
-    /// A folder holds no session file.
-    #[error("{path}: no session files (*.json) in this folder")]
-    EmptyFolder {
-        /// The folder.
-        path: PathBuf,
-    },
-}
 
 /// One certified landmark (pillar) of the artefact.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -109,20 +72,20 @@ pub struct Session {
     pub measurements: Vec<Measurement>,
 }
 
-fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, DataError> {
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, FileError> {
     let text =
-        std::fs::read_to_string(path).map_err(|source| DataError::Io { path: path.to_owned(), source })?;
+        std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
     serde_json::from_str(&text)
-        .map_err(|e| DataError::Syntax { path: path.to_owned(), message: e.to_string() })
+        .map_err(|e| FileError::Syntax { path: path.to_owned(), message: e.to_string() })
 }
 
-fn field_error(path: &Path, field: impl Into<String>, message: impl Into<String>) -> DataError {
-    DataError::Field { path: path.to_owned(), field: field.into(), message: message.into() }
+fn field_error(path: &Path, field: impl Into<String>, message: impl Into<String>) -> FileError {
+    FileError::Field { path: path.to_owned(), field: field.into(), message: message.into() }
 }
 
 impl Artefact {
     /// Read and check an artefact file.
-    pub fn load(path: &Path) -> Result<Artefact, DataError> {
+    pub fn load(path: &Path) -> Result<Artefact, FileError> {
         let artefact: Artefact = read_json(path)?;
         if artefact.format != ARTEFACT_FORMAT {
             return Err(field_error(
@@ -166,14 +129,14 @@ impl Artefact {
     }
 
     /// Write the artefact atomically.
-    pub fn save(&self, path: &Path) -> Result<(), DataError> {
+    pub fn save(&self, path: &Path) -> Result<(), FileError> {
         write_json(path, self)
     }
 }
 
 impl Session {
     /// Read a session and check every field against `artefact`.
-    pub fn load(path: &Path, artefact: &Artefact) -> Result<Session, DataError> {
+    pub fn load(path: &Path, artefact: &Artefact) -> Result<Session, FileError> {
         let session: Session = read_json(path)?;
         if session.format != SESSION_FORMAT {
             return Err(field_error(
@@ -222,15 +185,15 @@ impl Session {
     }
 
     /// Write the session atomically.
-    pub fn save(&self, path: &Path) -> Result<(), DataError> {
+    pub fn save(&self, path: &Path) -> Result<(), FileError> {
         write_json(path, self)
     }
 }
 
-fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<(), DataError> {
+fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<(), FileError> {
     let text = serde_json::to_string_pretty(value).unwrap_or_default();
-    fsutil::write_atomic(path, text.as_bytes())
-        .map_err(|source| DataError::Io { path: path.to_owned(), source })
+    files::write_atomic(path, text.as_bytes())
+        .map_err(|source| FileError::Io { path: path.to_owned(), source })
 }
 
 /// One touch ready for the kinematics.
@@ -272,16 +235,16 @@ impl Dataset {
     }
 
     /// Read every `*.json` session in `dir` (sorted by file name).
-    pub fn load_dir(dir: &Path, artefact: &Artefact) -> Result<Dataset, DataError> {
+    pub fn load_dir(dir: &Path, artefact: &Artefact) -> Result<Dataset, FileError> {
         let entries =
-            std::fs::read_dir(dir).map_err(|source| DataError::Io { path: dir.to_owned(), source })?;
+            std::fs::read_dir(dir).map_err(|source| FileError::Io { path: dir.to_owned(), source })?;
         let mut files: Vec<PathBuf> = entries
             .filter_map(|e| e.ok().map(|e| e.path()))
             .filter(|p| p.extension().is_some_and(|e| e == "json"))
             .collect();
         files.sort();
         if files.is_empty() {
-            return Err(DataError::EmptyFolder { path: dir.to_owned() });
+            return Err(FileError::EmptyFolder { path: dir.to_owned() });
         }
         let sessions = files.iter().map(|f| Session::load(f, artefact)).collect::<Result<Vec<_>, _>>()?;
         Ok(Dataset::from_sessions(&sessions, artefact))
@@ -378,7 +341,7 @@ mod tests {
         assert_eq!(Session::load(&path, &artefact()).unwrap().measurements.len(), 1);
         let empty = dir.join("empty");
         std::fs::create_dir_all(&empty).unwrap();
-        assert!(matches!(Dataset::load_dir(&empty, &artefact()), Err(DataError::EmptyFolder { .. })));
+        assert!(matches!(Dataset::load_dir(&empty, &artefact()), Err(FileError::EmptyFolder { .. })));
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -1,30 +1,28 @@
-//! kincal host library: calibrate tracker arms from artefact touches.
+//! kincal host library: calibrate tracker arms from artefact touches, and PHANToM haptic devices.
 //!
-//! The model (parameters, kinematics, effects) is kept apart from the solver and from the
-//! reports: [`model`] knows geometry, [`solver`] knows residual vectors and bounds,
-//! [`calibrate`] joins them, [`report`] reads results and never recomputes them.
+//! Layers, lowest first; a module may use only modules of its own or a lower layer (checked by
+//! `host/tests/layers.rs`):
+//!
+//! | layer | modules | what it knows |
+//! | --- | --- | --- |
+//! | 0 | [`files`], [`numerics`] | the user's files and their errors; solvers and geometry, no arms |
+//! | 1 | [`model`] (with its [`model::effects`]), [`data`] | the arm's geometry and effects; artefact and sessions |
+//! | 2 | [`simulate`] | an independent forward path that makes data with known truth |
+//! | 3 | [`calib`], [`haptic`] | calibration, validation, diagnosis, study; the haptic pipeline |
+//! | 4 | [`report`] | HTML pages and plots that read results, never recompute them |
+//! | 5 | [`output`] | the folders kincal writes (RUN/, diagnosis, study, haptic) |
+//! | 6 | [`controller`] | the link to the arm's controller, recording, upload, the emulated demo |
+//!
+//! The CLI (`src/bin/kincal/`) parses arguments, calls these and prints.
+#![forbid(unsafe_code)]
 
-pub mod bench;
-pub mod calibrate;
+pub mod calib;
+pub mod controller;
 pub mod data;
-pub mod device;
-pub mod diagnose;
-pub mod effects;
-pub mod emulator;
-pub mod fsutil;
-pub mod geometry;
+pub mod files;
 pub mod haptic;
-pub mod identify;
-pub mod link;
 pub mod model;
-pub mod objective;
-pub mod outliers;
-pub mod record;
+pub mod numerics;
+
 pub mod report;
-pub mod run;
 pub mod simulate;
-pub mod solver;
-pub mod study;
-pub mod svg;
-pub mod validate;
-pub mod workflow;

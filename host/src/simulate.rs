@@ -10,7 +10,7 @@
 
 use crate::data::{Artefact, Landmark, Measurement, Session, ARTEFACT_FORMAT, SESSION_FORMAT};
 use crate::model::{ArmModel, Convention, ParamId, JOINTS};
-use crate::solver::{self, Residuals, SolverOptions};
+use crate::numerics::solver::{self, Residuals, SolverOptions};
 use nalgebra::{Matrix4, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -395,10 +395,10 @@ pub fn simulate_with_truth(
 
 impl SimulatedData {
     /// Write `artefact.json`, `truth.toml`, `cal/*.json` and `val/*.json` under `dir`.
-    pub fn write(&self, dir: &std::path::Path) -> Result<(), crate::data::DataError> {
+    pub fn write(&self, dir: &std::path::Path) -> Result<(), crate::files::FileError> {
         let io = |path: &std::path::Path| {
             let path = path.to_owned();
-            move |source| crate::data::DataError::Io { path, source }
+            move |source| crate::files::FileError::Io { path, source }
         };
         for sub in ["cal", "val"] {
             std::fs::create_dir_all(dir.join(sub)).map_err(io(&dir.join(sub)))?;

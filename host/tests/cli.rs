@@ -207,7 +207,7 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     assert!(Command::new(env!("CARGO_BIN_EXE_kincal")).args(&with).status().unwrap().success());
     let calibrated = kincal::model::ArmModel::load(&after.join("model.toml")).unwrap();
     assert!(
-        kincal::effects::Effect::parse("eccentricity:5").unwrap().is_in(&calibrated),
+        kincal::model::effects::Effect::parse("eccentricity:5").unwrap().is_in(&calibrated),
         "the added effect is saved with the model"
     );
     let page = dir.join("compare.html");

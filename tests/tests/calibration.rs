@@ -1,11 +1,11 @@
 //! Calibration end to end on simulated data with known truth (no hidden effect).
 
-use kincal::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::objective::Objective;
+use kincal::calib::validate::validate;
 use kincal::data::Dataset;
 use kincal::model::{ArmModel, ParamId};
-use kincal::objective::Objective;
 use kincal::simulate::{simulate, SimulationOptions};
-use kincal::validate::validate;
 
 fn example_model() -> ArmModel {
     ArmModel::load(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/suta/model.toml"))

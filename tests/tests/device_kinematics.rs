@@ -1,7 +1,7 @@
 //! The controller's f32 kinematics agrees with the host's f64 kinematics to ≤ 1 µm over the
 //! workspace, for every effect the host model can hold.
 
-use kincal::device::{device_params, parameter_blob};
+use kincal::controller::device::{device_params, parameter_blob};
 use kincal::model::kinematics::tool_pose;
 use kincal::model::{ArmModel, Convention};
 use kincal_firmware::kinematics as device;

@@ -2,14 +2,14 @@
 //! held-out error falls to the noise floor. Data come from the simulator's independent forward
 //! path (plain 4×4 matrices with the effects written out again), not from the model's code.
 
-use kincal::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::diagnose::diagnose;
+use kincal::calib::objective::Objective;
+use kincal::calib::validate::validate;
 use kincal::data::Dataset;
-use kincal::diagnose::diagnose;
-use kincal::effects::Effect;
+use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
-use kincal::objective::Objective;
 use kincal::simulate::{simulate, SimulationOptions};
-use kincal::validate::validate;
 
 struct Case {
     hidden: Vec<(ParamId, f64)>,

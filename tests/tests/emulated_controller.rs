@@ -1,8 +1,8 @@
 //! The firmware running on the emulated controller (QEMU mps2-an386), end to end.
 //! QEMU is started per test and killed by a guard, also when the test fails.
 
-use kincal::emulator::{build_firmware, Emulator};
-use kincal::link::{Link, LinkError};
+use kincal::controller::emulator::{build_firmware, Emulator};
+use kincal::controller::link::{Link, LinkError};
 use kincal_protocol::biss::COUNTS_PER_TURN;
 use kincal_protocol::messages::{Request, Stream, WindowReport, PROTOCOL_VERSION, SCHEMA_HASH};
 use std::sync::{Mutex, OnceLock};
@@ -116,7 +116,7 @@ fn injected_crc_errors_are_counted_and_excluded() {
 fn uploaded_parameters_survive_a_controller_reset() {
     let (_g, _emu, mut link) = start();
     let model = kincal::model::ArmModel::suta_nominal();
-    let blob = kincal::device::parameter_blob(&model, 7);
+    let blob = kincal::controller::device::parameter_blob(&model, 7);
     link.upload(&blob).unwrap();
     assert_eq!(link.info().unwrap().param_version, 7);
     link.command(Request::Reset, "reset").unwrap();
@@ -167,7 +167,7 @@ fn the_controller_streams_the_calibrated_pose_the_host_computes() {
     model.joints[4].eccentricity_sin_deg = 0.2;
     model.joints[1].compliance_deg_per_m = 0.1;
     model.tcp_mm = [0.5, -0.3, 253.0];
-    link.upload(&kincal::device::parameter_blob(&model, 11)).unwrap();
+    link.upload(&kincal::controller::device::parameter_blob(&model, 11)).unwrap();
     let counts = [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, COUNTS_PER_TURN - 5];
     link.command(Request::SimSetPose { counts }, "pose").unwrap();
     link.command(Request::StreamPose(4), "pose stream").unwrap();

@@ -1,8 +1,8 @@
 //! Host ↔ controller logic against the in-process fake controller (the firmware's own state
 //! machine on the host): fast, no QEMU.
 
+use kincal::controller::link::{Link, LinkError};
 use kincal::data::{Artefact, Session};
-use kincal::link::{Link, LinkError};
 use kincal_e2e::{kincal_bin, FakeController};
 use kincal_protocol::messages::{Request, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH};
 use kincal_protocol::params::BLOB_CRC;
@@ -103,11 +103,11 @@ fn an_interrupted_upload_keeps_the_old_parameters_and_a_retry_succeeds() {
     let fake = FakeController::start(1);
     let mut link = Link::open(&fake.port).unwrap();
     link.hello().unwrap();
-    let old = kincal::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 1);
+    let old = kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 1);
     link.upload(&old).unwrap();
     let mut new_model = kincal::model::ArmModel::suta_nominal();
     new_model.joints[2].d_mm += 1.5;
-    let new = kincal::device::parameter_blob(&new_model, 2);
+    let new = kincal::controller::device::parameter_blob(&new_model, 2);
     link.command(Request::ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }, "begin")
         .unwrap();
     for (k, chunk) in new.chunks(PARAM_CHUNK).take(3).enumerate() {

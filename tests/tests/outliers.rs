@@ -1,9 +1,9 @@
 //! Appendix-F outlier diagnostics find a landmark whose certified position is wrong.
 
-use kincal::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::outliers::landmark_outliers;
 use kincal::data::Dataset;
 use kincal::model::ArmModel;
-use kincal::outliers::landmark_outliers;
 use kincal::simulate::{simulate, SimulationOptions};
 
 #[test]

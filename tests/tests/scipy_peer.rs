@@ -3,8 +3,8 @@
 //! Needs python3 with numpy and scipy (`scripts/test.sh` installs them); set KINCAL_NO_PEER=1 to
 //! skip it deliberately (the skip is printed).
 
-use kincal::bench::{run_peer, thesis_sized_problem, write_peer_problem};
-use kincal::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::peer::{run_peer, thesis_sized_problem, write_peer_problem};
 use kincal::data::Dataset;
 
 #[test]

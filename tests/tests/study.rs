@@ -1,10 +1,10 @@
 //! The dataset-size study: more placements calibrate better on held-out data.
 
-use kincal::calibrate::CalibrationOptions;
+use kincal::calib::calibrate::CalibrationOptions;
+use kincal::calib::study::{study, StudyOptions};
 use kincal::data::Dataset;
 use kincal::model::ArmModel;
 use kincal::simulate::{simulate, SimulationOptions};
-use kincal::study::{study, StudyOptions};
 
 #[test]
 fn more_placements_give_lower_validation_error() {

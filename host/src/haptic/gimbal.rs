@@ -8,7 +8,7 @@
 //! when it lowers the held-out error by more than [`QUADRATIC_GAIN`].
 
 use super::kinematics::{Device, SensorModel};
-use crate::solver::{self, Residuals, SolverOptions};
+use crate::numerics::solver::{self, Residuals, SolverOptions};
 use nalgebra::{DMatrix, DVector, Vector3};
 
 /// Relative held-out improvement the quadratic model must bring to be chosen.

@@ -4,7 +4,7 @@
 //! * [`recording`] — the recording folder (`haptic-recording/1`), checked sample by sample;
 //! * [`delay`] — tracker ↔ device time delay (chunked Pearson, sub-millisecond peak);
 //! * [`pivot`] — tooltip calibration (Tuceryan); absolute orientation (Horn) is
-//!   [`crate::geometry::absolute_orientation`];
+//!   [`crate::numerics::geometry::absolute_orientation`];
 //! * [`landmarks`] — the landmark-based initial transform (eqs. 1–6);
 //! * [`position`] — iterative joint-angle calibration (Harders) with the paper's filters;
 //! * [`reference`] — the orientation reference from the roll step (marker circles, axis by SVD,

@@ -12,8 +12,8 @@
 //! worse is retried from the previous result, and it stops after three failures to improve.
 
 use super::kinematics::{Device, SensorModel};
-use crate::geometry::absolute_orientation;
-use crate::solver::{self, Residuals, SolverOptions};
+use crate::numerics::geometry::absolute_orientation;
+use crate::numerics::solver::{self, Residuals, SolverOptions};
 use nalgebra::{Matrix3, Vector3};
 
 /// Samples farther than this from the device origin are not used for EH, mm.

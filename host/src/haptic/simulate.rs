@@ -223,7 +223,7 @@ pub fn write_recording(recording: &Recording, dir: &std::path::Path) -> std::io:
     use std::fmt::Write;
     std::fs::create_dir_all(dir)?;
     let header = serde_json::json!({"format": super::recording::RECORDING_FORMAT, "device": recording.device_name, "l1_mm": recording.device.l1_mm, "l2_mm": recording.device.l2_mm});
-    crate::fsutil::write_atomic(&dir.join("recording.json"), header.to_string().as_bytes())?;
+    crate::files::write_atomic(&dir.join("recording.json"), header.to_string().as_bytes())?;
     for (name, step) in &recording.steps {
         let folder = dir.join(name);
         std::fs::create_dir_all(&folder)?;
@@ -235,7 +235,7 @@ pub fn write_recording(recording: &Recording, dir: &std::path::Path) -> std::io:
                 r[0], r[1], r[2], r[3], r[4], r[5]
             );
         }
-        crate::fsutil::write_atomic(&folder.join("device.csv"), text.as_bytes())?;
+        crate::files::write_atomic(&folder.join("device.csv"), text.as_bytes())?;
         for (target, s) in &step.targets {
             let mut text = String::from("t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz\n");
             for ((t, p), q) in s.t_s.iter().zip(&s.position_mm).zip(&s.rotation) {
@@ -245,7 +245,7 @@ pub fn write_recording(recording: &Recording, dir: &std::path::Path) -> std::io:
                     p.x, p.y, p.z, q.w, q.i, q.j, q.k
                 );
             }
-            crate::fsutil::write_atomic(&folder.join(format!("{target}.csv")), text.as_bytes())?;
+            crate::files::write_atomic(&folder.join(format!("{target}.csv")), text.as_bytes())?;
         }
     }
     Ok(())

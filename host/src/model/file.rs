@@ -18,16 +18,13 @@
 //! ```
 
 use super::{ArmModel, Convention, FreeParam, Joint, ParamId, JOINTS};
-use crate::effects::Effect;
-use crate::fsutil;
+use crate::files::{self, FileError};
+use crate::model::effects::Effect;
 use std::collections::BTreeMap;
 use std::path::Path;
 
 /// The format tag every model file carries.
 pub const MODEL_FORMAT: &str = "kincal-arm/1";
-
-/// Why a model file could not be read or written (the same error as for the other input files).
-pub type ModelError = crate::data::DataError;
 
 #[derive(serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -52,10 +49,10 @@ fn is_json(path: &Path) -> bool {
 
 impl ArmModel {
     /// Read a model file (`.toml`, or `.json`).
-    pub fn load(path: &Path) -> Result<ArmModel, ModelError> {
+    pub fn load(path: &Path) -> Result<ArmModel, FileError> {
         let text = std::fs::read_to_string(path)
-            .map_err(|source| ModelError::Io { path: path.to_owned(), source })?;
-        let syntax = |message: String| ModelError::Syntax { path: path.to_owned(), message };
+            .map_err(|source| FileError::Io { path: path.to_owned(), source })?;
+        let syntax = |message: String| FileError::Syntax { path: path.to_owned(), message };
         let file: ModelFile = if is_json(path) {
             serde_json::from_str(&text).map_err(|e| syntax(e.to_string()))?
         } else {
@@ -64,9 +61,9 @@ impl ArmModel {
         ArmModel::from_file(file, path)
     }
 
-    fn from_file(file: ModelFile, path: &Path) -> Result<ArmModel, ModelError> {
+    fn from_file(file: ModelFile, path: &Path) -> Result<ArmModel, FileError> {
         let field =
-            |field: String, message: String| ModelError::Field { path: path.to_owned(), field, message };
+            |field: String, message: String| FileError::Field { path: path.to_owned(), field, message };
         if file.format != MODEL_FORMAT {
             return Err(field(
                 "format".into(),
@@ -130,7 +127,7 @@ impl ArmModel {
             tcp_mm: self.tcp_mm,
             scale_ppm: self.scale_ppm,
             joint: self.joints.to_vec(),
-            effects: crate::effects::Effect::library()
+            effects: crate::model::effects::Effect::library()
                 .into_iter()
                 .filter(|e| e.is_in(self) && e.kind.is_non_geometric())
                 .map(|e| e.to_string())
@@ -145,9 +142,9 @@ impl ArmModel {
     }
 
     /// Write the model atomically (`.json` by extension, otherwise TOML).
-    pub fn save(&self, path: &Path) -> Result<(), ModelError> {
-        fsutil::write_atomic(path, self.to_text(is_json(path)).as_bytes())
-            .map_err(|source| ModelError::Io { path: path.to_owned(), source })
+    pub fn save(&self, path: &Path) -> Result<(), FileError> {
+        files::write_atomic(path, self.to_text(is_json(path)).as_bytes())
+            .map_err(|source| FileError::Io { path: path.to_owned(), source })
     }
 }
 

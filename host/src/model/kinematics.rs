@@ -7,14 +7,14 @@
 //! about axis a that is a × (E_m v_{>m}); for a translation along a it is a. One forward pass for
 //! the prefix rotations and one backward pass for the tool point give every column exactly.
 //!
-//! The joint rotation θ_j = φ_j + δθ_j + Δθ_ecc(φ_j) + c_j·λ_j (see [`crate::effects`]) depends on
+//! The joint rotation θ_j = φ_j + δθ_j + Δθ_ecc(φ_j) + c_j·λ_j (see [`crate::model::effects`]) depends on
 //! several parameters; its op carries each with ∂θ/∂q. The gravity lever λ_j is itself a
 //! function of the geometry; that second-order dependence (c·∂λ/∂q) is left out of the Jacobian,
 //! which is exact whenever the compliances are zero.
 
 use super::params::PARAM_SLOTS;
 use super::{ArmModel, Convention, ParamId, JOINTS};
-use crate::effects::{compliance, eccentricity};
+use crate::model::effects::{compliance, eccentricity};
 use nalgebra::{Matrix3, Vector3};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;

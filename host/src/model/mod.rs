@@ -4,11 +4,11 @@
 //! for whole-arm terms (`tcp.x`, `scale`). Angles are stored in degrees, lengths in millimetres,
 //! the scale in parts per million. A parameter is *free* when the model file gives it bounds.
 
+pub mod effects;
 pub mod file;
 pub mod kinematics;
 pub mod params;
 
-pub use file::ModelError;
 pub use params::ParamId;
 
 /// Number of joints of the SUTA arm.
@@ -39,7 +39,7 @@ pub struct Joint {
     /// Hayati misalignment about y (for near-parallel consecutive axes), degrees.
     #[serde(default)]
     pub axis_deg: f64,
-    /// Eccentricity, first harmonic, sine part (see [`crate::effects::eccentricity`]), degrees.
+    /// Eccentricity, first harmonic, sine part (see [`crate::model::effects::eccentricity`]), degrees.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub eccentricity_sin_deg: f64,
     /// Eccentricity, first harmonic, cosine part, degrees.
@@ -51,7 +51,7 @@ pub struct Joint {
     /// Eccentricity, second harmonic, cosine part, degrees.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub eccentricity2_cos_deg: f64,
-    /// Gravity compliance (see [`crate::effects::compliance`]), degrees per metre of lever.
+    /// Gravity compliance (see [`crate::model::effects::compliance`]), degrees per metre of lever.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub compliance_deg_per_m: f64,
 }

@@ -1,10 +1,10 @@
 //! Calibration: identifiability, base parameters, seeded restarts, covariance.
 
+use crate::calib::identify::{self, Identifiability};
+use crate::calib::objective::{CalibrationProblem, Objective};
 use crate::data::{Artefact, Dataset};
-use crate::identify::{self, Identifiability};
 use crate::model::{ArmModel, ParamId};
-use crate::objective::{CalibrationProblem, Objective};
-use crate::solver::{self, Loss, Residuals, SolverOptions, StopReason};
+use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -6,12 +6,13 @@
 //! * SciPy `least_squares(method='trf', loss='huber')` on the same problem from the same start
 //!   (`bench/scipy_peer.py`), with the cost and time ratio.
 
-use crate::calibrate::{calibrate, CalibrationOptions};
-use crate::data::{Artefact, Dataset};
-use crate::model::{ArmModel, ParamId};
-use crate::simulate::{simulate, SimulatedData, SimulationOptions};
-use crate::study::{study, StudyOptions};
-use std::path::{Path, PathBuf};
+use anyhow::{Context, Result};
+use kincal::calib::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::peer::{run_peer, thesis_sized_problem, write_peer_problem};
+use kincal::calib::study::{study, StudyOptions};
+use kincal::data::Dataset;
+use kincal::model::ParamId;
+use kincal::simulate::{simulate, SimulationOptions};
 use std::time::Instant;
 
 /// Options of `kincal bench`.
@@ -31,111 +32,13 @@ pub struct BenchArgs {
     pub no_scipy: bool,
 }
 
-/// Why a benchmark or peer run failed.
-#[derive(Debug, thiserror::Error)]
-pub enum BenchError {
-    /// A file could not be written or read.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The operating-system error.
-        source: std::io::Error,
-    },
-    /// The peer script failed or printed something unexpected.
-    #[error("SciPy peer: {0}")]
-    Peer(String),
-    /// The calibration could not run.
-    #[error(transparent)]
-    Calibration(#[from] crate::calibrate::CalibrationError),
-}
-
-/// What the SciPy peer reports.
-#[derive(Clone, Debug, serde::Deserialize)]
-pub struct PeerResult {
-    /// SciPy's cost ½C²Σρ((f/C)²), equal to kincal's Σρ.
-    pub cost: f64,
-    /// Parameters reached.
-    pub x: Vec<f64>,
-    /// Wall time of `least_squares`, seconds.
-    pub seconds: f64,
-    /// Residual evaluations.
-    pub nfev: usize,
-}
-
-/// The thesis-sized simulated problem used by the benchmarks and the peer test.
-pub fn thesis_sized_problem(seed: u64) -> (ArmModel, SimulatedData) {
-    let nominal = ArmModel::suta_nominal();
-    let data = simulate(&nominal, &SimulationOptions { seed, ..SimulationOptions::default() });
-    (nominal, data)
-}
-
-/// Write the peer problem file for `params` starting at the nominal values.
-pub fn write_peer_problem(
-    path: &Path,
-    nominal: &ArmModel,
-    params: &[ParamId],
-    artefact: &Artefact,
-    data: &Dataset,
-    huber_delta_mm: f64,
-) -> Result<(), BenchError> {
-    let bounds: Vec<_> = params
-        .iter()
-        .map(|id| {
-            nominal
-                .free
-                .iter()
-                .find(|f| f.id == *id)
-                .map_or((f64::NEG_INFINITY, f64::INFINITY), |f| (f.lower, f.upper))
-        })
-        .collect();
-    let model: serde_json::Value =
-        serde_json::from_str(&nominal.to_text(true)).map_err(|e| BenchError::Peer(e.to_string()))?;
-    let problem = serde_json::json!({
-        "model": model,
-        "landmarks_mm": artefact.landmarks.iter().map(|l| l.xyz_mm).collect::<Vec<_>>(),
-        "touches": data.touches.iter().map(|t| serde_json::json!({"placement": t.placement, "landmark": t.landmark, "repeat": t.repeat, "enc_deg": t.enc_deg})).collect::<Vec<_>>(),
-        "params": params.iter().map(|p| p.to_string()).collect::<Vec<_>>(),
-        "x0": params.iter().map(|p| nominal.get(*p)).collect::<Vec<_>>(),
-        "lower": bounds.iter().map(|b| b.0).collect::<Vec<_>>(),
-        "upper": bounds.iter().map(|b| b.1).collect::<Vec<_>>(),
-        "huber_delta_mm": huber_delta_mm,
-    });
-    std::fs::write(path, problem.to_string())
-        .map_err(|source| BenchError::Io { path: path.to_owned(), source })
-}
-
-/// The peer script's path in the source tree.
-pub fn peer_script() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/scipy_peer.py")
-}
-
-/// Run the SciPy peer on a problem file.
-pub fn run_peer(python: &str, problem: &Path) -> Result<PeerResult, BenchError> {
-    let output = std::process::Command::new(python)
-        .arg(peer_script())
-        .arg(problem)
-        .output()
-        .map_err(|e| BenchError::Peer(format!("could not start {python}: {e}")))?;
-    if !output.status.success() {
-        return Err(BenchError::Peer(format!(
-            "{} failed: {}",
-            peer_script().display(),
-            String::from_utf8_lossy(&output.stderr).trim()
-        )));
-    }
-    serde_json::from_slice(&output.stdout).map_err(|e| {
-        BenchError::Peer(format!("unexpected output ({e}): {}", String::from_utf8_lossy(&output.stdout)))
-    })
-}
-
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 /// Run every benchmark and print the figures.
-pub fn run_benchmarks(args: &BenchArgs) -> Result<(), BenchError> {
+pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     let (nominal, sim) = thesis_sized_problem(1);
     let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
     let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
@@ -176,16 +79,17 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<(), BenchError> {
     );
     let fit_h = calibrate(&nominal, &sim_hidden.artefact, &cal_h, &options)?;
     let t = Instant::now();
-    let diagnosis = crate::diagnose::diagnose(&fit_h.model, &sim_hidden.artefact, &cal_h, &val_h, &options);
+    let diagnosis =
+        kincal::calib::diagnose::diagnose(&fit_h.model, &sim_hidden.artefact, &cal_h, &val_h, &options);
     println!("diagnose, whole library ({} candidates scored, {} not identifiable), {} threads: {:.2} s  (target <= 2 s on 2 cores)", diagnosis.candidates.len(), diagnosis.not_identifiable.len(), rayon::current_num_threads(), t.elapsed().as_secs_f64());
     // Haptic: a 5-minute recording (100 s of fixed steps + 200 s of free motion).
     let (recording, _) =
-        crate::haptic::simulate::simulate_recording(&crate::haptic::simulate::HapticSimOptions {
+        kincal::haptic::simulate::simulate_recording(&kincal::haptic::simulate::HapticSimOptions {
             joints_seconds: 200.0,
             ..Default::default()
         });
     let t = Instant::now();
-    match crate::haptic::pipeline::calibrate_recording(&recording) {
+    match kincal::haptic::pipeline::calibrate_recording(&recording) {
         Ok(h) => println!("haptic pipeline on a 5-minute recording: {:.2} s  (target <= 1 s); delay {:.2} ms, position {:.3} mm, orientation {:.3} deg", t.elapsed().as_secs_f64(), h.delay_ms, h.position_mm.after, h.orientation_deg.after),
         Err(e) => println!("haptic pipeline failed: {e}"),
     }
@@ -200,7 +104,7 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<(), BenchError> {
     }
     let single_start_ms = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
     let dir = std::env::temp_dir().join(format!("kincal-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).map_err(|source| BenchError::Io { path: dir.clone(), source })?;
+    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
     let problem = dir.join("problem.json");
     write_peer_problem(&problem, &nominal, &single.estimated, &sim.artefact, &cal, options.huber_delta_mm)?;
     let peer = run_peer(&args.python, &problem)?;

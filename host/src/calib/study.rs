@@ -2,10 +2,10 @@
 //! K random subsets each are calibrated and validated on the held-out sessions; the table gives
 //! mean, standard deviation and range of the validation RMS per subset size.
 
-use crate::calibrate::{calibrate, CalibrationOptions};
+use crate::calib::calibrate::{calibrate, CalibrationOptions};
+use crate::calib::validate::{distance_errors, ErrorStats};
 use crate::data::{Artefact, Dataset};
 use crate::model::ArmModel;
-use crate::validate::{distance_errors, ErrorStats};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
@@ -134,6 +134,6 @@ pub fn study_body(rows: &[StudyRow]) -> String {
     format!(
         "<p>Validation RMS of calibrations on random subsets of the calibration placements.</p>{}{}",
         table(&["placements", "calibrations", "mean mm", "std mm", "min mm", "max mm"], &cells),
-        crate::svg::boxplot(&groups, "validation RMS (mm)")
+        crate::report::svg::boxplot(&groups, "validation RMS (mm)")
     )
 }

@@ -8,13 +8,13 @@
 //! after a rigid registration of the streamed tool points to the true ones, as a navigation
 //! system registers the tracker to the patient.
 
-use crate::calibrate::CalibrationOptions;
+use crate::calib::calibrate::CalibrationOptions;
+use crate::calib::run::{run, RunError, RunInputs};
+use crate::controller::link::{Link, LinkError};
+use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step};
 use crate::data::Artefact;
-use crate::geometry::absolute_orientation;
-use crate::link::{Link, LinkError};
 use crate::model::ArmModel;
-use crate::record::{record, Guide, Plan, Quality, RecordError, Step};
-use crate::run::{run, RunError, RunInputs};
+use crate::numerics::geometry::absolute_orientation;
 use crate::simulate::{
     calibration_placements, perturbed_truth, reference_tool_frame, suta_artefact, touch_encoders,
     validation_placements, Placement, SimulationOptions,
@@ -260,7 +260,7 @@ pub fn run_loop(
                 check_counts.len()
             ));
             let t = Instant::now();
-            link.upload(&crate::device::parameter_blob(model, version))?;
+            link.upload(&crate::controller::device::parameter_blob(model, version))?;
             let upload = t.elapsed().as_secs_f64();
             let points =
                 check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;
@@ -274,7 +274,7 @@ pub fn run_loop(
         .map(|c| crate::model::kinematics::tool_pose(&result.calibration.model, &degrees_of(c)).position_mm)
         .collect();
     let truth_validation =
-        crate::validate::validate(&truth, &artefact, &result.validation_data).overall.rms_mm;
+        crate::calib::validate::validate(&truth, &artefact, &result.validation_data).overall.rms_mm;
     Ok(LoopReport {
         truth_validation_rms_mm: truth_validation,
         host_calibrated_pose_rms_mm: registered_rms(&host_points, &truth_points),

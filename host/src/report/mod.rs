@@ -1,8 +1,10 @@
 //! `report.html`: what a person opens after a run. Reads results, never recomputes them.
 
-use crate::run::Run;
-use crate::svg::{self, escape};
+use crate::calib::run::Run;
+pub mod svg;
+
 use std::fmt::Write;
+use svg::escape;
 
 const STYLE: &str = "body{font-family:sans-serif;max-width:1000px;margin:2em auto;color:#222}table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}th{background:#f4f4f4}td:first-child{text-align:left}.flag{color:#b00;font-weight:bold}figure{display:inline-block;margin:4px}";
 
@@ -36,7 +38,7 @@ fn mm(v: f64) -> String {
 pub fn calibration_report(run: &Run) -> String {
     let s = &run.summary;
     let mut body = String::new();
-    let stats_row = |name: &str, v: &crate::validate::ErrorStats| {
+    let stats_row = |name: &str, v: &crate::calib::validate::ErrorStats| {
         vec![name.to_string(), mm(v.rms_mm), mm(v.mean_mm), mm(v.std_mm), mm(v.max_mm), v.pairs.to_string()]
     };
     let _ = write!(
@@ -150,7 +152,7 @@ pub fn calibration_report(run: &Run) -> String {
         "<h2>Parameters</h2>{}",
         table(&["parameter", "unit", "nominal", "calibrated", "std", "status"], &est)
     );
-    let combos = |list: &[crate::identify::Combination]| {
+    let combos = |list: &[crate::calib::identify::Combination]| {
         list.iter()
             .map(|c| format!("<li>{} (σ/σ₁ = {:.1e})</li>", escape(&c.text), c.relative_singular_value))
             .collect::<String>()
@@ -208,7 +210,7 @@ pub fn calibration_report(run: &Run) -> String {
         .collect();
     let _ = write!(body, "<h2>Outlier diagnostics (thesis appendix F)</h2><p>Thresholds: contribution &gt; 1.5× its share, Cook's distance &gt; 4/L, leave-one-out improvement &gt; 5 %, bias &gt; 1 mm; flagged when two or more exceed.</p>{}", table(&["landmark", "contribution %", "Cook's D", "LOO impact %", "bias mm", ""], &out_rows));
     if let Some(rows) = &s.study {
-        let _ = write!(body, "<h2>Dataset-size study</h2>{}", crate::study::study_body(rows));
+        let _ = write!(body, "<h2>Dataset-size study</h2>{}", crate::calib::study::study_body(rows));
     }
     let starts: Vec<Vec<String>> = s
         .calibration
@@ -233,7 +235,7 @@ pub fn calibration_report(run: &Run) -> String {
 }
 
 /// The diagnosis page: where the model fails and which effect is missing.
-pub fn diagnosis_report(d: &crate::diagnose::Diagnosis) -> String {
+pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
     let mut body = String::new();
     let _ = write!(
         body,
@@ -322,7 +324,7 @@ pub fn diagnosis_report(d: &crate::diagnose::Diagnosis) -> String {
 pub struct Comparison {
     names: [String; 2],
     summaries: [serde_json::Value; 2],
-    residuals: [Vec<crate::run::StoredPairError>; 2],
+    residuals: [Vec<crate::calib::run::StoredPairError>; 2],
 }
 
 /// Why two runs could not be compared.

@@ -8,8 +8,9 @@
 //! an interrupted session loses nothing; started again, it resumes with the first landmark and
 //! repeat not yet on disk and never measures one twice.
 
-use crate::data::{Artefact, DataError, Measurement, Session, SESSION_FORMAT};
-use crate::link::{Link, LinkError};
+use crate::controller::link::{Link, LinkError};
+use crate::data::{Artefact, Measurement, Session, SESSION_FORMAT};
+use crate::files::FileError;
 use kincal_protocol::biss::COUNTS_PER_TURN;
 use kincal_protocol::messages::{Request, Stream, WindowReport, WireError};
 use std::path::{Path, PathBuf};
@@ -26,7 +27,7 @@ pub enum RecordError {
     Link(#[from] LinkError),
     /// The session file could not be read or written.
     #[error(transparent)]
-    Data(#[from] DataError),
+    Data(#[from] FileError),
     /// The existing session file belongs to another placement or purpose.
     #[error("{path}: holds placement {found_placement:?} ({found_purpose}), not {placement:?} ({purpose}); choose another --out")]
     Mismatch {
@@ -213,7 +214,7 @@ pub fn record(
     if let Some(unknown) = plan.order.iter().find(|id| artefact.index_of(id).is_none()) {
         return Err(RecordError::UnknownLandmark(unknown.clone()));
     }
-    std::fs::create_dir_all(&plan.out).map_err(|source| DataError::Io { path: plan.out.clone(), source })?;
+    std::fs::create_dir_all(&plan.out).map_err(|source| FileError::Io { path: plan.out.clone(), source })?;
     let mut session = resume(plan, artefact)?;
     let mut summary = Recorded { resumed: session.measurements.len(), ..Recorded::default() };
     for repeat in 1..=plan.repeats {
@@ -283,11 +284,11 @@ fn one() -> u32 {
 
 impl Script {
     /// Read a script file.
-    pub fn load(path: &Path) -> Result<Script, DataError> {
+    pub fn load(path: &Path) -> Result<Script, FileError> {
         let text = std::fs::read_to_string(path)
-            .map_err(|source| DataError::Io { path: path.to_owned(), source })?;
+            .map_err(|source| FileError::Io { path: path.to_owned(), source })?;
         serde_json::from_str(&text)
-            .map_err(|e| DataError::Syntax { path: path.to_owned(), message: e.to_string() })
+            .map_err(|e| FileError::Syntax { path: path.to_owned(), message: e.to_string() })
     }
 }
 

@@ -11,7 +11,7 @@
 use crate::data::{Artefact, Dataset, Touch};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap, PoseDerivative, ToolPose};
 use crate::model::{ArmModel, ParamId};
-use crate::solver::Residuals;
+use crate::numerics::solver::Residuals;
 use nalgebra::Vector3;
 
 /// Which residual blocks the calibration minimises.

@@ -186,7 +186,7 @@ pub fn base_columns(jac: &[f64], n: usize, ranges: &[f64]) -> (Vec<usize>, Vec<u
 /// variance σ²; `None` when JᵀWJ is singular.
 pub fn covariance(jac: &[f64], weights: &[f64], n: usize, variance: f64) -> Option<DMatrix<f64>> {
     let zeros = vec![0.0; weights.len()];
-    let (h, _) = crate::solver::normal_equations(jac, &zeros, weights, n);
+    let (h, _) = crate::numerics::solver::normal_equations(jac, &zeros, weights, n);
     h.cholesky().map(|c| c.inverse() * variance)
 }
 

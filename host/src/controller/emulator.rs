@@ -4,7 +4,7 @@
 //! is lost before the host is ready and no fixed port is needed. The [`Emulator`] guard kills
 //! QEMU when dropped, also when a test fails.
 
-use crate::link::{Link, LinkError};
+use crate::controller::link::{Link, LinkError};
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};

@@ -10,13 +10,13 @@
 //!
 //! A landmark is flagged when at least two metrics exceed their thresholds.
 
-use crate::calibrate::{calibrate, Calibration, CalibrationOptions};
+use crate::calib::calibrate::{calibrate, Calibration, CalibrationOptions};
+use crate::calib::objective::{CalibrationProblem, Objective};
+use crate::calib::validate::{distance_errors, positions, ErrorStats};
 use crate::data::{Artefact, Dataset};
-use crate::geometry::absolute_orientation;
 use crate::model::ArmModel;
-use crate::objective::{CalibrationProblem, Objective};
-use crate::solver::Residuals;
-use crate::validate::{distance_errors, positions, ErrorStats};
+use crate::numerics::geometry::absolute_orientation;
+use crate::numerics::solver::Residuals;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -96,7 +96,7 @@ pub fn landmark_outliers(
     let mut jac = vec![0.0; problem.len() * p];
     problem.evaluate(&x_hat, &mut r, Some(&mut jac));
     let mse = r[..m].iter().map(|v| v * v).sum::<f64>() / (m as f64 - p as f64).max(1.0);
-    let (jtj, _) = crate::solver::normal_equations(&jac[..m * p], &r[..m], &vec![1.0; m], p);
+    let (jtj, _) = crate::numerics::solver::normal_equations(&jac[..m * p], &r[..m], &vec![1.0; m], p);
     let bias = landmark_bias(&fit.model, artefact, cal);
     // Refits without one landmark start from the full fit, without random restarts.
     let warm = fit.model.clone();

@@ -23,16 +23,16 @@
 //! reported as equivalent: a tool-tip offset along the last joint axis and the link length d6,
 //! say, move every touch alike and no data of this kind separates them.
 
-use crate::calibrate::{calibrate, CalibrationOptions};
+use crate::calib::calibrate::{calibrate, CalibrationOptions};
+use crate::calib::identify;
+use crate::calib::objective::{CalibrationProblem, Objective};
+use crate::calib::validate::{distance_errors, ErrorStats, PairError};
 use crate::data::{Artefact, Dataset};
-use crate::effects::{Effect, EffectKind};
-use crate::geometry::absolute_orientation;
-use crate::identify;
+use crate::model::effects::{Effect, EffectKind};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
 use crate::model::{ArmModel, ParamId, JOINTS};
-use crate::objective::{CalibrationProblem, Objective};
-use crate::solver::Residuals;
-use crate::validate::{distance_errors, ErrorStats, PairError};
+use crate::numerics::geometry::absolute_orientation;
+use crate::numerics::solver::Residuals;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 

@@ -5,18 +5,19 @@
 //! distance error, for `kincal compare`) and `report.html`. The folder is written under a temporary name and renamed when complete, so a
 //! half-written RUN is never presented as done.
 
-use crate::calibrate::{
+use crate::calib::calibrate::{
     calibrate, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome,
 };
-use crate::data::{Artefact, DataError, Dataset};
-use crate::effects::Effect;
-use crate::identify::{self, Identifiability};
+use crate::calib::identify::{self, Identifiability};
+use crate::calib::objective::{CalibrationProblem, Objective};
+use crate::calib::outliers::{landmark_outliers, LandmarkOutlier};
+use crate::calib::study::{study, StudyOptions, StudyRow};
+use crate::calib::validate::{validate, ErrorStats, GroupStats, Repeatability, Validation};
+use crate::data::{Artefact, Dataset};
+use crate::files::FileError;
+use crate::model::effects::Effect;
 use crate::model::ArmModel;
-use crate::objective::{CalibrationProblem, Objective};
-use crate::outliers::{landmark_outliers, LandmarkOutlier};
-use crate::solver::Residuals;
-use crate::study::{study, StudyOptions, StudyRow};
-use crate::validate::{validate, ErrorStats, GroupStats, Repeatability, Validation};
+use crate::numerics::solver::Residuals;
 use std::path::{Path, PathBuf};
 
 /// Why a run failed.
@@ -24,7 +25,7 @@ use std::path::{Path, PathBuf};
 pub enum RunError {
     /// An input file was unusable.
     #[error(transparent)]
-    Data(#[from] DataError),
+    Data(#[from] FileError),
     /// The calibration could not run.
     #[error("calibration: {0}")]
     Calibration(#[from] CalibrationError),
@@ -162,7 +163,7 @@ impl RunFolder {
         let text = std::fs::read_to_string(&path)
             .map_err(|source| RunError::Output { path: path.clone(), source })?;
         let record =
-            serde_json::from_str(&text).map_err(|e| DataError::Syntax { path, message: e.to_string() })?;
+            serde_json::from_str(&text).map_err(|e| FileError::Syntax { path, message: e.to_string() })?;
         Ok(RunFolder { model, record })
     }
 
@@ -400,6 +401,6 @@ impl Run {
         std::fs::write(staged.join("summary.json"), json).map_err(out(&staged.join("summary.json")))?;
         std::fs::write(staged.join("report.html"), crate::report::calibration_report(self))
             .map_err(out(&staged.join("report.html")))?;
-        crate::fsutil::replace_dir(&staged, dir).map_err(out(dir))
+        crate::files::replace_dir(&staged, dir).map_err(out(dir))
     }
 }

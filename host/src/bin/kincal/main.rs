@@ -1,15 +1,17 @@
 //! `kincal`: the command-line edge. Parses arguments, calls the library, prints.
 
+mod bench;
+
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use kincal::calibrate::CalibrationOptions;
+use kincal::calib::calibrate::CalibrationOptions;
+use kincal::calib::objective::Objective;
+use kincal::calib::run::{run, RunInputs};
+use kincal::calib::study::{study, study_report, StudyOptions};
 use kincal::data::{Artefact, Dataset};
-use kincal::effects::Effect;
+use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
-use kincal::objective::Objective;
-use kincal::run::{run, RunInputs};
 use kincal::simulate::{simulate, SimulationOptions};
-use kincal::study::{study, study_report, StudyOptions};
 use std::path::{Path, PathBuf};
 
 #[derive(Parser)]
@@ -47,7 +49,7 @@ enum Command {
     #[command(subcommand)]
     Haptic(HapticCommand),
     /// Benchmarks: calibration time, study throughput, and SciPy on the same problem.
-    Bench(kincal::bench::BenchArgs),
+    Bench(bench::BenchArgs),
 }
 
 #[derive(Args)]
@@ -361,7 +363,7 @@ fn main() {
         Command::Record(a) => cmd_record(&a),
         Command::Haptic(HapticCommand::Simulate(a)) => cmd_haptic_simulate(&a),
         Command::Haptic(HapticCommand::Calibrate(a)) => cmd_haptic_calibrate(&a),
-        Command::Bench(a) => kincal::bench::run_benchmarks(&a).map_err(anyhow::Error::from),
+        Command::Bench(a) => bench::run_benchmarks(&a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");
@@ -480,9 +482,9 @@ fn cmd_study(a: &StudyArgs) -> Result<()> {
     let elapsed = started.elapsed().as_secs_f64();
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let json = serde_json::to_string_pretty(&rows)?;
-    kincal::fsutil::write_atomic(&a.out.join("study.json"), json.as_bytes())
+    kincal::files::write_atomic(&a.out.join("study.json"), json.as_bytes())
         .with_context(|| format!("writing {}", a.out.join("study.json").display()))?;
-    kincal::fsutil::write_atomic(&a.out.join("report.html"), study_report(&rows).as_bytes())
+    kincal::files::write_atomic(&a.out.join("report.html"), study_report(&rows).as_bytes())
         .with_context(|| format!("writing {}", a.out.join("report.html").display()))?;
     if a.json {
         println!("{json}");
@@ -507,18 +509,19 @@ fn cmd_demo(a: &DemoArgs) -> Result<()> {
     }
     let nominal = ArmModel::load(&a.model)?;
     println!("building the emulated controller firmware and starting QEMU (mps2-an386)");
-    let elf = kincal::emulator::build_firmware()?;
-    let (_emulator, mut link) = kincal::emulator::Emulator::start(&elf)?;
+    let elf = kincal::controller::emulator::build_firmware()?;
+    let (_emulator, mut link) = kincal::controller::emulator::Emulator::start(&elf)?;
     link.hello()?;
     let info = link.info()?;
     println!("connected: {} on {}", info.firmware, info.board);
-    let options = kincal::workflow::LoopOptions {
+    let options = kincal::controller::demo::LoopOptions {
         seed: a.seed,
         window_ticks: a.window_ticks,
         out: a.out.clone(),
         ..Default::default()
     };
-    let report = kincal::workflow::run_loop(&mut link, &nominal, &options, &mut |step| println!("  {step}"))?;
+    let report =
+        kincal::controller::demo::run_loop(&mut link, &nominal, &options, &mut |step| println!("  {step}"))?;
     println!("recorded {} touches through the controller; loop took {:.0} s", report.touches, report.seconds);
     println!("validation distance RMS   nominal {:8.3} mm   calibrated {:7.3} mm   true arm on the same data {:.3} mm (noise floor)", report.nominal_validation_rms_mm, report.calibrated_validation_rms_mm, report.truth_validation_rms_mm);
     println!("streamed pose error (RMS after rigid registration, {} validation touches):", report.poses);
@@ -535,8 +538,8 @@ fn cmd_demo(a: &DemoArgs) -> Result<()> {
     Ok(())
 }
 
-fn connect(port: &PortArgs) -> Result<kincal::link::Link> {
-    let mut link = kincal::link::Link::open(&port.port)?;
+fn connect(port: &PortArgs) -> Result<kincal::controller::link::Link> {
+    let mut link = kincal::controller::link::Link::open(&port.port)?;
     link.hello().with_context(|| format!("handshake with the controller on {}", port.port))?;
     Ok(link)
 }
@@ -586,7 +589,7 @@ fn cmd_params(a: &PortArgs) -> Result<()> {
 
 fn cmd_upload(a: &UploadArgs) -> Result<()> {
     let model = ArmModel::load(&a.model)?;
-    let blob = kincal::device::parameter_blob(&model, a.version);
+    let blob = kincal::controller::device::parameter_blob(&model, a.version);
     let mut link = connect(&a.port)?;
     let before = link.info()?.param_version;
     let started = std::time::Instant::now();
@@ -699,7 +702,7 @@ fn cmd_record(a: &RecordArgs) -> Result<()> {
     } else {
         a.order.clone()
     };
-    let plan = kincal::record::Plan {
+    let plan = kincal::controller::record::Plan {
         placement: a.placement.clone(),
         purpose: a.purpose.clone(),
         order,
@@ -709,15 +712,15 @@ fn cmd_record(a: &RecordArgs) -> Result<()> {
     };
     let mut link = connect(&a.port)?;
     let mut script;
-    let mut operator = kincal::record::Operator;
-    let guide: &mut dyn kincal::record::Guide = match &a.script {
+    let mut operator = kincal::controller::record::Operator;
+    let guide: &mut dyn kincal::controller::record::Guide = match &a.script {
         Some(path) => {
-            script = kincal::record::Script::load(path)?;
+            script = kincal::controller::record::Script::load(path)?;
             &mut script
         }
         None => &mut operator,
     };
-    let done = kincal::record::record(&mut link, &artefact, &plan, guide)?;
+    let done = kincal::controller::record::record(&mut link, &artefact, &plan, guide)?;
     println!(
         "{}: {} measured now, {} resumed from disk, {} skipped, {} re-taken → {}",
         plan.placement,
@@ -756,16 +759,16 @@ fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
     let truth = ArmModel::load(&data.join("truth.toml"))?;
     let artefact = Artefact::load(&inputs.artefact)?;
     let val = Dataset::load_dir(&inputs.validation, &artefact)?;
-    let floor = kincal::validate::validate(&truth, &artefact, &val).overall;
+    let floor = kincal::calib::validate::validate(&truth, &artefact, &val).overall;
     println!("  noise floor (true arm on the same validation data) {:.3} mm", floor.rms_mm);
     Ok(())
 }
 
 fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
-    let folder = kincal::run::RunFolder::load(&a.run)?;
+    let folder = kincal::calib::run::RunFolder::load(&a.run)?;
     let (artefact, cal, val) = folder.data()?;
     let started = std::time::Instant::now();
-    let diagnosis = kincal::diagnose::diagnose(
+    let diagnosis = kincal::calib::diagnose::diagnose(
         &folder.model,
         &artefact,
         &cal,
@@ -774,10 +777,10 @@ fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
     );
     let elapsed = started.elapsed().as_secs_f64();
     let json = serde_json::to_string_pretty(&diagnosis)?;
-    kincal::fsutil::write_atomic(&a.run.join("diagnosis.json"), json.as_bytes())
+    kincal::files::write_atomic(&a.run.join("diagnosis.json"), json.as_bytes())
         .with_context(|| format!("writing {}", a.run.join("diagnosis.json").display()))?;
     let html = kincal::report::diagnosis_report(&diagnosis);
-    kincal::fsutil::write_atomic(&a.run.join("diagnosis.html"), html.as_bytes())
+    kincal::files::write_atomic(&a.run.join("diagnosis.html"), html.as_bytes())
         .with_context(|| format!("writing {}", a.run.join("diagnosis.html").display()))?;
     if a.json {
         println!("{json}");
@@ -820,7 +823,7 @@ fn cmd_compare(a: &CompareArgs) -> Result<()> {
     for line in comparison.table_lines() {
         println!("{line}");
     }
-    kincal::fsutil::write_atomic(&a.out, comparison.html().as_bytes())
+    kincal::files::write_atomic(&a.out, comparison.html().as_bytes())
         .with_context(|| format!("writing {}", a.out.display()))?;
     println!("side by side: {}", a.out.display());
     Ok(())
@@ -854,9 +857,9 @@ fn cmd_haptic_calibrate(a: &HapticCalibrateArgs) -> Result<()> {
     let summary = result.summary();
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let json = serde_json::to_string_pretty(&summary)?;
-    kincal::fsutil::write_atomic(&a.out.join("summary.json"), json.as_bytes())
+    kincal::files::write_atomic(&a.out.join("summary.json"), json.as_bytes())
         .with_context(|| format!("writing {}", a.out.join("summary.json").display()))?;
-    kincal::fsutil::write_atomic(
+    kincal::files::write_atomic(
         &a.out.join("report.html"),
         kincal::report::haptic_report(&summary).as_bytes(),
     )

@@ -1,0 +1,13 @@
+//! Arm calibration from artefact touches: the objective (residual blocks), identifiability, the
+//! calibration itself, validation on held-out placements, outlier metrics, diagnosis of missing
+//! effects, the dataset-size study, and the whole run from input files to results.
+
+pub mod calibrate;
+pub mod diagnose;
+pub mod identify;
+pub mod objective;
+pub mod outliers;
+pub mod peer;
+pub mod run;
+pub mod study;
+pub mod validate;

@@ -1,0 +1,9 @@
+//! The arm's controller seen from the host: the framed link (serial, pty or TCP), guided recording
+//! of measurement sessions, the parameter blob for upload, the emulated controller on QEMU and the
+//! whole demo loop through it.
+
+pub mod demo;
+pub mod device;
+pub mod emulator;
+pub mod link;
+pub mod record;

@@ -399,7 +399,7 @@ impl Run {
             .map_err(out(&staged.join("residuals.json")))?;
         let json = serde_json::to_string_pretty(&self.summary).unwrap_or_default();
         std::fs::write(staged.join("summary.json"), json).map_err(out(&staged.join("summary.json")))?;
-        std::fs::write(staged.join("report.html"), crate::report::calibration_report(self))
+        std::fs::write(staged.join("report.html"), crate::report::calibration::calibration_report(self))
             .map_err(out(&staged.join("report.html")))?;
         crate::files::replace_dir(&staged, dir).map_err(out(dir))
     }

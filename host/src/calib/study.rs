@@ -107,33 +107,3 @@ pub fn study(
         })
         .collect()
 }
-
-/// The study's HTML page: table and box plot.
-pub fn study_report(rows: &[StudyRow]) -> String {
-    crate::report::page("kincal dataset-size study", &study_body(rows))
-}
-
-/// The study's table and box plot as an HTML fragment.
-pub fn study_body(rows: &[StudyRow]) -> String {
-    use crate::report::table;
-    let cells: Vec<Vec<String>> = rows
-        .iter()
-        .map(|r| {
-            vec![
-                r.placements.to_string(),
-                r.calibrations.to_string(),
-                format!("{:.3}", r.mean_mm),
-                format!("{:.3}", r.std_mm),
-                format!("{:.3}", r.min_mm),
-                format!("{:.3}", r.max_mm),
-            ]
-        })
-        .collect();
-    let groups: Vec<(String, Vec<f64>)> =
-        rows.iter().map(|r| (r.placements.to_string(), r.rms_mm.clone())).collect();
-    format!(
-        "<p>Validation RMS of calibrations on random subsets of the calibration placements.</p>{}{}",
-        table(&["placements", "calibrations", "mean mm", "std mm", "min mm", "max mm"], &cells),
-        crate::report::svg::boxplot(&groups, "validation RMS (mm)")
-    )
-}

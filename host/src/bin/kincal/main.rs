@@ -7,10 +7,11 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use kincal::calib::calibrate::CalibrationOptions;
 use kincal::calib::objective::Objective;
 use kincal::calib::run::{run, RunInputs};
-use kincal::calib::study::{study, study_report, StudyOptions};
+use kincal::calib::study::{study, StudyOptions};
 use kincal::data::{Artefact, Dataset};
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
+use kincal::report::study::study_report;
 use kincal::simulate::{simulate, SimulationOptions};
 use std::path::{Path, PathBuf};
 
@@ -779,7 +780,7 @@ fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
     let json = serde_json::to_string_pretty(&diagnosis)?;
     kincal::files::write_atomic(&a.run.join("diagnosis.json"), json.as_bytes())
         .with_context(|| format!("writing {}", a.run.join("diagnosis.json").display()))?;
-    let html = kincal::report::diagnosis_report(&diagnosis);
+    let html = kincal::report::diagnosis::diagnosis_report(&diagnosis);
     kincal::files::write_atomic(&a.run.join("diagnosis.html"), html.as_bytes())
         .with_context(|| format!("writing {}", a.run.join("diagnosis.html").display()))?;
     if a.json {
@@ -819,7 +820,7 @@ fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
 }
 
 fn cmd_compare(a: &CompareArgs) -> Result<()> {
-    let comparison = kincal::report::Comparison::load(&a.before, &a.after)?;
+    let comparison = kincal::report::compare::Comparison::load(&a.before, &a.after)?;
     for line in comparison.table_lines() {
         println!("{line}");
     }
@@ -861,7 +862,7 @@ fn cmd_haptic_calibrate(a: &HapticCalibrateArgs) -> Result<()> {
         .with_context(|| format!("writing {}", a.out.join("summary.json").display()))?;
     kincal::files::write_atomic(
         &a.out.join("report.html"),
-        kincal::report::haptic_report(&summary).as_bytes(),
+        kincal::report::haptic::haptic_report(&summary).as_bytes(),
     )
     .with_context(|| format!("writing {}", a.out.join("report.html").display()))?;
     if a.json {

@@ -1,0 +1,91 @@
+//! `RUN/diagnosis.html`: where the model fails and which effect is missing.
+
+use super::svg::{self, escape};
+use super::{mm, page, table};
+use std::fmt::Write;
+
+/// The diagnosis page: where the model fails and which effect is missing.
+pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
+    let mut body = String::new();
+    let _ = write!(
+        body,
+        "<h2>Summary</h2><ul>{}</ul>",
+        d.summary.iter().map(|l| format!("<li>{}</li>", escape(l))).collect::<String>()
+    );
+    let rows: Vec<Vec<String>> = d
+        .candidates
+        .iter()
+        .map(|c| {
+            vec![
+                escape(&c.effect)
+                    + &c.equivalent_to.as_ref().map_or(String::new(), |l| format!(" (≡ {})", escape(l))),
+                mm(c.validation_rms_mm),
+                format!("{:.2}", c.explained),
+                format!("{}/{} (p = {:.1e})", c.blocks_improved.0, c.blocks_improved.1, c.p_value),
+                format!("{:+.1}", c.delta_bic),
+                if c.significant { "<span class=flag>yes</span>".into() } else { "no".into() },
+                escape(&c.evidence),
+            ]
+        })
+        .collect();
+    let _ = write!(body, "<h2>Which effect is missing</h2><p>Baseline validation RMS {} mm. Each effect is added, refitted on the calibration data and scored on the held-out placements.</p>{}", mm(d.baseline.rms_mm), table(&["effect", "val RMS mm", "explained", "blocks improved", "ΔBIC", "significant", "evidence"], &rows));
+    let ni: Vec<Vec<String>> =
+        d.not_identifiable.iter().map(|n| vec![escape(&n.effect), escape(&n.reason)]).collect();
+    let _ = write!(body, "<h3>Not identifiable</h3>{}", table(&["effect", "why"], &ni));
+    body.push_str("<h2>Where it fails</h2><h3>Apparent joint error against joint angle (with the best-fitting sinusoid)</h3>");
+    for j in &d.joints {
+        let pts: Vec<(f64, f64)> = j.points.iter().map(|p| (p.0, p.1)).collect();
+        let s = j.sinusoid;
+        let curve: Vec<(f64, f64)> = (0..=72)
+            .map(|k| {
+                let phi = k as f64 * 5.0;
+                (phi, s.amplitude_deg * (phi.to_radians() + s.phase_deg.to_radians()).sin() + s.mean_deg)
+            })
+            .collect();
+        let _ = write!(
+            body,
+            "<figure>{}<figcaption>joint {}: amplitude {:.3}°, {:.0} % explained</figcaption></figure>",
+            svg::scatter(&pts, &curve, &format!("encoder {} (deg)", j.joint), "apparent error (deg)"),
+            j.joint,
+            s.amplitude_deg,
+            100.0 * s.explained
+        );
+    }
+    body.push_str("<h3>Apparent joint error against gravity lever</h3>");
+    for j in d.joints.iter().filter(|j| j.gravity.iter().any(|g| g.0.abs() > 1e-6)) {
+        let _ = write!(
+            body,
+            "<figure>{}<figcaption>joint {}: slope {:+.3} °/m</figcaption></figure>",
+            svg::scatter(
+                &j.gravity,
+                &[],
+                &format!("gravity lever joint {} (m)", j.joint),
+                "apparent error (deg)"
+            ),
+            j.joint,
+            j.gravity_slope_deg_per_m
+        );
+    }
+    let _ = write!(
+        body,
+        "<h3>Residual against height and reach</h3><figure>{}</figure><figure>{}</figure>",
+        svg::scatter(&d.by_height, &[], "tool height z (mm)", "|residual| (mm)"),
+        svg::scatter(&d.by_reach, &[], "reach (mm)", "|residual| (mm)")
+    );
+    let place: Vec<Vec<String>> = d.by_placement.iter().map(|(n, r)| vec![escape(n), mm(*r)]).collect();
+    let _ = write!(body, "<h3>By placement</h3>{}", table(&["placement", "RMS mm"], &place));
+    let worst: Vec<Vec<String>> = d
+        .worst
+        .iter()
+        .map(|w| {
+            vec![
+                escape(&w.placement),
+                format!("{}–{}", escape(&w.landmarks.0), escape(&w.landmarks.1)),
+                mm(w.error_mm),
+            ]
+        })
+        .collect();
+    let _ =
+        write!(body, "<h3>Worst measurements</h3>{}", table(&["placement", "landmarks", "error mm"], &worst));
+    page("kincal diagnosis", &body)
+}

@@ -9,7 +9,7 @@
 //! ```
 //! `std_deg`, `samples` and `rejected` are optional; sessions may miss landmarks.
 
-use crate::files::{self, FileError};
+use crate::files::{self, field_error, read_json, FileError};
 use crate::model::JOINTS;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -70,17 +70,6 @@ pub struct Session {
     pub purpose: String,
     /// Touches in recording order.
     pub measurements: Vec<Measurement>,
-}
-
-fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, FileError> {
-    let text =
-        std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
-    serde_json::from_str(&text)
-        .map_err(|e| FileError::Syntax { path: path.to_owned(), message: e.to_string() })
-}
-
-fn field_error(path: &Path, field: impl Into<String>, message: impl Into<String>) -> FileError {
-    FileError::Field { path: path.to_owned(), field: field.into(), message: message.into() }
 }
 
 impl Artefact {

@@ -17,20 +17,6 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     std::fs::rename(&tmp, path)
 }
 
-/// Replace directory `target` with the fully written directory `staged` (same parent).
-/// An existing `target` is removed only after `staged` has taken its place.
-pub fn replace_dir(staged: &Path, target: &Path) -> std::io::Result<()> {
-    if target.exists() {
-        let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let old = target.with_file_name(format!(".{name}.old-{}", std::process::id()));
-        std::fs::rename(target, &old)?;
-        std::fs::rename(staged, target)?;
-        std::fs::remove_dir_all(&old)
-    } else {
-        std::fs::rename(staged, target)
-    }
-}
-
 /// Why an input file could not be used.
 #[derive(Debug, thiserror::Error)]
 pub enum FileError {
@@ -66,4 +52,42 @@ pub enum FileError {
         /// The folder.
         path: PathBuf,
     },
+}
+
+/// Read a JSON file into `T`, naming the file (and the parser's line and column) on error.
+pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, FileError> {
+    let text =
+        std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
+    serde_json::from_str(&text)
+        .map_err(|e| FileError::Syntax { path: path.to_owned(), message: e.to_string() })
+}
+
+/// Read a JSON file kincal wrote, checking its `format` tag first so that a file of another kind or
+/// version is named as such instead of failing on some later field.
+pub fn read_tagged<T: serde::de::DeserializeOwned>(path: &Path, format: &str) -> Result<T, FileError> {
+    #[derive(serde::Deserialize)]
+    struct Tag {
+        format: Option<String>,
+    }
+    let text =
+        std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
+    let syntax = |e: serde_json::Error| FileError::Syntax { path: path.to_owned(), message: e.to_string() };
+    let tag: Tag = serde_json::from_str(&text).map_err(syntax)?;
+    match tag.format.as_deref() {
+        Some(found) if found == format => serde_json::from_str(&text).map_err(syntax),
+        Some(found) => Err(field_error(path, "format", format!("expected \"{format}\", found \"{found}\""))),
+        None => Err(field_error(path, "format", format!("missing; expected \"{format}\""))),
+    }
+}
+
+/// The error for a field that holds a value that cannot be used.
+pub fn field_error(path: &Path, field: impl Into<String>, message: impl Into<String>) -> FileError {
+    FileError::Field { path: path.to_owned(), field: field.into(), message: message.into() }
+}
+
+/// Deserialise a number that JSON stores as `null` when it was infinite (serde_json writes
+/// non-finite numbers as `null`), such as the condition number of a singular Jacobian.
+pub fn null_as_infinity<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    let value: Option<f64> = serde::Deserialize::deserialize(d)?;
+    Ok(value.unwrap_or(f64::INFINITY))
 }

@@ -23,6 +23,7 @@ pub mod files;
 pub mod haptic;
 pub mod model;
 pub mod numerics;
+pub mod output;
 
 pub mod report;
 pub mod simulate;

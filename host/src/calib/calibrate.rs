@@ -52,7 +52,7 @@ pub enum CalibrationError {
 }
 
 /// The outcome of one start of the solver.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct StartOutcome {
     /// 0 for the nominal start, then 1.. for random starts.
     pub start: usize,
@@ -67,12 +67,12 @@ pub struct StartOutcome {
 }
 
 /// How one parameter came out.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Estimate {
     /// Parameter name.
     pub param: String,
     /// Unit of the values.
-    pub unit: &'static str,
+    pub unit: String,
     /// Nominal value.
     pub nominal: f64,
     /// Calibrated value.
@@ -245,7 +245,7 @@ pub fn calibrate(
             let k = estimated.iter().position(|e| *e == id);
             Estimate {
                 param: id.to_string(),
-                unit: id.unit(),
+                unit: id.unit().to_string(),
                 nominal: nominal.get(id),
                 value: model.get(id),
                 std: k.and_then(std_of),

@@ -21,7 +21,7 @@ pub const BASE_SET_TOLERANCE: f64 = UNIDENTIFIABLE_BELOW;
 pub const POORLY_IDENTIFIED_BELOW: f64 = 1e-2;
 
 /// A direction in parameter space the data hardly sees.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Combination {
     /// σ/σ₁ of this direction.
     pub relative_singular_value: f64,
@@ -33,13 +33,14 @@ pub struct Combination {
 }
 
 /// Identifiability of a parameter set at one point.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Identifiability {
     /// Parameter names, in column order.
     pub params: Vec<String>,
     /// Singular values of the column-scaled Jacobian, largest first.
     pub singular_values: Vec<f64>,
     /// σ₁/σ_n (infinite when rank-deficient).
+    #[serde(deserialize_with = "crate::files::null_as_infinity")]
     pub condition_number: f64,
     /// Directions the data cannot determine at all.
     pub unidentifiable: Vec<Combination>,

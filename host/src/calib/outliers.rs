@@ -26,7 +26,7 @@ pub const LOO_IMPACT_PCT: f64 = 5.0;
 pub const BIAS_MM: f64 = 1.0;
 
 /// The four metrics of one landmark.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct LandmarkOutlier {
     /// Landmark id.
     pub landmark: String,
@@ -39,7 +39,7 @@ pub struct LandmarkOutlier {
     /// Residual after a rigid fit of the artefact per placement, RMS, mm.
     pub bias_mm: f64,
     /// Metrics beyond their thresholds.
-    pub exceeded: Vec<&'static str>,
+    pub exceeded: Vec<String>,
     /// At least two metrics exceeded.
     pub flagged: bool,
 }
@@ -143,7 +143,7 @@ pub fn landmark_outliers(
                 loo_impact_pct,
                 bias_mm: bias[l],
                 flagged: exceeded.len() >= 2,
-                exceeded,
+                exceeded: exceeded.into_iter().map(String::from).collect(),
             }
         })
         .collect()

@@ -1,9 +1,10 @@
-//! `kincal calibrate`: the whole job from input files to a RUN folder.
+//! `kincal calibrate`: the whole job from input files to results, and the typed files of a RUN
+//! folder read back.
 //!
 //! RUN/ holds `model.toml` (the calibrated model, loadable again), `nominal.toml` (the model it
-//! started from, with any added effects), `summary.json`, `residuals.json` (every validation
-//! distance error, for `kincal compare`) and `report.html`. The folder is written under a temporary name and renamed when complete, so a
-//! half-written RUN is never presented as done.
+//! started from, with any added effects), `summary.json` ([`Summary`], format [`RUN_FORMAT`]),
+//! `residuals.json` ([`StoredResiduals`], every validation distance error, for `kincal compare`)
+//! and `report.html`. Writing the folder is [`crate::output`]'s job.
 
 use crate::calib::calibrate::{
     calibrate, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome,
@@ -14,6 +15,7 @@ use crate::calib::outliers::{landmark_outliers, LandmarkOutlier};
 use crate::calib::study::{study, StudyOptions, StudyRow};
 use crate::calib::validate::{validate, ErrorStats, GroupStats, Repeatability, Validation};
 use crate::data::{Artefact, Dataset};
+use crate::files::read_tagged;
 use crate::files::FileError;
 use crate::model::effects::Effect;
 use crate::model::ArmModel;
@@ -29,9 +31,9 @@ pub enum RunError {
     /// The calibration could not run.
     #[error("calibration: {0}")]
     Calibration(#[from] CalibrationError),
-    /// The RUN folder could not be written.
+    /// An input path could not be resolved.
     #[error("{path}: {source}")]
-    Output {
+    Input {
         /// The file or folder.
         path: PathBuf,
         /// The operating-system error.
@@ -53,7 +55,7 @@ pub struct RunInputs {
 }
 
 /// What one objective can determine at the calibrated model.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct ObjectiveComparison {
     /// Free parameters identifiable from distances alone.
     pub identifiable_by_distance: Vec<String>,
@@ -67,10 +69,12 @@ pub struct ObjectiveComparison {
 }
 
 /// Everything `summary.json` holds.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Summary {
+    /// Always [`RUN_FORMAT`].
+    pub format: String,
     /// Tool version.
-    pub kincal_version: &'static str,
+    pub kincal_version: String,
     /// Input files.
     pub inputs: RunInputs,
     /// Options used.
@@ -123,15 +127,6 @@ impl SummaryOptions {
     }
 }
 
-/// What `kincal diagnose` and `kincal compare` read back from a RUN folder.
-#[derive(Clone, Debug, serde::Deserialize)]
-pub struct RunRecord {
-    /// Input files.
-    pub inputs: RunInputs,
-    /// Options.
-    pub options: SummaryOptions,
-}
-
 /// One validation distance error as stored in `residuals.json`.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct StoredPairError {
@@ -147,37 +142,56 @@ pub struct StoredPairError {
     pub enc_deg: ([f64; crate::model::JOINTS], [f64; crate::model::JOINTS]),
 }
 
-/// A RUN folder's files.
+/// Format tag of `summary.json`.
+pub const RUN_FORMAT: &str = "kincal-run/1";
+/// Format tag of `residuals.json`.
+pub const RESIDUALS_FORMAT: &str = "kincal-residuals/1";
+
+/// `residuals.json`: every validation distance error of the calibrated model.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct StoredResiduals {
+    /// Always [`RESIDUALS_FORMAT`].
+    pub format: String,
+    /// One entry per validation pair.
+    pub pairs: Vec<StoredPairError>,
+}
+
+/// A RUN folder read back as types.
 pub struct RunFolder {
-    /// The calibrated model.
+    /// The folder.
+    pub dir: PathBuf,
+    /// The calibrated model (`model.toml`).
     pub model: ArmModel,
-    /// What the run recorded.
-    pub record: RunRecord,
+    /// `summary.json`.
+    pub summary: Summary,
 }
 
 impl RunFolder {
     /// Read `model.toml` and `summary.json` of a RUN folder.
-    pub fn load(dir: &Path) -> Result<RunFolder, RunError> {
+    pub fn load(dir: &Path) -> Result<RunFolder, FileError> {
         let model = ArmModel::load(&dir.join("model.toml"))?;
-        let path = dir.join("summary.json");
-        let text = std::fs::read_to_string(&path)
-            .map_err(|source| RunError::Output { path: path.clone(), source })?;
-        let record =
-            serde_json::from_str(&text).map_err(|e| FileError::Syntax { path, message: e.to_string() })?;
-        Ok(RunFolder { model, record })
+        let summary = read_tagged(&dir.join("summary.json"), RUN_FORMAT)?;
+        Ok(RunFolder { dir: dir.to_owned(), model, summary })
+    }
+
+    /// Read `residuals.json`.
+    pub fn residuals(&self) -> Result<Vec<StoredPairError>, FileError> {
+        let stored: StoredResiduals = read_tagged(&self.dir.join("residuals.json"), RESIDUALS_FORMAT)?;
+        Ok(stored.pairs)
     }
 
     /// Load the artefact and both datasets the run used.
-    pub fn data(&self) -> Result<(Artefact, Dataset, Dataset), RunError> {
-        let artefact = Artefact::load(&self.record.inputs.artefact)?;
-        let cal = Dataset::load_dir(&self.record.inputs.calibration, &artefact)?;
-        let val = Dataset::load_dir(&self.record.inputs.validation, &artefact)?;
+    pub fn data(&self) -> Result<(Artefact, Dataset, Dataset), FileError> {
+        let inputs = &self.summary.inputs;
+        let artefact = Artefact::load(&inputs.artefact)?;
+        let cal = Dataset::load_dir(&inputs.calibration, &artefact)?;
+        let val = Dataset::load_dir(&inputs.validation, &artefact)?;
         Ok((artefact, cal, val))
     }
 }
 
 /// Calibration figures in the summary.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct CalibrationSummary {
     /// RMS distance residual on the calibration data, mm.
     pub rms_mm: f64,
@@ -198,7 +212,7 @@ pub struct CalibrationSummary {
 }
 
 /// Identifiability in the summary.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct IdentifiabilitySummary {
     /// At the nominal values.
     pub before: Identifiability,
@@ -207,7 +221,7 @@ pub struct IdentifiabilitySummary {
 }
 
 /// Validation detail in the summary.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct ValidationDetail {
     /// Calibrated model, per landmark.
     pub per_landmark: Vec<GroupStats>,
@@ -289,7 +303,7 @@ pub fn run(
     study_subsets: usize,
 ) -> Result<Run, RunError> {
     let absolute =
-        |p: &Path| std::fs::canonicalize(p).map_err(|source| RunError::Output { path: p.to_owned(), source });
+        |p: &Path| std::fs::canonicalize(p).map_err(|source| RunError::Input { path: p.to_owned(), source });
     let inputs = &RunInputs {
         model: absolute(&inputs.model)?,
         artefact: absolute(&inputs.artefact)?,
@@ -308,7 +322,8 @@ pub fn run(
     let nominal_validation = validate(&nominal, &artefact, &val);
     let outliers = landmark_outliers(&fit, &artefact, &cal, Some(&val), options);
     let summary = Summary {
-        kincal_version: env!("CARGO_PKG_VERSION"),
+        format: RUN_FORMAT.to_string(),
+        kincal_version: env!("CARGO_PKG_VERSION").to_string(),
         inputs: inputs.clone(),
         options: SummaryOptions {
             huber_delta_mm: options.huber_delta_mm,
@@ -362,24 +377,10 @@ pub fn run(
 }
 
 impl Run {
-    /// Write RUN/ (model.toml, summary.json, report.html) atomically as one folder.
-    pub fn write(&self, dir: &Path) -> Result<(), RunError> {
-        let out = |path: &Path| {
-            let path = path.to_owned();
-            move |source| RunError::Output { path, source }
-        };
-        let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        std::fs::create_dir_all(parent).map_err(out(parent))?;
-        let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "run".into());
-        let staged = parent.join(format!(".{name}.partial-{}", std::process::id()));
-        if staged.exists() {
-            std::fs::remove_dir_all(&staged).map_err(out(&staged))?;
-        }
-        std::fs::create_dir_all(&staged).map_err(out(&staged))?;
-        self.calibration.model.save(&staged.join("model.toml"))?;
-        self.nominal.save(&staged.join("nominal.toml"))?;
+    /// Every validation distance error, named, as `residuals.json` stores it.
+    pub fn stored_residuals(&self) -> StoredResiduals {
         let val = &self.validation_data;
-        let stored: Vec<StoredPairError> = self
+        let pairs = self
             .validation
             .errors
             .iter()
@@ -394,13 +395,6 @@ impl Run {
                 enc_deg: (val.touches[e.touches.0].enc_deg, val.touches[e.touches.1].enc_deg),
             })
             .collect();
-        let residuals = serde_json::to_string(&stored).unwrap_or_default();
-        std::fs::write(staged.join("residuals.json"), residuals)
-            .map_err(out(&staged.join("residuals.json")))?;
-        let json = serde_json::to_string_pretty(&self.summary).unwrap_or_default();
-        std::fs::write(staged.join("summary.json"), json).map_err(out(&staged.join("summary.json")))?;
-        std::fs::write(staged.join("report.html"), crate::report::calibration::calibration_report(self))
-            .map_err(out(&staged.join("report.html")))?;
-        crate::files::replace_dir(&staged, dir).map_err(out(dir))
+        StoredResiduals { format: RESIDUALS_FORMAT.to_string(), pairs }
     }
 }

@@ -26,7 +26,7 @@ pub struct StudyOptions {
 }
 
 /// Results for one subset size.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct StudyRow {
     /// Placements used for calibration.
     pub placements: usize,

@@ -50,7 +50,7 @@ impl ErrorStats {
 }
 
 /// Repeatability of one landmark: spread of repeated touches about their barycentre.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Repeatability {
     /// Landmark id.
     pub landmark: String,
@@ -63,7 +63,7 @@ pub struct Repeatability {
 }
 
 /// Named group statistics.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct GroupStats {
     /// Landmark id or placement name.
     pub name: String,

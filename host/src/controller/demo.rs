@@ -70,9 +70,12 @@ pub enum LoopError {
     /// Recording failed.
     #[error(transparent)]
     Record(#[from] RecordError),
-    /// Calibration or its files failed.
+    /// Calibration failed.
     #[error(transparent)]
     Run(#[from] RunError),
+    /// The RUN folder could not be written.
+    #[error(transparent)]
+    Output(#[from] crate::output::OutputError),
     /// Writing the inputs failed.
     #[error("{0}")]
     Files(String),
@@ -239,7 +242,7 @@ pub fn run_loop(
     };
     let result =
         run(&inputs, &CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() }, &[], 0)?;
-    result.write(&options.out.join("run"))?;
+    crate::output::write_run(&result, &options.out.join("run"))?;
     // Pose check at one noise-free touch of every landmark of every validation placement.
     let mut check_counts = Vec::new();
     for place in validation_placements() {

@@ -163,7 +163,7 @@ pub fn calibration_report(run: &Run) -> String {
         .iter()
         .map(|o| {
             let cell = |v: f64, name: &str| {
-                if o.exceeded.contains(&name) {
+                if o.exceeded.iter().any(|e| e == name) {
                     format!("<span class=flag>{v:.3}</span>")
                 } else {
                     format!("{v:.3}")

@@ -2,59 +2,52 @@
 
 use super::svg::{self, escape};
 use super::{page, table};
+use crate::calib::run::{RunFolder, StoredPairError, Summary};
+use crate::files::FileError;
 use std::fmt::Write;
 
-/// Two runs side by side, read from their RUN folders.
-pub struct Comparison {
-    names: [String; 2],
-    summaries: [serde_json::Value; 2],
-    residuals: [Vec<crate::calib::run::StoredPairError>; 2],
+/// One side of a comparison: what a RUN folder's typed files hold.
+pub struct ComparedRun {
+    /// How the run is named on the page (its folder).
+    pub name: String,
+    /// Its `summary.json`.
+    pub summary: Summary,
+    /// Its `residuals.json`.
+    pub residuals: Vec<StoredPairError>,
 }
 
-/// Why two runs could not be compared.
-#[derive(Debug, thiserror::Error)]
-pub enum CompareError {
-    /// A file of a run could not be read.
-    #[error("{path}: {message}")]
-    Read {
-        /// The file.
-        path: std::path::PathBuf,
-        /// What went wrong.
-        message: String,
-    },
+impl ComparedRun {
+    /// Read the typed files of a RUN folder.
+    pub fn load(dir: &std::path::Path) -> Result<ComparedRun, FileError> {
+        let folder = RunFolder::load(dir)?;
+        let residuals = folder.residuals()?;
+        Ok(ComparedRun { name: dir.display().to_string(), summary: folder.summary, residuals })
+    }
+}
+
+/// Two runs side by side.
+pub struct Comparison {
+    runs: [ComparedRun; 2],
 }
 
 impl Comparison {
-    /// Read `summary.json` and `residuals.json` of both runs.
-    pub fn load(before: &std::path::Path, after: &std::path::Path) -> Result<Comparison, CompareError> {
-        fn read<T: serde::de::DeserializeOwned>(path: std::path::PathBuf) -> Result<T, CompareError> {
-            let text = std::fs::read_to_string(&path)
-                .map_err(|e| CompareError::Read { path: path.clone(), message: e.to_string() })?;
-            serde_json::from_str(&text).map_err(|e| CompareError::Read { path, message: e.to_string() })
-        }
-        Ok(Comparison {
-            names: [before.display().to_string(), after.display().to_string()],
-            summaries: [read(before.join("summary.json"))?, read(after.join("summary.json"))?],
-            residuals: [read(before.join("residuals.json"))?, read(after.join("residuals.json"))?],
-        })
+    /// Compare `before` with `after`.
+    pub fn new(before: ComparedRun, after: ComparedRun) -> Comparison {
+        Comparison { runs: [before, after] }
     }
 
-    fn stat(&self, k: usize, key: &str) -> f64 {
-        self.summaries[k]["validation"][key].as_f64().unwrap_or(f64::NAN)
+    fn stats(&self, k: usize) -> [(&'static str, f64); 4] {
+        let v = &self.runs[k].summary.validation;
+        [("rms_mm", v.rms_mm), ("mean_mm", v.mean_mm), ("std_mm", v.std_mm), ("max_mm", v.max_mm)]
     }
 
     /// The printed comparison table.
     pub fn table_lines(&self) -> Vec<String> {
         let mut lines = vec![format!("{:<24} {:>12} {:>12}", "validation", "before", "after")];
-        for key in ["rms_mm", "mean_mm", "std_mm", "max_mm"] {
-            lines.push(format!("{:<24} {:>12.4} {:>12.4}", key, self.stat(0, key), self.stat(1, key)));
+        for ((key, a), (_, b)) in self.stats(0).into_iter().zip(self.stats(1)) {
+            lines.push(format!("{key:<24} {a:>12.4} {b:>12.4}"));
         }
-        let effects = |k: usize| {
-            self.summaries[k]["options"]["added_effects"]
-                .as_array()
-                .map(|a| a.iter().filter_map(|v| v.as_str()).collect::<Vec<_>>().join(", "))
-                .unwrap_or_default()
-        };
+        let effects = |k: usize| self.runs[k].summary.options.added_effects.join(", ");
         lines.push(format!("{:<24} {:>12} {:>12}", "added effects", effects(0), effects(1)));
         for (l, (a, b)) in self.per_landmark() {
             lines.push(format!("  landmark {:<14} {:>12.4} {:>12.4}", l, a, b));
@@ -62,27 +55,18 @@ impl Comparison {
         lines
     }
 
+    /// Per landmark: validation RMS before and after (NaN when the landmark is missing after).
     fn per_landmark(&self) -> Vec<(String, (f64, f64))> {
-        let get = |k: usize| -> Vec<(String, f64)> {
-            self.summaries[k]["validation_detail"]["per_landmark"]
-                .as_array()
-                .map(|a| {
-                    a.iter()
-                        .map(|g| {
-                            (
-                                g["name"].as_str().unwrap_or("?").to_string(),
-                                g["stats"]["rms_mm"].as_f64().unwrap_or(f64::NAN),
-                            )
-                        })
-                        .collect()
-                })
-                .unwrap_or_default()
-        };
-        let (a, b) = (get(0), get(1));
-        a.into_iter()
-            .map(|(name, x)| {
-                let y = b.iter().find(|g| g.0 == name).map_or(f64::NAN, |g| g.1);
-                (name, (x, y))
+        let [before, after] = &self.runs;
+        let after = &after.summary.validation_detail.per_landmark;
+        before
+            .summary
+            .validation_detail
+            .per_landmark
+            .iter()
+            .map(|g| {
+                let y = after.iter().find(|h| h.name == g.name).map_or(f64::NAN, |h| h.stats.rms_mm);
+                (g.name.clone(), (g.stats.rms_mm, y))
             })
             .collect()
     }
@@ -90,17 +74,17 @@ impl Comparison {
     /// The side-by-side page.
     pub fn html(&self) -> String {
         let mut body = String::new();
-        let rows: Vec<Vec<String>> = ["rms_mm", "mean_mm", "std_mm", "max_mm"]
-            .iter()
-            .map(|k| {
-                vec![k.to_string(), format!("{:.4}", self.stat(0, k)), format!("{:.4}", self.stat(1, k))]
-            })
+        let rows: Vec<Vec<String>> = self
+            .stats(0)
+            .into_iter()
+            .zip(self.stats(1))
+            .map(|((k, a), (_, b))| vec![k.to_string(), format!("{a:.4}"), format!("{b:.4}")])
             .collect();
         let _ = write!(
             body,
             "<p>Before: {}<br>After: {}</p>{}",
-            escape(&self.names[0]),
-            escape(&self.names[1]),
+            escape(&self.runs[0].name),
+            escape(&self.runs[1].name),
             table(&["validation", "before", "after"], &rows)
         );
         let lm = self.per_landmark();
@@ -117,7 +101,7 @@ impl Comparison {
                 "RMS (mm)"
             )
         );
-        let errors = |k: usize| self.residuals[k].iter().map(|e| e.error_mm).collect::<Vec<f64>>();
+        let errors = |k: usize| self.runs[k].residuals.iter().map(|e| e.error_mm).collect::<Vec<f64>>();
         let (a, b) = (errors(0), errors(1));
         let _ = write!(
             body,
@@ -127,7 +111,8 @@ impl Comparison {
         body.push_str("<h3>Residuals against each joint angle: before (left), after (right)</h3>");
         for j in 0..crate::model::JOINTS {
             for k in 0..2 {
-                let pts: Vec<(f64, f64)> = self.residuals[k]
+                let pts: Vec<(f64, f64)> = self.runs[k]
+                    .residuals
                     .iter()
                     .flat_map(|e| [(e.enc_deg.0[j], e.error_mm), (e.enc_deg.1[j], e.error_mm)])
                     .collect();

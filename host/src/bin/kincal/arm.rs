@@ -1,0 +1,367 @@
+//! Arm calibration commands: simulate, calibrate, study, diagnose, compare.
+
+use anyhow::{bail, Result};
+use clap::{Args, ValueEnum};
+use kincal::calib::calibrate::CalibrationOptions;
+use kincal::calib::objective::Objective;
+use kincal::calib::run::{run, RunInputs};
+use kincal::calib::study::{study, StudyOptions};
+use kincal::data::{Artefact, Dataset};
+use kincal::model::effects::Effect;
+use kincal::model::{ArmModel, ParamId};
+use kincal::output;
+use kincal::report::compare::{ComparedRun, Comparison};
+use kincal::simulate::{simulate, SimulationOptions};
+use std::path::{Path, PathBuf};
+
+#[derive(Args)]
+pub struct SimulateArgs {
+    /// Nominal arm model; the truth is this model with its free parameters perturbed.
+    #[arg(long, default_value = "examples/suta/model.toml")]
+    model: PathBuf,
+    /// Output folder: artefact.json, truth.toml, cal/, val/.
+    #[arg(long)]
+    out: PathBuf,
+    /// Seed of every random choice.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Size of the angle perturbations, degrees.
+    #[arg(long, default_value_t = 2.0)]
+    perturb_deg: f64,
+    /// Size of the length perturbations, mm.
+    #[arg(long, default_value_t = 2.0)]
+    perturb_mm: f64,
+    /// Seating noise per axis, mm (standard deviation).
+    #[arg(long, default_value_t = 0.1)]
+    seating_noise_mm: f64,
+    /// Noise of each averaged encoder angle, degrees (standard deviation).
+    #[arg(long, default_value_t = 0.003)]
+    encoder_noise_deg: f64,
+    /// Repeats of each landmark per placement.
+    #[arg(long, default_value_t = 3)]
+    repeats: u32,
+    /// Hidden effect: PARAM=DELTA added to the true arm, e.g. eccentricity_sin:5=0.3 (repeatable).
+    #[arg(long, value_parser = parse_hidden)]
+    hidden: Vec<(ParamId, f64)>,
+}
+
+pub fn parse_effect(text: &str) -> Result<Effect, String> {
+    Effect::parse(text).ok_or_else(|| format!("unknown effect `{text}`; expected e.g. eccentricity:5, eccentricity2:3, compliance:2, twist:4, link_offset:3, axis:2, tcp, scale"))
+}
+
+#[derive(Args)]
+pub struct DiagnoseArgs {
+    /// A RUN folder written by `kincal calibrate`.
+    run: PathBuf,
+    /// Print diagnosis.json to stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+pub struct CompareArgs {
+    /// The run before.
+    before: PathBuf,
+    /// The run after.
+    after: PathBuf,
+    /// Where to write the side-by-side HTML.
+    #[arg(long, default_value = "compare.html")]
+    out: PathBuf,
+}
+
+pub fn parse_hidden(text: &str) -> Result<(ParamId, f64), String> {
+    let (name, value) = text.split_once('=').ok_or("expected PARAM=DELTA, e.g. eccentricity_sin:5=0.3")?;
+    let id = ParamId::parse(name.trim()).ok_or_else(|| format!("unknown parameter `{name}`"))?;
+    let delta: f64 = value.trim().parse().map_err(|_| format!("`{value}` is not a number"))?;
+    if !delta.is_finite() {
+        return Err(format!("`{value}` is not finite"));
+    }
+    Ok((id, delta))
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum ObjectiveArg {
+    /// Pairwise distances (thesis eq. 3.1).
+    Distance,
+    /// Distances plus relative orientation from the asymmetric pillars.
+    SixDof,
+}
+
+#[derive(Args)]
+pub struct SolveArgs {
+    /// Seed of the random restarts.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Random restarts inside the bounds (besides the nominal start).
+    #[arg(long, default_value_t = 8)]
+    restarts: usize,
+    /// Huber threshold δ, mm.
+    #[arg(long, default_value_t = 1.35)]
+    huber_delta_mm: f64,
+    /// Residual blocks to minimise.
+    #[arg(long, value_enum, default_value_t = ObjectiveArg::Distance)]
+    objective: ObjectiveArg,
+    /// Millimetres per radian of orientation error (six-dof objective).
+    #[arg(long, default_value_t = 100.0)]
+    lever_mm: f64,
+}
+
+impl SolveArgs {
+    fn options(&self) -> CalibrationOptions {
+        let objective = match self.objective {
+            ObjectiveArg::Distance => Objective::Distance,
+            ObjectiveArg::SixDof => Objective::SixDof { lever_mm: self.lever_mm },
+        };
+        CalibrationOptions {
+            huber_delta_mm: self.huber_delta_mm,
+            restarts: self.restarts,
+            seed: self.seed,
+            objective,
+            ..CalibrationOptions::default()
+        }
+    }
+}
+
+#[derive(Args)]
+pub struct InputArgs {
+    /// Arm model file (kincal-arm/1, .toml or .json).
+    #[arg(long)]
+    model: PathBuf,
+    /// Artefact file (suta-artefact/1).
+    #[arg(long)]
+    artefact: PathBuf,
+    /// Folder of calibration sessions (suta-session/1).
+    #[arg(long)]
+    data: PathBuf,
+    /// Folder of validation sessions.
+    #[arg(long)]
+    validate: PathBuf,
+}
+
+#[derive(Args)]
+pub struct CalibrateArgs {
+    #[command(flatten)]
+    inputs: InputArgs,
+    /// Output folder RUN: model.toml, summary.json, report.html.
+    #[arg(long)]
+    out: PathBuf,
+    #[command(flatten)]
+    solve: SolveArgs,
+    /// Also run the dataset-size study with this many subsets per placement count (0: no study).
+    #[arg(long, default_value_t = 0)]
+    study_subsets: usize,
+    /// Add an effect of the library to the model, e.g. eccentricity:5 (repeatable).
+    #[arg(long = "add", value_parser = parse_effect)]
+    add: Vec<Effect>,
+    /// Print summary.json to stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+pub struct StudyArgs {
+    #[command(flatten)]
+    inputs: InputArgs,
+    /// Output folder: study.json and report.html.
+    #[arg(long)]
+    out: PathBuf,
+    /// Random subsets per number of placements.
+    #[arg(long, default_value_t = 100)]
+    subsets: usize,
+    /// Seed of the subset draws and restarts.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Random restarts per calibration (besides the nominal start).
+    #[arg(long, default_value_t = 0)]
+    restarts: usize,
+    /// Print study.json to stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn simulate_to(model: &Path, out: &Path, options: &SimulationOptions) -> Result<()> {
+    let nominal = ArmModel::load(model)?;
+    let sim = simulate(&nominal, options);
+    sim.write(out)?;
+    let count = |s: &[kincal::data::Session]| s.iter().map(|s| s.measurements.len()).sum::<usize>();
+    println!(
+        "simulated {} calibration and {} validation touches ({} unreachable, skipped) into {}",
+        count(&sim.calibration),
+        count(&sim.validation),
+        sim.skipped,
+        out.display()
+    );
+    Ok(())
+}
+
+pub fn cmd_simulate(a: &SimulateArgs) -> Result<()> {
+    let options = SimulationOptions {
+        seed: a.seed,
+        perturb_deg: a.perturb_deg,
+        perturb_mm: a.perturb_mm,
+        seating_noise_mm: a.seating_noise_mm,
+        encoder_noise_deg: a.encoder_noise_deg,
+        repeats: a.repeats,
+        hidden: a.hidden.clone(),
+    };
+    simulate_to(&a.model, &a.out, &options)
+}
+
+pub fn inputs(a: &InputArgs) -> RunInputs {
+    RunInputs {
+        model: a.model.clone(),
+        artefact: a.artefact.clone(),
+        calibration: a.data.clone(),
+        validation: a.validate.clone(),
+    }
+}
+
+pub fn calibrate_and_report(
+    inputs: &RunInputs,
+    out: &Path,
+    options: &CalibrationOptions,
+    effects: &[Effect],
+    study_subsets: usize,
+    json: bool,
+) -> Result<()> {
+    let started = std::time::Instant::now();
+    let result = run(inputs, options, effects, study_subsets)?;
+    output::write_run(&result, out)?;
+    let s = &result.summary;
+    if json {
+        println!("{}", output::run_json(&result));
+        return Ok(());
+    }
+    println!(
+        "calibrated {} touches ({} pairs) in {:.2} s",
+        s.calibration.touches,
+        s.calibration.pairs,
+        started.elapsed().as_secs_f64()
+    );
+    println!("  calibration RMS            {:8.3} mm", s.calibration.rms_mm);
+    println!(
+        "  validation RMS  nominal    {:8.3} mm   (mean {:+.3}, max {:.3}, {} pairs)",
+        s.nominal_validation.rms_mm,
+        s.nominal_validation.mean_mm,
+        s.nominal_validation.max_mm,
+        s.nominal_validation.pairs
+    );
+    println!(
+        "  validation RMS  calibrated {:8.3} mm   (mean {:+.3}, max {:.3}, {} pairs)",
+        s.validation.rms_mm, s.validation.mean_mm, s.validation.max_mm, s.validation.pairs
+    );
+    if !s.calibration.fixed_unidentifiable.is_empty() {
+        println!(
+            "  fixed at nominal, not identifiable from this data: {}",
+            s.calibration.fixed_unidentifiable.join(", ")
+        );
+    }
+    for c in &s.identifiability.after.poorly_identified {
+        println!("  poorly identified: {}", c.text);
+    }
+    for o in s.outliers.iter().filter(|o| o.flagged) {
+        println!("  landmark {} flagged as outlier ({})", o.landmark, o.exceeded.join(", "));
+    }
+    if let Some(rows) = &s.study {
+        let means: Vec<String> = rows.iter().map(|r| format!("{}: {:.3}", r.placements, r.mean_mm)).collect();
+        println!("  study, mean validation RMS by placements used: {} mm", means.join(", "));
+    }
+    println!("  report: {}", out.join("report.html").display());
+    Ok(())
+}
+
+pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
+    calibrate_and_report(&inputs(&a.inputs), &a.out, &a.solve.options(), &a.add, a.study_subsets, a.json)
+}
+
+pub fn cmd_study(a: &StudyArgs) -> Result<()> {
+    let nominal = ArmModel::load(&a.inputs.model)?;
+    let artefact = Artefact::load(&a.inputs.artefact)?;
+    let cal = Dataset::load_dir(&a.inputs.data, &artefact)?;
+    let val = Dataset::load_dir(&a.inputs.validate, &artefact)?;
+    if a.subsets == 0 {
+        bail!("--subsets must be at least 1");
+    }
+    let calibration =
+        CalibrationOptions { restarts: a.restarts, seed: a.seed, ..CalibrationOptions::default() };
+    let options = StudyOptions { subsets: a.subsets, seed: a.seed, calibration, progress: !a.json };
+    let started = std::time::Instant::now();
+    let rows = study(&nominal, &artefact, &cal, &val, &options);
+    let elapsed = started.elapsed().as_secs_f64();
+    let i = &a.inputs;
+    output::write_study(&rows, &a.out, &[&i.model, &i.artefact, &i.data, &i.validate])?;
+    if a.json {
+        println!("{}", output::study_json(&rows));
+        return Ok(());
+    }
+    let total: usize = rows.iter().map(|r| r.calibrations + r.failed).sum();
+    println!("{total} calibrations in {elapsed:.2} s on {} threads", rayon::current_num_threads());
+    println!("placements  calibrations  mean mm   std mm    min mm    max mm");
+    for r in &rows {
+        println!(
+            "{:>10}  {:>12}  {:7.3}  {:7.3}  {:7.3}  {:7.3}",
+            r.placements, r.calibrations, r.mean_mm, r.std_mm, r.min_mm, r.max_mm
+        );
+    }
+    println!("report: {}", a.out.join("report.html").display());
+    Ok(())
+}
+
+pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
+    let folder = kincal::calib::run::RunFolder::load(&a.run)?;
+    let (artefact, cal, val) = folder.data()?;
+    let started = std::time::Instant::now();
+    let diagnosis = kincal::calib::diagnose::diagnose(
+        &folder.model,
+        &artefact,
+        &cal,
+        &val,
+        &folder.summary.options.calibration_options(),
+    );
+    let elapsed = started.elapsed().as_secs_f64();
+    output::write_diagnosis(&diagnosis, &a.run)?;
+    if a.json {
+        println!("{}", output::diagnosis_json(&diagnosis));
+        return Ok(());
+    }
+    for line in &diagnosis.summary {
+        println!("{line}");
+    }
+    println!(
+        "\n{} candidate effects scored in {elapsed:.2} s (held-out validation RMS, best first):",
+        diagnosis.candidates.len()
+    );
+    println!("  {:<16} {:>10} {:>9} {:>8}  significant", "effect", "val RMS mm", "explained", "blocks");
+    for c in diagnosis.candidates.iter().filter(|c| c.equivalent_to.is_none()).take(8) {
+        let blocks = format!("{}/{}", c.blocks_improved.0, c.blocks_improved.1);
+        let same = if c.equivalent.is_empty() {
+            String::new()
+        } else {
+            format!("  (indistinguishable here: {})", c.equivalent.join(", "))
+        };
+        println!(
+            "  {:<16} {:>10.3} {:>9.2} {:>8}  {}{same}",
+            c.effect,
+            c.validation_rms_mm,
+            c.explained,
+            blocks,
+            if c.significant { "yes" } else { "no" }
+        );
+    }
+    if !diagnosis.not_identifiable.is_empty() {
+        let names: Vec<&str> = diagnosis.not_identifiable.iter().map(|n| n.effect.as_str()).collect();
+        println!("  not identifiable from these touches: {}", names.join(", "));
+    }
+    println!("report: {}", a.run.join("diagnosis.html").display());
+    Ok(())
+}
+
+pub fn cmd_compare(a: &CompareArgs) -> Result<()> {
+    let comparison = Comparison::new(ComparedRun::load(&a.before)?, ComparedRun::load(&a.after)?);
+    for line in comparison.table_lines() {
+        println!("{line}");
+    }
+    output::write_page(&a.out, &comparison.html())?;
+    println!("side by side: {}", a.out.display());
+    Ok(())
+}

@@ -1,0 +1,357 @@
+//! Controller commands: info, params, upload, stream, record, and the demo loop.
+
+use crate::arm::{calibrate_and_report, simulate_to};
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use kincal::calib::calibrate::CalibrationOptions;
+use kincal::calib::run::RunInputs;
+use kincal::data::{Artefact, Dataset};
+use kincal::model::ArmModel;
+use kincal::simulate::SimulationOptions;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct DemoArgs {
+    /// Nominal arm model.
+    #[arg(long, default_value = "examples/suta/model.toml")]
+    model: PathBuf,
+    /// Folder for the data and the run.
+    #[arg(long, default_value = "runs/demo")]
+    out: PathBuf,
+    /// Seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Window per touch, ticks (1536 = 2 s as on the real arm).
+    #[arg(long, default_value_t = 96)]
+    window_ticks: u16,
+    /// Host only: simulate sessions directly and calibrate (no emulated controller).
+    #[arg(long)]
+    offline: bool,
+}
+
+#[derive(Args)]
+pub struct PortArgs {
+    /// Serial device or pty path (/dev/ttyUSB0, /dev/pts/3) or tcp:HOST:PORT.
+    #[arg(long)]
+    port: String,
+}
+
+#[derive(Args)]
+pub struct UploadArgs {
+    #[command(flatten)]
+    port: PortArgs,
+    /// The calibrated model (RUN/model.toml).
+    model: PathBuf,
+    /// Version number stored with the parameters.
+    #[arg(long, default_value_t = 1)]
+    version: u32,
+}
+
+#[derive(Args)]
+pub struct StreamArgs {
+    #[command(flatten)]
+    port: PortArgs,
+    /// Stream raw joint angles (default).
+    #[arg(long, conflicts_with = "pose")]
+    raw: bool,
+    /// Stream the calibrated tool pose computed on the controller.
+    #[arg(long)]
+    pose: bool,
+    /// Also write every sample to this CSV file.
+    #[arg(long)]
+    csv: Option<PathBuf>,
+    /// Stop after this many seconds (default: until Ctrl-C).
+    #[arg(long)]
+    seconds: Option<f64>,
+}
+
+#[derive(Args)]
+pub struct RecordArgs {
+    #[command(flatten)]
+    port: PortArgs,
+    /// Artefact file.
+    #[arg(long)]
+    artefact: PathBuf,
+    /// Placement name, e.g. C_A.
+    #[arg(long)]
+    placement: String,
+    /// calibration or validation.
+    #[arg(long, default_value = "calibration")]
+    purpose: String,
+    /// Output folder; the session is OUT/<placement>.json.
+    #[arg(long)]
+    out: PathBuf,
+    /// Landmark order, comma separated (default: the artefact file's).
+    #[arg(long, value_delimiter = ',')]
+    order: Vec<String>,
+    /// Repeats of the sequence.
+    #[arg(long, default_value_t = 3)]
+    repeats: u32,
+    /// Window per touch, ticks (1536 = 2 s).
+    #[arg(long, default_value_t = 1536)]
+    window_ticks: u16,
+    /// Non-interactive: steps from a JSON script (landmarks, emulated poses, skips).
+    #[arg(long)]
+    script: Option<PathBuf>,
+}
+
+pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
+    if a.offline {
+        return cmd_demo_offline(a);
+    }
+    let nominal = ArmModel::load(&a.model)?;
+    println!("building the emulated controller firmware and starting QEMU (mps2-an386)");
+    let elf = kincal::controller::emulator::build_firmware()?;
+    let (_emulator, mut link) = kincal::controller::emulator::Emulator::start(&elf)?;
+    link.hello()?;
+    let info = link.info()?;
+    println!("connected: {} on {}", info.firmware, info.board);
+    let options = kincal::controller::demo::LoopOptions {
+        seed: a.seed,
+        window_ticks: a.window_ticks,
+        out: a.out.clone(),
+        ..Default::default()
+    };
+    let report =
+        kincal::controller::demo::run_loop(&mut link, &nominal, &options, &mut |step| println!("  {step}"))?;
+    println!("recorded {} touches through the controller; loop took {:.0} s", report.touches, report.seconds);
+    println!("validation distance RMS   nominal {:8.3} mm   calibrated {:7.3} mm   true arm on the same data {:.3} mm (noise floor)", report.nominal_validation_rms_mm, report.calibrated_validation_rms_mm, report.truth_validation_rms_mm);
+    println!("streamed pose error (RMS after rigid registration, {} validation touches):", report.poses);
+    println!("  nominal parameters    {:8.3} mm", report.nominal_pose_rms_mm);
+    println!(
+        "  calibrated parameters {:8.3} mm   (the host predicts {:.3} mm for this model)",
+        report.calibrated_pose_rms_mm, report.host_calibrated_pose_rms_mm
+    );
+    println!(
+        "  true arm's parameters {:8.3} mm   (floor: encoder noise and f32 on the controller)",
+        report.floor_pose_rms_mm
+    );
+    println!("parameter upload took {:.2} s; run: {}", report.upload_seconds, a.out.join("run").display());
+    Ok(())
+}
+
+pub fn connect(port: &PortArgs) -> Result<kincal::controller::link::Link> {
+    let mut link = kincal::controller::link::Link::open(&port.port)?;
+    link.hello().with_context(|| format!("handshake with the controller on {}", port.port))?;
+    Ok(link)
+}
+
+pub fn cmd_info(a: &PortArgs) -> Result<()> {
+    let mut link = connect(a)?;
+    let info = link.info()?;
+    println!("firmware   {} on {}", info.firmware, info.board);
+    println!(
+        "protocol   version {} schema {:08x}: matches this host",
+        kincal_protocol::messages::PROTOCOL_VERSION,
+        kincal_protocol::messages::SCHEMA_HASH
+    );
+    if info.param_version == 0 {
+        println!("parameters none stored");
+    } else {
+        println!("parameters version {} (CRC-32 {:08x})", info.param_version, info.param_crc);
+    }
+    println!("uptime     {} ticks ({:.1} s)", info.ticks, info.ticks as f64 / 768.0);
+    println!("joint  accepted  crc-errors  error-bits  warnings  dropouts");
+    for (j, h) in info.encoders.iter().enumerate() {
+        println!(
+            "{:>5}  {:>8}  {:>10}  {:>10}  {:>8}  {:>8}",
+            j + 1,
+            h.accepted,
+            h.crc_errors,
+            h.error_bits,
+            h.warnings,
+            h.dropouts
+        );
+    }
+    Ok(())
+}
+
+pub fn cmd_params(a: &PortArgs) -> Result<()> {
+    let mut link = connect(a)?;
+    let blob = link.read_params(false, kincal_protocol::params::MAX_PARAM_BLOB)?;
+    if blob.is_empty() {
+        println!("no parameters stored");
+        return Ok(());
+    }
+    let params = kincal_protocol::params::decode_blob(&blob)
+        .map_err(|e| anyhow::anyhow!("the stored parameter blob does not decode: {e:?}"))?;
+    println!("{}", serde_json::to_string_pretty(&params)?);
+    Ok(())
+}
+
+pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
+    let model = ArmModel::load(&a.model)?;
+    let blob = kincal::controller::device::parameter_blob(&model, a.version);
+    let mut link = connect(&a.port)?;
+    let before = link.info()?.param_version;
+    let started = std::time::Instant::now();
+    if let Err(e) = link.upload(&blob) {
+        bail!("upload failed: {e}. The controller keeps its previous parameters (version {before}); run the upload again");
+    }
+    let info = link.info()?;
+    println!("uploaded {} bytes in {:.2} s; the controller now holds parameters version {} (CRC-32 {:08x}), previously {}", blob.len(), started.elapsed().as_secs_f64(), info.param_version, info.param_crc, before);
+    Ok(())
+}
+
+pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
+    use kincal_protocol::messages::{Request, Stream};
+    let mut link = connect(&a.port)?;
+    catch_ctrl_c();
+    let mut csv = match &a.csv {
+        Some(path) => Some(std::io::BufWriter::new(
+            std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+        )),
+        None => None,
+    };
+    use std::io::Write;
+    if let Some(w) = csv.as_mut() {
+        writeln!(
+            w,
+            "{}",
+            if a.pose {
+                "seq,tick,x_mm,y_mm,z_mm,zx,zy,zz"
+            } else {
+                "seq,tick,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg,rejected"
+            }
+        )?;
+    }
+    link.command(if a.pose { Request::StreamPose(1) } else { Request::StreamRaw(true) }, "stream")?;
+    let started = std::time::Instant::now();
+    let mut frames = 0u64;
+    let mut last_report = started;
+    while !INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst)
+        && a.seconds.is_none_or(|s| started.elapsed().as_secs_f64() < s)
+    {
+        let Some((seq, item)) = link.next_stream(std::time::Duration::from_millis(200))? else { continue };
+        frames += 1;
+        if let Some(w) = csv.as_mut() {
+            match item {
+                Stream::Raw(r) => {
+                    let deg = kincal_protocol::messages::unpack_counts(&r.packed)
+                        .map(|c| c as f64 * 360.0 / kincal_protocol::biss::COUNTS_PER_TURN as f64);
+                    writeln!(
+                        w,
+                        "{seq},{},{},{},{},{},{},{},{}",
+                        r.tick, deg[0], deg[1], deg[2], deg[3], deg[4], deg[5], r.rejected
+                    )?;
+                }
+                Stream::Pose(p) => writeln!(
+                    w,
+                    "{seq},{},{},{},{},{},{},{}",
+                    p.tick,
+                    p.position_mm[0],
+                    p.position_mm[1],
+                    p.position_mm[2],
+                    p.z_axis[0],
+                    p.z_axis[1],
+                    p.z_axis[2]
+                )?,
+                Stream::Window(_) => {}
+            }
+        }
+        if last_report.elapsed().as_secs_f64() >= 1.0 {
+            last_report = std::time::Instant::now();
+            eprintln!(
+                "{:.0} frames/s, {} lost, {} corrupt",
+                frames as f64 / started.elapsed().as_secs_f64(),
+                link.stats.stream_gaps,
+                link.stats.bad_frames
+            );
+        }
+    }
+    let _ = link.command(Request::StreamRaw(false), "stop stream");
+    let _ = link.command(Request::StreamPose(0), "stop stream");
+    println!(
+        "{frames} frames in {:.1} s ({:.1} Hz), {} lost, {} corrupt",
+        started.elapsed().as_secs_f64(),
+        frames as f64 / started.elapsed().as_secs_f64(),
+        link.stats.stream_gaps,
+        link.stats.bad_frames
+    );
+    Ok(())
+}
+
+/// Set by Ctrl-C while streaming.
+pub static INTERRUPTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+extern "C" fn on_sigint(_: libc::c_int) {
+    INTERRUPTED.store(true, std::sync::atomic::Ordering::SeqCst);
+}
+
+/// Make Ctrl-C stop a stream cleanly instead of killing the process.
+pub fn catch_ctrl_c() {
+    #[cfg(unix)]
+    // SAFETY: the handler only stores to an atomic flag (async-signal-safe).
+    unsafe {
+        libc::signal(libc::SIGINT, on_sigint as *const () as libc::sighandler_t);
+    }
+}
+
+pub fn cmd_record(a: &RecordArgs) -> Result<()> {
+    let artefact = Artefact::load(&a.artefact)?;
+    let order = if a.order.is_empty() {
+        artefact.landmarks.iter().map(|l| l.id.clone()).collect()
+    } else {
+        a.order.clone()
+    };
+    let plan = kincal::controller::record::Plan {
+        placement: a.placement.clone(),
+        purpose: a.purpose.clone(),
+        order,
+        repeats: a.repeats,
+        window_ticks: a.window_ticks,
+        out: a.out.clone(),
+    };
+    let mut link = connect(&a.port)?;
+    let mut script;
+    let mut operator = kincal::controller::record::Operator;
+    let guide: &mut dyn kincal::controller::record::Guide = match &a.script {
+        Some(path) => {
+            script = kincal::controller::record::Script::load(path)?;
+            &mut script
+        }
+        None => &mut operator,
+    };
+    let done = kincal::controller::record::record(&mut link, &artefact, &plan, guide)?;
+    println!(
+        "{}: {} measured now, {} resumed from disk, {} skipped, {} re-taken → {}",
+        plan.placement,
+        done.measured,
+        done.resumed,
+        done.skipped,
+        done.retakes,
+        plan.session_path().display()
+    );
+    Ok(())
+}
+
+pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
+    let data = a.out.join("data");
+    println!("1/2 simulate: a true arm off the nominal model by degrees and millimetres");
+    simulate_to(&a.model, &data, &SimulationOptions { seed: a.seed, ..SimulationOptions::default() })?;
+    println!(
+        "2/2 calibrate on {} and validate on {}",
+        data.join("cal").display(),
+        data.join("val").display()
+    );
+    let inputs = RunInputs {
+        model: a.model.clone(),
+        artefact: data.join("artefact.json"),
+        calibration: data.join("cal"),
+        validation: data.join("val"),
+    };
+    calibrate_and_report(
+        &inputs,
+        &a.out.join("run"),
+        &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() },
+        &[],
+        20,
+        false,
+    )?;
+    let truth = ArmModel::load(&data.join("truth.toml"))?;
+    let artefact = Artefact::load(&inputs.artefact)?;
+    let val = Dataset::load_dir(&inputs.validation, &artefact)?;
+    let floor = kincal::calib::validate::validate(&truth, &artefact, &val).overall;
+    println!("  noise floor (true arm on the same validation data) {:.3} mm", floor.rms_mm);
+    Ok(())
+}

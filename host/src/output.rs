@@ -1,0 +1,402 @@
+//! The folders and files kincal writes, and the rules that keep the user's own files safe.
+//!
+//! Rules (stated in the README):
+//! - An output folder is written under a hidden staging name beside it and renamed into place only
+//!   when every file is complete; on any error, a full disk included, the staging folder is removed
+//!   and nothing is left behind.
+//! - An existing output folder is replaced only when kincal wrote it: it carries the marker file
+//!   [`MARKER`], or every entry in it is a file kincal writes into that kind of folder. A folder
+//!   holding anything else (the user's files, input data) is refused, never emptied; so are `.`,
+//!   `..`, a path that is a file, and a folder that contains one of the run's inputs.
+//! - Single files (`diagnosis.json` inside a RUN, the compare page) are written atomically; an
+//!   existing file is replaced only when kincal wrote it.
+
+use crate::calib::diagnose::Diagnosis;
+use crate::calib::run::Run;
+use crate::calib::study::StudyRow;
+use crate::files::{write_atomic, FileError};
+use crate::haptic::pipeline::HapticSummary;
+use crate::report;
+use std::path::{Path, PathBuf};
+
+/// Marker file kincal puts in every folder it writes; its text is the folder's kind.
+pub const MARKER: &str = ".kincal-output";
+/// Format tag of `study.json`.
+pub const STUDY_FORMAT: &str = "kincal-study/1";
+/// Format tag of `diagnosis.json`.
+pub const DIAGNOSIS_FORMAT: &str = "kincal-diagnosis/1";
+/// Format tag of a haptic calibration's `summary.json`.
+pub const HAPTIC_FORMAT: &str = "kincal-haptic/1";
+
+/// Why an output could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// The file system refused (disk full, permissions, …); nothing was left behind.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// The operating-system error.
+        source: std::io::Error,
+    },
+    /// Writing there would delete or overwrite something kincal did not write.
+    #[error("{path}: {reason}; nothing was written. Choose a new folder (or remove it yourself).")]
+    Refused {
+        /// The output path.
+        path: PathBuf,
+        /// What is in the way.
+        reason: String,
+    },
+    /// A model file could not be written into the folder.
+    #[error(transparent)]
+    File(#[from] FileError),
+}
+
+/// The kinds of folder kincal writes, with the files each may hold.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FolderKind {
+    /// A calibration RUN (`kincal calibrate`), later also holding the diagnosis files.
+    Run,
+    /// A dataset-size study (`kincal study`).
+    Study,
+    /// A haptic calibration (`kincal haptic calibrate`).
+    Haptic,
+}
+
+impl FolderKind {
+    fn name(self) -> &'static str {
+        match self {
+            FolderKind::Run => "run",
+            FolderKind::Study => "study",
+            FolderKind::Haptic => "haptic",
+        }
+    }
+
+    fn files(self) -> &'static [&'static str] {
+        match self {
+            FolderKind::Run => &[
+                "model.toml",
+                "nominal.toml",
+                "summary.json",
+                "residuals.json",
+                "report.html",
+                "diagnosis.json",
+                "diagnosis.html",
+            ],
+            FolderKind::Study => &["study.json", "report.html"],
+            FolderKind::Haptic => &["summary.json", "report.html"],
+        }
+    }
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
+    move |source| OutputError::Io { path: path.to_owned(), source }
+}
+
+fn refused(path: &Path, reason: impl Into<String>) -> OutputError {
+    OutputError::Refused { path: path.to_owned(), reason: reason.into() }
+}
+
+/// Check that `dir` may become (or be replaced by) a kincal folder of `kind`, and that none of
+/// `inputs` lies inside it. Returns whether it exists with content.
+pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Result<bool, OutputError> {
+    if dir.as_os_str().is_empty() || dir.file_name().is_none() {
+        return Err(refused(dir, "is not a folder name kincal can create (`.`, `..` or a root)"));
+    }
+    let absolute = |p: &Path| std::fs::canonicalize(p).ok();
+    if let Some(out) = absolute(dir) {
+        for input in inputs {
+            if absolute(input).is_some_and(|i| i.starts_with(&out)) {
+                return Err(refused(dir, format!("contains the input {}", input.display())));
+            }
+        }
+    }
+    let meta = match std::fs::symlink_metadata(dir) {
+        Ok(meta) => meta,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
+        Err(e) => return Err(io(dir)(e)),
+    };
+    if !meta.is_dir() {
+        return Err(refused(dir, "exists and is not a folder"));
+    }
+    let mut foreign = Vec::new();
+    let mut any = false;
+    for entry in std::fs::read_dir(dir).map_err(io(dir))? {
+        let entry = entry.map_err(io(dir))?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        any = true;
+        if name == MARKER {
+            let text = std::fs::read_to_string(entry.path()).unwrap_or_default();
+            if text.trim() != kind.name() {
+                return Err(refused(
+                    dir,
+                    format!("is a kincal {} folder, not a {} folder", text.trim(), kind.name()),
+                ));
+            }
+        } else if !(kind.files().contains(&name.as_str()) && entry.path().is_file()) {
+            foreign.push(name);
+        }
+    }
+    if !foreign.is_empty() {
+        foreign.sort();
+        let shown: Vec<&str> = foreign.iter().take(5).map(String::as_str).collect();
+        return Err(refused(
+            dir,
+            format!(
+                "holds files kincal did not write ({}{})",
+                shown.join(", "),
+                if foreign.len() > 5 { ", …" } else { "" }
+            ),
+        ));
+    }
+    Ok(any)
+}
+
+/// A staging folder beside the target; removed on drop unless moved into place.
+struct Staged {
+    path: PathBuf,
+    committed: bool,
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_dir_all(&self.path);
+        }
+    }
+}
+
+/// Write the folder `dir` of `kind` through `fill`, which writes into the staging path it gets.
+pub fn write_folder(
+    dir: &Path,
+    kind: FolderKind,
+    inputs: &[&Path],
+    fill: impl FnOnce(&Path) -> Result<(), OutputError>,
+) -> Result<(), OutputError> {
+    let existing = check_output_folder(dir, kind, inputs)?;
+    let parent = dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent).map_err(io(parent))?;
+    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let mut staged =
+        Staged { path: parent.join(format!(".{name}.partial-{}", std::process::id())), committed: false };
+    if staged.path.exists() {
+        std::fs::remove_dir_all(&staged.path).map_err(io(&staged.path))?;
+    }
+    std::fs::create_dir(&staged.path).map_err(io(&staged.path))?;
+    fill(&staged.path)?;
+    let marker = staged.path.join(MARKER);
+    std::fs::write(&marker, kind.name()).map_err(io(&marker))?;
+    sync_dir(&staged.path);
+    if existing || dir.exists() {
+        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+        std::fs::rename(dir, &old).map_err(io(dir))?;
+        if let Err(e) = std::fs::rename(&staged.path, dir) {
+            let _ = std::fs::rename(&old, dir);
+            return Err(io(dir)(e));
+        }
+        staged.committed = true;
+        std::fs::remove_dir_all(&old).map_err(io(&old))?;
+    } else {
+        std::fs::rename(&staged.path, dir).map_err(io(dir))?;
+        staged.committed = true;
+    }
+    Ok(())
+}
+
+/// Flush a folder's entries to disk (best effort: not every file system supports it).
+fn sync_dir(dir: &Path) {
+    if let Ok(f) = std::fs::File::open(dir) {
+        let _ = f.sync_all();
+    }
+}
+
+/// Write one file into a folder being filled, syncing it so a full disk shows here.
+fn put(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), OutputError> {
+    let path = dir.join(name);
+    write_atomic(&path, bytes).map_err(io(&path))
+}
+
+/// JSON of a value that serialises by construction (plain structs of numbers and strings).
+fn json<T: serde::Serialize>(value: &T) -> String {
+    serde_json::to_string_pretty(value).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"))
+}
+
+/// A value written with its format tag in front.
+#[derive(serde::Serialize)]
+struct Tagged<'a, T: serde::Serialize> {
+    format: &'a str,
+    #[serde(flatten)]
+    body: &'a T,
+}
+
+/// `study.json`: the dataset-size study's rows.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct StudyFile {
+    /// Always [`STUDY_FORMAT`].
+    pub format: String,
+    /// One row per number of placements.
+    pub rows: Vec<StudyRow>,
+}
+
+/// The JSON `kincal calibrate --json` prints and `summary.json` holds.
+pub fn run_json(run: &Run) -> String {
+    json(&run.summary)
+}
+
+/// Write RUN/ (model.toml, nominal.toml, summary.json, residuals.json, report.html) as one folder.
+pub fn write_run(run: &Run, dir: &Path) -> Result<(), OutputError> {
+    let inputs = &run.summary.inputs;
+    let inputs = [&*inputs.model, &*inputs.artefact, &*inputs.calibration, &*inputs.validation];
+    write_folder(dir, FolderKind::Run, &inputs, |staged| {
+        run.calibration.model.save(&staged.join("model.toml"))?;
+        run.nominal.save(&staged.join("nominal.toml"))?;
+        put(staged, "residuals.json", json(&run.stored_residuals()).as_bytes())?;
+        put(staged, "summary.json", run_json(run).as_bytes())?;
+        put(staged, "report.html", report::calibration::calibration_report(run).as_bytes())
+    })
+}
+
+/// The JSON of a study, as `study.json` holds it.
+pub fn study_json(rows: &[StudyRow]) -> String {
+    json(&StudyFile { format: STUDY_FORMAT.to_string(), rows: rows.to_vec() })
+}
+
+/// Write a study folder (study.json, report.html).
+pub fn write_study(rows: &[StudyRow], dir: &Path, inputs: &[&Path]) -> Result<(), OutputError> {
+    write_folder(dir, FolderKind::Study, inputs, |staged| {
+        put(staged, "study.json", study_json(rows).as_bytes())?;
+        put(staged, "report.html", report::study::study_report(rows).as_bytes())
+    })
+}
+
+/// The JSON of a diagnosis, as `diagnosis.json` holds it.
+pub fn diagnosis_json(diagnosis: &Diagnosis) -> String {
+    json(&Tagged { format: DIAGNOSIS_FORMAT, body: diagnosis })
+}
+
+/// Write `diagnosis.json` and `diagnosis.html` into an existing RUN folder (each atomically).
+pub fn write_diagnosis(diagnosis: &Diagnosis, run_dir: &Path) -> Result<(), OutputError> {
+    put(run_dir, "diagnosis.json", diagnosis_json(diagnosis).as_bytes())?;
+    put(run_dir, "diagnosis.html", report::diagnosis::diagnosis_report(diagnosis).as_bytes())
+}
+
+/// The JSON of a haptic calibration, as its `summary.json` holds it.
+pub fn haptic_json(summary: &HapticSummary) -> String {
+    json(&Tagged { format: HAPTIC_FORMAT, body: summary })
+}
+
+/// Write a haptic calibration folder (summary.json, report.html).
+pub fn write_haptic(summary: &HapticSummary, dir: &Path, recording: &Path) -> Result<(), OutputError> {
+    write_folder(dir, FolderKind::Haptic, &[recording], |staged| {
+        put(staged, "summary.json", haptic_json(summary).as_bytes())?;
+        put(staged, "report.html", report::haptic::haptic_report(summary).as_bytes())
+    })
+}
+
+/// Write a single HTML page kincal made (the compare page). An existing file is replaced only when
+/// it is a page kincal wrote.
+pub fn write_page(path: &Path, html: &str) -> Result<(), OutputError> {
+    if path.is_dir() {
+        return Err(refused(path, "is a folder; give a file name such as compare.html"));
+    }
+    if path.exists() {
+        let head = std::fs::read(path).map_err(io(path))?;
+        let head = String::from_utf8_lossy(&head[..head.len().min(4096)]).into_owned();
+        if !(head.starts_with("<!doctype html>") && head.contains("<title>kincal")) {
+            return Err(refused(path, "exists and is not a page kincal wrote"));
+        }
+    }
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(io(parent))?;
+    }
+    write_atomic(path, html.as_bytes()).map_err(io(path))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("kincal-output-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    fn files(dir: &Path) -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into())
+            .collect();
+        names.sort();
+        names
+    }
+
+    #[test]
+    fn a_folder_with_the_users_files_is_refused_and_left_as_it_was() {
+        let dir = scratch("foreign");
+        let out = dir.join("run");
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::write(out.join("thesis.docx"), b"years of work").unwrap();
+        let result = write_folder(&out, FolderKind::Run, &[], |s| put(s, "summary.json", b"{}"));
+        let message = result.unwrap_err().to_string();
+        assert!(message.contains("thesis.docx"), "{message}");
+        assert_eq!(files(&out), ["thesis.docx"]);
+        assert_eq!(files(&dir), ["run"], "no staging folder left behind");
+    }
+
+    #[test]
+    fn a_folder_kincal_wrote_is_replaced_whole() {
+        let dir = scratch("replace");
+        let out = dir.join("run");
+        write_folder(&out, FolderKind::Run, &[], |s| put(s, "report.html", b"old")).unwrap();
+        write_folder(&out, FolderKind::Run, &[], |s| put(s, "summary.json", b"new")).unwrap();
+        assert_eq!(files(&out), [MARKER, "summary.json"]);
+        assert_eq!(files(&dir), ["run"]);
+    }
+
+    #[test]
+    fn a_failure_while_filling_leaves_nothing_and_keeps_the_old_folder() {
+        let dir = scratch("fail");
+        let out = dir.join("run");
+        write_folder(&out, FolderKind::Run, &[], |s| put(s, "report.html", b"old")).unwrap();
+        let failed = write_folder(&out, FolderKind::Run, &[], |s| {
+            put(s, "summary.json", b"half")?;
+            Err(OutputError::Io { path: s.to_owned(), source: std::io::Error::other("disk full") })
+        });
+        assert!(failed.is_err());
+        assert_eq!(std::fs::read(out.join("report.html")).unwrap(), b"old");
+        assert_eq!(files(&dir), ["run"]);
+    }
+
+    #[test]
+    fn dot_a_file_and_a_folder_holding_an_input_are_refused() {
+        let dir = scratch("refuse");
+        let file = dir.join("notes.txt");
+        std::fs::write(&file, b"mine").unwrap();
+        for bad in [Path::new("."), Path::new(".."), file.as_path()] {
+            assert!(matches!(
+                write_folder(bad, FolderKind::Study, &[], |_| Ok(())),
+                Err(OutputError::Refused { .. })
+            ));
+        }
+        assert_eq!(std::fs::read(&file).unwrap(), b"mine");
+        let data = dir.join("data");
+        std::fs::create_dir_all(data.join("cal")).unwrap();
+        let input = data.join("cal");
+        let refused = write_folder(&data, FolderKind::Run, &[&input], |_| Ok(())).unwrap_err();
+        assert!(refused.to_string().contains("contains the input"), "{refused}");
+    }
+
+    #[test]
+    fn a_page_the_user_wrote_is_not_overwritten() {
+        let dir = scratch("page");
+        let page = dir.join("compare.html");
+        std::fs::write(&page, b"<html>my notes</html>").unwrap();
+        assert!(write_page(&page, "<!doctype html><title>kincal compare</title>").is_err());
+        assert_eq!(std::fs::read(&page).unwrap(), b"<html>my notes</html>");
+        std::fs::remove_file(&page).unwrap();
+        write_page(&page, "<!doctype html><html><head><title>kincal compare</title>").unwrap();
+        write_page(&page, "<!doctype html><html><head><title>kincal compare</title>2").unwrap();
+    }
+}

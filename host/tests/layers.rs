@@ -1,0 +1,100 @@
+//! The library's layers (see `host/src/lib.rs`): a module may use only modules of a lower layer
+//! (or itself). This test reads every source file and fails on an import that points upward or
+//! sideways, e.g. `calib` using `report` or `controller`.
+
+use std::path::{Path, PathBuf};
+
+/// Top-level modules of the library and their layer, lowest first.
+const LAYERS: &[(&str, u8)] = &[
+    ("files", 0),
+    ("numerics", 0),
+    ("model", 1),
+    ("data", 2),
+    ("simulate", 3),
+    ("calib", 4),
+    ("haptic", 4),
+    ("report", 5),
+    ("output", 6),
+    ("controller", 7),
+];
+
+fn layer(module: &str) -> Option<u8> {
+    LAYERS.iter().find(|(m, _)| *m == module).map(|(_, l)| *l)
+}
+
+/// Every `crate::MODULE` a source text names, with its line number.
+fn crate_references(text: &str) -> Vec<(usize, String)> {
+    let mut found = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let code = line.split("//").next().unwrap_or("");
+        let mut rest = code;
+        while let Some(at) = rest.find("crate::") {
+            rest = &rest[at + "crate::".len()..];
+            if let Some(group) = rest.strip_prefix('{') {
+                let inner = group.split('}').next().unwrap_or("");
+                for item in inner.split(',') {
+                    let name: String =
+                        item.trim().chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+                    found.push((n + 1, name));
+                }
+            } else {
+                found.push((n + 1, rest.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect()));
+            }
+        }
+    }
+    found
+}
+
+/// The violations in one file of module `own`: `(line, used module)`.
+fn violations(own: &str, text: &str) -> Vec<(usize, String)> {
+    let Some(own_layer) = layer(own) else { return Vec::new() };
+    crate_references(text)
+        .into_iter()
+        .filter(|(_, used)| used != own && layer(used).is_some_and(|l| l >= own_layer))
+        .collect()
+}
+
+fn sources(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            sources(&path, out);
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            out.push(path);
+        }
+    }
+}
+
+#[test]
+fn no_module_imports_from_its_own_or_a_higher_layer() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    sources(&src, &mut files);
+    let mut problems = Vec::new();
+    let mut checked = 0;
+    for file in files {
+        let relative = file.strip_prefix(&src).unwrap();
+        let first = relative.components().next().unwrap().as_os_str().to_string_lossy();
+        let own = first.trim_end_matches(".rs");
+        if layer(own).is_none() {
+            continue; // lib.rs and the CLI (bin/) may use everything
+        }
+        checked += 1;
+        let text = std::fs::read_to_string(&file).unwrap();
+        for (line, used) in violations(own, &text) {
+            problems.push(format!("{}:{line}: `{own}` uses `{used}`", relative.display()));
+        }
+    }
+    assert!(checked > 40, "only {checked} source files found under {}", src.display());
+    assert!(problems.is_empty(), "imports against the layers:\n{}", problems.join("\n"));
+}
+
+#[test]
+fn the_check_catches_an_upward_and_a_sideways_import() {
+    assert_eq!(violations("calib", "use crate::report::calibration;"), [(1, "report".to_string())]);
+    assert_eq!(
+        violations("calib", "use crate::{model::ArmModel, controller};\nlet x = crate::haptic::f();"),
+        [(1, "controller".to_string()), (2, "haptic".to_string())]
+    );
+    assert!(violations("report", "use crate::calib::run::Run; // crate::output").is_empty());
+}

@@ -7,7 +7,7 @@
 //!   [`crate::numerics::geometry::absolute_orientation`];
 //! * [`landmarks`] — the landmark-based initial transform (eqs. 1–6);
 //! * [`position`] — iterative joint-angle calibration (Harders) with the paper's filters;
-//! * [`reference`] — the orientation reference from the roll step (marker circles, axis by SVD,
+//! * [`reference`](mod@reference) — the orientation reference from the roll step (marker circles, axis by SVD,
 //!   eq. 14, θ6 origin from the gap in the marker angles);
 //! * [`gimbal`] — gimbal calibration against a reference axis and roll, linear or quadratic
 //!   sensor models chosen on held-out error;

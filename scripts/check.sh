@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Every check, on a machine that scripts/setup.sh has provisioned: formatting, lints, docs, both
+# firmware images, firmware logic on the host, then every test of the workspace.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+step() { echo; echo "== $*"; }
+
+step "formatting (rustfmt.toml)"
+cargo fmt --all --check
+cargo fmt --all --check --manifest-path firmware/Cargo.toml
+
+step "lints: the workspace (protocol, host, tests)"
+cargo clippy --release --workspace --all-targets -- -D warnings
+
+step "docs"
+RUSTDOCFLAGS=-Dwarnings cargo doc --no-deps --workspace --quiet
+
+step "both firmware images: the emulated controller and the real board"
+cargo build-emulated
+cargo build-stm32
+
+step "firmware logic on the host (its own workspace)"
+cargo test --manifest-path firmware/Cargo.toml --release
+
+step "every test of the workspace"
+cargo test --workspace --release

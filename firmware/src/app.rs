@@ -11,14 +11,13 @@
 use crate::controller::{Action, Controller};
 use crate::encoders::{EncoderBus, Sampler};
 use crate::flash::NorFlash;
-use crate::TICK_HZ;
 use core::cell::RefCell;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time::{Duration, Ticker, Timer};
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
-use kincal_protocol::messages::{DeviceFrame, HostFrame};
+use kincal_protocol::messages::{DeviceFrame, HostFrame, TICK_HZ};
 
 /// Bytes buffered towards the host (≈ 0.26 s of raw stream).
 pub const TO_HOST_BYTES: usize = 6144;

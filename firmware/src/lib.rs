@@ -15,6 +15,3 @@ pub mod encoders;
 pub mod flash;
 pub mod kinematics;
 pub mod window;
-
-/// Encoder sampling rate, Hz.
-pub const TICK_HZ: u32 = 768;

@@ -18,22 +18,39 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-/// Encoders that report the pose last set, without noise.
+/// Encoders that report the pose last set, without noise; `dropouts_per_10k` of the frames
+/// (every k-th, deterministically) get no answer.
 #[derive(Default)]
 struct PoseBus {
     counts: [u32; 6],
+    dropouts_per_10k: u16,
+    frames: u64,
 }
 
 impl EncoderBus for PoseBus {
     fn transfer(&mut self, joint: usize) -> Option<Frame> {
-        Some(biss::encode(self.counts[joint], false, false, 1))
+        self.frames += 1;
+        let dropped = (self.frames * self.dropouts_per_10k as u64) % 10_000 < self.dropouts_per_10k as u64;
+        (!dropped).then(|| biss::encode(self.counts[joint], false, false, 1))
     }
+}
+
+/// What the fake controller does with the next parameter commit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CommitFault {
+    /// Carry it out and answer.
+    None,
+    /// Carry it out, but the answer is lost on the way back.
+    LoseReply,
+    /// The request is lost on the way in: nothing happens, no answer.
+    LoseRequest,
 }
 
 /// A controller on a background thread; stopped on drop.
 pub struct FakeController {
     /// Where to connect: `tcp:127.0.0.1:PORT`.
     pub port: String,
+    commit_fault: Arc<std::sync::Mutex<CommitFault>>,
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -55,8 +72,15 @@ impl FakeController {
         listener.set_nonblocking(true).expect("nonblocking");
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
-        let thread = std::thread::spawn(move || serve(listener, flag, speedup));
-        FakeController { port, stop, thread: Some(thread) }
+        let commit_fault = Arc::new(std::sync::Mutex::new(CommitFault::None));
+        let fault = commit_fault.clone();
+        let thread = std::thread::spawn(move || serve(listener, flag, fault, speedup));
+        FakeController { port, commit_fault, stop, thread: Some(thread) }
+    }
+
+    /// Make the next parameter commit fail in the way given (once).
+    pub fn fault_next_commit(&self, fault: CommitFault) {
+        *self.commit_fault.lock().unwrap_or_else(|e| e.into_inner()) = fault;
     }
 }
 
@@ -67,7 +91,12 @@ fn write_frame(stream: &mut TcpStream, frame: &DeviceFrame) {
     }
 }
 
-fn serve(listener: TcpListener, stop: Arc<AtomicBool>, speedup: u32) {
+fn serve(
+    listener: TcpListener,
+    stop: Arc<AtomicBool>,
+    fault: Arc<std::sync::Mutex<CommitFault>>,
+    speedup: u32,
+) {
     let mut controller = Controller::new("kincal-fw fake", "host (fake)", true, RamNor::<4096>::new());
     let mut sampler = Sampler::default();
     let mut bus = PoseBus::default();
@@ -88,6 +117,16 @@ fn serve(listener: TcpListener, stop: Arc<AtomicBool>, speedup: u32) {
                 Ok(n) => {
                     for &b in &buf[..n] {
                         let Some(decoded) = decoder.push::<HostFrame>(b) else { continue };
+                        let commit_fault = match &decoded {
+                            Ok(HostFrame { request: Request::ParamCommit, .. }) => std::mem::replace(
+                                &mut *fault.lock().unwrap_or_else(|e| e.into_inner()),
+                                CommitFault::None,
+                            ),
+                            _ => CommitFault::None,
+                        };
+                        if commit_fault == CommitFault::LoseRequest {
+                            continue;
+                        }
                         let mut out = Vec::new();
                         let action = match decoded {
                             Ok(frame) => {
@@ -98,11 +137,16 @@ fn serve(listener: TcpListener, stop: Arc<AtomicBool>, speedup: u32) {
                                 Action::None
                             }
                         };
-                        for f in &out {
-                            write_frame(&mut stream, f);
+                        if commit_fault != CommitFault::LoseReply {
+                            for f in &out {
+                                write_frame(&mut stream, f);
+                            }
                         }
                         match action {
                             Action::Simulate(Request::SimSetPose { counts }) => bus.counts = counts,
+                            Action::Simulate(Request::SimFaults { dropouts_per_10k, .. }) => {
+                                bus.dropouts_per_10k = dropouts_per_10k
+                            }
                             Action::Reset => {
                                 let flash = controller.into_flash();
                                 controller = Controller::new("kincal-fw fake", "host (fake)", true, flash);
@@ -146,4 +190,45 @@ pub fn kincal_bin() -> PathBuf {
             dir.join("kincal")
         })
         .clone()
+}
+
+/// A TCP link whose replies arrive late and together, as over a link with Nagle's delay or a
+/// USB-serial adapter's latency timer: after every write it waits `delay` before the next read,
+/// so a request's answer and the frames that follow it come in one read.
+pub struct Laggy {
+    stream: TcpStream,
+    delay: Duration,
+}
+
+impl Laggy {
+    /// Connect to `tcp:HOST:PORT` with replies held back by `delay`.
+    pub fn connect(port: &str, delay: Duration) -> std::io::Result<Laggy> {
+        let addr = port.strip_prefix("tcp:").unwrap_or(port);
+        let stream = TcpStream::connect(addr)?;
+        stream.set_nodelay(true)?;
+        Ok(Laggy { stream, delay })
+    }
+}
+
+impl Read for Laggy {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        self.stream.read(buf)
+    }
+}
+
+impl Write for Laggy {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.stream.write(buf)?;
+        std::thread::sleep(self.delay);
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.stream.flush()
+    }
+}
+
+impl kincal::link::Transport for Laggy {
+    fn set_read_timeout(&mut self, timeout: Duration) -> std::io::Result<()> {
+        self.stream.set_read_timeout(Some(timeout))
+    }
 }

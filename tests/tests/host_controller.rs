@@ -380,3 +380,20 @@ fn sixteen_tick_windows_record_reliably_over_tcp() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn the_first_request_after_line_noise_is_answered() {
+    use std::io::Write;
+    let fake = FakeController::start(1);
+    let mut stream = std::net::TcpStream::connect(fake.port.strip_prefix("tcp:").unwrap()).unwrap();
+    // Noise with no delimiter: without one at the start of the request, the request would be
+    // glued to it and lost.
+    stream.write_all(&[0x55, 0x12, 0xA7, 0x3C, 0x01]).unwrap();
+    let mut link = Link::over(Box::new(stream));
+    let answer = link.request(
+        Request::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH },
+        "hello",
+        Duration::from_secs(1),
+    );
+    assert!(answer.is_ok(), "{answer:?}");
+}

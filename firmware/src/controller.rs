@@ -101,7 +101,7 @@ impl<F: NorFlash> Controller<F> {
                 emit,
             );
         }
-        if self.pose_divider > 0 && self.tick % self.pose_divider as u32 == 0 {
+        if self.pose_divider > 0 && self.tick.is_multiple_of(self.pose_divider as u32) {
             if let Some((_, kinematics)) = &self.params {
                 let pose = kinematics.tool_pose(&sample.counts);
                 self.stream(

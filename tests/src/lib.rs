@@ -1,13 +1,15 @@
 //! Helpers for the end-to-end tests: an in-process fake controller.
 //!
-//! [`FakeController`] runs the firmware's own protocol state machine, encoder sampling and
-//! windows on the host, behind a TCP server on 127.0.0.1, so host logic and the `kincal` CLI can
+//! [`FakeController`] runs the firmware's own protocol state machine, BiSS-C master reading the
+//! emulated encoders, encoder sampling and windows on the host, behind a TCP server on 127.0.0.1, so host logic and the `kincal` CLI can
 //! be tested fast and without QEMU. Ticks run `speedup` times faster than 768 Hz.
 
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use kincal_firmware::biss_master::BissMaster;
 use kincal_firmware::controller::{Action, Controller};
-use kincal_firmware::encoders::{EncoderBus, Sampler};
+use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, SharedEncoders};
+use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
-use kincal_protocol::biss::{self, Frame};
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
 use kincal_protocol::messages::{DeviceFrame, HostFrame, Request};
 use std::io::{Read, Write};
@@ -17,23 +19,6 @@ use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-
-/// Encoders that report the pose last set, without noise; `dropouts_per_10k` of the frames
-/// (every k-th, deterministically) get no answer.
-#[derive(Default)]
-struct PoseBus {
-    counts: [u32; 6],
-    dropouts_per_10k: u16,
-    frames: u64,
-}
-
-impl EncoderBus for PoseBus {
-    fn transfer(&mut self, joint: usize) -> Option<Frame> {
-        self.frames += 1;
-        let dropped = (self.frames * self.dropouts_per_10k as u64) % 10_000 < self.dropouts_per_10k as u64;
-        (!dropped).then(|| biss::encode(self.counts[joint], false, false, 1))
-    }
-}
 
 /// What the fake controller does with the next parameter commit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -99,7 +84,9 @@ fn serve(
 ) {
     let mut controller = Controller::new("kincal-fw fake", "host (fake)", true, RamNor::<4096>::new());
     let mut sampler = Sampler::default();
-    let mut bus = PoseBus::default();
+    let encoders: SharedEncoders<NoopRawMutex> =
+        embassy_sync::blocking_mutex::Mutex::new(std::cell::RefCell::new(EmulatedEncoders::new()));
+    let mut master = BissMaster::new(EmulatedEncoder::all(&encoders));
     let tick = Duration::from_secs_f64(1.0 / (768.0 * speedup.max(1) as f64));
     while !stop.load(Ordering::SeqCst) {
         let Ok((mut stream, _)) = listener.accept() else {
@@ -143,10 +130,7 @@ fn serve(
                             }
                         }
                         match action {
-                            Action::Simulate(Request::SimSetPose { counts }) => bus.counts = counts,
-                            Action::Simulate(Request::SimFaults { dropouts_per_10k, .. }) => {
-                                bus.dropouts_per_10k = dropouts_per_10k
-                            }
+                            Action::Simulate(request) => encoders.lock(|e| e.borrow_mut().apply(&request)),
                             Action::Reset => {
                                 let flash = controller.into_flash();
                                 controller = Controller::new("kincal-fw fake", "host (fake)", true, flash);
@@ -161,7 +145,7 @@ fn serve(
             }
             while Instant::now() >= next_tick {
                 next_tick += tick;
-                let sample = sampler.sample(&mut bus);
+                let sample = sampler.record(&embassy_futures::block_on(master.read_all()));
                 let mut out = Vec::new();
                 controller.on_tick(&sample, &mut |f| out.push(f.clone()));
                 for f in &out {

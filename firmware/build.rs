@@ -15,4 +15,8 @@ fn main() {
     println!("cargo:rerun-if-changed={}", memory.display());
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rustc-link-arg-bins=-Tlink.x");
+    if std::env::var_os("CARGO_FEATURE_BOARD_STM32").is_some() {
+        // defmt's symbol table (logging over RTT).
+        println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
+    }
 }

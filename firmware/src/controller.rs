@@ -6,13 +6,10 @@ use crate::kinematics::Kinematics;
 use crate::window::Window;
 use kincal_protocol::messages::{pack_counts, EncoderHealth, JOINTS};
 use kincal_protocol::messages::{
-    DeviceFrame, HostFrame, Info, PoseReport, RawSample, Request, Response, Stream, WireError, PARAM_CHUNK,
-    PROTOCOL_VERSION, SCHEMA_HASH,
+    DeviceFrame, HostFrame, Info, PoseReport, RawSample, Request, Response, Stream, WireError,
+    MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
 };
-use kincal_protocol::params::{decode_blob, ArmParams, BLOB_CRC, MAX_PARAM_BLOB};
-
-/// Longest window accepted, ticks.
-pub const MAX_WINDOW_TICKS: u16 = 4096;
+use kincal_protocol::params::{decode_blob, ArmParams, BlobError, BLOB_CRC, MAX_PARAM_BLOB};
 
 /// What the board must do after a request.
 #[derive(Clone, Debug, PartialEq)]
@@ -104,7 +101,7 @@ impl<F: NorFlash> Controller<F> {
                 emit,
             );
         }
-        if self.pose_divider > 0 && self.tick % self.pose_divider as u32 == 0 {
+        if self.pose_divider > 0 && self.tick.is_multiple_of(self.pose_divider as u32) {
             if let Some((_, kinematics)) = &self.params {
                 let pose = kinematics.tool_pose(&sample.counts);
                 self.stream(
@@ -228,14 +225,15 @@ impl<F: NorFlash> Controller<F> {
                     return err(WireError::ParamIncomplete);
                 }
                 let blob = &u.buf[..u.len];
-                let Ok(params) = decode_blob(blob).map_err(|_| ()).and_then(|p| {
-                    if BLOB_CRC.checksum(blob) == u.crc {
-                        Ok(p)
-                    } else {
-                        Err(())
-                    }
-                }) else {
+                if BLOB_CRC.checksum(blob) != u.crc {
                     return err(WireError::ParamInvalid);
+                }
+                // The device's own check: a set outside the physical envelope is never stored,
+                // whatever the host checked before sending.
+                let params = match decode_blob(blob) {
+                    Ok(p) => p,
+                    Err(BlobError::Envelope(v)) => return err(WireError::ParamEnvelope(v)),
+                    Err(_) => return err(WireError::ParamInvalid),
                 };
                 match self.store.store(blob) {
                     Ok(()) => {
@@ -368,5 +366,34 @@ mod tests {
         assert_eq!(c.params().map(|p| p.version), Some(42));
         let rebooted = Ctl::new("fw", "test", false, c.store.into_flash());
         assert_eq!(rebooted.params().map(|p| p.version), Some(42));
+    }
+
+    fn upload(c: &mut Ctl, params: &ArmParams) -> Result<Response, WireError> {
+        let mut blob = [0u8; MAX_PARAM_BLOB];
+        let n = encode_blob(params, &mut blob).unwrap();
+        ask(c, Request::ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) })?;
+        for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
+            let data = heapless::Vec::from_slice(chunk).unwrap();
+            ask(c, Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data })?;
+        }
+        ask(c, Request::ParamCommit)
+    }
+
+    #[test]
+    fn sets_outside_the_envelope_are_refused_with_the_reason_and_not_stored() {
+        use kincal_protocol::params::ParamField;
+        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        hello(&mut c);
+        let good = ArmParams { version: 3, tcp_mm: [0.0, 0.0, 253.0], ..ArmParams::default() };
+        assert_eq!(upload(&mut c, &good), Ok(Response::Ack));
+        let mut far = good;
+        far.version = 77;
+        far.joints[1].a_mm = 1e6;
+        let Err(WireError::ParamEnvelope(v)) = upload(&mut c, &far) else { panic!("accepted a = 1e6 mm") };
+        assert_eq!((v.field, v.joint, v.value), (ParamField::AMm, 2, 1e6));
+        let mut zero = good;
+        zero.version = 0;
+        assert!(matches!(upload(&mut c, &zero), Err(WireError::ParamEnvelope(_))));
+        assert_eq!(c.params(), Some(&good), "the previous set stays active");
     }
 }

@@ -177,7 +177,7 @@ impl<const N: usize> NorFlash for RamNor<N> {
 
     fn erase(&mut self, offset: usize) -> Result<(), FlashError> {
         let sector = self.sector_size();
-        if offset % sector != 0 || offset + sector > N {
+        if !offset.is_multiple_of(sector) || offset + sector > N {
             return Err(FlashError::OutOfBounds);
         }
         if !self.spend() {
@@ -190,13 +190,13 @@ impl<const N: usize> NorFlash for RamNor<N> {
     }
 
     fn program(&mut self, offset: usize, word: [u8; WORD]) -> Result<(), FlashError> {
-        if offset % WORD != 0 || offset + WORD > N {
+        if !offset.is_multiple_of(WORD) || offset + WORD > N {
             return Err(FlashError::OutOfBounds);
         }
         let interrupted = !self.spend();
         let n = if interrupted { WORD / 2 } else { WORD };
-        for k in 0..n {
-            self.bytes[offset + k] &= word[k];
+        for (byte, w) in self.bytes[offset..offset + n].iter_mut().zip(word) {
+            *byte &= w;
         }
         if interrupted {
             Err(FlashError::Failed)

@@ -1,7 +1,7 @@
 //! The calibrated tool pose on the controller, in f32, with every effect the host model holds.
 //!
-//! Same definitions as the host (`kincal::model::kinematics`, `kincal::effects`): θ_j = φ_j + δθ_j
-//! + a·sin φ + b·cos φ + a₂·sin 2φ + b₂·cos 2φ + c·λ_j, link Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)
+//! Same definitions as the host (`kincal::model::kinematics`, `kincal::effects`):
+//! θ_j = φ_j + δθ_j + a·sin φ + b·cos φ + a₂·sin 2φ + b₂·cos 2φ + c·λ_j, link Rz(θ)·Tz(d)·Tx(a)·Rx(α)·Ry(β)
 //! (classic) or Rx(α)·Ry(β)·Tx(a)·Rz(θ)·Tz(d) (modified), tool point, length scale. λ_j is the
 //! unit-weight gravity lever on the undeflected, unscaled arm.
 //!

@@ -1,7 +1,8 @@
 //! kincal controller firmware: the board-independent part.
 //!
-//! Everything here is plain `no_std` logic, tested on the host: reading and rejecting encoder
-//! frames ([`encoders`]), measurement windows ([`window`]), power-loss-safe parameter storage
+//! Everything here is plain `no_std` logic, tested on the host: the BiSS-C master over
+//! embedded-hal-async SPI ([`biss_master`]) and the emulated encoders behind the same trait
+//! ([`emulated_encoders`]), rejecting frames and counting faults ([`encoders`]), measurement windows ([`window`]), power-loss-safe parameter storage
 //! ([`flash`]), the on-device kinematics ([`kinematics`]) and the protocol state machine
 //! ([`controller`]). Board specifics (time driver, UART, encoder bus, flash) live in one module
 //! per board under `src/bin/`.
@@ -10,11 +11,10 @@
 
 #[cfg(feature = "app")]
 pub mod app;
+pub mod biss_master;
 pub mod controller;
+pub mod emulated_encoders;
 pub mod encoders;
 pub mod flash;
 pub mod kinematics;
 pub mod window;
-
-/// Encoder sampling rate, Hz.
-pub const TICK_HZ: u32 = 768;

@@ -10,6 +10,17 @@
 pub const POSITION_BITS: u32 = 22;
 /// Counts per turn.
 pub const COUNTS_PER_TURN: u32 = 1 << POSITION_BITS;
+/// Encoder counts as degrees (no wrapping).
+pub fn counts_to_deg(counts: f64) -> f64 {
+    counts * (360.0 / COUNTS_PER_TURN as f64)
+}
+
+/// An angle in degrees as the nearest encoder count in 0..2²².
+#[cfg(feature = "std")]
+pub fn deg_to_counts(deg: f64) -> u32 {
+    ((deg.rem_euclid(360.0) / 360.0 * COUNTS_PER_TURN as f64).round() as u32) % COUNTS_PER_TURN
+}
+
 /// Bits after the ACK period: Start, CDS, position, nE, nW, CRC.
 pub const FRAME_BITS: u32 = 2 + POSITION_BITS + 2 + 6;
 /// Longest ACK period (clocks) accepted before the start bit.

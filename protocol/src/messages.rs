@@ -15,6 +15,19 @@ pub const PROTOCOL_VERSION: u16 = 1;
 pub const PARAM_CHUNK: usize = 48;
 /// Joints read every tick.
 pub const JOINTS: usize = 6;
+/// Encoder sampling rate of the controller (one tick), Hz.
+pub const TICK_HZ: u32 = 768;
+/// Longest measurement window, ticks ([`Request::StartWindow`]).
+pub const MAX_WINDOW_TICKS: u16 = 4096;
+/// Rejected samples per thousand above which the controller flags a window.
+pub const MAX_REJECT_PER_1000: u32 = 20;
+/// Accepted samples per thousand below which a joint's window mean is not used at all.
+pub const MIN_ACCEPTED_PER_1000: u32 = 500;
+
+/// Seconds of `ticks` controller ticks.
+pub fn ticks_to_seconds(ticks: u32) -> f64 {
+    ticks as f64 / TICK_HZ as f64
+}
 
 /// FNV-1a over the schema text, usable in consts.
 pub const fn fnv1a(text: &str) -> u32 {
@@ -159,7 +172,7 @@ wire_types! {
     }
 
     /// Errors that cross the wire.
-    #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+    #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
     pub enum WireError {
         /// Version or schema differ; the controller's are given.
         VersionMismatch {
@@ -186,6 +199,8 @@ wire_types! {
         ParamIncomplete,
         /// Upload's CRC or content invalid at commit; nothing was stored.
         ParamInvalid,
+        /// A value of the uploaded set is outside the physical envelope; nothing was stored.
+        ParamEnvelope(crate::params::EnvelopeViolation),
         /// Writing flash failed; the previous parameters are still active.
         FlashWrite,
         /// Only the emulated board supports this request.
@@ -285,6 +300,38 @@ wire_types! {
         pub z_axis: [f32; 3],
         /// Tool x axis (unit).
         pub x_axis: [f32; 3],
+    }
+}
+
+impl JointWindow {
+    /// Whether enough samples were accepted (at least [`MIN_ACCEPTED_PER_1000`]‰ of `ticks`, and
+    /// at least one) for the mean to be used.
+    pub fn usable(&self, ticks: u16) -> bool {
+        self.accepted > 0 && self.accepted as u32 * 1000 >= MIN_ACCEPTED_PER_1000 * ticks as u32
+    }
+}
+
+impl core::fmt::Display for WireError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            WireError::VersionMismatch { version, schema } => {
+                write!(f, "protocol mismatch (controller version {version}, schema {schema:08x})")
+            }
+            WireError::BadFrame => f.write_str("the request frame did not decode"),
+            WireError::Busy => f.write_str("a window is already being measured"),
+            WireError::NoHello => f.write_str("no handshake yet"),
+            WireError::BadWindowLength => write!(f, "window length outside 1..={MAX_WINDOW_TICKS} ticks"),
+            WireError::ParamTooLarge => f.write_str("parameter set larger than the parameter area"),
+            WireError::ParamOffset => f.write_str("parameter chunk out of order"),
+            WireError::NoUpload => f.write_str("no parameter upload in progress"),
+            WireError::ParamIncomplete => f.write_str("parameter upload incomplete"),
+            WireError::ParamInvalid => {
+                f.write_str("parameter set damaged (CRC or format); nothing was stored")
+            }
+            WireError::ParamEnvelope(v) => write!(f, "{v}; nothing was stored"),
+            WireError::FlashWrite => f.write_str("writing flash failed; the previous parameters are active"),
+            WireError::NotSupported => f.write_str("only the emulated controller supports this"),
+        }
     }
 }
 

@@ -51,8 +51,137 @@ pub struct ArmParams {
     pub scale_ppm: f64,
 }
 
+/// Physical envelope of a parameter set: what the controller accepts and the host checks before
+/// sending. Every value must also stay finite in f32, which these limits imply.
+pub mod envelope {
+    /// Largest |d| and |a| of a joint row, mm.
+    pub const MAX_LENGTH_MM: f64 = 2000.0;
+    /// Largest |tool point coordinate|, mm.
+    pub const MAX_TCP_MM: f64 = 1000.0;
+    /// Largest |encoder offset| and |twist α|, degrees.
+    pub const MAX_ANGLE_DEG: f64 = 360.0;
+    /// Largest |Hayati β|, degrees (near-parallel axes only).
+    pub const MAX_AXIS_DEG: f64 = 20.0;
+    /// Largest |eccentricity amplitude| of either harmonic, degrees.
+    pub const MAX_ECCENTRICITY_DEG: f64 = 5.0;
+    /// Largest |gravity compliance|, degrees per metre.
+    pub const MAX_COMPLIANCE_DEG_PER_M: f64 = 20.0;
+    /// Largest |length scale error|, ppm.
+    pub const MAX_SCALE_PPM: f64 = 1000.0;
+}
+
+/// Which parameter of a set is outside the envelope.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ParamField {
+    /// The version number (0 is reserved for "none stored").
+    Version,
+    /// Encoder zero offset, degrees.
+    OffsetDeg,
+    /// DH d, mm.
+    DMm,
+    /// DH a, mm.
+    AMm,
+    /// DH α, degrees.
+    AlphaDeg,
+    /// Hayati β, degrees.
+    AxisDeg,
+    /// First-harmonic eccentricity, degrees.
+    EccentricityDeg,
+    /// Second-harmonic eccentricity, degrees.
+    Eccentricity2Deg,
+    /// Gravity compliance, degrees per metre.
+    ComplianceDegPerM,
+    /// Tool point, mm.
+    TcpMm,
+    /// Length scale error, ppm.
+    ScalePpm,
+}
+
+impl ParamField {
+    /// The field's name as in [`JointParams`] / [`ArmParams`].
+    pub fn name(self) -> &'static str {
+        match self {
+            ParamField::Version => "version",
+            ParamField::OffsetDeg => "offset_deg",
+            ParamField::DMm => "d_mm",
+            ParamField::AMm => "a_mm",
+            ParamField::AlphaDeg => "alpha_deg",
+            ParamField::AxisDeg => "axis_deg",
+            ParamField::EccentricityDeg => "eccentricity_deg",
+            ParamField::Eccentricity2Deg => "eccentricity2_deg",
+            ParamField::ComplianceDegPerM => "compliance_deg_per_m",
+            ParamField::TcpMm => "tcp_mm",
+            ParamField::ScalePpm => "scale_ppm",
+        }
+    }
+}
+
+/// A parameter outside the physical envelope: which, where, its value and the limit.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EnvelopeViolation {
+    /// The field.
+    pub field: ParamField,
+    /// Joint, 1-based (0: not a joint row field).
+    pub joint: u8,
+    /// The value found (NaN when it was not a number).
+    pub value: f64,
+    /// The largest magnitude accepted (for the version: the smallest value, 1).
+    pub limit: f64,
+}
+
+impl core::fmt::Display for EnvelopeViolation {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        if self.field == ParamField::Version {
+            return write!(
+                f,
+                "parameter version {} is reserved (0 means none stored); use 1 or more",
+                self.value
+            );
+        }
+        if self.joint > 0 {
+            write!(f, "joint {} ", self.joint)?;
+        }
+        write!(f, "{} = {:e} is outside the envelope ±{}", self.field.name(), self.value, self.limit)
+    }
+}
+
+/// Check `params` against the physical envelope ([`envelope`]); the first violation is returned.
+pub fn check_envelope(params: &ArmParams) -> Result<(), EnvelopeViolation> {
+    use envelope::*;
+    if params.version == 0 {
+        return Err(EnvelopeViolation { field: ParamField::Version, joint: 0, value: 0.0, limit: 1.0 });
+    }
+    let check = |field, joint: u8, value: f64, limit: f64| {
+        // `!(|v| <= limit)` also refuses NaN; the limits keep every value finite in f32.
+        if !(value.abs() <= limit) || !(value as f32).is_finite() {
+            Err(EnvelopeViolation { field, joint, value, limit })
+        } else {
+            Ok(())
+        }
+    };
+    for (k, j) in params.joints.iter().enumerate() {
+        let joint = k as u8 + 1;
+        check(ParamField::OffsetDeg, joint, j.offset_deg, MAX_ANGLE_DEG)?;
+        check(ParamField::DMm, joint, j.d_mm, MAX_LENGTH_MM)?;
+        check(ParamField::AMm, joint, j.a_mm, MAX_LENGTH_MM)?;
+        check(ParamField::AlphaDeg, joint, j.alpha_deg, MAX_ANGLE_DEG)?;
+        check(ParamField::AxisDeg, joint, j.axis_deg, MAX_AXIS_DEG)?;
+        for v in j.eccentricity_deg {
+            check(ParamField::EccentricityDeg, joint, v, MAX_ECCENTRICITY_DEG)?;
+        }
+        for v in j.eccentricity2_deg {
+            check(ParamField::Eccentricity2Deg, joint, v, MAX_ECCENTRICITY_DEG)?;
+        }
+        check(ParamField::ComplianceDegPerM, joint, j.compliance_deg_per_m, MAX_COMPLIANCE_DEG_PER_M)?;
+    }
+    for v in params.tcp_mm {
+        check(ParamField::TcpMm, 0, v, MAX_TCP_MM)?;
+    }
+    check(ParamField::ScalePpm, 0, params.scale_ppm, MAX_SCALE_PPM)
+}
+
 /// Why a blob was refused.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum BlobError {
     /// Larger than [`MAX_PARAM_BLOB`] or shorter than its header says.
     Size,
@@ -62,8 +191,10 @@ pub enum BlobError {
     Format(u16),
     /// Body CRC mismatch.
     Crc,
-    /// CRC fine but the body does not decode, or holds a non-finite number.
+    /// CRC fine but the body does not decode.
     Body,
+    /// The body decodes but a value is outside the physical envelope.
+    Envelope(EnvelopeViolation),
 }
 
 /// Encode `params` into `out`; returns the blob length.
@@ -95,26 +226,7 @@ pub fn decode_blob(blob: &[u8]) -> Result<ArmParams, BlobError> {
         return Err(BlobError::Crc);
     }
     let params: ArmParams = postcard::from_bytes(body).map_err(|_| BlobError::Body)?;
-    let finite = params.joints.iter().all(|j| {
-        [
-            j.offset_deg,
-            j.d_mm,
-            j.a_mm,
-            j.alpha_deg,
-            j.axis_deg,
-            j.eccentricity_deg[0],
-            j.eccentricity_deg[1],
-            j.eccentricity2_deg[0],
-            j.eccentricity2_deg[1],
-            j.compliance_deg_per_m,
-        ]
-        .iter()
-        .all(|v| v.is_finite())
-    }) && params.tcp_mm.iter().all(|v| v.is_finite())
-        && params.scale_ppm.is_finite();
-    if !finite {
-        return Err(BlobError::Body);
-    }
+    check_envelope(&params).map_err(BlobError::Envelope)?;
     Ok(params)
 }
 
@@ -164,6 +276,40 @@ mod tests {
         let mut nan = sample();
         nan.tcp_mm[0] = f64::NAN;
         let m = encode_blob(&nan, &mut out).unwrap();
-        assert_eq!(decode_blob(&out[..m]), Err(BlobError::Body));
+        assert!(matches!(
+            decode_blob(&out[..m]),
+            Err(BlobError::Envelope(EnvelopeViolation { field: ParamField::TcpMm, .. }))
+        ));
+    }
+
+    /// Each absurd value of the issue is refused with the field and joint named; the limits
+    /// themselves are accepted.
+    #[test]
+    fn absurd_sets_are_outside_the_envelope() {
+        assert_eq!(check_envelope(&sample()), Ok(()));
+        let cases: [(fn(&mut ArmParams), ParamField, u8); 7] = [
+            (|p| p.joints[2].a_mm = 1e6, ParamField::AMm, 3),
+            (|p| p.joints[0].alpha_deg = 1e6, ParamField::AlphaDeg, 1),
+            (|p| p.scale_ppm = 1e12, ParamField::ScalePpm, 0),
+            (|p| p.joints[5].d_mm = 1e300, ParamField::DMm, 6),
+            (|p| p.joints[1].compliance_deg_per_m = f64::INFINITY, ParamField::ComplianceDegPerM, 2),
+            (|p| p.tcp_mm[2] = -1e40, ParamField::TcpMm, 0),
+            (|p| p.version = 0, ParamField::Version, 0),
+        ];
+        for (break_it, field, joint) in cases {
+            let mut p = sample();
+            break_it(&mut p);
+            let v = check_envelope(&p).unwrap_err();
+            assert_eq!((v.field, v.joint), (field, joint), "{v}");
+            let mut out = [0u8; MAX_PARAM_BLOB];
+            let n = encode_blob(&p, &mut out).unwrap();
+            assert_eq!(decode_blob(&out[..n]), Err(BlobError::Envelope(v)));
+        }
+        let mut edge = sample();
+        edge.scale_ppm = envelope::MAX_SCALE_PPM;
+        edge.joints[0].a_mm = -envelope::MAX_LENGTH_MM;
+        assert_eq!(check_envelope(&edge), Ok(()));
+        edge.scale_ppm = envelope::MAX_SCALE_PPM * 1.001;
+        assert!(check_envelope(&edge).is_err());
     }
 }

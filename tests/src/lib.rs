@@ -1,13 +1,15 @@
 //! Helpers for the end-to-end tests: an in-process fake controller.
 //!
-//! [`FakeController`] runs the firmware's own protocol state machine, encoder sampling and
-//! windows on the host, behind a TCP server on 127.0.0.1, so host logic and the `kincal` CLI can
+//! [`FakeController`] runs the firmware's own protocol state machine, BiSS-C master reading the
+//! emulated encoders, encoder sampling and windows on the host, behind a TCP server on 127.0.0.1, so host logic and the `kincal` CLI can
 //! be tested fast and without QEMU. Ticks run `speedup` times faster than 768 Hz.
 
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use kincal_firmware::biss_master::BissMaster;
 use kincal_firmware::controller::{Action, Controller};
-use kincal_firmware::encoders::{EncoderBus, Sampler};
+use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, SharedEncoders};
+use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
-use kincal_protocol::biss::{self, Frame};
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
 use kincal_protocol::messages::{DeviceFrame, HostFrame, Request};
 use std::io::{Read, Write};
@@ -18,22 +20,22 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-/// Encoders that report the pose last set, without noise.
-#[derive(Default)]
-struct PoseBus {
-    counts: [u32; 6],
-}
-
-impl EncoderBus for PoseBus {
-    fn transfer(&mut self, joint: usize) -> Option<Frame> {
-        Some(biss::encode(self.counts[joint], false, false, 1))
-    }
+/// What the fake controller does with the next parameter commit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CommitFault {
+    /// Carry it out and answer.
+    None,
+    /// Carry it out, but the answer is lost on the way back.
+    LoseReply,
+    /// The request is lost on the way in: nothing happens, no answer.
+    LoseRequest,
 }
 
 /// A controller on a background thread; stopped on drop.
 pub struct FakeController {
     /// Where to connect: `tcp:127.0.0.1:PORT`.
     pub port: String,
+    commit_fault: Arc<std::sync::Mutex<CommitFault>>,
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -55,8 +57,15 @@ impl FakeController {
         listener.set_nonblocking(true).expect("nonblocking");
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
-        let thread = std::thread::spawn(move || serve(listener, flag, speedup));
-        FakeController { port, stop, thread: Some(thread) }
+        let commit_fault = Arc::new(std::sync::Mutex::new(CommitFault::None));
+        let fault = commit_fault.clone();
+        let thread = std::thread::spawn(move || serve(listener, flag, fault, speedup));
+        FakeController { port, commit_fault, stop, thread: Some(thread) }
+    }
+
+    /// Make the next parameter commit fail in the way given (once).
+    pub fn fault_next_commit(&self, fault: CommitFault) {
+        *self.commit_fault.lock().unwrap_or_else(|e| e.into_inner()) = fault;
     }
 }
 
@@ -67,10 +76,17 @@ fn write_frame(stream: &mut TcpStream, frame: &DeviceFrame) {
     }
 }
 
-fn serve(listener: TcpListener, stop: Arc<AtomicBool>, speedup: u32) {
+fn serve(
+    listener: TcpListener,
+    stop: Arc<AtomicBool>,
+    fault: Arc<std::sync::Mutex<CommitFault>>,
+    speedup: u32,
+) {
     let mut controller = Controller::new("kincal-fw fake", "host (fake)", true, RamNor::<4096>::new());
     let mut sampler = Sampler::default();
-    let mut bus = PoseBus::default();
+    let encoders: SharedEncoders<NoopRawMutex> =
+        embassy_sync::blocking_mutex::Mutex::new(std::cell::RefCell::new(EmulatedEncoders::new()));
+    let mut master = BissMaster::new(EmulatedEncoder::all(&encoders));
     let tick = Duration::from_secs_f64(1.0 / (768.0 * speedup.max(1) as f64));
     while !stop.load(Ordering::SeqCst) {
         let Ok((mut stream, _)) = listener.accept() else {
@@ -88,6 +104,16 @@ fn serve(listener: TcpListener, stop: Arc<AtomicBool>, speedup: u32) {
                 Ok(n) => {
                     for &b in &buf[..n] {
                         let Some(decoded) = decoder.push::<HostFrame>(b) else { continue };
+                        let commit_fault = match &decoded {
+                            Ok(HostFrame { request: Request::ParamCommit, .. }) => std::mem::replace(
+                                &mut *fault.lock().unwrap_or_else(|e| e.into_inner()),
+                                CommitFault::None,
+                            ),
+                            _ => CommitFault::None,
+                        };
+                        if commit_fault == CommitFault::LoseRequest {
+                            continue;
+                        }
                         let mut out = Vec::new();
                         let action = match decoded {
                             Ok(frame) => {
@@ -98,11 +124,13 @@ fn serve(listener: TcpListener, stop: Arc<AtomicBool>, speedup: u32) {
                                 Action::None
                             }
                         };
-                        for f in &out {
-                            write_frame(&mut stream, f);
+                        if commit_fault != CommitFault::LoseReply {
+                            for f in &out {
+                                write_frame(&mut stream, f);
+                            }
                         }
                         match action {
-                            Action::Simulate(Request::SimSetPose { counts }) => bus.counts = counts,
+                            Action::Simulate(request) => encoders.lock(|e| e.borrow_mut().apply(&request)),
                             Action::Reset => {
                                 let flash = controller.into_flash();
                                 controller = Controller::new("kincal-fw fake", "host (fake)", true, flash);
@@ -117,7 +145,7 @@ fn serve(listener: TcpListener, stop: Arc<AtomicBool>, speedup: u32) {
             }
             while Instant::now() >= next_tick {
                 next_tick += tick;
-                let sample = sampler.sample(&mut bus);
+                let sample = sampler.record(&embassy_futures::block_on(master.read_all()));
                 let mut out = Vec::new();
                 controller.on_tick(&sample, &mut |f| out.push(f.clone()));
                 for f in &out {
@@ -146,4 +174,45 @@ pub fn kincal_bin() -> PathBuf {
             dir.join("kincal")
         })
         .clone()
+}
+
+/// A TCP link whose replies arrive late and together, as over a link with Nagle's delay or a
+/// USB-serial adapter's latency timer: after every write it waits `delay` before the next read,
+/// so a request's answer and the frames that follow it come in one read.
+pub struct Laggy {
+    stream: TcpStream,
+    delay: Duration,
+}
+
+impl Laggy {
+    /// Connect to `tcp:HOST:PORT` with replies held back by `delay`.
+    pub fn connect(port: &str, delay: Duration) -> std::io::Result<Laggy> {
+        let addr = port.strip_prefix("tcp:").unwrap_or(port);
+        let stream = TcpStream::connect(addr)?;
+        stream.set_nodelay(true)?;
+        Ok(Laggy { stream, delay })
+    }
+}
+
+impl Read for Laggy {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        self.stream.read(buf)
+    }
+}
+
+impl Write for Laggy {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.stream.write(buf)?;
+        std::thread::sleep(self.delay);
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.stream.flush()
+    }
+}
+
+impl kincal::controller::link::Transport for Laggy {
+    fn set_read_timeout(&mut self, timeout: Duration) -> std::io::Result<()> {
+        self.stream.set_read_timeout(Some(timeout))
+    }
 }

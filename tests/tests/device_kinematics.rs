@@ -37,7 +37,7 @@ fn device_pose_matches_the_host_within_a_micrometre() {
     for convention in [Convention::Classic, Convention::Modified] {
         let model = with_every_effect(convention);
         // The blob round trip is part of the path the controller takes.
-        let params = decode_blob(&parameter_blob(&model, 3)).expect("blob decodes");
+        let params = decode_blob(&parameter_blob(&model, 3).unwrap()).expect("blob decodes");
         assert_eq!(params, device_params(&model, 3));
         let kinematics = device::Kinematics::new(&params);
         for _ in 0..20_000 {

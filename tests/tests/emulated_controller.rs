@@ -116,7 +116,7 @@ fn injected_crc_errors_are_counted_and_excluded() {
 fn uploaded_parameters_survive_a_controller_reset() {
     let (_g, _emu, mut link) = start();
     let model = kincal::model::ArmModel::suta_nominal();
-    let blob = kincal::controller::device::parameter_blob(&model, 7);
+    let blob = kincal::controller::device::parameter_blob(&model, 7).unwrap();
     link.upload(&blob).unwrap();
     assert_eq!(link.info().unwrap().param_version, 7);
     link.command(Request::Reset, "reset").unwrap();
@@ -167,7 +167,7 @@ fn the_controller_streams_the_calibrated_pose_the_host_computes() {
     model.joints[4].eccentricity_sin_deg = 0.2;
     model.joints[1].compliance_deg_per_m = 0.1;
     model.tcp_mm = [0.5, -0.3, 253.0];
-    link.upload(&kincal::controller::device::parameter_blob(&model, 11)).unwrap();
+    link.upload(&kincal::controller::device::parameter_blob(&model, 11).unwrap()).unwrap();
     let counts = [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, COUNTS_PER_TURN - 5];
     link.command(Request::SimSetPose { counts }, "pose").unwrap();
     link.command(Request::StreamPose(4), "pose stream").unwrap();
@@ -186,4 +186,81 @@ fn the_controller_streams_the_calibrated_pose_the_host_computes() {
         let d = (0..3).map(|k| (p.position_mm[k] as f64 - host.position_mm[k]).powi(2)).sum::<f64>().sqrt();
         assert!(d < 1e-3, "controller pose {:?} vs host {} ({d} mm)", p.position_mm, host.position_mm);
     }
+}
+
+#[test]
+fn absurd_parameter_sets_are_refused_by_the_controller_itself() {
+    use kincal_protocol::messages::WireError;
+    use kincal_protocol::params::{encode_blob, ArmParams, ParamField, MAX_PARAM_BLOB};
+    let (_g, _emu, mut link) = start();
+    let good = kincal::controller::device::device_params(&kincal::model::ArmModel::suta_nominal(), 5);
+    let cases: [(fn(&mut ArmParams), ParamField); 5] = [
+        (|p| p.joints[1].a_mm = 1e6, ParamField::AMm),
+        (|p| p.joints[3].alpha_deg = 1e6, ParamField::AlphaDeg),
+        (|p| p.scale_ppm = 1e12, ParamField::ScalePpm),
+        (|p| p.joints[2].d_mm = 1e300, ParamField::DMm),
+        (|p| p.version = 0, ParamField::Version),
+    ];
+    for (break_it, field) in cases {
+        let mut params = good;
+        break_it(&mut params);
+        // Encoded raw: no host-side check on this path.
+        let mut blob = [0u8; MAX_PARAM_BLOB];
+        let n = encode_blob(&params, &mut blob).unwrap();
+        match link.upload(&blob[..n]) {
+            Err(LinkError::Refused(_, WireError::ParamEnvelope(v))) => assert_eq!(v.field, field),
+            other => panic!("{field:?}: expected a refusal by the controller, got {other:?}"),
+        }
+    }
+    assert_eq!(link.info().unwrap().param_version, 0, "nothing was stored");
+    assert!(link.read_params(false, 4096).unwrap().is_empty());
+}
+
+#[test]
+fn sixteen_tick_windows_record_every_landmark_over_a_slow_link() {
+    static ELF: OnceLock<std::path::PathBuf> = OnceLock::new();
+    let _guard = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let elf = ELF.get_or_init(|| build_firmware().expect("emulated firmware builds"));
+    let (_emu, port) = Emulator::start_server(elf).expect("QEMU starts");
+    // Replies held back 40 ms (a 16-tick window lasts 21 ms): the start acknowledgement and the
+    // window report arrive in the same read.
+    let laggy = kincal_e2e::Laggy::connect(&port, Duration::from_millis(40)).unwrap();
+    let mut link = Link::over(Box::new(laggy));
+    link.hello().unwrap();
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(2);
+    let artefact = kincal::simulate::suta_artefact(&mut rng);
+    let out = std::env::temp_dir().join(format!("kincal-emu-short-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let steps = artefact
+        .landmarks
+        .iter()
+        .enumerate()
+        .flat_map(|(k, l)| {
+            (1..=2).map(move |repeat| kincal::controller::record::ScriptStep {
+                landmark: l.id.clone(),
+                repeat,
+                pose_counts: Some([k as u32 * 1000 + repeat, 2000, 3000, 4000, 5000, 6000]),
+                ..Default::default()
+            })
+        })
+        .collect();
+    let mut script = kincal::controller::record::Script { steps };
+    let plan = kincal::controller::record::Plan {
+        placement: "C_A".into(),
+        purpose: "calibration".into(),
+        order: artefact.landmarks.iter().map(|l| l.id.clone()).collect(),
+        repeats: 2,
+        window_ticks: 16,
+        out: out.clone(),
+    };
+    let done = kincal::controller::record::record(&mut link, &artefact, &plan, &mut script).expect("records");
+    assert_eq!(done.measured, 2 * artefact.landmarks.len());
+    let session = kincal::data::Session::load(&plan.session_path(), &artefact).unwrap();
+    for m in &session.measurements {
+        let k = artefact.index_of(&m.landmark).unwrap() as f64;
+        let expect = kincal_protocol::biss::counts_to_deg(k * 1000.0 + m.repeat as f64);
+        assert!((m.joints_deg[0] - expect).abs() < 1e-9, "{m:?}: the window of this pose, not an older one");
+        assert_eq!(m.samples, Some(16));
+    }
+    std::fs::remove_dir_all(&out).ok();
 }

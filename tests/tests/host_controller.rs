@@ -3,7 +3,7 @@
 
 use kincal::controller::link::{Link, LinkError};
 use kincal::data::{Artefact, Session};
-use kincal_e2e::{kincal_bin, FakeController};
+use kincal_e2e::{kincal_bin, CommitFault, FakeController};
 use kincal_protocol::messages::{Request, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH};
 use kincal_protocol::params::BLOB_CRC;
 use std::path::{Path, PathBuf};
@@ -103,11 +103,12 @@ fn an_interrupted_upload_keeps_the_old_parameters_and_a_retry_succeeds() {
     let fake = FakeController::start(1);
     let mut link = Link::open(&fake.port).unwrap();
     link.hello().unwrap();
-    let old = kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 1);
+    let old =
+        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 1).unwrap();
     link.upload(&old).unwrap();
     let mut new_model = kincal::model::ArmModel::suta_nominal();
     new_model.joints[2].d_mm += 1.5;
-    let new = kincal::controller::device::parameter_blob(&new_model, 2);
+    let new = kincal::controller::device::parameter_blob(&new_model, 2).unwrap();
     link.command(Request::ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }, "begin")
         .unwrap();
     for (k, chunk) in new.chunks(PARAM_CHUNK).take(3).enumerate() {
@@ -200,4 +201,200 @@ fn a_controller_that_disappears_mid_stream_is_reported() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("closed the link"), "{stderr}");
+}
+
+/// The CLI's exit code, stdout and stderr.
+fn kincal(args: &[&str]) -> (Option<i32>, String, String) {
+    let out = Command::new(kincal_bin()).args(args).output().unwrap();
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stdout).to_string(),
+        String::from_utf8_lossy(&out.stderr).to_string(),
+    )
+}
+
+#[test]
+fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
+    let fake = FakeController::start(1);
+    let dir = scratch("commit");
+    let model = dir.join("model.toml");
+    kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
+    let model = model.to_str().unwrap();
+    let (code, out, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "10"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("now holds parameters version 10"), "{out}");
+    // The commit happens but its answer is lost: the host asks, and reports the new set.
+    fake.fault_next_commit(CommitFault::LoseReply);
+    let (code, out, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "77"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("answer to the commit was lost"), "{err}");
+    assert!(
+        out.contains("now holds parameters version 77") && out.contains("previously parameters version 10")
+    );
+    // The commit itself is lost: the host asks, and reports the set still held.
+    fake.fault_next_commit(CommitFault::LoseRequest);
+    let (code, _, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "78"]);
+    assert_eq!(code, Some(1));
+    assert!(
+        err.contains("not confirmed") && err.contains("the controller holds parameters version 77"),
+        "{err}"
+    );
+    assert!(!err.contains("version 78") && !err.contains("keeps"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn version_0_and_absurd_sets_are_refused_by_the_host_and_by_the_controller() {
+    let fake = FakeController::start(1);
+    let dir = scratch("envelope");
+    let path = dir.join("model.toml");
+    let mut far = kincal::model::ArmModel::suta_nominal();
+    far.joints[2].a_mm = 1e6;
+    far.save(&path).unwrap();
+    let (code, _, err) = kincal(&["upload", "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("joint 3 a_mm = 1e6 is outside the envelope ±2000"), "{err}");
+    kincal::model::ArmModel::suta_nominal().save(&path).unwrap();
+    let (code, _, err) = kincal(&["upload", "--port", &fake.port, path.to_str().unwrap(), "--version", "0"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("version 0 is reserved"), "{err}");
+    // Sent raw, past the host's check: the controller refuses with the reason.
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    let mut params = kincal::controller::device::device_params(&kincal::model::ArmModel::suta_nominal(), 0);
+    let mut blob = [0u8; kincal_protocol::params::MAX_PARAM_BLOB];
+    let n = kincal_protocol::params::encode_blob(&params, &mut blob).unwrap();
+    let e = link.upload(&blob[..n]).unwrap_err();
+    assert!(e.to_string().contains("version 0 is reserved"), "{e}");
+    params.version = 4;
+    params.scale_ppm = 1e12;
+    let n = kincal_protocol::params::encode_blob(&params, &mut blob).unwrap();
+    let e = link.upload(&blob[..n]).unwrap_err();
+    assert!(e.to_string().contains("scale_ppm = 1e12 is outside the envelope ±1000"), "{e}");
+    assert_eq!(link.info().unwrap().param_version, 0, "nothing was stored");
+    assert!(link.read_params(false, 4096).unwrap().is_empty(), "`params` agrees with `info`");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+fn record_args<'a>(port: &'a str, artefact: &'a str, out: &'a str, window: &'a str) -> Vec<&'a str> {
+    vec![
+        "record",
+        "--port",
+        port,
+        "--artefact",
+        artefact,
+        "--placement",
+        "C_A",
+        "--out",
+        out,
+        "--repeats",
+        "1",
+        "--window-ticks",
+        window,
+    ]
+}
+
+fn set_dropouts(port: &str, dropouts_per_10k: u16) {
+    let mut link = Link::open(port).unwrap();
+    link.hello().unwrap();
+    link.command(
+        Request::SimFaults {
+            noise_counts: 0,
+            crc_errors_per_10k: 0,
+            dropouts_per_10k,
+            error_bits_per_10k: 0,
+            warnings_per_10k: 0,
+        },
+        "faults",
+    )
+    .unwrap();
+}
+
+#[test]
+fn a_window_with_every_frame_dropped_is_refused_and_never_written() {
+    let fake = FakeController::start(2);
+    let dir = scratch("dropped");
+    let (artefact, artefact_path) = artefact_file(&dir);
+    let script = script(&dir, &artefact);
+    let out = dir.join("sessions");
+    set_dropouts(&fake.port, 10_000);
+    let mut args = record_args(&fake.port, artefact_path.to_str().unwrap(), out.to_str().unwrap(), "96");
+    args.extend(["--script", script.to_str().unwrap()]);
+    let (code, _, err) = kincal(&args);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("window refused") && err.contains("joint 1 accepted 0 of 96 samples"), "{err}");
+    assert!(measured(&out.join("C_A.json"), &artefact).is_empty(), "no touch is written");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn end_of_input_at_a_retake_question_ends_the_interactive_record() {
+    let fake = FakeController::start(2);
+    let dir = scratch("eof");
+    let (artefact, artefact_path) = artefact_file(&dir);
+    let out = dir.join("sessions");
+    // 5 % dropouts: usable, but flagged, so the operator is asked about a re-take.
+    set_dropouts(&fake.port, 500);
+    let args = record_args(&fake.port, artefact_path.to_str().unwrap(), out.to_str().unwrap(), "96");
+    let mut child = Command::new(kincal_bin())
+        .args(&args)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    {
+        use std::io::Write;
+        let mut stdin = child.stdin.take().unwrap();
+        stdin.write_all(b"\n").unwrap(); // Enter at the first landmark, then end of input
+    }
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while child.try_wait().unwrap().is_none() {
+        if Instant::now() > deadline {
+            child.kill().unwrap();
+            panic!("record kept running after the end of input");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let output = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(1), "{err}");
+    assert!(err.contains("take it again") && err.contains("stopped; 0 measurements are saved"), "{err}");
+    assert!(measured(&out.join("C_A.json"), &artefact).is_empty());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn sixteen_tick_windows_record_reliably_over_tcp() {
+    let fake = FakeController::start(1);
+    let dir = scratch("short");
+    let (artefact, artefact_path) = artefact_file(&dir);
+    let script = script(&dir, &artefact);
+    let out = dir.join("sessions");
+    for _ in 0..3 {
+        std::fs::remove_dir_all(&out).ok();
+        let mut args = record_args(&fake.port, artefact_path.to_str().unwrap(), out.to_str().unwrap(), "16");
+        args.extend(["--script", script.to_str().unwrap()]);
+        let (code, stdout, err) = kincal(&args);
+        assert_eq!(code, Some(0), "{err}");
+        assert!(stdout.contains("15 measured now"), "{stdout}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn the_first_request_after_line_noise_is_answered() {
+    use std::io::Write;
+    let fake = FakeController::start(1);
+    let mut stream = std::net::TcpStream::connect(fake.port.strip_prefix("tcp:").unwrap()).unwrap();
+    // Noise with no delimiter: without one at the start of the request, the request would be
+    // glued to it and lost.
+    stream.write_all(&[0x55, 0x12, 0xA7, 0x3C, 0x01]).unwrap();
+    let mut link = Link::over(Box::new(stream));
+    let answer = link.request(
+        Request::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH },
+        "hello",
+        Duration::from_secs(1),
+    );
+    assert!(answer.is_ok(), "{answer:?}");
 }

@@ -11,7 +11,7 @@
 use crate::calib::calibrate::CalibrationOptions;
 use crate::calib::run::{run, RunError, RunInputs};
 use crate::controller::link::{Link, LinkError};
-use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step};
+use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step, Verdict};
 use crate::data::Artefact;
 use crate::model::ArmModel;
 use crate::numerics::geometry::absolute_orientation;
@@ -19,7 +19,7 @@ use crate::simulate::{
     calibration_placements, perturbed_truth, reference_tool_frame, suta_artefact, touch_encoders,
     validation_placements, Placement, SimulationOptions,
 };
-use kincal_protocol::biss::COUNTS_PER_TURN;
+use kincal_protocol::biss::{counts_to_deg, deg_to_counts};
 use kincal_protocol::messages::{Request, Stream};
 use nalgebra::Vector3;
 use rand::SeedableRng;
@@ -76,6 +76,9 @@ pub enum LoopError {
     /// The RUN folder could not be written.
     #[error(transparent)]
     Output(#[from] crate::output::OutputError),
+    /// A parameter set is outside what the controller accepts.
+    #[error(transparent)]
+    Params(#[from] crate::controller::device::DeviceParamsError),
     /// Writing the inputs failed.
     #[error("{0}")]
     Files(String),
@@ -111,11 +114,11 @@ pub struct LoopReport {
 }
 
 fn counts_of(enc_deg: &[f64; 6]) -> [u32; 6] {
-    enc_deg.map(|d| ((d.rem_euclid(360.0) / 360.0 * COUNTS_PER_TURN as f64).round() as u32) % COUNTS_PER_TURN)
+    enc_deg.map(deg_to_counts)
 }
 
 fn degrees_of(counts: &[u32; 6]) -> [f64; 6] {
-    counts.map(|c| c as f64 * 360.0 / COUNTS_PER_TURN as f64)
+    counts.map(|c| counts_to_deg(c as f64))
 }
 
 /// Poses the emulated arm by inverse kinematics of the true arm, with seating noise.
@@ -141,8 +144,8 @@ impl Guide for PosingGuide<'_> {
         Ok(Step::Measure)
     }
 
-    fn accept(&mut self, _landmark: &str, _m: &crate::data::Measurement, _q: &Quality) -> bool {
-        true
+    fn accept(&mut self, _landmark: &str, _m: &crate::data::Measurement, _q: &Quality) -> Verdict {
+        Verdict::Accept
     }
 }
 
@@ -263,7 +266,8 @@ pub fn run_loop(
                 check_counts.len()
             ));
             let t = Instant::now();
-            link.upload(&crate::controller::device::parameter_blob(model, version))?;
+            let blob = crate::controller::device::parameter_blob(model, version)?;
+            link.upload(&blob)?;
             let upload = t.elapsed().as_secs_f64();
             let points =
                 check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;

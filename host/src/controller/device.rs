@@ -1,7 +1,22 @@
 //! The calibrated model as the controller stores it (the protocol's parameter blob).
 
 use crate::model::{ArmModel, Convention};
-use kincal_protocol::params::{encode_blob, ArmParams, JointParams, MAX_PARAM_BLOB};
+use kincal_protocol::params::{
+    check_envelope, encode_blob, ArmParams, EnvelopeViolation, JointParams, MAX_PARAM_BLOB,
+};
+
+/// Why a model cannot be sent to the controller.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceParamsError {
+    /// A value is outside the physical envelope the controller accepts (it would refuse it too).
+    #[error("not sent: {0}")]
+    Envelope(EnvelopeViolation),
+    /// The set does not fit the controller's parameter area.
+    #[error(
+        "not sent: the parameter set does not fit the controller's {MAX_PARAM_BLOB}-byte parameter area"
+    )]
+    TooLarge,
+}
 
 /// The device form of `model`, tagged with parameter-set `version`.
 pub fn device_params(model: &ArmModel, version: u32) -> ArmParams {
@@ -23,9 +38,12 @@ pub fn device_params(model: &ArmModel, version: u32) -> ArmParams {
     }
 }
 
-/// The parameter blob of `model` (see [`kincal_protocol::params`]).
-pub fn parameter_blob(model: &ArmModel, version: u32) -> Vec<u8> {
+/// The parameter blob of `model` (see [`kincal_protocol::params`]), checked against the same
+/// envelope the controller applies (version ≥ 1, finite f32, lengths, angles, scale).
+pub fn parameter_blob(model: &ArmModel, version: u32) -> Result<Vec<u8>, DeviceParamsError> {
+    let params = device_params(model, version);
+    check_envelope(&params).map_err(DeviceParamsError::Envelope)?;
     let mut out = [0u8; MAX_PARAM_BLOB];
-    let n = encode_blob(&device_params(model, version), &mut out).unwrap_or(0);
-    out[..n].to_vec()
+    let n = encode_blob(&params, &mut out).map_err(|_| DeviceParamsError::TooLarge)?;
+    Ok(out[..n].to_vec())
 }

@@ -3,8 +3,10 @@
 //! [`Link::open`] takes `/dev/ttyUSB0` (or any serial device or pty path) or `tcp:HOST:PORT`;
 //! every command goes through the same code path. Requests carry a sequence number and wait
 //! for the response with that number; stream frames that arrive meanwhile are queued for
-//! [`Link::next_stream`]. Garbage on the line is skipped (and counted); a link that closes is
-//! reported as such.
+//! [`Link::next_stream`]. Every request frame starts with a 0x00 delimiter, so line noise before
+//! it ends as a bad frame of its own instead of swallowing the request. Garbage on the line is
+//! skipped (and counted); a link that closes is reported as such. When the answer to a parameter
+//! commit is lost, the host asks the controller what it holds before saying anything.
 
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
 use kincal_protocol::messages::{
@@ -13,12 +15,61 @@ use kincal_protocol::messages::{
 };
 use kincal_protocol::params::BLOB_CRC;
 use std::collections::VecDeque;
+use std::fmt;
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::time::{Duration, Instant};
 
 /// How long a request waits for its response by default.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long a parameter commit may take (flash programming on the controller).
+pub const COMMIT_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// The parameter set a controller reports holding.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HeldParams {
+    /// Version (0: none stored).
+    pub version: u32,
+    /// CRC-32 of the stored blob.
+    pub crc: u32,
+}
+
+impl fmt::Display for HeldParams {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.version == 0 {
+            f.write_str("no parameters")
+        } else {
+            write!(f, "parameters version {} (CRC-32 {:08x})", self.version, self.crc)
+        }
+    }
+}
+
+/// What the controller holds after a failed commit, as read back from it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AfterFailure {
+    /// It answered: it holds this set (the previous one; the new one would have been success).
+    Holds(HeldParams),
+    /// It could not be asked.
+    Unknown,
+}
+
+impl fmt::Display for AfterFailure {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            AfterFailure::Holds(held) => write!(f, "asked afterwards, the controller holds {held}"),
+            AfterFailure::Unknown => f.write_str(
+                "the controller could not be asked what it holds now: check with `kincal info` before using it",
+            ),
+        }
+    }
+}
+
+/// How an upload ended when it succeeded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Uploaded {
+    /// The answer to the commit was lost; the controller was asked and holds the new set.
+    pub commit_reply_lost: bool,
+}
 
 /// Why talking to the controller failed.
 #[derive(Debug, thiserror::Error)]
@@ -53,8 +104,16 @@ pub enum LinkError {
         device_schema: u32,
     },
     /// The controller refused the request.
-    #[error("the controller refused {0}: {1:?}")]
+    #[error("the controller refused {0}: {1}")]
     Refused(&'static str, WireError),
+    /// The commit was sent but not confirmed; the controller's state was read back.
+    #[error("the parameter commit was not confirmed ({cause}); {after}")]
+    CommitUnconfirmed {
+        /// Why the commit's answer did not arrive.
+        cause: Box<LinkError>,
+        /// What the controller holds, asked afterwards.
+        after: AfterFailure,
+    },
     /// The controller answered something unexpected.
     #[error("unexpected answer to {0}")]
     Unexpected(&'static str),
@@ -109,12 +168,26 @@ pub struct LinkStats {
     pub stream_gaps: u64,
 }
 
+/// A response as queued: its sequence number, the answer, and how many stream frames had been
+/// queued before it arrived.
+struct Answer {
+    seq: u16,
+    response: Result<Response, WireError>,
+    streams_before: u64,
+}
+
 /// A connection to a controller.
 pub struct Link {
     transport: Box<dyn Transport>,
     decoder: Decoder,
     seq: u16,
-    streams: VecDeque<(u16, Stream)>,
+    /// Stream frames with their arrival number.
+    streams: VecDeque<(u64, u16, Stream)>,
+    /// Stream frames queued so far (arrival numbers count up from 0).
+    streams_arrived: u64,
+    answers: VecDeque<Answer>,
+    /// Stream frames that had arrived when the last returned response arrived.
+    before_last_response: u64,
     last_stream_seq: Option<u16>,
     /// What arrived so far.
     pub stats: LinkStats,
@@ -147,6 +220,9 @@ impl Link {
             decoder: Decoder::new(),
             seq: 0,
             streams: VecDeque::new(),
+            streams_arrived: 0,
+            answers: VecDeque::new(),
+            before_last_response: 0,
             last_stream_seq: None,
             stats: LinkStats::default(),
         }
@@ -157,71 +233,70 @@ impl Link {
         if self.seq == u16::MAX {
             self.seq = 0; // u16::MAX is the controller's "undecodable request" answer
         }
-        let mut buf = [0u8; MAX_FRAME];
-        let frame = framing::encode(&HostFrame { seq: self.seq, request }, &mut buf)
-            .map_err(|_| LinkError::Unexpected("encoding"))?;
-        self.transport.write_all(frame)?;
+        let mut buf = [0u8; MAX_FRAME + 1];
+        let (delimiter, rest) = buf.split_at_mut(1);
+        delimiter[0] = 0;
+        let Ok(rest) = <&mut [u8; MAX_FRAME]>::try_from(rest) else {
+            return Err(LinkError::Unexpected("encoding"));
+        };
+        let n = framing::encode(&HostFrame { seq: self.seq, request }, rest)
+            .map_err(|_| LinkError::Unexpected("encoding"))?
+            .len();
+        // The leading delimiter ends any noise the controller received before this frame.
+        self.transport.write_all(&buf[..1 + n])?;
         self.transport.flush()?;
         Ok(self.seq)
     }
 
-    /// Read until one frame decodes or `deadline` passes.
-    fn receive(&mut self, deadline: Instant) -> Result<Option<DeviceFrame>, LinkError> {
-        let mut byte = [0u8; 512];
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return Ok(None);
+    /// Read once (waiting until `deadline` at most) and queue every frame that decoded.
+    /// Returns false when the deadline passed with nothing read.
+    fn pump(&mut self, deadline: Instant) -> Result<bool, LinkError> {
+        let mut bytes = [0u8; 512];
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Ok(false);
+        }
+        self.transport.set_read_timeout(left.max(Duration::from_millis(1)))?;
+        let n = match self.transport.read(&mut bytes) {
+            Ok(0) => return Err(LinkError::Closed),
+            Ok(n) => n,
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+                return Ok(true)
             }
-            self.transport.set_read_timeout(left.max(Duration::from_millis(1)))?;
-            let n = match self.transport.read(&mut byte) {
-                Ok(0) => return Err(LinkError::Closed),
-                Ok(n) => n,
-                Err(e)
-                    if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) =>
-                {
-                    continue
-                }
-                Err(e)
-                    if e.kind() == std::io::ErrorKind::BrokenPipe
-                        || e.kind() == std::io::ErrorKind::ConnectionReset =>
-                {
-                    return Err(LinkError::Closed)
-                }
-                Err(e) => return Err(e.into()),
-            };
-            // Stream frames are queued; the first response is returned.
-            let mut frame = None;
-            for &b in &byte[..n] {
-                match self.decoder.push::<DeviceFrame>(b) {
-                    Some(Ok(f)) => {
-                        self.stats.frames += 1;
-                        self.note(f, &mut frame);
-                    }
-                    Some(Err(_)) => self.stats.bad_frames += 1,
-                    None => {}
-                }
+            Err(e)
+                if e.kind() == std::io::ErrorKind::BrokenPipe
+                    || e.kind() == std::io::ErrorKind::ConnectionReset =>
+            {
+                return Err(LinkError::Closed)
             }
-            if frame.is_some() {
-                return Ok(frame);
+            Err(e) => return Err(e.into()),
+        };
+        for &b in &bytes[..n] {
+            match self.decoder.push::<DeviceFrame>(b) {
+                Some(Ok(f)) => {
+                    self.stats.frames += 1;
+                    self.note(f);
+                }
+                Some(Err(_)) => self.stats.bad_frames += 1,
+                None => {}
             }
         }
+        Ok(true)
     }
 
-    /// Queue stream frames; keep the first response in `response`.
-    fn note(&mut self, f: DeviceFrame, response: &mut Option<DeviceFrame>) {
+    /// Queue a decoded frame, in arrival order.
+    fn note(&mut self, f: DeviceFrame) {
         match f {
             DeviceFrame::Stream { seq, item } => {
                 if let Some(last) = self.last_stream_seq {
                     self.stats.stream_gaps += seq.wrapping_sub(last).wrapping_sub(1) as u64;
                 }
                 self.last_stream_seq = Some(seq);
-                self.streams.push_back((seq, item));
+                self.streams.push_back((self.streams_arrived, seq, item));
+                self.streams_arrived += 1;
             }
-            r @ DeviceFrame::Response { .. } => {
-                if response.is_none() {
-                    *response = Some(r);
-                }
+            DeviceFrame::Response { seq, response } => {
+                self.answers.push_back(Answer { seq, response, streams_before: self.streams_arrived })
             }
         }
     }
@@ -236,12 +311,15 @@ impl Link {
         let seq = self.send(request)?;
         let deadline = Instant::now() + timeout;
         loop {
-            match self.receive(deadline)? {
-                None => return Err(LinkError::Timeout(timeout, what)),
-                Some(DeviceFrame::Response { seq: s, response }) if s == seq => {
-                    return response.map_err(|e| LinkError::Refused(what, e))
+            // Answers to other sequence numbers are stale (their requests timed out): dropped.
+            while let Some(answer) = self.answers.pop_front() {
+                if answer.seq == seq {
+                    self.before_last_response = answer.streams_before;
+                    return answer.response.map_err(|e| LinkError::Refused(what, e));
                 }
-                Some(_) => {} // a stale response to an earlier, timed-out request
+            }
+            if !self.pump(deadline)? {
+                return Err(LinkError::Timeout(timeout, what));
             }
         }
     }
@@ -301,26 +379,37 @@ impl Link {
         }
     }
 
-    /// Forget stream frames received so far. The controller answers requests in order, so after
-    /// a request's response every queued frame predates that request.
+    /// Forget the stream frames that arrived before the response to the last request. The
+    /// controller sends frames in order, so those predate the request; frames that arrived with
+    /// or after its response (a short window's report can come in the same read) are kept.
     pub fn clear_streams(&mut self) {
-        self.streams.clear();
+        let mark = self.before_last_response;
+        self.streams.retain(|(arrival, _, _)| *arrival >= mark);
     }
 
     /// The next streamed frame, waiting up to `timeout`.
     pub fn next_stream(&mut self, timeout: Duration) -> Result<Option<(u16, Stream)>, LinkError> {
         let deadline = Instant::now() + timeout;
         while self.streams.is_empty() {
-            if self.receive(deadline)?.is_none() {
+            if !self.pump(deadline)? {
                 break;
             }
         }
-        Ok(self.streams.pop_front())
+        Ok(self.streams.pop_front().map(|(_, seq, item)| (seq, item)))
     }
 
-    /// Upload a parameter blob: begin, chunks, read back and compare, commit.
-    /// On any failure nothing is committed and the controller keeps its parameters.
-    pub fn upload(&mut self, blob: &[u8]) -> Result<(), LinkError> {
+    /// The parameter set the controller reports holding.
+    pub fn held_params(&mut self) -> Result<HeldParams, LinkError> {
+        let info = self.info()?;
+        Ok(HeldParams { version: info.param_version, crc: info.param_crc })
+    }
+
+    /// Upload a parameter blob as it is (no envelope check here: see
+    /// [`crate::controller::device::parameter_blob`]): begin, chunks, read back and compare, commit.
+    /// Before the commit, any failure leaves the controller's parameters as they were. When the
+    /// commit's answer does not arrive, the controller is asked what it holds: the new set
+    /// (success, [`Uploaded::commit_reply_lost`]) or not ([`LinkError::CommitUnconfirmed`]).
+    pub fn upload(&mut self, blob: &[u8]) -> Result<Uploaded, LinkError> {
         self.command(
             Request::ParamBegin { len: blob.len() as u16, crc: BLOB_CRC.checksum(blob) },
             "parameter upload",
@@ -338,7 +427,23 @@ impl Link {
         {
             return Err(LinkError::ReadBack(i));
         }
-        self.command(Request::ParamCommit, "parameter commit")
+        let cause = match self.request(Request::ParamCommit, "parameter commit", COMMIT_TIMEOUT) {
+            Ok(Response::Ack) => return Ok(Uploaded { commit_reply_lost: false }),
+            Ok(_) => LinkError::Unexpected("parameter commit"),
+            Err(e @ LinkError::Refused(..)) => return Err(e),
+            Err(e) => e,
+        };
+        // The commit may or may not have happened: ask before saying anything.
+        let crc = BLOB_CRC.checksum(blob);
+        match self.held_params() {
+            Ok(held) if held.crc == crc && held.version != 0 => Ok(Uploaded { commit_reply_lost: true }),
+            Ok(held) => {
+                Err(LinkError::CommitUnconfirmed { cause: Box::new(cause), after: AfterFailure::Holds(held) })
+            }
+            Err(_) => {
+                Err(LinkError::CommitUnconfirmed { cause: Box::new(cause), after: AfterFailure::Unknown })
+            }
+        }
     }
 
     /// Read the pending upload (`pending`) or the stored blob, up to `limit` bytes.

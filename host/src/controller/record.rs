@@ -3,7 +3,9 @@
 //! For each landmark (artefact order, or the order given) and repeat, the [`Guide`] gets the
 //! operator to the landmark ("attach to M3, then Enter") or poses the emulated arm; the
 //! controller measures a window of fresh samples; the mean, spread and rejects are shown and a
-//! re-take is offered when the spread or the rejects are too high. Every measured landmark is
+//! re-take is offered when the spread or the rejects are too high. A window in which any joint
+//! accepted too few samples ([`JointWindow::usable`]) is refused, never stored: the guide re-takes,
+//! skips or stops. Every measured landmark is
 //! written to `OUT/<placement>.json` (`suta-session/1`) atomically before the next one starts, so
 //! an interrupted session loses nothing; started again, it resumes with the first landmark and
 //! repeat not yet on disk and never measures one twice.
@@ -11,8 +13,10 @@
 use crate::controller::link::{Link, LinkError};
 use crate::data::{Artefact, Measurement, Session, SESSION_FORMAT};
 use crate::files::FileError;
-use kincal_protocol::biss::COUNTS_PER_TURN;
-use kincal_protocol::messages::{Request, Stream, WindowReport, WireError};
+use kincal_protocol::biss::counts_to_deg;
+use kincal_protocol::messages::{
+    ticks_to_seconds, JointWindow, Request, Stream, WindowReport, WireError, MAX_WINDOW_TICKS,
+};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -48,6 +52,18 @@ pub enum RecordError {
     /// The operator or the script stopped the session.
     #[error("stopped; {0} measurements are saved and the session resumes from there")]
     Stopped(usize),
+    /// A window was refused (too few valid samples) and the guide stopped there.
+    #[error("{landmark} (repeat {repeat}): {reason}; stopped, {saved} measurements are saved and the session resumes from there")]
+    Refused {
+        /// Landmark being measured.
+        landmark: String,
+        /// Its repeat.
+        repeat: u32,
+        /// Which joints had too few samples.
+        reason: String,
+        /// Measurements on disk.
+        saved: usize,
+    },
 }
 
 /// What to do at a landmark.
@@ -79,12 +95,28 @@ impl Quality {
     }
 }
 
+/// What to do with a measured window.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    /// Store it.
+    Accept,
+    /// Measure again.
+    Retake,
+    /// Stop the session (nothing more is stored).
+    Stop,
+}
+
 /// Brings the arm to each landmark: a person at the keyboard, or a script.
 pub trait Guide {
     /// Before measuring `landmark` (repeat `repeat`): get the arm there.
     fn approach(&mut self, link: &mut Link, landmark: &str, repeat: u32) -> Result<Step, RecordError>;
-    /// After a window: accept it (true) or measure again (false).
-    fn accept(&mut self, landmark: &str, measurement: &Measurement, quality: &Quality) -> bool;
+    /// After a usable window: store it, measure again, or stop.
+    fn accept(&mut self, landmark: &str, measurement: &Measurement, quality: &Quality) -> Verdict;
+    /// A window was refused for `reason` (a joint had too few valid samples): measure again
+    /// ([`Step::Measure`]), skip the landmark or stop. By default: stop.
+    fn refused(&mut self, _landmark: &str, _reason: &str) -> Step {
+        Step::Stop
+    }
     /// A window of `seconds` is being measured; the returned guard ends any display on drop.
     fn measuring(&mut self, _seconds: f64) -> Option<Box<dyn std::any::Any>> {
         None
@@ -137,17 +169,30 @@ pub fn measure_window(link: &mut Link, ticks: u16) -> Result<WindowReport, LinkE
         other => other?,
     }
     link.clear_streams();
-    next_window(link, Duration::from_secs_f64(ticks as f64 / 768.0 + 3.0))
+    next_window(link, Duration::from_secs_f64(ticks_to_seconds(ticks as u32) + 3.0))
 }
 
-/// Longest window the controller runs (4096 ticks) plus margin, seconds.
-pub const MAX_WINDOW_SECONDS: f64 = 4096.0 / 768.0 + 2.0;
+/// Longest window the controller runs plus margin, seconds.
+pub const MAX_WINDOW_SECONDS: f64 = MAX_WINDOW_TICKS as f64 / kincal_protocol::messages::TICK_HZ as f64 + 2.0;
 
-/// Turn a window into a session measurement and its quality.
+/// Why a window cannot be used, naming each joint with too few accepted samples; `None` when
+/// every joint is usable.
+pub fn refusal(w: &WindowReport) -> Option<String> {
+    let starved: Vec<String> = w
+        .joints
+        .iter()
+        .enumerate()
+        .filter(|(_, j)| !JointWindow::usable(j, w.ticks))
+        .map(|(k, j)| format!("joint {} accepted {} of {} samples", k + 1, j.accepted, w.ticks))
+        .collect();
+    (!starved.is_empty())
+        .then(|| format!("window refused, too few valid encoder frames: {}", starved.join(", ")))
+}
+
+/// Turn a usable window into a session measurement and its quality (check [`refusal`] first).
 pub fn to_measurement(landmark: &str, repeat: u32, w: &WindowReport) -> (Measurement, Quality) {
-    let deg = 360.0 / COUNTS_PER_TURN as f64;
-    let joints_deg = w.joints.iter().map(|j| (j.mean_counts * deg).rem_euclid(360.0)).collect();
-    let std_deg: Vec<f64> = w.joints.iter().map(|j| j.std_counts as f64 * deg).collect();
+    let joints_deg = w.joints.iter().map(|j| counts_to_deg(j.mean_counts).rem_euclid(360.0)).collect();
+    let std_deg: Vec<f64> = w.joints.iter().map(|j| counts_to_deg(j.std_counts as f64)).collect();
     let quality = Quality {
         worst_std_deg: std_deg.iter().cloned().fold(0.0, f64::max),
         rejected: w.joints.iter().map(|j| j.rejected as u32).max().unwrap_or(0),
@@ -231,15 +276,37 @@ pub fn record(
                 Step::Measure => {}
             }
             let measurement = loop {
-                let progress = guide.measuring(plan.window_ticks as f64 / 768.0);
+                let progress = guide.measuring(ticks_to_seconds(plan.window_ticks as u32));
                 let window = measure_window(link, plan.window_ticks);
                 drop(progress);
                 let window = window?;
-                let (m, quality) = to_measurement(landmark, repeat, &window);
-                if guide.accept(landmark, &m, &quality) {
-                    break m;
+                if let Some(reason) = refusal(&window) {
+                    match guide.refused(landmark, &reason) {
+                        Step::Measure => {
+                            summary.retakes += 1;
+                            continue;
+                        }
+                        Step::Skip => break None,
+                        Step::Stop => {
+                            return Err(RecordError::Refused {
+                                landmark: landmark.clone(),
+                                repeat,
+                                reason,
+                                saved: session.measurements.len(),
+                            })
+                        }
+                    }
                 }
-                summary.retakes += 1;
+                let (m, quality) = to_measurement(landmark, repeat, &window);
+                match guide.accept(landmark, &m, &quality) {
+                    Verdict::Accept => break Some(m),
+                    Verdict::Retake => summary.retakes += 1,
+                    Verdict::Stop => return Err(RecordError::Stopped(session.measurements.len())),
+                }
+            };
+            let Some(measurement) = measurement else {
+                summary.skipped += 1;
+                continue;
             };
             session.measurements.push(measurement);
             session.save(&plan.session_path())?;
@@ -309,8 +376,8 @@ impl Guide for Script {
         Ok(Step::Measure)
     }
 
-    fn accept(&mut self, _landmark: &str, _m: &Measurement, _q: &Quality) -> bool {
-        true
+    fn accept(&mut self, _landmark: &str, _m: &Measurement, _q: &Quality) -> Verdict {
+        Verdict::Accept
     }
 }
 
@@ -355,11 +422,14 @@ impl Drop for WindowBar {
     }
 }
 
+/// The operator's answer, lower case; end of input (or an unreadable stdin) reads as `q`: stop,
+/// everything measured is saved.
 fn ask(prompt: &str) -> String {
     eprint!("{prompt}");
     let mut line = String::new();
     if std::io::stdin().read_line(&mut line).unwrap_or(0) == 0 {
-        return "q".into(); // end of input: stop, everything measured is saved
+        eprintln!("(end of input: stopping)");
+        return "q".into();
     }
     line.trim().to_lowercase()
 }
@@ -381,7 +451,16 @@ impl Guide for Operator {
         )
     }
 
-    fn accept(&mut self, landmark: &str, m: &Measurement, q: &Quality) -> bool {
+    fn refused(&mut self, landmark: &str, reason: &str) -> Step {
+        eprintln!("  {landmark}: {reason}");
+        match ask("  check the encoder cables; Enter to measure again, s to skip, q to stop: ").as_str() {
+            "s" => Step::Skip,
+            "q" => Step::Stop,
+            _ => Step::Measure,
+        }
+    }
+
+    fn accept(&mut self, landmark: &str, m: &Measurement, q: &Quality) -> Verdict {
         let angles: Vec<String> = m.joints_deg.iter().map(|a| format!("{a:.3}")).collect();
         eprintln!(
             "  {landmark}: [{}]°  std ≤ {:.4}°  rejected {}{}",
@@ -391,8 +470,12 @@ impl Guide for Operator {
             if q.flagged { "  (flagged)" } else { "" }
         );
         if q.poor() {
-            return ask("  the arm moved or the encoders were noisy: take it again? [Y/n] ") == "n";
+            return match ask("  the arm moved or the encoders were noisy: take it again? [Y/n/q] ").as_str() {
+                "n" => Verdict::Accept,
+                "q" => Verdict::Stop,
+                _ => Verdict::Retake,
+            };
         }
-        true
+        Verdict::Accept
     }
 }

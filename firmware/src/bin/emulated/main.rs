@@ -6,7 +6,6 @@
 // The tick-bench build runs the measurement instead of the tasks.
 #![cfg_attr(feature = "tick-bench", allow(dead_code, unused_imports))]
 
-mod bus;
 mod irq;
 mod mmio;
 mod nor;
@@ -15,36 +14,41 @@ mod tick_bench;
 mod time_driver;
 mod uart;
 
-use bus::EmulatedBus;
 use core::cell::RefCell;
-use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m_rt::{entry, exception};
 use cortex_m_semihosting::hprintln;
 use embassy_executor::raw::Executor;
+use embassy_sync::blocking_mutex::raw::ThreadModeRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
+use irq::Irq;
 #[cfg(not(feature = "tick-bench"))]
 use kincal_firmware::app::Shared;
 use kincal_firmware::app::{self, SharedCell};
+use kincal_firmware::biss_master::BissMaster;
 use kincal_firmware::controller::Action;
+use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, SharedEncoders};
 #[cfg(not(feature = "tick-bench"))]
 use kincal_firmware::{controller::Controller, encoders::Sampler};
 use nor::EmulatedNor;
+use static_cell::StaticCell;
 
 #[cfg_attr(feature = "tick-bench", allow(dead_code))]
-static SHARED: SharedCell<EmulatedNor, EmulatedBus> = Mutex::new(RefCell::new(None));
+static SHARED: SharedCell<EmulatedNor> = Mutex::new(RefCell::new(None));
+/// The emulated arm's encoders: read by the BiSS-C master, posed by the host.
+static ENCODERS: SharedEncoders<ThreadModeRawMutex> = Mutex::new(RefCell::new(EmulatedEncoders::new()));
 static WORK_PENDING: AtomicBool = AtomicBool::new(true);
-static mut EXECUTOR: MaybeUninit<Executor> = MaybeUninit::uninit();
+static EXECUTOR: StaticCell<Executor> = StaticCell::new();
 
 #[embassy_executor::task]
 async fn sample_encoders() -> ! {
-    app::sample_encoders(&SHARED).await
+    app::sample_encoders(&SHARED, BissMaster::new(EmulatedEncoder::all(&ENCODERS))).await
 }
 
 #[embassy_executor::task]
 async fn serve_host() -> ! {
-    app::serve_host(&SHARED, |action, bus| match action {
-        Action::Simulate(request) => bus.apply(&request),
+    app::serve_host(&SHARED, |action| match action {
+        Action::Simulate(request) => ENCODERS.lock(|e| e.borrow_mut().apply(&request)),
         Action::Reset => cortex_m::peripheral::SCB::sys_reset(),
         Action::None => {}
     })
@@ -72,23 +76,17 @@ fn run() -> ! {
         concat!("kincal-fw ", env!("CARGO_PKG_VERSION")),
         "mps2-an386 (emulated)",
         true,
-        EmulatedNor::take(),
+        EmulatedNor::take().expect("the flash is taken once, here"),
     );
     let has_params = controller.params().is_some();
-    SHARED.lock(|s| {
-        *s.borrow_mut() = Some(Shared { controller, sampler: Sampler::default(), bus: EmulatedBus::new() })
-    });
+    SHARED.lock(|s| *s.borrow_mut() = Some(Shared { controller, sampler: Sampler::default() }));
     uart::init();
     time_driver::init();
     hprintln!(
         "kincal emulated controller ready on UART0 (stored parameters: {})",
         if has_params { "yes" } else { "none" }
     );
-    // SAFETY: written once here, before anything can read it; lives for the whole program.
-    let executor: &'static Executor = unsafe {
-        let slot = &mut *core::ptr::addr_of_mut!(EXECUTOR);
-        slot.write(Executor::new(core::ptr::null_mut()))
-    };
+    let executor: &'static Executor = EXECUTOR.init(Executor::new(core::ptr::null_mut()));
     let spawner = executor.spawner();
     match (sample_encoders(), serve_host(), send_to_host()) {
         (Ok(a), Ok(b), Ok(c)) => {
@@ -118,10 +116,10 @@ fn pender(_context: *mut ()) {
 
 #[exception]
 unsafe fn DefaultHandler(irqn: i16) {
-    match irqn {
-        n if n == uart::RX_IRQ as i16 => uart::on_rx(),
-        n if n == time_driver::TIMER0_IRQ as i16 => time_driver::on_wrap(),
-        n if n == time_driver::TIMER1_IRQ as i16 => time_driver::on_alarm(),
+    match Irq::from_handler(irqn) {
+        Some(Irq::UART0_RX) => uart::on_rx(),
+        Some(Irq::TIMER0) => time_driver::on_wrap(),
+        Some(Irq::TIMER1) => time_driver::on_alarm(),
         _ => {}
     }
 }

@@ -3,6 +3,7 @@
 //! flash would. It starts zeroed when QEMU starts: no valid slot, no parameters.
 
 use core::mem::MaybeUninit;
+use core::sync::atomic::{AtomicBool, Ordering};
 use kincal_firmware::flash::{FlashError, NorFlash, WORD};
 
 const SIZE: usize = 4096;
@@ -10,17 +11,20 @@ const SIZE: usize = 4096;
 #[unsafe(link_section = ".uninit.PARAM_FLASH")]
 static mut PARAM_FLASH: MaybeUninit<[u8; SIZE]> = MaybeUninit::uninit();
 
-/// Handle to the emulated flash (one per program).
+static TAKEN: AtomicBool = AtomicBool::new(false);
+
+/// Handle to the emulated flash; at most one exists.
 pub struct EmulatedNor(());
 
 impl EmulatedNor {
-    /// The flash. Call once.
-    pub fn take() -> Self {
-        EmulatedNor(())
+    /// The flash the first time, `None` after that.
+    pub fn take() -> Option<Self> {
+        (!TAKEN.swap(true, Ordering::SeqCst)).then_some(EmulatedNor(()))
     }
 
     fn bytes(&mut self) -> &mut [u8; SIZE] {
-        // SAFETY: only this handle touches PARAM_FLASH; every bit pattern is a valid [u8; N].
+        // SAFETY: `take` hands out one handle only and this is its `&mut self`, so no other
+        // reference to PARAM_FLASH exists; every bit pattern is a valid [u8; N].
         unsafe { (*core::ptr::addr_of_mut!(PARAM_FLASH)).assume_init_mut() }
     }
 }

@@ -5,33 +5,32 @@
 //! the firmware's own: read six emulated BiSS-C frames, decode and check them, feed a window,
 //! encode a raw-sample frame and a pose frame (f32 kinematics with every effect).
 
-use crate::bus::EmulatedBus;
-use crate::mmio::{read, write};
+use crate::mmio::{read, write, Block};
 use cortex_m_semihosting::{debug, hprintln};
+use kincal_firmware::biss_master::{decode_transfer, ReadError, TRANSFER_BYTES};
 use kincal_firmware::controller::Controller;
-use kincal_firmware::encoders::{EncoderBus, Sampler};
+use kincal_firmware::emulated_encoders::EmulatedEncoders;
+use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
 use kincal_firmware::kinematics::Kinematics;
-use kincal_protocol::biss::Frame;
+use kincal_protocol::biss::Reading;
 use kincal_protocol::framing::{self, MAX_FRAME};
 use kincal_protocol::messages::{HostFrame, Request, PROTOCOL_VERSION, SCHEMA_HASH};
 use kincal_protocol::params::{encode_blob, ArmParams, JointParams, BLOB_CRC, MAX_PARAM_BLOB};
 
-const TIMER0: usize = 0x4000_0000;
+const TIMER0: Block = Block::Timer0;
 
-/// Replays frames recorded from the emulated bus.
+/// Replays transfers recorded from the emulated encoders, decoded as the BiSS-C master does.
 struct Replay {
-    frames: [[Frame; 6]; 8],
+    transfers: [[[u8; TRANSFER_BYTES]; 6]; 8],
     tick: usize,
 }
 
-impl EncoderBus for Replay {
-    fn transfer(&mut self, joint: usize) -> Option<Frame> {
-        let f = self.frames[self.tick % 8][joint];
-        if joint == 5 {
-            self.tick += 1;
-        }
-        Some(f)
+impl Replay {
+    fn read_all(&mut self) -> [Result<Reading, ReadError>; 6] {
+        let t = &self.transfers[self.tick % 8];
+        self.tick += 1;
+        core::array::from_fn(|j| decode_transfer(&t[j]))
     }
 }
 const TICKS: u32 = 768;
@@ -73,7 +72,7 @@ pub fn run() -> ! {
     start_timer();
     let mut controller = Controller::new("bench", "mps2", true, RamNor::<4096>::new());
     let mut sampler = Sampler::default();
-    let mut bus = EmulatedBus::new();
+    let mut bus = EmulatedEncoders::new();
     bus.apply(&Request::SimSetPose { counts: [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, 500] });
     bus.apply(&Request::SimFaults {
         noise_counts: 3,
@@ -111,11 +110,9 @@ pub fn run() -> ! {
     ] {
         controller.handle(HostFrame { seq: 3, request }, &health, &mut sink);
     }
-    // Frames as the bus delivers them (generating them is the emulator's work, not measured).
-    let frames: [[Frame; 6]; 8] = core::array::from_fn(|_| {
-        core::array::from_fn(|j| bus.transfer(j).unwrap_or(Frame { bits: 0, len: 0 }))
-    });
-    let mut replay = Replay { frames, tick: 0 };
+    // Transfers as the bus delivers them (generating them is the emulator's work, not measured).
+    let transfers = core::array::from_fn(|_| core::array::from_fn(|j| bus.answer(j)));
+    let mut replay = Replay { transfers, tick: 0 };
     let measure = |f: &mut dyn FnMut()| {
         let start = timer();
         for _ in 0..TICKS {
@@ -123,8 +120,8 @@ pub fn run() -> ! {
         }
         timer().wrapping_sub(start) as u64 * 40 / TICKS as u64
     };
-    let mut sample = sampler.sample(&mut replay);
-    let decode = measure(&mut || sample = sampler.sample(&mut replay));
+    let mut sample = sampler.record(&replay.read_all());
+    let decode = measure(&mut || sample = sampler.record(&replay.read_all()));
     let mut window = kincal_firmware::window::Window::new(4096);
     let window_cost = measure(&mut || {
         let _ = window.push(&sample.counts, sample.rejected);
@@ -139,7 +136,7 @@ pub fn run() -> ! {
     };
     let raw_frame = measure(&mut || sink(&raw));
     let full = measure(&mut || {
-        let s = sampler.sample(&mut replay);
+        let s = sampler.record(&replay.read_all());
         controller.on_tick(&s, &mut sink);
     });
     let with_effects = Kinematics::new(&params());
@@ -183,5 +180,7 @@ pub fn run() -> ! {
     );
     hprintln!("  whole tick, window+raw+pose(all){:6}  ({:.2} %)", full, pct(full));
     debug::exit(debug::EXIT_SUCCESS);
-    loop {}
+    loop {
+        cortex_m::asm::wfi();
+    }
 }

@@ -5,7 +5,7 @@
 //! it exactly), converted from the 25 MHz timer counts.
 
 use crate::irq::Irq;
-use crate::mmio::{read, write};
+use crate::mmio::{read, write, Block};
 use core::cell::{Cell, RefCell};
 use core::task::Waker;
 use cortex_m::peripheral::NVIC;
@@ -14,8 +14,8 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_time_driver::Driver;
 use embassy_time_queue_utils::Queue;
 
-const TIMER0: usize = 0x4000_0000;
-const TIMER1: usize = 0x4000_1000;
+const TIMER0: Block = Block::Timer0;
+const TIMER1: Block = Block::Timer1;
 const CTRL: usize = 0x0;
 const VALUE: usize = 0x4;
 const RELOAD: usize = 0x8;
@@ -24,10 +24,6 @@ const ENABLE: u32 = 1;
 const IRQ_ENABLE: u32 = 1 << 3;
 /// Timer clock.
 const COUNTS_HZ: u64 = 25_000_000;
-/// IRQ numbers of TIMER0 and TIMER1.
-pub const TIMER0_IRQ: u16 = 8;
-/// IRQ number of the alarm timer.
-pub const TIMER1_IRQ: u16 = 9;
 
 struct Mps2Time {
     periods: Mutex<CriticalSectionRawMutex, Cell<u64>>,
@@ -100,8 +96,8 @@ pub fn init() {
     write(TIMER1, CTRL, 0);
     // SAFETY: the handlers are installed (DefaultHandler dispatch) before the timers can fire.
     unsafe {
-        NVIC::unmask(Irq(TIMER0_IRQ));
-        NVIC::unmask(Irq(TIMER1_IRQ));
+        NVIC::unmask(Irq::TIMER0);
+        NVIC::unmask(Irq::TIMER1);
     }
 }
 

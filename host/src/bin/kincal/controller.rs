@@ -150,7 +150,11 @@ pub fn cmd_info(a: &PortArgs) -> Result<()> {
     } else {
         println!("parameters version {} (CRC-32 {:08x})", info.param_version, info.param_crc);
     }
-    println!("uptime     {} ticks ({:.1} s)", info.ticks, info.ticks as f64 / 768.0);
+    println!(
+        "uptime     {} ticks ({:.1} s)",
+        info.ticks,
+        kincal_protocol::messages::ticks_to_seconds(info.ticks)
+    );
     println!("joint  accepted  crc-errors  error-bits  warnings  dropouts");
     for (j, h) in info.encoders.iter().enumerate() {
         println!(
@@ -181,15 +185,27 @@ pub fn cmd_params(a: &PortArgs) -> Result<()> {
 
 pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     let model = ArmModel::load(&a.model)?;
-    let blob = kincal::controller::device::parameter_blob(&model, a.version);
+    let blob = kincal::controller::device::parameter_blob(&model, a.version)
+        .with_context(|| format!("{}: parameters version {}", a.model.display(), a.version))?;
     let mut link = connect(&a.port)?;
-    let before = link.info()?.param_version;
+    let before = link.held_params()?;
     let started = std::time::Instant::now();
-    if let Err(e) = link.upload(&blob) {
-        bail!("upload failed: {e}. The controller keeps its previous parameters (version {before}); run the upload again");
+    let uploaded = match link.upload(&blob) {
+        Ok(u) => u,
+        Err(e @ kincal::controller::link::LinkError::CommitUnconfirmed { .. }) => bail!("upload failed: {e}"),
+        Err(e) => {
+            bail!("upload failed before the commit: {e}. The controller keeps {before}; run the upload again")
+        }
+    };
+    if uploaded.commit_reply_lost {
+        eprintln!("the answer to the commit was lost; asked again, the controller confirms the new set");
     }
-    let info = link.info()?;
-    println!("uploaded {} bytes in {:.2} s; the controller now holds parameters version {} (CRC-32 {:08x}), previously {}", blob.len(), started.elapsed().as_secs_f64(), info.param_version, info.param_crc, before);
+    let now = link.held_params()?;
+    println!(
+        "uploaded {} bytes in {:.2} s; the controller now holds {now}, previously {before}",
+        blob.len(),
+        started.elapsed().as_secs_f64()
+    );
     Ok(())
 }
 
@@ -228,7 +244,7 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             match item {
                 Stream::Raw(r) => {
                     let deg = kincal_protocol::messages::unpack_counts(&r.packed)
-                        .map(|c| c as f64 * 360.0 / kincal_protocol::biss::COUNTS_PER_TURN as f64);
+                        .map(|c| kincal_protocol::biss::counts_to_deg(c as f64));
                     writeln!(
                         w,
                         "{seq},{},{},{},{},{},{},{},{}",

@@ -1,0 +1,142 @@
+//! Emulated encoders behind the same SPI trait as the real ones: the SLO bit stream of six
+//! BiSS-C encoders at a pose the host sets, with noise and injected faults (CRC errors,
+//! dropouts, error and warning bits). The emulated board and the host tests read them through
+//! [`crate::biss_master::BissMaster`], exactly as the real board reads its encoders.
+
+use crate::biss_master::{transfer_bytes, TRANSFER_BYTES};
+use core::cell::RefCell;
+use core::convert::Infallible;
+use embassy_sync::blocking_mutex::raw::RawMutex;
+use embassy_sync::blocking_mutex::Mutex;
+use embedded_hal_async::spi::{ErrorType, Operation, SpiDevice};
+use kincal_protocol::biss::{self, COUNTS_PER_TURN};
+use kincal_protocol::messages::{Request, JOINTS};
+
+/// The six emulated encoders' state.
+pub struct EmulatedEncoders {
+    counts: [u32; JOINTS],
+    noise_counts: u16,
+    crc_errors: u16,
+    dropouts: u16,
+    error_bits: u16,
+    warnings: u16,
+    rng: u32,
+}
+
+impl Default for EmulatedEncoders {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl EmulatedEncoders {
+    /// Encoders at zero, no noise, no faults.
+    pub const fn new() -> Self {
+        EmulatedEncoders {
+            counts: [0; JOINTS],
+            noise_counts: 0,
+            crc_errors: 0,
+            dropouts: 0,
+            error_bits: 0,
+            warnings: 0,
+            rng: 0x1234_5678,
+        }
+    }
+
+    /// Apply a simulation request ([`Request::SimSetPose`], [`Request::SimFaults`]).
+    pub fn apply(&mut self, request: &Request) {
+        match *request {
+            Request::SimSetPose { counts } => self.counts = counts.map(|c| c % COUNTS_PER_TURN),
+            Request::SimFaults {
+                noise_counts,
+                crc_errors_per_10k,
+                dropouts_per_10k,
+                error_bits_per_10k,
+                warnings_per_10k,
+            } => {
+                self.noise_counts = noise_counts;
+                self.crc_errors = crc_errors_per_10k;
+                self.dropouts = dropouts_per_10k;
+                self.error_bits = error_bits_per_10k;
+                self.warnings = warnings_per_10k;
+            }
+            _ => {}
+        }
+    }
+
+    fn next(&mut self) -> u32 {
+        // xorshift32
+        let mut x = self.rng;
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        self.rng = x;
+        x
+    }
+
+    fn chance(&mut self, per_10k: u16) -> bool {
+        per_10k > 0 && self.next() % 10_000 < per_10k as u32
+    }
+
+    /// Roughly Gaussian noise (sum of four uniforms), standard deviation `noise_counts`.
+    fn noise(&mut self) -> i32 {
+        if self.noise_counts == 0 {
+            return 0;
+        }
+        let sum: i32 = (0..4).map(|_| (self.next() % 2001) as i32 - 1000).sum();
+        // Var of one uniform on ±1000 ≈ 1000²/3; four of them ≈ 4·1000²/3 → std ≈ 1154.7.
+        sum * self.noise_counts as i32 / 1155
+    }
+
+    /// What encoder `joint` sends on SLO for one read (all ones: it did not answer).
+    pub fn answer(&mut self, joint: usize) -> [u8; TRANSFER_BYTES] {
+        if self.chance(self.dropouts) {
+            return [0xFF; TRANSFER_BYTES];
+        }
+        let position =
+            (self.counts[joint] as i64 + self.noise() as i64).rem_euclid(COUNTS_PER_TURN as i64) as u32;
+        let error = self.chance(self.error_bits);
+        let warning = self.chance(self.warnings);
+        let mut frame = biss::encode(position, error, warning, 1 + self.next() % 3);
+        if self.chance(self.crc_errors) {
+            frame.bits ^= 1 << (6 + self.next() % 24); // a flipped data bit
+        }
+        transfer_bytes(frame)
+    }
+}
+
+/// The encoders shared by the six SPI devices and whoever sets the pose and faults.
+pub type SharedEncoders<M> = Mutex<M, RefCell<EmulatedEncoders>>;
+
+/// One emulated encoder as an SPI device.
+pub struct EmulatedEncoder<'a, M: RawMutex> {
+    encoders: &'a SharedEncoders<M>,
+    joint: usize,
+}
+
+impl<'a, M: RawMutex> EmulatedEncoder<'a, M> {
+    /// The six devices, base to tip.
+    pub fn all(encoders: &'a SharedEncoders<M>) -> [Self; JOINTS] {
+        core::array::from_fn(|joint| EmulatedEncoder { encoders, joint })
+    }
+}
+
+impl<M: RawMutex> ErrorType for EmulatedEncoder<'_, M> {
+    type Error = Infallible;
+}
+
+impl<M: RawMutex> SpiDevice for EmulatedEncoder<'_, M> {
+    async fn transaction(&mut self, operations: &mut [Operation<'_, u8>]) -> Result<(), Infallible> {
+        for op in operations {
+            let (Operation::Read(buf) | Operation::Transfer(buf, _) | Operation::TransferInPlace(buf)) = op
+            else {
+                continue;
+            };
+            let answer = self.encoders.lock(|e| e.borrow_mut().answer(self.joint));
+            for (k, b) in buf.iter_mut().enumerate() {
+                *b = answer.get(k).copied().unwrap_or(0);
+            }
+        }
+        Ok(())
+    }
+}

@@ -7,7 +7,6 @@ step() { echo; echo "== $*"; }
 
 step "formatting (rustfmt.toml)"
 cargo fmt --all --check
-cargo fmt --all --check --manifest-path firmware/Cargo.toml
 
 step "lints: the workspace (protocol, host, tests)"
 cargo clippy --release --workspace --all-targets -- -D warnings
@@ -19,8 +18,8 @@ step "both firmware images: the emulated controller and the real board"
 cargo build-emulated
 cargo build-stm32
 
-step "firmware logic on the host (its own workspace)"
-cargo test --manifest-path firmware/Cargo.toml --release
+step "firmware (its own workspace): fmt, clippy -D warnings for both boards, logic tests on the host"
+scripts/firmware-check
 
 step "every test of the workspace"
 cargo test --workspace --release

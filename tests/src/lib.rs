@@ -4,6 +4,8 @@
 //! windows on the host, behind a TCP server on 127.0.0.1, so host logic and the `kincal` CLI can
 //! be tested fast and without QEMU. Ticks run `speedup` times faster than 768 Hz.
 
+pub mod haptic_gen;
+
 use kincal_firmware::controller::{Action, Controller};
 use kincal_firmware::encoders::{EncoderBus, Sampler};
 use kincal_firmware::flash::RamNor;

@@ -279,6 +279,8 @@ pub struct GenTruth {
     pub floor_deg: f64,
     /// Tracker samples written to verify/hip.csv that are not wild.
     pub verify_samples: usize,
+    /// Wild samples written, all streams.
+    pub wild_written: usize,
 }
 
 /// Forward kinematics of the paper (eqs. 7, 8 and 10), true angles in radians: HIP (mm) and
@@ -406,6 +408,8 @@ fn gaps(rng: &mut ChaCha8Rng, seconds: f64, fraction: f64) -> Vec<(f64, f64)> {
 /// Generate a recording into `dir` (created) and return its truth.
 pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
+    // Wild samples from their own stream: with and without them the recordings are the same.
+    let mut wild_rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x5eed_0f_3a1d_u64);
     let uniform = |rng: &mut ChaCha8Rng, a: f64| a * (2.0 * rng.random::<f64>() - 1.0);
     let (l1, l2) = options.phantom.links_mm();
     // Joint encoders after a poor reset: offsets of a few degrees, small gain errors.
@@ -465,7 +469,7 @@ pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
         ("landmarks", 14.0, &["hip", "t1", "t2"]),
         ("verify", (0.5 * options.joints_seconds).max(10.0), &["hip"]),
     ];
-    let (mut floor_p, mut floor_a, mut floor_n) = (0.0, 0.0, 0usize);
+    let (mut floor_p, mut floor_a, mut floor_n, mut wild_written) = (0.0, 0.0, 0usize, 0usize);
     for (name, seconds, targets) in steps {
         let folder = dir.join(name);
         std::fs::create_dir_all(&folder)?;
@@ -505,7 +509,7 @@ pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
             let lost = gaps(&mut rng, seconds, options.occlusion);
             let n = (seconds * options.tracker_hz) as usize;
             let wild: Vec<usize> = (0..options.wild_per_stream)
-                .map(|_| 20 + (rng.random::<f64>() * (n - 40) as f64) as usize)
+                .map(|_| 20 + (wild_rng.random::<f64>() * (n - 40) as f64) as usize)
                 .collect();
             let mut text = String::with_capacity(n * 90);
             text.push_str(target_header);
@@ -532,6 +536,7 @@ pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
                 let mut p_meas = add(&to_tracker(&p), &[0, 1, 2].map(|_| options.noise_mm * gauss(&mut rng)));
                 let is_wild = wild.contains(&k);
                 let r_meas = if is_wild {
+                    wild_written += 1;
                     p_meas[(k % 3) as usize] += if k % 2 == 0 { 10_000.0 } else { -10_000.0 };
                     mul(&r_meas, &rotvec(&[0.9, -1.4, 0.6]))
                 } else {
@@ -574,6 +579,7 @@ pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
         floor_mm: (floor_p / floor_n.max(1) as f64).sqrt(),
         floor_deg: (floor_a / floor_n.max(1) as f64).sqrt(),
         verify_samples: floor_n,
+        wild_written,
     })
 }
 

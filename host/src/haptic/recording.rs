@@ -153,6 +153,29 @@ impl JointConvention {
         v
     }
 
+    /// The CSV row (raw1…raw6 as written) of model-convention readings `v`: the inverse of
+    /// [`JointConvention::apply`].
+    pub fn invert(&self, v: &[f64; 6]) -> [f64; 6] {
+        let unit = match self.unit {
+            AngleUnit::Rad => 1.0,
+            AngleUnit::Deg => std::f64::consts::PI / 180.0,
+        };
+        let mut v = *v;
+        if self.theta3 == Theta3::Relative {
+            v[2] -= v[1];
+        }
+        let mut row = [0.0; 6];
+        for j in 0..6 {
+            row[self.columns[j] - 1] = v[j] / (unit * self.sign[j]);
+        }
+        row
+    }
+
+    /// As `recording.json` spells it.
+    pub fn json(&self) -> String {
+        serde_json::to_string(self).unwrap_or_default()
+    }
+
     fn check(&self) -> Result<(), String> {
         if let Some(s) = self.sign.iter().find(|s| **s != 1.0 && **s != -1.0) {
             return Err(format!("field `joint_convention.sign`: expected six values of 1 or -1, found {s}"));

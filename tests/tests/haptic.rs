@@ -255,7 +255,12 @@ fn recordings_that_cannot_be_trusted_are_refused_naming_the_cause() {
         (
             "swapped-columns",
             GenOptions { recorded: swapped, ..base.clone() },
-            vec!["joint calibration (joints/) failed", "columns of θ2 and θ3 are swapped"],
+            vec![
+                "failed",
+                "joint convention looks wrong",
+                "columns of θ2 and θ3 are swapped",
+                "\"columns\":[1,3,2,4,5,6]",
+            ],
         ),
         (
             "little-motion",

@@ -62,6 +62,16 @@ pub enum HapticError {
     /// No delay could be estimated.
     #[error("{0}")]
     Delay(#[from] DelayError),
+    /// No delay, and a different joint convention would give one.
+    #[error(
+        "no delay with the declared joint convention ({error}); the joint convention looks wrong — {hint}"
+    )]
+    DelayConvention {
+        /// The delay error with the declared convention.
+        error: DelayError,
+        /// The convention that gives a clear delay.
+        hint: String,
+    },
     /// The delay kept changing between rounds.
     #[error("the delay did not settle within {MAX_DELAY_ROUNDS} rounds (ms: {0:?}); the tracker's timestamps may not be on the host clock")]
     DelayUnsettled(Vec<f64>),
@@ -539,6 +549,44 @@ fn alternatives(declared: &JointConvention) -> Vec<(String, JointConvention)> {
     out
 }
 
+/// `rec` read with the joint convention `c` instead of the declared one.
+fn reconverted(rec: &Recording, c: &JointConvention) -> Recording {
+    let mut out = rec.clone();
+    for step in out.steps.values_mut() {
+        for r in step.device.raw.iter_mut() {
+            *r = c.apply(&rec.convention.invert(r));
+        }
+    }
+    out.convention = *c;
+    out
+}
+
+/// The first delay estimate: pose-based transform (Horn) on the delay step, uncalibrated joints.
+fn first_delay(ctx: &Context) -> Result<super::delay::DelayEstimate, HapticError> {
+    let delay_step = step(ctx.rec, "delay")?;
+    let horn = pose_based_transform(&ctx.device, &ctx.correspondences(&ctx.aligned(delay_step, 0.0)?));
+    ctx.delay(&[SensorModel::IDENTITY; 3], &horn)
+}
+
+/// Which single convention change gives the clearest delay where the declared one gives none.
+fn delay_convention(ctx: &Context) -> Option<String> {
+    alternatives(&ctx.rec.convention)
+        .into_iter()
+        .filter_map(|(what, c)| {
+            let alt = reconverted(ctx.rec, &c);
+            first_delay(&Context { rec: &alt, ..*ctx }).ok().map(|e| (what, c, e))
+        })
+        .max_by(|a, b| a.2.correlation.total_cmp(&b.2.correlation))
+        .map(|(what, c, estimate)| {
+            format!(
+                "{what}: with \"joint_convention\": {} in recording.json the streams correlate ({:.3}) at {:.1} ms",
+                c.json(),
+                estimate.correlation,
+                estimate.delay_ms
+            )
+        })
+}
+
 /// Which single convention change explains the joints data, if any: its description, the
 /// convention and its held-out residual.
 fn diagnose_convention(
@@ -575,12 +623,15 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
     let ctx = Context { rec, device, tip: pivot.tip_mm };
     let noise_mm = pivot.rms_mm.max(0.01);
     // 2. Delay with the pose-based transform on the delay step itself.
-    let delay_step = step(rec, "delay").map_err(fail(STEP_DELAY))?;
-    let horn = pose_based_transform(
-        &device,
-        &ctx.correspondences(&ctx.aligned(delay_step, 0.0).map_err(fail(STEP_DELAY))?),
-    );
-    let first = ctx.delay(&[SensorModel::IDENTITY; 3], &horn).map_err(fail(STEP_DELAY))?;
+    let first = first_delay(&ctx).map_err(|e| match e {
+        HapticError::Delay(error @ (DelayError::AtWindowEdge { .. } | DelayError::NoClearPeak { .. })) => {
+            match delay_convention(&ctx) {
+                Some(hint) => fail(STEP_DELAY)(HapticError::DelayConvention { error, hint }),
+                None => fail(STEP_DELAY)(HapticError::Delay(error)),
+            }
+        }
+        other => fail(STEP_DELAY)(other),
+    })?;
     let mut delay_ms = first.delay_ms;
     let mut delay_rounds_ms = vec![delay_ms];
     // 3. Enough motion and samples in joints/.

@@ -143,7 +143,7 @@ mod tests {
                     direction: Vector3::z(),
                     position_mm: Vector3::new(x, (k / 10 % 10) as f64, (k / 100) as f64),
                     // Only the high-x third is off, by 1 mm along y.
-                    error_mm: if x >= 70.0 { Vector3::new(0.0, 1.0, 0.0) } else { Vector3::zeros() },
+                    error_mm: if x >= 60.0 { Vector3::new(0.0, 1.0, 0.0) } else { Vector3::zeros() },
                     axis_error_deg: 0.1,
                     theta_deg: [x / 10.0, 0.0, 0.0],
                 }

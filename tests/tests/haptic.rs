@@ -267,6 +267,35 @@ fn recordings_that_cannot_be_trusted_are_refused_naming_the_cause() {
             GenOptions { motion_scale: 0.1, ..base.clone() },
             vec!["joint calibration (joints/) failed", "too little motion", "θ1 moved through"],
         ),
+        (
+            "theta1-sign",
+            GenOptions {
+                recorded: Convention { sign: [-1.0, 1.0, 1.0, 1.0, 1.0, 1.0], ..Convention::default() },
+                ..base.clone()
+            },
+            vec![
+                "failed",
+                "joint convention looks wrong",
+                "θ1 has the opposite sign",
+                "\"sign\":[-1.0,1.0,1.0,1.0,1.0,1.0]",
+            ],
+        ),
+        (
+            "theta4-sign",
+            GenOptions {
+                recorded: Convention { sign: [1.0, 1.0, 1.0, -1.0, 1.0, 1.0], ..Convention::default() },
+                ..base.clone()
+            },
+            vec!["gimbal calibration (gimbal/, reference/) failed", "θ4 has the opposite sign"],
+        ),
+        (
+            "gimbal-columns",
+            GenOptions {
+                recorded: Convention { columns: [1, 2, 3, 5, 4, 6], ..Convention::default() },
+                ..base.clone()
+            },
+            vec!["gimbal calibration (gimbal/, reference/) failed", "columns of θ4 and θ5 are swapped"],
+        ),
         ("late-tracker", GenOptions { delay_ms: 500.0, ..base.clone() }, vec!["time delay (delay/) failed"]),
         (
             "degrees",

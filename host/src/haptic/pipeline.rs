@@ -106,6 +106,14 @@ pub enum HapticError {
         /// The likely cause.
         hint: String,
     },
+    /// Another gimbal convention explains the data far better.
+    #[error("the held-out stylus-axis error is {declared_deg:.3}° with the declared joint convention; the joint convention looks wrong — {hint}")]
+    GimbalConvention {
+        /// Held-out axis error with the declared convention, degrees.
+        declared_deg: f64,
+        /// The convention that explains the data.
+        hint: String,
+    },
     /// The calibration made the device worse.
     #[error("the {quantity} error on held-out samples is worse after calibration ({before:.3} → {after:.3} {unit}); likely cause: {hint}")]
     Worse {
@@ -587,6 +595,80 @@ fn delay_convention(ctx: &Context) -> Option<String> {
         })
 }
 
+/// The single changes of the gimbals' convention tried: a sign of θ4 or θ5, their columns
+/// swapped.
+fn gimbal_alternatives(declared: &JointConvention) -> Vec<(String, JointConvention)> {
+    let mut out = Vec::new();
+    for j in 3..5 {
+        let mut c = *declared;
+        c.sign[j] = -c.sign[j];
+        out.push((format!("θ{} has the opposite sign", j + 1), c));
+    }
+    let mut c = *declared;
+    c.columns.swap(3, 4);
+    out.push(("the columns of θ4 and θ5 are swapped".to_string(), c));
+    out
+}
+
+/// A declared gimbal convention is refused when another explains the data with less than this
+/// fraction of its held-out axis error.
+pub const GIMBAL_CONVENTION_RATIO: f64 = 0.33;
+
+/// The orientation reference and gimbal calibration with calibrated joints and transform.
+struct GimbalStage<'a> {
+    device: &'a Device,
+    joints: &'a [SensorModel; 3],
+    eh: &'a Transform,
+}
+
+impl GimbalStage<'_> {
+    /// Reference and gimbals with the readings taken as convention `c` instead of `declared`.
+    fn run(
+        &self,
+        roll: &[Aligned],
+        gimbal: &[Aligned],
+        joints: &[Aligned],
+        declared: &JointConvention,
+        c: &JointConvention,
+    ) -> Result<(super::reference::OrientationReference, super::gimbal::GimbalCalibration), ReferenceError>
+    {
+        let (device, eh) = (self.device, self.eh);
+        let sensors = with_joints(self.joints);
+        let convert = |raw: &[f64; 6]| if c == declared { *raw } else { c.apply(&declared.invert(raw)) };
+        let frames: Vec<Pose> = roll
+            .iter()
+            .map(|a| {
+                let r = convert(&a.raw);
+                let th = angles(&sensors, &[r[0], r[1], r[2], r[3], r[4], 0.0]);
+                (device.rotation(&th), device.position_mm(&th))
+            })
+            .collect();
+        let targets: Vec<Pose> = roll.iter().map(|a| a.pose).collect();
+        let reference = orientation_reference(&targets, &frames, eh)?;
+        let sample = |a: &Aligned, roll: Option<f64>| {
+            let r = convert(&a.raw);
+            let th = angles(&sensors, &r);
+            GimbalSample {
+                theta123: [th[0], th[1], th[2]],
+                raw: [r[3], r[4], r[5]],
+                axis: eh.0.transpose() * (a.pose.0 * reference.axis_in_target),
+                roll,
+            }
+        };
+        let samples: Vec<GimbalSample> = gimbal
+            .iter()
+            .chain(joints.iter())
+            .map(|a| sample(a, None))
+            .chain(roll.iter().zip(&reference.roll).map(|(a, r)| sample(a, Some(*r))))
+            .collect();
+        // Every fourth sample is held out to choose the gimbal model.
+        let held: Vec<GimbalSample> = samples.iter().step_by(4).copied().collect();
+        let fit: Vec<GimbalSample> =
+            samples.iter().enumerate().filter(|(i, _)| i % 4 != 0).map(|(_, s)| *s).collect();
+        Ok((reference, calibrate_gimbals(device, &fit, &held)))
+    }
+}
+
 /// Which single convention change explains the joints data, if any: its description, the
 /// convention and its held-out residual.
 fn diagnose_convention(
@@ -727,45 +809,35 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
     let joints = ctx.spread(&all_joints);
     let eh = position.transform;
     let mut sensors = with_joints(&position.joints);
-    // 7. Orientation reference from the roll, then the gimbals.
+    // 7. Orientation reference from the roll, then the gimbals — with the declared convention,
+    //    and with each single change of the gimbals' convention: one that explains the data far
+    //    better means the declared one is wrong.
     let roll_samples = ctx
         .aligned(step(rec, "reference").map_err(fail(STEP_REFERENCE))?, delay_ms)
         .map_err(fail(STEP_REFERENCE))?;
-    let frames: Vec<Pose> = roll_samples
-        .iter()
-        .map(|a| {
-            let th = angles(&sensors, &[a.raw[0], a.raw[1], a.raw[2], a.raw[3], a.raw[4], 0.0]);
-            (device.rotation(&th), device.position_mm(&th))
+    let gimbal_aligned = ctx.spread(&ctx.aligned(gimbal_step, delay_ms).map_err(fail(STEP_GIMBALS))?);
+    let stage = GimbalStage { device: &device, joints: &position.joints, eh: &eh };
+    let declared = rec.convention;
+    let (reference, gimbals) = stage
+        .run(&roll_samples, &gimbal_aligned, &joints, &declared, &declared)
+        .map_err(|e| fail(STEP_REFERENCE)(e.into()))?;
+    let declared_deg = gimbals.held_out_deg.0.min(gimbals.held_out_deg.1);
+    let better = gimbal_alternatives(&declared)
+        .into_iter()
+        .filter_map(|(what, c)| {
+            let (_, g) = stage.run(&roll_samples, &gimbal_aligned, &joints, &declared, &c).ok()?;
+            Some((what, c, g.held_out_deg.0.min(g.held_out_deg.1)))
         })
-        .collect();
-    let targets: Vec<Pose> = roll_samples.iter().map(|a| a.pose).collect();
-    let reference =
-        orientation_reference(&targets, &frames, &eh).map_err(|e| fail(STEP_REFERENCE)(e.into()))?;
-    let gimbal_aligned = ctx.aligned(gimbal_step, delay_ms).map_err(fail(STEP_GIMBALS))?;
-    let mut gimbal_samples: Vec<GimbalSample> = Vec::new();
-    for a in ctx.spread(&gimbal_aligned).iter().chain(joints.iter()) {
-        let th = angles(&sensors, &a.raw);
-        gimbal_samples.push(GimbalSample {
-            theta123: [th[0], th[1], th[2]],
-            raw: [a.raw[3], a.raw[4], a.raw[5]],
-            axis: eh.0.transpose() * (a.pose.0 * reference.axis_in_target),
-            roll: None,
-        });
+        .min_by(|a, b| a.2.total_cmp(&b.2));
+    if let Some((what, c, deg)) = better.filter(|b| b.2 < GIMBAL_CONVENTION_RATIO * declared_deg) {
+        return Err(fail(STEP_GIMBALS)(HapticError::GimbalConvention {
+            declared_deg,
+            hint: format!(
+                "{what}: with \"joint_convention\": {} in recording.json the held-out axis error would be {deg:.3}°",
+                c.json()
+            ),
+        }));
     }
-    for (a, roll) in roll_samples.iter().zip(&reference.roll) {
-        let th = angles(&sensors, &a.raw);
-        gimbal_samples.push(GimbalSample {
-            theta123: [th[0], th[1], th[2]],
-            raw: [a.raw[3], a.raw[4], a.raw[5]],
-            axis: eh.0.transpose() * (a.pose.0 * reference.axis_in_target),
-            roll: Some(*roll),
-        });
-    }
-    // Every fourth sample is held out to choose the gimbal model.
-    let held_g: Vec<GimbalSample> = gimbal_samples.iter().step_by(4).copied().collect();
-    let fit_g: Vec<GimbalSample> =
-        gimbal_samples.iter().enumerate().filter(|(i, _)| i % 4 != 0).map(|(_, s)| *s).collect();
-    let gimbals = calibrate_gimbals(&device, &fit_g, &held_g);
     sensors[3..].copy_from_slice(&gimbals.sensors);
     // 8. Held-out errors: verify/ if recorded, else the held-out blocks of joints/.
     let verify = match rec.steps.get("verify") {

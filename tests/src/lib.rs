@@ -4,6 +4,8 @@
 //! emulated encoders, encoder sampling and windows on the host, behind a TCP server on 127.0.0.1, so host logic and the `kincal` CLI can
 //! be tested fast and without QEMU. Ticks run `speedup` times faster than 768 Hz.
 
+pub mod haptic_gen;
+
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use kincal_firmware::biss_master::BissMaster;
 use kincal_firmware::controller::{Action, Controller};

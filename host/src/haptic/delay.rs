@@ -1,21 +1,29 @@
 //! Time delay between the external tracker and the haptic device.
 //!
 //! Both streams, in a common frame, are reduced to one signal each (the distance from the
-//! device origin), resampled to a 1 ms grid by linear interpolation over their common span,
-//! cut into chunks of [`CHUNK_MS`], and for every lag in ±[`MAX_LAG_MS`] the Pearson correlation
-//! of each chunk with the other signal shifted by that lag is averaged over the chunks (as in the
-//! reference implementation). The best lag is refined below the 1 ms grid by a parabola through
-//! the peak and its neighbours. A positive delay means the tracker's samples arrive later than
-//! the device's for the same motion.
+//! device origin) on a 1 ms grid. The tracker stream is cut at its occlusion gaps (never
+//! interpolated across one) and its unbroken pieces into chunks of up to [`CHUNK_MS`] (at least
+//! [`MIN_CHUNK_MS`]); for every lag in ±[`MAX_LAG_MS`] the Pearson correlation of each chunk with
+//! the device signal shifted by that lag is averaged over the chunks, weighted by their length
+//! (as in the reference implementation, which uses 2000 ms chunks). The best lag is refined
+//! below the 1 ms grid by a parabola through the peak and its neighbours. A positive delay means
+//! the tracker's samples arrive later than the device's for the same motion. A peak at the edge
+//! of the window or a weak peak is an error, never a result.
+
+use super::recording::{segments, SEGMENT_GAP_FACTOR};
 
 /// Resampling step, ms.
 pub const STEP_MS: f64 = 1.0;
 /// Chunk length, ms.
 pub const CHUNK_MS: usize = 2000;
+/// Shortest chunk used (an unbroken piece of tracker data between occlusions), ms.
+pub const MIN_CHUNK_MS: usize = 500;
 /// Largest delay searched, ms.
 pub const MAX_LAG_MS: i64 = 200;
 /// Smallest standard deviation of the distance signal accepted, mm.
 pub const MIN_MOTION_MM: f64 = 2.0;
+/// Smallest correlation at the peak accepted.
+pub const MIN_PEAK_CORRELATION: f64 = 0.9;
 
 /// Why no delay could be estimated.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -32,13 +40,13 @@ pub enum DelayError {
         /// Time after, s.
         after: f64,
     },
-    /// The streams overlap too briefly for one chunk plus the lag window.
+    /// Too little unbroken tracker data overlapping the device stream.
     #[error(
-        "the streams overlap for {overlap_ms:.0} ms; at least {needed_ms} ms of common motion are needed"
+        "only {usable_ms:.0} ms of unbroken tracker data (pieces of at least {MIN_CHUNK_MS} ms between occlusions, {MAX_LAG_MS} ms inside the device stream's ends); at least {needed_ms} ms are needed"
     )]
     TooShort {
-        /// Overlap, ms.
-        overlap_ms: f64,
+        /// Usable tracker data, ms.
+        usable_ms: f64,
         /// Needed, ms.
         needed_ms: usize,
     },
@@ -47,6 +55,20 @@ pub enum DelayError {
     TooLittleMotion {
         /// Standard deviation of the signal, mm.
         std_mm: f64,
+    },
+    /// The best lag is at the edge of the search window.
+    #[error("the delay search ended at its window edge ({lag_ms:+.0} ms of ±{MAX_LAG_MS} ms): the tracker is more than {MAX_LAG_MS} ms late or early, or its timestamps are not on the host clock; no delay is reported")]
+    AtWindowEdge {
+        /// The lag at the edge, ms.
+        lag_ms: f64,
+    },
+    /// No lag makes the two signals agree.
+    #[error("no clear correlation peak: the best lag ({lag_ms:+.1} ms) correlates the streams by {correlation:.2} only (≥ {MIN_PEAK_CORRELATION} needed); the tracker may be more than {MAX_LAG_MS} ms off, or the streams are not of the same motion")]
+    NoClearPeak {
+        /// The best lag, ms.
+        lag_ms: f64,
+        /// Its mean correlation.
+        correlation: f64,
     },
 }
 
@@ -58,6 +80,17 @@ pub struct Signal<'a> {
     pub t_s: &'a [f64],
     /// Values.
     pub value: &'a [f64],
+}
+
+/// A delay estimate.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DelayEstimate {
+    /// Tracker behind device, ms.
+    pub delay_ms: f64,
+    /// Mean correlation at the peak.
+    pub correlation: f64,
+    /// Tracker data used, ms.
+    pub used_ms: f64,
 }
 
 fn check(s: &Signal) -> Result<(), DelayError> {
@@ -99,51 +132,82 @@ fn pearson(a: &[f64], b: &[f64]) -> f64 {
     }
 }
 
-/// Estimate by how much `tracker` lags `device`, in milliseconds.
-pub fn estimate_delay_ms(device: &Signal, tracker: &Signal) -> Result<f64, DelayError> {
+/// A chunk of the tracker signal on the device's 1 ms grid: first grid index, values.
+struct Chunk {
+    first: usize,
+    values: Vec<f64>,
+}
+
+/// Estimate by how much `tracker` lags `device`.
+pub fn estimate_delay_ms(device: &Signal, tracker: &Signal) -> Result<DelayEstimate, DelayError> {
     check(device)?;
     check(tracker)?;
-    let needed_ms = CHUNK_MS + 2 * MAX_LAG_MS as usize;
-    let start = device.t_s.first().copied().unwrap_or(0.0).max(tracker.t_s.first().copied().unwrap_or(0.0));
-    let end = device.t_s.last().copied().unwrap_or(0.0).min(tracker.t_s.last().copied().unwrap_or(0.0));
-    let overlap_ms = (end - start) * 1000.0;
-    if device.t_s.len() < 2 || tracker.t_s.len() < 2 || overlap_ms < needed_ms as f64 {
-        return Err(DelayError::TooShort { overlap_ms: overlap_ms.max(0.0), needed_ms });
+    let too_short = |usable_ms: f64| DelayError::TooShort { usable_ms, needed_ms: CHUNK_MS };
+    if device.t_s.len() < 2 || tracker.t_s.len() < 2 {
+        return Err(too_short(0.0));
     }
-    let n = (overlap_ms / STEP_MS) as usize;
-    let grid = |s: &Signal| -> Vec<f64> {
-        (0..n).map(|k| interpolate(s.t_s, s.value, start + k as f64 * STEP_MS / 1000.0)).collect()
-    };
-    let (d, t) = (grid(device), grid(tracker));
-    let mean = t.iter().sum::<f64>() / n as f64;
-    let std_mm = (t.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n as f64).sqrt();
+    let step_s = STEP_MS / 1000.0;
+    let start = device.t_s[0];
+    let n = ((device.t_s[device.t_s.len() - 1] - start) / step_s) as usize;
+    let d: Vec<f64> =
+        (0..n).map(|k| interpolate(device.t_s, device.value, start + k as f64 * step_s)).collect();
+    let lag_max = MAX_LAG_MS as usize;
+    // Tracker chunks inside unbroken segments, on the device grid, clear of the device ends.
+    let mut chunks: Vec<Chunk> = Vec::new();
+    for seg in segments(tracker.t_s, SEGMENT_GAP_FACTOR) {
+        if seg.len() < 2 {
+            continue;
+        }
+        let (ts, vs) = (&tracker.t_s[seg.clone()], &tracker.value[seg]);
+        let first = (((ts[0] - start) / step_s).ceil().max(0.0) as usize).max(lag_max);
+        let last = (((ts[ts.len() - 1] - start) / step_s).floor().max(0.0) as usize)
+            .min(n.saturating_sub(lag_max + 1));
+        let mut k = first;
+        while k + MIN_CHUNK_MS <= last + 1 {
+            let len = CHUNK_MS.min(last + 1 - k);
+            let len = if last + 1 - (k + len) < MIN_CHUNK_MS { last + 1 - k } else { len };
+            let values = (k..k + len).map(|g| interpolate(ts, vs, start + g as f64 * step_s)).collect();
+            chunks.push(Chunk { first: k, values });
+            k += len;
+        }
+    }
+    let used: usize = chunks.iter().map(|c| c.values.len()).sum();
+    if used < CHUNK_MS {
+        return Err(too_short(used as f64 * STEP_MS));
+    }
+    let all: Vec<f64> = chunks.iter().flat_map(|c| c.values.iter().copied()).collect();
+    let mean = all.iter().sum::<f64>() / all.len() as f64;
+    let std_mm = (all.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / all.len() as f64).sqrt();
     if std_mm < MIN_MOTION_MM {
         return Err(DelayError::TooLittleMotion { std_mm });
     }
-    // Chunks of the tracker signal, kept clear of the ends by the lag window.
-    let lag_max = MAX_LAG_MS as usize;
-    let chunk_starts: Vec<usize> =
-        (lag_max..n.saturating_sub(CHUNK_MS + lag_max) + 1).step_by(CHUNK_MS).collect();
     let score = |lag: i64| -> f64 {
-        chunk_starts
+        chunks
             .iter()
-            .map(|&s| {
-                let shifted = (s as i64 - lag) as usize;
-                pearson(&t[s..s + CHUNK_MS], &d[shifted..shifted + CHUNK_MS])
+            .map(|c| {
+                let shifted = (c.first as i64 - lag) as usize;
+                pearson(&c.values, &d[shifted..shifted + c.values.len()]) * c.values.len() as f64
             })
             .sum::<f64>()
-            / chunk_starts.len() as f64
+            / used as f64
     };
-    let scores: Vec<f64> = (-MAX_LAG_MS..MAX_LAG_MS).map(score).collect();
+    let scores: Vec<f64> = (-MAX_LAG_MS..=MAX_LAG_MS).map(score).collect();
     let best = scores.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).map_or(0, |b| b.0);
     let lag = best as f64 - MAX_LAG_MS as f64;
     if best == 0 || best + 1 >= scores.len() {
-        return Ok(lag * STEP_MS);
+        return Err(DelayError::AtWindowEdge { lag_ms: lag * STEP_MS });
+    }
+    if scores[best] < MIN_PEAK_CORRELATION {
+        return Err(DelayError::NoClearPeak { lag_ms: lag * STEP_MS, correlation: scores[best] });
     }
     let (a, b, c) = (scores[best - 1], scores[best], scores[best + 1]);
     let denom = a - 2.0 * b + c;
     let offset = if denom.abs() > 1e-15 { 0.5 * (a - c) / denom } else { 0.0 };
-    Ok((lag + offset.clamp(-0.5, 0.5)) * STEP_MS)
+    Ok(DelayEstimate {
+        delay_ms: (lag + offset.clamp(-0.5, 0.5)) * STEP_MS,
+        correlation: scores[best],
+        used_ms: used as f64 * STEP_MS,
+    })
 }
 
 #[cfg(test)]
@@ -172,7 +236,8 @@ mod tests {
                 &Signal { name: "device", t_s: &dev_t, value: &dev_v },
                 &Signal { name: "tracker", t_s: &trk_t, value: &trk_v },
             )
-            .unwrap();
+            .unwrap()
+            .delay_ms;
             assert!((got - true_ms).abs() < 0.25, "true {true_ms} ms, estimated {got} ms");
         }
     }
@@ -197,5 +262,37 @@ mod tests {
             estimate_delay_ms(&s("device", &t[..1000], &v[..1000]), &s("tracker", &t[..1000], &v[..1000])),
             Err(DelayError::TooShort { .. })
         ));
+    }
+
+    #[test]
+    fn occlusions_are_skipped_and_a_delay_beyond_the_window_is_refused() {
+        let dev_t: Vec<f64> = (0..30_000).map(|k| k as f64 * 1e-3).collect();
+        let dev_v: Vec<f64> = dev_t.iter().map(|&t| motion(t)).collect();
+        let tracker = |true_ms: f64| -> (Vec<f64>, Vec<f64>) {
+            // 90 Hz with an occlusion of 50–450 ms every 1.7 s; a wrong value would show if
+            // anything were interpolated across a gap (the values jump there).
+            let t: Vec<f64> = (0..2_700)
+                .map(|k| 0.05 + k as f64 / 90.0)
+                .filter(|t| (t % 1.7) > 0.05 + 0.4 * ((t / 1.7).floor() * 0.37).fract())
+                .collect();
+            let v = t.iter().map(|&x| motion(x - true_ms / 1000.0)).collect();
+            (t, v)
+        };
+        let (t, v) = tracker(11.6);
+        let got = estimate_delay_ms(
+            &Signal { name: "device", t_s: &dev_t, value: &dev_v },
+            &Signal { name: "tracker", t_s: &t, value: &v },
+        )
+        .unwrap();
+        assert!((got.delay_ms - 11.6).abs() < 0.25, "{got:?}");
+        let lost_ms: f64 = t.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.03).sum::<f64>() * 1000.0;
+        assert!(lost_ms > 3000.0 && got.used_ms < 30_000.0 - lost_ms, "the gaps are not used: {got:?}");
+        let (t, v) = tracker(450.0);
+        let err = estimate_delay_ms(
+            &Signal { name: "device", t_s: &dev_t, value: &dev_v },
+            &Signal { name: "tracker", t_s: &t, value: &v },
+        )
+        .unwrap_err();
+        assert!(matches!(err, DelayError::AtWindowEdge { .. } | DelayError::NoClearPeak { .. }), "{err}");
     }
 }

@@ -16,8 +16,10 @@
 //! * [`pipeline`] — the whole procedure over a recording; [`simulate`] — recordings with known
 //!   truth.
 //!
+//! * [`clean`] — wild tracker samples; [`report_data`] — where the held-out errors are.
 //! * [`select`] — k-means sample selection (N = 200, seeded, re-clustered every iteration).
 
+pub mod clean;
 pub mod delay;
 pub mod gimbal;
 pub mod kinematics;
@@ -27,5 +29,6 @@ pub mod pivot;
 pub mod position;
 pub mod recording;
 pub mod reference;
+pub mod report_data;
 pub mod select;
 pub mod simulate;

@@ -291,7 +291,7 @@ mod tests {
                 &b.verify,
             ));
             let [p1, p2, p3] = b.landmarks;
-            let landmark_eh = initial_transform(&b.device, p1, p2, p3).unwrap();
+            let landmark_eh = initial_transform(&b.device, p1, (p2 - p1).normalize(), p3).unwrap();
             let iterations = 4;
             let with_landmarks = calibrate_position(
                 &b.device,

@@ -1,13 +1,20 @@
 //! The haptic recording folder (`haptic-recording/1`).
 //!
-//! `recording.json` = `{"format":"haptic-recording/1","device":"omni"|"premium15","l1_mm":…,"l2_mm":…}`
-//! and one subfolder per step of the procedure: `delay/`, `gimbal/`, `reference/`, `joints/`
-//! (each `device.csv` + `hip.csv`), `landmarks/` (`device.csv`, `hip.csv`, `t1.csv`, `t2.csv`) and
-//! optionally `verify/`. `device.csv` has the header `t_s,raw1,raw2,raw3,raw4,raw5,raw6` (radians
-//! as the driver reports them, 500–1000 Hz); each tracking target's CSV has
-//! `t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz` (target pose in tracker coordinates, 60–240 Hz). All times
-//! are on the host clock. Every sample is checked: numbers finite, times increasing, no gap
-//! longer than [`MAX_GAP_FACTOR`] median sample periods (at least [`MIN_GAP_S`]), unit quaternions.
+//! `recording.json` = `{"format":"haptic-recording/1","device":"omni"|"premium15","l1_mm":…,"l2_mm":…,
+//! "joint_convention":{…}}` (the last optional, see [`JointConvention`]) and one subfolder per
+//! step of the procedure: `delay/`, `gimbal/`, `reference/`, `joints/` (each `device.csv` +
+//! `hip.csv`), `landmarks/` (`device.csv`, `hip.csv`, `t1.csv`, `t2.csv`) and optionally
+//! `verify/`. `device.csv` has the header `t_s,raw1,raw2,raw3,raw4,raw5,raw6` (as the driver
+//! reports them, 500–1000 Hz); each tracking target's CSV has `t_s,x_mm,y_mm,z_mm,qw,qx,qy,qz`
+//! (target pose in tracker coordinates, 60–240 Hz). All times are on the host clock. Every sample
+//! is checked: numbers finite, times increasing, unit quaternions; the device stream may not
+//! drop out for longer than [`MAX_GAP_FACTOR`] median sample periods (at least [`MIN_GAP_S`]).
+//! Tracker streams may have occlusion gaps: they are kept as separate segments
+//! ([`TargetStream::segments`]) and nothing is ever interpolated across a gap.
+//!
+//! The device readings are brought to the model's convention on loading (radians, θ3 absolute,
+//! the signs of the kinematic model); readings beyond ±2π with `"unit":"rad"` are refused as
+//! degrees.
 
 use super::kinematics::Device;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
@@ -24,8 +31,10 @@ pub const REQUIRED_STEPS: [(&str, &[&str]); 5] = [
     ("joints", &["hip"]),
     ("landmarks", &["hip", "t1", "t2"]),
 ];
-/// A gap longer than this many median sample periods is an error.
+/// A device-stream gap longer than this many median sample periods is an error.
 pub const MAX_GAP_FACTOR: f64 = 10.0;
+/// A tracker-stream gap longer than this many median sample periods starts a new segment.
+pub const SEGMENT_GAP_FACTOR: f64 = 3.0;
 /// … but never shorter than this, s.
 pub const MIN_GAP_S: f64 = 0.05;
 const DEVICE_HEADER: &str = "t_s,raw1,raw2,raw3,raw4,raw5,raw6";
@@ -70,12 +79,126 @@ pub enum RecordingError {
     },
 }
 
+/// Unit of the device readings in `device.csv`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AngleUnit {
+    /// Radians.
+    Rad,
+    /// Degrees.
+    Deg,
+}
+
+/// How the driver reports θ3.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Theta3 {
+    /// The angle of the second link itself (the kinematic model's θ3; OpenHaptics
+    /// `HD_CURRENT_JOINT_ANGLES`).
+    Absolute,
+    /// θ3 − θ2, the angle between the two links (as ROS-style joint-state drivers publish).
+    Relative,
+}
+
+/// The driver's joint convention, field `joint_convention` of `recording.json`:
+/// `{"unit":"rad"|"deg","theta3":"absolute"|"relative","sign":[±1 ×6],"columns":[1…6]}`.
+/// Joint j is read from CSV column `raw{columns[j]}`, converted to radians, multiplied by
+/// `sign[j]`, and with `"relative"` θ2 is added to θ3. Every field is optional; the defaults are
+/// [`JointConvention::default_for`] the device.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct JointConvention {
+    /// Unit of the readings.
+    pub unit: AngleUnit,
+    /// θ3 absolute or relative to θ2.
+    pub theta3: Theta3,
+    /// Sign of each joint (+1 or −1) relative to the kinematic model.
+    pub sign: [f64; 6],
+    /// CSV column (1-based) of each joint.
+    pub columns: [usize; 6],
+}
+
+impl Default for JointConvention {
+    fn default() -> Self {
+        JointConvention {
+            unit: AngleUnit::Rad,
+            theta3: Theta3::Absolute,
+            sign: [1.0; 6],
+            columns: [1, 2, 3, 4, 5, 6],
+        }
+    }
+}
+
+impl JointConvention {
+    /// The documented default of a device: for both the Omni and the Premium 1.5 it is what the
+    /// OpenHaptics joint and gimbal angle queries report — radians, θ3 absolute, the kinematic
+    /// model's signs, columns in joint order.
+    pub fn default_for(device: &str) -> JointConvention {
+        match device {
+            "omni" | "premium15" => JointConvention::default(),
+            _ => JointConvention::default(),
+        }
+    }
+
+    /// Model-convention readings of one CSV row (`row` = raw1…raw6 as written).
+    pub fn apply(&self, row: &[f64; 6]) -> [f64; 6] {
+        let unit = match self.unit {
+            AngleUnit::Rad => 1.0,
+            AngleUnit::Deg => std::f64::consts::PI / 180.0,
+        };
+        let mut v: [f64; 6] = std::array::from_fn(|j| row[self.columns[j] - 1] * unit * self.sign[j]);
+        if self.theta3 == Theta3::Relative {
+            v[2] += v[1];
+        }
+        v
+    }
+
+    /// The CSV row (raw1…raw6 as written) of model-convention readings `v`: the inverse of
+    /// [`JointConvention::apply`].
+    pub fn invert(&self, v: &[f64; 6]) -> [f64; 6] {
+        let unit = match self.unit {
+            AngleUnit::Rad => 1.0,
+            AngleUnit::Deg => std::f64::consts::PI / 180.0,
+        };
+        let mut v = *v;
+        if self.theta3 == Theta3::Relative {
+            v[2] -= v[1];
+        }
+        let mut row = [0.0; 6];
+        for j in 0..6 {
+            row[self.columns[j] - 1] = v[j] / (unit * self.sign[j]);
+        }
+        row
+    }
+
+    /// As `recording.json` spells it.
+    pub fn json(&self) -> String {
+        serde_json::to_string(self).unwrap_or_default()
+    }
+
+    fn check(&self) -> Result<(), String> {
+        if let Some(s) = self.sign.iter().find(|s| **s != 1.0 && **s != -1.0) {
+            return Err(format!("field `joint_convention.sign`: expected six values of 1 or -1, found {s}"));
+        }
+        let mut seen = [false; 6];
+        for c in self.columns {
+            if !(1..=6).contains(&c) || std::mem::replace(&mut seen[c - 1], true) {
+                return Err(format!(
+                    "field `joint_convention.columns`: expected a permutation of 1…6, found {:?}",
+                    self.columns
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Raw joint readings of the device.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DeviceStream {
     /// Times, s.
     pub t_s: Vec<f64>,
-    /// Six raw readings per sample, radians.
+    /// Six readings per sample in the model's convention (radians, θ3 absolute).
     pub raw: Vec<[f64; 6]>,
 }
 
@@ -88,6 +211,44 @@ pub struct TargetStream {
     pub position_mm: Vec<Vector3<f64>>,
     /// Orientations (target → tracker).
     pub rotation: Vec<UnitQuaternion<f64>>,
+}
+
+impl TargetStream {
+    /// Index ranges of the unbroken pieces of the stream: a new segment starts after a gap
+    /// longer than [`SEGMENT_GAP_FACTOR`] median sample periods (an occlusion).
+    pub fn segments(&self) -> Vec<std::ops::Range<usize>> {
+        segments(&self.t_s, SEGMENT_GAP_FACTOR)
+    }
+
+    /// The samples at `keep` (indices in increasing order).
+    pub fn subset(&self, keep: &[usize]) -> TargetStream {
+        TargetStream {
+            t_s: keep.iter().map(|&i| self.t_s[i]).collect(),
+            position_mm: keep.iter().map(|&i| self.position_mm[i]).collect(),
+            rotation: keep.iter().map(|&i| self.rotation[i]).collect(),
+        }
+    }
+}
+
+/// Unbroken index ranges of increasing times `t_s`, split where a step exceeds `factor` median
+/// steps.
+pub fn segments(t_s: &[f64], factor: f64) -> Vec<std::ops::Range<usize>> {
+    if t_s.len() < 2 {
+        return vec![0..t_s.len()];
+    }
+    let mut periods: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
+    periods.sort_by(f64::total_cmp);
+    let limit = periods[periods.len() / 2] * factor;
+    let mut out = Vec::new();
+    let mut start = 0;
+    for i in 1..t_s.len() {
+        if t_s[i] - t_s[i - 1] > limit {
+            out.push(start..i);
+            start = i;
+        }
+    }
+    out.push(start..t_s.len());
+    out
 }
 
 /// One step of the procedure.
@@ -108,6 +269,8 @@ pub struct Recording {
     pub device_name: String,
     /// Steps by folder name.
     pub steps: BTreeMap<String, Step>,
+    /// The joint convention the readings were converted with.
+    pub convention: JointConvention,
 }
 
 #[derive(serde::Deserialize)]
@@ -117,6 +280,7 @@ struct Header {
     device: String,
     l1_mm: f64,
     l2_mm: f64,
+    joint_convention: Option<JointConvention>,
 }
 
 fn read(path: &Path) -> Result<String, RecordingError> {
@@ -130,7 +294,12 @@ fn read(path: &Path) -> Result<String, RecordingError> {
 }
 
 /// Parse a CSV with `header` into rows of `columns` finite numbers; checks time order and gaps.
-fn rows(path: &Path, header: &str, columns: usize) -> Result<(Vec<f64>, Vec<Vec<f64>>), RecordingError> {
+fn rows(
+    path: &Path,
+    header: &str,
+    columns: usize,
+    check_gaps: bool,
+) -> Result<(Vec<f64>, Vec<Vec<f64>>), RecordingError> {
     let text = read(path)?;
     let line_error =
         |line: usize, message: String| RecordingError::Line { path: path.to_owned(), line, message };
@@ -180,6 +349,9 @@ fn rows(path: &Path, header: &str, columns: usize) -> Result<(Vec<f64>, Vec<Vec<
     if times.len() < 2 {
         return Err(line_error(1, "fewer than two samples".into()));
     }
+    if !check_gaps {
+        return Ok((times, values));
+    }
     let mut periods: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
     periods.sort_by(f64::total_cmp);
     let limit = (periods[periods.len() / 2] * MAX_GAP_FACTOR).max(MIN_GAP_S);
@@ -196,13 +368,35 @@ fn rows(path: &Path, header: &str, columns: usize) -> Result<(Vec<f64>, Vec<Vec<
     Ok((times, values))
 }
 
-fn device_stream(path: &Path) -> Result<DeviceStream, RecordingError> {
-    let (t_s, rows) = rows(path, DEVICE_HEADER, 7)?;
-    Ok(DeviceStream { t_s, raw: rows.iter().map(|r| std::array::from_fn(|k| r[k + 1])).collect() })
+/// Largest plausible reading in radians: beyond it the readings are taken for degrees.
+pub const MAX_RADIANS: f64 = 2.0 * std::f64::consts::PI;
+
+fn device_stream(path: &Path, convention: &JointConvention) -> Result<DeviceStream, RecordingError> {
+    let (t_s, rows) = rows(path, DEVICE_HEADER, 7, true)?;
+    let mut raw = Vec::with_capacity(rows.len());
+    for (i, r) in rows.iter().enumerate() {
+        let row: [f64; 6] = std::array::from_fn(|k| r[k + 1]);
+        if convention.unit == AngleUnit::Rad {
+            if let Some(k) = (0..6).find(|&k| row[k].abs() > MAX_RADIANS) {
+                return Err(RecordingError::Line {
+                    path: path.to_owned(),
+                    line: i + 2,
+                    message: format!(
+                        "raw{} = {} is beyond ±2π: the readings look like degrees; the tool expects \
+                         radians unless recording.json says \"joint_convention\": {{\"unit\": \"deg\"}}",
+                        k + 1,
+                        row[k]
+                    ),
+                });
+            }
+        }
+        raw.push(convention.apply(&row));
+    }
+    Ok(DeviceStream { t_s, raw })
 }
 
 fn target_stream(path: &Path) -> Result<TargetStream, RecordingError> {
-    let (t_s, rows) = rows(path, TARGET_HEADER, 8)?;
+    let (t_s, rows) = rows(path, TARGET_HEADER, 8, false)?;
     let mut out = TargetStream { t_s, ..TargetStream::default() };
     for (i, r) in rows.iter().enumerate() {
         let q = Quaternion::new(r[4], r[5], r[6], r[7]);
@@ -246,6 +440,8 @@ pub fn load(dir: &Path) -> Result<Recording, RecordingError> {
         }
     }
     let device = Device { l1_mm: header.l1_mm, l2_mm: header.l2_mm, ..nominal };
+    let convention = header.joint_convention.unwrap_or_else(|| JointConvention::default_for(&header.device));
+    convention.check().map_err(header_error)?;
     let mut steps = BTreeMap::new();
     let optional: [(&str, &[&str]); 1] = [("verify", &["hip"])];
     for (name, targets) in REQUIRED_STEPS.iter().chain(optional.iter()) {
@@ -259,13 +455,16 @@ pub fn load(dir: &Path) -> Result<Recording, RecordingError> {
                 what: "a step of the calibration procedure",
             });
         }
-        let mut step = Step { device: device_stream(&folder.join("device.csv"))?, targets: BTreeMap::new() };
+        let mut step = Step {
+            device: device_stream(&folder.join("device.csv"), &convention)?,
+            targets: BTreeMap::new(),
+        };
         for t in targets.iter() {
             step.targets.insert(t.to_string(), target_stream(&folder.join(format!("{t}.csv")))?);
         }
         steps.insert(name.to_string(), step);
     }
-    Ok(Recording { device, device_name: header.device, steps })
+    Ok(Recording { device, device_name: header.device, steps, convention })
 }
 
 #[cfg(test)]
@@ -309,15 +508,6 @@ mod tests {
             (good.replacen("0.05,", "0.0,", 1), "hip.csv:5", "does not increase"),
             (good.replacen("1,2,3,1,0,0,0", "1,2,x,1,0,0,0", 1), "hip.csv:2", "z_mm"),
             (good.replacen("1,2,3,1,0,0,0", "1,2,3,2,0,0,0", 1), "hip.csv:2", "quaternion"),
-            (
-                good.lines()
-                    .enumerate()
-                    .filter(|(i, _)| !(3..18).contains(i))
-                    .map(|(_, l)| format!("{l}\n"))
-                    .collect::<String>(),
-                "hip.csv:4",
-                "gap of 267 ms",
-            ),
             (good.replacen("t_s,x_mm", "time,x_mm", 1), "hip.csv:1", "header"),
         ];
         for (text, place, what) in cases {
@@ -325,7 +515,52 @@ mod tests {
             let err = load(&dir).unwrap_err().to_string();
             assert!(err.contains(place) && err.contains(what), "`{err}` should name {place} and {what}");
         }
+        // An occlusion in a tracker stream splits it into segments; the samples are kept.
+        let occluded: String = good
+            .lines()
+            .enumerate()
+            .filter(|(i, _)| !(3..18).contains(i))
+            .map(|(_, l)| format!("{l}\n"))
+            .collect();
+        std::fs::write(&hip, &occluded).unwrap();
+        let rec = load(&dir).unwrap();
+        assert_eq!(rec.steps["delay"].targets["hip"].segments(), vec![0..2, 2..5]);
         std::fs::write(&hip, good).unwrap();
+        // A device stream that drops out is refused.
+        let device = dir.join("joints/device.csv");
+        let dev_good = std::fs::read_to_string(&device).unwrap();
+        let dropped: String = dev_good
+            .lines()
+            .enumerate()
+            .filter(|(i, _)| !(3..90).contains(i))
+            .map(|(_, l)| format!("{l}\n"))
+            .collect();
+        std::fs::write(&device, dropped).unwrap();
+        let err = load(&dir).unwrap_err().to_string();
+        assert!(err.contains("device.csv:4") && err.contains("gap of 88 ms"), "{err}");
+        // Degrees are refused unless declared; the convention is applied.
+        std::fs::write(&device, dev_good.replacen("0.1,0.2,0.3,0.4,0.5", "5.7,11.5,17.2,22.9,28.6", 1))
+            .unwrap();
+        let err = load(&dir).unwrap_err().to_string();
+        assert!(err.contains("device.csv:2") && err.contains("degrees"), "{err}");
+        std::fs::write(
+            dir.join("recording.json"),
+            r#"{"format":"haptic-recording/1","device":"omni","l1_mm":133.35,"l2_mm":133.0,
+               "joint_convention":{"unit":"deg","theta3":"relative","sign":[1,-1,1,1,1,1],"columns":[1,3,2,4,5,6]}}"#,
+        )
+        .unwrap();
+        let rec = load(&dir).unwrap();
+        let r = rec.steps["joints"].device.raw[0];
+        let d = std::f64::consts::PI / 180.0;
+        assert!((r[1] + 11.5 * d).abs() < 1e-12 && (r[2] - (5.7 - 11.5) * d).abs() < 1e-12, "{r:?}");
+        std::fs::write(
+            dir.join("recording.json"),
+            r#"{"format":"haptic-recording/1","device":"omni","l1_mm":133.35,"l2_mm":133.0,
+               "joint_convention":{"columns":[1,1,2,4,5,6]}}"#,
+        )
+        .unwrap();
+        assert!(load(&dir).unwrap_err().to_string().contains("joint_convention.columns"));
+        write_recording(&dir);
         std::fs::remove_dir_all(dir.join("gimbal")).unwrap();
         assert!(load(&dir).unwrap_err().to_string().contains("gimbal"));
         std::fs::remove_dir_all(&dir).ok();

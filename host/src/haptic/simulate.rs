@@ -215,7 +215,7 @@ pub fn simulate_recording(options: &HapticSimOptions) -> (Recording, HapticTruth
         }
         steps.insert(name.to_string(), step);
     }
-    (Recording { device, device_name: "omni".into(), steps }, truth)
+    (Recording { device, device_name: "omni".into(), steps, convention: Default::default() }, truth)
 }
 
 /// Write a recording in the `haptic-recording/1` layout.

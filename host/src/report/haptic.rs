@@ -1,24 +1,59 @@
-//! The haptic calibration report: errors before/after, sensor models, error maps over directions.
+//! The haptic calibration report: errors before/after, sensor models, error maps over directions,
+//! workspace regions and joint ranges, or the failing step of a refused calibration.
 
-use super::svg;
+use super::svg::{self, escape};
 use super::{page, table};
+use std::fmt::Write;
 
-/// The report of a haptic calibration.
+/// The report of a haptic calibration (or of a refused one: the failing step and what was
+/// computed up to it).
 pub fn haptic_report(summary: &crate::haptic::pipeline::HapticSummary) -> String {
-    let c = &summary.calibration;
+    use crate::haptic::report_data::Cell;
+    let mut body = String::new();
+    if let Some(f) = &summary.failure {
+        let _ = write!(
+            body,
+            "<p style=\"color:#b00\"><b>Calibration refused</b> — {} failed: {}</p>",
+            escape(f.step),
+            escape(&f.message)
+        );
+    }
+    let Some(c) = &summary.calibration else {
+        body.push_str("<p>No calibration result: the procedure stopped before the end.</p>");
+        return page("kincal haptic calibration", &body);
+    };
     let rows = vec![
         vec![
             "position (mm)".to_string(),
-            format!("{:.3}", summary.position.before_mm),
-            format!("{:.3}", summary.position.after_mm),
+            format!("{:.3}", c.position_mm.before),
+            format!("{:.3}", c.position_mm.after),
         ],
         vec![
             "orientation (deg)".to_string(),
-            format!("{:.3}", summary.orientation.before_deg),
-            format!("{:.3}", summary.orientation.after_deg),
+            format!("{:.3}", c.orientation_deg.before),
+            format!("{:.3}", c.orientation_deg.after),
         ],
     ];
-    let mut body = format!("<p>Delay of the tracker behind the device: {:.2} ms. Gimbal sensor model: {:?}. Errors on {} held-out samples.</p>{}", summary.delay_ms, summary.gimbal_model, c.held_out, table(&["RMS error", "before", "after"], &rows));
+    let _ = write!(
+        body,
+        "<p>Delay of the tracker behind the device: {:.2} ms (rounds: {}; peak correlation {:.4}). Gimbal sensor model: {:?} (held-out axis error linear {:.3}°, quadratic {:.3}°). Errors on {} held-out samples. Start of the joint calibration: {} (held-out residual: landmark {}, pose-based {:.3} mm{}). Wild tracker samples rejected: {}; occlusion gaps: {}. Tracker noise at the HIP (pivot RMS): {:.3} mm. Joint convention: <code>{}</code>.</p>{}",
+        c.delay_ms,
+        c.delay_rounds_ms.iter().map(|d| format!("{d:.3}")).collect::<Vec<_>>().join(" → "),
+        c.delay_correlation,
+        c.gimbal_model,
+        c.gimbal_held_out_deg.0,
+        c.gimbal_held_out_deg.1,
+        c.held_out,
+        c.start.chosen,
+        c.start.landmark_mm.map_or("—".to_string(), |v| format!("{v:.3} mm")),
+        c.start.pose_mm,
+        c.start.landmark_note.as_deref().map_or(String::new(), |n| format!("; landmarks not used: {}", escape(n))),
+        c.rejected_samples,
+        c.tracker_gaps,
+        c.tip_mm.1,
+        escape(&c.convention.json()),
+        table(&["RMS error", "before", "after"], &rows)
+    );
     let sensors: Vec<Vec<String>> = c
         .sensors
         .iter()
@@ -31,18 +66,56 @@ pub fn haptic_report(summary: &crate::haptic::pipeline::HapticSummary) -> String
         "<h3>Sensor models θ = j·raw² + k·raw + m</h3>{}",
         table(&["joint", "j", "k", "m (rad)"], &sensors)
     );
-    let dirs = |f: &dyn Fn(&crate::haptic::pipeline::HeldOut) -> f64| -> Vec<(f64, f64, f64)> {
-        c.samples.iter().map(|s| (s.0.x.atan2(s.0.z), s.0.y.clamp(-1.0, 1.0).asin(), f(s))).collect()
+    let dirs = |f: &dyn Fn(&crate::haptic::report_data::HeldOutSample) -> f64| -> Vec<(f64, f64, f64)> {
+        c.samples
+            .iter()
+            .map(|s| (s.direction.x.atan2(s.direction.z), s.direction.y.clamp(-1.0, 1.0).asin(), f(s)))
+            .collect()
     };
     body += &format!(
         "<h3>Orientation error over stylus directions (Hammer projection)</h3>{}",
-        svg::hammer_map(&dirs(&|s| s.1), "axis error after calibration (deg)")
+        svg::hammer_map(&dirs(&|s| s.axis_error_deg), "axis error after calibration (deg)")
     );
     body += &format!(
         "<h3>Position error over stylus directions</h3>{}",
-        svg::hammer_map(&dirs(&|s| s.2), "position error after calibration (mm)")
+        svg::hammer_map(&dirs(&|s| s.error_mm.norm()), "position error after calibration (mm)")
     );
-    let pos: Vec<f64> = c.samples.iter().map(|s| s.2).collect();
+    let cells = |cells: &[Cell]| -> Vec<Vec<String>> {
+        cells
+            .iter()
+            .map(|c| {
+                vec![
+                    escape(&c.label),
+                    c.count.to_string(),
+                    format!("{:.3}", c.position_rms_mm),
+                    format!("{:+.3}, {:+.3}, {:+.3}", c.bias_mm[0], c.bias_mm[1], c.bias_mm[2]),
+                    format!("{:.3}", c.axis_rms_deg),
+                ]
+            })
+            .collect()
+    };
+    let header = ["cell", "samples", "position RMS (mm)", "mean error x, y, z (mm)", "axis RMS (deg)"];
+    let b = c.maps.bias_mm;
+    let _ = write!(
+        body,
+        "<h3>Where the errors are</h3><p>Mean error vector over all held-out samples: {:+.3}, {:+.3}, {:+.3} mm (device frame). Errors that grow along one joint's range point to that joint's convention or sensor model; a common error direction in one region points to a missing effect or a flipped axis.</p><h4>By workspace region (thirds of the held-out positions)</h4>{}<h4>By stylus direction</h4>{}",
+        b[0],
+        b[1],
+        b[2],
+        table(&header, &cells(&c.maps.regions)),
+        table(&header, &cells(&c.maps.directions))
+    );
+    for (j, profile) in c.maps.joints.iter().enumerate() {
+        let labels: Vec<String> = profile.iter().map(|c| c.label.clone()).collect();
+        let values: Vec<f64> = profile.iter().map(|c| c.position_rms_mm).collect();
+        let _ = write!(
+            body,
+            "<h4>Against θ{}</h4>{}",
+            j + 1,
+            svg::bars(&labels, &[("position RMS", values)], "position error (mm)")
+        );
+    }
+    let pos: Vec<f64> = c.samples.iter().map(|s| s.error_mm.norm()).collect();
     body += &format!(
         "<h3>Position errors after calibration</h3>{}",
         svg::histogram(&[("after", &pos)], 30, "position error (mm)")

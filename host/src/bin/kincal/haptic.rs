@@ -65,27 +65,67 @@ pub fn cmd_haptic_simulate(a: &HapticSimulateArgs) -> Result<()> {
 }
 
 pub fn cmd_haptic_calibrate(a: &HapticCalibrateArgs) -> Result<()> {
-    let recording = kincal::haptic::recording::load(&a.recording)?;
+    use kincal::haptic::pipeline::{calibrate_recording, HapticFailure, HapticSummary};
+    let write = |summary: &HapticSummary| -> Result<String> {
+        output::write_haptic(summary, &a.out, &a.recording)?;
+        Ok(output::haptic_json(summary))
+    };
+    let recording = match kincal::haptic::recording::load(&a.recording) {
+        Ok(r) => r,
+        Err(e) => {
+            write(&HapticFailure::unreadable(&e))?;
+            return Err(e.into());
+        }
+    };
     let started = std::time::Instant::now();
-    let result = kincal::haptic::pipeline::calibrate_recording(&recording)?;
+    let result = match calibrate_recording(&recording) {
+        Ok(r) => r,
+        Err(failure) => {
+            let json = write(&failure.summary())?;
+            if a.json {
+                println!("{json}");
+            }
+            if let Some(p) = &failure.partial {
+                eprintln!(
+                    "not a calibration: position {:.3} → {:.3} mm, orientation {:.3} → {:.3}° on {} held-out samples",
+                    p.position_mm.before, p.position_mm.after, p.orientation_deg.before, p.orientation_deg.after, p.held_out
+                );
+            }
+            return Err(anyhow::anyhow!(
+                "{failure}\nsummary (marked failed): {}",
+                a.out.join("summary.json").display()
+            ));
+        }
+    };
     let seconds = started.elapsed().as_secs_f64();
-    let summary = result.summary();
-    output::write_haptic(&summary, &a.out, &a.recording)?;
+    let json = write(&result.summary())?;
     if a.json {
-        println!("{}", output::haptic_json(&summary));
+        println!("{json}");
         return Ok(());
     }
     println!("calibrated in {seconds:.2} s");
-    println!("  delay        {:8.2} ms (tracker behind device)", summary.delay_ms);
+    println!("  delay        {:8.2} ms (tracker behind device)", result.delay_ms);
     println!(
         "  position     {:8.3} mm → {:.3} mm (RMS, {} held-out samples)",
-        summary.position.before_mm, summary.position.after_mm, result.held_out
+        result.position_mm.before, result.position_mm.after, result.held_out
     );
     println!(
         "  orientation  {:8.3} °  → {:.3} °",
-        summary.orientation.before_deg, summary.orientation.after_deg
+        result.orientation_deg.before, result.orientation_deg.after
     );
-    println!("  gimbals      {:?} sensor model (chosen on held-out error)", summary.gimbal_model);
+    println!("  gimbals      {:?} sensor model (chosen on held-out error)", result.gimbal_model);
+    println!(
+        "  start        {} (held-out joint residual: landmark {}, pose-based {:.3} mm)",
+        result.start.chosen,
+        result.start.landmark_mm.map_or("—".to_string(), |v| format!("{v:.3} mm")),
+        result.start.pose_mm
+    );
+    if result.rejected_samples > 0 || result.tracker_gaps > 0 {
+        println!(
+            "  tracker      {} wild samples rejected, {} occlusion gaps",
+            result.rejected_samples, result.tracker_gaps
+        );
+    }
     println!("  report: {}", a.out.join("report.html").display());
     Ok(())
 }

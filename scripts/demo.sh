@@ -4,4 +4,5 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup-embedded.sh
+cargo build-emulated
 cargo run --release -p kincal -- demo "$@"

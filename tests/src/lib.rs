@@ -16,7 +16,7 @@ use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
 use kincal_protocol::messages::{DeviceFrame, HostFrame, Request};
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -217,4 +217,25 @@ impl kincal::controller::link::Transport for Laggy {
     fn set_read_timeout(&mut self, timeout: Duration) -> std::io::Result<()> {
         self.stream.set_read_timeout(Some(timeout))
     }
+}
+
+/// The emulated controller's firmware image, built (or confirmed current) once per test run with
+/// the workspace's `cargo build-emulated`.
+pub fn emulated_firmware() -> PathBuf {
+    static BUILT: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    BUILT
+        .get_or_init(|| {
+            let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+            let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+                .current_dir(&root)
+                .args(["build-emulated", "--quiet"])
+                .status()
+                .expect("cargo runs");
+            assert!(
+                status.success(),
+                "cargo build-emulated failed (rustup target add thumbv7em-none-eabihf?)"
+            );
+            root.join("firmware/target/thumbv7em-none-eabihf/release/emulated")
+        })
+        .clone()
 }

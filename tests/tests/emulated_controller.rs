@@ -1,21 +1,20 @@
 //! The firmware running on the emulated controller (QEMU mps2-an386), end to end.
 //! QEMU is started per test and killed by a guard, also when the test fails.
 
-use kincal::controller::emulator::{build_firmware, Emulator};
+use kincal::controller::emulator::Emulator;
 use kincal::controller::link::{Link, LinkError};
+use kincal_e2e::emulated_firmware;
 use kincal_protocol::biss::COUNTS_PER_TURN;
 use kincal_protocol::messages::{Request, Stream, WindowReport, PROTOCOL_VERSION, SCHEMA_HASH};
-use std::sync::{Mutex, OnceLock};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 /// One emulator at a time: the timing tests need the cores.
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 fn start() -> (std::sync::MutexGuard<'static, ()>, Emulator, Link) {
-    static ELF: OnceLock<std::path::PathBuf> = OnceLock::new();
     let guard = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let elf = ELF.get_or_init(|| build_firmware().expect("emulated firmware builds"));
-    let (emulator, mut link) = Emulator::start(elf).expect("QEMU starts");
+    let (emulator, mut link) = Emulator::start(&emulated_firmware()).expect("QEMU starts");
     link.hello().expect("handshake");
     (guard, emulator, link)
 }
@@ -218,10 +217,8 @@ fn absurd_parameter_sets_are_refused_by_the_controller_itself() {
 
 #[test]
 fn sixteen_tick_windows_record_every_landmark_over_a_slow_link() {
-    static ELF: OnceLock<std::path::PathBuf> = OnceLock::new();
     let _guard = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
-    let elf = ELF.get_or_init(|| build_firmware().expect("emulated firmware builds"));
-    let (_emu, port) = Emulator::start_server(elf).expect("QEMU starts");
+    let (_emu, port) = Emulator::start_server(&emulated_firmware()).expect("QEMU starts");
     // Replies held back 40 ms (a 16-tick window lasts 21 ms): the start acknowledgement and the
     // window report arrive in the same read.
     let laggy = kincal_e2e::Laggy::connect(&port, Duration::from_millis(40)).unwrap();

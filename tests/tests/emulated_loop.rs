@@ -2,22 +2,22 @@
 //! stream; an upload cut off midway; a recording killed midway. QEMU is killed by its guard.
 
 use kincal::controller::demo::{run_loop, LoopOptions};
-use kincal::controller::emulator::{build_firmware, Emulator};
+use kincal::controller::emulator::Emulator;
 use kincal::controller::link::Link;
 use kincal::data::{Artefact, Session};
+use kincal_e2e::emulated_firmware;
 use kincal_e2e::kincal_bin;
 use kincal_protocol::messages::{Request, PARAM_CHUNK};
 use kincal_protocol::params::BLOB_CRC;
 use std::path::PathBuf;
 use std::process::Command;
-use std::sync::{Mutex, OnceLock};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 fn elf() -> PathBuf {
-    static ELF: OnceLock<PathBuf> = OnceLock::new();
-    ELF.get_or_init(|| build_firmware().expect("emulated firmware builds")).clone()
+    emulated_firmware()
 }
 
 fn scratch(name: &str) -> PathBuf {

@@ -6,7 +6,7 @@
 
 use crate::controller::link::{Link, LinkError};
 use std::net::TcpListener;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -22,36 +22,17 @@ impl Drop for Emulator {
     }
 }
 
-/// Where the emulated firmware is built (`cargo build-emulated`).
-pub fn firmware_elf() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/target/thumbv7em-none-eabihf/release/emulated")
-}
-
-/// Build the emulated firmware (no-op when it is up to date).
-pub fn build_firmware() -> Result<PathBuf, LinkError> {
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/Cargo.toml");
-    let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-        .args(["build", "--quiet", "--manifest-path"])
-        .arg(&manifest)
-        .args([
-            "--release",
-            "--target",
-            "thumbv7em-none-eabihf",
-            "--features",
-            "board-mps2",
-            "--bin",
-            "emulated",
-        ])
-        .status()
-        .map_err(|e| LinkError::Open { port: "firmware build".into(), message: e.to_string() })?;
-    if !status.success() {
-        return Err(LinkError::Open { port: "firmware build".into(), message: "cargo build of the emulated firmware failed (is the thumbv7em-none-eabihf target installed? rustup target add thumbv7em-none-eabihf)".into() });
-    }
-    Ok(firmware_elf())
-}
-
 /// Start QEMU on `elf` with UART0 on the chardev `serial`.
 fn qemu(elf: &Path, serial: &str) -> Result<Emulator, LinkError> {
+    if !elf.is_file() {
+        return Err(LinkError::Open {
+            port: "emulator".into(),
+            message: format!(
+                "no firmware image at {}: build it with `cargo build-emulated` (needs `rustup target add thumbv7em-none-eabihf`)",
+                elf.display()
+            ),
+        });
+    }
     let child = Command::new("qemu-system-arm")
         .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
         .args(["-semihosting-config", "enable=on,target=native"])

@@ -27,6 +27,9 @@ pub struct DemoArgs {
     /// Host only: simulate sessions directly and calibrate (no emulated controller).
     #[arg(long)]
     offline: bool,
+    /// The emulated controller's firmware image (`cargo build-emulated` writes it here).
+    #[arg(long, default_value = "firmware/target/thumbv7em-none-eabihf/release/emulated")]
+    firmware: PathBuf,
 }
 
 #[derive(Args)]
@@ -100,9 +103,8 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
         return cmd_demo_offline(a);
     }
     let nominal = ArmModel::load(&a.model)?;
-    println!("building the emulated controller firmware and starting QEMU (mps2-an386)");
-    let elf = kincal::controller::emulator::build_firmware()?;
-    let (_emulator, mut link) = kincal::controller::emulator::Emulator::start(&elf)?;
+    println!("starting the emulated controller on QEMU (mps2-an386): {}", a.firmware.display());
+    let (_emulator, mut link) = kincal::controller::emulator::Emulator::start(&a.firmware)?;
     link.hello()?;
     let info = link.info()?;
     println!("connected: {} on {}", info.firmware, info.board);

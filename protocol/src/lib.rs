@@ -10,6 +10,7 @@
 //! The `std` feature adds what the host needs (allocation-backed helpers).
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
 #![deny(missing_docs)]
+#![forbid(unsafe_code)]
 
 pub mod biss;
 pub mod framing;

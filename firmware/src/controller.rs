@@ -1,10 +1,10 @@
 //! The protocol state machine: requests in, responses and streams out. Board independent.
 
-use crate::encoders::Sample;
+use crate::encoders::{Sample, Sampler};
 use crate::flash::{NorFlash, ParamStore};
 use crate::kinematics::Kinematics;
 use crate::window::Window;
-use kincal_protocol::messages::{pack_counts, EncoderHealth, JOINTS};
+use kincal_protocol::messages::pack_counts;
 use kincal_protocol::messages::{
     DeviceFrame, HostFrame, Info, PoseReport, RawSample, Request, Response, Stream, WireError,
     MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
@@ -117,14 +117,14 @@ impl<F: NorFlash> Controller<F> {
         }
     }
 
-    /// Answer one request; `health` is the sampler's counters for [`Request::GetInfo`].
+    /// Answer one request; `sampler`'s counters go into [`Request::GetInfo`]'s answer.
     pub fn handle(
         &mut self,
         frame: HostFrame,
-        health: &[EncoderHealth; JOINTS],
+        sampler: &Sampler,
         emit: &mut impl FnMut(&DeviceFrame),
     ) -> Action {
-        let (response, action) = self.respond(frame.request, health);
+        let (response, action) = self.respond(frame.request, sampler);
         emit(&DeviceFrame::Response { seq: frame.seq, response });
         action
     }
@@ -134,11 +134,7 @@ impl<F: NorFlash> Controller<F> {
         emit(&DeviceFrame::Response { seq: u16::MAX, response: Err(WireError::BadFrame) });
     }
 
-    fn respond(
-        &mut self,
-        request: Request,
-        health: &[EncoderHealth; JOINTS],
-    ) -> (Result<Response, WireError>, Action) {
+    fn respond(&mut self, request: Request, sampler: &Sampler) -> (Result<Response, WireError>, Action) {
         let ok = |r| (Ok(r), Action::None);
         let err = |e| (Err(e), Action::None);
         if let Request::Hello { version, schema } = request {
@@ -162,7 +158,8 @@ impl<F: NorFlash> Controller<F> {
                     param_version: self.params().map_or(0, |p| p.version),
                     param_crc: stored.map_or(0, |s| s.crc),
                     ticks: self.tick,
-                    encoders: *health,
+                    late_ticks: sampler.late_ticks,
+                    encoders: sampler.health,
                 };
                 ok(Response::Info(info))
             }
@@ -265,9 +262,7 @@ mod tests {
 
     fn ask(c: &mut Ctl, request: Request) -> Result<Response, WireError> {
         let mut out = Vec::new();
-        c.handle(HostFrame { seq: 5, request }, &[EncoderHealth::default(); JOINTS], &mut |f| {
-            out.push(f.clone())
-        });
+        c.handle(HostFrame { seq: 5, request }, &Sampler::default(), &mut |f| out.push(f.clone()));
         match out.pop() {
             Some(DeviceFrame::Response { seq: 5, response }) => response,
             other => panic!("unexpected {other:?}"),

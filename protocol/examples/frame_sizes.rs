@@ -33,6 +33,7 @@ fn main() {
         param_version: u32::MAX,
         param_crc: u32::MAX,
         ticks: u32::MAX,
+        late_ticks: u32::MAX,
         encoders: [health; JOINTS],
     };
     let rows = [

@@ -191,6 +191,7 @@ mod tests {
             param_version: 3,
             param_crc: 0xDEAD_BEEF,
             ticks: 99,
+            late_ticks: 2,
             encoders: [health; JOINTS],
         };
         let chunk = heapless::Vec::from_slice(&[1, 2, 0, 0, 255]).unwrap();
@@ -311,6 +312,7 @@ mod tests {
             param_version: u32::MAX,
             param_crc: u32::MAX,
             ticks: u32::MAX,
+            late_ticks: u32::MAX,
             encoders: [health; JOINTS],
         };
         round_trip(&DeviceFrame::Response { seq: u16::MAX, response: Ok(Response::Info(info)) });

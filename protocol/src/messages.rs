@@ -220,6 +220,9 @@ wire_types! {
         pub param_crc: u32,
         /// Ticks since boot.
         pub ticks: u32,
+        /// Ticks whose encoder read started more than one tick period late since boot (the
+        /// sampling instant was missed).
+        pub late_ticks: u32,
         /// Per-joint encoder health since boot.
         pub encoders: [EncoderHealth; JOINTS],
     }

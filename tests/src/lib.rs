@@ -116,9 +116,7 @@ fn serve(
                         }
                         let mut out = Vec::new();
                         let action = match decoded {
-                            Ok(frame) => {
-                                controller.handle(frame, &sampler.health, &mut |f| out.push(f.clone()))
-                            }
+                            Ok(frame) => controller.handle(frame, &sampler, &mut |f| out.push(f.clone())),
                             Err(_) => {
                                 controller.bad_frame(&mut |f| out.push(f.clone()));
                                 Action::None

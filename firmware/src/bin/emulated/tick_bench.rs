@@ -85,20 +85,19 @@ pub fn run() -> ! {
         let mut buf = [0u8; MAX_FRAME];
         let _ = framing::encode_device_frame(f, &mut buf);
     };
-    let health = sampler.health;
     let mut blob = [0u8; MAX_PARAM_BLOB];
     let n = encode_blob(&params(), &mut blob).unwrap_or(0);
     for request in [
         Request::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH },
         Request::ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) },
     ] {
-        controller.handle(HostFrame { seq: 1, request }, &health, &mut sink);
+        controller.handle(HostFrame { seq: 1, request }, &sampler, &mut sink);
     }
     for (k, chunk) in blob[..n].chunks(48).enumerate() {
         let data = heapless::Vec::from_slice(chunk).unwrap_or_default();
         controller.handle(
             HostFrame { seq: 2, request: Request::ParamChunk { offset: (k * 48) as u16, data } },
-            &health,
+            &sampler,
             &mut sink,
         );
     }
@@ -108,7 +107,7 @@ pub fn run() -> ! {
         Request::StreamRaw(true),
         Request::StreamPose(1),
     ] {
-        controller.handle(HostFrame { seq: 3, request }, &health, &mut sink);
+        controller.handle(HostFrame { seq: 3, request }, &sampler, &mut sink);
     }
     // Transfers as the bus delivers them (generating them is the emulator's work, not measured).
     let transfers = core::array::from_fn(|_| core::array::from_fn(|j| bus.answer(j)));

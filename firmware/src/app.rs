@@ -11,13 +11,13 @@
 use crate::biss_master::BissMaster;
 use crate::controller::{Action, Controller};
 use crate::encoders::Sampler;
-use crate::flash::NorFlash;
 use core::cell::RefCell;
 use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, ThreadModeRawMutex};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::pipe::Pipe;
 use embassy_time::{Duration, Instant, Ticker, Timer};
 use embedded_hal_async::spi::SpiDevice;
+use embedded_storage::nor_flash::NorFlash;
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
 use kincal_protocol::messages::{DeviceFrame, HostFrame, TICK_HZ};
 

@@ -1,9 +1,10 @@
 //! The protocol state machine: requests in, responses and streams out. Board independent.
 
 use crate::encoders::{Sample, Sampler};
-use crate::flash::{NorFlash, ParamStore};
+use crate::flash::ParamStore;
 use crate::kinematics::Kinematics;
 use crate::window::Window;
+use embedded_storage::nor_flash::NorFlash;
 use kincal_protocol::messages::pack_counts;
 use kincal_protocol::messages::{
     DeviceFrame, HostFrame, Info, PoseReport, RawSample, Request, Response, Stream, WireError,

@@ -12,6 +12,8 @@ use kincal::simulate::{simulate, SimulationOptions};
 use kincal::study::{study, study_report, StudyOptions};
 use std::path::{Path, PathBuf};
 
+mod cli_emulated_arm;
+
 #[derive(Parser)]
 #[command(name = "kincal", version, about = "Calibrate tracker arms from artefact touches")]
 struct Cli {
@@ -43,6 +45,9 @@ enum Command {
     Stream(StreamArgs),
     /// Guided measurement of one artefact placement; resumes an interrupted session.
     Record(RecordArgs),
+    /// Emulated controller only: pose the arm, inject encoder noise and faults.
+    #[command(subcommand)]
+    EmulatedArm(cli_emulated_arm::EmulatedArmCommand),
     /// Haptic device (PHANToM) workspace calibration.
     #[command(subcommand)]
     Haptic(HapticCommand),
@@ -359,6 +364,7 @@ fn main() {
         Command::Upload(a) => cmd_upload(&a),
         Command::Stream(a) => cmd_stream(&a),
         Command::Record(a) => cmd_record(&a),
+        Command::EmulatedArm(c) => cli_emulated_arm::run(&c),
         Command::Haptic(HapticCommand::Simulate(a)) => cmd_haptic_simulate(&a),
         Command::Haptic(HapticCommand::Calibrate(a)) => cmd_haptic_calibrate(&a),
         Command::Bench(a) => kincal::bench::run_benchmarks(&a).map_err(anyhow::Error::from),

@@ -397,3 +397,32 @@ fn the_first_request_after_line_noise_is_answered() {
     );
     assert!(answer.is_ok(), "{answer:?}");
 }
+
+#[test]
+fn the_emulated_arm_is_posed_and_faulted_from_the_cli() {
+    let fake = FakeController::start(2);
+    let (code, out, err) =
+        kincal(&["emulated-arm", "pose", "--port", &fake.port, "--deg", "10,20,30,40,350.5,0"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("350.5000") && out.contains("96/96"), "{out}");
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    let w = kincal::record::measure_window(&mut link, 32).unwrap();
+    let deg: Vec<f64> =
+        w.joints.iter().map(|j| kincal_protocol::biss::counts_to_deg(j.mean_counts)).collect();
+    for (got, want) in deg.iter().zip([10.0, 20.0, 30.0, 40.0, 350.5, 0.0]) {
+        assert!((got - want).abs() < 1e-4, "{deg:?}");
+    }
+    drop(link);
+    let (code, out, err) =
+        kincal(&["emulated-arm", "faults", "--port", &fake.port, "--dropouts-per-10k", "10000"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("10000 dropouts"), "{out}");
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    let w = kincal::record::measure_window(&mut link, 32).unwrap();
+    assert!(w.joints.iter().all(|j| j.accepted == 0), "{w:?}");
+    let (code, _, err) = kincal(&["emulated-arm", "pose", "--port", &fake.port, "--counts", "1,2,3"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("--counts: expected 6 positions"), "{err}");
+}

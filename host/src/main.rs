@@ -561,6 +561,7 @@ fn cmd_info(a: &PortArgs) -> Result<()> {
     } else {
         println!("parameters version {} (CRC-32 {:08x})", info.param_version, info.param_crc);
     }
+    println!("late ticks {} (encoder reads started over a tick late)", info.late_ticks);
     println!(
         "uptime     {} ticks ({:.1} s)",
         info.ticks,

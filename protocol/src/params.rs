@@ -71,7 +71,7 @@ pub mod envelope {
 }
 
 /// Which parameter of a set is outside the envelope.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, postcard_schema::Schema)]
 pub enum ParamField {
     /// The version number (0 is reserved for "none stored").
     Version,
@@ -117,7 +117,7 @@ impl ParamField {
 }
 
 /// A parameter outside the physical envelope: which, where, its value and the limit.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
 pub struct EnvelopeViolation {
     /// The field.
     pub field: ParamField,

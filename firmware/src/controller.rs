@@ -5,10 +5,11 @@ use crate::flash::ParamStore;
 use crate::kinematics::Kinematics;
 use crate::window::Window;
 use embedded_storage::nor_flash::NorFlash;
-use kincal_protocol::messages::pack_counts;
 use kincal_protocol::messages::{
-    DeviceFrame, HostFrame, Info, PoseReport, RawSample, Request, Response, Stream, WireError,
-    MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
+    pack_counts, Ack, Answer, DeviceFrame, Endpoint, GetInfo, Hello, HelloReply, HostFrame, Info, ParamBegin,
+    ParamChunk, ParamCommit, ParamData, ParamRead, PoseReport, RawSample, Request, Reset, Response,
+    SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WireError, MAX_WINDOW_TICKS, PARAM_CHUNK,
+    PROTOCOL_VERSION, SCHEMA_HASH,
 };
 use kincal_protocol::params::{decode_blob, ArmParams, BlobError, BLOB_CRC, MAX_PARAM_BLOB};
 
@@ -118,7 +119,7 @@ impl<F: NorFlash> Controller<F> {
         }
     }
 
-    /// Answer one request; `sampler`'s counters go into [`Request::GetInfo`]'s answer.
+    /// Answer one request; `sampler`'s counters go into [`Request::GetInfo(GetInfo)`]'s answer.
     pub fn handle(
         &mut self,
         frame: HostFrame,
@@ -136,121 +137,129 @@ impl<F: NorFlash> Controller<F> {
     }
 
     fn respond(&mut self, request: Request, sampler: &Sampler) -> (Result<Response, WireError>, Action) {
-        let ok = |r| (Ok(r), Action::None);
-        let err = |e| (Err(e), Action::None);
-        if let Request::Hello { version, schema } = request {
-            if version != PROTOCOL_VERSION || schema != SCHEMA_HASH {
-                self.hello = false;
-                return err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH });
-            }
-            self.hello = true;
-            return ok(Response::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH });
+        let none = |answer| (answer, Action::None);
+        if let Request::Hello(hello) = request {
+            return none(typed::<Hello>(self.handshake(hello)));
         }
         if !self.hello {
-            return err(WireError::NoHello);
+            return none(Err(WireError::NoHello));
         }
         match request {
-            Request::Hello { .. } => err(WireError::BadFrame),
-            Request::GetInfo => {
-                let stored = self.store.active();
-                let info = Info {
-                    firmware: heapless::String::try_from(self.firmware).unwrap_or_default(),
-                    board: heapless::String::try_from(self.board).unwrap_or_default(),
-                    param_version: self.params().map_or(0, |p| p.version),
-                    param_crc: stored.map_or(0, |s| s.crc),
-                    ticks: self.tick,
-                    late_ticks: sampler.late_ticks,
-                    encoders: sampler.health,
-                };
-                ok(Response::Info(info))
-            }
-            Request::StartWindow { ticks } => {
-                if self.window.is_some() {
-                    err(WireError::Busy)
-                } else if ticks == 0 || ticks > MAX_WINDOW_TICKS {
-                    err(WireError::BadWindowLength)
-                } else {
-                    self.window = Some(Window::new(ticks));
-                    ok(Response::Ack)
-                }
-            }
-            Request::StreamRaw(on) => {
+            Request::Hello(_) => none(Err(WireError::BadFrame)),
+            Request::GetInfo(GetInfo) => none(typed::<GetInfo>(Ok(self.info(sampler)))),
+            Request::StartWindow(r) => none(typed::<StartWindow>(self.start_window(r))),
+            Request::StreamRaw(StreamRaw { on }) => {
                 self.raw = on;
-                ok(Response::Ack)
+                none(typed::<StreamRaw>(Ok(Ack)))
             }
-            Request::StreamPose(divider) => {
+            Request::StreamPose(StreamPose { divider }) => {
                 self.pose_divider = divider;
-                ok(Response::Ack)
+                none(typed::<StreamPose>(Ok(Ack)))
             }
-            Request::ParamBegin { len, crc } => {
-                if len as usize > MAX_PARAM_BLOB || len == 0 {
-                    return err(WireError::ParamTooLarge);
-                }
-                self.upload = Some(Upload { len: len as usize, crc, received: 0, buf: [0; MAX_PARAM_BLOB] });
-                ok(Response::Ack)
-            }
-            Request::ParamChunk { offset, data } => {
-                let Some(u) = self.upload.as_mut() else { return err(WireError::NoUpload) };
-                let offset = offset as usize;
-                if offset != u.received || offset + data.len() > u.len {
-                    return err(WireError::ParamOffset);
-                }
-                u.buf[offset..offset + data.len()].copy_from_slice(&data);
-                u.received += data.len();
-                ok(Response::Ack)
-            }
-            Request::ParamRead { offset, pending } => {
-                let mut stored = [0u8; MAX_PARAM_BLOB];
-                let bytes: &[u8] = if pending {
-                    match &self.upload {
-                        Some(u) => &u.buf[..u.received],
-                        None => return err(WireError::NoUpload),
-                    }
-                } else {
-                    self.store.load(&mut stored).unwrap_or(&[])
-                };
-                let from = (offset as usize).min(bytes.len());
-                let to = (from + PARAM_CHUNK).min(bytes.len());
-                ok(Response::ParamData {
-                    offset,
-                    data: heapless::Vec::from_slice(&bytes[from..to]).unwrap_or_default(),
-                })
-            }
-            Request::ParamCommit => {
-                let Some(u) = self.upload.take() else { return err(WireError::NoUpload) };
-                if u.received != u.len {
-                    self.upload = Some(u);
-                    return err(WireError::ParamIncomplete);
-                }
-                let blob = &u.buf[..u.len];
-                if BLOB_CRC.checksum(blob) != u.crc {
-                    return err(WireError::ParamInvalid);
-                }
-                // The device's own check: a set outside the physical envelope is never stored,
-                // whatever the host checked before sending.
-                let params = match decode_blob(blob) {
-                    Ok(p) => p,
-                    Err(BlobError::Envelope(v)) => return err(WireError::ParamEnvelope(v)),
-                    Err(_) => return err(WireError::ParamInvalid),
-                };
-                match self.store.store(blob) {
-                    Ok(()) => {
-                        self.params = Some((params, Kinematics::new(&params)));
-                        ok(Response::Ack)
-                    }
-                    Err(_) => err(WireError::FlashWrite),
-                }
-            }
-            Request::Reset => (Ok(Response::Ack), Action::Reset),
-            Request::SimSetPose { .. } | Request::SimFaults { .. } => {
+            Request::ParamBegin(r) => none(typed::<ParamBegin>(self.param_begin(r))),
+            Request::ParamChunk(r) => none(typed::<ParamChunk>(self.param_chunk(r))),
+            Request::ParamRead(r) => none(typed::<ParamRead>(self.param_read(r))),
+            Request::ParamCommit(ParamCommit) => none(typed::<ParamCommit>(self.param_commit())),
+            Request::Reset(Reset) => (typed::<Reset>(Ok(Ack)), Action::Reset),
+            Request::SimSetPose(_) | Request::SimFaults(_) => {
                 if self.simulated {
-                    (Ok(Response::Ack), Action::Simulate(request))
+                    (typed::<SimSetPose>(Ok(Ack)), Action::Simulate(request))
                 } else {
-                    err(WireError::NotSupported)
+                    none(Err(WireError::NotSupported))
                 }
             }
         }
     }
+
+    fn handshake(&mut self, Hello { version, schema }: Hello) -> Result<HelloReply, WireError> {
+        self.hello = version == PROTOCOL_VERSION && schema == SCHEMA_HASH;
+        if !self.hello {
+            return Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH });
+        }
+        Ok(HelloReply { version: PROTOCOL_VERSION, schema: SCHEMA_HASH })
+    }
+
+    fn info(&self, sampler: &Sampler) -> Info {
+        Info {
+            firmware: heapless::String::try_from(self.firmware).unwrap_or_default(),
+            board: heapless::String::try_from(self.board).unwrap_or_default(),
+            param_version: self.params().map_or(0, |p| p.version),
+            param_crc: self.store.active().map_or(0, |s| s.crc),
+            ticks: self.tick,
+            late_ticks: sampler.late_ticks,
+            encoders: sampler.health,
+        }
+    }
+
+    fn start_window(&mut self, StartWindow { ticks }: StartWindow) -> Result<Ack, WireError> {
+        if self.window.is_some() {
+            return Err(WireError::Busy);
+        }
+        if ticks == 0 || ticks > MAX_WINDOW_TICKS {
+            return Err(WireError::BadWindowLength);
+        }
+        self.window = Some(Window::new(ticks));
+        Ok(Ack)
+    }
+
+    fn param_begin(&mut self, ParamBegin { len, crc }: ParamBegin) -> Result<Ack, WireError> {
+        if len as usize > MAX_PARAM_BLOB || len == 0 {
+            return Err(WireError::ParamTooLarge);
+        }
+        self.upload = Some(Upload { len: len as usize, crc, received: 0, buf: [0; MAX_PARAM_BLOB] });
+        Ok(Ack)
+    }
+
+    fn param_chunk(&mut self, ParamChunk { offset, data }: ParamChunk) -> Result<Ack, WireError> {
+        let u = self.upload.as_mut().ok_or(WireError::NoUpload)?;
+        let offset = offset as usize;
+        if offset != u.received || offset + data.len() > u.len {
+            return Err(WireError::ParamOffset);
+        }
+        u.buf[offset..offset + data.len()].copy_from_slice(&data);
+        u.received += data.len();
+        Ok(Ack)
+    }
+
+    fn param_read(&mut self, ParamRead { offset, pending }: ParamRead) -> Result<ParamData, WireError> {
+        let mut stored = [0u8; MAX_PARAM_BLOB];
+        let bytes: &[u8] = if pending {
+            let u = self.upload.as_ref().ok_or(WireError::NoUpload)?;
+            &u.buf[..u.received]
+        } else {
+            self.store.load(&mut stored).unwrap_or(&[])
+        };
+        let from = (offset as usize).min(bytes.len());
+        let to = (from + PARAM_CHUNK).min(bytes.len());
+        Ok(ParamData { offset, data: heapless::Vec::from_slice(&bytes[from..to]).unwrap_or_default() })
+    }
+
+    fn param_commit(&mut self) -> Result<Ack, WireError> {
+        let u = self.upload.take().ok_or(WireError::NoUpload)?;
+        if u.received != u.len {
+            self.upload = Some(u);
+            return Err(WireError::ParamIncomplete);
+        }
+        let blob = &u.buf[..u.len];
+        if BLOB_CRC.checksum(blob) != u.crc {
+            return Err(WireError::ParamInvalid);
+        }
+        // The device's own check: a set outside the physical envelope is never stored,
+        // whatever the host checked before sending.
+        let params = decode_blob(blob).map_err(|e| match e {
+            BlobError::Envelope(v) => WireError::ParamEnvelope(v),
+            _ => WireError::ParamInvalid,
+        })?;
+        self.store.store(blob).map_err(|_| WireError::FlashWrite)?;
+        self.params = Some((params, Kinematics::new(&params)));
+        Ok(Ack)
+    }
+}
+
+/// Put endpoint `E`'s answer on the wire: each handler returns its endpoint's response type, so
+/// a request cannot be answered with another request's kind of answer.
+fn typed<E: Endpoint>(answer: Result<E::Response, WireError>) -> Result<Response, WireError> {
+    answer.map(Answer::into_response)
 }
 
 #[cfg(test)]
@@ -271,24 +280,27 @@ mod tests {
     }
 
     fn hello(c: &mut Ctl) {
-        assert!(ask(c, Request::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }).is_ok());
+        assert!(ask(c, Request::Hello(Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH })).is_ok());
     }
 
     #[test]
     fn requests_need_a_matching_hello() {
         let mut c = Ctl::new("fw", "test", false, RamNor::new());
-        assert_eq!(ask(&mut c, Request::GetInfo), Err(WireError::NoHello));
+        assert_eq!(ask(&mut c, Request::GetInfo(GetInfo)), Err(WireError::NoHello));
         assert_eq!(
-            ask(&mut c, Request::Hello { version: 99, schema: SCHEMA_HASH }),
+            ask(&mut c, Request::Hello(Hello { version: 99, schema: SCHEMA_HASH })),
             Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH })
         );
         assert_eq!(
-            ask(&mut c, Request::Hello { version: PROTOCOL_VERSION, schema: 1 }),
+            ask(&mut c, Request::Hello(Hello { version: PROTOCOL_VERSION, schema: 1 })),
             Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH })
         );
         hello(&mut c);
-        assert!(matches!(ask(&mut c, Request::GetInfo), Ok(Response::Info(_))));
-        assert_eq!(ask(&mut c, Request::SimSetPose { counts: [0; 6] }), Err(WireError::NotSupported));
+        assert!(matches!(ask(&mut c, Request::GetInfo(GetInfo)), Ok(Response::Info(_))));
+        assert_eq!(
+            ask(&mut c, Request::SimSetPose(SimSetPose { counts: [0; 6] })),
+            Err(WireError::NotSupported)
+        );
     }
 
     #[test]
@@ -300,8 +312,8 @@ mod tests {
         for _ in 0..10 {
             c.on_tick(&stale, &mut |f| frames.push(f.clone()));
         }
-        assert_eq!(ask(&mut c, Request::StartWindow { ticks: 3 }), Ok(Response::Ack));
-        assert_eq!(ask(&mut c, Request::StartWindow { ticks: 3 }), Err(WireError::Busy));
+        assert_eq!(ask(&mut c, Request::StartWindow(StartWindow { ticks: 3 })), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::StartWindow(StartWindow { ticks: 3 })), Err(WireError::Busy));
         let fresh = Sample { counts: [1000; 6], rejected: 0 };
         for _ in 0..3 {
             c.on_tick(&fresh, &mut |f| frames.push(f.clone()));
@@ -321,44 +333,51 @@ mod tests {
         let mut blob = [0u8; MAX_PARAM_BLOB];
         let n = encode_blob(&params, &mut blob).unwrap();
         let crc = BLOB_CRC.checksum(&blob[..n]);
-        assert_eq!(ask(&mut c, Request::ParamCommit), Err(WireError::NoUpload));
-        assert_eq!(ask(&mut c, Request::ParamBegin { len: n as u16, crc: crc ^ 1 }), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::ParamCommit(ParamCommit)), Err(WireError::NoUpload));
+        assert_eq!(
+            ask(&mut c, Request::ParamBegin(ParamBegin { len: n as u16, crc: crc ^ 1 })),
+            Ok(Response::Ack)
+        );
         for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
             assert_eq!(
                 ask(
                     &mut c,
-                    Request::ParamChunk {
+                    Request::ParamChunk(ParamChunk {
                         offset: (k * PARAM_CHUNK) as u16,
                         data: heapless::Vec::from_slice(chunk).unwrap()
-                    }
+                    })
                 ),
                 Ok(Response::Ack)
             );
         }
-        assert_eq!(ask(&mut c, Request::ParamCommit), Err(WireError::ParamInvalid), "wrong upload CRC");
-        assert!(c.params().is_none());
-        assert_eq!(ask(&mut c, Request::ParamBegin { len: n as u16, crc }), Ok(Response::Ack));
         assert_eq!(
-            ask(&mut c, Request::ParamChunk { offset: 48, data: heapless::Vec::new() }),
+            ask(&mut c, Request::ParamCommit(ParamCommit)),
+            Err(WireError::ParamInvalid),
+            "wrong upload CRC"
+        );
+        assert!(c.params().is_none());
+        assert_eq!(ask(&mut c, Request::ParamBegin(ParamBegin { len: n as u16, crc })), Ok(Response::Ack));
+        assert_eq!(
+            ask(&mut c, Request::ParamChunk(ParamChunk { offset: 48, data: heapless::Vec::new() })),
             Err(WireError::ParamOffset)
         );
         for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
             ask(
                 &mut c,
-                Request::ParamChunk {
+                Request::ParamChunk(ParamChunk {
                     offset: (k * PARAM_CHUNK) as u16,
                     data: heapless::Vec::from_slice(chunk).unwrap(),
-                },
+                }),
             )
             .unwrap();
         }
-        let Ok(Response::ParamData { data, .. }) =
-            ask(&mut c, Request::ParamRead { offset: 0, pending: true })
+        let Ok(Response::ParamData(ParamData { data, .. })) =
+            ask(&mut c, Request::ParamRead(ParamRead { offset: 0, pending: true }))
         else {
             panic!()
         };
         assert_eq!(&data[..], &blob[..PARAM_CHUNK.min(n)]);
-        assert_eq!(ask(&mut c, Request::ParamCommit), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::ParamCommit(ParamCommit)), Ok(Response::Ack));
         assert_eq!(c.params().map(|p| p.version), Some(42));
         let rebooted = Ctl::new("fw", "test", false, c.store.into_flash());
         assert_eq!(rebooted.params().map(|p| p.version), Some(42));
@@ -367,12 +386,12 @@ mod tests {
     fn upload(c: &mut Ctl, params: &ArmParams) -> Result<Response, WireError> {
         let mut blob = [0u8; MAX_PARAM_BLOB];
         let n = encode_blob(params, &mut blob).unwrap();
-        ask(c, Request::ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) })?;
+        ask(c, Request::ParamBegin(ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) }))?;
         for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
             let data = heapless::Vec::from_slice(chunk).unwrap();
-            ask(c, Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data })?;
+            ask(c, Request::ParamChunk(ParamChunk { offset: (k * PARAM_CHUNK) as u16, data }))?;
         }
-        ask(c, Request::ParamCommit)
+        ask(c, Request::ParamCommit(ParamCommit))
     }
 
     #[test]

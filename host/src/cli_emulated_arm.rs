@@ -6,7 +6,7 @@ use clap::{Args, Subcommand};
 use kincal::link::Link;
 use kincal::record::measure_window;
 use kincal_protocol::biss::{counts_to_deg, deg_to_counts};
-use kincal_protocol::messages::{Request, JOINTS};
+use kincal_protocol::messages::{SimFaults, SimSetPose, JOINTS};
 
 /// What to do to the emulated arm.
 #[derive(Subcommand)]
@@ -84,7 +84,7 @@ fn pose(a: &PoseArgs) -> Result<()> {
         counts
     };
     let mut link = greeted(&a.port)?;
-    link.command(Request::SimSetPose { counts }, "emulated pose")?;
+    link.call(SimSetPose { counts })?;
     // Read it back through the controller, as a touch would.
     let window = measure_window(&mut link, 96)?;
     println!("joint  set counts  set deg      read deg   accepted");
@@ -104,16 +104,13 @@ fn pose(a: &PoseArgs) -> Result<()> {
 
 fn faults(a: &FaultArgs) -> Result<()> {
     let mut link = greeted(&a.port)?;
-    link.command(
-        Request::SimFaults {
-            noise_counts: a.noise_counts,
-            crc_errors_per_10k: a.crc_errors_per_10k,
-            dropouts_per_10k: a.dropouts_per_10k,
-            error_bits_per_10k: a.error_bits_per_10k,
-            warnings_per_10k: a.warnings_per_10k,
-        },
-        "emulated encoder faults",
-    )?;
+    link.call(SimFaults {
+        noise_counts: a.noise_counts,
+        crc_errors_per_10k: a.crc_errors_per_10k,
+        dropouts_per_10k: a.dropouts_per_10k,
+        error_bits_per_10k: a.error_bits_per_10k,
+        warnings_per_10k: a.warnings_per_10k,
+    })?;
     println!(
         "emulated encoders: noise {} counts, per 10 000 frames: {} CRC errors, {} dropouts, {} error bits, {} warnings",
         a.noise_counts, a.crc_errors_per_10k, a.dropouts_per_10k, a.error_bits_per_10k, a.warnings_per_10k

@@ -10,8 +10,9 @@
 
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
 use kincal_protocol::messages::{
-    DeviceFrame, HostFrame, Info, Request, Response, Stream, WireError, PARAM_CHUNK, PROTOCOL_VERSION,
-    SCHEMA_HASH,
+    Ack, Answer, DeviceFrame, Endpoint, GetInfo, Hello, HelloReply, HostFrame, Info, ParamBegin, ParamChunk,
+    ParamCommit, ParamData, ParamRead, Request, Response, Stream, Topic, WireError, PARAM_CHUNK,
+    PROTOCOL_VERSION, SCHEMA_HASH,
 };
 use kincal_protocol::params::BLOB_CRC;
 use std::collections::VecDeque;
@@ -170,7 +171,7 @@ pub struct LinkStats {
 
 /// A response as queued: its sequence number, the answer, and how many stream frames had been
 /// queued before it arrived.
-struct Answer {
+struct Queued {
     seq: u16,
     response: Result<Response, WireError>,
     streams_before: u64,
@@ -185,7 +186,7 @@ pub struct Link {
     streams: VecDeque<(u64, u16, Stream)>,
     /// Stream frames queued so far (arrival numbers count up from 0).
     streams_arrived: u64,
-    answers: VecDeque<Answer>,
+    answers: VecDeque<Queued>,
     /// Stream frames that had arrived when the last returned response arrived.
     before_last_response: u64,
     last_stream_seq: Option<u16>,
@@ -296,13 +297,13 @@ impl Link {
                 self.streams_arrived += 1;
             }
             DeviceFrame::Response { seq, response } => {
-                self.answers.push_back(Answer { seq, response, streams_before: self.streams_arrived })
+                self.answers.push_back(Queued { seq, response, streams_before: self.streams_arrived })
             }
         }
     }
 
     /// Send `request` and wait for its response.
-    pub fn request(
+    fn request(
         &mut self,
         request: Request,
         what: &'static str,
@@ -324,16 +325,28 @@ impl Link {
         }
     }
 
-    /// Send a request that may safely be repeated, trying up to three times on a timeout.
-    pub fn request_idempotent(
+    /// Send `request` and wait up to `timeout` for its endpoint's answer.
+    pub fn call_within<E: Endpoint>(
         &mut self,
-        request: Request,
-        what: &'static str,
-    ) -> Result<Response, LinkError> {
+        request: E,
+        timeout: Duration,
+    ) -> Result<E::Response, LinkError> {
+        let response = self.request(request.into(), E::NAME, timeout)?;
+        E::Response::from_response(response).ok_or(LinkError::Unexpected(E::NAME))
+    }
+
+    /// Send `request` and wait for its endpoint's answer ([`DEFAULT_TIMEOUT`]).
+    pub fn call<E: Endpoint>(&mut self, request: E) -> Result<E::Response, LinkError> {
+        self.call_within(request, DEFAULT_TIMEOUT)
+    }
+
+    /// [`Link::call`] for a request that may safely be repeated, tried up to three times on a
+    /// timeout.
+    pub fn call_idempotent<E: Endpoint + Clone>(&mut self, request: E) -> Result<E::Response, LinkError> {
         let mut attempt = 0;
         loop {
             attempt += 1;
-            match self.request(request.clone(), what, DEFAULT_TIMEOUT) {
+            match self.call(request.clone()) {
                 Err(LinkError::Timeout(..)) if attempt < 3 => continue,
                 other => return other,
             }
@@ -347,8 +360,8 @@ impl Link {
 
     /// Handshake announcing `version` and `schema` (tests use it to provoke a mismatch).
     pub fn hello_as(&mut self, version: u16, schema: u32) -> Result<(), LinkError> {
-        match self.request_idempotent(Request::Hello { version, schema }, "hello") {
-            Ok(Response::Hello { .. }) => Ok(()),
+        match self.call_idempotent(Hello { version, schema }) {
+            Ok(HelloReply { .. }) => Ok(()),
             Err(LinkError::Refused(
                 _,
                 WireError::VersionMismatch { version: device_version, schema: device_schema },
@@ -359,24 +372,12 @@ impl Link {
                 device_schema,
             }),
             Err(e) => Err(e),
-            Ok(_) => Err(LinkError::Unexpected("hello")),
         }
     }
 
     /// Controller identity and health.
     pub fn info(&mut self) -> Result<Info, LinkError> {
-        match self.request_idempotent(Request::GetInfo, "info")? {
-            Response::Info(info) => Ok(info),
-            _ => Err(LinkError::Unexpected("info")),
-        }
-    }
-
-    /// Send a request that is answered with a plain acknowledgement.
-    pub fn command(&mut self, request: Request, what: &'static str) -> Result<(), LinkError> {
-        match self.request(request, what, DEFAULT_TIMEOUT)? {
-            Response::Ack => Ok(()),
-            _ => Err(LinkError::Unexpected(what)),
-        }
+        self.call_idempotent(GetInfo)
     }
 
     /// Forget the stream frames that arrived before the response to the last request. The
@@ -385,6 +386,23 @@ impl Link {
     pub fn clear_streams(&mut self) {
         let mark = self.before_last_response;
         self.streams.retain(|(arrival, _, _)| *arrival >= mark);
+    }
+
+    /// The next item of topic `T`, waiting up to `timeout`; frames of other topics that arrive
+    /// first are dropped.
+    pub fn next_on<T: Topic>(&mut self, timeout: Duration) -> Result<Option<(u16, T)>, LinkError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.next_stream(left)? {
+                None => return Ok(None),
+                Some((seq, item)) => {
+                    if let Some(item) = T::from_stream(item) {
+                        return Ok(Some((seq, item)));
+                    }
+                }
+            }
+        }
     }
 
     /// The next streamed frame, waiting up to `timeout`.
@@ -410,13 +428,10 @@ impl Link {
     /// commit's answer does not arrive, the controller is asked what it holds: the new set
     /// (success, [`Uploaded::commit_reply_lost`]) or not ([`LinkError::CommitUnconfirmed`]).
     pub fn upload(&mut self, blob: &[u8]) -> Result<Uploaded, LinkError> {
-        self.command(
-            Request::ParamBegin { len: blob.len() as u16, crc: BLOB_CRC.checksum(blob) },
-            "parameter upload",
-        )?;
+        self.call(ParamBegin { len: blob.len() as u16, crc: BLOB_CRC.checksum(blob) })?;
         for (k, chunk) in blob.chunks(PARAM_CHUNK).enumerate() {
             let data = heapless::Vec::from_slice(chunk).map_err(|_| LinkError::Unexpected("chunk"))?;
-            self.command(Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data }, "parameter chunk")?;
+            self.call(ParamChunk { offset: (k * PARAM_CHUNK) as u16, data })?;
         }
         let back = self.read_params(true, blob.len())?;
         if let Some(i) = back
@@ -427,9 +442,8 @@ impl Link {
         {
             return Err(LinkError::ReadBack(i));
         }
-        let cause = match self.request(Request::ParamCommit, "parameter commit", COMMIT_TIMEOUT) {
-            Ok(Response::Ack) => return Ok(Uploaded { commit_reply_lost: false }),
-            Ok(_) => LinkError::Unexpected("parameter commit"),
+        let cause = match self.call_within(ParamCommit, COMMIT_TIMEOUT) {
+            Ok(Ack) => return Ok(Uploaded { commit_reply_lost: false }),
             Err(e @ LinkError::Refused(..)) => return Err(e),
             Err(e) => e,
         };
@@ -450,14 +464,12 @@ impl Link {
     pub fn read_params(&mut self, pending: bool, limit: usize) -> Result<Vec<u8>, LinkError> {
         let mut out = Vec::new();
         while out.len() < limit {
-            match self.request_idempotent(
-                Request::ParamRead { offset: out.len() as u16, pending },
-                "parameter read",
-            )? {
-                Response::ParamData { data, .. } if data.is_empty() => break,
-                Response::ParamData { data, .. } => out.extend_from_slice(&data),
-                _ => return Err(LinkError::Unexpected("parameter read")),
+            let ParamData { data, .. } =
+                self.call_idempotent(ParamRead { offset: out.len() as u16, pending })?;
+            if data.is_empty() {
+                break;
             }
+            out.extend_from_slice(&data);
         }
         Ok(out)
     }

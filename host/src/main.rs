@@ -622,7 +622,7 @@ fn cmd_upload(a: &UploadArgs) -> Result<()> {
 }
 
 fn cmd_stream(a: &StreamArgs) -> Result<()> {
-    use kincal_protocol::messages::{Request, Stream};
+    use kincal_protocol::messages::{Stream, StreamPose, StreamRaw};
     let mut link = connect(&a.port)?;
     catch_ctrl_c();
     let mut csv = match &a.csv {
@@ -643,7 +643,11 @@ fn cmd_stream(a: &StreamArgs) -> Result<()> {
             }
         )?;
     }
-    link.command(if a.pose { Request::StreamPose(1) } else { Request::StreamRaw(true) }, "stream")?;
+    if a.pose {
+        link.call(StreamPose { divider: 1 })?;
+    } else {
+        link.call(StreamRaw { on: true })?;
+    }
     let started = std::time::Instant::now();
     let mut frames = 0u64;
     let mut last_report = started;
@@ -687,8 +691,8 @@ fn cmd_stream(a: &StreamArgs) -> Result<()> {
             );
         }
     }
-    let _ = link.command(Request::StreamRaw(false), "stop stream");
-    let _ = link.command(Request::StreamPose(0), "stop stream");
+    let _ = link.call(StreamRaw { on: false });
+    let _ = link.call(StreamPose { divider: 0 });
     println!(
         "{frames} frames in {:.1} s ({:.1} Hz), {} lost, {} corrupt",
         started.elapsed().as_secs_f64(),

@@ -66,10 +66,10 @@ fn main() {
             "parameter chunk (request)",
             size(&HostFrame {
                 seq: u16::MAX,
-                request: Request::ParamChunk {
+                request: Request::ParamChunk(ParamChunk {
                     offset: 1000,
                     data: heapless::Vec::from_slice(&[0xFF; PARAM_CHUNK]).unwrap_or_default(),
-                },
+                }),
             }),
         ),
     ];

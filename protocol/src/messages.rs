@@ -47,70 +47,128 @@ pub struct HostFrame {
     pub request: Request,
 }
 
-/// What the host can ask.
+/// What the host can ask: one variant per endpoint, each wrapping the request type of the same
+/// name, whose [`Endpoint::Response`] names the answer's type.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub enum Request {
     /// Version and schema check; must come first.
-    Hello {
-        /// The host's [`PROTOCOL_VERSION`].
-        version: u16,
-        /// The host's [`SCHEMA_HASH`].
-        schema: u32,
-    },
+    Hello(Hello),
     /// Firmware identity, stored parameters and encoder health.
-    GetInfo,
-    /// Average the next `ticks` fresh samples (1536 = 2 s at 768 Hz) and send a window.
-    StartWindow {
-        /// Samples to average.
-        ticks: u16,
-    },
-    /// Stream every raw sample (true) or stop (false).
-    StreamRaw(bool),
-    /// Stream the calibrated tool pose every `divider` ticks (0 stops).
-    StreamPose(u16),
-    /// Start a parameter upload of `len` bytes whose CRC-32 is `crc`.
-    ParamBegin {
-        /// Blob length, bytes.
-        len: u16,
-        /// CRC-32 (ISO-HDLC) of the blob.
-        crc: u32,
-    },
+    GetInfo(GetInfo),
+    /// Measure a window of fresh samples.
+    StartWindow(StartWindow),
+    /// Stream every raw sample, or stop.
+    StreamRaw(StreamRaw),
+    /// Stream the calibrated tool pose, or stop.
+    StreamPose(StreamPose),
+    /// Start a parameter upload.
+    ParamBegin(ParamBegin),
     /// One chunk of the upload.
-    ParamChunk {
-        /// Offset of the chunk in the blob.
-        offset: u16,
-        /// Bytes.
-        data: heapless::Vec<u8, PARAM_CHUNK>,
-    },
-    /// Read back part of the pending upload (before commit) or of the stored blob.
-    ParamRead {
-        /// Offset, bytes.
-        offset: u16,
-        /// Read the pending upload (true) or the stored parameters (false).
-        pending: bool,
-    },
-    /// Check the pending upload and make it the stored parameters (power-loss safe).
-    ParamCommit,
+    ParamChunk(ParamChunk),
+    /// Read back part of the pending upload or of the stored blob.
+    ParamRead(ParamRead),
+    /// Check the pending upload and store it (power-loss safe).
+    ParamCommit(ParamCommit),
     /// Restart the controller.
-    Reset,
-    /// Emulated board only: set the joint positions the emulated encoders report.
-    SimSetPose {
-        /// Position of each encoder, counts.
-        counts: [u32; JOINTS],
-    },
+    Reset(Reset),
+    /// Emulated board only: pose the emulated encoders.
+    SimSetPose(SimSetPose),
     /// Emulated board only: noise and faults of the emulated encoder bus.
-    SimFaults {
-        /// Standard deviation of position noise, counts.
-        noise_counts: u16,
-        /// Frames per 10 000 sent with a corrupted CRC.
-        crc_errors_per_10k: u16,
-        /// Frames per 10 000 with no answer.
-        dropouts_per_10k: u16,
-        /// Frames per 10 000 with the error bit set.
-        error_bits_per_10k: u16,
-        /// Frames per 10 000 with the warning bit set.
-        warnings_per_10k: u16,
-    },
+    SimFaults(SimFaults),
+}
+
+/// Version and schema check; must come first. Answer: [`HelloReply`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct Hello {
+    /// The host's [`PROTOCOL_VERSION`].
+    pub version: u16,
+    /// The host's [`SCHEMA_HASH`].
+    pub schema: u32,
+}
+
+/// Firmware identity, stored parameters and encoder health. Answer: [`Info`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct GetInfo;
+
+/// Average the next `ticks` fresh samples (1536 = 2 s at 768 Hz) and stream a
+/// [`WindowReport`]. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct StartWindow {
+    /// Samples to average (1..=[`MAX_WINDOW_TICKS`]).
+    pub ticks: u16,
+}
+
+/// Stream every raw sample ([`RawSample`]) or stop. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct StreamRaw {
+    /// Stream (true) or stop (false).
+    pub on: bool,
+}
+
+/// Stream the calibrated tool pose ([`PoseReport`]) every `divider` ticks. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct StreamPose {
+    /// Ticks between poses (0 stops).
+    pub divider: u16,
+}
+
+/// Start a parameter upload of `len` bytes whose CRC-32 is `crc`. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct ParamBegin {
+    /// Blob length, bytes.
+    pub len: u16,
+    /// CRC-32 (ISO-HDLC) of the blob.
+    pub crc: u32,
+}
+
+/// One chunk of the upload. Answer: [`Ack`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub struct ParamChunk {
+    /// Offset of the chunk in the blob.
+    pub offset: u16,
+    /// Bytes.
+    pub data: heapless::Vec<u8, PARAM_CHUNK>,
+}
+
+/// Read back part of the pending upload (before commit) or of the stored blob.
+/// Answer: [`ParamData`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct ParamRead {
+    /// Offset, bytes.
+    pub offset: u16,
+    /// Read the pending upload (true) or the stored parameters (false).
+    pub pending: bool,
+}
+
+/// Check the pending upload and make it the stored parameters (power-loss safe).
+/// Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct ParamCommit;
+
+/// Restart the controller (after the answer has left). Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct Reset;
+
+/// Emulated board only: set the joint positions the emulated encoders report. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct SimSetPose {
+    /// Position of each encoder, counts.
+    pub counts: [u32; JOINTS],
+}
+
+/// Emulated board only: noise and faults of the emulated encoder bus. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct SimFaults {
+    /// Standard deviation of position noise, counts.
+    pub noise_counts: u16,
+    /// Frames per 10 000 sent with a corrupted CRC.
+    pub crc_errors_per_10k: u16,
+    /// Frames per 10 000 with no answer.
+    pub dropouts_per_10k: u16,
+    /// Frames per 10 000 with the error bit set.
+    pub error_bits_per_10k: u16,
+    /// Frames per 10 000 with the warning bit set.
+    pub warnings_per_10k: u16,
 }
 
 /// A frame from the controller.
@@ -132,27 +190,39 @@ pub enum DeviceFrame {
     },
 }
 
-/// Successful answers.
+/// Successful answers, one variant per answer type.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub enum Response {
-    /// Answer to [`Request::Hello`].
-    Hello {
-        /// Controller's protocol version.
-        version: u16,
-        /// Controller's schema hash.
-        schema: u32,
-    },
-    /// Answer to [`Request::GetInfo`].
+    /// Answer to [`Hello`].
+    Hello(HelloReply),
+    /// Answer to [`GetInfo`].
     Info(Info),
     /// The request was carried out.
     Ack,
-    /// Answer to [`Request::ParamRead`].
-    ParamData {
-        /// Offset of the bytes.
-        offset: u16,
-        /// Bytes (empty past the end).
-        data: heapless::Vec<u8, PARAM_CHUNK>,
-    },
+    /// Answer to [`ParamRead`].
+    ParamData(ParamData),
+}
+
+/// The controller's side of the handshake.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct HelloReply {
+    /// Controller's protocol version.
+    pub version: u16,
+    /// Controller's schema hash.
+    pub schema: u32,
+}
+
+/// The request was carried out (the answer of most endpoints).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Ack;
+
+/// Part of a parameter blob.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub struct ParamData {
+    /// Offset of the bytes.
+    pub offset: u16,
+    /// Bytes (empty past the end).
+    pub data: heapless::Vec<u8, PARAM_CHUNK>,
 }
 
 /// Errors that cross the wire.
@@ -289,6 +359,104 @@ pub struct PoseReport {
     pub x_axis: [f32; 3],
 }
 
+/// A request type and the type of its answer, as postcard-rpc's endpoints: the controller can
+/// only answer a request with its endpoint's response type, and the host gets that type back.
+pub trait Endpoint: Into<Request> {
+    /// The answer's type.
+    type Response: Answer;
+    /// The request's name in messages.
+    const NAME: &'static str;
+}
+
+/// A type a [`Response`] can carry.
+pub trait Answer: Sized {
+    /// Put it on the wire.
+    fn into_response(self) -> Response;
+    /// Take it off the wire; `None` when the response holds another type.
+    fn from_response(response: Response) -> Option<Self>;
+}
+
+macro_rules! answers {
+    ($($ty:ty => $variant:ident),* $(,)?) => {$(
+        impl Answer for $ty {
+            fn into_response(self) -> Response {
+                Response::$variant(self)
+            }
+            fn from_response(response: Response) -> Option<Self> {
+                match response {
+                    Response::$variant(inner) => Some(inner),
+                    _ => None,
+                }
+            }
+        }
+    )*};
+}
+answers!(HelloReply => Hello, Info => Info, ParamData => ParamData);
+
+impl Answer for Ack {
+    fn into_response(self) -> Response {
+        Response::Ack
+    }
+    fn from_response(response: Response) -> Option<Self> {
+        matches!(response, Response::Ack).then_some(Ack)
+    }
+}
+
+macro_rules! endpoints {
+    ($($request:ident => $answer:ty, $name:literal;)*) => {$(
+        impl From<$request> for Request {
+            fn from(request: $request) -> Request {
+                Request::$request(request)
+            }
+        }
+        impl Endpoint for $request {
+            type Response = $answer;
+            const NAME: &'static str = $name;
+        }
+    )*};
+}
+endpoints! {
+    Hello => HelloReply, "hello";
+    GetInfo => Info, "info";
+    StartWindow => Ack, "measurement window";
+    StreamRaw => Ack, "raw stream";
+    StreamPose => Ack, "pose stream";
+    ParamBegin => Ack, "parameter upload";
+    ParamChunk => Ack, "parameter chunk";
+    ParamRead => ParamData, "parameter read";
+    ParamCommit => Ack, "parameter commit";
+    Reset => Ack, "reset";
+    SimSetPose => Ack, "emulated pose";
+    SimFaults => Ack, "emulated encoder faults";
+}
+
+/// A stream topic: one of the items the controller streams, with its own type.
+pub trait Topic: Sized {
+    /// The topic's name in messages.
+    const NAME: &'static str;
+    /// Take it out of a stream frame; `None` for another topic.
+    fn from_stream(item: Stream) -> Option<Self>;
+}
+
+macro_rules! topics {
+    ($($ty:ty => $variant:ident, $name:literal;)*) => {$(
+        impl Topic for $ty {
+            const NAME: &'static str = $name;
+            fn from_stream(item: Stream) -> Option<Self> {
+                match item {
+                    Stream::$variant(inner) => Some(inner),
+                    _ => None,
+                }
+            }
+        }
+    )*};
+}
+topics! {
+    RawSample => Raw, "raw samples";
+    WindowReport => Window, "measurement windows";
+    PoseReport => Pose, "tool poses";
+}
+
 impl JointWindow {
     /// Whether enough samples were accepted (at least [`MIN_ACCEPTED_PER_1000`]‰ of `ticks`, and
     /// at least one) for the mean to be used.
@@ -357,6 +525,21 @@ mod tests {
     fn counts_pack_and_unpack() {
         let counts = [0, 1, 0x3F_FFFF, 0x2A_AAAA, 0x15_5555, 123_456];
         assert_eq!(unpack_counts(&pack_counts(&counts)), counts);
+    }
+
+    /// Each endpoint's answer type comes back only from its own kind of response.
+    #[test]
+    fn answers_are_taken_only_from_their_own_response() {
+        fn name<E: Endpoint>(_: &E) -> &'static str {
+            E::NAME
+        }
+        let reply = HelloReply { version: 1, schema: 2 };
+        assert_eq!(<Hello as Endpoint>::Response::from_response(reply.into_response()), Some(reply));
+        assert_eq!(<GetInfo as Endpoint>::Response::from_response(Response::Ack), None);
+        assert_eq!(<ParamCommit as Endpoint>::Response::from_response(Response::Ack), Some(Ack));
+        assert_eq!(<ParamRead as Endpoint>::Response::from_response(Response::Ack), None);
+        assert_eq!(Request::from(StreamRaw { on: true }), Request::StreamRaw(StreamRaw { on: true }));
+        assert_eq!(name(&StartWindow { ticks: 1 }), "measurement window");
     }
 
     /// The hash follows the structure, not the text: a renamed field or a changed type changes

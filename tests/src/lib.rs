@@ -105,7 +105,7 @@ fn serve(
                     for &b in &buf[..n] {
                         let Some(decoded) = decoder.push::<HostFrame>(b) else { continue };
                         let commit_fault = match &decoded {
-                            Ok(HostFrame { request: Request::ParamCommit, .. }) => std::mem::replace(
+                            Ok(HostFrame { request: Request::ParamCommit(_), .. }) => std::mem::replace(
                                 &mut *fault.lock().unwrap_or_else(|e| e.into_inner()),
                                 CommitFault::None,
                             ),

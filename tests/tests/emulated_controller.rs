@@ -4,7 +4,10 @@
 use kincal::emulator::{build_firmware, Emulator};
 use kincal::link::{Link, LinkError};
 use kincal_protocol::biss::COUNTS_PER_TURN;
-use kincal_protocol::messages::{Request, Stream, WindowReport, PROTOCOL_VERSION, SCHEMA_HASH};
+use kincal_protocol::messages::{
+    GetInfo, Reset, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WindowReport,
+    PROTOCOL_VERSION, SCHEMA_HASH,
+};
 use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
@@ -21,7 +24,7 @@ fn start() -> (std::sync::MutexGuard<'static, ()>, Emulator, Link) {
 }
 
 fn window(link: &mut Link, ticks: u16) -> WindowReport {
-    link.command(Request::StartWindow { ticks }, "window").unwrap();
+    link.call(StartWindow { ticks }).unwrap();
     let deadline = Instant::now() + Duration::from_secs(10);
     while Instant::now() < deadline {
         if let Some((_, Stream::Window(w))) = link.next_stream(Duration::from_millis(500)).unwrap() {
@@ -60,17 +63,14 @@ fn boots_and_checks_the_protocol_version() {
 fn a_two_second_window_returns_the_set_pose_including_one_at_the_wrap() {
     let (_g, _emu, mut link) = start();
     let counts = [100_000, COUNTS_PER_TURN - 2, 1, 2_097_152, 3_000_000, COUNTS_PER_TURN - 1];
-    link.command(Request::SimSetPose { counts }, "pose").unwrap();
-    link.command(
-        Request::SimFaults {
-            noise_counts: 3,
-            crc_errors_per_10k: 0,
-            dropouts_per_10k: 0,
-            error_bits_per_10k: 0,
-            warnings_per_10k: 0,
-        },
-        "faults",
-    )
+    link.call(SimSetPose { counts }).unwrap();
+    link.call(SimFaults {
+        noise_counts: 3,
+        crc_errors_per_10k: 0,
+        dropouts_per_10k: 0,
+        error_bits_per_10k: 0,
+        warnings_per_10k: 0,
+    })
     .unwrap();
     let started = Instant::now();
     let w = window(&mut link, 1536);
@@ -89,17 +89,14 @@ fn a_two_second_window_returns_the_set_pose_including_one_at_the_wrap() {
 fn injected_crc_errors_are_counted_and_excluded() {
     let (_g, _emu, mut link) = start();
     let counts = [1_000_000; 6];
-    link.command(Request::SimSetPose { counts }, "pose").unwrap();
-    link.command(
-        Request::SimFaults {
-            noise_counts: 0,
-            crc_errors_per_10k: 500,
-            dropouts_per_10k: 100,
-            error_bits_per_10k: 0,
-            warnings_per_10k: 0,
-        },
-        "faults",
-    )
+    link.call(SimSetPose { counts }).unwrap();
+    link.call(SimFaults {
+        noise_counts: 0,
+        crc_errors_per_10k: 500,
+        dropouts_per_10k: 100,
+        error_bits_per_10k: 0,
+        warnings_per_10k: 0,
+    })
     .unwrap();
     let w = window(&mut link, 768);
     for jw in &w.joints {
@@ -119,7 +116,7 @@ fn uploaded_parameters_survive_a_controller_reset() {
     let blob = kincal::device::parameter_blob(&model, 7).unwrap();
     link.upload(&blob).unwrap();
     assert_eq!(link.info().unwrap().param_version, 7);
-    link.command(Request::Reset, "reset").unwrap();
+    link.call(Reset).unwrap();
     std::thread::sleep(Duration::from_millis(300));
     // After the reset the controller wants a new handshake.
     let deadline = Instant::now() + Duration::from_secs(5);
@@ -135,7 +132,7 @@ fn uploaded_parameters_survive_a_controller_reset() {
 #[test]
 fn a_ten_second_raw_stream_arrives_without_gaps() {
     let (_g, _emu, mut link) = start();
-    link.command(Request::StreamRaw(true), "raw stream").unwrap();
+    link.call(StreamRaw { on: true }).unwrap();
     let started = Instant::now();
     let mut frames = 0u32;
     let mut last: Option<u16> = None;
@@ -149,7 +146,7 @@ fn a_ten_second_raw_stream_arrives_without_gaps() {
             frames += 1;
         }
     }
-    link.command(Request::StreamRaw(false), "raw stream off").unwrap();
+    link.call(StreamRaw { on: false }).unwrap();
     let rate = frames as f64 / started.elapsed().as_secs_f64();
     eprintln!(
         "raw stream: {frames} frames in 10 s ({rate:.1} Hz), {gaps} lost, {} corrupt",
@@ -169,8 +166,8 @@ fn the_controller_streams_the_calibrated_pose_the_host_computes() {
     model.tcp_mm = [0.5, -0.3, 253.0];
     link.upload(&kincal::device::parameter_blob(&model, 11).unwrap()).unwrap();
     let counts = [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, COUNTS_PER_TURN - 5];
-    link.command(Request::SimSetPose { counts }, "pose").unwrap();
-    link.command(Request::StreamPose(4), "pose stream").unwrap();
+    link.call(SimSetPose { counts }).unwrap();
+    link.call(StreamPose { divider: 4 }).unwrap();
     let deadline = Instant::now() + Duration::from_secs(5);
     let mut poses = Vec::new();
     while poses.len() < 20 && Instant::now() < deadline {
@@ -178,7 +175,7 @@ fn the_controller_streams_the_calibrated_pose_the_host_computes() {
             poses.push(p);
         }
     }
-    link.command(Request::StreamPose(0), "pose stream off").unwrap();
+    link.call(StreamPose { divider: 0 }).unwrap();
     assert!(poses.len() >= 20, "pose frames: {}", poses.len());
     let enc_deg = counts.map(|c| c as f64 * 360.0 / COUNTS_PER_TURN as f64);
     let host = kincal::model::kinematics::tool_pose(&model, &enc_deg);
@@ -285,17 +282,16 @@ fn raw_frames_and_missed_ticks(link: &mut Link) -> (u64, u64) {
 fn a_thousand_requests_during_a_full_rate_raw_stream_lose_nothing() {
     let (_g, _emu, mut link) = start();
     let late_before = link.info().unwrap().late_ticks;
-    link.command(Request::StreamRaw(true), "raw stream").unwrap();
+    link.call(StreamRaw { on: true }).unwrap();
     let started = Instant::now();
     for k in 0..1000 {
         // No retries: every single request must be answered.
-        match link.request(Request::GetInfo, "info", Duration::from_secs(2)) {
-            Ok(kincal_protocol::messages::Response::Info(_)) => {}
-            other => panic!("request {k}: {other:?}"),
+        if let Err(e) = link.call_within(GetInfo, Duration::from_secs(2)) {
+            panic!("request {k}: {e}");
         }
     }
     let seconds = started.elapsed().as_secs_f64();
-    link.command(Request::StreamRaw(false), "raw stream off").unwrap();
+    link.call(StreamRaw { on: false }).unwrap();
     let (frames, missed) = raw_frames_and_missed_ticks(&mut link);
     let late = link.info().unwrap().late_ticks - late_before;
     eprintln!(
@@ -314,13 +310,13 @@ fn a_thousand_requests_during_a_full_rate_raw_stream_lose_nothing() {
 fn parameter_commits_during_a_raw_stream_miss_no_tick() {
     let (_g, _emu, mut link) = start();
     let late_before = link.info().unwrap().late_ticks;
-    link.command(Request::StreamRaw(true), "raw stream").unwrap();
+    link.call(StreamRaw { on: true }).unwrap();
     let model = kincal::model::ArmModel::suta_nominal();
     // Enough commits to fill the emulated flash's slots several times over.
     for version in 1..=12 {
         link.upload(&kincal::device::parameter_blob(&model, version).unwrap()).unwrap();
     }
-    link.command(Request::StreamRaw(false), "raw stream off").unwrap();
+    link.call(StreamRaw { on: false }).unwrap();
     let (frames, missed) = raw_frames_and_missed_ticks(&mut link);
     let info = link.info().unwrap();
     assert_eq!(info.param_version, 12);

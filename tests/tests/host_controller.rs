@@ -4,7 +4,9 @@
 use kincal::data::{Artefact, Session};
 use kincal::link::{Link, LinkError};
 use kincal_e2e::{kincal_bin, CommitFault, FakeController};
-use kincal_protocol::messages::{Request, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH};
+use kincal_protocol::messages::{
+    Hello, ParamBegin, ParamChunk, ParamCommit, SimFaults, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
+};
 use kincal_protocol::params::BLOB_CRC;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -108,16 +110,12 @@ fn an_interrupted_upload_keeps_the_old_parameters_and_a_retry_succeeds() {
     let mut new_model = kincal::model::ArmModel::suta_nominal();
     new_model.joints[2].d_mm += 1.5;
     let new = kincal::device::parameter_blob(&new_model, 2).unwrap();
-    link.command(Request::ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }, "begin")
-        .unwrap();
+    link.call(ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }).unwrap();
     for (k, chunk) in new.chunks(PARAM_CHUNK).take(3).enumerate() {
-        link.command(
-            Request::ParamChunk {
-                offset: (k * PARAM_CHUNK) as u16,
-                data: heapless::Vec::from_slice(chunk).unwrap(),
-            },
-            "chunk",
-        )
+        link.call(ParamChunk {
+            offset: (k * PARAM_CHUNK) as u16,
+            data: heapless::Vec::from_slice(chunk).unwrap(),
+        })
         .unwrap();
     }
     drop(link); // the connection closes halfway through the upload
@@ -126,7 +124,7 @@ fn an_interrupted_upload_keeps_the_old_parameters_and_a_retry_succeeds() {
     assert_eq!(link.info().unwrap().param_version, 1, "the old parameters stay active");
     assert_eq!(link.read_params(false, 4096).unwrap(), old);
     assert!(
-        matches!(link.command(Request::ParamCommit, "commit"), Err(LinkError::Refused(_, _))),
+        matches!(link.call(ParamCommit), Err(LinkError::Refused(_, _))),
         "a half upload cannot be committed"
     );
     link.upload(&new).unwrap();
@@ -296,16 +294,13 @@ fn record_args<'a>(port: &'a str, artefact: &'a str, out: &'a str, window: &'a s
 fn set_dropouts(port: &str, dropouts_per_10k: u16) {
     let mut link = Link::open(port).unwrap();
     link.hello().unwrap();
-    link.command(
-        Request::SimFaults {
-            noise_counts: 0,
-            crc_errors_per_10k: 0,
-            dropouts_per_10k,
-            error_bits_per_10k: 0,
-            warnings_per_10k: 0,
-        },
-        "faults",
-    )
+    link.call(SimFaults {
+        noise_counts: 0,
+        crc_errors_per_10k: 0,
+        dropouts_per_10k,
+        error_bits_per_10k: 0,
+        warnings_per_10k: 0,
+    })
     .unwrap();
 }
 
@@ -390,11 +385,9 @@ fn the_first_request_after_line_noise_is_answered() {
     // glued to it and lost.
     stream.write_all(&[0x55, 0x12, 0xA7, 0x3C, 0x01]).unwrap();
     let mut link = Link::over(Box::new(stream));
-    let answer = link.request(
-        Request::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH },
-        "hello",
-        Duration::from_secs(1),
-    );
+    // One attempt, no retry.
+    let answer =
+        link.call_within(Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }, Duration::from_secs(1));
     assert!(answer.is_ok(), "{answer:?}");
 }
 

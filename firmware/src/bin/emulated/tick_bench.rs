@@ -17,7 +17,10 @@ use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
 use kincal_firmware::kinematics::Kinematics;
 use kincal_protocol::framing::{self, MAX_FRAME};
-use kincal_protocol::messages::{HostFrame, Request, PROTOCOL_VERSION, SCHEMA_HASH};
+use kincal_protocol::messages::{
+    Hello, HostFrame, ParamBegin, ParamChunk, ParamCommit, Request, SimFaults, SimSetPose, StartWindow,
+    StreamPose, StreamRaw, PROTOCOL_VERSION, SCHEMA_HASH,
+};
 use kincal_protocol::params::{encode_blob, ArmParams, JointParams, BLOB_CRC, MAX_PARAM_BLOB};
 
 const TIMER0: Block = Block::Timer0;
@@ -94,14 +97,16 @@ pub fn run() -> ! {
     let mut controller = Controller::new("bench", "mps2", true, RamNor::<4096>::new());
     let mut sampler = Sampler::default();
     let mut bus = EmulatedEncoders::new();
-    bus.apply(&Request::SimSetPose { counts: [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, 500] });
-    bus.apply(&Request::SimFaults {
+    bus.apply(&Request::SimSetPose(SimSetPose {
+        counts: [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, 500],
+    }));
+    bus.apply(&Request::SimFaults(SimFaults {
         noise_counts: 3,
         crc_errors_per_10k: 0,
         dropouts_per_10k: 0,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
-    });
+    }));
     let mut sink = |f: &kincal_protocol::messages::DeviceFrame| {
         let mut buf = [0u8; MAX_FRAME];
         let _ = framing::encode_device_frame(f, &mut buf);
@@ -109,24 +114,24 @@ pub fn run() -> ! {
     let mut blob = [0u8; MAX_PARAM_BLOB];
     let n = encode_blob(&params(), &mut blob).unwrap_or(0);
     for request in [
-        Request::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH },
-        Request::ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) },
+        Request::Hello(Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }),
+        Request::ParamBegin(ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) }),
     ] {
         controller.handle(HostFrame { seq: 1, request }, &sampler, &mut sink);
     }
     for (k, chunk) in blob[..n].chunks(48).enumerate() {
         let data = heapless::Vec::from_slice(chunk).unwrap_or_default();
         controller.handle(
-            HostFrame { seq: 2, request: Request::ParamChunk { offset: (k * 48) as u16, data } },
+            HostFrame { seq: 2, request: Request::ParamChunk(ParamChunk { offset: (k * 48) as u16, data }) },
             &sampler,
             &mut sink,
         );
     }
     for request in [
-        Request::ParamCommit,
-        Request::StartWindow { ticks: 4096 },
-        Request::StreamRaw(true),
-        Request::StreamPose(1),
+        Request::ParamCommit(ParamCommit),
+        Request::StartWindow(StartWindow { ticks: 4096 }),
+        Request::StreamRaw(StreamRaw { on: true }),
+        Request::StreamPose(StreamPose { divider: 1 }),
     ] {
         controller.handle(HostFrame { seq: 3, request }, &sampler, &mut sink);
     }

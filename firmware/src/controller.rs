@@ -119,7 +119,7 @@ impl<F: NorFlash> Controller<F> {
         }
     }
 
-    /// Answer one request; `sampler`'s counters go into [`Request::GetInfo(GetInfo)`]'s answer.
+    /// Answer one request; `sampler`'s counters go into the answer to [`GetInfo`].
     pub fn handle(
         &mut self,
         frame: HostFrame,

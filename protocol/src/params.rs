@@ -152,8 +152,9 @@ pub fn check_envelope(params: &ArmParams) -> Result<(), EnvelopeViolation> {
         return Err(EnvelopeViolation { field: ParamField::Version, joint: 0, value: 0.0, limit: 1.0 });
     }
     let check = |field, joint: u8, value: f64, limit: f64| {
-        // `!(|v| <= limit)` also refuses NaN; the limits keep every value finite in f32.
-        if !(value.abs() <= limit) || !(value as f32).is_finite() {
+        // NaN is not within any limit; the limits keep every value finite in f32.
+        let within = value.abs() <= limit;
+        if !within || !(value as f32).is_finite() {
             Err(EnvelopeViolation { field, joint, value, limit })
         } else {
             Ok(())
@@ -287,7 +288,9 @@ mod tests {
     #[test]
     fn absurd_sets_are_outside_the_envelope() {
         assert_eq!(check_envelope(&sample()), Ok(()));
-        let cases: [(fn(&mut ArmParams), ParamField, u8); 7] = [
+        /// A way to break a set, the field and the joint the refusal must name.
+        type Case = (fn(&mut ArmParams), ParamField, u8);
+        let cases: [Case; 7] = [
             (|p| p.joints[2].a_mm = 1e6, ParamField::AMm, 3),
             (|p| p.joints[0].alpha_deg = 1e6, ParamField::AlphaDeg, 1),
             (|p| p.scale_ppm = 1e12, ParamField::ScalePpm, 0),

@@ -191,7 +191,9 @@ fn absurd_parameter_sets_are_refused_by_the_controller_itself() {
     use kincal_protocol::params::{encode_blob, ArmParams, ParamField, MAX_PARAM_BLOB};
     let (_g, _emu, mut link) = start();
     let good = kincal::device::device_params(&kincal::model::ArmModel::suta_nominal(), 5);
-    let cases: [(fn(&mut ArmParams), ParamField); 5] = [
+    /// A way to break a parameter set, and the field the controller must name.
+    type Case = (fn(&mut ArmParams), ParamField);
+    let cases: [Case; 5] = [
         (|p| p.joints[1].a_mm = 1e6, ParamField::AMm),
         (|p| p.joints[3].alpha_deg = 1e6, ParamField::AlphaDeg),
         (|p| p.scale_ppm = 1e12, ParamField::ScalePpm),

@@ -11,7 +11,7 @@ use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, Shar
 use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
-use kincal_protocol::messages::{DeviceFrame, HostFrame, Request};
+use kincal_protocol::messages::{DeviceFrame, HostFrame, Request, TICK_HZ};
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::PathBuf;
@@ -87,7 +87,7 @@ fn serve(
     let encoders: SharedEncoders<NoopRawMutex> =
         embassy_sync::blocking_mutex::Mutex::new(std::cell::RefCell::new(EmulatedEncoders::new()));
     let mut master = BissMaster::new(EmulatedEncoder::all(&encoders));
-    let tick = Duration::from_secs_f64(1.0 / (768.0 * speedup.max(1) as f64));
+    let tick = Duration::from_secs_f64(1.0 / (TICK_HZ as f64 * speedup.max(1) as f64));
     while !stop.load(Ordering::SeqCst) {
         let Ok((mut stream, _)) = listener.accept() else {
             std::thread::sleep(Duration::from_millis(5));

@@ -1,7 +1,7 @@
 //! Power-loss-safe parameter storage on NOR flash (embedded-storage's [`NorFlash`]): an
 //! append-only log over two erase sectors, so a commit normally only programs words and a
-//! sector is erased once it is full (every ~6 commits on the emulated 2 KiB sectors, ~400 on
-//! the STM32's 128 KiB ones), not on every commit.
+//! sector is erased once it is full (every 3 commits of a 526-byte set on the emulated 2 KiB
+//! sectors, ~239 on the STM32's 128 KiB ones), not on every commit.
 //!
 //! Record (word-aligned, at the end of the sector's log): magic `KSL2` ‖ sequence u32 ‖ blob
 //! length u16 ‖ 0xFFFF ‖ CRC-32 of the blob ‖ blob, padded to a word ‖ commit word `CMIT`.

@@ -3,7 +3,8 @@
 //!
 //! The F405 has one flash bank: while a sector is erased (1–2 s for 128 KiB), instruction
 //! fetches from flash stall. The parameter log erases only when a sector is full (about every
-//! 400 commits); that commit stalls sampling, the others only program words (~16 µs each).
+//! 239 commits of a 526-byte set); that commit stalls sampling, the others only program words
+//! (~16 µs each).
 
 use embassy_stm32::flash::{Blocking, Error, Flash};
 use embassy_stm32::Peri;

@@ -606,7 +606,7 @@ fn cmd_upload(a: &UploadArgs) -> Result<()> {
         Ok(u) => u,
         Err(e @ kincal::link::LinkError::CommitUnconfirmed { .. }) => bail!("upload failed: {e}"),
         Err(e) => {
-            bail!("upload failed before the commit: {e}. The controller keeps {before}; run the upload again")
+            bail!("upload failed: {e}. Nothing was committed: the controller keeps {before}; run the upload again")
         }
     };
     if uploaded.commit_reply_lost {

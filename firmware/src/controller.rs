@@ -43,6 +43,10 @@ pub struct Controller<F: NorFlash> {
     tick: u32,
     stream_seq: u16,
     upload: Option<Upload>,
+    /// The last request carried out and its answer: the host repeats a request with the same
+    /// sequence number when the answer was lost, and gets this answer again instead of the
+    /// request being carried out twice.
+    last: Option<(HostFrame, Result<Response, WireError>)>,
     store: ParamStore<F>,
     params: Option<(ArmParams, Kinematics)>,
 }
@@ -65,6 +69,7 @@ impl<F: NorFlash> Controller<F> {
             tick: 0,
             stream_seq: 0,
             upload: None,
+            last: None,
             store,
             params,
         }
@@ -126,8 +131,18 @@ impl<F: NorFlash> Controller<F> {
         sampler: &Sampler,
         emit: &mut impl FnMut(&DeviceFrame),
     ) -> Action {
-        let (response, action) = self.respond(frame.request, sampler);
-        emit(&DeviceFrame::Response { seq: frame.seq, response });
+        if let Some((done, response)) = &self.last {
+            if *done == frame {
+                emit(&DeviceFrame::Response { seq: frame.seq, response: response.clone() });
+                return Action::None;
+            }
+        }
+        let seq = frame.seq;
+        let hello = matches!(frame.request, Request::Hello(_));
+        let (response, action) = self.respond(frame.request.clone(), sampler);
+        // A handshake starts a new session: nothing before it is repeated.
+        self.last = (!hello).then(|| (frame, response.clone()));
+        emit(&DeviceFrame::Response { seq, response });
         action
     }
 
@@ -270,13 +285,20 @@ mod tests {
 
     type Ctl = Controller<RamNor<4096>>;
 
-    fn ask(c: &mut Ctl, request: Request) -> Result<Response, WireError> {
+    /// Send `request` as frame `seq`; the answer.
+    fn ask_as(c: &mut Ctl, seq: u16, request: Request) -> Result<Response, WireError> {
         let mut out = Vec::new();
-        c.handle(HostFrame { seq: 5, request }, &Sampler::default(), &mut |f| out.push(f.clone()));
+        c.handle(HostFrame { seq, request }, &Sampler::default(), &mut |f| out.push(f.clone()));
         match out.pop() {
-            Some(DeviceFrame::Response { seq: 5, response }) => response,
+            Some(DeviceFrame::Response { seq: s, response }) if s == seq => response,
             other => panic!("unexpected {other:?}"),
         }
+    }
+
+    /// Send `request` with a fresh sequence number, as the host does.
+    fn ask(c: &mut Ctl, request: Request) -> Result<Response, WireError> {
+        static SEQ: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(1);
+        ask_as(c, SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed), request)
     }
 
     fn hello(c: &mut Ctl) {
@@ -410,5 +432,31 @@ mod tests {
         zero.version = 0;
         assert!(matches!(upload(&mut c, &zero), Err(WireError::ParamEnvelope(_))));
         assert_eq!(c.params(), Some(&good), "the previous set stays active");
+    }
+
+    /// A request repeated with its sequence number (its answer was lost) is answered again, not
+    /// carried out twice; the same request with a new number is carried out.
+    #[test]
+    fn a_repeated_request_is_answered_again_not_carried_out_twice() {
+        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        hello(&mut c);
+        let params = ArmParams { version: 9, tcp_mm: [0.0, 0.0, 253.0], ..ArmParams::default() };
+        let mut blob = [0u8; MAX_PARAM_BLOB];
+        let n = encode_blob(&params, &mut blob).unwrap();
+        let begin = Request::ParamBegin(ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) });
+        assert_eq!(ask_as(&mut c, 100, begin), Ok(Response::Ack));
+        let chunk = Request::ParamChunk(ParamChunk {
+            offset: 0,
+            data: heapless::Vec::from_slice(&blob[..PARAM_CHUNK]).unwrap(),
+        });
+        assert_eq!(ask_as(&mut c, 101, chunk.clone()), Ok(Response::Ack));
+        assert_eq!(ask_as(&mut c, 101, chunk.clone()), Ok(Response::Ack), "the repeat gets the answer");
+        assert_eq!(ask_as(&mut c, 102, chunk), Err(WireError::ParamOffset), "a new request is carried out");
+        let Ok(Response::ParamData(ParamData { data, .. })) =
+            ask(&mut c, Request::ParamRead(ParamRead { offset: 0, pending: true }))
+        else {
+            panic!()
+        };
+        assert_eq!(data.len(), PARAM_CHUNK, "the chunk was taken once");
     }
 }

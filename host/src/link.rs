@@ -4,7 +4,10 @@
 //! every command goes through the same code path. Requests carry a sequence number and wait
 //! for the response with that number; stream frames that arrive meanwhile are queued for
 //! [`Link::next_stream`]. Every request frame starts with a 0x00 delimiter, so line noise before
-//! it ends as a bad frame of its own instead of swallowing the request. Garbage on the line is
+//! it ends as a bad frame of its own instead of swallowing the request. A request whose answer
+//! does not come is repeated with the same sequence number ([`Link::call_retrying`]); the
+//! controller answers a repeat without carrying the request out twice, so any request may be
+//! repeated, not only idempotent ones. Garbage on the line is
 //! skipped (and counted); a link that closes is reported as such. When the answer to a parameter
 //! commit is lost, the host asks the controller what it holds before saying anything.
 
@@ -68,7 +71,8 @@ impl fmt::Display for AfterFailure {
 /// How an upload ended when it succeeded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Uploaded {
-    /// The answer to the commit was lost; the controller was asked and holds the new set.
+    /// The first answer to the commit was lost; a repeat of the request (answered by the
+    /// controller without committing twice) or asking what it holds confirmed the new set.
     pub commit_reply_lost: bool,
 }
 
@@ -229,24 +233,30 @@ impl Link {
         }
     }
 
-    fn send(&mut self, request: Request) -> Result<u16, LinkError> {
+    /// The next request's sequence number.
+    fn next_seq(&mut self) -> u16 {
         self.seq = self.seq.wrapping_add(1);
         if self.seq == u16::MAX {
             self.seq = 0; // u16::MAX is the controller's "undecodable request" answer
         }
+        self.seq
+    }
+
+    /// Send `request` as frame `seq`.
+    fn send(&mut self, seq: u16, request: Request) -> Result<(), LinkError> {
         let mut buf = [0u8; MAX_FRAME + 1];
         let (delimiter, rest) = buf.split_at_mut(1);
         delimiter[0] = 0;
         let Ok(rest) = <&mut [u8; MAX_FRAME]>::try_from(rest) else {
             return Err(LinkError::Unexpected("encoding"));
         };
-        let n = framing::encode(&HostFrame { seq: self.seq, request }, rest)
+        let n = framing::encode(&HostFrame { seq, request }, rest)
             .map_err(|_| LinkError::Unexpected("encoding"))?
             .len();
         // The leading delimiter ends any noise the controller received before this frame.
         self.transport.write_all(&buf[..1 + n])?;
         self.transport.flush()?;
-        Ok(self.seq)
+        Ok(())
     }
 
     /// Read once (waiting until `deadline` at most) and queue every frame that decoded.
@@ -302,55 +312,70 @@ impl Link {
         }
     }
 
-    /// Send `request` and wait for its response.
+    /// Send `request` up to `attempts` times, each waiting `timeout` for its answer. Repeats
+    /// carry the same sequence number: a controller that carried the request out and whose
+    /// answer was lost answers again without doing it twice, so any request may be repeated.
+    /// Returns the answer and the attempts it took.
     fn request(
         &mut self,
         request: Request,
         what: &'static str,
         timeout: Duration,
-    ) -> Result<Response, LinkError> {
-        let seq = self.send(request)?;
-        let deadline = Instant::now() + timeout;
-        loop {
-            // Answers to other sequence numbers are stale (their requests timed out): dropped.
-            while let Some(answer) = self.answers.pop_front() {
-                if answer.seq == seq {
+        attempts: u32,
+    ) -> Result<(Response, u32), LinkError> {
+        let seq = self.next_seq();
+        for attempt in 1..=attempts.max(1) {
+            self.send(seq, request.clone())?;
+            let deadline = Instant::now() + timeout;
+            loop {
+                // Answers to other sequence numbers are stale (their requests timed out): dropped.
+                if let Some(answer) = self.answers.iter().position(|a| a.seq == seq) {
+                    let answer = self.answers.drain(..=answer).last().ok_or(LinkError::Unexpected(what))?;
                     self.before_last_response = answer.streams_before;
-                    return answer.response.map_err(|e| LinkError::Refused(what, e));
+                    return match answer.response {
+                        Ok(response) => Ok((response, attempt)),
+                        Err(e) => Err(LinkError::Refused(what, e)),
+                    };
+                }
+                self.answers.clear();
+                if !self.pump(deadline)? {
+                    break;
                 }
             }
-            if !self.pump(deadline)? {
-                return Err(LinkError::Timeout(timeout, what));
-            }
         }
+        Err(LinkError::Timeout(timeout, what))
     }
 
-    /// Send `request` and wait up to `timeout` for its endpoint's answer.
+    /// Send `request` (up to `attempts` times) and wait up to `timeout` each time for its
+    /// endpoint's answer; returns it with the attempts it took.
+    fn call_attempts<E: Endpoint>(
+        &mut self,
+        request: E,
+        timeout: Duration,
+        attempts: u32,
+    ) -> Result<(E::Response, u32), LinkError> {
+        let (response, attempt) = self.request(request.into(), E::NAME, timeout, attempts)?;
+        let answer = E::Response::from_response(response).ok_or(LinkError::Unexpected(E::NAME))?;
+        Ok((answer, attempt))
+    }
+
+    /// Send `request` once and wait up to `timeout` for its endpoint's answer.
     pub fn call_within<E: Endpoint>(
         &mut self,
         request: E,
         timeout: Duration,
     ) -> Result<E::Response, LinkError> {
-        let response = self.request(request.into(), E::NAME, timeout)?;
-        E::Response::from_response(response).ok_or(LinkError::Unexpected(E::NAME))
+        Ok(self.call_attempts(request, timeout, 1)?.0)
     }
 
-    /// Send `request` and wait for its endpoint's answer ([`DEFAULT_TIMEOUT`]).
+    /// Send `request` once and wait for its endpoint's answer ([`DEFAULT_TIMEOUT`]).
     pub fn call<E: Endpoint>(&mut self, request: E) -> Result<E::Response, LinkError> {
         self.call_within(request, DEFAULT_TIMEOUT)
     }
 
-    /// [`Link::call`] for a request that may safely be repeated, tried up to three times on a
-    /// timeout.
-    pub fn call_idempotent<E: Endpoint + Clone>(&mut self, request: E) -> Result<E::Response, LinkError> {
-        let mut attempt = 0;
-        loop {
-            attempt += 1;
-            match self.call(request.clone()) {
-                Err(LinkError::Timeout(..)) if attempt < 3 => continue,
-                other => return other,
-            }
-        }
+    /// [`Link::call`], repeated (same sequence number) up to three times when no answer comes.
+    pub fn call_retrying<E: Endpoint>(&mut self, request: E) -> Result<E::Response, LinkError> {
+        Ok(self.call_attempts(request, DEFAULT_TIMEOUT, 3)?.0)
     }
 
     /// Version and schema handshake; must come first.
@@ -360,7 +385,7 @@ impl Link {
 
     /// Handshake announcing `version` and `schema` (tests use it to provoke a mismatch).
     pub fn hello_as(&mut self, version: u16, schema: u32) -> Result<(), LinkError> {
-        match self.call_idempotent(Hello { version, schema }) {
+        match self.call_retrying(Hello { version, schema }) {
             Ok(HelloReply { .. }) => Ok(()),
             Err(LinkError::Refused(
                 _,
@@ -377,7 +402,7 @@ impl Link {
 
     /// Controller identity and health.
     pub fn info(&mut self) -> Result<Info, LinkError> {
-        self.call_idempotent(GetInfo)
+        self.call_retrying(GetInfo)
     }
 
     /// Forget the stream frames that arrived before the response to the last request. The
@@ -428,10 +453,10 @@ impl Link {
     /// commit's answer does not arrive, the controller is asked what it holds: the new set
     /// (success, [`Uploaded::commit_reply_lost`]) or not ([`LinkError::CommitUnconfirmed`]).
     pub fn upload(&mut self, blob: &[u8]) -> Result<Uploaded, LinkError> {
-        self.call(ParamBegin { len: blob.len() as u16, crc: BLOB_CRC.checksum(blob) })?;
+        self.call_retrying(ParamBegin { len: blob.len() as u16, crc: BLOB_CRC.checksum(blob) })?;
         for (k, chunk) in blob.chunks(PARAM_CHUNK).enumerate() {
             let data = heapless::Vec::from_slice(chunk).map_err(|_| LinkError::Unexpected("chunk"))?;
-            self.call(ParamChunk { offset: (k * PARAM_CHUNK) as u16, data })?;
+            self.call_retrying(ParamChunk { offset: (k * PARAM_CHUNK) as u16, data })?;
         }
         let back = self.read_params(true, blob.len())?;
         if let Some(i) = back
@@ -442,8 +467,8 @@ impl Link {
         {
             return Err(LinkError::ReadBack(i));
         }
-        let cause = match self.call_within(ParamCommit, COMMIT_TIMEOUT) {
-            Ok(Ack) => return Ok(Uploaded { commit_reply_lost: false }),
+        let cause = match self.call_attempts(ParamCommit, COMMIT_TIMEOUT, 2) {
+            Ok((Ack, attempts)) => return Ok(Uploaded { commit_reply_lost: attempts > 1 }),
             Err(e @ LinkError::Refused(..)) => return Err(e),
             Err(e) => e,
         };
@@ -465,7 +490,7 @@ impl Link {
         let mut out = Vec::new();
         while out.len() < limit {
             let ParamData { data, .. } =
-                self.call_idempotent(ParamRead { offset: out.len() as u16, pending })?;
+                self.call_retrying(ParamRead { offset: out.len() as u16, pending })?;
             if data.is_empty() {
                 break;
             }

@@ -20,10 +20,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-/// What the fake controller does with the next parameter commit.
+/// What happens to a request the fake controller is told to fault.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum CommitFault {
-    /// Carry it out and answer.
+pub enum Fault {
+    /// Nothing: carry it out and answer.
     None,
     /// Carry it out, but the answer is lost on the way back.
     LoseReply,
@@ -31,11 +31,17 @@ pub enum CommitFault {
     LoseRequest,
 }
 
+/// Which requests to fault, how, and how many more times.
+struct FaultPlan {
+    applies: fn(&Request) -> bool,
+    fault: Fault,
+    times: u32,
+}
 /// A controller on a background thread; stopped on drop.
 pub struct FakeController {
     /// Where to connect: `tcp:127.0.0.1:PORT`.
     pub port: String,
-    commit_fault: Arc<std::sync::Mutex<CommitFault>>,
+    faults: Arc<std::sync::Mutex<FaultPlan>>,
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -57,15 +63,16 @@ impl FakeController {
         listener.set_nonblocking(true).expect("nonblocking");
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
-        let commit_fault = Arc::new(std::sync::Mutex::new(CommitFault::None));
-        let fault = commit_fault.clone();
-        let thread = std::thread::spawn(move || serve(listener, flag, fault, speedup));
-        FakeController { port, commit_fault, stop, thread: Some(thread) }
+        let faults =
+            Arc::new(std::sync::Mutex::new(FaultPlan { applies: |_| false, fault: Fault::None, times: 0 }));
+        let plan = faults.clone();
+        let thread = std::thread::spawn(move || serve(listener, flag, plan, speedup));
+        FakeController { port, faults, stop, thread: Some(thread) }
     }
 
-    /// Make the next parameter commit fail in the way given (once).
-    pub fn fault_next_commit(&self, fault: CommitFault) {
-        *self.commit_fault.lock().unwrap_or_else(|e| e.into_inner()) = fault;
+    /// Fault the next `times` requests for which `applies` holds, in the way given.
+    pub fn fault_next(&self, applies: fn(&Request) -> bool, fault: Fault, times: u32) {
+        *self.faults.lock().unwrap_or_else(|e| e.into_inner()) = FaultPlan { applies, fault, times };
     }
 }
 
@@ -79,7 +86,7 @@ fn write_frame(stream: &mut TcpStream, frame: &DeviceFrame) {
 fn serve(
     listener: TcpListener,
     stop: Arc<AtomicBool>,
-    fault: Arc<std::sync::Mutex<CommitFault>>,
+    faults: Arc<std::sync::Mutex<FaultPlan>>,
     speedup: u32,
 ) {
     let mut controller = Controller::new("kincal-fw fake", "host (fake)", true, RamNor::<4096>::new());
@@ -104,14 +111,19 @@ fn serve(
                 Ok(n) => {
                     for &b in &buf[..n] {
                         let Some(decoded) = decoder.push::<HostFrame>(b) else { continue };
-                        let commit_fault = match &decoded {
-                            Ok(HostFrame { request: Request::ParamCommit(_), .. }) => std::mem::replace(
-                                &mut *fault.lock().unwrap_or_else(|e| e.into_inner()),
-                                CommitFault::None,
-                            ),
-                            _ => CommitFault::None,
+                        let fault = match &decoded {
+                            Ok(frame) => {
+                                let mut plan = faults.lock().unwrap_or_else(|e| e.into_inner());
+                                if plan.times > 0 && (plan.applies)(&frame.request) {
+                                    plan.times -= 1;
+                                    plan.fault
+                                } else {
+                                    Fault::None
+                                }
+                            }
+                            Err(_) => Fault::None,
                         };
-                        if commit_fault == CommitFault::LoseRequest {
+                        if fault == Fault::LoseRequest {
                             continue;
                         }
                         let mut out = Vec::new();
@@ -122,7 +134,7 @@ fn serve(
                                 Action::None
                             }
                         };
-                        if commit_fault != CommitFault::LoseReply {
+                        if fault != Fault::LoseReply {
                             for f in &out {
                                 write_frame(&mut stream, f);
                             }

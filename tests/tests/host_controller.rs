@@ -3,7 +3,7 @@
 
 use kincal::data::{Artefact, Session};
 use kincal::link::{Link, LinkError};
-use kincal_e2e::{kincal_bin, CommitFault, FakeController};
+use kincal_e2e::{kincal_bin, FakeController, Fault};
 use kincal_protocol::messages::{
     Hello, ParamBegin, ParamChunk, ParamCommit, SimFaults, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
 };
@@ -220,16 +220,21 @@ fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
     let (code, out, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "10"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(out.contains("now holds parameters version 10"), "{out}");
-    // The commit happens but its answer is lost: the host asks, and reports the new set.
-    fake.fault_next_commit(CommitFault::LoseReply);
+    let commit = |r: &kincal_protocol::messages::Request| {
+        matches!(r, kincal_protocol::messages::Request::ParamCommit(_))
+    };
+    // The commit happens but every answer to it is lost (the first and the repeat): the host
+    // asks what the controller holds, and reports the new set.
+    fake.fault_next(commit, Fault::LoseReply, 2);
     let (code, out, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "77"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(err.contains("answer to the commit was lost"), "{err}");
     assert!(
         out.contains("now holds parameters version 77") && out.contains("previously parameters version 10")
     );
-    // The commit itself is lost: the host asks, and reports the set still held.
-    fake.fault_next_commit(CommitFault::LoseRequest);
+    // The commit request is lost, and its repeat too: the host asks, and reports the set still
+    // held.
+    fake.fault_next(commit, Fault::LoseRequest, 2);
     let (code, _, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "78"]);
     assert_eq!(code, Some(1));
     assert!(
@@ -418,4 +423,29 @@ fn the_emulated_arm_is_posed_and_faulted_from_the_cli() {
     let (code, _, err) = kincal(&["emulated-arm", "pose", "--port", &fake.port, "--counts", "1,2,3"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("--counts: expected 6 positions"), "{err}");
+}
+
+#[test]
+fn lost_answers_are_repeated_without_doing_anything_twice() {
+    let fake = FakeController::start(1);
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    // The answer to one chunk is lost: the chunk is sent again with its sequence number and the
+    // controller answers without appending it twice (else the read-back or the offset check fails).
+    let chunk = |r: &kincal_protocol::messages::Request| {
+        matches!(r, kincal_protocol::messages::Request::ParamChunk(_))
+    };
+    fake.fault_next(chunk, Fault::LoseReply, 1);
+    let blob = kincal::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 6).unwrap();
+    let done = link.upload(&blob).unwrap();
+    assert!(!done.commit_reply_lost);
+    assert_eq!(link.read_params(false, 4096).unwrap(), blob);
+    // A lost commit answer: the repeat is answered from the controller's memory of it.
+    let commit = |r: &kincal_protocol::messages::Request| {
+        matches!(r, kincal_protocol::messages::Request::ParamCommit(_))
+    };
+    fake.fault_next(commit, Fault::LoseReply, 1);
+    let blob = kincal::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 7).unwrap();
+    assert!(link.upload(&blob).unwrap().commit_reply_lost);
+    assert_eq!(link.info().unwrap().param_version, 7);
 }

@@ -330,7 +330,8 @@ impl Link {
             loop {
                 // Answers to other sequence numbers are stale (their requests timed out): dropped.
                 if let Some(answer) = self.answers.iter().position(|a| a.seq == seq) {
-                    let answer = self.answers.drain(..=answer).last().ok_or(LinkError::Unexpected(what))?;
+                    let answer =
+                        self.answers.drain(..=answer).next_back().ok_or(LinkError::Unexpected(what))?;
                     self.before_last_response = answer.streams_before;
                     return match answer.response {
                         Ok(response) => Ok((response, attempt)),

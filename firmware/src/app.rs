@@ -11,13 +11,13 @@
 use crate::biss_master::BissMaster;
 use crate::controller::{Action, Controller};
 use crate::encoders::Sampler;
-use crate::flash::NorFlash;
 use core::cell::RefCell;
 use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, ThreadModeRawMutex};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::pipe::Pipe;
-use embassy_time::{Duration, Ticker, Timer};
+use embassy_time::{Duration, Instant, Ticker, Timer};
 use embedded_hal_async::spi::SpiDevice;
+use embedded_storage::nor_flash::NorFlash;
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
 use kincal_protocol::messages::{DeviceFrame, HostFrame, TICK_HZ};
 
@@ -68,12 +68,17 @@ pub async fn sample_encoders<F: NorFlash, D: SpiDevice>(
     shared: &SharedCell<F>,
     mut master: BissMaster<D>,
 ) -> ! {
-    let mut ticker = Ticker::every(Duration::from_hz(TICK_HZ as u64));
+    let period = Duration::from_hz(TICK_HZ as u64);
+    let mut ticker = Ticker::every(period);
+    let mut due = Instant::now() + period;
     loop {
         ticker.next().await;
+        let late = Instant::now() > due + period;
+        due += period;
         let readings = master.read_all().await;
         shared.lock(|cell| {
             if let Some(s) = cell.borrow_mut().as_mut() {
+                s.sampler.late_ticks += late as u32;
                 let sample = s.sampler.record(&readings);
                 s.controller.on_tick(&sample, &mut send_frame);
             }
@@ -93,10 +98,7 @@ pub async fn serve_host<F: NorFlash>(shared: &SharedCell<F>, mut act: impl FnMut
                 let mut cell = cell.borrow_mut();
                 let Some(s) = cell.as_mut() else { return Action::None };
                 match decoded {
-                    Ok(frame) => {
-                        let health = s.sampler.health;
-                        s.controller.handle(frame, &health, &mut send_frame)
-                    }
+                    Ok(frame) => s.controller.handle(frame, &s.sampler, &mut send_frame),
                     Err(_) => {
                         s.controller.bad_frame(&mut send_frame);
                         Action::None

@@ -1,13 +1,15 @@
 //! The protocol state machine: requests in, responses and streams out. Board independent.
 
-use crate::encoders::Sample;
-use crate::flash::{NorFlash, ParamStore};
+use crate::encoders::{Sample, Sampler};
+use crate::flash::ParamStore;
 use crate::kinematics::Kinematics;
 use crate::window::Window;
-use kincal_protocol::messages::{pack_counts, EncoderHealth, JOINTS};
+use embedded_storage::nor_flash::NorFlash;
 use kincal_protocol::messages::{
-    DeviceFrame, HostFrame, Info, PoseReport, RawSample, Request, Response, Stream, WireError,
-    MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
+    pack_counts, Ack, Answer, DeviceFrame, Endpoint, GetInfo, Hello, HelloReply, HostFrame, Info, ParamBegin,
+    ParamChunk, ParamCommit, ParamData, ParamRead, PoseReport, RawSample, Request, Reset, Response,
+    SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WireError, MAX_WINDOW_TICKS, PARAM_CHUNK,
+    PROTOCOL_VERSION, SCHEMA_HASH,
 };
 use kincal_protocol::params::{decode_blob, ArmParams, BlobError, BLOB_CRC, MAX_PARAM_BLOB};
 
@@ -41,6 +43,10 @@ pub struct Controller<F: NorFlash> {
     tick: u32,
     stream_seq: u16,
     upload: Option<Upload>,
+    /// The last request carried out and its answer: the host repeats a request with the same
+    /// sequence number when the answer was lost, and gets this answer again instead of the
+    /// request being carried out twice.
+    last: Option<(HostFrame, Result<Response, WireError>)>,
     store: ParamStore<F>,
     params: Option<(ArmParams, Kinematics)>,
 }
@@ -63,6 +69,7 @@ impl<F: NorFlash> Controller<F> {
             tick: 0,
             stream_seq: 0,
             upload: None,
+            last: None,
             store,
             params,
         }
@@ -117,15 +124,25 @@ impl<F: NorFlash> Controller<F> {
         }
     }
 
-    /// Answer one request; `health` is the sampler's counters for [`Request::GetInfo`].
+    /// Answer one request; `sampler`'s counters go into the answer to [`GetInfo`].
     pub fn handle(
         &mut self,
         frame: HostFrame,
-        health: &[EncoderHealth; JOINTS],
+        sampler: &Sampler,
         emit: &mut impl FnMut(&DeviceFrame),
     ) -> Action {
-        let (response, action) = self.respond(frame.request, health);
-        emit(&DeviceFrame::Response { seq: frame.seq, response });
+        if let Some((done, response)) = &self.last {
+            if *done == frame {
+                emit(&DeviceFrame::Response { seq: frame.seq, response: response.clone() });
+                return Action::None;
+            }
+        }
+        let seq = frame.seq;
+        let hello = matches!(frame.request, Request::Hello(_));
+        let (response, action) = self.respond(frame.request.clone(), sampler);
+        // A handshake starts a new session: nothing before it is repeated.
+        self.last = (!hello).then(|| (frame, response.clone()));
+        emit(&DeviceFrame::Response { seq, response });
         action
     }
 
@@ -134,125 +151,130 @@ impl<F: NorFlash> Controller<F> {
         emit(&DeviceFrame::Response { seq: u16::MAX, response: Err(WireError::BadFrame) });
     }
 
-    fn respond(
-        &mut self,
-        request: Request,
-        health: &[EncoderHealth; JOINTS],
-    ) -> (Result<Response, WireError>, Action) {
-        let ok = |r| (Ok(r), Action::None);
-        let err = |e| (Err(e), Action::None);
-        if let Request::Hello { version, schema } = request {
-            if version != PROTOCOL_VERSION || schema != SCHEMA_HASH {
-                self.hello = false;
-                return err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH });
-            }
-            self.hello = true;
-            return ok(Response::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH });
+    fn respond(&mut self, request: Request, sampler: &Sampler) -> (Result<Response, WireError>, Action) {
+        let none = |answer| (answer, Action::None);
+        if let Request::Hello(hello) = request {
+            return none(typed::<Hello>(self.handshake(hello)));
         }
         if !self.hello {
-            return err(WireError::NoHello);
+            return none(Err(WireError::NoHello));
         }
         match request {
-            Request::Hello { .. } => err(WireError::BadFrame),
-            Request::GetInfo => {
-                let stored = self.store.active();
-                let info = Info {
-                    firmware: heapless::String::try_from(self.firmware).unwrap_or_default(),
-                    board: heapless::String::try_from(self.board).unwrap_or_default(),
-                    param_version: self.params().map_or(0, |p| p.version),
-                    param_crc: stored.map_or(0, |s| s.crc),
-                    ticks: self.tick,
-                    encoders: *health,
-                };
-                ok(Response::Info(info))
-            }
-            Request::StartWindow { ticks } => {
-                if self.window.is_some() {
-                    err(WireError::Busy)
-                } else if ticks == 0 || ticks > MAX_WINDOW_TICKS {
-                    err(WireError::BadWindowLength)
-                } else {
-                    self.window = Some(Window::new(ticks));
-                    ok(Response::Ack)
-                }
-            }
-            Request::StreamRaw(on) => {
+            Request::Hello(_) => none(Err(WireError::BadFrame)),
+            Request::GetInfo(GetInfo) => none(typed::<GetInfo>(Ok(self.info(sampler)))),
+            Request::StartWindow(r) => none(typed::<StartWindow>(self.start_window(r))),
+            Request::StreamRaw(StreamRaw { on }) => {
                 self.raw = on;
-                ok(Response::Ack)
+                none(typed::<StreamRaw>(Ok(Ack)))
             }
-            Request::StreamPose(divider) => {
+            Request::StreamPose(StreamPose { divider }) => {
                 self.pose_divider = divider;
-                ok(Response::Ack)
+                none(typed::<StreamPose>(Ok(Ack)))
             }
-            Request::ParamBegin { len, crc } => {
-                if len as usize > MAX_PARAM_BLOB || len == 0 {
-                    return err(WireError::ParamTooLarge);
-                }
-                self.upload = Some(Upload { len: len as usize, crc, received: 0, buf: [0; MAX_PARAM_BLOB] });
-                ok(Response::Ack)
-            }
-            Request::ParamChunk { offset, data } => {
-                let Some(u) = self.upload.as_mut() else { return err(WireError::NoUpload) };
-                let offset = offset as usize;
-                if offset != u.received || offset + data.len() > u.len {
-                    return err(WireError::ParamOffset);
-                }
-                u.buf[offset..offset + data.len()].copy_from_slice(&data);
-                u.received += data.len();
-                ok(Response::Ack)
-            }
-            Request::ParamRead { offset, pending } => {
-                let mut stored = [0u8; MAX_PARAM_BLOB];
-                let bytes: &[u8] = if pending {
-                    match &self.upload {
-                        Some(u) => &u.buf[..u.received],
-                        None => return err(WireError::NoUpload),
-                    }
-                } else {
-                    self.store.load(&mut stored).unwrap_or(&[])
-                };
-                let from = (offset as usize).min(bytes.len());
-                let to = (from + PARAM_CHUNK).min(bytes.len());
-                ok(Response::ParamData {
-                    offset,
-                    data: heapless::Vec::from_slice(&bytes[from..to]).unwrap_or_default(),
-                })
-            }
-            Request::ParamCommit => {
-                let Some(u) = self.upload.take() else { return err(WireError::NoUpload) };
-                if u.received != u.len {
-                    self.upload = Some(u);
-                    return err(WireError::ParamIncomplete);
-                }
-                let blob = &u.buf[..u.len];
-                if BLOB_CRC.checksum(blob) != u.crc {
-                    return err(WireError::ParamInvalid);
-                }
-                // The device's own check: a set outside the physical envelope is never stored,
-                // whatever the host checked before sending.
-                let params = match decode_blob(blob) {
-                    Ok(p) => p,
-                    Err(BlobError::Envelope(v)) => return err(WireError::ParamEnvelope(v)),
-                    Err(_) => return err(WireError::ParamInvalid),
-                };
-                match self.store.store(blob) {
-                    Ok(()) => {
-                        self.params = Some((params, Kinematics::new(&params)));
-                        ok(Response::Ack)
-                    }
-                    Err(_) => err(WireError::FlashWrite),
-                }
-            }
-            Request::Reset => (Ok(Response::Ack), Action::Reset),
-            Request::SimSetPose { .. } | Request::SimFaults { .. } => {
+            Request::ParamBegin(r) => none(typed::<ParamBegin>(self.param_begin(r))),
+            Request::ParamChunk(r) => none(typed::<ParamChunk>(self.param_chunk(r))),
+            Request::ParamRead(r) => none(typed::<ParamRead>(self.param_read(r))),
+            Request::ParamCommit(ParamCommit) => none(typed::<ParamCommit>(self.param_commit())),
+            Request::Reset(Reset) => (typed::<Reset>(Ok(Ack)), Action::Reset),
+            Request::SimSetPose(_) | Request::SimFaults(_) => {
                 if self.simulated {
-                    (Ok(Response::Ack), Action::Simulate(request))
+                    (typed::<SimSetPose>(Ok(Ack)), Action::Simulate(request))
                 } else {
-                    err(WireError::NotSupported)
+                    none(Err(WireError::NotSupported))
                 }
             }
         }
     }
+
+    fn handshake(&mut self, Hello { version, schema }: Hello) -> Result<HelloReply, WireError> {
+        self.hello = version == PROTOCOL_VERSION && schema == SCHEMA_HASH;
+        if !self.hello {
+            return Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH });
+        }
+        Ok(HelloReply { version: PROTOCOL_VERSION, schema: SCHEMA_HASH })
+    }
+
+    fn info(&self, sampler: &Sampler) -> Info {
+        Info {
+            firmware: heapless::String::try_from(self.firmware).unwrap_or_default(),
+            board: heapless::String::try_from(self.board).unwrap_or_default(),
+            param_version: self.params().map_or(0, |p| p.version),
+            param_crc: self.store.active().map_or(0, |s| s.crc),
+            ticks: self.tick,
+            late_ticks: sampler.late_ticks,
+            encoders: sampler.health,
+        }
+    }
+
+    fn start_window(&mut self, StartWindow { ticks }: StartWindow) -> Result<Ack, WireError> {
+        if self.window.is_some() {
+            return Err(WireError::Busy);
+        }
+        if ticks == 0 || ticks > MAX_WINDOW_TICKS {
+            return Err(WireError::BadWindowLength);
+        }
+        self.window = Some(Window::new(ticks));
+        Ok(Ack)
+    }
+
+    fn param_begin(&mut self, ParamBegin { len, crc }: ParamBegin) -> Result<Ack, WireError> {
+        if len as usize > MAX_PARAM_BLOB || len == 0 {
+            return Err(WireError::ParamTooLarge);
+        }
+        self.upload = Some(Upload { len: len as usize, crc, received: 0, buf: [0; MAX_PARAM_BLOB] });
+        Ok(Ack)
+    }
+
+    fn param_chunk(&mut self, ParamChunk { offset, data }: ParamChunk) -> Result<Ack, WireError> {
+        let u = self.upload.as_mut().ok_or(WireError::NoUpload)?;
+        let offset = offset as usize;
+        if offset != u.received || offset + data.len() > u.len {
+            return Err(WireError::ParamOffset);
+        }
+        u.buf[offset..offset + data.len()].copy_from_slice(&data);
+        u.received += data.len();
+        Ok(Ack)
+    }
+
+    fn param_read(&mut self, ParamRead { offset, pending }: ParamRead) -> Result<ParamData, WireError> {
+        let mut stored = [0u8; MAX_PARAM_BLOB];
+        let bytes: &[u8] = if pending {
+            let u = self.upload.as_ref().ok_or(WireError::NoUpload)?;
+            &u.buf[..u.received]
+        } else {
+            self.store.load(&mut stored).unwrap_or(&[])
+        };
+        let from = (offset as usize).min(bytes.len());
+        let to = (from + PARAM_CHUNK).min(bytes.len());
+        Ok(ParamData { offset, data: heapless::Vec::from_slice(&bytes[from..to]).unwrap_or_default() })
+    }
+
+    fn param_commit(&mut self) -> Result<Ack, WireError> {
+        let u = self.upload.take().ok_or(WireError::NoUpload)?;
+        if u.received != u.len {
+            self.upload = Some(u);
+            return Err(WireError::ParamIncomplete);
+        }
+        let blob = &u.buf[..u.len];
+        if BLOB_CRC.checksum(blob) != u.crc {
+            return Err(WireError::ParamInvalid);
+        }
+        // The device's own check: a set outside the physical envelope is never stored,
+        // whatever the host checked before sending.
+        let params = decode_blob(blob).map_err(|e| match e {
+            BlobError::Envelope(v) => WireError::ParamEnvelope(v),
+            _ => WireError::ParamInvalid,
+        })?;
+        self.store.store(blob).map_err(|_| WireError::FlashWrite)?;
+        self.params = Some((params, Kinematics::new(&params)));
+        Ok(Ack)
+    }
+}
+
+/// Put endpoint `E`'s answer on the wire: each handler returns its endpoint's response type, so
+/// a request cannot be answered with another request's kind of answer.
+fn typed<E: Endpoint>(answer: Result<E::Response, WireError>) -> Result<Response, WireError> {
+    answer.map(Answer::into_response)
 }
 
 #[cfg(test)]
@@ -263,36 +285,44 @@ mod tests {
 
     type Ctl = Controller<RamNor<4096>>;
 
-    fn ask(c: &mut Ctl, request: Request) -> Result<Response, WireError> {
+    /// Send `request` as frame `seq`; the answer.
+    fn ask_as(c: &mut Ctl, seq: u16, request: Request) -> Result<Response, WireError> {
         let mut out = Vec::new();
-        c.handle(HostFrame { seq: 5, request }, &[EncoderHealth::default(); JOINTS], &mut |f| {
-            out.push(f.clone())
-        });
+        c.handle(HostFrame { seq, request }, &Sampler::default(), &mut |f| out.push(f.clone()));
         match out.pop() {
-            Some(DeviceFrame::Response { seq: 5, response }) => response,
+            Some(DeviceFrame::Response { seq: s, response }) if s == seq => response,
             other => panic!("unexpected {other:?}"),
         }
     }
 
+    /// Send `request` with a fresh sequence number, as the host does.
+    fn ask(c: &mut Ctl, request: Request) -> Result<Response, WireError> {
+        static SEQ: std::sync::atomic::AtomicU16 = std::sync::atomic::AtomicU16::new(1);
+        ask_as(c, SEQ.fetch_add(1, std::sync::atomic::Ordering::Relaxed), request)
+    }
+
     fn hello(c: &mut Ctl) {
-        assert!(ask(c, Request::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }).is_ok());
+        assert!(ask(c, Request::Hello(Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH })).is_ok());
     }
 
     #[test]
     fn requests_need_a_matching_hello() {
         let mut c = Ctl::new("fw", "test", false, RamNor::new());
-        assert_eq!(ask(&mut c, Request::GetInfo), Err(WireError::NoHello));
+        assert_eq!(ask(&mut c, Request::GetInfo(GetInfo)), Err(WireError::NoHello));
         assert_eq!(
-            ask(&mut c, Request::Hello { version: 99, schema: SCHEMA_HASH }),
+            ask(&mut c, Request::Hello(Hello { version: 99, schema: SCHEMA_HASH })),
             Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH })
         );
         assert_eq!(
-            ask(&mut c, Request::Hello { version: PROTOCOL_VERSION, schema: 1 }),
+            ask(&mut c, Request::Hello(Hello { version: PROTOCOL_VERSION, schema: 1 })),
             Err(WireError::VersionMismatch { version: PROTOCOL_VERSION, schema: SCHEMA_HASH })
         );
         hello(&mut c);
-        assert!(matches!(ask(&mut c, Request::GetInfo), Ok(Response::Info(_))));
-        assert_eq!(ask(&mut c, Request::SimSetPose { counts: [0; 6] }), Err(WireError::NotSupported));
+        assert!(matches!(ask(&mut c, Request::GetInfo(GetInfo)), Ok(Response::Info(_))));
+        assert_eq!(
+            ask(&mut c, Request::SimSetPose(SimSetPose { counts: [0; 6] })),
+            Err(WireError::NotSupported)
+        );
     }
 
     #[test]
@@ -304,8 +334,8 @@ mod tests {
         for _ in 0..10 {
             c.on_tick(&stale, &mut |f| frames.push(f.clone()));
         }
-        assert_eq!(ask(&mut c, Request::StartWindow { ticks: 3 }), Ok(Response::Ack));
-        assert_eq!(ask(&mut c, Request::StartWindow { ticks: 3 }), Err(WireError::Busy));
+        assert_eq!(ask(&mut c, Request::StartWindow(StartWindow { ticks: 3 })), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::StartWindow(StartWindow { ticks: 3 })), Err(WireError::Busy));
         let fresh = Sample { counts: [1000; 6], rejected: 0 };
         for _ in 0..3 {
             c.on_tick(&fresh, &mut |f| frames.push(f.clone()));
@@ -325,44 +355,51 @@ mod tests {
         let mut blob = [0u8; MAX_PARAM_BLOB];
         let n = encode_blob(&params, &mut blob).unwrap();
         let crc = BLOB_CRC.checksum(&blob[..n]);
-        assert_eq!(ask(&mut c, Request::ParamCommit), Err(WireError::NoUpload));
-        assert_eq!(ask(&mut c, Request::ParamBegin { len: n as u16, crc: crc ^ 1 }), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::ParamCommit(ParamCommit)), Err(WireError::NoUpload));
+        assert_eq!(
+            ask(&mut c, Request::ParamBegin(ParamBegin { len: n as u16, crc: crc ^ 1 })),
+            Ok(Response::Ack)
+        );
         for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
             assert_eq!(
                 ask(
                     &mut c,
-                    Request::ParamChunk {
+                    Request::ParamChunk(ParamChunk {
                         offset: (k * PARAM_CHUNK) as u16,
                         data: heapless::Vec::from_slice(chunk).unwrap()
-                    }
+                    })
                 ),
                 Ok(Response::Ack)
             );
         }
-        assert_eq!(ask(&mut c, Request::ParamCommit), Err(WireError::ParamInvalid), "wrong upload CRC");
-        assert!(c.params().is_none());
-        assert_eq!(ask(&mut c, Request::ParamBegin { len: n as u16, crc }), Ok(Response::Ack));
         assert_eq!(
-            ask(&mut c, Request::ParamChunk { offset: 48, data: heapless::Vec::new() }),
+            ask(&mut c, Request::ParamCommit(ParamCommit)),
+            Err(WireError::ParamInvalid),
+            "wrong upload CRC"
+        );
+        assert!(c.params().is_none());
+        assert_eq!(ask(&mut c, Request::ParamBegin(ParamBegin { len: n as u16, crc })), Ok(Response::Ack));
+        assert_eq!(
+            ask(&mut c, Request::ParamChunk(ParamChunk { offset: 48, data: heapless::Vec::new() })),
             Err(WireError::ParamOffset)
         );
         for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
             ask(
                 &mut c,
-                Request::ParamChunk {
+                Request::ParamChunk(ParamChunk {
                     offset: (k * PARAM_CHUNK) as u16,
                     data: heapless::Vec::from_slice(chunk).unwrap(),
-                },
+                }),
             )
             .unwrap();
         }
-        let Ok(Response::ParamData { data, .. }) =
-            ask(&mut c, Request::ParamRead { offset: 0, pending: true })
+        let Ok(Response::ParamData(ParamData { data, .. })) =
+            ask(&mut c, Request::ParamRead(ParamRead { offset: 0, pending: true }))
         else {
             panic!()
         };
         assert_eq!(&data[..], &blob[..PARAM_CHUNK.min(n)]);
-        assert_eq!(ask(&mut c, Request::ParamCommit), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::ParamCommit(ParamCommit)), Ok(Response::Ack));
         assert_eq!(c.params().map(|p| p.version), Some(42));
         let rebooted = Ctl::new("fw", "test", false, c.store.into_flash());
         assert_eq!(rebooted.params().map(|p| p.version), Some(42));
@@ -371,12 +408,12 @@ mod tests {
     fn upload(c: &mut Ctl, params: &ArmParams) -> Result<Response, WireError> {
         let mut blob = [0u8; MAX_PARAM_BLOB];
         let n = encode_blob(params, &mut blob).unwrap();
-        ask(c, Request::ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) })?;
+        ask(c, Request::ParamBegin(ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) }))?;
         for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
             let data = heapless::Vec::from_slice(chunk).unwrap();
-            ask(c, Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data })?;
+            ask(c, Request::ParamChunk(ParamChunk { offset: (k * PARAM_CHUNK) as u16, data }))?;
         }
-        ask(c, Request::ParamCommit)
+        ask(c, Request::ParamCommit(ParamCommit))
     }
 
     #[test]
@@ -395,5 +432,31 @@ mod tests {
         zero.version = 0;
         assert!(matches!(upload(&mut c, &zero), Err(WireError::ParamEnvelope(_))));
         assert_eq!(c.params(), Some(&good), "the previous set stays active");
+    }
+
+    /// A request repeated with its sequence number (its answer was lost) is answered again, not
+    /// carried out twice; the same request with a new number is carried out.
+    #[test]
+    fn a_repeated_request_is_answered_again_not_carried_out_twice() {
+        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        hello(&mut c);
+        let params = ArmParams { version: 9, tcp_mm: [0.0, 0.0, 253.0], ..ArmParams::default() };
+        let mut blob = [0u8; MAX_PARAM_BLOB];
+        let n = encode_blob(&params, &mut blob).unwrap();
+        let begin = Request::ParamBegin(ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) });
+        assert_eq!(ask_as(&mut c, 100, begin), Ok(Response::Ack));
+        let chunk = Request::ParamChunk(ParamChunk {
+            offset: 0,
+            data: heapless::Vec::from_slice(&blob[..PARAM_CHUNK]).unwrap(),
+        });
+        assert_eq!(ask_as(&mut c, 101, chunk.clone()), Ok(Response::Ack));
+        assert_eq!(ask_as(&mut c, 101, chunk.clone()), Ok(Response::Ack), "the repeat gets the answer");
+        assert_eq!(ask_as(&mut c, 102, chunk), Err(WireError::ParamOffset), "a new request is carried out");
+        let Ok(Response::ParamData(ParamData { data, .. })) =
+            ask(&mut c, Request::ParamRead(ParamRead { offset: 0, pending: true }))
+        else {
+            panic!()
+        };
+        assert_eq!(data.len(), PARAM_CHUNK, "the chunk was taken once");
     }
 }

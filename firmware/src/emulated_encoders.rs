@@ -10,7 +10,7 @@ use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embedded_hal_async::spi::{ErrorType, Operation, SpiDevice};
 use kincal_protocol::biss::{self, COUNTS_PER_TURN};
-use kincal_protocol::messages::{Request, JOINTS};
+use kincal_protocol::messages::{Request, SimFaults, SimSetPose, JOINTS};
 
 /// The six emulated encoders' state.
 pub struct EmulatedEncoders {
@@ -46,14 +46,14 @@ impl EmulatedEncoders {
     /// Apply a simulation request ([`Request::SimSetPose`], [`Request::SimFaults`]).
     pub fn apply(&mut self, request: &Request) {
         match *request {
-            Request::SimSetPose { counts } => self.counts = counts.map(|c| c % COUNTS_PER_TURN),
-            Request::SimFaults {
+            Request::SimSetPose(SimSetPose { counts }) => self.counts = counts.map(|c| c % COUNTS_PER_TURN),
+            Request::SimFaults(SimFaults {
                 noise_counts,
                 crc_errors_per_10k,
                 dropouts_per_10k,
                 error_bits_per_10k,
                 warnings_per_10k,
-            } => {
+            }) => {
                 self.noise_counts = noise_counts;
                 self.crc_errors = crc_errors_per_10k;
                 self.dropouts = dropouts_per_10k;

@@ -19,6 +19,8 @@ pub struct Sampler {
     last: [u32; JOINTS],
     /// Counters since boot.
     pub health: [EncoderHealth; JOINTS],
+    /// Ticks whose read started more than one period late since boot (set by the sampling task).
+    pub late_ticks: u32,
 }
 
 impl Sampler {

@@ -1,47 +1,50 @@
-//! Power-loss-safe parameter storage on NOR flash: two slots, written A/B with a commit word.
+//! Power-loss-safe parameter storage on NOR flash (embedded-storage's [`NorFlash`]): an
+//! append-only log over two erase sectors, so a commit normally only programs words and a
+//! sector is erased once it is full (every 3 commits of a 526-byte set on the emulated 2 KiB
+//! sectors, ~239 on the STM32's 128 KiB ones), not on every commit.
 //!
-//! Slot layout (one erase sector each): magic `KSL1` ‖ sequence u32 ‖ blob length u16 ‖ 0xFFFF ‖
-//! CRC-32 of the blob ‖ blob … ‖ commit word (last 4 bytes of the sector).
-//! A store goes to the slot *not* holding the active parameters: erase, write the blob, write
-//! the header, and only then write the commit word. At boot the valid slot (commit word set,
-//! magic, length and CRC right) with the highest sequence wins. A power cut at any point leaves
-//! the old slot untouched and the new one either uncommitted (ignored) or complete: the
-//! controller boots with the old parameters or the new ones, never neither and never a mix.
+//! Record (word-aligned, at the end of the sector's log): magic `KSL2` ‖ sequence u32 ‖ blob
+//! length u16 ‖ 0xFFFF ‖ CRC-32 of the blob ‖ blob, padded to a word ‖ commit word `CMIT`.
+//! A store programs the header, then the blob, reads the blob back, and only then programs the
+//! commit word. At boot the committed record with the right CRC and the highest sequence wins.
+//! A record cut short by a power loss has no commit word and is ignored; a header cut short makes
+//! the rest of that sector unusable until it is erased. A full sector: the other one (holding
+//! only older records) is erased and the log continues there. A power cut at any point leaves
+//! the active record untouched: the controller boots with the old parameters or the new ones,
+//! never neither and never a mix.
 
+use embedded_storage::nor_flash::{ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash};
 use kincal_protocol::params::{BLOB_CRC, MAX_PARAM_BLOB};
 
-/// Bytes programmed at once.
+/// Bytes programmed at once (the log's alignment).
 pub const WORD: usize = 4;
-const MAGIC: [u8; 4] = *b"KSL1";
+const MAGIC: [u8; 4] = *b"KSL2";
+const ERASED: [u8; 4] = [0xFF; 4];
 const HEADER: usize = 16;
 const COMMITTED: [u8; 4] = *b"CMIT";
 
-/// Why a flash operation failed.
+/// Why storing failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FlashError {
-    /// Offset or length outside the device.
-    OutOfBounds,
-    /// The device lost power (simulation) or refused the operation.
-    Failed,
+    /// The blob is larger than a sector's log can hold.
+    TooLarge,
+    /// The device refused an operation (or lost power, in simulation).
+    Device(NorFlashErrorKind),
+    /// What was programmed does not read back.
+    Verify,
 }
 
-/// NOR flash: erase sets a whole sector to 0xFF, programming can only clear bits.
-pub trait NorFlash {
-    /// Bytes per erase sector.
-    fn sector_size(&self) -> usize;
-    /// Read `buf.len()` bytes at `offset`.
-    fn read(&mut self, offset: usize, buf: &mut [u8]) -> Result<(), FlashError>;
-    /// Erase the sector starting at `offset`.
-    fn erase(&mut self, offset: usize) -> Result<(), FlashError>;
-    /// Program one word at a word-aligned `offset` (bits can only go from 1 to 0).
-    fn program(&mut self, offset: usize, word: [u8; WORD]) -> Result<(), FlashError>;
+fn device<E: NorFlashError>(e: E) -> FlashError {
+    FlashError::Device(e.kind())
 }
 
-/// The active parameter blob's identity.
+/// The active parameter record.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Stored {
-    /// Slot index (0 or 1).
-    pub slot: usize,
+    /// Sector index (0 or 1).
+    pub sector: usize,
+    /// Offset of the record in its sector.
+    pub at: usize,
     /// Write sequence number.
     pub sequence: u32,
     /// Blob length, bytes.
@@ -50,20 +53,42 @@ pub struct Stored {
     pub crc: u32,
 }
 
-/// A/B parameter store on the first two sectors of a [`NorFlash`].
+/// Bytes of the record of a `len`-byte blob.
+fn record_size(len: usize) -> usize {
+    HEADER + len.div_ceil(WORD) * WORD + WORD
+}
+
+/// Where a sector's log ends: the offset to append at, or `None` when a damaged header makes the
+/// rest of the sector unusable.
+type LogEnd = Option<usize>;
+
+/// The parameter log on the first two erase sectors of a [`NorFlash`].
 pub struct ParamStore<F: NorFlash> {
     flash: F,
     active: Option<Stored>,
+    ends: [LogEnd; 2],
 }
 
 impl<F: NorFlash> ParamStore<F> {
-    /// Scan both slots and pick the valid one with the highest sequence.
+    const SECTOR: usize = F::ERASE_SIZE;
+    const WORDS_FIT: () = assert!(WORD.is_multiple_of(F::WRITE_SIZE) && F::ERASE_SIZE.is_multiple_of(WORD));
+
+    /// Scan both sectors and pick the committed record with the highest sequence.
     pub fn mount(mut flash: F) -> Self {
-        let active = (0..2).filter_map(|slot| inspect(&mut flash, slot)).max_by_key(|s| s.sequence);
-        ParamStore { flash, active }
+        let () = Self::WORDS_FIT;
+        let mut active: Option<Stored> = None;
+        let mut ends = [None; 2];
+        for (sector, end) in ends.iter_mut().enumerate() {
+            *end = scan(&mut flash, sector, |found| {
+                if active.is_none_or(|a| found.sequence > a.sequence) {
+                    active = Some(found);
+                }
+            });
+        }
+        ParamStore { flash, active, ends }
     }
 
-    /// The active blob, if any.
+    /// The active record, if any.
     pub fn active(&self) -> Option<Stored> {
         self.active
     }
@@ -71,35 +96,57 @@ impl<F: NorFlash> ParamStore<F> {
     /// Read the active blob into `buf`; returns its bytes.
     pub fn load<'a>(&mut self, buf: &'a mut [u8; MAX_PARAM_BLOB]) -> Option<&'a [u8]> {
         let s = self.active?;
-        let base = s.slot * self.flash.sector_size();
-        self.flash.read(base + HEADER, &mut buf[..s.len]).ok()?;
+        let from = (s.sector * Self::SECTOR + s.at + HEADER) as u32;
+        self.flash.read(from, &mut buf[..s.len]).ok()?;
         Some(&buf[..s.len])
     }
 
-    /// Store `blob` in the other slot and make it active once committed.
+    /// Append `blob` to the log and make it active once committed. Erases a sector only when
+    /// the active one is full.
     pub fn store(&mut self, blob: &[u8]) -> Result<(), FlashError> {
-        let sector = self.flash.sector_size();
-        if blob.len() > MAX_PARAM_BLOB || HEADER + blob.len() + WORD > sector {
-            return Err(FlashError::OutOfBounds);
+        let size = record_size(blob.len());
+        if blob.len() > MAX_PARAM_BLOB || size > Self::SECTOR {
+            return Err(FlashError::TooLarge);
         }
-        let slot = self.active.map_or(0, |s| 1 - s.slot);
-        let sequence = self.active.map_or(1, |s| s.sequence.wrapping_add(1));
-        let base = slot * sector;
-        self.flash.erase(base)?;
+        let current = self.active.map_or(0, |a| a.sector);
+        let (sector, at) = match self.ends[current] {
+            Some(end) if end + size <= Self::SECTOR => (current, end),
+            _ => {
+                // Full (or damaged): continue in the other sector, which holds only older records.
+                let other = 1 - current;
+                let base = (other * Self::SECTOR) as u32;
+                self.ends[other] = None;
+                self.flash.erase(base, base + Self::SECTOR as u32).map_err(device)?;
+                self.ends[other] = Some(0);
+                (other, 0)
+            }
+        };
+        // From here on a failure leaves a record without its commit word: skip past it next time.
+        self.ends[sector] = Some(at + size);
+        let base = sector * Self::SECTOR + at;
+        let sequence = self.active.map_or(1, |a| a.sequence.wrapping_add(1));
+        let crc = BLOB_CRC.checksum(blob);
+        let len = (blob.len() as u16).to_le_bytes();
+        let mut header = [0u8; HEADER];
+        header[..4].copy_from_slice(&MAGIC);
+        header[4..8].copy_from_slice(&sequence.to_le_bytes());
+        header[8..12].copy_from_slice(&[len[0], len[1], 0xFF, 0xFF]);
+        header[12..].copy_from_slice(&crc.to_le_bytes());
+        for (k, word) in header.chunks(WORD).enumerate() {
+            self.flash.write((base + k * WORD) as u32, word).map_err(device)?;
+        }
         for (k, chunk) in blob.chunks(WORD).enumerate() {
             let mut word = [0xFF; WORD];
             word[..chunk.len()].copy_from_slice(chunk);
-            self.flash.program(base + HEADER + k * WORD, word)?;
+            self.flash.write((base + HEADER + k * WORD) as u32, &word).map_err(device)?;
         }
-        let crc = BLOB_CRC.checksum(blob);
-        let len = (blob.len() as u16).to_le_bytes();
-        let words: [[u8; WORD]; 4] =
-            [MAGIC, sequence.to_le_bytes(), [len[0], len[1], 0xFF, 0xFF], crc.to_le_bytes()];
-        for (k, w) in words.into_iter().enumerate() {
-            self.flash.program(base + k * WORD, w)?;
+        let mut back = [0u8; MAX_PARAM_BLOB];
+        self.flash.read((base + HEADER) as u32, &mut back[..blob.len()]).map_err(device)?;
+        if back[..blob.len()] != *blob {
+            return Err(FlashError::Verify);
         }
-        self.flash.program(base + sector - WORD, COMMITTED)?;
-        self.active = Some(Stored { slot, sequence, len: blob.len(), crc });
+        self.flash.write((base + size - WORD) as u32, &COMMITTED).map_err(device)?;
+        self.active = Some(Stored { sector, at, sequence, len: blob.len(), crc });
         Ok(())
     }
 
@@ -109,41 +156,53 @@ impl<F: NorFlash> ParamStore<F> {
     }
 }
 
-fn inspect<F: NorFlash>(flash: &mut F, slot: usize) -> Option<Stored> {
-    let sector = flash.sector_size();
-    let base = slot * sector;
-    let mut commit = [0u8; WORD];
-    flash.read(base + sector - WORD, &mut commit).ok()?;
-    let mut header = [0u8; HEADER];
-    flash.read(base, &mut header).ok()?;
-    if commit != COMMITTED || header[..4] != MAGIC {
-        return None;
+/// Walk the log of `sector`, calling `found` for every valid committed record; returns where the
+/// log ends.
+fn scan<F: NorFlash>(flash: &mut F, sector: usize, mut found: impl FnMut(Stored)) -> LogEnd {
+    let sector_size = F::ERASE_SIZE;
+    let base = sector * sector_size;
+    let mut at = 0;
+    while at + HEADER + WORD <= sector_size {
+        let mut header = [0u8; HEADER];
+        flash.read((base + at) as u32, &mut header).ok()?;
+        if header[..4] == ERASED {
+            return Some(at);
+        }
+        let len = u16::from_le_bytes([header[8], header[9]]) as usize;
+        if header[..4] != MAGIC || len > MAX_PARAM_BLOB || at + record_size(len) > sector_size {
+            return None;
+        }
+        let size = record_size(len);
+        let mut commit = [0u8; WORD];
+        flash.read((base + at + size - WORD) as u32, &mut commit).ok()?;
+        let mut blob = [0u8; MAX_PARAM_BLOB];
+        flash.read((base + at + HEADER) as u32, &mut blob[..len]).ok()?;
+        let crc = u32::from_le_bytes([header[12], header[13], header[14], header[15]]);
+        if commit == COMMITTED && BLOB_CRC.checksum(&blob[..len]) == crc {
+            let sequence = u32::from_le_bytes([header[4], header[5], header[6], header[7]]);
+            found(Stored { sector, at, sequence, len, crc });
+        }
+        at += size;
     }
-    let sequence = u32::from_le_bytes([header[4], header[5], header[6], header[7]]);
-    let len = u16::from_le_bytes([header[8], header[9]]) as usize;
-    let crc = u32::from_le_bytes([header[12], header[13], header[14], header[15]]);
-    if len > MAX_PARAM_BLOB || HEADER + len + WORD > sector {
-        return None;
-    }
-    let mut blob = [0u8; MAX_PARAM_BLOB];
-    flash.read(base + HEADER, &mut blob[..len]).ok()?;
-    (BLOB_CRC.checksum(&blob[..len]) == crc).then_some(Stored { slot, sequence, len, crc })
+    Some(at)
 }
 
-/// NOR flash in RAM with `N` bytes (two sectors of `N/2`), for the emulated board and tests.
-/// With a power budget it fails after that many erase/program operations, leaving the
-/// interrupted operation half done, as a real power cut would.
+/// NOR flash in RAM with `N` bytes (two sectors of `N/2`), for tests and the emulated board's
+/// tick bench. With a power budget it fails after that many erase/program operations, leaving
+/// the interrupted operation half done, as a real power cut would.
 pub struct RamNor<const N: usize> {
     /// Contents.
     pub bytes: [u8; N],
     /// Operations left before the simulated power cut (`None`: unlimited).
     pub power_budget: Option<u32>,
+    /// Sector erases so far.
+    pub erases: u32,
 }
 
 impl<const N: usize> RamNor<N> {
     /// An erased device.
     pub const fn new() -> Self {
-        RamNor { bytes: [0xFF; N], power_budget: None }
+        RamNor { bytes: [0xFF; N], power_budget: None, erases: 0 }
     }
 
     fn spend(&mut self) -> bool {
@@ -164,45 +223,62 @@ impl<const N: usize> Default for RamNor<N> {
     }
 }
 
-impl<const N: usize> NorFlash for RamNor<N> {
-    fn sector_size(&self) -> usize {
-        N / 2
-    }
+impl<const N: usize> ErrorType for RamNor<N> {
+    type Error = NorFlashErrorKind;
+}
 
-    fn read(&mut self, offset: usize, buf: &mut [u8]) -> Result<(), FlashError> {
-        let src = self.bytes.get(offset..offset + buf.len()).ok_or(FlashError::OutOfBounds)?;
-        buf.copy_from_slice(src);
+impl<const N: usize> ReadNorFlash for RamNor<N> {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        let offset = offset as usize;
+        let src = self.bytes.get(offset..offset + bytes.len()).ok_or(NorFlashErrorKind::OutOfBounds)?;
+        bytes.copy_from_slice(src);
         Ok(())
     }
 
-    fn erase(&mut self, offset: usize) -> Result<(), FlashError> {
-        let sector = self.sector_size();
-        if !offset.is_multiple_of(sector) || offset + sector > N {
-            return Err(FlashError::OutOfBounds);
+    fn capacity(&self) -> usize {
+        N
+    }
+}
+
+impl<const N: usize> NorFlash for RamNor<N> {
+    const WRITE_SIZE: usize = WORD;
+    const ERASE_SIZE: usize = N / 2;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        let (from, to) = (from as usize, to as usize);
+        let sector = Self::ERASE_SIZE;
+        if !from.is_multiple_of(sector) || !to.is_multiple_of(sector) || to > N || from > to {
+            return Err(NorFlashErrorKind::NotAligned);
         }
+        self.erases += 1;
         if !self.spend() {
             // Interrupted: the first half is erased, the rest keeps its old bits.
-            self.bytes[offset..offset + sector / 2].fill(0xFF);
-            return Err(FlashError::Failed);
+            self.bytes[from..from + (to - from) / 2].fill(0xFF);
+            return Err(NorFlashErrorKind::Other);
         }
-        self.bytes[offset..offset + sector].fill(0xFF);
+        self.bytes[from..to].fill(0xFF);
         Ok(())
     }
 
-    fn program(&mut self, offset: usize, word: [u8; WORD]) -> Result<(), FlashError> {
-        if !offset.is_multiple_of(WORD) || offset + WORD > N {
-            return Err(FlashError::OutOfBounds);
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        let offset = offset as usize;
+        if !offset.is_multiple_of(WORD) || !bytes.len().is_multiple_of(WORD) || offset + bytes.len() > N {
+            return Err(NorFlashErrorKind::NotAligned);
         }
-        let interrupted = !self.spend();
-        let n = if interrupted { WORD / 2 } else { WORD };
-        for (byte, w) in self.bytes[offset..offset + n].iter_mut().zip(word) {
-            *byte &= w;
+        for (k, word) in bytes.chunks(WORD).enumerate() {
+            let at = offset + k * WORD;
+            let interrupted = !self.spend();
+            let n = if interrupted { WORD / 2 } else { WORD };
+            for (byte, w) in self.bytes[at..at + n].iter_mut().zip(word) {
+                *byte &= w;
+            }
+            if interrupted {
+                return Err(NorFlashErrorKind::Other);
+            }
         }
-        if interrupted {
-            Err(FlashError::Failed)
-        } else {
-            Ok(())
-        }
+        Ok(())
     }
 }
 
@@ -257,11 +333,25 @@ mod tests {
             if got == new {
                 steps_seen_new += 1;
             }
-            // After a cut the next store still works and does not touch the active slot.
+            // After a cut the next store still works and keeps the active record until committed.
             rebooted.store(&blob(7, 10)).unwrap();
             let mut again = ParamStore::mount(rebooted.into_flash());
             assert_eq!(load(&mut again), Some(blob(7, 10)));
         }
         assert!(steps_seen_new > 0 && steps_seen_new < 200);
+    }
+
+    /// Commits append: a sector is erased only when the log in the active one is full.
+    #[test]
+    fn commits_append_and_erase_only_when_a_sector_is_full() {
+        let mut store = ParamStore::mount(Flash::new());
+        let per_sector = 2048 / record_size(300);
+        for k in 0..(3 * per_sector) as u8 {
+            store.store(&blob(k, 300)).unwrap();
+            store = ParamStore::mount(store.into_flash());
+            assert_eq!(load(&mut store), Some(blob(k, 300)));
+        }
+        let erases = store.into_flash().erases;
+        assert_eq!(erases, 2, "{} commits of 300 bytes, {per_sector} per 2 KiB sector", 3 * per_sector);
     }
 }

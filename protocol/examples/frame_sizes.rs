@@ -33,6 +33,7 @@ fn main() {
         param_version: u32::MAX,
         param_crc: u32::MAX,
         ticks: u32::MAX,
+        late_ticks: u32::MAX,
         encoders: [health; JOINTS],
     };
     let rows = [
@@ -65,10 +66,10 @@ fn main() {
             "parameter chunk (request)",
             size(&HostFrame {
                 seq: u16::MAX,
-                request: Request::ParamChunk {
+                request: Request::ParamChunk(ParamChunk {
                     offset: 1000,
                     data: heapless::Vec::from_slice(&[0xFF; PARAM_CHUNK]).unwrap_or_default(),
-                },
+                }),
             }),
         ),
     ];

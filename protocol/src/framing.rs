@@ -191,14 +191,15 @@ mod tests {
             param_version: 3,
             param_crc: 0xDEAD_BEEF,
             ticks: 99,
+            late_ticks: 2,
             encoders: [health; JOINTS],
         };
         let chunk = heapless::Vec::from_slice(&[1, 2, 0, 0, 255]).unwrap();
         let responses = [
-            Ok(Response::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }),
+            Ok(Response::Hello(HelloReply { version: PROTOCOL_VERSION, schema: SCHEMA_HASH })),
             Ok(Response::Info(info)),
             Ok(Response::Ack),
-            Ok(Response::ParamData { offset: 48, data: chunk }),
+            Ok(Response::ParamData(ParamData { offset: 48, data: chunk })),
             Err(WireError::VersionMismatch { version: 9, schema: 1 }),
             Err(WireError::ParamInvalid),
         ];
@@ -230,24 +231,24 @@ mod tests {
     fn requests() -> Vec<HostFrame> {
         let chunk = heapless::Vec::from_slice(&[0u8; PARAM_CHUNK]).unwrap();
         [
-            Request::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH },
-            Request::GetInfo,
-            Request::StartWindow { ticks: 1536 },
-            Request::StreamRaw(true),
-            Request::StreamPose(8),
-            Request::ParamBegin { len: 500, crc: 7 },
-            Request::ParamChunk { offset: 96, data: chunk },
-            Request::ParamRead { offset: 0, pending: true },
-            Request::ParamCommit,
-            Request::Reset,
-            Request::SimSetPose { counts: [1, 2, 3, 4, 5, 0x3F_FFFF] },
-            Request::SimFaults {
+            Request::Hello(Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }),
+            Request::GetInfo(GetInfo),
+            Request::StartWindow(StartWindow { ticks: 1536 }),
+            Request::StreamRaw(StreamRaw { on: true }),
+            Request::StreamPose(StreamPose { divider: 8 }),
+            Request::ParamBegin(ParamBegin { len: 500, crc: 7 }),
+            Request::ParamChunk(ParamChunk { offset: 96, data: chunk }),
+            Request::ParamRead(ParamRead { offset: 0, pending: true }),
+            Request::ParamCommit(ParamCommit),
+            Request::Reset(Reset),
+            Request::SimSetPose(SimSetPose { counts: [1, 2, 3, 4, 5, 0x3F_FFFF] }),
+            Request::SimFaults(SimFaults {
                 noise_counts: 3,
                 crc_errors_per_10k: 100,
                 dropouts_per_10k: 5,
                 error_bits_per_10k: 1,
                 warnings_per_10k: 2,
-            },
+            }),
         ]
         .into_iter()
         .enumerate()
@@ -311,6 +312,7 @@ mod tests {
             param_version: u32::MAX,
             param_crc: u32::MAX,
             ticks: u32::MAX,
+            late_ticks: u32::MAX,
             encoders: [health; JOINTS],
         };
         round_trip(&DeviceFrame::Response { seq: u16::MAX, response: Ok(Response::Info(info)) });

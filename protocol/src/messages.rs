@@ -7,10 +7,11 @@
 //! a controller with another version or schema answers [`WireError::VersionMismatch`] and the
 //! host reports both sides' versions.
 
+use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
 /// Protocol version; bump on any incompatible change.
-pub const PROTOCOL_VERSION: u16 = 1;
+pub const PROTOCOL_VERSION: u16 = 2;
 /// Largest parameter chunk carried by one message, bytes.
 pub const PARAM_CHUNK: usize = 48;
 /// Joints read every tick.
@@ -29,278 +30,431 @@ pub fn ticks_to_seconds(ticks: u32) -> f64 {
     ticks as f64 / TICK_HZ as f64
 }
 
-/// FNV-1a over the schema text, usable in consts.
-pub const fn fnv1a(text: &str) -> u32 {
-    let bytes = text.as_bytes();
-    let mut hash: u32 = 0x811c_9dc5;
-    let mut i = 0;
-    while i < bytes.len() {
-        hash ^= bytes[i] as u32;
-        hash = hash.wrapping_mul(0x0100_0193);
-        i += 1;
-    }
-    hash
+/// Hash of the wire types' structure (type, field and variant names, and how each is encoded:
+/// postcard-schema's FNV-1a over the schema of [`HostFrame`] and [`DeviceFrame`]). Any change to
+/// what crosses the wire changes it; comments and formatting do not.
+pub const SCHEMA_HASH: u32 = {
+    let h = postcard_schema::key::hash::fnv1a64::hash_ty_path::<(HostFrame, DeviceFrame)>("kincal");
+    u32::from_le_bytes([h[0] ^ h[4], h[1] ^ h[5], h[2] ^ h[6], h[3] ^ h[7]])
+};
+
+/// A request from the host, numbered so its response can be matched.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub struct HostFrame {
+    /// Sequence number chosen by the host, echoed in the response.
+    pub seq: u16,
+    /// The request.
+    pub request: Request,
 }
 
-macro_rules! wire_types {
-    ($($item:item)*) => {
-        $($item)*
-        /// The text of every wire type definition; its hash is [`SCHEMA_HASH`].
-        pub const SCHEMA_TEXT: &str = stringify!($($item)*);
-    };
+/// What the host can ask: one variant per endpoint, each wrapping the request type of the same
+/// name, whose [`Endpoint::Response`] names the answer's type.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub enum Request {
+    /// Version and schema check; must come first.
+    Hello(Hello),
+    /// Firmware identity, stored parameters and encoder health.
+    GetInfo(GetInfo),
+    /// Measure a window of fresh samples.
+    StartWindow(StartWindow),
+    /// Stream every raw sample, or stop.
+    StreamRaw(StreamRaw),
+    /// Stream the calibrated tool pose, or stop.
+    StreamPose(StreamPose),
+    /// Start a parameter upload.
+    ParamBegin(ParamBegin),
+    /// One chunk of the upload.
+    ParamChunk(ParamChunk),
+    /// Read back part of the pending upload or of the stored blob.
+    ParamRead(ParamRead),
+    /// Check the pending upload and store it (power-loss safe).
+    ParamCommit(ParamCommit),
+    /// Restart the controller.
+    Reset(Reset),
+    /// Emulated board only: pose the emulated encoders.
+    SimSetPose(SimSetPose),
+    /// Emulated board only: noise and faults of the emulated encoder bus.
+    SimFaults(SimFaults),
 }
 
-/// Hash of the wire type definitions: any change to a message changes it.
-pub const SCHEMA_HASH: u32 = fnv1a(SCHEMA_TEXT);
+/// Version and schema check; must come first. Answer: [`HelloReply`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct Hello {
+    /// The host's [`PROTOCOL_VERSION`].
+    pub version: u16,
+    /// The host's [`SCHEMA_HASH`].
+    pub schema: u32,
+}
 
-wire_types! {
-    /// A request from the host, numbered so its response can be matched.
-    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-    pub struct HostFrame {
-        /// Sequence number chosen by the host, echoed in the response.
-        pub seq: u16,
-        /// The request.
-        pub request: Request,
-    }
+/// Firmware identity, stored parameters and encoder health. Answer: [`Info`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct GetInfo;
 
-    /// What the host can ask.
-    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-    pub enum Request {
-        /// Version and schema check; must come first.
-        Hello {
-            /// The host's [`PROTOCOL_VERSION`].
-            version: u16,
-            /// The host's [`SCHEMA_HASH`].
-            schema: u32,
-        },
-        /// Firmware identity, stored parameters and encoder health.
-        GetInfo,
-        /// Average the next `ticks` fresh samples (1536 = 2 s at 768 Hz) and send a window.
-        StartWindow {
-            /// Samples to average.
-            ticks: u16,
-        },
-        /// Stream every raw sample (true) or stop (false).
-        StreamRaw(bool),
-        /// Stream the calibrated tool pose every `divider` ticks (0 stops).
-        StreamPose(u16),
-        /// Start a parameter upload of `len` bytes whose CRC-32 is `crc`.
-        ParamBegin {
-            /// Blob length, bytes.
-            len: u16,
-            /// CRC-32 (ISO-HDLC) of the blob.
-            crc: u32,
-        },
-        /// One chunk of the upload.
-        ParamChunk {
-            /// Offset of the chunk in the blob.
-            offset: u16,
-            /// Bytes.
-            data: heapless::Vec<u8, PARAM_CHUNK>,
-        },
-        /// Read back part of the pending upload (before commit) or of the stored blob.
-        ParamRead {
-            /// Offset, bytes.
-            offset: u16,
-            /// Read the pending upload (true) or the stored parameters (false).
-            pending: bool,
-        },
-        /// Check the pending upload and make it the stored parameters (power-loss safe).
-        ParamCommit,
-        /// Restart the controller.
-        Reset,
-        /// Emulated board only: set the joint positions the emulated encoders report.
-        SimSetPose {
-            /// Position of each encoder, counts.
-            counts: [u32; JOINTS],
-        },
-        /// Emulated board only: noise and faults of the emulated encoder bus.
-        SimFaults {
-            /// Standard deviation of position noise, counts.
-            noise_counts: u16,
-            /// Frames per 10 000 sent with a corrupted CRC.
-            crc_errors_per_10k: u16,
-            /// Frames per 10 000 with no answer.
-            dropouts_per_10k: u16,
-            /// Frames per 10 000 with the error bit set.
-            error_bits_per_10k: u16,
-            /// Frames per 10 000 with the warning bit set.
-            warnings_per_10k: u16,
-        },
-    }
+/// Average the next `ticks` fresh samples (1536 = 2 s at 768 Hz) and stream a
+/// [`WindowReport`]. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct StartWindow {
+    /// Samples to average (1..=[`MAX_WINDOW_TICKS`]).
+    pub ticks: u16,
+}
 
-    /// A frame from the controller.
-    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-    pub enum DeviceFrame {
-        /// The answer to the request with sequence number `seq`.
-        Response {
-            /// The request's sequence number.
-            seq: u16,
-            /// The answer.
-            response: Result<Response, WireError>,
-        },
-        /// Streamed data; `seq` counts stream frames (wrapping) so gaps show.
-        Stream {
-            /// Stream frame counter.
-            seq: u16,
-            /// The data.
-            item: Stream,
-        },
-    }
+/// Stream every raw sample ([`RawSample`]) or stop. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct StreamRaw {
+    /// Stream (true) or stop (false).
+    pub on: bool,
+}
 
-    /// Successful answers.
-    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-    pub enum Response {
-        /// Answer to [`Request::Hello`].
-        Hello {
-            /// Controller's protocol version.
-            version: u16,
-            /// Controller's schema hash.
-            schema: u32,
-        },
-        /// Answer to [`Request::GetInfo`].
-        Info(Info),
-        /// The request was carried out.
-        Ack,
-        /// Answer to [`Request::ParamRead`].
-        ParamData {
-            /// Offset of the bytes.
-            offset: u16,
-            /// Bytes (empty past the end).
-            data: heapless::Vec<u8, PARAM_CHUNK>,
-        },
-    }
+/// Stream the calibrated tool pose ([`PoseReport`]) every `divider` ticks. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct StreamPose {
+    /// Ticks between poses (0 stops).
+    pub divider: u16,
+}
 
-    /// Errors that cross the wire.
-    #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-    pub enum WireError {
-        /// Version or schema differ; the controller's are given.
-        VersionMismatch {
-            /// Controller's protocol version.
-            version: u16,
-            /// Controller's schema hash.
-            schema: u32,
-        },
-        /// The request frame could not be decoded.
-        BadFrame,
-        /// A window is already being measured.
-        Busy,
-        /// The request needs [`Request::Hello`] first.
-        NoHello,
-        /// Window length out of range (1..=4096 ticks).
-        BadWindowLength,
-        /// Upload larger than the parameter area.
-        ParamTooLarge,
-        /// Chunk outside the announced upload, or out of order.
-        ParamOffset,
-        /// No upload in progress.
-        NoUpload,
-        /// Upload incomplete at commit.
-        ParamIncomplete,
-        /// Upload's CRC or content invalid at commit; nothing was stored.
-        ParamInvalid,
-        /// A value of the uploaded set is outside the physical envelope; nothing was stored.
-        ParamEnvelope(crate::params::EnvelopeViolation),
-        /// Writing flash failed; the previous parameters are still active.
-        FlashWrite,
-        /// Only the emulated board supports this request.
-        NotSupported,
-    }
+/// Start a parameter upload of `len` bytes whose CRC-32 is `crc`. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct ParamBegin {
+    /// Blob length, bytes.
+    pub len: u16,
+    /// CRC-32 (ISO-HDLC) of the blob.
+    pub crc: u32,
+}
 
-    /// Controller identity and health.
-    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-    pub struct Info {
-        /// Firmware name and version.
-        pub firmware: heapless::String<24>,
-        /// Board name.
-        pub board: heapless::String<24>,
-        /// Version number of the stored parameters (0: none stored).
-        pub param_version: u32,
-        /// CRC-32 of the stored parameter blob (0: none).
-        pub param_crc: u32,
-        /// Ticks since boot.
-        pub ticks: u32,
-        /// Per-joint encoder health since boot.
-        pub encoders: [EncoderHealth; JOINTS],
-    }
+/// One chunk of the upload. Answer: [`Ack`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub struct ParamChunk {
+    /// Offset of the chunk in the blob.
+    pub offset: u16,
+    /// Bytes.
+    pub data: heapless::Vec<u8, PARAM_CHUNK>,
+}
 
-    /// Encoder frame counters of one joint.
-    #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-    pub struct EncoderHealth {
-        /// Frames accepted.
-        pub accepted: u32,
-        /// Frames rejected for a bad CRC.
-        pub crc_errors: u32,
-        /// Frames rejected for the error bit.
-        pub error_bits: u32,
-        /// Frames accepted with the warning bit.
-        pub warnings: u32,
-        /// Frames with no answer (no start bit, truncated, bad CDS).
-        pub dropouts: u32,
-    }
+/// Read back part of the pending upload (before commit) or of the stored blob.
+/// Answer: [`ParamData`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct ParamRead {
+    /// Offset, bytes.
+    pub offset: u16,
+    /// Read the pending upload (true) or the stored parameters (false).
+    pub pending: bool,
+}
 
-    /// What the controller streams.
-    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-    pub enum Stream {
-        /// One tick's raw positions.
-        Raw(RawSample),
-        /// A finished measurement window.
-        Window(WindowReport),
-        /// Calibrated tool pose.
-        Pose(PoseReport),
-    }
+/// Check the pending upload and make it the stored parameters (power-loss safe).
+/// Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct ParamCommit;
 
-    /// Raw positions of one tick: six 22-bit counts packed into 17 bytes (see [`pack_counts`]).
-    #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-    pub struct RawSample {
-        /// Tick number (wrapping).
-        pub tick: u16,
-        /// Six 22-bit positions, packed big-endian.
-        pub packed: [u8; 17],
-        /// Bit j set: joint j's frame was rejected this tick (its count repeats the last good one).
-        pub rejected: u8,
-    }
+/// Restart the controller (after the answer has left). Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct Reset;
 
+/// Emulated board only: set the joint positions the emulated encoders report. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct SimSetPose {
+    /// Position of each encoder, counts.
+    pub counts: [u32; JOINTS],
+}
+
+/// Emulated board only: noise and faults of the emulated encoder bus. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct SimFaults {
+    /// Standard deviation of position noise, counts.
+    pub noise_counts: u16,
+    /// Frames per 10 000 sent with a corrupted CRC.
+    pub crc_errors_per_10k: u16,
+    /// Frames per 10 000 with no answer.
+    pub dropouts_per_10k: u16,
+    /// Frames per 10 000 with the error bit set.
+    pub error_bits_per_10k: u16,
+    /// Frames per 10 000 with the warning bit set.
+    pub warnings_per_10k: u16,
+}
+
+/// A frame from the controller.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub enum DeviceFrame {
+    /// The answer to the request with sequence number `seq`.
+    Response {
+        /// The request's sequence number.
+        seq: u16,
+        /// The answer.
+        response: Result<Response, WireError>,
+    },
+    /// Streamed data; `seq` counts stream frames (wrapping) so gaps show.
+    Stream {
+        /// Stream frame counter.
+        seq: u16,
+        /// The data.
+        item: Stream,
+    },
+}
+
+/// Successful answers, one variant per answer type.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub enum Response {
+    /// Answer to [`Hello`].
+    Hello(HelloReply),
+    /// Answer to [`GetInfo`].
+    Info(Info),
+    /// The request was carried out.
+    Ack,
+    /// Answer to [`ParamRead`].
+    ParamData(ParamData),
+}
+
+/// The controller's side of the handshake.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct HelloReply {
+    /// Controller's protocol version.
+    pub version: u16,
+    /// Controller's schema hash.
+    pub schema: u32,
+}
+
+/// The request was carried out (the answer of most endpoints).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Ack;
+
+/// Part of a parameter blob.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub struct ParamData {
+    /// Offset of the bytes.
+    pub offset: u16,
+    /// Bytes (empty past the end).
+    pub data: heapless::Vec<u8, PARAM_CHUNK>,
+}
+
+/// Errors that cross the wire.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub enum WireError {
+    /// Version or schema differ; the controller's are given.
+    VersionMismatch {
+        /// Controller's protocol version.
+        version: u16,
+        /// Controller's schema hash.
+        schema: u32,
+    },
+    /// The request frame could not be decoded.
+    BadFrame,
+    /// A window is already being measured.
+    Busy,
+    /// The request needs [`Request::Hello`] first.
+    NoHello,
+    /// Window length out of range (1..=4096 ticks).
+    BadWindowLength,
+    /// Upload larger than the parameter area.
+    ParamTooLarge,
+    /// Chunk outside the announced upload, or out of order.
+    ParamOffset,
+    /// No upload in progress.
+    NoUpload,
+    /// Upload incomplete at commit.
+    ParamIncomplete,
+    /// Upload's CRC or content invalid at commit; nothing was stored.
+    ParamInvalid,
+    /// A value of the uploaded set is outside the physical envelope; nothing was stored.
+    ParamEnvelope(crate::params::EnvelopeViolation),
+    /// Writing flash failed; the previous parameters are still active.
+    FlashWrite,
+    /// Only the emulated board supports this request.
+    NotSupported,
+}
+
+/// Controller identity and health.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub struct Info {
+    /// Firmware name and version.
+    pub firmware: heapless::String<24>,
+    /// Board name.
+    pub board: heapless::String<24>,
+    /// Version number of the stored parameters (0: none stored).
+    pub param_version: u32,
+    /// CRC-32 of the stored parameter blob (0: none).
+    pub param_crc: u32,
+    /// Ticks since boot.
+    pub ticks: u32,
+    /// Ticks whose encoder read started more than one tick period late since boot (the
+    /// sampling instant was missed).
+    pub late_ticks: u32,
+    /// Per-joint encoder health since boot.
+    pub encoders: [EncoderHealth; JOINTS],
+}
+
+/// Encoder frame counters of one joint.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct EncoderHealth {
+    /// Frames accepted.
+    pub accepted: u32,
+    /// Frames rejected for a bad CRC.
+    pub crc_errors: u32,
+    /// Frames rejected for the error bit.
+    pub error_bits: u32,
+    /// Frames accepted with the warning bit.
+    pub warnings: u32,
+    /// Frames with no answer (no start bit, truncated, bad CDS).
+    pub dropouts: u32,
+}
+
+/// What the controller streams.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub enum Stream {
+    /// One tick's raw positions.
+    Raw(RawSample),
     /// A finished measurement window.
-    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-    pub struct WindowReport {
-        /// Ticks requested.
-        pub ticks: u16,
-        /// Per joint statistics.
-        pub joints: [JointWindow; JOINTS],
-        /// Some joint had more rejected samples than allowed; do not use the means.
-        pub flagged: bool,
-    }
+    Window(WindowReport),
+    /// Calibrated tool pose.
+    Pose(PoseReport),
+}
 
-    /// Window statistics of one joint.
-    #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-    pub struct JointWindow {
-        /// Wrap-safe mean position, counts in [0, 2²²), with sub-count resolution.
-        pub mean_counts: f64,
-        /// Standard deviation, counts.
-        pub std_counts: f32,
-        /// Smallest sample, counts relative to the mean (≤ 0).
-        pub min_counts: i32,
-        /// Largest sample, counts relative to the mean (≥ 0).
-        pub max_counts: i32,
-        /// Samples accepted.
-        pub accepted: u16,
-        /// Samples rejected.
-        pub rejected: u16,
-    }
+/// Raw positions of one tick: six 22-bit counts packed into 17 bytes (see [`pack_counts`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct RawSample {
+    /// Tick number (wrapping).
+    pub tick: u16,
+    /// Six 22-bit positions, packed big-endian.
+    pub packed: [u8; 17],
+    /// Bit j set: joint j's frame was rejected this tick (its count repeats the last good one).
+    pub rejected: u8,
+}
 
-    /// Calibrated tool pose computed on the controller.
-    #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-    pub struct PoseReport {
-        /// Tick number (wrapping).
-        pub tick: u16,
-        /// Tool point, mm.
-        pub position_mm: [f32; 3],
-        /// Tool z axis (unit).
-        pub z_axis: [f32; 3],
-        /// Tool x axis (unit).
-        pub x_axis: [f32; 3],
+/// A finished measurement window.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub struct WindowReport {
+    /// Ticks requested.
+    pub ticks: u16,
+    /// Per joint statistics.
+    pub joints: [JointWindow; JOINTS],
+    /// Some joint had more rejected samples than allowed; do not use the means.
+    pub flagged: bool,
+}
+
+/// Window statistics of one joint.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub struct JointWindow {
+    /// Wrap-safe mean position, counts in [0, 2²²), with sub-count resolution.
+    pub mean_counts: f64,
+    /// Standard deviation, counts.
+    pub std_counts: f32,
+    /// Smallest sample, counts relative to the mean (≤ 0).
+    pub min_counts: i32,
+    /// Largest sample, counts relative to the mean (≥ 0).
+    pub max_counts: i32,
+    /// Samples accepted.
+    pub accepted: u16,
+    /// Samples rejected.
+    pub rejected: u16,
+}
+
+/// Calibrated tool pose computed on the controller.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
+pub struct PoseReport {
+    /// Tick number (wrapping).
+    pub tick: u16,
+    /// Tool point, mm.
+    pub position_mm: [f32; 3],
+    /// Tool z axis (unit).
+    pub z_axis: [f32; 3],
+    /// Tool x axis (unit).
+    pub x_axis: [f32; 3],
+}
+
+/// A request type and the type of its answer, as postcard-rpc's endpoints: the controller can
+/// only answer a request with its endpoint's response type, and the host gets that type back.
+pub trait Endpoint: Into<Request> {
+    /// The answer's type.
+    type Response: Answer;
+    /// The request's name in messages.
+    const NAME: &'static str;
+}
+
+/// A type a [`Response`] can carry.
+pub trait Answer: Sized {
+    /// Put it on the wire.
+    fn into_response(self) -> Response;
+    /// Take it off the wire; `None` when the response holds another type.
+    fn from_response(response: Response) -> Option<Self>;
+}
+
+macro_rules! answers {
+    ($($ty:ty => $variant:ident),* $(,)?) => {$(
+        impl Answer for $ty {
+            fn into_response(self) -> Response {
+                Response::$variant(self)
+            }
+            fn from_response(response: Response) -> Option<Self> {
+                match response {
+                    Response::$variant(inner) => Some(inner),
+                    _ => None,
+                }
+            }
+        }
+    )*};
+}
+answers!(HelloReply => Hello, Info => Info, ParamData => ParamData);
+
+impl Answer for Ack {
+    fn into_response(self) -> Response {
+        Response::Ack
     }
+    fn from_response(response: Response) -> Option<Self> {
+        matches!(response, Response::Ack).then_some(Ack)
+    }
+}
+
+macro_rules! endpoints {
+    ($($request:ident => $answer:ty, $name:literal;)*) => {$(
+        impl From<$request> for Request {
+            fn from(request: $request) -> Request {
+                Request::$request(request)
+            }
+        }
+        impl Endpoint for $request {
+            type Response = $answer;
+            const NAME: &'static str = $name;
+        }
+    )*};
+}
+endpoints! {
+    Hello => HelloReply, "hello";
+    GetInfo => Info, "info";
+    StartWindow => Ack, "measurement window";
+    StreamRaw => Ack, "raw stream";
+    StreamPose => Ack, "pose stream";
+    ParamBegin => Ack, "parameter upload";
+    ParamChunk => Ack, "parameter chunk";
+    ParamRead => ParamData, "parameter read";
+    ParamCommit => Ack, "parameter commit";
+    Reset => Ack, "reset";
+    SimSetPose => Ack, "emulated pose";
+    SimFaults => Ack, "emulated encoder faults";
+}
+
+/// A stream topic: one of the items the controller streams, with its own type.
+pub trait Topic: Sized {
+    /// The topic's name in messages.
+    const NAME: &'static str;
+    /// Take it out of a stream frame; `None` for another topic.
+    fn from_stream(item: Stream) -> Option<Self>;
+}
+
+macro_rules! topics {
+    ($($ty:ty => $variant:ident, $name:literal;)*) => {$(
+        impl Topic for $ty {
+            const NAME: &'static str = $name;
+            fn from_stream(item: Stream) -> Option<Self> {
+                match item {
+                    Stream::$variant(inner) => Some(inner),
+                    _ => None,
+                }
+            }
+        }
+    )*};
+}
+topics! {
+    RawSample => Raw, "raw samples";
+    WindowReport => Window, "measurement windows";
+    PoseReport => Pose, "tool poses";
 }
 
 impl JointWindow {
@@ -373,9 +527,61 @@ mod tests {
         assert_eq!(unpack_counts(&pack_counts(&counts)), counts);
     }
 
+    /// Each endpoint's answer type comes back only from its own kind of response.
     #[test]
-    fn schema_hash_covers_the_definitions() {
-        assert!(SCHEMA_TEXT.contains("SimSetPose") && SCHEMA_TEXT.contains("mean_counts"));
-        assert_ne!(SCHEMA_HASH, fnv1a(""));
+    fn answers_are_taken_only_from_their_own_response() {
+        fn name<E: Endpoint>(_: &E) -> &'static str {
+            E::NAME
+        }
+        let reply = HelloReply { version: 1, schema: 2 };
+        assert_eq!(<Hello as Endpoint>::Response::from_response(reply.into_response()), Some(reply));
+        assert_eq!(<GetInfo as Endpoint>::Response::from_response(Response::Ack), None);
+        assert_eq!(<ParamCommit as Endpoint>::Response::from_response(Response::Ack), Some(Ack));
+        assert_eq!(<ParamRead as Endpoint>::Response::from_response(Response::Ack), None);
+        assert_eq!(Request::from(StreamRaw { on: true }), Request::StreamRaw(StreamRaw { on: true }));
+        assert_eq!(name(&StartWindow { ticks: 1 }), "measurement window");
+    }
+
+    /// The hash follows the structure, not the text: a renamed field or a changed type changes
+    /// it, a different comment does not.
+    #[test]
+    fn schema_hash_follows_the_structure() {
+        use postcard_schema::key::hash::fnv1a64::hash_ty_path;
+        #[allow(dead_code)]
+        mod documented {
+            /// One comment.
+            #[derive(postcard_schema::Schema)]
+            pub struct Window {
+                /// Ticks.
+                pub ticks: u16,
+            }
+        }
+        #[allow(dead_code)]
+        mod other_comment {
+            #[derive(postcard_schema::Schema)]
+            pub struct Window {
+                // Another comment, no doc.
+                pub ticks: u16,
+            }
+        }
+        #[allow(dead_code)]
+        mod renamed {
+            #[derive(postcard_schema::Schema)]
+            pub struct Window {
+                pub samples: u16,
+            }
+        }
+        #[allow(dead_code)]
+        mod widened {
+            #[derive(postcard_schema::Schema)]
+            pub struct Window {
+                pub ticks: u32,
+            }
+        }
+        let base = hash_ty_path::<documented::Window>("t");
+        assert_eq!(base, hash_ty_path::<other_comment::Window>("t"));
+        assert_ne!(base, hash_ty_path::<renamed::Window>("t"));
+        assert_ne!(base, hash_ty_path::<widened::Window>("t"));
+        assert_ne!(SCHEMA_HASH, 0);
     }
 }

@@ -71,7 +71,7 @@ pub mod envelope {
 }
 
 /// Which parameter of a set is outside the envelope.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, postcard_schema::Schema)]
 pub enum ParamField {
     /// The version number (0 is reserved for "none stored").
     Version,
@@ -117,7 +117,7 @@ impl ParamField {
 }
 
 /// A parameter outside the physical envelope: which, where, its value and the limit.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
 pub struct EnvelopeViolation {
     /// The field.
     pub field: ParamField,
@@ -152,8 +152,9 @@ pub fn check_envelope(params: &ArmParams) -> Result<(), EnvelopeViolation> {
         return Err(EnvelopeViolation { field: ParamField::Version, joint: 0, value: 0.0, limit: 1.0 });
     }
     let check = |field, joint: u8, value: f64, limit: f64| {
-        // NaN is refused explicitly; the limits keep every value finite in f32.
-        if value.is_nan() || value.abs() > limit || !(value as f32).is_finite() {
+        // NaN is not within any limit; the limits keep every value finite in f32.
+        let within = value.abs() <= limit;
+        if !within || !(value as f32).is_finite() {
             Err(EnvelopeViolation { field, joint, value, limit })
         } else {
             Ok(())
@@ -287,8 +288,9 @@ mod tests {
     #[test]
     fn absurd_sets_are_outside_the_envelope() {
         assert_eq!(check_envelope(&sample()), Ok(()));
-        type Breaker = fn(&mut ArmParams);
-        let cases: [(Breaker, ParamField, u8); 7] = [
+        /// A way to break a set, the field and the joint the refusal must name.
+        type Case = (fn(&mut ArmParams), ParamField, u8);
+        let cases: [Case; 7] = [
             (|p| p.joints[2].a_mm = 1e6, ParamField::AMm, 3),
             (|p| p.joints[0].alpha_deg = 1e6, ParamField::AlphaDeg, 1),
             (|p| p.scale_ppm = 1e12, ParamField::ScalePpm, 0),

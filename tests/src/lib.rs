@@ -13,7 +13,7 @@ use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, Shar
 use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
-use kincal_protocol::messages::{DeviceFrame, HostFrame, Request};
+use kincal_protocol::messages::{DeviceFrame, HostFrame, Request, TICK_HZ};
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -22,10 +22,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-/// What the fake controller does with the next parameter commit.
+/// What happens to a request the fake controller is told to fault.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum CommitFault {
-    /// Carry it out and answer.
+pub enum Fault {
+    /// Nothing: carry it out and answer.
     None,
     /// Carry it out, but the answer is lost on the way back.
     LoseReply,
@@ -33,11 +33,17 @@ pub enum CommitFault {
     LoseRequest,
 }
 
+/// Which requests to fault, how, and how many more times.
+struct FaultPlan {
+    applies: fn(&Request) -> bool,
+    fault: Fault,
+    times: u32,
+}
 /// A controller on a background thread; stopped on drop.
 pub struct FakeController {
     /// Where to connect: `tcp:127.0.0.1:PORT`.
     pub port: String,
-    commit_fault: Arc<std::sync::Mutex<CommitFault>>,
+    faults: Arc<std::sync::Mutex<FaultPlan>>,
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -59,15 +65,16 @@ impl FakeController {
         listener.set_nonblocking(true).expect("nonblocking");
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
-        let commit_fault = Arc::new(std::sync::Mutex::new(CommitFault::None));
-        let fault = commit_fault.clone();
-        let thread = std::thread::spawn(move || serve(listener, flag, fault, speedup));
-        FakeController { port, commit_fault, stop, thread: Some(thread) }
+        let faults =
+            Arc::new(std::sync::Mutex::new(FaultPlan { applies: |_| false, fault: Fault::None, times: 0 }));
+        let plan = faults.clone();
+        let thread = std::thread::spawn(move || serve(listener, flag, plan, speedup));
+        FakeController { port, faults, stop, thread: Some(thread) }
     }
 
-    /// Make the next parameter commit fail in the way given (once).
-    pub fn fault_next_commit(&self, fault: CommitFault) {
-        *self.commit_fault.lock().unwrap_or_else(|e| e.into_inner()) = fault;
+    /// Fault the next `times` requests for which `applies` holds, in the way given.
+    pub fn fault_next(&self, applies: fn(&Request) -> bool, fault: Fault, times: u32) {
+        *self.faults.lock().unwrap_or_else(|e| e.into_inner()) = FaultPlan { applies, fault, times };
     }
 }
 
@@ -81,7 +88,7 @@ fn write_frame(stream: &mut TcpStream, frame: &DeviceFrame) {
 fn serve(
     listener: TcpListener,
     stop: Arc<AtomicBool>,
-    fault: Arc<std::sync::Mutex<CommitFault>>,
+    faults: Arc<std::sync::Mutex<FaultPlan>>,
     speedup: u32,
 ) {
     let mut controller = Controller::new("kincal-fw fake", "host (fake)", true, RamNor::<4096>::new());
@@ -89,7 +96,7 @@ fn serve(
     let encoders: SharedEncoders<NoopRawMutex> =
         embassy_sync::blocking_mutex::Mutex::new(std::cell::RefCell::new(EmulatedEncoders::new()));
     let mut master = BissMaster::new(EmulatedEncoder::all(&encoders));
-    let tick = Duration::from_secs_f64(1.0 / (768.0 * speedup.max(1) as f64));
+    let tick = Duration::from_secs_f64(1.0 / (TICK_HZ as f64 * speedup.max(1) as f64));
     while !stop.load(Ordering::SeqCst) {
         let Ok((mut stream, _)) = listener.accept() else {
             std::thread::sleep(Duration::from_millis(5));
@@ -106,27 +113,30 @@ fn serve(
                 Ok(n) => {
                     for &b in &buf[..n] {
                         let Some(decoded) = decoder.push::<HostFrame>(b) else { continue };
-                        let commit_fault = match &decoded {
-                            Ok(HostFrame { request: Request::ParamCommit, .. }) => std::mem::replace(
-                                &mut *fault.lock().unwrap_or_else(|e| e.into_inner()),
-                                CommitFault::None,
-                            ),
-                            _ => CommitFault::None,
+                        let fault = match &decoded {
+                            Ok(frame) => {
+                                let mut plan = faults.lock().unwrap_or_else(|e| e.into_inner());
+                                if plan.times > 0 && (plan.applies)(&frame.request) {
+                                    plan.times -= 1;
+                                    plan.fault
+                                } else {
+                                    Fault::None
+                                }
+                            }
+                            Err(_) => Fault::None,
                         };
-                        if commit_fault == CommitFault::LoseRequest {
+                        if fault == Fault::LoseRequest {
                             continue;
                         }
                         let mut out = Vec::new();
                         let action = match decoded {
-                            Ok(frame) => {
-                                controller.handle(frame, &sampler.health, &mut |f| out.push(f.clone()))
-                            }
+                            Ok(frame) => controller.handle(frame, &sampler, &mut |f| out.push(f.clone())),
                             Err(_) => {
                                 controller.bad_frame(&mut |f| out.push(f.clone()));
                                 Action::None
                             }
                         };
-                        if commit_fault != CommitFault::LoseReply {
+                        if fault != Fault::LoseReply {
                             for f in &out {
                                 write_frame(&mut stream, f);
                             }

@@ -7,7 +7,7 @@ use kincal::controller::link::Link;
 use kincal::data::{Artefact, Session};
 use kincal_e2e::emulated_firmware;
 use kincal_e2e::kincal_bin;
-use kincal_protocol::messages::{Request, PARAM_CHUNK};
+use kincal_protocol::messages::{ParamBegin, ParamChunk, PARAM_CHUNK};
 use kincal_protocol::params::BLOB_CRC;
 use std::path::PathBuf;
 use std::process::Command;
@@ -84,16 +84,12 @@ fn an_upload_cut_off_midway_keeps_the_old_parameters_and_a_retry_succeeds() {
     let mut model = kincal::model::ArmModel::suta_nominal();
     model.joints[3].offset_deg += 0.4;
     let new = kincal::controller::device::parameter_blob(&model, 2).unwrap();
-    link.command(Request::ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }, "begin")
-        .unwrap();
+    link.call(ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }).unwrap();
     for (k, chunk) in new.chunks(PARAM_CHUNK).take(4).enumerate() {
-        link.command(
-            Request::ParamChunk {
-                offset: (k * PARAM_CHUNK) as u16,
-                data: heapless::Vec::from_slice(chunk).unwrap(),
-            },
-            "chunk",
-        )
+        link.call(ParamChunk {
+            offset: (k * PARAM_CHUNK) as u16,
+            data: heapless::Vec::from_slice(chunk).unwrap(),
+        })
         .unwrap();
     }
     drop(link); // the host goes away halfway through

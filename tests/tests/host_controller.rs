@@ -3,8 +3,10 @@
 
 use kincal::controller::link::{Link, LinkError};
 use kincal::data::{Artefact, Session};
-use kincal_e2e::{kincal_bin, CommitFault, FakeController};
-use kincal_protocol::messages::{Request, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH};
+use kincal_e2e::{kincal_bin, FakeController, Fault};
+use kincal_protocol::messages::{
+    Hello, ParamBegin, ParamChunk, ParamCommit, SimFaults, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
+};
 use kincal_protocol::params::BLOB_CRC;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -109,16 +111,12 @@ fn an_interrupted_upload_keeps_the_old_parameters_and_a_retry_succeeds() {
     let mut new_model = kincal::model::ArmModel::suta_nominal();
     new_model.joints[2].d_mm += 1.5;
     let new = kincal::controller::device::parameter_blob(&new_model, 2).unwrap();
-    link.command(Request::ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }, "begin")
-        .unwrap();
+    link.call(ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }).unwrap();
     for (k, chunk) in new.chunks(PARAM_CHUNK).take(3).enumerate() {
-        link.command(
-            Request::ParamChunk {
-                offset: (k * PARAM_CHUNK) as u16,
-                data: heapless::Vec::from_slice(chunk).unwrap(),
-            },
-            "chunk",
-        )
+        link.call(ParamChunk {
+            offset: (k * PARAM_CHUNK) as u16,
+            data: heapless::Vec::from_slice(chunk).unwrap(),
+        })
         .unwrap();
     }
     drop(link); // the connection closes halfway through the upload
@@ -127,7 +125,7 @@ fn an_interrupted_upload_keeps_the_old_parameters_and_a_retry_succeeds() {
     assert_eq!(link.info().unwrap().param_version, 1, "the old parameters stay active");
     assert_eq!(link.read_params(false, 4096).unwrap(), old);
     assert!(
-        matches!(link.command(Request::ParamCommit, "commit"), Err(LinkError::Refused(_, _))),
+        matches!(link.call(ParamCommit), Err(LinkError::Refused(_, _))),
         "a half upload cannot be committed"
     );
     link.upload(&new).unwrap();
@@ -223,16 +221,21 @@ fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
     let (code, out, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "10"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(out.contains("now holds parameters version 10"), "{out}");
-    // The commit happens but its answer is lost: the host asks, and reports the new set.
-    fake.fault_next_commit(CommitFault::LoseReply);
+    let commit = |r: &kincal_protocol::messages::Request| {
+        matches!(r, kincal_protocol::messages::Request::ParamCommit(_))
+    };
+    // The commit happens but every answer to it is lost (the first and the repeat): the host
+    // asks what the controller holds, and reports the new set.
+    fake.fault_next(commit, Fault::LoseReply, 2);
     let (code, out, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "77"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(err.contains("answer to the commit was lost"), "{err}");
     assert!(
         out.contains("now holds parameters version 77") && out.contains("previously parameters version 10")
     );
-    // The commit itself is lost: the host asks, and reports the set still held.
-    fake.fault_next_commit(CommitFault::LoseRequest);
+    // The commit request is lost, and its repeat too: the host asks, and reports the set still
+    // held.
+    fake.fault_next(commit, Fault::LoseRequest, 2);
     let (code, _, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "78"]);
     assert_eq!(code, Some(1));
     assert!(
@@ -297,16 +300,13 @@ fn record_args<'a>(port: &'a str, artefact: &'a str, out: &'a str, window: &'a s
 fn set_dropouts(port: &str, dropouts_per_10k: u16) {
     let mut link = Link::open(port).unwrap();
     link.hello().unwrap();
-    link.command(
-        Request::SimFaults {
-            noise_counts: 0,
-            crc_errors_per_10k: 0,
-            dropouts_per_10k,
-            error_bits_per_10k: 0,
-            warnings_per_10k: 0,
-        },
-        "faults",
-    )
+    link.call(SimFaults {
+        noise_counts: 0,
+        crc_errors_per_10k: 0,
+        dropouts_per_10k,
+        error_bits_per_10k: 0,
+        warnings_per_10k: 0,
+    })
     .unwrap();
 }
 
@@ -391,10 +391,64 @@ fn the_first_request_after_line_noise_is_answered() {
     // glued to it and lost.
     stream.write_all(&[0x55, 0x12, 0xA7, 0x3C, 0x01]).unwrap();
     let mut link = Link::over(Box::new(stream));
-    let answer = link.request(
-        Request::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH },
-        "hello",
-        Duration::from_secs(1),
-    );
+    // One attempt, no retry.
+    let answer =
+        link.call_within(Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }, Duration::from_secs(1));
     assert!(answer.is_ok(), "{answer:?}");
+}
+
+#[test]
+fn the_emulated_arm_is_posed_and_faulted_from_the_cli() {
+    let fake = FakeController::start(2);
+    let (code, out, err) =
+        kincal(&["emulated-arm", "pose", "--port", &fake.port, "--deg", "10,20,30,40,350.5,0"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("350.5000") && out.contains("96/96"), "{out}");
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    let w = kincal::controller::record::measure_window(&mut link, 32).unwrap();
+    let deg: Vec<f64> =
+        w.joints.iter().map(|j| kincal_protocol::biss::counts_to_deg(j.mean_counts)).collect();
+    for (got, want) in deg.iter().zip([10.0, 20.0, 30.0, 40.0, 350.5, 0.0]) {
+        assert!((got - want).abs() < 1e-4, "{deg:?}");
+    }
+    drop(link);
+    let (code, out, err) =
+        kincal(&["emulated-arm", "faults", "--port", &fake.port, "--dropouts-per-10k", "10000"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("10000 dropouts"), "{out}");
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    let w = kincal::controller::record::measure_window(&mut link, 32).unwrap();
+    assert!(w.joints.iter().all(|j| j.accepted == 0), "{w:?}");
+    let (code, _, err) = kincal(&["emulated-arm", "pose", "--port", &fake.port, "--counts", "1,2,3"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("--counts: expected 6 positions"), "{err}");
+}
+
+#[test]
+fn lost_answers_are_repeated_without_doing_anything_twice() {
+    let fake = FakeController::start(1);
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    // The answer to one chunk is lost: the chunk is sent again with its sequence number and the
+    // controller answers without appending it twice (else the read-back or the offset check fails).
+    let chunk = |r: &kincal_protocol::messages::Request| {
+        matches!(r, kincal_protocol::messages::Request::ParamChunk(_))
+    };
+    fake.fault_next(chunk, Fault::LoseReply, 1);
+    let blob =
+        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 6).unwrap();
+    let done = link.upload(&blob).unwrap();
+    assert!(!done.commit_reply_lost);
+    assert_eq!(link.read_params(false, 4096).unwrap(), blob);
+    // A lost commit answer: the repeat is answered from the controller's memory of it.
+    let commit = |r: &kincal_protocol::messages::Request| {
+        matches!(r, kincal_protocol::messages::Request::ParamCommit(_))
+    };
+    fake.fault_next(commit, Fault::LoseReply, 1);
+    let blob =
+        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 7).unwrap();
+    assert!(link.upload(&blob).unwrap().commit_reply_lost);
+    assert_eq!(link.info().unwrap().param_version, 7);
 }

@@ -20,7 +20,7 @@ use crate::simulate::{
     validation_placements, Placement, SimulationOptions,
 };
 use kincal_protocol::biss::{counts_to_deg, deg_to_counts};
-use kincal_protocol::messages::{Request, Stream};
+use kincal_protocol::messages::{PoseReport, SimFaults, SimSetPose, StreamPose};
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -140,7 +140,7 @@ impl Guide for PosingGuide<'_> {
         let Some(enc) = touch_encoders(self.truth, &self.place, l, noise, self.rng) else {
             return Ok(Step::Skip);
         };
-        link.command(Request::SimSetPose { counts: counts_of(&enc) }, "emulated pose")?;
+        link.call(SimSetPose { counts: counts_of(&enc) })?;
         Ok(Step::Measure)
     }
 
@@ -151,19 +151,19 @@ impl Guide for PosingGuide<'_> {
 
 /// Average the controller's streamed tool point over `frames` pose frames at `counts`.
 fn streamed_point(link: &mut Link, counts: [u32; 6], frames: usize) -> Result<Vector3<f64>, LinkError> {
-    link.command(Request::SimSetPose { counts }, "emulated pose")?;
-    link.command(Request::StreamPose(1), "pose stream")?;
+    link.call(SimSetPose { counts })?;
+    link.call(StreamPose { divider: 1 })?;
     link.clear_streams();
     let mut sum = Vector3::zeros();
     let mut n = 0;
     let deadline = Instant::now() + Duration::from_secs(5);
     while n < frames && Instant::now() < deadline {
-        if let Some((_, Stream::Pose(p))) = link.next_stream(Duration::from_millis(100))? {
+        if let Some((_, p)) = link.next_on::<PoseReport>(Duration::from_millis(100))? {
             sum += Vector3::new(p.position_mm[0] as f64, p.position_mm[1] as f64, p.position_mm[2] as f64);
             n += 1;
         }
     }
-    link.command(Request::StreamPose(0), "pose stream off")?;
+    link.call(StreamPose { divider: 0 })?;
     if n == 0 {
         return Err(LinkError::Timeout(Duration::from_secs(5), "pose frames"));
     }
@@ -194,16 +194,13 @@ pub fn run_loop(
     artefact.save(&data.join("artefact.json")).map_err(|e| files(&e))?;
     truth.save(&data.join("truth.toml")).map_err(|e| files(&e))?;
     nominal.save(&data.join("nominal.toml")).map_err(|e| files(&e))?;
-    link.command(
-        Request::SimFaults {
-            noise_counts: options.encoder_noise_counts,
-            crc_errors_per_10k: 0,
-            dropouts_per_10k: 0,
-            error_bits_per_10k: 0,
-            warnings_per_10k: 0,
-        },
-        "encoder noise",
-    )?;
+    link.call(SimFaults {
+        noise_counts: options.encoder_noise_counts,
+        crc_errors_per_10k: 0,
+        dropouts_per_10k: 0,
+        error_bits_per_10k: 0,
+        warnings_per_10k: 0,
+    })?;
     let seat = Normal::new(0.0, options.seating_noise_mm.max(0.0)).map_err(|e| files(&e))?;
     let order: Vec<String> = artefact.landmarks.iter().map(|l| l.id.clone()).collect();
     let mut touches = 0;

@@ -4,14 +4,18 @@
 //! every command goes through the same code path. Requests carry a sequence number and wait
 //! for the response with that number; stream frames that arrive meanwhile are queued for
 //! [`Link::next_stream`]. Every request frame starts with a 0x00 delimiter, so line noise before
-//! it ends as a bad frame of its own instead of swallowing the request. Garbage on the line is
+//! it ends as a bad frame of its own instead of swallowing the request. A request whose answer
+//! does not come is repeated with the same sequence number ([`Link::call_retrying`]); the
+//! controller answers a repeat without carrying the request out twice, so any request may be
+//! repeated, not only idempotent ones. Garbage on the line is
 //! skipped (and counted); a link that closes is reported as such. When the answer to a parameter
 //! commit is lost, the host asks the controller what it holds before saying anything.
 
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
 use kincal_protocol::messages::{
-    DeviceFrame, HostFrame, Info, Request, Response, Stream, WireError, PARAM_CHUNK, PROTOCOL_VERSION,
-    SCHEMA_HASH,
+    Ack, Answer, DeviceFrame, Endpoint, GetInfo, Hello, HelloReply, HostFrame, Info, ParamBegin, ParamChunk,
+    ParamCommit, ParamData, ParamRead, Request, Response, Stream, Topic, WireError, PARAM_CHUNK,
+    PROTOCOL_VERSION, SCHEMA_HASH,
 };
 use kincal_protocol::params::BLOB_CRC;
 use std::collections::VecDeque;
@@ -67,7 +71,8 @@ impl fmt::Display for AfterFailure {
 /// How an upload ended when it succeeded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Uploaded {
-    /// The answer to the commit was lost; the controller was asked and holds the new set.
+    /// The first answer to the commit was lost; a repeat of the request (answered by the
+    /// controller without committing twice) or asking what it holds confirmed the new set.
     pub commit_reply_lost: bool,
 }
 
@@ -170,7 +175,7 @@ pub struct LinkStats {
 
 /// A response as queued: its sequence number, the answer, and how many stream frames had been
 /// queued before it arrived.
-struct Answer {
+struct Queued {
     seq: u16,
     response: Result<Response, WireError>,
     streams_before: u64,
@@ -185,7 +190,7 @@ pub struct Link {
     streams: VecDeque<(u64, u16, Stream)>,
     /// Stream frames queued so far (arrival numbers count up from 0).
     streams_arrived: u64,
-    answers: VecDeque<Answer>,
+    answers: VecDeque<Queued>,
     /// Stream frames that had arrived when the last returned response arrived.
     before_last_response: u64,
     last_stream_seq: Option<u16>,
@@ -228,24 +233,30 @@ impl Link {
         }
     }
 
-    fn send(&mut self, request: Request) -> Result<u16, LinkError> {
+    /// The next request's sequence number.
+    fn next_seq(&mut self) -> u16 {
         self.seq = self.seq.wrapping_add(1);
         if self.seq == u16::MAX {
             self.seq = 0; // u16::MAX is the controller's "undecodable request" answer
         }
+        self.seq
+    }
+
+    /// Send `request` as frame `seq`.
+    fn send(&mut self, seq: u16, request: Request) -> Result<(), LinkError> {
         let mut buf = [0u8; MAX_FRAME + 1];
         let (delimiter, rest) = buf.split_at_mut(1);
         delimiter[0] = 0;
         let Ok(rest) = <&mut [u8; MAX_FRAME]>::try_from(rest) else {
             return Err(LinkError::Unexpected("encoding"));
         };
-        let n = framing::encode(&HostFrame { seq: self.seq, request }, rest)
+        let n = framing::encode(&HostFrame { seq, request }, rest)
             .map_err(|_| LinkError::Unexpected("encoding"))?
             .len();
         // The leading delimiter ends any noise the controller received before this frame.
         self.transport.write_all(&buf[..1 + n])?;
         self.transport.flush()?;
-        Ok(self.seq)
+        Ok(())
     }
 
     /// Read once (waiting until `deadline` at most) and queue every frame that decoded.
@@ -296,48 +307,76 @@ impl Link {
                 self.streams_arrived += 1;
             }
             DeviceFrame::Response { seq, response } => {
-                self.answers.push_back(Answer { seq, response, streams_before: self.streams_arrived })
+                self.answers.push_back(Queued { seq, response, streams_before: self.streams_arrived })
             }
         }
     }
 
-    /// Send `request` and wait for its response.
-    pub fn request(
+    /// Send `request` up to `attempts` times, each waiting `timeout` for its answer. Repeats
+    /// carry the same sequence number: a controller that carried the request out and whose
+    /// answer was lost answers again without doing it twice, so any request may be repeated.
+    /// Returns the answer and the attempts it took.
+    fn request(
         &mut self,
         request: Request,
         what: &'static str,
         timeout: Duration,
-    ) -> Result<Response, LinkError> {
-        let seq = self.send(request)?;
-        let deadline = Instant::now() + timeout;
-        loop {
-            // Answers to other sequence numbers are stale (their requests timed out): dropped.
-            while let Some(answer) = self.answers.pop_front() {
-                if answer.seq == seq {
+        attempts: u32,
+    ) -> Result<(Response, u32), LinkError> {
+        let seq = self.next_seq();
+        for attempt in 1..=attempts.max(1) {
+            self.send(seq, request.clone())?;
+            let deadline = Instant::now() + timeout;
+            loop {
+                // Answers to other sequence numbers are stale (their requests timed out): dropped.
+                if let Some(answer) = self.answers.iter().position(|a| a.seq == seq) {
+                    let answer =
+                        self.answers.drain(..=answer).next_back().ok_or(LinkError::Unexpected(what))?;
                     self.before_last_response = answer.streams_before;
-                    return answer.response.map_err(|e| LinkError::Refused(what, e));
+                    return match answer.response {
+                        Ok(response) => Ok((response, attempt)),
+                        Err(e) => Err(LinkError::Refused(what, e)),
+                    };
+                }
+                self.answers.clear();
+                if !self.pump(deadline)? {
+                    break;
                 }
             }
-            if !self.pump(deadline)? {
-                return Err(LinkError::Timeout(timeout, what));
-            }
         }
+        Err(LinkError::Timeout(timeout, what))
     }
 
-    /// Send a request that may safely be repeated, trying up to three times on a timeout.
-    pub fn request_idempotent(
+    /// Send `request` (up to `attempts` times) and wait up to `timeout` each time for its
+    /// endpoint's answer; returns it with the attempts it took.
+    fn call_attempts<E: Endpoint>(
         &mut self,
-        request: Request,
-        what: &'static str,
-    ) -> Result<Response, LinkError> {
-        let mut attempt = 0;
-        loop {
-            attempt += 1;
-            match self.request(request.clone(), what, DEFAULT_TIMEOUT) {
-                Err(LinkError::Timeout(..)) if attempt < 3 => continue,
-                other => return other,
-            }
-        }
+        request: E,
+        timeout: Duration,
+        attempts: u32,
+    ) -> Result<(E::Response, u32), LinkError> {
+        let (response, attempt) = self.request(request.into(), E::NAME, timeout, attempts)?;
+        let answer = E::Response::from_response(response).ok_or(LinkError::Unexpected(E::NAME))?;
+        Ok((answer, attempt))
+    }
+
+    /// Send `request` once and wait up to `timeout` for its endpoint's answer.
+    pub fn call_within<E: Endpoint>(
+        &mut self,
+        request: E,
+        timeout: Duration,
+    ) -> Result<E::Response, LinkError> {
+        Ok(self.call_attempts(request, timeout, 1)?.0)
+    }
+
+    /// Send `request` once and wait for its endpoint's answer ([`DEFAULT_TIMEOUT`]).
+    pub fn call<E: Endpoint>(&mut self, request: E) -> Result<E::Response, LinkError> {
+        self.call_within(request, DEFAULT_TIMEOUT)
+    }
+
+    /// [`Link::call`], repeated (same sequence number) up to three times when no answer comes.
+    pub fn call_retrying<E: Endpoint>(&mut self, request: E) -> Result<E::Response, LinkError> {
+        Ok(self.call_attempts(request, DEFAULT_TIMEOUT, 3)?.0)
     }
 
     /// Version and schema handshake; must come first.
@@ -347,8 +386,8 @@ impl Link {
 
     /// Handshake announcing `version` and `schema` (tests use it to provoke a mismatch).
     pub fn hello_as(&mut self, version: u16, schema: u32) -> Result<(), LinkError> {
-        match self.request_idempotent(Request::Hello { version, schema }, "hello") {
-            Ok(Response::Hello { .. }) => Ok(()),
+        match self.call_retrying(Hello { version, schema }) {
+            Ok(HelloReply { .. }) => Ok(()),
             Err(LinkError::Refused(
                 _,
                 WireError::VersionMismatch { version: device_version, schema: device_schema },
@@ -359,24 +398,12 @@ impl Link {
                 device_schema,
             }),
             Err(e) => Err(e),
-            Ok(_) => Err(LinkError::Unexpected("hello")),
         }
     }
 
     /// Controller identity and health.
     pub fn info(&mut self) -> Result<Info, LinkError> {
-        match self.request_idempotent(Request::GetInfo, "info")? {
-            Response::Info(info) => Ok(info),
-            _ => Err(LinkError::Unexpected("info")),
-        }
-    }
-
-    /// Send a request that is answered with a plain acknowledgement.
-    pub fn command(&mut self, request: Request, what: &'static str) -> Result<(), LinkError> {
-        match self.request(request, what, DEFAULT_TIMEOUT)? {
-            Response::Ack => Ok(()),
-            _ => Err(LinkError::Unexpected(what)),
-        }
+        self.call_retrying(GetInfo)
     }
 
     /// Forget the stream frames that arrived before the response to the last request. The
@@ -385,6 +412,23 @@ impl Link {
     pub fn clear_streams(&mut self) {
         let mark = self.before_last_response;
         self.streams.retain(|(arrival, _, _)| *arrival >= mark);
+    }
+
+    /// The next item of topic `T`, waiting up to `timeout`; frames of other topics that arrive
+    /// first are dropped.
+    pub fn next_on<T: Topic>(&mut self, timeout: Duration) -> Result<Option<(u16, T)>, LinkError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.next_stream(left)? {
+                None => return Ok(None),
+                Some((seq, item)) => {
+                    if let Some(item) = T::from_stream(item) {
+                        return Ok(Some((seq, item)));
+                    }
+                }
+            }
+        }
     }
 
     /// The next streamed frame, waiting up to `timeout`.
@@ -410,13 +454,10 @@ impl Link {
     /// commit's answer does not arrive, the controller is asked what it holds: the new set
     /// (success, [`Uploaded::commit_reply_lost`]) or not ([`LinkError::CommitUnconfirmed`]).
     pub fn upload(&mut self, blob: &[u8]) -> Result<Uploaded, LinkError> {
-        self.command(
-            Request::ParamBegin { len: blob.len() as u16, crc: BLOB_CRC.checksum(blob) },
-            "parameter upload",
-        )?;
+        self.call_retrying(ParamBegin { len: blob.len() as u16, crc: BLOB_CRC.checksum(blob) })?;
         for (k, chunk) in blob.chunks(PARAM_CHUNK).enumerate() {
             let data = heapless::Vec::from_slice(chunk).map_err(|_| LinkError::Unexpected("chunk"))?;
-            self.command(Request::ParamChunk { offset: (k * PARAM_CHUNK) as u16, data }, "parameter chunk")?;
+            self.call_retrying(ParamChunk { offset: (k * PARAM_CHUNK) as u16, data })?;
         }
         let back = self.read_params(true, blob.len())?;
         if let Some(i) = back
@@ -427,9 +468,8 @@ impl Link {
         {
             return Err(LinkError::ReadBack(i));
         }
-        let cause = match self.request(Request::ParamCommit, "parameter commit", COMMIT_TIMEOUT) {
-            Ok(Response::Ack) => return Ok(Uploaded { commit_reply_lost: false }),
-            Ok(_) => LinkError::Unexpected("parameter commit"),
+        let cause = match self.call_attempts(ParamCommit, COMMIT_TIMEOUT, 2) {
+            Ok((Ack, attempts)) => return Ok(Uploaded { commit_reply_lost: attempts > 1 }),
             Err(e @ LinkError::Refused(..)) => return Err(e),
             Err(e) => e,
         };
@@ -450,14 +490,12 @@ impl Link {
     pub fn read_params(&mut self, pending: bool, limit: usize) -> Result<Vec<u8>, LinkError> {
         let mut out = Vec::new();
         while out.len() < limit {
-            match self.request_idempotent(
-                Request::ParamRead { offset: out.len() as u16, pending },
-                "parameter read",
-            )? {
-                Response::ParamData { data, .. } if data.is_empty() => break,
-                Response::ParamData { data, .. } => out.extend_from_slice(&data),
-                _ => return Err(LinkError::Unexpected("parameter read")),
+            let ParamData { data, .. } =
+                self.call_retrying(ParamRead { offset: out.len() as u16, pending })?;
+            if data.is_empty() {
+                break;
             }
+            out.extend_from_slice(&data);
         }
         Ok(out)
     }

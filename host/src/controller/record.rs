@@ -15,7 +15,7 @@ use crate::data::{Artefact, Measurement, Session, SESSION_FORMAT};
 use crate::files::FileError;
 use kincal_protocol::biss::counts_to_deg;
 use kincal_protocol::messages::{
-    ticks_to_seconds, JointWindow, Request, Stream, WindowReport, WireError, MAX_WINDOW_TICKS,
+    ticks_to_seconds, JointWindow, SimSetPose, StartWindow, WindowReport, WireError, MAX_WINDOW_TICKS,
 };
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -150,7 +150,7 @@ impl Plan {
 fn next_window(link: &mut Link, timeout: Duration) -> Result<WindowReport, LinkError> {
     let deadline = Instant::now() + timeout;
     while Instant::now() < deadline {
-        if let Some((_, Stream::Window(w))) = link.next_stream(Duration::from_millis(100))? {
+        if let Some((_, w)) = link.next_on::<WindowReport>(Duration::from_millis(100))? {
             return Ok(w);
         }
     }
@@ -161,12 +161,14 @@ fn next_window(link: &mut Link, timeout: Duration) -> Result<WindowReport, LinkE
 /// earlier, interrupted session is waited for and discarded first.
 pub fn measure_window(link: &mut Link, ticks: u16) -> Result<WindowReport, LinkError> {
     let longest = Duration::from_secs_f64(MAX_WINDOW_SECONDS);
-    match link.command(Request::StartWindow { ticks }, "measurement window") {
+    match link.call(StartWindow { ticks }) {
         Err(LinkError::Refused(_, WireError::Busy)) => {
             next_window(link, longest)?;
-            link.command(Request::StartWindow { ticks }, "measurement window")?;
+            link.call(StartWindow { ticks })?;
         }
-        other => other?,
+        other => {
+            other?;
+        }
     }
     link.clear_streams();
     next_window(link, Duration::from_secs_f64(ticks_to_seconds(ticks as u32) + 3.0))
@@ -371,7 +373,7 @@ impl Guide for Script {
             return Ok(Step::Skip);
         }
         if let Some(counts) = step.pose_counts {
-            link.command(Request::SimSetPose { counts }, "emulated pose")?;
+            link.call(SimSetPose { counts })?;
         }
         Ok(Step::Measure)
     }

@@ -6,33 +6,57 @@
 //! encode a raw-sample frame and a pose frame (f32 kinematics with every effect).
 
 use crate::mmio::{read, write, Block};
+use core::cell::Cell;
+use core::convert::Infallible;
 use cortex_m_semihosting::{debug, hprintln};
-use kincal_firmware::biss_master::{decode_transfer, ReadError, TRANSFER_BYTES};
+use embedded_hal_async::spi::{ErrorType, Operation, SpiDevice};
+use kincal_firmware::biss_master::{BissMaster, REAL_BOARD_MA_HZ, TRANSFER_BITS, TRANSFER_BYTES};
 use kincal_firmware::controller::Controller;
 use kincal_firmware::emulated_encoders::EmulatedEncoders;
 use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
 use kincal_firmware::kinematics::Kinematics;
-use kincal_protocol::biss::Reading;
 use kincal_protocol::framing::{self, MAX_FRAME};
-use kincal_protocol::messages::{HostFrame, Request, PROTOCOL_VERSION, SCHEMA_HASH};
+use kincal_protocol::messages::{
+    Hello, HostFrame, ParamBegin, ParamChunk, ParamCommit, Request, SimFaults, SimSetPose, StartWindow,
+    StreamPose, StreamRaw, PROTOCOL_VERSION, SCHEMA_HASH,
+};
 use kincal_protocol::params::{encode_blob, ArmParams, JointParams, BLOB_CRC, MAX_PARAM_BLOB};
 
 const TIMER0: Block = Block::Timer0;
 
-/// Replays transfers recorded from the emulated encoders, decoded as the BiSS-C master does.
-struct Replay {
-    transfers: [[[u8; TRANSFER_BYTES]; 6]; 8],
-    tick: usize,
+/// One encoder replaying transfers recorded from the emulated encoders, read through the
+/// real BiSS-C master (its futures, decoding and checks are measured, the bus is not).
+struct ReplayEncoder<'a> {
+    transfers: &'a [[[u8; TRANSFER_BYTES]; 6]; 8],
+    tick: &'a Cell<usize>,
+    joint: usize,
 }
 
-impl Replay {
-    fn read_all(&mut self) -> [Result<Reading, ReadError>; 6] {
-        let t = &self.transfers[self.tick % 8];
-        self.tick += 1;
-        core::array::from_fn(|j| decode_transfer(&t[j]))
+impl ErrorType for ReplayEncoder<'_> {
+    type Error = Infallible;
+}
+
+impl SpiDevice for ReplayEncoder<'_> {
+    async fn transaction(&mut self, operations: &mut [Operation<'_, u8>]) -> Result<(), Infallible> {
+        for op in operations {
+            if let Operation::Read(buf) = op {
+                buf.copy_from_slice(&self.transfers[self.tick.get() % 8][self.joint]);
+            }
+        }
+        if self.joint == 5 {
+            self.tick.set(self.tick.get() + 1);
+        }
+        Ok(())
     }
 }
+
+/// Cycles per tick the real board's DMA-driven SPI costs the CPU per encoder transfer (setting
+/// up two DMA streams, the completion interrupt, waking and polling the task): an estimate,
+/// not measured here (QEMU has no STM32 DMA).
+const DMA_TRANSFER_CYCLES: u64 = 800;
+/// Core clock of the real board.
+const CORE_HZ: f64 = 168e6;
 const TICKS: u32 = 768;
 
 fn timer() -> u32 {
@@ -73,46 +97,53 @@ pub fn run() -> ! {
     let mut controller = Controller::new("bench", "mps2", true, RamNor::<4096>::new());
     let mut sampler = Sampler::default();
     let mut bus = EmulatedEncoders::new();
-    bus.apply(&Request::SimSetPose { counts: [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, 500] });
-    bus.apply(&Request::SimFaults {
+    bus.apply(&Request::SimSetPose(SimSetPose {
+        counts: [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, 500],
+    }));
+    bus.apply(&Request::SimFaults(SimFaults {
         noise_counts: 3,
         crc_errors_per_10k: 0,
         dropouts_per_10k: 0,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
-    });
+    }));
     let mut sink = |f: &kincal_protocol::messages::DeviceFrame| {
         let mut buf = [0u8; MAX_FRAME];
         let _ = framing::encode_device_frame(f, &mut buf);
     };
-    let health = sampler.health;
     let mut blob = [0u8; MAX_PARAM_BLOB];
     let n = encode_blob(&params(), &mut blob).unwrap_or(0);
     for request in [
-        Request::Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH },
-        Request::ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) },
+        Request::Hello(Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }),
+        Request::ParamBegin(ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) }),
     ] {
-        controller.handle(HostFrame { seq: 1, request }, &health, &mut sink);
+        controller.handle(HostFrame { seq: 1, request }, &sampler, &mut sink);
     }
     for (k, chunk) in blob[..n].chunks(48).enumerate() {
         let data = heapless::Vec::from_slice(chunk).unwrap_or_default();
         controller.handle(
-            HostFrame { seq: 2, request: Request::ParamChunk { offset: (k * 48) as u16, data } },
-            &health,
+            HostFrame { seq: 2, request: Request::ParamChunk(ParamChunk { offset: (k * 48) as u16, data }) },
+            &sampler,
             &mut sink,
         );
     }
     for request in [
-        Request::ParamCommit,
-        Request::StartWindow { ticks: 4096 },
-        Request::StreamRaw(true),
-        Request::StreamPose(1),
+        Request::ParamCommit(ParamCommit),
+        Request::StartWindow(StartWindow { ticks: 4096 }),
+        Request::StreamRaw(StreamRaw { on: true }),
+        Request::StreamPose(StreamPose { divider: 1 }),
     ] {
-        controller.handle(HostFrame { seq: 3, request }, &health, &mut sink);
+        controller.handle(HostFrame { seq: 3, request }, &sampler, &mut sink);
     }
     // Transfers as the bus delivers them (generating them is the emulator's work, not measured).
     let transfers = core::array::from_fn(|_| core::array::from_fn(|j| bus.answer(j)));
-    let mut replay = Replay { transfers, tick: 0 };
+    let tick = Cell::new(0);
+    let mut master = BissMaster::new(core::array::from_fn(|joint| ReplayEncoder {
+        transfers: &transfers,
+        tick: &tick,
+        joint,
+    }));
+    let mut read_all = || embassy_futures::block_on(master.read_all());
     let measure = |f: &mut dyn FnMut()| {
         let start = timer();
         for _ in 0..TICKS {
@@ -120,8 +151,8 @@ pub fn run() -> ! {
         }
         timer().wrapping_sub(start) as u64 * 40 / TICKS as u64
     };
-    let mut sample = sampler.record(&replay.read_all());
-    let decode = measure(&mut || sample = sampler.record(&replay.read_all()));
+    let mut sample = sampler.record(&read_all());
+    let decode = measure(&mut || sample = sampler.record(&read_all()));
     let mut window = kincal_firmware::window::Window::new(4096);
     let window_cost = measure(&mut || {
         let _ = window.push(&sample.counts, sample.rejected);
@@ -136,7 +167,7 @@ pub fn run() -> ! {
     };
     let raw_frame = measure(&mut || sink(&raw));
     let full = measure(&mut || {
-        let s = sampler.record(&replay.read_all());
+        let s = sampler.record(&read_all());
         controller.on_tick(&s, &mut sink);
     });
     let with_effects = Kinematics::new(&params());
@@ -160,7 +191,7 @@ pub fn run() -> ! {
     let base = decode + window_cost + raw_frame;
     let pct = |n: u64| n as f64 * 768.0 / 84e6 * 100.0;
     hprintln!("tick-bench (instructions, emulated Cortex-M4, qemu -icount shift=0; checksum {})", x as i32);
-    hprintln!("  decode+check six BiSS-C frames  {:6}", decode);
+    hprintln!("  read (master) + check six frames{:6}", decode);
     hprintln!("  window accumulate               {:6}", window_cost);
     hprintln!("  encode raw-sample frame         {:6}", raw_frame);
     hprintln!(
@@ -179,6 +210,31 @@ pub fn run() -> ! {
         pct(pose_all)
     );
     hprintln!("  whole tick, window+raw+pose(all){:6}  ({:.2} %)", full, pct(full));
+    // The real board: 168 MHz core, SPI1 + DMA at the MA clock the STM32 build configures.
+    let tick_cycles = CORE_HZ / 768.0;
+    let bus_us = 6.0 * TRANSFER_BITS as f64 / REAL_BOARD_MA_HZ as f64 * 1e6;
+    let dma = 6 * DMA_TRANSFER_CYCLES;
+    hprintln!(
+        "  encoder bus busy {:.1} us per tick ({:.2} % of the tick; DMA, the CPU does not wait)",
+        bus_us,
+        bus_us * 768.0 / 1e4
+    );
+    hprintln!(
+        "  CPU per tick at 1 cycle/instruction, incl. 6 DMA transfers x {} cycles (estimate):",
+        DMA_TRANSFER_CYCLES
+    );
+    for (label, work) in
+        [("recording (raw stream + window)", base), ("navigation (pose, every effect, every tick)", full)]
+    {
+        let cpu = work + dma;
+        hprintln!(
+            "    {:44} {:6} cycles = {:5.2} % of the tick (budget 5 %); {:5.2} % if the CPU waited on the bus",
+            label,
+            cpu,
+            cpu as f64 / tick_cycles * 100.0,
+            (work as f64 + bus_us * 1e-6 * CORE_HZ) / tick_cycles * 100.0
+        );
+    }
     debug::exit(debug::EXIT_SUCCESS);
     loop {
         cortex_m::asm::wfi();

@@ -46,7 +46,11 @@ pub async fn send_to_host() -> ! {
     loop {
         let n = TO_HOST.read(&mut buf).await;
         for &byte in &buf[..n] {
-            while read(UART0, STATE) & TX_FULL != 0 {}
+            // A full transmitter (QEMU's backend not keeping up) must not hold up the sampling
+            // task: yield to the executor instead of spinning.
+            while read(UART0, STATE) & TX_FULL != 0 {
+                embassy_futures::yield_now().await;
+            }
             write(UART0, DATA, byte as u32);
         }
     }

@@ -26,7 +26,7 @@ use embassy_stm32::{bind_interrupts, peripherals};
 use embassy_sync::blocking_mutex::raw::ThreadModeRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use kincal_firmware::app::{self, Shared, SharedCell, FROM_HOST, TO_HOST};
-use kincal_firmware::biss_master::BissMaster;
+use kincal_firmware::biss_master::{BissMaster, REAL_BOARD_MA_HZ};
 use kincal_firmware::controller::{Action, Controller};
 use kincal_firmware::encoders::Sampler;
 use nor::Stm32Nor;
@@ -40,9 +40,6 @@ bind_interrupts!(struct Irqs {
     DMA2_STREAM0 => embassy_stm32::dma::InterruptHandler<peripherals::DMA2_CH0>;
     DMA2_STREAM3 => embassy_stm32::dma::InterruptHandler<peripherals::DMA2_CH3>;
 });
-
-/// BiSS-C clock: APB2 84 MHz / 16.
-pub const MA_HZ: u32 = 5_250_000;
 
 type EncoderSpi = Spi<'static, Async, spi::mode::Master>;
 type EncoderBus = embassy_sync::mutex::Mutex<ThreadModeRawMutex, EncoderSpi>;
@@ -134,7 +131,7 @@ async fn main(spawner: Spawner) {
 
     let mut spi_config = spi::Config::default();
     spi_config.mode = spi::MODE_3;
-    spi_config.frequency = embassy_stm32::time::Hertz(MA_HZ);
+    spi_config.frequency = embassy_stm32::time::Hertz(REAL_BOARD_MA_HZ);
     let bus: &'static EncoderBus = ENCODER_BUS.init(embassy_sync::mutex::Mutex::new(Spi::new_rxonly(
         p.SPI1, p.PA5, p.PA6, p.DMA2_CH3, p.DMA2_CH0, Irqs, spi_config,
     )));

@@ -1,8 +1,14 @@
-//! Parameter flash of the real controller: sectors 10 and 11 (128 KiB each) of the STM32F405.
+//! Parameter flash of the real controller: sectors 10 and 11 (128 KiB each) of the STM32F405,
+//! seen as a two-sector embedded-storage [`NorFlash`] starting at sector 10.
+//!
+//! The F405 has one flash bank: while a sector is erased (1–2 s for 128 KiB), instruction
+//! fetches from flash stall. The parameter log erases only when a sector is full (about every
+//! 239 commits of a 526-byte set); that commit stalls sampling, the others only program words
+//! (~16 µs each).
 
-use embassy_stm32::flash::{Blocking, Flash};
+use embassy_stm32::flash::{Blocking, Error, Flash};
 use embassy_stm32::Peri;
-use kincal_firmware::flash::{FlashError, NorFlash, WORD};
+use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 
 /// Offset of sector 10 from the start of flash.
 const AREA: u32 = 0x000C_0000;
@@ -20,21 +26,31 @@ impl Stm32Nor {
     }
 }
 
+impl ErrorType for Stm32Nor {
+    type Error = Error;
+}
+
+impl ReadNorFlash for Stm32Nor {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Error> {
+        self.flash.blocking_read(AREA + offset, bytes)
+    }
+
+    fn capacity(&self) -> usize {
+        2 * SECTOR
+    }
+}
+
 impl NorFlash for Stm32Nor {
-    fn sector_size(&self) -> usize {
-        SECTOR
+    const WRITE_SIZE: usize = <Flash<'static, Blocking> as NorFlash>::WRITE_SIZE;
+    const ERASE_SIZE: usize = SECTOR;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Error> {
+        self.flash.blocking_erase(AREA + from, AREA + to)
     }
 
-    fn read(&mut self, offset: usize, buf: &mut [u8]) -> Result<(), FlashError> {
-        self.flash.blocking_read(AREA + offset as u32, buf).map_err(|_| FlashError::Failed)
-    }
-
-    fn erase(&mut self, offset: usize) -> Result<(), FlashError> {
-        let from = AREA + offset as u32;
-        self.flash.blocking_erase(from, from + SECTOR as u32).map_err(|_| FlashError::Failed)
-    }
-
-    fn program(&mut self, offset: usize, word: [u8; WORD]) -> Result<(), FlashError> {
-        self.flash.blocking_write(AREA + offset as u32, &word).map_err(|_| FlashError::Failed)
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Error> {
+        self.flash.blocking_write(AREA + offset, bytes)
     }
 }

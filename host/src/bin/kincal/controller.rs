@@ -152,6 +152,7 @@ pub fn cmd_info(a: &PortArgs) -> Result<()> {
     } else {
         println!("parameters version {} (CRC-32 {:08x})", info.param_version, info.param_crc);
     }
+    println!("late ticks {} (encoder reads started over a tick late)", info.late_ticks);
     println!(
         "uptime     {} ticks ({:.1} s)",
         info.ticks,
@@ -196,7 +197,7 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
         Ok(u) => u,
         Err(e @ kincal::controller::link::LinkError::CommitUnconfirmed { .. }) => bail!("upload failed: {e}"),
         Err(e) => {
-            bail!("upload failed before the commit: {e}. The controller keeps {before}; run the upload again")
+            bail!("upload failed: {e}. Nothing was committed: the controller keeps {before}; run the upload again")
         }
     };
     if uploaded.commit_reply_lost {
@@ -212,7 +213,7 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
 }
 
 pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
-    use kincal_protocol::messages::{Request, Stream};
+    use kincal_protocol::messages::{Stream, StreamPose, StreamRaw};
     let mut link = connect(&a.port)?;
     catch_ctrl_c();
     let mut csv = match &a.csv {
@@ -233,7 +234,11 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             }
         )?;
     }
-    link.command(if a.pose { Request::StreamPose(1) } else { Request::StreamRaw(true) }, "stream")?;
+    if a.pose {
+        link.call(StreamPose { divider: 1 })?;
+    } else {
+        link.call(StreamRaw { on: true })?;
+    }
     let started = std::time::Instant::now();
     let mut frames = 0u64;
     let mut last_report = started;
@@ -277,8 +282,8 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             );
         }
     }
-    let _ = link.command(Request::StreamRaw(false), "stop stream");
-    let _ = link.command(Request::StreamPose(0), "stop stream");
+    let _ = link.call(StreamRaw { on: false });
+    let _ = link.call(StreamPose { divider: 0 });
     println!(
         "{frames} frames in {:.1} s ({:.1} Hz), {} lost, {} corrupt",
         started.elapsed().as_secs_f64(),

@@ -3,6 +3,7 @@
 mod arm;
 mod bench;
 mod controller;
+mod emulated_arm;
 mod haptic;
 
 use clap::{Parser, Subcommand};
@@ -38,6 +39,9 @@ enum Command {
     Stream(controller::StreamArgs),
     /// Guided measurement of one artefact placement; resumes an interrupted session.
     Record(controller::RecordArgs),
+    /// Emulated controller only: pose the arm, inject encoder noise and faults.
+    #[command(subcommand)]
+    EmulatedArm(emulated_arm::EmulatedArmCommand),
     /// Haptic device (PHANToM) workspace calibration.
     #[command(subcommand)]
     Haptic(haptic::HapticCommand),
@@ -65,6 +69,7 @@ fn main() {
         Command::Upload(a) => controller::cmd_upload(&a),
         Command::Stream(a) => controller::cmd_stream(&a),
         Command::Record(a) => controller::cmd_record(&a),
+        Command::EmulatedArm(c) => emulated_arm::run(&c),
         Command::Haptic(haptic::HapticCommand::Simulate(a)) => haptic::cmd_haptic_simulate(&a),
         Command::Haptic(haptic::HapticCommand::Calibrate(a)) => haptic::cmd_haptic_calibrate(&a),
         Command::Bench(a) => bench::run_benchmarks(&a),

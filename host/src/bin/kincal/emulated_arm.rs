@@ -1,0 +1,119 @@
+//! `kincal emulated-arm`: pose the emulated controller's arm and inject encoder faults, so a
+//! session can be rehearsed without hardware or a script.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand};
+use kincal::controller::link::Link;
+use kincal::controller::record::measure_window;
+use kincal_protocol::biss::{counts_to_deg, deg_to_counts};
+use kincal_protocol::messages::{SimFaults, SimSetPose, JOINTS};
+
+/// What to do to the emulated arm.
+#[derive(Subcommand)]
+pub enum EmulatedArmCommand {
+    /// Set the six joint positions the emulated encoders report, then read them back.
+    Pose(PoseArgs),
+    /// Encoder noise and fault rates of the emulated bus (all 0: a clean bus).
+    Faults(FaultArgs),
+}
+
+/// `kincal emulated-arm pose`.
+#[derive(Args)]
+pub struct PoseArgs {
+    /// The emulated controller: pty path or tcp:HOST:PORT.
+    #[arg(long)]
+    port: String,
+    /// Joint angles, degrees, base to tip: six comma-separated values.
+    #[arg(long, value_delimiter = ',', conflicts_with = "counts", required_unless_present = "counts")]
+    deg: Vec<f64>,
+    /// Raw encoder positions, counts in 0..4194304, base to tip: six comma-separated values.
+    #[arg(long, value_delimiter = ',')]
+    counts: Vec<u32>,
+}
+
+/// `kincal emulated-arm faults`.
+#[derive(Args)]
+pub struct FaultArgs {
+    /// The emulated controller: pty path or tcp:HOST:PORT.
+    #[arg(long)]
+    port: String,
+    /// Standard deviation of the position noise, counts.
+    #[arg(long, default_value_t = 0)]
+    noise_counts: u16,
+    /// Frames per 10 000 sent with a corrupted CRC.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u16).range(0..=10_000))]
+    crc_errors_per_10k: u16,
+    /// Frames per 10 000 with no answer.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u16).range(0..=10_000))]
+    dropouts_per_10k: u16,
+    /// Frames per 10 000 with the encoder's error bit set.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u16).range(0..=10_000))]
+    error_bits_per_10k: u16,
+    /// Frames per 10 000 with the encoder's warning bit set.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u16).range(0..=10_000))]
+    warnings_per_10k: u16,
+}
+
+fn greeted(port: &str) -> Result<Link> {
+    let mut link = Link::open(port)?;
+    link.hello().with_context(|| format!("handshake with the controller on {port}"))?;
+    Ok(link)
+}
+
+/// Run one `emulated-arm` command.
+pub fn run(command: &EmulatedArmCommand) -> Result<()> {
+    match command {
+        EmulatedArmCommand::Pose(a) => pose(a),
+        EmulatedArmCommand::Faults(a) => faults(a),
+    }
+}
+
+fn pose(a: &PoseArgs) -> Result<()> {
+    let counts: [u32; JOINTS] = if a.counts.is_empty() {
+        let deg: [f64; JOINTS] = a.deg.as_slice().try_into().context("--deg: expected 6 angles")?;
+        if let Some(bad) = deg.iter().find(|d| !d.is_finite()) {
+            bail!("--deg: {bad} is not an angle");
+        }
+        deg.map(deg_to_counts)
+    } else {
+        let counts: [u32; JOINTS] =
+            a.counts.as_slice().try_into().context("--counts: expected 6 positions")?;
+        if let Some(bad) = counts.iter().find(|c| **c >= kincal_protocol::biss::COUNTS_PER_TURN) {
+            bail!("--counts: {bad} is outside 0..{}", kincal_protocol::biss::COUNTS_PER_TURN);
+        }
+        counts
+    };
+    let mut link = greeted(&a.port)?;
+    link.call(SimSetPose { counts })?;
+    // Read it back through the controller, as a touch would.
+    let window = measure_window(&mut link, 96)?;
+    println!("joint  set counts  set deg      read deg   accepted");
+    for (j, jw) in window.joints.iter().enumerate() {
+        println!(
+            "{:>5}  {:>10}  {:>10.4}  {:>10.4}  {:>5}/{}",
+            j + 1,
+            counts[j],
+            counts_to_deg(counts[j] as f64),
+            counts_to_deg(jw.mean_counts),
+            jw.accepted,
+            window.ticks
+        );
+    }
+    Ok(())
+}
+
+fn faults(a: &FaultArgs) -> Result<()> {
+    let mut link = greeted(&a.port)?;
+    link.call(SimFaults {
+        noise_counts: a.noise_counts,
+        crc_errors_per_10k: a.crc_errors_per_10k,
+        dropouts_per_10k: a.dropouts_per_10k,
+        error_bits_per_10k: a.error_bits_per_10k,
+        warnings_per_10k: a.warnings_per_10k,
+    })?;
+    println!(
+        "emulated encoders: noise {} counts, per 10 000 frames: {} CRC errors, {} dropouts, {} error bits, {} warnings",
+        a.noise_counts, a.crc_errors_per_10k, a.dropouts_per_10k, a.error_bits_per_10k, a.warnings_per_10k
+    );
+    Ok(())
+}

@@ -237,6 +237,8 @@ pub struct GenOptions {
     pub joints_seconds: f64,
     /// Scale of the free motion in joints/ and verify/ (1 = the whole workspace).
     pub motion_scale: f64,
+    /// Scale of the sensor errors (1: a poor reset and uncalibrated gimbals; 0: perfect sensors).
+    pub sensor_error_scale: f64,
     /// How the driver writes the readings.
     pub recorded: Convention,
     /// What recording.json declares (`None`: no `joint_convention` field).
@@ -259,6 +261,7 @@ impl Default for GenOptions {
             occlusion: 0.0,
             joints_seconds: 30.0,
             motion_scale: 1.0,
+            sensor_error_scale: 1.0,
             recorded: Convention::default(),
             declared: None,
         }
@@ -414,8 +417,9 @@ pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
     let (l1, l2) = options.phantom.links_mm();
     // Joint encoders after a poor reset: offsets of a few degrees, small gain errors.
     let mut sensors = [Sensor { j: 0.0, k: 1.0, m: 0.0 }; 6];
+    let e = options.sensor_error_scale;
     for s in sensors.iter_mut().take(3) {
-        *s = Sensor { j: 0.0, k: 1.0 + uniform(&mut rng, 0.025), m: uniform(&mut rng, 0.1) };
+        *s = Sensor { j: 0.0, k: 1.0 + e * uniform(&mut rng, 0.025), m: e * uniform(&mut rng, 0.1) };
     }
     for s in sensors.iter_mut().skip(3) {
         let j = if options.quadratic_gimbals {
@@ -428,7 +432,7 @@ pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
         } else {
             0.0
         };
-        *s = Sensor { j, k: 1.0 + uniform(&mut rng, 0.05), m: uniform(&mut rng, 0.08) };
+        *s = Sensor { j: e * j, k: 1.0 + e * uniform(&mut rng, 0.05), m: e * uniform(&mut rng, 0.08) };
     }
     // Device → tracker, and the targets' mounts.
     let eh_r = rotvec(&[uniform(&mut rng, 1.0), 0.5 + uniform(&mut rng, 0.5), uniform(&mut rng, 1.0)]);

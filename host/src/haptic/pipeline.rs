@@ -126,7 +126,7 @@ pub enum HapticError {
         /// After, in `unit`.
         after: f64,
         /// The likely cause.
-        hint: &'static str,
+        hint: String,
     },
 }
 
@@ -693,6 +693,15 @@ fn diagnose_convention(
         .min_by(|a, b| a.2.total_cmp(&b.2))
 }
 
+/// The likely cause of a calibration worse than the uncalibrated device.
+fn worse_hint(position_before_mm: f64, noise_mm: f64, cause: &str) -> String {
+    if position_before_mm <= 2.0 * noise_mm {
+        format!("the uncalibrated device is already at the tracker noise ({position_before_mm:.3} mm against {noise_mm:.3} mm): it needs no calibration; otherwise {cause}")
+    } else {
+        cause.to_string()
+    }
+}
+
 /// Calibrate a recording; a refusal names the step and the cause.
 pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, HapticFailure> {
     let (rec, rejected_samples, tracker_gaps) = cleaned(raw_rec);
@@ -905,7 +914,11 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
             unit: "mm",
             before: position_mm.before,
             after: position_mm.after,
-            hint: "a flipped axis in the start transform, a wrong joint convention or too little motion in joints/",
+            hint: worse_hint(
+                position_mm.before,
+                noise_mm,
+                "a flipped axis in the start transform, a wrong joint convention or too little motion in joints/",
+            ),
         }))
     } else if orientation_deg.after >= orientation_deg.before {
         Some((
@@ -915,8 +928,11 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
                 unit: "°",
                 before: orientation_deg.before,
                 after: orientation_deg.after,
-                hint:
+                hint: worse_hint(
+                    position_mm.before,
+                    noise_mm,
                     "a gimbal reading with the wrong sign or column, or too little stylus rotation in gimbal/",
+                ),
             },
         ))
     } else {

@@ -25,7 +25,7 @@
 
 use super::clean::reject_wild;
 use super::delay::{estimate_delay_ms, DelayError, Signal};
-use super::gimbal::{calibrate_gimbals, GimbalModel, GimbalSample};
+use super::gimbal::{calibrate_gimbals, linear_held_out_deg, GimbalModel, GimbalSample};
 use super::kinematics::{Device, SensorModel};
 use super::landmarks::{initial_transform, turret_axis, LandmarkError};
 use super::pivot::{pivot_calibration, PivotError};
@@ -41,6 +41,12 @@ use nalgebra::{Matrix3, Vector3};
 pub const MIN_JOINT_RANGE_DEG: f64 = 20.0;
 /// The delay is settled when it changes by less than this between rounds, ms.
 pub const DELAY_SETTLED_MS: f64 = 0.05;
+/// Iterations (Horn + LM) of the joint calibration from each start when choosing between them.
+pub const START_ITERATIONS: usize = 6;
+/// Iterations of each joint calibration after a delay estimate.
+pub const ITERATIONS: usize = 20;
+/// Most gimbal samples fitted (evenly strided; the paper uses 200 per optimisation).
+pub const MAX_GIMBAL_SAMPLES: usize = 600;
 /// Most delay/joint rounds.
 pub const MAX_DELAY_ROUNDS: usize = 8;
 /// A joint residual above `IMPLAUSIBLE_MM + IMPLAUSIBLE_FACTOR × tracker noise` is refused.
@@ -514,15 +520,10 @@ fn calibrate_from(
     start: Transform,
     joints: [SensorModel; 3],
     seed: u64,
+    iterations: usize,
 ) -> (PositionCalibration, f64) {
-    let result = calibrate_position(
-        &ctx.device,
-        &ctx.correspondences(&ctx.spread(fit)),
-        start,
-        joints,
-        20,
-        Some((CLUSTERS, seed)),
-    );
+    let spread = ctx.correspondences(&ctx.spread(fit));
+    let result = calibrate_position(&ctx.device, &spread, start, joints, iterations, Some((CLUSTERS, seed)));
     let residual =
         rms(&position_errors(&ctx.device, &result.joints, &result.transform, &ctx.correspondences(held)));
     (result, residual)
@@ -614,7 +615,14 @@ fn gimbal_alternatives(declared: &JointConvention) -> Vec<(String, JointConventi
 /// fraction of its held-out axis error.
 pub const GIMBAL_CONVENTION_RATIO: f64 = 0.33;
 
-/// The orientation reference and gimbal calibration with calibrated joints and transform.
+/// The orientation reference and the gimbal samples it gives, fitted and held out.
+struct GimbalData {
+    reference: super::reference::OrientationReference,
+    fit: Vec<GimbalSample>,
+    held: Vec<GimbalSample>,
+}
+
+/// The orientation reference and gimbal samples with calibrated joints and transform.
 struct GimbalStage<'a> {
     device: &'a Device,
     joints: &'a [SensorModel; 3],
@@ -622,7 +630,8 @@ struct GimbalStage<'a> {
 }
 
 impl GimbalStage<'_> {
-    /// Reference and gimbals with the readings taken as convention `c` instead of `declared`.
+    /// Reference and gimbal samples (fit, held out) with the readings taken as convention `c`
+    /// instead of `declared`.
     fn run(
         &self,
         roll: &[Aligned],
@@ -630,8 +639,7 @@ impl GimbalStage<'_> {
         joints: &[Aligned],
         declared: &JointConvention,
         c: &JointConvention,
-    ) -> Result<(super::reference::OrientationReference, super::gimbal::GimbalCalibration), ReferenceError>
-    {
+    ) -> Result<GimbalData, ReferenceError> {
         let (device, eh) = (self.device, self.eh);
         let sensors = with_joints(self.joints);
         let convert = |raw: &[f64; 6]| if c == declared { *raw } else { c.apply(&declared.invert(raw)) };
@@ -661,11 +669,13 @@ impl GimbalStage<'_> {
             .map(|a| sample(a, None))
             .chain(roll.iter().zip(&reference.roll).map(|(a, r)| sample(a, Some(*r))))
             .collect();
+        let stride = samples.len().div_ceil(MAX_GIMBAL_SAMPLES).max(1);
+        let samples: Vec<GimbalSample> = samples.into_iter().step_by(stride).collect();
         // Every fourth sample is held out to choose the gimbal model.
         let held: Vec<GimbalSample> = samples.iter().step_by(4).copied().collect();
         let fit: Vec<GimbalSample> =
             samples.iter().enumerate().filter(|(i, _)| i % 4 != 0).map(|(_, s)| *s).collect();
-        Ok((reference, calibrate_gimbals(device, &fit, &held)))
+        Ok(GimbalData { reference, fit, held })
     }
 }
 
@@ -686,7 +696,8 @@ fn diagnose_convention(
         .map(|(what, c)| {
             let (f, h) = (convert(fit, &c), convert(held, &c));
             let start = pose_based_transform(&ctx.device, &ctx.correspondences(&f));
-            let (_, residual) = calibrate_from(ctx, &f, &h, start, [SensorModel::IDENTITY; 3], 7);
+            let (_, residual) =
+                calibrate_from(ctx, &f, &h, start, [SensorModel::IDENTITY; 3], 7, START_ITERATIONS);
             (what, c, residual)
         })
         .filter(|(_, _, r)| *r < limit_mm)
@@ -753,12 +764,13 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
     // 4. Two starts, kept by held-out error.
     let (fit, held) = split(&all);
     let pose_start = pose_based_transform(&device, &ctx.correspondences(&fit));
-    let (from_pose, pose_mm) = calibrate_from(&ctx, &fit, &held, pose_start, [SensorModel::IDENTITY; 3], 1);
+    let (from_pose, pose_mm) =
+        calibrate_from(&ctx, &fit, &held, pose_start, [SensorModel::IDENTITY; 3], 1, START_ITERATIONS);
     let landmark = ctx.landmark_transform(delay_ms);
     let (mut position, residual, start) = match &landmark {
         Ok(eh) => {
             let (from_landmarks, landmark_mm) =
-                calibrate_from(&ctx, &fit, &held, *eh, [SensorModel::IDENTITY; 3], 1);
+                calibrate_from(&ctx, &fit, &held, *eh, [SensorModel::IDENTITY; 3], 1, START_ITERATIONS);
             let landmark_wins = landmark_mm <= pose_mm;
             let start = StartChoice {
                 landmark_mm: Some(landmark_mm),
@@ -802,14 +814,23 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
         delay_correlation = estimate.correlation;
         let change = (estimate.delay_ms - delay_ms).abs();
         delay_ms = estimate.delay_ms;
-        if change < DELAY_SETTLED_MS {
+        // At least one full calibration at the re-estimated delay.
+        if change < DELAY_SETTLED_MS && round > 0 {
             settled = true;
             break;
         }
         let all = ctx.aligned(joints_step, delay_ms).map_err(fail(STEP_JOINTS))?;
         let (fit, held) = split(&all);
-        position =
-            calibrate_from(&ctx, &fit, &held, position.transform, position.joints, 101 + round as u64).0;
+        position = calibrate_from(
+            &ctx,
+            &fit,
+            &held,
+            position.transform,
+            position.joints,
+            101 + round as u64,
+            ITERATIONS,
+        )
+        .0;
     }
     if !settled {
         return Err(fail(STEP_DELAY)(HapticError::DelayUnsettled(delay_rounds_ms)));
@@ -827,15 +848,17 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
     let gimbal_aligned = ctx.spread(&ctx.aligned(gimbal_step, delay_ms).map_err(fail(STEP_GIMBALS))?);
     let stage = GimbalStage { device: &device, joints: &position.joints, eh: &eh };
     let declared = rec.convention;
-    let (reference, gimbals) = stage
+    let data = stage
         .run(&roll_samples, &gimbal_aligned, &joints, &declared, &declared)
         .map_err(|e| fail(STEP_REFERENCE)(e.into()))?;
+    let gimbals = calibrate_gimbals(&device, &data.fit, &data.held);
+    let reference = data.reference;
     let declared_deg = gimbals.held_out_deg.0.min(gimbals.held_out_deg.1);
     let better = gimbal_alternatives(&declared)
         .into_iter()
         .filter_map(|(what, c)| {
-            let (_, g) = stage.run(&roll_samples, &gimbal_aligned, &joints, &declared, &c).ok()?;
-            Some((what, c, g.held_out_deg.0.min(g.held_out_deg.1)))
+            let data = stage.run(&roll_samples, &gimbal_aligned, &joints, &declared, &c).ok()?;
+            Some((what, c, linear_held_out_deg(&device, &data.fit, &data.held)))
         })
         .min_by(|a, b| a.2.total_cmp(&b.2));
     if let Some((what, c, deg)) = better.filter(|b| b.2 < GIMBAL_CONVENTION_RATIO * declared_deg) {

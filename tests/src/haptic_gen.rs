@@ -412,7 +412,7 @@ fn gaps(rng: &mut ChaCha8Rng, seconds: f64, fraction: f64) -> Vec<(f64, f64)> {
 pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     // Wild samples from their own stream: with and without them the recordings are the same.
-    let mut wild_rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x5eed_0f_3a1d_u64);
+    let mut wild_rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x005e_ed0f_3a1d_u64);
     let uniform = |rng: &mut ChaCha8Rng, a: f64| a * (2.0 * rng.random::<f64>() - 1.0);
     let (l1, l2) = options.phantom.links_mm();
     // Joint encoders after a poor reset: offsets of a few degrees, small gain errors.
@@ -541,7 +541,7 @@ pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
                 let is_wild = wild.contains(&k);
                 let r_meas = if is_wild {
                     wild_written += 1;
-                    p_meas[(k % 3) as usize] += if k % 2 == 0 { 10_000.0 } else { -10_000.0 };
+                    p_meas[k % 3] += if k % 2 == 0 { 10_000.0 } else { -10_000.0 };
                     mul(&r_meas, &rotvec(&[0.9, -1.4, 0.6]))
                 } else {
                     r_meas

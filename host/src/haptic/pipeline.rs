@@ -745,7 +745,7 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
             .iter()
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), r| (lo.min(r[j]), hi.max(r[j])));
         let range_deg = (hi - lo).to_degrees();
-        if !(range_deg >= MIN_JOINT_RANGE_DEG) {
+        if range_deg.is_nan() || range_deg < MIN_JOINT_RANGE_DEG {
             let hint = if rec.convention.unit == super::recording::AngleUnit::Deg {
                 " (or the readings are radians while recording.json says \"unit\": \"deg\")"
             } else {

@@ -234,7 +234,7 @@ impl TargetStream {
 /// steps.
 pub fn segments(t_s: &[f64], factor: f64) -> Vec<std::ops::Range<usize>> {
     if t_s.len() < 2 {
-        return vec![0..t_s.len()];
+        return std::iter::once(0..t_s.len()).collect();
     }
     let mut periods: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
     periods.sort_by(f64::total_cmp);

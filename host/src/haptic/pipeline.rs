@@ -46,7 +46,9 @@ pub const START_ITERATIONS: usize = 6;
 /// Iterations of each joint calibration after a delay estimate.
 pub const ITERATIONS: usize = 20;
 /// Most gimbal samples fitted (evenly strided; the paper uses 200 per optimisation).
-pub const MAX_GIMBAL_SAMPLES: usize = 600;
+pub const MAX_GIMBAL_SAMPLES: usize = 1500;
+/// Most gimbal samples when scoring an alternative convention.
+pub const MAX_ALTERNATIVE_SAMPLES: usize = 400;
 /// Most delay/joint rounds.
 pub const MAX_DELAY_ROUNDS: usize = 8;
 /// A joint residual above `IMPLAUSIBLE_MM + IMPLAUSIBLE_FACTOR × tracker noise` is refused.
@@ -639,6 +641,7 @@ impl GimbalStage<'_> {
         joints: &[Aligned],
         declared: &JointConvention,
         c: &JointConvention,
+        max_samples: usize,
     ) -> Result<GimbalData, ReferenceError> {
         let (device, eh) = (self.device, self.eh);
         let sensors = with_joints(self.joints);
@@ -669,7 +672,7 @@ impl GimbalStage<'_> {
             .map(|a| sample(a, None))
             .chain(roll.iter().zip(&reference.roll).map(|(a, r)| sample(a, Some(*r))))
             .collect();
-        let stride = samples.len().div_ceil(MAX_GIMBAL_SAMPLES).max(1);
+        let stride = samples.len().div_ceil(max_samples).max(1);
         let samples: Vec<GimbalSample> = samples.into_iter().step_by(stride).collect();
         // Every fourth sample is held out to choose the gimbal model.
         let held: Vec<GimbalSample> = samples.iter().step_by(4).copied().collect();
@@ -849,7 +852,7 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
     let stage = GimbalStage { device: &device, joints: &position.joints, eh: &eh };
     let declared = rec.convention;
     let data = stage
-        .run(&roll_samples, &gimbal_aligned, &joints, &declared, &declared)
+        .run(&roll_samples, &gimbal_aligned, &joints, &declared, &declared, MAX_GIMBAL_SAMPLES)
         .map_err(|e| fail(STEP_REFERENCE)(e.into()))?;
     let gimbals = calibrate_gimbals(&device, &data.fit, &data.held);
     let reference = data.reference;
@@ -857,7 +860,9 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
     let better = gimbal_alternatives(&declared)
         .into_iter()
         .filter_map(|(what, c)| {
-            let data = stage.run(&roll_samples, &gimbal_aligned, &joints, &declared, &c).ok()?;
+            let data = stage
+                .run(&roll_samples, &gimbal_aligned, &joints, &declared, &c, MAX_ALTERNATIVE_SAMPLES)
+                .ok()?;
             Some((what, c, linear_held_out_deg(&device, &data.fit, &data.held)))
         })
         .min_by(|a, b| a.2.total_cmp(&b.2));

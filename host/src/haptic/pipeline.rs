@@ -148,6 +148,9 @@ pub struct HapticFailure {
     pub error: HapticError,
     /// The calibration as far as it got, when it got to the end.
     pub partial: Option<Box<HapticCalibration>>,
+    /// Where the joint residuals are, when the joint calibration was refused (held-out blocks of
+    /// `joints/`; axis errors not computed, 0).
+    pub maps: Option<ErrorMaps>,
 }
 
 /// Errors before and after, as summary.json reports them.
@@ -231,6 +234,8 @@ pub struct FailureSummary {
     pub step: &'static str,
     /// The message.
     pub message: String,
+    /// Where the joint residuals are, when the joint calibration was refused.
+    pub maps: Option<ErrorMaps>,
 }
 
 /// `summary.json` of a haptic run.
@@ -300,7 +305,7 @@ impl HapticFailure {
     pub fn unreadable(error: &super::recording::RecordingError) -> HapticSummary {
         HapticSummary::of(
             Status::Failed,
-            Some(FailureSummary { step: "reading the recording", message: error.to_string() }),
+            Some(FailureSummary { step: "reading the recording", message: error.to_string(), maps: None }),
             None,
         )
     }
@@ -309,7 +314,11 @@ impl HapticFailure {
     pub fn summary(&self) -> HapticSummary {
         HapticSummary::of(
             Status::Failed,
-            Some(FailureSummary { step: self.step, message: self.error.to_string() }),
+            Some(FailureSummary {
+                step: self.step,
+                message: self.error.to_string(),
+                maps: self.maps.clone(),
+            }),
             self.partial.as_deref(),
         )
     }
@@ -323,7 +332,7 @@ const STEP_GIMBALS: &str = "gimbal calibration (gimbal/, reference/)";
 const STEP_VERIFY: &str = "verification (verify/)";
 
 fn fail(step: &'static str) -> impl Fn(HapticError) -> HapticFailure {
-    move |error| HapticFailure { step, error, partial: None }
+    move |error| HapticFailure { step, error, partial: None, maps: None }
 }
 
 fn step<'a>(rec: &'a Recording, name: &'static str) -> Result<&'a Step, HapticError> {
@@ -707,6 +716,26 @@ fn diagnose_convention(
         .min_by(|a, b| a.2.total_cmp(&b.2))
 }
 
+/// Held-out joint residuals of a joint calibration (stylus directions with uncalibrated
+/// gimbals, axis errors 0: not computed).
+fn joint_residuals(ctx: &Context, position: &PositionCalibration, held: &[Aligned]) -> Vec<HeldOutSample> {
+    let sensors = with_joints(&position.joints);
+    let (r, t) = position.transform;
+    held.iter()
+        .map(|a| {
+            let th = angles(&sensors, &a.raw);
+            let model = ctx.device.position_mm(&th);
+            HeldOutSample {
+                direction: ctx.device.rotation(&th).column(2).into_owned(),
+                position_mm: model,
+                error_mm: r.transpose() * (ctx.hip(&a.pose) - t) - model,
+                axis_error_deg: 0.0,
+                theta_deg: [th[0].to_degrees(), th[1].to_degrees(), th[2].to_degrees()],
+            }
+        })
+        .collect()
+}
+
 /// The likely cause of a calibration worse than the uncalibrated device.
 fn worse_hint(position_before_mm: f64, noise_mm: f64, cause: &str) -> String {
     if position_before_mm <= 2.0 * noise_mm {
@@ -806,7 +835,13 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
                 start.landmark_note.as_deref().unwrap_or("used")
             ),
         };
-        return Err(fail(STEP_JOINTS)(HapticError::Implausible { residual_mm: residual, noise_mm, hint }));
+        let maps = error_maps(&joint_residuals(&ctx, &position, &held));
+        return Err(HapticFailure {
+            step: STEP_JOINTS,
+            error: HapticError::Implausible { residual_mm: residual, noise_mm, hint },
+            partial: None,
+            maps: Some(maps),
+        });
     }
     // 6. Delay and joints in turn until the delay settles.
     let mut settled = false;
@@ -967,7 +1002,9 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
         None
     };
     match worse {
-        Some((step, error)) => Err(HapticFailure { step, error, partial: Some(Box::new(calibration)) }),
+        Some((step, error)) => {
+            Err(HapticFailure { step, error, partial: Some(Box::new(calibration)), maps: None })
+        }
         None => Ok(calibration),
     }
 }

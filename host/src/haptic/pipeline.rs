@@ -97,10 +97,12 @@ pub enum HapticError {
         hint: &'static str,
     },
     /// Too few tracker samples are left.
-    #[error("{found} usable tracker samples (after occlusions and wild samples), at least {needed} are needed; record longer")]
+    #[error("{found} usable tracker samples in joints/ after occlusions and wild samples, {held} of them in the held-out blocks (every fourth {HOLD_OUT_BLOCK_S} s); at least {needed} are needed, a quarter of them held out; record longer")]
     TooFewSamples {
         /// Samples found.
         found: usize,
+        /// Of which held out.
+        held: usize,
         /// Samples needed.
         needed: usize,
     },
@@ -787,14 +789,14 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
         }
     }
     let all = ctx.aligned(joints_step, delay_ms).map_err(fail(STEP_JOINTS))?;
-    if all.len() < MIN_JOINT_SAMPLES {
+    let (fit, held) = split(&all);
+    if all.len() < MIN_JOINT_SAMPLES || held.len() < MIN_JOINT_SAMPLES / 4 {
         return Err(fail(STEP_JOINTS)(HapticError::TooFewSamples {
             found: all.len(),
+            held: held.len(),
             needed: MIN_JOINT_SAMPLES,
         }));
     }
-    // 4. Two starts, kept by held-out error.
-    let (fit, held) = split(&all);
     let pose_start = pose_based_transform(&device, &ctx.correspondences(&fit));
     let (from_pose, pose_mm) =
         calibrate_from(&ctx, &fit, &held, pose_start, [SensorModel::IDENTITY; 3], 1, START_ITERATIONS);

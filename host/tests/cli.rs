@@ -251,6 +251,8 @@ fn haptic_simulate_and_calibrate_write_the_summary_and_refuse_bad_recordings() {
         "17",
         "--joints-seconds",
         "30",
+        "--t2-height-mm",
+        "-80",
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let run = dir.join("run");

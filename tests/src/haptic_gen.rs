@@ -237,6 +237,8 @@ pub struct GenOptions {
     pub joints_seconds: f64,
     /// Scale of the free motion in joints/ and verify/ (1 = the whole workspace).
     pub motion_scale: f64,
+    /// Scale of the sensor errors (1: a poor reset and uncalibrated gimbals; 0: perfect sensors).
+    pub sensor_error_scale: f64,
     /// How the driver writes the readings.
     pub recorded: Convention,
     /// What recording.json declares (`None`: no `joint_convention` field).
@@ -259,6 +261,7 @@ impl Default for GenOptions {
             occlusion: 0.0,
             joints_seconds: 30.0,
             motion_scale: 1.0,
+            sensor_error_scale: 1.0,
             recorded: Convention::default(),
             declared: None,
         }
@@ -409,13 +412,14 @@ fn gaps(rng: &mut ChaCha8Rng, seconds: f64, fraction: f64) -> Vec<(f64, f64)> {
 pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     // Wild samples from their own stream: with and without them the recordings are the same.
-    let mut wild_rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x5eed_0f_3a1d_u64);
+    let mut wild_rng = ChaCha8Rng::seed_from_u64(options.seed ^ 0x005e_ed0f_3a1d_u64);
     let uniform = |rng: &mut ChaCha8Rng, a: f64| a * (2.0 * rng.random::<f64>() - 1.0);
     let (l1, l2) = options.phantom.links_mm();
     // Joint encoders after a poor reset: offsets of a few degrees, small gain errors.
     let mut sensors = [Sensor { j: 0.0, k: 1.0, m: 0.0 }; 6];
+    let e = options.sensor_error_scale;
     for s in sensors.iter_mut().take(3) {
-        *s = Sensor { j: 0.0, k: 1.0 + uniform(&mut rng, 0.025), m: uniform(&mut rng, 0.1) };
+        *s = Sensor { j: 0.0, k: 1.0 + e * uniform(&mut rng, 0.025), m: e * uniform(&mut rng, 0.1) };
     }
     for s in sensors.iter_mut().skip(3) {
         let j = if options.quadratic_gimbals {
@@ -428,7 +432,7 @@ pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
         } else {
             0.0
         };
-        *s = Sensor { j, k: 1.0 + uniform(&mut rng, 0.05), m: uniform(&mut rng, 0.08) };
+        *s = Sensor { j: e * j, k: 1.0 + e * uniform(&mut rng, 0.05), m: e * uniform(&mut rng, 0.08) };
     }
     // Device → tracker, and the targets' mounts.
     let eh_r = rotvec(&[uniform(&mut rng, 1.0), 0.5 + uniform(&mut rng, 0.5), uniform(&mut rng, 1.0)]);
@@ -537,7 +541,7 @@ pub fn generate(options: &GenOptions, dir: &Path) -> std::io::Result<GenTruth> {
                 let is_wild = wild.contains(&k);
                 let r_meas = if is_wild {
                     wild_written += 1;
-                    p_meas[(k % 3) as usize] += if k % 2 == 0 { 10_000.0 } else { -10_000.0 };
+                    p_meas[k % 3] += if k % 2 == 0 { 10_000.0 } else { -10_000.0 };
                     mul(&r_meas, &rotvec(&[0.9, -1.4, 0.6]))
                 } else {
                     r_meas

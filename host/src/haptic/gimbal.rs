@@ -152,6 +152,12 @@ fn rms(v: &[f64]) -> f64 {
     (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt()
 }
 
+/// Held-out axis error (degrees, RMS) of the linear model fitted on `calibration`: a quick
+/// score of how well a reading convention explains the data.
+pub fn linear_held_out_deg(device: &Device, calibration: &[GimbalSample], held_out: &[GimbalSample]) -> f64 {
+    rms(&axis_errors_deg(device, &fit(device, calibration, false), held_out))
+}
+
 /// Fit both sensor models on `calibration` and choose by the error on `held_out`.
 pub fn calibrate_gimbals(
     device: &Device,

@@ -25,7 +25,7 @@
 
 use super::clean::reject_wild;
 use super::delay::{estimate_delay_ms, DelayError, Signal};
-use super::gimbal::{calibrate_gimbals, GimbalModel, GimbalSample};
+use super::gimbal::{calibrate_gimbals, linear_held_out_deg, GimbalModel, GimbalSample};
 use super::kinematics::{Device, SensorModel};
 use super::landmarks::{initial_transform, turret_axis, LandmarkError};
 use super::pivot::{pivot_calibration, PivotError};
@@ -41,6 +41,14 @@ use nalgebra::{Matrix3, Vector3};
 pub const MIN_JOINT_RANGE_DEG: f64 = 20.0;
 /// The delay is settled when it changes by less than this between rounds, ms.
 pub const DELAY_SETTLED_MS: f64 = 0.05;
+/// Iterations (Horn + LM) of the joint calibration from each start when choosing between them.
+pub const START_ITERATIONS: usize = 6;
+/// Iterations of each joint calibration after a delay estimate.
+pub const ITERATIONS: usize = 20;
+/// Most gimbal samples fitted (evenly strided; the paper uses 200 per optimisation).
+pub const MAX_GIMBAL_SAMPLES: usize = 1500;
+/// Most gimbal samples when scoring an alternative convention.
+pub const MAX_ALTERNATIVE_SAMPLES: usize = 400;
 /// Most delay/joint rounds.
 pub const MAX_DELAY_ROUNDS: usize = 8;
 /// A joint residual above `IMPLAUSIBLE_MM + IMPLAUSIBLE_FACTOR × tracker noise` is refused.
@@ -89,10 +97,12 @@ pub enum HapticError {
         hint: &'static str,
     },
     /// Too few tracker samples are left.
-    #[error("{found} usable tracker samples (after occlusions and wild samples), at least {needed} are needed; record longer")]
+    #[error("{found} usable tracker samples in joints/ after occlusions and wild samples, {held} of them in the held-out blocks (every fourth {HOLD_OUT_BLOCK_S} s); at least {needed} are needed, a quarter of them held out; record longer")]
     TooFewSamples {
         /// Samples found.
         found: usize,
+        /// Of which held out.
+        held: usize,
         /// Samples needed.
         needed: usize,
     },
@@ -126,7 +136,7 @@ pub enum HapticError {
         /// After, in `unit`.
         after: f64,
         /// The likely cause.
-        hint: &'static str,
+        hint: String,
     },
 }
 
@@ -140,6 +150,9 @@ pub struct HapticFailure {
     pub error: HapticError,
     /// The calibration as far as it got, when it got to the end.
     pub partial: Option<Box<HapticCalibration>>,
+    /// Where the joint residuals are, when the joint calibration was refused (held-out blocks of
+    /// `joints/`; axis errors not computed, 0).
+    pub maps: Option<ErrorMaps>,
 }
 
 /// Errors before and after, as summary.json reports them.
@@ -223,6 +236,8 @@ pub struct FailureSummary {
     pub step: &'static str,
     /// The message.
     pub message: String,
+    /// Where the joint residuals are, when the joint calibration was refused.
+    pub maps: Option<ErrorMaps>,
 }
 
 /// `summary.json` of a haptic run.
@@ -292,7 +307,7 @@ impl HapticFailure {
     pub fn unreadable(error: &super::recording::RecordingError) -> HapticSummary {
         HapticSummary::of(
             Status::Failed,
-            Some(FailureSummary { step: "reading the recording", message: error.to_string() }),
+            Some(FailureSummary { step: "reading the recording", message: error.to_string(), maps: None }),
             None,
         )
     }
@@ -301,7 +316,11 @@ impl HapticFailure {
     pub fn summary(&self) -> HapticSummary {
         HapticSummary::of(
             Status::Failed,
-            Some(FailureSummary { step: self.step, message: self.error.to_string() }),
+            Some(FailureSummary {
+                step: self.step,
+                message: self.error.to_string(),
+                maps: self.maps.clone(),
+            }),
             self.partial.as_deref(),
         )
     }
@@ -315,7 +334,7 @@ const STEP_GIMBALS: &str = "gimbal calibration (gimbal/, reference/)";
 const STEP_VERIFY: &str = "verification (verify/)";
 
 fn fail(step: &'static str) -> impl Fn(HapticError) -> HapticFailure {
-    move |error| HapticFailure { step, error, partial: None }
+    move |error| HapticFailure { step, error, partial: None, maps: None }
 }
 
 fn step<'a>(rec: &'a Recording, name: &'static str) -> Result<&'a Step, HapticError> {
@@ -514,15 +533,10 @@ fn calibrate_from(
     start: Transform,
     joints: [SensorModel; 3],
     seed: u64,
+    iterations: usize,
 ) -> (PositionCalibration, f64) {
-    let result = calibrate_position(
-        &ctx.device,
-        &ctx.correspondences(&ctx.spread(fit)),
-        start,
-        joints,
-        20,
-        Some((CLUSTERS, seed)),
-    );
+    let spread = ctx.correspondences(&ctx.spread(fit));
+    let result = calibrate_position(&ctx.device, &spread, start, joints, iterations, Some((CLUSTERS, seed)));
     let residual =
         rms(&position_errors(&ctx.device, &result.joints, &result.transform, &ctx.correspondences(held)));
     (result, residual)
@@ -614,7 +628,14 @@ fn gimbal_alternatives(declared: &JointConvention) -> Vec<(String, JointConventi
 /// fraction of its held-out axis error.
 pub const GIMBAL_CONVENTION_RATIO: f64 = 0.33;
 
-/// The orientation reference and gimbal calibration with calibrated joints and transform.
+/// The orientation reference and the gimbal samples it gives, fitted and held out.
+struct GimbalData {
+    reference: super::reference::OrientationReference,
+    fit: Vec<GimbalSample>,
+    held: Vec<GimbalSample>,
+}
+
+/// The orientation reference and gimbal samples with calibrated joints and transform.
 struct GimbalStage<'a> {
     device: &'a Device,
     joints: &'a [SensorModel; 3],
@@ -622,7 +643,8 @@ struct GimbalStage<'a> {
 }
 
 impl GimbalStage<'_> {
-    /// Reference and gimbals with the readings taken as convention `c` instead of `declared`.
+    /// Reference and gimbal samples (fit, held out) with the readings taken as convention `c`
+    /// instead of `declared`.
     fn run(
         &self,
         roll: &[Aligned],
@@ -630,8 +652,8 @@ impl GimbalStage<'_> {
         joints: &[Aligned],
         declared: &JointConvention,
         c: &JointConvention,
-    ) -> Result<(super::reference::OrientationReference, super::gimbal::GimbalCalibration), ReferenceError>
-    {
+        max_samples: usize,
+    ) -> Result<GimbalData, ReferenceError> {
         let (device, eh) = (self.device, self.eh);
         let sensors = with_joints(self.joints);
         let convert = |raw: &[f64; 6]| if c == declared { *raw } else { c.apply(&declared.invert(raw)) };
@@ -661,11 +683,13 @@ impl GimbalStage<'_> {
             .map(|a| sample(a, None))
             .chain(roll.iter().zip(&reference.roll).map(|(a, r)| sample(a, Some(*r))))
             .collect();
+        let stride = samples.len().div_ceil(max_samples).max(1);
+        let samples: Vec<GimbalSample> = samples.into_iter().step_by(stride).collect();
         // Every fourth sample is held out to choose the gimbal model.
         let held: Vec<GimbalSample> = samples.iter().step_by(4).copied().collect();
         let fit: Vec<GimbalSample> =
             samples.iter().enumerate().filter(|(i, _)| i % 4 != 0).map(|(_, s)| *s).collect();
-        Ok((reference, calibrate_gimbals(device, &fit, &held)))
+        Ok(GimbalData { reference, fit, held })
     }
 }
 
@@ -686,11 +710,41 @@ fn diagnose_convention(
         .map(|(what, c)| {
             let (f, h) = (convert(fit, &c), convert(held, &c));
             let start = pose_based_transform(&ctx.device, &ctx.correspondences(&f));
-            let (_, residual) = calibrate_from(ctx, &f, &h, start, [SensorModel::IDENTITY; 3], 7);
+            let (_, residual) =
+                calibrate_from(ctx, &f, &h, start, [SensorModel::IDENTITY; 3], 7, START_ITERATIONS);
             (what, c, residual)
         })
         .filter(|(_, _, r)| *r < limit_mm)
         .min_by(|a, b| a.2.total_cmp(&b.2))
+}
+
+/// Held-out joint residuals of a joint calibration (stylus directions with uncalibrated
+/// gimbals, axis errors 0: not computed).
+fn joint_residuals(ctx: &Context, position: &PositionCalibration, held: &[Aligned]) -> Vec<HeldOutSample> {
+    let sensors = with_joints(&position.joints);
+    let (r, t) = position.transform;
+    held.iter()
+        .map(|a| {
+            let th = angles(&sensors, &a.raw);
+            let model = ctx.device.position_mm(&th);
+            HeldOutSample {
+                direction: ctx.device.rotation(&th).column(2).into_owned(),
+                position_mm: model,
+                error_mm: r.transpose() * (ctx.hip(&a.pose) - t) - model,
+                axis_error_deg: 0.0,
+                theta_deg: [th[0].to_degrees(), th[1].to_degrees(), th[2].to_degrees()],
+            }
+        })
+        .collect()
+}
+
+/// The likely cause of a calibration worse than the uncalibrated device.
+fn worse_hint(position_before_mm: f64, noise_mm: f64, cause: &str) -> String {
+    if position_before_mm <= 2.0 * noise_mm {
+        format!("the uncalibrated device is already at the tracker noise ({position_before_mm:.3} mm against {noise_mm:.3} mm): it needs no calibration; otherwise {cause}")
+    } else {
+        cause.to_string()
+    }
 }
 
 /// Calibrate a recording; a refusal names the step and the cause.
@@ -725,7 +779,7 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
             .iter()
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), r| (lo.min(r[j]), hi.max(r[j])));
         let range_deg = (hi - lo).to_degrees();
-        if !(range_deg >= MIN_JOINT_RANGE_DEG) {
+        if range_deg.is_nan() || range_deg < MIN_JOINT_RANGE_DEG {
             let hint = if rec.convention.unit == super::recording::AngleUnit::Deg {
                 " (or the readings are radians while recording.json says \"unit\": \"deg\")"
             } else {
@@ -735,21 +789,22 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
         }
     }
     let all = ctx.aligned(joints_step, delay_ms).map_err(fail(STEP_JOINTS))?;
-    if all.len() < MIN_JOINT_SAMPLES {
+    let (fit, held) = split(&all);
+    if all.len() < MIN_JOINT_SAMPLES || held.len() < MIN_JOINT_SAMPLES / 4 {
         return Err(fail(STEP_JOINTS)(HapticError::TooFewSamples {
             found: all.len(),
+            held: held.len(),
             needed: MIN_JOINT_SAMPLES,
         }));
     }
-    // 4. Two starts, kept by held-out error.
-    let (fit, held) = split(&all);
     let pose_start = pose_based_transform(&device, &ctx.correspondences(&fit));
-    let (from_pose, pose_mm) = calibrate_from(&ctx, &fit, &held, pose_start, [SensorModel::IDENTITY; 3], 1);
+    let (from_pose, pose_mm) =
+        calibrate_from(&ctx, &fit, &held, pose_start, [SensorModel::IDENTITY; 3], 1, START_ITERATIONS);
     let landmark = ctx.landmark_transform(delay_ms);
     let (mut position, residual, start) = match &landmark {
         Ok(eh) => {
             let (from_landmarks, landmark_mm) =
-                calibrate_from(&ctx, &fit, &held, *eh, [SensorModel::IDENTITY; 3], 1);
+                calibrate_from(&ctx, &fit, &held, *eh, [SensorModel::IDENTITY; 3], 1, START_ITERATIONS);
             let landmark_wins = landmark_mm <= pose_mm;
             let start = StartChoice {
                 landmark_mm: Some(landmark_mm),
@@ -782,7 +837,13 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
                 start.landmark_note.as_deref().unwrap_or("used")
             ),
         };
-        return Err(fail(STEP_JOINTS)(HapticError::Implausible { residual_mm: residual, noise_mm, hint }));
+        let maps = error_maps(&joint_residuals(&ctx, &position, &held));
+        return Err(HapticFailure {
+            step: STEP_JOINTS,
+            error: HapticError::Implausible { residual_mm: residual, noise_mm, hint },
+            partial: None,
+            maps: Some(maps),
+        });
     }
     // 6. Delay and joints in turn until the delay settles.
     let mut settled = false;
@@ -793,14 +854,23 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
         delay_correlation = estimate.correlation;
         let change = (estimate.delay_ms - delay_ms).abs();
         delay_ms = estimate.delay_ms;
-        if change < DELAY_SETTLED_MS {
+        // At least one full calibration at the re-estimated delay.
+        if change < DELAY_SETTLED_MS && round > 0 {
             settled = true;
             break;
         }
         let all = ctx.aligned(joints_step, delay_ms).map_err(fail(STEP_JOINTS))?;
         let (fit, held) = split(&all);
-        position =
-            calibrate_from(&ctx, &fit, &held, position.transform, position.joints, 101 + round as u64).0;
+        position = calibrate_from(
+            &ctx,
+            &fit,
+            &held,
+            position.transform,
+            position.joints,
+            101 + round as u64,
+            ITERATIONS,
+        )
+        .0;
     }
     if !settled {
         return Err(fail(STEP_DELAY)(HapticError::DelayUnsettled(delay_rounds_ms)));
@@ -818,15 +888,19 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
     let gimbal_aligned = ctx.spread(&ctx.aligned(gimbal_step, delay_ms).map_err(fail(STEP_GIMBALS))?);
     let stage = GimbalStage { device: &device, joints: &position.joints, eh: &eh };
     let declared = rec.convention;
-    let (reference, gimbals) = stage
-        .run(&roll_samples, &gimbal_aligned, &joints, &declared, &declared)
+    let data = stage
+        .run(&roll_samples, &gimbal_aligned, &joints, &declared, &declared, MAX_GIMBAL_SAMPLES)
         .map_err(|e| fail(STEP_REFERENCE)(e.into()))?;
+    let gimbals = calibrate_gimbals(&device, &data.fit, &data.held);
+    let reference = data.reference;
     let declared_deg = gimbals.held_out_deg.0.min(gimbals.held_out_deg.1);
     let better = gimbal_alternatives(&declared)
         .into_iter()
         .filter_map(|(what, c)| {
-            let (_, g) = stage.run(&roll_samples, &gimbal_aligned, &joints, &declared, &c).ok()?;
-            Some((what, c, g.held_out_deg.0.min(g.held_out_deg.1)))
+            let data = stage
+                .run(&roll_samples, &gimbal_aligned, &joints, &declared, &c, MAX_ALTERNATIVE_SAMPLES)
+                .ok()?;
+            Some((what, c, linear_held_out_deg(&device, &data.fit, &data.held)))
         })
         .min_by(|a, b| a.2.total_cmp(&b.2));
     if let Some((what, c, deg)) = better.filter(|b| b.2 < GIMBAL_CONVENTION_RATIO * declared_deg) {
@@ -905,7 +979,11 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
             unit: "mm",
             before: position_mm.before,
             after: position_mm.after,
-            hint: "a flipped axis in the start transform, a wrong joint convention or too little motion in joints/",
+            hint: worse_hint(
+                position_mm.before,
+                noise_mm,
+                "a flipped axis in the start transform, a wrong joint convention or too little motion in joints/",
+            ),
         }))
     } else if orientation_deg.after >= orientation_deg.before {
         Some((
@@ -915,15 +993,20 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
                 unit: "°",
                 before: orientation_deg.before,
                 after: orientation_deg.after,
-                hint:
+                hint: worse_hint(
+                    position_mm.before,
+                    noise_mm,
                     "a gimbal reading with the wrong sign or column, or too little stylus rotation in gimbal/",
+                ),
             },
         ))
     } else {
         None
     };
     match worse {
-        Some((step, error)) => Err(HapticFailure { step, error, partial: Some(Box::new(calibration)) }),
+        Some((step, error)) => {
+            Err(HapticFailure { step, error, partial: Some(Box::new(calibration)), maps: None })
+        }
         None => Ok(calibration),
     }
 }

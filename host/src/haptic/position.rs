@@ -18,6 +18,8 @@ use nalgebra::{Matrix3, Vector3};
 
 /// Samples farther than this from the device origin are not used for EH, mm.
 pub const EH_RADIUS_MM: f64 = 100.0;
+/// Kept samples the spacing of a new one is checked against.
+const SPACING_WINDOW: usize = 400;
 /// Initial minimum spacing of the samples used for EH, mm.
 pub const EH_SPACING_MM: f64 = 5.0;
 
@@ -83,7 +85,9 @@ fn estimate_transform(
     let origin = Vector3::from(device.origin_mm);
     let mut chosen: Vec<usize> = Vec::new();
     for (i, p) in points.iter().enumerate() {
-        if (p - origin).norm() <= EH_RADIUS_MM && chosen.iter().all(|&c| (points[c] - p).norm() >= spacing_mm)
+        // Spacing checked against the last samples kept (the samples come in time order).
+        if (p - origin).norm() <= EH_RADIUS_MM
+            && chosen.iter().rev().take(SPACING_WINDOW).all(|&c| (points[c] - p).norm() >= spacing_mm)
         {
             chosen.push(i);
         }

@@ -132,12 +132,9 @@ impl Default for JointConvention {
 impl JointConvention {
     /// The documented default of a device: for both the Omni and the Premium 1.5 it is what the
     /// OpenHaptics joint and gimbal angle queries report — radians, θ3 absolute, the kinematic
-    /// model's signs, columns in joint order.
-    pub fn default_for(device: &str) -> JointConvention {
-        match device {
-            "omni" | "premium15" => JointConvention::default(),
-            _ => JointConvention::default(),
-        }
+    /// model's signs, columns in joint order. `None` for a device the tool does not know.
+    pub fn default_for(device: &str) -> Option<JointConvention> {
+        matches!(device, "omni" | "premium15").then(JointConvention::default)
     }
 
     /// Model-convention readings of one CSV row (`row` = raw1…raw6 as written).
@@ -234,7 +231,7 @@ impl TargetStream {
 /// steps.
 pub fn segments(t_s: &[f64], factor: f64) -> Vec<std::ops::Range<usize>> {
     if t_s.len() < 2 {
-        return vec![0..t_s.len()];
+        return std::iter::once(0..t_s.len()).collect();
     }
     let mut periods: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
     periods.sort_by(f64::total_cmp);
@@ -440,7 +437,8 @@ pub fn load(dir: &Path) -> Result<Recording, RecordingError> {
         }
     }
     let device = Device { l1_mm: header.l1_mm, l2_mm: header.l2_mm, ..nominal };
-    let convention = header.joint_convention.unwrap_or_else(|| JointConvention::default_for(&header.device));
+    let convention =
+        header.joint_convention.or_else(|| JointConvention::default_for(&header.device)).unwrap_or_default();
     convention.check().map_err(header_error)?;
     let mut steps = BTreeMap::new();
     let optional: [(&str, &[&str]); 1] = [("verify", &["hip"])];

@@ -11,6 +11,9 @@ use rand_chacha::ChaCha8Rng;
 
 /// Lloyd iterations.
 const ITERATIONS: usize = 8;
+/// Most points the centroids are fitted to (an even stride of the samples); the nearest real
+/// sample is then looked up among all of them.
+const MAX_FIT_POINTS: usize = 1500;
 
 /// Indices of up to `n` samples spread over `points` (sorted, without repeats).
 pub fn kmeans_select(points: &[Vector3<f64>], n: usize, seed: u64) -> Vec<usize> {
@@ -21,15 +24,23 @@ pub fn kmeans_select(points: &[Vector3<f64>], n: usize, seed: u64) -> Vec<usize>
     let mut order: Vec<usize> = (0..points.len()).collect();
     order.shuffle(&mut rng);
     let mut centroids: Vec<Vector3<f64>> = order[..n].iter().map(|&i| points[i]).collect();
+    // Nearest centroid by a plain loop over squared distances (the hot spot of the pipeline).
     let nearest = |p: &Vector3<f64>, cs: &[Vector3<f64>]| {
-        cs.iter()
-            .enumerate()
-            .min_by(|a, b| (a.1 - p).norm_squared().total_cmp(&(b.1 - p).norm_squared()))
-            .map_or(0, |c| c.0)
+        let (mut best, mut best_d) = (0, f64::INFINITY);
+        for (i, c) in cs.iter().enumerate() {
+            let (dx, dy, dz) = (c.x - p.x, c.y - p.y, c.z - p.z);
+            let d = dx * dx + dy * dy + dz * dz;
+            if d < best_d {
+                best_d = d;
+                best = i;
+            }
+        }
+        best
     };
+    let stride = points.len().div_ceil(MAX_FIT_POINTS).max(1);
     for _ in 0..ITERATIONS {
         let mut sums = vec![(Vector3::zeros(), 0usize); n];
-        for p in points {
+        for p in points.iter().step_by(stride) {
             let c = nearest(p, &centroids);
             sums[c].0 += p;
             sums[c].1 += 1;

@@ -2,8 +2,10 @@
 //!
 //! The device has joint-sensor gain and offset errors (a poor initialisation), potentiometer
 //! gimbals (quadratic, or linear), a 1 kHz stream; the tracker (90 Hz) sees a target on the
-//! stylus, T1 on the first link and T2 on the turret, with position and rotation noise, and its
-//! samples arrive `delay_ms` later than the device's. The user moves continuously.
+//! stylus, T1 on the first link and T2 on the turret (above, below or beside the central joint),
+//! with position and rotation noise, and its samples arrive `delay_ms` later than the device's.
+//! The user moves continuously. It shares the kinematics with the pipeline: the tests that
+//! matter use the independent generator in `tests/src/haptic_gen.rs`.
 
 use super::kinematics::{Device, SensorModel};
 use super::recording::{DeviceStream, Recording, Step, TargetStream, REQUIRED_STEPS};
@@ -31,6 +33,9 @@ pub struct HapticSimOptions {
     pub noise_deg: f64,
     /// Seconds of free motion in `joints/`.
     pub joints_seconds: f64,
+    /// Height of landmark target T2 above the central joint, mm (negative: below, 0: beside);
+    /// it sits 70 mm off the θ1 axis.
+    pub t2_height_mm: f64,
 }
 
 impl Default for HapticSimOptions {
@@ -43,6 +48,7 @@ impl Default for HapticSimOptions {
             noise_mm: 0.1,
             noise_deg: 0.05,
             joints_seconds: 60.0,
+            t2_height_mm: 50.0,
         }
     }
 }
@@ -183,12 +189,12 @@ pub fn simulate_recording(options: &HapticSimOptions) -> (Recording, HapticTruth
                         (eh.0 * link, eh.0 * (central + link * Vector3::new(10.0, 30.0, 60.0)) + eh.1)
                     }
                     "t2" => {
-                        // On the turret, above the central joint: circles the y axis with θ1.
+                        // On the turret, `t2_height_mm` above the central joint: turns with θ1.
                         let turret = Rotation3::from_axis_angle(&Vector3::y_axis(), -theta[0]).into_inner();
                         (
                             eh.0 * turret,
                             eh.0 * (central
-                                + Vector3::new(0.0, 50.0, 0.0)
+                                + Vector3::new(0.0, options.t2_height_mm, 0.0)
                                 + turret * Vector3::new(0.0, 0.0, 70.0))
                                 + eh.1,
                         )

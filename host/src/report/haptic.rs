@@ -18,8 +18,49 @@ pub fn haptic_report(summary: &crate::haptic::pipeline::HapticSummary) -> String
             escape(&f.message)
         );
     }
+    let cells = |cells: &[Cell]| -> Vec<Vec<String>> {
+        cells
+            .iter()
+            .map(|c| {
+                vec![
+                    escape(&c.label),
+                    c.count.to_string(),
+                    format!("{:.3}", c.position_rms_mm),
+                    format!("{:+.3}, {:+.3}, {:+.3}", c.bias_mm[0], c.bias_mm[1], c.bias_mm[2]),
+                    format!("{:.3}", c.axis_rms_deg),
+                ]
+            })
+            .collect()
+    };
+    let header = ["cell", "samples", "position RMS (mm)", "mean error x, y, z (mm)", "axis RMS (deg)"];
+    let maps_html = |maps: &crate::haptic::report_data::ErrorMaps| -> String {
+        let b = maps.bias_mm;
+        let mut out = format!(
+            "<h3>Where the errors are</h3><p>Mean error vector over all held-out samples: {:+.3}, {:+.3}, {:+.3} mm (device frame). Errors that grow along one joint's range point to that joint's convention or sensor model; a common error direction in one region points to a missing effect or a flipped axis.</p><h4>By workspace region (thirds of the held-out positions)</h4>{}<h4>By stylus direction</h4>{}",
+            b[0],
+            b[1],
+            b[2],
+            table(&header, &cells(&maps.regions)),
+            table(&header, &cells(&maps.directions))
+        );
+        for (j, profile) in maps.joints.iter().enumerate() {
+            let labels: Vec<String> = profile.iter().map(|c| c.label.clone()).collect();
+            let values: Vec<f64> = profile.iter().map(|c| c.position_rms_mm).collect();
+            let _ = write!(
+                out,
+                "<h4>Against θ{}</h4>{}",
+                j + 1,
+                svg::bars(&labels, &[("position RMS", values)], "position error (mm)")
+            );
+        }
+        out
+    };
     let Some(c) = &summary.calibration else {
         body.push_str("<p>No calibration result: the procedure stopped before the end.</p>");
+        if let Some(maps) = summary.failure.as_ref().and_then(|f| f.maps.as_ref()) {
+            body.push_str("<p>The refused joint calibration's residuals on held-out blocks of joints/ (axis errors not computed):</p>");
+            body += &maps_html(maps);
+        }
         return page("kincal haptic calibration", &body);
     };
     let rows = vec![
@@ -80,41 +121,7 @@ pub fn haptic_report(summary: &crate::haptic::pipeline::HapticSummary) -> String
         "<h3>Position error over stylus directions</h3>{}",
         svg::hammer_map(&dirs(&|s| s.error_mm.norm()), "position error after calibration (mm)")
     );
-    let cells = |cells: &[Cell]| -> Vec<Vec<String>> {
-        cells
-            .iter()
-            .map(|c| {
-                vec![
-                    escape(&c.label),
-                    c.count.to_string(),
-                    format!("{:.3}", c.position_rms_mm),
-                    format!("{:+.3}, {:+.3}, {:+.3}", c.bias_mm[0], c.bias_mm[1], c.bias_mm[2]),
-                    format!("{:.3}", c.axis_rms_deg),
-                ]
-            })
-            .collect()
-    };
-    let header = ["cell", "samples", "position RMS (mm)", "mean error x, y, z (mm)", "axis RMS (deg)"];
-    let b = c.maps.bias_mm;
-    let _ = write!(
-        body,
-        "<h3>Where the errors are</h3><p>Mean error vector over all held-out samples: {:+.3}, {:+.3}, {:+.3} mm (device frame). Errors that grow along one joint's range point to that joint's convention or sensor model; a common error direction in one region points to a missing effect or a flipped axis.</p><h4>By workspace region (thirds of the held-out positions)</h4>{}<h4>By stylus direction</h4>{}",
-        b[0],
-        b[1],
-        b[2],
-        table(&header, &cells(&c.maps.regions)),
-        table(&header, &cells(&c.maps.directions))
-    );
-    for (j, profile) in c.maps.joints.iter().enumerate() {
-        let labels: Vec<String> = profile.iter().map(|c| c.label.clone()).collect();
-        let values: Vec<f64> = profile.iter().map(|c| c.position_rms_mm).collect();
-        let _ = write!(
-            body,
-            "<h4>Against θ{}</h4>{}",
-            j + 1,
-            svg::bars(&labels, &[("position RMS", values)], "position error (mm)")
-        );
-    }
+    body += &maps_html(&c.maps);
     let pos: Vec<f64> = c.samples.iter().map(|s| s.error_mm.norm()).collect();
     body += &format!(
         "<h3>Position errors after calibration</h3>{}",

@@ -30,6 +30,9 @@ pub struct HapticSimulateArgs {
     /// Seconds of free motion in joints/.
     #[arg(long, default_value_t = 60.0)]
     joints_seconds: f64,
+    /// Height of landmark target T2 above the central joint, mm (negative: below, 0: beside).
+    #[arg(long, default_value_t = 50.0, allow_negative_numbers = true)]
+    t2_height_mm: f64,
 }
 
 #[derive(Args)]
@@ -50,6 +53,7 @@ pub fn cmd_haptic_simulate(a: &HapticSimulateArgs) -> Result<()> {
         delay_ms: a.delay_ms,
         quadratic_gimbals: !a.linear_gimbals,
         joints_seconds: a.joints_seconds,
+        t2_height_mm: a.t2_height_mm,
         ..Default::default()
     };
     let (recording, _) = kincal::haptic::simulate::simulate_recording(&options);

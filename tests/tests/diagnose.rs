@@ -9,7 +9,7 @@ use kincal::calib::validate::validate;
 use kincal::data::Dataset;
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
-use kincal::simulate::{simulate, SimulationOptions};
+use kincal::simulate::{simulate, simulate_with_errors, HiddenErrors, SimulationOptions};
 
 struct Case {
     hidden: Vec<(ParamId, f64)>,
@@ -62,6 +62,10 @@ fn run_case(case: &Case) -> Outcome {
         leader.effect.clone()
     };
     let significant = leader.significant;
+    eprintln!(
+        "  leader {}: blocks {:?} mean log ratio {:.3} p {:.2e} ΔBIC {:.1}",
+        leader.effect, leader.blocks_improved, leader.mean_log_ratio, leader.p_value, leader.delta_bic
+    );
     if !leader.equivalent.is_empty() {
         eprintln!("  leading group: {} ≡ {}", leader.effect, leader.equivalent.join(", "));
     }
@@ -225,5 +229,90 @@ fn with_no_hidden_effect_nothing_is_significant_and_a_wrong_effect_does_not_help
                 "seed {seed}: adding {wrong} lowered validation RMS {before} → {after}"
             );
         }
+    }
+}
+
+/// A dataset from the independent forward path with hidden errors, calibrated with the thesis
+/// model; returns the simulation, datasets, fit, options and the true floor.
+struct Scenario {
+    sim: kincal::simulate::SimulatedData,
+    cal: Dataset,
+    val: Dataset,
+    nominal: ArmModel,
+    options: CalibrationOptions,
+    /// Validation RMS of the true arm against the true artefact: the noise floor.
+    floor: f64,
+}
+
+fn scenario(
+    seed: u64,
+    hidden: Vec<(ParamId, f64)>,
+    errors: HiddenErrors,
+    validation_placements: usize,
+) -> Scenario {
+    let nominal = ArmModel::suta_nominal();
+    let hidden_again = hidden.clone();
+    let mut sim = simulate_with_errors(
+        &nominal,
+        &SimulationOptions { seed, hidden, ..SimulationOptions::default() },
+        &errors,
+    );
+    sim.validation.truncate(validation_placements);
+    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
+    // The true arm's model cannot hold an error outside the library: its floor is that of the
+    // same arm and noise without it (a twin dataset of the same seed).
+    let floor = if errors.encoder_harmonics.is_empty() {
+        validate(&sim.truth, &sim.true_artefact, &val).overall.rms_mm
+    } else {
+        let twin = simulate(
+            &nominal,
+            &SimulationOptions { seed, hidden: hidden_again, ..SimulationOptions::default() },
+        );
+        let mut twin_val = twin.validation;
+        twin_val.truncate(validation_placements);
+        validate(&twin.truth, &twin.artefact, &Dataset::from_sessions(&twin_val, &twin.artefact))
+            .overall
+            .rms_mm
+    };
+    Scenario { sim, cal, val, nominal, options, floor }
+}
+
+#[test]
+fn clean_data_floor_estimate_and_nothing_flagged() {
+    for seed in [91, 92, 93] {
+        let s = scenario(seed, vec![], HiddenErrors::default(), 5);
+        let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
+        let d = diagnose(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options);
+        let floor = d.floor.as_ref().expect("repeats give a floor");
+        let gap = d.gap.as_ref().unwrap();
+        eprintln!(
+            "seed {seed}: true floor {:.4} estimated {:.4} (encoder share {:.4}) expected {:.4} measured {:.4} z {:.2}",
+            s.floor,
+            floor.distance_rms_mm,
+            floor.encoder_rms_mm.unwrap_or(f64::NAN),
+            floor.expected_rms_mm,
+            gap.measured_mm,
+            gap.z
+        );
+        assert!(
+            (floor.distance_rms_mm / s.floor - 1.0).abs() <= 0.2,
+            "seed {seed}: floor estimate {} not within 20 % of the true floor {}",
+            floor.distance_rms_mm,
+            s.floor
+        );
+        let encoder = floor.encoder_rms_mm.expect("the simulated sessions report encoder std");
+        assert!(encoder < floor.distance_rms_mm, "encoder share {encoder} exceeds the whole floor");
+        assert!(!gap.significant, "seed {seed}: a gap is claimed on clean data: {}", gap.sentence());
+        assert!(floor.inconsistent.is_empty(), "seed {seed}: groups flagged {:?}", floor.inconsistent);
+        let significant: Vec<&str> =
+            d.candidates.iter().filter(|c| c.significant).map(|c| c.effect.as_str()).collect();
+        assert!(significant.is_empty(), "seed {seed}: spurious effects {significant:?}");
+        assert!(
+            d.summary.iter().any(|l| l.contains("at the floor")),
+            "seed {seed}: the summary must say the error is at the floor: {:?}",
+            d.summary
+        );
     }
 }

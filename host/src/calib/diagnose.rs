@@ -10,12 +10,17 @@
 //! *Which effect is missing*: every library effect not yet in the model is checked for
 //! identifiability (does it add rank to the Jacobian of the identifiable parameters?), then
 //! refitted on the calibration data from the calibrated values and scored on the validation
-//! data. `significant` needs all of: a one-sided sign test over (placement, repeat) blocks of the
-//! validation data — how many blocks' mean square error fell — with p below
-//! [`FAMILY_ALPHA`] / (number of candidates); a lower BIC on the calibration data; and at least
-//! [`SIGNIFICANT_GAIN`] lower validation RMS. The sign test does not assume the improvement is
-//! the same size everywhere (a real effect helps some poses far more than others); an effect
-//! that only fits noise improves about half the blocks.
+//! data. `significant` needs all of: a held-out improvement over the (placement, repeat) blocks
+//! of the validation data with p below [`FAMILY_ALPHA`] / (number of candidates); a lower BIC on
+//! the calibration data; and at least [`SIGNIFICANT_GAIN`] lower validation RMS. The held-out p
+//! is the smaller of two one-sided tests, doubled (Bonferroni over the pair): a t test on the
+//! per-block log ratios ln(MSE_before / MSE_after), and a sign test on how many blocks improved.
+//! The log ratio makes a block's improvement scale-free (a block far off the floor does not
+//! dominate) and the t test uses its size and consistency: with 3 validation placements
+//! (9 blocks) a ratio that is large in every block passes at 0.05/40, which no sign or rank test
+//! can (2⁻⁹ > 0.05/27). The sign test keeps the power where one block of many got worse (a
+//! heavy tail the t test pays for). An effect that only fits noise moves the log ratios by a few
+//! per cent either way and improves about half the blocks: it passes neither.
 //!
 //! An effect with several parameters (`tcp`, `eccentricity`) keeps those that are identifiable;
 //! the rest stay at zero and are named in the evidence. Candidates whose refits change the
@@ -24,6 +29,7 @@
 //! say, move every touch alike and no data of this kind separates them.
 
 use crate::calib::calibrate::{calibrate, CalibrationOptions};
+use crate::calib::floor::{gap, noise_floor, Gap, NoiseFloor};
 use crate::calib::identify;
 use crate::calib::objective::{CalibrationProblem, Objective};
 use crate::calib::validate::{distance_errors, ErrorStats, PairError};
@@ -33,6 +39,7 @@ use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
 use crate::model::{ArmModel, ParamId, JOINTS};
 use crate::numerics::geometry::absolute_orientation;
 use crate::numerics::solver::Residuals;
+use crate::numerics::stats::one_sided_t;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
@@ -89,7 +96,9 @@ pub struct Candidate {
     pub significant: bool,
     /// Validation blocks (placement, repeat) whose error fell, and blocks compared.
     pub blocks_improved: (usize, usize),
-    /// One-sided sign-test p-value of that count.
+    /// Mean log ratio ln(MSE_before / MSE_after) over the validation blocks.
+    pub mean_log_ratio: f64,
+    /// Held-out p-value: 2 × min(t test on the per-block log ratios, sign test), at most 1.
     pub p_value: f64,
     /// Change of BIC on the calibration data (negative favours the effect).
     pub delta_bic: f64,
@@ -130,6 +139,10 @@ pub struct WorstPair {
 pub struct Diagnosis {
     /// Calibrated model on the validation data.
     pub baseline: ErrorStats,
+    /// Noise floor estimated from repeated touches (`None` without repeats).
+    pub floor: Option<NoiseFloor>,
+    /// Validation RMS against the floor.
+    pub gap: Option<Gap>,
     /// Candidates, best (lowest validation RMS) first.
     pub candidates: Vec<Candidate>,
     /// Effects the data cannot identify next to the model.
@@ -303,6 +316,14 @@ fn sign_test_p(k: usize, n: usize) -> f64 {
     p / 2f64.powi(n as i32)
 }
 
+/// Held-out p-value of per-block log ratios ln(MSE_before / MSE_after): twice the smaller of a
+/// one-sided t test and a sign test (see the module doc).
+pub fn held_out_p(log_ratios: &[f64]) -> f64 {
+    let (_, p_t) = one_sided_t(log_ratios);
+    let p_sign = sign_test_p(log_ratios.iter().filter(|r| **r > 0.0).count(), log_ratios.len());
+    (2.0 * p_t.min(p_sign)).min(1.0)
+}
+
 fn rms(errors: &[PairError]) -> f64 {
     ErrorStats::of(&errors.iter().map(|e| e.error_mm).collect::<Vec<_>>()).rms_mm
 }
@@ -431,12 +452,15 @@ pub fn diagnose(
             let errors = distance_errors(&refit.model, artefact, val);
             let after = rms(&errors);
             let blocks = block_mse(&errors, val);
-            let compared: Vec<bool> = baseline_blocks
+            let log_ratios: Vec<f64> = baseline_blocks
                 .iter()
-                .filter_map(|(k, before)| blocks.iter().find(|b| b.0 == *k).map(|b| b.1 < *before))
+                .filter_map(|(k, before)| {
+                    blocks.iter().find(|b| b.0 == *k).map(|b| (before.max(1e-300) / b.1.max(1e-300)).ln())
+                })
                 .collect();
-            let blocks_improved = (compared.iter().filter(|i| **i).count(), compared.len());
-            let p_value = sign_test_p(blocks_improved.0, blocks_improved.1);
+            let blocks_improved = (log_ratios.iter().filter(|r| **r > 0.0).count(), log_ratios.len());
+            let p_value = held_out_p(&log_ratios);
+            let mean_log_ratio = log_ratios.iter().sum::<f64>() / log_ratios.len().max(1) as f64;
             let delta_bic =
                 bic(&distance_residuals(&refit.model, artefact, cal), model.free.len()) - baseline_bic;
             let explained = ((baseline.rms_mm.powi(2) - after.powi(2)) / baseline.rms_mm.powi(2).max(1e-300))
@@ -462,6 +486,7 @@ pub fn diagnose(
                     explained,
                     significant,
                     blocks_improved,
+                    mean_log_ratio,
                     p_value,
                     delta_bic,
                     fitted,
@@ -508,9 +533,13 @@ pub fn diagnose(
             )
         })
         .collect();
-    let summary = summarise(&baseline, &candidates, &joints);
+    let floor = noise_floor(calibrated, artefact, cal, val, current.len());
+    let gap = floor.as_ref().map(|f| gap(f, baseline.rms_mm, val));
+    let summary = summarise(&baseline, gap.as_ref(), &candidates, &joints);
     Diagnosis {
         baseline,
+        floor,
+        gap,
         candidates,
         not_identifiable,
         joints,
@@ -556,11 +585,19 @@ fn subset_jacobian(jac: &[f64], n: usize, cols: &[usize]) -> Vec<f64> {
     jac.chunks_exact(n).flat_map(|row| cols.iter().map(move |&c| row[c])).collect()
 }
 
-fn summarise(baseline: &ErrorStats, candidates: &[Candidate], joints: &[JointResiduals]) -> Vec<String> {
+fn summarise(
+    baseline: &ErrorStats,
+    gap: Option<&Gap>,
+    candidates: &[Candidate],
+    joints: &[JointResiduals],
+) -> Vec<String> {
     let mut lines = vec![format!(
         "validation RMS of the calibrated model: {:.3} mm over {} pairs",
         baseline.rms_mm, baseline.pairs
     )];
+    if let Some(g) = gap {
+        lines.push(g.sentence());
+    }
     if let Some(j) = joints.iter().max_by(|a, b| {
         (a.sinusoid.amplitude_deg * a.sinusoid.explained)
             .total_cmp(&(b.sinusoid.amplitude_deg * b.sinusoid.explained))
@@ -577,10 +614,14 @@ fn summarise(baseline: &ErrorStats, candidates: &[Candidate], joints: &[JointRes
             best.equivalent.join(", ")
         )),
         Some(best) => lines.push(format!("missing effect: {} — {}", best.effect, best.evidence)),
-        None => lines.push(
-            "no candidate effect improves the held-out error beyond noise: the model explains the data"
-                .into(),
-        ),
+        None => lines.push(match gap {
+            Some(g) if g.significant => format!(
+                "no candidate effect improves the held-out error beyond noise, yet the model misses about {:.3} mm: the model is incomplete (look at the apparent joint errors and the data errors)",
+                g.missing_mm
+            ),
+            Some(_) => "no candidate effect improves the held-out error beyond noise, and the error is at the floor expected from repeatability".into(),
+            None => "no candidate effect improves the held-out error beyond noise (no repeated touches: the noise floor is unknown, so whether the model is complete cannot be told)".into(),
+        }),
     }
     lines
 }
@@ -594,6 +635,20 @@ mod tests {
         assert!((sign_test_p(15, 15) - 1.0 / 32768.0).abs() < 1e-15);
         assert!((sign_test_p(14, 15) - 16.0 / 32768.0).abs() < 1e-15);
         assert!((sign_test_p(0, 15) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn held_out_test_has_power_with_nine_blocks_and_none_on_noise() {
+        // Nine blocks, all improved about 9× in mean square: far below 0.05/40.
+        let strong = [2.1, 2.4, 1.9, 2.3, 2.2, 2.0, 2.5, 1.8, 2.2];
+        assert!(held_out_p(&strong) < 0.05 / 40.0, "{}", held_out_p(&strong));
+        // Fifteen blocks, 14 improved and one much worse: the sign test carries it.
+        let mut one_bad = vec![0.5; 14];
+        one_bad.push(-4.0);
+        assert!(held_out_p(&one_bad) < 0.05 / 25.0, "{}", held_out_p(&one_bad));
+        // Noise: small changes either way.
+        let noise = [0.01, -0.02, 0.015, -0.01, 0.0, 0.02, -0.015, 0.005, -0.005];
+        assert!(held_out_p(&noise) > 0.1);
     }
 
     #[test]

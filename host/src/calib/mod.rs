@@ -4,6 +4,7 @@
 
 pub mod calibrate;
 pub mod diagnose;
+pub mod floor;
 pub mod identify;
 pub mod objective;
 pub mod outliers;

@@ -12,6 +12,33 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
         "<h2>Summary</h2><ul>{}</ul>",
         d.summary.iter().map(|l| format!("<li>{}</li>", escape(l))).collect::<String>()
     );
+    if let (Some(f), Some(g)) = (&d.floor, &d.gap) {
+        let encoder =
+            f.encoder_rms_mm.map_or("not reported by the sessions".into(), |e| format!("{} mm", mm(e)));
+        let rows = vec![
+            vec!["validation RMS measured".into(), mm(g.measured_mm)],
+            vec!["expected from repeatability (this model's parameters fitted)".into(), mm(g.expected_mm)],
+            vec!["noise floor of the true arm (distances)".into(), mm(f.distance_rms_mm)],
+            vec!["scatter of one touch, per axis".into(), mm(f.touch_std_mm)],
+            vec!["of which encoder noise (distances)".into(), encoder],
+            vec![
+                "the model misses about".into(),
+                if g.significant { mm(g.missing_mm) } else { "nothing beyond noise".into() },
+            ],
+            vec!["gap in standard errors".into(), format!("{:+.1}", g.z)],
+            vec!["groups of repeats pooled / degrees of freedom".into(), format!("{} / {}", f.groups, f.dof)],
+        ];
+        let _ = write!(body, "<h2>How far from done</h2><p>The floor comes from repeated touches of the same landmark in the same placement and arm configuration, propagated to the validation distances.</p>{}", table(&["", "mm"], &rows));
+        if !f.inconsistent.is_empty() {
+            let bad: Vec<Vec<String>> =
+                f.inconsistent.iter().map(|(p, l, s)| vec![escape(p), escape(l), mm(*s)]).collect();
+            let _ = write!(
+                body,
+                "<h3>Repeats that disagree beyond noise (left out of the floor)</h3>{}",
+                table(&["placement", "landmark", "scatter per axis mm"], &bad)
+            );
+        }
+    }
     let rows: Vec<Vec<String>> = d
         .candidates
         .iter()

@@ -507,8 +507,8 @@ fn simulate_full(
     let mut artefact = artefact;
     for (id, error) in &errors.wrong_certificates {
         if let Some(l) = artefact.landmarks.iter_mut().find(|l| &l.id == id) {
-            for k in 0..3 {
-                l.xyz_mm[k] += error[k];
+            for (x, e) in l.xyz_mm.iter_mut().zip(error) {
+                *x += e;
             }
         }
     }

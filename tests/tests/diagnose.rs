@@ -3,13 +3,16 @@
 //! path (plain 4×4 matrices with the effects written out again), not from the model's code.
 
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::data_errors::{calibrate_with_landmark_freed, without};
 use kincal::calib::diagnose::diagnose;
 use kincal::calib::objective::Objective;
 use kincal::calib::validate::validate;
 use kincal::data::Dataset;
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
-use kincal::simulate::{simulate, simulate_with_errors, HiddenErrors, SimulationOptions};
+use kincal::simulate::{
+    simulate, simulate_with_errors, EncoderHarmonic, HiddenErrors, Knock, SimulationOptions,
+};
 
 struct Case {
     hidden: Vec<(ParamId, f64)>,
@@ -306,6 +309,13 @@ fn clean_data_floor_estimate_and_nothing_flagged() {
         assert!(encoder < floor.distance_rms_mm, "encoder share {encoder} exceeds the whole floor");
         assert!(!gap.significant, "seed {seed}: a gap is claimed on clean data: {}", gap.sentence());
         assert!(floor.inconsistent.is_empty(), "seed {seed}: groups flagged {:?}", floor.inconsistent);
+        assert!(
+            d.disturbed.is_empty() && d.mis_seated.is_empty() && d.data_errors.iter().all(|c| !c.significant),
+            "seed {seed}: data errors flagged on clean data: {:?} {:?} {:?}",
+            d.disturbed,
+            d.mis_seated,
+            d.data_errors.iter().filter(|c| c.significant).map(|c| &c.effect).collect::<Vec<_>>()
+        );
         let significant: Vec<&str> =
             d.candidates.iter().filter(|c| c.significant).map(|c| c.effect.as_str()).collect();
         assert!(significant.is_empty(), "seed {seed}: spurious effects {significant:?}");
@@ -315,4 +325,105 @@ fn clean_data_floor_estimate_and_nothing_flagged() {
             d.summary
         );
     }
+}
+
+fn calibrated(s: &Scenario) -> (ArmModel, kincal::calib::diagnose::Diagnosis) {
+    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
+    let d = diagnose(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options);
+    for line in &d.summary {
+        eprintln!("  {line}");
+    }
+    (fit.model, d)
+}
+
+#[test]
+fn a_wrong_certificate_is_named_before_any_arm_effect_and_fixing_it_reaches_the_floor() {
+    let errors =
+        HiddenErrors { wrong_certificates: vec![("S2".into(), [1.2, -1.0, 0.9])], ..Default::default() };
+    let s = scenario(101, vec![], errors, 5);
+    let (_, d) = calibrated(&s);
+    let first = d.data_errors.first().expect("data errors are scored");
+    assert_eq!(first.effect, "landmark:S2");
+    assert!(first.significant, "{first:?}");
+    assert!(d.summary.iter().any(|l| l.starts_with("data error: landmark:S2")), "{:?}", d.summary);
+    assert!(
+        d.summary.iter().all(|l| !l.starts_with("missing effect")),
+        "an arm effect is claimed: {:?}",
+        d.summary
+    );
+    // The suggested actions: drop the landmark, or fit its position.
+    let s2 = s.sim.artefact.index_of("S2").unwrap();
+    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal.without_landmark(s2), &s.options).unwrap();
+    let excluded = validate(&fit.model, &s.sim.artefact, &s.val.without_landmark(s2)).overall.rms_mm;
+    let floor_without =
+        validate(&s.sim.truth, &s.sim.true_artefact, &s.val.without_landmark(s2)).overall.rms_mm;
+    let (freed, corrected) =
+        calibrate_with_landmark_freed(&s.nominal, &s.sim.artefact, &s.cal, s2, &s.options).unwrap();
+    let with_freed = validate(&freed.model, &corrected, &s.val).overall.rms_mm;
+    eprintln!("floor {:.3} / {floor_without:.3}; excluded {excluded:.3}; freed {with_freed:.3}", s.floor);
+    assert!(excluded <= 1.15 * floor_without, "excluding S2: {excluded} vs floor {floor_without}");
+    assert!(with_freed <= 1.15 * s.floor, "freeing S2: {with_freed} vs floor {}", s.floor);
+}
+
+#[test]
+fn an_artefact_knocked_within_a_repeat_is_named_with_its_touch() {
+    let knock = Knock {
+        placement: "C_A".into(),
+        repeat: 2,
+        after_touch: 8,
+        shift_mm: [0.5, 0.5, 0.0],
+        yaw_deg: 0.25,
+    };
+    let s = scenario(102, vec![], HiddenErrors { knock: Some(knock), ..Default::default() }, 5);
+    let (_, d) = calibrated(&s);
+    let block = d.disturbed.first().expect("the knocked block is flagged");
+    assert_eq!((s.cal.placements[block.placement].as_str(), block.repeat, block.after_touch), ("C_A", 2, 8));
+    assert_eq!(d.disturbed.len(), 1, "{:?}", d.disturbed);
+    assert!(d.summary.iter().any(|l| l.contains("block:C_A/2") && l.contains("#9")), "{:?}", d.summary);
+    assert!(
+        d.summary.iter().all(|l| !l.starts_with("missing effect")),
+        "an arm effect is claimed: {:?}",
+        d.summary
+    );
+    let kept =
+        without(&s.cal, |k| s.cal.touches[k].placement == block.placement && s.cal.touches[k].repeat == 2);
+    let fit = calibrate(&s.nominal, &s.sim.artefact, &kept, &s.options).unwrap();
+    let after = validate(&fit.model, &s.sim.artefact, &s.val).overall.rms_mm;
+    eprintln!("floor {:.3} after excluding the block {after:.3}", s.floor);
+    assert!(after <= 1.15 * s.floor, "{after} vs floor {}", s.floor);
+}
+
+#[test]
+fn an_error_outside_the_library_is_reported_as_incomplete_with_its_pattern() {
+    let harmonic = EncoderHarmonic { joint: 2, order: 3, sin_deg: 0.12, cos_deg: 0.0 };
+    let s =
+        scenario(103, vec![], HiddenErrors { encoder_harmonics: vec![harmonic], ..Default::default() }, 5);
+    let (_, d) = calibrated(&s);
+    assert!(d.gap.as_ref().unwrap().significant);
+    assert!(
+        d.summary.iter().any(|l| l.contains("joint 3") && l.contains("3 per revolution")),
+        "the 3-per-rev pattern on joint 3 must be shown: {:?}",
+        d.summary
+    );
+    assert!(d.summary.iter().any(|l| l.contains("the model is incomplete")), "{:?}", d.summary);
+    let joint3 = &d.joints[2];
+    let (order, fit) = joint3.spectrum.iter().max_by(|a, b| a.1.explained.total_cmp(&b.1.explained)).unwrap();
+    assert_eq!(*order, 3);
+    assert!((fit.amplitude_deg - 0.12).abs() < 0.02, "amplitude {} vs 0.12", fit.amplitude_deg);
+}
+
+#[test]
+fn with_three_validation_placements_a_large_effect_is_significant() {
+    let hidden = vec![(p("eccentricity_sin:2"), 1.0), (p("eccentricity_cos:2"), 0.8)];
+    let s = scenario(104, hidden, HiddenErrors::default(), 3);
+    let (_, d) = calibrated(&s);
+    let leader = &d.candidates[0];
+    eprintln!(
+        "{}: {:.3} → {:.3} blocks {:?} p {:.1e}",
+        leader.effect, d.baseline.rms_mm, leader.validation_rms_mm, leader.blocks_improved, leader.p_value
+    );
+    assert_eq!(leader.blocks_improved.1, 9);
+    assert_eq!(leader.effect, "eccentricity:2");
+    assert!(d.baseline.rms_mm >= 3.0 * leader.validation_rms_mm, "the effect must cut validation RMS 3×");
+    assert!(leader.significant, "{leader:?}");
 }

@@ -92,7 +92,7 @@ pub fn observation_dof(data: &Dataset) -> usize {
 pub const SAME_CONFIGURATION_DEG: f64 = 3.0;
 
 /// Split touches `idx` of one landmark in one placement into groups of the same configuration.
-fn same_configuration(data: &Dataset, idx: &[usize]) -> Vec<Vec<usize>> {
+pub fn same_configuration(data: &Dataset, idx: &[usize]) -> Vec<Vec<usize>> {
     let mut groups: Vec<Vec<usize>> = Vec::new();
     for &k in idx {
         let close = |g: &Vec<usize>| {

@@ -3,6 +3,7 @@
 //! effects, the dataset-size study, and the whole run from input files to results.
 
 pub mod calibrate;
+pub mod data_errors;
 pub mod diagnose;
 pub mod floor;
 pub mod identify;

@@ -2,6 +2,7 @@
 //! held-out error falls to the noise floor. Data come from the simulator's independent forward
 //! path (plain 4×4 matrices with the effects written out again), not from the model's code.
 
+use kincal::calib::auto::{auto_loop, Stop};
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
 use kincal::calib::data_errors::{calibrate_with_landmark_freed, without};
 use kincal::calib::diagnose::diagnose;
@@ -426,4 +427,46 @@ fn with_three_validation_placements_a_large_effect_is_significant() {
     assert_eq!(leader.effect, "eccentricity:2");
     assert!(d.baseline.rms_mm >= 3.0 * leader.validation_rms_mm, "the effect must cut validation RMS 3×");
     assert!(leader.significant, "{leader:?}");
+}
+
+#[test]
+fn the_auto_loop_adds_a_mixture_of_four_effects_down_to_the_floor() {
+    let hidden = vec![
+        (p("eccentricity_sin:2"), 0.2),
+        (p("eccentricity_cos:5"), 0.15),
+        (p("twist:4"), 0.25),
+        (p("compliance:2"), 0.2),
+    ];
+    let s = scenario(105, hidden, HiddenErrors::default(), 5);
+    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
+    let started = std::time::Instant::now();
+    let run = auto_loop(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options, 8).unwrap();
+    eprintln!("auto loop: {:.2} s, stop {:?}", started.elapsed().as_secs_f64(), run.stop);
+    for step in &run.steps {
+        eprintln!(
+            "  {:<16} {:.3} mm (expected {:.3}) p {:?}",
+            step.added.as_deref().unwrap_or("(start)"),
+            step.validation_rms_mm,
+            step.expected_rms_mm.unwrap_or(f64::NAN),
+            step.p_value
+        );
+    }
+    for c in run.last.candidates.iter().take(3).chain(run.last.data_errors.iter().take(2)) {
+        eprintln!(
+            "   {} {:.4} blocks {:?} p {:.2e} ΔBIC {:.1} sig {}",
+            c.effect, c.validation_rms_mm, c.blocks_improved, c.p_value, c.delta_bic, c.significant
+        );
+    }
+    let last = run.steps.last().unwrap();
+    assert!(
+        last.validation_rms_mm <= 1.10 * s.floor,
+        "the loop ends at {} vs true floor {}",
+        last.validation_rms_mm,
+        s.floor
+    );
+    assert_eq!(run.stop, Stop::AtFloor);
+    for pair in run.steps.windows(2) {
+        assert!(pair[1].validation_rms_mm < pair[0].validation_rms_mm, "each step lowers the error");
+        assert!(pair[1].p_value.is_some_and(|p| p < 0.05), "each added effect is significant at its step");
+    }
 }

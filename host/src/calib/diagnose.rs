@@ -16,7 +16,12 @@
 //! candidates that passed the screen, arm effects and data errors together), and at least
 //! [`SIGNIFICANT_GAIN`] lower validation RMS. Correcting only for the screened candidates keeps
 //! the family-wise rate (the screen never sees the held-out data) without paying for the
-//! dozens of candidates the calibration data already reject. The held-out p
+//! dozens of candidates the calibration data already reject. Once the gap between validation
+//! RMS and the floor estimated from repeatability is itself significant (see
+//! [`crate::calib::floor`]), "is anything missing?" is answered; a screened candidate that
+//! closes the gap (its validation RMS within the noise of the floor) is then confirmed at
+//! [`FAMILY_ALPHA`] without the multiplicity correction (a closed-testing argument: the global
+//! null was rejected by the gap test; an effect that only fits noise cannot close a real gap). The held-out p
 //! is the smaller of two one-sided tests, doubled (Bonferroni over the pair): a t test on the
 //! per-block log ratios ln(MSE_before / MSE_after), and a sign test on how many blocks improved.
 //! The log ratio makes a block's improvement scale-free (a block far off the floor does not
@@ -601,8 +606,16 @@ pub fn diagnose(
         &disturbed,
         &mis_seated,
     );
-    decide(&mut candidates, &mut data_errors, baseline.rms_mm);
     let gap = floor.as_ref().map(|f| gap(f, baseline.rms_mm, val));
+    let closes_gap =
+        |rms_mm: f64| floor.as_ref().is_some_and(|f| !crate::calib::floor::gap(f, rms_mm, val).significant);
+    decide(
+        &mut candidates,
+        &mut data_errors,
+        baseline.rms_mm,
+        gap.as_ref().is_some_and(|g| g.significant),
+        closes_gap,
+    );
     let summary = summarise(&baseline, gap.as_ref(), floor.as_ref(), val, &candidates, &data_errors, &joints);
     Diagnosis {
         baseline,
@@ -629,13 +642,23 @@ fn screened(c: &Candidate) -> bool {
 }
 
 /// Mark the significant candidates: screened on the calibration data, then confirmed on the
-/// held-out data at [`FAMILY_ALPHA`] / (number screened), with the minimum gain.
-fn decide(candidates: &mut [Candidate], data_errors: &mut [Candidate], baseline_rms_mm: f64) {
+/// held-out data at [`FAMILY_ALPHA`] / (number screened), with the minimum gain — or, once the
+/// gap to the floor is itself significant (the model is known to be incomplete), at
+/// [`FAMILY_ALPHA`] alone for a candidate that closes the gap (`closes_gap`: its validation RMS
+/// is within the noise of the floor).
+fn decide(
+    candidates: &mut [Candidate],
+    data_errors: &mut [Candidate],
+    baseline_rms_mm: f64,
+    gap_significant: bool,
+    closes_gap: impl Fn(f64) -> bool,
+) {
     let count = candidates.iter().chain(data_errors.iter()).filter(|c| screened(c)).count().max(1);
     for c in candidates.iter_mut().chain(data_errors.iter_mut()) {
-        c.significant = screened(c)
-            && c.p_value < FAMILY_ALPHA / count as f64
-            && c.validation_rms_mm <= (1.0 - SIGNIFICANT_GAIN) * baseline_rms_mm;
+        let confirmed = c.p_value < FAMILY_ALPHA / count as f64
+            || (gap_significant && c.p_value < FAMILY_ALPHA && closes_gap(c.validation_rms_mm));
+        c.significant =
+            screened(c) && confirmed && c.validation_rms_mm <= (1.0 - SIGNIFICANT_GAIN) * baseline_rms_mm;
     }
 }
 

@@ -717,7 +717,7 @@ fn score_data_errors(
                 "landmark {id} is measured {off:.2} mm from its certified position (Δ = ({:+.2}, {:+.2}, {:+.2}) mm in the artefact frame); with its position freed validation RMS goes from {:.3} to {:.3} mm",
                 d[0], d[1], d[2], x.baseline.rms_mm, score.after
             );
-            let action = format!("check the certificate of {id}; meanwhile `kincal calibrate … --exclude-landmark {id}` (drop it) or `--add landmark:{id}` (fit its position)");
+            let action = format!("check the certificate of {id} (measured position above); meanwhile `kincal calibrate … --exclude-landmark {id}`");
             Some(candidate(format!("landmark:{id}"), score, delta_bic, evidence, action))
         })
         .collect();

@@ -228,8 +228,7 @@ pub fn locate_landmark(
 }
 
 /// Calibrate with landmark `landmark`'s certified position freed: fit the arm without it,
-/// locate it, refit with the located position (twice). Returns the fit and the corrected
-/// artefact.
+/// locate it, refit with the located position. Returns the fit and the corrected artefact.
 pub fn calibrate_with_landmark_freed(
     start: &ArmModel,
     artefact: &Artefact,
@@ -237,14 +236,12 @@ pub fn calibrate_with_landmark_freed(
     landmark: usize,
     options: &CalibrationOptions,
 ) -> Result<(Calibration, Artefact), CalibrationError> {
-    let mut fit = calibrate(start, artefact, &cal.without_landmark(landmark), options)?;
+    let without = calibrate(start, artefact, &cal.without_landmark(landmark), options)?;
     let mut corrected = artefact.clone();
-    for _ in 0..2 {
-        if let Some(xyz) = locate_landmark(&fit.model, &corrected, cal, landmark) {
-            corrected.landmarks[landmark].xyz_mm = xyz;
-        }
-        fit = calibrate(&fit.model, &corrected, cal, &CalibrationOptions { restarts: 0, ..*options })?;
+    if let Some(xyz) = locate_landmark(&without.model, artefact, cal, landmark) {
+        corrected.landmarks[landmark].xyz_mm = xyz;
     }
+    let fit = calibrate(&without.model, &corrected, cal, &CalibrationOptions { restarts: 0, ..*options })?;
     Ok((fit, corrected))
 }
 

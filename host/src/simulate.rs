@@ -188,7 +188,11 @@ fn tool_frame_with(
         let mut harmonics = row.eccentricity_sin_deg * phi.sin()
             + row.eccentricity_cos_deg * phi.cos()
             + row.eccentricity2_sin_deg * (2.0 * phi).sin()
-            + row.eccentricity2_cos_deg * (2.0 * phi).cos();
+            + row.eccentricity2_cos_deg * (2.0 * phi).cos()
+            + row.harmonic3_sin_deg * (3.0 * phi).sin()
+            + row.harmonic3_cos_deg * (3.0 * phi).cos()
+            + row.harmonic4_sin_deg * (4.0 * phi).sin()
+            + row.harmonic4_cos_deg * (4.0 * phi).cos();
         for h in extra.iter().filter(|h| h.joint == j) {
             let n = f64::from(h.order);
             harmonics += h.sin_deg * (n * phi).sin() + h.cos_deg * (n * phi).cos();
@@ -548,6 +552,8 @@ mod tests {
         model.joints[4].axis_deg = 0.3;
         model.joints[2].eccentricity_sin_deg = 0.4;
         model.joints[3].eccentricity2_cos_deg = -0.2;
+        model.joints[2].harmonic3_sin_deg = 0.12;
+        model.joints[4].harmonic4_cos_deg = -0.05;
         model.joints[1].compliance_deg_per_m = 0.3;
         model.joints[3].compliance_deg_per_m = -0.2;
         model.tcp_mm = [1.0, -3.0, 250.0];

@@ -395,7 +395,7 @@ fn an_artefact_knocked_within_a_repeat_is_named_with_its_touch() {
 }
 
 #[test]
-fn an_error_outside_the_library_is_reported_as_incomplete_with_its_pattern() {
+fn a_three_per_rev_error_shows_its_pattern_and_harmonic_3_reaches_the_floor() {
     let harmonic = EncoderHarmonic { joint: 2, order: 3, sin_deg: 0.12, cos_deg: 0.0 };
     let s =
         scenario(103, vec![], HiddenErrors { encoder_harmonics: vec![harmonic], ..Default::default() }, 5);
@@ -406,11 +406,25 @@ fn an_error_outside_the_library_is_reported_as_incomplete_with_its_pattern() {
         "the 3-per-rev pattern on joint 3 must be shown: {:?}",
         d.summary
     );
-    assert!(d.summary.iter().any(|l| l.contains("the model is incomplete")), "{:?}", d.summary);
+    assert!(
+        d.summary.iter().any(|l| l.contains("the model misses about")),
+        "the report must say the model is incomplete: {:?}",
+        d.summary
+    );
     let joint3 = &d.joints[2];
     let (order, fit) = joint3.spectrum.iter().max_by(|a, b| a.1.explained.total_cmp(&b.1.explained)).unwrap();
     assert_eq!(*order, 3);
     assert!((fit.amplitude_deg - 0.12).abs() < 0.02, "amplitude {} vs 0.12", fit.amplitude_deg);
+    // The spectrum proposes harmonic:3:3, and it brings the error to the floor.
+    let leader = &d.candidates[0];
+    assert_eq!(leader.effect, "harmonic:3:3");
+    assert!(leader.significant, "{leader:?}");
+    let mut with = s.nominal.clone();
+    Effect::parse("harmonic:3:3").unwrap().add_to(&mut with);
+    let refit = calibrate(&with, &s.sim.artefact, &s.cal, &s.options).unwrap();
+    let after = validate(&refit.model, &s.sim.artefact, &s.val).overall.rms_mm;
+    eprintln!("harmonic:3:3 brings {:.3} to {after:.3} (floor {:.3})", d.baseline.rms_mm, s.floor);
+    assert!(after <= 1.15 * s.floor, "{after} vs floor {}", s.floor);
 }
 
 #[test]

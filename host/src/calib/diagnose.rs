@@ -67,6 +67,9 @@ const MAX_FLAGGED: usize = 3;
 /// A data error is named instead of an arm effect when its held-out RMS is within this factor
 /// of the best arm effect's.
 pub const DATA_ERROR_EXPLAINS: f64 = 1.05;
+/// Share of a joint's apparent-error variance a harmonic of order ≥ 3 must explain (as the
+/// strongest order) to be scored as a candidate `harmonic:J:N`.
+pub const SPECTRUM_PEAK: f64 = 0.2;
 /// Highest harmonic order in each joint's apparent-error spectrum.
 pub const SPECTRUM_ORDERS: u32 = 4;
 /// Angle bins for the residual-vs-joint-angle plots.
@@ -414,14 +417,22 @@ fn evidence(
     let value = |k: usize| fitted.get(k).map_or(0.0, |f| f.1);
     let j = effect.joint.map_or(0, |j| j + 1);
     match effect.kind {
-        EffectKind::Eccentricity | EffectKind::Eccentricity2 => {
-            let harmonic = if effect.kind == EffectKind::Eccentricity { "" } else { "2" };
-            let seen = joints.get(j.saturating_sub(1)).map(|r| r.sinusoid);
-            let residual = match (effect.kind, seen) {
-                (EffectKind::Eccentricity, Some(s)) if s.explained > 0.1 => format!("the residual follows sin θ{j} with {:.3}° amplitude ({:.0} % of its variance); ", s.amplitude_deg, 100.0 * s.explained),
+        EffectKind::Eccentricity | EffectKind::Eccentricity2 | EffectKind::Harmonic3 | EffectKind::Harmonic4 => {
+            let order = effect.kind.harmonic_order().unwrap_or(1);
+            let n = if order == 1 { String::new() } else { order.to_string() };
+            let seen = joints
+                .get(j.saturating_sub(1))
+                .and_then(|r| r.spectrum.iter().find(|s| s.0 == order).map(|s| s.1));
+            let residual = match seen {
+                Some(s) if s.explained > 0.1 => format!("the residual follows sin {n}θ{j} with {:.3}° amplitude ({:.0} % of its variance); ", s.amplitude_deg, 100.0 * s.explained),
                 _ => String::new(),
             };
-            format!("{residual}encoder eccentricity of joint {j} (Δθ = {:.3}°·sin {harmonic}φ {:+.3}°·cos {harmonic}φ, amplitude {:.3}°) {gain}", value(0), value(1), value(0).hypot(value(1)))
+            let what = match order {
+                1 => "encoder eccentricity".to_string(),
+                2 => "second-harmonic encoder error".to_string(),
+                _ => format!("{order}-per-revolution encoder error"),
+            };
+            format!("{residual}{what} of joint {j} (Δθ = {:.3}°·sin {n}φ {:+.3}°·cos {n}φ, amplitude {:.3}°) {gain}", value(0), value(1), value(0).hypot(value(1)))
         }
         EffectKind::Compliance => {
             let slope = joints.get(j.saturating_sub(1)).map_or(0.0, |r| r.gravity_slope_deg_per_m);
@@ -451,8 +462,21 @@ pub fn diagnose(
     let current: Vec<ParamId> = calibrated.free.iter().map(|f| f.id).collect();
     let baseline_bic = bic(&distance_residuals(calibrated, artefact, cal), current.len());
     let baseline_blocks = block_mse(&baseline_errors, val);
-    let candidates_effects: Vec<Effect> =
-        Effect::library().into_iter().filter(|e| !e.is_in(calibrated)).collect();
+    // Higher harmonics only where a joint's apparent-error spectrum peaks at that order.
+    let peaks: Vec<Effect> = joints
+        .iter()
+        .filter_map(|r| {
+            let (order, s) = r.spectrum.iter().max_by(|a, b| a.1.explained.total_cmp(&b.1.explained))?;
+            (*order >= 3 && s.explained > SPECTRUM_PEAK)
+                .then(|| Effect::harmonic(r.joint - 1, *order))
+                .flatten()
+        })
+        .collect();
+    let candidates_effects: Vec<Effect> = Effect::library()
+        .into_iter()
+        .filter(|e| !e.is_in(calibrated))
+        .filter(|e| e.kind.harmonic_order().is_none_or(|n| n <= 2) || peaks.contains(e))
+        .collect();
     let floor = noise_floor(calibrated, artefact, cal, val, current.len());
     let (disturbed, mis_seated) = match &floor {
         Some(f) => suspicious(calibrated, artefact, cal, f.touch_std_mm.powi(2)),
@@ -812,7 +836,7 @@ fn summarise(
     // The periodic line names the joint of a periodic effect found, else the strongest harmonic.
     let effect_joint = best_arm
         .and_then(|c| Effect::parse(&c.effect))
-        .filter(|e| matches!(e.kind, EffectKind::Eccentricity | EffectKind::Eccentricity2))
+        .filter(|e| e.kind.harmonic_order().is_some())
         .and_then(|e| e.joint);
     let strongest = |j: &JointResiduals| {
         j.spectrum.iter().copied().max_by(|a, b| {

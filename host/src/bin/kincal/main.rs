@@ -603,6 +603,15 @@ fn cmd_params(a: &PortArgs) -> Result<()> {
 
 fn cmd_upload(a: &UploadArgs) -> Result<()> {
     let model = ArmModel::load(&a.model)?;
+    let beyond = kincal::model::effects::beyond_controller(&model);
+    if !beyond.is_empty() {
+        let names: Vec<String> = beyond.iter().map(|p| p.to_string()).collect();
+        bail!(
+            "{}: the controller cannot evaluate {} (harmonics above the second); nothing was uploaded",
+            a.model.display(),
+            names.join(", ")
+        );
+    }
     let blob = kincal::controller::device::parameter_blob(&model, a.version);
     let mut link = connect(&a.port)?;
     let before = link.info()?.param_version;

@@ -56,6 +56,21 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
         })
         .collect();
     let _ = write!(body, "<h2>Which effect is missing</h2><p>Baseline validation RMS {} mm. Each effect is added, refitted on the calibration data and scored on the held-out placements.</p>{}", mm(d.baseline.rms_mm), table(&["effect", "val RMS mm", "explained", "blocks improved", "ΔBIC", "significant", "evidence"], &rows));
+    let data: Vec<Vec<String>> = d
+        .data_errors
+        .iter()
+        .map(|c| {
+            vec![
+                escape(&c.effect),
+                mm(c.validation_rms_mm),
+                format!("{}/{} (p = {:.1e})", c.blocks_improved.0, c.blocks_improved.1, c.p_value),
+                if c.significant { "<span class=flag>yes</span>".into() } else { "no".into() },
+                escape(&c.evidence),
+                escape(c.action.as_deref().unwrap_or("")),
+            ]
+        })
+        .collect();
+    let _ = write!(body, "<h2>Data errors, scored beside the arm effects</h2><p>A wrong certificate (the landmark's position freed), a placement disturbed within a repeat, a mis-seated touch. When one explains the residuals as well as an arm effect, it is named and no arm effect is claimed.</p>{}", table(&["data error", "val RMS mm", "blocks improved", "significant", "evidence", "what to do"], &data));
     let ni: Vec<Vec<String>> =
         d.not_identifiable.iter().map(|n| vec![escape(&n.effect), escape(&n.reason)]).collect();
     let _ = write!(body, "<h3>Not identifiable</h3>{}", table(&["effect", "why"], &ni));
@@ -78,6 +93,20 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
             100.0 * s.explained
         );
     }
+    let spectrum: Vec<Vec<String>> = d
+        .joints
+        .iter()
+        .map(|j| {
+            std::iter::once(j.joint.to_string())
+                .chain(
+                    j.spectrum
+                        .iter()
+                        .map(|(_, s)| format!("{:.3}° ({:.0} %)", s.amplitude_deg, 100.0 * s.explained)),
+                )
+                .collect()
+        })
+        .collect();
+    let _ = write!(body, "<h3>Periodic apparent error per joint: amplitude (share of variance) by cycles per revolution</h3>{}", table(&["joint", "1/rev", "2/rev", "3/rev", "4/rev"], &spectrum));
     body.push_str("<h3>Apparent joint error against gravity lever</h3>");
     for j in d.joints.iter().filter(|j| j.gravity.iter().any(|g| g.0.abs() > 1e-6)) {
         let _ = write!(

@@ -85,7 +85,7 @@ struct SimulateArgs {
 }
 
 fn parse_effect(text: &str) -> Result<Effect, String> {
-    Effect::parse(text).ok_or_else(|| format!("unknown effect `{text}`; expected e.g. eccentricity:5, eccentricity2:3, compliance:2, twist:4, link_offset:3, axis:2, tcp, scale"))
+    Effect::parse(text).ok_or_else(|| format!("unknown effect `{text}`; expected e.g. eccentricity:5, eccentricity2:3, harmonic:3:3 (joint 3, 3 per revolution), compliance:2, twist:4, link_offset:3, axis:2, tcp, scale"))
 }
 
 #[derive(Args)]

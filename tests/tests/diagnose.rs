@@ -12,7 +12,8 @@ use kincal::data::Dataset;
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
 use kincal::simulate::{
-    simulate, simulate_with_errors, EncoderHarmonic, HiddenErrors, Knock, SimulationOptions,
+    record_placement, simulate, simulate_with_errors, EncoderHarmonic, HiddenErrors, Knock, Placement,
+    SimulationOptions,
 };
 
 struct Case {
@@ -283,16 +284,44 @@ fn scenario(
     Scenario { sim, cal, val, nominal, options, floor }
 }
 
+/// `s` with five more validation placements recorded by the same true arm (ten in all).
+fn with_ten_validation_placements(mut s: Scenario, seed: u64) -> Scenario {
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let options = SimulationOptions { seed, ..SimulationOptions::default() };
+    for (k, (x, y, yaw)) in [
+        (587.5, 62.5, 3.0),
+        (437.5, -37.5, -3.0),
+        (462.5, 137.5, 8.0),
+        (562.5, -112.5, -8.0),
+        (637.5, -37.5, 4.0),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let place = Placement { name: format!("V_{}", k + 6), origin_mm: [x, y, 0.0], yaw_deg: yaw };
+        let (session, _) =
+            record_placement(&s.sim.truth, &s.sim.artefact, &place, "validation", &options, &mut rng);
+        s.sim.validation.push(session);
+    }
+    s.val = Dataset::from_sessions(&s.sim.validation, &s.sim.artefact);
+    s.floor = validate(&s.sim.truth, &s.sim.true_artefact, &s.val).overall.rms_mm;
+    s
+}
+
 #[test]
 fn clean_data_floor_estimate_and_nothing_flagged() {
-    for seed in [91, 92, 93] {
+    for seed in [91, 92, 93, 94, 95] {
         let s = scenario(seed, vec![], HiddenErrors::default(), 5);
+        // Two of the seeds with ten validation placements (30 blocks).
+        let s = if seed >= 94 { with_ten_validation_placements(s, seed) } else { s };
         let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
         let d = diagnose(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options);
         let floor = d.floor.as_ref().expect("repeats give a floor");
         let gap = d.gap.as_ref().unwrap();
         eprintln!(
-            "seed {seed}: true floor {:.4} estimated {:.4} (encoder share {:.4}) expected {:.4} measured {:.4} z {:.2}",
+            "seed {seed} ({} validation placements): true floor {:.4} estimated {:.4} (encoder share {:.4}) expected {:.4} measured {:.4} z {:.2}",
+            s.val.placements.len(),
             s.floor,
             floor.distance_rms_mm,
             floor.encoder_rms_mm.unwrap_or(f64::NAN),

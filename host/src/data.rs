@@ -196,6 +196,9 @@ pub struct Touch {
     pub repeat: u32,
     /// Raw encoder angles, degrees.
     pub enc_deg: [f64; JOINTS],
+    /// Standard error of each averaged encoder angle (window std / √accepted samples), degrees,
+    /// when the session reports it.
+    pub enc_sigma_deg: Option<[f64; JOINTS]>,
 }
 
 /// The touches of several sessions.
@@ -217,7 +220,14 @@ impl Dataset {
             for m in &s.measurements {
                 let Some(landmark) = artefact.index_of(&m.landmark) else { continue };
                 let Ok(enc_deg) = <[f64; JOINTS]>::try_from(m.joints_deg.as_slice()) else { continue };
-                data.touches.push(Touch { placement, landmark, repeat: m.repeat, enc_deg });
+                let accepted = m.samples.map(|n| n.saturating_sub(m.rejected.unwrap_or(0)));
+                let enc_sigma_deg = match (&m.std_deg, accepted) {
+                    (Some(std), Some(n)) if n > 0 && std.len() == JOINTS => {
+                        Some(std::array::from_fn(|k| std[k] / (n as f64).sqrt()))
+                    }
+                    _ => None,
+                };
+                data.touches.push(Touch { placement, landmark, repeat: m.repeat, enc_deg, enc_sigma_deg });
             }
         }
         data
@@ -294,7 +304,13 @@ mod tests {
 
     #[test]
     fn pairs_stay_within_one_placement_and_repeat() {
-        let t = |placement, landmark, repeat| Touch { placement, landmark, repeat, enc_deg: [0.0; 6] };
+        let t = |placement, landmark, repeat| Touch {
+            placement,
+            landmark,
+            repeat,
+            enc_deg: [0.0; 6],
+            enc_sigma_deg: None,
+        };
         let data = Dataset {
             placements: vec!["A".into(), "B".into()],
             touches: vec![t(0, 0, 1), t(0, 1, 1), t(0, 1, 2), t(1, 0, 1), t(1, 1, 1)],

@@ -11,6 +11,7 @@
 //! - Single files (`diagnosis.json` inside a RUN, the compare page) are written atomically; an
 //!   existing file is replaced only when kincal wrote it.
 
+use crate::calib::auto::AutoLoop;
 use crate::calib::diagnose::Diagnosis;
 use crate::calib::run::Run;
 use crate::calib::study::StudyRow;
@@ -27,6 +28,8 @@ pub const STUDY_FORMAT: &str = "kincal-study/1";
 pub const DIAGNOSIS_FORMAT: &str = "kincal-diagnosis/1";
 /// Format tag of a haptic calibration's `summary.json`.
 pub const HAPTIC_FORMAT: &str = "kincal-haptic/1";
+/// Format tag of the auto loop's `auto.json`.
+pub const AUTO_FORMAT: &str = "kincal-auto/1";
 
 /// Why an output could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -61,6 +64,8 @@ pub enum FolderKind {
     Study,
     /// A haptic calibration (`kincal haptic calibrate`).
     Haptic,
+    /// The steps of `kincal diagnose --auto`, in RUN/auto.
+    Auto,
 }
 
 impl FolderKind {
@@ -69,6 +74,23 @@ impl FolderKind {
             FolderKind::Run => "run",
             FolderKind::Study => "study",
             FolderKind::Haptic => "haptic",
+            FolderKind::Auto => "auto",
+        }
+    }
+
+    /// Whether an entry of this name (a folder when `is_dir`) is one kincal writes here.
+    fn writes(self, name: &str, is_dir: bool) -> bool {
+        match (self, is_dir) {
+            (FolderKind::Run, true) => name == "auto",
+            (FolderKind::Auto, false) => {
+                self.files().contains(&name)
+                    || name
+                        .strip_prefix("step-")
+                        .and_then(|n| n.strip_suffix(".toml"))
+                        .is_some_and(|k| k.chars().all(|c| c.is_ascii_digit()))
+            }
+            (_, false) => self.files().contains(&name),
+            (_, true) => false,
         }
     }
 
@@ -85,6 +107,7 @@ impl FolderKind {
             ],
             FolderKind::Study => &["study.json", "report.html"],
             FolderKind::Haptic => &["summary.json", "report.html"],
+            FolderKind::Auto => &["auto.json", "report.html"],
         }
     }
 }
@@ -133,7 +156,7 @@ pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Re
                     format!("is a kincal {} folder, not a {} folder", text.trim(), kind.name()),
                 ));
             }
-        } else if !(kind.files().contains(&name.as_str()) && entry.path().is_file()) {
+        } else if !kind.writes(&name, entry.path().is_dir()) {
             foreign.push(name);
         }
     }
@@ -278,6 +301,22 @@ pub fn diagnosis_json(diagnosis: &Diagnosis) -> String {
 pub fn write_diagnosis(diagnosis: &Diagnosis, run_dir: &Path) -> Result<(), OutputError> {
     put(run_dir, "diagnosis.json", diagnosis_json(diagnosis).as_bytes())?;
     put(run_dir, "diagnosis.html", report::diagnosis::diagnosis_report(diagnosis).as_bytes())
+}
+
+/// The JSON of an auto loop, as `auto.json` holds it.
+pub fn auto_json(run: &AutoLoop) -> String {
+    json(&Tagged { format: AUTO_FORMAT, body: run })
+}
+
+/// Write RUN/auto: each step's model (`step-K.toml`), `auto.json` and the error-by-step page.
+pub fn write_auto(run: &AutoLoop, run_dir: &Path) -> Result<(), OutputError> {
+    write_folder(&run_dir.join("auto"), FolderKind::Auto, &[], |staged| {
+        for (k, step) in run.steps.iter().enumerate() {
+            step.model.save(&staged.join(format!("step-{k}.toml")))?;
+        }
+        put(staged, "auto.json", auto_json(run).as_bytes())?;
+        put(staged, "report.html", report::auto_loop::auto_loop_report(run).as_bytes())
+    })
 }
 
 /// The JSON of a haptic calibration, as its `summary.json` holds it.

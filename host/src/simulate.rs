@@ -49,6 +49,48 @@ impl Default for SimulationOptions {
     }
 }
 
+/// Errors outside the model library and in the data, for testing the diagnosis: the
+/// simulator writes them into the touches; no fitting code knows them.
+#[derive(Clone, Debug, Default)]
+pub struct HiddenErrors {
+    /// Periodic encoder errors of the true arm beyond the library's first two harmonics.
+    pub encoder_harmonics: Vec<EncoderHarmonic>,
+    /// Landmarks whose certificate is wrong: (id, certified minus true position, mm).
+    pub wrong_certificates: Vec<(String, [f64; 3])>,
+    /// The artefact knocked during one repeat of one placement.
+    pub knock: Option<Knock>,
+}
+
+/// Δθ_j = a·sin(nφ_j) + b·cos(nφ_j) on the true arm's joint `joint`, φ the raw encoder angle.
+#[derive(Clone, Copy, Debug)]
+pub struct EncoderHarmonic {
+    /// Joint, 0-based.
+    pub joint: usize,
+    /// Cycles per revolution.
+    pub order: u32,
+    /// Sine part a, degrees.
+    pub sin_deg: f64,
+    /// Cosine part b, degrees.
+    pub cos_deg: f64,
+}
+
+/// The artefact moved after a given touch of one repeat of one placement (and left there for
+/// the rest of that repeat; the next repeat starts from the original placement, as after the
+/// operator re-seats it against its stops).
+#[derive(Clone, Debug)]
+pub struct Knock {
+    /// Placement name, e.g. `C_A`.
+    pub placement: String,
+    /// Repeat number (1-based).
+    pub repeat: u32,
+    /// Touches of the repeat made before the knock.
+    pub after_touch: usize,
+    /// Shift of the artefact, mm.
+    pub shift_mm: [f64; 3],
+    /// Rotation of the artefact about the vertical through its origin, degrees.
+    pub yaw_deg: f64,
+}
+
 /// A simulated dataset: the truth and what an operator would have recorded.
 #[derive(Clone, Debug)]
 pub struct SimulatedData {
@@ -56,6 +98,8 @@ pub struct SimulatedData {
     pub truth: ArmModel,
     /// The artefact, as certified.
     pub artefact: Artefact,
+    /// The artefact as it really is (differs from `artefact` only with wrong certificates).
+    pub true_artefact: Artefact,
     /// Calibration sessions.
     pub calibration: Vec<Session>,
     /// Validation sessions.
@@ -129,13 +173,30 @@ pub fn reference_tool_frame(
     model: &ArmModel,
     enc_deg: &[f64; JOINTS],
 ) -> (Matrix4<f64>, [Vector3<f64>; JOINTS]) {
+    tool_frame_with(model, &[], enc_deg)
+}
+
+/// [`reference_tool_frame`] with extra periodic encoder errors on the true arm.
+fn tool_frame_with(
+    model: &ArmModel,
+    extra: &[EncoderHarmonic],
+    enc_deg: &[f64; JOINTS],
+) -> (Matrix4<f64>, [Vector3<f64>; JOINTS]) {
     let rigid: [f64; JOINTS] = std::array::from_fn(|j| {
         let row = &model.joints[j];
         let phi = enc_deg[j].to_radians();
-        let harmonics = row.eccentricity_sin_deg * phi.sin()
+        let mut harmonics = row.eccentricity_sin_deg * phi.sin()
             + row.eccentricity_cos_deg * phi.cos()
             + row.eccentricity2_sin_deg * (2.0 * phi).sin()
-            + row.eccentricity2_cos_deg * (2.0 * phi).cos();
+            + row.eccentricity2_cos_deg * (2.0 * phi).cos()
+            + row.harmonic3_sin_deg * (3.0 * phi).sin()
+            + row.harmonic3_cos_deg * (3.0 * phi).cos()
+            + row.harmonic4_sin_deg * (4.0 * phi).sin()
+            + row.harmonic4_cos_deg * (4.0 * phi).cos();
+        for h in extra.iter().filter(|h| h.joint == j) {
+            let n = f64::from(h.order);
+            harmonics += h.sin_deg * (n * phi).sin() + h.cos_deg * (n * phi).cos();
+        }
         enc_deg[j] + row.offset_deg + harmonics
     });
     let (frames, axes) = frames_at(model, &rigid);
@@ -210,6 +271,7 @@ fn frames_at(
 /// Inverse kinematics target: tip position and tool axes in the base frame.
 struct PoseTarget<'a> {
     model: &'a ArmModel,
+    extra: &'a [EncoderHarmonic],
     position_mm: Vector3<f64>,
     z_axis: Vector3<f64>,
     x_axis: Vector3<f64>,
@@ -221,7 +283,7 @@ const IK_LEVER_MM: f64 = 300.0;
 impl PoseTarget<'_> {
     fn error(&self, enc: &[f64]) -> [f64; 9] {
         let enc: [f64; JOINTS] = std::array::from_fn(|k| enc[k]);
-        let (t, _) = reference_tool_frame(self.model, &enc);
+        let (t, _) = tool_frame_with(self.model, self.extra, &enc);
         let p = t.fixed_view::<3, 1>(0, 3).into_owned() - self.position_mm;
         let x = t.fixed_view::<3, 1>(0, 0).into_owned();
         let z = t.fixed_view::<3, 1>(0, 2).into_owned();
@@ -262,7 +324,7 @@ fn solve_touch(truth: &ArmModel, target: &PoseTarget, rng: &mut ChaCha8Rng) -> O
             continue;
         }
         let enc: [f64; JOINTS] = std::array::from_fn(|k| s.x[k].rem_euclid(360.0));
-        let (_, origins) = reference_tool_frame(truth, &enc);
+        let (_, origins) = tool_frame_with(truth, target.extra, &enc);
         if origins.iter().all(|o| o[2] > 0.0) {
             return Some(enc);
         }
@@ -297,6 +359,17 @@ pub fn touch_encoders(
     noise_mm: Vector3<f64>,
     rng: &mut ChaCha8Rng,
 ) -> Option<[f64; JOINTS]> {
+    touch_encoders_with(truth, &[], place, landmark, noise_mm, rng)
+}
+
+fn touch_encoders_with(
+    truth: &ArmModel,
+    extra: &[EncoderHarmonic],
+    place: &Placement,
+    landmark: &Landmark,
+    noise_mm: Vector3<f64>,
+    rng: &mut ChaCha8Rng,
+) -> Option<[f64; JOINTS]> {
     let (sy, cy) = place.yaw_deg.to_radians().sin_cos();
     let [x, y, z] = landmark.xyz_mm;
     let position_mm = Vector3::new(
@@ -307,6 +380,7 @@ pub fn touch_encoders(
     let yaw = (place.yaw_deg + landmark.yaw_deg).to_radians();
     let target = PoseTarget {
         model: truth,
+        extra,
         position_mm,
         z_axis: -Vector3::z(),
         x_axis: Vector3::new(yaw.cos(), yaw.sin(), 0.0),
@@ -323,6 +397,18 @@ pub fn record_placement(
     options: &SimulationOptions,
     rng: &mut ChaCha8Rng,
 ) -> (Session, usize) {
+    record_with(truth, &HiddenErrors::default(), artefact, place, purpose, options, rng)
+}
+
+fn record_with(
+    truth: &ArmModel,
+    errors: &HiddenErrors,
+    artefact: &Artefact,
+    place: &Placement,
+    purpose: &str,
+    options: &SimulationOptions,
+    rng: &mut ChaCha8Rng,
+) -> (Session, usize) {
     let seat = Normal::new(0.0, options.seating_noise_mm.max(0.0))
         .unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("zero noise"));
     let enc_noise = Normal::new(0.0, options.encoder_noise_deg.max(0.0))
@@ -330,9 +416,22 @@ pub fn record_placement(
     let mut measurements = Vec::new();
     let mut skipped = 0;
     for repeat in 1..=options.repeats {
-        for l in &artefact.landmarks {
+        for (k, l) in artefact.landmarks.iter().enumerate() {
             let noise = Vector3::new(seat.sample(rng), seat.sample(rng), seat.sample(rng));
-            let Some(enc) = touch_encoders(truth, place, l, noise, rng) else {
+            let knocked = errors
+                .knock
+                .as_ref()
+                .filter(|n| n.placement == place.name && n.repeat == repeat && k >= n.after_touch);
+            let here = match knocked {
+                Some(n) => Placement {
+                    name: place.name.clone(),
+                    origin_mm: std::array::from_fn(|i| place.origin_mm[i] + n.shift_mm[i]),
+                    yaw_deg: place.yaw_deg + n.yaw_deg,
+                },
+                None => place.clone(),
+            };
+            let Some(enc) = touch_encoders_with(truth, &errors.encoder_harmonics, &here, l, noise, rng)
+            else {
                 skipped += 1;
                 continue;
             };
@@ -370,6 +469,24 @@ pub fn simulate_with_truth(
     options: &SimulationOptions,
     alter: impl FnOnce(ArmModel) -> ArmModel,
 ) -> SimulatedData {
+    simulate_full(nominal, options, &HiddenErrors::default(), alter)
+}
+
+/// As [`simulate`], with errors outside the model library and in the data.
+pub fn simulate_with_errors(
+    nominal: &ArmModel,
+    options: &SimulationOptions,
+    errors: &HiddenErrors,
+) -> SimulatedData {
+    simulate_full(nominal, options, errors, |truth| truth)
+}
+
+fn simulate_full(
+    nominal: &ArmModel,
+    options: &SimulationOptions,
+    errors: &HiddenErrors,
+    alter: impl FnOnce(ArmModel) -> ArmModel,
+) -> SimulatedData {
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let mut truth = perturbed_truth(nominal, options, &mut rng);
     for (id, delta) in &options.hidden {
@@ -382,7 +499,7 @@ pub fn simulate_with_truth(
         places
             .iter()
             .map(|p| {
-                let (s, k) = record_placement(&truth, &artefact, p, purpose, options, &mut rng);
+                let (s, k) = record_with(&truth, errors, &artefact, p, purpose, options, &mut rng);
                 skipped += k;
                 s
             })
@@ -390,7 +507,16 @@ pub fn simulate_with_truth(
     };
     let calibration = sessions(calibration_placements(), "calibration");
     let validation = sessions(validation_placements(), "validation");
-    SimulatedData { truth, artefact, calibration, validation, skipped }
+    let true_artefact = artefact.clone();
+    let mut artefact = artefact;
+    for (id, error) in &errors.wrong_certificates {
+        if let Some(l) = artefact.landmarks.iter_mut().find(|l| &l.id == id) {
+            for (x, e) in l.xyz_mm.iter_mut().zip(error) {
+                *x += e;
+            }
+        }
+    }
+    SimulatedData { truth, artefact, true_artefact, calibration, validation, skipped }
 }
 
 impl SimulatedData {
@@ -426,6 +552,8 @@ mod tests {
         model.joints[4].axis_deg = 0.3;
         model.joints[2].eccentricity_sin_deg = 0.4;
         model.joints[3].eccentricity2_cos_deg = -0.2;
+        model.joints[2].harmonic3_sin_deg = 0.12;
+        model.joints[4].harmonic4_cos_deg = -0.05;
         model.joints[1].compliance_deg_per_m = 0.3;
         model.joints[3].compliance_deg_per_m = -0.2;
         model.tcp_mm = [1.0, -3.0, 250.0];

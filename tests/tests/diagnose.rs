@@ -2,14 +2,19 @@
 //! held-out error falls to the noise floor. Data come from the simulator's independent forward
 //! path (plain 4×4 matrices with the effects written out again), not from the model's code.
 
+use kincal::calib::auto::{auto_loop, Stop};
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::data_errors::{calibrate_with_landmark_freed, without};
 use kincal::calib::diagnose::diagnose;
 use kincal::calib::objective::Objective;
 use kincal::calib::validate::validate;
 use kincal::data::Dataset;
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
-use kincal::simulate::{simulate, SimulationOptions};
+use kincal::simulate::{
+    record_placement, simulate, simulate_with_errors, EncoderHarmonic, HiddenErrors, Knock, Placement,
+    SimulationOptions,
+};
 
 struct Case {
     hidden: Vec<(ParamId, f64)>,
@@ -62,6 +67,10 @@ fn run_case(case: &Case) -> Outcome {
         leader.effect.clone()
     };
     let significant = leader.significant;
+    eprintln!(
+        "  leader {}: blocks {:?} mean log ratio {:.3} p {:.2e} ΔBIC {:.1}",
+        leader.effect, leader.blocks_improved, leader.mean_log_ratio, leader.p_value, leader.delta_bic
+    );
     if !leader.equivalent.is_empty() {
         eprintln!("  leading group: {} ≡ {}", leader.effect, leader.equivalent.join(", "));
     }
@@ -225,5 +234,282 @@ fn with_no_hidden_effect_nothing_is_significant_and_a_wrong_effect_does_not_help
                 "seed {seed}: adding {wrong} lowered validation RMS {before} → {after}"
             );
         }
+    }
+}
+
+/// A dataset from the independent forward path with hidden errors, calibrated with the thesis
+/// model; returns the simulation, datasets, fit, options and the true floor.
+struct Scenario {
+    sim: kincal::simulate::SimulatedData,
+    cal: Dataset,
+    val: Dataset,
+    nominal: ArmModel,
+    options: CalibrationOptions,
+    /// Validation RMS of the true arm against the true artefact: the noise floor.
+    floor: f64,
+}
+
+fn scenario(
+    seed: u64,
+    hidden: Vec<(ParamId, f64)>,
+    errors: HiddenErrors,
+    validation_placements: usize,
+) -> Scenario {
+    let nominal = ArmModel::suta_nominal();
+    let hidden_again = hidden.clone();
+    let mut sim = simulate_with_errors(
+        &nominal,
+        &SimulationOptions { seed, hidden, ..SimulationOptions::default() },
+        &errors,
+    );
+    sim.validation.truncate(validation_placements);
+    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
+    // The true arm's model cannot hold an error outside the library: its floor is that of the
+    // same arm and noise without it (a twin dataset of the same seed).
+    let floor = if errors.encoder_harmonics.is_empty() {
+        validate(&sim.truth, &sim.true_artefact, &val).overall.rms_mm
+    } else {
+        let twin = simulate(
+            &nominal,
+            &SimulationOptions { seed, hidden: hidden_again, ..SimulationOptions::default() },
+        );
+        let mut twin_val = twin.validation;
+        twin_val.truncate(validation_placements);
+        validate(&twin.truth, &twin.artefact, &Dataset::from_sessions(&twin_val, &twin.artefact))
+            .overall
+            .rms_mm
+    };
+    Scenario { sim, cal, val, nominal, options, floor }
+}
+
+/// `s` with five more validation placements recorded by the same true arm (ten in all).
+fn with_ten_validation_placements(mut s: Scenario, seed: u64) -> Scenario {
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let options = SimulationOptions { seed, ..SimulationOptions::default() };
+    for (k, (x, y, yaw)) in [
+        (587.5, 62.5, 3.0),
+        (437.5, -37.5, -3.0),
+        (462.5, 137.5, 8.0),
+        (562.5, -112.5, -8.0),
+        (637.5, -37.5, 4.0),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let place = Placement { name: format!("V_{}", k + 6), origin_mm: [x, y, 0.0], yaw_deg: yaw };
+        let (session, _) =
+            record_placement(&s.sim.truth, &s.sim.artefact, &place, "validation", &options, &mut rng);
+        s.sim.validation.push(session);
+    }
+    s.val = Dataset::from_sessions(&s.sim.validation, &s.sim.artefact);
+    s.floor = validate(&s.sim.truth, &s.sim.true_artefact, &s.val).overall.rms_mm;
+    s
+}
+
+#[test]
+fn clean_data_floor_estimate_and_nothing_flagged() {
+    for seed in [91, 92, 93, 94, 95] {
+        let s = scenario(seed, vec![], HiddenErrors::default(), 5);
+        // Two of the seeds with ten validation placements (30 blocks).
+        let s = if seed >= 94 { with_ten_validation_placements(s, seed) } else { s };
+        let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
+        let d = diagnose(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options);
+        let floor = d.floor.as_ref().expect("repeats give a floor");
+        let gap = d.gap.as_ref().unwrap();
+        eprintln!(
+            "seed {seed} ({} validation placements): true floor {:.4} estimated {:.4} (encoder share {:.4}) expected {:.4} measured {:.4} z {:.2}",
+            s.val.placements.len(),
+            s.floor,
+            floor.distance_rms_mm,
+            floor.encoder_rms_mm.unwrap_or(f64::NAN),
+            floor.expected_rms_mm,
+            gap.measured_mm,
+            gap.z
+        );
+        assert!(
+            (floor.distance_rms_mm / s.floor - 1.0).abs() <= 0.2,
+            "seed {seed}: floor estimate {} not within 20 % of the true floor {}",
+            floor.distance_rms_mm,
+            s.floor
+        );
+        let encoder = floor.encoder_rms_mm.expect("the simulated sessions report encoder std");
+        assert!(encoder < floor.distance_rms_mm, "encoder share {encoder} exceeds the whole floor");
+        assert!(!gap.significant, "seed {seed}: a gap is claimed on clean data: {}", gap.sentence());
+        assert!(floor.inconsistent.is_empty(), "seed {seed}: groups flagged {:?}", floor.inconsistent);
+        assert!(
+            d.disturbed.is_empty() && d.mis_seated.is_empty() && d.data_errors.iter().all(|c| !c.significant),
+            "seed {seed}: data errors flagged on clean data: {:?} {:?} {:?}",
+            d.disturbed,
+            d.mis_seated,
+            d.data_errors.iter().filter(|c| c.significant).map(|c| &c.effect).collect::<Vec<_>>()
+        );
+        let significant: Vec<&str> =
+            d.candidates.iter().filter(|c| c.significant).map(|c| c.effect.as_str()).collect();
+        assert!(significant.is_empty(), "seed {seed}: spurious effects {significant:?}");
+        assert!(
+            d.summary.iter().any(|l| l.contains("at the floor")),
+            "seed {seed}: the summary must say the error is at the floor: {:?}",
+            d.summary
+        );
+    }
+}
+
+fn calibrated(s: &Scenario) -> (ArmModel, kincal::calib::diagnose::Diagnosis) {
+    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
+    let d = diagnose(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options);
+    for line in &d.summary {
+        eprintln!("  {line}");
+    }
+    (fit.model, d)
+}
+
+#[test]
+fn a_wrong_certificate_is_named_before_any_arm_effect_and_fixing_it_reaches_the_floor() {
+    let errors =
+        HiddenErrors { wrong_certificates: vec![("S2".into(), [1.2, -1.0, 0.9])], ..Default::default() };
+    let s = scenario(101, vec![], errors, 5);
+    let (_, d) = calibrated(&s);
+    let first = d.data_errors.first().expect("data errors are scored");
+    assert_eq!(first.effect, "landmark:S2");
+    assert!(first.significant, "{first:?}");
+    assert!(d.summary.iter().any(|l| l.starts_with("data error: landmark:S2")), "{:?}", d.summary);
+    assert!(
+        d.summary.iter().all(|l| !l.starts_with("missing effect")),
+        "an arm effect is claimed: {:?}",
+        d.summary
+    );
+    // The suggested actions: drop the landmark, or fit its position.
+    let s2 = s.sim.artefact.index_of("S2").unwrap();
+    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal.without_landmark(s2), &s.options).unwrap();
+    let excluded = validate(&fit.model, &s.sim.artefact, &s.val.without_landmark(s2)).overall.rms_mm;
+    let floor_without =
+        validate(&s.sim.truth, &s.sim.true_artefact, &s.val.without_landmark(s2)).overall.rms_mm;
+    let (freed, corrected) =
+        calibrate_with_landmark_freed(&s.nominal, &s.sim.artefact, &s.cal, s2, &s.options).unwrap();
+    let with_freed = validate(&freed.model, &corrected, &s.val).overall.rms_mm;
+    eprintln!("floor {:.3} / {floor_without:.3}; excluded {excluded:.3}; freed {with_freed:.3}", s.floor);
+    assert!(excluded <= 1.15 * floor_without, "excluding S2: {excluded} vs floor {floor_without}");
+    assert!(with_freed <= 1.15 * s.floor, "freeing S2: {with_freed} vs floor {}", s.floor);
+}
+
+#[test]
+fn an_artefact_knocked_within_a_repeat_is_named_with_its_touch() {
+    let knock = Knock {
+        placement: "C_A".into(),
+        repeat: 2,
+        after_touch: 8,
+        shift_mm: [0.5, 0.5, 0.0],
+        yaw_deg: 0.25,
+    };
+    let s = scenario(102, vec![], HiddenErrors { knock: Some(knock), ..Default::default() }, 5);
+    let (_, d) = calibrated(&s);
+    let block = d.disturbed.first().expect("the knocked block is flagged");
+    assert_eq!((s.cal.placements[block.placement].as_str(), block.repeat, block.after_touch), ("C_A", 2, 8));
+    assert_eq!(d.disturbed.len(), 1, "{:?}", d.disturbed);
+    assert!(d.summary.iter().any(|l| l.contains("block:C_A/2") && l.contains("#9")), "{:?}", d.summary);
+    assert!(
+        d.summary.iter().all(|l| !l.starts_with("missing effect")),
+        "an arm effect is claimed: {:?}",
+        d.summary
+    );
+    let kept =
+        without(&s.cal, |k| s.cal.touches[k].placement == block.placement && s.cal.touches[k].repeat == 2);
+    let fit = calibrate(&s.nominal, &s.sim.artefact, &kept, &s.options).unwrap();
+    let after = validate(&fit.model, &s.sim.artefact, &s.val).overall.rms_mm;
+    eprintln!("floor {:.3} after excluding the block {after:.3}", s.floor);
+    assert!(after <= 1.15 * s.floor, "{after} vs floor {}", s.floor);
+}
+
+#[test]
+fn a_three_per_rev_error_shows_its_pattern_and_harmonic_3_reaches_the_floor() {
+    let harmonic = EncoderHarmonic { joint: 2, order: 3, sin_deg: 0.12, cos_deg: 0.0 };
+    let s =
+        scenario(103, vec![], HiddenErrors { encoder_harmonics: vec![harmonic], ..Default::default() }, 5);
+    let (_, d) = calibrated(&s);
+    assert!(d.gap.as_ref().unwrap().significant);
+    assert!(
+        d.summary.iter().any(|l| l.contains("joint 3") && l.contains("3 per revolution")),
+        "the 3-per-rev pattern on joint 3 must be shown: {:?}",
+        d.summary
+    );
+    assert!(
+        d.summary.iter().any(|l| l.contains("the model misses about")),
+        "the report must say the model is incomplete: {:?}",
+        d.summary
+    );
+    let joint3 = &d.joints[2];
+    let (order, fit) = joint3.spectrum.iter().max_by(|a, b| a.1.explained.total_cmp(&b.1.explained)).unwrap();
+    assert_eq!(*order, 3);
+    assert!((fit.amplitude_deg - 0.12).abs() < 0.02, "amplitude {} vs 0.12", fit.amplitude_deg);
+    // The spectrum proposes harmonic:3:3, and it brings the error to the floor.
+    let leader = &d.candidates[0];
+    assert_eq!(leader.effect, "harmonic:3:3");
+    assert!(leader.significant, "{leader:?}");
+    let mut with = s.nominal.clone();
+    Effect::parse("harmonic:3:3").unwrap().add_to(&mut with);
+    let refit = calibrate(&with, &s.sim.artefact, &s.cal, &s.options).unwrap();
+    let after = validate(&refit.model, &s.sim.artefact, &s.val).overall.rms_mm;
+    eprintln!("harmonic:3:3 brings {:.3} to {after:.3} (floor {:.3})", d.baseline.rms_mm, s.floor);
+    assert!(after <= 1.15 * s.floor, "{after} vs floor {}", s.floor);
+}
+
+#[test]
+fn with_three_validation_placements_a_large_effect_is_significant() {
+    let hidden = vec![(p("eccentricity_sin:2"), 1.0), (p("eccentricity_cos:2"), 0.8)];
+    let s = scenario(104, hidden, HiddenErrors::default(), 3);
+    let (_, d) = calibrated(&s);
+    let leader = &d.candidates[0];
+    eprintln!(
+        "{}: {:.3} → {:.3} blocks {:?} p {:.1e}",
+        leader.effect, d.baseline.rms_mm, leader.validation_rms_mm, leader.blocks_improved, leader.p_value
+    );
+    assert_eq!(leader.blocks_improved.1, 9);
+    assert_eq!(leader.effect, "eccentricity:2");
+    assert!(d.baseline.rms_mm >= 3.0 * leader.validation_rms_mm, "the effect must cut validation RMS 3×");
+    assert!(leader.significant, "{leader:?}");
+}
+
+#[test]
+fn the_auto_loop_adds_a_mixture_of_four_effects_down_to_the_floor() {
+    let hidden = vec![
+        (p("eccentricity_sin:2"), 0.2),
+        (p("eccentricity_cos:5"), 0.15),
+        (p("twist:4"), 0.25),
+        (p("compliance:2"), 0.2),
+    ];
+    let s = scenario(105, hidden, HiddenErrors::default(), 5);
+    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
+    let started = std::time::Instant::now();
+    let run = auto_loop(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options, 8).unwrap();
+    eprintln!("auto loop: {:.2} s, stop {:?}", started.elapsed().as_secs_f64(), run.stop);
+    for step in &run.steps {
+        eprintln!(
+            "  {:<16} {:.3} mm (expected {:.3}) p {:?}",
+            step.added.as_deref().unwrap_or("(start)"),
+            step.validation_rms_mm,
+            step.expected_rms_mm.unwrap_or(f64::NAN),
+            step.p_value
+        );
+    }
+    for c in run.last.candidates.iter().take(3).chain(run.last.data_errors.iter().take(2)) {
+        eprintln!(
+            "   {} {:.4} blocks {:?} p {:.2e} ΔBIC {:.1} sig {}",
+            c.effect, c.validation_rms_mm, c.blocks_improved, c.p_value, c.delta_bic, c.significant
+        );
+    }
+    let last = run.steps.last().unwrap();
+    assert!(
+        last.validation_rms_mm <= 1.10 * s.floor,
+        "the loop ends at {} vs true floor {}",
+        last.validation_rms_mm,
+        s.floor
+    );
+    assert_eq!(run.stop, Stop::AtFloor);
+    for pair in run.steps.windows(2) {
+        assert!(pair[1].validation_rms_mm < pair[0].validation_rms_mm, "each step lowers the error");
+        assert!(pair[1].p_value.is_some_and(|p| p < 0.05), "each added effect is significant at its step");
     }
 }

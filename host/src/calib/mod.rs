@@ -2,8 +2,11 @@
 //! calibration itself, validation on held-out placements, outlier metrics, diagnosis of missing
 //! effects, the dataset-size study, and the whole run from input files to results.
 
+pub mod auto;
 pub mod calibrate;
+pub mod data_errors;
 pub mod diagnose;
+pub mod floor;
 pub mod identify;
 pub mod objective;
 pub mod outliers;

@@ -200,7 +200,8 @@ mod tests {
                 })
                 .collect(),
         };
-        let touch = |landmark, enc_deg| Touch { placement: 0, landmark, repeat: 1, enc_deg };
+        let touch =
+            |landmark, enc_deg| Touch { placement: 0, landmark, repeat: 1, enc_deg, enc_sigma_deg: None };
         let data = Dataset {
             placements: vec!["A".into()],
             touches: vec![

@@ -31,6 +31,9 @@ pub enum RunError {
     /// The calibration could not run.
     #[error("calibration: {0}")]
     Calibration(#[from] CalibrationError),
+    /// `--exclude-landmark` or `--exclude-block` names nothing in the data.
+    #[error("{0}")]
+    Exclusion(String),
     /// An input path could not be resolved.
     #[error("{path}: {source}")]
     Input {
@@ -52,6 +55,59 @@ pub struct RunInputs {
     pub calibration: PathBuf,
     /// Folder of validation sessions.
     pub validation: PathBuf,
+    /// Landmark ids whose touches are left out of both datasets (a wrong certificate).
+    #[serde(default)]
+    pub exclude_landmarks: Vec<String>,
+    /// Calibration blocks `PLACEMENT/REPEAT` left out (the artefact moved during the repeat).
+    #[serde(default)]
+    pub exclude_blocks: Vec<String>,
+}
+
+impl RunInputs {
+    /// Inputs from the four paths, nothing excluded.
+    pub fn new(model: PathBuf, artefact: PathBuf, calibration: PathBuf, validation: PathBuf) -> RunInputs {
+        RunInputs {
+            model,
+            artefact,
+            calibration,
+            validation,
+            exclude_landmarks: Vec::new(),
+            exclude_blocks: Vec::new(),
+        }
+    }
+
+    /// Load the calibration and validation sessions with the exclusions applied.
+    pub fn load_data(&self, artefact: &Artefact) -> Result<(Dataset, Dataset), RunError> {
+        let mut cal = Dataset::load_dir(&self.calibration, artefact)?;
+        let mut val = Dataset::load_dir(&self.validation, artefact)?;
+        for id in &self.exclude_landmarks {
+            let l = artefact.index_of(id).ok_or_else(|| {
+                RunError::Exclusion(format!(
+                    "--exclude-landmark {id}: no landmark \"{id}\" in {}",
+                    self.artefact.display()
+                ))
+            })?;
+            cal = cal.without_landmark(l);
+            val = val.without_landmark(l);
+        }
+        for block in &self.exclude_blocks {
+            let found = block.rsplit_once('/').and_then(|(p, r)| {
+                let repeat: u32 = r.parse().ok()?;
+                let placement = cal.placements.iter().position(|n| n == p)?;
+                Some((placement, repeat))
+            });
+            let Some((placement, repeat)) =
+                found.filter(|(p, r)| cal.touches.iter().any(|t| t.placement == *p && t.repeat == *r))
+            else {
+                return Err(RunError::Exclusion(format!(
+                    "--exclude-block {block}: expected PLACEMENT/REPEAT of a calibration block in {}",
+                    self.calibration.display()
+                )));
+            };
+            cal.touches.retain(|t| !(t.placement == placement && t.repeat == repeat));
+        }
+        Ok((cal, val))
+    }
 }
 
 /// What one objective can determine at the calibrated model.
@@ -181,11 +237,9 @@ impl RunFolder {
     }
 
     /// Load the artefact and both datasets the run used.
-    pub fn data(&self) -> Result<(Artefact, Dataset, Dataset), FileError> {
-        let inputs = &self.summary.inputs;
-        let artefact = Artefact::load(&inputs.artefact)?;
-        let cal = Dataset::load_dir(&inputs.calibration, &artefact)?;
-        let val = Dataset::load_dir(&inputs.validation, &artefact)?;
+    pub fn data(&self) -> Result<(Artefact, Dataset, Dataset), RunError> {
+        let artefact = Artefact::load(&self.summary.inputs.artefact)?;
+        let (cal, val) = self.summary.inputs.load_data(&artefact)?;
         Ok((artefact, cal, val))
     }
 }
@@ -309,14 +363,14 @@ pub fn run(
         artefact: absolute(&inputs.artefact)?,
         calibration: absolute(&inputs.calibration)?,
         validation: absolute(&inputs.validation)?,
+        ..inputs.clone()
     };
     let mut nominal = ArmModel::load(&inputs.model)?;
     for effect in effects {
         effect.add_to(&mut nominal);
     }
     let artefact = Artefact::load(&inputs.artefact)?;
-    let cal = Dataset::load_dir(&inputs.calibration, &artefact)?;
-    let val = Dataset::load_dir(&inputs.validation, &artefact)?;
+    let (cal, val) = inputs.load_data(&artefact)?;
     let fit = calibrate(&nominal, &artefact, &cal, options)?;
     let validation = validate(&fit.model, &artefact, &val);
     let nominal_validation = validate(&nominal, &artefact, &val);

@@ -234,12 +234,12 @@ pub fn run_loop(
         }
     }
     progress("calibrating");
-    let inputs = RunInputs {
-        model: data.join("nominal.toml"),
-        artefact: data.join("artefact.json"),
-        calibration: data.join("cal"),
-        validation: data.join("val"),
-    };
+    let inputs = RunInputs::new(
+        data.join("nominal.toml"),
+        data.join("artefact.json"),
+        data.join("cal"),
+        data.join("val"),
+    );
     let result =
         run(&inputs, &CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() }, &[], 0)?;
     crate::output::write_run(&result, &options.out.join("run"))?;

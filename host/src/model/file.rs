@@ -88,7 +88,7 @@ impl ArmModel {
             let effect = Effect::parse(name).ok_or_else(|| {
                 field(
                     format!("effects[\"{name}\"]"),
-                    "unknown effect; expected e.g. eccentricity:5, compliance:2, twist:3, tcp, scale".into(),
+                    "unknown effect; expected e.g. eccentricity:5, harmonic:3:3, compliance:2, twist:3, tcp, scale".into(),
                 )
             })?;
             effect.add_to(&mut model);

@@ -14,7 +14,7 @@
 
 use super::params::PARAM_SLOTS;
 use super::{ArmModel, Convention, ParamId, JOINTS};
-use crate::model::effects::{compliance, eccentricity};
+use crate::model::effects::{compliance, eccentricity, harmonic};
 use nalgebra::{Matrix3, Vector3};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
@@ -89,8 +89,9 @@ enum OpKind {
     Translate(Axis),
 }
 
-/// Parameters a joint angle depends on: offset, four eccentricity terms, compliance.
-const ANGLE_DEPS: usize = 6;
+/// Parameters a joint angle depends on: offset, four eccentricity terms, four higher
+/// harmonic terms, compliance.
+const ANGLE_DEPS: usize = 10;
 
 /// ∂θ_j/∂q (rad per parameter unit) for the parameters θ_j depends on.
 type AnglePartials = [(ParamId, f64); ANGLE_DEPS];
@@ -150,10 +151,16 @@ fn joint_angle(
 ) -> (f64, AnglePartials) {
     let joint = &model.joints[j];
     let [s1, c1, s2, c2] = if harmonics { eccentricity::partials(enc_deg) } else { [0.0; 4] };
+    let [s3, c3] = if harmonics { harmonic::partials(enc_deg, 3) } else { [0.0; 2] };
+    let [s4, c4] = if harmonics { harmonic::partials(enc_deg, 4) } else { [0.0; 2] };
     let ecc = joint.eccentricity_sin_deg * s1
         + joint.eccentricity_cos_deg * c1
         + joint.eccentricity2_sin_deg * s2
-        + joint.eccentricity2_cos_deg * c2;
+        + joint.eccentricity2_cos_deg * c2
+        + joint.harmonic3_sin_deg * s3
+        + joint.harmonic3_cos_deg * c3
+        + joint.harmonic4_sin_deg * s4
+        + joint.harmonic4_cos_deg * c4;
     let theta = enc_deg + joint.offset_deg + ecc + joint.compliance_deg_per_m * lever_m;
     let partials = [
         (ParamId::Offset(j), DEG),
@@ -161,6 +168,10 @@ fn joint_angle(
         (ParamId::EccCos(j), DEG * c1),
         (ParamId::Ecc2Sin(j), DEG * s2),
         (ParamId::Ecc2Cos(j), DEG * c2),
+        (ParamId::Harm3Sin(j), DEG * s3),
+        (ParamId::Harm3Cos(j), DEG * c3),
+        (ParamId::Harm4Sin(j), DEG * s4),
+        (ParamId::Harm4Cos(j), DEG * c4),
         (ParamId::Compliance(j), DEG * lever_m),
     ];
     (theta, partials)
@@ -245,14 +256,28 @@ fn evaluate(
     let wants = |kind: fn(usize) -> ParamId| {
         wanted.as_ref().is_some_and(|(c, _)| (0..JOINTS).any(|j| c.column(kind(j)).is_some()))
     };
-    let harmonics =
-        [ParamId::EccSin, ParamId::EccCos, ParamId::Ecc2Sin, ParamId::Ecc2Cos].into_iter().any(wants)
-            || model.joints.iter().any(|j| {
-                j.eccentricity_sin_deg != 0.0
-                    || j.eccentricity_cos_deg != 0.0
-                    || j.eccentricity2_sin_deg != 0.0
-                    || j.eccentricity2_cos_deg != 0.0
-            });
+    let harmonics = [
+        ParamId::EccSin,
+        ParamId::EccCos,
+        ParamId::Ecc2Sin,
+        ParamId::Ecc2Cos,
+        ParamId::Harm3Sin,
+        ParamId::Harm3Cos,
+        ParamId::Harm4Sin,
+        ParamId::Harm4Cos,
+    ]
+    .into_iter()
+    .any(wants)
+        || model.joints.iter().any(|j| {
+            j.eccentricity_sin_deg != 0.0
+                || j.eccentricity_cos_deg != 0.0
+                || j.eccentricity2_sin_deg != 0.0
+                || j.eccentricity2_cos_deg != 0.0
+                || j.harmonic3_sin_deg != 0.0
+                || j.harmonic3_cos_deg != 0.0
+                || j.harmonic4_sin_deg != 0.0
+                || j.harmonic4_cos_deg != 0.0
+        });
     let rigid: [(f64, AnglePartials); JOINTS] =
         std::array::from_fn(|j| joint_angle(model, j, enc_deg[j], 0.0, harmonics));
     let angles = if wants(ParamId::Compliance) || model.joints.iter().any(|j| j.compliance_deg_per_m != 0.0) {

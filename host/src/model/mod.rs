@@ -51,6 +51,18 @@ pub struct Joint {
     /// Eccentricity, second harmonic, cosine part, degrees.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub eccentricity2_cos_deg: f64,
+    /// Third-harmonic encoder error, sine part (see [`crate::model::effects::harmonic`]), degrees.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub harmonic3_sin_deg: f64,
+    /// Third-harmonic encoder error, cosine part, degrees.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub harmonic3_cos_deg: f64,
+    /// Fourth-harmonic encoder error, sine part, degrees.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub harmonic4_sin_deg: f64,
+    /// Fourth-harmonic encoder error, cosine part, degrees.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub harmonic4_cos_deg: f64,
     /// Gravity compliance (see [`crate::model::effects::compliance`]), degrees per metre of lever.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub compliance_deg_per_m: f64,
@@ -74,6 +86,10 @@ impl Joint {
             ParamId::Ecc2Sin(_) => &mut self.eccentricity2_sin_deg,
             ParamId::Ecc2Cos(_) => &mut self.eccentricity2_cos_deg,
             ParamId::Compliance(_) => &mut self.compliance_deg_per_m,
+            ParamId::Harm3Sin(_) => &mut self.harmonic3_sin_deg,
+            ParamId::Harm3Cos(_) => &mut self.harmonic3_cos_deg,
+            ParamId::Harm4Sin(_) => &mut self.harmonic4_sin_deg,
+            ParamId::Harm4Cos(_) => &mut self.harmonic4_cos_deg,
             ParamId::Offset(_) | ParamId::Tcp(_) | ParamId::Scale => &mut self.offset_deg,
         }
     }

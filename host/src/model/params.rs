@@ -23,6 +23,14 @@ pub enum ParamId {
     Ecc2Sin(usize),
     /// `eccentricity2_cos:j` — second-harmonic angle error, cosine part (deg).
     Ecc2Cos(usize),
+    /// `harmonic3_sin:j` — third-harmonic angle error, sine part (deg).
+    Harm3Sin(usize),
+    /// `harmonic3_cos:j` — third-harmonic angle error, cosine part (deg).
+    Harm3Cos(usize),
+    /// `harmonic4_sin:j` — fourth-harmonic angle error, sine part (deg).
+    Harm4Sin(usize),
+    /// `harmonic4_cos:j` — fourth-harmonic angle error, cosine part (deg).
+    Harm4Cos(usize),
     /// `compliance:j` — joint deflection per metre of unit-weight gravity lever (deg/m).
     Compliance(usize),
     /// `tcp.x`, `tcp.y`, `tcp.z` — tool centre point in the last frame (mm).
@@ -34,7 +42,7 @@ pub enum ParamId {
 /// Number of distinct parameter slots (see [`ParamId::dense_index`]).
 pub const PARAM_SLOTS: usize = JOINT_KINDS.len() * super::JOINTS + 4;
 
-const JOINT_KINDS: [&str; 10] = [
+const JOINT_KINDS: [&str; 14] = [
     "offset",
     "length",
     "link_offset",
@@ -45,6 +53,10 @@ const JOINT_KINDS: [&str; 10] = [
     "eccentricity2_sin",
     "eccentricity2_cos",
     "compliance",
+    "harmonic3_sin",
+    "harmonic3_cos",
+    "harmonic4_sin",
+    "harmonic4_cos",
 ];
 const TCP_SLOT: usize = JOINT_KINDS.len() * super::JOINTS;
 const TCP_AXES: [&str; 3] = ["x", "y", "z"];
@@ -79,6 +91,10 @@ impl ParamId {
             ParamId::Ecc2Sin(j) => (7, j),
             ParamId::Ecc2Cos(j) => (8, j),
             ParamId::Compliance(j) => (9, j),
+            ParamId::Harm3Sin(j) => (10, j),
+            ParamId::Harm3Cos(j) => (11, j),
+            ParamId::Harm4Sin(j) => (12, j),
+            ParamId::Harm4Cos(j) => (13, j),
             ParamId::Tcp(_) | ParamId::Scale => return None,
         })
     }
@@ -95,6 +111,10 @@ impl ParamId {
             ParamId::Ecc2Sin,
             ParamId::Ecc2Cos,
             ParamId::Compliance,
+            ParamId::Harm3Sin,
+            ParamId::Harm3Cos,
+            ParamId::Harm4Sin,
+            ParamId::Harm4Cos,
         ][kind](j)
     }
 
@@ -119,6 +139,9 @@ impl ParamId {
         match self {
             ParamId::Offset(_) | ParamId::Twist(_) | ParamId::Axis(_) => "deg",
             ParamId::EccSin(_) | ParamId::EccCos(_) | ParamId::Ecc2Sin(_) | ParamId::Ecc2Cos(_) => "deg",
+            ParamId::Harm3Sin(_) | ParamId::Harm3Cos(_) | ParamId::Harm4Sin(_) | ParamId::Harm4Cos(_) => {
+                "deg"
+            }
             ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) => "mm",
             ParamId::Compliance(_) => "deg/m",
             ParamId::Scale => "ppm",

@@ -1,5 +1,6 @@
 //! Numerics that know residual vectors and points, not arms: the bounded robust least-squares
-//! solver and rigid-body geometry.
+//! solver, rigid-body geometry and small statistics.
 
 pub mod geometry;
 pub mod solver;
+pub mod stats;

@@ -12,6 +12,33 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
         "<h2>Summary</h2><ul>{}</ul>",
         d.summary.iter().map(|l| format!("<li>{}</li>", escape(l))).collect::<String>()
     );
+    if let (Some(f), Some(g)) = (&d.floor, &d.gap) {
+        let encoder =
+            f.encoder_rms_mm.map_or("not reported by the sessions".into(), |e| format!("{} mm", mm(e)));
+        let rows = vec![
+            vec!["validation RMS measured".into(), mm(g.measured_mm)],
+            vec!["expected from repeatability (this model's parameters fitted)".into(), mm(g.expected_mm)],
+            vec!["noise floor of the true arm (distances)".into(), mm(f.distance_rms_mm)],
+            vec!["scatter of one touch, per axis".into(), mm(f.touch_std_mm)],
+            vec!["of which encoder noise (distances)".into(), encoder],
+            vec![
+                "the model misses about".into(),
+                if g.significant { mm(g.missing_mm) } else { "nothing beyond noise".into() },
+            ],
+            vec!["gap in standard errors".into(), format!("{:+.1}", g.z)],
+            vec!["groups of repeats pooled / degrees of freedom".into(), format!("{} / {}", f.groups, f.dof)],
+        ];
+        let _ = write!(body, "<h2>How far from done</h2><p>The floor comes from repeated touches of the same landmark in the same placement and arm configuration, propagated to the validation distances.</p>{}", table(&["", "mm"], &rows));
+        if !f.inconsistent.is_empty() {
+            let bad: Vec<Vec<String>> =
+                f.inconsistent.iter().map(|(p, l, s)| vec![escape(p), escape(l), mm(*s)]).collect();
+            let _ = write!(
+                body,
+                "<h3>Repeats that disagree beyond noise (left out of the floor)</h3>{}",
+                table(&["placement", "landmark", "scatter per axis mm"], &bad)
+            );
+        }
+    }
     let rows: Vec<Vec<String>> = d
         .candidates
         .iter()
@@ -29,6 +56,21 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
         })
         .collect();
     let _ = write!(body, "<h2>Which effect is missing</h2><p>Baseline validation RMS {} mm. Each effect is added, refitted on the calibration data and scored on the held-out placements.</p>{}", mm(d.baseline.rms_mm), table(&["effect", "val RMS mm", "explained", "blocks improved", "ΔBIC", "significant", "evidence"], &rows));
+    let data: Vec<Vec<String>> = d
+        .data_errors
+        .iter()
+        .map(|c| {
+            vec![
+                escape(&c.effect),
+                mm(c.validation_rms_mm),
+                format!("{}/{} (p = {:.1e})", c.blocks_improved.0, c.blocks_improved.1, c.p_value),
+                if c.significant { "<span class=flag>yes</span>".into() } else { "no".into() },
+                escape(&c.evidence),
+                escape(c.action.as_deref().unwrap_or("")),
+            ]
+        })
+        .collect();
+    let _ = write!(body, "<h2>Data errors, scored beside the arm effects</h2><p>A wrong certificate (the landmark's position freed), a placement disturbed within a repeat, a mis-seated touch. When one explains the residuals as well as an arm effect, it is named and no arm effect is claimed.</p>{}", table(&["data error", "val RMS mm", "blocks improved", "significant", "evidence", "what to do"], &data));
     let ni: Vec<Vec<String>> =
         d.not_identifiable.iter().map(|n| vec![escape(&n.effect), escape(&n.reason)]).collect();
     let _ = write!(body, "<h3>Not identifiable</h3>{}", table(&["effect", "why"], &ni));
@@ -51,6 +93,20 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
             100.0 * s.explained
         );
     }
+    let spectrum: Vec<Vec<String>> = d
+        .joints
+        .iter()
+        .map(|j| {
+            std::iter::once(j.joint.to_string())
+                .chain(
+                    j.spectrum
+                        .iter()
+                        .map(|(_, s)| format!("{:.3}° ({:.0} %)", s.amplitude_deg, 100.0 * s.explained)),
+                )
+                .collect()
+        })
+        .collect();
+    let _ = write!(body, "<h3>Periodic apparent error per joint: amplitude (share of variance) by cycles per revolution</h3>{}", table(&["joint", "1/rev", "2/rev", "3/rev", "4/rev"], &spectrum));
     body.push_str("<h3>Apparent joint error against gravity lever</h3>");
     for j in d.joints.iter().filter(|j| j.gravity.iter().any(|g| g.0.abs() > 1e-6)) {
         let _ = write!(

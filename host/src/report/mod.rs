@@ -1,6 +1,7 @@
 //! The HTML pages a person opens: one file per report, plots in [`svg`]. Reports read results and
 //! never recompute them.
 
+pub mod auto_loop;
 pub mod calibration;
 pub mod compare;
 pub mod diagnosis;

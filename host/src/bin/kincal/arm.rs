@@ -4,7 +4,7 @@ use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
 use kincal::calib::calibrate::CalibrationOptions;
 use kincal::calib::objective::Objective;
-use kincal::calib::run::{run, RunInputs};
+use kincal::calib::run::{run, RunFolder, RunInputs};
 use kincal::calib::study::{study, StudyOptions};
 use kincal::data::{Artefact, Dataset};
 use kincal::model::effects::Effect;
@@ -46,7 +46,7 @@ pub struct SimulateArgs {
 }
 
 pub fn parse_effect(text: &str) -> Result<Effect, String> {
-    Effect::parse(text).ok_or_else(|| format!("unknown effect `{text}`; expected e.g. eccentricity:5, eccentricity2:3, compliance:2, twist:4, link_offset:3, axis:2, tcp, scale"))
+    Effect::parse(text).ok_or_else(|| format!("unknown effect `{text}`; expected e.g. eccentricity:5, eccentricity2:3, harmonic:3:3 (joint 3, 3 per revolution), compliance:2, twist:4, link_offset:3, axis:2, tcp, scale"))
 }
 
 #[derive(Args)]
@@ -56,6 +56,13 @@ pub struct DiagnoseArgs {
     /// Print diagnosis.json to stdout.
     #[arg(long)]
     json: bool,
+    /// Add the best significant effect, refit and repeat until at the floor; each step's model
+    /// goes to RUN/auto/step-K.toml, the steps to RUN/auto/auto.json and RUN/auto/report.html.
+    #[arg(long)]
+    auto: bool,
+    /// At most this many effects added by --auto.
+    #[arg(long, default_value_t = 8)]
+    max_steps: usize,
 }
 
 #[derive(Args)]
@@ -153,6 +160,12 @@ pub struct CalibrateArgs {
     /// Add an effect of the library to the model, e.g. eccentricity:5 (repeatable).
     #[arg(long = "add", value_parser = parse_effect)]
     add: Vec<Effect>,
+    /// Leave a landmark's touches out of both datasets, e.g. a wrong certificate (repeatable).
+    #[arg(long, value_name = "ID")]
+    exclude_landmark: Vec<String>,
+    /// Leave a calibration block PLACEMENT/REPEAT out, e.g. C_A/2 when the artefact moved (repeatable).
+    #[arg(long, value_name = "PLACEMENT/REPEAT")]
+    exclude_block: Vec<String>,
     /// Print summary.json to stdout.
     #[arg(long)]
     json: bool,
@@ -208,12 +221,7 @@ pub fn cmd_simulate(a: &SimulateArgs) -> Result<()> {
 }
 
 pub fn inputs(a: &InputArgs) -> RunInputs {
-    RunInputs {
-        model: a.model.clone(),
-        artefact: a.artefact.clone(),
-        calibration: a.data.clone(),
-        validation: a.validate.clone(),
-    }
+    RunInputs::new(a.model.clone(), a.artefact.clone(), a.data.clone(), a.validate.clone())
 }
 
 pub fn calibrate_and_report(
@@ -271,7 +279,12 @@ pub fn calibrate_and_report(
 }
 
 pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
-    calibrate_and_report(&inputs(&a.inputs), &a.out, &a.solve.options(), &a.add, a.study_subsets, a.json)
+    let inputs = RunInputs {
+        exclude_landmarks: a.exclude_landmark.clone(),
+        exclude_blocks: a.exclude_block.clone(),
+        ..inputs(&a.inputs)
+    };
+    calibrate_and_report(&inputs, &a.out, &a.solve.options(), &a.add, a.study_subsets, a.json)
 }
 
 pub fn cmd_study(a: &StudyArgs) -> Result<()> {
@@ -308,8 +321,11 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
 }
 
 pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
-    let folder = kincal::calib::run::RunFolder::load(&a.run)?;
+    let folder = RunFolder::load(&a.run)?;
     let (artefact, cal, val) = folder.data()?;
+    if a.auto {
+        return cmd_diagnose_auto(a, &folder, &artefact, &cal, &val);
+    }
     let started = std::time::Instant::now();
     let diagnosis = kincal::calib::diagnose::diagnose(
         &folder.model,
@@ -352,7 +368,51 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
         let names: Vec<&str> = diagnosis.not_identifiable.iter().map(|n| n.effect.as_str()).collect();
         println!("  not identifiable from these touches: {}", names.join(", "));
     }
+    println!("\ndata errors scored beside them (best first):");
+    for c in diagnosis.data_errors.iter().take(4) {
+        let blocks = format!("{}/{}", c.blocks_improved.0, c.blocks_improved.1);
+        let yes = if c.significant { "yes" } else { "no" };
+        println!(
+            "  {:<16} {:>10.3} {:>9.2} {:>8}  {yes}",
+            c.effect, c.validation_rms_mm, c.explained, blocks
+        );
+    }
     println!("report: {}", a.run.join("diagnosis.html").display());
+    Ok(())
+}
+
+fn cmd_diagnose_auto(
+    a: &DiagnoseArgs,
+    folder: &RunFolder,
+    artefact: &Artefact,
+    cal: &Dataset,
+    val: &Dataset,
+) -> Result<()> {
+    let options = folder.summary.options.calibration_options();
+    let started = std::time::Instant::now();
+    let run = kincal::calib::auto::auto_loop(&folder.model, artefact, cal, val, &options, a.max_steps)?;
+    let elapsed = started.elapsed().as_secs_f64();
+    output::write_auto(&run, &a.run)?;
+    let dir = a.run.join("auto");
+    if a.json {
+        println!("{}", output::auto_json(&run));
+        return Ok(());
+    }
+    println!("step  added              val RMS mm  expected mm  held-out p");
+    for (k, s) in run.steps.iter().enumerate() {
+        println!(
+            "{k:>4}  {:<18} {:>10.3}  {:>11}  {}",
+            s.added.as_deref().unwrap_or("(start)"),
+            s.validation_rms_mm,
+            s.expected_rms_mm.map_or("–".into(), |e| format!("{e:.3}")),
+            s.p_value.map_or("–".into(), |p| format!("{p:.1e}"))
+        );
+    }
+    for line in &run.last.summary {
+        println!("{line}");
+    }
+    println!("stopped: {:?} after {} steps in {elapsed:.2} s", run.stop, run.steps.len() - 1);
+    println!("models: {}/step-K.toml; report: {}", dir.display(), dir.join("report.html").display());
     Ok(())
 }
 

@@ -4,7 +4,10 @@
 //!   13 parameters, 8 random restarts) on one core;
 //! * the 1000-calibration dataset-size study on every core;
 //! * SciPy `least_squares(method='trf', loss='huber')` on the same problem from the same start
-//!   (`bench/scipy_peer.py`), with the cost and time ratio.
+//!   (`bench/scipy_peer.py`), with the cost and time ratio;
+//! * `kincal calibrate` as a whole (load, calibrate, validate, outliers with warm-started
+//!   leave-one-out refits, report, write RUN/) on the thesis-sized data;
+//! * `kincal diagnose --auto` on a mixture of four hidden effects.
 
 use anyhow::{Context, Result};
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
@@ -82,6 +85,8 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     let diagnosis =
         kincal::calib::diagnose::diagnose(&fit_h.model, &sim_hidden.artefact, &cal_h, &val_h, &options);
     println!("diagnose, whole library ({} candidates scored, {} not identifiable), {} threads: {:.2} s  (target <= 2 s on 2 cores)", diagnosis.candidates.len(), diagnosis.not_identifiable.len(), rayon::current_num_threads(), t.elapsed().as_secs_f64());
+    println!("{}", whole_calibration(&sim, &options)?);
+    println!("{}", auto_loop_on_a_mixture(&nominal, &options)?);
     // Haptic: a 5-minute recording (100 s of fixed steps + 200 s of free motion).
     let (recording, _) =
         kincal::haptic::simulate::simulate_recording(&kincal::haptic::simulate::HapticSimOptions {
@@ -125,4 +130,57 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
         println!("kincal with restarts: cost {:.9}; full 8-restart calibration is {:.0}x faster than one SciPy start", fit.cost, peer.seconds * 1e3 / single_ms);
     }
     Ok(())
+}
+
+/// Median wall time of the whole `kincal calibrate` process on `sim` written to disk.
+fn whole_calibration(sim: &kincal::simulate::SimulatedData, options: &CalibrationOptions) -> Result<String> {
+    let dir = std::env::temp_dir().join(format!("kincal-bench-run-{}", std::process::id()));
+    sim.write(&dir)?;
+    kincal::model::ArmModel::suta_nominal().save(&dir.join("nominal.toml"))?;
+    let inputs = kincal::calib::run::RunInputs::new(
+        dir.join("nominal.toml"),
+        dir.join("artefact.json"),
+        dir.join("cal"),
+        dir.join("val"),
+    );
+    let mut times = Vec::new();
+    for _ in 0..10 {
+        let t = Instant::now();
+        kincal::output::write_run(&kincal::calib::run::run(&inputs, options, &[], 0)?, &dir.join("run"))?;
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    std::fs::remove_dir_all(&dir).ok();
+    Ok(format!(
+        "kincal calibrate, whole process (load, calibrate, validate, outliers, report, write): median {:.1} ms over 10 runs  (target <= 60 ms)",
+        median(times)
+    ))
+}
+
+/// Wall time of the auto loop on a mixture of four hidden effects.
+fn auto_loop_on_a_mixture(nominal: &kincal::model::ArmModel, options: &CalibrationOptions) -> Result<String> {
+    let hidden = SimulationOptions {
+        seed: 105,
+        hidden: vec![
+            (ParamId::EccSin(1), 0.2),
+            (ParamId::EccCos(4), 0.15),
+            (ParamId::Twist(3), 0.25),
+            (ParamId::Compliance(1), 0.2),
+        ],
+        ..SimulationOptions::default()
+    };
+    let sim = simulate(nominal, &hidden);
+    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let fit = calibrate(nominal, &sim.artefact, &cal, options)?;
+    let t = Instant::now();
+    let run = kincal::calib::auto::auto_loop(&fit.model, &sim.artefact, &cal, &val, options, 8)?;
+    let added: Vec<&str> = run.steps.iter().filter_map(|s| s.added.as_deref()).collect();
+    Ok(format!(
+        "diagnose --auto on a 4-effect mixture: {:.2} s on {} threads, added {} ({:.3} → {:.3} mm)  (target <= 3 s on 2 cores)",
+        t.elapsed().as_secs_f64(),
+        rayon::current_num_threads(),
+        added.join(", "),
+        run.steps.first().map_or(f64::NAN, |s| s.validation_rms_mm),
+        run.steps.last().map_or(f64::NAN, |s| s.validation_rms_mm)
+    ))
 }

@@ -188,6 +188,15 @@ pub fn cmd_params(a: &PortArgs) -> Result<()> {
 
 pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     let model = ArmModel::load(&a.model)?;
+    let beyond = kincal::model::effects::beyond_controller(&model);
+    if !beyond.is_empty() {
+        let names: Vec<String> = beyond.iter().map(|p| p.to_string()).collect();
+        bail!(
+            "{}: the controller cannot evaluate {} (harmonics above the second); nothing was uploaded",
+            a.model.display(),
+            names.join(", ")
+        );
+    }
     let blob = kincal::controller::device::parameter_blob(&model, a.version)
         .with_context(|| format!("{}: parameters version {}", a.model.display(), a.version))?;
     let mut link = connect(&a.port)?;
@@ -357,12 +366,8 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
         data.join("cal").display(),
         data.join("val").display()
     );
-    let inputs = RunInputs {
-        model: a.model.clone(),
-        artefact: data.join("artefact.json"),
-        calibration: data.join("cal"),
-        validation: data.join("val"),
-    };
+    let inputs =
+        RunInputs::new(a.model.clone(), data.join("artefact.json"), data.join("cal"), data.join("val"));
     calibrate_and_report(
         &inputs,
         &a.out.join("run"),

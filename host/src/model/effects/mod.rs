@@ -1,10 +1,33 @@
 //! The effect library: physically motivated terms that can be added to the arm model, named
-//! `KIND:JOINT` (joints 1-based) or `KIND` for whole-arm effects. Each family lives in its own
-//! file with its formula and physical cause; the kinematics evaluates all of them in closed form.
+//! `KIND:JOINT` (joints 1-based) or `KIND` for whole-arm effects (`harmonic:JOINT:ORDER` for the
+//! periodic encoder errors of order 3 and 4). Each family lives in its own file with its formula
+//! and physical cause; the kinematics evaluates all of them in closed form.
+//!
+//! # Adding a family
+//!
+//! Today a new family touches these places (the compiler finds most of them once step 2 is done):
+//! 1. `model/effects/NAME.rs`: a doc comment with the formula (in the parameters' units, on the
+//!    raw encoder angle φ or the geometry) and the physical cause, and its partial derivatives
+//!    (see [`harmonic`]); `pub mod NAME;` here.
+//! 2. `model/params.rs`: one [`ParamId`] variant per scalar, its name in `JOINT_KINDS`, its slot
+//!    in `joint_kind`/`from_joint_kind`, its unit.
+//! 3. `model/mod.rs`: the field of [`crate::model::Joint`] (serde default, skipped when zero, so
+//!    old model files load) and its `slot`.
+//! 4. Here: an [`EffectKind`], its name in `KINDS`, its parameters in [`Effect::params`], its
+//!    default bounds in [`default_half_range`], and `is_non_geometric` if it is not DH geometry.
+//! 5. `model/kinematics.rs`: the term in `joint_angle` (angle effects) or an op (geometry), and
+//!    its partials in the `AnglePartials` list (`ANGLE_DEPS`).
+//! 6. `simulate.rs`: the same term written again in the independent forward path
+//!    (`tool_frame_with`), so tests can hide it in data the fitting code did not make.
+//! 7. `calib/diagnose.rs`: the plain-words `evidence` for the kind.
+//! 8. The controller: `protocol/src/params.rs` (the parameter blob), `controller/device.rs`
+//!    (the mapping) and the firmware kinematics — until then [`beyond_controller`] names the
+//!    parameters the controller cannot evaluate and `kincal upload` refuses such a model.
 
 pub mod compliance;
 pub mod eccentricity;
 pub mod geometric;
+pub mod harmonic;
 
 use crate::model::{ArmModel, ParamId, JOINTS};
 use std::fmt;
@@ -28,13 +51,17 @@ pub enum EffectKind {
     Eccentricity2,
     /// Gravity compliance.
     Compliance,
+    /// Third-harmonic angle error.
+    Harmonic3,
+    /// Fourth-harmonic angle error.
+    Harmonic4,
     /// 3-D tool offset.
     Tcp,
     /// Length scale.
     Scale,
 }
 
-const KINDS: [(EffectKind, &str); 10] = [
+const KINDS: [(EffectKind, &str); 12] = [
     (EffectKind::Offset, "offset"),
     (EffectKind::Length, "length"),
     (EffectKind::LinkOffset, "link_offset"),
@@ -43,6 +70,8 @@ const KINDS: [(EffectKind, &str); 10] = [
     (EffectKind::Eccentricity, "eccentricity"),
     (EffectKind::Eccentricity2, "eccentricity2"),
     (EffectKind::Compliance, "compliance"),
+    (EffectKind::Harmonic3, "harmonic:3"),
+    (EffectKind::Harmonic4, "harmonic:4"),
     (EffectKind::Tcp, "tcp"),
     (EffectKind::Scale, "scale"),
 ];
@@ -61,9 +90,28 @@ impl EffectKind {
         KINDS.iter().find(|k| k.0 == self).map_or("?", |k| k.1)
     }
 
-    /// Eccentricity and compliance: terms beyond the DH geometry, listed in model files.
+    /// Eccentricity, harmonics and compliance: terms beyond the DH geometry, listed in model
+    /// files.
     pub fn is_non_geometric(self) -> bool {
-        matches!(self, EffectKind::Eccentricity | EffectKind::Eccentricity2 | EffectKind::Compliance)
+        matches!(
+            self,
+            EffectKind::Eccentricity
+                | EffectKind::Eccentricity2
+                | EffectKind::Harmonic3
+                | EffectKind::Harmonic4
+                | EffectKind::Compliance
+        )
+    }
+
+    /// Cycles per revolution of a periodic encoder error (1 for eccentricity).
+    pub fn harmonic_order(self) -> Option<u32> {
+        match self {
+            EffectKind::Eccentricity => Some(1),
+            EffectKind::Eccentricity2 => Some(2),
+            EffectKind::Harmonic3 => Some(3),
+            EffectKind::Harmonic4 => Some(4),
+            _ => None,
+        }
     }
 
     fn per_joint(self) -> bool {
@@ -72,8 +120,25 @@ impl EffectKind {
 }
 
 impl Effect {
-    /// Parse `eccentricity:5`, `tcp`, `scale`, …
+    /// The periodic encoder error of `order` (1..=4) cycles per revolution on `joint` (0-based).
+    pub fn harmonic(joint: usize, order: u32) -> Option<Effect> {
+        let kind = match order {
+            1 => EffectKind::Eccentricity,
+            2 => EffectKind::Eccentricity2,
+            3 => EffectKind::Harmonic3,
+            4 => EffectKind::Harmonic4,
+            _ => return None,
+        };
+        (joint < JOINTS).then_some(Effect { kind, joint: Some(joint) })
+    }
+
+    /// Parse `eccentricity:5`, `harmonic:3:3` (joint 3, 3 per revolution), `tcp`, `scale`, …
     pub fn parse(name: &str) -> Option<Effect> {
+        if let Some(rest) = name.strip_prefix("harmonic:") {
+            let (joint, order) = rest.split_once(':')?;
+            let joint: usize = joint.parse().ok()?;
+            return Effect::harmonic(joint.checked_sub(1)?, order.parse().ok()?);
+        }
         let (kind_name, joint) = match name.split_once(':') {
             Some((k, j)) => (k, Some(j.parse::<usize>().ok()?)),
             None => (name, None),
@@ -111,6 +176,8 @@ impl Effect {
             EffectKind::Eccentricity => vec![ParamId::EccSin(j), ParamId::EccCos(j)],
             EffectKind::Eccentricity2 => vec![ParamId::Ecc2Sin(j), ParamId::Ecc2Cos(j)],
             EffectKind::Compliance => vec![ParamId::Compliance(j)],
+            EffectKind::Harmonic3 => vec![ParamId::Harm3Sin(j), ParamId::Harm3Cos(j)],
+            EffectKind::Harmonic4 => vec![ParamId::Harm4Sin(j), ParamId::Harm4Cos(j)],
             EffectKind::Tcp => vec![ParamId::Tcp(0), ParamId::Tcp(1), ParamId::Tcp(2)],
             EffectKind::Scale => vec![ParamId::Scale],
         }
@@ -143,12 +210,27 @@ pub fn default_half_range(p: ParamId) -> f64 {
         ParamId::EccSin(_) | ParamId::EccCos(_) => 2.0,
         ParamId::Ecc2Sin(_) | ParamId::Ecc2Cos(_) => 1.0,
         ParamId::Compliance(_) => 2.0,
+        ParamId::Harm3Sin(_) | ParamId::Harm3Cos(_) | ParamId::Harm4Sin(_) | ParamId::Harm4Cos(_) => 1.0,
         ParamId::Scale => 5000.0,
     }
 }
 
+/// Parameters of `model` with a non-zero value that the controller's parameter blob cannot
+/// carry (the higher harmonics): uploading would silently drop them.
+pub fn beyond_controller(model: &ArmModel) -> Vec<ParamId> {
+    (0..JOINTS)
+        .flat_map(|j| {
+            [ParamId::Harm3Sin(j), ParamId::Harm3Cos(j), ParamId::Harm4Sin(j), ParamId::Harm4Cos(j)]
+        })
+        .filter(|p| model.get(*p) != 0.0)
+        .collect()
+}
+
 impl fmt::Display for Effect {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if let (Some(order @ 3..), Some(j)) = (self.kind.harmonic_order(), self.joint) {
+            return write!(f, "harmonic:{}:{order}", j + 1);
+        }
         match self.joint {
             Some(j) => write!(f, "{}:{}", self.kind.name(), j + 1),
             None => write!(f, "{}", self.kind.name()),
@@ -163,11 +245,23 @@ mod tests {
     #[test]
     fn every_effect_name_parses_back() {
         let library = Effect::library();
-        assert_eq!(library.len(), 8 * JOINTS + 2);
+        assert_eq!(library.len(), 10 * JOINTS + 2);
         for e in library {
             assert_eq!(Effect::parse(&e.to_string()), Some(e), "{e}");
         }
-        for bad in ["eccentricity", "tcp:1", "compliance:0", "warp:2", "scale:3"] {
+        assert_eq!(Effect::parse("harmonic:3:1"), Effect::parse("eccentricity:3"));
+        assert_eq!(Effect::parse("harmonic:2:2"), Effect::parse("eccentricity2:2"));
+        assert_eq!(Effect::parse("harmonic:3:3").map(|e| e.to_string()).as_deref(), Some("harmonic:3:3"));
+        for bad in [
+            "eccentricity",
+            "tcp:1",
+            "compliance:0",
+            "warp:2",
+            "scale:3",
+            "harmonic:3:5",
+            "harmonic:0:3",
+            "harmonic:3",
+        ] {
             assert_eq!(Effect::parse(bad), None, "{bad}");
         }
     }

@@ -1,0 +1,285 @@
+//! How far from done is the model? The noise floor estimated from the data itself, and the gap
+//! between the measured validation error and it.
+//!
+//! *Repeatability.* Touches of the same landmark in the same placement (the repeats) differ only
+//! by seating and encoder noise: the arm's systematic errors are the same at nearly the same
+//! pose. Their scatter about the group mean, pooled over every group of the calibration and
+//! validation data, gives the 3×3 covariance S of one touch (unbiased: Σ (p − p̄)(p − p̄)ᵀ /
+//! Σ (n − 1)). A group whose scatter is beyond the χ² quantile of the pooled variance at
+//! [`GROUP_OUTLIER_Z`] is left out and named: an artefact knocked between repeats, a
+//! mis-seated touch.
+//!
+//! *Expected distance error.* A distance between two touches a, b along u = (p_a − p_b)/‖·‖ has
+//! noise variance uᵀSu + uᵀSu; averaged over the validation pairs this is the floor E₀. A
+//! calibrated model adds the noise of its own estimate: with p identifiable parameters fitted on
+//! ν_cal independent observations (3 per touch less the 6 of each block's rigid placement), the
+//! held-out mean square error expected from noise alone is E = E₀·(1 + p/ν_cal).
+//!
+//! *Gap.* The measured validation mean square M is compared with E: the model misses about
+//! √(M − E) mm. The gap is significant when (M/E − 1) exceeds [`GAP_Z`] standard errors,
+//! √(2/ν_floor + 2/ν_val), from the degrees of freedom of the two estimates.
+
+use crate::data::{Artefact, Dataset};
+use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
+use crate::model::{ArmModel, ParamId, JOINTS};
+use nalgebra::{Matrix3, Vector3};
+
+/// A (placement, landmark) group of repeats is left out of the floor when its scatter exceeds
+/// the χ² quantile at this many standard normal deviations (one-sided p ≈ 3·10⁻⁵).
+pub const GROUP_OUTLIER_Z: f64 = 4.0;
+
+/// Wilson–Hilferty approximation of the χ² quantile with `nu` degrees of freedom at standard
+/// normal deviate `z`.
+pub fn chi2_quantile(nu: f64, z: f64) -> f64 {
+    let a = 2.0 / (9.0 * nu);
+    nu * (1.0 - a + z * a.sqrt()).powi(3)
+}
+/// Standard errors by which the measured mean square must exceed the expected one for the gap
+/// to be called significant.
+pub const GAP_Z: f64 = 2.5;
+
+/// The noise floor estimated from repeated touches.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct NoiseFloor {
+    /// RMS scatter of one touch about its group mean, per axis, mm.
+    pub touch_std_mm: f64,
+    /// Expected validation distance RMS of the true arm (noise only), mm.
+    pub distance_rms_mm: f64,
+    /// Expected validation distance RMS of a model with the given free parameters fitted on
+    /// the calibration data (noise only), mm.
+    pub expected_rms_mm: f64,
+    /// Degrees of freedom of the scatter estimate.
+    pub dof: usize,
+    /// Groups of repeats pooled.
+    pub groups: usize,
+    /// Groups left out as inconsistent: (placement, landmark id, scatter per axis mm).
+    pub inconsistent: Vec<(String, String, f64)>,
+    /// Expected distance RMS from the encoder noise the sessions report (window std / √samples),
+    /// where they report it, mm.
+    pub encoder_rms_mm: Option<f64>,
+}
+
+/// Measured validation error against the floor.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Gap {
+    /// Validation distance RMS, mm.
+    pub measured_mm: f64,
+    /// Expected from repeatability, mm.
+    pub expected_mm: f64,
+    /// √(measured² − expected²), or 0 when below, mm.
+    pub missing_mm: f64,
+    /// (M/E − 1) in standard errors.
+    pub z: f64,
+    /// The gap is beyond what the noise explains.
+    pub significant: bool,
+}
+
+/// Independent observations of a dataset: 3 per touch less 6 per (placement, repeat) block.
+pub fn observation_dof(data: &Dataset) -> usize {
+    let mut blocks: Vec<((usize, u32), usize)> = Vec::new();
+    for t in &data.touches {
+        match blocks.iter_mut().find(|b| b.0 == (t.placement, t.repeat)) {
+            Some(b) => b.1 += 1,
+            None => blocks.push(((t.placement, t.repeat), 1)),
+        }
+    }
+    blocks.iter().map(|b| (3 * b.1).saturating_sub(6)).sum()
+}
+
+/// Joint angles (degrees, every joint) within which two touches count as the same arm
+/// configuration; repeats in another configuration (elbow or wrist flipped) carry other
+/// systematic errors and are not pooled as noise.
+pub const SAME_CONFIGURATION_DEG: f64 = 3.0;
+
+/// Split touches `idx` of one landmark in one placement into groups of the same configuration.
+pub fn same_configuration(data: &Dataset, idx: &[usize]) -> Vec<Vec<usize>> {
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    for &k in idx {
+        let close = |g: &Vec<usize>| {
+            let (a, b) = (&data.touches[g[0]].enc_deg, &data.touches[k].enc_deg);
+            (0..JOINTS)
+                .all(|j| ((a[j] - b[j] + 180.0).rem_euclid(360.0) - 180.0).abs() < SAME_CONFIGURATION_DEG)
+        };
+        match groups.iter_mut().find(|g| close(g)) {
+            Some(g) => g.push(k),
+            None => groups.push(vec![k]),
+        }
+    }
+    groups
+}
+
+/// Estimate the floor from repeated touches in `datasets` (positions from `model`), and the
+/// expected validation RMS on `val` for a model with `parameters` identifiable parameters fitted
+/// on `cal`. `None` when no landmark was touched twice in one placement.
+pub fn noise_floor(
+    model: &ArmModel,
+    artefact: &Artefact,
+    cal: &Dataset,
+    val: &Dataset,
+    parameters: usize,
+) -> Option<NoiseFloor> {
+    struct Group {
+        placement: String,
+        landmark: usize,
+        scatter: Matrix3<f64>,
+        dof: usize,
+    }
+    let mut groups: Vec<Group> = Vec::new();
+    for data in [cal, val] {
+        let p: Vec<Vector3<f64>> =
+            data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
+        for placement in 0..data.placements.len() {
+            for landmark in 0..artefact.landmarks.len() {
+                let idx: Vec<usize> = (0..p.len())
+                    .filter(|&k| {
+                        data.touches[k].placement == placement && data.touches[k].landmark == landmark
+                    })
+                    .collect();
+                for members in same_configuration(data, &idx) {
+                    if members.len() < 2 {
+                        continue;
+                    }
+                    let mean = members.iter().map(|&k| p[k]).sum::<Vector3<f64>>() / members.len() as f64;
+                    let scatter = members.iter().map(|&k| (p[k] - mean) * (p[k] - mean).transpose()).sum();
+                    groups.push(Group {
+                        placement: data.placements[placement].clone(),
+                        landmark,
+                        scatter,
+                        dof: members.len() - 1,
+                    });
+                }
+            }
+        }
+    }
+    if groups.is_empty() {
+        return None;
+    }
+    // Pool, then leave out groups beyond the χ² quantile of their own degrees of freedom, twice.
+    let per_axis = |g: &Group| g.scatter.trace() / (3 * g.dof) as f64;
+    let mut keep = vec![true; groups.len()];
+    for _ in 0..3 {
+        let (sum, n) = groups
+            .iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .fold((0.0, 0), |(s, n), (g, _)| (s + g.scatter.trace(), n + 3 * g.dof));
+        if n == 0 {
+            return None;
+        }
+        let sigma2 = sum / n as f64;
+        for (g, k) in groups.iter().zip(keep.iter_mut()) {
+            let nu = (3 * g.dof) as f64;
+            *k = per_axis(g) <= sigma2 * chi2_quantile(nu, GROUP_OUTLIER_Z) / nu;
+        }
+    }
+    let (mut pooled, mut dof, mut used) = (Matrix3::zeros(), 0, 0);
+    let mut inconsistent = Vec::new();
+    for (g, k) in groups.iter().zip(&keep) {
+        if *k {
+            pooled += g.scatter;
+            dof += g.dof;
+            used += 1;
+        } else {
+            inconsistent.push((
+                g.placement.clone(),
+                artefact.landmarks[g.landmark].id.clone(),
+                per_axis(g).sqrt(),
+            ));
+        }
+    }
+    if dof == 0 {
+        return None;
+    }
+    let cov = pooled / dof as f64;
+    let p: Vec<Vector3<f64>> = val.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
+    let pairs = val.touch_pairs();
+    let floor_ms = if pairs.is_empty() {
+        2.0 * cov.trace() / 3.0
+    } else {
+        pairs
+            .iter()
+            .map(|&(a, b)| {
+                let u = (p[a] - p[b]).normalize();
+                2.0 * (u.transpose() * cov * u)[(0, 0)]
+            })
+            .sum::<f64>()
+            / pairs.len() as f64
+    };
+    let nu_cal = observation_dof(cal).max(1) as f64;
+    let encoder_rms_mm = encoder_floor(model, val, &p, &pairs);
+    Some(NoiseFloor {
+        touch_std_mm: (cov.trace() / 3.0).sqrt(),
+        distance_rms_mm: floor_ms.sqrt(),
+        expected_rms_mm: (floor_ms * (1.0 + parameters as f64 / nu_cal)).sqrt(),
+        dof: 3 * dof,
+        groups: used,
+        inconsistent,
+        encoder_rms_mm,
+    })
+}
+
+/// Expected distance RMS on `val` from the encoder standard errors the sessions report,
+/// propagated through ∂p/∂θ; `None` unless every touch of a pair reports them.
+fn encoder_floor(
+    model: &ArmModel,
+    val: &Dataset,
+    p: &[Vector3<f64>],
+    pairs: &[(usize, usize)],
+) -> Option<f64> {
+    let offsets: Vec<ParamId> = (0..JOINTS).map(ParamId::Offset).collect();
+    let columns = ColumnMap::new(&offsets);
+    let mut jac = vec![[0.0; 9]; JOINTS];
+    let per_touch: Vec<Option<Matrix3<f64>>> = val
+        .touches
+        .iter()
+        .map(|t| {
+            let sigma = t.enc_sigma_deg?;
+            tool_pose_with_jacobian(model, &t.enc_deg, &columns, &mut jac);
+            Some((0..JOINTS).fold(Matrix3::zeros(), |acc, j| {
+                let g = Vector3::new(jac[j][0], jac[j][1], jac[j][2]); // mm per degree
+                acc + g * g.transpose() * sigma[j].powi(2)
+            }))
+        })
+        .collect();
+    let mut sum = 0.0;
+    let mut n = 0usize;
+    for &(a, b) in pairs {
+        let (Some(ca), Some(cb)) = (&per_touch[a], &per_touch[b]) else { continue };
+        let u = (p[a] - p[b]).normalize();
+        sum += (u.transpose() * (ca + cb) * u)[(0, 0)];
+        n += 1;
+    }
+    (n > 0).then(|| (sum / n as f64).sqrt())
+}
+
+/// Compare a measured validation RMS on `val` with the floor.
+pub fn gap(floor: &NoiseFloor, measured_mm: f64, val: &Dataset) -> Gap {
+    let (m, e) = (measured_mm.powi(2), floor.expected_rms_mm.powi(2).max(1e-300));
+    let se = (2.0 / floor.dof.max(1) as f64 + 2.0 / observation_dof(val).max(1) as f64).sqrt();
+    let z = (m / e - 1.0) / se;
+    Gap {
+        measured_mm,
+        expected_mm: floor.expected_rms_mm,
+        missing_mm: (m - e).max(0.0).sqrt(),
+        z,
+        significant: z > GAP_Z,
+    }
+}
+
+impl Gap {
+    /// One sentence: "0.302 mm measured, ≈0.170 mm expected from repeatability: …".
+    pub fn sentence(&self) -> String {
+        let head = format!(
+            "{:.3} mm measured, ≈{:.3} mm expected from repeatability",
+            self.measured_mm, self.expected_mm
+        );
+        if self.significant {
+            format!(
+                "{head}: the model misses about {:.3} mm ({:.1} standard errors above the floor)",
+                self.missing_mm, self.z
+            )
+        } else {
+            format!("{head}: at the noise floor (gap {:+.1} standard errors)", self.z)
+        }
+    }
+}

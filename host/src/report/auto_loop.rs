@@ -1,0 +1,58 @@
+//! `RUN/auto/report.html`: the validation error step by step as `diagnose --auto` adds effects.
+
+use super::svg::{self, escape};
+use super::{mm, page, table};
+use crate::calib::auto::{AutoLoop, Stop};
+use std::fmt::Write;
+
+/// The "watch the error fall" page: validation RMS and the expected floor per step, and each
+/// step's evidence.
+pub fn auto_loop_report(run: &AutoLoop) -> String {
+    let mut body = String::new();
+    let measured: Vec<(f64, f64)> =
+        run.steps.iter().enumerate().map(|(k, s)| (k as f64, s.validation_rms_mm)).collect();
+    let floor: Vec<(f64, f64)> =
+        run.steps.iter().enumerate().filter_map(|(k, s)| s.expected_rms_mm.map(|e| (k as f64, e))).collect();
+    let _ = write!(
+        body,
+        "<h2>Validation error by step</h2><figure>{}<figcaption>points: validation RMS after each step; line: expected from repeatability</figcaption></figure>",
+        svg::scatter(&measured, &floor, "step (effects added)", "validation RMS (mm)")
+    );
+    let rows: Vec<Vec<String>> = run
+        .steps
+        .iter()
+        .enumerate()
+        .map(|(k, s)| {
+            vec![
+                k.to_string(),
+                escape(s.added.as_deref().unwrap_or("(calibrated input model)")),
+                mm(s.validation_rms_mm),
+                s.expected_rms_mm.map_or("–".into(), mm),
+                s.p_value.map_or("–".into(), |p| format!("{p:.1e}")),
+                escape(s.evidence.as_deref().unwrap_or("")),
+            ]
+        })
+        .collect();
+    let _ = write!(
+        body,
+        "{}",
+        table(&["step", "added", "val RMS mm", "expected mm", "held-out p", "evidence"], &rows)
+    );
+    let why = match &run.stop {
+        Stop::AtFloor => "the validation error is at the floor expected from repeatability".to_string(),
+        Stop::NothingSignificant => {
+            "no candidate is significant although a gap remains: the model is incomplete".to_string()
+        }
+        Stop::DataError(name) => {
+            format!("a data error ({name}) explains the residuals as well: fix the data first")
+        }
+        Stop::StepLimit => "the step limit was reached".to_string(),
+    };
+    let _ = write!(
+        body,
+        "<h2>Stopped</h2><p>{}</p><ul>{}</ul>",
+        escape(&why),
+        run.last.summary.iter().map(|l| format!("<li>{}</li>", escape(l))).collect::<String>()
+    );
+    page("kincal diagnose --auto", &body)
+}

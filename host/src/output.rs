@@ -61,6 +61,8 @@ pub enum FolderKind {
     Study,
     /// A haptic calibration (`kincal haptic calibrate`).
     Haptic,
+    /// Simulated data (`kincal simulate`): artefact, truth and the session folders.
+    Simulation,
 }
 
 impl FolderKind {
@@ -69,6 +71,21 @@ impl FolderKind {
             FolderKind::Run => "run",
             FolderKind::Study => "study",
             FolderKind::Haptic => "haptic",
+            FolderKind::Simulation => "simulation",
+        }
+    }
+
+    /// Sub-folders kincal writes into this kind of folder, with the files each may hold.
+    fn subfolders(self) -> Vec<(&'static str, Vec<String>)> {
+        let names = |places: Vec<crate::simulate::Placement>| -> Vec<String> {
+            places.into_iter().map(|p| format!("{}.json", p.name)).collect()
+        };
+        match self {
+            FolderKind::Simulation => vec![
+                ("cal", names(crate::simulate::calibration_placements())),
+                ("val", names(crate::simulate::validation_placements())),
+            ],
+            _ => Vec::new(),
         }
     }
 
@@ -85,6 +102,7 @@ impl FolderKind {
             ],
             FolderKind::Study => &["study.json", "report.html"],
             FolderKind::Haptic => &["summary.json", "report.html"],
+            FolderKind::Simulation => &["artefact.json", "truth.toml"],
         }
     }
 }
@@ -121,11 +139,13 @@ pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Re
     }
     let mut foreign = Vec::new();
     let mut any = false;
+    let mut marked = false;
     for entry in std::fs::read_dir(dir).map_err(io(dir))? {
         let entry = entry.map_err(io(dir))?;
         let name = entry.file_name().to_string_lossy().into_owned();
         any = true;
         if name == MARKER {
+            marked = true;
             let text = std::fs::read_to_string(entry.path()).unwrap_or_default();
             if text.trim() != kind.name() {
                 return Err(refused(
@@ -133,9 +153,16 @@ pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Re
                     format!("is a kincal {} folder, not a {} folder", text.trim(), kind.name()),
                 ));
             }
+        } else if let Some((_, allowed)) = kind.subfolders().into_iter().find(|(sub, _)| *sub == name) {
+            foreign.extend(foreign_in_subfolder(&entry.path(), &name, &allowed)?);
         } else if !(kind.files().contains(&name.as_str()) && entry.path().is_file()) {
             foreign.push(name);
         }
+    }
+    if any && !marked && kind == FolderKind::Simulation {
+        // Session files carry the same names whether simulated or recorded: without kincal's
+        // marker the data may be the user's own, so it is never replaced.
+        return Err(refused(dir, "holds data kincal did not write (no .kincal-output marker)"));
     }
     if !foreign.is_empty() {
         foreign.sort();
@@ -150,6 +177,22 @@ pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Re
         ));
     }
     Ok(any)
+}
+
+/// Entries of a sub-folder kincal writes (`cal/` of simulated data) that are not among `allowed`.
+fn foreign_in_subfolder(dir: &Path, name: &str, allowed: &[String]) -> Result<Vec<String>, OutputError> {
+    if !std::fs::symlink_metadata(dir).map_err(io(dir))?.is_dir() {
+        return Ok(vec![name.to_string()]);
+    }
+    let mut foreign = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(io(dir))? {
+        let entry = entry.map_err(io(dir))?;
+        let file = entry.file_name().to_string_lossy().into_owned();
+        if !(allowed.contains(&file) && entry.path().is_file()) {
+            foreign.push(format!("{name}/{file}"));
+        }
+    }
+    Ok(foreign)
 }
 
 /// A staging folder beside the target; removed on drop unless moved into place.
@@ -254,6 +297,11 @@ pub fn write_run(run: &Run, dir: &Path) -> Result<(), OutputError> {
         put(staged, "summary.json", run_json(run).as_bytes())?;
         put(staged, "report.html", report::calibration::calibration_report(run).as_bytes())
     })
+}
+
+/// Write simulated data (artefact.json, truth.toml, cal/, val/) as one folder.
+pub fn write_simulation(sim: &crate::simulate::SimulatedData, dir: &Path) -> Result<(), OutputError> {
+    write_folder(dir, FolderKind::Simulation, &[], |staged| Ok(sim.write(staged)?))
 }
 
 /// The JSON of a study, as `study.json` holds it.

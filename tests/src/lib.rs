@@ -2,7 +2,10 @@
 //!
 //! [`FakeController`] runs the firmware's own protocol state machine, encoder sampling and
 //! windows on the host, behind a TCP server on 127.0.0.1, so host logic and the `kincal` CLI can
-//! be tested fast and without QEMU. Ticks run `speedup` times faster than 768 Hz.
+//! be tested fast and without QEMU. Ticks run `speedup` times faster than 768 Hz. [`corpus`] is the
+//! bad-input corpus and its runner.
+
+pub mod corpus;
 
 use kincal_firmware::controller::{Action, Controller};
 use kincal_firmware::encoders::{EncoderBus, Sampler};

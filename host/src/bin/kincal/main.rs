@@ -1,5 +1,6 @@
 //! `kincal`: the command-line edge. Parses arguments, calls the library, prints.
 
+mod args;
 mod arm;
 mod bench;
 mod controller;

@@ -33,6 +33,8 @@ pub const MAX_FILE_BYTES: u64 = 64 * 1024 * 1024;
 pub const MAX_SESSION_FILES: usize = 5000;
 /// Most touches in one folder of sessions.
 pub const MAX_TOUCHES: usize = 100_000;
+/// Most distance pairs one folder of sessions may form (the Jacobian holds a row per pair).
+pub const MAX_PAIRS: usize = 1_000_000;
 
 /// What a session is for: the folder it is read from decides which is expected.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -473,7 +475,34 @@ impl Dataset {
             }
             sessions.push(session);
         }
-        Ok(Dataset::from_sessions(&sessions, artefact))
+        let data = Dataset::from_sessions(&sessions, artefact);
+        let pairs = data.pair_count();
+        if pairs > MAX_PAIRS {
+            return Err(FileError::Field {
+                path: dir.to_owned(),
+                field: "(folder)".into(),
+                message: format!(
+                    "the sessions form {pairs} distance pairs; at most {MAX_PAIRS} are used (fewer landmarks \
+                     per placement and repeat, or fewer placements)"
+                ),
+            });
+        }
+        Ok(data)
+    }
+
+    /// How many pairs [`Dataset::touch_pairs`] returns, counted without forming them.
+    pub fn pair_count(&self) -> usize {
+        let mut groups: HashMap<(usize, u32), HashMap<usize, usize>> = HashMap::new();
+        for t in &self.touches {
+            *groups.entry((t.placement, t.repeat)).or_default().entry(t.landmark).or_default() += 1;
+        }
+        let pairs = |k: usize| k * k.saturating_sub(1) / 2;
+        groups
+            .values()
+            .map(|by_landmark| {
+                pairs(by_landmark.values().sum()) - by_landmark.values().map(|&c| pairs(c)).sum::<usize>()
+            })
+            .sum()
     }
 
     /// A dataset holding only the placements listed (by index).
@@ -542,6 +571,7 @@ mod tests {
             touches: vec![t(0, 0, 1), t(0, 1, 1), t(0, 1, 2), t(1, 0, 1), t(1, 1, 1)],
         };
         assert_eq!(data.touch_pairs(), vec![(0, 1), (3, 4)]);
+        assert_eq!(data.pair_count(), 2);
         assert!((artefact().distance_mm(0, 1) - 50.0).abs() < 1e-12);
     }
 

@@ -674,7 +674,7 @@ fn session_cases(cases: &mut Vec<Case>) {
             ));
         }
     }
-    let ok: Vec<(&str, Setup, u64)> = vec![
+    let mut ok: Vec<(&str, Setup, u64)> = vec![
         (
             "upper-case .JSON is read",
             Box::new(|d: &Path| std::fs::rename(d.join(CA), d.join("data/cal/C_A.JSON")).unwrap()),
@@ -715,6 +715,27 @@ fn session_cases(cases: &mut Vec<Case>) {
             180,
         ),
     ];
+    // Scale: one session of 3000 touches (200 repeats) is calibrated; 20 placements make a study of
+    // 10 000 subsets too large, refused up front with the limit.
+    ok.push((
+        "3000 touches in one session",
+        session(CA, |v| {
+            let first: Vec<Value> =
+                v["measurements"].as_array().unwrap().iter().filter(|m| m["repeat"] == 1).cloned().collect();
+            let mut all = Vec::new();
+            for repeat in 1..=200u32 {
+                for (k, m) in first.iter().enumerate() {
+                    let mut m = m.clone();
+                    m["repeat"] = json!(repeat);
+                    let a = m["joints_deg"][5].as_f64().unwrap();
+                    m["joints_deg"][5] = json!(a + 1e-4 * ((repeat as f64 * 7.0 + k as f64).sin()));
+                    all.push(m);
+                }
+            }
+            v["measurements"] = Value::Array(all);
+        }),
+        3180,
+    ));
     for (name, setup, touches) in ok {
         cases.push(Case::succeeds(
             &format!("session/{name}"),
@@ -761,6 +782,31 @@ fn option_cases(cases: &mut Vec<Case>) {
             ));
         }
     }
+    let many = || -> Setup {
+        Box::new(|d: &Path| {
+            for copy in 1..4 {
+                for f in std::fs::read_dir(d.join("data/cal")).unwrap().collect::<Vec<_>>() {
+                    let p = f.unwrap().path();
+                    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+                    let name = format!("{}_{copy}", v["placement"].as_str().unwrap());
+                    v["placement"] = json!(name);
+                    std::fs::write(d.join("data/cal").join(format!("{name}.json")), v.to_string()).unwrap();
+                }
+            }
+        })
+    };
+    cases.push(Case::fails(
+        "option/study of 10000 subsets over 20 placements",
+        many(),
+        words(&STUDY[..STUDY.len() - 4], &["--subsets", "10000", "--out", "study"]),
+        &["touch-calibrations", "at most 10000000", "fewer subsets"],
+    ));
+    cases.push(Case::fails(
+        "option/calibrate with a study of 10000 subsets over 20 placements",
+        many(),
+        words(CAL, &["--study-subsets", "10000"]),
+        &["touch-calibrations", "fewer subsets"],
+    ));
     let good: Vec<(&str, Vec<String>, Option<Check>)> = vec![
         ("huber 0.5", words(CAL, &["--huber-delta-mm", "0.5"]), calibrated("out", 225)),
         (

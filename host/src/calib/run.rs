@@ -12,7 +12,7 @@ use crate::calib::calibrate::{
 use crate::calib::identify::{self, Identifiability};
 use crate::calib::objective::{CalibrationProblem, Objective};
 use crate::calib::outliers::{landmark_outliers, LandmarkOutlier};
-use crate::calib::study::{study, study_problems, StudyOptions, StudyRow};
+use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions, StudyRow};
 use crate::calib::validate::{validate, ErrorStats, GroupStats, Repeatability, Validation};
 use crate::data::{Artefact, Dataset, Purpose};
 use crate::files::read_tagged;
@@ -31,6 +31,9 @@ pub enum RunError {
     /// The calibration could not run.
     #[error(transparent)]
     Calibration(#[from] CalibrationError),
+    /// The study asked for is too large.
+    #[error(transparent)]
+    Study(#[from] StudyError),
     /// The validation sessions hold no distance to validate on.
     #[error(
         "{path}: no two different landmarks touched in the same placement and repeat: no distance to \
@@ -432,6 +435,7 @@ pub fn run(
     if let Some((validation, calibration)) = copied_placement(&cal, &val) {
         return Err(RunError::SameData { validation, calibration });
     }
+    check_study_size(&cal, study_subsets)?;
     let fit = calibrate(&nominal, &artefact, &cal, options)?;
     let validation = validate(&fit.model, &artefact, &val);
     let mut not_trustworthy = result_problems(&fit, &validation);

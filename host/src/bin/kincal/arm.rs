@@ -2,10 +2,11 @@
 
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
 use kincal::calib::calibrate::CalibrationOptions;
 use kincal::calib::objective::Objective;
 use kincal::calib::run::{run, RunInputs};
-use kincal::calib::study::{study, study_problems, StudyOptions};
+use kincal::calib::study::{check_study_size, study, study_problems, StudyOptions};
 use kincal::data::{Artefact, Dataset, Purpose};
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
@@ -50,6 +51,18 @@ pub struct SimulateArgs {
     /// Hidden effect: PARAM=DELTA added to the true arm, e.g. eccentricity_sin:5=0.3 (repeatable).
     #[arg(long, allow_negative_numbers = true, value_parser = parse_hidden)]
     hidden: Vec<(ParamId, f64)>,
+}
+
+/// A spinner with the elapsed time on stderr while a long step runs (hidden when stderr is not
+/// a terminal).
+fn spinner(what: &str) -> ProgressBar {
+    let bar = ProgressBar::new_spinner();
+    if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
+        bar.set_style(style);
+    }
+    bar.set_message(what.to_string());
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    bar
 }
 
 pub fn parse_effect(text: &str) -> Result<Effect, String> {
@@ -233,7 +246,10 @@ pub fn calibrate_and_report(
     json: bool,
 ) -> Result<()> {
     let started = std::time::Instant::now();
-    let result = run(inputs, options, effects, study_subsets)?;
+    let spinner = spinner("calibrating");
+    let result = run(inputs, options, effects, study_subsets);
+    spinner.finish_and_clear();
+    let result = result?;
     output::write_run(&result, out)?;
     let s = &result.summary;
     if json {
@@ -297,6 +313,7 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     let artefact = Artefact::load(&a.inputs.artefact)?;
     let cal = Dataset::load_dir(&a.inputs.data, &artefact, Purpose::Calibration)?;
     let val = Dataset::load_dir(&a.inputs.validate, &artefact, Purpose::Validation)?;
+    check_study_size(&cal, a.subsets)?;
     let calibration =
         CalibrationOptions { restarts: a.restarts, seed: a.seed, ..CalibrationOptions::default() };
     let options = StudyOptions { subsets: a.subsets, seed: a.seed, calibration, progress: !a.json };
@@ -337,6 +354,7 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
     }
     let (artefact, cal, val) = folder.data()?;
     let started = std::time::Instant::now();
+    let spinner = spinner("diagnosing");
     let diagnosis = kincal::calib::diagnose::diagnose(
         &folder.model,
         &artefact,
@@ -344,6 +362,7 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
         &val,
         &folder.summary.options.calibration_options(),
     );
+    spinner.finish_and_clear();
     let elapsed = started.elapsed().as_secs_f64();
     output::write_diagnosis(&diagnosis, &a.run)?;
     if a.json {

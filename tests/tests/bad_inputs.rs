@@ -13,8 +13,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-const CAL: &[&str] = &[
-    "calibrate",
+/// The input options every calibrate and study case starts from.
+const INPUTS: &[&str] = &[
     "--model",
     "model.toml",
     "--artefact",
@@ -23,26 +23,18 @@ const CAL: &[&str] = &[
     "data/cal",
     "--validate",
     "data/val",
-    "--restarts",
-    "1",
-    "--out",
-    "out",
 ];
-const STUDY: &[&str] = &[
-    "study",
-    "--model",
-    "model.toml",
-    "--artefact",
-    "data/artefact.json",
-    "--data",
-    "data/cal",
-    "--validate",
-    "data/val",
-    "--subsets",
-    "2",
-    "--out",
-    "study",
-];
+
+/// `kincal calibrate` on the valid inputs into `out/`.
+fn cal() -> Vec<&'static str> {
+    [&["calibrate"], INPUTS, &["--restarts", "1", "--out", "out"]].concat()
+}
+
+/// `kincal study` on the valid inputs into `study/`.
+fn study() -> Vec<&'static str> {
+    [&["study"], INPUTS, &["--subsets", "2", "--out", "study"]].concat()
+}
+
 const SIM: &[&str] = &["simulate", "--model", "model.toml", "--out", "sim", "--repeats", "1"];
 
 fn example_model() -> PathBuf {
@@ -67,7 +59,7 @@ fn template(root: &Path) -> PathBuf {
     std::fs::remove_file(t.join("data/.kincal-output")).unwrap();
     copy_tree(&t.join("other/val"), &t.join("other-arm"));
     std::fs::remove_dir_all(t.join("other")).unwrap();
-    let run: Vec<&str> = CAL.iter().map(|s| if *s == "out" { "run" } else { s }).collect();
+    let run: Vec<&str> = cal().into_iter().map(|s| if s == "out" { "run" } else { s }).collect();
     kincal(&t, &run);
     t
 }
@@ -128,6 +120,43 @@ fn session(file: &'static str, edit: impl Fn(&mut Value) + Send + Sync + 'static
 
 const CA: &str = "data/cal/C_A.json";
 
+/// Text edits of model.toml: (case, text replaced, replacement, what the error must say).
+type TextEdit = (&'static str, &'static str, &'static str, &'static [&'static str]);
+const BOUNDS: &str = "[10.7, 30.7]";
+const TCP: &str = "[0.0, 0.0, 253.0]";
+const SCALE: &str = "scale_ppm = 0.0";
+const MODEL_TEXT_EDITS: &[TextEdit] = &[
+    ("bounds with 3 numbers", BOUNDS, "[10.7, 20.7, 30.7]", &["offset:2", "expected 2 numbers"]),
+    ("bounds with 1 number", BOUNDS, "[10.7]", &["offset:2", "expected 2 numbers"]),
+    ("bounds empty", BOUNDS, "[]", &["offset:2", "expected 2 numbers"]),
+    ("bounds nan", BOUNDS, "[nan, 30.7]", &["offset:2", "finite"]),
+    ("bounds ±1e200", "[-10.0, 10.0]", "[-1e200, 1e200]", &["length:2", "plausible"]),
+    ("bounds reversed", BOUNDS, "[30.7, 10.7]", &["offset:2", "lower < upper"]),
+    ("bounds equal", BOUNDS, "[20.7, 20.7]", &["offset:2", "lower < upper"]),
+    ("value outside bounds", BOUNDS, "[30.0, 40.0]", &["offset:2", "outside its bounds"]),
+    ("bounds as text", BOUNDS, "\"10.7..30.7\"", &["model.toml", "invalid type"]),
+    ("unknown parameter", "\"offset:2\"", "\"offset:9\"", &["offset:9", "unknown parameter"]),
+    ("tcp with 4 numbers", TCP, "[0.0, 0.0, 253.0, 1.0]", &["tcp_mm", "expected 3 numbers"]),
+    ("tcp with 2 numbers", TCP, "[0.0, 253.0]", &["tcp_mm", "expected 3 numbers"]),
+    ("tcp nan", TCP, "[0.0, nan, 253.0]", &["tcp.y", "finite"]),
+    ("tcp 1e308", TCP, "[0.0, 0.0, 1e308]", &["tcp.z", "plausible"]),
+    ("tcp missing", "tcp_mm = [0.0, 0.0, 253.0]", "", &["model.toml", "tcp_mm"]),
+    ("scale -1e6 ppm", SCALE, "scale_ppm = -1e6", &["scale", "plausible"]),
+    ("scale nan", SCALE, "scale_ppm = nan", &["scale", "finite"]),
+    ("scale 1e308", SCALE, "scale_ppm = 1e308", &["scale", "plausible"]),
+    ("format", "kincal-arm/1", "kincal-arm/2", &["format", "kincal-arm/1"]),
+    ("convention", "\"classic\"", "\"banana\"", &["model.toml", "banana"]),
+    ("five joints", "[[joint]]\noffset_deg = 20.7", "[[jointx]]\noffset_deg = 20.7", &["model.toml"]),
+    (
+        "seven joints",
+        "\n[free]\n",
+        "\n[[joint]]\noffset_deg = 0\nd_mm = 0\na_mm = 0\nalpha_deg = 0\n[free]\n",
+        &["expected 6"],
+    ),
+    ("unknown key", SCALE, "scale_ppm = 0.0\nscael = 1", &["model.toml", "scael"]),
+    ("unknown effect", SCALE, "scale_ppm = 0.0\neffects = [\"wobble:2\"]", &["wobble:2", "unknown effect"]),
+];
+
 fn model_cases(cases: &mut Vec<Case>) {
     let params =
         [("offset_deg", "offset"), ("d_mm", "length"), ("a_mm", "link_offset"), ("alpha_deg", "twist")];
@@ -145,87 +174,31 @@ fn model_cases(cases: &mut Vec<Case>) {
                 cases.push(Case::fails(
                     &format!("model/{name}={value}"),
                     model_joint(j, field, value),
-                    words(CAL, &[]),
+                    words(&cal(), &[]),
                     &needles,
                 ));
             }
         }
     }
     let m = "model.toml";
+    for (name, from, to, needles) in MODEL_TEXT_EDITS {
+        cases.push(Case::fails(&format!("model/{name}"), replace(m, from, to), words(&cal(), &[]), needles));
+    }
+    let free_table_only = |extra: &'static str| -> Setup {
+        Box::new(move |d: &Path| {
+            let t = std::fs::read_to_string(d.join("model.toml")).unwrap();
+            std::fs::write(
+                d.join("model.toml"),
+                format!("{}{extra}", &t[..t.find("\n[free]\n").unwrap() + 8]),
+            )
+            .unwrap();
+        })
+    };
     let list: Vec<(&str, Setup, &[&str])> = vec![
+        ("empty free table", free_table_only(""), &["no free parameter"]),
         (
-            "bounds with 3 numbers",
-            replace(m, "[10.7, 30.7]", "[10.7, 20.7, 30.7]"),
-            &["offset:2", "expected 2 numbers"],
-        ),
-        ("bounds with 1 number", replace(m, "[10.7, 30.7]", "[10.7]"), &["offset:2", "expected 2 numbers"]),
-        ("bounds empty", replace(m, "[10.7, 30.7]", "[]"), &["offset:2", "expected 2 numbers"]),
-        ("bounds nan", replace(m, "[10.7, 30.7]", "[nan, 30.7]"), &["offset:2", "finite"]),
-        ("bounds ±1e200", replace(m, "[-10.0, 10.0]", "[-1e200, 1e200]"), &["length:2", "plausible"]),
-        ("bounds reversed", replace(m, "[10.7, 30.7]", "[30.7, 10.7]"), &["offset:2", "lower < upper"]),
-        ("bounds equal", replace(m, "[10.7, 30.7]", "[20.7, 20.7]"), &["offset:2", "lower < upper"]),
-        (
-            "value outside bounds",
-            replace(m, "[10.7, 30.7]", "[30.0, 40.0]"),
-            &["offset:2", "outside its bounds"],
-        ),
-        ("bounds as text", replace(m, "[10.7, 30.7]", "\"10.7..30.7\""), &["model.toml", "invalid type"]),
-        ("unknown parameter", replace(m, "\"offset:2\"", "\"offset:9\""), &["offset:9", "unknown parameter"]),
-        (
-            "tcp with 4 numbers",
-            replace(m, "[0.0, 0.0, 253.0]", "[0.0, 0.0, 253.0, 1.0]"),
-            &["tcp_mm", "expected 3 numbers"],
-        ),
-        (
-            "tcp with 2 numbers",
-            replace(m, "[0.0, 0.0, 253.0]", "[0.0, 253.0]"),
-            &["tcp_mm", "expected 3 numbers"],
-        ),
-        ("tcp nan", replace(m, "[0.0, 0.0, 253.0]", "[0.0, nan, 253.0]"), &["tcp.y", "finite"]),
-        ("tcp 1e308", replace(m, "[0.0, 0.0, 253.0]", "[0.0, 0.0, 1e308]"), &["tcp.z", "plausible"]),
-        ("tcp missing", replace(m, "tcp_mm = [0.0, 0.0, 253.0]", ""), &["model.toml", "tcp_mm"]),
-        ("scale -1e6 ppm", replace(m, "scale_ppm = 0.0", "scale_ppm = -1e6"), &["scale", "plausible"]),
-        ("scale nan", replace(m, "scale_ppm = 0.0", "scale_ppm = nan"), &["scale", "finite"]),
-        ("scale 1e308", replace(m, "scale_ppm = 0.0", "scale_ppm = 1e308"), &["scale", "plausible"]),
-        ("format", replace(m, "kincal-arm/1", "kincal-arm/2"), &["format", "kincal-arm/1"]),
-        ("convention", replace(m, "\"classic\"", "\"banana\""), &["model.toml", "banana"]),
-        (
-            "five joints",
-            replace(m, "[[joint]]\noffset_deg = 20.7", "[[jointx]]\noffset_deg = 20.7"),
-            &["model.toml"],
-        ),
-        (
-            "seven joints",
-            replace(
-                m,
-                "\n[free]\n",
-                "\n[[joint]]\noffset_deg = 0.0\nd_mm = 0.0\na_mm = 0.0\nalpha_deg = 0.0\n\n[free]\n",
-            ),
-            &["joint", "expected 6"],
-        ),
-        (
-            "unknown key",
-            replace(m, "scale_ppm = 0.0", "scale_ppm = 0.0\nscael = 1"),
-            &["model.toml", "scael"],
-        ),
-        (
-            "empty free table",
-            Box::new(|d: &Path| {
-                let t = std::fs::read_to_string(d.join("model.toml")).unwrap();
-                std::fs::write(d.join("model.toml"), &t[..t.find("\n[free]\n").unwrap() + 8]).unwrap();
-            }),
-            &["no free parameter"],
-        ),
-        (
-            "only an unidentifiable parameter free",
-            Box::new(|d: &Path| {
-                let t = std::fs::read_to_string(d.join("model.toml")).unwrap();
-                std::fs::write(
-                    d.join("model.toml"),
-                    format!("{}\"offset:1\" = [-11.6, 8.4]\n", &t[..t.find("\n[free]\n").unwrap() + 8]),
-                )
-                .unwrap();
-            }),
+            "only offset:1 free",
+            free_table_only("\"offset:1\" = [-11.6, 8.4]\n"),
             &["none of the free parameters"],
         ),
         (
@@ -243,19 +216,7 @@ fn model_cases(cases: &mut Vec<Case>) {
             &["reach", "millimetres"],
         ),
         ("twist 400", model_joint(2, "alpha_deg", "400.0"), &["twist:2", "plausible"]),
-        (
-            "unknown effect",
-            replace(m, "scale_ppm = 0.0", "scale_ppm = 0.0\neffects = [\"wobble:2\"]"),
-            &["wobble:2", "unknown effect"],
-        ),
-        (
-            "truncated file",
-            Box::new(|d: &Path| {
-                let t = std::fs::read_to_string(d.join("model.toml")).unwrap();
-                std::fs::write(d.join("model.toml"), &t[..t.len() / 2]).unwrap();
-            }),
-            &["model.toml"],
-        ),
+        ("truncated file", free_table_only("\"offset:2\" = [10.7,"), &["model.toml"]),
         ("empty file", write(m, ""), &["model.toml"]),
         ("binary garbage", write(m, "\u{0}\u{1}\u{2}PK"), &["model.toml"]),
         (
@@ -273,7 +234,7 @@ fn model_cases(cases: &mut Vec<Case>) {
         ),
     ];
     for (name, setup, needles) in list {
-        cases.push(Case::fails(&format!("model/{name}"), setup, words(CAL, &[]), needles));
+        cases.push(Case::fails(&format!("model/{name}"), setup, words(&cal(), &[]), needles));
     }
     let json_model: Vec<(&str, Setup, &[&str])> = vec![
         ("json tcp null", replace("model.json", "253.0", "null"), &["model.json", "tcp_mm"]),
@@ -293,7 +254,7 @@ fn model_cases(cases: &mut Vec<Case>) {
             &["model.json"],
         ),
     ];
-    let cal_json: Vec<String> = words(CAL, &[])
+    let cal_json: Vec<String> = words(&cal(), &[])
         .into_iter()
         .map(|w| if w == "model.toml" { "model.json".into() } else { w })
         .collect();
@@ -304,7 +265,7 @@ fn model_cases(cases: &mut Vec<Case>) {
     cases.push(Case::succeeds(
         "model/a comment and blank lines",
         replace(m, "\n[free]\n", "\n# bounds below\n\n[free]\n"),
-        words(CAL, &[]),
+        words(&cal(), &[]),
         calibrated("out", 225),
     ));
 }
@@ -394,13 +355,13 @@ fn artefact_cases(cases: &mut Vec<Case>) {
         ),
     ];
     for (name, setup, needles) in list {
-        cases.push(Case::fails(&format!("artefact/{name}"), setup, words(CAL, &[]), needles));
+        cases.push(Case::fails(&format!("artefact/{name}"), setup, words(&cal(), &[]), needles));
     }
     for i in [0usize, 4, 9, 14] {
         cases.push(Case::fails(
             &format!("artefact/landmark {i} 1 km away"),
             edit_json(a, move |v| v["landmarks"][i]["xyz_mm"] = json!([1.0e6, 0.0, 40.0])),
-            words(CAL, &[]),
+            words(&cal(), &[]),
             &[&format!("landmarks[{i}].xyz_mm"), "beyond any arm's reach"],
         ));
         cases.push(Case::fails(
@@ -411,7 +372,7 @@ fn artefact_cases(cases: &mut Vec<Case>) {
                     v["landmarks"][i]["xyz_mm"][k] = json!(x * 1000.0 + 7000.0);
                 }
             }),
-            words(CAL, &[]),
+            words(&cal(), &[]),
             &[&format!("landmarks[{i}].xyz_mm"), "beyond any arm's reach"],
         ));
     }
@@ -659,7 +620,7 @@ fn session_cases(cases: &mut Vec<Case>) {
         ),
     ];
     for (name, setup, needles) in list {
-        cases.push(Case::fails(&format!("session/{name}"), setup, words(CAL, &[]), needles));
+        cases.push(Case::fails(&format!("session/{name}"), setup, words(&cal(), &[]), needles));
     }
     // Every landmark position of the first measurement, one bad angle each joint.
     for k in 0..6 {
@@ -669,7 +630,7 @@ fn session_cases(cases: &mut Vec<Case>) {
             cases.push(Case::fails(
                 &format!("session/joint {} {label} in val", k + 1),
                 session("data/val/V_C.json", move |v| v["measurements"][4]["joints_deg"][k] = value.clone()),
-                words(CAL, &[]),
+                words(&cal(), &[]),
                 &["V_C.json", &needle],
             ));
         }
@@ -740,36 +701,40 @@ fn session_cases(cases: &mut Vec<Case>) {
         cases.push(Case::succeeds(
             &format!("session/{name}"),
             setup,
-            words(CAL, &[]),
+            words(&cal(), &[]),
             calibrated("out", touches),
         ));
     }
 }
 
 fn option_cases(cases: &mut Vec<Case>) {
-    let bad: Vec<(&[&str], &str, &[&str])> = vec![
-        (CAL, "--huber-delta-mm", &["0", "-1", "1e-300", "NaN", "inf", "1e9", "abc", ""]),
-        (CAL, "--lever-mm", &["NaN", "0", "-5", "inf", "1e300"]),
-        (CAL, "--restarts", &["-1", "1001", "x", "1.5"]),
-        (CAL, "--study-subsets", &["-1", "10001", "NaN"]),
-        (CAL, "--seed", &["-1", "x"]),
-        (CAL, "--objective", &["banana", ""]),
-        (CAL, "--add", &["wobble:2", "eccentricity:9", ""]),
-        (SIM, "--perturb-deg", &["NaN", "-1", "100", "inf"]),
-        (SIM, "--perturb-mm", &["NaN", "-1", "1000"]),
-        (SIM, "--seating-noise-mm", &["NaN", "-0.1", "1e9", "inf"]),
-        (SIM, "--encoder-noise-deg", &["NaN", "-1", "5", "inf"]),
-        (SIM, "--repeats", &["0", "-1", "21", "1.5", "NaN"]),
-        (SIM, "--hidden", &["offset:9=1", "offset:2=NaN", "offset:2=1e9", "junk", "offset:2=", "scale=-1e6"]),
-        (STUDY, "--subsets", &["0", "-1", "10001", "NaN"]),
-        (STUDY, "--restarts", &["-1", "5000"]),
-        (&["haptic", "simulate", "--out", "rec"], "--delay-ms", &["NaN", "-1", "inf", "1e9"]),
-        (&["haptic", "simulate", "--out", "rec"], "--joints-seconds", &["NaN", "0", "-5", "1e12"]),
+    let bad: Vec<(Vec<&str>, &str, &[&str])> = vec![
+        (cal(), "--huber-delta-mm", &["0", "-1", "1e-300", "NaN", "inf", "1e9", "abc", ""]),
+        (cal(), "--lever-mm", &["NaN", "0", "-5", "inf", "1e300"]),
+        (cal(), "--restarts", &["-1", "1001", "x", "1.5"]),
+        (cal(), "--study-subsets", &["-1", "10001", "NaN"]),
+        (cal(), "--seed", &["-1", "x"]),
+        (cal(), "--objective", &["banana", ""]),
+        (cal(), "--add", &["wobble:2", "eccentricity:9", ""]),
+        (SIM.to_vec(), "--perturb-deg", &["NaN", "-1", "100", "inf"]),
+        (SIM.to_vec(), "--perturb-mm", &["NaN", "-1", "1000"]),
+        (SIM.to_vec(), "--seating-noise-mm", &["NaN", "-0.1", "1e9", "inf"]),
+        (SIM.to_vec(), "--encoder-noise-deg", &["NaN", "-1", "5", "inf"]),
+        (SIM.to_vec(), "--repeats", &["0", "-1", "21", "1.5", "NaN"]),
+        (
+            SIM.to_vec(),
+            "--hidden",
+            &["offset:9=1", "offset:2=NaN", "offset:2=1e9", "junk", "offset:2=", "scale=-1e6"],
+        ),
+        (study(), "--subsets", &["0", "-1", "10001", "NaN"]),
+        (study(), "--restarts", &["-1", "5000"]),
+        (vec!["haptic", "simulate", "--out", "rec"], "--delay-ms", &["NaN", "-1", "inf", "1e9"]),
+        (vec!["haptic", "simulate", "--out", "rec"], "--joints-seconds", &["NaN", "0", "-5", "1e12"]),
     ];
     for (base, option, values) in bad {
         for value in values.iter() {
             // An option the base command line already gives is replaced, not repeated.
-            let mut args = words(base, &[]);
+            let mut args = words(&base, &[]);
             match args.iter().position(|w| w == option) {
                 Some(at) => args[at + 1] = value.to_string(),
                 None => args.extend([option.to_string(), value.to_string()]),
@@ -798,38 +763,38 @@ fn option_cases(cases: &mut Vec<Case>) {
     cases.push(Case::fails(
         "option/study of 10000 subsets over 20 placements",
         many(),
-        words(&STUDY[..STUDY.len() - 4], &["--subsets", "10000", "--out", "study"]),
+        words(&study()[..study().len() - 4], &["--subsets", "10000", "--out", "study"]),
         &["touch-calibrations", "at most 10000000", "fewer subsets"],
     ));
     cases.push(Case::fails(
         "option/calibrate with a study of 10000 subsets over 20 placements",
         many(),
-        words(CAL, &["--study-subsets", "10000"]),
+        words(&cal(), &["--study-subsets", "10000"]),
         &["touch-calibrations", "fewer subsets"],
     ));
     let good: Vec<(&str, Vec<String>, Option<Check>)> = vec![
-        ("huber 0.5", words(CAL, &["--huber-delta-mm", "0.5"]), calibrated("out", 225)),
+        ("huber 0.5", words(&cal(), &["--huber-delta-mm", "0.5"]), calibrated("out", 225)),
         (
             "six-dof lever 50",
-            words(CAL, &["--objective", "six-dof", "--lever-mm", "50"]),
+            words(&cal(), &["--objective", "six-dof", "--lever-mm", "50"]),
             calibrated("out", 225),
         ),
         (
             "no restarts",
-            words(CAL, &[]).into_iter().map(|w| if w == "1" { "0".into() } else { w }).collect(),
+            words(&cal(), &[]).into_iter().map(|w| if w == "1" { "0".into() } else { w }).collect(),
             calibrated("out", 225),
         ),
-        ("add eccentricity:5", words(CAL, &["--add", "eccentricity:5"]), calibrated("out", 225)),
-        ("with a study", words(CAL, &["--study-subsets", "2"]), calibrated("out", 225)),
-        ("json", words(CAL, &["--json"]), calibrated("out", 225)),
+        ("add eccentricity:5", words(&cal(), &["--add", "eccentricity:5"]), calibrated("out", 225)),
+        ("with a study", words(&cal(), &["--study-subsets", "2"]), calibrated("out", 225)),
+        ("json", words(&cal(), &["--json"]), calibrated("out", 225)),
         ("simulate hidden", words(SIM, &["--hidden", "eccentricity_sin:5=0.2"]), exists("sim/cal/C_A.json")),
         (
             "simulate no noise",
             words(SIM, &["--seating-noise-mm", "0", "--encoder-noise-deg", "0"]),
             exists("sim/val/V_A.json"),
         ),
-        ("study", words(STUDY, &[]), exists("study/study.json")),
-        ("study json", words(STUDY, &["--json"]), exists("study/study.json")),
+        ("study", words(&study(), &[]), exists("study/study.json")),
+        ("study json", words(&study(), &["--json"]), exists("study/study.json")),
     ];
     for (name, args, check) in good {
         cases.push(Case::succeeds(&format!("option/{name}"), unchanged(), args, check));
@@ -838,7 +803,7 @@ fn option_cases(cases: &mut Vec<Case>) {
 
 fn output_cases(cases: &mut Vec<Case>) {
     let out_as = |out: &str| -> Vec<String> {
-        words(CAL, &[]).into_iter().map(|w| if w == "out" { out.to_string() } else { w }).collect()
+        words(&cal(), &[]).into_iter().map(|w| if w == "out" { out.to_string() } else { w }).collect()
     };
     let thesis = write("mine/thesis.docx", "years of work");
     let list: Vec<(&str, Setup, Vec<String>, &[&str])> = vec![
@@ -869,10 +834,10 @@ fn output_cases(cases: &mut Vec<Case>) {
         (
             "study out = the data",
             unchanged(),
-            words(&STUDY[..STUDY.len() - 1], &["data"]),
+            words(&study()[..study().len() - 1], &["data"]),
             &["contains the input"],
         ),
-        ("study out = a user's folder", write("study/plan.md", "mine"), words(STUDY, &[]), &["plan.md"]),
+        ("study out = a user's folder", write("study/plan.md", "mine"), words(&study(), &[]), &["plan.md"]),
         (
             "simulate out = the data",
             unchanged(),

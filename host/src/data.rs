@@ -165,9 +165,7 @@ impl Artefact {
     /// no landmark far from the others, no two landmarks at one point.
     fn check_geometry(&self, path: &Path) -> Result<(), FileError> {
         let n = self.landmarks.len();
-        let span = (0..n)
-            .flat_map(|a| (a + 1..n).map(move |b| (a, b)))
-            .fold(0.0_f64, |s, (a, b)| s.max(self.distance_mm(a, b)));
+        let span = self.span_mm();
         if span < 1e-3 {
             return Err(field_error(
                 path,
@@ -229,6 +227,14 @@ impl Artefact {
             ));
         }
         Ok(())
+    }
+
+    /// Largest distance between two landmarks, mm.
+    pub fn span_mm(&self) -> f64 {
+        let n = self.landmarks.len();
+        (0..n)
+            .flat_map(|a| (a + 1..n).map(move |b| (a, b)))
+            .fold(0.0_f64, |s, (a, b)| s.max(self.distance_mm(a, b)))
     }
 
     /// Index of the landmark called `id`.

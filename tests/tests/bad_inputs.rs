@@ -216,6 +216,18 @@ fn model_cases(cases: &mut Vec<Case>) {
             &["reach", "millimetres"],
         ),
         ("twist 400", model_joint(2, "alpha_deg", "400.0"), &["twist:2", "plausible"]),
+        (
+            "an arm too short for the artefact",
+            all(vec![
+                model_joint(3, "d_mm", "20.0"),
+                model_joint(5, "d_mm", "10.0"),
+                replace(m, "\"length:3\" = [561.0, 581.0]", "\"length:3\" = [15.0, 25.0]"),
+                replace(m, "\"length:5\" = [361.0, 381.0]", "\"length:5\" = [5.0, 15.0]"),
+                replace(m, TCP, "[0.0, 0.0, 10.0]"),
+                replace(m, "\"tcp.z\" = [243.0, 263.0]", "\"tcp.z\" = [5.0, 15.0]"),
+            ]),
+            &["cannot touch them all"],
+        ),
         ("truncated file", free_table_only("\"offset:2\" = [10.7,"), &["model.toml"]),
         ("empty file", write(m, ""), &["model.toml"]),
         ("binary garbage", write(m, "\u{0}\u{1}\u{2}PK"), &["model.toml"]),

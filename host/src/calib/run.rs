@@ -31,6 +31,17 @@ pub enum RunError {
     /// The calibration could not run.
     #[error(transparent)]
     Calibration(#[from] CalibrationError),
+    /// The artefact is larger than the arm can span.
+    #[error(
+        "the artefact's landmarks span {span:.0} mm but the model's arm reaches at most {reach:.0} mm \
+         from its base: it cannot touch them all (model or artefact of another device, or other units?)"
+    )]
+    OutOfReach {
+        /// Largest distance between two landmarks, mm.
+        span: f64,
+        /// The arm's reach (Σ|d| + |a| + |tool|), mm.
+        reach: f64,
+    },
     /// The study asked for is too large.
     #[error(transparent)]
     Study(#[from] StudyError),
@@ -298,6 +309,14 @@ impl RunFolder {
         let artefact = Artefact::load(&inputs.artefact)?;
         let cal = Dataset::load_dir(&inputs.calibration, &artefact, Purpose::Calibration)?;
         let val = Dataset::load_dir(&inputs.validation, &artefact, Purpose::Validation)?;
+        if val.pair_count() == 0 {
+            return Err(crate::files::field_error(
+                &inputs.validation,
+                "(folder)",
+                "no two different landmarks touched in the same placement and repeat: no distance to \
+                 validate on",
+            ));
+        }
         Ok((artefact, cal, val))
     }
 }
@@ -429,8 +448,12 @@ pub fn run(
     let artefact = Artefact::load(&inputs.artefact)?;
     let cal = Dataset::load_dir(&inputs.calibration, &artefact, Purpose::Calibration)?;
     let val = Dataset::load_dir(&inputs.validation, &artefact, Purpose::Validation)?;
-    if val.touch_pairs().is_empty() {
+    if val.pair_count() == 0 {
         return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
+    }
+    let (span, reach) = (artefact.span_mm(), nominal.reach_mm());
+    if span > 2.0 * reach {
+        return Err(RunError::OutOfReach { span, reach });
     }
     if let Some((validation, calibration)) = copied_placement(&cal, &val) {
         return Err(RunError::SameData { validation, calibration });

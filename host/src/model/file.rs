@@ -70,6 +70,12 @@ fn is_json(path: &Path) -> bool {
 }
 
 impl ArmModel {
+    /// Farthest the tool point can be from the base axis origin: Σ|d| + |a| + |tool|, mm.
+    pub fn reach_mm(&self) -> f64 {
+        self.joints.iter().map(|j| j.d_mm.abs() + j.a_mm.abs()).sum::<f64>()
+            + self.tcp_mm.iter().map(|v| v * v).sum::<f64>().sqrt()
+    }
+
     /// Read a model file (`.toml`, or `.json`).
     pub fn load(path: &Path) -> Result<ArmModel, FileError> {
         let text = std::fs::read_to_string(path)
@@ -121,8 +127,7 @@ impl ArmModel {
                 ));
             }
         }
-        let reach: f64 = model.joints.iter().map(|j| j.d_mm.abs() + j.a_mm.abs()).sum::<f64>()
-            + model.tcp_mm.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let reach = model.reach_mm();
         if !(MIN_REACH_MM..=MAX_REACH_MM).contains(&reach) {
             return Err(field(
                 "joint".into(),

@@ -614,4 +614,86 @@ mod tests {
         ));
         std::fs::remove_dir_all(&dir).ok();
     }
+
+    #[test]
+    fn implausible_artefacts_are_refused_with_the_reason() {
+        let dir = std::env::temp_dir().join(format!("kincal-artefact-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let grid = |scale: f64| -> Vec<Landmark> {
+            (0..4)
+                .map(|i| Landmark {
+                    id: format!("L{i}"),
+                    xyz_mm: [scale * (i % 2) as f64, scale * (i / 2) as f64, 40.0 * scale / 100.0],
+                    yaw_deg: 0.0,
+                })
+                .collect()
+        };
+        let mut far = grid(100.0);
+        far[2].xyz_mm = [1.0e6, 0.0, 40.0];
+        let mut twin = grid(100.0);
+        twin[3].xyz_mm = twin[1].xyz_mm;
+        let cases = [
+            (grid(0.1), "are they in metres"),
+            (grid(0.0), "at one point"),
+            (far, "landmarks[2].xyz_mm"),
+            (twin, "landmarks[3].xyz_mm"),
+        ];
+        for (i, (landmarks, expect)) in cases.into_iter().enumerate() {
+            let path = dir.join(format!("a{i}.json"));
+            Artefact { format: ARTEFACT_FORMAT.into(), landmarks }.save(&path).unwrap();
+            let err = Artefact::load(&path).unwrap_err().to_string();
+            assert!(err.contains(expect), "{err} should say {expect}");
+        }
+        let path = dir.join("ok.json");
+        Artefact { format: ARTEFACT_FORMAT.into(), landmarks: grid(100.0) }.save(&path).unwrap();
+        assert_eq!(Artefact::load(&path).unwrap().span_mm(), 100.0 * 2.0_f64.sqrt());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn contradictory_sessions_and_folders_are_refused() {
+        let dir = std::env::temp_dir().join(format!("kincal-folder-{}", std::process::id()));
+        let cal = dir.join("cal");
+        std::fs::create_dir_all(&cal).unwrap();
+        let touch = |landmark: &str, repeat| Measurement {
+            landmark: landmark.into(),
+            repeat,
+            joints_deg: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+            std_deg: None,
+            samples: Some(100),
+            rejected: Some(0),
+        };
+        let session = |placement: &str, purpose: &str, measurements| Session {
+            format: SESSION_FORMAT.into(),
+            placement: placement.into(),
+            purpose: purpose.into(),
+            measurements,
+        };
+        let good = session("A", "calibration", vec![touch("O", 1), touch("M1", 1)]);
+        let mut no_samples = good.clone();
+        no_samples.measurements[1].samples = Some(0);
+        let mut rejected = good.clone();
+        rejected.measurements[0].rejected = Some(101);
+        let cases = [
+            (session("A", "banana", vec![]), "purpose"),
+            (session("A", "calibration", vec![touch("O", 1), touch("O", 1)]), "already touched"),
+            (no_samples, "measurements[1].samples"),
+            (rejected, "measurements[0].rejected"),
+        ];
+        for (i, (s, expect)) in cases.into_iter().enumerate() {
+            let path = dir.join(format!("s{i}.json"));
+            s.save(&path).unwrap();
+            let err = Session::load(&path, &artefact()).unwrap_err().to_string();
+            assert!(err.contains(expect), "{err} should say {expect}");
+        }
+        good.save(&cal.join("A.JSON")).unwrap();
+        let data = Dataset::load_dir(&cal, &artefact(), Purpose::Calibration).unwrap();
+        assert_eq!((data.touches.len(), data.pair_count()), (2, 1), "upper-case .JSON is read");
+        let err = Dataset::load_dir(&cal, &artefact(), Purpose::Validation).unwrap_err().to_string();
+        assert!(err.contains("folder of validation"), "{err}");
+        good.save(&cal.join("B.json")).unwrap();
+        let err = Dataset::load_dir(&cal, &artefact(), Purpose::Calibration).unwrap_err().to_string();
+        assert!(err.contains("also in") && err.contains("A.JSON"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

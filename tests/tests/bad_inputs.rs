@@ -741,7 +741,7 @@ fn option_cases(cases: &mut Vec<Case>) {
         (study(), "--subsets", &["0", "-1", "10001", "NaN"]),
         (study(), "--restarts", &["-1", "5000"]),
         (vec!["haptic", "simulate", "--out", "rec"], "--delay-ms", &["NaN", "-1", "inf", "1e9"]),
-        (vec!["haptic", "simulate", "--out", "rec"], "--joints-seconds", &["NaN", "0", "-5", "1e12"]),
+        (vec!["haptic", "simulate", "--out", "rec"], "--joints-seconds", &["NaN", "0", "-5", "601", "1e12"]),
     ];
     for (base, option, values) in bad {
         for value in values.iter() {

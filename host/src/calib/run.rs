@@ -546,3 +546,26 @@ impl Run {
         StoredResiduals { format: RESIDUALS_FORMAT.to_string(), pairs }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::simulate::{simulate, SimulationOptions};
+
+    #[test]
+    fn validation_from_another_arm_is_not_a_result() {
+        let nominal = ArmModel::suta_nominal();
+        let ours = simulate(&nominal, &SimulationOptions::default());
+        let other = simulate(&nominal, &SimulationOptions { seed: 2, ..SimulationOptions::default() });
+        let cal = Dataset::from_sessions(&ours.calibration, &ours.artefact);
+        let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
+        let fit = calibrate(&nominal, &ours.artefact, &cal, &options).unwrap();
+        let val = Dataset::from_sessions(&ours.validation, &ours.artefact);
+        assert!(result_problems(&fit, &validate(&fit.model, &ours.artefact, &val)).is_empty());
+        let foreign = Dataset::from_sessions(&other.validation, &ours.artefact);
+        let problems = result_problems(&fit, &validate(&fit.model, &ours.artefact, &foreign));
+        assert!(problems.iter().any(|p| p.contains("another arm")), "{problems:?}");
+        assert_eq!(copied_placement(&cal, &val), None);
+        assert_eq!(copied_placement(&cal, &cal), Some(("A_O".into(), "A_O".into())));
+    }
+}

@@ -270,6 +270,12 @@ mod tests {
             (good.replace("kincal-arm/1", "arm/9"), "format"),
             (good.replace("\"offset:1\"", "\"offset:9\""), "free.\"offset:9\""),
             (good.replacen("[[joint]]", "", 1).replacen("offset_deg = -1.6\n", "", 1), ""),
+            // A longer list is an error, never cut to its expected length.
+            (good.replace("[\n    10.7,\n    30.7,\n]", "[10.7, 20.7, 30.7]"), "expected 2 numbers"),
+            (good.replace("253.0,\n]", "253.0,\n    1.0,\n]"), "tcp_mm"),
+            (good.replace("scale_ppm = 0.0", "scale_ppm = -1000000.0"), "plausible"),
+            (good.replace("d_mm = 571.0", "d_mm = 1e308"), "length:3"),
+            (good.replace("d_mm = 571.0", "d_mm = 0.571").replace("d_mm = 371.0", "d_mm = 0.371"), "bounds"),
         ];
         for (i, (text, field)) in cases.iter().enumerate() {
             let path = dir.join(format!("bad{i}.toml"));

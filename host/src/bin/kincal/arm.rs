@@ -402,7 +402,13 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
 }
 
 pub fn cmd_compare(a: &CompareArgs) -> Result<()> {
-    let comparison = Comparison::new(ComparedRun::load(&a.before)?, ComparedRun::load(&a.after)?);
+    let (before, after) = (ComparedRun::load(&a.before)?, ComparedRun::load(&a.after)?);
+    for run in [&before, &after] {
+        for problem in &run.summary.not_trustworthy {
+            eprintln!("warning: {} is marked not trustworthy: {problem}", run.name);
+        }
+    }
+    let comparison = Comparison::new(before, after);
     for line in comparison.table_lines() {
         println!("{line}");
     }

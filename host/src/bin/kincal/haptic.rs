@@ -28,7 +28,7 @@ pub struct HapticSimulateArgs {
     #[arg(long)]
     linear_gimbals: bool,
     /// Seconds of free motion in joints/.
-    #[arg(long, default_value_t = 60.0, allow_negative_numbers = true, value_parser = crate::args::real(1.0, 3600.0, "s"))]
+    #[arg(long, default_value_t = 60.0, allow_negative_numbers = true, value_parser = crate::args::real(1.0, 600.0, "s"))]
     joints_seconds: f64,
 }
 

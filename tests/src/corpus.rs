@@ -17,6 +17,9 @@ pub enum Expect {
     Fails(Vec<String>),
     /// Exit 0, and the check (if any) holds on the case folder.
     Succeeds(Option<Check>),
+    /// Either exit 0 with the check holding, or exit non-zero with one of the substrings in stderr
+    /// (for seeded random mutations whose effect is not known in advance).
+    Either(Vec<String>, Option<Check>),
 }
 
 /// A check on the case folder after a successful run.
@@ -208,7 +211,27 @@ fn run_case(bin: &Path, case: &Case, dir: &Path, logs: &Path, timeout: Duration)
     if !left.is_empty() {
         return Err(format!("left behind: {left:?}: {}", shown()));
     }
+    let check_success = |check: &Option<Check>| -> Result<(), String> {
+        for word in ["NaN", " inf", "-inf"] {
+            if stdout.contains(word) {
+                return Err(format!("success printed a non-finite figure ({word}): {}", shown()));
+            }
+        }
+        match check {
+            Some(check) => check(dir).map_err(|e| format!("{e}: {}", shown())),
+            None => Ok(()),
+        }
+    };
     match &case.expect {
+        Expect::Either(needles, check) => {
+            if status.success() {
+                return check_success(check);
+            }
+            let lower = stderr.to_lowercase();
+            if !needles.iter().any(|n| lower.contains(&n.to_lowercase())) {
+                return Err(format!("the error says none of {needles:?}: {}", shown()));
+            }
+        }
         Expect::Fails(needles) => {
             if status.success() {
                 return Err(format!("expected an error, got success: {}", shown()));
@@ -222,14 +245,7 @@ fn run_case(bin: &Path, case: &Case, dir: &Path, logs: &Path, timeout: Duration)
             if !status.success() {
                 return Err(format!("expected success: {}", shown()));
             }
-            for word in ["NaN", " inf", "-inf"] {
-                if stdout.contains(word) {
-                    return Err(format!("success printed a non-finite figure ({word}): {}", shown()));
-                }
-            }
-            if let Some(check) = check {
-                check(dir).map_err(|e| format!("{e}: {}", shown()))?;
-            }
+            check_success(check)?;
         }
     }
     Ok(())

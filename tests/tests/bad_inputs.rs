@@ -5,7 +5,7 @@
 //! changed, no staging folder left. Cases run in parallel, each in its own copy of the inputs.
 
 use kincal_e2e::corpus::{
-    all, copy_tree, edit_json, replace, run_corpus, unchanged, words, write, Case, Check, Setup,
+    all, copy_tree, edit_json, replace, run_corpus, unchanged, words, write, Case, Check, Expect, Setup,
 };
 use kincal_e2e::kincal_bin;
 use serde_json::{json, Value};
@@ -1054,9 +1054,79 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
     ));
 }
 
+/// Every numeric leaf of a JSON value, as JSON pointers.
+fn numbers(value: &Value, at: String, out: &mut Vec<String>) {
+    match value {
+        Value::Number(_) => out.push(at),
+        Value::Array(items) => {
+            items.iter().enumerate().for_each(|(i, v)| numbers(v, format!("{at}/{i}"), out))
+        }
+        Value::Object(map) => map.iter().for_each(|(k, v)| numbers(v, format!("{at}/{k}"), out)),
+        _ => {}
+    }
+}
+
+/// Seeded random mutations of one number in the artefact or a session: either a clear error
+/// naming the file (or a result marked not trustworthy), or a finite result over some pairs.
+fn random_cases(cases: &mut Vec<Case>, template: &Path) {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let files = ["data/artefact.json", "data/cal/C_B.json", "data/val/V_D.json"];
+    let replacements = [
+        json!(null),
+        json!("12"),
+        json!(true),
+        json!(-1),
+        json!(0),
+        json!(1e308),
+        json!(-1e308),
+        json!(359.999_999),
+        json!(4_294_967_296_u64),
+        json!([1.0]),
+    ];
+    for k in 0..60 {
+        let file = files[k % files.len()];
+        let value: Value =
+            serde_json::from_str(&std::fs::read_to_string(template.join(file)).unwrap()).unwrap();
+        let mut leaves = Vec::new();
+        numbers(&value, String::new(), &mut leaves);
+        let pointer = leaves[rng.random_range(0..leaves.len())].clone();
+        let (by, scale) =
+            (replacements[rng.random_range(0..replacements.len())].clone(), rng.random_range(0..3));
+        let name = file.rsplit('/').next().unwrap().to_string();
+        let label = format!("random/{k} {file}{pointer} = {by}{}", ["", " (scaled)", " (nudged)"][scale]);
+        let setup = edit_json(file, move |v| {
+            let Some(leaf) = v.pointer_mut(&pointer) else { return };
+            *leaf = match (scale, leaf.as_f64()) {
+                (1, Some(x)) => json!(x * 1000.0),
+                (2, Some(x)) => json!(x + 0.5),
+                _ => by.clone(),
+            };
+        });
+        let finite: Check = Box::new(|dir: &Path| {
+            let s: Value = serde_json::from_str(
+                &std::fs::read_to_string(dir.join("out/summary.json")).map_err(|e| e.to_string())?,
+            )
+            .map_err(|e| e.to_string())?;
+            let rms = s["validation"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
+            let pairs = s["validation"]["pairs"].as_u64().unwrap_or(0);
+            (rms.is_finite() && pairs > 0)
+                .then_some(())
+                .ok_or(format!("validation {rms} mm over {pairs} pairs"))
+        });
+        cases.push(Case {
+            name: label,
+            setup,
+            args: words(&cal(), &[]),
+            expect: Expect::Either(vec![name, "not trustworthy".into()], Some(finite)),
+        });
+    }
+}
+
 /// Every case of the corpus.
-fn corpus() -> Vec<Case> {
+fn corpus(template: &Path) -> Vec<Case> {
     let mut cases = Vec::new();
+    random_cases(&mut cases, template);
     model_cases(&mut cases);
     artefact_cases(&mut cases);
     session_cases(&mut cases);
@@ -1071,7 +1141,7 @@ fn every_bad_input_ends_in_a_clear_error_or_a_correct_result() {
     let root = std::env::temp_dir().join(format!("kincal-bad-inputs-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
     let template = template(&root);
-    let cases = corpus();
+    let cases = corpus(&template);
     let mut names: Vec<&str> = cases.iter().map(|c| c.name.as_str()).collect();
     names.sort_unstable();
     names.dedup();

@@ -19,6 +19,42 @@ pub const ARTEFACT_FORMAT: &str = "suta-artefact/1";
 /// Format tag of session files.
 pub const SESSION_FORMAT: &str = "suta-session/1";
 
+/// Smallest span of an artefact's landmarks, mm: anything smaller is not a millimetre artefact.
+pub const MIN_ARTEFACT_SPAN_MM: f64 = 10.0;
+/// Largest span of an artefact's landmarks, mm: twice the longest reach a tracker arm has.
+pub const MAX_ARTEFACT_SPAN_MM: f64 = 5000.0;
+/// Closest two landmarks may be, mm.
+pub const MIN_LANDMARK_SEPARATION_MM: f64 = 0.5;
+/// Most landmarks an artefact may have.
+pub const MAX_LANDMARKS: usize = 1000;
+/// Largest session or artefact file read, bytes (a 20 000-touch session is about 6 MB).
+pub const MAX_FILE_BYTES: u64 = 64 * 1024 * 1024;
+/// Most session files in one folder.
+pub const MAX_SESSION_FILES: usize = 5000;
+/// Most touches in one folder of sessions.
+pub const MAX_TOUCHES: usize = 100_000;
+/// Most distance pairs one folder of sessions may form (the Jacobian holds a row per pair).
+pub const MAX_PAIRS: usize = 1_000_000;
+
+/// What a session is for: the folder it is read from decides which is expected.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Purpose {
+    /// Touches the parameters are fitted to.
+    Calibration,
+    /// Held-out touches the fit is judged on.
+    Validation,
+}
+
+impl Purpose {
+    /// The word session files use.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Purpose::Calibration => "calibration",
+            Purpose::Validation => "validation",
+        }
+    }
+}
+
 /// One certified landmark (pillar) of the artefact.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Landmark {
@@ -75,6 +111,7 @@ pub struct Session {
 impl Artefact {
     /// Read and check an artefact file.
     pub fn load(path: &Path) -> Result<Artefact, FileError> {
+        check_size(path)?;
         let artefact: Artefact = read_json(path)?;
         if artefact.format != ARTEFACT_FORMAT {
             return Err(field_error(
@@ -86,6 +123,13 @@ impl Artefact {
         if artefact.landmarks.len() < 2 {
             return Err(field_error(path, "landmarks", "at least two landmarks are needed"));
         }
+        if artefact.landmarks.len() > MAX_LANDMARKS {
+            return Err(field_error(
+                path,
+                "landmarks",
+                format!("{} landmarks; at most {MAX_LANDMARKS} are supported", artefact.landmarks.len()),
+            ));
+        }
         let mut seen = HashMap::new();
         for (i, l) in artefact.landmarks.iter().enumerate() {
             if !l.xyz_mm.iter().chain([&l.yaw_deg]).all(|v| v.is_finite()) {
@@ -95,15 +139,102 @@ impl Artefact {
                     "xyz_mm and yaw_deg must be finite",
                 ));
             }
-            if seen.insert(l.id.clone(), i).is_some() {
+            if l.id.trim().is_empty() {
+                return Err(field_error(path, format!("landmarks[{i}].id"), "must name the landmark"));
+            }
+            if !(-360.0..=360.0).contains(&l.yaw_deg) {
+                return Err(field_error(
+                    path,
+                    format!("landmarks[{i}].yaw_deg"),
+                    format!("expected an angle in [-360, 360] degrees, found {}", l.yaw_deg),
+                ));
+            }
+            if let Some(first) = seen.insert(l.id.clone(), i) {
                 return Err(field_error(
                     path,
                     format!("landmarks[{i}].id"),
-                    format!("duplicate landmark id \"{}\"", l.id),
+                    format!("duplicate landmark id \"{}\" (also landmarks[{first}])", l.id),
                 ));
             }
         }
+        artefact.check_geometry(path)?;
         Ok(artefact)
+    }
+
+    /// Physical plausibility of the certified positions: a spread consistent with millimetres,
+    /// no landmark far from the others, no two landmarks at one point.
+    fn check_geometry(&self, path: &Path) -> Result<(), FileError> {
+        let n = self.landmarks.len();
+        let span = self.span_mm();
+        if span < 1e-3 {
+            return Err(field_error(
+                path,
+                "landmarks",
+                format!("all landmarks are at one point (span {span:.3} mm): copied rows, or not filled in?"),
+            ));
+        }
+        if span < MIN_ARTEFACT_SPAN_MM {
+            return Err(field_error(
+                path,
+                "landmarks",
+                format!(
+                    "the artefact's landmarks span {span:.3} mm (at least {MIN_ARTEFACT_SPAN_MM} mm expected): \
+                     are they in metres? Coordinates are in millimetres"
+                ),
+            ));
+        }
+        for a in 0..n {
+            for b in a + 1..n {
+                let d = self.distance_mm(a, b);
+                if d < MIN_LANDMARK_SEPARATION_MM {
+                    return Err(field_error(
+                        path,
+                        format!("landmarks[{b}].xyz_mm"),
+                        format!(
+                            "landmarks \"{}\" and \"{}\" are {d:.3} mm apart: two pillars cannot share a \
+                             point (at least {MIN_LANDMARK_SEPARATION_MM} mm expected); a copied row?",
+                            self.landmarks[a].id, self.landmarks[b].id
+                        ),
+                    ));
+                }
+            }
+        }
+        if span > MAX_ARTEFACT_SPAN_MM {
+            // Name the landmark farthest from the median position: that is the odd one out.
+            let median = |k: usize| {
+                let mut v: Vec<f64> = self.landmarks.iter().map(|l| l.xyz_mm[k]).collect();
+                v.sort_by(f64::total_cmp);
+                v[v.len() / 2]
+            };
+            let centre = [median(0), median(1), median(2)];
+            let far =
+                |l: &Landmark| l.xyz_mm.iter().zip(centre).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt();
+            let (i, worst) = self
+                .landmarks
+                .iter()
+                .enumerate()
+                .max_by(|a, b| far(a.1).total_cmp(&far(b.1)))
+                .map(|(i, l)| (i, far(l)))
+                .unwrap_or((0, 0.0));
+            return Err(field_error(
+                path,
+                format!("landmarks[{i}].xyz_mm"),
+                format!(
+                    "landmark \"{}\" is {worst:.0} mm from the others; the landmarks span {span:.0} mm, \
+                     beyond any arm's reach (at most {MAX_ARTEFACT_SPAN_MM} mm): a typo, or micrometres?",
+                    self.landmarks[i].id
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Largest distance between two landmarks, mm.
+    pub fn span_mm(&self) -> f64 {
+        let n = self.landmarks.len();
+        (0..n)
+            .flat_map(|a| (a + 1..n).map(move |b| (a, b)))
+            .fold(0.0_f64, |s, (a, b)| s.max(self.distance_mm(a, b)))
     }
 
     /// Index of the landmark called `id`.
@@ -126,6 +257,7 @@ impl Artefact {
 impl Session {
     /// Read a session and check every field against `artefact`.
     pub fn load(path: &Path, artefact: &Artefact) -> Result<Session, FileError> {
+        check_size(path)?;
         let session: Session = read_json(path)?;
         if session.format != SESSION_FORMAT {
             return Err(field_error(
@@ -134,11 +266,52 @@ impl Session {
                 format!("expected \"{SESSION_FORMAT}\", found \"{}\"", session.format),
             ));
         }
-        if session.placement.is_empty() {
+        if session.placement.trim().is_empty() {
             return Err(field_error(path, "placement", "must name the placement"));
         }
+        if ![Purpose::Calibration, Purpose::Validation].iter().any(|p| p.as_str() == session.purpose) {
+            return Err(field_error(
+                path,
+                "purpose",
+                format!("expected \"calibration\" or \"validation\", found \"{}\"", session.purpose),
+            ));
+        }
+        let mut taken: HashMap<(&str, u32), usize> = HashMap::new();
         for (i, m) in session.measurements.iter().enumerate() {
             let at = |f: &str| format!("measurements[{i}].{f}");
+            if m.repeat == 0 {
+                return Err(field_error(path, at("repeat"), "repeats are numbered from 1"));
+            }
+            if let Some(first) = taken.insert((m.landmark.as_str(), m.repeat), i) {
+                return Err(field_error(
+                    path,
+                    at("repeat"),
+                    format!(
+                        "landmark \"{}\" repeat {} was already touched in measurements[{first}]; \
+                         each (landmark, repeat) is touched once — number a re-take as a new repeat",
+                        m.landmark, m.repeat
+                    ),
+                ));
+            }
+            if m.samples == Some(0) {
+                return Err(field_error(
+                    path,
+                    at("samples"),
+                    "the window has 0 accepted samples: its angles are not a measurement; re-take it",
+                ));
+            }
+            if let (Some(samples), Some(rejected)) = (m.samples, m.rejected) {
+                if rejected > samples {
+                    return Err(field_error(
+                        path,
+                        at("rejected"),
+                        format!(
+                            "{rejected} samples rejected but only {samples} accepted: the window is not \
+                             a measurement; re-take it"
+                        ),
+                    ));
+                }
+            }
             if artefact.index_of(&m.landmark).is_none() {
                 return Err(field_error(
                     path,
@@ -177,6 +350,24 @@ impl Session {
     pub fn save(&self, path: &Path) -> Result<(), FileError> {
         write_json(path, self)
     }
+}
+
+/// Refuse a file larger than [`MAX_FILE_BYTES`] before reading it.
+fn check_size(path: &Path) -> Result<(), FileError> {
+    let bytes =
+        std::fs::metadata(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?.len();
+    if bytes > MAX_FILE_BYTES {
+        return Err(FileError::Field {
+            path: path.to_owned(),
+            field: "(whole file)".into(),
+            message: format!(
+                "{:.0} MB; files of at most {} MB are read (split the session by placement)",
+                bytes as f64 / 1e6,
+                MAX_FILE_BYTES / (1024 * 1024)
+            ),
+        });
+    }
+    Ok(())
 }
 
 fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<(), FileError> {
@@ -233,20 +424,101 @@ impl Dataset {
         data
     }
 
-    /// Read every `*.json` session in `dir` (sorted by file name).
-    pub fn load_dir(dir: &Path, artefact: &Artefact) -> Result<Dataset, FileError> {
+    /// Read every session in `dir` (files named `*.json`, any case, not hidden; sorted by name),
+    /// refusing two files of one placement, sessions of the other purpose, and more than
+    /// [`MAX_SESSION_FILES`] files or [`MAX_TOUCHES`] touches.
+    pub fn load_dir(dir: &Path, artefact: &Artefact, purpose: Purpose) -> Result<Dataset, FileError> {
         let entries =
             std::fs::read_dir(dir).map_err(|source| FileError::Io { path: dir.to_owned(), source })?;
         let mut files: Vec<PathBuf> = entries
             .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|e| e == "json"))
+            .filter(|p| {
+                let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+                !name.starts_with('.')
+                    && p.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"))
+                    && p.is_file()
+            })
             .collect();
         files.sort();
         if files.is_empty() {
             return Err(FileError::EmptyFolder { path: dir.to_owned() });
         }
-        let sessions = files.iter().map(|f| Session::load(f, artefact)).collect::<Result<Vec<_>, _>>()?;
-        Ok(Dataset::from_sessions(&sessions, artefact))
+        if files.len() > MAX_SESSION_FILES {
+            return Err(FileError::Field {
+                path: dir.to_owned(),
+                field: "(folder)".into(),
+                message: format!(
+                    "{} session files; at most {MAX_SESSION_FILES} are read in one folder",
+                    files.len()
+                ),
+            });
+        }
+        let mut sessions = Vec::with_capacity(files.len());
+        let mut placements: HashMap<String, &Path> = HashMap::new();
+        let mut touches = 0;
+        for file in &files {
+            let session = Session::load(file, artefact)?;
+            if session.purpose != purpose.as_str() {
+                return Err(field_error(
+                    file,
+                    "purpose",
+                    format!(
+                        "a {} session in the folder of {} sessions ({}): move it to the other folder",
+                        session.purpose,
+                        purpose.as_str(),
+                        dir.display()
+                    ),
+                ));
+            }
+            if let Some(first) = placements.insert(session.placement.clone(), file) {
+                return Err(field_error(
+                    file,
+                    "placement",
+                    format!(
+                        "placement \"{}\" is also in {}: one file per placement (a copied file?)",
+                        session.placement,
+                        first.display()
+                    ),
+                ));
+            }
+            touches += session.measurements.len();
+            if touches > MAX_TOUCHES {
+                return Err(FileError::Field {
+                    path: dir.to_owned(),
+                    field: "(folder)".into(),
+                    message: format!("more than {MAX_TOUCHES} touches; at most {MAX_TOUCHES} are read"),
+                });
+            }
+            sessions.push(session);
+        }
+        let data = Dataset::from_sessions(&sessions, artefact);
+        let pairs = data.pair_count();
+        if pairs > MAX_PAIRS {
+            return Err(FileError::Field {
+                path: dir.to_owned(),
+                field: "(folder)".into(),
+                message: format!(
+                    "the sessions form {pairs} distance pairs; at most {MAX_PAIRS} are used (fewer landmarks \
+                     per placement and repeat, or fewer placements)"
+                ),
+            });
+        }
+        Ok(data)
+    }
+
+    /// How many pairs [`Dataset::touch_pairs`] returns, counted without forming them.
+    pub fn pair_count(&self) -> usize {
+        let mut groups: HashMap<(usize, u32), HashMap<usize, usize>> = HashMap::new();
+        for t in &self.touches {
+            *groups.entry((t.placement, t.repeat)).or_default().entry(t.landmark).or_default() += 1;
+        }
+        let pairs = |k: usize| k * k.saturating_sub(1) / 2;
+        groups
+            .values()
+            .map(|by_landmark| {
+                pairs(by_landmark.values().sum()) - by_landmark.values().map(|&c| pairs(c)).sum::<usize>()
+            })
+            .sum()
     }
 
     /// A dataset holding only the placements listed (by index).
@@ -276,13 +548,18 @@ impl Dataset {
     /// Pairs of touches of different landmarks taken in the same placement and repeat
     /// (thesis eq. 3.1), as `(touch_a, touch_b)` indices.
     pub fn touch_pairs(&self) -> Vec<(usize, usize)> {
+        // Group by (placement, repeat) so the cost is that of the pairs, not of all touches squared.
+        let mut groups: HashMap<(usize, u32), Vec<usize>> = HashMap::new();
+        for (i, t) in self.touches.iter().enumerate() {
+            groups.entry((t.placement, t.repeat)).or_default().push(i);
+        }
         let mut pairs = Vec::new();
         for (a, ta) in self.touches.iter().enumerate() {
-            for (b, tb) in self.touches.iter().enumerate().skip(a + 1) {
-                if ta.placement == tb.placement && ta.repeat == tb.repeat && ta.landmark != tb.landmark {
-                    pairs.push((a, b));
-                }
-            }
+            let group = &groups[&(ta.placement, ta.repeat)];
+            let after = group.partition_point(|&b| b <= a);
+            pairs.extend(
+                group[after..].iter().filter(|&&b| self.touches[b].landmark != ta.landmark).map(|&b| (a, b)),
+            );
         }
         pairs
     }
@@ -316,6 +593,7 @@ mod tests {
             touches: vec![t(0, 0, 1), t(0, 1, 1), t(0, 1, 2), t(1, 0, 1), t(1, 1, 1)],
         };
         assert_eq!(data.touch_pairs(), vec![(0, 1), (3, 4)]);
+        assert_eq!(data.pair_count(), 2);
         assert!((artefact().distance_mm(0, 1) - 50.0).abs() < 1e-12);
     }
 
@@ -346,7 +624,92 @@ mod tests {
         assert_eq!(Session::load(&path, &artefact()).unwrap().measurements.len(), 1);
         let empty = dir.join("empty");
         std::fs::create_dir_all(&empty).unwrap();
-        assert!(matches!(Dataset::load_dir(&empty, &artefact()), Err(FileError::EmptyFolder { .. })));
+        assert!(matches!(
+            Dataset::load_dir(&empty, &artefact(), Purpose::Calibration),
+            Err(FileError::EmptyFolder { .. })
+        ));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn implausible_artefacts_are_refused_with_the_reason() {
+        let dir = std::env::temp_dir().join(format!("kincal-artefact-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let grid = |scale: f64| -> Vec<Landmark> {
+            (0..4)
+                .map(|i| Landmark {
+                    id: format!("L{i}"),
+                    xyz_mm: [scale * (i % 2) as f64, scale * (i / 2) as f64, 40.0 * scale / 100.0],
+                    yaw_deg: 0.0,
+                })
+                .collect()
+        };
+        let mut far = grid(100.0);
+        far[2].xyz_mm = [1.0e6, 0.0, 40.0];
+        let mut twin = grid(100.0);
+        twin[3].xyz_mm = twin[1].xyz_mm;
+        let cases = [
+            (grid(0.1), "are they in metres"),
+            (grid(0.0), "at one point"),
+            (far, "landmarks[2].xyz_mm"),
+            (twin, "landmarks[3].xyz_mm"),
+        ];
+        for (i, (landmarks, expect)) in cases.into_iter().enumerate() {
+            let path = dir.join(format!("a{i}.json"));
+            Artefact { format: ARTEFACT_FORMAT.into(), landmarks }.save(&path).unwrap();
+            let err = Artefact::load(&path).unwrap_err().to_string();
+            assert!(err.contains(expect), "{err} should say {expect}");
+        }
+        let path = dir.join("ok.json");
+        Artefact { format: ARTEFACT_FORMAT.into(), landmarks: grid(100.0) }.save(&path).unwrap();
+        assert_eq!(Artefact::load(&path).unwrap().span_mm(), 100.0 * 2.0_f64.sqrt());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn contradictory_sessions_and_folders_are_refused() {
+        let dir = std::env::temp_dir().join(format!("kincal-folder-{}", std::process::id()));
+        let cal = dir.join("cal");
+        std::fs::create_dir_all(&cal).unwrap();
+        let touch = |landmark: &str, repeat| Measurement {
+            landmark: landmark.into(),
+            repeat,
+            joints_deg: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+            std_deg: None,
+            samples: Some(100),
+            rejected: Some(0),
+        };
+        let session = |placement: &str, purpose: &str, measurements| Session {
+            format: SESSION_FORMAT.into(),
+            placement: placement.into(),
+            purpose: purpose.into(),
+            measurements,
+        };
+        let good = session("A", "calibration", vec![touch("O", 1), touch("M1", 1)]);
+        let mut no_samples = good.clone();
+        no_samples.measurements[1].samples = Some(0);
+        let mut rejected = good.clone();
+        rejected.measurements[0].rejected = Some(101);
+        let cases = [
+            (session("A", "banana", vec![]), "purpose"),
+            (session("A", "calibration", vec![touch("O", 1), touch("O", 1)]), "already touched"),
+            (no_samples, "measurements[1].samples"),
+            (rejected, "measurements[0].rejected"),
+        ];
+        for (i, (s, expect)) in cases.into_iter().enumerate() {
+            let path = dir.join(format!("s{i}.json"));
+            s.save(&path).unwrap();
+            let err = Session::load(&path, &artefact()).unwrap_err().to_string();
+            assert!(err.contains(expect), "{err} should say {expect}");
+        }
+        good.save(&cal.join("A.JSON")).unwrap();
+        let data = Dataset::load_dir(&cal, &artefact(), Purpose::Calibration).unwrap();
+        assert_eq!((data.touches.len(), data.pair_count()), (2, 1), "upper-case .JSON is read");
+        let err = Dataset::load_dir(&cal, &artefact(), Purpose::Validation).unwrap_err().to_string();
+        assert!(err.contains("folder of validation"), "{err}");
+        good.save(&cal.join("B.json")).unwrap();
+        let err = Dataset::load_dir(&cal, &artefact(), Purpose::Calibration).unwrap_err().to_string();
+        assert!(err.contains("also in") && err.contains("A.JSON"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -58,8 +58,31 @@ pub enum FileError {
 pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, FileError> {
     let text =
         std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
-    serde_json::from_str(&text)
-        .map_err(|e| FileError::Syntax { path: path.to_owned(), message: e.to_string() })
+    serde_json::from_str(&text).map_err(|e| json_error(path, &text, e))
+}
+
+/// The error for JSON that does not fit the expected shape: a value of the wrong type (`null`, a
+/// string where a number belongs) names the field it sits in, a syntax error its line and column.
+pub fn json_error(path: &Path, text: &str, e: serde_json::Error) -> FileError {
+    let message = e.to_string();
+    let key = key_before(text, e.line(), e.column());
+    match (e.classify(), key) {
+        (serde_json::error::Category::Data, Some(key)) => field_error(path, key, message),
+        (serde_json::error::Category::Syntax, Some(key)) => {
+            FileError::Syntax { path: path.to_owned(), message: format!("{message} (after field `{key}`)") }
+        }
+        _ => FileError::Syntax { path: path.to_owned(), message },
+    }
+}
+
+/// The object key nearest before line `line`, column `column` (1-based) of `text`.
+fn key_before(text: &str, line: usize, column: usize) -> Option<String> {
+    let start: usize = text.split_inclusive('\n').take(line.saturating_sub(1)).map(str::len).sum();
+    let end = (start + column).min(text.len());
+    let prefix = text.get(..end)?;
+    let colon = prefix.rfind("\":")?;
+    let open = prefix[..colon].rfind('"')?;
+    Some(prefix[open + 1..colon].to_string())
 }
 
 /// Read a JSON file kincal wrote, checking its `format` tag first so that a file of another kind or
@@ -71,7 +94,7 @@ pub fn read_tagged<T: serde::de::DeserializeOwned>(path: &Path, format: &str) ->
     }
     let text =
         std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
-    let syntax = |e: serde_json::Error| FileError::Syntax { path: path.to_owned(), message: e.to_string() };
+    let syntax = |e: serde_json::Error| json_error(path, &text, e);
     let tag: Tag = serde_json::from_str(&text).map_err(syntax)?;
     match tag.format.as_deref() {
         Some(found) if found == format => serde_json::from_str(&text).map_err(syntax),

@@ -66,6 +66,8 @@ pub enum FolderKind {
     Haptic,
     /// The steps of `kincal diagnose --auto`, in RUN/auto.
     Auto,
+    /// Simulated data (`kincal simulate`): artefact, truth and the session folders.
+    Simulation,
 }
 
 impl FolderKind {
@@ -75,6 +77,21 @@ impl FolderKind {
             FolderKind::Study => "study",
             FolderKind::Haptic => "haptic",
             FolderKind::Auto => "auto",
+            FolderKind::Simulation => "simulation",
+        }
+    }
+
+    /// Sub-folders kincal writes into this kind of folder, with the files each may hold.
+    fn subfolders(self) -> Vec<(&'static str, Vec<String>)> {
+        let names = |places: Vec<crate::simulate::Placement>| -> Vec<String> {
+            places.into_iter().map(|p| format!("{}.json", p.name)).collect()
+        };
+        match self {
+            FolderKind::Simulation => vec![
+                ("cal", names(crate::simulate::calibration_placements())),
+                ("val", names(crate::simulate::validation_placements())),
+            ],
+            _ => Vec::new(),
         }
     }
 
@@ -108,6 +125,7 @@ impl FolderKind {
             FolderKind::Study => &["study.json", "report.html"],
             FolderKind::Haptic => &["summary.json", "report.html"],
             FolderKind::Auto => &["auto.json", "report.html"],
+            FolderKind::Simulation => &["artefact.json", "truth.toml"],
         }
     }
 }
@@ -144,11 +162,13 @@ pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Re
     }
     let mut foreign = Vec::new();
     let mut any = false;
+    let mut marked = false;
     for entry in std::fs::read_dir(dir).map_err(io(dir))? {
         let entry = entry.map_err(io(dir))?;
         let name = entry.file_name().to_string_lossy().into_owned();
         any = true;
         if name == MARKER {
+            marked = true;
             let text = std::fs::read_to_string(entry.path()).unwrap_or_default();
             if text.trim() != kind.name() {
                 return Err(refused(
@@ -156,9 +176,16 @@ pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Re
                     format!("is a kincal {} folder, not a {} folder", text.trim(), kind.name()),
                 ));
             }
+        } else if let Some((_, allowed)) = kind.subfolders().into_iter().find(|(sub, _)| *sub == name) {
+            foreign.extend(foreign_in_subfolder(&entry.path(), &name, &allowed)?);
         } else if !kind.writes(&name, entry.path().is_dir()) {
             foreign.push(name);
         }
+    }
+    if any && !marked && kind == FolderKind::Simulation {
+        // Session files carry the same names whether simulated or recorded: without kincal's
+        // marker the data may be the user's own, so it is never replaced.
+        return Err(refused(dir, "holds data kincal did not write (no .kincal-output marker)"));
     }
     if !foreign.is_empty() {
         foreign.sort();
@@ -173,6 +200,22 @@ pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Re
         ));
     }
     Ok(any)
+}
+
+/// Entries of a sub-folder kincal writes (`cal/` of simulated data) that are not among `allowed`.
+fn foreign_in_subfolder(dir: &Path, name: &str, allowed: &[String]) -> Result<Vec<String>, OutputError> {
+    if !std::fs::symlink_metadata(dir).map_err(io(dir))?.is_dir() {
+        return Ok(vec![name.to_string()]);
+    }
+    let mut foreign = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(io(dir))? {
+        let entry = entry.map_err(io(dir))?;
+        let file = entry.file_name().to_string_lossy().into_owned();
+        if !(allowed.contains(&file) && entry.path().is_file()) {
+            foreign.push(format!("{name}/{file}"));
+        }
+    }
+    Ok(foreign)
 }
 
 /// A staging folder beside the target; removed on drop unless moved into place.
@@ -349,6 +392,11 @@ pub fn write_page(path: &Path, html: &str) -> Result<(), OutputError> {
         std::fs::create_dir_all(parent).map_err(io(parent))?;
     }
     write_atomic(path, html.as_bytes()).map_err(io(path))
+}
+
+/// Write simulated data (artefact.json, truth.toml, cal/, val/) as one folder.
+pub fn write_simulation(sim: &crate::simulate::SimulatedData, dir: &Path) -> Result<(), OutputError> {
+    write_folder(dir, FolderKind::Simulation, &[], |staged| Ok(sim.write(staged)?))
 }
 
 #[cfg(test)]

@@ -2,7 +2,10 @@
 //!
 //! [`FakeController`] runs the firmware's own protocol state machine, BiSS-C master reading the
 //! emulated encoders, encoder sampling and windows on the host, behind a TCP server on 127.0.0.1, so host logic and the `kincal` CLI can
-//! be tested fast and without QEMU. Ticks run `speedup` times faster than 768 Hz.
+//! be tested fast and without QEMU. Ticks run `speedup` times faster than 768 Hz. [`corpus`] is the
+//! bad-input corpus and its runner.
+
+pub mod corpus;
 
 pub mod haptic_gen;
 

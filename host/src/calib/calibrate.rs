@@ -49,6 +49,15 @@ pub enum CalibrationError {
     /// The model has no free parameter.
     #[error("the model has no free parameter: give bounds in its [free] table")]
     NothingFree,
+    /// No free parameter changes any distance on these touches.
+    #[error(
+        "none of the free parameters changes any measured distance: the touches carry no information \
+         (all at one pose, or the same joint angles copied into every measurement?)"
+    )]
+    NothingIdentifiable,
+    /// The model gives positions that are not finite numbers on these touches.
+    #[error("the model gives non-finite tool positions on these touches: check the model's numbers")]
+    NonFinite,
 }
 
 /// The outcome of one start of the solver.
@@ -115,6 +124,9 @@ fn jacobian_at(problem: &CalibrationProblem, x: &[f64]) -> (Vec<f64>, Vec<f64>) 
     problem.evaluate(x, &mut r, Some(&mut jac));
     (r, jac)
 }
+
+/// Change of a residual, mm, over a parameter's whole range below which it counts as none.
+const NEGLIGIBLE_MM: f64 = 1e-9;
 
 /// Most times the base set is re-checked at a solution and the problem solved again.
 const MAX_IDENTIFIABILITY_PASSES: usize = 3;
@@ -184,12 +196,23 @@ pub fn calibrate(
         return Err(CalibrationError::TooFewPairs { pairs: full.distance_rows(), params: all.len() });
     }
     let all_ranges: Vec<f64> = all.iter().map(|&id| range_of(id)).collect();
-    let (_, jac) = jacobian_at(&full, &nominal.free_values());
+    let (r0, jac) = jacobian_at(&full, &nominal.free_values());
+    if !r0.iter().chain(&jac).all(|v| v.is_finite()) {
+        return Err(CalibrationError::NonFinite);
+    }
+    // Over its whole range, no free parameter moves any residual by a measurable amount.
+    let n = all.len();
+    if jac.iter().enumerate().all(|(k, v)| (v * all_ranges[k % n]).abs() < NEGLIGIBLE_MM) {
+        return Err(CalibrationError::NothingIdentifiable);
+    }
     let before = identify::analyse(&jac, &all, &all_ranges);
     let (kept, _) = identify::base_columns(&jac, all.len(), &all_ranges);
     let mut estimated: Vec<ParamId> = kept.iter().map(|&c| all[c]).collect();
     let mut pass = 0;
     let (problem, best, starts) = loop {
+        if estimated.is_empty() {
+            return Err(CalibrationError::NothingIdentifiable);
+        }
         pass += 1;
         let bounds: Vec<_> =
             estimated.iter().filter_map(|id| nominal.free.iter().find(|f| f.id == *id)).collect();

@@ -12,9 +12,9 @@ use crate::calib::calibrate::{
 use crate::calib::identify::{self, Identifiability};
 use crate::calib::objective::{CalibrationProblem, Objective};
 use crate::calib::outliers::{landmark_outliers, LandmarkOutlier};
-use crate::calib::study::{study, StudyOptions, StudyRow};
+use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions, StudyRow};
 use crate::calib::validate::{validate, ErrorStats, GroupStats, Repeatability, Validation};
-use crate::data::{Artefact, Dataset};
+use crate::data::{Artefact, Dataset, Purpose};
 use crate::files::read_tagged;
 use crate::files::FileError;
 use crate::model::effects::Effect;
@@ -29,11 +29,45 @@ pub enum RunError {
     #[error(transparent)]
     Data(#[from] FileError),
     /// The calibration could not run.
-    #[error("calibration: {0}")]
+    #[error(transparent)]
     Calibration(#[from] CalibrationError),
     /// `--exclude-landmark` or `--exclude-block` names nothing in the data.
     #[error("{0}")]
     Exclusion(String),
+    /// The artefact is larger than the arm can span.
+    #[error(
+        "the artefact's landmarks span {span:.0} mm but the model's arm reaches at most {reach:.0} mm \
+         from its base: it cannot touch them all (model or artefact of another device, or other units?)"
+    )]
+    OutOfReach {
+        /// Largest distance between two landmarks, mm.
+        span: f64,
+        /// The arm's reach (Σ|d| + |a| + |tool|), mm.
+        reach: f64,
+    },
+    /// The study asked for is too large.
+    #[error(transparent)]
+    Study(#[from] StudyError),
+    /// The validation sessions hold no distance to validate on.
+    #[error(
+        "{path}: no two different landmarks touched in the same placement and repeat: no distance to \
+         validate on"
+    )]
+    NoValidationPairs {
+        /// The validation folder.
+        path: PathBuf,
+    },
+    /// A validation placement repeats a calibration placement touch for touch.
+    #[error(
+        "validation placement \"{validation}\" holds the same touches as calibration placement \
+         \"{calibration}\": validation must be held out (copied files?)"
+    )]
+    SameData {
+        /// The validation placement.
+        validation: String,
+        /// The calibration placement it copies.
+        calibration: String,
+    },
     /// An input path could not be resolved.
     #[error("{path}: {source}")]
     Input {
@@ -78,8 +112,8 @@ impl RunInputs {
 
     /// Load the calibration and validation sessions with the exclusions applied.
     pub fn load_data(&self, artefact: &Artefact) -> Result<(Dataset, Dataset), RunError> {
-        let mut cal = Dataset::load_dir(&self.calibration, artefact)?;
-        let mut val = Dataset::load_dir(&self.validation, artefact)?;
+        let mut cal = Dataset::load_dir(&self.calibration, artefact, Purpose::Calibration)?;
+        let mut val = Dataset::load_dir(&self.validation, artefact, Purpose::Validation)?;
         for id in &self.exclude_landmarks {
             let l = artefact.index_of(id).ok_or_else(|| {
                 RunError::Exclusion(format!(
@@ -152,6 +186,95 @@ pub struct Summary {
     /// Dataset-size study, when asked for (`--study-subsets`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub study: Option<Vec<StudyRow>>,
+    /// Why the figures are not a result, with the likely cause ([`result_problems`]); empty when
+    /// they are. A RUN with problems is written for inspection and the command exits non-zero.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub not_trustworthy: Vec<String>,
+}
+
+/// Calibration RMS, mm, above which a fit is never trusted whatever the data's repeatability.
+pub const RMS_ALWAYS_SUSPECT_MM: f64 = 1.0;
+/// How many times the data's repeatability (RMS distance of repeated touches from their
+/// barycentre, about the distance noise) the calibration RMS may be.
+pub const RMS_REPEATABILITY_FACTOR: f64 = 5.0;
+/// Calibration RMS, mm, above which a fit is not trusted when the data has no repeats.
+pub const RMS_WITHOUT_REPEATS_MM: f64 = 5.0;
+/// How many times the calibration RMS the validation RMS may be.
+pub const VALIDATION_FACTOR: f64 = 5.0;
+
+/// Why the figures of a finished calibration cannot be taken as a result: a non-finite figure, a
+/// calibration RMS far beyond the data's repeatability, a fit that did not move from its start, a
+/// validation error far beyond the calibration error. Each reason names the likely cause.
+pub fn result_problems(fit: &Calibration, validation: &Validation) -> Vec<String> {
+    let mut problems = Vec::new();
+    let v = &validation.overall;
+    let figures = [fit.rms_mm, fit.cost, v.rms_mm, v.mean_mm, v.std_mm, v.max_mm];
+    if figures.iter().any(|x| !x.is_finite()) {
+        problems.push("a calibration or validation figure is not a finite number".to_string());
+        return problems;
+    }
+    if v.pairs == 0 {
+        problems.push("no validation pair: the fit was not checked on held-out touches".to_string());
+    }
+    let spreads: Vec<(f64, usize)> = validation.repeatability.iter().map(|r| (r.rms_mm, r.touches)).collect();
+    let touches: usize = spreads.iter().map(|s| s.1).sum();
+    let limit = if touches > 0 {
+        let rms = (spreads.iter().map(|(r, n)| r * r * *n as f64).sum::<f64>() / touches as f64).sqrt();
+        (RMS_REPEATABILITY_FACTOR * rms).max(RMS_ALWAYS_SUSPECT_MM)
+    } else {
+        RMS_WITHOUT_REPEATS_MM
+    };
+    if fit.rms_mm > limit {
+        problems.push(format!(
+            "calibration RMS {:.3} mm is far beyond what the data's repeatability allows ({limit:.3} mm): \
+             the model cannot describe these touches — a model file of another arm, artefact coordinates \
+             that are not the pillars touched (units, landmark ids swapped), or sessions mixed from \
+             different setups",
+            fit.rms_mm
+        ));
+    }
+    let moved = fit.estimates.iter().any(|e| e.status == "estimated" && e.value != e.nominal);
+    if !moved && fit.rms_mm > RMS_ALWAYS_SUSPECT_MM {
+        problems.push(format!(
+            "the fit did not move from its start (calibration RMS {:.3} mm): the solver found no step \
+             that lowers the cost — bounds too tight around the start, or a Huber threshold far below \
+             the residuals",
+            fit.rms_mm
+        ));
+    }
+    if v.pairs > 0 && v.rms_mm > (VALIDATION_FACTOR * fit.rms_mm).max(RMS_ALWAYS_SUSPECT_MM) {
+        problems.push(format!(
+            "validation RMS {:.3} mm is {:.0}× the calibration RMS {:.3} mm: the validation sessions look \
+             like another arm, another artefact or a moved setup, or the calibration data is too thin",
+            v.rms_mm,
+            v.rms_mm / fit.rms_mm.max(1e-9),
+            fit.rms_mm
+        ));
+    }
+    problems
+}
+
+/// The first validation placement that copies a calibration placement touch for touch.
+fn copied_placement(cal: &Dataset, val: &Dataset) -> Option<(String, String)> {
+    let key = |data: &Dataset, p: usize| -> Vec<(usize, u32, [u64; crate::model::JOINTS])> {
+        let mut v: Vec<_> = data
+            .touches
+            .iter()
+            .filter(|t| t.placement == p)
+            .map(|t| (t.landmark, t.repeat, t.enc_deg.map(f64::to_bits)))
+            .collect();
+        v.sort_unstable();
+        v
+    };
+    let cal_keys: std::collections::HashMap<_, usize> =
+        (0..cal.placements.len()).map(|p| (key(cal, p), p)).collect();
+    (0..val.placements.len()).find_map(|p| {
+        let k = key(val, p);
+        (!k.is_empty())
+            .then(|| cal_keys.get(&k))
+            .flatten()
+            .map(|&c| (val.placements[p].clone(), cal.placements[c].clone()))
+    })
 }
 
 /// Options recorded in the summary.
@@ -238,8 +361,12 @@ impl RunFolder {
 
     /// Load the artefact and both datasets the run used.
     pub fn data(&self) -> Result<(Artefact, Dataset, Dataset), RunError> {
-        let artefact = Artefact::load(&self.summary.inputs.artefact)?;
-        let (cal, val) = self.summary.inputs.load_data(&artefact)?;
+        let inputs = &self.summary.inputs;
+        let artefact = Artefact::load(&inputs.artefact)?;
+        let (cal, val) = inputs.load_data(&artefact)?;
+        if val.pair_count() == 0 {
+            return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
+        }
         Ok((artefact, cal, val))
     }
 }
@@ -371,8 +498,33 @@ pub fn run(
     }
     let artefact = Artefact::load(&inputs.artefact)?;
     let (cal, val) = inputs.load_data(&artefact)?;
+    if val.pair_count() == 0 {
+        return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
+    }
+    let (span, reach) = (artefact.span_mm(), nominal.reach_mm());
+    if span > 2.0 * reach {
+        return Err(RunError::OutOfReach { span, reach });
+    }
+    if let Some((validation, calibration)) = copied_placement(&cal, &val) {
+        return Err(RunError::SameData { validation, calibration });
+    }
+    check_study_size(&cal, study_subsets)?;
     let fit = calibrate(&nominal, &artefact, &cal, options)?;
     let validation = validate(&fit.model, &artefact, &val);
+    let mut not_trustworthy = result_problems(&fit, &validation);
+    let study_rows = (study_subsets > 0).then(|| {
+        let calibration = CalibrationOptions { restarts: 0, ..*options };
+        study(
+            &nominal,
+            &artefact,
+            &cal,
+            &val,
+            &StudyOptions { subsets: study_subsets, seed: options.seed, calibration, progress: false },
+        )
+    });
+    if let Some(rows) = &study_rows {
+        not_trustworthy.extend(study_problems(rows).into_iter().map(|p| format!("study: {p}")));
+    }
     let nominal_validation = validate(&nominal, &artefact, &val);
     let outliers = landmark_outliers(&fit, &artefact, &cal, Some(&val), options);
     let summary = Summary {
@@ -408,16 +560,8 @@ pub fn run(
         },
         outliers,
         objective_comparison: objective_comparison(&fit, &artefact, &cal),
-        study: (study_subsets > 0).then(|| {
-            let calibration = CalibrationOptions { restarts: 0, ..*options };
-            study(
-                &nominal,
-                &artefact,
-                &cal,
-                &val,
-                &StudyOptions { subsets: study_subsets, seed: options.seed, calibration, progress: false },
-            )
-        }),
+        study: study_rows,
+        not_trustworthy,
     };
     Ok(Run {
         nominal,
@@ -450,5 +594,28 @@ impl Run {
             })
             .collect();
         StoredResiduals { format: RESIDUALS_FORMAT.to_string(), pairs }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::simulate::{simulate, SimulationOptions};
+
+    #[test]
+    fn validation_from_another_arm_is_not_a_result() {
+        let nominal = ArmModel::suta_nominal();
+        let ours = simulate(&nominal, &SimulationOptions::default());
+        let other = simulate(&nominal, &SimulationOptions { seed: 2, ..SimulationOptions::default() });
+        let cal = Dataset::from_sessions(&ours.calibration, &ours.artefact);
+        let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
+        let fit = calibrate(&nominal, &ours.artefact, &cal, &options).unwrap();
+        let val = Dataset::from_sessions(&ours.validation, &ours.artefact);
+        assert!(result_problems(&fit, &validate(&fit.model, &ours.artefact, &val)).is_empty());
+        let foreign = Dataset::from_sessions(&other.validation, &ours.artefact);
+        let problems = result_problems(&fit, &validate(&fit.model, &ours.artefact, &foreign));
+        assert!(problems.iter().any(|p| p.contains("another arm")), "{problems:?}");
+        assert_eq!(copied_placement(&cal, &val), None);
+        assert_eq!(copied_placement(&cal, &cal), Some(("A_O".into(), "A_O".into())));
     }
 }

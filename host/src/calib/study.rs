@@ -46,6 +46,61 @@ pub struct StudyRow {
     pub rms_mm: Vec<f64>,
 }
 
+/// Most touch-calibrations (touches of each subset summed over every calibration) a study may
+/// ask for: about 12 minutes on two cores at the measured 14 000 touch-calibrations per second.
+pub const MAX_STUDY_WORK: usize = 10_000_000;
+
+/// Why a study is refused before it starts.
+#[derive(Debug, thiserror::Error)]
+pub enum StudyError {
+    /// The study would run far too long.
+    #[error(
+        "a study of {subsets} subsets per placement count over {placements} placements and {touches} \
+         touches means {work} touch-calibrations; at most {MAX_STUDY_WORK} are run (about 12 minutes on \
+         two cores): use fewer subsets"
+    )]
+    TooLarge {
+        /// Subsets per placement count.
+        subsets: usize,
+        /// Calibration placements.
+        placements: usize,
+        /// Calibration touches.
+        touches: usize,
+        /// Touch-calibrations it would take.
+        work: usize,
+    },
+}
+
+/// Refuse up front a study larger than [`MAX_STUDY_WORK`]: subset k of n placements holds about
+/// k/n of the touches, so the work is subsets × touches × (n + 1) / 2.
+pub fn check_study_size(cal: &Dataset, subsets: usize) -> Result<(), StudyError> {
+    let (placements, touches) = (cal.placements.len(), cal.touches.len());
+    let work = subsets.saturating_mul(touches).saturating_mul(placements + 1) / 2;
+    if work > MAX_STUDY_WORK {
+        return Err(StudyError::TooLarge { subsets, placements, touches, work });
+    }
+    Ok(())
+}
+
+/// Why the rows of a study cannot be taken as a result, if they cannot.
+pub fn study_problems(rows: &[StudyRow]) -> Vec<String> {
+    let mut problems = Vec::new();
+    if rows.iter().all(|r| r.calibrations == 0) {
+        problems.push(
+            "no calibration of any subset succeeded: too few landmark pairs per placement for the free \
+             parameters, or no validation pairs"
+                .to_string(),
+        );
+    }
+    for r in rows {
+        let figures = [r.mean_mm, r.std_mm, r.min_mm, r.max_mm].into_iter().chain(r.rms_mm.iter().copied());
+        if figures.into_iter().any(|v| !v.is_finite()) {
+            problems.push(format!("the row for {} placements holds a non-finite figure", r.placements));
+        }
+    }
+    problems
+}
+
 /// Run the study. Uses every core rayon is given.
 pub fn study(
     nominal: &ArmModel,
@@ -75,12 +130,16 @@ pub fn study(
     let results: Vec<(usize, Option<f64>)> = tasks
         .par_iter()
         .map(|(k, subset)| {
-            let rms =
-                calibrate(nominal, artefact, &cal.subset(subset), &options.calibration).ok().map(|fit| {
+            let rms = calibrate(nominal, artefact, &cal.subset(subset), &options.calibration)
+                .ok()
+                .map(|fit| {
                     let e: Vec<f64> =
                         distance_errors(&fit.model, artefact, val).iter().map(|e| e.error_mm).collect();
-                    ErrorStats::of(&e).rms_mm
-                });
+                    ErrorStats::of(&e)
+                })
+                // A calibration whose validation is empty or not finite is a failed one.
+                .filter(|v| v.pairs > 0 && v.rms_mm.is_finite())
+                .map(|v| v.rms_mm);
             bar.inc(1);
             (*k, rms)
         })
@@ -90,10 +149,12 @@ pub fn study(
         .map(|k| {
             let rms_mm: Vec<f64> = results.iter().filter(|r| r.0 == k).filter_map(|r| r.1).collect();
             let failed = results.iter().filter(|r| r.0 == k && r.1.is_none()).count();
+            // A row where no calibration ran holds zeros with `calibrations` 0, never ∞ or NaN.
             let count = rms_mm.len().max(1) as f64;
             let mean = rms_mm.iter().sum::<f64>() / count;
             let std = (rms_mm.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / count).sqrt();
-            let (min, max) = rms_mm.iter().fold((f64::INFINITY, 0.0_f64), |(a, b), v| (a.min(*v), b.max(*v)));
+            let min = rms_mm.iter().copied().reduce(f64::min).unwrap_or(0.0);
+            let max = rms_mm.iter().copied().fold(0.0_f64, f64::max);
             StudyRow {
                 placements: k,
                 calibrations: rms_mm.len(),

@@ -148,13 +148,15 @@ pub fn validate(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Valida
 /// Repeatability per landmark from touches repeated within one placement.
 pub fn repeatability(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<Repeatability> {
     let p = positions(model, data);
+    // Touches grouped by (landmark, placement) once: linear in the number of touches.
+    let mut groups: std::collections::BTreeMap<(usize, usize), Vec<usize>> = Default::default();
+    for (k, t) in data.touches.iter().enumerate() {
+        groups.entry((t.landmark, t.placement)).or_default().push(k);
+    }
     let mut out = Vec::new();
     for (i, l) in artefact.landmarks.iter().enumerate() {
         let mut spreads = Vec::new();
-        for placement in 0..data.placements.len() {
-            let idx: Vec<usize> = (0..data.touches.len())
-                .filter(|&k| data.touches[k].landmark == i && data.touches[k].placement == placement)
-                .collect();
+        for (_, idx) in groups.range((i, 0)..(i + 1, 0)) {
             if idx.len() < 2 {
                 continue;
             }

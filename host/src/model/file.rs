@@ -33,28 +33,63 @@ struct ModelFile {
     #[serde(default)]
     name: String,
     convention: Convention,
-    tcp_mm: [f64; 3],
+    // Read as lists and checked for length: TOML would silently cut a longer list to an array.
+    tcp_mm: Vec<f64>,
     #[serde(default)]
     scale_ppm: f64,
     joint: Vec<Joint>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     effects: Vec<String>,
     #[serde(default)]
-    free: BTreeMap<String, [f64; 2]>,
+    free: BTreeMap<String, Vec<f64>>,
 }
+
+/// Largest magnitude a parameter may plausibly have, with the unit, by kind: anything larger is a
+/// typo or a unit mistake, and would make the kinematics meaningless (a scale of −10⁶ ppm
+/// collapses the arm to a point).
+pub fn plausible_limit(id: ParamId) -> f64 {
+    match id {
+        ParamId::Offset(_) => 720.0,
+        ParamId::Twist(_) | ParamId::Axis(_) => 360.0,
+        ParamId::EccSin(_)
+        | ParamId::EccCos(_)
+        | ParamId::Ecc2Sin(_)
+        | ParamId::Ecc2Cos(_)
+        | ParamId::Harm3Sin(_)
+        | ParamId::Harm3Cos(_)
+        | ParamId::Harm4Sin(_)
+        | ParamId::Harm4Cos(_) => 10.0,
+        ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) => MAX_LENGTH_MM,
+        ParamId::Compliance(_) => 100.0,
+        ParamId::Scale => 100_000.0,
+    }
+}
+
+/// Longest single length (d, a, tool offset) a model may hold, mm.
+pub const MAX_LENGTH_MM: f64 = 5000.0;
+/// Longest total reach (Σ|d| + |a| + |tool|), mm.
+pub const MAX_REACH_MM: f64 = 10_000.0;
+/// Shortest total reach, mm: a smaller arm is a unit mistake (metres?).
+pub const MIN_REACH_MM: f64 = 10.0;
 
 fn is_json(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"))
 }
 
 impl ArmModel {
+    /// Farthest the tool point can be from the base axis origin: Σ|d| + |a| + |tool|, mm.
+    pub fn reach_mm(&self) -> f64 {
+        self.joints.iter().map(|j| j.d_mm.abs() + j.a_mm.abs()).sum::<f64>()
+            + self.tcp_mm.iter().map(|v| v * v).sum::<f64>().sqrt()
+    }
+
     /// Read a model file (`.toml`, or `.json`).
     pub fn load(path: &Path) -> Result<ArmModel, FileError> {
         let text = std::fs::read_to_string(path)
             .map_err(|source| FileError::Io { path: path.to_owned(), source })?;
         let syntax = |message: String| FileError::Syntax { path: path.to_owned(), message };
         let file: ModelFile = if is_json(path) {
-            serde_json::from_str(&text).map_err(|e| syntax(e.to_string()))?
+            serde_json::from_str(&text).map_err(|e| files::json_error(path, &text, e))?
         } else {
             toml::from_str(&text).map_err(|e| syntax(e.to_string()))?
         };
@@ -73,16 +108,41 @@ impl ArmModel {
         let joints: [Joint; JOINTS] = file.joint.clone().try_into().map_err(|_| {
             field("joint".into(), format!("expected {JOINTS} [[joint]] rows, found {}", file.joint.len()))
         })?;
+        let tcp_mm: [f64; 3] = file.tcp_mm.clone().try_into().map_err(|_| {
+            field("tcp_mm".into(), format!("expected 3 numbers [x, y, z] in mm, found {}", file.tcp_mm.len()))
+        })?;
         let mut model = ArmModel {
             name: file.name,
             convention: file.convention,
             joints,
-            tcp_mm: file.tcp_mm,
+            tcp_mm,
             scale_ppm: file.scale_ppm,
             free: Vec::new(),
         };
-        if let Some(id) = ParamId::all().into_iter().find(|id| !model.get(*id).is_finite()) {
-            return Err(field(id.to_string(), "must be a finite number".into()));
+        for id in ParamId::all() {
+            let (value, limit) = (model.get(id), plausible_limit(id));
+            if !value.is_finite() {
+                return Err(field(id.to_string(), "must be a finite number".into()));
+            }
+            if value.abs() > limit {
+                return Err(field(
+                    id.to_string(),
+                    format!(
+                        "{value} {} is beyond any plausible arm (|value| <= {limit}): a unit mistake?",
+                        id.unit()
+                    ),
+                ));
+            }
+        }
+        let reach = model.reach_mm();
+        if !(MIN_REACH_MM..=MAX_REACH_MM).contains(&reach) {
+            return Err(field(
+                "joint".into(),
+                format!(
+                    "the arm's reach (Σ|d| + |a| + |tool|) is {reach:.3} mm; expected {MIN_REACH_MM} to \
+                     {MAX_REACH_MM} mm: lengths are in millimetres"
+                ),
+            ));
         }
         for name in &file.effects {
             let effect = Effect::parse(name).ok_or_else(|| {
@@ -93,15 +153,28 @@ impl ArmModel {
             })?;
             effect.add_to(&mut model);
         }
-        for (name, [lower, upper]) in file.free {
+        for (name, bounds) in file.free {
             let key = format!("free.\"{name}\"");
             let id = ParamId::parse(&name).ok_or_else(|| {
                 field(key.clone(), "unknown parameter; expected e.g. offset:1, length:3, link_offset:2, twist:5, axis:2, tcp.z, scale".into())
             })?;
-            if !(lower.is_finite() && upper.is_finite() && lower <= upper) {
+            let [lower, upper] = <[f64; 2]>::try_from(bounds.as_slice()).map_err(|_| {
+                field(key.clone(), format!("expected 2 numbers [lower, upper], found {}", bounds.len()))
+            })?;
+            if !(lower.is_finite() && upper.is_finite() && lower < upper) {
                 return Err(field(
                     key,
-                    format!("bounds must be finite with lower <= upper, found [{lower}, {upper}]"),
+                    format!("bounds must be finite with lower < upper, found [{lower}, {upper}]"),
+                ));
+            }
+            let limit = plausible_limit(id);
+            if lower < -limit || upper > limit {
+                return Err(field(
+                    key,
+                    format!(
+                        "bounds [{lower}, {upper}] {} reach beyond any plausible arm (|value| <= {limit})",
+                        id.unit()
+                    ),
                 ));
             }
             let value = model.get(id);
@@ -124,7 +197,7 @@ impl ArmModel {
             format: MODEL_FORMAT.into(),
             name: self.name.clone(),
             convention: self.convention,
-            tcp_mm: self.tcp_mm,
+            tcp_mm: self.tcp_mm.to_vec(),
             scale_ppm: self.scale_ppm,
             joint: self.joints.to_vec(),
             effects: crate::model::effects::Effect::library()
@@ -132,7 +205,7 @@ impl ArmModel {
                 .filter(|e| e.is_in(self) && e.kind.is_non_geometric())
                 .map(|e| e.to_string())
                 .collect(),
-            free: self.free.iter().map(|f| (f.id.to_string(), [f.lower, f.upper])).collect(),
+            free: self.free.iter().map(|f| (f.id.to_string(), vec![f.lower, f.upper])).collect(),
         };
         if json {
             serde_json::to_string_pretty(&file).unwrap_or_default()
@@ -204,6 +277,12 @@ mod tests {
             (good.replace("kincal-arm/1", "arm/9"), "format"),
             (good.replace("\"offset:1\"", "\"offset:9\""), "free.\"offset:9\""),
             (good.replacen("[[joint]]", "", 1).replacen("offset_deg = -1.6\n", "", 1), ""),
+            // A longer list is an error, never cut to its expected length.
+            (good.replace("[\n    10.7,\n    30.7,\n]", "[10.7, 20.7, 30.7]"), "expected 2 numbers"),
+            (good.replace("253.0,\n]", "253.0,\n    1.0,\n]"), "tcp_mm"),
+            (good.replace("scale_ppm = 0.0", "scale_ppm = -1000000.0"), "plausible"),
+            (good.replace("d_mm = 571.0", "d_mm = 1e308"), "length:3"),
+            (good.replace("d_mm = 571.0", "d_mm = 0.571").replace("d_mm = 371.0", "d_mm = 0.371"), "bounds"),
         ];
         for (i, (text, field)) in cases.iter().enumerate() {
             let path = dir.join(format!("bad{i}.toml"));

@@ -9,6 +9,10 @@ use std::fmt::Write;
 pub fn calibration_report(run: &Run) -> String {
     let s = &run.summary;
     let mut body = String::new();
+    if !s.not_trustworthy.is_empty() {
+        let items: String = s.not_trustworthy.iter().map(|p| format!("<li>{}</li>", escape(p))).collect();
+        let _ = write!(body, "<h2>Not trustworthy: these figures are not a result</h2><ul>{items}</ul>");
+    }
     let stats_row = |name: &str, v: &crate::calib::validate::ErrorStats| {
         vec![name.to_string(), mm(v.rms_mm), mm(v.mean_mm), mm(v.std_mm), mm(v.max_mm), v.pairs.to_string()]
     };

@@ -2,17 +2,25 @@
 
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
 use kincal::calib::calibrate::CalibrationOptions;
 use kincal::calib::objective::Objective;
 use kincal::calib::run::{run, RunFolder, RunInputs};
-use kincal::calib::study::{study, StudyOptions};
-use kincal::data::{Artefact, Dataset};
+use kincal::calib::study::{check_study_size, study, study_problems, StudyOptions};
+use kincal::data::{Artefact, Dataset, Purpose};
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
 use kincal::output;
 use kincal::report::compare::{ComparedRun, Comparison};
 use kincal::simulate::{simulate, SimulationOptions};
 use std::path::{Path, PathBuf};
+
+use crate::args::{count, real};
+
+/// Most random restarts per calibration.
+pub const MAX_RESTARTS: usize = 1000;
+/// Most random subsets per placement count in a study.
+pub const MAX_SUBSETS: usize = 10_000;
 
 #[derive(Args)]
 pub struct SimulateArgs {
@@ -23,26 +31,38 @@ pub struct SimulateArgs {
     #[arg(long)]
     out: PathBuf,
     /// Seed of every random choice.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
     /// Size of the angle perturbations, degrees.
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true, value_parser = real(0.0, 20.0, "degrees"))]
     perturb_deg: f64,
     /// Size of the length perturbations, mm.
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true, value_parser = real(0.0, 50.0, "mm"))]
     perturb_mm: f64,
     /// Seating noise per axis, mm (standard deviation).
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, allow_negative_numbers = true, value_parser = real(0.0, 10.0, "mm"))]
     seating_noise_mm: f64,
     /// Noise of each averaged encoder angle, degrees (standard deviation).
-    #[arg(long, default_value_t = 0.003)]
+    #[arg(long, default_value_t = 0.003, allow_negative_numbers = true, value_parser = real(0.0, 1.0, "degrees"))]
     encoder_noise_deg: f64,
     /// Repeats of each landmark per placement.
-    #[arg(long, default_value_t = 3)]
-    repeats: u32,
+    #[arg(long, default_value_t = 3, allow_negative_numbers = true, value_parser = count(1, 20))]
+    repeats: usize,
     /// Hidden effect: PARAM=DELTA added to the true arm, e.g. eccentricity_sin:5=0.3 (repeatable).
-    #[arg(long, value_parser = parse_hidden)]
+    #[arg(long, allow_negative_numbers = true, value_parser = parse_hidden)]
     hidden: Vec<(ParamId, f64)>,
+}
+
+/// A spinner with the elapsed time on stderr while a long step runs (hidden when stderr is not
+/// a terminal).
+fn spinner(what: &str) -> ProgressBar {
+    let bar = ProgressBar::new_spinner();
+    if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
+        bar.set_style(style);
+    }
+    bar.set_message(what.to_string());
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    bar
 }
 
 pub fn parse_effect(text: &str) -> Result<Effect, String> {
@@ -80,8 +100,9 @@ pub fn parse_hidden(text: &str) -> Result<(ParamId, f64), String> {
     let (name, value) = text.split_once('=').ok_or("expected PARAM=DELTA, e.g. eccentricity_sin:5=0.3")?;
     let id = ParamId::parse(name.trim()).ok_or_else(|| format!("unknown parameter `{name}`"))?;
     let delta: f64 = value.trim().parse().map_err(|_| format!("`{value}` is not a number"))?;
-    if !delta.is_finite() {
-        return Err(format!("`{value}` is not finite"));
+    let limit = kincal::model::file::plausible_limit(id);
+    if !(delta.is_finite() && delta.abs() <= limit) {
+        return Err(format!("`{value}`: expected a finite change of at most {limit} {}", id.unit()));
     }
     Ok((id, delta))
 }
@@ -97,19 +118,19 @@ pub enum ObjectiveArg {
 #[derive(Args)]
 pub struct SolveArgs {
     /// Seed of the random restarts.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
     /// Random restarts inside the bounds (besides the nominal start).
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, allow_negative_numbers = true, value_parser = count(0, MAX_RESTARTS))]
     restarts: usize,
     /// Huber threshold δ, mm.
-    #[arg(long, default_value_t = 1.35)]
+    #[arg(long, default_value_t = 1.35, allow_negative_numbers = true, value_parser = real(0.001, 1000.0, "mm"))]
     huber_delta_mm: f64,
     /// Residual blocks to minimise.
     #[arg(long, value_enum, default_value_t = ObjectiveArg::Distance)]
     objective: ObjectiveArg,
     /// Millimetres per radian of orientation error (six-dof objective).
-    #[arg(long, default_value_t = 100.0)]
+    #[arg(long, default_value_t = 100.0, allow_negative_numbers = true, value_parser = real(0.001, 100_000.0, "mm per radian"))]
     lever_mm: f64,
 }
 
@@ -155,7 +176,7 @@ pub struct CalibrateArgs {
     #[command(flatten)]
     solve: SolveArgs,
     /// Also run the dataset-size study with this many subsets per placement count (0: no study).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true, value_parser = count(0, MAX_SUBSETS))]
     study_subsets: usize,
     /// Add an effect of the library to the model, e.g. eccentricity:5 (repeatable).
     #[arg(long = "add", value_parser = parse_effect)]
@@ -179,13 +200,13 @@ pub struct StudyArgs {
     #[arg(long)]
     out: PathBuf,
     /// Random subsets per number of placements.
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = 100, allow_negative_numbers = true, value_parser = count(1, MAX_SUBSETS))]
     subsets: usize,
     /// Seed of the subset draws and restarts.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
     /// Random restarts per calibration (besides the nominal start).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true, value_parser = count(0, MAX_RESTARTS))]
     restarts: usize,
     /// Print study.json to stdout.
     #[arg(long)]
@@ -195,7 +216,7 @@ pub struct StudyArgs {
 pub fn simulate_to(model: &Path, out: &Path, options: &SimulationOptions) -> Result<()> {
     let nominal = ArmModel::load(model)?;
     let sim = simulate(&nominal, options);
-    sim.write(out)?;
+    output::write_simulation(&sim, out)?;
     let count = |s: &[kincal::data::Session]| s.iter().map(|s| s.measurements.len()).sum::<usize>();
     println!(
         "simulated {} calibration and {} validation touches ({} unreachable, skipped) into {}",
@@ -214,7 +235,7 @@ pub fn cmd_simulate(a: &SimulateArgs) -> Result<()> {
         perturb_mm: a.perturb_mm,
         seating_noise_mm: a.seating_noise_mm,
         encoder_noise_deg: a.encoder_noise_deg,
-        repeats: a.repeats,
+        repeats: a.repeats as u32,
         hidden: a.hidden.clone(),
     };
     simulate_to(&a.model, &a.out, &options)
@@ -233,11 +254,24 @@ pub fn calibrate_and_report(
     json: bool,
 ) -> Result<()> {
     let started = std::time::Instant::now();
-    let result = run(inputs, options, effects, study_subsets)?;
+    let spinner = spinner("calibrating");
+    let result = run(inputs, options, effects, study_subsets);
+    spinner.finish_and_clear();
+    let result = result?;
     output::write_run(&result, out)?;
     let s = &result.summary;
     if json {
         println!("{}", output::run_json(&result));
+    }
+    if !s.not_trustworthy.is_empty() {
+        bail!(
+            "the calibration is not trustworthy; no figure is reported as a result:\n  - {}\n\
+             {} written for inspection (summary.json lists these reasons under `not_trustworthy`)",
+            s.not_trustworthy.join("\n  - "),
+            out.display()
+        );
+    }
+    if json {
         return Ok(());
     }
     println!(
@@ -290,17 +324,19 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
 pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     let nominal = ArmModel::load(&a.inputs.model)?;
     let artefact = Artefact::load(&a.inputs.artefact)?;
-    let cal = Dataset::load_dir(&a.inputs.data, &artefact)?;
-    let val = Dataset::load_dir(&a.inputs.validate, &artefact)?;
-    if a.subsets == 0 {
-        bail!("--subsets must be at least 1");
-    }
+    let cal = Dataset::load_dir(&a.inputs.data, &artefact, Purpose::Calibration)?;
+    let val = Dataset::load_dir(&a.inputs.validate, &artefact, Purpose::Validation)?;
+    check_study_size(&cal, a.subsets)?;
     let calibration =
         CalibrationOptions { restarts: a.restarts, seed: a.seed, ..CalibrationOptions::default() };
     let options = StudyOptions { subsets: a.subsets, seed: a.seed, calibration, progress: !a.json };
     let started = std::time::Instant::now();
     let rows = study(&nominal, &artefact, &cal, &val, &options);
     let elapsed = started.elapsed().as_secs_f64();
+    let problems = study_problems(&rows);
+    if !problems.is_empty() {
+        bail!("the study has no result, nothing was written:\n  - {}", problems.join("\n  - "));
+    }
     let i = &a.inputs;
     output::write_study(&rows, &a.out, &[&i.model, &i.artefact, &i.data, &i.validate])?;
     if a.json {
@@ -311,6 +347,10 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     println!("{total} calibrations in {elapsed:.2} s on {} threads", rayon::current_num_threads());
     println!("placements  calibrations  mean mm   std mm    min mm    max mm");
     for r in &rows {
+        if r.calibrations == 0 {
+            println!("{:>10}  {:>12}  no calibration succeeded ({} failed)", r.placements, 0, r.failed);
+            continue;
+        }
         println!(
             "{:>10}  {:>12}  {:7.3}  {:7.3}  {:7.3}  {:7.3}",
             r.placements, r.calibrations, r.mean_mm, r.std_mm, r.min_mm, r.max_mm
@@ -322,11 +362,15 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
 
 pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
     let folder = RunFolder::load(&a.run)?;
+    for problem in &folder.summary.not_trustworthy {
+        eprintln!("warning: this run is marked not trustworthy: {problem}");
+    }
     let (artefact, cal, val) = folder.data()?;
     if a.auto {
         return cmd_diagnose_auto(a, &folder, &artefact, &cal, &val);
     }
     let started = std::time::Instant::now();
+    let spinner = spinner("diagnosing");
     let diagnosis = kincal::calib::diagnose::diagnose(
         &folder.model,
         &artefact,
@@ -334,6 +378,7 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
         &val,
         &folder.summary.options.calibration_options(),
     );
+    spinner.finish_and_clear();
     let elapsed = started.elapsed().as_secs_f64();
     output::write_diagnosis(&diagnosis, &a.run)?;
     if a.json {
@@ -417,7 +462,13 @@ fn cmd_diagnose_auto(
 }
 
 pub fn cmd_compare(a: &CompareArgs) -> Result<()> {
-    let comparison = Comparison::new(ComparedRun::load(&a.before)?, ComparedRun::load(&a.after)?);
+    let (before, after) = (ComparedRun::load(&a.before)?, ComparedRun::load(&a.after)?);
+    for run in [&before, &after] {
+        for problem in &run.summary.not_trustworthy {
+            eprintln!("warning: {} is marked not trustworthy: {problem}", run.name);
+        }
+    }
+    let comparison = Comparison::new(before, after);
     for line in comparison.table_lines() {
         println!("{line}");
     }

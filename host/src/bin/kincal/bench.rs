@@ -33,6 +33,86 @@ pub struct BenchArgs {
     /// Skip the SciPy peer.
     #[arg(long)]
     pub no_scipy: bool,
+    /// Calibration touches of the scale benchmark (calibrate and diagnose from files); 0 skips it.
+    #[arg(long, default_value_t = 10_000, value_parser = crate::args::count(0, kincal::data::MAX_TOUCHES))]
+    pub scale_touches: usize,
+}
+
+/// Calibrate and diagnose from session files of about `touches` calibration touches (the
+/// simulated placements, 20 repeats each, copied under new names with fresh encoder noise until
+/// the count is reached), and print the times beside the thesis-sized ones.
+fn scale_benchmark(touches: usize) -> Result<()> {
+    use kincal::calib::run::{run, RunInputs};
+    use rand::SeedableRng;
+    use rand_distr::Distribution;
+    let model = kincal::model::ArmModel::suta_nominal();
+    let dir = std::env::temp_dir().join(format!("kincal-scale-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    for (sub, n) in [("small", 225), ("large", touches)] {
+        let sim = simulate(
+            &model,
+            &SimulationOptions { repeats: if n > 225 { 20 } else { 3 }, ..Default::default() },
+        );
+        let folder = dir.join(sub);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        let noise = rand_distr::Normal::new(0.0, 0.003)?;
+        let (mut written, mut copy) = (0, 0);
+        std::fs::create_dir_all(folder.join("cal"))?;
+        while written < n {
+            for s in &sim.calibration {
+                let mut s = s.clone();
+                if copy > 0 {
+                    s.placement = format!("{}_{copy}", s.placement);
+                    for m in &mut s.measurements {
+                        m.joints_deg
+                            .iter_mut()
+                            .for_each(|a| *a = (*a + noise.sample(&mut rng)).rem_euclid(360.0));
+                    }
+                }
+                s.measurements.truncate(n - written);
+                written += s.measurements.len();
+                s.save(&folder.join("cal").join(format!("{}.json", s.placement)))?;
+                if written >= n {
+                    break;
+                }
+            }
+            copy += 1;
+        }
+        std::fs::create_dir_all(folder.join("val"))?;
+        for s in &sim.validation {
+            s.save(&folder.join("val").join(format!("{}.json", s.placement)))?;
+        }
+        sim.artefact.save(&folder.join("artefact.json"))?;
+        model.save(&folder.join("model.toml"))?;
+        let inputs = RunInputs::new(
+            folder.join("model.toml"),
+            folder.join("artefact.json"),
+            folder.join("cal"),
+            folder.join("val"),
+        );
+        let options = CalibrationOptions::default();
+        let t = Instant::now();
+        let result = run(&inputs, &options, &[], 0)?;
+        let run_s = t.elapsed().as_secs_f64();
+        let s = &result.summary;
+        let (cal, val) = (
+            Dataset::load_dir(&inputs.calibration, &result.artefact, kincal::data::Purpose::Calibration)?,
+            &result.validation_data,
+        );
+        let t = Instant::now();
+        kincal::calib::diagnose::diagnose(&result.calibration.model, &result.artefact, &cal, val, &options);
+        let diagnose_s = t.elapsed().as_secs_f64();
+        println!(
+            "calibrate from files, {:>6} touches in {:>4} placements ({:>7} pairs): {run_s:6.2} s ({:.0} touches/s); diagnose {diagnose_s:6.2} s; validation RMS {:.3} mm",
+            s.calibration.touches,
+            cal.placements.len(),
+            s.calibration.pairs,
+            s.calibration.touches as f64 / run_s,
+            s.validation.rms_mm
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+    Ok(())
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -97,6 +177,9 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     match kincal::haptic::pipeline::calibrate_recording(&recording) {
         Ok(h) => println!("haptic pipeline on a 5-minute recording: {:.2} s  (target <= 1 s); delay {:.2} ms, position {:.3} mm, orientation {:.3} deg", t.elapsed().as_secs_f64(), h.delay_ms, h.position_mm.after, h.orientation_deg.after),
         Err(e) => println!("haptic pipeline failed: {e}"),
+    }
+    if args.scale_touches > 0 {
+        scale_benchmark(args.scale_touches)?;
     }
     if args.no_scipy {
         return Ok(());

@@ -378,7 +378,7 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
     )?;
     let truth = ArmModel::load(&data.join("truth.toml"))?;
     let artefact = Artefact::load(&inputs.artefact)?;
-    let val = Dataset::load_dir(&inputs.validation, &artefact)?;
+    let val = Dataset::load_dir(&inputs.validation, &artefact, kincal::data::Purpose::Validation)?;
     let floor = kincal::calib::validate::validate(&truth, &artefact, &val).overall;
     println!("  noise floor (true arm on the same validation data) {:.3} mm", floor.rms_mm);
     Ok(())

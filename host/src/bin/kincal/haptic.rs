@@ -19,16 +19,16 @@ pub struct HapticSimulateArgs {
     #[arg(long)]
     out: PathBuf,
     /// Seed of the noise.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
     /// Tracker delay behind the device, ms.
-    #[arg(long, default_value_t = 13.0)]
+    #[arg(long, default_value_t = 13.0, allow_negative_numbers = true, value_parser = crate::args::real(0.0, 200.0, "ms"))]
     delay_ms: f64,
     /// Linear gimbal sensors instead of potentiometer-like quadratic ones.
     #[arg(long)]
     linear_gimbals: bool,
     /// Seconds of free motion in joints/.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = 60.0, allow_negative_numbers = true, value_parser = crate::args::real(1.0, 600.0, "s"))]
     joints_seconds: f64,
     /// Height of landmark target T2 above the central joint, mm (negative: below, 0: beside).
     #[arg(long, default_value_t = 50.0, allow_negative_numbers = true)]

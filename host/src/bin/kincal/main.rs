@@ -1,5 +1,6 @@
 //! `kincal`: the command-line edge. Parses arguments, calls the library, prints.
 
+mod args;
 mod arm;
 mod bench;
 mod controller;
@@ -75,7 +76,20 @@ fn main() {
         Command::Bench(a) => bench::run_benchmarks(&a),
     };
     if let Err(e) = result {
-        eprintln!("error: {e:#}");
+        eprintln!("error: {}", message(&e));
         std::process::exit(1);
     }
+}
+
+/// The error and its causes, each cause only when the text before does not already say it
+/// (errors that name a file carry the operating system's reason in their own message).
+fn message(e: &anyhow::Error) -> String {
+    let mut text = e.to_string();
+    for cause in e.chain().skip(1) {
+        let cause = cause.to_string();
+        if !text.contains(&cause) {
+            text = format!("{text}: {cause}");
+        }
+    }
+    text
 }

@@ -1,0 +1,44 @@
+//! Value parsers for numeric options: a number outside its range (NaN, ∞, negative, absurd) is
+//! refused by the argument parser with the range, before anything runs.
+
+/// A finite real number in `[min, max]`, in `unit`.
+pub fn real(min: f64, max: f64, unit: &'static str) -> impl Fn(&str) -> Result<f64, String> + Clone {
+    move |text: &str| {
+        let value: f64 = text.trim().parse().map_err(|_| format!("expected a number, found `{text}`"))?;
+        if value.is_finite() && (min..=max).contains(&value) {
+            Ok(value)
+        } else {
+            Err(format!("expected a number from {min} to {max} {unit}, found {text}"))
+        }
+    }
+}
+
+/// A whole number in `[min, max]`.
+pub fn count(min: usize, max: usize) -> impl Fn(&str) -> Result<usize, String> + Clone {
+    move |text: &str| {
+        let value: usize =
+            text.trim().parse().map_err(|_| format!("expected a whole number, found `{text}`"))?;
+        if (min..=max).contains(&value) {
+            Ok(value)
+        } else {
+            Err(format!("expected a whole number from {min} to {max}, found {value}"))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_outside_their_range_are_refused() {
+        let delta = real(0.001, 1000.0, "mm");
+        for bad in ["NaN", "inf", "-1", "0", "1e-300", "x", ""] {
+            assert!(delta(bad).is_err(), "{bad}");
+        }
+        assert_eq!(delta("1.35"), Ok(1.35));
+        let repeats = count(1, 20);
+        assert!(repeats("0").is_err() && repeats("-1").is_err() && repeats("21").is_err());
+        assert_eq!(repeats("3"), Ok(3));
+    }
+}

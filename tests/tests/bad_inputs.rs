@@ -1,0 +1,1163 @@
+//! The bad-input corpus (issue 11): valid simulated data, mutated the ways a careless or unlucky
+//! user mutates it, run through every command. Each case's outcome is asserted: the expected
+//! error (naming the file, field or option and what was expected) or the expected success, and
+//! for all: no panic, no hang, no exit 0 with a non-finite or absurd figure, no user file lost or
+//! changed, no staging folder left. Cases run in parallel, each in its own copy of the inputs.
+
+use kincal_e2e::corpus::{
+    all, copy_tree, edit_json, replace, run_corpus, unchanged, words, write, Case, Check, Expect, Setup,
+};
+use kincal_e2e::kincal_bin;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+/// The input options every calibrate and study case starts from.
+const INPUTS: &[&str] = &[
+    "--model",
+    "model.toml",
+    "--artefact",
+    "data/artefact.json",
+    "--data",
+    "data/cal",
+    "--validate",
+    "data/val",
+];
+
+/// `kincal calibrate` on the valid inputs into `out/`.
+fn cal() -> Vec<&'static str> {
+    [&["calibrate"], INPUTS, &["--restarts", "1", "--out", "out"]].concat()
+}
+
+/// `kincal study` on the valid inputs into `study/`.
+fn study() -> Vec<&'static str> {
+    [&["study"], INPUTS, &["--subsets", "2", "--out", "study"]].concat()
+}
+
+const SIM: &[&str] = &["simulate", "--model", "model.toml", "--out", "sim", "--repeats", "1"];
+
+fn example_model() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/suta/model.toml")
+}
+
+fn kincal(dir: &Path, args: &[&str]) {
+    let out = Command::new(kincal_bin()).args(args).current_dir(dir).output().unwrap();
+    assert!(out.status.success(), "kincal {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// The valid inputs every case starts from: model.toml, model.json, data/ (simulated, seed 1),
+/// other-arm/ (validation sessions of another arm and artefact, seed 2), run/ (a RUN of data/).
+fn template(root: &Path) -> PathBuf {
+    let t = root.join("template");
+    std::fs::create_dir_all(&t).unwrap();
+    std::fs::copy(example_model(), t.join("model.toml")).unwrap();
+    kincal::model::ArmModel::load(&example_model()).unwrap().save(&t.join("model.json")).unwrap();
+    kincal(&t, &["simulate", "--model", "model.toml", "--out", "data"]);
+    kincal(&t, &["simulate", "--model", "model.toml", "--out", "other", "--seed", "2"]);
+    // The data are the user's now: no kincal marker, so nothing in them may ever be replaced.
+    std::fs::remove_file(t.join("data/.kincal-output")).unwrap();
+    copy_tree(&t.join("other/val"), &t.join("other-arm"));
+    std::fs::remove_dir_all(t.join("other")).unwrap();
+    let run: Vec<&str> = cal().into_iter().map(|s| if s == "out" { "run" } else { s }).collect();
+    kincal(&t, &run);
+    t
+}
+
+/// The calibration succeeded with a plausible, finite validation figure on every pair.
+fn calibrated(out: &'static str, touches: u64) -> Option<Check> {
+    Some(Box::new(move |dir: &Path| {
+        let text = std::fs::read_to_string(dir.join(out).join("summary.json")).map_err(|e| e.to_string())?;
+        let s: Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
+        let rms = s["validation"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
+        let pairs = s["validation"]["pairs"].as_u64().unwrap_or(0);
+        let used = s["calibration"]["touches"].as_u64().unwrap_or(0);
+        if !(rms.is_finite() && rms > 0.0 && rms < 1.0 && pairs > 0) {
+            return Err(format!("validation RMS {rms} mm over {pairs} pairs is not a plausible result"));
+        }
+        if used != touches {
+            return Err(format!("{used} calibration touches used, expected {touches}"));
+        }
+        if s.get("not_trustworthy").is_some() {
+            return Err("a successful run is marked not trustworthy".into());
+        }
+        Ok(())
+    }))
+}
+
+fn exists(path: &'static str) -> Option<Check> {
+    Some(Box::new(move |dir: &Path| {
+        dir.join(path).exists().then_some(()).ok_or_else(|| format!("{path} was not written"))
+    }))
+}
+
+/// Set `field` of the `joint`-th (1-based) [[joint]] row of model.toml to `value` (TOML text).
+fn model_joint(joint: usize, field: &str, value: &str) -> Setup {
+    let (field, value) = (field.to_string(), value.to_string());
+    Box::new(move |dir| {
+        let path = dir.join("model.toml");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let mut blocks: Vec<String> = text.split("[[joint]]").map(str::to_string).collect();
+        let lines: Vec<String> =
+            blocks[joint]
+                .lines()
+                .map(|l| {
+                    if l.starts_with(&format!("{field} =")) {
+                        format!("{field} = {value}")
+                    } else {
+                        l.into()
+                    }
+                })
+                .collect();
+        blocks[joint] = lines.join("\n") + "\n";
+        std::fs::write(&path, blocks.join("[[joint]]")).unwrap();
+    })
+}
+
+fn session(file: &'static str, edit: impl Fn(&mut Value) + Send + Sync + 'static) -> Setup {
+    edit_json(file, edit)
+}
+
+const CA: &str = "data/cal/C_A.json";
+
+/// Text edits of model.toml: (case, text replaced, replacement, what the error must say).
+type TextEdit = (&'static str, &'static str, &'static str, &'static [&'static str]);
+const BOUNDS: &str = "[10.7, 30.7]";
+const TCP: &str = "[0.0, 0.0, 253.0]";
+const SCALE: &str = "scale_ppm = 0.0";
+const MODEL_TEXT_EDITS: &[TextEdit] = &[
+    ("bounds with 3 numbers", BOUNDS, "[10.7, 20.7, 30.7]", &["offset:2", "expected 2 numbers"]),
+    ("bounds with 1 number", BOUNDS, "[10.7]", &["offset:2", "expected 2 numbers"]),
+    ("bounds empty", BOUNDS, "[]", &["offset:2", "expected 2 numbers"]),
+    ("bounds nan", BOUNDS, "[nan, 30.7]", &["offset:2", "finite"]),
+    ("bounds ±1e200", "[-10.0, 10.0]", "[-1e200, 1e200]", &["length:2", "plausible"]),
+    ("bounds reversed", BOUNDS, "[30.7, 10.7]", &["offset:2", "lower < upper"]),
+    ("bounds equal", BOUNDS, "[20.7, 20.7]", &["offset:2", "lower < upper"]),
+    ("value outside bounds", BOUNDS, "[30.0, 40.0]", &["offset:2", "outside its bounds"]),
+    ("bounds as text", BOUNDS, "\"10.7..30.7\"", &["model.toml", "invalid type"]),
+    ("unknown parameter", "\"offset:2\"", "\"offset:9\"", &["offset:9", "unknown parameter"]),
+    ("tcp with 4 numbers", TCP, "[0.0, 0.0, 253.0, 1.0]", &["tcp_mm", "expected 3 numbers"]),
+    ("tcp with 2 numbers", TCP, "[0.0, 253.0]", &["tcp_mm", "expected 3 numbers"]),
+    ("tcp nan", TCP, "[0.0, nan, 253.0]", &["tcp.y", "finite"]),
+    ("tcp 1e308", TCP, "[0.0, 0.0, 1e308]", &["tcp.z", "plausible"]),
+    ("tcp missing", "tcp_mm = [0.0, 0.0, 253.0]", "", &["model.toml", "tcp_mm"]),
+    ("scale -1e6 ppm", SCALE, "scale_ppm = -1e6", &["scale", "plausible"]),
+    ("scale nan", SCALE, "scale_ppm = nan", &["scale", "finite"]),
+    ("scale 1e308", SCALE, "scale_ppm = 1e308", &["scale", "plausible"]),
+    ("format", "kincal-arm/1", "kincal-arm/2", &["format", "kincal-arm/1"]),
+    ("convention", "\"classic\"", "\"banana\"", &["model.toml", "banana"]),
+    ("five joints", "[[joint]]\noffset_deg = 20.7", "[[jointx]]\noffset_deg = 20.7", &["model.toml"]),
+    (
+        "seven joints",
+        "\n[free]\n",
+        "\n[[joint]]\noffset_deg = 0\nd_mm = 0\na_mm = 0\nalpha_deg = 0\n[free]\n",
+        &["expected 6"],
+    ),
+    ("unknown key", SCALE, "scale_ppm = 0.0\nscael = 1", &["model.toml", "scael"]),
+    ("unknown effect", SCALE, "scale_ppm = 0.0\neffects = [\"wobble:2\"]", &["wobble:2", "unknown effect"]),
+];
+
+fn model_cases(cases: &mut Vec<Case>) {
+    let params =
+        [("offset_deg", "offset"), ("d_mm", "length"), ("a_mm", "link_offset"), ("alpha_deg", "twist")];
+    for j in 1..=6 {
+        for (field, param) in params {
+            let name = format!("{param}:{j}");
+            for (value, needles) in [
+                ("nan", vec![name.as_str(), "finite"]),
+                ("inf", vec![name.as_str(), "finite"]),
+                ("-inf", vec![name.as_str(), "finite"]),
+                ("1e308", vec![name.as_str(), "plausible"]),
+                ("-1e12", vec![name.as_str(), "plausible"]),
+                ("\"12\"", vec!["model.toml", "invalid type"]),
+            ] {
+                cases.push(Case::fails(
+                    &format!("model/{name}={value}"),
+                    model_joint(j, field, value),
+                    words(&cal(), &[]),
+                    &needles,
+                ));
+            }
+        }
+    }
+    let m = "model.toml";
+    for (name, from, to, needles) in MODEL_TEXT_EDITS {
+        cases.push(Case::fails(&format!("model/{name}"), replace(m, from, to), words(&cal(), &[]), needles));
+    }
+    let free_table_only = |extra: &'static str| -> Setup {
+        Box::new(move |d: &Path| {
+            let t = std::fs::read_to_string(d.join("model.toml")).unwrap();
+            std::fs::write(
+                d.join("model.toml"),
+                format!("{}{extra}", &t[..t.find("\n[free]\n").unwrap() + 8]),
+            )
+            .unwrap();
+        })
+    };
+    let list: Vec<(&str, Setup, &[&str])> = vec![
+        ("empty free table", free_table_only(""), &["no free parameter"]),
+        (
+            "only offset:1 free",
+            free_table_only("\"offset:1\" = [-11.6, 8.4]\n"),
+            &["none of the free parameters"],
+        ),
+        (
+            "lengths in metres",
+            all(vec![
+                model_joint(1, "d_mm", "0.047"),
+                model_joint(3, "d_mm", "0.571"),
+                model_joint(5, "d_mm", "0.371"),
+                replace(m, "[0.0, 0.0, 253.0]", "[0.0, 0.0, 0.253]"),
+                replace(m, "\"length:1\" = [37.0, 57.0]", "\"length:1\" = [0.0, 1.0]"),
+                replace(m, "\"length:3\" = [561.0, 581.0]", "\"length:3\" = [0.0, 1.0]"),
+                replace(m, "\"length:5\" = [361.0, 381.0]", "\"length:5\" = [0.0, 1.0]"),
+                replace(m, "\"tcp.z\" = [243.0, 263.0]", "\"tcp.z\" = [0.0, 1.0]"),
+            ]),
+            &["reach", "millimetres"],
+        ),
+        ("twist 400", model_joint(2, "alpha_deg", "400.0"), &["twist:2", "plausible"]),
+        (
+            "an arm too short for the artefact",
+            all(vec![
+                model_joint(3, "d_mm", "20.0"),
+                model_joint(5, "d_mm", "10.0"),
+                replace(m, "\"length:3\" = [561.0, 581.0]", "\"length:3\" = [15.0, 25.0]"),
+                replace(m, "\"length:5\" = [361.0, 381.0]", "\"length:5\" = [5.0, 15.0]"),
+                replace(m, TCP, "[0.0, 0.0, 10.0]"),
+                replace(m, "\"tcp.z\" = [243.0, 263.0]", "\"tcp.z\" = [5.0, 15.0]"),
+            ]),
+            &["cannot touch them all"],
+        ),
+        ("truncated file", free_table_only("\"offset:2\" = [10.7,"), &["model.toml"]),
+        ("empty file", write(m, ""), &["model.toml"]),
+        ("binary garbage", write(m, "\u{0}\u{1}\u{2}PK"), &["model.toml"]),
+        (
+            "missing file",
+            Box::new(|d: &Path| std::fs::remove_file(d.join("model.toml")).unwrap()),
+            &["model.toml", "no such file"],
+        ),
+        (
+            "a folder",
+            Box::new(|d: &Path| {
+                std::fs::remove_file(d.join("model.toml")).unwrap();
+                std::fs::create_dir(d.join("model.toml")).unwrap();
+            }),
+            &["model.toml"],
+        ),
+    ];
+    for (name, setup, needles) in list {
+        cases.push(Case::fails(&format!("model/{name}"), setup, words(&cal(), &[]), needles));
+    }
+    let json_model: Vec<(&str, Setup, &[&str])> = vec![
+        ("json tcp null", replace("model.json", "253.0", "null"), &["model.json", "tcp_mm"]),
+        (
+            "json bounds of 3",
+            replace("model.json", "10.7,\n      30.7", "10.7, 20.7, 30.7"),
+            &["offset:2", "expected 2 numbers"],
+        ),
+        (
+            "json d as string",
+            replace("model.json", "\"d_mm\": 47.0", "\"d_mm\": \"47\""),
+            &["model.json", "d_mm"],
+        ),
+        (
+            "json trailing garbage",
+            replace("model.json", "kincal-arm/1\",", "kincal-arm/1\",,"),
+            &["model.json"],
+        ),
+    ];
+    let cal_json: Vec<String> = words(&cal(), &[])
+        .into_iter()
+        .map(|w| if w == "model.toml" { "model.json".into() } else { w })
+        .collect();
+    for (name, setup, needles) in json_model {
+        cases.push(Case::fails(&format!("model/{name}"), setup, cal_json.clone(), needles));
+    }
+    cases.push(Case::succeeds("model/json is fine", unchanged(), cal_json, calibrated("out", 225)));
+    cases.push(Case::succeeds(
+        "model/a comment and blank lines",
+        replace(m, "\n[free]\n", "\n# bounds below\n\n[free]\n"),
+        words(&cal(), &[]),
+        calibrated("out", 225),
+    ));
+}
+
+fn artefact_cases(cases: &mut Vec<Case>) {
+    let a = "data/artefact.json";
+    let lm = |f: fn(&mut Value)| edit_json(a, move |v| f(&mut v["landmarks"]));
+    let list: Vec<(&str, Setup, &[&str])> = vec![
+        (
+            "in metres",
+            lm(|l| {
+                for x in l.as_array_mut().unwrap() {
+                    for k in 0..3 {
+                        x["xyz_mm"][k] = json!(x["xyz_mm"][k].as_f64().unwrap() / 1000.0)
+                    }
+                }
+            }),
+            &["artefact.json", "are they in metres"],
+        ),
+        (
+            "all at one point",
+            lm(|l| {
+                for x in l.as_array_mut().unwrap() {
+                    x["xyz_mm"] = json!([0.0, 0.0, 40.0])
+                }
+            }),
+            &["artefact.json", "all landmarks are at one point"],
+        ),
+        (
+            "two at one point",
+            lm(|l| {
+                let p = l[3]["xyz_mm"].clone();
+                l[7]["xyz_mm"] = p;
+            }),
+            &["landmarks[7].xyz_mm", "cannot share a point"],
+        ),
+        ("duplicate id", lm(|l| l[5]["id"] = l[2]["id"].clone()), &["landmarks[5].id", "duplicate"]),
+        ("empty id", lm(|l| l[5]["id"] = json!(" ")), &["landmarks[5].id"]),
+        ("xyz null", lm(|l| l[2]["xyz_mm"][1] = Value::Null), &["artefact.json", "xyz_mm"]),
+        ("xyz text", lm(|l| l[2]["xyz_mm"][1] = json!("12")), &["artefact.json", "xyz_mm"]),
+        ("xyz with 2 numbers", lm(|l| l[2]["xyz_mm"] = json!([1.0, 2.0])), &["artefact.json", "xyz_mm"]),
+        (
+            "xyz with 4 numbers",
+            lm(|l| l[2]["xyz_mm"] = json!([1.0, 2.0, 3.0, 4.0])),
+            &["artefact.json", "xyz_mm"],
+        ),
+        ("xyz 1e308", lm(|l| l[2]["xyz_mm"][0] = json!(1e308)), &["artefact.json", "reach"]),
+        ("yaw 1000", lm(|l| l[4]["yaw_deg"] = json!(1000.0)), &["landmarks[4].yaw_deg"]),
+        (
+            "yaw missing",
+            lm(|l| {
+                l[4].as_object_mut().unwrap().remove("yaw_deg");
+            }),
+            &["artefact.json", "yaw_deg"],
+        ),
+        ("one landmark", lm(|l| l.as_array_mut().unwrap().truncate(1)), &["at least two"]),
+        ("no landmarks", lm(|l| l.as_array_mut().unwrap().clear()), &["at least two"]),
+        ("format", edit_json(a, |v| v["format"] = json!("suta-artefact/2")), &["artefact.json", "format"]),
+        (
+            "landmarks not a list",
+            edit_json(a, |v| v["landmarks"] = json!({})),
+            &["artefact.json", "landmarks"],
+        ),
+        ("not json", write(a, "id,x,y,z\nO,0,0,40\n"), &["artefact.json"]),
+        ("empty", write(a, ""), &["artefact.json"]),
+        (
+            "missing",
+            Box::new(|d: &Path| std::fs::remove_file(d.join("data/artefact.json")).unwrap()),
+            &["artefact.json", "no such file"],
+        ),
+        (
+            "one landmark moved 10 mm",
+            lm(|l| {
+                let x = l[6]["xyz_mm"][0].as_f64().unwrap();
+                l[6]["xyz_mm"][0] = json!(x + 10.0)
+            }),
+            &["not trustworthy", "repeatability"],
+        ),
+        (
+            "ids swapped",
+            lm(|l| {
+                let a = l[1]["id"].clone();
+                l[1]["id"] = l[9]["id"].clone();
+                l[9]["id"] = a;
+            }),
+            &["not trustworthy"],
+        ),
+    ];
+    for (name, setup, needles) in list {
+        cases.push(Case::fails(&format!("artefact/{name}"), setup, words(&cal(), &[]), needles));
+    }
+    for i in [0usize, 4, 9, 14] {
+        cases.push(Case::fails(
+            &format!("artefact/landmark {i} 1 km away"),
+            edit_json(a, move |v| v["landmarks"][i]["xyz_mm"] = json!([1.0e6, 0.0, 40.0])),
+            words(&cal(), &[]),
+            &[&format!("landmarks[{i}].xyz_mm"), "beyond any arm's reach"],
+        ));
+        cases.push(Case::fails(
+            &format!("artefact/landmark {i} in micrometres"),
+            edit_json(a, move |v| {
+                for k in 0..3 {
+                    let x = v["landmarks"][i]["xyz_mm"][k].as_f64().unwrap();
+                    v["landmarks"][i]["xyz_mm"][k] = json!(x * 1000.0 + 7000.0);
+                }
+            }),
+            words(&cal(), &[]),
+            &[&format!("landmarks[{i}].xyz_mm"), "beyond any arm's reach"],
+        ));
+    }
+}
+
+fn session_cases(cases: &mut Vec<Case>) {
+    let m0 = |f: fn(&mut Value)| session(CA, move |v| f(&mut v["measurements"][0]));
+    let list: Vec<(&str, Setup, &[&str])> = vec![
+        (
+            "5 angles",
+            m0(|m| {
+                m["joints_deg"].as_array_mut().unwrap().pop();
+            }),
+            &["C_A.json", "measurements[0].joints_deg", "expected 6"],
+        ),
+        (
+            "7 angles",
+            m0(|m| m["joints_deg"].as_array_mut().unwrap().push(json!(1.0))),
+            &["C_A.json", "measurements[0].joints_deg", "expected 6"],
+        ),
+        (
+            "angle 400",
+            m0(|m| m["joints_deg"][2] = json!(400.0)),
+            &["measurements[0].joints_deg[2]", "[0, 360)"],
+        ),
+        (
+            "angle -1",
+            m0(|m| m["joints_deg"][2] = json!(-1.0)),
+            &["measurements[0].joints_deg[2]", "[0, 360)"],
+        ),
+        (
+            "angle 360",
+            m0(|m| m["joints_deg"][2] = json!(360.0)),
+            &["measurements[0].joints_deg[2]", "[0, 360)"],
+        ),
+        ("angle 1e308", m0(|m| m["joints_deg"][2] = json!(1e308)), &["measurements[0].joints_deg[2]"]),
+        ("angle null", m0(|m| m["joints_deg"][2] = Value::Null), &["C_A.json", "joints_deg"]),
+        ("angle text", m0(|m| m["joints_deg"][2] = json!("12.5")), &["C_A.json", "joints_deg"]),
+        (
+            "angles missing",
+            m0(|m| {
+                m.as_object_mut().unwrap().remove("joints_deg");
+            }),
+            &["C_A.json", "joints_deg"],
+        ),
+        (
+            "angles in radians",
+            session(CA, |v| {
+                for m in v["measurements"].as_array_mut().unwrap() {
+                    for k in 0..6 {
+                        m["joints_deg"][k] = json!(m["joints_deg"][k].as_f64().unwrap().to_radians())
+                    }
+                }
+            }),
+            &["not trustworthy"],
+        ),
+        ("repeat 0", m0(|m| m["repeat"] = json!(0)), &["measurements[0].repeat", "from 1"]),
+        ("repeat -1", m0(|m| m["repeat"] = json!(-1)), &["C_A.json", "repeat"]),
+        ("repeat 1.5", m0(|m| m["repeat"] = json!(1.5)), &["C_A.json", "repeat"]),
+        (
+            "same landmark and repeat twice",
+            session(CA, |v| {
+                let m = v["measurements"][0].clone();
+                v["measurements"].as_array_mut().unwrap().push(m);
+            }),
+            &["C_A.json", "already touched in measurements[0]"],
+        ),
+        (
+            "same landmark and repeat, 10 mm apart",
+            session(CA, |v| {
+                let mut m = v["measurements"][0].clone();
+                m["joints_deg"][1] = json!(m["joints_deg"][1].as_f64().unwrap() + 1.0);
+                v["measurements"].as_array_mut().unwrap().insert(3, m);
+            }),
+            &["C_A.json", "measurements[3].repeat", "already touched"],
+        ),
+        ("unknown landmark", m0(|m| m["landmark"] = json!("Z9")), &["measurements[0].landmark", "Z9"]),
+        ("landmark lower case", m0(|m| m["landmark"] = json!("m1")), &["measurements[0].landmark", "m1"]),
+        ("samples 0", m0(|m| m["samples"] = json!(0)), &["measurements[0].samples", "0 accepted"]),
+        (
+            "rejected > samples",
+            m0(|m| {
+                m["samples"] = json!(10);
+                m["rejected"] = json!(11)
+            }),
+            &["measurements[0].rejected", "rejected"],
+        ),
+        ("samples negative", m0(|m| m["samples"] = json!(-5)), &["C_A.json", "samples"]),
+        ("std negative", m0(|m| m["std_deg"][0] = json!(-0.1)), &["measurements[0].std_deg"]),
+        (
+            "std 5 values",
+            m0(|m| {
+                m["std_deg"].as_array_mut().unwrap().pop();
+            }),
+            &["measurements[0].std_deg"],
+        ),
+        (
+            "purpose banana",
+            session(CA, |v| v["purpose"] = json!("banana")),
+            &["C_A.json", "purpose", "banana"],
+        ),
+        (
+            "purpose validation in cal",
+            session(CA, |v| v["purpose"] = json!("validation")),
+            &["C_A.json", "purpose", "folder of calibration"],
+        ),
+        (
+            "purpose calibration in val",
+            session("data/val/V_B.json", |v| v["purpose"] = json!("calibration")),
+            &["V_B.json", "purpose", "folder of validation"],
+        ),
+        (
+            "purpose missing",
+            session(CA, |v| {
+                v.as_object_mut().unwrap().remove("purpose");
+            }),
+            &["C_A.json", "purpose"],
+        ),
+        ("placement empty", session(CA, |v| v["placement"] = json!("")), &["C_A.json", "placement"]),
+        (
+            "placement duplicated across files",
+            session(CA, |v| v["placement"] = json!("C_B")),
+            &["placement", "also in", "C_B.json"],
+        ),
+        (
+            "file copied",
+            Box::new(|d: &Path| {
+                std::fs::copy(d.join(CA), d.join("data/cal/C_A copy.json")).unwrap();
+            }),
+            &["also in"],
+        ),
+        ("format", session(CA, |v| v["format"] = json!("suta-session/0")), &["C_A.json", "format"]),
+        (
+            "measurements not a list",
+            session(CA, |v| v["measurements"] = json!(3)),
+            &["C_A.json", "measurements"],
+        ),
+        (
+            "truncated",
+            Box::new(|d: &Path| {
+                let t = std::fs::read_to_string(d.join(CA)).unwrap();
+                std::fs::write(d.join(CA), &t[..t.len() / 3]).unwrap();
+            }),
+            &["C_A.json", "EOF"],
+        ),
+        ("empty file", write(CA, ""), &["C_A.json"]),
+        ("CSV named json", write(CA, "landmark,repeat,j1\nO,1,10\n"), &["C_A.json"]),
+        (
+            "empty folder",
+            Box::new(|d: &Path| {
+                std::fs::remove_dir_all(d.join("data/cal")).unwrap();
+                std::fs::create_dir(d.join("data/cal")).unwrap();
+            }),
+            &["data/cal", "no session files"],
+        ),
+        (
+            "folder missing",
+            Box::new(|d: &Path| std::fs::remove_dir_all(d.join("data/val")).unwrap()),
+            &["data/val", "no such file"],
+        ),
+        (
+            "over 64 MB",
+            Box::new(|d: &Path| {
+                std::fs::File::create(d.join("data/cal/big.json")).unwrap().set_len(65 << 20).unwrap()
+            }),
+            &["big.json", "at most 64 MB"],
+        ),
+        (
+            "every touch identical",
+            session(CA, |v| {
+                let j = v["measurements"][0]["joints_deg"].clone();
+                for m in v["measurements"].as_array_mut().unwrap() {
+                    m["joints_deg"] = j.clone()
+                }
+            }),
+            &["not trustworthy"],
+        ),
+        (
+            "validation = calibration",
+            Box::new(|d: &Path| {
+                std::fs::remove_dir_all(d.join("data/val")).unwrap();
+                copy_tree(&d.join("data/cal"), &d.join("data/val"));
+                for f in std::fs::read_dir(d.join("data/val")).unwrap() {
+                    let p = f.unwrap().path();
+                    let t = std::fs::read_to_string(&p).unwrap().replace("\"calibration\"", "\"validation\"");
+                    std::fs::write(p, t).unwrap();
+                }
+            }),
+            &["same touches as calibration placement", "held out"],
+        ),
+        (
+            "one validation file copies a calibration file",
+            Box::new(|d: &Path| {
+                let t = std::fs::read_to_string(d.join("data/cal/C_C.json"))
+                    .unwrap()
+                    .replace("\"calibration\"", "\"validation\"")
+                    .replace("\"C_C\"", "\"V_X\"");
+                std::fs::write(d.join("data/val/V_X.json"), t).unwrap();
+            }),
+            &["\"V_X\"", "\"C_C\""],
+        ),
+        (
+            "validation from another arm",
+            Box::new(|d: &Path| {
+                std::fs::remove_dir_all(d.join("data/val")).unwrap();
+                copy_tree(&d.join("other-arm"), &d.join("data/val"));
+            }),
+            &["not trustworthy", "validation RMS", "another arm"],
+        ),
+        (
+            "validation with one landmark per repeat",
+            Box::new(|d: &Path| {
+                for f in std::fs::read_dir(d.join("data/val")).unwrap() {
+                    let p = f.unwrap().path();
+                    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+                    v["measurements"].as_array_mut().unwrap().retain(|m| m["landmark"] == "O");
+                    std::fs::write(p, v.to_string()).unwrap();
+                }
+            }),
+            &["data/val", "no distance to validate"],
+        ),
+        (
+            "calibration with one landmark per repeat",
+            Box::new(|d: &Path| {
+                for f in std::fs::read_dir(d.join("data/cal")).unwrap() {
+                    let p = f.unwrap().path();
+                    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+                    v["measurements"].as_array_mut().unwrap().retain(|m| m["landmark"] == "O");
+                    std::fs::write(p, v.to_string()).unwrap();
+                }
+            }),
+            &["0 landmark pairs"],
+        ),
+        (
+            "no measurements anywhere",
+            Box::new(|d: &Path| {
+                for f in std::fs::read_dir(d.join("data/cal")).unwrap() {
+                    let p = f.unwrap().path();
+                    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+                    v["measurements"] = json!([]);
+                    std::fs::write(p, v.to_string()).unwrap();
+                }
+            }),
+            &["0 landmark pairs"],
+        ),
+    ];
+    for (name, setup, needles) in list {
+        cases.push(Case::fails(&format!("session/{name}"), setup, words(&cal(), &[]), needles));
+    }
+    // Every landmark position of the first measurement, one bad angle each joint.
+    for k in 0..6 {
+        for (value, label) in [(json!(-0.5), "negative"), (json!(720.0), "two turns"), (Value::Null, "null")]
+        {
+            let needle = if value.is_null() { "joints_deg".to_string() } else { format!("joints_deg[{k}]") };
+            cases.push(Case::fails(
+                &format!("session/joint {} {label} in val", k + 1),
+                session("data/val/V_C.json", move |v| v["measurements"][4]["joints_deg"][k] = value.clone()),
+                words(&cal(), &[]),
+                &["V_C.json", &needle],
+            ));
+        }
+    }
+    let mut ok: Vec<(&str, Setup, u64)> = vec![
+        (
+            "upper-case .JSON is read",
+            Box::new(|d: &Path| std::fs::rename(d.join(CA), d.join("data/cal/C_A.JSON")).unwrap()),
+            225,
+        ),
+        ("a README beside the sessions", write("data/cal/README.txt", "recorded on Monday"), 225),
+        ("a hidden temporary file", write("data/cal/.C_A.json.swp", "{"), 225),
+        (
+            "a missing landmark",
+            session(CA, |v| {
+                v["measurements"].as_array_mut().unwrap().remove(4);
+            }),
+            224,
+        ),
+        (
+            "std, samples, rejected absent",
+            session(CA, |v| {
+                for m in v["measurements"].as_array_mut().unwrap() {
+                    let o = m.as_object_mut().unwrap();
+                    o.remove("std_deg");
+                    o.remove("samples");
+                    o.remove("rejected");
+                }
+            }),
+            225,
+        ),
+        (
+            "rejected = samples",
+            session(CA, |v| {
+                v["measurements"][0]["samples"] = json!(5);
+                v["measurements"][0]["rejected"] = json!(5)
+            }),
+            225,
+        ),
+        (
+            "one placement fewer",
+            Box::new(|d: &Path| std::fs::remove_file(d.join("data/cal/C_D.json")).unwrap()),
+            180,
+        ),
+    ];
+    // Scale: one session of 3000 touches (200 repeats) is calibrated; 20 placements make a study of
+    // 10 000 subsets too large, refused up front with the limit.
+    ok.push((
+        "3000 touches in one session",
+        session(CA, |v| {
+            let first: Vec<Value> =
+                v["measurements"].as_array().unwrap().iter().filter(|m| m["repeat"] == 1).cloned().collect();
+            let mut all = Vec::new();
+            for repeat in 1..=200u32 {
+                for (k, m) in first.iter().enumerate() {
+                    let mut m = m.clone();
+                    m["repeat"] = json!(repeat);
+                    let a = m["joints_deg"][5].as_f64().unwrap();
+                    m["joints_deg"][5] = json!(a + 1e-4 * ((repeat as f64 * 7.0 + k as f64).sin()));
+                    all.push(m);
+                }
+            }
+            v["measurements"] = Value::Array(all);
+        }),
+        3180,
+    ));
+    for (name, setup, touches) in ok {
+        cases.push(Case::succeeds(
+            &format!("session/{name}"),
+            setup,
+            words(&cal(), &[]),
+            calibrated("out", touches),
+        ));
+    }
+}
+
+fn option_cases(cases: &mut Vec<Case>) {
+    let bad: Vec<(Vec<&str>, &str, &[&str])> = vec![
+        (cal(), "--huber-delta-mm", &["0", "-1", "1e-300", "NaN", "inf", "1e9", "abc", ""]),
+        (cal(), "--lever-mm", &["NaN", "0", "-5", "inf", "1e300"]),
+        (cal(), "--restarts", &["-1", "1001", "x", "1.5"]),
+        (cal(), "--study-subsets", &["-1", "10001", "NaN"]),
+        (cal(), "--seed", &["-1", "x"]),
+        (cal(), "--objective", &["banana", ""]),
+        (cal(), "--add", &["wobble:2", "eccentricity:9", ""]),
+        (SIM.to_vec(), "--perturb-deg", &["NaN", "-1", "100", "inf"]),
+        (SIM.to_vec(), "--perturb-mm", &["NaN", "-1", "1000"]),
+        (SIM.to_vec(), "--seating-noise-mm", &["NaN", "-0.1", "1e9", "inf"]),
+        (SIM.to_vec(), "--encoder-noise-deg", &["NaN", "-1", "5", "inf"]),
+        (SIM.to_vec(), "--repeats", &["0", "-1", "21", "1.5", "NaN"]),
+        (
+            SIM.to_vec(),
+            "--hidden",
+            &["offset:9=1", "offset:2=NaN", "offset:2=1e9", "junk", "offset:2=", "scale=-1e6"],
+        ),
+        (study(), "--subsets", &["0", "-1", "10001", "NaN"]),
+        (study(), "--restarts", &["-1", "5000"]),
+        (vec!["haptic", "simulate", "--out", "rec"], "--delay-ms", &["NaN", "-1", "inf", "1e9"]),
+        (vec!["haptic", "simulate", "--out", "rec"], "--joints-seconds", &["NaN", "0", "-5", "601", "1e12"]),
+    ];
+    for (base, option, values) in bad {
+        for value in values.iter() {
+            // An option the base command line already gives is replaced, not repeated.
+            let mut args = words(&base, &[]);
+            match args.iter().position(|w| w == option) {
+                Some(at) => args[at + 1] = value.to_string(),
+                None => args.extend([option.to_string(), value.to_string()]),
+            }
+            cases.push(Case::fails(
+                &format!("option/{} {option} {value}", base[0]),
+                unchanged(),
+                args,
+                &if value.is_empty() { vec![option] } else { vec![option, "invalid value"] },
+            ));
+        }
+    }
+    let many = || -> Setup {
+        Box::new(|d: &Path| {
+            for copy in 1..4 {
+                for f in std::fs::read_dir(d.join("data/cal")).unwrap().collect::<Vec<_>>() {
+                    let p = f.unwrap().path();
+                    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+                    let name = format!("{}_{copy}", v["placement"].as_str().unwrap());
+                    v["placement"] = json!(name);
+                    std::fs::write(d.join("data/cal").join(format!("{name}.json")), v.to_string()).unwrap();
+                }
+            }
+        })
+    };
+    cases.push(Case::fails(
+        "option/study of 10000 subsets over 20 placements",
+        many(),
+        words(&study()[..study().len() - 4], &["--subsets", "10000", "--out", "study"]),
+        &["touch-calibrations", "at most 10000000", "fewer subsets"],
+    ));
+    cases.push(Case::fails(
+        "option/calibrate with a study of 10000 subsets over 20 placements",
+        many(),
+        words(&cal(), &["--study-subsets", "10000"]),
+        &["touch-calibrations", "fewer subsets"],
+    ));
+    let good: Vec<(&str, Vec<String>, Option<Check>)> = vec![
+        ("huber 0.5", words(&cal(), &["--huber-delta-mm", "0.5"]), calibrated("out", 225)),
+        (
+            "six-dof lever 50",
+            words(&cal(), &["--objective", "six-dof", "--lever-mm", "50"]),
+            calibrated("out", 225),
+        ),
+        (
+            "no restarts",
+            words(&cal(), &[]).into_iter().map(|w| if w == "1" { "0".into() } else { w }).collect(),
+            calibrated("out", 225),
+        ),
+        ("add eccentricity:5", words(&cal(), &["--add", "eccentricity:5"]), calibrated("out", 225)),
+        ("with a study", words(&cal(), &["--study-subsets", "2"]), calibrated("out", 225)),
+        ("json", words(&cal(), &["--json"]), calibrated("out", 225)),
+        ("simulate hidden", words(SIM, &["--hidden", "eccentricity_sin:5=0.2"]), exists("sim/cal/C_A.json")),
+        (
+            "simulate no noise",
+            words(SIM, &["--seating-noise-mm", "0", "--encoder-noise-deg", "0"]),
+            exists("sim/val/V_A.json"),
+        ),
+        ("study", words(&study(), &[]), exists("study/study.json")),
+        ("study json", words(&study(), &["--json"]), exists("study/study.json")),
+    ];
+    for (name, args, check) in good {
+        cases.push(Case::succeeds(&format!("option/{name}"), unchanged(), args, check));
+    }
+}
+
+fn output_cases(cases: &mut Vec<Case>) {
+    let out_as = |out: &str| -> Vec<String> {
+        words(&cal(), &[]).into_iter().map(|w| if w == "out" { out.to_string() } else { w }).collect()
+    };
+    let thesis = write("mine/thesis.docx", "years of work");
+    let list: Vec<(&str, Setup, Vec<String>, &[&str])> = vec![
+        ("out = the data folder", unchanged(), out_as("data"), &["contains the input"]),
+        ("out = the calibration folder", unchanged(), out_as("data/cal"), &["contains the input"]),
+        ("out = the validation folder", unchanged(), out_as("data/val"), &["contains the input"]),
+        ("out = .", unchanged(), out_as("."), &["not a folder name"]),
+        ("out = ..", unchanged(), out_as(".."), &["not a folder name"]),
+        ("out = data/..", unchanged(), out_as("data/.."), &["not a folder name"]),
+        ("out = a file", write("notes.txt", "mine"), out_as("notes.txt"), &["not a folder"]),
+        ("out = the model file", unchanged(), out_as("model.toml"), &["contains the input"]),
+        ("out = a folder of the user's", thesis, out_as("mine"), &["thesis.docx", "did not write"]),
+        (
+            "out = a RUN with a user's file added",
+            write("run/notes.txt", "mine"),
+            out_as("run"),
+            &["notes.txt"],
+        ),
+        (
+            "out = a study folder",
+            Box::new(|d: &Path| {
+                std::fs::create_dir(d.join("st")).unwrap();
+                std::fs::write(d.join("st/.kincal-output"), "study").unwrap();
+            }),
+            out_as("st"),
+            &["study folder"],
+        ),
+        (
+            "study out = the data",
+            unchanged(),
+            words(&study()[..study().len() - 1], &["data"]),
+            &["contains the input"],
+        ),
+        ("study out = a user's folder", write("study/plan.md", "mine"), words(&study(), &[]), &["plan.md"]),
+        (
+            "simulate out = the data",
+            unchanged(),
+            words(&["simulate", "--model", "model.toml", "--out", "data"], &[]),
+            &["did not write"],
+        ),
+        (
+            "simulate out = a user's folder",
+            write("sim/notes.txt", "mine"),
+            words(SIM, &[]),
+            &["did not write"],
+        ),
+        (
+            "simulate out = .",
+            unchanged(),
+            words(&["simulate", "--model", "model.toml", "--out", "."], &[]),
+            &["not a folder name"],
+        ),
+        (
+            "compare out = the user's page",
+            write("page.html", "<html>mine</html>"),
+            words(&["compare", "run", "run", "--out", "page.html"], &[]),
+            &["not a page kincal wrote"],
+        ),
+        (
+            "compare out = a folder",
+            unchanged(),
+            words(&["compare", "run", "run", "--out", "data"], &[]),
+            &["is a folder"],
+        ),
+    ];
+    for (name, setup, args, needles) in list {
+        cases.push(Case::fails(&format!("output/{name}"), setup, args, needles));
+    }
+    let ok: Vec<(&str, Setup, Vec<String>, Option<Check>)> = vec![
+        ("out = a RUN kincal wrote is replaced", unchanged(), out_as("run"), calibrated("run", 225)),
+        ("out = a new nested folder", unchanged(), out_as("a/b/c"), calibrated("a/b/c", 225)),
+        (
+            "out = an empty folder",
+            Box::new(|d: &Path| std::fs::create_dir(d.join("empty")).unwrap()),
+            out_as("empty"),
+            calibrated("empty", 225),
+        ),
+        (
+            "out beside the user's files",
+            write("mine/thesis.docx", "years"),
+            out_as("mine/run"),
+            calibrated("mine/run", 225),
+        ),
+        ("simulate twice into its own folder", unchanged(), words(SIM, &[]), exists("sim/artefact.json")),
+        (
+            "haptic simulate beside the user's file",
+            write("rec/mine.csv", "1,2"),
+            words(&["haptic", "simulate", "--out", "rec", "--joints-seconds", "5"], &[]),
+            None,
+        ),
+        (
+            "compare twice onto its own page",
+            unchanged(),
+            words(&["compare", "run", "run", "--out", "cmp.html"], &[]),
+            exists("cmp.html"),
+        ),
+    ];
+    for (name, setup, args, check) in ok {
+        cases.push(Case::succeeds(&format!("output/{name}"), setup, args, check));
+    }
+}
+
+fn run_folder_cases(cases: &mut Vec<Case>) {
+    const S: &str = "run/summary.json";
+    let s = S;
+    let list: Vec<(&str, Setup, &[&str])> = vec![
+        (
+            "validation rms null",
+            edit_json(s, |v| v["validation"]["rms_mm"] = Value::Null),
+            &["summary.json", "rms_mm"],
+        ),
+        (
+            "validation rms text",
+            edit_json(s, |v| v["validation"]["rms_mm"] = json!("0.15")),
+            &["summary.json", "rms_mm"],
+        ),
+        (
+            "pairs negative",
+            edit_json(s, |v| v["validation"]["pairs"] = json!(-3)),
+            &["summary.json", "pairs"],
+        ),
+        (
+            "calibration missing",
+            edit_json(s, |v| {
+                v.as_object_mut().unwrap().remove("calibration");
+            }),
+            &["summary.json", "calibration"],
+        ),
+        ("options null", edit_json(s, |v| v["options"] = Value::Null), &["summary.json", "options"]),
+        (
+            "huber null",
+            edit_json(s, |v| v["options"]["huber_delta_mm"] = Value::Null),
+            &["summary.json", "huber_delta_mm"],
+        ),
+        (
+            "format of a study",
+            edit_json(s, |v| v["format"] = json!("kincal-study/1")),
+            &["summary.json", "format", "kincal-run/1"],
+        ),
+        (
+            "format missing",
+            edit_json(s, |v| {
+                v.as_object_mut().unwrap().remove("format");
+            }),
+            &["summary.json", "format"],
+        ),
+        (
+            "inputs moved away",
+            edit_json(s, |v| v["inputs"]["artefact"] = json!("/nonexistent/artefact.json")),
+            &["artefact.json"],
+        ),
+        (
+            "summary truncated",
+            Box::new(|d: &Path| {
+                let t = std::fs::read_to_string(d.join(S)).unwrap();
+                std::fs::write(d.join(S), &t[..t.len() / 2]).unwrap();
+            }),
+            &["summary.json"],
+        ),
+        (
+            "summary missing",
+            Box::new(|d: &Path| std::fs::remove_file(d.join(S)).unwrap()),
+            &["summary.json", "no such file"],
+        ),
+        (
+            "model missing",
+            Box::new(|d: &Path| std::fs::remove_file(d.join("run/model.toml")).unwrap()),
+            &["model.toml", "no such file"],
+        ),
+        (
+            "model edited to nan",
+            replace("run/model.toml", "scale_ppm = 0.0", "scale_ppm = nan"),
+            &["model.toml", "scale"],
+        ),
+        ("not a run", unchanged(), &[]),
+    ];
+    for (name, setup, needles) in list {
+        let args = if name == "not a run" {
+            words(&["diagnose", "data"], &[])
+        } else {
+            words(&["diagnose", "run"], &[])
+        };
+        cases.push(Case::fails(&format!("run/diagnose: {name}"), setup, args, needles));
+    }
+    const R: &str = "run/residuals.json";
+    let r = R;
+    let compare: Vec<(&str, Setup, &[&str])> = vec![
+        (
+            "residuals error null",
+            edit_json(r, |v| v["pairs"][3]["error_mm"] = Value::Null),
+            &["residuals.json", "error_mm"],
+        ),
+        (
+            "residuals angles of 5",
+            edit_json(r, |v| {
+                v["pairs"][0]["enc_deg"][0].as_array_mut().unwrap().pop();
+            }),
+            &["residuals.json", "enc_deg"],
+        ),
+        (
+            "residuals format",
+            edit_json(r, |v| v["format"] = json!("kincal-residuals/9")),
+            &["residuals.json", "format"],
+        ),
+        (
+            "residuals missing",
+            Box::new(|d: &Path| std::fs::remove_file(d.join(R)).unwrap()),
+            &["residuals.json"],
+        ),
+        (
+            "summary null rms",
+            edit_json(s, |v| v["nominal_validation"]["rms_mm"] = Value::Null),
+            &["summary.json", "rms_mm"],
+        ),
+        ("run is a file", unchanged(), &["model.toml"]),
+    ];
+    for (name, setup, needles) in compare {
+        let args = if name == "run is a file" {
+            words(&["compare", "run", "model.toml", "--out", "cmp.html"], &[])
+        } else {
+            words(&["compare", "run", "run", "--out", "cmp.html"], &[])
+        };
+        cases.push(Case::fails(&format!("run/compare: {name}"), setup, args, needles));
+    }
+    cases.push(Case::succeeds(
+        "run/diagnose a valid run",
+        unchanged(),
+        words(&["diagnose", "run"], &[]),
+        exists("run/diagnosis.json"),
+    ));
+    cases.push(Case::succeeds(
+        "run/compare a valid run with itself",
+        unchanged(),
+        words(&["compare", "run", "run", "--out", "cmp.html"], &[]),
+        exists("cmp.html"),
+    ));
+}
+
+/// Every numeric leaf of a JSON value, as JSON pointers.
+fn numbers(value: &Value, at: String, out: &mut Vec<String>) {
+    match value {
+        Value::Number(_) => out.push(at),
+        Value::Array(items) => {
+            items.iter().enumerate().for_each(|(i, v)| numbers(v, format!("{at}/{i}"), out))
+        }
+        Value::Object(map) => map.iter().for_each(|(k, v)| numbers(v, format!("{at}/{k}"), out)),
+        _ => {}
+    }
+}
+
+/// Seeded random mutations of one number in the artefact or a session: either a clear error
+/// naming the file (or a result marked not trustworthy), or a finite result over some pairs.
+fn random_cases(cases: &mut Vec<Case>, template: &Path) {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let files = ["data/artefact.json", "data/cal/C_B.json", "data/val/V_D.json"];
+    let replacements = [
+        json!(null),
+        json!("12"),
+        json!(true),
+        json!(-1),
+        json!(0),
+        json!(1e308),
+        json!(-1e308),
+        json!(359.999_999),
+        json!(4_294_967_296_u64),
+        json!([1.0]),
+    ];
+    for k in 0..60 {
+        let file = files[k % files.len()];
+        let value: Value =
+            serde_json::from_str(&std::fs::read_to_string(template.join(file)).unwrap()).unwrap();
+        let mut leaves = Vec::new();
+        numbers(&value, String::new(), &mut leaves);
+        let pointer = leaves[rng.random_range(0..leaves.len())].clone();
+        let (by, scale) =
+            (replacements[rng.random_range(0..replacements.len())].clone(), rng.random_range(0..3));
+        let name = file.rsplit('/').next().unwrap().to_string();
+        let label = format!("random/{k} {file}{pointer} = {by}{}", ["", " (scaled)", " (nudged)"][scale]);
+        let setup = edit_json(file, move |v| {
+            let Some(leaf) = v.pointer_mut(&pointer) else { return };
+            *leaf = match (scale, leaf.as_f64()) {
+                (1, Some(x)) => json!(x * 1000.0),
+                (2, Some(x)) => json!(x + 0.5),
+                _ => by.clone(),
+            };
+        });
+        let finite: Check = Box::new(|dir: &Path| {
+            let s: Value = serde_json::from_str(
+                &std::fs::read_to_string(dir.join("out/summary.json")).map_err(|e| e.to_string())?,
+            )
+            .map_err(|e| e.to_string())?;
+            let rms = s["validation"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
+            let pairs = s["validation"]["pairs"].as_u64().unwrap_or(0);
+            (rms.is_finite() && pairs > 0)
+                .then_some(())
+                .ok_or(format!("validation {rms} mm over {pairs} pairs"))
+        });
+        cases.push(Case {
+            name: label,
+            setup,
+            args: words(&cal(), &[]),
+            expect: Expect::Either(vec![name, "not trustworthy".into()], Some(finite)),
+        });
+    }
+}
+
+/// Every case of the corpus.
+fn corpus(template: &Path) -> Vec<Case> {
+    let mut cases = Vec::new();
+    random_cases(&mut cases, template);
+    model_cases(&mut cases);
+    artefact_cases(&mut cases);
+    session_cases(&mut cases);
+    option_cases(&mut cases);
+    output_cases(&mut cases);
+    run_folder_cases(&mut cases);
+    cases
+}
+
+#[test]
+fn every_bad_input_ends_in_a_clear_error_or_a_correct_result() {
+    let root = std::env::temp_dir().join(format!("kincal-bad-inputs-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let template = template(&root);
+    let cases = corpus(&template);
+    let mut names: Vec<&str> = cases.iter().map(|c| c.name.as_str()).collect();
+    names.sort_unstable();
+    names.dedup();
+    assert_eq!(names.len(), cases.len(), "case names must be unique");
+    assert!(cases.len() >= 300, "only {} cases", cases.len());
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let started = std::time::Instant::now();
+    let failures =
+        run_corpus(&kincal_bin(), &template, &root.join("cases"), &cases, threads, Duration::from_secs(60));
+    println!("{} cases in {:.1} s on {threads} threads", cases.len(), started.elapsed().as_secs_f64());
+    assert!(
+        failures.is_empty(),
+        "{} of {} cases failed:\n{}",
+        failures.len(),
+        cases.len(),
+        failures.join("\n\n")
+    );
+    std::fs::remove_dir_all(&root).ok();
+}

@@ -50,6 +50,10 @@ fn check(label: &str, options: &GenOptions, truth: &GenTruth, r: &HapticCalibrat
         r.tracker_gaps
     );
     eprintln!("{line}");
+    let rounds = &r.delay_rounds_ms;
+    if rounds.len() < 3 || (rounds[rounds.len() - 1] - rounds[rounds.len() - 2]).abs() >= 0.05 {
+        failures.push(format!("{label}: the delay was not re-estimated until it settled: {rounds:?}"));
+    }
     if (r.delay_ms - truth.delay_ms).abs() >= 0.25 {
         failures.push(format!("{label}: delay off by {:.3} ms", r.delay_ms - truth.delay_ms));
     }

@@ -42,7 +42,7 @@ fn device_pose_matches_the_host_within_a_micrometre() {
         let kinematics = device::Kinematics::new(&params);
         for _ in 0..20_000 {
             let counts: [u32; 6] = std::array::from_fn(|_| rng.random_range(0..COUNTS_PER_TURN));
-            let enc_deg = counts.map(|c| c as f64 * 360.0 / COUNTS_PER_TURN as f64);
+            let enc_deg = counts.map(|c| kincal_protocol::biss::counts_to_deg(c as f64));
             let host = tool_pose(&model, &enc_deg);
             let dev = kinematics.tool_pose(&counts);
             let dp =

@@ -177,7 +177,7 @@ fn the_controller_streams_the_calibrated_pose_the_host_computes() {
     }
     link.call(StreamPose { divider: 0 }).unwrap();
     assert!(poses.len() >= 20, "pose frames: {}", poses.len());
-    let enc_deg = counts.map(|c| c as f64 * 360.0 / COUNTS_PER_TURN as f64);
+    let enc_deg = counts.map(|c| kincal_protocol::biss::counts_to_deg(c as f64));
     let host = kincal::model::kinematics::tool_pose(&model, &enc_deg);
     for p in poses.iter().skip(5) {
         let d = (0..3).map(|k| (p.position_mm[k] as f64 - host.position_mm[k]).powi(2)).sum::<f64>().sqrt();
@@ -304,7 +304,10 @@ fn a_thousand_requests_during_a_full_rate_raw_stream_lose_nothing() {
     assert_eq!(link.stats.stream_gaps, 0, "stream frames lost");
     assert_eq!(link.stats.bad_frames, 0);
     assert_eq!(missed, 0);
-    assert!(frames as f64 >= seconds * 768.0 * 0.9, "{frames} frames in {seconds:.2} s");
+    assert!(
+        frames as f64 >= seconds * kincal_protocol::messages::TICK_HZ as f64 * 0.9,
+        "{frames} frames in {seconds:.2} s"
+    );
 }
 
 #[test]

@@ -229,7 +229,7 @@ fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
     fake.fault_next(commit, Fault::LoseReply, 2);
     let (code, out, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "77"]);
     assert_eq!(code, Some(0), "{err}");
-    assert!(err.contains("answer to the commit was lost"), "{err}");
+    assert!(err.contains("first commit request went unanswered"), "{err}");
     assert!(
         out.contains("now holds parameters version 77") && out.contains("previously parameters version 10")
     );

@@ -71,8 +71,9 @@ impl fmt::Display for AfterFailure {
 /// How an upload ended when it succeeded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Uploaded {
-    /// The first answer to the commit was lost; a repeat of the request (answered by the
-    /// controller without committing twice) or asking what it holds confirmed the new set.
+    /// The first commit request went unanswered (it or its answer was lost); a repeat of it
+    /// (answered without committing twice) or asking what the controller holds confirmed the
+    /// new set.
     pub commit_reply_lost: bool,
 }
 

@@ -210,7 +210,9 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
         }
     };
     if uploaded.commit_reply_lost {
-        eprintln!("the answer to the commit was lost; asked again, the controller confirms the new set");
+        eprintln!(
+            "the first commit request went unanswered; asked again, the controller confirms the new set"
+        );
     }
     let now = link.held_params()?;
     println!(

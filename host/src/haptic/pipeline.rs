@@ -152,7 +152,7 @@ pub struct HapticFailure {
     pub partial: Option<Box<HapticCalibration>>,
     /// Where the joint residuals are, when the joint calibration was refused (held-out blocks of
     /// `joints/`; axis errors not computed, 0).
-    pub maps: Option<ErrorMaps>,
+    pub maps: Option<Box<ErrorMaps>>,
 }
 
 /// Errors before and after, as summary.json reports them.
@@ -319,7 +319,7 @@ impl HapticFailure {
             Some(FailureSummary {
                 step: self.step,
                 message: self.error.to_string(),
-                maps: self.maps.clone(),
+                maps: self.maps.as_deref().cloned(),
             }),
             self.partial.as_deref(),
         )
@@ -842,7 +842,7 @@ pub fn calibrate_recording(raw_rec: &Recording) -> Result<HapticCalibration, Hap
             step: STEP_JOINTS,
             error: HapticError::Implausible { residual_mm: residual, noise_mm, hint },
             partial: None,
-            maps: Some(maps),
+            maps: Some(Box::new(maps)),
         });
     }
     // 6. Delay and joints in turn until the delay settles.

@@ -252,11 +252,18 @@ fn version_0_and_absurd_sets_are_refused_by_the_host_and_by_the_controller() {
     let dir = scratch("envelope");
     let path = dir.join("model.toml");
     let mut far = kincal::model::ArmModel::suta_nominal();
+    // Plausible for a model file (≤ 5000 mm), outside what the controller accepts (±2000 mm).
+    far.joints[2].a_mm = 3e3;
+    far.save(&path).unwrap();
+    let (code, _, err) = kincal(&["upload", "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("joint 3 a_mm = 3e3 is outside the envelope ±2000"), "{err}");
+    // Absurd already as a model file: refused when it is read, before any upload.
     far.joints[2].a_mm = 1e6;
     far.save(&path).unwrap();
     let (code, _, err) = kincal(&["upload", "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
     assert_eq!(code, Some(1));
-    assert!(err.contains("joint 3 a_mm = 1e6 is outside the envelope ±2000"), "{err}");
+    assert!(err.contains("link_offset:3") && err.contains("beyond any plausible arm"), "{err}");
     kincal::model::ArmModel::suta_nominal().save(&path).unwrap();
     let (code, _, err) = kincal(&["upload", "--port", &fake.port, path.to_str().unwrap(), "--version", "0"]);
     assert_eq!(code, Some(1));

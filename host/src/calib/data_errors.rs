@@ -271,3 +271,57 @@ pub fn without(data: &Dataset, drop: impl Fn(usize) -> bool) -> Dataset {
         touches: data.touches.iter().enumerate().filter(|(k, _)| !drop(*k)).map(|(_, t)| t.clone()).collect(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::{Landmark, Touch, ARTEFACT_FORMAT};
+
+    #[test]
+    fn blocks_keep_the_measured_order() {
+        let t = |placement, repeat| Touch {
+            placement,
+            landmark: 0,
+            repeat,
+            enc_deg: [0.0; 6],
+            enc_sigma_deg: None,
+        };
+        let data = Dataset {
+            placements: vec!["A".into(), "B".into()],
+            touches: vec![t(0, 1), t(1, 1), t(0, 1), t(0, 2)],
+        };
+        assert_eq!(blocks(&data), vec![((0, 1), vec![0, 2]), ((1, 1), vec![1]), ((0, 2), vec![3])]);
+        assert_eq!(without(&data, |k| k == 1).touches.len(), 3);
+    }
+
+    #[test]
+    fn a_landmark_is_located_through_the_others() {
+        // Four touches; the artefact frame is the base frame, so the certificates of the first
+        // three are their touched positions, and landmark 3's certificate is 2 mm off along x.
+        let model = ArmModel::suta_nominal();
+        let enc = [
+            [0.0, 200.0, 100.0, 30.0, 40.0, 50.0],
+            [10.0, 210.0, 90.0, 20.0, 50.0, 40.0],
+            [350.0, 190.0, 95.0, 25.0, 45.0, 55.0],
+            [5.0, 205.0, 105.0, 35.0, 35.0, 45.0],
+        ];
+        let p: Vec<Vector3<f64>> = enc.iter().map(|e| tool_pose(&model, e).position_mm).collect();
+        let artefact = Artefact {
+            format: ARTEFACT_FORMAT.into(),
+            landmarks: (0..4)
+                .map(|i| {
+                    let q = if i < 3 { p[i] } else { p[3] + Vector3::new(2.0, 0.0, 0.0) };
+                    Landmark { id: format!("L{i}"), xyz_mm: [q.x, q.y, q.z], yaw_deg: 0.0 }
+                })
+                .collect(),
+        };
+        let data = Dataset {
+            placements: vec!["A".into()],
+            touches: (0..4)
+                .map(|l| Touch { placement: 0, landmark: l, repeat: 1, enc_deg: enc[l], enc_sigma_deg: None })
+                .collect(),
+        };
+        let found = locate_landmark(&model, &artefact, &data, 3).expect("located");
+        assert!((Vector3::from(found) - p[3]).norm() < 1e-6, "{found:?} vs {:?}", p[3]);
+    }
+}

@@ -283,3 +283,30 @@ impl Gap {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::Touch;
+
+    #[test]
+    fn chi2_quantiles_match_tables() {
+        // χ²₆ at 0.999 is 22.458, χ²₃ at 0.999 is 16.266 (z = 3.0902).
+        assert!((chi2_quantile(6.0, 3.0902) - 22.458).abs() < 0.3);
+        assert!((chi2_quantile(3.0, 3.0902) - 16.266).abs() < 0.4);
+    }
+
+    #[test]
+    fn repeats_in_another_configuration_are_not_pooled() {
+        let touch = |enc_deg| Touch { placement: 0, landmark: 0, repeat: 1, enc_deg, enc_sigma_deg: None };
+        let data = Dataset {
+            placements: vec!["A".into()],
+            touches: vec![
+                touch([10.0, 20.0, 30.0, 40.0, 50.0, 359.5]),
+                touch([10.5, 20.2, 29.8, 40.1, 50.0, 0.5]), // across 0°/360°: same configuration
+                touch([10.0, 20.0, 30.0, 220.0, 310.0, 180.0]), // wrist flipped
+            ],
+        };
+        assert_eq!(same_configuration(&data, &[0, 1, 2]), vec![vec![0, 1], vec![2]]);
+    }
+}

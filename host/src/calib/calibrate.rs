@@ -7,6 +7,7 @@ use crate::model::{ArmModel, ParamId};
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 
 /// Settings of one calibration.
 #[derive(Clone, Copy, Debug)]
@@ -132,7 +133,8 @@ const NEGLIGIBLE_MM: f64 = 1e-9;
 const MAX_IDENTIFIABILITY_PASSES: usize = 3;
 
 /// Solve from the nominal values (start 0) or from random points inside the bounds (starts 1..),
-/// keeping the lowest cost. Random start k is the same point whichever starts are run.
+/// keeping the lowest cost (the earliest start on a tie). Random start k is the same point
+/// whichever starts are run; the starts run in parallel on every core.
 fn solve_from_starts(
     problem: &CalibrationProblem,
     x_nominal: &[f64],
@@ -143,33 +145,69 @@ fn solve_from_starts(
 ) -> (solver::Solution, Vec<StartOutcome>) {
     let solver_options = SolverOptions { loss: Loss::Huber(options.huber_delta_mm), ..options.solver };
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
+    let points: Vec<(usize, Vec<f64>)> = (0..=*starts.end())
+        .map(|start| {
+            let x0: Vec<f64> = if start == 0 {
+                x_nominal.to_vec()
+            } else {
+                lower.iter().zip(upper).map(|(l, u)| l + (u - l) * rng.random::<f64>()).collect()
+            };
+            (start, x0)
+        })
+        .filter(|(start, _)| starts.contains(start))
+        .collect();
+    let solved: Vec<(StartOutcome, solver::Solution)> = points
+        .par_iter()
+        .map(|(start, x0)| {
+            let mut r0 = vec![0.0; problem.len()];
+            problem.evaluate(x0, &mut r0, None);
+            let s = solver::solve(problem, x0, lower, upper, &solver_options);
+            let outcome = StartOutcome {
+                start: *start,
+                initial_cost: solver_options.loss.cost(&r0),
+                final_cost: s.cost,
+                iterations: s.iterations,
+                stop: s.stop,
+            };
+            (outcome, s)
+        })
+        .collect();
     let mut outcomes = Vec::new();
     let mut best: Option<solver::Solution> = None;
-    let mut r0 = vec![0.0; problem.len()];
-    for start in 0..=*starts.end() {
-        let x0: Vec<f64> = if start == 0 {
-            x_nominal.to_vec()
-        } else {
-            lower.iter().zip(upper).map(|(l, u)| l + (u - l) * rng.random::<f64>()).collect()
-        };
-        if !starts.contains(&start) {
-            continue;
-        }
-        problem.evaluate(&x0, &mut r0, None);
-        let s = solver::solve(problem, &x0, lower, upper, &solver_options);
-        outcomes.push(StartOutcome {
-            start,
-            initial_cost: solver_options.loss.cost(&r0),
-            final_cost: s.cost,
-            iterations: s.iterations,
-            stop: s.stop,
-        });
+    for (outcome, s) in solved {
+        outcomes.push(outcome);
         if best.as_ref().is_none_or(|b| s.cost < b.cost) {
             best = Some(s);
         }
     }
     let best = best.unwrap_or_else(|| solver::solve(problem, x_nominal, lower, upper, &solver_options));
     (best, outcomes)
+}
+
+/// Solve again for the parameters `fit` estimated, on other data (a landmark or block left out),
+/// starting from `fit`'s solution: no identifiability analysis, no restarts, no uncertainty. The
+/// leave-one-out refits of the outlier metrics use it; their data differ from `fit`'s by a few
+/// touches, so the base set and the basin stay the same.
+pub fn refit(
+    fit: &Calibration,
+    artefact: &Artefact,
+    data: &Dataset,
+    options: &CalibrationOptions,
+) -> Result<ArmModel, CalibrationError> {
+    let problem = CalibrationProblem::new(&fit.model, fit.estimated.clone(), artefact, data, options.objective);
+    if problem.distance_rows() < fit.estimated.len() {
+        return Err(CalibrationError::TooFewPairs {
+            pairs: problem.distance_rows(),
+            params: fit.estimated.len(),
+        });
+    }
+    let bounds: Vec<_> =
+        fit.estimated.iter().filter_map(|id| fit.model.free.iter().find(|f| f.id == *id)).collect();
+    let lower: Vec<f64> = bounds.iter().map(|b| b.lower).collect();
+    let upper: Vec<f64> = bounds.iter().map(|b| b.upper).collect();
+    let x0: Vec<f64> = fit.estimated.iter().map(|&id| fit.model.get(id)).collect();
+    let (solution, _) = solve_from_starts(&problem, &x0, &lower, &upper, options, 0..=0);
+    Ok(problem.model_at(&solution.x))
 }
 
 /// Calibrate the free parameters of `nominal` on `data`.

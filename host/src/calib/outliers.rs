@@ -10,7 +10,7 @@
 //!
 //! A landmark is flagged when at least two metrics exceed their thresholds.
 
-use crate::calib::calibrate::{calibrate, Calibration, CalibrationOptions};
+use crate::calib::calibrate::{refit, Calibration, CalibrationOptions};
 use crate::calib::objective::{CalibrationProblem, Objective};
 use crate::calib::validate::{distance_errors, positions, ErrorStats};
 use crate::data::{Artefact, Dataset};
@@ -98,9 +98,7 @@ pub fn landmark_outliers(
     let mse = r[..m].iter().map(|v| v * v).sum::<f64>() / (m as f64 - p as f64).max(1.0);
     let (jtj, _) = crate::numerics::solver::normal_equations(&jac[..m * p], &r[..m], &vec![1.0; m], p);
     let bias = landmark_bias(&fit.model, artefact, cal);
-    // Refits without one landmark start from the full fit, without random restarts.
-    let warm = fit.model.clone();
-    let refit_options = CalibrationOptions { restarts: 0, ..*options };
+    // Refits without one landmark start from the full fit, on its base set.
     touched
         .par_iter()
         .map(|&l| {
@@ -112,14 +110,14 @@ pub fn landmark_outliers(
                     .sum::<f64>()
                 / (2.0 * total);
             let (cooks_distance, loo_impact_pct) =
-                match calibrate(&warm, artefact, &cal.without_landmark(l), &refit_options) {
-                    Ok(refit) => {
+                match refit(fit, artefact, &cal.without_landmark(l), options) {
+                    Ok(model) => {
                         let delta = nalgebra::DVector::from_iterator(
                             p,
-                            fit.estimated.iter().map(|&id| refit.model.get(id) - fit.model.get(id)),
+                            fit.estimated.iter().map(|&id| model.get(id) - fit.model.get(id)),
                         );
                         let cook = delta.dot(&(&jtj * &delta)) / (p as f64 * mse.max(1e-300));
-                        (cook, 100.0 * (full_rms - rms_on(&refit.model)) / full_rms)
+                        (cook, 100.0 * (full_rms - rms_on(&model)) / full_rms)
                     }
                     Err(_) => (f64::NAN, f64::NAN),
                 };

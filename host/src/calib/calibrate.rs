@@ -194,7 +194,8 @@ pub fn refit(
     data: &Dataset,
     options: &CalibrationOptions,
 ) -> Result<ArmModel, CalibrationError> {
-    let problem = CalibrationProblem::new(&fit.model, fit.estimated.clone(), artefact, data, options.objective);
+    let problem =
+        CalibrationProblem::new(&fit.model, fit.estimated.clone(), artefact, data, options.objective);
     if problem.distance_rows() < fit.estimated.len() {
         return Err(CalibrationError::TooFewPairs {
             pairs: problem.distance_rows(),

@@ -9,14 +9,18 @@ use std::fmt::Write;
 /// step's evidence.
 pub fn auto_loop_report(run: &AutoLoop) -> String {
     let mut body = String::new();
-    let measured: Vec<(f64, f64)> =
-        run.steps.iter().enumerate().map(|(k, s)| (k as f64, s.validation_rms_mm)).collect();
-    let floor: Vec<(f64, f64)> =
-        run.steps.iter().enumerate().filter_map(|(k, s)| s.expected_rms_mm.map(|e| (k as f64, e))).collect();
+    let labels: Vec<String> = run
+        .steps
+        .iter()
+        .enumerate()
+        .map(|(k, s)| format!("{k}: {}", s.added.as_deref().unwrap_or("start")))
+        .collect();
+    let measured: Vec<f64> = run.steps.iter().map(|s| s.validation_rms_mm).collect();
+    let expected: Vec<f64> = run.steps.iter().map(|s| s.expected_rms_mm.unwrap_or(0.0)).collect();
     let _ = write!(
         body,
-        "<h2>Validation error by step</h2><figure>{}<figcaption>points: validation RMS after each step; line: expected from repeatability</figcaption></figure>",
-        svg::scatter(&measured, &floor, "step (effects added)", "validation RMS (mm)")
+        "<h2>Validation error by step</h2><figure>{}<figcaption>validation RMS after each added effect, beside the error expected from repeatability (0 where unknown)</figcaption></figure>",
+        svg::bars(&labels, &[("validation RMS", measured), ("expected from repeatability", expected)], "RMS (mm)")
     );
     let rows: Vec<Vec<String>> = run
         .steps

@@ -65,7 +65,11 @@ pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, FileE
 /// string where a number belongs) names the field it sits in, a syntax error its line and column.
 pub fn json_error(path: &Path, text: &str, e: serde_json::Error) -> FileError {
     let message = e.to_string();
-    let key = key_before(text, e.line(), e.column());
+    // serde names the field itself when one is missing, unknown or doubled; the key before the
+    // error position would be a neighbour.
+    let names_itself =
+        ["missing field", "unknown field", "duplicate field"].iter().any(|m| message.contains(m));
+    let key = key_before(text, e.line(), e.column()).filter(|_| !names_itself);
     match (e.classify(), key) {
         (serde_json::error::Category::Data, Some(key)) => field_error(path, key, message),
         (serde_json::error::Category::Syntax, Some(key)) => {
@@ -113,4 +117,28 @@ pub fn field_error(path: &Path, field: impl Into<String>, message: impl Into<Str
 pub fn null_as_infinity<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     let value: Option<f64> = serde::Deserialize::deserialize(d)?;
     Ok(value.unwrap_or(f64::INFINITY))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_wrong_value_names_its_field_and_a_missing_field_is_not_blamed_on_a_neighbour() {
+        #[derive(Debug, serde::Deserialize)]
+        #[allow(dead_code)]
+        struct Row {
+            id: String,
+            xyz_mm: [f64; 3],
+        }
+        let path = Path::new("rows.json");
+        let error =
+            |text: &str| json_error(path, text, serde_json::from_str::<Row>(text).unwrap_err()).to_string();
+        let null = error("{\n  \"id\": \"O\",\n  \"xyz_mm\": [\n    1.0,\n    null,\n    3.0\n  ]\n}");
+        assert!(null.contains("field `xyz_mm`") && null.contains("null"), "{null}");
+        let missing = error("{\n  \"id\": \"O\"\n}");
+        assert!(missing.contains("missing field `xyz_mm`") && !missing.contains("field `id`"), "{missing}");
+        let four = error("{\"id\": \"O\", \"xyz_mm\": [1, 2, 3, 4]}");
+        assert!(four.contains("xyz_mm"), "{four}");
+    }
 }

@@ -9,12 +9,17 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
-    {
+    let written = (|| {
         let mut f = std::fs::File::create(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if written.is_err() {
+        // A full disk or a refused rename leaves no temporary file behind.
+        let _ = std::fs::remove_file(&tmp);
     }
-    std::fs::rename(&tmp, path)
+    written
 }
 
 /// Why an input file could not be used.
@@ -122,6 +127,17 @@ pub fn null_as_infinity<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_failed_atomic_write_leaves_no_temporary_file() {
+        let dir = std::env::temp_dir().join(format!("kincal-atomic-{}", std::process::id()));
+        let target = dir.join("summary.json");
+        std::fs::create_dir_all(target.join("in the way")).unwrap();
+        assert!(write_atomic(&target, b"{}").is_err(), "a folder cannot be replaced by a file");
+        let names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names, ["summary.json"], "only the folder that was there");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     #[test]
     fn a_wrong_value_names_its_field_and_a_missing_field_is_not_blamed_on_a_neighbour() {

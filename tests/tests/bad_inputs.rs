@@ -47,7 +47,8 @@ fn kincal(dir: &Path, args: &[&str]) {
 }
 
 /// The valid inputs every case starts from: model.toml, model.json, data/ (simulated, seed 1),
-/// other-arm/ (validation sessions of another arm and artefact, seed 2), run/ (a RUN of data/).
+/// other-arm/ (validation sessions of another arm and artefact, seed 2), run/ (a RUN of data/,
+/// diagnosed).
 fn template(root: &Path) -> PathBuf {
     let t = root.join("template");
     std::fs::create_dir_all(&t).unwrap();
@@ -61,6 +62,7 @@ fn template(root: &Path) -> PathBuf {
     std::fs::remove_dir_all(t.join("other")).unwrap();
     let run: Vec<&str> = cal().into_iter().map(|s| if s == "out" { "run" } else { s }).collect();
     kincal(&t, &run);
+    kincal(&t, &["diagnose", "run"]);
     t
 }
 
@@ -918,6 +920,28 @@ fn output_cases(cases: &mut Vec<Case>) {
     }
 }
 
+/// Every command that writes, on a disk that fills up part-way: the error says so, nothing
+/// half-written is left and an existing output is kept as it was.
+fn disk_full_cases(cases: &mut Vec<Case>) {
+    let list: Vec<(&str, Vec<String>, u64)> = vec![
+        ("calibrate", words(&cal(), &[]), 8),
+        ("calibrate over a RUN it wrote", words(&cal()[..cal().len() - 1], &["run"]), 8),
+        ("calibrate, the report", words(&cal(), &[]), 200),
+        ("study", words(&study(), &[]), 2),
+        ("simulate", words(SIM, &[]), 2),
+        ("diagnose", words(&["diagnose", "run"], &[]), 4),
+        ("diagnose, the second file", words(&["diagnose", "run"], &[]), 300),
+        ("compare", words(&["compare", "run", "run", "--out", "cmp.html"], &[]), 4),
+        ("haptic simulate", words(&["haptic", "simulate", "--out", "rec", "--joints-seconds", "5"], &[]), 16),
+    ];
+    for (name, args, kib) in list {
+        cases.push(
+            Case::fails(&format!("disk full/{name} ({kib} KiB)"), unchanged(), args, &["file too large"])
+                .with_disk_full_at(kib),
+        );
+    }
+}
+
 fn run_folder_cases(cases: &mut Vec<Case>) {
     const S: &str = "run/summary.json";
     let s = S;
@@ -1119,6 +1143,7 @@ fn random_cases(cases: &mut Vec<Case>, template: &Path) {
             setup,
             args: words(&cal(), &[]),
             expect: Expect::Either(vec![name, "not trustworthy".into()], Some(finite)),
+            max_file_kib: None,
         });
     }
 }
@@ -1133,6 +1158,7 @@ fn corpus(template: &Path) -> Vec<Case> {
     option_cases(&mut cases);
     output_cases(&mut cases);
     run_folder_cases(&mut cases);
+    disk_full_cases(&mut cases);
     cases
 }
 

@@ -775,6 +775,18 @@ fn option_cases(cases: &mut Vec<Case>) {
         })
     };
     cases.push(Case::fails(
+        "session/more than 50 000 touches in 1112 files",
+        Box::new(|d: &Path| {
+            let mut v: Value = serde_json::from_str(&std::fs::read_to_string(d.join(CA)).unwrap()).unwrap();
+            for copy in 0..1112 {
+                v["placement"] = json!(format!("P{copy}"));
+                std::fs::write(d.join(format!("data/cal/P{copy}.json")), v.to_string()).unwrap();
+            }
+        }),
+        words(&cal(), &[]),
+        &["data/cal", "at most 50000 are read"],
+    ));
+    cases.push(Case::fails(
         "option/study of 10000 subsets over 20 placements",
         many(),
         words(&study()[..study().len() - 4], &["--subsets", "10000", "--out", "study"]),

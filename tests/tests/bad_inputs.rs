@@ -122,6 +122,18 @@ fn session(file: &'static str, edit: impl Fn(&mut Value) + Send + Sync + 'static
 
 const CA: &str = "data/cal/C_A.json";
 
+/// Keep only the touches of landmark O in every session of `folder`: no distance pair is left.
+fn one_landmark(folder: &'static str) -> Setup {
+    Box::new(move |d: &Path| {
+        for f in std::fs::read_dir(d.join(folder)).unwrap() {
+            let p = f.unwrap().path();
+            let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+            v["measurements"].as_array_mut().unwrap().retain(|m| m["landmark"] == "O");
+            std::fs::write(p, v.to_string()).unwrap();
+        }
+    })
+}
+
 /// Text edits of model.toml: (case, text replaced, replacement, what the error must say).
 type TextEdit = (&'static str, &'static str, &'static str, &'static [&'static str]);
 const BOUNDS: &str = "[10.7, 30.7]";
@@ -598,28 +610,10 @@ fn session_cases(cases: &mut Vec<Case>) {
         ),
         (
             "validation with one landmark per repeat",
-            Box::new(|d: &Path| {
-                for f in std::fs::read_dir(d.join("data/val")).unwrap() {
-                    let p = f.unwrap().path();
-                    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
-                    v["measurements"].as_array_mut().unwrap().retain(|m| m["landmark"] == "O");
-                    std::fs::write(p, v.to_string()).unwrap();
-                }
-            }),
+            one_landmark("data/val"),
             &["data/val", "no distance to validate"],
         ),
-        (
-            "calibration with one landmark per repeat",
-            Box::new(|d: &Path| {
-                for f in std::fs::read_dir(d.join("data/cal")).unwrap() {
-                    let p = f.unwrap().path();
-                    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
-                    v["measurements"].as_array_mut().unwrap().retain(|m| m["landmark"] == "O");
-                    std::fs::write(p, v.to_string()).unwrap();
-                }
-            }),
-            &["0 landmark pairs"],
-        ),
+        ("calibration with one landmark per repeat", one_landmark("data/cal"), &["0 landmark pairs"]),
         (
             "no measurements anywhere",
             Box::new(|d: &Path| {
@@ -774,6 +768,18 @@ fn option_cases(cases: &mut Vec<Case>) {
             }
         })
     };
+    cases.push(Case::fails(
+        "option/study, validation with one landmark per repeat",
+        one_landmark("data/val"),
+        words(&study(), &[]),
+        &["data/val", "no distance to validate"],
+    ));
+    cases.push(Case::fails(
+        "option/study, calibration with one landmark per repeat",
+        one_landmark("data/cal"),
+        words(&study(), &[]),
+        &["no calibration of any subset succeeded", "nothing was written"],
+    ));
     cases.push(Case::fails(
         "session/more than 50 000 touches in 1112 files",
         Box::new(|d: &Path| {

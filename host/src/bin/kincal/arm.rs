@@ -5,7 +5,7 @@ use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use kincal::calib::calibrate::CalibrationOptions;
 use kincal::calib::objective::Objective;
-use kincal::calib::run::{run, RunError, RunInputs};
+use kincal::calib::run::{run, RunInputs};
 use kincal::calib::study::{check_study_size, study, study_problems, StudyOptions};
 use kincal::data::{Artefact, Dataset, Purpose};
 use kincal::model::effects::Effect;
@@ -314,7 +314,9 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     let cal = Dataset::load_dir(&a.inputs.data, &artefact, Purpose::Calibration)?;
     let val = Dataset::load_dir(&a.inputs.validate, &artefact, Purpose::Validation)?;
     if val.pair_count() == 0 {
-        return Err(RunError::NoValidationPairs { path: a.inputs.validate.clone() }.into());
+        return Err(
+            kincal::calib::run::RunError::NoValidationPairs { path: a.inputs.validate.clone() }.into()
+        );
     }
     check_study_size(&cal, a.subsets)?;
     let calibration =

@@ -32,9 +32,9 @@ pub const MAX_FILE_BYTES: u64 = 64 * 1024 * 1024;
 /// Most session files in one folder.
 pub const MAX_SESSION_FILES: usize = 5000;
 /// Most touches in one folder of sessions.
-pub const MAX_TOUCHES: usize = 100_000;
+pub const MAX_TOUCHES: usize = 50_000;
 /// Most distance pairs one folder of sessions may form (the Jacobian holds a row per pair).
-pub const MAX_PAIRS: usize = 1_000_000;
+pub const MAX_PAIRS: usize = 500_000;
 
 /// What a session is for: the folder it is read from decides which is expected.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -9,12 +9,17 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
-    {
+    let written = (|| {
         let mut f = std::fs::File::create(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if written.is_err() {
+        // A full disk or a refused rename leaves no temporary file behind.
+        let _ = std::fs::remove_file(&tmp);
     }
-    std::fs::rename(&tmp, path)
+    written
 }
 
 /// Why an input file could not be used.
@@ -65,7 +70,11 @@ pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, FileE
 /// string where a number belongs) names the field it sits in, a syntax error its line and column.
 pub fn json_error(path: &Path, text: &str, e: serde_json::Error) -> FileError {
     let message = e.to_string();
-    let key = key_before(text, e.line(), e.column());
+    // serde names the field itself when one is missing, unknown or doubled; the key before the
+    // error position would be a neighbour.
+    let names_itself =
+        ["missing field", "unknown field", "duplicate field"].iter().any(|m| message.contains(m));
+    let key = key_before(text, e.line(), e.column()).filter(|_| !names_itself);
     match (e.classify(), key) {
         (serde_json::error::Category::Data, Some(key)) => field_error(path, key, message),
         (serde_json::error::Category::Syntax, Some(key)) => {
@@ -113,4 +122,39 @@ pub fn field_error(path: &Path, field: impl Into<String>, message: impl Into<Str
 pub fn null_as_infinity<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     let value: Option<f64> = serde::Deserialize::deserialize(d)?;
     Ok(value.unwrap_or(f64::INFINITY))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_failed_atomic_write_leaves_no_temporary_file() {
+        let dir = std::env::temp_dir().join(format!("kincal-atomic-{}", std::process::id()));
+        let target = dir.join("summary.json");
+        std::fs::create_dir_all(target.join("in the way")).unwrap();
+        assert!(write_atomic(&target, b"{}").is_err(), "a folder cannot be replaced by a file");
+        let names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names, ["summary.json"], "only the folder that was there");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_wrong_value_names_its_field_and_a_missing_field_is_not_blamed_on_a_neighbour() {
+        #[derive(Debug, serde::Deserialize)]
+        #[allow(dead_code)]
+        struct Row {
+            id: String,
+            xyz_mm: [f64; 3],
+        }
+        let path = Path::new("rows.json");
+        let error =
+            |text: &str| json_error(path, text, serde_json::from_str::<Row>(text).unwrap_err()).to_string();
+        let null = error("{\n  \"id\": \"O\",\n  \"xyz_mm\": [\n    1.0,\n    null,\n    3.0\n  ]\n}");
+        assert!(null.contains("field `xyz_mm`") && null.contains("null"), "{null}");
+        let missing = error("{\n  \"id\": \"O\"\n}");
+        assert!(missing.contains("missing field `xyz_mm`") && !missing.contains("field `id`"), "{missing}");
+        let four = error("{\"id\": \"O\", \"xyz_mm\": [1, 2, 3, 4]}");
+        assert!(four.contains("xyz_mm"), "{four}");
+    }
 }

@@ -340,10 +340,33 @@ pub fn diagnosis_json(diagnosis: &Diagnosis) -> String {
     json(&Tagged { format: DIAGNOSIS_FORMAT, body: diagnosis })
 }
 
-/// Write `diagnosis.json` and `diagnosis.html` into an existing RUN folder (each atomically).
+/// Write `diagnosis.html` and `diagnosis.json` into an existing RUN folder, both or neither.
 pub fn write_diagnosis(diagnosis: &Diagnosis, run_dir: &Path) -> Result<(), OutputError> {
-    put(run_dir, "diagnosis.json", diagnosis_json(diagnosis).as_bytes())?;
-    put(run_dir, "diagnosis.html", report::diagnosis::diagnosis_report(diagnosis).as_bytes())
+    put_together(
+        run_dir,
+        &[
+            ("diagnosis.html", report::diagnosis::diagnosis_report(diagnosis)),
+            ("diagnosis.json", diagnosis_json(diagnosis)),
+        ],
+    )
+}
+
+/// Write several files into `dir` so that a failure (a full disk) leaves the old ones, not a mix:
+/// every file is first written and synced under a temporary name, then all are renamed.
+fn put_together(dir: &Path, files: &[(&str, String)]) -> Result<(), OutputError> {
+    let temporary = |name: &str| dir.join(format!(".{name}.tmp-new-{}", std::process::id()));
+    for (k, (name, text)) in files.iter().enumerate() {
+        if let Err(e) = write_atomic(&temporary(name), text.as_bytes()) {
+            for (done, _) in &files[..k] {
+                let _ = std::fs::remove_file(temporary(done));
+            }
+            return Err(io(&dir.join(name))(e));
+        }
+    }
+    for (name, _) in files {
+        std::fs::rename(temporary(name), dir.join(name)).map_err(io(&dir.join(name)))?;
+    }
+    Ok(())
 }
 
 /// The JSON of an auto loop, as `auto.json` holds it.

@@ -37,6 +37,9 @@ pub struct Case {
     pub args: Vec<String>,
     /// The outcome.
     pub expect: Expect,
+    /// Largest file kincal may write, KiB (`ulimit -f` with SIGXFSZ ignored, so a larger write
+    /// fails as on a full disk); `None`: no limit.
+    pub max_file_kib: Option<u64>,
 }
 
 impl Case {
@@ -47,12 +50,19 @@ impl Case {
             setup,
             args,
             expect: Expect::Fails(needles.iter().map(|s| s.to_string()).collect()),
+            max_file_kib: None,
         }
+    }
+
+    /// The same case on a "disk" that takes no file larger than `kib` KiB.
+    pub fn with_disk_full_at(mut self, kib: u64) -> Case {
+        self.max_file_kib = Some(kib);
+        self
     }
 
     /// A case expected to succeed, with an optional check.
     pub fn succeeds(name: &str, setup: Setup, args: Vec<String>, check: Option<Check>) -> Case {
-        Case { name: name.to_string(), setup, args, expect: Expect::Succeeds(check) }
+        Case { name: name.to_string(), setup, args, expect: Expect::Succeeds(check), max_file_kib: None }
     }
 }
 
@@ -173,7 +183,16 @@ fn run_case(bin: &Path, case: &Case, dir: &Path, logs: &Path, timeout: Duration)
     let before = snapshot(dir);
     let replaceable = kincal_folders(dir);
     let (out_path, err_path) = (logs.with_extension("out"), logs.with_extension("err"));
-    let mut child = Command::new(bin)
+    let mut command = match case.max_file_kib {
+        None => Command::new(bin),
+        Some(kib) => {
+            // An ignored SIGXFSZ is inherited across exec: writes past the limit fail with EFBIG.
+            let mut sh = Command::new("sh");
+            sh.arg("-c").arg(format!("trap '' XFSZ; ulimit -f {}; exec \"$0\" \"$@\"", kib * 2)).arg(bin);
+            sh
+        }
+    };
+    let mut child = command
         .args(&case.args)
         .current_dir(dir)
         .env("RUST_BACKTRACE", "0")
@@ -201,8 +220,11 @@ fn run_case(bin: &Path, case: &Case, dir: &Path, logs: &Path, timeout: Duration)
         return Err(format!("panic or crash: {}", shown()));
     }
     let after = snapshot(dir);
+    // A failed command changes nothing; a successful one may replace only what kincal wrote.
+    let failed = !status.success();
     for (path, bytes) in &before {
-        let may_replace = replaceable.iter().any(|k| path.starts_with(k)) || is_kincal_page(bytes);
+        let may_replace =
+            !failed && (replaceable.iter().any(|k| path.starts_with(k)) || is_kincal_page(bytes));
         if !may_replace && after.get(path) != Some(bytes) {
             return Err(format!("the user's file {} was lost or changed: {}", path.display(), shown()));
         }

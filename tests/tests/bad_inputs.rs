@@ -47,7 +47,8 @@ fn kincal(dir: &Path, args: &[&str]) {
 }
 
 /// The valid inputs every case starts from: model.toml, model.json, data/ (simulated, seed 1),
-/// other-arm/ (validation sessions of another arm and artefact, seed 2), run/ (a RUN of data/).
+/// other-arm/ (validation sessions of another arm and artefact, seed 2), run/ (a RUN of data/,
+/// diagnosed).
 fn template(root: &Path) -> PathBuf {
     let t = root.join("template");
     std::fs::create_dir_all(&t).unwrap();
@@ -61,6 +62,7 @@ fn template(root: &Path) -> PathBuf {
     std::fs::remove_dir_all(t.join("other")).unwrap();
     let run: Vec<&str> = cal().into_iter().map(|s| if s == "out" { "run" } else { s }).collect();
     kincal(&t, &run);
+    kincal(&t, &["diagnose", "run"]);
     t
 }
 
@@ -119,6 +121,18 @@ fn session(file: &'static str, edit: impl Fn(&mut Value) + Send + Sync + 'static
 }
 
 const CA: &str = "data/cal/C_A.json";
+
+/// Keep only the touches of landmark O in every session of `folder`: no distance pair is left.
+fn one_landmark(folder: &'static str) -> Setup {
+    Box::new(move |d: &Path| {
+        for f in std::fs::read_dir(d.join(folder)).unwrap() {
+            let p = f.unwrap().path();
+            let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+            v["measurements"].as_array_mut().unwrap().retain(|m| m["landmark"] == "O");
+            std::fs::write(p, v.to_string()).unwrap();
+        }
+    })
+}
 
 /// Text edits of model.toml: (case, text replaced, replacement, what the error must say).
 type TextEdit = (&'static str, &'static str, &'static str, &'static [&'static str]);
@@ -596,28 +610,10 @@ fn session_cases(cases: &mut Vec<Case>) {
         ),
         (
             "validation with one landmark per repeat",
-            Box::new(|d: &Path| {
-                for f in std::fs::read_dir(d.join("data/val")).unwrap() {
-                    let p = f.unwrap().path();
-                    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
-                    v["measurements"].as_array_mut().unwrap().retain(|m| m["landmark"] == "O");
-                    std::fs::write(p, v.to_string()).unwrap();
-                }
-            }),
+            one_landmark("data/val"),
             &["data/val", "no distance to validate"],
         ),
-        (
-            "calibration with one landmark per repeat",
-            Box::new(|d: &Path| {
-                for f in std::fs::read_dir(d.join("data/cal")).unwrap() {
-                    let p = f.unwrap().path();
-                    let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
-                    v["measurements"].as_array_mut().unwrap().retain(|m| m["landmark"] == "O");
-                    std::fs::write(p, v.to_string()).unwrap();
-                }
-            }),
-            &["0 landmark pairs"],
-        ),
+        ("calibration with one landmark per repeat", one_landmark("data/cal"), &["0 landmark pairs"]),
         (
             "no measurements anywhere",
             Box::new(|d: &Path| {
@@ -773,6 +769,30 @@ fn option_cases(cases: &mut Vec<Case>) {
         })
     };
     cases.push(Case::fails(
+        "option/study, validation with one landmark per repeat",
+        one_landmark("data/val"),
+        words(&study(), &[]),
+        &["data/val", "no distance to validate"],
+    ));
+    cases.push(Case::fails(
+        "option/study, calibration with one landmark per repeat",
+        one_landmark("data/cal"),
+        words(&study(), &[]),
+        &["no calibration of any subset succeeded", "nothing was written"],
+    ));
+    cases.push(Case::fails(
+        "session/more than 50 000 touches in 1112 files",
+        Box::new(|d: &Path| {
+            let mut v: Value = serde_json::from_str(&std::fs::read_to_string(d.join(CA)).unwrap()).unwrap();
+            for copy in 0..1112 {
+                v["placement"] = json!(format!("P{copy}"));
+                std::fs::write(d.join(format!("data/cal/P{copy}.json")), v.to_string()).unwrap();
+            }
+        }),
+        words(&cal(), &[]),
+        &["data/cal", "at most 50000 are read"],
+    ));
+    cases.push(Case::fails(
         "option/study of 10000 subsets over 20 placements",
         many(),
         words(&study()[..study().len() - 4], &["--subsets", "10000", "--out", "study"]),
@@ -915,6 +935,28 @@ fn output_cases(cases: &mut Vec<Case>) {
     ];
     for (name, setup, args, check) in ok {
         cases.push(Case::succeeds(&format!("output/{name}"), setup, args, check));
+    }
+}
+
+/// Every command that writes, on a disk that fills up part-way: the error says so, nothing
+/// half-written is left and an existing output is kept as it was.
+fn disk_full_cases(cases: &mut Vec<Case>) {
+    let list: Vec<(&str, Vec<String>, u64)> = vec![
+        ("calibrate", words(&cal(), &[]), 8),
+        ("calibrate over a RUN it wrote", words(&cal()[..cal().len() - 1], &["run"]), 8),
+        ("calibrate, the report", words(&cal(), &[]), 200),
+        ("study", words(&study(), &[]), 2),
+        ("simulate", words(SIM, &[]), 2),
+        ("diagnose", words(&["diagnose", "run"], &[]), 4),
+        ("diagnose, the second file", words(&["diagnose", "run"], &[]), 300),
+        ("compare", words(&["compare", "run", "run", "--out", "cmp.html"], &[]), 4),
+        ("haptic simulate", words(&["haptic", "simulate", "--out", "rec", "--joints-seconds", "5"], &[]), 16),
+    ];
+    for (name, args, kib) in list {
+        cases.push(
+            Case::fails(&format!("disk full/{name} ({kib} KiB)"), unchanged(), args, &["file too large"])
+                .with_disk_full_at(kib),
+        );
     }
 }
 
@@ -1119,6 +1161,7 @@ fn random_cases(cases: &mut Vec<Case>, template: &Path) {
             setup,
             args: words(&cal(), &[]),
             expect: Expect::Either(vec![name, "not trustworthy".into()], Some(finite)),
+            max_file_kib: None,
         });
     }
 }
@@ -1133,6 +1176,7 @@ fn corpus(template: &Path) -> Vec<Case> {
     option_cases(&mut cases);
     output_cases(&mut cases);
     run_folder_cases(&mut cases);
+    disk_full_cases(&mut cases);
     cases
 }
 

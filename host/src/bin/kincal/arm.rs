@@ -326,6 +326,11 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     let artefact = Artefact::load(&a.inputs.artefact)?;
     let cal = Dataset::load_dir(&a.inputs.data, &artefact, Purpose::Calibration)?;
     let val = Dataset::load_dir(&a.inputs.validate, &artefact, Purpose::Validation)?;
+    if val.pair_count() == 0 {
+        return Err(
+            kincal::calib::run::RunError::NoValidationPairs { path: a.inputs.validate.clone() }.into()
+        );
+    }
     check_study_size(&cal, a.subsets)?;
     let calibration =
         CalibrationOptions { restarts: a.restarts, seed: a.seed, ..CalibrationOptions::default() };

@@ -75,10 +75,11 @@ fn calibrate_writes_a_run_whose_model_loads_again() {
             "{key}"
         );
     }
-    assert!(
-        stored["calibration"]["rms_mm"].as_f64().unwrap()
-            < stored["nominal_validation"]["rms_mm"].as_f64().unwrap()
-    );
+    // The same file read back as the type diagnose and compare use.
+    let folder = kincal::calib::run::RunFolder::load(&run).expect("RUN reads back as kincal-run/1");
+    assert_eq!(folder.summary.format, kincal::calib::run::RUN_FORMAT);
+    assert!(folder.summary.calibration.rms_mm < folder.summary.nominal_validation.rms_mm);
+    assert_eq!(folder.residuals().expect("residuals.json reads back").len(), folder.summary.validation.pairs);
     let calibrated =
         kincal::model::ArmModel::load(&run.join("model.toml")).expect("calibrated model loads again");
     assert_eq!(calibrated.free.len(), kincal::model::ArmModel::load(&model).unwrap().free.len());
@@ -221,9 +222,7 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success() && text.contains("rms_mm") && text.contains("eccentricity:5"), "{text}");
     let rms = |run: &Path| -> f64 {
-        let s: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
-        s["validation"]["rms_mm"].as_f64().unwrap()
+        kincal::calib::run::RunFolder::load(run).expect("typed RUN").summary.validation.rms_mm
     };
     assert!(rms(&after) < 0.6 * rms(&before), "{} → {}", rms(&before), rms(&after));
     assert!(std::fs::read_to_string(&page).unwrap().contains("<svg"));

@@ -68,6 +68,8 @@ pub enum FolderKind {
     Auto,
     /// Simulated data (`kincal simulate`): artefact, truth and the session folders.
     Simulation,
+    /// A simulated haptic recording (`kincal haptic simulate`).
+    HapticRecording,
 }
 
 impl FolderKind {
@@ -78,6 +80,7 @@ impl FolderKind {
             FolderKind::Haptic => "haptic",
             FolderKind::Auto => "auto",
             FolderKind::Simulation => "simulation",
+            FolderKind::HapticRecording => "haptic-recording",
         }
     }
 
@@ -91,8 +94,18 @@ impl FolderKind {
                 ("cal", names(crate::simulate::calibration_placements())),
                 ("val", names(crate::simulate::validation_placements())),
             ],
+            FolderKind::HapticRecording => ["delay", "gimbal", "reference", "joints", "landmarks", "verify"]
+                .into_iter()
+                .map(|step| (step, ["device.csv", "hip.csv", "t1.csv", "t2.csv"].map(String::from).to_vec()))
+                .collect(),
             _ => Vec::new(),
         }
+    }
+
+    /// Whether its files look the same whether kincal or a person made them (session files, a
+    /// recording): such a folder is replaced only when it carries kincal's marker.
+    fn needs_marker(self) -> bool {
+        matches!(self, FolderKind::Simulation | FolderKind::HapticRecording)
     }
 
     /// Whether an entry of this name (a folder when `is_dir`) is one kincal writes here.
@@ -126,6 +139,7 @@ impl FolderKind {
             FolderKind::Haptic => &["summary.json", "report.html"],
             FolderKind::Auto => &["auto.json", "report.html"],
             FolderKind::Simulation => &["artefact.json", "truth.toml"],
+            FolderKind::HapticRecording => &["recording.json"],
         }
     }
 }
@@ -182,11 +196,6 @@ pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Re
             foreign.push(name);
         }
     }
-    if any && !marked && kind == FolderKind::Simulation {
-        // Session files carry the same names whether simulated or recorded: without kincal's
-        // marker the data may be the user's own, so it is never replaced.
-        return Err(refused(dir, "holds data kincal did not write (no .kincal-output marker)"));
-    }
     if !foreign.is_empty() {
         foreign.sort();
         let shown: Vec<&str> = foreign.iter().take(5).map(String::as_str).collect();
@@ -198,6 +207,11 @@ pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Re
                 if foreign.len() > 5 { ", …" } else { "" }
             ),
         ));
+    }
+    if any && !marked && kind.needs_marker() {
+        // Session files carry the same names whether simulated or recorded: without kincal's
+        // marker the data may be the user's own, so it is never replaced.
+        return Err(refused(dir, "holds data kincal did not write (no .kincal-output marker)"));
     }
     Ok(any)
 }
@@ -398,23 +412,40 @@ pub fn write_haptic(summary: &HapticSummary, dir: &Path, recording: &Path) -> Re
     })
 }
 
-/// Write a single HTML page kincal made (the compare page). An existing file is replaced only when
-/// it is a page kincal wrote.
-pub fn write_page(path: &Path, html: &str) -> Result<(), OutputError> {
+/// Write a single HTML page kincal made (the compare page) whose `<title>` is `title`. An existing
+/// file is replaced only when it is such a page; a page inside a folder kincal writes is refused.
+pub fn write_page(path: &Path, title: &str, html: &str) -> Result<(), OutputError> {
     if path.is_dir() {
         return Err(refused(path, "is a folder; give a file name such as compare.html"));
+    }
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    if parent.join(MARKER).exists() {
+        return Err(refused(
+            path,
+            "is inside a folder kincal writes (a RUN, a study …): the page would replace its files or be lost with the folder; write it beside the folder",
+        ));
     }
     if path.exists() {
         let head = std::fs::read(path).map_err(io(path))?;
         let head = String::from_utf8_lossy(&head[..head.len().min(4096)]).into_owned();
-        if !(head.starts_with("<!doctype html>") && head.contains("<title>kincal")) {
-            return Err(refused(path, "exists and is not a page kincal wrote"));
+        if !(head.starts_with("<!doctype html>") && head.contains(title)) {
+            return Err(refused(path, format!("exists and is not a page kincal wrote (no \"{title}\")")));
         }
     }
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).map_err(io(parent))?;
     }
     write_atomic(path, html.as_bytes()).map_err(io(path))
+}
+
+/// Write a simulated haptic recording (recording.json and one folder per step) as one folder.
+pub fn write_haptic_recording(
+    recording: &crate::haptic::recording::Recording,
+    dir: &Path,
+) -> Result<(), OutputError> {
+    write_folder(dir, FolderKind::HapticRecording, &[], |staged| {
+        crate::haptic::simulate::write_recording(recording, staged).map_err(io(staged))
+    })
 }
 
 /// Write simulated data (artefact.json, truth.toml, cal/, val/) as one folder.
@@ -499,14 +530,21 @@ mod tests {
     }
 
     #[test]
-    fn a_page_the_user_wrote_is_not_overwritten() {
+    fn a_page_the_user_wrote_or_a_runs_report_is_not_overwritten() {
+        const T: &str = "<title>kincal compare</title>";
         let dir = scratch("page");
         let page = dir.join("compare.html");
         std::fs::write(&page, b"<html>my notes</html>").unwrap();
-        assert!(write_page(&page, "<!doctype html><title>kincal compare</title>").is_err());
+        assert!(write_page(&page, T, "<!doctype html><title>kincal compare</title>").is_err());
         assert_eq!(std::fs::read(&page).unwrap(), b"<html>my notes</html>");
         std::fs::remove_file(&page).unwrap();
-        write_page(&page, "<!doctype html><html><head><title>kincal compare</title>").unwrap();
-        write_page(&page, "<!doctype html><html><head><title>kincal compare</title>2").unwrap();
+        write_page(&page, T, "<!doctype html><html><head><title>kincal compare</title>").unwrap();
+        write_page(&page, T, "<!doctype html><html><head><title>kincal compare</title>2").unwrap();
+        let run = dir.join("run");
+        write_folder(&run, FolderKind::Run, &[], |s| put(s, "report.html", b"calibration")).unwrap();
+        assert!(
+            write_page(&run.join("report.html"), T, "<!doctype html><title>kincal compare</title>").is_err()
+        );
+        assert_eq!(std::fs::read(run.join("report.html")).unwrap(), b"calibration");
     }
 }

@@ -900,6 +900,30 @@ fn output_cases(cases: &mut Vec<Case>) {
             words(&["compare", "run", "run", "--out", "data"], &[]),
             &["is a folder"],
         ),
+        (
+            "compare out = the run's own report",
+            unchanged(),
+            words(&["compare", "run", "run", "--out", "run/report.html"], &[]),
+            &["inside a folder kincal writes"],
+        ),
+        (
+            "haptic simulate out = the user's file beside its recording",
+            write("rec/mine.csv", "1,2"),
+            words(&["haptic", "simulate", "--out", "rec", "--joints-seconds", "5"], &[]),
+            &["did not write", "mine.csv"],
+        ),
+        (
+            "haptic simulate out = .",
+            unchanged(),
+            words(&["haptic", "simulate", "--out", ".", "--joints-seconds", "5"], &[]),
+            &["not a folder name"],
+        ),
+        (
+            "haptic simulate --t2-height-mm NaN",
+            unchanged(),
+            words(&["haptic", "simulate", "--out", "rec", "--t2-height-mm", "NaN"], &[]),
+            &["t2-height-mm"],
+        ),
     ];
     for (name, setup, args, needles) in list {
         cases.push(Case::fails(&format!("output/{name}"), setup, args, needles));
@@ -921,10 +945,23 @@ fn output_cases(cases: &mut Vec<Case>) {
         ),
         ("simulate twice into its own folder", unchanged(), words(SIM, &[]), exists("sim/artefact.json")),
         (
-            "haptic simulate beside the user's file",
-            write("rec/mine.csv", "1,2"),
+            "haptic simulate beside the user's folder",
+            write("mine/notes.csv", "1,2"),
+            words(&["haptic", "simulate", "--out", "mine/rec", "--joints-seconds", "5"], &[]),
+            exists("mine/rec/recording.json"),
+        ),
+        (
+            "haptic simulate twice into its own recording",
+            Box::new(|d: &Path| {
+                let ok = std::process::Command::new(kincal_e2e::kincal_bin())
+                    .args(["haptic", "simulate", "--out", "rec", "--joints-seconds", "5"])
+                    .current_dir(d)
+                    .status()
+                    .map(|s| s.success());
+                assert_eq!(ok.ok(), Some(true), "first haptic simulate");
+            }),
             words(&["haptic", "simulate", "--out", "rec", "--joints-seconds", "5"], &[]),
-            None,
+            exists("rec/recording.json"),
         ),
         (
             "compare twice onto its own page",
@@ -991,6 +1028,26 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
             "huber null",
             edit_json(s, |v| v["options"]["huber_delta_mm"] = Value::Null),
             &["summary.json", "huber_delta_mm"],
+        ),
+        (
+            "restarts 1e9 (diagnose would refit with them)",
+            edit_json(s, |v| v["options"]["restarts"] = json!(1_000_000_000u64)),
+            &["summary.json", "options.restarts", "at most 1000"],
+        ),
+        (
+            "huber 0",
+            edit_json(s, |v| v["options"]["huber_delta_mm"] = json!(0.0)),
+            &["summary.json", "options.huber_delta_mm"],
+        ),
+        (
+            "huber negative",
+            edit_json(s, |v| v["options"]["huber_delta_mm"] = json!(-5.0)),
+            &["summary.json", "options.huber_delta_mm"],
+        ),
+        (
+            "unknown added effect",
+            edit_json(s, |v| v["options"]["added_effects"] = json!(["nonsense:9"])),
+            &["summary.json", "options.added_effects", "nonsense:9"],
         ),
         (
             "format of a study",

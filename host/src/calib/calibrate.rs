@@ -126,6 +126,13 @@ fn jacobian_at(problem: &CalibrationProblem, x: &[f64]) -> (Vec<f64>, Vec<f64>) 
     (r, jac)
 }
 
+/// Most random restarts a calibration may ask for (the CLI and a RUN read back both check it).
+pub const MAX_RESTARTS: usize = 1000;
+/// Range of the Huber threshold δ, mm.
+pub const HUBER_DELTA_RANGE_MM: (f64, f64) = (0.001, 1000.0);
+/// Range of the six-dof objective's lever, mm per radian.
+pub const LEVER_RANGE_MM: (f64, f64) = (0.001, 100_000.0);
+
 /// Change of a residual, mm, over a parameter's whole range below which it counts as none.
 const NEGLIGIBLE_MM: f64 = 1e-9;
 

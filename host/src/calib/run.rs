@@ -8,6 +8,7 @@
 
 use crate::calib::calibrate::{
     calibrate, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome,
+    HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS,
 };
 use crate::calib::identify::{self, Identifiability};
 use crate::calib::objective::{CalibrationProblem, Objective};
@@ -15,8 +16,8 @@ use crate::calib::outliers::{landmark_outliers, LandmarkOutlier};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions, StudyRow};
 use crate::calib::validate::{validate, ErrorStats, GroupStats, Repeatability, Validation};
 use crate::data::{Artefact, Dataset, Purpose};
-use crate::files::read_tagged;
 use crate::files::FileError;
+use crate::files::{field_error, read_tagged};
 use crate::model::effects::Effect;
 use crate::model::ArmModel;
 use crate::numerics::solver::Residuals;
@@ -294,6 +295,38 @@ pub struct SummaryOptions {
 }
 
 impl SummaryOptions {
+    /// Whether the recorded options are within the limits the command line accepts:
+    /// `Err((field, what was expected))` otherwise.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        let within = |v: f64, (lo, hi): (f64, f64)| v.is_finite() && (lo..=hi).contains(&v);
+        if !within(self.huber_delta_mm, HUBER_DELTA_RANGE_MM) {
+            let (lo, hi) = HUBER_DELTA_RANGE_MM;
+            return Err((
+                "options.huber_delta_mm".into(),
+                format!("expected {lo} to {hi} mm, found {}", self.huber_delta_mm),
+            ));
+        }
+        if self.restarts > MAX_RESTARTS {
+            return Err((
+                "options.restarts".into(),
+                format!("expected at most {MAX_RESTARTS}, found {}", self.restarts),
+            ));
+        }
+        if let Objective::SixDof { lever_mm } = self.objective {
+            if !within(lever_mm, LEVER_RANGE_MM) {
+                let (lo, hi) = LEVER_RANGE_MM;
+                return Err((
+                    "options.objective.lever_mm".into(),
+                    format!("expected {lo} to {hi}, found {lever_mm}"),
+                ));
+            }
+        }
+        if let Some(bad) = self.added_effects.iter().find(|e| Effect::parse(e).is_none()) {
+            return Err(("options.added_effects".into(), format!("unknown effect `{bad}`")));
+        }
+        Ok(())
+    }
+
     /// The calibration options these record.
     pub fn calibration_options(&self) -> CalibrationOptions {
         CalibrationOptions {
@@ -346,10 +379,13 @@ pub struct RunFolder {
 }
 
 impl RunFolder {
-    /// Read `model.toml` and `summary.json` of a RUN folder.
+    /// Read `model.toml` and `summary.json` of a RUN folder; the recorded options are checked
+    /// against the same limits as the command line's, since diagnose refits with them.
     pub fn load(dir: &Path) -> Result<RunFolder, FileError> {
         let model = ArmModel::load(&dir.join("model.toml"))?;
-        let summary = read_tagged(&dir.join("summary.json"), RUN_FORMAT)?;
+        let path = dir.join("summary.json");
+        let summary: Summary = read_tagged(&path, RUN_FORMAT)?;
+        summary.options.check().map_err(|(field, message)| field_error(&path, field, message))?;
         Ok(RunFolder { dir: dir.to_owned(), model, summary })
     }
 

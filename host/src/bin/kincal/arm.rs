@@ -3,7 +3,7 @@
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
-use kincal::calib::calibrate::CalibrationOptions;
+use kincal::calib::calibrate::{CalibrationOptions, HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS};
 use kincal::calib::objective::Objective;
 use kincal::calib::run::{run, RunFolder, RunInputs};
 use kincal::calib::study::{check_study_size, study, study_problems, StudyOptions};
@@ -17,8 +17,6 @@ use std::path::{Path, PathBuf};
 
 use crate::args::{count, real};
 
-/// Most random restarts per calibration.
-pub const MAX_RESTARTS: usize = 1000;
 /// Most random subsets per placement count in a study.
 pub const MAX_SUBSETS: usize = 10_000;
 
@@ -124,13 +122,13 @@ pub struct SolveArgs {
     #[arg(long, default_value_t = 8, allow_negative_numbers = true, value_parser = count(0, MAX_RESTARTS))]
     restarts: usize,
     /// Huber threshold δ, mm.
-    #[arg(long, default_value_t = 1.35, allow_negative_numbers = true, value_parser = real(0.001, 1000.0, "mm"))]
+    #[arg(long, default_value_t = 1.35, allow_negative_numbers = true, value_parser = real(HUBER_DELTA_RANGE_MM.0, HUBER_DELTA_RANGE_MM.1, "mm"))]
     huber_delta_mm: f64,
     /// Residual blocks to minimise.
     #[arg(long, value_enum, default_value_t = ObjectiveArg::Distance)]
     objective: ObjectiveArg,
     /// Millimetres per radian of orientation error (six-dof objective).
-    #[arg(long, default_value_t = 100.0, allow_negative_numbers = true, value_parser = real(0.001, 100_000.0, "mm per radian"))]
+    #[arg(long, default_value_t = 100.0, allow_negative_numbers = true, value_parser = real(LEVER_RANGE_MM.0, LEVER_RANGE_MM.1, "mm per radian"))]
     lever_mm: f64,
 }
 
@@ -477,7 +475,7 @@ pub fn cmd_compare(a: &CompareArgs) -> Result<()> {
     for line in comparison.table_lines() {
         println!("{line}");
     }
-    output::write_page(&a.out, &comparison.html())?;
+    output::write_page(&a.out, "<title>kincal compare</title>", &comparison.html())?;
     println!("side by side: {}", a.out.display());
     Ok(())
 }

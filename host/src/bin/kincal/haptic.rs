@@ -1,6 +1,6 @@
 //! Haptic device commands: simulate a recording, calibrate from one.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::{Args, Subcommand};
 use kincal::output;
 use std::path::PathBuf;
@@ -31,7 +31,7 @@ pub struct HapticSimulateArgs {
     #[arg(long, default_value_t = 60.0, allow_negative_numbers = true, value_parser = crate::args::real(1.0, 600.0, "s"))]
     joints_seconds: f64,
     /// Height of landmark target T2 above the central joint, mm (negative: below, 0: beside).
-    #[arg(long, default_value_t = 50.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 50.0, allow_negative_numbers = true, value_parser = crate::args::real(-300.0, 300.0, "mm"))]
     t2_height_mm: f64,
 }
 
@@ -57,8 +57,7 @@ pub fn cmd_haptic_simulate(a: &HapticSimulateArgs) -> Result<()> {
         ..Default::default()
     };
     let (recording, _) = kincal::haptic::simulate::simulate_recording(&options);
-    kincal::haptic::simulate::write_recording(&recording, &a.out)
-        .with_context(|| format!("writing {}", a.out.display()))?;
+    output::write_haptic_recording(&recording, &a.out)?;
     println!(
         "simulated recording (delay {} ms, {} gimbals) in {}",
         a.delay_ms,

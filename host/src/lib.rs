@@ -5,16 +5,18 @@
 //!
 //! | layer | modules | what it knows |
 //! | --- | --- | --- |
-//! | 0 | [`files`], [`numerics`] | the user's files and their errors; solvers and geometry, no arms |
-//! | 1 | [`model`] (with its [`model::effects`]), [`data`] | the arm's geometry and effects; artefact and sessions |
-//! | 2 | [`simulate`] | an independent forward path that makes data with known truth |
-//! | 3 | [`calib`], [`haptic`] | calibration, validation, diagnosis, study; the haptic pipeline |
-//! | 4 | [`report`] | HTML pages and plots that read results, never recompute them |
-//! | 5 | [`output`] | the folders kincal writes (RUN/, diagnosis, study, haptic) |
-//! | 6 | [`controller`] | the link to the arm's controller, recording, upload, the emulated demo |
+//! | 0 | [`files`], [`numerics`] | the user's files and their errors; solvers, geometry, statistics, no arms |
+//! | 1 | [`model`] (with its [`model::effects`]) | the arm's geometry and effects |
+//! | 2 | [`data`] | artefact and sessions |
+//! | 3 | [`simulate`] | an independent forward path that makes data with known truth |
+//! | 4 | [`calib`], [`haptic`] | calibration, validation, diagnosis, study; the haptic pipeline |
+//! | 5 | [`report`] | HTML pages and plots that read results, never recompute them |
+//! | 6 | [`output`] | the folders kincal writes (RUN/, diagnosis, study, simulated data, haptic) |
+//! | 7 | [`controller`] | the link to the arm's controller, recording, upload, the emulated demo |
 //!
 //! The CLI (`src/bin/kincal/`) parses arguments, calls these and prints.
 #![forbid(unsafe_code)]
+#![warn(missing_docs)]
 
 pub mod calib;
 pub mod controller;

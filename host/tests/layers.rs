@@ -22,23 +22,45 @@ fn layer(module: &str) -> Option<u8> {
     LAYERS.iter().find(|(m, _)| *m == module).map(|(_, l)| *l)
 }
 
-/// Every `crate::MODULE` a source text names, with its line number.
+/// Every `crate::MODULE` a source text names, with its line number: plain paths, and the
+/// top-level names of `crate::{…}` groups, also when a group spans lines or nests.
 fn crate_references(text: &str) -> Vec<(usize, String)> {
+    let code: String =
+        text.lines().map(|l| l.split("//").next().unwrap_or("")).collect::<Vec<_>>().join("\n");
+    let line_of = |at: usize| code[..at].matches('\n').count() + 1;
+    let ident =
+        |rest: &str| -> String { rest.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect() };
     let mut found = Vec::new();
-    for (n, line) in text.lines().enumerate() {
-        let code = line.split("//").next().unwrap_or("");
-        let mut rest = code;
-        while let Some(at) = rest.find("crate::") {
-            rest = &rest[at + "crate::".len()..];
-            if let Some(group) = rest.strip_prefix('{') {
-                let inner = group.split('}').next().unwrap_or("");
-                for item in inner.split(',') {
-                    let name: String =
-                        item.trim().chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
-                    found.push((n + 1, name));
+    let mut from = 0;
+    while let Some(offset) = code[from..].find("crate::") {
+        let at = from + offset + "crate::".len();
+        from = at;
+        let rest = &code[at..];
+        if !rest.starts_with('{') {
+            found.push((line_of(at), ident(rest)));
+            continue;
+        }
+        // Walk the group; a name right after `{` or a `,` at depth 1 is a top-level module.
+        let mut depth = 0;
+        let mut expect_name = false;
+        for (k, c) in rest.char_indices() {
+            match c {
+                '{' => {
+                    depth += 1;
+                    expect_name = depth == 1;
                 }
-            } else {
-                found.push((n + 1, rest.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect()));
+                '}' => {
+                    depth -= 1;
+                    if depth == 0 {
+                        break;
+                    }
+                }
+                ',' if depth == 1 => expect_name = true,
+                c if expect_name && (c.is_alphanumeric() || c == '_') => {
+                    found.push((line_of(at + k), ident(&rest[k..])));
+                    expect_name = false;
+                }
+                _ => {}
             }
         }
     }
@@ -97,4 +119,6 @@ fn the_check_catches_an_upward_and_a_sideways_import() {
         [(1, "controller".to_string()), (2, "haptic".to_string())]
     );
     assert!(violations("report", "use crate::calib::run::Run; // crate::output").is_empty());
+    let multi_line = "use crate::{\n    model::{ArmModel, JOINTS},\n    report::svg,\n};";
+    assert_eq!(violations("calib", multi_line), [(3, "report".to_string())]);
 }

@@ -460,7 +460,12 @@ fn cmd_diagnose_auto(
         println!("{line}");
     }
     println!("stopped: {:?} after {} steps in {elapsed:.2} s", run.stop, run.steps.len() - 1);
-    println!("models: {}/step-K.toml; report: {}", dir.display(), dir.join("report.html").display());
+    println!(
+        "models: {}/step-0.toml … step-{}.toml; report: {}",
+        dir.display(),
+        run.steps.len() - 1,
+        dir.join("report.html").display()
+    );
     Ok(())
 }
 

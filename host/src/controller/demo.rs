@@ -176,6 +176,33 @@ fn registered_rms(measured: &[Vector3<f64>], truth: &[Vector3<f64>]) -> f64 {
     (sum / measured.len().max(1) as f64).sqrt()
 }
 
+/// The demo's data folder resumes an interrupted demo (recording never measures a landmark
+/// twice), so it must hold this demo's data and nothing else: an existing folder is used only
+/// when its `demo.json` names the same seed; a new one gets that stamp.
+fn claim_data_folder(data: &std::path::Path, seed: u64) -> Result<(), LoopError> {
+    let stamp = data.join("demo.json");
+    let occupied = std::fs::read_dir(data).map(|mut d| d.next().is_some()).unwrap_or(false);
+    if occupied {
+        let found = std::fs::read_to_string(&stamp)
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .and_then(|v| v["seed"].as_u64());
+        if found != Some(seed) {
+            let what = found.map_or("files that are not a kincal demo's".to_string(), |s| {
+                format!("the demo data of seed {s}")
+            });
+            return Err(LoopError::Files(format!(
+                "{}: holds {what}, not this demo's (seed {seed}); choose another --out or remove the folder",
+                data.display()
+            )));
+        }
+    }
+    std::fs::create_dir_all(data).map_err(|e| LoopError::Files(format!("{}: {e}", data.display())))?;
+    let text = serde_json::json!({ "format": "kincal-demo/1", "seed": seed }).to_string();
+    crate::files::write_atomic(&stamp, text.as_bytes())
+        .map_err(|e| LoopError::Files(format!("{}: {e}", stamp.display())))
+}
+
 /// Run the loop on `link` (greeted) with `nominal` as the model to calibrate.
 pub fn run_loop(
     link: &mut Link,
@@ -190,7 +217,7 @@ pub fn run_loop(
     let truth = perturbed_truth(nominal, &sim, &mut rng);
     let artefact = suta_artefact(&mut rng);
     let data = options.out.join("data");
-    std::fs::create_dir_all(&data).map_err(|e| files(&e))?;
+    claim_data_folder(&data, options.seed)?;
     artefact.save(&data.join("artefact.json")).map_err(|e| files(&e))?;
     truth.save(&data.join("truth.toml")).map_err(|e| files(&e))?;
     nominal.save(&data.join("nominal.toml")).map_err(|e| files(&e))?;
@@ -292,4 +319,27 @@ pub fn run_loop(
         upload_seconds,
         seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::claim_data_folder;
+
+    #[test]
+    fn the_data_folder_resumes_only_the_same_demo() {
+        let dir = std::env::temp_dir().join(format!("kincal-demo-claim-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let data = dir.join("data");
+        claim_data_folder(&data, 1).expect("a new folder is claimed");
+        claim_data_folder(&data, 1).expect("the same demo resumes");
+        let other = claim_data_folder(&data, 2).unwrap_err().to_string();
+        assert!(other.contains("seed 1") && other.contains("seed 2"), "{other}");
+        let mine = dir.join("mine");
+        std::fs::create_dir_all(&mine).unwrap();
+        std::fs::write(mine.join("notes.txt"), b"mine").unwrap();
+        let refused = claim_data_folder(&mine, 1).unwrap_err().to_string();
+        assert!(refused.contains("not a kincal demo"), "{refused}");
+        assert_eq!(std::fs::read(mine.join("notes.txt")).unwrap(), b"mine");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

@@ -20,11 +20,12 @@
 //! A flagged block or touch is scored by refitting without it.
 
 use crate::calib::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOptions};
-use crate::calib::floor::{chi2_quantile, same_configuration};
+use crate::calib::floor::same_configuration;
 use crate::data::{Artefact, Dataset};
 use crate::model::kinematics::tool_pose;
 use crate::model::ArmModel;
 use crate::numerics::geometry::absolute_orientation;
+use crate::numerics::stats::{chi2_quantile, median};
 use nalgebra::{Matrix3, Vector3};
 
 /// Standard normal deviate of the χ²₆ quantile a block's split must exceed.
@@ -173,10 +174,6 @@ pub fn suspicious(
             });
         }
     }
-    let median = |mut v: Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v.get(v.len() / 2).copied().unwrap_or(0.0)
-    };
     let split_median = median(splits.iter().map(|s| s.chi2).collect());
     let split_limit = chi2_quantile(6.0, SPLIT_Z).max(SPLIT_OVER_MEDIAN * split_median);
     let touch_limit = chi2_quantile(3.0, TOUCH_Z);

@@ -22,18 +22,13 @@
 use crate::data::{Artefact, Dataset};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
 use crate::model::{ArmModel, ParamId, JOINTS};
+use crate::numerics::stats::chi2_quantile;
 use nalgebra::{Matrix3, Vector3};
 
 /// A (placement, landmark) group of repeats is left out of the floor when its scatter exceeds
 /// the χ² quantile at this many standard normal deviations (one-sided p ≈ 3·10⁻⁵).
 pub const GROUP_OUTLIER_Z: f64 = 4.0;
 
-/// Wilson–Hilferty approximation of the χ² quantile with `nu` degrees of freedom at standard
-/// normal deviate `z`.
-pub fn chi2_quantile(nu: f64, z: f64) -> f64 {
-    let a = 2.0 / (9.0 * nu);
-    nu * (1.0 - a + z * a.sqrt()).powi(3)
-}
 /// Standard errors by which the measured mean square must exceed the expected one for the gap
 /// to be called significant.
 pub const GAP_Z: f64 = 2.5;
@@ -288,13 +283,6 @@ impl Gap {
 mod tests {
     use super::*;
     use crate::data::Touch;
-
-    #[test]
-    fn chi2_quantiles_match_tables() {
-        // χ²₆ at 0.999 is 22.458, χ²₃ at 0.999 is 16.266 (z = 3.0902).
-        assert!((chi2_quantile(6.0, 3.0902) - 22.458).abs() < 0.3);
-        assert!((chi2_quantile(3.0, 3.0902) - 16.266).abs() < 0.4);
-    }
 
     #[test]
     fn repeats_in_another_configuration_are_not_pooled() {

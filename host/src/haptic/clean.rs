@@ -5,6 +5,7 @@
 //! Samples with fewer than two neighbours in their segment cannot be checked and are dropped.
 
 use super::recording::TargetStream;
+use crate::numerics::stats::median;
 use nalgebra::Vector3;
 
 /// Largest distance from the neighbours' median position, mm.
@@ -13,16 +14,6 @@ pub const WILD_MM: f64 = 25.0;
 pub const WILD_DEG: f64 = 20.0;
 /// Neighbours on each side.
 pub const WINDOW: usize = 3;
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
 
 /// The stream without its wild samples, and how many were removed.
 pub fn reject_wild(s: &TargetStream) -> (TargetStream, usize) {

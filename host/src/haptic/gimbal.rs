@@ -9,6 +9,7 @@
 
 use super::kinematics::{Device, SensorModel};
 use crate::numerics::solver::{self, Residuals, SolverOptions};
+use crate::numerics::stats::rms;
 use nalgebra::{DMatrix, DVector, Vector3};
 
 /// Relative held-out improvement the quadratic model must bring to be chosen.
@@ -146,10 +147,6 @@ fn fit(device: &Device, samples: &[GimbalSample], quadratic: bool) -> [SensorMod
         SensorModel { j: 0.0, k: coef[0], m: coef[1] }
     };
     [g4, g5, g6]
-}
-
-fn rms(v: &[f64]) -> f64 {
-    (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt()
 }
 
 /// Held-out axis error (degrees, RMS) of the linear model fitted on `calibration`: a quick

@@ -35,6 +35,7 @@ use super::position::{
 use super::recording::{DeviceStream, JointConvention, Recording, Step, TargetStream, Theta3};
 use super::reference::{orientation_reference, Pose, ReferenceError};
 use super::report_data::{error_maps, ErrorMaps, HeldOutSample};
+use crate::numerics::stats::rms;
 use nalgebra::{Matrix3, Vector3};
 
 /// Smallest range each of θ1–θ3 must move through in `joints/`, degrees.
@@ -384,10 +385,6 @@ fn spread_out(points: &[Vector3<f64>], spacing_mm: f64) -> Vec<usize> {
         }
     }
     kept
-}
-
-fn rms(v: &[f64]) -> f64 {
-    (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt()
 }
 
 /// Stylus-axis error (degrees) of a sensor set against the reference axis in the target frame.

@@ -280,9 +280,7 @@ mod tests {
         Bench { device, truth, calibration, verify, landmarks, noise_floor_mm: sigma * 3f64.sqrt() }
     }
 
-    fn rms(v: &[f64]) -> f64 {
-        (v.iter().map(|e| e * e).sum::<f64>() / v.len() as f64).sqrt()
-    }
+    use crate::numerics::stats::rms;
 
     #[test]
     fn landmark_initialisation_reaches_the_noise_floor_and_beats_the_pose_based_one() {

@@ -101,6 +101,29 @@ pub fn one_sided_t(values: &[f64]) -> (f64, f64) {
     (t, t_upper_tail(t, (n - 1) as f64))
 }
 
+/// Root mean square of `values` (0 for none).
+pub fn rms(values: &[f64]) -> f64 {
+    (values.iter().map(|v| v * v).sum::<f64>() / values.len().max(1) as f64).sqrt()
+}
+
+/// Median of `values`: the mean of the middle two for an even count, NaN for none.
+pub fn median(mut values: Vec<f64>) -> f64 {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    match n {
+        0 => f64::NAN,
+        _ if n % 2 == 1 => values[n / 2],
+        _ => 0.5 * (values[n / 2 - 1] + values[n / 2]),
+    }
+}
+
+/// Wilson–Hilferty approximation of the χ² quantile with `nu` degrees of freedom at standard
+/// normal deviate `z`.
+pub fn chi2_quantile(nu: f64, z: f64) -> f64 {
+    let a = 2.0 / (9.0 * nu);
+    nu * (1.0 - a + z * a.sqrt()).powi(3)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -123,5 +146,16 @@ mod tests {
         assert!(t > 10.0 && p < 1e-4, "{t} {p}");
         let (_, p) = one_sided_t(&[0.1, -0.2, 0.05, -0.1, 0.15, -0.05]);
         assert!(p > 0.3, "{p}");
+    }
+
+    #[test]
+    fn rms_median_and_chi2_of_known_values() {
+        assert!((super::rms(&[3.0, 4.0]) - 12.5f64.sqrt()).abs() < 1e-12);
+        assert_eq!(super::median(vec![3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(super::median(vec![4.0, 1.0, 3.0, 2.0]), 2.5);
+        assert!(super::median(Vec::new()).is_nan());
+        // χ²₆ at 0.999 is 22.458, χ²₃ at 0.999 is 16.266 (z = 3.0902).
+        assert!((super::chi2_quantile(6.0, 3.0902) - 22.458).abs() < 0.3);
+        assert!((super::chi2_quantile(3.0, 3.0902) - 16.266).abs() < 0.4);
     }
 }

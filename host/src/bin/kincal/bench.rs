@@ -15,6 +15,7 @@ use kincal::calib::peer::{run_peer, thesis_sized_problem, write_peer_problem};
 use kincal::calib::study::{study, StudyOptions};
 use kincal::data::Dataset;
 use kincal::model::ParamId;
+use kincal::numerics::stats::median;
 use kincal::simulate::{simulate, SimulationOptions};
 use std::time::Instant;
 
@@ -113,11 +114,6 @@ fn scale_benchmark(touches: usize) -> Result<()> {
     }
     std::fs::remove_dir_all(&dir).ok();
     Ok(())
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 /// Run every benchmark and print the figures.

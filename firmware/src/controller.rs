@@ -6,10 +6,10 @@ use crate::kinematics::Kinematics;
 use crate::window::Window;
 use embedded_storage::nor_flash::NorFlash;
 use kincal_protocol::messages::{
-    pack_counts, Ack, Answer, DeviceFrame, Endpoint, GetInfo, Hello, HelloReply, HostFrame, Info, ParamBegin,
-    ParamChunk, ParamCommit, ParamData, ParamRead, PoseReport, RawSample, Request, Reset, Response,
-    SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WireError, MAX_WINDOW_TICKS, PARAM_CHUNK,
-    PROTOCOL_VERSION, SCHEMA_HASH,
+    pack_counts, stream_bytes_per_s, Ack, Answer, DeviceFrame, Endpoint, GetInfo, Hello, HelloReply,
+    HostFrame, Info, ParamBegin, ParamChunk, ParamCommit, ParamData, ParamRead, PoseReport, RawSample,
+    Request, Reset, Response, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WireError,
+    LINK_BYTES_PER_S, MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
 };
 use kincal_protocol::params::{decode_blob, ArmParams, BlobError, BLOB_CRC, MAX_PARAM_BLOB};
 
@@ -164,12 +164,10 @@ impl<F: NorFlash> Controller<F> {
             Request::GetInfo(GetInfo) => none(typed::<GetInfo>(Ok(self.info(sampler)))),
             Request::StartWindow(r) => none(typed::<StartWindow>(self.start_window(r))),
             Request::StreamRaw(StreamRaw { on }) => {
-                self.raw = on;
-                none(typed::<StreamRaw>(Ok(Ack)))
+                none(typed::<StreamRaw>(self.set_streams(on, self.pose_divider)))
             }
             Request::StreamPose(StreamPose { divider }) => {
-                self.pose_divider = divider;
-                none(typed::<StreamPose>(Ok(Ack)))
+                none(typed::<StreamPose>(self.set_streams(self.raw, divider)))
             }
             Request::ParamBegin(r) => none(typed::<ParamBegin>(self.param_begin(r))),
             Request::ParamChunk(r) => none(typed::<ParamChunk>(self.param_chunk(r))),
@@ -184,6 +182,18 @@ impl<F: NorFlash> Controller<F> {
                 }
             }
         }
+    }
+
+    /// Switch the per-tick streams, if the link carries them: frames the link cannot carry would
+    /// be dropped, so such settings are refused and the present ones kept.
+    fn set_streams(&mut self, raw: bool, pose_divider: u16) -> Result<Ack, WireError> {
+        let needed_bytes_per_s = stream_bytes_per_s(raw, pose_divider);
+        if needed_bytes_per_s > LINK_BYTES_PER_S {
+            return Err(WireError::LinkTooSlow { needed_bytes_per_s, link_bytes_per_s: LINK_BYTES_PER_S });
+        }
+        self.raw = raw;
+        self.pose_divider = pose_divider;
+        Ok(Ack)
     }
 
     fn handshake(&mut self, Hello { version, schema }: Hello) -> Result<HelloReply, WireError> {
@@ -322,6 +332,32 @@ mod tests {
         assert_eq!(
             ask(&mut c, Request::SimSetPose(SimSetPose { counts: [0; 6] })),
             Err(WireError::NotSupported)
+        );
+    }
+
+    #[test]
+    fn streams_the_link_cannot_carry_are_refused_and_the_settings_kept() {
+        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        hello(&mut c);
+        assert_eq!(ask(&mut c, Request::StreamRaw(StreamRaw { on: true })), Ok(Response::Ack));
+        let refused = ask(&mut c, Request::StreamPose(StreamPose { divider: 1 }));
+        assert_eq!(
+            refused,
+            Err(WireError::LinkTooSlow { needed_bytes_per_s: 768 * (30 + 48), link_bytes_per_s: 46_080 })
+        );
+        assert_eq!(ask(&mut c, Request::StreamPose(StreamPose { divider: 2 })), Ok(Response::Ack));
+        let mut frames = Vec::new();
+        let sample = Sample { counts: [1000; 6], rejected: 0 };
+        for _ in 0..4 {
+            c.on_tick(&sample, &mut |f| frames.push(f.clone()));
+        }
+        // No parameters stored: raw frames only, every tick; the raw stream stayed on.
+        assert_eq!(frames.len(), 4);
+        assert_eq!(ask(&mut c, Request::StreamRaw(StreamRaw { on: false })), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::StreamPose(StreamPose { divider: 1 })), Ok(Response::Ack));
+        assert_eq!(
+            ask(&mut c, Request::StreamRaw(StreamRaw { on: true })),
+            Err(WireError::LinkTooSlow { needed_bytes_per_s: 768 * (30 + 48), link_bytes_per_s: 46_080 })
         );
     }
 

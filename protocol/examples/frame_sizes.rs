@@ -77,9 +77,15 @@ fn main() {
         println!("{name:<28} {n:4} B");
     }
     let raw = rows[0].1;
-    println!(
-        "raw stream at 768 Hz: {} B/s = {:.0} % of a 460800-baud link (10 bits per byte)",
-        raw * 768,
-        raw as f64 * 768.0 * 10.0 / 460_800.0 * 100.0
-    );
+    let pose = rows[1].1;
+    for (what, bytes_per_s) in [
+        ("raw stream every tick", raw * TICK_HZ as usize),
+        ("pose stream every tick", pose * TICK_HZ as usize),
+        ("raw + pose every 2nd tick", (raw + pose / 2) * TICK_HZ as usize),
+    ] {
+        println!(
+            "{what:<28} {bytes_per_s} B/s = {:.0} % of the {LINK_BAUD}-baud link ({LINK_BYTES_PER_S} B/s)",
+            bytes_per_s as f64 / LINK_BYTES_PER_S as f64 * 100.0
+        );
+    }
 }

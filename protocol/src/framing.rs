@@ -11,8 +11,38 @@ pub const MAX_MESSAGE: usize = 256;
 /// Largest frame on the wire: COBS overhead, CRC and delimiter included.
 pub const MAX_FRAME: usize = MAX_MESSAGE + 2 + MAX_MESSAGE / 254 + 2 + 1;
 
-/// CRC-16 over the postcard bytes (CRC-16/IBM-3740, "CCITT-FALSE").
-pub const FRAME_CRC: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_IBM_3740);
+/// Table of the frame CRC (CRC-16/IBM-3740, "CCITT-FALSE": polynomial 0x1021, not reflected,
+/// initial value 0xFFFF, no final XOR), one entry per byte value.
+const CRC16_TABLE: [u16; 256] = {
+    let mut table = [0u16; 256];
+    let mut i = 0;
+    while i < 256 {
+        let mut c = (i as u16) << 8;
+        let mut k = 0;
+        while k < 8 {
+            c = if c & 0x8000 != 0 { (c << 1) ^ 0x1021 } else { c << 1 };
+            k += 1;
+        }
+        table[i] = c;
+        i += 1;
+    }
+    table
+};
+
+/// Initial value of the frame CRC.
+const FRAME_CRC_INIT: u16 = 0xFFFF;
+
+/// The frame CRC with one more byte.
+#[inline(always)]
+fn frame_crc_step(crc: u16, byte: u8) -> u16 {
+    (crc << 8) ^ CRC16_TABLE[((crc >> 8) as u8 ^ byte) as usize]
+}
+
+/// CRC-16 over the postcard bytes of a frame (CRC-16/IBM-3740, "CCITT-FALSE"; a test holds it
+/// to the `crc` crate's definition). Own table, so the stream frames can update it byte by byte.
+pub fn frame_crc(bytes: &[u8]) -> u16 {
+    bytes.iter().fold(FRAME_CRC_INIT, |crc, &b| frame_crc_step(crc, b))
+}
 
 /// Why a frame was not turned into a message.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -33,52 +63,128 @@ pub enum FrameError {
 pub fn encode<'a, T: Serialize>(message: &T, out: &'a mut [u8; MAX_FRAME]) -> Result<&'a [u8], FrameError> {
     let mut raw = [0u8; MAX_MESSAGE + 2];
     let used = postcard::to_slice(message, &mut raw[..MAX_MESSAGE]).map_err(|_| FrameError::TooLong)?.len();
-    let crc = FRAME_CRC.checksum(&raw[..used]);
+    let crc = frame_crc(&raw[..used]);
     raw[used..used + 2].copy_from_slice(&crc.to_le_bytes());
-    let n = cobs::encode(&raw[..used + 2], &mut out[..MAX_FRAME - 1]);
+    let n = if used + 2 < 254 {
+        cobs_short(&raw[..used + 2], out)
+    } else {
+        cobs::encode(&raw[..used + 2], &mut out[..MAX_FRAME - 1])
+    };
     out[n] = 0;
     Ok(&out[..n + 1])
 }
 
-/// Encode a raw-sample stream frame without going through serde: the controller sends 768 of
-/// these per second. The bytes are exactly those of [`encode`] for
-/// `DeviceFrame::Stream { seq, item: Stream::Raw(sample) }` (postcard: variant indices and
-/// integers as varints, arrays and `u8` as raw bytes) — a test holds the two paths together.
+/// A short stream frame written byte by byte in postcard's layout (variant indices and
+/// integers as varints, arrays and `u8` as raw bytes, `f32` as 4 little-endian bytes) straight
+/// into its wire form: the CRC is updated and COBS applied as each byte arrives, so nothing is
+/// copied or scanned twice. The controller sends up to 768 stream frames per second; serde and
+/// a second pass cost it several times more. Tests hold each fast path to [`encode`].
+struct StreamFrame<'a> {
+    out: &'a mut [u8; MAX_FRAME],
+    /// Where the current COBS block's code byte goes.
+    code_at: usize,
+    /// Bytes of `out` written (code byte places included).
+    len: usize,
+    crc: u16,
+}
+
+impl<'a> StreamFrame<'a> {
+    /// `DeviceFrame::Stream { seq, item: <variant> }` so far.
+    #[inline(always)]
+    fn new(seq: u16, variant: u8, out: &'a mut [u8; MAX_FRAME]) -> Self {
+        let mut frame = StreamFrame { out, code_at: 0, len: 1, crc: FRAME_CRC_INIT };
+        frame.byte(1); // DeviceFrame::Stream
+        frame.varint(seq);
+        frame.byte(variant);
+        frame
+    }
+
+    /// Put one COBS-encoded byte. Stream frames are far shorter than 254 bytes, so no block
+    /// needs splitting (and `out` has room: a test compares every field at its largest).
+    #[inline(always)]
+    fn cobs(&mut self, byte: u8) {
+        if byte == 0 {
+            self.set(self.code_at, (self.len - self.code_at) as u8);
+            self.code_at = self.len;
+        } else {
+            self.set(self.len, byte);
+        }
+        self.len += 1;
+    }
+
+    #[inline(always)]
+    fn set(&mut self, at: usize, byte: u8) {
+        if let Some(slot) = self.out.get_mut(at) {
+            *slot = byte;
+        }
+    }
+
+    #[inline(always)]
+    fn byte(&mut self, byte: u8) {
+        self.crc = frame_crc_step(self.crc, byte);
+        self.cobs(byte);
+    }
+
+    #[inline(always)]
+    fn bytes(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.byte(b);
+        }
+    }
+
+    fn varint(&mut self, mut v: u16) {
+        while v >= 0x80 {
+            self.byte((v as u8 & 0x7F) | 0x80);
+            v >>= 7;
+        }
+        self.byte(v as u8);
+    }
+
+    #[inline(always)]
+    fn floats(&mut self, values: &[f32; 3]) {
+        for v in values {
+            self.bytes(&v.to_le_bytes());
+        }
+    }
+
+    /// Append the CRC, close the last COBS block and add the delimiter.
+    fn seal(mut self) -> &'a [u8] {
+        let crc = self.crc;
+        for b in crc.to_le_bytes() {
+            self.cobs(b);
+        }
+        self.set(self.code_at, (self.len - self.code_at) as u8);
+        self.set(self.len, 0);
+        let end = (self.len + 1).min(MAX_FRAME);
+        &self.out[..end]
+    }
+}
+
+/// Encode `DeviceFrame::Stream { seq, item: Stream::Raw(sample) }` without serde.
 pub fn encode_raw_sample<'a>(
     seq: u16,
     sample: &crate::messages::RawSample,
     out: &'a mut [u8; MAX_FRAME],
 ) -> &'a [u8] {
-    fn varint(mut v: u16, buf: &mut [u8], at: &mut usize) {
-        loop {
-            let byte = (v & 0x7F) as u8;
-            v >>= 7;
-            if v == 0 {
-                buf[*at] = byte;
-                *at += 1;
-                return;
-            }
-            buf[*at] = byte | 0x80;
-            *at += 1;
-        }
-    }
-    let mut raw = [0u8; 32];
-    let mut n = 0;
-    raw[0] = 1; // DeviceFrame::Stream
-    n += 1;
-    varint(seq, &mut raw, &mut n);
-    raw[n] = 0; // Stream::Raw
-    n += 1;
-    varint(sample.tick, &mut raw, &mut n);
-    raw[n..n + 17].copy_from_slice(&sample.packed);
-    n += 17;
-    raw[n] = sample.rejected;
-    n += 1;
-    let crc = FRAME_CRC.checksum(&raw[..n]);
-    raw[n..n + 2].copy_from_slice(&crc.to_le_bytes());
-    let len = cobs_short(&raw[..n + 2], out);
-    out[len] = 0;
-    &out[..len + 1]
+    let mut frame = StreamFrame::new(seq, 0, out); // Stream::Raw
+    frame.varint(sample.tick);
+    frame.bytes(&sample.packed);
+    frame.byte(sample.rejected);
+    frame.seal()
+}
+
+/// Encode `DeviceFrame::Stream { seq, item: Stream::Pose(pose) }` without serde.
+pub fn encode_pose_report<'a>(
+    seq: u16,
+    pose: &crate::messages::PoseReport,
+    out: &'a mut [u8; MAX_FRAME],
+) -> &'a [u8] {
+    let mut frame = StreamFrame::new(seq, 2, out); // Stream::Pose
+    frame.varint(pose.tick);
+    frame.floats(&pose.position_mm);
+    frame.floats(&pose.z_axis);
+    frame.floats(&pose.x_axis);
+    frame.seal()
 }
 
 /// COBS in one pass for inputs shorter than 254 bytes (no 0xFF blocks needed).
@@ -99,8 +205,8 @@ fn cobs_short(src: &[u8], dst: &mut [u8]) -> usize {
     w
 }
 
-/// Encode a frame from the controller, raw samples by [`encode_raw_sample`], the rest by
-/// [`encode`].
+/// Encode a frame from the controller: the two per-tick streams by [`encode_raw_sample`] and
+/// [`encode_pose_report`], the rest by [`encode`].
 pub fn encode_device_frame<'a>(
     frame: &crate::messages::DeviceFrame,
     out: &'a mut [u8; MAX_FRAME],
@@ -108,6 +214,7 @@ pub fn encode_device_frame<'a>(
     use crate::messages::{DeviceFrame, Stream};
     match frame {
         DeviceFrame::Stream { seq, item: Stream::Raw(sample) } => Ok(encode_raw_sample(*seq, sample, out)),
+        DeviceFrame::Stream { seq, item: Stream::Pose(pose) } => Ok(encode_pose_report(*seq, pose, out)),
         other => encode(other, out),
     }
 }
@@ -119,7 +226,7 @@ pub fn decode<T: DeserializeOwned>(frame: &mut [u8]) -> Result<T, FrameError> {
         return Err(FrameError::TooShort);
     }
     let (body, crc) = frame[..n].split_at(n - 2);
-    if FRAME_CRC.checksum(body) != u16::from_le_bytes([crc[0], crc[1]]) {
+    if frame_crc(body) != u16::from_le_bytes([crc[0], crc[1]]) {
         return Err(FrameError::Crc);
     }
     postcard::from_bytes(body).map_err(|_| FrameError::Decode)
@@ -294,6 +401,53 @@ mod tests {
             let (mut a, mut b) = ([0u8; MAX_FRAME], [0u8; MAX_FRAME]);
             let generic = encode(&DeviceFrame::Stream { seq, item: Stream::Raw(sample) }, &mut a).unwrap();
             assert_eq!(encode_raw_sample(seq, &sample, &mut b), generic);
+        }
+    }
+
+    #[test]
+    fn the_frame_crc_is_crc16_ibm_3740() {
+        let reference = crc::Crc::<u16>::new(&crc::CRC_16_IBM_3740);
+        assert_eq!(frame_crc(b"123456789"), 0x29B1);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        for len in 0..300 {
+            let bytes: Vec<u8> = (0..len).map(|_| rng.random()).collect();
+            assert_eq!(frame_crc(&bytes), reference.checksum(&bytes), "{len} bytes");
+        }
+    }
+
+    /// The stream frames' byte counts the link budget uses are the longest the encoders give.
+    #[test]
+    fn stream_frames_are_never_longer_than_the_link_budget_assumes() {
+        let mut buf = [0u8; MAX_FRAME];
+        let raw = RawSample { tick: u16::MAX, packed: [0xFF; 17], rejected: 0xFF };
+        assert_eq!(encode_raw_sample(u16::MAX, &raw, &mut buf).len() as u32, RAW_FRAME_MAX_BYTES);
+        let big = [f32::from_bits(0xFFFF_FFFF); 3];
+        let pose = PoseReport { tick: u16::MAX, position_mm: big, z_axis: big, x_axis: big };
+        assert_eq!(encode_pose_report(u16::MAX, &pose, &mut buf).len() as u32, POSE_FRAME_MAX_BYTES);
+        // Zeros make COBS blocks but never more bytes than a frame without zeros.
+        let zero = RawSample { tick: 0, packed: [0; 17], rejected: 0 };
+        assert!(encode_raw_sample(0, &zero, &mut buf).len() as u32 <= RAW_FRAME_MAX_BYTES);
+    }
+
+    #[test]
+    fn the_pose_fast_path_matches_the_generic_encoder() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        let mut float = || match rng.random_range(0..4) {
+            0 => 0.0,
+            1 => f32::from_bits(rng.random()),
+            _ => rng.random_range(-2000.0..2000.0),
+        };
+        for k in 0..20_000u32 {
+            let seq = (k as u16).wrapping_mul(40_503);
+            let pose = PoseReport {
+                tick: (k as u16).wrapping_mul(7919),
+                position_mm: core::array::from_fn(|_| float()),
+                z_axis: core::array::from_fn(|_| float()),
+                x_axis: core::array::from_fn(|_| float()),
+            };
+            let (mut a, mut b) = ([0u8; MAX_FRAME], [0u8; MAX_FRAME]);
+            let generic = encode(&DeviceFrame::Stream { seq, item: Stream::Pose(pose) }, &mut a).unwrap();
+            assert_eq!(encode_pose_report(seq, &pose, &mut b), generic);
         }
     }
 

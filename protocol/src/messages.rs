@@ -25,6 +25,27 @@ pub const MAX_REJECT_PER_1000: u32 = 20;
 /// Accepted samples per thousand below which a joint's window mean is not used at all.
 pub const MIN_ACCEPTED_PER_1000: u32 = 500;
 
+/// Baud rate of the host link (UART, 8N1: 10 bits on the line per byte).
+pub const LINK_BAUD: u32 = 460_800;
+/// Bytes per second the host link carries.
+pub const LINK_BYTES_PER_S: u32 = LINK_BAUD / 10;
+/// Longest raw-sample stream frame on the wire (delimiter included), bytes.
+pub const RAW_FRAME_MAX_BYTES: u32 = 30;
+/// Longest pose stream frame on the wire (delimiter included), bytes.
+pub const POSE_FRAME_MAX_BYTES: u32 = 48;
+
+/// Bytes per second the per-tick streams need: the raw stream if `raw`, and one pose frame every
+/// `pose_divider` ticks (0: no pose stream). The controller refuses settings above
+/// [`LINK_BYTES_PER_S`] rather than drop frames.
+pub fn stream_bytes_per_s(raw: bool, pose_divider: u16) -> u32 {
+    let raw_bytes = if raw { TICK_HZ * RAW_FRAME_MAX_BYTES } else { 0 };
+    let pose_bytes = match pose_divider {
+        0 => 0,
+        d => TICK_HZ * POSE_FRAME_MAX_BYTES / d as u32,
+    };
+    raw_bytes + pose_bytes
+}
+
 /// Seconds of `ticks` controller ticks.
 pub fn ticks_to_seconds(ticks: u32) -> f64 {
     ticks as f64 / TICK_HZ as f64
@@ -259,6 +280,13 @@ pub enum WireError {
     FlashWrite,
     /// Only the emulated board supports this request.
     NotSupported,
+    /// The streams asked for need more than the host link carries; the settings are unchanged.
+    LinkTooSlow {
+        /// Bytes per second the asked-for streams need.
+        needed_bytes_per_s: u32,
+        /// Bytes per second the link carries.
+        link_bytes_per_s: u32,
+    },
 }
 
 /// Controller identity and health.
@@ -485,6 +513,12 @@ impl core::fmt::Display for WireError {
             WireError::ParamEnvelope(v) => write!(f, "{v}; nothing was stored"),
             WireError::FlashWrite => f.write_str("writing flash failed; the previous parameters are active"),
             WireError::NotSupported => f.write_str("only the emulated controller supports this"),
+            WireError::LinkTooSlow { needed_bytes_per_s, link_bytes_per_s } => write!(
+                f,
+                "these streams need {needed_bytes_per_s} B/s and the link carries {link_bytes_per_s} B/s \
+                 (raw samples every tick and the pose every tick do not fit together: stream the pose \
+                 every 2nd tick or stop the raw stream)"
+            ),
         }
     }
 }
@@ -492,14 +526,21 @@ impl core::fmt::Display for WireError {
 /// Pack six 22-bit counts into 17 bytes (132 bits, big-endian, last 4 bits zero).
 pub fn pack_counts(counts: &[u32; JOINTS]) -> [u8; 17] {
     let mut out = [0u8; 17];
-    let mut bit = 0usize;
+    // Bits not yet written sit at the bottom of `pending` (never more than 7 + 22 of them).
+    let (mut pending, mut pending_bits, mut at) = (0u32, 0u32, 0usize);
     for &c in counts {
-        for k in (0..22).rev() {
-            if (c >> k) & 1 == 1 {
-                out[bit / 8] |= 0x80 >> (bit % 8);
+        pending = (pending << 22) | (c & 0x3F_FFFF);
+        pending_bits += 22;
+        while pending_bits >= 8 {
+            pending_bits -= 8;
+            if let Some(byte) = out.get_mut(at) {
+                *byte = (pending >> pending_bits) as u8;
             }
-            bit += 1;
+            at += 1;
         }
+    }
+    if let Some(byte) = out.get_mut(at) {
+        *byte = (pending << (8 - pending_bits)) as u8;
     }
     out
 }
@@ -525,6 +566,18 @@ mod tests {
     fn counts_pack_and_unpack() {
         let counts = [0, 1, 0x3F_FFFF, 0x2A_AAAA, 0x15_5555, 123_456];
         assert_eq!(unpack_counts(&pack_counts(&counts)), counts);
+    }
+
+    /// The layout bit by bit, as documented: joint 1's most significant bit first.
+    #[test]
+    fn counts_are_packed_big_endian_bit_by_bit() {
+        let counts = [0x3F_FFFF, 0, 0x2A_AAAA, 1, 0x20_0000, 0x12_3456];
+        let mut expected = [0u8; 17];
+        for (bit, value) in counts.iter().flat_map(|c| (0..22).rev().map(move |k| (c >> k) & 1)).enumerate() {
+            expected[bit / 8] |= (value as u8) << (7 - bit % 8);
+        }
+        assert_eq!(pack_counts(&counts), expected);
+        assert_eq!(pack_counts(&counts.map(|c| c | 0xFFC0_0000)), expected, "bits above 22 are ignored");
     }
 
     /// Each endpoint's answer type comes back only from its own kind of response.

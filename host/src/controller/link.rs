@@ -210,7 +210,7 @@ impl Link {
                 Box::new(stream)
             }
             None => Box::new(Serial(
-                serialport::new(port, 460_800)
+                serialport::new(port, kincal_protocol::messages::LINK_BAUD)
                     .timeout(DEFAULT_TIMEOUT)
                     .open()
                     .map_err(|e| open_error(e.to_string()))?,

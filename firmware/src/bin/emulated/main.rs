@@ -27,27 +27,27 @@ use kincal_firmware::app::Shared;
 use kincal_firmware::app::{self, SharedCell};
 use kincal_firmware::biss_master::BissMaster;
 use kincal_firmware::controller::Action;
-use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, SharedEncoders};
 #[cfg(not(feature = "tick-bench"))]
-use kincal_firmware::{controller::Controller, encoders::Sampler};
+use kincal_firmware::controller::Controller;
+use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, SharedEncoders};
 use nor::EmulatedNor;
 use static_cell::StaticCell;
 
 #[cfg_attr(feature = "tick-bench", allow(dead_code))]
-static SHARED: SharedCell<EmulatedNor> = Mutex::new(RefCell::new(None));
+static SHARED: StaticCell<SharedCell<EmulatedNor>> = StaticCell::new();
 /// The emulated arm's encoders: read by the BiSS-C master, posed by the host.
 static ENCODERS: SharedEncoders<ThreadModeRawMutex> = Mutex::new(RefCell::new(EmulatedEncoders::new()));
 static WORK_PENDING: AtomicBool = AtomicBool::new(true);
 static EXECUTOR: StaticCell<Executor> = StaticCell::new();
 
 #[embassy_executor::task]
-async fn sample_encoders() -> ! {
-    app::sample_encoders(&SHARED, BissMaster::new(EmulatedEncoder::all(&ENCODERS))).await
+async fn sample_encoders(shared: &'static SharedCell<EmulatedNor>) -> ! {
+    app::sample_encoders(shared, BissMaster::new(EmulatedEncoder::all(&ENCODERS))).await
 }
 
 #[embassy_executor::task]
-async fn serve_host() -> ! {
-    app::serve_host(&SHARED, |action| match action {
+async fn serve_host(shared: &'static SharedCell<EmulatedNor>) -> ! {
+    app::serve_host(shared, |action| match action {
         Action::Simulate(request) => ENCODERS.lock(|e| e.borrow_mut().apply(&request)),
         Action::Reset => cortex_m::peripheral::SCB::sys_reset(),
         Action::None => {}
@@ -79,7 +79,7 @@ fn run() -> ! {
         EmulatedNor::take().expect("the flash is taken once, here"),
     );
     let has_params = controller.params().is_some();
-    SHARED.lock(|s| *s.borrow_mut() = Some(Shared { controller, sampler: Sampler::default() }));
+    let shared = SHARED.init(Mutex::new(RefCell::new(Shared::new(controller))));
     uart::init();
     time_driver::init();
     hprintln!(
@@ -88,7 +88,7 @@ fn run() -> ! {
     );
     let executor: &'static Executor = EXECUTOR.init(Executor::new(core::ptr::null_mut()));
     let spawner = executor.spawner();
-    match (sample_encoders(), serve_host(), send_to_host()) {
+    match (sample_encoders(shared), serve_host(shared), send_to_host()) {
         (Ok(a), Ok(b), Ok(c)) => {
             spawner.spawn(a);
             spawner.spawn(b);

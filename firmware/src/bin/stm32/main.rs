@@ -28,7 +28,6 @@ use embassy_sync::blocking_mutex::Mutex;
 use kincal_firmware::app::{self, Shared, SharedCell, FROM_HOST, TO_HOST};
 use kincal_firmware::biss_master::{BissMaster, REAL_BOARD_MA_HZ};
 use kincal_firmware::controller::{Action, Controller};
-use kincal_firmware::encoders::Sampler;
 use nor::Stm32Nor;
 use panic_probe as _;
 use static_cell::StaticCell;
@@ -45,18 +44,18 @@ type EncoderSpi = Spi<'static, Async, spi::mode::Master>;
 type EncoderBus = embassy_sync::mutex::Mutex<ThreadModeRawMutex, EncoderSpi>;
 type Encoder = SpiDevice<'static, ThreadModeRawMutex, EncoderSpi, Output<'static>>;
 
-static SHARED: SharedCell<Stm32Nor> = Mutex::new(RefCell::new(None));
+static SHARED: StaticCell<SharedCell<Stm32Nor>> = StaticCell::new();
 static ENCODER_BUS: StaticCell<EncoderBus> = StaticCell::new();
 static RX_RING: StaticCell<[u8; 1024]> = StaticCell::new();
 
 #[embassy_executor::task]
-async fn sample_encoders(master: BissMaster<Encoder>) -> ! {
-    app::sample_encoders(&SHARED, master).await
+async fn sample_encoders(shared: &'static SharedCell<Stm32Nor>, master: BissMaster<Encoder>) -> ! {
+    app::sample_encoders(shared, master).await
 }
 
 #[embassy_executor::task]
-async fn serve_host() -> ! {
-    app::serve_host(&SHARED, |action| {
+async fn serve_host(shared: &'static SharedCell<Stm32Nor>) -> ! {
+    app::serve_host(shared, |action| {
         if action == Action::Reset {
             cortex_m::peripheral::SCB::sys_reset();
         }
@@ -122,7 +121,7 @@ fn clocks() -> embassy_stm32::Config {
 async fn main(spawner: Spawner) {
     let p = embassy_stm32::init(clocks());
     let mut uart_config = usart::Config::default();
-    uart_config.baudrate = 460_800;
+    uart_config.baudrate = kincal_protocol::messages::LINK_BAUD;
     let Ok(uart) = Uart::new(p.USART2, p.PA3, p.PA2, p.DMA1_CH6, p.DMA1_CH5, Irqs, uart_config) else {
         panic!("USART2 configuration")
     };
@@ -154,8 +153,8 @@ async fn main(spawner: Spawner) {
         Stm32Nor::new(p.FLASH),
     );
     defmt::info!("kincal controller up; stored parameters: {}", controller.params().is_some());
-    SHARED.lock(|s| *s.borrow_mut() = Some(Shared { controller, sampler: Sampler::default() }));
-    match (sample_encoders(master), serve_host(), receive_from_host(rx), send_to_host(tx)) {
+    let shared = SHARED.init(Mutex::new(RefCell::new(Shared::new(controller))));
+    match (sample_encoders(shared, master), serve_host(shared), receive_from_host(rx), send_to_host(tx)) {
         (Ok(a), Ok(b), Ok(c), Ok(d)) => {
             spawner.spawn(a);
             spawner.spawn(b);

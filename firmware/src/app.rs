@@ -139,13 +139,24 @@ pub async fn serve_host<F: NorFlash>(shared: &SharedCell<F>, mut act: impl FnMut
                 Action::Simulate(_) => act(action),
                 Action::Reset => {
                     // Let the acknowledgement leave before the board restarts.
-                    while !TO_HOST.is_empty() {
-                        Timer::after_millis(1).await;
-                    }
-                    Timer::after_millis(20).await;
+                    answers_sent().await;
                     act(Action::Reset);
                 }
             }
         }
+        if shared.lock(|cell| cell.borrow().controller.flash_maintenance_due()) {
+            // The erase stops the real board's CPU for 1–2 s: after the answers are out, and only
+            // while nothing samples (checked again under the lock).
+            answers_sent().await;
+            shared.lock(|cell| cell.borrow_mut().controller.maintain_flash());
+        }
     }
+}
+
+/// Wait until everything queued for the host has left (the UART's last DMA chunk included).
+async fn answers_sent() {
+    while !TO_HOST.is_empty() {
+        Timer::after_millis(1).await;
+    }
+    Timer::after_millis(20).await;
 }

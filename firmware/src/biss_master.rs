@@ -40,10 +40,9 @@ pub enum ReadError {
 
 /// Decode the bytes of one read (as clocked in, first bit = the request clock).
 pub fn decode_transfer(bytes: &[u8; TRANSFER_BYTES]) -> Result<Reading, ReadError> {
-    let mut all = 0u64;
-    for &b in bytes {
-        all = (all << 8) | b as u64;
-    }
+    let mut word = [0u8; 8];
+    word[8 - TRANSFER_BYTES..].copy_from_slice(bytes);
+    let all = u64::from_be_bytes(word);
     // Drop the request clock's bit; what remains starts with the ACK.
     let len = TRANSFER_BITS - 1;
     let bits = all & ((1u64 << len) - 1);

@@ -1,7 +1,7 @@
 //! The protocol state machine: requests in, responses and streams out. Board independent.
 
 use crate::encoders::{Sample, Sampler};
-use crate::flash::ParamStore;
+use crate::flash::{FlashError, ParamStore};
 use crate::kinematics::Kinematics;
 use crate::window::Window;
 use embedded_storage::nor_flash::NorFlash;
@@ -184,6 +184,26 @@ impl<F: NorFlash> Controller<F> {
         }
     }
 
+    /// A window or a stream uses this tick's samples.
+    fn sampling_in_use(&self) -> bool {
+        self.raw || self.pose_divider > 0 || self.window.is_some()
+    }
+
+    /// Whether [`Controller::maintain_flash`] has work now: the parameter log's spare sector
+    /// needs erasing and nothing samples.
+    pub fn flash_maintenance_due(&self) -> bool {
+        self.store.spare_needs_erase() && !self.sampling_in_use()
+    }
+
+    /// Erase the parameter log's spare sector if that is due (slow: 1–2 s on the real board,
+    /// without sampling). Boards call it at start and when idle, after the answers went out.
+    pub fn maintain_flash(&mut self) {
+        if self.flash_maintenance_due() {
+            // A failed erase is tried again next time; a commit that needs it says so.
+            let _ = self.store.erase_spare();
+        }
+    }
+
     /// Switch the per-tick streams, if the link carries them: frames the link cannot carry would
     /// be dropped, so such settings are refused and the present ones kept.
     fn set_streams(&mut self, raw: bool, pose_divider: u16) -> Result<Ack, WireError> {
@@ -275,7 +295,11 @@ impl<F: NorFlash> Controller<F> {
             BlobError::Envelope(v) => WireError::ParamEnvelope(v),
             _ => WireError::ParamInvalid,
         })?;
-        self.store.store(blob).map_err(|_| WireError::FlashWrite)?;
+        // Erasing stops the CPU on the real board: never while something samples.
+        self.store.store(blob, !self.sampling_in_use()).map_err(|e| match e {
+            FlashError::SpareNotErased => WireError::FlashBusy,
+            _ => WireError::FlashWrite,
+        })?;
         self.params = Some((params, Kinematics::new(&params)));
         Ok(Ack)
     }
@@ -450,6 +474,39 @@ mod tests {
             ask(c, Request::ParamChunk(ParamChunk { offset: (k * PARAM_CHUNK) as u16, data }))?;
         }
         ask(c, Request::ParamCommit(ParamCommit))
+    }
+
+    /// While a stream runs, a commit that would need a sector erased is refused (the erase
+    /// would stop sampling on the real board); once idle the controller erases and commits pass.
+    #[test]
+    fn commits_while_sampling_never_erase_and_say_so() {
+        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        hello(&mut c);
+        assert!(!c.flash_maintenance_due(), "a blank device has nothing to erase");
+        assert_eq!(ask(&mut c, Request::StreamRaw(StreamRaw { on: true })), Ok(Response::Ack));
+        let set = |version| ArmParams { version, tcp_mm: [0.0, 0.0, 253.0], ..ArmParams::default() };
+        let mut version = 1;
+        let refused = loop {
+            match upload(&mut c, &set(version)) {
+                Ok(_) => version += 1,
+                Err(e) => break e,
+            }
+            assert!(version < 100, "never needed an erase");
+        };
+        assert_eq!(refused, WireError::FlashBusy);
+        assert_eq!(c.params().map(|p| p.version), Some(version - 1), "the stored set stays active");
+        assert!(!c.flash_maintenance_due(), "not while the stream runs");
+        c.maintain_flash();
+        assert_eq!(upload(&mut c, &set(version)), Err(WireError::FlashBusy), "nothing erased while sampling");
+        assert_eq!(ask(&mut c, Request::StreamRaw(StreamRaw { on: false })), Ok(Response::Ack));
+        assert!(c.flash_maintenance_due());
+        c.maintain_flash();
+        assert!(!c.flash_maintenance_due());
+        assert_eq!(upload(&mut c, &set(version)), Ok(Response::Ack));
+        let flash = c.into_flash();
+        assert_eq!(flash.erases, 1);
+        let rebooted = Ctl::new("fw", "test", false, flash);
+        assert_eq!(rebooted.params().map(|p| p.version), Some(version));
     }
 
     #[test]

@@ -1,7 +1,13 @@
 //! Power-loss-safe parameter storage on NOR flash (embedded-storage's [`NorFlash`]): an
-//! append-only log over two erase sectors, so a commit normally only programs words and a
-//! sector is erased once it is full (every 3 commits of a 526-byte set on the emulated 2 KiB
-//! sectors, ~239 on the STM32's 128 KiB ones), not on every commit.
+//! append-only log over two erase sectors, so a commit only programs words. When the active
+//! sector is full (every 3 commits of a 526-byte set on the emulated 2 KiB sectors, ~239 on the
+//! STM32's 128 KiB ones) the log continues in the other, the spare, which must be erased by then.
+//!
+//! Erasing is the slow part (1–2 s for an F405 128 KiB sector, during which a single-bank part
+//! fetches no instructions), so the spare is erased ahead of time, when nothing samples: at
+//! boot and when the controller is idle after a sector switch ([`ParamStore::erase_spare`]). A
+//! store that would need the erase now is refused while the caller says erasing is not allowed
+//! ([`FlashError::SpareNotErased`]), and then nothing is written.
 //!
 //! Record (word-aligned, at the end of the sector's log): magic `KSL2` ‖ sequence u32 ‖ blob
 //! length u16 ‖ 0xFFFF ‖ CRC-32 of the blob ‖ blob, padded to a word ‖ commit word `CMIT`.
@@ -32,6 +38,8 @@ pub enum FlashError {
     Device(NorFlashErrorKind),
     /// What was programmed does not read back.
     Verify,
+    /// The active sector is full and the spare is not erased yet; nothing was written.
+    SpareNotErased,
 }
 
 fn device<E: NorFlashError>(e: E) -> FlashError {
@@ -67,6 +75,8 @@ pub struct ParamStore<F: NorFlash> {
     flash: F,
     active: Option<Stored>,
     ends: [LogEnd; 2],
+    /// The sector the log does not use now is known to be erased.
+    spare_blank: bool,
 }
 
 impl<F: NorFlash> ParamStore<F> {
@@ -85,7 +95,45 @@ impl<F: NorFlash> ParamStore<F> {
                 }
             });
         }
-        ParamStore { flash, active, ends }
+        let mut store = ParamStore { flash, active, ends, spare_blank: false };
+        store.spare_blank = store.is_blank(store.spare());
+        store
+    }
+
+    /// The sector the log writes to now.
+    fn current(&self) -> usize {
+        self.active.map_or(0, |a| a.sector)
+    }
+
+    /// The other sector.
+    fn spare(&self) -> usize {
+        1 - self.current()
+    }
+
+    /// Every byte of `sector` reads erased (an interrupted erase can leave stray bits anywhere).
+    fn is_blank(&mut self, sector: usize) -> bool {
+        let mut chunk = [0u8; 64];
+        (0..Self::SECTOR).step_by(chunk.len()).all(|at| {
+            let n = chunk.len().min(Self::SECTOR - at);
+            self.flash.read((sector * Self::SECTOR + at) as u32, &mut chunk[..n]).is_ok()
+                && chunk[..n].iter().all(|&b| b == 0xFF)
+        })
+    }
+
+    /// The spare sector still has to be erased before the log can move there.
+    pub fn spare_needs_erase(&self) -> bool {
+        !self.spare_blank
+    }
+
+    /// Erase the spare sector now (slow: call when nothing samples).
+    pub fn erase_spare(&mut self) -> Result<(), FlashError> {
+        let spare = self.spare();
+        let base = (spare * Self::SECTOR) as u32;
+        self.ends[spare] = None;
+        self.flash.erase(base, base + Self::SECTOR as u32).map_err(device)?;
+        self.ends[spare] = Some(0);
+        self.spare_blank = true;
+        Ok(())
     }
 
     /// The active record, if any.
@@ -101,24 +149,27 @@ impl<F: NorFlash> ParamStore<F> {
         Some(&buf[..s.len])
     }
 
-    /// Append `blob` to the log and make it active once committed. Erases a sector only when
-    /// the active one is full.
-    pub fn store(&mut self, blob: &[u8]) -> Result<(), FlashError> {
+    /// Append `blob` to the log and make it active once committed. When the active sector is
+    /// full the log moves to the spare; if that is not erased yet it is erased here only when
+    /// `may_erase` (otherwise [`FlashError::SpareNotErased`], nothing written).
+    pub fn store(&mut self, blob: &[u8], may_erase: bool) -> Result<(), FlashError> {
         let size = record_size(blob.len());
         if blob.len() > MAX_PARAM_BLOB || size > Self::SECTOR {
             return Err(FlashError::TooLarge);
         }
-        let current = self.active.map_or(0, |a| a.sector);
+        let current = self.current();
         let (sector, at) = match self.ends[current] {
             Some(end) if end + size <= Self::SECTOR => (current, end),
             _ => {
-                // Full (or damaged): continue in the other sector, which holds only older records.
-                let other = 1 - current;
-                let base = (other * Self::SECTOR) as u32;
-                self.ends[other] = None;
-                self.flash.erase(base, base + Self::SECTOR as u32).map_err(device)?;
-                self.ends[other] = Some(0);
-                (other, 0)
+                // Full (or damaged): continue in the spare, which holds only older records.
+                if !self.spare_blank {
+                    if !may_erase {
+                        return Err(FlashError::SpareNotErased);
+                    }
+                    self.erase_spare()?;
+                }
+                self.spare_blank = false;
+                (self.spare(), 0)
             }
         };
         // From here on a failure leaves a record without its commit word: skip past it next time.
@@ -147,6 +198,10 @@ impl<F: NorFlash> ParamStore<F> {
         }
         self.flash.write((base + size - WORD) as u32, &COMMITTED).map_err(device)?;
         self.active = Some(Stored { sector, at, sequence, len: blob.len(), crc });
+        if sector != current {
+            // The sector left behind is the new spare; it holds older records until erased.
+            self.spare_blank = false;
+        }
         Ok(())
     }
 
@@ -302,7 +357,7 @@ mod tests {
         let mut store = ParamStore::mount(Flash::new());
         assert_eq!(load(&mut store), None);
         for (k, len) in [(1u8, 500usize), (2, 37), (3, 1024)] {
-            store.store(&blob(k, len)).unwrap();
+            store.store(&blob(k, len), true).unwrap();
             store = ParamStore::mount(store.into_flash());
             assert_eq!(load(&mut store), Some(blob(k, len)), "write {k}");
         }
@@ -316,12 +371,12 @@ mod tests {
         let mut steps_seen_new = 0;
         for budget in 0..200 {
             let mut store = ParamStore::mount(Flash::new());
-            store.store(&blob(1, 64)).unwrap();
-            store.store(&old).unwrap(); // the second slot now holds `old`, the first an older blob
+            store.store(&blob(1, 64), true).unwrap();
+            store.store(&old, true).unwrap(); // the second slot now holds `old`, the first an older blob
             let mut flash = store.into_flash();
             flash.power_budget = Some(budget);
             let mut store = ParamStore::mount(flash);
-            let finished = store.store(&new).is_ok();
+            let finished = store.store(&new, true).is_ok();
             let mut flash = store.into_flash();
             flash.power_budget = None;
             let mut rebooted = ParamStore::mount(flash);
@@ -334,24 +389,58 @@ mod tests {
                 steps_seen_new += 1;
             }
             // After a cut the next store still works and keeps the active record until committed.
-            rebooted.store(&blob(7, 10)).unwrap();
+            rebooted.store(&blob(7, 10), true).unwrap();
             let mut again = ParamStore::mount(rebooted.into_flash());
             assert_eq!(load(&mut again), Some(blob(7, 10)));
         }
         assert!(steps_seen_new > 0 && steps_seen_new < 200);
     }
 
-    /// Commits append: a sector is erased only when the log in the active one is full.
+    /// Commits append: a sector is erased only when the log comes back to it.
     #[test]
-    fn commits_append_and_erase_only_when_a_sector_is_full() {
+    fn commits_append_and_erase_only_when_the_log_comes_back_to_a_sector() {
         let mut store = ParamStore::mount(Flash::new());
         let per_sector = 2048 / record_size(300);
         for k in 0..(3 * per_sector) as u8 {
-            store.store(&blob(k, 300)).unwrap();
+            store.store(&blob(k, 300), true).unwrap();
             store = ParamStore::mount(store.into_flash());
             assert_eq!(load(&mut store), Some(blob(k, 300)));
         }
         let erases = store.into_flash().erases;
-        assert_eq!(erases, 2, "{} commits of 300 bytes, {per_sector} per 2 KiB sector", 3 * per_sector);
+        assert_eq!(erases, 1, "{} commits of 300 bytes, {per_sector} per 2 KiB sector", 3 * per_sector);
+    }
+
+    /// While sampling the controller may not erase: a store that needs the spare erased is
+    /// refused without writing anything; erasing it ahead of time lets the next one through.
+    #[test]
+    fn a_full_sector_waits_for_the_spare_to_be_erased() {
+        let mut store = ParamStore::mount(Flash::new());
+        assert!(!store.spare_needs_erase(), "a new device is blank");
+        let per_sector = 2048 / record_size(300);
+        for k in 0..(2 * per_sector) as u8 {
+            store.store(&blob(k, 300), false).unwrap();
+        }
+        assert!(store.spare_needs_erase());
+        let last = blob((2 * per_sector - 1) as u8, 300);
+        let before = store.into_flash();
+        let mut store = ParamStore::mount(before);
+        assert!(store.spare_needs_erase(), "seen again after a reboot");
+        assert_eq!(store.store(&blob(200, 300), false), Err(FlashError::SpareNotErased));
+        assert_eq!(load(&mut store), Some(last.clone()));
+        store.erase_spare().unwrap();
+        assert!(!store.spare_needs_erase());
+        assert_eq!(load(&mut store), Some(last), "erasing the spare keeps the active record");
+        store.store(&blob(200, 300), false).unwrap();
+        let mut store = ParamStore::mount(store.into_flash());
+        assert_eq!(load(&mut store), Some(blob(200, 300)));
+        assert_eq!(store.into_flash().erases, 1);
+    }
+
+    /// A stray programmed byte anywhere in the spare (an erase cut short) counts as not erased.
+    #[test]
+    fn a_spare_with_stray_bits_needs_erasing() {
+        let mut flash = Flash::new();
+        flash.bytes[2048 + 1500] = 0x7F;
+        assert!(ParamStore::mount(flash).spare_needs_erase());
     }
 }

@@ -49,17 +49,14 @@ fn units_from_small(units: f32) -> u32 {
     units as i32 as u32
 }
 
-/// sin and cos of a fixed-point angle: exact reduction to |r| ≤ 45° in integers, then f32
-/// polynomials (Taylor to r¹¹ / r¹⁰, error below 2·10⁻⁹ before f32 rounding).
+/// sin and cos of a fixed-point angle: exact reduction to |r| ≤ 45° in integers, then the
+/// Cephes single-precision minimax polynomials (sin to r⁷, cos to r⁸; about one f32 ulp).
 pub fn sincos_units(angle: u32) -> (f32, f32) {
     let quarter = angle.wrapping_add(1 << 29) >> 30; // nearest quarter turn, 0…3
     let r = angle.wrapping_sub(quarter << 30) as i32 as f32 * RAD_PER_UNIT;
     let r2 = r * r;
-    let s =
-        r * (1.0 + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362_880.0)))));
-    let c = 1.0
-        + r2 * (-0.5
-            + r2 * (1.0 / 24.0 + r2 * (-1.0 / 720.0 + r2 * (1.0 / 40_320.0 + r2 * (-1.0 / 3_628_800.0)))));
+    let s = r + r * r2 * (-1.666_665_5e-1 + r2 * (8.332_161e-3 + r2 * -1.951_529_6e-4));
+    let c = 1.0 - 0.5 * r2 + r2 * r2 * (4.166_664_6e-2 + r2 * (-1.388_731_6e-3 + r2 * 2.443_315_7e-5));
     match quarter {
         0 => (s, c),
         1 => (c, -s),

@@ -38,12 +38,31 @@ pub const CRC6_BISS: crc::Algorithm<u8> = crc::Algorithm {
     residue: 0x02,
 };
 
-const CRC6: crc::Crc<u8> = crc::Crc::<u8>::new(&CRC6_BISS);
+/// [`CRC6_BISS`] six bits at a time: entry v is the register after shifting v through six
+/// zero bits (polynomial x⁶ + x + 1, MSB first). 64 bytes; a test holds it to the `crc` crate.
+const CRC6_TABLE: [u8; 64] = {
+    let mut table = [0u8; 64];
+    let mut v = 0;
+    while v < 64 {
+        let mut crc = v as u8;
+        let mut k = 0;
+        while k < 6 {
+            crc = if crc & 0x20 != 0 { ((crc << 1) ^ CRC6_BISS.poly) & 0x3F } else { (crc << 1) & 0x3F };
+            k += 1;
+        }
+        table[v] = crc;
+        v += 1;
+    }
+    table
+};
 
 /// CRC-6 (as transmitted, i.e. inverted) over the 24 data bits position ‖ nE ‖ nW.
 pub fn crc6(data24: u32) -> u8 {
-    let bytes = [(data24 >> 16) as u8, (data24 >> 8) as u8, data24 as u8];
-    CRC6.checksum(&bytes)
+    let mut crc = CRC6_BISS.init;
+    for shift in [18, 12, 6, 0] {
+        crc = CRC6_TABLE[((crc as u32 ^ (data24 >> shift)) & 0x3F) as usize];
+    }
+    crc ^ CRC6_BISS.xorout
 }
 
 /// A frame as clocked in: the newest bit is bit 0 of `bits`, `len` bits in all (ACK included).
@@ -132,7 +151,12 @@ mod tests {
 
     #[test]
     fn crc6_check_values_from_the_reference() {
-        assert_eq!(CRC6.checksum(b"123456789"), 0x2E);
+        let reference = crc::Crc::<u8>::new(&CRC6_BISS);
+        assert_eq!(reference.checksum(b"123456789"), 0x2E);
+        for data24 in (0..1u32 << 24).step_by(997).chain([0xFF_FFFF]) {
+            let bytes = [(data24 >> 16) as u8, (data24 >> 8) as u8, data24 as u8];
+            assert_eq!(crc6(data24), reference.checksum(&bytes), "{data24:06x}");
+        }
         assert_eq!(crc6(0x123456), 0x2C);
         assert_eq!(crc6(0x000000), 0x3F);
     }

@@ -278,6 +278,9 @@ pub enum WireError {
     ParamEnvelope(crate::params::EnvelopeViolation),
     /// Writing flash failed; the previous parameters are still active.
     FlashWrite,
+    /// The parameter flash needs a sector erased first, which the controller does only while
+    /// nothing samples; nothing was stored. Stop the streams and windows and commit again.
+    FlashBusy,
     /// Only the emulated board supports this request.
     NotSupported,
     /// The streams asked for need more than the host link carries; the settings are unchanged.
@@ -512,6 +515,10 @@ impl core::fmt::Display for WireError {
             }
             WireError::ParamEnvelope(v) => write!(f, "{v}; nothing was stored"),
             WireError::FlashWrite => f.write_str("writing flash failed; the previous parameters are active"),
+            WireError::FlashBusy => f.write_str(
+                "the parameter flash must erase a sector first, which the controller does only while \
+                 nothing samples; nothing was stored: stop the streams and windows and commit again",
+            ),
             WireError::NotSupported => f.write_str("only the emulated controller supports this"),
             WireError::LinkTooSlow { needed_bytes_per_s, link_bytes_per_s } => write!(
                 f,

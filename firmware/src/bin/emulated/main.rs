@@ -72,13 +72,15 @@ fn main() -> ! {
 
 #[cfg(not(feature = "tick-bench"))]
 fn run() -> ! {
-    let controller = Controller::new(
+    let mut controller = Controller::new(
         concat!("kincal-fw ", env!("CARGO_PKG_VERSION")),
         "mps2-an386 (emulated)",
         true,
         EmulatedNor::take().expect("the flash is taken once, here"),
     );
     let has_params = controller.params().is_some();
+    // Sampling has not started: the moment to erase the parameter log's spare sector if needed.
+    controller.maintain_flash();
     let shared = SHARED.init(Mutex::new(RefCell::new(Shared::new(controller))));
     uart::init();
     time_driver::init();

@@ -146,13 +146,15 @@ async fn main(spawner: Spawner) {
         select(p.PC5.into()),
     ]);
 
-    let controller = Controller::new(
+    let mut controller = Controller::new(
         concat!("kincal-fw ", env!("CARGO_PKG_VERSION")),
         "stm32f405",
         false,
         Stm32Nor::new(p.FLASH),
     );
     defmt::info!("kincal controller up; stored parameters: {}", controller.params().is_some());
+    // Sampling has not started: the moment to erase the parameter log's spare sector if needed.
+    controller.maintain_flash();
     let shared = SHARED.init(Mutex::new(RefCell::new(Shared::new(controller))));
     match (sample_encoders(shared, master), serve_host(shared), receive_from_host(rx), send_to_host(tx)) {
         (Ok(a), Ok(b), Ok(c), Ok(d)) => {

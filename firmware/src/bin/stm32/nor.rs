@@ -2,9 +2,11 @@
 //! seen as a two-sector embedded-storage [`NorFlash`] starting at sector 10.
 //!
 //! The F405 has one flash bank: while a sector is erased (1–2 s for 128 KiB), instruction
-//! fetches from flash stall. The parameter log erases only when a sector is full (about every
-//! 239 commits of a 526-byte set); that commit stalls sampling, the others only program words
-//! (~16 µs each).
+//! fetches from flash stall and nothing runs. The parameter log therefore erases its spare
+//! sector only while nothing samples (at boot, or idle after the ~239th commit filled a
+//! sector); a commit that would need the erase during a stream or window is refused
+//! (`FlashBusy`). Commits themselves program words (~16 µs each, ~140 words for a 526-byte
+//! set: the sampling task runs about 2 ms late once per commit).
 
 use embassy_stm32::flash::{Blocking, Error, Flash};
 use embassy_stm32::Peri;

@@ -16,5 +16,5 @@ pub mod controller;
 pub mod emulated_encoders;
 pub mod encoders;
 pub mod flash;
-pub mod kinematics;
+pub use kincal_kinematics as kinematics;
 pub mod window;

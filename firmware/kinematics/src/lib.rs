@@ -5,6 +5,9 @@
 //! (classic) or Rx(α)·Ry(β)·Tx(a)·Rz(θ)·Tz(d) (modified), tool point, length scale. λ_j is the
 //! unit-weight gravity lever on the undeflected, unscaled arm.
 //!
+//! Its own crate so that the firmware can build it at `opt-level = 3` and everything else for
+//! size (see `firmware/Cargo.toml`).
+//!
 //! Cost on a Cortex-M4F (single-precision FPU only): everything that depends only on the
 //! parameters — sines and cosines of α and β, lengths, tool point — is computed once in
 //! [`Kinematics::new`]. Per pose, joint angles are wrapping `u32` fixed-point (one turn = 2³²
@@ -12,6 +15,8 @@
 //! come from f32 polynomials; the chain is f32. No f64 or 64-bit integer arithmetic runs per pose
 //! (both are library calls on this core). Gravity compliance needs the undeflected chain for its
 //! levers, so it walks the chain twice; the levers come from running sums in one pass.
+#![cfg_attr(not(test), no_std)]
+#![deny(missing_docs)]
 
 use kincal_protocol::messages::JOINTS;
 use kincal_protocol::params::ArmParams;

@@ -177,6 +177,15 @@ fn info_params_and_upload_commands_work_through_the_cli() {
     assert!(stream.contains("0 lost, 0 corrupt"), "{stream}");
     let rows = std::fs::read_to_string(dir.join("raw.csv")).unwrap().lines().count();
     assert!(rows > 500, "{rows} CSV rows for one second at 768 Hz");
+    assert!(!dir.join(".raw.csv.partial").exists(), "the temporary name is gone");
+    // A second stream to the same file is refused before connecting; the recording is untouched.
+    let before = std::fs::read(dir.join("raw.csv")).unwrap();
+    let csv = dir.join("raw.csv");
+    let (code, _, err) =
+        kincal(&["stream", "--port", &fake.port, "--raw", "--seconds", "1", "--csv", csv.to_str().unwrap()]);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("raw.csv exists") && err.contains("never replaces"), "{err}");
+    assert_eq!(std::fs::read(dir.join("raw.csv")).unwrap(), before);
     // A port that is not there is reported, not panicked on.
     let out = Command::new(kincal_bin()).args(["info", "--port", "tcp:127.0.0.1:1"]).output().unwrap();
     assert_eq!(out.status.code(), Some(1));
@@ -185,10 +194,12 @@ fn info_params_and_upload_commands_work_through_the_cli() {
 }
 
 #[test]
-fn a_controller_that_disappears_mid_stream_is_reported() {
+fn a_controller_that_disappears_mid_stream_is_reported_and_the_recording_kept() {
     let fake = FakeController::start(1);
+    let dir = scratch("gone");
+    let csv = dir.join("stream.csv");
     let child = Command::new(kincal_bin())
-        .args(["stream", "--port", &fake.port, "--raw", "--seconds", "30"])
+        .args(["stream", "--port", &fake.port, "--raw", "--seconds", "30", "--csv", csv.to_str().unwrap()])
         .stderr(std::process::Stdio::piped())
         .stdout(std::process::Stdio::piped())
         .spawn()
@@ -199,6 +210,9 @@ fn a_controller_that_disappears_mid_stream_is_reported() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("closed the link"), "{stderr}");
+    let rows = std::fs::read_to_string(&csv).map(|t| t.lines().count()).unwrap_or(0);
+    assert!(rows > 100, "{rows} rows kept of about 1.5 s of stream");
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// The CLI's exit code, stdout and stderr.

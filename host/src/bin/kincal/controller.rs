@@ -60,7 +60,8 @@ pub struct StreamArgs {
     /// Stream the calibrated tool pose computed on the controller.
     #[arg(long)]
     pose: bool,
-    /// Also write every sample to this CSV file.
+    /// Also write every sample to this CSV file (a new file: an existing one is never replaced;
+    /// written as `.NAME.partial` and renamed when the stream stops, Ctrl-C included).
     #[arg(long)]
     csv: Option<PathBuf>,
     /// Stop after this many seconds (default: until Ctrl-C).
@@ -225,16 +226,17 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
 
 pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
     use kincal_protocol::messages::{Stream, StreamPose, StreamRaw};
+    if let Some(path) = &a.csv {
+        CsvRecording::refuse_existing(path)?;
+    }
     let mut link = connect(&a.port)?;
     catch_ctrl_c();
     let mut csv = match &a.csv {
-        Some(path) => Some(std::io::BufWriter::new(
-            std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
-        )),
+        Some(path) => Some(CsvRecording::create(path)?),
         None => None,
     };
     use std::io::Write;
-    if let Some(w) = csv.as_mut() {
+    if let Some(w) = csv.as_mut().map(|c| &mut c.writer) {
         writeln!(
             w,
             "{}",
@@ -258,7 +260,7 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
     {
         let Some((seq, item)) = link.next_stream(std::time::Duration::from_millis(200))? else { continue };
         frames += 1;
-        if let Some(w) = csv.as_mut() {
+        if let Some(w) = csv.as_mut().map(|c| &mut c.writer) {
             match item {
                 Stream::Raw(r) => {
                     let deg = kincal_protocol::messages::unpack_counts(&r.packed)
@@ -295,6 +297,9 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
     }
     let _ = link.call(StreamRaw { on: false });
     let _ = link.call(StreamPose { divider: 0 });
+    if let Some(c) = csv {
+        c.finish()?;
+    }
     println!(
         "{frames} frames in {:.1} s ({:.1} Hz), {} lost, {} corrupt",
         started.elapsed().as_secs_f64(),
@@ -303,6 +308,66 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
         link.stats.bad_frames
     );
     Ok(())
+}
+
+/// A CSV file being written during a stream: a new file only, written under a temporary name
+/// beside it and renamed by [`CsvRecording::finish`] (or when dropped after an error, so what
+/// was recorded is kept).
+struct CsvRecording {
+    writer: std::io::BufWriter<std::fs::File>,
+    partial: PathBuf,
+    path: PathBuf,
+}
+
+impl CsvRecording {
+    /// Refuse a path that exists (checked before connecting, so nothing is created on a refusal).
+    fn refuse_existing(path: &std::path::Path) -> Result<()> {
+        if path.exists() {
+            anyhow::bail!(
+                "{} exists; kincal never replaces a file with a stream recording: choose a new name or remove it",
+                path.display()
+            );
+        }
+        Ok(())
+    }
+
+    fn create(path: &std::path::Path) -> Result<CsvRecording> {
+        Self::refuse_existing(path)?;
+        let name = path.file_name().with_context(|| format!("{} is not a file name", path.display()))?;
+        let partial = path.with_file_name(format!(".{}.partial", name.to_string_lossy()));
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&partial)
+            .with_context(|| format!("creating {}", partial.display()))?;
+        Ok(CsvRecording { writer: std::io::BufWriter::new(file), partial, path: path.to_path_buf() })
+    }
+
+    /// Flush and give the file its name (never over a file that appeared meanwhile).
+    fn finish(mut self) -> Result<()> {
+        self.keep()
+    }
+
+    fn keep(&mut self) -> Result<()> {
+        use std::io::Write;
+        self.writer.flush().with_context(|| format!("writing {}", self.partial.display()))?;
+        std::fs::hard_link(&self.partial, &self.path).with_context(|| {
+            format!("naming the recording {} (kept as {})", self.path.display(), self.partial.display())
+        })?;
+        std::fs::remove_file(&self.partial)
+            .with_context(|| format!("removing {}", self.partial.display()))?;
+        Ok(())
+    }
+}
+
+impl Drop for CsvRecording {
+    fn drop(&mut self) {
+        if self.partial.exists() {
+            if let Err(e) = self.keep() {
+                eprintln!("{e:#}");
+            }
+        }
+    }
 }
 
 /// Set by Ctrl-C while streaming.

@@ -2,8 +2,9 @@
 //!
 //! Run under `qemu-system-arm … -icount shift=0`: guest time then advances 1 ns per executed
 //! instruction, so the 25 MHz CMSDK timer counts one per 40 instructions. The work per tick is
-//! the firmware's own: read six emulated BiSS-C frames, decode and check them, feed a window,
-//! encode a raw-sample frame and a pose frame (f32 kinematics with every effect).
+//! the firmware's own: read six BiSS-C transfers through the master, decode and check them, then
+//! the controller's tick in each stream configuration the link carries (window, raw frames, pose
+//! with every effect), frames going through the app's sender into the UART pipe and out of it.
 
 use crate::mmio::{read, write, Block};
 use core::cell::Cell;
@@ -52,12 +53,13 @@ impl SpiDevice for ReplayEncoder<'_> {
     }
 }
 
-/// Cycles per tick the real board's DMA-driven SPI costs the CPU per encoder transfer (setting
-/// up two DMA streams, the completion interrupt, waking and polling the task): an estimate,
-/// not measured here (QEMU has no STM32 DMA).
+/// Cycles one DMA-driven transfer costs the real board's CPU (an encoder read on SPI1: setting up
+/// two DMA streams, the completion interrupt, waking and polling the task; the same for a UART
+/// write): an estimate, not measured here (QEMU has no STM32 DMA).
 const DMA_TRANSFER_CYCLES: u64 = 800;
 /// Core clock of the real board.
 const CORE_HZ: f64 = 168e6;
+/// Ticks each figure is averaged over (one second).
 const TICKS: u32 = TICK_HZ;
 
 fn timer() -> u32 {

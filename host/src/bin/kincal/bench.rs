@@ -37,6 +37,9 @@ pub struct BenchArgs {
     /// Calibration touches of the scale benchmark (calibrate and diagnose from files); 0 skips it.
     #[arg(long, default_value_t = 10_000, value_parser = crate::args::count(0, kincal::data::MAX_TOUCHES))]
     pub scale_touches: usize,
+    /// Run only the scale benchmark (with `--scale-touches`).
+    #[arg(long)]
+    pub scale_only: bool,
 }
 
 /// Calibrate and diagnose from session files of about `touches` calibration touches (the
@@ -118,6 +121,9 @@ fn scale_benchmark(touches: usize) -> Result<()> {
 
 /// Run every benchmark and print the figures.
 pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
+    if args.scale_only {
+        return scale_benchmark(args.scale_touches);
+    }
     let (nominal, sim) = thesis_sized_problem(1);
     let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
     let val = Dataset::from_sessions(&sim.validation, &sim.artefact);

@@ -1128,15 +1128,17 @@ fn rivals(
             })
         })
         .collect();
-    let mut leader = a.effect.clone();
-    let mut tied = Vec::new();
-    for r in &tested {
-        match &r.verdict {
-            RivalVerdict::Proxy { cause, .. } if *cause == r.b => leader = cause.clone(),
-            RivalVerdict::CannotTell => tied.push(r.b.clone()),
-            _ => {}
-        }
-    }
+    // A rival that explains what the leader does (and more) leads instead: the best of them on
+    // the held-out data (the contenders come best first).
+    let leader = tested
+        .iter()
+        .find_map(|r| match &r.verdict {
+            RivalVerdict::Proxy { cause, .. } if *cause == r.b => Some(cause.clone()),
+            _ => None,
+        })
+        .unwrap_or_else(|| a.effect.clone());
+    let tied: Vec<String> =
+        tested.iter().filter(|r| r.verdict == RivalVerdict::CannotTell).map(|r| r.b.clone()).collect();
     let mut named = vec![leader.clone()];
     named.extend(tied.into_iter().filter(|t| *t != leader));
     (tested, named)
@@ -1390,7 +1392,7 @@ fn summarise(
             for r in rivals {
                 match &r.verdict {
                     RivalVerdict::Proxy { cause, proxy } => lines.push(format!(
-                        "{proxy} is a proxy of {cause}: added to {cause} it does not lower the held-out error (p = {:.3}), while {cause} added to {proxy} does (p = {:.3})",
+                        "{proxy} looks like a proxy of {cause}: added to {cause} it gives no significant further gain on the held-out placements (p = {:.3}), while {cause} added to {proxy} does (p = {:.3})",
                         if *proxy == r.b { r.b_adds_p } else { r.a_adds_p },
                         if *proxy == r.b { r.a_adds_p } else { r.b_adds_p },
                     )),

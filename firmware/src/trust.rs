@@ -17,6 +17,9 @@ use kincal_protocol::signed::{
 
 include!(concat!(env!("OUT_DIR"), "/provisioning.rs"));
 
+/// The emulated arm's identity when no start option or build-time identity names another.
+pub const EMULATED_ARM_ID: &str = "emulated-arm";
+
 /// Who signed the active set, and when.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Provenance {

@@ -159,6 +159,12 @@ impl StationKey {
         Ok(LoadedKey { key: StationKey { key: SigningKey::from_bytes(&seed) }, warnings })
     }
 
+    /// The key of a known 32-byte seed (tests, reproducible examples; a real station uses
+    /// [`StationKey::create`]).
+    pub fn from_seed(seed: [u8; 32]) -> StationKey {
+        StationKey { key: SigningKey::from_bytes(&seed) }
+    }
+
     /// The public key.
     pub fn public_key(&self) -> [u8; PUBLIC_KEY_BYTES] {
         self.key.verifying_key().to_bytes()

@@ -2,7 +2,7 @@
 //!
 //! Start it with `cargo emulator` (see README): QEMU prints the pty to connect to. Start option
 //! (semihosting command line, `-semihosting-config …,arg=emulated,arg=arm-id=NAME`): the arm
-//! identity, default [`DEFAULT_ARM_ID`] (or `KINCAL_ARM_ID` at build time).
+//! identity, default `emulated-arm` (or `KINCAL_ARM_ID` at build time).
 #![no_std]
 #![no_main]
 // The tick-bench build runs the measurement instead of the tasks.
@@ -33,7 +33,7 @@ use kincal_firmware::controller::Action;
 use kincal_firmware::controller::Controller;
 use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, SharedEncoders};
 #[cfg(not(feature = "tick-bench"))]
-use kincal_firmware::trust::{Trust, BUILD_ARM_ID};
+use kincal_firmware::trust::{Trust, BUILD_ARM_ID, EMULATED_ARM_ID};
 use nor::EmulatedNor;
 use static_cell::StaticCell;
 
@@ -74,9 +74,6 @@ fn main() -> ! {
     run()
 }
 
-/// The emulated arm's identity when no start option or build-time identity names one.
-pub const DEFAULT_ARM_ID: &str = "emulated-arm";
-
 /// The semihosting command line QEMU was started with (`arg=…` of `-semihosting-config`), into
 /// `buf`; empty when there is none.
 fn command_line(buf: &mut [u8; 128]) -> &str {
@@ -97,7 +94,7 @@ fn run() -> ! {
         .split(' ')
         .find_map(|arg| arg.strip_prefix("arm-id="))
         .or(BUILD_ARM_ID)
-        .unwrap_or(DEFAULT_ARM_ID);
+        .unwrap_or(EMULATED_ARM_ID);
     let Some(trust) = Trust::provisioned(arm_id) else {
         hprintln!("arm-id={} is not an arm identity (1 to 24 letters, digits or -_.:)", arm_id);
         cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);

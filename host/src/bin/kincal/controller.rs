@@ -269,7 +269,7 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     };
     let key = load_key(key_path)?;
     // Checked before connecting: a bad model never reaches the controller.
-    kincal::controller::device::parameter_blob(&model, a.version.unwrap_or(1).max(1))
+    kincal::controller::device::parameter_blob(&model, a.version.unwrap_or(1))
         .with_context(|| format!("{}: parameters", a.model.display()))?;
     let mut link = connect(&a.port)?;
     let started = std::time::Instant::now();

@@ -212,6 +212,9 @@ pub enum DeviceFrame {
 }
 
 /// Successful answers, one variant per answer type.
+// `Info` (~290 bytes with the signer's key) is the large one; no_std without alloc cannot box it,
+// and an answer lives on the stack only while it is encoded.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub enum Response {
     /// Answer to [`Hello`].

@@ -96,9 +96,8 @@ fn run() -> ! {
         .or(BUILD_ARM_ID)
         .unwrap_or(EMULATED_ARM_ID);
     let Some(trust) = Trust::provisioned(arm_id) else {
-        hprintln!("arm-id={} is not an arm identity (1 to 24 letters, digits or -_.:)", arm_id);
-        cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
-        loop {}
+        // The panic handler prints this and stops QEMU with a failure.
+        panic!("arm-id={arm_id} is not an arm identity (1 to 24 letters, digits or -_.:)")
     };
     let mut controller = Controller::new(
         concat!("kincal-fw ", env!("CARGO_PKG_VERSION")),

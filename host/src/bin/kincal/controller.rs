@@ -291,6 +291,11 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     let uploaded = match link.upload(&blob) {
         Ok(u) => u,
         Err(e @ kincal::controller::link::LinkError::CommitUnconfirmed { .. }) => bail!("upload failed: {e}"),
+        // The controller's own verdict (signature, identity, version, envelope): the same set
+        // would be refused again.
+        Err(e @ kincal::controller::link::LinkError::Refused(..)) => {
+            bail!("upload refused: {e}. The controller keeps {before}")
+        }
         Err(e) => {
             bail!("upload failed: {e}. Nothing was committed: the controller keeps {before}; run the upload again")
         }

@@ -192,11 +192,15 @@ pub fn cmd_info(a: &PortArgs) -> Result<()> {
         kincal_protocol::messages::PROTOCOL_VERSION,
         kincal_protocol::messages::SCHEMA_HASH
     );
-    let trust = match info.trust {
-        kincal_protocol::signed::TrustMode::BuildKey => "the key built into the firmware",
-        kincal_protocol::signed::TrustMode::FirstUse => "trust on first use (the signer of the stored set)",
+    let trust = match (info.trust, info.param_version) {
+        (kincal_protocol::signed::TrustMode::BuildKey, _) => "the station key built into the firmware",
+        (kincal_protocol::signed::TrustMode::FirstUse, 0) => {
+            "on first use: the first signed set stored pins its key"
+        }
+        (kincal_protocol::signed::TrustMode::FirstUse, _) => "on first use: the signer of the stored set only",
     };
-    println!("arm        {} (signed sets must name it); trusts {trust}", info.arm_id);
+    println!("arm        {} (signed sets must name it)", info.arm_id);
+    println!("trust      {trust}");
     if info.param_version == 0 {
         println!("parameters none stored");
     } else {

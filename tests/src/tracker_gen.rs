@@ -492,6 +492,25 @@ impl Arm {
         std::fs::write(path, self.urdf(robot_name))
     }
 
+    /// The arm as a `kincal-arm/1` model (TOML; classic DH with β as `axis_deg`; nothing freed),
+    /// or `None` for a URDF chain. The tool rotation has no place in it.
+    pub fn kincal_model_toml(&self) -> Option<String> {
+        let rows = self.dh_rows()?;
+        let [x, y, z] = self.tool_mm;
+        let mut s = format!(
+            "format = \"kincal-arm/1\"\nname = \"{}\"\nconvention = \"classic\"\ntcp_mm = [{x:?}, {y:?}, {z:?}]\n",
+            self.name
+        );
+        for row in rows {
+            let _ = write!(
+                s,
+                "\n[[joint]]\noffset_deg = {:?}\nd_mm = {:?}\na_mm = {:?}\nalpha_deg = {:?}\naxis_deg = {:?}\n",
+                row.theta_offset_deg, row.d_mm, row.a_mm, row.alpha_deg, row.beta_deg
+            );
+        }
+        Some(s)
+    }
+
     /// The joint angles the arm really takes at readings `q_deg` under gravity sag ([`GravitySag`]).
     fn sagged_q(&self, q_deg: &[f64], sag: Option<&GravitySag>) -> Vec<f64> {
         let Some(sag) = sag else { return q_deg.to_vec() };
@@ -804,6 +823,28 @@ pub struct ToolRemount {
     pub size_mm: f64,
 }
 
+/// Instrument drift within one session (the tracker's stand or the floor under it settling): the
+/// robot base slides linearly in the instrument frame, `X = B_s · p + v · t`, with |v| =
+/// `mm_per_hour` / 3600 s in a seeded random direction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InstrumentDrift {
+    /// Session index (0-based).
+    pub session: usize,
+    /// Drift speed, mm/h.
+    pub mm_per_hour: f64,
+}
+
+/// Single bad points (a beam broken and caught again on the wrong spot of the reflector, a probe
+/// bumped): `count` measurements drawn at random over all sessions get a gross error of
+/// `size_mm` in a random direction, `X = B_s · p + e_i + noise`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BadPoints {
+    /// How many measurements.
+    pub count: usize,
+    /// Size of each error, mm.
+    pub size_mm: f64,
+}
+
 /// The stated uncertainty column written per point.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum UncertaintyColumn {
@@ -851,6 +892,12 @@ pub struct TrackerOptions {
     pub tool_remount: Option<ToolRemount>,
     /// Thermal drift within each session; also writes `time_s` and `temp_C`.
     pub thermal: Option<ThermalDrift>,
+    /// Write `time_s` and `temp_C` even without thermal drift (`temp_C` is then 20 °C).
+    pub time_columns: bool,
+    /// Instrument drift in one session.
+    pub instrument_drift: Option<InstrumentDrift>,
+    /// Single bad points.
+    pub bad_points: Option<BadPoints>,
     /// Gravity sag.
     pub gravity_sag: Option<GravitySag>,
     /// Low coverage of a joint: joint (1-based) sampled only within ± half this span (deg)
@@ -881,6 +928,9 @@ impl TrackerOptions {
             repeats: 1,
             tool_remount: None,
             thermal: None,
+            time_columns: false,
+            instrument_drift: None,
+            bad_points: None,
             gravity_sag: None,
             low_coverage: None,
             seconds_per_point: 15.0,
@@ -918,7 +968,7 @@ pub struct Row {
     pub q_deg: Vec<f64>,
     /// Measured point in the instrument frame, mm.
     pub x_mm: Vec3,
-    /// The same without noise, mm.
+    /// The same without noise and bad-point error (instrument drift included), mm.
     pub exact_mm: Vec3,
     /// Measured orientation `[qw, qx, qy, qz]`, if the probe is 6-DoF.
     pub quaternion: Option<[f64; 4]>,
@@ -929,7 +979,7 @@ pub struct Row {
     /// Arm temperature, °C.
     pub temp_c: f64,
     /// The tool pose in the robot base frame without noise (sag, drift and re-mount included).
-    pub robot_frame: Pose,
+    pub tool_in_base: Pose,
 }
 
 /// One generated session.
@@ -960,6 +1010,10 @@ pub struct Truth {
     pub orientation_sigma_deg: Option<f64>,
     /// Thermal drift used.
     pub thermal: Option<ThermalDrift>,
+    /// Session with instrument drift and its velocity in the instrument frame, mm/s.
+    pub instrument_drift: Option<(usize, Vec3)>,
+    /// Bad points: (session, row, error added in the instrument frame, mm).
+    pub bad_points: Vec<(usize, usize, Vec3)>,
     /// Gravity sag used.
     pub gravity_sag: Option<GravitySag>,
 }
@@ -1078,8 +1132,14 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
             }
         })
         .collect();
+    // Each trait draws from its own stream, so switching one on leaves the rest of the data as it was.
+    let stream = |k: u64| ChaCha8Rng::seed_from_u64(options.seed ^ k.wrapping_mul(0x9e37_79b9_7f4a_7c15));
     let tool_remount =
-        options.tool_remount.map(|r| (r.session, v_scale(random_direction(&mut rng), r.size_mm)));
+        options.tool_remount.map(|r| (r.session, v_scale(random_direction(&mut stream(1)), r.size_mm)));
+    let instrument_drift = options
+        .instrument_drift
+        .map(|d| (d.session, v_scale(random_direction(&mut stream(2)), d.mm_per_hour / 3600.0)));
+    let mut orientation_rng = stream(3);
     let mut sessions = Vec::new();
     for (s, plan) in options.sessions.iter().enumerate() {
         let mut arm = truth_arm.clone();
@@ -1111,11 +1171,14 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
                 };
                 let deflected = arm.sagged_q(q, options.gravity_sag.as_ref());
                 let tool = arm.tool_pose(&deflected);
-                let robot_frame = Pose { translation_mm: v_scale(tool.translation_mm, scale), ..tool };
-                let measured = bases[s].then(&robot_frame);
+                let tool_in_base = Pose { translation_mm: v_scale(tool.translation_mm, scale), ..tool };
+                let mut measured = bases[s].then(&tool_in_base);
+                if let Some((_, velocity)) = instrument_drift.filter(|(session, _)| *session == s) {
+                    measured.translation_mm = v_add(measured.translation_mm, v_scale(velocity, time_s));
+                }
                 let noise = [0; 3].map(|_| options.noise_sigma_mm * gauss(&mut rng));
                 let quaternion = options.orientation_sigma_deg.map(|sigma_deg| {
-                    let w = [0; 3].map(|_| sigma_deg.to_radians() * gauss(&mut rng));
+                    let w = [0; 3].map(|_| sigma_deg.to_radians() * gauss(&mut orientation_rng));
                     quaternion_of(&m_mul(&rotation_vector(w), &measured.rotation))
                 });
                 rows.push(Row {
@@ -1127,11 +1190,29 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
                     exact_rotation: measured.rotation,
                     time_s,
                     temp_c,
-                    robot_frame,
+                    tool_in_base,
                 });
             }
         }
         sessions.push(Session { plan: plan.clone(), rows });
+    }
+    let mut bad_points = Vec::new();
+    if let Some(bad) = options.bad_points {
+        let mut bad_rng = stream(4);
+        let all: Vec<(usize, usize)> = sessions
+            .iter()
+            .enumerate()
+            .flat_map(|(s, session)| (0..session.rows.len()).map(move |k| (s, k)))
+            .collect();
+        while bad_points.len() < bad.count.min(all.len()) {
+            let (s, k) = all[(bad_rng.random::<f64>() * all.len() as f64) as usize % all.len()];
+            if bad_points.iter().any(|&(bs, bk, _)| (bs, bk) == (s, k)) {
+                continue;
+            }
+            let error = v_scale(random_direction(&mut bad_rng), bad.size_mm);
+            sessions[s].rows[k].x_mm = v_add(sessions[s].rows[k].x_mm, error);
+            bad_points.push((s, k, error));
+        }
     }
     TrackerData {
         options: options.clone(),
@@ -1144,6 +1225,8 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
             noise_sigma_mm: options.noise_sigma_mm,
             orientation_sigma_deg: options.orientation_sigma_deg,
             thermal: options.thermal,
+            instrument_drift,
+            bad_points,
             gravity_sag: options.gravity_sag.clone(),
         },
         sessions,
@@ -1168,7 +1251,7 @@ impl TrackerData {
             UncertaintyColumn::SigmaMm => header.push("sigma_mm".into()),
             UncertaintyColumn::U95Mm => header.push("u95_mm".into()),
         }
-        if o.thermal.is_some() {
+        if o.thermal.is_some() || o.time_columns {
             header.extend(["time_s", "temp_C"].map(String::from));
         }
         let _ = writeln!(out, "{}", header.join(","));
@@ -1184,7 +1267,7 @@ impl TrackerData {
                 UncertaintyColumn::SigmaMm => fields.push(format!("{:.4}", o.noise_sigma_mm)),
                 UncertaintyColumn::U95Mm => fields.push(format!("{:.4}", 2.0 * o.noise_sigma_mm)),
             }
-            if o.thermal.is_some() {
+            if o.thermal.is_some() || o.time_columns {
                 fields.push(format!("{:.1}", row.time_s));
                 fields.push(format!("{:.4}", row.temp_c));
             }
@@ -1207,14 +1290,18 @@ impl TrackerData {
 
     /// The noise floor of held-out sessions: the 3-D residuals the TRUE model (every trait that
     /// is switched on included, noise excluded) leaves on the measured points of each listed
-    /// session after its base is refitted (Horn), pooled. The figure for "held-out RMS ≤ 1.10 ×
-    /// floor" tests; about σ·√3 for positions.
+    /// session after its base is refitted (Horn), pooled. Bad points stay in: no model explains
+    /// them. The figure for "held-out RMS ≤ 1.10 × floor" tests; about σ·√3 for positions.
     pub fn true_floor_mm(&self, sessions: &[usize]) -> Floor {
         let mut distances = Vec::new();
         for &s in sessions {
             let rows = &self.sessions[s].rows;
-            let p: Vec<Vec3> = rows.iter().map(|r| r.robot_frame.translation_mm).collect();
-            let x: Vec<Vec3> = rows.iter().map(|r| r.x_mm).collect();
+            let p: Vec<Vec3> = rows.iter().map(|r| r.tool_in_base.translation_mm).collect();
+            let drift = |r: &Row| match self.truth.instrument_drift {
+                Some((session, velocity)) if session == s => v_scale(velocity, r.time_s),
+                _ => [0.0; 3],
+            };
+            let x: Vec<Vec3> = rows.iter().map(|r| v_sub(r.x_mm, drift(r))).collect();
             let base = fit_rigid(&p, &x);
             distances.extend(p.iter().zip(&x).map(|(p, x)| v_norm(v_sub(*x, base.apply(*p)))));
         }

@@ -3,9 +3,10 @@
 //! quaternions, inverse kinematics and traits against their configured sizes, and reproducibility.
 
 use kincal_e2e::tracker_gen::{
-    fit_rigid, generate, gravity_levers_m, inverse_kinematics, quaternion_matrix, rotation_vector_of, v_norm,
-    Arm, Chain, GravitySag, Mat3, Pose, SessionPlan, ThermalDrift, ToolRemount, TrackerOptions,
-    UncertaintyColumn, UrdfJoint, Vec3, FOLDER_TAG,
+    fit_rigid, generate, gravity_levers_m, inverse_kinematics, perturb, quaternion_matrix,
+    rotation_vector_of, v_norm, Arm, BadPoints, Chain, GravitySag, HiddenErrorSizes, InstrumentDrift, Mat3,
+    Pose, SessionPlan, ThermalDrift, ToolRemount, TrackerOptions, UncertaintyColumn, UrdfJoint, Vec3,
+    FOLDER_TAG,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -89,10 +90,14 @@ fn urdf_written_and_dh_give_the_same_tool_pose() {
 fn python_urdf_peer_agrees_with_the_rust_kinematics() {
     let dir = scratch("peer");
     let mut rng = ChaCha8Rng::seed_from_u64(2);
-    for (k, options) in
-        [TrackerOptions::iiwa_five_sessions(5), TrackerOptions::industrial_6dof(6)].iter().enumerate()
-    {
-        let arm = &generate(options).truth.truth;
+    // The two true DH arms and a URDF-joint arm with perturbed origins.
+    let urdf_arm = perturb(&Arm::iiwa7().to_urdf_chain(), &HiddenErrorSizes::default(), 21).0;
+    let arms = [
+        generate(&TrackerOptions::iiwa_five_sessions(5)).truth.truth,
+        generate(&TrackerOptions::industrial_6dof(6)).truth.truth,
+        urdf_arm,
+    ];
+    for (k, arm) in arms.iter().enumerate() {
         let urdf = dir.join(format!("arm{k}.urdf"));
         arm.write_urdf(&urdf, "robot").expect("URDF written");
         let poses: Vec<Vec<f64>> = (0..20).map(|_| random_q(arm, &mut rng)).collect();
@@ -129,6 +134,17 @@ fn python_urdf_peer_agrees_with_the_rust_kinematics() {
             }
         }
     }
+    // Wrong input: a named error and exit status 2, no pose.
+    let peer = Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/urdf_fk_peer.py");
+    let out = std::process::Command::new("python3")
+        .arg(&peer)
+        .arg(dir.join("arm0.urdf"))
+        .args(["--base", "tool0", "--tip", "base_link", "--q", "1,2,3,4,5,6,7"])
+        .output()
+        .expect("python3 runs");
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("'base_link' is not below 'tool0'"));
+    assert!(out.stdout.is_empty());
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -198,21 +214,21 @@ fn inverse_kinematics_reaches_targets_and_constant_orientation_sessions_hold_it(
     let data = generate(&options);
     let grid = &data.sessions[1].rows;
     assert_eq!(grid.len(), 27);
-    let first = grid[0].robot_frame;
+    let first = grid[0].tool_in_base;
     for row in grid {
-        let angle = angle_between(&row.robot_frame.rotation, &first.rotation);
+        let angle = angle_between(&row.tool_in_base.rotation, &first.rotation);
         assert!(angle < 1e-6, "grid orientation moved by {angle:e} rad");
         // Positions on a 100 mm grid (readings rounded to 1e-6°).
         for i in 0..3 {
             let steps =
-                (row.robot_frame.translation_mm[i] - first.translation_mm[i]) / options.grid_spacing_mm;
+                (row.tool_in_base.translation_mm[i] - first.translation_mm[i]) / options.grid_spacing_mm;
             assert!((steps - steps.round()).abs() < 1e-6, "off the grid: {steps}");
         }
     }
     // The random sessions do vary their orientation.
     let random = &data.sessions[0].rows;
     let spread =
-        random.iter().map(|r| angle_between(&r.robot_frame.rotation, &random[0].robot_frame.rotation));
+        random.iter().map(|r| angle_between(&r.tool_in_base.rotation, &random[0].tool_in_base.rotation));
     assert!(spread.fold(0.0, f64::max).to_degrees() > 30.0);
 }
 
@@ -239,7 +255,7 @@ fn thermal_drift_and_tool_remount_have_their_configured_size() {
             assert!((row.temp_c - 20.0 - expected_c).abs() < 1e-12);
             let scale = 1.0 + 12e-6 * expected_c;
             let p = [0, 1, 2].map(|i| (undisturbed.translation_mm[i] + moved[i]) * scale);
-            assert!(distance(p, row.robot_frame.translation_mm) < 1e-9);
+            assert!(distance(p, row.tool_in_base.translation_mm) < 1e-9);
         }
         // Over the session the arm grows by 12 µm/°C·m: ~1 °C at ~1 m reach is ~10 µm.
         let last = sess.rows.last().unwrap();
@@ -277,7 +293,7 @@ fn gravity_levers_and_sag_follow_the_formula() {
         let deflected: Vec<f64> =
             row.q_deg.iter().zip(&levers).zip(&c).map(|((q, l), c)| q + c * l).collect();
         let expected = truth.tool_pose(&deflected).translation_mm;
-        assert!(distance(expected, row.robot_frame.translation_mm) < 1e-9);
+        assert!(distance(expected, row.tool_in_base.translation_mm) < 1e-9);
         largest_mm = largest_mm.max(distance(expected, truth.tool_pose(&row.q_deg).translation_mm));
     }
     assert!(largest_mm > 0.05 && largest_mm < 2.0, "sag of {largest_mm} mm is not realistic");
@@ -295,7 +311,7 @@ fn sessions_bases_noise_floor_and_hidden_errors_are_as_configured() {
     }
     // Horn on noise-free points returns the true base.
     let rows = &data.sessions[3].rows;
-    let p: Vec<Vec3> = rows.iter().map(|r| r.robot_frame.translation_mm).collect();
+    let p: Vec<Vec3> = rows.iter().map(|r| r.tool_in_base.translation_mm).collect();
     let exact: Vec<Vec3> = rows.iter().map(|r| r.exact_mm).collect();
     let fitted = fit_rigid(&p, &exact);
     assert!(angle_between(&fitted.rotation, &bases[3].rotation) < 1e-10);
@@ -363,4 +379,51 @@ fn csv_files_are_tagged_reproducible_and_carry_repeats_and_coverage() {
     assert!(generate(&options).csv(0).starts_with("# other/2\npose,"));
     let _ = std::fs::remove_dir_all(&a);
     let _ = std::fs::remove_dir_all(&b);
+}
+
+#[test]
+fn instrument_drift_and_bad_points_have_their_size_and_traits_leave_the_rest_alone() {
+    let mut options = TrackerOptions::iiwa_five_sessions(15);
+    options.noise_sigma_mm = 0.0;
+    let plain = generate(&options);
+    // Without noise the true model leaves nothing, whatever Horn has to undo.
+    assert!(plain.true_floor_mm(&[0, 1, 2, 3, 4]).max_mm < 1e-9);
+    options.tool_remount = Some(ToolRemount { session: 1, size_mm: 0.6 });
+    options.instrument_drift = Some(InstrumentDrift { session: 3, mm_per_hour: 0.05 });
+    options.bad_points = Some(BadPoints { count: 4, size_mm: 1.5 });
+    let data = generate(&options);
+    let (_, velocity) = data.truth.instrument_drift.expect("drift recorded");
+    assert!((v_norm(velocity) * 3600.0 - 0.05).abs() < 1e-15);
+    assert_eq!(data.truth.bad_points.len(), 4);
+    for (s, session) in data.sessions.iter().enumerate() {
+        for (k, row) in session.rows.iter().enumerate() {
+            let base = data.truth.bases[s].apply(row.tool_in_base.translation_mm);
+            let drift = if s == 3 { velocity.map(|v| v * row.time_s) } else { [0.0; 3] };
+            assert!(distance(row.exact_mm, [0, 1, 2].map(|i| base[i] + drift[i])) < 1e-9);
+            let bad = data.truth.bad_points.iter().find(|b| (b.0, b.1) == (s, k));
+            let gross = distance(row.x_mm, row.exact_mm);
+            match bad {
+                Some(b) => assert!((gross - 1.5).abs() < 1e-9 && (v_norm(b.2) - 1.5).abs() < 1e-12),
+                None => assert!(gross < 1e-12),
+            }
+        }
+        // Each trait has its own random stream: sessions it does not touch are unchanged.
+        let touched = s == 1 || s == 3 || data.truth.bad_points.iter().any(|b| b.0 == s);
+        assert_eq!(data.csv(s) == plain.csv(s), !touched, "session {s}");
+    }
+    // The floor keeps the bad points (no model explains them) and removes the drift.
+    let drifting = data.true_floor_mm(&[3]);
+    let has_bad = data.truth.bad_points.iter().any(|b| b.0 == 3);
+    assert_eq!(drifting.max_mm > 0.5, has_bad, "{drifting:?}");
+}
+
+#[test]
+fn kincal_model_lists_every_row() {
+    let arm = generate(&TrackerOptions::industrial_6dof(16)).truth.truth;
+    let toml = arm.kincal_model_toml().expect("a DH arm");
+    assert!(toml.starts_with("format = \"kincal-arm/1\"\n"));
+    assert_eq!(toml.matches("[[joint]]").count(), 6);
+    let beta = arm.dh_rows().unwrap()[1].beta_deg;
+    assert!(toml.contains(&format!("axis_deg = {beta:?}\n")));
+    assert!(arm.to_urdf_chain().kincal_model_toml().is_none());
 }

@@ -442,8 +442,9 @@ impl Arm {
             unreachable!("to_urdf_chain returns a URDF chain")
         };
         let origin = |xyz_mm: Vec3, rpy_deg: Vec3| {
-            let xyz = xyz_mm.map(|v| v / 1000.0);
-            let rpy = rpy_deg.map(f64::to_radians);
+            // `+ 0.0` writes −0 as 0.
+            let xyz = xyz_mm.map(|v| v / 1000.0 + 0.0);
+            let rpy = rpy_deg.map(|v| v.to_radians() + 0.0);
             format!(
                 "<origin xyz=\"{} {} {}\" rpy=\"{} {} {}\"/>",
                 xyz[0], xyz[1], xyz[2], rpy[0], rpy[1], rpy[2]

@@ -90,11 +90,13 @@ fn urdf_written_and_dh_give_the_same_tool_pose() {
 fn python_urdf_peer_agrees_with_the_rust_kinematics() {
     let dir = scratch("peer");
     let mut rng = ChaCha8Rng::seed_from_u64(2);
-    // The two true DH arms and a URDF-joint arm with perturbed origins.
+    // The two true DH arms, the nominal 6R arm (an origin at pitch −90°, where rpy is degenerate)
+    // and a URDF-joint arm with perturbed origins.
     let urdf_arm = perturb(&Arm::iiwa7().to_urdf_chain(), &HiddenErrorSizes::default(), 21).0;
     let arms = [
         generate(&TrackerOptions::iiwa_five_sessions(5)).truth.truth,
         generate(&TrackerOptions::industrial_6dof(6)).truth.truth,
+        Arm::industrial6(),
         urdf_arm,
     ];
     for (k, arm) in arms.iter().enumerate() {
@@ -426,4 +428,28 @@ fn kincal_model_lists_every_row() {
     let beta = arm.dh_rows().unwrap()[1].beta_deg;
     assert!(toml.contains(&format!("axis_deg = {beta:?}\n")));
     assert!(arm.to_urdf_chain().kincal_model_toml().is_none());
+}
+
+#[test]
+fn written_rows_are_the_measurement_of_their_written_readings() {
+    let mut options = TrackerOptions::industrial_6dof(17);
+    options.noise_sigma_mm = 0.0;
+    options.orientation_sigma_deg = Some(0.0);
+    options.sessions[2].constant_orientation = true;
+    options.tool_remount = Some(ToolRemount { session: 2, size_mm: 0.7 });
+    let data = generate(&options);
+    for (s, base) in data.truth.bases.iter().enumerate() {
+        let csv = data.csv(s);
+        for line in csv.lines().skip(2) {
+            let v: Vec<f64> = line.split(',').map(|f| f.parse().expect("number")).collect();
+            let mut arm = data.truth.truth.clone();
+            if let Some((_, offset)) = data.truth.tool_remount.filter(|r| r.0 == s) {
+                arm.tool_mm = [0, 1, 2].map(|i| arm.tool_mm[i] + offset[i]);
+            }
+            let expected = base.then(&arm.tool_pose(&v[1..7]));
+            assert!(distance(expected.translation_mm, [v[7], v[8], v[9]]) < 2e-6, "{line}");
+            let written = quaternion_matrix([v[10], v[11], v[12], v[13]]);
+            assert!(angle_between(&written, &expected.rotation) < 1e-8, "{line}");
+        }
+    }
 }

@@ -624,7 +624,7 @@ pub fn perturb(nominal: &Arm, sizes: &HiddenErrorSizes, seed: u64) -> (Arm, Vec<
 /// when it lowers the error, else the damping grows) on this module's own kinematics: the joint
 /// readings near `q_start_deg` that put the tool frame at `target` (position and orientation,
 /// base frame). Orientation errors are weighted by 500 mm/rad. `None` when it does not converge
-/// to 1e-9 mm and 1e-12 rad within 300 iterations or ends outside the joint limits.
+/// to 1e-9 mm and 1e-12 rad within 100 iterations or ends outside the joint limits.
 pub fn inverse_kinematics(arm: &Arm, target: &Pose, q_start_deg: &[f64]) -> Option<Vec<f64>> {
     const LEVER_MM: f64 = 500.0;
     // The pose error (mm, and rad × lever) and the Jacobian columns (per rad) at `q`.
@@ -646,7 +646,7 @@ pub fn inverse_kinematics(arm: &Arm, target: &Pose, q_start_deg: &[f64]) -> Opti
     let mut q = q_start_deg.to_vec();
     let (mut e, mut columns) = error_at(&q);
     let mut damping = 1.0;
-    for _ in 0..300 {
+    for _ in 0..100 {
         if size(&[e[0], e[1], e[2], 0.0, 0.0, 0.0]) < 1e-9
             && size(&[e[3], e[4], e[5], 0.0, 0.0, 0.0]) < 1e-12 * LEVER_MM
         {
@@ -1049,7 +1049,7 @@ fn round6(v: f64) -> f64 {
 /// Random readings inside the limits (and the low-coverage span) whose tool point lies in the
 /// reachable workspace (above `min_z_mm`, outside `min_radius_mm`).
 fn random_q(arm: &Arm, low_coverage: Option<(usize, f64)>, rng: &mut ChaCha8Rng) -> Vec<f64> {
-    loop {
+    for _ in 0..100_000 {
         let q: Vec<f64> = arm
             .limits_deg
             .iter()
@@ -1070,41 +1070,56 @@ fn random_q(arm: &Arm, low_coverage: Option<(usize, f64)>, rng: &mut ChaCha8Rng)
             return q;
         }
     }
+    panic!("{}: no reading of 100 000 puts the tool above min_z_mm and outside min_radius_mm", arm.name)
 }
 
-/// A grid of `count` tool positions at one orientation, solved by IK on `arm` around a random
-/// reachable start; targets IK cannot reach inside the limits are skipped.
+/// A grid of `count` tool positions at one orientation, solved by IK on `arm`: the cells of a
+/// cubic grid of side ⌈∛count⌉ + 1 nearest to a random reachable start's tool point, skipping
+/// cells IK cannot reach inside the limits; a new start when too many are out of reach.
 fn constant_orientation_q(arm: &Arm, count: usize, spacing_mm: f64, rng: &mut ChaCha8Rng) -> Vec<Vec<f64>> {
-    let side = (count as f64).cbrt().ceil() as i64;
-    loop {
+    let side = (count as f64).cbrt().ceil() as i64 + 1;
+    let mut cells: Vec<Vec3> = (0..side * side * side)
+        .map(|c| {
+            [c / (side * side), (c / side) % side, c % side]
+                .map(|v| (v as f64 - 0.5 * (side - 1) as f64) * spacing_mm)
+        })
+        .collect();
+    cells.sort_by(|a, b| v_norm(*a).total_cmp(&v_norm(*b)));
+    for _ in 0..200 {
         let start = random_q(arm, None, rng);
         let center = arm.tool_pose(&start);
-        let mut out = Vec::new();
-        let mut q_prev = start.clone();
-        'grid: for i in 0..side {
-            for j in 0..side {
-                for k in 0..side {
-                    if out.len() == count {
-                        break 'grid;
-                    }
-                    let offset = [i, j, k].map(|v| (v as f64 - 0.5 * (side - 1) as f64) * spacing_mm);
-                    let target = Pose { translation_mm: v_add(center.translation_mm, offset), ..center };
-                    let solved = inverse_kinematics(arm, &target, &q_prev)
-                        .or_else(|| inverse_kinematics(arm, &target, &start));
-                    if let Some(q) = solved {
-                        q_prev = q.clone();
-                        out.push(q);
-                    }
-                }
+        let mut out: Vec<Vec<f64>> = Vec::new();
+        let mut missed = 0;
+        for offset in &cells {
+            if out.len() == count || missed > cells.len() - count {
+                break;
+            }
+            let target = Pose { translation_mm: v_add(center.translation_mm, *offset), ..center };
+            let solved = out
+                .last()
+                .and_then(|q_prev| inverse_kinematics(arm, &target, q_prev))
+                .or_else(|| inverse_kinematics(arm, &target, &start));
+            match solved {
+                Some(q) => out.push(q),
+                None => missed += 1,
             }
         }
         if out.len() == count {
             return out;
         }
     }
+    panic!(
+        "{}: no start of 200 reaches {count} cells of a grid spaced {spacing_mm} mm at one orientation; ask \
+         for fewer poses or a smaller grid_spacing_mm",
+        arm.name
+    )
 }
 
 /// Generate a data set (deterministic in `options.seed`).
+///
+/// # Panics
+/// When the options ask for the impossible: a workspace no reading reaches, or a
+/// constant-orientation grid too large for the arm (the message says which).
 pub fn generate(options: &TrackerOptions) -> TrackerData {
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let (truth_arm, hidden_errors) = perturb(&options.arm, &options.hidden, rng.random::<u64>());

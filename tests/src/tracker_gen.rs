@@ -1,7 +1,7 @@
 //! An independent laser-tracker / optical-tracker data generator for serial arms (issue 18).
 //!
 //! Written from `shared/notes/tracker-calibration.md`, the DH / Hayati / URDF definitions and the
-//! SUTA thesis' compliance model, and sharing no code with kincal's host library: its own
+//! joint compliance of `shared/notes/references.md` (Δθ = c·τ_gravity(q)), and sharing no code with kincal's host library: its own
 //! rigid transforms, classic DH with Hayati β, URDF joints, rotations, quaternions, inverse
 //! kinematics (damped least squares), Horn's absolute orientation, noise and CSV writer.
 //!
@@ -176,11 +176,6 @@ impl Pose {
         Pose { rotation, translation_mm: [0.0; 3] }
     }
 
-    /// A pure translation, mm.
-    pub fn translation(translation_mm: Vec3) -> Pose {
-        Pose { rotation: IDENTITY, translation_mm }
-    }
-
     /// A URDF `<origin>`: translation (mm) then fixed-axis rpy (deg).
     pub fn from_xyz_rpy(xyz_mm: Vec3, rpy_deg: Vec3) -> Pose {
         Pose { rotation: rpy_matrix(rpy_deg.map(f64::to_radians)), translation_mm: xyz_mm }
@@ -199,7 +194,7 @@ impl Pose {
         v_add(m_vec(&self.rotation, p_mm), self.translation_mm)
     }
 
-    /// The inverse transform.
+    /// The inverse transform (e.g. robot base ← instrument from a base B_s).
     pub fn inverse(&self) -> Pose {
         let rt = m_t(&self.rotation);
         Pose { rotation: rt, translation_mm: v_scale(m_vec(&rt, self.translation_mm), -1.0) }
@@ -780,6 +775,7 @@ pub struct Floor {
 }
 
 impl Floor {
+    /// The statistics of `distances_mm` (all zero for none).
     fn of(distances_mm: &[f64]) -> Floor {
         let n = distances_mm.len().max(1) as f64;
         Floor {
@@ -1284,7 +1280,7 @@ impl TrackerData {
                 UncertaintyColumn::U95Mm => fields.push(format!("{:.4}", 2.0 * o.noise_sigma_mm)),
             }
             if o.thermal.is_some() || o.time_columns {
-                fields.push(format!("{:.1}", row.time_s));
+                fields.push(format!("{:.3}", row.time_s));
                 fields.push(format!("{:.4}", row.temp_c));
             }
             let _ = writeln!(out, "{}", fields.join(","));

@@ -316,6 +316,9 @@ fn sessions_bases_noise_floor_and_hidden_errors_are_as_configured() {
     let p: Vec<Vec3> = rows.iter().map(|r| r.tool_in_base.translation_mm).collect();
     let exact: Vec<Vec3> = rows.iter().map(|r| r.exact_mm).collect();
     let fitted = fit_rigid(&p, &exact);
+    for (p, x) in p.iter().zip(&exact) {
+        assert!(distance(bases[3].inverse().apply(*x), *p) < 1e-9);
+    }
     assert!(angle_between(&fitted.rotation, &bases[3].rotation) < 1e-10);
     assert!(distance(fitted.translation_mm, bases[3].translation_mm) < 1e-7);
     // The floor is the noise: about σ√3 per point.

@@ -510,20 +510,19 @@ impl Arm {
     /// The joint angles the arm really takes at readings `q_deg` under gravity sag ([`GravitySag`]).
     fn sagged_q(&self, q_deg: &[f64], sag: Option<&GravitySag>) -> Vec<f64> {
         let Some(sag) = sag else { return q_deg.to_vec() };
-        let levers = gravity_levers_m(self, q_deg);
+        let levers = gravity_levers_m(self, q_deg, sag.down);
         q_deg.iter().zip(&levers).zip(&sag.compliance_deg_per_m).map(|((q, l), c)| q + c * l).collect()
     }
 }
 
 /// For each joint, the gravity moment about its axis of unit masses at the joint-frame origins
-/// beyond it, the flange origin and the tool point (m): `Σ_k ((m_k − o_j) × ĝ) · z_j`,
-/// ĝ = −z of the robot base (an upright robot), on the undeflected arm.
-pub fn gravity_levers_m(arm: &Arm, q_deg: &[f64]) -> Vec<f64> {
+/// beyond it, the flange origin and the tool point (m): `Σ_k ((m_k − o_j) × ĝ) · z_j`, with ĝ
+/// = `down` the unit direction of gravity in the robot base frame, on the undeflected arm.
+pub fn gravity_levers_m(arm: &Arm, q_deg: &[f64], down: Vec3) -> Vec<f64> {
     let frames = arm.frames(q_deg);
     let mut masses = frames.axis_origin_mm.clone();
     masses.push(frames.flange.translation_mm);
     masses.push(frames.flange.apply(arm.tool_mm));
-    let down = [0.0, 0.0, -1.0];
     (0..arm.joints())
         .map(|j| {
             let o = frames.axis_origin_mm[j];
@@ -795,6 +794,16 @@ impl Floor {
 pub struct GravitySag {
     /// c_j per joint, deg/m.
     pub compliance_deg_per_m: Vec<f64>,
+    /// ĝ, the unit direction of gravity in the robot base frame: `[0, 0, −1]` for a robot on
+    /// the floor, `[0, 0, 1]` hanging from the ceiling, horizontal on a wall.
+    pub down: Vec3,
+}
+
+impl GravitySag {
+    /// Compliances `c_j` (deg/m) of a robot standing on the floor.
+    pub fn floor_mounted(compliance_deg_per_m: Vec<f64>) -> GravitySag {
+        GravitySag { compliance_deg_per_m, down: [0.0, 0.0, -1.0] }
+    }
 }
 
 /// Slow thermal drift: a steel arm grows with temperature, so every length of the arm and tool
@@ -853,6 +862,20 @@ pub enum UncertaintyColumn {
     U95Mm,
 }
 
+/// A mistake in the exported file, for tests of the reader's plausibility checks: the values are
+/// written wrongly under the right header.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ExportMistake {
+    /// A correct file.
+    None,
+    /// Positions (and `sigma_mm`/`u95_mm`) in metres under the `_mm` columns.
+    MetresUnderMm,
+    /// Joint readings in radians under the `_deg` columns.
+    RadiansUnderDeg,
+    /// The quaternion scalar last (`qx, qy, qz, qw`) under `qw, qx, qy, qz`.
+    ScalarLastQuaternion,
+}
+
 /// One session (one placement of the instrument).
 #[derive(Clone, Debug, PartialEq)]
 pub struct SessionPlan {
@@ -906,6 +929,8 @@ pub struct TrackerOptions {
     pub grid_spacing_mm: f64,
     /// The tag line of every CSV.
     pub tag: String,
+    /// A mistake in the written files (the truth and the rows stay right).
+    pub export_mistake: ExportMistake,
 }
 
 impl TrackerOptions {
@@ -933,6 +958,7 @@ impl TrackerOptions {
             seconds_per_point: 15.0,
             grid_spacing_mm: 100.0,
             tag: FOLDER_TAG.into(),
+            export_mistake: ExportMistake::None,
         }
     }
 
@@ -1267,17 +1293,28 @@ impl TrackerData {
             header.extend(["time_s", "temp_C"].map(String::from));
         }
         let _ = writeln!(out, "{}", header.join(","));
+        let length = |mm: f64| match o.export_mistake {
+            ExportMistake::MetresUnderMm => format!("{:.9}", mm / 1000.0),
+            _ => format!("{mm:.6}"),
+        };
         for row in &session.rows {
             let mut fields: Vec<String> = vec![(row.pose + 1).to_string()];
-            fields.extend(row.q_deg.iter().map(|v| format!("{v:.6}")));
-            fields.extend(row.x_mm.iter().map(|v| format!("{v:.6}")));
-            if let Some(q) = row.quaternion {
-                fields.extend(q.iter().map(|v| format!("{v:.9}")));
+            fields.extend(row.q_deg.iter().map(|v| match o.export_mistake {
+                ExportMistake::RadiansUnderDeg => format!("{:.9}", v.to_radians()),
+                _ => format!("{v:.6}"),
+            }));
+            fields.extend(row.x_mm.iter().map(|v| length(*v)));
+            if let Some([w, x, y, z]) = row.quaternion {
+                let written = match o.export_mistake {
+                    ExportMistake::ScalarLastQuaternion => [x, y, z, w],
+                    _ => [w, x, y, z],
+                };
+                fields.extend(written.iter().map(|v| format!("{v:.9}")));
             }
             match o.uncertainty {
                 UncertaintyColumn::None => {}
-                UncertaintyColumn::SigmaMm => fields.push(format!("{:.4}", o.noise_sigma_mm)),
-                UncertaintyColumn::U95Mm => fields.push(format!("{:.4}", 2.0 * o.noise_sigma_mm)),
+                UncertaintyColumn::SigmaMm => fields.push(length(o.noise_sigma_mm)),
+                UncertaintyColumn::U95Mm => fields.push(length(2.0 * o.noise_sigma_mm)),
             }
             if o.thermal.is_some() || o.time_columns {
                 fields.push(format!("{:.3}", row.time_s));

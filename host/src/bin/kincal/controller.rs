@@ -197,7 +197,9 @@ pub fn cmd_info(a: &PortArgs) -> Result<()> {
         (kincal_protocol::signed::TrustMode::FirstUse, 0) => {
             "on first use: the first signed set stored pins its key"
         }
-        (kincal_protocol::signed::TrustMode::FirstUse, _) => "on first use: the signer of the stored set only",
+        (kincal_protocol::signed::TrustMode::FirstUse, _) => {
+            "on first use: the signer of the stored set only"
+        }
     };
     println!("arm        {} (signed sets must name it)", info.arm_id);
     println!("trust      {trust}");

@@ -85,16 +85,26 @@ fn run_case(case: &Case) -> Outcome {
 
 /// The first candidates of the held-out test sequence (calibration evidence order).
 fn print_sequence(d: &kincal::calib::diagnose::Diagnosis) {
-    let mut all: Vec<&kincal::calib::diagnose::Candidate> = d.candidates.iter().chain(&d.data_errors).collect();
+    let mut all: Vec<&kincal::calib::diagnose::Candidate> =
+        d.candidates.iter().chain(&d.data_errors).collect();
     all.sort_by(|a, b| b.calibration_z.total_cmp(&a.calibration_z));
     for c in all.iter().take(6) {
         eprintln!(
             "    z {:7.1} {:<18} {:.3} mm p {:.3} placements {:?} refitted {} significant {}",
-            c.calibration_z, c.effect, c.validation_rms_mm, c.p_value, c.placements_improved, c.refitted, c.significant
+            c.calibration_z,
+            c.effect,
+            c.validation_rms_mm,
+            c.p_value,
+            c.placements_improved,
+            c.refitted,
+            c.significant
         );
     }
     for r in &d.rivals {
-        eprintln!("    rival {} vs {}: {:?} (p {:.3} / {:.3}, λ {:.1})", r.a, r.b, r.verdict, r.a_adds_p, r.b_adds_p, r.separability);
+        eprintln!(
+            "    rival {} vs {}: {:?} (p {:.3} / {:.3}, λ {:.1})",
+            r.a, r.b, r.verdict, r.a_adds_p, r.b_adds_p, r.separability
+        );
     }
     eprintln!("    named {:?}", d.named);
 }
@@ -503,7 +513,10 @@ fn a_small_three_per_rev_error_on_joint_3_is_named_and_the_loop_ends_at_the_floo
         let run = auto_loop(&fit, &s.sim.artefact, &s.cal, &s.val, &s.options, 4).unwrap();
         let last = run.steps.last().unwrap();
         let added: Vec<&str> = run.steps.iter().filter_map(|s| s.added.as_deref()).collect();
-        eprintln!("seed {seed}: loop {added:?} ends at {:.4} (true floor {:.4}), stop {:?}", last.validation_rms_mm, s.floor, run.stop);
+        eprintln!(
+            "seed {seed}: loop {added:?} ends at {:.4} (true floor {:.4}), stop {:?}",
+            last.validation_rms_mm, s.floor, run.stop
+        );
         assert!(added.contains(&"harmonic:3:3"), "the loop must add harmonic:3:3: {added:?}");
         assert!(
             last.validation_rms_mm <= 1.05 * s.floor,
@@ -548,9 +561,8 @@ fn clean_data_false_calls_stay_rare_over_24_seeds() {
     // and still fails if the false-call rate climbs well above 5 %: 4 or more calls in 24 runs
     // happen with probability 3 % at a true rate of 5 %.
     use kincal::calib::monte_carlo::{false_calls, simulate_and_diagnose};
-    let calls: Vec<_> = (0..24u64)
-        .map(|k| false_calls(&simulate_and_diagnose(3000 + k, vec![]).unwrap()))
-        .collect();
+    let calls: Vec<_> =
+        (0..24u64).map(|k| false_calls(&simulate_and_diagnose(3000 + k, vec![]).unwrap())).collect();
     let bad: Vec<(usize, _)> = calls.iter().copied().enumerate().filter(|(_, c)| c.any()).collect();
     eprintln!("false calls on clean data: {} of {}: {bad:?}", bad.len(), calls.len());
     assert!(bad.len() <= 3, "{} of 24 clean runs had a false call: {bad:?}", bad.len());

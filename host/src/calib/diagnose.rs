@@ -293,6 +293,11 @@ fn touch_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec
     out
 }
 
+/// (cycles per revolution, fit) per order.
+type Spectrum = Vec<(u32, Sinusoid)>;
+/// (order, order, canonical correlation) of aliased pairs.
+type Aliased = Vec<(u32, u32, f64)>;
+
 /// Sin/cos columns of orders 1..=[`SPECTRUM_ORDERS`] and a constant at angle `phi_deg`.
 fn harmonic_row(phi_deg: f64) -> DVector<f64> {
     let n = 2 * SPECTRUM_ORDERS as usize + 1;
@@ -310,7 +315,7 @@ fn harmonic_row(phi_deg: f64) -> DVector<f64> {
 /// 1..=[`SPECTRUM_ORDERS`] jointly, for points (angle deg, value deg, weight). Returns each
 /// order's fit (its share: the weighted variance lost when it alone is dropped) and the
 /// aliased pairs of orders.
-fn fit_spectrum(points: &[(f64, f64, f64)]) -> (Vec<(u32, Sinusoid)>, Vec<(u32, u32, f64)>) {
+fn fit_spectrum(points: &[(f64, f64, f64)]) -> (Spectrum, Aliased) {
     let n = 2 * SPECTRUM_ORDERS as usize + 1;
     let mut ata = DMatrix::zeros(n, n);
     let mut atb = DVector::zeros(n);
@@ -367,7 +372,12 @@ fn fit_spectrum(points: &[(f64, f64, f64)]) -> (Vec<(u32, Sinusoid)>, Vec<(u32, 
         for q in p + 1..=SPECTRUM_ORDERS {
             let (kp, kq) = (2 * (p as usize - 1), 2 * (q as usize - 1));
             let block = |a: usize, b: usize| {
-                nalgebra::Matrix2::new(centred(a, b), centred(a, b + 1), centred(a + 1, b), centred(a + 1, b + 1))
+                nalgebra::Matrix2::new(
+                    centred(a, b),
+                    centred(a, b + 1),
+                    centred(a + 1, b),
+                    centred(a + 1, b + 1),
+                )
             };
             let inv_sqrt = |m: nalgebra::Matrix2<f64>| {
                 let e = m.symmetric_eigen();
@@ -564,7 +574,8 @@ pub fn sign_flip_p(units: &[f64]) -> f64 {
     let observed: f64 = units.iter().sum();
     let tolerance = 1e-12 * units.iter().map(|u| u.abs()).sum::<f64>();
     let at_least = |signs: u64| {
-        let sum: f64 = units.iter().enumerate().map(|(k, u)| if signs >> k & 1 == 1 { -u.abs() } else { u.abs() }).sum();
+        let sum: f64 =
+            units.iter().enumerate().map(|(k, u)| if signs >> k & 1 == 1 { -u.abs() } else { u.abs() }).sum();
         sum >= observed - tolerance
     };
     if units.len() <= SIGN_FLIP_EXACT {
@@ -649,7 +660,8 @@ fn screening_subset(data: &Dataset) -> std::borrow::Cow<'_, Dataset> {
     if blocks.len() <= SCREEN_BLOCKS {
         return std::borrow::Cow::Borrowed(data);
     }
-    let keep: Vec<(usize, u32)> = (0..SCREEN_BLOCKS).map(|k| blocks[k * blocks.len() / SCREEN_BLOCKS].0).collect();
+    let keep: Vec<(usize, u32)> =
+        (0..SCREEN_BLOCKS).map(|k| blocks[k * blocks.len() / SCREEN_BLOCKS].0).collect();
     std::borrow::Cow::Owned(without(data, |t| {
         let touch = &data.touches[t];
         !keep.contains(&(touch.placement, touch.repeat))
@@ -678,7 +690,13 @@ struct Screen {
 }
 
 impl Screen {
-    fn new(calibrated: &ArmModel, effects: &[Effect], artefact: &Artefact, cal: &Dataset, options: &CalibrationOptions) -> Screen {
+    fn new(
+        calibrated: &ArmModel,
+        effects: &[Effect],
+        artefact: &Artefact,
+        cal: &Dataset,
+        options: &CalibrationOptions,
+    ) -> Screen {
         let mut augmented = calibrated.clone();
         for e in effects {
             e.add_to(&mut augmented);
@@ -698,8 +716,7 @@ impl Screen {
         let lower: Vec<f64> = augmented.free.iter().map(|f| f.lower).collect();
         let upper: Vec<f64> = augmented.free.iter().map(|f| f.upper).collect();
         // A parameter the calibration left at a bound is held there (its gradient is not zero).
-        let at_bound =
-            |c: usize| (values[c] - lower[c]).min(upper[c] - values[c]) <= 1e-6 * ranges[c];
+        let at_bound = |c: usize| (values[c] - lower[c]).min(upper[c] - values[c]) <= 1e-6 * ranges[c];
         let existing: Vec<usize> = (0..n).filter(|&c| current.contains(&params[c]) && !at_bound(c)).collect();
         let existing_ranges: Vec<f64> = existing.iter().map(|&c| ranges[c]).collect();
         let base: Vec<usize> =
@@ -793,7 +810,11 @@ impl Screened {
 }
 
 /// Identifiability and the score test of `effect` on the shared Jacobian.
-fn screen_candidate(effect: Effect, screen: &Screen, current: &[ParamId]) -> Result<Screened, NotIdentifiable> {
+fn screen_candidate(
+    effect: Effect,
+    screen: &Screen,
+    current: &[ParamId],
+) -> Result<Screened, NotIdentifiable> {
     let n = screen.params.len();
     let extra: Vec<usize> =
         effect.params().iter().filter(|p| !current.contains(p)).filter_map(|&p| screen.column(p)).collect();
@@ -912,11 +933,13 @@ pub fn diagnose(
                 (bic(&residuals, current.len() + k) - baseline_bic, chi2_z(exact, k))
             } else {
                 let rss = screen.sigma2 * (screen.rows.saturating_sub(screen.base.len()).max(1)) as f64;
-                let drop = m_screen * (1.0 - (c.lm * screen.sigma2 / rss).min(0.999_999)).ln() + k as f64 * m_screen.ln();
+                let drop = m_screen * (1.0 - (c.lm * screen.sigma2 / rss).min(0.999_999)).ln()
+                    + k as f64 * m_screen.ln();
                 (drop, c.z)
             };
-            let explained = ((baseline.rms_mm.powi(2) - score.after.powi(2)) / baseline.rms_mm.powi(2).max(1e-300))
-                .clamp(0.0, 1.0);
+            let explained = ((baseline.rms_mm.powi(2) - score.after.powi(2))
+                / baseline.rms_mm.powi(2).max(1e-300))
+            .clamp(0.0, 1.0);
             let fitted: Vec<(String, f64, &'static str)> = c
                 .effect
                 .params()
@@ -1000,13 +1023,30 @@ pub fn diagnose(
     let gap = floor.as_ref().map(|f| gap(f, baseline.rms_mm, val));
     decide(&mut candidates, &mut data_errors, baseline.rms_mm);
     let (rivals, named) = rivals(
-        &RivalInputs { calibrated, artefact, fit_data: &fit_data, val, options, screen: &screen, base_params: &base_params },
+        &RivalInputs {
+            calibrated,
+            artefact,
+            fit_data: &fit_data,
+            val,
+            options,
+            screen: &screen,
+            base_params: &base_params,
+        },
         &candidates,
         &fits,
         &screened,
     );
-    let summary =
-        summarise(&baseline, gap.as_ref(), floor.as_ref(), val, &candidates, &data_errors, &joints, &rivals, &named);
+    let summary = summarise(
+        &baseline,
+        gap.as_ref(),
+        floor.as_ref(),
+        val,
+        &candidates,
+        &data_errors,
+        &joints,
+        &rivals,
+        &named,
+    );
     Diagnosis {
         baseline,
         floor,
@@ -1098,7 +1138,8 @@ fn rivals(
                     start.free_param(p, v - h, v + h);
                 }
             }
-            let params: Vec<ParamId> = x.base_params.iter().chain(&sa.added).chain(&sb.added).copied().collect();
+            let params: Vec<ParamId> =
+                x.base_params.iter().chain(&sa.added).chain(&sb.added).copied().collect();
             let both = solve_warm(&start, &params, x.artefact, x.fit_data, x.options).ok()?;
             let errors = distance_errors(&both, x.artefact, x.val);
             let b_adds = Score::of(&errors, &fits[lead].blocks, x.val);
@@ -1290,7 +1331,10 @@ fn tip_amplitude_mm(j: &JointResiduals, s: &Sinusoid) -> f64 {
 /// The periodic-residual line: the named effect's joint and order when it is periodic; no line
 /// when a non-periodic effect is named; else the largest harmonic at the tip over every joint.
 fn periodic_line(joints: &[JointResiduals], named: &[String]) -> Option<String> {
-    let periodic = named.iter().filter_map(|n| Effect::parse(n)).find_map(|e| Some((e.joint?, e.kind.harmonic_order()?)));
+    let periodic = named
+        .iter()
+        .filter_map(|n| Effect::parse(n))
+        .find_map(|e| Some((e.joint?, e.kind.harmonic_order()?)));
     let (joint, order, s) = match periodic {
         Some((j, order)) => {
             let r = joints.get(j)?;

@@ -246,7 +246,8 @@ pub fn noise_floor(
 /// (positions `p`, touch covariance `cov`): (Σ tr C_b)² / Σ tr(C_b²) over the (placement,
 /// repeat) blocks, C_b the noise covariance of a block's pair errors.
 fn effective_dof(data: &Dataset, p: &[Vector3<f64>], pairs: &[(usize, usize)], cov: &Matrix3<f64>) -> f64 {
-    let mut by_block: Vec<((usize, u32), Vec<(usize, usize, Vector3<f64>)>)> = Vec::new();
+    type Rows = Vec<(usize, usize, Vector3<f64>)>;
+    let mut by_block: Vec<((usize, u32), Rows)> = Vec::new();
     for &(a, b) in pairs {
         let key = (data.touches[a].placement, data.touches[a].repeat);
         let u = (p[a] - p[b]).normalize();
@@ -323,7 +324,8 @@ fn encoder_floor(
 /// Compare a measured validation RMS on `val` with the floor.
 pub fn gap(floor: &NoiseFloor, measured_mm: f64, val: &Dataset) -> Gap {
     let (m, e) = (measured_mm.powi(2), floor.expected_rms_mm.powi(2).max(1e-300));
-    let nu_val = if floor.validation_dof > 0.0 { floor.validation_dof } else { observation_dof(val).max(1) as f64 };
+    let nu_val =
+        if floor.validation_dof > 0.0 { floor.validation_dof } else { observation_dof(val).max(1) as f64 };
     let se = (2.0 / floor.dof.max(1) as f64 + 2.0 / nu_val).sqrt();
     let z = (m / e - 1.0) / se;
     let ratio_upper_95 = m / e + Z_95 * se * (m / e).max(1.0);

@@ -62,14 +62,41 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
             .iter()
             .map(|r| {
                 let verdict = match &r.verdict {
-                    crate::calib::diagnose::RivalVerdict::Proxy { cause, proxy } => format!("{} is a proxy of {}", escape(proxy), escape(cause)),
+                    crate::calib::diagnose::RivalVerdict::Proxy { cause, proxy } => {
+                        format!("{} is a proxy of {}", escape(proxy), escape(cause))
+                    }
                     crate::calib::diagnose::RivalVerdict::Both => "both are missing".into(),
-                    crate::calib::diagnose::RivalVerdict::CannotTell => "these data cannot tell them apart".into(),
+                    crate::calib::diagnose::RivalVerdict::CannotTell => {
+                        "these data cannot tell them apart".into()
+                    }
                 };
-                vec![escape(&r.a), escape(&r.b), mm(r.both_rms_mm), format!("{:.3}", r.b_adds_p), format!("{:.3}", r.a_adds_p), format!("{:.1}", r.separability), verdict]
+                vec![
+                    escape(&r.a),
+                    escape(&r.b),
+                    mm(r.both_rms_mm),
+                    format!("{:.3}", r.b_adds_p),
+                    format!("{:.3}", r.a_adds_p),
+                    format!("{:.1}", r.separability),
+                    verdict,
+                ]
             })
             .collect();
-        let _ = write!(body, "<h3>Rivals of the leading effect</h3>{}", table(&["A", "B", "A+B val RMS mm", "p (B added to A)", "p (A added to B)", "separability λ", "verdict"], &rivals));
+        let _ = write!(
+            body,
+            "<h3>Rivals of the leading effect</h3>{}",
+            table(
+                &[
+                    "A",
+                    "B",
+                    "A+B val RMS mm",
+                    "p (B added to A)",
+                    "p (A added to B)",
+                    "separability λ",
+                    "verdict"
+                ],
+                &rivals
+            )
+        );
     }
     let data: Vec<Vec<String>> = d
         .data_errors

@@ -489,6 +489,39 @@ fn gravity_levers(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> [f64; JOINTS] {
     })
 }
 
+impl Candidate {
+    /// A candidate from its held-out score and calibration evidence: not yet significant, no
+    /// fitted values, no equivalents, no action.
+    fn scored(
+        effect: String,
+        score: &Score,
+        baseline_rms_mm: f64,
+        delta_bic: f64,
+        calibration_z: f64,
+        evidence: String,
+    ) -> Candidate {
+        let base_ms = baseline_rms_mm.powi(2).max(1e-300);
+        Candidate {
+            effect,
+            validation_rms_mm: score.after,
+            explained: ((base_ms - score.after.powi(2)) / base_ms).clamp(0.0, 1.0),
+            significant: false,
+            blocks_improved: score.blocks_improved,
+            mean_log_ratio: score.mean_log_ratio,
+            p_value: score.p_value,
+            delta_bic,
+            calibration_z,
+            placements_improved: score.placements_improved,
+            refitted: true,
+            fitted: Vec::new(),
+            evidence,
+            equivalent: Vec::new(),
+            equivalent_to: None,
+            action: None,
+        }
+    }
+}
+
 /// Mean square validation error per (placement, repeat) block.
 fn block_mse(errors: &[PairError], data: &Dataset) -> Vec<((usize, u32), f64)> {
     let mut blocks: Vec<((usize, u32), f64, usize)> = Vec::new();
@@ -937,9 +970,6 @@ pub fn diagnose(
                     + k as f64 * m_screen.ln();
                 (drop, c.z)
             };
-            let explained = ((baseline.rms_mm.powi(2) - score.after.powi(2))
-                / baseline.rms_mm.powi(2).max(1e-300))
-            .clamp(0.0, 1.0);
             let fitted: Vec<(String, f64, &'static str)> = c
                 .effect
                 .params()
@@ -953,22 +983,9 @@ pub fn diagnose(
             let change: Vec<f64> =
                 errors.iter().zip(&baseline_errors).map(|(a, b)| a.error_mm - b.error_mm).collect();
             let candidate = Candidate {
-                effect: c.effect.to_string(),
-                validation_rms_mm: score.after,
-                explained,
-                significant: false,
-                blocks_improved: score.blocks_improved,
-                mean_log_ratio: score.mean_log_ratio,
-                p_value: score.p_value,
-                delta_bic,
-                calibration_z: z,
-                placements_improved: score.placements_improved,
-                refitted,
                 fitted,
-                evidence,
-                equivalent: Vec::new(),
-                equivalent_to: None,
-                action: None,
+                refitted,
+                ..Candidate::scored(c.effect.to_string(), &score, baseline.rms_mm, delta_bic, z, evidence)
             };
             let blocks = block_mse(&errors, val);
             (candidate, change, Fitted { blocks, per_placement: score.per_placement })
@@ -1207,29 +1224,13 @@ fn score_data_errors(
     disturbed: &[DisturbedBlock],
     mis_seated: &[MisSeatedTouch],
 ) -> Vec<Candidate> {
-    let base_ms = x.baseline.rms_mm.powi(2).max(1e-300);
     let refit = |data: &Dataset| solve_warm(x.calibrated, x.base_params, x.artefact, data, x.options);
-    let candidate = |name: String, score: Score, delta_bic: f64, z: f64, evidence: String, action: String| {
-        let explained = ((base_ms - score.after.powi(2)) / base_ms).clamp(0.0, 1.0);
-        Candidate {
-            effect: name,
-            validation_rms_mm: score.after,
-            explained,
-            significant: false,
-            blocks_improved: score.blocks_improved,
-            mean_log_ratio: score.mean_log_ratio,
-            p_value: score.p_value,
-            delta_bic,
-            calibration_z: z,
-            placements_improved: score.placements_improved,
-            refitted: true,
-            fitted: Vec::new(),
-            evidence,
-            equivalent: Vec::new(),
-            equivalent_to: None,
+    let candidate =
+        |name: String, score: Score, delta_bic: f64, z: f64, evidence: String, action: String| Candidate {
             action: Some(action),
-        }
-    };
+            ..Candidate::scored(name, &score, x.baseline.rms_mm, delta_bic, z, evidence)
+        };
+
     let mut out: Vec<Candidate> = (0..x.artefact.landmarks.len())
         .into_par_iter()
         .filter_map(|l| {

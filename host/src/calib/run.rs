@@ -7,14 +7,15 @@
 //! and `report.html`. Writing the folder is [`crate::output`]'s job.
 
 use crate::calib::calibrate::{
-    calibrate, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome,
+    calibrate, check_data, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome,
     HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS,
 };
 use crate::calib::identify::{self, Identifiability};
 use crate::calib::objective::{CalibrationProblem, Objective};
 use crate::calib::outliers::{landmark_outliers, LandmarkOutlier};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions, StudyRow};
-use crate::calib::validate::{validate, ErrorStats, GroupStats, Repeatability, Validation};
+use crate::calib::trust::{result_problems, TrustScales};
+use crate::calib::validate::{self, validate, ErrorStats, GroupStats, Repeatability, Validation};
 use crate::data::{Artefact, Dataset, Purpose};
 use crate::files::FileError;
 use crate::files::{field_error, read_tagged};
@@ -69,6 +70,13 @@ pub enum RunError {
         /// The calibration placement it copies.
         calibration: String,
     },
+    /// The model's figures on the data are beyond the model-independent scales (see
+    /// [`crate::calib::trust`]): nothing computed from the model is a result.
+    #[error(
+        "the model does not describe these touches; nothing computed from it is a result:\n  - {}",
+        .0.join("\n  - ")
+    )]
+    NotACalibration(Vec<String>),
     /// An input path could not be resolved.
     #[error("{path}: {source}")]
     Input {
@@ -191,68 +199,6 @@ pub struct Summary {
     /// they are. A RUN with problems is written for inspection and the command exits non-zero.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub not_trustworthy: Vec<String>,
-}
-
-/// Calibration RMS, mm, above which a fit is never trusted whatever the data's repeatability.
-pub const RMS_ALWAYS_SUSPECT_MM: f64 = 1.0;
-/// How many times the data's repeatability (RMS distance of repeated touches from their
-/// barycentre, about the distance noise) the calibration RMS may be.
-pub const RMS_REPEATABILITY_FACTOR: f64 = 5.0;
-/// Calibration RMS, mm, above which a fit is not trusted when the data has no repeats.
-pub const RMS_WITHOUT_REPEATS_MM: f64 = 5.0;
-/// How many times the calibration RMS the validation RMS may be.
-pub const VALIDATION_FACTOR: f64 = 5.0;
-
-/// Why the figures of a finished calibration cannot be taken as a result: a non-finite figure, a
-/// calibration RMS far beyond the data's repeatability, a fit that did not move from its start, a
-/// validation error far beyond the calibration error. Each reason names the likely cause.
-pub fn result_problems(fit: &Calibration, validation: &Validation) -> Vec<String> {
-    let mut problems = Vec::new();
-    let v = &validation.overall;
-    let figures = [fit.rms_mm, fit.cost, v.rms_mm, v.mean_mm, v.std_mm, v.max_mm];
-    if figures.iter().any(|x| !x.is_finite()) {
-        problems.push("a calibration or validation figure is not a finite number".to_string());
-        return problems;
-    }
-    if v.pairs == 0 {
-        problems.push("no validation pair: the fit was not checked on held-out touches".to_string());
-    }
-    let spreads: Vec<(f64, usize)> = validation.repeatability.iter().map(|r| (r.rms_mm, r.touches)).collect();
-    let touches: usize = spreads.iter().map(|s| s.1).sum();
-    let limit = if touches > 0 {
-        let rms = (spreads.iter().map(|(r, n)| r * r * *n as f64).sum::<f64>() / touches as f64).sqrt();
-        (RMS_REPEATABILITY_FACTOR * rms).max(RMS_ALWAYS_SUSPECT_MM)
-    } else {
-        RMS_WITHOUT_REPEATS_MM
-    };
-    if fit.rms_mm > limit {
-        problems.push(format!(
-            "calibration RMS {:.3} mm is far beyond what the data's repeatability allows ({limit:.3} mm): \
-             the model cannot describe these touches — a model file of another arm, artefact coordinates \
-             that are not the pillars touched (units, landmark ids swapped), or sessions mixed from \
-             different setups",
-            fit.rms_mm
-        ));
-    }
-    let moved = fit.estimates.iter().any(|e| e.status == "estimated" && e.value != e.nominal);
-    if !moved && fit.rms_mm > RMS_ALWAYS_SUSPECT_MM {
-        problems.push(format!(
-            "the fit did not move from its start (calibration RMS {:.3} mm): the solver found no step \
-             that lowers the cost — bounds too tight around the start, or a Huber threshold far below \
-             the residuals",
-            fit.rms_mm
-        ));
-    }
-    if v.pairs > 0 && v.rms_mm > (VALIDATION_FACTOR * fit.rms_mm).max(RMS_ALWAYS_SUSPECT_MM) {
-        problems.push(format!(
-            "validation RMS {:.3} mm is {:.0}× the calibration RMS {:.3} mm: the validation sessions look \
-             like another arm, another artefact or a moved setup, or the calibration data is too thin",
-            v.rms_mm,
-            v.rms_mm / fit.rms_mm.max(1e-9),
-            fit.rms_mm
-        ));
-    }
-    problems
 }
 
 /// The first validation placement that copies a calibration placement touch for touch.
@@ -395,13 +341,21 @@ impl RunFolder {
         Ok(stored.pairs)
     }
 
-    /// Load the artefact and both datasets the run used.
+    /// Load the artefact and both datasets the run used, refused as `calibrate` refuses them
+    /// ([`check_run_data`]), and refused when the RUN's model is beyond the model-independent
+    /// scales on them ([`TrustScales`], with `nominal.toml` as the nominal model): a diagnosis of
+    /// an absurd model would blame landmarks and effects for what the model gets wrong.
     pub fn data(&self) -> Result<(Artefact, Dataset, Dataset), RunError> {
         let inputs = &self.summary.inputs;
         let artefact = Artefact::load(&inputs.artefact)?;
         let (cal, val) = inputs.load_data(&artefact)?;
-        if val.pair_count() == 0 {
-            return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
+        check_run_data(&self.model, &artefact, &cal, &val, inputs, self.summary.options.objective)?;
+        let nominal = ArmModel::load(&self.dir.join("nominal.toml"))?;
+        let scales = TrustScales::of(&nominal, &artefact, &cal, &val);
+        let rms = |data: &Dataset| validate::validate(&self.model, &artefact, data).overall.rms_mm;
+        let beyond = scales.beyond(rms(&cal), rms(&val));
+        if !beyond.is_empty() {
+            return Err(RunError::NotACalibration(beyond));
         }
         Ok((artefact, cal, val))
     }
@@ -510,6 +464,33 @@ fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -
     }
 }
 
+/// Every refusal of a RUN's inputs before anything is fitted, shared by `calibrate` (on the
+/// nominal model) and `diagnose` (on the RUN's calibrated model) so both refuse the same data with
+/// the same message: no validation pair, an artefact out of the arm's reach, a validation placement
+/// copied from the calibration data, and whatever [`check_data`] refuses (no free parameter, too
+/// few distance pairs, non-finite positions, touches without information).
+pub fn check_run_data(
+    model: &ArmModel,
+    artefact: &Artefact,
+    cal: &Dataset,
+    val: &Dataset,
+    inputs: &RunInputs,
+    objective: Objective,
+) -> Result<(), RunError> {
+    if val.pair_count() == 0 {
+        return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
+    }
+    let (span, reach) = (artefact.span_mm(), model.reach_mm());
+    if span > 2.0 * reach {
+        return Err(RunError::OutOfReach { span, reach });
+    }
+    if let Some((validation, calibration)) = copied_placement(cal, val) {
+        return Err(RunError::SameData { validation, calibration });
+    }
+    check_data(model, artefact, cal, objective)?;
+    Ok(())
+}
+
 /// Load the inputs, add `effects` to the model, calibrate, validate and diagnose outliers; with
 /// `study_subsets` > 0 also run the dataset-size study with that many random subsets per
 /// placement count.
@@ -534,20 +515,12 @@ pub fn run(
     }
     let artefact = Artefact::load(&inputs.artefact)?;
     let (cal, val) = inputs.load_data(&artefact)?;
-    if val.pair_count() == 0 {
-        return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
-    }
-    let (span, reach) = (artefact.span_mm(), nominal.reach_mm());
-    if span > 2.0 * reach {
-        return Err(RunError::OutOfReach { span, reach });
-    }
-    if let Some((validation, calibration)) = copied_placement(&cal, &val) {
-        return Err(RunError::SameData { validation, calibration });
-    }
+    check_run_data(&nominal, &artefact, &cal, &val, inputs, options.objective)?;
     check_study_size(&cal, study_subsets)?;
     let fit = calibrate(&nominal, &artefact, &cal, options)?;
     let validation = validate(&fit.model, &artefact, &val);
-    let mut not_trustworthy = result_problems(&fit, &validation);
+    let scales = TrustScales::of(&nominal, &artefact, &cal, &val);
+    let mut not_trustworthy = result_problems(&fit, &validation, &scales);
     let study_rows = (study_subsets > 0).then(|| {
         let calibration = CalibrationOptions { restarts: 0, ..*options };
         study(
@@ -647,9 +620,10 @@ mod tests {
         let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
         let fit = calibrate(&nominal, &ours.artefact, &cal, &options).unwrap();
         let val = Dataset::from_sessions(&ours.validation, &ours.artefact);
-        assert!(result_problems(&fit, &validate(&fit.model, &ours.artefact, &val)).is_empty());
+        let scales = TrustScales::of(&nominal, &ours.artefact, &cal, &val);
+        assert!(result_problems(&fit, &validate(&fit.model, &ours.artefact, &val), &scales).is_empty());
         let foreign = Dataset::from_sessions(&other.validation, &ours.artefact);
-        let problems = result_problems(&fit, &validate(&fit.model, &ours.artefact, &foreign));
+        let problems = result_problems(&fit, &validate(&fit.model, &ours.artefact, &foreign), &scales);
         assert!(problems.iter().any(|p| p.contains("another arm")), "{problems:?}");
         assert_eq!(copied_placement(&cal, &val), None);
         assert_eq!(copied_placement(&cal, &cal), Some(("A_O".into(), "A_O".into())));

@@ -16,10 +16,11 @@ use crate::calib::outliers::{landmark_outliers, LandmarkOutlier};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions, StudyRow};
 use crate::calib::trust::{result_problems, TrustScales};
 use crate::calib::validate::{self, validate, ErrorStats, GroupStats, Repeatability, Validation};
-use crate::data::{Artefact, Dataset, Purpose};
+use crate::data::{Artefact, Dataset, Purpose, MAX_ARTEFACT_SPAN_MM};
 use crate::files::FileError;
 use crate::files::{field_error, read_tagged};
 use crate::model::effects::Effect;
+use crate::model::file::MAX_REACH_MM;
 use crate::model::ArmModel;
 use crate::numerics::solver::Residuals;
 use std::path::{Path, PathBuf};
@@ -314,6 +315,100 @@ pub struct StoredResiduals {
     pub pairs: Vec<StoredPairError>,
 }
 
+/// Largest distance figure (an error, an RMS, a bias), mm, a RUN can hold: two tool positions of
+/// the longest arm a model may describe plus the largest artefact. Read back, a larger figure (or
+/// a non-finite one) is a damaged or edited file, refused like an implausible input.
+pub const MAX_STORED_MM: f64 = 2.0 * MAX_REACH_MM + MAX_ARTEFACT_SPAN_MM;
+
+/// `Err((field, what was expected))` when a stored distance figure is not finite or beyond
+/// [`MAX_STORED_MM`] (or negative where it cannot be).
+fn check_mm(field: &str, value: f64, signed: bool) -> Result<(), (String, String)> {
+    let ok = value.is_finite() && value.abs() <= MAX_STORED_MM && (signed || value >= 0.0);
+    if ok {
+        return Ok(());
+    }
+    let range = if signed { format!("±{MAX_STORED_MM}") } else { format!("0 to {MAX_STORED_MM}") };
+    Err((field.to_string(), format!("expected a finite distance figure of {range} mm, found {value}")))
+}
+
+impl ErrorStats {
+    fn check(&self, field: &str) -> Result<(), (String, String)> {
+        check_mm(&format!("{field}.rms_mm"), self.rms_mm, false)?;
+        check_mm(&format!("{field}.mean_mm"), self.mean_mm, true)?;
+        check_mm(&format!("{field}.std_mm"), self.std_mm, false)?;
+        check_mm(&format!("{field}.max_mm"), self.max_mm, false)
+    }
+}
+
+impl Summary {
+    /// Whether every figure read back is plausible (finite, within [`MAX_STORED_MM`] for
+    /// distances): `Err((field, what was expected))` otherwise.
+    pub fn check_figures(&self) -> Result<(), (String, String)> {
+        check_mm("calibration.rms_mm", self.calibration.rms_mm, false)?;
+        if !(self.calibration.cost.is_finite() && self.calibration.cost >= 0.0) {
+            return Err((
+                "calibration.cost".into(),
+                format!("expected a finite non-negative cost, found {}", self.calibration.cost),
+            ));
+        }
+        self.validation.check("validation")?;
+        self.nominal_validation.check("nominal_validation")?;
+        let d = &self.validation_detail;
+        for (name, groups) in [
+            ("per_landmark", &d.per_landmark),
+            ("nominal_per_landmark", &d.nominal_per_landmark),
+            ("per_placement", &d.per_placement),
+            ("nominal_per_placement", &d.nominal_per_placement),
+        ] {
+            for (i, g) in groups.iter().enumerate() {
+                g.stats.check(&format!("validation_detail.{name}[{i}].stats"))?;
+            }
+        }
+        for (i, r) in d.repeatability.iter().enumerate() {
+            check_mm(&format!("validation_detail.repeatability[{i}].rms_mm"), r.rms_mm, false)?;
+            check_mm(&format!("validation_detail.repeatability[{i}].rp_mm"), r.rp_mm, false)?;
+        }
+        for (i, o) in self.outliers.iter().enumerate() {
+            check_mm(&format!("outliers[{i}].bias_mm"), o.bias_mm, true)?;
+        }
+        for (i, e) in self.calibration.estimates.iter().enumerate() {
+            let figures = [e.nominal, e.value].into_iter().chain(e.std);
+            if figures.into_iter().any(|v| !v.is_finite()) {
+                return Err((
+                    format!("calibration.estimates[{i}]"),
+                    format!("{}: expected finite nominal, value and std", e.param),
+                ));
+            }
+        }
+        for (i, row) in self.study.iter().flatten().enumerate() {
+            let figures = [row.mean_mm, row.std_mm, row.min_mm, row.max_mm];
+            for v in figures.into_iter().chain(row.rms_mm.iter().copied()) {
+                check_mm(&format!("study[{i}]"), v, false)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl StoredResiduals {
+    /// Whether every stored pair is plausible: a finite error within [`MAX_STORED_MM`] and raw
+    /// encoder angles in [0, 360) degrees, as the sessions they came from had to hold.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        for (i, p) in self.pairs.iter().enumerate() {
+            check_mm(&format!("pairs[{i}].error_mm"), p.error_mm, true)?;
+            for (side, angles) in [p.enc_deg.0, p.enc_deg.1].iter().enumerate() {
+                if let Some(k) = angles.iter().position(|v| !(v.is_finite() && (0.0..360.0).contains(v))) {
+                    return Err((
+                        format!("pairs[{i}].enc_deg[{side}][{k}]"),
+                        format!("expected a raw encoder angle in [0, 360) degrees, found {}", angles[k]),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A RUN folder read back as types.
 pub struct RunFolder {
     /// The folder.
@@ -326,18 +421,22 @@ pub struct RunFolder {
 
 impl RunFolder {
     /// Read `model.toml` and `summary.json` of a RUN folder; the recorded options are checked
-    /// against the same limits as the command line's, since diagnose refits with them.
+    /// against the same limits as the command line's, since diagnose refits with them, and every
+    /// figure for plausibility ([`Summary::check_figures`]).
     pub fn load(dir: &Path) -> Result<RunFolder, FileError> {
         let model = ArmModel::load(&dir.join("model.toml"))?;
         let path = dir.join("summary.json");
         let summary: Summary = read_tagged(&path, RUN_FORMAT)?;
         summary.options.check().map_err(|(field, message)| field_error(&path, field, message))?;
+        summary.check_figures().map_err(|(field, message)| field_error(&path, field, message))?;
         Ok(RunFolder { dir: dir.to_owned(), model, summary })
     }
 
-    /// Read `residuals.json`.
+    /// Read `residuals.json`, its figures checked as [`StoredResiduals::check`] says.
     pub fn residuals(&self) -> Result<Vec<StoredPairError>, FileError> {
-        let stored: StoredResiduals = read_tagged(&self.dir.join("residuals.json"), RESIDUALS_FORMAT)?;
+        let path = self.dir.join("residuals.json");
+        let stored: StoredResiduals = read_tagged(&path, RESIDUALS_FORMAT)?;
+        stored.check().map_err(|(field, message)| field_error(&path, field, message))?;
         Ok(stored.pairs)
     }
 

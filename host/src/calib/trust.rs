@@ -103,48 +103,78 @@ impl TrustScales {
     /// Why a calibration RMS and a validation RMS (mm) are beyond these scales; empty when
     /// within. Non-finite figures are beyond every scale.
     pub fn beyond(&self, calibration_rms_mm: f64, validation_rms_mm: f64) -> Vec<String> {
-        let mut problems = Vec::new();
-        let artefact = self.artefact_limit_mm();
-        let spread = self.spread_limit_mm();
-        let (span, cause) = (
-            self.span_mm,
-            "a model file of another arm or with a wrong number (a sign, a unit, an offset, joints in \
-             another order), artefact coordinates that are not the pillars touched (units, landmark \
-             ids swapped), or sessions mixed from different setups",
-        );
-        for (what, rms) in [("calibration", calibration_rms_mm), ("validation", validation_rms_mm)] {
-            if !rms.is_finite() {
-                problems.push(format!("the {what} RMS is not a finite number"));
-            } else if rms > artefact {
-                problems.push(format!(
-                    "{what} RMS {rms:.3} mm exceeds {:.0} % of the artefact's largest certified distance \
-                     ({span:.1} mm → {artefact:.3} mm): no calibration measures distances this badly — {cause}",
-                    SPAN_FRACTION * 100.0
-                ));
-            }
-        }
-        let spread_text = match self.repeat_spread_mm {
-            Some(s) => format!("repeated touches scatter by {s:.3} mm RMS through the nominal model"),
-            None => "no landmark was touched twice in one pose in a placement".to_string(),
-        };
-        if calibration_rms_mm.is_finite() && calibration_rms_mm <= artefact && calibration_rms_mm > spread {
-            problems.push(format!(
-                "calibration RMS {calibration_rms_mm:.3} mm is far beyond what the data's repeatability \
-                 allows ({spread:.3} mm; {spread_text}): the model cannot describe these touches — {cause}"
-            ));
-        }
-        let validation_limit = VALIDATION_FACTOR * spread;
-        if validation_rms_mm.is_finite() && validation_rms_mm <= artefact && validation_rms_mm > validation_limit
-        {
-            problems.push(format!(
-                "validation RMS {validation_rms_mm:.3} mm is beyond {validation_limit:.3} mm, \
-                 {VALIDATION_FACTOR}× what the data's repeatability allows ({spread_text}): the model or \
-                 the validation sessions do not describe this arm — {cause}"
-            ));
-        }
+        let mut problems = self.calibration_beyond(calibration_rms_mm);
+        problems.extend(self.validation_beyond(validation_rms_mm));
         problems
     }
+
+    /// Why a calibration RMS (mm) is beyond the artefact's scale or the touches' spread.
+    pub fn calibration_beyond(&self, rms_mm: f64) -> Vec<String> {
+        if let Some(problem) = self.artefact_beyond("calibration", rms_mm) {
+            return vec![problem];
+        }
+        let limit = self.spread_limit_mm();
+        (rms_mm > limit)
+            .then(|| {
+                format!(
+                    "calibration RMS {rms_mm:.3} mm is far beyond what the data's repeatability allows \
+                     ({limit:.3} mm; {}): the model cannot describe these touches — {CAUSE}",
+                    self.spread_text()
+                )
+            })
+            .into_iter()
+            .collect()
+    }
+
+    /// Why a validation RMS (mm) is beyond the artefact's scale or [`VALIDATION_FACTOR`] times
+    /// what the touches' spread allows a calibration.
+    pub fn validation_beyond(&self, rms_mm: f64) -> Vec<String> {
+        if let Some(problem) = self.artefact_beyond("validation", rms_mm) {
+            return vec![problem];
+        }
+        let limit = VALIDATION_FACTOR * self.spread_limit_mm();
+        (rms_mm > limit)
+            .then(|| {
+                format!(
+                    "validation RMS {rms_mm:.3} mm is beyond {limit:.3} mm, {VALIDATION_FACTOR}× what the \
+                     data's repeatability allows a calibration ({}): the model or the validation sessions \
+                     do not describe this arm — {CAUSE}",
+                    self.spread_text()
+                )
+            })
+            .into_iter()
+            .collect()
+    }
+
+    /// Why an RMS (mm) is not finite or beyond the artefact's scale.
+    fn artefact_beyond(&self, what: &str, rms_mm: f64) -> Option<String> {
+        let limit = self.artefact_limit_mm();
+        if !rms_mm.is_finite() {
+            Some(format!("the {what} RMS is not a finite number"))
+        } else if rms_mm > limit {
+            Some(format!(
+                "{what} RMS {rms_mm:.3} mm exceeds {:.0} % of the artefact's largest certified distance \
+                 ({:.1} mm → {limit:.3} mm): no calibration measures distances this badly — {CAUSE}",
+                SPAN_FRACTION * 100.0,
+                self.span_mm
+            ))
+        } else {
+            None
+        }
+    }
+
+    fn spread_text(&self) -> String {
+        match self.repeat_spread_mm {
+            Some(s) => format!("repeated touches scatter by {s:.3} mm RMS through the nominal model"),
+            None => "no landmark was touched twice in one pose in a placement".to_string(),
+        }
+    }
 }
+
+/// The likely causes of figures beyond the scales.
+const CAUSE: &str = "a model file of another arm or with a wrong number (a sign, a unit, an offset, joints \
+                     in another order), artefact coordinates that are not the pillars touched (units, \
+                     landmark ids swapped), or sessions mixed from different setups";
 
 /// Why the figures of a finished calibration cannot be taken as a result: a non-finite figure,
 /// figures beyond the model-independent `scales`, a fit that did not move from its start, a

@@ -348,14 +348,16 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     }
     let total: usize = rows.iter().map(|r| r.calibrations + r.failed).sum();
     println!("{total} calibrations in {elapsed:.2} s on {} threads", rayon::current_num_threads());
-    println!("placements  calibrations  mean mm   std mm    min mm    max mm");
+    println!("placements  distinct subsets  calibrations  mean mm   std mm    min mm    max mm");
     for r in &rows {
+        let drawn = r.calibrations + r.failed + r.implausible;
+        let subsets = format!("{drawn} of {}", possible(r.possible_subsets));
         if r.calibrations == 0 {
-            println!("{:>10}  {:>12}  no calibration succeeded ({} failed)", r.placements, 0, r.failed);
+            println!("{:>10}  {subsets:>16}  {:>12}  no calibration succeeded ({} failed)", r.placements, 0, r.failed);
             continue;
         }
         println!(
-            "{:>10}  {:>12}  {:7.3}  {:7.3}  {:7.3}  {:7.3}",
+            "{:>10}  {subsets:>16}  {:>12}  {:7.3}  {:7.3}  {:7.3}  {:7.3}",
             r.placements, r.calibrations, r.mean_mm, r.std_mm, r.min_mm, r.max_mm
         );
     }
@@ -363,12 +365,21 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     Ok(())
 }
 
+/// A subset count for people: C(N, k) saturates at `usize::MAX`.
+fn possible(count: usize) -> String {
+    if count == usize::MAX {
+        "more than 10^19".into()
+    } else {
+        count.to_string()
+    }
+}
+
 pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
     let folder = RunFolder::load(&a.run)?;
+    let (artefact, cal, val) = folder.data()?;
     for problem in &folder.summary.not_trustworthy {
         eprintln!("warning: this run is marked not trustworthy: {problem}");
     }
-    let (artefact, cal, val) = folder.data()?;
     if a.auto {
         return cmd_diagnose_auto(a, &folder, &artefact, &cal, &val);
     }

@@ -282,7 +282,8 @@ pub fn calibrate(
     data: &Dataset,
     options: &CalibrationOptions,
 ) -> Result<Calibration, CalibrationError> {
-    let Checked { full, all, all_ranges, jac } = check_calibration_data(nominal, artefact, data, options.objective)?;
+    let Checked { full, all, all_ranges, jac } =
+        check_calibration_data(nominal, artefact, data, options.objective)?;
     let range_of =
         |id: ParamId| nominal.free.iter().find(|f| f.id == id).map_or(1.0, |f| (f.upper - f.lower).max(1e-9));
     let before = identify::analyse(&jac, &all, &all_ranges);

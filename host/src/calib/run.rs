@@ -328,7 +328,8 @@ fn check_mm(field: &str, value: f64, signed: bool) -> Result<(), (String, String
         return Ok(());
     }
     let range = if signed { format!("±{MAX_STORED_MM}") } else { format!("0 to {MAX_STORED_MM}") };
-    Err((field.to_string(), format!("expected a finite distance figure of {range} mm, found {value}")))
+    let found = if value.abs() < 1e6 { format!("{value}") } else { format!("{value:e}") };
+    Err((field.to_string(), format!("expected a finite distance figure of {range} mm, found {found}")))
 }
 
 impl ErrorStats {

@@ -296,7 +296,10 @@ mod tests {
         wrong.set(crate::model::ParamId::Length(4), -371.0);
         wrong.free_param(crate::model::ParamId::Length(4), -381.0, -361.0);
         let rows = study(&wrong, &sim.artefact, &cal, &val, &options);
-        assert!(rows.iter().all(|r| r.calibrations == 0 && r.rms_mm.is_empty()), "no figure of an absurd model");
+        assert!(
+            rows.iter().all(|r| r.calibrations == 0 && r.rms_mm.is_empty()),
+            "no figure of an absurd model"
+        );
         let problems = study_problems(&rows);
         assert!(problems.iter().any(|p| p.contains("model-independent scales")), "{problems:?}");
     }

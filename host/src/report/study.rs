@@ -29,7 +29,10 @@ pub fn study_body(rows: &[StudyRow]) -> String {
     format!(
         "<p>Validation RMS of calibrations on distinct random subsets of the calibration placements \
          (every subset once when there are no more than asked for).</p>{}{}",
-        table(&["placements", "distinct subsets", "calibrations", "mean mm", "std mm", "min mm", "max mm"], &cells),
+        table(
+            &["placements", "distinct subsets", "calibrations", "mean mm", "std mm", "min mm", "max mm"],
+            &cells
+        ),
         svg::boxplot(&groups, "validation RMS (mm)")
     )
 }

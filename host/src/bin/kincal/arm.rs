@@ -353,7 +353,10 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
         let drawn = r.calibrations + r.failed + r.implausible;
         let subsets = format!("{drawn} of {}", possible(r.possible_subsets));
         if r.calibrations == 0 {
-            println!("{:>10}  {subsets:>16}  {:>12}  no calibration succeeded ({} failed)", r.placements, 0, r.failed);
+            println!(
+                "{:>10}  {subsets:>16}  {:>12}  no calibration succeeded ({} failed)",
+                r.placements, 0, r.failed
+            );
             continue;
         }
         println!(

@@ -205,6 +205,16 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     let started = std::time::Instant::now();
     let uploaded = match link.upload(&blob) {
         Ok(u) => u,
+        Err(
+            e @ kincal::controller::link::LinkError::CommitUnconfirmed {
+                after: kincal::controller::link::AfterFailure::Unknown,
+                ..
+            },
+        ) => {
+            // Committed or not, nobody knows: neither success (0) nor "not committed" (1).
+            eprintln!("error: upload failed: {e}");
+            std::process::exit(UPLOAD_UNKNOWN);
+        }
         Err(e @ kincal::controller::link::LinkError::CommitUnconfirmed { .. }) => bail!("upload failed: {e}"),
         Err(e) => {
             bail!("upload failed: {e}. Nothing was committed: the controller keeps {before}; run the upload again")
@@ -215,14 +225,32 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
             "the first commit request went unanswered; asked again, the controller confirms the new set"
         );
     }
-    let now = link.held_params()?;
-    println!(
-        "uploaded {} bytes in {:.2} s; the controller now holds {now}, previously {before}",
-        blob.len(),
-        started.elapsed().as_secs_f64()
-    );
+    let elapsed = started.elapsed().as_secs_f64();
+    // The commit is confirmed: what follows only reports, and its failure changes nothing stored.
+    match link.held_params() {
+        Ok(now) => println!(
+            "uploaded {} bytes in {elapsed:.2} s; the controller now holds {now}, previously {before}",
+            blob.len()
+        ),
+        Err(e) => {
+            println!(
+                "uploaded {} bytes in {elapsed:.2} s; the controller confirmed the commit of parameters \
+                 version {}, previously {before}",
+                blob.len(),
+                a.version
+            );
+            eprintln!(
+                "warning: the commit was confirmed, but reading back what the controller holds failed \
+                 ({e}); check with `kincal info`"
+            );
+        }
+    }
     Ok(())
 }
+
+/// Exit status of `kincal upload` when the commit was sent, its answer lost, and the controller
+/// could not be asked what it holds: the new set may or may not be stored (0: committed, 1: not).
+pub const UPLOAD_UNKNOWN: i32 = 3;
 
 pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
     use kincal_protocol::messages::{Stream, StreamPose, StreamRaw};

@@ -473,3 +473,86 @@ fn lost_answers_are_repeated_without_doing_anything_twice() {
     assert!(link.upload(&blob).unwrap().commit_reply_lost);
     assert_eq!(link.info().unwrap().param_version, 7);
 }
+
+/// A TCP proxy in front of the controller at `upstream` that forwards every frame and cuts the
+/// link at the answer to the first `ParamCommit`: right after passing it to the host
+/// (`pass_answer`), or instead of passing it. Frames are read with the protocol crate's decoder.
+fn cut_at_commit_answer(upstream: &str, pass_answer: bool) -> String {
+    use kincal_protocol::framing::Decoder;
+    use kincal_protocol::messages::{DeviceFrame, HostFrame, Request};
+    use std::io::{Read, Write};
+    use std::net::{Shutdown, TcpListener, TcpStream};
+    use std::sync::{Arc, Mutex};
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = format!("tcp:{}", listener.local_addr().unwrap());
+    let upstream = upstream.strip_prefix("tcp:").unwrap().to_string();
+    std::thread::spawn(move || {
+        let Ok((host, _)) = listener.accept() else { return };
+        let device = TcpStream::connect(&upstream).unwrap();
+        let commit: Arc<Mutex<Option<u16>>> = Arc::default();
+        let (mut from_host, mut to_device, seen) =
+            (host.try_clone().unwrap(), device.try_clone().unwrap(), commit.clone());
+        std::thread::spawn(move || {
+            let (mut decoder, mut buf) = (Decoder::new(), [0u8; 512]);
+            while let Ok(n @ 1..) = from_host.read(&mut buf) {
+                for &b in &buf[..n] {
+                    if let Some(Ok(HostFrame { seq, request: Request::ParamCommit(_) })) = decoder.push(b) {
+                        seen.lock().unwrap().get_or_insert(seq);
+                    }
+                }
+                if to_device.write_all(&buf[..n]).is_err() {
+                    break;
+                }
+            }
+        });
+        let (mut from_device, mut to_host) = (device.try_clone().unwrap(), host.try_clone().unwrap());
+        let (mut decoder, mut frame, mut buf) = (Decoder::new(), Vec::new(), [0u8; 512]);
+        while let Ok(n @ 1..) = from_device.read(&mut buf) {
+            for &b in &buf[..n] {
+                frame.push(b);
+                let Some(decoded) = decoder.push::<DeviceFrame>(b) else { continue };
+                let answers_commit = matches!(decoded, Ok(DeviceFrame::Response { seq, .. }) if Some(seq) == *commit.lock().unwrap());
+                if answers_commit {
+                    if pass_answer {
+                        let _ = to_host.write_all(&frame);
+                    }
+                    let _ = host.shutdown(Shutdown::Both);
+                    let _ = device.shutdown(Shutdown::Both);
+                    return;
+                }
+                if to_host.write_all(&frame).is_err() {
+                    return;
+                }
+                frame.clear();
+            }
+        }
+    });
+    port
+}
+
+#[test]
+fn a_confirmed_commit_is_success_even_when_the_link_is_cut_right_after_it() {
+    let fake = FakeController::start(1);
+    let dir = scratch("cut");
+    let model = dir.join("model.toml");
+    kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
+    let model = model.to_str().unwrap();
+    let (code, _, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "75"]);
+    assert_eq!(code, Some(0), "{err}");
+    // The commit's Ack reaches the host, then the link is cut: the follow-up read-back fails.
+    let proxy = cut_at_commit_answer(&fake.port, true);
+    let (code, out, err) = kincal(&["upload", "--port", &proxy, model, "--version", "76"]);
+    assert_eq!(code, Some(0), "committed is exit 0: {err}");
+    assert!(out.contains("confirmed the commit of parameters version 76"), "{out}");
+    assert!(err.contains("warning") && err.contains("reading back") && err.contains("kincal info"), "{err}");
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    assert_eq!(link.info().unwrap().param_version, 76, "what the exit status says is stored");
+    drop(link);
+    // The commit's answer never arrives and the controller cannot be asked: neither 0 nor 1.
+    let proxy = cut_at_commit_answer(&fake.port, false);
+    let (code, out, err) = kincal(&["upload", "--port", &proxy, model, "--version", "77"]);
+    assert_eq!(code, Some(3), "unknown outcome: {out} {err}");
+    assert!(err.contains("could not be asked") && !out.contains("uploaded"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

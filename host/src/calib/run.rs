@@ -191,6 +191,10 @@ pub struct Summary {
     pub validation_detail: ValidationDetail,
     /// Appendix-F outlier metrics per landmark (calibration data).
     pub outliers: Vec<LandmarkOutlier>,
+    /// The outlier metrics were not computed (`--no-outliers`): `outliers` is empty because
+    /// nothing was looked at, not because nothing was found.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub outliers_skipped: bool,
     /// What relative orientation adds to distances.
     pub objective_comparison: ObjectiveComparison,
     /// Dataset-size study, when asked for (`--study-subsets`).
@@ -522,6 +526,8 @@ pub struct Run {
     pub artefact: Artefact,
     /// Validation touches, for plots.
     pub validation_data: Dataset,
+    /// How long each step took.
+    pub steps: StepTimes,
 }
 
 fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -> ObjectiveComparison {
@@ -591,14 +597,16 @@ pub fn check_run_data(
     Ok(())
 }
 
-/// Load the inputs, add `effects` to the model, calibrate, validate and diagnose outliers; with
-/// `study_subsets` > 0 also run the dataset-size study with that many random subsets per
+/// Load the inputs, add `effects` to the model, calibrate, validate and (with `outliers`) compute
+/// the per-landmark outlier metrics, whose leave-one-out refits are about a third of the work;
+/// with `study_subsets` > 0 also run the dataset-size study with that many random subsets per
 /// placement count.
 pub fn run(
     inputs: &RunInputs,
     options: &CalibrationOptions,
     effects: &[Effect],
     study_subsets: usize,
+    outliers: bool,
 ) -> Result<Run, RunError> {
     let absolute =
         |p: &Path| std::fs::canonicalize(p).map_err(|source| RunError::Input { path: p.to_owned(), source });
@@ -609,18 +617,25 @@ pub fn run(
         validation: absolute(&inputs.validation)?,
         ..inputs.clone()
     };
+    let mut steps = StepTimes::start();
     let mut nominal = ArmModel::load(&inputs.model)?;
     for effect in effects {
         effect.add_to(&mut nominal);
     }
     let artefact = Artefact::load(&inputs.artefact)?;
     let (cal, val) = inputs.load_data(&artefact)?;
+    steps.lap("load");
     check_run_data(&nominal, &artefact, &cal, &val, inputs, options.objective)?;
     check_study_size(&cal, study_subsets)?;
+    steps.lap("input checks");
     let fit = calibrate(&nominal, &artefact, &cal, options)?;
+    steps.lap("fit");
     let validation = validate(&fit.model, &artefact, &val);
+    let nominal_validation = validate(&nominal, &artefact, &val);
+    steps.lap("validation");
     let scales = TrustScales::of(&nominal, &artefact, &cal, &val);
     let mut not_trustworthy = result_problems(&fit, &validation, &scales);
+    steps.lap("trust scales");
     let study_rows = (study_subsets > 0).then(|| {
         let calibration = CalibrationOptions { restarts: 0, ..*options };
         study(
@@ -633,9 +648,14 @@ pub fn run(
     });
     if let Some(rows) = &study_rows {
         not_trustworthy.extend(study_problems(rows).into_iter().map(|p| format!("study: {p}")));
+        steps.lap("study");
     }
-    let nominal_validation = validate(&nominal, &artefact, &val);
-    let outliers = landmark_outliers(&fit, &artefact, &cal, Some(&val), options);
+    let outliers_skipped = !outliers;
+    let outliers =
+        if outliers { landmark_outliers(&fit, &artefact, &cal, Some(&val), options) } else { Vec::new() };
+    steps.lap("outliers");
+    let objective_comparison = objective_comparison(&fit, &artefact, &cal);
+    steps.lap("6-DoF comparison");
     let summary = Summary {
         format: RUN_FORMAT.to_string(),
         kincal_version: env!("CARGO_PKG_VERSION").to_string(),
@@ -667,8 +687,9 @@ pub fn run(
             nominal_per_placement: nominal_validation.per_placement.clone(),
             repeatability: validation.repeatability.clone(),
         },
+        outliers_skipped,
         outliers,
-        objective_comparison: objective_comparison(&fit, &artefact, &cal),
+        objective_comparison,
         study: study_rows,
         not_trustworthy,
     };
@@ -680,7 +701,30 @@ pub fn run(
         nominal_validation,
         artefact,
         validation_data: val,
+        steps,
     })
+}
+
+/// Wall time of each step of a run, in order, for `kincal bench`'s breakdown.
+#[derive(Clone, Debug)]
+pub struct StepTimes {
+    last: std::time::Instant,
+    /// (step, milliseconds).
+    pub ms: Vec<(&'static str, f64)>,
+}
+
+impl StepTimes {
+    /// Start timing.
+    pub fn start() -> StepTimes {
+        StepTimes { last: std::time::Instant::now(), ms: Vec::new() }
+    }
+
+    /// The step `name` ended now.
+    pub fn lap(&mut self, name: &'static str) {
+        let now = std::time::Instant::now();
+        self.ms.push((name, (now - self.last).as_secs_f64() * 1e3));
+        self.last = now;
+    }
 }
 
 impl Run {

@@ -469,6 +469,7 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
         &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() },
         &[],
         20,
+        true,
         false,
     )?;
     let truth = ArmModel::load(&data.join("truth.toml"))?;

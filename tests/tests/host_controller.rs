@@ -556,3 +556,55 @@ fn a_confirmed_commit_is_success_even_when_the_link_is_cut_right_after_it() {
     assert!(err.contains("could not be asked") && !out.contains("uploaded"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_touch_with_the_angles_of_another_landmark_is_warned_about_at_the_touch() {
+    let fake = FakeController::start(2);
+    let dir = scratch("same-pose");
+    let (artefact, artefact_path) = artefact_file(&dir);
+    // Landmarks 0 and 1 at one pose (the arm not moved), the third elsewhere.
+    let pose = |k: usize| {
+        if k < 2 {
+            [1000, 2000, 3000, 4000, 5000, 6000]
+        } else {
+            [9000, 2000, 3000, 4000, 5000, 6000]
+        }
+    };
+    let steps: Vec<serde_json::Value> = artefact.landmarks[..3]
+        .iter()
+        .enumerate()
+        .map(|(k, l)| serde_json::json!({"landmark": l.id, "repeat": 1, "pose_counts": pose(k)}))
+        .collect();
+    let script = dir.join("script.json");
+    std::fs::write(&script, serde_json::json!({ "steps": steps }).to_string()).unwrap();
+    let order = artefact.landmarks[..3].iter().map(|l| l.id.as_str()).collect::<Vec<_>>().join(",");
+    let out = dir.join("sessions");
+    let (code, _, err) = kincal(&[
+        "record",
+        "--port",
+        &fake.port,
+        "--artefact",
+        artefact_path.to_str().unwrap(),
+        "--placement",
+        "C_A",
+        "--out",
+        out.to_str().unwrap(),
+        "--order",
+        &order,
+        "--repeats",
+        "1",
+        "--window-ticks",
+        "96",
+        "--script",
+        script.to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(0), "{err}");
+    let (first, second, third) =
+        (&artefact.landmarks[0].id, &artefact.landmarks[1].id, &artefact.landmarks[2].id);
+    let warning = format!("warning: {second} has the same six angles as {first} (repeat 1)");
+    assert!(err.contains(&warning), "{err}");
+    assert_eq!(err.matches("same six angles").count(), 1, "only the touch that repeats a pose: {err}");
+    assert!(!err.contains(&format!("warning: {third}")), "{err}");
+    assert_eq!(measured(&out.join("C_A.json"), &artefact).len(), 3, "a script stores what it measured");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -431,7 +431,7 @@ pub fn cmd_record(a: &RecordArgs) -> Result<()> {
     };
     let mut link = connect(&a.port)?;
     let mut script;
-    let mut operator = kincal::controller::record::Operator;
+    let mut operator = kincal::controller::record::Operator::default();
     let guide: &mut dyn kincal::controller::record::Guide = match &a.script {
         Some(path) => {
             script = kincal::controller::record::Script::load(path)?;

@@ -309,7 +309,9 @@ fn sync_files(dir: &Path) -> Result<(), OutputError> {
         .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
         .map(|e| e.path())
         .collect();
-    files.par_iter().try_for_each(|path| std::fs::File::open(path).and_then(|f| f.sync_all()).map_err(io(path)))
+    files
+        .par_iter()
+        .try_for_each(|path| std::fs::File::open(path).and_then(|f| f.sync_all()).map_err(io(path)))
 }
 
 /// JSON of a value that serialises by construction (plain structs of numbers and strings).

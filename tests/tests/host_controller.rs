@@ -48,27 +48,12 @@ fn a_killed_record_resumes_without_losing_or_repeating_landmarks() {
     let script = script(&dir, &artefact);
     let out = dir.join("sessions");
     let session = out.join("C_A.json");
-    let args = |window: &str| -> Vec<String> {
-        [
-            "record",
-            "--port",
-            &fake.port,
-            "--artefact",
-            artefact_path.to_str().unwrap(),
-            "--placement",
-            "C_A",
-            "--out",
-            out.to_str().unwrap(),
-            "--repeats",
-            "1",
-            "--window-ticks",
-            window,
-            "--script",
-            script.to_str().unwrap(),
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect()
+    let (artefact_arg, out_arg, script_arg) =
+        (artefact_path.to_str().unwrap(), out.to_str().unwrap(), script.to_str().unwrap());
+    let args = |window: &'static str| {
+        let mut args = record_args(&fake.port, artefact_arg, out_arg, window);
+        args.extend(["--script", script_arg]);
+        args
     };
     // Kill the recorder once a few landmarks are on disk.
     let mut child = Command::new(kincal_bin()).args(args("384")).spawn().unwrap();
@@ -249,15 +234,19 @@ fn kincal(args: &[&str]) -> (Option<i32>, String, String) {
     )
 }
 
-#[test]
-fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
-    let fake = FakeController::start(1);
-    let dir = scratch("commit");
-    let key_file = kincal_e2e::station_key_file(&dir);
-    let key = key_file.to_str().unwrap();
+/// A fake controller, a scratch folder `name`, a station key file and the nominal model file.
+fn upload_fixture(name: &str) -> (FakeController, PathBuf, String, String) {
+    let dir = scratch(name);
+    let key = kincal_e2e::station_key_file(&dir).to_str().unwrap().to_string();
     let model = dir.join("model.toml");
     kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
-    let model = model.to_str().unwrap();
+    (FakeController::start(1), dir.clone(), key, model.to_str().unwrap().to_string())
+}
+
+#[test]
+fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
+    let (fake, dir, key, model) = upload_fixture("commit");
+    let (key, model) = (key.as_str(), model.as_str());
     let (code, out, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "10"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(out.contains("now holds parameters version 10"), "{out}");
@@ -561,13 +550,8 @@ fn cut_at_commit_answer(upstream: &str, pass_answer: bool) -> String {
 
 #[test]
 fn a_confirmed_commit_is_success_even_when_the_link_is_cut_right_after_it() {
-    let fake = FakeController::start(1);
-    let dir = scratch("cut");
-    let key_file = kincal_e2e::station_key_file(&dir);
-    let key = key_file.to_str().unwrap();
-    let model = dir.join("model.toml");
-    kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
-    let model = model.to_str().unwrap();
+    let (fake, dir, key, model) = upload_fixture("cut");
+    let (key, model) = (key.as_str(), model.as_str());
     let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "75"]);
     assert_eq!(code, Some(0), "{err}");
     // The commit's Ack reaches the host, then the link is cut: the follow-up read-back fails.
@@ -610,25 +594,9 @@ fn a_touch_with_the_angles_of_another_landmark_is_warned_about_at_the_touch() {
     std::fs::write(&script, serde_json::json!({ "steps": steps }).to_string()).unwrap();
     let order = artefact.landmarks[..3].iter().map(|l| l.id.as_str()).collect::<Vec<_>>().join(",");
     let out = dir.join("sessions");
-    let (code, _, err) = kincal(&[
-        "record",
-        "--port",
-        &fake.port,
-        "--artefact",
-        artefact_path.to_str().unwrap(),
-        "--placement",
-        "C_A",
-        "--out",
-        out.to_str().unwrap(),
-        "--order",
-        &order,
-        "--repeats",
-        "1",
-        "--window-ticks",
-        "96",
-        "--script",
-        script.to_str().unwrap(),
-    ]);
+    let mut args = record_args(&fake.port, artefact_path.to_str().unwrap(), out.to_str().unwrap(), "96");
+    args.extend(["--script", script.to_str().unwrap(), "--order", &order]);
+    let (code, _, err) = kincal(&args);
     assert_eq!(code, Some(0), "{err}");
     let (first, second, third) =
         (&artefact.landmarks[0].id, &artefact.landmarks[1].id, &artefact.landmarks[2].id);

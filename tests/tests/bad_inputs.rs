@@ -1203,10 +1203,13 @@ fn entry(name: &'static str, make: fn(&Path)) -> Setup {
     Box::new(move |d: &Path| make(&d.join("data/cal").join(name)))
 }
 
+/// (case, entry name, how the entry is made, what the error must say).
+type EntryCase = (&'static str, &'static str, fn(&Path), &'static [&'static str]);
+
 /// Session-folder entries that are not regular files (issue 21, item 1): named and refused by
 /// every command that reads the folder, never skipped.
 fn entry_cases(cases: &mut Vec<Case>) {
-    let list: [(&str, &str, fn(&Path), &[&str]); 5] = [
+    let list: [EntryCase; 5] = [
         (
             "dangling symlink",
             "x.json",

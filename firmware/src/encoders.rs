@@ -33,6 +33,9 @@ pub struct Sampler {
     /// Ticks since each joint's last accepted frame (`u16::MAX`: never; else saturating one
     /// below).
     age_ticks: [u16; JOINTS],
+    /// The last count rejected as a jump, per joint: a next frame within one tick's reach of
+    /// it confirms the encoder is really there (the joint turned while it was not read).
+    jumped_to: [Option<u32>; JOINTS],
     /// Counters since boot.
     pub health: [EncoderHealth; JOINTS],
     /// Ticks whose read started more than one period late since boot (set by the sampling task).
@@ -44,6 +47,7 @@ impl Default for Sampler {
         Sampler {
             last: [0; JOINTS],
             age_ticks: [u16::MAX; JOINTS],
+            jumped_to: [None; JOINTS],
             health: Default::default(),
             late_ticks: 0,
         }
@@ -59,6 +63,13 @@ fn plausible(from: u32, to: u32, ticks: u16) -> bool {
 }
 
 impl Sampler {
+    /// The arm was moved without the encoders being read (the emulated arm's pose was set):
+    /// the next frames are taken without the jump check, as after boot.
+    pub fn forget_positions(&mut self) {
+        self.age_ticks = [u16::MAX; JOINTS];
+        self.jumped_to = [None; JOINTS];
+    }
+
     /// Count and keep one tick's readings ([`crate::biss_master::BissMaster::read_all`]).
     pub fn record(&mut self, readings: &[Result<Reading, ReadError>; JOINTS]) -> Sample {
         let mut rejected = 0u8;
@@ -67,8 +78,15 @@ impl Sampler {
             // A joint never read has nothing to compare with: its first good frame is taken.
             let never = self.age_ticks[j] == u16::MAX;
             let since_last = if never { u16::MAX } else { (self.age_ticks[j] + 1).min(u16::MAX - 1) };
+            let confirms =
+                |to: Option<u32>, r: &Reading| to.is_some_and(|c| plausible(c, r.position_counts, 1));
             let accepted = match reading {
-                Ok(r) if !never && !plausible(self.last[j], r.position_counts, since_last) => {
+                Ok(r)
+                    if !never
+                        && !plausible(self.last[j], r.position_counts, since_last)
+                        && !confirms(self.jumped_to[j], r) =>
+                {
+                    self.jumped_to[j] = Some(r.position_counts);
                     h.jumps += 1;
                     false
                 }
@@ -97,6 +115,7 @@ impl Sampler {
             };
             if accepted {
                 self.age_ticks[j] = 0;
+                self.jumped_to[j] = None;
             } else {
                 rejected |= 1 << j;
                 self.age_ticks[j] = since_last;
@@ -161,7 +180,8 @@ mod tests {
     }
 
     /// A count farther from the last good one than the arm can turn is rejected and counted;
-    /// after a gap of several ticks the allowance grows with the time since the last good one.
+    /// after a gap of several ticks the allowance grows with the time since the last good one;
+    /// a second frame that agrees with a jumped one confirms it (the joint turned unseen).
     #[test]
     fn a_jump_beyond_the_arms_speed_is_rejected() {
         let mut s = Sampler::default();
@@ -172,10 +192,19 @@ mod tests {
         let last = (4_194_000 + MAX_JUMP_COUNTS_PER_TICK) % COUNTS_PER_TURN;
         let far = s.record(&at(last + MAX_JUMP_COUNTS_PER_TICK + 1));
         assert_eq!((far.rejected, far.counts[0], s.health[0].jumps), (1, last, 1));
-        // Two ticks since the last good count now: twice the reach.
-        assert_eq!(s.record(&at(last + 2 * MAX_JUMP_COUNTS_PER_TICK + 1)).rejected, 1);
-        assert_eq!(s.record(&at(last + 3 * MAX_JUMP_COUNTS_PER_TICK)).rejected, 0);
+        // Two ticks since the last good count now: twice the reach (the other way round, so
+        // not confirming the first jump).
+        let back = |n: u32| (last + COUNTS_PER_TURN - n) % COUNTS_PER_TURN;
+        assert_eq!(s.record(&at(back(2 * MAX_JUMP_COUNTS_PER_TICK + 1))).rejected, 1);
+        assert_eq!(s.record(&at(back(3 * MAX_JUMP_COUNTS_PER_TICK))).rejected, 0);
         assert_eq!(s.health[0].jumps, 2);
+        let now = back(3 * MAX_JUMP_COUNTS_PER_TICK);
+        assert_eq!(s.record(&at(now + 1_000_000)).rejected, 1);
+        assert_eq!(s.record(&at(now + 1_000_000 + 3 * MAX_JUMP_COUNTS_PER_TICK)).rejected, 1, "not in reach");
+        let confirmed = s.record(&at(now + 1_000_000 + 3 * MAX_JUMP_COUNTS_PER_TICK + 100));
+        assert_eq!((confirmed.rejected, s.health[0].jumps), (0, 4), "confirmed by a second frame");
+        s.forget_positions();
+        assert_eq!(s.record(&at(7)).rejected, 0, "the arm was moved: no jump check");
     }
 
     /// Random 64-bit reads (seeded), each after a good tick: none is taken as a position. The

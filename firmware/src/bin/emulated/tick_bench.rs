@@ -12,16 +12,17 @@ use core::convert::Infallible;
 use cortex_m_semihosting::{debug, hprintln};
 use embedded_hal_async::spi::{ErrorType, Operation, SpiDevice};
 use kincal_firmware::app::{FrameSender, TO_HOST};
-use kincal_firmware::biss_master::{BissMaster, REAL_BOARD_MA_HZ, TRANSFER_BITS, TRANSFER_BYTES};
+use kincal_firmware::biss_master::{BissMaster, REAL_BOARD_MA_HZ, TRANSFER_BYTES};
 use kincal_firmware::controller::Controller;
 use kincal_firmware::emulated_encoders::EmulatedEncoders;
 use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
 use kincal_firmware::kinematics::Kinematics;
+use kincal_protocol::biss::TRANSFER_BITS;
 use kincal_protocol::messages::{
-    pack_counts, DeviceFrame, Hello, HostFrame, ParamBegin, ParamChunk, ParamCommit, PoseReport, RawSample,
-    Request, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, JOINTS, PROTOCOL_VERSION,
-    SCHEMA_HASH, TICK_HZ,
+    pack_counts, Crash, DeviceFrame, Hello, HostFrame, ParamBegin, ParamChunk, ParamCommit, PoseReport,
+    RawSample, Request, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, ALL_JOINTS,
+    JOINTS, PROTOCOL_VERSION, SCHEMA_HASH, TICK_HZ,
 };
 use kincal_protocol::params::{encode_blob, ArmParams, JointParams, BLOB_CRC, MAX_PARAM_BLOB};
 
@@ -109,6 +110,8 @@ pub fn run() -> ! {
         dropouts_per_10k: 0,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: Crash::None,
     }));
     // Frames go the app's way into TO_HOST, and leave it as the UART task takes them.
     let mut sender = FrameSender::new();
@@ -167,6 +170,9 @@ pub fn run() -> ! {
         seq: 1,
         item: Stream::Pose(PoseReport {
             tick: 1,
+            valid: true,
+            fresh: ALL_JOINTS,
+            stale_ticks: 0,
             position_mm: [812.5, -40.25, 301.0],
             z_axis: [0.0, 0.6, 0.8],
             x_axis: [1.0, 0.0, 0.0],

@@ -74,9 +74,50 @@ pub fn stm32_cause(flags: Stm32ResetFlags, recorded: Option<ResetCause>) -> Rese
     }
 }
 
-/// The cause on a board without reset flags (the emulated one): as recorded, else power-on.
-pub fn recorded_cause(word: u32) -> ResetCause {
-    from_note(word).unwrap_or(ResetCause::PowerOn)
+/// The reset-cause word of the boards: in `.uninit` RAM, which cortex-m-rt's start-up does not
+/// zero and a system reset (or QEMU's) keeps.
+#[cfg(any(feature = "board-mps2", feature = "board-stm32"))]
+mod word {
+    use core::mem::MaybeUninit;
+
+    #[unsafe(link_section = ".uninit.KINCAL_RESET_CAUSE")]
+    static mut RESET_CAUSE_WORD: MaybeUninit<u32> = MaybeUninit::uninit();
+
+    /// The word as it is.
+    pub fn read() -> u32 {
+        // SAFETY: a 4-byte aligned word of RAM owned by this module; any bit pattern is a valid
+        // u32 (uninitialised RAM reads as whatever it holds). A single word load cannot tear.
+        unsafe { core::ptr::read_volatile(core::ptr::addr_of!(RESET_CAUSE_WORD).cast::<u32>()) }
+    }
+
+    /// Overwrite the word.
+    pub fn write(value: u32) {
+        // SAFETY: as in `read`; a single aligned word store cannot tear, and whoever interrupts
+        // a store only writes the same word before resetting.
+        unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(RESET_CAUSE_WORD).cast::<u32>(), value) }
+    }
+}
+
+/// What the word recorded for this start (`None`: nothing, e.g. after power-on), leaving
+/// [`ResetCause::Unknown`] recorded for the next one.
+#[cfg(any(feature = "board-mps2", feature = "board-stm32"))]
+pub fn take_recorded() -> Option<ResetCause> {
+    let recorded = from_note(word::read());
+    record(ResetCause::Unknown);
+    recorded
+}
+
+/// Record `cause` for the next start.
+#[cfg(any(feature = "board-mps2", feature = "board-stm32"))]
+pub fn record(cause: ResetCause) {
+    word::write(note(cause));
+}
+
+/// Record `cause` and reset the controller.
+#[cfg(any(feature = "board-mps2", feature = "board-stm32"))]
+pub fn reset_because(cause: ResetCause) -> ! {
+    record(cause);
+    cortex_m::peripheral::SCB::sys_reset()
 }
 
 #[cfg(test)]
@@ -91,8 +132,6 @@ mod tests {
         for word in [0, u32::MAX, 0xDEAD_BEEF, TAG | 8, note(ResetCause::Panic) ^ 0x100] {
             assert_eq!(from_note(word), None, "{word:08x}");
         }
-        assert_eq!(recorded_cause(0), ResetCause::PowerOn);
-        assert_eq!(recorded_cause(note(ResetCause::Watchdog)), ResetCause::Watchdog);
     }
 
     #[test]

@@ -31,6 +31,7 @@ use kincal_firmware::controller::Action;
 #[cfg(not(feature = "tick-bench"))]
 use kincal_firmware::controller::Controller;
 use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, SharedEncoders};
+use kincal_firmware::reset_cause;
 use kincal_protocol::messages::{Crash, Request, ResetCause, SimFaults};
 use nor::EmulatedNor;
 use static_cell::StaticCell;
@@ -56,7 +57,7 @@ async fn serve_host(shared: &'static SharedCell<EmulatedNor>) -> ! {
                 panic!("panic injected by the host (emulated-arm faults --crash panic)");
             }
         }
-        Action::Reset => watchdog::reset_because(ResetCause::Software),
+        Action::Reset => reset_cause::reset_because(ResetCause::Software),
         Action::None => {}
     })
     .await
@@ -85,7 +86,9 @@ fn run() -> ! {
         true,
         EmulatedNor::take().expect("the flash is taken once, here"),
     );
-    let reset_cause = watchdog::take_reset_cause();
+    // No reset flags on this board: what the firmware recorded, else a power-on (QEMU starts
+    // with zeroed RAM).
+    let reset_cause = reset_cause::take_recorded().unwrap_or(ResetCause::PowerOn);
     controller.set_boot(reset_cause, 0);
     let has_params = controller.params().is_some();
     // Sampling has not started: the moment to erase the parameter log's spare sector if needed.
@@ -143,14 +146,14 @@ unsafe fn DefaultHandler(irqn: i16) {
 // interrupts except the reset word, which it only writes before resetting.
 unsafe fn NonMaskableInt() {
     if watchdog::expired() {
-        watchdog::reset_because(ResetCause::Watchdog);
+        reset_cause::reset_because(ResetCause::Watchdog);
     }
 }
 
 /// A processor fault (bad memory access, stack overflow): record it and reset.
 #[exception]
 unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
-    watchdog::reset_because(ResetCause::Fault)
+    reset_cause::reset_because(ResetCause::Fault)
 }
 
 /// A panic: say so on the semihosting console, record it and reset (the field behaviour; the
@@ -161,5 +164,5 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     if cfg!(feature = "tick-bench") {
         cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
     }
-    watchdog::reset_because(ResetCause::Panic)
+    reset_cause::reset_because(ResetCause::Panic)
 }

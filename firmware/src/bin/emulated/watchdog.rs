@@ -1,20 +1,13 @@
-//! The controller's watchdog on the emulated board, and the reset-cause word.
+//! The controller's watchdog on the emulated board.
 //!
 //! QEMU models the mps2's CMSDK APB watchdog (0x4000_8000, clocked at 25 MHz): its counter
 //! runs down from `LOAD`; at zero it raises its interrupt, wired to the NMI, and reloads; at zero
 //! again with the interrupt still raised it resets the machine. The sampling loop feeds it every
-//! tick (clearing the interrupt reloads it). The NMI records [`ResetCause::Watchdog`] and resets
+//! tick (clearing the interrupt reloads it). The NMI records the cause (`ResetCause::Watchdog`) and resets
 //! at once, the watchdog's own reset backs it up. The same policy as the real board's IWDG: only a
 //! sampling loop that completes its ticks keeps the controller running.
-//!
-//! The cause of each reset the firmware makes is written to [`RESET_NOTE`] in `.uninit` RAM,
-//! which start-up does not zero and QEMU keeps across a system reset (see
-//! [`kincal_firmware::reset_cause`]).
 
 use crate::mmio::{read, write, Block};
-use core::mem::MaybeUninit;
-use kincal_firmware::reset_cause;
-use kincal_protocol::messages::ResetCause;
 
 const WATCHDOG: Block = Block::Watchdog;
 const LOAD: usize = 0x000;
@@ -30,35 +23,6 @@ const COUNTS_HZ: u32 = 25_000_000;
 /// that a QEMU process descheduled by a loaded host is not reset, short for a test. (The real
 /// board's timeout is set by its flash erase, see its `watchdog` docs.)
 pub const TIMEOUT_MS: u32 = 500;
-
-/// The reset-cause word: not zeroed at start, kept by QEMU across a system reset.
-#[unsafe(link_section = ".uninit.RESET_NOTE")]
-static mut RESET_NOTE: MaybeUninit<u32> = MaybeUninit::uninit();
-
-fn note_ptr() -> *mut u32 {
-    core::ptr::addr_of_mut!(RESET_NOTE).cast::<u32>()
-}
-
-/// Why this start happened; records "unknown" for the next one until a cause is recorded.
-pub fn take_reset_cause() -> ResetCause {
-    // SAFETY: a 4-byte aligned word of RAM owned by this module; any bit pattern is a valid u32
-    // (uninitialised RAM reads as whatever it holds). Single core, read before the tasks start.
-    let word = unsafe { core::ptr::read_volatile(note_ptr()) };
-    record(ResetCause::Unknown);
-    reset_cause::recorded_cause(word)
-}
-
-/// Record `cause` for the next start.
-pub fn record(cause: ResetCause) {
-    // SAFETY: as in `take_reset_cause`; a single aligned word store cannot tear.
-    unsafe { core::ptr::write_volatile(note_ptr(), reset_cause::note(cause)) }
-}
-
-/// Record `cause` and reset the controller.
-pub fn reset_because(cause: ResetCause) -> ! {
-    record(cause);
-    cortex_m::peripheral::SCB::sys_reset()
-}
 
 /// Start the watchdog.
 pub fn start() {

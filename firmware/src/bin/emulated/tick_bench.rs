@@ -58,6 +58,12 @@ impl SpiDevice for ReplayEncoder<'_> {
 /// two DMA streams, the completion interrupt, waking and polling the task; the same for a UART
 /// write): an estimate, not measured here (QEMU has no STM32 DMA).
 const DMA_TRANSFER_CYCLES: u64 = 800;
+/// Cycles each encoder read costs the real board's CPU besides its transfer (`EncoderPort` in
+/// the STM32 board): the 2 µs enable set-up busy-wait (336 cycles) and one timer wake for MA held
+/// high through the encoder's timeout (as a DMA wake, an estimate).
+const ENCODER_PORT_CYCLES: u64 = 336 + DMA_TRANSFER_CYCLES;
+/// Bus time per encoder read besides the clocks, µs: the 2 µs set-up and MA held high for 40 µs.
+const ENCODER_PORT_US: f64 = 42.0;
 /// Core clock of the real board.
 const CORE_HZ: f64 = 168e6;
 /// Ticks each figure is averaged over (one second).
@@ -208,17 +214,18 @@ pub fn run() -> ! {
     // Whole ticks, through the controller, in the configurations the link can carry (the
     // controller refuses stream settings above it: raw and pose both every tick need 130 %).
     let tick_cycles = CORE_HZ / TICK_HZ as f64;
-    let bus_us = JOINTS as f64 * TRANSFER_BITS as f64 / REAL_BOARD_MA_HZ as f64 * 1e6;
-    let dma = (JOINTS as u64 + 1) * DMA_TRANSFER_CYCLES;
+    let bus_us = JOINTS as f64 * (TRANSFER_BITS as f64 / REAL_BOARD_MA_HZ as f64 * 1e6 + ENCODER_PORT_US);
+    let dma = (JOINTS as u64 + 1) * DMA_TRANSFER_CYCLES + JOINTS as u64 * ENCODER_PORT_CYCLES;
     hprintln!(
         "  encoder bus busy {:.1} us per tick ({:.2} % of the tick; DMA, the CPU does not wait)",
         bus_us,
         bus_us * TICK_HZ as f64 / 1e4
     );
     hprintln!(
-        "  real board (168 MHz, 1 cycle/instruction), whole tick incl. {} DMA transfers (6 encoders + 1 UART) x {} cycles (estimate):",
+        "  real board (168 MHz, 1 cycle/instruction), whole tick incl. {} DMA transfers (6 encoders + 1 UART) x {} cycles and 6 encoder enables x {} cycles (estimates):",
         JOINTS + 1,
-        DMA_TRANSFER_CYCLES
+        DMA_TRANSFER_CYCLES,
+        ENCODER_PORT_CYCLES
     );
     for (label, raw_on, pose_divider, window_on) in [
         ("recording (window + raw every tick)", true, 0, true),
@@ -238,7 +245,7 @@ pub fn run() -> ! {
         });
         let cpu = work + dma;
         hprintln!(
-            "    {:44} {:6} instr. + DMA = {:6} cycles = {:5.2} % of the tick (budget 5 %); {:5.2} % if the CPU waited on the bus",
+            "    {:44} {:6} instr. + DMA, enables = {:6} cycles = {:5.2} % of the tick (budget 5 %); {:5.2} % if the CPU waited on the bus",
             label,
             work,
             cpu,

@@ -179,8 +179,9 @@ pub struct SimSetPose {
     pub counts: [u32; JOINTS],
 }
 
-/// Emulated board only: noise and faults of the emulated encoder bus. Answer: [`Ack`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+/// Emulated board only: noise and faults of the emulated encoder bus (default: a clean bus).
+/// Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub struct SimFaults {
     /// Standard deviation of position noise, counts.
     pub noise_counts: u16,

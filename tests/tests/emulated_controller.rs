@@ -357,15 +357,7 @@ fn parameter_commits_during_a_raw_stream_miss_no_tick_and_never_erase() {
 }
 
 fn faults(unplugged: u8, crash: Crash) -> SimFaults {
-    SimFaults {
-        noise_counts: 0,
-        crc_errors_per_10k: 0,
-        dropouts_per_10k: 0,
-        error_bits_per_10k: 0,
-        warnings_per_10k: 0,
-        unplugged,
-        crash,
-    }
+    SimFaults { unplugged, crash, ..SimFaults::default() }
 }
 
 /// The pose frames after the answer to `request` (those before it predate the request).

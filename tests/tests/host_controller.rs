@@ -477,15 +477,7 @@ fn lost_answers_are_repeated_without_doing_anything_twice() {
 }
 
 fn faults_unplugging(unplugged: u8) -> kincal_protocol::messages::Request {
-    kincal_protocol::messages::Request::SimFaults(SimFaults {
-        noise_counts: 0,
-        crc_errors_per_10k: 0,
-        dropouts_per_10k: 0,
-        error_bits_per_10k: 0,
-        warnings_per_10k: 0,
-        unplugged,
-        crash: kincal_protocol::messages::Crash::None,
-    })
+    kincal_protocol::messages::Request::SimFaults(SimFaults { unplugged, ..SimFaults::default() })
 }
 
 /// A joint unplugged while `kincal stream --pose` runs: the CLI names the joint, never prints a

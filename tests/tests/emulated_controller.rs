@@ -431,7 +431,7 @@ fn a_panic_and_a_hang_reset_the_controller_and_info_tells_why() {
     std::thread::sleep(Duration::from_millis(100));
     let back = reconnect(&mut link, 10);
     let info = link.info().unwrap();
-    eprintln!("hang: back after {:?} (watchdog 500 ms), {} ticks up", hung.elapsed(), info.ticks);
+    eprintln!("hang: back after {:?} (watchdog 1 s), {} ticks up", hung.elapsed(), info.ticks);
     assert_eq!(info.reset_cause, ResetCause::Watchdog);
     assert!(info.ticks < 768 * 3, "restarted ({} ticks)", info.ticks);
     assert!(

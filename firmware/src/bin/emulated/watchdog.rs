@@ -19,10 +19,10 @@ const INTEN: u32 = 1;
 const RESEN: u32 = 1 << 1;
 /// Watchdog clock (the mps2's system clock).
 const COUNTS_HZ: u32 = 25_000_000;
-/// Time without a completed tick before the controller is reset, ms: 384 ticks, long enough
+/// Time without a completed tick before the controller is reset, ms: 768 ticks, long enough
 /// that a QEMU process descheduled by a loaded host is not reset, short for a test. (The real
 /// board's timeout is set by its flash erase, see its `watchdog` docs.)
-pub const TIMEOUT_MS: u32 = 500;
+pub const TIMEOUT_MS: u32 = 1000;
 
 /// Start the watchdog.
 pub fn start() {

@@ -90,6 +90,7 @@ impl Slave {
     pub fn read(&mut self, out: &mut [u8]) {
         let ready = self.ready();
         let delay = self.line_delay_bits as usize;
+        let frame = self.frame();
         for (k, byte) in out.iter_mut().enumerate() {
             *byte = 0;
             for b in 0..8 {
@@ -102,7 +103,7 @@ impl Slave {
                     Line::StuckLow => false,
                     Line::Connected if !ready => false,
                     Line::Connected => {
-                        edge.checked_sub(1 + delay).is_none_or(|after| self.level_after_edge(after))
+                        edge.checked_sub(1 + delay).is_none_or(|after| self.level_after_edge(frame, after))
                     }
                 };
                 *byte |= (level as u8) << (7 - b);
@@ -111,25 +112,20 @@ impl Slave {
         self.busy_ns = self.timeout_ns;
     }
 
-    /// SLO as the slave drives it after rising MA edge `edge` (0: before the first edge).
-    fn level_after_edge(&self, edge: usize) -> bool {
+    /// SLO as the slave drives it after rising MA edge `edge` (0: before the first edge), with
+    /// `frame` the 32 bits from the start bit to the CRC's last.
+    fn level_after_edge(&self, frame: u32, edge: usize) -> bool {
         let ack = self.ack_bits.max(1) as usize;
         // Edges 0 and 1: idle. Then the ACK, then the frame, then the timeout (low).
         let Some(in_answer) = edge.checked_sub(2) else { return true };
         let Some(in_frame) = in_answer.checked_sub(ack) else { return false };
-        self.frame_bit(in_frame)
+        in_frame < 32 && (frame >> (31 - in_frame)) & 1 == 1
     }
 
-    /// Bit `i` of the frame from the start bit on (false past the CRC: timeout).
-    fn frame_bit(&self, i: usize) -> bool {
+    /// The frame, first bit most significant: start (1), CDS (0), position ‖ nE ‖ nW, CRC-6.
+    fn frame(&self) -> u32 {
         let data = self.data_bits();
-        match i {
-            0 => true,  // start
-            1 => false, // CDS
-            2..=25 => (data >> (25 - i)) & 1 == 1,
-            26..=31 => (crc6_inverted(data) >> (31 - i)) & 1 == 1,
-            _ => false,
-        }
+        (1 << 31) | (data << 6) | crc6_inverted(data) as u32
     }
 
     /// Position ‖ nE ‖ nW, 24 bits.

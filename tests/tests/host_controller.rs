@@ -444,6 +444,18 @@ fn the_emulated_arm_is_posed_and_faulted_from_the_cli() {
     link.hello().unwrap();
     let w = kincal::controller::record::measure_window(&mut link, 32).unwrap();
     assert!(w.joints.iter().all(|j| j.accepted == 0), "{w:?}");
+    drop(link);
+    // Joints 2 and 5 unplugged (every other fault off again): only they answer no more.
+    let (code, out, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--unplug", "2,5"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("unplugged joints: 2, 5"), "{out}");
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    let w = kincal::controller::record::measure_window(&mut link, 32).unwrap();
+    let accepted: Vec<u16> = w.joints.iter().map(|j| j.accepted).collect();
+    assert_eq!(accepted, [32, 0, 32, 32, 0, 32], "{w:?}");
+    let (code, _, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--unplug", "7"]);
+    assert_eq!(code, Some(2), "joint 7 does not exist: {err}");
     let (code, _, err) = kincal(&["emulated-arm", "pose", "--port", &fake.port, "--counts", "1,2,3"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("--counts: expected 6 positions"), "{err}");

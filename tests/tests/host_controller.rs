@@ -546,6 +546,9 @@ fn an_unplugged_joint_mid_stream_is_named_and_marked_and_valid_again_when_plugge
 #[test]
 fn a_stalled_stream_raises_an_alarm() {
     let fake = FakeController::start(1);
+    let (code, _, err) = kincal(&["stream", "--port", &fake.port, "--pose", "--seconds", "1"]);
+    assert_eq!(code, Some(1), "no parameters, no pose stream: {err}");
+    assert!(err.contains("holds no parameters"), "{err}");
     let child = Command::new(kincal_bin())
         .args(["stream", "--port", &fake.port, "--raw", "--seconds", "1.5"])
         .stdout(std::process::Stdio::piped())

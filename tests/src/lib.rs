@@ -16,7 +16,7 @@ use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, Shar
 use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
-use kincal_protocol::messages::{DeviceFrame, HostFrame, Request, TICK_HZ};
+use kincal_protocol::messages::{Crash, DeviceFrame, HostFrame, Request, ResetCause, SimFaults, TICK_HZ};
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -120,6 +120,7 @@ fn serve(
     speedup: u32,
 ) {
     let mut controller = Controller::new("kincal-fw fake", "host (fake)", true, RamNor::<4096>::new());
+    controller.set_boot(ResetCause::PowerOn, 0);
     let mut sampler = Sampler::default();
     let encoders: SharedEncoders<NoopRawMutex> =
         embassy_sync::blocking_mutex::Mutex::new(std::cell::RefCell::new(EmulatedEncoders::new()));
@@ -170,6 +171,21 @@ fn serve(
                             }
                         }
                         match action {
+                            Action::Simulate(Request::SimFaults(SimFaults { crash, .. }))
+                                if crash != Crash::None =>
+                            {
+                                // No watchdog here, and a hang would stop this thread: the fake
+                                // restarts at once, as the board does, with the cause recorded.
+                                let flash = controller.into_flash();
+                                controller = Controller::new("kincal-fw fake", "host (fake)", true, flash);
+                                let cause = if crash == Crash::Panic {
+                                    ResetCause::Panic
+                                } else {
+                                    ResetCause::Watchdog
+                                };
+                                controller.set_boot(cause, 0);
+                                sampler = Sampler::default();
+                            }
                             Action::Simulate(request) => {
                                 encoders.lock(|e| e.borrow_mut().apply(&request));
                                 if matches!(request, Request::SimSetPose(_)) {
@@ -179,6 +195,7 @@ fn serve(
                             Action::Reset => {
                                 let flash = controller.into_flash();
                                 controller = Controller::new("kincal-fw fake", "host (fake)", true, flash);
+                                controller.set_boot(ResetCause::Software, 0);
                                 sampler = Sampler::default();
                             }
                             _ => {}

@@ -454,8 +454,16 @@ fn the_emulated_arm_is_posed_and_faulted_from_the_cli() {
     let w = kincal::controller::record::measure_window(&mut link, 32).unwrap();
     let accepted: Vec<u16> = w.joints.iter().map(|j| j.accepted).collect();
     assert_eq!(accepted, [32, 0, 32, 32, 0, 32], "{w:?}");
+    drop(link);
     let (code, _, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--unplug", "7"]);
     assert_eq!(code, Some(2), "joint 7 does not exist: {err}");
+    let (_, info, _) = kincal(&["info", "--port", &fake.port]);
+    assert!(info.contains("reset      power-on"), "{info}");
+    let (code, out, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--crash", "hang"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("failure injected"), "{out}");
+    let (_, info, _) = kincal(&["info", "--port", &fake.port]);
+    assert!(info.contains("reset      WATCHDOG: the sampling loop stopped"), "{info}");
     let (code, _, err) = kincal(&["emulated-arm", "pose", "--port", &fake.port, "--counts", "1,2,3"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("--counts: expected 6 positions"), "{err}");

@@ -232,9 +232,23 @@ fn brownout_mv() -> u16 {
     }
 }
 
+/// Start the IWDG before anything else, so that clock start-up (a dead crystal spins there)
+/// and the boot-time erase are watched too: prescaler /64 and the reload value
+/// [`IndependentWatchdog`] sets again later (1999: 4 s). The first period counts down from the
+/// reset value 0xFFF (8.2 s at /64); the sampling loop's first feed reloads 4 s.
+fn start_watchdog_early() {
+    use embassy_stm32::pac::iwdg::vals::{Key, Pr};
+    use embassy_stm32::pac::IWDG;
+    IWDG.kr().write(|w| w.set_key(Key::ENABLE));
+    IWDG.pr().write(|w| w.set_pr(Pr::DIVIDE_BY64));
+    IWDG.rlr().write(|w| w.set_rl((WATCHDOG_TIMEOUT_US / 1000 * 32 / 64 - 1) as u16));
+    IWDG.kr().write(|w| w.set_key(Key::START));
+}
+
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     let reset = take_reset_cause();
+    start_watchdog_early();
     let p = embassy_stm32::init(clocks());
     // The RCC set-up rewrote FLASH_ACR (wait states) and left the ART accelerator off.
     embassy_stm32::pac::FLASH.acr().modify(|w| {
@@ -295,11 +309,12 @@ async fn main(spawner: Spawner) {
     );
     controller.set_boot(reset, brownout);
     defmt::info!("stored parameters: {}", controller.params().is_some());
-    // Sampling has not started (nor the watchdog): the moment to erase the parameter log's
-    // spare sector if needed.
+    // Sampling has not started: the moment to erase the parameter log's spare sector if needed
+    // (at most 2 s, within the watchdog's time since it started).
     controller.maintain_flash();
     let mut watchdog = IndependentWatchdog::new(p.IWDG, WATCHDOG_TIMEOUT_US);
     watchdog.unleash();
+    watchdog.pet();
     let shared = SHARED.init(Mutex::new(RefCell::new(Shared::new(controller))));
     match (
         sample_encoders(shared, master, watchdog),

@@ -34,8 +34,9 @@ pub const REQUEST_BITS: u32 = 2;
 /// whole bit times: each started bit time of delay adds one more leading 1, which the decoder
 /// skips. At the 1.3125 MHz MA clock two bits are 1.5 µs, five times a long arm cable's.
 pub const MAX_LINE_DELAY_BITS: u32 = 2;
-/// Longest ACK (the encoder's processing time) accepted, bits: 18 µs at 1.3125 MHz, above the
-/// BiSS-C encoders' usual maximum processing time (a few µs, at most ~15 µs).
+/// Longest ACK (the encoder's processing time) accepted, bits: 18 µs at 1.3125 MHz. The
+/// encoders' datasheets give their longest processing time; the bring-up counts the ACK bits
+/// on a scope (README checklist).
 pub const MAX_ACK_BITS: u32 = 24;
 /// Bits clocked per read: one `u64`.
 pub const TRANSFER_BITS: u32 = 64;

@@ -11,7 +11,7 @@ use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
 /// Protocol version; bump on any incompatible change.
-pub const PROTOCOL_VERSION: u16 = 3;
+pub const PROTOCOL_VERSION: u16 = 4;
 /// Largest parameter chunk carried by one message, bytes.
 pub const PARAM_CHUNK: usize = 48;
 /// Joints read every tick.

@@ -382,7 +382,7 @@ fn poses_after(link: &mut Link, request: SimFaults, n: usize) -> Vec<PoseReport>
 fn an_unplugged_joint_invalidates_the_next_pose_and_plugged_back_it_is_valid() {
     let (_g, _emu, mut link) = start();
     let model = kincal::model::ArmModel::suta_nominal();
-    link.upload(&kincal::controller::device::parameter_blob(&model, 3).unwrap()).unwrap();
+    link.upload(&kincal_e2e::signed_set(&model, 3)).unwrap();
     link.call(SimSetPose { counts: [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, 5] }).unwrap();
     link.call(StreamPose { divider: 1 }).unwrap();
     let before = poses_after(&mut link, faults(0, Crash::None), 50);

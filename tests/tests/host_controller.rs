@@ -538,7 +538,9 @@ fn an_unplugged_joint_mid_stream_is_named_and_marked_and_valid_again_when_plugge
     let dir = scratch("unplug");
     let model = dir.join("model.toml");
     kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
-    let (code, _, err) = kincal(&["upload", "--port", &fake.port, model.to_str().unwrap()]);
+    let key_file = kincal_e2e::station_key_file(&dir);
+    let key = key_file.to_str().unwrap();
+    let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model.to_str().unwrap()]);
     assert_eq!(code, Some(0), "{err}");
     let csv = dir.join("pose.csv");
     let child = Command::new(kincal_bin())

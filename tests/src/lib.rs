@@ -202,47 +202,31 @@ fn serve(
                                 write_frame(&mut stream, f);
                             }
                         }
-                        match action {
-                            Action::Simulate(Request::SimFaults(SimFaults { crash, .. }))
-                                if crash != Crash::None =>
-                            {
-                                // No watchdog here, and a hang would stop this thread: the fake
-                                // restarts at once, as the board does, with the cause recorded.
-                                let flash = controller.into_flash();
-                                controller = Controller::new(
-                                    "kincal-fw fake",
-                                    "host (fake)",
-                                    true,
-                                    fake_trust(),
-                                    flash,
-                                );
-                                let cause = if crash == Crash::Panic {
-                                    ResetCause::Panic
-                                } else {
-                                    ResetCause::Watchdog
-                                };
-                                controller.set_boot(cause, 0);
-                                sampler = Sampler::default();
-                            }
+                        let restart = match action {
+                            // No watchdog here, and a hang would stop this thread: the fake
+                            // restarts at once, as the board does, with the cause recorded.
+                            Action::Simulate(Request::SimFaults(SimFaults {
+                                crash: Crash::Panic, ..
+                            })) => Some(ResetCause::Panic),
+                            Action::Simulate(Request::SimFaults(SimFaults {
+                                crash: Crash::Hang, ..
+                            })) => Some(ResetCause::Watchdog),
                             Action::Simulate(request) => {
                                 encoders.lock(|e| e.borrow_mut().apply(&request));
                                 if matches!(request, Request::SimSetPose(_)) {
                                     sampler.forget_positions();
                                 }
+                                None
                             }
-                            Action::Reset => {
-                                let flash = controller.into_flash();
-                                controller = Controller::new(
-                                    "kincal-fw fake",
-                                    "host (fake)",
-                                    true,
-                                    fake_trust(),
-                                    flash,
-                                );
-                                controller.set_boot(ResetCause::Software, 0);
-                                sampler = Sampler::default();
-                            }
-                            _ => {}
+                            Action::Reset => Some(ResetCause::Software),
+                            Action::None => None,
+                        };
+                        if let Some(cause) = restart {
+                            let flash = controller.into_flash();
+                            controller =
+                                Controller::new("kincal-fw fake", "host (fake)", true, fake_trust(), flash);
+                            controller.set_boot(cause, 0);
+                            sampler = Sampler::default();
                         }
                     }
                 }

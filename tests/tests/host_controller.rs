@@ -48,27 +48,12 @@ fn a_killed_record_resumes_without_losing_or_repeating_landmarks() {
     let script = script(&dir, &artefact);
     let out = dir.join("sessions");
     let session = out.join("C_A.json");
-    let args = |window: &str| -> Vec<String> {
-        [
-            "record",
-            "--port",
-            &fake.port,
-            "--artefact",
-            artefact_path.to_str().unwrap(),
-            "--placement",
-            "C_A",
-            "--out",
-            out.to_str().unwrap(),
-            "--repeats",
-            "1",
-            "--window-ticks",
-            window,
-            "--script",
-            script.to_str().unwrap(),
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect()
+    let (artefact_arg, out_arg, script_arg) =
+        (artefact_path.to_str().unwrap(), out.to_str().unwrap(), script.to_str().unwrap());
+    let args = |window: &'static str| {
+        let mut args = record_args(&fake.port, artefact_arg, out_arg, window);
+        args.extend(["--script", script_arg]);
+        args
     };
     // Kill the recorder once a few landmarks are on disk.
     let mut child = Command::new(kincal_bin()).args(args("384")).spawn().unwrap();
@@ -249,15 +234,19 @@ fn kincal(args: &[&str]) -> (Option<i32>, String, String) {
     )
 }
 
-#[test]
-fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
-    let fake = FakeController::start(1);
-    let dir = scratch("commit");
-    let key_file = kincal_e2e::station_key_file(&dir);
-    let key = key_file.to_str().unwrap();
+/// A fake controller, a scratch folder `name`, a station key file and the nominal model file.
+fn upload_fixture(name: &str) -> (FakeController, PathBuf, String, String) {
+    let dir = scratch(name);
+    let key = kincal_e2e::station_key_file(&dir).to_str().unwrap().to_string();
     let model = dir.join("model.toml");
     kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
-    let model = model.to_str().unwrap();
+    (FakeController::start(1), dir.clone(), key, model.to_str().unwrap().to_string())
+}
+
+#[test]
+fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
+    let (fake, dir, key, model) = upload_fixture("commit");
+    let (key, model) = (key.as_str(), model.as_str());
     let (code, out, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "10"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(out.contains("now holds parameters version 10"), "{out}");
@@ -358,6 +347,8 @@ fn set_dropouts(port: &str, dropouts_per_10k: u16) {
         dropouts_per_10k,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: kincal_protocol::messages::Crash::None,
     })
     .unwrap();
 }
@@ -473,6 +464,26 @@ fn the_emulated_arm_is_posed_and_faulted_from_the_cli() {
     link.hello().unwrap();
     let w = kincal::controller::record::measure_window(&mut link, 32).unwrap();
     assert!(w.joints.iter().all(|j| j.accepted == 0), "{w:?}");
+    drop(link);
+    // Joints 2 and 5 unplugged (every other fault off again): only they answer no more.
+    let (code, out, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--unplug", "2,5"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("unplugged joints: 2, 5"), "{out}");
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    let w = kincal::controller::record::measure_window(&mut link, 32).unwrap();
+    let accepted: Vec<u16> = w.joints.iter().map(|j| j.accepted).collect();
+    assert_eq!(accepted, [32, 0, 32, 32, 0, 32], "{w:?}");
+    drop(link);
+    let (code, _, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--unplug", "7"]);
+    assert_eq!(code, Some(2), "joint 7 does not exist: {err}");
+    let (_, info, _) = kincal(&["info", "--port", &fake.port]);
+    assert!(info.contains("reset      power-on"), "{info}");
+    let (code, out, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--crash", "hang"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("failure injected"), "{out}");
+    let (_, info, _) = kincal(&["info", "--port", &fake.port]);
+    assert!(info.contains("reset      WATCHDOG: the sampling loop stopped"), "{info}");
     let (code, _, err) = kincal(&["emulated-arm", "pose", "--port", &fake.port, "--counts", "1,2,3"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("--counts: expected 6 positions"), "{err}");
@@ -501,4 +512,198 @@ fn lost_answers_are_repeated_without_doing_anything_twice() {
     let blob = kincal_e2e::signed_set(&kincal::model::ArmModel::suta_nominal(), 7);
     assert!(link.upload(&blob).unwrap().commit_reply_lost);
     assert_eq!(link.info().unwrap().param_version, 7);
+}
+
+/// A TCP proxy in front of the controller at `upstream` that forwards every frame and cuts the
+/// link at the answer to the first `ParamCommit`: right after passing it to the host
+/// (`pass_answer`), or instead of passing it. Frames are read with the protocol crate's decoder.
+fn cut_at_commit_answer(upstream: &str, pass_answer: bool) -> String {
+    use kincal_protocol::framing::Decoder;
+    use kincal_protocol::messages::{DeviceFrame, HostFrame, Request};
+    use std::io::{Read, Write};
+    use std::net::{Shutdown, TcpListener, TcpStream};
+    use std::sync::{Arc, Mutex};
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = format!("tcp:{}", listener.local_addr().unwrap());
+    let upstream = upstream.strip_prefix("tcp:").unwrap().to_string();
+    std::thread::spawn(move || {
+        let Ok((host, _)) = listener.accept() else { return };
+        let device = TcpStream::connect(&upstream).unwrap();
+        let commit: Arc<Mutex<Option<u16>>> = Arc::default();
+        let (mut from_host, mut to_device, seen) =
+            (host.try_clone().unwrap(), device.try_clone().unwrap(), commit.clone());
+        std::thread::spawn(move || {
+            let (mut decoder, mut buf) = (Decoder::new(), [0u8; 512]);
+            while let Ok(n @ 1..) = from_host.read(&mut buf) {
+                for &b in &buf[..n] {
+                    if let Some(Ok(HostFrame { seq, request: Request::ParamCommit(_) })) = decoder.push(b) {
+                        seen.lock().unwrap().get_or_insert(seq);
+                    }
+                }
+                if to_device.write_all(&buf[..n]).is_err() {
+                    break;
+                }
+            }
+        });
+        let (mut from_device, mut to_host) = (device.try_clone().unwrap(), host.try_clone().unwrap());
+        let (mut decoder, mut frame, mut buf) = (Decoder::new(), Vec::new(), [0u8; 512]);
+        while let Ok(n @ 1..) = from_device.read(&mut buf) {
+            for &b in &buf[..n] {
+                frame.push(b);
+                let Some(decoded) = decoder.push::<DeviceFrame>(b) else { continue };
+                let answers_commit = matches!(decoded, Ok(DeviceFrame::Response { seq, .. }) if Some(seq) == *commit.lock().unwrap());
+                if answers_commit {
+                    if pass_answer {
+                        let _ = to_host.write_all(&frame);
+                    }
+                    let _ = host.shutdown(Shutdown::Both);
+                    let _ = device.shutdown(Shutdown::Both);
+                    return;
+                }
+                if to_host.write_all(&frame).is_err() {
+                    return;
+                }
+                frame.clear();
+            }
+        }
+    });
+    port
+}
+
+#[test]
+fn a_confirmed_commit_is_success_even_when_the_link_is_cut_right_after_it() {
+    let (fake, dir, key, model) = upload_fixture("cut");
+    let (key, model) = (key.as_str(), model.as_str());
+    let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "75"]);
+    assert_eq!(code, Some(0), "{err}");
+    // The commit's Ack reaches the host, then the link is cut: the follow-up read-back fails.
+    let proxy = cut_at_commit_answer(&fake.port, true);
+    let (code, out, err) = kincal(&["upload", "--key", key, "--port", &proxy, model, "--version", "76"]);
+    assert_eq!(code, Some(0), "committed is exit 0: {err}");
+    assert!(out.contains("confirmed the commit of parameters version 76"), "{out}");
+    assert!(err.contains("warning") && err.contains("reading back") && err.contains("kincal info"), "{err}");
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    assert_eq!(link.info().unwrap().param_version, 76, "what the exit status says is stored");
+    drop(link);
+    // The commit's answer never arrives and the controller cannot be asked: neither 0 nor 1.
+    let proxy = cut_at_commit_answer(&fake.port, false);
+    let (code, out, err) = kincal(&["upload", "--key", key, "--port", &proxy, model, "--version", "77"]);
+    assert_eq!(code, Some(3), "unknown outcome: {out} {err}");
+    assert!(err.contains("could not be asked") && !out.contains("uploaded"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_touch_with_the_angles_of_another_landmark_is_warned_about_at_the_touch() {
+    let fake = FakeController::start(2);
+    let dir = scratch("same-pose");
+    let (artefact, artefact_path) = artefact_file(&dir);
+    // Landmarks 0 and 1 at one pose (the arm not moved), the third elsewhere.
+    let pose = |k: usize| {
+        if k < 2 {
+            [1000, 2000, 3000, 4000, 5000, 6000]
+        } else {
+            [9000, 2000, 3000, 4000, 5000, 6000]
+        }
+    };
+    let steps: Vec<serde_json::Value> = artefact.landmarks[..3]
+        .iter()
+        .enumerate()
+        .map(|(k, l)| serde_json::json!({"landmark": l.id, "repeat": 1, "pose_counts": pose(k)}))
+        .collect();
+    let script = dir.join("script.json");
+    std::fs::write(&script, serde_json::json!({ "steps": steps }).to_string()).unwrap();
+    let order = artefact.landmarks[..3].iter().map(|l| l.id.as_str()).collect::<Vec<_>>().join(",");
+    let out = dir.join("sessions");
+    let mut args = record_args(&fake.port, artefact_path.to_str().unwrap(), out.to_str().unwrap(), "96");
+    args.extend(["--script", script.to_str().unwrap(), "--order", &order]);
+    let (code, _, err) = kincal(&args);
+    assert_eq!(code, Some(0), "{err}");
+    let (first, second, third) =
+        (&artefact.landmarks[0].id, &artefact.landmarks[1].id, &artefact.landmarks[2].id);
+    let warning = format!("warning: {second} has the same six angles as {first} (repeat 1)");
+    assert!(err.contains(&warning), "{err}");
+    assert_eq!(err.matches("same six angles").count(), 1, "only the touch that repeats a pose: {err}");
+    assert!(!err.contains(&format!("warning: {third}")), "{err}");
+    assert_eq!(measured(&out.join("C_A.json"), &artefact).len(), 3, "a script stores what it measured");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+fn faults_unplugging(unplugged: u8) -> kincal_protocol::messages::Request {
+    kincal_protocol::messages::Request::SimFaults(SimFaults { unplugged, ..SimFaults::default() })
+}
+
+/// A joint unplugged while `kincal stream --pose` runs: the CLI names the joint, never prints a
+/// position for those poses, the CSV marks the rows (valid 0, the joint, no position); plugged
+/// back, the poses are valid again.
+#[test]
+fn an_unplugged_joint_mid_stream_is_named_and_marked_and_valid_again_when_plugged_back() {
+    let fake = FakeController::start(1);
+    let dir = scratch("unplug");
+    let model = dir.join("model.toml");
+    kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
+    let key_file = kincal_e2e::station_key_file(&dir);
+    let key = key_file.to_str().unwrap();
+    let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{err}");
+    let csv = dir.join("pose.csv");
+    let child = Command::new(kincal_bin())
+        .args(["stream", "--port", &fake.port, "--pose", "--seconds", "2.5", "--csv", csv.to_str().unwrap()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(900));
+    fake.meddle_arm(faults_unplugging(0b100));
+    std::thread::sleep(Duration::from_millis(600));
+    fake.meddle_arm(faults_unplugging(0));
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("pose INVALID: joint 3 not read this tick"), "{stdout}");
+    assert!(stdout.contains("pose valid again"), "{stdout}");
+    assert!(stdout.contains("poses INVALID (joints 3 not read"), "{stdout}");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz"));
+    // valid, stale joints and whether a position is written, row by row; runs of equal rows.
+    let mut runs: Vec<(String, String, bool, usize)> = Vec::new();
+    for line in lines {
+        let cells: Vec<&str> = line.split(',').collect();
+        assert_eq!(cells.len(), 11, "{line}");
+        let row = (cells[2].to_string(), cells[3].to_string(), !cells[5].is_empty());
+        match runs.last_mut() {
+            Some(r) if (r.0.as_str(), r.1.as_str(), r.2) == (row.0.as_str(), row.1.as_str(), row.2) => {
+                r.3 += 1
+            }
+            _ => runs.push((row.0, row.1, row.2, 1)),
+        }
+    }
+    let shape: Vec<(&str, &str, bool)> = runs.iter().map(|r| (r.0.as_str(), r.1.as_str(), r.2)).collect();
+    assert_eq!(shape, [("1", "", true), ("0", "3", false), ("1", "", true)], "{runs:?}");
+    assert!(runs[1].3 > 200, "about 0.6 s of invalid poses at 768 Hz: {runs:?}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A stream that stops is an alarm line on the host, not a silent wait; its return is told.
+#[test]
+fn a_stalled_stream_raises_an_alarm() {
+    let fake = FakeController::start(1);
+    let (code, _, err) = kincal(&["stream", "--port", &fake.port, "--pose", "--seconds", "1"]);
+    assert_eq!(code, Some(1), "no parameters, no pose stream: {err}");
+    assert!(err.contains("holds no parameters"), "{err}");
+    let child = Command::new(kincal_bin())
+        .args(["stream", "--port", &fake.port, "--raw", "--seconds", "1.5"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(700));
+    fake.stall(Duration::from_millis(300));
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{stdout}");
+    assert!(stdout.contains("ALARM: no stream frame for over 16 ticks"), "{stdout}");
+    assert!(stdout.contains("stream resumed after"), "{stdout}");
 }

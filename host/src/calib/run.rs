@@ -257,7 +257,7 @@ pub fn result_problems(fit: &Calibration, validation: &Validation) -> Vec<String
 
 /// The first validation placement that copies a calibration placement touch for touch.
 fn copied_placement(cal: &Dataset, val: &Dataset) -> Option<(String, String)> {
-    let key = |data: &Dataset, p: usize| -> Vec<(usize, u32, [u64; crate::model::JOINTS])> {
+    let key = |data: &Dataset, p: usize| -> Vec<(usize, u32, [u64; crate::model::SUTA_JOINTS])> {
         let mut v: Vec<_> = data
             .touches
             .iter()
@@ -351,7 +351,7 @@ pub struct StoredPairError {
     /// Measured minus certified distance, mm.
     pub error_mm: f64,
     /// Raw encoder angles of the two touches, degrees.
-    pub enc_deg: ([f64; crate::model::JOINTS], [f64; crate::model::JOINTS]),
+    pub enc_deg: ([f64; crate::model::SUTA_JOINTS], [f64; crate::model::SUTA_JOINTS]),
 }
 
 /// Format tag of `summary.json`.

@@ -213,6 +213,14 @@ pub struct StudyArgs {
 
 pub fn simulate_to(model: &Path, out: &Path, options: &SimulationOptions) -> Result<()> {
     let nominal = ArmModel::load(model)?;
+    if nominal.joints.len() != kincal::model::SUTA_JOINTS {
+        anyhow::bail!(
+            "{}: the artefact simulator makes SUTA sessions ({} encoders); this model has {} joints",
+            model.display(),
+            kincal::model::SUTA_JOINTS,
+            nominal.joints.len()
+        );
+    }
     let sim = simulate(&nominal, options);
     output::write_simulation(&sim, out)?;
     let count = |s: &[kincal::data::Session]| s.iter().map(|s| s.measurements.len()).sum::<usize>();

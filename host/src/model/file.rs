@@ -108,7 +108,10 @@ impl ArmModel {
         if !(1..=MAX_JOINTS).contains(&file.joint.len()) {
             return Err(field(
                 "joint".into(),
-                format!("expected 1 to {MAX_JOINTS} [[joint]] rows (revolute joints), found {}", file.joint.len()),
+                format!(
+                    "expected 1 to {MAX_JOINTS} [[joint]] rows (revolute joints), found {}",
+                    file.joint.len()
+                ),
             ));
         }
         let joints = file.joint.clone();
@@ -169,7 +172,10 @@ impl ArmModel {
                 field(key.clone(), "unknown parameter; expected e.g. offset:1, length:3, link_offset:2, twist:5, axis:2, tcp.z, scale".into())
             })?;
             if id.joint().is_some_and(|j| j >= model.joints.len()) {
-                return Err(field(key, format!("the model has {} joints; no such joint", model.joints.len())));
+                return Err(field(
+                    key,
+                    format!("the model has {} joints; no such joint", model.joints.len()),
+                ));
             }
             let [lower, upper] = <[f64; 2]>::try_from(bounds.as_slice()).map_err(|_| {
                 field(key.clone(), format!("expected 2 numbers [lower, upper], found {}", bounds.len()))

@@ -296,7 +296,13 @@ fn evaluate(
     });
     let angles = if wants(ParamId::Compliance) || model.joints.iter().any(|j| j.compliance_deg_per_m != 0.0) {
         let levers = gravity_levers(model, &rigid.map(|a| a.0));
-        std::array::from_fn(|j| if j < joints { joint_angle(model, j, enc(j), levers[j], harmonics) } else { rigid[j] })
+        std::array::from_fn(|j| {
+            if j < joints {
+                joint_angle(model, j, enc(j), levers[j], harmonics)
+            } else {
+                rigid[j]
+            }
+        })
     } else {
         rigid
     };

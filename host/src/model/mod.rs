@@ -201,7 +201,13 @@ impl ArmModel {
         let alpha = [90.0, 90.0, -90.0, 90.0, 90.0, 90.0];
         let offset = [-1.6, 20.7, 201.3, 117.1, 88.7, -11.6];
         let joints = (0..SUTA_JOINTS)
-            .map(|j| Joint { offset_deg: offset[j], d_mm: d[j], a_mm: 0.0, alpha_deg: alpha[j], ..Joint::default() })
+            .map(|j| Joint {
+                offset_deg: offset[j],
+                d_mm: d[j],
+                a_mm: 0.0,
+                alpha_deg: alpha[j],
+                ..Joint::default()
+            })
             .collect();
         let mut model = ArmModel {
             name: "SUTA nominal (thesis Table 3.2)".into(),

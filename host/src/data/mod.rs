@@ -8,6 +8,9 @@
 //!                   "std_deg":[…6],"samples":1536,"rejected":0}, …]}
 //! ```
 //! `std_deg`, `samples` and `rejected` are optional; sessions may miss landmarks.
+//! Tracker sessions (points measured by an instrument, any serial arm) are read by [`tracker`].
+
+pub mod tracker;
 
 use crate::files::{self, field_error, read_json, FileError};
 use crate::model::SUTA_JOINTS;

@@ -13,4 +13,5 @@ pub mod outliers;
 pub mod peer;
 pub mod run;
 pub mod study;
+pub mod tracker;
 pub mod validate;

@@ -9,6 +9,8 @@ pub mod corpus;
 
 pub mod haptic_gen;
 
+pub mod tracker_gen;
+
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use kincal_firmware::biss_master::BissMaster;
 use kincal_firmware::controller::{Action, Controller};

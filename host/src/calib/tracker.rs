@@ -613,8 +613,9 @@ pub const MAX_PAIRWISE_POINTS: usize = 2000;
 pub fn validate_session(
     model: &ArmModel,
     session: &TrackerSession,
-    tool_offset_mm: &Vector3<f64>,
+    tool_offset_mm: [f64; 3],
 ) -> SessionValidation {
+    let tool_offset_mm = &Vector3::from(tool_offset_mm);
     let base = Base::fit(model, &session.points, tool_offset_mm);
     let robot: Vec<Vector3<f64>> =
         session.points.iter().map(|p| model_point(model, &p.q_deg, tool_offset_mm)).collect();
@@ -710,7 +711,7 @@ mod tests {
             ident.statements.iter().any(|s| s.contains("offset:1 is absorbed by the session bases")),
             "{ident:?}"
         );
-        let v = validate_session(&fit.model, &data.sessions[1], &Vector3::zeros());
+        let v = validate_session(&fit.model, &data.sessions[1], [0.0; 3]);
         assert!(v.rms_mm < 1e-6 && v.pairwise_rms_mm < 1e-6, "{v:?}");
     }
 }

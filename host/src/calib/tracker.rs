@@ -448,12 +448,18 @@ pub fn calibrate_tracker(
     }
     let projected = projected_arm_columns(&full, &jac0);
     let ranges: Vec<f64> = all.iter().map(|&id| range_of(id)).collect();
-    let (kept, dropped) = identify::base_columns(&projected, all.len(), &ranges);
+    let (kept, _) = identify::base_columns(&projected, all.len(), &ranges);
     let analysis = identify::analyse(&projected, &all, &ranges);
-    let estimated: Vec<ParamId> = kept.iter().map(|&c| all[c]).collect();
-    let fixed: Vec<ParamId> = dropped.iter().map(|&c| all[c]).collect();
     let spreads: Vec<(String, f64)> =
         data.sessions.iter().map(|s| (s.name.clone(), orientation_spread_deg(&model, s))).collect();
+    // No session turns the tool: its point is the bases' translation, whatever a small model
+    // error makes the Jacobian say; it stays at its nominal value.
+    let tool_turns = spreads.iter().any(|s| s.1 >= CONSTANT_ORIENTATION_DEG);
+    let is_tool = |c: &usize| matches!(all[*c], ParamId::Tcp(_));
+    let estimated: Vec<ParamId> =
+        kept.iter().filter(|c| tool_turns || !is_tool(c)).map(|&c| all[c]).collect();
+    let fixed: Vec<ParamId> =
+        (0..all.len()).filter(|c| !estimated.contains(&all[*c])).map(|c| all[c]).collect();
     let statements = explain(&all, &jac0, &projected, full.unknowns(), &fixed, &spreads, &ranges);
     // Solve; re-centre the bases at their closed form between passes.
     let loss = options.huber_delta_mm.map_or(Loss::Linear, Loss::Huber);

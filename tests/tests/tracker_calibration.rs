@@ -185,3 +185,38 @@ fn constant_orientation_sessions_report_tool_and_base_inseparable() {
     }
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// Must show: the tool re-mounted (0.8 mm) in one calibration session: the data error names that
+/// session and the tool, and after its action (`--float-tool`) the held-out RMS is ≤ 1.10 × floor.
+#[test]
+fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
+    use kincal::calib::tracker_errors::tool_moved_candidates;
+    use kincal_e2e::tracker_gen::ToolRemount;
+    let dir = scratch("remount");
+    let mut options = GenOptions::iiwa_five_sessions(3);
+    options.tool_remount = Some(ToolRemount { session: 1, size_mm: 0.8 });
+    let generated = generate(&options);
+    let nominal = nominal_model(&generated, &dir);
+    let (cal, val) = split(&generated, &dir, &[0, 1, 2]);
+    let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
+    let plain = TrackerOptions::default();
+    let fit = calibrate_tracker(&nominal, &cal, &plain).expect("calibrates");
+    let before = held_out_rms(&fit, &val);
+    let candidates = tool_moved_candidates(&nominal, &cal, &val, &fit, &plain);
+    for c in &candidates {
+        println!("{} [{}] significant {}", c.text, c.set, c.significant);
+    }
+    let best = &candidates[0];
+    assert_eq!(best.session, "session_2", "{candidates:?}");
+    assert!(best.significant && best.text.contains("the tool sits"), "{best:?}");
+    assert!((best.size_mm - 0.8).abs() < 3.0 * best.size_std_mm + 0.02, "{best:?}");
+    assert_eq!(candidates.iter().filter(|c| c.significant).count(), 1, "only that session: {candidates:?}");
+    assert_eq!(best.action, "--float-tool session_2");
+    let floated = TrackerOptions { float_tool: vec!["session_2".into()], ..plain };
+    let refit = calibrate_tracker(&nominal, &cal, &floated).expect("calibrates");
+    let after = held_out_rms(&refit, &val);
+    println!("held-out {before:.4} → {after:.4} mm, floor {floor:.4} mm");
+    assert!(before > 1.10 * floor, "the re-mount must show before the action: {before} vs {floor}");
+    assert!(after <= 1.10 * floor, "after the action {after} vs floor {floor}");
+    std::fs::remove_dir_all(dir).ok();
+}

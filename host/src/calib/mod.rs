@@ -14,4 +14,5 @@ pub mod peer;
 pub mod run;
 pub mod study;
 pub mod tracker;
+pub mod tracker_errors;
 pub mod validate;

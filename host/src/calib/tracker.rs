@@ -281,6 +281,31 @@ pub struct TrackerEstimate {
     pub std: Option<f64>,
 }
 
+/// A session's own tool offset (the tool floated there).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct FloatedTool {
+    /// The session.
+    pub session: String,
+    /// Offset of the tool point from the shared one, flange frame, mm.
+    pub offset_mm: [f64; 3],
+    /// Standard deviation of the offset's length, mm.
+    pub size_std_mm: f64,
+}
+
+/// Standard deviation of |v| from the covariance block `c` of v.
+fn length_std(v: &Vector3<f64>, c: &Matrix3<f64>) -> f64 {
+    let n = v.norm();
+    if n == 0.0 {
+        return (c.trace() / 3.0).max(0.0).sqrt();
+    }
+    let u = v / n;
+    (u.transpose() * c * u)[(0, 0)].max(0.0).sqrt()
+}
+
+fn covariance_block(cov: &Option<nalgebra::DMatrix<f64>>, at: usize) -> Matrix3<f64> {
+    cov.as_ref().map_or(Matrix3::zeros(), |c| c.fixed_view::<3, 3>(at, at).into_owned())
+}
+
 /// The result of a tracker calibration.
 #[derive(Clone, Debug)]
 pub struct TrackerCalibration {
@@ -288,8 +313,8 @@ pub struct TrackerCalibration {
     pub model: ArmModel,
     /// Each calibration session's base, in session order.
     pub bases: Vec<Base>,
-    /// Tool offsets of the floated sessions (session, offset in the flange frame, mm).
-    pub tool_offsets: Vec<(String, Vector3<f64>)>,
+    /// Tool offsets of the floated sessions.
+    pub tool_offsets: Vec<FloatedTool>,
     /// Position error on the calibration sessions.
     pub fit: ErrorStats,
     /// Estimates of the free parameters.
@@ -521,10 +546,15 @@ pub fn calibrate_tracker(
     let tool_offsets = data
         .sessions
         .iter()
-        .zip(&offsets)
-        .zip(&floated)
-        .filter(|(_, f)| f.is_some())
-        .map(|((s, o), _)| (s.name.clone(), *o))
+        .enumerate()
+        .filter_map(|(s, session)| {
+            let column = problem.tool_column(s)?;
+            Some(FloatedTool {
+                session: session.name.clone(),
+                offset_mm: offsets[s].into(),
+                size_std_mm: length_std(&offsets[s], &covariance_block(&cov, column)),
+            })
+        })
         .collect();
     Ok(TrackerCalibration {
         model: current,
@@ -610,6 +640,36 @@ pub struct SessionValidation {
     pub pairwise_rms_mm: f64,
     /// Pairs of points compared.
     pub pairs: usize,
+}
+
+/// Fit `session`'s base and its own tool offset for a fixed `model` (the tool floated there),
+/// and validate with both refitted.
+pub fn fit_session_with_tool(model: &ArmModel, session: &TrackerSession) -> (FloatedTool, SessionValidation) {
+    let sessions = std::slice::from_ref(session);
+    let start = Base::fit(model, &session.points, &Vector3::zeros());
+    let problem = Problem {
+        model,
+        params: Vec::new(),
+        columns: ColumnMap::new(&[]),
+        sessions,
+        start: vec![start.rotation],
+        floated: vec![Some(0)],
+        rows: (0..session.points.len()).map(|k| (0, k)).collect(),
+    };
+    let t = start.translation_mm;
+    let x0 = [0.0, 0.0, 0.0, t.x, t.y, t.z, 0.0, 0.0, 0.0];
+    let options = SolverOptions { max_iterations: 100, ..SolverOptions::default() };
+    let solution = solver::solve(&problem, &x0, &[-1e9; 9], &[1e9; 9], &options);
+    let (r, jac) = jacobian_of(&problem, &solution.x);
+    let variance = r.iter().map(|v| v * v).sum::<f64>() / (r.len() as f64 - 9.0).max(1.0);
+    let cov = identify::covariance(&jac, &vec![1.0; r.len()], 9, variance);
+    let offset = problem.tool_offset_at(&solution.x, 0);
+    let tool = FloatedTool {
+        session: session.name.clone(),
+        offset_mm: offset.into(),
+        size_std_mm: length_std(&offset, &covariance_block(&cov, 6)),
+    };
+    (tool, validate_session(model, session, offset.into()))
 }
 
 /// Most points of a session whose pairwise distances are compared (evenly spaced beyond).

@@ -1,0 +1,124 @@
+//! Data errors of tracker sessions, as candidates scored on held-out sessions.
+//!
+//! **Tool moved between sessions.** A probe or reflector taken off and put back sits a little
+//! elsewhere on the flange: in session S the measured point is B_S · F(q) · (t + Δ_S). With the
+//! orientation varying inside S, Δ_S cannot be absorbed by S's base, and a calibration that
+//! shares t across sessions bends the arm parameters to spread it (an arm error that is not
+//! one). The candidate lets the tool float in S (its own Δ_S, `--float-tool S`): in a
+//! calibration session it is scored by the held-out error of the refit; in a held-out session by
+//! that session's error with its base and Δ_S refitted. Only the best candidate is called, when
+//! |Δ_S| is beyond three of its standard deviations and the held-out error falls: the others
+//! were scored against a model the best one still bends (apply it, and score again).
+
+use crate::calib::tracker::{
+    calibrate_tracker, fit_session_with_tool, validate_session, TrackerCalibration, TrackerOptions,
+};
+use crate::data::tracker::TrackerData;
+use crate::model::ArmModel;
+
+/// A session whose tool point sits elsewhere.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct ToolMoved {
+    /// The session.
+    pub session: String,
+    /// `calibration` or `validation`: where the session is.
+    pub set: String,
+    /// The tool point's displacement in the flange frame, mm.
+    pub offset_mm: [f64; 3],
+    /// Its length, mm.
+    pub size_mm: f64,
+    /// Standard deviation of the length, mm.
+    pub size_std_mm: f64,
+    /// Held-out RMS without the candidate, mm.
+    pub held_out_before_mm: f64,
+    /// Held-out RMS with it, mm.
+    pub held_out_after_mm: f64,
+    /// Beyond 3 σ and the held-out error falls.
+    pub significant: bool,
+    /// The sentence a user reads.
+    pub text: String,
+    /// The command-line option that applies it.
+    pub action: String,
+}
+
+fn pooled_rms(parts: &[(f64, usize)]) -> f64 {
+    let n: usize = parts.iter().map(|p| p.1).sum();
+    (parts.iter().map(|(r, k)| r * r * *k as f64).sum::<f64>() / n.max(1) as f64).sqrt()
+}
+
+/// Held-out RMS of `model` over `val`, the sessions in `floating` with their tool refitted too.
+pub fn held_out_rms(model: &ArmModel, val: &TrackerData, floating: &[String]) -> f64 {
+    let parts: Vec<(f64, usize)> = val
+        .sessions
+        .iter()
+        .map(|s| {
+            let v = if floating.contains(&s.name) {
+                fit_session_with_tool(model, s).1
+            } else {
+                validate_session(model, s, [0.0; 3])
+            };
+            (v.rms_mm, v.points)
+        })
+        .collect();
+    pooled_rms(&parts)
+}
+
+/// Score "the tool moved in session S" for every session not already floating, best first.
+pub fn tool_moved_candidates(
+    nominal: &ArmModel,
+    cal: &TrackerData,
+    val: &TrackerData,
+    fit: &TrackerCalibration,
+    options: &TrackerOptions,
+) -> Vec<ToolMoved> {
+    let before = held_out_rms(&fit.model, val, &options.float_tool);
+    let mut out = Vec::new();
+    let verdict = |session: &str, set: &str, offset: [f64; 3], std: f64, after: f64| {
+        let size = offset.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let significant = size > 3.0 * std && after < before;
+        ToolMoved {
+            session: session.into(),
+            set: set.into(),
+            offset_mm: offset,
+            size_mm: size,
+            size_std_mm: std,
+            held_out_before_mm: before,
+            held_out_after_mm: after,
+            significant,
+            text: format!(
+                "the tool sits {size:.3} ± {std:.3} mm elsewhere in session {session} (flange frame: {:.3}, {:.3}, {:.3} mm); \
+                 held-out RMS {before:.4} → {after:.4} mm with it floating",
+                offset[0], offset[1], offset[2]
+            ),
+            action: format!("--float-tool {session}"),
+        }
+    };
+    for s in cal.sessions.iter().filter(|s| !options.float_tool.contains(&s.name)) {
+        let mut float_tool = options.float_tool.clone();
+        float_tool.push(s.name.clone());
+        let Ok(refit) = calibrate_tracker(
+            nominal,
+            cal,
+            &TrackerOptions { float_tool: float_tool.clone(), ..options.clone() },
+        ) else {
+            continue;
+        };
+        let Some(tool) = refit.tool_offsets.iter().find(|t| t.session == s.name) else { continue };
+        let after = held_out_rms(&refit.model, val, &options.float_tool);
+        out.push(verdict(&s.name, "calibration", tool.offset_mm, tool.size_std_mm, after));
+    }
+    for s in val.sessions.iter().filter(|s| !options.float_tool.contains(&s.name)) {
+        let tool = fit_session_with_tool(&fit.model, s).0;
+        let mut floating = options.float_tool.clone();
+        floating.push(s.name.clone());
+        let after = held_out_rms(&fit.model, val, &floating);
+        out.push(verdict(&s.name, "validation", tool.offset_mm, tool.size_std_mm, after));
+    }
+    out.sort_by(|a, b| a.held_out_after_mm.total_cmp(&b.held_out_after_mm));
+    // One data error at a time: the others are scored against a model the best one still bends,
+    // so only the best is called; apply it and score again.
+    for c in out.iter_mut().skip(1) {
+        c.significant = false;
+    }
+    out
+}

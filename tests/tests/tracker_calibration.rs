@@ -220,3 +220,46 @@ fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
     assert!(after <= 1.10 * floor, "after the action {after} vs floor {floor}");
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// The whole run as `kincal calibrate` does it on tracker folders: summary.json's held-out
+/// sessions with the nominal figures beside them, the floor from the stated uncertainty, and
+/// the verdict; repeated poses give the floor when there are any.
+#[test]
+fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor() {
+    use kincal::calib::tracker_run::{run_tracker, TrackerInputs};
+    let dir = scratch("run");
+    let mut options = GenOptions::iiwa_five_sessions(5);
+    options.repeats = 2;
+    let generated = generate(&options);
+    let nominal = nominal_model(&generated, &dir);
+    nominal.save(&dir.join("model.toml")).expect("model saved");
+    split(&generated, &dir, &[0, 1, 2]);
+    let inputs = TrackerInputs {
+        model: dir.join("model.toml"),
+        calibration: dir.join("cal"),
+        validation: dir.join("val"),
+        float_tool: vec![],
+        stated_sigma_mm: None,
+    };
+    let run = run_tracker(&inputs, None).expect("runs");
+    let s = &run.summary;
+    let names: Vec<&str> = s.validation.sessions.iter().map(|v| v.name.as_str()).collect();
+    assert_eq!(names, ["session_4", "session_5"]);
+    let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
+    for v in &s.validation.sessions {
+        assert!(v.transfers && v.rms_mm < 0.5 * v.nominal.rms_mm, "{v:?}");
+        assert!(v.pairwise_rms_mm > 0.0 && v.max_mm >= v.mean_mm, "{v:?}");
+    }
+    assert_eq!(s.floor.source, "repeated poses");
+    let stated = s.floor.rms_mm.expect("a floor");
+    assert!((stated / floor - 1.0).abs() < 0.2, "floor from repeats {stated} vs true {floor}");
+    assert!(
+        s.verdict.iter().any(|v| v.starts_with("the model explains the held-out data")),
+        "{:?}",
+        s.verdict
+    );
+    assert!(s.data_errors.iter().all(|d| !d.significant), "{:?}", s.data_errors);
+    let json = serde_json::to_value(s).expect("serialises");
+    assert!(json["validation"]["sessions"][0]["rms_mm"].is_number(), "{json}");
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -15,4 +15,5 @@ pub mod run;
 pub mod study;
 pub mod tracker;
 pub mod tracker_errors;
+pub mod tracker_run;
 pub mod validate;

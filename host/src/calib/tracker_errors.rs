@@ -5,13 +5,16 @@
 //! orientation varying inside S, Δ_S cannot be absorbed by S's base, and a calibration that
 //! shares t across sessions bends the arm parameters to spread it (an arm error that is not
 //! one). The candidate lets the tool float in S (its own Δ_S, `--float-tool S`): in a
-//! calibration session it is scored by the held-out error of the refit; in a held-out session by
-//! that session's error with its base and Δ_S refitted. Only the best candidate is called, when
+//! calibration session it is scored by the held-out error of the refit; in a held-out session
+//! whose orientation varies by that session's error with its base and Δ_S refitted. A
+//! displacement beyond [`MAX_REMOUNT_MM`] is the session's model error, not a re-mount; a gain
+//! below [`MIN_GAIN`] of the held-out error is none. Only the best candidate is called, when
 //! |Δ_S| is beyond three of its standard deviations and the held-out error falls: the others
 //! were scored against a model the best one still bends (apply it, and score again).
 
 use crate::calib::tracker::{
-    calibrate_tracker, fit_session_with_tool, validate_session, TrackerCalibration, TrackerOptions,
+    calibrate_tracker, fit_session_with_tool, orientation_spread_deg, validate_session, TrackerCalibration,
+    TrackerOptions, CONSTANT_ORIENTATION_DEG,
 };
 use crate::data::tracker::TrackerData;
 use crate::model::ArmModel;
@@ -40,6 +43,13 @@ pub struct ToolMoved {
     /// The command-line option that applies it.
     pub action: String,
 }
+
+/// Largest tool displacement taken for a re-mount, mm: a probe put back sits within millimetres;
+/// more is the session's model error, not a tool.
+pub const MAX_REMOUNT_MM: f64 = 10.0;
+
+/// Least share of the held-out error a data error must remove to be called.
+pub const MIN_GAIN: f64 = 0.05;
 
 fn pooled_rms(parts: &[(f64, usize)]) -> f64 {
     let n: usize = parts.iter().map(|p| p.1).sum();
@@ -75,7 +85,7 @@ pub fn tool_moved_candidates(
     let mut out = Vec::new();
     let verdict = |session: &str, set: &str, offset: [f64; 3], std: f64, after: f64| {
         let size = offset.iter().map(|v| v * v).sum::<f64>().sqrt();
-        let significant = size > 3.0 * std && after < before;
+        let significant = size > 3.0 * std && size <= MAX_REMOUNT_MM && after < (1.0 - MIN_GAIN) * before;
         ToolMoved {
             session: session.into(),
             set: set.into(),
@@ -93,7 +103,15 @@ pub fn tool_moved_candidates(
             action: format!("--float-tool {session}"),
         }
     };
-    for s in cal.sessions.iter().filter(|s| !options.float_tool.contains(&s.name)) {
+    // A calibration session's own tool needs the shared one fixed by other sessions that turn it.
+    let turns = |s: &&crate::data::tracker::TrackerSession| {
+        orientation_spread_deg(&fit.model, s) >= CONSTANT_ORIENTATION_DEG
+    };
+    let turning = cal.sessions.iter().filter(turns).filter(|s| !options.float_tool.contains(&s.name)).count();
+    for s in cal.sessions.iter().filter(|s| !options.float_tool.contains(&s.name)).filter(turns) {
+        if turning < 2 {
+            break;
+        }
         let mut float_tool = options.float_tool.clone();
         float_tool.push(s.name.clone());
         let Ok(refit) = calibrate_tracker(
@@ -107,7 +125,8 @@ pub fn tool_moved_candidates(
         let after = held_out_rms(&refit.model, val, &options.float_tool);
         out.push(verdict(&s.name, "calibration", tool.offset_mm, tool.size_std_mm, after));
     }
-    for s in val.sessions.iter().filter(|s| !options.float_tool.contains(&s.name)) {
+    // A held-out session whose orientation is constant cannot tell its tool from its base.
+    for s in val.sessions.iter().filter(|s| !options.float_tool.contains(&s.name)).filter(turns) {
         let tool = fit_session_with_tool(&fit.model, s).0;
         let mut floating = options.float_tool.clone();
         floating.push(s.name.clone());

@@ -153,10 +153,10 @@ pub struct InputArgs {
     /// Arm model file (kincal-arm/1, .toml or .json).
     #[arg(long)]
     model: PathBuf,
-    /// Artefact file (suta-artefact/1).
+    /// Artefact file (suta-artefact/1); leave it out for tracker sessions (kincal-tracker/1).
     #[arg(long)]
-    artefact: PathBuf,
-    /// Folder of calibration sessions (suta-session/1).
+    artefact: Option<PathBuf>,
+    /// Folder of calibration sessions (suta-session/1, or kincal-tracker/1 CSV files).
     #[arg(long)]
     data: PathBuf,
     /// Folder of validation sessions.
@@ -185,6 +185,14 @@ pub struct CalibrateArgs {
     /// Leave a calibration block PLACEMENT/REPEAT out, e.g. C_A/2 when the artefact moved (repeatable).
     #[arg(long, value_name = "PLACEMENT/REPEAT")]
     exclude_block: Vec<String>,
+    /// Tracker sessions: let the tool float in SESSION (its own tool offset; the probe was
+    /// re-mounted there), as the data-error diagnosis suggests (repeatable).
+    #[arg(long, value_name = "SESSION")]
+    float_tool: Vec<String>,
+    /// Tracker sessions: the instrument's stated σ per axis, mm, for rows without a sigma_mm or
+    /// u95_mm column (sets the floor when no pose is repeated).
+    #[arg(long, allow_negative_numbers = true, value_parser = real(0.0001, 10.0, "mm"))]
+    sigma_mm: Option<f64>,
     /// Print summary.json to stdout.
     #[arg(long)]
     json: bool,
@@ -247,8 +255,19 @@ pub fn cmd_simulate(a: &SimulateArgs) -> Result<()> {
     simulate_to(&a.model, &a.out, &options)
 }
 
-pub fn inputs(a: &InputArgs) -> RunInputs {
-    RunInputs::new(a.model.clone(), a.artefact.clone(), a.data.clone(), a.validate.clone())
+/// The artefact file, required unless the data are tracker sessions.
+fn artefact_of(a: &InputArgs) -> Result<PathBuf> {
+    a.artefact.clone().ok_or_else(|| {
+        anyhow::anyhow!(
+            "--artefact is required: {} holds no tracker sessions (*.csv starting with \"# {}\")",
+            a.data.display(),
+            kincal::data::tracker::TRACKER_FORMAT
+        )
+    })
+}
+
+pub fn inputs(a: &InputArgs) -> Result<RunInputs> {
+    Ok(RunInputs::new(a.model.clone(), artefact_of(a)?, a.data.clone(), a.validate.clone()))
 }
 
 pub fn calibrate_and_report(
@@ -319,17 +338,35 @@ pub fn calibrate_and_report(
 }
 
 pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
+    if a.inputs.artefact.is_none() && kincal::data::tracker::is_tracker_folder(&a.inputs.data) {
+        let i = &a.inputs;
+        let inputs = kincal::calib::tracker_run::TrackerInputs {
+            model: i.model.clone(),
+            calibration: i.data.clone(),
+            validation: i.validate.clone(),
+            float_tool: a.float_tool.clone(),
+            stated_sigma_mm: a.sigma_mm,
+        };
+        return crate::tracker::calibrate_tracker_and_report(&inputs, &a.out, a.json);
+    }
+    if !a.float_tool.is_empty() {
+        bail!(
+            "--float-tool applies to tracker sessions; {} holds artefact sessions",
+            a.inputs.data.display()
+        );
+    }
     let inputs = RunInputs {
         exclude_landmarks: a.exclude_landmark.clone(),
         exclude_blocks: a.exclude_block.clone(),
-        ..inputs(&a.inputs)
+        ..inputs(&a.inputs)?
     };
     calibrate_and_report(&inputs, &a.out, &a.solve.options(), &a.add, a.study_subsets, a.json)
 }
 
 pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     let nominal = ArmModel::load(&a.inputs.model)?;
-    let artefact = Artefact::load(&a.inputs.artefact)?;
+    let artefact_path = artefact_of(&a.inputs)?;
+    let artefact = Artefact::load(&artefact_path)?;
     let cal = Dataset::load_dir(&a.inputs.data, &artefact, Purpose::Calibration)?;
     let val = Dataset::load_dir(&a.inputs.validate, &artefact, Purpose::Validation)?;
     if val.pair_count() == 0 {
@@ -349,7 +386,7 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
         bail!("the study has no result, nothing was written:\n  - {}", problems.join("\n  - "));
     }
     let i = &a.inputs;
-    output::write_study(&rows, &a.out, &[&i.model, &i.artefact, &i.data, &i.validate])?;
+    output::write_study(&rows, &a.out, &[&i.model, &artefact_path, &i.data, &i.validate])?;
     if a.json {
         println!("{}", output::study_json(&rows));
         return Ok(());

@@ -6,6 +6,7 @@ mod bench;
 mod controller;
 mod emulated_arm;
 mod haptic;
+mod tracker;
 
 use clap::{Parser, Subcommand};
 

@@ -3,6 +3,7 @@
 mod args;
 mod arm;
 mod bench;
+mod bench_tracker;
 mod controller;
 mod emulated_arm;
 mod haptic;

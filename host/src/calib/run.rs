@@ -69,6 +69,14 @@ pub enum RunError {
         /// The calibration placement it copies.
         calibration: String,
     },
+    /// An effect added on the command line names a joint the model does not have.
+    #[error("--add {effect}: the model has {joints} joints, there is no such joint")]
+    NoSuchJoint {
+        /// The effect.
+        effect: String,
+        /// The model's joints.
+        joints: usize,
+    },
     /// An input path could not be resolved.
     #[error("{path}: {source}")]
     Input {
@@ -530,6 +538,9 @@ pub fn run(
     };
     let mut nominal = ArmModel::load(&inputs.model)?;
     for effect in effects {
+        if effect.joint.is_some_and(|j| j >= nominal.joints.len()) {
+            return Err(RunError::NoSuchJoint { effect: effect.to_string(), joints: nominal.joints.len() });
+        }
         effect.add_to(&mut nominal);
     }
     let artefact = Artefact::load(&inputs.artefact)?;

@@ -174,7 +174,10 @@ impl ArmModel {
             if id.joint().is_some_and(|j| j >= model.joints.len()) {
                 return Err(field(
                     key,
-                    format!("the model has {} joints; no such joint", model.joints.len()),
+                    format!(
+                        "unknown parameter: the model has {} joints, there is no such joint",
+                        model.joints.len()
+                    ),
                 ));
             }
             let [lower, upper] = <[f64; 2]>::try_from(bounds.as_slice()).map_err(|_| {

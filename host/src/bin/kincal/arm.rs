@@ -229,6 +229,11 @@ pub fn simulate_to(model: &Path, out: &Path, options: &SimulationOptions) -> Res
             nominal.joints.len()
         );
     }
+    if let Some((id, _)) =
+        options.hidden.iter().find(|(id, _)| id.joint().is_some_and(|j| j >= nominal.joints.len()))
+    {
+        bail!("--hidden {id}: the model has {} joints, there is no such joint", nominal.joints.len());
+    }
     let sim = simulate(&nominal, options);
     output::write_simulation(&sim, out)?;
     let count = |s: &[kincal::data::Session]| s.iter().map(|s| s.measurements.len()).sum::<usize>();

@@ -414,6 +414,7 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
 }
 
 pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
+    crate::tracker::refuse_tracker_run(&a.run, "diagnose")?;
     let folder = RunFolder::load(&a.run)?;
     for problem in &folder.summary.not_trustworthy {
         eprintln!("warning: this run is marked not trustworthy: {problem}");
@@ -520,6 +521,8 @@ fn cmd_diagnose_auto(
 }
 
 pub fn cmd_compare(a: &CompareArgs) -> Result<()> {
+    crate::tracker::refuse_tracker_run(&a.before, "compare")?;
+    crate::tracker::refuse_tracker_run(&a.after, "compare")?;
     let (before, after) = (ComparedRun::load(&a.before)?, ComparedRun::load(&a.after)?);
     for run in [&before, &after] {
         for problem in &run.summary.not_trustworthy {

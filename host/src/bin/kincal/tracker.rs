@@ -63,3 +63,17 @@ pub fn calibrate_tracker_and_report(inputs: &TrackerInputs, out: &Path, json: bo
     println!("  written: {}", out.join("summary.json").display());
     Ok(())
 }
+
+/// Refuse a tracker RUN for a command that reads artefact runs only, saying where its results are.
+pub fn refuse_tracker_run(run: &Path, command: &str) -> Result<()> {
+    let summary = std::fs::read_to_string(run.join("summary.json")).unwrap_or_default();
+    let tag = format!("\"format\": \"{}\"", kincal::calib::tracker_run::TRACKER_RUN_FORMAT);
+    if summary.contains(&tag) {
+        anyhow::bail!(
+            "{}: a tracker run; `kincal {command}` reads artefact runs only so far. Its held-out figures, \
+             floor, data errors (with the option that applies each) and verdict are in summary.json",
+            run.display()
+        );
+    }
+    Ok(())
+}

@@ -3,7 +3,7 @@
 //! Everything here is plain `no_std` logic, tested on the host: the BiSS-C master over
 //! embedded-hal-async SPI ([`biss_master`]) and the emulated encoders behind the same trait
 //! ([`emulated_encoders`]), rejecting frames and counting faults ([`encoders`]), measurement windows ([`window`]), power-loss-safe parameter storage
-//! ([`flash`]), the on-device kinematics ([`kinematics`]) and the protocol state machine
+//! ([`flash`]), whom it trusts to sign parameter sets ([`trust`]), the on-device kinematics ([`kinematics`]) and the protocol state machine
 //! ([`controller`]). Board specifics (time driver, UART, encoder bus, flash) live in one module
 //! per board under `src/bin/`.
 #![cfg_attr(not(test), no_std)]
@@ -17,4 +17,5 @@ pub mod emulated_encoders;
 pub mod encoders;
 pub mod flash;
 pub use kincal_kinematics as kinematics;
+pub mod trust;
 pub mod window;

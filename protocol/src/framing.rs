@@ -7,7 +7,7 @@
 use serde::{de::DeserializeOwned, Serialize};
 
 /// Largest encoded message (postcard bytes, before CRC and COBS).
-pub const MAX_MESSAGE: usize = 256;
+pub const MAX_MESSAGE: usize = 320;
 /// Largest frame on the wire: COBS overhead, CRC and delimiter included.
 pub const MAX_FRAME: usize = MAX_MESSAGE + 2 + MAX_MESSAGE / 254 + 2 + 1;
 
@@ -297,6 +297,10 @@ mod tests {
             board: heapless::String::try_from("mps2-an386").unwrap(),
             param_version: 3,
             param_crc: 0xDEAD_BEEF,
+            arm_id: heapless::String::try_from("arm-1").unwrap(),
+            trust: crate::signed::TrustMode::BuildKey,
+            param_signer: [0x5A; 32],
+            param_signed_at_unix_s: 1_790_000_000,
             ticks: 99,
             late_ticks: 2,
             encoders: [health; JOINTS],
@@ -465,6 +469,10 @@ mod tests {
             board: heapless::String::try_from("y".repeat(24).as_str()).unwrap(),
             param_version: u32::MAX,
             param_crc: u32::MAX,
+            arm_id: heapless::String::try_from("z".repeat(24).as_str()).unwrap_or_default(),
+            trust: crate::signed::TrustMode::FirstUse,
+            param_signer: [0xFF; 32],
+            param_signed_at_unix_s: u64::MAX,
             ticks: u32::MAX,
             late_ticks: u32::MAX,
             encoders: [health; JOINTS],

@@ -11,7 +11,7 @@ use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
 /// Protocol version; bump on any incompatible change.
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 3;
 /// Largest parameter chunk carried by one message, bytes.
 pub const PARAM_CHUNK: usize = 48;
 /// Joints read every tick.
@@ -212,6 +212,9 @@ pub enum DeviceFrame {
 }
 
 /// Successful answers, one variant per answer type.
+// `Info` (~290 bytes with the signer's key) is the large one; no_std without alloc cannot box it,
+// and an answer lives on the stack only while it is encoded.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub enum Response {
     /// Answer to [`Hello`].
@@ -283,6 +286,15 @@ pub enum WireError {
     FlashBusy,
     /// Only the emulated board supports this request.
     NotSupported,
+    /// The set's signature, key or arm identity is refused; nothing was stored.
+    ParamSignature(crate::signed::SignatureRefusal),
+    /// The set's version is not higher than the stored one's (no rollback); nothing was stored.
+    ParamRollback {
+        /// Version of the stored set.
+        stored: u32,
+        /// Version of the refused set.
+        offered: u32,
+    },
     /// The streams asked for need more than the host link carries; the settings are unchanged.
     LinkTooSlow {
         /// Bytes per second the asked-for streams need.
@@ -301,8 +313,16 @@ pub struct Info {
     pub board: heapless::String<24>,
     /// Version number of the stored parameters (0: none stored).
     pub param_version: u32,
-    /// CRC-32 of the stored parameter blob (0: none).
+    /// CRC-32 of the stored parameter set (0: none).
     pub param_crc: u32,
+    /// This controller's arm identity (signed sets must name it).
+    pub arm_id: crate::signed::ArmId,
+    /// Which keys the controller trusts.
+    pub trust: crate::signed::TrustMode,
+    /// Public key of the stored set's signer (all zero: none stored).
+    pub param_signer: [u8; crate::signed::PUBLIC_KEY_BYTES],
+    /// When the stored set was signed, Unix seconds (0: none stored).
+    pub param_signed_at_unix_s: u64,
     /// Ticks since boot.
     pub ticks: u32,
     /// Ticks whose encoder read started more than one tick period late since boot (the
@@ -520,6 +540,13 @@ impl core::fmt::Display for WireError {
                  nothing samples; nothing was stored: stop the streams and windows and commit again",
             ),
             WireError::NotSupported => f.write_str("only the emulated controller supports this"),
+            WireError::ParamSignature(r) => write!(f, "{r}; nothing was stored"),
+            WireError::ParamRollback { stored, offered } => write!(
+                f,
+                "parameter version {offered} is not higher than the stored version {stored} (no rollback); \
+                 nothing was stored: to put older values back, upload them as version {} or later",
+                stored.saturating_add(1)
+            ),
             WireError::LinkTooSlow { needed_bytes_per_s, link_bytes_per_s } => write!(
                 f,
                 "these streams need {needed_bytes_per_s} B/s and the link carries {link_bytes_per_s} B/s \

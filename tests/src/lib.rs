@@ -12,11 +12,13 @@ pub mod haptic_gen;
 pub mod tracker_gen;
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use kincal::controller::signing::StationKey;
 use kincal_firmware::biss_master::BissMaster;
 use kincal_firmware::controller::{Action, Controller};
 use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, SharedEncoders};
 use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
+use kincal_firmware::trust::{Trust, EMULATED_ARM_ID};
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
 use kincal_protocol::messages::{DeviceFrame, HostFrame, Request, TICK_HZ};
 use std::io::{Read, Write};
@@ -26,6 +28,33 @@ use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+/// The fake controller's trust: the emulated arm's identity, trust on first use.
+fn fake_trust() -> Trust {
+    Trust::new(EMULATED_ARM_ID, None).expect("a valid identity")
+}
+
+/// The tests' station key (a fixed seed, so runs are reproducible).
+pub fn station_key() -> StationKey {
+    StationKey::from_seed([42; 32])
+}
+
+/// A station key file in `dir` (`station.key`, owner-only) for the CLI.
+pub fn station_key_file(dir: &Path) -> PathBuf {
+    let path = dir.join("station.key");
+    StationKey::create(&path).expect("a new station key");
+    path
+}
+
+/// `blob` signed by [`station_key`] for the emulated arm (also the fake controller's identity).
+pub fn sign_blob(blob: &[u8]) -> Vec<u8> {
+    station_key().sign(blob, EMULATED_ARM_ID, 1_790_000_000).expect("fits")
+}
+
+/// `model` as version `version`, signed by [`station_key`] for the emulated arm.
+pub fn signed_set(model: &kincal::model::ArmModel, version: u32) -> Vec<u8> {
+    sign_blob(&kincal::controller::device::parameter_blob(model, version).expect("inside the envelope"))
+}
 
 /// What happens to a request the fake controller is told to fault.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -96,7 +125,8 @@ fn serve(
     faults: Arc<std::sync::Mutex<FaultPlan>>,
     speedup: u32,
 ) {
-    let mut controller = Controller::new("kincal-fw fake", "host (fake)", true, RamNor::<4096>::new());
+    let mut controller =
+        Controller::new("kincal-fw fake", "host (fake)", true, fake_trust(), RamNor::<4096>::new());
     let mut sampler = Sampler::default();
     let encoders: SharedEncoders<NoopRawMutex> =
         embassy_sync::blocking_mutex::Mutex::new(std::cell::RefCell::new(EmulatedEncoders::new()));
@@ -150,7 +180,13 @@ fn serve(
                             Action::Simulate(request) => encoders.lock(|e| e.borrow_mut().apply(&request)),
                             Action::Reset => {
                                 let flash = controller.into_flash();
-                                controller = Controller::new("kincal-fw fake", "host (fake)", true, flash);
+                                controller = Controller::new(
+                                    "kincal-fw fake",
+                                    "host (fake)",
+                                    true,
+                                    fake_trust(),
+                                    flash,
+                                );
                                 sampler = Sampler::default();
                             }
                             _ => {}

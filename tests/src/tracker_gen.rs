@@ -1,7 +1,7 @@
 //! An independent laser-tracker / optical-tracker data generator for serial arms (issue 18).
 //!
 //! Written from `shared/notes/tracker-calibration.md`, the DH / Hayati / URDF definitions and the
-//! SUTA thesis' compliance model, and sharing no code with kincal's host library: its own
+//! joint compliance of `shared/notes/references.md` (Δθ = c·τ_gravity(q)), and sharing no code with kincal's host library: its own
 //! rigid transforms, classic DH with Hayati β, URDF joints, rotations, quaternions, inverse
 //! kinematics (damped least squares), Horn's absolute orientation, noise and CSV writer.
 //!
@@ -176,11 +176,6 @@ impl Pose {
         Pose { rotation, translation_mm: [0.0; 3] }
     }
 
-    /// A pure translation, mm.
-    pub fn translation(translation_mm: Vec3) -> Pose {
-        Pose { rotation: IDENTITY, translation_mm }
-    }
-
     /// A URDF `<origin>`: translation (mm) then fixed-axis rpy (deg).
     pub fn from_xyz_rpy(xyz_mm: Vec3, rpy_deg: Vec3) -> Pose {
         Pose { rotation: rpy_matrix(rpy_deg.map(f64::to_radians)), translation_mm: xyz_mm }
@@ -199,7 +194,7 @@ impl Pose {
         v_add(m_vec(&self.rotation, p_mm), self.translation_mm)
     }
 
-    /// The inverse transform.
+    /// The inverse transform (e.g. robot base ← instrument from a base B_s).
     pub fn inverse(&self) -> Pose {
         let rt = m_t(&self.rotation);
         Pose { rotation: rt, translation_mm: v_scale(m_vec(&rt, self.translation_mm), -1.0) }
@@ -515,20 +510,19 @@ impl Arm {
     /// The joint angles the arm really takes at readings `q_deg` under gravity sag ([`GravitySag`]).
     fn sagged_q(&self, q_deg: &[f64], sag: Option<&GravitySag>) -> Vec<f64> {
         let Some(sag) = sag else { return q_deg.to_vec() };
-        let levers = gravity_levers_m(self, q_deg);
+        let levers = gravity_levers_m(self, q_deg, sag.down);
         q_deg.iter().zip(&levers).zip(&sag.compliance_deg_per_m).map(|((q, l), c)| q + c * l).collect()
     }
 }
 
 /// For each joint, the gravity moment about its axis of unit masses at the joint-frame origins
-/// beyond it, the flange origin and the tool point (m): `Σ_k ((m_k − o_j) × ĝ) · z_j`,
-/// ĝ = −z of the robot base (an upright robot), on the undeflected arm.
-pub fn gravity_levers_m(arm: &Arm, q_deg: &[f64]) -> Vec<f64> {
+/// beyond it, the flange origin and the tool point (m): `Σ_k ((m_k − o_j) × ĝ) · z_j`, with ĝ
+/// = `down` the unit direction of gravity in the robot base frame, on the undeflected arm.
+pub fn gravity_levers_m(arm: &Arm, q_deg: &[f64], down: Vec3) -> Vec<f64> {
     let frames = arm.frames(q_deg);
     let mut masses = frames.axis_origin_mm.clone();
     masses.push(frames.flange.translation_mm);
     masses.push(frames.flange.apply(arm.tool_mm));
-    let down = [0.0, 0.0, -1.0];
     (0..arm.joints())
         .map(|j| {
             let o = frames.axis_origin_mm[j];
@@ -624,7 +618,7 @@ pub fn perturb(nominal: &Arm, sizes: &HiddenErrorSizes, seed: u64) -> (Arm, Vec<
 /// when it lowers the error, else the damping grows) on this module's own kinematics: the joint
 /// readings near `q_start_deg` that put the tool frame at `target` (position and orientation,
 /// base frame). Orientation errors are weighted by 500 mm/rad. `None` when it does not converge
-/// to 1e-9 mm and 1e-12 rad within 300 iterations or ends outside the joint limits.
+/// to 1e-9 mm and 1e-12 rad within 100 iterations or ends outside the joint limits.
 pub fn inverse_kinematics(arm: &Arm, target: &Pose, q_start_deg: &[f64]) -> Option<Vec<f64>> {
     const LEVER_MM: f64 = 500.0;
     // The pose error (mm, and rad × lever) and the Jacobian columns (per rad) at `q`.
@@ -646,7 +640,7 @@ pub fn inverse_kinematics(arm: &Arm, target: &Pose, q_start_deg: &[f64]) -> Opti
     let mut q = q_start_deg.to_vec();
     let (mut e, mut columns) = error_at(&q);
     let mut damping = 1.0;
-    for _ in 0..300 {
+    for _ in 0..100 {
         if size(&[e[0], e[1], e[2], 0.0, 0.0, 0.0]) < 1e-9
             && size(&[e[3], e[4], e[5], 0.0, 0.0, 0.0]) < 1e-12 * LEVER_MM
         {
@@ -780,6 +774,7 @@ pub struct Floor {
 }
 
 impl Floor {
+    /// The statistics of `distances_mm` (all zero for none).
     fn of(distances_mm: &[f64]) -> Floor {
         let n = distances_mm.len().max(1) as f64;
         Floor {
@@ -799,6 +794,16 @@ impl Floor {
 pub struct GravitySag {
     /// c_j per joint, deg/m.
     pub compliance_deg_per_m: Vec<f64>,
+    /// ĝ, the unit direction of gravity in the robot base frame: `[0, 0, −1]` for a robot on
+    /// the floor, `[0, 0, 1]` hanging from the ceiling, horizontal on a wall.
+    pub down: Vec3,
+}
+
+impl GravitySag {
+    /// Compliances `c_j` (deg/m) of a robot standing on the floor.
+    pub fn floor_mounted(compliance_deg_per_m: Vec<f64>) -> GravitySag {
+        GravitySag { compliance_deg_per_m, down: [0.0, 0.0, -1.0] }
+    }
 }
 
 /// Slow thermal drift: a steel arm grows with temperature, so every length of the arm and tool
@@ -857,6 +862,20 @@ pub enum UncertaintyColumn {
     U95Mm,
 }
 
+/// A mistake in the exported file, for tests of the reader's plausibility checks: the values are
+/// written wrongly under the right header.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ExportMistake {
+    /// A correct file.
+    None,
+    /// Positions (and `sigma_mm`/`u95_mm`) in metres under the `_mm` columns.
+    MetresUnderMm,
+    /// Joint readings in radians under the `_deg` columns.
+    RadiansUnderDeg,
+    /// The quaternion scalar last (`qx, qy, qz, qw`) under `qw, qx, qy, qz`.
+    ScalarLastQuaternion,
+}
+
 /// One session (one placement of the instrument).
 #[derive(Clone, Debug, PartialEq)]
 pub struct SessionPlan {
@@ -910,6 +929,8 @@ pub struct TrackerOptions {
     pub grid_spacing_mm: f64,
     /// The tag line of every CSV.
     pub tag: String,
+    /// A mistake in the written files (the truth and the rows stay right).
+    pub export_mistake: ExportMistake,
 }
 
 impl TrackerOptions {
@@ -937,6 +958,7 @@ impl TrackerOptions {
             seconds_per_point: 15.0,
             grid_spacing_mm: 100.0,
             tag: FOLDER_TAG.into(),
+            export_mistake: ExportMistake::None,
         }
     }
 
@@ -1049,7 +1071,7 @@ fn round6(v: f64) -> f64 {
 /// Random readings inside the limits (and the low-coverage span) whose tool point lies in the
 /// reachable workspace (above `min_z_mm`, outside `min_radius_mm`).
 fn random_q(arm: &Arm, low_coverage: Option<(usize, f64)>, rng: &mut ChaCha8Rng) -> Vec<f64> {
-    loop {
+    for _ in 0..100_000 {
         let q: Vec<f64> = arm
             .limits_deg
             .iter()
@@ -1070,41 +1092,56 @@ fn random_q(arm: &Arm, low_coverage: Option<(usize, f64)>, rng: &mut ChaCha8Rng)
             return q;
         }
     }
+    panic!("{}: no reading of 100 000 puts the tool above min_z_mm and outside min_radius_mm", arm.name)
 }
 
-/// A grid of `count` tool positions at one orientation, solved by IK on `arm` around a random
-/// reachable start; targets IK cannot reach inside the limits are skipped.
+/// A grid of `count` tool positions at one orientation, solved by IK on `arm`: the cells of a
+/// cubic grid of side ⌈∛count⌉ + 1 nearest to a random reachable start's tool point, skipping
+/// cells IK cannot reach inside the limits; a new start when too many are out of reach.
 fn constant_orientation_q(arm: &Arm, count: usize, spacing_mm: f64, rng: &mut ChaCha8Rng) -> Vec<Vec<f64>> {
-    let side = (count as f64).cbrt().ceil() as i64;
-    loop {
+    let side = (count as f64).cbrt().ceil() as i64 + 1;
+    let mut cells: Vec<Vec3> = (0..side * side * side)
+        .map(|c| {
+            [c / (side * side), (c / side) % side, c % side]
+                .map(|v| (v as f64 - 0.5 * (side - 1) as f64) * spacing_mm)
+        })
+        .collect();
+    cells.sort_by(|a, b| v_norm(*a).total_cmp(&v_norm(*b)));
+    for _ in 0..200 {
         let start = random_q(arm, None, rng);
         let center = arm.tool_pose(&start);
-        let mut out = Vec::new();
-        let mut q_prev = start.clone();
-        'grid: for i in 0..side {
-            for j in 0..side {
-                for k in 0..side {
-                    if out.len() == count {
-                        break 'grid;
-                    }
-                    let offset = [i, j, k].map(|v| (v as f64 - 0.5 * (side - 1) as f64) * spacing_mm);
-                    let target = Pose { translation_mm: v_add(center.translation_mm, offset), ..center };
-                    let solved = inverse_kinematics(arm, &target, &q_prev)
-                        .or_else(|| inverse_kinematics(arm, &target, &start));
-                    if let Some(q) = solved {
-                        q_prev = q.clone();
-                        out.push(q);
-                    }
-                }
+        let mut out: Vec<Vec<f64>> = Vec::new();
+        let mut missed = 0;
+        for offset in &cells {
+            if out.len() == count || missed > cells.len() - count {
+                break;
+            }
+            let target = Pose { translation_mm: v_add(center.translation_mm, *offset), ..center };
+            let solved = out
+                .last()
+                .and_then(|q_prev| inverse_kinematics(arm, &target, q_prev))
+                .or_else(|| inverse_kinematics(arm, &target, &start));
+            match solved {
+                Some(q) => out.push(q),
+                None => missed += 1,
             }
         }
         if out.len() == count {
             return out;
         }
     }
+    panic!(
+        "{}: no start of 200 reaches {count} cells of a grid spaced {spacing_mm} mm at one orientation; ask \
+         for fewer poses or a smaller grid_spacing_mm",
+        arm.name
+    )
 }
 
 /// Generate a data set (deterministic in `options.seed`).
+///
+/// # Panics
+/// When the options ask for the impossible: a workspace no reading reaches, or a
+/// constant-orientation grid too large for the arm (the message says which).
 pub fn generate(options: &TrackerOptions) -> TrackerData {
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let (truth_arm, hidden_errors) = perturb(&options.arm, &options.hidden, rng.random::<u64>());
@@ -1256,20 +1293,31 @@ impl TrackerData {
             header.extend(["time_s", "temp_C"].map(String::from));
         }
         let _ = writeln!(out, "{}", header.join(","));
+        let length = |mm: f64| match o.export_mistake {
+            ExportMistake::MetresUnderMm => format!("{:.9}", mm / 1000.0),
+            _ => format!("{mm:.6}"),
+        };
         for row in &session.rows {
             let mut fields: Vec<String> = vec![(row.pose + 1).to_string()];
-            fields.extend(row.q_deg.iter().map(|v| format!("{v:.6}")));
-            fields.extend(row.x_mm.iter().map(|v| format!("{v:.6}")));
-            if let Some(q) = row.quaternion {
-                fields.extend(q.iter().map(|v| format!("{v:.9}")));
+            fields.extend(row.q_deg.iter().map(|v| match o.export_mistake {
+                ExportMistake::RadiansUnderDeg => format!("{:.9}", v.to_radians()),
+                _ => format!("{v:.6}"),
+            }));
+            fields.extend(row.x_mm.iter().map(|v| length(*v)));
+            if let Some([w, x, y, z]) = row.quaternion {
+                let written = match o.export_mistake {
+                    ExportMistake::ScalarLastQuaternion => [x, y, z, w],
+                    _ => [w, x, y, z],
+                };
+                fields.extend(written.iter().map(|v| format!("{v:.9}")));
             }
             match o.uncertainty {
                 UncertaintyColumn::None => {}
-                UncertaintyColumn::SigmaMm => fields.push(format!("{:.4}", o.noise_sigma_mm)),
-                UncertaintyColumn::U95Mm => fields.push(format!("{:.4}", 2.0 * o.noise_sigma_mm)),
+                UncertaintyColumn::SigmaMm => fields.push(length(o.noise_sigma_mm)),
+                UncertaintyColumn::U95Mm => fields.push(length(2.0 * o.noise_sigma_mm)),
             }
             if o.thermal.is_some() || o.time_columns {
-                fields.push(format!("{:.1}", row.time_s));
+                fields.push(format!("{:.3}", row.time_s));
                 fields.push(format!("{:.4}", row.temp_c));
             }
             let _ = writeln!(out, "{}", fields.join(","));

@@ -7,8 +7,9 @@ use kincal_e2e::emulated_firmware;
 use kincal_protocol::biss::COUNTS_PER_TURN;
 use kincal_protocol::messages::{
     GetInfo, Reset, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WindowReport,
-    PROTOCOL_VERSION, SCHEMA_HASH,
+    WireError, PROTOCOL_VERSION, SCHEMA_HASH,
 };
+use kincal_protocol::signed::SignatureRefusal;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -113,7 +114,7 @@ fn injected_crc_errors_are_counted_and_excluded() {
 fn uploaded_parameters_survive_a_controller_reset() {
     let (_g, _emu, mut link) = start();
     let model = kincal::model::ArmModel::suta_nominal();
-    let blob = kincal::controller::device::parameter_blob(&model, 7).unwrap();
+    let blob = kincal_e2e::signed_set(&model, 7);
     link.upload(&blob).unwrap();
     assert_eq!(link.info().unwrap().param_version, 7);
     link.call(Reset).unwrap();
@@ -164,7 +165,7 @@ fn the_controller_streams_the_calibrated_pose_the_host_computes() {
     model.joints[4].eccentricity_sin_deg = 0.2;
     model.joints[1].compliance_deg_per_m = 0.1;
     model.tcp_mm = [0.5, -0.3, 253.0];
-    link.upload(&kincal::controller::device::parameter_blob(&model, 11).unwrap()).unwrap();
+    link.upload(&kincal_e2e::signed_set(&model, 11)).unwrap();
     let counts = [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, COUNTS_PER_TURN - 5];
     link.call(SimSetPose { counts }).unwrap();
     link.call(StreamPose { divider: 4 }).unwrap();
@@ -187,7 +188,6 @@ fn the_controller_streams_the_calibrated_pose_the_host_computes() {
 
 #[test]
 fn absurd_parameter_sets_are_refused_by_the_controller_itself() {
-    use kincal_protocol::messages::WireError;
     use kincal_protocol::params::{encode_blob, ArmParams, ParamField, MAX_PARAM_BLOB};
     let (_g, _emu, mut link) = start();
     let good = kincal::controller::device::device_params(&kincal::model::ArmModel::suta_nominal(), 5)
@@ -207,7 +207,7 @@ fn absurd_parameter_sets_are_refused_by_the_controller_itself() {
         // Encoded raw: no host-side check on this path.
         let mut blob = [0u8; MAX_PARAM_BLOB];
         let n = encode_blob(&params, &mut blob).unwrap();
-        match link.upload(&blob[..n]) {
+        match link.upload(&kincal_e2e::sign_blob(&blob[..n])) {
             Err(LinkError::Refused(_, WireError::ParamEnvelope(v))) => assert_eq!(v.field, field),
             other => panic!("{field:?}: expected a refusal by the controller, got {other:?}"),
         }
@@ -317,11 +317,10 @@ fn a_thousand_requests_during_a_full_rate_raw_stream_lose_nothing() {
 #[test]
 fn parameter_commits_during_a_raw_stream_miss_no_tick_and_never_erase() {
     use kincal::controller::link::LinkError;
-    use kincal_protocol::messages::WireError;
     let (_g, _emu, mut link) = start();
     let late_before = link.info().unwrap().late_ticks;
     let model = kincal::model::ArmModel::suta_nominal();
-    let blob = |version| kincal::controller::device::parameter_blob(&model, version).unwrap();
+    let blob = |version| kincal_e2e::signed_set(&model, version);
     link.call(StreamRaw { on: true }).unwrap();
     let mut committed = 0;
     let refused = loop {
@@ -331,6 +330,8 @@ fn parameter_commits_during_a_raw_stream_miss_no_tick_and_never_erase() {
         }
         assert!(committed < 20, "the emulated flash's 2 KiB sectors never filled");
     };
+    // A little more stream after the commits, so the frame count does not hang on upload speed.
+    std::thread::sleep(Duration::from_millis(200));
     link.call(StreamRaw { on: false }).unwrap();
     let (frames, missed) = raw_frames_and_missed_ticks(&mut link);
     assert!(matches!(refused, LinkError::Refused(_, WireError::FlashBusy)), "{refused}");
@@ -351,4 +352,90 @@ fn parameter_commits_during_a_raw_stream_miss_no_tick_and_never_erase() {
     // Idle now: the controller erased the spare sector, so the same commit goes through.
     link.upload(&blob(committed + 1)).unwrap();
     assert_eq!(link.info().unwrap().param_version, committed + 1);
+}
+
+/// A controller for arm `arm_id` holding version 3 of the nominal set, signed by the tests'
+/// station key for it; the stored bytes.
+fn start_signed(arm_id: &str) -> (std::sync::MutexGuard<'static, ()>, Emulator, Link, Vec<u8>) {
+    let guard = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (emulator, mut link) = Emulator::start_as(&emulated_firmware(), Some(arm_id)).expect("QEMU starts");
+    link.hello().expect("handshake");
+    let blob =
+        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 3).unwrap();
+    let set = kincal_e2e::station_key().sign(&blob, arm_id, 1_790_000_000).unwrap();
+    link.upload(&set).expect("the first signed set is stored (trust on first use)");
+    (guard, emulator, link, set)
+}
+
+/// `set` is refused with `refusal`; the controller still answers and holds `stored`.
+fn refused_and_unchanged(link: &mut Link, set: &[u8], refusal: WireError, stored: &[u8]) {
+    match link.upload(set) {
+        Err(LinkError::Refused(_, e)) => assert_eq!(e, refusal, "{e}"),
+        other => panic!("expected {refusal:?}, got {other:?}"),
+    }
+    let info = link.info().expect("info answers");
+    let held = kincal::controller::signing::provenance(stored).unwrap();
+    let version = kincal_protocol::params::decode_blob(&held.blob).unwrap().version;
+    assert_eq!(
+        (info.param_version, info.param_signer, info.param_signed_at_unix_s),
+        (version, held.signer, held.signed_at_unix_s)
+    );
+    assert_eq!(link.read_params(false, 4096).unwrap(), stored, "the stored set is unchanged");
+}
+
+fn signed_version(version: u32, arm_id: &str, key: &kincal::controller::signing::StationKey) -> Vec<u8> {
+    let blob = kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), version)
+        .unwrap();
+    key.sign(&blob, arm_id, 1_790_000_100).unwrap()
+}
+
+#[test]
+fn an_unsigned_raw_upload_is_refused() {
+    let (_g, _emu, mut link, stored) = start_signed("emulated-arm");
+    let blob =
+        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 4).unwrap();
+    refused_and_unchanged(&mut link, &blob, WireError::ParamSignature(SignatureRefusal::Unsigned), &stored);
+}
+
+#[test]
+fn a_set_signed_by_an_untrusted_key_is_refused() {
+    let (_g, _emu, mut link, stored) = start_signed("emulated-arm");
+    let stranger = kincal::controller::signing::StationKey::from_seed([7; 32]);
+    let set = signed_version(4, "emulated-arm", &stranger);
+    refused_and_unchanged(
+        &mut link,
+        &set,
+        WireError::ParamSignature(SignatureRefusal::UntrustedKey),
+        &stored,
+    );
+}
+
+#[test]
+fn one_byte_flipped_after_signing_is_refused() {
+    let (_g, _emu, mut link, stored) = start_signed("emulated-arm");
+    let mut set = signed_version(4, "emulated-arm", &kincal_e2e::station_key());
+    set[100] ^= 0x01; // inside the parameter body; the upload CRC is computed after the flip
+    refused_and_unchanged(
+        &mut link,
+        &set,
+        WireError::ParamSignature(SignatureRefusal::BadSignature),
+        &stored,
+    );
+}
+
+#[test]
+fn a_replayed_older_signed_set_is_refused() {
+    let (_g, _emu, mut link, captured) = start_signed("emulated-arm");
+    let newer = signed_version(4, "emulated-arm", &kincal_e2e::station_key());
+    link.upload(&newer).unwrap();
+    refused_and_unchanged(&mut link, &captured, WireError::ParamRollback { stored: 4, offered: 3 }, &newer);
+    refused_and_unchanged(&mut link, &newer, WireError::ParamRollback { stored: 4, offered: 4 }, &newer);
+}
+
+#[test]
+fn a_set_signed_for_another_arm_is_refused() {
+    let (_g, _emu, mut link, stored) = start_signed("lab-arm-2");
+    assert_eq!(link.info().unwrap().arm_id.as_str(), "lab-arm-2", "the start option names the arm");
+    let set = signed_version(4, "emulated-arm", &kincal_e2e::station_key());
+    refused_and_unchanged(&mut link, &set, WireError::ParamSignature(SignatureRefusal::WrongArm), &stored);
 }

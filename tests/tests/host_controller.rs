@@ -105,12 +105,11 @@ fn an_interrupted_upload_keeps_the_old_parameters_and_a_retry_succeeds() {
     let fake = FakeController::start(1);
     let mut link = Link::open(&fake.port).unwrap();
     link.hello().unwrap();
-    let old =
-        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 1).unwrap();
+    let old = kincal_e2e::signed_set(&kincal::model::ArmModel::suta_nominal(), 1);
     link.upload(&old).unwrap();
     let mut new_model = kincal::model::ArmModel::suta_nominal();
     new_model.joints[2].d_mm += 1.5;
-    let new = kincal::controller::device::parameter_blob(&new_model, 2).unwrap();
+    let new = kincal_e2e::signed_set(&new_model, 2);
     link.call(ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }).unwrap();
     for (k, chunk) in new.chunks(PARAM_CHUNK).take(3).enumerate() {
         link.call(ParamChunk {
@@ -151,6 +150,8 @@ fn a_version_mismatch_is_reported_with_both_versions() {
 fn info_params_and_upload_commands_work_through_the_cli() {
     let fake = FakeController::start(1);
     let dir = scratch("cli");
+    let key_file = kincal_e2e::station_key_file(&dir);
+    let key = key_file.to_str().unwrap();
     let model = dir.join("model.toml");
     kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
     let run = |args: &[&str]| {
@@ -159,11 +160,34 @@ fn info_params_and_upload_commands_work_through_the_cli() {
         String::from_utf8_lossy(&out.stdout).to_string()
     };
     assert!(run(&["info", "--port", &fake.port]).contains("parameters none stored"));
-    let up = run(&["upload", "--port", &fake.port, model.to_str().unwrap(), "--version", "5"]);
+    let model_arg = model.to_str().unwrap();
+    let without_key =
+        Command::new(kincal_bin()).args(["upload", "--port", &fake.port, model_arg]).output().unwrap();
+    assert!(!without_key.status.success());
+    let refusal = String::from_utf8_lossy(&without_key.stderr);
+    assert!(refusal.contains("only signed parameter sets: pass --key"), "{refusal}");
+    let up = run(&["upload", "--key", key, "--port", &fake.port, model_arg, "--version", "5"]);
     assert!(up.contains("parameters version 5"), "{up}");
+    let fingerprint = kincal::controller::signing::fingerprint(
+        &kincal::controller::signing::StationKey::load(&key_file).unwrap().key.public_key(),
+    );
+    assert!(up.contains(&fingerprint), "{up}");
     let info = run(&["info", "--port", &fake.port]);
     assert!(info.contains("version 5") && info.contains("matches this host"), "{info}");
-    assert!(run(&["params", "--port", &fake.port]).contains("\"version\": 5"));
+    assert!(
+        info.contains(&format!("signed by  {fingerprint}")) && info.contains("arm        emulated-arm"),
+        "{info}"
+    );
+    let params = Command::new(kincal_bin()).args(["params", "--port", &fake.port]).output().unwrap();
+    assert!(String::from_utf8_lossy(&params.stdout).contains("\"version\": 5"));
+    let provenance = String::from_utf8_lossy(&params.stderr);
+    assert!(provenance.contains(&fingerprint) && provenance.contains("signature valid"), "{provenance}");
+    // Older values go back only as a newer version: --version 4 is refused, no --version is 6.
+    let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model_arg, "--version", "4"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("would be a rollback") && err.contains("--version 6"), "{err}");
+    assert!(run(&["upload", "--key", key, "--port", &fake.port, model_arg])
+        .contains("now holds parameters version 6"));
     let stream = run(&[
         "stream",
         "--port",
@@ -229,10 +253,12 @@ fn kincal(args: &[&str]) -> (Option<i32>, String, String) {
 fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
     let fake = FakeController::start(1);
     let dir = scratch("commit");
+    let key_file = kincal_e2e::station_key_file(&dir);
+    let key = key_file.to_str().unwrap();
     let model = dir.join("model.toml");
     kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
     let model = model.to_str().unwrap();
-    let (code, out, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "10"]);
+    let (code, out, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "10"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(out.contains("now holds parameters version 10"), "{out}");
     let commit = |r: &kincal_protocol::messages::Request| {
@@ -241,7 +267,7 @@ fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
     // The commit happens but every answer to it is lost (the first and the repeat): the host
     // asks what the controller holds, and reports the new set.
     fake.fault_next(commit, Fault::LoseReply, 2);
-    let (code, out, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "77"]);
+    let (code, out, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "77"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(err.contains("first commit request went unanswered"), "{err}");
     assert!(
@@ -250,7 +276,7 @@ fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
     // The commit request is lost, and its repeat too: the host asks, and reports the set still
     // held.
     fake.fault_next(commit, Fault::LoseRequest, 2);
-    let (code, _, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "78"]);
+    let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "78"]);
     assert_eq!(code, Some(1));
     assert!(
         err.contains("not confirmed") && err.contains("the controller holds parameters version 77"),
@@ -264,22 +290,27 @@ fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
 fn version_0_and_absurd_sets_are_refused_by_the_host_and_by_the_controller() {
     let fake = FakeController::start(1);
     let dir = scratch("envelope");
+    let key_file = kincal_e2e::station_key_file(&dir);
+    let key = key_file.to_str().unwrap();
     let path = dir.join("model.toml");
     let mut far = kincal::model::ArmModel::suta_nominal();
     // Plausible for a model file (≤ 5000 mm), outside what the controller accepts (±2000 mm).
     far.joints[2].a_mm = 3e3;
     far.save(&path).unwrap();
-    let (code, _, err) = kincal(&["upload", "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
+    let (code, _, err) =
+        kincal(&["upload", "--key", key, "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("joint 3 a_mm = 3e3 is outside the envelope ±2000"), "{err}");
     // Absurd already as a model file: refused when it is read, before any upload.
     far.joints[2].a_mm = 1e6;
     far.save(&path).unwrap();
-    let (code, _, err) = kincal(&["upload", "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
+    let (code, _, err) =
+        kincal(&["upload", "--key", key, "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("link_offset:3") && err.contains("beyond any plausible arm"), "{err}");
     kincal::model::ArmModel::suta_nominal().save(&path).unwrap();
-    let (code, _, err) = kincal(&["upload", "--port", &fake.port, path.to_str().unwrap(), "--version", "0"]);
+    let (code, _, err) =
+        kincal(&["upload", "--key", key, "--port", &fake.port, path.to_str().unwrap(), "--version", "0"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("version 0 is reserved"), "{err}");
     // Sent raw, past the host's check: the controller refuses with the reason.
@@ -289,12 +320,12 @@ fn version_0_and_absurd_sets_are_refused_by_the_host_and_by_the_controller() {
         .expect("six joints");
     let mut blob = [0u8; kincal_protocol::params::MAX_PARAM_BLOB];
     let n = kincal_protocol::params::encode_blob(&params, &mut blob).unwrap();
-    let e = link.upload(&blob[..n]).unwrap_err();
+    let e = link.upload(&kincal_e2e::sign_blob(&blob[..n])).unwrap_err();
     assert!(e.to_string().contains("version 0 is reserved"), "{e}");
     params.version = 4;
     params.scale_ppm = 1e12;
     let n = kincal_protocol::params::encode_blob(&params, &mut blob).unwrap();
-    let e = link.upload(&blob[..n]).unwrap_err();
+    let e = link.upload(&kincal_e2e::sign_blob(&blob[..n])).unwrap_err();
     assert!(e.to_string().contains("scale_ppm = 1e12 is outside the envelope ±1000"), "{e}");
     assert_eq!(link.info().unwrap().param_version, 0, "nothing was stored");
     assert!(link.read_params(false, 4096).unwrap().is_empty(), "`params` agrees with `info`");
@@ -459,8 +490,7 @@ fn lost_answers_are_repeated_without_doing_anything_twice() {
         matches!(r, kincal_protocol::messages::Request::ParamChunk(_))
     };
     fake.fault_next(chunk, Fault::LoseReply, 1);
-    let blob =
-        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 6).unwrap();
+    let blob = kincal_e2e::signed_set(&kincal::model::ArmModel::suta_nominal(), 6);
     let done = link.upload(&blob).unwrap();
     assert!(!done.commit_reply_lost);
     assert_eq!(link.read_params(false, 4096).unwrap(), blob);
@@ -469,8 +499,7 @@ fn lost_answers_are_repeated_without_doing_anything_twice() {
         matches!(r, kincal_protocol::messages::Request::ParamCommit(_))
     };
     fake.fault_next(commit, Fault::LoseReply, 1);
-    let blob =
-        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 7).unwrap();
+    let blob = kincal_e2e::signed_set(&kincal::model::ArmModel::suta_nominal(), 7);
     assert!(link.upload(&blob).unwrap().commit_reply_lost);
     assert_eq!(link.info().unwrap().param_version, 7);
 }

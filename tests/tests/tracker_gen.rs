@@ -4,9 +4,9 @@
 
 use kincal_e2e::tracker_gen::{
     fit_rigid, generate, gravity_levers_m, inverse_kinematics, perturb, quaternion_matrix,
-    rotation_vector_of, v_norm, Arm, BadPoints, Chain, GravitySag, HiddenErrorSizes, InstrumentDrift, Mat3,
-    Pose, SessionPlan, ThermalDrift, ToolRemount, TrackerOptions, UncertaintyColumn, UrdfJoint, Vec3,
-    FOLDER_TAG,
+    rotation_vector_of, v_norm, Arm, BadPoints, Chain, ExportMistake, GravitySag, HiddenErrorSizes,
+    InstrumentDrift, Mat3, Pose, SessionPlan, ThermalDrift, ToolRemount, TrackerOptions, UncertaintyColumn,
+    UrdfJoint, Vec3, FOLDER_TAG,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -99,25 +99,38 @@ fn python_urdf_peer_agrees_with_the_rust_kinematics() {
         Arm::industrial6(),
         urdf_arm,
     ];
-    for (k, arm) in arms.iter().enumerate() {
-        let urdf = dir.join(format!("arm{k}.urdf"));
-        arm.write_urdf(&urdf, "robot").expect("URDF written");
-        let poses: Vec<Vec<f64>> = (0..20).map(|_| random_q(arm, &mut rng)).collect();
-        let mut csv: String =
-            (1..=arm.joints()).map(|j| format!("q{j}_deg")).collect::<Vec<_>>().join(",") + "\n";
-        for q in &poses {
-            csv += &(q.iter().map(|v| format!("{v:.17e}")).collect::<Vec<_>>().join(",") + "\n");
-        }
-        let q_file = dir.join(format!("q{k}.csv"));
-        std::fs::write(&q_file, csv).expect("poses written");
-        let peer = Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/urdf_fk_peer.py");
-        let out = std::process::Command::new("python3")
+    let peer = Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/urdf_fk_peer.py");
+    let python = |args: &[&std::ffi::OsStr]| {
+        std::process::Command::new("python3")
             .arg(&peer)
-            .arg(&urdf)
-            .args(["--base", "base_link", "--tip", "tool0", "--q-file"])
-            .arg(&q_file)
-            .output()
-            .expect("python3 runs (scripts/setup.sh installs it with numpy)");
+            .args(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("python3 runs (scripts/setup.sh installs it with numpy)")
+    };
+    // One peer per arm, all running at once.
+    let runs: Vec<(Vec<Vec<f64>>, std::process::Child)> = arms
+        .iter()
+        .enumerate()
+        .map(|(k, arm)| {
+            let urdf = dir.join(format!("arm{k}.urdf"));
+            arm.write_urdf(&urdf, "robot").expect("URDF written");
+            let poses: Vec<Vec<f64>> = (0..20).map(|_| random_q(arm, &mut rng)).collect();
+            let mut csv: String =
+                (1..=arm.joints()).map(|j| format!("q{j}_deg")).collect::<Vec<_>>().join(",") + "\n";
+            for q in &poses {
+                csv += &(q.iter().map(|v| format!("{v:.17e}")).collect::<Vec<_>>().join(",") + "\n");
+            }
+            let q_file = dir.join(format!("q{k}.csv"));
+            std::fs::write(&q_file, csv).expect("poses written");
+            let args = ["--base", "base_link", "--tip", "tool0", "--q-file"].map(std::ffi::OsStr::new);
+            let child = python(&[&[urdf.as_os_str()], &args[..], &[q_file.as_os_str()]].concat());
+            (poses, child)
+        })
+        .collect();
+    for (arm, (poses, child)) in arms.iter().zip(runs) {
+        let out = child.wait_with_output().expect("peer ends");
         assert!(out.status.success(), "peer failed: {}", String::from_utf8_lossy(&out.stderr));
         let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("peer prints JSON");
         let got = json["poses"].as_array().expect("poses");
@@ -137,13 +150,10 @@ fn python_urdf_peer_agrees_with_the_rust_kinematics() {
         }
     }
     // Wrong input: a named error and exit status 2, no pose.
-    let peer = Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/urdf_fk_peer.py");
-    let out = std::process::Command::new("python3")
-        .arg(&peer)
-        .arg(dir.join("arm0.urdf"))
-        .args(["--base", "tool0", "--tip", "base_link", "--q", "1,2,3,4,5,6,7"])
-        .output()
-        .expect("python3 runs");
+    let args = ["--base", "tool0", "--tip", "base_link", "--q", "1,2,3,4,5,6,7"].map(std::ffi::OsStr::new);
+    let out = python(&[&[dir.join("arm0.urdf").as_os_str()], &args[..]].concat())
+        .wait_with_output()
+        .expect("peer ends");
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("'base_link' is not below 'tool0'"));
     assert!(out.stdout.is_empty());
@@ -278,20 +288,27 @@ fn gravity_levers_and_sag_follow_the_formula() {
     // from its axis; the vertical arm has no lever anywhere.
     let mut arm = Arm::iiwa7();
     arm.tool_mm = [0.0; 3];
-    let vertical = gravity_levers_m(&arm, &[0.0; 7]);
+    let vertical = gravity_levers_m(&arm, &[0.0; 7], [0.0, 0.0, -1.0]);
     assert!(vertical.iter().all(|l| l.abs() < 1e-12), "{vertical:?}");
-    let horizontal = gravity_levers_m(&arm, &[0.0, 90.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    let horizontal = gravity_levers_m(&arm, &[0.0, 90.0, 0.0, 0.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0]);
     assert!((horizontal[1].abs() - 4.372).abs() < 1e-9, "{horizontal:?}");
     assert!(horizontal[0].abs() < 1e-12, "a vertical axis carries no gravity moment");
+    // Hanging from the ceiling the moments turn sign. On a wall with gravity along base y, the
+    // arm stretched along base x: joint 2's axis (base y) is parallel to gravity and carries
+    // nothing, joint 1's (base z) carries the whole lever.
+    let hanging = gravity_levers_m(&arm, &[0.0, 90.0, 0.0, 0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
+    assert!(hanging.iter().zip(&horizontal).all(|(a, b)| (a + b).abs() < 1e-12));
+    let wall = gravity_levers_m(&arm, &[0.0, 90.0, 0.0, 0.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+    assert!(wall[1].abs() < 1e-12 && (wall[0].abs() - 4.372).abs() < 1e-9, "{wall:?}");
 
     let mut options = TrackerOptions::iiwa_five_sessions(11);
     let c = vec![0.0, 0.01, 0.005, 0.01, 0.0, 0.0, 0.0];
-    options.gravity_sag = Some(GravitySag { compliance_deg_per_m: c.clone() });
+    options.gravity_sag = Some(GravitySag::floor_mounted(c.clone()));
     let data = generate(&options);
     let truth = &data.truth.truth;
     let mut largest_mm: f64 = 0.0;
     for row in &data.sessions[0].rows {
-        let levers = gravity_levers_m(truth, &row.q_deg);
+        let levers = gravity_levers_m(truth, &row.q_deg, [0.0, 0.0, -1.0]);
         let deflected: Vec<f64> =
             row.q_deg.iter().zip(&levers).zip(&c).map(|((q, l), c)| q + c * l).collect();
         let expected = truth.tool_pose(&deflected).translation_mm;
@@ -316,6 +333,9 @@ fn sessions_bases_noise_floor_and_hidden_errors_are_as_configured() {
     let p: Vec<Vec3> = rows.iter().map(|r| r.tool_in_base.translation_mm).collect();
     let exact: Vec<Vec3> = rows.iter().map(|r| r.exact_mm).collect();
     let fitted = fit_rigid(&p, &exact);
+    for (p, x) in p.iter().zip(&exact) {
+        assert!(distance(bases[3].inverse().apply(*x), *p) < 1e-9);
+    }
     assert!(angle_between(&fitted.rotation, &bases[3].rotation) < 1e-10);
     assert!(distance(fitted.translation_mm, bases[3].translation_mm) < 1e-7);
     // The floor is the noise: about σ√3 per point.
@@ -450,6 +470,38 @@ fn written_rows_are_the_measurement_of_their_written_readings() {
             assert!(distance(expected.translation_mm, [v[7], v[8], v[9]]) < 2e-6, "{line}");
             let written = quaternion_matrix([v[10], v[11], v[12], v[13]]);
             assert!(angle_between(&written, &expected.rotation) < 1e-8, "{line}");
+            // The grid session's probe keeps one orientation (readings rounded to 1e-6°).
+            let first = data.sessions[s].rows[0].exact_rotation;
+            assert!(s != 2 || angle_between(&written, &first) < 1e-6, "{line}");
+        }
+    }
+}
+
+#[test]
+fn export_mistakes_write_wrong_values_under_the_right_header() {
+    let mut options = TrackerOptions::industrial_6dof(18).few_placements(1);
+    let right = generate(&options).csv(0);
+    let parse = |text: &str| -> Vec<Vec<f64>> {
+        text.lines().skip(2).map(|l| l.split(',').map(|v| v.parse().expect("number")).collect()).collect()
+    };
+    let good = parse(&right);
+    for (mistake, check) in [
+        (ExportMistake::MetresUnderMm, 7..10),
+        (ExportMistake::RadiansUnderDeg, 1..7),
+        (ExportMistake::ScalarLastQuaternion, 10..14),
+    ] {
+        options.export_mistake = mistake;
+        let text = generate(&options).csv(0);
+        assert_eq!(text.lines().nth(1), right.lines().nth(1), "{mistake:?}: same header");
+        for (bad, good) in parse(&text).iter().zip(&good) {
+            for c in check.clone() {
+                let expected = match mistake {
+                    ExportMistake::MetresUnderMm => good[c] / 1000.0,
+                    ExportMistake::RadiansUnderDeg => good[c].to_radians(),
+                    _ => good[10 + (c - 10 + 1) % 4],
+                };
+                assert!((bad[c] - expected).abs() < 1e-8, "{mistake:?} column {c}: {} vs {expected}", bad[c]);
+            }
         }
     }
 }

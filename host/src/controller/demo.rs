@@ -12,6 +12,7 @@ use crate::calib::calibrate::CalibrationOptions;
 use crate::calib::run::{run, RunError, RunInputs};
 use crate::controller::link::{Link, LinkError};
 use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step, Verdict};
+use crate::controller::signing::StationKey;
 use crate::data::Artefact;
 use crate::model::ArmModel;
 use crate::numerics::geometry::absolute_orientation;
@@ -79,9 +80,22 @@ pub enum LoopError {
     /// A parameter set is outside what the controller accepts.
     #[error(transparent)]
     Params(#[from] crate::controller::device::DeviceParamsError),
+    /// The demo's station key could not be made or read.
+    #[error(transparent)]
+    Key(#[from] crate::controller::signing::KeyFileError),
     /// Writing the inputs failed.
     #[error("{0}")]
     Files(String),
+}
+
+/// The demo's own station key, `OUT/station.key`: made on the first run, reused after.
+pub fn demo_station_key(out: &std::path::Path) -> Result<StationKey, LoopError> {
+    let path = out.join("station.key");
+    if path.exists() {
+        return Ok(StationKey::load(&path)?.key);
+    }
+    std::fs::create_dir_all(out).map_err(|e| LoopError::Files(format!("{}: {e}", out.display())))?;
+    Ok(StationKey::create(&path)?)
 }
 
 /// What the loop measured.
@@ -283,23 +297,29 @@ pub fn run_loop(
         .iter()
         .map(|c| reference_tool_frame(&truth, &degrees_of(c)).0.fixed_view::<3, 1>(0, 3).into_owned())
         .collect();
-    let mut pose_rms =
-        |model: &ArmModel, version: u32, label: &str, link: &mut Link| -> Result<(f64, f64), LoopError> {
-            progress(&format!(
-                "uploading the {label} parameters and streaming the pose at {} validation touches",
-                check_counts.len()
-            ));
-            let t = Instant::now();
-            let blob = crate::controller::device::parameter_blob(model, version)?;
-            link.upload(&blob)?;
-            let upload = t.elapsed().as_secs_f64();
-            let points =
-                check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;
-            Ok((registered_rms(&points, &truth_points), upload))
-        };
-    let (nominal_pose, _) = pose_rms(nominal, 1, "nominal", link)?;
-    let (floor_pose, _) = pose_rms(&truth, 3, "true arm's", link)?;
-    let (calibrated_pose, upload_seconds) = pose_rms(&result.calibration.model, 2, "calibrated", link)?;
+    let key = demo_station_key(&options.out)?;
+    let mut pose_rms = |model: &ArmModel, label: &str, link: &mut Link| -> Result<(f64, f64), LoopError> {
+        progress(&format!(
+            "uploading the {label} parameters and streaming the pose at {} validation touches",
+            check_counts.len()
+        ));
+        let t = Instant::now();
+        let info = link.info()?;
+        let set = crate::controller::device::signed_parameter_set(
+            model,
+            info.param_version + 1,
+            &info.arm_id,
+            &key,
+        )?;
+        link.upload(&set)?;
+        let upload = t.elapsed().as_secs_f64();
+        let points =
+            check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;
+        Ok((registered_rms(&points, &truth_points), upload))
+    };
+    let (nominal_pose, _) = pose_rms(nominal, "nominal", link)?;
+    let (floor_pose, _) = pose_rms(&truth, "true arm's", link)?;
+    let (calibrated_pose, upload_seconds) = pose_rms(&result.calibration.model, "calibrated", link)?;
     let host_points: Vec<Vector3<f64>> = check_counts
         .iter()
         .map(|c| crate::model::kinematics::tool_pose(&result.calibration.model, &degrees_of(c)).position_mm)

@@ -1,6 +1,8 @@
 //! The emulated controller: QEMU `mps2-an386` (Cortex-M4F), emulated encoders, UART0 to the host.
 //!
-//! Start it with `cargo emulator` (see README): QEMU prints the pty to connect to.
+//! Start it with `cargo emulator` (see README): QEMU prints the pty to connect to. Start option
+//! (semihosting command line, `-semihosting-config …,arg=emulated,arg=arm-id=NAME`): the arm
+//! identity, default `emulated-arm` (or `KINCAL_ARM_ID` at build time).
 #![no_std]
 #![no_main]
 // The tick-bench build runs the measurement instead of the tasks.
@@ -30,6 +32,8 @@ use kincal_firmware::controller::Action;
 #[cfg(not(feature = "tick-bench"))]
 use kincal_firmware::controller::Controller;
 use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, SharedEncoders};
+#[cfg(not(feature = "tick-bench"))]
+use kincal_firmware::trust::{Trust, BUILD_ARM_ID, EMULATED_ARM_ID};
 use nor::EmulatedNor;
 use static_cell::StaticCell;
 
@@ -70,12 +74,36 @@ fn main() -> ! {
     run()
 }
 
+/// The semihosting command line QEMU was started with (`arg=…` of `-semihosting-config`), into
+/// `buf`; empty when there is none.
+fn command_line(buf: &mut [u8; 128]) -> &str {
+    let mut block = [buf.as_mut_ptr() as usize, buf.len() - 1];
+    // SAFETY: SYS_GET_CMDLINE writes at most block[1] bytes plus a NUL into `buf` and the length
+    // into block[1]; both outlive the call.
+    let failed = unsafe {
+        cortex_m_semihosting::syscall1(cortex_m_semihosting::nr::GET_CMDLINE, block.as_mut_ptr() as usize)
+    } != 0;
+    let len = if failed { 0 } else { block[1].min(buf.len() - 1) };
+    core::str::from_utf8(&buf[..len]).unwrap_or("")
+}
+
 #[cfg(not(feature = "tick-bench"))]
 fn run() -> ! {
+    let mut line = [0u8; 128];
+    let arm_id = command_line(&mut line)
+        .split(' ')
+        .find_map(|arg| arg.strip_prefix("arm-id="))
+        .or(BUILD_ARM_ID)
+        .unwrap_or(EMULATED_ARM_ID);
+    let Some(trust) = Trust::provisioned(arm_id) else {
+        // The panic handler prints this and stops QEMU with a failure.
+        panic!("arm-id={arm_id} is not an arm identity (1 to 24 letters, digits or -_.:)")
+    };
     let mut controller = Controller::new(
         concat!("kincal-fw ", env!("CARGO_PKG_VERSION")),
         "mps2-an386 (emulated)",
         true,
+        trust,
         EmulatedNor::take().expect("the flash is taken once, here"),
     );
     let has_params = controller.params().is_some();
@@ -85,7 +113,8 @@ fn run() -> ! {
     uart::init();
     time_driver::init();
     hprintln!(
-        "kincal emulated controller ready on UART0 (stored parameters: {})",
+        "kincal emulated controller ready on UART0 (arm {}, stored parameters: {})",
+        arm_id,
         if has_params { "yes" } else { "none" }
     );
     let executor: &'static Executor = EXECUTOR.init(Executor::new(core::ptr::null_mut()));

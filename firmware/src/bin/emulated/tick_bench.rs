@@ -18,12 +18,14 @@ use kincal_firmware::emulated_encoders::EmulatedEncoders;
 use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
 use kincal_firmware::kinematics::Kinematics;
+use kincal_firmware::trust::Trust;
 use kincal_protocol::messages::{
     pack_counts, DeviceFrame, Hello, HostFrame, ParamBegin, ParamChunk, ParamCommit, PoseReport, RawSample,
     Request, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, JOINTS, PROTOCOL_VERSION,
     SCHEMA_HASH, TICK_HZ,
 };
 use kincal_protocol::params::{encode_blob, ArmParams, JointParams, BLOB_CRC, MAX_PARAM_BLOB};
+use kincal_protocol::signed::{signing_message, SIGNATURE_BYTES};
 
 const TIMER0: Block = Block::Timer0;
 
@@ -97,7 +99,8 @@ fn params() -> ArmParams {
 /// Measure and exit QEMU.
 pub fn run() -> ! {
     start_timer();
-    let mut controller = Controller::new("bench", "mps2", true, RamNor::<4096>::new());
+    let trust = Trust::new("bench-arm", None).unwrap_or_else(|| panic!("a valid arm identity"));
+    let mut controller = Controller::new("bench", "mps2", true, trust.clone(), RamNor::<4096>::new());
     let mut sampler = Sampler::default();
     let mut bus = EmulatedEncoders::new();
     bus.apply(&Request::SimSetPose(SimSetPose {
@@ -117,8 +120,15 @@ pub fn run() -> ! {
         sender.send(f);
         while TO_HOST.try_read(&mut uart_chunk).is_ok() {}
     };
+    // The set as a station signs it (signing is the host's work, not measured).
+    let station = ed25519_compact::KeyPair::from_seed(ed25519_compact::Seed::new([7; 32]));
+    let mut unsigned = [0u8; MAX_PARAM_BLOB];
+    let m = encode_blob(&params(), &mut unsigned).unwrap_or(0);
     let mut blob = [0u8; MAX_PARAM_BLOB];
-    let n = encode_blob(&params(), &mut blob).unwrap_or(0);
+    let n = signing_message(&unsigned[..m], "bench-arm", 1_790_000_000, &station.pk, &mut blob).unwrap_or(0);
+    let signature = station.sk.sign(&blob[..n], None);
+    blob[n..n + SIGNATURE_BYTES].copy_from_slice(signature.as_ref());
+    let n = n + SIGNATURE_BYTES;
     for request in [
         Request::Hello(Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }),
         Request::ParamBegin(ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) }),
@@ -133,7 +143,15 @@ pub fn run() -> ! {
             &mut sink,
         );
     }
+    // A commit, outside any tick: the trust checks (Ed25519 verification) alone, then the
+    // whole commit (the checks again, flash programming and read-back, kinematics setup).
+    let start = timer();
+    let admitted = trust.admit(&blob[..n], None).is_ok();
+    let verify = timer().wrapping_sub(start) as u64 * 40;
+    let start = timer();
     controller.handle(HostFrame { seq: 3, request: Request::ParamCommit(ParamCommit) }, &sampler, &mut sink);
+    let commit = timer().wrapping_sub(start) as u64 * 40;
+    let committed = admitted && controller.params().is_some();
     // Transfers as the bus delivers them (generating them is the emulator's work, not measured).
     let transfers = core::array::from_fn(|_| core::array::from_fn(|j| bus.answer(j)));
     let tick = Cell::new(0);
@@ -198,6 +216,16 @@ pub fn run() -> ! {
     hprintln!("  pose, DH + tool only                 {:6}", pose_plain);
     hprintln!("  pose, every effect (ecc + compl.)    {:6}", pose_all);
     hprintln!("  pose frame into the UART pipe        {:6}", pose_frame);
+    hprintln!(
+        "  per commit ({} B signed set, {}): signature + checks {} instr. = {:.1} ms at 168 MHz; whole commit {} = {:.1} ms ({:.0} ticks)",
+        n,
+        if committed { "stored" } else { "REFUSED" },
+        verify,
+        verify as f64 / CORE_HZ * 1e3,
+        commit,
+        commit as f64 / CORE_HZ * 1e3,
+        commit as f64 / (CORE_HZ / TICK_HZ as f64)
+    );
 
     // Whole ticks, through the controller, in the configurations the link can carry (the
     // controller refuses stream settings above it: raw and pose both every tick need 130 %).

@@ -28,6 +28,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use kincal_firmware::app::{self, Shared, SharedCell, FROM_HOST, TO_HOST};
 use kincal_firmware::biss_master::{BissMaster, REAL_BOARD_MA_HZ};
 use kincal_firmware::controller::{Action, Controller};
+use kincal_firmware::trust::{Trust, BUILD_ARM_ID};
 use nor::Stm32Nor;
 use panic_probe as _;
 use static_cell::StaticCell;
@@ -150,6 +151,9 @@ async fn main(spawner: Spawner) {
         concat!("kincal-fw ", env!("CARGO_PKG_VERSION")),
         "stm32f405",
         false,
+        // The arm identity built in (KINCAL_ARM_ID), else the chip's unique 96-bit ID in hex.
+        Trust::provisioned(BUILD_ARM_ID.unwrap_or(embassy_stm32::uid::uid_hex()))
+            .expect("the build script and the chip give valid identities"),
         Stm32Nor::new(p.FLASH),
     );
     defmt::info!("kincal controller up; stored parameters: {}", controller.params().is_some());

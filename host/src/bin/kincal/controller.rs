@@ -2,9 +2,10 @@
 
 use crate::arm::{calibrate_and_report, simulate_to};
 use anyhow::{bail, Context, Result};
-use clap::Args;
+use clap::{Args, Subcommand};
 use kincal::calib::calibrate::CalibrationOptions;
 use kincal::calib::run::RunInputs;
+use kincal::controller::signing::{fingerprint, utc, StationKey};
 use kincal::data::{Artefact, Dataset};
 use kincal::model::ArmModel;
 use kincal::simulate::SimulationOptions;
@@ -45,9 +46,52 @@ pub struct UploadArgs {
     port: PortArgs,
     /// The calibrated model (RUN/model.toml).
     model: PathBuf,
-    /// Version number stored with the parameters.
-    #[arg(long, default_value_t = 1)]
-    version: u32,
+    /// The station key that signs the set (`kincal key new`); the controller stores only signed
+    /// sets.
+    #[arg(long)]
+    key: Option<PathBuf>,
+    /// Version number of the new set; must be higher than the stored one (default: the stored
+    /// version + 1). Older values go back only as a new, higher version.
+    #[arg(long)]
+    version: Option<u32>,
+    /// The arm identity the set is for; refused before anything is sent when the controller has
+    /// another (default: the controller's, printed).
+    #[arg(long)]
+    arm: Option<String>,
+}
+
+#[derive(Subcommand)]
+pub enum KeyCommand {
+    /// Make a new station key: FILE (secret, owner-only, never printed) and FILE.pub.
+    New(KeyNewArgs),
+}
+
+#[derive(Args)]
+pub struct KeyNewArgs {
+    /// The new key file (never replaced).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+pub fn cmd_key_new(a: &KeyNewArgs) -> Result<()> {
+    let key = StationKey::create(&a.out)?;
+    println!("station key written to {} (owner-only; keep it secret, it is not printed)", a.out.display());
+    println!("fingerprint  {}", fingerprint(&key.public_key()));
+    println!(
+        "public key   {} (also in {}; build it into a real controller with KINCAL_TRUSTED_KEY=… cargo build-stm32)",
+        key.public_key_hex(),
+        kincal::controller::signing::public_key_path(&a.out).display()
+    );
+    Ok(())
+}
+
+/// Read a station key, printing its warnings.
+fn load_key(path: &std::path::Path) -> Result<StationKey> {
+    let loaded = StationKey::load(path)?;
+    for w in &loaded.warnings {
+        eprintln!("{w}");
+    }
+    Ok(loaded.key)
 }
 
 #[derive(Args)]
@@ -148,10 +192,22 @@ pub fn cmd_info(a: &PortArgs) -> Result<()> {
         kincal_protocol::messages::PROTOCOL_VERSION,
         kincal_protocol::messages::SCHEMA_HASH
     );
+    let trust = match (info.trust, info.param_version) {
+        (kincal_protocol::signed::TrustMode::BuildKey, _) => "the station key built into the firmware",
+        (kincal_protocol::signed::TrustMode::FirstUse, 0) => {
+            "on first use: the first signed set stored pins its key"
+        }
+        (kincal_protocol::signed::TrustMode::FirstUse, _) => {
+            "on first use: the signer of the stored set only"
+        }
+    };
+    println!("arm        {} (signed sets must name it)", info.arm_id);
+    println!("trust      {trust}");
     if info.param_version == 0 {
         println!("parameters none stored");
     } else {
         println!("parameters version {} (CRC-32 {:08x})", info.param_version, info.param_crc);
+        println!("signed by  {} at {}", fingerprint(&info.param_signer), utc(info.param_signed_at_unix_s));
     }
     println!("late ticks {} (encoder reads started over a tick late)", info.late_ticks);
     println!(
@@ -181,9 +237,23 @@ pub fn cmd_params(a: &PortArgs) -> Result<()> {
         println!("no parameters stored");
         return Ok(());
     }
-    let params = kincal_protocol::params::decode_blob(&blob)
+    let Some(signed) = kincal::controller::signing::provenance(&blob) else {
+        bail!("the stored parameter set is not signed; this controller does not use it");
+    };
+    let params = kincal_protocol::params::decode_blob(&signed.blob)
         .map_err(|e| anyhow::anyhow!("the stored parameter blob does not decode: {e:?}"))?;
+    eprintln!(
+        "version {} for arm {}, signed by {} at {}; signature {}",
+        params.version,
+        signed.arm_id,
+        fingerprint(&signed.signer),
+        utc(signed.signed_at_unix_s),
+        if signed.signature_valid { "valid (checked here too)" } else { "INVALID (checked here)" }
+    );
     println!("{}", serde_json::to_string_pretty(&params)?);
+    if !signed.signature_valid {
+        bail!("the stored set's signature does not verify on this host");
+    }
     Ok(())
 }
 
@@ -198,14 +268,40 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
             names.join(", ")
         );
     }
-    let blob = kincal::controller::device::parameter_blob(&model, a.version)
-        .with_context(|| format!("{}: parameters version {}", a.model.display(), a.version))?;
+    let Some(key_path) = &a.key else {
+        bail!(
+            "the controller stores only signed parameter sets: pass --key STATION.key (make one with `kincal key new --out station.key`); nothing was uploaded"
+        );
+    };
+    let key = load_key(key_path)?;
+    // Checked before connecting: a bad model never reaches the controller.
+    kincal::controller::device::parameter_blob(&model, a.version.unwrap_or(1))
+        .with_context(|| format!("{}: parameters", a.model.display()))?;
     let mut link = connect(&a.port)?;
-    let before = link.held_params()?;
     let started = std::time::Instant::now();
+    let info = link.info()?;
+    let before = kincal::controller::link::HeldParams { version: info.param_version, crc: info.param_crc };
+    if let Some(arm) = a.arm.as_deref().filter(|arm| *arm != info.arm_id.as_str()) {
+        bail!("the controller is arm {}, not {arm}; nothing was uploaded", info.arm_id);
+    }
+    let version = a.version.unwrap_or(info.param_version + 1);
+    if version <= info.param_version {
+        bail!(
+            "the controller holds version {}; version {version} would be a rollback, which it refuses. To put these values back, upload them as a new set: --version {} (or leave --version out); nothing was uploaded",
+            info.param_version,
+            info.param_version + 1
+        );
+    }
+    let blob = kincal::controller::device::signed_parameter_set(&model, version, &info.arm_id, &key)
+        .with_context(|| format!("{}: parameters version {version}", a.model.display()))?;
     let uploaded = match link.upload(&blob) {
         Ok(u) => u,
         Err(e @ kincal::controller::link::LinkError::CommitUnconfirmed { .. }) => bail!("upload failed: {e}"),
+        // The controller's own verdict (signature, identity, version, envelope): the same set
+        // would be refused again.
+        Err(e @ kincal::controller::link::LinkError::Refused(..)) => {
+            bail!("upload refused: {e}. The controller keeps {before}")
+        }
         Err(e) => {
             bail!("upload failed: {e}. Nothing was committed: the controller keeps {before}; run the upload again")
         }
@@ -217,8 +313,10 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     }
     let now = link.held_params()?;
     println!(
-        "uploaded {} bytes in {:.2} s; the controller now holds {now}, previously {before}",
+        "uploaded {} bytes (signed by {} for arm {}) in {:.2} s; the controller now holds {now}, previously {before}",
         blob.len(),
+        fingerprint(&key.public_key()),
+        info.arm_id,
         started.elapsed().as_secs_f64()
     );
     Ok(())

@@ -82,13 +82,7 @@ fn tracker_template(t: &Path) {
     std::fs::remove_dir_all(dir.join("all")).unwrap();
     std::fs::write(dir.join("model.toml"), generated.options.arm.kincal_model_toml().unwrap()).unwrap();
     let mut model = kincal::model::ArmModel::load(&dir.join("model.toml")).unwrap();
-    for j in 0..model.joints.len() {
-        let row = model.joints[j];
-        model.free_param(kincal::model::ParamId::Offset(j), row.offset_deg - 5.0, row.offset_deg + 5.0);
-        model.free_param(kincal::model::ParamId::Length(j), row.d_mm - 10.0, row.d_mm + 10.0);
-        model.free_param(kincal::model::ParamId::LinkOffset(j), row.a_mm - 10.0, row.a_mm + 10.0);
-        model.free_param(kincal::model::ParamId::Twist(j), row.alpha_deg - 5.0, row.alpha_deg + 5.0);
-    }
+    model.free_every_dh_value(5.0, 10.0);
     model.save(&dir.join("model.toml")).unwrap();
 }
 

@@ -23,13 +23,7 @@ fn nominal_model(generated: &Generated, dir: &std::path::Path) -> ArmModel {
     std::fs::write(&path, &text).expect("model written");
     let mut model = ArmModel::load(&path).expect("the generator's model loads");
     model.free.clear();
-    for j in 0..model.joints.len() {
-        let row = model.joints[j];
-        model.free_param(kincal::model::ParamId::Offset(j), row.offset_deg - 5.0, row.offset_deg + 5.0);
-        model.free_param(kincal::model::ParamId::Length(j), row.d_mm - 10.0, row.d_mm + 10.0);
-        model.free_param(kincal::model::ParamId::LinkOffset(j), row.a_mm - 10.0, row.a_mm + 10.0);
-        model.free_param(kincal::model::ParamId::Twist(j), row.alpha_deg - 5.0, row.alpha_deg + 5.0);
-    }
+    model.free_every_dh_value(5.0, 10.0);
     model
 }
 
@@ -243,11 +237,12 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
     };
     let run = run_tracker(&inputs, None).expect("runs");
     let s = &run.summary;
-    let names: Vec<&str> = s.validation.sessions.iter().map(|v| v.name.as_str()).collect();
+    let names: Vec<&str> = s.validation.sessions.iter().map(|v| v.calibrated.name.as_str()).collect();
     assert_eq!(names, ["session_4", "session_5"]);
     let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
-    for v in &s.validation.sessions {
-        assert!(v.transfers && v.rms_mm < 0.5 * v.nominal.rms_mm, "{v:?}");
+    for f in &s.validation.sessions {
+        let v = &f.calibrated;
+        assert!(f.transfers && v.rms_mm < 0.5 * f.nominal.rms_mm, "{f:?}");
         assert!(v.pairwise_rms_mm > 0.0 && v.max_mm >= v.mean_mm, "{v:?}");
     }
     assert_eq!(s.floor.source, "repeated poses");

@@ -726,9 +726,9 @@ mod tests {
             (0..7).map(|j| Joint { d_mm: d[j], alpha_deg: alpha[j], ..Joint::default() }).collect();
         model.tcp_mm = [10.0, 20.0, 80.0];
         model.free.clear();
-        for j in 0..7 {
+        for (j, dj) in d.iter().enumerate() {
             model.free_param(ParamId::Offset(j), -5.0, 5.0);
-            model.free_param(ParamId::Length(j), d[j] - 10.0, d[j] + 10.0);
+            model.free_param(ParamId::Length(j), dj - 10.0, dj + 10.0);
         }
         model
     }

@@ -61,18 +61,9 @@ pub struct TrackerInputs {
 /// One held-out session's figures, calibrated and nominal.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct SessionFigures {
-    /// Session name.
-    pub name: String,
-    /// Points.
-    pub points: usize,
-    /// Calibrated RMS, mm.
-    pub rms_mm: f64,
-    /// Calibrated mean, mm.
-    pub mean_mm: f64,
-    /// Calibrated largest error, mm.
-    pub max_mm: f64,
-    /// Calibrated base-free pairwise-distance RMS, mm.
-    pub pairwise_rms_mm: f64,
+    /// The calibrated model's figures (`name, points, rms_mm, mean_mm, max_mm, pairwise_rms_mm`).
+    #[serde(flatten)]
+    pub calibrated: SessionValidation,
     /// The nominal model on the same session.
     pub nominal: SessionValidation,
     /// False when the calibration does worse than nominal here.
@@ -257,16 +248,7 @@ pub fn run_on(
         }
         calibrated_parts.push(c.clone());
         nominal_parts.push(n.clone());
-        sessions.push(SessionFigures {
-            name: c.name.clone(),
-            points: c.points,
-            rms_mm: c.rms_mm,
-            mean_mm: c.mean_mm,
-            max_mm: c.max_mm,
-            pairwise_rms_mm: c.pairwise_rms_mm,
-            nominal: n,
-            transfers,
-        });
+        sessions.push(SessionFigures { calibrated: c, nominal: n, transfers });
     }
     let overall = pooled(&calibrated_parts);
     let floor = floor(&val.sessions, inputs.stated_sigma_mm);

@@ -50,20 +50,6 @@ pub fn device_params(model: &ArmModel, version: u32) -> Result<ArmParams, Device
     })
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_model_of_another_joint_count_is_not_sent() {
-        let mut model = ArmModel::suta_nominal();
-        model.joints.push(model.joints[5]);
-        let e = parameter_blob(&model, 1).unwrap_err();
-        assert!(matches!(e, DeviceParamsError::JointCount(7)), "{e}");
-        assert!(e.to_string().contains("holds 6 joints"), "{e}");
-    }
-}
-
 /// The parameter blob of `model` (see [`kincal_protocol::params`]), checked against the same
 /// envelope the controller applies (version ≥ 1, finite f32, lengths, angles, scale).
 pub fn parameter_blob(model: &ArmModel, version: u32) -> Result<Vec<u8>, DeviceParamsError> {
@@ -85,4 +71,18 @@ pub fn signed_parameter_set(
     let blob = parameter_blob(model, version)?;
     let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
     Ok(key.sign(&blob, arm_id, now)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_model_of_another_joint_count_is_not_sent() {
+        let mut model = ArmModel::suta_nominal();
+        model.joints.push(model.joints[5]);
+        let e = parameter_blob(&model, 1).unwrap_err();
+        assert!(matches!(e, DeviceParamsError::JointCount(7)), "{e}");
+        assert!(e.to_string().contains("holds 6 joints"), "{e}");
+    }
 }

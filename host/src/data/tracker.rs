@@ -295,7 +295,7 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
         };
         let sigma_mm = match layout.sigma {
             Some((c, factor)) => match optional(Some(c))? {
-                Some(v) if v >= 0.0 && v < 100.0 => Some(v * factor),
+                Some(v) if (0.0..100.0).contains(&v) => Some(v * factor),
                 Some(v) => {
                     return Err(row_error(
                         line,

@@ -189,6 +189,18 @@ impl ArmModel {
         }
     }
 
+    /// Free every DH value of every joint (offset, d, a, α) within ± `angle_deg` / ± `length_mm`
+    /// of its current value; the identifiability step keeps what the data can move.
+    pub fn free_every_dh_value(&mut self, angle_deg: f64, length_mm: f64) {
+        for j in 0..self.joints.len() {
+            let row = self.joints[j];
+            self.free_param(ParamId::Offset(j), row.offset_deg - angle_deg, row.offset_deg + angle_deg);
+            self.free_param(ParamId::Length(j), row.d_mm - length_mm, row.d_mm + length_mm);
+            self.free_param(ParamId::LinkOffset(j), row.a_mm - length_mm, row.a_mm + length_mm);
+            self.free_param(ParamId::Twist(j), row.alpha_deg - angle_deg, row.alpha_deg + angle_deg);
+        }
+    }
+
     /// Remove `id` from the free set (it keeps its current value).
     pub fn fix_param(&mut self, id: ParamId) {
         self.free.retain(|f| f.id != id);

@@ -28,12 +28,12 @@ fn arm() -> ArmModel {
     for j in 1..7 {
         model.free_param(ParamId::Offset(j), -5.0, 5.0);
     }
-    for j in 1..6 {
-        model.free_param(ParamId::Length(j), d[j] - 10.0, d[j] + 10.0);
+    for (j, dj) in d.iter().enumerate().take(6).skip(1) {
+        model.free_param(ParamId::Length(j), dj - 10.0, dj + 10.0);
     }
-    for j in 0..6 {
+    for (j, aj) in alpha.iter().enumerate().take(6) {
         model.free_param(ParamId::LinkOffset(j), -10.0, 10.0);
-        model.free_param(ParamId::Twist(j), alpha[j] - 5.0, alpha[j] + 5.0);
+        model.free_param(ParamId::Twist(j), aj - 5.0, aj + 5.0);
     }
     model
 }

@@ -35,7 +35,8 @@ pub fn calibrate_tracker_and_report(inputs: &TrackerInputs, out: &Path, json: bo
         println!("  tool floating in {}: ({x:.3}, {y:.3}, {z:.3}) mm ± {:.3}", t.session, t.size_std_mm);
     }
     println!("  held-out session        points   RMS mm  mean mm   max mm  pairwise mm   nominal RMS mm");
-    for v in &s.validation.sessions {
+    for f in &s.validation.sessions {
+        let v = &f.calibrated;
         println!(
             "  {:<22} {:>7} {:>8.4} {:>8.4} {:>8.4} {:>12.4} {:>16.4}{}",
             v.name,
@@ -44,8 +45,8 @@ pub fn calibrate_tracker_and_report(inputs: &TrackerInputs, out: &Path, json: bo
             v.mean_mm,
             v.max_mm,
             v.pairwise_rms_mm,
-            v.nominal.rms_mm,
-            if v.transfers { "" } else { "  does not transfer" }
+            f.nominal.rms_mm,
+            if f.transfers { "" } else { "  does not transfer" }
         );
     }
     let (o, n) = (&s.validation.overall, &s.validation.nominal_overall);

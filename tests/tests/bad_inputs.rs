@@ -211,7 +211,7 @@ fn tracker_cases(cases: &mut Vec<Case>) {
             &["calibrate", "--model", "tracker/model.toml", "--data", "tracker/cal", "--validate", "tracker", "--out", "tout"],
             &[],
         )),
-        fails("--float-tool on artefact data", unchanged(), &[], &["--float-tool applies to tracker sessions"]).with_args(
+        fails("--float-tool on artefact data", unchanged(), &[], &["--float-tool and --exclude-point apply to tracker sessions"]).with_args(
             [cal(), vec!["--float-tool", "C_A"]].concat().into_iter().map(String::from).collect(),
         ),
     ]);

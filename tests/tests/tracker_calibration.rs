@@ -184,7 +184,7 @@ fn constant_orientation_sessions_report_tool_and_base_inseparable() {
 /// session and the tool, and after its action (`--float-tool`) the held-out RMS is ≤ 1.10 × floor.
 #[test]
 fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
-    use kincal::calib::tracker_errors::tool_moved_candidates;
+    use kincal::calib::tracker_errors::data_error_candidates;
     use kincal_e2e::tracker_gen::ToolRemount;
     let dir = scratch("remount");
     let mut options = GenOptions::iiwa_five_sessions(3);
@@ -196,7 +196,7 @@ fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
     let plain = TrackerOptions::default();
     let fit = calibrate_tracker(&nominal, &cal, &plain).expect("calibrates");
     let before = held_out_rms(&fit, &val);
-    let candidates = tool_moved_candidates(&nominal, &cal, &val, &fit, &plain);
+    let candidates = data_error_candidates(&nominal, &cal, &val, &fit, &plain);
     for c in &candidates {
         println!("{} [{}] significant {}", c.text, c.set, c.significant);
     }
@@ -234,6 +234,7 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
         validation: dir.join("val"),
         float_tool: vec![],
         stated_sigma_mm: None,
+        exclude_points: vec![],
     };
     let run = run_tracker(&inputs, None).expect("runs");
     let s = &run.summary;
@@ -256,5 +257,40 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
     assert!(s.data_errors.iter().all(|d| !d.significant), "{:?}", s.data_errors);
     let json = serde_json::to_value(s).expect("serialises");
     assert!(json["validation"]["sessions"][0]["rms_mm"].is_number(), "{json}");
+    std::fs::remove_dir_all(dir).ok();
+}
+
+/// Single bad points (1 mm, a beam caught on the wrong spot) in the calibration sessions: named
+/// by session and line, and leaving them out brings the held-out RMS back to the floor.
+#[test]
+fn single_bad_points_are_named_by_file_line_and_left_out() {
+    use kincal::calib::tracker_errors::data_error_candidates;
+    use kincal_e2e::tracker_gen::BadPoints;
+    let dir = scratch("bad-points");
+    let mut options = GenOptions::iiwa_five_sessions(4);
+    options.bad_points = Some(BadPoints { count: 6, size_mm: 1.0 });
+    let generated = generate(&options);
+    let nominal = nominal_model(&generated, &dir);
+    let (cal, val) = split(&generated, &dir, &[0, 1, 2]);
+    let plain = TrackerOptions::default();
+    let fit = calibrate_tracker(&nominal, &cal, &plain).expect("calibrates");
+    let candidates = data_error_candidates(&nominal, &cal, &val, &fit, &plain);
+    let bad = candidates.iter().find(|c| c.kind == "bad points").expect("a bad-points candidate");
+    println!("{}\n{}", bad.text, bad.action);
+    let in_cal: Vec<String> = generated
+        .truth
+        .bad_points
+        .iter()
+        .filter(|b| b.0 < 3)
+        .map(|&(s, k, _)| format!("--exclude-point session_{}:{}", s + 1, k + 3))
+        .collect();
+    assert!(!in_cal.is_empty(), "the seed puts bad points in the calibration sessions");
+    for name in &in_cal {
+        assert!(bad.action.contains(name.as_str()), "{name} not in {}", bad.action);
+    }
+    assert_eq!(bad.action.matches("--exclude-point").count(), in_cal.len(), "{}", bad.action);
+    let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
+    println!("held-out {:.4} → {:.4} mm, floor {floor:.4} mm", bad.held_out_before_mm, bad.held_out_after_mm);
+    assert!(bad.held_out_after_mm <= 1.10 * floor, "{bad:?}");
     std::fs::remove_dir_all(dir).ok();
 }

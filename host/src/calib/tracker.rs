@@ -642,6 +642,25 @@ pub struct SessionValidation {
     pub pairs: usize,
 }
 
+/// Position error of every calibration point at the solution, per session in file order, mm.
+pub fn calibration_errors(fit: &TrackerCalibration, data: &TrackerData) -> Vec<Vec<f64>> {
+    data.sessions
+        .iter()
+        .zip(&fit.bases)
+        .map(|(s, base)| {
+            let offset = fit
+                .tool_offsets
+                .iter()
+                .find(|t| t.session == s.name)
+                .map_or(Vector3::zeros(), |t| Vector3::from(t.offset_mm));
+            s.points
+                .iter()
+                .map(|p| (base.apply(&model_point(&fit.model, &p.q_deg, &offset)) - p.point_mm).norm())
+                .collect()
+        })
+        .collect()
+}
+
 /// Fit `session`'s base and its own tool offset for a fixed `model` (the tool floated there),
 /// and validate with both refitted.
 pub fn fit_session_with_tool(model: &ArmModel, session: &TrackerSession) -> (FloatedTool, SessionValidation) {

@@ -1,5 +1,11 @@
 //! Data errors of tracker sessions, as candidates scored on held-out sessions.
 //!
+//! **Single bad points.** A beam broken and caught again on the wrong spot of the reflector, a
+//! probe bumped: one point carries a gross error e_i, X_i = B_s · F(q_i) · t + e_i. A calibration
+//! point whose error is beyond [`BAD_POINT_FACTOR`] times the median error (chi-3 errors almost
+//! never are: 5× the median is 7.7 σ) is a candidate; all of them are left out together
+//! (`--exclude-point SESSION:LINE`) and the refit is scored on the held-out sessions.
+//!
 //! **Tool moved between sessions.** A probe or reflector taken off and put back sits a little
 //! elsewhere on the flange: in session S the measured point is B_S · F(q) · (t + Δ_S). With the
 //! orientation varying inside S, Δ_S cannot be absorbed by S's base, and a calibration that
@@ -13,24 +19,25 @@
 //! were scored against a model the best one still bends (apply it, and score again).
 
 use crate::calib::tracker::{
-    calibrate_tracker, fit_session_with_tool, orientation_spread_deg, validate_session, TrackerCalibration,
-    TrackerOptions, CONSTANT_ORIENTATION_DEG,
+    calibrate_tracker, calibration_errors, fit_session_with_tool, orientation_spread_deg, validate_session,
+    TrackerCalibration, TrackerOptions, CONSTANT_ORIENTATION_DEG,
 };
 use crate::data::tracker::TrackerData;
 use crate::model::ArmModel;
 
-/// A session whose tool point sits elsewhere.
+/// A data error of tracker sessions: a session whose tool point sits elsewhere, or single bad
+/// points.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct ToolMoved {
-    /// The session.
+pub struct DataError {
+    /// `tool moved` or `bad points`.
+    pub kind: String,
+    /// The session (for bad points, the sessions holding them).
     pub session: String,
     /// `calibration` or `validation`: where the session is.
     pub set: String,
-    /// The tool point's displacement in the flange frame, mm.
-    pub offset_mm: [f64; 3],
-    /// Its length, mm.
+    /// The tool point's displacement (flange frame), or the largest bad point's error, mm.
     pub size_mm: f64,
-    /// Standard deviation of the length, mm.
+    /// Standard deviation of the displacement's length, or the points' robust σ, mm.
     pub size_std_mm: f64,
     /// Held-out RMS without the candidate, mm.
     pub held_out_before_mm: f64,
@@ -73,23 +80,80 @@ pub fn held_out_rms(model: &ArmModel, val: &TrackerData, floating: &[String]) ->
     pooled_rms(&parts)
 }
 
-/// Score "the tool moved in session S" for every session not already floating, best first.
-pub fn tool_moved_candidates(
+/// A calibration point beyond this many times the median error is a bad-point candidate.
+pub const BAD_POINT_FACTOR: f64 = 5.0;
+
+/// The bad-points candidate: calibration points far beyond the others, left out and refitted.
+fn bad_points_candidate(
     nominal: &ArmModel,
     cal: &TrackerData,
     val: &TrackerData,
     fit: &TrackerCalibration,
     options: &TrackerOptions,
-) -> Vec<ToolMoved> {
+    before: f64,
+) -> Option<DataError> {
+    let errors = calibration_errors(fit, cal);
+    let median = crate::numerics::stats::median(errors.iter().flatten().copied().collect());
+    let mut bad = Vec::new();
+    let mut kept = cal.clone();
+    for ((session, e), out) in cal.sessions.iter().zip(&errors).zip(&mut kept.sessions) {
+        out.points.clear();
+        for (p, &err) in session.points.iter().zip(e) {
+            if err > BAD_POINT_FACTOR * median {
+                bad.push((format!("{}:{}", session.name, p.line), err));
+            } else {
+                out.points.push(p.clone());
+            }
+        }
+    }
+    if bad.is_empty() {
+        return None;
+    }
+    let refit = calibrate_tracker(nominal, &kept, options).ok()?;
+    let after = held_out_rms(&refit.model, val, &options.float_tool);
+    let largest = bad.iter().map(|b| b.1).fold(0.0, f64::max);
+    let names: Vec<&str> = bad.iter().map(|b| b.0.as_str()).collect();
+    let mut sessions: Vec<&str> = names.iter().filter_map(|n| n.rsplit_once(':').map(|x| x.0)).collect();
+    sessions.dedup();
+    Some(DataError {
+        kind: "bad points".into(),
+        session: sessions.join(", "),
+        set: "calibration".into(),
+        size_mm: largest,
+        size_std_mm: median / 1.538,
+        held_out_before_mm: before,
+        held_out_after_mm: after,
+        significant: after < (1.0 - MIN_GAIN) * before,
+        text: format!(
+            "{} single bad point{} ({}; up to {largest:.3} mm, the median point {median:.4} mm); held-out RMS \
+             {before:.4} → {after:.4} mm without {}",
+            bad.len(),
+            if bad.len() == 1 { "" } else { "s" },
+            names.join(", "),
+            if bad.len() == 1 { "it" } else { "them" }
+        ),
+        action: names.iter().map(|n| format!("--exclude-point {n}")).collect::<Vec<_>>().join(" "),
+    })
+}
+
+/// Score the data errors, best first: "the tool moved in session S" for every session not
+/// already floating, and single bad points.
+pub fn data_error_candidates(
+    nominal: &ArmModel,
+    cal: &TrackerData,
+    val: &TrackerData,
+    fit: &TrackerCalibration,
+    options: &TrackerOptions,
+) -> Vec<DataError> {
     let before = held_out_rms(&fit.model, val, &options.float_tool);
     let mut out = Vec::new();
     let verdict = |session: &str, set: &str, offset: [f64; 3], std: f64, after: f64| {
         let size = offset.iter().map(|v| v * v).sum::<f64>().sqrt();
         let significant = size > 3.0 * std && size <= MAX_REMOUNT_MM && after < (1.0 - MIN_GAIN) * before;
-        ToolMoved {
+        DataError {
+            kind: "tool moved".into(),
             session: session.into(),
             set: set.into(),
-            offset_mm: offset,
             size_mm: size,
             size_std_mm: std,
             held_out_before_mm: before,
@@ -133,6 +197,7 @@ pub fn tool_moved_candidates(
         let after = held_out_rms(&fit.model, val, &floating);
         out.push(verdict(&s.name, "validation", tool.offset_mm, tool.size_std_mm, after));
     }
+    out.extend(bad_points_candidate(nominal, cal, val, fit, options, before));
     out.sort_by(|a, b| a.held_out_after_mm.total_cmp(&b.held_out_after_mm));
     // One data error at a time: the others are scored against a model the best one still bends,
     // so only the best is called; apply it and score again.

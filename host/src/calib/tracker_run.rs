@@ -14,7 +14,7 @@ use crate::calib::tracker::{
     calibrate_tracker, fit_session_with_tool, validate_session, ErrorStats, FloatedTool, SessionValidation,
     TrackerCalibration, TrackerError, TrackerEstimate, TrackerIdentifiability, TrackerOptions,
 };
-use crate::calib::tracker_errors::{tool_moved_candidates, ToolMoved};
+use crate::calib::tracker_errors::{data_error_candidates, DataError};
 use crate::data::tracker::{load_dir, TrackerData, TrackerSession};
 use crate::files::FileError;
 use crate::model::{ArmModel, ParamId};
@@ -36,6 +36,9 @@ pub enum TrackerRunError {
     /// The calibration could not run.
     #[error(transparent)]
     Calibration(#[from] TrackerError),
+    /// `--exclude-point` names no calibration point.
+    #[error("--exclude-point {0}: no calibration session and line of that name (expected SESSION:LINE)")]
+    UnknownPoint(String),
     /// A validation session has the name of a calibration session.
     #[error(
         "session \"{0}\" is in both the calibration and the validation folder: validation must be held out"
@@ -56,6 +59,9 @@ pub struct TrackerInputs {
     pub float_tool: Vec<String>,
     /// The instrument's stated σ per axis, mm, for rows that carry none.
     pub stated_sigma_mm: Option<f64>,
+    /// Calibration points left out, `SESSION:LINE` (single bad points).
+    #[serde(default)]
+    pub exclude_points: Vec<String>,
 }
 
 /// One held-out session's figures, calibrated and nominal.
@@ -116,7 +122,7 @@ pub struct TrackerSummary {
     /// The floor.
     pub floor: TrackerFloor,
     /// Data-error candidates, best first.
-    pub data_errors: Vec<ToolMoved>,
+    pub data_errors: Vec<DataError>,
     /// The verdict, in words.
     pub verdict: Vec<String>,
     /// Warnings of the readers.
@@ -210,6 +216,20 @@ pub fn run_on(
     inputs: &TrackerInputs,
     huber_delta_mm: Option<f64>,
 ) -> Result<TrackerRun, TrackerRunError> {
+    let mut kept = cal.clone();
+    for name in &inputs.exclude_points {
+        let found = name.rsplit_once(':').and_then(|(session, line)| {
+            let line: usize = line.parse().ok()?;
+            let s = kept.sessions.iter_mut().find(|s| s.name == session)?;
+            let before = s.points.len();
+            s.points.retain(|p| p.line != line);
+            (s.points.len() < before).then_some(())
+        });
+        if found.is_none() {
+            return Err(TrackerRunError::UnknownPoint(name.clone()));
+        }
+    }
+    let cal = &kept;
     if let Some(s) = val.sessions.iter().find(|v| cal.sessions.iter().any(|c| c.name == v.name)) {
         return Err(TrackerRunError::SameSession(s.name.clone()));
     }
@@ -252,7 +272,7 @@ pub fn run_on(
     }
     let overall = pooled(&calibrated_parts);
     let floor = floor(&val.sessions, inputs.stated_sigma_mm);
-    let data_errors = tool_moved_candidates(
+    let data_errors = data_error_candidates(
         &nominal,
         cal,
         val,

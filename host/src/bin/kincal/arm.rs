@@ -189,6 +189,10 @@ pub struct CalibrateArgs {
     /// re-mounted there), as the data-error diagnosis suggests (repeatable).
     #[arg(long, value_name = "SESSION")]
     float_tool: Vec<String>,
+    /// Tracker sessions: leave the calibration point SESSION:LINE out (a single bad point, as the
+    /// data-error diagnosis suggests; repeatable).
+    #[arg(long, value_name = "SESSION:LINE")]
+    exclude_point: Vec<String>,
     /// Tracker sessions: the instrument's stated σ per axis, mm, for rows without a sigma_mm or
     /// u95_mm column (sets the floor when no pose is repeated).
     #[arg(long, allow_negative_numbers = true, value_parser = real(0.0001, 10.0, "mm"))]
@@ -351,12 +355,13 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
             validation: i.validate.clone(),
             float_tool: a.float_tool.clone(),
             stated_sigma_mm: a.sigma_mm,
+            exclude_points: a.exclude_point.clone(),
         };
         return crate::tracker::calibrate_tracker_and_report(&inputs, &a.out, a.json);
     }
-    if !a.float_tool.is_empty() {
+    if !a.float_tool.is_empty() || !a.exclude_point.is_empty() {
         bail!(
-            "--float-tool applies to tracker sessions; {} holds artefact sessions",
+            "--float-tool and --exclude-point apply to tracker sessions; {} holds artefact sessions",
             a.inputs.data.display()
         );
     }

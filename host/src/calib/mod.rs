@@ -14,4 +14,7 @@ pub mod peer;
 pub mod run;
 pub mod study;
 pub mod trust;
+pub mod tracker;
+pub mod tracker_errors;
+pub mod tracker_run;
 pub mod validate;

@@ -1,6 +1,6 @@
 //! The calibrated model as the controller stores it (the protocol's parameter blob).
 
-use crate::model::{ArmModel, Convention};
+use crate::model::{ArmModel, Convention, SUTA_JOINTS};
 use kincal_protocol::params::{
     check_envelope, encode_blob, ArmParams, EnvelopeViolation, JointParams, MAX_PARAM_BLOB,
 };
@@ -11,6 +11,12 @@ pub enum DeviceParamsError {
     /// A value is outside the physical envelope the controller accepts (it would refuse it too).
     #[error("not sent: {0}")]
     Envelope(EnvelopeViolation),
+    /// The controller holds six DH rows (the SUTA's encoders); this model has another number.
+    #[error(
+        "not sent: the controller holds {SUTA_JOINTS} joints (the SUTA's encoders), this model has {0}: \
+         a model with another joint count can be calibrated and used on the host, not uploaded"
+    )]
+    JointCount(usize),
     /// The set does not fit the controller's parameter area.
     #[error(
         "not sent: the parameter set does not fit the controller's {MAX_PARAM_BLOB}-byte parameter area"
@@ -21,12 +27,15 @@ pub enum DeviceParamsError {
     Sign(#[from] crate::controller::signing::SignError),
 }
 
-/// The device form of `model`, tagged with parameter-set `version`.
-pub fn device_params(model: &ArmModel, version: u32) -> ArmParams {
-    ArmParams {
+/// The device form of `model`, tagged with parameter-set `version`; refused when the controller
+/// cannot hold the model (not six joints).
+pub fn device_params(model: &ArmModel, version: u32) -> Result<ArmParams, DeviceParamsError> {
+    let joints: &[_; SUTA_JOINTS] =
+        model.joints.as_slice().try_into().map_err(|_| DeviceParamsError::JointCount(model.joints.len()))?;
+    Ok(ArmParams {
         version,
         modified_dh: model.convention == Convention::Modified,
-        joints: model.joints.map(|j| JointParams {
+        joints: joints.map(|j| JointParams {
             offset_deg: j.offset_deg,
             d_mm: j.d_mm,
             a_mm: j.a_mm,
@@ -38,13 +47,13 @@ pub fn device_params(model: &ArmModel, version: u32) -> ArmParams {
         }),
         tcp_mm: model.tcp_mm,
         scale_ppm: model.scale_ppm,
-    }
+    })
 }
 
 /// The parameter blob of `model` (see [`kincal_protocol::params`]), checked against the same
 /// envelope the controller applies (version ≥ 1, finite f32, lengths, angles, scale).
 pub fn parameter_blob(model: &ArmModel, version: u32) -> Result<Vec<u8>, DeviceParamsError> {
-    let params = device_params(model, version);
+    let params = device_params(model, version)?;
     check_envelope(&params).map_err(DeviceParamsError::Envelope)?;
     let mut out = [0u8; MAX_PARAM_BLOB];
     let n = encode_blob(&params, &mut out).map_err(|_| DeviceParamsError::TooLarge)?;
@@ -62,4 +71,18 @@ pub fn signed_parameter_set(
     let blob = parameter_blob(model, version)?;
     let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
     Ok(key.sign(&blob, arm_id, now)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_model_of_another_joint_count_is_not_sent() {
+        let mut model = ArmModel::suta_nominal();
+        model.joints.push(model.joints[5]);
+        let e = parameter_blob(&model, 1).unwrap_err();
+        assert!(matches!(e, DeviceParamsError::JointCount(7)), "{e}");
+        assert!(e.to_string().contains("holds 6 joints"), "{e}");
+    }
 }

@@ -30,7 +30,7 @@ pub enum KeyFileError {
     Format {
         /// The file.
         path: PathBuf,
-        /// What line 1 looks like.
+        /// What line 1 looks like (its kind, never its contents unless it is a PEM label).
         found: String,
     },
     /// The secret is not 64 hex digits.
@@ -133,12 +133,18 @@ impl StationKey {
         let mut lines = text.lines();
         let first = lines.next().unwrap_or("").trim();
         if first != KEY_HEADER {
-            let found = if first.starts_with("-----BEGIN") {
+            let pem_label = first.len() <= 64 && first.ends_with("-----");
+            let found = if first.starts_with("-----BEGIN") && pem_label {
                 format!("`{first}` (a PEM file)")
+            } else if first.starts_with("-----BEGIN") {
+                "a PEM file".to_string()
             } else if first == PUBLIC_HEADER {
                 "a public key (the .pub file; pass the secret key file)".to_string()
+            } else if unhex32(first).is_some() {
+                "64 hex digits without the header line (not shown: they may be a secret)".to_string()
             } else {
-                format!("`{}`", first.chars().take(40).collect::<String>())
+                // Never echoed: another tool's key file may hold its secret on line 1.
+                format!("a line of {} characters (not shown: it may be secret)", first.chars().count())
             };
             return Err(KeyFileError::Format { path: path.to_path_buf(), found });
         }
@@ -292,6 +298,30 @@ mod tests {
         let mut flipped = set.clone();
         flipped[1] ^= 1;
         assert!(!provenance(&flipped).unwrap().signature_valid);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A key file in another format may hold secret material on its first line (a bare hex
+    /// seed, a base64 key): the error names the file and the format, never echoes the line.
+    #[test]
+    fn a_key_file_in_another_format_is_refused_without_echoing_its_contents() {
+        let dir = temp("format");
+        let secret = "4b1d2c3e4f5a6b7c8d9e0f1a2b3c4d5e6f7a8b9c0d1e2f3a4b5c6d7e8f9a0b1c";
+        for (name, text) in [
+            ("bare-hex.key", format!("{secret}\n")),
+            ("base64.key", "S1QsPk9aa3yNng8aKzxNXm96i5wNHi86S1xtfo+aCxw=\n".to_string()),
+            ("swapped.key", format!("{secret}\n{KEY_HEADER}\n")),
+        ] {
+            let path = dir.join(name);
+            std::fs::write(&path, &text).unwrap();
+            let Err(e) = StationKey::load(&path) else { panic!("{name} was read as a key") };
+            let message = e.to_string();
+            assert!(message.contains(name) && message.contains("line 1"), "{message}");
+            let first_line = text.lines().next().unwrap();
+            for k in 0..first_line.len().saturating_sub(8) {
+                assert!(!message.contains(&first_line[k..k + 8]), "{name}: {message}");
+            }
+        }
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -311,6 +311,7 @@ mod tests {
             ("bare-hex.key", format!("{secret}\n")),
             ("base64.key", "S1QsPk9aa3yNng8aKzxNXm96i5wNHi86S1xtfo+aCxw=\n".to_string()),
             ("swapped.key", format!("{secret}\n{KEY_HEADER}\n")),
+            ("one-line.pem", format!("-----BEGIN PRIVATE KEY-----{secret}-----END PRIVATE KEY-----\n")),
         ] {
             let path = dir.join(name);
             std::fs::write(&path, &text).unwrap();

@@ -296,8 +296,12 @@ impl<F: NorFlash> Controller<F> {
         let bytes: &[u8] = if pending {
             let u = self.upload.as_ref().ok_or(WireError::NoUpload)?;
             &u.buf[..u.received]
-        } else {
+        } else if self.params.is_some() {
             self.store.load(&mut stored).unwrap_or(&[])
+        } else {
+            // A stored set the controller does not use (unsigned, another arm, a key no longer
+            // trusted) is not its parameters: nothing is shown, as `info` shows none.
+            &[]
         };
         let from = (offset as usize).min(bytes.len());
         let to = (from + PARAM_CHUNK).min(bytes.len());
@@ -684,6 +688,27 @@ mod tests {
         assert_eq!(reflashed.params(), None);
         let back = Ctl::new("fw", "test", false, built_in, reflashed.into_flash());
         assert_eq!(back.params(), Some(&set(1)));
+    }
+
+    /// What `kincal params` reads is what runs: a stored set the controller does not use (another
+    /// key built in now) is not shown as its parameters.
+    #[test]
+    fn the_stored_set_read_back_is_the_one_in_use() {
+        let built_in = Trust::new(ARM, Some(*station(3).pk)).unwrap();
+        let mut c = Ctl::new("fw", "test", false, built_in, RamNor::new());
+        hello(&mut c);
+        let set = signed_for(&set(1), &station(3), ARM, 9);
+        assert_eq!(upload_set(&mut c, &set), Ok(Response::Ack));
+        let read = |c: &mut Ctl| match ask(c, Request::ParamRead(ParamRead { offset: 0, pending: false })) {
+            Ok(Response::ParamData(ParamData { data, .. })) => data.to_vec(),
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(read(&mut c), set[..PARAM_CHUNK]);
+        let other_key = Trust::new(ARM, Some(*station(4).pk)).unwrap();
+        let mut reflashed = Ctl::new("fw", "test", false, other_key, c.into_flash());
+        hello(&mut reflashed);
+        assert_eq!(reflashed.params(), None);
+        assert_eq!(read(&mut reflashed), Vec::<u8>::new(), "a set not in use was read back as stored");
     }
 
     /// A power cut after every flash operation of a signed commit: after the reboot the

@@ -9,8 +9,8 @@ use embedded_storage::nor_flash::NorFlash;
 use kincal_protocol::messages::{
     pack_counts, stream_bytes_per_s, Ack, Answer, DeviceFrame, Endpoint, GetInfo, Hello, HelloReply,
     HostFrame, Info, ParamBegin, ParamChunk, ParamCommit, ParamData, ParamRead, PoseReport, RawSample,
-    Request, Reset, Response, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WireError,
-    LINK_BYTES_PER_S, MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
+    Request, Reset, ResetCause, Response, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WireError,
+    ALL_JOINTS, LINK_BYTES_PER_S, MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
 };
 use kincal_protocol::params::{ArmParams, BLOB_CRC, MAX_PARAM_BLOB};
 
@@ -51,6 +51,8 @@ pub struct Controller<F: NorFlash> {
     store: ParamStore<F>,
     trust: Trust,
     params: Option<ActiveSet>,
+    reset_cause: ResetCause,
+    brownout_mv: u16,
 }
 
 /// The stored set in use: its parameters, who signed it and its precomputed kinematics.
@@ -88,7 +90,16 @@ impl<F: NorFlash> Controller<F> {
             store,
             trust,
             params,
+            reset_cause: ResetCause::Unknown,
+            brownout_mv: 0,
         }
+    }
+
+    /// What the board found at start: why it reset and its brown-out threshold (mV, 0: none to
+    /// report), for [`Info`].
+    pub fn set_boot(&mut self, reset_cause: ResetCause, brownout_mv: u16) {
+        self.reset_cause = reset_cause;
+        self.brownout_mv = brownout_mv;
     }
 
     /// Give the flash back (a reboot keeps what is stored, nothing else).
@@ -131,16 +142,7 @@ impl<F: NorFlash> Controller<F> {
         }
         if self.pose_divider > 0 && self.tick.is_multiple_of(self.pose_divider as u32) {
             if let Some(active) = &self.params {
-                let pose = active.kinematics.tool_pose(&sample.counts);
-                self.stream(
-                    Stream::Pose(PoseReport {
-                        tick,
-                        position_mm: pose.position_mm,
-                        z_axis: pose.z_axis,
-                        x_axis: pose.x_axis,
-                    }),
-                    emit,
-                );
+                self.stream(Stream::Pose(pose_report(tick, &active.kinematics, sample)), emit);
             }
         }
     }
@@ -258,6 +260,8 @@ impl<F: NorFlash> Controller<F> {
             ticks: self.tick,
             late_ticks: sampler.late_ticks,
             encoders: sampler.health,
+            reset_cause: self.reset_cause,
+            brownout_mv: self.brownout_mv,
         }
     }
 
@@ -328,6 +332,34 @@ impl<F: NorFlash> Controller<F> {
         })?;
         self.params = Some(ActiveSet::new(admitted));
         Ok(Ack)
+    }
+}
+
+/// The pose of this tick's sample: computed only when every joint's frame of this tick was
+/// accepted; otherwise invalid (NaN, never a position from stale counts) naming the joints.
+fn pose_report(tick: u16, kinematics: &Kinematics, sample: &Sample) -> PoseReport {
+    let fresh = ALL_JOINTS & !sample.rejected;
+    if fresh != ALL_JOINTS {
+        let nan = [f32::NAN; 3];
+        return PoseReport {
+            tick,
+            valid: false,
+            fresh,
+            stale_ticks: sample.stale_ticks,
+            position_mm: nan,
+            z_axis: nan,
+            x_axis: nan,
+        };
+    }
+    let pose = kinematics.tool_pose(&sample.counts);
+    PoseReport {
+        tick,
+        valid: true,
+        fresh,
+        stale_ticks: 0,
+        position_mm: pose.position_mm,
+        z_axis: pose.z_axis,
+        x_axis: pose.x_axis,
     }
 }
 
@@ -422,11 +454,11 @@ mod tests {
         let refused = ask(&mut c, Request::StreamPose(StreamPose { divider: 1 }));
         assert_eq!(
             refused,
-            Err(WireError::LinkTooSlow { needed_bytes_per_s: 768 * (30 + 48), link_bytes_per_s: 46_080 })
+            Err(WireError::LinkTooSlow { needed_bytes_per_s: 768 * (30 + 53), link_bytes_per_s: 46_080 })
         );
         assert_eq!(ask(&mut c, Request::StreamPose(StreamPose { divider: 2 })), Ok(Response::Ack));
         let mut frames = Vec::new();
-        let sample = Sample { counts: [1000; 6], rejected: 0 };
+        let sample = Sample { counts: [1000; 6], rejected: 0, stale_ticks: 0 };
         for _ in 0..4 {
             c.on_tick(&sample, &mut |f| frames.push(f.clone()));
         }
@@ -436,7 +468,7 @@ mod tests {
         assert_eq!(ask(&mut c, Request::StreamPose(StreamPose { divider: 1 })), Ok(Response::Ack));
         assert_eq!(
             ask(&mut c, Request::StreamRaw(StreamRaw { on: true })),
-            Err(WireError::LinkTooSlow { needed_bytes_per_s: 768 * (30 + 48), link_bytes_per_s: 46_080 })
+            Err(WireError::LinkTooSlow { needed_bytes_per_s: 768 * (30 + 53), link_bytes_per_s: 46_080 })
         );
     }
 
@@ -445,13 +477,13 @@ mod tests {
         let mut c = controller(RamNor::new());
         hello(&mut c);
         let mut frames = Vec::new();
-        let stale = Sample { counts: [4_000_000; 6], rejected: 0 };
+        let stale = Sample { counts: [4_000_000; 6], rejected: 0, stale_ticks: 0 };
         for _ in 0..10 {
             c.on_tick(&stale, &mut |f| frames.push(f.clone()));
         }
         assert_eq!(ask(&mut c, Request::StartWindow(StartWindow { ticks: 3 })), Ok(Response::Ack));
         assert_eq!(ask(&mut c, Request::StartWindow(StartWindow { ticks: 3 })), Err(WireError::Busy));
-        let fresh = Sample { counts: [1000; 6], rejected: 0 };
+        let fresh = Sample { counts: [1000; 6], rejected: 0, stale_ticks: 0 };
         for _ in 0..3 {
             c.on_tick(&fresh, &mut |f| frames.push(f.clone()));
         }
@@ -533,6 +565,55 @@ mod tests {
             ask(c, Request::ParamChunk(ParamChunk { offset: (k * PARAM_CHUNK) as u16, data }))?;
         }
         ask(c, Request::ParamCommit(ParamCommit))
+    }
+
+    /// A pose is streamed as valid only when every joint's frame of this tick was accepted;
+    /// otherwise within that same tick it is invalid, carries no position and names the joints.
+    #[test]
+    fn a_pose_with_a_rejected_or_never_read_joint_is_invalid_the_same_tick() {
+        let mut c = controller(RamNor::new());
+        hello(&mut c);
+        let params = ArmParams { version: 4, tcp_mm: [0.0, 0.0, 253.0], ..ArmParams::default() };
+        assert_eq!(upload(&mut c, &params), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::StreamPose(StreamPose { divider: 1 })), Ok(Response::Ack));
+        let mut sampler = Sampler::default();
+        let mut poses = Vec::new();
+        let mut tick = |c: &mut Ctl,
+                        readings: [Result<kincal_protocol::biss::Reading, crate::biss_master::ReadError>;
+                            6]| {
+            let sample = sampler.record(&readings);
+            c.on_tick(&sample, &mut |f| {
+                if let DeviceFrame::Stream { item: Stream::Pose(p), .. } = f {
+                    poses.push(*p)
+                }
+            });
+        };
+        use crate::biss_master::ReadError;
+        use kincal_protocol::biss::{BissError, Reading};
+        let good = Ok(Reading { position_counts: 1000, warning: false });
+        let lost = Err(ReadError::Frame(BissError::LineHigh));
+        // Joint 3 never read since boot.
+        tick(&mut c, [good, good, lost, good, good, good]);
+        tick(&mut c, [good; 6]);
+        tick(&mut c, [good, good, good, good, lost, lost]);
+        tick(&mut c, [good, good, good, good, good, lost]);
+        tick(&mut c, [good; 6]);
+        let summary: Vec<_> = poses.iter().map(|p| (p.valid, p.fresh, p.stale_ticks)).collect();
+        assert_eq!(
+            summary,
+            [
+                (false, 0b11_1011, u16::MAX),
+                (true, 0x3F, 0),
+                (false, 0b00_1111, 1),
+                (false, 0b01_1111, 2),
+                (true, 0x3F, 0)
+            ]
+        );
+        for p in &poses {
+            let finite = p.position_mm.iter().chain(&p.z_axis).chain(&p.x_axis).all(|v| v.is_finite());
+            assert_eq!(finite, p.valid, "{p:?}: a position only when valid");
+        }
+        assert_eq!(poses[2].stale_joints().collect::<Vec<_>>(), [5, 6]);
     }
 
     /// While a stream runs, a commit that would need a sector erased is refused (the erase

@@ -6,8 +6,8 @@ use kincal::controller::link::{Link, LinkError};
 use kincal_e2e::emulated_firmware;
 use kincal_protocol::biss::COUNTS_PER_TURN;
 use kincal_protocol::messages::{
-    GetInfo, Reset, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WindowReport,
-    WireError, PROTOCOL_VERSION, SCHEMA_HASH,
+    Crash, GetInfo, PoseReport, Reset, ResetCause, SimFaults, SimSetPose, StartWindow, Stream, StreamPose,
+    StreamRaw, WindowReport, WireError, PROTOCOL_VERSION, SCHEMA_HASH,
 };
 use kincal_protocol::signed::SignatureRefusal;
 use std::sync::Mutex;
@@ -71,6 +71,8 @@ fn a_two_second_window_returns_the_set_pose_including_one_at_the_wrap() {
         dropouts_per_10k: 0,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: Crash::None,
     })
     .unwrap();
     let started = Instant::now();
@@ -97,6 +99,8 @@ fn injected_crc_errors_are_counted_and_excluded() {
         dropouts_per_10k: 100,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: Crash::None,
     })
     .unwrap();
     let w = window(&mut link, 768);
@@ -351,6 +355,95 @@ fn parameter_commits_during_a_raw_stream_miss_no_tick_and_never_erase() {
     // Idle now: the controller erased the spare sector, so the same commit goes through.
     link.upload(&blob(committed + 1)).unwrap();
     assert_eq!(link.info().unwrap().param_version, committed + 1);
+}
+
+fn faults(unplugged: u8, crash: Crash) -> SimFaults {
+    SimFaults { unplugged, crash, ..SimFaults::default() }
+}
+
+/// The pose frames after the answer to `request` (those before it predate the request).
+fn poses_after(link: &mut Link, request: SimFaults, n: usize) -> Vec<PoseReport> {
+    link.call(request).unwrap();
+    link.clear_streams();
+    let mut poses = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while poses.len() < n && Instant::now() < deadline {
+        if let Some((_, p)) = link.next_on::<PoseReport>(Duration::from_millis(200)).unwrap() {
+            poses.push(p);
+        }
+    }
+    assert_eq!(poses.len(), n, "pose frames");
+    poses
+}
+
+/// A joint unplugged mid-stream: the very next pose frame (the next tick's) is invalid, names
+/// the joint and carries no position; plugged back, the next one is valid again.
+#[test]
+fn an_unplugged_joint_invalidates_the_next_pose_and_plugged_back_it_is_valid() {
+    let (_g, _emu, mut link) = start();
+    let model = kincal::model::ArmModel::suta_nominal();
+    link.upload(&kincal_e2e::signed_set(&model, 3)).unwrap();
+    link.call(SimSetPose { counts: [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, 5] }).unwrap();
+    link.call(StreamPose { divider: 1 }).unwrap();
+    let before = poses_after(&mut link, faults(0, Crash::None), 50);
+    assert!(before.iter().all(|p| p.valid && p.fresh == 0x3F && p.stale_ticks == 0), "{:?}", before[0]);
+    let unplugged = poses_after(&mut link, faults(0b100, Crash::None), 100);
+    for (k, p) in unplugged.iter().enumerate() {
+        assert!(!p.valid, "pose {k} after unplugging joint 3 is valid: {p:?}");
+        assert_eq!(p.fresh, 0b11_1011, "{p:?}");
+        assert_eq!(p.stale_joints().collect::<Vec<_>>(), [3]);
+        assert!(p.position_mm.iter().all(|v| v.is_nan()), "no position: {p:?}");
+    }
+    assert!(unplugged[0].stale_ticks <= 2, "the first frame is within a tick or two: {:?}", unplugged[0]);
+    assert!(unplugged[99].stale_ticks >= 99, "staleness grows: {:?}", unplugged[99]);
+    let back = poses_after(&mut link, faults(0, Crash::None), 50);
+    assert!(back.iter().all(|p| p.valid && p.position_mm.iter().all(|v| v.is_finite())), "{:?}", back[0]);
+    link.call(StreamPose { divider: 0 }).unwrap();
+    let info = link.info().unwrap();
+    assert!(info.encoders[2].dropouts >= 100, "{:?}", info.encoders[2]);
+}
+
+/// The controller answers again after a reset (a new handshake), within `seconds`.
+fn reconnect(link: &mut Link, seconds: u64) -> Duration {
+    let started = Instant::now();
+    while link.hello().is_err() {
+        assert!(started.elapsed() < Duration::from_secs(seconds), "the controller did not come back");
+    }
+    started.elapsed()
+}
+
+/// A panic and a hang of the sampling loop: the panic handler and the watchdog reset the
+/// controller, and `info` tells why; a reset request is told apart, and so is the first start.
+#[test]
+fn a_panic_and_a_hang_reset_the_controller_and_info_tells_why() {
+    let (_g, _emu, mut link) = start();
+    assert_eq!(link.info().unwrap().reset_cause, ResetCause::PowerOn);
+    link.call(faults(0, Crash::Panic)).unwrap();
+    let back = reconnect(&mut link, 10);
+    let info = link.info().unwrap();
+    eprintln!("panic: back after {back:?}, {} ticks up", info.ticks);
+    assert_eq!(info.reset_cause, ResetCause::Panic);
+    assert!(info.ticks < 768 * 3, "restarted ({} ticks)", info.ticks);
+
+    link.call(faults(0, Crash::Hang)).unwrap();
+    let hung = Instant::now();
+    // The sampling loop hangs at its next tick; requests already in the pipe may still be
+    // answered before that, so ask again only once it must have hung.
+    std::thread::sleep(Duration::from_millis(100));
+    let back = reconnect(&mut link, 10);
+    let info = link.info().unwrap();
+    eprintln!("hang: back after {:?} (watchdog 1 s), {} ticks up", hung.elapsed(), info.ticks);
+    assert_eq!(info.reset_cause, ResetCause::Watchdog);
+    assert!(info.ticks < 768 * 3, "restarted ({} ticks)", info.ticks);
+    assert!(
+        back + Duration::from_millis(100) >= Duration::from_millis(900),
+        "reset before the watchdog's time"
+    );
+
+    link.call(Reset).unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    reconnect(&mut link, 5);
+    assert_eq!(link.info().unwrap().reset_cause, ResetCause::Software);
 }
 
 /// A controller for arm `arm_id` holding version 3 of the nominal set, signed by the tests'

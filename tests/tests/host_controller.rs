@@ -358,6 +358,8 @@ fn set_dropouts(port: &str, dropouts_per_10k: u16) {
         dropouts_per_10k,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: kincal_protocol::messages::Crash::None,
     })
     .unwrap();
 }
@@ -473,6 +475,26 @@ fn the_emulated_arm_is_posed_and_faulted_from_the_cli() {
     link.hello().unwrap();
     let w = kincal::controller::record::measure_window(&mut link, 32).unwrap();
     assert!(w.joints.iter().all(|j| j.accepted == 0), "{w:?}");
+    drop(link);
+    // Joints 2 and 5 unplugged (every other fault off again): only they answer no more.
+    let (code, out, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--unplug", "2,5"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("unplugged joints: 2, 5"), "{out}");
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    let w = kincal::controller::record::measure_window(&mut link, 32).unwrap();
+    let accepted: Vec<u16> = w.joints.iter().map(|j| j.accepted).collect();
+    assert_eq!(accepted, [32, 0, 32, 32, 0, 32], "{w:?}");
+    drop(link);
+    let (code, _, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--unplug", "7"]);
+    assert_eq!(code, Some(2), "joint 7 does not exist: {err}");
+    let (_, info, _) = kincal(&["info", "--port", &fake.port]);
+    assert!(info.contains("reset      power-on"), "{info}");
+    let (code, out, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--crash", "hang"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("failure injected"), "{out}");
+    let (_, info, _) = kincal(&["info", "--port", &fake.port]);
+    assert!(info.contains("reset      WATCHDOG: the sampling loop stopped"), "{info}");
     let (code, _, err) = kincal(&["emulated-arm", "pose", "--port", &fake.port, "--counts", "1,2,3"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("--counts: expected 6 positions"), "{err}");
@@ -501,4 +523,82 @@ fn lost_answers_are_repeated_without_doing_anything_twice() {
     let blob = kincal_e2e::signed_set(&kincal::model::ArmModel::suta_nominal(), 7);
     assert!(link.upload(&blob).unwrap().commit_reply_lost);
     assert_eq!(link.info().unwrap().param_version, 7);
+}
+
+fn faults_unplugging(unplugged: u8) -> kincal_protocol::messages::Request {
+    kincal_protocol::messages::Request::SimFaults(SimFaults { unplugged, ..SimFaults::default() })
+}
+
+/// A joint unplugged while `kincal stream --pose` runs: the CLI names the joint, never prints a
+/// position for those poses, the CSV marks the rows (valid 0, the joint, no position); plugged
+/// back, the poses are valid again.
+#[test]
+fn an_unplugged_joint_mid_stream_is_named_and_marked_and_valid_again_when_plugged_back() {
+    let fake = FakeController::start(1);
+    let dir = scratch("unplug");
+    let model = dir.join("model.toml");
+    kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
+    let key_file = kincal_e2e::station_key_file(&dir);
+    let key = key_file.to_str().unwrap();
+    let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{err}");
+    let csv = dir.join("pose.csv");
+    let child = Command::new(kincal_bin())
+        .args(["stream", "--port", &fake.port, "--pose", "--seconds", "2.5", "--csv", csv.to_str().unwrap()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(900));
+    fake.meddle_arm(faults_unplugging(0b100));
+    std::thread::sleep(Duration::from_millis(600));
+    fake.meddle_arm(faults_unplugging(0));
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("pose INVALID: joint 3 not read this tick"), "{stdout}");
+    assert!(stdout.contains("pose valid again"), "{stdout}");
+    assert!(stdout.contains("poses INVALID (joints 3 not read"), "{stdout}");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz"));
+    // valid, stale joints and whether a position is written, row by row; runs of equal rows.
+    let mut runs: Vec<(String, String, bool, usize)> = Vec::new();
+    for line in lines {
+        let cells: Vec<&str> = line.split(',').collect();
+        assert_eq!(cells.len(), 11, "{line}");
+        let row = (cells[2].to_string(), cells[3].to_string(), !cells[5].is_empty());
+        match runs.last_mut() {
+            Some(r) if (r.0.as_str(), r.1.as_str(), r.2) == (row.0.as_str(), row.1.as_str(), row.2) => {
+                r.3 += 1
+            }
+            _ => runs.push((row.0, row.1, row.2, 1)),
+        }
+    }
+    let shape: Vec<(&str, &str, bool)> = runs.iter().map(|r| (r.0.as_str(), r.1.as_str(), r.2)).collect();
+    assert_eq!(shape, [("1", "", true), ("0", "3", false), ("1", "", true)], "{runs:?}");
+    assert!(runs[1].3 > 200, "about 0.6 s of invalid poses at 768 Hz: {runs:?}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A stream that stops is an alarm line on the host, not a silent wait; its return is told.
+#[test]
+fn a_stalled_stream_raises_an_alarm() {
+    let fake = FakeController::start(1);
+    let (code, _, err) = kincal(&["stream", "--port", &fake.port, "--pose", "--seconds", "1"]);
+    assert_eq!(code, Some(1), "no parameters, no pose stream: {err}");
+    assert!(err.contains("holds no parameters"), "{err}");
+    let child = Command::new(kincal_bin())
+        .args(["stream", "--port", &fake.port, "--raw", "--seconds", "1.5"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(700));
+    fake.stall(Duration::from_millis(300));
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{stdout}");
+    assert!(stdout.contains("ALARM: no stream frame for over 16 ticks"), "{stdout}");
+    assert!(stdout.contains("stream resumed after"), "{stdout}");
 }

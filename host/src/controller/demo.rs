@@ -21,7 +21,7 @@ use crate::simulate::{
     validation_placements, Placement, SimulationOptions,
 };
 use kincal_protocol::biss::{counts_to_deg, deg_to_counts};
-use kincal_protocol::messages::{PoseReport, SimFaults, SimSetPose, StreamPose};
+use kincal_protocol::messages::{Crash, PoseReport, SimFaults, SimSetPose, StreamPose};
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -173,6 +173,9 @@ fn streamed_point(link: &mut Link, counts: [u32; 6], frames: usize) -> Result<Ve
     let deadline = Instant::now() + Duration::from_secs(5);
     while n < frames && Instant::now() < deadline {
         if let Some((_, p)) = link.next_on::<PoseReport>(Duration::from_millis(100))? {
+            if !p.valid {
+                continue; // a joint's frame was rejected this tick: no position
+            }
             sum += Vector3::new(p.position_mm[0] as f64, p.position_mm[1] as f64, p.position_mm[2] as f64);
             n += 1;
         }
@@ -241,6 +244,8 @@ pub fn run_loop(
         dropouts_per_10k: 0,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: Crash::None,
     })?;
     let seat = Normal::new(0.0, options.seating_noise_mm.max(0.0)).map_err(|e| files(&e))?;
     let order: Vec<String> = artefact.landmarks.iter().map(|l| l.id.clone()).collect();

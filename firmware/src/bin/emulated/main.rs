@@ -15,10 +15,11 @@ mod nor;
 mod tick_bench;
 mod time_driver;
 mod uart;
+mod watchdog;
 
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicBool, Ordering};
-use cortex_m_rt::{entry, exception};
+use cortex_m_rt::{entry, exception, ExceptionFrame};
 use cortex_m_semihosting::hprintln;
 use embassy_executor::raw::Executor;
 use embassy_sync::blocking_mutex::raw::ThreadModeRawMutex;
@@ -32,8 +33,10 @@ use kincal_firmware::controller::Action;
 #[cfg(not(feature = "tick-bench"))]
 use kincal_firmware::controller::Controller;
 use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, SharedEncoders};
+use kincal_firmware::reset_cause;
 #[cfg(not(feature = "tick-bench"))]
 use kincal_firmware::trust::{Trust, BUILD_ARM_ID, EMULATED_ARM_ID};
+use kincal_protocol::messages::{Crash, Request, ResetCause, SimFaults};
 use nor::EmulatedNor;
 use static_cell::StaticCell;
 
@@ -46,14 +49,19 @@ static EXECUTOR: StaticCell<Executor> = StaticCell::new();
 
 #[embassy_executor::task]
 async fn sample_encoders(shared: &'static SharedCell<EmulatedNor>) -> ! {
-    app::sample_encoders(shared, BissMaster::new(EmulatedEncoder::all(&ENCODERS))).await
+    app::sample_encoders(shared, BissMaster::new(EmulatedEncoder::all(&ENCODERS)), watchdog::feed).await
 }
 
 #[embassy_executor::task]
 async fn serve_host(shared: &'static SharedCell<EmulatedNor>) -> ! {
     app::serve_host(shared, |action| match action {
-        Action::Simulate(request) => ENCODERS.lock(|e| e.borrow_mut().apply(&request)),
-        Action::Reset => cortex_m::peripheral::SCB::sys_reset(),
+        Action::Simulate(request) => {
+            ENCODERS.lock(|e| e.borrow_mut().apply(&request));
+            if let Request::SimFaults(SimFaults { crash: Crash::Panic, .. }) = request {
+                panic!("panic injected by the host (emulated-arm faults --crash panic)");
+            }
+        }
+        Action::Reset => reset_cause::reset_because(ResetCause::Software),
         Action::None => {}
     })
     .await
@@ -106,16 +114,22 @@ fn run() -> ! {
         trust,
         EmulatedNor::take().expect("the flash is taken once, here"),
     );
+    // No reset flags on this board: what the firmware recorded, else a power-on (QEMU starts
+    // with zeroed RAM).
+    let reset_cause = reset_cause::take_recorded().unwrap_or(ResetCause::PowerOn);
+    controller.set_boot(reset_cause, 0);
     let has_params = controller.params().is_some();
     // Sampling has not started: the moment to erase the parameter log's spare sector if needed.
     controller.maintain_flash();
     let shared = SHARED.init(Mutex::new(RefCell::new(Shared::new(controller))));
     uart::init();
     time_driver::init();
+    watchdog::start();
     hprintln!(
-        "kincal emulated controller ready on UART0 (arm {}, stored parameters: {})",
+        "kincal emulated controller ready on UART0 (arm {}, stored parameters: {}; reset cause: {:?})",
         arm_id,
-        if has_params { "yes" } else { "none" }
+        if has_params { "yes" } else { "none" },
+        reset_cause
     );
     let executor: &'static Executor = EXECUTOR.init(Executor::new(core::ptr::null_mut()));
     let spawner = executor.spawner();
@@ -155,9 +169,29 @@ unsafe fn DefaultHandler(irqn: i16) {
     }
 }
 
+/// The watchdog expired (its interrupt is the NMI): the sampling loop stopped. Reset.
+#[exception]
+// SAFETY (cortex-m-rt's requirement for an NMI handler): it shares no state with the code it
+// interrupts except the reset word, which it only writes before resetting.
+unsafe fn NonMaskableInt() {
+    if watchdog::expired() {
+        reset_cause::reset_because(ResetCause::Watchdog);
+    }
+}
+
+/// A processor fault (bad memory access, stack overflow): record it and reset.
+#[exception]
+unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
+    reset_cause::reset_because(ResetCause::Fault)
+}
+
+/// A panic: say so on the semihosting console, record it and reset (the field behaviour; the
+/// tick bench exits instead).
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     hprintln!("firmware panic: {}", info);
-    cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
-    loop {}
+    if cfg!(feature = "tick-bench") {
+        cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+    }
+    reset_cause::reset_because(ResetCause::Panic)
 }

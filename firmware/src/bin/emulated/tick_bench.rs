@@ -12,17 +12,18 @@ use core::convert::Infallible;
 use cortex_m_semihosting::{debug, hprintln};
 use embedded_hal_async::spi::{ErrorType, Operation, SpiDevice};
 use kincal_firmware::app::{FrameSender, TO_HOST};
-use kincal_firmware::biss_master::{BissMaster, REAL_BOARD_MA_HZ, TRANSFER_BITS, TRANSFER_BYTES};
+use kincal_firmware::biss_master::{BissMaster, REAL_BOARD_MA_HZ, TRANSFER_BYTES};
 use kincal_firmware::controller::Controller;
 use kincal_firmware::emulated_encoders::EmulatedEncoders;
 use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
 use kincal_firmware::kinematics::Kinematics;
 use kincal_firmware::trust::Trust;
+use kincal_protocol::biss::TRANSFER_BITS;
 use kincal_protocol::messages::{
-    pack_counts, DeviceFrame, Hello, HostFrame, ParamBegin, ParamChunk, ParamCommit, PoseReport, RawSample,
-    Request, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, JOINTS, PROTOCOL_VERSION,
-    SCHEMA_HASH, TICK_HZ,
+    pack_counts, Crash, DeviceFrame, Hello, HostFrame, ParamBegin, ParamChunk, ParamCommit, PoseReport,
+    RawSample, Request, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, ALL_JOINTS,
+    JOINTS, PROTOCOL_VERSION, SCHEMA_HASH, TICK_HZ,
 };
 use kincal_protocol::params::{encode_blob, ArmParams, JointParams, BLOB_CRC, MAX_PARAM_BLOB};
 use kincal_protocol::signed::{signing_message, SIGNATURE_BYTES};
@@ -59,6 +60,12 @@ impl SpiDevice for ReplayEncoder<'_> {
 /// two DMA streams, the completion interrupt, waking and polling the task; the same for a UART
 /// write): an estimate, not measured here (QEMU has no STM32 DMA).
 const DMA_TRANSFER_CYCLES: u64 = 800;
+/// Cycles each encoder read costs the real board's CPU besides its transfer (`EncoderPort` in
+/// the STM32 board): the 2 µs enable set-up busy-wait (336 cycles) and one timer wake for MA held
+/// high through the encoder's timeout (as a DMA wake, an estimate).
+const ENCODER_PORT_CYCLES: u64 = 336 + DMA_TRANSFER_CYCLES;
+/// Bus time per encoder read besides the clocks, µs: the 2 µs set-up and MA held high for 40 µs.
+const ENCODER_PORT_US: f64 = 42.0;
 /// Core clock of the real board.
 const CORE_HZ: f64 = 168e6;
 /// Ticks each figure is averaged over (one second).
@@ -112,6 +119,8 @@ pub fn run() -> ! {
         dropouts_per_10k: 0,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: Crash::None,
     }));
     // Frames go the app's way into TO_HOST, and leave it as the UART task takes them.
     let mut sender = FrameSender::new();
@@ -185,6 +194,9 @@ pub fn run() -> ! {
         seq: 1,
         item: Stream::Pose(PoseReport {
             tick: 1,
+            valid: true,
+            fresh: ALL_JOINTS,
+            stale_ticks: 0,
             position_mm: [812.5, -40.25, 301.0],
             z_axis: [0.0, 0.6, 0.8],
             x_axis: [1.0, 0.0, 0.0],
@@ -230,17 +242,18 @@ pub fn run() -> ! {
     // Whole ticks, through the controller, in the configurations the link can carry (the
     // controller refuses stream settings above it: raw and pose both every tick need 130 %).
     let tick_cycles = CORE_HZ / TICK_HZ as f64;
-    let bus_us = JOINTS as f64 * TRANSFER_BITS as f64 / REAL_BOARD_MA_HZ as f64 * 1e6;
-    let dma = (JOINTS as u64 + 1) * DMA_TRANSFER_CYCLES;
+    let bus_us = JOINTS as f64 * (TRANSFER_BITS as f64 / REAL_BOARD_MA_HZ as f64 * 1e6 + ENCODER_PORT_US);
+    let dma = (JOINTS as u64 + 1) * DMA_TRANSFER_CYCLES + JOINTS as u64 * ENCODER_PORT_CYCLES;
     hprintln!(
         "  encoder bus busy {:.1} us per tick ({:.2} % of the tick; DMA, the CPU does not wait)",
         bus_us,
         bus_us * TICK_HZ as f64 / 1e4
     );
     hprintln!(
-        "  real board (168 MHz, 1 cycle/instruction), whole tick incl. {} DMA transfers (6 encoders + 1 UART) x {} cycles (estimate):",
+        "  real board (168 MHz, 1 cycle/instruction), whole tick incl. {} DMA transfers (6 encoders + 1 UART) x {} cycles and 6 encoder enables x {} cycles (estimates):",
         JOINTS + 1,
-        DMA_TRANSFER_CYCLES
+        DMA_TRANSFER_CYCLES,
+        ENCODER_PORT_CYCLES
     );
     for (label, raw_on, pose_divider, window_on) in [
         ("recording (window + raw every tick)", true, 0, true),
@@ -260,7 +273,7 @@ pub fn run() -> ! {
         });
         let cpu = work + dma;
         hprintln!(
-            "    {:44} {:6} instr. + DMA = {:6} cycles = {:5.2} % of the tick (budget 5 %); {:5.2} % if the CPU waited on the bus",
+            "    {:44} {:6} instr. + DMA, enables = {:6} cycles = {:5.2} % of the tick (budget 5 %); {:5.2} % if the CPU waited on the bus",
             label,
             work,
             cpu,

@@ -209,25 +209,107 @@ pub fn cmd_info(a: &PortArgs) -> Result<()> {
         println!("parameters version {} (CRC-32 {:08x})", info.param_version, info.param_crc);
         println!("signed by  {} at {}", fingerprint(&info.param_signer), utc(info.param_signed_at_unix_s));
     }
+    println!("reset      {}", reset_cause_text(info.reset_cause));
+    match info.brownout_mv {
+        0 => {}
+        mv if mv < 2700 => println!(
+            "brown-out  reset below {:.1} V: too low for programming flash (needs 2.7 V); set BOR level 3 in the option bytes (README, bring-up)",
+            mv as f64 / 1000.0
+        ),
+        mv => println!("brown-out  reset below {:.1} V", mv as f64 / 1000.0),
+    }
     println!("late ticks {} (encoder reads started over a tick late)", info.late_ticks);
     println!(
         "uptime     {} ticks ({:.1} s)",
         info.ticks,
         kincal_protocol::messages::ticks_to_seconds(info.ticks)
     );
-    println!("joint  accepted  crc-errors  error-bits  warnings  dropouts");
+    println!("joint  accepted  crc-errors  error-bits  warnings  dropouts  frame-errors  jumps");
     for (j, h) in info.encoders.iter().enumerate() {
         println!(
-            "{:>5}  {:>8}  {:>10}  {:>10}  {:>8}  {:>8}",
+            "{:>5}  {:>8}  {:>10}  {:>10}  {:>8}  {:>8}  {:>12}  {:>5}",
             j + 1,
             h.accepted,
             h.crc_errors,
             h.error_bits,
             h.warnings,
-            h.dropouts
+            h.dropouts,
+            h.frame_errors,
+            h.jumps
         );
     }
     Ok(())
+}
+
+fn reset_cause_text(cause: kincal_protocol::messages::ResetCause) -> &'static str {
+    use kincal_protocol::messages::ResetCause;
+    match cause {
+        ResetCause::PowerOn => "power-on",
+        ResetCause::Watchdog => {
+            "WATCHDOG: the sampling loop stopped and the watchdog restarted the controller"
+        }
+        ResetCause::Panic => "PANIC: the firmware panicked and restarted the controller",
+        ResetCause::Fault => "FAULT: a processor fault (HardFault) restarted the controller",
+        ResetCause::Software => "software (a reset request or the debugger)",
+        ResetCause::BrownOut => "BROWN-OUT: the supply fell below the brown-out level",
+        ResetCause::Pin => "reset pin",
+        ResetCause::Unknown => "unknown (no cause recorded)",
+    }
+}
+
+/// Time without a stream frame after which `kincal stream` raises an alarm: 16 ticks (21 ms);
+/// a stream that stops is reported, never waited on silently.
+pub const STREAM_GAP_ALARM_TICKS: u32 = 16;
+
+/// Watches a pose stream for invalid poses and reports each change (which joints, since when).
+#[derive(Default)]
+struct PoseWatch {
+    /// Fresh-joint mask of the invalid poses being reported (None: valid).
+    invalid: Option<u8>,
+    /// Invalid poses received.
+    invalid_poses: u64,
+    /// Joints seen stale in any pose (bit j: joint j + 1).
+    stale_seen: u8,
+}
+
+impl PoseWatch {
+    fn see(&mut self, p: &kincal_protocol::messages::PoseReport) {
+        if p.valid {
+            if self.invalid.take().is_some() {
+                println!("tick {}: pose valid again", p.tick);
+            }
+            return;
+        }
+        self.invalid_poses += 1;
+        self.stale_seen |= !p.fresh & kincal_protocol::messages::ALL_JOINTS;
+        if self.invalid != Some(p.fresh) {
+            self.invalid = Some(p.fresh);
+            println!("tick {}: pose INVALID: {}", p.tick, stale_text(p));
+        }
+    }
+}
+
+/// "joint 3 not read this tick (last good 5 ticks ago)", naming every stale joint.
+fn stale_text(p: &kincal_protocol::messages::PoseReport) -> String {
+    let joints: Vec<String> = p.stale_joints().map(|j| j.to_string()).collect();
+    let age = match p.stale_ticks {
+        u16::MAX => "never read since boot".to_string(),
+        t => format!("last good {t} ticks ago"),
+    };
+    format!(
+        "joint{} {} not read this tick ({age}); no position",
+        if joints.len() == 1 { "" } else { "s" },
+        joints.join(", ")
+    )
+}
+
+/// Joint numbers of a mask (bit j: joint j + 1), space separated (for CSV cells).
+fn joint_list(mask: u8) -> String {
+    let joints: Vec<String> = (0..kincal_protocol::messages::JOINTS)
+        .filter(|j| mask & (1 << j) != 0)
+        .map(|j| (j + 1).to_string())
+        .collect();
+    joints.join(" ")
 }
 
 pub fn cmd_params(a: &PortArgs) -> Result<()> {
@@ -318,10 +400,17 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
 
 pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
     use kincal_protocol::messages::{Stream, StreamPose, StreamRaw};
+    use std::time::{Duration, Instant};
     if let Some(path) = &a.csv {
         CsvRecording::refuse_existing(path)?;
     }
     let mut link = connect(&a.port)?;
+    if a.pose && link.info()?.param_version == 0 {
+        bail!(
+            "the controller on {} holds no parameters: no pose to stream (kincal upload first)",
+            a.port.port
+        );
+    }
     catch_ctrl_c();
     let mut csv = match &a.csv {
         Some(path) => Some(CsvRecording::create(path)?),
@@ -333,7 +422,7 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             w,
             "{}",
             if a.pose {
-                "seq,tick,x_mm,y_mm,z_mm,zx,zy,zz"
+                "seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz"
             } else {
                 "seq,tick,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg,rejected"
             }
@@ -344,28 +433,71 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
     } else {
         link.call(StreamRaw { on: true })?;
     }
-    let started = std::time::Instant::now();
-    let mut frames = 0u64;
+    let gap_alarm =
+        Duration::from_secs_f64(kincal_protocol::messages::ticks_to_seconds(STREAM_GAP_ALARM_TICKS));
+    let started = Instant::now();
+    let (mut frames, mut alarms) = (0u64, 0u64);
     let mut last_report = started;
+    let mut last_frame = Instant::now();
+    let mut in_gap = false;
+    let mut lost_seen = 0u64;
+    let mut watch = PoseWatch::default();
+    let mut latest = String::new();
     while !INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst)
         && a.seconds.is_none_or(|s| started.elapsed().as_secs_f64() < s)
     {
-        let Some((seq, item)) = link.next_stream(std::time::Duration::from_millis(200))? else { continue };
+        let Some((seq, item)) = link.next_stream(Duration::from_millis(5))? else {
+            if !in_gap && last_frame.elapsed() > gap_alarm {
+                in_gap = true;
+                alarms += 1;
+                println!(
+                    "ALARM: no stream frame for over {} ticks ({:.0} ms): the controller or the link stopped; no position until it resumes",
+                    STREAM_GAP_ALARM_TICKS,
+                    last_frame.elapsed().as_secs_f64() * 1e3
+                );
+            }
+            continue;
+        };
+        if in_gap {
+            in_gap = false;
+            println!("stream resumed after {:.0} ms", last_frame.elapsed().as_secs_f64() * 1e3);
+        }
+        last_frame = Instant::now();
+        if link.stats.stream_gaps > lost_seen {
+            alarms += 1;
+            println!("ALARM: {} stream frames lost before frame {seq}", link.stats.stream_gaps - lost_seen);
+            lost_seen = link.stats.stream_gaps;
+        }
         frames += 1;
+        match &item {
+            Stream::Pose(p) => {
+                watch.see(p);
+                latest = if p.valid {
+                    format!("pose {:.3} {:.3} {:.3} mm", p.position_mm[0], p.position_mm[1], p.position_mm[2])
+                } else {
+                    format!("pose INVALID ({})", stale_text(p))
+                };
+            }
+            Stream::Raw(r) if r.rejected != 0 => {
+                latest = format!("rejected joints {}", joint_list(r.rejected))
+            }
+            _ => latest.clear(),
+        }
         if let Some(w) = csv.as_mut().map(|c| &mut c.writer) {
             match item {
                 Stream::Raw(r) => {
+                    // A rejected joint's count is its last good one: left empty, never written
+                    // as this tick's angle.
                     let deg = kincal_protocol::messages::unpack_counts(&r.packed)
                         .map(|c| kincal_protocol::biss::counts_to_deg(c as f64));
-                    writeln!(
-                        w,
-                        "{seq},{},{},{},{},{},{},{},{}",
-                        r.tick, deg[0], deg[1], deg[2], deg[3], deg[4], deg[5], r.rejected
-                    )?;
+                    let cells: Vec<String> = (0..kincal_protocol::messages::JOINTS)
+                        .map(|j| if r.rejected & (1 << j) != 0 { String::new() } else { deg[j].to_string() })
+                        .collect();
+                    writeln!(w, "{seq},{},{},{}", r.tick, cells.join(","), r.rejected)?;
                 }
-                Stream::Pose(p) => writeln!(
+                Stream::Pose(p) if p.valid => writeln!(
                     w,
-                    "{seq},{},{},{},{},{},{},{}",
+                    "{seq},{},1,,0,{},{},{},{},{},{}",
                     p.tick,
                     p.position_mm[0],
                     p.position_mm[1],
@@ -374,16 +506,25 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
                     p.z_axis[1],
                     p.z_axis[2]
                 )?,
+                Stream::Pose(p) => writeln!(
+                    w,
+                    "{seq},{},0,{},{},,,,,,",
+                    p.tick,
+                    joint_list(!p.fresh & kincal_protocol::messages::ALL_JOINTS),
+                    p.stale_ticks
+                )?,
                 Stream::Window(_) => {}
             }
         }
         if last_report.elapsed().as_secs_f64() >= 1.0 {
-            last_report = std::time::Instant::now();
+            last_report = Instant::now();
             eprintln!(
-                "{:.0} frames/s, {} lost, {} corrupt",
+                "{:.0} frames/s, {} lost, {} corrupt{}{}",
                 frames as f64 / started.elapsed().as_secs_f64(),
                 link.stats.stream_gaps,
-                link.stats.bad_frames
+                link.stats.bad_frames,
+                if latest.is_empty() { "" } else { "; " },
+                latest
             );
         }
     }
@@ -393,12 +534,19 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
         c.finish()?;
     }
     println!(
-        "{frames} frames in {:.1} s ({:.1} Hz), {} lost, {} corrupt",
+        "{frames} frames in {:.1} s ({:.1} Hz), {} lost, {} corrupt, {alarms} alarms",
         started.elapsed().as_secs_f64(),
         frames as f64 / started.elapsed().as_secs_f64(),
         link.stats.stream_gaps,
         link.stats.bad_frames
     );
+    if watch.invalid_poses > 0 {
+        println!(
+            "{} poses INVALID (joints {} not read; the CSV marks them valid = 0 with no position)",
+            watch.invalid_poses,
+            joint_list(watch.stale_seen)
+        );
+    }
     Ok(())
 }
 

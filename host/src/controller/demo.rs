@@ -286,8 +286,13 @@ pub fn run_loop(
         data.join("cal"),
         data.join("val"),
     );
-    let result =
-        run(&inputs, &CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() }, &[], 0)?;
+    let result = run(
+        &inputs,
+        &CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() },
+        &[],
+        0,
+        true,
+    )?;
     crate::output::write_run(&result, &options.out.join("run"))?;
     // Pose check at one noise-free touch of every landmark of every validation placement.
     let mut check_counts = Vec::new();

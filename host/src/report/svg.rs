@@ -21,10 +21,10 @@ impl Frame {
         Frame { width, height, left: 56.0, bottom: 36.0, x: pad(x), y: pad(y) }
     }
     fn px(&self, x: f64) -> f64 {
-        self.left + (x - self.x.0) / (self.x.1 - self.x.0) * (self.width - self.left - 12.0)
+        on_canvas(self.left + (x - self.x.0) / (self.x.1 - self.x.0) * (self.width - self.left - 12.0))
     }
     fn py(&self, y: f64) -> f64 {
-        12.0 + (self.y.1 - y) / (self.y.1 - self.y.0) * (self.height - self.bottom - 12.0)
+        on_canvas(12.0 + (self.y.1 - y) / (self.y.1 - self.y.0) * (self.height - self.bottom - 12.0))
     }
     fn open(&self, out: &mut String, x_label: &str, y_label: &str, x_ticks: bool) {
         let _ = write!(
@@ -77,8 +77,24 @@ impl Frame {
     }
 }
 
+/// Largest magnitude a chart takes as a value to draw; beyond it (or not finite) a value is left
+/// out of the axis range, so one absurd value cannot turn every coordinate into `inf`.
+pub const PLOTTABLE: f64 = 1e12;
+
+/// A pixel coordinate that SVG can hold: never `inf` or `NaN`, even for a value outside the
+/// axis range (it lands far off the canvas instead).
+fn on_canvas(px: f64) -> f64 {
+    if px.is_nan() {
+        0.0
+    } else {
+        px.clamp(-1e6, 1e6)
+    }
+}
+
 fn tick(v: f64) -> String {
-    if v.abs() >= 100.0 {
+    if !v.is_finite() {
+        "–".into()
+    } else if v.abs() >= 100.0 {
         format!("{v:.0}")
     } else if v.abs() >= 1.0 {
         format!("{v:.2}")
@@ -110,7 +126,7 @@ fn legend(out: &mut String, frame: &Frame, names: &[&str]) {
 
 fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     values
-        .filter(|v| v.is_finite())
+        .filter(|v| v.abs() <= PLOTTABLE)
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)))
 }
 
@@ -125,7 +141,7 @@ pub fn histogram(series: &[(&str, &[f64])], bins: usize, x_label: &str) -> Strin
         .iter()
         .map(|(_, v)| {
             let mut c = vec![0; bins];
-            for x in v.iter().filter(|x| x.is_finite()) {
+            for x in v.iter().filter(|x| x.abs() <= PLOTTABLE) {
                 c[(((x - lo) / width) as usize).min(bins - 1)] += 1;
             }
             c
@@ -226,7 +242,7 @@ pub fn boxplot(groups: &[(String, Vec<f64>)], y_label: &str) -> String {
     let mut out = String::new();
     frame.open(&mut out, "placements used for calibration", y_label, false);
     for (i, (name, values)) in groups.iter().enumerate() {
-        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.abs() <= PLOTTABLE).collect();
         if v.is_empty() {
             continue;
         }
@@ -269,7 +285,7 @@ pub fn boxplot(groups: &[(String, Vec<f64>)], y_label: &str) -> String {
 /// longitude = atan2(x, z), latitude = asin(y) of each unit direction.
 pub fn hammer_map(points: &[(f64, f64, f64)], label: &str) -> String {
     let (w, h) = (640.0, 340.0);
-    let top = points.iter().map(|p| p.2).fold(1e-12, f64::max);
+    let top = points.iter().map(|p| p.2).filter(|v| v.abs() <= PLOTTABLE).fold(1e-12, f64::max);
     let project = |lon: f64, lat: f64| {
         let d = (1.0 + lat.cos() * (lon / 2.0).cos()).sqrt().max(1e-9);
         let x = 2.0 * 2f64.sqrt() * lat.cos() * (lon / 2.0).sin() / d;
@@ -290,7 +306,8 @@ pub fn hammer_map(points: &[(f64, f64, f64)], label: &str) -> String {
     );
     for &(lon, lat, v) in points {
         let (x, y) = project(lon, lat);
-        let f = (v / top).clamp(0.0, 1.0);
+        let (x, y) = (on_canvas(x), on_canvas(y));
+        let f = if v.is_nan() { 0.0 } else { (v / top).clamp(0.0, 1.0) };
         let _ = write!(
             out,
             r#"<circle cx="{x:.1}" cy="{y:.1}" r="2.2" fill="rgb({},{},{})"/>"#,
@@ -307,4 +324,28 @@ pub fn hammer_map(points: &[(f64, f64, f64)], label: &str) -> String {
         top
     );
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn absurd_values_never_reach_the_svg_as_inf_or_nan() {
+        let bad = [1.0, 2.5, 1e308, -1e308, f64::INFINITY, f64::NAN, 0.5];
+        let points: Vec<(f64, f64)> = bad.iter().map(|&v| (v, -v)).collect();
+        let charts = [
+            histogram(&[("a", &bad), ("b", &[1.0, 2.0])], 10, "error (mm)"),
+            bars(&["x".into(), "y".into()], &[("a", bad.to_vec())], "mm"),
+            scatter(&points, &points, "x", "y"),
+            boxplot(&[("1".into(), bad.to_vec())], "mm"),
+            hammer_map(&[(0.1, 0.2, 1e308), (f64::NAN, 0.0, f64::INFINITY), (0.3, 0.1, 1.0)], "mm"),
+        ];
+        for svg in &charts {
+            assert!(svg.contains("<svg"), "a chart of the finite values is drawn: {svg}");
+            for word in ["inf", "NaN", "1e308", "e30"] {
+                assert!(!svg.contains(word), "{word} in {svg}");
+            }
+        }
+    }
 }

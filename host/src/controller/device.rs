@@ -73,6 +73,37 @@ pub fn signed_parameter_set(
     Ok(key.sign(&blob, arm_id, now)?)
 }
 
+/// Why no version can be given to a new set.
+#[derive(Debug, PartialEq, Eq, thiserror::Error)]
+pub enum VersionError {
+    /// The requested version is not above the stored one.
+    #[error("the controller holds version {stored}; version {requested} would be a rollback, which it refuses. To put these values back, upload them as a new set: --version {next} (or leave --version out)")]
+    Rollback {
+        /// The stored version.
+        stored: u32,
+        /// The version asked for.
+        requested: u32,
+        /// The next version.
+        next: u32,
+    },
+    /// The stored version is the highest there is: the controller takes no newer set.
+    #[error("the controller holds version {stored}, the highest there is: it refuses every other version (no rollback) until its parameter flash is erased")]
+    Exhausted {
+        /// The stored version.
+        stored: u32,
+    },
+}
+
+/// The version of a new set: `requested`, or the stored version + 1; above the stored one.
+pub fn next_version(stored: u32, requested: Option<u32>) -> Result<u32, VersionError> {
+    let next = stored.checked_add(1).ok_or(VersionError::Exhausted { stored })?;
+    match requested {
+        Some(requested) if requested <= stored => Err(VersionError::Rollback { stored, requested, next }),
+        Some(requested) => Ok(requested),
+        None => Ok(next),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -84,5 +115,23 @@ mod tests {
         let e = parameter_blob(&model, 1).unwrap_err();
         assert!(matches!(e, DeviceParamsError::JointCount(7)), "{e}");
         assert!(e.to_string().contains("holds 6 joints"), "{e}");
+    }
+
+    #[test]
+    fn a_new_set_is_numbered_above_the_stored_one_and_never_wraps() {
+        assert_eq!(next_version(0, None), Ok(1));
+        assert_eq!(next_version(7, None), Ok(8));
+        assert_eq!(next_version(7, Some(20)), Ok(20));
+        assert_eq!(
+            next_version(7, Some(7)),
+            Err(VersionError::Rollback { stored: 7, requested: 7, next: 8 })
+        );
+        assert_eq!(
+            next_version(7, Some(3)),
+            Err(VersionError::Rollback { stored: 7, requested: 3, next: 8 })
+        );
+        assert_eq!(next_version(u32::MAX - 1, None), Ok(u32::MAX));
+        assert_eq!(next_version(u32::MAX, None), Err(VersionError::Exhausted { stored: u32::MAX }));
+        assert_eq!(next_version(u32::MAX, Some(1)), Err(VersionError::Exhausted { stored: u32::MAX }));
     }
 }

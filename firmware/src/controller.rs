@@ -300,8 +300,12 @@ impl<F: NorFlash> Controller<F> {
         let bytes: &[u8] = if pending {
             let u = self.upload.as_ref().ok_or(WireError::NoUpload)?;
             &u.buf[..u.received]
-        } else {
+        } else if self.params.is_some() {
             self.store.load(&mut stored).unwrap_or(&[])
+        } else {
+            // A stored set the controller does not use (unsigned, another arm, a key no longer
+            // trusted) is not its parameters: nothing is shown, as `info` shows none.
+            &[]
         };
         let from = (offset as usize).min(bytes.len());
         let to = (from + PARAM_CHUNK).min(bytes.len());
@@ -767,43 +771,76 @@ mod tests {
         assert_eq!(back.params(), Some(&set(1)));
     }
 
+    /// What `kincal params` reads is what runs: a stored set the controller does not use (another
+    /// key built in now) is not shown as its parameters.
+    #[test]
+    fn the_stored_set_read_back_is_the_one_in_use() {
+        let built_in = Trust::new(ARM, Some(*station(3).pk)).unwrap();
+        let mut c = Ctl::new("fw", "test", false, built_in, RamNor::new());
+        hello(&mut c);
+        let set = signed_for(&set(1), &station(3), ARM, 9);
+        assert_eq!(upload_set(&mut c, &set), Ok(Response::Ack));
+        let read = |c: &mut Ctl| match ask(c, Request::ParamRead(ParamRead { offset: 0, pending: false })) {
+            Ok(Response::ParamData(ParamData { data, .. })) => data.to_vec(),
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(read(&mut c), set[..PARAM_CHUNK]);
+        let other_key = Trust::new(ARM, Some(*station(4).pk)).unwrap();
+        let mut reflashed = Ctl::new("fw", "test", false, other_key, c.into_flash());
+        hello(&mut reflashed);
+        assert_eq!(reflashed.params(), None);
+        assert_eq!(read(&mut reflashed), Vec::<u8>::new(), "a set not in use was read back as stored");
+    }
+
     /// A power cut after every flash operation of a signed commit: after the reboot the
     /// controller uses the old signed set or the new one (with its provenance), and the pinned key
-    /// is still the only one trusted.
+    /// is still the only one trusted. Once inside a sector, once where the log moves back to the
+    /// first sector and erases it (on 2 KiB sectors a 658-byte set fills one in 3 commits).
     #[test]
     fn a_power_cut_at_every_step_of_a_signed_commit_keeps_the_old_or_the_new_set() {
-        let (old, new) =
-            (signed_for(&set(5), &station(1), ARM, 100), signed_for(&set(6), &station(1), ARM, 200));
-        let mut seen = [false; 2];
-        for budget in 0..400 {
-            let mut c = controller(RamNor::new());
-            hello(&mut c);
-            assert_eq!(upload_set(&mut c, &signed(&set(4))), Ok(Response::Ack));
-            assert_eq!(upload_set(&mut c, &old), Ok(Response::Ack));
-            let mut flash = c.into_flash();
-            flash.power_budget = Some(budget);
-            let mut c = controller(flash);
-            hello(&mut c);
-            let finished = upload_set(&mut c, &new).is_ok();
-            let mut flash = c.into_flash();
-            flash.power_budget = None;
-            let mut rebooted = controller(flash);
-            let got =
-                (rebooted.params().map(|p| p.version), rebooted.provenance().map(|p| p.signed_at_unix_s));
-            assert!(got == (Some(5), Some(100)) || got == (Some(6), Some(200)), "budget {budget}: {got:?}");
-            assert!(!finished || got.0 == Some(6), "budget {budget}: a finished commit must be active");
-            seen[(got.0 == Some(6)) as usize] = true;
-            hello(&mut rebooted);
-            assert_eq!(
-                upload_set(&mut rebooted, &signed_for(&set(9), &station(2), ARM, 5)),
-                Err(WireError::ParamSignature(SignatureRefusal::UntrustedKey)),
-                "budget {budget}: the pin survives"
-            );
-            if finished {
-                assert!(budget > 0);
-                break;
+        for earlier in [1, 5] {
+            let old_version = 4 + earlier;
+            let old_set = signed_for(&set(old_version), &station(1), ARM, 100);
+            let new_set = signed_for(&set(old_version + 1), &station(1), ARM, 200);
+            // (version, time signed) as the rebooted controller reports them.
+            let (old, new) = ((Some(old_version), Some(100)), (Some(old_version + 1), Some(200)));
+            let mut seen = [false; 2];
+            let mut erased_at_commit = false;
+            for budget in 0..400 {
+                let mut c = controller(RamNor::new());
+                hello(&mut c);
+                for version in 4..old_version {
+                    assert_eq!(upload_set(&mut c, &signed(&set(version))), Ok(Response::Ack));
+                }
+                assert_eq!(upload_set(&mut c, &old_set), Ok(Response::Ack));
+                let mut flash = c.into_flash();
+                let erases_before = flash.erases;
+                flash.power_budget = Some(budget);
+                let mut c = controller(flash);
+                hello(&mut c);
+                let finished = upload_set(&mut c, &new_set).is_ok();
+                let mut flash = c.into_flash();
+                erased_at_commit |= flash.erases > erases_before;
+                flash.power_budget = None;
+                let mut rebooted = controller(flash);
+                let got =
+                    (rebooted.params().map(|p| p.version), rebooted.provenance().map(|p| p.signed_at_unix_s));
+                assert!(got == old || got == new, "{earlier} earlier, budget {budget}: {got:?}");
+                assert!(!finished || got == new, "budget {budget}: a finished commit must be active");
+                seen[(got == new) as usize] = true;
+                hello(&mut rebooted);
+                assert_eq!(
+                    upload_set(&mut rebooted, &signed_for(&set(99), &station(2), ARM, 5)),
+                    Err(WireError::ParamSignature(SignatureRefusal::UntrustedKey)),
+                    "{earlier} earlier, budget {budget}: the pin survives"
+                );
+                if finished {
+                    assert!(budget > 0);
+                    break;
+                }
             }
+            assert_eq!(seen, [true, true], "cuts before and after the commit word were tried");
+            assert_eq!(erased_at_commit, earlier == 5, "{earlier} earlier: the commit erased a sector");
         }
-        assert_eq!(seen, [true, true], "cuts before and after the commit word were tried");
     }
 }

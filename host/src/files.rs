@@ -51,6 +51,18 @@ pub enum FileError {
         /// What was expected.
         message: String,
     },
+    /// A row of a CSV file holds a value that cannot be used.
+    #[error("{path}:{line}: column `{column}`: {message}")]
+    Row {
+        /// The file.
+        path: PathBuf,
+        /// The line, 1-based, counting the header and comment lines.
+        line: usize,
+        /// The column's name from the header.
+        column: String,
+        /// What was expected.
+        message: String,
+    },
     /// A folder holds no session file.
     #[error("{path}: no session files (*.json) in this folder")]
     EmptyFolder {

@@ -9,7 +9,7 @@
 //! a joint below the table are skipped, as an operator would.
 
 use crate::data::{Artefact, Landmark, Measurement, Session, ARTEFACT_FORMAT, SESSION_FORMAT};
-use crate::model::{ArmModel, Convention, ParamId, JOINTS};
+use crate::model::{ArmModel, Convention, ParamId, SUTA_JOINTS};
 use crate::numerics::solver::{self, Residuals, SolverOptions};
 use nalgebra::{Matrix4, Vector3};
 use rand::{RngExt, SeedableRng};
@@ -171,8 +171,8 @@ pub fn suta_artefact(rng: &mut ChaCha8Rng) -> Artefact {
 /// Returns the tool frame and the frame origins after each joint.
 pub fn reference_tool_frame(
     model: &ArmModel,
-    enc_deg: &[f64; JOINTS],
-) -> (Matrix4<f64>, [Vector3<f64>; JOINTS]) {
+    enc_deg: &[f64; SUTA_JOINTS],
+) -> (Matrix4<f64>, [Vector3<f64>; SUTA_JOINTS]) {
     tool_frame_with(model, &[], enc_deg)
 }
 
@@ -180,9 +180,9 @@ pub fn reference_tool_frame(
 fn tool_frame_with(
     model: &ArmModel,
     extra: &[EncoderHarmonic],
-    enc_deg: &[f64; JOINTS],
-) -> (Matrix4<f64>, [Vector3<f64>; JOINTS]) {
-    let rigid: [f64; JOINTS] = std::array::from_fn(|j| {
+    enc_deg: &[f64; SUTA_JOINTS],
+) -> (Matrix4<f64>, [Vector3<f64>; SUTA_JOINTS]) {
+    let rigid: [f64; SUTA_JOINTS] = std::array::from_fn(|j| {
         let row = &model.joints[j];
         let phi = enc_deg[j].to_radians();
         let mut harmonics = row.eccentricity_sin_deg * phi.sin()
@@ -204,7 +204,7 @@ fn tool_frame_with(
     if model.joints.iter().any(|j| j.compliance_deg_per_m != 0.0) {
         // Unit weights at every frame origin beyond the joint and at the tool point, pulled by -z.
         let gravity = Vector3::new(0.0, 0.0, -1.0);
-        for j in 0..JOINTS {
+        for j in 0..SUTA_JOINTS {
             let (axis_point, axis) = axes[j];
             let mut lever_mm = 0.0;
             for mass in frames[j..].iter().map(|f| f.fixed_view::<3, 1>(0, 3).into_owned()) {
@@ -215,7 +215,7 @@ fn tool_frame_with(
     }
     let (frames, _) = frames_at(model, &theta);
     let s = 1.0 + model.scale_ppm * 1e-6;
-    let mut tool = frames[JOINTS];
+    let mut tool = frames[SUTA_JOINTS];
     for k in 0..3 {
         tool[(k, 3)] *= s;
     }
@@ -230,8 +230,8 @@ type AxisLine = (Vector3<f64>, Vector3<f64>);
 
 fn frames_at(
     model: &ArmModel,
-    theta_deg: &[f64; JOINTS],
-) -> ([Matrix4<f64>; JOINTS + 1], [AxisLine; JOINTS]) {
+    theta_deg: &[f64; SUTA_JOINTS],
+) -> ([Matrix4<f64>; SUTA_JOINTS + 1], [AxisLine; SUTA_JOINTS]) {
     let rz = |t: f64| {
         Matrix4::new(t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.)
     };
@@ -246,9 +246,9 @@ fn frames_at(
     let axis_of =
         |m: &Matrix4<f64>| (m.fixed_view::<3, 1>(0, 3).into_owned(), m.fixed_view::<3, 1>(0, 2).into_owned());
     let mut t = Matrix4::identity();
-    let mut frames = [Matrix4::identity(); JOINTS + 1];
-    let mut axes = [(Vector3::zeros(), Vector3::z()); JOINTS];
-    for (j, row) in model.joints.iter().enumerate() {
+    let mut frames = [Matrix4::identity(); SUTA_JOINTS + 1];
+    let mut axes = [(Vector3::zeros(), Vector3::z()); SUTA_JOINTS];
+    for (j, row) in model.joints.iter().take(SUTA_JOINTS).enumerate() {
         let theta = theta_deg[j].to_radians();
         let (alpha, beta) = (row.alpha_deg.to_radians(), row.axis_deg.to_radians());
         match model.convention {
@@ -264,7 +264,7 @@ fn frames_at(
         }
         frames[j] = t;
     }
-    frames[JOINTS] = t * tr(model.tcp_mm[0], model.tcp_mm[1], model.tcp_mm[2]);
+    frames[SUTA_JOINTS] = t * tr(model.tcp_mm[0], model.tcp_mm[1], model.tcp_mm[2]);
     (frames, axes)
 }
 
@@ -282,7 +282,7 @@ const IK_LEVER_MM: f64 = 300.0;
 
 impl PoseTarget<'_> {
     fn error(&self, enc: &[f64]) -> [f64; 9] {
-        let enc: [f64; JOINTS] = std::array::from_fn(|k| enc[k]);
+        let enc: [f64; SUTA_JOINTS] = std::array::from_fn(|k| enc[k]);
         let (t, _) = tool_frame_with(self.model, self.extra, &enc);
         let p = t.fixed_view::<3, 1>(0, 3).into_owned() - self.position_mm;
         let x = t.fixed_view::<3, 1>(0, 0).into_owned();
@@ -300,13 +300,13 @@ impl Residuals for PoseTarget<'_> {
         r.copy_from_slice(&self.error(x));
         if let Some(j) = jacobian {
             let h = 1e-6;
-            for c in 0..JOINTS {
+            for c in 0..SUTA_JOINTS {
                 let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
                 xp[c] += h;
                 xm[c] -= h;
                 let (ep, em) = (self.error(&xp), self.error(&xm));
                 for i in 0..9 {
-                    j[i * JOINTS + c] = (ep[i] - em[i]) / (2.0 * h);
+                    j[i * SUTA_JOINTS + c] = (ep[i] - em[i]) / (2.0 * h);
                 }
             }
         }
@@ -314,16 +314,16 @@ impl Residuals for PoseTarget<'_> {
 }
 
 /// Encoder angles that put the true arm's tool at the target, or `None` if unreachable.
-fn solve_touch(truth: &ArmModel, target: &PoseTarget, rng: &mut ChaCha8Rng) -> Option<[f64; JOINTS]> {
+fn solve_touch(truth: &ArmModel, target: &PoseTarget, rng: &mut ChaCha8Rng) -> Option<[f64; SUTA_JOINTS]> {
     let options = SolverOptions { max_iterations: 100, ..SolverOptions::default() };
     for _attempt in 0..25 {
-        let start: Vec<f64> = (0..JOINTS).map(|_| rng.random::<f64>() * 360.0).collect();
-        let s = solver::solve(target, &start, &[-1e4; JOINTS], &[1e4; JOINTS], &options);
+        let start: Vec<f64> = (0..SUTA_JOINTS).map(|_| rng.random::<f64>() * 360.0).collect();
+        let s = solver::solve(target, &start, &[-1e4; SUTA_JOINTS], &[1e4; SUTA_JOINTS], &options);
         let err: f64 = s.residuals.iter().map(|v| v * v).sum::<f64>().sqrt();
         if err > 1e-6 {
             continue;
         }
-        let enc: [f64; JOINTS] = std::array::from_fn(|k| s.x[k].rem_euclid(360.0));
+        let enc: [f64; SUTA_JOINTS] = std::array::from_fn(|k| s.x[k].rem_euclid(360.0));
         let (_, origins) = tool_frame_with(truth, target.extra, &enc);
         if origins.iter().all(|o| o[2] > 0.0) {
             return Some(enc);
@@ -358,7 +358,7 @@ pub fn touch_encoders(
     landmark: &Landmark,
     noise_mm: Vector3<f64>,
     rng: &mut ChaCha8Rng,
-) -> Option<[f64; JOINTS]> {
+) -> Option<[f64; SUTA_JOINTS]> {
     touch_encoders_with(truth, &[], place, landmark, noise_mm, rng)
 }
 
@@ -369,7 +369,7 @@ fn touch_encoders_with(
     landmark: &Landmark,
     noise_mm: Vector3<f64>,
     rng: &mut ChaCha8Rng,
-) -> Option<[f64; JOINTS]> {
+) -> Option<[f64; SUTA_JOINTS]> {
     let (sy, cy) = place.yaw_deg.to_radians().sin_cos();
     let [x, y, z] = landmark.xyz_mm;
     let position_mm = Vector3::new(
@@ -440,7 +440,7 @@ fn record_with(
                 landmark: l.id.clone(),
                 repeat,
                 joints_deg,
-                std_deg: Some(vec![options.encoder_noise_deg * 39.2; JOINTS]),
+                std_deg: Some(vec![options.encoder_noise_deg * 39.2; SUTA_JOINTS]),
                 samples: Some(1536),
                 rejected: Some(0),
             });

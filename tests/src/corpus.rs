@@ -60,6 +60,12 @@ impl Case {
         self
     }
 
+    /// The same case with other command-line words.
+    pub fn with_args(mut self, args: Vec<String>) -> Case {
+        self.args = args;
+        self
+    }
+
     /// A case expected to succeed, with an optional check.
     pub fn succeeds(name: &str, setup: Setup, args: Vec<String>, check: Option<Check>) -> Case {
         Case { name: name.to_string(), setup, args, expect: Expect::Succeeds(check), max_file_kib: None }

@@ -63,7 +63,158 @@ fn template(root: &Path) -> PathBuf {
     let run: Vec<&str> = cal().into_iter().map(|s| if s == "out" { "run" } else { s }).collect();
     kincal(&t, &run);
     kincal(&t, &["diagnose", "run"]);
+    tracker_template(&t);
     t
+}
+
+/// tracker/: a 7-joint model and generated tracker sessions (the independent generator, seed 1),
+/// three to calibrate and two held out.
+fn tracker_template(t: &Path) {
+    use kincal_e2e::tracker_gen::{generate, TrackerOptions};
+    let generated = generate(&TrackerOptions::iiwa_five_sessions(1));
+    let dir = t.join("tracker");
+    generated.write(&dir.join("all")).unwrap();
+    for (k, set) in ["cal", "cal", "cal", "val", "val"].iter().enumerate() {
+        std::fs::create_dir_all(dir.join(set)).unwrap();
+        let name = format!("session_{}.csv", k + 1);
+        std::fs::rename(dir.join("all").join(&name), dir.join(set).join(&name)).unwrap();
+    }
+    std::fs::remove_dir_all(dir.join("all")).unwrap();
+    std::fs::write(dir.join("model.toml"), generated.options.arm.kincal_model_toml().unwrap()).unwrap();
+    let mut model = kincal::model::ArmModel::load(&dir.join("model.toml")).unwrap();
+    model.free_every_dh_value(5.0, 10.0);
+    model.save(&dir.join("model.toml")).unwrap();
+}
+
+/// `kincal calibrate` on the tracker sessions into `tout/`, with `extra` options.
+fn tracker_cal(extra: &[&str]) -> Vec<String> {
+    words(
+        &[
+            "calibrate",
+            "--model",
+            "tracker/model.toml",
+            "--data",
+            "tracker/cal",
+            "--validate",
+            "tracker/val",
+            "--out",
+            "tout",
+        ],
+        extra,
+    )
+}
+
+/// Replace line `line` (1-based) of `file` by `edit` of it.
+fn csv_line(file: &'static str, line: usize, edit: impl Fn(&str) -> String + Send + Sync + 'static) -> Setup {
+    Box::new(move |dir| {
+        let path = dir.join(file);
+        let text = std::fs::read_to_string(&path).unwrap();
+        let lines: Vec<String> = text
+            .lines()
+            .enumerate()
+            .map(|(k, l)| if k + 1 == line { edit(l) } else { l.to_string() })
+            .collect();
+        std::fs::write(&path, lines.join("\n") + "\n").unwrap();
+    })
+}
+
+/// Replace cell `cell` (0-based) of line `line` of `file` by `value`.
+fn csv_cell(file: &'static str, line: usize, cell: usize, value: &'static str) -> Setup {
+    csv_line(file, line, move |l| {
+        let mut cells: Vec<&str> = l.split(',').collect();
+        cells[cell] = value;
+        cells.join(",")
+    })
+}
+
+fn tracker_cases(cases: &mut Vec<Case>) {
+    const S1: &str = "tracker/cal/session_1.csv";
+    cases.push(Case::succeeds(
+        "tracker/valid sessions",
+        unchanged(),
+        tracker_cal(&[]),
+        Some(Box::new(|dir: &Path| {
+            let s: Value = serde_json::from_str(
+                &std::fs::read_to_string(dir.join("tout/summary.json")).map_err(|e| e.to_string())?,
+            )
+            .map_err(|e| e.to_string())?;
+            let rms = s["validation"]["sessions"][0]["rms_mm"]
+                .as_f64()
+                .ok_or("no validation.sessions[0].rms_mm")?;
+            (rms > 0.0 && rms < 1.0).then_some(()).ok_or(format!("held-out RMS {rms}"))
+        })),
+    ));
+    for (what, cell, value, needles) in [
+        (
+            "a joint angle that is not a number",
+            1,
+            "abc",
+            &["session_1.csv:5: column `q1_deg`", "expected a number"][..],
+        ),
+        ("a NaN coordinate", 8, "NaN", &["session_1.csv:5: column `x_mm`", "finite"][..]),
+        ("an infinite coordinate", 9, "inf", &["session_1.csv:5: column `y_mm`", "finite"][..]),
+        (
+            "a coordinate in micrometres",
+            10,
+            "1e9",
+            &["session_1.csv:5: column `z_mm`", "beyond any tracker"][..],
+        ),
+        ("an empty joint angle", 7, "", &["session_1.csv:5: column `q7_deg`", "expected a number"][..]),
+        (
+            "joint angles in hundredths of a degree",
+            3,
+            "12000",
+            &["session_1.csv:5: column `q3_deg`", "ten turns"][..],
+        ),
+        ("a negative sigma", 11, "-0.02", &["session_1.csv:5: column `sigma_mm`", "0 <= value"][..]),
+    ] {
+        cases.push(Case::fails(
+            &format!("tracker/{what}"),
+            csv_cell(S1, 5, cell, value),
+            tracker_cal(&[]),
+            needles,
+        ));
+    }
+    let fails = |what: &str, setup: Setup, extra: &[&str], needles: &[&str]| {
+        Case::fails(&format!("tracker/{what}"), setup, tracker_cal(extra), needles)
+    };
+    cases.extend([
+        fails("no tag line", csv_line(S1, 1, |_| "# some export".into()), &[], &["session_1.csv:1: column `format`", "kincal-tracker/1"]),
+        fails("a short row", csv_line(S1, 7, |l| l.rsplit_once(',').map_or(String::new(), |(a, _)| a.to_string())), &[], &["session_1.csv:7:", "cells"]),
+        fails("x_mm renamed", csv_line(S1, 2, |l| l.replace("x_mm", "X")), &[], &["session_1.csv:2: column `x_mm`", "missing"]),
+        fails("a column named twice", csv_line(S1, 2, |l| l.replace("y_mm", "x_mm")), &[], &["session_1.csv:2: column `x_mm`", "twice"]),
+        fails("no joint columns", csv_line(S1, 2, |l| l.replace("q1_deg", "joint1")), &[], &["session_1.csv:2: column `q1_deg`", "missing"]),
+        fails("only the header", write(S1, "# kincal-tracker/1\npose,q1_deg,x_mm,y_mm,z_mm\n"), &[], &["session_1.csv", "no data rows"]),
+        fails(
+            "points in metres",
+            write(S1, "# kincal-tracker/1\nq1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,q7_deg,x_mm,y_mm,z_mm\n0,0,0,0,0,0,0,0.1,0,0\n10,0,0,0,0,0,0,0.2,0,0\n20,0,0,0,0,0,0,0.3,0,0\n30,0,0,0,0,0,0,0.4,0.1,0\n"),
+            &[],
+            &["session_1.csv:3", "metres"],
+        ),
+        fails(
+            "another joint count in one file",
+            write(S1, "# kincal-tracker/1\nq1_deg,q2_deg,x_mm,y_mm,z_mm\n0,0,100,0,0\n10,0,0,200,0\n20,5,0,0,300\n"),
+            &[],
+            &["session_2.csv:3: column `q3_deg`", "joints here"],
+        ),
+        fails("a model of another joint count", unchanged(), &[], &["7 joint columns", "the model has 6 joints"]).with_args(words(
+            &["calibrate", "--model", "model.toml", "--data", "tracker/cal", "--validate", "tracker/val", "--out", "tout"],
+            &[],
+        )),
+        fails("--float-tool of no session", unchanged(), &["--float-tool", "session_9"], &["--float-tool session_9", "no calibration session"]),
+        fails("--sigma-mm NaN", unchanged(), &["--sigma-mm", "NaN"], &["--sigma-mm"]),
+        fails("validation = calibration", unchanged(), &[], &["in both the calibration and the validation folder"]).with_args(words(
+            &["calibrate", "--model", "tracker/model.toml", "--data", "tracker/cal", "--validate", "tracker/cal", "--out", "tout"],
+            &[],
+        )),
+        fails("no validation sessions", unchanged(), &[], &["tracker", "no tracker session files"]).with_args(words(
+            &["calibrate", "--model", "tracker/model.toml", "--data", "tracker/cal", "--validate", "tracker", "--out", "tout"],
+            &[],
+        )),
+        fails("--float-tool on artefact data", unchanged(), &[], &["--float-tool and --exclude-point apply to tracker sessions"]).with_args(
+            [cal(), vec!["--float-tool", "C_A"]].concat().into_iter().map(String::from).collect(),
+        ),
+    ]);
 }
 
 /// The calibration succeeded with a plausible, finite validation figure on every pair.
@@ -165,7 +316,7 @@ const MODEL_TEXT_EDITS: &[TextEdit] = &[
         "seven joints",
         "\n[free]\n",
         "\n[[joint]]\noffset_deg = 0\nd_mm = 0\na_mm = 0\nalpha_deg = 0\n[free]\n",
-        &["expected 6"],
+        &["artefact sessions record the SUTA's 6 encoder angles", "the model has 7 joints"],
     ),
     ("unknown key", SCALE, "scale_ppm = 0.0\nscael = 1", &["model.toml", "scael"]),
     ("unknown effect", SCALE, "scale_ppm = 0.0\neffects = [\"wobble:2\"]", &["wobble:2", "unknown effect"]),
@@ -723,7 +874,7 @@ fn option_cases(cases: &mut Vec<Case>) {
         (cal(), "--study-subsets", &["-1", "10001", "NaN"]),
         (cal(), "--seed", &["-1", "x"]),
         (cal(), "--objective", &["banana", ""]),
-        (cal(), "--add", &["wobble:2", "eccentricity:9", ""]),
+        (cal(), "--add", &["wobble:2", "eccentricity:13", ""]),
         (SIM.to_vec(), "--perturb-deg", &["NaN", "-1", "100", "inf"]),
         (SIM.to_vec(), "--perturb-mm", &["NaN", "-1", "1000"]),
         (SIM.to_vec(), "--seating-noise-mm", &["NaN", "-0.1", "1e9", "inf"]),
@@ -732,7 +883,7 @@ fn option_cases(cases: &mut Vec<Case>) {
         (
             SIM.to_vec(),
             "--hidden",
-            &["offset:9=1", "offset:2=NaN", "offset:2=1e9", "junk", "offset:2=", "scale=-1e6"],
+            &["offset:13=1", "offset:2=NaN", "offset:2=1e9", "junk", "offset:2=", "scale=-1e6"],
         ),
         (study(), "--subsets", &["0", "-1", "10001", "NaN"]),
         (study(), "--restarts", &["-1", "5000"]),
@@ -755,6 +906,19 @@ fn option_cases(cases: &mut Vec<Case>) {
             ));
         }
     }
+    // Joint 9 is a name kincal knows (up to 12 joints); the six-joint model has no such joint.
+    cases.push(Case::fails(
+        "option/calibrate --add eccentricity:9 on six joints",
+        unchanged(),
+        words(&cal(), &["--add", "eccentricity:9"]),
+        &["--add eccentricity:9", "the model has 6 joints"],
+    ));
+    cases.push(Case::fails(
+        "option/simulate --hidden offset:9=1 on six joints",
+        unchanged(),
+        words(SIM, &["--hidden", "offset:9=1"]),
+        &["--hidden offset:9", "the model has 6 joints"],
+    ));
     let many = || -> Setup {
         Box::new(|d: &Path| {
             for copy in 1..4 {
@@ -1550,6 +1714,7 @@ fn corpus(template: &Path) -> Vec<Case> {
     wrong_model_cases(&mut cases);
     diagnose_refusal_cases(&mut cases);
     disk_full_cases(&mut cases);
+    tracker_cases(&mut cases);
     key_cases(&mut cases);
     cases
 }

@@ -38,7 +38,7 @@ fn device_pose_matches_the_host_within_a_micrometre() {
         let model = with_every_effect(convention);
         // The blob round trip is part of the path the controller takes.
         let params = decode_blob(&parameter_blob(&model, 3).unwrap()).expect("blob decodes");
-        assert_eq!(params, device_params(&model, 3));
+        assert_eq!(params, device_params(&model, 3).expect("six joints"));
         let kinematics = device::Kinematics::new(&params);
         for _ in 0..20_000 {
             let counts: [u32; 6] = std::array::from_fn(|_| rng.random_range(0..COUNTS_PER_TURN));

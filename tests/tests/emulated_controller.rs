@@ -194,7 +194,8 @@ fn the_controller_streams_the_calibrated_pose_the_host_computes() {
 fn absurd_parameter_sets_are_refused_by_the_controller_itself() {
     use kincal_protocol::params::{encode_blob, ArmParams, ParamField, MAX_PARAM_BLOB};
     let (_g, _emu, mut link) = start();
-    let good = kincal::controller::device::device_params(&kincal::model::ArmModel::suta_nominal(), 5);
+    let good = kincal::controller::device::device_params(&kincal::model::ArmModel::suta_nominal(), 5)
+        .expect("six joints");
     /// A way to break a parameter set, and the field the controller must name.
     type Case = (fn(&mut ArmParams), ParamField);
     let cases: [Case; 5] = [

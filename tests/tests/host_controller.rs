@@ -305,7 +305,8 @@ fn version_0_and_absurd_sets_are_refused_by_the_host_and_by_the_controller() {
     // Sent raw, past the host's check: the controller refuses with the reason.
     let mut link = Link::open(&fake.port).unwrap();
     link.hello().unwrap();
-    let mut params = kincal::controller::device::device_params(&kincal::model::ArmModel::suta_nominal(), 0);
+    let mut params = kincal::controller::device::device_params(&kincal::model::ArmModel::suta_nominal(), 0)
+        .expect("six joints");
     let mut blob = [0u8; kincal_protocol::params::MAX_PARAM_BLOB];
     let n = kincal_protocol::params::encode_blob(&params, &mut blob).unwrap();
     let e = link.upload(&kincal_e2e::sign_blob(&blob[..n])).unwrap_err();

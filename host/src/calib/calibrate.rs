@@ -3,7 +3,7 @@
 use crate::calib::identify::{self, Identifiability};
 use crate::calib::objective::{CalibrationProblem, Objective};
 use crate::data::{Artefact, Dataset};
-use crate::model::{ArmModel, ParamId};
+use crate::model::{ArmModel, ParamId, SUTA_JOINTS};
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -56,6 +56,12 @@ pub enum CalibrationError {
          (all at one pose, or the same joint angles copied into every measurement?)"
     )]
     NothingIdentifiable,
+    /// Artefact touches carry the SUTA's six encoder angles; the model has another joint count.
+    #[error(
+        "artefact sessions record the SUTA's {SUTA_JOINTS} encoder angles, the model has {0} joints: \
+         a model of another arm is calibrated from tracker sessions"
+    )]
+    JointCount(usize),
     /// The model gives positions that are not finite numbers on these touches.
     #[error("the model gives non-finite tool positions on these touches: check the model's numbers")]
     NonFinite,
@@ -214,6 +220,9 @@ pub fn solve_warm(
     data: &Dataset,
     options: &CalibrationOptions,
 ) -> Result<ArmModel, CalibrationError> {
+    if start.joints.len() != SUTA_JOINTS {
+        return Err(CalibrationError::JointCount(start.joints.len()));
+    }
     let problem = CalibrationProblem::new(start, params.to_vec(), artefact, data, options.objective);
     if problem.distance_rows() < params.len() {
         return Err(CalibrationError::TooFewPairs { pairs: problem.distance_rows(), params: params.len() });
@@ -254,6 +263,9 @@ fn check_calibration_data<'a>(
     data: &'a Dataset,
     objective: Objective,
 ) -> Result<Checked<'a>, CalibrationError> {
+    if nominal.joints.len() != SUTA_JOINTS {
+        return Err(CalibrationError::JointCount(nominal.joints.len()));
+    }
     let all: Vec<ParamId> = nominal.free.iter().map(|f| f.id).collect();
     if all.is_empty() {
         return Err(CalibrationError::NothingFree);

@@ -65,7 +65,7 @@ use crate::calib::validate::{distance_errors, ErrorStats, PairError};
 use crate::data::{Artefact, Dataset};
 use crate::model::effects::{Effect, EffectKind};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
-use crate::model::{ArmModel, ParamId, JOINTS};
+use crate::model::{ArmModel, ParamId, SUTA_JOINTS};
 use crate::numerics::geometry::absolute_orientation;
 use crate::numerics::solver::{normal_equations, Loss, Residuals};
 use crate::numerics::stats::one_sided_t;
@@ -421,19 +421,19 @@ fn joint_residuals(
     data: &Dataset,
 ) -> (Vec<JointResiduals>, Points, Points) {
     let residuals = touch_residuals(model, artefact, data);
-    let offsets: Vec<ParamId> = (0..JOINTS).map(ParamId::Offset).collect();
+    let offsets: Vec<ParamId> = (0..SUTA_JOINTS).map(ParamId::Offset).collect();
     let columns = ColumnMap::new(&offsets);
-    let mut per_joint: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); JOINTS];
-    let mut gravity: Vec<Vec<(f64, f64)>> = vec![Vec::new(); JOINTS];
+    let mut per_joint: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); SUTA_JOINTS];
+    let mut gravity: Vec<Vec<(f64, f64)>> = vec![Vec::new(); SUTA_JOINTS];
     let (mut by_height, mut by_reach) = (Vec::new(), Vec::new());
     for (t, r) in data.touches.iter().zip(&residuals) {
         let Some(r) = r else { continue };
-        let mut jac = vec![[0.0; 9]; JOINTS];
+        let mut jac = vec![[0.0; 9]; SUTA_JOINTS];
         let pose = tool_pose_with_jacobian(model, &t.enc_deg, &columns, &mut jac);
         let levers = gravity_levers(model, &t.enc_deg);
         by_height.push((pose.position_mm.z, r.norm()));
         by_reach.push((pose.position_mm.xy().norm(), r.norm()));
-        for j in 0..JOINTS {
+        for j in 0..SUTA_JOINTS {
             let g = Vector3::new(jac[j][0], jac[j][1], jac[j][2]); // mm per degree
             let w = g.norm_squared();
             if w < 1e-9 {
@@ -444,7 +444,7 @@ fn joint_residuals(
             gravity[j].push((levers[j], e));
         }
     }
-    let joints = (0..JOINTS)
+    let joints = (0..SUTA_JOINTS)
         .map(|j| {
             let points = std::mem::take(&mut per_joint[j]);
             let bins = (0..ANGLE_BINS)
@@ -477,10 +477,10 @@ fn joint_residuals(
 }
 
 /// Gravity lever of each joint at a touch (the compliance regressor), metres.
-fn gravity_levers(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> [f64; JOINTS] {
+fn gravity_levers(model: &ArmModel, enc_deg: &[f64; SUTA_JOINTS]) -> [f64; SUTA_JOINTS] {
     // ∂p/∂compliance_j = ∂p/∂θ_j · λ_j: the ratio of the two columns gives λ_j.
     let params: Vec<ParamId> =
-        (0..JOINTS).flat_map(|j| [ParamId::Offset(j), ParamId::Compliance(j)]).collect();
+        (0..SUTA_JOINTS).flat_map(|j| [ParamId::Offset(j), ParamId::Compliance(j)]).collect();
     let mut jac = vec![[0.0; 9]; params.len()];
     tool_pose_with_jacobian(model, enc_deg, &ColumnMap::new(&params), &mut jac);
     std::array::from_fn(|j| {
@@ -937,7 +937,8 @@ pub fn diagnose(
     let baseline_bic = bic(&baseline_cal, current.len());
     let baseline_rss: f64 = baseline_cal.iter().map(|r| r * r).sum::<f64>().max(1e-300);
     let baseline_blocks = block_mse(&baseline_errors, val);
-    let effects: Vec<Effect> = Effect::library().into_iter().filter(|e| !e.is_in(calibrated)).collect();
+    let effects: Vec<Effect> =
+        Effect::library(calibrated.joints.len()).into_iter().filter(|e| !e.is_in(calibrated)).collect();
     let screen = Screen::new(calibrated, &effects, artefact, &fit_data, options);
     let base_params: Vec<ParamId> = screen.base.iter().map(|&c| screen.params[c]).collect();
     let floor = noise_floor(calibrated, artefact, cal, val, screen.base.len());

@@ -33,7 +33,7 @@
 
 use crate::data::{Artefact, Dataset};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
-use crate::model::{ArmModel, ParamId, JOINTS};
+use crate::model::{ArmModel, ParamId, SUTA_JOINTS};
 use crate::numerics::stats::chi2_quantile;
 use nalgebra::{Matrix3, Vector3};
 
@@ -113,8 +113,8 @@ pub const SAME_CONFIGURATION_DEG: f64 = 3.0;
 
 /// Two touches' angles are the same arm configuration: every joint within
 /// [`SAME_CONFIGURATION_DEG`] (across 0°/360° too).
-pub fn same_pose(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> bool {
-    (0..JOINTS).all(|j| ((a[j] - b[j] + 180.0).rem_euclid(360.0) - 180.0).abs() < SAME_CONFIGURATION_DEG)
+pub fn same_pose(a: &[f64; SUTA_JOINTS], b: &[f64; SUTA_JOINTS]) -> bool {
+    (0..SUTA_JOINTS).all(|j| ((a[j] - b[j] + 180.0).rem_euclid(360.0) - 180.0).abs() < SAME_CONFIGURATION_DEG)
 }
 
 /// Split touches `idx` of one landmark in one placement into groups of the same configuration.
@@ -295,16 +295,16 @@ fn encoder_floor(
     p: &[Vector3<f64>],
     pairs: &[(usize, usize)],
 ) -> Option<f64> {
-    let offsets: Vec<ParamId> = (0..JOINTS).map(ParamId::Offset).collect();
+    let offsets: Vec<ParamId> = (0..SUTA_JOINTS).map(ParamId::Offset).collect();
     let columns = ColumnMap::new(&offsets);
-    let mut jac = vec![[0.0; 9]; JOINTS];
+    let mut jac = vec![[0.0; 9]; SUTA_JOINTS];
     let per_touch: Vec<Option<Matrix3<f64>>> = val
         .touches
         .iter()
         .map(|t| {
             let sigma = t.enc_sigma_deg?;
             tool_pose_with_jacobian(model, &t.enc_deg, &columns, &mut jac);
-            Some((0..JOINTS).fold(Matrix3::zeros(), |acc, j| {
+            Some((0..SUTA_JOINTS).fold(Matrix3::zeros(), |acc, j| {
                 let g = Vector3::new(jac[j][0], jac[j][1], jac[j][2]); // mm per degree
                 acc + g * g.transpose() * sigma[j].powi(2)
             }))

@@ -14,5 +14,8 @@ pub mod outliers;
 pub mod peer;
 pub mod run;
 pub mod study;
+pub mod tracker;
+pub mod tracker_errors;
+pub mod tracker_run;
 pub mod trust;
 pub mod validate;

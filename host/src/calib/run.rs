@@ -78,6 +78,14 @@ pub enum RunError {
         .0.join("\n  - ")
     )]
     NotACalibration(Vec<String>),
+    /// An effect added on the command line names a joint the model does not have.
+    #[error("--add {effect}: the model has {joints} joints, there is no such joint")]
+    NoSuchJoint {
+        /// The effect.
+        effect: String,
+        /// The model's joints.
+        joints: usize,
+    },
     /// An input path could not be resolved.
     #[error("{path}: {source}")]
     Input {
@@ -208,7 +216,7 @@ pub struct Summary {
 
 /// The first validation placement that copies a calibration placement touch for touch.
 fn copied_placement(cal: &Dataset, val: &Dataset) -> Option<(String, String)> {
-    let key = |data: &Dataset, p: usize| -> Vec<(usize, u32, [u64; crate::model::JOINTS])> {
+    let key = |data: &Dataset, p: usize| -> Vec<(usize, u32, [u64; crate::model::SUTA_JOINTS])> {
         let mut v: Vec<_> = data
             .touches
             .iter()
@@ -302,7 +310,7 @@ pub struct StoredPairError {
     /// Measured minus certified distance, mm.
     pub error_mm: f64,
     /// Raw encoder angles of the two touches, degrees.
-    pub enc_deg: ([f64; crate::model::JOINTS], [f64; crate::model::JOINTS]),
+    pub enc_deg: ([f64; crate::model::SUTA_JOINTS], [f64; crate::model::SUTA_JOINTS]),
 }
 
 /// Format tag of `summary.json`.
@@ -620,6 +628,9 @@ pub fn run(
     let mut steps = StepTimes::start();
     let mut nominal = ArmModel::load(&inputs.model)?;
     for effect in effects {
+        if effect.joint.is_some_and(|j| j >= nominal.joints.len()) {
+            return Err(RunError::NoSuchJoint { effect: effect.to_string(), joints: nominal.joints.len() });
+        }
         effect.add_to(&mut nominal);
     }
     let artefact = Artefact::load(&inputs.artefact)?;

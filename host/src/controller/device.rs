@@ -1,6 +1,6 @@
 //! The calibrated model as the controller stores it (the protocol's parameter blob).
 
-use crate::model::{ArmModel, Convention};
+use crate::model::{ArmModel, Convention, SUTA_JOINTS};
 use kincal_protocol::params::{
     check_envelope, encode_blob, ArmParams, EnvelopeViolation, JointParams, MAX_PARAM_BLOB,
 };
@@ -11,6 +11,12 @@ pub enum DeviceParamsError {
     /// A value is outside the physical envelope the controller accepts (it would refuse it too).
     #[error("not sent: {0}")]
     Envelope(EnvelopeViolation),
+    /// The controller holds six DH rows (the SUTA's encoders); this model has another number.
+    #[error(
+        "not sent: the controller holds {SUTA_JOINTS} joints (the SUTA's encoders), this model has {0}: \
+         a model with another joint count can be calibrated and used on the host, not uploaded"
+    )]
+    JointCount(usize),
     /// The set does not fit the controller's parameter area.
     #[error(
         "not sent: the parameter set does not fit the controller's {MAX_PARAM_BLOB}-byte parameter area"
@@ -21,12 +27,15 @@ pub enum DeviceParamsError {
     Sign(#[from] crate::controller::signing::SignError),
 }
 
-/// The device form of `model`, tagged with parameter-set `version`.
-pub fn device_params(model: &ArmModel, version: u32) -> ArmParams {
-    ArmParams {
+/// The device form of `model`, tagged with parameter-set `version`; refused when the controller
+/// cannot hold the model (not six joints).
+pub fn device_params(model: &ArmModel, version: u32) -> Result<ArmParams, DeviceParamsError> {
+    let joints: &[_; SUTA_JOINTS] =
+        model.joints.as_slice().try_into().map_err(|_| DeviceParamsError::JointCount(model.joints.len()))?;
+    Ok(ArmParams {
         version,
         modified_dh: model.convention == Convention::Modified,
-        joints: model.joints.map(|j| JointParams {
+        joints: joints.map(|j| JointParams {
             offset_deg: j.offset_deg,
             d_mm: j.d_mm,
             a_mm: j.a_mm,
@@ -38,13 +47,13 @@ pub fn device_params(model: &ArmModel, version: u32) -> ArmParams {
         }),
         tcp_mm: model.tcp_mm,
         scale_ppm: model.scale_ppm,
-    }
+    })
 }
 
 /// The parameter blob of `model` (see [`kincal_protocol::params`]), checked against the same
 /// envelope the controller applies (version ≥ 1, finite f32, lengths, angles, scale).
 pub fn parameter_blob(model: &ArmModel, version: u32) -> Result<Vec<u8>, DeviceParamsError> {
-    let params = device_params(model, version);
+    let params = device_params(model, version)?;
     check_envelope(&params).map_err(DeviceParamsError::Envelope)?;
     let mut out = [0u8; MAX_PARAM_BLOB];
     let n = encode_blob(&params, &mut out).map_err(|_| DeviceParamsError::TooLarge)?;
@@ -62,4 +71,67 @@ pub fn signed_parameter_set(
     let blob = parameter_blob(model, version)?;
     let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
     Ok(key.sign(&blob, arm_id, now)?)
+}
+
+/// Why no version can be given to a new set.
+#[derive(Debug, PartialEq, Eq, thiserror::Error)]
+pub enum VersionError {
+    /// The requested version is not above the stored one.
+    #[error("the controller holds version {stored}; version {requested} would be a rollback, which it refuses. To put these values back, upload them as a new set: --version {next} (or leave --version out)")]
+    Rollback {
+        /// The stored version.
+        stored: u32,
+        /// The version asked for.
+        requested: u32,
+        /// The next version.
+        next: u32,
+    },
+    /// The stored version is the highest there is: the controller takes no newer set.
+    #[error("the controller holds version {stored}, the highest there is: it refuses every other version (no rollback) until its parameter flash is erased")]
+    Exhausted {
+        /// The stored version.
+        stored: u32,
+    },
+}
+
+/// The version of a new set: `requested`, or the stored version + 1; above the stored one.
+pub fn next_version(stored: u32, requested: Option<u32>) -> Result<u32, VersionError> {
+    let next = stored.checked_add(1).ok_or(VersionError::Exhausted { stored })?;
+    match requested {
+        Some(requested) if requested <= stored => Err(VersionError::Rollback { stored, requested, next }),
+        Some(requested) => Ok(requested),
+        None => Ok(next),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_model_of_another_joint_count_is_not_sent() {
+        let mut model = ArmModel::suta_nominal();
+        model.joints.push(model.joints[5]);
+        let e = parameter_blob(&model, 1).unwrap_err();
+        assert!(matches!(e, DeviceParamsError::JointCount(7)), "{e}");
+        assert!(e.to_string().contains("holds 6 joints"), "{e}");
+    }
+
+    #[test]
+    fn a_new_set_is_numbered_above_the_stored_one_and_never_wraps() {
+        assert_eq!(next_version(0, None), Ok(1));
+        assert_eq!(next_version(7, None), Ok(8));
+        assert_eq!(next_version(7, Some(20)), Ok(20));
+        assert_eq!(
+            next_version(7, Some(7)),
+            Err(VersionError::Rollback { stored: 7, requested: 7, next: 8 })
+        );
+        assert_eq!(
+            next_version(7, Some(3)),
+            Err(VersionError::Rollback { stored: 7, requested: 3, next: 8 })
+        );
+        assert_eq!(next_version(u32::MAX - 1, None), Ok(u32::MAX));
+        assert_eq!(next_version(u32::MAX, None), Err(VersionError::Exhausted { stored: u32::MAX }));
+        assert_eq!(next_version(u32::MAX, Some(1)), Err(VersionError::Exhausted { stored: u32::MAX }));
+    }
 }

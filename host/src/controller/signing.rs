@@ -30,7 +30,7 @@ pub enum KeyFileError {
     Format {
         /// The file.
         path: PathBuf,
-        /// What line 1 looks like.
+        /// What line 1 looks like (its kind, never its contents unless it is a PEM label).
         found: String,
     },
     /// The secret is not 64 hex digits.
@@ -95,25 +95,22 @@ impl StationKey {
     pub fn create(path: &Path) -> Result<StationKey, KeyFileError> {
         let public_path = public_key_path(path);
         for p in [path, public_path.as_path()] {
-            if p.exists() {
+            // A link counts too, dangling or not: nothing is written through it.
+            if p.symlink_metadata().is_ok() {
                 return Err(KeyFileError::Exists(p.to_path_buf()));
             }
         }
         let mut seed = [0u8; 32];
         getrandom::fill(&mut seed).map_err(|e| KeyFileError::Random(e.to_string()))?;
         let key = StationKey { key: SigningKey::from_bytes(&seed) };
-        fn io(path: &Path) -> impl Fn(std::io::Error) -> KeyFileError + '_ {
-            move |source| KeyFileError::Io { path: path.to_path_buf(), source }
+        write_new(path, &format!("{KEY_HEADER}\n{}\n", hex(&seed)), 0o600)?;
+        if let Err(e) =
+            write_new(&public_path, &format!("{PUBLIC_HEADER}\n{}\n", hex(&key.public_key())), 0o644)
+        {
+            // Both or neither: a secret without its public key would block the name for good.
+            let _ = std::fs::remove_file(path);
+            return Err(e);
         }
-        let mut options = std::fs::OpenOptions::new();
-        options.write(true).create_new(true);
-        #[cfg(unix)]
-        std::os::unix::fs::OpenOptionsExt::mode(&mut options, 0o600);
-        let mut file = options.open(path).map_err(io(path))?;
-        use std::io::Write;
-        writeln!(file, "{KEY_HEADER}\n{}", hex(&seed)).and_then(|_| file.sync_all()).map_err(io(path))?;
-        std::fs::write(&public_path, format!("{PUBLIC_HEADER}\n{}\n", hex(&key.public_key())))
-            .map_err(io(&public_path))?;
         Ok(key)
     }
 
@@ -133,12 +130,18 @@ impl StationKey {
         let mut lines = text.lines();
         let first = lines.next().unwrap_or("").trim();
         if first != KEY_HEADER {
-            let found = if first.starts_with("-----BEGIN") {
+            let pem_label = first.len() <= 64 && first.ends_with("-----");
+            let found = if first.starts_with("-----BEGIN") && pem_label {
                 format!("`{first}` (a PEM file)")
+            } else if first.starts_with("-----BEGIN") {
+                "a PEM file".to_string()
             } else if first == PUBLIC_HEADER {
                 "a public key (the .pub file; pass the secret key file)".to_string()
+            } else if unhex32(first).is_some() {
+                "64 hex digits without the header line (not shown: they may be a secret)".to_string()
             } else {
-                format!("`{}`", first.chars().take(40).collect::<String>())
+                // Never echoed: another tool's key file may hold its secret on line 1.
+                format!("a line of {} characters (not shown: it may be secret)", first.chars().count())
             };
             return Err(KeyFileError::Format { path: path.to_path_buf(), found });
         }
@@ -188,6 +191,27 @@ impl StationKey {
         set.extend_from_slice(&self.key.sign(&set).to_bytes());
         Ok(set)
     }
+}
+
+/// Write `text` to the new file `path` (created only if nothing is there, a link included, with
+/// `mode` from the start, so it is never readable by others meanwhile) and sync it; on a failure
+/// the file is removed.
+fn write_new(path: &Path, text: &str, mode: u32) -> Result<(), KeyFileError> {
+    use std::io::Write;
+    let mut options = std::fs::OpenOptions::new();
+    options.write(true).create_new(true);
+    #[cfg(unix)]
+    std::os::unix::fs::OpenOptionsExt::mode(&mut options, mode);
+    #[cfg(not(unix))]
+    let _ = mode;
+    let io = |source| KeyFileError::Io { path: path.to_path_buf(), source };
+    let mut file = options.open(path).map_err(io)?;
+    if let Err(source) = file.write_all(text.as_bytes()).and_then(|_| file.sync_all()) {
+        drop(file);
+        let _ = std::fs::remove_file(path);
+        return Err(io(source));
+    }
+    Ok(())
 }
 
 /// `FILE.pub` beside key file `FILE`.
@@ -292,6 +316,48 @@ mod tests {
         let mut flipped = set.clone();
         flipped[1] ^= 1;
         assert!(!provenance(&flipped).unwrap().signature_valid);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A key file in another format may hold secret material on its first line (a bare hex
+    /// seed, a base64 key): the error names the file and the format, never echoes the line.
+    #[test]
+    fn a_key_file_in_another_format_is_refused_without_echoing_its_contents() {
+        let dir = temp("format");
+        let secret = "4b1d2c3e4f5a6b7c8d9e0f1a2b3c4d5e6f7a8b9c0d1e2f3a4b5c6d7e8f9a0b1c";
+        for (name, text) in [
+            ("bare-hex.key", format!("{secret}\n")),
+            ("base64.key", "S1QsPk9aa3yNng8aKzxNXm96i5wNHi86S1xtfo+aCxw=\n".to_string()),
+            ("swapped.key", format!("{secret}\n{KEY_HEADER}\n")),
+            ("one-line.pem", format!("-----BEGIN PRIVATE KEY-----{secret}-----END PRIVATE KEY-----\n")),
+        ] {
+            let path = dir.join(name);
+            std::fs::write(&path, &text).unwrap();
+            let Err(e) = StationKey::load(&path) else { panic!("{name} was read as a key") };
+            let message = e.to_string();
+            assert!(message.contains(name) && message.contains("line 1"), "{message}");
+            let first_line = text.lines().next().unwrap();
+            for k in 0..first_line.len().saturating_sub(8) {
+                assert!(!message.contains(&first_line[k..k + 8]), "{name}: {message}");
+            }
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// `key new` writes nothing through a link planted where its files go, and when it cannot
+    /// write both files it leaves no secret behind (a half-made key blocks the name forever).
+    #[cfg(unix)]
+    #[test]
+    fn a_new_key_never_follows_a_planted_link_and_is_made_whole_or_not_at_all() {
+        let dir = temp("planted");
+        let path = dir.join("station.key");
+        let elsewhere = dir.join("elsewhere.pub");
+        std::os::unix::fs::symlink(&elsewhere, public_key_path(&path)).unwrap();
+        assert!(StationKey::create(&path).is_err(), "wrote through a planted link");
+        assert!(!elsewhere.exists(), "the link's target was written");
+        assert!(!path.exists(), "a secret key without its public key was left behind");
+        let names: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names, ["station.key.pub"], "only the planted link stays");
         std::fs::remove_dir_all(&dir).ok();
     }
 

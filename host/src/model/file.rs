@@ -17,7 +17,7 @@
 //! "offset:2" = [10.7, 30.7]
 //! ```
 
-use super::{ArmModel, Convention, FreeParam, Joint, ParamId, JOINTS};
+use super::{ArmModel, Convention, FreeParam, Joint, ParamId, MAX_JOINTS};
 use crate::files::{self, FileError};
 use crate::model::effects::Effect;
 use std::collections::BTreeMap;
@@ -106,9 +106,16 @@ impl ArmModel {
                 format!("expected \"{MODEL_FORMAT}\", found \"{}\"", file.format),
             ));
         }
-        let joints: [Joint; JOINTS] = file.joint.clone().try_into().map_err(|_| {
-            field("joint".into(), format!("expected {JOINTS} [[joint]] rows, found {}", file.joint.len()))
-        })?;
+        if !(1..=MAX_JOINTS).contains(&file.joint.len()) {
+            return Err(field(
+                "joint".into(),
+                format!(
+                    "expected 1 to {MAX_JOINTS} [[joint]] rows (revolute joints), found {}",
+                    file.joint.len()
+                ),
+            ));
+        }
+        let joints = file.joint.clone();
         let tcp_mm: [f64; 3] = file.tcp_mm.clone().try_into().map_err(|_| {
             field("tcp_mm".into(), format!("expected 3 numbers [x, y, z] in mm, found {}", file.tcp_mm.len()))
         })?;
@@ -120,7 +127,7 @@ impl ArmModel {
             scale_ppm: file.scale_ppm,
             free: Vec::new(),
         };
-        for id in ParamId::all() {
+        for id in model.params() {
             let (value, limit) = (model.get(id), plausible_limit(id));
             if !value.is_finite() {
                 return Err(field(id.to_string(), "must be a finite number".into()));
@@ -152,6 +159,12 @@ impl ArmModel {
                     "unknown effect; expected e.g. eccentricity:5, harmonic:3:3, compliance:2, twist:3, tcp, scale".into(),
                 )
             })?;
+            if effect.joint.is_some_and(|j| j >= model.joints.len()) {
+                return Err(field(
+                    format!("effects[\"{name}\"]"),
+                    format!("the model has {} joints; no such joint", model.joints.len()),
+                ));
+            }
             effect.add_to(&mut model);
         }
         for (name, bounds) in file.free {
@@ -159,6 +172,15 @@ impl ArmModel {
             let id = ParamId::parse(&name).ok_or_else(|| {
                 field(key.clone(), "unknown parameter; expected e.g. offset:1, length:3, link_offset:2, twist:5, axis:2, tcp.z, scale".into())
             })?;
+            if id.joint().is_some_and(|j| j >= model.joints.len()) {
+                return Err(field(
+                    key,
+                    format!(
+                        "unknown parameter: the model has {} joints, there is no such joint",
+                        model.joints.len()
+                    ),
+                ));
+            }
             let [lower, upper] = <[f64; 2]>::try_from(bounds.as_slice()).map_err(|_| {
                 field(key.clone(), format!("expected 2 numbers [lower, upper], found {}", bounds.len()))
             })?;
@@ -201,7 +223,7 @@ impl ArmModel {
             tcp_mm: self.tcp_mm.to_vec(),
             scale_ppm: self.scale_ppm,
             joint: self.joints.to_vec(),
-            effects: crate::model::effects::Effect::library()
+            effects: crate::model::effects::Effect::library(self.joints.len())
                 .into_iter()
                 .filter(|e| e.is_in(self) && e.kind.is_non_geometric())
                 .map(|e| e.to_string())

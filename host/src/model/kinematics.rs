@@ -13,7 +13,7 @@
 //! which is exact whenever the compliances are zero.
 
 use super::params::PARAM_SLOTS;
-use super::{ArmModel, Convention, ParamId, JOINTS};
+use super::{ArmModel, Convention, ParamId, MAX_JOINTS};
 use crate::model::effects::{compliance, eccentricity, harmonic};
 use nalgebra::{Matrix3, Vector3};
 
@@ -130,7 +130,8 @@ impl Op {
 }
 
 const OPS_PER_JOINT: usize = 5;
-const OPS: usize = JOINTS * OPS_PER_JOINT + 3;
+/// Most elementary ops of a chain: five per joint and three for the tool point.
+const MAX_OPS: usize = MAX_JOINTS * OPS_PER_JOINT + 3;
 
 fn rot(axis: Axis, value_deg: f64, id: ParamId) -> Op {
     Op { kind: OpKind::Rotate(axis), value: value_deg * DEG, dep: Dep::Param(id, DEG) }
@@ -185,10 +186,11 @@ fn joint_op_in_row(convention: Convention) -> usize {
     }
 }
 
-/// The elementary ops of the chain for joint angles `theta_deg`.
-fn chain(model: &ArmModel, theta_deg: &[f64; JOINTS]) -> [Op; OPS] {
-    let mut ops = [Op { kind: OpKind::Translate(Axis::X), value: 0.0, dep: Dep::JointAngle(0) }; OPS];
-    for (j, joint) in model.joints.iter().enumerate() {
+/// The elementary ops of the chain for joint angles `theta_deg`, and how many of them there are.
+fn chain(model: &ArmModel, theta_deg: &[f64]) -> ([Op; MAX_OPS], usize) {
+    let mut ops = [Op { kind: OpKind::Translate(Axis::X), value: 0.0, dep: Dep::JointAngle(0) }; MAX_OPS];
+    let joints = model.joints.len().min(MAX_JOINTS);
+    for (j, joint) in model.joints.iter().take(joints).enumerate() {
         let theta = Op { kind: OpKind::Rotate(Axis::Z), value: theta_deg[j] * DEG, dep: Dep::JointAngle(j) };
         let d = shift(Axis::Z, joint.d_mm, ParamId::Length(j));
         let a = shift(Axis::X, joint.a_mm, ParamId::LinkOffset(j));
@@ -200,15 +202,16 @@ fn chain(model: &ArmModel, theta_deg: &[f64; JOINTS]) -> [Op; OPS] {
         };
         ops[j * OPS_PER_JOINT..(j + 1) * OPS_PER_JOINT].copy_from_slice(&row);
     }
-    let tcp = &mut ops[JOINTS * OPS_PER_JOINT..];
+    let tcp = &mut ops[joints * OPS_PER_JOINT..];
     for (k, axis) in [Axis::X, Axis::Y, Axis::Z].into_iter().enumerate() {
         tcp[k] = shift(axis, model.tcp_mm[k], ParamId::Tcp(k));
     }
-    ops
+    (ops, joints * OPS_PER_JOINT + 3)
 }
 
-/// Tool pose for raw encoder angles `enc_deg` (degrees).
-pub fn tool_pose(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> ToolPose {
+/// Tool pose for raw encoder angles `enc_deg` (degrees, one per joint of the model; a missing
+/// angle reads as 0).
+pub fn tool_pose(model: &ArmModel, enc_deg: &[f64]) -> ToolPose {
     evaluate(model, enc_deg, None)
 }
 
@@ -216,7 +219,7 @@ pub fn tool_pose(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> ToolPose {
 /// (one [`PoseDerivative`] per column; `jacobian.len()` must be `columns.len()`).
 pub fn tool_pose_with_jacobian(
     model: &ArmModel,
-    enc_deg: &[f64; JOINTS],
+    enc_deg: &[f64],
     columns: &ColumnMap,
     jacobian: &mut [PoseDerivative],
 ) -> ToolPose {
@@ -224,37 +227,41 @@ pub fn tool_pose_with_jacobian(
 }
 
 /// Gravity levers λ_j (m) of every joint on the arm without compliance deflection.
-fn gravity_levers(model: &ArmModel, theta_deg: &[f64; JOINTS]) -> [f64; JOINTS] {
-    let ops = chain(model, theta_deg);
+fn gravity_levers(model: &ArmModel, theta_deg: &[f64]) -> [f64; MAX_JOINTS] {
+    let (ops, count) = chain(model, theta_deg);
+    let joints = (count - 3) / OPS_PER_JOINT;
     // Pose (rotation, origin) before each op, and the tool point after all.
     let mut rotation = Matrix3::identity();
     let mut origin = Vector3::zeros();
-    let mut before = [(Matrix3::identity(), Vector3::zeros()); OPS + 1];
-    for (m, op) in ops.iter().enumerate() {
+    let mut before = [(Matrix3::identity(), Vector3::zeros()); MAX_OPS + 1];
+    for (m, op) in ops[..count].iter().enumerate() {
         before[m] = (rotation, origin);
         match op.kind {
             OpKind::Translate(axis) => origin += rotation * axis.unit() * op.value,
             OpKind::Rotate(_) => rotation *= op.rotation(),
         }
     }
-    before[OPS] = (rotation, origin);
+    before[count] = (rotation, origin);
     let row_end = |j: usize| before[(j + 1) * OPS_PER_JOINT].1;
-    let tool = before[OPS].1;
+    let tool = before[count].1;
     let at = joint_op_in_row(model.convention);
     std::array::from_fn(|j| {
+        if j >= joints {
+            return 0.0;
+        }
         let (r, o) = before[j * OPS_PER_JOINT + at];
-        let masses: Vec<Vector3<f64>> = (j..JOINTS).map(row_end).chain([tool]).collect();
+        let masses: Vec<Vector3<f64>> = (j..joints).map(row_end).chain([tool]).collect();
         compliance::gravity_lever_m(&o, &(r * Vector3::z()), &masses)
     })
 }
 
 fn evaluate(
     model: &ArmModel,
-    enc_deg: &[f64; JOINTS],
+    enc_deg: &[f64],
     mut wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
 ) -> ToolPose {
     let wants = |kind: fn(usize) -> ParamId| {
-        wanted.as_ref().is_some_and(|(c, _)| (0..JOINTS).any(|j| c.column(kind(j)).is_some()))
+        wanted.as_ref().is_some_and(|(c, _)| (0..model.joints.len()).any(|j| c.column(kind(j)).is_some()))
     };
     let harmonics = [
         ParamId::EccSin,
@@ -278,19 +285,33 @@ fn evaluate(
                 || j.harmonic4_sin_deg != 0.0
                 || j.harmonic4_cos_deg != 0.0
         });
-    let rigid: [(f64, AnglePartials); JOINTS] =
-        std::array::from_fn(|j| joint_angle(model, j, enc_deg[j], 0.0, harmonics));
+    let joints = model.joints.len().min(MAX_JOINTS);
+    let enc = |j: usize| enc_deg.get(j).copied().unwrap_or(0.0);
+    let rigid: [(f64, AnglePartials); MAX_JOINTS] = std::array::from_fn(|j| {
+        if j < joints {
+            joint_angle(model, j, enc(j), 0.0, harmonics)
+        } else {
+            (0.0, [(ParamId::Offset(j), 0.0); ANGLE_DEPS])
+        }
+    });
     let angles = if wants(ParamId::Compliance) || model.joints.iter().any(|j| j.compliance_deg_per_m != 0.0) {
         let levers = gravity_levers(model, &rigid.map(|a| a.0));
-        std::array::from_fn(|j| joint_angle(model, j, enc_deg[j], levers[j], harmonics))
+        std::array::from_fn(|j| {
+            if j < joints {
+                joint_angle(model, j, enc(j), levers[j], harmonics)
+            } else {
+                rigid[j]
+            }
+        })
     } else {
         rigid
     };
-    let ops = chain(model, &angles.map(|a| a.0));
-    let rotations: [Matrix3<f64>; OPS] = std::array::from_fn(|m| ops[m].rotation());
+    let (ops, count) = chain(model, &angles.map(|a| a.0));
+    let rotations: [Matrix3<f64>; MAX_OPS] =
+        std::array::from_fn(|m| if m < count { ops[m].rotation() } else { Matrix3::identity() });
     // prefix[m] = rotation of ops 0..m (exclusive).
-    let mut prefix = [Matrix3::identity(); OPS + 1];
-    for m in 0..OPS {
+    let mut prefix = [Matrix3::identity(); MAX_OPS + 1];
+    for m in 0..count {
         prefix[m + 1] = prefix[m] * rotations[m];
     }
     let scale = 1.0 + model.scale_ppm * 1e-6;
@@ -301,7 +322,7 @@ fn evaluate(
     let mut point = Vector3::zeros();
     let mut x_axis = Vector3::x();
     let mut z_axis = Vector3::z();
-    for m in (0..OPS).rev() {
+    for m in (0..count).rev() {
         let op = &ops[m];
         match op.kind {
             OpKind::Translate(axis) => point += axis.unit() * op.value,
@@ -359,7 +380,7 @@ mod tests {
     use crate::model::ParamId;
 
     /// Independent forward path: 4×4 homogeneous matrices multiplied row by row.
-    fn fk_by_matrices(model: &ArmModel, enc: &[f64; 6]) -> nalgebra::Vector4<f64> {
+    fn fk_by_matrices(model: &ArmModel, enc: &[f64]) -> nalgebra::Vector4<f64> {
         use nalgebra::Matrix4;
         let rz = |t: f64| {
             Matrix4::new(t.cos(), -t.sin(), 0., 0., t.sin(), t.cos(), 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.)
@@ -388,6 +409,26 @@ mod tests {
         let p = tool_pose(&model, &enc).position_mm;
         let q = fk_by_matrices(&model, &enc);
         assert!((p - q.xyz()).norm() < 1e-9, "{p} vs {q}");
+    }
+
+    #[test]
+    fn any_joint_count_matches_the_plain_matrix_product() {
+        for joints in [1, 7, crate::model::MAX_JOINTS] {
+            let mut model = ArmModel::suta_nominal();
+            model.joints = (0..joints)
+                .map(|j| crate::model::Joint {
+                    offset_deg: 7.0 * j as f64,
+                    d_mm: 50.0 + 10.0 * j as f64,
+                    a_mm: 20.0 - 3.0 * j as f64,
+                    alpha_deg: if j % 2 == 0 { 90.0 } else { -80.0 },
+                    ..Default::default()
+                })
+                .collect();
+            let enc: Vec<f64> = (0..joints).map(|j| 13.0 + 29.0 * j as f64).collect();
+            let p = tool_pose(&model, &enc).position_mm;
+            let q = fk_by_matrices(&model, &enc);
+            assert!((p - q.xyz()).norm() < 1e-9, "{joints} joints: {p} vs {q}");
+        }
     }
 
     #[test]

@@ -11,8 +11,11 @@ pub mod params;
 
 pub use params::ParamId;
 
-/// Number of joints of the SUTA arm.
-pub const JOINTS: usize = 6;
+/// Number of joints of the SUTA arm: the encoders the controller reads, the rows its flash holds
+/// and the angles an artefact session (`suta-session/1`) records.
+pub const SUTA_JOINTS: usize = 6;
+/// Most revolute joints a host model may have.
+pub const MAX_JOINTS: usize = 12;
 
 /// Which Denavit–Hartenberg convention the joint rows follow.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -113,8 +116,8 @@ pub struct ArmModel {
     pub name: String,
     /// DH convention of the joint rows.
     pub convention: Convention,
-    /// Joint rows, base to tip.
-    pub joints: [Joint; JOINTS],
+    /// Joint rows, base to tip (1 to [`MAX_JOINTS`]).
+    pub joints: Vec<Joint>,
     /// Tool centre point in the last frame, millimetres.
     pub tcp_mm: [f64; 3],
     /// Length scale error, parts per million (thermal expansion, artefact scale).
@@ -129,25 +132,36 @@ impl ArmModel {
         match id {
             ParamId::Tcp(k) => self.tcp_mm[k],
             ParamId::Scale => self.scale_ppm,
-            _ => {
-                let j = id.joint().unwrap_or(0);
-                let mut joint = self.joints[j];
-                *joint.slot(id)
-            }
+            _ => match self.joints.get(id.joint().unwrap_or(0)) {
+                Some(joint) => *joint.clone().slot(id),
+                None => 0.0,
+            },
         }
     }
 
-    /// Set one parameter, in its unit.
+    /// Set one parameter, in its unit (a joint the model does not have holds nothing).
     pub fn set(&mut self, id: ParamId, value: f64) {
-        *self.slot(id) = value;
+        if let Some(slot) = self.slot(id) {
+            *slot = value;
+        }
     }
 
-    fn slot(&mut self, id: ParamId) -> &mut f64 {
+    fn slot(&mut self, id: ParamId) -> Option<&mut f64> {
         match id {
-            ParamId::Tcp(k) => &mut self.tcp_mm[k],
-            ParamId::Scale => &mut self.scale_ppm,
-            _ => self.joints[id.joint().unwrap_or(0)].slot(id),
+            ParamId::Tcp(k) => Some(&mut self.tcp_mm[k]),
+            ParamId::Scale => Some(&mut self.scale_ppm),
+            _ => self.joints.get_mut(id.joint().unwrap_or(0)).map(|j| j.slot(id)),
         }
+    }
+
+    /// Number of revolute joints.
+    pub fn joint_count(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// Every parameter this model holds, in a stable order.
+    pub fn params(&self) -> Vec<ParamId> {
+        ParamId::all().into_iter().filter(|id| id.joint().is_none_or(|j| j < self.joints.len())).collect()
     }
 
     /// Values of the free parameters, in `free` order.
@@ -175,6 +189,18 @@ impl ArmModel {
         }
     }
 
+    /// Free every DH value of every joint (offset, d, a, α) within ± `angle_deg` / ± `length_mm`
+    /// of its current value; the identifiability step keeps what the data can move.
+    pub fn free_every_dh_value(&mut self, angle_deg: f64, length_mm: f64) {
+        for j in 0..self.joints.len() {
+            let row = self.joints[j];
+            self.free_param(ParamId::Offset(j), row.offset_deg - angle_deg, row.offset_deg + angle_deg);
+            self.free_param(ParamId::Length(j), row.d_mm - length_mm, row.d_mm + length_mm);
+            self.free_param(ParamId::LinkOffset(j), row.a_mm - length_mm, row.a_mm + length_mm);
+            self.free_param(ParamId::Twist(j), row.alpha_deg - angle_deg, row.alpha_deg + angle_deg);
+        }
+    }
+
     /// Remove `id` from the free set (it keeps its current value).
     pub fn fix_param(&mut self, id: ParamId) {
         self.free.retain(|f| f.id != id);
@@ -186,13 +212,15 @@ impl ArmModel {
         let d = [47.0, 0.0, 571.0, 0.0, 371.0, 0.0];
         let alpha = [90.0, 90.0, -90.0, 90.0, 90.0, 90.0];
         let offset = [-1.6, 20.7, 201.3, 117.1, 88.7, -11.6];
-        let joints = std::array::from_fn(|j| Joint {
-            offset_deg: offset[j],
-            d_mm: d[j],
-            a_mm: 0.0,
-            alpha_deg: alpha[j],
-            ..Joint::default()
-        });
+        let joints = (0..SUTA_JOINTS)
+            .map(|j| Joint {
+                offset_deg: offset[j],
+                d_mm: d[j],
+                a_mm: 0.0,
+                alpha_deg: alpha[j],
+                ..Joint::default()
+            })
+            .collect();
         let mut model = ArmModel {
             name: "SUTA nominal (thesis Table 3.2)".into(),
             convention: Convention::Classic,

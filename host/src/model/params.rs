@@ -40,7 +40,7 @@ pub enum ParamId {
 }
 
 /// Number of distinct parameter slots (see [`ParamId::dense_index`]).
-pub const PARAM_SLOTS: usize = JOINT_KINDS.len() * super::JOINTS + 4;
+pub const PARAM_SLOTS: usize = JOINT_KINDS.len() * super::MAX_JOINTS + 4;
 
 const JOINT_KINDS: [&str; 14] = [
     "offset",
@@ -58,7 +58,7 @@ const JOINT_KINDS: [&str; 14] = [
     "harmonic4_sin",
     "harmonic4_cos",
 ];
-const TCP_SLOT: usize = JOINT_KINDS.len() * super::JOINTS;
+const TCP_SLOT: usize = JOINT_KINDS.len() * super::MAX_JOINTS;
 const TCP_AXES: [&str; 3] = ["x", "y", "z"];
 
 impl ParamId {
@@ -70,7 +70,7 @@ impl ParamId {
     /// A dense index in `0..PARAM_SLOTS`, for lookup tables.
     pub fn dense_index(self) -> usize {
         match self.joint_kind() {
-            Some((kind, j)) => kind * super::JOINTS + j,
+            Some((kind, j)) => kind * super::MAX_JOINTS + j,
             None => match self {
                 ParamId::Tcp(k) => TCP_SLOT + k,
                 _ => TCP_SLOT + 3,
@@ -119,7 +119,7 @@ impl ParamId {
     }
 
     fn from_dense_index(i: usize) -> ParamId {
-        let n = super::JOINTS;
+        let n = super::MAX_JOINTS;
         if i < TCP_SLOT {
             ParamId::from_joint_kind(i / n, i % n)
         } else if i < TCP_SLOT + 3 {
@@ -158,7 +158,7 @@ impl ParamId {
         }
         let (kind, joint) = name.split_once(':')?;
         let j: usize = joint.parse().ok()?;
-        if !(1..=super::JOINTS).contains(&j) {
+        if !(1..=super::MAX_JOINTS).contains(&j) {
             return None;
         }
         Some(ParamId::from_joint_kind(JOINT_KINDS.iter().position(|k| *k == kind)?, j - 1))
@@ -190,7 +190,7 @@ mod tests {
 
     #[test]
     fn bad_names_are_rejected() {
-        for bad in ["offset:0", "offset:7", "offset", "tcp.w", "warp:1", "length:x"] {
+        for bad in ["offset:0", "offset:13", "offset", "tcp.w", "warp:1", "length:x"] {
             assert_eq!(ParamId::parse(bad), None, "{bad}");
         }
     }

@@ -81,7 +81,7 @@ pub fn calibration_report(run: &Run) -> String {
         table(&["placement", "nominal RMS mm", "calibrated RMS mm", "pairs"], &placements)
     );
     body.push_str("<h3>Calibrated residuals against each joint angle</h3>");
-    for j in 0..crate::model::JOINTS {
+    for j in 0..crate::model::SUTA_JOINTS {
         let pts: Vec<(f64, f64)> = run
             .validation
             .errors

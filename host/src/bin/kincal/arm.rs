@@ -153,10 +153,10 @@ pub struct InputArgs {
     /// Arm model file (kincal-arm/1, .toml or .json).
     #[arg(long)]
     model: PathBuf,
-    /// Artefact file (suta-artefact/1).
+    /// Artefact file (suta-artefact/1); leave it out for tracker sessions (kincal-tracker/1).
     #[arg(long)]
-    artefact: PathBuf,
-    /// Folder of calibration sessions (suta-session/1).
+    artefact: Option<PathBuf>,
+    /// Folder of calibration sessions (suta-session/1, or kincal-tracker/1 CSV files).
     #[arg(long)]
     data: PathBuf,
     /// Folder of validation sessions.
@@ -190,6 +190,18 @@ pub struct CalibrateArgs {
     /// `outliers_skipped` and no landmark is flagged.
     #[arg(long)]
     no_outliers: bool,
+    /// Tracker sessions: let the tool float in SESSION (its own tool offset; the probe was
+    /// re-mounted there), as the data-error diagnosis suggests (repeatable).
+    #[arg(long, value_name = "SESSION")]
+    float_tool: Vec<String>,
+    /// Tracker sessions: leave the calibration point SESSION:LINE out (a single bad point, as the
+    /// data-error diagnosis suggests; repeatable).
+    #[arg(long, value_name = "SESSION:LINE")]
+    exclude_point: Vec<String>,
+    /// Tracker sessions: the instrument's stated σ per axis, mm, for rows without a sigma_mm or
+    /// u95_mm column (sets the floor when no pose is repeated).
+    #[arg(long, allow_negative_numbers = true, value_parser = real(0.0001, 10.0, "mm"))]
+    sigma_mm: Option<f64>,
     /// Print summary.json to stdout.
     #[arg(long)]
     json: bool,
@@ -218,6 +230,19 @@ pub struct StudyArgs {
 
 pub fn simulate_to(model: &Path, out: &Path, options: &SimulationOptions) -> Result<()> {
     let nominal = ArmModel::load(model)?;
+    if nominal.joints.len() != kincal::model::SUTA_JOINTS {
+        anyhow::bail!(
+            "{}: the artefact simulator makes SUTA sessions ({} encoders); this model has {} joints",
+            model.display(),
+            kincal::model::SUTA_JOINTS,
+            nominal.joints.len()
+        );
+    }
+    if let Some((id, _)) =
+        options.hidden.iter().find(|(id, _)| id.joint().is_some_and(|j| j >= nominal.joints.len()))
+    {
+        bail!("--hidden {id}: the model has {} joints, there is no such joint", nominal.joints.len());
+    }
     let sim = simulate(&nominal, options);
     output::write_simulation(&sim, out)?;
     let count = |s: &[kincal::data::Session]| s.iter().map(|s| s.measurements.len()).sum::<usize>();
@@ -244,8 +269,19 @@ pub fn cmd_simulate(a: &SimulateArgs) -> Result<()> {
     simulate_to(&a.model, &a.out, &options)
 }
 
-pub fn inputs(a: &InputArgs) -> RunInputs {
-    RunInputs::new(a.model.clone(), a.artefact.clone(), a.data.clone(), a.validate.clone())
+/// The artefact file, required unless the data are tracker sessions.
+fn artefact_of(a: &InputArgs) -> Result<PathBuf> {
+    a.artefact.clone().ok_or_else(|| {
+        anyhow::anyhow!(
+            "--artefact is required: {} holds no tracker sessions (*.csv starting with \"# {}\")",
+            a.data.display(),
+            kincal::data::tracker::TRACKER_FORMAT
+        )
+    })
+}
+
+pub fn inputs(a: &InputArgs) -> Result<RunInputs> {
+    Ok(RunInputs::new(a.model.clone(), artefact_of(a)?, a.data.clone(), a.validate.clone()))
 }
 
 pub fn calibrate_and_report(
@@ -320,10 +356,28 @@ pub fn calibrate_and_report(
 }
 
 pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
+    if a.inputs.artefact.is_none() && kincal::data::tracker::is_tracker_folder(&a.inputs.data) {
+        let i = &a.inputs;
+        let inputs = kincal::calib::tracker_run::TrackerInputs {
+            model: i.model.clone(),
+            calibration: i.data.clone(),
+            validation: i.validate.clone(),
+            float_tool: a.float_tool.clone(),
+            stated_sigma_mm: a.sigma_mm,
+            exclude_points: a.exclude_point.clone(),
+        };
+        return crate::tracker::calibrate_tracker_and_report(&inputs, &a.out, a.json);
+    }
+    if !a.float_tool.is_empty() || !a.exclude_point.is_empty() {
+        bail!(
+            "--float-tool and --exclude-point apply to tracker sessions; {} holds artefact sessions",
+            a.inputs.data.display()
+        );
+    }
     let inputs = RunInputs {
         exclude_landmarks: a.exclude_landmark.clone(),
         exclude_blocks: a.exclude_block.clone(),
-        ..inputs(&a.inputs)
+        ..inputs(&a.inputs)?
     };
     let outliers = !a.no_outliers;
     calibrate_and_report(&inputs, &a.out, &a.solve.options(), &a.add, a.study_subsets, outliers, a.json)
@@ -331,7 +385,8 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
 
 pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     let nominal = ArmModel::load(&a.inputs.model)?;
-    let artefact = Artefact::load(&a.inputs.artefact)?;
+    let artefact_path = artefact_of(&a.inputs)?;
+    let artefact = Artefact::load(&artefact_path)?;
     let cal = Dataset::load_dir(&a.inputs.data, &artefact, Purpose::Calibration)?;
     let val = Dataset::load_dir(&a.inputs.validate, &artefact, Purpose::Validation)?;
     if val.pair_count() == 0 {
@@ -351,7 +406,7 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
         bail!("the study has no result, nothing was written:\n  - {}", problems.join("\n  - "));
     }
     let i = &a.inputs;
-    output::write_study(&rows, &a.out, &[&i.model, &i.artefact, &i.data, &i.validate])?;
+    output::write_study(&rows, &a.out, &[&i.model, &artefact_path, &i.data, &i.validate])?;
     if a.json {
         println!("{}", output::study_json(&rows));
         return Ok(());
@@ -388,6 +443,7 @@ fn possible(count: usize) -> String {
 }
 
 pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
+    crate::tracker::refuse_tracker_run(&a.run, "diagnose")?;
     let folder = RunFolder::load(&a.run)?;
     let (artefact, cal, val) = folder.data()?;
     for problem in &folder.summary.not_trustworthy {
@@ -494,6 +550,8 @@ fn cmd_diagnose_auto(
 }
 
 pub fn cmd_compare(a: &CompareArgs) -> Result<()> {
+    crate::tracker::refuse_tracker_run(&a.before, "compare")?;
+    crate::tracker::refuse_tracker_run(&a.after, "compare")?;
     let (before, after) = (ComparedRun::load(&a.before)?, ComparedRun::load(&a.after)?);
     for run in [&before, &after] {
         for problem in &run.summary.not_trustworthy {

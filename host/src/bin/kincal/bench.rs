@@ -7,7 +7,8 @@
 //!   (`bench/scipy_peer.py`), with the cost and time ratio;
 //! * `kincal calibrate` as a whole (load, calibrate, validate, outliers with warm-started
 //!   leave-one-out refits, report, write RUN/) on the thesis-sized data;
-//! * `kincal diagnose --auto` on a mixture of four hidden effects.
+//! * `kincal diagnose --auto` on a mixture of four hidden effects;
+//! * the tracker case first (see `bench_tracker.rs`).
 
 use anyhow::{Context, Result};
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
@@ -37,6 +38,9 @@ pub struct BenchArgs {
     /// Only the whole `kincal calibrate` process on thesis-sized data, with its parts.
     #[arg(long)]
     pub calibrate_only: bool,
+    /// Only the tracker case (3 600 points, 5 sessions, 26 free parameters).
+    #[arg(long)]
+    pub tracker_only: bool,
     /// Calibration touches of the scale benchmark (calibrate and diagnose from files); 0 skips it.
     #[arg(long, default_value_t = 10_000, value_parser = crate::args::count(0, kincal::data::MAX_TOUCHES))]
     pub scale_touches: usize,
@@ -192,6 +196,10 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     }
     if args.diagnosis_seeds > 0 {
         return diagnosis_checks(args.diagnosis_seeds, args.power_seeds);
+    }
+    crate::bench_tracker::tracker_benchmark(&args.python, !args.no_scipy)?;
+    if args.tracker_only {
+        return Ok(());
     }
     let (nominal, sim) = thesis_sized_problem(1);
     let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);

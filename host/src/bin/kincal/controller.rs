@@ -366,14 +366,8 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     if let Some(arm) = a.arm.as_deref().filter(|arm| *arm != info.arm_id.as_str()) {
         bail!("the controller is arm {}, not {arm}; nothing was uploaded", info.arm_id);
     }
-    let version = a.version.unwrap_or(info.param_version + 1);
-    if version <= info.param_version {
-        bail!(
-            "the controller holds version {}; version {version} would be a rollback, which it refuses. To put these values back, upload them as a new set: --version {} (or leave --version out); nothing was uploaded",
-            info.param_version,
-            info.param_version + 1
-        );
-    }
+    let version = kincal::controller::device::next_version(info.param_version, a.version)
+        .map_err(|e| anyhow::anyhow!("{e}; nothing was uploaded"))?;
     let blob = kincal::controller::device::signed_parameter_set(&model, version, &info.arm_id, &key)
         .with_context(|| format!("{}: parameters version {version}", a.model.display()))?;
     let uploaded = match link.upload(&blob) {

@@ -3,9 +3,11 @@
 mod args;
 mod arm;
 mod bench;
+mod bench_tracker;
 mod controller;
 mod emulated_arm;
 mod haptic;
+mod tracker;
 
 use clap::{Parser, Subcommand};
 

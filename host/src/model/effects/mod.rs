@@ -29,7 +29,7 @@ pub mod eccentricity;
 pub mod geometric;
 pub mod harmonic;
 
-use crate::model::{ArmModel, ParamId, JOINTS};
+use crate::model::{ArmModel, ParamId, MAX_JOINTS};
 use std::fmt;
 
 /// Kinds of effect.
@@ -129,7 +129,7 @@ impl Effect {
             4 => EffectKind::Harmonic4,
             _ => return None,
         };
-        (joint < JOINTS).then_some(Effect { kind, joint: Some(joint) })
+        (joint < MAX_JOINTS).then_some(Effect { kind, joint: Some(joint) })
     }
 
     /// Parse `eccentricity:5`, `harmonic:3:3` (joint 3, 3 per revolution), `tcp`, `scale`, …
@@ -145,18 +145,18 @@ impl Effect {
         };
         let kind = KINDS.iter().find(|k| k.1 == kind_name)?.0;
         match (kind.per_joint(), joint) {
-            (true, Some(j)) if (1..=JOINTS).contains(&j) => Some(Effect { kind, joint: Some(j - 1) }),
+            (true, Some(j)) if (1..=MAX_JOINTS).contains(&j) => Some(Effect { kind, joint: Some(j - 1) }),
             (false, None) => Some(Effect { kind, joint: None }),
             _ => None,
         }
     }
 
-    /// Every effect of the library, per-joint kinds on every joint.
-    pub fn library() -> Vec<Effect> {
+    /// Every effect of the library for an arm of `joints` joints, per-joint kinds on every joint.
+    pub fn library(joints: usize) -> Vec<Effect> {
         let mut out = Vec::new();
         for (kind, _) in KINDS {
             if kind.per_joint() {
-                out.extend((0..JOINTS).map(|j| Effect { kind, joint: Some(j) }));
+                out.extend((0..joints).map(|j| Effect { kind, joint: Some(j) }));
             } else {
                 out.push(Effect { kind, joint: None });
             }
@@ -218,7 +218,7 @@ pub fn default_half_range(p: ParamId) -> f64 {
 /// Parameters of `model` with a non-zero value that the controller's parameter blob cannot
 /// carry (the higher harmonics): uploading would silently drop them.
 pub fn beyond_controller(model: &ArmModel) -> Vec<ParamId> {
-    (0..JOINTS)
+    (0..model.joints.len())
         .flat_map(|j| {
             [ParamId::Harm3Sin(j), ParamId::Harm3Cos(j), ParamId::Harm4Sin(j), ParamId::Harm4Cos(j)]
         })
@@ -244,8 +244,8 @@ mod tests {
 
     #[test]
     fn every_effect_name_parses_back() {
-        let library = Effect::library();
-        assert_eq!(library.len(), 10 * JOINTS + 2);
+        let library = Effect::library(6);
+        assert_eq!(library.len(), 10 * 6 + 2);
         for e in library {
             assert_eq!(Effect::parse(&e.to_string()), Some(e), "{e}");
         }

@@ -8,9 +8,12 @@
 //!                   "std_deg":[…6],"samples":1536,"rejected":0}, …]}
 //! ```
 //! `std_deg`, `samples` and `rejected` are optional; sessions may miss landmarks.
+//! Tracker sessions (points measured by an instrument, any serial arm) are read by [`tracker`].
+
+pub mod tracker;
 
 use crate::files::{self, check_regular_file, field_error, read_json, FileError};
-use crate::model::JOINTS;
+use crate::model::SUTA_JOINTS;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -319,11 +322,11 @@ impl Session {
                     format!("unknown landmark \"{}\" (not in the artefact file)", m.landmark),
                 ));
             }
-            if m.joints_deg.len() != JOINTS {
+            if m.joints_deg.len() != SUTA_JOINTS {
                 return Err(field_error(
                     path,
                     at("joints_deg"),
-                    format!("expected {JOINTS} encoder angles, found {}", m.joints_deg.len()),
+                    format!("expected {SUTA_JOINTS} encoder angles, found {}", m.joints_deg.len()),
                 ));
             }
             if let Some(k) = m.joints_deg.iter().position(|v| !(v.is_finite() && (0.0..360.0).contains(v))) {
@@ -334,11 +337,11 @@ impl Session {
                 ));
             }
             if let Some(std) = &m.std_deg {
-                if std.len() != JOINTS || std.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+                if std.len() != SUTA_JOINTS || std.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
                     return Err(field_error(
                         path,
                         at("std_deg"),
-                        format!("expected {JOINTS} finite non-negative values"),
+                        format!("expected {SUTA_JOINTS} finite non-negative values"),
                     ));
                 }
             }
@@ -386,10 +389,10 @@ pub struct Touch {
     /// Repeat number within the placement.
     pub repeat: u32,
     /// Raw encoder angles, degrees.
-    pub enc_deg: [f64; JOINTS],
+    pub enc_deg: [f64; SUTA_JOINTS],
     /// Standard error of each averaged encoder angle (window std / √accepted samples), degrees,
     /// when the session reports it.
-    pub enc_sigma_deg: Option<[f64; JOINTS]>,
+    pub enc_sigma_deg: Option<[f64; SUTA_JOINTS]>,
 }
 
 /// The touches of several sessions.
@@ -410,10 +413,10 @@ impl Dataset {
             data.placements.push(s.placement.clone());
             for m in &s.measurements {
                 let Some(landmark) = artefact.index_of(&m.landmark) else { continue };
-                let Ok(enc_deg) = <[f64; JOINTS]>::try_from(m.joints_deg.as_slice()) else { continue };
+                let Ok(enc_deg) = <[f64; SUTA_JOINTS]>::try_from(m.joints_deg.as_slice()) else { continue };
                 let accepted = m.samples.map(|n| n.saturating_sub(m.rejected.unwrap_or(0)));
                 let enc_sigma_deg = match (&m.std_deg, accepted) {
-                    (Some(std), Some(n)) if n > 0 && std.len() == JOINTS => {
+                    (Some(std), Some(n)) if n > 0 && std.len() == SUTA_JOINTS => {
                         Some(std::array::from_fn(|k| std[k] / (n as f64).sqrt()))
                     }
                     _ => None,

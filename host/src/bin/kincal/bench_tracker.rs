@@ -1,0 +1,158 @@
+//! `kincal bench`, tracker case: 3 600 points of a 7-joint arm in 5 sessions, 26 free
+//! parameters (23 of the arm, the tool point), calibrate and validate on a held-out session,
+//! beside SciPy on the same problem (`bench/tracker_peer.py`). The points come from kincal's own
+//! kinematics with noise: this measures speed only (accuracy is tested on the independent
+//! generator in `tests/`).
+
+use anyhow::{Context, Result};
+use kincal::calib::tracker::{calibrate_tracker, validate_session, TrackerOptions};
+use kincal::data::tracker::{TrackerData, TrackerPoint, TrackerSession};
+use kincal::model::kinematics::tool_pose;
+use kincal::model::{ArmModel, Joint, ParamId};
+use nalgebra::{Rotation3, Vector3};
+use rand::{RngExt, SeedableRng};
+use rand_distr::Distribution;
+use std::time::Instant;
+
+const SESSIONS: usize = 5;
+const POINTS: usize = 3600;
+
+fn arm() -> ArmModel {
+    let alpha = [-90.0, 90.0, 90.0, -90.0, -90.0, 90.0, 0.0];
+    let d = [360.0, 0.0, 420.0, 0.0, 400.0, 0.0, 126.0];
+    let mut model = ArmModel::suta_nominal();
+    model.name = "7R bench arm".into();
+    model.joints = (0..7).map(|j| Joint { d_mm: d[j], alpha_deg: alpha[j], ..Joint::default() }).collect();
+    model.tcp_mm = [40.0, -25.0, 120.0];
+    model.free.clear();
+    for j in 1..7 {
+        model.free_param(ParamId::Offset(j), -5.0, 5.0);
+    }
+    for (j, dj) in d.iter().enumerate().take(6).skip(1) {
+        model.free_param(ParamId::Length(j), dj - 10.0, dj + 10.0);
+    }
+    for (j, aj) in alpha.iter().enumerate().take(6) {
+        model.free_param(ParamId::LinkOffset(j), -10.0, 10.0);
+        model.free_param(ParamId::Twist(j), aj - 5.0, aj + 5.0);
+    }
+    model
+}
+
+fn sessions(truth: &ArmModel, count: usize, points: usize, seed: u64) -> Result<TrackerData> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let noise = rand_distr::Normal::new(0.0, 0.02)?;
+    let sessions = (0..count)
+        .map(|s| {
+            let rotation = Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64).into_inner();
+            let shift = Vector3::new(2500.0, -300.0 * s as f64, 400.0);
+            let points = (0..points)
+                .map(|i| {
+                    let q: Vec<f64> = (0..7).map(|_| rng.random_range(-120.0..120.0)).collect();
+                    let p = rotation * tool_pose(truth, &q).position_mm + shift;
+                    let n = Vector3::from_fn(|_, _| noise.sample(&mut rng));
+                    TrackerPoint {
+                        q_deg: q,
+                        point_mm: p + n,
+                        orientation: None,
+                        sigma_mm: Some(0.02),
+                        time_s: None,
+                        temp_c: None,
+                        pose: None,
+                        line: i + 3,
+                    }
+                })
+                .collect();
+            TrackerSession { name: format!("bench_{}", s + 1), path: "bench.csv".into(), points }
+        })
+        .collect();
+    Ok(TrackerData { joints: 7, sessions, warnings: Vec::new() })
+}
+
+fn peer_problem(nominal: &ArmModel, data: &TrackerData) -> serde_json::Value {
+    let free: Vec<(&str, usize)> = nominal
+        .free
+        .iter()
+        .filter_map(|f| match f.id {
+            ParamId::Offset(j) => Some(("offset", j)),
+            ParamId::Length(j) => Some(("length", j)),
+            ParamId::LinkOffset(j) => Some(("link_offset", j)),
+            ParamId::Twist(j) => Some(("twist", j)),
+            _ => None,
+        })
+        .collect();
+    serde_json::json!({
+        "dh": nominal.joints.iter().map(|j| [j.offset_deg, j.d_mm, j.a_mm, j.alpha_deg]).collect::<Vec<_>>(),
+        "tool_mm": nominal.tcp_mm,
+        "free": free,
+        "sessions": data.sessions.iter().map(|s| serde_json::json!({
+            "q_deg": s.points.iter().map(|p| p.q_deg.clone()).collect::<Vec<_>>(),
+            "x_mm": s.points.iter().map(|p| [p.point_mm.x, p.point_mm.y, p.point_mm.z]).collect::<Vec<_>>(),
+        })).collect::<Vec<_>>(),
+    })
+}
+
+/// Print the tracker figures: kincal's calibrate + validate, and SciPy's time on the same problem.
+pub fn tracker_benchmark(python: &str, scipy: bool) -> Result<()> {
+    let nominal = arm();
+    let mut truth = nominal.clone();
+    for (k, f) in nominal.free.iter().enumerate() {
+        truth.set(f.id, nominal.get(f.id) + 0.2 * ((k as f64 * 1.7).sin()));
+    }
+    let cal = sessions(&truth, SESSIONS, POINTS / SESSIONS, 1)?;
+    let val = sessions(&truth, 1, POINTS / SESSIONS, 2)?;
+    let mut times = Vec::new();
+    let mut last = None;
+    for _ in 0..5 {
+        let t = Instant::now();
+        let fit = calibrate_tracker(&nominal, &cal, &TrackerOptions::default())?;
+        let v = validate_session(&fit.model, &val.sessions[0], [0.0; 3]);
+        times.push(t.elapsed().as_secs_f64());
+        last = Some((fit, v));
+    }
+    let Some((fit, v)) = last else { return Ok(()) };
+    let best = times.iter().cloned().fold(f64::INFINITY, f64::min);
+    println!(
+        "tracker: {} points, {} sessions, {} free ({} estimated), {} threads: calibrate + validate median {:.3} s, min {best:.3} s  (target <= 1 s on 2 cores); fit {:.4} mm, held out {:.4} mm",
+        cal.point_count(),
+        cal.sessions.len(),
+        nominal.free.len() + 3,
+        fit.identifiability.estimated.len(),
+        rayon::current_num_threads(),
+        kincal::numerics::stats::median(times.clone()),
+        fit.fit.rms_mm,
+        v.rms_mm
+    );
+    for n in [40, 400, 4000, 40_000] {
+        let data = sessions(&truth, SESSIONS, n / SESSIONS, 3)?;
+        let t = Instant::now();
+        calibrate_tracker(&nominal, &data, &TrackerOptions::default())?;
+        let s = t.elapsed().as_secs_f64();
+        println!(
+            "tracker cost per point: {n:>6} points {:>8.3} s  {:>6.2} µs per point",
+            s,
+            s * 1e6 / n as f64
+        );
+    }
+    if !scipy {
+        return Ok(());
+    }
+    let dir = std::env::temp_dir().join(format!("kincal-bench-tracker-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+    let problem = dir.join("tracker_problem.json");
+    std::fs::write(&problem, peer_problem(&nominal, &cal).to_string())?;
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../bench/tracker_peer.py");
+    let out = std::process::Command::new(python).arg(script).arg(&problem).output()?;
+    std::fs::remove_dir_all(&dir).ok();
+    if !out.status.success() {
+        anyhow::bail!("SciPy peer failed: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    let peer: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    println!(
+        "tracker, SciPy least_squares(trf) on the same problem: {:.2} s, {} evaluations, fit {:.4} mm (kincal {:.4} mm)",
+        peer["seconds"].as_f64().unwrap_or(f64::NAN),
+        peer["nfev"],
+        peer["rms_mm"].as_f64().unwrap_or(f64::NAN),
+        fit.fit.rms_mm
+    );
+    Ok(())
+}

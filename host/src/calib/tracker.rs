@@ -1,0 +1,802 @@
+//! Calibration from tracker sessions: the arm's free parameters, the tool point, and one
+//! instrument ← robot base per session, over one parameter vector.
+//!
+//! The measured point of row i in session s is X_i = B_s · F(q_i; θ) · t, with B_s = (R_s, t_s)
+//! the session's base, F the chain and t the tool point (`tcp.*`). Each session's base starts at
+//! its closed form for the nominal arm (Horn's absolute orientation of the model points onto the
+//! measured ones) and is then estimated jointly with θ as a small rotation ω_s (mrad, left of the
+//! starting rotation) and a shift t_s (mm): R_s = exp(ω_s)·R⁰_s. The residual block of a point is
+//! X_i − X_i,measured (mm, three rows); a base touches only its own session's rows. The
+//! Jacobian is dense in the arm columns and in the session's six; the normal matrix costs
+//! O(points · columns²), so the cost per point is flat in the number of points.
+//!
+//! Identifiability sees the bases: the base columns are projected out of the arm columns (what
+//! a base can reproduce, the data cannot attribute to the arm), and the base set is chosen by
+//! pivoted QR on what remains. What drops out is said in words: a parameter a base absorbs (the
+//! first joint's offset and d, a rotation about and a shift along the base axis), and the tool
+//! point when the orientation is constant within the sessions (then it and each base's
+//! translation are one thing, and the tool stays at its nominal value: every figure is the same
+//! for any split between them, because each base absorbs the rest).
+
+use crate::calib::identify::{self, Combination};
+use crate::data::tracker::{TrackerData, TrackerPoint, TrackerSession};
+use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
+use crate::model::{ArmModel, ParamId};
+use crate::numerics::geometry::absolute_orientation;
+use crate::numerics::solver::{self, Loss, Residuals, SolverOptions};
+use crate::numerics::stats::rms;
+use nalgebra::{Matrix3, Rotation3, Vector3};
+use rayon::prelude::*;
+
+/// Spread of the tool orientation within a session, degrees, below which the session is said
+/// to hold the orientation constant.
+pub const CONSTANT_ORIENTATION_DEG: f64 = 1.0;
+/// Half-range of the tool point when the model does not free it, mm.
+pub const TOOL_HALF_RANGE_MM: f64 = 500.0;
+/// Unknowns of one session's base: a rotation (mrad) and a shift (mm).
+pub const BASE_UNKNOWNS: usize = 6;
+/// Most Gauss–Newton passes, each re-centring the bases at their closed form.
+const PASSES: usize = 3;
+
+/// Why a tracker calibration could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum TrackerError {
+    /// The sessions' joint count differs from the model's.
+    #[error("the tracker sessions have {data} joint columns (q1_deg …), the model has {model} joints")]
+    JointCount {
+        /// Joints in the data.
+        data: usize,
+        /// Joints of the model.
+        model: usize,
+    },
+    /// A session has too few points to place its base.
+    #[error(
+        "session \"{session}\" has {points} points: at least 3 not on one line are needed to place its base"
+    )]
+    TooFewPoints {
+        /// The session.
+        session: String,
+        /// Its points.
+        points: usize,
+    },
+    /// More unknowns than residuals.
+    #[error("{residuals} measured coordinates cannot determine {unknowns} unknowns: measure more points")]
+    TooFewResiduals {
+        /// Residual rows.
+        residuals: usize,
+        /// Unknowns (arm, tool, bases).
+        unknowns: usize,
+    },
+    /// A session named by `--float-tool` is not in the data.
+    #[error("--float-tool {0}: no calibration session of that name")]
+    UnknownSession(String),
+    /// The model gives non-finite points.
+    #[error("the model gives non-finite tool positions on these joint angles: check the model's numbers")]
+    NonFinite,
+}
+
+/// Settings of a tracker calibration.
+#[derive(Clone, Debug, Default)]
+pub struct TrackerOptions {
+    /// Huber threshold δ, mm; `None` for plain least squares.
+    pub huber_delta_mm: Option<f64>,
+    /// Sessions whose tool point gets its own offset (the probe was re-mounted there).
+    pub float_tool: Vec<String>,
+}
+
+/// One session's base: instrument ← robot.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Base {
+    /// Rotation.
+    pub rotation: Matrix3<f64>,
+    /// Translation, mm.
+    pub translation_mm: Vector3<f64>,
+}
+
+impl Base {
+    /// The base that best maps `model` points onto the session's measured points (closed form).
+    pub fn fit(model: &ArmModel, points: &[TrackerPoint], tool_offset_mm: &Vector3<f64>) -> Base {
+        let robot: Vec<Vector3<f64>> =
+            points.iter().map(|p| model_point(model, &p.q_deg, tool_offset_mm)).collect();
+        let measured: Vec<Vector3<f64>> = points.iter().map(|p| p.point_mm).collect();
+        let (rotation, translation_mm) = absolute_orientation(&robot, &measured);
+        Base { rotation, translation_mm }
+    }
+
+    fn apply(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.rotation * p + self.translation_mm
+    }
+}
+
+/// The tool point in the robot frame, with a session's tool offset (in the flange frame).
+fn model_point(model: &ArmModel, q_deg: &[f64], tool_offset_mm: &Vector3<f64>) -> Vector3<f64> {
+    let pose = tool_pose(model, q_deg);
+    pose.position_mm + flange_rotation(&pose.x_axis, &pose.z_axis) * tool_offset_mm
+}
+
+fn flange_rotation(x: &Vector3<f64>, z: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::from_columns(&[*x, z.cross(x), *z])
+}
+
+/// The joint estimation problem: arm columns, then per session ω (mrad) and t (mm), then per
+/// floated session a tool offset (mm, flange frame).
+struct Problem<'a> {
+    model: &'a ArmModel,
+    params: Vec<ParamId>,
+    columns: ColumnMap,
+    sessions: &'a [TrackerSession],
+    start: Vec<Matrix3<f64>>,
+    floated: Vec<Option<usize>>,
+    rows: Vec<(usize, usize)>,
+}
+
+impl Problem<'_> {
+    fn unknowns(&self) -> usize {
+        self.params.len() + BASE_UNKNOWNS * self.sessions.len() + 3 * self.floated.iter().flatten().count()
+    }
+
+    fn base_column(&self, s: usize) -> usize {
+        self.params.len() + BASE_UNKNOWNS * s
+    }
+
+    fn tool_column(&self, s: usize) -> Option<usize> {
+        self.floated[s].map(|k| self.params.len() + BASE_UNKNOWNS * self.sessions.len() + 3 * k)
+    }
+
+    fn base_at(&self, x: &[f64], s: usize) -> Base {
+        let c = self.base_column(s);
+        let omega = Vector3::new(x[c], x[c + 1], x[c + 2]) * 1e-3;
+        Base {
+            rotation: Rotation3::new(omega).into_inner() * self.start[s],
+            translation_mm: Vector3::new(x[c + 3], x[c + 4], x[c + 5]),
+        }
+    }
+
+    fn tool_offset_at(&self, x: &[f64], s: usize) -> Vector3<f64> {
+        self.tool_column(s).map_or(Vector3::zeros(), |c| Vector3::new(x[c], x[c + 1], x[c + 2]))
+    }
+
+    fn model_at(&self, x: &[f64]) -> ArmModel {
+        let mut m = self.model.clone();
+        for (id, v) in self.params.iter().zip(x) {
+            m.set(*id, *v);
+        }
+        m
+    }
+}
+
+impl Residuals for Problem<'_> {
+    fn len(&self) -> usize {
+        3 * self.rows.len()
+    }
+
+    fn evaluate(&self, x: &[f64], r: &mut [f64], jacobian: Option<&mut [f64]>) {
+        let model = self.model_at(x);
+        let n = self.unknowns();
+        let bases: Vec<Base> = (0..self.sessions.len()).map(|s| self.base_at(x, s)).collect();
+        let offsets: Vec<Vector3<f64>> =
+            (0..self.sessions.len()).map(|s| self.tool_offset_at(x, s)).collect();
+        let point = |i: usize, r: &mut [f64], jac: Option<&mut [f64]>| {
+            let (s, k) = self.rows[i];
+            let p = &self.sessions[s].points[k];
+            let mut dp = vec![[0.0; 9]; self.params.len()];
+            let pose = tool_pose_with_jacobian(&model, &p.q_deg, &self.columns, &mut dp);
+            let flange = flange_rotation(&pose.x_axis, &pose.z_axis);
+            let robot = pose.position_mm + flange * offsets[s];
+            let base = &bases[s];
+            let y = base.rotation * robot;
+            let e = y + base.translation_mm - p.point_mm;
+            r.copy_from_slice(e.as_slice());
+            let Some(jac) = jac else { return };
+            jac.fill(0.0);
+            for (c, d) in dp.iter().enumerate() {
+                let g = base.rotation * Vector3::new(d[0], d[1], d[2]);
+                for a in 0..3 {
+                    jac[a * n + c] = g[a];
+                }
+            }
+            let b = self.base_column(s);
+            for k in 0..3 {
+                let w = Vector3::ith(k, 1e-3).cross(&y);
+                for a in 0..3 {
+                    jac[a * n + b + k] = w[a];
+                }
+                jac[k * n + b + 3 + k] = 1.0;
+            }
+            if let Some(t) = self.tool_column(s) {
+                let g = base.rotation * flange;
+                for a in 0..3 {
+                    for k in 0..3 {
+                        jac[a * n + t + k] = g[(a, k)];
+                    }
+                }
+            }
+        };
+        match jacobian {
+            Some(jac) => r
+                .par_chunks_mut(3)
+                .zip(jac.par_chunks_mut(3 * n))
+                .enumerate()
+                .for_each(|(i, (r, j))| point(i, r, Some(j))),
+            None => r.par_chunks_mut(3).enumerate().for_each(|(i, r)| point(i, r, None)),
+        }
+    }
+}
+
+/// Position-error statistics of one set of points, mm.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ErrorStats {
+    /// Points.
+    pub points: usize,
+    /// RMS of the 3-D error, mm.
+    pub rms_mm: f64,
+    /// Mean of the 3-D error, mm.
+    pub mean_mm: f64,
+    /// Largest 3-D error, mm.
+    pub max_mm: f64,
+}
+
+impl ErrorStats {
+    /// Statistics of error lengths.
+    pub fn of(errors: &[f64]) -> ErrorStats {
+        let n = errors.len();
+        ErrorStats {
+            points: n,
+            rms_mm: rms(errors),
+            mean_mm: if n > 0 { errors.iter().sum::<f64>() / n as f64 } else { 0.0 },
+            max_mm: errors.iter().copied().fold(0.0, f64::max),
+        }
+    }
+}
+
+/// What the data cannot separate, in words, and what the calibration therefore left out.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct TrackerIdentifiability {
+    /// Free parameters estimated.
+    pub estimated: Vec<String>,
+    /// Free parameters held at their nominal value because the data cannot determine them.
+    pub fixed: Vec<String>,
+    /// Sentences a user reads: what cannot be separated, and why.
+    pub statements: Vec<String>,
+    /// Directions of the arm parameters (bases projected out) the data cannot determine.
+    pub unidentifiable: Vec<Combination>,
+    /// Directions it determines only weakly.
+    pub poorly_identified: Vec<Combination>,
+    /// Orientation spread of the tool within each session, degrees (session, spread).
+    pub orientation_spread_deg: Vec<(String, f64)>,
+}
+
+/// One estimated value.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct TrackerEstimate {
+    /// Parameter name.
+    pub param: String,
+    /// Unit.
+    pub unit: String,
+    /// Nominal value.
+    pub nominal: f64,
+    /// Calibrated value.
+    pub value: f64,
+    /// One standard deviation, when estimated.
+    pub std: Option<f64>,
+}
+
+/// A session's own tool offset (the tool floated there).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct FloatedTool {
+    /// The session.
+    pub session: String,
+    /// Offset of the tool point from the shared one, flange frame, mm.
+    pub offset_mm: [f64; 3],
+    /// Standard deviation of the offset's length, mm.
+    pub size_std_mm: f64,
+}
+
+/// Standard deviation of |v| from the covariance block `c` of v.
+fn length_std(v: &Vector3<f64>, c: &Matrix3<f64>) -> f64 {
+    let n = v.norm();
+    if n == 0.0 {
+        return (c.trace() / 3.0).max(0.0).sqrt();
+    }
+    let u = v / n;
+    (u.transpose() * c * u)[(0, 0)].max(0.0).sqrt()
+}
+
+fn covariance_block(cov: &Option<nalgebra::DMatrix<f64>>, at: usize) -> Matrix3<f64> {
+    cov.as_ref().map_or(Matrix3::zeros(), |c| c.fixed_view::<3, 3>(at, at).into_owned())
+}
+
+/// The result of a tracker calibration.
+#[derive(Clone, Debug)]
+pub struct TrackerCalibration {
+    /// The calibrated model.
+    pub model: ArmModel,
+    /// Each calibration session's base, in session order.
+    pub bases: Vec<Base>,
+    /// Tool offsets of the floated sessions.
+    pub tool_offsets: Vec<FloatedTool>,
+    /// Position error on the calibration sessions.
+    pub fit: ErrorStats,
+    /// Estimates of the free parameters.
+    pub estimates: Vec<TrackerEstimate>,
+    /// What was left out and why.
+    pub identifiability: TrackerIdentifiability,
+    /// Gauss–Newton iterations over all passes.
+    pub iterations: usize,
+}
+
+/// Largest angle, degrees, between the tool orientation at any point of `session` and at its
+/// first point (the model's flange orientation).
+pub fn orientation_spread_deg(model: &ArmModel, session: &TrackerSession) -> f64 {
+    let rotations: Vec<Matrix3<f64>> = session
+        .points
+        .iter()
+        .map(|p| {
+            let pose = tool_pose(model, &p.q_deg);
+            flange_rotation(&pose.x_axis, &pose.z_axis)
+        })
+        .collect();
+    let Some(first) = rotations.first() else { return 0.0 };
+    rotations
+        .iter()
+        .map(|r| {
+            let c = (((first.transpose() * r).trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
+            c.acos().to_degrees()
+        })
+        .fold(0.0, f64::max)
+}
+
+fn jacobian_of(problem: &Problem, x: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let mut r = vec![0.0; problem.len()];
+    let mut jac = vec![0.0; problem.len() * problem.unknowns()];
+    problem.evaluate(x, &mut r, Some(&mut jac));
+    (r, jac)
+}
+
+/// The arm columns of `jac` with every base (and floated tool) column projected out, per session.
+fn projected_arm_columns(problem: &Problem, jac: &[f64]) -> Vec<f64> {
+    let (n, a) = (problem.unknowns(), problem.params.len());
+    let mut out = vec![0.0; problem.len() * a];
+    for s in 0..problem.sessions.len() {
+        let rows: Vec<usize> = (0..problem.rows.len())
+            .filter(|&i| problem.rows[i].0 == s)
+            .flat_map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
+            .collect();
+        let mut own: Vec<usize> = (0..BASE_UNKNOWNS).map(|k| problem.base_column(s) + k).collect();
+        own.extend(problem.tool_column(s).map(|t| [t, t + 1, t + 2]).into_iter().flatten());
+        let b = nalgebra::DMatrix::from_fn(rows.len(), own.len(), |i, k| jac[rows[i] * n + own[k]]);
+        let q = b.svd(true, false);
+        let (Some(u), sv) = (q.u, q.singular_values) else { continue };
+        let top = sv.iter().copied().fold(0.0, f64::max);
+        let basis: Vec<usize> = (0..sv.len()).filter(|&k| sv[k] > 1e-12 * top).collect();
+        for c in 0..a {
+            let col = nalgebra::DVector::from_fn(rows.len(), |i, _| jac[rows[i] * n + c]);
+            let mut rest = col.clone();
+            for &k in &basis {
+                let uk = u.column(k);
+                rest -= uk * uk.dot(&col);
+            }
+            for (i, &row) in rows.iter().enumerate() {
+                out[row * a + c] = rest[i];
+            }
+        }
+    }
+    out
+}
+
+/// Calibrate the free parameters of `nominal` (and its tool point) on tracker sessions.
+pub fn calibrate_tracker(
+    nominal: &ArmModel,
+    data: &TrackerData,
+    options: &TrackerOptions,
+) -> Result<TrackerCalibration, TrackerError> {
+    if data.joints != nominal.joints.len() {
+        return Err(TrackerError::JointCount { data: data.joints, model: nominal.joints.len() });
+    }
+    for s in &data.sessions {
+        if s.points.len() < 3 {
+            return Err(TrackerError::TooFewPoints { session: s.name.clone(), points: s.points.len() });
+        }
+    }
+    for name in &options.float_tool {
+        if !data.sessions.iter().any(|s| &s.name == name) {
+            return Err(TrackerError::UnknownSession(name.clone()));
+        }
+    }
+    let mut model = nominal.clone();
+    for k in 0..3 {
+        if !model.free.iter().any(|f| f.id == ParamId::Tcp(k)) {
+            let v = model.tcp_mm[k];
+            model.free_param(ParamId::Tcp(k), v - TOOL_HALF_RANGE_MM, v + TOOL_HALF_RANGE_MM);
+        }
+    }
+    let all: Vec<ParamId> = model.free.iter().map(|f| f.id).collect();
+    let range_of =
+        |id: ParamId| model.free.iter().find(|f| f.id == id).map_or(1.0, |f| (f.upper - f.lower).max(1e-9));
+    let mut floated = Vec::new();
+    let mut next = 0;
+    for s in &data.sessions {
+        floated.push(options.float_tool.contains(&s.name).then(|| {
+            next += 1;
+            next - 1
+        }));
+    }
+    let rows: Vec<(usize, usize)> = data
+        .sessions
+        .iter()
+        .enumerate()
+        .flat_map(|(s, ss)| (0..ss.points.len()).map(move |k| (s, k)))
+        .collect();
+    let zero = Vector3::zeros();
+    let start_bases: Vec<Base> = data.sessions.iter().map(|s| Base::fit(&model, &s.points, &zero)).collect();
+    fn build<'a>(
+        params: Vec<ParamId>,
+        model: &'a ArmModel,
+        bases: &[Base],
+        data: &'a TrackerData,
+        floated: &[Option<usize>],
+        rows: &[(usize, usize)],
+    ) -> Problem<'a> {
+        Problem {
+            model,
+            columns: ColumnMap::new(&params),
+            params,
+            sessions: &data.sessions,
+            start: bases.iter().map(|b| b.rotation).collect(),
+            floated: floated.to_vec(),
+            rows: rows.to_vec(),
+        }
+    }
+    let x_of = |problem: &Problem, model: &ArmModel, bases: &[Base], offsets: &[Vector3<f64>]| {
+        let mut x: Vec<f64> = problem.params.iter().map(|id| model.get(*id)).collect();
+        for b in bases {
+            x.extend([0.0, 0.0, 0.0, b.translation_mm.x, b.translation_mm.y, b.translation_mm.z]);
+        }
+        for (s, f) in floated.iter().enumerate() {
+            if f.is_some() {
+                x.extend(offsets[s].iter());
+            }
+        }
+        x
+    };
+    // Identifiability at the nominal values, bases at their closed form.
+    let full = build(all.clone(), &model, &start_bases, data, &floated, &rows);
+    let unknowns = full.unknowns();
+    if full.len() < unknowns {
+        return Err(TrackerError::TooFewResiduals { residuals: full.len(), unknowns });
+    }
+    let offsets0 = vec![Vector3::zeros(); data.sessions.len()];
+    let x0 = x_of(&full, &model, &start_bases, &offsets0);
+    let (r0, jac0) = jacobian_of(&full, &x0);
+    if !r0.iter().chain(&jac0).all(|v| v.is_finite()) {
+        return Err(TrackerError::NonFinite);
+    }
+    let projected = projected_arm_columns(&full, &jac0);
+    let ranges: Vec<f64> = all.iter().map(|&id| range_of(id)).collect();
+    let (kept, _) = identify::base_columns(&projected, all.len(), &ranges);
+    let analysis = identify::analyse(&projected, &all, &ranges);
+    let spreads: Vec<(String, f64)> =
+        data.sessions.iter().map(|s| (s.name.clone(), orientation_spread_deg(&model, s))).collect();
+    // No session turns the tool: its point is the bases' translation, whatever a small model
+    // error makes the Jacobian say; it stays at its nominal value.
+    let tool_turns = spreads.iter().any(|s| s.1 >= CONSTANT_ORIENTATION_DEG);
+    let is_tool = |c: &usize| matches!(all[*c], ParamId::Tcp(_));
+    let estimated: Vec<ParamId> =
+        kept.iter().filter(|c| tool_turns || !is_tool(c)).map(|&c| all[c]).collect();
+    let fixed: Vec<ParamId> =
+        (0..all.len()).filter(|c| !estimated.contains(&all[*c])).map(|c| all[c]).collect();
+    let statements = explain(&all, &jac0, &projected, full.unknowns(), &fixed, &spreads, &ranges);
+    // Solve; re-centre the bases at their closed form between passes.
+    let loss = options.huber_delta_mm.map_or(Loss::Linear, Loss::Huber);
+    let solver_options =
+        SolverOptions { loss, max_iterations: 100, ftol: 1e-10, xtol: 1e-10, ..SolverOptions::default() };
+    let mut current = model.clone();
+    let mut bases = start_bases;
+    let mut offsets = offsets0;
+    let mut iterations = 0;
+    let mut last_cost = f64::INFINITY;
+    for _ in 0..PASSES {
+        let problem = build(estimated.clone(), &current, &bases, data, &floated, &rows);
+        let n = problem.unknowns();
+        let x0 = x_of(&problem, &current, &bases, &offsets);
+        let mut lower: Vec<f64> = estimated
+            .iter()
+            .map(|id| model.free.iter().find(|f| f.id == *id).map_or(f64::NEG_INFINITY, |f| f.lower))
+            .collect();
+        let mut upper: Vec<f64> = estimated
+            .iter()
+            .map(|id| model.free.iter().find(|f| f.id == *id).map_or(f64::INFINITY, |f| f.upper))
+            .collect();
+        lower.resize(n, -1e9);
+        upper.resize(n, 1e9);
+        let solution = solver::solve(&problem, &x0, &lower, &upper, &solver_options);
+        iterations += solution.iterations;
+        let solved = problem.model_at(&solution.x);
+        offsets = (0..data.sessions.len()).map(|s| problem.tool_offset_at(&solution.x, s)).collect();
+        bases = (0..data.sessions.len()).map(|s| problem.base_at(&solution.x, s)).collect();
+        current = solved;
+        let converged = (last_cost - solution.cost).abs() <= 1e-9 * solution.cost.max(1e-12);
+        last_cost = solution.cost;
+        if converged {
+            break;
+        }
+    }
+    // Uncertainty at the solution (bases and floated tools marginalised).
+    let problem = build(estimated.clone(), &current, &bases, data, &floated, &rows);
+    let x = x_of(&problem, &current, &bases, &offsets);
+    let (r, jac) = jacobian_of(&problem, &x);
+    let n = problem.unknowns();
+    let dof = (r.len() as f64 - n as f64).max(1.0);
+    let variance = r.iter().map(|v| v * v).sum::<f64>() / dof;
+    let cov = identify::covariance(&jac, &vec![1.0; r.len()], n, variance);
+    let errors: Vec<f64> = r.chunks_exact(3).map(|e| Vector3::new(e[0], e[1], e[2]).norm()).collect();
+    let estimates = all
+        .iter()
+        .map(|&id| {
+            let k = estimated.iter().position(|e| *e == id);
+            TrackerEstimate {
+                param: id.to_string(),
+                unit: id.unit().into(),
+                nominal: nominal.get(id),
+                value: current.get(id),
+                std: k.and_then(|k| cov.as_ref().map(|c| c[(k, k)].max(0.0).sqrt())),
+            }
+        })
+        .collect();
+    let tool_offsets = data
+        .sessions
+        .iter()
+        .enumerate()
+        .filter_map(|(s, session)| {
+            let column = problem.tool_column(s)?;
+            Some(FloatedTool {
+                session: session.name.clone(),
+                offset_mm: offsets[s].into(),
+                size_std_mm: length_std(&offsets[s], &covariance_block(&cov, column)),
+            })
+        })
+        .collect();
+    Ok(TrackerCalibration {
+        model: current,
+        bases,
+        tool_offsets,
+        fit: ErrorStats::of(&errors),
+        estimates,
+        identifiability: TrackerIdentifiability {
+            estimated: estimated.iter().map(|p| p.to_string()).collect(),
+            fixed: fixed.iter().map(|p| p.to_string()).collect(),
+            statements,
+            unidentifiable: analysis.unidentifiable,
+            poorly_identified: analysis.poorly_identified,
+            orientation_spread_deg: spreads,
+        },
+        iterations,
+    })
+}
+
+/// Sentences on what the data cannot separate.
+fn explain(
+    all: &[ParamId],
+    jac: &[f64],
+    projected: &[f64],
+    n: usize,
+    fixed: &[ParamId],
+    spreads: &[(String, f64)],
+    ranges: &[f64],
+) -> Vec<String> {
+    let a = all.len();
+    let norm = |m: &[f64], stride: usize, c: usize| {
+        m.chunks_exact(stride).map(|row| row[c] * row[c]).sum::<f64>().sqrt()
+    };
+    let mut out = Vec::new();
+    let constant: Vec<&str> =
+        spreads.iter().filter(|s| s.1 < CONSTANT_ORIENTATION_DEG).map(|s| s.0.as_str()).collect();
+    let tool_fixed: Vec<String> =
+        fixed.iter().filter(|p| matches!(p, ParamId::Tcp(_))).map(|p| p.to_string()).collect();
+    if !constant.is_empty() {
+        out.push(format!(
+            "the tool orientation is constant (within {CONSTANT_ORIENTATION_DEG}°) in session{} {}: there, the \
+             tool point and the base translation are one thing",
+            if constant.len() == 1 { "" } else { "s" },
+            constant.join(", ")
+        ));
+    }
+    if !tool_fixed.is_empty() {
+        out.push(format!(
+            "{} cannot be separated from the session bases' translations (no session turns the tool): held at \
+             the nominal value; no figure depends on this split, each session's base absorbs it",
+            tool_fixed.join(", ")
+        ));
+    }
+    let largest = (0..a).map(|c| norm(jac, n, c) * ranges[c]).fold(0.0, f64::max).max(1e-300);
+    for p in fixed.iter().filter(|p| !matches!(p, ParamId::Tcp(_))) {
+        let Some(c) = all.iter().position(|q| q == p) else { continue };
+        let (raw, rest) = (norm(jac, n, c) * ranges[c], norm(projected, a, c) * ranges[c]);
+        out.push(if raw < identify::ZERO_COLUMN_BELOW * largest {
+            format!("{p} moves no measured point: held at its nominal value")
+        } else if rest < identify::UNIDENTIFIABLE_BELOW * largest {
+            format!("{p} is absorbed by the session bases (a base rotation or shift reproduces it): held at its nominal value")
+        } else {
+            format!("{p} cannot be separated from the other free parameters on this data: held at its nominal value")
+        });
+    }
+    out
+}
+
+/// Validation of a model on one held-out session, its base refitted (closed form).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct SessionValidation {
+    /// Session name.
+    pub name: String,
+    /// Points.
+    pub points: usize,
+    /// RMS position error, mm.
+    pub rms_mm: f64,
+    /// Mean position error, mm.
+    pub mean_mm: f64,
+    /// Largest position error, mm.
+    pub max_mm: f64,
+    /// RMS of the base-free pairwise-distance error inside the session, mm.
+    pub pairwise_rms_mm: f64,
+    /// Pairs of points compared.
+    pub pairs: usize,
+}
+
+/// Position error of every calibration point at the solution, per session in file order, mm.
+pub fn calibration_errors(fit: &TrackerCalibration, data: &TrackerData) -> Vec<Vec<f64>> {
+    data.sessions
+        .iter()
+        .zip(&fit.bases)
+        .map(|(s, base)| {
+            let offset = fit
+                .tool_offsets
+                .iter()
+                .find(|t| t.session == s.name)
+                .map_or(Vector3::zeros(), |t| Vector3::from(t.offset_mm));
+            s.points
+                .iter()
+                .map(|p| (base.apply(&model_point(&fit.model, &p.q_deg, &offset)) - p.point_mm).norm())
+                .collect()
+        })
+        .collect()
+}
+
+/// Fit `session`'s base and its own tool offset for a fixed `model` (the tool floated there),
+/// and validate with both refitted.
+pub fn fit_session_with_tool(model: &ArmModel, session: &TrackerSession) -> (FloatedTool, SessionValidation) {
+    let sessions = std::slice::from_ref(session);
+    let start = Base::fit(model, &session.points, &Vector3::zeros());
+    let problem = Problem {
+        model,
+        params: Vec::new(),
+        columns: ColumnMap::new(&[]),
+        sessions,
+        start: vec![start.rotation],
+        floated: vec![Some(0)],
+        rows: (0..session.points.len()).map(|k| (0, k)).collect(),
+    };
+    let t = start.translation_mm;
+    let x0 = [0.0, 0.0, 0.0, t.x, t.y, t.z, 0.0, 0.0, 0.0];
+    let options = SolverOptions { max_iterations: 100, ..SolverOptions::default() };
+    let solution = solver::solve(&problem, &x0, &[-1e9; 9], &[1e9; 9], &options);
+    let (r, jac) = jacobian_of(&problem, &solution.x);
+    let variance = r.iter().map(|v| v * v).sum::<f64>() / (r.len() as f64 - 9.0).max(1.0);
+    let cov = identify::covariance(&jac, &vec![1.0; r.len()], 9, variance);
+    let offset = problem.tool_offset_at(&solution.x, 0);
+    let tool = FloatedTool {
+        session: session.name.clone(),
+        offset_mm: offset.into(),
+        size_std_mm: length_std(&offset, &covariance_block(&cov, 6)),
+    };
+    (tool, validate_session(model, session, offset.into()))
+}
+
+/// Most points of a session whose pairwise distances are compared (evenly spaced beyond).
+pub const MAX_PAIRWISE_POINTS: usize = 2000;
+
+/// Errors of `model` on `session` with the base refitted (closed form), and the pairwise figures.
+pub fn validate_session(
+    model: &ArmModel,
+    session: &TrackerSession,
+    tool_offset_mm: [f64; 3],
+) -> SessionValidation {
+    let tool_offset_mm = &Vector3::from(tool_offset_mm);
+    let base = Base::fit(model, &session.points, tool_offset_mm);
+    let robot: Vec<Vector3<f64>> =
+        session.points.iter().map(|p| model_point(model, &p.q_deg, tool_offset_mm)).collect();
+    let errors: Vec<f64> =
+        robot.iter().zip(&session.points).map(|(r, p)| (base.apply(r) - p.point_mm).norm()).collect();
+    let stats = ErrorStats::of(&errors);
+    let step = session.points.len().div_ceil(MAX_PAIRWISE_POINTS).max(1);
+    let picked: Vec<usize> = (0..session.points.len()).step_by(step).collect();
+    let mut sum = 0.0;
+    let mut pairs = 0usize;
+    for (k, &a) in picked.iter().enumerate() {
+        for &b in &picked[k + 1..] {
+            let e = (robot[a] - robot[b]).norm()
+                - (session.points[a].point_mm - session.points[b].point_mm).norm();
+            sum += e * e;
+            pairs += 1;
+        }
+    }
+    SessionValidation {
+        name: session.name.clone(),
+        points: stats.points,
+        rms_mm: stats.rms_mm,
+        mean_mm: stats.mean_mm,
+        max_mm: stats.max_mm,
+        pairwise_rms_mm: if pairs > 0 { (sum / pairs as f64).sqrt() } else { 0.0 },
+        pairs,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::Joint;
+
+    /// A 7-joint arm with lengths and twists free (consistency of the solver with its own
+    /// kinematics only; accuracy is tested on the independent generator in `tests/`).
+    fn arm() -> ArmModel {
+        let alpha = [-90.0, 90.0, -90.0, 90.0, -90.0, 90.0, 0.0];
+        let d = [340.0, 0.0, 400.0, 0.0, 400.0, 0.0, 126.0];
+        let mut model = ArmModel::suta_nominal();
+        model.joints =
+            (0..7).map(|j| Joint { d_mm: d[j], alpha_deg: alpha[j], ..Joint::default() }).collect();
+        model.tcp_mm = [10.0, 20.0, 80.0];
+        model.free.clear();
+        for (j, dj) in d.iter().enumerate() {
+            model.free_param(ParamId::Offset(j), -5.0, 5.0);
+            model.free_param(ParamId::Length(j), dj - 10.0, dj + 10.0);
+        }
+        model
+    }
+
+    fn sessions(truth: &ArmModel) -> TrackerData {
+        let mut sessions = Vec::new();
+        for s in 0..3 {
+            let base = Base {
+                rotation: Rotation3::from_euler_angles(0.1 * s as f64, -0.05, 0.3 * s as f64).into_inner(),
+                translation_mm: Vector3::new(2000.0, -500.0 * s as f64, 300.0),
+            };
+            let points = (0..40)
+                .map(|i| {
+                    let f = (i + 40 * s) as f64;
+                    let q: Vec<f64> = (0..7).map(|j| 60.0 * (0.37 * f * (j + 1) as f64).sin()).collect();
+                    TrackerPoint {
+                        point_mm: base.apply(&tool_pose(truth, &q).position_mm),
+                        q_deg: q,
+                        orientation: None,
+                        sigma_mm: None,
+                        time_s: None,
+                        temp_c: None,
+                        pose: None,
+                        line: i + 3,
+                    }
+                })
+                .collect();
+            sessions.push(TrackerSession { name: format!("s{s}"), path: "s.csv".into(), points });
+        }
+        TrackerData { joints: 7, sessions, warnings: vec![] }
+    }
+
+    #[test]
+    fn noise_free_points_of_its_own_kinematics_are_fitted_exactly() {
+        let nominal = arm();
+        let mut truth = nominal.clone();
+        truth.joints[2].d_mm += 1.5;
+        truth.joints[3].offset_deg += 0.2;
+        truth.tcp_mm[2] += 2.0;
+        let data = sessions(&truth);
+        let fit = calibrate_tracker(&nominal, &data, &TrackerOptions::default()).unwrap();
+        assert!(fit.fit.rms_mm < 1e-6, "{:?}", fit.fit);
+        let ident = &fit.identifiability;
+        assert!(ident.fixed.contains(&"offset:1".to_string()), "{ident:?}");
+        assert!(
+            ident.statements.iter().any(|s| s.contains("offset:1 is absorbed by the session bases")),
+            "{ident:?}"
+        );
+        let v = validate_session(&fit.model, &data.sessions[1], [0.0; 3]);
+        assert!(v.rms_mm < 1e-6 && v.pairwise_rms_mm < 1e-6, "{v:?}");
+    }
+}

@@ -1,0 +1,208 @@
+//! Data errors of tracker sessions, as candidates scored on held-out sessions.
+//!
+//! **Single bad points.** A beam broken and caught again on the wrong spot of the reflector, a
+//! probe bumped: one point carries a gross error e_i, X_i = B_s · F(q_i) · t + e_i. A calibration
+//! point whose error is beyond [`BAD_POINT_FACTOR`] times the median error (chi-3 errors almost
+//! never are: 5× the median is 7.7 σ) is a candidate; all of them are left out together
+//! (`--exclude-point SESSION:LINE`) and the refit is scored on the held-out sessions.
+//!
+//! **Tool moved between sessions.** A probe or reflector taken off and put back sits a little
+//! elsewhere on the flange: in session S the measured point is B_S · F(q) · (t + Δ_S). With the
+//! orientation varying inside S, Δ_S cannot be absorbed by S's base, and a calibration that
+//! shares t across sessions bends the arm parameters to spread it (an arm error that is not
+//! one). The candidate lets the tool float in S (its own Δ_S, `--float-tool S`): in a
+//! calibration session it is scored by the held-out error of the refit; in a held-out session
+//! whose orientation varies by that session's error with its base and Δ_S refitted. A
+//! displacement beyond [`MAX_REMOUNT_MM`] is the session's model error, not a re-mount; a gain
+//! below [`MIN_GAIN`] of the held-out error is none. Only the best candidate is called, when
+//! |Δ_S| is beyond three of its standard deviations and the held-out error falls: the others
+//! were scored against a model the best one still bends (apply it, and score again).
+
+use crate::calib::tracker::{
+    calibrate_tracker, calibration_errors, fit_session_with_tool, orientation_spread_deg, validate_session,
+    TrackerCalibration, TrackerOptions, CONSTANT_ORIENTATION_DEG,
+};
+use crate::data::tracker::TrackerData;
+use crate::model::ArmModel;
+
+/// A data error of tracker sessions: a session whose tool point sits elsewhere, or single bad
+/// points.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct DataError {
+    /// `tool moved` or `bad points`.
+    pub kind: String,
+    /// The session (for bad points, the sessions holding them).
+    pub session: String,
+    /// `calibration` or `validation`: where the session is.
+    pub set: String,
+    /// The tool point's displacement (flange frame), or the largest bad point's error, mm.
+    pub size_mm: f64,
+    /// Standard deviation of the displacement's length, or the points' robust σ, mm.
+    pub size_std_mm: f64,
+    /// Held-out RMS without the candidate, mm.
+    pub held_out_before_mm: f64,
+    /// Held-out RMS with it, mm.
+    pub held_out_after_mm: f64,
+    /// Beyond 3 σ and the held-out error falls.
+    pub significant: bool,
+    /// The sentence a user reads.
+    pub text: String,
+    /// The command-line option that applies it.
+    pub action: String,
+}
+
+/// Largest tool displacement taken for a re-mount, mm: a probe put back sits within millimetres;
+/// more is the session's model error, not a tool.
+pub const MAX_REMOUNT_MM: f64 = 10.0;
+
+/// Least share of the held-out error a data error must remove to be called.
+pub const MIN_GAIN: f64 = 0.05;
+
+fn pooled_rms(parts: &[(f64, usize)]) -> f64 {
+    let n: usize = parts.iter().map(|p| p.1).sum();
+    (parts.iter().map(|(r, k)| r * r * *k as f64).sum::<f64>() / n.max(1) as f64).sqrt()
+}
+
+/// Held-out RMS of `model` over `val`, the sessions in `floating` with their tool refitted too.
+pub fn held_out_rms(model: &ArmModel, val: &TrackerData, floating: &[String]) -> f64 {
+    let parts: Vec<(f64, usize)> = val
+        .sessions
+        .iter()
+        .map(|s| {
+            let v = if floating.contains(&s.name) {
+                fit_session_with_tool(model, s).1
+            } else {
+                validate_session(model, s, [0.0; 3])
+            };
+            (v.rms_mm, v.points)
+        })
+        .collect();
+    pooled_rms(&parts)
+}
+
+/// A calibration point beyond this many times the median error is a bad-point candidate.
+pub const BAD_POINT_FACTOR: f64 = 5.0;
+
+/// The bad-points candidate: calibration points far beyond the others, left out and refitted.
+fn bad_points_candidate(
+    nominal: &ArmModel,
+    cal: &TrackerData,
+    val: &TrackerData,
+    fit: &TrackerCalibration,
+    options: &TrackerOptions,
+    before: f64,
+) -> Option<DataError> {
+    let errors = calibration_errors(fit, cal);
+    let median = crate::numerics::stats::median(errors.iter().flatten().copied().collect());
+    let mut bad = Vec::new();
+    let mut kept = cal.clone();
+    for ((session, e), out) in cal.sessions.iter().zip(&errors).zip(&mut kept.sessions) {
+        out.points.clear();
+        for (p, &err) in session.points.iter().zip(e) {
+            if err > BAD_POINT_FACTOR * median {
+                bad.push((format!("{}:{}", session.name, p.line), err));
+            } else {
+                out.points.push(p.clone());
+            }
+        }
+    }
+    if bad.is_empty() {
+        return None;
+    }
+    let refit = calibrate_tracker(nominal, &kept, options).ok()?;
+    let after = held_out_rms(&refit.model, val, &options.float_tool);
+    let largest = bad.iter().map(|b| b.1).fold(0.0, f64::max);
+    let names: Vec<&str> = bad.iter().map(|b| b.0.as_str()).collect();
+    let mut sessions: Vec<&str> = names.iter().filter_map(|n| n.rsplit_once(':').map(|x| x.0)).collect();
+    sessions.dedup();
+    Some(DataError {
+        kind: "bad points".into(),
+        session: sessions.join(", "),
+        set: "calibration".into(),
+        size_mm: largest,
+        size_std_mm: median / 1.538,
+        held_out_before_mm: before,
+        held_out_after_mm: after,
+        significant: after < (1.0 - MIN_GAIN) * before,
+        text: format!(
+            "{} single bad point{} ({}; up to {largest:.3} mm, the median point {median:.4} mm); held-out RMS \
+             {before:.4} → {after:.4} mm without {}",
+            bad.len(),
+            if bad.len() == 1 { "" } else { "s" },
+            names.join(", "),
+            if bad.len() == 1 { "it" } else { "them" }
+        ),
+        action: names.iter().map(|n| format!("--exclude-point {n}")).collect::<Vec<_>>().join(" "),
+    })
+}
+
+/// Score the data errors, best first: "the tool moved in session S" for every session not
+/// already floating, and single bad points.
+pub fn data_error_candidates(
+    nominal: &ArmModel,
+    cal: &TrackerData,
+    val: &TrackerData,
+    fit: &TrackerCalibration,
+    options: &TrackerOptions,
+) -> Vec<DataError> {
+    let before = held_out_rms(&fit.model, val, &options.float_tool);
+    let mut out = Vec::new();
+    let verdict = |session: &str, set: &str, offset: [f64; 3], std: f64, after: f64| {
+        let size = offset.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let significant = size > 3.0 * std && size <= MAX_REMOUNT_MM && after < (1.0 - MIN_GAIN) * before;
+        DataError {
+            kind: "tool moved".into(),
+            session: session.into(),
+            set: set.into(),
+            size_mm: size,
+            size_std_mm: std,
+            held_out_before_mm: before,
+            held_out_after_mm: after,
+            significant,
+            text: format!(
+                "the tool sits {size:.3} ± {std:.3} mm elsewhere in session {session} (flange frame: {:.3}, {:.3}, {:.3} mm); \
+                 held-out RMS {before:.4} → {after:.4} mm with it floating",
+                offset[0], offset[1], offset[2]
+            ),
+            action: format!("--float-tool {session}"),
+        }
+    };
+    // A calibration session's own tool needs the shared one fixed by other sessions that turn it.
+    let turns = |s: &&crate::data::tracker::TrackerSession| {
+        orientation_spread_deg(&fit.model, s) >= CONSTANT_ORIENTATION_DEG
+    };
+    let turning = cal.sessions.iter().filter(turns).filter(|s| !options.float_tool.contains(&s.name)).count();
+    for s in cal.sessions.iter().filter(|s| !options.float_tool.contains(&s.name)).filter(turns) {
+        if turning < 2 {
+            break;
+        }
+        let mut float_tool = options.float_tool.clone();
+        float_tool.push(s.name.clone());
+        let Ok(refit) = calibrate_tracker(
+            nominal,
+            cal,
+            &TrackerOptions { float_tool: float_tool.clone(), ..options.clone() },
+        ) else {
+            continue;
+        };
+        let Some(tool) = refit.tool_offsets.iter().find(|t| t.session == s.name) else { continue };
+        let after = held_out_rms(&refit.model, val, &options.float_tool);
+        out.push(verdict(&s.name, "calibration", tool.offset_mm, tool.size_std_mm, after));
+    }
+    // A held-out session whose orientation is constant cannot tell its tool from its base.
+    for s in val.sessions.iter().filter(|s| !options.float_tool.contains(&s.name)).filter(turns) {
+        let tool = fit_session_with_tool(&fit.model, s).0;
+        let mut floating = options.float_tool.clone();
+        floating.push(s.name.clone());
+        let after = held_out_rms(&fit.model, val, &floating);
+        out.push(verdict(&s.name, "validation", tool.offset_mm, tool.size_std_mm, after));
+    }
+    out.extend(bad_points_candidate(nominal, cal, val, fit, options, before));
+    out.sort_by(|a, b| a.held_out_after_mm.total_cmp(&b.held_out_after_mm));
+    // One data error at a time: the others are scored against a model the best one still bends,
+    // so only the best is called; apply it and score again.
+    for c in out.iter_mut().skip(1) {
+        c.significant = false;
+    }
+    out
+}

@@ -1,0 +1,316 @@
+//! The whole tracker run: read the sessions, calibrate, validate on held-out sessions (each
+//! base refitted) against the nominal model, the noise floor, the data-error candidates and the
+//! verdict, as `summary.json` (`kincal-tracker-run/1`) holds them.
+//!
+//! The nominal figures are the nominal arm with only the tool point (and the bases) fitted on the
+//! calibration sessions, as an instrument user would use the vendor's model. The floor is the
+//! pooled scatter of repeated poses (rows sharing a `pose` id) in the held-out sessions, else the
+//! stated instrument uncertainty (σ per axis, σ = U95/2, so a point's 3-D RMS is σ·√3; from the
+//! rows, or `--sigma-mm` for rows that carry none), each
+//! scaled by √(1 − 2/n) for the six values of a refitted base; otherwise unknown, and then the
+//! model is never said to explain the data.
+
+use crate::calib::tracker::{
+    calibrate_tracker, fit_session_with_tool, validate_session, ErrorStats, FloatedTool, SessionValidation,
+    TrackerCalibration, TrackerError, TrackerEstimate, TrackerIdentifiability, TrackerOptions,
+};
+use crate::calib::tracker_errors::{data_error_candidates, DataError};
+use crate::data::tracker::{load_dir, TrackerData, TrackerSession};
+use crate::files::FileError;
+use crate::model::{ArmModel, ParamId};
+use nalgebra::Vector3;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+/// Format tag of a tracker run's `summary.json`.
+pub const TRACKER_RUN_FORMAT: &str = "kincal-tracker-run/1";
+/// Held-out RMS within this factor of the floor: the model explains the data.
+pub const EXPLAINS_WITHIN: f64 = 1.10;
+
+/// Why a tracker run failed.
+#[derive(Debug, thiserror::Error)]
+pub enum TrackerRunError {
+    /// An input file was unusable.
+    #[error(transparent)]
+    Data(#[from] FileError),
+    /// The calibration could not run.
+    #[error(transparent)]
+    Calibration(#[from] TrackerError),
+    /// `--exclude-point` names no calibration point.
+    #[error("--exclude-point {0}: no calibration session and line of that name (expected SESSION:LINE)")]
+    UnknownPoint(String),
+    /// A validation session has the name of a calibration session.
+    #[error(
+        "session \"{0}\" is in both the calibration and the validation folder: validation must be held out"
+    )]
+    SameSession(String),
+}
+
+/// The inputs of a tracker run.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct TrackerInputs {
+    /// Arm model file.
+    pub model: PathBuf,
+    /// Folder of calibration sessions.
+    pub calibration: PathBuf,
+    /// Folder of held-out sessions.
+    pub validation: PathBuf,
+    /// Sessions whose tool floats.
+    pub float_tool: Vec<String>,
+    /// The instrument's stated σ per axis, mm, for rows that carry none.
+    pub stated_sigma_mm: Option<f64>,
+    /// Calibration points left out, `SESSION:LINE` (single bad points).
+    #[serde(default)]
+    pub exclude_points: Vec<String>,
+}
+
+/// One held-out session's figures, calibrated and nominal.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct SessionFigures {
+    /// The calibrated model's figures (`name, points, rms_mm, mean_mm, max_mm, pairwise_rms_mm`).
+    #[serde(flatten)]
+    pub calibrated: SessionValidation,
+    /// The nominal model on the same session.
+    pub nominal: SessionValidation,
+    /// False when the calibration does worse than nominal here.
+    pub transfers: bool,
+}
+
+/// Held-out figures.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct TrackerValidation {
+    /// Per session.
+    pub sessions: Vec<SessionFigures>,
+    /// Pooled over every held-out point, calibrated.
+    pub overall: ErrorStats,
+    /// Pooled, nominal.
+    pub nominal_overall: ErrorStats,
+}
+
+/// The noise floor of the held-out sessions.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct TrackerFloor {
+    /// `repeated poses`, `stated uncertainty` or `unknown`.
+    pub source: String,
+    /// Expected held-out RMS of a perfect model, mm.
+    pub rms_mm: Option<f64>,
+}
+
+/// `summary.json` of a tracker run.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct TrackerSummary {
+    /// Always [`TRACKER_RUN_FORMAT`].
+    pub format: String,
+    /// kincal's version.
+    pub kincal_version: String,
+    /// Inputs.
+    pub inputs: TrackerInputs,
+    /// Joints of the arm.
+    pub joints: usize,
+    /// Calibration sessions and their points.
+    pub calibration_sessions: BTreeMap<String, usize>,
+    /// Position error on the calibration sessions.
+    pub fit: ErrorStats,
+    /// Parameter estimates.
+    pub estimates: Vec<TrackerEstimate>,
+    /// Floated tools.
+    pub tool_offsets: Vec<FloatedTool>,
+    /// What the data cannot separate.
+    pub identifiability: TrackerIdentifiability,
+    /// Held-out figures.
+    pub validation: TrackerValidation,
+    /// The floor.
+    pub floor: TrackerFloor,
+    /// Data-error candidates, best first.
+    pub data_errors: Vec<DataError>,
+    /// The verdict, in words.
+    pub verdict: Vec<String>,
+    /// Warnings of the readers.
+    pub warnings: Vec<String>,
+}
+
+/// A finished tracker run.
+#[derive(Clone, Debug)]
+pub struct TrackerRun {
+    /// The nominal model as loaded.
+    pub nominal: ArmModel,
+    /// The calibration.
+    pub calibration: TrackerCalibration,
+    /// The summary.
+    pub summary: TrackerSummary,
+}
+
+fn pooled(parts: &[SessionValidation]) -> ErrorStats {
+    let points: usize = parts.iter().map(|p| p.points).sum();
+    let n = points.max(1) as f64;
+    ErrorStats {
+        points,
+        rms_mm: (parts.iter().map(|p| p.rms_mm.powi(2) * p.points as f64).sum::<f64>() / n).sqrt(),
+        mean_mm: parts.iter().map(|p| p.mean_mm * p.points as f64).sum::<f64>() / n,
+        max_mm: parts.iter().map(|p| p.max_mm).fold(0.0, f64::max),
+    }
+}
+
+/// The held-out floor (see the module's doc comment).
+pub fn floor(sessions: &[TrackerSession], stated_sigma_mm: Option<f64>) -> TrackerFloor {
+    let (mut sum, mut dof) = (0.0, 0usize);
+    let mut fit_share = Vec::new();
+    for s in sessions {
+        let mut groups: BTreeMap<&str, Vec<Vector3<f64>>> = BTreeMap::new();
+        for p in &s.points {
+            if let Some(pose) = &p.pose {
+                groups.entry(pose).or_default().push(p.point_mm);
+            }
+        }
+        for g in groups.values().filter(|g| g.len() > 1) {
+            let mean = g.iter().sum::<Vector3<f64>>() / g.len() as f64;
+            sum += g.iter().map(|v| (v - mean).norm_squared()).sum::<f64>();
+            dof += g.len() - 1;
+        }
+        fit_share.push((1.0 - 2.0 / s.points.len().max(3) as f64, s.points.len()));
+    }
+    let points: usize = fit_share.iter().map(|f| f.1).sum();
+    let shrink =
+        (fit_share.iter().map(|f| f.0 * f.1 as f64).sum::<f64>() / points.max(1) as f64).max(0.0).sqrt();
+    if dof > 0 {
+        return TrackerFloor {
+            source: "repeated poses".into(),
+            rms_mm: Some((sum / dof as f64).sqrt() * shrink),
+        };
+    }
+    let sigmas: Vec<f64> =
+        sessions.iter().flat_map(|s| &s.points).filter_map(|p| p.sigma_mm.or(stated_sigma_mm)).collect();
+    if !sigmas.is_empty() && sigmas.len() == points {
+        let mean_square = sigmas.iter().map(|s| 3.0 * s * s).sum::<f64>() / sigmas.len() as f64;
+        return TrackerFloor {
+            source: "stated uncertainty".into(),
+            rms_mm: Some(mean_square.sqrt() * shrink),
+        };
+    }
+    TrackerFloor { source: "unknown".into(), rms_mm: None }
+}
+
+/// The nominal arm with only its tool point free.
+fn tool_only(nominal: &ArmModel) -> ArmModel {
+    let mut m = nominal.clone();
+    m.free.retain(|f| matches!(f.id, ParamId::Tcp(_)));
+    m
+}
+
+/// Load, calibrate, validate, score the data errors and say what it means.
+pub fn run_tracker(
+    inputs: &TrackerInputs,
+    huber_delta_mm: Option<f64>,
+) -> Result<TrackerRun, TrackerRunError> {
+    let nominal = ArmModel::load(&inputs.model)?;
+    let cal = load_dir(&inputs.calibration)?;
+    let val = load_dir(&inputs.validation)?;
+    run_on(nominal, &cal, &val, inputs, huber_delta_mm)
+}
+
+/// [`run_tracker`] on sessions already read.
+pub fn run_on(
+    nominal: ArmModel,
+    cal: &TrackerData,
+    val: &TrackerData,
+    inputs: &TrackerInputs,
+    huber_delta_mm: Option<f64>,
+) -> Result<TrackerRun, TrackerRunError> {
+    let mut kept = cal.clone();
+    for name in &inputs.exclude_points {
+        let found = name.rsplit_once(':').and_then(|(session, line)| {
+            let line: usize = line.parse().ok()?;
+            let s = kept.sessions.iter_mut().find(|s| s.name == session)?;
+            let before = s.points.len();
+            s.points.retain(|p| p.line != line);
+            (s.points.len() < before).then_some(())
+        });
+        if found.is_none() {
+            return Err(TrackerRunError::UnknownPoint(name.clone()));
+        }
+    }
+    let cal = &kept;
+    if let Some(s) = val.sessions.iter().find(|v| cal.sessions.iter().any(|c| c.name == v.name)) {
+        return Err(TrackerRunError::SameSession(s.name.clone()));
+    }
+    if val.joints != nominal.joints.len() {
+        return Err(TrackerError::JointCount { data: val.joints, model: nominal.joints.len() }.into());
+    }
+    let cal_float: Vec<String> =
+        inputs.float_tool.iter().filter(|n| cal.sessions.iter().any(|s| &&s.name == n)).cloned().collect();
+    let val_float: Vec<String> =
+        inputs.float_tool.iter().filter(|n| val.sessions.iter().any(|s| &&s.name == n)).cloned().collect();
+    if let Some(n) = inputs.float_tool.iter().find(|n| !cal_float.contains(n) && !val_float.contains(n)) {
+        return Err(TrackerError::UnknownSession(n.clone()).into());
+    }
+    let options = TrackerOptions { huber_delta_mm, float_tool: cal_float };
+    let fit = calibrate_tracker(&nominal, cal, &options)?;
+    let reference = calibrate_tracker(&tool_only(&nominal), cal, &options)?;
+    let validate = |model: &ArmModel, s: &TrackerSession| {
+        if val_float.contains(&s.name) {
+            fit_session_with_tool(model, s).1
+        } else {
+            validate_session(model, s, [0.0; 3])
+        }
+    };
+    let mut verdict = Vec::new();
+    let mut sessions = Vec::new();
+    let (mut calibrated_parts, mut nominal_parts) = (Vec::new(), Vec::new());
+    for s in &val.sessions {
+        let c = validate(&fit.model, s);
+        let n = validate(&reference.model, s);
+        let transfers = c.rms_mm <= n.rms_mm;
+        if !transfers {
+            verdict.push(format!(
+                "the calibration does not transfer to session {}: {:.4} mm calibrated vs {:.4} mm nominal (base refitted)",
+                s.name, c.rms_mm, n.rms_mm
+            ));
+        }
+        calibrated_parts.push(c.clone());
+        nominal_parts.push(n.clone());
+        sessions.push(SessionFigures { calibrated: c, nominal: n, transfers });
+    }
+    let overall = pooled(&calibrated_parts);
+    let floor = floor(&val.sessions, inputs.stated_sigma_mm);
+    let data_errors = data_error_candidates(
+        &nominal,
+        cal,
+        val,
+        &fit,
+        &TrackerOptions { float_tool: inputs.float_tool.clone(), ..options.clone() },
+    );
+    if let Some(best) = data_errors.iter().find(|d| d.significant) {
+        verdict.push(format!("data error: {}; apply it with {}", best.text, best.action));
+    }
+    match floor.rms_mm {
+        Some(f) if overall.rms_mm <= EXPLAINS_WITHIN * f => verdict.push(format!(
+            "the model explains the held-out data: {:.4} mm against a floor of {f:.4} mm ({})",
+            overall.rms_mm, floor.source
+        )),
+        Some(f) => verdict.push(format!(
+            "the model is incomplete: {:.4} mm held out against a floor of {f:.4} mm ({}); the cause is not in the model",
+            overall.rms_mm, floor.source
+        )),
+        None => verdict.push(format!(
+            "the floor is unknown (no repeated poses, no stated uncertainty): {:.4} mm held out cannot be called explained",
+            overall.rms_mm
+        )),
+    }
+    let summary = TrackerSummary {
+        format: TRACKER_RUN_FORMAT.into(),
+        kincal_version: env!("CARGO_PKG_VERSION").into(),
+        inputs: inputs.clone(),
+        joints: nominal.joints.len(),
+        calibration_sessions: cal.sessions.iter().map(|s| (s.name.clone(), s.points.len())).collect(),
+        fit: fit.fit,
+        estimates: fit.estimates.clone(),
+        tool_offsets: fit.tool_offsets.clone(),
+        identifiability: fit.identifiability.clone(),
+        validation: TrackerValidation { sessions, overall, nominal_overall: pooled(&nominal_parts) },
+        floor,
+        data_errors,
+        verdict,
+        warnings: cal.warnings.iter().chain(&val.warnings).cloned().collect(),
+    };
+    Ok(TrackerRun { nominal, calibration: fit, summary })
+}

@@ -1,0 +1,440 @@
+//! Tracker sessions (`kincal-tracker/1`): points (and optionally orientations) of the arm's tool
+//! measured by a laser tracker, an optical tracker or a 6-DoF probe, one CSV file per session.
+//!
+//! A session is one placement of the instrument: every row of a file shares one unknown
+//! instrument ← robot base. A file starts with the tag line `# kincal-tracker/1` (further `#`
+//! lines are comments), then a header row:
+//!
+//! ```text
+//! # kincal-tracker/1
+//! pose,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,u95_mm
+//! 1,10.0,-20.0,35.0,0.0,40.0,5.0,1234.567,-45.678,890.123,0.012
+//! ```
+//!
+//! Required: `q1_deg … qN_deg` (joint angles as the controller reports them, N = 1…12) and
+//! `x_mm, y_mm, z_mm` (the tool point in the instrument frame). Optional: `qw, qx, qy, qz` (the
+//! probe's orientation in the instrument frame, scalar first), `sigma_mm` or `u95_mm` (the
+//! instrument's stated uncertainty; σ = U95/2), `time_s`, `temp_C`, `pose` (rows with the same
+//! pose id are repeats of one arm pose). Any other column is named in a warning and ignored.
+//! A folder is a tracker folder when it holds `*.csv` files whose first line is the tag.
+
+use crate::files::FileError;
+use crate::model::MAX_JOINTS;
+use nalgebra::{UnitQuaternion, Vector3};
+use std::path::{Path, PathBuf};
+
+/// The tag line every tracker CSV starts with.
+pub const TRACKER_FORMAT: &str = "kincal-tracker/1";
+/// Smallest spread of a session's points, mm, below which its lengths are taken for metres.
+pub const MIN_SESSION_SPAN_MM: f64 = 5.0;
+/// Largest plausible coordinate, mm (a tracker measures within tens of metres).
+pub const MAX_COORDINATE_MM: f64 = 100_000.0;
+/// How far a quaternion's norm may be from 1 before the row is refused.
+pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
+
+/// One measured row.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackerPoint {
+    /// Joint angles, degrees, one per joint.
+    pub q_deg: Vec<f64>,
+    /// The tool point in the instrument frame, mm.
+    pub point_mm: Vector3<f64>,
+    /// The probe's orientation in the instrument frame, for 6-DoF probes.
+    pub orientation: Option<UnitQuaternion<f64>>,
+    /// The instrument's stated standard uncertainty of the point, mm.
+    pub sigma_mm: Option<f64>,
+    /// Time of the measurement, s.
+    pub time_s: Option<f64>,
+    /// Temperature, °C.
+    pub temp_c: Option<f64>,
+    /// Pose id: rows with the same id are repeats.
+    pub pose: Option<String>,
+    /// Line in the file, 1-based.
+    pub line: usize,
+}
+
+/// One instrument placement: the rows of one CSV file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackerSession {
+    /// File name without `.csv`.
+    pub name: String,
+    /// The file.
+    pub path: PathBuf,
+    /// Rows in file order.
+    pub points: Vec<TrackerPoint>,
+}
+
+/// The sessions of one folder.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackerData {
+    /// Joint count of every row.
+    pub joints: usize,
+    /// Sessions, by file name.
+    pub sessions: Vec<TrackerSession>,
+    /// Columns ignored and other things worth a look, one sentence each.
+    pub warnings: Vec<String>,
+}
+
+impl TrackerData {
+    /// Rows in all sessions.
+    pub fn point_count(&self) -> usize {
+        self.sessions.iter().map(|s| s.points.len()).sum()
+    }
+}
+
+/// True when `dir` holds a tracker session file (a `*.csv` starting with the tag line).
+pub fn is_tracker_folder(dir: &Path) -> bool {
+    csv_files(dir).is_ok_and(|files| files.iter().any(|f| starts_with_tag(f)))
+}
+
+fn starts_with_tag(path: &Path) -> bool {
+    std::fs::read_to_string(path).is_ok_and(|t| {
+        t.lines().next().is_some_and(|l| l.trim_start_matches('\u{feff}').trim() == tag_line())
+    })
+}
+
+fn tag_line() -> String {
+    format!("# {TRACKER_FORMAT}")
+}
+
+fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, FileError> {
+    let io = |source| FileError::Io { path: dir.to_owned(), source };
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(io)?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")))
+        .collect();
+    files.sort();
+    Ok(files)
+}
+
+/// Which column holds what.
+#[derive(Default)]
+struct Layout {
+    q: Vec<usize>,
+    xyz: [usize; 3],
+    quaternion: Option<[usize; 4]>,
+    sigma: Option<(usize, f64)>,
+    time: Option<usize>,
+    temp: Option<usize>,
+    pose: Option<usize>,
+}
+
+fn layout(
+    path: &Path,
+    line: usize,
+    header: &[&str],
+    warnings: &mut Vec<String>,
+) -> Result<Layout, FileError> {
+    let row = |column: &str, message: String| FileError::Row {
+        path: path.to_owned(),
+        line,
+        column: column.to_string(),
+        message,
+    };
+    let find = |name: &str| header.iter().position(|h| *h == name);
+    for (k, h) in header.iter().enumerate() {
+        if header[..k].contains(h) {
+            return Err(row(h, "named twice in the header".into()));
+        }
+    }
+    let mut out = Layout::default();
+    for j in 1..=MAX_JOINTS + 1 {
+        match find(&format!("q{j}_deg")) {
+            Some(c) if j <= MAX_JOINTS => out.q.push(c),
+            Some(_) => return Err(row(&format!("q{j}_deg"), format!("at most {MAX_JOINTS} joints"))),
+            None => break,
+        }
+    }
+    if out.q.is_empty() {
+        return Err(row("q1_deg", "missing: expected joint columns q1_deg … qN_deg (degrees)".into()));
+    }
+    for (k, name) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
+        out.xyz[k] =
+            find(name).ok_or_else(|| row(name, "missing: the measured point x_mm, y_mm, z_mm".into()))?;
+    }
+    let quaternion: Vec<Option<usize>> = ["qw", "qx", "qy", "qz"].iter().map(|n| find(n)).collect();
+    if quaternion.iter().any(Option::is_some) {
+        let mut q = [0; 4];
+        for (k, name) in ["qw", "qx", "qy", "qz"].iter().enumerate() {
+            q[k] = quaternion[k]
+                .ok_or_else(|| row(name, "missing: an orientation needs all of qw, qx, qy, qz".into()))?;
+        }
+        out.quaternion = Some(q);
+    }
+    out.sigma = match (find("sigma_mm"), find("u95_mm")) {
+        (Some(_), Some(_)) => return Err(row("u95_mm", "give sigma_mm or u95_mm, not both".into())),
+        (Some(c), None) => Some((c, 1.0)),
+        (None, Some(c)) => Some((c, 0.5)),
+        (None, None) => None,
+    };
+    out.time = find("time_s");
+    out.temp = find("temp_C");
+    out.pose = find("pose");
+    let known: Vec<usize> = out
+        .q
+        .iter()
+        .chain(&out.xyz)
+        .chain(out.quaternion.iter().flatten())
+        .copied()
+        .chain(out.sigma.map(|s| s.0))
+        .chain(out.time)
+        .chain(out.temp)
+        .chain(out.pose)
+        .collect();
+    let unknown: Vec<&str> = (0..header.len()).filter(|c| !known.contains(c)).map(|c| header[c]).collect();
+    if !unknown.is_empty() {
+        warnings.push(format!(
+            "{}: column{} {} not a {TRACKER_FORMAT} column, ignored",
+            path.display(),
+            if unknown.len() == 1 { " is" } else { "s are" },
+            unknown.iter().map(|u| format!("`{u}`")).collect::<Vec<_>>().join(", ")
+        ));
+    }
+    Ok(out)
+}
+
+/// Read one session file.
+pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSession, FileError> {
+    let text =
+        std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
+    let row_error = |line: usize, column: &str, message: String| FileError::Row {
+        path: path.to_owned(),
+        line,
+        column: column.to_string(),
+        message,
+    };
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .map(|(k, l)| (k + 1, l.trim_start_matches('\u{feff}').trim_end_matches('\r')));
+    match lines.next() {
+        Some((_, first)) if first.trim() == tag_line() => {}
+        first => {
+            return Err(row_error(
+                1,
+                "format",
+                format!(
+                    "expected the tag line \"{}\", found \"{}\"",
+                    tag_line(),
+                    first.map_or("", |f| f.1).chars().take(60).collect::<String>()
+                ),
+            ))
+        }
+    }
+    let mut lines = lines.filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
+    let (header_line, header) =
+        lines.next().ok_or_else(|| row_error(2, "header", "missing header row".into()))?;
+    let header: Vec<&str> = header.split(',').map(str::trim).collect();
+    let layout = layout(path, header_line, &header, warnings)?;
+    let mut points = Vec::new();
+    for (line, text) in lines {
+        let cells: Vec<&str> = text.split(',').map(str::trim).collect();
+        if cells.len() != header.len() {
+            return Err(row_error(
+                line,
+                header.get(cells.len().min(header.len().saturating_sub(1))).copied().unwrap_or("?"),
+                format!("expected {} cells as in the header, found {}", header.len(), cells.len()),
+            ));
+        }
+        let number = |c: usize| -> Result<f64, FileError> {
+            let v: f64 = cells[c].parse().map_err(|_| {
+                row_error(line, header[c], format!("expected a number, found \"{}\"", cells[c]))
+            })?;
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(row_error(line, header[c], format!("expected a finite number, found \"{}\"", cells[c])))
+            }
+        };
+        let optional = |c: Option<usize>| -> Result<Option<f64>, FileError> {
+            match c {
+                Some(c) if !cells[c].is_empty() => number(c).map(Some),
+                _ => Ok(None),
+            }
+        };
+        let mut q_deg = Vec::with_capacity(layout.q.len());
+        for &c in &layout.q {
+            let v = number(c)?;
+            if v.abs() > 3600.0 {
+                return Err(row_error(
+                    line,
+                    header[c],
+                    format!("{v} degrees is beyond ten turns: another unit?"),
+                ));
+            }
+            q_deg.push(v);
+        }
+        let mut xyz = [0.0; 3];
+        for k in 0..3 {
+            xyz[k] = number(layout.xyz[k])?;
+            if xyz[k].abs() > MAX_COORDINATE_MM {
+                return Err(row_error(
+                    line,
+                    header[layout.xyz[k]],
+                    format!("{} mm is beyond any tracker's range (|value| <= {MAX_COORDINATE_MM})", xyz[k]),
+                ));
+            }
+        }
+        let orientation = match layout.quaternion {
+            Some(cols) => {
+                let q = [number(cols[0])?, number(cols[1])?, number(cols[2])?, number(cols[3])?];
+                let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+                if (norm - 1.0).abs() > QUATERNION_NORM_TOLERANCE {
+                    return Err(row_error(
+                        line,
+                        "qw",
+                        format!(
+                            "the quaternion (qw, qx, qy, qz) has norm {norm:.6}; expected a unit quaternion"
+                        ),
+                    ));
+                }
+                Some(UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3])))
+            }
+            None => None,
+        };
+        let sigma_mm = match layout.sigma {
+            Some((c, factor)) => match optional(Some(c))? {
+                Some(v) if (0.0..100.0).contains(&v) => Some(v * factor),
+                Some(v) => {
+                    return Err(row_error(
+                        line,
+                        header[c],
+                        format!("expected 0 <= value < 100 mm, found {v}"),
+                    ));
+                }
+                None => None,
+            },
+            None => None,
+        };
+        points.push(TrackerPoint {
+            q_deg,
+            point_mm: Vector3::from(xyz),
+            orientation,
+            sigma_mm,
+            time_s: optional(layout.time)?,
+            temp_c: optional(layout.temp)?,
+            pose: layout.pose.map(|c| cells[c].to_string()).filter(|p| !p.is_empty()),
+            line,
+        });
+    }
+    if points.is_empty() {
+        return Err(row_error(header_line, "header", "no data rows after the header".into()));
+    }
+    if points.len() >= 4 {
+        let (lo, hi) = points
+            .iter()
+            .fold((Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)), |(lo, hi), p| {
+                (lo.inf(&p.point_mm), hi.sup(&p.point_mm))
+            });
+        let span = (hi - lo).norm();
+        if span < MIN_SESSION_SPAN_MM {
+            return Err(row_error(
+                points[0].line,
+                "x_mm",
+                format!(
+                    "the session's points span only {span:.4} mm: lengths must be in millimetres (metres?), \
+                     and a session must move the arm"
+                ),
+            ));
+        }
+    }
+    let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    Ok(TrackerSession { name, path: path.to_owned(), points })
+}
+
+/// Read every tracker session of `dir` (each `*.csv` file; files without the tag are refused).
+pub fn load_dir(dir: &Path) -> Result<TrackerData, FileError> {
+    let files = csv_files(dir)?;
+    if files.is_empty() {
+        return Err(FileError::Field {
+            path: dir.to_owned(),
+            field: "*.csv".into(),
+            message: format!(
+                "no tracker session files (*.csv starting with \"# {TRACKER_FORMAT}\") in this folder"
+            ),
+        });
+    }
+    let mut warnings = Vec::new();
+    let mut sessions: Vec<TrackerSession> = Vec::new();
+    for f in &files {
+        let session = read_session(f, &mut warnings)?;
+        if let Some(first) = sessions.first() {
+            let (a, b) = (first.points[0].q_deg.len(), session.points[0].q_deg.len());
+            if a != b {
+                return Err(FileError::Row {
+                    path: f.clone(),
+                    line: session.points[0].line,
+                    column: format!("q{}_deg", a.min(b) + 1),
+                    message: format!("{b} joints here, {a} in {}", first.path.display()),
+                });
+            }
+        }
+        sessions.push(session);
+    }
+    let joints = sessions[0].points[0].q_deg.len();
+    Ok(TrackerData { joints, sessions, warnings })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn folder(name: &str, files: &[(&str, &str)]) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("kincal-tracker-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        for (f, text) in files {
+            std::fs::write(dir.join(f), text).unwrap();
+        }
+        dir
+    }
+
+    const GOOD: &str = "# kincal-tracker/1\n# a comment\npose,q1_deg,q2_deg,x_mm,y_mm,z_mm,u95_mm,note\n\
+                        1,0,10,100,0,0,0.02,a\n1,0,10,100.01,0,0,0.02,b\n2,30,10,0,200,0,,c\n3,60,-10,0,0,300,0.02,d\n";
+
+    #[test]
+    fn reads_a_session_and_warns_about_foreign_columns() {
+        let dir = folder("good", &[("day1.csv", GOOD)]);
+        assert!(is_tracker_folder(&dir));
+        let data = load_dir(&dir).unwrap();
+        assert_eq!(data.joints, 2);
+        let s = &data.sessions[0];
+        assert_eq!((s.name.as_str(), s.points.len()), ("day1", 4));
+        assert_eq!(s.points[0].sigma_mm, Some(0.01));
+        assert_eq!(s.points[2].sigma_mm, None);
+        assert_eq!(s.points[1].pose.as_deref(), Some("1"));
+        assert_eq!(s.points[3].line, 7);
+        assert!(data.warnings.iter().any(|w| w.contains("`note`")), "{:?}", data.warnings);
+        std::fs::remove_dir_all(dir).ok();
+    }
+
+    #[test]
+    fn bad_rows_name_the_file_line_and_column() {
+        let cases = [
+            (GOOD.replace("2,30,10,0,200", "2,30,ten,0,200"), ":6: column `q2_deg`", "number"),
+            (GOOD.replace("# kincal-tracker/1\n", ""), ":1: column `format`", "tag line"),
+            (GOOD.replace(",x_mm", ",xx_mm"), ":3: column `x_mm`", "missing"),
+            (GOOD.replace("3,60,-10,0,0,300,0.02,d", "3,60,-10,0,0"), ":7:", "cells"),
+            (GOOD.replace("100.01", "inf"), ":5: column `x_mm`", "finite"),
+            (GOOD.replace("u95_mm,note", "sigma_mm,u95_mm"), ":3: column `u95_mm`", "not both"),
+        ];
+        for (k, (text, place, what)) in cases.iter().enumerate() {
+            let dir = folder(&format!("bad{k}"), &[("s.csv", text)]);
+            let e = load_dir(&dir).unwrap_err().to_string();
+            assert!(e.contains(&format!("s.csv{place}")) && e.contains(what), "case {k}: {e}");
+            std::fs::remove_dir_all(dir).ok();
+        }
+        let metres =
+            "# kincal-tracker/1\nq1_deg,x_mm,y_mm,z_mm\n0,0.1,0,0\n10,0.2,0,0\n20,0.3,0,0\n30,0.4,0.1,0\n";
+        let dir = folder("metres", &[("m.csv", metres)]);
+        let e = load_dir(&dir).unwrap_err().to_string();
+        assert!(e.contains("m.csv:3") && e.contains("metres"), "{e}");
+        std::fs::remove_dir_all(dir).ok();
+        let q = "# kincal-tracker/1\nq1_deg,x_mm,y_mm,z_mm,qw,qx,qy,qz\n0,1,2,3,1,0,0,0.5\n";
+        let dir = folder("quat", &[("q.csv", q)]);
+        let e = load_dir(&dir).unwrap_err().to_string();
+        assert!(e.contains("q.csv:3: column `qw`") && e.contains("unit quaternion"), "{e}");
+        std::fs::remove_dir_all(dir).ok();
+    }
+}

@@ -48,14 +48,56 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
                     + &c.equivalent_to.as_ref().map_or(String::new(), |l| format!(" (≡ {})", escape(l))),
                 mm(c.validation_rms_mm),
                 format!("{:.2}", c.explained),
-                format!("{}/{} (p = {:.1e})", c.blocks_improved.0, c.blocks_improved.1, c.p_value),
-                format!("{:+.1}", c.delta_bic),
+                format!("{}/{} (p = {:.3})", c.placements_improved.0, c.placements_improved.1, c.p_value),
+                format!("{:.1}", c.calibration_z),
                 if c.significant { "<span class=flag>yes</span>".into() } else { "no".into() },
                 escape(&c.evidence),
             ]
         })
         .collect();
-    let _ = write!(body, "<h2>Which effect is missing</h2><p>Baseline validation RMS {} mm. Each effect is added, refitted on the calibration data and scored on the held-out placements.</p>{}", mm(d.baseline.rms_mm), table(&["effect", "val RMS mm", "explained", "blocks improved", "ΔBIC", "significant", "evidence"], &rows));
+    let _ = write!(body, "<h2>Which effect is missing</h2><p>Baseline validation RMS {} mm. Each effect is screened by a score test on the calibration data (its evidence as a normal deviate), refitted and scored on the held-out placements: an exact sign-flip test over the placements, in a fixed sequence by calibration evidence.</p>{}", mm(d.baseline.rms_mm), table(&["effect", "val RMS mm", "explained", "placements improved", "calibration evidence z", "significant", "evidence"], &rows));
+    if !d.rivals.is_empty() {
+        let rivals: Vec<Vec<String>> = d
+            .rivals
+            .iter()
+            .map(|r| {
+                let verdict = match &r.verdict {
+                    crate::calib::diagnose::RivalVerdict::Proxy { cause, proxy } => {
+                        format!("{} is a proxy of {}", escape(proxy), escape(cause))
+                    }
+                    crate::calib::diagnose::RivalVerdict::Both => "both are missing".into(),
+                    crate::calib::diagnose::RivalVerdict::CannotTell => {
+                        "these data cannot tell them apart".into()
+                    }
+                };
+                vec![
+                    escape(&r.a),
+                    escape(&r.b),
+                    mm(r.both_rms_mm),
+                    format!("{:.3}", r.b_adds_p),
+                    format!("{:.3}", r.a_adds_p),
+                    format!("{:.1}", r.separability),
+                    verdict,
+                ]
+            })
+            .collect();
+        let _ = write!(
+            body,
+            "<h3>Rivals of the leading effect</h3>{}",
+            table(
+                &[
+                    "A",
+                    "B",
+                    "A+B val RMS mm",
+                    "p (B added to A)",
+                    "p (A added to B)",
+                    "separability λ",
+                    "verdict"
+                ],
+                &rivals
+            )
+        );
+    }
     let data: Vec<Vec<String>> = d
         .data_errors
         .iter()
@@ -63,14 +105,14 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
             vec![
                 escape(&c.effect),
                 mm(c.validation_rms_mm),
-                format!("{}/{} (p = {:.1e})", c.blocks_improved.0, c.blocks_improved.1, c.p_value),
+                format!("{}/{} (p = {:.3})", c.placements_improved.0, c.placements_improved.1, c.p_value),
                 if c.significant { "<span class=flag>yes</span>".into() } else { "no".into() },
                 escape(&c.evidence),
                 escape(c.action.as_deref().unwrap_or("")),
             ]
         })
         .collect();
-    let _ = write!(body, "<h2>Data errors, scored beside the arm effects</h2><p>A wrong certificate (the landmark's position freed), a placement disturbed within a repeat, a mis-seated touch. When one explains the residuals as well as an arm effect, it is named and no arm effect is claimed.</p>{}", table(&["data error", "val RMS mm", "blocks improved", "significant", "evidence", "what to do"], &data));
+    let _ = write!(body, "<h2>Data errors, scored beside the arm effects</h2><p>A wrong certificate (the landmark's position freed), a placement disturbed within a repeat, a mis-seated touch. When one explains the residuals as well as an arm effect, it is named and no arm effect is claimed.</p>{}", table(&["data error", "val RMS mm", "placements improved", "significant", "evidence", "what to do"], &data));
     let ni: Vec<Vec<String>> =
         d.not_identifiable.iter().map(|n| vec![escape(&n.effect), escape(&n.reason)]).collect();
     let _ = write!(body, "<h3>Not identifiable</h3>{}", table(&["effect", "why"], &ni));

@@ -11,6 +11,7 @@ pub mod identify;
 pub mod objective;
 pub mod outliers;
 pub mod peer;
+pub mod plan;
 pub mod run;
 pub mod study;
 pub mod validate;

@@ -104,7 +104,8 @@ pub struct JointResiduals {
     pub spectrum: Vec<(u32, Sinusoid)>,
     /// (gravity lever m, apparent error deg) per touch.
     pub gravity: Vec<(f64, f64)>,
-    /// Weighted slope of apparent error against gravity lever, deg/m.
+    /// Slope of apparent error against gravity lever, deg/m, weighted by ‖g_j‖² (a touch near a
+    /// singularity, where joint j barely moves the tip, has a huge apparent error and no say).
     pub gravity_slope_deg_per_m: f64,
 }
 
@@ -261,6 +262,7 @@ fn joint_residuals(
     let columns = ColumnMap::new(&offsets);
     let mut per_joint: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); JOINTS];
     let mut gravity: Vec<Vec<(f64, f64)>> = vec![Vec::new(); JOINTS];
+    let mut gravity_weights: Vec<Vec<f64>> = vec![Vec::new(); JOINTS];
     let (mut by_height, mut by_reach) = (Vec::new(), Vec::new());
     for (t, r) in data.touches.iter().zip(&residuals) {
         let Some(r) = r else { continue };
@@ -278,6 +280,7 @@ fn joint_residuals(
             let e = g.dot(r) / w;
             per_joint[j].push((t.enc_deg[j], e, w));
             gravity[j].push((levers[j], e));
+            gravity_weights[j].push(w);
         }
     }
     let joints = (0..JOINTS)
@@ -294,7 +297,10 @@ fn joint_residuals(
                 })
                 .collect();
             let g = &gravity[j];
-            let (sxx, sxy) = g.iter().fold((0.0, 0.0), |(a, b), (x, y)| (a + x * x, b + x * y));
+            let (sxx, sxy) = g
+                .iter()
+                .zip(&gravity_weights[j])
+                .fold((0.0, 0.0), |(a, b), ((x, y), w)| (a + w * x * x, b + w * x * y));
             JointResiduals {
                 joint: j + 1,
                 sinusoid: fit_sinusoid(&points),

@@ -34,7 +34,10 @@ fn planned_placements_shrink_the_weakest_std_more_than_random_ones() {
     for seed in 1..=2 {
         let trial = TrialOptions { seed, placements: 2, count: 2, random_draws: 2 };
         let (name, o) = weak_trial(&nominal, &trial).unwrap();
-        eprintln!("seed {seed}: {name} before {:.4}, planned {:.4}, random {:?}", o.before, o.planned, o.random);
+        eprintln!(
+            "seed {seed}: {name} before {:.4}, planned {:.4}, random {:?}",
+            o.before, o.planned, o.random
+        );
         assert!(o.planned < o.before, "{name}: {o:?}");
         planned.push(o.planned / o.before);
         random.push(mean(&o.random) / o.before);

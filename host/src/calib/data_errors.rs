@@ -5,13 +5,18 @@
 //!   frame is estimated from every calibration block (a rigid fit of the other landmarks, then
 //!   the touch mapped back), and the arm is refitted once more with that certificate. Scored on
 //!   the held-out placements with the corrected certificate, like an arm effect.
-//! * **A disturbed block** (the artefact knocked within one repeat): within each
-//!   (placement, repeat) block the touches, in the order measured, are fitted by one rigid
-//!   placement of the artefact and by two (before and after touch k). The drop of the residual
-//!   sum of squares over the per-axis touch variance σ² is χ²₆ for a block that did not move; the
-//!   best k is flagged when the drop exceeds the χ²₆ quantile at [`SPLIT_Z`] standard normal
-//!   deviations *and* [`SPLIT_OVER_MEDIAN`] times the median block's best drop (an arm error
-//!   leaves every block's residuals alike; a knock is one block's).
+//! * **A disturbed block** (the artefact knocked within one repeat): each touch of a
+//!   (placement, repeat) block is paired with its *twin* in another repeat of the placement —
+//!   the same landmark touched in the same arm configuration — so the arm's pose-dependent
+//!   errors cancel between the two. The twins' positions are mapped onto the block's touches,
+//!   in the order measured, by one rigid motion and by two (before and after touch k). The drop
+//!   of the residual sum of squares over 2σ² (σ² the per-axis touch variance; a difference of two
+//!   touches has twice it) is χ²₆ for a block that did not move. The best k over the splits and
+//!   the other repeats is flagged when the drop exceeds the χ²₆ quantile at [`SPLIT_Z`] standard
+//!   normal deviations, a level that stays below 10⁻³ after the hundreds of splits looked at
+//!   (a Bonferroni bound on the change-point maximum). Touches without a twin are left out, so
+//!   repeats taken in other configurations neither trip nor hide the test: a compliance error
+//!   that differs between configurations is never read as the artefact moving.
 //! * **A mis-seated touch**: a touch that disagrees with its own repeats (same placement,
 //!   landmark and arm configuration, so the arm's systematic errors are the same): its distance
 //!   from the mean of the others, over σ²·(1 + 1/(n − 1)), exceeds the χ²₃ quantile at
@@ -19,21 +24,19 @@
 //!
 //! A flagged block or touch is scored by refitting without it.
 
-use crate::calib::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOptions};
-use crate::calib::floor::same_configuration;
+use crate::calib::calibrate::{calibrate, solve_warm, Calibration, CalibrationError, CalibrationOptions};
+use crate::calib::floor::{same_configuration, same_pose};
 use crate::data::{Artefact, Dataset};
 use crate::model::kinematics::tool_pose;
-use crate::model::ArmModel;
+use crate::model::{ArmModel, ParamId};
 use crate::numerics::geometry::absolute_orientation;
-use crate::numerics::stats::{chi2_quantile, median};
-use nalgebra::{Matrix3, Vector3};
+use crate::numerics::stats::chi2_quantile;
+use nalgebra::Vector3;
 
 /// Standard normal deviate of the χ²₆ quantile a block's split must exceed.
 pub const SPLIT_Z: f64 = 4.5;
 /// Standard normal deviate of the χ²₃ quantile a single touch's residual must exceed.
 pub const TOUCH_Z: f64 = 4.5;
-/// A flagged block must also stand out this many times over the median block.
-pub const SPLIT_OVER_MEDIAN: f64 = 8.0;
 /// A touch is compared with its repeats only when it has at least this many.
 const MIN_REPEATS: usize = 2;
 /// Touches on each side of a split (a rigid fit needs three; one more for a residual).
@@ -50,25 +53,6 @@ pub fn blocks(data: &Dataset) -> Vec<((usize, u32), Vec<usize>)> {
         }
     }
     out
-}
-
-/// Residual vectors (touched minus fitted certified position) of `touches` after one rigid fit
-/// of the artefact, mm.
-fn rigid_residuals(
-    artefact: &Artefact,
-    data: &Dataset,
-    p: &[Vector3<f64>],
-    touches: &[usize],
-) -> Vec<Vector3<f64>> {
-    let q: Vec<Vector3<f64>> =
-        touches.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
-    let pm: Vec<Vector3<f64>> = touches.iter().map(|&k| p[k]).collect();
-    let (r, t): (Matrix3<f64>, Vector3<f64>) = absolute_orientation(&q, &pm);
-    pm.iter().zip(&q).map(|(pm, q)| pm - (r * q + t)).collect()
-}
-
-fn rss(residuals: &[Vector3<f64>]) -> f64 {
-    residuals.iter().map(|r| r.norm_squared()).sum()
 }
 
 /// A block whose artefact seems to have moved during the repeat.
@@ -131,51 +115,64 @@ pub fn suspicious(
             .max_by(|a, b| a.chi2.total_cmp(&b.chi2));
         singles.extend(worst);
     }
-    for ((placement, repeat), touches) in blocks(data) {
-        if touches.len() < 2 * MIN_SIDE {
-            continue;
-        }
-        let rss0 = rss(&rigid_residuals(artefact, data, &p, &touches));
-        let best = (MIN_SIDE..=touches.len() - MIN_SIDE)
-            .map(|k| {
-                let split = rss(&rigid_residuals(artefact, data, &p, &touches[..k]))
-                    + rss(&rigid_residuals(artefact, data, &p, &touches[k..]));
-                (k, (rss0 - split) / sigma2_mm2)
-            })
-            .max_by(|a, b| a.1.total_cmp(&b.1));
-        if let Some((k, chi2)) = best {
-            // How far apart the two placements are: the later touches' fit moved by the first's.
-            let later = &touches[k..];
-            let alone = rigid_residuals(artefact, data, &p, later);
-            let with_first = {
-                let q: Vec<Vector3<f64>> = touches[..k]
+    let all_blocks = blocks(data);
+    for ((placement, repeat), touches) in &all_blocks {
+        let mut best: Option<DisturbedBlock> = None;
+        for (_, others) in all_blocks.iter().filter(|(k, _)| k.0 == *placement && k.1 != *repeat) {
+            // (position in the block, touch, its twin) in measured order.
+            let matched: Vec<(usize, usize, usize)> = touches
+                .iter()
+                .enumerate()
+                .filter_map(|(i, &k)| {
+                    others
+                        .iter()
+                        .find(|&&o| {
+                            data.touches[o].landmark == data.touches[k].landmark
+                                && same_pose(&data.touches[k].enc_deg, &data.touches[o].enc_deg)
+                        })
+                        .map(|&o| (i, k, o))
+                })
+                .collect();
+            if matched.len() < 2 * MIN_SIDE {
+                continue;
+            }
+            let q: Vec<Vector3<f64>> = matched.iter().map(|m| p[m.2]).collect();
+            let pm: Vec<Vector3<f64>> = matched.iter().map(|m| p[m.1]).collect();
+            let rss_of = |range: std::ops::Range<usize>| {
+                let (r, t) = absolute_orientation(&q[range.clone()], &pm[range.clone()]);
+                q[range.clone()]
                     .iter()
-                    .map(|&i| Vector3::from(artefact.landmarks[data.touches[i].landmark].xyz_mm))
-                    .collect();
-                let pm: Vec<Vector3<f64>> = touches[..k].iter().map(|&i| p[i]).collect();
-                let (r, t) = absolute_orientation(&q, &pm);
-                later
-                    .iter()
-                    .map(|&i| {
-                        p[i] - (r * Vector3::from(artefact.landmarks[data.touches[i].landmark].xyz_mm) + t)
-                    })
-                    .collect::<Vec<_>>()
+                    .zip(&pm[range])
+                    .map(|(q, pm)| (pm - (r * q + t)).norm_squared())
+                    .sum::<f64>()
             };
-            let moved = (with_first.iter().zip(&alone).map(|(a, b)| (a - b).norm_squared()).sum::<f64>()
-                / later.len() as f64)
+            let rss0 = rss_of(0..matched.len());
+            let split = (MIN_SIDE..=matched.len() - MIN_SIDE)
+                .map(|i| (i, (rss0 - rss_of(0..i) - rss_of(i..matched.len())) / (2.0 * sigma2_mm2)))
+                .max_by(|a, b| a.1.total_cmp(&b.1));
+            let Some((i, chi2)) = split else { continue };
+            if best.as_ref().is_some_and(|b| b.chi2 >= chi2) {
+                continue;
+            }
+            // How far apart the two rigid motions put the later touches.
+            let (r1, t1) = absolute_orientation(&q[..i], &pm[..i]);
+            let (r2, t2) = absolute_orientation(&q[i..], &pm[i..]);
+            let moved = (q[i..].iter().map(|q| ((r1 * q + t1) - (r2 * q + t2)).norm_squared()).sum::<f64>()
+                / (matched.len() - i) as f64)
                 .sqrt();
-            splits.push(DisturbedBlock {
-                placement,
-                repeat,
-                after_touch: k,
-                first_moved: artefact.landmarks[data.touches[touches[k]].landmark].id.clone(),
+            let (position, first, _) = matched[i];
+            best = Some(DisturbedBlock {
+                placement: *placement,
+                repeat: *repeat,
+                after_touch: position,
+                first_moved: artefact.landmarks[data.touches[first].landmark].id.clone(),
                 chi2,
                 moved_mm: moved,
             });
         }
+        splits.extend(best);
     }
-    let split_median = median(splits.iter().map(|s| s.chi2).collect());
-    let split_limit = chi2_quantile(6.0, SPLIT_Z).max(SPLIT_OVER_MEDIAN * split_median);
+    let split_limit = chi2_quantile(6.0, SPLIT_Z);
     let touch_limit = chi2_quantile(3.0, TOUCH_Z);
     splits.retain(|s| s.chi2 > split_limit);
     splits.sort_by(|a, b| b.chi2.total_cmp(&a.chi2));
@@ -234,12 +231,33 @@ pub fn calibrate_with_landmark_freed(
     options: &CalibrationOptions,
 ) -> Result<(Calibration, Artefact), CalibrationError> {
     let without = calibrate(start, artefact, &cal.without_landmark(landmark), options)?;
-    let mut corrected = artefact.clone();
-    if let Some(xyz) = locate_landmark(&without.model, artefact, cal, landmark) {
-        corrected.landmarks[landmark].xyz_mm = xyz;
-    }
+    let corrected = located(&without.model, artefact, cal, landmark);
     let fit = calibrate(&without.model, &corrected, cal, &CalibrationOptions { restarts: 0, ..*options })?;
     Ok((fit, corrected))
+}
+
+/// As [`calibrate_with_landmark_freed`] from a calibrated model whose identifiable parameters
+/// `params` are known: both fits are warm solves (no identifiability analysis, no restarts).
+pub fn refit_with_landmark_freed(
+    calibrated: &ArmModel,
+    params: &[ParamId],
+    artefact: &Artefact,
+    cal: &Dataset,
+    landmark: usize,
+    options: &CalibrationOptions,
+) -> Result<(ArmModel, Artefact), CalibrationError> {
+    let without = solve_warm(calibrated, params, artefact, &cal.without_landmark(landmark), options)?;
+    let corrected = located(&without, artefact, cal, landmark);
+    Ok((solve_warm(&without, params, &corrected, cal, options)?, corrected))
+}
+
+/// `artefact` with landmark `landmark` where `model` locates it (unchanged when it cannot).
+fn located(model: &ArmModel, artefact: &Artefact, cal: &Dataset, landmark: usize) -> Artefact {
+    let mut corrected = artefact.clone();
+    if let Some(xyz) = locate_landmark(model, artefact, cal, landmark) {
+        corrected.landmarks[landmark].xyz_mm = xyz;
+    }
+    corrected
 }
 
 /// Touches of the same landmark, placement and arm configuration (see

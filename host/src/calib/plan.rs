@@ -60,7 +60,9 @@ pub enum PlanError {
     #[error("--rivals takes two different effects, A,B (got {0})")]
     NotAPair(usize),
     /// No candidate placement is reachable.
-    #[error("no candidate placement of the artefact is reachable by this arm (at least {MIN_TOUCHES} landmarks)")]
+    #[error(
+        "no candidate placement of the artefact is reachable by this arm (at least {MIN_TOUCHES} landmarks)"
+    )]
     NothingReachable,
     /// The noise level is not a positive number.
     #[error("the touch noise must be a positive number of mm, got {0}")]
@@ -611,9 +613,14 @@ pub fn measure(
                     let draw = |rng: &mut ChaCha8Rng| seat.map_or(0.0, |n| n.sample(rng));
                     let noise = Vector3::new(draw(rng), draw(rng), draw(rng));
                     let landmark = &artefact.landmarks[*l];
-                    let Some(enc) =
-                        crate::simulate::touch_encoders_from(truth, &c.placement, landmark, noise, planned, rng)
-                    else {
+                    let Some(enc) = crate::simulate::touch_encoders_from(
+                        truth,
+                        &c.placement,
+                        landmark,
+                        noise,
+                        planned,
+                        rng,
+                    ) else {
                         continue;
                     };
                     measurements.push(crate::data::Measurement {
@@ -641,7 +648,11 @@ pub fn measure(
 
 /// Sum of squared touch residuals after a rigid fit per (placement, repeat), in σ².
 fn rigid_ssr(model: &ArmModel, artefact: &Artefact, data: &Dataset, sigma2: f64) -> f64 {
-    blocks(data).iter().filter_map(|b| rigid_residuals(model, artefact, b)).map(|r| r.norm_squared()).sum::<f64>()
+    blocks(data)
+        .iter()
+        .filter_map(|b| rigid_residuals(model, artefact, b))
+        .map(|r| r.norm_squared())
+        .sum::<f64>()
         / sigma2
 }
 
@@ -684,7 +695,11 @@ fn old_sessions(sim: &SimulatedData, placements: usize) -> Vec<Session> {
 }
 
 /// `count` random candidates (seeded), for the comparison with the plan.
-fn random_pick<'a>(candidates: &'a [CandidatePlacement], count: usize, rng: &mut ChaCha8Rng) -> Vec<&'a CandidatePlacement> {
+fn random_pick<'a>(
+    candidates: &'a [CandidatePlacement],
+    count: usize,
+    rng: &mut ChaCha8Rng,
+) -> Vec<&'a CandidatePlacement> {
     let mut picked: Vec<usize> = Vec::new();
     while picked.len() < count.min(candidates.len()) {
         let k = rng.random_range(0..candidates.len());
@@ -719,11 +734,17 @@ pub fn rival_trial(
     b: Effect,
     trial: &TrialOptions,
 ) -> Result<TrialOutcome, CalibrationError> {
-    let sim_options = SimulationOptions { seed: trial.seed, hidden: hidden.to_vec(), ..SimulationOptions::default() };
+    let sim_options =
+        SimulationOptions { seed: trial.seed, hidden: hidden.to_vec(), ..SimulationOptions::default() };
     let sim = crate::simulate::simulate(nominal, &sim_options);
     let old = old_sessions(&sim, trial.placements);
     let cal = Dataset::from_sessions(&old, &sim.artefact);
-    let fit = calibrate(nominal, &sim.artefact, &cal, &CalibrationOptions { restarts: 2, seed: trial.seed, ..CalibrationOptions::default() })?;
+    let fit = calibrate(
+        nominal,
+        &sim.artefact,
+        &cal,
+        &CalibrationOptions { restarts: 2, seed: trial.seed, ..CalibrationOptions::default() },
+    )?;
     let sigma = sim_options.seating_noise_mm;
     let options = PlanOptions { count: trial.count, seed: trial.seed, touch_std_mm: sigma };
     let candidates = candidate_placements(&fit.model, &sim.artefact, trial.seed);
@@ -732,7 +753,11 @@ pub fn rival_trial(
     let chosen: Vec<&CandidatePlacement> = planned
         .placements
         .iter()
-        .filter_map(|p| candidates.iter().find(|c| c.placement.origin_mm == p.origin_mm && c.placement.yaw_deg == p.yaw_deg))
+        .filter_map(|p| {
+            candidates
+                .iter()
+                .find(|c| c.placement.origin_mm == p.origin_mm && c.placement.yaw_deg == p.yaw_deg)
+        })
         .collect();
     let mut rng = ChaCha8Rng::seed_from_u64(trial.seed ^ 0x9e37_79b9);
     let score = |design: &[&CandidatePlacement], rng: &mut ChaCha8Rng| -> Result<f64, CalibrationError> {
@@ -755,14 +780,18 @@ pub fn rival_trial(
 /// calibration placements of a simulated arm, measure them, recalibrate, and compare the std of
 /// the parameter the plan names weakest with that after as many random placements. Returns the
 /// parameter and its stds (as the calibration reports them).
-pub fn weak_trial(nominal: &ArmModel, trial: &TrialOptions) -> Result<(String, TrialOutcome), CalibrationError> {
+pub fn weak_trial(
+    nominal: &ArmModel,
+    trial: &TrialOptions,
+) -> Result<(String, TrialOutcome), CalibrationError> {
     let sim_options = SimulationOptions { seed: trial.seed, ..SimulationOptions::default() };
     let sim = crate::simulate::simulate(nominal, &sim_options);
     let old = old_sessions(&sim, trial.placements);
     let cal = Dataset::from_sessions(&old, &sim.artefact);
     let calibration = CalibrationOptions { restarts: 0, seed: trial.seed, ..CalibrationOptions::default() };
     let fit = calibrate(nominal, &sim.artefact, &cal, &calibration)?;
-    let options = PlanOptions { count: trial.count, seed: trial.seed, touch_std_mm: sim_options.seating_noise_mm };
+    let options =
+        PlanOptions { count: trial.count, seed: trial.seed, touch_std_mm: sim_options.seating_noise_mm };
     let candidates = candidate_placements(&fit.model, &sim.artefact, trial.seed);
     let planned = plan_weak(&fit.model, &sim.artefact, &cal, &candidates, &options);
     let worst = planned.stds.first().map(|s| s.0.clone()).unwrap_or_default();
@@ -772,7 +801,11 @@ pub fn weak_trial(nominal: &ArmModel, trial: &TrialOptions) -> Result<(String, T
     let chosen: Vec<&CandidatePlacement> = planned
         .placements
         .iter()
-        .filter_map(|p| candidates.iter().find(|c| c.placement.origin_mm == p.origin_mm && c.placement.yaw_deg == p.yaw_deg))
+        .filter_map(|p| {
+            candidates
+                .iter()
+                .find(|c| c.placement.origin_mm == p.origin_mm && c.placement.yaw_deg == p.yaw_deg)
+        })
         .collect();
     let mut rng = ChaCha8Rng::seed_from_u64(trial.seed ^ 0x7f4a_7c15);
     let score = |design: &[&CandidatePlacement], rng: &mut ChaCha8Rng| -> Result<f64, CalibrationError> {

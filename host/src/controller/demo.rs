@@ -151,7 +151,14 @@ pub fn calibrate_diagnose_add(
     crate::output::write_run(&first, &out.join("run"))?;
     progress("diagnosing, adding what the diagnosis names, recalibrating");
     let cal = inputs.load_data(&first.artefact)?.0;
-    let auto = auto_loop(&first.calibration.model, &first.artefact, &cal, &first.validation_data, options, MAX_ADDED)?;
+    let auto = auto_loop(
+        &first.calibration.model,
+        &first.artefact,
+        &cal,
+        &first.validation_data,
+        options,
+        MAX_ADDED,
+    )?;
     crate::output::write_auto(&auto, &out.join("run"))?;
     let first_diagnosis = crate::calib::diagnose::diagnose(
         &first.calibration.model,
@@ -188,6 +195,9 @@ pub fn calibrate_diagnose_add(
 pub fn stop_words(stop: &Stop) -> String {
     match stop {
         Stop::AtFloor => "at the noise floor".into(),
+        Stop::CannotTell => {
+            "nothing significant, and these data cannot tell whether anything is missing".into()
+        }
         Stop::NothingSignificant => "nothing more is significant".into(),
         Stop::DataError(name) => format!("a data error must be fixed first ({name})"),
         Stop::StepLimit => format!("step limit ({MAX_ADDED} effects)"),

@@ -21,7 +21,12 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
             .take(8)
             .map(|c| (format!("+ {}", c.effect), c.validation_rms_mm, c.significant)),
     );
-    bars.extend(d.data_errors.iter().take(3).map(|c| (format!("data: {}", c.effect), c.validation_rms_mm, c.significant)));
+    bars.extend(
+        d.data_errors
+            .iter()
+            .take(3)
+            .map(|c| (format!("data: {}", c.effect), c.validation_rms_mm, c.significant)),
+    );
     let mut references: Vec<(&str, f64)> = Vec::new();
     if let Some(g) = &d.gap {
         references.push(("expected from repeatability (the floor for this model)", g.expected_mm));

@@ -82,7 +82,16 @@ fn nice_step(span: f64) -> f64 {
     let raw = (span / 5.0).abs().max(1e-12);
     let power = 10f64.powf(raw.log10().floor());
     let m = raw / power;
-    power * if m < 1.5 { 1.0 } else if m < 3.5 { 2.0 } else if m < 7.5 { 5.0 } else { 10.0 }
+    power
+        * if m < 1.5 {
+            1.0
+        } else if m < 3.5 {
+            2.0
+        } else if m < 7.5 {
+            5.0
+        } else {
+            10.0
+        }
 }
 
 /// Tick values on 1-2-5 steps inside `range`.
@@ -338,7 +347,13 @@ pub fn hbars(rows: &[(String, f64, bool)], references: &[(&str, f64)], x_label: 
             value
         );
     }
-    let _ = write!(out, r#"<text x="{}" y="{}" text-anchor="end">{}</text>"#, width - 20.0, height - 4.0, escape(x_label));
+    let _ = write!(
+        out,
+        r#"<text x="{}" y="{}" text-anchor="end">{}</text>"#,
+        width - 20.0,
+        height - 4.0,
+        escape(x_label)
+    );
     out + "</svg>"
 }
 
@@ -442,14 +457,18 @@ mod tests {
     #[test]
     fn ticks_are_one_two_five_steps() {
         assert_eq!(nice_ticks((0.0, 1.0)), vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0]);
-        assert_eq!(nice_ticks(nice_range((0.35, 359.0))), vec![0.0, 50.0, 100.0, 150.0, 200.0, 250.0, 300.0, 350.0, 400.0]);
+        assert_eq!(
+            nice_ticks(nice_range((0.35, 359.0))),
+            vec![0.0, 50.0, 100.0, 150.0, 200.0, 250.0, 300.0, 350.0, 400.0]
+        );
         assert_eq!(tick(0.02, (0.0, 0.1)), "0.02");
         assert_eq!(tick(100.0, (0.0, 360.0)), "100");
     }
 
     #[test]
     fn a_far_point_does_not_squash_the_axis() {
-        let mut points: Vec<(f64, f64)> = (0..200).map(|k| (k as f64, 0.01 * ((k % 7) as f64 - 3.0))).collect();
+        let mut points: Vec<(f64, f64)> =
+            (0..200).map(|k| (k as f64, 0.01 * ((k % 7) as f64 - 3.0))).collect();
         points.push((50.0, 18.7));
         let svg = scatter(&points, &[], "x", "y");
         assert!(svg.contains("1 point beyond the axis"), "{svg}");

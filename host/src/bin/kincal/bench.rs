@@ -43,6 +43,9 @@ pub struct BenchArgs {
     /// Only the check of `kincal plan`: planned against random placements over this many seeds.
     #[arg(long, value_name = "SEEDS", num_args = 0..=1, default_missing_value = "10")]
     pub plan: Option<u64>,
+    /// Run only the scale benchmark (with `--scale-touches`).
+    #[arg(long)]
+    pub scale_only: bool,
 }
 
 /// `kincal plan` against random placements, over `seeds` simulated arms, printed:
@@ -72,18 +75,32 @@ fn plan_benchmark(seeds: u64) -> Result<()> {
         planned.push(o.planned);
         random.extend(o.random);
     }
-    let clear = |v: &[f64]| 100.0 * v.iter().filter(|x| **x > SEPARABLE_SIGMA2).count() as f64 / v.len().max(1) as f64;
+    let clear = |v: &[f64]| {
+        100.0 * v.iter().filter(|x| **x > SEPARABLE_SIGMA2).count() as f64 / v.len().max(1) as f64
+    };
     println!(
         "  mean  {:>11.1}  {:>11.1}  {:>11.1}   clearly separated: {:.0} % / {:.0} % / {:.0} % of runs",
-        mean(&before), mean(&planned), mean(&random), clear(&before), clear(&planned), clear(&random)
+        mean(&before),
+        mean(&planned),
+        mean(&random),
+        clear(&before),
+        clear(&planned),
+        clear(&random)
     );
     let (mut before, mut planned, mut random, mut names) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    println!("weak parameter: clean arm, 2 calibration placements; std of the parameter the plan names weakest");
+    println!(
+        "weak parameter: clean arm, 2 calibration placements; std of the parameter the plan names weakest"
+    );
     println!("  seed  parameter   data so far  + 2 planned  + 2 random (mean of 3)");
     for seed in 1..=seeds {
         let trial = TrialOptions { seed, placements: 2, count: 2, random_draws: 3 };
         let (name, o) = weak_trial(&nominal, &trial)?;
-        println!("  {seed:>4}  {name:<10}  {:>11.4}  {:>11.4}  {:>11.4}", o.before, o.planned, mean(&o.random));
+        println!(
+            "  {seed:>4}  {name:<10}  {:>11.4}  {:>11.4}  {:>11.4}",
+            o.before,
+            o.planned,
+            mean(&o.random)
+        );
         before.push(o.before / o.before);
         planned.push(o.planned / o.before);
         random.push(mean(&o.random) / o.before);
@@ -180,6 +197,9 @@ fn scale_benchmark(touches: usize) -> Result<()> {
 pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     if let Some(seeds) = args.plan {
         return plan_benchmark(seeds.max(1));
+    }
+    if args.scale_only {
+        return scale_benchmark(args.scale_touches);
     }
     let (nominal, sim) = thesis_sized_problem(1);
     let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);

@@ -450,8 +450,16 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
         "1/3 simulate: a true arm off the nominal model by degrees and millimetres, hiding {}",
         names.join(", ")
     );
-    simulate_to(&a.model, &data, &SimulationOptions { seed: a.seed, hidden, ..SimulationOptions::default() })?;
-    println!("2/3 calibrate on {}, validate on {}, diagnose, add", data.join("cal").display(), data.join("val").display());
+    simulate_to(
+        &a.model,
+        &data,
+        &SimulationOptions { seed: a.seed, hidden, ..SimulationOptions::default() },
+    )?;
+    println!(
+        "2/3 calibrate on {}, validate on {}, diagnose, add",
+        data.join("cal").display(),
+        data.join("val").display()
+    );
     let inputs =
         RunInputs::new(a.model.clone(), data.join("artefact.json"), data.join("cal"), data.join("val"));
     let mission = kincal::controller::demo::calibrate_diagnose_add(

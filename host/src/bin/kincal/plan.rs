@@ -47,7 +47,13 @@ fn ranges(p: &kincal::calib::plan::SuggestedPlacement, joints: &[usize]) -> Stri
     p.joint_ranges_deg
         .iter()
         .filter(|r| joints.is_empty() || joints.contains(&r.0))
-        .map(|(j, a, b)| format!("joint {j} passes {a:.0}–{b:.0}°"))
+        .map(|(j, a, b)| {
+            if *b >= 360.0 {
+                format!("joint {j} passes {a:.0}–{:.0}° (through 0°)", b - 360.0)
+            } else {
+                format!("joint {j} passes {a:.0}–{b:.0}°")
+            }
+        })
         .collect::<Vec<_>>()
         .join(", ")
 }

@@ -222,6 +222,8 @@ pub struct LoopReport {
     pub added: Vec<String>,
     /// Why the diagnose → add loop stopped.
     pub stop: String,
+    /// The diagnosis of the model as given, in words (names the missing effect).
+    pub diagnosis: Vec<String>,
     /// Validation distance RMS of the true arm on the same recorded data: the noise floor, mm.
     pub truth_validation_rms_mm: f64,
     /// Pose error the host predicts for the calibrated model at the same touches, mm.
@@ -442,6 +444,7 @@ pub fn run_loop(
         steps: mission.steps.clone(),
         added: mission.added.clone(),
         stop: stop_words(&mission.auto.stop),
+        diagnosis: mission.auto.steps.first().map(|s| s.summary.clone()).unwrap_or_default(),
         truth_validation_rms_mm: truth_validation,
         host_calibrated_pose_rms_mm: registered_rms(&host_points, &truth_points),
         touches,

@@ -36,6 +36,37 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
         "<h2>The gap to the floor, and what closes it</h2><figure>{}<figcaption>validation RMS now and with each candidate effect or data error (best first; orange = significant), against the floor expected from repeatability (dashed)</figcaption></figure>",
         svg::hbars(&bars, &references, "validation RMS (mm)")
     );
+    if !d.rivals.is_empty() {
+        use crate::calib::diagnose::RivalVerdict;
+        let rows: Vec<Vec<String>> = d
+            .rivals
+            .iter()
+            .map(|r| {
+                let verdict = match &r.verdict {
+                    RivalVerdict::Proxy { cause, proxy } => format!("{cause}; {proxy} is a proxy"),
+                    RivalVerdict::Both => "both are missing".into(),
+                    RivalVerdict::CannotTell => format!(
+                        "these data cannot tell them apart: `kincal plan RUN --rivals {},{}` says where to measure",
+                        r.a, r.b
+                    ),
+                };
+                vec![
+                    escape(&r.a),
+                    escape(&r.b),
+                    mm(r.both_rms_mm),
+                    format!("{:.1e}", r.a_adds_p),
+                    format!("{:.1e}", r.b_adds_p),
+                    format!("{:.1}", r.separability),
+                    escape(&verdict),
+                ]
+            })
+            .collect();
+        let _ = write!(
+            body,
+            "<h2>Rivals</h2><p>Candidates that explain the held-out data alike. Each is added to the other and tested on the held-out placements; the separability is min(λ_AB, λ_BA) in noise variances (below about 13 the touches cannot separate them).</p>{}",
+            table(&["leading", "rival", "both, val RMS mm", "p of adding leading", "p of adding rival", "separability σ²", "verdict"], &rows)
+        );
+    }
     body.push_str("<h2>Where it fails</h2><h3>Apparent joint error against joint angle (with the best-fitting sinusoid)</h3><p>Touches where a joint barely moves the tip (its Jacobian column near zero, close to a singularity) give huge apparent errors of that joint; the axes are set by the bulk of the touches and such points are drawn as triangles at the edge.</p>");
     for j in &d.joints {
         let pts: Vec<(f64, f64)> = j.points.iter().map(|p| (p.0, p.1)).collect();

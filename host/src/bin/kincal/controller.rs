@@ -119,7 +119,15 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
         kincal::controller::demo::run_loop(&mut link, &nominal, &options, &mut |step| println!("  {step}"))?;
     println!("recorded {} touches through the controller; loop took {:.0} s", report.touches, report.seconds);
     println!("the emulated arm hides {} (the nominal model lacks it)", report.hidden.join(", "));
+    for line in report.diagnosis.iter().filter(|l| l.starts_with("missing effect") || l.contains("measured, ≈")) {
+        println!("  {line}");
+    }
     print_mission(&report.steps, report.truth_validation_rms_mm, &report.stop);
+    println!(
+        "runs: {} (as given, with diagnosis.html and auto/), {} (with the added effects; uploaded)",
+        a.out.join("run").display(),
+        a.out.join("run-added").display()
+    );
     println!("validation distance RMS   nominal {:8.3} mm   calibrated {:7.3} mm   true arm on the same data {:.3} mm (noise floor)", report.nominal_validation_rms_mm, report.calibrated_validation_rms_mm, report.truth_validation_rms_mm);
     println!("streamed pose error (RMS after rigid registration, {} validation touches):", report.poses);
     println!("  nominal parameters    {:8.3} mm", report.nominal_pose_rms_mm);

@@ -12,7 +12,8 @@ use std::path::PathBuf;
 pub struct PlanArgs {
     /// A RUN folder written by `kincal calibrate`.
     run: PathBuf,
-    /// Two rival effects the diagnosis cannot tell apart, e.g. `compliance:3,harmonic:3:3`.
+    /// Two rival effects to tell apart, e.g. `compliance:3,harmonic:3:3` (default: the first
+    /// pair the diagnosis of RUN cannot tell apart, if any).
     #[arg(long, value_delimiter = ',')]
     rivals: Vec<String>,
     /// Placements to suggest (each).
@@ -64,10 +65,32 @@ pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
         eprintln!("warning: this run is marked not trustworthy: {problem}");
     }
     let (artefact, cal, val) = folder.data()?;
-    let rivals = match a.rivals.as_slice() {
-        [] => None,
-        [x, y] => Some((x.as_str(), y.as_str())),
-        other => bail!("--rivals takes two effects, A,B (got {})", other.len()),
+    let from_diagnosis = if a.rivals.is_empty() {
+        let d = kincal::calib::diagnose::diagnose(
+            &folder.model,
+            &artefact,
+            &cal,
+            &val,
+            &folder.summary.options.calibration_options(),
+        );
+        let pair = d
+            .rivals
+            .iter()
+            .find(|r| r.verdict == kincal::calib::diagnose::RivalVerdict::CannotTell)
+            .map(|r| (r.a.clone(), r.b.clone()));
+        match &pair {
+            Some((x, y)) => println!("the diagnosis cannot tell {x} from {y}: planning to separate them"),
+            None => println!("the diagnosis names no rivals it cannot tell apart (give --rivals A,B to plan for a pair)"),
+        }
+        pair
+    } else {
+        None
+    };
+    let rivals = match (a.rivals.as_slice(), &from_diagnosis) {
+        ([], Some((x, y))) => Some((x.as_str(), y.as_str())),
+        ([], None) => None,
+        ([x, y], _) => Some((x.as_str(), y.as_str())),
+        (other, _) => bail!("--rivals takes two effects, A,B (got {})", other.len()),
     };
     let touch_std_mm = match a.touch_std_mm {
         Some(s) => s,

@@ -378,10 +378,7 @@ pub fn plan(
     if candidates.is_empty() {
         return Err(PlanError::NothingReachable);
     }
-    let rivals = match rivals {
-        Some((a, b)) => Some(plan_rivals(calibrated, artefact, cal, val, a, b, &candidates, options)),
-        None => None,
-    };
+    let rivals = rivals.map(|(a, b)| plan_rivals(calibrated, artefact, cal, val, a, b, &candidates, options));
     let weak = plan_weak(calibrated, artefact, cal, &candidates, options);
     Ok(Plan { touch_std_mm: options.touch_std_mm, candidates: candidates.len(), rivals, weak })
 }

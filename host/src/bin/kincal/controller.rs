@@ -119,7 +119,9 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
         kincal::controller::demo::run_loop(&mut link, &nominal, &options, &mut |step| println!("  {step}"))?;
     println!("recorded {} touches through the controller; loop took {:.0} s", report.touches, report.seconds);
     println!("the emulated arm hides {} (the nominal model lacks it)", report.hidden.join(", "));
-    for line in report.diagnosis.iter().filter(|l| l.starts_with("missing effect") || l.contains("measured, ≈")) {
+    for line in
+        report.diagnosis.iter().filter(|l| l.starts_with("missing effect") || l.contains("measured, ≈"))
+    {
         println!("  {line}");
     }
     print_mission(&report.steps, report.truth_validation_rms_mm, &report.stop);

@@ -80,7 +80,9 @@ pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
             .map(|r| (r.a.clone(), r.b.clone()));
         match &pair {
             Some((x, y)) => println!("the diagnosis cannot tell {x} from {y}: planning to separate them"),
-            None => println!("the diagnosis names no rivals it cannot tell apart (give --rivals A,B to plan for a pair)"),
+            None => println!(
+                "the diagnosis names no rivals it cannot tell apart (give --rivals A,B to plan for a pair)"
+            ),
         }
         pair
     } else {

@@ -30,7 +30,7 @@ use crate::data::{Artefact, Dataset};
 use crate::model::kinematics::tool_pose;
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::geometry::absolute_orientation;
-use crate::numerics::stats::chi2_quantile;
+use crate::numerics::stats::{chi2_quantile, f_upper_tail, normal_upper_tail};
 use nalgebra::Vector3;
 
 /// Standard normal deviate of the χ²₆ quantile a block's split must exceed.
@@ -116,42 +116,67 @@ pub fn suspicious(
         singles.extend(worst);
     }
     let all_blocks = blocks(data);
+    let split_limit = chi2_quantile(6.0, SPLIT_Z);
     for ((placement, repeat), touches) in &all_blocks {
-        let mut best: Option<DisturbedBlock> = None;
-        for (_, others) in all_blocks.iter().filter(|(k, _)| k.0 == *placement && k.1 != *repeat) {
-            // (position in the block, touch, its twin) in measured order.
-            let matched: Vec<(usize, usize, usize)> = touches
+        // (position in the block, touch, reference position) in measured order: the twins in
+        // each other repeat, else the certified landmarks.
+        let mut references: Vec<(Vec<(usize, usize, Vector3<f64>)>, bool)> = all_blocks
+            .iter()
+            .filter(|(k, _)| k.0 == *placement && k.1 != *repeat)
+            .map(|(_, others)| {
+                let matched = touches
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, &k)| {
+                        others
+                            .iter()
+                            .find(|&&o| {
+                                data.touches[o].landmark == data.touches[k].landmark
+                                    && same_pose(&data.touches[k].enc_deg, &data.touches[o].enc_deg)
+                            })
+                            .map(|&o| (i, k, p[o]))
+                    })
+                    .collect::<Vec<_>>();
+                (matched, true)
+            })
+            .filter(|(m, _)| m.len() >= 2 * MIN_SIDE)
+            .collect();
+        if references.is_empty() {
+            let certified = touches
                 .iter()
                 .enumerate()
-                .filter_map(|(i, &k)| {
-                    others
-                        .iter()
-                        .find(|&&o| {
-                            data.touches[o].landmark == data.touches[k].landmark
-                                && same_pose(&data.touches[k].enc_deg, &data.touches[o].enc_deg)
-                        })
-                        .map(|&o| (i, k, o))
-                })
-                .collect();
-            if matched.len() < 2 * MIN_SIDE {
-                continue;
+                .map(|(i, &k)| (i, k, Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)))
+                .collect::<Vec<_>>();
+            if certified.len() >= 2 * MIN_SIDE {
+                references.push((certified, false));
             }
-            let q: Vec<Vector3<f64>> = matched.iter().map(|m| p[m.2]).collect();
+        }
+        let mut best: Option<(DisturbedBlock, bool)> = None;
+        for (matched, twins) in references {
+            let q: Vec<Vector3<f64>> = matched.iter().map(|m| m.2).collect();
             let pm: Vec<Vector3<f64>> = matched.iter().map(|m| p[m.1]).collect();
             let rss_of = |range: std::ops::Range<usize>| {
                 let (r, t) = absolute_orientation(&q[range.clone()], &pm[range.clone()]);
-                q[range.clone()]
-                    .iter()
-                    .zip(&pm[range])
-                    .map(|(q, pm)| (pm - (r * q + t)).norm_squared())
-                    .sum::<f64>()
+                q[range.clone()].iter().zip(&pm[range]).map(|(q, pm)| (pm - (r * q + t)).norm_squared()).sum::<f64>()
             };
             let rss0 = rss_of(0..matched.len());
-            let split = (MIN_SIDE..=matched.len() - MIN_SIDE)
-                .map(|i| (i, (rss0 - rss_of(0..i) - rss_of(i..matched.len())) / (2.0 * sigma2_mm2)))
-                .max_by(|a, b| a.1.total_cmp(&b.1));
-            let Some((i, chi2)) = split else { continue };
-            if best.as_ref().is_some_and(|b| b.chi2 >= chi2) {
+            let splits = (MIN_SIDE..=matched.len() - MIN_SIDE).map(|i| {
+                let rest = rss_of(0..i) + rss_of(i..matched.len());
+                (i, rss0 - rest, rest)
+            });
+            let Some((i, drop, rest)) = splits.max_by(|a, b| a.1.total_cmp(&b.1)) else { continue };
+            // Twins: differences of two touches, variance 2σ² per axis, χ²₆. Certified
+            // positions: the arm's own errors stay in the residual, so the drop is judged
+            // against what is left after the split (F with 6 and 3n − 12 degrees of freedom).
+            let (chi2, exceeds) = if twins {
+                let chi2 = drop / (2.0 * sigma2_mm2);
+                (chi2, chi2 > split_limit)
+            } else {
+                let dof = (3 * matched.len()).saturating_sub(12).max(1) as f64;
+                let f = (drop / 6.0) / (rest / dof).max(1e-300);
+                (drop / sigma2_mm2, f_upper_tail(f, 6.0, dof) < normal_upper_tail(SPLIT_Z))
+            };
+            if best.as_ref().is_some_and(|b| b.0.chi2 >= chi2) {
                 continue;
             }
             // How far apart the two rigid motions put the later touches.
@@ -161,20 +186,21 @@ pub fn suspicious(
                 / (matched.len() - i) as f64)
                 .sqrt();
             let (position, first, _) = matched[i];
-            best = Some(DisturbedBlock {
-                placement: *placement,
-                repeat: *repeat,
-                after_touch: position,
-                first_moved: artefact.landmarks[data.touches[first].landmark].id.clone(),
-                chi2,
-                moved_mm: moved,
-            });
+            best = Some((
+                DisturbedBlock {
+                    placement: *placement,
+                    repeat: *repeat,
+                    after_touch: position,
+                    first_moved: artefact.landmarks[data.touches[first].landmark].id.clone(),
+                    chi2,
+                    moved_mm: moved,
+                },
+                exceeds,
+            ));
         }
-        splits.extend(best);
+        splits.extend(best.filter(|b| b.1).map(|b| b.0));
     }
-    let split_limit = chi2_quantile(6.0, SPLIT_Z);
     let touch_limit = chi2_quantile(3.0, TOUCH_Z);
-    splits.retain(|s| s.chi2 > split_limit);
     splits.sort_by(|a, b| b.chi2.total_cmp(&a.chi2));
     // A touch inside a disturbed block is explained by the block.
     singles.retain(|s| {

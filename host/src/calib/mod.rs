@@ -8,6 +8,7 @@ pub mod data_errors;
 pub mod diagnose;
 pub mod floor;
 pub mod identify;
+pub mod monte_carlo;
 pub mod objective;
 pub mod outliers;
 pub mod peer;

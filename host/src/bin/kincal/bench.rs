@@ -46,6 +46,66 @@ pub struct BenchArgs {
     /// Run only the scale benchmark (with `--scale-touches`).
     #[arg(long)]
     pub scale_only: bool,
+    /// Run only the diagnosis' Monte Carlo checks: false calls on this many clean seeds, and
+    /// the power per library effect (see `--power-seeds`); 0 skips them.
+    #[arg(long, default_value_t = 0, value_parser = crate::args::count(0, 100_000))]
+    pub diagnosis_seeds: usize,
+    /// Seeds per library effect in the power check.
+    #[arg(long, default_value_t = 5, value_parser = crate::args::count(1, 10_000))]
+    pub power_seeds: usize,
+}
+
+/// False calls on clean data over `seeds` seeds, and, over `power_seeds` seeds per effect, how
+/// often each identifiable library effect hidden alone is named.
+fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
+    use kincal::calib::monte_carlo::{false_calls, hidden_for, names, simulate_and_diagnose, Rate};
+    use kincal::model::effects::Effect;
+    use rayon::prelude::*;
+    let t = Instant::now();
+    let clean: Vec<_> = (0..seeds as u64)
+        .into_par_iter()
+        .map(|k| simulate_and_diagnose(1000 + k, vec![]).map(|d| (false_calls(&d), d)))
+        .collect::<Result<_, _>>()?;
+    let calls: Vec<_> = clean.iter().map(|c| c.0).collect();
+    println!("clean data, seeds 1000–{} ({:.0} s):", 999 + seeds, t.elapsed().as_secs_f64());
+    println!("  any false call:           {}  (goal <= 5 %)", Rate::of(&calls, |c| c.any()));
+    println!("  an arm effect:            {}", Rate::of(&calls, |c| c.effect));
+    println!("  a data error:             {}", Rate::of(&calls, |c| c.data_error));
+    println!("  a knock or mis-seated:    {}", Rate::of(&calls, |c| c.knock));
+    println!("  \"misses\" (gap test):      {}", Rate::of(&calls, |c| c.misses));
+    let gaps: Vec<_> = clean.iter().filter_map(|c| c.1.gap.clone()).collect();
+    println!("  \"at the floor\" shown:     {}; otherwise \"cannot tell\"", Rate::of(&gaps, |g| g.at_floor));
+    // The effects identifiable next to the thesis model (from the first clean run).
+    let Some((_, first)) = clean.first() else { return Ok(()) };
+    let effects: Vec<Effect> = first.candidates.iter().filter_map(|c| Effect::parse(&c.effect)).collect();
+    println!("power: each of {} identifiable library effects hidden alone, {power_seeds} seeds each (named first, or among rivals the data cannot tell apart, or exactly equivalent):", effects.len());
+    let t = Instant::now();
+    let mut all = Vec::new();
+    for effect in effects {
+        let runs: Vec<_> = (0..power_seeds as u64)
+            .into_par_iter()
+            .map(|k| simulate_and_diagnose(2000 + k, hidden_for(effect)))
+            .collect::<Result<_, _>>()?;
+        let named = Rate::of(&runs, |d| names(d, effect));
+        let lift = runs.iter().map(|d| d.gap.as_ref().map_or(f64::NAN, |g| g.measured_mm / g.expected_mm)).sum::<f64>()
+            / runs.len().max(1) as f64;
+        let wrong: Vec<String> = runs
+            .iter()
+            .filter(|d| !names(d, effect))
+            .map(|d| if d.named.is_empty() { "nothing".to_string() } else { d.named.join(" or ") })
+            .collect();
+        println!(
+            "  {:<16} {:?}  named {}  (validation/floor {:.2}){}",
+            effect.to_string(),
+            hidden_for(effect).iter().map(|(p, v)| format!("{p}={v}")).collect::<Vec<_>>(),
+            named,
+            lift,
+            if wrong.is_empty() { String::new() } else { format!("; otherwise {}", wrong.join(", ")) }
+        );
+        all.extend(runs.iter().map(|d| names(d, effect)));
+    }
+    println!("  all effects together: {} ({:.0} s)", Rate::of(&all, |n| *n), t.elapsed().as_secs_f64());
+    Ok(())
 }
 
 /// `kincal plan` against random placements, over `seeds` simulated arms, printed:
@@ -200,6 +260,9 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     }
     if args.scale_only {
         return scale_benchmark(args.scale_touches);
+    }
+    if args.diagnosis_seeds > 0 {
+        return diagnosis_checks(args.diagnosis_seeds, args.power_seeds);
     }
     let (nominal, sim) = thesis_sized_problem(1);
     let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);

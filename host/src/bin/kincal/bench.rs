@@ -147,7 +147,7 @@ fn plan_benchmark(seeds: u64) -> Result<()> {
         clear(&planned),
         clear(&random)
     );
-    let (mut before, mut planned, mut random, mut names) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut planned, mut random) = (Vec::new(), Vec::new());
     println!(
         "weak parameter: clean arm, 2 calibration placements; std of the parameter the plan names weakest"
     );
@@ -161,10 +161,8 @@ fn plan_benchmark(seeds: u64) -> Result<()> {
             o.planned,
             mean(&o.random)
         );
-        before.push(o.before / o.before);
         planned.push(o.planned / o.before);
         random.push(mean(&o.random) / o.before);
-        names.push(name);
     }
     println!(
         "  std relative to the data so far, mean over seeds: planned {:.2}, random {:.2}; {} seeds in {:.0} s",

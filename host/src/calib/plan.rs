@@ -13,9 +13,12 @@
 //! s_A = X_A·δ̂_A. The separability
 //! λ_AB = min_γ ‖s_A − [X_M X_B]·γ‖² (+ the prior on γ)
 //! is what B cannot mimic if A is the cause, in σ² once divided by σ². With A, B swapped,
-//! λ_BA. Placements are added greedily, each maximising (λ_AB + λ_BA)/σ² on the old and new
-//! data together (the expected separation with either rival the cause; the minimum of the two
-//! chases the rival whose fitted size is smallest, which matters least): the normal equations G = ΣXᵀX, b = ΣXᵀs, c = Σsᵀs are sums over
+//! λ_BA. Placements are added greedily on the old and new data together, each maximising
+//! λ_AB + λ_BA averaged over the phase of the fitted parameters, (‖δ̂_A‖²/k_A)·tr S_A|MB +
+//! (‖δ̂_B‖²/k_B)·tr S_B|MA with S the Schur complement of the information (the direction of a
+//! harmonic fitted on few touches is poorly known, its size less so; the minimum of the two
+//! chases the rival whose fitted size is smallest, which matters least). Information and the
+//! normal equations are sums over placements: the normal equations G = ΣXᵀX, b = ΣXᵀs, c = Σsᵀs are sums over
 //! placements, so a candidate adds its rows' terms and λ = c − bᵀG⁻¹b (a rank-3n update).
 //!
 //! **Weak parameters** (D-optimal design). The information of the calibration data
@@ -225,8 +228,8 @@ pub struct SuggestedPlacement {
     pub joint_ranges_deg: Vec<(usize, f64, f64)>,
     /// Encoder angles of each touch, deg (the pose list).
     pub poses_deg: Vec<[f64; JOINTS]>,
-    /// The figure of merit after this placement is added (λ_AB + λ_BA in σ², or the log det
-    /// gain).
+    /// The figure of merit after this placement is added (the phase-averaged λ_AB + λ_BA in σ²,
+    /// or the log det gain).
     pub merit: f64,
     /// For rivals: RMS per touch, mm, by which the second rival's best fit misses the first's
     /// prediction here (and the reverse).
@@ -336,6 +339,18 @@ fn split_rows(
         x.select_columns(cols.iter())
     };
     BlockRows { model: x.columns(0, m).into_owned(), a: pick(&ra.params), b: pick(&rb.params) }
+}
+
+/// Trace of the Schur complement of `h` on `keep` given `rest`: the information left for the
+/// `keep` columns once the `rest` columns are fitted.
+fn schur_trace(h: &DMatrix<f64>, keep: &[usize], rest: &[usize]) -> f64 {
+    let rows = h.select_rows(keep.iter());
+    let (h_kk, h_kr) = (rows.select_columns(keep.iter()), rows.select_columns(rest.iter()));
+    let h_rr = h.select_rows(rest.iter()).select_columns(rest.iter());
+    match h_rr.cholesky() {
+        Some(ch) => (h_kk - &h_kr * ch.solve(&h_kr.transpose())).trace(),
+        None => 0.0,
+    }
 }
 
 fn hcat(a: &DMatrix<f64>, b: &DMatrix<f64>) -> DMatrix<f64> {
@@ -469,19 +484,41 @@ fn plan_rivals(
             split_rows(calibrated, &union, &scale, m, &ra, &rb, &encs)
         })
         .collect();
+    // The merit averages λ over the phase of each rival's fitted parameters (their direction is
+    // poorly known from few touches; their size less so): ‖δ̂‖²/k · tr(S), S the information
+    // of the rival's columns after the model's and the other rival's are projected out.
+    let (ka, kb) = (ra.params.len(), rb.params.len());
+    let three = |rows: &BlockRows| hcat(&hcat(&rows.model, &rows.a), &rows.b);
+    let mut info = DMatrix::<f64>::identity(m + ka + kb, m + ka + kb) * sigma2;
+    for (rows, _) in &old {
+        let x = three(rows);
+        info += x.transpose() * &x;
+    }
+    let candidate_info: Vec<DMatrix<f64>> = candidate_rows
+        .par_iter()
+        .map(|rows| {
+            let x = three(rows);
+            x.transpose() * &x
+        })
+        .collect();
+    let (index_a, index_b): (Vec<usize>, Vec<usize>) =
+        ((m..m + ka).collect(), (m + ka..m + ka + kb).collect());
+    let rest_a: Vec<usize> = (0..m).chain(index_b.iter().copied()).collect();
+    let rest_b: Vec<usize> = (0..m + ka).collect();
+    let (weight_a, weight_b) = (delta_a.norm_squared() / ka as f64, delta_b.norm_squared() / kb as f64);
+    let merit_of = |h: &DMatrix<f64>| {
+        (weight_a * schur_trace(h, &index_a, &rest_a) + weight_b * schur_trace(h, &index_b, &rest_b)) / sigma2
+    };
     let mut chosen: Vec<usize> = Vec::new();
     let mut merits = Vec::new();
     for _ in 0..options.count.min(candidates.len()) {
         let best = (0..candidates.len())
             .into_par_iter()
             .filter(|k| !chosen.contains(k))
-            .map(|k| {
-                let (mut ab, mut ba) = (ab.clone(), ba.clone());
-                add(&mut ab, &mut ba, &candidate_rows[k]);
-                (k, (ab.residual().0 + ba.residual().0) / sigma2)
-            })
+            .map(|k| (k, merit_of(&(&info + &candidate_info[k]))))
             .max_by(|x, y| x.1.total_cmp(&y.1));
         let Some((k, merit)) = best else { break };
+        info += &candidate_info[k];
         add(&mut ab, &mut ba, &candidate_rows[k]);
         chosen.push(k);
         merits.push(merit);

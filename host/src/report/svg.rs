@@ -456,10 +456,14 @@ mod tests {
 
     #[test]
     fn ticks_are_one_two_five_steps() {
-        assert_eq!(nice_ticks((0.0, 1.0)), vec![0.0, 0.2, 0.4, 0.6, 0.8, 1.0]);
+        let labels = |range: (f64, f64)| -> Vec<String> {
+            nice_ticks(range).into_iter().map(|v| tick(v, range)).collect()
+        };
+        assert_eq!(labels((0.0, 1.0)), ["0.0", "0.2", "0.4", "0.6", "0.8", "1.0"]);
+        assert_eq!(labels(nice_range((0.35, 359.0))), ["0", "100", "200", "300", "400"]);
         assert_eq!(
-            nice_ticks(nice_range((0.35, 359.0))),
-            vec![0.0, 50.0, 100.0, 150.0, 200.0, 250.0, 300.0, 350.0, 400.0]
+            labels(nice_range((-0.089, 0.05))),
+            ["-0.10", "-0.08", "-0.06", "-0.04", "-0.02", "0.00", "0.02", "0.04", "0.06"]
         );
         assert_eq!(tick(0.02, (0.0, 0.1)), "0.02");
         assert_eq!(tick(100.0, (0.0, 360.0)), "100");

@@ -87,7 +87,10 @@ fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
             .map(|k| simulate_and_diagnose(2000 + k, hidden_for(effect)))
             .collect::<Result<_, _>>()?;
         let named = Rate::of(&runs, |d| names(d, effect));
-        let lift = runs.iter().map(|d| d.gap.as_ref().map_or(f64::NAN, |g| g.measured_mm / g.expected_mm)).sum::<f64>()
+        let lift = runs
+            .iter()
+            .map(|d| d.gap.as_ref().map_or(f64::NAN, |g| g.measured_mm / g.expected_mm))
+            .sum::<f64>()
             / runs.len().max(1) as f64;
         let wrong: Vec<String> = runs
             .iter()

@@ -13,12 +13,10 @@
 //! s_A = X_A·δ̂_A. The separability
 //! λ_AB = min_γ ‖s_A − [X_M X_B]·γ‖² (+ the prior on γ)
 //! is what B cannot mimic if A is the cause, in σ² once divided by σ². With A, B swapped,
-//! λ_BA. Placements are added greedily on the old and new data together, each maximising
-//! λ_AB + λ_BA averaged over the phase of the fitted parameters, (‖δ̂_A‖²/k_A)·tr S_A|MB +
-//! (‖δ̂_B‖²/k_B)·tr S_B|MA with S the Schur complement of the information (the direction of a
-//! harmonic fitted on few touches is poorly known, its size less so; the minimum of the two
-//! chases the rival whose fitted size is smallest, which matters least). Information and the
-//! normal equations are sums over placements: the normal equations G = ΣXᵀX, b = ΣXᵀs, c = Σsᵀs are sums over
+//! λ_BA. Placements are added greedily, each maximising (λ_AB + λ_BA)/σ² on the old and new
+//! data together (the expected separation with either rival the cause; the minimum of the two
+//! chases the rival whose fitted size is smallest, which matters least, and averaging λ over the
+//! phase of the fitted parameters separated less in `kincal bench --plan`): the normal equations G = ΣXᵀX, b = ΣXᵀs, c = Σsᵀs are sums over
 //! placements, so a candidate adds its rows' terms and λ = c − bᵀG⁻¹b (a rank-3n update).
 //!
 //! **Weak parameters** (D-optimal design). The information of the calibration data
@@ -228,8 +226,8 @@ pub struct SuggestedPlacement {
     pub joint_ranges_deg: Vec<(usize, f64, f64)>,
     /// Encoder angles of each touch, deg (the pose list).
     pub poses_deg: Vec<[f64; JOINTS]>,
-    /// The figure of merit after this placement is added (the phase-averaged λ_AB + λ_BA in σ²,
-    /// or the log det gain).
+    /// The figure of merit after this placement is added (λ_AB + λ_BA in σ², or the log det
+    /// gain).
     pub merit: f64,
     /// For rivals: RMS per touch, mm, by which the second rival's best fit misses the first's
     /// prediction here (and the reverse).
@@ -339,18 +337,6 @@ fn split_rows(
         x.select_columns(cols.iter())
     };
     BlockRows { model: x.columns(0, m).into_owned(), a: pick(&ra.params), b: pick(&rb.params) }
-}
-
-/// Trace of the Schur complement of `h` on `keep` given `rest`: the information left for the
-/// `keep` columns once the `rest` columns are fitted.
-fn schur_trace(h: &DMatrix<f64>, keep: &[usize], rest: &[usize]) -> f64 {
-    let rows = h.select_rows(keep.iter());
-    let (h_kk, h_kr) = (rows.select_columns(keep.iter()), rows.select_columns(rest.iter()));
-    let h_rr = h.select_rows(rest.iter()).select_columns(rest.iter());
-    match h_rr.cholesky() {
-        Some(ch) => (h_kk - &h_kr * ch.solve(&h_kr.transpose())).trace(),
-        None => 0.0,
-    }
 }
 
 fn hcat(a: &DMatrix<f64>, b: &DMatrix<f64>) -> DMatrix<f64> {
@@ -484,41 +470,19 @@ fn plan_rivals(
             split_rows(calibrated, &union, &scale, m, &ra, &rb, &encs)
         })
         .collect();
-    // The merit averages λ over the phase of each rival's fitted parameters (their direction is
-    // poorly known from few touches; their size less so): ‖δ̂‖²/k · tr(S), S the information
-    // of the rival's columns after the model's and the other rival's are projected out.
-    let (ka, kb) = (ra.params.len(), rb.params.len());
-    let three = |rows: &BlockRows| hcat(&hcat(&rows.model, &rows.a), &rows.b);
-    let mut info = DMatrix::<f64>::identity(m + ka + kb, m + ka + kb) * sigma2;
-    for (rows, _) in &old {
-        let x = three(rows);
-        info += x.transpose() * &x;
-    }
-    let candidate_info: Vec<DMatrix<f64>> = candidate_rows
-        .par_iter()
-        .map(|rows| {
-            let x = three(rows);
-            x.transpose() * &x
-        })
-        .collect();
-    let (index_a, index_b): (Vec<usize>, Vec<usize>) =
-        ((m..m + ka).collect(), (m + ka..m + ka + kb).collect());
-    let rest_a: Vec<usize> = (0..m).chain(index_b.iter().copied()).collect();
-    let rest_b: Vec<usize> = (0..m + ka).collect();
-    let (weight_a, weight_b) = (delta_a.norm_squared() / ka as f64, delta_b.norm_squared() / kb as f64);
-    let merit_of = |h: &DMatrix<f64>| {
-        (weight_a * schur_trace(h, &index_a, &rest_a) + weight_b * schur_trace(h, &index_b, &rest_b)) / sigma2
-    };
     let mut chosen: Vec<usize> = Vec::new();
     let mut merits = Vec::new();
     for _ in 0..options.count.min(candidates.len()) {
         let best = (0..candidates.len())
             .into_par_iter()
             .filter(|k| !chosen.contains(k))
-            .map(|k| (k, merit_of(&(&info + &candidate_info[k]))))
+            .map(|k| {
+                let (mut ab, mut ba) = (ab.clone(), ba.clone());
+                add(&mut ab, &mut ba, &candidate_rows[k]);
+                (k, (ab.residual().0 + ba.residual().0) / sigma2)
+            })
             .max_by(|x, y| x.1.total_cmp(&y.1));
         let Some((k, merit)) = best else { break };
-        info += &candidate_info[k];
         add(&mut ab, &mut ba, &candidate_rows[k]);
         chosen.push(k);
         merits.push(merit);
@@ -757,6 +721,47 @@ pub struct TrialOptions {
     pub random_draws: usize,
 }
 
+/// The candidates a plan chose, by their placement.
+fn chosen<'a>(
+    candidates: &'a [CandidatePlacement],
+    suggested: &[SuggestedPlacement],
+) -> Vec<&'a CandidatePlacement> {
+    suggested
+        .iter()
+        .filter_map(|p| {
+            candidates
+                .iter()
+                .find(|c| c.placement.origin_mm == p.origin_mm && c.placement.yaw_deg == p.yaw_deg)
+        })
+        .collect()
+}
+
+/// `figure` of the old sessions plus the planned placements measured on the true arm, and of
+/// the old sessions plus `trial.random_draws` random designs of as many placements.
+fn planned_and_random(
+    sim: &SimulatedData,
+    sim_options: &SimulationOptions,
+    old: &[Session],
+    candidates: &[CandidatePlacement],
+    planned: &[&CandidatePlacement],
+    trial: &TrialOptions,
+    figure: impl Fn(&Dataset) -> Result<f64, CalibrationError>,
+) -> Result<(f64, Vec<f64>), CalibrationError> {
+    let mut rng = ChaCha8Rng::seed_from_u64(trial.seed ^ 0x9e37_79b9);
+    let score = |design: &[&CandidatePlacement], rng: &mut ChaCha8Rng| {
+        let mut sessions = old.to_vec();
+        sessions.extend(measure(&sim.truth, &sim.artefact, design, sim_options, "N", rng));
+        figure(&Dataset::from_sessions(&sessions, &sim.artefact))
+    };
+    let with_plan = score(planned, &mut rng)?;
+    let mut random = Vec::new();
+    for _ in 0..trial.random_draws {
+        let design = random_pick(candidates, trial.count, &mut rng);
+        random.push(score(&design, &mut rng)?);
+    }
+    Ok((with_plan, random))
+}
+
 /// Rivals check: the true arm has `hidden` (effect `a`'s parameters), the data so far are
 /// `trial.placements` calibration placements; plan `trial.count` placements to separate `a` from
 /// `b`, measure them on the true arm, and compare the [`separation`] with that of random
@@ -784,29 +789,16 @@ pub fn rival_trial(
     let candidates = candidate_placements(&fit.model, &sim.artefact, trial.seed);
     let empty = Dataset::default();
     let planned = plan_rivals(&fit.model, &sim.artefact, &cal, &empty, a, b, &candidates, &options);
-    let chosen: Vec<&CandidatePlacement> = planned
-        .placements
-        .iter()
-        .filter_map(|p| {
-            candidates
-                .iter()
-                .find(|c| c.placement.origin_mm == p.origin_mm && c.placement.yaw_deg == p.yaw_deg)
-        })
-        .collect();
-    let mut rng = ChaCha8Rng::seed_from_u64(trial.seed ^ 0x9e37_79b9);
-    let score = |design: &[&CandidatePlacement], rng: &mut ChaCha8Rng| -> Result<f64, CalibrationError> {
-        let mut sessions = old.clone();
-        sessions.extend(measure(&sim.truth, &sim.artefact, design, &sim_options, "N", rng));
-        let data = Dataset::from_sessions(&sessions, &sim.artefact);
-        separation(&fit.model, &sim.artefact, &data, a, b, sigma)
-    };
     let before = separation(&fit.model, &sim.artefact, &cal, a, b, sigma)?;
-    let planned = score(&chosen, &mut rng)?;
-    let mut random = Vec::new();
-    for _ in 0..trial.random_draws {
-        let design = random_pick(&candidates, trial.count, &mut rng);
-        random.push(score(&design, &mut rng)?);
-    }
+    let (planned, random) = planned_and_random(
+        &sim,
+        &sim_options,
+        &old,
+        &candidates,
+        &chosen(&candidates, &planned.placements),
+        trial,
+        |data| separation(&fit.model, &sim.artefact, data, a, b, sigma),
+    )?;
     Ok(TrialOutcome { before, planned, random })
 }
 
@@ -832,29 +824,16 @@ pub fn weak_trial(
     let std_of = |fit: &crate::calib::calibrate::Calibration| {
         fit.estimates.iter().find(|e| e.param == worst).and_then(|e| e.std).unwrap_or(f64::NAN)
     };
-    let chosen: Vec<&CandidatePlacement> = planned
-        .placements
-        .iter()
-        .filter_map(|p| {
-            candidates
-                .iter()
-                .find(|c| c.placement.origin_mm == p.origin_mm && c.placement.yaw_deg == p.yaw_deg)
-        })
-        .collect();
-    let mut rng = ChaCha8Rng::seed_from_u64(trial.seed ^ 0x7f4a_7c15);
-    let score = |design: &[&CandidatePlacement], rng: &mut ChaCha8Rng| -> Result<f64, CalibrationError> {
-        let mut sessions = old.clone();
-        sessions.extend(measure(&sim.truth, &sim.artefact, design, &sim_options, "N", rng));
-        let data = Dataset::from_sessions(&sessions, &sim.artefact);
-        Ok(std_of(&calibrate(&fit.model, &sim.artefact, &data, &calibration)?))
-    };
     let before = std_of(&fit);
-    let planned_std = score(&chosen, &mut rng)?;
-    let mut random = Vec::new();
-    for _ in 0..trial.random_draws {
-        let design = random_pick(&candidates, trial.count, &mut rng);
-        random.push(score(&design, &mut rng)?);
-    }
+    let (planned_std, random) = planned_and_random(
+        &sim,
+        &sim_options,
+        &old,
+        &candidates,
+        &chosen(&candidates, &planned.placements),
+        trial,
+        |data| Ok(std_of(&calibrate(&fit.model, &sim.artefact, data, &calibration)?)),
+    )?;
     Ok((worst, TrialOutcome { before, planned: planned_std, random }))
 }
 

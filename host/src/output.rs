@@ -414,9 +414,9 @@ pub fn plan_csv(plan: &crate::calib::plan::Plan) -> String {
     out
 }
 
-/// Write a single-file result (a plan's JSON or CSV) to `path`, replacing only a file that
-/// begins with `own` (one kincal wrote before): anything else there is refused, never lost.
-pub fn write_own_file(path: &Path, text: &str, own: &str) -> Result<(), OutputError> {
+/// Whether a single-file result may go to `path`: a new file, or one holding `own` near its
+/// start (one kincal wrote before). Anything else there is refused, never lost.
+pub fn check_own_file(path: &Path, own: &str) -> Result<(), OutputError> {
     if path.is_dir() {
         return Err(refused(path, "is a folder"));
     }
@@ -426,6 +426,12 @@ pub fn write_own_file(path: &Path, text: &str, own: &str) -> Result<(), OutputEr
             return Err(refused(path, format!("exists and is not a file kincal wrote ({own})")));
         }
     }
+    Ok(())
+}
+
+/// Write a single-file result (a plan's JSON or CSV) to `path` after [`check_own_file`].
+pub fn write_own_file(path: &Path, text: &str, own: &str) -> Result<(), OutputError> {
+    check_own_file(path, own)?;
     write_atomic(path, text.as_bytes()).map_err(io(path))
 }
 

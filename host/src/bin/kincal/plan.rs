@@ -60,6 +60,13 @@ fn ranges(p: &kincal::calib::plan::SuggestedPlacement, joints: &[usize]) -> Stri
 }
 
 pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
+    // Refuse an output that would replace someone's file before any work is done.
+    if let Some(path) = &a.out {
+        output::check_own_file(path, output::PLAN_FORMAT)?;
+    }
+    if let Some(path) = &a.csv {
+        output::check_own_file(path, output::PLAN_CSV_HEADER)?;
+    }
     let folder = RunFolder::load(&a.run)?;
     for problem in &folder.summary.not_trustworthy {
         eprintln!("warning: this run is marked not trustworthy: {problem}");

@@ -67,19 +67,31 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
             table(&["leading", "rival", "both, val RMS mm", "p of adding leading", "p of adding rival", "separability σ²", "verdict"], &rows)
         );
     }
-    body.push_str("<h2>Where it fails</h2><h3>Apparent joint error against joint angle (with the best-fitting sinusoid)</h3><p>Touches where a joint barely moves the tip (its Jacobian column near zero, close to a singularity) give huge apparent errors of that joint; the axes are set by the bulk of the touches and such points are drawn as triangles at the edge.</p>");
+    body.push_str("<h2>Where it fails</h2><h3>Apparent joint error against joint angle (the curve: harmonics 1–4 fitted together, drawn where touches are)</h3><p>Touches where a joint barely moves the tip (its Jacobian column near zero, close to a singularity) give huge apparent errors of that joint; the axes are set by the bulk of the touches and such points are drawn as triangles at the edge.</p>");
     for j in &d.joints {
         let pts: Vec<(f64, f64)> = j.points.iter().map(|p| (p.0, p.1)).collect();
         let s = j.sinusoid;
+        // The harmonics fitted together, drawn only within 10° of angles the touches visit
+        // (elsewhere the fit is not constrained).
+        let (lo, hi) =
+            pts.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.0), b.max(p.0)));
         let curve: Vec<(f64, f64)> = (0..=72)
-            .map(|k| {
-                let phi = k as f64 * 5.0;
-                (phi, s.amplitude_deg * (phi.to_radians() + s.phase_deg.to_radians()).sin() + s.mean_deg)
+            .map(|k| lo + (hi - lo) * k as f64 / 72.0)
+            .filter(|phi| phi.is_finite() && pts.iter().any(|p| (p.0 - phi).abs() < 10.0))
+            .map(|phi| {
+                let value: f64 = j
+                    .spectrum
+                    .iter()
+                    .map(|(n, h)| {
+                        h.amplitude_deg * (f64::from(*n) * phi.to_radians() + h.phase_deg.to_radians()).sin()
+                    })
+                    .sum();
+                (phi, value + s.mean_deg)
             })
             .collect();
         let _ = write!(
             body,
-            "<figure>{}<figcaption>joint {}: amplitude {:.3}°, {:.0} % explained</figcaption></figure>",
+            "<figure>{}<figcaption>joint {}: 1/rev {:.3}°, {:.0} % explained</figcaption></figure>",
             svg::scatter(&pts, &curve, &format!("encoder {} (deg)", j.joint), "apparent error (deg)"),
             j.joint,
             s.amplitude_deg,

@@ -270,10 +270,19 @@ pub fn scatter(points: &[(f64, f64)], curve: &[(f64, f64)], x_label: &str, y_lab
             COLORS[1]
         );
     }
-    if curve.len() > 1 {
-        let path: Vec<String> = curve
+    // The curve as polylines, broken where its x steps jump (a gap in the data).
+    let step = curve.windows(2).map(|w| w[1].0 - w[0].0).filter(|d| *d > 0.0).fold(f64::INFINITY, f64::min);
+    let mut runs: Vec<Vec<(f64, f64)>> = Vec::new();
+    for (k, p) in curve.iter().enumerate().filter(|(_, p)| (frame.x.0..=frame.x.1).contains(&p.0)) {
+        let joined = k > 0 && curve[k].0 - curve[k - 1].0 <= 1.5 * step;
+        match runs.last_mut() {
+            Some(run) if joined => run.push(*p),
+            _ => runs.push(vec![*p]),
+        }
+    }
+    for run in runs.iter().filter(|r| r.len() > 1) {
+        let path: Vec<String> = run
             .iter()
-            .filter(|(x, _)| (frame.x.0..=frame.x.1).contains(x))
             .map(|(x, y)| format!("{:.1},{:.1}", frame.px(*x), frame.py(y.clamp(frame.y.0, frame.y.1))))
             .collect();
         let _ = write!(

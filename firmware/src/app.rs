@@ -19,7 +19,7 @@ use embassy_time::{Duration, Instant, Ticker, Timer};
 use embedded_hal_async::spi::SpiDevice;
 use embedded_storage::nor_flash::NorFlash;
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
-use kincal_protocol::messages::{DeviceFrame, HostFrame, TICK_HZ};
+use kincal_protocol::messages::{Crash, DeviceFrame, HostFrame, Request, SimFaults, TICK_HZ};
 
 /// Bytes buffered towards the host (≈ 0.26 s of raw stream).
 pub const TO_HOST_BYTES: usize = 6144;
@@ -90,11 +90,13 @@ impl FrameSender {
     }
 }
 
-/// Every tick: read all encoders through `master` (awaiting the bus, nothing locked), then feed
-/// the controller.
+/// Every tick: read all encoders through `master` (awaiting the bus, nothing locked), feed
+/// the controller, then feed the watchdog (`feed_watchdog`): only a sampling loop that
+/// completes its ticks keeps the controller from being reset.
 pub async fn sample_encoders<F: NorFlash, D: SpiDevice>(
     shared: &SharedCell<F>,
     mut master: BissMaster<D>,
+    mut feed_watchdog: impl FnMut(),
 ) -> ! {
     let period = Duration::from_hz(TICK_HZ as u64);
     let mut ticker = Ticker::every(period);
@@ -111,6 +113,7 @@ pub async fn sample_encoders<F: NorFlash, D: SpiDevice>(
             let to_host = &mut s.to_host;
             s.controller.on_tick(&sample, &mut |frame| to_host.send(frame));
         });
+        feed_watchdog();
     }
 }
 
@@ -136,7 +139,18 @@ pub async fn serve_host<F: NorFlash>(shared: &SharedCell<F>, mut act: impl FnMut
             });
             match action {
                 Action::None => {}
-                Action::Simulate(_) => act(action),
+                Action::Simulate(request) => {
+                    let moved = matches!(request, Request::SimSetPose(_));
+                    if let Request::SimFaults(SimFaults { crash: Crash::Panic | Crash::Hang, .. }) = request {
+                        // Let the acknowledgement leave before the board fails on purpose.
+                        answers_sent().await;
+                    }
+                    act(Action::Simulate(request));
+                    if moved {
+                        // The emulated arm jumped to the new pose: not a fault of its encoders.
+                        shared.lock(|cell| cell.borrow_mut().sampler.forget_positions());
+                    }
+                }
                 Action::Reset => {
                     // Let the acknowledgement leave before the board restarts.
                     answers_sent().await;

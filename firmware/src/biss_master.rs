@@ -1,64 +1,56 @@
 //! BiSS-C master over `embedded-hal-async` SPI: the one encoder driver of both boards.
 //!
 //! Each encoder is an [`SpiDevice`]: SCK drives the encoder's MA (clock) line through its RS-485
-//! transmitter, MISO reads its SLO (data) line through its receiver, and chip select enables
-//! that encoder's transceivers. The bus runs in SPI mode 3 (clock idles high, data sampled on
-//! the rising edge), most significant bit first. One read clocks [`TRANSFER_BYTES`] bytes:
-//! the first clock is the master's request (SLO still idles high), then the encoder pulls SLO
-//! low for its ACK, sends the start bit and the frame ([`kincal_protocol::biss`]); what follows
-//! the CRC is ignored. With DMA behind the SPI (the STM32 board) the CPU does not wait on bit
+//! transmitter, MISO reads its SLO (data) line through its receiver, and the device's select
+//! enables that encoder's transceivers. The bus runs in SPI mode 3 (clock idles high, data
+//! sampled on the rising edge), most significant bit first. One read clocks [`TRANSFER_BITS`]
+//! bits: the slave leaves SLO high for the first two edges, holds it low for its ACK, sends the
+//! start bit and the frame, then holds it low (timeout); [`kincal_protocol::biss::decode_transfer`]
+//! checks every part. With DMA behind the SPI (the STM32 board) the CPU does not wait on bit
 //! times: `read_all` awaits six short transfers.
 //!
 //! The emulated board implements the same trait with emulated encoders
 //! ([`crate::emulated_encoders`]), so the code the tests run is the code that runs on the arm.
 
 use embedded_hal_async::spi::SpiDevice;
-use kincal_protocol::biss::{self, BissError, Frame, Reading, FRAME_BITS, MAX_ACK_BITS};
-use kincal_protocol::messages::JOINTS;
+use kincal_protocol::biss::{self, BissError, Reading, TRANSFER_BITS};
+use kincal_protocol::messages::{JOINTS, TICK_HZ};
 
-/// Bytes clocked per encoder read: the request clock, the longest ACK and the frame.
-pub const TRANSFER_BYTES: usize = (1 + MAX_ACK_BITS + FRAME_BITS).div_ceil(8) as usize;
-/// Bits clocked per encoder read.
-pub const TRANSFER_BITS: u32 = TRANSFER_BYTES as u32 * 8;
-const _: () = assert!(1 + MAX_ACK_BITS + FRAME_BITS <= TRANSFER_BITS, "a read holds the longest frame");
+/// Bytes clocked per encoder read.
+pub const TRANSFER_BYTES: usize = (TRANSFER_BITS / 8) as usize;
 
-/// MA clock of the real board (STM32F405 SPI1: 84 MHz APB2 / 16): short arm cables keep the
-/// round trip through the RS-485 transceivers within half a clock period (95 ns), so no line
-/// delay compensation is needed.
-pub const REAL_BOARD_MA_HZ: u32 = 5_250_000;
+/// MA clock of the real board: STM32F405 SPI1, 84 MHz APB2 / 64 = 1.3125 MHz.
+///
+/// Chosen conservative: a bit is 762 ns, so the round trip of a long cable through two RS-485
+/// transceivers and the encoder (100–300 ns) costs at most one extra leading bit, which the
+/// decoder skips (it compensates up to [`biss::MAX_LINE_DELAY_BITS`] bits), and the longest
+/// ACK accepted ([`biss::MAX_ACK_BITS`] bits) is 18 µs of encoder processing. Six reads take
+/// 6 × 64 bits = 293 µs of the 1302 µs tick.
+///
+/// To raise it (84 MHz / 32 = 2.625 MHz, / 16 = 5.25 MHz): measure on a scope, at the board's
+/// MISO pin, the delay from a rising SCK edge to the SLO edge it caused (the round trip) and
+/// the longest ACK of the encoders fitted; the round trip must stay below
+/// `MAX_LINE_DELAY_BITS` bit times, and `REQUEST_BITS + MAX_LINE_DELAY_BITS + ACK + 32` bits
+/// must fit the 64-bit read. `kincal info` counts every rejected frame per joint
+/// (`frame-errors` grow first when the clock is too fast for the line).
+pub const REAL_BOARD_MA_HZ: u32 = 1_312_500;
+const _: () = assert!(
+    JOINTS as u64 * TRANSFER_BITS as u64 * TICK_HZ as u64 <= REAL_BOARD_MA_HZ as u64 / 2,
+    "six reads take at most half a tick"
+);
 
 /// Why one encoder read gave no position.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ReadError {
     /// The SPI transfer itself failed (bus error, DMA fault).
     Bus,
-    /// The line stayed high after the request: no ACK, no encoder answered.
-    NoAck,
-    /// The frame was received but is not valid (CRC, error bit, start, CDS, length).
+    /// The bits read are not a valid answer (see [`BissError`]).
     Frame(BissError),
 }
 
-/// Decode the bytes of one read (as clocked in, first bit = the request clock).
+/// Decode the bytes of one read (as clocked in, first bit = the first rising MA edge's sample).
 pub fn decode_transfer(bytes: &[u8; TRANSFER_BYTES]) -> Result<Reading, ReadError> {
-    let mut word = [0u8; 8];
-    word[8 - TRANSFER_BYTES..].copy_from_slice(bytes);
-    let all = u64::from_be_bytes(word);
-    // Drop the request clock's bit; what remains starts with the ACK.
-    let len = TRANSFER_BITS - 1;
-    let bits = all & ((1u64 << len) - 1);
-    if bits >> (len - 1) & 1 == 1 {
-        return Err(ReadError::NoAck);
-    }
-    biss::decode(Frame { bits, len }).map_err(ReadError::Frame)
-}
-
-/// The bytes an encoder sends for `frame` (from [`biss::encode`]): request clock high, the
-/// frame, then the line held low (timeout). For emulated encoders and tests.
-pub fn transfer_bytes(frame: Frame) -> [u8; TRANSFER_BYTES] {
-    let len = frame.len.min(TRANSFER_BITS - 1);
-    let body = frame.bits & ((1u64 << len) - 1);
-    let all = (1u64 << (TRANSFER_BITS - 1)) | (body << (TRANSFER_BITS - 1 - len));
-    core::array::from_fn(|k| (all >> (8 * (TRANSFER_BYTES - 1 - k))) as u8)
+    biss::decode_transfer(u64::from_be_bytes(*bytes)).map_err(ReadError::Frame)
 }
 
 /// The master of the six joint encoders.
@@ -89,104 +81,170 @@ impl<D: SpiDevice> BissMaster<D> {
     }
 }
 
+/// The decoder held to the BiSS-C slave model of `kincal-biss-slave`, which is written from the
+/// protocol description and shares no code with the decoder.
 #[cfg(test)]
 mod tests {
     use super::*;
+    use biss::{MAX_ACK_BITS, MAX_LINE_DELAY_BITS};
     use embedded_hal_async::spi::{ErrorKind, ErrorType, Operation};
-    use std::collections::VecDeque;
+    use kincal_biss_slave::{Line, Slave};
 
     #[derive(Debug)]
-    struct MockError;
-    impl embedded_hal_async::spi::Error for MockError {
+    struct BusError;
+    impl embedded_hal_async::spi::Error for BusError {
         fn kind(&self) -> ErrorKind {
             ErrorKind::Other
         }
     }
 
-    /// An SPI device that answers each read with the next scripted bytes, or a bus error.
-    struct Mock {
-        answers: VecDeque<Option<[u8; TRANSFER_BYTES]>>,
+    /// An SPI device that clocks a slave model (or fails the transfer when `slave` is None).
+    struct ModelEncoder {
+        slave: Option<Slave>,
         reads: usize,
     }
 
-    impl ErrorType for Mock {
-        type Error = MockError;
+    impl ErrorType for ModelEncoder {
+        type Error = BusError;
     }
 
-    impl SpiDevice for Mock {
-        async fn transaction(&mut self, operations: &mut [Operation<'_, u8>]) -> Result<(), MockError> {
+    impl SpiDevice for ModelEncoder {
+        async fn transaction(&mut self, operations: &mut [Operation<'_, u8>]) -> Result<(), BusError> {
             for op in operations {
                 let Operation::Read(buf) = op else { panic!("the master only reads") };
                 assert_eq!(buf.len(), TRANSFER_BYTES);
                 self.reads += 1;
-                let answer = self.answers.pop_front().expect("a scripted answer").ok_or(MockError)?;
-                buf.copy_from_slice(&answer);
+                let slave = self.slave.as_mut().ok_or(BusError)?;
+                slave.idle_ns(1_000_000_000 / TICK_HZ);
+                slave.read(buf);
             }
             Ok(())
         }
     }
 
-    fn master(answers: [Option<[u8; TRANSFER_BYTES]>; JOINTS]) -> BissMaster<Mock> {
-        BissMaster::new(answers.map(|a| Mock { answers: VecDeque::from([a]), reads: 0 }))
+    /// What the master samples from `slave` in one read (the slave's timeout has run out).
+    fn sampled(slave: &mut Slave) -> [u8; TRANSFER_BYTES] {
+        let mut bytes = [0u8; TRANSFER_BYTES];
+        slave.idle_ns(u32::MAX);
+        slave.read(&mut bytes);
+        bytes
     }
 
-    fn read_all(m: &mut BissMaster<Mock>) -> [Result<Reading, ReadError>; JOINTS] {
-        embassy_futures::block_on(m.read_all())
+    fn slave(position_counts: u32, ack_bits: u32, line_delay_bits: u32) -> Slave {
+        Slave { ack_bits, line_delay_bits, ..Slave::new(position_counts) }
     }
 
     #[test]
-    fn a_read_takes_six_bytes() {
-        assert_eq!(TRANSFER_BYTES, 6);
+    fn a_read_takes_eight_bytes() {
+        assert_eq!(TRANSFER_BYTES, 8);
     }
 
+    /// The slave answers after the second MA edge (`1 1 0 …`), the line delays by 0, 1 or 2
+    /// bits, the ACK lasts 1 to the longest accepted: every read decodes to the position.
     #[test]
-    fn good_frames_with_any_ack_length_give_the_positions() {
+    fn ack_after_the_second_edge_any_line_delay_and_ack_length_decode() {
         let positions = [0, 1, 0x3F_FFFF, 0x2A_AAAA, 0x15_5555, 123_456];
-        let mut m = master(core::array::from_fn(|j| {
-            Some(transfer_bytes(biss::encode(positions[j], false, false, 1 + j as u32)))
-        }));
-        let got = read_all(&mut m);
-        for j in 0..JOINTS {
-            assert_eq!(got[j], Ok(Reading { position_counts: positions[j], warning: false }), "joint {j}");
-            assert_eq!(m.encoders[j].reads, 1);
+        let first = sampled(&mut slave(5, 1, 0));
+        assert_eq!(first[0] >> 5, 0b110, "the master reads 1 1 0: the ACK starts after the second edge");
+        for delay in 0..=MAX_LINE_DELAY_BITS {
+            for ack in 1..=MAX_ACK_BITS {
+                for (k, &p) in positions.iter().enumerate() {
+                    let mut s = slave(p, ack, delay);
+                    s.warning = k == 3;
+                    let got = decode_transfer(&sampled(&mut s));
+                    assert_eq!(
+                        got,
+                        Ok(Reading { position_counts: p, warning: k == 3 }),
+                        "delay {delay} ack {ack}"
+                    );
+                }
+            }
         }
     }
 
     #[test]
-    fn crc_errors_missing_ack_error_and_warning_bits_and_bus_errors_are_told_apart() {
-        let good = biss::encode(777, false, false, 2);
-        let mut flipped = good;
-        flipped.bits ^= 1 << 10; // a position bit
-        let mut m = master([
-            Some(transfer_bytes(flipped)),
-            Some([0xFF; TRANSFER_BYTES]), // no encoder: the line stays high
-            Some(transfer_bytes(biss::encode(5, true, false, 1))),
-            Some(transfer_bytes(biss::encode(6, false, true, 1))),
-            None,
-            Some([0x80, 0, 0, 0, 0, 0]), // ACK but never a start bit
-        ]);
-        let got = read_all(&mut m);
-        assert!(matches!(got[0], Err(ReadError::Frame(BissError::Crc { .. }))), "{:?}", got[0]);
-        assert_eq!(got[1], Err(ReadError::NoAck));
-        assert_eq!(got[2], Err(ReadError::Frame(BissError::ErrorBit)));
-        assert_eq!(got[3], Ok(Reading { position_counts: 6, warning: true }));
-        assert_eq!(got[4], Err(ReadError::Bus));
-        assert_eq!(got[5], Err(ReadError::Frame(BissError::NoStart)));
+    fn the_master_reads_six_model_encoders() {
+        let positions = [10, 20, 30, 0x3F_FFFF, 50, 60];
+        let mut m = BissMaster::new(core::array::from_fn(|j| ModelEncoder {
+            slave: Some(slave(positions[j], 1 + j as u32 * 4, j as u32 % 3)),
+            reads: 0,
+        }));
+        for _ in 0..3 {
+            let got = embassy_futures::block_on(m.read_all());
+            for j in 0..JOINTS {
+                assert_eq!(
+                    got[j],
+                    Ok(Reading { position_counts: positions[j], warning: false }),
+                    "joint {j}"
+                );
+            }
+        }
+        assert!(m.encoders.iter().all(|e| e.reads == 3));
+        m.encoders[2].slave = None;
+        assert_eq!(embassy_futures::block_on(m.read(2)), Err(ReadError::Bus));
     }
 
     #[test]
-    fn every_single_bit_error_in_the_frame_is_caught() {
-        let frame = biss::encode(0x2A_5A5A, false, false, 3);
-        let bytes = transfer_bytes(frame);
-        assert!(decode_transfer(&bytes).is_ok());
-        // Flip each bit from the ACK to the CRC's last bit: none may give a wrong position.
-        let frame_end = 1 + frame.len;
-        for bit in 1..frame_end {
-            let mut bad = bytes;
-            bad[bit as usize / 8] ^= 0x80 >> (bit % 8);
-            if let Ok(r) = decode_transfer(&bad) {
-                panic!("bit {bit}: accepted {r:?}");
+    fn stuck_lines_timeouts_and_answers_outside_the_limits_are_rejected() {
+        let frame = |s: &mut Slave| biss::decode_transfer(u64::from_be_bytes(sampled(s)));
+        let mut high = Slave { line: Line::StuckHigh, ..Slave::new(7) };
+        assert_eq!(frame(&mut high), Err(BissError::LineHigh));
+        let mut low = Slave { line: Line::StuckLow, ..Slave::new(7) };
+        assert_eq!(frame(&mut low), Err(BissError::LineLow));
+        let mut busy = Slave::new(7);
+        let mut bytes = [0u8; TRANSFER_BYTES];
+        busy.read(&mut bytes);
+        busy.read(&mut bytes);
+        assert_eq!(
+            decode_transfer(&bytes),
+            Err(ReadError::Frame(BissError::LineLow)),
+            "read during the timeout"
+        );
+        assert_eq!(frame(&mut slave(7, 1, MAX_LINE_DELAY_BITS + 1)), Err(BissError::LateAck));
+        assert_eq!(frame(&mut slave(7, MAX_ACK_BITS + 1, 0)), Err(BissError::NoStart));
+        assert_eq!(frame(&mut Slave { error: true, ..Slave::new(7) }), Err(BissError::ErrorBit));
+        // An answer one edge early (a slave that ACKs after the first edge) is not BiSS-C.
+        let early = u64::from_be_bytes(sampled(&mut Slave::new(7))) << 1;
+        assert_eq!(biss::decode_transfer(early), Err(BissError::EarlyAck));
+    }
+
+    /// Every single flipped bit and every burst of 2 to 6 flipped bits anywhere in the read is
+    /// rejected, whatever the line delay and ACK length; the only flips let through lie among the
+    /// line-delay and ACK bits and change nothing (the same position is read).
+    #[test]
+    fn single_bit_and_burst_errors_are_rejected() {
+        for (delay, ack) in [(0, 1), (1, 5), (2, MAX_ACK_BITS)] {
+            let truth = Reading { position_counts: 0x2A_5A5A, warning: false };
+            let good = u64::from_be_bytes(sampled(&mut slave(truth.position_counts, ack, delay)));
+            assert_eq!(biss::decode_transfer(good), Ok(truth));
+            let (mut tried, mut rejected) = (0, 0);
+            for len in 1..=6u32 {
+                for at in 0..=(64 - len) {
+                    let burst = ((1u64 << len) - 1) << at;
+                    // A burst's first and last bits are flipped, the ones between either way.
+                    let ends_only = burst & !(((1u64 << len.saturating_sub(2)) - 1) << (at + 1));
+                    for flips in [burst, ends_only] {
+                        tried += 1;
+                        match biss::decode_transfer(good ^ flips) {
+                            Err(_) => rejected += 1,
+                            Ok(r) => {
+                                assert_eq!(r, truth, "delay {delay} ack {ack}: {flips:016x} read wrong");
+                                // Only flips among the line-delay and ACK bits (after the two
+                                // request bits, before the start bit) can shift where the ACK
+                                // seems to begin without changing the frame.
+                                let before_start = 2 + delay + ack;
+                                let region = (u64::MAX >> 2) & !(u64::MAX >> before_start);
+                                assert_eq!(
+                                    flips & !region,
+                                    0,
+                                    "delay {delay} ack {ack}: {flips:016x} let through"
+                                );
+                            }
+                        }
+                    }
+                }
             }
+            assert!(rejected as f64 >= 0.98 * tried as f64, "delay {delay} ack {ack}: {rejected}/{tried}");
         }
     }
 }

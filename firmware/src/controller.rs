@@ -3,15 +3,16 @@
 use crate::encoders::{Sample, Sampler};
 use crate::flash::{FlashError, ParamStore};
 use crate::kinematics::Kinematics;
+use crate::trust::{Provenance, Trust};
 use crate::window::Window;
 use embedded_storage::nor_flash::NorFlash;
 use kincal_protocol::messages::{
     pack_counts, stream_bytes_per_s, Ack, Answer, DeviceFrame, Endpoint, GetInfo, Hello, HelloReply,
     HostFrame, Info, ParamBegin, ParamChunk, ParamCommit, ParamData, ParamRead, PoseReport, RawSample,
-    Request, Reset, Response, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WireError,
-    LINK_BYTES_PER_S, MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
+    Request, Reset, ResetCause, Response, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WireError,
+    ALL_JOINTS, LINK_BYTES_PER_S, MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
 };
-use kincal_protocol::params::{decode_blob, ArmParams, BlobError, BLOB_CRC, MAX_PARAM_BLOB};
+use kincal_protocol::params::{ArmParams, BLOB_CRC, MAX_PARAM_BLOB};
 
 /// What the board must do after a request.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,16 +49,32 @@ pub struct Controller<F: NorFlash> {
     /// request being carried out twice.
     last: Option<(HostFrame, Result<Response, WireError>)>,
     store: ParamStore<F>,
-    params: Option<(ArmParams, Kinematics)>,
+    trust: Trust,
+    params: Option<ActiveSet>,
+    reset_cause: ResetCause,
+    brownout_mv: u16,
+}
+
+/// The stored set in use: its parameters, who signed it and its precomputed kinematics.
+struct ActiveSet {
+    params: ArmParams,
+    provenance: Provenance,
+    kinematics: Kinematics,
+}
+
+impl ActiveSet {
+    fn new((params, provenance): (ArmParams, Provenance)) -> Self {
+        ActiveSet { params, provenance, kinematics: Kinematics::new(&params) }
+    }
 }
 
 impl<F: NorFlash> Controller<F> {
-    /// A controller on `flash`; loads the stored parameters if any are valid.
+    /// A controller on `flash`; loads the stored parameters if they are valid and pass `trust`.
     /// `simulated`: the board accepts the emulated-encoder requests.
-    pub fn new(firmware: &'static str, board: &'static str, simulated: bool, flash: F) -> Self {
+    pub fn new(firmware: &'static str, board: &'static str, simulated: bool, trust: Trust, flash: F) -> Self {
         let mut store = ParamStore::mount(flash);
         let mut buf = [0u8; MAX_PARAM_BLOB];
-        let params = store.load(&mut buf).and_then(|b| decode_blob(b).ok()).map(|p| (p, Kinematics::new(&p)));
+        let params = store.load(&mut buf).and_then(|set| trust.load(set)).map(ActiveSet::new);
         Controller {
             firmware,
             board,
@@ -71,8 +88,18 @@ impl<F: NorFlash> Controller<F> {
             upload: None,
             last: None,
             store,
+            trust,
             params,
+            reset_cause: ResetCause::Unknown,
+            brownout_mv: 0,
         }
+    }
+
+    /// What the board found at start: why it reset and its brown-out threshold (mV, 0: none to
+    /// report), for [`Info`].
+    pub fn set_boot(&mut self, reset_cause: ResetCause, brownout_mv: u16) {
+        self.reset_cause = reset_cause;
+        self.brownout_mv = brownout_mv;
     }
 
     /// Give the flash back (a reboot keeps what is stored, nothing else).
@@ -82,7 +109,12 @@ impl<F: NorFlash> Controller<F> {
 
     /// The active parameters.
     pub fn params(&self) -> Option<&ArmParams> {
-        self.params.as_ref().map(|p| &p.0)
+        self.params.as_ref().map(|p| &p.params)
+    }
+
+    /// Who signed the active parameters, and when.
+    pub fn provenance(&self) -> Option<&Provenance> {
+        self.params.as_ref().map(|p| &p.provenance)
     }
 
     fn stream(&mut self, item: Stream, emit: &mut impl FnMut(&DeviceFrame)) {
@@ -109,17 +141,8 @@ impl<F: NorFlash> Controller<F> {
             );
         }
         if self.pose_divider > 0 && self.tick.is_multiple_of(self.pose_divider as u32) {
-            if let Some((_, kinematics)) = &self.params {
-                let pose = kinematics.tool_pose(&sample.counts);
-                self.stream(
-                    Stream::Pose(PoseReport {
-                        tick,
-                        position_mm: pose.position_mm,
-                        z_axis: pose.z_axis,
-                        x_axis: pose.x_axis,
-                    }),
-                    emit,
-                );
+            if let Some(active) = &self.params {
+                self.stream(Stream::Pose(pose_report(tick, &active.kinematics, sample)), emit);
             }
         }
     }
@@ -229,10 +252,16 @@ impl<F: NorFlash> Controller<F> {
             firmware: heapless::String::try_from(self.firmware).unwrap_or_default(),
             board: heapless::String::try_from(self.board).unwrap_or_default(),
             param_version: self.params().map_or(0, |p| p.version),
-            param_crc: self.store.active().map_or(0, |s| s.crc),
+            param_crc: self.params.as_ref().and(self.store.active()).map_or(0, |s| s.crc),
+            arm_id: self.trust.arm_id().clone(),
+            trust: self.trust.mode(),
+            param_signer: self.provenance().map_or([0; 32], |p| p.signer),
+            param_signed_at_unix_s: self.provenance().map_or(0, |p| p.signed_at_unix_s),
             ticks: self.tick,
             late_ticks: sampler.late_ticks,
             encoders: sampler.health,
+            reset_cause: self.reset_cause,
+            brownout_mv: self.brownout_mv,
         }
     }
 
@@ -285,23 +314,48 @@ impl<F: NorFlash> Controller<F> {
             self.upload = Some(u);
             return Err(WireError::ParamIncomplete);
         }
-        let blob = &u.buf[..u.len];
-        if BLOB_CRC.checksum(blob) != u.crc {
+        let set = &u.buf[..u.len];
+        if BLOB_CRC.checksum(set) != u.crc {
             return Err(WireError::ParamInvalid);
         }
-        // The device's own check: a set outside the physical envelope is never stored,
-        // whatever the host checked before sending.
-        let params = decode_blob(blob).map_err(|e| match e {
-            BlobError::Envelope(v) => WireError::ParamEnvelope(v),
-            _ => WireError::ParamInvalid,
-        })?;
+        // The device's own checks, whatever the host checked before sending: signed by a trusted
+        // key for this arm, newer than the stored set, inside the physical envelope.
+        let admitted = self.trust.admit(set, self.params.as_ref().map(|a| (&a.params, &a.provenance)))?;
         // Erasing stops the CPU on the real board: never while something samples.
-        self.store.store(blob, !self.sampling_in_use()).map_err(|e| match e {
+        self.store.store(set, !self.sampling_in_use()).map_err(|e| match e {
             FlashError::SpareNotErased => WireError::FlashBusy,
             _ => WireError::FlashWrite,
         })?;
-        self.params = Some((params, Kinematics::new(&params)));
+        self.params = Some(ActiveSet::new(admitted));
         Ok(Ack)
+    }
+}
+
+/// The pose of this tick's sample: computed only when every joint's frame of this tick was
+/// accepted; otherwise invalid (NaN, never a position from stale counts) naming the joints.
+fn pose_report(tick: u16, kinematics: &Kinematics, sample: &Sample) -> PoseReport {
+    let fresh = ALL_JOINTS & !sample.rejected;
+    if fresh != ALL_JOINTS {
+        let nan = [f32::NAN; 3];
+        return PoseReport {
+            tick,
+            valid: false,
+            fresh,
+            stale_ticks: sample.stale_ticks,
+            position_mm: nan,
+            z_axis: nan,
+            x_axis: nan,
+        };
+    }
+    let pose = kinematics.tool_pose(&sample.counts);
+    PoseReport {
+        tick,
+        valid: true,
+        fresh,
+        stale_ticks: 0,
+        position_mm: pose.position_mm,
+        z_axis: pose.z_axis,
+        x_axis: pose.x_axis,
     }
 }
 
@@ -316,8 +370,37 @@ mod tests {
     use super::*;
     use crate::flash::RamNor;
     use kincal_protocol::params::encode_blob;
+    use kincal_protocol::signed::{signing_message, SignatureRefusal, TrustMode};
 
     type Ctl = Controller<RamNor<4096>>;
+
+    const ARM: &str = "arm-1";
+
+    /// A controller for arm [`ARM`] trusting the first key it sees.
+    fn controller(flash: RamNor<4096>) -> Ctl {
+        Ctl::new("fw", "test", false, Trust::new(ARM, None).unwrap(), flash)
+    }
+
+    /// The station key made from `seed`.
+    fn station(seed: u8) -> ed25519_compact::KeyPair {
+        ed25519_compact::KeyPair::from_seed(ed25519_compact::Seed::new([seed; 32]))
+    }
+
+    /// `params` signed by `key` for `arm` at `time`, laid out as the protocol says.
+    fn signed_for(params: &ArmParams, key: &ed25519_compact::KeyPair, arm: &str, time: u64) -> Vec<u8> {
+        let mut blob = [0u8; MAX_PARAM_BLOB];
+        let n = encode_blob(params, &mut blob).unwrap();
+        let mut out = [0u8; MAX_PARAM_BLOB];
+        let m = signing_message(&blob[..n], arm, time, &key.pk, &mut out).unwrap();
+        let mut set = out[..m].to_vec();
+        set.extend_from_slice(key.sk.sign(&set, None).as_ref());
+        set
+    }
+
+    /// `params` signed by station 1 for [`ARM`].
+    fn signed(params: &ArmParams) -> Vec<u8> {
+        signed_for(params, &station(1), ARM, 1_790_000_000)
+    }
 
     /// Send `request` as frame `seq`; the answer.
     fn ask_as(c: &mut Ctl, seq: u16, request: Request) -> Result<Response, WireError> {
@@ -341,7 +424,7 @@ mod tests {
 
     #[test]
     fn requests_need_a_matching_hello() {
-        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        let mut c = controller(RamNor::new());
         assert_eq!(ask(&mut c, Request::GetInfo(GetInfo)), Err(WireError::NoHello));
         assert_eq!(
             ask(&mut c, Request::Hello(Hello { version: 99, schema: SCHEMA_HASH })),
@@ -361,17 +444,17 @@ mod tests {
 
     #[test]
     fn streams_the_link_cannot_carry_are_refused_and_the_settings_kept() {
-        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        let mut c = controller(RamNor::new());
         hello(&mut c);
         assert_eq!(ask(&mut c, Request::StreamRaw(StreamRaw { on: true })), Ok(Response::Ack));
         let refused = ask(&mut c, Request::StreamPose(StreamPose { divider: 1 }));
         assert_eq!(
             refused,
-            Err(WireError::LinkTooSlow { needed_bytes_per_s: 768 * (30 + 48), link_bytes_per_s: 46_080 })
+            Err(WireError::LinkTooSlow { needed_bytes_per_s: 768 * (30 + 53), link_bytes_per_s: 46_080 })
         );
         assert_eq!(ask(&mut c, Request::StreamPose(StreamPose { divider: 2 })), Ok(Response::Ack));
         let mut frames = Vec::new();
-        let sample = Sample { counts: [1000; 6], rejected: 0 };
+        let sample = Sample { counts: [1000; 6], rejected: 0, stale_ticks: 0 };
         for _ in 0..4 {
             c.on_tick(&sample, &mut |f| frames.push(f.clone()));
         }
@@ -381,22 +464,22 @@ mod tests {
         assert_eq!(ask(&mut c, Request::StreamPose(StreamPose { divider: 1 })), Ok(Response::Ack));
         assert_eq!(
             ask(&mut c, Request::StreamRaw(StreamRaw { on: true })),
-            Err(WireError::LinkTooSlow { needed_bytes_per_s: 768 * (30 + 48), link_bytes_per_s: 46_080 })
+            Err(WireError::LinkTooSlow { needed_bytes_per_s: 768 * (30 + 53), link_bytes_per_s: 46_080 })
         );
     }
 
     #[test]
     fn a_window_takes_only_samples_after_the_request() {
-        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        let mut c = controller(RamNor::new());
         hello(&mut c);
         let mut frames = Vec::new();
-        let stale = Sample { counts: [4_000_000; 6], rejected: 0 };
+        let stale = Sample { counts: [4_000_000; 6], rejected: 0, stale_ticks: 0 };
         for _ in 0..10 {
             c.on_tick(&stale, &mut |f| frames.push(f.clone()));
         }
         assert_eq!(ask(&mut c, Request::StartWindow(StartWindow { ticks: 3 })), Ok(Response::Ack));
         assert_eq!(ask(&mut c, Request::StartWindow(StartWindow { ticks: 3 })), Err(WireError::Busy));
-        let fresh = Sample { counts: [1000; 6], rejected: 0 };
+        let fresh = Sample { counts: [1000; 6], rejected: 0, stale_ticks: 0 };
         for _ in 0..3 {
             c.on_tick(&fresh, &mut |f| frames.push(f.clone()));
         }
@@ -409,11 +492,11 @@ mod tests {
 
     #[test]
     fn upload_is_checked_committed_and_survives_a_reboot() {
-        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        let mut c = controller(RamNor::new());
         hello(&mut c);
         let params = ArmParams { version: 42, tcp_mm: [0.0, 0.0, 253.0], ..ArmParams::default() };
-        let mut blob = [0u8; MAX_PARAM_BLOB];
-        let n = encode_blob(&params, &mut blob).unwrap();
+        let blob = signed(&params);
+        let n = blob.len();
         let crc = BLOB_CRC.checksum(&blob[..n]);
         assert_eq!(ask(&mut c, Request::ParamCommit(ParamCommit)), Err(WireError::NoUpload));
         assert_eq!(
@@ -461,13 +544,17 @@ mod tests {
         assert_eq!(&data[..], &blob[..PARAM_CHUNK.min(n)]);
         assert_eq!(ask(&mut c, Request::ParamCommit(ParamCommit)), Ok(Response::Ack));
         assert_eq!(c.params().map(|p| p.version), Some(42));
-        let rebooted = Ctl::new("fw", "test", false, c.store.into_flash());
+        let rebooted = controller(c.store.into_flash());
         assert_eq!(rebooted.params().map(|p| p.version), Some(42));
     }
 
     fn upload(c: &mut Ctl, params: &ArmParams) -> Result<Response, WireError> {
-        let mut blob = [0u8; MAX_PARAM_BLOB];
-        let n = encode_blob(params, &mut blob).unwrap();
+        upload_set(c, &signed(params))
+    }
+
+    /// Upload `set` (any bytes) and commit it.
+    fn upload_set(c: &mut Ctl, blob: &[u8]) -> Result<Response, WireError> {
+        let n = blob.len();
         ask(c, Request::ParamBegin(ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) }))?;
         for (k, chunk) in blob[..n].chunks(PARAM_CHUNK).enumerate() {
             let data = heapless::Vec::from_slice(chunk).unwrap();
@@ -476,11 +563,60 @@ mod tests {
         ask(c, Request::ParamCommit(ParamCommit))
     }
 
+    /// A pose is streamed as valid only when every joint's frame of this tick was accepted;
+    /// otherwise within that same tick it is invalid, carries no position and names the joints.
+    #[test]
+    fn a_pose_with_a_rejected_or_never_read_joint_is_invalid_the_same_tick() {
+        let mut c = controller(RamNor::new());
+        hello(&mut c);
+        let params = ArmParams { version: 4, tcp_mm: [0.0, 0.0, 253.0], ..ArmParams::default() };
+        assert_eq!(upload(&mut c, &params), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::StreamPose(StreamPose { divider: 1 })), Ok(Response::Ack));
+        let mut sampler = Sampler::default();
+        let mut poses = Vec::new();
+        let mut tick = |c: &mut Ctl,
+                        readings: [Result<kincal_protocol::biss::Reading, crate::biss_master::ReadError>;
+                            6]| {
+            let sample = sampler.record(&readings);
+            c.on_tick(&sample, &mut |f| {
+                if let DeviceFrame::Stream { item: Stream::Pose(p), .. } = f {
+                    poses.push(*p)
+                }
+            });
+        };
+        use crate::biss_master::ReadError;
+        use kincal_protocol::biss::{BissError, Reading};
+        let good = Ok(Reading { position_counts: 1000, warning: false });
+        let lost = Err(ReadError::Frame(BissError::LineHigh));
+        // Joint 3 never read since boot.
+        tick(&mut c, [good, good, lost, good, good, good]);
+        tick(&mut c, [good; 6]);
+        tick(&mut c, [good, good, good, good, lost, lost]);
+        tick(&mut c, [good, good, good, good, good, lost]);
+        tick(&mut c, [good; 6]);
+        let summary: Vec<_> = poses.iter().map(|p| (p.valid, p.fresh, p.stale_ticks)).collect();
+        assert_eq!(
+            summary,
+            [
+                (false, 0b11_1011, u16::MAX),
+                (true, 0x3F, 0),
+                (false, 0b00_1111, 1),
+                (false, 0b01_1111, 2),
+                (true, 0x3F, 0)
+            ]
+        );
+        for p in &poses {
+            let finite = p.position_mm.iter().chain(&p.z_axis).chain(&p.x_axis).all(|v| v.is_finite());
+            assert_eq!(finite, p.valid, "{p:?}: a position only when valid");
+        }
+        assert_eq!(poses[2].stale_joints().collect::<Vec<_>>(), [5, 6]);
+    }
+
     /// While a stream runs, a commit that would need a sector erased is refused (the erase
     /// would stop sampling on the real board); once idle the controller erases and commits pass.
     #[test]
     fn commits_while_sampling_never_erase_and_say_so() {
-        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        let mut c = controller(RamNor::new());
         hello(&mut c);
         assert!(!c.flash_maintenance_due(), "a blank device has nothing to erase");
         assert_eq!(ask(&mut c, Request::StreamRaw(StreamRaw { on: true })), Ok(Response::Ack));
@@ -505,14 +641,14 @@ mod tests {
         assert_eq!(upload(&mut c, &set(version)), Ok(Response::Ack));
         let flash = c.into_flash();
         assert_eq!(flash.erases, 1);
-        let rebooted = Ctl::new("fw", "test", false, flash);
+        let rebooted = controller(flash);
         assert_eq!(rebooted.params().map(|p| p.version), Some(version));
     }
 
     #[test]
     fn sets_outside_the_envelope_are_refused_with_the_reason_and_not_stored() {
         use kincal_protocol::params::ParamField;
-        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        let mut c = controller(RamNor::new());
         hello(&mut c);
         let good = ArmParams { version: 3, tcp_mm: [0.0, 0.0, 253.0], ..ArmParams::default() };
         assert_eq!(upload(&mut c, &good), Ok(Response::Ack));
@@ -531,11 +667,11 @@ mod tests {
     /// carried out twice; the same request with a new number is carried out.
     #[test]
     fn a_repeated_request_is_answered_again_not_carried_out_twice() {
-        let mut c = Ctl::new("fw", "test", false, RamNor::new());
+        let mut c = controller(RamNor::new());
         hello(&mut c);
         let params = ArmParams { version: 9, tcp_mm: [0.0, 0.0, 253.0], ..ArmParams::default() };
-        let mut blob = [0u8; MAX_PARAM_BLOB];
-        let n = encode_blob(&params, &mut blob).unwrap();
+        let blob = signed(&params);
+        let n = blob.len();
         let begin = Request::ParamBegin(ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) });
         assert_eq!(ask_as(&mut c, 100, begin), Ok(Response::Ack));
         let chunk = Request::ParamChunk(ParamChunk {
@@ -551,5 +687,123 @@ mod tests {
             panic!()
         };
         assert_eq!(data.len(), PARAM_CHUNK, "the chunk was taken once");
+    }
+
+    fn set(version: u32) -> ArmParams {
+        ArmParams { version, tcp_mm: [0.0, 0.0, 253.0], ..ArmParams::default() }
+    }
+
+    /// Unsigned, untrusted, tampered, replayed and other-arm sets are refused with the reason;
+    /// the stored set and its provenance stay.
+    #[test]
+    fn only_newer_sets_signed_by_the_trusted_key_for_this_arm_are_stored() {
+        let mut c = controller(RamNor::new());
+        hello(&mut c);
+        let mut blob = [0u8; MAX_PARAM_BLOB];
+        let n = encode_blob(&set(1), &mut blob).unwrap();
+        let unsigned = upload_set(&mut c, &blob[..n]);
+        assert_eq!(unsigned, Err(WireError::ParamSignature(SignatureRefusal::Unsigned)));
+        assert_eq!(c.params(), None, "an unsigned set is not stored, not even the first");
+        let first = signed(&set(2));
+        assert_eq!(upload_set(&mut c, &first), Ok(Response::Ack), "trust on first use");
+        let pinned = *c.provenance().unwrap();
+        assert_eq!(pinned.signer, *station(1).pk);
+        let refusals = [
+            (
+                signed_for(&set(3), &station(2), ARM, 5),
+                WireError::ParamSignature(SignatureRefusal::UntrustedKey),
+            ),
+            (
+                signed_for(&set(3), &station(1), "arm-2", 5),
+                WireError::ParamSignature(SignatureRefusal::WrongArm),
+            ),
+            (first.clone(), WireError::ParamRollback { stored: 2, offered: 2 }),
+            (signed(&set(1)), WireError::ParamRollback { stored: 2, offered: 1 }),
+        ];
+        for (k, (bad, refusal)) in refusals.into_iter().enumerate() {
+            assert_eq!(upload_set(&mut c, &bad), Err(refusal), "case {k}");
+        }
+        let good = signed(&set(3));
+        for at in 0..good.len() {
+            // Every byte flipped after signing: refused (most as a bad signature, the magic and
+            // padding as unsigned, the key as untrusted).
+            let mut bad = good.clone();
+            bad[at] ^= 0x01;
+            assert!(matches!(upload_set(&mut c, &bad), Err(WireError::ParamSignature(_))), "byte {at}");
+        }
+        assert_eq!(c.params(), Some(&set(2)));
+        assert_eq!(c.provenance(), Some(&pinned));
+        let info = c.info(&Sampler::default());
+        assert_eq!((info.arm_id.as_str(), info.trust, info.param_version), (ARM, TrustMode::FirstUse, 2));
+        assert_eq!((info.param_signer, info.param_signed_at_unix_s), (*station(1).pk, 1_790_000_000));
+        assert_eq!(upload_set(&mut c, &good), Ok(Response::Ack));
+        // The pin is the stored set: it survives a reboot.
+        let mut rebooted = controller(c.into_flash());
+        hello(&mut rebooted);
+        assert_eq!(rebooted.params(), Some(&set(3)));
+        assert_eq!(
+            upload_set(&mut rebooted, &signed_for(&set(4), &station(2), ARM, 5)),
+            Err(WireError::ParamSignature(SignatureRefusal::UntrustedKey))
+        );
+    }
+
+    /// With a key built in, only that key is trusted, also for the first set; a stored set
+    /// signed by another key is not used after a re-flash with a new key.
+    #[test]
+    fn a_build_time_key_is_the_only_one_trusted() {
+        let built_in = Trust::new(ARM, Some(*station(3).pk)).unwrap();
+        let mut c = Ctl::new("fw", "test", false, built_in.clone(), RamNor::new());
+        hello(&mut c);
+        assert_eq!(
+            upload_set(&mut c, &signed(&set(1))),
+            Err(WireError::ParamSignature(SignatureRefusal::UntrustedKey))
+        );
+        assert_eq!(upload_set(&mut c, &signed_for(&set(1), &station(3), ARM, 9)), Ok(Response::Ack));
+        assert_eq!(c.info(&Sampler::default()).trust, TrustMode::BuildKey);
+        let other_key = Trust::new(ARM, Some(*station(4).pk)).unwrap();
+        let reflashed = Ctl::new("fw", "test", false, other_key, c.into_flash());
+        assert_eq!(reflashed.params(), None);
+        let back = Ctl::new("fw", "test", false, built_in, reflashed.into_flash());
+        assert_eq!(back.params(), Some(&set(1)));
+    }
+
+    /// A power cut after every flash operation of a signed commit: after the reboot the
+    /// controller uses the old signed set or the new one (with its provenance), and the pinned key
+    /// is still the only one trusted.
+    #[test]
+    fn a_power_cut_at_every_step_of_a_signed_commit_keeps_the_old_or_the_new_set() {
+        let (old, new) =
+            (signed_for(&set(5), &station(1), ARM, 100), signed_for(&set(6), &station(1), ARM, 200));
+        let mut seen = [false; 2];
+        for budget in 0..400 {
+            let mut c = controller(RamNor::new());
+            hello(&mut c);
+            assert_eq!(upload_set(&mut c, &signed(&set(4))), Ok(Response::Ack));
+            assert_eq!(upload_set(&mut c, &old), Ok(Response::Ack));
+            let mut flash = c.into_flash();
+            flash.power_budget = Some(budget);
+            let mut c = controller(flash);
+            hello(&mut c);
+            let finished = upload_set(&mut c, &new).is_ok();
+            let mut flash = c.into_flash();
+            flash.power_budget = None;
+            let mut rebooted = controller(flash);
+            let got =
+                (rebooted.params().map(|p| p.version), rebooted.provenance().map(|p| p.signed_at_unix_s));
+            assert!(got == (Some(5), Some(100)) || got == (Some(6), Some(200)), "budget {budget}: {got:?}");
+            assert!(!finished || got.0 == Some(6), "budget {budget}: a finished commit must be active");
+            seen[(got.0 == Some(6)) as usize] = true;
+            hello(&mut rebooted);
+            assert_eq!(
+                upload_set(&mut rebooted, &signed_for(&set(9), &station(2), ARM, 5)),
+                Err(WireError::ParamSignature(SignatureRefusal::UntrustedKey)),
+                "budget {budget}: the pin survives"
+            );
+            if finished {
+                assert!(budget > 0);
+                break;
+            }
+        }
+        assert_eq!(seen, [true, true], "cuts before and after the commit word were tried");
     }
 }

@@ -1,16 +1,21 @@
 //! Emulated encoders behind the same SPI trait as the real ones: the SLO bit stream of six
 //! BiSS-C encoders at a pose the host sets, with noise and injected faults (CRC errors,
-//! dropouts, error and warning bits). The emulated board and the host tests read them through
-//! [`crate::biss_master::BissMaster`], exactly as the real board reads its encoders.
+//! dropouts, error and warning bits, unplugged joints, a hang). Each encoder is a
+//! [`kincal_biss_slave::Slave`], the slave model written from the BiSS-C description: its ACK
+//! starts after the second MA edge, lasts 1 to 8 bits, and joint j's line delays it by
+//! j mod 3 bits, so the decoder's compensation runs on every read. The emulated board and the
+//! host tests read them through [`crate::biss_master::BissMaster`], exactly as the real board
+//! reads its encoders.
 
-use crate::biss_master::{transfer_bytes, TRANSFER_BYTES};
+use crate::biss_master::TRANSFER_BYTES;
 use core::cell::RefCell;
 use core::convert::Infallible;
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embedded_hal_async::spi::{ErrorType, Operation, SpiDevice};
-use kincal_protocol::biss::{self, COUNTS_PER_TURN};
-use kincal_protocol::messages::{Request, SimFaults, SimSetPose, JOINTS};
+use kincal_biss_slave::{Line, Slave};
+use kincal_protocol::biss::COUNTS_PER_TURN;
+use kincal_protocol::messages::{Crash, Request, SimFaults, SimSetPose, JOINTS, TICK_HZ};
 
 /// The six emulated encoders' state.
 pub struct EmulatedEncoders {
@@ -20,6 +25,8 @@ pub struct EmulatedEncoders {
     dropouts: u16,
     error_bits: u16,
     warnings: u16,
+    unplugged: u8,
+    hang: bool,
     rng: u32,
 }
 
@@ -39,6 +46,8 @@ impl EmulatedEncoders {
             dropouts: 0,
             error_bits: 0,
             warnings: 0,
+            unplugged: 0,
+            hang: false,
             rng: 0x1234_5678,
         }
     }
@@ -53,12 +62,16 @@ impl EmulatedEncoders {
                 dropouts_per_10k,
                 error_bits_per_10k,
                 warnings_per_10k,
+                unplugged,
+                crash,
             }) => {
                 self.noise_counts = noise_counts;
                 self.crc_errors = crc_errors_per_10k;
                 self.dropouts = dropouts_per_10k;
                 self.error_bits = error_bits_per_10k;
                 self.warnings = warnings_per_10k;
+                self.unplugged = unplugged;
+                self.hang |= crash == Crash::Hang;
             }
             _ => {}
         }
@@ -88,20 +101,32 @@ impl EmulatedEncoders {
         sum * self.noise_counts as i32 / 1155
     }
 
-    /// What encoder `joint` sends on SLO for one read (all ones: it did not answer).
+    /// What the master samples from encoder `joint` in one read (a tick after the last).
     pub fn answer(&mut self, joint: usize) -> [u8; TRANSFER_BYTES] {
-        if self.chance(self.dropouts) {
-            return [0xFF; TRANSFER_BYTES];
-        }
+        let connected = self.unplugged & (1 << joint) == 0 && !self.chance(self.dropouts);
         let position =
             (self.counts[joint] as i64 + self.noise() as i64).rem_euclid(COUNTS_PER_TURN as i64) as u32;
-        let error = self.chance(self.error_bits);
-        let warning = self.chance(self.warnings);
-        let mut frame = biss::encode(position, error, warning, 1 + self.next() % 3);
-        if self.chance(self.crc_errors) {
-            frame.bits ^= 1 << (6 + self.next() % 24); // a flipped data bit
+        let mut slave = Slave {
+            error: self.chance(self.error_bits),
+            warning: self.chance(self.warnings),
+            ack_bits: 1 + self.next() % 8,
+            line_delay_bits: joint as u32 % 3,
+            line: if connected { Line::Connected } else { Line::StuckHigh },
+            ..Slave::new(position)
+        };
+        let mut bytes = [0u8; TRANSFER_BYTES];
+        slave.idle_ns(1_000_000_000 / TICK_HZ);
+        slave.read(&mut bytes);
+        if connected && self.chance(self.crc_errors) {
+            let bit = slave.first_data_bit() + (self.next() % 24) as usize; // a flipped data bit
+            bytes[bit / 8] ^= 0x80 >> (bit % 8);
         }
-        transfer_bytes(frame)
+        bytes
+    }
+
+    /// Whether the encoders were told to hang ([`Crash::Hang`]).
+    pub fn hung(&self) -> bool {
+        self.hang
     }
 }
 
@@ -132,6 +157,12 @@ impl<M: RawMutex> SpiDevice for EmulatedEncoder<'_, M> {
             else {
                 continue;
             };
+            if self.encoders.lock(|e| e.borrow().hung()) {
+                // A read that never finishes, as on a dead DMA or clock: only the watchdog ends it.
+                loop {
+                    core::hint::spin_loop();
+                }
+            }
             let answer = self.encoders.lock(|e| e.borrow_mut().answer(self.joint));
             for (k, b) in buf.iter_mut().enumerate() {
                 *b = answer.get(k).copied().unwrap_or(0);

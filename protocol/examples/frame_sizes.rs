@@ -26,15 +26,23 @@ fn main() {
         error_bits: u32::MAX,
         warnings: u32::MAX,
         dropouts: u32::MAX,
+        frame_errors: u32::MAX,
+        jumps: u32::MAX,
     };
     let info = Info {
         firmware: heapless::String::try_from("kincal-fw 0.1.0").unwrap_or_default(),
         board: heapless::String::try_from("mps2-an386 (emulated)").unwrap_or_default(),
         param_version: u32::MAX,
         param_crc: u32::MAX,
+        arm_id: heapless::String::try_from("z".repeat(24).as_str()).unwrap_or_default(),
+        trust: kincal_protocol::signed::TrustMode::FirstUse,
+        param_signer: [0xFF; 32],
+        param_signed_at_unix_s: u64::MAX,
         ticks: u32::MAX,
         late_ticks: u32::MAX,
         encoders: [health; JOINTS],
+        reset_cause: ResetCause::Unknown,
+        brownout_mv: u16::MAX,
     };
     let rows = [
         (
@@ -45,6 +53,9 @@ fn main() {
             "pose (stream)",
             size(&stream(Stream::Pose(PoseReport {
                 tick: u16::MAX,
+                valid: true,
+                fresh: ALL_JOINTS,
+                stale_ticks: u16::MAX,
                 position_mm: [1e3; 3],
                 z_axis: [1.0; 3],
                 x_axis: [1.0; 3],

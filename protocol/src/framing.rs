@@ -7,7 +7,7 @@
 use serde::{de::DeserializeOwned, Serialize};
 
 /// Largest encoded message (postcard bytes, before CRC and COBS).
-pub const MAX_MESSAGE: usize = 256;
+pub const MAX_MESSAGE: usize = 384;
 /// Largest frame on the wire: COBS overhead, CRC and delimiter included.
 pub const MAX_FRAME: usize = MAX_MESSAGE + 2 + MAX_MESSAGE / 254 + 2 + 1;
 
@@ -181,6 +181,9 @@ pub fn encode_pose_report<'a>(
 ) -> &'a [u8] {
     let mut frame = StreamFrame::new(seq, 2, out); // Stream::Pose
     frame.varint(pose.tick);
+    frame.byte(pose.valid as u8);
+    frame.byte(pose.fresh);
+    frame.varint(pose.stale_ticks);
     frame.floats(&pose.position_mm);
     frame.floats(&pose.z_axis);
     frame.floats(&pose.x_axis);
@@ -291,15 +294,29 @@ mod tests {
             accepted: 1530,
             rejected: 6,
         };
-        let health = EncoderHealth { accepted: 10, crc_errors: 1, error_bits: 2, warnings: 3, dropouts: 4 };
+        let health = EncoderHealth {
+            accepted: 10,
+            crc_errors: 1,
+            error_bits: 2,
+            warnings: 3,
+            dropouts: 4,
+            frame_errors: 5,
+            jumps: 6,
+        };
         let info = Info {
             firmware: heapless::String::try_from("kincal-fw 0.1.0").unwrap(),
             board: heapless::String::try_from("mps2-an386").unwrap(),
             param_version: 3,
             param_crc: 0xDEAD_BEEF,
+            arm_id: heapless::String::try_from("arm-1").unwrap(),
+            trust: crate::signed::TrustMode::BuildKey,
+            param_signer: [0x5A; 32],
+            param_signed_at_unix_s: 1_790_000_000,
             ticks: 99,
             late_ticks: 2,
             encoders: [health; JOINTS],
+            reset_cause: ResetCause::Watchdog,
+            brownout_mv: 2700,
         };
         let chunk = heapless::Vec::from_slice(&[1, 2, 0, 0, 255]).unwrap();
         let responses = [
@@ -324,6 +341,9 @@ mod tests {
             Stream::Window(WindowReport { ticks: 1536, joints: [window; JOINTS], flagged: true }),
             Stream::Pose(PoseReport {
                 tick: 7,
+                valid: true,
+                fresh: ALL_JOINTS,
+                stale_ticks: 0,
                 position_mm: [512.5, 12.5, 40.0],
                 z_axis: [0.0, 0.0, -1.0],
                 x_axis: [1.0, 0.0, 0.0],
@@ -355,6 +375,8 @@ mod tests {
                 dropouts_per_10k: 5,
                 error_bits_per_10k: 1,
                 warnings_per_10k: 2,
+                unplugged: 0b100,
+                crash: Crash::Hang,
             }),
         ]
         .into_iter()
@@ -422,7 +444,15 @@ mod tests {
         let raw = RawSample { tick: u16::MAX, packed: [0xFF; 17], rejected: 0xFF };
         assert_eq!(encode_raw_sample(u16::MAX, &raw, &mut buf).len() as u32, RAW_FRAME_MAX_BYTES);
         let big = [f32::from_bits(0xFFFF_FFFF); 3];
-        let pose = PoseReport { tick: u16::MAX, position_mm: big, z_axis: big, x_axis: big };
+        let pose = PoseReport {
+            tick: u16::MAX,
+            valid: true,
+            fresh: 0xFF,
+            stale_ticks: u16::MAX,
+            position_mm: big,
+            z_axis: big,
+            x_axis: big,
+        };
         assert_eq!(encode_pose_report(u16::MAX, &pose, &mut buf).len() as u32, POSE_FRAME_MAX_BYTES);
         // Zeros make COBS blocks but never more bytes than a frame without zeros.
         let zero = RawSample { tick: 0, packed: [0; 17], rejected: 0 };
@@ -441,6 +471,9 @@ mod tests {
             let seq = (k as u16).wrapping_mul(40_503);
             let pose = PoseReport {
                 tick: (k as u16).wrapping_mul(7919),
+                valid: k % 2 == 0,
+                fresh: k as u8,
+                stale_ticks: (k as u16).wrapping_mul(331),
                 position_mm: core::array::from_fn(|_| float()),
                 z_axis: core::array::from_fn(|_| float()),
                 x_axis: core::array::from_fn(|_| float()),
@@ -459,15 +492,23 @@ mod tests {
             error_bits: u32::MAX,
             warnings: u32::MAX,
             dropouts: u32::MAX,
+            frame_errors: u32::MAX,
+            jumps: u32::MAX,
         };
         let info = Info {
             firmware: heapless::String::try_from("x".repeat(24).as_str()).unwrap(),
             board: heapless::String::try_from("y".repeat(24).as_str()).unwrap(),
             param_version: u32::MAX,
             param_crc: u32::MAX,
+            arm_id: heapless::String::try_from("z".repeat(24).as_str()).unwrap_or_default(),
+            trust: crate::signed::TrustMode::FirstUse,
+            param_signer: [0xFF; 32],
+            param_signed_at_unix_s: u64::MAX,
             ticks: u32::MAX,
             late_ticks: u32::MAX,
             encoders: [health; JOINTS],
+            reset_cause: ResetCause::Unknown,
+            brownout_mv: u16::MAX,
         };
         round_trip(&DeviceFrame::Response { seq: u16::MAX, response: Ok(Response::Info(info)) });
     }

@@ -6,6 +6,7 @@
 //!   checks the CRC before decoding and resynchronises at the next delimiter.
 //! * [`biss`] — the BiSS-C single-cycle frame of a 22-bit absolute encoder, with its CRC-6.
 //! * [`params`] — the calibrated arm model as stored on the controller (version, CRC, size limit).
+//! * [`signed`] — the signed parameter set: blob, arm identity, time, Ed25519 key and signature.
 //!
 //! The `std` feature adds what the host needs (allocation-backed helpers).
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
@@ -16,3 +17,4 @@ pub mod biss;
 pub mod framing;
 pub mod messages;
 pub mod params;
+pub mod signed;

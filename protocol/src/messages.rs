@@ -11,7 +11,7 @@ use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
 /// Protocol version; bump on any incompatible change.
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 4;
 /// Largest parameter chunk carried by one message, bytes.
 pub const PARAM_CHUNK: usize = 48;
 /// Joints read every tick.
@@ -32,7 +32,9 @@ pub const LINK_BYTES_PER_S: u32 = LINK_BAUD / 10;
 /// Longest raw-sample stream frame on the wire (delimiter included), bytes.
 pub const RAW_FRAME_MAX_BYTES: u32 = 30;
 /// Longest pose stream frame on the wire (delimiter included), bytes.
-pub const POSE_FRAME_MAX_BYTES: u32 = 48;
+pub const POSE_FRAME_MAX_BYTES: u32 = 53;
+/// Bit mask of all joints (bit j: joint j + 1), as in [`PoseReport::fresh`].
+pub const ALL_JOINTS: u8 = (1 << JOINTS) - 1;
 
 /// Bytes per second the per-tick streams need: the raw stream if `raw`, and one pose frame every
 /// `pose_divider` ticks (0: no pose stream). The controller refuses settings above
@@ -177,8 +179,9 @@ pub struct SimSetPose {
     pub counts: [u32; JOINTS],
 }
 
-/// Emulated board only: noise and faults of the emulated encoder bus. Answer: [`Ack`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+/// Emulated board only: noise and faults of the emulated encoder bus (default: a clean bus).
+/// Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub struct SimFaults {
     /// Standard deviation of position noise, counts.
     pub noise_counts: u16,
@@ -190,6 +193,24 @@ pub struct SimFaults {
     pub error_bits_per_10k: u16,
     /// Frames per 10 000 with the warning bit set.
     pub warnings_per_10k: u16,
+    /// Bit j set: joint j + 1's encoder is unplugged (its SLO line floats and the pull-up reads
+    /// it high: no encoder answers).
+    pub unplugged: u8,
+    /// A firmware fault to inject now, to test that the watchdog and the panic handler reset
+    /// the controller.
+    pub crash: Crash,
+}
+
+/// A firmware fault the emulated controller injects on request ([`SimFaults::crash`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub enum Crash {
+    /// No fault.
+    #[default]
+    None,
+    /// Panic in the task serving the host.
+    Panic,
+    /// The sampling task hangs (spins inside an encoder read, as on a dead DMA or clock).
+    Hang,
 }
 
 /// A frame from the controller.
@@ -212,6 +233,9 @@ pub enum DeviceFrame {
 }
 
 /// Successful answers, one variant per answer type.
+// `Info` (~290 bytes with the signer's key) is the large one; no_std without alloc cannot box it,
+// and an answer lives on the stack only while it is encoded.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub enum Response {
     /// Answer to [`Hello`].
@@ -283,6 +307,15 @@ pub enum WireError {
     FlashBusy,
     /// Only the emulated board supports this request.
     NotSupported,
+    /// The set's signature, key or arm identity is refused; nothing was stored.
+    ParamSignature(crate::signed::SignatureRefusal),
+    /// The set's version is not higher than the stored one's (no rollback); nothing was stored.
+    ParamRollback {
+        /// Version of the stored set.
+        stored: u32,
+        /// Version of the refused set.
+        offered: u32,
+    },
     /// The streams asked for need more than the host link carries; the settings are unchanged.
     LinkTooSlow {
         /// Bytes per second the asked-for streams need.
@@ -301,8 +334,16 @@ pub struct Info {
     pub board: heapless::String<24>,
     /// Version number of the stored parameters (0: none stored).
     pub param_version: u32,
-    /// CRC-32 of the stored parameter blob (0: none).
+    /// CRC-32 of the stored parameter set (0: none).
     pub param_crc: u32,
+    /// This controller's arm identity (signed sets must name it).
+    pub arm_id: crate::signed::ArmId,
+    /// Which keys the controller trusts.
+    pub trust: crate::signed::TrustMode,
+    /// Public key of the stored set's signer (all zero: none stored).
+    pub param_signer: [u8; crate::signed::PUBLIC_KEY_BYTES],
+    /// When the stored set was signed, Unix seconds (0: none stored).
+    pub param_signed_at_unix_s: u64,
     /// Ticks since boot.
     pub ticks: u32,
     /// Ticks whose encoder read started more than one tick period late since boot (the
@@ -310,6 +351,34 @@ pub struct Info {
     pub late_ticks: u32,
     /// Per-joint encoder health since boot.
     pub encoders: [EncoderHealth; JOINTS],
+    /// Why the controller last started.
+    pub reset_cause: ResetCause,
+    /// The brown-out reset threshold the board is set to, millivolts (0: the board has none to
+    /// report, e.g. the emulated board). Flash is programmed 32 bits at a time, which needs
+    /// at least 2700 mV.
+    pub brownout_mv: u16,
+}
+
+/// Why the controller last started (reported by [`Info::reset_cause`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub enum ResetCause {
+    /// Power was switched on.
+    PowerOn,
+    /// The watchdog reset a controller whose sampling loop had stopped.
+    Watchdog,
+    /// The firmware panicked (recorded by the panic handler, which then resets).
+    Panic,
+    /// A processor fault (HardFault: bad memory access, stack overflow), recorded, then reset.
+    Fault,
+    /// A reset request ([`Request::Reset`]) or a debugger.
+    Software,
+    /// The supply fell below the brown-out level.
+    BrownOut,
+    /// The reset pin was pulled low.
+    Pin,
+    /// None of the above could be told (no cause recorded).
+    #[default]
+    Unknown,
 }
 
 /// Encoder frame counters of one joint.
@@ -323,8 +392,14 @@ pub struct EncoderHealth {
     pub error_bits: u32,
     /// Frames accepted with the warning bit.
     pub warnings: u32,
-    /// Frames with no answer (no start bit, truncated, bad CDS).
+    /// Frames with no answer (the line stayed high, or low: no encoder or a dead line).
     pub dropouts: u32,
+    /// Frames that answered but break the frame format (ACK too early or too long, CDS,
+    /// the timeout bits after the CRC).
+    pub frame_errors: u32,
+    /// Frames with a valid CRC whose count jumped farther from the last good one than the arm
+    /// can move in the time between them (rejected like a CRC error).
+    pub jumps: u32,
 }
 
 /// What the controller streams.
@@ -378,16 +453,36 @@ pub struct JointWindow {
 }
 
 /// Calibrated tool pose computed on the controller.
+///
+/// A pose is valid only when every joint's frame of this very tick was accepted: a joint whose
+/// frame was rejected (or that was never read since boot) would put its last good count, or 0,
+/// into a plausible but wrong position. An invalid pose carries NaN in the position and the
+/// axes, so it cannot be used as one by mistake; [`PoseReport::fresh`] tells which joints
+/// failed.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub struct PoseReport {
     /// Tick number (wrapping).
     pub tick: u16,
-    /// Tool point, mm.
+    /// Every joint's count is fresh this tick and the pose was computed from them.
+    pub valid: bool,
+    /// Bit j set: joint j + 1's frame of this tick was accepted ([`ALL_JOINTS`] when valid).
+    pub fresh: u8,
+    /// Ticks since the stalest joint's last accepted frame (0 when valid; `u16::MAX`: some
+    /// joint was never read since boot, or longer ago than that).
+    pub stale_ticks: u16,
+    /// Tool point, mm (NaN when not valid).
     pub position_mm: [f32; 3],
-    /// Tool z axis (unit).
+    /// Tool z axis (unit; NaN when not valid).
     pub z_axis: [f32; 3],
-    /// Tool x axis (unit).
+    /// Tool x axis (unit; NaN when not valid).
     pub x_axis: [f32; 3],
+}
+
+impl PoseReport {
+    /// Joint numbers (1-based, base to tip) whose count was not fresh this tick.
+    pub fn stale_joints(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..JOINTS).filter(|j| self.fresh & (1 << j) == 0).map(|j| j + 1)
+    }
 }
 
 /// A request type and the type of its answer, as postcard-rpc's endpoints: the controller can
@@ -520,6 +615,13 @@ impl core::fmt::Display for WireError {
                  nothing samples; nothing was stored: stop the streams and windows and commit again",
             ),
             WireError::NotSupported => f.write_str("only the emulated controller supports this"),
+            WireError::ParamSignature(r) => write!(f, "{r}; nothing was stored"),
+            WireError::ParamRollback { stored, offered } => write!(
+                f,
+                "parameter version {offered} is not higher than the stored version {stored} (no rollback); \
+                 nothing was stored: to put older values back, upload them as version {} or later",
+                stored.saturating_add(1)
+            ),
             WireError::LinkTooSlow { needed_bytes_per_s, link_bytes_per_s } => write!(
                 f,
                 "these streams need {needed_bytes_per_s} B/s and the link carries {link_bytes_per_s} B/s \

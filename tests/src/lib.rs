@@ -9,14 +9,18 @@ pub mod corpus;
 
 pub mod haptic_gen;
 
+pub mod tracker_gen;
+
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use kincal::controller::signing::StationKey;
 use kincal_firmware::biss_master::BissMaster;
 use kincal_firmware::controller::{Action, Controller};
 use kincal_firmware::emulated_encoders::{EmulatedEncoder, EmulatedEncoders, SharedEncoders};
 use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
+use kincal_firmware::trust::{Trust, EMULATED_ARM_ID};
 use kincal_protocol::framing::{self, Decoder, MAX_FRAME};
-use kincal_protocol::messages::{DeviceFrame, HostFrame, Request, TICK_HZ};
+use kincal_protocol::messages::{Crash, DeviceFrame, HostFrame, Request, ResetCause, SimFaults, TICK_HZ};
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -24,6 +28,33 @@ use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+/// The fake controller's trust: the emulated arm's identity, trust on first use.
+fn fake_trust() -> Trust {
+    Trust::new(EMULATED_ARM_ID, None).expect("a valid identity")
+}
+
+/// The tests' station key (a fixed seed, so runs are reproducible).
+pub fn station_key() -> StationKey {
+    StationKey::from_seed([42; 32])
+}
+
+/// A station key file in `dir` (`station.key`, owner-only) for the CLI.
+pub fn station_key_file(dir: &Path) -> PathBuf {
+    let path = dir.join("station.key");
+    StationKey::create(&path).expect("a new station key");
+    path
+}
+
+/// `blob` signed by [`station_key`] for the emulated arm (also the fake controller's identity).
+pub fn sign_blob(blob: &[u8]) -> Vec<u8> {
+    station_key().sign(blob, EMULATED_ARM_ID, 1_790_000_000).expect("fits")
+}
+
+/// `model` as version `version`, signed by [`station_key`] for the emulated arm.
+pub fn signed_set(model: &kincal::model::ArmModel, version: u32) -> Vec<u8> {
+    sign_blob(&kincal::controller::device::parameter_blob(model, version).expect("inside the envelope"))
+}
 
 /// What happens to a request the fake controller is told to fault.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -42,11 +73,21 @@ struct FaultPlan {
     fault: Fault,
     times: u32,
 }
+/// What the test does to the fake controller behind the host's back, while a CLI is connected.
+#[derive(Default)]
+struct Meddling {
+    /// Emulated-arm requests to apply (pose, encoder faults), as if the host had sent them.
+    arm: Vec<Request>,
+    /// No ticks (no stream frames) until then: a stalled controller.
+    stalled_until: Option<Instant>,
+}
+
 /// A controller on a background thread; stopped on drop.
 pub struct FakeController {
     /// Where to connect: `tcp:127.0.0.1:PORT`.
     pub port: String,
     faults: Arc<std::sync::Mutex<FaultPlan>>,
+    meddling: Arc<std::sync::Mutex<Meddling>>,
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -71,8 +112,22 @@ impl FakeController {
         let faults =
             Arc::new(std::sync::Mutex::new(FaultPlan { applies: |_| false, fault: Fault::None, times: 0 }));
         let plan = faults.clone();
-        let thread = std::thread::spawn(move || serve(listener, flag, plan, speedup));
-        FakeController { port, faults, stop, thread: Some(thread) }
+        let meddling = Arc::new(std::sync::Mutex::new(Meddling::default()));
+        let meddle = meddling.clone();
+        let thread = std::thread::spawn(move || serve(listener, flag, plan, meddle, speedup));
+        FakeController { port, faults, meddling, stop, thread: Some(thread) }
+    }
+
+    /// Apply an emulated-arm request (SimSetPose, SimFaults) at the next tick, whoever is
+    /// connected: e.g. unplug a joint while the CLI streams.
+    pub fn meddle_arm(&self, request: Request) {
+        self.meddling.lock().unwrap_or_else(|e| e.into_inner()).arm.push(request);
+    }
+
+    /// Send nothing (no ticks) for `duration`: a controller that stalls.
+    pub fn stall(&self, duration: Duration) {
+        self.meddling.lock().unwrap_or_else(|e| e.into_inner()).stalled_until =
+            Some(Instant::now() + duration);
     }
 
     /// Fault the next `times` requests for which `applies` holds, in the way given.
@@ -92,9 +147,12 @@ fn serve(
     listener: TcpListener,
     stop: Arc<AtomicBool>,
     faults: Arc<std::sync::Mutex<FaultPlan>>,
+    meddling: Arc<std::sync::Mutex<Meddling>>,
     speedup: u32,
 ) {
-    let mut controller = Controller::new("kincal-fw fake", "host (fake)", true, RamNor::<4096>::new());
+    let mut controller =
+        Controller::new("kincal-fw fake", "host (fake)", true, fake_trust(), RamNor::<4096>::new());
+    controller.set_boot(ResetCause::PowerOn, 0);
     let mut sampler = Sampler::default();
     let encoders: SharedEncoders<NoopRawMutex> =
         embassy_sync::blocking_mutex::Mutex::new(std::cell::RefCell::new(EmulatedEncoders::new()));
@@ -144,19 +202,46 @@ fn serve(
                                 write_frame(&mut stream, f);
                             }
                         }
-                        match action {
-                            Action::Simulate(request) => encoders.lock(|e| e.borrow_mut().apply(&request)),
-                            Action::Reset => {
-                                let flash = controller.into_flash();
-                                controller = Controller::new("kincal-fw fake", "host (fake)", true, flash);
-                                sampler = Sampler::default();
+                        let restart = match action {
+                            // No watchdog here, and a hang would stop this thread: the fake
+                            // restarts at once, as the board does, with the cause recorded.
+                            Action::Simulate(Request::SimFaults(SimFaults {
+                                crash: Crash::Panic, ..
+                            })) => Some(ResetCause::Panic),
+                            Action::Simulate(Request::SimFaults(SimFaults {
+                                crash: Crash::Hang, ..
+                            })) => Some(ResetCause::Watchdog),
+                            Action::Simulate(request) => {
+                                encoders.lock(|e| e.borrow_mut().apply(&request));
+                                if matches!(request, Request::SimSetPose(_)) {
+                                    sampler.forget_positions();
+                                }
+                                None
                             }
-                            _ => {}
+                            Action::Reset => Some(ResetCause::Software),
+                            Action::None => None,
+                        };
+                        if let Some(cause) = restart {
+                            let flash = controller.into_flash();
+                            controller =
+                                Controller::new("kincal-fw fake", "host (fake)", true, fake_trust(), flash);
+                            controller.set_boot(cause, 0);
+                            sampler = Sampler::default();
                         }
                     }
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
                 Err(_) => break 'connection,
+            }
+            let stalled_until = {
+                let mut m = meddling.lock().unwrap_or_else(|e| e.into_inner());
+                for request in m.arm.drain(..) {
+                    encoders.lock(|e| e.borrow_mut().apply(&request));
+                }
+                m.stalled_until.filter(|t| Instant::now() < *t)
+            };
+            if let Some(until) = stalled_until {
+                next_tick = until;
             }
             while Instant::now() >= next_tick {
                 next_tick += tick;

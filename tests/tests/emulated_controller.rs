@@ -6,9 +6,10 @@ use kincal::controller::link::{Link, LinkError};
 use kincal_e2e::emulated_firmware;
 use kincal_protocol::biss::COUNTS_PER_TURN;
 use kincal_protocol::messages::{
-    GetInfo, Reset, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WindowReport,
-    PROTOCOL_VERSION, SCHEMA_HASH,
+    Crash, GetInfo, PoseReport, Reset, ResetCause, SimFaults, SimSetPose, StartWindow, Stream, StreamPose,
+    StreamRaw, WindowReport, WireError, PROTOCOL_VERSION, SCHEMA_HASH,
 };
+use kincal_protocol::signed::SignatureRefusal;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -70,6 +71,8 @@ fn a_two_second_window_returns_the_set_pose_including_one_at_the_wrap() {
         dropouts_per_10k: 0,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: Crash::None,
     })
     .unwrap();
     let started = Instant::now();
@@ -96,6 +99,8 @@ fn injected_crc_errors_are_counted_and_excluded() {
         dropouts_per_10k: 100,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: Crash::None,
     })
     .unwrap();
     let w = window(&mut link, 768);
@@ -113,7 +118,7 @@ fn injected_crc_errors_are_counted_and_excluded() {
 fn uploaded_parameters_survive_a_controller_reset() {
     let (_g, _emu, mut link) = start();
     let model = kincal::model::ArmModel::suta_nominal();
-    let blob = kincal::controller::device::parameter_blob(&model, 7).unwrap();
+    let blob = kincal_e2e::signed_set(&model, 7);
     link.upload(&blob).unwrap();
     assert_eq!(link.info().unwrap().param_version, 7);
     link.call(Reset).unwrap();
@@ -164,7 +169,7 @@ fn the_controller_streams_the_calibrated_pose_the_host_computes() {
     model.joints[4].eccentricity_sin_deg = 0.2;
     model.joints[1].compliance_deg_per_m = 0.1;
     model.tcp_mm = [0.5, -0.3, 253.0];
-    link.upload(&kincal::controller::device::parameter_blob(&model, 11).unwrap()).unwrap();
+    link.upload(&kincal_e2e::signed_set(&model, 11)).unwrap();
     let counts = [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, COUNTS_PER_TURN - 5];
     link.call(SimSetPose { counts }).unwrap();
     link.call(StreamPose { divider: 4 }).unwrap();
@@ -187,7 +192,6 @@ fn the_controller_streams_the_calibrated_pose_the_host_computes() {
 
 #[test]
 fn absurd_parameter_sets_are_refused_by_the_controller_itself() {
-    use kincal_protocol::messages::WireError;
     use kincal_protocol::params::{encode_blob, ArmParams, ParamField, MAX_PARAM_BLOB};
     let (_g, _emu, mut link) = start();
     let good = kincal::controller::device::device_params(&kincal::model::ArmModel::suta_nominal(), 5);
@@ -206,7 +210,7 @@ fn absurd_parameter_sets_are_refused_by_the_controller_itself() {
         // Encoded raw: no host-side check on this path.
         let mut blob = [0u8; MAX_PARAM_BLOB];
         let n = encode_blob(&params, &mut blob).unwrap();
-        match link.upload(&blob[..n]) {
+        match link.upload(&kincal_e2e::sign_blob(&blob[..n])) {
             Err(LinkError::Refused(_, WireError::ParamEnvelope(v))) => assert_eq!(v.field, field),
             other => panic!("{field:?}: expected a refusal by the controller, got {other:?}"),
         }
@@ -316,11 +320,10 @@ fn a_thousand_requests_during_a_full_rate_raw_stream_lose_nothing() {
 #[test]
 fn parameter_commits_during_a_raw_stream_miss_no_tick_and_never_erase() {
     use kincal::controller::link::LinkError;
-    use kincal_protocol::messages::WireError;
     let (_g, _emu, mut link) = start();
     let late_before = link.info().unwrap().late_ticks;
     let model = kincal::model::ArmModel::suta_nominal();
-    let blob = |version| kincal::controller::device::parameter_blob(&model, version).unwrap();
+    let blob = |version| kincal_e2e::signed_set(&model, version);
     link.call(StreamRaw { on: true }).unwrap();
     let mut committed = 0;
     let refused = loop {
@@ -330,6 +333,8 @@ fn parameter_commits_during_a_raw_stream_miss_no_tick_and_never_erase() {
         }
         assert!(committed < 20, "the emulated flash's 2 KiB sectors never filled");
     };
+    // A little more stream after the commits, so the frame count does not hang on upload speed.
+    std::thread::sleep(Duration::from_millis(200));
     link.call(StreamRaw { on: false }).unwrap();
     let (frames, missed) = raw_frames_and_missed_ticks(&mut link);
     assert!(matches!(refused, LinkError::Refused(_, WireError::FlashBusy)), "{refused}");
@@ -350,4 +355,179 @@ fn parameter_commits_during_a_raw_stream_miss_no_tick_and_never_erase() {
     // Idle now: the controller erased the spare sector, so the same commit goes through.
     link.upload(&blob(committed + 1)).unwrap();
     assert_eq!(link.info().unwrap().param_version, committed + 1);
+}
+
+fn faults(unplugged: u8, crash: Crash) -> SimFaults {
+    SimFaults { unplugged, crash, ..SimFaults::default() }
+}
+
+/// The pose frames after the answer to `request` (those before it predate the request).
+fn poses_after(link: &mut Link, request: SimFaults, n: usize) -> Vec<PoseReport> {
+    link.call(request).unwrap();
+    link.clear_streams();
+    let mut poses = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while poses.len() < n && Instant::now() < deadline {
+        if let Some((_, p)) = link.next_on::<PoseReport>(Duration::from_millis(200)).unwrap() {
+            poses.push(p);
+        }
+    }
+    assert_eq!(poses.len(), n, "pose frames");
+    poses
+}
+
+/// A joint unplugged mid-stream: the very next pose frame (the next tick's) is invalid, names
+/// the joint and carries no position; plugged back, the next one is valid again.
+#[test]
+fn an_unplugged_joint_invalidates_the_next_pose_and_plugged_back_it_is_valid() {
+    let (_g, _emu, mut link) = start();
+    let model = kincal::model::ArmModel::suta_nominal();
+    link.upload(&kincal_e2e::signed_set(&model, 3)).unwrap();
+    link.call(SimSetPose { counts: [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, 5] }).unwrap();
+    link.call(StreamPose { divider: 1 }).unwrap();
+    let before = poses_after(&mut link, faults(0, Crash::None), 50);
+    assert!(before.iter().all(|p| p.valid && p.fresh == 0x3F && p.stale_ticks == 0), "{:?}", before[0]);
+    let unplugged = poses_after(&mut link, faults(0b100, Crash::None), 100);
+    for (k, p) in unplugged.iter().enumerate() {
+        assert!(!p.valid, "pose {k} after unplugging joint 3 is valid: {p:?}");
+        assert_eq!(p.fresh, 0b11_1011, "{p:?}");
+        assert_eq!(p.stale_joints().collect::<Vec<_>>(), [3]);
+        assert!(p.position_mm.iter().all(|v| v.is_nan()), "no position: {p:?}");
+    }
+    assert!(unplugged[0].stale_ticks <= 2, "the first frame is within a tick or two: {:?}", unplugged[0]);
+    assert!(unplugged[99].stale_ticks >= 99, "staleness grows: {:?}", unplugged[99]);
+    let back = poses_after(&mut link, faults(0, Crash::None), 50);
+    assert!(back.iter().all(|p| p.valid && p.position_mm.iter().all(|v| v.is_finite())), "{:?}", back[0]);
+    link.call(StreamPose { divider: 0 }).unwrap();
+    let info = link.info().unwrap();
+    assert!(info.encoders[2].dropouts >= 100, "{:?}", info.encoders[2]);
+}
+
+/// The controller answers again after a reset (a new handshake), within `seconds`.
+fn reconnect(link: &mut Link, seconds: u64) -> Duration {
+    let started = Instant::now();
+    while link.hello().is_err() {
+        assert!(started.elapsed() < Duration::from_secs(seconds), "the controller did not come back");
+    }
+    started.elapsed()
+}
+
+/// A panic and a hang of the sampling loop: the panic handler and the watchdog reset the
+/// controller, and `info` tells why; a reset request is told apart, and so is the first start.
+#[test]
+fn a_panic_and_a_hang_reset_the_controller_and_info_tells_why() {
+    let (_g, _emu, mut link) = start();
+    assert_eq!(link.info().unwrap().reset_cause, ResetCause::PowerOn);
+    link.call(faults(0, Crash::Panic)).unwrap();
+    let back = reconnect(&mut link, 10);
+    let info = link.info().unwrap();
+    eprintln!("panic: back after {back:?}, {} ticks up", info.ticks);
+    assert_eq!(info.reset_cause, ResetCause::Panic);
+    assert!(info.ticks < 768 * 3, "restarted ({} ticks)", info.ticks);
+
+    link.call(faults(0, Crash::Hang)).unwrap();
+    let hung = Instant::now();
+    // The sampling loop hangs at its next tick; requests already in the pipe may still be
+    // answered before that, so ask again only once it must have hung.
+    std::thread::sleep(Duration::from_millis(100));
+    let back = reconnect(&mut link, 10);
+    let info = link.info().unwrap();
+    eprintln!("hang: back after {:?} (watchdog 1 s), {} ticks up", hung.elapsed(), info.ticks);
+    assert_eq!(info.reset_cause, ResetCause::Watchdog);
+    assert!(info.ticks < 768 * 3, "restarted ({} ticks)", info.ticks);
+    assert!(
+        back + Duration::from_millis(100) >= Duration::from_millis(900),
+        "reset before the watchdog's time"
+    );
+
+    link.call(Reset).unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    reconnect(&mut link, 5);
+    assert_eq!(link.info().unwrap().reset_cause, ResetCause::Software);
+}
+
+/// A controller for arm `arm_id` holding version 3 of the nominal set, signed by the tests'
+/// station key for it; the stored bytes.
+fn start_signed(arm_id: &str) -> (std::sync::MutexGuard<'static, ()>, Emulator, Link, Vec<u8>) {
+    let guard = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let (emulator, mut link) = Emulator::start_as(&emulated_firmware(), Some(arm_id)).expect("QEMU starts");
+    link.hello().expect("handshake");
+    let blob =
+        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 3).unwrap();
+    let set = kincal_e2e::station_key().sign(&blob, arm_id, 1_790_000_000).unwrap();
+    link.upload(&set).expect("the first signed set is stored (trust on first use)");
+    (guard, emulator, link, set)
+}
+
+/// `set` is refused with `refusal`; the controller still answers and holds `stored`.
+fn refused_and_unchanged(link: &mut Link, set: &[u8], refusal: WireError, stored: &[u8]) {
+    match link.upload(set) {
+        Err(LinkError::Refused(_, e)) => assert_eq!(e, refusal, "{e}"),
+        other => panic!("expected {refusal:?}, got {other:?}"),
+    }
+    let info = link.info().expect("info answers");
+    let held = kincal::controller::signing::provenance(stored).unwrap();
+    let version = kincal_protocol::params::decode_blob(&held.blob).unwrap().version;
+    assert_eq!(
+        (info.param_version, info.param_signer, info.param_signed_at_unix_s),
+        (version, held.signer, held.signed_at_unix_s)
+    );
+    assert_eq!(link.read_params(false, 4096).unwrap(), stored, "the stored set is unchanged");
+}
+
+fn signed_version(version: u32, arm_id: &str, key: &kincal::controller::signing::StationKey) -> Vec<u8> {
+    let blob = kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), version)
+        .unwrap();
+    key.sign(&blob, arm_id, 1_790_000_100).unwrap()
+}
+
+#[test]
+fn an_unsigned_raw_upload_is_refused() {
+    let (_g, _emu, mut link, stored) = start_signed("emulated-arm");
+    let blob =
+        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 4).unwrap();
+    refused_and_unchanged(&mut link, &blob, WireError::ParamSignature(SignatureRefusal::Unsigned), &stored);
+}
+
+#[test]
+fn a_set_signed_by_an_untrusted_key_is_refused() {
+    let (_g, _emu, mut link, stored) = start_signed("emulated-arm");
+    let stranger = kincal::controller::signing::StationKey::from_seed([7; 32]);
+    let set = signed_version(4, "emulated-arm", &stranger);
+    refused_and_unchanged(
+        &mut link,
+        &set,
+        WireError::ParamSignature(SignatureRefusal::UntrustedKey),
+        &stored,
+    );
+}
+
+#[test]
+fn one_byte_flipped_after_signing_is_refused() {
+    let (_g, _emu, mut link, stored) = start_signed("emulated-arm");
+    let mut set = signed_version(4, "emulated-arm", &kincal_e2e::station_key());
+    set[100] ^= 0x01; // inside the parameter body; the upload CRC is computed after the flip
+    refused_and_unchanged(
+        &mut link,
+        &set,
+        WireError::ParamSignature(SignatureRefusal::BadSignature),
+        &stored,
+    );
+}
+
+#[test]
+fn a_replayed_older_signed_set_is_refused() {
+    let (_g, _emu, mut link, captured) = start_signed("emulated-arm");
+    let newer = signed_version(4, "emulated-arm", &kincal_e2e::station_key());
+    link.upload(&newer).unwrap();
+    refused_and_unchanged(&mut link, &captured, WireError::ParamRollback { stored: 4, offered: 3 }, &newer);
+    refused_and_unchanged(&mut link, &newer, WireError::ParamRollback { stored: 4, offered: 4 }, &newer);
+}
+
+#[test]
+fn a_set_signed_for_another_arm_is_refused() {
+    let (_g, _emu, mut link, stored) = start_signed("lab-arm-2");
+    assert_eq!(link.info().unwrap().arm_id.as_str(), "lab-arm-2", "the start option names the arm");
+    let set = signed_version(4, "emulated-arm", &kincal_e2e::station_key());
+    refused_and_unchanged(&mut link, &set, WireError::ParamSignature(SignatureRefusal::WrongArm), &stored);
 }

@@ -84,14 +84,13 @@ fn an_upload_cut_off_midway_keeps_the_old_parameters_and_a_retry_succeeds() {
     let (_emulator, port) = Emulator::start_server(&elf()).unwrap();
     let mut link = Link::open(&port).unwrap();
     link.hello().unwrap();
-    let old =
-        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 1).unwrap();
+    let old = kincal_e2e::signed_set(&kincal::model::ArmModel::suta_nominal(), 1);
     let started = Instant::now();
     link.upload(&old).unwrap();
     eprintln!("upload of {} bytes: {:.0} ms", old.len(), started.elapsed().as_secs_f64() * 1e3);
     let mut model = kincal::model::ArmModel::suta_nominal();
     model.joints[3].offset_deg += 0.4;
-    let new = kincal::controller::device::parameter_blob(&model, 2).unwrap();
+    let new = kincal_e2e::signed_set(&model, 2);
     link.call(ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }).unwrap();
     for (k, chunk) in new.chunks(PARAM_CHUNK).take(4).enumerate() {
         link.call(ParamChunk {

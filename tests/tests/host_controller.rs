@@ -105,12 +105,11 @@ fn an_interrupted_upload_keeps_the_old_parameters_and_a_retry_succeeds() {
     let fake = FakeController::start(1);
     let mut link = Link::open(&fake.port).unwrap();
     link.hello().unwrap();
-    let old =
-        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 1).unwrap();
+    let old = kincal_e2e::signed_set(&kincal::model::ArmModel::suta_nominal(), 1);
     link.upload(&old).unwrap();
     let mut new_model = kincal::model::ArmModel::suta_nominal();
     new_model.joints[2].d_mm += 1.5;
-    let new = kincal::controller::device::parameter_blob(&new_model, 2).unwrap();
+    let new = kincal_e2e::signed_set(&new_model, 2);
     link.call(ParamBegin { len: new.len() as u16, crc: BLOB_CRC.checksum(&new) }).unwrap();
     for (k, chunk) in new.chunks(PARAM_CHUNK).take(3).enumerate() {
         link.call(ParamChunk {
@@ -151,6 +150,8 @@ fn a_version_mismatch_is_reported_with_both_versions() {
 fn info_params_and_upload_commands_work_through_the_cli() {
     let fake = FakeController::start(1);
     let dir = scratch("cli");
+    let key_file = kincal_e2e::station_key_file(&dir);
+    let key = key_file.to_str().unwrap();
     let model = dir.join("model.toml");
     kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
     let run = |args: &[&str]| {
@@ -159,11 +160,34 @@ fn info_params_and_upload_commands_work_through_the_cli() {
         String::from_utf8_lossy(&out.stdout).to_string()
     };
     assert!(run(&["info", "--port", &fake.port]).contains("parameters none stored"));
-    let up = run(&["upload", "--port", &fake.port, model.to_str().unwrap(), "--version", "5"]);
+    let model_arg = model.to_str().unwrap();
+    let without_key =
+        Command::new(kincal_bin()).args(["upload", "--port", &fake.port, model_arg]).output().unwrap();
+    assert!(!without_key.status.success());
+    let refusal = String::from_utf8_lossy(&without_key.stderr);
+    assert!(refusal.contains("only signed parameter sets: pass --key"), "{refusal}");
+    let up = run(&["upload", "--key", key, "--port", &fake.port, model_arg, "--version", "5"]);
     assert!(up.contains("parameters version 5"), "{up}");
+    let fingerprint = kincal::controller::signing::fingerprint(
+        &kincal::controller::signing::StationKey::load(&key_file).unwrap().key.public_key(),
+    );
+    assert!(up.contains(&fingerprint), "{up}");
     let info = run(&["info", "--port", &fake.port]);
     assert!(info.contains("version 5") && info.contains("matches this host"), "{info}");
-    assert!(run(&["params", "--port", &fake.port]).contains("\"version\": 5"));
+    assert!(
+        info.contains(&format!("signed by  {fingerprint}")) && info.contains("arm        emulated-arm"),
+        "{info}"
+    );
+    let params = Command::new(kincal_bin()).args(["params", "--port", &fake.port]).output().unwrap();
+    assert!(String::from_utf8_lossy(&params.stdout).contains("\"version\": 5"));
+    let provenance = String::from_utf8_lossy(&params.stderr);
+    assert!(provenance.contains(&fingerprint) && provenance.contains("signature valid"), "{provenance}");
+    // Older values go back only as a newer version: --version 4 is refused, no --version is 6.
+    let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model_arg, "--version", "4"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("would be a rollback") && err.contains("--version 6"), "{err}");
+    assert!(run(&["upload", "--key", key, "--port", &fake.port, model_arg])
+        .contains("now holds parameters version 6"));
     let stream = run(&[
         "stream",
         "--port",
@@ -229,10 +253,12 @@ fn kincal(args: &[&str]) -> (Option<i32>, String, String) {
 fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
     let fake = FakeController::start(1);
     let dir = scratch("commit");
+    let key_file = kincal_e2e::station_key_file(&dir);
+    let key = key_file.to_str().unwrap();
     let model = dir.join("model.toml");
     kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
     let model = model.to_str().unwrap();
-    let (code, out, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "10"]);
+    let (code, out, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "10"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(out.contains("now holds parameters version 10"), "{out}");
     let commit = |r: &kincal_protocol::messages::Request| {
@@ -241,7 +267,7 @@ fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
     // The commit happens but every answer to it is lost (the first and the repeat): the host
     // asks what the controller holds, and reports the new set.
     fake.fault_next(commit, Fault::LoseReply, 2);
-    let (code, out, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "77"]);
+    let (code, out, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "77"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(err.contains("first commit request went unanswered"), "{err}");
     assert!(
@@ -250,7 +276,7 @@ fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
     // The commit request is lost, and its repeat too: the host asks, and reports the set still
     // held.
     fake.fault_next(commit, Fault::LoseRequest, 2);
-    let (code, _, err) = kincal(&["upload", "--port", &fake.port, model, "--version", "78"]);
+    let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "78"]);
     assert_eq!(code, Some(1));
     assert!(
         err.contains("not confirmed") && err.contains("the controller holds parameters version 77"),
@@ -264,22 +290,27 @@ fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
 fn version_0_and_absurd_sets_are_refused_by_the_host_and_by_the_controller() {
     let fake = FakeController::start(1);
     let dir = scratch("envelope");
+    let key_file = kincal_e2e::station_key_file(&dir);
+    let key = key_file.to_str().unwrap();
     let path = dir.join("model.toml");
     let mut far = kincal::model::ArmModel::suta_nominal();
     // Plausible for a model file (≤ 5000 mm), outside what the controller accepts (±2000 mm).
     far.joints[2].a_mm = 3e3;
     far.save(&path).unwrap();
-    let (code, _, err) = kincal(&["upload", "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
+    let (code, _, err) =
+        kincal(&["upload", "--key", key, "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("joint 3 a_mm = 3e3 is outside the envelope ±2000"), "{err}");
     // Absurd already as a model file: refused when it is read, before any upload.
     far.joints[2].a_mm = 1e6;
     far.save(&path).unwrap();
-    let (code, _, err) = kincal(&["upload", "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
+    let (code, _, err) =
+        kincal(&["upload", "--key", key, "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("link_offset:3") && err.contains("beyond any plausible arm"), "{err}");
     kincal::model::ArmModel::suta_nominal().save(&path).unwrap();
-    let (code, _, err) = kincal(&["upload", "--port", &fake.port, path.to_str().unwrap(), "--version", "0"]);
+    let (code, _, err) =
+        kincal(&["upload", "--key", key, "--port", &fake.port, path.to_str().unwrap(), "--version", "0"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("version 0 is reserved"), "{err}");
     // Sent raw, past the host's check: the controller refuses with the reason.
@@ -288,12 +319,12 @@ fn version_0_and_absurd_sets_are_refused_by_the_host_and_by_the_controller() {
     let mut params = kincal::controller::device::device_params(&kincal::model::ArmModel::suta_nominal(), 0);
     let mut blob = [0u8; kincal_protocol::params::MAX_PARAM_BLOB];
     let n = kincal_protocol::params::encode_blob(&params, &mut blob).unwrap();
-    let e = link.upload(&blob[..n]).unwrap_err();
+    let e = link.upload(&kincal_e2e::sign_blob(&blob[..n])).unwrap_err();
     assert!(e.to_string().contains("version 0 is reserved"), "{e}");
     params.version = 4;
     params.scale_ppm = 1e12;
     let n = kincal_protocol::params::encode_blob(&params, &mut blob).unwrap();
-    let e = link.upload(&blob[..n]).unwrap_err();
+    let e = link.upload(&kincal_e2e::sign_blob(&blob[..n])).unwrap_err();
     assert!(e.to_string().contains("scale_ppm = 1e12 is outside the envelope ±1000"), "{e}");
     assert_eq!(link.info().unwrap().param_version, 0, "nothing was stored");
     assert!(link.read_params(false, 4096).unwrap().is_empty(), "`params` agrees with `info`");
@@ -327,6 +358,8 @@ fn set_dropouts(port: &str, dropouts_per_10k: u16) {
         dropouts_per_10k,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: kincal_protocol::messages::Crash::None,
     })
     .unwrap();
 }
@@ -442,6 +475,26 @@ fn the_emulated_arm_is_posed_and_faulted_from_the_cli() {
     link.hello().unwrap();
     let w = kincal::controller::record::measure_window(&mut link, 32).unwrap();
     assert!(w.joints.iter().all(|j| j.accepted == 0), "{w:?}");
+    drop(link);
+    // Joints 2 and 5 unplugged (every other fault off again): only they answer no more.
+    let (code, out, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--unplug", "2,5"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("unplugged joints: 2, 5"), "{out}");
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    let w = kincal::controller::record::measure_window(&mut link, 32).unwrap();
+    let accepted: Vec<u16> = w.joints.iter().map(|j| j.accepted).collect();
+    assert_eq!(accepted, [32, 0, 32, 32, 0, 32], "{w:?}");
+    drop(link);
+    let (code, _, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--unplug", "7"]);
+    assert_eq!(code, Some(2), "joint 7 does not exist: {err}");
+    let (_, info, _) = kincal(&["info", "--port", &fake.port]);
+    assert!(info.contains("reset      power-on"), "{info}");
+    let (code, out, err) = kincal(&["emulated-arm", "faults", "--port", &fake.port, "--crash", "hang"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(out.contains("failure injected"), "{out}");
+    let (_, info, _) = kincal(&["info", "--port", &fake.port]);
+    assert!(info.contains("reset      WATCHDOG: the sampling loop stopped"), "{info}");
     let (code, _, err) = kincal(&["emulated-arm", "pose", "--port", &fake.port, "--counts", "1,2,3"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("--counts: expected 6 positions"), "{err}");
@@ -458,8 +511,7 @@ fn lost_answers_are_repeated_without_doing_anything_twice() {
         matches!(r, kincal_protocol::messages::Request::ParamChunk(_))
     };
     fake.fault_next(chunk, Fault::LoseReply, 1);
-    let blob =
-        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 6).unwrap();
+    let blob = kincal_e2e::signed_set(&kincal::model::ArmModel::suta_nominal(), 6);
     let done = link.upload(&blob).unwrap();
     assert!(!done.commit_reply_lost);
     assert_eq!(link.read_params(false, 4096).unwrap(), blob);
@@ -468,8 +520,85 @@ fn lost_answers_are_repeated_without_doing_anything_twice() {
         matches!(r, kincal_protocol::messages::Request::ParamCommit(_))
     };
     fake.fault_next(commit, Fault::LoseReply, 1);
-    let blob =
-        kincal::controller::device::parameter_blob(&kincal::model::ArmModel::suta_nominal(), 7).unwrap();
+    let blob = kincal_e2e::signed_set(&kincal::model::ArmModel::suta_nominal(), 7);
     assert!(link.upload(&blob).unwrap().commit_reply_lost);
     assert_eq!(link.info().unwrap().param_version, 7);
+}
+
+fn faults_unplugging(unplugged: u8) -> kincal_protocol::messages::Request {
+    kincal_protocol::messages::Request::SimFaults(SimFaults { unplugged, ..SimFaults::default() })
+}
+
+/// A joint unplugged while `kincal stream --pose` runs: the CLI names the joint, never prints a
+/// position for those poses, the CSV marks the rows (valid 0, the joint, no position); plugged
+/// back, the poses are valid again.
+#[test]
+fn an_unplugged_joint_mid_stream_is_named_and_marked_and_valid_again_when_plugged_back() {
+    let fake = FakeController::start(1);
+    let dir = scratch("unplug");
+    let model = dir.join("model.toml");
+    kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
+    let key_file = kincal_e2e::station_key_file(&dir);
+    let key = key_file.to_str().unwrap();
+    let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{err}");
+    let csv = dir.join("pose.csv");
+    let child = Command::new(kincal_bin())
+        .args(["stream", "--port", &fake.port, "--pose", "--seconds", "2.5", "--csv", csv.to_str().unwrap()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(900));
+    fake.meddle_arm(faults_unplugging(0b100));
+    std::thread::sleep(Duration::from_millis(600));
+    fake.meddle_arm(faults_unplugging(0));
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("pose INVALID: joint 3 not read this tick"), "{stdout}");
+    assert!(stdout.contains("pose valid again"), "{stdout}");
+    assert!(stdout.contains("poses INVALID (joints 3 not read"), "{stdout}");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz"));
+    // valid, stale joints and whether a position is written, row by row; runs of equal rows.
+    let mut runs: Vec<(String, String, bool, usize)> = Vec::new();
+    for line in lines {
+        let cells: Vec<&str> = line.split(',').collect();
+        assert_eq!(cells.len(), 11, "{line}");
+        let row = (cells[2].to_string(), cells[3].to_string(), !cells[5].is_empty());
+        match runs.last_mut() {
+            Some(r) if (r.0.as_str(), r.1.as_str(), r.2) == (row.0.as_str(), row.1.as_str(), row.2) => {
+                r.3 += 1
+            }
+            _ => runs.push((row.0, row.1, row.2, 1)),
+        }
+    }
+    let shape: Vec<(&str, &str, bool)> = runs.iter().map(|r| (r.0.as_str(), r.1.as_str(), r.2)).collect();
+    assert_eq!(shape, [("1", "", true), ("0", "3", false), ("1", "", true)], "{runs:?}");
+    assert!(runs[1].3 > 200, "about 0.6 s of invalid poses at 768 Hz: {runs:?}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A stream that stops is an alarm line on the host, not a silent wait; its return is told.
+#[test]
+fn a_stalled_stream_raises_an_alarm() {
+    let fake = FakeController::start(1);
+    let (code, _, err) = kincal(&["stream", "--port", &fake.port, "--pose", "--seconds", "1"]);
+    assert_eq!(code, Some(1), "no parameters, no pose stream: {err}");
+    assert!(err.contains("holds no parameters"), "{err}");
+    let child = Command::new(kincal_bin())
+        .args(["stream", "--port", &fake.port, "--raw", "--seconds", "1.5"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(700));
+    fake.stall(Duration::from_millis(300));
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{stdout}");
+    assert!(stdout.contains("ALARM: no stream frame for over 16 ticks"), "{stdout}");
+    assert!(stdout.contains("stream resumed after"), "{stdout}");
 }

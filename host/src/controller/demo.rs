@@ -15,6 +15,7 @@ use crate::calib::calibrate::{CalibrationError, CalibrationOptions};
 use crate::calib::run::{run, Run, RunError, RunInputs};
 use crate::controller::link::{Link, LinkError};
 use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step, Verdict};
+use crate::controller::signing::StationKey;
 use crate::data::Artefact;
 use crate::model::effects::Effect;
 use crate::model::{ArmModel, ParamId};
@@ -24,7 +25,7 @@ use crate::simulate::{
     validation_placements, Placement, SimulationOptions,
 };
 use kincal_protocol::biss::{counts_to_deg, deg_to_counts};
-use kincal_protocol::messages::{PoseReport, SimFaults, SimSetPose, StreamPose};
+use kincal_protocol::messages::{Crash, PoseReport, SimFaults, SimSetPose, StreamPose};
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -97,6 +98,9 @@ pub enum LoopError {
     /// The diagnose → add loop could not recalibrate.
     #[error("diagnose → add: {0}")]
     Added(#[from] CalibrationError),
+    /// The demo's station key could not be made or read.
+    #[error(transparent)]
+    Key(#[from] crate::controller::signing::KeyFileError),
     /// Writing the inputs failed.
     #[error("{0}")]
     Files(String),
@@ -204,6 +208,16 @@ pub fn stop_words(stop: &Stop) -> String {
     }
 }
 
+/// The demo's own station key, `OUT/station.key`: made on the first run, reused after.
+pub fn demo_station_key(out: &std::path::Path) -> Result<StationKey, LoopError> {
+    let path = out.join("station.key");
+    if path.exists() {
+        return Ok(StationKey::load(&path)?.key);
+    }
+    std::fs::create_dir_all(out).map_err(|e| LoopError::Files(format!("{}: {e}", out.display())))?;
+    Ok(StationKey::create(&path)?)
+}
+
 /// What the loop measured.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct LoopReport {
@@ -290,6 +304,9 @@ fn streamed_point(link: &mut Link, counts: [u32; 6], frames: usize) -> Result<Ve
     let deadline = Instant::now() + Duration::from_secs(5);
     while n < frames && Instant::now() < deadline {
         if let Some((_, p)) = link.next_on::<PoseReport>(Duration::from_millis(100))? {
+            if !p.valid {
+                continue; // a joint's frame was rejected this tick: no position
+            }
             sum += Vector3::new(p.position_mm[0] as f64, p.position_mm[1] as f64, p.position_mm[2] as f64);
             n += 1;
         }
@@ -361,6 +378,8 @@ pub fn run_loop(
         dropouts_per_10k: 0,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: Crash::None,
     })?;
     let seat = Normal::new(0.0, options.seating_noise_mm.max(0.0)).map_err(|e| files(&e))?;
     let order: Vec<String> = artefact.landmarks.iter().map(|l| l.id.clone()).collect();
@@ -416,23 +435,29 @@ pub fn run_loop(
         .iter()
         .map(|c| reference_tool_frame(&truth, &degrees_of(c)).0.fixed_view::<3, 1>(0, 3).into_owned())
         .collect();
-    let mut pose_rms =
-        |model: &ArmModel, version: u32, label: &str, link: &mut Link| -> Result<(f64, f64), LoopError> {
-            progress(&format!(
-                "uploading the {label} parameters and streaming the pose at {} validation touches",
-                check_counts.len()
-            ));
-            let t = Instant::now();
-            let blob = crate::controller::device::parameter_blob(model, version)?;
-            link.upload(&blob)?;
-            let upload = t.elapsed().as_secs_f64();
-            let points =
-                check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;
-            Ok((registered_rms(&points, &truth_points), upload))
-        };
-    let (nominal_pose, _) = pose_rms(nominal, 1, "nominal", link)?;
-    let (floor_pose, _) = pose_rms(&truth, 3, "true arm's", link)?;
-    let (calibrated_pose, upload_seconds) = pose_rms(&result.calibration.model, 2, "calibrated", link)?;
+    let key = demo_station_key(&options.out)?;
+    let mut pose_rms = |model: &ArmModel, label: &str, link: &mut Link| -> Result<(f64, f64), LoopError> {
+        progress(&format!(
+            "uploading the {label} parameters and streaming the pose at {} validation touches",
+            check_counts.len()
+        ));
+        let t = Instant::now();
+        let info = link.info()?;
+        let set = crate::controller::device::signed_parameter_set(
+            model,
+            info.param_version + 1,
+            &info.arm_id,
+            &key,
+        )?;
+        link.upload(&set)?;
+        let upload = t.elapsed().as_secs_f64();
+        let points =
+            check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;
+        Ok((registered_rms(&points, &truth_points), upload))
+    };
+    let (nominal_pose, _) = pose_rms(nominal, "nominal", link)?;
+    let (floor_pose, _) = pose_rms(&truth, "true arm's", link)?;
+    let (calibrated_pose, upload_seconds) = pose_rms(&result.calibration.model, "calibrated", link)?;
     let host_points: Vec<Vector3<f64>> = check_counts
         .iter()
         .map(|c| crate::model::kinematics::tool_pose(&result.calibration.model, &degrees_of(c)).position_mm)

@@ -16,6 +16,9 @@ pub enum DeviceParamsError {
         "not sent: the parameter set does not fit the controller's {MAX_PARAM_BLOB}-byte parameter area"
     )]
     TooLarge,
+    /// The set could not be signed.
+    #[error("not sent: {0}")]
+    Sign(#[from] crate::controller::signing::SignError),
 }
 
 /// The device form of `model`, tagged with parameter-set `version`.
@@ -46,4 +49,17 @@ pub fn parameter_blob(model: &ArmModel, version: u32) -> Result<Vec<u8>, DeviceP
     let mut out = [0u8; MAX_PARAM_BLOB];
     let n = encode_blob(&params, &mut out).map_err(|_| DeviceParamsError::TooLarge)?;
     Ok(out[..n].to_vec())
+}
+
+/// The signed parameter set of `model` as `version`, for the arm `arm_id`, signed now by `key`:
+/// what [`crate::controller::link::Link::upload`] sends.
+pub fn signed_parameter_set(
+    model: &ArmModel,
+    version: u32,
+    arm_id: &str,
+    key: &crate::controller::signing::StationKey,
+) -> Result<Vec<u8>, DeviceParamsError> {
+    let blob = parameter_blob(model, version)?;
+    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    Ok(key.sign(&blob, arm_id, now)?)
 }

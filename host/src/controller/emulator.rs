@@ -22,8 +22,9 @@ impl Drop for Emulator {
     }
 }
 
-/// Start QEMU on `elf` with UART0 on the chardev `serial`.
-fn qemu(elf: &Path, serial: &str) -> Result<Emulator, LinkError> {
+/// Start QEMU on `elf` with UART0 on the chardev `serial`; `arm_id`: the emulated arm's identity
+/// (start option `arm-id=…` on the semihosting command line; default `emulated-arm`).
+fn qemu(elf: &Path, serial: &str, arm_id: Option<&str>) -> Result<Emulator, LinkError> {
     if !elf.is_file() {
         return Err(LinkError::Open {
             port: "emulator".into(),
@@ -35,7 +36,11 @@ fn qemu(elf: &Path, serial: &str) -> Result<Emulator, LinkError> {
     }
     let child = Command::new("qemu-system-arm")
         .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-display", "none", "-monitor", "none"])
-        .args(["-semihosting-config", "enable=on,target=native"])
+        .arg("-semihosting-config")
+        .arg(match arm_id {
+            Some(id) => format!("enable=on,target=native,arg=emulated,arg=arm-id={id}"),
+            None => "enable=on,target=native".into(),
+        })
         .args(["-serial", serial])
         .arg("-kernel")
         .arg(elf)
@@ -57,7 +62,7 @@ impl Emulator {
     pub fn start_server(elf: &Path) -> Result<(Emulator, String), LinkError> {
         let open_error = |message: String| LinkError::Open { port: "emulated controller".into(), message };
         let port = TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-        let guard = qemu(elf, &format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on"))?;
+        let guard = qemu(elf, &format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on"), None)?;
         let deadline = Instant::now() + Duration::from_secs(10);
         while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
             if Instant::now() > deadline {
@@ -72,10 +77,15 @@ impl Emulator {
 
     /// Start QEMU on `elf` and return the guard with a connected (not yet greeted) link.
     pub fn start(elf: &Path) -> Result<(Emulator, Link), LinkError> {
+        Self::start_as(elf, None)
+    }
+
+    /// [`Emulator::start`] with the emulated arm's identity `arm_id` (default `emulated-arm`).
+    pub fn start_as(elf: &Path, arm_id: Option<&str>) -> Result<(Emulator, Link), LinkError> {
         let open_error = |message: String| LinkError::Open { port: "emulated controller".into(), message };
         let listener = TcpListener::bind("127.0.0.1:0")?;
         let port = listener.local_addr()?.port();
-        let guard = qemu(elf, &format!("tcp:127.0.0.1:{port},nodelay=on"))?;
+        let guard = qemu(elf, &format!("tcp:127.0.0.1:{port},nodelay=on"), arm_id)?;
         listener.set_nonblocking(true)?;
         let deadline = Instant::now() + Duration::from_secs(10);
         let stream = loop {

@@ -1,5 +1,5 @@
 //! The arm's controller seen from the host: the framed link (serial, pty or TCP), guided recording
-//! of measurement sessions, the parameter blob for upload, the emulated controller on QEMU and the
+//! of measurement sessions, the parameter blob for upload and its signature (station keys), the emulated controller on QEMU and the
 //! whole demo loop through it.
 
 pub mod demo;
@@ -7,3 +7,4 @@ pub mod device;
 pub mod emulator;
 pub mod link;
 pub mod record;
+pub mod signing;

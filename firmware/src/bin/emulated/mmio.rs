@@ -12,6 +12,8 @@ pub enum Block {
     Timer1 = 0x4000_1000,
     /// CMSDK APB UART 0 (host link).
     Uart0 = 0x4000_4000,
+    /// CMSDK APB watchdog.
+    Watchdog = 0x4000_8000,
 }
 
 fn address(block: Block, offset: usize) -> usize {

@@ -12,18 +12,21 @@ use core::convert::Infallible;
 use cortex_m_semihosting::{debug, hprintln};
 use embedded_hal_async::spi::{ErrorType, Operation, SpiDevice};
 use kincal_firmware::app::{FrameSender, TO_HOST};
-use kincal_firmware::biss_master::{BissMaster, REAL_BOARD_MA_HZ, TRANSFER_BITS, TRANSFER_BYTES};
+use kincal_firmware::biss_master::{BissMaster, REAL_BOARD_MA_HZ, TRANSFER_BYTES};
 use kincal_firmware::controller::Controller;
 use kincal_firmware::emulated_encoders::EmulatedEncoders;
 use kincal_firmware::encoders::Sampler;
 use kincal_firmware::flash::RamNor;
 use kincal_firmware::kinematics::Kinematics;
+use kincal_firmware::trust::Trust;
+use kincal_protocol::biss::TRANSFER_BITS;
 use kincal_protocol::messages::{
-    pack_counts, DeviceFrame, Hello, HostFrame, ParamBegin, ParamChunk, ParamCommit, PoseReport, RawSample,
-    Request, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, JOINTS, PROTOCOL_VERSION,
-    SCHEMA_HASH, TICK_HZ,
+    pack_counts, Crash, DeviceFrame, Hello, HostFrame, ParamBegin, ParamChunk, ParamCommit, PoseReport,
+    RawSample, Request, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, ALL_JOINTS,
+    JOINTS, PROTOCOL_VERSION, SCHEMA_HASH, TICK_HZ,
 };
 use kincal_protocol::params::{encode_blob, ArmParams, JointParams, BLOB_CRC, MAX_PARAM_BLOB};
+use kincal_protocol::signed::{signing_message, SIGNATURE_BYTES};
 
 const TIMER0: Block = Block::Timer0;
 
@@ -57,6 +60,12 @@ impl SpiDevice for ReplayEncoder<'_> {
 /// two DMA streams, the completion interrupt, waking and polling the task; the same for a UART
 /// write): an estimate, not measured here (QEMU has no STM32 DMA).
 const DMA_TRANSFER_CYCLES: u64 = 800;
+/// Cycles each encoder read costs the real board's CPU besides its transfer (`EncoderPort` in
+/// the STM32 board): the 2 µs enable set-up busy-wait (336 cycles) and one timer wake for MA held
+/// high through the encoder's timeout (as a DMA wake, an estimate).
+const ENCODER_PORT_CYCLES: u64 = 336 + DMA_TRANSFER_CYCLES;
+/// Bus time per encoder read besides the clocks, µs: the 2 µs set-up and MA held high for 40 µs.
+const ENCODER_PORT_US: f64 = 42.0;
 /// Core clock of the real board.
 const CORE_HZ: f64 = 168e6;
 /// Ticks each figure is averaged over (one second).
@@ -97,7 +106,8 @@ fn params() -> ArmParams {
 /// Measure and exit QEMU.
 pub fn run() -> ! {
     start_timer();
-    let mut controller = Controller::new("bench", "mps2", true, RamNor::<4096>::new());
+    let trust = Trust::new("bench-arm", None).unwrap_or_else(|| panic!("a valid arm identity"));
+    let mut controller = Controller::new("bench", "mps2", true, trust.clone(), RamNor::<4096>::new());
     let mut sampler = Sampler::default();
     let mut bus = EmulatedEncoders::new();
     bus.apply(&Request::SimSetPose(SimSetPose {
@@ -109,6 +119,8 @@ pub fn run() -> ! {
         dropouts_per_10k: 0,
         error_bits_per_10k: 0,
         warnings_per_10k: 0,
+        unplugged: 0,
+        crash: Crash::None,
     }));
     // Frames go the app's way into TO_HOST, and leave it as the UART task takes them.
     let mut sender = FrameSender::new();
@@ -117,8 +129,15 @@ pub fn run() -> ! {
         sender.send(f);
         while TO_HOST.try_read(&mut uart_chunk).is_ok() {}
     };
+    // The set as a station signs it (signing is the host's work, not measured).
+    let station = ed25519_compact::KeyPair::from_seed(ed25519_compact::Seed::new([7; 32]));
+    let mut unsigned = [0u8; MAX_PARAM_BLOB];
+    let m = encode_blob(&params(), &mut unsigned).unwrap_or(0);
     let mut blob = [0u8; MAX_PARAM_BLOB];
-    let n = encode_blob(&params(), &mut blob).unwrap_or(0);
+    let n = signing_message(&unsigned[..m], "bench-arm", 1_790_000_000, &station.pk, &mut blob).unwrap_or(0);
+    let signature = station.sk.sign(&blob[..n], None);
+    blob[n..n + SIGNATURE_BYTES].copy_from_slice(signature.as_ref());
+    let n = n + SIGNATURE_BYTES;
     for request in [
         Request::Hello(Hello { version: PROTOCOL_VERSION, schema: SCHEMA_HASH }),
         Request::ParamBegin(ParamBegin { len: n as u16, crc: BLOB_CRC.checksum(&blob[..n]) }),
@@ -133,7 +152,15 @@ pub fn run() -> ! {
             &mut sink,
         );
     }
+    // A commit, outside any tick: the trust checks (Ed25519 verification) alone, then the
+    // whole commit (the checks again, flash programming and read-back, kinematics setup).
+    let start = timer();
+    let admitted = trust.admit(&blob[..n], None).is_ok();
+    let verify = timer().wrapping_sub(start) as u64 * 40;
+    let start = timer();
     controller.handle(HostFrame { seq: 3, request: Request::ParamCommit(ParamCommit) }, &sampler, &mut sink);
+    let commit = timer().wrapping_sub(start) as u64 * 40;
+    let committed = admitted && controller.params().is_some();
     // Transfers as the bus delivers them (generating them is the emulator's work, not measured).
     let transfers = core::array::from_fn(|_| core::array::from_fn(|j| bus.answer(j)));
     let tick = Cell::new(0);
@@ -167,6 +194,9 @@ pub fn run() -> ! {
         seq: 1,
         item: Stream::Pose(PoseReport {
             tick: 1,
+            valid: true,
+            fresh: ALL_JOINTS,
+            stale_ticks: 0,
             position_mm: [812.5, -40.25, 301.0],
             z_axis: [0.0, 0.6, 0.8],
             x_axis: [1.0, 0.0, 0.0],
@@ -198,21 +228,32 @@ pub fn run() -> ! {
     hprintln!("  pose, DH + tool only                 {:6}", pose_plain);
     hprintln!("  pose, every effect (ecc + compl.)    {:6}", pose_all);
     hprintln!("  pose frame into the UART pipe        {:6}", pose_frame);
+    hprintln!(
+        "  per commit ({} B signed set, {}): signature + checks {} instr. = {:.1} ms at 168 MHz; whole commit {} = {:.1} ms ({:.0} ticks)",
+        n,
+        if committed { "stored" } else { "REFUSED" },
+        verify,
+        verify as f64 / CORE_HZ * 1e3,
+        commit,
+        commit as f64 / CORE_HZ * 1e3,
+        commit as f64 / (CORE_HZ / TICK_HZ as f64)
+    );
 
     // Whole ticks, through the controller, in the configurations the link can carry (the
     // controller refuses stream settings above it: raw and pose both every tick need 130 %).
     let tick_cycles = CORE_HZ / TICK_HZ as f64;
-    let bus_us = JOINTS as f64 * TRANSFER_BITS as f64 / REAL_BOARD_MA_HZ as f64 * 1e6;
-    let dma = (JOINTS as u64 + 1) * DMA_TRANSFER_CYCLES;
+    let bus_us = JOINTS as f64 * (TRANSFER_BITS as f64 / REAL_BOARD_MA_HZ as f64 * 1e6 + ENCODER_PORT_US);
+    let dma = (JOINTS as u64 + 1) * DMA_TRANSFER_CYCLES + JOINTS as u64 * ENCODER_PORT_CYCLES;
     hprintln!(
         "  encoder bus busy {:.1} us per tick ({:.2} % of the tick; DMA, the CPU does not wait)",
         bus_us,
         bus_us * TICK_HZ as f64 / 1e4
     );
     hprintln!(
-        "  real board (168 MHz, 1 cycle/instruction), whole tick incl. {} DMA transfers (6 encoders + 1 UART) x {} cycles (estimate):",
+        "  real board (168 MHz, 1 cycle/instruction), whole tick incl. {} DMA transfers (6 encoders + 1 UART) x {} cycles and 6 encoder enables x {} cycles (estimates):",
         JOINTS + 1,
-        DMA_TRANSFER_CYCLES
+        DMA_TRANSFER_CYCLES,
+        ENCODER_PORT_CYCLES
     );
     for (label, raw_on, pose_divider, window_on) in [
         ("recording (window + raw every tick)", true, 0, true),
@@ -232,7 +273,7 @@ pub fn run() -> ! {
         });
         let cpu = work + dma;
         hprintln!(
-            "    {:44} {:6} instr. + DMA = {:6} cycles = {:5.2} % of the tick (budget 5 %); {:5.2} % if the CPU waited on the bus",
+            "    {:44} {:6} instr. + DMA, enables = {:6} cycles = {:5.2} % of the tick (budget 5 %); {:5.2} % if the CPU waited on the bus",
             label,
             work,
             cpu,

@@ -2,9 +2,10 @@
 
 use crate::arm::simulate_to;
 use anyhow::{bail, Context, Result};
-use clap::Args;
+use clap::{Args, Subcommand};
 use kincal::calib::calibrate::CalibrationOptions;
 use kincal::calib::run::RunInputs;
+use kincal::controller::signing::{fingerprint, utc, StationKey};
 use kincal::data::{Artefact, Dataset};
 use kincal::model::ArmModel;
 use kincal::simulate::SimulationOptions;
@@ -45,9 +46,52 @@ pub struct UploadArgs {
     port: PortArgs,
     /// The calibrated model (RUN/model.toml).
     model: PathBuf,
-    /// Version number stored with the parameters.
-    #[arg(long, default_value_t = 1)]
-    version: u32,
+    /// The station key that signs the set (`kincal key new`); the controller stores only signed
+    /// sets.
+    #[arg(long)]
+    key: Option<PathBuf>,
+    /// Version number of the new set; must be higher than the stored one (default: the stored
+    /// version + 1). Older values go back only as a new, higher version.
+    #[arg(long)]
+    version: Option<u32>,
+    /// The arm identity the set is for; refused before anything is sent when the controller has
+    /// another (default: the controller's, printed).
+    #[arg(long)]
+    arm: Option<String>,
+}
+
+#[derive(Subcommand)]
+pub enum KeyCommand {
+    /// Make a new station key: FILE (secret, owner-only, never printed) and FILE.pub.
+    New(KeyNewArgs),
+}
+
+#[derive(Args)]
+pub struct KeyNewArgs {
+    /// The new key file (never replaced).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+pub fn cmd_key_new(a: &KeyNewArgs) -> Result<()> {
+    let key = StationKey::create(&a.out)?;
+    println!("station key written to {} (owner-only; keep it secret, it is not printed)", a.out.display());
+    println!("fingerprint  {}", fingerprint(&key.public_key()));
+    println!(
+        "public key   {} (also in {}; build it into a real controller with KINCAL_TRUSTED_KEY=… cargo build-stm32)",
+        key.public_key_hex(),
+        kincal::controller::signing::public_key_path(&a.out).display()
+    );
+    Ok(())
+}
+
+/// Read a station key, printing its warnings.
+fn load_key(path: &std::path::Path) -> Result<StationKey> {
+    let loaded = StationKey::load(path)?;
+    for w in &loaded.warnings {
+        eprintln!("{w}");
+    }
+    Ok(loaded.key)
 }
 
 #[derive(Args)]
@@ -176,10 +220,31 @@ pub fn cmd_info(a: &PortArgs) -> Result<()> {
         kincal_protocol::messages::PROTOCOL_VERSION,
         kincal_protocol::messages::SCHEMA_HASH
     );
+    let trust = match (info.trust, info.param_version) {
+        (kincal_protocol::signed::TrustMode::BuildKey, _) => "the station key built into the firmware",
+        (kincal_protocol::signed::TrustMode::FirstUse, 0) => {
+            "on first use: the first signed set stored pins its key"
+        }
+        (kincal_protocol::signed::TrustMode::FirstUse, _) => {
+            "on first use: the signer of the stored set only"
+        }
+    };
+    println!("arm        {} (signed sets must name it)", info.arm_id);
+    println!("trust      {trust}");
     if info.param_version == 0 {
         println!("parameters none stored");
     } else {
         println!("parameters version {} (CRC-32 {:08x})", info.param_version, info.param_crc);
+        println!("signed by  {} at {}", fingerprint(&info.param_signer), utc(info.param_signed_at_unix_s));
+    }
+    println!("reset      {}", reset_cause_text(info.reset_cause));
+    match info.brownout_mv {
+        0 => {}
+        mv if mv < 2700 => println!(
+            "brown-out  reset below {:.1} V: too low for programming flash (needs 2.7 V); set BOR level 3 in the option bytes (README, bring-up)",
+            mv as f64 / 1000.0
+        ),
+        mv => println!("brown-out  reset below {:.1} V", mv as f64 / 1000.0),
     }
     println!("late ticks {} (encoder reads started over a tick late)", info.late_ticks);
     println!(
@@ -187,19 +252,92 @@ pub fn cmd_info(a: &PortArgs) -> Result<()> {
         info.ticks,
         kincal_protocol::messages::ticks_to_seconds(info.ticks)
     );
-    println!("joint  accepted  crc-errors  error-bits  warnings  dropouts");
+    println!("joint  accepted  crc-errors  error-bits  warnings  dropouts  frame-errors  jumps");
     for (j, h) in info.encoders.iter().enumerate() {
         println!(
-            "{:>5}  {:>8}  {:>10}  {:>10}  {:>8}  {:>8}",
+            "{:>5}  {:>8}  {:>10}  {:>10}  {:>8}  {:>8}  {:>12}  {:>5}",
             j + 1,
             h.accepted,
             h.crc_errors,
             h.error_bits,
             h.warnings,
-            h.dropouts
+            h.dropouts,
+            h.frame_errors,
+            h.jumps
         );
     }
     Ok(())
+}
+
+fn reset_cause_text(cause: kincal_protocol::messages::ResetCause) -> &'static str {
+    use kincal_protocol::messages::ResetCause;
+    match cause {
+        ResetCause::PowerOn => "power-on",
+        ResetCause::Watchdog => {
+            "WATCHDOG: the sampling loop stopped and the watchdog restarted the controller"
+        }
+        ResetCause::Panic => "PANIC: the firmware panicked and restarted the controller",
+        ResetCause::Fault => "FAULT: a processor fault (HardFault) restarted the controller",
+        ResetCause::Software => "software (a reset request or the debugger)",
+        ResetCause::BrownOut => "BROWN-OUT: the supply fell below the brown-out level",
+        ResetCause::Pin => "reset pin",
+        ResetCause::Unknown => "unknown (no cause recorded)",
+    }
+}
+
+/// Time without a stream frame after which `kincal stream` raises an alarm: 16 ticks (21 ms);
+/// a stream that stops is reported, never waited on silently.
+pub const STREAM_GAP_ALARM_TICKS: u32 = 16;
+
+/// Watches a pose stream for invalid poses and reports each change (which joints, since when).
+#[derive(Default)]
+struct PoseWatch {
+    /// Fresh-joint mask of the invalid poses being reported (None: valid).
+    invalid: Option<u8>,
+    /// Invalid poses received.
+    invalid_poses: u64,
+    /// Joints seen stale in any pose (bit j: joint j + 1).
+    stale_seen: u8,
+}
+
+impl PoseWatch {
+    fn see(&mut self, p: &kincal_protocol::messages::PoseReport) {
+        if p.valid {
+            if self.invalid.take().is_some() {
+                println!("tick {}: pose valid again", p.tick);
+            }
+            return;
+        }
+        self.invalid_poses += 1;
+        self.stale_seen |= !p.fresh & kincal_protocol::messages::ALL_JOINTS;
+        if self.invalid != Some(p.fresh) {
+            self.invalid = Some(p.fresh);
+            println!("tick {}: pose INVALID: {}", p.tick, stale_text(p));
+        }
+    }
+}
+
+/// "joint 3 not read this tick (last good 5 ticks ago)", naming every stale joint.
+fn stale_text(p: &kincal_protocol::messages::PoseReport) -> String {
+    let joints: Vec<String> = p.stale_joints().map(|j| j.to_string()).collect();
+    let age = match p.stale_ticks {
+        u16::MAX => "never read since boot".to_string(),
+        t => format!("last good {t} ticks ago"),
+    };
+    format!(
+        "joint{} {} not read this tick ({age}); no position",
+        if joints.len() == 1 { "" } else { "s" },
+        joints.join(", ")
+    )
+}
+
+/// Joint numbers of a mask (bit j: joint j + 1), space separated (for CSV cells).
+fn joint_list(mask: u8) -> String {
+    let joints: Vec<String> = (0..kincal_protocol::messages::JOINTS)
+        .filter(|j| mask & (1 << j) != 0)
+        .map(|j| (j + 1).to_string())
+        .collect();
+    joints.join(" ")
 }
 
 pub fn cmd_params(a: &PortArgs) -> Result<()> {
@@ -209,9 +347,23 @@ pub fn cmd_params(a: &PortArgs) -> Result<()> {
         println!("no parameters stored");
         return Ok(());
     }
-    let params = kincal_protocol::params::decode_blob(&blob)
+    let Some(signed) = kincal::controller::signing::provenance(&blob) else {
+        bail!("the stored parameter set is not signed; this controller does not use it");
+    };
+    let params = kincal_protocol::params::decode_blob(&signed.blob)
         .map_err(|e| anyhow::anyhow!("the stored parameter blob does not decode: {e:?}"))?;
+    eprintln!(
+        "version {} for arm {}, signed by {} at {}; signature {}",
+        params.version,
+        signed.arm_id,
+        fingerprint(&signed.signer),
+        utc(signed.signed_at_unix_s),
+        if signed.signature_valid { "valid (checked here too)" } else { "INVALID (checked here)" }
+    );
     println!("{}", serde_json::to_string_pretty(&params)?);
+    if !signed.signature_valid {
+        bail!("the stored set's signature does not verify on this host");
+    }
     Ok(())
 }
 
@@ -226,14 +378,40 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
             names.join(", ")
         );
     }
-    let blob = kincal::controller::device::parameter_blob(&model, a.version)
-        .with_context(|| format!("{}: parameters version {}", a.model.display(), a.version))?;
+    let Some(key_path) = &a.key else {
+        bail!(
+            "the controller stores only signed parameter sets: pass --key STATION.key (make one with `kincal key new --out station.key`); nothing was uploaded"
+        );
+    };
+    let key = load_key(key_path)?;
+    // Checked before connecting: a bad model never reaches the controller.
+    kincal::controller::device::parameter_blob(&model, a.version.unwrap_or(1))
+        .with_context(|| format!("{}: parameters", a.model.display()))?;
     let mut link = connect(&a.port)?;
-    let before = link.held_params()?;
     let started = std::time::Instant::now();
+    let info = link.info()?;
+    let before = kincal::controller::link::HeldParams { version: info.param_version, crc: info.param_crc };
+    if let Some(arm) = a.arm.as_deref().filter(|arm| *arm != info.arm_id.as_str()) {
+        bail!("the controller is arm {}, not {arm}; nothing was uploaded", info.arm_id);
+    }
+    let version = a.version.unwrap_or(info.param_version + 1);
+    if version <= info.param_version {
+        bail!(
+            "the controller holds version {}; version {version} would be a rollback, which it refuses. To put these values back, upload them as a new set: --version {} (or leave --version out); nothing was uploaded",
+            info.param_version,
+            info.param_version + 1
+        );
+    }
+    let blob = kincal::controller::device::signed_parameter_set(&model, version, &info.arm_id, &key)
+        .with_context(|| format!("{}: parameters version {version}", a.model.display()))?;
     let uploaded = match link.upload(&blob) {
         Ok(u) => u,
         Err(e @ kincal::controller::link::LinkError::CommitUnconfirmed { .. }) => bail!("upload failed: {e}"),
+        // The controller's own verdict (signature, identity, version, envelope): the same set
+        // would be refused again.
+        Err(e @ kincal::controller::link::LinkError::Refused(..)) => {
+            bail!("upload refused: {e}. The controller keeps {before}")
+        }
         Err(e) => {
             bail!("upload failed: {e}. Nothing was committed: the controller keeps {before}; run the upload again")
         }
@@ -245,8 +423,10 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     }
     let now = link.held_params()?;
     println!(
-        "uploaded {} bytes in {:.2} s; the controller now holds {now}, previously {before}",
+        "uploaded {} bytes (signed by {} for arm {}) in {:.2} s; the controller now holds {now}, previously {before}",
         blob.len(),
+        fingerprint(&key.public_key()),
+        info.arm_id,
         started.elapsed().as_secs_f64()
     );
     Ok(())
@@ -254,10 +434,17 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
 
 pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
     use kincal_protocol::messages::{Stream, StreamPose, StreamRaw};
+    use std::time::{Duration, Instant};
     if let Some(path) = &a.csv {
         CsvRecording::refuse_existing(path)?;
     }
     let mut link = connect(&a.port)?;
+    if a.pose && link.info()?.param_version == 0 {
+        bail!(
+            "the controller on {} holds no parameters: no pose to stream (kincal upload first)",
+            a.port.port
+        );
+    }
     catch_ctrl_c();
     let mut csv = match &a.csv {
         Some(path) => Some(CsvRecording::create(path)?),
@@ -269,7 +456,7 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             w,
             "{}",
             if a.pose {
-                "seq,tick,x_mm,y_mm,z_mm,zx,zy,zz"
+                "seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz"
             } else {
                 "seq,tick,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg,rejected"
             }
@@ -280,28 +467,71 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
     } else {
         link.call(StreamRaw { on: true })?;
     }
-    let started = std::time::Instant::now();
-    let mut frames = 0u64;
+    let gap_alarm =
+        Duration::from_secs_f64(kincal_protocol::messages::ticks_to_seconds(STREAM_GAP_ALARM_TICKS));
+    let started = Instant::now();
+    let (mut frames, mut alarms) = (0u64, 0u64);
     let mut last_report = started;
+    let mut last_frame = Instant::now();
+    let mut in_gap = false;
+    let mut lost_seen = 0u64;
+    let mut watch = PoseWatch::default();
+    let mut latest = String::new();
     while !INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst)
         && a.seconds.is_none_or(|s| started.elapsed().as_secs_f64() < s)
     {
-        let Some((seq, item)) = link.next_stream(std::time::Duration::from_millis(200))? else { continue };
+        let Some((seq, item)) = link.next_stream(Duration::from_millis(5))? else {
+            if !in_gap && last_frame.elapsed() > gap_alarm {
+                in_gap = true;
+                alarms += 1;
+                println!(
+                    "ALARM: no stream frame for over {} ticks ({:.0} ms): the controller or the link stopped; no position until it resumes",
+                    STREAM_GAP_ALARM_TICKS,
+                    last_frame.elapsed().as_secs_f64() * 1e3
+                );
+            }
+            continue;
+        };
+        if in_gap {
+            in_gap = false;
+            println!("stream resumed after {:.0} ms", last_frame.elapsed().as_secs_f64() * 1e3);
+        }
+        last_frame = Instant::now();
+        if link.stats.stream_gaps > lost_seen {
+            alarms += 1;
+            println!("ALARM: {} stream frames lost before frame {seq}", link.stats.stream_gaps - lost_seen);
+            lost_seen = link.stats.stream_gaps;
+        }
         frames += 1;
+        match &item {
+            Stream::Pose(p) => {
+                watch.see(p);
+                latest = if p.valid {
+                    format!("pose {:.3} {:.3} {:.3} mm", p.position_mm[0], p.position_mm[1], p.position_mm[2])
+                } else {
+                    format!("pose INVALID ({})", stale_text(p))
+                };
+            }
+            Stream::Raw(r) if r.rejected != 0 => {
+                latest = format!("rejected joints {}", joint_list(r.rejected))
+            }
+            _ => latest.clear(),
+        }
         if let Some(w) = csv.as_mut().map(|c| &mut c.writer) {
             match item {
                 Stream::Raw(r) => {
+                    // A rejected joint's count is its last good one: left empty, never written
+                    // as this tick's angle.
                     let deg = kincal_protocol::messages::unpack_counts(&r.packed)
                         .map(|c| kincal_protocol::biss::counts_to_deg(c as f64));
-                    writeln!(
-                        w,
-                        "{seq},{},{},{},{},{},{},{},{}",
-                        r.tick, deg[0], deg[1], deg[2], deg[3], deg[4], deg[5], r.rejected
-                    )?;
+                    let cells: Vec<String> = (0..kincal_protocol::messages::JOINTS)
+                        .map(|j| if r.rejected & (1 << j) != 0 { String::new() } else { deg[j].to_string() })
+                        .collect();
+                    writeln!(w, "{seq},{},{},{}", r.tick, cells.join(","), r.rejected)?;
                 }
-                Stream::Pose(p) => writeln!(
+                Stream::Pose(p) if p.valid => writeln!(
                     w,
-                    "{seq},{},{},{},{},{},{},{}",
+                    "{seq},{},1,,0,{},{},{},{},{},{}",
                     p.tick,
                     p.position_mm[0],
                     p.position_mm[1],
@@ -310,16 +540,25 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
                     p.z_axis[1],
                     p.z_axis[2]
                 )?,
+                Stream::Pose(p) => writeln!(
+                    w,
+                    "{seq},{},0,{},{},,,,,,",
+                    p.tick,
+                    joint_list(!p.fresh & kincal_protocol::messages::ALL_JOINTS),
+                    p.stale_ticks
+                )?,
                 Stream::Window(_) => {}
             }
         }
         if last_report.elapsed().as_secs_f64() >= 1.0 {
-            last_report = std::time::Instant::now();
+            last_report = Instant::now();
             eprintln!(
-                "{:.0} frames/s, {} lost, {} corrupt",
+                "{:.0} frames/s, {} lost, {} corrupt{}{}",
                 frames as f64 / started.elapsed().as_secs_f64(),
                 link.stats.stream_gaps,
-                link.stats.bad_frames
+                link.stats.bad_frames,
+                if latest.is_empty() { "" } else { "; " },
+                latest
             );
         }
     }
@@ -329,12 +568,19 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
         c.finish()?;
     }
     println!(
-        "{frames} frames in {:.1} s ({:.1} Hz), {} lost, {} corrupt",
+        "{frames} frames in {:.1} s ({:.1} Hz), {} lost, {} corrupt, {alarms} alarms",
         started.elapsed().as_secs_f64(),
         frames as f64 / started.elapsed().as_secs_f64(),
         link.stats.stream_gaps,
         link.stats.bad_frames
     );
+    if watch.invalid_poses > 0 {
+        println!(
+            "{} poses INVALID (joints {} not read; the CSV marks them valid = 0 with no position)",
+            watch.invalid_poses,
+            joint_list(watch.stale_seen)
+        );
+    }
     Ok(())
 }
 

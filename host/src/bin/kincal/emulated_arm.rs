@@ -6,7 +6,7 @@ use clap::{Args, Subcommand};
 use kincal::controller::link::Link;
 use kincal::controller::record::measure_window;
 use kincal_protocol::biss::{counts_to_deg, deg_to_counts};
-use kincal_protocol::messages::{SimFaults, SimSetPose, JOINTS};
+use kincal_protocol::messages::{Crash, SimFaults, SimSetPose, JOINTS};
 
 /// What to do to the emulated arm.
 #[derive(Subcommand)]
@@ -52,6 +52,23 @@ pub struct FaultArgs {
     /// Frames per 10 000 with the encoder's warning bit set.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u16).range(0..=10_000))]
     warnings_per_10k: u16,
+    /// Unplug these joints (1-6, comma separated): their line floats high, no encoder answers.
+    /// Every `faults` command sets all faults: without it, every joint is plugged in.
+    #[arg(long, value_delimiter = ',', value_parser = clap::value_parser!(u8).range(1..=6))]
+    unplug: Vec<u8>,
+    /// Make the controller's firmware fail now, to see the watchdog or the panic handler reset
+    /// it (`kincal info` then reports the cause): `panic` or `hang` (the sampling loop stops).
+    #[arg(long, value_enum)]
+    crash: Option<CrashArg>,
+}
+
+/// A firmware failure to inject.
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum CrashArg {
+    /// Panic in the task serving the host.
+    Panic,
+    /// Hang the sampling loop (spins in an encoder read).
+    Hang,
 }
 
 fn greeted(port: &str) -> Result<Link> {
@@ -110,10 +127,25 @@ fn faults(a: &FaultArgs) -> Result<()> {
         dropouts_per_10k: a.dropouts_per_10k,
         error_bits_per_10k: a.error_bits_per_10k,
         warnings_per_10k: a.warnings_per_10k,
+        unplugged: a.unplug.iter().fold(0, |mask, j| mask | 1 << (j - 1)),
+        crash: match a.crash {
+            None => Crash::None,
+            Some(CrashArg::Panic) => Crash::Panic,
+            Some(CrashArg::Hang) => Crash::Hang,
+        },
     })?;
+    let unplugged: Vec<String> = a.unplug.iter().map(|j| j.to_string()).collect();
     println!(
-        "emulated encoders: noise {} counts, per 10 000 frames: {} CRC errors, {} dropouts, {} error bits, {} warnings",
-        a.noise_counts, a.crc_errors_per_10k, a.dropouts_per_10k, a.error_bits_per_10k, a.warnings_per_10k
+        "emulated encoders: noise {} counts, per 10 000 frames: {} CRC errors, {} dropouts, {} error bits, {} warnings; unplugged joints: {}",
+        a.noise_counts,
+        a.crc_errors_per_10k,
+        a.dropouts_per_10k,
+        a.error_bits_per_10k,
+        a.warnings_per_10k,
+        if unplugged.is_empty() { "none".to_string() } else { unplugged.join(", ") }
     );
+    if a.crash.is_some() {
+        println!("failure injected: the controller resets (`kincal info` reports why)");
+    }
     Ok(())
 }

@@ -37,8 +37,12 @@ enum Command {
     Info(controller::PortArgs),
     /// Read back the parameters stored on the controller.
     Params(controller::PortArgs),
-    /// Send a calibrated model to the controller (chunked, read back, committed).
+    /// Sign a calibrated model with a station key and send it to the controller (chunked, read
+    /// back, verified and committed by the controller).
     Upload(controller::UploadArgs),
+    /// Station keys that sign parameter sets.
+    #[command(subcommand)]
+    Key(controller::KeyCommand),
     /// Live joint angles or calibrated tool pose, with rate, gap and error statistics.
     Stream(controller::StreamArgs),
     /// Guided measurement of one artefact placement; resumes an interrupted session.
@@ -72,6 +76,7 @@ fn main() {
         Command::Info(a) => controller::cmd_info(&a),
         Command::Params(a) => controller::cmd_params(&a),
         Command::Upload(a) => controller::cmd_upload(&a),
+        Command::Key(controller::KeyCommand::New(a)) => controller::cmd_key_new(&a),
         Command::Stream(a) => controller::cmd_stream(&a),
         Command::Record(a) => controller::cmd_record(&a),
         Command::EmulatedArm(c) => emulated_arm::run(&c),

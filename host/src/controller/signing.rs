@@ -1,0 +1,304 @@
+//! Station keys and signed parameter sets (the layout is [`kincal_protocol::signed`]'s): a
+//! calibration station signs the parameter blob, the arm's identity, the version (inside the
+//! blob) and the time with its Ed25519 key; the controller verifies before it stores anything.
+//!
+//! Key file (`kincal key new`): two lines, `kincal-station-key/1` and the 32-byte secret seed as
+//! 64 hex digits; created owner-only (0600), never replaced, never printed. The public key goes
+//! beside it as `FILE.pub` (`kincal-station-public-key/1` and 64 hex digits): it is what a lab
+//! builds into the real controller (`KINCAL_TRUSTED_KEY`).
+
+use ed25519_dalek::{Signer, SigningKey, VerifyingKey};
+use kincal_protocol::params::MAX_PARAM_BLOB;
+use kincal_protocol::signed::{signing_message, split_signed, LayoutError, PUBLIC_KEY_BYTES};
+use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
+
+const KEY_HEADER: &str = "kincal-station-key/1";
+const PUBLIC_HEADER: &str = "kincal-station-public-key/1";
+
+/// Why a station key could not be made or read.
+#[derive(Debug, thiserror::Error)]
+pub enum KeyFileError {
+    /// The key file does not exist.
+    #[error("{0}: no such station key; make one with `kincal key new --out {0}`")]
+    Missing(PathBuf),
+    /// The file is empty.
+    #[error("{0} is empty; expected a kincal station key (line 1 `{KEY_HEADER}`, line 2 the secret key as 64 hex digits)")]
+    Empty(PathBuf),
+    /// Another kind of file.
+    #[error("{path} line 1: expected `{KEY_HEADER}`, found {found} — not a kincal station key (make one with `kincal key new`)")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What line 1 looks like.
+        found: String,
+    },
+    /// The secret is not 64 hex digits.
+    #[error("{0} line 2: expected the secret key as 64 hex digits")]
+    Secret(PathBuf),
+    /// `key new` never replaces a file.
+    #[error(
+        "{0} exists; kincal never replaces a key file (a lost key cannot be recovered): choose a new name"
+    )]
+    Exists(PathBuf),
+    /// Reading or writing failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The system's random source failed.
+    #[error("no random numbers from the operating system: {0}")]
+    Random(String),
+}
+
+/// A station's signing key, read from its file.
+pub struct StationKey {
+    key: SigningKey,
+}
+
+/// A key file as read: the key and what the user should know (e.g. permissions too open).
+pub struct LoadedKey {
+    /// The key.
+    pub key: StationKey,
+    /// Warnings about the file, each naming it.
+    pub warnings: Vec<String>,
+}
+
+/// The fingerprint shown for a public key: `ed25519:` and the first 8 bytes of its SHA-256, hex.
+pub fn fingerprint(public_key: &[u8; PUBLIC_KEY_BYTES]) -> String {
+    let digest = Sha256::digest(public_key);
+    format!("ed25519:{}", hex(&digest[..8]))
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn unhex32(text: &str) -> Option<[u8; 32]> {
+    let text = text.trim();
+    if text.len() != 64 || !text.is_ascii() {
+        return None;
+    }
+    let mut out = [0u8; 32];
+    for (k, byte) in out.iter_mut().enumerate() {
+        *byte = u8::from_str_radix(&text[2 * k..2 * k + 2], 16).ok()?;
+    }
+    Some(out)
+}
+
+impl StationKey {
+    /// Make a new key from the operating system's random source and write it to `path`
+    /// (owner-only, a new file only) and its public key to `path.pub`.
+    pub fn create(path: &Path) -> Result<StationKey, KeyFileError> {
+        let public_path = public_key_path(path);
+        for p in [path, public_path.as_path()] {
+            if p.exists() {
+                return Err(KeyFileError::Exists(p.to_path_buf()));
+            }
+        }
+        let mut seed = [0u8; 32];
+        getrandom::fill(&mut seed).map_err(|e| KeyFileError::Random(e.to_string()))?;
+        let key = StationKey { key: SigningKey::from_bytes(&seed) };
+        fn io(path: &Path) -> impl Fn(std::io::Error) -> KeyFileError + '_ {
+            move |source| KeyFileError::Io { path: path.to_path_buf(), source }
+        }
+        let mut options = std::fs::OpenOptions::new();
+        options.write(true).create_new(true);
+        #[cfg(unix)]
+        std::os::unix::fs::OpenOptionsExt::mode(&mut options, 0o600);
+        let mut file = options.open(path).map_err(io(path))?;
+        use std::io::Write;
+        writeln!(file, "{KEY_HEADER}\n{}", hex(&seed)).and_then(|_| file.sync_all()).map_err(io(path))?;
+        std::fs::write(&public_path, format!("{PUBLIC_HEADER}\n{}\n", hex(&key.public_key())))
+            .map_err(io(&public_path))?;
+        Ok(key)
+    }
+
+    /// Read the key at `path`; warns when others may read the file.
+    pub fn load(path: &Path) -> Result<LoadedKey, KeyFileError> {
+        let text = match std::fs::read(path) {
+            Ok(bytes) => bytes,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(KeyFileError::Missing(path.to_path_buf()))
+            }
+            Err(source) => return Err(KeyFileError::Io { path: path.to_path_buf(), source }),
+        };
+        if text.iter().all(|b| b.is_ascii_whitespace()) {
+            return Err(KeyFileError::Empty(path.to_path_buf()));
+        }
+        let text = String::from_utf8_lossy(&text);
+        let mut lines = text.lines();
+        let first = lines.next().unwrap_or("").trim();
+        if first != KEY_HEADER {
+            let found = if first.starts_with("-----BEGIN") {
+                format!("`{first}` (a PEM file)")
+            } else if first == PUBLIC_HEADER {
+                "a public key (the .pub file; pass the secret key file)".to_string()
+            } else {
+                format!("`{}`", first.chars().take(40).collect::<String>())
+            };
+            return Err(KeyFileError::Format { path: path.to_path_buf(), found });
+        }
+        let seed = lines.next().and_then(unhex32).ok_or_else(|| KeyFileError::Secret(path.to_path_buf()))?;
+        let mut warnings = Vec::new();
+        #[cfg(unix)]
+        if let Ok(meta) = std::fs::metadata(path) {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = meta.permissions().mode() & 0o777;
+            if mode & 0o077 != 0 {
+                warnings.push(format!(
+                    "warning: {} can be read by others (mode {mode:04o}); anyone who reads it can sign parameter sets: chmod 600 {}",
+                    path.display(),
+                    path.display()
+                ));
+            }
+        }
+        Ok(LoadedKey { key: StationKey { key: SigningKey::from_bytes(&seed) }, warnings })
+    }
+
+    /// The key of a known 32-byte seed (tests, reproducible examples; a real station uses
+    /// [`StationKey::create`]).
+    pub fn from_seed(seed: [u8; 32]) -> StationKey {
+        StationKey { key: SigningKey::from_bytes(&seed) }
+    }
+
+    /// The public key.
+    pub fn public_key(&self) -> [u8; PUBLIC_KEY_BYTES] {
+        self.key.verifying_key().to_bytes()
+    }
+
+    /// The public key as 64 hex digits (what `KINCAL_TRUSTED_KEY` takes).
+    pub fn public_key_hex(&self) -> String {
+        hex(&self.public_key())
+    }
+
+    /// Sign `blob` for arm `arm_id` at `signed_at_unix_s`: the set to upload.
+    pub fn sign(&self, blob: &[u8], arm_id: &str, signed_at_unix_s: u64) -> Result<Vec<u8>, SignError> {
+        let mut out = [0u8; MAX_PARAM_BLOB];
+        let n = signing_message(blob, arm_id, signed_at_unix_s, &self.public_key(), &mut out).map_err(
+            |e| match e {
+                LayoutError::ArmId => SignError::ArmId(arm_id.to_string()),
+                LayoutError::TooLarge => SignError::TooLarge,
+            },
+        )?;
+        let mut set = out[..n].to_vec();
+        set.extend_from_slice(&self.key.sign(&set).to_bytes());
+        Ok(set)
+    }
+}
+
+/// `FILE.pub` beside key file `FILE`.
+pub fn public_key_path(path: &Path) -> PathBuf {
+    let mut name = path.as_os_str().to_owned();
+    name.push(".pub");
+    PathBuf::from(name)
+}
+
+/// Why a set could not be signed.
+#[derive(Debug, thiserror::Error)]
+pub enum SignError {
+    /// The arm identity is not one.
+    #[error("arm identity {0:?} is not one (1 to 24 ASCII letters, digits or -_.:)")]
+    ArmId(String),
+    /// Blob and signature do not fit the controller's parameter area.
+    #[error("the signed set does not fit the controller's {MAX_PARAM_BLOB}-byte parameter area")]
+    TooLarge,
+}
+
+/// Who signed a stored set, checked on the host too.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SetProvenance {
+    /// The parameter blob inside.
+    pub blob: Vec<u8>,
+    /// The arm identity it was signed for.
+    pub arm_id: String,
+    /// Time signed, Unix seconds.
+    pub signed_at_unix_s: u64,
+    /// The signer's public key.
+    pub signer: [u8; PUBLIC_KEY_BYTES],
+    /// The signature verifies (Ed25519, strict).
+    pub signature_valid: bool,
+}
+
+/// Read the signed fields of `set` and verify its signature here; `None` when it is not signed.
+pub fn provenance(set: &[u8]) -> Option<SetProvenance> {
+    let s = split_signed(set).ok()?;
+    let signature_valid = VerifyingKey::from_bytes(s.public_key)
+        .and_then(|k| k.verify_strict(s.message, &ed25519_dalek::Signature::from_bytes(s.signature)))
+        .is_ok();
+    Some(SetProvenance {
+        blob: s.blob.to_vec(),
+        arm_id: s.arm_id.to_string(),
+        signed_at_unix_s: s.signed_at_unix_s,
+        signer: *s.public_key,
+        signature_valid,
+    })
+}
+
+/// `unix_s` as UTC date and time (`2026-11-24 06:15:00 UTC`).
+pub fn utc(unix_s: u64) -> String {
+    let days = (unix_s / 86_400) as i64;
+    let secs = unix_s % 86_400;
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + (month <= 2) as i64;
+    format!("{year:04}-{month:02}-{day:02} {:02}:{:02}:{:02} UTC", secs / 3600, secs / 60 % 60, secs % 60)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("kincal-signing-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn a_new_key_is_owner_only_never_replaced_and_signs_verifiable_sets() {
+        let dir = temp("new");
+        let path = dir.join("station.key");
+        let key = StationKey::create(&path).unwrap();
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            assert_eq!(std::fs::metadata(&path).unwrap().permissions().mode() & 0o777, 0o600);
+        }
+        assert!(matches!(StationKey::create(&path), Err(KeyFileError::Exists(_))));
+        let loaded = StationKey::load(&path).unwrap();
+        assert!(loaded.warnings.is_empty());
+        assert_eq!(loaded.key.public_key(), key.public_key());
+        let public = std::fs::read_to_string(public_key_path(&path)).unwrap();
+        assert_eq!(public, format!("{PUBLIC_HEADER}\n{}\n", key.public_key_hex()));
+        let set = key.sign(&[1, 2, 3], "arm-1", 1_790_000_000).unwrap();
+        let p = provenance(&set).unwrap();
+        assert!(p.signature_valid);
+        assert_eq!(
+            (p.blob.as_slice(), p.arm_id.as_str(), p.signer),
+            (&[1u8, 2, 3][..], "arm-1", key.public_key())
+        );
+        let mut flipped = set.clone();
+        flipped[1] ^= 1;
+        assert!(!provenance(&flipped).unwrap().signature_valid);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn dates_are_utc() {
+        assert_eq!(utc(0), "1970-01-01 00:00:00 UTC");
+        assert_eq!(utc(951_782_400), "2000-02-29 00:00:00 UTC");
+        assert_eq!(utc(1_790_000_000), "2026-09-21 14:13:20 UTC");
+    }
+}

@@ -513,7 +513,10 @@ fn a_small_three_per_rev_error_on_joint_3_is_named_and_the_loop_ends_at_the_floo
         let run = auto_loop(&fit, &s.sim.artefact, &s.cal, &s.val, &s.options, 4).unwrap();
         let last = run.steps.last().unwrap();
         let added: Vec<&str> = run.steps.iter().filter_map(|s| s.added.as_deref()).collect();
-        eprintln!("seed {seed}: loop {added:?} ends at {:.4} (true floor {:.4}), stop {:?}", last.validation_rms_mm, s.floor, run.stop);
+        eprintln!(
+            "seed {seed}: loop {added:?} ends at {:.4} (true floor {:.4}), stop {:?}",
+            last.validation_rms_mm, s.floor, run.stop
+        );
         assert!(added.contains(&"harmonic:3:3"), "the loop must add harmonic:3:3: {added:?}");
         assert!(
             last.validation_rms_mm <= 1.05 * s.floor,
@@ -558,9 +561,8 @@ fn clean_data_false_calls_stay_rare_over_24_seeds() {
     // and still fails if the false-call rate climbs well above 5 %: 4 or more calls in 24 runs
     // happen with probability 3 % at a true rate of 5 %.
     use kincal::calib::monte_carlo::{false_calls, simulate_and_diagnose};
-    let calls: Vec<_> = (0..24u64)
-        .map(|k| false_calls(&simulate_and_diagnose(3000 + k, vec![]).unwrap()))
-        .collect();
+    let calls: Vec<_> =
+        (0..24u64).map(|k| false_calls(&simulate_and_diagnose(3000 + k, vec![]).unwrap())).collect();
     let bad: Vec<(usize, _)> = calls.iter().copied().enumerate().filter(|(_, c)| c.any()).collect();
     eprintln!("false calls on clean data: {} of {}: {bad:?}", bad.len(), calls.len());
     assert!(bad.len() <= 3, "{} of 24 clean runs had a false call: {bad:?}", bad.len());

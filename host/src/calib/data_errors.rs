@@ -55,6 +55,10 @@ pub fn blocks(data: &Dataset) -> Vec<((usize, u32), Vec<usize>)> {
     out
 }
 
+/// A touch of a block against its reference: (position in the block, touch, reference position
+/// mm) — a twin's touched position or the certified landmark.
+type Reference = (usize, usize, Vector3<f64>);
+
 /// A block whose artefact seems to have moved during the repeat.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct DisturbedBlock {
@@ -120,7 +124,7 @@ pub fn suspicious(
     for ((placement, repeat), touches) in &all_blocks {
         // (position in the block, touch, reference position) in measured order: the twins in
         // each other repeat, else the certified landmarks.
-        let mut references: Vec<(Vec<(usize, usize, Vector3<f64>)>, bool)> = all_blocks
+        let mut references: Vec<(Vec<Reference>, bool)> = all_blocks
             .iter()
             .filter(|(k, _)| k.0 == *placement && k.1 != *repeat)
             .map(|(_, others)| {
@@ -157,7 +161,11 @@ pub fn suspicious(
             let pm: Vec<Vector3<f64>> = matched.iter().map(|m| p[m.1]).collect();
             let rss_of = |range: std::ops::Range<usize>| {
                 let (r, t) = absolute_orientation(&q[range.clone()], &pm[range.clone()]);
-                q[range.clone()].iter().zip(&pm[range]).map(|(q, pm)| (pm - (r * q + t)).norm_squared()).sum::<f64>()
+                q[range.clone()]
+                    .iter()
+                    .zip(&pm[range])
+                    .map(|(q, pm)| (pm - (r * q + t)).norm_squared())
+                    .sum::<f64>()
             };
             let rss0 = rss_of(0..matched.len());
             let splits = (MIN_SIDE..=matched.len() - MIN_SIDE).map(|i| {

@@ -11,9 +11,11 @@
 //! error is also drawn against the joint's gravity lever, and |r| against height and reach.
 //!
 //! *Which effect is missing.* Every library effect not yet in the model is a candidate (the
-//! harmonics of orders 1–4 on every joint included). The calibrated model's Jacobian with every
-//! candidate parameter freed is evaluated once (on at most [`SCREEN_BLOCKS`] calibration blocks,
-//! evenly spaced, at scale) and shared:
+//! harmonics of orders 1–4 on every joint included). The calibration evidence and the refits use
+//! at most [`SCREEN_BLOCKS`] calibration blocks, evenly spaced (all of them on data of thesis
+//! size; a subsample at scale, where 150 blocks are ten times the thesis' data); the held-out
+//! scores always use every validation touch, so the tests stay exact. The calibrated model's
+//! Jacobian with every candidate parameter freed is evaluated once and shared:
 //! * *Identifiability*: a candidate's parameters that add no rank to the identifiable base set
 //!   are held at zero and named; a candidate with none left is not identifiable.
 //! * *Screen*: a score (Lagrange-multiplier) test with no refit. With r the calibration
@@ -23,8 +25,10 @@
 //!   matrix). It is turned into a standard normal deviate (Wilson–Hilferty), the candidate's
 //!   *calibration evidence*.
 //! * *Refit*: the [`REFITTED`] candidates with the strongest calibration evidence are refitted
-//!   warm (nonlinear, every calibration touch, from the calibrated values); the others are
-//!   scored from the shared Gauss–Newton step. Either way the held-out score is exact.
+//!   warm (nonlinear, every calibration touch, from the calibrated values), and their evidence
+//!   is then the exact drop, rows × (1 − RSS_after/RSS_before), on the score test's scale; the
+//!   others are scored from the shared Gauss–Newton step. Either way the held-out score is
+//!   exact.
 //!
 //! *Significance* (the unit is the validation placement). Repeats of one placement share poses
 //! and the systematic residual, so they are not independent; each placement gives one number,
@@ -77,8 +81,8 @@ const MAX_FLAGGED: usize = 3;
 /// A data error is named instead of an arm effect when its held-out RMS is within this factor
 /// of the best arm effect's.
 pub const DATA_ERROR_EXPLAINS: f64 = 1.05;
-/// Most calibration (placement, repeat) blocks the shared screening Jacobian is evaluated on;
-/// larger data are subsampled evenly. Refits and held-out scores use every touch.
+/// Most calibration (placement, repeat) blocks the screening (shared Jacobian, refits, calibration
+/// evidence) uses; larger data are subsampled evenly. Held-out scores use every validation touch.
 pub const SCREEN_BLOCKS: usize = 150;
 /// Candidates refitted in full (warm, nonlinear), strongest calibration evidence first.
 pub const REFITTED: usize = 10;
@@ -290,6 +294,11 @@ fn touch_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec
     out
 }
 
+/// (cycles per revolution, fit) per order.
+type Spectrum = Vec<(u32, Sinusoid)>;
+/// (order, order, canonical correlation) of aliased pairs.
+type Aliased = Vec<(u32, u32, f64)>;
+
 /// Sin/cos columns of orders 1..=[`SPECTRUM_ORDERS`] and a constant at angle `phi_deg`.
 fn harmonic_row(phi_deg: f64) -> DVector<f64> {
     let n = 2 * SPECTRUM_ORDERS as usize + 1;
@@ -307,7 +316,7 @@ fn harmonic_row(phi_deg: f64) -> DVector<f64> {
 /// 1..=[`SPECTRUM_ORDERS`] jointly, for points (angle deg, value deg, weight). Returns each
 /// order's fit (its share: the weighted variance lost when it alone is dropped) and the
 /// aliased pairs of orders.
-fn fit_spectrum(points: &[(f64, f64, f64)]) -> (Vec<(u32, Sinusoid)>, Vec<(u32, u32, f64)>) {
+fn fit_spectrum(points: &[(f64, f64, f64)]) -> (Spectrum, Aliased) {
     let n = 2 * SPECTRUM_ORDERS as usize + 1;
     let mut ata = DMatrix::zeros(n, n);
     let mut atb = DVector::zeros(n);
@@ -484,6 +493,39 @@ fn gravity_levers(model: &ArmModel, enc_deg: &[f64; JOINTS]) -> [f64; JOINTS] {
             0.0
         }
     })
+}
+
+impl Candidate {
+    /// A candidate from its held-out score and calibration evidence: not yet significant, no
+    /// fitted values, no equivalents, no action.
+    fn scored(
+        effect: String,
+        score: &Score,
+        baseline_rms_mm: f64,
+        delta_bic: f64,
+        calibration_z: f64,
+        evidence: String,
+    ) -> Candidate {
+        let base_ms = baseline_rms_mm.powi(2).max(1e-300);
+        Candidate {
+            effect,
+            validation_rms_mm: score.after,
+            explained: ((base_ms - score.after.powi(2)) / base_ms).clamp(0.0, 1.0),
+            significant: false,
+            blocks_improved: score.blocks_improved,
+            mean_log_ratio: score.mean_log_ratio,
+            p_value: score.p_value,
+            delta_bic,
+            calibration_z,
+            placements_improved: score.placements_improved,
+            refitted: true,
+            fitted: Vec::new(),
+            evidence,
+            equivalent: Vec::new(),
+            equivalent_to: None,
+            action: None,
+        }
+    }
 }
 
 /// Mean square validation error per (placement, repeat) block.
@@ -666,7 +708,7 @@ fn screening_subset(data: &Dataset) -> std::borrow::Cow<'_, Dataset> {
 }
 
 /// The calibrated model's Jacobian with every candidate parameter freed, evaluated once on the
-/// calibration data (a subsample at scale) and shared by every candidate.
+/// calibration data (the screening subsample at scale) and shared by every candidate.
 struct Screen {
     params: Vec<ParamId>,
     ranges: Vec<f64>,
@@ -700,9 +742,7 @@ impl Screen {
         }
         let params: Vec<ParamId> = augmented.free.iter().map(|f| f.id).collect();
         let ranges: Vec<f64> = augmented.free.iter().map(|f| (f.upper - f.lower).max(1e-9)).collect();
-        let subset = screening_subset(cal);
-        let problem =
-            CalibrationProblem::new(&augmented, params.clone(), artefact, &subset, options.objective);
+        let problem = CalibrationProblem::new(&augmented, params.clone(), artefact, cal, options.objective);
         let values = augmented.free_values();
         let (rows, n) = (problem.len(), params.len());
         let mut r = vec![0.0; rows];
@@ -881,10 +921,15 @@ pub fn diagnose(
     let baseline = ErrorStats::of(&baseline_errors.iter().map(|e| e.error_mm).collect::<Vec<_>>());
     let (joints, by_height, by_reach) = joint_residuals(calibrated, artefact, val);
     let current: Vec<ParamId> = calibrated.free.iter().map(|f| f.id).collect();
-    let baseline_bic = bic(&distance_residuals(calibrated, artefact, cal), current.len());
+    // Refits and the calibration evidence use at most SCREEN_BLOCKS blocks; the held-out
+    // scores always use every validation touch.
+    let fit_data = screening_subset(cal);
+    let baseline_cal = distance_residuals(calibrated, artefact, &fit_data);
+    let baseline_bic = bic(&baseline_cal, current.len());
+    let baseline_rss: f64 = baseline_cal.iter().map(|r| r * r).sum::<f64>().max(1e-300);
     let baseline_blocks = block_mse(&baseline_errors, val);
     let effects: Vec<Effect> = Effect::library().into_iter().filter(|e| !e.is_in(calibrated)).collect();
-    let screen = Screen::new(calibrated, &effects, artefact, cal, options);
+    let screen = Screen::new(calibrated, &effects, artefact, &fit_data, options);
     let base_params: Vec<ParamId> = screen.base.iter().map(|&c| screen.params[c]).collect();
     let floor = noise_floor(calibrated, artefact, cal, val, screen.base.len());
     let (disturbed, mis_seated) = match &floor {
@@ -910,7 +955,7 @@ pub fn diagnose(
             let refit = (rank < REFITTED)
                 .then(|| {
                     let params: Vec<ParamId> = base_params.iter().chain(&c.added).copied().collect();
-                    solve_warm(&c.start(calibrated), &params, artefact, cal, options).ok()
+                    solve_warm(&c.start(calibrated), &params, artefact, &fit_data, options).ok()
                 })
                 .flatten();
             let refitted = refit.is_some();
@@ -918,15 +963,19 @@ pub fn diagnose(
             let errors = distance_errors(&model, artefact, val);
             let score = Score::of(&errors, &baseline_blocks, val);
             let k = c.added.len();
-            let delta_bic = if refitted {
-                bic(&distance_residuals(&model, artefact, cal), current.len() + k) - baseline_bic
+            // A refit replaces the score test's linearised drop by the exact one, on the same
+            // scale: rows × (1 − RSS_after / RSS_before).
+            let (delta_bic, z) = if refitted {
+                let residuals = distance_residuals(&model, artefact, &fit_data);
+                let rss: f64 = residuals.iter().map(|r| r * r).sum();
+                let exact = m_screen * (1.0 - rss / baseline_rss).max(0.0);
+                (bic(&residuals, current.len() + k) - baseline_bic, chi2_z(exact, k))
             } else {
                 let rss = screen.sigma2 * (screen.rows.saturating_sub(screen.base.len()).max(1)) as f64;
-                m_screen * (1.0 - (c.lm * screen.sigma2 / rss).min(0.999_999)).ln() + k as f64 * m_screen.ln()
+                let drop = m_screen * (1.0 - (c.lm * screen.sigma2 / rss).min(0.999_999)).ln()
+                    + k as f64 * m_screen.ln();
+                (drop, c.z)
             };
-            let explained = ((baseline.rms_mm.powi(2) - score.after.powi(2))
-                / baseline.rms_mm.powi(2).max(1e-300))
-            .clamp(0.0, 1.0);
             let fitted: Vec<(String, f64, &'static str)> = c
                 .effect
                 .params()
@@ -940,22 +989,9 @@ pub fn diagnose(
             let change: Vec<f64> =
                 errors.iter().zip(&baseline_errors).map(|(a, b)| a.error_mm - b.error_mm).collect();
             let candidate = Candidate {
-                effect: c.effect.to_string(),
-                validation_rms_mm: score.after,
-                explained,
-                significant: false,
-                blocks_improved: score.blocks_improved,
-                mean_log_ratio: score.mean_log_ratio,
-                p_value: score.p_value,
-                delta_bic,
-                calibration_z: c.z,
-                placements_improved: score.placements_improved,
-                refitted,
                 fitted,
-                evidence,
-                equivalent: Vec::new(),
-                equivalent_to: None,
-                action: None,
+                refitted,
+                ..Candidate::scored(c.effect.to_string(), &score, baseline.rms_mm, delta_bic, z, evidence)
             };
             let blocks = block_mse(&errors, val);
             (candidate, change, Fitted { blocks, per_placement: score.per_placement })
@@ -997,6 +1033,7 @@ pub fn diagnose(
             base_params: &base_params,
             artefact,
             cal,
+            fit_data: &fit_data,
             val,
             options,
             baseline: &baseline,
@@ -1009,7 +1046,15 @@ pub fn diagnose(
     let gap = floor.as_ref().map(|f| gap(f, baseline.rms_mm, val));
     decide(&mut candidates, &mut data_errors, baseline.rms_mm);
     let (rivals, named) = rivals(
-        &RivalInputs { calibrated, artefact, cal, val, options, screen: &screen, base_params: &base_params },
+        &RivalInputs {
+            calibrated,
+            artefact,
+            fit_data: &fit_data,
+            val,
+            options,
+            screen: &screen,
+            base_params: &base_params,
+        },
         &candidates,
         &fits,
         &screened,
@@ -1066,7 +1111,8 @@ fn decide(candidates: &mut [Candidate], data_errors: &mut [Candidate], baseline_
 struct RivalInputs<'a> {
     calibrated: &'a ArmModel,
     artefact: &'a Artefact,
-    cal: &'a Dataset,
+    /// The calibration data the refits use (a subsample at scale).
+    fit_data: &'a Dataset,
     val: &'a Dataset,
     options: &'a CalibrationOptions,
     screen: &'a Screen,
@@ -1117,7 +1163,7 @@ fn rivals(
             }
             let params: Vec<ParamId> =
                 x.base_params.iter().chain(&sa.added).chain(&sb.added).copied().collect();
-            let both = solve_warm(&start, &params, x.artefact, x.cal, x.options).ok()?;
+            let both = solve_warm(&start, &params, x.artefact, x.fit_data, x.options).ok()?;
             let errors = distance_errors(&both, x.artefact, x.val);
             let b_adds = Score::of(&errors, &fits[lead].blocks, x.val);
             let a_adds = Score::of(&errors, &fits[k].blocks, x.val);
@@ -1146,15 +1192,17 @@ fn rivals(
             })
         })
         .collect();
-    let mut leader = a.effect.clone();
-    let mut tied = Vec::new();
-    for r in &tested {
-        match &r.verdict {
-            RivalVerdict::Proxy { cause, .. } if *cause == r.b => leader = cause.clone(),
-            RivalVerdict::CannotTell => tied.push(r.b.clone()),
-            _ => {}
-        }
-    }
+    // A rival that explains what the leader does (and more) leads instead: the best of them on
+    // the held-out data (the contenders come best first).
+    let leader = tested
+        .iter()
+        .find_map(|r| match &r.verdict {
+            RivalVerdict::Proxy { cause, .. } if *cause == r.b => Some(cause.clone()),
+            _ => None,
+        })
+        .unwrap_or_else(|| a.effect.clone());
+    let tied: Vec<String> =
+        tested.iter().filter(|r| r.verdict == RivalVerdict::CannotTell).map(|r| r.b.clone()).collect();
     let mut named = vec![leader.clone()];
     named.extend(tied.into_iter().filter(|t| *t != leader));
     (tested, named)
@@ -1167,6 +1215,8 @@ struct DataErrorInputs<'a> {
     base_params: &'a [ParamId],
     artefact: &'a Artefact,
     cal: &'a Dataset,
+    /// The calibration data the landmark refits use (a subsample at scale).
+    fit_data: &'a Dataset,
     val: &'a Dataset,
     options: &'a CalibrationOptions,
     baseline: &'a ErrorStats,
@@ -1180,37 +1230,21 @@ fn score_data_errors(
     disturbed: &[DisturbedBlock],
     mis_seated: &[MisSeatedTouch],
 ) -> Vec<Candidate> {
-    let base_ms = x.baseline.rms_mm.powi(2).max(1e-300);
     let refit = |data: &Dataset| solve_warm(x.calibrated, x.base_params, x.artefact, data, x.options);
-    let candidate = |name: String, score: Score, delta_bic: f64, z: f64, evidence: String, action: String| {
-        let explained = ((base_ms - score.after.powi(2)) / base_ms).clamp(0.0, 1.0);
-        Candidate {
-            effect: name,
-            validation_rms_mm: score.after,
-            explained,
-            significant: false,
-            blocks_improved: score.blocks_improved,
-            mean_log_ratio: score.mean_log_ratio,
-            p_value: score.p_value,
-            delta_bic,
-            calibration_z: z,
-            placements_improved: score.placements_improved,
-            refitted: true,
-            fitted: Vec::new(),
-            evidence,
-            equivalent: Vec::new(),
-            equivalent_to: None,
+    let candidate =
+        |name: String, score: Score, delta_bic: f64, z: f64, evidence: String, action: String| Candidate {
             action: Some(action),
-        }
-    };
+            ..Candidate::scored(name, &score, x.baseline.rms_mm, delta_bic, z, evidence)
+        };
+
     let mut out: Vec<Candidate> = (0..x.artefact.landmarks.len())
         .into_par_iter()
         .filter_map(|l| {
             let (model, corrected) =
-                refit_with_landmark_freed(x.calibrated, x.base_params, x.artefact, x.cal, l, x.options).ok()?;
+                refit_with_landmark_freed(x.calibrated, x.base_params, x.artefact, x.fit_data, l, x.options).ok()?;
             let errors = distance_errors(&model, &corrected, x.val);
             let score = Score::of(&errors, x.baseline_blocks, x.val);
-            let residuals = distance_residuals(&model, &corrected, x.cal);
+            let residuals = distance_residuals(&model, &corrected, x.fit_data);
             let m = residuals.len().max(2) as f64;
             let delta_bic = bic(&residuals, x.calibrated.free.len() + 3) - x.baseline_bic;
             // Likelihood ratio of the freed certificate (3 parameters), from the BIC change.
@@ -1409,7 +1443,7 @@ fn summarise(
             for r in rivals {
                 match &r.verdict {
                     RivalVerdict::Proxy { cause, proxy } => lines.push(format!(
-                        "{proxy} is a proxy of {cause}: added to {cause} it does not lower the held-out error (p = {:.3}), while {cause} added to {proxy} does (p = {:.3})",
+                        "{proxy} looks like a proxy of {cause}: added to {cause} it gives no significant further gain on the held-out placements (p = {:.3}), while {cause} added to {proxy} does (p = {:.3})",
                         if *proxy == r.b { r.b_adds_p } else { r.a_adds_p },
                         if *proxy == r.b { r.a_adds_p } else { r.b_adds_p },
                     )),

@@ -246,7 +246,8 @@ pub fn noise_floor(
 /// (positions `p`, touch covariance `cov`): (Σ tr C_b)² / Σ tr(C_b²) over the (placement,
 /// repeat) blocks, C_b the noise covariance of a block's pair errors.
 fn effective_dof(data: &Dataset, p: &[Vector3<f64>], pairs: &[(usize, usize)], cov: &Matrix3<f64>) -> f64 {
-    let mut by_block: Vec<((usize, u32), Vec<(usize, usize, Vector3<f64>)>)> = Vec::new();
+    type Rows = Vec<(usize, usize, Vector3<f64>)>;
+    let mut by_block: Vec<((usize, u32), Rows)> = Vec::new();
     for &(a, b) in pairs {
         let key = (data.touches[a].placement, data.touches[a].repeat);
         let u = (p[a] - p[b]).normalize();

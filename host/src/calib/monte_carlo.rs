@@ -115,7 +115,7 @@ pub fn hidden_for(effect: Effect) -> Vec<(ParamId, f64)> {
 /// tell apart, or exactly equivalent to the first.
 pub fn names(d: &Diagnosis, effect: Effect) -> bool {
     let name = effect.to_string();
-    d.named.iter().any(|n| *n == name)
+    d.named.contains(&name)
         || d.named
             .first()
             .and_then(|n| d.candidates.iter().find(|c| c.effect == *n))

@@ -36,37 +36,6 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
         "<h2>The gap to the floor, and what closes it</h2><figure>{}<figcaption>validation RMS now and with each candidate effect or data error (best first; orange = significant), against the floor expected from repeatability (dashed)</figcaption></figure>",
         svg::hbars(&bars, &references, "validation RMS (mm)")
     );
-    if !d.rivals.is_empty() {
-        use crate::calib::diagnose::RivalVerdict;
-        let rows: Vec<Vec<String>> = d
-            .rivals
-            .iter()
-            .map(|r| {
-                let verdict = match &r.verdict {
-                    RivalVerdict::Proxy { cause, proxy } => format!("{cause}; {proxy} is a proxy"),
-                    RivalVerdict::Both => "both are missing".into(),
-                    RivalVerdict::CannotTell => format!(
-                        "these data cannot tell them apart: `kincal plan RUN --rivals {},{}` says where to measure",
-                        r.a, r.b
-                    ),
-                };
-                vec![
-                    escape(&r.a),
-                    escape(&r.b),
-                    mm(r.both_rms_mm),
-                    format!("{:.1e}", r.a_adds_p),
-                    format!("{:.1e}", r.b_adds_p),
-                    format!("{:.1}", r.separability),
-                    escape(&verdict),
-                ]
-            })
-            .collect();
-        let _ = write!(
-            body,
-            "<h2>Rivals</h2><p>Candidates that explain the held-out data alike. Each is added to the other and tested on the held-out placements; the separability is min(λ_AB, λ_BA) in noise variances (below about 13 the touches cannot separate them).</p>{}",
-            table(&["leading", "rival", "both, val RMS mm", "p of adding leading", "p of adding rival", "separability σ²", "verdict"], &rows)
-        );
-    }
     body.push_str("<h2>Where it fails</h2><h3>Apparent joint error against joint angle (the curve: harmonics 1–4 fitted together, drawn where touches are)</h3><p>Touches where a joint barely moves the tip (its Jacobian column near zero, close to a singularity) give huge apparent errors of that joint; the axes are set by the bulk of the touches and such points are drawn as triangles at the edge.</p>");
     for j in &d.joints {
         let pts: Vec<(f64, f64)> = j.points.iter().map(|p| (p.0, p.1)).collect();
@@ -149,14 +118,58 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
                     + &c.equivalent_to.as_ref().map_or(String::new(), |l| format!(" (≡ {})", escape(l))),
                 mm(c.validation_rms_mm),
                 format!("{:.2}", c.explained),
-                format!("{}/{} (p = {:.1e})", c.blocks_improved.0, c.blocks_improved.1, c.p_value),
-                format!("{:+.1}", c.delta_bic),
+                format!("{}/{} (p = {:.3})", c.placements_improved.0, c.placements_improved.1, c.p_value),
+                format!("{:.1}", c.calibration_z),
                 if c.significant { "<span class=flag>yes</span>".into() } else { "no".into() },
                 escape(&c.evidence),
             ]
         })
         .collect();
-    let _ = write!(body, "<h2>Which effect is missing</h2><p>Baseline validation RMS {} mm. Each effect is added, refitted on the calibration data and scored on the held-out placements.</p>{}", mm(d.baseline.rms_mm), table(&["effect", "val RMS mm", "explained", "blocks improved", "ΔBIC", "significant", "evidence"], &rows));
+    let _ = write!(body, "<h2>Which effect is missing</h2><p>Baseline validation RMS {} mm. Each effect is screened by a score test on the calibration data (its evidence as a normal deviate), refitted and scored on the held-out placements: an exact sign-flip test over the placements, in a fixed sequence by calibration evidence.</p>{}", mm(d.baseline.rms_mm), table(&["effect", "val RMS mm", "explained", "placements improved", "calibration evidence z", "significant", "evidence"], &rows));
+    if !d.rivals.is_empty() {
+        let rivals: Vec<Vec<String>> = d
+            .rivals
+            .iter()
+            .map(|r| {
+                let verdict = match &r.verdict {
+                    crate::calib::diagnose::RivalVerdict::Proxy { cause, proxy } => {
+                        format!("{} is a proxy of {}", escape(proxy), escape(cause))
+                    }
+                    crate::calib::diagnose::RivalVerdict::Both => "both are missing".into(),
+                    crate::calib::diagnose::RivalVerdict::CannotTell => format!(
+                        "these data cannot tell them apart (where to measure: <code>kincal plan RUN --rivals {},{}</code>)",
+                        escape(&r.a),
+                        escape(&r.b)
+                    ),
+                };
+                vec![
+                    escape(&r.a),
+                    escape(&r.b),
+                    mm(r.both_rms_mm),
+                    format!("{:.3}", r.b_adds_p),
+                    format!("{:.3}", r.a_adds_p),
+                    format!("{:.1}", r.separability),
+                    verdict,
+                ]
+            })
+            .collect();
+        let _ = write!(
+            body,
+            "<h3>Rivals of the leading effect</h3>{}",
+            table(
+                &[
+                    "A",
+                    "B",
+                    "A+B val RMS mm",
+                    "p (B added to A)",
+                    "p (A added to B)",
+                    "separability λ",
+                    "verdict"
+                ],
+                &rivals
+            )
+        );
+    }
     let data: Vec<Vec<String>> = d
         .data_errors
         .iter()
@@ -164,14 +177,14 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
             vec![
                 escape(&c.effect),
                 mm(c.validation_rms_mm),
-                format!("{}/{} (p = {:.1e})", c.blocks_improved.0, c.blocks_improved.1, c.p_value),
+                format!("{}/{} (p = {:.3})", c.placements_improved.0, c.placements_improved.1, c.p_value),
                 if c.significant { "<span class=flag>yes</span>".into() } else { "no".into() },
                 escape(&c.evidence),
                 escape(c.action.as_deref().unwrap_or("")),
             ]
         })
         .collect();
-    let _ = write!(body, "<h2>Data errors, scored beside the arm effects</h2><p>A wrong certificate (the landmark's position freed), a placement disturbed within a repeat, a mis-seated touch. When one explains the residuals as well as an arm effect, it is named and no arm effect is claimed.</p>{}", table(&["data error", "val RMS mm", "blocks improved", "significant", "evidence", "what to do"], &data));
+    let _ = write!(body, "<h2>Data errors, scored beside the arm effects</h2><p>A wrong certificate (the landmark's position freed), a placement disturbed within a repeat, a mis-seated touch. When one explains the residuals as well as an arm effect, it is named and no arm effect is claimed.</p>{}", table(&["data error", "val RMS mm", "placements improved", "significant", "evidence", "what to do"], &data));
     let ni: Vec<Vec<String>> =
         d.not_identifiable.iter().map(|n| vec![escape(&n.effect), escape(&n.reason)]).collect();
     let _ = write!(body, "<h3>Not identifiable</h3>{}", table(&["effect", "why"], &ni));

@@ -736,30 +736,56 @@ fn chosen<'a>(
         .collect()
 }
 
-/// `figure` of the old sessions plus the planned placements measured on the true arm, and of
-/// the old sessions plus `trial.random_draws` random designs of as many placements.
-fn planned_and_random(
-    sim: &SimulatedData,
-    sim_options: &SimulationOptions,
-    old: &[Session],
-    candidates: &[CandidatePlacement],
-    planned: &[&CandidatePlacement],
-    trial: &TrialOptions,
-    figure: impl Fn(&Dataset) -> Result<f64, CalibrationError>,
-) -> Result<(f64, Vec<f64>), CalibrationError> {
-    let mut rng = ChaCha8Rng::seed_from_u64(trial.seed ^ 0x9e37_79b9);
-    let score = |design: &[&CandidatePlacement], rng: &mut ChaCha8Rng| {
-        let mut sessions = old.to_vec();
-        sessions.extend(measure(&sim.truth, &sim.artefact, design, sim_options, "N", rng));
-        figure(&Dataset::from_sessions(&sessions, &sim.artefact))
-    };
-    let with_plan = score(planned, &mut rng)?;
-    let mut random = Vec::new();
-    for _ in 0..trial.random_draws {
-        let design = random_pick(candidates, trial.count, &mut rng);
-        random.push(score(&design, &mut rng)?);
+/// A simulated arm, its sessions and the data so far, for a plan check.
+struct Trial {
+    sim: SimulatedData,
+    sim_options: SimulationOptions,
+    old: Vec<Session>,
+    cal: Dataset,
+}
+
+impl Trial {
+    /// Simulate the arm of `trial.seed` with `hidden`; the data so far are its first
+    /// `trial.placements` calibration placements.
+    fn new(nominal: &ArmModel, hidden: &[(ParamId, f64)], trial: &TrialOptions) -> Trial {
+        let sim_options =
+            SimulationOptions { seed: trial.seed, hidden: hidden.to_vec(), ..SimulationOptions::default() };
+        let sim = crate::simulate::simulate(nominal, &sim_options);
+        let old = old_sessions(&sim, trial.placements);
+        let cal = Dataset::from_sessions(&old, &sim.artefact);
+        Trial { sim, sim_options, old, cal }
     }
-    Ok((with_plan, random))
+
+    /// `figure` of the data so far plus the `suggested` placements measured on the true arm, and
+    /// of the data so far plus `trial.random_draws` random designs of as many placements.
+    fn planned_and_random(
+        &self,
+        candidates: &[CandidatePlacement],
+        suggested: &[SuggestedPlacement],
+        trial: &TrialOptions,
+        figure: impl Fn(&Dataset) -> Result<f64, CalibrationError>,
+    ) -> Result<(f64, Vec<f64>), CalibrationError> {
+        let mut rng = ChaCha8Rng::seed_from_u64(trial.seed ^ 0x9e37_79b9);
+        let score = |design: &[&CandidatePlacement], rng: &mut ChaCha8Rng| {
+            let mut sessions = self.old.clone();
+            sessions.extend(measure(
+                &self.sim.truth,
+                &self.sim.artefact,
+                design,
+                &self.sim_options,
+                "N",
+                rng,
+            ));
+            figure(&Dataset::from_sessions(&sessions, &self.sim.artefact))
+        };
+        let with_plan = score(&chosen(candidates, suggested), &mut rng)?;
+        let mut random = Vec::new();
+        for _ in 0..trial.random_draws {
+            let design = random_pick(candidates, trial.count, &mut rng);
+            random.push(score(&design, &mut rng)?);
+        }
+        Ok((with_plan, random))
+    }
 }
 
 /// Rivals check: the true arm has `hidden` (effect `a`'s parameters), the data so far are
@@ -773,32 +799,22 @@ pub fn rival_trial(
     b: Effect,
     trial: &TrialOptions,
 ) -> Result<TrialOutcome, CalibrationError> {
-    let sim_options =
-        SimulationOptions { seed: trial.seed, hidden: hidden.to_vec(), ..SimulationOptions::default() };
-    let sim = crate::simulate::simulate(nominal, &sim_options);
-    let old = old_sessions(&sim, trial.placements);
-    let cal = Dataset::from_sessions(&old, &sim.artefact);
+    let t = Trial::new(nominal, hidden, trial);
+    let (artefact, cal) = (&t.sim.artefact, &t.cal);
     let fit = calibrate(
         nominal,
-        &sim.artefact,
-        &cal,
+        artefact,
+        cal,
         &CalibrationOptions { restarts: 2, seed: trial.seed, ..CalibrationOptions::default() },
     )?;
-    let sigma = sim_options.seating_noise_mm;
+    let sigma = t.sim_options.seating_noise_mm;
     let options = PlanOptions { count: trial.count, seed: trial.seed, touch_std_mm: sigma };
-    let candidates = candidate_placements(&fit.model, &sim.artefact, trial.seed);
-    let empty = Dataset::default();
-    let planned = plan_rivals(&fit.model, &sim.artefact, &cal, &empty, a, b, &candidates, &options);
-    let before = separation(&fit.model, &sim.artefact, &cal, a, b, sigma)?;
-    let (planned, random) = planned_and_random(
-        &sim,
-        &sim_options,
-        &old,
-        &candidates,
-        &chosen(&candidates, &planned.placements),
-        trial,
-        |data| separation(&fit.model, &sim.artefact, data, a, b, sigma),
-    )?;
+    let candidates = candidate_placements(&fit.model, artefact, trial.seed);
+    let planned = plan_rivals(&fit.model, artefact, cal, &Dataset::default(), a, b, &candidates, &options);
+    let before = separation(&fit.model, artefact, cal, a, b, sigma)?;
+    let (planned, random) = t.planned_and_random(&candidates, &planned.placements, trial, |data| {
+        separation(&fit.model, artefact, data, a, b, sigma)
+    })?;
     Ok(TrialOutcome { before, planned, random })
 }
 
@@ -810,30 +826,22 @@ pub fn weak_trial(
     nominal: &ArmModel,
     trial: &TrialOptions,
 ) -> Result<(String, TrialOutcome), CalibrationError> {
-    let sim_options = SimulationOptions { seed: trial.seed, ..SimulationOptions::default() };
-    let sim = crate::simulate::simulate(nominal, &sim_options);
-    let old = old_sessions(&sim, trial.placements);
-    let cal = Dataset::from_sessions(&old, &sim.artefact);
+    let t = Trial::new(nominal, &[], trial);
+    let (artefact, cal) = (&t.sim.artefact, &t.cal);
     let calibration = CalibrationOptions { restarts: 0, seed: trial.seed, ..CalibrationOptions::default() };
-    let fit = calibrate(nominal, &sim.artefact, &cal, &calibration)?;
+    let fit = calibrate(nominal, artefact, cal, &calibration)?;
     let options =
-        PlanOptions { count: trial.count, seed: trial.seed, touch_std_mm: sim_options.seating_noise_mm };
-    let candidates = candidate_placements(&fit.model, &sim.artefact, trial.seed);
-    let planned = plan_weak(&fit.model, &sim.artefact, &cal, &candidates, &options);
+        PlanOptions { count: trial.count, seed: trial.seed, touch_std_mm: t.sim_options.seating_noise_mm };
+    let candidates = candidate_placements(&fit.model, artefact, trial.seed);
+    let planned = plan_weak(&fit.model, artefact, cal, &candidates, &options);
     let worst = planned.stds.first().map(|s| s.0.clone()).unwrap_or_default();
     let std_of = |fit: &crate::calib::calibrate::Calibration| {
         fit.estimates.iter().find(|e| e.param == worst).and_then(|e| e.std).unwrap_or(f64::NAN)
     };
     let before = std_of(&fit);
-    let (planned_std, random) = planned_and_random(
-        &sim,
-        &sim_options,
-        &old,
-        &candidates,
-        &chosen(&candidates, &planned.placements),
-        trial,
-        |data| Ok(std_of(&calibrate(&fit.model, &sim.artefact, data, &calibration)?)),
-    )?;
+    let (planned_std, random) = t.planned_and_random(&candidates, &planned.placements, trial, |data| {
+        Ok(std_of(&calibrate(&fit.model, artefact, data, &calibration)?))
+    })?;
     Ok((worst, TrialOutcome { before, planned: planned_std, random }))
 }
 

@@ -9,7 +9,7 @@
 //! ```
 //! `std_deg`, `samples` and `rejected` are optional; sessions may miss landmarks.
 
-use crate::files::{self, field_error, read_json, FileError};
+use crate::files::{self, check_regular_file, field_error, read_json, FileError};
 use crate::model::JOINTS;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -430,15 +430,15 @@ impl Dataset {
     pub fn load_dir(dir: &Path, artefact: &Artefact, purpose: Purpose) -> Result<Dataset, FileError> {
         let entries =
             std::fs::read_dir(dir).map_err(|source| FileError::Io { path: dir.to_owned(), source })?;
-        let mut files: Vec<PathBuf> = entries
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| {
-                let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-                !name.starts_with('.')
-                    && p.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"))
-                    && p.is_file()
-            })
-            .collect();
+        let mut files: Vec<PathBuf> = Vec::new();
+        for entry in entries {
+            let path = entry.map_err(|source| FileError::Io { path: dir.to_owned(), source })?.path();
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            if !name.starts_with('.') && path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+                check_regular_file(&path)?;
+                files.push(path);
+            }
+        }
         files.sort();
         if files.is_empty() {
             return Err(FileError::EmptyFolder { path: dir.to_owned() });

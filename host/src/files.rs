@@ -59,8 +59,49 @@ pub enum FileError {
     },
 }
 
+/// Refuse an input entry that is not a regular file (a symlink to one is followed): a dangling
+/// symlink, a symlink loop, a device such as `/dev/zero`, a FIFO or a folder named `*.json` is
+/// named, never skipped or read
+/// (a device or FIFO would never end), so no file the user believes was read is silently left out.
+pub fn check_regular_file(path: &Path) -> Result<(), FileError> {
+    let not_a_file = |what: String| FileError::Field {
+        path: path.to_owned(),
+        field: "(folder entry)".into(),
+        message: format!("{what}, not an input file; remove it or rename it so it does not end in .json"),
+    };
+    let meta = match std::fs::metadata(path) {
+        Ok(meta) => meta,
+        Err(e) => {
+            let link = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink());
+            return Err(if link {
+                not_a_file(format!("a symlink whose target cannot be read ({e}: dangling or a loop)"))
+            } else {
+                FileError::Io { path: path.to_owned(), source: e }
+            });
+        }
+    };
+    if meta.is_file() {
+        return Ok(());
+    }
+    use std::os::unix::fs::FileTypeExt;
+    let kind = meta.file_type();
+    let what = if kind.is_dir() {
+        "a folder"
+    } else if kind.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if kind.is_char_device() || kind.is_block_device() {
+        "a device"
+    } else if kind.is_socket() {
+        "a socket"
+    } else {
+        "not a regular file"
+    };
+    Err(not_a_file(what.to_string()))
+}
+
 /// Read a JSON file into `T`, naming the file (and the parser's line and column) on error.
 pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, FileError> {
+    check_regular_file(path)?;
     let text =
         std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
     serde_json::from_str(&text).map_err(|e| json_error(path, &text, e))
@@ -101,6 +142,7 @@ pub fn read_tagged<T: serde::de::DeserializeOwned>(path: &Path, format: &str) ->
     struct Tag {
         format: Option<String>,
     }
+    check_regular_file(path)?;
     let text =
         std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
     let syntax = |e: serde_json::Error| json_error(path, &text, e);

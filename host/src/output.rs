@@ -270,6 +270,7 @@ pub fn write_folder(
     fill(&staged.path)?;
     let marker = staged.path.join(MARKER);
     std::fs::write(&marker, kind.name()).map_err(io(&marker))?;
+    sync_files(&staged.path)?;
     sync_dir(&staged.path);
     if existing || dir.exists() {
         let old = parent.join(format!(".{name}.old-{}", std::process::id()));
@@ -294,10 +295,27 @@ fn sync_dir(dir: &Path) {
     }
 }
 
-/// Write one file into a folder being filled, syncing it so a full disk shows here.
+/// Write one file into a folder being filled. No temporary name and no sync of its own: the
+/// staging folder is invisible under the final name until [`write_folder`] has synced every file
+/// in it (all at once, so the disk waits are shared) and renamed it; a full disk shows there.
 fn put(dir: &Path, name: &str, bytes: &[u8]) -> Result<(), OutputError> {
     let path = dir.join(name);
-    write_atomic(&path, bytes).map_err(io(&path))
+    std::fs::write(&path, bytes).map_err(io(&path))
+}
+
+/// Flush every file of a staged folder to disk, in parallel (each `fsync` waits for the disk;
+/// side by side the waits overlap), naming the first file that fails.
+fn sync_files(dir: &Path) -> Result<(), OutputError> {
+    use rayon::prelude::*;
+    let files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(io(dir))?
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
+        .map(|e| e.path())
+        .collect();
+    files
+        .par_iter()
+        .try_for_each(|path| std::fs::File::open(path).and_then(|f| f.sync_all()).map_err(io(path)))
 }
 
 /// JSON of a value that serialises by construction (plain structs of numbers and strings).

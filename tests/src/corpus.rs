@@ -133,10 +133,18 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
         let Ok(entries) = std::fs::read_dir(dir) else { return };
         for entry in entries.flatten() {
             let path = entry.path();
-            if path.is_dir() {
+            let Ok(kind) = entry.file_type() else { continue };
+            let key = path.strip_prefix(root).unwrap().to_path_buf();
+            if kind.is_dir() {
                 walk(root, &path, out);
-            } else if let Ok(bytes) = std::fs::read(&path) {
-                out.insert(path.strip_prefix(root).unwrap().to_path_buf(), bytes);
+            } else if kind.is_symlink() {
+                // A link is its target (never followed: it may lead to /dev/zero or to itself).
+                let target = std::fs::read_link(&path).unwrap_or_default();
+                out.insert(key, target.into_os_string().into_encoded_bytes());
+            } else if kind.is_file() {
+                if let Ok(bytes) = std::fs::read(&path) {
+                    out.insert(key, bytes);
+                }
             }
         }
     }
@@ -257,6 +265,10 @@ fn run_case(bin: &Path, case: &Case, dir: &Path, logs: &Path, timeout: Duration)
         Expect::Fails(needles) => {
             if status.success() {
                 return Err(format!("expected an error, got success: {}", shown()));
+            }
+            // A failed command presents no figure as a result (the error may say why, on stderr).
+            if ["calibration RMS ", "validation RMS "].iter().any(|w| stdout.contains(w)) {
+                return Err(format!("a failed command printed a figure as a result: {}", shown()));
             }
             let lower = stderr.to_lowercase();
             if let Some(missing) = needles.iter().find(|n| !lower.contains(&n.to_lowercase())) {

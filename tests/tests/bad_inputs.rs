@@ -1129,6 +1129,36 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
             edit_json(s, |v| v["nominal_validation"]["rms_mm"] = Value::Null),
             &["summary.json", "rms_mm"],
         ),
+        (
+            "residuals error 1e308",
+            edit_json(r, |v| v["pairs"][3]["error_mm"] = json!(1e308)),
+            &["residuals.json", "pairs[3].error_mm", "1e308"],
+        ),
+        (
+            "residuals error -1e12",
+            edit_json(r, |v| v["pairs"][0]["error_mm"] = json!(-1e12)),
+            &["residuals.json", "pairs[0].error_mm"],
+        ),
+        (
+            "residuals angle 1e308",
+            edit_json(r, |v| v["pairs"][2]["enc_deg"][1][4] = json!(1e308)),
+            &["residuals.json", "pairs[2].enc_deg[1][4]", "[0, 360)"],
+        ),
+        (
+            "summary validation rms 1e308",
+            edit_json(s, |v| v["validation"]["rms_mm"] = json!(1e308)),
+            &["summary.json", "validation.rms_mm", "1e308"],
+        ),
+        (
+            "summary per-landmark max -5",
+            edit_json(s, |v| v["validation_detail"]["per_landmark"][2]["stats"]["max_mm"] = json!(-5.0)),
+            &["summary.json", "validation_detail.per_landmark[2].stats.max_mm"],
+        ),
+        (
+            "summary calibration rms 1e300",
+            edit_json(s, |v| v["calibration"]["rms_mm"] = json!(1e300)),
+            &["summary.json", "calibration.rms_mm"],
+        ),
         ("run is a file", unchanged(), &["model.toml"]),
     ];
     for (name, setup, needles) in compare {
@@ -1150,6 +1180,221 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
         unchanged(),
         words(&["compare", "run", "run", "--out", "cmp.html"], &[]),
         exists("cmp.html"),
+    ));
+}
+
+/// Point run/summary.json's inputs at this case's copies, so a mutation of data/ reaches
+/// `diagnose run`.
+fn run_reads_case_data() -> Setup {
+    Box::new(|d: &Path| {
+        let path = d.join("run/summary.json");
+        let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        for (key, rel) in
+            [("artefact", "data/artefact.json"), ("calibration", "data/cal"), ("validation", "data/val")]
+        {
+            v["inputs"][key] = json!(d.join(rel).canonicalize().unwrap());
+        }
+        std::fs::write(path, serde_json::to_string_pretty(&v).unwrap()).unwrap();
+    })
+}
+
+/// An entry `data/cal/NAME` that is not a regular file, made by `make(path)`.
+fn entry(name: &'static str, make: fn(&Path)) -> Setup {
+    Box::new(move |d: &Path| make(&d.join("data/cal").join(name)))
+}
+
+/// (case, entry name, how the entry is made, what the error must say).
+type EntryCase = (&'static str, &'static str, fn(&Path), &'static [&'static str]);
+
+/// Session-folder entries that are not regular files (issue 21, item 1): named and refused by
+/// every command that reads the folder, never skipped.
+fn entry_cases(cases: &mut Vec<Case>) {
+    let list: [EntryCase; 5] = [
+        (
+            "dangling symlink",
+            "x.json",
+            |p| std::os::unix::fs::symlink("gone.json", p).unwrap(),
+            &["x.json", "symlink", "dangling"],
+        ),
+        (
+            "symlink loop",
+            "loop.json",
+            |p| std::os::unix::fs::symlink("loop.json", p).unwrap(),
+            &["loop.json", "symlink", "loop"],
+        ),
+        (
+            "symlink to /dev/zero",
+            "z.json",
+            |p| std::os::unix::fs::symlink("/dev/zero", p).unwrap(),
+            &["z.json", "a device"],
+        ),
+        ("folder named x.json", "x.json", |p| std::fs::create_dir(p).unwrap(), &["x.json", "a folder"]),
+        (
+            "FIFO",
+            "f.json",
+            |p| assert!(Command::new("mkfifo").arg(p).status().unwrap().success()),
+            &["f.json", "FIFO"],
+        ),
+    ];
+    for (what, name, make, needles) in list {
+        cases.push(Case::fails(
+            &format!("entries/calibrate: {what}"),
+            entry(name, make),
+            words(&cal(), &[]),
+            needles,
+        ));
+        cases.push(Case::fails(
+            &format!("entries/study: {what}"),
+            entry(name, make),
+            words(&study(), &[]),
+            needles,
+        ));
+        cases.push(Case::fails(
+            &format!("entries/diagnose: {what}"),
+            all(vec![run_reads_case_data(), entry(name, make)]),
+            words(&["diagnose", "run"], &[]),
+            needles,
+        ));
+    }
+    cases.push(Case::fails(
+        "entries/model is a FIFO",
+        Box::new(|d: &Path| {
+            std::fs::remove_file(d.join("model.toml")).unwrap();
+            assert!(Command::new("mkfifo").arg(d.join("model.toml")).status().unwrap().success());
+        }),
+        words(&cal(), &[]),
+        &["model.toml", "FIFO"],
+    ));
+    // A symlink to a regular session file is followed: it is a session like any other.
+    cases.push(Case::succeeds(
+        "entries/a symlink to a session is read",
+        Box::new(|d: &Path| {
+            std::fs::rename(d.join(CA), d.join("C_A.json")).unwrap();
+            std::os::unix::fs::symlink(d.join("C_A.json"), d.join(CA)).unwrap();
+        }),
+        words(&cal(), &[]),
+        calibrated("out", 225),
+    ));
+}
+
+/// Edit run/model.toml (the calibrated model) and run/nominal.toml through `edit`.
+fn run_models(edit: fn(&mut kincal::model::ArmModel)) -> Setup {
+    Box::new(move |d: &Path| {
+        for name in ["run/model.toml", "run/nominal.toml"] {
+            let mut model = kincal::model::ArmModel::load(&d.join(name)).unwrap();
+            edit(&mut model);
+            model.save(&d.join(name)).unwrap();
+        }
+    })
+}
+
+/// Plausible-looking wrong models (issue 21, item 2): the figures are not a result, exit 1,
+/// whatever the command; the reason names the artefact's scale.
+fn wrong_model_cases(cases: &mut Vec<Case>) {
+    let scale = &["not trustworthy", "largest certified distance"][..];
+    let list: Vec<(&str, Setup)> = vec![
+        (
+            "sign flipped: d5 = -371 mm",
+            all(vec![
+                model_joint(5, "d_mm", "-371.0"),
+                replace("model.toml", "[361.0, 381.0]", "[-381.0, -361.0]"),
+            ]),
+        ),
+        (
+            "length in metres: d3 = 0.571",
+            all(vec![
+                model_joint(3, "d_mm", "0.571"),
+                replace("model.toml", "[561.0, 581.0]", "[-9.429, 10.571]"),
+            ]),
+        ),
+        (
+            "joints 3 and 5 swapped",
+            all(vec![
+                model_joint(3, "offset_deg", "88.7"),
+                model_joint(3, "d_mm", "371.0"),
+                model_joint(3, "alpha_deg", "90.0"),
+                model_joint(5, "offset_deg", "201.3"),
+                model_joint(5, "d_mm", "571.0"),
+                model_joint(5, "alpha_deg", "-90.0"),
+                replace("model.toml", "\"offset:3\" = [191.3, 211.3]", "\"offset:3\" = [78.7, 98.7]"),
+                replace("model.toml", "\"offset:5\" = [78.7, 98.7]", "\"offset:5\" = [191.3, 211.3]"),
+                replace("model.toml", "\"length:3\" = [561.0, 581.0]", "\"length:3\" = [361.0, 381.0]"),
+                replace("model.toml", "\"length:5\" = [361.0, 381.0]", "\"length:5\" = [561.0, 581.0]"),
+            ]),
+        ),
+        (
+            "another arm: a PUMA's link lengths along x",
+            all(vec![model_joint(2, "a_mm", "431.8"), model_joint(3, "a_mm", "20.3")]),
+        ),
+        (
+            "180 degree offset on joint 2",
+            all(vec![model_joint(2, "offset_deg", "200.7"), replace("model.toml", BOUNDS, "[190.7, 210.7]")]),
+        ),
+    ];
+    for (name, setup) in list {
+        cases.push(Case::fails(&format!("wrong model/calibrate: {name}"), setup, words(&cal(), &[]), scale));
+    }
+    cases.push(Case::fails(
+        "wrong model/study: d5 = -371 mm",
+        all(vec![
+            model_joint(5, "d_mm", "-371.0"),
+            replace("model.toml", "[361.0, 381.0]", "[-381.0, -361.0]"),
+        ]),
+        words(&study(), &[]),
+        &["study has no result", "model-independent scales"],
+    ));
+    cases.push(Case::fails(
+        "wrong model/diagnose: a RUN whose model has d5 = -371 mm",
+        run_models(|m| {
+            m.joints[4].d_mm = -m.joints[4].d_mm;
+            for f in m.free.iter_mut().filter(|f| f.id == kincal::model::ParamId::Length(4)) {
+                (f.lower, f.upper) = (-f.upper, -f.lower);
+            }
+        }),
+        words(&["diagnose", "run"], &[]),
+        &["does not describe these touches", "largest certified distance"],
+    ));
+}
+
+/// `diagnose` refuses what `calibrate` refuses, with the same message (issue 21, items 3 and 4).
+fn diagnose_refusal_cases(cases: &mut Vec<Case>) {
+    // Every touch its own repeat: no two landmarks share a (placement, repeat), so no pair.
+    let own_repeats = || -> Setup {
+        Box::new(|d: &Path| {
+            for f in std::fs::read_dir(d.join("data/cal")).unwrap() {
+                let p = f.unwrap().path();
+                let mut v: Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+                for (k, m) in v["measurements"].as_array_mut().unwrap().iter_mut().enumerate() {
+                    m["repeat"] = json!(k + 1);
+                }
+                std::fs::write(p, v.to_string()).unwrap();
+            }
+        })
+    };
+    let needles = &["0 landmark pairs cannot determine"][..];
+    cases.push(Case::fails(
+        "refusals/calibrate: no distance pair",
+        own_repeats(),
+        words(&cal(), &[]),
+        needles,
+    ));
+    cases.push(Case::fails(
+        "refusals/diagnose: no distance pair",
+        all(vec![run_reads_case_data(), own_repeats()]),
+        words(&["diagnose", "run"], &[]),
+        needles,
+    ));
+    cases.push(Case::fails(
+        "refusals/diagnose: the RUN's model frees no parameter",
+        run_models(|m| m.free.clear()),
+        words(&["diagnose", "run"], &[]),
+        &["no free parameter"],
+    ));
+    cases.push(Case::fails(
+        "refusals/diagnose --auto: the RUN's model frees no parameter",
+        run_models(|m| m.free.clear()),
+        words(&["diagnose", "run", "--auto"], &[]),
+        &["no free parameter"],
     ));
 }
 
@@ -1301,6 +1546,9 @@ fn corpus(template: &Path) -> Vec<Case> {
     option_cases(&mut cases);
     output_cases(&mut cases);
     run_folder_cases(&mut cases);
+    entry_cases(&mut cases);
+    wrong_model_cases(&mut cases);
+    diagnose_refusal_cases(&mut cases);
     disk_full_cases(&mut cases);
     key_cases(&mut cases);
     cases

@@ -48,27 +48,12 @@ fn a_killed_record_resumes_without_losing_or_repeating_landmarks() {
     let script = script(&dir, &artefact);
     let out = dir.join("sessions");
     let session = out.join("C_A.json");
-    let args = |window: &str| -> Vec<String> {
-        [
-            "record",
-            "--port",
-            &fake.port,
-            "--artefact",
-            artefact_path.to_str().unwrap(),
-            "--placement",
-            "C_A",
-            "--out",
-            out.to_str().unwrap(),
-            "--repeats",
-            "1",
-            "--window-ticks",
-            window,
-            "--script",
-            script.to_str().unwrap(),
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect()
+    let (artefact_arg, out_arg, script_arg) =
+        (artefact_path.to_str().unwrap(), out.to_str().unwrap(), script.to_str().unwrap());
+    let args = |window: &'static str| {
+        let mut args = record_args(&fake.port, artefact_arg, out_arg, window);
+        args.extend(["--script", script_arg]);
+        args
     };
     // Kill the recorder once a few landmarks are on disk.
     let mut child = Command::new(kincal_bin()).args(args("384")).spawn().unwrap();
@@ -249,15 +234,19 @@ fn kincal(args: &[&str]) -> (Option<i32>, String, String) {
     )
 }
 
-#[test]
-fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
-    let fake = FakeController::start(1);
-    let dir = scratch("commit");
-    let key_file = kincal_e2e::station_key_file(&dir);
-    let key = key_file.to_str().unwrap();
+/// A fake controller, a scratch folder `name`, a station key file and the nominal model file.
+fn upload_fixture(name: &str) -> (FakeController, PathBuf, String, String) {
+    let dir = scratch(name);
+    let key = kincal_e2e::station_key_file(&dir).to_str().unwrap().to_string();
     let model = dir.join("model.toml");
     kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
-    let model = model.to_str().unwrap();
+    (FakeController::start(1), dir.clone(), key, model.to_str().unwrap().to_string())
+}
+
+#[test]
+fn a_lost_commit_reply_is_reported_as_what_the_controller_holds() {
+    let (fake, dir, key, model) = upload_fixture("commit");
+    let (key, model) = (key.as_str(), model.as_str());
     let (code, out, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "10"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(out.contains("now holds parameters version 10"), "{out}");
@@ -523,6 +512,122 @@ fn lost_answers_are_repeated_without_doing_anything_twice() {
     let blob = kincal_e2e::signed_set(&kincal::model::ArmModel::suta_nominal(), 7);
     assert!(link.upload(&blob).unwrap().commit_reply_lost);
     assert_eq!(link.info().unwrap().param_version, 7);
+}
+
+/// A TCP proxy in front of the controller at `upstream` that forwards every frame and cuts the
+/// link at the answer to the first `ParamCommit`: right after passing it to the host
+/// (`pass_answer`), or instead of passing it. Frames are read with the protocol crate's decoder.
+fn cut_at_commit_answer(upstream: &str, pass_answer: bool) -> String {
+    use kincal_protocol::framing::Decoder;
+    use kincal_protocol::messages::{DeviceFrame, HostFrame, Request};
+    use std::io::{Read, Write};
+    use std::net::{Shutdown, TcpListener, TcpStream};
+    use std::sync::{Arc, Mutex};
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = format!("tcp:{}", listener.local_addr().unwrap());
+    let upstream = upstream.strip_prefix("tcp:").unwrap().to_string();
+    std::thread::spawn(move || {
+        let Ok((host, _)) = listener.accept() else { return };
+        let device = TcpStream::connect(&upstream).unwrap();
+        let commit: Arc<Mutex<Option<u16>>> = Arc::default();
+        let (mut from_host, mut to_device, seen) =
+            (host.try_clone().unwrap(), device.try_clone().unwrap(), commit.clone());
+        std::thread::spawn(move || {
+            let (mut decoder, mut buf) = (Decoder::new(), [0u8; 512]);
+            while let Ok(n @ 1..) = from_host.read(&mut buf) {
+                for &b in &buf[..n] {
+                    if let Some(Ok(HostFrame { seq, request: Request::ParamCommit(_) })) = decoder.push(b) {
+                        seen.lock().unwrap().get_or_insert(seq);
+                    }
+                }
+                if to_device.write_all(&buf[..n]).is_err() {
+                    break;
+                }
+            }
+        });
+        let (mut from_device, mut to_host) = (device.try_clone().unwrap(), host.try_clone().unwrap());
+        let (mut decoder, mut frame, mut buf) = (Decoder::new(), Vec::new(), [0u8; 512]);
+        while let Ok(n @ 1..) = from_device.read(&mut buf) {
+            for &b in &buf[..n] {
+                frame.push(b);
+                let Some(decoded) = decoder.push::<DeviceFrame>(b) else { continue };
+                let answers_commit = matches!(decoded, Ok(DeviceFrame::Response { seq, .. }) if Some(seq) == *commit.lock().unwrap());
+                if answers_commit {
+                    if pass_answer {
+                        let _ = to_host.write_all(&frame);
+                    }
+                    let _ = host.shutdown(Shutdown::Both);
+                    let _ = device.shutdown(Shutdown::Both);
+                    return;
+                }
+                if to_host.write_all(&frame).is_err() {
+                    return;
+                }
+                frame.clear();
+            }
+        }
+    });
+    port
+}
+
+#[test]
+fn a_confirmed_commit_is_success_even_when_the_link_is_cut_right_after_it() {
+    let (fake, dir, key, model) = upload_fixture("cut");
+    let (key, model) = (key.as_str(), model.as_str());
+    let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model, "--version", "75"]);
+    assert_eq!(code, Some(0), "{err}");
+    // The commit's Ack reaches the host, then the link is cut: the follow-up read-back fails.
+    let proxy = cut_at_commit_answer(&fake.port, true);
+    let (code, out, err) = kincal(&["upload", "--key", key, "--port", &proxy, model, "--version", "76"]);
+    assert_eq!(code, Some(0), "committed is exit 0: {err}");
+    assert!(out.contains("confirmed the commit of parameters version 76"), "{out}");
+    assert!(err.contains("warning") && err.contains("reading back") && err.contains("kincal info"), "{err}");
+    let mut link = Link::open(&fake.port).unwrap();
+    link.hello().unwrap();
+    assert_eq!(link.info().unwrap().param_version, 76, "what the exit status says is stored");
+    drop(link);
+    // The commit's answer never arrives and the controller cannot be asked: neither 0 nor 1.
+    let proxy = cut_at_commit_answer(&fake.port, false);
+    let (code, out, err) = kincal(&["upload", "--key", key, "--port", &proxy, model, "--version", "77"]);
+    assert_eq!(code, Some(3), "unknown outcome: {out} {err}");
+    assert!(err.contains("could not be asked") && !out.contains("uploaded"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_touch_with_the_angles_of_another_landmark_is_warned_about_at_the_touch() {
+    let fake = FakeController::start(2);
+    let dir = scratch("same-pose");
+    let (artefact, artefact_path) = artefact_file(&dir);
+    // Landmarks 0 and 1 at one pose (the arm not moved), the third elsewhere.
+    let pose = |k: usize| {
+        if k < 2 {
+            [1000, 2000, 3000, 4000, 5000, 6000]
+        } else {
+            [9000, 2000, 3000, 4000, 5000, 6000]
+        }
+    };
+    let steps: Vec<serde_json::Value> = artefact.landmarks[..3]
+        .iter()
+        .enumerate()
+        .map(|(k, l)| serde_json::json!({"landmark": l.id, "repeat": 1, "pose_counts": pose(k)}))
+        .collect();
+    let script = dir.join("script.json");
+    std::fs::write(&script, serde_json::json!({ "steps": steps }).to_string()).unwrap();
+    let order = artefact.landmarks[..3].iter().map(|l| l.id.as_str()).collect::<Vec<_>>().join(",");
+    let out = dir.join("sessions");
+    let mut args = record_args(&fake.port, artefact_path.to_str().unwrap(), out.to_str().unwrap(), "96");
+    args.extend(["--script", script.to_str().unwrap(), "--order", &order]);
+    let (code, _, err) = kincal(&args);
+    assert_eq!(code, Some(0), "{err}");
+    let (first, second, third) =
+        (&artefact.landmarks[0].id, &artefact.landmarks[1].id, &artefact.landmarks[2].id);
+    let warning = format!("warning: {second} has the same six angles as {first} (repeat 1)");
+    assert!(err.contains(&warning), "{err}");
+    assert_eq!(err.matches("same six angles").count(), 1, "only the touch that repeats a pose: {err}");
+    assert!(!err.contains(&format!("warning: {third}")), "{err}");
+    assert_eq!(measured(&out.join("C_A.json"), &artefact).len(), 3, "a script stores what it measured");
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 fn faults_unplugging(unplugged: u8) -> kincal_protocol::messages::Request {

@@ -226,26 +226,41 @@ pub fn solve_warm(
     Ok(problem.model_at(&solution.x))
 }
 
-/// Calibrate the free parameters of `nominal` on `data`.
-///
-/// The identifiable base set is chosen at the nominal values; after solving from the nominal
-/// start it is checked again at the solution (a parameter can lose its lever once the model
-/// fits, e.g. the tool length when every touch holds the tool vertical) and the problem is
-/// solved again without the parameters that became unidentifiable, which stay at their nominal
-/// values. The random restarts then run once, on the final base set.
-pub fn calibrate(
-    nominal: &ArmModel,
+/// What [`check_calibration_data`] found usable: the free parameters, their bound widths and the
+/// Jacobian at the model's values.
+struct Checked<'a> {
+    full: CalibrationProblem<'a>,
+    all: Vec<ParamId>,
+    all_ranges: Vec<f64>,
+    jac: Vec<f64>,
+}
+
+/// Everything that makes `data` unusable for calibrating `model` before any solving: no free
+/// parameter, fewer distances than parameters, non-finite positions, or touches that carry no
+/// information. `calibrate` refuses with these errors, and so does `diagnose` on a RUN's data
+/// (through [`crate::calib::run::check_run_data`]), with the same messages.
+pub fn check_data(
+    model: &ArmModel,
     artefact: &Artefact,
     data: &Dataset,
-    options: &CalibrationOptions,
-) -> Result<Calibration, CalibrationError> {
+    objective: Objective,
+) -> Result<(), CalibrationError> {
+    check_calibration_data(model, artefact, data, objective).map(|_| ())
+}
+
+fn check_calibration_data<'a>(
+    nominal: &'a ArmModel,
+    artefact: &'a Artefact,
+    data: &'a Dataset,
+    objective: Objective,
+) -> Result<Checked<'a>, CalibrationError> {
     let all: Vec<ParamId> = nominal.free.iter().map(|f| f.id).collect();
     if all.is_empty() {
         return Err(CalibrationError::NothingFree);
     }
     let range_of =
         |id: ParamId| nominal.free.iter().find(|f| f.id == id).map_or(1.0, |f| (f.upper - f.lower).max(1e-9));
-    let full = CalibrationProblem::new(nominal, all.clone(), artefact, data, options.objective);
+    let full = CalibrationProblem::new(nominal, all.clone(), artefact, data, objective);
     if full.distance_rows() < all.len() {
         return Err(CalibrationError::TooFewPairs { pairs: full.distance_rows(), params: all.len() });
     }
@@ -259,6 +274,26 @@ pub fn calibrate(
     if jac.iter().enumerate().all(|(k, v)| (v * all_ranges[k % n]).abs() < NEGLIGIBLE_MM) {
         return Err(CalibrationError::NothingIdentifiable);
     }
+    Ok(Checked { full, all, all_ranges, jac })
+}
+
+/// Calibrate the free parameters of `nominal` on `data`.
+///
+/// The identifiable base set is chosen at the nominal values; after solving from the nominal
+/// start it is checked again at the solution (a parameter can lose its lever once the model
+/// fits, e.g. the tool length when every touch holds the tool vertical) and the problem is
+/// solved again without the parameters that became unidentifiable, which stay at their nominal
+/// values. The random restarts then run once, on the final base set.
+pub fn calibrate(
+    nominal: &ArmModel,
+    artefact: &Artefact,
+    data: &Dataset,
+    options: &CalibrationOptions,
+) -> Result<Calibration, CalibrationError> {
+    let Checked { full, all, all_ranges, jac } =
+        check_calibration_data(nominal, artefact, data, options.objective)?;
+    let range_of =
+        |id: ParamId| nominal.free.iter().find(|f| f.id == id).map_or(1.0, |f| (f.upper - f.lower).max(1e-9));
     let before = identify::analyse(&jac, &all, &all_ranges);
     let (kept, _) = identify::base_columns(&jac, all.len(), &all_ranges);
     let mut estimated: Vec<ParamId> = kept.iter().map(|&c| all[c]).collect();

@@ -51,6 +51,10 @@ pub struct Identifiability {
 /// Norms of the range-scaled columns, with columns negligible against the largest set to
 /// exactly zero.
 fn column_norms(jac: &[f64], n: usize, ranges: &[f64]) -> Vec<f64> {
+    if n == 0 {
+        // No parameter: no column (and no row to chunk).
+        return Vec::new();
+    }
     let mut norms = vec![0.0; n];
     for row in jac.chunks_exact(n) {
         for (c, v) in row.iter().enumerate() {
@@ -223,6 +227,15 @@ mod tests {
         // The larger of two collinear columns stays in the base set.
         assert_eq!(kept, vec![1, 2]);
         assert_eq!(dropped, vec![0, 3]);
+    }
+
+    #[test]
+    fn no_parameter_means_no_column_and_no_panic() {
+        // A model that frees nothing: residual rows exist but have no column.
+        assert_eq!(base_columns(&[], 0, &[]), (vec![], vec![]));
+        assert!(analyse(&[], &[], &[]).params.is_empty());
+        let jac = [1.0, 2.0];
+        assert!(added_rank(&jac, 1, &[1.0], &[], &[0])[0].adds);
     }
 }
 

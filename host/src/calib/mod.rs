@@ -1,6 +1,6 @@
 //! Arm calibration from artefact touches: the objective (residual blocks), identifiability, the
 //! calibration itself, validation on held-out placements, outlier metrics, diagnosis of missing
-//! effects, the dataset-size study, and the whole run from input files to results.
+//! effects, the dataset-size study, whether figures are a result (trust), and the whole run from input files to results.
 
 pub mod auto;
 pub mod calibrate;
@@ -15,4 +15,5 @@ pub mod peer;
 pub mod plan;
 pub mod run;
 pub mod study;
+pub mod trust;
 pub mod validate;

@@ -7,18 +7,20 @@
 //! and `report.html`. Writing the folder is [`crate::output`]'s job.
 
 use crate::calib::calibrate::{
-    calibrate, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome,
+    calibrate, check_data, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome,
     HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS,
 };
 use crate::calib::identify::{self, Identifiability};
 use crate::calib::objective::{CalibrationProblem, Objective};
 use crate::calib::outliers::{landmark_outliers, LandmarkOutlier};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions, StudyRow};
-use crate::calib::validate::{validate, ErrorStats, GroupStats, Repeatability, Validation};
-use crate::data::{Artefact, Dataset, Purpose};
+use crate::calib::trust::{result_problems, TrustScales};
+use crate::calib::validate::{self, validate, ErrorStats, GroupStats, Repeatability, Validation};
+use crate::data::{Artefact, Dataset, Purpose, MAX_ARTEFACT_SPAN_MM};
 use crate::files::FileError;
 use crate::files::{field_error, read_tagged};
 use crate::model::effects::Effect;
+use crate::model::file::MAX_REACH_MM;
 use crate::model::ArmModel;
 use crate::numerics::solver::Residuals;
 use std::path::{Path, PathBuf};
@@ -69,6 +71,13 @@ pub enum RunError {
         /// The calibration placement it copies.
         calibration: String,
     },
+    /// The model's figures on the data are beyond the model-independent scales (see
+    /// [`crate::calib::trust`]): nothing computed from the model is a result.
+    #[error(
+        "the model does not describe these touches; nothing computed from it is a result:\n  - {}",
+        .0.join("\n  - ")
+    )]
+    NotACalibration(Vec<String>),
     /// An input path could not be resolved.
     #[error("{path}: {source}")]
     Input {
@@ -182,6 +191,10 @@ pub struct Summary {
     pub validation_detail: ValidationDetail,
     /// Appendix-F outlier metrics per landmark (calibration data).
     pub outliers: Vec<LandmarkOutlier>,
+    /// The outlier metrics were not computed (`--no-outliers`): `outliers` is empty because
+    /// nothing was looked at, not because nothing was found.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub outliers_skipped: bool,
     /// What relative orientation adds to distances.
     pub objective_comparison: ObjectiveComparison,
     /// Dataset-size study, when asked for (`--study-subsets`).
@@ -191,68 +204,6 @@ pub struct Summary {
     /// they are. A RUN with problems is written for inspection and the command exits non-zero.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub not_trustworthy: Vec<String>,
-}
-
-/// Calibration RMS, mm, above which a fit is never trusted whatever the data's repeatability.
-pub const RMS_ALWAYS_SUSPECT_MM: f64 = 1.0;
-/// How many times the data's repeatability (RMS distance of repeated touches from their
-/// barycentre, about the distance noise) the calibration RMS may be.
-pub const RMS_REPEATABILITY_FACTOR: f64 = 5.0;
-/// Calibration RMS, mm, above which a fit is not trusted when the data has no repeats.
-pub const RMS_WITHOUT_REPEATS_MM: f64 = 5.0;
-/// How many times the calibration RMS the validation RMS may be.
-pub const VALIDATION_FACTOR: f64 = 5.0;
-
-/// Why the figures of a finished calibration cannot be taken as a result: a non-finite figure, a
-/// calibration RMS far beyond the data's repeatability, a fit that did not move from its start, a
-/// validation error far beyond the calibration error. Each reason names the likely cause.
-pub fn result_problems(fit: &Calibration, validation: &Validation) -> Vec<String> {
-    let mut problems = Vec::new();
-    let v = &validation.overall;
-    let figures = [fit.rms_mm, fit.cost, v.rms_mm, v.mean_mm, v.std_mm, v.max_mm];
-    if figures.iter().any(|x| !x.is_finite()) {
-        problems.push("a calibration or validation figure is not a finite number".to_string());
-        return problems;
-    }
-    if v.pairs == 0 {
-        problems.push("no validation pair: the fit was not checked on held-out touches".to_string());
-    }
-    let spreads: Vec<(f64, usize)> = validation.repeatability.iter().map(|r| (r.rms_mm, r.touches)).collect();
-    let touches: usize = spreads.iter().map(|s| s.1).sum();
-    let limit = if touches > 0 {
-        let rms = (spreads.iter().map(|(r, n)| r * r * *n as f64).sum::<f64>() / touches as f64).sqrt();
-        (RMS_REPEATABILITY_FACTOR * rms).max(RMS_ALWAYS_SUSPECT_MM)
-    } else {
-        RMS_WITHOUT_REPEATS_MM
-    };
-    if fit.rms_mm > limit {
-        problems.push(format!(
-            "calibration RMS {:.3} mm is far beyond what the data's repeatability allows ({limit:.3} mm): \
-             the model cannot describe these touches — a model file of another arm, artefact coordinates \
-             that are not the pillars touched (units, landmark ids swapped), or sessions mixed from \
-             different setups",
-            fit.rms_mm
-        ));
-    }
-    let moved = fit.estimates.iter().any(|e| e.status == "estimated" && e.value != e.nominal);
-    if !moved && fit.rms_mm > RMS_ALWAYS_SUSPECT_MM {
-        problems.push(format!(
-            "the fit did not move from its start (calibration RMS {:.3} mm): the solver found no step \
-             that lowers the cost — bounds too tight around the start, or a Huber threshold far below \
-             the residuals",
-            fit.rms_mm
-        ));
-    }
-    if v.pairs > 0 && v.rms_mm > (VALIDATION_FACTOR * fit.rms_mm).max(RMS_ALWAYS_SUSPECT_MM) {
-        problems.push(format!(
-            "validation RMS {:.3} mm is {:.0}× the calibration RMS {:.3} mm: the validation sessions look \
-             like another arm, another artefact or a moved setup, or the calibration data is too thin",
-            v.rms_mm,
-            v.rms_mm / fit.rms_mm.max(1e-9),
-            fit.rms_mm
-        ));
-    }
-    problems
 }
 
 /// The first validation placement that copies a calibration placement touch for touch.
@@ -368,6 +319,101 @@ pub struct StoredResiduals {
     pub pairs: Vec<StoredPairError>,
 }
 
+/// Largest distance figure (an error, an RMS, a bias), mm, a RUN can hold: two tool positions of
+/// the longest arm a model may describe plus the largest artefact. Read back, a larger figure (or
+/// a non-finite one) is a damaged or edited file, refused like an implausible input.
+pub const MAX_STORED_MM: f64 = 2.0 * MAX_REACH_MM + MAX_ARTEFACT_SPAN_MM;
+
+/// `Err((field, what was expected))` when a stored distance figure is not finite or beyond
+/// [`MAX_STORED_MM`] (or negative where it cannot be).
+fn check_mm(field: &str, value: f64, signed: bool) -> Result<(), (String, String)> {
+    let ok = value.is_finite() && value.abs() <= MAX_STORED_MM && (signed || value >= 0.0);
+    if ok {
+        return Ok(());
+    }
+    let range = if signed { format!("±{MAX_STORED_MM}") } else { format!("0 to {MAX_STORED_MM}") };
+    let found = if value.abs() < 1e6 { format!("{value}") } else { format!("{value:e}") };
+    Err((field.to_string(), format!("expected a finite distance figure of {range} mm, found {found}")))
+}
+
+impl ErrorStats {
+    fn check(&self, field: &str) -> Result<(), (String, String)> {
+        check_mm(&format!("{field}.rms_mm"), self.rms_mm, false)?;
+        check_mm(&format!("{field}.mean_mm"), self.mean_mm, true)?;
+        check_mm(&format!("{field}.std_mm"), self.std_mm, false)?;
+        check_mm(&format!("{field}.max_mm"), self.max_mm, false)
+    }
+}
+
+impl Summary {
+    /// Whether every figure read back is plausible (finite, within [`MAX_STORED_MM`] for
+    /// distances): `Err((field, what was expected))` otherwise.
+    pub fn check_figures(&self) -> Result<(), (String, String)> {
+        check_mm("calibration.rms_mm", self.calibration.rms_mm, false)?;
+        if !(self.calibration.cost.is_finite() && self.calibration.cost >= 0.0) {
+            return Err((
+                "calibration.cost".into(),
+                format!("expected a finite non-negative cost, found {}", self.calibration.cost),
+            ));
+        }
+        self.validation.check("validation")?;
+        self.nominal_validation.check("nominal_validation")?;
+        let d = &self.validation_detail;
+        for (name, groups) in [
+            ("per_landmark", &d.per_landmark),
+            ("nominal_per_landmark", &d.nominal_per_landmark),
+            ("per_placement", &d.per_placement),
+            ("nominal_per_placement", &d.nominal_per_placement),
+        ] {
+            for (i, g) in groups.iter().enumerate() {
+                g.stats.check(&format!("validation_detail.{name}[{i}].stats"))?;
+            }
+        }
+        for (i, r) in d.repeatability.iter().enumerate() {
+            check_mm(&format!("validation_detail.repeatability[{i}].rms_mm"), r.rms_mm, false)?;
+            check_mm(&format!("validation_detail.repeatability[{i}].rp_mm"), r.rp_mm, false)?;
+        }
+        for (i, o) in self.outliers.iter().enumerate() {
+            check_mm(&format!("outliers[{i}].bias_mm"), o.bias_mm, true)?;
+        }
+        for (i, e) in self.calibration.estimates.iter().enumerate() {
+            let figures = [e.nominal, e.value].into_iter().chain(e.std);
+            if figures.into_iter().any(|v| !v.is_finite()) {
+                return Err((
+                    format!("calibration.estimates[{i}]"),
+                    format!("{}: expected finite nominal, value and std", e.param),
+                ));
+            }
+        }
+        for (i, row) in self.study.iter().flatten().enumerate() {
+            let figures = [row.mean_mm, row.std_mm, row.min_mm, row.max_mm];
+            for v in figures.into_iter().chain(row.rms_mm.iter().copied()) {
+                check_mm(&format!("study[{i}]"), v, false)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl StoredResiduals {
+    /// Whether every stored pair is plausible: a finite error within [`MAX_STORED_MM`] and raw
+    /// encoder angles in [0, 360) degrees, as the sessions they came from had to hold.
+    pub fn check(&self) -> Result<(), (String, String)> {
+        for (i, p) in self.pairs.iter().enumerate() {
+            check_mm(&format!("pairs[{i}].error_mm"), p.error_mm, true)?;
+            for (side, angles) in [p.enc_deg.0, p.enc_deg.1].iter().enumerate() {
+                if let Some(k) = angles.iter().position(|v| !(v.is_finite() && (0.0..360.0).contains(v))) {
+                    return Err((
+                        format!("pairs[{i}].enc_deg[{side}][{k}]"),
+                        format!("expected a raw encoder angle in [0, 360) degrees, found {}", angles[k]),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A RUN folder read back as types.
 pub struct RunFolder {
     /// The folder.
@@ -380,28 +426,40 @@ pub struct RunFolder {
 
 impl RunFolder {
     /// Read `model.toml` and `summary.json` of a RUN folder; the recorded options are checked
-    /// against the same limits as the command line's, since diagnose refits with them.
+    /// against the same limits as the command line's, since diagnose refits with them, and every
+    /// figure for plausibility ([`Summary::check_figures`]).
     pub fn load(dir: &Path) -> Result<RunFolder, FileError> {
         let model = ArmModel::load(&dir.join("model.toml"))?;
         let path = dir.join("summary.json");
         let summary: Summary = read_tagged(&path, RUN_FORMAT)?;
         summary.options.check().map_err(|(field, message)| field_error(&path, field, message))?;
+        summary.check_figures().map_err(|(field, message)| field_error(&path, field, message))?;
         Ok(RunFolder { dir: dir.to_owned(), model, summary })
     }
 
-    /// Read `residuals.json`.
+    /// Read `residuals.json`, its figures checked as [`StoredResiduals::check`] says.
     pub fn residuals(&self) -> Result<Vec<StoredPairError>, FileError> {
-        let stored: StoredResiduals = read_tagged(&self.dir.join("residuals.json"), RESIDUALS_FORMAT)?;
+        let path = self.dir.join("residuals.json");
+        let stored: StoredResiduals = read_tagged(&path, RESIDUALS_FORMAT)?;
+        stored.check().map_err(|(field, message)| field_error(&path, field, message))?;
         Ok(stored.pairs)
     }
 
-    /// Load the artefact and both datasets the run used.
+    /// Load the artefact and both datasets the run used, refused as `calibrate` refuses them
+    /// ([`check_run_data`]), and refused when the RUN's model is beyond the model-independent
+    /// scales on them ([`TrustScales`], with `nominal.toml` as the nominal model): a diagnosis of
+    /// an absurd model would blame landmarks and effects for what the model gets wrong.
     pub fn data(&self) -> Result<(Artefact, Dataset, Dataset), RunError> {
         let inputs = &self.summary.inputs;
         let artefact = Artefact::load(&inputs.artefact)?;
         let (cal, val) = inputs.load_data(&artefact)?;
-        if val.pair_count() == 0 {
-            return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
+        check_run_data(&self.model, &artefact, &cal, &val, inputs, self.summary.options.objective)?;
+        let nominal = ArmModel::load(&self.dir.join("nominal.toml"))?;
+        let scales = TrustScales::of(&nominal, &artefact, &cal, &val);
+        let rms = |data: &Dataset| validate::validate(&self.model, &artefact, data).overall.rms_mm;
+        let beyond = scales.beyond(rms(&cal), rms(&val));
+        if !beyond.is_empty() {
+            return Err(RunError::NotACalibration(beyond));
         }
         Ok((artefact, cal, val))
     }
@@ -468,6 +526,8 @@ pub struct Run {
     pub artefact: Artefact,
     /// Validation touches, for plots.
     pub validation_data: Dataset,
+    /// How long each step took.
+    pub steps: StepTimes,
 }
 
 fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -> ObjectiveComparison {
@@ -510,14 +570,43 @@ fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -
     }
 }
 
-/// Load the inputs, add `effects` to the model, calibrate, validate and diagnose outliers; with
-/// `study_subsets` > 0 also run the dataset-size study with that many random subsets per
+/// Every refusal of a RUN's inputs before anything is fitted, shared by `calibrate` (on the
+/// nominal model) and `diagnose` (on the RUN's calibrated model) so both refuse the same data with
+/// the same message: no validation pair, an artefact out of the arm's reach, a validation placement
+/// copied from the calibration data, and whatever [`check_data`] refuses (no free parameter, too
+/// few distance pairs, non-finite positions, touches without information).
+pub fn check_run_data(
+    model: &ArmModel,
+    artefact: &Artefact,
+    cal: &Dataset,
+    val: &Dataset,
+    inputs: &RunInputs,
+    objective: Objective,
+) -> Result<(), RunError> {
+    if val.pair_count() == 0 {
+        return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
+    }
+    let (span, reach) = (artefact.span_mm(), model.reach_mm());
+    if span > 2.0 * reach {
+        return Err(RunError::OutOfReach { span, reach });
+    }
+    if let Some((validation, calibration)) = copied_placement(cal, val) {
+        return Err(RunError::SameData { validation, calibration });
+    }
+    check_data(model, artefact, cal, objective)?;
+    Ok(())
+}
+
+/// Load the inputs, add `effects` to the model, calibrate, validate and (with `outliers`) compute
+/// the per-landmark outlier metrics, whose leave-one-out refits are about a third of the work;
+/// with `study_subsets` > 0 also run the dataset-size study with that many random subsets per
 /// placement count.
 pub fn run(
     inputs: &RunInputs,
     options: &CalibrationOptions,
     effects: &[Effect],
     study_subsets: usize,
+    outliers: bool,
 ) -> Result<Run, RunError> {
     let absolute =
         |p: &Path| std::fs::canonicalize(p).map_err(|source| RunError::Input { path: p.to_owned(), source });
@@ -528,26 +617,25 @@ pub fn run(
         validation: absolute(&inputs.validation)?,
         ..inputs.clone()
     };
+    let mut steps = StepTimes::start();
     let mut nominal = ArmModel::load(&inputs.model)?;
     for effect in effects {
         effect.add_to(&mut nominal);
     }
     let artefact = Artefact::load(&inputs.artefact)?;
     let (cal, val) = inputs.load_data(&artefact)?;
-    if val.pair_count() == 0 {
-        return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
-    }
-    let (span, reach) = (artefact.span_mm(), nominal.reach_mm());
-    if span > 2.0 * reach {
-        return Err(RunError::OutOfReach { span, reach });
-    }
-    if let Some((validation, calibration)) = copied_placement(&cal, &val) {
-        return Err(RunError::SameData { validation, calibration });
-    }
+    steps.lap("load");
+    check_run_data(&nominal, &artefact, &cal, &val, inputs, options.objective)?;
     check_study_size(&cal, study_subsets)?;
+    steps.lap("input checks");
     let fit = calibrate(&nominal, &artefact, &cal, options)?;
+    steps.lap("fit");
     let validation = validate(&fit.model, &artefact, &val);
-    let mut not_trustworthy = result_problems(&fit, &validation);
+    let nominal_validation = validate(&nominal, &artefact, &val);
+    steps.lap("validation");
+    let scales = TrustScales::of(&nominal, &artefact, &cal, &val);
+    let mut not_trustworthy = result_problems(&fit, &validation, &scales);
+    steps.lap("trust scales");
     let study_rows = (study_subsets > 0).then(|| {
         let calibration = CalibrationOptions { restarts: 0, ..*options };
         study(
@@ -560,9 +648,14 @@ pub fn run(
     });
     if let Some(rows) = &study_rows {
         not_trustworthy.extend(study_problems(rows).into_iter().map(|p| format!("study: {p}")));
+        steps.lap("study");
     }
-    let nominal_validation = validate(&nominal, &artefact, &val);
-    let outliers = landmark_outliers(&fit, &artefact, &cal, Some(&val), options);
+    let outliers_skipped = !outliers;
+    let outliers =
+        if outliers { landmark_outliers(&fit, &artefact, &cal, Some(&val), options) } else { Vec::new() };
+    steps.lap("outliers");
+    let objective_comparison = objective_comparison(&fit, &artefact, &cal);
+    steps.lap("6-DoF comparison");
     let summary = Summary {
         format: RUN_FORMAT.to_string(),
         kincal_version: env!("CARGO_PKG_VERSION").to_string(),
@@ -594,8 +687,9 @@ pub fn run(
             nominal_per_placement: nominal_validation.per_placement.clone(),
             repeatability: validation.repeatability.clone(),
         },
+        outliers_skipped,
         outliers,
-        objective_comparison: objective_comparison(&fit, &artefact, &cal),
+        objective_comparison,
         study: study_rows,
         not_trustworthy,
     };
@@ -607,7 +701,30 @@ pub fn run(
         nominal_validation,
         artefact,
         validation_data: val,
+        steps,
     })
+}
+
+/// Wall time of each step of a run, in order, for `kincal bench`'s breakdown.
+#[derive(Clone, Debug)]
+pub struct StepTimes {
+    last: std::time::Instant,
+    /// (step, milliseconds).
+    pub ms: Vec<(&'static str, f64)>,
+}
+
+impl StepTimes {
+    /// Start timing.
+    pub fn start() -> StepTimes {
+        StepTimes { last: std::time::Instant::now(), ms: Vec::new() }
+    }
+
+    /// The step `name` ended now.
+    pub fn lap(&mut self, name: &'static str) {
+        let now = std::time::Instant::now();
+        self.ms.push((name, (now - self.last).as_secs_f64() * 1e3));
+        self.last = now;
+    }
 }
 
 impl Run {
@@ -647,9 +764,10 @@ mod tests {
         let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
         let fit = calibrate(&nominal, &ours.artefact, &cal, &options).unwrap();
         let val = Dataset::from_sessions(&ours.validation, &ours.artefact);
-        assert!(result_problems(&fit, &validate(&fit.model, &ours.artefact, &val)).is_empty());
+        let scales = TrustScales::of(&nominal, &ours.artefact, &cal, &val);
+        assert!(result_problems(&fit, &validate(&fit.model, &ours.artefact, &val), &scales).is_empty());
         let foreign = Dataset::from_sessions(&other.validation, &ours.artefact);
-        let problems = result_problems(&fit, &validate(&fit.model, &ours.artefact, &foreign));
+        let problems = result_problems(&fit, &validate(&fit.model, &ours.artefact, &foreign), &scales);
         assert!(problems.iter().any(|p| p.contains("another arm")), "{problems:?}");
         assert_eq!(copied_placement(&cal, &val), None);
         assert_eq!(copied_placement(&cal, &cal), Some(("A_O".into(), "A_O".into())));

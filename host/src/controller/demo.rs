@@ -151,7 +151,7 @@ pub fn calibrate_diagnose_add(
     progress: &mut dyn FnMut(&str),
 ) -> Result<Mission, LoopError> {
     progress("calibrating the model as given");
-    let first = run(inputs, options, &[], 0)?;
+    let first = run(inputs, options, &[], 0, true)?;
     crate::output::write_run(&first, &out.join("run"))?;
     progress("diagnosing, adding what the diagnosis names, recalibrating");
     let cal = inputs.load_data(&first.artefact)?.0;
@@ -188,7 +188,7 @@ pub fn calibrate_diagnose_add(
         None
     } else {
         progress(&format!("calibrating with {} added", added.join(", ")));
-        let last = run(inputs, options, &effects, 0)?;
+        let last = run(inputs, options, &effects, 0, true)?;
         crate::output::write_run(&last, &out.join("run-added"))?;
         Some(last)
     };

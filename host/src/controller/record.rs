@@ -78,7 +78,7 @@ pub enum Step {
 }
 
 /// Quality of one window.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct Quality {
     /// Largest per-sample spread over the joints, degrees.
     pub worst_std_deg: f64,
@@ -86,13 +86,46 @@ pub struct Quality {
     pub rejected: u32,
     /// The controller flagged the window (too many rejects).
     pub flagged: bool,
+    /// An earlier touch of another landmark in this session with the same angles within the
+    /// encoder noise, as (landmark, repeat): the arm did not move, or a bus repeats one frame.
+    pub same_as: Option<(String, u32)>,
 }
 
 impl Quality {
     /// Whether a re-take should be offered.
     pub fn poor(&self) -> bool {
-        self.flagged || self.worst_std_deg > RETAKE_STD_DEG
+        self.flagged || self.worst_std_deg > RETAKE_STD_DEG || self.same_as.is_some()
     }
+
+    /// The warning for a touch that repeats another landmark's angles, if it does.
+    pub fn same_as_warning(&self, landmark: &str) -> Option<String> {
+        self.same_as.as_ref().map(|(other, repeat)| {
+            format!(
+                "warning: {landmark} has the same six angles as {other} (repeat {repeat}) within the encoder \
+                 noise: the arm did not move between them, or a bus repeats one frame"
+            )
+        })
+    }
+}
+
+/// Encoder resolution, degrees (22-bit single-turn encoders): two touches closer than a couple
+/// of counts on every joint are one reading.
+const COUNT_DEG: f64 = 360.0 / (1u32 << 22) as f64;
+
+/// Whether `a` and `b` hold the same angles within the encoder noise on every joint: within
+/// three standard errors of their difference (window spread / √samples of each) plus two
+/// counts of resolution.
+pub fn same_angles(a: &Measurement, b: &Measurement) -> bool {
+    let standard_error = |m: &Measurement, k: usize| match (&m.std_deg, m.samples) {
+        (Some(std), Some(n)) if n > 0 => std.get(k).copied().unwrap_or(0.0) / (n as f64).sqrt(),
+        _ => 0.0,
+    };
+    a.joints_deg.len() == b.joints_deg.len()
+        && a.joints_deg.iter().zip(&b.joints_deg).enumerate().all(|(k, (x, y))| {
+            let d = (x - y).rem_euclid(360.0);
+            let tolerance = 3.0 * standard_error(a, k).hypot(standard_error(b, k)) + 2.0 * COUNT_DEG;
+            d.min(360.0 - d) <= tolerance
+        })
 }
 
 /// What to do with a measured window.
@@ -117,9 +150,35 @@ pub trait Guide {
     fn refused(&mut self, _landmark: &str, _reason: &str) -> Step {
         Step::Stop
     }
+    /// Where the sequence is, before [`Guide::approach`]: shown in the operator's prompt.
+    fn progress(&mut self, _at: Progress) {}
     /// A window of `seconds` is being measured; the returned guard ends any display on drop.
     fn measuring(&mut self, _seconds: f64) -> Option<Box<dyn std::any::Any>> {
         None
+    }
+}
+
+/// Where a recording is: landmark `landmark` of `landmarks`, repeat `repeat` of `repeats` (all
+/// 1-based).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Progress {
+    /// Landmark number in the order.
+    pub landmark: usize,
+    /// Landmarks in the order.
+    pub landmarks: usize,
+    /// Repeat number.
+    pub repeat: u32,
+    /// Repeats asked for.
+    pub repeats: u32,
+}
+
+impl std::fmt::Display for Progress {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "landmark {} of {}, repeat {} of {}",
+            self.landmark, self.landmarks, self.repeat, self.repeats
+        )
     }
 }
 
@@ -199,6 +258,7 @@ pub fn to_measurement(landmark: &str, repeat: u32, w: &WindowReport) -> (Measure
         worst_std_deg: std_deg.iter().cloned().fold(0.0, f64::max),
         rejected: w.joints.iter().map(|j| j.rejected as u32).max().unwrap_or(0),
         flagged: w.flagged,
+        same_as: None,
     };
     let samples = w.joints.iter().map(|j| j.accepted as u32).min().unwrap_or(0);
     (
@@ -265,10 +325,12 @@ pub fn record(
     let mut session = resume(plan, artefact)?;
     let mut summary = Recorded { resumed: session.measurements.len(), ..Recorded::default() };
     for repeat in 1..=plan.repeats {
-        for landmark in &plan.order {
+        for (k, landmark) in plan.order.iter().enumerate() {
             if session.measurements.iter().any(|m| &m.landmark == landmark && m.repeat == repeat) {
                 continue;
             }
+            let (landmarks, repeats) = (plan.order.len(), plan.repeats);
+            guide.progress(Progress { landmark: k + 1, landmarks, repeat, repeats });
             match guide.approach(link, landmark, repeat)? {
                 Step::Skip => {
                     summary.skipped += 1;
@@ -299,7 +361,12 @@ pub fn record(
                         }
                     }
                 }
-                let (m, quality) = to_measurement(landmark, repeat, &window);
+                let (m, mut quality) = to_measurement(landmark, repeat, &window);
+                quality.same_as = session
+                    .measurements
+                    .iter()
+                    .find(|earlier| &earlier.landmark != landmark && same_angles(earlier, &m))
+                    .map(|earlier| (earlier.landmark.clone(), earlier.repeat));
                 match guide.accept(landmark, &m, &quality) {
                     Verdict::Accept => break Some(m),
                     Verdict::Retake => summary.retakes += 1,
@@ -378,13 +445,21 @@ impl Guide for Script {
         Ok(Step::Measure)
     }
 
-    fn accept(&mut self, _landmark: &str, _m: &Measurement, _q: &Quality) -> Verdict {
+    fn accept(&mut self, landmark: &str, _m: &Measurement, q: &Quality) -> Verdict {
+        // A script cannot re-take: it stores the touch and says so.
+        if let Some(warning) = q.same_as_warning(landmark) {
+            eprintln!("{warning}; stored as scripted");
+        }
         Verdict::Accept
     }
 }
 
 /// A person at the keyboard: prompts on stderr, answers on stdin.
-pub struct Operator;
+#[derive(Default)]
+pub struct Operator {
+    /// Where the sequence is, for the prompt.
+    at: Option<Progress>,
+}
 
 /// A progress bar that fills over the window's duration until dropped.
 struct WindowBar {
@@ -441,16 +516,18 @@ impl Guide for Operator {
         Some(Box::new(WindowBar::start(seconds)))
     }
 
+    fn progress(&mut self, at: Progress) {
+        self.at = Some(at);
+    }
+
     fn approach(&mut self, _link: &mut Link, landmark: &str, repeat: u32) -> Result<Step, RecordError> {
-        Ok(
-            match ask(&format!("attach to {landmark} (repeat {repeat}), then Enter — s to skip, q to stop: "))
-                .as_str()
-            {
-                "s" => Step::Skip,
-                "q" => Step::Stop,
-                _ => Step::Measure,
-            },
-        )
+        let at = self.at.map_or(format!("repeat {repeat}"), |at| at.to_string());
+        Ok(match ask(&format!("[{at}] attach to {landmark}, then Enter — s to skip, q to stop: ")).as_str()
+        {
+            "s" => Step::Skip,
+            "q" => Step::Stop,
+            _ => Step::Measure,
+        })
     }
 
     fn refused(&mut self, landmark: &str, reason: &str) -> Step {
@@ -471,13 +548,61 @@ impl Guide for Operator {
             q.rejected,
             if q.flagged { "  (flagged)" } else { "" }
         );
+        if let Some(warning) = q.same_as_warning(landmark) {
+            eprintln!("  {warning}");
+        }
         if q.poor() {
-            return match ask("  the arm moved or the encoders were noisy: take it again? [Y/n/q] ").as_str() {
+            let why = if q.same_as.is_some() {
+                "move the arm to the landmark"
+            } else {
+                "the arm moved or the encoders were noisy"
+            };
+            return match ask(&format!("  {why}: take it again? [Y/n/q] ")).as_str() {
                 "n" => Verdict::Accept,
                 "q" => Verdict::Stop,
                 _ => Verdict::Retake,
             };
         }
         Verdict::Accept
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn touch(landmark: &str, joints_deg: [f64; 6], std_deg: f64, samples: u32) -> Measurement {
+        Measurement {
+            landmark: landmark.into(),
+            repeat: 1,
+            joints_deg: joints_deg.to_vec(),
+            std_deg: Some(vec![std_deg; 6]),
+            samples: Some(samples),
+            rejected: Some(0),
+        }
+    }
+
+    #[test]
+    fn a_touch_with_another_landmarks_angles_is_named_within_the_encoder_noise_only() {
+        let o = touch("O", [10.0, 20.0, 30.0, 40.0, 50.0, 359.9999], 0.01, 1536);
+        // Standard error 0.01/√1536 ≈ 2.6e-4° per touch: 3σ of the difference ≈ 1.1e-3°.
+        let same = touch("M1", [10.0005, 20.0, 30.0, 40.0, 50.0, 0.0002], 0.01, 1536);
+        let moved = touch("M1", [10.01, 20.0, 30.0, 40.0, 50.0, 359.9999], 0.01, 1536);
+        assert!(same_angles(&o, &same), "0.0005° and a wrap through 0° are the same reading");
+        assert!(!same_angles(&o, &moved), "0.01° on one joint is a different touch");
+        // Without spreads only the resolution counts.
+        let bare = |j0: f64| Measurement {
+            std_deg: None,
+            samples: None,
+            ..touch("S", [j0, 0.0, 0.0, 0.0, 0.0, 0.0], 0.0, 1)
+        };
+        assert!(same_angles(&bare(1.0), &bare(1.0 + COUNT_DEG)));
+        assert!(!same_angles(&bare(1.0), &bare(1.0 + 5.0 * COUNT_DEG)));
+        let q = Quality { worst_std_deg: 0.0, rejected: 0, flagged: false, same_as: Some(("O".into(), 1)) };
+        assert!(q.poor(), "a re-take is offered");
+        let warning = q.same_as_warning("M1").unwrap();
+        assert!(warning.contains("M1") && warning.contains("O (repeat 1)"), "{warning}");
+        let at = Progress { landmark: 2, landmarks: 15, repeat: 1, repeats: 3 };
+        assert_eq!(at.to_string(), "landmark 2 of 15, repeat 1 of 3");
     }
 }

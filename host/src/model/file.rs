@@ -85,6 +85,7 @@ impl ArmModel {
 
     /// Read a model file (`.toml`, or `.json`).
     pub fn load(path: &Path) -> Result<ArmModel, FileError> {
+        files::check_regular_file(path)?;
         let text = std::fs::read_to_string(path)
             .map_err(|source| FileError::Io { path: path.to_owned(), source })?;
         let syntax = |message: String| FileError::Syntax { path: path.to_owned(), message };

@@ -49,8 +49,9 @@ impl Comparison {
         }
         let effects = |k: usize| self.runs[k].summary.options.added_effects.join(", ");
         lines.push(format!("{:<24} {:>12} {:>12}", "added effects", effects(0), effects(1)));
+        let figure = |v: f64| if v.is_finite() { format!("{v:.4}") } else { "–".into() };
         for (l, (a, b)) in self.per_landmark() {
-            lines.push(format!("  landmark {:<14} {:>12.4} {:>12.4}", l, a, b));
+            lines.push(format!("  landmark {:<14} {:>12} {:>12}", l, figure(a), figure(b)));
         }
         lines
     }

@@ -15,6 +15,7 @@ pub fn study_body(rows: &[StudyRow]) -> String {
         .map(|r| {
             vec![
                 r.placements.to_string(),
+                format!("{} of {}", r.calibrations + r.failed + r.implausible, r.possible_subsets),
                 r.calibrations.to_string(),
                 format!("{:.3}", r.mean_mm),
                 format!("{:.3}", r.std_mm),
@@ -26,8 +27,12 @@ pub fn study_body(rows: &[StudyRow]) -> String {
     let groups: Vec<(String, Vec<f64>)> =
         rows.iter().map(|r| (r.placements.to_string(), r.rms_mm.clone())).collect();
     format!(
-        "<p>Validation RMS of calibrations on random subsets of the calibration placements.</p>{}{}",
-        table(&["placements", "calibrations", "mean mm", "std mm", "min mm", "max mm"], &cells),
+        "<p>Validation RMS of calibrations on distinct random subsets of the calibration placements \
+         (every subset once when there are no more than asked for).</p>{}{}",
+        table(
+            &["placements", "distinct subsets", "calibrations", "mean mm", "std mm", "min mm", "max mm"],
+            &cells
+        ),
         svg::boxplot(&groups, "validation RMS (mm)")
     )
 }

@@ -21,10 +21,10 @@ impl Frame {
         Frame { width, height, left: 56.0, bottom: 36.0, x: nice_range(pad(x)), y: nice_range(pad(y)) }
     }
     fn px(&self, x: f64) -> f64 {
-        self.left + (x - self.x.0) / (self.x.1 - self.x.0) * (self.width - self.left - 12.0)
+        on_canvas(self.left + (x - self.x.0) / (self.x.1 - self.x.0) * (self.width - self.left - 12.0))
     }
     fn py(&self, y: f64) -> f64 {
-        12.0 + (self.y.1 - y) / (self.y.1 - self.y.0) * (self.height - self.bottom - 12.0)
+        on_canvas(12.0 + (self.y.1 - y) / (self.y.1 - self.y.0) * (self.height - self.bottom - 12.0))
     }
     fn open(&self, out: &mut String, x_label: &str, y_label: &str, x_ticks: bool) {
         let _ = write!(
@@ -77,6 +77,20 @@ impl Frame {
     }
 }
 
+/// Largest magnitude a chart takes as a value to draw; beyond it (or not finite) a value is left
+/// out of the axis range, so one absurd value cannot turn every coordinate into `inf`.
+pub const PLOTTABLE: f64 = 1e12;
+
+/// A pixel coordinate that SVG can hold: never `inf` or `NaN`, even for a value outside the
+/// axis range (it lands far off the canvas instead).
+fn on_canvas(px: f64) -> f64 {
+    if px.is_nan() {
+        0.0
+    } else {
+        px.clamp(-1e6, 1e6)
+    }
+}
+
 /// Step of about five ticks over `span`: 1, 2 or 5 times a power of ten.
 fn nice_step(span: f64) -> f64 {
     let raw = (span / 5.0).abs().max(1e-12);
@@ -113,6 +127,9 @@ fn nice_range(range: (f64, f64)) -> (f64, f64) {
 
 /// A tick label with as many decimals as the step needs.
 fn tick(v: f64, range: (f64, f64)) -> String {
+    if !v.is_finite() {
+        return "–".into();
+    }
     let step = nice_step(range.1 - range.0);
     let decimals = (-step.log10().floor()).max(0.0) as usize;
     format!("{v:.decimals$}")
@@ -141,7 +158,7 @@ fn legend(out: &mut String, frame: &Frame, names: &[&str]) {
 
 fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     values
-        .filter(|v| v.is_finite())
+        .filter(|v| v.abs() <= PLOTTABLE)
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)))
 }
 
@@ -156,7 +173,7 @@ pub fn histogram(series: &[(&str, &[f64])], bins: usize, x_label: &str) -> Strin
         .iter()
         .map(|(_, v)| {
             let mut c = vec![0; bins];
-            for x in v.iter().filter(|x| x.is_finite()) {
+            for x in v.iter().filter(|x| x.abs() <= PLOTTABLE) {
                 c[(((x - lo) / width) as usize).min(bins - 1)] += 1;
             }
             c
@@ -218,7 +235,7 @@ pub fn bars(categories: &[String], series: &[(&str, Vec<f64>)], y_label: &str) -
 /// Robust axis range of `values`: the 2nd to 98th percentile widened by half its span, never
 /// beyond the data. Points outside are drawn at the edge and counted.
 fn robust_range(values: &[f64]) -> (f64, f64) {
-    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.abs() <= PLOTTABLE).collect();
     if v.is_empty() {
         return (f64::INFINITY, f64::NEG_INFINITY);
     }
@@ -376,7 +393,7 @@ pub fn boxplot(groups: &[(String, Vec<f64>)], y_label: &str) -> String {
     let mut out = String::new();
     frame.open(&mut out, "placements used for calibration", y_label, false);
     for (i, (name, values)) in groups.iter().enumerate() {
-        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+        let mut v: Vec<f64> = values.iter().copied().filter(|x| x.abs() <= PLOTTABLE).collect();
         if v.is_empty() {
             continue;
         }
@@ -419,7 +436,7 @@ pub fn boxplot(groups: &[(String, Vec<f64>)], y_label: &str) -> String {
 /// longitude = atan2(x, z), latitude = asin(y) of each unit direction.
 pub fn hammer_map(points: &[(f64, f64, f64)], label: &str) -> String {
     let (w, h) = (640.0, 340.0);
-    let top = points.iter().map(|p| p.2).fold(1e-12, f64::max);
+    let top = points.iter().map(|p| p.2).filter(|v| v.abs() <= PLOTTABLE).fold(1e-12, f64::max);
     let project = |lon: f64, lat: f64| {
         let d = (1.0 + lat.cos() * (lon / 2.0).cos()).sqrt().max(1e-9);
         let x = 2.0 * 2f64.sqrt() * lat.cos() * (lon / 2.0).sin() / d;
@@ -440,7 +457,8 @@ pub fn hammer_map(points: &[(f64, f64, f64)], label: &str) -> String {
     );
     for &(lon, lat, v) in points {
         let (x, y) = project(lon, lat);
-        let f = (v / top).clamp(0.0, 1.0);
+        let (x, y) = (on_canvas(x), on_canvas(y));
+        let f = if v.is_nan() { 0.0 } else { (v / top).clamp(0.0, 1.0) };
         let _ = write!(
             out,
             r#"<circle cx="{x:.1}" cy="{y:.1}" r="2.2" fill="rgb({},{},{})"/>"#,
@@ -487,5 +505,24 @@ mod tests {
         assert!(svg.contains("1 point beyond the axis"), "{svg}");
         let (lo, hi) = robust_range(&points.iter().map(|p| p.1).collect::<Vec<_>>());
         assert!(hi < 1.0 && lo > -1.0, "{lo} {hi}");
+    }
+
+    #[test]
+    fn absurd_values_never_reach_the_svg_as_inf_or_nan() {
+        let bad = [1.0, 2.5, 1e308, -1e308, f64::INFINITY, f64::NAN, 0.5];
+        let points: Vec<(f64, f64)> = bad.iter().map(|&v| (v, -v)).collect();
+        let charts = [
+            histogram(&[("a", &bad), ("b", &[1.0, 2.0])], 10, "error (mm)"),
+            bars(&["x".into(), "y".into()], &[("a", bad.to_vec())], "mm"),
+            scatter(&points, &points, "x", "y"),
+            boxplot(&[("1".into(), bad.to_vec())], "mm"),
+            hammer_map(&[(0.1, 0.2, 1e308), (f64::NAN, 0.0, f64::INFINITY), (0.3, 0.1, 1.0)], "mm"),
+        ];
+        for svg in &charts {
+            assert!(svg.contains("<svg"), "a chart of the finite values is drawn: {svg}");
+            for word in ["inf", "NaN", "1e308", "e30"] {
+                assert!(!svg.contains(word), "{word} in {svg}");
+            }
+        }
     }
 }

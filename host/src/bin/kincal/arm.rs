@@ -185,6 +185,11 @@ pub struct CalibrateArgs {
     /// Leave a calibration block PLACEMENT/REPEAT out, e.g. C_A/2 when the artefact moved (repeatable).
     #[arg(long, value_name = "PLACEMENT/REPEAT")]
     exclude_block: Vec<String>,
+    /// Skip the per-landmark outlier metrics (Cook's distance and the leave-one-out refit of each
+    /// landmark): about a third of the process's work on thesis-sized data; summary.json then says
+    /// `outliers_skipped` and no landmark is flagged.
+    #[arg(long)]
+    no_outliers: bool,
     /// Print summary.json to stdout.
     #[arg(long)]
     json: bool,
@@ -249,11 +254,12 @@ pub fn calibrate_and_report(
     options: &CalibrationOptions,
     effects: &[Effect],
     study_subsets: usize,
+    outliers: bool,
     json: bool,
 ) -> Result<()> {
     let started = std::time::Instant::now();
     let spinner = spinner("calibrating");
-    let result = run(inputs, options, effects, study_subsets);
+    let result = run(inputs, options, effects, study_subsets, outliers);
     spinner.finish_and_clear();
     let result = result?;
     output::write_run(&result, out)?;
@@ -299,6 +305,9 @@ pub fn calibrate_and_report(
     for c in &s.identifiability.after.poorly_identified {
         println!("  poorly identified: {}", c.text);
     }
+    if s.outliers_skipped {
+        println!("  outlier metrics skipped (--no-outliers): no landmark was checked");
+    }
     for o in s.outliers.iter().filter(|o| o.flagged) {
         println!("  landmark {} flagged as outlier ({})", o.landmark, o.exceeded.join(", "));
     }
@@ -316,7 +325,8 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
         exclude_blocks: a.exclude_block.clone(),
         ..inputs(&a.inputs)
     };
-    calibrate_and_report(&inputs, &a.out, &a.solve.options(), &a.add, a.study_subsets, a.json)
+    let outliers = !a.no_outliers;
+    calibrate_and_report(&inputs, &a.out, &a.solve.options(), &a.add, a.study_subsets, outliers, a.json)
 }
 
 pub fn cmd_study(a: &StudyArgs) -> Result<()> {
@@ -348,14 +358,19 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     }
     let total: usize = rows.iter().map(|r| r.calibrations + r.failed).sum();
     println!("{total} calibrations in {elapsed:.2} s on {} threads", rayon::current_num_threads());
-    println!("placements  calibrations  mean mm   std mm    min mm    max mm");
+    println!("placements  distinct subsets  calibrations  mean mm   std mm    min mm    max mm");
     for r in &rows {
+        let drawn = r.calibrations + r.failed + r.implausible;
+        let subsets = format!("{drawn} of {}", possible(r.possible_subsets));
         if r.calibrations == 0 {
-            println!("{:>10}  {:>12}  no calibration succeeded ({} failed)", r.placements, 0, r.failed);
+            println!(
+                "{:>10}  {subsets:>16}  {:>12}  no calibration succeeded ({} failed)",
+                r.placements, 0, r.failed
+            );
             continue;
         }
         println!(
-            "{:>10}  {:>12}  {:7.3}  {:7.3}  {:7.3}  {:7.3}",
+            "{:>10}  {subsets:>16}  {:>12}  {:7.3}  {:7.3}  {:7.3}  {:7.3}",
             r.placements, r.calibrations, r.mean_mm, r.std_mm, r.min_mm, r.max_mm
         );
     }
@@ -363,12 +378,21 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     Ok(())
 }
 
+/// A subset count for people: C(N, k) saturates at `usize::MAX`.
+fn possible(count: usize) -> String {
+    if count == usize::MAX {
+        "more than 10^19".into()
+    } else {
+        count.to_string()
+    }
+}
+
 pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
     let folder = RunFolder::load(&a.run)?;
+    let (artefact, cal, val) = folder.data()?;
     for problem in &folder.summary.not_trustworthy {
         eprintln!("warning: this run is marked not trustworthy: {problem}");
     }
-    let (artefact, cal, val) = folder.data()?;
     if a.auto {
         return cmd_diagnose_auto(a, &folder, &artefact, &cal, &val);
     }

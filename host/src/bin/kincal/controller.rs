@@ -406,6 +406,16 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
         .with_context(|| format!("{}: parameters version {version}", a.model.display()))?;
     let uploaded = match link.upload(&blob) {
         Ok(u) => u,
+        Err(
+            e @ kincal::controller::link::LinkError::CommitUnconfirmed {
+                after: kincal::controller::link::AfterFailure::Unknown,
+                ..
+            },
+        ) => {
+            // Committed or not, nobody knows: neither success (0) nor "not committed" (1).
+            eprintln!("error: upload failed: {e}");
+            std::process::exit(UPLOAD_UNKNOWN);
+        }
         Err(e @ kincal::controller::link::LinkError::CommitUnconfirmed { .. }) => bail!("upload failed: {e}"),
         // The controller's own verdict (signature, identity, version, envelope): the same set
         // would be refused again.
@@ -421,16 +431,32 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
             "the first commit request went unanswered; asked again, the controller confirms the new set"
         );
     }
-    let now = link.held_params()?;
-    println!(
-        "uploaded {} bytes (signed by {} for arm {}) in {:.2} s; the controller now holds {now}, previously {before}",
-        blob.len(),
-        fingerprint(&key.public_key()),
-        info.arm_id,
-        started.elapsed().as_secs_f64()
-    );
+    let elapsed = started.elapsed().as_secs_f64();
+    let signed = format!("signed by {} for arm {}", fingerprint(&key.public_key()), info.arm_id);
+    // The commit is confirmed: what follows only reports, and its failure changes nothing stored.
+    match link.held_params() {
+        Ok(now) => println!(
+            "uploaded {} bytes ({signed}) in {elapsed:.2} s; the controller now holds {now}, previously {before}",
+            blob.len()
+        ),
+        Err(e) => {
+            println!(
+                "uploaded {} bytes ({signed}) in {elapsed:.2} s; the controller confirmed the commit of \
+                 parameters version {version}, previously {before}",
+                blob.len()
+            );
+            eprintln!(
+                "warning: the commit was confirmed, but reading back what the controller holds failed \
+                 ({e}); check with `kincal info`"
+            );
+        }
+    }
     Ok(())
 }
+
+/// Exit status of `kincal upload` when the commit was sent, its answer lost, and the controller
+/// could not be asked what it holds: the new set may or may not be stored (0: committed, 1: not).
+pub const UPLOAD_UNKNOWN: i32 = 3;
 
 pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
     use kincal_protocol::messages::{Stream, StreamPose, StreamRaw};
@@ -677,7 +703,7 @@ pub fn cmd_record(a: &RecordArgs) -> Result<()> {
     };
     let mut link = connect(&a.port)?;
     let mut script;
-    let mut operator = kincal::controller::record::Operator;
+    let mut operator = kincal::controller::record::Operator::default();
     let guide: &mut dyn kincal::controller::record::Guide = match &a.script {
         Some(path) => {
             script = kincal::controller::record::Script::load(path)?;

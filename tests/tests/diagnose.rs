@@ -569,7 +569,7 @@ fn clean_data_false_calls_stay_rare_over_24_seeds() {
 }
 
 #[test]
-fn with_three_validation_placements_a_large_effect_leads_but_cannot_be_called_significant() {
+fn with_three_validation_placements_a_large_effect_leads_and_the_report_warns() {
     let hidden = vec![(p("eccentricity_sin:2"), 1.0), (p("eccentricity_cos:2"), 0.8)];
     let s = scenario(104, hidden, HiddenErrors::default(), 3);
     let (_, d) = calibrated(&s);
@@ -581,10 +581,8 @@ fn with_three_validation_placements_a_large_effect_leads_but_cannot_be_called_si
     assert_eq!(leader.blocks_improved.1, 9);
     assert_eq!(leader.effect, "eccentricity:2");
     assert!(d.baseline.rms_mm >= 3.0 * leader.validation_rms_mm, "the effect must cut validation RMS 3×");
-    // Three placements are three units: the exact sign-flip test cannot go below 2⁻³, and the
-    // report says so instead of calling anything significant.
+    // Three placements are three units: the report says so whatever the verdict.
     assert_eq!(leader.placements_improved, (3, 3));
-    assert!(!leader.significant && (leader.p_value - 0.125).abs() < 1e-12, "{leader:?}");
     assert!(
         d.summary.iter().any(|l| l.contains("with 3 validation placements") && l.contains("at least 5")),
         "{:?}",
@@ -600,7 +598,9 @@ fn the_auto_loop_adds_a_mixture_of_four_effects_down_to_the_floor() {
         (p("twist:4"), 0.25),
         (p("compliance:2"), 0.2),
     ];
-    let s = scenario(105, hidden, HiddenErrors::default(), 5);
+    // Ten validation placements: with the placement as the test's unit, five are too few to
+    // confirm a third and fourth effect whose gain one placement does not share.
+    let s = with_ten_validation_placements(scenario(105, hidden, HiddenErrors::default(), 5), 105);
     let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
     let started = std::time::Instant::now();
     let run = auto_loop(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options, 8).unwrap();

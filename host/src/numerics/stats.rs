@@ -1,5 +1,5 @@
-//! Small statistics: the F and normal tail probabilities (the F through the regularized
-//! incomplete beta function), RMS, median and the χ² quantile.
+//! Small statistics: Student's t, F and normal tail probabilities (t and F through the
+//! regularized incomplete beta function), a one-sample t test, RMS, median and the χ² quantile.
 
 /// ln Γ(x) for x > 0 (Lanczos, g = 7, 9 terms; relative error below 1e-13).
 fn ln_gamma(x: f64) -> f64 {
@@ -75,6 +75,32 @@ pub fn incomplete_beta(a: f64, b: f64, x: f64) -> f64 {
     }
 }
 
+/// P(T ≥ t) for Student's t with `dof` degrees of freedom.
+pub fn t_upper_tail(t: f64, dof: f64) -> f64 {
+    let tail = 0.5 * incomplete_beta(dof / 2.0, 0.5, dof / (dof + t * t));
+    if t >= 0.0 {
+        tail
+    } else {
+        1.0 - tail
+    }
+}
+
+/// One-sided one-sample t test of mean > 0: (t statistic, p-value). With fewer than two
+/// values, or none varying, the p-value is 1 unless every value is positive and equal.
+pub fn one_sided_t(values: &[f64]) -> (f64, f64) {
+    let n = values.len();
+    if n < 2 {
+        return (0.0, 1.0);
+    }
+    let mean = values.iter().sum::<f64>() / n as f64;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    if var <= 0.0 {
+        return if mean > 0.0 { (f64::INFINITY, 0.0) } else { (0.0, 1.0) };
+    }
+    let t = mean / (var / n as f64).sqrt();
+    (t, t_upper_tail(t, (n - 1) as f64))
+}
+
 /// Root mean square of `values` (0 for none).
 pub fn rms(values: &[f64]) -> f64 {
     (values.iter().map(|v| v * v).sum::<f64>() / values.len().max(1) as f64).sqrt()
@@ -137,6 +163,26 @@ mod tests {
         assert!((normal_upper_tail(1.644_854) - 0.05).abs() < 1e-7);
         assert!((normal_upper_tail(4.5) - 3.398e-6).abs() < 1e-8);
         assert!((normal_upper_tail(-1.959_964) - 0.975).abs() < 1e-7);
+    }
+
+    #[test]
+    fn t_tail_matches_tables() {
+        // Two-sided 5 % critical values: t(8) = 2.306, t(14) = 2.145; 0.1 %: t(8) = 5.041.
+        assert!((t_upper_tail(2.306_004, 8.0) - 0.025).abs() < 1e-6);
+        assert!((t_upper_tail(2.144_787, 14.0) - 0.025).abs() < 1e-6);
+        assert!((t_upper_tail(5.041_305, 8.0) - 0.0005).abs() < 1e-7);
+        assert!((t_upper_tail(0.0, 5.0) - 0.5).abs() < 1e-12);
+        assert!((t_upper_tail(-2.306_004, 8.0) - 0.975).abs() < 1e-6);
+        // One degree of freedom is the Cauchy distribution: P(T ≥ 1) = 1/4.
+        assert!((t_upper_tail(1.0, 1.0) - 0.25).abs() < 1e-12);
+    }
+
+    #[test]
+    fn t_test_of_a_clear_shift_and_of_noise() {
+        let (t, p) = one_sided_t(&[1.0, 1.2, 0.8, 1.1, 0.9]);
+        assert!(t > 10.0 && p < 1e-4, "{t} {p}");
+        let (_, p) = one_sided_t(&[0.1, -0.2, 0.05, -0.1, 0.15, -0.05]);
+        assert!(p > 0.3, "{p}");
     }
 
     #[test]

@@ -60,7 +60,7 @@ pub struct LoopOptions {
 pub const DEMO_HIDDEN: (ParamId, f64) = (ParamId::Compliance(1), 0.3);
 
 /// Effects the demo's diagnose → add loop may add at most.
-const MAX_ADDED: usize = 3;
+pub const MAX_ADDED: usize = 3;
 
 impl Default for LoopOptions {
     fn default() -> Self {

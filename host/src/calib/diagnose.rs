@@ -49,7 +49,7 @@
 //! e_B|A = ln(MSE_A / MSE_A+B) and e_A|B = ln(MSE_B / MSE_A+B) are sign-flip tested. Only A
 //! adds: A is the cause and B a proxy; only B adds: B is the cause; both add: both are missing;
 //! neither adds: "A or B: these data cannot tell them apart". The separability
-//! λ = min(λ_AB, λ_BA), λ_AB = ‖(I − P_[M,B])J_Aδ_A‖²/σ² on the calibration data (a projection
+//! λ = min(λ_AB, λ_BA), λ_AB = ‖(I − P_\[M,B\])J_Aδ_A‖²/σ² on the calibration data (a projection
 //! with no refit), says how far the calibration touches separate the two. Candidates whose
 //! refits change the held-out errors the same way (correlation of the changes ≥
 //! [`EQUIVALENT_CORRELATION`]) are reported as exactly equivalent.

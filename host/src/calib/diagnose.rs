@@ -136,7 +136,8 @@ pub struct JointResiduals {
     pub aliased: Vec<(u32, u32, f64)>,
     /// (gravity lever m, apparent error deg) per touch.
     pub gravity: Vec<(f64, f64)>,
-    /// Weighted slope of apparent error against gravity lever, deg/m.
+    /// Slope of apparent error against gravity lever, deg/m, weighted by ‖g_j‖² (a touch near a
+    /// singularity, where joint j barely moves the tip, has a huge apparent error and no say).
     pub gravity_slope_deg_per_m: f64,
 }
 
@@ -425,6 +426,7 @@ fn joint_residuals(
     let columns = ColumnMap::new(&offsets);
     let mut per_joint: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); SUTA_JOINTS];
     let mut gravity: Vec<Vec<(f64, f64)>> = vec![Vec::new(); SUTA_JOINTS];
+    let mut gravity_weights: Vec<Vec<f64>> = vec![Vec::new(); SUTA_JOINTS];
     let (mut by_height, mut by_reach) = (Vec::new(), Vec::new());
     for (t, r) in data.touches.iter().zip(&residuals) {
         let Some(r) = r else { continue };
@@ -442,6 +444,7 @@ fn joint_residuals(
             let e = g.dot(r) / w;
             per_joint[j].push((t.enc_deg[j], e, w));
             gravity[j].push((levers[j], e));
+            gravity_weights[j].push(w);
         }
     }
     let joints = (0..SUTA_JOINTS)
@@ -458,7 +461,10 @@ fn joint_residuals(
                 })
                 .collect();
             let g = &gravity[j];
-            let (sxx, sxy) = g.iter().fold((0.0, 0.0), |(a, b), (x, y)| (a + x * x, b + x * y));
+            let (sxx, sxy) = g
+                .iter()
+                .zip(&gravity_weights[j])
+                .fold((0.0, 0.0), |(a, b), ((x, y), w)| (a + w * x * x, b + w * x * y));
             let (spectrum, aliased) = fit_spectrum(&points);
             JointResiduals {
                 joint: j + 1,

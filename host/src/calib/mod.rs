@@ -12,6 +12,7 @@ pub mod monte_carlo;
 pub mod objective;
 pub mod outliers;
 pub mod peer;
+pub mod plan;
 pub mod run;
 pub mod study;
 pub mod tracker;

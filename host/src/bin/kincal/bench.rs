@@ -9,6 +9,9 @@
 //!   leave-one-out refits, report, write RUN/) on the thesis-sized data;
 //! * `kincal diagnose --auto` on a mixture of four hidden effects;
 //! * the tracker case first (see `bench_tracker.rs`).
+//!
+//! `kincal bench --plan` runs only the check of `kincal plan` on simulated data (see
+//! [`plan_benchmark`]).
 
 use anyhow::{Context, Result};
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
@@ -44,6 +47,9 @@ pub struct BenchArgs {
     /// Calibration touches of the scale benchmark (calibrate and diagnose from files); 0 skips it.
     #[arg(long, default_value_t = 10_000, value_parser = crate::args::count(0, kincal::data::MAX_TOUCHES))]
     pub scale_touches: usize,
+    /// Only the check of `kincal plan`: planned against random placements over this many seeds.
+    #[arg(long, value_name = "SEEDS", num_args = 0..=1, default_missing_value = "10")]
+    pub plan: Option<u64>,
     /// Run only the scale benchmark (with `--scale-touches`).
     #[arg(long)]
     pub scale_only: bool,
@@ -109,6 +115,72 @@ fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
         all.extend(runs.iter().map(|d| names(d, effect)));
     }
     println!("  all effects together: {} ({:.0} s)", Rate::of(&all, |n| *n), t.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// `kincal plan` against random placements, over `seeds` simulated arms, printed:
+/// * rivals — the true arm has a 3-per-revolution error of 0.006° on encoder 3, the data so far
+///   are two calibration placements; two placements planned to separate `harmonic:3:3` from
+///   `compliance:3`, or two random reachable ones (3 draws per seed), are measured (3 repeats)
+///   and both rivals refitted: the separation (SSR_compliance − SSR_harmonic)/σ²;
+/// * weak parameter — a clean arm, two calibration placements; two D-optimal placements or two
+///   random ones: the std of the parameter the plan names weakest, as the recalibration reports it.
+fn plan_benchmark(seeds: u64) -> Result<()> {
+    use kincal::calib::plan::{rival_trial, weak_trial, TrialOptions, SEPARABLE_SIGMA2};
+    use kincal::model::effects::Effect;
+    let nominal = kincal::model::ArmModel::suta_nominal();
+    let (a, b) = (Effect::parse("harmonic:3:3"), Effect::parse("compliance:3"));
+    let (Some(a), Some(b)) = (a, b) else { anyhow::bail!("effect names") };
+    let hidden = [(ParamId::Harm3Sin(2), 0.006)];
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let started = Instant::now();
+    let (mut before, mut planned, mut random) = (Vec::new(), Vec::new(), Vec::new());
+    println!("rivals: true harmonic:3:3 (0.006°) against compliance:3; separation (SSR_B − SSR_A)/σ², clear above {SEPARABLE_SIGMA2}");
+    println!("  seed  data so far  + 2 planned  + 2 random (mean of 3)");
+    for seed in 1..=seeds {
+        let trial = TrialOptions { seed, placements: 2, count: 2, random_draws: 3 };
+        let o = rival_trial(&nominal, &hidden, a, b, &trial)?;
+        println!("  {seed:>4}  {:>11.1}  {:>11.1}  {:>11.1}", o.before, o.planned, mean(&o.random));
+        before.push(o.before);
+        planned.push(o.planned);
+        random.extend(o.random);
+    }
+    let clear = |v: &[f64]| {
+        100.0 * v.iter().filter(|x| **x > SEPARABLE_SIGMA2).count() as f64 / v.len().max(1) as f64
+    };
+    println!(
+        "  mean  {:>11.1}  {:>11.1}  {:>11.1}   clearly separated: {:.0} % / {:.0} % / {:.0} % of runs",
+        mean(&before),
+        mean(&planned),
+        mean(&random),
+        clear(&before),
+        clear(&planned),
+        clear(&random)
+    );
+    let (mut planned, mut random) = (Vec::new(), Vec::new());
+    println!(
+        "weak parameter: clean arm, 2 calibration placements; std of the parameter the plan names weakest"
+    );
+    println!("  seed  parameter   data so far  + 2 planned  + 2 random (mean of 3)");
+    for seed in 1..=seeds {
+        let trial = TrialOptions { seed, placements: 2, count: 2, random_draws: 3 };
+        let (name, o) = weak_trial(&nominal, &trial)?;
+        println!(
+            "  {seed:>4}  {name:<10}  {:>11.4}  {:>11.4}  {:>11.4}",
+            o.before,
+            o.planned,
+            mean(&o.random)
+        );
+        planned.push(o.planned / o.before);
+        random.push(mean(&o.random) / o.before);
+    }
+    println!(
+        "  std relative to the data so far, mean over seeds: planned {:.2}, random {:.2}; {} seeds in {:.0} s",
+        mean(&planned),
+        mean(&random),
+        seeds,
+        started.elapsed().as_secs_f64()
+    );
     Ok(())
 }
 
@@ -191,6 +263,9 @@ fn scale_benchmark(touches: usize) -> Result<()> {
 
 /// Run every benchmark and print the figures.
 pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
+    if let Some(seeds) = args.plan {
+        return plan_benchmark(seeds.max(1));
+    }
     if args.scale_only {
         return scale_benchmark(args.scale_touches);
     }

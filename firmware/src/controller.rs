@@ -24,9 +24,10 @@ pub enum Action {
     Reset,
     /// Emulated board: apply this simulation request (already acknowledged).
     Simulate(Request),
-    /// Check this commit's signature with the shared state unlocked ([`PendingCommit::verify`]),
-    /// then hand the result to [`Controller::finish_commit`], which answers.
-    Verify(PendingCommit),
+    /// A commit passed the cheap checks: take it ([`Controller::take_commit`]), check its
+    /// signature with the shared state unlocked ([`PendingCommit::verify`]), then hand the
+    /// result to [`Controller::finish_commit`], which answers.
+    Verify,
 }
 
 /// Commits are refused for this many ticks (1 s) after a set whose signature did not verify:
@@ -36,7 +37,6 @@ pub const SIGNATURE_BACKOFF_TICKS: u32 = TICK_HZ;
 
 /// A commit whose set passed the cheap checks (complete, upload CRC, no back-off): it owns the
 /// set and what it is checked against, so the signature is verified without the controller.
-#[derive(Clone, Debug, PartialEq)]
 pub struct PendingCommit {
     frame: HostFrame,
     upload: Upload,
@@ -62,10 +62,9 @@ pub struct VerifiedCommit {
 /// What a request leads to: an answer now, or a commit whose signature is checked first.
 enum Reply {
     Now(Result<Response, WireError>, Action),
-    Verify(Upload),
+    Verify,
 }
 
-#[derive(Clone, Debug, PartialEq)]
 struct Upload {
     len: usize,
     crc: u32,
@@ -85,6 +84,8 @@ pub struct Controller<F: NorFlash> {
     tick: u32,
     stream_seq: u16,
     upload: Option<Upload>,
+    /// The commit request whose upload awaits its signature check ([`Action::Verify`]).
+    verifying: Option<HostFrame>,
     /// The last request carried out and its answer: the host repeats a request with the same
     /// sequence number when the answer was lost, and gets this answer again instead of the
     /// request being carried out twice.
@@ -129,6 +130,7 @@ impl<F: NorFlash> Controller<F> {
             tick: 0,
             stream_seq: 0,
             upload: None,
+            verifying: None,
             last: None,
             store,
             trust,
@@ -209,11 +211,20 @@ impl<F: NorFlash> Controller<F> {
                 self.answer(frame, response, emit);
                 action
             }
-            Reply::Verify(upload) => {
-                let stored = self.params.as_ref().map(|a| (a.params, a.provenance));
-                Action::Verify(PendingCommit { frame, upload, trust: self.trust.clone(), stored })
+            Reply::Verify => {
+                self.verifying = Some(frame);
+                Action::Verify
             }
         }
+    }
+
+    /// The commit [`Action::Verify`] announced, with its own copy of what it is checked
+    /// against; the board verifies it without holding the shared state.
+    pub fn take_commit(&mut self) -> Option<PendingCommit> {
+        let frame = self.verifying.take()?;
+        let upload = self.upload.take()?;
+        let stored = self.params.as_ref().map(|a| (a.params, a.provenance));
+        Some(PendingCommit { frame, upload, trust: self.trust.clone(), stored })
     }
 
     /// Send the answer to `frame` and keep it for a repeat.
@@ -268,7 +279,7 @@ impl<F: NorFlash> Controller<F> {
             Request::ParamChunk(r) => none(typed::<ParamChunk>(self.param_chunk(r))),
             Request::ParamRead(r) => none(typed::<ParamRead>(self.param_read(r))),
             Request::ParamCommit(ParamCommit) => match self.param_commit() {
-                Ok(upload) => Reply::Verify(upload),
+                Ok(()) => Reply::Verify,
                 Err(e) => none(Err(e)),
             },
             Request::Reset(Reset) => Reply::Now(typed::<Reset>(Ok(Ack)), Action::Reset),
@@ -387,8 +398,8 @@ impl<F: NorFlash> Controller<F> {
         Ok(ParamData { offset, data: heapless::Vec::from_slice(&bytes[from..to]).unwrap_or_default() })
     }
 
-    /// The cheap checks of a commit; the upload to verify.
-    fn param_commit(&mut self) -> Result<Upload, WireError> {
+    /// The cheap checks of a commit; the upload stays for [`Controller::take_commit`].
+    fn param_commit(&mut self) -> Result<(), WireError> {
         if let Some(at) = self.signature_failed_at {
             let waited = self.tick.wrapping_sub(at);
             if waited < SIGNATURE_BACKOFF_TICKS {
@@ -396,15 +407,15 @@ impl<F: NorFlash> Controller<F> {
                 return Err(WireError::ParamBackoff { retry_after_ms });
             }
         }
-        let u = self.upload.take().ok_or(WireError::NoUpload)?;
+        let u = self.upload.as_ref().ok_or(WireError::NoUpload)?;
         if u.received != u.len {
-            self.upload = Some(u);
             return Err(WireError::ParamIncomplete);
         }
         if BLOB_CRC.checksum(&u.buf[..u.len]) != u.crc {
+            self.upload = None;
             return Err(WireError::ParamInvalid);
         }
-        Ok(u)
+        Ok(())
     }
 
     /// Store a set [`Trust::admit`] admitted (signed by a trusted key for this arm, newer than
@@ -510,9 +521,10 @@ mod tests {
     /// Send `request` as frame `seq`; the answer.
     fn ask_as(c: &mut Ctl, seq: u16, request: Request) -> Result<Response, WireError> {
         let mut out = Vec::new();
-        if let Action::Verify(commit) =
-            c.handle(HostFrame { seq, request }, &Sampler::default(), &mut |f| out.push(f.clone()))
+        if c.handle(HostFrame { seq, request }, &Sampler::default(), &mut |f| out.push(f.clone()))
+            == Action::Verify
         {
+            let commit = c.take_commit().expect("the announced commit");
             c.finish_commit(commit.verify(), &mut |f| out.push(f.clone()));
         }
         match out.pop() {
@@ -769,6 +781,13 @@ mod tests {
         let mut zero = good;
         zero.version = 0;
         assert!(matches!(upload(&mut c, &zero), Err(WireError::ParamEnvelope(_))));
+        // A version no later set could exceed (no rollback) is refused, not stored.
+        let mut last = good;
+        last.version = u32::MAX;
+        let Err(WireError::ParamEnvelope(v)) = upload(&mut c, &last) else {
+            panic!("stored version u32::MAX")
+        };
+        assert_eq!((v.field, v.value, v.limit), (ParamField::Version, u32::MAX as f64, 2_147_483_648.0));
         assert_eq!(c.params(), Some(&good), "the previous set stays active");
     }
 
@@ -875,10 +894,8 @@ mod tests {
         }
         let mut frames = Vec::new();
         let frame = HostFrame { seq: 9_000, request: Request::ParamCommit(ParamCommit) };
-        let Action::Verify(commit) = c.handle(frame, &Sampler::default(), &mut |f| frames.push(f.clone()))
-        else {
-            panic!("the commit was not handed out for its signature check")
-        };
+        assert_eq!(c.handle(frame, &Sampler::default(), &mut |f| frames.push(f.clone())), Action::Verify);
+        let commit = c.take_commit().expect("the commit handed out for its signature check");
         assert!(frames.is_empty(), "answered before the signature was checked");
         let sample = Sample { counts: [1000; 6], rejected: 0, stale_ticks: 0 };
         let mut poses = Vec::new();

@@ -63,7 +63,7 @@ async fn serve_host(shared: &'static SharedCell<EmulatedNor>) -> ! {
         }
         Action::Reset => reset_cause::reset_because(ResetCause::Software),
         // serve_host carries out the signature check itself.
-        Action::None | Action::Verify(_) => {}
+        Action::None | Action::Verify => {}
     })
     .await
 }

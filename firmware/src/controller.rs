@@ -60,6 +60,7 @@ pub struct VerifiedCommit {
 }
 
 /// What a request leads to: an answer now, or a commit whose signature is checked first.
+#[allow(clippy::large_enum_variant, reason = "returned once per request, never stored")]
 enum Reply {
     Now(Result<Response, WireError>, Action),
     Verify,

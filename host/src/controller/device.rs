@@ -128,6 +128,14 @@ mod tests {
     }
 
     #[test]
+    fn a_urdf_model_is_not_sent() {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = Convention::Urdf;
+        let e = parameter_blob(&model, 1).unwrap_err();
+        assert!(e.to_string().contains("URDF joints") && e.to_string().contains("DH rows only"), "{e}");
+    }
+
+    #[test]
     fn a_new_set_is_numbered_above_the_stored_one_and_never_wraps() {
         assert_eq!(next_version(0, None), Ok(1));
         assert_eq!(next_version(7, None), Ok(8));

@@ -59,7 +59,9 @@ pub fn plausible_limit(id: ParamId) -> f64 {
         | ParamId::Harm3Cos(_)
         | ParamId::Harm4Sin(_)
         | ParamId::Harm4Cos(_) => 10.0,
-        ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) | ParamId::OriginXyz(..) => MAX_LENGTH_MM,
+        ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) | ParamId::OriginXyz(..) => {
+            MAX_LENGTH_MM
+        }
         ParamId::Compliance(_) => 100.0,
         ParamId::Scale => 100_000.0,
     }

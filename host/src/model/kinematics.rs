@@ -285,7 +285,11 @@ fn gravity_levers(model: &ArmModel, theta_deg: &[f64]) -> [f64; MAX_JOINTS] {
         }
         let (r, o) = before[j * per_joint + at];
         let masses: Vec<Vector3<f64>> = (j..joints).map(row_end).chain([tool]).collect();
-        let axis = if model.convention == Convention::Urdf { Vector3::from(model.joints[j].axis) } else { Vector3::z() };
+        let axis = if model.convention == Convention::Urdf {
+            Vector3::from(model.joints[j].axis)
+        } else {
+            Vector3::z()
+        };
         compliance::gravity_lever_m(&o, &(r * axis), &masses)
     })
 }
@@ -500,11 +504,21 @@ mod tests {
 
     #[test]
     fn jacobian_matches_central_differences_for_every_parameter() {
-        for convention in [Convention::Classic, Convention::Modified] {
+        for convention in [Convention::Classic, Convention::Modified, Convention::Urdf] {
             let mut model = ArmModel::suta_nominal();
             model.convention = convention;
             model.joints[2].a_mm = 3.0;
             model.joints[3].axis_deg = 0.7;
+            if convention == Convention::Urdf {
+                for (j, joint) in model.joints.iter_mut().enumerate() {
+                    let s = j as f64;
+                    joint.origin_xyz_mm = [10.0 * s, -20.0 + s, joint.d_mm];
+                    joint.origin_rpy_deg = [joint.alpha_deg, 7.0 * s, -3.0 * s];
+                    let n = (1.0 + 0.04 * s * s).sqrt();
+                    joint.axis = [0.2 * s / n, 0.0, 1.0 / n];
+                    (joint.d_mm, joint.a_mm, joint.alpha_deg, joint.axis_deg) = (0.0, 0.0, 0.0, 0.0);
+                }
+            }
             model.tcp_mm = [4.0, -2.0, 253.0];
             model.scale_ppm = 150.0;
             model.joints[1].eccentricity_sin_deg = 0.3;

@@ -53,7 +53,12 @@ fn origin_of(pose: &urdf_rs::Pose) -> Isometry3<f64> {
 }
 
 /// The revolute joints from `base` to `tip`, and the fixed transform after the last one.
-fn chain(path: &Path, robot: &urdf_rs::Robot, base: &str, tip: &str) -> Result<(Vec<ChainJoint>, Isometry3<f64>), FileError> {
+fn chain(
+    path: &Path,
+    robot: &urdf_rs::Robot,
+    base: &str,
+    tip: &str,
+) -> Result<(Vec<ChainJoint>, Isometry3<f64>), FileError> {
     for (what, link) in [("--base", base), ("--tip", tip)] {
         if !robot.links.iter().any(|l| l.name == link) {
             let names: Vec<&str> = robot.links.iter().map(|l| l.name.as_str()).collect();
@@ -76,7 +81,11 @@ fn chain(path: &Path, robot: &urdf_rs::Robot, base: &str, tip: &str) -> Result<(
             )
         })?;
         if walked.len() > robot.joints.len() {
-            return Err(field(path, format!("<joint name=\"{}\">", joint.name), "the joints form a loop".into()));
+            return Err(field(
+                path,
+                format!("<joint name=\"{}\">", joint.name),
+                "the joints form a loop".into(),
+            ));
         }
         walked.push(joint);
         link = &joint.parent.link;
@@ -92,7 +101,11 @@ fn chain(path: &Path, robot: &urdf_rs::Robot, base: &str, tip: &str) -> Result<(
                 let axis = Vector3::from(joint.axis.xyz.0);
                 let norm = axis.norm();
                 if !(norm.is_finite() && norm > 1e-9) {
-                    return Err(field(path, format!("{}/<axis>", at()), "the axis is not a direction".into()));
+                    return Err(field(
+                        path,
+                        format!("{}/<axis>", at()),
+                        "the axis is not a direction".into(),
+                    ));
                 }
                 joints.push(ChainJoint {
                     name: joint.name.clone(),
@@ -208,8 +221,9 @@ pub fn calibrated_urdf(path: &Path, base: &str, tip: &str, model: &ArmModel) -> 
             rpy_deg[1].to_radians(),
             rpy_deg[2].to_radians()
         );
-        out = replace_joint_origin(&out, &c.name, &origin)
-            .ok_or_else(|| field(path, format!("<joint name=\"{}\">", c.name), "element not found in the text".into()))?;
+        out = replace_joint_origin(&out, &c.name, &origin).ok_or_else(|| {
+            field(path, format!("<joint name=\"{}\">", c.name), "element not found in the text".into())
+        })?;
     }
     Ok(out)
 }
@@ -254,7 +268,8 @@ mod tests {
 
     #[test]
     fn an_origin_is_replaced_inside_its_joint_only() {
-        let text = "<robot><joint name=\"a\" type=\"revolute\"><origin xyz=\"1 2 3\"/><axis xyz=\"0 0 1\"/></joint>\
+        let text =
+            "<robot><joint name=\"a\" type=\"revolute\"><origin xyz=\"1 2 3\"/><axis xyz=\"0 0 1\"/></joint>\
                     <joint name='b' type=\"revolute\"><axis xyz=\"0 0 1\"/></joint></robot>";
         let out = replace_joint_origin(text, "b", "<origin xyz=\"9 9 9\"/>").unwrap();
         assert!(out.contains("<origin xyz=\"1 2 3\"/>"), "{out}");
@@ -262,5 +277,59 @@ mod tests {
         let out = replace_joint_origin(&out, "a", "<origin xyz=\"0 0 0\"/>").unwrap();
         assert!(!out.contains("1 2 3") && out.contains("<axis xyz=\"0 0 1\"/></joint>"), "{out}");
         assert_eq!(replace_joint_origin(text, "c", ""), None);
+    }
+
+    /// A two-joint URDF with a fixed joint between and a tool joint after: the model's tool point
+    /// equals the URDF chain multiplied out by hand, and writing the model back reproduces it.
+    #[test]
+    fn a_urdf_chain_becomes_a_model_with_the_same_forward_kinematics() {
+        let dir = std::env::temp_dir().join(format!("kincal-urdf-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("r.urdf");
+        std::fs::write(
+            &path,
+            "<robot name=\"t\"><link name=\"b\"/><link name=\"l1\"/><link name=\"m\"/><link name=\"l2\"/><link name=\"tool\"/>\
+             <joint name=\"j1\" type=\"revolute\"><parent link=\"b\"/><child link=\"l1\"/><origin xyz=\"0 0 0.3\" rpy=\"0.1 0 0.2\"/><axis xyz=\"0 0 1\"/></joint>\
+             <joint name=\"f\" type=\"fixed\"><parent link=\"l1\"/><child link=\"m\"/><origin xyz=\"0.2 0 0\" rpy=\"0 0.3 0\"/></joint>\
+             <joint name=\"j2\" type=\"continuous\"><parent link=\"m\"/><child link=\"l2\"/><origin xyz=\"0.1 0.05 0\" rpy=\"0 0 0.5\"/><axis xyz=\"0 1 1\"/></joint>\
+             <joint name=\"t\" type=\"fixed\"><parent link=\"l2\"/><child link=\"tool\"/><origin xyz=\"0 0 0.1\"/></joint></robot>",
+        )
+        .unwrap();
+        let mut model = model_from_urdf(&path, "b", "tool").unwrap();
+        let q = [10.0_f64, 20.0];
+        let by_hand = |x: f64, y: f64, z: f64, r: f64, p: f64, w: f64| {
+            Isometry3::from_parts(Translation3::new(x, y, z), UnitQuaternion::from_euler_angles(r, p, w))
+        };
+        let turn = |axis: Vector3<f64>, deg: f64| {
+            Isometry3::from_parts(
+                Translation3::identity(),
+                UnitQuaternion::from_axis_angle(&Unit::new_normalize(axis), deg.to_radians()),
+            )
+        };
+        let tool = by_hand(0.0, 0.0, 300.0, 0.1, 0.0, 0.2)
+            * turn(Vector3::z(), q[0])
+            * by_hand(200.0, 0.0, 0.0, 0.0, 0.3, 0.0)
+            * by_hand(100.0, 50.0, 0.0, 0.0, 0.0, 0.5)
+            * turn(Vector3::new(0.0, 1.0, 1.0), q[1])
+            * nalgebra::Point3::new(0.0, 0.0, 100.0);
+        let pose = crate::model::kinematics::tool_pose(&model, &q);
+        assert!((pose.position_mm - tool.coords).norm() < 1e-9, "{} vs {}", pose.position_mm, tool.coords);
+        assert_eq!(model.free.len(), 14);
+        // Calibrated values written back: the new URDF read as a model gives the same tool point.
+        model.joints[1].offset_deg = 1.5;
+        model.joints[0].origin_xyz_mm[0] += 0.7;
+        let back = dir.join("back.urdf");
+        std::fs::write(&back, calibrated_urdf(&path, "b", "tool", &model).unwrap()).unwrap();
+        let reread = model_from_urdf(&back, "b", "tool").unwrap();
+        let (a, b) = (
+            crate::model::kinematics::tool_pose(&model, &q),
+            crate::model::kinematics::tool_pose(&reread, &q),
+        );
+        assert!((a.position_mm - b.position_mm).norm() < 1e-6, "{} vs {}", a.position_mm, b.position_mm);
+        let prismatic = std::fs::read_to_string(&path).unwrap().replace("\"continuous\"", "\"prismatic\"");
+        std::fs::write(&path, prismatic).unwrap();
+        let err = model_from_urdf(&path, "b", "tool").unwrap_err().to_string();
+        assert!(err.contains("<joint name=\"j2\">") && err.contains("Prismatic"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -15,16 +15,23 @@ pub enum ModelCommand {
     ToUrdf(ToUrdfArgs),
 }
 
+/// The chain of a URDF: its first and last link.
 #[derive(Args)]
-pub struct FromUrdfArgs {
-    /// The robot's URDF file.
-    urdf: PathBuf,
+pub struct ChainArgs {
     /// The chain's first link.
     #[arg(long)]
     base: String,
     /// The chain's last link (the tool point is its origin).
     #[arg(long)]
     tip: String,
+}
+
+#[derive(Args)]
+pub struct FromUrdfArgs {
+    /// The robot's URDF file.
+    urdf: PathBuf,
+    #[command(flatten)]
+    chain: ChainArgs,
     /// Model file to write (.toml or .json); without it the model is printed.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -37,12 +44,9 @@ pub struct ToUrdfArgs {
     /// The URDF the model was made from.
     #[arg(long)]
     urdf: PathBuf,
-    /// The chain's first link, as given to from-urdf.
-    #[arg(long)]
-    base: String,
-    /// The chain's last link, as given to from-urdf.
-    #[arg(long)]
-    tip: String,
+    /// The chain, as given to from-urdf.
+    #[command(flatten)]
+    chain: ChainArgs,
     /// The calibrated URDF to write.
     #[arg(long)]
     out: PathBuf,
@@ -52,7 +56,7 @@ pub struct ToUrdfArgs {
 pub fn run(command: &ModelCommand) -> Result<()> {
     match command {
         ModelCommand::FromUrdf(a) => {
-            let model = model_from_urdf(&a.urdf, &a.base, &a.tip)?;
+            let model = model_from_urdf(&a.urdf, &a.chain.base, &a.chain.tip)?;
             match &a.out {
                 Some(out) => {
                     model.save(out)?;
@@ -70,7 +74,7 @@ pub fn run(command: &ModelCommand) -> Result<()> {
         }
         ModelCommand::ToUrdf(a) => {
             let model = ArmModel::load(&a.model)?;
-            let text = calibrated_urdf(&a.urdf, &a.base, &a.tip, &model)?;
+            let text = calibrated_urdf(&a.urdf, &a.chain.base, &a.chain.tip, &model)?;
             std::fs::write(&a.out, text).with_context(|| format!("{}: cannot write", a.out.display()))?;
             println!("{}: {} joint origins calibrated", a.out.display(), model.joints.len());
         }

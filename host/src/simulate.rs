@@ -261,6 +261,15 @@ fn frames_at(
                 axes[j] = axis_of(&t);
                 t = t * rz(theta) * tr(0., 0., row.d_mm);
             }
+            Convention::Urdf => {
+                let [x, y, z] = row.origin_xyz_mm;
+                let [roll, pitch, yaw] = row.origin_rpy_deg.map(f64::to_radians);
+                t = t * tr(x, y, z) * rz(yaw) * ry(pitch) * rx(roll);
+                let axis = Vector3::from(row.axis);
+                axes[j] = (axis_of(&t).0, t.fixed_view::<3, 3>(0, 0) * axis);
+                let turn = nalgebra::Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), theta);
+                t *= turn.to_homogeneous();
+            }
         }
         frames[j] = t;
     }

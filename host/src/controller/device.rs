@@ -17,6 +17,13 @@ pub enum DeviceParamsError {
          a model with another joint count can be calibrated and used on the host, not uploaded"
     )]
     JointCount(usize),
+    /// The model uses URDF joints; the controller evaluates DH rows only.
+    #[error(
+        "not sent: this model uses URDF joints (convention = \"urdf\"); the controller evaluates \
+         classic or modified DH rows only, so it would compute another arm. Use the model on the host, \
+         or write it back with `kincal model to-urdf`"
+    )]
+    UrdfConvention,
     /// The set does not fit the controller's parameter area.
     #[error(
         "not sent: the parameter set does not fit the controller's {MAX_PARAM_BLOB}-byte parameter area"
@@ -28,8 +35,11 @@ pub enum DeviceParamsError {
 }
 
 /// The device form of `model`, tagged with parameter-set `version`; refused when the controller
-/// cannot hold the model (not six joints).
+/// cannot hold the model (not six joints, or URDF joints).
 pub fn device_params(model: &ArmModel, version: u32) -> Result<ArmParams, DeviceParamsError> {
+    if model.convention == Convention::Urdf {
+        return Err(DeviceParamsError::UrdfConvention);
+    }
     let joints: &[_; SUTA_JOINTS] =
         model.joints.as_slice().try_into().map_err(|_| DeviceParamsError::JointCount(model.joints.len()))?;
     Ok(ArmParams {
@@ -129,6 +139,14 @@ mod tests {
         let e = parameter_blob(&model, 1).unwrap_err();
         assert!(matches!(e, DeviceParamsError::JointCount(7)), "{e}");
         assert!(e.to_string().contains("holds 6 joints"), "{e}");
+    }
+
+    #[test]
+    fn a_urdf_model_is_not_sent() {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = Convention::Urdf;
+        let e = parameter_blob(&model, 1).unwrap_err();
+        assert!(e.to_string().contains("URDF joints") && e.to_string().contains("DH rows only"), "{e}");
     }
 
     #[test]

@@ -50,7 +50,7 @@ struct ModelFile {
 pub fn plausible_limit(id: ParamId) -> f64 {
     match id {
         ParamId::Offset(_) => 720.0,
-        ParamId::Twist(_) | ParamId::Axis(_) => 360.0,
+        ParamId::Twist(_) | ParamId::Axis(_) | ParamId::OriginRpy(..) => 360.0,
         ParamId::EccSin(_)
         | ParamId::EccCos(_)
         | ParamId::Ecc2Sin(_)
@@ -59,7 +59,9 @@ pub fn plausible_limit(id: ParamId) -> f64 {
         | ParamId::Harm3Cos(_)
         | ParamId::Harm4Sin(_)
         | ParamId::Harm4Cos(_) => 10.0,
-        ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) => MAX_LENGTH_MM,
+        ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) | ParamId::OriginXyz(..) => {
+            MAX_LENGTH_MM
+        }
         ParamId::Compliance(_) => 100.0,
         ParamId::Scale => 100_000.0,
     }
@@ -72,14 +74,41 @@ pub const MAX_REACH_MM: f64 = 10_000.0;
 /// Shortest total reach, mm: a smaller arm is a unit mistake (metres?).
 pub const MIN_REACH_MM: f64 = 10.0;
 
+/// Check a joint row holds only its convention's geometry, and normalise a URDF axis.
+fn check_joint_convention(joint: &mut Joint, convention: Convention) -> Result<(), String> {
+    let dh = [joint.d_mm, joint.a_mm, joint.alpha_deg, joint.axis_deg];
+    let urdf = joint.origin_xyz_mm.iter().chain(&joint.origin_rpy_deg);
+    match convention {
+        Convention::Urdf => {
+            if dh.iter().any(|v| *v != 0.0) {
+                return Err("a URDF joint holds origin_xyz_mm, origin_rpy_deg and axis; d_mm, a_mm, \
+                            alpha_deg and axis_deg must be 0"
+                    .into());
+            }
+            let norm = joint.axis.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if !(norm.is_finite() && norm > 1e-9) {
+                return Err(format!("axis {:?} is not a direction; expected e.g. [0, 0, 1]", joint.axis));
+            }
+            joint.axis = joint.axis.map(|x| x / norm);
+        }
+        Convention::Classic | Convention::Modified => {
+            if urdf.into_iter().any(|v| *v != 0.0) || joint.axis != [0.0, 0.0, 1.0] {
+                return Err("origin_xyz_mm, origin_rpy_deg and axis belong to convention = \"urdf\"".into());
+            }
+        }
+    }
+    Ok(())
+}
+
 fn is_json(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"))
 }
 
 impl ArmModel {
-    /// Farthest the tool point can be from the base axis origin: Σ|d| + |a| + |tool|, mm.
+    /// Farthest the tool point can be from the base axis origin: Σ|d| + |a| + |origin| + |tool|, mm.
     pub fn reach_mm(&self) -> f64 {
-        self.joints.iter().map(|j| j.d_mm.abs() + j.a_mm.abs()).sum::<f64>()
+        let norm = |v: &[f64; 3]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        self.joints.iter().map(|j| j.d_mm.abs() + j.a_mm.abs() + norm(&j.origin_xyz_mm)).sum::<f64>()
             + self.tcp_mm.iter().map(|v| v * v).sum::<f64>().sqrt()
     }
 
@@ -115,7 +144,11 @@ impl ArmModel {
                 ),
             ));
         }
-        let joints = file.joint.clone();
+        let mut joints = file.joint.clone();
+        for (j, joint) in joints.iter_mut().enumerate() {
+            check_joint_convention(joint, file.convention)
+                .map_err(|message| field(format!("joint[{}]", j + 1), message))?;
+        }
         let tcp_mm: [f64; 3] = file.tcp_mm.clone().try_into().map_err(|_| {
             field("tcp_mm".into(), format!("expected 3 numbers [x, y, z] in mm, found {}", file.tcp_mm.len()))
         })?;

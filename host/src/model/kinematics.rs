@@ -71,6 +71,8 @@ enum Axis {
     X,
     Y,
     Z,
+    /// Any unit direction (a URDF joint axis).
+    Unit(Vector3<f64>),
 }
 
 impl Axis {
@@ -79,6 +81,7 @@ impl Axis {
             Axis::X => Vector3::x(),
             Axis::Y => Vector3::y(),
             Axis::Z => Vector3::z(),
+            Axis::Unit(u) => u,
         }
     }
 }
@@ -123,15 +126,27 @@ impl Op {
                     Axis::X => Matrix3::new(1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c),
                     Axis::Y => Matrix3::new(c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c),
                     Axis::Z => Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0),
+                    // Rodrigues: I + sin θ K + (1 − cos θ) K².
+                    Axis::Unit(u) => {
+                        let k = u.cross_matrix();
+                        Matrix3::identity() + k * s + k * k * (1.0 - c)
+                    }
                 }
             }
         }
     }
 }
 
-const OPS_PER_JOINT: usize = 5;
-/// Most elementary ops of a chain: five per joint and three for the tool point.
-const MAX_OPS: usize = MAX_JOINTS * OPS_PER_JOINT + 3;
+/// Elementary ops per joint row: five for DH (θ, d, a, α, β), seven for URDF (x, y, z, yaw,
+/// pitch, roll, θ).
+fn ops_per_joint(convention: Convention) -> usize {
+    match convention {
+        Convention::Classic | Convention::Modified => 5,
+        Convention::Urdf => 7,
+    }
+}
+/// Most elementary ops of a chain: seven per joint and three for the tool point.
+const MAX_OPS: usize = MAX_JOINTS * 7 + 3;
 
 fn rot(axis: Axis, value_deg: f64, id: ParamId) -> Op {
     Op { kind: OpKind::Rotate(axis), value: value_deg * DEG, dep: Dep::Param(id, DEG) }
@@ -183,6 +198,7 @@ fn joint_op_in_row(convention: Convention) -> usize {
     match convention {
         Convention::Classic => 0,
         Convention::Modified => 3,
+        Convention::Urdf => 6,
     }
 }
 
@@ -190,23 +206,40 @@ fn joint_op_in_row(convention: Convention) -> usize {
 fn chain(model: &ArmModel, theta_deg: &[f64]) -> ([Op; MAX_OPS], usize) {
     let mut ops = [Op { kind: OpKind::Translate(Axis::X), value: 0.0, dep: Dep::JointAngle(0) }; MAX_OPS];
     let joints = model.joints.len().min(MAX_JOINTS);
+    let per_joint = ops_per_joint(model.convention);
     for (j, joint) in model.joints.iter().take(joints).enumerate() {
+        let row = &mut ops[j * per_joint..(j + 1) * per_joint];
+        if model.convention == Convention::Urdf {
+            let axis = Axis::Unit(Vector3::from(joint.axis));
+            let theta = Op { kind: OpKind::Rotate(axis), value: theta_deg[j] * DEG, dep: Dep::JointAngle(j) };
+            let [x, y, z] = joint.origin_xyz_mm;
+            let [roll, pitch, yaw] = joint.origin_rpy_deg;
+            row.copy_from_slice(&[
+                shift(Axis::X, x, ParamId::OriginXyz(j, 0)),
+                shift(Axis::Y, y, ParamId::OriginXyz(j, 1)),
+                shift(Axis::Z, z, ParamId::OriginXyz(j, 2)),
+                rot(Axis::Z, yaw, ParamId::OriginRpy(j, 2)),
+                rot(Axis::Y, pitch, ParamId::OriginRpy(j, 1)),
+                rot(Axis::X, roll, ParamId::OriginRpy(j, 0)),
+                theta,
+            ]);
+            continue;
+        }
         let theta = Op { kind: OpKind::Rotate(Axis::Z), value: theta_deg[j] * DEG, dep: Dep::JointAngle(j) };
         let d = shift(Axis::Z, joint.d_mm, ParamId::Length(j));
         let a = shift(Axis::X, joint.a_mm, ParamId::LinkOffset(j));
         let alpha = rot(Axis::X, joint.alpha_deg, ParamId::Twist(j));
         let beta = rot(Axis::Y, joint.axis_deg, ParamId::Axis(j));
-        let row = match model.convention {
-            Convention::Classic => [theta, d, a, alpha, beta],
+        row.copy_from_slice(&match model.convention {
             Convention::Modified => [alpha, beta, a, theta, d],
-        };
-        ops[j * OPS_PER_JOINT..(j + 1) * OPS_PER_JOINT].copy_from_slice(&row);
+            Convention::Classic | Convention::Urdf => [theta, d, a, alpha, beta],
+        });
     }
-    let tcp = &mut ops[joints * OPS_PER_JOINT..];
+    let tcp = &mut ops[joints * per_joint..];
     for (k, axis) in [Axis::X, Axis::Y, Axis::Z].into_iter().enumerate() {
         tcp[k] = shift(axis, model.tcp_mm[k], ParamId::Tcp(k));
     }
-    (ops, joints * OPS_PER_JOINT + 3)
+    (ops, joints * per_joint + 3)
 }
 
 /// Tool pose for raw encoder angles `enc_deg` (degrees, one per joint of the model; a missing
@@ -229,7 +262,8 @@ pub fn tool_pose_with_jacobian(
 /// Gravity levers λ_j (m) of every joint on the arm without compliance deflection.
 fn gravity_levers(model: &ArmModel, theta_deg: &[f64]) -> [f64; MAX_JOINTS] {
     let (ops, count) = chain(model, theta_deg);
-    let joints = (count - 3) / OPS_PER_JOINT;
+    let per_joint = ops_per_joint(model.convention);
+    let joints = (count - 3) / per_joint;
     // Pose (rotation, origin) before each op, and the tool point after all.
     let mut rotation = Matrix3::identity();
     let mut origin = Vector3::zeros();
@@ -242,16 +276,21 @@ fn gravity_levers(model: &ArmModel, theta_deg: &[f64]) -> [f64; MAX_JOINTS] {
         }
     }
     before[count] = (rotation, origin);
-    let row_end = |j: usize| before[(j + 1) * OPS_PER_JOINT].1;
+    let row_end = |j: usize| before[(j + 1) * per_joint].1;
     let tool = before[count].1;
     let at = joint_op_in_row(model.convention);
     std::array::from_fn(|j| {
         if j >= joints {
             return 0.0;
         }
-        let (r, o) = before[j * OPS_PER_JOINT + at];
+        let (r, o) = before[j * per_joint + at];
         let masses: Vec<Vector3<f64>> = (j..joints).map(row_end).chain([tool]).collect();
-        compliance::gravity_lever_m(&o, &(r * Vector3::z()), &masses)
+        let axis = if model.convention == Convention::Urdf {
+            Vector3::from(model.joints[j].axis)
+        } else {
+            Vector3::z()
+        };
+        compliance::gravity_lever_m(&o, &(r * axis), &masses)
     })
 }
 
@@ -465,11 +504,21 @@ mod tests {
 
     #[test]
     fn jacobian_matches_central_differences_for_every_parameter() {
-        for convention in [Convention::Classic, Convention::Modified] {
+        for convention in [Convention::Classic, Convention::Modified, Convention::Urdf] {
             let mut model = ArmModel::suta_nominal();
             model.convention = convention;
             model.joints[2].a_mm = 3.0;
             model.joints[3].axis_deg = 0.7;
+            if convention == Convention::Urdf {
+                for (j, joint) in model.joints.iter_mut().enumerate() {
+                    let s = j as f64;
+                    joint.origin_xyz_mm = [10.0 * s, -20.0 + s, joint.d_mm];
+                    joint.origin_rpy_deg = [joint.alpha_deg, 7.0 * s, -3.0 * s];
+                    let n = (1.0 + 0.04 * s * s).sqrt();
+                    joint.axis = [0.2 * s / n, 0.0, 1.0 / n];
+                    (joint.d_mm, joint.a_mm, joint.alpha_deg, joint.axis_deg) = (0.0, 0.0, 0.0, 0.0);
+                }
+            }
             model.tcp_mm = [4.0, -2.0, 253.0];
             model.scale_ppm = 150.0;
             model.joints[1].eccentricity_sin_deg = 0.3;

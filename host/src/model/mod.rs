@@ -8,6 +8,7 @@ pub mod effects;
 pub mod file;
 pub mod kinematics;
 pub mod params;
+pub mod urdf;
 
 pub use params::ParamId;
 
@@ -17,7 +18,7 @@ pub const SUTA_JOINTS: usize = 6;
 /// Most revolute joints a host model may have.
 pub const MAX_JOINTS: usize = 12;
 
-/// Which Denavit–Hartenberg convention the joint rows follow.
+/// Which joint convention the joint rows follow (two Denavit–Hartenberg forms, or URDF).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Convention {
@@ -25,10 +26,13 @@ pub enum Convention {
     Classic,
     /// Modified (Craig) DH: Rx(α)·Tx(a)·Rz(θ)·Tz(d), row i holding α_{i−1}, a_{i−1}.
     Modified,
+    /// URDF joint: origin Tx·Ty·Tz·Rz(yaw)·Ry(pitch)·Rx(roll), then a rotation by θ about the
+    /// joint's unit `axis` (the row's d, a, α and β stay zero).
+    Urdf,
 }
 
 /// Geometry of one joint row. θ = encoder + `offset_deg` (+ joint-angle effects).
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Joint {
     /// Encoder zero offset δθ, degrees.
@@ -69,6 +73,51 @@ pub struct Joint {
     /// Gravity compliance (see [`crate::model::effects::compliance`]), degrees per metre of lever.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub compliance_deg_per_m: f64,
+    /// URDF joint origin translation from the previous joint's frame, millimetres.
+    #[serde(default, skip_serializing_if = "is_zero3")]
+    pub origin_xyz_mm: [f64; 3],
+    /// URDF joint origin fixed-axis roll, pitch, yaw (R = Rz(yaw)·Ry(pitch)·Rx(roll)), degrees.
+    #[serde(default, skip_serializing_if = "is_zero3")]
+    pub origin_rpy_deg: [f64; 3],
+    /// URDF joint axis (unit vector in the joint frame); DH rows rotate about z.
+    #[serde(default = "z_axis", skip_serializing_if = "is_z_axis")]
+    pub axis: [f64; 3],
+}
+
+fn is_zero3(v: &[f64; 3]) -> bool {
+    v.iter().all(|x| *x == 0.0)
+}
+
+fn z_axis() -> [f64; 3] {
+    [0.0, 0.0, 1.0]
+}
+
+fn is_z_axis(v: &[f64; 3]) -> bool {
+    *v == z_axis()
+}
+
+impl Default for Joint {
+    fn default() -> Joint {
+        Joint {
+            offset_deg: 0.0,
+            d_mm: 0.0,
+            a_mm: 0.0,
+            alpha_deg: 0.0,
+            axis_deg: 0.0,
+            eccentricity_sin_deg: 0.0,
+            eccentricity_cos_deg: 0.0,
+            eccentricity2_sin_deg: 0.0,
+            eccentricity2_cos_deg: 0.0,
+            harmonic3_sin_deg: 0.0,
+            harmonic3_cos_deg: 0.0,
+            harmonic4_sin_deg: 0.0,
+            harmonic4_cos_deg: 0.0,
+            compliance_deg_per_m: 0.0,
+            origin_xyz_mm: [0.0; 3],
+            origin_rpy_deg: [0.0; 3],
+            axis: z_axis(),
+        }
+    }
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -93,6 +142,8 @@ impl Joint {
             ParamId::Harm3Cos(_) => &mut self.harmonic3_cos_deg,
             ParamId::Harm4Sin(_) => &mut self.harmonic4_sin_deg,
             ParamId::Harm4Cos(_) => &mut self.harmonic4_cos_deg,
+            ParamId::OriginXyz(_, k) => &mut self.origin_xyz_mm[k],
+            ParamId::OriginRpy(_, k) => &mut self.origin_rpy_deg[k],
             ParamId::Offset(_) | ParamId::Tcp(_) | ParamId::Scale => &mut self.offset_deg,
         }
     }
@@ -159,9 +210,14 @@ impl ArmModel {
         self.joints.len()
     }
 
-    /// Every parameter this model holds, in a stable order.
+    /// Every parameter this model holds, in a stable order (DH rows hold no URDF origin, URDF
+    /// joints no d, a, α, β).
     pub fn params(&self) -> Vec<ParamId> {
-        ParamId::all().into_iter().filter(|id| id.joint().is_none_or(|j| j < self.joints.len())).collect()
+        ParamId::all()
+            .into_iter()
+            .filter(|id| id.joint().is_none_or(|j| j < self.joints.len()))
+            .filter(|id| id.is_urdf_geometry() == (self.convention == Convention::Urdf) || !id.is_geometry())
+            .collect()
     }
 
     /// Values of the free parameters, in `free` order.

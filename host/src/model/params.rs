@@ -1,4 +1,4 @@
-//! Parameter identifiers: `offset:3`, `length:1`, `twist:5`, `tcp.z`, `scale`, …
+//! Parameter identifiers: `offset:3`, `length:1`, `twist:5`, `origin_yaw:2`, `tcp.z`, `scale`, …
 
 use std::fmt;
 
@@ -33,6 +33,10 @@ pub enum ParamId {
     Harm4Cos(usize),
     /// `compliance:j` — joint deflection per metre of unit-weight gravity lever (deg/m).
     Compliance(usize),
+    /// `origin_x:j`, `origin_y:j`, `origin_z:j` — URDF joint origin translation (mm), axis 0..3.
+    OriginXyz(usize, usize),
+    /// `origin_roll:j`, `origin_pitch:j`, `origin_yaw:j` — URDF joint origin fixed-axis rpy (deg).
+    OriginRpy(usize, usize),
     /// `tcp.x`, `tcp.y`, `tcp.z` — tool centre point in the last frame (mm).
     Tcp(usize),
     /// `scale` — length scale error (ppm).
@@ -42,7 +46,7 @@ pub enum ParamId {
 /// Number of distinct parameter slots (see [`ParamId::dense_index`]).
 pub const PARAM_SLOTS: usize = JOINT_KINDS.len() * super::MAX_JOINTS + 4;
 
-const JOINT_KINDS: [&str; 14] = [
+const JOINT_KINDS: [&str; 20] = [
     "offset",
     "length",
     "link_offset",
@@ -57,6 +61,12 @@ const JOINT_KINDS: [&str; 14] = [
     "harmonic3_cos",
     "harmonic4_sin",
     "harmonic4_cos",
+    "origin_x",
+    "origin_y",
+    "origin_z",
+    "origin_roll",
+    "origin_pitch",
+    "origin_yaw",
 ];
 const TCP_SLOT: usize = JOINT_KINDS.len() * super::MAX_JOINTS;
 const TCP_AXES: [&str; 3] = ["x", "y", "z"];
@@ -95,11 +105,18 @@ impl ParamId {
             ParamId::Harm3Cos(j) => (11, j),
             ParamId::Harm4Sin(j) => (12, j),
             ParamId::Harm4Cos(j) => (13, j),
+            ParamId::OriginXyz(j, k) => (14 + k, j),
+            ParamId::OriginRpy(j, k) => (17 + k, j),
             ParamId::Tcp(_) | ParamId::Scale => return None,
         })
     }
 
     fn from_joint_kind(kind: usize, j: usize) -> ParamId {
+        match kind {
+            14..=16 => return ParamId::OriginXyz(j, kind - 14),
+            17..=19 => return ParamId::OriginRpy(j, kind - 17),
+            _ => {}
+        }
         [
             ParamId::Offset,
             ParamId::Length,
@@ -129,6 +146,17 @@ impl ParamId {
         }
     }
 
+    /// True for the joint geometry a convention holds (DH d, a, α, β or URDF origins).
+    pub fn is_geometry(self) -> bool {
+        matches!(self, ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Twist(_) | ParamId::Axis(_))
+            || self.is_urdf_geometry()
+    }
+
+    /// True for a URDF joint origin value.
+    pub fn is_urdf_geometry(self) -> bool {
+        matches!(self, ParamId::OriginXyz(..) | ParamId::OriginRpy(..))
+    }
+
     /// The joint (0-based) of a per-joint parameter.
     pub fn joint(self) -> Option<usize> {
         self.joint_kind().map(|(_, j)| j)
@@ -137,12 +165,12 @@ impl ParamId {
     /// The unit of the parameter's value.
     pub fn unit(self) -> &'static str {
         match self {
-            ParamId::Offset(_) | ParamId::Twist(_) | ParamId::Axis(_) => "deg",
+            ParamId::Offset(_) | ParamId::Twist(_) | ParamId::Axis(_) | ParamId::OriginRpy(..) => "deg",
             ParamId::EccSin(_) | ParamId::EccCos(_) | ParamId::Ecc2Sin(_) | ParamId::Ecc2Cos(_) => "deg",
             ParamId::Harm3Sin(_) | ParamId::Harm3Cos(_) | ParamId::Harm4Sin(_) | ParamId::Harm4Cos(_) => {
                 "deg"
             }
-            ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) => "mm",
+            ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) | ParamId::OriginXyz(..) => "mm",
             ParamId::Compliance(_) => "deg/m",
             ParamId::Scale => "ppm",
         }

@@ -7,6 +7,7 @@ mod bench_tracker;
 mod controller;
 mod emulated_arm;
 mod haptic;
+mod model;
 mod plan;
 mod tracker;
 
@@ -55,6 +56,9 @@ enum Command {
     /// Haptic device (PHANToM) workspace calibration.
     #[command(subcommand)]
     Haptic(haptic::HapticCommand),
+    /// Model files: from and to URDF.
+    #[command(subcommand)]
+    Model(model::ModelCommand),
     /// Benchmarks: calibration time, study throughput, and SciPy on the same problem.
     Bench(bench::BenchArgs),
 }
@@ -84,6 +88,7 @@ fn main() {
         Command::EmulatedArm(c) => emulated_arm::run(&c),
         Command::Haptic(haptic::HapticCommand::Simulate(a)) => haptic::cmd_haptic_simulate(&a),
         Command::Haptic(haptic::HapticCommand::Calibrate(a)) => haptic::cmd_haptic_calibrate(&a),
+        Command::Model(c) => model::run(&c),
         Command::Bench(a) => bench::run_benchmarks(&a),
     };
     if let Err(e) = result {

@@ -1,0 +1,83 @@
+//! `kincal model`: URDF in and out.
+
+use anyhow::{Context, Result};
+use clap::{Args, Subcommand};
+use kincal::model::urdf::{calibrated_urdf, model_from_urdf};
+use kincal::model::ArmModel;
+use std::path::PathBuf;
+
+/// Model files and URDF.
+#[derive(Subcommand)]
+pub enum ModelCommand {
+    /// Write the chain BASE → TIP of a URDF as a kincal-arm/1 model (convention "urdf").
+    FromUrdf(FromUrdfArgs),
+    /// Write a calibrated URDF model's joint origins back into a copy of the URDF.
+    ToUrdf(ToUrdfArgs),
+}
+
+/// The chain of a URDF: its first and last link.
+#[derive(Args)]
+pub struct ChainArgs {
+    /// The chain's first link.
+    #[arg(long)]
+    base: String,
+    /// The chain's last link (the tool point is its origin).
+    #[arg(long)]
+    tip: String,
+}
+
+#[derive(Args)]
+pub struct FromUrdfArgs {
+    /// The robot's URDF file.
+    urdf: PathBuf,
+    #[command(flatten)]
+    chain: ChainArgs,
+    /// Model file to write (.toml or .json); without it the model is printed.
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+#[derive(Args)]
+pub struct ToUrdfArgs {
+    /// The calibrated model (RUN/model.toml).
+    model: PathBuf,
+    /// The URDF the model was made from.
+    #[arg(long)]
+    urdf: PathBuf,
+    /// The chain, as given to from-urdf.
+    #[command(flatten)]
+    chain: ChainArgs,
+    /// The calibrated URDF to write.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Run one `kincal model` command.
+pub fn run(command: &ModelCommand) -> Result<()> {
+    match command {
+        ModelCommand::FromUrdf(a) => {
+            let model = model_from_urdf(&a.urdf, &a.chain.base, &a.chain.tip)?;
+            match &a.out {
+                Some(out) => {
+                    model.save(out)?;
+                    println!(
+                        "{}: {} revolute joints, {} free parameters (origins ±{} mm / ±{} deg, offsets)",
+                        out.display(),
+                        model.joints.len(),
+                        model.free.len(),
+                        kincal::model::urdf::ORIGIN_HALF_RANGE_MM,
+                        kincal::model::urdf::ORIGIN_HALF_RANGE_DEG
+                    );
+                }
+                None => print!("{}", model.to_text(false)),
+            }
+        }
+        ModelCommand::ToUrdf(a) => {
+            let model = ArmModel::load(&a.model)?;
+            let text = calibrated_urdf(&a.urdf, &a.chain.base, &a.chain.tip, &model)?;
+            std::fs::write(&a.out, text).with_context(|| format!("{}: cannot write", a.out.display()))?;
+            println!("{}: {} joint origins calibrated", a.out.display(), model.joints.len());
+        }
+    }
+    Ok(())
+}

@@ -243,7 +243,7 @@ pub fn run_on(
     if let Some(n) = inputs.float_tool.iter().find(|n| !cal_float.contains(n) && !val_float.contains(n)) {
         return Err(TrackerError::UnknownSession(n.clone()).into());
     }
-    let options = TrackerOptions { huber_delta_mm, float_tool: cal_float };
+    let options = TrackerOptions { huber_delta_mm, float_tool: cal_float, orientation_sigma_deg: None };
     let fit = calibrate_tracker(&nominal, cal, &options)?;
     let reference = calibrate_tracker(&tool_only(&nominal), cal, &options)?;
     let validate = |model: &ArmModel, s: &TrackerSession| {

@@ -243,6 +243,7 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
         float_tool: vec![],
         stated_sigma_mm: None,
         exclude_points: vec![],
+        orientation_sigma_deg: None,
     };
     let run = run_tracker(&inputs, None).expect("runs");
     let s = &run.summary;
@@ -334,7 +335,7 @@ fn six_dof_seed(seed: u64) {
     println!("seed {seed}: held-out {rms:.4} mm, true floor {floor:.4} mm ({:.3}×)", rms / floor);
     assert!(rms <= 1.10 * floor, "held-out {rms} mm vs floor {floor} mm");
     // Held-out orientations against the generator's noise.
-    let angles = validate_orientations(&fit.model, &val.sessions[0], [0.0; 3], &probe.rotation)
+    let angles = validate_orientations(&fit.model, &val.sessions[0], [0.0; 3], &probe.rotation())
         .expect("the held-out session has orientations");
     let noise_deg = 3f64.sqrt() * 0.005;
     println!("held-out orientation {angles:?}, noise {noise_deg:.5}°");
@@ -354,7 +355,7 @@ fn six_dof_seed(seed: u64) {
     let last = rows.last_mut().expect("six rows");
     last.theta_offset_deg = fitted("offset:6");
     last.alpha_deg = fitted("twist:6");
-    let estimated: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| probe.rotation[(i, j)]));
+    let estimated: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| probe.rotation()[(i, j)]));
     let mut error_deg = [0.0; 3];
     let rows = &generated.sessions[0].rows;
     for row in rows {
@@ -365,11 +366,44 @@ fn six_dof_seed(seed: u64) {
             error_deg[k] += e[k].to_degrees() / rows.len() as f64;
         }
     }
-    println!("probe rotation error {error_deg:?}° vs σ {:?}°", probe.std_deg);
+    let std_deg = probe.std_deg.expect("the probe rotation has a deviation");
+    if seed == 11 {
+        summary_has_orientation_figures(nominal, &cal, &val);
+    }
+    println!("probe rotation error {error_deg:?}° vs σ {std_deg:?}°");
     for k in 0..3 {
-        assert!(error_deg[k].abs() <= 3.0 * probe.std_deg[k], "{error_deg:?} vs σ {:?}", probe.std_deg);
+        assert!(error_deg[k].abs() <= 3.0 * std_deg[k], "{error_deg:?} vs σ {std_deg:?}");
     }
     std::fs::remove_dir_all(dir).ok();
+}
+
+/// summary.json of a run on 6-DoF sessions: the probe rotation, the calibration's orientation
+/// RMS and each held-out session's `orientation.rms_deg` beside the nominal one.
+fn summary_has_orientation_figures(nominal: ArmModel, cal: &TrackerData, val: &TrackerData) {
+    use kincal::calib::tracker_run::{run_on, TrackerInputs};
+    let inputs = TrackerInputs {
+        model: "nominal.toml".into(),
+        calibration: "cal".into(),
+        validation: "val".into(),
+        float_tool: vec![],
+        stated_sigma_mm: None,
+        exclude_points: vec![],
+        orientation_sigma_deg: Some(0.005),
+    };
+    let run = run_on(nominal, cal, val, &inputs, None).expect("runs");
+    let json = serde_json::to_value(&run.summary).expect("serialises");
+    let session = &json["validation"]["sessions"][0];
+    let (calibrated, nominal) =
+        (session["orientation"]["rms_deg"].as_f64(), session["nominal_orientation"]["rms_deg"].as_f64());
+    println!("summary: orientation {calibrated:?}° vs nominal {nominal:?}°");
+    assert!(
+        calibrated.expect("orientation.rms_deg") < nominal.expect("nominal_orientation.rms_deg"),
+        "{json}"
+    );
+    assert!(
+        json["tool_rotation"]["std_deg"][2].is_number() && json["orientation_fit"]["rms_deg"].is_number()
+    );
+    assert!(json["validation"]["orientation_overall"]["rms_deg"].is_number(), "{json}");
 }
 
 fn transpose(a: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {

@@ -357,16 +357,21 @@ impl AngleStats {
     }
 }
 
-/// The 6-DoF probe's orientation R_t on the flange, shared by all sessions.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// The 6-DoF probe's orientation R_t on the flange (flange ← probe), shared by all sessions.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ToolRotation {
-    /// R_t (flange ← probe).
-    pub rotation: Matrix3<f64>,
     /// R_t as a rotation vector (axis · angle), degrees.
     pub rotation_vector_deg: [f64; 3],
     /// One standard deviation of a small rotation of R_t about each of the probe's own axes,
-    /// degrees.
-    pub std_deg: [f64; 3],
+    /// degrees (`None` when the normal matrix is singular).
+    pub std_deg: Option<[f64; 3]>,
+}
+
+impl ToolRotation {
+    /// R_t as a matrix.
+    pub fn rotation(&self) -> Matrix3<f64> {
+        Rotation3::new(Vector3::from(self.rotation_vector_deg.map(f64::to_radians))).into_inner()
+    }
 }
 
 /// The start of R_t: the chordal mean of R_Fᵀ·R_sᵀ·R_meas over the oriented points (bases from
@@ -752,11 +757,10 @@ pub fn calibrate_tracker(
         .map(|e| (Vector3::new(e[0], e[1], e[2]).norm() / weight).to_degrees())
         .collect();
     let tool_rotation = problem.tool_rotation_column().zip(tool_rotation).map(|(c, rotation)| ToolRotation {
-        rotation,
         rotation_vector_deg: rotation_vector(&rotation).map(f64::to_degrees).into(),
-        std_deg: [0, 1, 2].map(|k| {
-            cov.as_ref().map_or(f64::NAN, |m| (m[(c + k, c + k)].max(0.0).sqrt() * 1e-3).to_degrees())
-        }),
+        std_deg: cov
+            .as_ref()
+            .map(|m| [0, 1, 2].map(|k| (m[(c + k, c + k)].max(0.0).sqrt() * 1e-3).to_degrees())),
     });
     let estimates = all
         .iter()

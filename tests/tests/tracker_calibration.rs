@@ -244,6 +244,7 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
         stated_sigma_mm: None,
         exclude_points: vec![],
         orientation_sigma_deg: None,
+        drift_sessions: vec![],
     };
     let run = run_tracker(&inputs, None).expect("runs");
     let s = &run.summary;
@@ -389,6 +390,7 @@ fn summary_has_orientation_figures(nominal: ArmModel, cal: &TrackerData, val: &T
         stated_sigma_mm: None,
         exclude_points: vec![],
         orientation_sigma_deg: Some(0.005),
+        drift_sessions: vec![],
     };
     let run = run_on(nominal, cal, val, &inputs, None).expect("runs");
     let json = serde_json::to_value(&run.summary).expect("serialises");
@@ -412,4 +414,58 @@ fn transpose(a: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
 
 fn mul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
     std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
+}
+
+/// Must show: the instrument creeping during one calibration session (generator's
+/// `InstrumentDrift`): the drift is named with its session and speed, no arm effect is claimed,
+/// and after its action (`--drift-session`) the held-out RMS is ≤ 1.10 × floor. On the same
+/// sessions without drift, a drift is scored but not called.
+#[test]
+fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
+    use kincal::calib::tracker_errors::data_error_candidates;
+    use kincal_e2e::tracker_gen::InstrumentDrift;
+    for drifting in [true, false] {
+        let dir = scratch(&format!("drift-{drifting}"));
+        let mut options = GenOptions::iiwa_five_sessions(6);
+        options.time_columns = true;
+        if drifting {
+            options.instrument_drift = Some(InstrumentDrift { session: 1, mm_per_hour: 3.0 });
+        }
+        let generated = generate(&options);
+        let nominal = nominal_model(&generated, &dir);
+        let (cal, val) = split(&generated, &dir, &[0, 1, 2]);
+        let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
+        let plain = TrackerOptions::default();
+        let fit = calibrate_tracker(&nominal, &cal, &plain).expect("calibrates");
+        let candidates = data_error_candidates(&nominal, &cal, &val, &fit, &plain);
+        for c in &candidates {
+            println!("drifting {drifting}: {} [{}] significant {}", c.text, c.kind, c.significant);
+        }
+        let drifts: Vec<_> = candidates.iter().filter(|c| c.kind == "drift").collect();
+        assert_eq!(drifts.len(), 3, "every calibration session with times is scored: {candidates:?}");
+        if !drifting {
+            assert!(candidates.iter().all(|c| !c.significant), "clean data: {candidates:?}");
+            std::fs::remove_dir_all(dir).ok();
+            continue;
+        }
+        let best = &candidates[0];
+        assert!(best.significant && best.kind == "drift" && best.session == "session_2", "{best:?}");
+        assert!(
+            best.text.starts_with("session session_2 drifts by") && best.text.contains("µm/h"),
+            "{best:?}"
+        );
+        assert!((best.size_mm - 3.0).abs() < 3.0 * best.size_std_mm + 0.02, "{best:?}");
+        assert_eq!(best.action, "--drift-session session_2");
+        let refit = calibrate_tracker(
+            &nominal,
+            &cal,
+            &TrackerOptions { drift_sessions: vec!["session_2".into()], ..plain },
+        )
+        .expect("calibrates");
+        let (before, after) = (held_out_rms(&fit, &val), held_out_rms(&refit, &val));
+        println!("held-out {before:.4} → {after:.4} mm, floor {floor:.4} mm, drift {:?}", refit.drifts);
+        assert!(before > 1.10 * floor, "the drift must show before the action: {before} vs {floor}");
+        assert!(after <= 1.10 * floor, "after the action {after} vs floor {floor}");
+        std::fs::remove_dir_all(dir).ok();
+    }
 }

@@ -73,8 +73,8 @@ pub enum TrackerError {
         /// Unknowns (arm, tool, bases).
         unknowns: usize,
     },
-    /// A session named by `--float-tool` is not in the data.
-    #[error("--float-tool {0}: no calibration session of that name")]
+    /// A session named by `--float-tool` or `--drift-session` is not in the data.
+    #[error("--float-tool / --drift-session {0}: no calibration session of that name")]
     UnknownSession(String),
     /// The model gives non-finite points.
     #[error("the model gives non-finite tool positions on these joint angles: check the model's numbers")]
@@ -91,6 +91,9 @@ pub struct TrackerOptions {
     /// Orientation σ of the 6-DoF probe per axis, degrees; `None`:
     /// [`DEFAULT_ORIENTATION_SIGMA_DEG`].
     pub orientation_sigma_deg: Option<f64>,
+    /// Sessions whose base drifts linearly in time (`time_s`): X_i = B_s·F·t + v_s·time_i, v_s
+    /// in the instrument frame, mm/h.
+    pub drift_sessions: Vec<String>,
 }
 
 /// One session's base: instrument ← robot.
@@ -148,11 +151,26 @@ struct Problem<'a> {
     tool_rotation: Option<Matrix3<f64>>,
     /// Weight of an orientation residual: σ_position / σ_orientation, mm per rad.
     orientation_weight_mm_per_rad: f64,
+    /// Per session, the index of its drift velocity when its base drifts.
+    drifting: Vec<Option<usize>>,
 }
 
 impl Problem<'_> {
     fn unknowns(&self) -> usize {
+        self.drift_start() + 3 * self.drifting.iter().flatten().count()
+    }
+
+    fn drift_start(&self) -> usize {
         self.floated_end() + if self.tool_rotation.is_some() { 3 } else { 0 }
+    }
+
+    /// First column of session `s`'s drift velocity (mm/h, instrument frame), when it drifts.
+    fn drift_column(&self, s: usize) -> Option<usize> {
+        self.drifting.get(s).copied().flatten().map(|k| self.drift_start() + 3 * k)
+    }
+
+    fn drift_at(&self, x: &[f64], s: usize) -> Vector3<f64> {
+        self.drift_column(s).map_or(Vector3::zeros(), |c| Vector3::new(x[c], x[c + 1], x[c + 2]))
     }
 
     fn floated_end(&self) -> usize {
@@ -215,6 +233,7 @@ impl Residuals for Problem<'_> {
         let offsets: Vec<Vector3<f64>> =
             (0..self.sessions.len()).map(|s| self.tool_offset_at(x, s)).collect();
         let tool_rotation = self.tool_rotation_at(x);
+        let drifts: Vec<Vector3<f64>> = (0..self.sessions.len()).map(|s| self.drift_at(x, s)).collect();
         let orientation = |i: usize, r: &mut [f64], jac: Option<&mut [f64]>| {
             let (s, k) = self.oriented[i];
             let p = &self.sessions[s].points[k];
@@ -264,7 +283,8 @@ impl Residuals for Problem<'_> {
             let robot = pose.position_mm + flange * offsets[s];
             let base = &bases[s];
             let y = base.rotation * robot;
-            let e = y + base.translation_mm - p.point_mm;
+            let hours = p.time_s.unwrap_or(0.0) / 3600.0;
+            let e = y + base.translation_mm + drifts[s] * hours - p.point_mm;
             r.copy_from_slice(e.as_slice());
             let Some(jac) = jac else { return };
             jac.fill(0.0);
@@ -281,6 +301,11 @@ impl Residuals for Problem<'_> {
                     jac[a * n + b + k] = w[a];
                 }
                 jac[k * n + b + 3 + k] = 1.0;
+            }
+            if let Some(d) = self.drift_column(s) {
+                for a in 0..3 {
+                    jac[a * n + d + a] = hours;
+                }
             }
             if let Some(t) = self.tool_column(s) {
                 let g = base.rotation * flange;
@@ -458,6 +483,17 @@ pub struct FloatedTool {
     pub size_std_mm: f64,
 }
 
+/// A session's base drifting linearly in time (`--drift-session`).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct SessionDrift {
+    /// The session.
+    pub session: String,
+    /// Drift velocity in the instrument frame, mm/h.
+    pub velocity_mm_per_h: [f64; 3],
+    /// Standard deviation of the velocity's length, mm/h.
+    pub speed_std_mm_per_h: f64,
+}
+
 /// Standard deviation of |v| from the covariance block `c` of v.
 fn length_std(v: &Vector3<f64>, c: &Matrix3<f64>) -> f64 {
     let n = v.norm();
@@ -481,6 +517,8 @@ pub struct TrackerCalibration {
     pub bases: Vec<Base>,
     /// Tool offsets of the floated sessions.
     pub tool_offsets: Vec<FloatedTool>,
+    /// Drift velocities of the drifting sessions.
+    pub drifts: Vec<SessionDrift>,
     /// Position error on the calibration sessions.
     pub fit: ErrorStats,
     /// Orientation error on the calibration sessions (6-DoF probes).
@@ -540,6 +578,7 @@ fn projected_arm_columns(problem: &Problem, jac: &[f64]) -> Vec<f64> {
             .collect();
         let mut own: Vec<usize> = (0..BASE_UNKNOWNS).map(|k| problem.base_column(s) + k).collect();
         own.extend(problem.tool_column(s).map(|t| [t, t + 1, t + 2]).into_iter().flatten());
+        own.extend(problem.drift_column(s).map(|d| [d, d + 1, d + 2]).into_iter().flatten());
         let b = nalgebra::DMatrix::from_fn(rows.len(), own.len(), |i, k| jac[rows[i] * n + own[k]]);
         let q = b.svd(true, false);
         let (Some(u), sv) = (q.u, q.singular_values) else { continue };
@@ -587,6 +626,7 @@ struct Layout {
     rows: Vec<(usize, usize)>,
     oriented: Vec<(usize, usize)>,
     weight: f64,
+    drifting: Vec<Option<usize>>,
 }
 
 impl Layout {
@@ -609,6 +649,7 @@ impl Layout {
             oriented: self.oriented.clone(),
             tool_rotation,
             orientation_weight_mm_per_rad: self.weight,
+            drifting: self.drifting.clone(),
         }
     }
 }
@@ -627,7 +668,7 @@ pub fn calibrate_tracker(
             return Err(TrackerError::TooFewPoints { session: s.name.clone(), points: s.points.len() });
         }
     }
-    for name in &options.float_tool {
+    for name in options.float_tool.iter().chain(&options.drift_sessions) {
         if !data.sessions.iter().any(|s| &s.name == name) {
             return Err(TrackerError::UnknownSession(name.clone()));
         }
@@ -662,8 +703,20 @@ pub fn calibrate_tracker(
     let start_bases: Vec<Base> = data.sessions.iter().map(|s| Base::fit(&model, &s.points, &zero)).collect();
     let mut tool_rotation = start_tool_rotation(&model, data, &start_bases, &oriented);
     let weight = orientation_weight_mm_per_rad(data, options);
-    let layout = Layout { floated: floated.clone(), rows: rows.clone(), oriented, weight };
-    let x_of = |problem: &Problem, model: &ArmModel, bases: &[Base], offsets: &[Vector3<f64>]| {
+    let mut drifting = Vec::new();
+    let mut next_drift = 0;
+    for s in &data.sessions {
+        drifting.push(options.drift_sessions.contains(&s.name).then(|| {
+            next_drift += 1;
+            next_drift - 1
+        }));
+    }
+    let layout = Layout { floated: floated.clone(), rows: rows.clone(), oriented, weight, drifting };
+    let x_of = |problem: &Problem,
+                model: &ArmModel,
+                bases: &[Base],
+                offsets: &[Vector3<f64>],
+                drifts: &[Vector3<f64>]| {
         let mut x: Vec<f64> = problem.params.iter().map(|id| model.get(*id)).collect();
         for b in bases {
             x.extend([0.0, 0.0, 0.0, b.translation_mm.x, b.translation_mm.y, b.translation_mm.z]);
@@ -676,6 +729,11 @@ pub fn calibrate_tracker(
         if problem.tool_rotation.is_some() {
             x.extend([0.0; 3]);
         }
+        for s in 0..bases.len() {
+            if problem.drift_column(s).is_some() {
+                x.extend(drifts[s].iter());
+            }
+        }
         x
     };
     // Identifiability at the nominal values, bases at their closed form.
@@ -685,7 +743,7 @@ pub fn calibrate_tracker(
         return Err(TrackerError::TooFewResiduals { residuals: full.len(), unknowns });
     }
     let offsets0 = vec![Vector3::zeros(); data.sessions.len()];
-    let x0 = x_of(&full, &model, &start_bases, &offsets0);
+    let x0 = x_of(&full, &model, &start_bases, &offsets0, &offsets0);
     let (r0, jac0) = jacobian_of(&full, &x0);
     if !r0.iter().chain(&jac0).all(|v| v.is_finite()) {
         return Err(TrackerError::NonFinite);
@@ -711,13 +769,14 @@ pub fn calibrate_tracker(
         SolverOptions { loss, max_iterations: 100, ftol: 1e-10, xtol: 1e-10, ..SolverOptions::default() };
     let mut current = model.clone();
     let mut bases = start_bases;
-    let mut offsets = offsets0;
+    let mut offsets = offsets0.clone();
+    let mut drifts = offsets0;
     let mut iterations = 0;
     let mut last_cost = f64::INFINITY;
     for _ in 0..PASSES {
         let problem = layout.problem(estimated.clone(), &current, data, &bases, tool_rotation);
         let n = problem.unknowns();
-        let x0 = x_of(&problem, &current, &bases, &offsets);
+        let x0 = x_of(&problem, &current, &bases, &offsets, &drifts);
         let mut lower: Vec<f64> = estimated
             .iter()
             .map(|id| model.free.iter().find(|f| f.id == *id).map_or(f64::NEG_INFINITY, |f| f.lower))
@@ -734,6 +793,7 @@ pub fn calibrate_tracker(
         offsets = (0..data.sessions.len()).map(|s| problem.tool_offset_at(&solution.x, s)).collect();
         bases = (0..data.sessions.len()).map(|s| problem.base_at(&solution.x, s)).collect();
         tool_rotation = tool_rotation.map(|_| problem.tool_rotation_at(&solution.x));
+        drifts = (0..data.sessions.len()).map(|s| problem.drift_at(&solution.x, s)).collect();
         current = solved;
         let converged = (last_cost - solution.cost).abs() <= 1e-9 * solution.cost.max(1e-12);
         last_cost = solution.cost;
@@ -743,7 +803,7 @@ pub fn calibrate_tracker(
     }
     // Uncertainty at the solution (bases and floated tools marginalised).
     let problem = layout.problem(estimated.clone(), &current, data, &bases, tool_rotation);
-    let x = x_of(&problem, &current, &bases, &offsets);
+    let x = x_of(&problem, &current, &bases, &offsets, &drifts);
     let (r, jac) = jacobian_of(&problem, &x);
     let n = problem.unknowns();
     let dof = (r.len() as f64 - n as f64).max(1.0);
@@ -788,10 +848,24 @@ pub fn calibrate_tracker(
             })
         })
         .collect();
+    let drifts = data
+        .sessions
+        .iter()
+        .enumerate()
+        .filter_map(|(s, session)| {
+            let column = problem.drift_column(s)?;
+            Some(SessionDrift {
+                session: session.name.clone(),
+                velocity_mm_per_h: drifts[s].into(),
+                speed_std_mm_per_h: length_std(&drifts[s], &covariance_block(&cov, column)),
+            })
+        })
+        .collect();
     Ok(TrackerCalibration {
         model: current,
         bases,
         tool_offsets,
+        drifts,
         fit: ErrorStats::of(&errors),
         orientation_fit: tool_rotation.as_ref().map(|_| AngleStats::of(&angles_deg)),
         tool_rotation,
@@ -898,9 +972,17 @@ pub fn calibration_errors(fit: &TrackerCalibration, data: &TrackerData) -> Vec<V
                 .iter()
                 .find(|t| t.session == s.name)
                 .map_or(Vector3::zeros(), |t| Vector3::from(t.offset_mm));
+            let drift = fit
+                .drifts
+                .iter()
+                .find(|d| d.session == s.name)
+                .map_or(Vector3::zeros(), |d| Vector3::from(d.velocity_mm_per_h));
             s.points
                 .iter()
-                .map(|p| (base.apply(&model_point(&fit.model, &p.q_deg, &offset)) - p.point_mm).norm())
+                .map(|p| {
+                    let drifted = drift * p.time_s.unwrap_or(0.0) / 3600.0;
+                    (base.apply(&model_point(&fit.model, &p.q_deg, &offset)) + drifted - p.point_mm).norm()
+                })
                 .collect()
         })
         .collect()
@@ -922,6 +1004,7 @@ pub fn fit_session_with_tool(model: &ArmModel, session: &TrackerSession) -> (Flo
         oriented: Vec::new(),
         tool_rotation: None,
         orientation_weight_mm_per_rad: 0.0,
+        drifting: vec![None],
     };
     let t = start.translation_mm;
     let x0 = [0.0, 0.0, 0.0, t.x, t.y, t.z, 0.0, 0.0, 0.0];

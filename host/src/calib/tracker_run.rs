@@ -12,7 +12,7 @@
 
 use crate::calib::tracker::{
     calibrate_tracker, fit_session_with_tool, validate_orientations, validate_session, AngleStats,
-    ErrorStats, FloatedTool, SessionValidation, ToolRotation, TrackerCalibration, TrackerError,
+    ErrorStats, FloatedTool, SessionDrift, SessionValidation, ToolRotation, TrackerCalibration, TrackerError,
     TrackerEstimate, TrackerIdentifiability, TrackerOptions,
 };
 use crate::calib::tracker_errors::{data_error_candidates, DataError};
@@ -66,6 +66,9 @@ pub struct TrackerInputs {
     /// The 6-DoF probe's stated orientation σ per axis, degrees (`None`: the default).
     #[serde(default)]
     pub orientation_sigma_deg: Option<f64>,
+    /// Calibration sessions whose base drifts linearly in time (`--drift-session`).
+    #[serde(default)]
+    pub drift_sessions: Vec<String>,
 }
 
 /// One held-out session's figures, calibrated and nominal.
@@ -134,6 +137,9 @@ pub struct TrackerSummary {
     pub estimates: Vec<TrackerEstimate>,
     /// Floated tools.
     pub tool_offsets: Vec<FloatedTool>,
+    /// Drifting sessions' velocities.
+    #[serde(default)]
+    pub drifts: Vec<SessionDrift>,
     /// What the data cannot separate.
     pub identifiability: TrackerIdentifiability,
     /// Held-out figures.
@@ -278,6 +284,7 @@ pub fn run_on(
         huber_delta_mm,
         float_tool: cal_float,
         orientation_sigma_deg: inputs.orientation_sigma_deg,
+        drift_sessions: inputs.drift_sessions.clone(),
     };
     let fit = calibrate_tracker(&nominal, cal, &options)?;
     let reference = calibrate_tracker(&tool_only(&nominal), cal, &options)?;
@@ -356,6 +363,7 @@ pub fn run_on(
         tool_rotation: fit.tool_rotation,
         estimates: fit.estimates.clone(),
         tool_offsets: fit.tool_offsets.clone(),
+        drifts: fit.drifts.clone(),
         identifiability: fit.identifiability.clone(),
         validation: TrackerValidation {
             sessions,

@@ -206,6 +206,10 @@ pub struct CalibrateArgs {
     /// degrees, which weighs orientations against points [default: 0.01]
     #[arg(long, allow_negative_numbers = true, value_parser = real(0.00001, 10.0, "deg"))]
     orientation_sigma_deg: Option<f64>,
+    /// Tracker sessions: let the base of calibration SESSION drift linearly in time (`time_s`),
+    /// as the data-error diagnosis suggests (repeatable).
+    #[arg(long, value_name = "SESSION")]
+    drift_session: Vec<String>,
     /// Print summary.json to stdout.
     #[arg(long)]
     json: bool,
@@ -370,12 +374,17 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
             stated_sigma_mm: a.sigma_mm,
             exclude_points: a.exclude_point.clone(),
             orientation_sigma_deg: a.orientation_sigma_deg,
+            drift_sessions: a.drift_session.clone(),
         };
         return crate::tracker::calibrate_tracker_and_report(&inputs, &a.out, a.json);
     }
-    if !a.float_tool.is_empty() || !a.exclude_point.is_empty() || a.orientation_sigma_deg.is_some() {
+    if !a.float_tool.is_empty()
+        || !a.exclude_point.is_empty()
+        || !a.drift_session.is_empty()
+        || a.orientation_sigma_deg.is_some()
+    {
         bail!(
-            "--float-tool, --exclude-point and --orientation-sigma-deg apply to tracker sessions; {} holds artefact sessions",
+            "--float-tool, --exclude-point, --drift-session and --orientation-sigma-deg apply to tracker sessions; {} holds artefact sessions",
             a.inputs.data.display()
         );
     }

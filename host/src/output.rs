@@ -30,6 +30,10 @@ pub const DIAGNOSIS_FORMAT: &str = "kincal-diagnosis/1";
 pub const HAPTIC_FORMAT: &str = "kincal-haptic/1";
 /// Format tag of the auto loop's `auto.json`.
 pub const AUTO_FORMAT: &str = "kincal-auto/1";
+/// Format tag of a plan (`kincal plan --out FILE`).
+pub const PLAN_FORMAT: &str = "kincal-plan/1";
+/// Header of a plan's pose list (`kincal plan --csv FILE`).
+pub const PLAN_CSV_HEADER: &str = "purpose,placement,origin_x_mm,origin_y_mm,origin_z_mm,yaw_deg,landmark,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg";
 
 /// Why an output could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -409,6 +413,54 @@ fn put_together(dir: &Path, files: &[(&str, String)]) -> Result<(), OutputError>
         std::fs::rename(temporary(name), dir.join(name)).map_err(io(&dir.join(name)))?;
     }
     Ok(())
+}
+
+/// The JSON of a plan, as `kincal plan --out` writes it.
+pub fn plan_json(plan: &crate::calib::plan::Plan) -> String {
+    json(&Tagged { format: PLAN_FORMAT, body: plan })
+}
+
+/// The pose list of a plan: one row per suggested touch (rivals first, then weak parameters).
+pub fn plan_csv(plan: &crate::calib::plan::Plan) -> String {
+    let mut out = format!("{PLAN_CSV_HEADER}\n");
+    let rivals = plan.rivals.iter().flat_map(|r| r.placements.iter().map(|p| ("rivals", p)));
+    let weak = plan.weak.placements.iter().map(|p| ("weak", p));
+    for (k, (purpose, p)) in rivals.chain(weak).enumerate() {
+        for (landmark, pose) in p.landmarks.iter().zip(&p.poses_deg) {
+            let angles: Vec<String> = pose.iter().map(|a| format!("{a:.4}")).collect();
+            out.push_str(&format!(
+                "{purpose},N{},{:.1},{:.1},{:.1},{:.1},{landmark},{}\n",
+                k + 1,
+                p.origin_mm[0],
+                p.origin_mm[1],
+                p.origin_mm[2],
+                p.yaw_deg,
+                angles.join(",")
+            ));
+        }
+    }
+    out
+}
+
+/// Whether a single-file result may go to `path`: a new file, or one holding `own` near its
+/// start (one kincal wrote before). Anything else there is refused, never lost.
+pub fn check_own_file(path: &Path, own: &str) -> Result<(), OutputError> {
+    if path.is_dir() {
+        return Err(refused(path, "is a folder"));
+    }
+    if path.exists() {
+        let head = std::fs::read(path).map_err(io(path))?;
+        if !String::from_utf8_lossy(&head[..head.len().min(4096)]).contains(own) {
+            return Err(refused(path, format!("exists and is not a file kincal wrote ({own})")));
+        }
+    }
+    Ok(())
+}
+
+/// Write a single-file result (a plan's JSON or CSV) to `path` after [`check_own_file`].
+pub fn write_own_file(path: &Path, text: &str, own: &str) -> Result<(), OutputError> {
+    check_own_file(path, own)?;
+    write_atomic(path, text.as_bytes()).map_err(io(path))
 }
 
 /// The JSON of an auto loop, as `auto.json` holds it.

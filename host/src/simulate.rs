@@ -313,11 +313,20 @@ impl Residuals for PoseTarget<'_> {
     }
 }
 
-/// Encoder angles that put the true arm's tool at the target, or `None` if unreachable.
-fn solve_touch(truth: &ArmModel, target: &PoseTarget, rng: &mut ChaCha8Rng) -> Option<[f64; SUTA_JOINTS]> {
+/// Encoder angles that put the true arm's tool at the target, or `None` if unreachable; the
+/// first attempt starts from `first` when given (to keep a planned arm configuration).
+fn solve_touch(
+    truth: &ArmModel,
+    target: &PoseTarget,
+    first: Option<&[f64; SUTA_JOINTS]>,
+    rng: &mut ChaCha8Rng,
+) -> Option<[f64; SUTA_JOINTS]> {
     let options = SolverOptions { max_iterations: 100, ..SolverOptions::default() };
-    for _attempt in 0..25 {
-        let start: Vec<f64> = (0..SUTA_JOINTS).map(|_| rng.random::<f64>() * 360.0).collect();
+    for attempt in 0..25 {
+        let start: Vec<f64> = match first.filter(|_| attempt == 0) {
+            Some(f) => f.to_vec(),
+            None => (0..SUTA_JOINTS).map(|_| rng.random::<f64>() * 360.0).collect(),
+        };
         let s = solver::solve(target, &start, &[-1e4; SUTA_JOINTS], &[1e4; SUTA_JOINTS], &options);
         let err: f64 = s.residuals.iter().map(|v| v * v).sum::<f64>().sqrt();
         if err > 1e-6 {
@@ -359,7 +368,20 @@ pub fn touch_encoders(
     noise_mm: Vector3<f64>,
     rng: &mut ChaCha8Rng,
 ) -> Option<[f64; SUTA_JOINTS]> {
-    touch_encoders_with(truth, &[], place, landmark, noise_mm, rng)
+    touch_encoders_with(truth, &[], place, landmark, noise_mm, None, rng)
+}
+
+/// As [`touch_encoders`], the inverse kinematics started from `near` (deg) first, so the arm
+/// keeps that configuration where it can.
+pub fn touch_encoders_from(
+    truth: &ArmModel,
+    place: &Placement,
+    landmark: &Landmark,
+    noise_mm: Vector3<f64>,
+    near: &[f64; SUTA_JOINTS],
+    rng: &mut ChaCha8Rng,
+) -> Option<[f64; SUTA_JOINTS]> {
+    touch_encoders_with(truth, &[], place, landmark, noise_mm, Some(near), rng)
 }
 
 fn touch_encoders_with(
@@ -368,6 +390,7 @@ fn touch_encoders_with(
     place: &Placement,
     landmark: &Landmark,
     noise_mm: Vector3<f64>,
+    near: Option<&[f64; SUTA_JOINTS]>,
     rng: &mut ChaCha8Rng,
 ) -> Option<[f64; SUTA_JOINTS]> {
     let (sy, cy) = place.yaw_deg.to_radians().sin_cos();
@@ -385,7 +408,7 @@ fn touch_encoders_with(
         z_axis: -Vector3::z(),
         x_axis: Vector3::new(yaw.cos(), yaw.sin(), 0.0),
     };
-    solve_touch(truth, &target, rng)
+    solve_touch(truth, &target, near, rng)
 }
 
 /// Record every landmark of `artefact` at `place` with the true arm, `repeats` times.
@@ -430,7 +453,7 @@ fn record_with(
                 },
                 None => place.clone(),
             };
-            let Some(enc) = touch_encoders_with(truth, &errors.encoder_harmonics, &here, l, noise, rng)
+            let Some(enc) = touch_encoders_with(truth, &errors.encoder_harmonics, &here, l, noise, None, rng)
             else {
                 skipped += 1;
                 continue;

@@ -226,6 +226,42 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     };
     assert!(rms(&after) < 0.6 * rms(&before), "{} → {}", rms(&before), rms(&after));
     assert!(std::fs::read_to_string(&page).unwrap().contains("<svg"));
+    // What to measure next: rivals and weak parameters, a pose list, the plan as JSON.
+    let (plan, poses, notes) = (dir.join("plan.json"), dir.join("poses.csv"), dir.join("notes.txt"));
+    std::fs::write(&notes, "mine").unwrap();
+    let run = before.to_str().unwrap();
+    let out = kincal(&["plan", run, "--rivals", "wobble:9,twist:3"]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("not an effect"));
+    let out = kincal(&["plan", run, "--out", notes.to_str().unwrap()]);
+    assert!(
+        !out.status.success() && String::from_utf8_lossy(&out.stderr).contains("not a file kincal wrote")
+    );
+    assert_eq!(std::fs::read_to_string(&notes).unwrap(), "mine");
+    let (plan_arg, poses_arg) = (plan.to_str().unwrap(), poses.to_str().unwrap());
+    let out = kincal(&[
+        "plan",
+        run,
+        "--rivals",
+        "twist:3,link_offset:3",
+        "--count",
+        "1",
+        "--out",
+        plan_arg,
+        "--csv",
+        poses_arg,
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("to tell twist:3 from link_offset:3") && text.contains("joint 3 passes"), "{text}");
+    let p: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&plan).unwrap()).unwrap();
+    assert_eq!(p["format"], "kincal-plan/1");
+    let (now, after) = (&p["rivals"]["before_sigma2"], &p["rivals"]["after_sigma2"]);
+    assert!(after[0].as_f64().unwrap() >= now[0].as_f64().unwrap(), "{now} → {after}");
+    let csv = std::fs::read_to_string(&poses).unwrap();
+    assert!(
+        csv.starts_with(kincal::output::PLAN_CSV_HEADER) && csv.lines().count() > 2 * 6,
+        "header and two placements of at least 6 touches: {csv}"
+    );
     // Bad effect names and bad runs are reported, not panicked on.
     let mut bad = base.clone();
     bad.extend(["--add".to_string(), "wobble:9".to_string()]);

@@ -46,6 +46,14 @@ fn the_whole_loop_brings_the_streamed_pose_to_the_noise_floor() {
             .unwrap();
     eprintln!("{r:#?}");
     assert!(r.touches >= 200, "{} touches", r.touches);
+    // The hidden compliance of joint 2 shows as a gap, is named, added, and the error falls.
+    assert!(
+        r.steps[0].validation_rms_mm > 1.5 * r.truth_validation_rms_mm,
+        "the hidden effect must show before it is added: {:?} vs floor {}",
+        r.steps[0],
+        r.truth_validation_rms_mm
+    );
+    assert_eq!(r.added.first().map(String::as_str), Some("compliance:2"), "{:?}", r.steps);
     assert!(
         r.calibrated_validation_rms_mm <= 1.15 * r.truth_validation_rms_mm,
         "validation {} vs noise floor {}",

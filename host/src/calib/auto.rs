@@ -1,6 +1,8 @@
-//! The loop in one call: diagnose, add the best significant effect, refit, repeat — until
-//! nothing significant remains, the estimated noise floor is reached, or a data error must be
-//! fixed first. Every step keeps its calibrated model and its evidence, so the validation error
+//! The loop in one call: diagnose, add the effect the diagnosis names (the first of rivals it
+//! cannot tell apart), refit, repeat — until nothing significant remains, the noise floor is
+//! reached (shown by the equivalence test), or a data error must be fixed first. Each step
+//! selects and tests on the same validation data, so the later steps' held-out figures are
+//! not independent of the choices made before them. Every step keeps its calibrated model and its evidence, so the validation error
 //! can be drawn step by step ("watch the error fall").
 
 use crate::calib::calibrate::{calibrate, CalibrationError, CalibrationOptions};
@@ -32,8 +34,11 @@ pub struct Step {
 /// Why the loop stopped.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub enum Stop {
-    /// Validation error at the floor expected from repeatability.
+    /// Validation error at the floor expected from repeatability (an equivalence test shows it).
     AtFloor,
+    /// Nothing significant, no gap shown, and closeness to the floor not shown either: these data
+    /// cannot tell whether anything is missing.
+    CannotTell,
     /// No candidate effect is significant although a gap remains: the model is incomplete.
     NothingSignificant,
     /// A data error explains the residuals at least as well: fix it first (its name).
@@ -77,8 +82,9 @@ pub fn auto_loop(
             model: model.clone(),
             summary: d.summary.clone(),
         });
-        let at_floor = d.gap.as_ref().is_some_and(|g| !g.significant);
-        let best_arm = d.candidates.iter().find(|c| c.significant);
+        let at_floor = d.gap.as_ref().is_some_and(|g| g.at_floor);
+        let gap_shown = d.gap.as_ref().is_none_or(|g| g.significant);
+        let best_arm = d.named.first().and_then(|n| d.candidates.iter().find(|c| c.effect == *n));
         let best_data = d.data_errors.iter().find(|c| c.significant);
         let stop = if at_floor {
             Some(Stop::AtFloor)
@@ -88,8 +94,10 @@ pub fn auto_loop(
             })
         }) {
             Some(Stop::DataError(data.effect.clone()))
-        } else if best_arm.is_none() {
+        } else if best_arm.is_none() && gap_shown {
             Some(Stop::NothingSignificant)
+        } else if best_arm.is_none() {
+            Some(Stop::CannotTell)
         } else if steps.len() > max_steps {
             Some(Stop::StepLimit)
         } else {

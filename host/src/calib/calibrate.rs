@@ -207,22 +207,30 @@ pub fn refit(
     data: &Dataset,
     options: &CalibrationOptions,
 ) -> Result<ArmModel, CalibrationError> {
-    if fit.model.joints.len() != SUTA_JOINTS {
-        return Err(CalibrationError::JointCount(fit.model.joints.len()));
+    solve_warm(&fit.model, &fit.estimated, artefact, data, options)
+}
+
+/// Solve for `params` (free in `start`, with its bounds) on `data` from `start`'s values: one
+/// warm start, no identifiability analysis, no restarts, no uncertainty. For refits whose base
+/// set is already known (leave-one-out refits, the diagnosis' candidate refits).
+pub fn solve_warm(
+    start: &ArmModel,
+    params: &[ParamId],
+    artefact: &Artefact,
+    data: &Dataset,
+    options: &CalibrationOptions,
+) -> Result<ArmModel, CalibrationError> {
+    if start.joints.len() != SUTA_JOINTS {
+        return Err(CalibrationError::JointCount(start.joints.len()));
     }
-    let problem =
-        CalibrationProblem::new(&fit.model, fit.estimated.clone(), artefact, data, options.objective);
-    if problem.distance_rows() < fit.estimated.len() {
-        return Err(CalibrationError::TooFewPairs {
-            pairs: problem.distance_rows(),
-            params: fit.estimated.len(),
-        });
+    let problem = CalibrationProblem::new(start, params.to_vec(), artefact, data, options.objective);
+    if problem.distance_rows() < params.len() {
+        return Err(CalibrationError::TooFewPairs { pairs: problem.distance_rows(), params: params.len() });
     }
-    let bounds: Vec<_> =
-        fit.estimated.iter().filter_map(|id| fit.model.free.iter().find(|f| f.id == *id)).collect();
+    let bounds: Vec<_> = params.iter().filter_map(|id| start.free.iter().find(|f| f.id == *id)).collect();
     let lower: Vec<f64> = bounds.iter().map(|b| b.lower).collect();
     let upper: Vec<f64> = bounds.iter().map(|b| b.upper).collect();
-    let x0: Vec<f64> = fit.estimated.iter().map(|&id| fit.model.get(id)).collect();
+    let x0: Vec<f64> = params.iter().map(|&id| start.get(id)).collect();
     let (solution, _) = solve_from_starts(&problem, &x0, &lower, &upper, options, 0..=0);
     Ok(problem.model_at(&solution.x))
 }

@@ -5,13 +5,18 @@
 //!   frame is estimated from every calibration block (a rigid fit of the other landmarks, then
 //!   the touch mapped back), and the arm is refitted once more with that certificate. Scored on
 //!   the held-out placements with the corrected certificate, like an arm effect.
-//! * **A disturbed block** (the artefact knocked within one repeat): within each
-//!   (placement, repeat) block the touches, in the order measured, are fitted by one rigid
-//!   placement of the artefact and by two (before and after touch k). The drop of the residual
-//!   sum of squares over the per-axis touch variance σ² is χ²₆ for a block that did not move; the
-//!   best k is flagged when the drop exceeds the χ²₆ quantile at [`SPLIT_Z`] standard normal
-//!   deviations *and* [`SPLIT_OVER_MEDIAN`] times the median block's best drop (an arm error
-//!   leaves every block's residuals alike; a knock is one block's).
+//! * **A disturbed block** (the artefact knocked within one repeat): each touch of a
+//!   (placement, repeat) block is paired with its *twin* in another repeat of the placement —
+//!   the same landmark touched in the same arm configuration — so the arm's pose-dependent
+//!   errors cancel between the two. The twins' positions are mapped onto the block's touches,
+//!   in the order measured, by one rigid motion and by two (before and after touch k). The drop
+//!   of the residual sum of squares over 2σ² (σ² the per-axis touch variance; a difference of two
+//!   touches has twice it) is χ²₆ for a block that did not move. The best k over the splits and
+//!   the other repeats is flagged when the drop exceeds the χ²₆ quantile at [`SPLIT_Z`] standard
+//!   normal deviations, a level that stays below 10⁻³ after the hundreds of splits looked at
+//!   (a Bonferroni bound on the change-point maximum). Touches without a twin are left out, so
+//!   repeats taken in other configurations neither trip nor hide the test: a compliance error
+//!   that differs between configurations is never read as the artefact moving.
 //! * **A mis-seated touch**: a touch that disagrees with its own repeats (same placement,
 //!   landmark and arm configuration, so the arm's systematic errors are the same): its distance
 //!   from the mean of the others, over σ²·(1 + 1/(n − 1)), exceeds the χ²₃ quantile at
@@ -19,21 +24,19 @@
 //!
 //! A flagged block or touch is scored by refitting without it.
 
-use crate::calib::calibrate::{calibrate, Calibration, CalibrationError, CalibrationOptions};
-use crate::calib::floor::same_configuration;
+use crate::calib::calibrate::{calibrate, solve_warm, Calibration, CalibrationError, CalibrationOptions};
+use crate::calib::floor::{same_configuration, same_pose};
 use crate::data::{Artefact, Dataset};
 use crate::model::kinematics::tool_pose;
-use crate::model::ArmModel;
+use crate::model::{ArmModel, ParamId};
 use crate::numerics::geometry::absolute_orientation;
-use crate::numerics::stats::{chi2_quantile, median};
-use nalgebra::{Matrix3, Vector3};
+use crate::numerics::stats::{chi2_quantile, f_upper_tail, normal_upper_tail};
+use nalgebra::Vector3;
 
 /// Standard normal deviate of the χ²₆ quantile a block's split must exceed.
 pub const SPLIT_Z: f64 = 4.5;
 /// Standard normal deviate of the χ²₃ quantile a single touch's residual must exceed.
 pub const TOUCH_Z: f64 = 4.5;
-/// A flagged block must also stand out this many times over the median block.
-pub const SPLIT_OVER_MEDIAN: f64 = 8.0;
 /// A touch is compared with its repeats only when it has at least this many.
 const MIN_REPEATS: usize = 2;
 /// Touches on each side of a split (a rigid fit needs three; one more for a residual).
@@ -52,24 +55,9 @@ pub fn blocks(data: &Dataset) -> Vec<((usize, u32), Vec<usize>)> {
     out
 }
 
-/// Residual vectors (touched minus fitted certified position) of `touches` after one rigid fit
-/// of the artefact, mm.
-fn rigid_residuals(
-    artefact: &Artefact,
-    data: &Dataset,
-    p: &[Vector3<f64>],
-    touches: &[usize],
-) -> Vec<Vector3<f64>> {
-    let q: Vec<Vector3<f64>> =
-        touches.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
-    let pm: Vec<Vector3<f64>> = touches.iter().map(|&k| p[k]).collect();
-    let (r, t): (Matrix3<f64>, Vector3<f64>) = absolute_orientation(&q, &pm);
-    pm.iter().zip(&q).map(|(pm, q)| pm - (r * q + t)).collect()
-}
-
-fn rss(residuals: &[Vector3<f64>]) -> f64 {
-    residuals.iter().map(|r| r.norm_squared()).sum()
-}
+/// A touch of a block against its reference: (position in the block, touch, reference position
+/// mm) — a twin's touched position or the certified landmark.
+type Reference = (usize, usize, Vector3<f64>);
 
 /// A block whose artefact seems to have moved during the repeat.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -131,53 +119,96 @@ pub fn suspicious(
             .max_by(|a, b| a.chi2.total_cmp(&b.chi2));
         singles.extend(worst);
     }
-    for ((placement, repeat), touches) in blocks(data) {
-        if touches.len() < 2 * MIN_SIDE {
-            continue;
-        }
-        let rss0 = rss(&rigid_residuals(artefact, data, &p, &touches));
-        let best = (MIN_SIDE..=touches.len() - MIN_SIDE)
-            .map(|k| {
-                let split = rss(&rigid_residuals(artefact, data, &p, &touches[..k]))
-                    + rss(&rigid_residuals(artefact, data, &p, &touches[k..]));
-                (k, (rss0 - split) / sigma2_mm2)
-            })
-            .max_by(|a, b| a.1.total_cmp(&b.1));
-        if let Some((k, chi2)) = best {
-            // How far apart the two placements are: the later touches' fit moved by the first's.
-            let later = &touches[k..];
-            let alone = rigid_residuals(artefact, data, &p, later);
-            let with_first = {
-                let q: Vec<Vector3<f64>> = touches[..k]
+    let all_blocks = blocks(data);
+    let split_limit = chi2_quantile(6.0, SPLIT_Z);
+    for ((placement, repeat), touches) in &all_blocks {
+        // (position in the block, touch, reference position) in measured order: the twins in
+        // each other repeat, else the certified landmarks.
+        let mut references: Vec<(Vec<Reference>, bool)> = all_blocks
+            .iter()
+            .filter(|(k, _)| k.0 == *placement && k.1 != *repeat)
+            .map(|(_, others)| {
+                let matched = touches
                     .iter()
-                    .map(|&i| Vector3::from(artefact.landmarks[data.touches[i].landmark].xyz_mm))
-                    .collect();
-                let pm: Vec<Vector3<f64>> = touches[..k].iter().map(|&i| p[i]).collect();
-                let (r, t) = absolute_orientation(&q, &pm);
-                later
-                    .iter()
-                    .map(|&i| {
-                        p[i] - (r * Vector3::from(artefact.landmarks[data.touches[i].landmark].xyz_mm) + t)
+                    .enumerate()
+                    .filter_map(|(i, &k)| {
+                        others
+                            .iter()
+                            .find(|&&o| {
+                                data.touches[o].landmark == data.touches[k].landmark
+                                    && same_pose(&data.touches[k].enc_deg, &data.touches[o].enc_deg)
+                            })
+                            .map(|&o| (i, k, p[o]))
                     })
-                    .collect::<Vec<_>>()
-            };
-            let moved = (with_first.iter().zip(&alone).map(|(a, b)| (a - b).norm_squared()).sum::<f64>()
-                / later.len() as f64)
-                .sqrt();
-            splits.push(DisturbedBlock {
-                placement,
-                repeat,
-                after_touch: k,
-                first_moved: artefact.landmarks[data.touches[touches[k]].landmark].id.clone(),
-                chi2,
-                moved_mm: moved,
-            });
+                    .collect::<Vec<_>>();
+                (matched, true)
+            })
+            .filter(|(m, _)| m.len() >= 2 * MIN_SIDE)
+            .collect();
+        if references.is_empty() {
+            let certified = touches
+                .iter()
+                .enumerate()
+                .map(|(i, &k)| (i, k, Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)))
+                .collect::<Vec<_>>();
+            if certified.len() >= 2 * MIN_SIDE {
+                references.push((certified, false));
+            }
         }
+        let mut best: Option<(DisturbedBlock, bool)> = None;
+        for (matched, twins) in references {
+            let q: Vec<Vector3<f64>> = matched.iter().map(|m| m.2).collect();
+            let pm: Vec<Vector3<f64>> = matched.iter().map(|m| p[m.1]).collect();
+            let rss_of = |range: std::ops::Range<usize>| {
+                let (r, t) = absolute_orientation(&q[range.clone()], &pm[range.clone()]);
+                q[range.clone()]
+                    .iter()
+                    .zip(&pm[range])
+                    .map(|(q, pm)| (pm - (r * q + t)).norm_squared())
+                    .sum::<f64>()
+            };
+            let rss0 = rss_of(0..matched.len());
+            let splits = (MIN_SIDE..=matched.len() - MIN_SIDE).map(|i| {
+                let rest = rss_of(0..i) + rss_of(i..matched.len());
+                (i, rss0 - rest, rest)
+            });
+            let Some((i, drop, rest)) = splits.max_by(|a, b| a.1.total_cmp(&b.1)) else { continue };
+            // Twins: differences of two touches, variance 2σ² per axis, χ²₆. Certified
+            // positions: the arm's own errors stay in the residual, so the drop is judged
+            // against what is left after the split (F with 6 and 3n − 12 degrees of freedom).
+            let (chi2, exceeds) = if twins {
+                let chi2 = drop / (2.0 * sigma2_mm2);
+                (chi2, chi2 > split_limit)
+            } else {
+                let dof = (3 * matched.len()).saturating_sub(12).max(1) as f64;
+                let f = (drop / 6.0) / (rest / dof).max(1e-300);
+                (drop / sigma2_mm2, f_upper_tail(f, 6.0, dof) < normal_upper_tail(SPLIT_Z))
+            };
+            if best.as_ref().is_some_and(|b| b.0.chi2 >= chi2) {
+                continue;
+            }
+            // How far apart the two rigid motions put the later touches.
+            let (r1, t1) = absolute_orientation(&q[..i], &pm[..i]);
+            let (r2, t2) = absolute_orientation(&q[i..], &pm[i..]);
+            let moved = (q[i..].iter().map(|q| ((r1 * q + t1) - (r2 * q + t2)).norm_squared()).sum::<f64>()
+                / (matched.len() - i) as f64)
+                .sqrt();
+            let (position, first, _) = matched[i];
+            best = Some((
+                DisturbedBlock {
+                    placement: *placement,
+                    repeat: *repeat,
+                    after_touch: position,
+                    first_moved: artefact.landmarks[data.touches[first].landmark].id.clone(),
+                    chi2,
+                    moved_mm: moved,
+                },
+                exceeds,
+            ));
+        }
+        splits.extend(best.filter(|b| b.1).map(|b| b.0));
     }
-    let split_median = median(splits.iter().map(|s| s.chi2).collect());
-    let split_limit = chi2_quantile(6.0, SPLIT_Z).max(SPLIT_OVER_MEDIAN * split_median);
     let touch_limit = chi2_quantile(3.0, TOUCH_Z);
-    splits.retain(|s| s.chi2 > split_limit);
     splits.sort_by(|a, b| b.chi2.total_cmp(&a.chi2));
     // A touch inside a disturbed block is explained by the block.
     singles.retain(|s| {
@@ -234,12 +265,33 @@ pub fn calibrate_with_landmark_freed(
     options: &CalibrationOptions,
 ) -> Result<(Calibration, Artefact), CalibrationError> {
     let without = calibrate(start, artefact, &cal.without_landmark(landmark), options)?;
-    let mut corrected = artefact.clone();
-    if let Some(xyz) = locate_landmark(&without.model, artefact, cal, landmark) {
-        corrected.landmarks[landmark].xyz_mm = xyz;
-    }
+    let corrected = located(&without.model, artefact, cal, landmark);
     let fit = calibrate(&without.model, &corrected, cal, &CalibrationOptions { restarts: 0, ..*options })?;
     Ok((fit, corrected))
+}
+
+/// As [`calibrate_with_landmark_freed`] from a calibrated model whose identifiable parameters
+/// `params` are known: both fits are warm solves (no identifiability analysis, no restarts).
+pub fn refit_with_landmark_freed(
+    calibrated: &ArmModel,
+    params: &[ParamId],
+    artefact: &Artefact,
+    cal: &Dataset,
+    landmark: usize,
+    options: &CalibrationOptions,
+) -> Result<(ArmModel, Artefact), CalibrationError> {
+    let without = solve_warm(calibrated, params, artefact, &cal.without_landmark(landmark), options)?;
+    let corrected = located(&without, artefact, cal, landmark);
+    Ok((solve_warm(&without, params, &corrected, cal, options)?, corrected))
+}
+
+/// `artefact` with landmark `landmark` where `model` locates it (unchanged when it cannot).
+fn located(model: &ArmModel, artefact: &Artefact, cal: &Dataset, landmark: usize) -> Artefact {
+    let mut corrected = artefact.clone();
+    if let Some(xyz) = locate_landmark(model, artefact, cal, landmark) {
+        corrected.landmarks[landmark].xyz_mm = xyz;
+    }
+    corrected
 }
 
 /// Touches of the same landmark, placement and arm configuration (see

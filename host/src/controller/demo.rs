@@ -1,5 +1,7 @@
 //! The whole loop on a controller with an emulated arm: record calibration and validation
-//! placements (the arm posed by inverse kinematics of a "true" arm at every landmark), calibrate,
+//! placements (the arm posed by inverse kinematics of a "true" arm at every landmark, which
+//! carries a hidden physical effect the nominal model lacks), calibrate, diagnose (name the
+//! missing effect), add it and calibrate again (the validation error falls to the floor),
 //! upload, stream the calibrated pose and measure its error against the truth — nominal vs
 //! calibrated.
 //!
@@ -8,13 +10,15 @@
 //! after a rigid registration of the streamed tool points to the true ones, as a navigation
 //! system registers the tracker to the patient.
 
-use crate::calib::calibrate::CalibrationOptions;
-use crate::calib::run::{run, RunError, RunInputs};
+use crate::calib::auto::{auto_loop, AutoLoop, Stop};
+use crate::calib::calibrate::{CalibrationError, CalibrationOptions};
+use crate::calib::run::{run, Run, RunError, RunInputs};
 use crate::controller::link::{Link, LinkError};
 use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step, Verdict};
 use crate::controller::signing::StationKey;
 use crate::data::Artefact;
-use crate::model::ArmModel;
+use crate::model::effects::Effect;
+use crate::model::{ArmModel, ParamId};
 use crate::numerics::geometry::absolute_orientation;
 use crate::simulate::{
     calibration_placements, perturbed_truth, reference_tool_frame, suta_artefact, touch_encoders,
@@ -26,7 +30,7 @@ use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// Settings of the loop.
@@ -44,9 +48,19 @@ pub struct LoopOptions {
     pub encoder_noise_counts: u16,
     /// Calibration placements used (of the thesis' five).
     pub calibration_placements: usize,
+    /// The physical effect the emulated arm has and the nominal model lacks: parameter deltas
+    /// added to the true arm ([`DEMO_HIDDEN`] by default).
+    pub hidden: Vec<(ParamId, f64)>,
     /// Where data and the run go.
     pub out: PathBuf,
 }
+
+/// The demo arm's hidden effect: joint 2 sags under gravity by 0.3°/m of lever (compliance of
+/// the shoulder), which the thesis' 13-parameter model does not have.
+pub const DEMO_HIDDEN: (ParamId, f64) = (ParamId::Compliance(1), 0.3);
+
+/// Effects the demo's diagnose → add loop may add at most.
+pub const MAX_ADDED: usize = 3;
 
 impl Default for LoopOptions {
     fn default() -> Self {
@@ -57,6 +71,7 @@ impl Default for LoopOptions {
             seating_noise_mm: 0.1,
             encoder_noise_counts: 3,
             calibration_placements: 5,
+            hidden: vec![DEMO_HIDDEN],
             out: PathBuf::from("runs/loop"),
         }
     }
@@ -80,12 +95,117 @@ pub enum LoopError {
     /// A parameter set is outside what the controller accepts.
     #[error(transparent)]
     Params(#[from] crate::controller::device::DeviceParamsError),
+    /// The diagnose → add loop could not recalibrate.
+    #[error("diagnose → add: {0}")]
+    Added(#[from] CalibrationError),
     /// The demo's station key could not be made or read.
     #[error(transparent)]
     Key(#[from] crate::controller::signing::KeyFileError),
     /// Writing the inputs failed.
     #[error("{0}")]
     Files(String),
+}
+
+/// One step of diagnose → add: what was added and where the validation error is.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MissionStep {
+    /// Effect added at this step (`None` for the model as given).
+    pub added: Option<String>,
+    /// Validation distance RMS of this step's calibrated model, mm.
+    pub validation_rms_mm: f64,
+    /// Validation RMS expected from repeatability for this model (the estimated floor), mm.
+    pub expected_floor_mm: Option<f64>,
+    /// Held-out p-value of the effect added.
+    pub p_value: Option<f64>,
+}
+
+/// Calibrate → diagnose → add → calibrate again, as the user runs it.
+pub struct Mission {
+    /// The run of the model as given (`OUT/run`).
+    pub first: Run,
+    /// The diagnose → add loop from it (`OUT/run/auto`); its steps in [`Mission::steps`].
+    pub auto: AutoLoop,
+    /// The run with the added effects (`OUT/run-added`), or the first run when none was added.
+    pub last: Option<Run>,
+    /// Every step, the model as given first.
+    pub steps: Vec<MissionStep>,
+    /// Effects added, in order.
+    pub added: Vec<String>,
+}
+
+impl Mission {
+    /// The run whose model goes to the controller: with the added effects when there are any.
+    pub fn final_run(&self) -> &Run {
+        self.last.as_ref().unwrap_or(&self.first)
+    }
+}
+
+/// Calibrate `inputs`, diagnose the run and add what it names until the validation error is at
+/// the floor (at most [`MAX_ADDED`] effects), then calibrate again with those effects as
+/// `kincal calibrate … --add EFFECT` would: `out/run` (with `run/auto` and `run/diagnosis.*`)
+/// and `out/run-added`.
+pub fn calibrate_diagnose_add(
+    inputs: &RunInputs,
+    options: &CalibrationOptions,
+    out: &Path,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Mission, LoopError> {
+    progress("calibrating the model as given");
+    let first = run(inputs, options, &[], 0, true)?;
+    crate::output::write_run(&first, &out.join("run"))?;
+    progress("diagnosing, adding what the diagnosis names, recalibrating");
+    let cal = inputs.load_data(&first.artefact)?.0;
+    let auto = auto_loop(
+        &first.calibration.model,
+        &first.artefact,
+        &cal,
+        &first.validation_data,
+        options,
+        MAX_ADDED,
+    )?;
+    crate::output::write_auto(&auto, &out.join("run"))?;
+    let first_diagnosis = crate::calib::diagnose::diagnose(
+        &first.calibration.model,
+        &first.artefact,
+        &cal,
+        &first.validation_data,
+        options,
+    );
+    crate::output::write_diagnosis(&first_diagnosis, &out.join("run"))?;
+    let steps = auto
+        .steps
+        .iter()
+        .map(|s| MissionStep {
+            added: s.added.clone(),
+            validation_rms_mm: s.validation_rms_mm,
+            expected_floor_mm: s.expected_rms_mm,
+            p_value: s.p_value,
+        })
+        .collect();
+    let added: Vec<String> = auto.steps.iter().filter_map(|s| s.added.clone()).collect();
+    let effects: Vec<Effect> = added.iter().filter_map(|a| Effect::parse(a)).collect();
+    let last = if effects.is_empty() {
+        None
+    } else {
+        progress(&format!("calibrating with {} added", added.join(", ")));
+        let last = run(inputs, options, &effects, 0, true)?;
+        crate::output::write_run(&last, &out.join("run-added"))?;
+        Some(last)
+    };
+    Ok(Mission { first, auto, last, steps, added })
+}
+
+/// Why the diagnose → add loop stopped, in words.
+pub fn stop_words(stop: &Stop) -> String {
+    match stop {
+        Stop::AtFloor => "at the noise floor".into(),
+        Stop::CannotTell => {
+            "nothing significant, and these data cannot tell whether anything is missing".into()
+        }
+        Stop::NothingSignificant => "nothing more is significant".into(),
+        Stop::DataError(name) => format!("a data error must be fixed first ({name})"),
+        Stop::StepLimit => format!("step limit ({MAX_ADDED} effects)"),
+    }
 }
 
 /// The demo's own station key, `OUT/station.key`: made on the first run, reused after.
@@ -105,8 +225,19 @@ pub struct LoopReport {
     pub touches: usize,
     /// Validation distance RMS of the nominal model, mm.
     pub nominal_validation_rms_mm: f64,
-    /// Validation distance RMS of the calibrated model, mm.
+    /// Validation distance RMS of the calibrated model (with the effects the diagnosis
+    /// added), mm.
     pub calibrated_validation_rms_mm: f64,
+    /// The hidden effect of the emulated arm (parameter = delta).
+    pub hidden: Vec<String>,
+    /// Calibrate → diagnose → add, step by step (the model as given first).
+    pub steps: Vec<MissionStep>,
+    /// Effects the diagnosis named and the loop added, in order.
+    pub added: Vec<String>,
+    /// Why the diagnose → add loop stopped.
+    pub stop: String,
+    /// The diagnosis of the model as given, in words (names the missing effect).
+    pub diagnosis: Vec<String>,
     /// Validation distance RMS of the true arm on the same recorded data: the noise floor, mm.
     pub truth_validation_rms_mm: f64,
     /// Pose error the host predicts for the calibrated model at the same touches, mm.
@@ -231,7 +362,10 @@ pub fn run_loop(
     let files = |e: &dyn std::fmt::Display| LoopError::Files(e.to_string());
     let sim = SimulationOptions { seed: options.seed, ..SimulationOptions::default() };
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
-    let truth = perturbed_truth(nominal, &sim, &mut rng);
+    let mut truth = perturbed_truth(nominal, &sim, &mut rng);
+    for (id, delta) in &options.hidden {
+        truth.set(*id, truth.get(*id) + delta);
+    }
     let artefact = suta_artefact(&mut rng);
     let data = options.out.join("data");
     claim_data_folder(&data, options.seed)?;
@@ -279,21 +413,15 @@ pub fn run_loop(
             touches += done.measured + done.resumed;
         }
     }
-    progress("calibrating");
     let inputs = RunInputs::new(
         data.join("nominal.toml"),
         data.join("artefact.json"),
         data.join("cal"),
         data.join("val"),
     );
-    let result = run(
-        &inputs,
-        &CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() },
-        &[],
-        0,
-        true,
-    )?;
-    crate::output::write_run(&result, &options.out.join("run"))?;
+    let calibration = CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() };
+    let mission = calibrate_diagnose_add(&inputs, &calibration, &options.out, progress)?;
+    let result = mission.final_run();
     // Pose check at one noise-free touch of every landmark of every validation placement.
     let mut check_counts = Vec::new();
     for place in validation_placements() {
@@ -337,10 +465,15 @@ pub fn run_loop(
     let truth_validation =
         crate::calib::validate::validate(&truth, &artefact, &result.validation_data).overall.rms_mm;
     Ok(LoopReport {
+        hidden: options.hidden.iter().map(|(id, d)| format!("{id} = {d:+}")).collect(),
+        steps: mission.steps.clone(),
+        added: mission.added.clone(),
+        stop: stop_words(&mission.auto.stop),
+        diagnosis: mission.auto.steps.first().map(|s| s.summary.clone()).unwrap_or_default(),
         truth_validation_rms_mm: truth_validation,
         host_calibrated_pose_rms_mm: registered_rms(&host_points, &truth_points),
         touches,
-        nominal_validation_rms_mm: result.summary.nominal_validation.rms_mm,
+        nominal_validation_rms_mm: mission.first.summary.nominal_validation.rms_mm,
         calibrated_validation_rms_mm: result.summary.validation.rms_mm,
         nominal_pose_rms_mm: nominal_pose,
         calibrated_pose_rms_mm: calibrated_pose,

@@ -47,6 +47,7 @@ pub fn auto_loop_report(run: &AutoLoop) -> String {
         Stop::NothingSignificant => {
             "no candidate is significant although a gap remains: the model is incomplete".to_string()
         }
+        Stop::CannotTell => "no candidate is significant, and whether the error is at the floor cannot be told from these data (more validation placements would tell)".to_string(),
         Stop::DataError(name) => {
             format!("a data error ({name}) explains the residuals as well: fix the data first")
         }

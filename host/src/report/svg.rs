@@ -18,7 +18,7 @@ struct Frame {
 impl Frame {
     fn new(width: f64, height: f64, x: (f64, f64), y: (f64, f64)) -> Frame {
         let pad = |(a, b): (f64, f64)| if (b - a).abs() < 1e-12 { (a - 0.5, b + 0.5) } else { (a, b) };
-        Frame { width, height, left: 56.0, bottom: 36.0, x: pad(x), y: pad(y) }
+        Frame { width, height, left: 56.0, bottom: 36.0, x: nice_range(pad(x)), y: nice_range(pad(y)) }
     }
     fn px(&self, x: f64) -> f64 {
         on_canvas(self.left + (x - self.x.0) / (self.x.1 - self.x.0) * (self.width - self.left - 12.0))
@@ -40,24 +40,24 @@ impl Frame {
             x1 - x0,
             y0 - y1
         );
-        for k in 0..=4 {
-            let v = self.y.0 + (self.y.1 - self.y.0) * k as f64 / 4.0;
+        for v in nice_ticks(self.y) {
             let y = self.py(v);
             let _ = write!(
                 out,
                 r##"<line x1="{x0}" x2="{x1}" y1="{y}" y2="{y}" stroke="#eee"/><text x="{}" y="{}" text-anchor="end">{}</text>"##,
                 x0 - 4.0,
                 y + 4.0,
-                tick(v)
+                tick(v, self.y)
             );
-            if x_ticks {
-                let u = self.x.0 + (self.x.1 - self.x.0) * k as f64 / 4.0;
+        }
+        if x_ticks {
+            for u in nice_ticks(self.x) {
                 let _ = write!(
                     out,
                     r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
                     self.px(u),
                     y0 + 14.0,
-                    tick(u)
+                    tick(u, self.x)
                 );
             }
         }
@@ -91,16 +91,48 @@ fn on_canvas(px: f64) -> f64 {
     }
 }
 
-fn tick(v: f64) -> String {
-    if !v.is_finite() {
-        "–".into()
-    } else if v.abs() >= 100.0 {
-        format!("{v:.0}")
-    } else if v.abs() >= 1.0 {
-        format!("{v:.2}")
-    } else {
-        format!("{v:.3}")
+/// Step of about five ticks over `span`: 1, 2 or 5 times a power of ten.
+fn nice_step(span: f64) -> f64 {
+    let raw = (span / 5.0).abs().max(1e-12);
+    let power = 10f64.powf(raw.log10().floor());
+    let m = raw / power;
+    power
+        * if m < 1.5 {
+            1.0
+        } else if m < 3.5 {
+            2.0
+        } else if m < 7.5 {
+            5.0
+        } else {
+            10.0
+        }
+}
+
+/// Tick values on 1-2-5 steps inside `range`.
+fn nice_ticks(range: (f64, f64)) -> Vec<f64> {
+    let step = nice_step(range.1 - range.0);
+    let first = (range.0 / step - 1e-9).ceil() as i64;
+    let last = (range.1 / step + 1e-9).floor() as i64;
+    (first..=last).map(|k| k as f64 * step).map(|v| if v.abs() < step * 1e-9 { 0.0 } else { v }).collect()
+}
+
+/// `range` widened to whole 1-2-5 steps.
+fn nice_range(range: (f64, f64)) -> (f64, f64) {
+    if !(range.1 - range.0).is_normal() {
+        return range;
     }
+    let step = nice_step(range.1 - range.0);
+    ((range.0 / step).floor() * step, (range.1 / step).ceil() * step)
+}
+
+/// A tick label with as many decimals as the step needs.
+fn tick(v: f64, range: (f64, f64)) -> String {
+    if !v.is_finite() {
+        return "–".into();
+    }
+    let step = nice_step(range.1 - range.0);
+    let decimals = (-step.log10().floor()).max(0.0) as usize;
+    format!("{v:.decimals$}")
 }
 
 /// Escape text for HTML/SVG.
@@ -200,17 +232,53 @@ pub fn bars(categories: &[String], series: &[(&str, Vec<f64>)], y_label: &str) -
     out + "</svg>"
 }
 
-/// Scatter plot, optionally with a line drawn through `curve` points.
+/// Robust axis range of `values`: the 2nd to 98th percentile widened by half its span, never
+/// beyond the data. Points outside are drawn at the edge and counted.
+fn robust_range(values: &[f64]) -> (f64, f64) {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.abs() <= PLOTTABLE).collect();
+    if v.is_empty() {
+        return (f64::INFINITY, f64::NEG_INFINITY);
+    }
+    v.sort_by(f64::total_cmp);
+    let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+    let (lo, hi) = (q(0.02), q(0.98));
+    let margin = 0.5 * (hi - lo);
+    ((lo - margin).max(v[0]), (hi + margin).min(v[v.len() - 1]))
+}
+
+/// Scatter plot, optionally with a line drawn through `curve` points. The y axis is robust: a
+/// few far points (a touch near a singularity) are drawn as triangles at the edge, and the plot
+/// says how many.
 pub fn scatter(points: &[(f64, f64)], curve: &[(f64, f64)], x_label: &str, y_label: &str) -> String {
     let (x0, x1) = range(points.iter().map(|p| p.0));
-    let (y0, y1) = range(points.iter().chain(curve).map(|p| p.1));
-    if !x0.is_finite() {
+    let ys: Vec<f64> = points.iter().chain(curve).map(|p| p.1).collect();
+    let (y0, y1) = robust_range(&ys);
+    if !x0.is_finite() || !y0.is_finite() {
         return String::new();
     }
     let frame = Frame::new(310.0, 210.0, (x0, x1), (y0, y1));
     let mut out = String::new();
     frame.open(&mut out, x_label, y_label, true);
+    let mut beyond = 0;
     for (x, y) in points {
+        let clipped = y.clamp(frame.y.0, frame.y.1);
+        if clipped != *y {
+            beyond += 1;
+            let (cx, cy) = (frame.px(*x), frame.py(clipped));
+            let dir = if *y > clipped { -1.0 } else { 1.0 };
+            let _ = write!(
+                out,
+                r#"<polygon points="{:.1},{:.1} {:.1},{:.1} {:.1},{:.1}" fill="{}"/>"#,
+                cx,
+                cy + dir * 0.5,
+                cx - 3.5,
+                cy - dir * 6.0,
+                cx + 3.5,
+                cy - dir * 6.0,
+                COLORS[0]
+            );
+            continue;
+        }
         let _ = write!(
             out,
             r#"<circle cx="{:.1}" cy="{:.1}" r="1.6" fill="{}" fill-opacity="0.5"/>"#,
@@ -219,9 +287,21 @@ pub fn scatter(points: &[(f64, f64)], curve: &[(f64, f64)], x_label: &str, y_lab
             COLORS[1]
         );
     }
-    if curve.len() > 1 {
-        let path: Vec<String> =
-            curve.iter().map(|(x, y)| format!("{:.1},{:.1}", frame.px(*x), frame.py(*y))).collect();
+    // The curve as polylines, broken where its x steps jump (a gap in the data).
+    let step = curve.windows(2).map(|w| w[1].0 - w[0].0).filter(|d| *d > 0.0).fold(f64::INFINITY, f64::min);
+    let mut runs: Vec<Vec<(f64, f64)>> = Vec::new();
+    for (k, p) in curve.iter().enumerate().filter(|(_, p)| (frame.x.0..=frame.x.1).contains(&p.0)) {
+        let joined = k > 0 && curve[k].0 - curve[k - 1].0 <= 1.5 * step;
+        match runs.last_mut() {
+            Some(run) if joined => run.push(*p),
+            _ => runs.push(vec![*p]),
+        }
+    }
+    for run in runs.iter().filter(|r| r.len() > 1) {
+        let path: Vec<String> = run
+            .iter()
+            .map(|(x, y)| format!("{:.1},{:.1}", frame.px(*x), frame.py(y.clamp(frame.y.0, frame.y.1))))
+            .collect();
         let _ = write!(
             out,
             r#"<polyline points="{}" fill="none" stroke="{}" stroke-width="2"/>"#,
@@ -229,6 +309,77 @@ pub fn scatter(points: &[(f64, f64)], curve: &[(f64, f64)], x_label: &str, y_lab
             COLORS[0]
         );
     }
+    if beyond > 0 {
+        let _ = write!(
+            out,
+            r#"<text x="{:.1}" y="24" font-size="10" fill="{}">{beyond} point{} beyond the axis, shown at the edge ▲▼</text>"#,
+            frame.px(frame.x.0) + 4.0,
+            COLORS[0],
+            if beyond == 1 { "" } else { "s" }
+        );
+    }
+    out + "</svg>"
+}
+
+/// Horizontal bars, one per row (name, value, highlighted), against labelled reference lines
+/// (name, value) such as the noise floor.
+pub fn hbars(rows: &[(String, f64, bool)], references: &[(&str, f64)], x_label: &str) -> String {
+    let top = rows.iter().map(|r| r.1).chain(references.iter().map(|r| r.1)).fold(0.0, f64::max).max(1e-9);
+    let (width, row_h) = (640.0, 18.0);
+    let label_w = 150.0;
+    let height = 50.0 + row_h * rows.len() as f64 + 14.0 * references.len() as f64;
+    let x_range = nice_range((0.0, top));
+    let px = |v: f64| label_w + v / x_range.1 * (width - label_w - 60.0);
+    let mut out = String::new();
+    let _ = write!(
+        out,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="sans-serif" font-size="11">"#
+    );
+    let bottom = 10.0 + row_h * rows.len() as f64;
+    for v in nice_ticks(x_range) {
+        let _ = write!(
+            out,
+            r##"<line x1="{x}" x2="{x}" y1="10" y2="{bottom}" stroke="#eee"/><text x="{x}" y="{}" text-anchor="middle">{}</text>"##,
+            bottom + 13.0,
+            tick(v, x_range),
+            x = px(v)
+        );
+    }
+    for (k, (name, value, strong)) in rows.iter().enumerate() {
+        let y = 10.0 + row_h * k as f64;
+        let _ = write!(
+            out,
+            r#"<text x="{}" y="{}" text-anchor="end">{}</text><rect x="{label_w}" y="{}" width="{:.1}" height="{}" fill="{}"/><text x="{:.1}" y="{}">{:.3}</text>"#,
+            label_w - 6.0,
+            y + 12.0,
+            escape(name),
+            y + 3.0,
+            (px(*value) - label_w).max(0.5),
+            row_h - 6.0,
+            if *strong { COLORS[0] } else { COLORS[1] },
+            px(*value) + 4.0,
+            y + 12.0,
+            value
+        );
+    }
+    for (k, (name, value)) in references.iter().enumerate() {
+        let x = px(*value);
+        let _ = write!(
+            out,
+            r##"<line x1="{x}" x2="{x}" y1="6" y2="{bottom}" stroke="#333" stroke-dasharray="4 3"/><text x="{}" y="{}" fill="#333">dashed: {} {:.3}</text>"##,
+            label_w,
+            bottom + 28.0 + 14.0 * k as f64,
+            escape(name),
+            value
+        );
+    }
+    let _ = write!(
+        out,
+        r#"<text x="{}" y="{}" text-anchor="end">{}</text>"#,
+        width - 20.0,
+        height - 4.0,
+        escape(x_label)
+    );
     out + "</svg>"
 }
 
@@ -329,6 +480,32 @@ pub fn hammer_map(points: &[(f64, f64, f64)], label: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ticks_are_one_two_five_steps() {
+        let labels = |range: (f64, f64)| -> Vec<String> {
+            nice_ticks(range).into_iter().map(|v| tick(v, range)).collect()
+        };
+        assert_eq!(labels((0.0, 1.0)), ["0.0", "0.2", "0.4", "0.6", "0.8", "1.0"]);
+        assert_eq!(labels(nice_range((0.35, 359.0))), ["0", "100", "200", "300", "400"]);
+        assert_eq!(
+            labels(nice_range((-0.089, 0.05))),
+            ["-0.10", "-0.08", "-0.06", "-0.04", "-0.02", "0.00", "0.02", "0.04", "0.06"]
+        );
+        assert_eq!(tick(0.02, (0.0, 0.1)), "0.02");
+        assert_eq!(tick(100.0, (0.0, 360.0)), "100");
+    }
+
+    #[test]
+    fn a_far_point_does_not_squash_the_axis() {
+        let mut points: Vec<(f64, f64)> =
+            (0..200).map(|k| (k as f64, 0.01 * ((k % 7) as f64 - 3.0))).collect();
+        points.push((50.0, 18.7));
+        let svg = scatter(&points, &[], "x", "y");
+        assert!(svg.contains("1 point beyond the axis"), "{svg}");
+        let (lo, hi) = robust_range(&points.iter().map(|p| p.1).collect::<Vec<_>>());
+        assert!(hi < 1.0 && lo > -1.0, "{lo} {hi}");
+    }
 
     #[test]
     fn absurd_values_never_reach_the_svg_as_inf_or_nan() {

@@ -489,16 +489,16 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
         "\n{} candidate effects scored in {elapsed:.2} s (held-out validation RMS, best first):",
         diagnosis.candidates.len()
     );
-    println!("  {:<16} {:>10} {:>9} {:>8}  significant", "effect", "val RMS mm", "explained", "blocks");
+    println!("  {:<16} {:>10} {:>9} {:>10}  significant", "effect", "val RMS mm", "explained", "placements");
     for c in diagnosis.candidates.iter().filter(|c| c.equivalent_to.is_none()).take(8) {
-        let blocks = format!("{}/{}", c.blocks_improved.0, c.blocks_improved.1);
+        let blocks = format!("{}/{}", c.placements_improved.0, c.placements_improved.1);
         let same = if c.equivalent.is_empty() {
             String::new()
         } else {
             format!("  (indistinguishable here: {})", c.equivalent.join(", "))
         };
         println!(
-            "  {:<16} {:>10.3} {:>9.2} {:>8}  {}{same}",
+            "  {:<16} {:>10.3} {:>9.2} {:>10}  {}{same}",
             c.effect,
             c.validation_rms_mm,
             c.explained,
@@ -512,10 +512,10 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
     }
     println!("\ndata errors scored beside them (best first):");
     for c in diagnosis.data_errors.iter().take(4) {
-        let blocks = format!("{}/{}", c.blocks_improved.0, c.blocks_improved.1);
+        let blocks = format!("{}/{}", c.placements_improved.0, c.placements_improved.1);
         let yes = if c.significant { "yes" } else { "no" };
         println!(
-            "  {:<16} {:>10.3} {:>9.2} {:>8}  {yes}",
+            "  {:<16} {:>10.3} {:>9.2} {:>10}  {yes}",
             c.effect, c.validation_rms_mm, c.explained, blocks
         );
     }

@@ -9,6 +9,9 @@
 //!   leave-one-out refits, report, write RUN/) on the thesis-sized data;
 //! * `kincal diagnose --auto` on a mixture of four hidden effects;
 //! * the tracker case first (see `bench_tracker.rs`).
+//!
+//! `kincal bench --plan` runs only the check of `kincal plan` on simulated data (see
+//! [`plan_benchmark`]).
 
 use anyhow::{Context, Result};
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
@@ -44,6 +47,141 @@ pub struct BenchArgs {
     /// Calibration touches of the scale benchmark (calibrate and diagnose from files); 0 skips it.
     #[arg(long, default_value_t = 10_000, value_parser = crate::args::count(0, kincal::data::MAX_TOUCHES))]
     pub scale_touches: usize,
+    /// Only the check of `kincal plan`: planned against random placements over this many seeds.
+    #[arg(long, value_name = "SEEDS", num_args = 0..=1, default_missing_value = "10")]
+    pub plan: Option<u64>,
+    /// Run only the scale benchmark (with `--scale-touches`).
+    #[arg(long)]
+    pub scale_only: bool,
+    /// Run only the diagnosis' Monte Carlo checks: false calls on this many clean seeds, and
+    /// the power per library effect (see `--power-seeds`); 0 skips them.
+    #[arg(long, default_value_t = 0, value_parser = crate::args::count(0, 100_000))]
+    pub diagnosis_seeds: usize,
+    /// Seeds per library effect in the power check.
+    #[arg(long, default_value_t = 5, value_parser = crate::args::count(1, 10_000))]
+    pub power_seeds: usize,
+}
+
+/// False calls on clean data over `seeds` seeds, and, over `power_seeds` seeds per effect, how
+/// often each identifiable library effect hidden alone is named.
+fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
+    use kincal::calib::monte_carlo::{false_calls, hidden_for, names, simulate_and_diagnose, Rate};
+    use kincal::model::effects::Effect;
+    use rayon::prelude::*;
+    let t = Instant::now();
+    let clean: Vec<_> = (0..seeds as u64)
+        .into_par_iter()
+        .map(|k| simulate_and_diagnose(1000 + k, vec![]).map(|d| (false_calls(&d), d)))
+        .collect::<Result<_, _>>()?;
+    let calls: Vec<_> = clean.iter().map(|c| c.0).collect();
+    println!("clean data, seeds 1000–{} ({:.0} s):", 999 + seeds, t.elapsed().as_secs_f64());
+    println!("  any false call:           {}  (goal <= 5 %)", Rate::of(&calls, |c| c.any()));
+    println!("  an arm effect:            {}", Rate::of(&calls, |c| c.effect));
+    println!("  a data error:             {}", Rate::of(&calls, |c| c.data_error));
+    println!("  a knock or mis-seated:    {}", Rate::of(&calls, |c| c.knock));
+    println!("  \"misses\" (gap test):      {}", Rate::of(&calls, |c| c.misses));
+    let gaps: Vec<_> = clean.iter().filter_map(|c| c.1.gap.clone()).collect();
+    println!("  \"at the floor\" shown:     {}; otherwise \"cannot tell\"", Rate::of(&gaps, |g| g.at_floor));
+    // The effects identifiable next to the thesis model (from the first clean run).
+    let Some((_, first)) = clean.first() else { return Ok(()) };
+    let effects: Vec<Effect> = first.candidates.iter().filter_map(|c| Effect::parse(&c.effect)).collect();
+    println!("power: each of {} identifiable library effects hidden alone, {power_seeds} seeds each (named first, or among rivals the data cannot tell apart, or exactly equivalent):", effects.len());
+    let t = Instant::now();
+    let mut all = Vec::new();
+    for effect in effects {
+        let runs: Vec<_> = (0..power_seeds as u64)
+            .into_par_iter()
+            .map(|k| simulate_and_diagnose(2000 + k, hidden_for(effect)))
+            .collect::<Result<_, _>>()?;
+        let named = Rate::of(&runs, |d| names(d, effect));
+        let lift = runs
+            .iter()
+            .map(|d| d.gap.as_ref().map_or(f64::NAN, |g| g.measured_mm / g.expected_mm))
+            .sum::<f64>()
+            / runs.len().max(1) as f64;
+        let wrong: Vec<String> = runs
+            .iter()
+            .filter(|d| !names(d, effect))
+            .map(|d| if d.named.is_empty() { "nothing".to_string() } else { d.named.join(" or ") })
+            .collect();
+        println!(
+            "  {:<16} {:?}  named {}  (validation/floor {:.2}){}",
+            effect.to_string(),
+            hidden_for(effect).iter().map(|(p, v)| format!("{p}={v}")).collect::<Vec<_>>(),
+            named,
+            lift,
+            if wrong.is_empty() { String::new() } else { format!("; otherwise {}", wrong.join(", ")) }
+        );
+        all.extend(runs.iter().map(|d| names(d, effect)));
+    }
+    println!("  all effects together: {} ({:.0} s)", Rate::of(&all, |n| *n), t.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// `kincal plan` against random placements, over `seeds` simulated arms, printed:
+/// * rivals — the true arm has a 3-per-revolution error of 0.006° on encoder 3, the data so far
+///   are two calibration placements; two placements planned to separate `harmonic:3:3` from
+///   `compliance:3`, or two random reachable ones (3 draws per seed), are measured (3 repeats)
+///   and both rivals refitted: the separation (SSR_compliance − SSR_harmonic)/σ²;
+/// * weak parameter — a clean arm, two calibration placements; two D-optimal placements or two
+///   random ones: the std of the parameter the plan names weakest, as the recalibration reports it.
+fn plan_benchmark(seeds: u64) -> Result<()> {
+    use kincal::calib::plan::{rival_trial, weak_trial, TrialOptions, SEPARABLE_SIGMA2};
+    use kincal::model::effects::Effect;
+    let nominal = kincal::model::ArmModel::suta_nominal();
+    let (a, b) = (Effect::parse("harmonic:3:3"), Effect::parse("compliance:3"));
+    let (Some(a), Some(b)) = (a, b) else { anyhow::bail!("effect names") };
+    let hidden = [(ParamId::Harm3Sin(2), 0.006)];
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let started = Instant::now();
+    let (mut before, mut planned, mut random) = (Vec::new(), Vec::new(), Vec::new());
+    println!("rivals: true harmonic:3:3 (0.006°) against compliance:3; separation (SSR_B − SSR_A)/σ², clear above {SEPARABLE_SIGMA2}");
+    println!("  seed  data so far  + 2 planned  + 2 random (mean of 3)");
+    for seed in 1..=seeds {
+        let trial = TrialOptions { seed, placements: 2, count: 2, random_draws: 3 };
+        let o = rival_trial(&nominal, &hidden, a, b, &trial)?;
+        println!("  {seed:>4}  {:>11.1}  {:>11.1}  {:>11.1}", o.before, o.planned, mean(&o.random));
+        before.push(o.before);
+        planned.push(o.planned);
+        random.extend(o.random);
+    }
+    let clear = |v: &[f64]| {
+        100.0 * v.iter().filter(|x| **x > SEPARABLE_SIGMA2).count() as f64 / v.len().max(1) as f64
+    };
+    println!(
+        "  mean  {:>11.1}  {:>11.1}  {:>11.1}   clearly separated: {:.0} % / {:.0} % / {:.0} % of runs",
+        mean(&before),
+        mean(&planned),
+        mean(&random),
+        clear(&before),
+        clear(&planned),
+        clear(&random)
+    );
+    let (mut planned, mut random) = (Vec::new(), Vec::new());
+    println!(
+        "weak parameter: clean arm, 2 calibration placements; std of the parameter the plan names weakest"
+    );
+    println!("  seed  parameter   data so far  + 2 planned  + 2 random (mean of 3)");
+    for seed in 1..=seeds {
+        let trial = TrialOptions { seed, placements: 2, count: 2, random_draws: 3 };
+        let (name, o) = weak_trial(&nominal, &trial)?;
+        println!(
+            "  {seed:>4}  {name:<10}  {:>11.4}  {:>11.4}  {:>11.4}",
+            o.before,
+            o.planned,
+            mean(&o.random)
+        );
+        planned.push(o.planned / o.before);
+        random.push(mean(&o.random) / o.before);
+    }
+    println!(
+        "  std relative to the data so far, mean over seeds: planned {:.2}, random {:.2}; {} seeds in {:.0} s",
+        mean(&planned),
+        mean(&random),
+        seeds,
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 /// Calibrate and diagnose from session files of about `touches` calibration touches (the
@@ -125,6 +263,15 @@ fn scale_benchmark(touches: usize) -> Result<()> {
 
 /// Run every benchmark and print the figures.
 pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
+    if let Some(seeds) = args.plan {
+        return plan_benchmark(seeds.max(1));
+    }
+    if args.scale_only {
+        return scale_benchmark(args.scale_touches);
+    }
+    if args.diagnosis_seeds > 0 {
+        return diagnosis_checks(args.diagnosis_seeds, args.power_seeds);
+    }
     crate::bench_tracker::tracker_benchmark(&args.python, !args.no_scipy)?;
     if args.tracker_only {
         return Ok(());

@@ -1,6 +1,6 @@
 //! Controller commands: info, params, upload, stream, record, and the demo loop.
 
-use crate::arm::{calibrate_and_report, simulate_to};
+use crate::arm::simulate_to;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use kincal::calib::calibrate::CalibrationOptions;
@@ -162,6 +162,18 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
     let report =
         kincal::controller::demo::run_loop(&mut link, &nominal, &options, &mut |step| println!("  {step}"))?;
     println!("recorded {} touches through the controller; loop took {:.0} s", report.touches, report.seconds);
+    println!("the emulated arm hides {} (the nominal model lacks it)", report.hidden.join(", "));
+    for line in
+        report.diagnosis.iter().filter(|l| l.starts_with("missing effect") || l.contains("measured, ≈"))
+    {
+        println!("  {line}");
+    }
+    print_mission(&report.steps, report.truth_validation_rms_mm, &report.stop);
+    println!(
+        "runs: {} (as given, with diagnosis.html and auto/), {} (with the added effects; uploaded)",
+        a.out.join("run").display(),
+        a.out.join("run-added").display()
+    );
     println!("validation distance RMS   nominal {:8.3} mm   calibrated {:7.3} mm   true arm on the same data {:.3} mm (noise floor)", report.nominal_validation_rms_mm, report.calibrated_validation_rms_mm, report.truth_validation_rms_mm);
     println!("streamed pose error (RMS after rigid registration, {} validation touches):", report.poses);
     println!("  nominal parameters    {:8.3} mm", report.nominal_pose_rms_mm);
@@ -175,6 +187,22 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
     );
     println!("parameter upload took {:.2} s; run: {}", report.upload_seconds, a.out.join("run").display());
     Ok(())
+}
+
+/// The calibrate → diagnose → add steps against the floor.
+fn print_mission(steps: &[kincal::controller::demo::MissionStep], truth_rms_mm: f64, stop: &str) {
+    println!("step  added              val RMS mm  floor (repeatability) mm  × true floor  held-out p");
+    for (k, s) in steps.iter().enumerate() {
+        println!(
+            "{k:>4}  {:<18} {:>10.3}  {:>24}  {:>12.2}  {}",
+            s.added.as_deref().unwrap_or("(as given)"),
+            s.validation_rms_mm,
+            s.expected_floor_mm.map_or("–".into(), |e| format!("{e:.3}")),
+            s.validation_rms_mm / truth_rms_mm.max(1e-12),
+            s.p_value.map_or("–".into(), |p| format!("{p:.1e}"))
+        );
+    }
+    println!("diagnose → add stopped: {stop}; true arm on the same validation data {truth_rms_mm:.3} mm");
 }
 
 pub fn connect(port: &PortArgs) -> Result<kincal::controller::link::Link> {
@@ -692,28 +720,52 @@ pub fn cmd_record(a: &RecordArgs) -> Result<()> {
 
 pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
     let data = a.out.join("data");
-    println!("1/2 simulate: a true arm off the nominal model by degrees and millimetres");
-    simulate_to(&a.model, &data, &SimulationOptions { seed: a.seed, ..SimulationOptions::default() })?;
+    let hidden = vec![kincal::controller::demo::DEMO_HIDDEN];
+    let names: Vec<String> = hidden.iter().map(|(id, d)| format!("{id} = {d:+}")).collect();
     println!(
-        "2/2 calibrate on {} and validate on {}",
+        "1/3 simulate: a true arm off the nominal model by degrees and millimetres, hiding {}",
+        names.join(", ")
+    );
+    simulate_to(
+        &a.model,
+        &data,
+        &SimulationOptions { seed: a.seed, hidden, ..SimulationOptions::default() },
+    )?;
+    println!(
+        "2/3 calibrate on {}, validate on {}, diagnose, add",
         data.join("cal").display(),
         data.join("val").display()
     );
     let inputs =
         RunInputs::new(a.model.clone(), data.join("artefact.json"), data.join("cal"), data.join("val"));
-    calibrate_and_report(
+    let mission = kincal::controller::demo::calibrate_diagnose_add(
         &inputs,
-        &a.out.join("run"),
         &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() },
-        &[],
-        20,
-        true,
-        false,
+        &a.out,
+        &mut |step| println!("  {step}"),
     )?;
     let truth = ArmModel::load(&data.join("truth.toml"))?;
     let artefact = Artefact::load(&inputs.artefact)?;
     let val = Dataset::load_dir(&inputs.validation, &artefact, kincal::data::Purpose::Validation)?;
     let floor = kincal::calib::validate::validate(&truth, &artefact, &val).overall;
-    println!("  noise floor (true arm on the same validation data) {:.3} mm", floor.rms_mm);
+    println!("3/3 the steps against the floor");
+    print_mission(&mission.steps, floor.rms_mm, &kincal::controller::demo::stop_words(&mission.auto.stop));
+    for line in &mission.auto.steps[0].summary {
+        println!("  {line}");
+    }
+    let last = mission.final_run();
+    if !last.summary.not_trustworthy.is_empty() {
+        bail!("the final calibration is not trustworthy: {}", last.summary.not_trustworthy.join("; "));
+    }
+    let dir = if mission.last.is_some() { a.out.join("run-added") } else { a.out.join("run") };
+    println!(
+        "validation RMS  nominal {:.3} mm → as given {:.3} mm → with {} {:.3} mm; noise floor {:.3} mm; run: {}",
+        mission.first.summary.nominal_validation.rms_mm,
+        mission.first.summary.validation.rms_mm,
+        if mission.added.is_empty() { "nothing".to_string() } else { mission.added.join(" + ") },
+        last.summary.validation.rms_mm,
+        floor.rms_mm,
+        dir.display()
+    );
     Ok(())
 }

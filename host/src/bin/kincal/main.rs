@@ -7,6 +7,7 @@ mod bench_tracker;
 mod controller;
 mod emulated_arm;
 mod haptic;
+mod plan;
 mod tracker;
 
 use clap::{Parser, Subcommand};
@@ -28,6 +29,8 @@ enum Command {
     Study(arm::StudyArgs),
     /// Where the calibrated model of RUN fails and which physical effect is missing.
     Diagnose(arm::DiagnoseArgs),
+    /// What to measure next: placements that tell rival effects apart or pin down weak parameters.
+    Plan(plan::PlanArgs),
     /// Compare two runs: validation errors, per landmark, residual plots side by side.
     Compare(arm::CompareArgs),
     /// The whole loop on the emulated controller: record, calibrate, upload, stream the pose.
@@ -70,6 +73,7 @@ fn main() {
         Command::Study(a) => arm::cmd_study(&a),
         Command::Diagnose(a) => arm::cmd_diagnose(&a),
         Command::Compare(a) => arm::cmd_compare(&a),
+        Command::Plan(a) => plan::cmd_plan(&a),
         Command::Demo(a) => controller::cmd_demo(&a),
         Command::Info(a) => controller::cmd_info(&a),
         Command::Params(a) => controller::cmd_params(&a),

@@ -1,0 +1,171 @@
+//! `kincal plan RUN`: what to measure next — placements that tell two rival effects apart, and
+//! placements that pin down the weakest parameters.
+
+use anyhow::{bail, Result};
+use clap::Args;
+use kincal::calib::plan::{plan, PlanOptions, SEPARABLE_SIGMA2};
+use kincal::calib::run::RunFolder;
+use kincal::output;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct PlanArgs {
+    /// A RUN folder written by `kincal calibrate`.
+    run: PathBuf,
+    /// Two rival effects to tell apart, e.g. `compliance:3,harmonic:3:3` (default: the first
+    /// pair the diagnosis of RUN cannot tell apart, if any).
+    #[arg(long, value_delimiter = ',')]
+    rivals: Vec<String>,
+    /// Placements to suggest (each).
+    #[arg(long, default_value_t = 2, value_parser = crate::args::count(1, 20))]
+    count: usize,
+    /// Write the plan as JSON (`kincal-plan/1`) to this file.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Write the suggested touches' joint angles (the pose list) as CSV to this file.
+    #[arg(long)]
+    csv: Option<PathBuf>,
+    /// Touch noise per axis, mm (default: the repeatability floor of the RUN's data).
+    #[arg(long)]
+    touch_std_mm: Option<f64>,
+    /// Seed of the arm configurations of the candidate touches.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+fn place(p: &kincal::calib::plan::SuggestedPlacement) -> String {
+    format!(
+        "artefact origin at ({:.0}, {:.0}, {:.0}) mm, yaw {:+.0}°, {} landmarks",
+        p.origin_mm[0],
+        p.origin_mm[1],
+        p.origin_mm[2],
+        p.yaw_deg,
+        p.landmarks.len()
+    )
+}
+
+fn ranges(p: &kincal::calib::plan::SuggestedPlacement, joints: &[usize]) -> String {
+    p.joint_ranges_deg
+        .iter()
+        .filter(|r| joints.is_empty() || joints.contains(&r.0))
+        .map(|(j, a, b)| {
+            if *b >= 360.0 {
+                format!("joint {j} passes {a:.0}–{:.0}° (through 0°)", b - 360.0)
+            } else {
+                format!("joint {j} passes {a:.0}–{b:.0}°")
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
+    // Refuse an output that would replace someone's file before any work is done.
+    if let Some(path) = &a.out {
+        output::check_own_file(path, output::PLAN_FORMAT)?;
+    }
+    if let Some(path) = &a.csv {
+        output::check_own_file(path, output::PLAN_CSV_HEADER)?;
+    }
+    let folder = RunFolder::load(&a.run)?;
+    for problem in &folder.summary.not_trustworthy {
+        eprintln!("warning: this run is marked not trustworthy: {problem}");
+    }
+    let (artefact, cal, val) = folder.data()?;
+    let from_diagnosis = if a.rivals.is_empty() {
+        let d = kincal::calib::diagnose::diagnose(
+            &folder.model,
+            &artefact,
+            &cal,
+            &val,
+            &folder.summary.options.calibration_options(),
+        );
+        let pair = d
+            .rivals
+            .iter()
+            .find(|r| r.verdict == kincal::calib::diagnose::RivalVerdict::CannotTell)
+            .map(|r| (r.a.clone(), r.b.clone()));
+        match &pair {
+            Some((x, y)) => println!("the diagnosis cannot tell {x} from {y}: planning to separate them"),
+            None => println!(
+                "the diagnosis names no rivals it cannot tell apart (give --rivals A,B to plan for a pair)"
+            ),
+        }
+        pair
+    } else {
+        None
+    };
+    let rivals = match (a.rivals.as_slice(), &from_diagnosis) {
+        ([], Some((x, y))) => Some((x.as_str(), y.as_str())),
+        ([], None) => None,
+        ([x, y], _) => Some((x.as_str(), y.as_str())),
+        (other, _) => bail!("--rivals takes two effects, A,B (got {})", other.len()),
+    };
+    let touch_std_mm = match a.touch_std_mm {
+        Some(s) => s,
+        None => match kincal::calib::floor::noise_floor(
+            &folder.model,
+            &artefact,
+            &cal,
+            &val,
+            folder.model.free.len(),
+        ) {
+            Some(f) => f.touch_std_mm,
+            None => bail!(
+                "{}: no repeated touches, so the touch noise is unknown; give --touch-std-mm",
+                a.run.display()
+            ),
+        },
+    };
+    let started = std::time::Instant::now();
+    let options = PlanOptions { count: a.count, seed: a.seed, touch_std_mm };
+    let plan = plan(&folder.model, &artefact, &cal, &val, rivals, &options)?;
+    println!(
+        "{} reachable candidate placements, touch noise {:.3} mm per axis; planned in {:.1} s",
+        plan.candidates,
+        plan.touch_std_mm,
+        started.elapsed().as_secs_f64()
+    );
+    if let Some(r) = &plan.rivals {
+        let (ra, rb) = &r.rivals;
+        let joints: Vec<usize> = [ra, rb]
+            .iter()
+            .filter_map(|e| kincal::model::effects::Effect::parse(e).and_then(|e| e.joint).map(|j| j + 1))
+            .collect();
+        let (ab, ba) = r.before_sigma2;
+        let verdict = if ab.max(ba) < SEPARABLE_SIGMA2 {
+            "these data cannot tell them apart"
+        } else {
+            "the data can tell them apart"
+        };
+        println!("to tell {ra} from {rb}: if {ra} is the cause, {rb} misses it by {ab:.1} σ²; if {rb} is, {ra} misses by {ba:.1} σ² ({verdict}; {SEPARABLE_SIGMA2} σ² is clear)");
+        println!(
+            "  with these {} placements: {:.1} σ² and {:.1} σ²",
+            r.placements.len(),
+            r.after_sigma2.0,
+            r.after_sigma2.1
+        );
+        for (k, p) in r.placements.iter().enumerate() {
+            let (ab, ba) = p.differ_mm.unwrap_or((0.0, 0.0));
+            println!("  {}. {}: {}", k + 1, place(p), ranges(p, &joints));
+            println!("     the two explanations differ by {ab:.3} mm per touch there if {ra} is the cause ({ba:.3} mm if {rb}); landmarks {}", p.landmarks.join(" "));
+        }
+    }
+    let w = &plan.weak;
+    println!("to pin down the weakest parameters (D-optimal; std as calibrated on the data so far → with these placements):");
+    for (name, unit, before, after, tip) in w.stds.iter().take(4) {
+        println!("  {name:<12} {before:>9.4} → {after:>9.4} {unit}   (one std moves a registered touch by {tip:.3} mm)");
+    }
+    for (k, p) in w.placements.iter().enumerate() {
+        println!("  {}. {}: {}", k + 1, place(p), ranges(p, &[]));
+    }
+    if let Some(path) = &a.out {
+        output::write_own_file(path, &output::plan_json(&plan), output::PLAN_FORMAT)?;
+        println!("plan: {}", path.display());
+    }
+    if let Some(path) = &a.csv {
+        output::write_own_file(path, &output::plan_csv(&plan), output::PLAN_CSV_HEADER)?;
+        println!("pose list: {}", path.display());
+    }
+    Ok(())
+}

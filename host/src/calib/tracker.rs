@@ -729,9 +729,9 @@ pub fn calibrate_tracker(
         if problem.tool_rotation.is_some() {
             x.extend([0.0; 3]);
         }
-        for s in 0..bases.len() {
+        for (s, drift) in drifts.iter().enumerate() {
             if problem.drift_column(s).is_some() {
-                x.extend(drifts[s].iter());
+                x.extend(drift.iter());
             }
         }
         x

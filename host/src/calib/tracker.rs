@@ -683,14 +683,20 @@ pub fn calibrate_tracker(
     let all: Vec<ParamId> = model.free.iter().map(|f| f.id).collect();
     let range_of =
         |id: ParamId| model.free.iter().find(|f| f.id == id).map_or(1.0, |f| (f.upper - f.lower).max(1e-9));
-    let mut floated = Vec::new();
-    let mut next = 0;
-    for s in &data.sessions {
-        floated.push(options.float_tool.contains(&s.name).then(|| {
-            next += 1;
-            next - 1
-        }));
-    }
+    // Per session, its index among the named sessions (their own columns), if named.
+    let numbered = |names: &[String]| -> Vec<Option<usize>> {
+        let mut next = 0;
+        data.sessions
+            .iter()
+            .map(|s| {
+                names.contains(&s.name).then(|| {
+                    next += 1;
+                    next - 1
+                })
+            })
+            .collect()
+    };
+    let floated = numbered(&options.float_tool);
     let rows: Vec<(usize, usize)> = data
         .sessions
         .iter()
@@ -703,14 +709,7 @@ pub fn calibrate_tracker(
     let start_bases: Vec<Base> = data.sessions.iter().map(|s| Base::fit(&model, &s.points, &zero)).collect();
     let mut tool_rotation = start_tool_rotation(&model, data, &start_bases, &oriented);
     let weight = orientation_weight_mm_per_rad(data, options);
-    let mut drifting = Vec::new();
-    let mut next_drift = 0;
-    for s in &data.sessions {
-        drifting.push(options.drift_sessions.contains(&s.name).then(|| {
-            next_drift += 1;
-            next_drift - 1
-        }));
-    }
+    let drifting = numbered(&options.drift_sessions);
     let layout = Layout { floated: floated.clone(), rows: rows.clone(), oriented, weight, drifting };
     let x_of = |problem: &Problem,
                 model: &ArmModel,
@@ -835,30 +834,29 @@ pub fn calibrate_tracker(
             }
         })
         .collect();
-    let tool_offsets = data
-        .sessions
-        .iter()
-        .enumerate()
-        .filter_map(|(s, session)| {
-            let column = problem.tool_column(s)?;
-            Some(FloatedTool {
-                session: session.name.clone(),
-                offset_mm: offsets[s].into(),
-                size_std_mm: length_std(&offsets[s], &covariance_block(&cov, column)),
+    // A session's own 3-vector (tool offset, drift velocity) with the deviation of its length.
+    let own = |column: &dyn Fn(usize) -> Option<usize>,
+               values: &[Vector3<f64>]|
+     -> Vec<(String, Vector3<f64>, f64)> {
+        data.sessions
+            .iter()
+            .enumerate()
+            .filter_map(|(s, session)| {
+                let c = column(s)?;
+                Some((session.name.clone(), values[s], length_std(&values[s], &covariance_block(&cov, c))))
             })
-        })
+            .collect()
+    };
+    let tool_offsets = own(&|s| problem.tool_column(s), &offsets)
+        .into_iter()
+        .map(|(session, v, std)| FloatedTool { session, offset_mm: v.into(), size_std_mm: std })
         .collect();
-    let drifts = data
-        .sessions
-        .iter()
-        .enumerate()
-        .filter_map(|(s, session)| {
-            let column = problem.drift_column(s)?;
-            Some(SessionDrift {
-                session: session.name.clone(),
-                velocity_mm_per_h: drifts[s].into(),
-                speed_std_mm_per_h: length_std(&drifts[s], &covariance_block(&cov, column)),
-            })
+    let drifts = own(&|s| problem.drift_column(s), &drifts)
+        .into_iter()
+        .map(|(session, v, std)| SessionDrift {
+            session,
+            velocity_mm_per_h: v.into(),
+            speed_std_mm_per_h: std,
         })
         .collect();
     Ok(TrackerCalibration {

@@ -139,6 +139,7 @@ pub async fn serve_host<F: NorFlash>(shared: &SharedCell<F>, mut act: impl FnMut
             });
             match action {
                 Action::None => {}
+                Action::Verify => verify_and_commit(shared),
                 Action::Simulate(request) => {
                     let moved = matches!(request, Request::SimSetPose(_));
                     if let Request::SimFaults(SimFaults { crash: Crash::Panic | Crash::Hang, .. }) = request {
@@ -165,6 +166,19 @@ pub async fn serve_host<F: NorFlash>(shared: &SharedCell<F>, mut act: impl FnMut
             shared.lock(|cell| cell.borrow_mut().controller.maintain_flash());
         }
     }
+}
+
+/// Check the announced commit's signature (10.6 ms on the real board) on the commit's own copy
+/// of the set, with the shared state unlocked; lock only to store it and answer. Not async: the
+/// 1.7 KiB commit lives on the stack for this call, not in the task's state.
+fn verify_and_commit<F: NorFlash>(shared: &SharedCell<F>) {
+    let Some(commit) = shared.lock(|cell| cell.borrow_mut().controller.take_commit()) else { return };
+    let verified = commit.verify();
+    shared.lock(|cell| {
+        let s = &mut *cell.borrow_mut();
+        let to_host = &mut s.to_host;
+        s.controller.finish_commit(verified, &mut |frame| to_host.send(frame));
+    });
 }
 
 /// Wait until everything queued for the host has left (the UART's last DMA chunk included).

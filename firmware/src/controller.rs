@@ -10,9 +10,10 @@ use kincal_protocol::messages::{
     pack_counts, stream_bytes_per_s, Ack, Answer, DeviceFrame, Endpoint, GetInfo, Hello, HelloReply,
     HostFrame, Info, ParamBegin, ParamChunk, ParamCommit, ParamData, ParamRead, PoseReport, RawSample,
     Request, Reset, ResetCause, Response, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WireError,
-    ALL_JOINTS, LINK_BYTES_PER_S, MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH,
+    ALL_JOINTS, LINK_BYTES_PER_S, MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH, TICK_HZ,
 };
 use kincal_protocol::params::{ArmParams, BLOB_CRC, MAX_PARAM_BLOB};
+use kincal_protocol::signed::SignatureRefusal;
 
 /// What the board must do after a request.
 #[derive(Clone, Debug, PartialEq)]
@@ -23,6 +24,46 @@ pub enum Action {
     Reset,
     /// Emulated board: apply this simulation request (already acknowledged).
     Simulate(Request),
+    /// A commit passed the cheap checks: take it ([`Controller::take_commit`]), check its
+    /// signature with the shared state unlocked ([`PendingCommit::verify`]), then hand the
+    /// result to [`Controller::finish_commit`], which answers.
+    Verify,
+}
+
+/// Commits are refused for this many ticks (1 s) after a set whose signature did not verify:
+/// each check costs 10.6 ms of the real board's CPU, so sets with made-up signatures sent
+/// back to back could otherwise keep the controller verifying.
+pub const SIGNATURE_BACKOFF_TICKS: u32 = TICK_HZ;
+
+/// A commit whose set passed the cheap checks (complete, upload CRC, no back-off): it owns the
+/// set and what it is checked against, so the signature is verified without the controller.
+pub struct PendingCommit {
+    frame: HostFrame,
+    upload: Upload,
+    trust: Trust,
+    stored: Option<(ArmParams, Provenance)>,
+}
+
+impl PendingCommit {
+    /// Verify the set (signature, key, arm, version, envelope): the slow part of a commit.
+    pub fn verify(self) -> VerifiedCommit {
+        let set = &self.upload.buf[..self.upload.len];
+        let admitted = self.trust.admit(set, self.stored.as_ref().map(|(p, v)| (p, v)));
+        VerifiedCommit { pending: self, admitted }
+    }
+}
+
+/// A commit after its signature check, for [`Controller::finish_commit`].
+pub struct VerifiedCommit {
+    pending: PendingCommit,
+    admitted: Result<(ArmParams, Provenance), WireError>,
+}
+
+/// What a request leads to: an answer now, or a commit whose signature is checked first.
+#[allow(clippy::large_enum_variant, reason = "returned once per request, never stored")]
+enum Reply {
+    Now(Result<Response, WireError>, Action),
+    Verify,
 }
 
 struct Upload {
@@ -44,6 +85,8 @@ pub struct Controller<F: NorFlash> {
     tick: u32,
     stream_seq: u16,
     upload: Option<Upload>,
+    /// The commit request whose upload awaits its signature check ([`Action::Verify`]).
+    verifying: Option<HostFrame>,
     /// The last request carried out and its answer: the host repeats a request with the same
     /// sequence number when the answer was lost, and gets this answer again instead of the
     /// request being carried out twice.
@@ -53,6 +96,8 @@ pub struct Controller<F: NorFlash> {
     params: Option<ActiveSet>,
     reset_cause: ResetCause,
     brownout_mv: u16,
+    /// Tick of the last signature that did not verify (commits wait [`SIGNATURE_BACKOFF_TICKS`]).
+    signature_failed_at: Option<u32>,
 }
 
 /// The stored set in use: its parameters, who signed it and its precomputed kinematics.
@@ -86,12 +131,14 @@ impl<F: NorFlash> Controller<F> {
             tick: 0,
             stream_seq: 0,
             upload: None,
+            verifying: None,
             last: None,
             store,
             trust,
             params,
             reset_cause: ResetCause::Unknown,
             brownout_mv: 0,
+            signature_failed_at: None,
         }
     }
 
@@ -160,13 +207,50 @@ impl<F: NorFlash> Controller<F> {
                 return Action::None;
             }
         }
+        match self.respond(frame.request.clone(), sampler) {
+            Reply::Now(response, action) => {
+                self.answer(frame, response, emit);
+                action
+            }
+            Reply::Verify => {
+                self.verifying = Some(frame);
+                Action::Verify
+            }
+        }
+    }
+
+    /// The commit [`Action::Verify`] announced, with its own copy of what it is checked
+    /// against; the board verifies it without holding the shared state.
+    pub fn take_commit(&mut self) -> Option<PendingCommit> {
+        let frame = self.verifying.take()?;
+        let upload = self.upload.take()?;
+        let stored = self.params.as_ref().map(|a| (a.params, a.provenance));
+        Some(PendingCommit { frame, upload, trust: self.trust.clone(), stored })
+    }
+
+    /// Send the answer to `frame` and keep it for a repeat.
+    fn answer(
+        &mut self,
+        frame: HostFrame,
+        response: Result<Response, WireError>,
+        emit: &mut impl FnMut(&DeviceFrame),
+    ) {
         let seq = frame.seq;
-        let hello = matches!(frame.request, Request::Hello(_));
-        let (response, action) = self.respond(frame.request.clone(), sampler);
         // A handshake starts a new session: nothing before it is repeated.
+        let hello = matches!(frame.request, Request::Hello(_));
         self.last = (!hello).then(|| (frame, response.clone()));
         emit(&DeviceFrame::Response { seq, response });
-        action
+    }
+
+    /// Store a verified commit and answer it. A signature that did not verify starts the
+    /// back-off; a set stored meanwhile is not rolled back.
+    pub fn finish_commit(&mut self, verified: VerifiedCommit, emit: &mut impl FnMut(&DeviceFrame)) {
+        let VerifiedCommit { pending, admitted } = verified;
+        if admitted == Err(WireError::ParamSignature(SignatureRefusal::BadSignature)) {
+            self.signature_failed_at = Some(self.tick);
+        }
+        let result = admitted.and_then(|admitted| self.commit(&pending, admitted));
+        self.answer(pending.frame, typed::<ParamCommit>(result), emit);
     }
 
     /// Answer a frame that could not be decoded.
@@ -174,8 +258,8 @@ impl<F: NorFlash> Controller<F> {
         emit(&DeviceFrame::Response { seq: u16::MAX, response: Err(WireError::BadFrame) });
     }
 
-    fn respond(&mut self, request: Request, sampler: &Sampler) -> (Result<Response, WireError>, Action) {
-        let none = |answer| (answer, Action::None);
+    fn respond(&mut self, request: Request, sampler: &Sampler) -> Reply {
+        let none = |answer| Reply::Now(answer, Action::None);
         if let Request::Hello(hello) = request {
             return none(typed::<Hello>(self.handshake(hello)));
         }
@@ -195,11 +279,14 @@ impl<F: NorFlash> Controller<F> {
             Request::ParamBegin(r) => none(typed::<ParamBegin>(self.param_begin(r))),
             Request::ParamChunk(r) => none(typed::<ParamChunk>(self.param_chunk(r))),
             Request::ParamRead(r) => none(typed::<ParamRead>(self.param_read(r))),
-            Request::ParamCommit(ParamCommit) => none(typed::<ParamCommit>(self.param_commit())),
-            Request::Reset(Reset) => (typed::<Reset>(Ok(Ack)), Action::Reset),
+            Request::ParamCommit(ParamCommit) => match self.param_commit() {
+                Ok(()) => Reply::Verify,
+                Err(e) => none(Err(e)),
+            },
+            Request::Reset(Reset) => Reply::Now(typed::<Reset>(Ok(Ack)), Action::Reset),
             Request::SimSetPose(_) | Request::SimFaults(_) => {
                 if self.simulated {
-                    (typed::<SimSetPose>(Ok(Ack)), Action::Simulate(request))
+                    Reply::Now(typed::<SimSetPose>(Ok(Ack)), Action::Simulate(request))
                 } else {
                     none(Err(WireError::NotSupported))
                 }
@@ -312,24 +399,50 @@ impl<F: NorFlash> Controller<F> {
         Ok(ParamData { offset, data: heapless::Vec::from_slice(&bytes[from..to]).unwrap_or_default() })
     }
 
-    fn param_commit(&mut self) -> Result<Ack, WireError> {
-        let u = self.upload.take().ok_or(WireError::NoUpload)?;
+    /// The cheap checks of a commit; the upload stays for [`Controller::take_commit`].
+    fn param_commit(&mut self) -> Result<(), WireError> {
+        if let Some(at) = self.signature_failed_at {
+            let waited = self.tick.wrapping_sub(at);
+            if waited < SIGNATURE_BACKOFF_TICKS {
+                let retry_after_ms = ((SIGNATURE_BACKOFF_TICKS - waited) * 1000).div_ceil(TICK_HZ);
+                return Err(WireError::ParamBackoff { retry_after_ms });
+            }
+        }
+        let u = self.upload.as_ref().ok_or(WireError::NoUpload)?;
         if u.received != u.len {
-            self.upload = Some(u);
             return Err(WireError::ParamIncomplete);
         }
-        let set = &u.buf[..u.len];
-        if BLOB_CRC.checksum(set) != u.crc {
+        if BLOB_CRC.checksum(&u.buf[..u.len]) != u.crc {
+            self.upload = None;
             return Err(WireError::ParamInvalid);
         }
-        // The device's own checks, whatever the host checked before sending: signed by a trusted
-        // key for this arm, newer than the stored set, inside the physical envelope.
-        let admitted = self.trust.admit(set, self.params.as_ref().map(|a| (&a.params, &a.provenance)))?;
+        Ok(())
+    }
+
+    /// Store a set [`Trust::admit`] admitted (signed by a trusted key for this arm, newer than
+    /// the stored set, inside the physical envelope) and make it active.
+    fn commit(
+        &mut self,
+        pending: &PendingCommit,
+        admitted: (ArmParams, Provenance),
+    ) -> Result<Ack, WireError> {
+        if let Some(active) = &self.params {
+            // Checked against the set active when the commit began; a newer one stored since
+            // is not rolled back.
+            if pending.stored.as_ref().map(|(p, _)| p.version) != Some(active.params.version) {
+                return Err(WireError::ParamRollback {
+                    stored: active.params.version,
+                    offered: admitted.0.version,
+                });
+            }
+        }
         // Erasing stops the CPU on the real board: never while something samples.
-        self.store.store(set, !self.sampling_in_use()).map_err(|e| match e {
-            FlashError::SpareNotErased => WireError::FlashBusy,
-            _ => WireError::FlashWrite,
-        })?;
+        self.store.store(&pending.upload.buf[..pending.upload.len], !self.sampling_in_use()).map_err(
+            |e| match e {
+                FlashError::SpareNotErased => WireError::FlashBusy,
+                _ => WireError::FlashWrite,
+            },
+        )?;
         self.params = Some(ActiveSet::new(admitted));
         Ok(Ack)
     }
@@ -374,7 +487,7 @@ mod tests {
     use super::*;
     use crate::flash::RamNor;
     use kincal_protocol::params::encode_blob;
-    use kincal_protocol::signed::{signing_message, SignatureRefusal, TrustMode};
+    use kincal_protocol::signed::{signing_message, TrustMode};
 
     type Ctl = Controller<RamNor<4096>>;
 
@@ -409,7 +522,12 @@ mod tests {
     /// Send `request` as frame `seq`; the answer.
     fn ask_as(c: &mut Ctl, seq: u16, request: Request) -> Result<Response, WireError> {
         let mut out = Vec::new();
-        c.handle(HostFrame { seq, request }, &Sampler::default(), &mut |f| out.push(f.clone()));
+        if c.handle(HostFrame { seq, request }, &Sampler::default(), &mut |f| out.push(f.clone()))
+            == Action::Verify
+        {
+            let commit = c.take_commit().expect("the announced commit");
+            c.finish_commit(commit.verify(), &mut |f| out.push(f.clone()));
+        }
         match out.pop() {
             Some(DeviceFrame::Response { seq: s, response }) if s == seq => response,
             other => panic!("unexpected {other:?}"),
@@ -664,6 +782,13 @@ mod tests {
         let mut zero = good;
         zero.version = 0;
         assert!(matches!(upload(&mut c, &zero), Err(WireError::ParamEnvelope(_))));
+        // A version no later set could exceed (no rollback) is refused, not stored.
+        let mut last = good;
+        last.version = u32::MAX;
+        let Err(WireError::ParamEnvelope(v)) = upload(&mut c, &last) else {
+            panic!("stored version u32::MAX")
+        };
+        assert_eq!((v.field, v.value, v.limit), (ParamField::Version, u32::MAX as f64, 2_147_483_648.0));
         assert_eq!(c.params(), Some(&good), "the previous set stays active");
     }
 
@@ -691,6 +816,118 @@ mod tests {
             panic!()
         };
         assert_eq!(data.len(), PARAM_CHUNK, "the chunk was taken once");
+    }
+
+    /// Let the back-off after a failed signature pass (one second of ticks).
+    fn wait_out_backoff(c: &mut Ctl) {
+        let idle = Sample { counts: [0; 6], rejected: 0, stale_ticks: 0 };
+        for _ in 0..SIGNATURE_BACKOFF_TICKS {
+            c.on_tick(&idle, &mut |_| {});
+        }
+    }
+
+    /// After a signature that does not verify, commits are refused for a second with the time
+    /// to wait, before any signature is checked again (a flood of made-up signatures cannot keep
+    /// the CPU verifying); the upload is kept, and the same commit passes once the time is out.
+    #[test]
+    fn after_a_bad_signature_commits_wait_a_second() {
+        let mut c = controller(RamNor::new());
+        hello(&mut c);
+        assert_eq!(upload_set(&mut c, &signed(&set(1))), Ok(Response::Ack));
+        let mut forged = signed(&set(2));
+        let last = forged.len() - 1;
+        forged[last] ^= 0x40;
+        let bad = Err(WireError::ParamSignature(SignatureRefusal::BadSignature));
+        assert_eq!(upload_set(&mut c, &forged), bad);
+        let idle = Sample { counts: [0; 6], rejected: 0, stale_ticks: 0 };
+        for _ in 0..SIGNATURE_BACKOFF_TICKS / 2 {
+            c.on_tick(&idle, &mut |_| {});
+        }
+        // Half a second later: refused without a check, also for a good set.
+        assert_eq!(upload_set(&mut c, &forged), Err(WireError::ParamBackoff { retry_after_ms: 500 }));
+        assert_eq!(
+            upload_set(&mut c, &signed(&set(2))),
+            Err(WireError::ParamBackoff { retry_after_ms: 500 })
+        );
+        for _ in 0..SIGNATURE_BACKOFF_TICKS / 2 - 1 {
+            c.on_tick(&idle, &mut |_| {});
+        }
+        assert_eq!(
+            ask(&mut c, Request::ParamCommit(ParamCommit)),
+            Err(WireError::ParamBackoff { retry_after_ms: 2 })
+        );
+        c.on_tick(&idle, &mut |_| {});
+        assert_eq!(
+            ask(&mut c, Request::ParamCommit(ParamCommit)),
+            Ok(Response::Ack),
+            "the kept upload is committed"
+        );
+        assert_eq!(c.params(), Some(&set(2)));
+        // Cheap refusals (an untrusted key: no signature check) start no back-off.
+        let stranger = signed_for(&set(3), &station(2), ARM, 5);
+        assert_eq!(
+            upload_set(&mut c, &stranger),
+            Err(WireError::ParamSignature(SignatureRefusal::UntrustedKey))
+        );
+        assert_eq!(upload_set(&mut c, &signed(&set(3))), Ok(Response::Ack));
+    }
+
+    /// The signature check runs on the commit's own copy of the set, without the controller:
+    /// ticks go on (here nine, the real board's 10.6 ms) and stream poses from the active set
+    /// while a commit is being verified; the new set is used from the tick after it is stored.
+    #[test]
+    fn ticks_go_on_while_a_commit_is_verified() {
+        let mut c = controller(RamNor::new());
+        hello(&mut c);
+        assert_eq!(upload_set(&mut c, &signed(&set(1))), Ok(Response::Ack));
+        assert_eq!(ask(&mut c, Request::StreamPose(StreamPose { divider: 1 })), Ok(Response::Ack));
+        let mut newer = set(2);
+        newer.tcp_mm = [0.0, 0.0, 300.0];
+        let blob = signed(&newer);
+        ask(
+            &mut c,
+            Request::ParamBegin(ParamBegin { len: blob.len() as u16, crc: BLOB_CRC.checksum(&blob) }),
+        )
+        .unwrap();
+        for (k, chunk) in blob.chunks(PARAM_CHUNK).enumerate() {
+            let data = heapless::Vec::from_slice(chunk).unwrap();
+            ask(&mut c, Request::ParamChunk(ParamChunk { offset: (k * PARAM_CHUNK) as u16, data })).unwrap();
+        }
+        let mut frames = Vec::new();
+        let frame = HostFrame { seq: 9_000, request: Request::ParamCommit(ParamCommit) };
+        assert_eq!(c.handle(frame, &Sampler::default(), &mut |f| frames.push(f.clone())), Action::Verify);
+        let commit = c.take_commit().expect("the commit handed out for its signature check");
+        assert!(frames.is_empty(), "answered before the signature was checked");
+        let sample = Sample { counts: [1000; 6], rejected: 0, stale_ticks: 0 };
+        let mut poses = Vec::new();
+        let mut tick = |c: &mut Ctl| {
+            c.on_tick(&sample, &mut |f| {
+                if let DeviceFrame::Stream { item: Stream::Pose(p), .. } = f {
+                    poses.push(*p)
+                }
+            })
+        };
+        let verified = std::thread::scope(|scope| {
+            let verifying = scope.spawn(|| commit.verify());
+            for _ in 0..9 {
+                tick(&mut c);
+            }
+            verifying.join().unwrap()
+        });
+        assert_eq!(c.params(), Some(&set(1)), "the active set until the new one is stored");
+        c.finish_commit(verified, &mut |f| frames.push(f.clone()));
+        assert_eq!(frames, [DeviceFrame::Response { seq: 9_000, response: Ok(Response::Ack) }]);
+        tick(&mut c);
+        assert_eq!(poses.len(), 10);
+        assert!(poses.iter().all(|p| p.valid));
+        let lengths: Vec<f32> =
+            poses.iter().map(|p| p.position_mm.iter().map(|v| v * v).sum::<f32>().sqrt()).collect();
+        assert!(lengths[..9].iter().all(|l| *l == lengths[0]), "{lengths:?}");
+        assert!(
+            (lengths[9] - lengths[0]).abs() > 10.0,
+            "the new tool length is used after the commit: {lengths:?}"
+        );
+        assert_eq!(c.params(), Some(&newer));
     }
 
     fn set(version: u32) -> ArmParams {
@@ -734,6 +971,7 @@ mod tests {
             let mut bad = good.clone();
             bad[at] ^= 0x01;
             assert!(matches!(upload_set(&mut c, &bad), Err(WireError::ParamSignature(_))), "byte {at}");
+            wait_out_backoff(&mut c);
         }
         assert_eq!(c.params(), Some(&set(2)));
         assert_eq!(c.provenance(), Some(&pinned));

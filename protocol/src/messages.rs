@@ -309,6 +309,12 @@ pub enum WireError {
     NotSupported,
     /// The set's signature, key or arm identity is refused; nothing was stored.
     ParamSignature(crate::signed::SignatureRefusal),
+    /// A signature did not verify less than a second ago: commits wait (each check costs the
+    /// controller's CPU); the upload is kept, commit again after the time given.
+    ParamBackoff {
+        /// Time until commits are taken again, ms.
+        retry_after_ms: u32,
+    },
     /// The set's version is not higher than the stored one's (no rollback); nothing was stored.
     ParamRollback {
         /// Version of the stored set.
@@ -616,6 +622,11 @@ impl core::fmt::Display for WireError {
             ),
             WireError::NotSupported => f.write_str("only the emulated controller supports this"),
             WireError::ParamSignature(r) => write!(f, "{r}; nothing was stored"),
+            WireError::ParamBackoff { retry_after_ms } => write!(
+                f,
+                "a parameter set's signature did not verify less than a second ago; commits wait: \
+                 nothing was stored, commit again in {retry_after_ms} ms"
+            ),
             WireError::ParamRollback { stored, offered } => write!(
                 f,
                 "parameter version {offered} is not higher than the stored version {stored} (no rollback); \

@@ -54,6 +54,10 @@ pub struct ArmParams {
 /// Physical envelope of a parameter set: what the controller accepts and the host checks before
 /// sending. Every value must also stay finite in f32, which these limits imply.
 pub mod envelope {
+    /// Highest parameter-set version accepted (2³¹): no rollback means a stored version can
+    /// never be exceeded, so a set stored at `u32::MAX` (a typo, a wrapped counter) would block
+    /// every later update; above this limit a set is refused instead, with 2³¹ versions left.
+    pub const MAX_VERSION: u32 = 1 << 31;
     /// Largest |d| and |a| of a joint row, mm.
     pub const MAX_LENGTH_MM: f64 = 2000.0;
     /// Largest |tool point coordinate|, mm.
@@ -125,12 +129,20 @@ pub struct EnvelopeViolation {
     pub joint: u8,
     /// The value found (NaN when it was not a number).
     pub value: f64,
-    /// The largest magnitude accepted (for the version: the smallest value, 1).
+    /// The largest magnitude accepted (for the version: the smallest value, 1, when it is 0;
+    /// else the largest, [`envelope::MAX_VERSION`]).
     pub limit: f64,
 }
 
 impl core::fmt::Display for EnvelopeViolation {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        if self.field == ParamField::Version && self.value > 0.0 {
+            return write!(
+                f,
+                "parameter version {} is above the highest accepted, {} (2^31); use a lower one",
+                self.value, self.limit
+            );
+        }
         if self.field == ParamField::Version {
             return write!(
                 f,
@@ -150,6 +162,10 @@ pub fn check_envelope(params: &ArmParams) -> Result<(), EnvelopeViolation> {
     use envelope::*;
     if params.version == 0 {
         return Err(EnvelopeViolation { field: ParamField::Version, joint: 0, value: 0.0, limit: 1.0 });
+    }
+    if params.version > MAX_VERSION {
+        let (value, limit) = (params.version as f64, MAX_VERSION as f64);
+        return Err(EnvelopeViolation { field: ParamField::Version, joint: 0, value, limit });
     }
     let check = |field, joint: u8, value: f64, limit: f64| {
         // NaN is not within any limit; the limits keep every value finite in f32.
@@ -290,7 +306,8 @@ mod tests {
         assert_eq!(check_envelope(&sample()), Ok(()));
         /// A way to break a set, the field and the joint the refusal must name.
         type Case = (fn(&mut ArmParams), ParamField, u8);
-        let cases: [Case; 7] = [
+        let cases: [Case; 8] = [
+            (|p| p.version = u32::MAX, ParamField::Version, 0),
             (|p| p.joints[2].a_mm = 1e6, ParamField::AMm, 3),
             (|p| p.joints[0].alpha_deg = 1e6, ParamField::AlphaDeg, 1),
             (|p| p.scale_ppm = 1e12, ParamField::ScalePpm, 0),
@@ -311,7 +328,16 @@ mod tests {
         let mut edge = sample();
         edge.scale_ppm = envelope::MAX_SCALE_PPM;
         edge.joints[0].a_mm = -envelope::MAX_LENGTH_MM;
+        edge.version = envelope::MAX_VERSION;
         assert_eq!(check_envelope(&edge), Ok(()));
+        edge.version += 1;
+        let too_new = check_envelope(&edge).unwrap_err();
+        assert_eq!(
+            (too_new.field, too_new.value, too_new.limit),
+            (ParamField::Version, 2147483649.0, 2147483648.0)
+        );
+        assert!(too_new.to_string().contains("above the highest accepted"), "{too_new}");
+        edge.version = envelope::MAX_VERSION;
         edge.scale_ppm = envelope::MAX_SCALE_PPM * 1.001;
         assert!(check_envelope(&edge).is_err());
     }

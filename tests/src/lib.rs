@@ -197,6 +197,13 @@ fn serve(
                                 Action::None
                             }
                         };
+                        if action == Action::Verify {
+                            // The board checks the signature outside its shared state; here,
+                            // in line: the answer comes from finishing the commit.
+                            if let Some(commit) = controller.take_commit() {
+                                controller.finish_commit(commit.verify(), &mut |f| out.push(f.clone()));
+                            }
+                        }
                         if fault != Fault::LoseReply {
                             for f in &out {
                                 write_frame(&mut stream, f);
@@ -219,7 +226,7 @@ fn serve(
                                 None
                             }
                             Action::Reset => Some(ResetCause::Software),
-                            Action::None => None,
+                            Action::None | Action::Verify => None,
                         };
                         if let Some(cause) = restart {
                             let flash = controller.into_flash();

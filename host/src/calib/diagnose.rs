@@ -689,7 +689,15 @@ fn evidence(
         }
         EffectKind::Compliance => {
             let slope = joints.get(j.saturating_sub(1)).map_or(0.0, |r| r.gravity_slope_deg_per_m);
-            format!("joint {j} sags under gravity: the residual grows with its gravity lever ({slope:+.3} °/m seen, {:+.3} °/m fitted); compliance of joint {j} {gain}", value(0))
+            let fitted = value(0);
+            // The calibration already moved parameters that absorb part of a sag, so the apparent
+            // error's slope alone can be far smaller than the fitted compliance, or of the other sign.
+            let seen = if slope * fitted > 0.0 && slope.abs() >= fitted.abs() / 3.0 {
+                format!("the residual grows with its gravity lever ({slope:+.3} °/m seen, {fitted:+.3} °/m fitted)")
+            } else {
+                format!("a deflection proportional to its gravity lever fits the residuals ({fitted:+.3} °/m fitted; the apparent error against the lever alone shows {slope:+.3} °/m, because the parameters already calibrated absorb part of the sag)")
+            };
+            format!("joint {j} sags under gravity: {seen}; compliance of joint {j} {gain}")
         }
         EffectKind::Twist => format!("the axis after joint {j} is twisted by {:+.3}° more than the model says; twist of joint {j} {gain}", value(0)),
         EffectKind::Axis => format!("consecutive axes at joint {j} are tilted by {:+.3}° about y; axis misalignment of joint {j} {gain}", value(0)),

@@ -2,7 +2,7 @@
 
 use crate::model::{ArmModel, Convention, SUTA_JOINTS};
 use kincal_protocol::params::{
-    check_envelope, encode_blob, ArmParams, EnvelopeViolation, JointParams, MAX_PARAM_BLOB,
+    check_envelope, encode_blob, envelope, ArmParams, EnvelopeViolation, JointParams, MAX_PARAM_BLOB,
 };
 
 /// Why a model cannot be sent to the controller.
@@ -92,12 +92,26 @@ pub enum VersionError {
         /// The stored version.
         stored: u32,
     },
+    /// The requested version is above the highest the controller accepts.
+    #[error("version {requested} is above the highest the controller accepts, {max} (2^31); use a lower one (a stored version that high would block every later update)")]
+    TooHigh {
+        /// The version asked for.
+        requested: u32,
+        /// [`envelope::MAX_VERSION`].
+        max: u32,
+    },
 }
 
 /// The version of a new set: `requested`, or the stored version + 1; above the stored one.
 pub fn next_version(stored: u32, requested: Option<u32>) -> Result<u32, VersionError> {
-    let next = stored.checked_add(1).ok_or(VersionError::Exhausted { stored })?;
+    if stored >= envelope::MAX_VERSION {
+        return Err(VersionError::Exhausted { stored });
+    }
+    let next = stored + 1;
     match requested {
+        Some(requested) if requested > envelope::MAX_VERSION => {
+            Err(VersionError::TooHigh { requested, max: envelope::MAX_VERSION })
+        }
         Some(requested) if requested <= stored => Err(VersionError::Rollback { stored, requested, next }),
         Some(requested) => Ok(requested),
         None => Ok(next),
@@ -130,8 +144,14 @@ mod tests {
             next_version(7, Some(3)),
             Err(VersionError::Rollback { stored: 7, requested: 3, next: 8 })
         );
-        assert_eq!(next_version(u32::MAX - 1, None), Ok(u32::MAX));
-        assert_eq!(next_version(u32::MAX, None), Err(VersionError::Exhausted { stored: u32::MAX }));
+        let max = envelope::MAX_VERSION;
+        assert_eq!(next_version(max - 1, None), Ok(max));
+        assert_eq!(next_version(7, Some(max)), Ok(max));
+        assert_eq!(next_version(7, Some(max + 1)), Err(VersionError::TooHigh { requested: max + 1, max }));
+        assert_eq!(next_version(7, Some(u32::MAX)), Err(VersionError::TooHigh { requested: u32::MAX, max }));
+        assert_eq!(next_version(max, None), Err(VersionError::Exhausted { stored: max }));
         assert_eq!(next_version(u32::MAX, Some(1)), Err(VersionError::Exhausted { stored: u32::MAX }));
+        let e = parameter_blob(&ArmModel::suta_nominal(), u32::MAX).unwrap_err();
+        assert!(e.to_string().contains("above the highest accepted"), "{e}");
     }
 }

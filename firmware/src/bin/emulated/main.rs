@@ -62,7 +62,8 @@ async fn serve_host(shared: &'static SharedCell<EmulatedNor>) -> ! {
             }
         }
         Action::Reset => reset_cause::reset_because(ResetCause::Software),
-        Action::None => {}
+        // serve_host carries out the signature check itself.
+        Action::None | Action::Verify => {}
     })
     .await
 }

@@ -159,6 +159,9 @@ pub fn run() -> ! {
     let verify = timer().wrapping_sub(start) as u64 * 40;
     let start = timer();
     controller.handle(HostFrame { seq: 3, request: Request::ParamCommit(ParamCommit) }, &sampler, &mut sink);
+    if let Some(pending) = controller.take_commit() {
+        controller.finish_commit(pending.verify(), &mut sink);
+    }
     let commit = timer().wrapping_sub(start) as u64 * 40;
     let committed = admitted && controller.params().is_some();
     // Transfers as the bus delivers them (generating them is the emulator's work, not measured).

@@ -37,6 +37,12 @@ pub const TOOL_HALF_RANGE_MM: f64 = 500.0;
 pub const BASE_UNKNOWNS: usize = 6;
 /// Most Gauss–Newton passes, each re-centring the bases at their closed form.
 const PASSES: usize = 3;
+/// Orientation σ of a 6-DoF probe per axis, degrees, when `--orientation-sigma-deg` is not given
+/// (a laser tracker's 6-DoF probe states 0.005–0.02°).
+pub const DEFAULT_ORIENTATION_SIGMA_DEG: f64 = 0.01;
+/// Position σ per axis, mm, that weighs orientations against points when no point states its
+/// uncertainty (`sigma_mm` / `u95_mm`).
+pub const DEFAULT_POSITION_SIGMA_MM: f64 = 0.025;
 
 /// Why a tracker calibration could not run.
 #[derive(Debug, thiserror::Error)]
@@ -67,8 +73,8 @@ pub enum TrackerError {
         /// Unknowns (arm, tool, bases).
         unknowns: usize,
     },
-    /// A session named by `--float-tool` is not in the data.
-    #[error("--float-tool {0}: no calibration session of that name")]
+    /// A session named by `--float-tool` or `--drift-session` is not in the data.
+    #[error("--float-tool / --drift-session {0}: no calibration session of that name")]
     UnknownSession(String),
     /// The model gives non-finite points.
     #[error("the model gives non-finite tool positions on these joint angles: check the model's numbers")]
@@ -82,6 +88,12 @@ pub struct TrackerOptions {
     pub huber_delta_mm: Option<f64>,
     /// Sessions whose tool point gets its own offset (the probe was re-mounted there).
     pub float_tool: Vec<String>,
+    /// Orientation σ of the 6-DoF probe per axis, degrees; `None`:
+    /// [`DEFAULT_ORIENTATION_SIGMA_DEG`].
+    pub orientation_sigma_deg: Option<f64>,
+    /// Sessions whose base drifts linearly in time (`time_s`): X_i = B_s·F·t + v_s·time_i, v_s
+    /// in the instrument frame, mm/h.
+    pub drift_sessions: Vec<String>,
 }
 
 /// One session's base: instrument ← robot.
@@ -118,6 +130,11 @@ fn flange_rotation(x: &Vector3<f64>, z: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::from_columns(&[*x, z.cross(x), *z])
 }
 
+/// Axis · angle (rad) of a rotation matrix.
+fn rotation_vector(m: &Matrix3<f64>) -> Vector3<f64> {
+    Rotation3::from_matrix(m).scaled_axis()
+}
+
 /// The joint estimation problem: arm columns, then per session ω (mrad) and t (mm), then per
 /// floated session a tool offset (mm, flange frame).
 struct Problem<'a> {
@@ -128,11 +145,50 @@ struct Problem<'a> {
     start: Vec<Matrix3<f64>>,
     floated: Vec<Option<usize>>,
     rows: Vec<(usize, usize)>,
+    /// Rows (session, point) with a measured orientation, after the position rows.
+    oriented: Vec<(usize, usize)>,
+    /// Start of the probe's orientation on the flange R⁰_t, when orientations are fitted.
+    tool_rotation: Option<Matrix3<f64>>,
+    /// Weight of an orientation residual: σ_position / σ_orientation, mm per rad.
+    orientation_weight_mm_per_rad: f64,
+    /// Per session, the index of its drift velocity when its base drifts.
+    drifting: Vec<Option<usize>>,
 }
 
 impl Problem<'_> {
     fn unknowns(&self) -> usize {
+        self.drift_start() + 3 * self.drifting.iter().flatten().count()
+    }
+
+    fn drift_start(&self) -> usize {
+        self.floated_end() + if self.tool_rotation.is_some() { 3 } else { 0 }
+    }
+
+    /// First column of session `s`'s drift velocity (mm/h, instrument frame), when it drifts.
+    fn drift_column(&self, s: usize) -> Option<usize> {
+        self.drifting.get(s).copied().flatten().map(|k| self.drift_start() + 3 * k)
+    }
+
+    fn drift_at(&self, x: &[f64], s: usize) -> Vector3<f64> {
+        self.drift_column(s).map_or(Vector3::zeros(), |c| Vector3::new(x[c], x[c + 1], x[c + 2]))
+    }
+
+    fn floated_end(&self) -> usize {
         self.params.len() + BASE_UNKNOWNS * self.sessions.len() + 3 * self.floated.iter().flatten().count()
+    }
+
+    /// First column of the probe rotation ω_t (mrad, right of R⁰_t), when fitted.
+    fn tool_rotation_column(&self) -> Option<usize> {
+        self.tool_rotation.map(|_| self.floated_end())
+    }
+
+    fn tool_rotation_at(&self, x: &[f64]) -> Matrix3<f64> {
+        match (self.tool_rotation, self.tool_rotation_column()) {
+            (Some(start), Some(c)) => {
+                start * Rotation3::new(Vector3::new(x[c], x[c + 1], x[c + 2]) * 1e-3).into_inner()
+            }
+            _ => Matrix3::identity(),
+        }
     }
 
     fn base_column(&self, s: usize) -> usize {
@@ -167,7 +223,7 @@ impl Problem<'_> {
 
 impl Residuals for Problem<'_> {
     fn len(&self) -> usize {
-        3 * self.rows.len()
+        3 * (self.rows.len() + self.oriented.len())
     }
 
     fn evaluate(&self, x: &[f64], r: &mut [f64], jacobian: Option<&mut [f64]>) {
@@ -176,6 +232,48 @@ impl Residuals for Problem<'_> {
         let bases: Vec<Base> = (0..self.sessions.len()).map(|s| self.base_at(x, s)).collect();
         let offsets: Vec<Vector3<f64>> =
             (0..self.sessions.len()).map(|s| self.tool_offset_at(x, s)).collect();
+        let tool_rotation = self.tool_rotation_at(x);
+        let drifts: Vec<Vector3<f64>> = (0..self.sessions.len()).map(|s| self.drift_at(x, s)).collect();
+        let orientation = |i: usize, r: &mut [f64], jac: Option<&mut [f64]>| {
+            let (s, k) = self.oriented[i];
+            let p = &self.sessions[s].points[k];
+            let Some(measured) = p.orientation else { return };
+            let mut dp = vec![[0.0; 9]; self.params.len()];
+            let pose = tool_pose_with_jacobian(&model, &p.q_deg, &self.columns, &mut dp);
+            let flange = flange_rotation(&pose.x_axis, &pose.z_axis);
+            let base = &bases[s];
+            let predicted = base.rotation * flange * tool_rotation;
+            let w = self.orientation_weight_mm_per_rad;
+            let e =
+                rotation_vector(&(predicted.transpose() * measured.to_rotation_matrix().into_inner())) * w;
+            r.copy_from_slice(e.as_slice());
+            let Some(jac) = jac else { return };
+            jac.fill(0.0);
+            // r ≈ r₀ − δ, δ the rotation of the prediction in its own frame.
+            let to_body = predicted.transpose() * base.rotation;
+            let y_axis = pose.z_axis.cross(&pose.x_axis);
+            for (c, d) in dp.iter().enumerate() {
+                let (dx, dz) = (Vector3::new(d[3], d[4], d[5]), Vector3::new(d[6], d[7], d[8]));
+                let dy = dz.cross(&pose.x_axis) + pose.z_axis.cross(&dx);
+                let spin = 0.5 * (pose.x_axis.cross(&dx) + y_axis.cross(&dy) + pose.z_axis.cross(&dz));
+                let g = to_body * spin * -w;
+                for a in 0..3 {
+                    jac[a * n + c] = g[a];
+                }
+            }
+            let b = self.base_column(s);
+            let g = predicted.transpose() * (-1e-3 * w);
+            for a in 0..3 {
+                for k in 0..3 {
+                    jac[a * n + b + k] = g[(a, k)];
+                }
+            }
+            if let Some(t) = self.tool_rotation_column() {
+                for a in 0..3 {
+                    jac[a * n + t + a] = -1e-3 * w;
+                }
+            }
+        };
         let point = |i: usize, r: &mut [f64], jac: Option<&mut [f64]>| {
             let (s, k) = self.rows[i];
             let p = &self.sessions[s].points[k];
@@ -185,7 +283,8 @@ impl Residuals for Problem<'_> {
             let robot = pose.position_mm + flange * offsets[s];
             let base = &bases[s];
             let y = base.rotation * robot;
-            let e = y + base.translation_mm - p.point_mm;
+            let hours = p.time_s.unwrap_or(0.0) / 3600.0;
+            let e = y + base.translation_mm + drifts[s] * hours - p.point_mm;
             r.copy_from_slice(e.as_slice());
             let Some(jac) = jac else { return };
             jac.fill(0.0);
@@ -203,6 +302,11 @@ impl Residuals for Problem<'_> {
                 }
                 jac[k * n + b + 3 + k] = 1.0;
             }
+            if let Some(d) = self.drift_column(s) {
+                for a in 0..3 {
+                    jac[a * n + d + a] = hours;
+                }
+            }
             if let Some(t) = self.tool_column(s) {
                 let g = base.rotation * flange;
                 for a in 0..3 {
@@ -212,13 +316,21 @@ impl Residuals for Problem<'_> {
                 }
             }
         };
+        let points = self.rows.len();
+        let row = |i: usize, r: &mut [f64], jac: Option<&mut [f64]>| {
+            if i < points {
+                point(i, r, jac)
+            } else {
+                orientation(i - points, r, jac)
+            }
+        };
         match jacobian {
             Some(jac) => r
                 .par_chunks_mut(3)
                 .zip(jac.par_chunks_mut(3 * n))
                 .enumerate()
-                .for_each(|(i, (r, j))| point(i, r, Some(j))),
-            None => r.par_chunks_mut(3).enumerate().for_each(|(i, r)| point(i, r, None)),
+                .for_each(|(i, (r, j))| row(i, r, Some(j))),
+            None => r.par_chunks_mut(3).enumerate().for_each(|(i, r)| row(i, r, None)),
         }
     }
 }
@@ -247,6 +359,85 @@ impl ErrorStats {
             max_mm: errors.iter().copied().fold(0.0, f64::max),
         }
     }
+}
+
+/// Orientation-error statistics (the angle of R_predᵀ·R_meas), degrees.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct AngleStats {
+    /// Orientations.
+    pub orientations: usize,
+    /// RMS angle, degrees.
+    pub rms_deg: f64,
+    /// Mean angle, degrees.
+    pub mean_deg: f64,
+    /// Largest angle, degrees.
+    pub max_deg: f64,
+}
+
+impl AngleStats {
+    /// Statistics of error angles (degrees).
+    pub fn of(angles_deg: &[f64]) -> AngleStats {
+        let e = ErrorStats::of(angles_deg);
+        AngleStats { orientations: e.points, rms_deg: e.rms_mm, mean_deg: e.mean_mm, max_deg: e.max_mm }
+    }
+}
+
+/// The 6-DoF probe's orientation R_t on the flange (flange ← probe), shared by all sessions.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ToolRotation {
+    /// R_t as a rotation vector (axis · angle), degrees.
+    pub rotation_vector_deg: [f64; 3],
+    /// One standard deviation of a small rotation of R_t about each of the probe's own axes,
+    /// degrees (`None` when the normal matrix is singular).
+    pub std_deg: Option<[f64; 3]>,
+}
+
+impl ToolRotation {
+    /// R_t as a matrix.
+    pub fn rotation(&self) -> Matrix3<f64> {
+        Rotation3::new(Vector3::from(self.rotation_vector_deg.map(f64::to_radians))).into_inner()
+    }
+}
+
+/// The start of R_t: the chordal mean of R_Fᵀ·R_sᵀ·R_meas over the oriented points (bases from
+/// the positions); `None` without orientations.
+fn start_tool_rotation(
+    model: &ArmModel,
+    data: &TrackerData,
+    bases: &[Base],
+    oriented: &[(usize, usize)],
+) -> Option<Matrix3<f64>> {
+    if oriented.is_empty() {
+        return None;
+    }
+    let mut sum = Matrix3::zeros();
+    for &(s, k) in oriented {
+        let p = &data.sessions[s].points[k];
+        let measured = p.orientation?.to_rotation_matrix().into_inner();
+        let pose = tool_pose(model, &p.q_deg);
+        sum += flange_rotation(&pose.x_axis, &pose.z_axis).transpose()
+            * bases[s].rotation.transpose()
+            * measured;
+    }
+    let svd = sum.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let mut d = Matrix3::identity();
+    d[(2, 2)] = (u * v_t).determinant().signum();
+    Some(u * d * v_t)
+}
+
+/// Weight of an orientation residual, mm per rad: σ_position / σ_orientation, so that a
+/// residual of one stated σ counts the same in a point's coordinate (mm) as in an orientation
+/// axis. σ_position is the median stated point σ (`sigma_mm`, `u95_mm`/2), else
+/// [`DEFAULT_POSITION_SIGMA_MM`]; σ_orientation is `--orientation-sigma-deg`, else
+/// [`DEFAULT_ORIENTATION_SIGMA_DEG`].
+pub fn orientation_weight_mm_per_rad(data: &TrackerData, options: &TrackerOptions) -> f64 {
+    let mut stated: Vec<f64> =
+        data.sessions.iter().flat_map(|s| s.points.iter().filter_map(|p| p.sigma_mm)).collect();
+    stated.sort_by(f64::total_cmp);
+    let position = stated.get(stated.len() / 2).copied().unwrap_or(DEFAULT_POSITION_SIGMA_MM);
+    let orientation = options.orientation_sigma_deg.unwrap_or(DEFAULT_ORIENTATION_SIGMA_DEG).to_radians();
+    position / orientation
 }
 
 /// What the data cannot separate, in words, and what the calibration therefore left out.
@@ -292,6 +483,17 @@ pub struct FloatedTool {
     pub size_std_mm: f64,
 }
 
+/// A session's base drifting linearly in time (`--drift-session`).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct SessionDrift {
+    /// The session.
+    pub session: String,
+    /// Drift velocity in the instrument frame, mm/h.
+    pub velocity_mm_per_h: [f64; 3],
+    /// Standard deviation of the velocity's length, mm/h.
+    pub speed_std_mm_per_h: f64,
+}
+
 /// Standard deviation of |v| from the covariance block `c` of v.
 fn length_std(v: &Vector3<f64>, c: &Matrix3<f64>) -> f64 {
     let n = v.norm();
@@ -315,8 +517,14 @@ pub struct TrackerCalibration {
     pub bases: Vec<Base>,
     /// Tool offsets of the floated sessions.
     pub tool_offsets: Vec<FloatedTool>,
+    /// Drift velocities of the drifting sessions.
+    pub drifts: Vec<SessionDrift>,
     /// Position error on the calibration sessions.
     pub fit: ErrorStats,
+    /// Orientation error on the calibration sessions (6-DoF probes).
+    pub orientation_fit: Option<AngleStats>,
+    /// The probe's orientation on the flange (6-DoF probes).
+    pub tool_rotation: Option<ToolRotation>,
     /// Estimates of the free parameters.
     pub estimates: Vec<TrackerEstimate>,
     /// What was left out and why.
@@ -357,31 +565,93 @@ fn jacobian_of(problem: &Problem, x: &[f64]) -> (Vec<f64>, Vec<f64>) {
 fn projected_arm_columns(problem: &Problem, jac: &[f64]) -> Vec<f64> {
     let (n, a) = (problem.unknowns(), problem.params.len());
     let mut out = vec![0.0; problem.len() * a];
+    let points = problem.rows.len();
+    // The probe rotation's columns are projected like the arm's, then out of them (below).
+    let tool_rotation: Vec<usize> =
+        problem.tool_rotation_column().map(|t| vec![t, t + 1, t + 2]).unwrap_or_default();
+    let mut rotation_out = vec![0.0; problem.len() * tool_rotation.len()];
     for s in 0..problem.sessions.len() {
-        let rows: Vec<usize> = (0..problem.rows.len())
+        let rows: Vec<usize> = (0..points)
             .filter(|&i| problem.rows[i].0 == s)
+            .chain((0..problem.oriented.len()).filter(|&i| problem.oriented[i].0 == s).map(|i| points + i))
             .flat_map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
             .collect();
         let mut own: Vec<usize> = (0..BASE_UNKNOWNS).map(|k| problem.base_column(s) + k).collect();
         own.extend(problem.tool_column(s).map(|t| [t, t + 1, t + 2]).into_iter().flatten());
+        own.extend(problem.drift_column(s).map(|d| [d, d + 1, d + 2]).into_iter().flatten());
         let b = nalgebra::DMatrix::from_fn(rows.len(), own.len(), |i, k| jac[rows[i] * n + own[k]]);
         let q = b.svd(true, false);
         let (Some(u), sv) = (q.u, q.singular_values) else { continue };
         let top = sv.iter().copied().fold(0.0, f64::max);
         let basis: Vec<usize> = (0..sv.len()).filter(|&k| sv[k] > 1e-12 * top).collect();
-        for c in 0..a {
-            let col = nalgebra::DVector::from_fn(rows.len(), |i, _| jac[rows[i] * n + c]);
+        for (column, into, stride, at) in (0..a)
+            .map(|c| (c, false, a, c))
+            .chain(tool_rotation.iter().enumerate().map(|(k, &t)| (t, true, tool_rotation.len(), k)))
+        {
+            let col = nalgebra::DVector::from_fn(rows.len(), |i, _| jac[rows[i] * n + column]);
             let mut rest = col.clone();
             for &k in &basis {
                 let uk = u.column(k);
                 rest -= uk * uk.dot(&col);
             }
+            let target = if into { &mut rotation_out } else { &mut out };
             for (i, &row) in rows.iter().enumerate() {
-                out[row * a + c] = rest[i];
+                target[row * stride + at] = rest[i];
+            }
+        }
+    }
+    if !tool_rotation.is_empty() {
+        let m = problem.len();
+        let r = nalgebra::DMatrix::from_row_slice(m, tool_rotation.len(), &rotation_out);
+        let q = r.svd(true, false);
+        if let Some(u) = q.u {
+            let top = q.singular_values.iter().copied().fold(0.0, f64::max);
+            for k in (0..q.singular_values.len()).filter(|&k| q.singular_values[k] > 1e-12 * top) {
+                let uk = u.column(k);
+                for c in 0..a {
+                    let dot: f64 = (0..m).map(|i| uk[i] * out[i * a + c]).sum();
+                    for i in 0..m {
+                        out[i * a + c] -= uk[i] * dot;
+                    }
+                }
             }
         }
     }
     out
+}
+
+/// The rows and weights of a calibration, shared by the problems of its passes.
+struct Layout {
+    floated: Vec<Option<usize>>,
+    rows: Vec<(usize, usize)>,
+    oriented: Vec<(usize, usize)>,
+    weight: f64,
+    drifting: Vec<Option<usize>>,
+}
+
+impl Layout {
+    fn problem<'a>(
+        &self,
+        params: Vec<ParamId>,
+        model: &'a ArmModel,
+        data: &'a TrackerData,
+        bases: &[Base],
+        tool_rotation: Option<Matrix3<f64>>,
+    ) -> Problem<'a> {
+        Problem {
+            model,
+            columns: ColumnMap::new(&params),
+            params,
+            sessions: &data.sessions,
+            start: bases.iter().map(|b| b.rotation).collect(),
+            floated: self.floated.clone(),
+            rows: self.rows.clone(),
+            oriented: self.oriented.clone(),
+            tool_rotation,
+            orientation_weight_mm_per_rad: self.weight,
+            drifting: self.drifting.clone(),
+        }
+    }
 }
 
 /// Calibrate the free parameters of `nominal` (and its tool point) on tracker sessions.
@@ -398,7 +668,7 @@ pub fn calibrate_tracker(
             return Err(TrackerError::TooFewPoints { session: s.name.clone(), points: s.points.len() });
         }
     }
-    for name in &options.float_tool {
+    for name in options.float_tool.iter().chain(&options.drift_sessions) {
         if !data.sessions.iter().any(|s| &s.name == name) {
             return Err(TrackerError::UnknownSession(name.clone()));
         }
@@ -413,41 +683,39 @@ pub fn calibrate_tracker(
     let all: Vec<ParamId> = model.free.iter().map(|f| f.id).collect();
     let range_of =
         |id: ParamId| model.free.iter().find(|f| f.id == id).map_or(1.0, |f| (f.upper - f.lower).max(1e-9));
-    let mut floated = Vec::new();
-    let mut next = 0;
-    for s in &data.sessions {
-        floated.push(options.float_tool.contains(&s.name).then(|| {
-            next += 1;
-            next - 1
-        }));
-    }
+    // Per session, its index among the named sessions (their own columns), if named.
+    let numbered = |names: &[String]| -> Vec<Option<usize>> {
+        let mut next = 0;
+        data.sessions
+            .iter()
+            .map(|s| {
+                names.contains(&s.name).then(|| {
+                    next += 1;
+                    next - 1
+                })
+            })
+            .collect()
+    };
+    let floated = numbered(&options.float_tool);
     let rows: Vec<(usize, usize)> = data
         .sessions
         .iter()
         .enumerate()
         .flat_map(|(s, ss)| (0..ss.points.len()).map(move |k| (s, k)))
         .collect();
+    let oriented: Vec<(usize, usize)> =
+        rows.iter().copied().filter(|&(s, k)| data.sessions[s].points[k].orientation.is_some()).collect();
     let zero = Vector3::zeros();
     let start_bases: Vec<Base> = data.sessions.iter().map(|s| Base::fit(&model, &s.points, &zero)).collect();
-    fn build<'a>(
-        params: Vec<ParamId>,
-        model: &'a ArmModel,
-        bases: &[Base],
-        data: &'a TrackerData,
-        floated: &[Option<usize>],
-        rows: &[(usize, usize)],
-    ) -> Problem<'a> {
-        Problem {
-            model,
-            columns: ColumnMap::new(&params),
-            params,
-            sessions: &data.sessions,
-            start: bases.iter().map(|b| b.rotation).collect(),
-            floated: floated.to_vec(),
-            rows: rows.to_vec(),
-        }
-    }
-    let x_of = |problem: &Problem, model: &ArmModel, bases: &[Base], offsets: &[Vector3<f64>]| {
+    let mut tool_rotation = start_tool_rotation(&model, data, &start_bases, &oriented);
+    let weight = orientation_weight_mm_per_rad(data, options);
+    let drifting = numbered(&options.drift_sessions);
+    let layout = Layout { floated: floated.clone(), rows: rows.clone(), oriented, weight, drifting };
+    let x_of = |problem: &Problem,
+                model: &ArmModel,
+                bases: &[Base],
+                offsets: &[Vector3<f64>],
+                drifts: &[Vector3<f64>]| {
         let mut x: Vec<f64> = problem.params.iter().map(|id| model.get(*id)).collect();
         for b in bases {
             x.extend([0.0, 0.0, 0.0, b.translation_mm.x, b.translation_mm.y, b.translation_mm.z]);
@@ -457,16 +725,24 @@ pub fn calibrate_tracker(
                 x.extend(offsets[s].iter());
             }
         }
+        if problem.tool_rotation.is_some() {
+            x.extend([0.0; 3]);
+        }
+        for (s, drift) in drifts.iter().enumerate() {
+            if problem.drift_column(s).is_some() {
+                x.extend(drift.iter());
+            }
+        }
         x
     };
     // Identifiability at the nominal values, bases at their closed form.
-    let full = build(all.clone(), &model, &start_bases, data, &floated, &rows);
+    let full = layout.problem(all.clone(), &model, data, &start_bases, tool_rotation);
     let unknowns = full.unknowns();
     if full.len() < unknowns {
         return Err(TrackerError::TooFewResiduals { residuals: full.len(), unknowns });
     }
     let offsets0 = vec![Vector3::zeros(); data.sessions.len()];
-    let x0 = x_of(&full, &model, &start_bases, &offsets0);
+    let x0 = x_of(&full, &model, &start_bases, &offsets0, &offsets0);
     let (r0, jac0) = jacobian_of(&full, &x0);
     if !r0.iter().chain(&jac0).all(|v| v.is_finite()) {
         return Err(TrackerError::NonFinite);
@@ -485,20 +761,21 @@ pub fn calibrate_tracker(
         kept.iter().filter(|c| tool_turns || !is_tool(c)).map(|&c| all[c]).collect();
     let fixed: Vec<ParamId> =
         (0..all.len()).filter(|c| !estimated.contains(&all[*c])).map(|c| all[c]).collect();
-    let statements = explain(&all, &jac0, &projected, full.unknowns(), &fixed, &spreads, &ranges);
+    let statements = explain(&all, &jac0, &projected, &full, &fixed, &spreads, &ranges);
     // Solve; re-centre the bases at their closed form between passes.
     let loss = options.huber_delta_mm.map_or(Loss::Linear, Loss::Huber);
     let solver_options =
         SolverOptions { loss, max_iterations: 100, ftol: 1e-10, xtol: 1e-10, ..SolverOptions::default() };
     let mut current = model.clone();
     let mut bases = start_bases;
-    let mut offsets = offsets0;
+    let mut offsets = offsets0.clone();
+    let mut drifts = offsets0;
     let mut iterations = 0;
     let mut last_cost = f64::INFINITY;
     for _ in 0..PASSES {
-        let problem = build(estimated.clone(), &current, &bases, data, &floated, &rows);
+        let problem = layout.problem(estimated.clone(), &current, data, &bases, tool_rotation);
         let n = problem.unknowns();
-        let x0 = x_of(&problem, &current, &bases, &offsets);
+        let x0 = x_of(&problem, &current, &bases, &offsets, &drifts);
         let mut lower: Vec<f64> = estimated
             .iter()
             .map(|id| model.free.iter().find(|f| f.id == *id).map_or(f64::NEG_INFINITY, |f| f.lower))
@@ -514,6 +791,8 @@ pub fn calibrate_tracker(
         let solved = problem.model_at(&solution.x);
         offsets = (0..data.sessions.len()).map(|s| problem.tool_offset_at(&solution.x, s)).collect();
         bases = (0..data.sessions.len()).map(|s| problem.base_at(&solution.x, s)).collect();
+        tool_rotation = tool_rotation.map(|_| problem.tool_rotation_at(&solution.x));
+        drifts = (0..data.sessions.len()).map(|s| problem.drift_at(&solution.x, s)).collect();
         current = solved;
         let converged = (last_cost - solution.cost).abs() <= 1e-9 * solution.cost.max(1e-12);
         last_cost = solution.cost;
@@ -522,14 +801,26 @@ pub fn calibrate_tracker(
         }
     }
     // Uncertainty at the solution (bases and floated tools marginalised).
-    let problem = build(estimated.clone(), &current, &bases, data, &floated, &rows);
-    let x = x_of(&problem, &current, &bases, &offsets);
+    let problem = layout.problem(estimated.clone(), &current, data, &bases, tool_rotation);
+    let x = x_of(&problem, &current, &bases, &offsets, &drifts);
     let (r, jac) = jacobian_of(&problem, &x);
     let n = problem.unknowns();
     let dof = (r.len() as f64 - n as f64).max(1.0);
     let variance = r.iter().map(|v| v * v).sum::<f64>() / dof;
     let cov = identify::covariance(&jac, &vec![1.0; r.len()], n, variance);
-    let errors: Vec<f64> = r.chunks_exact(3).map(|e| Vector3::new(e[0], e[1], e[2]).norm()).collect();
+    let (position_rows, orientation_rows) = r.split_at(3 * problem.rows.len());
+    let errors: Vec<f64> =
+        position_rows.chunks_exact(3).map(|e| Vector3::new(e[0], e[1], e[2]).norm()).collect();
+    let angles_deg: Vec<f64> = orientation_rows
+        .chunks_exact(3)
+        .map(|e| (Vector3::new(e[0], e[1], e[2]).norm() / weight).to_degrees())
+        .collect();
+    let tool_rotation = problem.tool_rotation_column().zip(tool_rotation).map(|(c, rotation)| ToolRotation {
+        rotation_vector_deg: rotation_vector(&rotation).map(f64::to_degrees).into(),
+        std_deg: cov
+            .as_ref()
+            .map(|m| [0, 1, 2].map(|k| (m[(c + k, c + k)].max(0.0).sqrt() * 1e-3).to_degrees())),
+    });
     let estimates = all
         .iter()
         .map(|&id| {
@@ -543,24 +834,39 @@ pub fn calibrate_tracker(
             }
         })
         .collect();
-    let tool_offsets = data
-        .sessions
-        .iter()
-        .enumerate()
-        .filter_map(|(s, session)| {
-            let column = problem.tool_column(s)?;
-            Some(FloatedTool {
-                session: session.name.clone(),
-                offset_mm: offsets[s].into(),
-                size_std_mm: length_std(&offsets[s], &covariance_block(&cov, column)),
+    // A session's own 3-vector (tool offset, drift velocity) with the deviation of its length.
+    let own = |column: &dyn Fn(usize) -> Option<usize>,
+               values: &[Vector3<f64>]|
+     -> Vec<(String, Vector3<f64>, f64)> {
+        data.sessions
+            .iter()
+            .enumerate()
+            .filter_map(|(s, session)| {
+                let c = column(s)?;
+                Some((session.name.clone(), values[s], length_std(&values[s], &covariance_block(&cov, c))))
             })
+            .collect()
+    };
+    let tool_offsets = own(&|s| problem.tool_column(s), &offsets)
+        .into_iter()
+        .map(|(session, v, std)| FloatedTool { session, offset_mm: v.into(), size_std_mm: std })
+        .collect();
+    let drifts = own(&|s| problem.drift_column(s), &drifts)
+        .into_iter()
+        .map(|(session, v, std)| SessionDrift {
+            session,
+            velocity_mm_per_h: v.into(),
+            speed_std_mm_per_h: std,
         })
         .collect();
     Ok(TrackerCalibration {
         model: current,
         bases,
         tool_offsets,
+        drifts,
         fit: ErrorStats::of(&errors),
+        orientation_fit: tool_rotation.as_ref().map(|_| AngleStats::of(&angles_deg)),
+        tool_rotation,
         estimates,
         identifiability: TrackerIdentifiability {
             estimated: estimated.iter().map(|p| p.to_string()).collect(),
@@ -579,12 +885,13 @@ fn explain(
     all: &[ParamId],
     jac: &[f64],
     projected: &[f64],
-    n: usize,
+    problem: &Problem,
     fixed: &[ParamId],
     spreads: &[(String, f64)],
     ranges: &[f64],
 ) -> Vec<String> {
-    let a = all.len();
+    let (a, n) = (all.len(), problem.unknowns());
+    let probe_turns = problem.tool_rotation.is_some();
     let norm = |m: &[f64], stride: usize, c: usize| {
         m.chunks_exact(stride).map(|row| row[c] * row[c]).sum::<f64>().sqrt()
     };
@@ -596,9 +903,14 @@ fn explain(
     if !constant.is_empty() {
         out.push(format!(
             "the tool orientation is constant (within {CONSTANT_ORIENTATION_DEG}°) in session{} {}: there, the \
-             tool point and the base translation are one thing",
+             tool point and the base translation are one thing{}",
             if constant.len() == 1 { "" } else { "s" },
-            constant.join(", ")
+            constant.join(", "),
+            if probe_turns {
+                " (the probe's orientations do not separate them: R_s·R_F·t is one constant vector there)"
+            } else {
+                ""
+            }
         ));
     }
     if !tool_fixed.is_empty() {
@@ -614,6 +926,11 @@ fn explain(
         let (raw, rest) = (norm(jac, n, c) * ranges[c], norm(projected, a, c) * ranges[c]);
         out.push(if raw < identify::ZERO_COLUMN_BELOW * largest {
             format!("{p} moves no measured point: held at its nominal value")
+        } else if rest < identify::UNIDENTIFIABLE_BELOW * largest && probe_turns {
+            format!(
+                "{p} is absorbed by the session bases and the probe's orientation on the flange (a base rotation or \
+                 shift, or a turn of the probe with the tool point, reproduces it): held at its nominal value"
+            )
         } else if rest < identify::UNIDENTIFIABLE_BELOW * largest {
             format!("{p} is absorbed by the session bases (a base rotation or shift reproduces it): held at its nominal value")
         } else {
@@ -653,9 +970,17 @@ pub fn calibration_errors(fit: &TrackerCalibration, data: &TrackerData) -> Vec<V
                 .iter()
                 .find(|t| t.session == s.name)
                 .map_or(Vector3::zeros(), |t| Vector3::from(t.offset_mm));
+            let drift = fit
+                .drifts
+                .iter()
+                .find(|d| d.session == s.name)
+                .map_or(Vector3::zeros(), |d| Vector3::from(d.velocity_mm_per_h));
             s.points
                 .iter()
-                .map(|p| (base.apply(&model_point(&fit.model, &p.q_deg, &offset)) - p.point_mm).norm())
+                .map(|p| {
+                    let drifted = drift * p.time_s.unwrap_or(0.0) / 3600.0;
+                    (base.apply(&model_point(&fit.model, &p.q_deg, &offset)) + drifted - p.point_mm).norm()
+                })
                 .collect()
         })
         .collect()
@@ -674,6 +999,10 @@ pub fn fit_session_with_tool(model: &ArmModel, session: &TrackerSession) -> (Flo
         start: vec![start.rotation],
         floated: vec![Some(0)],
         rows: (0..session.points.len()).map(|k| (0, k)).collect(),
+        oriented: Vec::new(),
+        tool_rotation: None,
+        orientation_weight_mm_per_rad: 0.0,
+        drifting: vec![None],
     };
     let t = start.translation_mm;
     let x0 = [0.0, 0.0, 0.0, t.x, t.y, t.z, 0.0, 0.0, 0.0];
@@ -689,6 +1018,28 @@ pub fn fit_session_with_tool(model: &ArmModel, session: &TrackerSession) -> (Flo
         size_std_mm: length_std(&offset, &covariance_block(&cov, 6)),
     };
     (tool, validate_session(model, session, offset.into()))
+}
+
+/// Orientation errors of `model` with the probe rotation `tool_rotation` on `session`, its base
+/// refitted from the positions (closed form); `None` when the session has no orientations.
+pub fn validate_orientations(
+    model: &ArmModel,
+    session: &TrackerSession,
+    tool_offset_mm: [f64; 3],
+    tool_rotation: &Matrix3<f64>,
+) -> Option<AngleStats> {
+    let base = Base::fit(model, &session.points, &Vector3::from(tool_offset_mm));
+    let angles_deg: Vec<f64> = session
+        .points
+        .iter()
+        .filter_map(|p| {
+            let measured = p.orientation?.to_rotation_matrix().into_inner();
+            let pose = tool_pose(model, &p.q_deg);
+            let predicted = base.rotation * flange_rotation(&pose.x_axis, &pose.z_axis) * tool_rotation;
+            Some(rotation_vector(&(predicted.transpose() * measured)).norm().to_degrees())
+        })
+        .collect();
+    (!angles_deg.is_empty()).then(|| AngleStats::of(&angles_deg))
 }
 
 /// Most points of a session whose pairwise distances are compared (evenly spaced beyond).

@@ -17,6 +17,15 @@
 //! below [`MIN_GAIN`] of the held-out error is none. Only the best candidate is called, when
 //! |Δ_S| is beyond three of its standard deviations and the held-out error falls: the others
 //! were scored against a model the best one still bends (apply it, and score again).
+//!
+//! **Drift within a session.** The instrument or its stand creeps (a tripod settling, the floor
+//! warming) while a session is measured: X_i = B_s · F(q_i) · t + v_S · time_i, a base shift
+//! growing linearly with `time_s` at a velocity v_S (instrument frame, mm/h). A calibration that
+//! holds S's base still spreads the creep over the arm parameters. The candidate lets S's base
+//! drift (`--drift-session S`, three unknowns) and is scored, like the others, by the held-out
+//! error of the refit; it is called when |v_S| is beyond three of its standard deviations and
+//! the held-out error falls by [`MIN_GAIN`]. It claims no arm effect: the arm parameters are
+//! refitted, not changed by it.
 
 use crate::calib::tracker::{
     calibrate_tracker, calibration_errors, fit_session_with_tool, orientation_spread_deg, validate_session,
@@ -29,13 +38,14 @@ use crate::model::ArmModel;
 /// points.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct DataError {
-    /// `tool moved` or `bad points`.
+    /// `tool moved`, `drift` or `bad points`.
     pub kind: String,
     /// The session (for bad points, the sessions holding them).
     pub session: String,
     /// `calibration` or `validation`: where the session is.
     pub set: String,
-    /// The tool point's displacement (flange frame), or the largest bad point's error, mm.
+    /// The tool point's displacement (flange frame), the largest bad point's error (mm), or a
+    /// drift's speed (mm/h).
     pub size_mm: f64,
     /// Standard deviation of the displacement's length, or the points' robust σ, mm.
     pub size_std_mm: f64,
@@ -136,6 +146,63 @@ fn bad_points_candidate(
     })
 }
 
+/// Least span of `time_s` within a session, s, for its drift to be a candidate.
+pub const MIN_DRIFT_SPAN_S: f64 = 60.0;
+
+/// The drift candidates: each calibration session with times, its base drifting in time.
+fn drift_candidates(
+    nominal: &ArmModel,
+    cal: &TrackerData,
+    val: &TrackerData,
+    options: &TrackerOptions,
+    before: f64,
+) -> Vec<DataError> {
+    let timed = |s: &&crate::data::tracker::TrackerSession| {
+        let times: Vec<f64> = s.points.iter().filter_map(|p| p.time_s).collect();
+        let span = times.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+            - times.iter().copied().fold(f64::INFINITY, f64::min);
+        times.len() == s.points.len() && span >= MIN_DRIFT_SPAN_S
+    };
+    let mut out = Vec::new();
+    for s in cal.sessions.iter().filter(|s| !options.drift_sessions.contains(&s.name)).filter(timed) {
+        let mut drift_sessions = options.drift_sessions.clone();
+        drift_sessions.push(s.name.clone());
+        let Ok(refit) =
+            calibrate_tracker(nominal, cal, &TrackerOptions { drift_sessions, ..options.clone() })
+        else {
+            continue;
+        };
+        let Some(drift) = refit.drifts.iter().find(|d| d.session == s.name) else { continue };
+        let after = held_out_rms(&refit.model, val, &options.float_tool);
+        let v = drift.velocity_mm_per_h;
+        let speed = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let std = drift.speed_std_mm_per_h;
+        let along = v.map(|x| x / speed.max(1e-300));
+        out.push(DataError {
+            kind: "drift".into(),
+            session: s.name.clone(),
+            set: "calibration".into(),
+            size_mm: speed,
+            size_std_mm: std,
+            held_out_before_mm: before,
+            held_out_after_mm: after,
+            significant: speed > 3.0 * std && after < (1.0 - MIN_GAIN) * before,
+            text: format!(
+                "session {} drifts by {:.1} ± {:.1} µm/h along ({:.3}, {:.3}, {:.3}) (instrument frame); held-out \
+                 RMS {before:.4} → {after:.4} mm with its base drifting",
+                s.name,
+                1e3 * speed,
+                1e3 * std,
+                along[0],
+                along[1],
+                along[2]
+            ),
+            action: format!("--drift-session {}", s.name),
+        });
+    }
+    out
+}
+
 /// Score the data errors, best first: "the tool moved in session S" for every session not
 /// already floating, and single bad points.
 pub fn data_error_candidates(
@@ -197,6 +264,7 @@ pub fn data_error_candidates(
         let after = held_out_rms(&fit.model, val, &floating);
         out.push(verdict(&s.name, "validation", tool.offset_mm, tool.size_std_mm, after));
     }
+    out.extend(drift_candidates(nominal, cal, val, options, before));
     out.extend(bad_points_candidate(nominal, cal, val, fit, options, before));
     out.sort_by(|a, b| a.held_out_after_mm.total_cmp(&b.held_out_after_mm));
     // One data error at a time: the others are scored against a model the best one still bends,

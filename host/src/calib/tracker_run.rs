@@ -11,8 +11,9 @@
 //! model is never said to explain the data.
 
 use crate::calib::tracker::{
-    calibrate_tracker, fit_session_with_tool, validate_session, ErrorStats, FloatedTool, SessionValidation,
-    TrackerCalibration, TrackerError, TrackerEstimate, TrackerIdentifiability, TrackerOptions,
+    calibrate_tracker, fit_session_with_tool, validate_orientations, validate_session, AngleStats,
+    ErrorStats, FloatedTool, SessionDrift, SessionValidation, ToolRotation, TrackerCalibration, TrackerError,
+    TrackerEstimate, TrackerIdentifiability, TrackerOptions,
 };
 use crate::calib::tracker_errors::{data_error_candidates, DataError};
 use crate::data::tracker::{load_dir, TrackerData, TrackerSession};
@@ -62,6 +63,12 @@ pub struct TrackerInputs {
     /// Calibration points left out, `SESSION:LINE` (single bad points).
     #[serde(default)]
     pub exclude_points: Vec<String>,
+    /// The 6-DoF probe's stated orientation σ per axis, degrees (`None`: the default).
+    #[serde(default)]
+    pub orientation_sigma_deg: Option<f64>,
+    /// Calibration sessions whose base drifts linearly in time (`--drift-session`).
+    #[serde(default)]
+    pub drift_sessions: Vec<String>,
 }
 
 /// One held-out session's figures, calibrated and nominal.
@@ -74,6 +81,12 @@ pub struct SessionFigures {
     pub nominal: SessionValidation,
     /// False when the calibration does worse than nominal here.
     pub transfers: bool,
+    /// The calibrated model's orientation figures (`rms_deg, mean_deg, max_deg`), 6-DoF probes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub orientation: Option<AngleStats>,
+    /// The nominal model's orientation figures on the same session.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nominal_orientation: Option<AngleStats>,
 }
 
 /// Held-out figures.
@@ -85,6 +98,9 @@ pub struct TrackerValidation {
     pub overall: ErrorStats,
     /// Pooled, nominal.
     pub nominal_overall: ErrorStats,
+    /// Orientation error pooled over every held-out orientation, calibrated (6-DoF probes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub orientation_overall: Option<AngleStats>,
 }
 
 /// The noise floor of the held-out sessions.
@@ -111,10 +127,19 @@ pub struct TrackerSummary {
     pub calibration_sessions: BTreeMap<String, usize>,
     /// Position error on the calibration sessions.
     pub fit: ErrorStats,
+    /// Orientation error on the calibration sessions (6-DoF probes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub orientation_fit: Option<AngleStats>,
+    /// The probe's orientation on the flange (6-DoF probes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tool_rotation: Option<ToolRotation>,
     /// Parameter estimates.
     pub estimates: Vec<TrackerEstimate>,
     /// Floated tools.
     pub tool_offsets: Vec<FloatedTool>,
+    /// Drifting sessions' velocities.
+    #[serde(default)]
+    pub drifts: Vec<SessionDrift>,
     /// What the data cannot separate.
     pub identifiability: TrackerIdentifiability,
     /// Held-out figures.
@@ -149,6 +174,18 @@ fn pooled(parts: &[SessionValidation]) -> ErrorStats {
         mean_mm: parts.iter().map(|p| p.mean_mm * p.points as f64).sum::<f64>() / n,
         max_mm: parts.iter().map(|p| p.max_mm).fold(0.0, f64::max),
     }
+}
+
+/// Orientation figures pooled over sessions; `None` without any.
+fn pooled_angles(parts: &[AngleStats]) -> Option<AngleStats> {
+    let orientations: usize = parts.iter().map(|p| p.orientations).sum();
+    let n = orientations as f64;
+    (orientations > 0).then(|| AngleStats {
+        orientations,
+        rms_deg: (parts.iter().map(|p| p.rms_deg.powi(2) * p.orientations as f64).sum::<f64>() / n).sqrt(),
+        mean_deg: parts.iter().map(|p| p.mean_deg * p.orientations as f64).sum::<f64>() / n,
+        max_deg: parts.iter().map(|p| p.max_deg).fold(0.0, f64::max),
+    })
 }
 
 /// The held-out floor (see the module's doc comment).
@@ -243,7 +280,12 @@ pub fn run_on(
     if let Some(n) = inputs.float_tool.iter().find(|n| !cal_float.contains(n) && !val_float.contains(n)) {
         return Err(TrackerError::UnknownSession(n.clone()).into());
     }
-    let options = TrackerOptions { huber_delta_mm, float_tool: cal_float };
+    let options = TrackerOptions {
+        huber_delta_mm,
+        float_tool: cal_float,
+        orientation_sigma_deg: inputs.orientation_sigma_deg,
+        drift_sessions: inputs.drift_sessions.clone(),
+    };
     let fit = calibrate_tracker(&nominal, cal, &options)?;
     let reference = calibrate_tracker(&tool_only(&nominal), cal, &options)?;
     let validate = |model: &ArmModel, s: &TrackerSession| {
@@ -253,12 +295,20 @@ pub fn run_on(
             validate_session(model, s, [0.0; 3])
         }
     };
+    let orientations = |fit: &TrackerCalibration, s: &TrackerSession, offset_mm: [f64; 3]| {
+        fit.tool_rotation
+            .as_ref()
+            .and_then(|t| validate_orientations(&fit.model, s, offset_mm, &t.rotation()))
+    };
     let mut verdict = Vec::new();
     let mut sessions = Vec::new();
-    let (mut calibrated_parts, mut nominal_parts) = (Vec::new(), Vec::new());
+    let (mut calibrated_parts, mut nominal_parts, mut angle_parts) = (Vec::new(), Vec::new(), Vec::new());
     for s in &val.sessions {
         let c = validate(&fit.model, s);
         let n = validate(&reference.model, s);
+        let orientation = orientations(&fit, s, [0.0; 3]);
+        let nominal_orientation = orientations(&reference, s, [0.0; 3]);
+        angle_parts.extend(orientation);
         let transfers = c.rms_mm <= n.rms_mm;
         if !transfers {
             verdict.push(format!(
@@ -268,7 +318,13 @@ pub fn run_on(
         }
         calibrated_parts.push(c.clone());
         nominal_parts.push(n.clone());
-        sessions.push(SessionFigures { calibrated: c, nominal: n, transfers });
+        sessions.push(SessionFigures {
+            calibrated: c,
+            nominal: n,
+            transfers,
+            orientation,
+            nominal_orientation,
+        });
     }
     let overall = pooled(&calibrated_parts);
     let floor = floor(&val.sessions, inputs.stated_sigma_mm);
@@ -303,10 +359,18 @@ pub fn run_on(
         joints: nominal.joints.len(),
         calibration_sessions: cal.sessions.iter().map(|s| (s.name.clone(), s.points.len())).collect(),
         fit: fit.fit,
+        orientation_fit: fit.orientation_fit,
+        tool_rotation: fit.tool_rotation,
         estimates: fit.estimates.clone(),
         tool_offsets: fit.tool_offsets.clone(),
+        drifts: fit.drifts.clone(),
         identifiability: fit.identifiability.clone(),
-        validation: TrackerValidation { sessions, overall, nominal_overall: pooled(&nominal_parts) },
+        validation: TrackerValidation {
+            sessions,
+            overall,
+            nominal_overall: pooled(&nominal_parts),
+            orientation_overall: pooled_angles(&angle_parts),
+        },
         floor,
         data_errors,
         verdict,

@@ -202,6 +202,14 @@ pub struct CalibrateArgs {
     /// u95_mm column (sets the floor when no pose is repeated).
     #[arg(long, allow_negative_numbers = true, value_parser = real(0.0001, 10.0, "mm"))]
     sigma_mm: Option<f64>,
+    /// Tracker sessions with a 6-DoF probe (qw,qx,qy,qz): its stated orientation σ per axis,
+    /// degrees, which weighs orientations against points [default: 0.01]
+    #[arg(long, allow_negative_numbers = true, value_parser = real(0.00001, 10.0, "deg"))]
+    orientation_sigma_deg: Option<f64>,
+    /// Tracker sessions: let the base of calibration SESSION drift linearly in time (`time_s`),
+    /// as the data-error diagnosis suggests (repeatable).
+    #[arg(long, value_name = "SESSION")]
+    drift_session: Vec<String>,
     /// Print summary.json to stdout.
     #[arg(long)]
     json: bool,
@@ -365,12 +373,18 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
             float_tool: a.float_tool.clone(),
             stated_sigma_mm: a.sigma_mm,
             exclude_points: a.exclude_point.clone(),
+            orientation_sigma_deg: a.orientation_sigma_deg,
+            drift_sessions: a.drift_session.clone(),
         };
         return crate::tracker::calibrate_tracker_and_report(&inputs, &a.out, a.json);
     }
-    if !a.float_tool.is_empty() || !a.exclude_point.is_empty() {
+    if !a.float_tool.is_empty()
+        || !a.exclude_point.is_empty()
+        || !a.drift_session.is_empty()
+        || a.orientation_sigma_deg.is_some()
+    {
         bail!(
-            "--float-tool and --exclude-point apply to tracker sessions; {} holds artefact sessions",
+            "--float-tool, --exclude-point, --drift-session and --orientation-sigma-deg apply to tracker sessions; {} holds artefact sessions",
             a.inputs.data.display()
         );
     }

@@ -26,6 +26,17 @@ pub fn calibrate_tracker_and_report(inputs: &TrackerInputs, out: &Path, json: bo
         s.calibration_sessions.len()
     );
     println!("  calibration RMS {:.4} mm (mean {:.4}, max {:.4})", s.fit.rms_mm, s.fit.mean_mm, s.fit.max_mm);
+    if let (Some(o), Some(t)) = (&s.orientation_fit, &s.tool_rotation) {
+        let [x, y, z] = t.rotation_vector_deg;
+        println!(
+            "  calibration orientation RMS {:.5}° (mean {:.5}, max {:.5}) on {} probe orientations",
+            o.rms_deg, o.mean_deg, o.max_deg, o.orientations
+        );
+        let std = t
+            .std_deg
+            .map_or("no deviation: singular".into(), |[a, b, c]| format!("± {a:.5}, {b:.5}, {c:.5}°"));
+        println!("  probe on the flange: rotation vector ({x:.4}, {y:.4}, {z:.4})° {std}");
+    }
     println!("  estimated: {}", s.identifiability.estimated.join(", "));
     for t in &s.identifiability.statements {
         println!("  {t}");
@@ -48,6 +59,14 @@ pub fn calibrate_tracker_and_report(inputs: &TrackerInputs, out: &Path, json: bo
             f.nominal.rms_mm,
             if f.transfers { "" } else { "  does not transfer" }
         );
+    }
+    for f in &s.validation.sessions {
+        if let (Some(c), Some(n)) = (&f.orientation, &f.nominal_orientation) {
+            println!(
+                "  {:<22} orientation RMS {:.5}° (mean {:.5}, max {:.5}), nominal {:.5}°",
+                f.calibrated.name, c.rms_deg, c.mean_deg, c.max_deg, n.rms_deg
+            );
+        }
     }
     let (o, n) = (&s.validation.overall, &s.validation.nominal_overall);
     println!(

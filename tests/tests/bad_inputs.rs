@@ -201,7 +201,7 @@ fn tracker_cases(cases: &mut Vec<Case>) {
             &["calibrate", "--model", "model.toml", "--data", "tracker/cal", "--validate", "tracker/val", "--out", "tout"],
             &[],
         )),
-        fails("--float-tool of no session", unchanged(), &["--float-tool", "session_9"], &["--float-tool session_9", "no calibration session"]),
+        fails("--float-tool of no session", unchanged(), &["--float-tool", "session_9"], &["--float-tool / --drift-session session_9", "no calibration session"]),
         fails("--sigma-mm NaN", unchanged(), &["--sigma-mm", "NaN"], &["--sigma-mm"]),
         fails("validation = calibration", unchanged(), &[], &["in both the calibration and the validation folder"]).with_args(words(
             &["calibrate", "--model", "tracker/model.toml", "--data", "tracker/cal", "--validate", "tracker/cal", "--out", "tout"],
@@ -211,7 +211,7 @@ fn tracker_cases(cases: &mut Vec<Case>) {
             &["calibrate", "--model", "tracker/model.toml", "--data", "tracker/cal", "--validate", "tracker", "--out", "tout"],
             &[],
         )),
-        fails("--float-tool on artefact data", unchanged(), &[], &["--float-tool and --exclude-point apply to tracker sessions"]).with_args(
+        fails("--float-tool on artefact data", unchanged(), &[], &["--float-tool, --exclude-point, --drift-session and --orientation-sigma-deg apply to tracker sessions"]).with_args(
             [cal(), vec!["--float-tool", "C_A"]].concat().into_iter().map(String::from).collect(),
         ),
     ]);

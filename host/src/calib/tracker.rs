@@ -392,18 +392,20 @@ impl Residuals for Problem<'_> {
     }
 
     /// Row by row over each row's own columns (the arm's, its session's, the probe rotation's):
-    /// no m × n Jacobian is formed, so the cost per point does not grow with the points.
+    /// no m × n Jacobian is formed, so the cost per point does not grow with the points. The rows
+    /// are summed in fixed blocks, the blocks in order: the same sums whatever the thread count.
     fn normal_equations(&self, x: &[f64], r: &mut [f64], loss: Loss) -> (DMatrix<f64>, DVector<f64>) {
         let state = self.state(x);
         let n = self.unknowns();
-        let zero = || (vec![0.0; n * n], vec![0.0; n]);
-        let (upper, g) = r
-            .par_chunks_mut(3)
+        let rows = r.len() / 3;
+        let block = rows.div_ceil(MAX_BLOCKS).max(MIN_BLOCK_ROWS);
+        let sums: Vec<(Vec<f64>, Vec<f64>)> = r
+            .par_chunks_mut(3 * block)
             .enumerate()
-            .fold(
-                || (zero(), RowJacobian::default()),
-                |((mut h, mut g), mut jac), (i, r)| {
-                    self.row(&state, i, r, Some(&mut jac));
+            .map(|(b, r)| {
+                let (mut h, mut g, mut jac) = (vec![0.0; n * n], vec![0.0; n], RowJacobian::default());
+                for (k, r) in r.chunks_exact_mut(3).enumerate() {
+                    self.row(&state, b * block + k, r, Some(&mut jac));
                     let w = Vector3::new(loss.weight(r[0]), loss.weight(r[1]), loss.weight(r[2]));
                     for (p, (&cp, vp)) in jac.columns.iter().zip(&jac.values).enumerate() {
                         let wv = w.component_mul(vp);
@@ -412,15 +414,15 @@ impl Residuals for Problem<'_> {
                             h[cp.min(cq) * n + cp.max(cq)] += wv.dot(vq);
                         }
                     }
-                    ((h, g), jac)
-                },
-            )
-            .map(|(sums, _)| sums)
-            .reduce(zero, |(mut h, mut g), (h2, g2)| {
-                h.iter_mut().zip(&h2).for_each(|(a, b)| *a += b);
-                g.iter_mut().zip(&g2).for_each(|(a, b)| *a += b);
+                }
                 (h, g)
-            });
+            })
+            .collect();
+        let (mut upper, mut g) = (vec![0.0; n * n], vec![0.0; n]);
+        for (h_block, g_block) in sums {
+            upper.iter_mut().zip(&h_block).for_each(|(a, b)| *a += b);
+            g.iter_mut().zip(&g_block).for_each(|(a, b)| *a += b);
+        }
         let mut h = DMatrix::from_row_slice(n, n, &upper);
         for a in 0..n {
             for b in 0..a {
@@ -430,6 +432,11 @@ impl Residuals for Problem<'_> {
         (h, DVector::from_vec(g))
     }
 }
+
+/// Most blocks the rows of the normal equations are summed in (each holds an n × n sum).
+const MAX_BLOCKS: usize = 16;
+/// Fewest rows of a block.
+const MIN_BLOCK_ROWS: usize = 64;
 
 /// Position-error statistics of one set of points, mm.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -681,7 +688,7 @@ fn session_factors(problem: &Problem, x: &[f64]) -> Option<Vec<SessionFactor>> {
             }
             let width = own.len() + a + rotation.len();
             let mine: Vec<usize> = (0..rows).filter(|&i| problem.session_of(i) == s).collect();
-            let r = mine
+            let blocks: Vec<Option<DMatrix<f64>>> = mine
                 .par_chunks(FOLD_POINTS)
                 .map_init(RowJacobian::default, |jac, chunk| {
                     let mut block = DMatrix::zeros(3 * chunk.len(), width);
@@ -699,7 +706,11 @@ fn session_factors(problem: &Problem, x: &[f64]) -> Option<Vec<SessionFactor>> {
                     }
                     finite.then(|| block.qr().r())
                 })
-                .try_reduce(|| DMatrix::zeros(0, width), |top, bottom| Some(fold(top, bottom)))?;
+                .collect();
+            // Folded in order: the same factor whatever the thread count.
+            let r = blocks
+                .into_iter()
+                .try_fold(DMatrix::zeros(0, width), |top, bottom| Some(fold(top, bottom?)))?;
             Some(SessionFactor { r, own: own.len() })
         })
         .collect()

@@ -112,7 +112,10 @@ fn whole_process(nominal: &ArmModel, cal: &TrackerData, val: &TrackerData) -> Re
             .output()?;
         wall.push(t.elapsed().as_secs_f64());
         if !out.status.success() {
-            anyhow::bail!("kincal calibrate on the tracker bench failed: {}", String::from_utf8_lossy(&out.stderr));
+            anyhow::bail!(
+                "kincal calibrate on the tracker bench failed: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
         }
     }
     std::fs::remove_dir_all(&dir).ok();

@@ -164,6 +164,58 @@ fn twelve_and_two_joint_arms_reach_the_floor() {
     }
 }
 
+/// Protocol S (`--same-base`): the last 20 rows of calibration session 1 held out in their own
+/// file, measured from the same placement: validated with session 1's calibrated base they sit
+/// at the noise (σ√3 for a 3-D error, nothing refitted), far below the nominal model with its own
+/// fit's base; a pair naming no calibration session is refused.
+#[test]
+fn a_held_out_set_of_a_calibration_session_is_validated_with_its_base() {
+    use kincal::calib::tracker_run::{run_tracker, TrackerInputs, TrackerRunError};
+    let dir = scratch("same-base");
+    let generated = generate(&GenOptions::iiwa_five_sessions(8));
+    let nominal = nominal_model(&generated, &dir);
+    nominal.save(&dir.join("model.toml")).expect("model saved");
+    split(&generated, &dir, &[0, 1, 2]);
+    let file = dir.join("cal/session_1.csv");
+    let text = std::fs::read_to_string(&file).expect("session 1");
+    let lines: Vec<&str> = text.lines().collect();
+    let head = lines.iter().take_while(|l| l.starts_with('#')).count() + 1;
+    let cut = lines.len() - 20;
+    let keep = [&lines[..cut], &[""]].concat().join("\n");
+    let held_out = [&lines[..head], &lines[cut..], &[""]].concat().join("\n");
+    std::fs::write(&file, keep).expect("session 1 cut");
+    std::fs::write(dir.join("val/session_1_test.csv"), held_out).expect("held-out part written");
+    let inputs = TrackerInputs {
+        model: dir.join("model.toml"),
+        calibration: dir.join("cal"),
+        validation: dir.join("val"),
+        float_tool: vec![],
+        stated_sigma_mm: None,
+        exclude_points: vec![],
+        orientation_sigma_deg: None,
+        drift_sessions: vec![],
+        same_base: vec!["session_1_test=session_1".into()],
+    };
+    let run = run_tracker(&inputs, None).expect("runs");
+    let figures = run.summary.validation.sessions.iter().find(|f| f.calibrated.name == "session_1_test");
+    let same = figures.and_then(|f| f.same_base.as_ref()).expect("protocol S figures");
+    let noise = generated.options.noise_sigma_mm * 3f64.sqrt();
+    println!("same base: calibrated {:?}, nominal {:?}, noise {noise:.4} mm", same.calibrated, same.nominal);
+    assert_eq!(same.calibration_session, "session_1");
+    assert_eq!(same.calibrated.points, 20);
+    assert!(same.calibrated.rms_mm < 1.3 * noise, "{same:?}");
+    assert!(same.nominal.rms_mm > 5.0 * same.calibrated.rms_mm, "{same:?}");
+    let others = run.summary.validation.sessions.iter().filter(|f| f.same_base.is_some()).count();
+    assert_eq!(others, 1, "only the named session gets protocol S figures");
+    for wrong in ["session_1_test=session_4", "session_1_test", "session_9=session_1"] {
+        let bad = TrackerInputs { same_base: vec![wrong.into()], ..inputs.clone() };
+        let err = run_tracker(&bad, None).expect_err(wrong);
+        assert!(matches!(err, TrackerRunError::SameBase(_)), "{wrong}: {err}");
+        assert!(err.to_string().contains(&format!("--same-base {wrong}")), "{err}");
+    }
+    std::fs::remove_dir_all(dir).ok();
+}
+
 /// Must show: sessions that each hold the tool orientation constant (position grids): the tool
 /// point and the base translation are reported inseparable, and no figure depends on where the
 /// nominal tool point puts the split between them (within 2 µm, 5 % of the 40 µm floor: the
@@ -280,6 +332,7 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
         exclude_points: vec![],
         orientation_sigma_deg: None,
         drift_sessions: vec![],
+        same_base: vec![],
     };
     let run = run_tracker(&inputs, None).expect("runs");
     let s = &run.summary;
@@ -426,6 +479,7 @@ fn summary_has_orientation_figures(nominal: ArmModel, cal: &TrackerData, val: &T
         exclude_points: vec![],
         orientation_sigma_deg: Some(0.005),
         drift_sessions: vec![],
+        same_base: vec![],
     };
     let run = run_on(nominal, cal, val, &inputs, None).expect("runs");
     let json = serde_json::to_value(&run.summary).expect("serialises");

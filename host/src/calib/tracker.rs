@@ -6,13 +6,18 @@
 //! its closed form for the nominal arm (Horn's absolute orientation of the model points onto the
 //! measured ones) and is then estimated jointly with θ as a small rotation ω_s (mrad, left of the
 //! starting rotation) and a shift t_s (mm): R_s = exp(ω_s)·R⁰_s. The residual block of a point is
-//! X_i − X_i,measured (mm, three rows); a base touches only its own session's rows. The
-//! Jacobian is dense in the arm columns and in the session's six; the normal matrix costs
-//! O(points · columns²), so the cost per point is flat in the number of points.
+//! X_i − X_i,measured (mm, three rows); a base touches only its own session's rows. No m × n
+//! Jacobian is formed: each row's derivatives over its own columns (the arm's, its session's
+//! base, floated tool and drift, the probe rotation's) are added into JᵀJ and Jᵀr as the row is
+//! evaluated, in fixed blocks summed in order (the same sums on any thread count). The cost per
+//! point is O(own columns²), flat in the number of points, and the memory is O(n²).
 //!
 //! Identifiability sees the bases: the base columns are projected out of the arm columns (what
 //! a base can reproduce, the data cannot attribute to the arm), and the base set is chosen by
-//! pivoted QR on what remains. What drops out is said in words: a parameter a base absorbs (the
+//! pivoted QR on what remains. It works on one small matrix per session, the R factor of the
+//! session's rows (own columns | arm | probe rotation) folded block by block by QR: R has the
+//! same column inner products as the rows, so the projections, norms, singular values and the
+//! pivoted QR are those of the full Jacobian, without squaring its condition number. What drops out is said in words: a parameter a base absorbs (the
 //! first joint's offset and d, a rotation about and a shift along the base axis), and the tool
 //! point when the orientation is constant within the sessions (then it and each base's
 //! translation are one thing, and the tool stays at its nominal value: every figure is the same
@@ -1119,24 +1124,40 @@ pub fn calibration_errors(fit: &TrackerCalibration, data: &TrackerData) -> Vec<V
     data.sessions
         .iter()
         .zip(&fit.bases)
-        .map(|(s, base)| {
-            let offset = fit
-                .tool_offsets
-                .iter()
-                .find(|t| t.session == s.name)
-                .map_or(Vector3::zeros(), |t| Vector3::from(t.offset_mm));
-            let drift = fit
-                .drifts
-                .iter()
-                .find(|d| d.session == s.name)
-                .map_or(Vector3::zeros(), |d| Vector3::from(d.velocity_mm_per_h));
-            s.points
-                .iter()
-                .map(|p| {
-                    let drifted = drift * p.time_s.unwrap_or(0.0) / 3600.0;
-                    (base.apply(&model_point(&fit.model, &p.q_deg, &offset)) + drifted - p.point_mm).norm()
-                })
-                .collect()
+        .map(|(s, base)| errors_with_base(fit, &s.name, base, &s.points))
+        .collect()
+}
+
+/// Position errors, mm, of `points` measured from calibration session `session`'s instrument
+/// placement (protocol S: a held-out set of the same session), with that session's calibrated
+/// base, its floated tool and its drift; `None` when `session` is not a calibration session.
+pub fn errors_in_calibration_session(
+    fit: &TrackerCalibration,
+    data: &TrackerData,
+    session: &str,
+    points: &[TrackerPoint],
+) -> Option<Vec<f64>> {
+    let s = data.sessions.iter().position(|s| s.name == session)?;
+    Some(errors_with_base(fit, session, fit.bases.get(s)?, points))
+}
+
+/// Errors of `points` with `base` and the tool offset and drift `fit` gives session `name`.
+fn errors_with_base(fit: &TrackerCalibration, name: &str, base: &Base, points: &[TrackerPoint]) -> Vec<f64> {
+    let offset = fit
+        .tool_offsets
+        .iter()
+        .find(|t| t.session == name)
+        .map_or(Vector3::zeros(), |t| Vector3::from(t.offset_mm));
+    let drift = fit
+        .drifts
+        .iter()
+        .find(|d| d.session == name)
+        .map_or(Vector3::zeros(), |d| Vector3::from(d.velocity_mm_per_h));
+    points
+        .iter()
+        .map(|p| {
+            let drifted = drift * p.time_s.unwrap_or(0.0) / 3600.0;
+            (base.apply(&model_point(&fit.model, &p.q_deg, &offset)) + drifted - p.point_mm).norm()
         })
         .collect()
 }

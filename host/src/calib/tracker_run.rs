@@ -11,9 +11,9 @@
 //! model is never said to explain the data.
 
 use crate::calib::tracker::{
-    calibrate_tracker, fit_session_with_tool, validate_orientations, validate_session, AngleStats,
-    ErrorStats, FloatedTool, SessionDrift, SessionValidation, ToolRotation, TrackerCalibration, TrackerError,
-    TrackerEstimate, TrackerIdentifiability, TrackerOptions,
+    calibrate_tracker, errors_in_calibration_session, fit_session_with_tool, validate_orientations,
+    validate_session, AngleStats, ErrorStats, FloatedTool, SessionDrift, SessionValidation, ToolRotation,
+    TrackerCalibration, TrackerError, TrackerEstimate, TrackerIdentifiability, TrackerOptions,
 };
 use crate::calib::tracker_errors::{data_error_candidates, DataError};
 use crate::data::tracker::{load_dir, TrackerData, TrackerSession};
@@ -40,6 +40,12 @@ pub enum TrackerRunError {
     /// `--exclude-point` names no calibration point.
     #[error("--exclude-point {0}: no calibration session and line of that name (expected SESSION:LINE)")]
     UnknownPoint(String),
+    /// `--same-base` does not pair a held-out session with a calibration session.
+    #[error(
+        "--same-base {0}: expected HELD_OUT=CALIBRATION, a held-out session and the calibration session whose \
+         instrument placement it shares"
+    )]
+    SameBase(String),
     /// A validation session has the name of a calibration session.
     #[error(
         "session \"{0}\" is in both the calibration and the validation folder: validation must be held out"
@@ -69,6 +75,22 @@ pub struct TrackerInputs {
     /// Calibration sessions whose base drifts linearly in time (`--drift-session`).
     #[serde(default)]
     pub drift_sessions: Vec<String>,
+    /// Held-out sessions measured from a calibration session's instrument placement,
+    /// `HELD_OUT=CALIBRATION` (`--same-base`): validated with that base too (protocol S).
+    #[serde(default)]
+    pub same_base: Vec<String>,
+}
+
+/// A held-out session validated with a calibration session's base (protocol S: the same
+/// instrument placement, no base refitted).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct SameBaseFigures {
+    /// The calibration session whose base the held-out session shares.
+    pub calibration_session: String,
+    /// The calibrated model with that session's calibrated base.
+    pub calibrated: ErrorStats,
+    /// The nominal model (tool fitted) with that session's base from the nominal fit.
+    pub nominal: ErrorStats,
 }
 
 /// One held-out session's figures, calibrated and nominal.
@@ -87,6 +109,9 @@ pub struct SessionFigures {
     /// The nominal model's orientation figures on the same session.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nominal_orientation: Option<AngleStats>,
+    /// With a calibration session's base (`--same-base`, protocol S).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub same_base: Option<SameBaseFigures>,
 }
 
 /// Held-out figures.
@@ -273,6 +298,16 @@ pub fn run_on(
     if val.joints != nominal.joints.len() {
         return Err(TrackerError::JointCount { data: val.joints, model: nominal.joints.len() }.into());
     }
+    let mut same_base = BTreeMap::new();
+    for pair in &inputs.same_base {
+        let named = pair.split_once('=').filter(|(v, c)| {
+            val.sessions.iter().any(|s| &s.name == v) && cal.sessions.iter().any(|s| &s.name == c)
+        });
+        let Some((held_out, calibration)) = named else {
+            return Err(TrackerRunError::SameBase(pair.clone()));
+        };
+        same_base.insert(held_out.to_string(), calibration.to_string());
+    }
     let cal_float: Vec<String> =
         inputs.float_tool.iter().filter(|n| cal.sessions.iter().any(|s| &&s.name == n)).cloned().collect();
     let val_float: Vec<String> =
@@ -316,6 +351,16 @@ pub fn run_on(
                 s.name, c.rms_mm, n.rms_mm
             ));
         }
+        let same_base = same_base.get(&s.name).and_then(|calibration| {
+            let stats = |fit: &TrackerCalibration| {
+                errors_in_calibration_session(fit, cal, calibration, &s.points).map(|e| ErrorStats::of(&e))
+            };
+            Some(SameBaseFigures {
+                calibration_session: calibration.clone(),
+                calibrated: stats(&fit)?,
+                nominal: stats(&reference)?,
+            })
+        });
         calibrated_parts.push(c.clone());
         nominal_parts.push(n.clone());
         sessions.push(SessionFigures {
@@ -324,6 +369,7 @@ pub fn run_on(
             transfers,
             orientation,
             nominal_orientation,
+            same_base,
         });
     }
     let overall = pooled(&calibrated_parts);

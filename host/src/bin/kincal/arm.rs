@@ -210,6 +210,11 @@ pub struct CalibrateArgs {
     /// as the data-error diagnosis suggests (repeatable).
     #[arg(long, value_name = "SESSION")]
     drift_session: Vec<String>,
+    /// Tracker sessions: held-out session HELD_OUT was measured from calibration session
+    /// CALIBRATION's instrument placement (the instrument did not move): validate it with that
+    /// calibrated base too, besides its own refitted base (protocol S; repeatable).
+    #[arg(long, value_name = "HELD_OUT=CALIBRATION")]
+    same_base: Vec<String>,
     /// Print summary.json to stdout.
     #[arg(long)]
     json: bool,
@@ -375,6 +380,7 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
             exclude_points: a.exclude_point.clone(),
             orientation_sigma_deg: a.orientation_sigma_deg,
             drift_sessions: a.drift_session.clone(),
+            same_base: a.same_base.clone(),
         };
         return crate::tracker::calibrate_tracker_and_report(&inputs, &a.out, a.json);
     }
@@ -387,6 +393,9 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
             "--float-tool, --exclude-point, --drift-session and --orientation-sigma-deg apply to tracker sessions; {} holds artefact sessions",
             a.inputs.data.display()
         );
+    }
+    if !a.same_base.is_empty() {
+        bail!("--same-base applies to tracker sessions; {} holds artefact sessions", a.inputs.data.display());
     }
     let inputs = RunInputs {
         exclude_landmarks: a.exclude_landmark.clone(),

@@ -247,7 +247,13 @@ fn inverse_kinematics_reaches_targets_and_constant_orientation_sessions_hold_it(
 #[test]
 fn thermal_drift_and_tool_remount_have_their_configured_size() {
     let mut options = TrackerOptions::iiwa_five_sessions(10);
-    options.thermal = Some(ThermalDrift { expansion_per_c: 12e-6, start_c: 20.0, rise_c: 1.0 });
+    options.thermal = Some(ThermalDrift {
+        expansion_per_c: 12e-6,
+        start_c: 20.0,
+        rise_c: 1.0,
+        session: None,
+        time_constant_s: None,
+    });
     options.tool_remount = Some(ToolRemount { session: 2, size_mm: 0.8 });
     let data = generate(&options);
     let (session, offset) = data.truth.tool_remount.expect("remount recorded");

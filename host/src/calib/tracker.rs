@@ -58,9 +58,11 @@ pub enum TrackerError {
     },
     /// A session has too few points to place its base.
     #[error(
-        "session \"{session}\" has {points} points: at least 3 not on one line are needed to place its base"
+        "{path}: session \"{session}\" has {points} points: at least 3 not on one line are needed to place its base"
     )]
     TooFewPoints {
+        /// The session's file.
+        path: String,
         /// The session.
         session: String,
         /// Its points.
@@ -81,7 +83,7 @@ pub enum TrackerError {
     #[error("--drift-session {0}: the session is named twice (one drift kind per session)")]
     DriftTwice(String),
     /// A drifting session lacks the column its drift kind drifts against.
-    #[error("--drift-session {session}:{kind}: {path}:{line} has no {column} (a {kind} drift needs it on every row)")]
+    #[error("--drift-session {session}:{kind}: {path}:{line} has no {column} (the drift is against {column}, on every row)")]
     DriftColumn {
         /// The session.
         session: String,
@@ -648,15 +650,16 @@ fn projected_arm_columns(problem: &Problem, jac: &[f64]) -> Vec<f64> {
 fn drift_slots(data: &TrackerData, specs: &[DriftSpec]) -> Result<Vec<Option<DriftSlot>>, TrackerError> {
     let mut slots = vec![None; data.sessions.len()];
     let mut column = 0;
+    let named_before = |k: usize| specs[..k].iter().any(|e| e.session == specs[k].session);
+    if let Some(k) = (0..specs.len()).find(|&k| named_before(k)) {
+        return Err(TrackerError::DriftTwice(specs[k].session.clone()));
+    }
     for spec in specs {
         let s = data
             .sessions
             .iter()
             .position(|s| s.name == spec.session)
             .ok_or_else(|| TrackerError::UnknownSession(spec.to_string()))?;
-        if slots[s].is_some() {
-            return Err(TrackerError::DriftTwice(spec.session.clone()));
-        }
         let session = &data.sessions[s];
         if let Some(p) = session.points.iter().find(|p| spec.kind.variable(p).is_none()) {
             return Err(TrackerError::DriftColumn {
@@ -740,7 +743,11 @@ pub fn calibrate_tracker(
     }
     for s in &data.sessions {
         if s.points.len() < 3 {
-            return Err(TrackerError::TooFewPoints { session: s.name.clone(), points: s.points.len() });
+            return Err(TrackerError::TooFewPoints {
+                path: s.path.display().to_string(),
+                session: s.name.clone(),
+                points: s.points.len(),
+            });
         }
     }
     for name in &options.float_tool {

@@ -133,12 +133,12 @@ fn every_origin_freed_the_null_directions_stay_at_the_nominal_and_move_no_figure
         joint.origin_xyz_mm[k] += [4.0, -3.0, 5.0][k];
         joint.origin_rpy_deg[k] += [1.0, -0.5, 2.0][k];
     }
-    let turned = |j: &kincal::model::Joint, deg: f64| {
-        let r =
-            mul(&rpy_matrix(j.origin_rpy_deg.map(f64::to_radians)), &axis_angle(j.axis, deg.to_radians()));
-        rpy_of(&r).map(f64::to_degrees)
-    };
-    moved.joints[3].origin_rpy_deg = turned(&moved.joints[3], 1.5);
+    let fourth = &moved.joints[3];
+    let turned = mul(
+        &rpy_matrix(fourth.origin_rpy_deg.map(f64::to_radians)),
+        &axis_angle(fourth.axis, 1.5_f64.to_radians()),
+    );
+    moved.joints[3].origin_rpy_deg = rpy_of(&turned).map(f64::to_degrees);
     let r6 = rpy_matrix(moved.joints[5].origin_rpy_deg.map(f64::to_radians));
     let axis6 = moved.joints[5].axis;
     for k in 0..3 {

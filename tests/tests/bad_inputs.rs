@@ -242,6 +242,14 @@ fn tracker_file_cases(cases: &mut Vec<Case>) {
             &[],
             &["notes.csv:1: column `format`", "expected the tag line \"# kincal-tracker/1\""],
         ),
+        fails(
+            "no session tagged",
+            all([S1, "tracker/cal/session_2.csv", "tracker/cal/session_3.csv"]
+                .map(|f| csv_line(f, 1, |_| String::new()))
+                .into()),
+            &[],
+            &["--artefact is required", "tracker/cal holds no tracker sessions", "# kincal-tracker/1"],
+        ),
         passes("a byte-order mark", edit_text(S1, |t| format!("\u{feff}{t}"))),
         passes("CRLF line ends", edit_text(S1, |t| t.replace('\n', "\r\n"))),
         fails(

@@ -19,7 +19,7 @@
 //! for any split between them, because each base absorbs the rest).
 
 use crate::calib::identify::{self, Combination};
-use crate::calib::tracker_drift::{DriftKind, DriftSpec, SessionDrift};
+use crate::calib::tracker_drift::{drift_slots, DriftSlot, DriftSpec, SessionDrift};
 use crate::data::tracker::{TrackerData, TrackerPoint, TrackerSession};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
 use crate::model::{ArmModel, ParamId};
@@ -173,15 +173,6 @@ struct Problem<'a> {
     orientation_weight_mm_per_rad: f64,
     /// Per session, its drift when it drifts.
     drifting: Vec<Option<DriftSlot>>,
-}
-
-/// A drifting session's columns: the first (counted from the first drift column), the kind and
-/// τ̄.
-#[derive(Clone, Copy, Debug)]
-struct DriftSlot {
-    column: usize,
-    kind: DriftKind,
-    centre: f64,
 }
 
 impl Problem<'_> {
@@ -643,59 +634,6 @@ fn projected_arm_columns(problem: &Problem, jac: &[f64]) -> Vec<f64> {
         }
     }
     out
-}
-
-/// Each session's drift slot from `--drift-session` (its columns, kind and τ̄), checked: the
-/// session exists, is named once, and has the kind's column on every row.
-fn drift_slots(data: &TrackerData, specs: &[DriftSpec]) -> Result<Vec<Option<DriftSlot>>, TrackerError> {
-    let mut slots = vec![None; data.sessions.len()];
-    let mut column = 0;
-    let named_before = |k: usize| specs[..k].iter().any(|e| e.session == specs[k].session);
-    if let Some(k) = (0..specs.len()).find(|&k| named_before(k)) {
-        return Err(TrackerError::DriftTwice(specs[k].session.clone()));
-    }
-    for spec in specs {
-        let s = data
-            .sessions
-            .iter()
-            .position(|s| s.name == spec.session)
-            .ok_or_else(|| TrackerError::UnknownSession(spec.to_string()))?;
-        let session = &data.sessions[s];
-        if let Some(p) = session.points.iter().find(|p| spec.kind.variable(p).is_none()) {
-            return Err(TrackerError::DriftColumn {
-                session: spec.session.clone(),
-                kind: spec.kind.name(),
-                column: spec.kind.column(),
-                path: session.path.display().to_string(),
-                line: p.line,
-            });
-        }
-        slots[s] = Some(DriftSlot { column, kind: spec.kind, centre: 0.0 });
-        column += spec.kind.unknowns();
-    }
-    // τ̄: a session's own mean, except a scale against temperature, which is zero at the mean
-    // temperature of the sessions that do not drift (the temperature the model is fitted at).
-    let mean =
-        |values: Vec<f64>| (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
-    let still: Vec<f64> = data
-        .sessions
-        .iter()
-        .zip(&slots)
-        .filter(|(_, slot)| slot.is_none())
-        .flat_map(|(s, _)| s.points.iter().filter_map(|p| p.temp_c))
-        .collect();
-    let every = data.sessions.iter().flat_map(|s| s.points.iter().filter_map(|p| p.temp_c)).collect();
-    let reference_c = mean(still).or(mean(every)).unwrap_or(0.0);
-    for (session, slot) in data.sessions.iter().zip(&mut slots) {
-        if let Some(slot) = slot {
-            slot.centre = if slot.kind == DriftKind::ScaleTemp {
-                reference_c
-            } else {
-                mean(session.points.iter().filter_map(|p| slot.kind.variable(p)).collect()).unwrap_or(0.0)
-            };
-        }
-    }
-    Ok(slots)
 }
 
 /// The rows and weights of a calibration, shared by the problems of its passes.

@@ -22,7 +22,8 @@
 //! session and a span of at least [`MIN_SPAN_S`] of time or [`MIN_SPAN_C`] of temperature to be
 //! a data-error candidate.
 
-use crate::data::tracker::{TrackerPoint, TrackerSession};
+use crate::calib::tracker::TrackerError;
+use crate::data::tracker::{TrackerData, TrackerPoint, TrackerSession};
 use nalgebra::Vector3;
 
 /// Least span of `time_s` within a session, s, for a drift in time to be a candidate.
@@ -223,6 +224,74 @@ impl SessionDrift {
         let delta = self.kind.variable(p).map_or(0.0, |v| v - self.centre);
         self.kind.effect(&self.rate, delta)
     }
+}
+
+/// A drifting session's unknowns in the calibration: its first column (counted from the first
+/// drift column), the kind and τ̄.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct DriftSlot {
+    /// First column, from the first drift column.
+    pub column: usize,
+    /// What drifts against what.
+    pub kind: DriftKind,
+    /// τ̄ (hours or °C).
+    pub centre: f64,
+}
+
+/// Each session's drift slot from `--drift-session` (its columns, kind and τ̄), checked: the
+/// session exists, is named once, and has the kind's column on every row.
+pub(crate) fn drift_slots(
+    data: &TrackerData,
+    specs: &[DriftSpec],
+) -> Result<Vec<Option<DriftSlot>>, TrackerError> {
+    let mut slots = vec![None; data.sessions.len()];
+    let mut column = 0;
+    let named_before = |k: usize| specs[..k].iter().any(|e| e.session == specs[k].session);
+    if let Some(k) = (0..specs.len()).find(|&k| named_before(k)) {
+        return Err(TrackerError::DriftTwice(specs[k].session.clone()));
+    }
+    for spec in specs {
+        let s = data
+            .sessions
+            .iter()
+            .position(|s| s.name == spec.session)
+            .ok_or_else(|| TrackerError::UnknownSession(spec.to_string()))?;
+        let session = &data.sessions[s];
+        if let Some(p) = session.points.iter().find(|p| spec.kind.variable(p).is_none()) {
+            return Err(TrackerError::DriftColumn {
+                session: spec.session.clone(),
+                kind: spec.kind.name(),
+                column: spec.kind.column(),
+                path: session.path.display().to_string(),
+                line: p.line,
+            });
+        }
+        slots[s] = Some(DriftSlot { column, kind: spec.kind, centre: 0.0 });
+        column += spec.kind.unknowns();
+    }
+    // τ̄: a session's own mean, except a scale against temperature, which is zero at the mean
+    // temperature of the sessions that do not drift (the temperature the model is fitted at).
+    let mean =
+        |values: Vec<f64>| (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
+    let still: Vec<f64> = data
+        .sessions
+        .iter()
+        .zip(&slots)
+        .filter(|(_, slot)| slot.is_none())
+        .flat_map(|(s, _)| s.points.iter().filter_map(|p| p.temp_c))
+        .collect();
+    let every = data.sessions.iter().flat_map(|s| s.points.iter().filter_map(|p| p.temp_c)).collect();
+    let reference_c = mean(still).or(mean(every)).unwrap_or(0.0);
+    for (session, slot) in data.sessions.iter().zip(&mut slots) {
+        if let Some(slot) = slot {
+            slot.centre = if slot.kind == DriftKind::ScaleTemp {
+                reference_c
+            } else {
+                mean(session.points.iter().filter_map(|p| slot.kind.variable(p)).collect()).unwrap_or(0.0)
+            };
+        }
+    }
+    Ok(slots)
 }
 
 #[cfg(test)]

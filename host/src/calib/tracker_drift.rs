@@ -1,5 +1,5 @@
 //! Drift within a tracker session: the measured points creep against time or temperature while
-//! one session is measured. Four kinds, each one more unknown block of that session's base
+//! one session is measured. Four kinds, each adding its rate to that session's unknowns
 //! (`--drift-session SESSION:KIND`, at most one kind per session):
 //!
 //! - **offset-time** (`v`, mm/h, instrument frame, three unknowns):
@@ -11,14 +11,14 @@
 //!   τ = `time_s` in hours: the instrument's length scale creeps (a laser tracker's wavelength
 //!   compensation lagging the air: about 1 ppm per K of air and 0.3 ppm per hPa).
 //! - **scale-temp** (`k`, ppm/K, one unknown): the same with τ = `temp_C` and τ̄ the mean
-//!   temperature of the calibration points outside the drifting sessions (of all of them when
-//!   every session drifts): the arm grows with its temperature (steel 12 ppm/K, aluminium
+//!   temperature of the calibration points outside the drifting sessions (of all of them when no
+//!   other session states a temperature): the arm grows with its temperature (steel 12 ppm/K, aluminium
 //!   23 ppm/K), or a scale bar does, so a session measured warmer than the others sees a longer
 //!   arm; the reference is the temperature the model is fitted at, so a session's mean warming
 //!   counts, not only its warming within the session.
 //!
-//! The scale multiplies the robot-frame point before the base's shift: it acts about the robot's
-//! base, where an arm's thermal growth starts. A kind needs its column on every row of the
+//! The scale multiplies the robot-frame point before the base's shift (X = (1 + k·Δτ)·R_s·p +
+//! t_s): it acts about the robot's base, where an arm's thermal growth starts. A kind needs its column on every row of the
 //! session and a span of at least [`MIN_SPAN_S`] of time or [`MIN_SPAN_C`] of temperature to be
 //! a data-error candidate.
 

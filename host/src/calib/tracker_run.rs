@@ -11,9 +11,10 @@
 //! model is never said to explain the data.
 
 use crate::calib::tracker::{
-    calibrate_tracker, fit_session_with_tool, validate_orientations, validate_session, AngleStats,
-    ErrorStats, FloatedTool, SessionDrift, SessionValidation, ToolRotation, TrackerCalibration, TrackerError,
-    TrackerEstimate, TrackerIdentifiability, TrackerOptions,
+    calibrate_tracker, fit_session_with_tool, orientation_errors_deg, session_residuals_mm,
+    validate_orientations, validate_session, AngleStats, ErrorStats, FloatedTool, SessionDrift,
+    SessionValidation, ToolRotation, TrackerCalibration, TrackerError, TrackerEstimate,
+    TrackerIdentifiability, TrackerOptions,
 };
 use crate::calib::tracker_errors::{data_error_candidates, DataError};
 use crate::data::tracker::{load_dir, TrackerData, TrackerSession};
@@ -154,6 +155,32 @@ pub struct TrackerSummary {
     pub warnings: Vec<String>,
 }
 
+/// One held-out point as the calibrated model leaves it (its session's base refitted).
+#[derive(Clone, Debug)]
+pub struct HeldOutPoint {
+    /// Line in the session's file.
+    pub line: usize,
+    /// Pose id, when the file has a `pose` column.
+    pub pose: Option<String>,
+    /// Time of the measurement, s, when the file has a `time_s` column.
+    pub time_s: Option<f64>,
+    /// Joint angles, degrees.
+    pub q_deg: Vec<f64>,
+    /// Measured − predicted, in the robot's base frame, mm.
+    pub residual_mm: [f64; 3],
+    /// Orientation error, degrees (6-DoF probes).
+    pub orientation_error_deg: Option<f64>,
+}
+
+/// The points of one held-out session, in file order.
+#[derive(Clone, Debug)]
+pub struct HeldOutSession {
+    /// Session name.
+    pub name: String,
+    /// Its points.
+    pub points: Vec<HeldOutPoint>,
+}
+
 /// A finished tracker run.
 #[derive(Clone, Debug)]
 pub struct TrackerRun {
@@ -163,6 +190,8 @@ pub struct TrackerRun {
     pub calibration: TrackerCalibration,
     /// The summary.
     pub summary: TrackerSummary,
+    /// Every held-out point's residual, per session, as `validation.sessions[]` summarises them.
+    pub held_out: Vec<HeldOutSession>,
 }
 
 fn pooled(parts: &[SessionValidation]) -> ErrorStats {
@@ -186,6 +215,34 @@ fn pooled_angles(parts: &[AngleStats]) -> Option<AngleStats> {
         mean_deg: parts.iter().map(|p| p.mean_deg * p.orientations as f64).sum::<f64>() / n,
         max_deg: parts.iter().map(|p| p.max_deg).fold(0.0, f64::max),
     })
+}
+
+/// The residuals of `fit` on held-out `session`, its base (and tool offset `offset_mm`) refitted.
+fn held_out_points(
+    fit: &TrackerCalibration,
+    session: &TrackerSession,
+    offset_mm: [f64; 3],
+) -> HeldOutSession {
+    let residuals = session_residuals_mm(&fit.model, session, offset_mm);
+    let angles = fit.tool_rotation.as_ref().map_or_else(
+        || vec![None; session.points.len()],
+        |t| orientation_errors_deg(&fit.model, session, [0.0; 3], &t.rotation()),
+    );
+    let points = session
+        .points
+        .iter()
+        .zip(residuals)
+        .zip(angles)
+        .map(|((p, r), angle)| HeldOutPoint {
+            line: p.line,
+            pose: p.pose.clone(),
+            time_s: p.time_s,
+            q_deg: p.q_deg.clone(),
+            residual_mm: r.into(),
+            orientation_error_deg: angle,
+        })
+        .collect();
+    HeldOutSession { name: session.name.clone(), points }
 }
 
 /// The held-out floor (see the module's doc comment).
@@ -288,11 +345,13 @@ pub fn run_on(
     };
     let fit = calibrate_tracker(&nominal, cal, &options)?;
     let reference = calibrate_tracker(&tool_only(&nominal), cal, &options)?;
+    // The session's tool offset (its own when floated) and its figures.
     let validate = |model: &ArmModel, s: &TrackerSession| {
         if val_float.contains(&s.name) {
-            fit_session_with_tool(model, s).1
+            let (tool, figures) = fit_session_with_tool(model, s);
+            (tool.offset_mm, figures)
         } else {
-            validate_session(model, s, [0.0; 3])
+            ([0.0; 3], validate_session(model, s, [0.0; 3]))
         }
     };
     let orientations = |fit: &TrackerCalibration, s: &TrackerSession, offset_mm: [f64; 3]| {
@@ -302,10 +361,12 @@ pub fn run_on(
     };
     let mut verdict = Vec::new();
     let mut sessions = Vec::new();
+    let mut held_out = Vec::new();
     let (mut calibrated_parts, mut nominal_parts, mut angle_parts) = (Vec::new(), Vec::new(), Vec::new());
     for s in &val.sessions {
-        let c = validate(&fit.model, s);
-        let n = validate(&reference.model, s);
+        let (offset_mm, c) = validate(&fit.model, s);
+        let n = validate(&reference.model, s).1;
+        held_out.push(held_out_points(&fit, s, offset_mm));
         let orientation = orientations(&fit, s, [0.0; 3]);
         let nominal_orientation = orientations(&reference, s, [0.0; 3]);
         angle_parts.extend(orientation);
@@ -376,5 +437,5 @@ pub fn run_on(
         verdict,
         warnings: cal.warnings.iter().chain(&val.warnings).cloned().collect(),
     };
-    Ok(TrackerRun { nominal, calibration: fit, summary })
+    Ok(TrackerRun { nominal, calibration: fit, summary, held_out })
 }

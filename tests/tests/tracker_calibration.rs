@@ -50,6 +50,29 @@ fn split(generated: &Generated, dir: &std::path::Path, cal: &[usize]) -> (Tracke
     (load_dir(&c).expect("calibration sessions"), load_dir(&v).expect("validation sessions"))
 }
 
+/// The folders and model file of a `kincal calibrate` run on the generated sessions (`cal`
+/// calibrate, the rest are held out), as its inputs.
+fn run_folders(
+    generated: &Generated,
+    dir: &std::path::Path,
+    cal: &[usize],
+    orientation_sigma_deg: Option<f64>,
+) -> kincal::calib::tracker_run::TrackerInputs {
+    let nominal = nominal_model(generated, dir);
+    nominal.save(&dir.join("model.toml")).expect("model saved");
+    split(generated, dir, cal);
+    kincal::calib::tracker_run::TrackerInputs {
+        model: dir.join("model.toml"),
+        calibration: dir.join("cal"),
+        validation: dir.join("val"),
+        float_tool: vec![],
+        stated_sigma_mm: None,
+        exclude_points: vec![],
+        orientation_sigma_deg,
+        drift_sessions: vec![],
+    }
+}
+
 fn held_out_rms(fit: &TrackerCalibration, val: &TrackerData) -> f64 {
     let (mut sum, mut n) = (0.0, 0usize);
     for s in &val.sessions {
@@ -228,24 +251,12 @@ fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
 /// the verdict; repeated poses give the floor when there are any.
 #[test]
 fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor() {
-    use kincal::calib::tracker_run::{run_tracker, TrackerInputs};
+    use kincal::calib::tracker_run::run_tracker;
     let dir = scratch("run");
     let mut options = GenOptions::iiwa_five_sessions(5);
     options.repeats = 2;
     let generated = generate(&options);
-    let nominal = nominal_model(&generated, &dir);
-    nominal.save(&dir.join("model.toml")).expect("model saved");
-    split(&generated, &dir, &[0, 1, 2]);
-    let inputs = TrackerInputs {
-        model: dir.join("model.toml"),
-        calibration: dir.join("cal"),
-        validation: dir.join("val"),
-        float_tool: vec![],
-        stated_sigma_mm: None,
-        exclude_points: vec![],
-        orientation_sigma_deg: None,
-        drift_sessions: vec![],
-    };
+    let inputs = run_folders(&generated, &dir, &[0, 1, 2], None);
     let run = run_tracker(&inputs, None).expect("runs");
     let s = &run.summary;
     let names: Vec<&str> = s.validation.sessions.iter().map(|v| v.calibrated.name.as_str()).collect();
@@ -277,7 +288,7 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
 /// with a 6-DoF probe, times and gravity sag but no stated uncertainty (the floor unknown).
 #[test]
 fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
-    use kincal::calib::tracker_run::{run_tracker, TrackerInputs};
+    use kincal::calib::tracker_run::run_tracker;
     use kincal_e2e::tracker_gen::{GravitySag, UncertaintyColumn};
     for six_dof in [false, true] {
         let dir = scratch(&format!("report-{six_dof}"));
@@ -290,20 +301,7 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
         } else {
             GenOptions::iiwa_five_sessions(8).few_placements(4)
         };
-        let generated = generate(&options);
-        let nominal = nominal_model(&generated, &dir);
-        nominal.save(&dir.join("model.toml")).expect("model saved");
-        split(&generated, &dir, &[0, 1]);
-        let inputs = TrackerInputs {
-            model: dir.join("model.toml"),
-            calibration: dir.join("cal"),
-            validation: dir.join("val"),
-            float_tool: vec![],
-            stated_sigma_mm: None,
-            exclude_points: vec![],
-            orientation_sigma_deg: six_dof.then_some(0.005),
-            drift_sessions: vec![],
-        };
+        let inputs = run_folders(&generate(&options), &dir, &[0, 1], six_dof.then_some(0.005));
         let mut run = run_tracker(&inputs, None).expect("runs");
         let out = dir.join("RUN");
         kincal::output::write_tracker_run(&run, &out).expect("RUN written");

@@ -54,7 +54,7 @@ pub fn tracker_report(run: &TrackerRun) -> String {
     rms_per_session(&mut body, s);
     for session in &run.held_out {
         let figures = s.validation.sessions.iter().find(|f| f.calibrated.name == session.name);
-        residual_plots(&mut body, session, figures);
+        residual_plots(&mut body, session, figures, s.inputs.float_tool.contains(&session.name));
     }
     directions(&mut body, s, &run.held_out);
     validation_tables(&mut body, s);
@@ -108,11 +108,23 @@ fn rms_per_session(body: &mut String, s: &TrackerSummary) {
             escape(&failing.join(", "))
         )
     };
+    let values: Vec<String> = sessions
+        .iter()
+        .map(|f| {
+            format!(
+                "{} {} mm (nominal {} mm)",
+                escape(&f.calibrated.name),
+                mm4(f.calibrated.rms_mm),
+                mm4(f.nominal.rms_mm)
+            )
+        })
+        .collect();
     let _ = write!(
         body,
-        "<h2>Held-out RMS per session</h2>{}<p class=note>Each held-out session's base refitted (closed form) for \
-         the calibrated and for the nominal model (the nominal arm with only its tool fitted). {transfer} {}.</p>",
+        "<h2>Held-out RMS per session</h2>{}<p class=note>{}. Each held-out session's base refitted (closed form) \
+         for the calibrated and for the nominal model (the nominal arm with only its tool fitted). {transfer} {}.</p>",
         svg::bars(&names, &series, "held-out RMS (mm)"),
+        values.join("; "),
         floor_words(s)
     );
     let angles: Vec<(&SessionFigures, f64, f64)> = sessions
@@ -155,7 +167,12 @@ fn figure(body: &mut String, svg: String) {
     }
 }
 
-fn residual_plots(body: &mut String, session: &HeldOutSession, figures: Option<&SessionFigures>) {
+fn residual_plots(
+    body: &mut String,
+    session: &HeldOutSession,
+    figures: Option<&SessionFigures>,
+    tool_floated: bool,
+) {
     let points = &session.points;
     if points.is_empty() {
         return;
@@ -163,10 +180,11 @@ fn residual_plots(body: &mut String, session: &HeldOutSession, figures: Option<&
     let size = |p: &HeldOutPoint| p.residual_mm.iter().map(|v| v * v).sum::<f64>().sqrt();
     let headline = figures.map_or(String::new(), |f| {
         format!(
-            ": {} mm RMS over {} points (nominal {} mm){}",
+            ": {} mm RMS over {} points (nominal {} mm){}{}",
             mm4(f.calibrated.rms_mm),
             f.calibrated.points,
             mm4(f.nominal.rms_mm),
+            if tool_floated { ", its own tool fitted (<code>--float-tool</code>)" } else { "" },
             if f.transfers { "" } else { ", <span class=flag>does not transfer</span>" }
         )
     });
@@ -411,36 +429,39 @@ fn calibration_tables(body: &mut String, s: &TrackerSummary) {
             num(z, 4)
         );
     }
-    if !s.tool_offsets.is_empty() {
-        let rows: Vec<Vec<String>> = s
-            .tool_offsets
-            .iter()
-            .map(|t| {
-                let [x, y, z] = t.offset_mm;
-                vec![escape(&t.session), mm4(x), mm4(y), mm4(z), mm4(t.size_std_mm)]
-            })
-            .collect();
-        let _ = write!(
-            body,
-            "<h3>Floated tools (<code>--float-tool</code>)</h3>{}",
-            table(&["session", "x mm", "y mm", "z mm", "σ of the length mm"], &rows)
-        );
+    let tools: Vec<_> = s.tool_offsets.iter().map(|t| (&t.session, t.offset_mm, t.size_std_mm)).collect();
+    session_vectors(body, "Floated tools (<code>--float-tool</code>, flange frame)", &tools, "mm", "length");
+    let drifts: Vec<_> =
+        s.drifts.iter().map(|d| (&d.session, d.velocity_mm_per_h, d.speed_std_mm_per_h)).collect();
+    session_vectors(
+        body,
+        "Drifting sessions (<code>--drift-session</code>, instrument frame)",
+        &drifts,
+        "mm/h",
+        "speed",
+    );
+}
+
+/// A table of one 3-vector per session with the σ of its size (`what`), when there are any.
+fn session_vectors(
+    body: &mut String,
+    title: &str,
+    rows: &[(&String, [f64; 3], f64)],
+    unit: &str,
+    what: &str,
+) {
+    if rows.is_empty() {
+        return;
     }
-    if !s.drifts.is_empty() {
-        let rows: Vec<Vec<String>> = s
-            .drifts
-            .iter()
-            .map(|d| {
-                let [x, y, z] = d.velocity_mm_per_h;
-                vec![escape(&d.session), mm4(x), mm4(y), mm4(z), mm4(d.speed_std_mm_per_h)]
-            })
-            .collect();
-        let _ = write!(
-            body,
-            "<h3>Drifting sessions (<code>--drift-session</code>, instrument frame)</h3>{}",
-            table(&["session", "x mm/h", "y mm/h", "z mm/h", "σ of the speed mm/h"], &rows)
-        );
-    }
+    let cells: Vec<Vec<String>> = rows
+        .iter()
+        .map(|(session, [x, y, z], std)| vec![escape(session), mm4(*x), mm4(*y), mm4(*z), mm4(*std)])
+        .collect();
+    let names = ["x", "y", "z"].map(|axis| format!("{axis} {unit}"));
+    let size = format!("σ of the {what} {unit}");
+    let header: Vec<&str> =
+        ["session"].into_iter().chain(names.iter().map(String::as_str)).chain([&*size]).collect();
+    let _ = write!(body, "<h3>{title}</h3>{}", table(&header, &cells));
 }
 
 fn identifiability(body: &mut String, s: &TrackerSummary) {

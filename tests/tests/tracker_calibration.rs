@@ -345,6 +345,18 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
                 assert!(html.contains(&angle), "{angle} not in the report");
             }
         }
+        // The calibration sessions' plots are drawn from the residuals the fit's RMS summarises.
+        let fit: Vec<f64> = run
+            .calibration_residuals
+            .iter()
+            .flat_map(|s| &s.points)
+            .map(|p| p.residual_mm.iter().map(|v| v * v).sum::<f64>())
+            .collect();
+        let fit_rms = (fit.iter().sum::<f64>() / fit.len() as f64).sqrt();
+        assert!((fit_rms - summary["fit"]["rms_mm"].as_f64().expect("fit")).abs() < 1e-9, "fit {fit_rms}");
+        for name in summary["calibration_sessions"].as_object().expect("calibration sessions").keys() {
+            assert!(html.contains(&format!("<h2>Calibration session {name}: ")), "{name}'s plots");
+        }
         let overall = &summary["validation"]["overall"];
         assert!(html.contains(&format!(
             "<td>all held-out sessions</td><td>{}</td><td>{}</td>",
@@ -361,7 +373,7 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
         }
         let joints = summary["joints"].as_u64().expect("joints") as usize;
         let plots = html.matches("<svg").count();
-        assert!(plots >= 2 * (4 + joints) + 2, "{plots} plots");
+        assert!(plots >= 4 * (4 + joints) + 2, "{plots} plots");
         if six_dof {
             assert!(summary["floor"]["rms_mm"].is_null(), "{}", summary["floor"]);
             assert!(html.contains("The floor is unknown: the held-out sessions have no repeated poses"));

@@ -961,6 +961,15 @@ pub struct SessionValidation {
 
 /// Position error of every calibration point at the solution, per session in file order, mm.
 pub fn calibration_errors(fit: &TrackerCalibration, data: &TrackerData) -> Vec<Vec<f64>> {
+    calibration_residuals_mm(fit, data)
+        .into_iter()
+        .map(|session| session.iter().map(|r| r.norm()).collect())
+        .collect()
+}
+
+/// Residual of every calibration point at the solution, per session in file order: measured −
+/// predicted (its session's fitted base, tool offset and drift), in the robot's base frame, mm.
+pub fn calibration_residuals_mm(fit: &TrackerCalibration, data: &TrackerData) -> Vec<Vec<Vector3<f64>>> {
     data.sessions
         .iter()
         .zip(&fit.bases)
@@ -979,7 +988,8 @@ pub fn calibration_errors(fit: &TrackerCalibration, data: &TrackerData) -> Vec<V
                 .iter()
                 .map(|p| {
                     let drifted = drift * p.time_s.unwrap_or(0.0) / 3600.0;
-                    (base.apply(&model_point(&fit.model, &p.q_deg, &offset)) + drifted - p.point_mm).norm()
+                    let predicted = base.apply(&model_point(&fit.model, &p.q_deg, &offset)) + drifted;
+                    base.rotation.transpose() * (p.point_mm - predicted)
                 })
                 .collect()
         })

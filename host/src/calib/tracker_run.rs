@@ -11,9 +11,9 @@
 //! model is never said to explain the data.
 
 use crate::calib::tracker::{
-    calibrate_tracker, fit_session_with_tool, orientation_errors_deg, session_residuals_mm,
-    validate_orientations, validate_session, AngleStats, ErrorStats, FloatedTool, SessionDrift,
-    SessionValidation, ToolRotation, TrackerCalibration, TrackerError, TrackerEstimate,
+    calibrate_tracker, calibration_residuals_mm, fit_session_with_tool, orientation_errors_deg,
+    session_residuals_mm, validate_orientations, validate_session, AngleStats, ErrorStats, FloatedTool,
+    SessionDrift, SessionValidation, ToolRotation, TrackerCalibration, TrackerError, TrackerEstimate,
     TrackerIdentifiability, TrackerOptions,
 };
 use crate::calib::tracker_errors::{data_error_candidates, DataError};
@@ -155,9 +155,9 @@ pub struct TrackerSummary {
     pub warnings: Vec<String>,
 }
 
-/// One held-out point as the calibrated model leaves it (its session's base refitted).
+/// One point as the calibrated model leaves it.
 #[derive(Clone, Debug)]
-pub struct HeldOutPoint {
+pub struct PointResidual {
     /// Line in the session's file.
     pub line: usize,
     /// Pose id, when the file has a `pose` column.
@@ -172,13 +172,13 @@ pub struct HeldOutPoint {
     pub orientation_error_deg: Option<f64>,
 }
 
-/// The points of one held-out session, in file order.
+/// The residuals of one session's points, in file order.
 #[derive(Clone, Debug)]
-pub struct HeldOutSession {
+pub struct SessionResiduals {
     /// Session name.
     pub name: String,
     /// Its points.
-    pub points: Vec<HeldOutPoint>,
+    pub points: Vec<PointResidual>,
 }
 
 /// A finished tracker run.
@@ -190,8 +190,11 @@ pub struct TrackerRun {
     pub calibration: TrackerCalibration,
     /// The summary.
     pub summary: TrackerSummary,
-    /// Every held-out point's residual, per session, as `validation.sessions[]` summarises them.
-    pub held_out: Vec<HeldOutSession>,
+    /// Every held-out point's residual (its session's base refitted), per session, as
+    /// `validation.sessions[]` summarises them.
+    pub held_out: Vec<SessionResiduals>,
+    /// Every calibration point's residual at the solution, per session, as `fit` summarises them.
+    pub calibration_residuals: Vec<SessionResiduals>,
 }
 
 fn pooled(parts: &[SessionValidation]) -> ErrorStats {
@@ -222,18 +225,27 @@ fn held_out_points(
     fit: &TrackerCalibration,
     session: &TrackerSession,
     offset_mm: [f64; 3],
-) -> HeldOutSession {
+) -> SessionResiduals {
     let residuals = session_residuals_mm(&fit.model, session, offset_mm);
     let angles = fit.tool_rotation.as_ref().map_or_else(
         || vec![None; session.points.len()],
         |t| orientation_errors_deg(&fit.model, session, [0.0; 3], &t.rotation()),
     );
+    session_residuals(session, residuals, angles)
+}
+
+/// `session`'s points with their residuals and orientation errors.
+fn session_residuals(
+    session: &TrackerSession,
+    residuals: Vec<Vector3<f64>>,
+    angles: Vec<Option<f64>>,
+) -> SessionResiduals {
     let points = session
         .points
         .iter()
         .zip(residuals)
         .zip(angles)
-        .map(|((p, r), angle)| HeldOutPoint {
+        .map(|((p, r), angle)| PointResidual {
             line: p.line,
             pose: p.pose.clone(),
             time_s: p.time_s,
@@ -242,7 +254,7 @@ fn held_out_points(
             orientation_error_deg: angle,
         })
         .collect();
-    HeldOutSession { name: session.name.clone(), points }
+    SessionResiduals { name: session.name.clone(), points }
 }
 
 /// The held-out floor (see the module's doc comment).
@@ -437,5 +449,11 @@ pub fn run_on(
         verdict,
         warnings: cal.warnings.iter().chain(&val.warnings).cloned().collect(),
     };
-    Ok(TrackerRun { nominal, calibration: fit, summary, held_out })
+    let calibration_residuals = cal
+        .sessions
+        .iter()
+        .zip(calibration_residuals_mm(&fit, cal))
+        .map(|(s, residuals)| session_residuals(s, residuals, vec![None; s.points.len()]))
+        .collect();
+    Ok(TrackerRun { nominal, calibration: fit, summary, held_out, calibration_residuals })
 }

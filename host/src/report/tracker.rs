@@ -6,7 +6,9 @@ use super::svg::{self, escape};
 use super::{page, table};
 use crate::calib::tracker::CONSTANT_ORIENTATION_DEG;
 use crate::calib::tracker_errors::MIN_GAIN;
-use crate::calib::tracker_run::{HeldOutPoint, HeldOutSession, SessionFigures, TrackerRun, TrackerSummary};
+use crate::calib::tracker_run::{
+    PointResidual, SessionFigures, SessionResiduals, TrackerRun, TrackerSummary,
+};
 use std::fmt::Write;
 
 /// The page is wider than the other reports: four residual plots side by side.
@@ -54,7 +56,16 @@ pub fn tracker_report(run: &TrackerRun) -> String {
     rms_per_session(&mut body, s);
     for session in &run.held_out {
         let figures = s.validation.sessions.iter().find(|f| f.calibrated.name == session.name);
-        residual_plots(&mut body, session, figures, s.inputs.float_tool.contains(&session.name));
+        held_out_plots(&mut body, session, figures, s.inputs.float_tool.contains(&session.name));
+    }
+    for session in &run.calibration_residuals {
+        let points = s.calibration_sessions.get(&session.name).copied().unwrap_or(session.points.len());
+        let _ = write!(
+            body,
+            "<h2>Calibration session {}: the fit's residuals over {points} points</h2>",
+            escape(&session.name)
+        );
+        residual_plots(&mut body, &session.points, "the base, tool and drift fitted with the arm");
     }
     directions(&mut body, s, &run.held_out);
     validation_tables(&mut body, s);
@@ -150,11 +161,11 @@ fn rms_per_session(body: &mut String, s: &TrackerSummary) {
 
 /// The x axis of a session's residuals against its order: `time_s` when every row has it, else
 /// a numeric `pose` id, else the row's place in the file.
-fn order_axis(points: &[HeldOutPoint]) -> (Vec<f64>, &'static str) {
+fn order_axis(points: &[PointResidual]) -> (Vec<f64>, &'static str) {
     if let Some(t) = points.iter().map(|p| p.time_s).collect::<Option<Vec<f64>>>() {
         return (t, "time (s)");
     }
-    let pose = |p: &HeldOutPoint| p.pose.as_deref()?.trim().parse::<f64>().ok().filter(|v| v.is_finite());
+    let pose = |p: &PointResidual| p.pose.as_deref()?.trim().parse::<f64>().ok().filter(|v| v.is_finite());
     if let Some(ids) = points.iter().map(pose).collect::<Option<Vec<f64>>>() {
         return (ids, "pose id");
     }
@@ -167,17 +178,12 @@ fn figure(body: &mut String, svg: String) {
     }
 }
 
-fn residual_plots(
+fn held_out_plots(
     body: &mut String,
-    session: &HeldOutSession,
+    session: &SessionResiduals,
     figures: Option<&SessionFigures>,
     tool_floated: bool,
 ) {
-    let points = &session.points;
-    if points.is_empty() {
-        return;
-    }
-    let size = |p: &HeldOutPoint| p.residual_mm.iter().map(|v| v * v).sum::<f64>().sqrt();
     let headline = figures.map_or(String::new(), |f| {
         format!(
             ": {} mm RMS over {} points (nominal {} mm){}{}",
@@ -189,14 +195,24 @@ fn residual_plots(
         )
     });
     let _ = write!(body, "<h2>Held-out session {}{headline}</h2>", escape(&session.name));
+    residual_plots(body, &session.points, "the session's base refitted");
+}
+
+/// A session's residuals against its order (size, components, orientation) and against each
+/// joint angle; `base` says how the session's base was found.
+fn residual_plots(body: &mut String, points: &[PointResidual], base: &str) {
+    if points.is_empty() {
+        return;
+    }
+    let size = |p: &PointResidual| p.residual_mm.iter().map(|v| v * v).sum::<f64>().sqrt();
     let (order, order_label) = order_axis(points);
-    let against = |values: &dyn Fn(&HeldOutPoint) -> f64| -> Vec<(f64, f64)> {
+    let against = |values: &dyn Fn(&PointResidual) -> f64| -> Vec<(f64, f64)> {
         order.iter().zip(points).map(|(x, p)| (*x, values(p))).collect()
     };
     let _ = write!(
         body,
-        "<p class=note>The residual (measured − predicted, the session's base refitted, turned into the robot's \
-         base frame) of each point against {order_label}: its size, then its x, y and z components. A trend or a \
+        "<p class=note>The residual (measured − predicted, {base}, turned into the robot's base frame) of each \
+         point against {order_label}: its size, then its x, y and z components. A trend or a \
          period here is drift or a cause that repeats with the motion.</p>"
     );
     figure(body, svg::scatter(&against(&size), &[], order_label, "|residual| (mm)"));
@@ -228,7 +244,7 @@ const DIRECTION_CAP: f64 = 3.0;
 
 /// Every held-out residual's direction on one map, coloured by its size against its session's
 /// RMS (so that sessions of different sizes share the colours).
-fn directions(body: &mut String, s: &TrackerSummary, sessions: &[HeldOutSession]) {
+fn directions(body: &mut String, s: &TrackerSummary, sessions: &[SessionResiduals]) {
     let points: Vec<(f64, f64, f64)> = sessions
         .iter()
         .flat_map(|session| {

@@ -13,9 +13,10 @@
 use crate::calib::tracker::{
     calibrate_tracker, calibration_residuals_mm, fit_session_with_tool, orientation_errors_deg,
     session_residuals_mm, validate_orientations, validate_session, AngleStats, ErrorStats, FloatedTool,
-    SessionDrift, SessionValidation, ToolRotation, TrackerCalibration, TrackerError, TrackerEstimate,
+    SessionValidation, ToolRotation, TrackerCalibration, TrackerError, TrackerEstimate,
     TrackerIdentifiability, TrackerOptions,
 };
+use crate::calib::tracker_drift::{DriftSpec, SessionDrift};
 use crate::calib::tracker_errors::{data_error_candidates, DataError};
 use crate::data::tracker::{load_dir, TrackerData, TrackerSession};
 use crate::files::FileError;
@@ -67,9 +68,9 @@ pub struct TrackerInputs {
     /// The 6-DoF probe's stated orientation σ per axis, degrees (`None`: the default).
     #[serde(default)]
     pub orientation_sigma_deg: Option<f64>,
-    /// Calibration sessions whose base drifts linearly in time (`--drift-session`).
+    /// Calibration sessions whose points drift, and how (`--drift-session SESSION[:KIND]`).
     #[serde(default)]
-    pub drift_sessions: Vec<String>,
+    pub drift_sessions: Vec<DriftSpec>,
 }
 
 /// One held-out session's figures, calibrated and nominal.
@@ -138,7 +139,7 @@ pub struct TrackerSummary {
     pub estimates: Vec<TrackerEstimate>,
     /// Floated tools.
     pub tool_offsets: Vec<FloatedTool>,
-    /// Drifting sessions' velocities.
+    /// Drifting sessions' rates.
     #[serde(default)]
     pub drifts: Vec<SessionDrift>,
     /// What the data cannot separate.

@@ -445,39 +445,43 @@ fn calibration_tables(body: &mut String, s: &TrackerSummary) {
             num(z, 4)
         );
     }
-    let tools: Vec<_> = s.tool_offsets.iter().map(|t| (&t.session, t.offset_mm, t.size_std_mm)).collect();
-    session_vectors(body, "Floated tools (<code>--float-tool</code>, flange frame)", &tools, "mm", "length");
-    let drifts: Vec<_> =
-        s.drifts.iter().map(|d| (&d.session, d.velocity_mm_per_h, d.speed_std_mm_per_h)).collect();
-    session_vectors(
-        body,
-        "Drifting sessions (<code>--drift-session</code>, instrument frame)",
-        &drifts,
-        "mm/h",
-        "speed",
-    );
-}
-
-/// A table of one 3-vector per session with the σ of its size (`what`), when there are any.
-fn session_vectors(
-    body: &mut String,
-    title: &str,
-    rows: &[(&String, [f64; 3], f64)],
-    unit: &str,
-    what: &str,
-) {
-    if rows.is_empty() {
-        return;
+    if !s.tool_offsets.is_empty() {
+        let rows: Vec<Vec<String>> = s
+            .tool_offsets
+            .iter()
+            .map(|t| {
+                let [x, y, z] = t.offset_mm;
+                vec![escape(&t.session), mm4(x), mm4(y), mm4(z), mm4(t.size_std_mm)]
+            })
+            .collect();
+        let _ = write!(
+            body,
+            "<h3>Floated tools (<code>--float-tool</code>, flange frame)</h3>{}",
+            table(&["session", "x mm", "y mm", "z mm", "σ of the length mm"], &rows)
+        );
     }
-    let cells: Vec<Vec<String>> = rows
-        .iter()
-        .map(|(session, [x, y, z], std)| vec![escape(session), mm4(*x), mm4(*y), mm4(*z), mm4(*std)])
-        .collect();
-    let names = ["x", "y", "z"].map(|axis| format!("{axis} {unit}"));
-    let size = format!("σ of the {what} {unit}");
-    let header: Vec<&str> =
-        ["session"].into_iter().chain(names.iter().map(String::as_str)).chain([&*size]).collect();
-    let _ = write!(body, "<h3>{title}</h3>{}", table(&header, &cells));
+    if !s.drifts.is_empty() {
+        let rows: Vec<Vec<String>> = s
+            .drifts
+            .iter()
+            .map(|d| {
+                let rate: Vec<String> = d.rate.iter().map(|v| mm4(*v)).collect();
+                vec![
+                    escape(&d.session),
+                    escape(d.kind.name()),
+                    format!("({})", rate.join(", ")),
+                    escape(&d.unit),
+                    mm4(d.rate_std),
+                    mm4(d.centre),
+                ]
+            })
+            .collect();
+        let _ = write!(
+            body,
+            "<h3>Drifting sessions (<code>--drift-session</code>; a shift's rate in the instrument frame)</h3>{}",
+            table(&["session", "kind", "rate", "unit", "σ of the rate", "zero at (h or °C)"], &rows)
+        );
+    }
 }
 
 fn identifiability(body: &mut String, s: &TrackerSummary) {
@@ -577,10 +581,11 @@ fn inputs(body: &mut String, s: &TrackerSummary) {
     if let Some(sigma) = i.orientation_sigma_deg {
         items.push(format!("<code>--orientation-sigma-deg {}</code>", num(sigma, 4)));
     }
+    let drifts: Vec<String> = i.drift_sessions.iter().map(ToString::to_string).collect();
     for (option, values) in [
         ("--float-tool", &i.float_tool),
         ("--exclude-point", &i.exclude_points),
-        ("--drift-session", &i.drift_sessions),
+        ("--drift-session", &drifts),
     ] {
         for v in values {
             items.push(format!("<code>{option} {}</code>", escape(v)));

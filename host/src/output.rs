@@ -358,13 +358,14 @@ pub fn write_run(run: &Run, dir: &Path) -> Result<(), OutputError> {
     })
 }
 
-/// Write a tracker RUN/ (model.toml, nominal.toml, summary.json) as one folder.
+/// Write a tracker RUN/ (model.toml, nominal.toml, summary.json, report.html) as one folder.
 pub fn write_tracker_run(run: &crate::calib::tracker_run::TrackerRun, dir: &Path) -> Result<(), OutputError> {
     let i = &run.summary.inputs;
     write_folder(dir, FolderKind::Run, &[&*i.model, &*i.calibration, &*i.validation], |staged| {
         run.calibration.model.save(&staged.join("model.toml"))?;
         run.nominal.save(&staged.join("nominal.toml"))?;
-        put(staged, "summary.json", json(&run.summary).as_bytes())
+        put(staged, "summary.json", json(&run.summary).as_bytes())?;
+        put(staged, "report.html", report::tracker::tracker_report(run).as_bytes())
     })
 }
 

@@ -238,6 +238,26 @@ pub struct SuggestedPlacement {
     /// For rivals: RMS per touch, mm, by which the second rival's best fit misses the first's
     /// prediction here (and the reverse).
     pub differ_mm: Option<(f64, f64)>,
+    /// For rivals: per touch, mm, the larger of the two misses (where the explanations differ).
+    pub touch_differ_mm: Vec<f64>,
+}
+
+impl SuggestedPlacement {
+    /// The touches where the rivals differ by at least `share` of the largest difference here:
+    /// their landmarks, and the range (from, to deg) each joint passes over them.
+    pub fn where_rivals_differ(&self, share: f64) -> (Vec<String>, Vec<(usize, f64, f64)>) {
+        let most = self.touch_differ_mm.iter().copied().fold(0.0, f64::max);
+        let picked: Vec<usize> =
+            (0..self.touch_differ_mm.len()).filter(|&k| self.touch_differ_mm[k] >= share * most).collect();
+        let ranges = (0..SUTA_JOINTS)
+            .map(|j| {
+                let (from, to) =
+                    joint_range_deg(&picked.iter().map(|&k| self.poses_deg[k][j]).collect::<Vec<_>>());
+                (j + 1, from, to)
+            })
+            .collect();
+        (picked.iter().map(|&k| self.landmarks[k].clone()).collect(), ranges)
+    }
 }
 
 /// Two rivals and how far apart the data put them.
@@ -390,11 +410,16 @@ pub fn plan(
     Ok(Plan { touch_std_mm: options.touch_std_mm, candidates: candidates.len(), rivals, weak })
 }
 
+/// RMS over touches of a 3-rows-per-touch vector, mm.
+fn rms_per_touch(v: &DVector<f64>) -> f64 {
+    (v.norm_squared() / (v.len() / 3).max(1) as f64).sqrt()
+}
+
 fn suggestion(
     c: &CandidatePlacement,
     artefact: &Artefact,
     merit: f64,
-    differ_mm: Option<(f64, f64)>,
+    differ: Option<(DVector<f64>, DVector<f64>)>,
 ) -> SuggestedPlacement {
     let encs: Vec<[f64; SUTA_JOINTS]> = c.touches.iter().map(|t| t.1).collect();
     SuggestedPlacement {
@@ -409,7 +434,10 @@ fn suggestion(
             .collect(),
         poses_deg: encs,
         merit,
-        differ_mm,
+        differ_mm: differ.as_ref().map(|(ab, ba)| (rms_per_touch(ab), rms_per_touch(ba))),
+        touch_differ_mm: differ.map_or_else(Vec::new, |(ab, ba)| {
+            (0..ab.len() / 3).map(|k| ab.rows(3 * k, 3).norm().max(ba.rows(3 * k, 3).norm())).collect()
+        }),
     }
 }
 
@@ -499,11 +527,9 @@ fn plan_rivals(
         .zip(&merits)
         .map(|(&k, &merit)| {
             let rows = &candidate_rows[k];
-            let n = candidates[k].touches.len().max(1) as f64;
             let miss_ab = &rows.a * &delta_a - hcat(&rows.model, &rows.b) * &gamma_ab;
             let miss_ba = &rows.b * &delta_b - hcat(&rows.model, &rows.a) * &gamma_ba;
-            let differ = ((miss_ab.norm_squared() / n).sqrt(), (miss_ba.norm_squared() / n).sqrt());
-            suggestion(&candidates[k], artefact, merit, Some(differ))
+            suggestion(&candidates[k], artefact, merit, Some((miss_ab, miss_ba)))
         })
         .collect();
     RivalPlan {

@@ -140,14 +140,14 @@ fn plan_benchmark(seeds: u64) -> Result<()> {
     let started = Instant::now();
     let (mut before, mut planned, mut random) = (Vec::new(), Vec::new(), Vec::new());
     let (mut alone_before, mut alone_planned, mut alone_random) = (Vec::new(), Vec::new(), Vec::new());
-    println!("rivals: true link_offset:5 (0.5 mm) against eccentricity:6; what the diagnosis names, and the separation (SSR_B − SSR_A)/σ²");
-    println!("  seed  named on the data so far            + 2 planned      + 2 random (3 draws: link_offset:5 alone)  separation: so far / planned / random mean");
+    println!("rivals: true link_offset:5 (0.5 mm) against eccentricity:6; what the diagnosis names (\"alone\": link_offset:5 alone, of 3 random draws), and the separation (SSR_B − SSR_A)/σ²");
+    println!("  seed  named on the data so far                      + 2 planned                       + 2 random: alone  separation so far / planned / random");
     for seed in 1..=seeds {
         let trial = TrialOptions { seed, placements: 5, count: 2, random_draws: 3 };
         let o = rival_trial(&nominal, &hidden, a, b, &trial)?;
         let random_alone = o.named_random.iter().filter(|n| RivalOutcome::alone(n, a)).count();
         println!(
-            "  {seed:>4}  {:<35} {:<16} {random_alone}/{}  {:>38.0} / {:.0} / {:.0}",
+            "  {seed:>4}  {:<49} {:<33} {random_alone:>15}/{}  {:>16.0} / {:.0} / {:.0}",
             o.named_before.join(" or "),
             o.named_planned.join(" or "),
             o.named_random.len(),

@@ -1459,6 +1459,10 @@ fn summarise(
                     lines.push(format!("  {} — {}", c.effect, c.evidence));
                 }
             }
+            lines.push(format!(
+                "what to measure next: `kincal plan RUN` names reachable artefact placements where {} predict different touches (by default for the first pair these data cannot tell apart), the joint ranges they pass and how far apart the explanations put the touches there; measure them, add them to the calibration data, recalibrate and diagnose again",
+                named.join(", ")
+            ));
         }
         (_, Some(best)) => {
             let same = if best.equivalent.is_empty() {

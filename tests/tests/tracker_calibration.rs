@@ -245,6 +245,7 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
         exclude_points: vec![],
         orientation_sigma_deg: None,
         drift_sessions: vec![],
+        add: vec![],
     };
     let run = run_tracker(&inputs, None).expect("runs");
     let s = &run.summary;
@@ -391,6 +392,7 @@ fn summary_has_orientation_figures(nominal: ArmModel, cal: &TrackerData, val: &T
         exclude_points: vec![],
         orientation_sigma_deg: Some(0.005),
         drift_sessions: vec![],
+        add: vec![],
     };
     let run = run_on(nominal, cal, val, &inputs, None).expect("runs");
     let json = serde_json::to_value(&run.summary).expect("serialises");

@@ -375,6 +375,7 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
             exclude_points: a.exclude_point.clone(),
             orientation_sigma_deg: a.orientation_sigma_deg,
             drift_sessions: a.drift_session.clone(),
+            add: a.add.iter().map(|e| e.to_string()).collect(),
         };
         return crate::tracker::calibrate_tracker_and_report(&inputs, &a.out, a.json);
     }

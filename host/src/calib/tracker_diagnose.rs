@@ -26,8 +26,9 @@
 //! is `diagnose::held_out_p` (sign-flip and t test, weighted Bonferroni). Candidates are tested in
 //! a fixed sequence, in the order of their CV gain (calibration data only), each at
 //! [`FAMILY_ALPHA`], stopping at the first that fails: the family-wise error stays at 0.05. A
-//! candidate must also lower the held-out RMS by [`SIGNIFICANT_GAIN`] (an arm effect) or
-//! [`MIN_GAIN`] (a data error), and have a positive CV gain.
+//! candidate enters the sequence only when its CV gain promises the practical gain (a CV RMS
+//! lower by [`SIGNIFICANT_GAIN`] for an arm effect, [`MIN_GAIN`] for a data error), and must
+//! then lower the held-out RMS by as much.
 //!
 //! *Naming.* The first significant candidate leads. Every other significant one that it does not
 //! beat on the held-out blocks (paired sign-flip and t test of ln(MSE_B / MSE_A) at
@@ -54,7 +55,7 @@ use crate::calib::tracker::{
 };
 use crate::calib::tracker_errors::{data_error_candidates, DataError, MIN_GAIN};
 use crate::calib::tracker_run::{
-    floor, without_points, TrackerFloor, TrackerInputs, TrackerRunError, EXPLAINS_WITHIN,
+    floor, without_points, TrackerFloor, TrackerInputs, TrackerRunError, TrackerSummary, EXPLAINS_WITHIN,
 };
 use crate::data::tracker::{TrackerData, TrackerSession};
 use crate::model::effects::{Effect, EffectKind};
@@ -219,8 +220,9 @@ fn held_out_offset(model: &ArmModel, session: &TrackerSession, float_tool: &[Str
     }
 }
 
-/// Held-out residual vectors of `model` on every session of `val`, mm.
-fn held_out_residuals(model: &ArmModel, val: &TrackerData, float_tool: &[String]) -> Vec<Vec<nalgebra::Vector3<f64>>> {
+/// Held-out residual vectors of `model` on every session of `val`, mm (each base refitted, and
+/// the tool of the sessions in `float_tool`).
+pub fn held_out_residuals(model: &ArmModel, val: &TrackerData, float_tool: &[String]) -> Vec<Vec<nalgebra::Vector3<f64>>> {
     val.sessions
         .iter()
         .map(|s| session_residuals(model, s, held_out_offset(model, s, float_tool)))
@@ -311,11 +313,15 @@ pub struct NotDetermined {
     pub reason: String,
 }
 
-/// The neighbour bound of the held-out residuals (see the module's doc comment).
-#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
+/// The neighbour bound of one held-out session's residuals (see the module's doc comment).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct NeighbourBound {
-    /// Held-out points used.
+    /// The held-out session.
+    pub session: String,
+    /// Its points.
     pub points: usize,
+    /// Its held-out RMS, mm.
+    pub rms_mm: f64,
     /// U = √(½ · mean |r_i − r_nn(i)|²), mm: at least the noise's 3-D RMS.
     pub bound_mm: f64,
     /// Median joint-space distance to the nearest neighbour, degrees.
@@ -335,8 +341,8 @@ pub struct TrackerDiagnosis {
     pub units: usize,
     /// The floor.
     pub floor: TrackerFloor,
-    /// The neighbour bound, when there are enough held-out points.
-    pub neighbours: Option<NeighbourBound>,
+    /// The neighbour bound of each held-out session with enough points.
+    pub neighbours: Vec<NeighbourBound>,
     /// Arm effects, in the order of the fixed sequence (cross-validated first), then the others.
     pub candidates: Vec<TrackerCandidate>,
     /// Data errors scored beside them (calibration sessions), in sequence order.
@@ -360,14 +366,21 @@ pub struct TrackerDiagnosis {
     /// The change of what is named first (not serialised).
     #[serde(skip)]
     pub change: Option<Change>,
+    /// The calibrated model diagnosed (not serialised).
+    #[serde(skip)]
+    pub model: Option<ArmModel>,
 }
 
-/// The neighbour bound of `residuals` (per session, per point), with the points' joints.
-fn neighbour_bound(val: &TrackerData, residuals: &[Vec<nalgebra::Vector3<f64>>], held_out_rms: f64) -> Option<NeighbourBound> {
-    let mut squares = Vec::new();
-    let mut distances = Vec::new();
+/// The neighbour bound of each held-out session with enough points, from its residuals.
+fn neighbour_bounds(val: &TrackerData, residuals: &[Vec<nalgebra::Vector3<f64>>]) -> Vec<NeighbourBound> {
+    let mut out = Vec::new();
     for (session, r) in val.sessions.iter().zip(residuals) {
         let q: Vec<&[f64]> = session.points.iter().map(|p| p.q_deg.as_slice()).collect();
+        if q.len() < MIN_NEIGHBOUR_POINTS {
+            continue;
+        }
+        let mut squares = Vec::new();
+        let mut distances = Vec::new();
         for i in 0..q.len() {
             let nearest = (0..q.len())
                 .filter(|&j| j != i)
@@ -378,17 +391,18 @@ fn neighbour_bound(val: &TrackerData, residuals: &[Vec<nalgebra::Vector3<f64>>],
                 distances.push(d2.sqrt());
             }
         }
+        let bound_mm = (squares.iter().sum::<f64>() / (2.0 * squares.len() as f64)).sqrt();
+        let rms_mm = pooled_rms(r.iter().map(|v| v.norm()).collect::<Vec<_>>().iter());
+        out.push(NeighbourBound {
+            session: session.name.clone(),
+            points: q.len(),
+            rms_mm,
+            bound_mm,
+            median_distance_deg: crate::numerics::stats::median(distances),
+            incomplete: rms_mm > NEIGHBOUR_MARGIN * bound_mm,
+        });
     }
-    if squares.len() < MIN_NEIGHBOUR_POINTS {
-        return None;
-    }
-    let bound_mm = (squares.iter().sum::<f64>() / (2.0 * squares.len() as f64)).sqrt();
-    Some(NeighbourBound {
-        points: squares.len(),
-        bound_mm,
-        median_distance_deg: crate::numerics::stats::median(distances),
-        incomplete: held_out_rms > NEIGHBOUR_MARGIN * bound_mm,
-    })
+    out
 }
 
 /// Cross-validated error of every calibration point (fold left out), per session in file order;
@@ -487,7 +501,7 @@ pub fn diagnose_tracker(
     let units = test_units(val);
     let floor = floor(&val.sessions, setup.stated_sigma_mm);
     let residuals = held_out_residuals(&baseline.fit.model, val, &setup.float_tool);
-    let neighbours = neighbour_bound(val, &residuals, before_rms);
+    let neighbours = neighbour_bounds(val, &residuals);
     // Arm effects, each refitted warm.
     let joints = setup.model.joints.len();
     let library: Vec<Effect> = Effect::library(joints)
@@ -562,11 +576,13 @@ pub fn diagnose_tracker(
             s.cv_gain = g;
         }
     }
-    // The fixed sequence: cross-validated candidates by CV gain.
+    // The fixed sequence: cross-validated candidates whose CV gain promises the practical gain,
+    // by CV gain.
+    let promising = |s: &Scored, needed: f64| s.cv_gain.is_some_and(|g| g >= -2.0 * (1.0 - needed).ln());
     let mut sequence: Vec<(bool, usize)> = (0..effects.len())
-        .filter(|&k| effects[k].cv_gain.is_some())
+        .filter(|&k| promising(&effects[k], SIGNIFICANT_GAIN))
         .map(|k| (false, k))
-        .chain((0..errors.len()).filter(|&k| errors[k].cv_gain.is_some()).map(|k| (true, k)))
+        .chain((0..errors.len()).filter(|&k| promising(&errors[k], MIN_GAIN)).map(|k| (true, k)))
         .collect();
     let gain_of = |&(is_error, k): &(bool, usize)| {
         if is_error { errors[k].cv_gain } else { effects[k].cv_gain }.unwrap_or(f64::NEG_INFINITY)
@@ -632,7 +648,7 @@ pub fn diagnose_tracker(
         let p = held_out_p(&log_ratios(&baseline.held_out, &s.fitted.held_out, &units));
         let needed = if is_error { MIN_GAIN } else { SIGNIFICANT_GAIN };
         let gain = 1.0 - s.fitted.held_out_rms_mm() / before_rms.max(1e-300);
-        let significant = p < FAMILY_ALPHA && gain >= needed && s.cv_gain.unwrap_or(0.0) > 0.0;
+        let significant = p < FAMILY_ALPHA && gain >= needed;
         open = significant;
         outcome.push((is_error, k, Some(p), significant));
     }
@@ -648,6 +664,11 @@ pub fn diagnose_tracker(
     for (k, s) in effects.iter().enumerate() {
         if !sequence.contains(&(false, k)) {
             candidates.push(score(s, None, false, false));
+        }
+    }
+    for (k, s) in errors.iter().enumerate() {
+        if !sequence.contains(&(true, k)) {
+            data_errors.push(score(s, None, false, true));
         }
     }
     // Naming: the first significant leads; rivals it does not beat on the held-out blocks.
@@ -713,6 +734,12 @@ pub fn diagnose_tracker(
         ));
     } else if !sequence.is_empty() {
         summary.push("no candidate effect or data error improves the held-out sessions significantly".into());
+    } else {
+        summary.push(
+            "no candidate effect or data error promises a practical gain in the cross-validation on the calibration \
+             sessions: none was tested on the held-out sessions"
+                .into(),
+        );
     }
     for t in held_out_tools.iter().filter(|d| d.significant) {
         summary.push(format!("data error in a held-out session: {} (apply with {})", t.text, t.action));
@@ -750,21 +777,26 @@ pub fn diagnose_tracker(
             (false, false)
         }
     };
-    if let Some(n) = &neighbours {
+    for n in &neighbours {
         let line = format!(
-            "neighbour check (no floor needed): residuals of the nearest poses in joint space (median {:.1}° apart) \
-             differ by {:.4} mm (RMS/√2), an upper bound on noise plus small-scale error",
-            n.median_distance_deg, n.bound_mm
+            "neighbour check of {} (no floor needed): residuals of the nearest poses in joint space (median {:.1}° \
+             apart) differ by {:.4} mm (RMS/√2), an upper bound on noise plus small-scale error",
+            n.session, n.median_distance_deg, n.bound_mm
         );
         if n.incomplete {
             incomplete = true;
             summary.push(format!(
-                "{line}; {before_rms:.4} mm held out is {:.1}× that: the model is incomplete (an error that varies \
-                 slowly over the joint space is left)",
-                before_rms / n.bound_mm
+                "{line}; {:.4} mm held out there is {:.2}× that: the model is incomplete (an error that varies slowly \
+                 over the joint space is left)",
+                n.rms_mm,
+                n.rms_mm / n.bound_mm
             ));
         } else {
-            summary.push(format!("{line}; the held-out error is within {NEIGHBOUR_MARGIN}× of it: this check cannot tell"));
+            summary.push(format!(
+                "{line}; {:.4} mm held out there is {:.2}× that, within {NEIGHBOUR_MARGIN}×: this check cannot tell",
+                n.rms_mm,
+                n.rms_mm / n.bound_mm
+            ));
         }
     }
     if let (Some(f), Some(w)) = (floor.rms_mm, with) {
@@ -802,6 +834,7 @@ pub fn diagnose_tracker(
         summary,
         seconds: started.elapsed().as_secs_f64(),
         change,
+        model: Some(baseline.fit.model),
     })
 }
 
@@ -829,6 +862,9 @@ pub struct TrackerStep {
     pub floor_mm: Option<f64>,
     /// Its held-out p in the step before.
     pub p_value: Option<f64>,
+    /// The step's calibrated model (not serialised).
+    #[serde(skip)]
+    pub model: Option<ArmModel>,
 }
 
 /// The auto loop on a tracker run.
@@ -861,7 +897,14 @@ pub fn auto_tracker(
             Some((a, b, p)) => (Some(a), Some(b), p),
             None => (None, None, None),
         };
-        steps.push(TrackerStep { applied, action, held_out_rms_mm: d.held_out_rms_mm, floor_mm: d.floor.rms_mm, p_value });
+        steps.push(TrackerStep {
+            applied,
+            action,
+            held_out_rms_mm: d.held_out_rms_mm,
+            floor_mm: d.floor.rms_mm,
+            p_value,
+            model: d.model.clone(),
+        });
         let next = match (&d.change, d.explains) {
             (_, true) => Err(TrackerStop::AtFloor),
             (None, _) => Err(TrackerStop::NothingSignificant),
@@ -882,5 +925,172 @@ pub fn auto_tracker(
             lead.and_then(|c| c.p_value),
         ));
         current = change.apply(&current);
+    }
+}
+
+/// Why a tracker RUN cannot be diagnosed.
+#[derive(Debug, thiserror::Error)]
+pub enum TrackerDiagnoseError {
+    /// Reading or calibrating failed.
+    #[error(transparent)]
+    Run(#[from] TrackerRunError),
+    /// The data are not those the RUN was made from.
+    #[error("{path}: {what}; the data changed since the calibration (calibrate again)")]
+    DataChanged {
+        /// The file or folder.
+        path: std::path::PathBuf,
+        /// What differs.
+        what: String,
+    },
+}
+
+/// Check that `cal` (as read, before exclusions) and `val` are the data `summary` was made from:
+/// the same sessions with the same point counts, the same held-out figures, and `calibration_rms_mm`
+/// (a fresh calibration of the setup) equal to the stored one.
+pub fn check_run_data(
+    summary: &TrackerSummary,
+    cal: &TrackerData,
+    val: &TrackerData,
+    calibration_rms_mm: f64,
+) -> Result<(), TrackerDiagnoseError> {
+    let changed = |path: &std::path::Path, what: String| TrackerDiagnoseError::DataChanged { path: path.into(), what };
+    let kept = without_points(cal, &summary.inputs.exclude_points)?;
+    for (name, points) in &summary.calibration_sessions {
+        match kept.sessions.iter().find(|s| &s.name == name) {
+            None => {
+                return Err(changed(
+                    &summary.inputs.calibration,
+                    format!("calibration session {name} is no longer there"),
+                ))
+            }
+            Some(s) if s.points.len() != *points => {
+                return Err(changed(&s.path, format!("{} points used, {} now", points, s.points.len())))
+            }
+            Some(_) => {}
+        }
+    }
+    if let Some(s) = kept.sessions.iter().find(|s| !summary.calibration_sessions.contains_key(&s.name)) {
+        return Err(changed(&s.path, "a calibration session the run did not use".into()));
+    }
+    for f in &summary.validation.sessions {
+        let name = &f.calibrated.name;
+        let Some(s) = val.sessions.iter().find(|s| &s.name == name) else {
+            return Err(changed(&summary.inputs.validation, format!("held-out session {name} is no longer there")));
+        };
+        if s.points.len() != f.calibrated.points {
+            return Err(changed(&s.path, format!("{} points held out, {} now", f.calibrated.points, s.points.len())));
+        }
+    }
+    let stored = summary.fit.rms_mm;
+    if (calibration_rms_mm - stored).abs() > 1e-6 * stored.max(1e-3) {
+        return Err(changed(
+            &summary.inputs.calibration,
+            format!("calibration RMS {stored:.6} mm in summary.json, {calibration_rms_mm:.6} mm on these files"),
+        ));
+    }
+    Ok(())
+}
+
+/// One held-out session of two runs side by side.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct ComparedSession {
+    /// Session name.
+    pub name: String,
+    /// Points.
+    pub points: usize,
+    /// Held-out RMS of the run before, mm.
+    pub before_rms_mm: f64,
+    /// Held-out RMS of the run after, mm.
+    pub after_rms_mm: f64,
+    /// Base-free pairwise-distance RMS before and after, mm.
+    pub pairwise_rms_mm: (f64, f64),
+}
+
+/// Two tracker runs on the same held-out sessions.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct TrackerComparison {
+    /// The held-out sessions both runs validated on.
+    pub sessions: Vec<ComparedSession>,
+    /// Pooled held-out RMS before and after, mm.
+    pub before_rms_mm: f64,
+    /// Pooled held-out RMS after, mm.
+    pub after_rms_mm: f64,
+    /// The floor of each run, mm.
+    pub floors_mm: (Option<f64>, Option<f64>),
+    /// Test units improved by the run after, of all.
+    pub units_improved: (usize, usize),
+    /// Held-out p that the run after is better.
+    pub p_better: f64,
+    /// Held-out p that it is worse.
+    pub p_worse: f64,
+    /// The verdict, in words.
+    pub verdict: Vec<String>,
+}
+
+/// Compare two calibrated models (`before`, `after`, each with its run's summary) on the held-out
+/// sessions `val` both runs validated on, with the same test units as the diagnosis.
+pub fn compare_tracker(
+    before: (&TrackerSummary, &ArmModel),
+    after: (&TrackerSummary, &ArmModel),
+    val: &TrackerData,
+) -> TrackerComparison {
+    let shared = |s: &TrackerSummary, name: &str| s.validation.sessions.iter().any(|f| f.calibrated.name == name);
+    let mut val = val.clone();
+    val.sessions.retain(|s| shared(before.0, &s.name) && shared(after.0, &s.name));
+    let errors = |run: (&TrackerSummary, &ArmModel)| -> Vec<Vec<f64>> {
+        held_out_residuals(run.1, &val, &run.0.inputs.float_tool)
+            .iter()
+            .map(|r| r.iter().map(|v| v.norm()).collect())
+            .collect()
+    };
+    let (b, a) = (errors(before), errors(after));
+    let units = test_units(&val);
+    let ratios = log_ratios(&b, &a, &units);
+    let negated: Vec<f64> = ratios.iter().map(|r| -r).collect();
+    let (p_better, p_worse) = (held_out_p(&ratios), held_out_p(&negated));
+    let pairwise = |s: &TrackerSummary, name: &str| {
+        s.validation.sessions.iter().find(|f| f.calibrated.name == name).map_or(0.0, |f| f.calibrated.pairwise_rms_mm)
+    };
+    let sessions: Vec<ComparedSession> = val
+        .sessions
+        .iter()
+        .zip(b.iter().zip(&a))
+        .map(|(s, (eb, ea))| ComparedSession {
+            name: s.name.clone(),
+            points: s.points.len(),
+            before_rms_mm: pooled_rms(eb.iter()),
+            after_rms_mm: pooled_rms(ea.iter()),
+            pairwise_rms_mm: (pairwise(before.0, &s.name), pairwise(after.0, &s.name)),
+        })
+        .collect();
+    let (rb, ra) = (pooled_rms(b.iter().flatten()), pooled_rms(a.iter().flatten()));
+    let improved = ratios.iter().filter(|r| **r > 0.0).count();
+    let mut verdict = vec![if sessions.is_empty() {
+        "the two runs share no held-out session: nothing to compare".to_string()
+    } else if p_better < FAMILY_ALPHA && ra < (1.0 - SIGNIFICANT_GAIN) * rb {
+        format!("the second run is better on the held-out sessions: {rb:.4} → {ra:.4} mm ({improved}/{} blocks improved, p {p_better:.1e})", ratios.len())
+    } else if p_worse < FAMILY_ALPHA && rb < (1.0 - SIGNIFICANT_GAIN) * ra {
+        format!("the second run is worse on the held-out sessions: {rb:.4} → {ra:.4} mm ({improved}/{} blocks improved, p {p_worse:.1e})", ratios.len())
+    } else {
+        format!("no significant difference on the held-out sessions: {rb:.4} vs {ra:.4} mm ({improved}/{} blocks improved)", ratios.len())
+    }];
+    if let Some(f) = after.0.floor.rms_mm {
+        verdict.push(if ra <= EXPLAINS_WITHIN * f {
+            format!("the second run explains the held-out data: {ra:.4} mm against a floor of {f:.4} mm ({})", after.0.floor.source)
+        } else {
+            format!("the second run is {:.2}× its floor of {f:.4} mm ({})", ra / f, after.0.floor.source)
+        });
+    } else {
+        verdict.push("the second run's floor is unknown: it cannot be called explained".into());
+    }
+    TrackerComparison {
+        sessions,
+        before_rms_mm: rb,
+        after_rms_mm: ra,
+        floors_mm: (before.0.floor.rms_mm, after.0.floor.rms_mm),
+        units_improved: (improved, ratios.len()),
+        p_better,
+        p_worse,
+        verdict,
     }
 }

@@ -26,6 +26,15 @@ fn setup(model: kincal::model::ArmModel) -> TrackerSetup {
     }
 }
 
+/// The generator's 7-joint arm, five sessions of 40 poses, σ = 0.02 mm stated per point.
+fn five_sessions(seed: u64) -> GenOptions {
+    let mut options = GenOptions::iiwa_five_sessions(seed);
+    for plan in &mut options.sessions {
+        plan.poses = 40;
+    }
+    options
+}
+
 /// Generate, write three calibration and two held-out sessions, and read them back.
 fn sessions(name: &str, options: &GenOptions) -> (std::path::PathBuf, Generated, TrackerSetup, TrackerData, TrackerData) {
     let dir = scratch("tracker-diagnose", name);
@@ -47,18 +56,20 @@ fn sag_on(joint: usize, deg_per_m: f64) -> GravitySag {
 #[test]
 fn hidden_gravity_sag_is_named_and_the_auto_loop_reaches_the_floor() {
     for (seed, joint) in [(21, 2), (22, 4)] {
-        let mut options = GenOptions::iiwa_five_sessions(seed);
+        let mut options = five_sessions(seed);
         options.gravity_sag = Some(sag_on(joint, 0.02));
         let (dir, generated, setup, cal, val) = sessions(&format!("sag-{seed}"), &options);
         let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
-        let d = diagnose_tracker(&setup, &cal, &val).expect("diagnoses");
-        println!("seed {seed}, sag on joint {joint}, true floor {floor:.4} mm:\n  {}", d.summary.join("\n  "));
-        let effect = format!("compliance:{joint}");
-        assert!(d.named.contains(&effect), "seed {seed}: {:?} named, not {effect}", d.named);
-        assert!(d.named.iter().all(|n| !n.contains(':') || !n.contains(' ')), "{:?}", d.named);
-        assert!(d.data_errors.iter().all(|e| !e.significant), "a data error called: {:?}", d.data_errors);
-        assert!(d.incomplete && !d.explains, "{:?}", d.summary);
         let (auto, last) = auto_tracker(&setup, &cal, &val, 4).expect("auto loop");
+        let effect = format!("compliance:{joint}");
+        println!("seed {seed}, sag on joint {joint}, true floor {floor:.4} mm:\n  {}", auto.last.summary.join("\n  "));
+        let first = &auto.steps[0];
+        assert!(first.named.contains(&effect) && first.incomplete, "seed {seed}: {:?} named", first.named);
+        assert!(first.named.iter().all(|n| !n.starts_with("tool moved") && !n.starts_with("drift")));
+        // The first step applies what the first diagnosis named first.
+        assert_eq!(auto.steps[1].applied.as_deref(), Some(effect.as_str()), "seed {seed}: {:?}", auto.steps);
+        assert_eq!(auto.steps[1].action.as_deref(), Some(format!("--add {effect}").as_str()));
+        assert!(auto.steps[1].p_value.is_some_and(|p| p < 0.05));
         let end = auto.steps.last().expect("steps").held_out_rms_mm;
         for s in &auto.steps {
             println!("  step {:?}: {:.4} mm (p {:?})", s.applied, s.held_out_rms_mm, s.p_value);
@@ -75,6 +86,8 @@ fn hidden_gravity_sag_is_named_and_the_auto_loop_reaches_the_floor() {
 /// session_2`) the held-out RMS is within 1.10× the true floor.
 #[test]
 fn a_remounted_tool_is_the_data_error_and_no_arm_effect_is_claimed() {
+    // Sixty poses a session, as the calibration tests use: with forty, the 30 arm values and the
+    // floated tool leave the held-out error 1.13× the floor on this seed.
     let mut options = GenOptions::iiwa_five_sessions(5);
     options.tool_remount = Some(ToolRemount { session: 1, size_mm: 0.8 });
     let (dir, generated, setup, cal, val) = sessions("remount", &options);
@@ -97,7 +110,7 @@ fn a_remounted_tool_is_the_data_error_and_no_arm_effect_is_claimed() {
 #[test]
 fn clean_data_are_explained_and_an_unknown_floor_never_is() {
     for seed in [31, 32, 33] {
-        let (dir, _, setup, cal, val) = sessions(&format!("clean-{seed}"), &GenOptions::iiwa_five_sessions(seed));
+        let (dir, _, setup, cal, val) = sessions(&format!("clean-{seed}"), &five_sessions(seed));
         let d = diagnose_tracker(&setup, &cal, &val).expect("diagnoses");
         println!("seed {seed}:\n  {}", d.summary.join("\n  "));
         assert!(d.named.is_empty(), "seed {seed}: {:?} named on clean data", d.named);
@@ -106,19 +119,25 @@ fn clean_data_are_explained_and_an_unknown_floor_never_is() {
         assert!(d.summary[0].starts_with("the model explains the held-out data"), "{:?}", d.summary);
         std::fs::remove_dir_all(dir).ok();
     }
-    for (seed, sag) in [(34, None), (35, Some(sag_on(2, 0.02)))] {
-        let mut options = GenOptions::iiwa_five_sessions(seed);
+    let unknown = |seed: u64, sag: Option<GravitySag>| {
+        let mut options = five_sessions(seed);
         options.uncertainty = UncertaintyColumn::None;
         options.gravity_sag = sag;
-        let (dir, _, setup, cal, val) = sessions(&format!("unknown-{seed}"), &options);
-        let d = diagnose_tracker(&setup, &cal, &val).expect("diagnoses");
-        println!("seed {seed}, no σ:\n  {}", d.summary.join("\n  "));
-        assert!(d.floor.rms_mm.is_none() && !d.explains, "{:?}", d.floor);
-        assert!(d.summary.iter().all(|l| !l.contains("explains the held-out")), "{:?}", d.summary);
-        let (auto, _) = auto_tracker(&setup, &cal, &val, 3).expect("auto loop");
-        assert_ne!(auto.stop, TrackerStop::AtFloor);
-        std::fs::remove_dir_all(dir).ok();
-    }
+        sessions(&format!("unknown-{seed}"), &options)
+    };
+    let (dir, _, setup, cal, val) = unknown(34, None);
+    let d = diagnose_tracker(&setup, &cal, &val).expect("diagnoses");
+    println!("seed 34, no σ:\n  {}", d.summary.join("\n  "));
+    assert!(d.floor.rms_mm.is_none() && !d.explains, "{:?}", d.floor);
+    assert!(d.summary.iter().all(|l| !l.contains("explains the held-out")), "{:?}", d.summary);
+    std::fs::remove_dir_all(dir).ok();
+    let (dir, _, setup, cal, val) = unknown(35, Some(sag_on(2, 0.02)));
+    let (auto, _) = auto_tracker(&setup, &cal, &val, 3).expect("auto loop");
+    println!("seed 35, no σ, sag:\n  {}", auto.last.summary.join("\n  "));
+    assert_eq!(auto.steps[1].applied.as_deref(), Some("compliance:2"));
+    assert!(auto.last.floor.rms_mm.is_none() && !auto.last.explains && auto.stop != TrackerStop::AtFloor);
+    assert!(auto.last.summary.iter().all(|l| !l.contains("explains the held-out")), "{:?}", auto.last.summary);
+    std::fs::remove_dir_all(dir).ok();
 }
 
 fn kincal(dir: &Path, args: &[&str]) -> (bool, String, String) {
@@ -131,7 +150,7 @@ fn kincal(dir: &Path, args: &[&str]) -> (bool, String, String) {
 /// whose data folder moved, or whose held-out file changed, is refused naming it; nothing panics.
 #[test]
 fn the_cli_diagnoses_compares_and_refuses_moved_or_changed_data() {
-    let mut options = GenOptions::iiwa_five_sessions(41);
+    let mut options = five_sessions(41);
     options.gravity_sag = Some(sag_on(2, 0.02));
     let (dir, _, _, _, _) = sessions("cli", &options);
     let calibrate = |out: &str, extra: &[&str]| {

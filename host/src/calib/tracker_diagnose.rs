@@ -65,7 +65,7 @@ use rayon::prelude::*;
 /// Contiguous pose blocks per calibration session for the cross-validation.
 pub const FOLDS: usize = 5;
 /// Arm effects cross-validated, largest calibration evidence first.
-pub const CROSS_VALIDATED: usize = 8;
+pub const CROSS_VALIDATED: usize = 5;
 /// Most test units (contiguous pose blocks) per held-out session.
 pub const UNITS_PER_SESSION: usize = 8;
 /// Fewest points of a test unit.
@@ -862,6 +862,11 @@ pub struct TrackerStep {
     pub floor_mm: Option<f64>,
     /// Its held-out p in the step before.
     pub p_value: Option<f64>,
+    /// What this step's diagnosis named (one candidate, or rivals), and whether it is
+    /// incomplete.
+    pub named: Vec<String>,
+    /// This step's diagnosis shows the model incomplete.
+    pub incomplete: bool,
     /// The step's calibrated model (not serialised).
     #[serde(skip)]
     pub model: Option<ArmModel>,
@@ -903,6 +908,8 @@ pub fn auto_tracker(
             held_out_rms_mm: d.held_out_rms_mm,
             floor_mm: d.floor.rms_mm,
             p_value,
+            named: d.named.clone(),
+            incomplete: d.incomplete,
             model: d.model.clone(),
         });
         let next = match (&d.change, d.explains) {

@@ -8,7 +8,8 @@ use kincal::calib::tracker_diagnose::{auto_tracker, diagnose_tracker, fit_setup,
 use kincal::data::tracker::TrackerData;
 use kincal_e2e::kincal_bin;
 use kincal_e2e::tracker_gen::{
-    generate, GravitySag, ToolRemount, TrackerData as Generated, TrackerOptions as GenOptions, UncertaintyColumn,
+    generate, GravitySag, ToolRemount, TrackerData as Generated, TrackerOptions as GenOptions,
+    UncertaintyColumn,
 };
 use kincal_e2e::tracker_setup::{nominal_model, scratch, split};
 use std::path::Path;
@@ -36,7 +37,10 @@ fn five_sessions(seed: u64) -> GenOptions {
 }
 
 /// Generate, write three calibration and two held-out sessions, and read them back.
-fn sessions(name: &str, options: &GenOptions) -> (std::path::PathBuf, Generated, TrackerSetup, TrackerData, TrackerData) {
+fn sessions(
+    name: &str,
+    options: &GenOptions,
+) -> (std::path::PathBuf, Generated, TrackerSetup, TrackerData, TrackerData) {
     let dir = scratch("tracker-diagnose", name);
     let generated = generate(options);
     let nominal = nominal_model(&generated, &dir);
@@ -62,7 +66,10 @@ fn hidden_gravity_sag_is_named_and_the_auto_loop_reaches_the_floor() {
         let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
         let (auto, last) = auto_tracker(&setup, &cal, &val, 4).expect("auto loop");
         let effect = format!("compliance:{joint}");
-        println!("seed {seed}, sag on joint {joint}, true floor {floor:.4} mm:\n  {}", auto.last.summary.join("\n  "));
+        println!(
+            "seed {seed}, sag on joint {joint}, true floor {floor:.4} mm:\n  {}",
+            auto.last.summary.join("\n  ")
+        );
         let first = &auto.steps[0];
         assert!(first.named.contains(&effect) && first.incomplete, "seed {seed}: {:?} named", first.named);
         assert!(first.named.iter().all(|n| !n.starts_with("tool moved") && !n.starts_with("drift")));
@@ -97,7 +104,8 @@ fn a_remounted_tool_is_the_data_error_and_no_arm_effect_is_claimed() {
     assert_eq!(d.named, ["tool moved: session_2"], "{:?}", d.summary);
     assert_eq!(d.action.as_deref(), Some("--float-tool session_2"));
     assert!(d.summary.iter().any(|l| l.contains("no arm effect is claimed")), "{:?}", d.summary);
-    let after = fit_setup(&d.change.clone().expect("a change").apply(&setup), &cal, &val, None).expect("refit");
+    let after =
+        fit_setup(&d.change.clone().expect("a change").apply(&setup), &cal, &val, None).expect("refit");
     let rms = after.held_out_rms_mm();
     println!("after --float-tool session_2: {rms:.4} mm held out");
     assert!(rms <= 1.10 * floor, "{rms:.4} mm vs true floor {floor:.4} mm");
@@ -136,7 +144,11 @@ fn clean_data_are_explained_and_an_unknown_floor_never_is() {
     println!("seed 35, no σ, sag:\n  {}", auto.last.summary.join("\n  "));
     assert_eq!(auto.steps[1].applied.as_deref(), Some("compliance:2"));
     assert!(auto.last.floor.rms_mm.is_none() && !auto.last.explains && auto.stop != TrackerStop::AtFloor);
-    assert!(auto.last.summary.iter().all(|l| !l.contains("explains the held-out")), "{:?}", auto.last.summary);
+    assert!(
+        auto.last.summary.iter().all(|l| !l.contains("explains the held-out")),
+        "{:?}",
+        auto.last.summary
+    );
     std::fs::remove_dir_all(dir).ok();
 }
 
@@ -154,7 +166,8 @@ fn the_cli_diagnoses_compares_and_refuses_moved_or_changed_data() {
     options.gravity_sag = Some(sag_on(2, 0.02));
     let (dir, _, _, _, _) = sessions("cli", &options);
     let calibrate = |out: &str, extra: &[&str]| {
-        let mut args = vec!["calibrate", "--model", "nominal.toml", "--data", "cal", "--validate", "val", "--out", out];
+        let mut args =
+            vec!["calibrate", "--model", "nominal.toml", "--data", "cal", "--validate", "val", "--out", out];
         args.extend(extra);
         let (ok, stdout, stderr) = kincal(&dir, &args);
         assert!(ok, "{stdout}{stderr}");
@@ -188,7 +201,9 @@ fn the_cli_diagnoses_compares_and_refuses_moved_or_changed_data() {
     assert!(!ok && stderr.contains("session_4.csv") && stderr.contains("changed"), "{stderr}");
     // The data folder moved: named.
     std::fs::rename(dir.join("cal"), dir.join("cal-moved")).expect("moved");
-    for args in [&["diagnose", "before"][..], &["diagnose", "before", "--auto"], &["compare", "before", "after"]] {
+    for args in
+        [&["diagnose", "before"][..], &["diagnose", "before", "--auto"], &["compare", "before", "after"]]
+    {
         let (ok, stdout, stderr) = kincal(&dir, args);
         assert!(!ok, "{args:?}: {stdout}");
         assert!(!stderr.contains("panicked"), "{stderr}");

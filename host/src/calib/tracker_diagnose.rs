@@ -222,11 +222,12 @@ fn held_out_offset(model: &ArmModel, session: &TrackerSession, float_tool: &[Str
 
 /// Held-out residual vectors of `model` on every session of `val`, mm (each base refitted, and
 /// the tool of the sessions in `float_tool`).
-pub fn held_out_residuals(model: &ArmModel, val: &TrackerData, float_tool: &[String]) -> Vec<Vec<nalgebra::Vector3<f64>>> {
-    val.sessions
-        .iter()
-        .map(|s| session_residuals(model, s, held_out_offset(model, s, float_tool)))
-        .collect()
+pub fn held_out_residuals(
+    model: &ArmModel,
+    val: &TrackerData,
+    float_tool: &[String],
+) -> Vec<Vec<nalgebra::Vector3<f64>>> {
+    val.sessions.iter().map(|s| session_residuals(model, s, held_out_offset(model, s, float_tool))).collect()
 }
 
 /// Calibrate `setup` (warm from `start` when given: a calibrated model with the same free
@@ -444,8 +445,7 @@ fn cross_validate(
             let mut out = Vec::new();
             for (s, (session, e)) in cal.sessions.iter().zip(&errors).enumerate() {
                 let n = session.points.len();
-                let indices =
-                    (0..n).filter(|&i| kept_lines[s][i] && fold_of(n, i) == k);
+                let indices = (0..n).filter(|&i| kept_lines[s][i] && fold_of(n, i) == k);
                 out.extend(indices.zip(e).map(|(i, &err)| (s, i, err)));
             }
             Some(out)
@@ -485,7 +485,10 @@ fn calibration_z(baseline: &TrackerCalibration, with: &TrackerCalibration, k: us
     let rss = |f: &TrackerCalibration| f.fit.rms_mm.powi(2) * f.fit.points as f64;
     let rows = 3.0 * baseline.fit.points as f64;
     // Points left out (bad points) change the sum itself: compare mean squares.
-    let drop = rows * (1.0 - (rss(with) / with.fit.points.max(1) as f64) / (rss(baseline) / baseline.fit.points.max(1) as f64).max(1e-300));
+    let drop = rows
+        * (1.0
+            - (rss(with) / with.fit.points.max(1) as f64)
+                / (rss(baseline) / baseline.fit.points.max(1) as f64).max(1e-300));
     chi2_z(drop, k)
 }
 
@@ -538,7 +541,13 @@ pub fn diagnose_tracker(
             continue;
         }
         let z = calibration_z(&baseline.fit, &fitted.fit, estimated);
-        effects.push(Scored { change: Change::Effect(e), fitted, calibration_z: z, cv_gain: None, text: String::new() });
+        effects.push(Scored {
+            change: Change::Effect(e),
+            fitted,
+            calibration_z: z,
+            cv_gain: None,
+            text: String::new(),
+        });
     }
     effects.sort_by(|a, b| b.calibration_z.total_cmp(&a.calibration_z));
     // Data errors of the calibration sessions; a tool moved in a held-out session keeps its rule.
@@ -672,8 +681,7 @@ pub fn diagnose_tracker(
         }
     }
     // Naming: the first significant leads; rivals it does not beat on the held-out blocks.
-    let significant: Vec<(bool, usize)> =
-        outcome.iter().filter(|o| o.3).map(|o| (o.0, o.1)).collect();
+    let significant: Vec<(bool, usize)> = outcome.iter().filter(|o| o.3).map(|o| (o.0, o.1)).collect();
     let scored_of = |&(is_error, k): &(bool, usize)| if is_error { &errors[k] } else { &effects[k] };
     let mut named = Vec::new();
     let mut change = None;
@@ -960,7 +968,8 @@ pub fn check_run_data(
     val: &TrackerData,
     calibration_rms_mm: f64,
 ) -> Result<(), TrackerDiagnoseError> {
-    let changed = |path: &std::path::Path, what: String| TrackerDiagnoseError::DataChanged { path: path.into(), what };
+    let changed =
+        |path: &std::path::Path, what: String| TrackerDiagnoseError::DataChanged { path: path.into(), what };
     let kept = without_points(cal, &summary.inputs.exclude_points)?;
     for (name, points) in &summary.calibration_sessions {
         match kept.sessions.iter().find(|s| &s.name == name) {
@@ -982,17 +991,25 @@ pub fn check_run_data(
     for f in &summary.validation.sessions {
         let name = &f.calibrated.name;
         let Some(s) = val.sessions.iter().find(|s| &s.name == name) else {
-            return Err(changed(&summary.inputs.validation, format!("held-out session {name} is no longer there")));
+            return Err(changed(
+                &summary.inputs.validation,
+                format!("held-out session {name} is no longer there"),
+            ));
         };
         if s.points.len() != f.calibrated.points {
-            return Err(changed(&s.path, format!("{} points held out, {} now", f.calibrated.points, s.points.len())));
+            return Err(changed(
+                &s.path,
+                format!("{} points held out, {} now", f.calibrated.points, s.points.len()),
+            ));
         }
     }
     let stored = summary.fit.rms_mm;
     if (calibration_rms_mm - stored).abs() > 1e-6 * stored.max(1e-3) {
         return Err(changed(
             &summary.inputs.calibration,
-            format!("calibration RMS {stored:.6} mm in summary.json, {calibration_rms_mm:.6} mm on these files"),
+            format!(
+                "calibration RMS {stored:.6} mm in summary.json, {calibration_rms_mm:.6} mm on these files"
+            ),
         ));
     }
     Ok(())
@@ -1041,7 +1058,8 @@ pub fn compare_tracker(
     after: (&TrackerSummary, &ArmModel),
     val: &TrackerData,
 ) -> TrackerComparison {
-    let shared = |s: &TrackerSummary, name: &str| s.validation.sessions.iter().any(|f| f.calibrated.name == name);
+    let shared =
+        |s: &TrackerSummary, name: &str| s.validation.sessions.iter().any(|f| f.calibrated.name == name);
     let mut val = val.clone();
     val.sessions.retain(|s| shared(before.0, &s.name) && shared(after.0, &s.name));
     let errors = |run: (&TrackerSummary, &ArmModel)| -> Vec<Vec<f64>> {
@@ -1056,7 +1074,11 @@ pub fn compare_tracker(
     let negated: Vec<f64> = ratios.iter().map(|r| -r).collect();
     let (p_better, p_worse) = (held_out_p(&ratios), held_out_p(&negated));
     let pairwise = |s: &TrackerSummary, name: &str| {
-        s.validation.sessions.iter().find(|f| f.calibrated.name == name).map_or(0.0, |f| f.calibrated.pairwise_rms_mm)
+        s.validation
+            .sessions
+            .iter()
+            .find(|f| f.calibrated.name == name)
+            .map_or(0.0, |f| f.calibrated.pairwise_rms_mm)
     };
     let sessions: Vec<ComparedSession> = val
         .sessions
@@ -1083,7 +1105,10 @@ pub fn compare_tracker(
     }];
     if let Some(f) = after.0.floor.rms_mm {
         verdict.push(if ra <= EXPLAINS_WITHIN * f {
-            format!("the second run explains the held-out data: {ra:.4} mm against a floor of {f:.4} mm ({})", after.0.floor.source)
+            format!(
+                "the second run explains the held-out data: {ra:.4} mm against a floor of {f:.4} mm ({})",
+                after.0.floor.source
+            )
         } else {
             format!("the second run is {:.2}× its floor of {f:.4} mm ({})", ra / f, after.0.floor.source)
         });

@@ -4,7 +4,9 @@
 
 use super::svg::{self, escape};
 use super::{mm, page, table};
-use crate::calib::tracker_diagnose::{TrackerAuto, TrackerCandidate, TrackerComparison, TrackerDiagnosis, TrackerStop};
+use crate::calib::tracker_diagnose::{
+    TrackerAuto, TrackerCandidate, TrackerComparison, TrackerDiagnosis, TrackerStop,
+};
 use std::fmt::Write;
 
 fn list(lines: &[String]) -> String {
@@ -29,22 +31,37 @@ fn candidate_rows(candidates: &[TrackerCandidate]) -> Vec<Vec<String>> {
         .collect()
 }
 
-const CANDIDATE_HEADER: [&str; 8] =
-    ["candidate", "held-out RMS mm", "blocks improved", "CV gain", "calibration z", "held-out p", "significant", "apply with"];
+const CANDIDATE_HEADER: [&str; 8] = [
+    "candidate",
+    "held-out RMS mm",
+    "blocks improved",
+    "CV gain",
+    "calibration z",
+    "held-out p",
+    "significant",
+    "apply with",
+];
 
 /// The diagnosis page of a tracker run: the gap to the floor and what closes it, then the tables.
 pub fn tracker_diagnosis_report(d: &TrackerDiagnosis) -> String {
     let mut body = format!("<h2>Summary</h2>{}", list(&d.summary));
     let mut bars: Vec<(String, f64, bool)> = vec![("now (as calibrated)".into(), d.held_out_rms_mm, false)];
-    bars.extend(d.candidates.iter().take(8).map(|c| (format!("+ {}", c.name), c.held_out_rms_mm, c.significant)));
-    bars.extend(d.data_errors.iter().take(4).map(|c| (format!("data: {}", c.name), c.held_out_rms_mm, c.significant)));
+    bars.extend(
+        d.candidates.iter().take(8).map(|c| (format!("+ {}", c.name), c.held_out_rms_mm, c.significant)),
+    );
+    bars.extend(
+        d.data_errors.iter().take(4).map(|c| (format!("data: {}", c.name), c.held_out_rms_mm, c.significant)),
+    );
     let mut references: Vec<(&str, f64)> = Vec::new();
     if let Some(f) = d.floor.rms_mm {
         references.push(("the floor", f));
     }
     let largest_bound = d.neighbours.iter().map(|n| n.bound_mm).fold(f64::NAN, f64::max);
     if largest_bound.is_finite() {
-        references.push(("largest neighbour bound of a held-out session (noise + small-scale error, at most)", largest_bound));
+        references.push((
+            "largest neighbour bound of a held-out session (noise + small-scale error, at most)",
+            largest_bound,
+        ));
     }
     let _ = write!(
         body,
@@ -66,14 +83,25 @@ pub fn tracker_diagnosis_report(d: &TrackerDiagnosis) -> String {
         let rows: Vec<Vec<String>> = d
             .held_out_tools
             .iter()
-            .map(|t| vec![escape(&t.session), escape(&t.text), if t.significant { "yes".into() } else { "no".into() }])
+            .map(|t| {
+                vec![
+                    escape(&t.session),
+                    escape(&t.text),
+                    if t.significant { "yes".into() } else { "no".into() },
+                ]
+            })
             .collect();
-        let _ = write!(body, "<h3>Tool moved in a held-out session</h3>{}", table(&["session", "finding", "called"], &rows));
+        let _ = write!(
+            body,
+            "<h3>Tool moved in a held-out session</h3>{}",
+            table(&["session", "finding", "called"], &rows)
+        );
     }
     if !d.not_identifiable.is_empty() {
         let rows: Vec<Vec<String>> =
             d.not_identifiable.iter().map(|n| vec![escape(&n.effect), escape(&n.reason)]).collect();
-        let _ = write!(body, "<h2>Not identifiable from these sessions</h2>{}", table(&["effect", "why"], &rows));
+        let _ =
+            write!(body, "<h2>Not identifiable from these sessions</h2>{}", table(&["effect", "why"], &rows));
     }
     page("kincal diagnose (tracker run)", &body)
 }
@@ -107,7 +135,11 @@ pub fn tracker_auto_report(run: &TrackerAuto) -> String {
             ]
         })
         .collect();
-    let _ = write!(body, "{}", table(&["step", "applied", "option", "held-out RMS mm", "floor mm", "held-out p"], &rows));
+    let _ = write!(
+        body,
+        "{}",
+        table(&["step", "applied", "option", "held-out RMS mm", "floor mm", "held-out p"], &rows)
+    );
     let why = match run.stop {
         TrackerStop::AtFloor => "the held-out error is at the floor",
         TrackerStop::NothingSignificant => "no candidate is significant",
@@ -143,10 +175,14 @@ pub fn tracker_compare_report(c: &TrackerComparison, names: (&str, &str)) -> Str
         .sessions
         .iter()
         .flat_map(|s| {
-            [(format!("{} (1)", s.name), s.before_rms_mm, false), (format!("{} (2)", s.name), s.after_rms_mm, true)]
+            [
+                (format!("{} (1)", s.name), s.before_rms_mm, false),
+                (format!("{} (2)", s.name), s.after_rms_mm, true),
+            ]
         })
         .collect();
-    let references: Vec<(&str, f64)> = c.floors_mm.1.map(|f| ("floor of the second run", f)).into_iter().collect();
+    let references: Vec<(&str, f64)> =
+        c.floors_mm.1.map(|f| ("floor of the second run", f)).into_iter().collect();
     let body = format!(
         "<p>(1) {}<br>(2) {}</p><h2>Verdict</h2>{}<figure>{}<figcaption>held-out RMS per session, each base refitted</figcaption></figure>{}",
         escape(names.0),

@@ -567,7 +567,9 @@ fn cmd_diagnose_auto(
 }
 
 pub fn cmd_compare(a: &CompareArgs) -> Result<()> {
-    if crate::tracker::tracker_summary(&a.before)?.is_some() || crate::tracker::tracker_summary(&a.after)?.is_some() {
+    if crate::tracker::tracker_summary(&a.before)?.is_some()
+        || crate::tracker::tracker_summary(&a.after)?.is_some()
+    {
         return crate::tracker::compare_tracker_runs(&a.before, &a.after, &a.out);
     }
     let (before, after) = (ComparedRun::load(&a.before)?, ComparedRun::load(&a.after)?);

@@ -115,7 +115,13 @@ fn load_run(run: &Path, summary: &TrackerSummary) -> Result<(TrackerSetup, Track
 }
 
 /// `kincal diagnose RUN [--auto]` on a tracker run.
-pub fn diagnose_tracker_run(run: &Path, summary: &TrackerSummary, json: bool, auto: bool, max_steps: usize) -> Result<()> {
+pub fn diagnose_tracker_run(
+    run: &Path,
+    summary: &TrackerSummary,
+    json: bool,
+    auto: bool,
+    max_steps: usize,
+) -> Result<()> {
     let (setup, cal, val) = load_run(run, summary)?;
     if auto {
         let started = std::time::Instant::now();
@@ -236,7 +242,13 @@ pub fn compare_tracker_runs(a: &Path, b: &Path, out: &Path) -> Result<()> {
             s.name, s.points, s.before_rms_mm, s.after_rms_mm, s.pairwise_rms_mm.0, s.pairwise_rms_mm.1
         );
     }
-    println!("  {:<22} {:>7} {:>12.4} {:>12.4}", "all", c.sessions.iter().map(|s| s.points).sum::<usize>(), c.before_rms_mm, c.after_rms_mm);
+    println!(
+        "  {:<22} {:>7} {:>12.4} {:>12.4}",
+        "all",
+        c.sessions.iter().map(|s| s.points).sum::<usize>(),
+        c.before_rms_mm,
+        c.after_rms_mm
+    );
     for v in &c.verdict {
         println!("{v}");
     }

@@ -160,6 +160,16 @@ impl Change {
         }
     }
 
+    /// Its name in the diagnosis: the effect, or the data error's kind and place.
+    pub fn name(&self) -> String {
+        match self {
+            Change::Effect(e) => e.to_string(),
+            Change::FloatTool(x) => format!("tool moved: {x}"),
+            Change::Drift(x) => format!("drift: {x}"),
+            Change::Exclude(p) => format!("bad points: {}", p.join(", ")),
+        }
+    }
+
     /// The remedy of a data error of `tracker_errors`.
     fn of_data_error(d: &DataError) -> Option<Change> {
         match d.kind.as_str() {
@@ -620,12 +630,7 @@ pub fn diagnose_tracker(
             })
             .collect::<Vec<_>>()
             .join(", ");
-        let name = match &s.change {
-            Change::Effect(e) => e.to_string(),
-            Change::FloatTool(x) => format!("tool moved: {x}"),
-            Change::Drift(x) => format!("drift: {x}"),
-            Change::Exclude(p) => format!("bad points: {}", p.join(", ")),
-        };
+        let name = s.change.name();
         let text = if is_error {
             s.text.clone()
         } else {
@@ -698,8 +703,7 @@ pub fn diagnose_tracker(
     });
     if let Some(lead) = lead {
         let a = scored_of(&lead);
-        let a_name = score(a, None, true, lead.0).name;
-        named.push(a_name.clone());
+        named.push(a.change.name());
         change = Some(a.change.clone());
         let mut rivals = Vec::new();
         if !lead.0 {
@@ -709,9 +713,13 @@ pub fn diagnose_tracker(
                 let d = log_ratios(&b.fitted.held_out, &a.fitted.held_out, &units);
                 let p = held_out_p(&d);
                 if p >= FAMILY_ALPHA {
-                    let b_name = score(b, None, true, false).name;
-                    rivals.push(format!("{b_name} (A better: p {p:.2})"));
-                    named.push(b_name);
+                    rivals.push(format!(
+                        "{} reaches {:.4} mm held out (that {} does better: p {p:.2})",
+                        b.change.name(),
+                        b.fitted.held_out_rms_mm(),
+                        a.change.name()
+                    ));
+                    named.push(b.change.name());
                 }
             }
         }

@@ -39,7 +39,10 @@
 //! test would be in-sample) and reported with its own rule.
 //!
 //! *Floor and the model-free check.* The floor is `tracker_run::floor` (repeated poses, else the
-//! stated σ, else unknown: then the model is never said to explain the data). Whatever the floor,
+//! stated σ, else unknown: then the model is never said to explain the data). The model explains
+//! the data within [`EXPLAINS_WITHIN`] of the floor; it misses when the gap is beyond [`GAP_Z`]
+//! standard errors of what the fitted parameters and the sampling allow (`Gap`); in between,
+//! kincal cannot tell. Whatever the floor,
 //! the *neighbour bound* U = √(½ · mean |r_i − r_nn(i)|²), with r the held-out residuals (base
 //! refitted) and nn(i) the nearest other point of the same session in joint space (degrees),
 //! bounds from above the noise (3-D RMS) plus the part of the model error that differs between
@@ -368,7 +371,8 @@ pub struct TrackerDiagnosis {
     pub action: Option<String>,
     /// The model explains the held-out data (a known floor, within [`EXPLAINS_WITHIN`]).
     pub explains: bool,
-    /// The model is shown incomplete (beyond the floor, or by the neighbour bound).
+    /// The model is shown incomplete (a gap to the floor beyond [`GAP_Z`] standard errors, or by
+    /// the neighbour bound).
     pub incomplete: bool,
     /// The verdict, in words.
     pub summary: Vec<String>,
@@ -762,9 +766,12 @@ pub fn diagnose_tracker(
     }
     // How far from done.
     let with = lead.map(|l| scored_of(&l).fitted.held_out_rms_mm());
-    let (explains, mut incomplete) = match floor.rms_mm {
-        Some(f) => {
+    let gap =
+        floor.rms_mm.map(|f| Gap::of(f, before_rms, &baseline.fit, val, floor.source == "repeated poses"));
+    let (explains, mut incomplete) = match (floor.rms_mm, &gap) {
+        (Some(f), Some(g)) => {
             let explains = before_rms <= EXPLAINS_WITHIN * f;
+            let misses = !explains && g.z > GAP_Z;
             summary.insert(
                 0,
                 if explains {
@@ -772,17 +779,29 @@ pub fn diagnose_tracker(
                         "the model explains the held-out data: {before_rms:.4} mm against a floor of {f:.4} mm ({})",
                         floor.source
                     )
+                } else if misses {
+                    format!(
+                        "{before_rms:.4} mm held out, floor {f:.4} mm ({}): the model misses about {:.4} mm ({:.1} \
+                         standard errors above what the fitted parameters and the noise leave)",
+                        floor.source,
+                        (before_rms * before_rms - f * f).max(0.0).sqrt(),
+                        g.z
+                    )
                 } else {
                     format!(
-                        "{before_rms:.4} mm held out, floor {f:.4} mm ({}): the model misses about {:.4} mm",
+                        "{before_rms:.4} mm held out, floor {f:.4} mm ({}): {:.2}× the floor, within what the fitted \
+                         parameters and the sampling of {} held-out points allow ({:.1} standard errors): cannot tell; \
+                         more held-out points would tell",
                         floor.source,
-                        (before_rms * before_rms - f * f).max(0.0).sqrt()
+                        before_rms / f,
+                        val.point_count(),
+                        g.z
                     )
                 },
             );
-            (explains, !explains)
+            (explains, misses)
         }
-        None => {
+        _ => {
             summary.insert(
                 0,
                 format!(
@@ -815,8 +834,8 @@ pub fn diagnose_tracker(
             ));
         }
     }
-    if let (Some(f), Some(w)) = (floor.rms_mm, with) {
-        if w > EXPLAINS_WITHIN * f {
+    if let (Some(f), Some(w), Some(g)) = (floor.rms_mm, with, &gap) {
+        if w > EXPLAINS_WITHIN * f && g.at(w) > GAP_Z {
             summary.push(format!(
                 "even with {} the model would miss about {:.4} mm ({w:.4} mm held out against {f:.4} mm): the model \
                  is incomplete",
@@ -852,6 +871,56 @@ pub fn diagnose_tracker(
         change,
         model: Some(baseline.fit.model),
     })
+}
+
+/// Standard errors above which the gap between the held-out RMS and the floor is called.
+pub const GAP_Z: f64 = 2.5;
+
+/// The test of the gap to the floor: the held-out mean square M against what a complete model
+/// leaves, E = floor² · (1 + p / (ν_cal − 6·S)) (p the estimated arm and tool values, ν_cal = 3 per
+/// calibration point, six base values per calibration session), with the standard error of M/E
+/// √(2/ν_val + 2/ν_floor) (ν_val = 3 per held-out point less six per session; ν_floor from the
+/// repeats when the floor comes from them, none for a stated σ). Gaussian noise assumed.
+#[derive(Clone, Copy, Debug)]
+struct Gap {
+    expected_ms: f64,
+    standard_error: f64,
+    z: f64,
+}
+
+impl Gap {
+    fn of(floor_mm: f64, rms_mm: f64, fit: &TrackerCalibration, val: &TrackerData, repeats: bool) -> Gap {
+        let sessions = fit.bases.len() as f64;
+        let nu_cal = (3.0 * fit.fit.points as f64 - 6.0 * sessions).max(1.0);
+        let p = fit.identifiability.estimated.len() as f64;
+        let expected_ms = floor_mm * floor_mm * (1.0 + p / nu_cal);
+        let nu_val = (3.0 * val.point_count() as f64 - 6.0 * val.sessions.len() as f64).max(1.0);
+        let nu_floor = if repeats { 3.0 * repeat_groups_dof(val) as f64 } else { f64::INFINITY };
+        let standard_error = (2.0 / nu_val + 2.0 / nu_floor.max(1.0)).sqrt();
+        let mut gap = Gap { expected_ms, standard_error, z: 0.0 };
+        gap.z = gap.at(rms_mm);
+        gap
+    }
+
+    /// Standard errors by which `rms_mm` lies above what a complete model leaves.
+    fn at(&self, rms_mm: f64) -> f64 {
+        (rms_mm * rms_mm / self.expected_ms - 1.0) / self.standard_error
+    }
+}
+
+/// Degrees of freedom of the repeated poses of `val` (repeats beyond the first of each pose).
+fn repeat_groups_dof(val: &TrackerData) -> usize {
+    let mut dof = 0;
+    for s in &val.sessions {
+        let mut groups: std::collections::BTreeMap<&str, usize> = std::collections::BTreeMap::new();
+        for p in &s.points {
+            if let Some(pose) = &p.pose {
+                *groups.entry(pose).or_default() += 1;
+            }
+        }
+        dof += groups.values().map(|n| n.saturating_sub(1)).sum::<usize>();
+    }
+    dof
 }
 
 /// Why the auto loop stopped.

@@ -835,7 +835,9 @@ impl EncoderHarmonic {
 
 /// Slow thermal drift: a steel arm grows with temperature, so every length of the arm and tool
 /// scales by `1 + k·(T(t) − T_ref)`; the measured point becomes `(1 + k·ΔT) · F(q)·t` in the base
-/// frame. `T(t) = T_ref + rise_c · t / duration` over each session (an overnight warm-up).
+/// frame. Over a session T rises by `rise_c`: linearly, `T(t) = T_ref + rise_c · t / D` (an
+/// overnight warm-up), or as a room warming towards a new level with time constant τ,
+/// `T(t) = T_ref + rise_c · (1 − e^(−t/τ)) / (1 − e^(−D/τ))` (D the session's duration).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ThermalDrift {
     /// k, 1/°C (12e-6: 12 µm per °C per metre of steel).
@@ -844,6 +846,23 @@ pub struct ThermalDrift {
     pub start_c: f64,
     /// Rise of T over a session, °C.
     pub rise_c: f64,
+    /// Only this session (0-based) warms; the others stay at T_ref. `None`: every session.
+    pub session: Option<usize>,
+    /// τ of an exponential warm-up, s; `None`: a linear rise.
+    pub time_constant_s: Option<f64>,
+}
+
+impl ThermalDrift {
+    /// Temperature rise at `time_s` into session `s` of `duration_s`, °C.
+    pub fn rise_at(&self, s: usize, time_s: f64, duration_s: f64) -> f64 {
+        if self.session.is_some_and(|only| only != s) {
+            return 0.0;
+        }
+        match self.time_constant_s {
+            Some(tau) => self.rise_c * (1.0 - (-time_s / tau).exp()) / (1.0 - (-duration_s / tau).exp()),
+            None => self.rise_c * time_s / duration_s,
+        }
+    }
 }
 
 /// A tool re-mounted in one session (a probe taken off and put back): in `session` the tool point
@@ -1234,7 +1253,7 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
                 let time_s = options.seconds_per_point * rows.len() as f64;
                 let (scale, temp_c) = match options.thermal {
                     Some(t) => {
-                        let delta_c = t.rise_c * time_s / duration_s;
+                        let delta_c = t.rise_at(s, time_s, duration_s);
                         (1.0 + t.expansion_per_c * delta_c, t.start_c + delta_c)
                     }
                     None => (1.0, 20.0),

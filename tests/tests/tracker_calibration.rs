@@ -3,6 +3,8 @@
 //! stated deviations, a re-mounted tool, constant-orientation sessions.
 
 use kincal::calib::tracker::{calibrate_tracker, validate_session, TrackerCalibration, TrackerOptions};
+use kincal::calib::tracker_errors::{data_error_candidates, DataError};
+use kincal::calib::tracker_run::TrackerInputs;
 use kincal::data::tracker::TrackerData;
 use kincal::model::ArmModel;
 use kincal_e2e::tracker_gen::{generate, TrackerData as Generated, TrackerOptions as GenOptions};
@@ -11,6 +13,21 @@ use std::path::PathBuf;
 
 fn scratch(name: &str) -> PathBuf {
     kincal_e2e::tracker_setup::scratch("tracker-cal", name)
+}
+
+/// The inputs of a run on DIR/model.toml, DIR/cal and DIR/val, without options.
+fn run_inputs(dir: &std::path::Path) -> TrackerInputs {
+    TrackerInputs {
+        model: dir.join("model.toml"),
+        calibration: dir.join("cal"),
+        validation: dir.join("val"),
+        float_tool: vec![],
+        stated_sigma_mm: None,
+        exclude_points: vec![],
+        orientation_sigma_deg: None,
+        drift_sessions: vec![],
+        add: vec![],
+    }
 }
 
 fn held_out_rms(fit: &TrackerCalibration, val: &TrackerData) -> f64 {
@@ -191,7 +208,7 @@ fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
 /// the verdict; repeated poses give the floor when there are any.
 #[test]
 fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor() {
-    use kincal::calib::tracker_run::{run_tracker, TrackerInputs};
+    use kincal::calib::tracker_run::run_tracker;
     let dir = scratch("run");
     let mut options = GenOptions::iiwa_five_sessions(5);
     options.repeats = 2;
@@ -199,18 +216,7 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
     let nominal = nominal_model(&generated, &dir);
     nominal.save(&dir.join("model.toml")).expect("model saved");
     split(&generated, &dir, &[0, 1, 2]);
-    let inputs = TrackerInputs {
-        model: dir.join("model.toml"),
-        calibration: dir.join("cal"),
-        validation: dir.join("val"),
-        float_tool: vec![],
-        stated_sigma_mm: None,
-        exclude_points: vec![],
-        orientation_sigma_deg: None,
-        drift_sessions: vec![],
-        add: vec![],
-    };
-    let run = run_tracker(&inputs, None).expect("runs");
+    let run = run_tracker(&run_inputs(&dir), None).expect("runs");
     let s = &run.summary;
     let names: Vec<&str> = s.validation.sessions.iter().map(|v| v.calibrated.name.as_str()).collect();
     assert_eq!(names, ["session_4", "session_5"]);
@@ -345,17 +351,11 @@ fn six_dof_seed(seed: u64) {
 /// summary.json of a run on 6-DoF sessions: the probe rotation, the calibration's orientation
 /// RMS and each held-out session's `orientation.rms_deg` beside the nominal one.
 fn summary_has_orientation_figures(nominal: ArmModel, cal: &TrackerData, val: &TrackerData) {
-    use kincal::calib::tracker_run::{run_on, TrackerInputs};
+    use kincal::calib::tracker_run::run_on;
     let inputs = TrackerInputs {
         model: "nominal.toml".into(),
-        calibration: "cal".into(),
-        validation: "val".into(),
-        float_tool: vec![],
-        stated_sigma_mm: None,
-        exclude_points: vec![],
         orientation_sigma_deg: Some(0.005),
-        drift_sessions: vec![],
-        add: vec![],
+        ..run_inputs(std::path::Path::new(""))
     };
     let run = run_on(nominal, cal, val, &inputs, None).expect("runs");
     let json = serde_json::to_value(&run.summary).expect("serialises");
@@ -381,13 +381,32 @@ fn mul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
     std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
 }
 
+/// The generated sessions calibrated (three) and held out (two), with the data errors scored,
+/// best first, and printed after `label`: (nominal, calibration, held out, true floor, fit,
+/// candidates).
+fn scored(
+    generated: &Generated,
+    dir: &std::path::Path,
+    label: &str,
+) -> (ArmModel, TrackerData, TrackerData, f64, TrackerCalibration, Vec<DataError>) {
+    let nominal = nominal_model(generated, dir);
+    let (cal, val) = split(generated, dir, &[0, 1, 2]);
+    let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
+    let plain = TrackerOptions::default();
+    let fit = calibrate_tracker(&nominal, &cal, &plain).expect("calibrates");
+    let candidates = data_error_candidates(&nominal, &cal, &val, &fit, &plain);
+    for c in &candidates {
+        println!("{label}: {} [{}] significant {}", c.text, c.action, c.significant);
+    }
+    (nominal, cal, val, floor, fit, candidates)
+}
+
 /// Must show: the instrument creeping during one calibration session (generator's
 /// `InstrumentDrift`): the drift is named with its session and speed, no arm effect is claimed,
 /// and after its action (`--drift-session`) the held-out RMS is ≤ 1.10 × floor. On the same
 /// sessions without drift, a drift is scored but not called.
 #[test]
 fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
-    use kincal::calib::tracker_errors::data_error_candidates;
     use kincal_e2e::tracker_gen::InstrumentDrift;
     for drifting in [true, false] {
         let dir = scratch(&format!("drift-{drifting}"));
@@ -397,17 +416,12 @@ fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
             options.instrument_drift = Some(InstrumentDrift { session: 1, mm_per_hour: 3.0 });
         }
         let generated = generate(&options);
-        let nominal = nominal_model(&generated, &dir);
-        let (cal, val) = split(&generated, &dir, &[0, 1, 2]);
-        let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
+        let (nominal, cal, val, floor, fit, candidates) =
+            scored(&generated, &dir, &format!("drifting {drifting}"));
         let plain = TrackerOptions::default();
-        let fit = calibrate_tracker(&nominal, &cal, &plain).expect("calibrates");
-        let candidates = data_error_candidates(&nominal, &cal, &val, &fit, &plain);
-        for c in &candidates {
-            println!("drifting {drifting}: {} [{}] significant {}", c.text, c.kind, c.significant);
-        }
         let drifts: Vec<_> = candidates.iter().filter(|c| c.kind == "drift").collect();
-        assert_eq!(drifts.len(), 3, "every calibration session with times is scored: {candidates:?}");
+        // Offset and scale against time in each of the three sessions; temp_C is constant.
+        assert_eq!(drifts.len(), 6, "every calibration session with times is scored: {candidates:?}");
         if !drifting {
             assert!(candidates.iter().all(|c| !c.significant), "clean data: {candidates:?}");
             std::fs::remove_dir_all(dir).ok();
@@ -416,21 +430,88 @@ fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
         let best = &candidates[0];
         assert!(best.significant && best.kind == "drift" && best.session == "session_2", "{best:?}");
         assert!(
-            best.text.starts_with("session session_2 drifts by") && best.text.contains("µm/h"),
+            best.text.starts_with("session session_2 drifts (offset-time, against time_s): its base moves")
+                && best.text.contains("µm/h"),
             "{best:?}"
         );
         assert!((best.size_mm - 3.0).abs() < 3.0 * best.size_std_mm + 0.02, "{best:?}");
-        assert_eq!(best.action, "--drift-session session_2");
+        assert_eq!(best.action, "--drift-session session_2:offset-time");
         let refit = calibrate_tracker(
             &nominal,
             &cal,
-            &TrackerOptions { drift_sessions: vec!["session_2".into()], ..plain },
+            &TrackerOptions { drift_sessions: vec!["session_2".parse().unwrap()], ..plain },
         )
         .expect("calibrates");
         let (before, after) = (held_out_rms(&fit, &val), held_out_rms(&refit, &val));
         println!("held-out {before:.4} → {after:.4} mm, floor {floor:.4} mm, drift {:?}", refit.drifts);
         assert!(before > 1.10 * floor, "the drift must show before the action: {before} vs {floor}");
         assert!(after <= 1.10 * floor, "after the action {after} vs floor {floor}");
+        std::fs::remove_dir_all(dir).ok();
+    }
+}
+
+/// Must show: the generator's `ThermalDrift` hidden in one calibration session (an aluminium arm,
+/// 23 ppm/K, warming by 8 K towards a new level, τ = 5 min, while session 2 is measured; the other
+/// sessions at 20 °C): the drift is named with its kind (`scale-temp`) and session, no arm effect
+/// is claimed (the run after the action explains the held-out data, calls nothing else, and the
+/// arm parameters are the true ones within 3 σ), and after the action the held-out RMS is
+/// ≤ 1.10 × floor. On sessions whose temperature varies as much while nothing grows (k = 0),
+/// every drift kind is scored and none is called.
+#[test]
+fn a_thermal_scale_drift_in_one_session_is_named_by_kind_and_its_action_reaches_the_floor() {
+    use kincal::calib::tracker_run::run_tracker;
+    use kincal_e2e::tracker_gen::ThermalDrift;
+    for (seed, expansion_per_c) in [(7, 23e-6), (8, 23e-6), (7, 0.0)] {
+        let dir = scratch(&format!("thermal-{seed}-{expansion_per_c}"));
+        let mut options = GenOptions::iiwa_five_sessions(seed);
+        options.thermal = Some(ThermalDrift {
+            expansion_per_c,
+            start_c: 20.0,
+            rise_c: 8.0,
+            session: if expansion_per_c > 0.0 { Some(1) } else { None },
+            time_constant_s: Some(300.0),
+        });
+        let generated = generate(&options);
+        let (nominal, _, val, floor, fit, candidates) =
+            scored(&generated, &dir, &format!("k {expansion_per_c}"));
+        if expansion_per_c == 0.0 {
+            let drifts = candidates.iter().filter(|c| c.kind == "drift").count();
+            assert_eq!(drifts, 12, "four kinds in each of three sessions: {candidates:?}");
+            assert!(candidates.iter().all(|c| !c.significant), "clean data: {candidates:?}");
+            std::fs::remove_dir_all(dir).ok();
+            continue;
+        }
+        let best = &candidates[0];
+        assert!(best.significant && best.kind == "drift", "{best:?}");
+        assert_eq!(best.action, "--drift-session session_2:scale-temp", "{best:?}");
+        assert!(
+            candidates.iter().filter(|c| c.significant).count() == 1,
+            "one call at a time: {candidates:?}"
+        );
+        assert!((best.size_mm - 23.0).abs() < 3.0 * best.size_std_mm, "{best:?}");
+        // The action as `kincal calibrate --drift-session session_2:scale-temp` runs it.
+        nominal.save(&dir.join("model.toml")).expect("model saved");
+        let inputs = TrackerInputs {
+            drift_sessions: vec![best.action["--drift-session ".len()..].parse().expect("the action parses")],
+            ..run_inputs(&dir)
+        };
+        let run = run_tracker(&inputs, None).expect("runs");
+        let refit = &run.calibration;
+        let (before, after) = (held_out_rms(&fit, &val), held_out_rms(refit, &val));
+        println!("held-out {before:.4} → {after:.4} mm, floor {floor:.4} mm, drift {:?}", refit.drifts);
+        assert!(before > 1.10 * floor, "the drift must show before the action: {before} vs {floor}");
+        assert!(after <= 1.10 * floor, "after the action {after} vs floor {floor}");
+        let json = serde_json::to_value(&run.summary).expect("serialises");
+        assert_eq!(json["drifts"][0]["kind"], "scale-temp", "{json}");
+        assert_eq!(json["drifts"][0]["unit"], "ppm/K", "{json}");
+        // No arm effect: the run explains the held-out data and calls nothing else, and the arm
+        // parameters are the true arm's.
+        let verdict = &run.summary.verdict;
+        assert!(verdict.iter().any(|v| v.starts_with("the model explains the held-out data")), "{verdict:?}");
+        assert!(run.summary.data_errors.iter().all(|d| !d.significant), "{:?}", run.summary.data_errors);
+        let (n, one, three, worst) = recovered(refit, &generated);
+        println!("after the action: {n} parameters, {one} within 1 σ, {three} within 3 σ; worst {worst:?}");
+        assert_eq!(three, n, "every identifiable parameter within 3 σ of the truth: {worst:?}");
         std::fs::remove_dir_all(dir).ok();
     }
 }

@@ -247,7 +247,13 @@ fn inverse_kinematics_reaches_targets_and_constant_orientation_sessions_hold_it(
 #[test]
 fn thermal_drift_and_tool_remount_have_their_configured_size() {
     let mut options = TrackerOptions::iiwa_five_sessions(10);
-    options.thermal = Some(ThermalDrift { expansion_per_c: 12e-6, start_c: 20.0, rise_c: 1.0 });
+    options.thermal = Some(ThermalDrift {
+        expansion_per_c: 12e-6,
+        start_c: 20.0,
+        rise_c: 1.0,
+        session: None,
+        time_constant_s: None,
+    });
     options.tool_remount = Some(ToolRemount { session: 2, size_mm: 0.8 });
     let data = generate(&options);
     let (session, offset) = data.truth.tool_remount.expect("remount recorded");
@@ -279,6 +285,39 @@ fn thermal_drift_and_tool_remount_have_their_configured_size() {
         header,
         "pose,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,q7_deg,x_mm,y_mm,z_mm,sigma_mm,time_s,temp_C"
     );
+}
+
+/// Thermal drift in one session only, as an exponential warm-up: that session's temperature and
+/// scale follow `T_ref + rise·(1 − e^(−t/τ))/(1 − e^(−D/τ))`, the others stay at T_ref, unscaled.
+#[test]
+fn a_warm_up_in_one_session_follows_its_formula_and_leaves_the_others_alone() {
+    let mut options = TrackerOptions::iiwa_five_sessions(11);
+    let thermal = ThermalDrift {
+        expansion_per_c: 23e-6,
+        start_c: 20.0,
+        rise_c: 8.0,
+        session: Some(1),
+        time_constant_s: Some(300.0),
+    };
+    options.thermal = Some(thermal);
+    let data = generate(&options);
+    let duration_s = options.seconds_per_point * data.sessions[1].rows.len() as f64;
+    for (s, sess) in data.sessions.iter().enumerate() {
+        for row in &sess.rows {
+            let rise = if s == 1 {
+                8.0 * (1.0 - (-row.time_s / 300.0).exp()) / (1.0 - (-duration_s / 300.0).exp())
+            } else {
+                0.0
+            };
+            assert!((row.temp_c - 20.0 - rise).abs() < 1e-12, "session {s}: {} °C", row.temp_c);
+            let undisturbed = data.truth.truth.tool_pose(&row.q_deg).translation_mm;
+            let p = undisturbed.map(|v| v * (1.0 + 23e-6 * rise));
+            assert!(distance(p, row.tool_in_base.translation_mm) < 1e-9);
+        }
+    }
+    // Most of the rise comes early: two thirds of it by a third of the session (τ = D/3).
+    let third = &data.sessions[1].rows[data.sessions[1].rows.len() / 3];
+    assert!(third.temp_c - 20.0 > 0.6 * 8.0, "{}", third.temp_c);
 }
 
 #[test]

@@ -56,6 +56,7 @@ use crate::calib::tracker::{
     calibrate_tracker, calibration_errors, fit_session_with_tool, session_residuals, TrackerCalibration,
     TrackerOptions,
 };
+use crate::calib::tracker_drift::DriftSpec;
 use crate::calib::tracker_errors::{data_error_candidates, DataError, MIN_GAIN};
 use crate::calib::tracker_run::{
     floor, without_points, TrackerFloor, TrackerInputs, TrackerRunError, TrackerSummary, EXPLAINS_WITHIN,
@@ -87,8 +88,8 @@ pub struct TrackerSetup {
     pub added: Vec<String>,
     /// Sessions whose tool floats (`--float-tool`), calibration or held out.
     pub float_tool: Vec<String>,
-    /// Calibration sessions whose base drifts (`--drift-session`).
-    pub drift_sessions: Vec<String>,
+    /// Calibration sessions that drift, and how (`--drift-session SESSION:KIND`).
+    pub drift_sessions: Vec<DriftSpec>,
     /// Calibration points left out (`--exclude-point SESSION:LINE`).
     pub exclude_points: Vec<String>,
     /// `--orientation-sigma-deg`.
@@ -129,8 +130,8 @@ pub enum Change {
     Effect(Effect),
     /// Let the tool float in a session (a re-mounted probe).
     FloatTool(String),
-    /// Let a calibration session's base drift in time.
-    Drift(String),
+    /// Let a calibration session drift (its base or its scale, in time or temperature).
+    Drift(DriftSpec),
     /// Leave calibration points out (`SESSION:LINE`).
     Exclude(Vec<String>),
 }
@@ -177,7 +178,7 @@ impl Change {
     fn of_data_error(d: &DataError) -> Option<Change> {
         match d.kind.as_str() {
             "tool moved" => Some(Change::FloatTool(d.session.clone())),
-            "drift" => Some(Change::Drift(d.session.clone())),
+            "drift" => d.action.strip_prefix("--drift-session ")?.trim().parse().ok().map(Change::Drift),
             "bad points" => {
                 let points: Vec<String> = d
                     .action

@@ -12,9 +12,10 @@
 
 use crate::calib::tracker::{
     calibrate_tracker, fit_session_with_tool, validate_orientations, validate_session, AngleStats,
-    ErrorStats, FloatedTool, SessionDrift, SessionValidation, ToolRotation, TrackerCalibration, TrackerError,
+    ErrorStats, FloatedTool, SessionValidation, ToolRotation, TrackerCalibration, TrackerError,
     TrackerEstimate, TrackerIdentifiability, TrackerOptions,
 };
+use crate::calib::tracker_drift::{DriftSpec, SessionDrift};
 use crate::calib::tracker_errors::{data_error_candidates, DataError};
 use crate::data::tracker::{load_dir, TrackerData, TrackerSession};
 use crate::files::FileError;
@@ -70,9 +71,9 @@ pub struct TrackerInputs {
     /// The 6-DoF probe's stated orientation σ per axis, degrees (`None`: the default).
     #[serde(default)]
     pub orientation_sigma_deg: Option<f64>,
-    /// Calibration sessions whose base drifts linearly in time (`--drift-session`).
+    /// Calibration sessions whose points drift, and how (`--drift-session SESSION[:KIND]`).
     #[serde(default)]
-    pub drift_sessions: Vec<String>,
+    pub drift_sessions: Vec<DriftSpec>,
     /// Effects of the library added to the model (`--add`, e.g. `compliance:2`).
     #[serde(default)]
     pub add: Vec<String>,
@@ -144,7 +145,7 @@ pub struct TrackerSummary {
     pub estimates: Vec<TrackerEstimate>,
     /// Floated tools.
     pub tool_offsets: Vec<FloatedTool>,
-    /// Drifting sessions' velocities.
+    /// Drifting sessions' rates.
     #[serde(default)]
     pub drifts: Vec<SessionDrift>,
     /// What the data cannot separate.

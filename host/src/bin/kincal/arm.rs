@@ -94,6 +94,11 @@ pub struct CompareArgs {
     out: PathBuf,
 }
 
+/// `--drift-session SESSION[:KIND]`.
+pub fn parse_drift(text: &str) -> Result<kincal::calib::tracker_drift::DriftSpec, String> {
+    text.parse()
+}
+
 pub fn parse_hidden(text: &str) -> Result<(ParamId, f64), String> {
     let (name, value) = text.split_once('=').ok_or("expected PARAM=DELTA, e.g. eccentricity_sin:5=0.3")?;
     let id = ParamId::parse(name.trim()).ok_or_else(|| format!("unknown parameter `{name}`"))?;
@@ -206,10 +211,12 @@ pub struct CalibrateArgs {
     /// degrees, which weighs orientations against points [default: 0.01]
     #[arg(long, allow_negative_numbers = true, value_parser = real(0.00001, 10.0, "deg"))]
     orientation_sigma_deg: Option<f64>,
-    /// Tracker sessions: let the base of calibration SESSION drift linearly in time (`time_s`),
-    /// as the data-error diagnosis suggests (repeatable).
-    #[arg(long, value_name = "SESSION")]
-    drift_session: Vec<String>,
+    /// Tracker sessions: let calibration SESSION drift linearly, as the data-error diagnosis
+    /// suggests (repeatable, one kind per session). KIND: offset-time (the default: the base
+    /// shifts with time_s), scale-time (the length scale changes with time_s), offset-temp or
+    /// scale-temp (the same against temp_C).
+    #[arg(long, value_name = "SESSION[:KIND]", value_parser = parse_drift)]
+    drift_session: Vec<kincal::calib::tracker_drift::DriftSpec>,
     /// Print summary.json to stdout.
     #[arg(long)]
     json: bool,

@@ -50,6 +50,17 @@ pub fn calibrate_tracker_and_report(inputs: &TrackerInputs, out: &Path, json: bo
         let [x, y, z] = t.offset_mm;
         println!("  tool floating in {}: ({x:.3}, {y:.3}, {z:.3}) mm ± {:.3}", t.session, t.size_std_mm);
     }
+    for d in &s.drifts {
+        let rate: Vec<String> = d.rate.iter().map(|v| format!("{v:.4}")).collect();
+        println!(
+            "  {} drifting ({}): ({}) {} ± {:.4}",
+            d.session,
+            d.kind.name(),
+            rate.join(", "),
+            d.unit,
+            d.rate_std
+        );
+    }
     println!("  held-out session        points   RMS mm  mean mm   max mm  pairwise mm   nominal RMS mm");
     for f in &s.validation.sessions {
         let v = &f.calibrated;

@@ -5,51 +5,14 @@
 use kincal::calib::tracker::{calibrate_tracker, validate_session, TrackerCalibration, TrackerOptions};
 use kincal::calib::tracker_errors::{data_error_candidates, DataError};
 use kincal::calib::tracker_run::TrackerInputs;
-use kincal::data::tracker::{load_dir, TrackerData};
+use kincal::data::tracker::TrackerData;
 use kincal::model::ArmModel;
 use kincal_e2e::tracker_gen::{generate, TrackerData as Generated, TrackerOptions as GenOptions};
+use kincal_e2e::tracker_setup::{nominal_model, split};
 use std::path::PathBuf;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("kincal-tracker-cal-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch folder");
-    dir
-}
-
-/// The generator's nominal arm as a kincal model with every DH value free (the identifiability
-/// step picks what the data can move).
-fn nominal_model(generated: &Generated, dir: &std::path::Path) -> ArmModel {
-    let text = generated.options.arm.kincal_model_toml().expect("a DH arm");
-    let path = dir.join("nominal.toml");
-    std::fs::write(&path, &text).expect("model written");
-    let mut model = ArmModel::load(&path).expect("the generator's model loads");
-    model.free.clear();
-    model.free_every_dh_value(5.0, 10.0);
-    // Hayati β on the rows whose next axis is nominally parallel, as the generator draws it.
-    let last = model.joints.len() - 1;
-    for j in 0..last {
-        if model.joints[j].alpha_deg.abs() < 1e-9 {
-            let beta = model.joints[j].axis_deg;
-            model.free_param(kincal::model::ParamId::Axis(j), beta - 5.0, beta + 5.0);
-        }
-    }
-    model
-}
-
-/// Write the generated sessions (`cal` and `val` indices) into two folders and read them back.
-fn split(generated: &Generated, dir: &std::path::Path, cal: &[usize]) -> (TrackerData, TrackerData) {
-    let all = dir.join("all");
-    generated.write(&all).expect("sessions written");
-    let (c, v) = (dir.join("cal"), dir.join("val"));
-    std::fs::create_dir_all(&c).unwrap();
-    std::fs::create_dir_all(&v).unwrap();
-    for (s, session) in generated.sessions.iter().enumerate() {
-        let name = format!("{}.csv", session.plan.name);
-        let to = if cal.contains(&s) { &c } else { &v };
-        std::fs::rename(all.join(&name), to.join(&name)).unwrap();
-    }
-    (load_dir(&c).expect("calibration sessions"), load_dir(&v).expect("validation sessions"))
+    kincal_e2e::tracker_setup::scratch("tracker-cal", name)
 }
 
 /// The inputs of a run on DIR/model.toml, DIR/cal and DIR/val, without options.
@@ -63,6 +26,7 @@ fn run_inputs(dir: &std::path::Path) -> TrackerInputs {
         exclude_points: vec![],
         orientation_sigma_deg: None,
         drift_sessions: vec![],
+        add: vec![],
     }
 }
 

@@ -710,7 +710,7 @@ fn evidence(
 }
 
 /// Standard normal deviate of a χ²_k statistic (Wilson–Hilferty).
-fn chi2_z(x: f64, k: usize) -> f64 {
+pub fn chi2_z(x: f64, k: usize) -> f64 {
     let k = k.max(1) as f64;
     let v = 2.0 / (9.0 * k);
     ((x.max(0.0) / k).cbrt() - (1.0 - v)) / v.sqrt()

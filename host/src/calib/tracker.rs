@@ -1117,18 +1117,33 @@ pub fn session_residuals_mm(
 /// Most points of a session whose pairwise distances are compared (evenly spaced beyond).
 pub const MAX_PAIRWISE_POINTS: usize = 2000;
 
+/// Position error of every point of `session` for `model`, its base refitted (closed form), in
+/// file order, mm.
+pub fn session_residuals(
+    model: &ArmModel,
+    session: &TrackerSession,
+    tool_offset_mm: [f64; 3],
+) -> Vec<Vector3<f64>> {
+    let offset = &Vector3::from(tool_offset_mm);
+    let base = Base::fit(model, &session.points, offset);
+    session.points.iter().map(|p| base.apply(&model_point(model, &p.q_deg, offset)) - p.point_mm).collect()
+}
+
+/// Lengths of [`session_residuals`], mm.
+pub fn session_errors(model: &ArmModel, session: &TrackerSession, tool_offset_mm: [f64; 3]) -> Vec<f64> {
+    session_residuals(model, session, tool_offset_mm).iter().map(|r| r.norm()).collect()
+}
+
 /// Errors of `model` on `session` with the base refitted (closed form), and the pairwise figures.
 pub fn validate_session(
     model: &ArmModel,
     session: &TrackerSession,
     tool_offset_mm: [f64; 3],
 ) -> SessionValidation {
-    let tool_offset_mm = &Vector3::from(tool_offset_mm);
-    let base = Base::fit(model, &session.points, tool_offset_mm);
+    let offset = &Vector3::from(tool_offset_mm);
     let robot: Vec<Vector3<f64>> =
-        session.points.iter().map(|p| model_point(model, &p.q_deg, tool_offset_mm)).collect();
-    let errors: Vec<f64> =
-        robot.iter().zip(&session.points).map(|(r, p)| (base.apply(r) - p.point_mm).norm()).collect();
+        session.points.iter().map(|p| model_point(model, &p.q_deg, offset)).collect();
+    let errors = session_errors(model, session, tool_offset_mm);
     let stats = ErrorStats::of(&errors);
     let step = session.points.len().div_ceil(MAX_PAIRWISE_POINTS).max(1);
     let picked: Vec<usize> = (0..session.points.len()).step_by(step).collect();

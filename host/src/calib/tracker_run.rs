@@ -20,6 +20,7 @@ use crate::calib::tracker_drift::{DriftSpec, SessionDrift};
 use crate::calib::tracker_errors::{data_error_candidates, DataError};
 use crate::data::tracker::{load_dir, TrackerData, TrackerSession};
 use crate::files::FileError;
+use crate::model::effects::Effect;
 use crate::model::{ArmModel, ParamId};
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
@@ -42,6 +43,9 @@ pub enum TrackerRunError {
     /// `--exclude-point` names no calibration point.
     #[error("--exclude-point {0}: no calibration session and line of that name (expected SESSION:LINE)")]
     UnknownPoint(String),
+    /// `--add` names no effect of the library.
+    #[error("--add {0}: not an effect of the library (e.g. compliance:2, harmonic:3:2, twist:4, scale)")]
+    UnknownEffect(String),
     /// A validation session has the name of a calibration session.
     #[error(
         "session \"{0}\" is in both the calibration and the validation folder: validation must be held out"
@@ -71,6 +75,9 @@ pub struct TrackerInputs {
     /// Calibration sessions whose points drift, and how (`--drift-session SESSION[:KIND]`).
     #[serde(default)]
     pub drift_sessions: Vec<DriftSpec>,
+    /// Effects of the library added to the model (`--add`, e.g. `compliance:2`).
+    #[serde(default)]
+    pub add: Vec<String>,
 }
 
 /// One held-out session's figures, calibrated and nominal.
@@ -304,12 +311,33 @@ fn tool_only(nominal: &ArmModel) -> ArmModel {
     m
 }
 
+/// `cal` without the points named `SESSION:LINE` (`--exclude-point`).
+pub fn without_points(cal: &TrackerData, names: &[String]) -> Result<TrackerData, TrackerRunError> {
+    let mut kept = cal.clone();
+    for name in names {
+        let found = name.rsplit_once(':').and_then(|(session, line)| {
+            let line: usize = line.parse().ok()?;
+            let s = kept.sessions.iter_mut().find(|s| s.name == session)?;
+            let before = s.points.len();
+            s.points.retain(|p| p.line != line);
+            (s.points.len() < before).then_some(())
+        });
+        if found.is_none() {
+            return Err(TrackerRunError::UnknownPoint(name.clone()));
+        }
+    }
+    Ok(kept)
+}
+
 /// Load, calibrate, validate, score the data errors and say what it means.
 pub fn run_tracker(
     inputs: &TrackerInputs,
     huber_delta_mm: Option<f64>,
 ) -> Result<TrackerRun, TrackerRunError> {
-    let nominal = ArmModel::load(&inputs.model)?;
+    let mut nominal = ArmModel::load(&inputs.model)?;
+    for name in &inputs.add {
+        Effect::parse(name).ok_or_else(|| TrackerRunError::UnknownEffect(name.clone()))?.add_to(&mut nominal);
+    }
     let cal = load_dir(&inputs.calibration)?;
     let val = load_dir(&inputs.validation)?;
     run_on(nominal, &cal, &val, inputs, huber_delta_mm)
@@ -323,19 +351,7 @@ pub fn run_on(
     inputs: &TrackerInputs,
     huber_delta_mm: Option<f64>,
 ) -> Result<TrackerRun, TrackerRunError> {
-    let mut kept = cal.clone();
-    for name in &inputs.exclude_points {
-        let found = name.rsplit_once(':').and_then(|(session, line)| {
-            let line: usize = line.parse().ok()?;
-            let s = kept.sessions.iter_mut().find(|s| s.name == session)?;
-            let before = s.points.len();
-            s.points.retain(|p| p.line != line);
-            (s.points.len() < before).then_some(())
-        });
-        if found.is_none() {
-            return Err(TrackerRunError::UnknownPoint(name.clone()));
-        }
-    }
+    let kept = without_points(cal, &inputs.exclude_points)?;
     let cal = &kept;
     if let Some(s) = val.sessions.iter().find(|v| cal.sessions.iter().any(|c| c.name == v.name)) {
         return Err(TrackerRunError::SameSession(s.name.clone()));

@@ -9,6 +9,7 @@ pub mod haptic;
 pub mod study;
 pub mod svg;
 pub mod tracker;
+pub mod tracker_diagnosis;
 
 use std::fmt::Write;
 use svg::escape;

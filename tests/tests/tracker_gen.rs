@@ -4,9 +4,9 @@
 
 use kincal_e2e::tracker_gen::{
     fit_rigid, generate, gravity_levers_m, inverse_kinematics, perturb, quaternion_matrix,
-    rotation_vector_of, v_norm, Arm, BadPoints, Chain, ExportMistake, GravitySag, HiddenErrorSizes,
-    InstrumentDrift, Mat3, Pose, SessionPlan, ThermalDrift, ToolRemount, TrackerOptions, UncertaintyColumn,
-    UrdfJoint, Vec3, FOLDER_TAG,
+    rotation_vector_of, v_norm, Arm, BadPoints, Chain, EncoderHarmonic, ExportMistake, GravitySag,
+    HiddenErrorSizes, InstrumentDrift, Mat3, Pose, SessionPlan, ThermalDrift, ToolRemount, TrackerOptions,
+    UncertaintyColumn, UrdfJoint, Vec3, FOLDER_TAG,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -545,4 +545,25 @@ fn export_mistakes_write_wrong_values_under_the_right_header() {
             }
         }
     }
+}
+
+/// The periodic encoder error turns only its joint, by a·sin nq + b·cos nq of the reported angle.
+#[test]
+fn an_encoder_harmonic_turns_its_joint_as_configured() {
+    let mut options = TrackerOptions::iiwa_five_sessions(13);
+    let h = EncoderHarmonic { joint: 4, order: 2, sin_deg: 0.02, cos_deg: -0.01 };
+    options.encoder_harmonic = Some(h);
+    let data = generate(&options);
+    let truth = &data.truth.truth;
+    let mut largest_mm: f64 = 0.0;
+    for row in &data.sessions[0].rows {
+        let mut turned = row.q_deg.clone();
+        let phase = 2.0 * row.q_deg[3].to_radians();
+        turned[3] += 0.02 * phase.sin() - 0.01 * phase.cos();
+        let expected = truth.tool_pose(&turned).translation_mm;
+        assert!(distance(expected, row.tool_in_base.translation_mm) < 1e-9);
+        largest_mm = largest_mm.max(distance(expected, truth.tool_pose(&row.q_deg).translation_mm));
+    }
+    assert!(largest_mm > 0.05 && largest_mm < 2.0, "{largest_mm} mm");
+    assert_eq!(data.truth.encoder_harmonic, Some(h));
 }

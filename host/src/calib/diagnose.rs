@@ -710,7 +710,7 @@ fn evidence(
 }
 
 /// Standard normal deviate of a χ²_k statistic (Wilson–Hilferty).
-fn chi2_z(x: f64, k: usize) -> f64 {
+pub fn chi2_z(x: f64, k: usize) -> f64 {
     let k = k.max(1) as f64;
     let v = 2.0 / (9.0 * k);
     ((x.max(0.0) / k).cbrt() - (1.0 - v)) / v.sqrt()
@@ -1459,6 +1459,10 @@ fn summarise(
                     lines.push(format!("  {} — {}", c.effect, c.evidence));
                 }
             }
+            lines.push(format!(
+                "what to measure next: `kincal plan RUN` names reachable artefact placements where {} predict different touches (by default for the first pair these data cannot tell apart), the joint ranges they pass and how far apart the explanations put the touches there; measure them, add them to the calibration data, recalibrate and diagnose again",
+                named.join(", ")
+            ));
         }
         (_, Some(best)) => {
             let same = if best.equivalent.is_empty() {

@@ -1153,10 +1153,19 @@ pub struct SessionValidation {
 
 /// Position error of every calibration point at the solution, per session in file order, mm.
 pub fn calibration_errors(fit: &TrackerCalibration, data: &TrackerData) -> Vec<Vec<f64>> {
+    calibration_residuals_mm(fit, data)
+        .into_iter()
+        .map(|session| session.iter().map(|r| r.norm()).collect())
+        .collect()
+}
+
+/// Residual of every calibration point at the solution, per session in file order: measured −
+/// predicted (its session's fitted base, tool offset and drift), in the robot's base frame, mm.
+pub fn calibration_residuals_mm(fit: &TrackerCalibration, data: &TrackerData) -> Vec<Vec<Vector3<f64>>> {
     data.sessions
         .iter()
         .zip(&fit.bases)
-        .map(|(s, base)| errors_with_base(fit, &s.name, base, &s.points))
+        .map(|(s, base)| residuals_with_base(fit, &s.name, base, &s.points))
         .collect()
 }
 
@@ -1170,11 +1179,17 @@ pub fn errors_in_calibration_session(
     points: &[TrackerPoint],
 ) -> Option<Vec<f64>> {
     let s = data.sessions.iter().position(|s| s.name == session)?;
-    Some(errors_with_base(fit, session, fit.bases.get(s)?, points))
+    Some(residuals_with_base(fit, session, fit.bases.get(s)?, points).iter().map(|r| r.norm()).collect())
 }
 
-/// Errors of `points` with `base` and the tool offset and drift `fit` gives session `name`.
-fn errors_with_base(fit: &TrackerCalibration, name: &str, base: &Base, points: &[TrackerPoint]) -> Vec<f64> {
+/// Residuals (measured − predicted, robot base frame, mm) of `points` with `base` and the tool
+/// offset and drift `fit` gives session `name`.
+fn residuals_with_base(
+    fit: &TrackerCalibration,
+    name: &str,
+    base: &Base,
+    points: &[TrackerPoint],
+) -> Vec<Vector3<f64>> {
     let offset = fit
         .tool_offsets
         .iter()
@@ -1186,7 +1201,7 @@ fn errors_with_base(fit: &TrackerCalibration, name: &str, base: &Base, points: &
         .map(|p| {
             let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
             let y = base.rotation * model_point(&fit.model, &p.q_deg, &offset);
-            (y * growth + base.translation_mm + shift - p.point_mm).norm()
+            base.rotation.transpose() * (p.point_mm - (y * growth + base.translation_mm + shift))
         })
         .collect()
 }
@@ -1234,22 +1249,71 @@ pub fn validate_orientations(
     tool_offset_mm: [f64; 3],
     tool_rotation: &Matrix3<f64>,
 ) -> Option<AngleStats> {
+    let angles_deg: Vec<f64> =
+        orientation_errors_deg(model, session, tool_offset_mm, tool_rotation).into_iter().flatten().collect();
+    (!angles_deg.is_empty()).then(|| AngleStats::of(&angles_deg))
+}
+
+/// The orientation error (angle of R_predᵀ·R_meas, degrees) of every point of `session`, its
+/// base refitted from the positions (closed form); `None` for a row without an orientation.
+pub fn orientation_errors_deg(
+    model: &ArmModel,
+    session: &TrackerSession,
+    tool_offset_mm: [f64; 3],
+    tool_rotation: &Matrix3<f64>,
+) -> Vec<Option<f64>> {
     let base = Base::fit(model, &session.points, &Vector3::from(tool_offset_mm));
-    let angles_deg: Vec<f64> = session
+    session
         .points
         .iter()
-        .filter_map(|p| {
+        .map(|p| {
             let measured = p.orientation?.to_rotation_matrix().into_inner();
             let pose = tool_pose(model, &p.q_deg);
             let predicted = base.rotation * flange_rotation(&pose.x_axis, &pose.z_axis) * tool_rotation;
             Some(rotation_vector(&(predicted.transpose() * measured)).norm().to_degrees())
         })
-        .collect();
-    (!angles_deg.is_empty()).then(|| AngleStats::of(&angles_deg))
+        .collect()
+}
+
+/// The residual of every point of `session` for `model`, its base refitted (closed form):
+/// measured − predicted, rotated into the robot's base frame so that sessions compare, mm. Its
+/// lengths are the errors [`validate_session`] summarises.
+pub fn session_residuals_mm(
+    model: &ArmModel,
+    session: &TrackerSession,
+    tool_offset_mm: [f64; 3],
+) -> Vec<Vector3<f64>> {
+    let tool_offset_mm = &Vector3::from(tool_offset_mm);
+    let base = Base::fit(model, &session.points, tool_offset_mm);
+    session
+        .points
+        .iter()
+        .map(|p| {
+            base.rotation.transpose()
+                * (p.point_mm - base.apply(&model_point(model, &p.q_deg, tool_offset_mm)))
+        })
+        .collect()
 }
 
 /// Most points of a session whose pairwise distances are compared (evenly spaced beyond).
 pub const MAX_PAIRWISE_POINTS: usize = 2000;
+
+/// Position error of every point of `session` for `model`, its base refitted (closed form), in
+/// file order, mm.
+pub fn session_residuals(
+    model: &ArmModel,
+    session: &TrackerSession,
+    tool_offset_mm: [f64; 3],
+) -> Vec<Vector3<f64>> {
+    let offset = &Vector3::from(tool_offset_mm);
+    let base = Base::fit(model, &session.points, offset);
+    session.points.iter().map(|p| base.apply(&model_point(model, &p.q_deg, offset)) - p.point_mm).collect()
+}
+
+/// Lengths of [`session_residuals`], mm.
+pub fn session_errors(model: &ArmModel, session: &TrackerSession, tool_offset_mm: [f64; 3]) -> Vec<f64> {
+    session_residuals(model, session, tool_offset_mm).iter().map(|r| r.norm()).collect()
+}
 
 /// Errors of `model` on `session` with the base refitted (closed form), and the pairwise figures.
 pub fn validate_session(
@@ -1257,12 +1321,10 @@ pub fn validate_session(
     session: &TrackerSession,
     tool_offset_mm: [f64; 3],
 ) -> SessionValidation {
-    let tool_offset_mm = &Vector3::from(tool_offset_mm);
-    let base = Base::fit(model, &session.points, tool_offset_mm);
+    let offset = &Vector3::from(tool_offset_mm);
     let robot: Vec<Vector3<f64>> =
-        session.points.iter().map(|p| model_point(model, &p.q_deg, tool_offset_mm)).collect();
-    let errors: Vec<f64> =
-        robot.iter().zip(&session.points).map(|(r, p)| (base.apply(r) - p.point_mm).norm()).collect();
+        session.points.iter().map(|p| model_point(model, &p.q_deg, offset)).collect();
+    let errors = session_errors(model, session, tool_offset_mm);
     let stats = ErrorStats::of(&errors);
     let step = session.points.len().div_ceil(MAX_PAIRWISE_POINTS).max(1);
     let picked: Vec<usize> = (0..session.points.len()).step_by(step).collect();

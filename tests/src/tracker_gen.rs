@@ -347,6 +347,54 @@ impl Arm {
         }
     }
 
+    /// A 12R hyper-redundant arm (the most joints kincal takes), classic DH: twelve modules of
+    /// alternating ±90° twist with d and a both non-zero on most rows (no two consecutive axes
+    /// parallel), about 1.6 m of reach. A tracker target on a bracket.
+    pub fn serial12() -> Arm {
+        let d_mm = [320.0, 40.0, 180.0, 35.0, 170.0, 30.0, 160.0, 25.0, 150.0, 20.0, 140.0, 90.0];
+        let a_mm = [20.0, 110.0, 15.0, 100.0, 15.0, 95.0, 10.0, 90.0, 10.0, 80.0, 5.0, 0.0];
+        let rows = (0..12)
+            .map(|j| DhRow {
+                theta_offset_deg: 0.0,
+                d_mm: d_mm[j],
+                a_mm: a_mm[j],
+                alpha_deg: if j == 11 {
+                    0.0
+                } else if j % 2 == 0 {
+                    -90.0
+                } else {
+                    90.0
+                },
+                beta_deg: 0.0,
+            })
+            .collect();
+        Arm {
+            name: "12R serial".into(),
+            chain: Chain::ClassicDh(rows),
+            limits_deg: vec![(-150.0, 150.0); 12],
+            tool_mm: [30.0, -20.0, 80.0],
+            tool_rpy_deg: [0.0, 0.0, 0.0],
+            min_z_mm: 0.0,
+            min_radius_mm: 200.0,
+        }
+    }
+
+    /// A 2R arm: a vertical turntable axis and a horizontal shoulder, classic DH (the fewest
+    /// joints that still leave arm parameters a base cannot absorb).
+    pub fn shoulder2() -> Arm {
+        let row =
+            |d_mm, a_mm, alpha_deg| DhRow { theta_offset_deg: 0.0, d_mm, a_mm, alpha_deg, beta_deg: 0.0 };
+        Arm {
+            name: "2R shoulder".into(),
+            chain: Chain::ClassicDh(vec![row(400.0, 80.0, -90.0), row(60.0, 600.0, 0.0)]),
+            limits_deg: vec![(-170.0, 170.0), (-120.0, 120.0)],
+            tool_mm: [50.0, -30.0, 40.0],
+            tool_rpy_deg: [0.0, 0.0, 0.0],
+            min_z_mm: -1000.0,
+            min_radius_mm: 100.0,
+        }
+    }
+
     /// Number of joints.
     pub fn joints(&self) -> usize {
         match &self.chain {

@@ -120,6 +120,42 @@ fn tracker_cal(extra: &[&str]) -> Vec<String> {
     )
 }
 
+/// The tracker model with its first `[[joint]]` row repeated until it has 13 (one more than
+/// kincal takes).
+fn thirteen_joint_model() -> Setup {
+    Box::new(|dir| {
+        let path = dir.join("tracker/model.toml");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let joints = text.matches("[[joint]]").count();
+        let start = text.find("[[joint]]").unwrap();
+        let end = start + 1 + text[start + 1..].find("[[").unwrap();
+        let row = &text[start..end];
+        std::fs::write(&path, format!("{}{}{}", &text[..start], row.repeat(13 - joints), &text[start..]))
+            .unwrap();
+    })
+}
+
+/// `q1_deg,…,qN_deg`.
+fn joint_columns(n: usize) -> String {
+    (1..=n).map(|j| format!("q{j}_deg")).collect::<Vec<_>>().join(",")
+}
+
+/// A URDF chain `link_0` … `link_N` of N revolute joints about z, 100 mm apart.
+fn urdf_chain(n: usize) -> String {
+    let links: String = (0..=n).map(|k| format!("<link name=\"link_{k}\"/>")).collect();
+    let joints: String = (1..=n)
+        .map(|k| {
+            format!(
+                "<joint name=\"j{k}\" type=\"revolute\"><parent link=\"link_{}\"/><child link=\"link_{k}\"/>\
+                 <origin xyz=\"0 0 0.1\" rpy=\"0 0 0\"/><axis xyz=\"0 0 1\"/>\
+                 <limit lower=\"-3\" upper=\"3\" effort=\"1\" velocity=\"1\"/></joint>",
+                k - 1
+            )
+        })
+        .collect();
+    format!("<?xml version=\"1.0\"?>\n<robot name=\"r13\">{links}{joints}</robot>\n")
+}
+
 /// Replace line `line` (1-based) of `file` by `edit` of it.
 fn csv_line(file: &'static str, line: usize, edit: impl Fn(&str) -> String + Send + Sync + 'static) -> Setup {
     Box::new(move |dir| {
@@ -430,6 +466,17 @@ fn tracker_cases(cases: &mut Vec<Case>) {
         ),
         fails("a model of another joint count", unchanged(), &[], &["7 joint columns", "the model has 6 joints"]).with_args(words(
             &["calibrate", "--model", "model.toml", "--data", "tracker/cal", "--validate", "tracker/val", "--out", "tout"],
+            &[],
+        )),
+        fails("a model of 13 joints", thirteen_joint_model(), &[], &["model.toml", "expected 1 to 12 [[joint]] rows", "found 13"]),
+        fails(
+            "13 joint columns",
+            write(S1, &format!("# kincal-tracker/1\n{},x_mm,y_mm,z_mm\n{}100,0,0\n", joint_columns(13), "0,".repeat(13))),
+            &[],
+            &["session_1.csv:2: column `q13_deg`", "at most 12 joints"],
+        ),
+        fails("a URDF of 13 revolute joints", write("robot13.urdf", &urdf_chain(13)), &[], &["robot13.urdf", "expected 1 to 12 revolute joints, found 13"]).with_args(words(
+            &["model", "from-urdf", "robot13.urdf", "--base", "link_0", "--tip", "link_13", "--out", "m13.toml"],
             &[],
         )),
         fails("--float-tool of no session", unchanged(), &["--float-tool", "session_9"], &["--float-tool / --drift-session session_9", "no calibration session"]),

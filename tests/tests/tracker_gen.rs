@@ -90,14 +90,16 @@ fn urdf_written_and_dh_give_the_same_tool_pose() {
 fn python_urdf_peer_agrees_with_the_rust_kinematics() {
     let dir = scratch("peer");
     let mut rng = ChaCha8Rng::seed_from_u64(2);
-    // The two true DH arms, the nominal 6R arm (an origin at pitch −90°, where rpy is degenerate)
-    // and a URDF-joint arm with perturbed origins.
+    // The two true DH arms, the nominal 6R arm (an origin at pitch −90°, where rpy is degenerate),
+    // a URDF-joint arm with perturbed origins, and the most and fewest joints (12R, 2R).
     let urdf_arm = perturb(&Arm::iiwa7().to_urdf_chain(), &HiddenErrorSizes::default(), 21).0;
     let arms = [
         generate(&TrackerOptions::iiwa_five_sessions(5)).truth.truth,
         generate(&TrackerOptions::industrial_6dof(6)).truth.truth,
         Arm::industrial6(),
         urdf_arm,
+        perturb(&Arm::serial12(), &HiddenErrorSizes::default(), 22).0,
+        Arm::shoulder2(),
     ];
     let peer = Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/urdf_fk_peer.py");
     let python = |args: &[&std::ffi::OsStr]| {

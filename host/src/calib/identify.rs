@@ -192,6 +192,11 @@ pub fn base_columns(jac: &[f64], n: usize, ranges: &[f64]) -> (Vec<usize>, Vec<u
 pub fn covariance(jac: &[f64], weights: &[f64], n: usize, variance: f64) -> Option<DMatrix<f64>> {
     let zeros = vec![0.0; weights.len()];
     let (h, _) = crate::numerics::solver::normal_equations(jac, &zeros, weights, n);
+    covariance_of_normal(h, variance)
+}
+
+/// Parameter covariance σ²·H⁻¹ from the normal matrix H = JᵀWJ; `None` when H is singular.
+pub fn covariance_of_normal(h: DMatrix<f64>, variance: f64) -> Option<DMatrix<f64>> {
     h.cholesky().map(|c| c.inverse() * variance)
 }
 

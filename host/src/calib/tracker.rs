@@ -6,13 +6,18 @@
 //! its closed form for the nominal arm (Horn's absolute orientation of the model points onto the
 //! measured ones) and is then estimated jointly with θ as a small rotation ω_s (mrad, left of the
 //! starting rotation) and a shift t_s (mm): R_s = exp(ω_s)·R⁰_s. The residual block of a point is
-//! X_i − X_i,measured (mm, three rows); a base touches only its own session's rows. The
-//! Jacobian is dense in the arm columns and in the session's six; the normal matrix costs
-//! O(points · columns²), so the cost per point is flat in the number of points.
+//! X_i − X_i,measured (mm, three rows); a base touches only its own session's rows. No m × n
+//! Jacobian is formed: each row's derivatives over its own columns (the arm's, its session's
+//! base, floated tool and drift, the probe rotation's) are added into JᵀJ and Jᵀr as the row is
+//! evaluated, in fixed blocks summed in order (the same sums on any thread count). The cost per
+//! point is O(own columns²), flat in the number of points, and the memory is O(n²).
 //!
 //! Identifiability sees the bases: the base columns are projected out of the arm columns (what
 //! a base can reproduce, the data cannot attribute to the arm), and the base set is chosen by
-//! pivoted QR on what remains. What drops out is said in words: a parameter a base absorbs (the
+//! pivoted QR on what remains. It works on one small matrix per session, the R factor of the
+//! session's rows (own columns | arm | probe rotation) folded block by block by QR: R has the
+//! same column inner products as the rows, so the projections, norms, singular values and the
+//! pivoted QR are those of the full Jacobian, without squaring its condition number. What drops out is said in words: a parameter a base absorbs (the
 //! first joint's offset and d, a rotation about and a shift along the base axis), and the tool
 //! point when the orientation is constant within the sessions (then it and each base's
 //! translation are one thing, and the tool stays at its nominal value: every figure is the same
@@ -21,12 +26,12 @@
 use crate::calib::identify::{self, Combination};
 use crate::calib::tracker_drift::{drift_slots, DriftSlot, DriftSpec, SessionDrift};
 use crate::data::tracker::{TrackerData, TrackerPoint, TrackerSession};
-use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
+use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap, PoseDerivative, ToolPose};
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::geometry::absolute_orientation;
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions};
 use crate::numerics::stats::rms;
-use nalgebra::{Matrix3, Rotation3, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector3};
 use rayon::prelude::*;
 
 /// Spread of the tool orientation within a session, degrees, below which the session is said
@@ -242,125 +247,226 @@ impl Problem<'_> {
     }
 }
 
+/// The unknowns turned into what the residuals need: the model, and per session its base, tool
+/// offset and drift rates, and the probe rotation.
+struct State {
+    model: ArmModel,
+    bases: Vec<Base>,
+    offsets: Vec<Vector3<f64>>,
+    tool_rotation: Matrix3<f64>,
+    drifts: Vec<Vec<f64>>,
+}
+
+/// The non-zero Jacobian columns of one residual row (three values): column `columns[k]` has
+/// the derivatives `values[k]`. Reused from row to row, with the chain's derivatives.
+#[derive(Clone, Default)]
+struct RowJacobian {
+    columns: Vec<usize>,
+    values: Vec<Vector3<f64>>,
+    chain: Vec<PoseDerivative>,
+}
+
+impl RowJacobian {
+    fn push(&mut self, column: usize, derivative: Vector3<f64>) {
+        self.columns.push(column);
+        self.values.push(derivative);
+    }
+}
+
+impl Problem<'_> {
+    fn state(&self, x: &[f64]) -> State {
+        let sessions = 0..self.sessions.len();
+        State {
+            model: self.model_at(x),
+            bases: sessions.clone().map(|s| self.base_at(x, s)).collect(),
+            offsets: sessions.clone().map(|s| self.tool_offset_at(x, s)).collect(),
+            tool_rotation: self.tool_rotation_at(x),
+            drifts: sessions.map(|s| self.drift_at(x, s).to_vec()).collect(),
+        }
+    }
+
+    /// The session of residual row `i` (the points first, then the orientations).
+    fn session_of(&self, i: usize) -> usize {
+        let points = self.rows.len();
+        if i < points {
+            self.rows[i].0
+        } else {
+            self.oriented[i - points].0
+        }
+    }
+
+    /// Residual row `i` (three values) into `r`; with `jac`, its non-zero Jacobian columns.
+    fn row(&self, state: &State, i: usize, r: &mut [f64], mut jac: Option<&mut RowJacobian>) {
+        if let Some(jac) = jac.as_deref_mut() {
+            jac.columns.clear();
+            jac.values.clear();
+        }
+        let points = self.rows.len();
+        if i < points {
+            self.point_row(state, i, r, jac)
+        } else {
+            self.orientation_row(state, i - points, r, jac)
+        }
+    }
+
+    /// The chain's pose at `q_deg`, its derivatives into `jac.chain` when asked.
+    fn chain_pose(&self, state: &State, q_deg: &[f64], jac: Option<&mut RowJacobian>) -> ToolPose {
+        match jac {
+            Some(jac) => {
+                jac.chain.clear();
+                jac.chain.resize(self.params.len(), [0.0; 9]);
+                tool_pose_with_jacobian(&state.model, q_deg, &self.columns, &mut jac.chain)
+            }
+            None => tool_pose(&state.model, q_deg),
+        }
+    }
+
+    fn point_row(&self, state: &State, i: usize, r: &mut [f64], mut jac: Option<&mut RowJacobian>) {
+        let (s, k) = self.rows[i];
+        let p = &self.sessions[s].points[k];
+        let pose = self.chain_pose(state, &p.q_deg, jac.as_deref_mut());
+        let flange = flange_rotation(&pose.x_axis, &pose.z_axis);
+        let robot = pose.position_mm + flange * state.offsets[s];
+        let base = &state.bases[s];
+        let y = base.rotation * robot;
+        let drift = self.drift_column(s).map(|(c, d)| {
+            let delta = d.kind.variable(p).map_or(0.0, |v| v - d.centre);
+            (c, d.kind, delta, d.kind.effect(&state.drifts[s], delta))
+        });
+        let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.3);
+        let e = y * growth + base.translation_mm + shift - p.point_mm;
+        r.copy_from_slice(e.as_slice());
+        let Some(jac) = jac else { return };
+        for c in 0..self.params.len() {
+            let d = jac.chain[c];
+            jac.push(c, base.rotation * Vector3::new(d[0], d[1], d[2]) * growth);
+        }
+        let b = self.base_column(s);
+        for k in 0..3 {
+            jac.push(b + k, Vector3::ith(k, 1e-3).cross(&y) * growth);
+        }
+        for k in 0..3 {
+            jac.push(b + 3 + k, Vector3::ith(k, 1.0));
+        }
+        if let Some(t) = self.tool_column(s) {
+            let g = base.rotation * flange * growth;
+            for k in 0..3 {
+                jac.push(t + k, g.column(k).into_owned());
+            }
+        }
+        if let Some((c, kind, delta, _)) = drift {
+            for k in 0..kind.unknowns() {
+                jac.push(c + k, kind.derivative(k, delta, &y));
+            }
+        }
+    }
+
+    fn orientation_row(&self, state: &State, i: usize, r: &mut [f64], mut jac: Option<&mut RowJacobian>) {
+        let (s, k) = self.oriented[i];
+        let p = &self.sessions[s].points[k];
+        let Some(measured) = p.orientation else { return };
+        let pose = self.chain_pose(state, &p.q_deg, jac.as_deref_mut());
+        let flange = flange_rotation(&pose.x_axis, &pose.z_axis);
+        let base = &state.bases[s];
+        let predicted = base.rotation * flange * state.tool_rotation;
+        let w = self.orientation_weight_mm_per_rad;
+        let e = rotation_vector(&(predicted.transpose() * measured.to_rotation_matrix().into_inner())) * w;
+        r.copy_from_slice(e.as_slice());
+        let Some(jac) = jac else { return };
+        // r ≈ r₀ − δ, δ the rotation of the prediction in its own frame.
+        let to_body = predicted.transpose() * base.rotation;
+        let y_axis = pose.z_axis.cross(&pose.x_axis);
+        for c in 0..self.params.len() {
+            let d = jac.chain[c];
+            let (dx, dz) = (Vector3::new(d[3], d[4], d[5]), Vector3::new(d[6], d[7], d[8]));
+            let dy = dz.cross(&pose.x_axis) + pose.z_axis.cross(&dx);
+            let spin = 0.5 * (pose.x_axis.cross(&dx) + y_axis.cross(&dy) + pose.z_axis.cross(&dz));
+            jac.push(c, to_body * spin * -w);
+        }
+        let b = self.base_column(s);
+        let g = predicted.transpose() * (-1e-3 * w);
+        for k in 0..3 {
+            jac.push(b + k, g.column(k).into_owned());
+        }
+        if let Some(t) = self.tool_rotation_column() {
+            for k in 0..3 {
+                jac.push(t + k, Vector3::ith(k, -1e-3 * w));
+            }
+        }
+    }
+}
+
 impl Residuals for Problem<'_> {
     fn len(&self) -> usize {
         3 * (self.rows.len() + self.oriented.len())
     }
 
     fn evaluate(&self, x: &[f64], r: &mut [f64], jacobian: Option<&mut [f64]>) {
-        let model = self.model_at(x);
+        let state = self.state(x);
         let n = self.unknowns();
-        let bases: Vec<Base> = (0..self.sessions.len()).map(|s| self.base_at(x, s)).collect();
-        let offsets: Vec<Vector3<f64>> =
-            (0..self.sessions.len()).map(|s| self.tool_offset_at(x, s)).collect();
-        let tool_rotation = self.tool_rotation_at(x);
-        let orientation = |i: usize, r: &mut [f64], jac: Option<&mut [f64]>| {
-            let (s, k) = self.oriented[i];
-            let p = &self.sessions[s].points[k];
-            let Some(measured) = p.orientation else { return };
-            let mut dp = vec![[0.0; 9]; self.params.len()];
-            let pose = tool_pose_with_jacobian(&model, &p.q_deg, &self.columns, &mut dp);
-            let flange = flange_rotation(&pose.x_axis, &pose.z_axis);
-            let base = &bases[s];
-            let predicted = base.rotation * flange * tool_rotation;
-            let w = self.orientation_weight_mm_per_rad;
-            let e =
-                rotation_vector(&(predicted.transpose() * measured.to_rotation_matrix().into_inner())) * w;
-            r.copy_from_slice(e.as_slice());
-            let Some(jac) = jac else { return };
-            jac.fill(0.0);
-            // r ≈ r₀ − δ, δ the rotation of the prediction in its own frame.
-            let to_body = predicted.transpose() * base.rotation;
-            let y_axis = pose.z_axis.cross(&pose.x_axis);
-            for (c, d) in dp.iter().enumerate() {
-                let (dx, dz) = (Vector3::new(d[3], d[4], d[5]), Vector3::new(d[6], d[7], d[8]));
-                let dy = dz.cross(&pose.x_axis) + pose.z_axis.cross(&dx);
-                let spin = 0.5 * (pose.x_axis.cross(&dx) + y_axis.cross(&dy) + pose.z_axis.cross(&dz));
-                let g = to_body * spin * -w;
-                for a in 0..3 {
-                    jac[a * n + c] = g[a];
-                }
-            }
-            let b = self.base_column(s);
-            let g = predicted.transpose() * (-1e-3 * w);
-            for a in 0..3 {
-                for k in 0..3 {
-                    jac[a * n + b + k] = g[(a, k)];
-                }
-            }
-            if let Some(t) = self.tool_rotation_column() {
-                for a in 0..3 {
-                    jac[a * n + t + a] = -1e-3 * w;
-                }
-            }
-        };
-        let point = |i: usize, r: &mut [f64], jac: Option<&mut [f64]>| {
-            let (s, k) = self.rows[i];
-            let p = &self.sessions[s].points[k];
-            let mut dp = vec![[0.0; 9]; self.params.len()];
-            let pose = tool_pose_with_jacobian(&model, &p.q_deg, &self.columns, &mut dp);
-            let flange = flange_rotation(&pose.x_axis, &pose.z_axis);
-            let robot = pose.position_mm + flange * offsets[s];
-            let base = &bases[s];
-            let y = base.rotation * robot;
-            let drift = self.drift_column(s).map(|(c, d)| {
-                let delta = d.kind.variable(p).map_or(0.0, |v| v - d.centre);
-                (c, d.kind, delta, d.kind.effect(self.drift_at(x, s), delta))
-            });
-            let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.3);
-            let e = y * growth + base.translation_mm + shift - p.point_mm;
-            r.copy_from_slice(e.as_slice());
-            let Some(jac) = jac else { return };
-            jac.fill(0.0);
-            for (c, d) in dp.iter().enumerate() {
-                let g = base.rotation * Vector3::new(d[0], d[1], d[2]) * growth;
-                for a in 0..3 {
-                    jac[a * n + c] = g[a];
-                }
-            }
-            let b = self.base_column(s);
-            for k in 0..3 {
-                let w = Vector3::ith(k, 1e-3).cross(&y) * growth;
-                for a in 0..3 {
-                    jac[a * n + b + k] = w[a];
-                }
-                jac[k * n + b + 3 + k] = 1.0;
-            }
-            if let Some((c, kind, delta, _)) = drift {
-                for k in 0..kind.unknowns() {
-                    let g = kind.derivative(k, delta, &y);
-                    for a in 0..3 {
-                        jac[a * n + c + k] = g[a];
-                    }
-                }
-            }
-            if let Some(t) = self.tool_column(s) {
-                let g = base.rotation * flange * growth;
-                for a in 0..3 {
-                    for k in 0..3 {
-                        jac[a * n + t + k] = g[(a, k)];
-                    }
-                }
-            }
-        };
-        let points = self.rows.len();
-        let row = |i: usize, r: &mut [f64], jac: Option<&mut [f64]>| {
-            if i < points {
-                point(i, r, jac)
-            } else {
-                orientation(i - points, r, jac)
-            }
-        };
         match jacobian {
-            Some(jac) => r
-                .par_chunks_mut(3)
-                .zip(jac.par_chunks_mut(3 * n))
-                .enumerate()
-                .for_each(|(i, (r, j))| row(i, r, Some(j))),
-            None => r.par_chunks_mut(3).enumerate().for_each(|(i, r)| row(i, r, None)),
+            Some(dense) => r.par_chunks_mut(3).zip(dense.par_chunks_mut(3 * n)).enumerate().for_each_init(
+                RowJacobian::default,
+                |jac, (i, (r, dense))| {
+                    self.row(&state, i, r, Some(jac));
+                    dense.fill(0.0);
+                    for (&c, v) in jac.columns.iter().zip(&jac.values) {
+                        for a in 0..3 {
+                            dense[a * n + c] = v[a];
+                        }
+                    }
+                },
+            ),
+            None => r.par_chunks_mut(3).enumerate().for_each(|(i, r)| self.row(&state, i, r, None)),
         }
     }
+
+    /// Row by row over each row's own columns (the arm's, its session's, the probe rotation's):
+    /// no m × n Jacobian is formed, so the cost per point does not grow with the points. The rows
+    /// are summed in fixed blocks, the blocks in order: the same sums whatever the thread count.
+    fn normal_equations(&self, x: &[f64], r: &mut [f64], loss: Loss) -> (DMatrix<f64>, DVector<f64>) {
+        let state = self.state(x);
+        let n = self.unknowns();
+        let rows = r.len() / 3;
+        let block = rows.div_ceil(MAX_BLOCKS).max(MIN_BLOCK_ROWS);
+        let sums: Vec<(Vec<f64>, Vec<f64>)> = r
+            .par_chunks_mut(3 * block)
+            .enumerate()
+            .map(|(b, r)| {
+                let (mut h, mut g, mut jac) = (vec![0.0; n * n], vec![0.0; n], RowJacobian::default());
+                for (k, r) in r.chunks_exact_mut(3).enumerate() {
+                    self.row(&state, b * block + k, r, Some(&mut jac));
+                    let w = Vector3::new(loss.weight(r[0]), loss.weight(r[1]), loss.weight(r[2]));
+                    for (p, (&cp, vp)) in jac.columns.iter().zip(&jac.values).enumerate() {
+                        let wv = w.component_mul(vp);
+                        g[cp] += wv.x * r[0] + wv.y * r[1] + wv.z * r[2];
+                        for (&cq, vq) in jac.columns[p..].iter().zip(&jac.values[p..]) {
+                            h[cp.min(cq) * n + cp.max(cq)] += wv.dot(vq);
+                        }
+                    }
+                }
+                (h, g)
+            })
+            .collect();
+        let (mut upper, mut g) = (vec![0.0; n * n], vec![0.0; n]);
+        for (h_block, g_block) in sums {
+            upper.iter_mut().zip(&h_block).for_each(|(a, b)| *a += b);
+            g.iter_mut().zip(&g_block).for_each(|(a, b)| *a += b);
+        }
+        let mut h = DMatrix::from_row_slice(n, n, &upper);
+        for a in 0..n {
+            for b in 0..a {
+                h[(a, b)] = h[(b, a)];
+            }
+        }
+        (h, DVector::from_vec(g))
+    }
 }
+
+/// Most blocks the rows of the normal equations are summed in (each holds an n × n sum).
+const MAX_BLOCKS: usize = 16;
+/// Fewest rows of a block.
+const MIN_BLOCK_ROWS: usize = 64;
 
 /// Position-error statistics of one set of points, mm.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -570,70 +676,123 @@ pub fn orientation_spread_deg(model: &ArmModel, session: &TrackerSession) -> f64
         .fold(0.0, f64::max)
 }
 
-fn jacobian_of(problem: &Problem, x: &[f64]) -> (Vec<f64>, Vec<f64>) {
-    let mut r = vec![0.0; problem.len()];
-    let mut jac = vec![0.0; problem.len() * problem.unknowns()];
-    problem.evaluate(x, &mut r, Some(&mut jac));
-    (r, jac)
+/// Points of a session folded into its factor by one QR.
+const FOLD_POINTS: usize = 128;
+
+/// A session's rows of the Jacobian in a small matrix: the R factor of its columns [its own
+/// (base, floated tool, drift) | the arm's | the probe rotation's], folded block by block by QR.
+/// R has the column geometry of those rows (every inner product of two columns), so what is
+/// computed from it (projections, norms, singular values, pivoted QR) is what the m rows give,
+/// without an m × n matrix.
+struct SessionFactor {
+    r: DMatrix<f64>,
+    own: usize,
 }
 
-/// The arm columns of `jac` with every base (and floated tool) column projected out, per session.
-fn projected_arm_columns(problem: &Problem, jac: &[f64]) -> Vec<f64> {
+/// Each session's factor at `x`; `None` when a residual or a derivative is not finite.
+fn session_factors(problem: &Problem, x: &[f64]) -> Option<Vec<SessionFactor>> {
+    let state = problem.state(x);
     let (n, a) = (problem.unknowns(), problem.params.len());
-    let mut out = vec![0.0; problem.len() * a];
-    let points = problem.rows.len();
-    // The probe rotation's columns are projected like the arm's, then out of them (below).
-    let tool_rotation: Vec<usize> =
+    let rotation: Vec<usize> =
         problem.tool_rotation_column().map(|t| vec![t, t + 1, t + 2]).unwrap_or_default();
-    let mut rotation_out = vec![0.0; problem.len() * tool_rotation.len()];
-    for s in 0..problem.sessions.len() {
-        let rows: Vec<usize> = (0..points)
-            .filter(|&i| problem.rows[i].0 == s)
-            .chain((0..problem.oriented.len()).filter(|&i| problem.oriented[i].0 == s).map(|i| points + i))
-            .flat_map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
-            .collect();
-        let mut own: Vec<usize> = (0..BASE_UNKNOWNS).map(|k| problem.base_column(s) + k).collect();
-        own.extend(problem.tool_column(s).map(|t| [t, t + 1, t + 2]).into_iter().flatten());
-        own.extend(problem.drift_column(s).map(|(c, d)| c..c + d.kind.unknowns()).into_iter().flatten());
-        let b = nalgebra::DMatrix::from_fn(rows.len(), own.len(), |i, k| jac[rows[i] * n + own[k]]);
-        let q = b.svd(true, false);
-        let (Some(u), sv) = (q.u, q.singular_values) else { continue };
-        let top = sv.iter().copied().fold(0.0, f64::max);
-        let basis: Vec<usize> = (0..sv.len()).filter(|&k| sv[k] > 1e-12 * top).collect();
-        for (column, into, stride, at) in (0..a)
-            .map(|c| (c, false, a, c))
-            .chain(tool_rotation.iter().enumerate().map(|(k, &t)| (t, true, tool_rotation.len(), k)))
-        {
-            let col = nalgebra::DVector::from_fn(rows.len(), |i, _| jac[rows[i] * n + column]);
-            let mut rest = col.clone();
-            for &k in &basis {
-                let uk = u.column(k);
-                rest -= uk * uk.dot(&col);
+    let rows = problem.rows.len() + problem.oriented.len();
+    (0..problem.sessions.len())
+        .map(|s| {
+            let mut own: Vec<usize> = (0..BASE_UNKNOWNS).map(|k| problem.base_column(s) + k).collect();
+            own.extend(problem.tool_column(s).map(|t| [t, t + 1, t + 2]).into_iter().flatten());
+            own.extend(problem.drift_column(s).map(|(c, d)| c..c + d.kind.unknowns()).into_iter().flatten());
+            let mut local = vec![None; n];
+            for (l, &c) in own.iter().chain(&(0..a).collect::<Vec<_>>()).chain(&rotation).enumerate() {
+                local[c] = Some(l);
             }
-            let target = if into { &mut rotation_out } else { &mut out };
-            for (i, &row) in rows.iter().enumerate() {
-                target[row * stride + at] = rest[i];
-            }
-        }
-    }
-    if !tool_rotation.is_empty() {
-        let m = problem.len();
-        let r = nalgebra::DMatrix::from_row_slice(m, tool_rotation.len(), &rotation_out);
-        let q = r.svd(true, false);
-        if let Some(u) = q.u {
-            let top = q.singular_values.iter().copied().fold(0.0, f64::max);
-            for k in (0..q.singular_values.len()).filter(|&k| q.singular_values[k] > 1e-12 * top) {
-                let uk = u.column(k);
-                for c in 0..a {
-                    let dot: f64 = (0..m).map(|i| uk[i] * out[i * a + c]).sum();
-                    for i in 0..m {
-                        out[i * a + c] -= uk[i] * dot;
+            let width = own.len() + a + rotation.len();
+            let mine: Vec<usize> = (0..rows).filter(|&i| problem.session_of(i) == s).collect();
+            let blocks: Vec<Option<DMatrix<f64>>> = mine
+                .par_chunks(FOLD_POINTS)
+                .map_init(RowJacobian::default, |jac, chunk| {
+                    let mut block = DMatrix::zeros(3 * chunk.len(), width);
+                    let mut finite = true;
+                    for (k, &i) in chunk.iter().enumerate() {
+                        let mut r = [0.0; 3];
+                        problem.row(&state, i, &mut r, Some(jac));
+                        finite &= r.iter().all(|v| v.is_finite());
+                        for (&c, v) in jac.columns.iter().zip(&jac.values) {
+                            finite &= v.iter().all(|v| v.is_finite());
+                            if let Some(l) = local[c] {
+                                block.view_mut((3 * k, l), (3, 1)).copy_from(v);
+                            }
+                        }
                     }
-                }
-            }
+                    finite.then(|| block.qr().r())
+                })
+                .collect();
+            // Folded in order: the same factor whatever the thread count.
+            let r = blocks
+                .into_iter()
+                .try_fold(DMatrix::zeros(0, width), |top, bottom| Some(fold(top, bottom?)))?;
+            Some(SessionFactor { r, own: own.len() })
+        })
+        .collect()
+}
+
+/// The R factor of two factors stacked.
+fn fold(top: DMatrix<f64>, bottom: DMatrix<f64>) -> DMatrix<f64> {
+    if top.nrows() == 0 {
+        return bottom;
+    }
+    if bottom.nrows() == 0 {
+        return top;
+    }
+    let mut stacked = DMatrix::zeros(top.nrows() + bottom.nrows(), top.ncols());
+    stacked.rows_mut(0, top.nrows()).copy_from(&top);
+    stacked.rows_mut(top.nrows(), bottom.nrows()).copy_from(&bottom);
+    stacked.qr().r()
+}
+
+/// `m` with the directions of `basis`'s columns above `1e-12` of its largest singular value
+/// projected out of each column.
+fn project_out(m: &mut DMatrix<f64>, basis: &DMatrix<f64>) {
+    let q = basis.clone().svd(true, false);
+    let Some(u) = q.u else { return };
+    let top = q.singular_values.iter().copied().fold(0.0, f64::max);
+    for k in (0..q.singular_values.len()).filter(|&k| q.singular_values[k] > 1e-12 * top) {
+        let uk = u.column(k);
+        for c in 0..m.ncols() {
+            let dot = uk.dot(&m.column(c));
+            m.column_mut(c).axpy(-dot, &uk, 1.0);
         }
     }
-    out
+}
+
+/// Row-major copy of a matrix.
+fn row_major(m: &DMatrix<f64>) -> Vec<f64> {
+    m.transpose().as_slice().to_vec()
+}
+
+/// The arm columns (raw, and with every session's own columns projected out per session, then
+/// the probe rotation's over all sessions), row-major with the arm's columns, from the session
+/// factors: the column geometry of the full Jacobian's arm columns.
+fn projected_arm_columns(problem: &Problem, factors: &[SessionFactor]) -> (Vec<f64>, Vec<f64>) {
+    let a = problem.params.len();
+    let t = if problem.tool_rotation.is_some() { 3 } else { 0 };
+    let rows: usize = factors.iter().map(|f| f.r.nrows()).sum();
+    let (mut raw, mut projected, mut rotation) =
+        (DMatrix::zeros(rows, a), DMatrix::zeros(rows, a), DMatrix::zeros(rows, t));
+    let mut at = 0;
+    for f in factors {
+        let m = f.r.nrows();
+        let own = f.r.columns(0, f.own).into_owned();
+        let mut rest = f.r.columns(f.own, a + t).into_owned();
+        raw.rows_mut(at, m).copy_from(&rest.columns(0, a));
+        project_out(&mut rest, &own);
+        projected.rows_mut(at, m).copy_from(&rest.columns(0, a));
+        rotation.rows_mut(at, m).copy_from(&rest.columns(a, t));
+        at += m;
+    }
+    if t > 0 {
+        project_out(&mut projected, &rotation);
+    }
+    (row_major(&raw), row_major(&projected))
 }
 
 /// The rows and weights of a calibration, shared by the problems of its passes.
@@ -763,11 +922,8 @@ pub fn calibrate_tracker(
     }
     let offsets0 = vec![Vector3::zeros(); data.sessions.len()];
     let x0 = x_of(&full, &model, &start_bases, &offsets0, &vec![Vec::new(); data.sessions.len()]);
-    let (r0, jac0) = jacobian_of(&full, &x0);
-    if !r0.iter().chain(&jac0).all(|v| v.is_finite()) {
-        return Err(TrackerError::NonFinite);
-    }
-    let projected = projected_arm_columns(&full, &jac0);
+    let factors = session_factors(&full, &x0).ok_or(TrackerError::NonFinite)?;
+    let (raw, projected) = projected_arm_columns(&full, &factors);
     let ranges: Vec<f64> = all.iter().map(|&id| range_of(id)).collect();
     let (kept, _) = identify::base_columns(&projected, all.len(), &ranges);
     let analysis = identify::analyse(&projected, &all, &ranges);
@@ -781,7 +937,7 @@ pub fn calibrate_tracker(
         kept.iter().filter(|c| tool_turns || !is_tool(c)).map(|&c| all[c]).collect();
     let fixed: Vec<ParamId> =
         (0..all.len()).filter(|c| !estimated.contains(&all[*c])).map(|c| all[c]).collect();
-    let statements = explain(&all, &jac0, &projected, &full, &fixed, &spreads, &ranges);
+    let statements = explain(&all, &raw, &projected, &full, &fixed, &spreads, &ranges);
     // Solve; re-centre the bases at their closed form between passes.
     let loss = options.huber_delta_mm.map_or(Loss::Linear, Loss::Huber);
     let solver_options =
@@ -823,11 +979,12 @@ pub fn calibrate_tracker(
     // Uncertainty at the solution (bases and floated tools marginalised).
     let problem = layout.problem(estimated.clone(), &current, data, &bases, tool_rotation);
     let x = x_of(&problem, &current, &bases, &offsets, &drifts);
-    let (r, jac) = jacobian_of(&problem, &x);
+    let mut r = vec![0.0; problem.len()];
+    let (normal, _) = problem.normal_equations(&x, &mut r, Loss::Linear);
     let n = problem.unknowns();
     let dof = (r.len() as f64 - n as f64).max(1.0);
     let variance = r.iter().map(|v| v * v).sum::<f64>() / dof;
-    let cov = identify::covariance(&jac, &vec![1.0; r.len()], n, variance);
+    let cov = identify::covariance_of_normal(normal, variance);
     let (position_rows, orientation_rows) = r.split_at(3 * problem.rows.len());
     let errors: Vec<f64> =
         position_rows.chunks_exact(3).map(|e| Vector3::new(e[0], e[1], e[2]).norm()).collect();
@@ -914,17 +1071,18 @@ pub fn calibrate_tracker(
     })
 }
 
-/// Sentences on what the data cannot separate.
+/// Sentences on what the data cannot separate; `raw` and `projected` are the arm columns
+/// before and after the bases are projected out (row-major, `all.len()` columns).
 fn explain(
     all: &[ParamId],
-    jac: &[f64],
+    raw: &[f64],
     projected: &[f64],
     problem: &Problem,
     fixed: &[ParamId],
     spreads: &[(String, f64)],
     ranges: &[f64],
 ) -> Vec<String> {
-    let (a, n) = (all.len(), problem.unknowns());
+    let a = all.len();
     let probe_turns = problem.tool_rotation.is_some();
     let norm = |m: &[f64], stride: usize, c: usize| {
         m.chunks_exact(stride).map(|row| row[c] * row[c]).sum::<f64>().sqrt()
@@ -954,10 +1112,10 @@ fn explain(
             tool_fixed.join(", ")
         ));
     }
-    let largest = (0..a).map(|c| norm(jac, n, c) * ranges[c]).fold(0.0, f64::max).max(1e-300);
+    let largest = (0..a).map(|c| norm(raw, a, c) * ranges[c]).fold(0.0, f64::max).max(1e-300);
     for p in fixed.iter().filter(|p| !matches!(p, ParamId::Tcp(_))) {
         let Some(c) = all.iter().position(|q| q == p) else { continue };
-        let (raw, rest) = (norm(jac, n, c) * ranges[c], norm(projected, a, c) * ranges[c]);
+        let (raw, rest) = (norm(raw, a, c) * ranges[c], norm(projected, a, c) * ranges[c]);
         out.push(if raw < identify::ZERO_COLUMN_BELOW * largest {
             format!("{p} moves no measured point: held at its nominal value")
         } else if rest < identify::UNIDENTIFIABLE_BELOW * largest && probe_turns {
@@ -1007,21 +1165,43 @@ pub fn calibration_residuals_mm(fit: &TrackerCalibration, data: &TrackerData) ->
     data.sessions
         .iter()
         .zip(&fit.bases)
-        .map(|(s, base)| {
-            let offset = fit
-                .tool_offsets
-                .iter()
-                .find(|t| t.session == s.name)
-                .map_or(Vector3::zeros(), |t| Vector3::from(t.offset_mm));
-            let drift = fit.drifts.iter().find(|d| d.session == s.name);
-            s.points
-                .iter()
-                .map(|p| {
-                    let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
-                    let y = base.rotation * model_point(&fit.model, &p.q_deg, &offset);
-                    base.rotation.transpose() * (p.point_mm - (y * growth + base.translation_mm + shift))
-                })
-                .collect()
+        .map(|(s, base)| residuals_with_base(fit, &s.name, base, &s.points))
+        .collect()
+}
+
+/// Position errors, mm, of `points` measured from calibration session `session`'s instrument
+/// placement (protocol S: a held-out set of the same session), with that session's calibrated
+/// base, its floated tool and its drift; `None` when `session` is not a calibration session.
+pub fn errors_in_calibration_session(
+    fit: &TrackerCalibration,
+    data: &TrackerData,
+    session: &str,
+    points: &[TrackerPoint],
+) -> Option<Vec<f64>> {
+    let s = data.sessions.iter().position(|s| s.name == session)?;
+    Some(residuals_with_base(fit, session, fit.bases.get(s)?, points).iter().map(|r| r.norm()).collect())
+}
+
+/// Residuals (measured − predicted, robot base frame, mm) of `points` with `base` and the tool
+/// offset and drift `fit` gives session `name`.
+fn residuals_with_base(
+    fit: &TrackerCalibration,
+    name: &str,
+    base: &Base,
+    points: &[TrackerPoint],
+) -> Vec<Vector3<f64>> {
+    let offset = fit
+        .tool_offsets
+        .iter()
+        .find(|t| t.session == name)
+        .map_or(Vector3::zeros(), |t| Vector3::from(t.offset_mm));
+    let drift = fit.drifts.iter().find(|d| d.session == name);
+    points
+        .iter()
+        .map(|p| {
+            let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
+            let y = base.rotation * model_point(&fit.model, &p.q_deg, &offset);
+            base.rotation.transpose() * (p.point_mm - (y * growth + base.translation_mm + shift))
         })
         .collect()
 }
@@ -1048,9 +1228,10 @@ pub fn fit_session_with_tool(model: &ArmModel, session: &TrackerSession) -> (Flo
     let x0 = [0.0, 0.0, 0.0, t.x, t.y, t.z, 0.0, 0.0, 0.0];
     let options = SolverOptions { max_iterations: 100, ..SolverOptions::default() };
     let solution = solver::solve(&problem, &x0, &[-1e9; 9], &[1e9; 9], &options);
-    let (r, jac) = jacobian_of(&problem, &solution.x);
+    let mut r = vec![0.0; problem.len()];
+    let (normal, _) = problem.normal_equations(&solution.x, &mut r, Loss::Linear);
     let variance = r.iter().map(|v| v * v).sum::<f64>() / (r.len() as f64 - 9.0).max(1.0);
-    let cov = identify::covariance(&jac, &vec![1.0; r.len()], 9, variance);
+    let cov = identify::covariance_of_normal(normal, variance);
     let offset = problem.tool_offset_at(&solution.x, 0);
     let tool = FloatedTool {
         session: session.name.clone(),

@@ -11,10 +11,10 @@
 //! model is never said to explain the data.
 
 use crate::calib::tracker::{
-    calibrate_tracker, calibration_residuals_mm, fit_session_with_tool, orientation_errors_deg,
-    session_residuals_mm, validate_orientations, validate_session, AngleStats, ErrorStats, FloatedTool,
-    SessionValidation, ToolRotation, TrackerCalibration, TrackerError, TrackerEstimate,
-    TrackerIdentifiability, TrackerOptions,
+    calibrate_tracker, calibration_residuals_mm, errors_in_calibration_session, fit_session_with_tool,
+    orientation_errors_deg, session_residuals_mm, validate_orientations, validate_session, AngleStats,
+    ErrorStats, FloatedTool, SessionValidation, ToolRotation, TrackerCalibration, TrackerError,
+    TrackerEstimate, TrackerIdentifiability, TrackerOptions,
 };
 use crate::calib::tracker_drift::{DriftSpec, SessionDrift};
 use crate::calib::tracker_errors::{data_error_candidates, DataError};
@@ -43,6 +43,12 @@ pub enum TrackerRunError {
     /// `--exclude-point` names no calibration point.
     #[error("--exclude-point {0}: no calibration session and line of that name (expected SESSION:LINE)")]
     UnknownPoint(String),
+    /// `--same-base` does not pair a held-out session with a calibration session.
+    #[error(
+        "--same-base {0}: expected HELD_OUT=CALIBRATION, a held-out session and the calibration session whose \
+         instrument placement it shares"
+    )]
+    SameBase(String),
     /// `--add` names no effect of the library.
     #[error("--add {0}: not an effect of the library (e.g. compliance:2, harmonic:3:2, twist:4, scale)")]
     UnknownEffect(String),
@@ -75,9 +81,25 @@ pub struct TrackerInputs {
     /// Calibration sessions whose points drift, and how (`--drift-session SESSION[:KIND]`).
     #[serde(default)]
     pub drift_sessions: Vec<DriftSpec>,
+    /// Held-out sessions measured from a calibration session's instrument placement,
+    /// `HELD_OUT=CALIBRATION` (`--same-base`): validated with that base too (protocol S).
+    #[serde(default)]
+    pub same_base: Vec<String>,
     /// Effects of the library added to the model (`--add`, e.g. `compliance:2`).
     #[serde(default)]
     pub add: Vec<String>,
+}
+
+/// A held-out session validated with a calibration session's base (protocol S: the same
+/// instrument placement, no base refitted).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct SameBaseFigures {
+    /// The calibration session whose base the held-out session shares.
+    pub calibration_session: String,
+    /// The calibrated model with that session's calibrated base.
+    pub calibrated: ErrorStats,
+    /// The nominal model (tool fitted) with that session's base from the nominal fit.
+    pub nominal: ErrorStats,
 }
 
 /// One held-out session's figures, calibrated and nominal.
@@ -96,6 +118,9 @@ pub struct SessionFigures {
     /// The nominal model's orientation figures on the same session.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nominal_orientation: Option<AngleStats>,
+    /// With a calibration session's base (`--same-base`, protocol S).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub same_base: Option<SameBaseFigures>,
 }
 
 /// Held-out figures.
@@ -359,6 +384,16 @@ pub fn run_on(
     if val.joints != nominal.joints.len() {
         return Err(TrackerError::JointCount { data: val.joints, model: nominal.joints.len() }.into());
     }
+    let mut same_base = BTreeMap::new();
+    for pair in &inputs.same_base {
+        let named = pair.split_once('=').filter(|(v, c)| {
+            val.sessions.iter().any(|s| &s.name == v) && cal.sessions.iter().any(|s| &s.name == c)
+        });
+        let Some((held_out, calibration)) = named else {
+            return Err(TrackerRunError::SameBase(pair.clone()));
+        };
+        same_base.insert(held_out.to_string(), calibration.to_string());
+    }
     let cal_float: Vec<String> =
         inputs.float_tool.iter().filter(|n| cal.sessions.iter().any(|s| &&s.name == n)).cloned().collect();
     let val_float: Vec<String> =
@@ -406,6 +441,16 @@ pub fn run_on(
                 s.name, c.rms_mm, n.rms_mm
             ));
         }
+        let same_base = same_base.get(&s.name).and_then(|calibration| {
+            let stats = |fit: &TrackerCalibration| {
+                errors_in_calibration_session(fit, cal, calibration, &s.points).map(|e| ErrorStats::of(&e))
+            };
+            Some(SameBaseFigures {
+                calibration_session: calibration.clone(),
+                calibrated: stats(&fit)?,
+                nominal: stats(&reference)?,
+            })
+        });
         calibrated_parts.push(c.clone());
         nominal_parts.push(n.clone());
         sessions.push(SessionFigures {
@@ -414,6 +459,7 @@ pub fn run_on(
             transfers,
             orientation,
             nominal_orientation,
+            same_base,
         });
     }
     let overall = pooled(&calibrated_parts);

@@ -20,6 +20,17 @@ pub trait Residuals {
     }
     /// Write r(x) into `r`; when `jacobian` is given also ∂r/∂x, row-major m × n.
     fn evaluate(&self, x: &[f64], r: &mut [f64], jacobian: Option<&mut [f64]>);
+    /// Write r(x) into `r` and return the normal matrix JᵀWJ and the gradient JᵀWr over the
+    /// n = `x.len()` unknowns, W the IRLS weights `loss.weight(r_i)`. The default builds the dense
+    /// m × n Jacobian; a problem whose rows each touch few unknowns accumulates row by row instead
+    /// (no m × n matrix, so the cost per residual does not grow with m).
+    fn normal_equations(&self, x: &[f64], r: &mut [f64], loss: Loss) -> (DMatrix<f64>, DVector<f64>) {
+        let n = x.len();
+        let mut jacobian = vec![0.0; r.len() * n];
+        self.evaluate(x, r, Some(&mut jacobian));
+        let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
+        normal_equations(&jacobian, r, &weights, n)
+    }
 }
 
 /// Robust loss applied to each residual.
@@ -155,8 +166,7 @@ pub fn solve(
     let mut x = x0.to_vec();
     clamp(&mut x);
     let mut r = vec![0.0; m];
-    let mut jac = vec![0.0; m * n];
-    problem.evaluate(&x, &mut r, Some(&mut jac));
+    let (mut h, mut g) = problem.normal_equations(&x, &mut r, loss);
     let mut cost = loss.cost(&r);
     let mut lambda = 1e-3;
     let mut nu = 2.0;
@@ -164,22 +174,14 @@ pub fn solve(
     let mut r_trial = vec![0.0; m];
     let mut iterations = 1;
     let mut need_jacobian = false;
-    let (mut h, mut g) = (DMatrix::zeros(0, 0), DVector::zeros(0));
-    let mut fresh = true;
     let stop = loop {
         if need_jacobian {
             if iterations >= options.max_iterations {
                 break StopReason::IterationLimit;
             }
-            problem.evaluate(&x, &mut r, Some(&mut jac));
+            (h, g) = problem.normal_equations(&x, &mut r, loss);
             iterations += 1;
             need_jacobian = false;
-            fresh = true;
-        }
-        if fresh {
-            let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
-            (h, g) = normal_equations(&jac, &r, &weights, n);
-            fresh = false;
         }
         // Variables held by a bound the gradient pushes against are left out of the step.
         let at_bound = |i: usize| (x[i] <= lower[i] && g[i] > 0.0) || (x[i] >= upper[i] && g[i] < 0.0);

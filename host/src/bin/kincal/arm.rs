@@ -217,6 +217,11 @@ pub struct CalibrateArgs {
     /// scale-temp (the same against temp_C).
     #[arg(long, value_name = "SESSION[:KIND]", value_parser = parse_drift)]
     drift_session: Vec<kincal::calib::tracker_drift::DriftSpec>,
+    /// Tracker sessions: held-out session HELD_OUT was measured from calibration session
+    /// CALIBRATION's instrument placement (the instrument did not move): validate it with that
+    /// calibrated base too, besides its own refitted base (protocol S; repeatable).
+    #[arg(long, value_name = "HELD_OUT=CALIBRATION")]
+    same_base: Vec<String>,
     /// Print summary.json to stdout.
     #[arg(long)]
     json: bool,
@@ -382,6 +387,7 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
             exclude_points: a.exclude_point.clone(),
             orientation_sigma_deg: a.orientation_sigma_deg,
             drift_sessions: a.drift_session.clone(),
+            same_base: a.same_base.clone(),
             add: a.add.iter().map(|e| e.to_string()).collect(),
         };
         return crate::tracker::calibrate_tracker_and_report(&inputs, &a.out, a.json);
@@ -395,6 +401,9 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
             "--float-tool, --exclude-point, --drift-session and --orientation-sigma-deg apply to tracker sessions; {} holds artefact sessions",
             a.inputs.data.display()
         );
+    }
+    if !a.same_base.is_empty() {
+        bail!("--same-base applies to tracker sessions; {} holds artefact sessions", a.inputs.data.display());
     }
     let inputs = RunInputs {
         exclude_landmarks: a.exclude_landmark.clone(),

@@ -77,6 +77,21 @@ pub fn calibrate_tracker_and_report(inputs: &TrackerInputs, out: &Path, json: bo
         );
     }
     for f in &s.validation.sessions {
+        if let Some(b) = &f.same_base {
+            let (c, n) = (&b.calibrated, &b.nominal);
+            println!(
+                "  {:<22} with the base of {} (same placement): RMS {:.4} mm (mean {:.4}, max {:.4}), nominal {:.4} mm{}",
+                f.calibrated.name,
+                b.calibration_session,
+                c.rms_mm,
+                c.mean_mm,
+                c.max_mm,
+                n.rms_mm,
+                if c.rms_mm <= n.rms_mm { "" } else { "  does not transfer" }
+            );
+        }
+    }
+    for f in &s.validation.sessions {
         if let (Some(c), Some(n)) = (&f.orientation, &f.nominal_orientation) {
             println!(
                 "  {:<22} orientation RMS {:.5}° (mean {:.5}, max {:.5}), nominal {:.5}°",

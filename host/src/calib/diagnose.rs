@@ -22,8 +22,9 @@
 //!   residuals and J_M, J_c the model's and the candidate's columns,
 //!   s = J_cᵀ(I − P_M)r and LM = sᵀ[J_cᵀ(I − P_M)J_c]⁻¹s/σ², χ²_k under no effect (computed as
 //!   the drop of the Gauss–Newton objective of the augmented fit, from the shared normal
-//!   matrix). It is turned into a standard normal deviate (Wilson–Hilferty), the candidate's
-//!   *calibration evidence*.
+//!   matrix). It is turned into the standard normal deviate with the same upper tail, computed
+//!   exactly in log space (the Wilson–Hilferty cube root, used before, favours 2-parameter
+//!   effects at χ² in the hundreds), the candidate's *calibration evidence*.
 //! * *Refit*: the [`REFITTED`] candidates with the strongest calibration evidence are refitted
 //!   warm (nonlinear, every calibration touch, from the calibrated values), and their evidence
 //!   is then the exact drop, rows × (1 − RSS_after/RSS_before), on the score test's scale; the
@@ -162,7 +163,7 @@ pub struct Candidate {
     /// Change of BIC on the calibration data (negative favours the effect): from the refit, or
     /// from the shared Gauss–Newton step on the screening rows.
     pub delta_bic: f64,
-    /// Calibration evidence as a standard normal deviate (Wilson–Hilferty of the score test's
+    /// Calibration evidence as a standard normal deviate (same upper tail as the score test's
     /// χ²_k, or of the likelihood ratio or split χ² for a data error); orders the held-out
     /// tests.
     pub calibration_z: f64,
@@ -709,11 +710,10 @@ fn evidence(
     }
 }
 
-/// Standard normal deviate of a χ²_k statistic (Wilson–Hilferty).
+/// Standard normal deviate of a χ²_k statistic, exact in the far tail (calibration evidence
+/// compares effects with different parameter counts at χ² in the hundreds).
 fn chi2_z(x: f64, k: usize) -> f64 {
-    let k = k.max(1) as f64;
-    let v = 2.0 / (9.0 * k);
-    ((x.max(0.0) / k).cbrt() - (1.0 - v)) / v.sqrt()
+    crate::numerics::stats::chi2_normal_deviate(x, k)
 }
 
 /// `data` with at most [`SCREEN_BLOCKS`] (placement, repeat) blocks, evenly spaced.
@@ -955,7 +955,8 @@ pub fn diagnose(
         Effect::library(calibrated.joints.len()).into_iter().filter(|e| !e.is_in(calibrated)).collect();
     let screen = Screen::new(calibrated, &effects, artefact, &fit_data, options);
     let base_params: Vec<ParamId> = screen.base.iter().map(|&c| screen.params[c]).collect();
-    let floor = noise_floor(calibrated, artefact, cal, val, screen.base.len());
+    let floor = noise_floor(calibrated, artefact, cal, val, screen.base.len())
+        .map(|f| f.with_estimate_noise(calibrated, &base_params, artefact, &fit_data, val));
     let (disturbed, mis_seated) = match &floor {
         Some(f) => suspicious(calibrated, artefact, cal, f.touch_std_mm.powi(2)),
         None => (Vec::new(), Vec::new()),
@@ -1557,7 +1558,7 @@ mod tests {
     }
 
     #[test]
-    fn wilson_hilferty_matches_chi2_quantiles() {
+    fn chi2_deviate_matches_chi2_quantiles() {
         // χ²₂ 95 % quantile 5.991, χ²₆ 99 % quantile 16.81.
         assert!((chi2_z(5.991, 2) - 1.645).abs() < 0.03, "{}", chi2_z(5.991, 2));
         assert!((chi2_z(16.81, 6) - 2.326).abs() < 0.03, "{}", chi2_z(16.81, 6));

@@ -45,8 +45,10 @@
 //! five validation placements the report says the test has too few units.
 //!
 //! *Rivals.* "Helps" is not "is the cause": a proxy correlated with the true effect helps too.
-//! The best significant candidate A is compared with every other significant one B that it
-//! does not beat in every placement: A + B is refitted (warm), and per placement
+//! The best significant candidate A is compared with every other significant one B, and with
+//! every B of lower validation RMS whose own held-out test passes although the fixed sequence
+//! stopped before it (calibration data often rank aliased harmonics of one joint nearly alike),
+//! that it does not beat in every placement: A + B is refitted (warm), and per placement
 //! e_B|A = ln(MSE_A / MSE_A+B) and e_A|B = ln(MSE_B / MSE_A+B) are sign-flip tested. Only A
 //! adds: A is the cause and B a proxy; only B adds: B is the cause; both add: both are missing;
 //! neither adds: "A or B: these data cannot tell them apart". The separability
@@ -1079,6 +1081,7 @@ pub fn diagnose(
             options,
             screen: &screen,
             base_params: &base_params,
+            baseline_rms_mm: baseline.rms_mm,
         },
         &candidates,
         &fits,
@@ -1122,14 +1125,20 @@ fn decide(candidates: &mut [Candidate], data_errors: &mut [Candidate], baseline_
     let mut sequence: Vec<&mut Candidate> = candidates.iter_mut().chain(data_errors.iter_mut()).collect();
     sequence.sort_by(|a, b| b.calibration_z.total_cmp(&a.calibration_z));
     for c in sequence {
-        let passes = c.calibration_z > 0.0
-            && c.p_value <= FAMILY_ALPHA
-            && c.validation_rms_mm <= (1.0 - SIGNIFICANT_GAIN) * baseline_rms_mm;
-        if !passes {
+        if !helps_alone(c, baseline_rms_mm) {
             break;
         }
         c.significant = true;
     }
+}
+
+/// The candidate's own held-out test passes at [`FAMILY_ALPHA`] with the minimum gain (and the
+/// calibration data favour it): significant when the fixed sequence reaches it, else still a
+/// rival of the leading candidate.
+fn helps_alone(c: &Candidate, baseline_rms_mm: f64) -> bool {
+    c.calibration_z > 0.0
+        && c.p_value <= FAMILY_ALPHA
+        && c.validation_rms_mm <= (1.0 - SIGNIFICANT_GAIN) * baseline_rms_mm
 }
 
 /// What the rival tests need.
@@ -1142,10 +1151,13 @@ struct RivalInputs<'a> {
     options: &'a CalibrationOptions,
     screen: &'a Screen,
     base_params: &'a [ParamId],
+    /// Validation RMS of the calibrated model, mm.
+    baseline_rms_mm: f64,
 }
 
-/// Test the leading significant candidate against the significant ones it does not beat in
-/// every validation placement; returns the rivals and the effects named (see the module doc).
+/// Test the leading significant candidate against the other significant ones, and against those
+/// with a lower validation RMS whose own held-out test passes although the fixed sequence did
+/// not reach them, that it does not beat in every validation placement; returns the rivals and the effects named (see the module doc).
 fn rivals(
     x: &RivalInputs,
     candidates: &[Candidate],
@@ -1158,7 +1170,10 @@ fn rivals(
         .iter()
         .enumerate()
         .filter(|(k, c)| {
-            *k != lead && c.significant && c.equivalent_to.is_none() && !a.equivalent.contains(&c.effect)
+            *k != lead
+                && (c.significant || (*k < lead && helps_alone(c, x.baseline_rms_mm)))
+                && c.equivalent_to.is_none()
+                && !a.equivalent.contains(&c.effect)
         })
         .filter(|(k, _)| {
             // ln(MSE_B / MSE_A) per placement: A beats B unless the sign-flip test says otherwise.

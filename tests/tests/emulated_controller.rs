@@ -271,17 +271,33 @@ fn sixteen_tick_windows_record_every_landmark_over_a_slow_link() {
 /// Drain the raw stream after it was switched off; returns (frames, missed ticks): a missed tick
 /// is a gap in the raw samples' tick numbers.
 fn raw_frames_and_missed_ticks(link: &mut Link) -> (u64, u64) {
-    let (mut frames, mut missed, mut last_tick) = (0u64, 0u64, None::<u16>);
-    while let Some((_, item)) = link.next_stream(Duration::from_millis(300)).unwrap() {
-        if let Stream::Raw(r) = item {
-            if let Some(t) = last_tick {
-                missed += r.tick.wrapping_sub(t).wrapping_sub(1) as u64;
+    let mut ticks = RawTicks::default();
+    ticks.read(link, u64::MAX);
+    (ticks.frames, ticks.missed)
+}
+
+/// Raw frames counted so far, and the ticks missed between them.
+#[derive(Default)]
+struct RawTicks {
+    frames: u64,
+    missed: u64,
+    last_tick: Option<u16>,
+}
+
+impl RawTicks {
+    /// Read raw frames until `at_least` have been counted or none comes for 300 ms.
+    fn read(&mut self, link: &mut Link, at_least: u64) {
+        while self.frames < at_least {
+            let Some((_, item)) = link.next_stream(Duration::from_millis(300)).unwrap() else { break };
+            if let Stream::Raw(r) = item {
+                if let Some(t) = self.last_tick {
+                    self.missed += r.tick.wrapping_sub(t).wrapping_sub(1) as u64;
+                }
+                self.last_tick = Some(r.tick);
+                self.frames += 1;
             }
-            last_tick = Some(r.tick);
-            frames += 1;
         }
     }
-    (frames, missed)
 }
 
 #[test]
@@ -334,10 +350,13 @@ fn parameter_commits_during_a_raw_stream_miss_no_tick_and_never_erase() {
         }
         assert!(committed < 20, "the emulated flash's 2 KiB sectors never filled");
     };
-    // A little more stream after the commits, so the frame count does not hang on upload speed.
-    std::thread::sleep(Duration::from_millis(200));
+    // Stream on until 150 frames have come, so the count does not hang on upload speed or on
+    // how often a loaded host schedules the emulator.
+    let mut ticks = RawTicks::default();
+    ticks.read(&mut link, 150);
     link.call(StreamRaw { on: false }).unwrap();
-    let (frames, missed) = raw_frames_and_missed_ticks(&mut link);
+    ticks.read(&mut link, u64::MAX);
+    let (frames, missed) = (ticks.frames, ticks.missed);
     assert!(matches!(refused, LinkError::Refused(_, WireError::FlashBusy)), "{refused}");
     assert!(refused.to_string().contains("stop the streams"), "{refused}");
     let info = link.info().unwrap();

@@ -128,21 +128,27 @@ pub fn f_upper_tail(f: f64, d1: f64, d2: f64) -> f64 {
 
 /// P(Z ≥ z) for a standard normal Z.
 pub fn normal_upper_tail(z: f64) -> f64 {
-    // erfc by the Chebyshev fit of Numerical Recipes (erfcc): relative error below 1.2e-7.
+    if z >= 0.0 {
+        ln_upper_tail_of_positive(z).exp()
+    } else {
+        1.0 - ln_upper_tail_of_positive(-z).exp()
+    }
+}
+
+/// ln P(Z ≥ z) for z ≥ 0: erfc by the Chebyshev fit of Numerical Recipes (erfcc), kept in log
+/// space so it does not underflow far in the tail; relative error below 1.2e-7.
+fn ln_upper_tail_of_positive(z: f64) -> f64 {
     let x = z / std::f64::consts::SQRT_2;
-    let t = 1.0 / (1.0 + 0.5 * x.abs());
-    let y = t
-        * (-x * x - 1.265_512_23
-            + t * (1.000_023_68
-                + t * (0.374_091_96
-                    + t * (0.096_784_18
-                        + t * (-0.186_288_06
-                            + t * (0.278_868_07
-                                + t * (-1.135_203_98
-                                    + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
-            .exp();
-    let erfc = if x >= 0.0 { y } else { 2.0 - y };
-    0.5 * erfc
+    let t = 1.0 / (1.0 + 0.5 * x);
+    let poly = -1.265_512_23
+        + t * (1.000_023_68
+            + t * (0.374_091_96
+                + t * (0.096_784_18
+                    + t * (-0.186_288_06
+                        + t * (0.278_868_07
+                            + t * (-1.135_203_98
+                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
+    0.5f64.ln() + t.ln() - x * x + poly
 }
 
 /// Wilson–Hilferty approximation of the χ² quantile with `nu` degrees of freedom at standard
@@ -197,23 +203,13 @@ fn ln_gamma_upper(a: f64, x: f64) -> f64 {
     front + h.ln()
 }
 
-/// ln P(Z ≥ z) for a standard normal Z, without underflow for large z (the erfc fit of
-/// [`normal_upper_tail`] kept in log space).
+/// ln P(Z ≥ z) for a standard normal Z, without underflow for large z.
 fn ln_normal_upper_tail(z: f64) -> f64 {
-    if z < 0.0 {
-        return (-normal_upper_tail(-z)).ln_1p();
+    if z >= 0.0 {
+        ln_upper_tail_of_positive(z)
+    } else {
+        (-normal_upper_tail(-z)).ln_1p()
     }
-    let x = z / std::f64::consts::SQRT_2;
-    let t = 1.0 / (1.0 + 0.5 * x);
-    let poly = -1.265_512_23
-        + t * (1.000_023_68
-            + t * (0.374_091_96
-                + t * (0.096_784_18
-                    + t * (-0.186_288_06
-                        + t * (0.278_868_07
-                            + t * (-1.135_203_98
-                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
-    0.5f64.ln() + t.ln() - x * x + poly
 }
 
 /// The standard normal deviate with the same upper tail as χ²_k at `x`: z with

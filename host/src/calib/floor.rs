@@ -61,6 +61,8 @@ pub const FLOOR_MARGIN: f64 = 0.3;
 
 /// One-sided 95 % standard normal quantile (the equivalence test's bound).
 const Z_95: f64 = 1.644_853_6;
+/// Two-sided 95 % standard normal quantile (the missing part's interval).
+const Z_975: f64 = 1.959_964;
 
 /// The noise floor estimated from repeated touches.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -110,6 +112,11 @@ pub struct Gap {
     pub ratio_upper_95: f64,
     /// The equivalence test shows the error at the floor (upper bound below 1 + [`FLOOR_MARGIN`]).
     pub at_floor: bool,
+    /// Two-sided 95 % interval of the missing part √(M − E), mm (from ln(M/E) ± 1.96 SE).
+    pub missing_95_mm: (f64, f64),
+    /// The missing part the test calls with even odds, √(E·(e^(2.5 SE) − 1)), mm: smaller ones
+    /// mostly go unseen.
+    pub detectable_mm: f64,
 }
 
 /// Independent observations of a dataset: 3 per touch less 6 per (placement, repeat) block.
@@ -419,6 +426,7 @@ pub fn gap(floor: &NoiseFloor, measured_mm: f64, val: &Dataset) -> Gap {
     let se = (2.0 / floor.dof.max(1) as f64 + validation_var).sqrt();
     let ratio = (m / e).max(1e-300);
     let z = ratio.ln() / se;
+    let missing_at = |r: f64| (e * (r - 1.0)).max(0.0).sqrt();
     Gap {
         measured_mm,
         expected_mm: floor.expected_rms_mm,
@@ -427,6 +435,8 @@ pub fn gap(floor: &NoiseFloor, measured_mm: f64, val: &Dataset) -> Gap {
         significant: z > GAP_Z,
         ratio_upper_95: ratio * (Z_95 * se).exp(),
         at_floor: z <= GAP_Z && ratio * (Z_95 * se).exp() < 1.0 + FLOOR_MARGIN,
+        missing_95_mm: (missing_at(ratio * (-Z_975 * se).exp()), missing_at(ratio * (Z_975 * se).exp())),
+        detectable_mm: missing_at((GAP_Z * se).exp()),
     }
 }
 
@@ -439,8 +449,8 @@ impl Gap {
         );
         if self.significant {
             format!(
-                "{head}: the model misses about {:.3} mm ({:.1} standard errors above the floor)",
-                self.missing_mm, self.z
+                "{head}: the model misses about {:.3} mm (95 % interval {:.3}–{:.3} mm; {:.1} standard errors above the floor)",
+                self.missing_mm, self.missing_95_mm.0, self.missing_95_mm.1, self.z
             )
         } else if self.at_floor {
             format!(
@@ -449,8 +459,8 @@ impl Gap {
             )
         } else {
             format!(
-                "{head}: cannot tell whether anything is missing (gap {:+.1} standard errors, yet measured/expected mean square may reach {:.2}: more validation placements would tell)",
-                self.z, self.ratio_upper_95
+                "{head}: cannot tell whether anything is missing (gap {:+.1} standard errors, yet measured/expected mean square may reach {:.2}, and a missing part below about {:.3} mm goes unseen: more validation placements would tell)",
+                self.z, self.ratio_upper_95, self.detectable_mm
             )
         }
     }

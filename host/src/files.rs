@@ -63,6 +63,18 @@ pub enum FileError {
         /// What was expected.
         message: String,
     },
+    /// An element of an XML file (a URDF joint) holds a value that cannot be used.
+    #[error("{path}:{line}: {element}: {message}")]
+    Element {
+        /// The file.
+        path: PathBuf,
+        /// The element's line, 1-based.
+        line: usize,
+        /// The element, e.g. `<joint name="elbow">`.
+        element: String,
+        /// What was expected.
+        message: String,
+    },
     /// A folder holds no session file.
     #[error("{path}: no session files (*.json) in this folder")]
     EmptyFolder {

@@ -30,6 +30,10 @@ pub const DIAGNOSIS_FORMAT: &str = "kincal-diagnosis/1";
 pub const HAPTIC_FORMAT: &str = "kincal-haptic/1";
 /// Format tag of the auto loop's `auto.json`.
 pub const AUTO_FORMAT: &str = "kincal-auto/1";
+/// Format tag of a tracker run's `diagnosis.json`.
+pub const TRACKER_DIAGNOSIS_FORMAT: &str = "kincal-tracker-diagnosis/1";
+/// Format tag of a tracker run's `auto/auto.json`.
+pub const TRACKER_AUTO_FORMAT: &str = "kincal-tracker-auto/1";
 /// Format tag of a plan (`kincal plan --out FILE`).
 pub const PLAN_FORMAT: &str = "kincal-plan/1";
 /// Header of a plan's pose list (`kincal plan --csv FILE`).
@@ -358,13 +362,14 @@ pub fn write_run(run: &Run, dir: &Path) -> Result<(), OutputError> {
     })
 }
 
-/// Write a tracker RUN/ (model.toml, nominal.toml, summary.json) as one folder.
+/// Write a tracker RUN/ (model.toml, nominal.toml, summary.json, report.html) as one folder.
 pub fn write_tracker_run(run: &crate::calib::tracker_run::TrackerRun, dir: &Path) -> Result<(), OutputError> {
     let i = &run.summary.inputs;
     write_folder(dir, FolderKind::Run, &[&*i.model, &*i.calibration, &*i.validation], |staged| {
         run.calibration.model.save(&staged.join("model.toml"))?;
         run.nominal.save(&staged.join("nominal.toml"))?;
-        put(staged, "summary.json", json(&run.summary).as_bytes())
+        put(staged, "summary.json", json(&run.summary).as_bytes())?;
+        put(staged, "report.html", report::tracker::tracker_report(run).as_bytes())
     })
 }
 
@@ -395,6 +400,45 @@ pub fn write_diagnosis(diagnosis: &Diagnosis, run_dir: &Path) -> Result<(), Outp
             ("diagnosis.json", diagnosis_json(diagnosis)),
         ],
     )
+}
+
+/// The JSON of a tracker run's diagnosis, as its `diagnosis.json` holds it.
+pub fn tracker_diagnosis_json(diagnosis: &crate::calib::tracker_diagnose::TrackerDiagnosis) -> String {
+    json(&Tagged { format: TRACKER_DIAGNOSIS_FORMAT, body: diagnosis })
+}
+
+/// Write `diagnosis.html` and `diagnosis.json` of a tracker run into its RUN folder, both or neither.
+pub fn write_tracker_diagnosis(
+    diagnosis: &crate::calib::tracker_diagnose::TrackerDiagnosis,
+    run_dir: &Path,
+) -> Result<(), OutputError> {
+    put_together(
+        run_dir,
+        &[
+            ("diagnosis.html", report::tracker_diagnosis::tracker_diagnosis_report(diagnosis)),
+            ("diagnosis.json", tracker_diagnosis_json(diagnosis)),
+        ],
+    )
+}
+
+/// The JSON of a tracker run's auto loop, as `auto.json` holds it.
+pub fn tracker_auto_json(run: &crate::calib::tracker_diagnose::TrackerAuto) -> String {
+    json(&Tagged { format: TRACKER_AUTO_FORMAT, body: run })
+}
+
+/// Write RUN/auto of a tracker run: each step's calibrated model (`step-K.toml`), `auto.json`
+/// and the error-by-step page.
+pub fn write_tracker_auto(
+    run: &crate::calib::tracker_diagnose::TrackerAuto,
+    run_dir: &Path,
+) -> Result<(), OutputError> {
+    write_folder(&run_dir.join("auto"), FolderKind::Auto, &[], |staged| {
+        for (k, model) in run.steps.iter().enumerate().filter_map(|(k, s)| Some((k, s.model.as_ref()?))) {
+            model.save(&staged.join(format!("step-{k}.toml")))?;
+        }
+        put(staged, "auto.json", tracker_auto_json(run).as_bytes())?;
+        put(staged, "report.html", report::tracker_diagnosis::tracker_auto_report(run).as_bytes())
+    })
 }
 
 /// Write several files into `dir` so that a failure (a full disk) leaves the old ones, not a mix:

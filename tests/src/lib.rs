@@ -11,6 +11,8 @@ pub mod haptic_gen;
 
 pub mod tracker_gen;
 
+pub mod tracker_setup;
+
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use kincal::controller::signing::StationKey;
 use kincal_firmware::biss_master::BissMaster;

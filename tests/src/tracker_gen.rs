@@ -806,9 +806,38 @@ impl GravitySag {
     }
 }
 
+/// A periodic encoder error (a cyclic error of a joint's encoder or of its gearing): when the
+/// controller reports `q_j` the joint really stands at `q_j + sin_deg·sin(n·q_j) + cos_deg·cos(n·q_j)`,
+/// n cycles per revolution of the reported angle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EncoderHarmonic {
+    /// The joint, 1-based.
+    pub joint: usize,
+    /// Cycles per revolution, n ≥ 1.
+    pub order: u32,
+    /// Amplitude of the sine term, deg.
+    pub sin_deg: f64,
+    /// Amplitude of the cosine term, deg.
+    pub cos_deg: f64,
+}
+
+impl EncoderHarmonic {
+    /// The angles the joints really take at readings `q_deg`.
+    fn applied(&self, q_deg: &[f64]) -> Vec<f64> {
+        let mut out = q_deg.to_vec();
+        if let Some(q) = out.get_mut(self.joint.wrapping_sub(1)) {
+            let phase = f64::from(self.order) * q.to_radians();
+            *q += self.sin_deg * phase.sin() + self.cos_deg * phase.cos();
+        }
+        out
+    }
+}
+
 /// Slow thermal drift: a steel arm grows with temperature, so every length of the arm and tool
 /// scales by `1 + k·(T(t) − T_ref)`; the measured point becomes `(1 + k·ΔT) · F(q)·t` in the base
-/// frame. `T(t) = T_ref + rise_c · t / duration` over each session (an overnight warm-up).
+/// frame. Over a session T rises by `rise_c`: linearly, `T(t) = T_ref + rise_c · t / D` (an
+/// overnight warm-up), or as a room warming towards a new level with time constant τ,
+/// `T(t) = T_ref + rise_c · (1 − e^(−t/τ)) / (1 − e^(−D/τ))` (D the session's duration).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ThermalDrift {
     /// k, 1/°C (12e-6: 12 µm per °C per metre of steel).
@@ -817,6 +846,23 @@ pub struct ThermalDrift {
     pub start_c: f64,
     /// Rise of T over a session, °C.
     pub rise_c: f64,
+    /// Only this session (0-based) warms; the others stay at T_ref. `None`: every session.
+    pub session: Option<usize>,
+    /// τ of an exponential warm-up, s; `None`: a linear rise.
+    pub time_constant_s: Option<f64>,
+}
+
+impl ThermalDrift {
+    /// Temperature rise at `time_s` into session `s` of `duration_s`, °C.
+    pub fn rise_at(&self, s: usize, time_s: f64, duration_s: f64) -> f64 {
+        if self.session.is_some_and(|only| only != s) {
+            return 0.0;
+        }
+        match self.time_constant_s {
+            Some(tau) => self.rise_c * (1.0 - (-time_s / tau).exp()) / (1.0 - (-duration_s / tau).exp()),
+            None => self.rise_c * time_s / duration_s,
+        }
+    }
 }
 
 /// A tool re-mounted in one session (a probe taken off and put back): in `session` the tool point
@@ -920,6 +966,8 @@ pub struct TrackerOptions {
     pub bad_points: Option<BadPoints>,
     /// Gravity sag.
     pub gravity_sag: Option<GravitySag>,
+    /// A periodic encoder error on one joint.
+    pub encoder_harmonic: Option<EncoderHarmonic>,
     /// Low coverage of a joint: joint (1-based) sampled only within ± half this span (deg)
     /// around the middle of its range.
     pub low_coverage: Option<(usize, f64)>,
@@ -954,6 +1002,7 @@ impl TrackerOptions {
             instrument_drift: None,
             bad_points: None,
             gravity_sag: None,
+            encoder_harmonic: None,
             low_coverage: None,
             seconds_per_point: 15.0,
             grid_spacing_mm: 100.0,
@@ -1039,6 +1088,8 @@ pub struct Truth {
     pub bad_points: Vec<(usize, usize, Vec3)>,
     /// Gravity sag used.
     pub gravity_sag: Option<GravitySag>,
+    /// Periodic encoder error used.
+    pub encoder_harmonic: Option<EncoderHarmonic>,
 }
 
 /// A generated data set.
@@ -1202,12 +1253,15 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
                 let time_s = options.seconds_per_point * rows.len() as f64;
                 let (scale, temp_c) = match options.thermal {
                     Some(t) => {
-                        let delta_c = t.rise_c * time_s / duration_s;
+                        let delta_c = t.rise_at(s, time_s, duration_s);
                         (1.0 + t.expansion_per_c * delta_c, t.start_c + delta_c)
                     }
                     None => (1.0, 20.0),
                 };
-                let deflected = arm.sagged_q(q, options.gravity_sag.as_ref());
+                let mut deflected = arm.sagged_q(q, options.gravity_sag.as_ref());
+                if let Some(h) = &options.encoder_harmonic {
+                    deflected = h.applied(&deflected);
+                }
                 let tool = arm.tool_pose(&deflected);
                 let tool_in_base = Pose { translation_mm: v_scale(tool.translation_mm, scale), ..tool };
                 let mut measured = bases[s].then(&tool_in_base);
@@ -1266,6 +1320,7 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
             instrument_drift,
             bad_points,
             gravity_sag: options.gravity_sag.clone(),
+            encoder_harmonic: options.encoder_harmonic,
         },
         sessions,
     }

@@ -84,6 +84,22 @@ fn tracker_template(t: &Path) {
     let mut model = kincal::model::ArmModel::load(&dir.join("model.toml")).unwrap();
     model.free_every_dh_value(5.0, 10.0);
     model.save(&dir.join("model.toml")).unwrap();
+    // The same arm as URDF (joint_N at line 6 + 8·(N − 1)) and the model from-urdf makes of it.
+    generated.options.arm.write_urdf(&dir.join("robot.urdf"), "iiwa7").unwrap();
+    kincal(
+        t,
+        &[
+            "model",
+            "from-urdf",
+            "tracker/robot.urdf",
+            "--base",
+            "base_link",
+            "--tip",
+            "tool0",
+            "--out",
+            "tracker/urdf_model.toml",
+        ],
+    );
 }
 
 /// `kincal calibrate` on the tracker sessions into `tout/`, with `extra` options.
@@ -125,6 +141,221 @@ fn csv_cell(file: &'static str, line: usize, cell: usize, value: &'static str) -
         cells[cell] = value;
         cells.join(",")
     })
+}
+
+/// Edit the text of `file` through `edit`.
+fn edit_text(file: &'static str, edit: impl Fn(&str) -> String + Send + Sync + 'static) -> Setup {
+    Box::new(move |dir| {
+        let path = dir.join(file);
+        let text = std::fs::read_to_string(&path).unwrap();
+        std::fs::write(&path, edit(&text)).unwrap();
+    })
+}
+
+/// Bad tracker CSVs beyond single cells: headers, encodings, whole files, folders, drift options.
+fn tracker_file_cases(cases: &mut Vec<Case>) {
+    const S1: &str = "tracker/cal/session_1.csv";
+    const HEADER: &str = "pose,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,q7_deg,x_mm,y_mm,z_mm";
+    let fails = |what: &str, setup: Setup, extra: &[&str], needles: &[&str]| {
+        Case::fails(&format!("tracker/{what}"), setup, tracker_cal(extra), needles)
+    };
+    let passes = |what: &str, setup: Setup| {
+        Case::succeeds(&format!("tracker/{what}"), setup, tracker_cal(&[]), exists("tout/summary.json"))
+    };
+    cases.extend([
+        fails(
+            "a joint column missing in the middle",
+            csv_line(S1, 2, |l| l.replace("q3_deg", "q3")),
+            &[],
+            &["session_1.csv:2: column `q3_deg`", "q4_deg is there", "without a gap"],
+        ),
+        fails(
+            "qw and qx without qy and qz",
+            write(S1, &format!("# kincal-tracker/1\n{HEADER},qw,qx\n1,0,0,0,0,0,0,0,100,0,0,1,0\n")),
+            &[],
+            &["session_1.csv:2: column `qy`", "needs all of qw, qx, qy, qz"],
+        ),
+        fails(
+            "a quaternion that is not unit",
+            write(
+                S1,
+                &format!("# kincal-tracker/1\n{HEADER},qw,qx,qy,qz\n1,0,0,0,0,0,0,0,100,0,0,1,0,0,0.5\n"),
+            ),
+            &[],
+            &["session_1.csv:3: column `qw`", "unit quaternion"],
+        ),
+        fails(
+            "sigma_mm and u95_mm both",
+            csv_line(S1, 2, |l| l.replace("sigma_mm", "sigma_mm,u95_mm")),
+            &[],
+            &["session_1.csv:2: column `u95_mm`", "not both"],
+        ),
+        fails(
+            "a negative u95_mm",
+            all(vec![csv_line(S1, 2, |l| l.replace("sigma_mm", "u95_mm")), csv_cell(S1, 4, 11, "-0.04")]),
+            &[],
+            &["session_1.csv:4: column `u95_mm`", "0 <= value"],
+        ),
+        fails(
+            "a NaN sigma_mm",
+            csv_cell(S1, 6, 11, "nan"),
+            &[],
+            &["session_1.csv:6: column `sigma_mm`", "finite"],
+        ),
+        fails(
+            "an infinite joint angle",
+            csv_cell(S1, 8, 4, "-inf"),
+            &[],
+            &["session_1.csv:8: column `q4_deg`", "finite"],
+        ),
+        fails(
+            "a session of 2 points",
+            write(
+                S1,
+                &format!("# kincal-tracker/1\n{HEADER}\n1,0,0,0,0,0,0,0,100,0,0\n2,10,0,0,0,0,0,0,0,200,0\n"),
+            ),
+            &[],
+            &["session_1.csv: session \"session_1\" has 2 points", "at least 3"],
+        ),
+        fails(
+            "the header twice",
+            edit_text(S1, |t| t.replacen(HEADER, &format!("{HEADER},sigma_mm\n{HEADER}"), 1)),
+            &[],
+            &["session_1.csv:3: column `q1_deg`", "expected a number, found \"q1_deg\""],
+        ),
+        fails("an empty file", write(S1, ""), &[], &["session_1.csv:1: column `format`", "kincal-tracker/1"]),
+        fails(
+            "semicolons for commas",
+            edit_text(S1, |t| t.replace(',', ";")),
+            &[],
+            &["session_1.csv:2: column `q1_deg`", "missing"],
+        ),
+        fails(
+            "decimal commas",
+            csv_line(S1, 5, |l| l.replace('.', ",")),
+            &[],
+            &["session_1.csv:5:", "expected 12 cells as in the header"],
+        ),
+        fails(
+            "an untagged CSV among the sessions",
+            write("tracker/cal/notes.csv", "when,who\nmonday,ana\n"),
+            &[],
+            &["notes.csv:1: column `format`", "expected the tag line \"# kincal-tracker/1\""],
+        ),
+        fails(
+            "no session tagged",
+            all([S1, "tracker/cal/session_2.csv", "tracker/cal/session_3.csv"]
+                .map(|f| csv_line(f, 1, |_| String::new()))
+                .into()),
+            &[],
+            &["--artefact is required", "tracker/cal holds no tracker sessions", "# kincal-tracker/1"],
+        ),
+        passes("a byte-order mark", edit_text(S1, |t| format!("\u{feff}{t}"))),
+        passes("CRLF line ends", edit_text(S1, |t| t.replace('\n', "\r\n"))),
+        fails(
+            "--drift-session with an unknown kind",
+            unchanged(),
+            &["--drift-session", "session_1:scael-temp"],
+            &[
+                "--drift-session",
+                "\"scael-temp\" is not a drift kind",
+                "offset-time, scale-time, offset-temp, scale-temp",
+            ],
+        ),
+        fails(
+            "--drift-session without time_s",
+            unchanged(),
+            &["--drift-session", "session_1"],
+            &["--drift-session session_1:offset-time", "session_1.csv:3 has no time_s"],
+        ),
+        fails(
+            "--drift-session scale-temp without temp_C",
+            unchanged(),
+            &["--drift-session", "session_2:scale-temp"],
+            &["session_2.csv:3 has no temp_C"],
+        ),
+        fails(
+            "--drift-session twice for one session",
+            unchanged(),
+            &["--drift-session", "session_1", "--drift-session", "session_1:scale-time"],
+            &["--drift-session session_1", "named twice"],
+        ),
+        fails(
+            "--drift-session of no session",
+            unchanged(),
+            &["--drift-session", "session_9:scale-time"],
+            &["--drift-session session_9:scale-time", "no calibration session"],
+        ),
+    ]);
+}
+
+/// `kincal model from-urdf` on the template's URDF into m.toml, with other words.
+fn from_urdf(extra: &[&str]) -> Vec<String> {
+    words(&["model", "from-urdf", "tracker/robot.urdf", "--out", "m.toml"], extra)
+}
+
+const CHAIN: &[&str] = &["--base", "base_link", "--tip", "tool0"];
+
+/// Replace the `nth` (1-based) occurrence of `from` in `file` by `to`.
+fn replace_nth(file: &'static str, nth: usize, from: &'static str, to: &'static str) -> Setup {
+    edit_text(file, move |t| {
+        let at = t
+            .match_indices(from)
+            .nth(nth - 1)
+            .map(|m| m.0)
+            .unwrap_or_else(|| panic!("{file}: no {from:?} #{nth}"));
+        format!("{}{to}{}", &t[..at], &t[at + from.len()..])
+    })
+}
+
+/// Bad URDFs for `kincal model from-urdf` and models that do not match for `to-urdf`.
+fn urdf_cases(cases: &mut Vec<Case>) {
+    const U: &str = "tracker/robot.urdf";
+    let fails = |what: &str, setup: Setup, args: Vec<String>, needles: &[&str]| {
+        Case::fails(&format!("urdf/{what}"), setup, args, needles)
+    };
+    let before_end =
+        |xml: &'static str| edit_text(U, move |t| t.replace("</robot>", &format!("{xml}</robot>")));
+    let thirteen = {
+        let mut xml = String::from("<robot name=\"long\"><link name=\"l0\"/>");
+        for j in 1..=13 {
+            xml += &format!("<link name=\"l{j}\"/><joint name=\"j{j}\" type=\"revolute\"><parent link=\"l{}\"/><child link=\"l{j}\"/><origin xyz=\"0 0 0.1\"/><axis xyz=\"0 0 1\"/></joint>", j - 1);
+        }
+        xml + "</robot>"
+    };
+    let axis_of_joint_2 = Box::new(|dir: &Path| {
+        let model = kincal::model::ArmModel::load(&dir.join("m.toml")).map_err(|e| e.to_string())?;
+        (model.joints.len() == 7 && model.joints[1].axis == [1.0, 0.0, 0.0])
+            .then_some(())
+            .ok_or(format!("joint 2 turns about {:?}, URDF's default axis is x", model.joints[1].axis))
+    });
+    let to_urdf = |model: &str| words(&["model", "to-urdf", model, "--urdf", U, "--out", "c.urdf"], CHAIN);
+    cases.extend([
+        Case::succeeds("urdf/valid chain", unchanged(), from_urdf(CHAIN), exists("m.toml")),
+        Case::succeeds("urdf/a continuous joint", replace_nth(U, 3, "\"revolute\"", "\"continuous\""), from_urdf(CHAIN), exists("m.toml")),
+        Case::succeeds("urdf/a joint without axis is about x", replace_nth(U, 2, "<axis xyz=\"0 0 1\"/>", ""), from_urdf(CHAIN), Some(axis_of_joint_2)),
+        fails("not XML", write(U, "joint_1: revolute\n"), from_urdf(CHAIN), &["robot.urdf", "not a URDF robot description"]),
+        fails("an empty file", write(U, ""), from_urdf(CHAIN), &["robot.urdf", "not a URDF robot description"]),
+        fails("no such file", unchanged(), words(&["model", "from-urdf", "tracker/nothing.urdf", "--out", "m.toml"], CHAIN), &["nothing.urdf"]),
+        fails("a prismatic joint in the chain", replace_nth(U, 1, "\"revolute\"", "\"prismatic\""), from_urdf(CHAIN), &["robot.urdf:6: <joint name=\"joint_1\">", "Prismatic", "kincal calibrates revolute (or continuous) joints"]),
+        fails("a floating joint in the chain", replace_nth(U, 3, "\"revolute\"", "\"floating\""), from_urdf(CHAIN), &["robot.urdf:22: <joint name=\"joint_3\">", "Floating"]),
+        fails("a planar joint in the chain", replace_nth(U, 7, "\"revolute\"", "\"planar\""), from_urdf(CHAIN), &["robot.urdf:54: <joint name=\"joint_7\">", "Planar"]),
+        fails("--base not in the file", unchanged(), from_urdf(&["--base", "world", "--tip", "tool0"]), &["robot.urdf", "<link name=\"world\">", "no such link (--base)", "base_link, link_1"]),
+        fails("--tip not in the file", unchanged(), from_urdf(&["--base", "base_link", "--tip", "tool1"]), &["<link name=\"tool1\">", "no such link (--tip)"]),
+        fails("--tip above --base", unchanged(), from_urdf(&["--base", "link_3", "--tip", "link_1"]), &["robot.urdf", "not below --base link_3"]),
+        fails("a link with two parents", before_end("<joint name=\"extra\" type=\"fixed\"><parent link=\"base_link\"/><child link=\"link_3\"/></joint>\n"), from_urdf(CHAIN), &["robot.urdf:", "<joint name=\"extra\">", "link_3 is the child of joint joint_3 too", "one parent joint"]),
+        fails("a loop", before_end("<link name=\"world\"/><joint name=\"back\" type=\"fixed\"><parent link=\"link_2\"/><child link=\"base_link\"/></joint>\n"), from_urdf(&["--base", "world", "--tip", "tool0"]), &["robot.urdf:", "the joints form a loop"]),
+        fails("a zero axis", replace_nth(U, 2, "<axis xyz=\"0 0 1\"/>", "<axis xyz=\"0 0 0\"/>"), from_urdf(CHAIN), &["robot.urdf:14: <joint name=\"joint_2\">/<axis>", "not a direction"]),
+        fails("four origin values", replace_nth(U, 4, "<origin xyz=\"", "<origin xyz=\"nan "), from_urdf(CHAIN), &["robot.urdf", "expected 3 found 4"]),
+        fails("a NaN origin value", replace_nth(U, 4, " rpy=\"", " rpy=\"NaN 0 0\" a=\""), from_urdf(CHAIN), &["robot.urdf:30: <joint name=\"joint_4\">/<origin>", "finite"]),
+        fails("13 revolute joints", write(U, &thirteen), from_urdf(&["--base", "l0", "--tip", "l13"]), &["robot.urdf", "chain l0 → l13", "expected 1 to 12 revolute joints, found 13"]),
+        fails("no revolute joint between base and tip", unchanged(), from_urdf(&["--base", "flange", "--tip", "tool0"]), &["chain flange → tool0", "found 0"]),
+        Case::succeeds("urdf/to-urdf of its model", unchanged(), to_urdf("tracker/urdf_model.toml"), exists("c.urdf")),
+        fails("to-urdf of a DH model", unchanged(), to_urdf("tracker/model.toml"), &["robot.urdf", "the model is not this chain", "7 Classic joints"]),
+        fails("to-urdf of the six-joint SUTA model", unchanged(), to_urdf("model.toml"), &["the model is not this chain", "6 Classic joints", "7 revolute joints"]),
+        fails("to-urdf into another URDF", replace_nth(U, 4, "<axis xyz=\"0 0 1\"/>", "<axis xyz=\"0 1 0\"/>"), to_urdf("tracker/urdf_model.toml"), &["robot.urdf:30: <joint name=\"joint_4\">/<axis>", "the model's joint 4 turns about", "not made from this chain"]),
+        fails("to-urdf over its own URDF", unchanged(), words(&["model", "to-urdf", "tracker/urdf_model.toml", "--urdf", U, "--out", U], CHAIN), &["--out tracker/robot.urdf is the URDF it is made from"]),
+    ]);
 }
 
 fn tracker_cases(cases: &mut Vec<Case>) {
@@ -1715,6 +1946,8 @@ fn corpus(template: &Path) -> Vec<Case> {
     diagnose_refusal_cases(&mut cases);
     disk_full_cases(&mut cases);
     tracker_cases(&mut cases);
+    tracker_file_cases(&mut cases);
+    urdf_cases(&mut cases);
     key_cases(&mut cases);
     cases
 }
@@ -1730,6 +1963,7 @@ fn every_bad_input_ends_in_a_clear_error_or_a_correct_result() {
     names.dedup();
     assert_eq!(names.len(), cases.len(), "case names must be unique");
     assert!(cases.len() >= 300, "only {} cases", cases.len());
+
     let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
     let started = std::time::Instant::now();
     let failures =

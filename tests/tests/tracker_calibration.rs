@@ -3,51 +3,45 @@
 //! stated deviations, a re-mounted tool, constant-orientation sessions.
 
 use kincal::calib::tracker::{calibrate_tracker, validate_session, TrackerCalibration, TrackerOptions};
-use kincal::data::tracker::{load_dir, TrackerData};
+use kincal::calib::tracker_errors::{data_error_candidates, DataError};
+use kincal::calib::tracker_run::TrackerInputs;
+use kincal::data::tracker::TrackerData;
 use kincal::model::ArmModel;
 use kincal_e2e::tracker_gen::{generate, TrackerData as Generated, TrackerOptions as GenOptions};
+use kincal_e2e::tracker_setup::{nominal_model, split};
 use std::path::PathBuf;
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("kincal-tracker-cal-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch folder");
-    dir
+    kincal_e2e::tracker_setup::scratch("tracker-cal", name)
 }
 
-/// The generator's nominal arm as a kincal model with every DH value free (the identifiability
-/// step picks what the data can move).
-fn nominal_model(generated: &Generated, dir: &std::path::Path) -> ArmModel {
-    let text = generated.options.arm.kincal_model_toml().expect("a DH arm");
-    let path = dir.join("nominal.toml");
-    std::fs::write(&path, &text).expect("model written");
-    let mut model = ArmModel::load(&path).expect("the generator's model loads");
-    model.free.clear();
-    model.free_every_dh_value(5.0, 10.0);
-    // Hayati β on the rows whose next axis is nominally parallel, as the generator draws it.
-    let last = model.joints.len() - 1;
-    for j in 0..last {
-        if model.joints[j].alpha_deg.abs() < 1e-9 {
-            let beta = model.joints[j].axis_deg;
-            model.free_param(kincal::model::ParamId::Axis(j), beta - 5.0, beta + 5.0);
-        }
+/// The inputs of a run on DIR/model.toml, DIR/cal and DIR/val, without options.
+fn run_inputs(dir: &std::path::Path) -> TrackerInputs {
+    TrackerInputs {
+        model: dir.join("model.toml"),
+        calibration: dir.join("cal"),
+        validation: dir.join("val"),
+        float_tool: vec![],
+        stated_sigma_mm: None,
+        exclude_points: vec![],
+        orientation_sigma_deg: None,
+        drift_sessions: vec![],
+        add: vec![],
     }
-    model
 }
 
-/// Write the generated sessions (`cal` and `val` indices) into two folders and read them back.
-fn split(generated: &Generated, dir: &std::path::Path, cal: &[usize]) -> (TrackerData, TrackerData) {
-    let all = dir.join("all");
-    generated.write(&all).expect("sessions written");
-    let (c, v) = (dir.join("cal"), dir.join("val"));
-    std::fs::create_dir_all(&c).unwrap();
-    std::fs::create_dir_all(&v).unwrap();
-    for (s, session) in generated.sessions.iter().enumerate() {
-        let name = format!("{}.csv", session.plan.name);
-        let to = if cal.contains(&s) { &c } else { &v };
-        std::fs::rename(all.join(&name), to.join(&name)).unwrap();
-    }
-    (load_dir(&c).expect("calibration sessions"), load_dir(&v).expect("validation sessions"))
+/// Write DIR/model.toml, DIR/cal and DIR/val of the generated sessions (`cal` calibrate, the
+/// rest are held out), and the inputs of a run on them.
+fn run_folders(
+    generated: &Generated,
+    dir: &std::path::Path,
+    cal: &[usize],
+    orientation_sigma_deg: Option<f64>,
+) -> TrackerInputs {
+    let nominal = nominal_model(generated, dir);
+    nominal.save(&dir.join("model.toml")).expect("model saved");
+    split(generated, dir, cal);
+    TrackerInputs { orientation_sigma_deg, ..run_inputs(dir) }
 }
 
 fn held_out_rms(fit: &TrackerCalibration, val: &TrackerData) -> f64 {
@@ -228,25 +222,12 @@ fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
 /// the verdict; repeated poses give the floor when there are any.
 #[test]
 fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor() {
-    use kincal::calib::tracker_run::{run_tracker, TrackerInputs};
+    use kincal::calib::tracker_run::run_tracker;
     let dir = scratch("run");
     let mut options = GenOptions::iiwa_five_sessions(5);
     options.repeats = 2;
     let generated = generate(&options);
-    let nominal = nominal_model(&generated, &dir);
-    nominal.save(&dir.join("model.toml")).expect("model saved");
-    split(&generated, &dir, &[0, 1, 2]);
-    let inputs = TrackerInputs {
-        model: dir.join("model.toml"),
-        calibration: dir.join("cal"),
-        validation: dir.join("val"),
-        float_tool: vec![],
-        stated_sigma_mm: None,
-        exclude_points: vec![],
-        orientation_sigma_deg: None,
-        drift_sessions: vec![],
-    };
-    let run = run_tracker(&inputs, None).expect("runs");
+    let run = run_tracker(&run_folders(&generated, &dir, &[0, 1, 2], None), None).expect("runs");
     let s = &run.summary;
     let names: Vec<&str> = s.validation.sessions.iter().map(|v| v.calibrated.name.as_str()).collect();
     assert_eq!(names, ["session_4", "session_5"]);
@@ -268,6 +249,125 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
     let json = serde_json::to_value(s).expect("serialises");
     assert!(json["validation"]["sessions"][0]["rms_mm"].is_number(), "{json}");
     std::fs::remove_dir_all(dir).ok();
+}
+
+/// RUN/report.html of a tracker run, as `kincal calibrate` writes it beside summary.json: it names
+/// every held-out session and says the verdict, its numbers are summary.json's, its residual plots
+/// are drawn from the residuals summary.json summarises, and it never prints `NaN` or `inf`, even
+/// from figures that are not numbers. A 7R arm with stated uncertainty (a floor), and a 6R arm
+/// with a 6-DoF probe, times and gravity sag but no stated uncertainty (the floor unknown).
+#[test]
+fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
+    use kincal::calib::tracker_run::run_tracker;
+    use kincal_e2e::tracker_gen::{GravitySag, UncertaintyColumn};
+    for six_dof in [false, true] {
+        let dir = scratch(&format!("report-{six_dof}"));
+        let options = if six_dof {
+            let mut o = GenOptions::industrial_6dof(21);
+            o.uncertainty = UncertaintyColumn::None;
+            o.time_columns = true;
+            o.gravity_sag = Some(GravitySag::floor_mounted(vec![0.0, 0.005, 0.005, 0.0, 0.0, 0.0]));
+            o
+        } else {
+            GenOptions::iiwa_five_sessions(8).few_placements(4)
+        };
+        let inputs = run_folders(&generate(&options), &dir, &[0, 1], six_dof.then_some(0.005));
+        let mut run = run_tracker(&inputs, None).expect("runs");
+        let out = dir.join("RUN");
+        kincal::output::write_tracker_run(&run, &out).expect("RUN written");
+        let html = std::fs::read_to_string(out.join("report.html")).expect("report.html written");
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary.json"))
+                .expect("summary.json parses");
+        for word in ["NaN", "inf"] {
+            assert!(!html.contains(word), "{word} in the report");
+        }
+        let f4 = |v: &serde_json::Value| format!("{:.4}", v.as_f64().expect("a number"));
+        let sessions = summary["validation"]["sessions"].as_array().expect("sessions");
+        assert_eq!(sessions.len(), 2);
+        for (s, held_out) in sessions.iter().zip(&run.held_out) {
+            let name = s["name"].as_str().expect("a name");
+            let row = format!(
+                "<td>{name}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>",
+                s["points"],
+                f4(&s["rms_mm"]),
+                f4(&s["mean_mm"]),
+                f4(&s["max_mm"]),
+                f4(&s["pairwise_rms_mm"]),
+                f4(&s["nominal"]["rms_mm"]),
+                f4(&s["nominal"]["mean_mm"]),
+                f4(&s["nominal"]["max_mm"]),
+                f4(&s["nominal"]["pairwise_rms_mm"]),
+            );
+            assert!(html.contains(&row), "{row} not in the report");
+            assert!(html.contains(&format!("<h2>Held-out session {name}: ")), "{name}'s plots");
+            // The plotted residuals are those summary.json summarises.
+            assert_eq!(held_out.name, name);
+            let sizes: Vec<f64> = held_out
+                .points
+                .iter()
+                .map(|p| p.residual_mm.iter().map(|v| v * v).sum::<f64>().sqrt())
+                .collect();
+            let rms = (sizes.iter().map(|v| v * v).sum::<f64>() / sizes.len() as f64).sqrt();
+            assert!((rms - s["rms_mm"].as_f64().expect("rms")).abs() < 1e-9, "{name}: {rms} vs {s}");
+            if six_dof {
+                let angle = format!("<td>{:.5}</td>", s["orientation"]["rms_deg"].as_f64().expect("rms_deg"));
+                assert!(html.contains(&angle), "{angle} not in the report");
+            }
+        }
+        // The calibration sessions' plots are drawn from the residuals the fit's RMS summarises.
+        let fit: Vec<f64> = run
+            .calibration_residuals
+            .iter()
+            .flat_map(|s| &s.points)
+            .map(|p| p.residual_mm.iter().map(|v| v * v).sum::<f64>())
+            .collect();
+        let fit_rms = (fit.iter().sum::<f64>() / fit.len() as f64).sqrt();
+        assert!((fit_rms - summary["fit"]["rms_mm"].as_f64().expect("fit")).abs() < 1e-9, "fit {fit_rms}");
+        for name in summary["calibration_sessions"].as_object().expect("calibration sessions").keys() {
+            assert!(html.contains(&format!("<h2>Calibration session {name}: ")), "{name}'s plots");
+        }
+        let overall = &summary["validation"]["overall"];
+        assert!(html.contains(&format!(
+            "<td>all held-out sessions</td><td>{}</td><td>{}</td>",
+            overall["points"],
+            f4(&overall["rms_mm"])
+        )));
+        for v in summary["verdict"].as_array().expect("verdict") {
+            let sentence = v.as_str().expect("a sentence").replace('&', "&amp;").replace('<', "&lt;");
+            assert!(html.contains(&sentence), "verdict {sentence} not in the report");
+        }
+        for e in summary["identifiability"]["estimated"].as_array().expect("estimated") {
+            let cell = format!("<td>{}</td>", e.as_str().expect("a name"));
+            assert!(html.contains(&cell), "{cell} not in the estimates");
+        }
+        let joints = summary["joints"].as_u64().expect("joints") as usize;
+        let plots = html.matches("<svg").count();
+        assert!(plots >= 4 * (4 + joints) + 2, "{plots} plots");
+        if six_dof {
+            assert!(summary["floor"]["rms_mm"].is_null(), "{}", summary["floor"]);
+            assert!(html.contains("The floor is unknown: the held-out sessions have no repeated poses"));
+            assert!(html.contains("Held-out orientation RMS per session") && html.contains(">time (s)<"));
+        } else {
+            let floor = format!("The floor is {} mm (stated uncertainty)", f4(&summary["floor"]["rms_mm"]));
+            assert!(html.contains(&floor), "{floor} not in the report");
+        }
+        // A session that does not transfer is marked, and figures that are not numbers print as —.
+        let s = &mut run.summary;
+        s.validation.sessions[1].transfers = false;
+        s.validation.sessions[0].calibrated.rms_mm = f64::NAN;
+        s.validation.overall.max_mm = f64::INFINITY;
+        s.floor.rms_mm = Some(f64::NAN);
+        s.estimates[0].std = Some(f64::INFINITY);
+        run.held_out[0].points[0].residual_mm[2] = f64::NAN;
+        let html = kincal::report::tracker::tracker_report(&run);
+        for word in ["NaN", "inf"] {
+            assert!(!html.contains(word), "{word} in the report of poisoned figures");
+        }
+        let second = &run.summary.validation.sessions[1].calibrated.name;
+        assert!(html.contains(&format!("{second} ✗")) && html.contains("does not transfer"));
+        std::fs::remove_dir_all(dir).ok();
+    }
 }
 
 /// Single bad points (1 mm, a beam caught on the wrong spot) in the calibration sessions: named
@@ -381,16 +481,11 @@ fn six_dof_seed(seed: u64) {
 /// summary.json of a run on 6-DoF sessions: the probe rotation, the calibration's orientation
 /// RMS and each held-out session's `orientation.rms_deg` beside the nominal one.
 fn summary_has_orientation_figures(nominal: ArmModel, cal: &TrackerData, val: &TrackerData) {
-    use kincal::calib::tracker_run::{run_on, TrackerInputs};
+    use kincal::calib::tracker_run::run_on;
     let inputs = TrackerInputs {
         model: "nominal.toml".into(),
-        calibration: "cal".into(),
-        validation: "val".into(),
-        float_tool: vec![],
-        stated_sigma_mm: None,
-        exclude_points: vec![],
         orientation_sigma_deg: Some(0.005),
-        drift_sessions: vec![],
+        ..run_inputs(std::path::Path::new(""))
     };
     let run = run_on(nominal, cal, val, &inputs, None).expect("runs");
     let json = serde_json::to_value(&run.summary).expect("serialises");
@@ -416,13 +511,32 @@ fn mul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
     std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
 }
 
+/// The generated sessions calibrated (three) and held out (two), with the data errors scored,
+/// best first, and printed after `label`: (nominal, calibration, held out, true floor, fit,
+/// candidates).
+fn scored(
+    generated: &Generated,
+    dir: &std::path::Path,
+    label: &str,
+) -> (ArmModel, TrackerData, TrackerData, f64, TrackerCalibration, Vec<DataError>) {
+    let nominal = nominal_model(generated, dir);
+    let (cal, val) = split(generated, dir, &[0, 1, 2]);
+    let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
+    let plain = TrackerOptions::default();
+    let fit = calibrate_tracker(&nominal, &cal, &plain).expect("calibrates");
+    let candidates = data_error_candidates(&nominal, &cal, &val, &fit, &plain);
+    for c in &candidates {
+        println!("{label}: {} [{}] significant {}", c.text, c.action, c.significant);
+    }
+    (nominal, cal, val, floor, fit, candidates)
+}
+
 /// Must show: the instrument creeping during one calibration session (generator's
 /// `InstrumentDrift`): the drift is named with its session and speed, no arm effect is claimed,
 /// and after its action (`--drift-session`) the held-out RMS is ≤ 1.10 × floor. On the same
 /// sessions without drift, a drift is scored but not called.
 #[test]
 fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
-    use kincal::calib::tracker_errors::data_error_candidates;
     use kincal_e2e::tracker_gen::InstrumentDrift;
     for drifting in [true, false] {
         let dir = scratch(&format!("drift-{drifting}"));
@@ -432,17 +546,12 @@ fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
             options.instrument_drift = Some(InstrumentDrift { session: 1, mm_per_hour: 3.0 });
         }
         let generated = generate(&options);
-        let nominal = nominal_model(&generated, &dir);
-        let (cal, val) = split(&generated, &dir, &[0, 1, 2]);
-        let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
+        let (nominal, cal, val, floor, fit, candidates) =
+            scored(&generated, &dir, &format!("drifting {drifting}"));
         let plain = TrackerOptions::default();
-        let fit = calibrate_tracker(&nominal, &cal, &plain).expect("calibrates");
-        let candidates = data_error_candidates(&nominal, &cal, &val, &fit, &plain);
-        for c in &candidates {
-            println!("drifting {drifting}: {} [{}] significant {}", c.text, c.kind, c.significant);
-        }
         let drifts: Vec<_> = candidates.iter().filter(|c| c.kind == "drift").collect();
-        assert_eq!(drifts.len(), 3, "every calibration session with times is scored: {candidates:?}");
+        // Offset and scale against time in each of the three sessions; temp_C is constant.
+        assert_eq!(drifts.len(), 6, "every calibration session with times is scored: {candidates:?}");
         if !drifting {
             assert!(candidates.iter().all(|c| !c.significant), "clean data: {candidates:?}");
             std::fs::remove_dir_all(dir).ok();
@@ -451,21 +560,88 @@ fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
         let best = &candidates[0];
         assert!(best.significant && best.kind == "drift" && best.session == "session_2", "{best:?}");
         assert!(
-            best.text.starts_with("session session_2 drifts by") && best.text.contains("µm/h"),
+            best.text.starts_with("session session_2 drifts (offset-time, against time_s): its base moves")
+                && best.text.contains("µm/h"),
             "{best:?}"
         );
         assert!((best.size_mm - 3.0).abs() < 3.0 * best.size_std_mm + 0.02, "{best:?}");
-        assert_eq!(best.action, "--drift-session session_2");
+        assert_eq!(best.action, "--drift-session session_2:offset-time");
         let refit = calibrate_tracker(
             &nominal,
             &cal,
-            &TrackerOptions { drift_sessions: vec!["session_2".into()], ..plain },
+            &TrackerOptions { drift_sessions: vec!["session_2".parse().unwrap()], ..plain },
         )
         .expect("calibrates");
         let (before, after) = (held_out_rms(&fit, &val), held_out_rms(&refit, &val));
         println!("held-out {before:.4} → {after:.4} mm, floor {floor:.4} mm, drift {:?}", refit.drifts);
         assert!(before > 1.10 * floor, "the drift must show before the action: {before} vs {floor}");
         assert!(after <= 1.10 * floor, "after the action {after} vs floor {floor}");
+        std::fs::remove_dir_all(dir).ok();
+    }
+}
+
+/// Must show: the generator's `ThermalDrift` hidden in one calibration session (an aluminium arm,
+/// 23 ppm/K, warming by 8 K towards a new level, τ = 5 min, while session 2 is measured; the other
+/// sessions at 20 °C): the drift is named with its kind (`scale-temp`) and session, no arm effect
+/// is claimed (the run after the action explains the held-out data, calls nothing else, and the
+/// arm parameters are the true ones within 3 σ), and after the action the held-out RMS is
+/// ≤ 1.10 × floor. On sessions whose temperature varies as much while nothing grows (k = 0),
+/// every drift kind is scored and none is called.
+#[test]
+fn a_thermal_scale_drift_in_one_session_is_named_by_kind_and_its_action_reaches_the_floor() {
+    use kincal::calib::tracker_run::run_tracker;
+    use kincal_e2e::tracker_gen::ThermalDrift;
+    for (seed, expansion_per_c) in [(7, 23e-6), (8, 23e-6), (7, 0.0)] {
+        let dir = scratch(&format!("thermal-{seed}-{expansion_per_c}"));
+        let mut options = GenOptions::iiwa_five_sessions(seed);
+        options.thermal = Some(ThermalDrift {
+            expansion_per_c,
+            start_c: 20.0,
+            rise_c: 8.0,
+            session: if expansion_per_c > 0.0 { Some(1) } else { None },
+            time_constant_s: Some(300.0),
+        });
+        let generated = generate(&options);
+        let (nominal, _, val, floor, fit, candidates) =
+            scored(&generated, &dir, &format!("k {expansion_per_c}"));
+        if expansion_per_c == 0.0 {
+            let drifts = candidates.iter().filter(|c| c.kind == "drift").count();
+            assert_eq!(drifts, 12, "four kinds in each of three sessions: {candidates:?}");
+            assert!(candidates.iter().all(|c| !c.significant), "clean data: {candidates:?}");
+            std::fs::remove_dir_all(dir).ok();
+            continue;
+        }
+        let best = &candidates[0];
+        assert!(best.significant && best.kind == "drift", "{best:?}");
+        assert_eq!(best.action, "--drift-session session_2:scale-temp", "{best:?}");
+        assert!(
+            candidates.iter().filter(|c| c.significant).count() == 1,
+            "one call at a time: {candidates:?}"
+        );
+        assert!((best.size_mm - 23.0).abs() < 3.0 * best.size_std_mm, "{best:?}");
+        // The action as `kincal calibrate --drift-session session_2:scale-temp` runs it.
+        nominal.save(&dir.join("model.toml")).expect("model saved");
+        let inputs = TrackerInputs {
+            drift_sessions: vec![best.action["--drift-session ".len()..].parse().expect("the action parses")],
+            ..run_inputs(&dir)
+        };
+        let run = run_tracker(&inputs, None).expect("runs");
+        let refit = &run.calibration;
+        let (before, after) = (held_out_rms(&fit, &val), held_out_rms(refit, &val));
+        println!("held-out {before:.4} → {after:.4} mm, floor {floor:.4} mm, drift {:?}", refit.drifts);
+        assert!(before > 1.10 * floor, "the drift must show before the action: {before} vs {floor}");
+        assert!(after <= 1.10 * floor, "after the action {after} vs floor {floor}");
+        let json = serde_json::to_value(&run.summary).expect("serialises");
+        assert_eq!(json["drifts"][0]["kind"], "scale-temp", "{json}");
+        assert_eq!(json["drifts"][0]["unit"], "ppm/K", "{json}");
+        // No arm effect: the run explains the held-out data and calls nothing else, and the arm
+        // parameters are the true arm's.
+        let verdict = &run.summary.verdict;
+        assert!(verdict.iter().any(|v| v.starts_with("the model explains the held-out data")), "{verdict:?}");
+        assert!(run.summary.data_errors.iter().all(|d| !d.significant), "{:?}", run.summary.data_errors);
+        let (n, one, three, worst) = recovered(refit, &generated);
+        println!("after the action: {n} parameters, {one} within 1 σ, {three} within 3 σ; worst {worst:?}");
+        assert_eq!(three, n, "every identifiable parameter within 3 σ of the truth: {worst:?}");
         std::fs::remove_dir_all(dir).ok();
     }
 }

@@ -4,9 +4,9 @@
 
 use kincal_e2e::tracker_gen::{
     fit_rigid, generate, gravity_levers_m, inverse_kinematics, perturb, quaternion_matrix,
-    rotation_vector_of, v_norm, Arm, BadPoints, Chain, ExportMistake, GravitySag, HiddenErrorSizes,
-    InstrumentDrift, Mat3, Pose, SessionPlan, ThermalDrift, ToolRemount, TrackerOptions, UncertaintyColumn,
-    UrdfJoint, Vec3, FOLDER_TAG,
+    rotation_vector_of, v_norm, Arm, BadPoints, Chain, EncoderHarmonic, ExportMistake, GravitySag,
+    HiddenErrorSizes, InstrumentDrift, Mat3, Pose, SessionPlan, ThermalDrift, ToolRemount, TrackerOptions,
+    UncertaintyColumn, UrdfJoint, Vec3, FOLDER_TAG,
 };
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -247,7 +247,13 @@ fn inverse_kinematics_reaches_targets_and_constant_orientation_sessions_hold_it(
 #[test]
 fn thermal_drift_and_tool_remount_have_their_configured_size() {
     let mut options = TrackerOptions::iiwa_five_sessions(10);
-    options.thermal = Some(ThermalDrift { expansion_per_c: 12e-6, start_c: 20.0, rise_c: 1.0 });
+    options.thermal = Some(ThermalDrift {
+        expansion_per_c: 12e-6,
+        start_c: 20.0,
+        rise_c: 1.0,
+        session: None,
+        time_constant_s: None,
+    });
     options.tool_remount = Some(ToolRemount { session: 2, size_mm: 0.8 });
     let data = generate(&options);
     let (session, offset) = data.truth.tool_remount.expect("remount recorded");
@@ -279,6 +285,39 @@ fn thermal_drift_and_tool_remount_have_their_configured_size() {
         header,
         "pose,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,q7_deg,x_mm,y_mm,z_mm,sigma_mm,time_s,temp_C"
     );
+}
+
+/// Thermal drift in one session only, as an exponential warm-up: that session's temperature and
+/// scale follow `T_ref + rise·(1 − e^(−t/τ))/(1 − e^(−D/τ))`, the others stay at T_ref, unscaled.
+#[test]
+fn a_warm_up_in_one_session_follows_its_formula_and_leaves_the_others_alone() {
+    let mut options = TrackerOptions::iiwa_five_sessions(11);
+    let thermal = ThermalDrift {
+        expansion_per_c: 23e-6,
+        start_c: 20.0,
+        rise_c: 8.0,
+        session: Some(1),
+        time_constant_s: Some(300.0),
+    };
+    options.thermal = Some(thermal);
+    let data = generate(&options);
+    let duration_s = options.seconds_per_point * data.sessions[1].rows.len() as f64;
+    for (s, sess) in data.sessions.iter().enumerate() {
+        for row in &sess.rows {
+            let rise = if s == 1 {
+                8.0 * (1.0 - (-row.time_s / 300.0).exp()) / (1.0 - (-duration_s / 300.0).exp())
+            } else {
+                0.0
+            };
+            assert!((row.temp_c - 20.0 - rise).abs() < 1e-12, "session {s}: {} °C", row.temp_c);
+            let undisturbed = data.truth.truth.tool_pose(&row.q_deg).translation_mm;
+            let p = undisturbed.map(|v| v * (1.0 + 23e-6 * rise));
+            assert!(distance(p, row.tool_in_base.translation_mm) < 1e-9);
+        }
+    }
+    // Most of the rise comes early: two thirds of it by a third of the session (τ = D/3).
+    let third = &data.sessions[1].rows[data.sessions[1].rows.len() / 3];
+    assert!(third.temp_c - 20.0 > 0.6 * 8.0, "{}", third.temp_c);
 }
 
 #[test]
@@ -504,4 +543,25 @@ fn export_mistakes_write_wrong_values_under_the_right_header() {
             }
         }
     }
+}
+
+/// The periodic encoder error turns only its joint, by a·sin nq + b·cos nq of the reported angle.
+#[test]
+fn an_encoder_harmonic_turns_its_joint_as_configured() {
+    let mut options = TrackerOptions::iiwa_five_sessions(13);
+    let h = EncoderHarmonic { joint: 4, order: 2, sin_deg: 0.02, cos_deg: -0.01 };
+    options.encoder_harmonic = Some(h);
+    let data = generate(&options);
+    let truth = &data.truth.truth;
+    let mut largest_mm: f64 = 0.0;
+    for row in &data.sessions[0].rows {
+        let mut turned = row.q_deg.clone();
+        let phase = 2.0 * row.q_deg[3].to_radians();
+        turned[3] += 0.02 * phase.sin() - 0.01 * phase.cos();
+        let expected = truth.tool_pose(&turned).translation_mm;
+        assert!(distance(expected, row.tool_in_base.translation_mm) < 1e-9);
+        largest_mm = largest_mm.max(distance(expected, truth.tool_pose(&row.q_deg).translation_mm));
+    }
+    assert!(largest_mm > 0.05 && largest_mm < 2.0, "{largest_mm} mm");
+    assert_eq!(data.truth.encoder_harmonic, Some(h));
 }

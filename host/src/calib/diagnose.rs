@@ -714,7 +714,7 @@ fn evidence(
 
 /// Standard normal deviate of a χ²_k statistic, exact in the far tail (calibration evidence
 /// compares effects with different parameter counts at χ² in the hundreds).
-fn chi2_z(x: f64, k: usize) -> f64 {
+pub fn chi2_z(x: f64, k: usize) -> f64 {
     crate::numerics::stats::chi2_normal_deviate(x, k)
 }
 
@@ -1475,6 +1475,10 @@ fn summarise(
                     lines.push(format!("  {} — {}", c.effect, c.evidence));
                 }
             }
+            lines.push(format!(
+                "what to measure next: `kincal plan RUN` names reachable artefact placements where {} predict different touches (by default for the first pair these data cannot tell apart), the joint ranges they pass and how far apart the explanations put the touches there; measure them, add them to the calibration data, recalibrate and diagnose again",
+                named.join(", ")
+            ));
         }
         (_, Some(best)) => {
             let same = if best.equivalent.is_empty() {

@@ -16,6 +16,8 @@ pub mod plan;
 pub mod run;
 pub mod study;
 pub mod tracker;
+pub mod tracker_diagnose;
+pub mod tracker_drift;
 pub mod tracker_errors;
 pub mod tracker_run;
 pub mod trust;

@@ -31,6 +31,7 @@
 //! [`MIN_TOUCHES`] landmarks are reachable with every joint above the table.
 
 use crate::calib::calibrate::{calibrate, CalibrationError, CalibrationOptions};
+use crate::calib::diagnose::diagnose;
 use crate::data::{Artefact, Dataset, Session, Touch, SESSION_FORMAT};
 use crate::model::effects::{default_half_range, Effect};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
@@ -237,6 +238,26 @@ pub struct SuggestedPlacement {
     /// For rivals: RMS per touch, mm, by which the second rival's best fit misses the first's
     /// prediction here (and the reverse).
     pub differ_mm: Option<(f64, f64)>,
+    /// For rivals: per touch, mm, the larger of the two misses (where the explanations differ).
+    pub touch_differ_mm: Vec<f64>,
+}
+
+impl SuggestedPlacement {
+    /// The touches where the rivals differ by at least `share` of the largest difference here:
+    /// their landmarks, and the range (from, to deg) each joint passes over them.
+    pub fn where_rivals_differ(&self, share: f64) -> (Vec<String>, Vec<(usize, f64, f64)>) {
+        let most = self.touch_differ_mm.iter().copied().fold(0.0, f64::max);
+        let picked: Vec<usize> =
+            (0..self.touch_differ_mm.len()).filter(|&k| self.touch_differ_mm[k] >= share * most).collect();
+        let ranges = (0..SUTA_JOINTS)
+            .map(|j| {
+                let (from, to) =
+                    joint_range_deg(&picked.iter().map(|&k| self.poses_deg[k][j]).collect::<Vec<_>>());
+                (j + 1, from, to)
+            })
+            .collect();
+        (picked.iter().map(|&k| self.landmarks[k].clone()).collect(), ranges)
+    }
 }
 
 /// Two rivals and how far apart the data put them.
@@ -389,11 +410,16 @@ pub fn plan(
     Ok(Plan { touch_std_mm: options.touch_std_mm, candidates: candidates.len(), rivals, weak })
 }
 
+/// RMS over touches of a 3-rows-per-touch vector, mm.
+fn rms_per_touch(v: &DVector<f64>) -> f64 {
+    (v.norm_squared() / (v.len() / 3).max(1) as f64).sqrt()
+}
+
 fn suggestion(
     c: &CandidatePlacement,
     artefact: &Artefact,
     merit: f64,
-    differ_mm: Option<(f64, f64)>,
+    differ: Option<(DVector<f64>, DVector<f64>)>,
 ) -> SuggestedPlacement {
     let encs: Vec<[f64; SUTA_JOINTS]> = c.touches.iter().map(|t| t.1).collect();
     SuggestedPlacement {
@@ -408,7 +434,10 @@ fn suggestion(
             .collect(),
         poses_deg: encs,
         merit,
-        differ_mm,
+        differ_mm: differ.as_ref().map(|(ab, ba)| (rms_per_touch(ab), rms_per_touch(ba))),
+        touch_differ_mm: differ.map_or_else(Vec::new, |(ab, ba)| {
+            (0..ab.len() / 3).map(|k| ab.rows(3 * k, 3).norm().max(ba.rows(3 * k, 3).norm())).collect()
+        }),
     }
 }
 
@@ -498,11 +527,9 @@ fn plan_rivals(
         .zip(&merits)
         .map(|(&k, &merit)| {
             let rows = &candidate_rows[k];
-            let n = candidates[k].touches.len().max(1) as f64;
             let miss_ab = &rows.a * &delta_a - hcat(&rows.model, &rows.b) * &gamma_ab;
             let miss_ba = &rows.b * &delta_b - hcat(&rows.model, &rows.a) * &gamma_ba;
-            let differ = ((miss_ab.norm_squared() / n).sqrt(), (miss_ba.norm_squared() / n).sqrt());
-            suggestion(&candidates[k], artefact, merit, Some(differ))
+            suggestion(&candidates[k], artefact, merit, Some((miss_ab, miss_ba)))
         })
         .collect();
     RivalPlan {
@@ -793,34 +820,90 @@ impl Trial {
     }
 }
 
-/// Rivals check: the true arm has `hidden` (effect `a`'s parameters), the data so far are
-/// `trial.placements` calibration placements; plan `trial.count` placements to separate `a` from
-/// `b`, measure them on the true arm, and compare the [`separation`] with that of random
-/// candidate placements.
+/// Outcome of one seed of the rivals check.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct RivalOutcome {
+    /// What the diagnosis names on the data so far.
+    pub named_before: Vec<String>,
+    /// What it names with the planned placements measured.
+    pub named_planned: Vec<String>,
+    /// What it names with each random design measured.
+    pub named_random: Vec<Vec<String>>,
+    /// [`separation`] of the true rival from the other on every measured touch (σ²).
+    pub separation: TrialOutcome,
+}
+
+impl RivalOutcome {
+    /// Whether `named` is the true rival `a` alone.
+    pub fn alone(named: &[String], a: Effect) -> bool {
+        named.len() == 1 && named[0] == a.to_string()
+    }
+}
+
+/// Rivals check on the simulator's thesis-sized data (five calibration and five validation
+/// placements, 3 repeats) of a true arm with `hidden` (effect `a`'s parameters): calibrate,
+/// diagnose, plan `trial.count` placements to tell `a` from `b`, measure them on the true arm
+/// (the simulator's independent forward path, 3 repeats), add them to the calibration data,
+/// recalibrate and diagnose again on the same validation placements; the same with
+/// `trial.random_draws` designs of as many random reachable placements. `trial.placements` is
+/// not used: all ten simulated placements are the data so far.
 pub fn rival_trial(
     nominal: &ArmModel,
     hidden: &[(ParamId, f64)],
     a: Effect,
     b: Effect,
     trial: &TrialOptions,
-) -> Result<TrialOutcome, CalibrationError> {
-    let t = Trial::new(nominal, hidden, trial);
-    let (artefact, cal) = (&t.sim.artefact, &t.cal);
-    let fit = calibrate(
-        nominal,
-        artefact,
-        cal,
-        &CalibrationOptions { restarts: 2, seed: trial.seed, ..CalibrationOptions::default() },
-    )?;
-    let sigma = t.sim_options.seating_noise_mm;
+) -> Result<RivalOutcome, CalibrationError> {
+    let sim_options =
+        SimulationOptions { seed: trial.seed, hidden: hidden.to_vec(), ..SimulationOptions::default() };
+    let sim = crate::simulate::simulate(nominal, &sim_options);
+    let artefact = &sim.artefact;
+    let cal = Dataset::from_sessions(&sim.calibration, artefact);
+    let val = Dataset::from_sessions(&sim.validation, artefact);
+    let calibration = CalibrationOptions { restarts: 2, seed: trial.seed, ..CalibrationOptions::default() };
+    let fit = calibrate(nominal, artefact, &cal, &calibration)?;
+    let sigma = sim_options.seating_noise_mm;
     let options = PlanOptions { count: trial.count, seed: trial.seed, touch_std_mm: sigma };
     let candidates = candidate_placements(&fit.model, artefact, trial.seed);
-    let planned = plan_rivals(&fit.model, artefact, cal, &Dataset::default(), a, b, &candidates, &options);
-    let before = separation(&fit.model, artefact, cal, a, b, sigma)?;
-    let (planned, random) = t.planned_and_random(&candidates, &planned.placements, trial, |data| {
-        separation(&fit.model, artefact, data, a, b, sigma)
-    })?;
-    Ok(TrialOutcome { before, planned, random })
+    let planned = plan_rivals(&fit.model, artefact, &cal, &val, a, b, &candidates, &options);
+    // The user's next step: measure the placements, add them to the calibration data,
+    // recalibrate (warm) and diagnose again on the same validation placements.
+    let outcome = |design: &[&CandidatePlacement], rng: &mut ChaCha8Rng| {
+        let new = measure(&sim.truth, artefact, design, &sim_options, "N", rng);
+        let everything: Vec<Session> =
+            sim.calibration.iter().chain(&sim.validation).chain(&new).cloned().collect();
+        let separated =
+            separation(&fit.model, artefact, &Dataset::from_sessions(&everything, artefact), a, b, sigma)?;
+        let sessions: Vec<Session> = sim.calibration.iter().chain(&new).cloned().collect();
+        let more = Dataset::from_sessions(&sessions, artefact);
+        let refit =
+            calibrate(&fit.model, artefact, &more, &CalibrationOptions { restarts: 0, ..calibration })?;
+        let named = diagnose(&refit.model, artefact, &more, &val, &calibration).named;
+        Ok::<_, CalibrationError>((named, separated))
+    };
+    let before = diagnose(&fit.model, artefact, &cal, &val, &calibration).named;
+    let so_far: Vec<Session> = sim.calibration.iter().chain(&sim.validation).cloned().collect();
+    let separated_before =
+        separation(&fit.model, artefact, &Dataset::from_sessions(&so_far, artefact), a, b, sigma)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(trial.seed ^ 0x9e37_79b9);
+    let (named_planned, separated_planned) = outcome(&chosen(&candidates, &planned.placements), &mut rng)?;
+    let (mut named_random, mut separated_random) = (Vec::new(), Vec::new());
+    for _ in 0..trial.random_draws {
+        let design = random_pick(&candidates, trial.count, &mut rng);
+        let (named, separated) = outcome(&design, &mut rng)?;
+        named_random.push(named);
+        separated_random.push(separated);
+    }
+    Ok(RivalOutcome {
+        named_before: before,
+        named_planned,
+        named_random,
+        separation: TrialOutcome {
+            before: separated_before,
+            planned: separated_planned,
+            random: separated_random,
+        },
+    })
 }
 
 /// Weak-parameter check: plan `trial.count` placements (D-optimal) on `trial.placements`

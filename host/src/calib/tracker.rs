@@ -19,6 +19,7 @@
 //! for any split between them, because each base absorbs the rest).
 
 use crate::calib::identify::{self, Combination};
+use crate::calib::tracker_drift::{drift_slots, DriftSlot, DriftSpec, SessionDrift};
 use crate::data::tracker::{TrackerData, TrackerPoint, TrackerSession};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
 use crate::model::{ArmModel, ParamId};
@@ -57,9 +58,11 @@ pub enum TrackerError {
     },
     /// A session has too few points to place its base.
     #[error(
-        "session \"{session}\" has {points} points: at least 3 not on one line are needed to place its base"
+        "{path}: session \"{session}\" has {points} points: at least 3 not on one line are needed to place its base"
     )]
     TooFewPoints {
+        /// The session's file.
+        path: String,
         /// The session.
         session: String,
         /// Its points.
@@ -76,6 +79,23 @@ pub enum TrackerError {
     /// A session named by `--float-tool` or `--drift-session` is not in the data.
     #[error("--float-tool / --drift-session {0}: no calibration session of that name")]
     UnknownSession(String),
+    /// `--drift-session` names a session twice.
+    #[error("--drift-session {0}: the session is named twice (one drift kind per session)")]
+    DriftTwice(String),
+    /// A drifting session lacks the column its drift kind drifts against.
+    #[error("--drift-session {session}:{kind}: {path}:{line} has no {column} (the drift is against {column}, on every row)")]
+    DriftColumn {
+        /// The session.
+        session: String,
+        /// The drift kind.
+        kind: &'static str,
+        /// The missing column.
+        column: &'static str,
+        /// The session's file.
+        path: String,
+        /// The first row without it.
+        line: usize,
+    },
     /// The model gives non-finite points.
     #[error("the model gives non-finite tool positions on these joint angles: check the model's numbers")]
     NonFinite,
@@ -91,9 +111,9 @@ pub struct TrackerOptions {
     /// Orientation σ of the 6-DoF probe per axis, degrees; `None`:
     /// [`DEFAULT_ORIENTATION_SIGMA_DEG`].
     pub orientation_sigma_deg: Option<f64>,
-    /// Sessions whose base drifts linearly in time (`time_s`): X_i = B_s·F·t + v_s·time_i, v_s
-    /// in the instrument frame, mm/h.
-    pub drift_sessions: Vec<String>,
+    /// Sessions whose points drift, and how (`--drift-session SESSION:KIND`, see
+    /// [`crate::calib::tracker_drift`]).
+    pub drift_sessions: Vec<DriftSpec>,
 }
 
 /// One session's base: instrument ← robot.
@@ -151,26 +171,27 @@ struct Problem<'a> {
     tool_rotation: Option<Matrix3<f64>>,
     /// Weight of an orientation residual: σ_position / σ_orientation, mm per rad.
     orientation_weight_mm_per_rad: f64,
-    /// Per session, the index of its drift velocity when its base drifts.
-    drifting: Vec<Option<usize>>,
+    /// Per session, its drift when it drifts.
+    drifting: Vec<Option<DriftSlot>>,
 }
 
 impl Problem<'_> {
     fn unknowns(&self) -> usize {
-        self.drift_start() + 3 * self.drifting.iter().flatten().count()
+        self.drift_start() + self.drifting.iter().flatten().map(|d| d.kind.unknowns()).sum::<usize>()
     }
 
     fn drift_start(&self) -> usize {
         self.floated_end() + if self.tool_rotation.is_some() { 3 } else { 0 }
     }
 
-    /// First column of session `s`'s drift velocity (mm/h, instrument frame), when it drifts.
-    fn drift_column(&self, s: usize) -> Option<usize> {
-        self.drifting.get(s).copied().flatten().map(|k| self.drift_start() + 3 * k)
+    /// Session `s`'s drift: its first column and slot, when it drifts.
+    fn drift_column(&self, s: usize) -> Option<(usize, DriftSlot)> {
+        self.drifting.get(s).copied().flatten().map(|d| (self.drift_start() + d.column, d))
     }
 
-    fn drift_at(&self, x: &[f64], s: usize) -> Vector3<f64> {
-        self.drift_column(s).map_or(Vector3::zeros(), |c| Vector3::new(x[c], x[c + 1], x[c + 2]))
+    /// Session `s`'s drift rates (empty when it does not drift).
+    fn drift_at<'x>(&self, x: &'x [f64], s: usize) -> &'x [f64] {
+        self.drift_column(s).map_or(&[], |(c, d)| &x[c..c + d.kind.unknowns()])
     }
 
     fn floated_end(&self) -> usize {
@@ -233,7 +254,6 @@ impl Residuals for Problem<'_> {
         let offsets: Vec<Vector3<f64>> =
             (0..self.sessions.len()).map(|s| self.tool_offset_at(x, s)).collect();
         let tool_rotation = self.tool_rotation_at(x);
-        let drifts: Vec<Vector3<f64>> = (0..self.sessions.len()).map(|s| self.drift_at(x, s)).collect();
         let orientation = |i: usize, r: &mut [f64], jac: Option<&mut [f64]>| {
             let (s, k) = self.oriented[i];
             let p = &self.sessions[s].points[k];
@@ -283,32 +303,39 @@ impl Residuals for Problem<'_> {
             let robot = pose.position_mm + flange * offsets[s];
             let base = &bases[s];
             let y = base.rotation * robot;
-            let hours = p.time_s.unwrap_or(0.0) / 3600.0;
-            let e = y + base.translation_mm + drifts[s] * hours - p.point_mm;
+            let drift = self.drift_column(s).map(|(c, d)| {
+                let delta = d.kind.variable(p).map_or(0.0, |v| v - d.centre);
+                (c, d.kind, delta, d.kind.effect(self.drift_at(x, s), delta))
+            });
+            let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.3);
+            let e = y * growth + base.translation_mm + shift - p.point_mm;
             r.copy_from_slice(e.as_slice());
             let Some(jac) = jac else { return };
             jac.fill(0.0);
             for (c, d) in dp.iter().enumerate() {
-                let g = base.rotation * Vector3::new(d[0], d[1], d[2]);
+                let g = base.rotation * Vector3::new(d[0], d[1], d[2]) * growth;
                 for a in 0..3 {
                     jac[a * n + c] = g[a];
                 }
             }
             let b = self.base_column(s);
             for k in 0..3 {
-                let w = Vector3::ith(k, 1e-3).cross(&y);
+                let w = Vector3::ith(k, 1e-3).cross(&y) * growth;
                 for a in 0..3 {
                     jac[a * n + b + k] = w[a];
                 }
                 jac[k * n + b + 3 + k] = 1.0;
             }
-            if let Some(d) = self.drift_column(s) {
-                for a in 0..3 {
-                    jac[a * n + d + a] = hours;
+            if let Some((c, kind, delta, _)) = drift {
+                for k in 0..kind.unknowns() {
+                    let g = kind.derivative(k, delta, &y);
+                    for a in 0..3 {
+                        jac[a * n + c + k] = g[a];
+                    }
                 }
             }
             if let Some(t) = self.tool_column(s) {
-                let g = base.rotation * flange;
+                let g = base.rotation * flange * growth;
                 for a in 0..3 {
                     for k in 0..3 {
                         jac[a * n + t + k] = g[(a, k)];
@@ -483,17 +510,6 @@ pub struct FloatedTool {
     pub size_std_mm: f64,
 }
 
-/// A session's base drifting linearly in time (`--drift-session`).
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct SessionDrift {
-    /// The session.
-    pub session: String,
-    /// Drift velocity in the instrument frame, mm/h.
-    pub velocity_mm_per_h: [f64; 3],
-    /// Standard deviation of the velocity's length, mm/h.
-    pub speed_std_mm_per_h: f64,
-}
-
 /// Standard deviation of |v| from the covariance block `c` of v.
 fn length_std(v: &Vector3<f64>, c: &Matrix3<f64>) -> f64 {
     let n = v.norm();
@@ -578,7 +594,7 @@ fn projected_arm_columns(problem: &Problem, jac: &[f64]) -> Vec<f64> {
             .collect();
         let mut own: Vec<usize> = (0..BASE_UNKNOWNS).map(|k| problem.base_column(s) + k).collect();
         own.extend(problem.tool_column(s).map(|t| [t, t + 1, t + 2]).into_iter().flatten());
-        own.extend(problem.drift_column(s).map(|d| [d, d + 1, d + 2]).into_iter().flatten());
+        own.extend(problem.drift_column(s).map(|(c, d)| c..c + d.kind.unknowns()).into_iter().flatten());
         let b = nalgebra::DMatrix::from_fn(rows.len(), own.len(), |i, k| jac[rows[i] * n + own[k]]);
         let q = b.svd(true, false);
         let (Some(u), sv) = (q.u, q.singular_values) else { continue };
@@ -626,7 +642,7 @@ struct Layout {
     rows: Vec<(usize, usize)>,
     oriented: Vec<(usize, usize)>,
     weight: f64,
-    drifting: Vec<Option<usize>>,
+    drifting: Vec<Option<DriftSlot>>,
 }
 
 impl Layout {
@@ -665,10 +681,14 @@ pub fn calibrate_tracker(
     }
     for s in &data.sessions {
         if s.points.len() < 3 {
-            return Err(TrackerError::TooFewPoints { session: s.name.clone(), points: s.points.len() });
+            return Err(TrackerError::TooFewPoints {
+                path: s.path.display().to_string(),
+                session: s.name.clone(),
+                points: s.points.len(),
+            });
         }
     }
-    for name in options.float_tool.iter().chain(&options.drift_sessions) {
+    for name in &options.float_tool {
         if !data.sessions.iter().any(|s| &s.name == name) {
             return Err(TrackerError::UnknownSession(name.clone()));
         }
@@ -709,13 +729,13 @@ pub fn calibrate_tracker(
     let start_bases: Vec<Base> = data.sessions.iter().map(|s| Base::fit(&model, &s.points, &zero)).collect();
     let mut tool_rotation = start_tool_rotation(&model, data, &start_bases, &oriented);
     let weight = orientation_weight_mm_per_rad(data, options);
-    let drifting = numbered(&options.drift_sessions);
+    let drifting = drift_slots(data, &options.drift_sessions)?;
     let layout = Layout { floated: floated.clone(), rows: rows.clone(), oriented, weight, drifting };
     let x_of = |problem: &Problem,
                 model: &ArmModel,
                 bases: &[Base],
                 offsets: &[Vector3<f64>],
-                drifts: &[Vector3<f64>]| {
+                drifts: &[Vec<f64>]| {
         let mut x: Vec<f64> = problem.params.iter().map(|id| model.get(*id)).collect();
         for b in bases {
             x.extend([0.0, 0.0, 0.0, b.translation_mm.x, b.translation_mm.y, b.translation_mm.z]);
@@ -729,8 +749,8 @@ pub fn calibrate_tracker(
             x.extend([0.0; 3]);
         }
         for (s, drift) in drifts.iter().enumerate() {
-            if problem.drift_column(s).is_some() {
-                x.extend(drift.iter());
+            if let Some((_, d)) = problem.drift_column(s) {
+                x.extend((0..d.kind.unknowns()).map(|k| drift.get(k).copied().unwrap_or(0.0)));
             }
         }
         x
@@ -742,7 +762,7 @@ pub fn calibrate_tracker(
         return Err(TrackerError::TooFewResiduals { residuals: full.len(), unknowns });
     }
     let offsets0 = vec![Vector3::zeros(); data.sessions.len()];
-    let x0 = x_of(&full, &model, &start_bases, &offsets0, &offsets0);
+    let x0 = x_of(&full, &model, &start_bases, &offsets0, &vec![Vec::new(); data.sessions.len()]);
     let (r0, jac0) = jacobian_of(&full, &x0);
     if !r0.iter().chain(&jac0).all(|v| v.is_finite()) {
         return Err(TrackerError::NonFinite);
@@ -769,7 +789,7 @@ pub fn calibrate_tracker(
     let mut current = model.clone();
     let mut bases = start_bases;
     let mut offsets = offsets0.clone();
-    let mut drifts = offsets0;
+    let mut drifts = vec![Vec::new(); data.sessions.len()];
     let mut iterations = 0;
     let mut last_cost = f64::INFINITY;
     for _ in 0..PASSES {
@@ -792,7 +812,7 @@ pub fn calibrate_tracker(
         offsets = (0..data.sessions.len()).map(|s| problem.tool_offset_at(&solution.x, s)).collect();
         bases = (0..data.sessions.len()).map(|s| problem.base_at(&solution.x, s)).collect();
         tool_rotation = tool_rotation.map(|_| problem.tool_rotation_at(&solution.x));
-        drifts = (0..data.sessions.len()).map(|s| problem.drift_at(&solution.x, s)).collect();
+        drifts = (0..data.sessions.len()).map(|s| problem.drift_at(&solution.x, s).to_vec()).collect();
         current = solved;
         let converged = (last_cost - solution.cost).abs() <= 1e-9 * solution.cost.max(1e-12);
         last_cost = solution.cost;
@@ -834,7 +854,7 @@ pub fn calibrate_tracker(
             }
         })
         .collect();
-    // A session's own 3-vector (tool offset, drift velocity) with the deviation of its length.
+    // A floated session's tool offset with the deviation of its length.
     let own = |column: &dyn Fn(usize) -> Option<usize>,
                values: &[Vector3<f64>]|
      -> Vec<(String, Vector3<f64>, f64)> {
@@ -851,12 +871,26 @@ pub fn calibrate_tracker(
         .into_iter()
         .map(|(session, v, std)| FloatedTool { session, offset_mm: v.into(), size_std_mm: std })
         .collect();
-    let drifts = own(&|s| problem.drift_column(s), &drifts)
-        .into_iter()
-        .map(|(session, v, std)| SessionDrift {
-            session,
-            velocity_mm_per_h: v.into(),
-            speed_std_mm_per_h: std,
+    let drifts = data
+        .sessions
+        .iter()
+        .enumerate()
+        .filter_map(|(s, session)| {
+            let (c, d) = problem.drift_column(s)?;
+            let rate = drifts[s].clone();
+            let rate_std = if d.kind.is_scale() {
+                cov.as_ref().map_or(0.0, |m| m[(c, c)].max(0.0).sqrt())
+            } else {
+                length_std(&Vector3::from_column_slice(&rate), &covariance_block(&cov, c))
+            };
+            Some(SessionDrift {
+                session: session.name.clone(),
+                kind: d.kind,
+                rate,
+                rate_std,
+                unit: d.kind.unit().into(),
+                centre: d.centre,
+            })
         })
         .collect();
     Ok(TrackerCalibration {
@@ -961,6 +995,15 @@ pub struct SessionValidation {
 
 /// Position error of every calibration point at the solution, per session in file order, mm.
 pub fn calibration_errors(fit: &TrackerCalibration, data: &TrackerData) -> Vec<Vec<f64>> {
+    calibration_residuals_mm(fit, data)
+        .into_iter()
+        .map(|session| session.iter().map(|r| r.norm()).collect())
+        .collect()
+}
+
+/// Residual of every calibration point at the solution, per session in file order: measured −
+/// predicted (its session's fitted base, tool offset and drift), in the robot's base frame, mm.
+pub fn calibration_residuals_mm(fit: &TrackerCalibration, data: &TrackerData) -> Vec<Vec<Vector3<f64>>> {
     data.sessions
         .iter()
         .zip(&fit.bases)
@@ -970,16 +1013,13 @@ pub fn calibration_errors(fit: &TrackerCalibration, data: &TrackerData) -> Vec<V
                 .iter()
                 .find(|t| t.session == s.name)
                 .map_or(Vector3::zeros(), |t| Vector3::from(t.offset_mm));
-            let drift = fit
-                .drifts
-                .iter()
-                .find(|d| d.session == s.name)
-                .map_or(Vector3::zeros(), |d| Vector3::from(d.velocity_mm_per_h));
+            let drift = fit.drifts.iter().find(|d| d.session == s.name);
             s.points
                 .iter()
                 .map(|p| {
-                    let drifted = drift * p.time_s.unwrap_or(0.0) / 3600.0;
-                    (base.apply(&model_point(&fit.model, &p.q_deg, &offset)) + drifted - p.point_mm).norm()
+                    let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
+                    let y = base.rotation * model_point(&fit.model, &p.q_deg, &offset);
+                    base.rotation.transpose() * (p.point_mm - (y * growth + base.translation_mm + shift))
                 })
                 .collect()
         })
@@ -1028,22 +1068,71 @@ pub fn validate_orientations(
     tool_offset_mm: [f64; 3],
     tool_rotation: &Matrix3<f64>,
 ) -> Option<AngleStats> {
+    let angles_deg: Vec<f64> =
+        orientation_errors_deg(model, session, tool_offset_mm, tool_rotation).into_iter().flatten().collect();
+    (!angles_deg.is_empty()).then(|| AngleStats::of(&angles_deg))
+}
+
+/// The orientation error (angle of R_predᵀ·R_meas, degrees) of every point of `session`, its
+/// base refitted from the positions (closed form); `None` for a row without an orientation.
+pub fn orientation_errors_deg(
+    model: &ArmModel,
+    session: &TrackerSession,
+    tool_offset_mm: [f64; 3],
+    tool_rotation: &Matrix3<f64>,
+) -> Vec<Option<f64>> {
     let base = Base::fit(model, &session.points, &Vector3::from(tool_offset_mm));
-    let angles_deg: Vec<f64> = session
+    session
         .points
         .iter()
-        .filter_map(|p| {
+        .map(|p| {
             let measured = p.orientation?.to_rotation_matrix().into_inner();
             let pose = tool_pose(model, &p.q_deg);
             let predicted = base.rotation * flange_rotation(&pose.x_axis, &pose.z_axis) * tool_rotation;
             Some(rotation_vector(&(predicted.transpose() * measured)).norm().to_degrees())
         })
-        .collect();
-    (!angles_deg.is_empty()).then(|| AngleStats::of(&angles_deg))
+        .collect()
+}
+
+/// The residual of every point of `session` for `model`, its base refitted (closed form):
+/// measured − predicted, rotated into the robot's base frame so that sessions compare, mm. Its
+/// lengths are the errors [`validate_session`] summarises.
+pub fn session_residuals_mm(
+    model: &ArmModel,
+    session: &TrackerSession,
+    tool_offset_mm: [f64; 3],
+) -> Vec<Vector3<f64>> {
+    let tool_offset_mm = &Vector3::from(tool_offset_mm);
+    let base = Base::fit(model, &session.points, tool_offset_mm);
+    session
+        .points
+        .iter()
+        .map(|p| {
+            base.rotation.transpose()
+                * (p.point_mm - base.apply(&model_point(model, &p.q_deg, tool_offset_mm)))
+        })
+        .collect()
 }
 
 /// Most points of a session whose pairwise distances are compared (evenly spaced beyond).
 pub const MAX_PAIRWISE_POINTS: usize = 2000;
+
+/// Position error of every point of `session` for `model`, its base refitted (closed form), in
+/// file order, mm.
+pub fn session_residuals(
+    model: &ArmModel,
+    session: &TrackerSession,
+    tool_offset_mm: [f64; 3],
+) -> Vec<Vector3<f64>> {
+    let offset = &Vector3::from(tool_offset_mm);
+    let base = Base::fit(model, &session.points, offset);
+    session.points.iter().map(|p| base.apply(&model_point(model, &p.q_deg, offset)) - p.point_mm).collect()
+}
+
+/// Lengths of [`session_residuals`], mm.
+pub fn session_errors(model: &ArmModel, session: &TrackerSession, tool_offset_mm: [f64; 3]) -> Vec<f64> {
+    session_residuals(model, session, tool_offset_mm).iter().map(|r| r.norm()).collect()
+}
 
 /// Errors of `model` on `session` with the base refitted (closed form), and the pairwise figures.
 pub fn validate_session(
@@ -1051,12 +1140,10 @@ pub fn validate_session(
     session: &TrackerSession,
     tool_offset_mm: [f64; 3],
 ) -> SessionValidation {
-    let tool_offset_mm = &Vector3::from(tool_offset_mm);
-    let base = Base::fit(model, &session.points, tool_offset_mm);
+    let offset = &Vector3::from(tool_offset_mm);
     let robot: Vec<Vector3<f64>> =
-        session.points.iter().map(|p| model_point(model, &p.q_deg, tool_offset_mm)).collect();
-    let errors: Vec<f64> =
-        robot.iter().zip(&session.points).map(|(r, p)| (base.apply(r) - p.point_mm).norm()).collect();
+        session.points.iter().map(|p| model_point(model, &p.q_deg, offset)).collect();
+    let errors = session_errors(model, session, tool_offset_mm);
     let stats = ErrorStats::of(&errors);
     let step = session.points.len().div_ceil(MAX_PAIRWISE_POINTS).max(1);
     let picked: Vec<usize> = (0..session.points.len()).step_by(step).collect();

@@ -18,24 +18,27 @@
 //! |Δ_S| is beyond three of its standard deviations and the held-out error falls: the others
 //! were scored against a model the best one still bends (apply it, and score again).
 //!
-//! **Drift within a session.** The instrument or its stand creeps (a tripod settling, the floor
-//! warming) while a session is measured: X_i = B_s · F(q_i) · t + v_S · time_i, a base shift
-//! growing linearly with `time_s` at a velocity v_S (instrument frame, mm/h). A calibration that
-//! holds S's base still spreads the creep over the arm parameters. The candidate lets S's base
-//! drift (`--drift-session S`, three unknowns) and is scored, like the others, by the held-out
-//! error of the refit; it is called when |v_S| is beyond three of its standard deviations and
-//! the held-out error falls by [`MIN_GAIN`]. It claims no arm effect: the arm parameters are
-//! refitted, not changed by it.
+//! **Drift within a session.** The instrument, its stand, its length scale or the arm creeps
+//! while a session is measured, against time (`time_s`) or temperature (`temp_C`): a base shift
+//! X_i = B_s · F(q_i) · t + v_S · (τ_i − τ̄) or a length scale X_i = B_s · (1 + k_S · (τ_i − τ̄)) ·
+//! F(q_i) · t (the four kinds, their formulas and physical causes in
+//! [`crate::calib::tracker_drift`]). A calibration that holds S still spreads the creep over the
+//! arm parameters. Each calibration session is refitted drifting each way its columns allow
+//! (`--drift-session S:KIND`, three unknowns for a shift, one for a scale) and scored, like the
+//! others, by the held-out error of the refit; a drift is called when its rate is beyond three of
+//! its standard deviations and the held-out error falls by [`MIN_GAIN`]. It claims no arm
+//! effect: the arm parameters are refitted, not changed by it.
 
 use crate::calib::tracker::{
     calibrate_tracker, calibration_errors, fit_session_with_tool, orientation_spread_deg, validate_session,
     TrackerCalibration, TrackerOptions, CONSTANT_ORIENTATION_DEG,
 };
+use crate::calib::tracker_drift::{DriftKind, DriftSpec};
 use crate::data::tracker::TrackerData;
 use crate::model::ArmModel;
 
-/// A data error of tracker sessions: a session whose tool point sits elsewhere, or single bad
-/// points.
+/// A data error of tracker sessions: a session whose tool point sits elsewhere, a session that
+/// drifts, or single bad points.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct DataError {
     /// `tool moved`, `drift` or `bad points`.
@@ -44,10 +47,11 @@ pub struct DataError {
     pub session: String,
     /// `calibration` or `validation`: where the session is.
     pub set: String,
-    /// The tool point's displacement (flange frame), the largest bad point's error (mm), or a
-    /// drift's speed (mm/h).
+    /// The tool point's displacement (flange frame), the largest bad point's error (mm), or the
+    /// length of a drift's rate (mm/h, mm/K, ppm/h or ppm/K, as its text says).
     pub size_mm: f64,
-    /// Standard deviation of the displacement's length, or the points' robust σ, mm.
+    /// Standard deviation of the displacement's length, the points' robust σ (mm), or of the
+    /// drift rate's length (its unit).
     pub size_std_mm: f64,
     /// Held-out RMS without the candidate, mm.
     pub held_out_before_mm: f64,
@@ -146,10 +150,8 @@ fn bad_points_candidate(
     })
 }
 
-/// Least span of `time_s` within a session, s, for its drift to be a candidate.
-pub const MIN_DRIFT_SPAN_S: f64 = 60.0;
-
-/// The drift candidates: each calibration session with times, its base drifting in time.
+/// The drift candidates: each calibration session, with each drift kind whose column it carries
+/// over the least span ([`DriftKind::applies_to`]), refitted drifting that way.
 fn drift_candidates(
     nominal: &ArmModel,
     cal: &TrackerData,
@@ -157,54 +159,66 @@ fn drift_candidates(
     options: &TrackerOptions,
     before: f64,
 ) -> Vec<DataError> {
-    let timed = |s: &&crate::data::tracker::TrackerSession| {
-        let times: Vec<f64> = s.points.iter().filter_map(|p| p.time_s).collect();
-        let span = times.iter().copied().fold(f64::NEG_INFINITY, f64::max)
-            - times.iter().copied().fold(f64::INFINITY, f64::min);
-        times.len() == s.points.len() && span >= MIN_DRIFT_SPAN_S
-    };
     let mut out = Vec::new();
-    for s in cal.sessions.iter().filter(|s| !options.drift_sessions.contains(&s.name)).filter(timed) {
-        let mut drift_sessions = options.drift_sessions.clone();
-        drift_sessions.push(s.name.clone());
-        let Ok(refit) =
-            calibrate_tracker(nominal, cal, &TrackerOptions { drift_sessions, ..options.clone() })
-        else {
-            continue;
-        };
-        let Some(drift) = refit.drifts.iter().find(|d| d.session == s.name) else { continue };
-        let after = held_out_rms(&refit.model, val, &options.float_tool);
-        let v = drift.velocity_mm_per_h;
-        let speed = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-        let std = drift.speed_std_mm_per_h;
-        let along = v.map(|x| x / speed.max(1e-300));
-        out.push(DataError {
-            kind: "drift".into(),
-            session: s.name.clone(),
-            set: "calibration".into(),
-            size_mm: speed,
-            size_std_mm: std,
-            held_out_before_mm: before,
-            held_out_after_mm: after,
-            significant: speed > 3.0 * std && after < (1.0 - MIN_GAIN) * before,
-            text: format!(
-                "session {} drifts by {:.1} ± {:.1} µm/h along ({:.3}, {:.3}, {:.3}) (instrument frame); held-out \
-                 RMS {before:.4} → {after:.4} mm with its base drifting",
-                s.name,
-                1e3 * speed,
-                1e3 * std,
-                along[0],
-                along[1],
-                along[2]
-            ),
-            action: format!("--drift-session {}", s.name),
-        });
+    for s in cal.sessions.iter().filter(|s| !options.drift_sessions.iter().any(|d| d.session == s.name)) {
+        for kind in DriftKind::ALL.into_iter().filter(|k| k.applies_to(s)) {
+            let mut drift_sessions = options.drift_sessions.clone();
+            drift_sessions.push(DriftSpec { session: s.name.clone(), kind });
+            let Ok(refit) =
+                calibrate_tracker(nominal, cal, &TrackerOptions { drift_sessions, ..options.clone() })
+            else {
+                continue;
+            };
+            let Some(drift) = refit.drifts.iter().find(|d| d.session == s.name) else { continue };
+            let after = held_out_rms(&refit.model, val, &options.float_tool);
+            let (size, std) = (drift.size(), drift.rate_std);
+            // A shift reads in µm (per hour or per kelvin), a scale in ppm.
+            let (scale, unit) = if kind.is_scale() {
+                (1.0, kind.unit().to_string())
+            } else {
+                (1e3, kind.unit().replacen("mm", "µm", 1))
+            };
+            let what = if kind.is_scale() {
+                format!(
+                    "its length scale changes by {:.2} ± {:.2} {unit}",
+                    scale * drift.rate[0],
+                    scale * std
+                )
+            } else {
+                let along =
+                    drift.rate.iter().map(|x| format!("{:.3}", x / size.max(1e-300))).collect::<Vec<_>>();
+                format!(
+                    "its base moves {:.1} ± {:.1} {unit} along ({}) (instrument frame)",
+                    scale * size,
+                    scale * std,
+                    along.join(", ")
+                )
+            };
+            out.push(DataError {
+                kind: "drift".into(),
+                session: s.name.clone(),
+                set: "calibration".into(),
+                size_mm: size,
+                size_std_mm: std,
+                held_out_before_mm: before,
+                held_out_after_mm: after,
+                significant: size > 3.0 * std && after < (1.0 - MIN_GAIN) * before,
+                text: format!(
+                    "session {} drifts ({}, against {}): {what}; held-out RMS {before:.4} → {after:.4} mm with it drifting",
+                    s.name,
+                    kind.name(),
+                    kind.column(),
+                ),
+                action: format!("--drift-session {}:{}", s.name, kind.name()),
+            });
+        }
     }
     out
 }
 
 /// Score the data errors, best first: "the tool moved in session S" for every session not
-/// already floating, and single bad points.
+/// already floating, "session S drifts" for every drift kind a session's columns allow, and
+/// single bad points.
 pub fn data_error_candidates(
     nominal: &ArmModel,
     cal: &TrackerData,

@@ -11,13 +11,16 @@
 //! model is never said to explain the data.
 
 use crate::calib::tracker::{
-    calibrate_tracker, fit_session_with_tool, validate_orientations, validate_session, AngleStats,
-    ErrorStats, FloatedTool, SessionDrift, SessionValidation, ToolRotation, TrackerCalibration, TrackerError,
-    TrackerEstimate, TrackerIdentifiability, TrackerOptions,
+    calibrate_tracker, calibration_residuals_mm, fit_session_with_tool, orientation_errors_deg,
+    session_residuals_mm, validate_orientations, validate_session, AngleStats, ErrorStats, FloatedTool,
+    SessionValidation, ToolRotation, TrackerCalibration, TrackerError, TrackerEstimate,
+    TrackerIdentifiability, TrackerOptions,
 };
+use crate::calib::tracker_drift::{DriftSpec, SessionDrift};
 use crate::calib::tracker_errors::{data_error_candidates, DataError};
 use crate::data::tracker::{load_dir, TrackerData, TrackerSession};
 use crate::files::FileError;
+use crate::model::effects::Effect;
 use crate::model::{ArmModel, ParamId};
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
@@ -40,6 +43,9 @@ pub enum TrackerRunError {
     /// `--exclude-point` names no calibration point.
     #[error("--exclude-point {0}: no calibration session and line of that name (expected SESSION:LINE)")]
     UnknownPoint(String),
+    /// `--add` names no effect of the library.
+    #[error("--add {0}: not an effect of the library (e.g. compliance:2, harmonic:3:2, twist:4, scale)")]
+    UnknownEffect(String),
     /// A validation session has the name of a calibration session.
     #[error(
         "session \"{0}\" is in both the calibration and the validation folder: validation must be held out"
@@ -66,9 +72,12 @@ pub struct TrackerInputs {
     /// The 6-DoF probe's stated orientation σ per axis, degrees (`None`: the default).
     #[serde(default)]
     pub orientation_sigma_deg: Option<f64>,
-    /// Calibration sessions whose base drifts linearly in time (`--drift-session`).
+    /// Calibration sessions whose points drift, and how (`--drift-session SESSION[:KIND]`).
     #[serde(default)]
-    pub drift_sessions: Vec<String>,
+    pub drift_sessions: Vec<DriftSpec>,
+    /// Effects of the library added to the model (`--add`, e.g. `compliance:2`).
+    #[serde(default)]
+    pub add: Vec<String>,
 }
 
 /// One held-out session's figures, calibrated and nominal.
@@ -137,7 +146,7 @@ pub struct TrackerSummary {
     pub estimates: Vec<TrackerEstimate>,
     /// Floated tools.
     pub tool_offsets: Vec<FloatedTool>,
-    /// Drifting sessions' velocities.
+    /// Drifting sessions' rates.
     #[serde(default)]
     pub drifts: Vec<SessionDrift>,
     /// What the data cannot separate.
@@ -154,6 +163,32 @@ pub struct TrackerSummary {
     pub warnings: Vec<String>,
 }
 
+/// One point as the calibrated model leaves it.
+#[derive(Clone, Debug)]
+pub struct PointResidual {
+    /// Line in the session's file.
+    pub line: usize,
+    /// Pose id, when the file has a `pose` column.
+    pub pose: Option<String>,
+    /// Time of the measurement, s, when the file has a `time_s` column.
+    pub time_s: Option<f64>,
+    /// Joint angles, degrees.
+    pub q_deg: Vec<f64>,
+    /// Measured − predicted, in the robot's base frame, mm.
+    pub residual_mm: [f64; 3],
+    /// Orientation error, degrees (6-DoF probes).
+    pub orientation_error_deg: Option<f64>,
+}
+
+/// The residuals of one session's points, in file order.
+#[derive(Clone, Debug)]
+pub struct SessionResiduals {
+    /// Session name.
+    pub name: String,
+    /// Its points.
+    pub points: Vec<PointResidual>,
+}
+
 /// A finished tracker run.
 #[derive(Clone, Debug)]
 pub struct TrackerRun {
@@ -163,6 +198,11 @@ pub struct TrackerRun {
     pub calibration: TrackerCalibration,
     /// The summary.
     pub summary: TrackerSummary,
+    /// Every held-out point's residual (its session's base refitted), per session, as
+    /// `validation.sessions[]` summarises them.
+    pub held_out: Vec<SessionResiduals>,
+    /// Every calibration point's residual at the solution, per session, as `fit` summarises them.
+    pub calibration_residuals: Vec<SessionResiduals>,
 }
 
 fn pooled(parts: &[SessionValidation]) -> ErrorStats {
@@ -186,6 +226,43 @@ fn pooled_angles(parts: &[AngleStats]) -> Option<AngleStats> {
         mean_deg: parts.iter().map(|p| p.mean_deg * p.orientations as f64).sum::<f64>() / n,
         max_deg: parts.iter().map(|p| p.max_deg).fold(0.0, f64::max),
     })
+}
+
+/// The residuals of `fit` on held-out `session`, its base (and tool offset `offset_mm`) refitted.
+fn held_out_points(
+    fit: &TrackerCalibration,
+    session: &TrackerSession,
+    offset_mm: [f64; 3],
+) -> SessionResiduals {
+    let residuals = session_residuals_mm(&fit.model, session, offset_mm);
+    let angles = fit.tool_rotation.as_ref().map_or_else(
+        || vec![None; session.points.len()],
+        |t| orientation_errors_deg(&fit.model, session, [0.0; 3], &t.rotation()),
+    );
+    session_residuals(session, residuals, angles)
+}
+
+/// `session`'s points with their residuals and orientation errors.
+fn session_residuals(
+    session: &TrackerSession,
+    residuals: Vec<Vector3<f64>>,
+    angles: Vec<Option<f64>>,
+) -> SessionResiduals {
+    let points = session
+        .points
+        .iter()
+        .zip(residuals)
+        .zip(angles)
+        .map(|((p, r), angle)| PointResidual {
+            line: p.line,
+            pose: p.pose.clone(),
+            time_s: p.time_s,
+            q_deg: p.q_deg.clone(),
+            residual_mm: r.into(),
+            orientation_error_deg: angle,
+        })
+        .collect();
+    SessionResiduals { name: session.name.clone(), points }
 }
 
 /// The held-out floor (see the module's doc comment).
@@ -234,12 +311,33 @@ fn tool_only(nominal: &ArmModel) -> ArmModel {
     m
 }
 
+/// `cal` without the points named `SESSION:LINE` (`--exclude-point`).
+pub fn without_points(cal: &TrackerData, names: &[String]) -> Result<TrackerData, TrackerRunError> {
+    let mut kept = cal.clone();
+    for name in names {
+        let found = name.rsplit_once(':').and_then(|(session, line)| {
+            let line: usize = line.parse().ok()?;
+            let s = kept.sessions.iter_mut().find(|s| s.name == session)?;
+            let before = s.points.len();
+            s.points.retain(|p| p.line != line);
+            (s.points.len() < before).then_some(())
+        });
+        if found.is_none() {
+            return Err(TrackerRunError::UnknownPoint(name.clone()));
+        }
+    }
+    Ok(kept)
+}
+
 /// Load, calibrate, validate, score the data errors and say what it means.
 pub fn run_tracker(
     inputs: &TrackerInputs,
     huber_delta_mm: Option<f64>,
 ) -> Result<TrackerRun, TrackerRunError> {
-    let nominal = ArmModel::load(&inputs.model)?;
+    let mut nominal = ArmModel::load(&inputs.model)?;
+    for name in &inputs.add {
+        Effect::parse(name).ok_or_else(|| TrackerRunError::UnknownEffect(name.clone()))?.add_to(&mut nominal);
+    }
     let cal = load_dir(&inputs.calibration)?;
     let val = load_dir(&inputs.validation)?;
     run_on(nominal, &cal, &val, inputs, huber_delta_mm)
@@ -253,19 +351,7 @@ pub fn run_on(
     inputs: &TrackerInputs,
     huber_delta_mm: Option<f64>,
 ) -> Result<TrackerRun, TrackerRunError> {
-    let mut kept = cal.clone();
-    for name in &inputs.exclude_points {
-        let found = name.rsplit_once(':').and_then(|(session, line)| {
-            let line: usize = line.parse().ok()?;
-            let s = kept.sessions.iter_mut().find(|s| s.name == session)?;
-            let before = s.points.len();
-            s.points.retain(|p| p.line != line);
-            (s.points.len() < before).then_some(())
-        });
-        if found.is_none() {
-            return Err(TrackerRunError::UnknownPoint(name.clone()));
-        }
-    }
+    let kept = without_points(cal, &inputs.exclude_points)?;
     let cal = &kept;
     if let Some(s) = val.sessions.iter().find(|v| cal.sessions.iter().any(|c| c.name == v.name)) {
         return Err(TrackerRunError::SameSession(s.name.clone()));
@@ -288,11 +374,13 @@ pub fn run_on(
     };
     let fit = calibrate_tracker(&nominal, cal, &options)?;
     let reference = calibrate_tracker(&tool_only(&nominal), cal, &options)?;
+    // The session's tool offset (its own when floated) and its figures.
     let validate = |model: &ArmModel, s: &TrackerSession| {
         if val_float.contains(&s.name) {
-            fit_session_with_tool(model, s).1
+            let (tool, figures) = fit_session_with_tool(model, s);
+            (tool.offset_mm, figures)
         } else {
-            validate_session(model, s, [0.0; 3])
+            ([0.0; 3], validate_session(model, s, [0.0; 3]))
         }
     };
     let orientations = |fit: &TrackerCalibration, s: &TrackerSession, offset_mm: [f64; 3]| {
@@ -302,10 +390,12 @@ pub fn run_on(
     };
     let mut verdict = Vec::new();
     let mut sessions = Vec::new();
+    let mut held_out = Vec::new();
     let (mut calibrated_parts, mut nominal_parts, mut angle_parts) = (Vec::new(), Vec::new(), Vec::new());
     for s in &val.sessions {
-        let c = validate(&fit.model, s);
-        let n = validate(&reference.model, s);
+        let (offset_mm, c) = validate(&fit.model, s);
+        let n = validate(&reference.model, s).1;
+        held_out.push(held_out_points(&fit, s, offset_mm));
         let orientation = orientations(&fit, s, [0.0; 3]);
         let nominal_orientation = orientations(&reference, s, [0.0; 3]);
         angle_parts.extend(orientation);
@@ -376,5 +466,11 @@ pub fn run_on(
         verdict,
         warnings: cal.warnings.iter().chain(&val.warnings).cloned().collect(),
     };
-    Ok(TrackerRun { nominal, calibration: fit, summary })
+    let calibration_residuals = cal
+        .sessions
+        .iter()
+        .zip(calibration_residuals_mm(&fit, cal))
+        .map(|(s, residuals)| session_residuals(s, residuals, vec![None; s.points.len()]))
+        .collect();
+    Ok(TrackerRun { nominal, calibration: fit, summary, held_out, calibration_residuals })
 }

@@ -149,6 +149,15 @@ fn layout(
     if out.q.is_empty() {
         return Err(row("q1_deg", "missing: expected joint columns q1_deg … qN_deg (degrees)".into()));
     }
+    let gap = out.q.len() + 1;
+    if let Some(later) = (gap + 1..=MAX_JOINTS).find(|j| find(&format!("q{j}_deg")).is_some()) {
+        return Err(row(
+            &format!("q{gap}_deg"),
+            format!(
+                "missing, while q{later}_deg is there: expected joint columns q1_deg … qN_deg without a gap"
+            ),
+        ));
+    }
     for (k, name) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
         out.xyz[k] =
             find(name).ok_or_else(|| row(name, "missing: the measured point x_mm, y_mm, z_mm".into()))?;

@@ -32,6 +32,34 @@ fn field(path: &Path, field: String, message: String) -> FileError {
     FileError::Field { path: path.to_owned(), field, message }
 }
 
+/// Byte offset of the `<joint …>` element named `name` in `text`.
+fn joint_start(text: &str, name: &str) -> Option<usize> {
+    ["\"", "'"].iter().find_map(|q| {
+        let needle = format!("name={q}{name}{q}");
+        let mut from = 0;
+        while let Some(i) = text[from..].find(&needle) {
+            let at = from + i;
+            let open = text[..at].rfind('<')?;
+            if text[open..].starts_with("<joint") {
+                return Some(open);
+            }
+            from = at + needle.len();
+        }
+        None
+    })
+}
+
+/// An error at the joint `name` of the URDF `text`, with the joint's line (1 when not found).
+fn at_joint(path: &Path, text: &str, name: &str, what: &str, message: String) -> FileError {
+    let line = joint_start(text, name).map_or(1, |at| text[..at].matches('\n').count() + 1);
+    FileError::Element {
+        path: path.to_owned(),
+        line,
+        element: format!("<joint name=\"{name}\">{what}"),
+        message,
+    }
+}
+
 fn read_robot(path: &Path) -> Result<(String, urdf_rs::Robot), FileError> {
     crate::files::check_regular_file(path)?;
     let text =
@@ -55,6 +83,7 @@ fn origin_of(pose: &urdf_rs::Pose) -> Isometry3<f64> {
 /// The revolute joints from `base` to `tip`, and the fixed transform after the last one.
 fn chain(
     path: &Path,
+    text: &str,
     robot: &urdf_rs::Robot,
     base: &str,
     tip: &str,
@@ -73,19 +102,28 @@ fn chain(
     let mut walked = Vec::new();
     let mut link = tip;
     while link != base {
-        let joint = robot.joints.iter().find(|j| j.child.link == link).ok_or_else(|| {
+        let mut parents = robot.joints.iter().filter(|j| j.child.link == link);
+        let joint = parents.next().ok_or_else(|| {
             field(
                 path,
                 format!("<link name=\"{link}\">"),
                 format!("no joint has this link as its child: the link is not below --base {base}"),
             )
         })?;
-        if walked.len() > robot.joints.len() {
-            return Err(field(
+        if let Some(second) = parents.next() {
+            return Err(at_joint(
                 path,
-                format!("<joint name=\"{}\">", joint.name),
-                "the joints form a loop".into(),
+                text,
+                &second.name,
+                "",
+                format!(
+                    "link {link} is the child of joint {} too: a URDF is a tree, each link has one parent joint",
+                    joint.name
+                ),
             ));
+        }
+        if walked.len() > robot.joints.len() {
+            return Err(at_joint(path, text, &joint.name, "", "the joints form a loop".into()));
         }
         walked.push(joint);
         link = &joint.parent.link;
@@ -94,17 +132,31 @@ fn chain(
     let mut joints = Vec::new();
     let mut folded = Isometry3::identity();
     for joint in walked {
-        let at = || format!("<joint name=\"{}\">", joint.name);
+        let values = joint.origin.xyz.0.iter().chain(&joint.origin.rpy.0);
+        if !values.chain(&joint.axis.xyz.0).all(|v| v.is_finite()) {
+            return Err(at_joint(
+                path,
+                text,
+                &joint.name,
+                "/<origin>",
+                "expected finite numbers in origin xyz (m), rpy (rad) and axis xyz".into(),
+            ));
+        }
         match &joint.joint_type {
             urdf_rs::JointType::Fixed => folded *= origin_of(&joint.origin),
             urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => {
                 let axis = Vector3::from(joint.axis.xyz.0);
                 let norm = axis.norm();
-                if !(norm.is_finite() && norm > 1e-9) {
-                    return Err(field(
+                if norm <= 1e-9 {
+                    return Err(at_joint(
                         path,
-                        format!("{}/<axis>", at()),
-                        "the axis is not a direction".into(),
+                        text,
+                        &joint.name,
+                        "/<axis>",
+                        format!(
+                            "the axis {:?} is not a direction: expected a non-zero xyz",
+                            joint.axis.xyz.0
+                        ),
                     ));
                 }
                 joints.push(ChainJoint {
@@ -116,9 +168,11 @@ fn chain(
                 folded = Isometry3::identity();
             }
             other => {
-                return Err(field(
+                return Err(at_joint(
                     path,
-                    at(),
+                    text,
+                    &joint.name,
+                    "",
                     format!(
                         "type {other:?} in the chain {base} → {tip}; kincal calibrates revolute \
                          (or continuous) joints, with fixed joints folded in"
@@ -148,8 +202,8 @@ fn xyz_rpy(pose: &Isometry3<f64>) -> ([f64; 3], [f64; 3]) {
 /// value and joint offset free (± [`ORIGIN_HALF_RANGE_MM`], ± [`ORIGIN_HALF_RANGE_DEG`]); the tool
 /// point is the fixed transform after the last revolute joint (only its translation).
 pub fn model_from_urdf(path: &Path, base: &str, tip: &str) -> Result<ArmModel, FileError> {
-    let (_, robot) = read_robot(path)?;
-    let (chain, after) = chain(path, &robot, base, tip)?;
+    let (text, robot) = read_robot(path)?;
+    let (chain, after) = chain(path, &text, &robot, base, tip)?;
     let joints = chain
         .iter()
         .map(|c| {
@@ -185,7 +239,7 @@ pub fn model_from_urdf(path: &Path, base: &str, tip: &str) -> Result<ArmModel, F
 /// the URDF's forward kinematics at the readings q equals the model's. Nothing else changes.
 pub fn calibrated_urdf(path: &Path, base: &str, tip: &str, model: &ArmModel) -> Result<String, FileError> {
     let (text, robot) = read_robot(path)?;
-    let (chain, _) = chain(path, &robot, base, tip)?;
+    let (chain, _) = chain(path, &text, &robot, base, tip)?;
     if model.convention != Convention::Urdf || model.joints.len() != chain.len() {
         return Err(field(
             path,
@@ -197,6 +251,24 @@ pub fn calibrated_urdf(path: &Path, base: &str, tip: &str, model: &ArmModel) -> 
                 chain.len()
             ),
         ));
+    }
+    for (j, (c, joint)) in chain.iter().zip(&model.joints).enumerate() {
+        let axis = Vector3::from(joint.axis);
+        if (axis.normalize() - c.axis).norm() > 1e-6 || !axis.iter().all(|v| v.is_finite()) {
+            return Err(at_joint(
+                path,
+                &text,
+                &c.name,
+                "/<axis>",
+                format!(
+                    "the model's joint {} turns about {:?}, this joint about {:?}: the model was not made from this \
+                     chain (kincal model from-urdf)",
+                    j + 1,
+                    joint.axis,
+                    <[f64; 3]>::from(c.axis)
+                ),
+            ));
+        }
     }
     let mut out = text;
     for (c, joint) in chain.iter().zip(&model.joints) {
@@ -230,19 +302,7 @@ pub fn calibrated_urdf(path: &Path, base: &str, tip: &str, model: &ArmModel) -> 
 
 /// `text` with the `<origin …/>` of joint `name` replaced by `origin` (inserted when absent).
 fn replace_joint_origin(text: &str, name: &str, origin: &str) -> Option<String> {
-    let start = ["\"", "'"].iter().find_map(|q| {
-        let needle = format!("name={q}{name}{q}");
-        let mut from = 0;
-        while let Some(i) = text[from..].find(&needle) {
-            let at = from + i;
-            let open = text[..at].rfind('<')?;
-            if text[open..].starts_with("<joint") {
-                return Some(open);
-            }
-            from = at + needle.len();
-        }
-        None
-    })?;
+    let start = joint_start(text, name)?;
     let end = start + text[start..].find("</joint>")?;
     let element = &text[start..end];
     let head_end = element.find('>')? + 1;

@@ -8,6 +8,8 @@ pub mod diagnosis;
 pub mod haptic;
 pub mod study;
 pub mod svg;
+pub mod tracker;
+pub mod tracker_diagnosis;
 
 use std::fmt::Write;
 use svg::escape;

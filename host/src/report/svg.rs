@@ -200,9 +200,10 @@ pub fn histogram(series: &[(&str, &[f64])], bins: usize, x_label: &str) -> Strin
     out + "</svg>"
 }
 
-/// Grouped bars: one group per category, one bar per series.
+/// Grouped bars: one group per category, one bar per series; room above the bars for the legend.
 pub fn bars(categories: &[String], series: &[(&str, Vec<f64>)], y_label: &str) -> String {
-    let top = range(series.iter().flat_map(|(_, v)| v.iter().copied())).1.max(1e-9);
+    let tallest = range(series.iter().flat_map(|(_, v)| v.iter().copied())).1.max(1e-9);
+    let top = tallest * (1.0 + 0.12 * series.len() as f64);
     let frame = Frame::new(640.0, 280.0, (0.0, categories.len().max(1) as f64), (0.0, top));
     let mut out = String::new();
     frame.open(&mut out, "", y_label, false);

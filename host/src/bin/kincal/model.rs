@@ -73,6 +73,12 @@ pub fn run(command: &ModelCommand) -> Result<()> {
             }
         }
         ModelCommand::ToUrdf(a) => {
+            if a.out.canonicalize().ok().is_some_and(|out| a.urdf.canonicalize().ok() == Some(out)) {
+                anyhow::bail!(
+                    "--out {} is the URDF it is made from: write the calibrated URDF to another file",
+                    a.out.display()
+                );
+            }
             let model = ArmModel::load(&a.model)?;
             let text = calibrated_urdf(&a.urdf, &a.chain.base, &a.chain.tip, &model)?;
             std::fs::write(&a.out, text).with_context(|| format!("{}: cannot write", a.out.display()))?;

@@ -44,8 +44,8 @@ fn place(p: &kincal::calib::plan::SuggestedPlacement) -> String {
     )
 }
 
-fn ranges(p: &kincal::calib::plan::SuggestedPlacement, joints: &[usize]) -> String {
-    p.joint_ranges_deg
+fn ranges(joint_ranges_deg: &[(usize, f64, f64)], joints: &[usize]) -> String {
+    joint_ranges_deg
         .iter()
         .filter(|r| joints.is_empty() || joints.contains(&r.0))
         .map(|(j, a, b)| {
@@ -133,12 +133,12 @@ pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
             .filter_map(|e| kincal::model::effects::Effect::parse(e).and_then(|e| e.joint).map(|j| j + 1))
             .collect();
         let (ab, ba) = r.before_sigma2;
-        let verdict = if ab.max(ba) < SEPARABLE_SIGMA2 {
-            "these data cannot tell them apart"
+        let calibration_side = if ab.max(ba) < SEPARABLE_SIGMA2 {
+            "the touches so far hardly separate them"
         } else {
-            "the data can tell them apart"
+            "the touches so far separate them in the fit; whether the held-out placements can is the diagnosis' test"
         };
-        println!("to tell {ra} from {rb}: if {ra} is the cause, {rb} misses it by {ab:.1} σ²; if {rb} is, {ra} misses by {ba:.1} σ² ({verdict}; {SEPARABLE_SIGMA2} σ² is clear)");
+        println!("to tell {ra} from {rb}: if {ra} is the cause, {rb} misses it by {ab:.1} σ²; if {rb} is, {ra} misses by {ba:.1} σ² (linearised; {calibration_side}; {SEPARABLE_SIGMA2} σ² is clear)");
         println!(
             "  with these {} placements: {:.1} σ² and {:.1} σ²",
             r.placements.len(),
@@ -147,8 +147,16 @@ pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
         );
         for (k, p) in r.placements.iter().enumerate() {
             let (ab, ba) = p.differ_mm.unwrap_or((0.0, 0.0));
-            println!("  {}. {}: {}", k + 1, place(p), ranges(p, &joints));
+            println!("  {}. {}: {}", k + 1, place(p), ranges(&p.joint_ranges_deg, &joints));
             println!("     the two explanations differ by {ab:.3} mm per touch there if {ra} is the cause ({ba:.3} mm if {rb}); landmarks {}", p.landmarks.join(" "));
+            let most = p.touch_differ_mm.iter().copied().fold(0.0, f64::max);
+            let (marks, there) = p.where_rivals_differ(0.5);
+            println!(
+                "     most ({:.3}–{most:.3} mm) at {}, where {}",
+                0.5 * most,
+                marks.join(" "),
+                ranges(&there, &joints)
+            );
         }
     }
     let w = &plan.weak;
@@ -157,7 +165,7 @@ pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
         println!("  {name:<12} {before:>9.4} → {after:>9.4} {unit}   (one std moves a registered touch by {tip:.3} mm)");
     }
     for (k, p) in w.placements.iter().enumerate() {
-        println!("  {}. {}: {}", k + 1, place(p), ranges(p, &[]));
+        println!("  {}. {}: {}", k + 1, place(p), ranges(&p.joint_ranges_deg, &[]));
     }
     if let Some(path) = &a.out {
         output::write_own_file(path, &output::plan_json(&plan), output::PLAN_FORMAT)?;

@@ -1,0 +1,53 @@
+//! Test harness around the independent tracker generator: the generated arm as a kincal model
+//! (every DH value free) and the generated sessions written and read back as calibration and
+//! held-out folders. Only kincal's reader and model file loader are used, no forward code.
+
+use crate::tracker_gen::TrackerData as Generated;
+use kincal::data::tracker::{load_dir, TrackerData};
+use kincal::model::{ArmModel, ParamId};
+use std::path::{Path, PathBuf};
+
+/// A fresh scratch folder for one test.
+pub fn scratch(prefix: &str, name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("kincal-{prefix}-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("scratch folder");
+    dir
+}
+
+/// The generator's nominal arm as a kincal model with every DH value free (the identifiability
+/// step picks what the data can move), saved as `dir/nominal.toml`.
+pub fn nominal_model(generated: &Generated, dir: &Path) -> ArmModel {
+    let text = generated.options.arm.kincal_model_toml().expect("a DH arm");
+    let path = dir.join("nominal.toml");
+    std::fs::write(&path, &text).expect("model written");
+    let mut model = ArmModel::load(&path).expect("the generator's model loads");
+    model.free.clear();
+    model.free_every_dh_value(5.0, 10.0);
+    // Hayati β on the rows whose next axis is nominally parallel, as the generator draws it.
+    let last = model.joints.len() - 1;
+    for j in 0..last {
+        if model.joints[j].alpha_deg.abs() < 1e-9 {
+            let beta = model.joints[j].axis_deg;
+            model.free_param(ParamId::Axis(j), beta - 5.0, beta + 5.0);
+        }
+    }
+    model.save(&path).expect("model saved");
+    model
+}
+
+/// Write the generated sessions into `dir/cal` (the indices `cal`) and `dir/val` and read them
+/// back.
+pub fn split(generated: &Generated, dir: &Path, cal: &[usize]) -> (TrackerData, TrackerData) {
+    let all = dir.join("all");
+    generated.write(&all).expect("sessions written");
+    let (c, v) = (dir.join("cal"), dir.join("val"));
+    std::fs::create_dir_all(&c).expect("cal folder");
+    std::fs::create_dir_all(&v).expect("val folder");
+    for (s, session) in generated.sessions.iter().enumerate() {
+        let name = format!("{}.csv", session.plan.name);
+        let to = if cal.contains(&s) { &c } else { &v };
+        std::fs::rename(all.join(&name), to.join(&name)).expect("session moved");
+    }
+    (load_dir(&c).expect("calibration sessions"), load_dir(&v).expect("validation sessions"))
+}

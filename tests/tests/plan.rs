@@ -16,12 +16,12 @@ fn mean(v: &[f64]) -> f64 {
 #[test]
 fn planned_placements_separate_rivals_better_than_random_ones() {
     // A 0.5 mm link offset at joint 5, which these poses confuse with an eccentricity of encoder
-    // 6 (seeds 2 and 3: the diagnosis names eccentricity:6 on the data so far).
+    // 6 (seed 4: the diagnosis names them as rivals on the data so far; seed 7: it names nothing).
     let nominal = ArmModel::suta_nominal();
     let (a, b) = (Effect::parse("link_offset:5").unwrap(), Effect::parse("eccentricity:6").unwrap());
     let hidden = [(ParamId::parse("link_offset:5").unwrap(), 0.5)];
     let (mut planned, mut random) = (Vec::new(), Vec::new());
-    for seed in 2..=3 {
+    for seed in [4, 7] {
         let trial = TrialOptions { seed, placements: 5, count: 2, random_draws: 1 };
         let o = rival_trial(&nominal, &hidden, a, b, &trial).unwrap();
         eprintln!("seed {seed}: {o:?}");

@@ -1,5 +1,6 @@
 //! Small statistics: Student's t, F and normal tail probabilities (t and F through the
-//! regularized incomplete beta function), a one-sample t test, RMS, median and the χ² quantile.
+//! regularized incomplete beta function), a one-sample t test, RMS, median, the χ² quantile, and
+//! the χ² upper tail as a standard normal deviate, exact far into the tail (log space).
 
 /// ln Γ(x) for x > 0 (Lanczos, g = 7, 9 terms; relative error below 1e-13).
 fn ln_gamma(x: f64) -> f64 {
@@ -127,21 +128,27 @@ pub fn f_upper_tail(f: f64, d1: f64, d2: f64) -> f64 {
 
 /// P(Z ≥ z) for a standard normal Z.
 pub fn normal_upper_tail(z: f64) -> f64 {
-    // erfc by the Chebyshev fit of Numerical Recipes (erfcc): relative error below 1.2e-7.
+    if z >= 0.0 {
+        ln_upper_tail_of_positive(z).exp()
+    } else {
+        1.0 - ln_upper_tail_of_positive(-z).exp()
+    }
+}
+
+/// ln P(Z ≥ z) for z ≥ 0: erfc by the Chebyshev fit of Numerical Recipes (erfcc), kept in log
+/// space so it does not underflow far in the tail; relative error below 1.2e-7.
+fn ln_upper_tail_of_positive(z: f64) -> f64 {
     let x = z / std::f64::consts::SQRT_2;
-    let t = 1.0 / (1.0 + 0.5 * x.abs());
-    let y = t
-        * (-x * x - 1.265_512_23
-            + t * (1.000_023_68
-                + t * (0.374_091_96
-                    + t * (0.096_784_18
-                        + t * (-0.186_288_06
-                            + t * (0.278_868_07
-                                + t * (-1.135_203_98
-                                    + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
-            .exp();
-    let erfc = if x >= 0.0 { y } else { 2.0 - y };
-    0.5 * erfc
+    let t = 1.0 / (1.0 + 0.5 * x);
+    let poly = -1.265_512_23
+        + t * (1.000_023_68
+            + t * (0.374_091_96
+                + t * (0.096_784_18
+                    + t * (-0.186_288_06
+                        + t * (0.278_868_07
+                            + t * (-1.135_203_98
+                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
+    0.5f64.ln() + t.ln() - x * x + poly
 }
 
 /// Wilson–Hilferty approximation of the χ² quantile with `nu` degrees of freedom at standard
@@ -149,6 +156,81 @@ pub fn normal_upper_tail(z: f64) -> f64 {
 pub fn chi2_quantile(nu: f64, z: f64) -> f64 {
     let a = 2.0 / (9.0 * nu);
     nu * (1.0 - a + z * a.sqrt()).powi(3)
+}
+
+/// ln Q(a, x), the regularized upper incomplete gamma function, without underflow far in the
+/// tail: the series for P below x = a + 1, the continued fraction (modified Lentz) above.
+fn ln_gamma_upper(a: f64, x: f64) -> f64 {
+    if x <= 0.0 {
+        return 0.0;
+    }
+    let front = -x + a * x.ln() - ln_gamma(a);
+    if x < a + 1.0 {
+        let (mut term, mut sum, mut ap) = (1.0 / a, 1.0 / a, a);
+        for _ in 0..1000 {
+            ap += 1.0;
+            term *= x / ap;
+            sum += term;
+            if term.abs() < sum.abs() * 1e-16 {
+                break;
+            }
+        }
+        return (-(front + sum.ln()).exp()).ln_1p();
+    }
+    const TINY: f64 = 1e-300;
+    let mut b = x + 1.0 - a;
+    let mut c = 1.0 / TINY;
+    let mut d = 1.0 / b;
+    let mut h = d;
+    for i in 1..1000 {
+        let an = -(i as f64) * (i as f64 - a);
+        b += 2.0;
+        d = an * d + b;
+        if d.abs() < TINY {
+            d = TINY;
+        }
+        c = b + an / c;
+        if c.abs() < TINY {
+            c = TINY;
+        }
+        d = 1.0 / d;
+        let step = d * c;
+        h *= step;
+        if (step - 1.0).abs() < 1e-16 {
+            break;
+        }
+    }
+    front + h.ln()
+}
+
+/// ln P(Z ≥ z) for a standard normal Z, without underflow for large z.
+fn ln_normal_upper_tail(z: f64) -> f64 {
+    if z >= 0.0 {
+        ln_upper_tail_of_positive(z)
+    } else {
+        (-normal_upper_tail(-z)).ln_1p()
+    }
+}
+
+/// The standard normal deviate with the same upper tail as χ²_k at `x`: z with
+/// P(Z ≥ z) = P(χ²_k ≥ x), exact (to the erfc fit's 1.2e-7 relative error) far into the tail,
+/// where the Wilson–Hilferty cube root favours larger k (at z ≈ 15 it puts a 2-parameter drop
+/// above a larger 1-parameter one). Between −40 and 80.
+pub fn chi2_normal_deviate(x: f64, k: usize) -> f64 {
+    let target = ln_gamma_upper(0.5 * k.max(1) as f64, 0.5 * x.max(0.0));
+    let (mut lo, mut hi) = (-40.0, 80.0);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if ln_normal_upper_tail(mid) > target {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+        if hi - lo < 1e-12 {
+            break;
+        }
+    }
+    0.5 * (lo + hi)
 }
 
 #[cfg(test)]
@@ -183,6 +265,22 @@ mod tests {
         assert!(t > 10.0 && p < 1e-4, "{t} {p}");
         let (_, p) = one_sided_t(&[0.1, -0.2, 0.05, -0.1, 0.15, -0.05]);
         assert!(p > 0.3, "{p}");
+    }
+
+    #[test]
+    fn chi2_deviate_is_exact_in_the_far_tail() {
+        // χ²₁ = Z²: P(χ²₁ ≥ z²) = 2 P(Z ≥ z), so z' solves P(Z ≥ z') = 2 P(Z ≥ z).
+        assert!((chi2_normal_deviate(1.959_964f64.powi(2), 1) - 1.644_854).abs() < 1e-5);
+        // At z = 15: ln 2 P(Z ≥ 15) → z' ≈ 14.954 (Wilson–Hilferty says 11.3).
+        let far = chi2_normal_deviate(225.0, 1);
+        assert!((far - 14.954).abs() < 0.01, "{far}");
+        // χ²₂ is exponential: P(χ²₂ ≥ x) = e^(−x/2); e^(−3) = 0.0498 → z = 1.647.
+        assert!((chi2_normal_deviate(6.0, 2) - 1.6476).abs() < 1e-3, "{}", chi2_normal_deviate(6.0, 2));
+        // The same large drop is stronger evidence with fewer parameters.
+        assert!(chi2_normal_deviate(350.0, 1) > chi2_normal_deviate(350.0, 2));
+        assert!(chi2_normal_deviate(0.0, 3) < -30.0);
+        // Below the mean: the series branch, χ²₆ median 5.348.
+        assert!(chi2_normal_deviate(5.348, 6).abs() < 1e-3, "{}", chi2_normal_deviate(5.348, 6));
     }
 
     #[test]

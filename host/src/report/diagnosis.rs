@@ -95,6 +95,11 @@ pub fn diagnosis_report(d: &crate::calib::diagnose::Diagnosis) -> String {
                 "the model misses about".into(),
                 if g.significant { mm(g.missing_mm) } else { "nothing beyond noise".into() },
             ],
+            vec![
+                "missing part, 95 % interval".into(),
+                format!("{}–{}", mm(g.missing_95_mm.0), mm(g.missing_95_mm.1)),
+            ],
+            vec!["smallest missing part the gap test calls (even odds)".into(), mm(g.detectable_mm)],
             vec!["gap in standard errors".into(), format!("{:+.1}", g.z)],
             vec!["groups of repeats pooled / degrees of freedom".into(), format!("{} / {}", f.groups, f.dof)],
         ];

@@ -94,6 +94,7 @@ fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
             .map(|k| simulate_and_diagnose(2000 + k, hidden_for(effect)))
             .collect::<Result<_, _>>()?;
         let named = Rate::of(&runs, |d| names(d, effect));
+        let misses = Rate::of(&runs, |d| d.gap.as_ref().is_some_and(|g| g.significant));
         let lift = runs
             .iter()
             .map(|d| d.gap.as_ref().map_or(f64::NAN, |g| g.measured_mm / g.expected_mm))
@@ -105,16 +106,19 @@ fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
             .map(|d| if d.named.is_empty() { "nothing".to_string() } else { d.named.join(" or ") })
             .collect();
         println!(
-            "  {:<16} {:?}  named {}  (validation/floor {:.2}){}",
+            "  {:<16} {:?}  named {}  (validation/floor {:.2}; gap test \"misses\" {}/{}){}",
             effect.to_string(),
             hidden_for(effect).iter().map(|(p, v)| format!("{p}={v}")).collect::<Vec<_>>(),
             named,
             lift,
+            misses.hits,
+            misses.runs,
             if wrong.is_empty() { String::new() } else { format!("; otherwise {}", wrong.join(", ")) }
         );
-        all.extend(runs.iter().map(|d| names(d, effect)));
+        all.extend(runs.iter().map(|d| (names(d, effect), d.gap.as_ref().is_some_and(|g| g.significant))));
     }
-    println!("  all effects together: {} ({:.0} s)", Rate::of(&all, |n| *n), t.elapsed().as_secs_f64());
+    println!("  all effects together: {} ({:.0} s)", Rate::of(&all, |n| n.0), t.elapsed().as_secs_f64());
+    println!("  gap test \"misses\" with an effect hidden: {}", Rate::of(&all, |n| n.1));
     Ok(())
 }
 

@@ -16,9 +16,10 @@ pub struct DemoArgs {
     /// Nominal arm model.
     #[arg(long, default_value = "examples/suta/model.toml")]
     model: PathBuf,
-    /// Folder for the data and the run.
-    #[arg(long, default_value = "runs/demo")]
-    out: PathBuf,
+    /// Folder for the data and the runs (default `runs/demo`, with `--offline` `runs/demo-offline`,
+    /// so the two demos never share a folder).
+    #[arg(long)]
+    out: Option<PathBuf>,
     /// Seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -31,6 +32,15 @@ pub struct DemoArgs {
     /// The emulated controller's firmware image (`cargo build-emulated` writes it here).
     #[arg(long, default_value = "firmware/target/thumbv7em-none-eabihf/release/emulated")]
     firmware: PathBuf,
+}
+
+impl DemoArgs {
+    /// The folder this demo writes.
+    fn out(&self) -> PathBuf {
+        self.out
+            .clone()
+            .unwrap_or_else(|| PathBuf::from(if self.offline { "runs/demo-offline" } else { "runs/demo" }))
+    }
 }
 
 #[derive(Args)]
@@ -156,7 +166,7 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
     let options = kincal::controller::demo::LoopOptions {
         seed: a.seed,
         window_ticks: a.window_ticks,
-        out: a.out.clone(),
+        out: a.out(),
         ..Default::default()
     };
     let report =
@@ -171,8 +181,8 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
     print_mission(&report.steps, report.truth_validation_rms_mm, &report.stop);
     println!(
         "runs: {} (as given, with diagnosis.html and auto/), {} (with the added effects; uploaded)",
-        a.out.join("run").display(),
-        a.out.join("run-added").display()
+        a.out().join("run").display(),
+        a.out().join("run-added").display()
     );
     println!("validation distance RMS   nominal {:8.3} mm   calibrated {:7.3} mm   true arm on the same data {:.3} mm (noise floor)", report.nominal_validation_rms_mm, report.calibrated_validation_rms_mm, report.truth_validation_rms_mm);
     println!("streamed pose error (RMS after rigid registration, {} validation touches):", report.poses);
@@ -185,7 +195,7 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
         "  true arm's parameters {:8.3} mm   (floor: encoder noise and f32 on the controller)",
         report.floor_pose_rms_mm
     );
-    println!("parameter upload took {:.2} s; run: {}", report.upload_seconds, a.out.join("run").display());
+    println!("parameter upload took {:.2} s; run: {}", report.upload_seconds, a.out().join("run").display());
     Ok(())
 }
 
@@ -719,7 +729,7 @@ pub fn cmd_record(a: &RecordArgs) -> Result<()> {
 }
 
 pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
-    let data = a.out.join("data");
+    let data = a.out().join("data");
     let hidden = vec![kincal::controller::demo::DEMO_HIDDEN];
     let names: Vec<String> = hidden.iter().map(|(id, d)| format!("{id} = {d:+}")).collect();
     println!(
@@ -741,7 +751,7 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
     let mission = kincal::controller::demo::calibrate_diagnose_add(
         &inputs,
         &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() },
-        &a.out,
+        &a.out(),
         &mut |step| println!("  {step}"),
     )?;
     let truth = ArmModel::load(&data.join("truth.toml"))?;
@@ -757,7 +767,7 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
     if !last.summary.not_trustworthy.is_empty() {
         bail!("the final calibration is not trustworthy: {}", last.summary.not_trustworthy.join("; "));
     }
-    let dir = if mission.last.is_some() { a.out.join("run-added") } else { a.out.join("run") };
+    let dir = if mission.last.is_some() { a.out().join("run-added") } else { a.out().join("run") };
     println!(
         "validation RMS  nominal {:.3} mm → as given {:.3} mm → with {} {:.3} mm; noise floor {:.3} mm; run: {}",
         mission.first.summary.nominal_validation.rms_mm,

@@ -78,7 +78,17 @@ pub fn tracker_diagnosis_report(d: &TrackerDiagnosis) -> String {
         d.units,
         table(&CANDIDATE_HEADER, &candidate_rows(&d.candidates))
     );
-    let _ = write!(body, "<h2>Data errors</h2>{}", table(&CANDIDATE_HEADER, &candidate_rows(&d.data_errors)));
+    if d.data_errors.is_empty() {
+        body.push_str(
+            "<h2>Data errors</h2><p>None could be scored: a tool moved in a calibration session needs \
+             another calibration session that turns the tool, a drift needs <code>time_s</code> or \
+             <code>temp_C</code> spanning a minute or 0.5 K, and no point lies beyond 5 × the median \
+             error.</p>",
+        );
+    } else {
+        let _ =
+            write!(body, "<h2>Data errors</h2>{}", table(&CANDIDATE_HEADER, &candidate_rows(&d.data_errors)));
+    }
     if !d.held_out_tools.is_empty() {
         let rows: Vec<Vec<String>> = d
             .held_out_tools

@@ -1,10 +1,16 @@
 #!/usr/bin/env bash
 # Provisioning for the tests (sourced or run by scripts/test.sh): the firmware target, the emulator
-# the end-to-end tests boot, and numpy/scipy for the SciPy peer check. Safe to run again.
+# the end-to-end tests boot, numpy/scipy for the SciPy peer check, and g++ with Ceres Solver and
+# nlohmann-json for the Ceres peer (bench/ceres/). Safe to run again.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 source scripts/setup-embedded.sh
 if ! python3 -c "import numpy, scipy" 2>/dev/null; then
     echo "installing numpy and scipy for the SciPy peer check"
     python3 -m pip install --quiet --disable-pip-version-check numpy scipy
+fi
+if ! command -v g++ >/dev/null || [ ! -f /usr/include/ceres/ceres.h ] || [ ! -f /usr/include/nlohmann/json.hpp ]; then
+    echo "installing g++, libceres-dev and nlohmann-json3-dev for the Ceres peer"
+    if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
+    $SUDO apt-get update -qq && $SUDO apt-get install -y -qq g++ libceres-dev nlohmann-json3-dev >/dev/null
 fi

@@ -3,6 +3,8 @@
 mod args;
 mod arm;
 mod bench;
+mod bench_limit;
+mod bench_peers;
 mod bench_tracker;
 mod controller;
 mod emulated_arm;

@@ -163,10 +163,14 @@ class JetEvaluator final : public ChainEvaluator {
 #endif
 constexpr int kSizes[] = {KINCAL_PEER_SIZES};
 
+// The evaluator whose Jet size is the arm's count of free parameters, if it is one of Ns.
 template <int... Ns>
 std::unique_ptr<ChainEvaluator> Dispatch(const Arm& arm, std::integer_sequence<int, Ns...>) {
   std::unique_ptr<ChainEvaluator> made;
-  ((arm.free.size() == static_cast<size_t>(Ns) ? made = std::make_unique<JetEvaluator<Ns>>(arm), 0 : 0), ...);
+  const auto make_if = [&](auto size) {
+    if (arm.free.size() == static_cast<size_t>(size.value)) made = std::make_unique<JetEvaluator<size.value>>(arm);
+  };
+  (make_if(std::integral_constant<int, Ns>{}), ...);
   return made;
 }
 

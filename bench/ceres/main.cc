@@ -17,6 +17,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstring>
 #include <functional>
 #include <iostream>
@@ -109,6 +110,10 @@ int main(int argc, char** argv) {
     char* end = nullptr;
     const double value = std::strtod(argv[++i], &end);
     if (end == argv[i] || *end != '\0' || !(value > 0)) return Usage((flag + ": expected a positive number").c_str());
+    const bool whole = flag == "--repeats" || flag == "--max-iterations" || flag == "--starts";
+    if (whole && (value != std::floor(value) || value > 1e6)) {
+      return Usage((flag + ": expected a whole number from 1 to 1000000").c_str());
+    }
     if (flag == "--repeats") {
       repeats = static_cast<int>(value);
     } else if (flag == "--function-tolerance") {

@@ -31,6 +31,24 @@ const json& At(const json& j, const std::string& key, const std::string& where) 
   return j.at(key);
 }
 
+// The number (or whole number) `key` of `j`, or an error naming it.
+double Number(const json& j, const std::string& key, const std::string& where) {
+  const json& v = At(j, key, where);
+  if (!v.is_number()) throw std::runtime_error(where + "." + key + ": expected a number, found " + v.dump());
+  return v.get<double>();
+}
+
+int Whole(const json& j, const std::string& key, const std::string& where) {
+  const json& v = At(j, key, where);
+  if (!v.is_number_integer()) throw std::runtime_error(where + "." + key + ": expected a whole number, found " + v.dump());
+  return v.get<int>();
+}
+
+std::string Text(const json& v, const std::string& where) {
+  if (!v.is_string()) throw std::runtime_error(where + ": expected a text, found " + v.dump());
+  return v.get<std::string>();
+}
+
 std::vector<double> Numbers(const json& j, const std::string& where) {
   if (!j.is_array()) throw std::runtime_error(where + ": expected a list of numbers");
   std::vector<double> v;
@@ -59,7 +77,7 @@ Angles Radians(const std::vector<double>& deg) {
 // An arm model file (kincal-arm/1 as JSON), DH conventions only.
 Arm ReadModel(const json& model, const std::string& where) {
   Arm arm;
-  const std::string convention = At(model, "convention", where).get<std::string>();
+  const std::string convention = Text(At(model, "convention", where), where + ".convention");
   if (convention != "classic" && convention != "modified") {
     throw std::runtime_error(where + ".convention: \"" + convention + "\": the peer models classic or modified DH");
   }
@@ -70,7 +88,7 @@ Arm ReadModel(const json& model, const std::string& where) {
   }
   const std::vector<double> tcp = Numbers(At(model, "tcp_mm", where), 3, where + ".tcp_mm");
   std::copy(tcp.begin(), tcp.end(), arm.tcp_mm.begin());
-  arm.scale_ppm = model.value("scale_ppm", 0.0);
+  arm.scale_ppm = model.contains("scale_ppm") ? Number(model, "scale_ppm", where) : 0.0;
   const std::set<std::string> known = {"offset_deg", "d_mm", "a_mm", "alpha_deg", "axis_deg"};
   const json& joints = At(model, "joint", where);
   for (size_t j = 0; j < joints.size(); ++j) {
@@ -79,14 +97,24 @@ Arm ReadModel(const json& model, const std::string& where) {
       if (!known.count(key)) throw std::runtime_error(at + "." + key + ": the peer models the DH chain only");
     }
     Joint q;
-    q.offset_deg = At(joints[j], "offset_deg", at).get<double>();
-    q.d_mm = At(joints[j], "d_mm", at).get<double>();
-    q.a_mm = At(joints[j], "a_mm", at).get<double>();
-    q.alpha_deg = At(joints[j], "alpha_deg", at).get<double>();
-    q.axis_deg = joints[j].value("axis_deg", 0.0);
+    q.offset_deg = Number(joints[j], "offset_deg", at);
+    q.d_mm = Number(joints[j], "d_mm", at);
+    q.a_mm = Number(joints[j], "a_mm", at);
+    q.alpha_deg = Number(joints[j], "alpha_deg", at);
+    q.axis_deg = joints[j].contains("axis_deg") ? Number(joints[j], "axis_deg", at) : 0.0;
     arm.joints.push_back(q);
   }
   return arm;
+}
+
+// Errors of the JSON library (a list where a number was expected, …) name the file too.
+template <typename Read>
+auto Reading(const std::string& path, Read read) {
+  try {
+    return read(Load(path));
+  } catch (const json::exception& e) {
+    throw std::runtime_error(path + ": " + e.what());
+  }
 }
 
 }  // namespace
@@ -97,12 +125,13 @@ size_t TrackerProblem::points() const {
   return n;
 }
 
-ArtefactProblem ReadArtefact(const std::string& path) {
-  const json j = Load(path);
+namespace {
+
+ArtefactProblem ParseArtefact(const json& j, const std::string& path) {
   ArtefactProblem p;
   p.arm = ReadModel(At(j, "model", path), path + ": model");
   const int joints = static_cast<int>(p.arm.joints.size());
-  for (const json& name : At(j, "params", path)) p.arm.free.push_back(ParseSlot(name.get<std::string>(), joints));
+  for (const json& name : At(j, "params", path)) p.arm.free.push_back(ParseSlot(Text(name, path + ": params"), joints));
   const size_t n = p.arm.free.size();
   p.lower = Numbers(At(j, "lower", path), n, path + ": lower");
   p.upper = Numbers(At(j, "upper", path), n, path + ": upper");
@@ -112,7 +141,8 @@ ArtefactProblem ReadArtefact(const std::string& path) {
       p.starts.push_back(Numbers(j.at("starts")[k], n, path + ": starts[" + std::to_string(k) + "]"));
     }
   }
-  p.huber_delta_mm = At(j, "huber_delta_mm", path).get<double>();
+  p.huber_delta_mm = Number(j, "huber_delta_mm", path);
+  if (!(p.huber_delta_mm > 0)) throw std::runtime_error(path + ": huber_delta_mm must be positive");
   std::vector<std::vector<double>> landmarks;
   for (const json& l : At(j, "landmarks_mm", path)) landmarks.push_back(Numbers(l, 3, path + ": landmarks_mm"));
   struct Key {
@@ -122,11 +152,11 @@ ArtefactProblem ReadArtefact(const std::string& path) {
   const json& touches = At(j, "touches", path);
   for (size_t t = 0; t < touches.size(); ++t) {
     const std::string at = path + ": touches[" + std::to_string(t) + "]";
-    const int landmark = At(touches[t], "landmark", at).get<int>();
+    const int landmark = Whole(touches[t], "landmark", at);
     if (landmark < 0 || static_cast<size_t>(landmark) >= landmarks.size()) {
       throw std::runtime_error(at + ".landmark: " + std::to_string(landmark) + " is not a landmark index");
     }
-    keys.push_back({At(touches[t], "placement", at).get<int>(), landmark, At(touches[t], "repeat", at).get<int>()});
+    keys.push_back({Whole(touches[t], "placement", at), landmark, Whole(touches[t], "repeat", at)});
     p.touches.push_back(Radians(Numbers(At(touches[t], "enc_deg", at), joints, at + ".enc_deg")));
   }
   for (size_t a = 0; a < keys.size(); ++a) {
@@ -148,8 +178,7 @@ ArtefactProblem ReadArtefact(const std::string& path) {
   return p;
 }
 
-TrackerProblem ReadTracker(const std::string& path) {
-  const json j = Load(path);
+TrackerProblem ParseTracker(const json& j, const std::string& path) {
   TrackerProblem p;
   for (const json& row : At(j, "dh", path)) {
     const std::vector<double> v = Numbers(row, 4, path + ": dh row");
@@ -160,7 +189,7 @@ TrackerProblem ReadTracker(const std::string& path) {
   const std::vector<double> tool = Numbers(At(j, "tool_mm", path), 3, path + ": tool_mm");
   std::copy(tool.begin(), tool.end(), p.arm.tcp_mm.begin());
   const int joints = static_cast<int>(p.arm.joints.size());
-  for (const json& name : At(j, "params", path)) p.arm.free.push_back(ParseSlot(name.get<std::string>(), joints));
+  for (const json& name : At(j, "params", path)) p.arm.free.push_back(ParseSlot(Text(name, path + ": params"), joints));
   const size_t n = p.arm.free.size();
   p.lower = Numbers(At(j, "lower", path), n, path + ": lower");
   p.upper = Numbers(At(j, "upper", path), n, path + ": upper");
@@ -179,6 +208,16 @@ TrackerProblem ReadTracker(const std::string& path) {
     p.sessions.push_back(std::move(session));
   }
   return p;
+}
+
+}  // namespace
+
+ArtefactProblem ReadArtefact(const std::string& path) {
+  return Reading(path, [&](const json& j) { return ParseArtefact(j, path); });
+}
+
+TrackerProblem ReadTracker(const std::string& path) {
+  return Reading(path, [&](const json& j) { return ParseTracker(j, path); });
 }
 
 }  // namespace kincal_peer

@@ -404,24 +404,24 @@ fn artefact_process(p: &Problems, dir: &Path, runs: usize) -> Result<Figure> {
     p.sim.write(&dir.join("data"))?;
     p.nominal.save(&dir.join("nominal.toml"))?;
     let exe = std::env::current_exe()?;
+    let file = |name: &str| dir.join(name).into_os_string();
+    let arguments = [
+        "--model".into(),
+        file("nominal.toml"),
+        "--artefact".into(),
+        file("data/artefact.json"),
+        "--data".into(),
+        file("data/cal"),
+        "--validate".into(),
+        file("data/val"),
+        "--out".into(),
+        file("run"),
+        "--no-outliers".into(),
+        "--json".into(),
+    ];
     let mut figures = Vec::new();
     for _ in 0..runs {
-        let (_, figure) = run_json(
-            Command::new(&exe)
-                .arg("calibrate")
-                .arg("--model")
-                .arg(dir.join("nominal.toml"))
-                .arg("--artefact")
-                .arg(dir.join("data/artefact.json"))
-                .arg("--data")
-                .arg(dir.join("data/cal"))
-                .arg("--validate")
-                .arg(dir.join("data/val"))
-                .arg("--no-outliers")
-                .arg("--json")
-                .arg("--out")
-                .arg(dir.join("run")),
-        )?;
+        let (_, figure) = run_json(Command::new(&exe).arg("calibrate").args(&arguments))?;
         figures.push(figure);
     }
     Ok(Figure {

@@ -29,12 +29,7 @@ struct Chain {
   bool scaled = false;
 };
 
-void FixedRotation(double alpha, double beta, double* m) {
-  const double ca = std::cos(alpha), sa = std::sin(alpha), cb = std::cos(beta), sb = std::sin(beta);
-  const double r[9] = {cb, 0, sb, sa * sb, ca, -sa * cb, -ca * sb, sa, ca * cb};
-  std::copy(r, r + 9, m);
-}
-
+// Rx(α) Ry(β), row-major.
 template <typename T>
 void FixedRotation(const T& alpha, const T& beta, T* m) {
   using std::cos;
@@ -81,8 +76,8 @@ Chain<T> BuildChain(const Arm& arm, const double* x, T (*unknown)(double, int)) 
     if (l.rotation_free) {
       FixedRotation(values[j][3] * kDeg, values[j][4] * kDeg, l.rotation.data());
     } else {
-      FixedRotation(arm.joints[j].alpha_deg * kDeg, arm.joints[j].axis_deg * kDeg,
-                    l.rotation_constant.data());
+      FixedRotation<double>(arm.joints[j].alpha_deg * kDeg, arm.joints[j].axis_deg * kDeg,
+                            l.rotation_constant.data());
     }
   }
   chain.scaled = scale_free || arm.scale_ppm != 0.0;

@@ -1,9 +1,11 @@
 //! The Ceres peer (`bench/ceres/`) builds and reaches kincal's cost: `kincal bench --peers-check`
-//! builds it with g++ against libceres-dev (`scripts/setup.sh` installs both), solves the
-//! thesis-sized artefact problem from the nominal start and two of kincal's random restarts, and
-//! a 200-point tracker problem, with kincal and with Ceres, untimed. It fails when the peer does
-//! not build or run, when an exported start is not kincal's, or when the costs or RMS differ by
-//! more than 1e-9 relative.
+//! builds it with g++ against libceres-dev (`scripts/setup.sh` installs both) and solves, with
+//! kincal and with Ceres, untimed: the thesis-sized artefact problem from the nominal start and
+//! two of kincal's random restarts, a modified-DH artefact problem (a Hayati axis, a scale error,
+//! a twist, a link offset and the tool's x) from two starts, and a 200-point tracker problem. It
+//! fails when the peer does not build or run, when a start's initial cost differs (the peer's
+//! kinematics, data or start is not kincal's), or when the costs or RMS differ by more than 1e-9
+//! relative.
 
 use std::process::Command;
 
@@ -19,9 +21,10 @@ fn ceres_peer_builds_and_reaches_kincals_cost() {
         "kincal bench --peers-check failed (scripts/setup.sh installs g++, libceres-dev and nlohmann-json3-dev):\n{stdout}\n{stderr}"
     );
     eprintln!("{stdout}");
-    // Every start solved by both from the same point.
-    assert_eq!(stdout.matches("initial cost").count(), 3, "{stdout}");
-    // Two agreements (artefact, tracker), each a relative difference in cost and one in RMS.
+    // Every start solved by both from the same point: 3 + 2.
+    assert_eq!(stdout.matches("initial cost").count(), 5, "{stdout}");
+    // Three agreements (two artefact problems, the tracker), each a relative difference in cost
+    // and one in RMS.
     let differences: Vec<f64> = stdout
         .lines()
         .filter(|l| l.contains("relative difference"))
@@ -31,6 +34,6 @@ fn ceres_peer_builds_and_reaches_kincals_cost() {
                 .collect::<Vec<_>>()
         })
         .collect();
-    assert_eq!(differences.len(), 4, "{stdout}");
+    assert_eq!(differences.len(), 6, "{stdout}");
     assert!(differences.iter().all(|d| *d <= 1e-9), "{differences:?}\n{stdout}");
 }

@@ -3,7 +3,8 @@
 //! held-out folders. Only kincal's reader and model file loader are used, no forward code.
 
 use crate::tracker_gen::TrackerData as Generated;
-use kincal::data::tracker::{load_dir, TrackerData};
+use kincal::calib::tracker::TrackerData;
+use kincal::data::tracker::load_dir;
 use kincal::model::{ArmModel, ParamId};
 use std::path::{Path, PathBuf};
 
@@ -49,5 +50,8 @@ pub fn split(generated: &Generated, dir: &Path, cal: &[usize]) -> (TrackerData, 
         let to = if cal.contains(&s) { &c } else { &v };
         std::fs::rename(all.join(&name), to.join(&name)).expect("session moved");
     }
-    (load_dir(&c).expect("calibration sessions"), load_dir(&v).expect("validation sessions"))
+    (
+        TrackerData::of(&load_dir(&c).expect("calibration sessions")),
+        TrackerData::of(&load_dir(&v).expect("validation sessions")),
+    )
 }

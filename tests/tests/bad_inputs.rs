@@ -594,7 +594,7 @@ const MODEL_TEXT_EDITS: &[TextEdit] = &[
         "seven joints",
         "\n[free]\n",
         "\n[[joint]]\noffset_deg = 0\nd_mm = 0\na_mm = 0\nalpha_deg = 0\n[free]\n",
-        &["artefact sessions record the SUTA's 6 encoder angles", "the model has 7 joints"],
+        &["artefact sessions record 6 encoder angles", "the model has 7 joints"],
     ),
     ("unknown key", SCALE, "scale_ppm = 0.0\nscael = 1", &["model.toml", "scael"]),
     ("unknown effect", SCALE, "scale_ppm = 0.0\neffects = [\"wobble:2\"]", &["wobble:2", "unknown effect"]),

@@ -3,7 +3,7 @@
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
 use kincal::calib::objective::Objective;
 use kincal::calib::validate::validate;
-use kincal::data::Dataset;
+use kincal::data::Observations;
 use kincal::model::{ArmModel, ParamId};
 use kincal::simulate::{simulate, SimulationOptions};
 
@@ -33,8 +33,8 @@ fn calibration_reaches_the_noise_floor_on_held_out_placements() {
     let nominal = example_model();
     for seed in [1, 7] {
         let sim = simulate(&nominal, &SimulationOptions { seed, ..SimulationOptions::default() });
-        let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-        let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+        let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+        let val = Observations::from_sessions(&sim.validation, &sim.artefact);
         let fit = calibrate(
             &nominal,
             &sim.artefact,
@@ -71,7 +71,7 @@ fn calibration_reaches_the_noise_floor_on_held_out_placements() {
 fn unobservable_thesis_parameters_are_reported_and_fixed() {
     let nominal = example_model();
     let sim = simulate(&nominal, &SimulationOptions::default());
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
     let fit = calibrate(&nominal, &sim.artefact, &cal, &CalibrationOptions::default()).expect("calibrates");
     let before: Vec<&str> = fit.before.unidentifiable.iter().map(|c| c.text.as_str()).collect();
     // A rotation about the base axis and a shift along it change no distance.
@@ -109,7 +109,7 @@ fn unobservable_thesis_parameters_are_reported_and_fixed() {
 fn restarts_are_reproducible_with_a_seed() {
     let nominal = example_model();
     let sim = simulate(&nominal, &SimulationOptions { seed: 3, ..SimulationOptions::default() });
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
     let options = CalibrationOptions { seed: 42, restarts: 3, ..CalibrationOptions::default() };
     let a = calibrate(&nominal, &sim.artefact, &cal, &options).unwrap();
     let b = calibrate(&nominal, &sim.artefact, &cal, &options).unwrap();
@@ -123,8 +123,8 @@ fn restarts_are_reproducible_with_a_seed() {
 fn six_dof_objective_also_reaches_the_noise_floor() {
     let nominal = example_model();
     let sim = simulate(&nominal, &SimulationOptions { seed: 5, ..SimulationOptions::default() });
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
     let options = CalibrationOptions {
         objective: Objective::SixDof { lever_mm: 100.0 },
         restarts: 2,

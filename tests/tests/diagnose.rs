@@ -4,11 +4,11 @@
 
 use kincal::calib::auto::{auto_loop, Stop};
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
-use kincal::calib::data_errors::{calibrate_with_landmark_freed, without};
+use kincal::calib::data_errors::calibrate_with_landmark_freed;
 use kincal::calib::diagnose::diagnose;
 use kincal::calib::objective::Objective;
 use kincal::calib::validate::validate;
-use kincal::data::Dataset;
+use kincal::data::Observations;
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
 use kincal::simulate::{
@@ -46,8 +46,8 @@ fn run_case(case: &Case) -> Outcome {
         &nominal,
         &SimulationOptions { seed: case.seed, hidden: case.hidden.clone(), ..SimulationOptions::default() },
     );
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
     let options = CalibrationOptions {
         restarts: 2,
         seed: case.seed,
@@ -258,8 +258,8 @@ fn with_no_hidden_effect_nothing_is_significant_and_a_wrong_effect_does_not_help
     for seed in [81, 82] {
         let nominal = ArmModel::suta_nominal();
         let sim = simulate(&nominal, &SimulationOptions { seed, ..SimulationOptions::default() });
-        let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-        let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+        let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+        let val = Observations::from_sessions(&sim.validation, &sim.artefact);
         let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
         let fit = calibrate(&nominal, &sim.artefact, &cal, &options).unwrap();
         let d = diagnose(&fit.model, &sim.artefact, &cal, &val, &options);
@@ -284,8 +284,8 @@ fn with_no_hidden_effect_nothing_is_significant_and_a_wrong_effect_does_not_help
 /// model; returns the simulation, datasets, fit, options and the true floor.
 struct Scenario {
     sim: kincal::simulate::SimulatedData,
-    cal: Dataset,
-    val: Dataset,
+    cal: Observations,
+    val: Observations,
     nominal: ArmModel,
     options: CalibrationOptions,
     /// Validation RMS of the true arm against the true artefact: the noise floor.
@@ -306,8 +306,8 @@ fn scenario(
         &errors,
     );
     sim.validation.truncate(validation_placements);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
     let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
     // The true arm's model cannot hold an error outside the library: its floor is that of the
     // same arm and noise without it (a twin dataset of the same seed).
@@ -320,7 +320,7 @@ fn scenario(
         );
         let mut twin_val = twin.validation;
         twin_val.truncate(validation_placements);
-        validate(&twin.truth, &twin.artefact, &Dataset::from_sessions(&twin_val, &twin.artefact))
+        validate(&twin.truth, &twin.artefact, &Observations::from_sessions(&twin_val, &twin.artefact))
             .overall
             .rms_mm
     };
@@ -347,7 +347,7 @@ fn with_ten_validation_placements(mut s: Scenario, seed: u64) -> Scenario {
             record_placement(&s.sim.truth, &s.sim.artefact, &place, "validation", &options, &mut rng);
         s.sim.validation.push(session);
     }
-    s.val = Dataset::from_sessions(&s.sim.validation, &s.sim.artefact);
+    s.val = Observations::from_sessions(&s.sim.validation, &s.sim.artefact);
     s.floor = validate(&s.sim.truth, &s.sim.true_artefact, &s.val).overall.rms_mm;
     s
 }
@@ -364,7 +364,7 @@ fn clean_data_floor_estimate_and_nothing_flagged() {
         let gap = d.gap.as_ref().unwrap();
         eprintln!(
             "seed {seed} ({} validation placements): true floor {:.4} estimated {:.4} (encoder share {:.4}) expected {:.4} measured {:.4} z {:.2}",
-            s.val.placements.len(),
+            s.val.groups.len(),
             s.floor,
             floor.distance_rms_mm,
             floor.encoder_rms_mm.unwrap_or(f64::NAN),
@@ -453,7 +453,7 @@ fn an_artefact_knocked_within_a_repeat_is_named_with_its_touch() {
     let s = scenario(102, vec![], HiddenErrors { knock: Some(knock), ..Default::default() }, 5);
     let (_, d) = calibrated(&s);
     let block = d.disturbed.first().expect("the knocked block is flagged");
-    assert_eq!((s.cal.placements[block.placement].as_str(), block.repeat, block.after_touch), ("C_A", 2, 8));
+    assert_eq!((s.cal.groups[block.placement].name.as_str(), block.repeat, block.after_touch), ("C_A", 2, 8));
     assert_eq!(d.disturbed.len(), 1, "{:?}", d.disturbed);
     assert!(d.summary.iter().any(|l| l.contains("block:C_A/2") && l.contains("#9")), "{:?}", d.summary);
     assert!(
@@ -461,8 +461,7 @@ fn an_artefact_knocked_within_a_repeat_is_named_with_its_touch() {
         "an arm effect is claimed: {:?}",
         d.summary
     );
-    let kept =
-        without(&s.cal, |k| s.cal.touches[k].placement == block.placement && s.cal.touches[k].repeat == 2);
+    let kept = s.cal.without(|k| s.cal.obs[k].group == block.placement && s.cal.obs[k].repeat == 2);
     let fit = calibrate(&s.nominal, &s.sim.artefact, &kept, &s.options).unwrap();
     let after = validate(&fit.model, &s.sim.artefact, &s.val).overall.rms_mm;
     eprintln!("floor {:.3} after excluding the block {after:.3}", s.floor);
@@ -549,12 +548,12 @@ fn compliance_on_joint_3_is_named_not_a_harmonic_and_no_knock_is_flagged() {
         let s = scenario(seed, vec![(p("compliance:3"), 0.2)], HiddenErrors::default(), 5);
         // The repeats are taken in other arm configurations: the knock detector must not read
         // the configuration-dependent sag as the artefact moving.
-        let other_configuration = s.cal.touches.iter().any(|t| {
-            s.cal.touches.iter().any(|u| {
-                u.placement == t.placement
-                    && u.landmark == t.landmark
+        let other_configuration = s.cal.obs.iter().any(|t| {
+            s.cal.obs.iter().any(|u| {
+                u.group == t.group
+                    && u.landmark() == t.landmark()
                     && u.repeat != t.repeat
-                    && !kincal::calib::floor::same_pose(&t.enc_deg, &u.enc_deg)
+                    && !kincal::calib::floor::same_pose(&t.q_deg, &u.q_deg)
             })
         });
         assert!(other_configuration, "seed {seed}: the data must have repeats in other configurations");

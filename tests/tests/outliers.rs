@@ -2,7 +2,7 @@
 
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
 use kincal::calib::outliers::landmark_outliers;
-use kincal::data::Dataset;
+use kincal::data::Observations;
 use kincal::model::ArmModel;
 use kincal::simulate::{simulate, SimulationOptions};
 
@@ -10,8 +10,8 @@ use kincal::simulate::{simulate, SimulationOptions};
 fn a_miscertified_landmark_is_flagged_and_no_other() {
     let nominal = ArmModel::suta_nominal();
     let sim = simulate(&nominal, &SimulationOptions { seed: 9, ..SimulationOptions::default() });
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
     let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
     // Clean data: nothing is flagged.
     let fit = calibrate(&nominal, &sim.artefact, &cal, &options).unwrap();

@@ -5,7 +5,7 @@
 
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
 use kincal::calib::peer::{run_peer, thesis_sized_problem, write_peer_problem};
-use kincal::data::Dataset;
+use kincal::data::Observations;
 
 #[test]
 fn kincal_reaches_scipys_cost_or_lower() {
@@ -14,7 +14,7 @@ fn kincal_reaches_scipys_cost_or_lower() {
         return;
     }
     let (nominal, sim) = thesis_sized_problem(2);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
     let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
     let fit = calibrate(&nominal, &sim.artefact, &cal, &options).expect("calibrates");
     let dir = std::env::temp_dir().join(format!("kincal-peer-{}", std::process::id()));

@@ -2,7 +2,7 @@
 
 use kincal::calib::calibrate::CalibrationOptions;
 use kincal::calib::study::{study, StudyOptions};
-use kincal::data::Dataset;
+use kincal::data::Observations;
 use kincal::model::ArmModel;
 use kincal::simulate::{simulate, SimulationOptions};
 
@@ -10,8 +10,8 @@ use kincal::simulate::{simulate, SimulationOptions};
 fn more_placements_give_lower_validation_error() {
     let nominal = ArmModel::suta_nominal();
     let sim = simulate(&nominal, &SimulationOptions { seed: 11, ..SimulationOptions::default() });
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
     let options = StudyOptions {
         subsets: 6,
         seed: 1,

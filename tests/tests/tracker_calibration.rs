@@ -2,10 +2,10 @@
 //! code shared with kincal): accuracy against the true floor, recovered parameters against their
 //! stated deviations, a re-mounted tool, constant-orientation sessions.
 
+use kincal::calib::tracker::TrackerData;
 use kincal::calib::tracker::{calibrate_tracker, validate_session, TrackerCalibration, TrackerOptions};
 use kincal::calib::tracker_errors::{data_error_candidates, DataError};
 use kincal::calib::tracker_run::TrackerInputs;
-use kincal::data::tracker::TrackerData;
 use kincal::model::ArmModel;
 use kincal_e2e::tracker_gen::{generate, TrackerData as Generated, TrackerOptions as GenOptions};
 use kincal_e2e::tracker_setup::{nominal_model, split};

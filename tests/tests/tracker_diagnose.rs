@@ -4,8 +4,8 @@
 //! no arm effect is claimed, clean data are called explained, an unknown floor never is, and a RUN
 //! whose data moved or changed is refused naming the folder or file.
 
+use kincal::calib::tracker::TrackerData;
 use kincal::calib::tracker_diagnose::{auto_tracker, diagnose_tracker, fit_setup, TrackerSetup, TrackerStop};
-use kincal::data::tracker::TrackerData;
 use kincal_e2e::kincal_bin;
 use kincal_e2e::tracker_gen::{
     generate, EncoderHarmonic, GravitySag, ToolRemount, TrackerData as Generated,

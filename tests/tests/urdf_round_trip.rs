@@ -6,8 +6,9 @@
 //! origin freed, the directions the data cannot see (what the bases and adjacent origins absorb)
 //! do not drift, and moving the nominal along them changes no calibrated figure.
 
+use kincal::calib::tracker::TrackerData;
 use kincal::calib::tracker::{calibrate_tracker, validate_session, TrackerCalibration, TrackerOptions};
-use kincal::data::tracker::{load_dir, TrackerData};
+use kincal::data::tracker::load_dir;
 use kincal::model::kinematics::tool_pose;
 use kincal::model::urdf::{calibrated_urdf, model_from_urdf};
 use kincal::model::ArmModel;
@@ -39,7 +40,8 @@ fn urdf_arm(name: &str, seed: u64) -> (PathBuf, Generated, ArmModel, TrackerData
         std::fs::rename(all.join(&name), if s < 3 { cal_dir.join(&name) } else { val_dir.join(&name) })
             .unwrap();
     }
-    let (cal, val) = (load_dir(&cal_dir).unwrap(), load_dir(&val_dir).unwrap());
+    let (cal, val) =
+        (TrackerData::of(&load_dir(&cal_dir).unwrap()), TrackerData::of(&load_dir(&val_dir).unwrap()));
     (dir, generated, nominal, cal, val)
 }
 

@@ -7,7 +7,7 @@
 
 use crate::calib::calibrate::{calibrate, CalibrationError, CalibrationOptions};
 use crate::calib::diagnose::{diagnose, Diagnosis};
-use crate::data::{Artefact, Dataset};
+use crate::data::{Artefact, Observations};
 use crate::model::effects::Effect;
 use crate::model::ArmModel;
 
@@ -63,8 +63,8 @@ pub struct AutoLoop {
 pub fn auto_loop(
     calibrated: &ArmModel,
     artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
     options: &CalibrationOptions,
     max_steps: usize,
 ) -> Result<AutoLoop, CalibrationError> {

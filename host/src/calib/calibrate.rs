@@ -2,8 +2,8 @@
 
 use crate::calib::identify::{self, Identifiability};
 use crate::calib::objective::{CalibrationProblem, Objective};
-use crate::data::{Artefact, Dataset};
-use crate::model::{ArmModel, ParamId, SUTA_JOINTS};
+use crate::data::{Artefact, Observations};
+use crate::model::{ArmModel, ParamId};
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -56,12 +56,14 @@ pub enum CalibrationError {
          (all at one pose, or the same joint angles copied into every measurement?)"
     )]
     NothingIdentifiable,
-    /// Artefact touches carry the SUTA's six encoder angles; the model has another joint count.
-    #[error(
-        "artefact sessions record the SUTA's {SUTA_JOINTS} encoder angles, the model has {0} joints: \
-         a model of another arm is calibrated from tracker sessions"
-    )]
-    JointCount(usize),
+    /// The sessions' joint count differs from the model's.
+    #[error("the artefact sessions record {data} encoder angles, the model has {model} joints")]
+    JointCount {
+        /// Joints in the data.
+        data: usize,
+        /// Joints of the model.
+        model: usize,
+    },
     /// The model gives positions that are not finite numbers on these touches.
     #[error("the model gives non-finite tool positions on these touches: check the model's numbers")]
     NonFinite,
@@ -204,7 +206,7 @@ fn solve_from_starts(
 pub fn refit(
     fit: &Calibration,
     artefact: &Artefact,
-    data: &Dataset,
+    data: &Observations,
     options: &CalibrationOptions,
 ) -> Result<ArmModel, CalibrationError> {
     solve_warm(&fit.model, &fit.estimated, artefact, data, options)
@@ -217,11 +219,11 @@ pub fn solve_warm(
     start: &ArmModel,
     params: &[ParamId],
     artefact: &Artefact,
-    data: &Dataset,
+    data: &Observations,
     options: &CalibrationOptions,
 ) -> Result<ArmModel, CalibrationError> {
-    if start.joints.len() != SUTA_JOINTS {
-        return Err(CalibrationError::JointCount(start.joints.len()));
+    if !data.obs.is_empty() && start.joints.len() != data.joints {
+        return Err(CalibrationError::JointCount { data: data.joints, model: start.joints.len() });
     }
     let problem = CalibrationProblem::new(start, params.to_vec(), artefact, data, options.objective);
     if problem.distance_rows() < params.len() {
@@ -251,7 +253,7 @@ struct Checked<'a> {
 pub fn check_data(
     model: &ArmModel,
     artefact: &Artefact,
-    data: &Dataset,
+    data: &Observations,
     objective: Objective,
 ) -> Result<(), CalibrationError> {
     check_calibration_data(model, artefact, data, objective).map(|_| ())
@@ -260,11 +262,11 @@ pub fn check_data(
 fn check_calibration_data<'a>(
     nominal: &'a ArmModel,
     artefact: &'a Artefact,
-    data: &'a Dataset,
+    data: &'a Observations,
     objective: Objective,
 ) -> Result<Checked<'a>, CalibrationError> {
-    if nominal.joints.len() != SUTA_JOINTS {
-        return Err(CalibrationError::JointCount(nominal.joints.len()));
+    if !data.obs.is_empty() && nominal.joints.len() != data.joints {
+        return Err(CalibrationError::JointCount { data: data.joints, model: nominal.joints.len() });
     }
     let all: Vec<ParamId> = nominal.free.iter().map(|f| f.id).collect();
     if all.is_empty() {
@@ -299,7 +301,7 @@ fn check_calibration_data<'a>(
 pub fn calibrate(
     nominal: &ArmModel,
     artefact: &Artefact,
-    data: &Dataset,
+    data: &Observations,
     options: &CalibrationOptions,
 ) -> Result<Calibration, CalibrationError> {
     let Checked { full, all, all_ranges, jac } =

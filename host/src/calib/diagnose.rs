@@ -58,17 +58,15 @@
 //! [`EQUIVALENT_CORRELATION`]) are reported as exactly equivalent.
 
 use crate::calib::calibrate::{solve_warm, CalibrationOptions};
-use crate::calib::data_errors::{
-    refit_with_landmark_freed, suspicious, without, DisturbedBlock, MisSeatedTouch,
-};
+use crate::calib::data_errors::{refit_with_landmark_freed, suspicious, DisturbedBlock, MisSeatedTouch};
 use crate::calib::floor::{gap, noise_floor, Gap, NoiseFloor};
 use crate::calib::identify;
 use crate::calib::objective::CalibrationProblem;
 use crate::calib::validate::{distance_errors, ErrorStats, PairError};
-use crate::data::{Artefact, Dataset};
+use crate::data::{Artefact, Observations};
 use crate::model::effects::{Effect, EffectKind};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
-use crate::model::{ArmModel, ParamId, SUTA_JOINTS};
+use crate::model::{ArmModel, ParamId};
 use crate::numerics::geometry::absolute_orientation;
 use crate::numerics::solver::{normal_equations, Loss, Residuals};
 use crate::numerics::stats::one_sided_t;
@@ -282,17 +280,16 @@ pub struct Diagnosis {
 }
 
 /// Per-touch residual vectors after a rigid fit of the artefact in each placement.
-fn touch_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<Option<Vector3<f64>>> {
-    let p: Vec<Vector3<f64>> =
-        data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
+fn touch_residuals(model: &ArmModel, artefact: &Artefact, data: &Observations) -> Vec<Option<Vector3<f64>>> {
+    let p: Vec<Vector3<f64>> = data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
     let mut out = vec![None; p.len()];
-    for placement in 0..data.placements.len() {
-        let idx: Vec<usize> = (0..p.len()).filter(|&k| data.touches[k].placement == placement).collect();
+    for placement in 0..data.groups.len() {
+        let idx: Vec<usize> = (0..p.len()).filter(|&k| data.obs[k].group == placement).collect();
         if idx.len() < 4 {
             continue;
         }
         let q: Vec<Vector3<f64>> =
-            idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
+            idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.obs[k].touched()].xyz_mm)).collect();
         let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
         let (r, t): (Matrix3<f64>, Vector3<f64>) = absolute_orientation(&q, &pm);
         for (i, &k) in idx.iter().enumerate() {
@@ -422,35 +419,36 @@ type Points = Vec<(f64, f64)>;
 fn joint_residuals(
     model: &ArmModel,
     artefact: &Artefact,
-    data: &Dataset,
+    data: &Observations,
 ) -> (Vec<JointResiduals>, Points, Points) {
     let residuals = touch_residuals(model, artefact, data);
-    let offsets: Vec<ParamId> = (0..SUTA_JOINTS).map(ParamId::Offset).collect();
+    let joints = model.joints.len();
+    let offsets: Vec<ParamId> = (0..joints).map(ParamId::Offset).collect();
     let columns = ColumnMap::new(&offsets);
-    let mut per_joint: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); SUTA_JOINTS];
-    let mut gravity: Vec<Vec<(f64, f64)>> = vec![Vec::new(); SUTA_JOINTS];
-    let mut gravity_weights: Vec<Vec<f64>> = vec![Vec::new(); SUTA_JOINTS];
+    let mut per_joint: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); joints];
+    let mut gravity: Vec<Vec<(f64, f64)>> = vec![Vec::new(); joints];
+    let mut gravity_weights: Vec<Vec<f64>> = vec![Vec::new(); joints];
     let (mut by_height, mut by_reach) = (Vec::new(), Vec::new());
-    for (t, r) in data.touches.iter().zip(&residuals) {
+    for (t, r) in data.obs.iter().zip(&residuals) {
         let Some(r) = r else { continue };
-        let mut jac = vec![[0.0; 9]; SUTA_JOINTS];
-        let pose = tool_pose_with_jacobian(model, &t.enc_deg, &columns, &mut jac);
-        let levers = gravity_levers(model, &t.enc_deg);
+        let mut jac = vec![[0.0; 9]; joints];
+        let pose = tool_pose_with_jacobian(model, &t.q_deg, &columns, &mut jac);
+        let levers = gravity_levers(model, &t.q_deg);
         by_height.push((pose.position_mm.z, r.norm()));
         by_reach.push((pose.position_mm.xy().norm(), r.norm()));
-        for j in 0..SUTA_JOINTS {
+        for j in 0..joints {
             let g = Vector3::new(jac[j][0], jac[j][1], jac[j][2]); // mm per degree
             let w = g.norm_squared();
             if w < 1e-9 {
                 continue;
             }
             let e = g.dot(r) / w;
-            per_joint[j].push((t.enc_deg[j], e, w));
+            per_joint[j].push((t.q_deg[j], e, w));
             gravity[j].push((levers[j], e));
             gravity_weights[j].push(w);
         }
     }
-    let joints = (0..SUTA_JOINTS)
+    let joints = (0..joints)
         .map(|j| {
             let points = std::mem::take(&mut per_joint[j]);
             let bins = (0..ANGLE_BINS)
@@ -486,21 +484,24 @@ fn joint_residuals(
 }
 
 /// Gravity lever of each joint at a touch (the compliance regressor), metres.
-fn gravity_levers(model: &ArmModel, enc_deg: &[f64; SUTA_JOINTS]) -> [f64; SUTA_JOINTS] {
+fn gravity_levers(model: &ArmModel, enc_deg: &[f64]) -> Vec<f64> {
     // ∂p/∂compliance_j = ∂p/∂θ_j · λ_j: the ratio of the two columns gives λ_j.
+    let joints = model.joints.len();
     let params: Vec<ParamId> =
-        (0..SUTA_JOINTS).flat_map(|j| [ParamId::Offset(j), ParamId::Compliance(j)]).collect();
+        (0..joints).flat_map(|j| [ParamId::Offset(j), ParamId::Compliance(j)]).collect();
     let mut jac = vec![[0.0; 9]; params.len()];
     tool_pose_with_jacobian(model, enc_deg, &ColumnMap::new(&params), &mut jac);
-    std::array::from_fn(|j| {
-        let (dtheta, dc) = (&jac[2 * j], &jac[2 * j + 1]);
-        let n: f64 = (0..3).map(|k| dtheta[k] * dtheta[k]).sum();
-        if n > 1e-12 {
-            (0..3).map(|k| dc[k] * dtheta[k]).sum::<f64>() / n
-        } else {
-            0.0
-        }
-    })
+    (0..joints)
+        .map(|j| {
+            let (dtheta, dc) = (&jac[2 * j], &jac[2 * j + 1]);
+            let n: f64 = (0..3).map(|k| dtheta[k] * dtheta[k]).sum();
+            if n > 1e-12 {
+                (0..3).map(|k| dc[k] * dtheta[k]).sum::<f64>() / n
+            } else {
+                0.0
+            }
+        })
+        .collect()
 }
 
 impl Candidate {
@@ -537,10 +538,10 @@ impl Candidate {
 }
 
 /// Mean square validation error per (placement, repeat) block.
-fn block_mse(errors: &[PairError], data: &Dataset) -> Vec<((usize, u32), f64)> {
+fn block_mse(errors: &[PairError], data: &Observations) -> Vec<((usize, u32), f64)> {
     let mut blocks: Vec<((usize, u32), f64, usize)> = Vec::new();
     for e in errors {
-        let key = (e.placement, data.touches[e.touches.0].repeat);
+        let key = (e.placement, data.obs[e.touches.0].repeat);
         match blocks.iter_mut().find(|b| b.0 == key) {
             Some(b) => {
                 b.1 += e.error_mm * e.error_mm;
@@ -564,7 +565,7 @@ struct Score {
 }
 
 impl Score {
-    fn of(errors: &[PairError], baseline_blocks: &[((usize, u32), f64)], val: &Dataset) -> Score {
+    fn of(errors: &[PairError], baseline_blocks: &[((usize, u32), f64)], val: &Observations) -> Score {
         let blocks = block_mse(errors, val);
         let ratios = log_ratios(baseline_blocks, &blocks);
         let per_placement = placement_means(&ratios);
@@ -657,7 +658,7 @@ fn bic(residuals: &[f64], params: usize) -> f64 {
     m * (rss / m).ln() + params as f64 * m.ln()
 }
 
-fn distance_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<f64> {
+fn distance_residuals(model: &ArmModel, artefact: &Artefact, data: &Observations) -> Vec<f64> {
     distance_errors(model, artefact, data).iter().map(|e| e.error_mm).collect()
 }
 
@@ -719,16 +720,16 @@ pub fn chi2_z(x: f64, k: usize) -> f64 {
 }
 
 /// `data` with at most [`SCREEN_BLOCKS`] (placement, repeat) blocks, evenly spaced.
-fn screening_subset(data: &Dataset) -> std::borrow::Cow<'_, Dataset> {
+fn screening_subset(data: &Observations) -> std::borrow::Cow<'_, Observations> {
     let blocks = crate::calib::data_errors::blocks(data);
     if blocks.len() <= SCREEN_BLOCKS {
         return std::borrow::Cow::Borrowed(data);
     }
     let keep: Vec<(usize, u32)> =
         (0..SCREEN_BLOCKS).map(|k| blocks[k * blocks.len() / SCREEN_BLOCKS].0).collect();
-    std::borrow::Cow::Owned(without(data, |t| {
-        let touch = &data.touches[t];
-        !keep.contains(&(touch.placement, touch.repeat))
+    std::borrow::Cow::Owned(data.without(|t| {
+        let touch = &data.obs[t];
+        !keep.contains(&(touch.group, touch.repeat))
     }))
 }
 
@@ -758,7 +759,7 @@ impl Screen {
         calibrated: &ArmModel,
         effects: &[Effect],
         artefact: &Artefact,
-        cal: &Dataset,
+        cal: &Observations,
         options: &CalibrationOptions,
     ) -> Screen {
         let mut augmented = calibrated.clone();
@@ -938,8 +939,8 @@ struct Fitted {
 pub fn diagnose(
     calibrated: &ArmModel,
     artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
     options: &CalibrationOptions,
 ) -> Diagnosis {
     let baseline_errors = distance_errors(calibrated, artefact, val);
@@ -1035,7 +1036,7 @@ pub fn diagnose(
         .into_iter()
         .take(10)
         .map(|e| WorstPair {
-            placement: val.placements[e.placement].clone(),
+            placement: val.groups[e.placement].name.clone(),
             landmarks: (
                 artefact.landmarks[e.landmarks.0].id.clone(),
                 artefact.landmarks[e.landmarks.1].id.clone(),
@@ -1044,12 +1045,12 @@ pub fn diagnose(
         })
         .collect();
     let by_placement = val
-        .placements
+        .groups
         .iter()
         .enumerate()
-        .map(|(p, name)| {
+        .map(|(p, group)| {
             (
-                name.clone(),
+                group.name.clone(),
                 rms(&baseline_errors.iter().filter(|e| e.placement == p).cloned().collect::<Vec<_>>()),
             )
         })
@@ -1146,8 +1147,8 @@ struct RivalInputs<'a> {
     calibrated: &'a ArmModel,
     artefact: &'a Artefact,
     /// The calibration data the refits use (a subsample at scale).
-    fit_data: &'a Dataset,
-    val: &'a Dataset,
+    fit_data: &'a Observations,
+    val: &'a Observations,
     options: &'a CalibrationOptions,
     screen: &'a Screen,
     base_params: &'a [ParamId],
@@ -1257,10 +1258,10 @@ struct DataErrorInputs<'a> {
     /// The identifiable parameters refitted.
     base_params: &'a [ParamId],
     artefact: &'a Artefact,
-    cal: &'a Dataset,
+    cal: &'a Observations,
     /// The calibration data the landmark refits use (a subsample at scale).
-    fit_data: &'a Dataset,
-    val: &'a Dataset,
+    fit_data: &'a Observations,
+    val: &'a Observations,
     options: &'a CalibrationOptions,
     baseline: &'a ErrorStats,
     baseline_blocks: &'a [((usize, u32), f64)],
@@ -1273,7 +1274,7 @@ fn score_data_errors(
     disturbed: &[DisturbedBlock],
     mis_seated: &[MisSeatedTouch],
 ) -> Vec<Candidate> {
-    let refit = |data: &Dataset| solve_warm(x.calibrated, x.base_params, x.artefact, data, x.options);
+    let refit = |data: &Observations| solve_warm(x.calibrated, x.base_params, x.artefact, data, x.options);
     let candidate =
         |name: String, score: Score, delta_bic: f64, z: f64, evidence: String, action: String| Candidate {
             action: Some(action),
@@ -1305,32 +1306,30 @@ fn score_data_errors(
         })
         .collect();
     for b in disturbed {
-        let name = format!("{}/{}", x.cal.placements[b.placement], b.repeat);
-        let kept = without(x.cal, |k| {
-            x.cal.touches[k].placement == b.placement && x.cal.touches[k].repeat == b.repeat
-        });
+        let name = format!("{}/{}", x.cal.groups[b.placement].name, b.repeat);
+        let kept = x.cal.without(|k| x.cal.obs[k].group == b.placement && x.cal.obs[k].repeat == b.repeat);
         let Ok(model) = refit(&kept) else { continue };
         let score = Score::of(&distance_errors(&model, x.artefact, x.val), x.baseline_blocks, x.val);
         let evidence = format!(
             "in calibration placement {} repeat {} the touches from #{} ({}) on sit {:.2} mm off the rigid placement of the first {} (χ² {:.0} for 6 degrees of freedom): the artefact moved during the repeat; without the block validation RMS goes from {:.3} to {:.3} mm",
-            x.cal.placements[b.placement], b.repeat, b.after_touch + 1, b.first_moved, b.moved_mm, b.after_touch, b.chi2, x.baseline.rms_mm, score.after
+            x.cal.groups[b.placement].name, b.repeat, b.after_touch + 1, b.first_moved, b.moved_mm, b.after_touch, b.chi2, x.baseline.rms_mm, score.after
         );
-        let action = format!("drop or re-measure calibration placement {} repeat {} (`kincal calibrate … --exclude-block {name}`)", x.cal.placements[b.placement], b.repeat);
+        let action = format!("drop or re-measure calibration placement {} repeat {} (`kincal calibrate … --exclude-block {name}`)", x.cal.groups[b.placement].name, b.repeat);
         out.push(candidate(format!("block:{name}"), score, f64::NAN, chi2_z(b.chi2, 6), evidence, action));
     }
     for m in mis_seated {
-        let t = &x.cal.touches[m.touch];
-        let id = &x.artefact.landmarks[t.landmark].id;
-        let name = format!("{}/{}/{id}", x.cal.placements[t.placement], t.repeat);
-        let Ok(model) = refit(&without(x.cal, |k| k == m.touch)) else { continue };
+        let t = &x.cal.obs[m.touch];
+        let id = &x.artefact.landmarks[t.touched()].id;
+        let name = format!("{}/{}/{id}", x.cal.groups[t.group].name, t.repeat);
+        let Ok(model) = refit(&x.cal.without(|k| k == m.touch)) else { continue };
         let score = Score::of(&distance_errors(&model, x.artefact, x.val), x.baseline_blocks, x.val);
         let evidence = format!(
             "the touch of {id} in calibration placement {} repeat {} sits {:.2} mm off its block's rigid fit (χ² {:.0} for 3 degrees of freedom): mis-seated; without it validation RMS goes from {:.3} to {:.3} mm",
-            x.cal.placements[t.placement], t.repeat, m.residual_mm, m.chi2, x.baseline.rms_mm, score.after
+            x.cal.groups[t.group].name, t.repeat, m.residual_mm, m.chi2, x.baseline.rms_mm, score.after
         );
         let action = format!(
             "re-measure {id} in {} repeat {} or drop that touch",
-            x.cal.placements[t.placement], t.repeat
+            x.cal.groups[t.group].name, t.repeat
         );
         out.push(candidate(format!("touch:{name}"), score, f64::NAN, chi2_z(m.chi2, 3), evidence, action));
     }
@@ -1423,7 +1422,7 @@ fn summarise(
     baseline: &ErrorStats,
     gap: Option<&Gap>,
     floor: Option<&NoiseFloor>,
-    val: &Dataset,
+    val: &Observations,
     candidates: &[Candidate],
     data_errors: &[Candidate],
     joints: &[JointResiduals],
@@ -1512,7 +1511,7 @@ fn summarise(
             None => "no candidate effect improves the held-out error beyond noise (no repeated touches: the noise floor is unknown, so whether the model is complete cannot be told)".into(),
         }),
     }
-    let placements = val.placements.len();
+    let placements = val.groups.len();
     if (1..MIN_PLACEMENTS).contains(&placements) {
         lines.push(format!(
             "with {placements} validation placements the held-out test rests on {placements} numbers (the exact sign-flip test cannot go below 2⁻{placements}, only a t test on so few can pass): measure at least {MIN_PLACEMENTS} validation placements (8–10 with one repeat each carry more evidence than 5 × 3)"

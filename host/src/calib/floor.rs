@@ -41,9 +41,9 @@
 //! * otherwise *cannot tell*: neither a gap nor closeness to the floor is shown by these data.
 
 use crate::calib::objective::{CalibrationProblem, Objective};
-use crate::data::{Artefact, Dataset};
+use crate::data::{Artefact, Observations};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
-use crate::model::{ArmModel, ParamId, SUTA_JOINTS};
+use crate::model::{ArmModel, ParamId};
 use crate::numerics::solver::Residuals;
 use crate::numerics::stats::chi2_quantile;
 use nalgebra::{DMatrix, Matrix3, Vector3};
@@ -120,15 +120,8 @@ pub struct Gap {
 }
 
 /// Independent observations of a dataset: 3 per touch less 6 per (placement, repeat) block.
-pub fn observation_dof(data: &Dataset) -> usize {
-    let mut blocks: Vec<((usize, u32), usize)> = Vec::new();
-    for t in &data.touches {
-        match blocks.iter_mut().find(|b| b.0 == (t.placement, t.repeat)) {
-            Some(b) => b.1 += 1,
-            None => blocks.push(((t.placement, t.repeat), 1)),
-        }
-    }
-    blocks.iter().map(|b| (3 * b.1).saturating_sub(6)).sum()
+pub fn observation_dof(data: &Observations) -> usize {
+    data.blocks.iter().map(|b| (3 * b.members.len()).saturating_sub(6)).sum()
 }
 
 /// Joint angles (degrees, every joint) within which two touches count as the same arm
@@ -138,15 +131,15 @@ pub const SAME_CONFIGURATION_DEG: f64 = 3.0;
 
 /// Two touches' angles are the same arm configuration: every joint within
 /// [`SAME_CONFIGURATION_DEG`] (across 0°/360° too).
-pub fn same_pose(a: &[f64; SUTA_JOINTS], b: &[f64; SUTA_JOINTS]) -> bool {
-    (0..SUTA_JOINTS).all(|j| ((a[j] - b[j] + 180.0).rem_euclid(360.0) - 180.0).abs() < SAME_CONFIGURATION_DEG)
+pub fn same_pose(a: &[f64], b: &[f64]) -> bool {
+    a.iter().zip(b).all(|(a, b)| ((a - b + 180.0).rem_euclid(360.0) - 180.0).abs() < SAME_CONFIGURATION_DEG)
 }
 
 /// Split touches `idx` of one landmark in one placement into groups of the same configuration.
-pub fn same_configuration(data: &Dataset, idx: &[usize]) -> Vec<Vec<usize>> {
+pub fn same_configuration(data: &Observations, idx: &[usize]) -> Vec<Vec<usize>> {
     let mut groups: Vec<Vec<usize>> = Vec::new();
     for &k in idx {
-        let close = |g: &Vec<usize>| same_pose(&data.touches[g[0]].enc_deg, &data.touches[k].enc_deg);
+        let close = |g: &Vec<usize>| same_pose(&data.obs[g[0]].q_deg, &data.obs[k].q_deg);
         match groups.iter_mut().find(|g| close(g)) {
             Some(g) => g.push(k),
             None => groups.push(vec![k]),
@@ -161,8 +154,8 @@ pub fn same_configuration(data: &Dataset, idx: &[usize]) -> Vec<Vec<usize>> {
 pub fn noise_floor(
     model: &ArmModel,
     artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
     parameters: usize,
 ) -> Option<NoiseFloor> {
     struct Group {
@@ -173,14 +166,11 @@ pub fn noise_floor(
     }
     let mut groups: Vec<Group> = Vec::new();
     for data in [cal, val] {
-        let p: Vec<Vector3<f64>> =
-            data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
-        for placement in 0..data.placements.len() {
+        let p: Vec<Vector3<f64>> = data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
+        for placement in 0..data.groups.len() {
             for landmark in 0..artefact.landmarks.len() {
                 let idx: Vec<usize> = (0..p.len())
-                    .filter(|&k| {
-                        data.touches[k].placement == placement && data.touches[k].landmark == landmark
-                    })
+                    .filter(|&k| data.obs[k].group == placement && data.obs[k].landmark() == Some(landmark))
                     .collect();
                 for members in same_configuration(data, &idx) {
                     if members.len() < 2 {
@@ -189,7 +179,7 @@ pub fn noise_floor(
                     let mean = members.iter().map(|&k| p[k]).sum::<Vector3<f64>>() / members.len() as f64;
                     let scatter = members.iter().map(|&k| (p[k] - mean) * (p[k] - mean).transpose()).sum();
                     groups.push(Group {
-                        placement: data.placements[placement].clone(),
+                        placement: data.groups[placement].name.clone(),
                         landmark,
                         scatter,
                         dof: members.len() - 1,
@@ -238,8 +228,8 @@ pub fn noise_floor(
         return None;
     }
     let cov = pooled / dof as f64;
-    let p: Vec<Vector3<f64>> = val.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
-    let pairs = val.touch_pairs();
+    let p: Vec<Vector3<f64>> = val.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
+    let pairs = val.landmark_pairs();
     let floor_ms = if pairs.is_empty() {
         2.0 * cov.trace() / 3.0
     } else {
@@ -279,8 +269,8 @@ impl NoiseFloor {
         model: &ArmModel,
         params: &[ParamId],
         artefact: &Artefact,
-        cal: &Dataset,
-        val: &Dataset,
+        cal: &Observations,
+        val: &Observations,
     ) -> NoiseFloor {
         let Some((extrapolation, dof)) = leverage_ratio(model, params, artefact, cal, val) else {
             return self;
@@ -294,7 +284,12 @@ impl NoiseFloor {
 }
 
 /// Jacobian of the distance errors of `data`'s pairs with respect to `params` (rows × params).
-fn pair_jacobian(model: &ArmModel, params: &[ParamId], artefact: &Artefact, data: &Dataset) -> DMatrix<f64> {
+fn pair_jacobian(
+    model: &ArmModel,
+    params: &[ParamId],
+    artefact: &Artefact,
+    data: &Observations,
+) -> DMatrix<f64> {
     let problem = CalibrationProblem::new(model, params.to_vec(), artefact, data, Objective::Distance);
     let values: Vec<f64> = params.iter().map(|&p| model.get(p)).collect();
     let (rows, n) = (problem.len(), params.len());
@@ -311,8 +306,8 @@ fn leverage_ratio(
     model: &ArmModel,
     params: &[ParamId],
     artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
 ) -> Option<(f64, f64)> {
     if params.is_empty() {
         return None;
@@ -338,11 +333,16 @@ fn leverage_ratio(
 /// Satterthwaite degrees of freedom of the mean square of the distance errors of `pairs`
 /// (positions `p`, touch covariance `cov`): (Σ tr C_b)² / Σ tr(C_b²) over the (placement,
 /// repeat) blocks, C_b the noise covariance of a block's pair errors.
-fn effective_dof(data: &Dataset, p: &[Vector3<f64>], pairs: &[(usize, usize)], cov: &Matrix3<f64>) -> f64 {
+fn effective_dof(
+    data: &Observations,
+    p: &[Vector3<f64>],
+    pairs: &[(usize, usize)],
+    cov: &Matrix3<f64>,
+) -> f64 {
     type Rows = Vec<(usize, usize, Vector3<f64>)>;
     let mut by_block: Vec<((usize, u32), Rows)> = Vec::new();
     for &(a, b) in pairs {
-        let key = (data.touches[a].placement, data.touches[a].repeat);
+        let key = (data.obs[a].group, data.obs[a].repeat);
         let u = (p[a] - p[b]).normalize();
         match by_block.iter_mut().find(|g| g.0 == key) {
             Some(g) => g.1.push((a, b, u)),
@@ -384,20 +384,21 @@ fn effective_dof(data: &Dataset, p: &[Vector3<f64>], pairs: &[(usize, usize)], c
 /// propagated through ∂p/∂θ; `None` unless every touch of a pair reports them.
 fn encoder_floor(
     model: &ArmModel,
-    val: &Dataset,
+    val: &Observations,
     p: &[Vector3<f64>],
     pairs: &[(usize, usize)],
 ) -> Option<f64> {
-    let offsets: Vec<ParamId> = (0..SUTA_JOINTS).map(ParamId::Offset).collect();
+    let joints = model.joints.len();
+    let offsets: Vec<ParamId> = (0..joints).map(ParamId::Offset).collect();
     let columns = ColumnMap::new(&offsets);
-    let mut jac = vec![[0.0; 9]; SUTA_JOINTS];
+    let mut jac = vec![[0.0; 9]; joints];
     let per_touch: Vec<Option<Matrix3<f64>>> = val
-        .touches
+        .obs
         .iter()
         .map(|t| {
-            let sigma = t.enc_sigma_deg?;
-            tool_pose_with_jacobian(model, &t.enc_deg, &columns, &mut jac);
-            Some((0..SUTA_JOINTS).fold(Matrix3::zeros(), |acc, j| {
+            let sigma = t.q_sigma_deg?;
+            tool_pose_with_jacobian(model, &t.q_deg, &columns, &mut jac);
+            Some((0..joints).fold(Matrix3::zeros(), |acc, j| {
                 let g = Vector3::new(jac[j][0], jac[j][1], jac[j][2]); // mm per degree
                 acc + g * g.transpose() * sigma[j].powi(2)
             }))
@@ -416,7 +417,7 @@ fn encoder_floor(
 
 /// Compare a measured validation RMS on `val` with the floor: the test on ln(M/E) (see the
 /// module doc).
-pub fn gap(floor: &NoiseFloor, measured_mm: f64, val: &Dataset) -> Gap {
+pub fn gap(floor: &NoiseFloor, measured_mm: f64, val: &Observations) -> Gap {
     let (m, e) = (measured_mm.powi(2), floor.expected_rms_mm.powi(2).max(1e-300));
     let nu_val =
         if floor.validation_dof > 0.0 { floor.validation_dof } else { observation_dof(val).max(1) as f64 };
@@ -469,19 +470,18 @@ impl Gap {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::Touch;
 
     #[test]
     fn repeats_in_another_configuration_are_not_pooled() {
-        let touch = |enc_deg| Touch { placement: 0, landmark: 0, repeat: 1, enc_deg, enc_sigma_deg: None };
-        let data = Dataset {
-            placements: vec!["A".into()],
-            touches: vec![
-                touch([10.0, 20.0, 30.0, 40.0, 50.0, 359.5]),
-                touch([10.5, 20.2, 29.8, 40.1, 50.0, 0.5]), // across 0°/360°: same configuration
-                touch([10.0, 20.0, 30.0, 220.0, 310.0, 180.0]), // wrist flipped
+        let data = Observations::from_touches(
+            &["A"],
+            Vec::new(),
+            &[
+                (0, 0, 1, &[10.0, 20.0, 30.0, 40.0, 50.0, 359.5]),
+                (0, 0, 1, &[10.5, 20.2, 29.8, 40.1, 50.0, 0.5]), // across 0°/360°: same configuration
+                (0, 0, 1, &[10.0, 20.0, 30.0, 220.0, 310.0, 180.0]), // wrist flipped
             ],
-        };
+        );
         assert_eq!(same_configuration(&data, &[0, 1, 2]), vec![vec![0, 1], vec![2]]);
     }
 }

@@ -8,7 +8,7 @@
 
 use crate::calib::calibrate::{calibrate, CalibrationError, CalibrationOptions};
 use crate::calib::diagnose::{diagnose, Diagnosis};
-use crate::data::Dataset;
+use crate::data::Observations;
 use crate::model::effects::{Effect, EffectKind};
 use crate::model::{ArmModel, ParamId};
 use crate::simulate::{simulate, SimulationOptions};
@@ -78,8 +78,8 @@ impl std::fmt::Display for Rate {
 pub fn simulate_and_diagnose(seed: u64, hidden: Vec<(ParamId, f64)>) -> Result<Diagnosis, CalibrationError> {
     let nominal = ArmModel::suta_nominal();
     let sim = simulate(&nominal, &SimulationOptions { seed, hidden, ..SimulationOptions::default() });
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
     let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
     let fit = calibrate(&nominal, &sim.artefact, &cal, &options)?;
     Ok(diagnose(&fit.model, &sim.artefact, &cal, &val, &options))

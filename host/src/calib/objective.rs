@@ -8,7 +8,7 @@
 //!   x_b about the plate normal n = −(z_a + z_b)/‖z_a + z_b‖. L (`lever_mm`) turns radians into
 //!   millimetres so both blocks share one Huber threshold.
 
-use crate::data::{Artefact, Dataset, Touch};
+use crate::data::{Artefact, Observation, Observations};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap, PoseDerivative, ToolPose};
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::solver::Residuals;
@@ -35,7 +35,7 @@ pub struct CalibrationProblem<'a> {
     base: &'a ArmModel,
     params: Vec<ParamId>,
     columns: ColumnMap,
-    touches: &'a [Touch],
+    touches: &'a [Observation],
     /// (touch a, touch b, certified distance mm, certified yaw difference rad)
     pairs: Vec<(usize, usize, f64, f64)>,
     lever_mm: Option<f64>,
@@ -47,14 +47,14 @@ impl<'a> CalibrationProblem<'a> {
         base: &'a ArmModel,
         params: Vec<ParamId>,
         artefact: &Artefact,
-        data: &'a Dataset,
+        data: &'a Observations,
         objective: Objective,
     ) -> Self {
         let pairs = data
-            .touch_pairs()
+            .landmark_pairs()
             .into_iter()
             .map(|(a, b)| {
-                let (la, lb) = (data.touches[a].landmark, data.touches[b].landmark);
+                let (la, lb) = (data.obs[a].landmark().unwrap_or(0), data.obs[b].landmark().unwrap_or(0));
                 let yaw = (artefact.landmarks[lb].yaw_deg - artefact.landmarks[la].yaw_deg).to_radians();
                 (a, b, artefact.distance_mm(la, lb), yaw)
             })
@@ -67,7 +67,7 @@ impl<'a> CalibrationProblem<'a> {
             base,
             columns: ColumnMap::new(&params),
             params,
-            touches: &data.touches,
+            touches: &data.obs,
             pairs,
             lever_mm,
         }
@@ -111,7 +111,7 @@ impl Residuals for CalibrationProblem<'_> {
         let model = self.model_at(x);
         let n = self.params.len();
         let Some(jac) = jacobian else {
-            let poses: Vec<ToolPose> = self.touches.iter().map(|t| tool_pose(&model, &t.enc_deg)).collect();
+            let poses: Vec<ToolPose> = self.touches.iter().map(|t| tool_pose(&model, &t.q_deg)).collect();
             self.fill(&poses, None, r, None);
             return;
         };
@@ -120,7 +120,7 @@ impl Residuals for CalibrationProblem<'_> {
             .touches
             .iter()
             .zip(derivs.chunks_exact_mut(n.max(1)))
-            .map(|(t, d)| tool_pose_with_jacobian(&model, &t.enc_deg, &self.columns, &mut d[..n]))
+            .map(|(t, d)| tool_pose_with_jacobian(&model, &t.q_deg, &self.columns, &mut d[..n]))
             .collect();
         self.fill(&poses, Some(&derivs), r, Some(jac));
     }
@@ -185,7 +185,7 @@ impl CalibrationProblem<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::Landmark;
+    use crate::data::{Joints, Kind, Landmark, Observation, Target};
 
     #[test]
     fn six_dof_jacobian_matches_central_differences() {
@@ -200,16 +200,27 @@ mod tests {
                 })
                 .collect(),
         };
-        let touch =
-            |landmark, enc_deg| Touch { placement: 0, landmark, repeat: 1, enc_deg, enc_sigma_deg: None };
-        let data = Dataset {
-            placements: vec!["A".into()],
-            touches: vec![
-                touch(0, [10.0, 200.0, 30.0, 300.0, 40.0, 120.0]),
-                touch(1, [12.0, 205.0, 28.0, 290.0, 45.0, 100.0]),
-                touch(2, [8.0, 190.0, 35.0, 310.0, 50.0, 80.0]),
-            ],
+        let touch = |landmark, q: [f64; 6]| Observation {
+            block: 0,
+            group: 0,
+            repeat: 1,
+            q_deg: Joints::new(&q).unwrap(),
+            q_sigma_deg: None,
+            target: Target::Landmark(landmark),
+            sigma_mm: None,
+            time_s: None,
+            temp_c: None,
+            pose: None,
+            line: 1,
         };
+        let mut data = Observations::new(6, artefact.landmarks.clone());
+        data.push_group("A".into(), "A.json".into(), Kind::Artefact);
+        data.obs = vec![
+            touch(0, [10.0, 200.0, 30.0, 300.0, 40.0, 120.0]),
+            touch(1, [12.0, 205.0, 28.0, 290.0, 45.0, 100.0]),
+            touch(2, [8.0, 190.0, 35.0, 310.0, 50.0, 80.0]),
+        ];
+        data.rebuild_blocks();
         let params: Vec<ParamId> = ParamId::all();
         let problem = CalibrationProblem::new(
             &model,

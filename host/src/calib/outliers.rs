@@ -13,7 +13,7 @@
 use crate::calib::calibrate::{refit, Calibration, CalibrationOptions};
 use crate::calib::objective::{CalibrationProblem, Objective};
 use crate::calib::validate::{distance_errors, positions, ErrorStats};
-use crate::data::{Artefact, Dataset};
+use crate::data::{Artefact, Observations};
 use crate::model::ArmModel;
 use crate::numerics::geometry::absolute_orientation;
 use crate::numerics::solver::Residuals;
@@ -45,22 +45,21 @@ pub struct LandmarkOutlier {
 }
 
 /// Per-landmark RMS residual after a rigid fit of the artefact in every placement, mm.
-pub fn landmark_bias(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<f64> {
+pub fn landmark_bias(model: &ArmModel, artefact: &Artefact, data: &Observations) -> Vec<f64> {
     let p = positions(model, data);
     let mut sum = vec![0.0; artefact.landmarks.len()];
     let mut count = vec![0usize; artefact.landmarks.len()];
-    for placement in 0..data.placements.len() {
-        let idx: Vec<usize> =
-            (0..data.touches.len()).filter(|&k| data.touches[k].placement == placement).collect();
+    for placement in 0..data.groups.len() {
+        let idx: Vec<usize> = (0..data.obs.len()).filter(|&k| data.obs[k].group == placement).collect();
         if idx.len() < 3 {
             continue;
         }
         let q: Vec<Vector3<f64>> =
-            idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
+            idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.obs[k].touched()].xyz_mm)).collect();
         let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
         let (r, t) = absolute_orientation(&q, &pm);
         for (i, &k) in idx.iter().enumerate() {
-            let l = data.touches[k].landmark;
+            let l = data.obs[k].touched();
             sum[l] += (r * q[i] + t - pm[i]).norm_squared();
             count[l] += 1;
         }
@@ -72,14 +71,14 @@ pub fn landmark_bias(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> V
 pub fn landmark_outliers(
     fit: &Calibration,
     artefact: &Artefact,
-    cal: &Dataset,
-    val: Option<&Dataset>,
+    cal: &Observations,
+    val: Option<&Observations>,
     options: &CalibrationOptions,
 ) -> Vec<LandmarkOutlier> {
     let errors = distance_errors(&fit.model, artefact, cal);
     let total: f64 = errors.iter().map(|e| e.error_mm.powi(2)).sum::<f64>().max(1e-300);
     let touched: Vec<usize> =
-        (0..artefact.landmarks.len()).filter(|&l| cal.touches.iter().any(|t| t.landmark == l)).collect();
+        (0..artefact.landmarks.len()).filter(|&l| cal.obs.iter().any(|t| t.landmark() == Some(l))).collect();
     let count = touched.len().max(1) as f64;
     let rms_on = |model: &ArmModel| {
         let data = val.unwrap_or(cal);

@@ -2,7 +2,7 @@
 //! solves with `least_squares(method='trf', loss='huber')` and its own numpy kinematics, so that
 //! kincal's solver can be compared with an independent one (test `scipy_peer`, `kincal bench`).
 
-use crate::data::{Artefact, Dataset};
+use crate::data::{Artefact, Observations};
 use crate::model::{ArmModel, ParamId};
 use crate::simulate::{simulate, SimulatedData, SimulationOptions};
 use std::path::{Path, PathBuf};
@@ -52,7 +52,7 @@ pub fn write_peer_problem(
     nominal: &ArmModel,
     params: &[ParamId],
     artefact: &Artefact,
-    data: &Dataset,
+    data: &Observations,
     huber_delta_mm: f64,
 ) -> Result<(), PeerError> {
     let bounds: Vec<_> = params
@@ -70,7 +70,7 @@ pub fn write_peer_problem(
     let problem = serde_json::json!({
         "model": model,
         "landmarks_mm": artefact.landmarks.iter().map(|l| l.xyz_mm).collect::<Vec<_>>(),
-        "touches": data.touches.iter().map(|t| serde_json::json!({"placement": t.placement, "landmark": t.landmark, "repeat": t.repeat, "enc_deg": t.enc_deg})).collect::<Vec<_>>(),
+        "touches": data.obs.iter().map(|t| serde_json::json!({"placement": t.group, "landmark": t.touched(), "repeat": t.repeat, "enc_deg": t.q_deg})).collect::<Vec<_>>(),
         "params": params.iter().map(|p| p.to_string()).collect::<Vec<_>>(),
         "x0": params.iter().map(|p| nominal.get(*p)).collect::<Vec<_>>(),
         "lower": bounds.iter().map(|b| b.0).collect::<Vec<_>>(),

@@ -16,7 +16,7 @@ use crate::calib::outliers::{landmark_outliers, LandmarkOutlier};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions, StudyRow};
 use crate::calib::trust::{result_problems, TrustScales};
 use crate::calib::validate::{self, validate, ErrorStats, GroupStats, Repeatability, Validation};
-use crate::data::{Artefact, Dataset, Purpose, MAX_ARTEFACT_SPAN_MM};
+use crate::data::{Artefact, Joints, Observations, Purpose, MAX_ARTEFACT_SPAN_MM};
 use crate::files::FileError;
 use crate::files::{field_error, read_tagged};
 use crate::model::effects::Effect;
@@ -129,9 +129,9 @@ impl RunInputs {
     }
 
     /// Load the calibration and validation sessions with the exclusions applied.
-    pub fn load_data(&self, artefact: &Artefact) -> Result<(Dataset, Dataset), RunError> {
-        let mut cal = Dataset::load_dir(&self.calibration, artefact, Purpose::Calibration)?;
-        let mut val = Dataset::load_dir(&self.validation, artefact, Purpose::Validation)?;
+    pub fn load_data(&self, artefact: &Artefact) -> Result<(Observations, Observations), RunError> {
+        let mut cal = Observations::load_artefact_dir(&self.calibration, artefact, Purpose::Calibration)?;
+        let mut val = Observations::load_artefact_dir(&self.validation, artefact, Purpose::Validation)?;
         for id in &self.exclude_landmarks {
             let l = artefact.index_of(id).ok_or_else(|| {
                 RunError::Exclusion(format!(
@@ -143,20 +143,13 @@ impl RunInputs {
             val = val.without_landmark(l);
         }
         for block in &self.exclude_blocks {
-            let found = block.rsplit_once('/').and_then(|(p, r)| {
-                let repeat: u32 = r.parse().ok()?;
-                let placement = cal.placements.iter().position(|n| n == p)?;
-                Some((placement, repeat))
-            });
-            let Some((placement, repeat)) =
-                found.filter(|(p, r)| cal.touches.iter().any(|t| t.placement == *p && t.repeat == *r))
-            else {
+            let Some(b) = cal.find_block(block) else {
                 return Err(RunError::Exclusion(format!(
                     "--exclude-block {block}: expected PLACEMENT/REPEAT of a calibration block in {}",
                     self.calibration.display()
                 )));
             };
-            cal.touches.retain(|t| !(t.placement == placement && t.repeat == repeat));
+            cal = cal.without(|k| cal.obs[k].block == b);
         }
         Ok((cal, val))
     }
@@ -205,7 +198,7 @@ pub struct Summary {
     pub outliers_skipped: bool,
     /// What relative orientation adds to distances.
     pub objective_comparison: ObjectiveComparison,
-    /// Dataset-size study, when asked for (`--study-subsets`).
+    /// Observations-size study, when asked for (`--study-subsets`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub study: Option<Vec<StudyRow>>,
     /// Why the figures are not a result, with the likely cause ([`result_problems`]); empty when
@@ -215,25 +208,25 @@ pub struct Summary {
 }
 
 /// The first validation placement that copies a calibration placement touch for touch.
-fn copied_placement(cal: &Dataset, val: &Dataset) -> Option<(String, String)> {
-    let key = |data: &Dataset, p: usize| -> Vec<(usize, u32, [u64; crate::model::SUTA_JOINTS])> {
+fn copied_placement(cal: &Observations, val: &Observations) -> Option<(String, String)> {
+    let key = |data: &Observations, p: usize| -> Vec<(usize, u32, Vec<u64>)> {
         let mut v: Vec<_> = data
-            .touches
+            .obs
             .iter()
-            .filter(|t| t.placement == p)
-            .map(|t| (t.landmark, t.repeat, t.enc_deg.map(f64::to_bits)))
+            .filter(|t| t.group == p)
+            .map(|t| (t.touched(), t.repeat, t.q_deg.iter().map(|v| v.to_bits()).collect::<Vec<u64>>()))
             .collect();
         v.sort_unstable();
         v
     };
     let cal_keys: std::collections::HashMap<_, usize> =
-        (0..cal.placements.len()).map(|p| (key(cal, p), p)).collect();
-    (0..val.placements.len()).find_map(|p| {
+        (0..cal.groups.len()).map(|p| (key(cal, p), p)).collect();
+    (0..val.groups.len()).find_map(|p| {
         let k = key(val, p);
         (!k.is_empty())
             .then(|| cal_keys.get(&k))
             .flatten()
-            .map(|&c| (val.placements[p].clone(), cal.placements[c].clone()))
+            .map(|&c| (val.groups[p].name.clone(), cal.groups[c].name.clone()))
     })
 }
 
@@ -310,7 +303,7 @@ pub struct StoredPairError {
     /// Measured minus certified distance, mm.
     pub error_mm: f64,
     /// Raw encoder angles of the two touches, degrees.
-    pub enc_deg: ([f64; crate::model::SUTA_JOINTS], [f64; crate::model::SUTA_JOINTS]),
+    pub enc_deg: (Joints, Joints),
 }
 
 /// Format tag of `summary.json`.
@@ -404,12 +397,21 @@ impl Summary {
 }
 
 impl StoredResiduals {
-    /// Whether every stored pair is plausible: a finite error within [`MAX_STORED_MM`] and raw
-    /// encoder angles in [0, 360) degrees, as the sessions they came from had to hold.
-    pub fn check(&self) -> Result<(), (String, String)> {
+    /// Whether every stored pair is plausible: a finite error within [`MAX_STORED_MM`] and
+    /// `joints` raw encoder angles in [0, 360) degrees, as the sessions they came from had to hold.
+    pub fn check(&self, joints: usize) -> Result<(), (String, String)> {
         for (i, p) in self.pairs.iter().enumerate() {
             check_mm(&format!("pairs[{i}].error_mm"), p.error_mm, true)?;
             for (side, angles) in [p.enc_deg.0, p.enc_deg.1].iter().enumerate() {
+                if angles.len() != joints {
+                    return Err((
+                        format!("pairs[{i}].enc_deg[{side}]"),
+                        format!(
+                            "expected {joints} encoder angles (the model's joints), found {}",
+                            angles.len()
+                        ),
+                    ));
+                }
                 if let Some(k) = angles.iter().position(|v| !(v.is_finite() && (0.0..360.0).contains(v))) {
                     return Err((
                         format!("pairs[{i}].enc_deg[{side}][{k}]"),
@@ -449,7 +451,9 @@ impl RunFolder {
     pub fn residuals(&self) -> Result<Vec<StoredPairError>, FileError> {
         let path = self.dir.join("residuals.json");
         let stored: StoredResiduals = read_tagged(&path, RESIDUALS_FORMAT)?;
-        stored.check().map_err(|(field, message)| field_error(&path, field, message))?;
+        stored
+            .check(self.model.joints.len())
+            .map_err(|(field, message)| field_error(&path, field, message))?;
         Ok(stored.pairs)
     }
 
@@ -457,14 +461,14 @@ impl RunFolder {
     /// ([`check_run_data`]), and refused when the RUN's model is beyond the model-independent
     /// scales on them ([`TrustScales`], with `nominal.toml` as the nominal model): a diagnosis of
     /// an absurd model would blame landmarks and effects for what the model gets wrong.
-    pub fn data(&self) -> Result<(Artefact, Dataset, Dataset), RunError> {
+    pub fn data(&self) -> Result<(Artefact, Observations, Observations), RunError> {
         let inputs = &self.summary.inputs;
         let artefact = Artefact::load(&inputs.artefact)?;
         let (cal, val) = inputs.load_data(&artefact)?;
         check_run_data(&self.model, &artefact, &cal, &val, inputs, self.summary.options.objective)?;
         let nominal = ArmModel::load(&self.dir.join("nominal.toml"))?;
         let scales = TrustScales::of(&nominal, &artefact, &cal, &val);
-        let rms = |data: &Dataset| validate::validate(&self.model, &artefact, data).overall.rms_mm;
+        let rms = |data: &Observations| validate::validate(&self.model, &artefact, data).overall.rms_mm;
         let beyond = scales.beyond(rms(&cal), rms(&val));
         if !beyond.is_empty() {
             return Err(RunError::NotACalibration(beyond));
@@ -533,12 +537,12 @@ pub struct Run {
     /// The data, for plots.
     pub artefact: Artefact,
     /// Validation touches, for plots.
-    pub validation_data: Dataset,
+    pub validation_data: Observations,
     /// How long each step took.
     pub steps: StepTimes,
 }
 
-fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -> ObjectiveComparison {
+fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Observations) -> ObjectiveComparison {
     let all: Vec<_> = fit.model.free.iter().map(|f| f.id).collect();
     let ranges: Vec<f64> = fit.model.free.iter().map(|f| (f.upper - f.lower).max(1e-9)).collect();
     let x = fit.model.free_values();
@@ -586,8 +590,8 @@ fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -
 pub fn check_run_data(
     model: &ArmModel,
     artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
     inputs: &RunInputs,
     objective: Objective,
 ) -> Result<(), RunError> {
@@ -681,8 +685,8 @@ pub fn run(
         calibration: CalibrationSummary {
             rms_mm: fit.rms_mm,
             cost: fit.cost,
-            pairs: cal.touch_pairs().len(),
-            touches: cal.touches.len(),
+            pairs: cal.landmark_pairs().len(),
+            touches: cal.obs.len(),
             estimates: fit.estimates.clone(),
             fixed_unidentifiable: fit.fixed.iter().map(|p| p.to_string()).collect(),
             correlations: fit.correlations.clone(),
@@ -747,14 +751,14 @@ impl Run {
             .errors
             .iter()
             .map(|e| StoredPairError {
-                placement: val.placements[e.placement].clone(),
+                placement: val.groups[e.placement].name.clone(),
                 landmarks: (
                     self.artefact.landmarks[e.landmarks.0].id.clone(),
                     self.artefact.landmarks[e.landmarks.1].id.clone(),
                 ),
-                repeat: val.touches[e.touches.0].repeat,
+                repeat: val.obs[e.touches.0].repeat,
                 error_mm: e.error_mm,
-                enc_deg: (val.touches[e.touches.0].enc_deg, val.touches[e.touches.1].enc_deg),
+                enc_deg: (val.obs[e.touches.0].q_deg, val.obs[e.touches.1].q_deg),
             })
             .collect();
         StoredResiduals { format: RESIDUALS_FORMAT.to_string(), pairs }
@@ -771,13 +775,13 @@ mod tests {
         let nominal = ArmModel::suta_nominal();
         let ours = simulate(&nominal, &SimulationOptions::default());
         let other = simulate(&nominal, &SimulationOptions { seed: 2, ..SimulationOptions::default() });
-        let cal = Dataset::from_sessions(&ours.calibration, &ours.artefact);
+        let cal = Observations::from_sessions(&ours.calibration, &ours.artefact);
         let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
         let fit = calibrate(&nominal, &ours.artefact, &cal, &options).unwrap();
-        let val = Dataset::from_sessions(&ours.validation, &ours.artefact);
+        let val = Observations::from_sessions(&ours.validation, &ours.artefact);
         let scales = TrustScales::of(&nominal, &ours.artefact, &cal, &val);
         assert!(result_problems(&fit, &validate(&fit.model, &ours.artefact, &val), &scales).is_empty());
-        let foreign = Dataset::from_sessions(&other.validation, &ours.artefact);
+        let foreign = Observations::from_sessions(&other.validation, &ours.artefact);
         let problems = result_problems(&fit, &validate(&fit.model, &ours.artefact, &foreign), &scales);
         assert!(problems.iter().any(|p| p.contains("another arm")), "{problems:?}");
         assert_eq!(copied_placement(&cal, &val), None);

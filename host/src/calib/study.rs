@@ -9,7 +9,7 @@
 use crate::calib::calibrate::{calibrate, CalibrationOptions};
 use crate::calib::trust::TrustScales;
 use crate::calib::validate::{distance_errors, ErrorStats};
-use crate::data::{Artefact, Dataset};
+use crate::data::{Artefact, Observations};
 use crate::model::ArmModel;
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::seq::SliceRandom;
@@ -131,8 +131,8 @@ pub enum StudyError {
 
 /// Refuse up front a study larger than [`MAX_STUDY_WORK`]: subset k of n placements holds about
 /// k/n of the touches, so the work is subsets × touches × (n + 1) / 2.
-pub fn check_study_size(cal: &Dataset, subsets: usize) -> Result<(), StudyError> {
-    let (placements, touches) = (cal.placements.len(), cal.touches.len());
+pub fn check_study_size(cal: &Observations, subsets: usize) -> Result<(), StudyError> {
+    let (placements, touches) = (cal.groups.len(), cal.obs.len());
     let work = subsets.saturating_mul(touches).saturating_mul(placements + 1) / 2;
     if work > MAX_STUDY_WORK {
         return Err(StudyError::TooLarge { subsets, placements, touches, work });
@@ -182,11 +182,11 @@ enum Outcome {
 pub fn study(
     nominal: &ArmModel,
     artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
     options: &StudyOptions,
 ) -> Vec<StudyRow> {
-    let n = cal.placements.len();
+    let n = cal.groups.len();
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let mut tasks = Vec::new();
     for k in 1..=n {
@@ -281,8 +281,8 @@ mod tests {
         let nominal = ArmModel::suta_nominal();
         let sim = simulate(&nominal, &SimulationOptions::default());
         let (cal, val) = (
-            Dataset::from_sessions(&sim.calibration, &sim.artefact),
-            Dataset::from_sessions(&sim.validation, &sim.artefact),
+            Observations::from_sessions(&sim.calibration, &sim.artefact),
+            Observations::from_sessions(&sim.validation, &sim.artefact),
         );
         let cal = cal.subset(&[0, 1, 2]);
         let calibration = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };

@@ -25,7 +25,7 @@
 
 use crate::calib::identify::{self, Combination};
 use crate::calib::tracker_drift::{drift_slots, DriftSlot, DriftSpec, SessionDrift};
-use crate::data::tracker::{TrackerData, TrackerPoint, TrackerSession};
+use crate::data::Observations;
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap, PoseDerivative, ToolPose};
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::geometry::absolute_orientation;
@@ -33,6 +33,88 @@ use crate::numerics::solver::{self, Loss, Residuals, SolverOptions};
 use crate::numerics::stats::rms;
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector3};
 use rayon::prelude::*;
+
+/// One measured row of a tracker session.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackerPoint {
+    /// Joint angles, degrees, one per joint.
+    pub q_deg: Vec<f64>,
+    /// The tool point in the instrument frame, mm.
+    pub point_mm: Vector3<f64>,
+    /// The probe's orientation in the instrument frame, for 6-DoF probes.
+    pub orientation: Option<nalgebra::UnitQuaternion<f64>>,
+    /// The instrument's stated standard uncertainty of the point, mm.
+    pub sigma_mm: Option<f64>,
+    /// Time of the measurement, s.
+    pub time_s: Option<f64>,
+    /// Temperature, °C.
+    pub temp_c: Option<f64>,
+    /// Pose id: rows with the same id are repeats.
+    pub pose: Option<String>,
+    /// Line in the file, 1-based.
+    pub line: usize,
+}
+
+/// One instrument placement: the rows of one CSV file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackerSession {
+    /// File name without `.csv`.
+    pub name: String,
+    /// The file.
+    pub path: std::path::PathBuf,
+    /// Rows in file order.
+    pub points: Vec<TrackerPoint>,
+}
+
+/// The tracker sessions of one set of observations.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackerData {
+    /// Joint count of every row.
+    pub joints: usize,
+    /// Sessions, by file name.
+    pub sessions: Vec<TrackerSession>,
+    /// Columns ignored and other things worth a look, one sentence each.
+    pub warnings: Vec<String>,
+}
+
+impl TrackerData {
+    /// The instrument sessions of `data` (its artefact touches left out).
+    pub fn of(data: &Observations) -> TrackerData {
+        let sessions = data
+            .groups
+            .iter()
+            .enumerate()
+            .filter(|(_, g)| g.kind == crate::data::Kind::Tracker)
+            .map(|(g, group)| TrackerSession {
+                name: group.name.clone(),
+                path: group.source.clone(),
+                points: data
+                    .obs
+                    .iter()
+                    .filter(|o| o.group == g)
+                    .filter_map(|o| {
+                        Some(TrackerPoint {
+                            q_deg: o.q_deg.to_vec(),
+                            point_mm: o.point_mm()?,
+                            orientation: o.orientation(),
+                            sigma_mm: o.sigma_mm,
+                            time_s: o.time_s,
+                            temp_c: o.temp_c,
+                            pose: o.pose.clone(),
+                            line: o.line,
+                        })
+                    })
+                    .collect(),
+            })
+            .collect();
+        TrackerData { joints: data.joints, sessions, warnings: data.warnings.clone() }
+    }
+
+    /// Rows in all sessions.
+    pub fn point_count(&self) -> usize {
+        self.sessions.iter().map(|s| s.points.len()).sum()
+    }
+}
 
 /// Spread of the tool orientation within a session, degrees, below which the session is said
 /// to hold the orientation constant.

@@ -56,12 +56,12 @@ use crate::calib::tracker::{
     calibrate_tracker, calibration_errors, fit_session_with_tool, session_residuals, TrackerCalibration,
     TrackerOptions,
 };
+use crate::calib::tracker::{TrackerData, TrackerSession};
 use crate::calib::tracker_drift::DriftSpec;
 use crate::calib::tracker_errors::{data_error_candidates, DataError, MIN_GAIN};
 use crate::calib::tracker_run::{
     floor, without_points, TrackerFloor, TrackerInputs, TrackerRunError, TrackerSummary, EXPLAINS_WITHIN,
 };
-use crate::data::tracker::{TrackerData, TrackerSession};
 use crate::model::effects::{Effect, EffectKind};
 use crate::model::ArmModel;
 use rayon::prelude::*;

@@ -23,7 +23,7 @@
 //! a data-error candidate.
 
 use crate::calib::tracker::TrackerError;
-use crate::data::tracker::{TrackerData, TrackerPoint, TrackerSession};
+use crate::calib::tracker::{TrackerData, TrackerPoint, TrackerSession};
 use nalgebra::Vector3;
 
 /// Least span of `time_s` within a session, s, for a drift in time to be a candidate.

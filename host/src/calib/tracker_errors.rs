@@ -29,12 +29,12 @@
 //! its standard deviations and the held-out error falls by [`MIN_GAIN`]. It claims no arm
 //! effect: the arm parameters are refitted, not changed by it.
 
+use crate::calib::tracker::TrackerData;
 use crate::calib::tracker::{
     calibrate_tracker, calibration_errors, fit_session_with_tool, orientation_spread_deg, validate_session,
     TrackerCalibration, TrackerOptions, CONSTANT_ORIENTATION_DEG,
 };
 use crate::calib::tracker_drift::{DriftKind, DriftSpec};
-use crate::data::tracker::TrackerData;
 use crate::model::ArmModel;
 
 /// A data error of tracker sessions: a session whose tool point sits elsewhere, a session that
@@ -249,7 +249,7 @@ pub fn data_error_candidates(
         }
     };
     // A calibration session's own tool needs the shared one fixed by other sessions that turn it.
-    let turns = |s: &&crate::data::tracker::TrackerSession| {
+    let turns = |s: &&crate::calib::tracker::TrackerSession| {
         orientation_spread_deg(&fit.model, s) >= CONSTANT_ORIENTATION_DEG
     };
     let turning = cal.sessions.iter().filter(turns).filter(|s| !options.float_tool.contains(&s.name)).count();

@@ -16,9 +16,9 @@ use crate::calib::tracker::{
     ErrorStats, FloatedTool, SessionValidation, ToolRotation, TrackerCalibration, TrackerError,
     TrackerEstimate, TrackerIdentifiability, TrackerOptions,
 };
+use crate::calib::tracker::{TrackerData, TrackerSession};
 use crate::calib::tracker_drift::{DriftSpec, SessionDrift};
 use crate::calib::tracker_errors::{data_error_candidates, DataError};
-use crate::data::tracker::{load_dir, TrackerData, TrackerSession};
 use crate::files::FileError;
 use crate::model::effects::Effect;
 use crate::model::{ArmModel, ParamId};
@@ -363,8 +363,8 @@ pub fn run_tracker(
     for name in &inputs.add {
         Effect::parse(name).ok_or_else(|| TrackerRunError::UnknownEffect(name.clone()))?.add_to(&mut nominal);
     }
-    let cal = load_dir(&inputs.calibration)?;
-    let val = load_dir(&inputs.validation)?;
+    let cal = TrackerData::of(&crate::data::tracker::load_dir(&inputs.calibration)?);
+    let val = TrackerData::of(&crate::data::tracker::load_dir(&inputs.validation)?);
     run_on(nominal, &cal, &val, inputs, huber_delta_mm)
 }
 

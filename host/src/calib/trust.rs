@@ -19,7 +19,7 @@
 
 use crate::calib::calibrate::Calibration;
 use crate::calib::validate::{positions, Validation};
-use crate::data::{Artefact, Dataset};
+use crate::data::{Artefact, Observations};
 use crate::model::ArmModel;
 use std::collections::HashMap;
 
@@ -63,18 +63,23 @@ pub struct TrustScales {
 
 impl TrustScales {
     /// The scales of these touches on this artefact, the touches taken through `nominal`.
-    pub fn of(nominal: &ArmModel, artefact: &Artefact, cal: &Dataset, val: &Dataset) -> TrustScales {
+    pub fn of(
+        nominal: &ArmModel,
+        artefact: &Artefact,
+        cal: &Observations,
+        val: &Observations,
+    ) -> TrustScales {
         let (mut sum_sq, mut pairs) = (0.0, 0usize);
         for data in [cal, val] {
             let positions = positions(nominal, data);
             let mut groups: HashMap<(usize, usize), Vec<usize>> = HashMap::new();
-            for (k, t) in data.touches.iter().enumerate() {
-                groups.entry((t.placement, t.landmark)).or_default().push(k);
+            for (k, t) in data.obs.iter().enumerate() {
+                groups.entry((t.group, t.touched())).or_default().push(k);
             }
             for touches in groups.values() {
                 for (i, &a) in touches.iter().enumerate() {
                     for &b in &touches[i + 1..] {
-                        if same_pose(&data.touches[a].enc_deg, &data.touches[b].enc_deg) {
+                        if same_pose(&data.obs[a].q_deg, &data.obs[b].q_deg) {
                             // Each touch lies half the difference from the pair's barycentre.
                             sum_sq += ((positions[a] - positions[b]).norm() / 2.0).powi(2);
                             pairs += 1;
@@ -273,8 +278,8 @@ mod tests {
     fn wrong_but_valid_models_are_never_a_calibration() {
         let truth_nominal = ArmModel::suta_nominal();
         let sim = simulate(&truth_nominal, &SimulationOptions::default());
-        let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-        let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+        let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+        let val = Observations::from_sessions(&sim.validation, &sim.artefact);
         let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
         let right = calibrate(&truth_nominal, &sim.artefact, &cal, &options).unwrap();
         let scales = TrustScales::of(&truth_nominal, &sim.artefact, &cal, &val);

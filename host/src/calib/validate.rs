@@ -1,7 +1,7 @@
 //! Validation metrics: pairwise distance errors of a model on a dataset, per landmark, per
 //! placement, and repeatability per landmark (ISO 9283 style).
 
-use crate::data::{Artefact, Dataset};
+use crate::data::{Artefact, Observations};
 use crate::model::kinematics::tool_pose;
 use crate::model::ArmModel;
 use nalgebra::Vector3;
@@ -87,30 +87,31 @@ pub struct Validation {
     pub errors: Vec<PairError>,
 }
 
-/// Tool positions of every touch, mm.
-pub fn positions(model: &ArmModel, data: &Dataset) -> Vec<Vector3<f64>> {
-    data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect()
+/// Tool positions of every observation, mm.
+pub fn positions(model: &ArmModel, data: &Observations) -> Vec<Vector3<f64>> {
+    data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect()
 }
 
 /// Distance errors of `model` on `data`.
-pub fn distance_errors(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<PairError> {
+pub fn distance_errors(model: &ArmModel, artefact: &Artefact, data: &Observations) -> Vec<PairError> {
     let p = positions(model, data);
-    data.touch_pairs()
+    data.landmark_pairs()
         .into_iter()
         .map(|(a, b)| {
-            let (ta, tb) = (&data.touches[a], &data.touches[b]);
+            let (ta, tb) = (&data.obs[a], &data.obs[b]);
+            let (la, lb) = (ta.landmark().unwrap_or(0), tb.landmark().unwrap_or(0));
             PairError {
-                placement: ta.placement,
-                landmarks: (ta.landmark, tb.landmark),
+                placement: ta.group,
+                landmarks: (la, lb),
                 touches: (a, b),
-                error_mm: (p[a] - p[b]).norm() - artefact.distance_mm(ta.landmark, tb.landmark),
+                error_mm: (p[a] - p[b]).norm() - artefact.distance_mm(la, lb),
             }
         })
         .collect()
 }
 
 /// Validate `model` on `data`.
-pub fn validate(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Validation {
+pub fn validate(model: &ArmModel, artefact: &Artefact, data: &Observations) -> Validation {
     let errors = distance_errors(model, artefact, data);
     let all: Vec<f64> = errors.iter().map(|e| e.error_mm).collect();
     let per_landmark = artefact
@@ -128,12 +129,12 @@ pub fn validate(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Valida
         .filter(|g| g.stats.pairs > 0)
         .collect();
     let per_placement = data
-        .placements
+        .groups
         .iter()
         .enumerate()
-        .map(|(p, name)| {
+        .map(|(p, group)| {
             let e: Vec<f64> = errors.iter().filter(|e| e.placement == p).map(|e| e.error_mm).collect();
-            GroupStats { name: name.clone(), stats: ErrorStats::of(&e) }
+            GroupStats { name: group.name.clone(), stats: ErrorStats::of(&e) }
         })
         .collect();
     Validation {
@@ -146,12 +147,14 @@ pub fn validate(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Valida
 }
 
 /// Repeatability per landmark from touches repeated within one placement.
-pub fn repeatability(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<Repeatability> {
+pub fn repeatability(model: &ArmModel, artefact: &Artefact, data: &Observations) -> Vec<Repeatability> {
     let p = positions(model, data);
     // Touches grouped by (landmark, placement) once: linear in the number of touches.
     let mut groups: std::collections::BTreeMap<(usize, usize), Vec<usize>> = Default::default();
-    for (k, t) in data.touches.iter().enumerate() {
-        groups.entry((t.landmark, t.placement)).or_default().push(k);
+    for (k, t) in data.obs.iter().enumerate() {
+        if let Some(l) = t.landmark() {
+            groups.entry((l, t.group)).or_default().push(k);
+        }
     }
     let mut out = Vec::new();
     for (i, l) in artefact.landmarks.iter().enumerate() {

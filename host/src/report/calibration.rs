@@ -81,13 +81,13 @@ pub fn calibration_report(run: &Run) -> String {
         table(&["placement", "nominal RMS mm", "calibrated RMS mm", "pairs"], &placements)
     );
     body.push_str("<h3>Calibrated residuals against each joint angle</h3>");
-    for j in 0..crate::model::SUTA_JOINTS {
+    for j in 0..run.nominal.joints.len() {
         let pts: Vec<(f64, f64)> = run
             .validation
             .errors
             .iter()
             .flat_map(|e| {
-                [e.touches.0, e.touches.1].map(|t| (run.validation_data.touches[t].enc_deg[j], e.error_mm))
+                [e.touches.0, e.touches.1].map(|t| (run.validation_data.obs[t].q_deg[j], e.error_mm))
             })
             .collect();
         let _ = write!(
@@ -189,7 +189,7 @@ pub fn calibration_report(run: &Run) -> String {
         let _ = write!(body, "<h2>Outlier diagnostics (thesis appendix F)</h2><p>Thresholds: contribution &gt; 1.5× its share, Cook's distance &gt; 4/L, leave-one-out improvement &gt; 5 %, bias &gt; 1 mm; flagged when two or more exceed.</p>{}", table(&["landmark", "contribution %", "Cook's D", "LOO impact %", "bias mm", ""], &out_rows));
     }
     if let Some(rows) = &s.study {
-        let _ = write!(body, "<h2>Dataset-size study</h2>{}", crate::report::study::study_body(rows));
+        let _ = write!(body, "<h2>Observations-size study</h2>{}", crate::report::study::study_body(rows));
     }
     let starts: Vec<Vec<String>> = s
         .calibration

@@ -110,7 +110,8 @@ impl Comparison {
             svg::histogram(&[("before", &a), ("after", &b)], 40, "distance error (mm)")
         );
         body.push_str("<h3>Residuals against each joint angle: before (left), after (right)</h3>");
-        for j in 0..crate::model::SUTA_JOINTS {
+        let joints = self.runs[0].residuals.first().map_or(0, |e| e.enc_deg.0.len());
+        for j in 0..joints {
             for k in 0..2 {
                 let pts: Vec<(f64, f64)> = self.runs[k]
                     .residuals

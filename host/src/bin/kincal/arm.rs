@@ -7,7 +7,7 @@ use kincal::calib::calibrate::{CalibrationOptions, HUBER_DELTA_RANGE_MM, LEVER_R
 use kincal::calib::objective::Objective;
 use kincal::calib::run::{run, RunFolder, RunInputs};
 use kincal::calib::study::{check_study_size, study, study_problems, StudyOptions};
-use kincal::data::{Artefact, Dataset, Purpose};
+use kincal::data::{Artefact, Observations, Purpose};
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
 use kincal::output;
@@ -418,8 +418,8 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     let nominal = ArmModel::load(&a.inputs.model)?;
     let artefact_path = artefact_of(&a.inputs)?;
     let artefact = Artefact::load(&artefact_path)?;
-    let cal = Dataset::load_dir(&a.inputs.data, &artefact, Purpose::Calibration)?;
-    let val = Dataset::load_dir(&a.inputs.validate, &artefact, Purpose::Validation)?;
+    let cal = Observations::load_artefact_dir(&a.inputs.data, &artefact, Purpose::Calibration)?;
+    let val = Observations::load_artefact_dir(&a.inputs.validate, &artefact, Purpose::Validation)?;
     if val.pair_count() == 0 {
         return Err(
             kincal::calib::run::RunError::NoValidationPairs { path: a.inputs.validate.clone() }.into()
@@ -546,8 +546,8 @@ fn cmd_diagnose_auto(
     a: &DiagnoseArgs,
     folder: &RunFolder,
     artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
 ) -> Result<()> {
     let options = folder.summary.options.calibration_options();
     let started = std::time::Instant::now();

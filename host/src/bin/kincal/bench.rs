@@ -17,7 +17,7 @@ use anyhow::{Context, Result};
 use kincal::calib::calibrate::{calibrate, CalibrationOptions};
 use kincal::calib::peer::{run_peer, thesis_sized_problem, write_peer_problem};
 use kincal::calib::study::{study, StudyOptions};
-use kincal::data::Dataset;
+use kincal::data::Observations;
 use kincal::model::ParamId;
 use kincal::numerics::stats::median;
 use kincal::simulate::{simulate, SimulationOptions};
@@ -264,7 +264,11 @@ fn scale_benchmark(touches: usize) -> Result<()> {
         let run_s = t.elapsed().as_secs_f64();
         let s = &result.summary;
         let (cal, val) = (
-            Dataset::load_dir(&inputs.calibration, &result.artefact, kincal::data::Purpose::Calibration)?,
+            Observations::load_artefact_dir(
+                &inputs.calibration,
+                &result.artefact,
+                kincal::data::Purpose::Calibration,
+            )?,
             &result.validation_data,
         );
         let t = Instant::now();
@@ -273,7 +277,7 @@ fn scale_benchmark(touches: usize) -> Result<()> {
         println!(
             "calibrate from files, {:>6} touches in {:>4} placements ({:>7} pairs): {run_s:6.2} s ({:.0} touches/s); diagnose {diagnose_s:6.2} s; validation RMS {:.3} mm",
             s.calibration.touches,
-            cal.placements.len(),
+            cal.groups.len(),
             s.calibration.pairs,
             s.calibration.touches as f64 / run_s,
             s.validation.rms_mm
@@ -299,14 +303,14 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
         return Ok(());
     }
     let (nominal, sim) = thesis_sized_problem(1);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
     let options = CalibrationOptions::default();
     if args.calibrate_only {
         println!("{}", whole_calibration(&sim, &options)?);
         return Ok(());
     }
-    println!("thesis-sized problem: {} placements, {} touches, {} pairs, {} free parameters, {} restarts + nominal start", cal.placements.len(), cal.touches.len(), cal.touch_pairs().len(), nominal.free.len(), options.restarts);
+    println!("thesis-sized problem: {} placements, {} touches, {} pairs, {} free parameters, {} restarts + nominal start", cal.groups.len(), cal.obs.len(), cal.landmark_pairs().len(), nominal.free.len(), options.restarts);
     let mut times = Vec::new();
     let mut fit = None;
     for _ in 0..args.repeats.max(1) {
@@ -337,8 +341,8 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     };
     let sim_hidden = simulate(&nominal, &hidden);
     let (cal_h, val_h) = (
-        Dataset::from_sessions(&sim_hidden.calibration, &sim_hidden.artefact),
-        Dataset::from_sessions(&sim_hidden.validation, &sim_hidden.artefact),
+        Observations::from_sessions(&sim_hidden.calibration, &sim_hidden.artefact),
+        Observations::from_sessions(&sim_hidden.validation, &sim_hidden.artefact),
     );
     let fit_h = calibrate(&nominal, &sim_hidden.artefact, &cal_h, &options)?;
     let t = Instant::now();
@@ -477,8 +481,8 @@ fn auto_loop_on_a_mixture(nominal: &kincal::model::ArmModel, options: &Calibrati
         ..SimulationOptions::default()
     };
     let sim = simulate(nominal, &hidden);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
     let fit = calibrate(nominal, &sim.artefact, &cal, options)?;
     let t = Instant::now();
     let run = kincal::calib::auto::auto_loop(&fit.model, &sim.artefact, &cal, &val, options, 8)?;

@@ -7,7 +7,8 @@
 use crate::bench::{children_cpu_ms, process_cpu_ms};
 use anyhow::{Context, Result};
 use kincal::calib::tracker::{calibrate_tracker, validate_session, TrackerOptions};
-use kincal::data::tracker::{TrackerData, TrackerPoint, TrackerSession, TRACKER_FORMAT};
+use kincal::calib::tracker::{TrackerData, TrackerPoint, TrackerSession};
+use kincal::data::tracker::TRACKER_FORMAT;
 use kincal::model::kinematics::tool_pose;
 use kincal::model::{ArmModel, Joint, ParamId};
 use kincal::numerics::stats::median;

@@ -6,7 +6,7 @@ use clap::{Args, Subcommand};
 use kincal::calib::calibrate::CalibrationOptions;
 use kincal::calib::run::RunInputs;
 use kincal::controller::signing::{fingerprint, utc, StationKey};
-use kincal::data::{Artefact, Dataset};
+use kincal::data::{Artefact, Observations};
 use kincal::model::ArmModel;
 use kincal::simulate::SimulationOptions;
 use std::path::PathBuf;
@@ -756,7 +756,8 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
     )?;
     let truth = ArmModel::load(&data.join("truth.toml"))?;
     let artefact = Artefact::load(&inputs.artefact)?;
-    let val = Dataset::load_dir(&inputs.validation, &artefact, kincal::data::Purpose::Validation)?;
+    let val =
+        Observations::load_artefact_dir(&inputs.validation, &artefact, kincal::data::Purpose::Validation)?;
     let floor = kincal::calib::validate::validate(&truth, &artefact, &val).overall;
     println!("3/3 the steps against the floor");
     print_mission(&mission.steps, floor.rms_mm, &kincal::controller::demo::stop_words(&mission.auto.stop));

@@ -1,11 +1,11 @@
 //! `kincal calibrate` on tracker sessions: run, write RUN/, print the figures and the verdict.
 
 use anyhow::Result;
+use kincal::calib::tracker::TrackerData;
 use kincal::calib::tracker_diagnose::{
     auto_tracker, check_run_data, compare_tracker, diagnose_tracker, fit_setup, TrackerSetup,
 };
 use kincal::calib::tracker_run::{run_tracker, TrackerInputs, TrackerSummary, TRACKER_RUN_FORMAT};
-use kincal::data::tracker::{load_dir, TrackerData};
 use kincal::model::ArmModel;
 use kincal::output;
 use std::path::Path;
@@ -132,8 +132,8 @@ pub fn tracker_summary(run: &Path) -> Result<Option<TrackerSummary>> {
 fn load_run(run: &Path, summary: &TrackerSummary) -> Result<(TrackerSetup, TrackerData, TrackerData)> {
     let nominal = ArmModel::load(&run.join("nominal.toml"))?;
     let i = &summary.inputs;
-    let cal = load_dir(&i.calibration)?;
-    let val = load_dir(&i.validation)?;
+    let cal = TrackerData::of(&kincal::data::tracker::load_dir(&i.calibration)?);
+    let val = TrackerData::of(&kincal::data::tracker::load_dir(&i.validation)?);
     let setup = TrackerSetup::of(i, nominal);
     let fitted = fit_setup(&setup, &cal, &val, None)?;
     check_run_data(summary, &cal, &val, fitted.fit.fit.rms_mm)?;
@@ -248,7 +248,7 @@ pub fn compare_tracker_runs(a: &Path, b: &Path, out: &Path) -> Result<()> {
     };
     let model = |run: &Path| ArmModel::load(&run.join("model.toml"));
     let (ma, mb) = (model(a)?, model(b)?);
-    let val = load_dir(&sa.inputs.validation)?;
+    let val = TrackerData::of(&kincal::data::tracker::load_dir(&sa.inputs.validation)?);
     for f in &sa.validation.sessions {
         match val.sessions.iter().find(|s| s.name == f.calibrated.name) {
             Some(s) if s.points.len() == f.calibrated.points => {}

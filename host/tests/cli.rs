@@ -69,7 +69,7 @@ fn calibrate_writes_a_run_whose_model_loads_again() {
     let stored: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
     assert_eq!(printed, stored);
-    for key in ["rms_mm", "mean_mm", "std_mm", "max_mm", "pairs"] {
+    for key in ["rms_mm", "mean_mm", "std_mm", "max_mm", "count"] {
         assert!(
             stored["validation"][key].is_number() && stored["nominal_validation"][key].is_number(),
             "{key}"
@@ -79,7 +79,7 @@ fn calibrate_writes_a_run_whose_model_loads_again() {
     let folder = kincal::calib::run::RunFolder::load(&run).expect("RUN reads back as kincal-run/1");
     assert_eq!(folder.summary.format, kincal::calib::run::RUN_FORMAT);
     assert!(folder.summary.calibration.rms_mm < folder.summary.nominal_validation.rms_mm);
-    assert_eq!(folder.residuals().expect("residuals.json reads back").len(), folder.summary.validation.pairs);
+    assert_eq!(folder.residuals().expect("residuals.json reads back").len(), folder.summary.validation.count);
     let calibrated =
         kincal::model::ArmModel::load(&run.join("model.toml")).expect("calibrated model loads again");
     assert_eq!(calibrated.free.len(), kincal::model::ArmModel::load(&model).unwrap().free.len());

@@ -3,8 +3,8 @@
 //! held-out folders. Only kincal's reader and model file loader are used, no forward code.
 
 use crate::tracker_gen::TrackerData as Generated;
-use kincal::calib::tracker::TrackerData;
 use kincal::data::tracker::load_dir;
+use kincal::data::Observations;
 use kincal::model::{ArmModel, ParamId};
 use std::path::{Path, PathBuf};
 
@@ -39,7 +39,7 @@ pub fn nominal_model(generated: &Generated, dir: &Path) -> ArmModel {
 
 /// Write the generated sessions into `dir/cal` (the indices `cal`) and `dir/val` and read them
 /// back.
-pub fn split(generated: &Generated, dir: &Path, cal: &[usize]) -> (TrackerData, TrackerData) {
+pub fn split(generated: &Generated, dir: &Path, cal: &[usize]) -> (Observations, Observations) {
     let all = dir.join("all");
     generated.write(&all).expect("sessions written");
     let (c, v) = (dir.join("cal"), dir.join("val"));
@@ -50,8 +50,5 @@ pub fn split(generated: &Generated, dir: &Path, cal: &[usize]) -> (TrackerData, 
         let to = if cal.contains(&s) { &c } else { &v };
         std::fs::rename(all.join(&name), to.join(&name)).expect("session moved");
     }
-    (
-        TrackerData::of(&load_dir(&c).expect("calibration sessions")),
-        TrackerData::of(&load_dir(&v).expect("validation sessions")),
-    )
+    (load_dir(&c).expect("calibration sessions"), load_dir(&v).expect("validation sessions"))
 }

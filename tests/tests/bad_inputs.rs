@@ -501,7 +501,7 @@ fn calibrated(out: &'static str, touches: u64) -> Option<Check> {
         let text = std::fs::read_to_string(dir.join(out).join("summary.json")).map_err(|e| e.to_string())?;
         let s: Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
         let rms = s["validation"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
-        let pairs = s["validation"]["pairs"].as_u64().unwrap_or(0);
+        let pairs = s["validation"]["count"].as_u64().unwrap_or(0);
         let used = s["calibration"]["touches"].as_u64().unwrap_or(0);
         if !(rms.is_finite() && rms > 0.0 && rms < 1.0 && pairs > 0) {
             return Err(format!("validation RMS {rms} mm over {pairs} pairs is not a plausible result"));
@@ -1455,8 +1455,8 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
         ),
         (
             "pairs negative",
-            edit_json(s, |v| v["validation"]["pairs"] = json!(-3)),
-            &["summary.json", "pairs"],
+            edit_json(s, |v| v["validation"]["count"] = json!(-3)),
+            &["summary.json", "count"],
         ),
         (
             "calibration missing",
@@ -1895,7 +1895,7 @@ fn random_cases(cases: &mut Vec<Case>, template: &Path) {
             )
             .map_err(|e| e.to_string())?;
             let rms = s["validation"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
-            let pairs = s["validation"]["pairs"].as_u64().unwrap_or(0);
+            let pairs = s["validation"]["count"].as_u64().unwrap_or(0);
             (rms.is_finite() && pairs > 0)
                 .then_some(())
                 .ok_or(format!("validation {rms} mm over {pairs} pairs"))

@@ -2,10 +2,12 @@
 //! code shared with kincal): accuracy against the true floor, recovered parameters against their
 //! stated deviations, a re-mounted tool, constant-orientation sessions.
 
-use kincal::calib::tracker::TrackerData;
-use kincal::calib::tracker::{calibrate_tracker, validate_session, TrackerCalibration, TrackerOptions};
+use kincal::calib::fit::{calibrate, Fit};
+use kincal::calib::setup::SolveOptions;
 use kincal::calib::tracker_errors::{data_error_candidates, DataError};
 use kincal::calib::tracker_run::TrackerInputs;
+use kincal::calib::validate::validate_session;
+use kincal::data::Observations;
 use kincal::model::ArmModel;
 use kincal_e2e::tracker_gen::{generate, TrackerData as Generated, TrackerOptions as GenOptions};
 use kincal_e2e::tracker_setup::{nominal_model, split};
@@ -45,10 +47,10 @@ fn run_folders(
     TrackerInputs { orientation_sigma_deg, ..run_inputs(dir) }
 }
 
-fn held_out_rms(fit: &TrackerCalibration, val: &TrackerData) -> f64 {
+fn held_out_rms(fit: &Fit, val: &Observations) -> f64 {
     let (mut sum, mut n) = (0.0, 0usize);
-    for s in &val.sessions {
-        let v = validate_session(&fit.model, s, [0.0; 3]);
+    for b in 0..val.blocks.len() {
+        let v = validate_session(&fit.model, val, b, [0.0; 3]);
         sum += v.rms_mm * v.rms_mm * v.points as f64;
         n += v.points;
     }
@@ -58,14 +60,14 @@ fn held_out_rms(fit: &TrackerCalibration, val: &TrackerData) -> f64 {
 /// Kept parameters whose true value the data determines: not in any direction the data cannot
 /// determine. The tool point is not one of them when the last joint's values
 /// are fixed: it absorbs their errors.
-fn comparable(fit: &TrackerCalibration) -> Vec<String> {
-    let ident = &fit.identifiability;
+fn comparable(fit: &Fit) -> Vec<String> {
+    let ident = &fit.identifiability();
     let entangled = |p: &String| ident.unidentifiable.iter().any(|c| c.terms.iter().any(|t| &t.0 == p));
     ident.estimated.iter().filter(|p| !entangled(p)).cloned().collect()
 }
 
 /// (parameters compared, within 1 σ, within 3 σ) of `fit` against the generator's truth.
-fn recovered(fit: &TrackerCalibration, generated: &Generated) -> (usize, usize, usize, Vec<String>) {
+fn recovered(fit: &Fit, generated: &Generated) -> (usize, usize, usize, Vec<String>) {
     let (mut n, mut one, mut three, mut worst) = (0, 0, 0, Vec::new());
     for name in comparable(fit) {
         let e = fit.estimates.iter().find(|e| e.param == name).expect("estimate");
@@ -94,12 +96,12 @@ fn seven_joint_arm_reaches_the_floor_and_its_deviations_are_calibrated() {
         let generated = generate(&GenOptions::iiwa_five_sessions(seed));
         let nominal = nominal_model(&generated, &dir);
         let (cal, val) = split(&generated, &dir, &[0, 1, 2]);
-        let fit = calibrate_tracker(&nominal, &cal, &TrackerOptions::default()).expect("calibrates");
+        let fit = calibrate(&nominal, &cal, &SolveOptions::default()).expect("calibrates");
         let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
         let rms = held_out_rms(&fit, &val);
         println!("seed {seed}: held-out {rms:.4} mm, true floor {floor:.4} mm ({:.3}×)", rms / floor);
         assert!(rms <= 1.10 * floor, "seed {seed}: held-out {rms} mm vs floor {floor} mm");
-        let ident = &fit.identifiability;
+        let ident = &fit.identifiability();
         assert!(
             ident.fixed.contains(&"offset:1".into()) && ident.fixed.contains(&"length:1".into()),
             "{ident:?}"
@@ -142,7 +144,7 @@ fn twelve_and_two_joint_arms_reach_the_floor() {
         let nominal = nominal_model(&generated, &dir);
         assert_eq!(nominal.joints.len(), joints);
         let (cal, val) = split(&generated, &dir, &[0, 1, 2]);
-        let fit = calibrate_tracker(&nominal, &cal, &TrackerOptions::default()).expect("calibrates");
+        let fit = calibrate(&nominal, &cal, &SolveOptions::default()).expect("calibrates");
         let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
         let rms = held_out_rms(&fit, &val);
         let (n, one, three, worst) = recovered(&fit, &generated);
@@ -150,7 +152,7 @@ fn twelve_and_two_joint_arms_reach_the_floor() {
             "{joints} joints: held-out {rms:.4} mm, true floor {floor:.4} mm ({:.3}×); {n} identifiable parameters, \
              {one} within 1 σ, {three} within 3 σ; fixed {:?}",
             rms / floor,
-            fit.identifiability.fixed
+            fit.identifiability().fixed
         );
         assert!(rms <= 1.10 * floor, "{joints} joints: held-out {rms} mm vs floor {floor} mm");
         assert!(n >= least, "{joints} joints: only {n} parameters compared: {:?}", comparable(&fit));
@@ -187,7 +189,7 @@ fn a_held_out_set_of_a_calibration_session_is_validated_with_its_base() {
     let noise = generated.options.noise_sigma_mm * 3f64.sqrt();
     println!("same base: calibrated {:?}, nominal {:?}, noise {noise:.4} mm", same.calibrated, same.nominal);
     assert_eq!(same.calibration_session, "session_1");
-    assert_eq!(same.calibrated.points, 20);
+    assert_eq!(same.calibrated.count, 20);
     assert!(same.calibrated.rms_mm < 1.3 * noise, "{same:?}");
     assert!(same.nominal.rms_mm > 5.0 * same.calibrated.rms_mm, "{same:?}");
     let others = run.summary.validation.sessions.iter().filter(|f| f.same_base.is_some()).count();
@@ -221,12 +223,10 @@ fn constant_orientation_sessions_report_tool_and_base_inseparable() {
         shifted.tcp_mm[k] += d;
     }
     let figures = |model: &ArmModel| {
-        let fit = calibrate_tracker(model, &cal, &TrackerOptions::default()).expect("calibrates");
-        let v: Vec<(f64, f64)> = val
-            .sessions
-            .iter()
-            .map(|s| {
-                let v = validate_session(&fit.model, s, [0.0; 3]);
+        let fit = calibrate(model, &cal, &SolveOptions::default()).expect("calibrates");
+        let v: Vec<(f64, f64)> = (0..val.blocks.len())
+            .map(|b| {
+                let v = validate_session(&fit.model, &val, b, [0.0; 3]);
                 (v.rms_mm, v.pairwise_rms_mm)
             })
             .collect();
@@ -234,8 +234,8 @@ fn constant_orientation_sessions_report_tool_and_base_inseparable() {
     };
     let (a, va) = figures(&nominal);
     let (b, vb) = figures(&shifted);
-    let ident = &a.identifiability;
-    println!("{:#?}\n{va:?}\n{vb:?}\nfit {:?} vs {:?}", ident.statements, a.fit, b.fit);
+    let ident = &a.identifiability();
+    println!("{:#?}\n{va:?}\n{vb:?}\nfit {:?} vs {:?}", ident.statements, a.stats, b.stats);
     for k in ["tcp.x", "tcp.y", "tcp.z"] {
         assert!(ident.fixed.contains(&k.to_string()), "{k} fixed: {ident:?}");
     }
@@ -253,7 +253,7 @@ fn constant_orientation_sessions_report_tool_and_base_inseparable() {
         "{:?}",
         ident.statements
     );
-    assert!((a.fit.rms_mm - b.fit.rms_mm).abs() < 2e-3, "fit {:?} vs {:?}", a.fit, b.fit);
+    assert!((a.rms_mm - b.rms_mm).abs() < 2e-3, "fit {:?} vs {:?}", a.stats, b.stats);
     for ((ra, pa), (rb, pb)) in va.iter().zip(&vb) {
         assert!((ra - rb).abs() < 2e-3 && (pa - pb).abs() < 2e-3, "held out {va:?} vs {vb:?}");
     }
@@ -273,8 +273,8 @@ fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
     let nominal = nominal_model(&generated, &dir);
     let (cal, val) = split(&generated, &dir, &[0, 1, 2]);
     let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
-    let plain = TrackerOptions::default();
-    let fit = calibrate_tracker(&nominal, &cal, &plain).expect("calibrates");
+    let plain = SolveOptions::default();
+    let fit = calibrate(&nominal, &cal, &plain).expect("calibrates");
     let before = held_out_rms(&fit, &val);
     let candidates = data_error_candidates(&nominal, &cal, &val, &fit, &plain);
     for c in &candidates {
@@ -286,8 +286,8 @@ fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
     assert!((best.size_mm - 0.8).abs() < 3.0 * best.size_std_mm + 0.02, "{best:?}");
     assert_eq!(candidates.iter().filter(|c| c.significant).count(), 1, "only that session: {candidates:?}");
     assert_eq!(best.action, "--float-tool session_2");
-    let floated = TrackerOptions { float_tool: vec!["session_2".into()], ..plain };
-    let refit = calibrate_tracker(&nominal, &cal, &floated).expect("calibrates");
+    let floated = SolveOptions { float_tool: vec!["session_2".into()], ..plain };
+    let refit = calibrate(&nominal, &cal, &floated).expect("calibrates");
     let after = held_out_rms(&refit, &val);
     println!("held-out {before:.4} → {after:.4} mm, floor {floor:.4} mm");
     assert!(before > 1.10 * floor, "the re-mount must show before the action: {before} vs {floor}");
@@ -408,7 +408,7 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
         let overall = &summary["validation"]["overall"];
         assert!(html.contains(&format!(
             "<td>all held-out sessions</td><td>{}</td><td>{}</td>",
-            overall["points"],
+            overall["count"],
             f4(&overall["rms_mm"])
         )));
         for v in summary["verdict"].as_array().expect("verdict") {
@@ -460,8 +460,8 @@ fn single_bad_points_are_named_by_file_line_and_left_out() {
     let generated = generate(&options);
     let nominal = nominal_model(&generated, &dir);
     let (cal, val) = split(&generated, &dir, &[0, 1, 2]);
-    let plain = TrackerOptions::default();
-    let fit = calibrate_tracker(&nominal, &cal, &plain).expect("calibrates");
+    let plain = SolveOptions::default();
+    let fit = calibrate(&nominal, &cal, &plain).expect("calibrates");
     let candidates = data_error_candidates(&nominal, &cal, &val, &fit, &plain);
     let bad = candidates.iter().find(|c| c.kind == "bad points").expect("a bad-points candidate");
     println!("{}\n{}", bad.text, bad.action);
@@ -495,18 +495,20 @@ fn six_dof_probe_poses_recover_the_probe_rotation_and_reach_both_floors() {
 }
 
 fn six_dof_seed(seed: u64) {
-    use kincal::calib::tracker::validate_orientations;
+    use kincal::calib::validate::validate_orientations;
     use kincal_e2e::tracker_gen::{rotation_vector_of, Chain};
     let dir = scratch(&format!("six-dof-{seed}"));
     let generated = generate(&GenOptions::industrial_6dof(seed));
     let nominal = nominal_model(&generated, &dir);
     let (cal, val) = split(&generated, &dir, &[0, 1, 2]);
-    let options = TrackerOptions { orientation_sigma_deg: Some(0.005), ..TrackerOptions::default() };
-    let fit = calibrate_tracker(&nominal, &cal, &options).expect("calibrates");
+    let options = SolveOptions { orientation_sigma_deg: Some(0.005), ..SolveOptions::default() };
+    let fit = calibrate(&nominal, &cal, &options).expect("calibrates");
     let probe = fit.tool_rotation.expect("the probe's orientation is fitted");
     println!(
         "{:#?}\nprobe {probe:?}\nfit {:?} {:?}",
-        fit.identifiability.statements, fit.fit, fit.orientation_fit
+        fit.identifiability().statements,
+        fit.stats.points,
+        fit.stats.orientations
     );
     // Held-out positions against the true floor.
     let floor = generated.true_floor_mm(&[3]).rms_mm;
@@ -514,7 +516,7 @@ fn six_dof_seed(seed: u64) {
     println!("seed {seed}: held-out {rms:.4} mm, true floor {floor:.4} mm ({:.3}×)", rms / floor);
     assert!(rms <= 1.10 * floor, "held-out {rms} mm vs floor {floor} mm");
     // Held-out orientations against the generator's noise.
-    let angles = validate_orientations(&fit.model, &val.sessions[0], [0.0; 3], &probe.rotation())
+    let angles = validate_orientations(&fit.model, &val, 0, [0.0; 3], &probe.rotation())
         .expect("the held-out session has orientations");
     let noise_deg = 3f64.sqrt() * 0.005;
     println!("held-out orientation {angles:?}, noise {noise_deg:.5}°");
@@ -558,7 +560,7 @@ fn six_dof_seed(seed: u64) {
 
 /// summary.json of a run on 6-DoF sessions: the probe rotation, the calibration's orientation
 /// RMS and each held-out session's `orientation.rms_deg` beside the nominal one.
-fn summary_has_orientation_figures(nominal: ArmModel, cal: &TrackerData, val: &TrackerData) {
+fn summary_has_orientation_figures(nominal: ArmModel, cal: &Observations, val: &Observations) {
     use kincal::calib::tracker_run::run_on;
     let inputs = TrackerInputs {
         model: "nominal.toml".into(),
@@ -596,12 +598,12 @@ fn scored(
     generated: &Generated,
     dir: &std::path::Path,
     label: &str,
-) -> (ArmModel, TrackerData, TrackerData, f64, TrackerCalibration, Vec<DataError>) {
+) -> (ArmModel, Observations, Observations, f64, Fit, Vec<DataError>) {
     let nominal = nominal_model(generated, dir);
     let (cal, val) = split(generated, dir, &[0, 1, 2]);
     let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
-    let plain = TrackerOptions::default();
-    let fit = calibrate_tracker(&nominal, &cal, &plain).expect("calibrates");
+    let plain = SolveOptions::default();
+    let fit = calibrate(&nominal, &cal, &plain).expect("calibrates");
     let candidates = data_error_candidates(&nominal, &cal, &val, &fit, &plain);
     for c in &candidates {
         println!("{label}: {} [{}] significant {}", c.text, c.action, c.significant);
@@ -626,7 +628,7 @@ fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
         let generated = generate(&options);
         let (nominal, cal, val, floor, fit, candidates) =
             scored(&generated, &dir, &format!("drifting {drifting}"));
-        let plain = TrackerOptions::default();
+        let plain = SolveOptions::default();
         let drifts: Vec<_> = candidates.iter().filter(|c| c.kind == "drift").collect();
         // Offset and scale against time in each of the three sessions; temp_C is constant.
         assert_eq!(drifts.len(), 6, "every calibration session with times is scored: {candidates:?}");
@@ -644,10 +646,10 @@ fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
         );
         assert!((best.size_mm - 3.0).abs() < 3.0 * best.size_std_mm + 0.02, "{best:?}");
         assert_eq!(best.action, "--drift-session session_2:offset-time");
-        let refit = calibrate_tracker(
+        let refit = calibrate(
             &nominal,
             &cal,
-            &TrackerOptions { drift_sessions: vec!["session_2".parse().unwrap()], ..plain },
+            &SolveOptions { drift_sessions: vec!["session_2".parse().unwrap()], ..plain },
         )
         .expect("calibrates");
         let (before, after) = (held_out_rms(&fit, &val), held_out_rms(&refit, &val));

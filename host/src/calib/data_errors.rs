@@ -24,12 +24,13 @@
 //!
 //! A flagged block or touch is scored by refitting without it.
 
-use crate::calib::calibrate::{calibrate, solve_warm, Calibration, CalibrationError, CalibrationOptions};
+use crate::calib::fit::{calibrate, solve_warm, CalibError, Fit};
 use crate::calib::floor::{same_configuration, same_pose};
-use crate::data::{Artefact, Observations};
+use crate::calib::nuisance::frame::Frame;
+use crate::calib::setup::SolveOptions;
+use crate::data::{Landmark, Observations};
 use crate::model::kinematics::tool_pose;
 use crate::model::{ArmModel, ParamId};
-use crate::numerics::geometry::absolute_orientation;
 use crate::numerics::stats::{chi2_quantile, f_upper_tail, normal_upper_tail};
 use nalgebra::Vector3;
 
@@ -83,7 +84,6 @@ pub struct MisSeatedTouch {
 /// `model` and a per-axis touch variance `sigma2_mm2`.
 pub fn suspicious(
     model: &ArmModel,
-    artefact: &Artefact,
     data: &Observations,
     sigma2_mm2: f64,
 ) -> (Vec<DisturbedBlock>, Vec<MisSeatedTouch>) {
@@ -140,7 +140,7 @@ pub fn suspicious(
             let certified = touches
                 .iter()
                 .enumerate()
-                .map(|(i, &k)| (i, k, Vector3::from(artefact.landmarks[data.obs[k].touched()].xyz_mm)))
+                .map(|(i, &k)| (i, k, Vector3::from(data.landmarks[data.obs[k].touched()].xyz_mm)))
                 .collect::<Vec<_>>();
             if certified.len() >= 2 * MIN_SIDE {
                 references.push((certified, false));
@@ -151,11 +151,11 @@ pub fn suspicious(
             let q: Vec<Vector3<f64>> = matched.iter().map(|m| m.2).collect();
             let pm: Vec<Vector3<f64>> = matched.iter().map(|m| p[m.1]).collect();
             let rss_of = |range: std::ops::Range<usize>| {
-                let (r, t) = absolute_orientation(&q[range.clone()], &pm[range.clone()]);
+                let frame = Frame::fit(&q[range.clone()], &pm[range.clone()]);
                 q[range.clone()]
                     .iter()
                     .zip(&pm[range])
-                    .map(|(q, pm)| (pm - (r * q + t)).norm_squared())
+                    .map(|(q, pm)| (pm - frame.apply(q)).norm_squared())
                     .sum::<f64>()
             };
             let rss0 = rss_of(0..matched.len());
@@ -179,18 +179,18 @@ pub fn suspicious(
                 continue;
             }
             // How far apart the two rigid motions put the later touches.
-            let (r1, t1) = absolute_orientation(&q[..i], &pm[..i]);
-            let (r2, t2) = absolute_orientation(&q[i..], &pm[i..]);
-            let moved = (q[i..].iter().map(|q| ((r1 * q + t1) - (r2 * q + t2)).norm_squared()).sum::<f64>()
-                / (matched.len() - i) as f64)
-                .sqrt();
+            let (before, after) = (Frame::fit(&q[..i], &pm[..i]), Frame::fit(&q[i..], &pm[i..]));
+            let moved =
+                (q[i..].iter().map(|q| (before.apply(q) - after.apply(q)).norm_squared()).sum::<f64>()
+                    / (matched.len() - i) as f64)
+                    .sqrt();
             let (position, first, _) = matched[i];
             best = Some((
                 DisturbedBlock {
                     placement: *placement,
                     repeat: *repeat,
                     after_touch: position,
-                    first_moved: artefact.landmarks[data.obs[first].touched()].id.clone(),
+                    first_moved: data.landmarks[data.obs[first].touched()].id.clone(),
                     chi2,
                     moved_mm: moved,
                 },
@@ -213,12 +213,7 @@ pub fn suspicious(
 /// Where landmark `landmark` really is in the artefact frame, from its touches in `data`
 /// (positions from `model`), each mapped back through a rigid fit of the other landmarks of its
 /// block; `None` when no block has it and three others.
-pub fn locate_landmark(
-    model: &ArmModel,
-    artefact: &Artefact,
-    data: &Observations,
-    landmark: usize,
-) -> Option<[f64; 3]> {
+pub fn locate_landmark(model: &ArmModel, data: &Observations, landmark: usize) -> Option<[f64; 3]> {
     let p: Vec<Vector3<f64>> = data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
     let mut sum = Vector3::zeros();
     let mut n = 0usize;
@@ -229,11 +224,11 @@ pub fn locate_landmark(
             continue;
         }
         let q: Vec<Vector3<f64>> =
-            others.iter().map(|&k| Vector3::from(artefact.landmarks[data.obs[k].touched()].xyz_mm)).collect();
+            others.iter().map(|&k| Vector3::from(data.landmarks[data.obs[k].touched()].xyz_mm)).collect();
         let pm: Vec<Vector3<f64>> = others.iter().map(|&k| p[k]).collect();
-        let (r, t) = absolute_orientation(&q, &pm);
+        let frame = Frame::fit(&q, &pm);
         for &k in &this {
-            sum += r.transpose() * (p[k] - t);
+            sum += frame.rotation.transpose() * (p[k] - frame.translation_mm);
             n += 1;
         }
     }
@@ -247,14 +242,17 @@ pub fn locate_landmark(
 /// locate it, refit with the located position. Returns the fit and the corrected artefact.
 pub fn calibrate_with_landmark_freed(
     start: &ArmModel,
-    artefact: &Artefact,
     cal: &Observations,
     landmark: usize,
-    options: &CalibrationOptions,
-) -> Result<(Calibration, Artefact), CalibrationError> {
-    let without = calibrate(start, artefact, &cal.without_landmark(landmark), options)?;
-    let corrected = located(&without.model, artefact, cal, landmark);
-    let fit = calibrate(&without.model, &corrected, cal, &CalibrationOptions { restarts: 0, ..*options })?;
+    options: &SolveOptions,
+) -> Result<(Fit, Vec<Landmark>), CalibError> {
+    let without = calibrate(start, &cal.without_landmark(landmark), options)?;
+    let corrected = located(&without.model, cal, landmark);
+    let fit = calibrate(
+        &without.model,
+        &cal.with_landmarks(&corrected),
+        &SolveOptions { restarts: Some(0), ..options.clone() },
+    )?;
     Ok((fit, corrected))
 }
 
@@ -263,21 +261,20 @@ pub fn calibrate_with_landmark_freed(
 pub fn refit_with_landmark_freed(
     calibrated: &ArmModel,
     params: &[ParamId],
-    artefact: &Artefact,
     cal: &Observations,
     landmark: usize,
-    options: &CalibrationOptions,
-) -> Result<(ArmModel, Artefact), CalibrationError> {
-    let without = solve_warm(calibrated, params, artefact, &cal.without_landmark(landmark), options)?;
-    let corrected = located(&without, artefact, cal, landmark);
-    Ok((solve_warm(&without, params, &corrected, cal, options)?, corrected))
+    options: &SolveOptions,
+) -> Result<(ArmModel, Vec<Landmark>), CalibError> {
+    let without = solve_warm(calibrated, params, &cal.without_landmark(landmark), options)?;
+    let corrected = located(&without, cal, landmark);
+    Ok((solve_warm(&without, params, &cal.with_landmarks(&corrected), options)?, corrected))
 }
 
 /// `artefact` with landmark `landmark` where `model` locates it (unchanged when it cannot).
-fn located(model: &ArmModel, artefact: &Artefact, cal: &Observations, landmark: usize) -> Artefact {
-    let mut corrected = artefact.clone();
-    if let Some(xyz) = locate_landmark(model, artefact, cal, landmark) {
-        corrected.landmarks[landmark].xyz_mm = xyz;
+fn located(model: &ArmModel, cal: &Observations, landmark: usize) -> Vec<Landmark> {
+    let mut corrected = cal.landmarks.clone();
+    if let Some(xyz) = locate_landmark(model, cal, landmark) {
+        corrected[landmark].xyz_mm = xyz;
     }
     corrected
 }
@@ -304,7 +301,7 @@ fn repeat_groups(data: &Observations) -> Vec<Vec<usize>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::{Landmark, ARTEFACT_FORMAT};
+    use crate::data::{Artefact, Landmark, ARTEFACT_FORMAT};
 
     #[test]
     fn blocks_keep_the_measured_order() {
@@ -341,7 +338,7 @@ mod tests {
         };
         let touches: Vec<(usize, usize, u32, &[f64])> = (0..4).map(|l| (0, l, 1, &enc[l][..])).collect();
         let data = Observations::from_touches(&["A"], artefact.landmarks.clone(), &touches);
-        let found = locate_landmark(&model, &artefact, &data, 3).expect("located");
+        let found = locate_landmark(&model, &data, 3).expect("located");
         assert!((Vector3::from(found) - p[3]).norm() < 1e-6, "{found:?} vs {:?}", p[3]);
     }
 }

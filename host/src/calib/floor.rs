@@ -40,11 +40,10 @@
 //!   floor in quadrature (the validation RMS within 14 % of the expected);
 //! * otherwise *cannot tell*: neither a gap nor closeness to the floor is shown by these data.
 
-use crate::calib::objective::{CalibrationProblem, Objective};
-use crate::data::{Artefact, Observations};
+use crate::calib::fit::dense_jacobian;
+use crate::data::Observations;
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
 use crate::model::{ArmModel, ParamId};
-use crate::numerics::solver::Residuals;
 use crate::numerics::stats::chi2_quantile;
 use nalgebra::{DMatrix, Matrix3, Vector3};
 
@@ -153,7 +152,6 @@ pub fn same_configuration(data: &Observations, idx: &[usize]) -> Vec<Vec<usize>>
 /// on `cal`. `None` when no landmark was touched twice in one placement.
 pub fn noise_floor(
     model: &ArmModel,
-    artefact: &Artefact,
     cal: &Observations,
     val: &Observations,
     parameters: usize,
@@ -168,7 +166,7 @@ pub fn noise_floor(
     for data in [cal, val] {
         let p: Vec<Vector3<f64>> = data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
         for placement in 0..data.groups.len() {
-            for landmark in 0..artefact.landmarks.len() {
+            for landmark in 0..data.landmarks.len() {
                 let idx: Vec<usize> = (0..p.len())
                     .filter(|&k| data.obs[k].group == placement && data.obs[k].landmark() == Some(landmark))
                     .collect();
@@ -219,7 +217,7 @@ pub fn noise_floor(
         } else {
             inconsistent.push((
                 g.placement.clone(),
-                artefact.landmarks[g.landmark].id.clone(),
+                cal.landmarks[g.landmark].id.clone(),
                 per_axis(g).sqrt(),
             ));
         }
@@ -268,11 +266,10 @@ impl NoiseFloor {
         mut self,
         model: &ArmModel,
         params: &[ParamId],
-        artefact: &Artefact,
         cal: &Observations,
         val: &Observations,
     ) -> NoiseFloor {
-        let Some((extrapolation, dof)) = leverage_ratio(model, params, artefact, cal, val) else {
+        let Some((extrapolation, dof)) = leverage_ratio(model, params, cal, val) else {
             return self;
         };
         self.estimate_share *= extrapolation;
@@ -284,19 +281,9 @@ impl NoiseFloor {
 }
 
 /// Jacobian of the distance errors of `data`'s pairs with respect to `params` (rows × params).
-fn pair_jacobian(
-    model: &ArmModel,
-    params: &[ParamId],
-    artefact: &Artefact,
-    data: &Observations,
-) -> DMatrix<f64> {
-    let problem = CalibrationProblem::new(model, params.to_vec(), artefact, data, Objective::Distance);
-    let values: Vec<f64> = params.iter().map(|&p| model.get(p)).collect();
-    let (rows, n) = (problem.len(), params.len());
-    let mut r = vec![0.0; rows];
-    let mut jac = vec![0.0; rows * n];
-    problem.evaluate(&values, &mut r, Some(&mut jac));
-    DMatrix::from_row_slice(rows, n, &jac)
+fn pair_jacobian(model: &ArmModel, params: &[ParamId], data: &Observations) -> DMatrix<f64> {
+    let (r, jac) = dense_jacobian(model, params, data, None);
+    DMatrix::from_row_slice(r.len(), params.len(), &jac)
 }
 
 /// (mean leverage of a `val` pair / mean leverage of a `cal` pair, effective degrees of freedom
@@ -305,14 +292,13 @@ fn pair_jacobian(
 fn leverage_ratio(
     model: &ArmModel,
     params: &[ParamId],
-    artefact: &Artefact,
     cal: &Observations,
     val: &Observations,
 ) -> Option<(f64, f64)> {
     if params.is_empty() {
         return None;
     }
-    let (jc, jv) = (pair_jacobian(model, params, artefact, cal), pair_jacobian(model, params, artefact, val));
+    let (jc, jv) = (pair_jacobian(model, params, cal), pair_jacobian(model, params, val));
     if jc.nrows() <= params.len() || jv.nrows() == 0 {
         return None;
     }

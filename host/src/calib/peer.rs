@@ -2,7 +2,7 @@
 //! solves with `least_squares(method='trf', loss='huber')` and its own numpy kinematics, so that
 //! kincal's solver can be compared with an independent one (test `scipy_peer`, `kincal bench`).
 
-use crate::data::{Artefact, Observations};
+use crate::data::Observations;
 use crate::model::{ArmModel, ParamId};
 use crate::simulate::{simulate, SimulatedData, SimulationOptions};
 use std::path::{Path, PathBuf};
@@ -23,7 +23,7 @@ pub enum PeerError {
     Peer(String),
     /// The calibration could not run.
     #[error(transparent)]
-    Calibration(#[from] crate::calib::calibrate::CalibrationError),
+    Calibration(#[from] crate::calib::fit::CalibError),
 }
 
 /// What the SciPy peer reports.
@@ -51,7 +51,6 @@ pub fn write_peer_problem(
     path: &Path,
     nominal: &ArmModel,
     params: &[ParamId],
-    artefact: &Artefact,
     data: &Observations,
     huber_delta_mm: f64,
 ) -> Result<(), PeerError> {
@@ -69,7 +68,7 @@ pub fn write_peer_problem(
         serde_json::from_str(&nominal.to_text(true)).map_err(|e| PeerError::Peer(e.to_string()))?;
     let problem = serde_json::json!({
         "model": model,
-        "landmarks_mm": artefact.landmarks.iter().map(|l| l.xyz_mm).collect::<Vec<_>>(),
+        "landmarks_mm": data.landmarks.iter().map(|l| l.xyz_mm).collect::<Vec<_>>(),
         "touches": data.obs.iter().map(|t| serde_json::json!({"placement": t.group, "landmark": t.touched(), "repeat": t.repeat, "enc_deg": t.q_deg})).collect::<Vec<_>>(),
         "params": params.iter().map(|p| p.to_string()).collect::<Vec<_>>(),
         "x0": params.iter().map(|p| nominal.get(*p)).collect::<Vec<_>>(),

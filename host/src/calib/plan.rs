@@ -30,13 +30,13 @@
 //! calibrated arm (random configuration per touch, seeded), kept when at least
 //! [`MIN_TOUCHES`] landmarks are reachable with every joint above the table.
 
-use crate::calib::calibrate::{calibrate, CalibrationError, CalibrationOptions};
 use crate::calib::diagnose::diagnose;
+use crate::calib::fit::{calibrate, CalibError, Fit};
+use crate::calib::setup::SolveOptions;
 use crate::data::{Artefact, Joints, Observation, Observations, Session, SESSION_FORMAT};
 use crate::model::effects::{default_half_range, Effect};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
 use crate::model::{ArmModel, ParamId};
-use crate::numerics::geometry::absolute_orientation;
 use crate::simulate::{touch_encoders, Placement, SimulatedData, SimulationOptions};
 use nalgebra::{DMatrix, DVector, Vector3};
 use rand::{RngExt, SeedableRng};
@@ -163,11 +163,11 @@ fn rigid_residuals(model: &ArmModel, artefact: &Artefact, touches: &[&Observatio
     let p: Vec<Vector3<f64>> = touches.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
     let q: Vec<Vector3<f64>> =
         touches.iter().map(|t| Vector3::from(artefact.landmarks[t.touched()].xyz_mm)).collect();
-    let (r, t) = absolute_orientation(&q, &p);
+    let frame = crate::calib::nuisance::frame::Frame::fit(&q, &p);
     Some(DVector::from_iterator(
         3 * p.len(),
         p.iter().zip(&q).flat_map(|(p, q)| {
-            let e = p - (r * q + t);
+            let e = p - frame.apply(q);
             [e.x, e.y, e.z]
         }),
     ))
@@ -695,12 +695,12 @@ pub fn separation(
     a: Effect,
     b: Effect,
     touch_std_mm: f64,
-) -> Result<f64, CalibrationError> {
-    let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
-    let ssr = |e: Effect| -> Result<f64, CalibrationError> {
+) -> Result<f64, CalibError> {
+    let options = SolveOptions { restarts: Some(0), ..SolveOptions::default() };
+    let ssr = |e: Effect| -> Result<f64, CalibError> {
         let mut model = calibrated.clone();
         e.add_to(&mut model);
-        let fit = calibrate(&model, artefact, data, &options)?;
+        let fit = calibrate(&model, data, &options)?;
         Ok(rigid_ssr(&fit.model, artefact, data, touch_std_mm.powi(2)))
     };
     Ok(ssr(b)? - ssr(a)?)
@@ -793,8 +793,8 @@ impl Trial {
         candidates: &[CandidatePlacement],
         suggested: &[SuggestedPlacement],
         trial: &TrialOptions,
-        figure: impl Fn(&Observations) -> Result<f64, CalibrationError>,
-    ) -> Result<(f64, Vec<f64>), CalibrationError> {
+        figure: impl Fn(&Observations) -> Result<f64, CalibError>,
+    ) -> Result<(f64, Vec<f64>), CalibError> {
         let mut rng = ChaCha8Rng::seed_from_u64(trial.seed ^ 0x9e37_79b9);
         let score = |design: &[&CandidatePlacement], rng: &mut ChaCha8Rng| {
             let mut sessions = self.old.clone();
@@ -851,15 +851,15 @@ pub fn rival_trial(
     a: Effect,
     b: Effect,
     trial: &TrialOptions,
-) -> Result<RivalOutcome, CalibrationError> {
+) -> Result<RivalOutcome, CalibError> {
     let sim_options =
         SimulationOptions { seed: trial.seed, hidden: hidden.to_vec(), ..SimulationOptions::default() };
     let sim = crate::simulate::simulate(nominal, &sim_options);
     let artefact = &sim.artefact;
     let cal = Observations::from_sessions(&sim.calibration, artefact);
     let val = Observations::from_sessions(&sim.validation, artefact);
-    let calibration = CalibrationOptions { restarts: 2, seed: trial.seed, ..CalibrationOptions::default() };
-    let fit = calibrate(nominal, artefact, &cal, &calibration)?;
+    let calibration = SolveOptions { restarts: Some(2), seed: trial.seed, ..SolveOptions::default() };
+    let fit = calibrate(nominal, &cal, &calibration)?;
     let sigma = sim_options.seating_noise_mm;
     let options = PlanOptions { count: trial.count, seed: trial.seed, touch_std_mm: sigma };
     let candidates = candidate_placements(&fit.model, artefact, trial.seed);
@@ -880,12 +880,11 @@ pub fn rival_trial(
         )?;
         let sessions: Vec<Session> = sim.calibration.iter().chain(&new).cloned().collect();
         let more = Observations::from_sessions(&sessions, artefact);
-        let refit =
-            calibrate(&fit.model, artefact, &more, &CalibrationOptions { restarts: 0, ..calibration })?;
-        let named = diagnose(&refit.model, artefact, &more, &val, &calibration).named;
-        Ok::<_, CalibrationError>((named, separated))
+        let refit = calibrate(&fit.model, &more, &SolveOptions { restarts: Some(0), ..calibration.clone() })?;
+        let named = diagnose(&refit.model, &more, &val, &calibration).named;
+        Ok::<_, CalibError>((named, separated))
     };
-    let before = diagnose(&fit.model, artefact, &cal, &val, &calibration).named;
+    let before = diagnose(&fit.model, &cal, &val, &calibration).named;
     let so_far: Vec<Session> = sim.calibration.iter().chain(&sim.validation).cloned().collect();
     let separated_before =
         separation(&fit.model, artefact, &Observations::from_sessions(&so_far, artefact), a, b, sigma)?;
@@ -914,25 +913,21 @@ pub fn rival_trial(
 /// calibration placements of a simulated arm, measure them, recalibrate, and compare the std of
 /// the parameter the plan names weakest with that after as many random placements. Returns the
 /// parameter and its stds (as the calibration reports them).
-pub fn weak_trial(
-    nominal: &ArmModel,
-    trial: &TrialOptions,
-) -> Result<(String, TrialOutcome), CalibrationError> {
+pub fn weak_trial(nominal: &ArmModel, trial: &TrialOptions) -> Result<(String, TrialOutcome), CalibError> {
     let t = Trial::new(nominal, &[], trial);
     let (artefact, cal) = (&t.sim.artefact, &t.cal);
-    let calibration = CalibrationOptions { restarts: 0, seed: trial.seed, ..CalibrationOptions::default() };
-    let fit = calibrate(nominal, artefact, cal, &calibration)?;
+    let calibration = SolveOptions { restarts: Some(0), seed: trial.seed, ..SolveOptions::default() };
+    let fit = calibrate(nominal, cal, &calibration)?;
     let options =
         PlanOptions { count: trial.count, seed: trial.seed, touch_std_mm: t.sim_options.seating_noise_mm };
     let candidates = candidate_placements(&fit.model, artefact, trial.seed);
     let planned = plan_weak(&fit.model, artefact, cal, &candidates, &options);
     let worst = planned.stds.first().map(|s| s.0.clone()).unwrap_or_default();
-    let std_of = |fit: &crate::calib::calibrate::Calibration| {
-        fit.estimates.iter().find(|e| e.param == worst).and_then(|e| e.std).unwrap_or(f64::NAN)
-    };
+    let std_of =
+        |fit: &Fit| fit.estimates.iter().find(|e| e.param == worst).and_then(|e| e.std).unwrap_or(f64::NAN);
     let before = std_of(&fit);
     let (planned_std, random) = t.planned_and_random(&candidates, &planned.placements, trial, |data| {
-        Ok(std_of(&calibrate(&fit.model, artefact, data, &calibration)?))
+        Ok(std_of(&calibrate(&fit.model, data, &calibration)?))
     })?;
     Ok((worst, TrialOutcome { before, planned: planned_std, random }))
 }

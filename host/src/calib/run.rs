@@ -6,13 +6,10 @@
 //! `residuals.json` ([`StoredResiduals`], every validation distance error, for `kincal compare`)
 //! and `report.html`. Writing the folder is [`crate::output`]'s job.
 
-use crate::calib::calibrate::{
-    calibrate, check_data, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome,
-    HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS,
-};
+use crate::calib::fit::{calibrate, check_data, dense_jacobian, CalibError, Estimate, Fit, StartOutcome};
 use crate::calib::identify::{self, Identifiability};
-use crate::calib::objective::{CalibrationProblem, Objective};
 use crate::calib::outliers::{landmark_outliers, LandmarkOutlier};
+use crate::calib::setup::{Objective, SolveOptions, HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions, StudyRow};
 use crate::calib::trust::{result_problems, TrustScales};
 use crate::calib::validate::{self, validate, ErrorStats, GroupStats, Repeatability, Validation};
@@ -22,7 +19,6 @@ use crate::files::{field_error, read_tagged};
 use crate::model::effects::Effect;
 use crate::model::file::MAX_REACH_MM;
 use crate::model::ArmModel;
-use crate::numerics::solver::Residuals;
 use std::path::{Path, PathBuf};
 
 /// Why a run failed.
@@ -33,7 +29,7 @@ pub enum RunError {
     Data(#[from] FileError),
     /// The calibration could not run.
     #[error(transparent)]
-    Calibration(#[from] CalibrationError),
+    Calibration(#[from] CalibError),
     /// `--exclude-landmark` or `--exclude-block` names nothing in the data.
     #[error("{0}")]
     Exclusion(String),
@@ -264,7 +260,7 @@ impl SummaryOptions {
                 format!("expected at most {MAX_RESTARTS}, found {}", self.restarts),
             ));
         }
-        if let Objective::SixDof { lever_mm } = self.objective {
+        if let Objective::SixDof { lever_mm: Some(lever_mm) } = self.objective {
             if !within(lever_mm, LEVER_RANGE_MM) {
                 let (lo, hi) = LEVER_RANGE_MM;
                 return Err((
@@ -280,13 +276,13 @@ impl SummaryOptions {
     }
 
     /// The calibration options these record.
-    pub fn calibration_options(&self) -> CalibrationOptions {
-        CalibrationOptions {
-            huber_delta_mm: self.huber_delta_mm,
-            restarts: self.restarts,
+    pub fn calibration_options(&self) -> SolveOptions {
+        SolveOptions {
+            huber_delta_mm: Some(self.huber_delta_mm),
+            restarts: Some(self.restarts),
             seed: self.seed,
-            objective: self.objective,
-            ..CalibrationOptions::default()
+            objective: Some(self.objective),
+            ..SolveOptions::default()
         }
     }
 }
@@ -465,10 +461,10 @@ impl RunFolder {
         let inputs = &self.summary.inputs;
         let artefact = Artefact::load(&inputs.artefact)?;
         let (cal, val) = inputs.load_data(&artefact)?;
-        check_run_data(&self.model, &artefact, &cal, &val, inputs, self.summary.options.objective)?;
+        check_run_data(&self.model, &cal, &val, inputs, &self.summary.options.calibration_options())?;
         let nominal = ArmModel::load(&self.dir.join("nominal.toml"))?;
-        let scales = TrustScales::of(&nominal, &artefact, &cal, &val);
-        let rms = |data: &Observations| validate::validate(&self.model, &artefact, data).overall.rms_mm;
+        let scales = TrustScales::of(&nominal, &cal, &val);
+        let rms = |data: &Observations| validate::validate(&self.model, data).overall.rms_mm;
         let beyond = scales.beyond(rms(&cal), rms(&val));
         if !beyond.is_empty() {
             return Err(RunError::NotACalibration(beyond));
@@ -529,7 +525,7 @@ pub struct Run {
     /// The summary written to `summary.json`.
     pub summary: Summary,
     /// The calibration itself.
-    pub calibration: Calibration,
+    pub calibration: Fit,
     /// Calibrated model on the validation data.
     pub validation: Validation,
     /// Nominal model on the validation data.
@@ -542,19 +538,11 @@ pub struct Run {
     pub steps: StepTimes,
 }
 
-fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Observations) -> ObjectiveComparison {
+fn objective_comparison(fit: &Fit, cal: &Observations) -> ObjectiveComparison {
     let all: Vec<_> = fit.model.free.iter().map(|f| f.id).collect();
     let ranges: Vec<f64> = fit.model.free.iter().map(|f| (f.upper - f.lower).max(1e-9)).collect();
-    let x = fit.model.free_values();
-    let jacobian = |objective| {
-        let problem = CalibrationProblem::new(&fit.model, all.clone(), artefact, cal, objective);
-        let mut r = vec![0.0; problem.len()];
-        let mut jac = vec![0.0; problem.len() * all.len()];
-        problem.evaluate(&x, &mut r, Some(&mut jac));
-        jac
-    };
-    let (distance, six_dof) =
-        (jacobian(Objective::Distance), jacobian(Objective::SixDof { lever_mm: 100.0 }));
+    let jacobian = |lever_mm| dense_jacobian(&fit.model, &all, cal, lever_mm).1;
+    let (distance, six_dof) = (jacobian(None), jacobian(Some(crate::calib::setup::DEFAULT_LEVER_MM)));
     let names = |jac: &[f64]| -> Vec<String> {
         identify::base_columns(jac, all.len(), &ranges).0.into_iter().map(|c| all[c].to_string()).collect()
     };
@@ -589,23 +577,22 @@ fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Observatio
 /// few distance pairs, non-finite positions, touches without information).
 pub fn check_run_data(
     model: &ArmModel,
-    artefact: &Artefact,
     cal: &Observations,
     val: &Observations,
     inputs: &RunInputs,
-    objective: Objective,
+    options: &SolveOptions,
 ) -> Result<(), RunError> {
     if val.pair_count() == 0 {
         return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
     }
-    let (span, reach) = (artefact.span_mm(), model.reach_mm());
+    let (span, reach) = (cal.landmark_span_mm(), model.reach_mm());
     if span > 2.0 * reach {
         return Err(RunError::OutOfReach { span, reach });
     }
     if let Some((validation, calibration)) = copied_placement(cal, val) {
         return Err(RunError::SameData { validation, calibration });
     }
-    check_data(model, artefact, cal, objective)?;
+    check_data(model, cal, options)?;
     Ok(())
 }
 
@@ -615,7 +602,7 @@ pub fn check_run_data(
 /// placement count.
 pub fn run(
     inputs: &RunInputs,
-    options: &CalibrationOptions,
+    options: &SolveOptions,
     effects: &[Effect],
     study_subsets: usize,
     outliers: bool,
@@ -640,22 +627,21 @@ pub fn run(
     let artefact = Artefact::load(&inputs.artefact)?;
     let (cal, val) = inputs.load_data(&artefact)?;
     steps.lap("load");
-    check_run_data(&nominal, &artefact, &cal, &val, inputs, options.objective)?;
+    check_run_data(&nominal, &cal, &val, inputs, options)?;
     check_study_size(&cal, study_subsets)?;
     steps.lap("input checks");
-    let fit = calibrate(&nominal, &artefact, &cal, options)?;
+    let fit = calibrate(&nominal, &cal, options)?;
     steps.lap("fit");
-    let validation = validate(&fit.model, &artefact, &val);
-    let nominal_validation = validate(&nominal, &artefact, &val);
+    let validation = validate(&fit.model, &val);
+    let nominal_validation = validate(&nominal, &val);
     steps.lap("validation");
-    let scales = TrustScales::of(&nominal, &artefact, &cal, &val);
+    let scales = TrustScales::of(&nominal, &cal, &val);
     let mut not_trustworthy = result_problems(&fit, &validation, &scales);
     steps.lap("trust scales");
     let study_rows = (study_subsets > 0).then(|| {
-        let calibration = CalibrationOptions { restarts: 0, ..*options };
+        let calibration = SolveOptions { restarts: Some(0), ..options.clone() };
         study(
             &nominal,
-            &artefact,
             &cal,
             &val,
             &StudyOptions { subsets: study_subsets, seed: options.seed, calibration, progress: false },
@@ -666,20 +652,19 @@ pub fn run(
         steps.lap("study");
     }
     let outliers_skipped = !outliers;
-    let outliers =
-        if outliers { landmark_outliers(&fit, &artefact, &cal, Some(&val), options) } else { Vec::new() };
+    let outliers = if outliers { landmark_outliers(&fit, &cal, Some(&val), options) } else { Vec::new() };
     steps.lap("outliers");
-    let objective_comparison = objective_comparison(&fit, &artefact, &cal);
+    let objective_comparison = objective_comparison(&fit, &cal);
     steps.lap("6-DoF comparison");
     let summary = Summary {
         format: RUN_FORMAT.to_string(),
         kincal_version: env!("CARGO_PKG_VERSION").to_string(),
         inputs: inputs.clone(),
         options: SummaryOptions {
-            huber_delta_mm: options.huber_delta_mm,
-            restarts: options.restarts,
+            huber_delta_mm: fit.options.huber_delta_mm().unwrap_or_default(),
+            restarts: fit.options.restarts,
             seed: options.seed,
-            objective: options.objective,
+            objective: fit.options.objective,
             added_effects: effects.iter().map(|e| e.to_string()).collect(),
         },
         calibration: CalibrationSummary {
@@ -692,7 +677,10 @@ pub fn run(
             correlations: fit.correlations.clone(),
             starts: fit.starts.clone(),
         },
-        identifiability: IdentifiabilitySummary { before: fit.before.clone(), after: fit.after.clone() },
+        identifiability: IdentifiabilitySummary {
+            before: fit.before.clone(),
+            after: fit.after.clone().unwrap_or_else(|| fit.before.clone()),
+        },
         validation: validation.overall,
         nominal_validation: nominal_validation.overall,
         validation_detail: ValidationDetail {
@@ -776,13 +764,13 @@ mod tests {
         let ours = simulate(&nominal, &SimulationOptions::default());
         let other = simulate(&nominal, &SimulationOptions { seed: 2, ..SimulationOptions::default() });
         let cal = Observations::from_sessions(&ours.calibration, &ours.artefact);
-        let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
-        let fit = calibrate(&nominal, &ours.artefact, &cal, &options).unwrap();
+        let options = SolveOptions { restarts: Some(0), ..SolveOptions::default() };
+        let fit = calibrate(&nominal, &cal, &options).unwrap();
         let val = Observations::from_sessions(&ours.validation, &ours.artefact);
-        let scales = TrustScales::of(&nominal, &ours.artefact, &cal, &val);
-        assert!(result_problems(&fit, &validate(&fit.model, &ours.artefact, &val), &scales).is_empty());
+        let scales = TrustScales::of(&nominal, &cal, &val);
+        assert!(result_problems(&fit, &validate(&fit.model, &val), &scales).is_empty());
         let foreign = Observations::from_sessions(&other.validation, &ours.artefact);
-        let problems = result_problems(&fit, &validate(&fit.model, &ours.artefact, &foreign), &scales);
+        let problems = result_problems(&fit, &validate(&fit.model, &foreign), &scales);
         assert!(problems.iter().any(|p| p.contains("another arm")), "{problems:?}");
         assert_eq!(copied_placement(&cal, &val), None);
         assert_eq!(copied_placement(&cal, &cal), Some(("A_O".into(), "A_O".into())));

@@ -6,10 +6,11 @@
 //! calibration beyond the model-independent scales ([`crate::calib::trust`]) is not a sample: it
 //! is counted in `implausible`, its figure left out.
 
-use crate::calib::calibrate::{calibrate, CalibrationOptions};
+use crate::calib::fit::calibrate;
+use crate::calib::setup::SolveOptions;
 use crate::calib::trust::TrustScales;
 use crate::calib::validate::{distance_errors, ErrorStats};
-use crate::data::{Artefact, Observations};
+use crate::data::Observations;
 use crate::model::ArmModel;
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::seq::SliceRandom;
@@ -18,14 +19,14 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 /// Settings of a study.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct StudyOptions {
     /// Random subsets per subset size.
     pub subsets: usize,
     /// Seed of the subset draws.
     pub seed: u64,
     /// Settings of each calibration.
-    pub calibration: CalibrationOptions,
+    pub calibration: SolveOptions,
     /// Draw a progress bar on stderr.
     pub progress: bool,
 }
@@ -181,7 +182,6 @@ enum Outcome {
 /// Run the study. Uses every core rayon is given.
 pub fn study(
     nominal: &ArmModel,
-    artefact: &Artefact,
     cal: &Observations,
     val: &Observations,
     options: &StudyOptions,
@@ -192,7 +192,7 @@ pub fn study(
     for k in 1..=n {
         tasks.extend(distinct_subsets(n, k, options.subsets, &mut rng).into_iter().map(|s| (k, s)));
     }
-    let scales = TrustScales::of(nominal, artefact, cal, val);
+    let scales = TrustScales::of(nominal, cal, val);
     let bar = if options.progress { ProgressBar::new(tasks.len() as u64) } else { ProgressBar::hidden() };
     if let Ok(style) =
         ProgressStyle::with_template("{bar:40} {pos}/{len} calibrations, {elapsed} elapsed, ETA {eta}")
@@ -202,13 +202,12 @@ pub fn study(
     let results: Vec<(usize, Outcome)> = tasks
         .par_iter()
         .map(|(k, subset)| {
-            let outcome = match calibrate(nominal, artefact, &cal.subset(subset), &options.calibration) {
+            let outcome = match calibrate(nominal, &cal.subset(subset), &options.calibration) {
                 Err(_) => Outcome::Failed,
                 Ok(fit) => {
-                    let e: Vec<f64> =
-                        distance_errors(&fit.model, artefact, val).iter().map(|e| e.error_mm).collect();
+                    let e: Vec<f64> = distance_errors(&fit.model, val).iter().map(|e| e.error_mm).collect();
                     let v = ErrorStats::of(&e);
-                    if v.pairs == 0 || !v.rms_mm.is_finite() {
+                    if v.count == 0 || !v.rms_mm.is_finite() {
                         // A calibration whose validation is empty or not finite is a failed one.
                         Outcome::Failed
                     } else if !scales.calibration_beyond(fit.rms_mm).is_empty()
@@ -285,9 +284,9 @@ mod tests {
             Observations::from_sessions(&sim.validation, &sim.artefact),
         );
         let cal = cal.subset(&[0, 1, 2]);
-        let calibration = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
+        let calibration = SolveOptions { restarts: Some(0), ..SolveOptions::default() };
         let options = StudyOptions { subsets: 100, seed: 1, calibration, progress: false };
-        let rows = study(&nominal, &sim.artefact, &cal, &val, &options);
+        let rows = study(&nominal, &cal, &val, &options);
         let drawn: Vec<(usize, usize)> =
             rows.iter().map(|r| (r.calibrations + r.failed + r.implausible, r.possible_subsets)).collect();
         assert_eq!(drawn, vec![(3, 3), (3, 3), (1, 1)], "every subset once, never 100 copies");
@@ -295,7 +294,7 @@ mod tests {
         let mut wrong = nominal.clone();
         wrong.set(crate::model::ParamId::Length(4), -371.0);
         wrong.free_param(crate::model::ParamId::Length(4), -381.0, -361.0);
-        let rows = study(&wrong, &sim.artefact, &cal, &val, &options);
+        let rows = study(&wrong, &cal, &val, &options);
         assert!(
             rows.iter().all(|r| r.calibrations == 0 && r.rms_mm.is_empty()),
             "no figure of an absurd model"

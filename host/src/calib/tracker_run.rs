@@ -10,15 +10,16 @@
 //! scaled by √(1 − 2/n) for the six values of a refitted base; otherwise unknown, and then the
 //! model is never said to explain the data.
 
-use crate::calib::tracker::{
-    calibrate_tracker, calibration_residuals_mm, errors_in_calibration_session, fit_session_with_tool,
-    orientation_errors_deg, session_residuals_mm, validate_orientations, validate_session, AngleStats,
-    ErrorStats, FloatedTool, SessionValidation, ToolRotation, TrackerCalibration, TrackerError,
-    TrackerEstimate, TrackerIdentifiability, TrackerOptions,
+use crate::calib::fit::{calibrate, CalibError, Estimate, Fit, IdentifiabilityReport};
+use crate::calib::nuisance::drift::{DriftSpec, SessionDrift};
+use crate::calib::nuisance::tool::{FloatedTool, ToolRotation};
+use crate::calib::setup::SolveOptions;
+use crate::calib::tracker_errors::{data_error_candidates, sessions, DataError};
+use crate::calib::validate::{
+    calibration_residuals_mm, errors_in_calibration_session, fit_session_with_tool, orientation_errors_deg,
+    session_residuals_mm, validate_orientations, validate_session, AngleStats, ErrorStats, SessionValidation,
 };
-use crate::calib::tracker::{TrackerData, TrackerSession};
-use crate::calib::tracker_drift::{DriftSpec, SessionDrift};
-use crate::calib::tracker_errors::{data_error_candidates, DataError};
+use crate::data::Observations;
 use crate::files::FileError;
 use crate::model::effects::Effect;
 use crate::model::{ArmModel, ParamId};
@@ -39,7 +40,7 @@ pub enum TrackerRunError {
     Data(#[from] FileError),
     /// The calibration could not run.
     #[error(transparent)]
-    Calibration(#[from] TrackerError),
+    Calibration(#[from] CalibError),
     /// `--exclude-point` names no calibration point.
     #[error("--exclude-point {0}: no calibration session and line of that name (expected SESSION:LINE)")]
     UnknownPoint(String),
@@ -168,14 +169,14 @@ pub struct TrackerSummary {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tool_rotation: Option<ToolRotation>,
     /// Parameter estimates.
-    pub estimates: Vec<TrackerEstimate>,
+    pub estimates: Vec<Estimate>,
     /// Floated tools.
     pub tool_offsets: Vec<FloatedTool>,
     /// Drifting sessions' rates.
     #[serde(default)]
     pub drifts: Vec<SessionDrift>,
     /// What the data cannot separate.
-    pub identifiability: TrackerIdentifiability,
+    pub identifiability: IdentifiabilityReport,
     /// Held-out figures.
     pub validation: TrackerValidation,
     /// The floor.
@@ -220,7 +221,7 @@ pub struct TrackerRun {
     /// The nominal model as loaded.
     pub nominal: ArmModel,
     /// The calibration.
-    pub calibration: TrackerCalibration,
+    pub calibration: Fit,
     /// The summary.
     pub summary: TrackerSummary,
     /// Every held-out point's residual (its session's base refitted), per session, as
@@ -231,74 +232,55 @@ pub struct TrackerRun {
 }
 
 fn pooled(parts: &[SessionValidation]) -> ErrorStats {
-    let points: usize = parts.iter().map(|p| p.points).sum();
-    let n = points.max(1) as f64;
-    ErrorStats {
-        points,
-        rms_mm: (parts.iter().map(|p| p.rms_mm.powi(2) * p.points as f64).sum::<f64>() / n).sqrt(),
-        mean_mm: parts.iter().map(|p| p.mean_mm * p.points as f64).sum::<f64>() / n,
-        max_mm: parts.iter().map(|p| p.max_mm).fold(0.0, f64::max),
-    }
+    ErrorStats::pooled(&parts.iter().map(SessionValidation::stats).collect::<Vec<_>>())
 }
 
-/// Orientation figures pooled over sessions; `None` without any.
-fn pooled_angles(parts: &[AngleStats]) -> Option<AngleStats> {
-    let orientations: usize = parts.iter().map(|p| p.orientations).sum();
-    let n = orientations as f64;
-    (orientations > 0).then(|| AngleStats {
-        orientations,
-        rms_deg: (parts.iter().map(|p| p.rms_deg.powi(2) * p.orientations as f64).sum::<f64>() / n).sqrt(),
-        mean_deg: parts.iter().map(|p| p.mean_deg * p.orientations as f64).sum::<f64>() / n,
-        max_deg: parts.iter().map(|p| p.max_deg).fold(0.0, f64::max),
-    })
-}
-
-/// The residuals of `fit` on held-out `session`, its base (and tool offset `offset_mm`) refitted.
-fn held_out_points(
-    fit: &TrackerCalibration,
-    session: &TrackerSession,
-    offset_mm: [f64; 3],
-) -> SessionResiduals {
-    let residuals = session_residuals_mm(&fit.model, session, offset_mm);
+/// The residuals of `fit` on held-out block `b` of `val`, its frame (and tool offset
+/// `offset_mm`) refitted.
+fn held_out_points(fit: &Fit, val: &Observations, b: usize, offset_mm: [f64; 3]) -> SessionResiduals {
+    let residuals = session_residuals_mm(&fit.model, val, b, offset_mm);
     let angles = fit.tool_rotation.as_ref().map_or_else(
-        || vec![None; session.points.len()],
-        |t| orientation_errors_deg(&fit.model, session, [0.0; 3], &t.rotation()),
+        || vec![None; val.blocks[b].members.len()],
+        |t| orientation_errors_deg(&fit.model, val, b, [0.0; 3], &t.rotation()),
     );
-    session_residuals(session, residuals, angles)
+    session_residuals(val, b, residuals, angles)
 }
 
-/// `session`'s points with their residuals and orientation errors.
+/// Block `b`'s points with their residuals and orientation errors.
 fn session_residuals(
-    session: &TrackerSession,
+    data: &Observations,
+    b: usize,
     residuals: Vec<Vector3<f64>>,
     angles: Vec<Option<f64>>,
 ) -> SessionResiduals {
-    let points = session
-        .points
+    let points = data.blocks[b]
+        .members
         .iter()
+        .map(|&k| &data.obs[k])
         .zip(residuals)
         .zip(angles)
         .map(|((p, r), angle)| PointResidual {
             line: p.line,
             pose: p.pose.clone(),
             time_s: p.time_s,
-            q_deg: p.q_deg.clone(),
+            q_deg: p.q_deg.to_vec(),
             residual_mm: r.into(),
             orientation_error_deg: angle,
         })
         .collect();
-    SessionResiduals { name: session.name.clone(), points }
+    SessionResiduals { name: data.block_name(b), points }
 }
 
 /// The held-out floor (see the module's doc comment).
-pub fn floor(sessions: &[TrackerSession], stated_sigma_mm: Option<f64>) -> TrackerFloor {
+pub fn floor(val: &Observations, stated_sigma_mm: Option<f64>) -> TrackerFloor {
     let (mut sum, mut dof) = (0.0, 0usize);
     let mut fit_share = Vec::new();
-    for s in sessions {
+    for b in sessions(val) {
+        let members = &val.blocks[b].members;
         let mut groups: BTreeMap<&str, Vec<Vector3<f64>>> = BTreeMap::new();
-        for p in &s.points {
-            if let Some(pose) = &p.pose {
-                groups.entry(pose).or_default().push(p.point_mm);
+        for p in members.iter().map(|&k| &val.obs[k]) {
+            if let (Some(pose), Some(x)) = (&p.pose, p.point_mm()) {
+                groups.entry(pose).or_default().push(x);
             }
         }
         for g in groups.values().filter(|g| g.len() > 1) {
@@ -306,7 +288,7 @@ pub fn floor(sessions: &[TrackerSession], stated_sigma_mm: Option<f64>) -> Track
             sum += g.iter().map(|v| (v - mean).norm_squared()).sum::<f64>();
             dof += g.len() - 1;
         }
-        fit_share.push((1.0 - 2.0 / s.points.len().max(3) as f64, s.points.len()));
+        fit_share.push((1.0 - 2.0 / members.len().max(3) as f64, members.len()));
     }
     let points: usize = fit_share.iter().map(|f| f.1).sum();
     let shrink =
@@ -317,8 +299,11 @@ pub fn floor(sessions: &[TrackerSession], stated_sigma_mm: Option<f64>) -> Track
             rms_mm: Some((sum / dof as f64).sqrt() * shrink),
         };
     }
-    let sigmas: Vec<f64> =
-        sessions.iter().flat_map(|s| &s.points).filter_map(|p| p.sigma_mm.or(stated_sigma_mm)).collect();
+    let sigmas: Vec<f64> = sessions(val)
+        .into_iter()
+        .flat_map(|b| val.blocks[b].members.iter().map(|&k| &val.obs[k]))
+        .filter_map(|p| p.sigma_mm.or(stated_sigma_mm))
+        .collect();
     if !sigmas.is_empty() && sigmas.len() == points {
         let mean_square = sigmas.iter().map(|s| 3.0 * s * s).sum::<f64>() / sigmas.len() as f64;
         return TrackerFloor {
@@ -337,21 +322,18 @@ fn tool_only(nominal: &ArmModel) -> ArmModel {
 }
 
 /// `cal` without the points named `SESSION:LINE` (`--exclude-point`).
-pub fn without_points(cal: &TrackerData, names: &[String]) -> Result<TrackerData, TrackerRunError> {
-    let mut kept = cal.clone();
+pub fn without_points(cal: &Observations, names: &[String]) -> Result<Observations, TrackerRunError> {
+    let mut dropped = vec![false; cal.obs.len()];
     for name in names {
-        let found = name.rsplit_once(':').and_then(|(session, line)| {
-            let line: usize = line.parse().ok()?;
-            let s = kept.sessions.iter_mut().find(|s| s.name == session)?;
-            let before = s.points.len();
-            s.points.retain(|p| p.line != line);
-            (s.points.len() < before).then_some(())
-        });
-        if found.is_none() {
+        let found = cal.find_point(name);
+        if found.is_empty() {
             return Err(TrackerRunError::UnknownPoint(name.clone()));
         }
+        for k in found {
+            dropped[k] = true;
+        }
     }
-    Ok(kept)
+    Ok(cal.without(|k| dropped[k]))
 }
 
 /// Load, calibrate, validate, score the data errors and say what it means.
@@ -363,87 +345,95 @@ pub fn run_tracker(
     for name in &inputs.add {
         Effect::parse(name).ok_or_else(|| TrackerRunError::UnknownEffect(name.clone()))?.add_to(&mut nominal);
     }
-    let cal = TrackerData::of(&crate::data::tracker::load_dir(&inputs.calibration)?);
-    let val = TrackerData::of(&crate::data::tracker::load_dir(&inputs.validation)?);
+    let cal = crate::data::tracker::load_dir(&inputs.calibration)?;
+    let val = crate::data::tracker::load_dir(&inputs.validation)?;
     run_on(nominal, &cal, &val, inputs, huber_delta_mm)
 }
 
 /// [`run_tracker`] on sessions already read.
 pub fn run_on(
     nominal: ArmModel,
-    cal: &TrackerData,
-    val: &TrackerData,
+    cal: &Observations,
+    val: &Observations,
     inputs: &TrackerInputs,
     huber_delta_mm: Option<f64>,
 ) -> Result<TrackerRun, TrackerRunError> {
     let kept = without_points(cal, &inputs.exclude_points)?;
     let cal = &kept;
-    if let Some(s) = val.sessions.iter().find(|v| cal.sessions.iter().any(|c| c.name == v.name)) {
-        return Err(TrackerRunError::SameSession(s.name.clone()));
+    if let Some(g) = val.groups.iter().find(|v| cal.find_group(&v.name).is_some()) {
+        return Err(TrackerRunError::SameSession(g.name.clone()));
     }
     if val.joints != nominal.joints.len() {
-        return Err(TrackerError::JointCount { data: val.joints, model: nominal.joints.len() }.into());
+        return Err(CalibError::JointCount {
+            kind: "tracker",
+            record: "have",
+            data: val.joints,
+            what: "joint columns (q1_deg …)",
+            model: nominal.joints.len(),
+        }
+        .into());
     }
     let mut same_base = BTreeMap::new();
     for pair in &inputs.same_base {
-        let named = pair.split_once('=').filter(|(v, c)| {
-            val.sessions.iter().any(|s| &s.name == v) && cal.sessions.iter().any(|s| &s.name == c)
-        });
+        let named =
+            pair.split_once('=').filter(|(v, c)| val.find_block(v).is_some() && cal.find_block(c).is_some());
         let Some((held_out, calibration)) = named else {
             return Err(TrackerRunError::SameBase(pair.clone()));
         };
         same_base.insert(held_out.to_string(), calibration.to_string());
     }
     let cal_float: Vec<String> =
-        inputs.float_tool.iter().filter(|n| cal.sessions.iter().any(|s| &&s.name == n)).cloned().collect();
+        inputs.float_tool.iter().filter(|n| cal.find_group(n).is_some()).cloned().collect();
     let val_float: Vec<String> =
-        inputs.float_tool.iter().filter(|n| val.sessions.iter().any(|s| &&s.name == n)).cloned().collect();
+        inputs.float_tool.iter().filter(|n| val.find_group(n).is_some()).cloned().collect();
     if let Some(n) = inputs.float_tool.iter().find(|n| !cal_float.contains(n) && !val_float.contains(n)) {
-        return Err(TrackerError::UnknownSession(n.clone()).into());
+        return Err(CalibError::UnknownSession(n.clone()).into());
     }
-    let options = TrackerOptions {
+    let options = SolveOptions {
         huber_delta_mm,
         float_tool: cal_float,
         orientation_sigma_deg: inputs.orientation_sigma_deg,
         drift_sessions: inputs.drift_sessions.clone(),
+        ..SolveOptions::default()
     };
-    let fit = calibrate_tracker(&nominal, cal, &options)?;
-    let reference = calibrate_tracker(&tool_only(&nominal), cal, &options)?;
+    let fit = calibrate(&nominal, cal, &options)?;
+    let reference = calibrate(&tool_only(&nominal), cal, &options)?;
     // The session's tool offset (its own when floated) and its figures.
-    let validate = |model: &ArmModel, s: &TrackerSession| {
-        if val_float.contains(&s.name) {
-            let (tool, figures) = fit_session_with_tool(model, s);
+    let validate = |model: &ArmModel, b: usize| {
+        if val_float.contains(&val.block_name(b)) {
+            let (tool, figures) = fit_session_with_tool(model, val, b);
             (tool.offset_mm, figures)
         } else {
-            ([0.0; 3], validate_session(model, s, [0.0; 3]))
+            ([0.0; 3], validate_session(model, val, b, [0.0; 3]))
         }
     };
-    let orientations = |fit: &TrackerCalibration, s: &TrackerSession, offset_mm: [f64; 3]| {
+    let orientations = |fit: &Fit, b: usize, offset_mm: [f64; 3]| {
         fit.tool_rotation
             .as_ref()
-            .and_then(|t| validate_orientations(&fit.model, s, offset_mm, &t.rotation()))
+            .and_then(|t| validate_orientations(&fit.model, val, b, offset_mm, &t.rotation()))
     };
     let mut verdict = Vec::new();
-    let mut sessions = Vec::new();
+    let mut session_figures = Vec::new();
     let mut held_out = Vec::new();
     let (mut calibrated_parts, mut nominal_parts, mut angle_parts) = (Vec::new(), Vec::new(), Vec::new());
-    for s in &val.sessions {
-        let (offset_mm, c) = validate(&fit.model, s);
-        let n = validate(&reference.model, s).1;
-        held_out.push(held_out_points(&fit, s, offset_mm));
-        let orientation = orientations(&fit, s, [0.0; 3]);
-        let nominal_orientation = orientations(&reference, s, [0.0; 3]);
+    for b in sessions(val) {
+        let name = val.block_name(b);
+        let (offset_mm, c) = validate(&fit.model, b);
+        let n = validate(&reference.model, b).1;
+        held_out.push(held_out_points(&fit, val, b, offset_mm));
+        let orientation = orientations(&fit, b, [0.0; 3]);
+        let nominal_orientation = orientations(&reference, b, [0.0; 3]);
         angle_parts.extend(orientation);
         let transfers = c.rms_mm <= n.rms_mm;
         if !transfers {
             verdict.push(format!(
                 "the calibration does not transfer to session {}: {:.4} mm calibrated vs {:.4} mm nominal (base refitted)",
-                s.name, c.rms_mm, n.rms_mm
+                name, c.rms_mm, n.rms_mm
             ));
         }
-        let same_base = same_base.get(&s.name).and_then(|calibration| {
-            let stats = |fit: &TrackerCalibration| {
-                errors_in_calibration_session(fit, cal, calibration, &s.points).map(|e| ErrorStats::of(&e))
+        let same_base = same_base.get(&name).and_then(|calibration| {
+            let stats = |fit: &Fit| {
+                errors_in_calibration_session(fit, cal, calibration, val, b).map(|e| ErrorStats::of(&e))
             };
             Some(SameBaseFigures {
                 calibration_session: calibration.clone(),
@@ -453,7 +443,7 @@ pub fn run_on(
         });
         calibrated_parts.push(c.clone());
         nominal_parts.push(n.clone());
-        sessions.push(SessionFigures {
+        session_figures.push(SessionFigures {
             calibrated: c,
             nominal: n,
             transfers,
@@ -463,13 +453,13 @@ pub fn run_on(
         });
     }
     let overall = pooled(&calibrated_parts);
-    let floor = floor(&val.sessions, inputs.stated_sigma_mm);
+    let floor = floor(val, inputs.stated_sigma_mm);
     let data_errors = data_error_candidates(
         &nominal,
         cal,
         val,
         &fit,
-        &TrackerOptions { float_tool: inputs.float_tool.clone(), ..options.clone() },
+        &SolveOptions { float_tool: inputs.float_tool.clone(), ..options.clone() },
     );
     if let Some(best) = data_errors.iter().find(|d| d.significant) {
         verdict.push(format!("data error: {}; apply it with {}", best.text, best.action));
@@ -488,35 +478,38 @@ pub fn run_on(
             overall.rms_mm
         )),
     }
+    let fit_points = fit.stats.points.unwrap_or_default();
     let summary = TrackerSummary {
         format: TRACKER_RUN_FORMAT.into(),
         kincal_version: env!("CARGO_PKG_VERSION").into(),
         inputs: inputs.clone(),
         joints: nominal.joints.len(),
-        calibration_sessions: cal.sessions.iter().map(|s| (s.name.clone(), s.points.len())).collect(),
-        fit: fit.fit,
-        orientation_fit: fit.orientation_fit,
+        calibration_sessions: sessions(cal)
+            .into_iter()
+            .map(|b| (cal.block_name(b), cal.blocks[b].members.len()))
+            .collect(),
+        fit: fit_points,
+        orientation_fit: fit.stats.orientations,
         tool_rotation: fit.tool_rotation,
         estimates: fit.estimates.clone(),
         tool_offsets: fit.tool_offsets.clone(),
         drifts: fit.drifts.clone(),
-        identifiability: fit.identifiability.clone(),
+        identifiability: fit.identifiability(),
         validation: TrackerValidation {
-            sessions,
+            sessions: session_figures,
             overall,
             nominal_overall: pooled(&nominal_parts),
-            orientation_overall: pooled_angles(&angle_parts),
+            orientation_overall: AngleStats::pooled(&angle_parts),
         },
         floor,
         data_errors,
         verdict,
         warnings: cal.warnings.iter().chain(&val.warnings).cloned().collect(),
     };
-    let calibration_residuals = cal
-        .sessions
-        .iter()
+    let calibration_residuals = sessions(cal)
+        .into_iter()
         .zip(calibration_residuals_mm(&fit, cal))
-        .map(|(s, residuals)| session_residuals(s, residuals, vec![None; s.points.len()]))
+        .map(|(b, residuals)| session_residuals(cal, b, residuals, vec![None; cal.blocks[b].members.len()]))
         .collect();
     Ok(TrackerRun { nominal, calibration: fit, summary, held_out, calibration_residuals })
 }

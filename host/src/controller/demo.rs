@@ -11,8 +11,9 @@
 //! system registers the tracker to the patient.
 
 use crate::calib::auto::{auto_loop, AutoLoop, Stop};
-use crate::calib::calibrate::{CalibrationError, CalibrationOptions};
+use crate::calib::fit::CalibError;
 use crate::calib::run::{run, Run, RunError, RunInputs};
+use crate::calib::setup::SolveOptions;
 use crate::controller::link::{Link, LinkError};
 use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step, Verdict};
 use crate::controller::signing::StationKey;
@@ -97,7 +98,7 @@ pub enum LoopError {
     Params(#[from] crate::controller::device::DeviceParamsError),
     /// The diagnose → add loop could not recalibrate.
     #[error("diagnose → add: {0}")]
-    Added(#[from] CalibrationError),
+    Added(#[from] CalibError),
     /// The demo's station key could not be made or read.
     #[error(transparent)]
     Key(#[from] crate::controller::signing::KeyFileError),
@@ -146,7 +147,7 @@ impl Mission {
 /// and `out/run-added`.
 pub fn calibrate_diagnose_add(
     inputs: &RunInputs,
-    options: &CalibrationOptions,
+    options: &SolveOptions,
     out: &Path,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Mission, LoopError> {
@@ -155,22 +156,10 @@ pub fn calibrate_diagnose_add(
     crate::output::write_run(&first, &out.join("run"))?;
     progress("diagnosing, adding what the diagnosis names, recalibrating");
     let cal = inputs.load_data(&first.artefact)?.0;
-    let auto = auto_loop(
-        &first.calibration.model,
-        &first.artefact,
-        &cal,
-        &first.validation_data,
-        options,
-        MAX_ADDED,
-    )?;
+    let auto = auto_loop(&first.calibration.model, &cal, &first.validation_data, options, MAX_ADDED)?;
     crate::output::write_auto(&auto, &out.join("run"))?;
-    let first_diagnosis = crate::calib::diagnose::diagnose(
-        &first.calibration.model,
-        &first.artefact,
-        &cal,
-        &first.validation_data,
-        options,
-    );
+    let first_diagnosis =
+        crate::calib::diagnose::diagnose(&first.calibration.model, &cal, &first.validation_data, options);
     crate::output::write_diagnosis(&first_diagnosis, &out.join("run"))?;
     let steps = auto
         .steps
@@ -419,7 +408,7 @@ pub fn run_loop(
         data.join("cal"),
         data.join("val"),
     );
-    let calibration = CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() };
+    let calibration = SolveOptions { seed: options.seed, ..SolveOptions::default() };
     let mission = calibrate_diagnose_add(&inputs, &calibration, &options.out, progress)?;
     let result = mission.final_run();
     // Pose check at one noise-free touch of every landmark of every validation placement.
@@ -462,8 +451,7 @@ pub fn run_loop(
         .iter()
         .map(|c| crate::model::kinematics::tool_pose(&result.calibration.model, &degrees_of(c)).position_mm)
         .collect();
-    let truth_validation =
-        crate::calib::validate::validate(&truth, &artefact, &result.validation_data).overall.rms_mm;
+    let truth_validation = crate::calib::validate::validate(&truth, &result.validation_data).overall.rms_mm;
     Ok(LoopReport {
         hidden: options.hidden.iter().map(|(id, d)| format!("{id} = {d:+}")).collect(),
         steps: mission.steps.clone(),

@@ -341,6 +341,11 @@ impl Observations {
         out
     }
 
+    /// A copy with the landmarks `landmarks` (a corrected certificate).
+    pub fn with_landmarks(&self, landmarks: &[Landmark]) -> Observations {
+        Observations { landmarks: landmarks.to_vec(), ..self.clone() }
+    }
+
     /// A copy without the touches of one landmark.
     pub fn without_landmark(&self, landmark: usize) -> Observations {
         self.without(|k| self.obs[k].landmark() == Some(landmark))

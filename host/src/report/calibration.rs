@@ -14,7 +14,7 @@ pub fn calibration_report(run: &Run) -> String {
         let _ = write!(body, "<h2>Not trustworthy: these figures are not a result</h2><ul>{items}</ul>");
     }
     let stats_row = |name: &str, v: &crate::calib::validate::ErrorStats| {
-        vec![name.to_string(), mm(v.rms_mm), mm(v.mean_mm), mm(v.std_mm), mm(v.max_mm), v.pairs.to_string()]
+        vec![name.to_string(), mm(v.rms_mm), mm(v.mean_mm), mm(v.std_mm), mm(v.max_mm), v.count.to_string()]
     };
     let _ = write!(
         body,
@@ -72,7 +72,7 @@ pub fn calibration_report(run: &Run) -> String {
         .iter()
         .zip(&s.validation_detail.nominal_per_placement)
         .map(|(c, n)| {
-            vec![escape(&c.name), mm(n.stats.rms_mm), mm(c.stats.rms_mm), c.stats.pairs.to_string()]
+            vec![escape(&c.name), mm(n.stats.rms_mm), mm(c.stats.rms_mm), c.stats.count.to_string()]
         })
         .collect();
     let _ = write!(

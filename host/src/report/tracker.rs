@@ -4,7 +4,7 @@
 
 use super::svg::{self, escape};
 use super::{page, table};
-use crate::calib::tracker::CONSTANT_ORIENTATION_DEG;
+use crate::calib::fit::CONSTANT_ORIENTATION_DEG;
 use crate::calib::tracker_errors::MIN_GAIN;
 use crate::calib::tracker_run::{
     PointResidual, SessionFigures, SessionResiduals, TrackerRun, TrackerSummary,
@@ -302,7 +302,7 @@ fn validation_tables(body: &mut String, s: &TrackerSummary) {
     let (o, n) = (&v.overall, &v.nominal_overall);
     rows.push(vec![
         "all held-out sessions".into(),
-        o.points.to_string(),
+        o.count.to_string(),
         mm4(o.rms_mm),
         mm4(o.mean_mm),
         mm4(o.max_mm),
@@ -397,7 +397,7 @@ fn calibration_tables(body: &mut String, s: &TrackerSummary) {
         mm4(s.fit.rms_mm),
         mm4(s.fit.mean_mm),
         mm4(s.fit.max_mm),
-        s.fit.points,
+        s.fit.count,
         table(&["calibration session", "points"], &sessions)
     );
     if let Some(o) = &s.orientation_fit {

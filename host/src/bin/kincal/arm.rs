@@ -3,9 +3,8 @@
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
-use kincal::calib::calibrate::{CalibrationOptions, HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS};
-use kincal::calib::objective::Objective;
 use kincal::calib::run::{run, RunFolder, RunInputs};
+use kincal::calib::setup::{Objective, SolveOptions, HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS};
 use kincal::calib::study::{check_study_size, study, study_problems, StudyOptions};
 use kincal::data::{Artefact, Observations, Purpose};
 use kincal::model::effects::Effect;
@@ -95,7 +94,7 @@ pub struct CompareArgs {
 }
 
 /// `--drift-session SESSION[:KIND]`.
-pub fn parse_drift(text: &str) -> Result<kincal::calib::tracker_drift::DriftSpec, String> {
+pub fn parse_drift(text: &str) -> Result<kincal::calib::nuisance::drift::DriftSpec, String> {
     text.parse()
 }
 
@@ -138,17 +137,17 @@ pub struct SolveArgs {
 }
 
 impl SolveArgs {
-    fn options(&self) -> CalibrationOptions {
+    fn options(&self) -> SolveOptions {
         let objective = match self.objective {
             ObjectiveArg::Distance => Objective::Distance,
-            ObjectiveArg::SixDof => Objective::SixDof { lever_mm: self.lever_mm },
+            ObjectiveArg::SixDof => Objective::SixDof { lever_mm: Some(self.lever_mm) },
         };
-        CalibrationOptions {
-            huber_delta_mm: self.huber_delta_mm,
-            restarts: self.restarts,
+        SolveOptions {
+            huber_delta_mm: Some(self.huber_delta_mm),
+            restarts: Some(self.restarts),
             seed: self.seed,
-            objective,
-            ..CalibrationOptions::default()
+            objective: Some(objective),
+            ..SolveOptions::default()
         }
     }
 }
@@ -216,7 +215,7 @@ pub struct CalibrateArgs {
     /// shifts with time_s), scale-time (the length scale changes with time_s), offset-temp or
     /// scale-temp (the same against temp_C).
     #[arg(long, value_name = "SESSION[:KIND]", value_parser = parse_drift)]
-    drift_session: Vec<kincal::calib::tracker_drift::DriftSpec>,
+    drift_session: Vec<kincal::calib::nuisance::drift::DriftSpec>,
     /// Tracker sessions: held-out session HELD_OUT was measured from calibration session
     /// CALIBRATION's instrument placement (the instrument did not move): validate it with that
     /// calibrated base too, besides its own refitted base (protocol S; repeatable).
@@ -307,7 +306,7 @@ pub fn inputs(a: &InputArgs) -> Result<RunInputs> {
 pub fn calibrate_and_report(
     inputs: &RunInputs,
     out: &Path,
-    options: &CalibrationOptions,
+    options: &SolveOptions,
     effects: &[Effect],
     study_subsets: usize,
     outliers: bool,
@@ -346,11 +345,11 @@ pub fn calibrate_and_report(
         s.nominal_validation.rms_mm,
         s.nominal_validation.mean_mm,
         s.nominal_validation.max_mm,
-        s.nominal_validation.pairs
+        s.nominal_validation.count
     );
     println!(
         "  validation RMS  calibrated {:8.3} mm   (mean {:+.3}, max {:.3}, {} pairs)",
-        s.validation.rms_mm, s.validation.mean_mm, s.validation.max_mm, s.validation.pairs
+        s.validation.rms_mm, s.validation.mean_mm, s.validation.max_mm, s.validation.count
     );
     if !s.calibration.fixed_unidentifiable.is_empty() {
         println!(
@@ -426,11 +425,10 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
         );
     }
     check_study_size(&cal, a.subsets)?;
-    let calibration =
-        CalibrationOptions { restarts: a.restarts, seed: a.seed, ..CalibrationOptions::default() };
+    let calibration = SolveOptions { restarts: Some(a.restarts), seed: a.seed, ..SolveOptions::default() };
     let options = StudyOptions { subsets: a.subsets, seed: a.seed, calibration, progress: !a.json };
     let started = std::time::Instant::now();
-    let rows = study(&nominal, &artefact, &cal, &val, &options);
+    let rows = study(&nominal, &cal, &val, &options);
     let elapsed = started.elapsed().as_secs_f64();
     let problems = study_problems(&rows);
     if !problems.is_empty() {
@@ -478,18 +476,17 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
         return crate::tracker::diagnose_tracker_run(&a.run, &summary, a.json, a.auto, a.max_steps);
     }
     let folder = RunFolder::load(&a.run)?;
-    let (artefact, cal, val) = folder.data()?;
+    let (_, cal, val) = folder.data()?;
     for problem in &folder.summary.not_trustworthy {
         eprintln!("warning: this run is marked not trustworthy: {problem}");
     }
     if a.auto {
-        return cmd_diagnose_auto(a, &folder, &artefact, &cal, &val);
+        return cmd_diagnose_auto(a, &folder, &cal, &val);
     }
     let started = std::time::Instant::now();
     let spinner = spinner("diagnosing");
     let diagnosis = kincal::calib::diagnose::diagnose(
         &folder.model,
-        &artefact,
         &cal,
         &val,
         &folder.summary.options.calibration_options(),
@@ -545,13 +542,12 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
 fn cmd_diagnose_auto(
     a: &DiagnoseArgs,
     folder: &RunFolder,
-    artefact: &Artefact,
     cal: &Observations,
     val: &Observations,
 ) -> Result<()> {
     let options = folder.summary.options.calibration_options();
     let started = std::time::Instant::now();
-    let run = kincal::calib::auto::auto_loop(&folder.model, artefact, cal, val, &options, a.max_steps)?;
+    let run = kincal::calib::auto::auto_loop(&folder.model, cal, val, &options, a.max_steps)?;
     let elapsed = started.elapsed().as_secs_f64();
     output::write_auto(&run, &a.run)?;
     let dir = a.run.join("auto");

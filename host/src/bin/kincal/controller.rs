@@ -3,8 +3,8 @@
 use crate::arm::simulate_to;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
-use kincal::calib::calibrate::CalibrationOptions;
 use kincal::calib::run::RunInputs;
+use kincal::calib::setup::SolveOptions;
 use kincal::controller::signing::{fingerprint, utc, StationKey};
 use kincal::data::{Artefact, Observations};
 use kincal::model::ArmModel;
@@ -750,7 +750,7 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
         RunInputs::new(a.model.clone(), data.join("artefact.json"), data.join("cal"), data.join("val"));
     let mission = kincal::controller::demo::calibrate_diagnose_add(
         &inputs,
-        &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() },
+        &SolveOptions { seed: a.seed, ..SolveOptions::default() },
         &a.out(),
         &mut |step| println!("  {step}"),
     )?;
@@ -758,7 +758,7 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
     let artefact = Artefact::load(&inputs.artefact)?;
     let val =
         Observations::load_artefact_dir(&inputs.validation, &artefact, kincal::data::Purpose::Validation)?;
-    let floor = kincal::calib::validate::validate(&truth, &artefact, &val).overall;
+    let floor = kincal::calib::validate::validate(&truth, &val).overall;
     println!("3/3 the steps against the floor");
     print_mission(&mission.steps, floor.rms_mm, &kincal::controller::demo::stop_words(&mission.auto.stop));
     for line in &mission.auto.steps[0].summary {

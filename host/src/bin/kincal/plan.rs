@@ -75,7 +75,6 @@ pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
     let from_diagnosis = if a.rivals.is_empty() {
         let d = kincal::calib::diagnose::diagnose(
             &folder.model,
-            &artefact,
             &cal,
             &val,
             &folder.summary.options.calibration_options(),
@@ -103,13 +102,7 @@ pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
     };
     let touch_std_mm = match a.touch_std_mm {
         Some(s) => s,
-        None => match kincal::calib::floor::noise_floor(
-            &folder.model,
-            &artefact,
-            &cal,
-            &val,
-            folder.model.free.len(),
-        ) {
+        None => match kincal::calib::floor::noise_floor(&folder.model, &cal, &val, folder.model.free.len()) {
             Some(f) => f.touch_std_mm,
             None => bail!(
                 "{}: no repeated touches, so the touch noise is unknown; give --touch-std-mm",

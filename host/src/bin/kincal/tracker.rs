@@ -1,11 +1,11 @@
 //! `kincal calibrate` on tracker sessions: run, write RUN/, print the figures and the verdict.
 
 use anyhow::Result;
-use kincal::calib::tracker::TrackerData;
 use kincal::calib::tracker_diagnose::{
     auto_tracker, check_run_data, compare_tracker, diagnose_tracker, fit_setup, TrackerSetup,
 };
 use kincal::calib::tracker_run::{run_tracker, TrackerInputs, TrackerSummary, TRACKER_RUN_FORMAT};
+use kincal::data::Observations;
 use kincal::model::ArmModel;
 use kincal::output;
 use std::path::Path;
@@ -102,7 +102,7 @@ pub fn calibrate_tracker_and_report(inputs: &TrackerInputs, out: &Path, json: bo
     let (o, n) = (&s.validation.overall, &s.validation.nominal_overall);
     println!(
         "  held out, all sessions   {:>6} {:>8.4} {:>8.4} {:>8.4} {:>29.4}",
-        o.points, o.rms_mm, o.mean_mm, o.max_mm, n.rms_mm
+        o.count, o.rms_mm, o.mean_mm, o.max_mm, n.rms_mm
     );
     match s.floor.rms_mm {
         Some(f) => println!("  floor {f:.4} mm ({})", s.floor.source),
@@ -129,14 +129,14 @@ pub fn tracker_summary(run: &Path) -> Result<Option<TrackerSummary>> {
 }
 
 /// The setup and data of a tracker RUN, checked to be the data it was made from.
-fn load_run(run: &Path, summary: &TrackerSummary) -> Result<(TrackerSetup, TrackerData, TrackerData)> {
+fn load_run(run: &Path, summary: &TrackerSummary) -> Result<(TrackerSetup, Observations, Observations)> {
     let nominal = ArmModel::load(&run.join("nominal.toml"))?;
     let i = &summary.inputs;
-    let cal = TrackerData::of(&kincal::data::tracker::load_dir(&i.calibration)?);
-    let val = TrackerData::of(&kincal::data::tracker::load_dir(&i.validation)?);
+    let cal = kincal::data::tracker::load_dir(&i.calibration)?;
+    let val = kincal::data::tracker::load_dir(&i.validation)?;
     let setup = TrackerSetup::of(i, nominal);
     let fitted = fit_setup(&setup, &cal, &val, None)?;
-    check_run_data(summary, &cal, &val, fitted.fit.fit.rms_mm)?;
+    check_run_data(summary, &cal, &val, fitted.fit.rms_mm)?;
     Ok((setup, cal, val))
 }
 
@@ -248,10 +248,10 @@ pub fn compare_tracker_runs(a: &Path, b: &Path, out: &Path) -> Result<()> {
     };
     let model = |run: &Path| ArmModel::load(&run.join("model.toml"));
     let (ma, mb) = (model(a)?, model(b)?);
-    let val = TrackerData::of(&kincal::data::tracker::load_dir(&sa.inputs.validation)?);
+    let val = kincal::data::tracker::load_dir(&sa.inputs.validation)?;
     for f in &sa.validation.sessions {
-        match val.sessions.iter().find(|s| s.name == f.calibrated.name) {
-            Some(s) if s.points.len() == f.calibrated.points => {}
+        match val.find_block(&f.calibrated.name) {
+            Some(b) if val.blocks[b].members.len() == f.calibrated.points => {}
             _ => anyhow::bail!(
                 "{}: held-out session {} is not as {} used it; the data changed since the calibration",
                 sa.inputs.validation.display(),

@@ -71,15 +71,17 @@ fn calibrate_writes_a_run_whose_model_loads_again() {
     assert_eq!(printed, stored);
     for key in ["rms_mm", "mean_mm", "std_mm", "max_mm", "count"] {
         assert!(
-            stored["validation"][key].is_number() && stored["nominal_validation"][key].is_number(),
+            stored["validation"]["distances"]["calibrated"][key].is_number()
+                && stored["validation"]["distances"]["nominal"][key].is_number(),
             "{key}"
         );
     }
     // The same file read back as the type diagnose and compare use.
-    let folder = kincal::calib::run::RunFolder::load(&run).expect("RUN reads back as kincal-run/1");
-    assert_eq!(folder.summary.format, kincal::calib::run::RUN_FORMAT);
-    assert!(folder.summary.calibration.rms_mm < folder.summary.nominal_validation.rms_mm);
-    assert_eq!(folder.residuals().expect("residuals.json reads back").len(), folder.summary.validation.count);
+    let folder = kincal::api::load(&run).expect("RUN reads back as kincal-run/2");
+    assert_eq!(folder.summary.format, kincal::calib::summary::RUN_FORMAT);
+    let distances = folder.summary.validation.distances.as_ref().expect("held-out distances");
+    assert!(folder.summary.calibration.rms_mm < distances.nominal.rms_mm);
+    assert_eq!(folder.residuals().expect("residuals.json reads back").len(), distances.calibrated.count);
     let calibrated =
         kincal::model::ArmModel::load(&run.join("model.toml")).expect("calibrated model loads again");
     assert_eq!(calibrated.free.len(), kincal::model::ArmModel::load(&model).unwrap().free.len());
@@ -221,9 +223,7 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     ]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success() && text.contains("rms_mm") && text.contains("eccentricity:5"), "{text}");
-    let rms = |run: &Path| -> f64 {
-        kincal::calib::run::RunFolder::load(run).expect("typed RUN").summary.validation.rms_mm
-    };
+    let rms = |run: &Path| -> f64 { kincal::api::load(run).expect("typed RUN").summary.held_out_rms_mm() };
     assert!(rms(&after) < 0.6 * rms(&before), "{} → {}", rms(&before), rms(&after));
     assert!(std::fs::read_to_string(&page).unwrap().contains("<svg"));
     // What to measure next: rivals and weak parameters, a pose list, the plan as JSON.
@@ -259,7 +259,7 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     assert!(after[0].as_f64().unwrap() >= now[0].as_f64().unwrap(), "{now} → {after}");
     let csv = std::fs::read_to_string(&poses).unwrap();
     assert!(
-        csv.starts_with(kincal::output::PLAN_CSV_HEADER) && csv.lines().count() > 2 * 6,
+        csv.starts_with(kincal::store::PLAN_CSV_HEADER) && csv.lines().count() > 2 * 6,
         "header and two placements of at least 6 touches: {csv}"
     );
     // Bad effect names and bad runs are reported, not panicked on.

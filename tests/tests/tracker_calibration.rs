@@ -3,9 +3,10 @@
 //! stated deviations, a re-mounted tool, constant-orientation sessions.
 
 use kincal::calib::fit::{calibrate, Fit};
+use kincal::calib::run::{run, Run, RunError};
 use kincal::calib::setup::SolveOptions;
+use kincal::calib::summary::RunInputs as TrackerInputs;
 use kincal::calib::tracker_errors::{data_error_candidates, DataError};
-use kincal::calib::tracker_run::TrackerInputs;
 use kincal::calib::validate::validate_session;
 use kincal::data::Observations;
 use kincal::model::ArmModel;
@@ -19,18 +20,12 @@ fn scratch(name: &str) -> PathBuf {
 
 /// The inputs of a run on DIR/model.toml, DIR/cal and DIR/val, without options.
 fn run_inputs(dir: &std::path::Path) -> TrackerInputs {
-    TrackerInputs {
-        model: dir.join("model.toml"),
-        calibration: dir.join("cal"),
-        validation: dir.join("val"),
-        float_tool: vec![],
-        stated_sigma_mm: None,
-        exclude_points: vec![],
-        orientation_sigma_deg: None,
-        drift_sessions: vec![],
-        same_base: vec![],
-        add: vec![],
-    }
+    TrackerInputs::new(dir.join("model.toml"), None, dir.join("cal"), dir.join("val"))
+}
+
+/// `kincal calibrate` on tracker folders with the default options.
+fn run_tracker(inputs: &TrackerInputs) -> Result<Run, RunError> {
+    run(inputs, &SolveOptions::default(), 0, true)
 }
 
 /// Write DIR/model.toml, DIR/cal and DIR/val of the generated sessions (`cal` calibrate, the
@@ -167,7 +162,6 @@ fn twelve_and_two_joint_arms_reach_the_floor() {
 /// fit's base; a pair naming no calibration session is refused.
 #[test]
 fn a_held_out_set_of_a_calibration_session_is_validated_with_its_base() {
-    use kincal::calib::tracker_run::{run_tracker, TrackerInputs, TrackerRunError};
     let dir = scratch("same-base");
     let generated = generate(&GenOptions::iiwa_five_sessions(8));
     let nominal = nominal_model(&generated, &dir);
@@ -183,8 +177,8 @@ fn a_held_out_set_of_a_calibration_session_is_validated_with_its_base() {
     std::fs::write(&file, keep).expect("session 1 cut");
     std::fs::write(dir.join("val/session_1_test.csv"), held_out).expect("held-out part written");
     let inputs = TrackerInputs { same_base: vec!["session_1_test=session_1".into()], ..run_inputs(&dir) };
-    let run = run_tracker(&inputs, None).expect("runs");
-    let figures = run.summary.validation.sessions.iter().find(|f| f.calibrated.name == "session_1_test");
+    let run = run_tracker(&inputs).expect("runs");
+    let figures = run.summary.held_out_sessions().iter().find(|f| f.calibrated.name == "session_1_test");
     let same = figures.and_then(|f| f.same_base.as_ref()).expect("protocol S figures");
     let noise = generated.options.noise_sigma_mm * 3f64.sqrt();
     println!("same base: calibrated {:?}, nominal {:?}, noise {noise:.4} mm", same.calibrated, same.nominal);
@@ -192,12 +186,12 @@ fn a_held_out_set_of_a_calibration_session_is_validated_with_its_base() {
     assert_eq!(same.calibrated.count, 20);
     assert!(same.calibrated.rms_mm < 1.3 * noise, "{same:?}");
     assert!(same.nominal.rms_mm > 5.0 * same.calibrated.rms_mm, "{same:?}");
-    let others = run.summary.validation.sessions.iter().filter(|f| f.same_base.is_some()).count();
+    let others = run.summary.held_out_sessions().iter().filter(|f| f.same_base.is_some()).count();
     assert_eq!(others, 1, "only the named session gets protocol S figures");
     for wrong in ["session_1_test=session_4", "session_1_test", "session_9=session_1"] {
         let bad = TrackerInputs { same_base: vec![wrong.into()], ..inputs.clone() };
-        let err = run_tracker(&bad, None).expect_err(wrong);
-        assert!(matches!(err, TrackerRunError::SameBase(_)), "{wrong}: {err}");
+        let Err(err) = run_tracker(&bad) else { panic!("{wrong}: accepted") };
+        assert!(matches!(err, RunError::SameBase(_)), "{wrong}: {err}");
         assert!(err.to_string().contains(&format!("--same-base {wrong}")), "{err}");
     }
     std::fs::remove_dir_all(dir).ok();
@@ -300,23 +294,22 @@ fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
 /// the verdict; repeated poses give the floor when there are any.
 #[test]
 fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor() {
-    use kincal::calib::tracker_run::run_tracker;
     let dir = scratch("run");
     let mut options = GenOptions::iiwa_five_sessions(5);
     options.repeats = 2;
     let generated = generate(&options);
-    let run = run_tracker(&run_folders(&generated, &dir, &[0, 1, 2], None), None).expect("runs");
+    let run = run_tracker(&run_folders(&generated, &dir, &[0, 1, 2], None)).expect("runs");
     let s = &run.summary;
-    let names: Vec<&str> = s.validation.sessions.iter().map(|v| v.calibrated.name.as_str()).collect();
+    let names: Vec<&str> = s.held_out_sessions().iter().map(|v| v.calibrated.name.as_str()).collect();
     assert_eq!(names, ["session_4", "session_5"]);
     let floor = generated.true_floor_mm(&[3, 4]).rms_mm;
-    for f in &s.validation.sessions {
+    for f in s.held_out_sessions() {
         let v = &f.calibrated;
         assert!(f.transfers && v.rms_mm < 0.5 * f.nominal.rms_mm, "{f:?}");
         assert!(v.pairwise_rms_mm > 0.0 && v.max_mm >= v.mean_mm, "{v:?}");
     }
-    assert_eq!(s.floor.source, "repeated poses");
-    let stated = s.floor.rms_mm.expect("a floor");
+    assert_eq!(s.point_floor().source, "repeated poses");
+    let stated = s.point_floor().rms_mm.expect("a floor");
     assert!((stated / floor - 1.0).abs() < 0.2, "floor from repeats {stated} vs true {floor}");
     assert!(
         s.verdict.iter().any(|v| v.starts_with("the model explains the held-out data")),
@@ -325,7 +318,7 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
     );
     assert!(s.data_errors.iter().all(|d| !d.significant), "{:?}", s.data_errors);
     let json = serde_json::to_value(s).expect("serialises");
-    assert!(json["validation"]["sessions"][0]["rms_mm"].is_number(), "{json}");
+    assert!(json["validation"]["sessions"]["sessions"][0]["rms_mm"].is_number(), "{json}");
     std::fs::remove_dir_all(dir).ok();
 }
 
@@ -336,7 +329,6 @@ fn a_tracker_run_validates_each_held_out_session_against_nominal_and_the_floor()
 /// with a 6-DoF probe, times and gravity sag but no stated uncertainty (the floor unknown).
 #[test]
 fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
-    use kincal::calib::tracker_run::run_tracker;
     use kincal_e2e::tracker_gen::{GravitySag, UncertaintyColumn};
     for six_dof in [false, true] {
         let dir = scratch(&format!("report-{six_dof}"));
@@ -350,9 +342,9 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
             GenOptions::iiwa_five_sessions(8).few_placements(4)
         };
         let inputs = run_folders(&generate(&options), &dir, &[0, 1], six_dof.then_some(0.005));
-        let mut run = run_tracker(&inputs, None).expect("runs");
+        let mut run = run_tracker(&inputs).expect("runs");
         let out = dir.join("RUN");
-        kincal::output::write_tracker_run(&run, &out).expect("RUN written");
+        kincal::store::write_run(&run, &out).expect("RUN written");
         let html = std::fs::read_to_string(out.join("report.html")).expect("report.html written");
         let summary: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary.json"))
@@ -361,7 +353,7 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
             assert!(!html.contains(word), "{word} in the report");
         }
         let f4 = |v: &serde_json::Value| format!("{:.4}", v.as_f64().expect("a number"));
-        let sessions = summary["validation"]["sessions"].as_array().expect("sessions");
+        let sessions = summary["validation"]["sessions"]["sessions"].as_array().expect("sessions");
         assert_eq!(sessions.len(), 2);
         for (s, held_out) in sessions.iter().zip(&run.held_out) {
             let name = s["name"].as_str().expect("a name");
@@ -401,11 +393,14 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
             .map(|p| p.residual_mm.iter().map(|v| v * v).sum::<f64>())
             .collect();
         let fit_rms = (fit.iter().sum::<f64>() / fit.len() as f64).sqrt();
-        assert!((fit_rms - summary["fit"]["rms_mm"].as_f64().expect("fit")).abs() < 1e-9, "fit {fit_rms}");
-        for name in summary["calibration_sessions"].as_object().expect("calibration sessions").keys() {
+        assert!(
+            (fit_rms - summary["calibration"]["points"]["rms_mm"].as_f64().expect("fit")).abs() < 1e-9,
+            "fit {fit_rms}"
+        );
+        for name in summary["calibration"]["groups"].as_object().expect("calibration sessions").keys() {
             assert!(html.contains(&format!("<h2>Calibration session {name}: ")), "{name}'s plots");
         }
-        let overall = &summary["validation"]["overall"];
+        let overall = &summary["validation"]["sessions"]["overall"];
         assert!(html.contains(&format!(
             "<td>all held-out sessions</td><td>{}</td><td>{}</td>",
             overall["count"],
@@ -415,7 +410,7 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
             let sentence = v.as_str().expect("a sentence").replace('&', "&amp;").replace('<', "&lt;");
             assert!(html.contains(&sentence), "verdict {sentence} not in the report");
         }
-        for e in summary["identifiability"]["estimated"].as_array().expect("estimated") {
+        for e in summary["identifiability"]["report"]["estimated"].as_array().expect("estimated") {
             let cell = format!("<td>{}</td>", e.as_str().expect("a name"));
             assert!(html.contains(&cell), "{cell} not in the estimates");
         }
@@ -423,26 +418,28 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
         let plots = html.matches("<svg").count();
         assert!(plots >= 4 * (4 + joints) + 2, "{plots} plots");
         if six_dof {
-            assert!(summary["floor"]["rms_mm"].is_null(), "{}", summary["floor"]);
+            assert!(summary["floor"]["points"]["rms_mm"].is_null(), "{}", summary["floor"]);
             assert!(html.contains("The floor is unknown: the held-out sessions have no repeated poses"));
             assert!(html.contains("Held-out orientation RMS per session") && html.contains(">time (s)<"));
         } else {
-            let floor = format!("The floor is {} mm (stated uncertainty)", f4(&summary["floor"]["rms_mm"]));
+            let floor =
+                format!("The floor is {} mm (stated uncertainty)", f4(&summary["floor"]["points"]["rms_mm"]));
             assert!(html.contains(&floor), "{floor} not in the report");
         }
         // A session that does not transfer is marked, and figures that are not numbers print as —.
         let s = &mut run.summary;
-        s.validation.sessions[1].transfers = false;
-        s.validation.sessions[0].calibrated.rms_mm = f64::NAN;
-        s.validation.overall.max_mm = f64::INFINITY;
-        s.floor.rms_mm = Some(f64::NAN);
-        s.estimates[0].std = Some(f64::INFINITY);
+        let v = s.validation.sessions.as_mut().expect("held-out sessions");
+        v.sessions[1].transfers = false;
+        v.sessions[0].calibrated.rms_mm = f64::NAN;
+        v.overall.max_mm = f64::INFINITY;
+        s.floor.points.as_mut().expect("a point floor").rms_mm = Some(f64::NAN);
+        s.calibration.estimates[0].std = Some(f64::INFINITY);
         run.held_out[0].points[0].residual_mm[2] = f64::NAN;
-        let html = kincal::report::tracker::tracker_report(&run);
+        let html = kincal::report::run::run_report(&run);
         for word in ["NaN", "inf"] {
             assert!(!html.contains(word), "{word} in the report of poisoned figures");
         }
-        let second = &run.summary.validation.sessions[1].calibrated.name;
+        let second = &run.summary.held_out_sessions()[1].calibrated.name;
         assert!(html.contains(&format!("{second} ✗")) && html.contains("does not transfer"));
         std::fs::remove_dir_all(dir).ok();
     }
@@ -561,15 +558,15 @@ fn six_dof_seed(seed: u64) {
 /// summary.json of a run on 6-DoF sessions: the probe rotation, the calibration's orientation
 /// RMS and each held-out session's `orientation.rms_deg` beside the nominal one.
 fn summary_has_orientation_figures(nominal: ArmModel, cal: &Observations, val: &Observations) {
-    use kincal::calib::tracker_run::run_on;
     let inputs = TrackerInputs {
         model: "nominal.toml".into(),
         orientation_sigma_deg: Some(0.005),
         ..run_inputs(std::path::Path::new(""))
     };
-    let run = run_on(nominal, cal, val, &inputs, None).expect("runs");
+    let run = kincal::calib::run::run_on(nominal, cal, val, &inputs, &SolveOptions::default(), 0, true)
+        .expect("runs");
     let json = serde_json::to_value(&run.summary).expect("serialises");
-    let session = &json["validation"]["sessions"][0];
+    let session = &json["validation"]["sessions"]["sessions"][0];
     let (calibrated, nominal) =
         (session["orientation"]["rms_deg"].as_f64(), session["nominal_orientation"]["rms_deg"].as_f64());
     println!("summary: orientation {calibrated:?}° vs nominal {nominal:?}°");
@@ -578,9 +575,10 @@ fn summary_has_orientation_figures(nominal: ArmModel, cal: &Observations, val: &
         "{json}"
     );
     assert!(
-        json["tool_rotation"]["std_deg"][2].is_number() && json["orientation_fit"]["rms_deg"].is_number()
+        json["calibration"]["tool_rotation"]["std_deg"][2].is_number()
+            && json["calibration"]["orientations"]["rms_deg"].is_number()
     );
-    assert!(json["validation"]["orientation_overall"]["rms_deg"].is_number(), "{json}");
+    assert!(json["validation"]["sessions"]["orientation_overall"]["rms_deg"].is_number(), "{json}");
 }
 
 fn transpose(a: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
@@ -669,7 +667,6 @@ fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
 /// every drift kind is scored and none is called.
 #[test]
 fn a_thermal_scale_drift_in_one_session_is_named_by_kind_and_its_action_reaches_the_floor() {
-    use kincal::calib::tracker_run::run_tracker;
     use kincal_e2e::tracker_gen::ThermalDrift;
     for (seed, expansion_per_c) in [(7, 23e-6), (8, 23e-6), (7, 0.0)] {
         let dir = scratch(&format!("thermal-{seed}-{expansion_per_c}"));
@@ -705,15 +702,15 @@ fn a_thermal_scale_drift_in_one_session_is_named_by_kind_and_its_action_reaches_
             drift_sessions: vec![best.action["--drift-session ".len()..].parse().expect("the action parses")],
             ..run_inputs(&dir)
         };
-        let run = run_tracker(&inputs, None).expect("runs");
+        let run = run_tracker(&inputs).expect("runs");
         let refit = &run.calibration;
         let (before, after) = (held_out_rms(&fit, &val), held_out_rms(refit, &val));
         println!("held-out {before:.4} → {after:.4} mm, floor {floor:.4} mm, drift {:?}", refit.drifts);
         assert!(before > 1.10 * floor, "the drift must show before the action: {before} vs {floor}");
         assert!(after <= 1.10 * floor, "after the action {after} vs floor {floor}");
         let json = serde_json::to_value(&run.summary).expect("serialises");
-        assert_eq!(json["drifts"][0]["kind"], "scale-temp", "{json}");
-        assert_eq!(json["drifts"][0]["unit"], "ppm/K", "{json}");
+        assert_eq!(json["calibration"]["drifts"][0]["kind"], "scale-temp", "{json}");
+        assert_eq!(json["calibration"]["drifts"][0]["unit"], "ppm/K", "{json}");
         // No arm effect: the run explains the held-out data and calls nothing else, and the arm
         // parameters are the true arm's.
         let verdict = &run.summary.verdict;

@@ -64,7 +64,7 @@ const Z_95: f64 = 1.644_853_6;
 const Z_975: f64 = 1.959_964;
 
 /// The noise floor estimated from repeated touches.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct NoiseFloor {
     /// RMS scatter of one touch about its group mean, per axis, mm.
     pub touch_std_mm: f64,
@@ -95,7 +95,7 @@ pub struct NoiseFloor {
 }
 
 /// Measured validation error against the floor.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Gap {
     /// Validation distance RMS, mm.
     pub measured_mm: f64,
@@ -451,6 +451,61 @@ impl Gap {
             )
         }
     }
+}
+
+/// The floor of held-out instrument points: the expected held-out RMS of a perfect model, mm.
+///
+/// The pooled scatter of repeated poses (rows of one session sharing a `pose` id), else the
+/// stated instrument uncertainty (σ per axis, σ = U95/2, so a point's 3-D RMS is σ·√3; from the
+/// rows, or `--sigma-mm` for rows that carry none), each scaled by √(1 − 2/n) for the six values
+/// of a refitted frame; otherwise unknown, and then the model is never said to explain the data.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct PointFloor {
+    /// `repeated poses`, `stated uncertainty` or `unknown`.
+    pub source: String,
+    /// Expected held-out RMS of a perfect model, mm.
+    pub rms_mm: Option<f64>,
+}
+
+/// The floor of the instrument sessions of `val` (see [`PointFloor`]).
+pub fn point_floor(val: &Observations, stated_sigma_mm: Option<f64>) -> PointFloor {
+    let (mut sum, mut dof) = (0.0, 0usize);
+    let mut fit_share = Vec::new();
+    let sessions = crate::calib::tracker_errors::sessions(val);
+    for &b in &sessions {
+        let members = &val.blocks[b].members;
+        let mut groups: std::collections::BTreeMap<&str, Vec<Vector3<f64>>> = Default::default();
+        for p in members.iter().map(|&k| &val.obs[k]) {
+            if let (Some(pose), Some(x)) = (&p.pose, p.point_mm()) {
+                groups.entry(pose).or_default().push(x);
+            }
+        }
+        for g in groups.values().filter(|g| g.len() > 1) {
+            let mean = g.iter().sum::<Vector3<f64>>() / g.len() as f64;
+            sum += g.iter().map(|v| (v - mean).norm_squared()).sum::<f64>();
+            dof += g.len() - 1;
+        }
+        fit_share.push((1.0 - 2.0 / members.len().max(3) as f64, members.len()));
+    }
+    let points: usize = fit_share.iter().map(|f| f.1).sum();
+    let shrink =
+        (fit_share.iter().map(|f| f.0 * f.1 as f64).sum::<f64>() / points.max(1) as f64).max(0.0).sqrt();
+    if dof > 0 {
+        return PointFloor {
+            source: "repeated poses".into(),
+            rms_mm: Some((sum / dof as f64).sqrt() * shrink),
+        };
+    }
+    let sigmas: Vec<f64> = sessions
+        .iter()
+        .flat_map(|&b| val.blocks[b].members.iter().map(|&k| &val.obs[k]))
+        .filter_map(|p| p.sigma_mm.or(stated_sigma_mm))
+        .collect();
+    if !sigmas.is_empty() && sigmas.len() == points {
+        let mean_square = sigmas.iter().map(|s| 3.0 * s * s).sum::<f64>() / sigmas.len() as f64;
+        return PointFloor { source: "stated uncertainty".into(), rms_mm: Some(mean_square.sqrt() * shrink) };
+    }
+    PointFloor { source: "unknown".into(), rms_mm: None }
 }
 
 #[cfg(test)]

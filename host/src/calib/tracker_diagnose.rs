@@ -38,7 +38,7 @@
 //! scored by `tracker_errors` (its offset is fitted on that session's own points, so the held-out
 //! test would be in-sample) and reported with its own rule.
 //!
-//! *Floor and the model-free check.* The floor is `tracker_run::floor` (repeated poses, else the
+//! *Floor and the model-free check.* The floor is [`point_floor`] (repeated poses, else the
 //! stated σ, else unknown: then the model is never said to explain the data). The model explains
 //! the data within [`EXPLAINS_WITHIN`] of the floor; it misses when the gap is beyond [`GAP_Z`]
 //! standard errors of what the fitted parameters and the sampling allow (`Gap`); in between,
@@ -53,13 +53,13 @@
 
 use crate::calib::diagnose::{chi2_z, held_out_p, DATA_ERROR_EXPLAINS, FAMILY_ALPHA, SIGNIFICANT_GAIN};
 use crate::calib::fit::{calibrate, Fit};
+use crate::calib::floor::{point_floor, PointFloor};
 use crate::calib::nuisance::drift::DriftSpec;
+use crate::calib::run::{exclude_points, RunError, EXPLAINS_WITHIN};
 use crate::calib::setup::SolveOptions;
+use crate::calib::summary::{RunInputs, Summary};
 use crate::calib::tracker_errors::sessions;
 use crate::calib::tracker_errors::{data_error_candidates, DataError, MIN_GAIN};
-use crate::calib::tracker_run::{
-    floor, without_points, TrackerFloor, TrackerInputs, TrackerRunError, TrackerSummary, EXPLAINS_WITHIN,
-};
 use crate::calib::validate::{calibration_errors, fit_session_with_tool, session_residuals};
 use crate::data::Observations;
 use crate::model::effects::{Effect, EffectKind};
@@ -100,7 +100,7 @@ pub struct TrackerSetup {
 
 impl TrackerSetup {
     /// The setup of a run's inputs, `model` being its nominal model with the added effects.
-    pub fn of(inputs: &TrackerInputs, model: ArmModel) -> TrackerSetup {
+    pub fn of(inputs: &RunInputs, model: ArmModel) -> TrackerSetup {
         TrackerSetup {
             model,
             added: inputs.add.clone(),
@@ -253,8 +253,8 @@ pub fn fit_setup(
     cal: &Observations,
     val: &Observations,
     start: Option<&ArmModel>,
-) -> Result<Fitted, TrackerRunError> {
-    let kept = without_points(cal, &setup.exclude_points)?;
+) -> Result<Fitted, RunError> {
+    let kept = exclude_points(cal, &setup.exclude_points)?;
     let fit = calibrate(start.unwrap_or(&setup.model), &kept, &calibration_options(setup, &kept))?;
     let held_out = held_out_residuals(&fit.model, val, &setup.float_tool)
         .iter()
@@ -357,7 +357,7 @@ pub struct TrackerDiagnosis {
     /// Test units (contiguous pose blocks of the held-out sessions).
     pub units: usize,
     /// The floor.
-    pub floor: TrackerFloor,
+    pub floor: PointFloor,
     /// The neighbour bound of each held-out session with enough points.
     pub neighbours: Vec<NeighbourBound>,
     /// Arm effects, in the order of the fixed sequence (cross-validated first), then the others.
@@ -523,12 +523,12 @@ pub fn diagnose_tracker(
     setup: &TrackerSetup,
     cal: &Observations,
     val: &Observations,
-) -> Result<TrackerDiagnosis, TrackerRunError> {
+) -> Result<TrackerDiagnosis, RunError> {
     let started = std::time::Instant::now();
     let baseline = fit_setup(setup, cal, val, None)?;
     let before_rms = baseline.held_out_rms_mm();
     let units = test_units(val);
-    let floor = floor(val, setup.stated_sigma_mm);
+    let floor = point_floor(val, setup.stated_sigma_mm);
     let residuals = held_out_residuals(&baseline.fit.model, val, &setup.float_tool);
     let neighbours = neighbour_bounds(val, &residuals);
     // Arm effects, each refitted warm.
@@ -578,7 +578,7 @@ pub fn diagnose_tracker(
     effects.sort_by(|a, b| b.calibration_z.total_cmp(&a.calibration_z));
     // Data errors of the calibration sessions; a tool moved in a held-out session keeps its rule.
     let options = SolveOptions { float_tool: setup.float_tool.clone(), ..calibration_options(setup, cal) };
-    let kept = without_points(cal, &setup.exclude_points)?;
+    let kept = exclude_points(cal, &setup.exclude_points)?;
     let found = data_error_candidates(&setup.model, &kept, val, &baseline.fit, &options);
     let held_out_tools: Vec<DataError> = found.iter().filter(|d| d.set == "validation").cloned().collect();
     let mut errors: Vec<Scored> = found
@@ -989,7 +989,7 @@ pub fn auto_tracker(
     cal: &Observations,
     val: &Observations,
     max_steps: usize,
-) -> Result<(TrackerAuto, TrackerSetup), TrackerRunError> {
+) -> Result<(TrackerAuto, TrackerSetup), RunError> {
     let mut current = setup.clone();
     let mut steps = Vec::new();
     let mut pending: Option<(String, String, Option<f64>)> = None;
@@ -1037,7 +1037,7 @@ pub fn auto_tracker(
 pub enum TrackerDiagnoseError {
     /// Reading or calibrating failed.
     #[error(transparent)]
-    Run(#[from] TrackerRunError),
+    Run(#[from] RunError),
     /// The data are not those the RUN was made from.
     #[error("{path}: {what}; the data changed since the calibration (calibrate again)")]
     DataChanged {
@@ -1052,36 +1052,36 @@ pub enum TrackerDiagnoseError {
 /// the same sessions with the same point counts, the same held-out figures, and `calibration_rms_mm`
 /// (a fresh calibration of the setup) equal to the stored one.
 pub fn check_run_data(
-    summary: &TrackerSummary,
+    summary: &Summary,
     cal: &Observations,
     val: &Observations,
     calibration_rms_mm: f64,
 ) -> Result<(), TrackerDiagnoseError> {
     let changed =
         |path: &std::path::Path, what: String| TrackerDiagnoseError::DataChanged { path: path.into(), what };
-    let kept = without_points(cal, &summary.inputs.exclude_points)?;
+    let kept = exclude_points(cal, &summary.inputs.exclude_points)?;
     let source = |data: &Observations, b: usize| data.groups[data.blocks[b].group].source.clone();
-    for (name, points) in &summary.calibration_sessions {
-        match kept.find_block(name) {
+    for (name, points) in &summary.calibration.groups {
+        match kept.find_group(name) {
             None => {
                 return Err(changed(
                     &summary.inputs.calibration,
                     format!("calibration session {name} is no longer there"),
                 ))
             }
-            Some(b) if kept.blocks[b].members.len() != *points => {
-                let now = kept.blocks[b].members.len();
-                return Err(changed(&source(&kept, b), format!("{points} points used, {now} now")));
+            Some(g) if kept.group_members(g).len() != *points => {
+                let now = kept.group_members(g).len();
+                return Err(changed(&kept.groups[g].source, format!("{points} points used, {now} now")));
             }
             Some(_) => {}
         }
     }
     if let Some(b) =
-        sessions(&kept).into_iter().find(|&b| !summary.calibration_sessions.contains_key(&kept.block_name(b)))
+        sessions(&kept).into_iter().find(|&b| !summary.calibration.groups.contains_key(&kept.block_name(b)))
     {
         return Err(changed(&source(&kept, b), "a calibration session the run did not use".into()));
     }
-    for f in &summary.validation.sessions {
+    for f in summary.held_out_sessions() {
         let name = &f.calibrated.name;
         let Some(b) = val.find_block(name) else {
             return Err(changed(
@@ -1097,7 +1097,7 @@ pub fn check_run_data(
             ));
         }
     }
-    let stored = summary.fit.rms_mm;
+    let stored = summary.calibration.rms_mm;
     if (calibration_rms_mm - stored).abs() > 1e-6 * stored.max(1e-3) {
         return Err(changed(
             &summary.inputs.calibration,
@@ -1148,17 +1148,16 @@ pub struct TrackerComparison {
 /// Compare two calibrated models (`before`, `after`, each with its run's summary) on the held-out
 /// sessions `val` both runs validated on, with the same test units as the diagnosis.
 pub fn compare_tracker(
-    before: (&TrackerSummary, &ArmModel),
-    after: (&TrackerSummary, &ArmModel),
+    before: (&Summary, &ArmModel),
+    after: (&Summary, &ArmModel),
     val: &Observations,
 ) -> TrackerComparison {
-    let shared =
-        |s: &TrackerSummary, name: &str| s.validation.sessions.iter().any(|f| f.calibrated.name == name);
+    let shared = |s: &Summary, name: &str| s.held_out_sessions().iter().any(|f| f.calibrated.name == name);
     let keep: Vec<usize> = (0..val.groups.len())
         .filter(|&g| shared(before.0, &val.groups[g].name) && shared(after.0, &val.groups[g].name))
         .collect();
     let val = val.subset(&keep);
-    let errors = |run: (&TrackerSummary, &ArmModel)| -> Vec<Vec<f64>> {
+    let errors = |run: (&Summary, &ArmModel)| -> Vec<Vec<f64>> {
         held_out_residuals(run.1, &val, &run.0.inputs.float_tool)
             .iter()
             .map(|r| r.iter().map(|v| v.norm()).collect())
@@ -1169,9 +1168,8 @@ pub fn compare_tracker(
     let ratios = log_ratios(&b, &a, &units);
     let negated: Vec<f64> = ratios.iter().map(|r| -r).collect();
     let (p_better, p_worse) = (held_out_p(&ratios), held_out_p(&negated));
-    let pairwise = |s: &TrackerSummary, name: &str| {
-        s.validation
-            .sessions
+    let pairwise = |s: &Summary, name: &str| {
+        s.held_out_sessions()
             .iter()
             .find(|f| f.calibrated.name == name)
             .map_or(0.0, |f| f.calibrated.pairwise_rms_mm)
@@ -1201,14 +1199,18 @@ pub fn compare_tracker(
     } else {
         format!("no significant difference on the held-out sessions: {rb:.4} vs {ra:.4} mm ({improved}/{} blocks improved)", ratios.len())
     }];
-    if let Some(f) = after.0.floor.rms_mm {
+    if let Some(f) = after.0.point_floor().rms_mm {
         verdict.push(if ra <= EXPLAINS_WITHIN * f {
             format!(
                 "the second run explains the held-out data: {ra:.4} mm against a floor of {f:.4} mm ({})",
-                after.0.floor.source
+                after.0.point_floor().source
             )
         } else {
-            format!("the second run is {:.2}× its floor of {f:.4} mm ({})", ra / f, after.0.floor.source)
+            format!(
+                "the second run is {:.2}× its floor of {f:.4} mm ({})",
+                ra / f,
+                after.0.point_floor().source
+            )
         });
     } else {
         verdict.push("the second run's floor is unknown: it cannot be called explained".into());
@@ -1217,7 +1219,7 @@ pub fn compare_tracker(
         sessions,
         before_rms_mm: rb,
         after_rms_mm: ra,
-        floors_mm: (before.0.floor.rms_mm, after.0.floor.rms_mm),
+        floors_mm: (before.0.point_floor().rms_mm, after.0.point_floor().rms_mm),
         units_improved: (improved, ratios.len()),
         p_better,
         p_worse,

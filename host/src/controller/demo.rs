@@ -12,8 +12,9 @@
 
 use crate::calib::auto::{auto_loop, AutoLoop, Stop};
 use crate::calib::fit::CalibError;
-use crate::calib::run::{run, Run, RunError, RunInputs};
+use crate::calib::run::{run, Run, RunError};
 use crate::calib::setup::SolveOptions;
+use crate::calib::summary::RunInputs;
 use crate::controller::link::{Link, LinkError};
 use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step, Verdict};
 use crate::controller::signing::StationKey;
@@ -92,7 +93,7 @@ pub enum LoopError {
     Run(#[from] RunError),
     /// The RUN folder could not be written.
     #[error(transparent)]
-    Output(#[from] crate::output::OutputError),
+    Output(#[from] crate::store::OutputError),
     /// A parameter set is outside what the controller accepts.
     #[error(transparent)]
     Params(#[from] crate::controller::device::DeviceParamsError),
@@ -152,15 +153,16 @@ pub fn calibrate_diagnose_add(
     progress: &mut dyn FnMut(&str),
 ) -> Result<Mission, LoopError> {
     progress("calibrating the model as given");
-    let first = run(inputs, options, &[], 0, true)?;
-    crate::output::write_run(&first, &out.join("run"))?;
+    let first = run(inputs, options, 0, true)?;
+    crate::store::write_run(&first, &out.join("run"))?;
     progress("diagnosing, adding what the diagnosis names, recalibrating");
-    let cal = inputs.load_data(&first.artefact)?.0;
+    let (cal, val) = inputs.read_folders()?;
+    let cal = inputs.exclude(&cal, &val)?.0;
     let auto = auto_loop(&first.calibration.model, &cal, &first.validation_data, options, MAX_ADDED)?;
-    crate::output::write_auto(&auto, &out.join("run"))?;
+    crate::store::write_auto(&auto, &out.join("run"))?;
     let first_diagnosis =
         crate::calib::diagnose::diagnose(&first.calibration.model, &cal, &first.validation_data, options);
-    crate::output::write_diagnosis(&first_diagnosis, &out.join("run"))?;
+    crate::store::write_diagnosis(&first_diagnosis, &out.join("run"))?;
     let steps = auto
         .steps
         .iter()
@@ -177,8 +179,10 @@ pub fn calibrate_diagnose_add(
         None
     } else {
         progress(&format!("calibrating with {} added", added.join(", ")));
-        let last = run(inputs, options, &effects, 0, true)?;
-        crate::output::write_run(&last, &out.join("run-added"))?;
+        let with_effects =
+            RunInputs { add: effects.iter().map(ToString::to_string).collect(), ..inputs.clone() };
+        let last = run(&with_effects, options, 0, true)?;
+        crate::store::write_run(&last, &out.join("run-added"))?;
         Some(last)
     };
     Ok(Mission { first, auto, last, steps, added })
@@ -404,7 +408,7 @@ pub fn run_loop(
     }
     let inputs = RunInputs::new(
         data.join("nominal.toml"),
-        data.join("artefact.json"),
+        Some(data.join("artefact.json")),
         data.join("cal"),
         data.join("val"),
     );
@@ -461,8 +465,8 @@ pub fn run_loop(
         truth_validation_rms_mm: truth_validation,
         host_calibrated_pose_rms_mm: registered_rms(&host_points, &truth_points),
         touches,
-        nominal_validation_rms_mm: mission.first.summary.nominal_validation.rms_mm,
-        calibrated_validation_rms_mm: result.summary.validation.rms_mm,
+        nominal_validation_rms_mm: mission.first.summary.nominal_held_out_rms_mm(),
+        calibrated_validation_rms_mm: result.summary.held_out_rms_mm(),
         nominal_pose_rms_mm: nominal_pose,
         calibrated_pose_rms_mm: calibrated_pose,
         floor_pose_rms_mm: floor_pose,

@@ -211,7 +211,8 @@ fn plan_benchmark(seeds: u64) -> Result<()> {
 /// simulated placements, 20 repeats each, copied under new names with fresh encoder noise until
 /// the count is reached), and print the times beside the thesis-sized ones.
 fn scale_benchmark(touches: usize) -> Result<()> {
-    use kincal::calib::run::{run, RunInputs};
+    use kincal::calib::run::run;
+    use kincal::calib::summary::RunInputs;
     use rand::SeedableRng;
     use rand_distr::Distribution;
     let model = kincal::model::ArmModel::suta_nominal();
@@ -255,19 +256,19 @@ fn scale_benchmark(touches: usize) -> Result<()> {
         model.save(&folder.join("model.toml"))?;
         let inputs = RunInputs::new(
             folder.join("model.toml"),
-            folder.join("artefact.json"),
+            Some(folder.join("artefact.json")),
             folder.join("cal"),
             folder.join("val"),
         );
         let options = SolveOptions::default();
         let t = Instant::now();
-        let result = run(&inputs, &options, &[], 0, true)?;
+        let result = run(&inputs, &options, 0, true)?;
         let run_s = t.elapsed().as_secs_f64();
         let s = &result.summary;
         let (cal, val) = (
             Observations::load_artefact_dir(
                 &inputs.calibration,
-                &result.artefact,
+                &sim.artefact,
                 kincal::data::Purpose::Calibration,
             )?,
             &result.validation_data,
@@ -277,11 +278,11 @@ fn scale_benchmark(touches: usize) -> Result<()> {
         let diagnose_s = t.elapsed().as_secs_f64();
         println!(
             "calibrate from files, {:>6} touches in {:>4} placements ({:>7} pairs): {run_s:6.2} s ({:.0} touches/s); diagnose {diagnose_s:6.2} s; validation RMS {:.3} mm",
-            s.calibration.touches,
+            s.calibration.observations,
             cal.groups.len(),
             s.calibration.pairs,
-            s.calibration.touches as f64 / run_s,
-            s.validation.rms_mm
+            s.calibration.observations as f64 / run_s,
+            s.held_out_rms_mm()
         );
     }
     std::fs::remove_dir_all(&dir).ok();
@@ -437,24 +438,24 @@ fn whole_calibration(sim: &kincal::simulate::SimulatedData, options: &SolveOptio
     let dir = std::env::temp_dir().join(format!("kincal-bench-run-{}", std::process::id()));
     sim.write(&dir)?;
     kincal::model::ArmModel::suta_nominal().save(&dir.join("nominal.toml"))?;
-    let inputs = kincal::calib::run::RunInputs::new(
+    let inputs = kincal::calib::summary::RunInputs::new(
         dir.join("nominal.toml"),
-        dir.join("artefact.json"),
+        Some(dir.join("artefact.json")),
         dir.join("cal"),
         dir.join("val"),
     );
     let (mut wall, mut cpu, mut parts, mut report) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for _ in 0..10 {
         let (t, c) = (Instant::now(), process_cpu_ms());
-        let run = kincal::calib::run::run(&inputs, options, &[], 0, true)?;
+        let run = kincal::calib::run::run(&inputs, options, 0, true)?;
         let mut steps = run.steps.clone();
-        kincal::output::write_run(&run, &dir.join("run"))?;
+        kincal::store::write_run(&run, &dir.join("run"))?;
         steps.lap("report and write");
         wall.push(t.elapsed().as_secs_f64() * 1e3);
         cpu.push(process_cpu_ms() - c);
         parts.push(steps.ms);
         let t = Instant::now();
-        std::hint::black_box(kincal::report::calibration::calibration_report(&run));
+        std::hint::black_box(kincal::report::run::run_report(&run));
         report.push(t.elapsed().as_secs_f64() * 1e3);
     }
     std::fs::remove_dir_all(&dir).ok();

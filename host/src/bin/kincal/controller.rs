@@ -3,8 +3,8 @@
 use crate::arm::simulate_to;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
-use kincal::calib::run::RunInputs;
 use kincal::calib::setup::SolveOptions;
+use kincal::calib::summary::RunInputs;
 use kincal::controller::signing::{fingerprint, utc, StationKey};
 use kincal::data::{Artefact, Observations};
 use kincal::model::ArmModel;
@@ -747,7 +747,7 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
         data.join("val").display()
     );
     let inputs =
-        RunInputs::new(a.model.clone(), data.join("artefact.json"), data.join("cal"), data.join("val"));
+        RunInputs::new(a.model.clone(), Some(data.join("artefact.json")), data.join("cal"), data.join("val"));
     let mission = kincal::controller::demo::calibrate_diagnose_add(
         &inputs,
         &SolveOptions { seed: a.seed, ..SolveOptions::default() },
@@ -755,7 +755,7 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
         &mut |step| println!("  {step}"),
     )?;
     let truth = ArmModel::load(&data.join("truth.toml"))?;
-    let artefact = Artefact::load(&inputs.artefact)?;
+    let artefact = Artefact::load(&data.join("artefact.json"))?;
     let val =
         Observations::load_artefact_dir(&inputs.validation, &artefact, kincal::data::Purpose::Validation)?;
     let floor = kincal::calib::validate::validate(&truth, &val).overall;
@@ -771,10 +771,10 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
     let dir = if mission.last.is_some() { a.out().join("run-added") } else { a.out().join("run") };
     println!(
         "validation RMS  nominal {:.3} mm → as given {:.3} mm → with {} {:.3} mm; noise floor {:.3} mm; run: {}",
-        mission.first.summary.nominal_validation.rms_mm,
-        mission.first.summary.validation.rms_mm,
+        mission.first.summary.nominal_held_out_rms_mm(),
+        mission.first.summary.held_out_rms_mm(),
         if mission.added.is_empty() { "nothing".to_string() } else { mission.added.join(" + ") },
-        last.summary.validation.rms_mm,
+        last.summary.held_out_rms_mm(),
         floor.rms_mm,
         dir.display()
     );

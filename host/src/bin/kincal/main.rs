@@ -4,17 +4,22 @@ mod args;
 mod arm;
 mod bench;
 mod bench_tracker;
+mod calibrate;
 mod controller;
+mod diagnose;
 mod emulated_arm;
 mod haptic;
 mod model;
 mod plan;
-mod tracker;
 
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "kincal", version, about = "Calibrate tracker arms from artefact touches")]
+#[command(
+    name = "kincal",
+    version,
+    about = "Calibrate serial arms from artefact touches and tracker measurements"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -24,16 +29,17 @@ struct Cli {
 enum Command {
     /// Write an artefact and calibration/validation sessions from a simulated "true" arm.
     Simulate(arm::SimulateArgs),
-    /// Calibrate the arm model from artefact touches and validate it on held-out sessions.
-    Calibrate(arm::CalibrateArgs),
+    /// Calibrate the arm model from artefact touches, tracker sessions or both, and validate it on
+    /// held-out sessions.
+    Calibrate(Box<calibrate::CalibrateArgs>),
     /// Dataset-size study: calibrate on random subsets of placements, validate each.
     Study(arm::StudyArgs),
     /// Where the calibrated model of RUN fails and which physical effect is missing.
-    Diagnose(arm::DiagnoseArgs),
+    Diagnose(diagnose::DiagnoseArgs),
     /// What to measure next: placements that tell rival effects apart or pin down weak parameters.
     Plan(plan::PlanArgs),
     /// Compare two runs: validation errors, per landmark, residual plots side by side.
-    Compare(arm::CompareArgs),
+    Compare(diagnose::CompareArgs),
     /// The whole loop on the emulated controller: record, calibrate, upload, stream the pose.
     Demo(controller::DemoArgs),
     /// Controller identity, protocol match, stored parameters and encoder health.
@@ -73,10 +79,10 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Simulate(a) => arm::cmd_simulate(&a),
-        Command::Calibrate(a) => arm::cmd_calibrate(&a),
+        Command::Calibrate(a) => calibrate::cmd_calibrate(&a),
         Command::Study(a) => arm::cmd_study(&a),
-        Command::Diagnose(a) => arm::cmd_diagnose(&a),
-        Command::Compare(a) => arm::cmd_compare(&a),
+        Command::Diagnose(a) => diagnose::cmd_diagnose(&a),
+        Command::Compare(a) => diagnose::cmd_compare(&a),
         Command::Plan(a) => plan::cmd_plan(&a),
         Command::Demo(a) => controller::cmd_demo(&a),
         Command::Info(a) => controller::cmd_info(&a),

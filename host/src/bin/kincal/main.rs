@@ -11,7 +11,8 @@ mod model;
 mod plan;
 mod tracker;
 
-use clap::{Parser, Subcommand};
+use clap::parser::ValueSource;
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser)]
 #[command(name = "kincal", version, about = "Calibrate tracker arms from artefact touches")]
@@ -70,8 +71,35 @@ fn main() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    let cli = Cli::parse();
-    let result = match cli.command {
+    let (cli, builtin_model) = parse();
+    let result = run(cli);
+    drop(builtin_model);
+    if let Err(e) = result {
+        eprintln!("error: {}", message(&e));
+        std::process::exit(1);
+    }
+}
+
+/// The command line; `simulate` without `--model` reads the built-in SUTA model from a file that
+/// lives as long as the command.
+fn parse() -> (Cli, Option<args::BuiltinModelFile>) {
+    let matches = Cli::command().get_matches();
+    let default_model = matches
+        .subcommand_matches("simulate")
+        .is_some_and(|m| m.value_source("model") == Some(ValueSource::DefaultValue));
+    if !default_model {
+        return (Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit()), None);
+    }
+    let file = args::BuiltinModelFile::write().unwrap_or_else(|e| {
+        eprintln!("error: writing the built-in SUTA model to the temporary folder: {e}");
+        std::process::exit(1)
+    });
+    let argv = std::env::args_os().chain(["--model".into(), file.path().as_os_str().to_owned()]);
+    (Cli::parse_from(argv), Some(file))
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
         Command::Simulate(a) => arm::cmd_simulate(&a),
         Command::Calibrate(a) => arm::cmd_calibrate(&a),
         Command::Study(a) => arm::cmd_study(&a),
@@ -90,10 +118,6 @@ fn main() {
         Command::Haptic(haptic::HapticCommand::Calibrate(a)) => haptic::cmd_haptic_calibrate(&a),
         Command::Model(c) => model::run(&c),
         Command::Bench(a) => bench::run_benchmarks(&a),
-    };
-    if let Err(e) = result {
-        eprintln!("error: {}", message(&e));
-        std::process::exit(1);
     }
 }
 

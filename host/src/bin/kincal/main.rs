@@ -4,6 +4,8 @@ mod args;
 mod arm;
 mod bench;
 mod bench_tracker;
+#[cfg(test)]
+mod cli_reference;
 mod controller;
 mod emulated_arm;
 mod haptic;
@@ -57,7 +59,7 @@ enum Command {
     /// Haptic device (PHANToM) workspace calibration.
     #[command(subcommand)]
     Haptic(haptic::HapticCommand),
-    /// Model files: from and to URDF.
+    /// Model files: from and to URDF, and the built-in SUTA model.
     #[command(subcommand)]
     Model(model::ModelCommand),
     /// Benchmarks: calibration time, study throughput, and SciPy on the same problem.

@@ -160,6 +160,9 @@ fn parse_block(lines: &[&str], first: usize) -> Vec<Step> {
         {
             step.status = status;
             step.expected.pop();
+            while step.expected.last().is_some_and(|l| l.is_empty()) {
+                step.expected.pop();
+            }
         }
     }
     steps

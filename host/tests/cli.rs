@@ -318,3 +318,37 @@ fn haptic_simulate_and_calibrate_write_the_summary_and_refuse_bad_recordings() {
     assert!(stderr.contains("joints/device.csv:102") && stderr.contains("does not increase"), "{stderr}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn demo_offline_and_simulate_run_from_an_empty_folder_outside_the_repository() {
+    let dir = scratch("anywhere");
+    let run = |args: &[&str]| {
+        let child = Command::new(env!("CARGO_BIN_EXE_kincal"))
+            .args(args)
+            .current_dir(&dir)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("kincal runs");
+        let pid = child.id();
+        let out = child.wait_with_output().expect("kincal ends");
+        assert!(out.status.success(), "kincal {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        (pid, String::from_utf8_lossy(&out.stdout).into_owned())
+    };
+    let (pid, _) = run(&["simulate", "--out", "data", "--repeats", "1"]);
+    for file in ["artefact.json", "truth.toml", "cal", "val"] {
+        assert!(dir.join("data").join(file).exists(), "simulate wrote no data/{file}");
+    }
+    let model_file = std::env::temp_dir().join(format!("kincal-suta-model-{pid}.toml"));
+    assert!(!model_file.exists(), "the built-in model's file outlived the command");
+
+    let (_, printed) = run(&["demo", "--offline"]);
+    assert!(printed.contains("missing effect: compliance:2"), "{printed}");
+    let out = dir.join("runs/demo-offline");
+    for file in ["nominal.toml", "run/diagnosis.html", "run/report.html", "run-added/model.toml"] {
+        assert!(out.join(file).exists(), "demo --offline wrote no {file}");
+    }
+    let nominal = kincal::model::ArmModel::load(&out.join("nominal.toml")).unwrap();
+    assert_eq!(nominal, kincal::model::ArmModel::load(&example_model()).unwrap());
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -240,12 +240,12 @@ fn print_run(s: &Summary, out: &Path, seconds: f64) {
         }
     }
     let ident = &s.identifiability.report;
+    if ident.statements.is_empty() && !ident.fixed.is_empty() {
+        println!("  fixed at nominal, not identifiable from this data: {}", ident.fixed.join(", "));
+    }
     println!("  estimated: {}", ident.estimated.join(", "));
     for t in &ident.statements {
         println!("  {t}");
-    }
-    if ident.statements.is_empty() && !ident.fixed.is_empty() {
-        println!("  fixed at nominal, not identifiable from this data: {}", ident.fixed.join(", "));
     }
     for combination in s.identifiability.after.iter().flat_map(|a| &a.poorly_identified) {
         println!("  poorly identified: {}", combination.text);

@@ -13,9 +13,9 @@ use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct DemoArgs {
-    /// Nominal arm model.
-    #[arg(long, default_value = "examples/suta/model.toml")]
-    model: PathBuf,
+    /// Nominal arm model (default: the SUTA model built into kincal, examples/suta/model.toml).
+    #[arg(long)]
+    model: Option<PathBuf>,
     /// Folder for the data and the runs (default `runs/demo`, with `--offline` `runs/demo-offline`,
     /// so the two demos never share a folder).
     #[arg(long)]
@@ -40,6 +40,26 @@ impl DemoArgs {
         self.out
             .clone()
             .unwrap_or_else(|| PathBuf::from(if self.offline { "runs/demo-offline" } else { "runs/demo" }))
+    }
+
+    /// The nominal model: `--model`, or the built-in SUTA model.
+    fn nominal(&self) -> Result<ArmModel> {
+        Ok(match &self.model {
+            Some(path) => ArmModel::load(path)?,
+            None => ArmModel::suta_nominal(),
+        })
+    }
+
+    /// The nominal model as a file the runs can name: `--model`, or the built-in SUTA model
+    /// written to OUT/nominal.toml.
+    fn nominal_file(&self) -> Result<PathBuf> {
+        if let Some(path) = &self.model {
+            return Ok(path.clone());
+        }
+        let path = self.out().join("nominal.toml");
+        std::fs::create_dir_all(self.out()).with_context(|| format!("creating {}", self.out().display()))?;
+        ArmModel::suta_nominal().save(&path)?;
+        Ok(path)
     }
 }
 
@@ -157,7 +177,7 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
     if a.offline {
         return cmd_demo_offline(a);
     }
-    let nominal = ArmModel::load(&a.model)?;
+    let nominal = a.nominal()?;
     println!("starting the emulated controller on QEMU (mps2-an386): {}", a.firmware.display());
     let (_emulator, mut link) = kincal::controller::emulator::Emulator::start(&a.firmware)?;
     link.hello()?;
@@ -736,18 +756,14 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
         "1/3 simulate: a true arm off the nominal model by degrees and millimetres, hiding {}",
         names.join(", ")
     );
-    simulate_to(
-        &a.model,
-        &data,
-        &SimulationOptions { seed: a.seed, hidden, ..SimulationOptions::default() },
-    )?;
+    let model = a.nominal_file()?;
+    simulate_to(&model, &data, &SimulationOptions { seed: a.seed, hidden, ..SimulationOptions::default() })?;
     println!(
         "2/3 calibrate on {}, validate on {}, diagnose, add",
         data.join("cal").display(),
         data.join("val").display()
     );
-    let inputs =
-        RunInputs::new(a.model.clone(), Some(data.join("artefact.json")), data.join("cal"), data.join("val"));
+    let inputs = RunInputs::new(model, Some(data.join("artefact.json")), data.join("cal"), data.join("val"));
     let mission = kincal::controller::demo::calibrate_diagnose_add(
         &inputs,
         &SolveOptions { seed: a.seed, ..SolveOptions::default() },

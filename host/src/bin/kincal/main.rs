@@ -5,6 +5,8 @@ mod arm;
 mod bench;
 mod bench_tracker;
 mod calibrate;
+#[cfg(test)]
+mod cli_reference;
 mod controller;
 mod diagnose;
 mod emulated_arm;
@@ -12,7 +14,8 @@ mod haptic;
 mod model;
 mod plan;
 
-use clap::{Parser, Subcommand};
+use clap::parser::ValueSource;
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser)]
 #[command(
@@ -62,7 +65,7 @@ enum Command {
     /// Haptic device (PHANToM) workspace calibration.
     #[command(subcommand)]
     Haptic(haptic::HapticCommand),
-    /// Model files: from and to URDF.
+    /// Model files: from and to URDF, and the built-in SUTA model.
     #[command(subcommand)]
     Model(model::ModelCommand),
     /// Benchmarks: calibration time, study throughput, and SciPy on the same problem.
@@ -76,8 +79,35 @@ fn main() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    let cli = Cli::parse();
-    let result = match cli.command {
+    let (cli, builtin_model) = parse();
+    let result = run(cli);
+    drop(builtin_model);
+    if let Err(e) = result {
+        eprintln!("error: {}", message(&e));
+        std::process::exit(1);
+    }
+}
+
+/// The command line; `simulate` without `--model` reads the built-in SUTA model from a file that
+/// lives as long as the command.
+fn parse() -> (Cli, Option<args::BuiltinModelFile>) {
+    let matches = Cli::command().get_matches();
+    let default_model = matches
+        .subcommand_matches("simulate")
+        .is_some_and(|m| m.value_source("model") == Some(ValueSource::DefaultValue));
+    if !default_model {
+        return (Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit()), None);
+    }
+    let file = args::BuiltinModelFile::write().unwrap_or_else(|e| {
+        eprintln!("error: writing the built-in SUTA model to the temporary folder: {e}");
+        std::process::exit(1)
+    });
+    let argv = std::env::args_os().chain(["--model".into(), file.path().as_os_str().to_owned()]);
+    (Cli::parse_from(argv), Some(file))
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
         Command::Simulate(a) => arm::cmd_simulate(&a),
         Command::Calibrate(a) => calibrate::cmd_calibrate(&a),
         Command::Study(a) => arm::cmd_study(&a),
@@ -96,10 +126,6 @@ fn main() {
         Command::Haptic(haptic::HapticCommand::Calibrate(a)) => haptic::cmd_haptic_calibrate(&a),
         Command::Model(c) => model::run(&c),
         Command::Bench(a) => bench::run_benchmarks(&a),
-    };
-    if let Err(e) = result {
-        eprintln!("error: {}", message(&e));
-        std::process::exit(1);
     }
 }
 

@@ -306,7 +306,9 @@ impl<'a> Pieces<'a> {
         let floated = data.groups.iter().map(|g| options.float_tool.contains(&g.name)).collect();
         let drift = drift_slots(data, &options.drift_sessions)?;
         let mut model = nominal.clone();
-        if framed.iter().any(|f| *f) {
+        // An instrument's tool point (a reflector, a probe) is never known to the data's accuracy.
+        let instrument = framed.iter().any(|f| *f) || data.obs.iter().any(|o| o.unframed_mm().is_some());
+        if instrument {
             for k in 0..3 {
                 if !model.free.iter().any(|f| f.id == ParamId::Tcp(k)) {
                     let v = model.tcp_mm[k];
@@ -314,10 +316,15 @@ impl<'a> Pieces<'a> {
                 }
             }
         }
-        let resolved = options.resolve(data);
+        let mut resolved = options.resolve(data);
+        if data.kind() == Some(crate::data::DataKind::Mixed) {
+            let touch_std_mm = crate::calib::floor::touch_std_mm(nominal, data);
+            resolved.point_weight = options.point_weight(data, touch_std_mm);
+        }
         let choice = TermChoice {
             relative_orientation_lever_mm: resolved.relative_lever_mm,
             orientation_weight_mm_per_rad: resolved.orientation_weight_mm_per_rad,
+            point_weight: resolved.point_weight,
         };
         Ok(Pieces { data, model, terms: terms::build(data, &choice), framed, floated, drift, resolved })
     }
@@ -628,7 +635,7 @@ fn calibrate_dense(nominal: &ArmModel, pieces: &Pieces, options: &SolveOptions) 
     let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
     let variance = r.iter().zip(&weights).map(|(v, w)| w * v * v).sum::<f64>() / dof;
     let cov = identify::covariance(&jac, &weights, n, variance);
-    let stats = residual_stats(&problem, &best.residuals, pieces.resolved.orientation_weight_mm_per_rad);
+    let stats = residual_stats(&problem, &best.residuals);
     let rms_mm = stats.distances.or(stats.points).map_or(0.0, |s| s.rms_mm);
     let iterations = starts.iter().map(|s| s.iterations).sum();
     Ok(Fit {
@@ -798,7 +805,7 @@ fn calibrate_framed(nominal: &ArmModel, pieces: &Pieces) -> Result<Fit, CalibErr
     let dof = (r.len() as f64 - n as f64).max(1.0);
     let variance = r.iter().map(|&v| loss.weight(v) * v * v).sum::<f64>() / dof;
     let cov = identify::covariance_of_normal(normal, variance);
-    let stats = residual_stats(&problem, &r, pieces.resolved.orientation_weight_mm_per_rad);
+    let stats = residual_stats(&problem, &r);
     let tool_rotation =
         problem.layout.rotation_column().zip(solved.probe).map(|(c, rotation)| ToolRotation {
             rotation_vector_deg: rotation_vector(&rotation).map(f64::to_degrees).into(),
@@ -852,17 +859,15 @@ fn calibrate_framed(nominal: &ArmModel, pieces: &Pieces) -> Result<Fit, CalibErr
 }
 
 /// The residual statistics per kind from the residuals `r` of `problem`'s terms.
-fn residual_stats(problem: &Problem, r: &[f64], orientation_weight: Option<f64>) -> FitStats {
+fn residual_stats(problem: &Problem, r: &[f64]) -> FitStats {
     let (mut distances, mut points, mut angles) = (Vec::new(), Vec::new(), Vec::new());
     for (t, &at) in problem.terms().iter().zip(problem.offsets()) {
         let rows = &r[at..at + t.rows()];
+        let size = || Vector3::new(rows[0], rows[1], rows[2]).norm() / t.weight();
         match (t.rows(), t.is_position()) {
             (1, true) => distances.push(rows[0]),
-            (3, true) => points.push(Vector3::new(rows[0], rows[1], rows[2]).norm()),
-            (3, false) => {
-                let w = orientation_weight.unwrap_or(1.0);
-                angles.push((Vector3::new(rows[0], rows[1], rows[2]).norm() / w).to_degrees())
-            }
+            (3, true) => points.push(size()),
+            (3, false) => angles.push(size().to_degrees()),
             _ => {}
         }
     }

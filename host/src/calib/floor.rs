@@ -94,6 +94,12 @@ pub struct NoiseFloor {
     pub extrapolation: Option<f64>,
 }
 
+/// Per-axis scatter of one touch about its group mean, mm, from the repeated touches of `data`
+/// alone (see [`NoiseFloor::touch_std_mm`]); `None` without a landmark touched twice.
+pub fn touch_std_mm(model: &ArmModel, data: &Observations) -> Option<f64> {
+    noise_floor(model, data, &data.without(|_| true), 0).map(|f| f.touch_std_mm)
+}
+
 /// Measured validation error against the floor.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Gap {

@@ -542,6 +542,7 @@ pub fn run_on(
             restarts: fit.options.restarts,
             seed: fit.options.seed,
             objective: fit.options.objective,
+            point_weight: (fit.options.point_weight != 1.0).then_some(fit.options.point_weight),
         },
         calibration: CalibrationSummary {
             rms_mm: fit.rms_mm,

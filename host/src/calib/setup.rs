@@ -27,6 +27,9 @@ pub const DEFAULT_ORIENTATION_SIGMA_DEG: f64 = 0.01;
 /// Position σ per axis, mm, that weighs orientations against points when no point states its
 /// uncertainty (`sigma_mm` / `u95_mm`).
 pub const DEFAULT_POSITION_SIGMA_MM: f64 = 0.025;
+/// Per-axis scatter of a touch, mm, that weighs tracker points against artefact distances in
+/// mixed data when no landmark was touched twice (the SUTA's seating, thesis §4).
+pub const DEFAULT_TOUCH_SIGMA_MM: f64 = 0.1;
 /// Most random restarts a calibration may ask for (the CLI and a RUN read back both check it).
 pub const MAX_RESTARTS: usize = 1000;
 /// Range of the Huber threshold δ, mm.
@@ -101,6 +104,10 @@ pub struct Resolved {
     pub relative_lever_mm: Option<f64>,
     /// Weight of a probe's orientation rows, mm per radian, when they are fitted.
     pub orientation_weight_mm_per_rad: Option<f64>,
+    /// Weight of instrument rows (points and orientations) against distances between touches:
+    /// 1 for one kind of data alone; with both, σ_distance/σ_point (see
+    /// [`SolveOptions::point_weight`]), so that each row counts by its noise.
+    pub point_weight: f64,
 }
 
 impl SolveOptions {
@@ -135,7 +142,19 @@ impl SolveOptions {
             objective,
             relative_lever_mm,
             orientation_weight_mm_per_rad,
+            point_weight: 1.0,
         }
+    }
+
+    /// Weight of an instrument's rows against distances between touches when both are fitted
+    /// together: σ_distance / σ_point, with σ_distance = √2·σ_touch the noise of a distance
+    /// between two touches of per-axis scatter σ_touch (`touch_std_mm`, from repeated touches of
+    /// the calibration data; [`DEFAULT_TOUCH_SIGMA_MM`] without any) and σ_point the median
+    /// stated σ per axis of the points (else [`DEFAULT_POSITION_SIGMA_MM`]). Each row then counts
+    /// by its noise, as in a weighted least-squares fit of both instruments.
+    pub fn point_weight(&self, data: &Observations, touch_std_mm: Option<f64>) -> f64 {
+        let touch = touch_std_mm.filter(|s| s.is_finite() && *s > 0.0).unwrap_or(DEFAULT_TOUCH_SIGMA_MM);
+        std::f64::consts::SQRT_2 * touch / median_point_sigma_mm(data)
     }
 
     /// Weight of an orientation residual, mm per rad: σ_position / σ_orientation, so that a
@@ -144,13 +163,19 @@ impl SolveOptions {
     /// [`DEFAULT_POSITION_SIGMA_MM`]; σ_orientation is `--orientation-sigma-deg`, else
     /// [`DEFAULT_ORIENTATION_SIGMA_DEG`].
     pub fn orientation_weight(&self, data: &Observations) -> f64 {
-        let mut stated: Vec<f64> =
-            data.obs.iter().filter(|o| o.point_mm().is_some()).filter_map(|o| o.sigma_mm).collect();
-        stated.sort_by(f64::total_cmp);
-        let position = stated.get(stated.len() / 2).copied().unwrap_or(DEFAULT_POSITION_SIGMA_MM);
+        let position = median_point_sigma_mm(data);
         let orientation = self.orientation_sigma_deg.unwrap_or(DEFAULT_ORIENTATION_SIGMA_DEG).to_radians();
         position / orientation
     }
+}
+
+/// The median stated σ per axis of the points (`sigma_mm`, `u95_mm`/2), else
+/// [`DEFAULT_POSITION_SIGMA_MM`].
+fn median_point_sigma_mm(data: &Observations) -> f64 {
+    let mut stated: Vec<f64> =
+        data.obs.iter().filter(|o| o.point_mm().is_some()).filter_map(|o| o.sigma_mm).collect();
+    stated.sort_by(f64::total_cmp);
+    stated.get(stated.len() / 2).copied().unwrap_or(DEFAULT_POSITION_SIGMA_MM)
 }
 
 impl Resolved {

@@ -92,6 +92,9 @@ pub struct SummaryOptions {
     pub seed: u64,
     /// Objective minimised.
     pub objective: Objective,
+    /// Weight of tracker rows against artefact distances, mixed data only (σ_distance/σ_point).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub point_weight: Option<f64>,
 }
 
 /// A number that, when present, must be one (`null` refused).

@@ -352,7 +352,7 @@ pub fn fit_session_with_tool(
     let group = data.blocks[b].group;
     let one = data.subset(&[group]);
     let start = block_frame(model, &one, 0, &Vector3::zeros());
-    let terms = crate::calib::terms::point::terms(&one);
+    let terms = crate::calib::terms::point::terms(&one, 1.0);
     let layout = Layout::new(Vec::new(), &[true], &[true], false, &[None]);
     let problem = Problem::new(layout, model, &one, &terms, vec![start.rotation], None);
     let t = start.translation_mm;

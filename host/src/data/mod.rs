@@ -14,6 +14,7 @@
 //! ([`observations`]); [`load_folder`] reads a folder of either kind or of both.
 
 pub mod observations;
+pub mod point_distances;
 pub mod tracker;
 
 pub use observations::{Block, DataKind, Group, Joints, Kind, Observation, Observations, Target};
@@ -575,9 +576,10 @@ fn read_artefact_sessions(
     Ok(data)
 }
 
-/// Read a folder of sessions of either kind or both: artefact sessions (`*.json`, read with
-/// `artefact`) and tracker sessions (`*.csv` starting with `# kincal-tracker/1`; `*.csv` files
-/// are tracker sessions when one of them carries the tag, and then all must). A folder of
+/// Read a folder of sessions of any kinds: artefact sessions (`*.json`, read with `artefact`),
+/// tracker sessions (`*.csv` starting with `# kincal-tracker/1`; `*.csv` files are tracker
+/// sessions when one of them carries the tag, and then all must but those of another reader) and
+/// frame-free distance sessions (`*.csv` starting with `# kincal-point-distances/1`). A folder of
 /// artefact sessions without an artefact file is refused, naming `--artefact`.
 pub fn load_folder(
     dir: &Path,
@@ -585,14 +587,15 @@ pub fn load_folder(
     purpose: Purpose,
 ) -> Result<Observations, FileError> {
     let json = session_files(dir)?;
-    let csv = tracker::csv_files(dir)?;
+    let (distances, csv): (Vec<PathBuf>, Vec<PathBuf>) =
+        tracker::csv_files(dir)?.into_iter().partition(|f| point_distances::is_one(f));
     let tagged = csv.iter().any(|f| tracker::starts_with_tag(f));
     let required = |what: String| FileError::Field {
         path: dir.to_owned(),
         field: "--artefact".into(),
         message: format!("--artefact is required: {} {what}", dir.display()),
     };
-    if json.is_empty() && !tagged {
+    if json.is_empty() && !tagged && distances.is_empty() {
         return match (artefact, csv.is_empty()) {
             (Some(_), _) => Err(FileError::EmptyFolder { path: dir.to_owned() }),
             (None, true) => tracker::load_dir(dir),
@@ -612,26 +615,28 @@ pub fn load_folder(
             )))
         }
     };
-    let tracker_part = if tagged { Some(tracker::load_dir(dir)?) } else { None };
-    match (artefact_part, tracker_part) {
-        (Some(a), Some(t)) => {
-            if a.joints != t.joints {
-                return Err(FileError::Field {
-                    path: dir.to_owned(),
-                    field: "(folder)".into(),
-                    message: format!(
-                        "the artefact sessions record {} encoder angles, the tracker sessions have {} joint \
-                         columns: the sessions of one folder come from one arm",
-                        a.joints, t.joints
-                    ),
-                });
-            }
-            Ok(a.merge(t))
+    let tracker_part = tagged.then(|| tracker::load_files(dir, &csv)).transpose()?;
+    let distance_part =
+        (!distances.is_empty()).then(|| point_distances::load_files(dir, &distances)).transpose()?;
+    let mut parts = [artefact_part, tracker_part, distance_part].into_iter().flatten();
+    let Some(mut all) = parts.next() else { return Err(FileError::EmptyFolder { path: dir.to_owned() }) };
+    for part in parts {
+        if part.joints != all.joints {
+            return Err(FileError::Field {
+                path: dir.to_owned(),
+                field: "(folder)".into(),
+                message: format!(
+                    "the {} sessions have {} joints, the {} sessions {}: the sessions of one folder come from one arm",
+                    all.groups[0].kind.word(),
+                    all.joints,
+                    part.groups[0].kind.word(),
+                    part.joints
+                ),
+            });
         }
-        (Some(a), None) => Ok(a),
-        (None, Some(t)) => Ok(t),
-        (None, None) => Err(FileError::EmptyFolder { path: dir.to_owned() }),
+        all = all.merge(part);
     }
+    Ok(all)
 }
 
 #[cfg(test)]

@@ -97,6 +97,12 @@ pub enum Target {
         /// The probe's measured orientation.
         orientation: Option<UnitQuaternion<f64>>,
     },
+    /// A point measured by an instrument whose frame is not kept from point to point: only the
+    /// distances between the points of one session are measurements ([`Kind::PointDistances`]).
+    Unframed {
+        /// The measured point, mm.
+        xyz_mm: Vector3<f64>,
+    },
 }
 
 /// Which reader made a group: what the user measured with.
@@ -107,6 +113,8 @@ pub enum Kind {
     Artefact,
     /// Points of an instrument (`kincal-tracker/1`).
     Tracker,
+    /// Frame-free distances between an instrument's points (`kincal-point-distances/1`).
+    PointDistances,
 }
 
 impl Kind {
@@ -115,6 +123,7 @@ impl Kind {
         match self {
             Kind::Artefact => "artefact",
             Kind::Tracker => "tracker",
+            Kind::PointDistances => "point-distances",
         }
     }
 }
@@ -197,7 +206,7 @@ impl Observation {
     pub fn landmark(&self) -> Option<usize> {
         match self.target {
             Target::Landmark(l) => Some(l),
-            Target::Point { .. } => None,
+            Target::Point { .. } | Target::Unframed { .. } => None,
         }
     }
 
@@ -211,7 +220,15 @@ impl Observation {
     pub fn point_mm(&self) -> Option<Vector3<f64>> {
         match self.target {
             Target::Point { xyz_mm, .. } => Some(xyz_mm),
-            Target::Landmark(_) => None,
+            Target::Landmark(_) | Target::Unframed { .. } => None,
+        }
+    }
+
+    /// The measured point of a frame-free instrument's observation (distances only).
+    pub fn unframed_mm(&self) -> Option<Vector3<f64>> {
+        match self.target {
+            Target::Unframed { xyz_mm } => Some(xyz_mm),
+            Target::Landmark(_) | Target::Point { .. } => None,
         }
     }
 
@@ -219,7 +236,7 @@ impl Observation {
     pub fn orientation(&self) -> Option<UnitQuaternion<f64>> {
         match self.target {
             Target::Point { orientation, .. } => orientation,
-            Target::Landmark(_) => None,
+            Target::Landmark(_) | Target::Unframed { .. } => None,
         }
     }
 }
@@ -302,7 +319,7 @@ impl Observations {
     /// The kinds held; `None` when there is no observation.
     pub fn kind(&self) -> Option<DataKind> {
         let has = |kind: Kind| self.obs.iter().any(|o| self.groups[o.group].kind == kind);
-        match (has(Kind::Artefact), has(Kind::Tracker)) {
+        match (has(Kind::Artefact), has(Kind::Tracker) || has(Kind::PointDistances)) {
             (true, false) => Some(DataKind::Artefact),
             (false, true) => Some(DataKind::Tracker),
             (true, true) => Some(DataKind::Mixed),
@@ -432,7 +449,7 @@ impl Observations {
         let group = &self.groups[o.group].name;
         match o.target {
             Target::Landmark(l) => format!("{group}/{}/{}", o.repeat, self.landmarks[l].id),
-            Target::Point { .. } => format!("{group}:{}", o.line),
+            Target::Point { .. } | Target::Unframed { .. } => format!("{group}:{}", o.line),
         }
     }
 
@@ -447,7 +464,7 @@ impl Observations {
         let group = &self.groups[block.group];
         match group.kind {
             Kind::Artefact => format!("{}/{}", group.name, block.repeat),
-            Kind::Tracker => group.name.clone(),
+            Kind::Tracker | Kind::PointDistances => group.name.clone(),
         }
     }
 

@@ -40,13 +40,18 @@ pub fn is_tracker_folder(dir: &Path) -> bool {
 
 /// True when the file's first line is the tag line.
 pub fn starts_with_tag(path: &Path) -> bool {
+    starts_with(path, TRACKER_FORMAT)
+}
+
+/// True when the file's first line is `# FORMAT`.
+pub fn starts_with(path: &Path, format: &str) -> bool {
     std::fs::read_to_string(path).is_ok_and(|t| {
-        t.lines().next().is_some_and(|l| l.trim_start_matches('\u{feff}').trim() == tag_line())
+        t.lines().next().is_some_and(|l| l.trim_start_matches('\u{feff}').trim() == tag_line(format))
     })
 }
 
-fn tag_line() -> String {
-    format!("# {TRACKER_FORMAT}")
+fn tag_line(format: &str) -> String {
+    format!("# {format}")
 }
 
 /// The `*.csv` files of `dir` (any case), sorted by name.
@@ -168,6 +173,16 @@ pub struct SessionFile {
 
 /// Read one session file.
 pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<SessionFile, FileError> {
+    read_tagged_session(path, TRACKER_FORMAT, warnings)
+}
+
+/// Read one file of the tracker's columns whose tag line is `# FORMAT` (other readers of
+/// instrument points share the columns).
+pub fn read_tagged_session(
+    path: &Path,
+    format: &str,
+    warnings: &mut Vec<String>,
+) -> Result<SessionFile, FileError> {
     let text =
         std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
     let row_error = |line: usize, column: &str, message: String| FileError::Row {
@@ -181,14 +196,14 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<SessionFi
         .enumerate()
         .map(|(k, l)| (k + 1, l.trim_start_matches('\u{feff}').trim_end_matches('\r')));
     match lines.next() {
-        Some((_, first)) if first.trim() == tag_line() => {}
+        Some((_, first)) if first.trim() == tag_line(format) => {}
         first => {
             return Err(row_error(
                 1,
                 "format",
                 format!(
                     "expected the tag line \"{}\", found \"{}\"",
-                    tag_line(),
+                    tag_line(format),
                     first.map_or("", |f| f.1).chars().take(60).collect::<String>()
                 ),
             ))
@@ -324,7 +339,11 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<SessionFi
 /// Read every tracker session of `dir` (each `*.csv` file; files without the tag are refused):
 /// one group and one block per session.
 pub fn load_dir(dir: &Path) -> Result<Observations, FileError> {
-    let files = csv_files(dir)?;
+    load_files(dir, &csv_files(dir)?)
+}
+
+/// Read the tracker sessions `files` of `dir` (files without the tag are refused).
+pub fn load_files(dir: &Path, files: &[PathBuf]) -> Result<Observations, FileError> {
     if files.is_empty() {
         return Err(FileError::Field {
             path: dir.to_owned(),
@@ -336,7 +355,7 @@ pub fn load_dir(dir: &Path) -> Result<Observations, FileError> {
     }
     let mut data = Observations::default();
     let mut first: Option<(usize, PathBuf)> = None;
-    for f in &files {
+    for f in files {
         let session = read_session(f, &mut data.warnings)?;
         let b = session.rows[0].q_deg.len();
         if let Some((a, path)) = &first {

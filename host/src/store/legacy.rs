@@ -180,6 +180,7 @@ impl ArtefactRunV1 {
                 restarts: self.options.restarts,
                 seed: self.options.seed,
                 objective: self.options.objective,
+                point_weight: None,
             },
             calibration: CalibrationSummary {
                 rms_mm: c.rms_mm,
@@ -249,6 +250,7 @@ impl TrackerRunV1 {
                 restarts: 0,
                 seed: 1,
                 objective: Objective::Distance,
+                point_weight: None,
             },
             calibration: CalibrationSummary {
                 rms_mm: self.fit.rms_mm,

@@ -16,18 +16,21 @@ pub struct Distance {
     distance_mm: f64,
 }
 
+impl Distance {
+    /// The distance between the tool points of observations `a` and `b` of one block against
+    /// `distance_mm` (certified, or measured by a frame-free instrument).
+    pub fn new(data: &Observations, a: usize, b: usize, distance_mm: f64) -> Distance {
+        Distance { obs: [a, b], block: data.obs[a].block, group: data.obs[a].group, distance_mm }
+    }
+}
+
 /// The distance terms of `pairs` (touch indices of one block).
 pub fn terms(data: &Observations, pairs: &[(usize, usize)]) -> Vec<Box<dyn Term>> {
     pairs
         .iter()
         .map(|&(a, b)| {
             let (la, lb) = (data.obs[a].touched(), data.obs[b].touched());
-            Box::new(Distance {
-                obs: [a, b],
-                block: data.obs[a].block,
-                group: data.obs[a].group,
-                distance_mm: data.landmark_distance_mm(la, lb),
-            }) as Box<dyn Term>
+            Box::new(Distance::new(data, a, b, data.landmark_distance_mm(la, lb))) as Box<dyn Term>
         })
         .collect()
 }

@@ -9,6 +9,7 @@
 //! | [`relative_orientation::RelativeOrientation`] | 4 | the same pair | tool axes and yaw against the pillars', mm via a lever |
 //! | [`point::Point`] | 3 | one point, its session's frame, tool, drift | B_s·p − X, mm |
 //! | [`orientation::Orientation`] | 3 | one oriented point, its frame, the probe rotation | rotation vector of R_predᵀ·R_meas, mm via σ ratio |
+//! | [`point_distance`] | 1 | two frame-free points of one session | ‖p_a − p_b‖ − ‖X_a − X_b‖, mm |
 //!
 //! A new observation kind is one more file here: a struct implementing [`Term`] and the function
 //! that makes its terms from the observations ([`build`] calls it).
@@ -16,6 +17,7 @@
 pub mod distance;
 pub mod orientation;
 pub mod point;
+pub mod point_distance;
 pub mod relative_orientation;
 
 use crate::calib::layout::{Layout, State};
@@ -114,6 +116,11 @@ pub trait Term: Send + Sync {
     fn is_position(&self) -> bool {
         true
     }
+    /// The factor its rows carry (1 for a distance; a point's weight against touches in mixed
+    /// data; an orientation's mm per radian): a row divided by it is the measurement's error.
+    fn weight(&self) -> f64 {
+        1.0
+    }
 }
 
 /// Which terms the calibration minimises.
@@ -123,10 +130,14 @@ pub struct TermChoice {
     pub relative_orientation_lever_mm: Option<f64>,
     /// A 6-DoF probe's orientations, mm per radian.
     pub orientation_weight_mm_per_rad: Option<f64>,
+    /// Weight of an instrument's rows (points, orientations) against distances between touches:
+    /// 1 unless both kinds are fitted together (see [`crate::calib::setup::Resolved::point_weight`]).
+    pub point_weight: f64,
 }
 
 /// Every term of `data`, kind after kind (the order of the rows): distances between touches,
-/// their relative orientations, measured points, measured orientations.
+/// their relative orientations, measured points, frame-free distances between points, measured
+/// orientations.
 pub fn build(data: &Observations, choice: &TermChoice) -> Vec<Box<dyn Term>> {
     let mut terms: Vec<Box<dyn Term>> = Vec::new();
     let pairs = data.landmark_pairs();
@@ -134,9 +145,10 @@ pub fn build(data: &Observations, choice: &TermChoice) -> Vec<Box<dyn Term>> {
     if let Some(lever) = choice.relative_orientation_lever_mm {
         terms.extend(relative_orientation::terms(data, &pairs, lever));
     }
-    terms.extend(point::terms(data));
+    terms.extend(point::terms(data, choice.point_weight));
+    terms.extend(point_distance::terms(data));
     if let Some(weight) = choice.orientation_weight_mm_per_rad {
-        terms.extend(orientation::terms(data, weight));
+        terms.extend(orientation::terms(data, weight * choice.point_weight));
     }
     terms
 }

@@ -43,6 +43,10 @@ impl Term for Orientation {
         false
     }
 
+    fn weight(&self) -> f64 {
+        self.weight_mm_per_rad
+    }
+
     fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>) {
         let (k, s) = (self.obs[0], self.block);
         let Some(measured) = at.data.obs[k].orientation() else { return };

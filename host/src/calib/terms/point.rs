@@ -11,19 +11,21 @@ use crate::calib::nuisance::tool::flange_rotation;
 use crate::data::Observations;
 use nalgebra::Vector3;
 
-/// B_s · F(q) · (t + Δ_s) (+ drift) − X.
+/// B_s · F(q) · (t + Δ_s) (+ drift) − X, times the weight of instrument rows in mixed data.
 pub struct Point {
     obs: [usize; 1],
     block: usize,
     group: usize,
+    weight: f64,
 }
 
-/// The point terms of every instrument observation, in file order.
-pub fn terms(data: &Observations) -> Vec<Box<dyn Term>> {
+/// The point terms of every instrument observation, in file order, each row times `weight`.
+pub fn terms(data: &Observations, weight: f64) -> Vec<Box<dyn Term>> {
     (0..data.obs.len())
         .filter(|&k| data.obs[k].point_mm().is_some())
         .map(|k| {
-            Box::new(Point { obs: [k], block: data.obs[k].block, group: data.obs[k].group }) as Box<dyn Term>
+            let (block, group) = (data.obs[k].block, data.obs[k].group);
+            Box::new(Point { obs: [k], block, group, weight }) as Box<dyn Term>
         })
         .collect()
 }
@@ -41,6 +43,10 @@ impl Term for Point {
         &self.obs
     }
 
+    fn weight(&self) -> f64 {
+        self.weight
+    }
+
     fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>) {
         let (k, s) = (self.obs[0], self.block);
         let p = &at.data.obs[k];
@@ -56,8 +62,14 @@ impl Term for Point {
         let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.3);
         let e = y * growth + base.translation_mm + shift - p.point_mm().unwrap_or_default();
         r.copy_from_slice(e.as_slice());
-        let Some(jac) = jac else { return };
-        let Some(chain) = at.poses.chain(k) else { return };
+        let Some(jac) = jac else {
+            self.weigh(r, None);
+            return;
+        };
+        let Some(chain) = at.poses.chain(k) else {
+            self.weigh(r, None);
+            return;
+        };
         for (c, d) in chain.iter().enumerate() {
             jac.push3(c, base.rotation * Vector3::new(d[0], d[1], d[2]) * growth);
         }
@@ -79,6 +91,20 @@ impl Term for Point {
             for k in 0..kind.unknowns() {
                 jac.push3(c + k, kind.derivative(k, delta, &y));
             }
+        }
+        self.weigh(r, Some(jac));
+    }
+}
+
+impl Point {
+    /// The rows (and derivatives) times the weight; nothing to do at weight 1 (one kind alone).
+    fn weigh(&self, r: &mut [f64], jac: Option<&mut TermJacobian>) {
+        if self.weight == 1.0 {
+            return;
+        }
+        r.iter_mut().for_each(|v| *v *= self.weight);
+        if let Some(jac) = jac {
+            jac.values.iter_mut().for_each(|v| *v *= self.weight);
         }
     }
 }

@@ -892,11 +892,7 @@ fn floated_tools(
     (0..data.groups.len())
         .filter_map(|g| {
             let c = problem.layout.tool_column(g)?;
-            Some(FloatedTool {
-                session: data.groups[g].name.clone(),
-                offset_mm: tools[g].into(),
-                size_std_mm: length_std(&tools[g], &covariance_block(cov, c)),
-            })
+            Some(FloatedTool::new(data.groups[g].name.clone(), &tools[g], &covariance_block(cov, c)))
         })
         .collect()
 }

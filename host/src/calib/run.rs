@@ -99,6 +99,14 @@ pub enum RunError {
         /// What it needs.
         why: String,
     },
+    /// An option that would change nothing on the data given (named, with why).
+    #[error("{option}: it would change nothing: {why}")]
+    NoEffect {
+        /// The option, as the command line spells it.
+        option: String,
+        /// Why nothing would change.
+        why: String,
+    },
     /// `--add` names no effect of the library.
     #[error("--add {0}: not an effect of the library (e.g. compliance:2, harmonic:3:2, twist:4, scale)")]
     UnknownEffect(String),
@@ -366,6 +374,14 @@ pub fn check_options(
             "--sigma-mm",
             "it states the instrument's σ of tracker points; the floor of artefact distances comes from repeated touches",
         ));
+    }
+    let all_stated = val.obs.iter().filter(|o| o.point_mm().is_some()).all(|o| o.sigma_mm.is_some());
+    if inputs.stated_sigma_mm.is_some() && held_out_points && all_stated {
+        return Err(RunError::NoEffect {
+            option: "--sigma-mm".into(),
+            why: "every held-out point states its own σ (a sigma_mm or u95_mm column), which the floor uses"
+                .into(),
+        });
     }
     if !inputs.same_base.is_empty() && !held_out_points {
         return Err(refuse(

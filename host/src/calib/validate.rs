@@ -9,7 +9,7 @@
 use crate::calib::fit::Fit;
 use crate::calib::layout::Layout;
 use crate::calib::nuisance::frame::{rotation_vector, Frame};
-use crate::calib::nuisance::tool::{flange_rotation, length_std, model_point, FloatedTool};
+use crate::calib::nuisance::tool::{flange_rotation, model_point, FloatedTool};
 use crate::calib::problem::Problem;
 use crate::data::{Observation, Observations};
 use crate::model::kinematics::tool_pose;
@@ -365,11 +365,7 @@ pub fn fit_session_with_tool(
     let cov = crate::calib::identify::covariance_of_normal(normal, variance);
     let offset = problem.state(&solution.x).tools[0];
     let block = cov.as_ref().map_or(Matrix3::zeros(), |c| c.fixed_view::<3, 3>(6, 6).into_owned());
-    let tool = FloatedTool {
-        session: data.groups[group].name.clone(),
-        offset_mm: offset.into(),
-        size_std_mm: length_std(&offset, &block),
-    };
+    let tool = FloatedTool::new(data.groups[group].name.clone(), &offset, &block);
     (tool, validate_session(model, data, b, offset.into()))
 }
 

@@ -500,8 +500,14 @@ fn calibration_tables(body: &mut String, s: &Summary) {
             .tool_offsets
             .iter()
             .map(|t| {
-                let [x, y, z] = t.offset_mm;
-                vec![escape(&t.session), mm4(x), mm4(y), mm4(z), mm4(t.size_std_mm)]
+                let cell = |k: usize| {
+                    if t.determined(k) {
+                        mm4(t.offset_mm[k])
+                    } else {
+                        format!("— (σ {})", mm4(t.std_mm[k]))
+                    }
+                };
+                vec![escape(&t.session), cell(0), cell(1), cell(2), mm4(t.size_std_mm)]
             })
             .collect();
         let _ = write!(

@@ -251,8 +251,24 @@ fn print_run(s: &Summary, out: &Path, seconds: f64) {
         println!("  poorly identified: {}", combination.text);
     }
     for t in &c.tool_offsets {
-        let [x, y, z] = t.offset_mm;
-        println!("  tool floating in {}: ({x:.3}, {y:.3}, {z:.3}) mm ± {:.3}", t.session, t.size_std_mm);
+        if (0..3).all(|k| t.determined(k)) {
+            let [x, y, z] = t.offset_mm;
+            println!("  tool floating in {}: ({x:.3}, {y:.3}, {z:.3}) mm ± {:.3}", t.session, t.size_std_mm);
+            continue;
+        }
+        let shown: Vec<String> = (0..3)
+            .map(|k| if t.determined(k) { format!("{:.3}", t.offset_mm[k]) } else { "—".into() })
+            .collect();
+        let not: Vec<String> = (0..3)
+            .filter(|&k| !t.determined(k))
+            .map(|k| format!("{} (σ {:.3} mm)", ["x", "y", "z"][k], t.std_mm[k]))
+            .collect();
+        println!(
+            "  tool floating in {}: ({}) mm; not determined by these data: {}",
+            t.session,
+            shown.join(", "),
+            not.join(", ")
+        );
     }
     for d in &c.drifts {
         let rate: Vec<String> = d.rate.iter().map(|v| format!("{v:.4}")).collect();

@@ -41,6 +41,11 @@ pub fn probe_rotation_at(start: &Matrix3<f64>, x: &[f64]) -> Matrix3<f64> {
     start * Rotation3::new(Vector3::new(x[0], x[1], x[2]) * 1e-3).into_inner()
 }
 
+/// A floated offset's component with a larger standard deviation than this, mm, is not determined
+/// by the data (a re-mount is measured to better than a millimetre or not at all): distances
+/// between touches of one placement hardly see the tool moved along its own axis, for example.
+pub const FLOATED_DETERMINED_MM: f64 = 1.0;
+
 /// A group's own tool offset (the tool floated there).
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct FloatedTool {
@@ -50,6 +55,26 @@ pub struct FloatedTool {
     pub offset_mm: [f64; 3],
     /// Standard deviation of the offset's length, mm.
     pub size_std_mm: f64,
+    /// Standard deviation of each component, flange frame, mm.
+    #[serde(default)]
+    pub std_mm: [f64; 3],
+}
+
+impl FloatedTool {
+    /// The offset `offset` of group `session` with its covariance `cov` (flange frame, mm²).
+    pub fn new(session: String, offset: &Vector3<f64>, cov: &Matrix3<f64>) -> FloatedTool {
+        FloatedTool {
+            session,
+            offset_mm: (*offset).into(),
+            size_std_mm: length_std(offset, cov),
+            std_mm: [0, 1, 2].map(|k| cov[(k, k)].max(0.0).sqrt()),
+        }
+    }
+
+    /// Whether component `k` is determined by the data (σ within [`FLOATED_DETERMINED_MM`]).
+    pub fn determined(&self, k: usize) -> bool {
+        self.std_mm[k] <= FLOATED_DETERMINED_MM
+    }
 }
 
 /// The 6-DoF probe's orientation R_t on the flange (flange ← probe), shared by all sessions.

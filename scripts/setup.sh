@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Provisioning for the tests (sourced or run by scripts/test.sh): the firmware target, the emulator
-# the end-to-end tests boot, numpy/scipy for the SciPy peer check, and g++ with Ceres Solver and
-# nlohmann-json for the Ceres peer (bench/ceres/). Safe to run again.
+# the end-to-end tests boot, numpy/scipy for the SciPy peer check, g++ with Ceres Solver and
+# nlohmann-json for the Ceres peer (bench/ceres/), and mdBook for the book. Safe to run again.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 source scripts/setup-embedded.sh
@@ -13,4 +13,9 @@ if ! command -v g++ >/dev/null || [ ! -f /usr/include/ceres/ceres.h ] || [ ! -f 
     echo "installing g++, libceres-dev and nlohmann-json3-dev for the Ceres peer"
     if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
     $SUDO apt-get update -qq && $SUDO apt-get install -y -qq g++ libceres-dev nlohmann-json3-dev >/dev/null
+fi
+MDBOOK_VERSION=0.5.4
+if [ "$(mdbook --version 2>/dev/null)" != "mdbook v$MDBOOK_VERSION" ]; then
+    echo "installing mdbook $MDBOOK_VERSION for the book (a few minutes, once)"
+    cargo install --quiet --locked mdbook --version "$MDBOOK_VERSION" --no-default-features --features search
 fi

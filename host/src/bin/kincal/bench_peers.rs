@@ -13,11 +13,10 @@
 use crate::bench::{children_cpu_ms, process_cpu_ms, BenchArgs};
 use crate::bench_limit;
 use anyhow::{bail, Context, Result};
-use kincal::calib::calibrate::{calibrate, Calibration, CalibrationOptions};
+use kincal::calib::fit::{calibrate, Fit, TOOL_HALF_RANGE_MM};
 use kincal::calib::peer::{thesis_sized_problem, write_peer_problem};
-use kincal::calib::tracker::{calibrate_tracker, TrackerCalibration, TrackerOptions, TOOL_HALF_RANGE_MM};
-use kincal::data::tracker::TrackerData;
-use kincal::data::{Artefact, Dataset};
+use kincal::calib::setup::SolveOptions;
+use kincal::data::Observations;
 use kincal::model::{ArmModel, Convention, ParamId};
 use kincal::numerics::stats::median;
 use rand::{RngExt, SeedableRng};
@@ -134,28 +133,22 @@ fn kincal_restarts(lower: &[f64], upper: &[f64], seed: u64, restarts: usize) -> 
 
 /// The artefact problem file for the parameters `fit` estimated, from the nominal values and
 /// kincal's random restarts.
-fn write_artefact_problem(
-    path: &Path,
-    nominal: &ArmModel,
-    fit: &Calibration,
-    artefact: &Artefact,
-    data: &Dataset,
-    options: &CalibrationOptions,
-) -> Result<()> {
-    write_peer_problem(path, nominal, &fit.estimated, artefact, data, options.huber_delta_mm)?;
+fn write_artefact_problem(path: &Path, nominal: &ArmModel, fit: &Fit, data: &Observations) -> Result<()> {
+    let huber = fit.options.huber_delta_mm().context("the artefact fit has no Huber loss")?;
+    write_peer_problem(path, nominal, &fit.estimated, data, huber)?;
     let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
     let mut problem: Value = serde_json::from_str(&text)?;
     let bound = |key: &str| -> Vec<f64> {
         problem[key].as_array().map_or(Vec::new(), |v| v.iter().filter_map(Value::as_f64).collect())
     };
-    let starts = kincal_restarts(&bound("lower"), &bound("upper"), options.seed, options.restarts);
+    let starts = kincal_restarts(&bound("lower"), &bound("upper"), fit.options.seed, fit.options.restarts);
     problem["starts"] = json!(starts);
     std::fs::write(path, problem.to_string()).with_context(|| path.display().to_string())
 }
 
 /// Each start's initial cost, kincal's and the peer's, must match: else the peer's start, data
 /// or model is not kincal's.
-fn check_starts(fit: &Calibration, peer: &Value) -> Result<()> {
+fn check_starts(fit: &Fit, peer: &Value) -> Result<()> {
     let peer_starts = peer["starts"].as_array().context("Ceres peer printed no starts")?;
     for outcome in &fit.starts {
         let theirs = peer_starts
@@ -176,28 +169,21 @@ fn check_starts(fit: &Calibration, peer: &Value) -> Result<()> {
 
 /// The tracker problem file: the DH rows, tool point, the parameters kincal estimated with
 /// kincal's bounds, the sessions.
-fn write_tracker_problem(
-    path: &Path,
-    nominal: &ArmModel,
-    fit: &TrackerCalibration,
-    data: &TrackerData,
-) -> Result<()> {
+fn write_tracker_problem(path: &Path, nominal: &ArmModel, fit: &Fit, data: &Observations) -> Result<()> {
     if nominal.convention != Convention::Classic || nominal.scale_ppm != 0.0 {
         bail!("the tracker peers model a classic DH arm without scale error");
     }
     let mut params = Vec::new();
     let (mut lower, mut upper) = (Vec::new(), Vec::new());
-    for name in &fit.identifiability.estimated {
-        let id =
-            ParamId::parse(name).with_context(|| format!("kincal estimated an unknown parameter {name}"))?;
+    for &id in &fit.estimated {
         let (l, u) = match (nominal.free.iter().find(|f| f.id == id), id) {
             (Some(f), _) => (f.lower, f.upper),
             (None, ParamId::Tcp(k)) => {
                 (nominal.tcp_mm[k] - TOOL_HALF_RANGE_MM, nominal.tcp_mm[k] + TOOL_HALF_RANGE_MM)
             }
-            (None, _) => bail!("{name} is not free in the model"),
+            (None, _) => bail!("{id} is not free in the model"),
         };
-        params.push(name.clone());
+        params.push(id.to_string());
         lower.push(l);
         upper.push(u);
     }
@@ -207,17 +193,15 @@ fn write_tracker_problem(
         "params": params,
         "lower": lower,
         "upper": upper,
-        "sessions": data.sessions.iter().map(|s| json!({
-            "q_deg": s.points.iter().map(|p| p.q_deg.clone()).collect::<Vec<_>>(),
-            "x_mm": s.points.iter().map(|p| [p.point_mm.x, p.point_mm.y, p.point_mm.z]).collect::<Vec<_>>(),
-        })).collect::<Vec<_>>(),
+        "sessions": (0..data.groups.len()).map(|g| {
+            let points: Vec<_> = data.group_members(g).into_iter().map(|k| &data.obs[k]).collect();
+            json!({
+                "q_deg": points.iter().map(|p| p.q_deg.to_vec()).collect::<Vec<_>>(),
+                "x_mm": points.iter().map(|p| p.point_mm().map(|x| [x.x, x.y, x.z])).collect::<Option<Vec<_>>>(),
+            })
+        }).collect::<Vec<_>>(),
     });
     std::fs::write(path, problem.to_string()).with_context(|| path.display().to_string())
-}
-
-/// kincal's tracker cost, ½Σ‖r‖², from its RMS over the points.
-fn tracker_cost(fit: &TrackerCalibration) -> f64 {
-    0.5 * fit.fit.points as f64 * fit.fit.rms_mm * fit.fit.rms_mm
 }
 
 /// Relative difference of `b` from `a`.
@@ -280,13 +264,13 @@ impl Drop for Scratch {
 struct Problems {
     nominal: ArmModel,
     sim: kincal::simulate::SimulatedData,
-    cal: Dataset,
-    options: CalibrationOptions,
-    fit: Calibration,
+    cal: Observations,
+    options: SolveOptions,
+    fit: Fit,
     tracker_nominal: ArmModel,
-    tracker_cal: TrackerData,
-    tracker_val: TrackerData,
-    tracker_fit: TrackerCalibration,
+    tracker_cal: Observations,
+    tracker_val: Observations,
+    tracker_fit: Fit,
     artefact_file: PathBuf,
     tracker_file: PathBuf,
 }
@@ -295,22 +279,22 @@ struct Problems {
 /// artefact problem of `seed` with `restarts`, and the tracker bench arm with `points` points.
 fn problems(dir: &Path, seed: u64, restarts: usize, points: Option<usize>) -> Result<Problems> {
     let (nominal, sim) = thesis_sized_problem(seed);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let options = CalibrationOptions { restarts, ..CalibrationOptions::default() };
-    let fit = calibrate(&nominal, &sim.artefact, &cal, &options)?;
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let options = SolveOptions { restarts: Some(restarts), ..SolveOptions::default() };
+    let fit = calibrate(&nominal, &cal, &options)?;
     let artefact_file = dir.join("artefact_problem.json");
-    write_artefact_problem(&artefact_file, &nominal, &fit, &sim.artefact, &cal, &options)?;
+    write_artefact_problem(&artefact_file, &nominal, &fit, &cal)?;
     let (tracker_nominal, mut tracker_cal, tracker_val) = crate::bench_tracker::bench_problem()?;
     if let Some(n) = points {
         let truth = crate::bench_tracker::truth(&tracker_nominal);
         tracker_cal = crate::bench_tracker::sessions(
             &truth,
-            tracker_cal.sessions.len(),
-            n / tracker_cal.sessions.len(),
+            tracker_cal.groups.len(),
+            n / tracker_cal.groups.len(),
             3,
         )?;
     }
-    let tracker_fit = calibrate_tracker(&tracker_nominal, &tracker_cal, &TrackerOptions::default())?;
+    let tracker_fit = calibrate(&tracker_nominal, &tracker_cal, &SolveOptions::default())?;
     let tracker_file = dir.join("tracker_problem.json");
     write_tracker_problem(&tracker_file, &tracker_nominal, &tracker_fit, &tracker_cal)?;
     Ok(Problems {
@@ -332,7 +316,7 @@ fn problems(dir: &Path, seed: u64, restarts: usize, points: Option<usize>) -> Re
 /// leave out: the modified DH convention, a Hayati axis and a scale error (both held: the
 /// distances cannot determine them here), a twist, a link offset and the tool's x free; data
 /// simulated from that model (seed 3).
-fn modified_instance(dir: &Path) -> Result<(Calibration, PathBuf)> {
+fn modified_instance(dir: &Path) -> Result<(Fit, PathBuf)> {
     let mut nominal = ArmModel::suta_nominal();
     nominal.convention = Convention::Modified;
     nominal.joints[4].axis_deg = 0.3;
@@ -344,11 +328,11 @@ fn modified_instance(dir: &Path) -> Result<(Calibration, PathBuf)> {
         &nominal,
         &kincal::simulate::SimulationOptions { seed: 3, ..Default::default() },
     );
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let options = CalibrationOptions { restarts: 1, ..CalibrationOptions::default() };
-    let fit = calibrate(&nominal, &sim.artefact, &cal, &options)?;
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let options = SolveOptions { restarts: Some(1), ..SolveOptions::default() };
+    let fit = calibrate(&nominal, &cal, &options)?;
     let file = dir.join("artefact_modified_problem.json");
-    write_artefact_problem(&file, &nominal, &fit, &sim.artefact, &cal, &options)?;
+    write_artefact_problem(&file, &nominal, &fit, &cal)?;
     Ok((fit, file))
 }
 
@@ -360,11 +344,8 @@ pub fn peers_check(args: &BenchArgs) -> Result<()> {
     let scratch = Scratch::kept_or_new(args.peer_problems.as_ref(), "peers-check")?;
     let p = problems(&scratch.0, 2, 2, Some(200))?;
     let (modified, modified_file) = modified_instance(&scratch.0)?;
-    let ceres = build_ceres_peer(&[
-        p.fit.estimated.len(),
-        modified.estimated.len(),
-        p.tracker_fit.identifiability.estimated.len(),
-    ])?;
+    let ceres =
+        build_ceres_peer(&[p.fit.estimated.len(), modified.estimated.len(), p.tracker_fit.estimated.len()])?;
     println!("kincal and Ceres on the same problems (agreement demanded: {COST_AGREEMENT:e} relative in cost and RMS):");
     for (name, fit, file) in
         [("artefact", &p.fit, &p.artefact_file), ("artefact, modified DH", &modified, &modified_file)]
@@ -391,7 +372,7 @@ pub fn peers_check(args: &BenchArgs) -> Result<()> {
     let (tracker, _) = run_json(Command::new(&ceres).arg("tracker").arg(&p.tracker_file))?;
     let line = agreement(
         &format!("tracker, {} points", p.tracker_cal.point_count()),
-        (tracker_cost(&p.tracker_fit), p.tracker_fit.fit.rms_mm),
+        (p.tracker_fit.cost, p.tracker_fit.rms_mm),
         (number(&tracker, "/solve/cost")?, number(&tracker, "/solve/rms_mm")?),
         None,
     )?;
@@ -471,21 +452,18 @@ fn artefact_process(p: &Problems, dir: &Path, runs: usize) -> Result<Figure> {
 pub fn peers_benchmark(args: &BenchArgs) -> Result<()> {
     let (python, repeats) = (args.python.as_str(), args.repeats);
     let scratch = Scratch::kept_or_new(args.peer_problems.as_ref(), "peers")?;
-    let p = problems(&scratch.0, 1, CalibrationOptions::default().restarts, None)?;
-    let (n, tracker_n) = (p.fit.estimated.len(), p.tracker_fit.identifiability.estimated.len());
+    let p = problems(&scratch.0, 1, kincal::calib::setup::DEFAULT_RESTARTS, None)?;
+    let (n, tracker_n) = (p.fit.estimated.len(), p.tracker_fit.estimated.len());
     let ceres = build_ceres_peer(&[n, tracker_n])?;
     let load_before = load_average();
     let rates = bench_limit::measure();
 
     // kincal, in this process.
-    let options_one = CalibrationOptions { restarts: 0, ..p.options };
-    let (mut kincal_all, _) =
-        timed(repeats, || Ok(calibrate(&p.nominal, &p.sim.artefact, &p.cal, &p.options)?))?;
-    let (mut kincal_one, one_fit) =
-        timed(repeats, || Ok(calibrate(&p.nominal, &p.sim.artefact, &p.cal, &options_one)?))?;
-    let (mut kincal_tracker, _) = timed(repeats, || {
-        Ok(calibrate_tracker(&p.tracker_nominal, &p.tracker_cal, &TrackerOptions::default())?)
-    })?;
+    let options_one = SolveOptions { restarts: Some(0), ..p.options.clone() };
+    let (mut kincal_all, _) = timed(repeats, || Ok(calibrate(&p.nominal, &p.cal, &p.options)?))?;
+    let (mut kincal_one, one_fit) = timed(repeats, || Ok(calibrate(&p.nominal, &p.cal, &options_one)?))?;
+    let (mut kincal_tracker, _) =
+        timed(repeats, || Ok(calibrate(&p.tracker_nominal, &p.tracker_cal, &SolveOptions::default())?))?;
     let kincal_iterations: u64 = p.fit.starts.iter().map(|s| s.iterations as u64).sum();
     kincal_all.iterations = Some(kincal_iterations);
     kincal_one.iterations = one_fit.starts.first().map(|s| s.iterations as u64);
@@ -525,15 +503,15 @@ pub fn peers_benchmark(args: &BenchArgs) -> Result<()> {
     // The limit: the fewer Jacobian evaluations of kincal and Ceres, at this core's rates.
     let joints = p.nominal.joints.len();
     let rows = count(&artefact, "/residuals")? as usize;
-    let artefact_work = bench_limit::artefact(p.cal.touches.len(), joints, n, rows);
+    let artefact_work = bench_limit::artefact(p.cal.obs.len(), joints, n, rows);
     let points = p.tracker_cal.point_count();
-    let sessions = p.tracker_cal.sessions.len();
+    let sessions = p.tracker_cal.groups.len();
     let tracker_work = bench_limit::tracker(points, p.tracker_nominal.joints.len(), tracker_n, sessions);
     let fewer = |a: Figure, b: Figure| a.iterations.unwrap_or(0).min(b.iterations.unwrap_or(0)) as usize;
 
     let rows = vec![
         Row {
-            problem: format!("artefact, nominal + {} restarts", p.options.restarts),
+            problem: format!("artefact, nominal + {} restarts", p.fit.options.restarts),
             kincal: Some(kincal_all),
             ceres: Some(ceres_all),
             scipy: scipy.as_ref().map(|s| s.all.0),
@@ -582,9 +560,9 @@ pub fn peers_benchmark(args: &BenchArgs) -> Result<()> {
     println!(
         "  artefact: {} touches, {rows_n} pair distances, {n} parameters (kincal's base set of {}), Huber δ {} mm; \
          tracker: {points} points, {sessions} sessions, {tracker_n} arm parameters + {} base unknowns, plain least squares",
-        p.cal.touches.len(),
+        p.cal.obs.len(),
         p.nominal.free.len(),
-        p.options.huber_delta_mm,
+        p.fit.options.huber_delta_mm().unwrap_or(f64::NAN),
         6 * sessions,
         rows_n = count(&artefact, "/residuals")?
     );
@@ -628,7 +606,7 @@ pub fn peers_benchmark(args: &BenchArgs) -> Result<()> {
     println!(
         "{}",
         agreement(
-            &format!("artefact, nominal + {} restarts", p.options.restarts),
+            &format!("artefact, nominal + {} restarts", p.fit.options.restarts),
             (p.fit.cost, p.fit.rms_mm),
             (number(&artefact, "/solve/cost")?, number(&artefact, "/solve/rms_mm")?),
             scipy.as_ref().map(|s| s.all.2),
@@ -647,7 +625,7 @@ pub fn peers_benchmark(args: &BenchArgs) -> Result<()> {
         "{}",
         agreement(
             "tracker",
-            (tracker_cost(&p.tracker_fit), p.tracker_fit.fit.rms_mm),
+            (p.tracker_fit.cost, p.tracker_fit.rms_mm),
             (number(&tracker, "/solve/cost")?, number(&tracker, "/solve/rms_mm")?),
             scipy.as_ref().map(|s| s.tracker.2),
         )?

@@ -28,9 +28,14 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     written
 }
 
+/// The words every file kincal writes for the user to name (`--out FILE`) carries in its first
+/// lines: only such a file is ever replaced by a later run.
+pub const WRITTEN_BY: &str = "written by kincal";
+
 /// Refuse an output `out` (given as `option`, e.g. `--out`) that would replace one of `inputs`:
 /// the same file by another name, a hard link to it or a symlink to it (compared by device and
-/// inode), or a folder. A new name, or an existing file that is none of the inputs, is fine.
+/// inode); a folder; or any existing file kincal did not write (its first lines do not say
+/// [`WRITTEN_BY`]). A new name, or an earlier output of kincal that is none of the inputs, is fine.
 pub fn check_output(out: &Path, option: &str, inputs: &[&Path]) -> Result<(), FileError> {
     use std::os::unix::fs::MetadataExt;
     let refuse = |message: String| FileError::Field { path: out.to_owned(), field: option.into(), message };
@@ -54,6 +59,17 @@ pub fn check_output(out: &Path, option: &str, inputs: &[&Path]) -> Result<(), Fi
                 input.display()
             )));
         }
+    }
+    if !target.is_file() {
+        return Err(refuse("exists and is not a regular file; expected the name of a file to write".into()));
+    }
+    let mut head = Vec::new();
+    let read = std::fs::File::open(out).and_then(|f| std::io::Read::read_to_end(&mut std::io::Read::take(f, 1024), &mut head));
+    if read.is_err() || !String::from_utf8_lossy(&head).contains(WRITTEN_BY) {
+        return Err(refuse(format!(
+            "exists and kincal did not write it (its first lines do not say \"{WRITTEN_BY}\"): kincal replaces only \
+             its own earlier outputs; choose another name, or remove the file first"
+        )));
     }
     Ok(())
 }
@@ -251,8 +267,8 @@ mod tests {
         std::fs::remove_dir_all(&dir).ok();
     }
 
-    /// An output over an input is refused by name, by hard link and by symlink; a new file or
-    /// another existing file is written.
+    /// An output over an input is refused by name, by hard link and by symlink, and over a file
+    /// of the user's; a new file, or kincal's own earlier output, is written.
     #[test]
     fn an_output_that_is_an_input_is_refused_however_it_is_named() {
         let dir = std::env::temp_dir().join(format!("kincal-output-{}", std::process::id()));
@@ -261,7 +277,8 @@ mod tests {
         std::fs::write(&input, b"mine").unwrap();
         std::fs::hard_link(&input, dir.join("hard.urdf")).unwrap();
         std::os::unix::fs::symlink(&input, dir.join("soft.urdf")).unwrap();
-        std::fs::write(dir.join("other.urdf"), b"old").unwrap();
+        std::fs::write(dir.join("other.urdf"), b"the user's").unwrap();
+        std::fs::write(dir.join("earlier.urdf"), b"<!-- written by kincal model to-urdf -->").unwrap();
         for (name, how) in [
             ("robot.urdf", "the same file as"),
             ("./robot.urdf", "the same file as"),
@@ -273,10 +290,13 @@ mod tests {
         }
         let err = write_output(&dir, "--out", &[&input], b"new").unwrap_err().to_string();
         assert!(err.contains("is a folder"), "{err}");
-        write_output(&dir.join("other.urdf"), "--out", &[&input], b"new").unwrap();
+        let err = write_output(&dir.join("other.urdf"), "--out", &[&input], b"new").unwrap_err().to_string();
+        assert!(err.contains("other.urdf") && err.contains("kincal did not write it"), "{err}");
+        write_output(&dir.join("earlier.urdf"), "--out", &[&input], b"new").unwrap();
         write_output(&dir.join("new.urdf"), "--out", &[&input], b"new").unwrap();
         assert_eq!(std::fs::read(&input).unwrap(), b"mine");
-        assert_eq!(std::fs::read(dir.join("other.urdf")).unwrap(), b"new");
+        assert_eq!(std::fs::read(dir.join("other.urdf")).unwrap(), b"the user's");
+        assert_eq!(std::fs::read(dir.join("earlier.urdf")).unwrap(), b"new");
         let names: Vec<String> =
             std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
         assert!(names.iter().all(|n| !n.contains(".tmp-")), "{names:?}");

@@ -326,10 +326,17 @@ impl ArmModel {
             .map_err(|source| FileError::Io { path: path.to_owned(), source })
     }
 
-    /// Write the model to the file the user named with `option`, refused when it is one of
-    /// `inputs` ([`files::write_output`]).
-    pub fn save_output(&self, path: &Path, option: &str, inputs: &[&Path]) -> Result<(), FileError> {
-        files::write_output(path, option, inputs, self.to_text(is_json(path)).as_bytes())
+    /// Write the model to the file the user named with `option` ([`files::write_output`]:
+    /// refused over one of `inputs` or a file kincal did not write). A TOML file starts with
+    /// `# written by kincal NOTE`, so a later run may replace it (JSON has no comments: an existing
+    /// JSON file is never replaced).
+    pub fn save_output(&self, path: &Path, option: &str, inputs: &[&Path], note: &str) -> Result<(), FileError> {
+        let text = if is_json(path) {
+            self.to_text(true)
+        } else {
+            format!("# {} {note}\n{}", files::WRITTEN_BY, self.to_text(false))
+        };
+        files::write_output(path, option, inputs, text.as_bytes())
     }
 }
 
@@ -403,6 +410,40 @@ mod tests {
             assert!(err.contains("bad"), "{err}");
             assert!(err.contains(field), "{err} should name {field}");
         }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A model made from a URDF keeps its source (file, chain, hash, joint names and limits) and
+    /// its origin turns through TOML and JSON; a file with the old roll-pitch-yaw parameter
+    /// names is refused with the way forward.
+    #[test]
+    fn a_urdf_model_keeps_its_source_and_old_parameter_names_are_explained() {
+        let dir = std::env::temp_dir().join(format!("kincal-urdfmodel-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let urdf = dir.join("r.urdf");
+        std::fs::write(
+            &urdf,
+            "<robot name=\"r\"><link name=\"a\"/><link name=\"b\"/><link name=\"c\"/>\
+             <joint name=\"shoulder\" type=\"revolute\"><parent link=\"a\"/><child link=\"b\"/><origin xyz=\"0 0 0.3\" rpy=\"0 1.5707963 0\"/><axis xyz=\"0 1 0\"/><limit lower=\"-1\" upper=\"1\" effort=\"1\" velocity=\"1\"/></joint>\
+             <joint name=\"elbow\" type=\"continuous\"><parent link=\"b\"/><child link=\"c\"/><origin xyz=\"0.4 0 0\"/><axis xyz=\"0 0 1\"/></joint></robot>",
+        )
+        .unwrap();
+        let mut model = crate::model::urdf::model_from_urdf(&urdf, "a", "c").unwrap();
+        model.joints[1].origin_turn_deg = [0.1, -0.2, 0.3];
+        for name in ["m.toml", "m.json"] {
+            let path = dir.join(name);
+            model.save(&path).unwrap();
+            let back = ArmModel::load(&path).unwrap();
+            assert_eq!(back, model, "{name}");
+            let source = back.urdf.unwrap();
+            assert_eq!((source.base.as_str(), source.tip.as_str(), source.joint.len()), ("a", "c", 2));
+            assert_eq!(source.joint[0].name, "shoulder");
+        }
+        let text = model.to_text(false).replace("origin_rx:1", "origin_roll:1");
+        let path = dir.join("old.toml");
+        std::fs::write(&path, text).unwrap();
+        let err = ArmModel::load(&path).unwrap_err().to_string();
+        assert!(err.contains("origin_roll:1") && err.contains("origin_rx") && err.contains("from-urdf"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -565,6 +565,8 @@ mod tests {
                     let s = j as f64;
                     joint.origin_xyz_mm = [10.0 * s, -20.0 + s, joint.d_mm];
                     joint.origin_rpy_deg = [joint.alpha_deg, 7.0 * s, -3.0 * s];
+                    // A calibrated turn away from zero: its columns use J_l(ω), not the identity.
+                    joint.origin_turn_deg = [2.0 - s, 0.5 * s, 9.0 - 3.0 * s];
                     let n = (1.0 + 0.04 * s * s).sqrt();
                     joint.axis = [0.2 * s / n, 0.0, 1.0 / n];
                     (joint.d_mm, joint.a_mm, joint.alpha_deg, joint.axis_deg) = (0.0, 0.0, 0.0, 0.0);
@@ -603,5 +605,59 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// UR's shoulder and wrist origins sit at pitch ±90°, where roll and yaw turn about one axis.
+    /// The origin's turn ω about its own frame moves the tool frame in three independent
+    /// directions there (and at pitch 0, and at UR's rounded 1.570796325 rad): the tool frame's
+    /// angular velocities per degree of the three turns have rank 3, all singular values one
+    /// degree (no direction weaker than another).
+    /// Roll-pitch-yaw as parameters would lose one: their derivatives' rotation axes at pitch 90°
+    /// are parallel, as the last assertion shows.
+    #[test]
+    fn an_origin_at_pitch_90_degrees_loses_no_rotation_direction() {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = Convention::Urdf;
+        model.joints.truncate(3);
+        model.free.clear();
+        for joint in &mut model.joints {
+            (joint.d_mm, joint.alpha_deg, joint.offset_deg) = (0.0, 0.0, 0.0);
+        }
+        model.joints[0].origin_xyz_mm = [0.0, 0.0, 89.159];
+        model.joints[1].origin_xyz_mm = [0.0, 135.85, 0.0];
+        model.joints[1].axis = [0.0, 1.0, 0.0];
+        model.joints[2].origin_xyz_mm = [0.0, -119.7, 425.0];
+        model.joints[2].axis = [0.0, 1.0, 0.0];
+        model.tcp_mm = [0.0, 0.0, 392.25];
+        let turns: Vec<ParamId> = (0..3).map(|k| ParamId::OriginTurn(1, k)).collect();
+        for pitch_deg in [90.0, -90.0, 1.570796325_f64.to_degrees(), 0.0] {
+            model.joints[1].origin_rpy_deg = [0.0, pitch_deg, 0.0];
+            for enc in [[0.0, 0.0, 0.0], [30.0, -60.0, 45.0]] {
+                let mut jac = vec![[0.0; 9]; 3];
+                let pose = tool_pose_with_jacobian(&model, &enc, &ColumnMap::new(&turns), &mut jac);
+                // The tool frame's angular velocity per degree of each turn: w = x × dx − (y·dz) x.
+                let (x, z) = (pose.x_axis, pose.z_axis);
+                let y = z.cross(&x);
+                let w = Matrix3::from_fn(|r, c| {
+                    let (dx, dz) = (Vector3::from_fn(|k, _| jac[c][3 + k]), Vector3::from_fn(|k, _| jac[c][6 + k]));
+                    (x.cross(&dx) - x * y.dot(&dz))[r]
+                });
+                let sv = w.singular_values();
+                for s in sv.iter() {
+                    assert!((s - DEG).abs() < 1e-9, "pitch {pitch_deg}: singular values {sv}, expected 3 × {DEG}");
+                }
+            }
+        }
+        // Roll-pitch-yaw at pitch 90°: ∂R/∂roll and ∂R/∂yaw turn about the same axis.
+        let rpy = |r: f64, p: f64, y: f64| Rotation3::from_euler_angles(r, p, y).into_inner();
+        let h = 1e-7;
+        let axis_of = |d: Matrix3<f64>| {
+            let w = d * rpy(0.0, std::f64::consts::FRAC_PI_2, 0.0).transpose();
+            Vector3::new(w[(2, 1)], w[(0, 2)], w[(1, 0)]).normalize()
+        };
+        let half = std::f64::consts::FRAC_PI_2;
+        let d_roll = (rpy(h, half, 0.0) - rpy(-h, half, 0.0)) / (2.0 * h);
+        let d_yaw = (rpy(0.0, half, h) - rpy(0.0, half, -h)) / (2.0 * h);
+        assert!(axis_of(d_roll).cross(&axis_of(d_yaw)).norm() < 1e-6, "roll and yaw are one direction at pitch 90°");
     }
 }

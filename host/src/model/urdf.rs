@@ -679,6 +679,14 @@ pub fn calibrated_urdf(
     for (start, end, origin) in edits {
         text.replace_range(start..end, &origin);
     }
+    let note = format!(
+        "<!-- {} model to-urdf: the <origin> of the joints {} → {} calibrated ({m}); everything else as in {} -->",
+        crate::files::WRITTEN_BY,
+        source.base,
+        source.tip,
+        urdf.display()
+    );
+    mark(&mut text, &note);
     let (read_back_mm, poses_checked) = read_back(urdf, &text, model, source)?;
     Ok(CalibratedUrdf {
         text,
@@ -686,6 +694,24 @@ pub fn calibrated_urdf(
         read_back_mm,
         poses_checked,
     })
+}
+
+/// Put `note` on a line of its own after the XML declaration (or first), in place of the note of
+/// an earlier run, so a URDF written from a written URDF carries one note.
+fn mark(text: &mut String, note: &str) {
+    let earlier = format!("<!-- {} model to-urdf", crate::files::WRITTEN_BY);
+    if let Some(at) = text.find(&earlier) {
+        let end = at + text[at..].find("-->").map_or(earlier.len(), |e| e + 3);
+        text.replace_range(at..end, note);
+        return;
+    }
+    let at = if text.trim_start().starts_with("<?xml") {
+        text.find("?>").map_or(0, |e| e + 2)
+    } else {
+        0
+    };
+    let (before, after) = if at == 0 { ("", "\n") } else { ("\n", "") };
+    text.insert_str(at, &format!("{before}{note}{after}"));
 }
 
 /// The first 12 hex digits of a hash.

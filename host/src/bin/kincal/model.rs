@@ -64,7 +64,13 @@ pub fn run(command: &ModelCommand) -> Result<()> {
             let model = model_from_urdf(&a.urdf, &a.chain.base, &a.chain.tip)?;
             match &a.out {
                 Some(out) => {
-                    model.save_output(out, "--out", &[&a.urdf])?;
+                    let note = format!(
+                        "model from-urdf {} --base {} --tip {}",
+                        a.urdf.display(),
+                        a.chain.base,
+                        a.chain.tip
+                    );
+                    model.save_output(out, "--out", &[&a.urdf], &note)?;
                     println!(
                         "{}: {} revolute joints, {} free parameters (origins ±{} mm, turns ±{} deg, offsets)",
                         out.display(),

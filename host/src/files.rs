@@ -14,7 +14,8 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     static NEXT: AtomicUsize = AtomicUsize::new(0);
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp-{}-{}", std::process::id(), NEXT.fetch_add(1, Ordering::Relaxed)));
+    let tmp =
+        dir.join(format!(".{name}.tmp-{}-{}", std::process::id(), NEXT.fetch_add(1, Ordering::Relaxed)));
     // A new file only: never through a link or over someone else's file of that name.
     let mut f = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp)?;
     let written = f.write_all(bytes).and_then(|_| f.sync_all()).and_then(|_| {
@@ -64,7 +65,8 @@ pub fn check_output(out: &Path, option: &str, inputs: &[&Path]) -> Result<(), Fi
         return Err(refuse("exists and is not a regular file; expected the name of a file to write".into()));
     }
     let mut head = Vec::new();
-    let read = std::fs::File::open(out).and_then(|f| std::io::Read::read_to_end(&mut std::io::Read::take(f, 1024), &mut head));
+    let read = std::fs::File::open(out)
+        .and_then(|f| std::io::Read::read_to_end(&mut std::io::Read::take(f, 1024), &mut head));
     if read.is_err() || !String::from_utf8_lossy(&head).contains(WRITTEN_BY) {
         return Err(refuse(format!(
             "exists and kincal did not write it (its first lines do not say \"{WRITTEN_BY}\"): kincal replaces only \
@@ -286,7 +288,10 @@ mod tests {
             ("soft.urdf", "a symlink to"),
         ] {
             let err = write_output(&dir.join(name), "--out", &[&input], b"new").unwrap_err().to_string();
-            assert!(err.contains("--out") && err.contains(how) && err.contains("robot.urdf"), "{name}: {err}");
+            assert!(
+                err.contains("--out") && err.contains(how) && err.contains("robot.urdf"),
+                "{name}: {err}"
+            );
         }
         let err = write_output(&dir, "--out", &[&input], b"new").unwrap_err().to_string();
         assert!(err.contains("is a folder"), "{err}");
@@ -297,8 +302,10 @@ mod tests {
         assert_eq!(std::fs::read(&input).unwrap(), b"mine");
         assert_eq!(std::fs::read(dir.join("other.urdf")).unwrap(), b"the user's");
         assert_eq!(std::fs::read(dir.join("earlier.urdf")).unwrap(), b"new");
-        let names: Vec<String> =
-            std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
+        let names: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into())
+            .collect();
         assert!(names.iter().all(|n| !n.contains(".tmp-")), "{names:?}");
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -4,7 +4,7 @@
 //! option, or in a right result; the runner (`kincal_e2e::corpus`) also asserts for every case:
 //! no panic, no hang, no user file lost or changed, no temporary left behind.
 
-use kincal_e2e::corpus::{all, run_corpus, unchanged, words, write, Case, Check, Setup};
+use kincal_e2e::corpus::{all, assert_all_pass, unchanged, words, write, Case, Check, Setup};
 use kincal_e2e::kincal_bin;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -83,7 +83,8 @@ fn after(file: &'static str, anchor: &'static str, from: &'static str, to: &'sta
 
 /// The 1-based line of the first `needle` in the template's `file`.
 fn line_of(file: &str, needle: &str) -> usize {
-    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("data/urdf").join(file)).unwrap();
+    let text =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("data/urdf").join(file)).unwrap();
     text[..text.find(needle).unwrap()].matches('\n').count() + 1
 }
 
@@ -105,28 +106,96 @@ fn ur5(out: &str) -> Vec<String> {
 fn output_cases(cases: &mut Vec<Case>) {
     let to_ur5 = |out: &str| to_urdf("ur5.toml", "ur5.urdf", out, &[]);
     cases.extend([
-        Case::fails("out/from-urdf over its URDF", unchanged(), ur5("ur5.urdf"), &["ur5.urdf", "--out", "is the same file as the input ur5.urdf"]),
-        Case::fails("out/from-urdf over its URDF by another path", unchanged(), ur5("./ur5.urdf"), &["--out", "the same file as the input"]),
-        Case::fails("out/from-urdf into a hard link of its URDF", hard_link("ur5.urdf", "copy.urdf"), ur5("copy.urdf"), &["copy.urdf", "--out", "is a hard link to the input ur5.urdf"]),
-        Case::fails("out/from-urdf into a symlink to its URDF", symlink("ur5.urdf", "link.toml"), ur5("link.toml"), &["link.toml", "--out", "is a symlink to the input ur5.urdf"]),
-        Case::fails("out/from-urdf into a folder", folder("m.toml"), ur5("m.toml"), &["m.toml", "--out", "is a folder"]),
-        Case::fails("out/to-urdf over the model", unchanged(), to_ur5("ur5.toml"), &["ur5.toml", "--out", "is the same file as the input ur5.toml"]),
-        Case::fails("out/to-urdf over the URDF", unchanged(), to_ur5("ur5.urdf"), &["--out", "the same file as the input ur5.urdf"]),
-        Case::fails("out/to-urdf into a hard link of the model", hard_link("ur5.toml", "c.urdf"), to_ur5("c.urdf"), &["c.urdf", "a hard link to the input ur5.toml"]),
-        Case::fails("out/to-urdf into a symlink to the URDF", symlink("ur5.urdf", "c.urdf"), to_ur5("c.urdf"), &["c.urdf", "a symlink to the input ur5.urdf"]),
-        Case::fails("out/to-urdf over another file of the user's", write("c.urdf", "mine"), to_ur5("c.urdf"), &["c.urdf", "--out", "kincal did not write it", "choose another name"]),
-        Case::fails("out/from-urdf over a model of the user's", write("m.toml", "format = \"kincal-arm/1\"\n"), ur5("m.toml"), &["m.toml", "kincal did not write it"]),
-        Case::succeeds("out/to-urdf into a new file", unchanged(), to_ur5("c.urdf"), Some(urdf_written("c.urdf", "ur5"))),
+        Case::fails(
+            "out/from-urdf over its URDF",
+            unchanged(),
+            ur5("ur5.urdf"),
+            &["ur5.urdf", "--out", "is the same file as the input ur5.urdf"],
+        ),
+        Case::fails(
+            "out/from-urdf over its URDF by another path",
+            unchanged(),
+            ur5("./ur5.urdf"),
+            &["--out", "the same file as the input"],
+        ),
+        Case::fails(
+            "out/from-urdf into a hard link of its URDF",
+            hard_link("ur5.urdf", "copy.urdf"),
+            ur5("copy.urdf"),
+            &["copy.urdf", "--out", "is a hard link to the input ur5.urdf"],
+        ),
+        Case::fails(
+            "out/from-urdf into a symlink to its URDF",
+            symlink("ur5.urdf", "link.toml"),
+            ur5("link.toml"),
+            &["link.toml", "--out", "is a symlink to the input ur5.urdf"],
+        ),
+        Case::fails(
+            "out/from-urdf into a folder",
+            folder("m.toml"),
+            ur5("m.toml"),
+            &["m.toml", "--out", "is a folder"],
+        ),
+        Case::fails(
+            "out/to-urdf over the model",
+            unchanged(),
+            to_ur5("ur5.toml"),
+            &["ur5.toml", "--out", "is the same file as the input ur5.toml"],
+        ),
+        Case::fails(
+            "out/to-urdf over the URDF",
+            unchanged(),
+            to_ur5("ur5.urdf"),
+            &["--out", "the same file as the input ur5.urdf"],
+        ),
+        Case::fails(
+            "out/to-urdf into a hard link of the model",
+            hard_link("ur5.toml", "c.urdf"),
+            to_ur5("c.urdf"),
+            &["c.urdf", "a hard link to the input ur5.toml"],
+        ),
+        Case::fails(
+            "out/to-urdf into a symlink to the URDF",
+            symlink("ur5.urdf", "c.urdf"),
+            to_ur5("c.urdf"),
+            &["c.urdf", "a symlink to the input ur5.urdf"],
+        ),
+        Case::fails(
+            "out/to-urdf over another file of the user's",
+            write("c.urdf", "mine"),
+            to_ur5("c.urdf"),
+            &["c.urdf", "--out", "kincal did not write it", "choose another name"],
+        ),
+        Case::fails(
+            "out/from-urdf over a model of the user's",
+            write("m.toml", "format = \"kincal-arm/1\"\n"),
+            ur5("m.toml"),
+            &["m.toml", "kincal did not write it"],
+        ),
+        Case::succeeds(
+            "out/to-urdf into a new file",
+            unchanged(),
+            to_ur5("c.urdf"),
+            Some(urdf_written("c.urdf", "ur5")),
+        ),
         // PR2's URDF is 110 KB: on a disk that takes no file over 16 KiB the write fails, the
         // error names the file, and neither it nor a temporary is left behind.
-        Case::fails("out/to-urdf on a full disk", unchanged(), to_urdf("pr2.toml", "pr2.urdf", "c.urdf", &[]), &["c.urdf"]).with_disk_full_at(16),
+        Case::fails(
+            "out/to-urdf on a full disk",
+            unchanged(),
+            to_urdf("pr2.toml", "pr2.urdf", "c.urdf", &[]),
+            &["c.urdf"],
+        )
+        .with_disk_full_at(16),
     ]);
 }
 
 fn urdf_written(file: &'static str, robot: &'static str) -> Check {
     Box::new(move |d: &Path| {
         let text = std::fs::read_to_string(d.join(file)).map_err(|e| e.to_string())?;
-        text.contains(&format!("<robot name=\"{robot}\"")).then_some(()).ok_or(format!("{file} is not the URDF"))
+        text.contains(&format!("<robot name=\"{robot}\""))
+            .then_some(())
+            .ok_or(format!("{file} is not the URDF"))
     })
 }
 
@@ -141,16 +210,56 @@ fn file_type_cases(cases: &mut Vec<Case>) {
     let upload = words(&["upload", "--port", "tcp:127.0.0.1:9", "ur5.toml", "--key", "station.key"], &[]);
     cases.extend([
         Case::fails("type/a FIFO as --key", fifo("station.key"), upload.clone(), &["station.key", "FIFO"]),
-        Case::fails("type/--key a symlink to /dev/zero", symlink("/dev/zero", "station.key"), upload.clone(), &["station.key", "a device"]),
-        Case::fails("type/--key a folder", folder("station.key"), upload.clone(), &["station.key", "a folder"]),
-        Case::fails("type/--key a dangling symlink", symlink("gone.key", "station.key"), upload, &["station.key", "dangling"]),
+        Case::fails(
+            "type/--key a symlink to /dev/zero",
+            symlink("/dev/zero", "station.key"),
+            upload.clone(),
+            &["station.key", "a device"],
+        ),
+        Case::fails(
+            "type/--key a folder",
+            folder("station.key"),
+            upload.clone(),
+            &["station.key", "a folder"],
+        ),
+        Case::fails(
+            "type/--key a dangling symlink",
+            symlink("gone.key", "station.key"),
+            upload,
+            &["station.key", "dangling"],
+        ),
         Case::fails("type/a FIFO as the URDF", fifo("ur5.urdf"), ur5("m.toml"), &["ur5.urdf", "FIFO"]),
-        Case::fails("type/the URDF a symlink to /dev/zero", symlink("/dev/zero", "ur5.urdf"), ur5("m.toml"), &["ur5.urdf", "a device"]),
+        Case::fails(
+            "type/the URDF a symlink to /dev/zero",
+            symlink("/dev/zero", "ur5.urdf"),
+            ur5("m.toml"),
+            &["ur5.urdf", "a device"],
+        ),
         Case::fails("type/the URDF a folder", folder("ur5.urdf"), ur5("m.toml"), &["ur5.urdf", "a folder"]),
-        Case::fails("type/the URDF a dangling symlink", symlink("gone.urdf", "ur5.urdf"), ur5("m.toml"), &["ur5.urdf", "dangling"]),
-        Case::fails("type/a FIFO as the model", fifo("ur5.toml"), to_urdf("ur5.toml", "ur5.urdf", "c.urdf", &[]), &["ur5.toml", "FIFO"]),
-        Case::fails("type/the model a symlink to /dev/zero", symlink("/dev/zero", "ur5.toml"), to_urdf("ur5.toml", "ur5.urdf", "c.urdf", &[]), &["ur5.toml", "a device"]),
-        Case::fails("type/to-urdf's URDF a FIFO", fifo("ur5.urdf"), to_urdf("ur5.toml", "ur5.urdf", "c.urdf", &[]), &["ur5.urdf", "FIFO"]),
+        Case::fails(
+            "type/the URDF a dangling symlink",
+            symlink("gone.urdf", "ur5.urdf"),
+            ur5("m.toml"),
+            &["ur5.urdf", "dangling"],
+        ),
+        Case::fails(
+            "type/a FIFO as the model",
+            fifo("ur5.toml"),
+            to_urdf("ur5.toml", "ur5.urdf", "c.urdf", &[]),
+            &["ur5.toml", "FIFO"],
+        ),
+        Case::fails(
+            "type/the model a symlink to /dev/zero",
+            symlink("/dev/zero", "ur5.toml"),
+            to_urdf("ur5.toml", "ur5.urdf", "c.urdf", &[]),
+            &["ur5.toml", "a device"],
+        ),
+        Case::fails(
+            "type/to-urdf's URDF a FIFO",
+            fifo("ur5.urdf"),
+            to_urdf("ur5.toml", "ur5.urdf", "c.urdf", &[]),
+            &["ur5.urdf", "FIFO"],
+        ),
     ]);
 }
 
@@ -241,27 +350,39 @@ fn to_urdf_cases(cases: &mut Vec<Case>) {
             std::fs::read_to_string(d.join("gen3_2f85.urdf")).map_err(|e| e.to_string())?,
             std::fs::read_to_string(d.join("c.urdf")).map_err(|e| e.to_string())?,
         );
-        let block = |t: &str| t[t.find("<ros2_control").unwrap()..t.find("</ros2_control>").unwrap()].to_string();
+        let block =
+            |t: &str| t[t.find("<ros2_control").unwrap()..t.find("</ros2_control>").unwrap()].to_string();
         if block(&before) != block(&after) {
             return Err("the <ros2_control> block changed".into());
         }
         // The kinematic joint gen3_joint_1 carries the 1° offset in its origin's yaw now.
         let joint = &after[after.find("<joint name=\"gen3_joint_1\" type").ok_or("no gen3_joint_1")?..];
         let origin = &joint[..joint.find("</joint>").unwrap()];
-        (!origin.contains("rpy=\"3.1416 2.7629E-18 -4.9305E-36\"")).then_some(()).ok_or(format!("not calibrated: {origin}"))
+        (!origin.contains("rpy=\"3.1416 2.7629E-18 -4.9305E-36\""))
+            .then_some(())
+            .ok_or(format!("not calibrated: {origin}"))
     });
     cases.extend([
         Case::fails(
             "to-urdf/a UR10 model into ur5.urdf",
             unchanged(),
             to_urdf("ur10.toml", "ur5.urdf", "c.urdf", &[]),
-            &["ur5.urdf", "ur10.toml was made from ur10.urdf (robot ur10, chain base_link → tool0)", "chain hash", "this file (robot ur5)"],
+            &[
+                "ur5.urdf",
+                "ur10.toml was made from ur10.urdf (robot ur10, chain base_link → tool0)",
+                "chain hash",
+                "this file (robot ur5)",
+            ],
         ),
         Case::fails(
             "to-urdf/another --base",
             unchanged(),
             to_urdf("baxter.toml", "baxter.urdf", "c.urdf", &["--base", "torso"]),
-            &["--base torso", "baxter.toml is the chain base → left_gripper of baxter.urdf", "leave out --base or give base"],
+            &[
+                "--base torso",
+                "baxter.toml is the chain base → left_gripper of baxter.urdf",
+                "leave out --base or give base",
+            ],
         ),
         Case::fails(
             "to-urdf/another --tip",
@@ -271,7 +392,12 @@ fn to_urdf_cases(cases: &mut Vec<Case>) {
         ),
         Case::fails(
             "to-urdf/an edited chain",
-            after("ur5.urdf", "<joint name=\"elbow_joint\"", "xyz=\"0.0 -0.1197 0.425\"", "xyz=\"0.0 -0.1197 0.4251\""),
+            after(
+                "ur5.urdf",
+                "<joint name=\"elbow_joint\"",
+                "xyz=\"0.0 -0.1197 0.425\"",
+                "xyz=\"0.0 -0.1197 0.4251\"",
+            ),
             to_urdf("ur5.toml", "ur5.urdf", "c.urdf", &[]),
             &["ur5.urdf", "the chain differs from the one the model was made from", "chain hash"],
         ),
@@ -289,7 +415,9 @@ fn to_urdf_cases(cases: &mut Vec<Case>) {
         ),
         Case::fails(
             "to-urdf/a model with an effect a URDF cannot hold",
-            edit("ur5.toml", |t| t.replacen("offset_deg = 0.0", "offset_deg = 0.0\neccentricity_sin_deg = 0.01", 1)),
+            edit("ur5.toml", |t| {
+                t.replacen("offset_deg = 0.0", "offset_deg = 0.0\neccentricity_sin_deg = 0.01", 1)
+            }),
             to_urdf("ur5.toml", "ur5.urdf", "c.urdf", &[]),
             &["ur5.toml", "a URDF cannot carry eccentricity_sin:1 = 0.01 deg"],
         ),
@@ -329,13 +457,6 @@ fn every_bad_model_input_ends_in_a_clear_error_or_a_right_result() {
     from_urdf_cases(&mut cases);
     to_urdf_cases(&mut cases);
     old_model_cases(&mut cases);
-    let mut names: Vec<&str> = cases.iter().map(|c| c.name.as_str()).collect();
-    names.sort_unstable();
-    names.dedup();
-    assert_eq!(names.len(), cases.len(), "case names must be unique");
-    let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
-    let failures =
-        run_corpus(&kincal_bin(), &template, &root.join("cases"), &cases, threads, Duration::from_secs(30));
-    assert!(failures.is_empty(), "{} of {} cases failed:\n{}", failures.len(), cases.len(), failures.join("\n\n"));
+    assert_all_pass(&kincal_bin(), &template, &root.join("cases"), &cases, Duration::from_secs(30));
     std::fs::remove_dir_all(&root).ok();
 }

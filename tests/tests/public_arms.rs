@@ -88,23 +88,9 @@ fn pinocchio_fk(urdf: &Path, arm: &Arm, poses: &[Vec<f64>], dir: &Path) -> Vec<(
         .collect()
 }
 
-/// 24 readings spread over the model's joint limits (±180° for a continuous joint), zero first.
+/// 24 readings spread over the model's joint limits (±180° for a continuous joint).
 fn readings(model: &ArmModel) -> Vec<Vec<f64>> {
-    let source = model.urdf.as_ref().expect("a model from-urdf records its chain");
-    (0..24)
-        .map(|k| {
-            source
-                .joint
-                .iter()
-                .enumerate()
-                .map(|(j, joint)| {
-                    let [lo, hi] = joint.limits_deg.unwrap_or([-180.0, 180.0]);
-                    let f = if k == 0 { 0.5 } else { ((k * 11 + j * 5) as f64 * 0.754_877_666).fract() };
-                    (lo.max(-180.0) + (hi.min(180.0) - lo.max(-180.0)) * f).clamp(lo, hi)
-                })
-                .collect()
-        })
-        .collect()
+    model.urdf.as_ref().expect("a model from-urdf records its chain").spread_readings(24)
 }
 
 /// The largest differences between kincal's `model` and pinocchio's reading of `urdf`: the tip
@@ -119,8 +105,8 @@ fn worst_difference(model: &ArmModel, urdf: &Path, arm: &Arm, dir: &Path) -> (f6
         let mine = tool_pose(model, q).position_mm;
         position = position.max((0..3).map(|k| (mine[k] - p[k]).powi(2)).sum::<f64>().sqrt());
         let axes_of = tool_pose(&frame, q);
-        for k in 0..3 {
-            axes = axes.max((axes_of.x_axis[k] - r[k][0]).abs()).max((axes_of.z_axis[k] - r[k][2]).abs());
+        for (k, row) in r.iter().enumerate() {
+            axes = axes.max((axes_of.x_axis[k] - row[0]).abs()).max((axes_of.z_axis[k] - row[2]).abs());
         }
     }
     (position, axes)
@@ -176,7 +162,8 @@ fn the_urdf_written_after_a_calibration_is_the_calibrated_arm_for_pinocchio() {
             "--restarts",
             "1",
         ]);
-        let said = kincal(&["model", "to-urdf", "run/model.toml", "--urdf", urdf, "--out", "calibrated.urdf"]);
+        let said =
+            kincal(&["model", "to-urdf", "run/model.toml", "--urdf", urdf, "--out", "calibrated.urdf"]);
         assert!(said.contains("joint origins calibrated") && said.contains("read back"), "{said}");
         let nominal = ArmModel::load(&dir.join("model.toml")).unwrap();
         let mut calibrated = ArmModel::load(&dir.join("run/model.toml")).unwrap();
@@ -195,8 +182,10 @@ fn the_urdf_written_after_a_calibration_is_the_calibrated_arm_for_pinocchio() {
         assert!(moved > 0.1, "{}: the calibration changed nothing worth writing ({moved} mm)", arm.name);
         assert!(position < 1e-3, "{}: the written URDF is {position} mm from the calibrated model", arm.name);
         assert!(axes < 1e-6, "{}: the written URDF's axes are {axes} from the model's", arm.name);
-        let (before, after) =
-            (std::fs::read_to_string(&arm.urdf).unwrap(), std::fs::read_to_string(dir.join("calibrated.urdf")).unwrap());
+        let (before, after) = (
+            std::fs::read_to_string(&arm.urdf).unwrap(),
+            std::fs::read_to_string(dir.join("calibrated.urdf")).unwrap(),
+        );
         // Apart from kincal's note of what it wrote, the same lines.
         let note = kincal::files::WRITTEN_BY;
         assert_eq!(after.matches(note).count(), 1, "{}: one note", arm.name);
@@ -204,7 +193,12 @@ fn the_urdf_written_after_a_calibration_is_the_calibrated_arm_for_pinocchio() {
         let changed: Vec<&str> =
             before.lines().zip(after.lines()).filter(|(a, b)| a != b).map(|(_, b)| b.trim()).collect();
         assert_eq!(before.lines().count(), after.lines().count(), "{}: lines added or lost", arm.name);
-        assert_eq!(changed.len(), nominal.joints.len(), "{}: one <origin> per joint changes: {changed:?}", arm.name);
+        assert_eq!(
+            changed.len(),
+            nominal.joints.len(),
+            "{}: one <origin> per joint changes: {changed:?}",
+            arm.name
+        );
         assert!(changed.iter().all(|l| l.starts_with("<origin ")), "{}: {changed:?}", arm.name);
         if let Some(start) = before.find("<ros2_control") {
             let end = before.find("</ros2_control>").unwrap();

@@ -175,8 +175,10 @@ fn every_origin_freed_the_null_directions_stay_at_the_nominal_and_move_no_figure
         // One of joint 4's turn about its axis (offset or origin angles) and one of joint 6's
         // and 7's shifts along joint 6's axis are held.
         assert!(
-            ident.fixed.iter().any(|p| p.ends_with(":4")
-                && (p.starts_with("origin_r") || p.starts_with("offset"))),
+            ident
+                .fixed
+                .iter()
+                .any(|p| p.ends_with(":4") && (p.starts_with("origin_r") || p.starts_with("offset"))),
             "{:?}",
             ident.fixed
         );

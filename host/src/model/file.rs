@@ -105,7 +105,10 @@ fn check_joint_convention(joint: &mut Joint, convention: Convention) -> Result<(
         }
         Convention::Classic | Convention::Modified => {
             if urdf.into_iter().any(|v| *v != 0.0) || joint.axis != [0.0, 0.0, 1.0] {
-                return Err("origin_xyz_mm, origin_rpy_deg, origin_turn_deg and axis belong to convention = \"urdf\"".into());
+                return Err(
+                    "origin_xyz_mm, origin_rpy_deg, origin_turn_deg and axis belong to convention = \"urdf\""
+                        .into(),
+                );
             }
         }
     }
@@ -330,7 +333,13 @@ impl ArmModel {
     /// refused over one of `inputs` or a file kincal did not write). A TOML file starts with
     /// `# written by kincal NOTE`, so a later run may replace it (JSON has no comments: an existing
     /// JSON file is never replaced).
-    pub fn save_output(&self, path: &Path, option: &str, inputs: &[&Path], note: &str) -> Result<(), FileError> {
+    pub fn save_output(
+        &self,
+        path: &Path,
+        option: &str,
+        inputs: &[&Path],
+        note: &str,
+    ) -> Result<(), FileError> {
         let text = if is_json(path) {
             self.to_text(true)
         } else {
@@ -443,7 +452,10 @@ mod tests {
         let path = dir.join("old.toml");
         std::fs::write(&path, text).unwrap();
         let err = ArmModel::load(&path).unwrap_err().to_string();
-        assert!(err.contains("origin_roll:1") && err.contains("origin_rx") && err.contains("from-urdf"), "{err}");
+        assert!(
+            err.contains("origin_roll:1") && err.contains("origin_rx") && err.contains("from-urdf"),
+            "{err}"
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 }

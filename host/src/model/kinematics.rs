@@ -415,7 +415,9 @@ fn evaluate(
             let r = &prefix[m];
             (r * dp * scale, r * dx, r * dz)
         };
-        let add = |col: &mut PoseDerivative, (dp, dx, dz): (Vector3<f64>, Vector3<f64>, Vector3<f64>), dvalue: f64| {
+        let add = |col: &mut PoseDerivative,
+                   (dp, dx, dz): (Vector3<f64>, Vector3<f64>, Vector3<f64>),
+                   dvalue: f64| {
             for k in 0..3 {
                 col[k] += dp[k] * dvalue;
                 col[3 + k] += dx[k] * dvalue;
@@ -639,12 +641,16 @@ mod tests {
                 let (x, z) = (pose.x_axis, pose.z_axis);
                 let y = z.cross(&x);
                 let w = Matrix3::from_fn(|r, c| {
-                    let (dx, dz) = (Vector3::from_fn(|k, _| jac[c][3 + k]), Vector3::from_fn(|k, _| jac[c][6 + k]));
+                    let (dx, dz) =
+                        (Vector3::from_fn(|k, _| jac[c][3 + k]), Vector3::from_fn(|k, _| jac[c][6 + k]));
                     (x.cross(&dx) - x * y.dot(&dz))[r]
                 });
                 let sv = w.singular_values();
                 for s in sv.iter() {
-                    assert!((s - DEG).abs() < 1e-9, "pitch {pitch_deg}: singular values {sv}, expected 3 × {DEG}");
+                    assert!(
+                        (s - DEG).abs() < 1e-9,
+                        "pitch {pitch_deg}: singular values {sv}, expected 3 × {DEG}"
+                    );
                 }
             }
         }
@@ -658,6 +664,9 @@ mod tests {
         let half = std::f64::consts::FRAC_PI_2;
         let d_roll = (rpy(h, half, 0.0) - rpy(-h, half, 0.0)) / (2.0 * h);
         let d_yaw = (rpy(0.0, half, h) - rpy(0.0, half, -h)) / (2.0 * h);
-        assert!(axis_of(d_roll).cross(&axis_of(d_yaw)).norm() < 1e-6, "roll and yaw are one direction at pitch 90°");
+        assert!(
+            axis_of(d_roll).cross(&axis_of(d_yaw)).norm() < 1e-6,
+            "roll and yaw are one direction at pitch 90°"
+        );
     }
 }

@@ -26,6 +26,8 @@ use std::path::Path;
 pub const ORIGIN_HALF_RANGE_MM: f64 = 10.0;
 /// Bounds given to each free origin turn and joint offset by [`model_from_urdf`], ± degrees.
 pub const ORIGIN_HALF_RANGE_DEG: f64 = 5.0;
+/// Readings at which [`calibrated_urdf`] compares the written file with the model.
+pub const READ_BACK_POSES: usize = 16;
 /// Largest difference, mm, between the written URDF's forward kinematics and the model's that
 /// [`calibrated_urdf`] accepts (the numbers are written in full: only round-off remains).
 pub const READ_BACK_TOLERANCE_MM: f64 = 1e-6;
@@ -71,12 +73,34 @@ impl UrdfSource {
         self.joint.iter().position(|j| j.name == name)
     }
 
+    /// `count` readings (deg) spread over the joints' limits (±180° for a continuous joint),
+    /// deterministic: the middle of every range first, then a low-discrepancy fraction per
+    /// (reading, joint).
+    pub fn spread_readings(&self, count: usize) -> Vec<Vec<f64>> {
+        (0..count)
+            .map(|k| {
+                self.joint
+                    .iter()
+                    .enumerate()
+                    .map(|(j, joint)| {
+                        let [lo, hi] = joint.limits_deg.unwrap_or([-180.0, 180.0]);
+                        let f =
+                            if k == 0 { 0.5 } else { ((k * 7 + j * 13) as f64 * 0.618_033_988_75).fract() };
+                        lo + (hi - lo) * f
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
     /// The readings of `q_deg` outside their joint's URDF limits: (joint, reading, limits), deg.
     pub fn outside_limits(&self, q_deg: &[f64]) -> Vec<(&UrdfJoint, f64, [f64; 2])> {
         self.joint
             .iter()
             .zip(q_deg)
-            .filter_map(|(j, &q)| j.limits_deg.filter(|[lo, hi]| !(*lo..=*hi).contains(&q)).map(|l| (j, q, l)))
+            .filter_map(|(j, &q)| {
+                j.limits_deg.filter(|[lo, hi]| !(*lo..=*hi).contains(&q)).map(|l| (j, q, l))
+            })
             .collect()
     }
 }
@@ -242,7 +266,10 @@ impl Document<'_> {
                 return Err(self.at_joint(
                     &element.name,
                     "",
-                    format!("a second joint of this name (the first is on line {}): joint names are unique", first.line),
+                    format!(
+                        "a second joint of this name (the first is on line {}): joint names are unique",
+                        first.line
+                    ),
                 ));
             }
         }
@@ -253,7 +280,9 @@ impl Document<'_> {
                     return Err(self.at_joint(
                         &joint.name,
                         &format!("/<{role}>"),
-                        format!("link {link} is not declared: expected a <link name=\"{link}\"/> in the file"),
+                        format!(
+                            "link {link} is not declared: expected a <link name=\"{link}\"/> in the file"
+                        ),
                     ));
                 }
             }
@@ -400,9 +429,9 @@ impl Document<'_> {
                     &joint.name,
                     "",
                     format!(
-                        "type {other:?} in the chain {base} → {tip}; kincal calibrates revolute (or continuous) \
+                    "type {other:?} in the chain {base} → {tip}; kincal calibrates revolute (or continuous) \
                          joints, with fixed joints folded in"
-                    ),
+                ),
                 ))
             }
         }
@@ -520,26 +549,6 @@ pub struct CalibratedUrdf {
     pub poses_checked: usize,
 }
 
-/// Joint readings (deg) at which a written URDF is compared with its model: zero, then a
-/// deterministic spread within each joint's limits (±180° for a continuous joint).
-fn check_poses(source: &UrdfSource) -> Vec<Vec<f64>> {
-    (0..16)
-        .map(|k| {
-            source
-                .joint
-                .iter()
-                .enumerate()
-                .map(|(j, joint)| {
-                    let [lo, hi] = joint.limits_deg.unwrap_or([-180.0, 180.0]);
-                    // A low-discrepancy fraction per (pose, joint); pose 0 is the middle.
-                    let f = if k == 0 { 0.5 } else { ((k * 7 + j * 13) as f64 * 0.618_033_988_75).fract() };
-                    lo + (hi - lo) * f
-                })
-                .collect()
-        })
-        .collect()
-}
-
 /// The URDF text at `urdf` with the origins of the model's chain replaced by the calibrated ones
 /// (each origin R(rpy)·exp(ω) with the joint offset folded in, the folded fixed joints taken back
 /// out), so the URDF's forward kinematics at the readings q equals the model's. Refused: a model
@@ -558,7 +567,9 @@ pub fn calibrated_urdf(
     let m = model_path.display();
     let Some(source) = model.urdf.as_ref().filter(|_| model.convention == Convention::Urdf) else {
         let (base, tip) = (base.unwrap_or("?"), tip.unwrap_or("?"));
-        let count = doc.chain(base, tip).map(|c| format!(", the chain {base} → {tip} {} revolute joints", c.joints.len()));
+        let count = doc
+            .chain(base, tip)
+            .map(|c| format!(", the chain {base} → {tip} {} revolute joints", c.joints.len()));
         return Err(field(
             urdf,
             format!("chain {base} → {tip}"),
@@ -585,7 +596,10 @@ pub fn calibrated_urdf(
         }
     }
     let chain = doc.chain(&source.base, &source.tip)?;
-    let made_from = format!("{m} was made from {} (robot {}, chain {} → {})", source.file, source.robot, source.base, source.tip);
+    let made_from = format!(
+        "{m} was made from {} (robot {}, chain {} → {})",
+        source.file, source.robot, source.base, source.tip
+    );
     if chain.joints.len() != model.joints.len() || chain.joints.len() != source.joint.len() {
         return Err(field(
             urdf,
@@ -602,7 +616,11 @@ pub fn calibrated_urdf(
             return Err(doc.at_joint(
                 &c.name,
                 "",
-                format!("joint {} of the chain is {} in the model: {made_from}, not from this file", j + 1, recorded.name),
+                format!(
+                    "joint {} of the chain is {} in the model: {made_from}, not from this file",
+                    j + 1,
+                    recorded.name
+                ),
             ));
         }
         let axis = Vector3::from(joint.axis);
@@ -655,7 +673,8 @@ pub fn calibrated_urdf(
     let mut edits = Vec::new();
     for (c, joint) in chain.joints.iter().zip(&model.joints) {
         let axis = Unit::new_normalize(Vector3::from(joint.axis));
-        let rotation = joint.origin_rotation() * Rotation3::from_axis_angle(&axis, joint.offset_deg.to_radians());
+        let rotation =
+            joint.origin_rotation() * Rotation3::from_axis_angle(&axis, joint.offset_deg.to_radians());
         let calibrated = Isometry3::from_parts(
             Translation3::from(Vector3::from(joint.origin_xyz_mm)),
             UnitQuaternion::from_rotation_matrix(&rotation),
@@ -664,11 +683,9 @@ pub fn calibrated_urdf(
         let [x, y, z] = xyz_mm.map(|v| v / 1000.0);
         let [roll, pitch, yaw] = rpy_deg.map(f64::to_radians);
         let origin = format!("<origin xyz=\"{x} {y} {z}\" rpy=\"{roll} {pitch} {yaw}\"/>");
-        let element = doc
-            .joints
-            .iter()
-            .find(|e| e.name == c.name)
-            .ok_or_else(|| doc.at_joint(&c.name, "", "no <joint> element of this name under <robot>".into()))?;
+        let element = doc.joints.iter().find(|e| e.name == c.name).ok_or_else(|| {
+            doc.at_joint(&c.name, "", "no <joint> element of this name under <robot>".into())
+        })?;
         edits.push(match element.origin {
             Some((start, end)) => (start, end, origin),
             None => (element.head_end, element.head_end, origin),
@@ -705,11 +722,7 @@ fn mark(text: &mut String, note: &str) {
         text.replace_range(at..end, note);
         return;
     }
-    let at = if text.trim_start().starts_with("<?xml") {
-        text.find("?>").map_or(0, |e| e + 2)
-    } else {
-        0
-    };
+    let at = if text.trim_start().starts_with("<?xml") { text.find("?>").map_or(0, |e| e + 2) } else { 0 };
     let (before, after) = if at == 0 { ("", "\n") } else { ("\n", "") };
     text.insert_str(at, &format!("{before}{note}{after}"));
 }
@@ -720,13 +733,18 @@ fn short(hash: &str) -> &str {
 }
 
 /// Read the written `text` as a URDF again and compare its forward kinematics with `model`'s at
-/// [`check_poses`]: the last joint's frame origin and points 100 mm along its axes. Returns the
+/// [`READ_BACK_POSES`] readings ([`UrdfSource::spread_readings`]): the last joint's frame origin and points 100 mm along its axes. Returns the
 /// largest distance (mm) and the number of poses; refused beyond [`READ_BACK_TOLERANCE_MM`].
-fn read_back(urdf: &Path, text: &str, model: &ArmModel, source: &UrdfSource) -> Result<(f64, usize), FileError> {
+fn read_back(
+    urdf: &Path,
+    text: &str,
+    model: &ArmModel,
+    source: &UrdfSource,
+) -> Result<(f64, usize), FileError> {
     let doc = read_document(urdf, text.to_string())?;
     let (mut written, _) = doc.model(&source.base, &source.tip)?;
     let mut calibrated = model.clone();
-    let poses = check_poses(source);
+    let poses = source.spread_readings(READ_BACK_POSES);
     let mut worst: f64 = 0.0;
     for tcp in [[0.0; 3], [100.0, 0.0, 0.0], [0.0, 100.0, 0.0], [0.0, 0.0, 100.0]] {
         written.tcp_mm = tcp;
@@ -736,7 +754,7 @@ fn read_back(urdf: &Path, text: &str, model: &ArmModel, source: &UrdfSource) -> 
             worst = worst.max(d);
         }
     }
-    if !(worst <= READ_BACK_TOLERANCE_MM) {
+    if worst.is_nan() || worst > READ_BACK_TOLERANCE_MM {
         return Err(field(
             urdf,
             format!("chain {} → {}", source.base, source.tip),
@@ -794,7 +812,10 @@ mod tests {
         assert!((pose.position_mm - tool.coords).norm() < 1e-9, "{} vs {}", pose.position_mm, tool.coords);
         assert_eq!(model.free.len(), 14);
         let source = model.urdf.clone().unwrap();
-        assert_eq!(source.joint[0], UrdfJoint { name: "j1".into(), limits_deg: Some([-2f64.to_degrees(), 2f64.to_degrees()]) });
+        assert_eq!(
+            source.joint[0],
+            UrdfJoint { name: "j1".into(), limits_deg: Some([-2f64.to_degrees(), 2f64.to_degrees()]) }
+        );
         assert_eq!(source.joint[1], UrdfJoint { name: "j2".into(), limits_deg: None });
         assert_eq!(source.joint_index("j2_deg"), Some(1));
         assert_eq!(source.joint_index("j1"), Some(0));
@@ -807,7 +828,7 @@ mod tests {
         model.joints[0].origin_xyz_mm[0] += 0.7;
         model.joints[0].origin_turn_deg = [0.2, -0.1, 0.05];
         let out = calibrated_urdf(&path, &model, Path::new("m.toml"), None, None).unwrap();
-        assert!(out.read_back_mm < READ_BACK_TOLERANCE_MM && out.poses_checked == 16, "{out:?}");
+        assert!(out.read_back_mm < READ_BACK_TOLERANCE_MM && out.poses_checked == READ_BACK_POSES, "{out:?}");
         assert_eq!(out.joints, ["j1", "j2"]);
         let back = dir.join("back.urdf");
         std::fs::write(&back, &out.text).unwrap();

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Provisioning for the tests (sourced or run by scripts/test.sh): the firmware target, the emulator
-# the end-to-end tests boot, numpy/scipy for the SciPy peer check and pinocchio for the public-arm
-# peer (bench/pinocchio_peer.py). Safe to run again.
+# the end-to-end tests boot, numpy/scipy for the SciPy peer check, pinocchio for the public-arm peer
+# (bench/pinocchio_peer.py) and mdBook for the book. Safe to run again.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 source scripts/setup-embedded.sh
@@ -12,4 +12,9 @@ fi
 if ! python3 -c "import pinocchio" 2>/dev/null; then
     echo "installing pinocchio (pip package pin) for the public-arm peer"
     python3 -m pip install --quiet --disable-pip-version-check pin
+fi
+MDBOOK_VERSION=0.5.4
+if [ "$(mdbook --version 2>/dev/null)" != "mdbook v$MDBOOK_VERSION" ]; then
+    echo "installing mdbook $MDBOOK_VERSION for the book (a few minutes, once)"
+    cargo install --quiet --locked mdbook --version "$MDBOOK_VERSION" --no-default-features --features search
 fi

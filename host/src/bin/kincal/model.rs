@@ -1,6 +1,6 @@
-//! `kincal model`: URDF in and out.
+//! `kincal model`: URDF in and out, and the built-in SUTA model.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use kincal::files::write_output;
 use kincal::model::urdf::{calibrated_urdf, model_from_urdf};
@@ -15,6 +15,16 @@ pub enum ModelCommand {
     /// Write a calibrated URDF model's joint origins back into a copy of the URDF it was made
     /// from (only the kinematic `<joint>` origins change; the copy is read back and checked).
     ToUrdf(ToUrdfArgs),
+    /// Write the SUTA nominal model built into kincal (thesis Table 3.2, the file
+    /// examples/suta/model.toml), to calibrate or to edit into your own arm's model.
+    Suta(SutaArgs),
+}
+
+#[derive(Args)]
+pub struct SutaArgs {
+    /// Model file to write (never replaced); without it the model is printed.
+    #[arg(long)]
+    out: Option<PathBuf>,
 }
 
 /// The chain of a URDF: its first and last link.
@@ -105,6 +115,30 @@ pub fn run(command: &ModelCommand) -> Result<()> {
                     "  the tool point stays in the model (tcp_mm); the URDF's tip {} is where it was",
                     source.tip
                 );
+            }
+        }
+        ModelCommand::Suta(a) => {
+            let text = kincal::model::file::SUTA_MODEL_TOML;
+            match &a.out {
+                Some(out) => {
+                    if out.symlink_metadata().is_ok() {
+                        anyhow::bail!(
+                            "{} exists: kincal never replaces it; choose another name",
+                            out.display()
+                        );
+                    }
+                    kincal::files::write_atomic(out, text.as_bytes())
+                        .with_context(|| format!("{}: cannot write", out.display()))?;
+                    let model = ArmModel::suta_nominal();
+                    println!(
+                        "{}: {} ({} joints, {} free parameters)",
+                        out.display(),
+                        model.name,
+                        model.joints.len(),
+                        model.free.len()
+                    );
+                }
+                None => print!("{text}"),
             }
         }
     }

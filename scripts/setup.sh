@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Provisioning for the tests (sourced or run by scripts/test.sh): the firmware target, the emulator
-# the end-to-end tests boot, numpy/scipy for the SciPy peer check, g++ with Ceres Solver and
-# nlohmann-json for the Ceres peer (bench/ceres/), and mdBook for the book. Safe to run again.
+# the end-to-end tests boot, numpy/scipy for the SciPy peer check, pinocchio for the public-arm peer
+# (bench/pinocchio_peer.py), g++ with Ceres Solver and nlohmann-json for the Ceres peer
+# (bench/ceres/), and mdBook for the book. Safe to run again.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 source scripts/setup-embedded.sh
@@ -13,6 +14,10 @@ if ! command -v g++ >/dev/null || [ ! -f /usr/include/ceres/ceres.h ] || [ ! -f 
     echo "installing g++, libceres-dev and nlohmann-json3-dev for the Ceres peer"
     if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
     $SUDO apt-get update -qq && $SUDO apt-get install -y -qq g++ libceres-dev nlohmann-json3-dev >/dev/null
+fi
+if ! python3 -c "import pinocchio" 2>/dev/null; then
+    echo "installing pinocchio (pip package pin) for the public-arm peer"
+    python3 -m pip install --quiet --disable-pip-version-check pin
 fi
 MDBOOK_VERSION=0.5.4
 if [ "$(mdbook --version 2>/dev/null)" != "mdbook v$MDBOOK_VERSION" ]; then

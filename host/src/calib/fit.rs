@@ -95,6 +95,9 @@ pub enum CalibError {
         /// Its points.
         points: usize,
     },
+    /// A change names an observation, block or landmark the data do not hold.
+    #[error("{0}: not in these data")]
+    NotInData(String),
     /// A group named by `--float-tool` is not in the data.
     #[error("--float-tool / --drift-session {0}: no calibration session of that name")]
     UnknownSession(String),

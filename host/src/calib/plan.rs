@@ -30,9 +30,9 @@
 //! calibrated arm (random configuration per touch, seeded), kept when at least
 //! [`MIN_TOUCHES`] landmarks are reachable with every joint above the table.
 
-use crate::calib::diagnose::diagnose;
+use crate::calib::diagnose::{diagnose, DiagnoseError};
 use crate::calib::fit::{calibrate, CalibError, Fit};
-use crate::calib::setup::SolveOptions;
+use crate::calib::setup::{Setup, SolveOptions};
 use crate::data::{Artefact, Joints, Observation, Observations, Session, SESSION_FORMAT};
 use crate::model::effects::{default_half_range, Effect};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
@@ -851,7 +851,7 @@ pub fn rival_trial(
     a: Effect,
     b: Effect,
     trial: &TrialOptions,
-) -> Result<RivalOutcome, CalibError> {
+) -> Result<RivalOutcome, DiagnoseError> {
     let sim_options =
         SimulationOptions { seed: trial.seed, hidden: hidden.to_vec(), ..SimulationOptions::default() };
     let sim = crate::simulate::simulate(nominal, &sim_options);
@@ -866,6 +866,7 @@ pub fn rival_trial(
     let planned = plan_rivals(&fit.model, artefact, &cal, &val, a, b, &candidates, &options);
     // The user's next step: measure the placements, add them to the calibration data,
     // recalibrate (warm) and diagnose again on the same validation placements.
+    let setup = Setup::new(calibration.clone());
     let outcome = |design: &[&CandidatePlacement], rng: &mut ChaCha8Rng| {
         let new = measure(&sim.truth, artefact, design, &sim_options, "N", rng);
         let everything: Vec<Session> =
@@ -881,10 +882,10 @@ pub fn rival_trial(
         let sessions: Vec<Session> = sim.calibration.iter().chain(&new).cloned().collect();
         let more = Observations::from_sessions(&sessions, artefact);
         let refit = calibrate(&fit.model, &more, &SolveOptions { restarts: Some(0), ..calibration.clone() })?;
-        let named = diagnose(&refit.model, &more, &val, &calibration).named;
-        Ok::<_, CalibError>((named, separated))
+        let named = diagnose(&setup, &refit.model, &more, &val)?.named;
+        Ok::<_, DiagnoseError>((named, separated))
     };
-    let before = diagnose(&fit.model, &cal, &val, &calibration).named;
+    let before = diagnose(&setup, &fit.model, &cal, &val)?.named;
     let so_far: Vec<Session> = sim.calibration.iter().chain(&sim.validation).cloned().collect();
     let separated_before =
         separation(&fit.model, artefact, &Observations::from_sessions(&so_far, artefact), a, b, sigma)?;

@@ -4,6 +4,7 @@
 //! checked for plausibility ([`Summary::check_figures`]) and every recorded option against the
 //! command line's limits ([`SummaryOptions::check`]): diagnose refits with them.
 
+use crate::calib::diagnose::data_errors::DataError;
 use crate::calib::fit::{Estimate, IdentifiabilityReport, StartOutcome};
 use crate::calib::floor::{Gap, NoiseFloor, PointFloor};
 use crate::calib::identify::Identifiability;
@@ -12,7 +13,6 @@ use crate::calib::nuisance::tool::{FloatedTool, ToolRotation};
 use crate::calib::outliers::LandmarkOutlier;
 use crate::calib::setup::{Objective, SolveOptions, HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS};
 use crate::calib::study::StudyRow;
-use crate::calib::tracker_errors::DataError;
 use crate::calib::validate::{AngleStats, ErrorStats, GroupStats, Repeatability, SessionValidation};
 use crate::data::{DataKind, Joints, MAX_ARTEFACT_SPAN_MM};
 use crate::model::effects::Effect;

@@ -10,16 +10,15 @@
 //! after a rigid registration of the streamed tool points to the true ones, as a navigation
 //! system registers the tracker to the patient.
 
-use crate::calib::auto::{auto_loop, AutoLoop, Stop};
-use crate::calib::fit::CalibError;
+use crate::calib::diagnose::auto::{auto_loop, AutoLoop, Stop};
+use crate::calib::diagnose::{diagnose, DiagnoseError};
 use crate::calib::run::{run, Run, RunError};
-use crate::calib::setup::SolveOptions;
+use crate::calib::setup::{Setup, SolveOptions};
 use crate::calib::summary::RunInputs;
 use crate::controller::link::{Link, LinkError};
 use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step, Verdict};
 use crate::controller::signing::StationKey;
 use crate::data::Artefact;
-use crate::model::effects::Effect;
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::geometry::absolute_orientation;
 use crate::simulate::{
@@ -99,7 +98,7 @@ pub enum LoopError {
     Params(#[from] crate::controller::device::DeviceParamsError),
     /// The diagnose → add loop could not recalibrate.
     #[error("diagnose → add: {0}")]
-    Added(#[from] CalibError),
+    Added(#[from] DiagnoseError),
     /// The demo's station key could not be made or read.
     #[error(transparent)]
     Key(#[from] crate::controller::signing::KeyFileError),
@@ -111,7 +110,7 @@ pub enum LoopError {
 /// One step of diagnose → add: what was added and where the validation error is.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct MissionStep {
-    /// Effect added at this step (`None` for the model as given).
+    /// What was applied at this step (`None` for the model as given).
     pub added: Option<String>,
     /// Validation distance RMS of this step's calibrated model, mm.
     pub validation_rms_mm: f64,
@@ -131,7 +130,7 @@ pub struct Mission {
     pub last: Option<Run>,
     /// Every step, the model as given first.
     pub steps: Vec<MissionStep>,
-    /// Effects added, in order.
+    /// Changes applied, in order.
     pub added: Vec<String>,
 }
 
@@ -158,30 +157,28 @@ pub fn calibrate_diagnose_add(
     progress("diagnosing, adding what the diagnosis names, recalibrating");
     let (cal, val) = inputs.read_folders()?;
     let cal = inputs.exclude(&cal, &val)?.0;
-    let auto = auto_loop(&first.calibration.model, &cal, &first.validation_data, options, MAX_ADDED)?;
+    let setup = Setup::of(inputs, options);
+    let val = &first.validation_data;
+    let auto = auto_loop(&setup, &first.calibration.model, &cal, val, MAX_ADDED)?;
     crate::store::write_auto(&auto, &out.join("run"))?;
-    let first_diagnosis =
-        crate::calib::diagnose::diagnose(&first.calibration.model, &cal, &first.validation_data, options);
+    let first_diagnosis = diagnose(&setup, &first.calibration.model, &cal, val)?;
     crate::store::write_diagnosis(&first_diagnosis, &out.join("run"))?;
     let steps = auto
         .steps
         .iter()
         .map(|s| MissionStep {
-            added: s.added.clone(),
-            validation_rms_mm: s.validation_rms_mm,
+            added: s.applied.clone(),
+            validation_rms_mm: s.held_out_rms_mm,
             expected_floor_mm: s.expected_rms_mm,
             p_value: s.p_value,
         })
         .collect();
-    let added: Vec<String> = auto.steps.iter().filter_map(|s| s.added.clone()).collect();
-    let effects: Vec<Effect> = added.iter().filter_map(|a| Effect::parse(a)).collect();
-    let last = if effects.is_empty() {
+    let added: Vec<String> = auto.steps.iter().filter_map(|s| s.applied.clone()).collect();
+    let last = if added.is_empty() {
         None
     } else {
         progress(&format!("calibrating with {} added", added.join(", ")));
-        let with_effects =
-            RunInputs { add: effects.iter().map(ToString::to_string).collect(), ..inputs.clone() };
-        let last = run(&with_effects, options, 0, true)?;
+        let last = run(&auto.setup.inputs(inputs), options, 0, true)?;
         crate::store::write_run(&last, &out.join("run-added"))?;
         Some(last)
     };

@@ -7,10 +7,11 @@
 
 use super::svg::{self, escape};
 use super::{mm, page, table};
+use crate::calib::diagnose::data_errors::sessions::MIN_GAIN;
+use crate::calib::diagnose::data_errors::DataErrorKind;
 use crate::calib::fit::CONSTANT_ORIENTATION_DEG;
 use crate::calib::run::{PointResidual, Run, SessionResiduals};
 use crate::calib::summary::{SessionFigures, Summary};
-use crate::calib::tracker_errors::MIN_GAIN;
 use std::fmt::Write;
 
 /// The page is wider than the other reports: four residual plots side by side.
@@ -798,11 +799,11 @@ fn data_errors(body: &mut String, s: &Summary) {
         .data_errors
         .iter()
         .map(|d| {
-            let unit = if d.kind == "drift" { "mm/h" } else { "mm" };
+            let unit = if d.kind == DataErrorKind::Drift { "mm/h" } else { "mm" };
             vec![
-                escape(&d.kind),
+                escape(d.kind.word()),
                 escape(&d.session),
-                escape(&d.set),
+                escape(d.set.word()),
                 format!("{} ± {} {unit}", mm4(d.size_mm), mm4(d.size_std_mm)),
                 format!("{} → {}", mm4(d.held_out_before_mm), mm4(d.held_out_after_mm)),
                 if d.significant { "<span class=flag>called</span>".into() } else { "not called".into() },

@@ -3,6 +3,7 @@
 //! (`kincal-tracker-run/1`: held-out sessions, the floor, the data errors). Nothing writes them any
 //! more; a RUN folder of either kind stays readable by `diagnose`, `compare` and `plan`.
 
+use crate::calib::diagnose::data_errors::DataError;
 use crate::calib::fit::{Estimate, IdentifiabilityReport, StartOutcome};
 use crate::calib::floor::PointFloor;
 use crate::calib::identify::Identifiability;
@@ -12,7 +13,6 @@ use crate::calib::outliers::LandmarkOutlier;
 use crate::calib::setup::Objective;
 use crate::calib::study::StudyRow;
 use crate::calib::summary::*;
-use crate::calib::tracker_errors::DataError;
 use crate::calib::validate::{AngleStats, ErrorStats};
 use crate::data::DataKind;
 use std::collections::BTreeMap;

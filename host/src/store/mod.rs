@@ -12,7 +12,7 @@
 //! - Single files (`diagnosis.json` inside a RUN, the compare page) are written atomically; an
 //!   existing file is replaced only when kincal wrote it.
 
-use crate::calib::auto::AutoLoop;
+use crate::calib::diagnose::auto::AutoLoop;
 use crate::calib::diagnose::Diagnosis;
 use crate::calib::run::Run;
 use crate::calib::study::StudyRow;
@@ -30,16 +30,12 @@ use std::path::{Path, PathBuf};
 pub const MARKER: &str = ".kincal-output";
 /// Format tag of `study.json`.
 pub const STUDY_FORMAT: &str = "kincal-study/1";
-/// Format tag of `diagnosis.json`.
-pub const DIAGNOSIS_FORMAT: &str = "kincal-diagnosis/1";
+/// Format tag of `diagnosis.json` (every kind of held-out data; `measure` says which).
+pub const DIAGNOSIS_FORMAT: &str = "kincal-diagnosis/2";
 /// Format tag of a haptic calibration's `summary.json`.
 pub const HAPTIC_FORMAT: &str = "kincal-haptic/1";
-/// Format tag of the auto loop's `auto.json`.
-pub const AUTO_FORMAT: &str = "kincal-auto/1";
-/// Format tag of a tracker run's `diagnosis.json`.
-pub const TRACKER_DIAGNOSIS_FORMAT: &str = "kincal-tracker-diagnosis/1";
-/// Format tag of a tracker run's `auto/auto.json`.
-pub const TRACKER_AUTO_FORMAT: &str = "kincal-tracker-auto/1";
+/// Format tag of the auto loop's `auto.json` (every kind of held-out data).
+pub const AUTO_FORMAT: &str = "kincal-auto/2";
 /// Format tag of a plan (`kincal plan --out FILE`).
 pub const PLAN_FORMAT: &str = "kincal-plan/1";
 /// Header of a plan's pose list (`kincal plan --csv FILE`).
@@ -398,45 +394,6 @@ pub fn write_diagnosis(diagnosis: &Diagnosis, run_dir: &Path) -> Result<(), Outp
     )
 }
 
-/// The JSON of a tracker run's diagnosis, as its `diagnosis.json` holds it.
-pub fn tracker_diagnosis_json(diagnosis: &crate::calib::tracker_diagnose::TrackerDiagnosis) -> String {
-    json(&Tagged { format: TRACKER_DIAGNOSIS_FORMAT, body: diagnosis })
-}
-
-/// Write `diagnosis.html` and `diagnosis.json` of a tracker run into its RUN folder, both or neither.
-pub fn write_tracker_diagnosis(
-    diagnosis: &crate::calib::tracker_diagnose::TrackerDiagnosis,
-    run_dir: &Path,
-) -> Result<(), OutputError> {
-    put_together(
-        run_dir,
-        &[
-            ("diagnosis.html", report::tracker_diagnosis::tracker_diagnosis_report(diagnosis)),
-            ("diagnosis.json", tracker_diagnosis_json(diagnosis)),
-        ],
-    )
-}
-
-/// The JSON of a tracker run's auto loop, as `auto.json` holds it.
-pub fn tracker_auto_json(run: &crate::calib::tracker_diagnose::TrackerAuto) -> String {
-    json(&Tagged { format: TRACKER_AUTO_FORMAT, body: run })
-}
-
-/// Write RUN/auto of a tracker run: each step's calibrated model (`step-K.toml`), `auto.json`
-/// and the error-by-step page.
-pub fn write_tracker_auto(
-    run: &crate::calib::tracker_diagnose::TrackerAuto,
-    run_dir: &Path,
-) -> Result<(), OutputError> {
-    write_folder(&run_dir.join("auto"), FolderKind::Auto, &[], |staged| {
-        for (k, model) in run.steps.iter().enumerate().filter_map(|(k, s)| Some((k, s.model.as_ref()?))) {
-            model.save(&staged.join(format!("step-{k}.toml")))?;
-        }
-        put(staged, "auto.json", tracker_auto_json(run).as_bytes())?;
-        put(staged, "report.html", report::tracker_diagnosis::tracker_auto_report(run).as_bytes())
-    })
-}
-
 /// Write several files into `dir` so that a failure (a full disk) leaves the old ones, not a mix:
 /// every file is first written and synced under a temporary name, then all are renamed.
 fn put_together(dir: &Path, files: &[(&str, String)]) -> Result<(), OutputError> {
@@ -511,11 +468,11 @@ pub fn auto_json(run: &AutoLoop) -> String {
 /// Write RUN/auto: each step's model (`step-K.toml`), `auto.json` and the error-by-step page.
 pub fn write_auto(run: &AutoLoop, run_dir: &Path) -> Result<(), OutputError> {
     write_folder(&run_dir.join("auto"), FolderKind::Auto, &[], |staged| {
-        for (k, step) in run.steps.iter().enumerate() {
-            step.model.save(&staged.join(format!("step-{k}.toml")))?;
+        for (k, model) in run.steps.iter().enumerate().filter_map(|(k, s)| Some((k, s.model.as_ref()?))) {
+            model.save(&staged.join(format!("step-{k}.toml")))?;
         }
         put(staged, "auto.json", auto_json(run).as_bytes())?;
-        put(staged, "report.html", report::auto_loop::auto_loop_report(run).as_bytes())
+        put(staged, "report.html", report::auto::auto_report(run).as_bytes())
     })
 }
 

@@ -238,6 +238,21 @@ impl fmt::Display for Effect {
     }
 }
 
+impl serde::Serialize for Effect {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Effect {
+    /// An effect by its name (`compliance:2`, `harmonic:3:3`, `scale`).
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Effect, D::Error> {
+        let name = String::deserialize(d)?;
+        Effect::parse(&name)
+            .ok_or_else(|| serde::de::Error::custom(format!("\"{name}\" is not an effect of the library")))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

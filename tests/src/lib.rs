@@ -222,7 +222,7 @@ fn serve(
                             })) => Some(ResetCause::Watchdog),
                             Action::Simulate(request) => {
                                 encoders.lock(|e| e.borrow_mut().apply(&request));
-                                if matches!(request, Request::SimSetPose(_)) {
+                                if matches!(request, Request::SimSetPose(_) | Request::SimPlay(_)) {
                                     sampler.forget_positions();
                                 }
                                 None

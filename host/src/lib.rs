@@ -5,7 +5,7 @@
 //!
 //! | layer | modules | what it knows |
 //! | --- | --- | --- |
-//! | 0 | [`files`], [`numerics`] | the user's files and their errors; solvers, geometry, statistics, no arms |
+//! | 0 | [`files`], [`numerics`], [`igtl`] | the user's files and their errors; solvers, geometry, statistics, stream delays, no arms; the OpenIGTLink wire format |
 //! | 1 | [`model`] (with its [`model::effects`]) | the arm's geometry and effects |
 //! | 2 | [`data`] | artefact and sessions |
 //! | 3 | [`simulate`] | an independent forward path that makes data with known truth |
@@ -23,6 +23,7 @@ pub mod controller;
 pub mod data;
 pub mod files;
 pub mod haptic;
+pub mod igtl;
 pub mod model;
 pub mod numerics;
 pub mod output;

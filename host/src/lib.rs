@@ -9,7 +9,7 @@
 //! | 1 | [`model`] (with its [`model::effects`]) | the arm's geometry and effects |
 //! | 2 | [`data`] | artefact and sessions |
 //! | 3 | [`simulate`] | an independent forward path that makes data with known truth |
-//! | 4 | [`calib`], [`haptic`] | calibration, validation, diagnosis, study; the haptic pipeline |
+//! | 4 | [`calib`], [`haptic`], [`motion`] | calibration, validation, diagnosis, study; the haptic pipeline; the arm in motion and its dynamic validation |
 //! | 5 | [`report`] | HTML pages and plots that read results, never recompute them |
 //! | 6 | [`output`] | the folders kincal writes (RUN/, diagnosis, study, simulated data, haptic) |
 //! | 7 | [`controller`] | the link to the arm's controller, recording, upload, the emulated demo |
@@ -25,6 +25,7 @@ pub mod files;
 pub mod haptic;
 pub mod igtl;
 pub mod model;
+pub mod motion;
 pub mod numerics;
 pub mod output;
 

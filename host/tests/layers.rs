@@ -14,6 +14,7 @@ const LAYERS: &[(&str, u8)] = &[
     ("simulate", 3),
     ("calib", 4),
     ("haptic", 4),
+    ("motion", 4),
     ("report", 5),
     ("output", 6),
     ("controller", 7),

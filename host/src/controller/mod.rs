@@ -8,6 +8,7 @@ pub mod device;
 pub mod emulator;
 pub mod igtl_server;
 pub mod link;
+pub mod motion;
 pub mod pose_stream;
 pub mod record;
 pub mod signing;

@@ -1,13 +1,22 @@
 #!/usr/bin/env bash
 # Provisioning for the tests (sourced or run by scripts/test.sh): the firmware target, the emulator
-# the end-to-end tests boot, numpy/scipy for the SciPy peer check, and mdBook for the book. Safe to
-# run again.
+# the end-to-end tests boot, numpy/scipy for the SciPy peer check, the OpenIGTLink peers (the C++
+# library with g++, and pyigtl), and mdBook for the book. Safe to run again.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 source scripts/setup-embedded.sh
 if ! python3 -c "import numpy, scipy" 2>/dev/null; then
     echo "installing numpy and scipy for the SciPy peer check"
     python3 -m pip install --quiet --disable-pip-version-check numpy scipy
+fi
+if [ ! -e /usr/include/openigtlink/igtlTransformMessage.h ] || ! command -v g++ >/dev/null; then
+    echo "installing the OpenIGTLink C++ library and g++ for the OpenIGTLink peer tests"
+    if [ "$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi
+    $SUDO apt-get update -qq && $SUDO apt-get install -y -qq libopenigtlink-dev g++ >/dev/null
+fi
+if ! python3 -c "import pyigtl" 2>/dev/null; then
+    echo "installing pyigtl for the OpenIGTLink peer tests"
+    python3 -m pip install --quiet --disable-pip-version-check pyigtl
 fi
 MDBOOK_VERSION=0.5.4
 if [ "$(mdbook --version 2>/dev/null)" != "mdbook v$MDBOOK_VERSION" ]; then

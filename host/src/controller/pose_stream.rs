@@ -161,7 +161,8 @@ pub fn stream_poses(
             Err(e) => break Err(e),
         }
     };
-    let stopped = link.call(StreamPose { divider: 0 });
+    // The answer comes after every frame queued before it: a host that fell behind needs longer.
+    let stopped = link.call_within(StreamPose { divider: 0 }, Duration::from_secs(10));
     let count = result?;
     stopped?;
     Ok(count)

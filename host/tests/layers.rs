@@ -8,11 +8,13 @@ use std::path::{Path, PathBuf};
 const LAYERS: &[(&str, u8)] = &[
     ("files", 0),
     ("numerics", 0),
+    ("igtl", 0),
     ("model", 1),
     ("data", 2),
     ("simulate", 3),
     ("calib", 4),
     ("haptic", 4),
+    ("motion", 4),
     ("report", 5),
     ("store", 6),
     ("api", 7),

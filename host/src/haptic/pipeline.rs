@@ -24,7 +24,6 @@
 //! what was computed up to that point.
 
 use super::clean::reject_wild;
-use super::delay::{estimate_delay_ms, DelayError, Signal};
 use super::gimbal::{calibrate_gimbals, linear_held_out_deg, GimbalModel, GimbalSample};
 use super::kinematics::{Device, SensorModel};
 use super::landmarks::{initial_transform, turret_axis, LandmarkError};
@@ -35,11 +34,16 @@ use super::position::{
 use super::recording::{DeviceStream, JointConvention, Recording, Step, TargetStream, Theta3};
 use super::reference::{orientation_reference, Pose, ReferenceError};
 use super::report_data::{error_maps, ErrorMaps, HeldOutSample};
+use crate::numerics::delay::{estimate_delay_ms, DelayError, DelayEstimate, Signal};
 use crate::numerics::stats::rms;
 use nalgebra::{Matrix3, Vector3};
 
 /// Smallest range each of θ1–θ3 must move through in `joints/`, degrees.
 pub const MIN_JOINT_RANGE_DEG: f64 = 20.0;
+/// The signal the delay is estimated on, with what to do when it hardly varies.
+const STYLUS_DISTANCE: &str =
+    "the stylus's distance from the device origin (move the stylus towards and away from the device)";
+
 /// The delay is settled when it changes by less than this between rounds, ms.
 pub const DELAY_SETTLED_MS: f64 = 0.05;
 /// Iterations (Horn + LM) of the joint calibration from each start when choosing between them.
@@ -468,11 +472,7 @@ impl Context<'_> {
     }
 
     /// Delay on `delay/` with the joints `joints` and the transform `eh`.
-    fn delay(
-        &self,
-        joints: &[SensorModel; 3],
-        eh: &Transform,
-    ) -> Result<super::delay::DelayEstimate, HapticError> {
+    fn delay(&self, joints: &[SensorModel; 3], eh: &Transform) -> Result<DelayEstimate, HapticError> {
         let delay_step = step(self.rec, "delay")?;
         let hip = target(delay_step, "hip")?;
         let origin = Vector3::from(self.device.origin_mm);
@@ -486,8 +486,13 @@ impl Context<'_> {
         let trk_signal: Vec<f64> =
             poses(hip).iter().map(|p| (eh.0.transpose() * (self.hip(p) - eh.1) - origin).norm()).collect();
         Ok(estimate_delay_ms(
-            &Signal { name: "delay/device.csv", t_s: &delay_step.device.t_s, value: &dev_signal },
-            &Signal { name: "delay/hip.csv", t_s: &hip.t_s, value: &trk_signal },
+            &Signal {
+                name: "delay/device.csv",
+                what: STYLUS_DISTANCE,
+                t_s: &delay_step.device.t_s,
+                value: &dev_signal,
+            },
+            &Signal { name: "delay/hip.csv", what: STYLUS_DISTANCE, t_s: &hip.t_s, value: &trk_signal },
         )?)
     }
 
@@ -581,7 +586,7 @@ fn reconverted(rec: &Recording, c: &JointConvention) -> Recording {
 }
 
 /// The first delay estimate: pose-based transform (Horn) on the delay step, uncalibrated joints.
-fn first_delay(ctx: &Context) -> Result<super::delay::DelayEstimate, HapticError> {
+fn first_delay(ctx: &Context) -> Result<DelayEstimate, HapticError> {
     let delay_step = step(ctx.rec, "delay")?;
     let horn = pose_based_transform(&ctx.device, &ctx.correspondences(&ctx.aligned(delay_step, 0.0)?));
     ctx.delay(&[SensorModel::IDENTITY; 3], &horn)

@@ -141,6 +141,30 @@ pub struct StreamArgs {
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long)]
     seconds: Option<f64>,
+    /// Also serve the pose to navigation software over OpenIGTLink on [HOST:]PORT (default
+    /// 18944 on localhost; 0.0.0.0:18944 for every interface): a TRANSFORM every tick, stamped
+    /// with the controller's sample instant.
+    #[arg(long, requires = "pose", num_args = 0..=1, default_missing_value = "18944", value_name = "[HOST:]PORT", value_parser = igtl_address)]
+    igtl: Option<String>,
+    /// Name of the OpenIGTLink transform, PLUS's FromToTo convention.
+    #[arg(long, requires = "igtl", default_value = kincal::controller::igtl_server::DEFAULT_NAME)]
+    igtl_name: String,
+    /// Also send invalid poses to clients that speak header version 2, as TRANSFORMs marked
+    /// TransformStatus=INVALID with a NaN matrix (PLUS's SendValidTransformsOnly="false"); by
+    /// default an invalid pose sends no transform, only a STATUS message.
+    #[arg(long, requires = "igtl")]
+    igtl_send_invalid: bool,
+}
+
+/// `--igtl` as an address to listen on: a port alone means localhost.
+fn igtl_address(text: &str) -> Result<String, String> {
+    let text = text.trim();
+    let addr = if text.parse::<u16>().is_ok() { format!("127.0.0.1:{text}") } else { text.to_string() };
+    use std::net::ToSocketAddrs;
+    match addr.to_socket_addrs().map(|mut a| a.next()) {
+        Ok(Some(_)) => Ok(addr),
+        _ => Err(format!("expected PORT or HOST:PORT (e.g. 18944 or 0.0.0.0:18944), found `{text}`")),
+    }
 }
 
 #[derive(Args)]
@@ -489,12 +513,30 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
         CsvRecording::refuse_existing(path)?;
     }
     let mut link = connect(&a.port)?;
-    if a.pose && link.info()?.param_version == 0 {
+    let info = link.info()?;
+    if a.pose && info.param_version == 0 {
         bail!(
             "the controller on {} holds no parameters: no pose to stream (kincal upload first)",
             a.port.port
         );
     }
+    let server = match &a.igtl {
+        Some(addr) => {
+            let options = kincal::controller::igtl_server::ServerOptions {
+                name: a.igtl_name.clone(),
+                send_invalid: a.igtl_send_invalid,
+            };
+            let server = kincal::controller::igtl_server::PoseServer::start(addr, options)?;
+            println!(
+                "OpenIGTLink server on {}: TRANSFORM {} (tool in the arm's base frame, mm) every tick, stamped with the controller's sample instant; in Slicer: OpenIGTLinkIF, a client connector to this host and port",
+                server.local_addr(),
+                a.igtl_name
+            );
+            Some(server)
+        }
+        None => None,
+    };
+    let mut clock = kincal::controller::pose_stream::PoseClock::new(info.ticks);
     catch_ctrl_c();
     let mut csv = match &a.csv {
         Some(path) => Some(CsvRecording::create(path)?),
@@ -506,7 +548,7 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             w,
             "{}",
             if a.pose {
-                "seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz"
+                "seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz,xx,xy,xz,t_s,host_s"
             } else {
                 "seq,tick,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg,rejected"
             }
@@ -553,6 +595,16 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             lost_seen = link.stats.stream_gaps;
         }
         frames += 1;
+        let timed = match &item {
+            Stream::Pose(p) => Some(clock.time(seq, *p, Instant::now())),
+            _ => None,
+        };
+        if let (Some(server), Some(pose)) = (&server, &timed) {
+            server.publish(pose);
+        }
+        for event in server.iter().flat_map(|s| s.events()) {
+            println!("{event}");
+        }
         match &item {
             Stream::Pose(p) => {
                 watch.see(p);
@@ -579,31 +631,29 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
                         .collect();
                     writeln!(w, "{seq},{},{},{}", r.tick, cells.join(","), r.rejected)?;
                 }
-                Stream::Pose(p) if p.valid => writeln!(
-                    w,
-                    "{seq},{},1,,0,{},{},{},{},{},{}",
-                    p.tick,
-                    p.position_mm[0],
-                    p.position_mm[1],
-                    p.position_mm[2],
-                    p.z_axis[0],
-                    p.z_axis[1],
-                    p.z_axis[2]
-                )?,
-                Stream::Pose(p) => writeln!(
-                    w,
-                    "{seq},{},0,{},{},,,,,,",
-                    p.tick,
-                    joint_list(!p.fresh & kincal_protocol::messages::ALL_JOINTS),
-                    p.stale_ticks
-                )?,
+                Stream::Pose(p) => {
+                    let (tick, t_s, host_s) = timed.map_or((0, 0.0, 0.0), |t| (t.tick, t.t_s, t.host_s));
+                    if p.valid {
+                        let [x, y, z] = p.position_mm;
+                        let ([zx, zy, zz], [xx, xy, xz]) = (p.z_axis, p.x_axis);
+                        writeln!(w, "{seq},{tick},1,,0,{x},{y},{z},{zx},{zy},{zz},{xx},{xy},{xz},{t_s:.6},{host_s:.6}")?
+                    } else {
+                        let stale = joint_list(!p.fresh & kincal_protocol::messages::ALL_JOINTS);
+                        writeln!(w, "{seq},{tick},0,{stale},{},,,,,,,,,,{t_s:.6},{host_s:.6}", p.stale_ticks)?
+                    }
+                }
                 Stream::Window(_) => {}
             }
         }
         if last_report.elapsed().as_secs_f64() >= 1.0 {
             last_report = Instant::now();
+            let clients = server.as_ref().map_or(String::new(), |s| {
+                let c = s.clients();
+                let dropped: u64 = c.iter().map(|c| c.dropped).sum();
+                format!("; {} OpenIGTLink clients, {dropped} messages dropped for slow readers", c.len())
+            });
             eprintln!(
-                "{:.0} frames/s, {} lost, {} corrupt{}{}",
+                "{:.0} frames/s, {} lost, {} corrupt{}{}{clients}",
                 frames as f64 / started.elapsed().as_secs_f64(),
                 link.stats.stream_gaps,
                 link.stats.bad_frames,

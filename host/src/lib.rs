@@ -5,7 +5,7 @@
 //!
 //! | layer | modules | what it knows |
 //! | --- | --- | --- |
-//! | 0 | [`files`], [`numerics`] | the user's files and their errors; solvers, geometry, statistics, no arms |
+//! | 0 | [`files`], [`numerics`], [`trace`] | the user's files and their errors; solvers, geometry, statistics, no arms; arm identities and file hashes |
 //! | 1 | [`model`] (with its [`model::effects`]) | the arm's geometry and effects |
 //! | 2 | [`data`] | artefact and sessions |
 //! | 3 | [`simulate`] | an independent forward path that makes data with known truth |
@@ -29,3 +29,4 @@ pub mod output;
 
 pub mod report;
 pub mod simulate;
+pub mod trace;

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 const LAYERS: &[(&str, u8)] = &[
     ("files", 0),
     ("numerics", 0),
+    ("trace", 0),
     ("model", 1),
     ("data", 2),
     ("simulate", 3),

@@ -175,6 +175,9 @@ pub struct ArmModel {
     pub scale_ppm: f64,
     /// Parameters the calibration may move, in file order.
     pub free: Vec<FreeParam>,
+    /// The arm this model is of (calibrated from its sessions); `None` for a nominal, simulated
+    /// or hand-written model.
+    pub arm: Option<crate::trace::ArmIdentity>,
 }
 
 impl ArmModel {
@@ -284,6 +287,7 @@ impl ArmModel {
             tcp_mm: [0.0, 0.0, 253.0],
             scale_ppm: 0.0,
             free: Vec::new(),
+            arm: None,
         };
         for (j, o) in offset.iter().enumerate() {
             model.free_param(ParamId::Offset(j), o - 10.0, o + 10.0);

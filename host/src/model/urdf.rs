@@ -219,6 +219,7 @@ pub fn model_from_urdf(path: &Path, base: &str, tip: &str) -> Result<ArmModel, F
         tcp_mm: [t.x, t.y, t.z],
         scale_ppm: 0.0,
         free: Vec::new(),
+        arm: None,
     };
     for j in 0..model.joints.len() {
         let v = model.get(ParamId::Offset(j));

@@ -3,8 +3,10 @@
 //! arm a calibration belongs to and its validity, the short re-validation (`kincal check`), the
 //! emulated controller on QEMU and the whole demo loop through it.
 
+pub mod check;
 pub mod demo;
 pub mod device;
+pub mod emulated_arm;
 pub mod emulator;
 pub mod link;
 pub mod record;

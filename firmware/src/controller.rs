@@ -1004,8 +1004,8 @@ mod tests {
             let mut blob = [0u8; MAX_PARAM_BLOB];
             let n = encode_blob(params, &mut blob).unwrap();
             let mut out = [0u8; MAX_PARAM_BLOB];
-            let m =
-                traced_signing_message(&blob[..n], &trace, ARM, 1_790_000_000, &station(1).pk, &mut out).unwrap();
+            let m = traced_signing_message(&blob[..n], &trace, ARM, 1_790_000_000, &station(1).pk, &mut out)
+                .unwrap();
             let mut set = out[..m].to_vec();
             set.extend_from_slice(station(1).sk.sign(&set, None).as_ref());
             (set, n)

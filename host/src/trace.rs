@@ -282,10 +282,8 @@ mod tests {
         let manifest = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad  model.toml\n\
                         e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855  summary.json\n";
         assert_eq!(run_sha256(&dir).unwrap(), <[u8; 32]>::from(Sha256::digest(manifest)));
-        if let Ok(out) = std::process::Command::new("sha256sum")
-            .args(RUN_HASHED_FILES)
-            .current_dir(&dir)
-            .output()
+        if let Ok(out) =
+            std::process::Command::new("sha256sum").args(RUN_HASHED_FILES).current_dir(&dir).output()
         {
             assert_eq!(String::from_utf8_lossy(&out.stdout), manifest, "sha256sum prints these lines");
         }
@@ -348,7 +346,8 @@ mod tests {
         let s = |name: &str, arm: Option<&ArmIdentity>| (PathBuf::from(name), arm.cloned());
         assert_eq!(one_arm(&[s("1.json", None), s("2.json", None)]), Ok(None));
         assert_eq!(one_arm(&[s("1.json", Some(&a)), s("2.json", Some(&a_updated))]), Ok(Some(a.clone())));
-        let two = one_arm(&[s("1.json", Some(&a)), s("2.json", Some(&a)), s("3.json", Some(&b))]).unwrap_err();
+        let two =
+            one_arm(&[s("1.json", Some(&a)), s("2.json", Some(&a)), s("3.json", Some(&b))]).unwrap_err();
         let text = two.to_string();
         assert!(text.contains("1.json") && text.contains("arm-A") && text.contains("3.json"), "{text}");
         assert!(text.contains("arm-B"), "{text}");

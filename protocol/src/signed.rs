@@ -152,7 +152,9 @@ pub fn split_signed(set: &[u8]) -> Result<SignedSet<'_>, SignatureRefusal> {
     let (key, signature) = rest.split_at(PUBLIC_KEY_BYTES);
     let arm_len = arm.iter().position(|&b| b == 0).unwrap_or(ARM_ID_MAX);
     let arm_id = core::str::from_utf8(&arm[..arm_len]).map_err(|_| SignatureRefusal::Unsigned)?;
-    if (magic != MAGIC && magic != MAGIC_TRACED) || !valid_arm_id(arm_id) || arm[arm_len..].iter().any(|&b| b != 0)
+    if (magic != MAGIC && magic != MAGIC_TRACED)
+        || !valid_arm_id(arm_id)
+        || arm[arm_len..].iter().any(|&b| b != 0)
     {
         return Err(SignatureRefusal::Unsigned);
     }
@@ -232,8 +234,7 @@ fn layout(
     let mut arm = [0u8; ARM_ID_MAX];
     arm[..arm_id.len()].copy_from_slice(arm_id.as_bytes());
     let mut at = 0;
-    for part in
-        [blob, trace_part, &magic[..], &arm[..], &signed_at_unix_s.to_le_bytes()[..], &public_key[..]]
+    for part in [blob, trace_part, &magic[..], &arm[..], &signed_at_unix_s.to_le_bytes()[..], &public_key[..]]
     {
         out[at..at + part.len()].copy_from_slice(part);
         at += part.len();

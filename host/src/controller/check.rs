@@ -260,8 +260,8 @@ pub fn check(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::ArmModel;
     use crate::controller::emulated_arm::{placement_named, touch_placement};
+    use crate::model::ArmModel;
     use crate::simulate::suta_artefact;
     use rand::SeedableRng;
 
@@ -284,7 +284,8 @@ mod tests {
         let stored = ArmModel::suta_nominal();
         let mut verdicts = Vec::new();
         for seed in 0..10 {
-            let (_, _, g, verdict) = judge(&stored, &artefact, &touches(&stored, &artefact, 3, seed)).unwrap();
+            let (_, _, g, verdict) =
+                judge(&stored, &artefact, &touches(&stored, &artefact, 3, seed)).unwrap();
             assert_ne!(verdict, Verdict::DoesNotHold, "seed {seed}: z {:.2}", g.z);
             verdicts.push(verdict);
         }
@@ -298,7 +299,12 @@ mod tests {
             change(&mut knocked);
             let (measured, floor, g, verdict) =
                 judge(&stored, &artefact, &touches(&knocked, &artefact, 3, 1)).unwrap();
-            assert_eq!(verdict, Verdict::DoesNotHold, "{what}: {measured:.3} mm vs {:.3} mm", floor.expected_rms_mm);
+            assert_eq!(
+                verdict,
+                Verdict::DoesNotHold,
+                "{what}: {measured:.3} mm vs {:.3} mm",
+                floor.expected_rms_mm
+            );
             assert!(g.missing_95_mm.0 > 0.0, "{what}");
         }
     }

@@ -200,7 +200,10 @@ mod tests {
         let params = device_params(&model, 9).unwrap();
         let back = model_from_params(&params);
         assert_eq!(device_params(&back, 9).unwrap(), params);
-        assert_eq!((back.joints, back.tcp_mm, back.convention), (model.joints, model.tcp_mm, model.convention));
+        assert_eq!(
+            (back.joints, back.tcp_mm, back.convention),
+            (model.joints, model.tcp_mm, model.convention)
+        );
     }
 
     #[test]

@@ -37,7 +37,8 @@ pub fn touch_placement(
     seating_noise_mm: f64,
     rng: &mut ChaCha8Rng,
 ) -> Session {
-    let seat = Normal::new(0.0, seating_noise_mm.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("0"));
+    let seat =
+        Normal::new(0.0, seating_noise_mm.max(0.0)).unwrap_or_else(|_| Normal::new(0.0, 0.0).expect("0"));
     let mut first: Vec<Option<[f64; 6]>> = vec![None; artefact.landmarks.len()];
     let mut measurements = Vec::new();
     for repeat in 1..=repeats {
@@ -100,7 +101,8 @@ mod tests {
         let session = touch_placement(&truth, &artefact, &place, 3, 0.1, &mut rng);
         assert!(session.measurements.len() >= 40, "{} touches", session.measurements.len());
         for m in session.measurements.iter().filter(|m| m.repeat > 1) {
-            let first = session.measurements.iter().find(|f| f.landmark == m.landmark && f.repeat == 1).unwrap();
+            let first =
+                session.measurements.iter().find(|f| f.landmark == m.landmark && f.repeat == 1).unwrap();
             let a: [f64; 6] = m.joints_deg.as_slice().try_into().unwrap();
             let b: [f64; 6] = first.joints_deg.as_slice().try_into().unwrap();
             assert!(crate::calib::floor::same_pose(&a, &b), "{} repeat {}", m.landmark, m.repeat);

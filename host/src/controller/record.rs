@@ -315,7 +315,8 @@ pub fn save_session(path: &Path, session: &Session, arm: &ArmIdentity) -> Result
         arm: &'a ArmIdentity,
     }
     let text = serde_json::to_string_pretty(&Named { session, arm }).unwrap_or_default();
-    crate::files::write_atomic(path, text.as_bytes()).map_err(|source| FileError::Io { path: path.to_owned(), source })
+    crate::files::write_atomic(path, text.as_bytes())
+        .map_err(|source| FileError::Io { path: path.to_owned(), source })
 }
 
 /// Load the session to resume (recorded on `arm`), or start an empty one.

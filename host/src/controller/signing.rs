@@ -7,9 +7,9 @@
 //! beside it as `FILE.pub` (`kincal-station-public-key/1` and 64 hex digits): it is what a lab
 //! builds into the real controller (`KINCAL_TRUSTED_KEY`).
 
+use crate::trace::hex;
 use ed25519_dalek::{Signer, SigningKey, VerifyingKey};
 use kincal_protocol::params::MAX_PARAM_BLOB;
-use crate::trace::hex;
 use kincal_protocol::signed::{
     signing_message, split_signed, traced_signing_message, LayoutError, SetTrace, PUBLIC_KEY_BYTES,
 };

@@ -64,9 +64,7 @@ pub enum ArmRefusal {
         controller: String,
     },
     /// `--for-arm` names another arm than the connected one.
-    #[error(
-        "--for-arm {option}, and the connected controller is arm {controller}; nothing was uploaded"
-    )]
+    #[error("--for-arm {option}, and the connected controller is arm {controller}; nothing was uploaded")]
     NotConnected {
         /// The arm the option names.
         option: String,

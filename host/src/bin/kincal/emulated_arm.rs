@@ -57,6 +57,10 @@ pub struct ScriptArgs {
     /// Seed of the seating noise and of the inverse kinematics' starts.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Change the geometry before posing, as a knock would: PARAM=DELTA in the parameter's unit
+    /// (degrees, mm, ppm), e.g. `offset:2=+0.05` or `length:3=1.0`; repeatable.
+    #[arg(long, value_name = "PARAM=DELTA")]
+    knock: Vec<String>,
     /// The script file to write (a new file).
     #[arg(long)]
     out: PathBuf,
@@ -158,9 +162,23 @@ fn script(a: &ScriptArgs) -> Result<()> {
     if !(a.seating_noise_mm.is_finite() && a.seating_noise_mm >= 0.0) {
         bail!("--seating-noise-mm {}: expected a non-negative number of millimetres", a.seating_noise_mm);
     }
-    let geometry = kincal::model::ArmModel::load(&a.geometry)?;
+    let mut geometry = kincal::model::ArmModel::load(&a.geometry)?;
+    for knock in &a.knock {
+        let parsed = knock.split_once('=').and_then(|(id, delta)| {
+            Some((kincal::model::ParamId::parse(id.trim())?, delta.trim().parse::<f64>().ok()?))
+        });
+        let Some((id, delta)) = parsed.filter(|(id, d)| d.is_finite() && geometry.params().contains(id))
+        else {
+            bail!("--knock {knock}: expected PARAM=DELTA with a parameter of this geometry, e.g. offset:2=+0.05");
+        };
+        geometry.set(id, geometry.get(id) + delta);
+    }
     if geometry.joints.len() != JOINTS {
-        bail!("{}: the emulated arm has {JOINTS} joints, this geometry {}", a.geometry.display(), geometry.joints.len());
+        bail!(
+            "{}: the emulated arm has {JOINTS} joints, this geometry {}",
+            a.geometry.display(),
+            geometry.joints.len()
+        );
     }
     let artefact = kincal::data::Artefact::load(&a.artefact)?;
     let place = placement_named(&a.placement).map_err(|names| {
@@ -170,15 +188,17 @@ fn script(a: &ScriptArgs) -> Result<()> {
     let session = touch_placement(&geometry, &artefact, &place, a.repeats, a.seating_noise_mm, &mut rng);
     let script = script_of(&session);
     let text = serde_json::to_string_pretty(&script)?;
-    kincal::files::write_atomic(&a.out, text.as_bytes()).with_context(|| format!("writing {}", a.out.display()))?;
+    kincal::files::write_atomic(&a.out, text.as_bytes())
+        .with_context(|| format!("writing {}", a.out.display()))?;
     let reachable = artefact.landmarks.len() * a.repeats as usize;
     println!(
-        "{}: {} touches of {} at {} by the arm of {} ({} unreachable)",
+        "{}: {} touches of {} at {} by the arm of {}{} ({} unreachable)",
         a.out.display(),
         script.steps.len(),
         a.artefact.display(),
         place.name,
         a.geometry.display(),
+        if a.knock.is_empty() { String::new() } else { format!(" knocked by {}", a.knock.join(", ")) },
         reachable - script.steps.len()
     );
     Ok(())

@@ -214,6 +214,9 @@ pub enum Crash {
 }
 
 /// A frame from the controller.
+// A response can carry an `Info` (see [`Response`]); the frame lives on the stack only while it
+// is encoded or decoded, and no_std without alloc cannot box it.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub enum DeviceFrame {
     /// The answer to the request with sequence number `seq`.
@@ -233,8 +236,8 @@ pub enum DeviceFrame {
 }
 
 /// Successful answers, one variant per answer type.
-// `Info` (~340 bytes with the signer's key and the set's trace) is the large one; no_std without alloc cannot box it,
-// and an answer lives on the stack only while it is encoded.
+// `Info` (~340 bytes with the signer's key and the set's trace) is the large one; no_std without
+// alloc cannot box it, and an answer lives on the stack only while it is encoded.
 #[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub enum Response {

@@ -2031,12 +2031,7 @@ fn trace_cases(cases: &mut Vec<Case>) {
         upload("run/model.toml", &["--valid-days", "0"]),
         &["--valid-days 0"],
     );
-    fails(
-        "upload --valid-days -3",
-        key(),
-        upload("run/model.toml", &["--valid-days=-3"]),
-        &["--valid-days"],
-    );
+    fails("upload --valid-days -3", key(), upload("run/model.toml", &["--valid-days=-3"]), &["--valid-days"]);
     fails(
         "upload a validity that has passed",
         all(vec![key(), edit_json("run/summary.json", |v| v["validated_at_unix_s"] = json!(1_000_000_000))]),

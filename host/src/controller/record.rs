@@ -56,10 +56,10 @@ pub enum RecordError {
     OtherArm {
         /// The file.
         path: PathBuf,
-        /// The arm the file names.
-        found: ArmIdentity,
+        /// The arm the file names (identity, firmware, board).
+        found: String,
         /// The connected controller's.
-        connected: ArmIdentity,
+        connected: String,
     },
     /// The existing session file names no arm, so new touches cannot be added to it.
     #[error(
@@ -333,7 +333,7 @@ fn resume(plan: &Plan, artefact: &Artefact, arm: &ArmIdentity) -> Result<Session
     let session = Session::load(&path, artefact)?;
     match session_arm(&path)? {
         Some(found) if found != *arm => {
-            return Err(RecordError::OtherArm { path, found, connected: arm.clone() })
+            return Err(RecordError::OtherArm { path, found: found.to_string(), connected: arm.to_string() })
         }
         None if !session.measurements.is_empty() => {
             return Err(RecordError::Unidentified { path, connected: arm.id.clone() })

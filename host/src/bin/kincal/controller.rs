@@ -132,6 +132,22 @@ pub struct StreamArgs {
 #[derive(Args)]
 pub struct RecordArgs {
     #[command(flatten)]
+    touches: TouchArgs,
+    /// calibration or validation.
+    #[arg(long, default_value = "calibration")]
+    purpose: String,
+    /// Output folder; the session is OUT/<placement>.json.
+    #[arg(long)]
+    out: PathBuf,
+    /// Repeats of the sequence.
+    #[arg(long, default_value_t = 3)]
+    repeats: u32,
+}
+
+/// What a recording of touches needs, for `record` and `check`.
+#[derive(Args)]
+pub struct TouchArgs {
+    #[command(flatten)]
     port: PortArgs,
     /// Artefact file.
     #[arg(long)]
@@ -139,24 +155,54 @@ pub struct RecordArgs {
     /// Placement name, e.g. C_A.
     #[arg(long)]
     placement: String,
-    /// calibration or validation.
-    #[arg(long, default_value = "calibration")]
-    purpose: String,
-    /// Output folder; the session is OUT/<placement>.json.
-    #[arg(long)]
-    out: PathBuf,
     /// Landmark order, comma separated (default: the artefact file's).
     #[arg(long, value_delimiter = ',')]
     order: Vec<String>,
-    /// Repeats of the sequence.
-    #[arg(long, default_value_t = 3)]
-    repeats: u32,
     /// Window per touch, ticks (1536 = 2 s).
     #[arg(long, default_value_t = 1536)]
     window_ticks: u16,
-    /// Non-interactive: steps from a JSON script (landmarks, emulated poses, skips).
+    /// Non-interactive: steps from a JSON script (landmarks, emulated poses, skips;
+    /// `kincal emulated-arm script` writes one for the emulated arm).
     #[arg(long)]
     script: Option<PathBuf>,
+}
+
+impl TouchArgs {
+    /// The artefact and the plan of a recording for `purpose`, `repeats` times, into `out`.
+    fn plan(
+        &self,
+        purpose: &str,
+        repeats: u32,
+        out: &std::path::Path,
+    ) -> Result<(Artefact, kincal::controller::record::Plan)> {
+        let artefact = Artefact::load(&self.artefact)?;
+        let order = if self.order.is_empty() {
+            artefact.landmarks.iter().map(|l| l.id.clone()).collect()
+        } else {
+            self.order.clone()
+        };
+        let plan = kincal::controller::record::Plan {
+            placement: self.placement.clone(),
+            purpose: purpose.into(),
+            order,
+            repeats,
+            window_ticks: self.window_ticks,
+            out: out.to_path_buf(),
+        };
+        Ok((artefact, plan))
+    }
+
+    /// Run `f` with the guide of the recording: the script's steps, or the operator at the
+    /// keyboard.
+    fn guided<R>(
+        &self,
+        f: impl FnOnce(&mut dyn kincal::controller::record::Guide) -> Result<R>,
+    ) -> Result<R> {
+        match &self.script {
+            Some(path) => f(&mut kincal::controller::record::Script::load(path)?),
+            None => f(&mut kincal::controller::record::Operator::default()),
+        }
+    }
 }
 
 pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
@@ -736,40 +782,12 @@ pub fn catch_ctrl_c() {
     }
 }
 
-/// The artefact's landmarks in `order`, or in the artefact file's order when none is given.
-fn landmark_order(artefact: &Artefact, order: &[String]) -> Vec<String> {
-    if order.is_empty() {
-        artefact.landmarks.iter().map(|l| l.id.clone()).collect()
-    } else {
-        order.to_vec()
-    }
-}
-
-/// Run `f` with the guide of a recording: the steps of `script`, or the operator at the keyboard.
-fn guided<R>(
-    script: Option<&std::path::Path>,
-    f: impl FnOnce(&mut dyn kincal::controller::record::Guide) -> Result<R>,
-) -> Result<R> {
-    match script {
-        Some(path) => f(&mut kincal::controller::record::Script::load(path)?),
-        None => f(&mut kincal::controller::record::Operator::default()),
-    }
-}
-
 pub fn cmd_record(a: &RecordArgs) -> Result<()> {
-    let artefact = Artefact::load(&a.artefact)?;
-    let plan = kincal::controller::record::Plan {
-        placement: a.placement.clone(),
-        purpose: a.purpose.clone(),
-        order: landmark_order(&artefact, &a.order),
-        repeats: a.repeats,
-        window_ticks: a.window_ticks,
-        out: a.out.clone(),
-    };
-    let mut link = connect(&a.port)?;
-    let done = guided(a.script.as_deref(), |guide| {
-        Ok(kincal::controller::record::record(&mut link, &artefact, &plan, guide)?)
-    })?;
+    let (artefact, plan) = a.touches.plan(&a.purpose, a.repeats, &a.out)?;
+    let mut link = connect(&a.touches.port)?;
+    let done = a
+        .touches
+        .guided(|guide| Ok(kincal::controller::record::record(&mut link, &artefact, &plan, guide)?))?;
     println!(
         "{}: {} measured now, {} resumed from disk, {} skipped, {} re-taken → {}{}",
         plan.placement,
@@ -786,31 +804,15 @@ pub fn cmd_record(a: &RecordArgs) -> Result<()> {
 #[derive(Args)]
 pub struct CheckArgs {
     #[command(flatten)]
-    port: PortArgs,
-    /// Artefact file.
-    #[arg(long)]
-    artefact: PathBuf,
-    /// Placement of the artefact for the check, e.g. V_A.
-    #[arg(long)]
-    placement: String,
+    touches: TouchArgs,
     /// A new folder for the check: its session OUT/<placement>.json and its result OUT/check.json
     /// (a check measures afresh: an earlier check is never judged again or replaced).
     #[arg(long)]
     out: PathBuf,
-    /// Landmark order, comma separated (default: the artefact file's).
-    #[arg(long, value_delimiter = ',')]
-    order: Vec<String>,
     /// Repeats of the sequence (at least 2: the repeats give the floor the error is judged
     /// against).
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(2..=20))]
     repeats: u32,
-    /// Window per touch, ticks (1536 = 2 s).
-    #[arg(long, default_value_t = 1536)]
-    window_ticks: u16,
-    /// Non-interactive: steps from a JSON script (`kincal emulated-arm script` writes one for the
-    /// emulated arm).
-    #[arg(long)]
-    script: Option<PathBuf>,
 }
 
 /// Exit status of `kincal check` when the arm does not hold its calibration.
@@ -820,24 +822,16 @@ pub const CHECK_CANNOT_TELL: i32 = 3;
 
 pub fn cmd_check(a: &CheckArgs) -> Result<()> {
     use kincal::controller::check::{check, Verdict};
-    let artefact = Artefact::load(&a.artefact)?;
-    let plan = kincal::controller::record::Plan {
-        placement: a.placement.clone(),
-        purpose: kincal::data::Purpose::Validation.as_str().into(),
-        order: landmark_order(&artefact, &a.order),
-        repeats: a.repeats,
-        window_ticks: a.window_ticks,
-        out: a.out.clone(),
-    };
-    let mut link = connect(&a.port)?;
-    let result = guided(a.script.as_deref(), |guide| Ok(check(&mut link, &artefact, &plan, guide)?))?;
+    let (artefact, plan) = a.touches.plan(kincal::data::Purpose::Validation.as_str(), a.repeats, &a.out)?;
+    let mut link = connect(&a.touches.port)?;
+    let result = a.touches.guided(|guide| Ok(check(&mut link, &artefact, &plan, guide)?))?;
     println!("arm        {}", result.arm);
     println!("parameters version {} signed by {}", result.param_version, result.signer);
     print_trace(&result.trace, |label, text| println!("{label:<10} {text}"));
     println!(
         "check      {} touches at {}, {} distances → {}",
         result.touches,
-        a.placement,
+        a.touches.placement,
         result.distances,
         a.out.join("check.json").display()
     );

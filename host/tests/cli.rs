@@ -69,17 +69,19 @@ fn calibrate_writes_a_run_whose_model_loads_again() {
     let stored: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
     assert_eq!(printed, stored);
-    for key in ["rms_mm", "mean_mm", "std_mm", "max_mm", "pairs"] {
+    for key in ["rms_mm", "mean_mm", "std_mm", "max_mm", "count"] {
         assert!(
-            stored["validation"][key].is_number() && stored["nominal_validation"][key].is_number(),
+            stored["validation"]["distances"]["calibrated"][key].is_number()
+                && stored["validation"]["distances"]["nominal"][key].is_number(),
             "{key}"
         );
     }
     // The same file read back as the type diagnose and compare use.
-    let folder = kincal::calib::run::RunFolder::load(&run).expect("RUN reads back as kincal-run/1");
-    assert_eq!(folder.summary.format, kincal::calib::run::RUN_FORMAT);
-    assert!(folder.summary.calibration.rms_mm < folder.summary.nominal_validation.rms_mm);
-    assert_eq!(folder.residuals().expect("residuals.json reads back").len(), folder.summary.validation.pairs);
+    let folder = kincal::api::load(&run).expect("RUN reads back as kincal-run/2");
+    assert_eq!(folder.summary.format, kincal::calib::summary::RUN_FORMAT);
+    let distances = folder.summary.validation.distances.as_ref().expect("held-out distances");
+    assert!(folder.summary.calibration.rms_mm < distances.nominal.rms_mm);
+    assert_eq!(folder.residuals().expect("residuals.json reads back").len(), distances.calibrated.count);
     let calibrated =
         kincal::model::ArmModel::load(&run.join("model.toml")).expect("calibrated model loads again");
     assert_eq!(calibrated.free.len(), kincal::model::ArmModel::load(&model).unwrap().free.len());
@@ -221,9 +223,7 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     ]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success() && text.contains("rms_mm") && text.contains("eccentricity:5"), "{text}");
-    let rms = |run: &Path| -> f64 {
-        kincal::calib::run::RunFolder::load(run).expect("typed RUN").summary.validation.rms_mm
-    };
+    let rms = |run: &Path| -> f64 { kincal::api::load(run).expect("typed RUN").summary.held_out_rms_mm() };
     assert!(rms(&after) < 0.6 * rms(&before), "{} → {}", rms(&before), rms(&after));
     assert!(std::fs::read_to_string(&page).unwrap().contains("<svg"));
     // What to measure next: rivals and weak parameters, a pose list, the plan as JSON.
@@ -259,7 +259,7 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     assert!(after[0].as_f64().unwrap() >= now[0].as_f64().unwrap(), "{now} → {after}");
     let csv = std::fs::read_to_string(&poses).unwrap();
     assert!(
-        csv.starts_with(kincal::output::PLAN_CSV_HEADER) && csv.lines().count() > 2 * 6,
+        csv.starts_with(kincal::store::PLAN_CSV_HEADER) && csv.lines().count() > 2 * 6,
         "header and two placements of at least 6 touches: {csv}"
     );
     // Bad effect names and bad runs are reported, not panicked on.
@@ -316,5 +316,39 @@ fn haptic_simulate_and_calibrate_write_the_summary_and_refuse_bad_recordings() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("joints/device.csv:102") && stderr.contains("does not increase"), "{stderr}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn demo_offline_and_simulate_run_from_an_empty_folder_outside_the_repository() {
+    let dir = scratch("anywhere");
+    let run = |args: &[&str]| {
+        let child = Command::new(env!("CARGO_BIN_EXE_kincal"))
+            .args(args)
+            .current_dir(&dir)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("kincal runs");
+        let pid = child.id();
+        let out = child.wait_with_output().expect("kincal ends");
+        assert!(out.status.success(), "kincal {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        (pid, String::from_utf8_lossy(&out.stdout).into_owned())
+    };
+    let (pid, _) = run(&["simulate", "--out", "data", "--repeats", "1"]);
+    for file in ["artefact.json", "truth.toml", "cal", "val"] {
+        assert!(dir.join("data").join(file).exists(), "simulate wrote no data/{file}");
+    }
+    let model_file = std::env::temp_dir().join(format!("kincal-suta-model-{pid}.toml"));
+    assert!(!model_file.exists(), "the built-in model's file outlived the command");
+
+    let (_, printed) = run(&["demo", "--offline"]);
+    assert!(printed.contains("missing effect: compliance:2"), "{printed}");
+    let out = dir.join("runs/demo-offline");
+    for file in ["nominal.toml", "run/diagnosis.html", "run/report.html", "run-added/model.toml"] {
+        assert!(out.join(file).exists(), "demo --offline wrote no {file}");
+    }
+    let nominal = kincal::model::ArmModel::load(&out.join("nominal.toml")).unwrap();
+    assert_eq!(nominal, kincal::model::ArmModel::load(&example_model()).unwrap());
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -15,8 +15,9 @@ const LAYERS: &[(&str, u8)] = &[
     ("calib", 4),
     ("haptic", 4),
     ("report", 5),
-    ("output", 6),
-    ("controller", 7),
+    ("store", 6),
+    ("api", 7),
+    ("controller", 8),
 ];
 
 fn layer(module: &str) -> Option<u8> {

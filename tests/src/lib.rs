@@ -7,6 +7,8 @@
 
 pub mod corpus;
 
+pub mod doc_examples;
+
 pub mod haptic_gen;
 
 pub mod tracker_gen;

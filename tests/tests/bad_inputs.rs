@@ -405,9 +405,9 @@ fn tracker_cases(cases: &mut Vec<Case>) {
                 &std::fs::read_to_string(dir.join("tout/summary.json")).map_err(|e| e.to_string())?,
             )
             .map_err(|e| e.to_string())?;
-            let rms = s["validation"]["sessions"][0]["rms_mm"]
+            let rms = s["validation"]["sessions"]["sessions"][0]["rms_mm"]
                 .as_f64()
-                .ok_or("no validation.sessions[0].rms_mm")?;
+                .ok_or("no validation.sessions.sessions[0].rms_mm")?;
             (rms > 0.0 && rms < 1.0).then_some(()).ok_or(format!("held-out RMS {rms}"))
         })),
     ));
@@ -489,8 +489,8 @@ fn tracker_cases(cases: &mut Vec<Case>) {
             &["calibrate", "--model", "tracker/model.toml", "--data", "tracker/cal", "--validate", "tracker", "--out", "tout"],
             &[],
         )),
-        fails("--float-tool on artefact data", unchanged(), &[], &["--float-tool, --exclude-point, --drift-session and --orientation-sigma-deg apply to tracker sessions"]).with_args(
-            [cal(), vec!["--float-tool", "C_A"]].concat().into_iter().map(String::from).collect(),
+        fails("--orientation-sigma-deg on artefact data", unchanged(), &[], &["--orientation-sigma-deg: not for artefact data", "no probe orientation"]).with_args(
+            [cal(), vec!["--orientation-sigma-deg", "0.01"]].concat().into_iter().map(String::from).collect(),
         ),
     ]);
 }
@@ -500,9 +500,9 @@ fn calibrated(out: &'static str, touches: u64) -> Option<Check> {
     Some(Box::new(move |dir: &Path| {
         let text = std::fs::read_to_string(dir.join(out).join("summary.json")).map_err(|e| e.to_string())?;
         let s: Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
-        let rms = s["validation"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
-        let pairs = s["validation"]["pairs"].as_u64().unwrap_or(0);
-        let used = s["calibration"]["touches"].as_u64().unwrap_or(0);
+        let rms = s["validation"]["distances"]["calibrated"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
+        let pairs = s["validation"]["distances"]["calibrated"]["count"].as_u64().unwrap_or(0);
+        let used = s["calibration"]["observations"].as_u64().unwrap_or(0);
         if !(rms.is_finite() && rms > 0.0 && rms < 1.0 && pairs > 0) {
             return Err(format!("validation RMS {rms} mm over {pairs} pairs is not a plausible result"));
         }
@@ -594,7 +594,7 @@ const MODEL_TEXT_EDITS: &[TextEdit] = &[
         "seven joints",
         "\n[free]\n",
         "\n[[joint]]\noffset_deg = 0\nd_mm = 0\na_mm = 0\nalpha_deg = 0\n[free]\n",
-        &["artefact sessions record the SUTA's 6 encoder angles", "the model has 7 joints"],
+        &["artefact sessions record 6 encoder angles", "the model has 7 joints"],
     ),
     ("unknown key", SCALE, "scale_ppm = 0.0\nscael = 1", &["model.toml", "scael"]),
     ("unknown effect", SCALE, "scale_ppm = 0.0\neffects = [\"wobble:2\"]", &["wobble:2", "unknown effect"]),
@@ -1445,18 +1445,18 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
     let list: Vec<(&str, Setup, &[&str])> = vec![
         (
             "validation rms null",
-            edit_json(s, |v| v["validation"]["rms_mm"] = Value::Null),
+            edit_json(s, |v| v["validation"]["distances"]["calibrated"]["rms_mm"] = Value::Null),
             &["summary.json", "rms_mm"],
         ),
         (
             "validation rms text",
-            edit_json(s, |v| v["validation"]["rms_mm"] = json!("0.15")),
+            edit_json(s, |v| v["validation"]["distances"]["calibrated"]["rms_mm"] = json!("0.15")),
             &["summary.json", "rms_mm"],
         ),
         (
             "pairs negative",
-            edit_json(s, |v| v["validation"]["pairs"] = json!(-3)),
-            &["summary.json", "pairs"],
+            edit_json(s, |v| v["validation"]["distances"]["calibrated"]["count"] = json!(-3)),
+            &["summary.json", "count"],
         ),
         (
             "calibration missing",
@@ -1488,13 +1488,13 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
         ),
         (
             "unknown added effect",
-            edit_json(s, |v| v["options"]["added_effects"] = json!(["nonsense:9"])),
-            &["summary.json", "options.added_effects", "nonsense:9"],
+            edit_json(s, |v| v["inputs"]["add"] = json!(["nonsense:9"])),
+            &["summary.json", "inputs.add", "nonsense:9"],
         ),
         (
             "format of a study",
             edit_json(s, |v| v["format"] = json!("kincal-study/1")),
-            &["summary.json", "format", "kincal-run/1"],
+            &["summary.json", "format", "kincal-run/2"],
         ),
         (
             "format missing",
@@ -1568,7 +1568,7 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
         ),
         (
             "summary null rms",
-            edit_json(s, |v| v["nominal_validation"]["rms_mm"] = Value::Null),
+            edit_json(s, |v| v["validation"]["distances"]["nominal"]["rms_mm"] = Value::Null),
             &["summary.json", "rms_mm"],
         ),
         (
@@ -1588,13 +1588,15 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
         ),
         (
             "summary validation rms 1e308",
-            edit_json(s, |v| v["validation"]["rms_mm"] = json!(1e308)),
-            &["summary.json", "validation.rms_mm", "1e308"],
+            edit_json(s, |v| v["validation"]["distances"]["calibrated"]["rms_mm"] = json!(1e308)),
+            &["summary.json", "validation.distances.calibrated.rms_mm", "1e308"],
         ),
         (
             "summary per-landmark max -5",
-            edit_json(s, |v| v["validation_detail"]["per_landmark"][2]["stats"]["max_mm"] = json!(-5.0)),
-            &["summary.json", "validation_detail.per_landmark[2].stats.max_mm"],
+            edit_json(s, |v| {
+                v["validation"]["distances"]["detail"]["per_landmark"][2]["stats"]["max_mm"] = json!(-5.0)
+            }),
+            &["summary.json", "validation.distances.detail.per_landmark[2].stats.max_mm"],
         ),
         (
             "summary calibration rms 1e300",
@@ -1894,8 +1896,8 @@ fn random_cases(cases: &mut Vec<Case>, template: &Path) {
                 &std::fs::read_to_string(dir.join("out/summary.json")).map_err(|e| e.to_string())?,
             )
             .map_err(|e| e.to_string())?;
-            let rms = s["validation"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
-            let pairs = s["validation"]["pairs"].as_u64().unwrap_or(0);
+            let rms = s["validation"]["distances"]["calibrated"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
+            let pairs = s["validation"]["distances"]["calibrated"]["count"].as_u64().unwrap_or(0);
             (rms.is_finite() && pairs > 0)
                 .then_some(())
                 .ok_or(format!("validation {rms} mm over {pairs} pairs"))

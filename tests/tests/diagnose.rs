@@ -3,12 +3,13 @@
 //! path (plain 4×4 matrices with the effects written out again), not from the model's code.
 
 use kincal::calib::auto::{auto_loop, Stop};
-use kincal::calib::calibrate::{calibrate, CalibrationOptions};
-use kincal::calib::data_errors::{calibrate_with_landmark_freed, without};
+use kincal::calib::data_errors::calibrate_with_landmark_freed;
 use kincal::calib::diagnose::diagnose;
-use kincal::calib::objective::Objective;
+use kincal::calib::fit::calibrate;
+use kincal::calib::setup::Objective;
+use kincal::calib::setup::SolveOptions;
 use kincal::calib::validate::validate;
-use kincal::data::Dataset;
+use kincal::data::Observations;
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
 use kincal::simulate::{
@@ -46,18 +47,18 @@ fn run_case(case: &Case) -> Outcome {
         &nominal,
         &SimulationOptions { seed: case.seed, hidden: case.hidden.clone(), ..SimulationOptions::default() },
     );
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let options = CalibrationOptions {
-        restarts: 2,
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+    let options = SolveOptions {
+        restarts: Some(2),
         seed: case.seed,
-        objective: case.objective,
-        ..CalibrationOptions::default()
+        objective: Some(case.objective),
+        ..SolveOptions::default()
     };
-    let fit = calibrate(&nominal, &sim.artefact, &cal, &options).expect("calibrates");
-    let floor = validate(&sim.truth, &sim.artefact, &val).overall.rms_mm;
-    let before = validate(&fit.model, &sim.artefact, &val).overall.rms_mm;
-    let d = diagnose(&fit.model, &sim.artefact, &cal, &val, &options);
+    let fit = calibrate(&nominal, &cal, &options).expect("calibrates");
+    let floor = validate(&sim.truth, &val).overall.rms_mm;
+    let before = validate(&fit.model, &val).overall.rms_mm;
+    let d = diagnose(&fit.model, &cal, &val, &options);
     let leader = d.candidates.first().expect("some candidate");
     // Effects the data cannot tell apart are reported together; the hidden one must lead or be
     // named in the leading group.
@@ -77,8 +78,8 @@ fn run_case(case: &Case) -> Outcome {
     }
     let mut with = nominal.clone();
     Effect::parse(case.effect).unwrap().add_to(&mut with);
-    let refit = calibrate(&with, &sim.artefact, &cal, &options).expect("calibrates with the effect");
-    let after = validate(&refit.model, &sim.artefact, &val).overall.rms_mm;
+    let refit = calibrate(&with, &cal, &options).expect("calibrates with the effect");
+    let after = validate(&refit.model, &val).overall.rms_mm;
     eprintln!("{:<16} floor {floor:.3}  before {before:.3} ({:+.0} %)  first {first} significant {significant}  after {after:.3} ({:+.1} %)", case.effect, 100.0 * (before / floor - 1.0), 100.0 * (after / floor - 1.0));
     Outcome { floor, before, first, significant, after }
 }
@@ -235,7 +236,7 @@ fn tool_offset_is_found_when_the_tool_flange_length_is_trusted() {
         effect: "tcp",
         fixed: vec![p("length:6")],
         seed: 61,
-        objective: Objective::SixDof { lever_mm: 100.0 },
+        objective: Objective::SixDof { lever_mm: Some(100.0) },
     });
 }
 
@@ -258,20 +259,20 @@ fn with_no_hidden_effect_nothing_is_significant_and_a_wrong_effect_does_not_help
     for seed in [81, 82] {
         let nominal = ArmModel::suta_nominal();
         let sim = simulate(&nominal, &SimulationOptions { seed, ..SimulationOptions::default() });
-        let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-        let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-        let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
-        let fit = calibrate(&nominal, &sim.artefact, &cal, &options).unwrap();
-        let d = diagnose(&fit.model, &sim.artefact, &cal, &val, &options);
+        let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+        let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+        let options = SolveOptions { restarts: Some(2), seed, ..SolveOptions::default() };
+        let fit = calibrate(&nominal, &cal, &options).unwrap();
+        let d = diagnose(&fit.model, &cal, &val, &options);
         let significant: Vec<&str> =
             d.candidates.iter().filter(|c| c.significant).map(|c| c.effect.as_str()).collect();
         assert!(significant.is_empty(), "seed {seed}: spurious effects {significant:?}");
-        let before = validate(&fit.model, &sim.artefact, &val).overall.rms_mm;
+        let before = validate(&fit.model, &val).overall.rms_mm;
         for wrong in ["eccentricity:3", "compliance:2", "twist:2"] {
             let mut with = nominal.clone();
             Effect::parse(wrong).unwrap().add_to(&mut with);
-            let refit = calibrate(&with, &sim.artefact, &cal, &options).unwrap();
-            let after = validate(&refit.model, &sim.artefact, &val).overall.rms_mm;
+            let refit = calibrate(&with, &cal, &options).unwrap();
+            let after = validate(&refit.model, &val).overall.rms_mm;
             assert!(
                 after >= 0.99 * before,
                 "seed {seed}: adding {wrong} lowered validation RMS {before} → {after}"
@@ -284,10 +285,10 @@ fn with_no_hidden_effect_nothing_is_significant_and_a_wrong_effect_does_not_help
 /// model; returns the simulation, datasets, fit, options and the true floor.
 struct Scenario {
     sim: kincal::simulate::SimulatedData,
-    cal: Dataset,
-    val: Dataset,
+    cal: Observations,
+    val: Observations,
     nominal: ArmModel,
-    options: CalibrationOptions,
+    options: SolveOptions,
     /// Validation RMS of the true arm against the true artefact: the noise floor.
     floor: f64,
 }
@@ -306,13 +307,13 @@ fn scenario(
         &errors,
     );
     sim.validation.truncate(validation_placements);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+    let options = SolveOptions { restarts: Some(2), seed, ..SolveOptions::default() };
     // The true arm's model cannot hold an error outside the library: its floor is that of the
     // same arm and noise without it (a twin dataset of the same seed).
     let floor = if errors.encoder_harmonics.is_empty() {
-        validate(&sim.truth, &sim.true_artefact, &val).overall.rms_mm
+        validate(&sim.truth, &val.with_landmarks(&sim.true_artefact.landmarks)).overall.rms_mm
     } else {
         let twin = simulate(
             &nominal,
@@ -320,9 +321,7 @@ fn scenario(
         );
         let mut twin_val = twin.validation;
         twin_val.truncate(validation_placements);
-        validate(&twin.truth, &twin.artefact, &Dataset::from_sessions(&twin_val, &twin.artefact))
-            .overall
-            .rms_mm
+        validate(&twin.truth, &Observations::from_sessions(&twin_val, &twin.artefact)).overall.rms_mm
     };
     Scenario { sim, cal, val, nominal, options, floor }
 }
@@ -347,8 +346,8 @@ fn with_ten_validation_placements(mut s: Scenario, seed: u64) -> Scenario {
             record_placement(&s.sim.truth, &s.sim.artefact, &place, "validation", &options, &mut rng);
         s.sim.validation.push(session);
     }
-    s.val = Dataset::from_sessions(&s.sim.validation, &s.sim.artefact);
-    s.floor = validate(&s.sim.truth, &s.sim.true_artefact, &s.val).overall.rms_mm;
+    s.val = Observations::from_sessions(&s.sim.validation, &s.sim.artefact);
+    s.floor = validate(&s.sim.truth, &s.val.with_landmarks(&s.sim.true_artefact.landmarks)).overall.rms_mm;
     s
 }
 
@@ -358,13 +357,13 @@ fn clean_data_floor_estimate_and_nothing_flagged() {
         let s = scenario(seed, vec![], HiddenErrors::default(), 5);
         // Two of the seeds with ten validation placements (30 blocks).
         let s = if seed >= 94 { with_ten_validation_placements(s, seed) } else { s };
-        let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
-        let d = diagnose(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options);
+        let fit = calibrate(&s.nominal, &s.cal, &s.options).unwrap();
+        let d = diagnose(&fit.model, &s.cal, &s.val, &s.options);
         let floor = d.floor.as_ref().expect("repeats give a floor");
         let gap = d.gap.as_ref().unwrap();
         eprintln!(
             "seed {seed} ({} validation placements): true floor {:.4} estimated {:.4} (encoder share {:.4}) expected {:.4} measured {:.4} z {:.2}",
-            s.val.placements.len(),
+            s.val.groups.len(),
             s.floor,
             floor.distance_rms_mm,
             floor.encoder_rms_mm.unwrap_or(f64::NAN),
@@ -404,8 +403,8 @@ fn clean_data_floor_estimate_and_nothing_flagged() {
 }
 
 fn calibrated(s: &Scenario) -> (ArmModel, kincal::calib::diagnose::Diagnosis) {
-    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
-    let d = diagnose(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options);
+    let fit = calibrate(&s.nominal, &s.cal, &s.options).unwrap();
+    let d = diagnose(&fit.model, &s.cal, &s.val, &s.options);
     for line in &d.summary {
         eprintln!("  {line}");
     }
@@ -429,13 +428,11 @@ fn a_wrong_certificate_is_named_before_any_arm_effect_and_fixing_it_reaches_the_
     );
     // The suggested actions: drop the landmark, or fit its position.
     let s2 = s.sim.artefact.index_of("S2").unwrap();
-    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal.without_landmark(s2), &s.options).unwrap();
-    let excluded = validate(&fit.model, &s.sim.artefact, &s.val.without_landmark(s2)).overall.rms_mm;
-    let floor_without =
-        validate(&s.sim.truth, &s.sim.true_artefact, &s.val.without_landmark(s2)).overall.rms_mm;
-    let (freed, corrected) =
-        calibrate_with_landmark_freed(&s.nominal, &s.sim.artefact, &s.cal, s2, &s.options).unwrap();
-    let with_freed = validate(&freed.model, &corrected, &s.val).overall.rms_mm;
+    let fit = calibrate(&s.nominal, &s.cal.without_landmark(s2), &s.options).unwrap();
+    let excluded = validate(&fit.model, &s.val.without_landmark(s2)).overall.rms_mm;
+    let floor_without = validate(&s.sim.truth, &s.val.without_landmark(s2)).overall.rms_mm;
+    let (freed, corrected) = calibrate_with_landmark_freed(&s.nominal, &s.cal, s2, &s.options).unwrap();
+    let with_freed = validate(&freed.model, &s.val.with_landmarks(&corrected)).overall.rms_mm;
     eprintln!("floor {:.3} / {floor_without:.3}; excluded {excluded:.3}; freed {with_freed:.3}", s.floor);
     assert!(excluded <= 1.15 * floor_without, "excluding S2: {excluded} vs floor {floor_without}");
     assert!(with_freed <= 1.15 * s.floor, "freeing S2: {with_freed} vs floor {}", s.floor);
@@ -453,7 +450,7 @@ fn an_artefact_knocked_within_a_repeat_is_named_with_its_touch() {
     let s = scenario(102, vec![], HiddenErrors { knock: Some(knock), ..Default::default() }, 5);
     let (_, d) = calibrated(&s);
     let block = d.disturbed.first().expect("the knocked block is flagged");
-    assert_eq!((s.cal.placements[block.placement].as_str(), block.repeat, block.after_touch), ("C_A", 2, 8));
+    assert_eq!((s.cal.groups[block.placement].name.as_str(), block.repeat, block.after_touch), ("C_A", 2, 8));
     assert_eq!(d.disturbed.len(), 1, "{:?}", d.disturbed);
     assert!(d.summary.iter().any(|l| l.contains("block:C_A/2") && l.contains("#9")), "{:?}", d.summary);
     assert!(
@@ -461,10 +458,9 @@ fn an_artefact_knocked_within_a_repeat_is_named_with_its_touch() {
         "an arm effect is claimed: {:?}",
         d.summary
     );
-    let kept =
-        without(&s.cal, |k| s.cal.touches[k].placement == block.placement && s.cal.touches[k].repeat == 2);
-    let fit = calibrate(&s.nominal, &s.sim.artefact, &kept, &s.options).unwrap();
-    let after = validate(&fit.model, &s.sim.artefact, &s.val).overall.rms_mm;
+    let kept = s.cal.without(|k| s.cal.obs[k].group == block.placement && s.cal.obs[k].repeat == 2);
+    let fit = calibrate(&s.nominal, &kept, &s.options).unwrap();
+    let after = validate(&fit.model, &s.val).overall.rms_mm;
     eprintln!("floor {:.3} after excluding the block {after:.3}", s.floor);
     assert!(after <= 1.15 * s.floor, "{after} vs floor {}", s.floor);
 }
@@ -494,8 +490,8 @@ fn a_three_per_rev_error_shows_its_pattern_and_harmonic_3_reaches_the_floor() {
     assert_eq!(d.named.first().map(String::as_str), Some("harmonic:3:3"), "{:?}", d.summary);
     let mut with = s.nominal.clone();
     Effect::parse("harmonic:3:3").unwrap().add_to(&mut with);
-    let refit = calibrate(&with, &s.sim.artefact, &s.cal, &s.options).unwrap();
-    let after = validate(&refit.model, &s.sim.artefact, &s.val).overall.rms_mm;
+    let refit = calibrate(&with, &s.cal, &s.options).unwrap();
+    let after = validate(&refit.model, &s.val).overall.rms_mm;
     eprintln!("harmonic:3:3 brings {:.3} to {after:.3} (floor {:.3})", d.baseline.rms_mm, s.floor);
     assert!(after <= 1.15 * s.floor, "{after} vs floor {}", s.floor);
 }
@@ -526,7 +522,7 @@ fn a_small_three_per_rev_error_on_joint_3_is_named_and_the_loop_ends_at_the_floo
             "the periodic line must agree with the named effect: {:?}",
             d.summary
         );
-        let run = auto_loop(&fit, &s.sim.artefact, &s.cal, &s.val, &s.options, 4).unwrap();
+        let run = auto_loop(&fit, &s.cal, &s.val, &s.options, 4).unwrap();
         let last = run.steps.last().unwrap();
         let added: Vec<&str> = run.steps.iter().filter_map(|s| s.added.as_deref()).collect();
         eprintln!(
@@ -549,12 +545,12 @@ fn compliance_on_joint_3_is_named_not_a_harmonic_and_no_knock_is_flagged() {
         let s = scenario(seed, vec![(p("compliance:3"), 0.2)], HiddenErrors::default(), 5);
         // The repeats are taken in other arm configurations: the knock detector must not read
         // the configuration-dependent sag as the artefact moving.
-        let other_configuration = s.cal.touches.iter().any(|t| {
-            s.cal.touches.iter().any(|u| {
-                u.placement == t.placement
-                    && u.landmark == t.landmark
+        let other_configuration = s.cal.obs.iter().any(|t| {
+            s.cal.obs.iter().any(|u| {
+                u.group == t.group
+                    && u.landmark() == t.landmark()
                     && u.repeat != t.repeat
-                    && !kincal::calib::floor::same_pose(&t.enc_deg, &u.enc_deg)
+                    && !kincal::calib::floor::same_pose(&t.q_deg, &u.q_deg)
             })
         });
         assert!(other_configuration, "seed {seed}: the data must have repeats in other configurations");
@@ -617,9 +613,9 @@ fn the_auto_loop_adds_a_mixture_of_four_effects_down_to_the_floor() {
     // Ten validation placements: with the placement as the test's unit, five are too few to
     // confirm a third and fourth effect whose gain one placement does not share.
     let s = with_ten_validation_placements(scenario(105, hidden, HiddenErrors::default(), 5), 105);
-    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
+    let fit = calibrate(&s.nominal, &s.cal, &s.options).unwrap();
     let started = std::time::Instant::now();
-    let run = auto_loop(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options, 8).unwrap();
+    let run = auto_loop(&fit.model, &s.cal, &s.val, &s.options, 8).unwrap();
     eprintln!("auto loop: {:.2} s, stop {:?}", started.elapsed().as_secs_f64(), run.stop);
     for step in &run.steps {
         eprintln!(

@@ -551,3 +551,19 @@ fn a_set_signed_for_another_arm_is_refused() {
     let set = signed_version(4, "emulated-arm", &kincal_e2e::station_key());
     refused_and_unchanged(&mut link, &set, WireError::ParamSignature(SignatureRefusal::WrongArm), &stored);
 }
+
+/// The book's `console,emulator` examples (keys, upload, info) run against a fresh emulated
+/// controller at `$PORT`, each command a new connection, as a user's would be.
+#[test]
+fn the_books_controller_examples_print_what_they_show() {
+    use kincal_e2e::doc_examples::{pages, run_page, Needs};
+    let _guard = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let pages = pages(Needs::Emulator);
+    assert!(!pages.is_empty(), "no `console,emulator` example found in the README or the book");
+    let kincal = kincal_e2e::kincal_bin();
+    for page in &pages {
+        let (_emu, port) = Emulator::start_server(&emulated_firmware()).expect("QEMU starts");
+        let failures = run_page(page, &kincal, &[("PORT", &port)]);
+        assert!(failures.is_empty(), "{}", failures.join("\n\n"));
+    }
+}

@@ -1,8 +1,8 @@
 //! The dataset-size study: more placements calibrate better on held-out data.
 
-use kincal::calib::calibrate::CalibrationOptions;
+use kincal::calib::setup::SolveOptions;
 use kincal::calib::study::{study, StudyOptions};
-use kincal::data::Dataset;
+use kincal::data::Observations;
 use kincal::model::ArmModel;
 use kincal::simulate::{simulate, SimulationOptions};
 
@@ -10,15 +10,15 @@ use kincal::simulate::{simulate, SimulationOptions};
 fn more_placements_give_lower_validation_error() {
     let nominal = ArmModel::suta_nominal();
     let sim = simulate(&nominal, &SimulationOptions { seed: 11, ..SimulationOptions::default() });
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
     let options = StudyOptions {
         subsets: 6,
         seed: 1,
-        calibration: CalibrationOptions { restarts: 0, ..CalibrationOptions::default() },
+        calibration: SolveOptions { restarts: Some(0), ..SolveOptions::default() },
         progress: false,
     };
-    let rows = study(&nominal, &sim.artefact, &cal, &val, &options);
+    let rows = study(&nominal, &cal, &val, &options);
     assert_eq!(rows.len(), 5);
     // Distinct subsets: C(5, k) of them when that is fewer than the 6 asked for.
     let drawn: Vec<usize> = rows.iter().map(|r| r.calibrations + r.failed + r.implausible).collect();
@@ -34,7 +34,7 @@ fn more_placements_give_lower_validation_error() {
         rows[0].mean_mm
     );
     // Same seed, same study.
-    let again = study(&nominal, &sim.artefact, &cal, &val, &options);
+    let again = study(&nominal, &cal, &val, &options);
     assert_eq!(
         rows.iter().map(|r| r.rms_mm.clone()).collect::<Vec<_>>(),
         again.iter().map(|r| r.rms_mm.clone()).collect::<Vec<_>>()

@@ -5,7 +5,7 @@
 //! whose data moved or changed is refused naming the folder or file.
 
 use kincal::calib::tracker_diagnose::{auto_tracker, diagnose_tracker, fit_setup, TrackerSetup, TrackerStop};
-use kincal::data::tracker::TrackerData;
+use kincal::data::Observations;
 use kincal_e2e::kincal_bin;
 use kincal_e2e::tracker_gen::{
     generate, EncoderHarmonic, GravitySag, ToolRemount, TrackerData as Generated,
@@ -40,7 +40,7 @@ fn five_sessions(seed: u64) -> GenOptions {
 fn sessions(
     name: &str,
     options: &GenOptions,
-) -> (std::path::PathBuf, Generated, TrackerSetup, TrackerData, TrackerData) {
+) -> (std::path::PathBuf, Generated, TrackerSetup, Observations, Observations) {
     let dir = scratch("tracker-diagnose", name);
     let generated = generate(options);
     let nominal = nominal_model(&generated, &dir);

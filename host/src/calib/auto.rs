@@ -5,9 +5,10 @@
 //! not independent of the choices made before them. Every step keeps its calibrated model and its evidence, so the validation error
 //! can be drawn step by step ("watch the error fall").
 
-use crate::calib::calibrate::{calibrate, CalibrationError, CalibrationOptions};
 use crate::calib::diagnose::{diagnose, Diagnosis};
-use crate::data::{Artefact, Dataset};
+use crate::calib::fit::{calibrate, CalibError};
+use crate::calib::setup::SolveOptions;
+use crate::data::Observations;
 use crate::model::effects::Effect;
 use crate::model::ArmModel;
 
@@ -62,17 +63,16 @@ pub struct AutoLoop {
 /// calibrated), adding at most `max_steps` effects.
 pub fn auto_loop(
     calibrated: &ArmModel,
-    artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
-    options: &CalibrationOptions,
+    cal: &Observations,
+    val: &Observations,
+    options: &SolveOptions,
     max_steps: usize,
-) -> Result<AutoLoop, CalibrationError> {
+) -> Result<AutoLoop, CalibError> {
     let mut model = calibrated.clone();
     let mut steps = Vec::new();
     let mut added: Option<(String, String, f64)> = None;
     loop {
-        let d = diagnose(&model, artefact, cal, val, options);
+        let d = diagnose(&model, cal, val, options);
         steps.push(Step {
             added: added.as_ref().map(|a| a.0.clone()),
             validation_rms_mm: d.baseline.rms_mm,
@@ -113,6 +113,6 @@ pub fn auto_loop(
         let mut next = model.clone();
         effect.add_to(&mut next);
         // Warm start from this step's solution; the seeded restarts still guard the new terms.
-        model = calibrate(&next, artefact, cal, options)?.model;
+        model = calibrate(&next, cal, options)?.model;
     }
 }

@@ -24,12 +24,13 @@
 //!
 //! A flagged block or touch is scored by refitting without it.
 
-use crate::calib::calibrate::{calibrate, solve_warm, Calibration, CalibrationError, CalibrationOptions};
+use crate::calib::fit::{calibrate, solve_warm, CalibError, Fit};
 use crate::calib::floor::{same_configuration, same_pose};
-use crate::data::{Artefact, Dataset};
+use crate::calib::nuisance::frame::Frame;
+use crate::calib::setup::SolveOptions;
+use crate::data::{Landmark, Observations};
 use crate::model::kinematics::tool_pose;
 use crate::model::{ArmModel, ParamId};
-use crate::numerics::geometry::absolute_orientation;
 use crate::numerics::stats::{chi2_quantile, f_upper_tail, normal_upper_tail};
 use nalgebra::Vector3;
 
@@ -43,16 +44,8 @@ const MIN_REPEATS: usize = 2;
 const MIN_SIDE: usize = 4;
 
 /// The (placement, repeat) blocks of a dataset: touch indices in measured order.
-pub fn blocks(data: &Dataset) -> Vec<((usize, u32), Vec<usize>)> {
-    let mut out: Vec<((usize, u32), Vec<usize>)> = Vec::new();
-    for (k, t) in data.touches.iter().enumerate() {
-        let key = (t.placement, t.repeat);
-        match out.iter_mut().find(|b| b.0 == key) {
-            Some(b) => b.1.push(k),
-            None => out.push((key, vec![k])),
-        }
-    }
-    out
+pub fn blocks(data: &Observations) -> Vec<((usize, u32), Vec<usize>)> {
+    data.blocks.iter().map(|b| ((b.group, b.repeat), b.members.clone())).collect()
 }
 
 /// A touch of a block against its reference: (position in the block, touch, reference position
@@ -91,12 +84,10 @@ pub struct MisSeatedTouch {
 /// `model` and a per-axis touch variance `sigma2_mm2`.
 pub fn suspicious(
     model: &ArmModel,
-    artefact: &Artefact,
-    data: &Dataset,
+    data: &Observations,
     sigma2_mm2: f64,
 ) -> (Vec<DisturbedBlock>, Vec<MisSeatedTouch>) {
-    let p: Vec<Vector3<f64>> =
-        data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
+    let p: Vec<Vector3<f64>> = data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
     let mut splits = Vec::new();
     let mut singles = Vec::new();
     for group in repeat_groups(data) {
@@ -135,8 +126,8 @@ pub fn suspicious(
                         others
                             .iter()
                             .find(|&&o| {
-                                data.touches[o].landmark == data.touches[k].landmark
-                                    && same_pose(&data.touches[k].enc_deg, &data.touches[o].enc_deg)
+                                data.obs[o].landmark() == data.obs[k].landmark()
+                                    && same_pose(&data.obs[k].q_deg, &data.obs[o].q_deg)
                             })
                             .map(|&o| (i, k, p[o]))
                     })
@@ -149,7 +140,7 @@ pub fn suspicious(
             let certified = touches
                 .iter()
                 .enumerate()
-                .map(|(i, &k)| (i, k, Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)))
+                .map(|(i, &k)| (i, k, Vector3::from(data.landmarks[data.obs[k].touched()].xyz_mm)))
                 .collect::<Vec<_>>();
             if certified.len() >= 2 * MIN_SIDE {
                 references.push((certified, false));
@@ -160,11 +151,11 @@ pub fn suspicious(
             let q: Vec<Vector3<f64>> = matched.iter().map(|m| m.2).collect();
             let pm: Vec<Vector3<f64>> = matched.iter().map(|m| p[m.1]).collect();
             let rss_of = |range: std::ops::Range<usize>| {
-                let (r, t) = absolute_orientation(&q[range.clone()], &pm[range.clone()]);
+                let frame = Frame::fit(&q[range.clone()], &pm[range.clone()]);
                 q[range.clone()]
                     .iter()
                     .zip(&pm[range])
-                    .map(|(q, pm)| (pm - (r * q + t)).norm_squared())
+                    .map(|(q, pm)| (pm - frame.apply(q)).norm_squared())
                     .sum::<f64>()
             };
             let rss0 = rss_of(0..matched.len());
@@ -188,18 +179,18 @@ pub fn suspicious(
                 continue;
             }
             // How far apart the two rigid motions put the later touches.
-            let (r1, t1) = absolute_orientation(&q[..i], &pm[..i]);
-            let (r2, t2) = absolute_orientation(&q[i..], &pm[i..]);
-            let moved = (q[i..].iter().map(|q| ((r1 * q + t1) - (r2 * q + t2)).norm_squared()).sum::<f64>()
-                / (matched.len() - i) as f64)
-                .sqrt();
+            let (before, after) = (Frame::fit(&q[..i], &pm[..i]), Frame::fit(&q[i..], &pm[i..]));
+            let moved =
+                (q[i..].iter().map(|q| (before.apply(q) - after.apply(q)).norm_squared()).sum::<f64>()
+                    / (matched.len() - i) as f64)
+                    .sqrt();
             let (position, first, _) = matched[i];
             best = Some((
                 DisturbedBlock {
                     placement: *placement,
                     repeat: *repeat,
                     after_touch: position,
-                    first_moved: artefact.landmarks[data.touches[first].landmark].id.clone(),
+                    first_moved: data.landmarks[data.obs[first].touched()].id.clone(),
                     chi2,
                     moved_mm: moved,
                 },
@@ -212,8 +203,8 @@ pub fn suspicious(
     splits.sort_by(|a, b| b.chi2.total_cmp(&a.chi2));
     // A touch inside a disturbed block is explained by the block.
     singles.retain(|s| {
-        let t = &data.touches[s.touch];
-        s.chi2 > touch_limit && !splits.iter().any(|b| b.placement == t.placement && b.repeat == t.repeat)
+        let t = &data.obs[s.touch];
+        s.chi2 > touch_limit && !splits.iter().any(|b| b.placement == t.group && b.repeat == t.repeat)
     });
     singles.sort_by(|a, b| b.chi2.total_cmp(&a.chi2));
     (splits, singles)
@@ -222,30 +213,22 @@ pub fn suspicious(
 /// Where landmark `landmark` really is in the artefact frame, from its touches in `data`
 /// (positions from `model`), each mapped back through a rigid fit of the other landmarks of its
 /// block; `None` when no block has it and three others.
-pub fn locate_landmark(
-    model: &ArmModel,
-    artefact: &Artefact,
-    data: &Dataset,
-    landmark: usize,
-) -> Option<[f64; 3]> {
-    let p: Vec<Vector3<f64>> =
-        data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
+pub fn locate_landmark(model: &ArmModel, data: &Observations, landmark: usize) -> Option<[f64; 3]> {
+    let p: Vec<Vector3<f64>> = data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
     let mut sum = Vector3::zeros();
     let mut n = 0usize;
     for (_, touches) in blocks(data) {
         let (this, others): (Vec<usize>, Vec<usize>) =
-            touches.iter().partition(|&&k| data.touches[k].landmark == landmark);
+            touches.iter().partition(|&&k| data.obs[k].landmark() == Some(landmark));
         if this.is_empty() || others.len() < 3 {
             continue;
         }
-        let q: Vec<Vector3<f64>> = others
-            .iter()
-            .map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm))
-            .collect();
+        let q: Vec<Vector3<f64>> =
+            others.iter().map(|&k| Vector3::from(data.landmarks[data.obs[k].touched()].xyz_mm)).collect();
         let pm: Vec<Vector3<f64>> = others.iter().map(|&k| p[k]).collect();
-        let (r, t) = absolute_orientation(&q, &pm);
+        let frame = Frame::fit(&q, &pm);
         for &k in &this {
-            sum += r.transpose() * (p[k] - t);
+            sum += frame.rotation.transpose() * (p[k] - frame.translation_mm);
             n += 1;
         }
     }
@@ -259,14 +242,17 @@ pub fn locate_landmark(
 /// locate it, refit with the located position. Returns the fit and the corrected artefact.
 pub fn calibrate_with_landmark_freed(
     start: &ArmModel,
-    artefact: &Artefact,
-    cal: &Dataset,
+    cal: &Observations,
     landmark: usize,
-    options: &CalibrationOptions,
-) -> Result<(Calibration, Artefact), CalibrationError> {
-    let without = calibrate(start, artefact, &cal.without_landmark(landmark), options)?;
-    let corrected = located(&without.model, artefact, cal, landmark);
-    let fit = calibrate(&without.model, &corrected, cal, &CalibrationOptions { restarts: 0, ..*options })?;
+    options: &SolveOptions,
+) -> Result<(Fit, Vec<Landmark>), CalibError> {
+    let without = calibrate(start, &cal.without_landmark(landmark), options)?;
+    let corrected = located(&without.model, cal, landmark);
+    let fit = calibrate(
+        &without.model,
+        &cal.with_landmarks(&corrected),
+        &SolveOptions { restarts: Some(0), ..options.clone() },
+    )?;
     Ok((fit, corrected))
 }
 
@@ -275,37 +261,36 @@ pub fn calibrate_with_landmark_freed(
 pub fn refit_with_landmark_freed(
     calibrated: &ArmModel,
     params: &[ParamId],
-    artefact: &Artefact,
-    cal: &Dataset,
+    cal: &Observations,
     landmark: usize,
-    options: &CalibrationOptions,
-) -> Result<(ArmModel, Artefact), CalibrationError> {
-    let without = solve_warm(calibrated, params, artefact, &cal.without_landmark(landmark), options)?;
-    let corrected = located(&without, artefact, cal, landmark);
-    Ok((solve_warm(&without, params, &corrected, cal, options)?, corrected))
+    options: &SolveOptions,
+) -> Result<(ArmModel, Vec<Landmark>), CalibError> {
+    let without = solve_warm(calibrated, params, &cal.without_landmark(landmark), options)?;
+    let corrected = located(&without, cal, landmark);
+    Ok((solve_warm(&without, params, &cal.with_landmarks(&corrected), options)?, corrected))
 }
 
 /// `artefact` with landmark `landmark` where `model` locates it (unchanged when it cannot).
-fn located(model: &ArmModel, artefact: &Artefact, cal: &Dataset, landmark: usize) -> Artefact {
-    let mut corrected = artefact.clone();
-    if let Some(xyz) = locate_landmark(model, artefact, cal, landmark) {
-        corrected.landmarks[landmark].xyz_mm = xyz;
+fn located(model: &ArmModel, cal: &Observations, landmark: usize) -> Vec<Landmark> {
+    let mut corrected = cal.landmarks.clone();
+    if let Some(xyz) = locate_landmark(model, cal, landmark) {
+        corrected[landmark].xyz_mm = xyz;
     }
     corrected
 }
 
 /// Touches of the same landmark, placement and arm configuration (see
 /// [`crate::calib::floor::same_configuration`]).
-fn repeat_groups(data: &Dataset) -> Vec<Vec<usize>> {
+fn repeat_groups(data: &Observations) -> Vec<Vec<usize>> {
     let mut out = Vec::new();
-    for placement in 0..data.placements.len() {
+    for placement in 0..data.groups.len() {
         let mut landmarks: Vec<usize> =
-            data.touches.iter().filter(|t| t.placement == placement).map(|t| t.landmark).collect();
+            data.obs.iter().filter(|t| t.group == placement).map(|t| t.touched()).collect();
         landmarks.sort_unstable();
         landmarks.dedup();
         for l in landmarks {
-            let idx: Vec<usize> = (0..data.touches.len())
-                .filter(|&k| data.touches[k].placement == placement && data.touches[k].landmark == l)
+            let idx: Vec<usize> = (0..data.obs.len())
+                .filter(|&k| data.obs[k].group == placement && data.obs[k].landmark() == Some(l))
                 .collect();
             out.extend(same_configuration(data, &idx));
         }
@@ -313,34 +298,21 @@ fn repeat_groups(data: &Dataset) -> Vec<Vec<usize>> {
     out
 }
 
-/// A copy of `data` without the touches for which `drop` is true.
-pub fn without(data: &Dataset, drop: impl Fn(usize) -> bool) -> Dataset {
-    Dataset {
-        placements: data.placements.clone(),
-        touches: data.touches.iter().enumerate().filter(|(k, _)| !drop(*k)).map(|(_, t)| t.clone()).collect(),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::{Landmark, Touch, ARTEFACT_FORMAT};
+    use crate::data::{Artefact, Landmark, ARTEFACT_FORMAT};
 
     #[test]
     fn blocks_keep_the_measured_order() {
-        let t = |placement, repeat| Touch {
-            placement,
-            landmark: 0,
-            repeat,
-            enc_deg: [0.0; 6],
-            enc_sigma_deg: None,
-        };
-        let data = Dataset {
-            placements: vec!["A".into(), "B".into()],
-            touches: vec![t(0, 1), t(1, 1), t(0, 1), t(0, 2)],
-        };
+        let q: &[f64] = &[0.0; 6];
+        let data = Observations::from_touches(
+            &["A", "B"],
+            Vec::new(),
+            &[(0, 0, 1, q), (1, 0, 1, q), (0, 0, 1, q), (0, 0, 2, q)],
+        );
         assert_eq!(blocks(&data), vec![((0, 1), vec![0, 2]), ((1, 1), vec![1]), ((0, 2), vec![3])]);
-        assert_eq!(without(&data, |k| k == 1).touches.len(), 3);
+        assert_eq!(data.without(|k| k == 1).obs.len(), 3);
     }
 
     #[test]
@@ -364,13 +336,9 @@ mod tests {
                 })
                 .collect(),
         };
-        let data = Dataset {
-            placements: vec!["A".into()],
-            touches: (0..4)
-                .map(|l| Touch { placement: 0, landmark: l, repeat: 1, enc_deg: enc[l], enc_sigma_deg: None })
-                .collect(),
-        };
-        let found = locate_landmark(&model, &artefact, &data, 3).expect("located");
+        let touches: Vec<(usize, usize, u32, &[f64])> = (0..4).map(|l| (0, l, 1, &enc[l][..])).collect();
+        let data = Observations::from_touches(&["A"], artefact.landmarks.clone(), &touches);
+        let found = locate_landmark(&model, &data, 3).expect("located");
         assert!((Vector3::from(found) - p[3]).norm() < 1e-6, "{found:?} vs {:?}", p[3]);
     }
 }

@@ -57,22 +57,20 @@
 //! refits change the held-out errors the same way (correlation of the changes ≥
 //! [`EQUIVALENT_CORRELATION`]) are reported as exactly equivalent.
 
-use crate::calib::calibrate::{solve_warm, CalibrationOptions};
-use crate::calib::data_errors::{
-    refit_with_landmark_freed, suspicious, without, DisturbedBlock, MisSeatedTouch,
-};
+use crate::calib::data_errors::{refit_with_landmark_freed, suspicious, DisturbedBlock, MisSeatedTouch};
+use crate::calib::fit::{dense_jacobian, solve_warm};
 use crate::calib::floor::{gap, noise_floor, Gap, NoiseFloor};
 use crate::calib::identify;
-use crate::calib::objective::CalibrationProblem;
+use crate::calib::nuisance::frame::Frame;
+use crate::calib::setup::SolveOptions;
 use crate::calib::validate::{distance_errors, ErrorStats, PairError};
-use crate::data::{Artefact, Dataset};
+use crate::data::Observations;
 use crate::model::effects::{Effect, EffectKind};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
-use crate::model::{ArmModel, ParamId, SUTA_JOINTS};
-use crate::numerics::geometry::absolute_orientation;
-use crate::numerics::solver::{normal_equations, Loss, Residuals};
+use crate::model::{ArmModel, ParamId};
+use crate::numerics::solver::normal_equations;
 use crate::numerics::stats::one_sided_t;
-use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+use nalgebra::{DMatrix, DVector, Vector3};
 use rayon::prelude::*;
 
 /// Family-wise false-alarm rate of the significance test over all candidates.
@@ -282,21 +280,20 @@ pub struct Diagnosis {
 }
 
 /// Per-touch residual vectors after a rigid fit of the artefact in each placement.
-fn touch_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<Option<Vector3<f64>>> {
-    let p: Vec<Vector3<f64>> =
-        data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
+fn touch_residuals(model: &ArmModel, data: &Observations) -> Vec<Option<Vector3<f64>>> {
+    let p: Vec<Vector3<f64>> = data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
     let mut out = vec![None; p.len()];
-    for placement in 0..data.placements.len() {
-        let idx: Vec<usize> = (0..p.len()).filter(|&k| data.touches[k].placement == placement).collect();
+    for placement in 0..data.groups.len() {
+        let idx: Vec<usize> = (0..p.len()).filter(|&k| data.obs[k].group == placement).collect();
         if idx.len() < 4 {
             continue;
         }
         let q: Vec<Vector3<f64>> =
-            idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
+            idx.iter().map(|&k| Vector3::from(data.landmarks[data.obs[k].touched()].xyz_mm)).collect();
         let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
-        let (r, t): (Matrix3<f64>, Vector3<f64>) = absolute_orientation(&q, &pm);
+        let frame = Frame::fit(&q, &pm);
         for (i, &k) in idx.iter().enumerate() {
-            out[k] = Some(pm[i] - (r * q[i] + t));
+            out[k] = Some(pm[i] - frame.apply(&q[i]));
         }
     }
     out
@@ -419,38 +416,35 @@ fn coverage_deg(angles_deg: &[f64]) -> f64 {
 /// Points (x, y) of a scatter plot.
 type Points = Vec<(f64, f64)>;
 
-fn joint_residuals(
-    model: &ArmModel,
-    artefact: &Artefact,
-    data: &Dataset,
-) -> (Vec<JointResiduals>, Points, Points) {
-    let residuals = touch_residuals(model, artefact, data);
-    let offsets: Vec<ParamId> = (0..SUTA_JOINTS).map(ParamId::Offset).collect();
+fn joint_residuals(model: &ArmModel, data: &Observations) -> (Vec<JointResiduals>, Points, Points) {
+    let residuals = touch_residuals(model, data);
+    let joints = model.joints.len();
+    let offsets: Vec<ParamId> = (0..joints).map(ParamId::Offset).collect();
     let columns = ColumnMap::new(&offsets);
-    let mut per_joint: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); SUTA_JOINTS];
-    let mut gravity: Vec<Vec<(f64, f64)>> = vec![Vec::new(); SUTA_JOINTS];
-    let mut gravity_weights: Vec<Vec<f64>> = vec![Vec::new(); SUTA_JOINTS];
+    let mut per_joint: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); joints];
+    let mut gravity: Vec<Vec<(f64, f64)>> = vec![Vec::new(); joints];
+    let mut gravity_weights: Vec<Vec<f64>> = vec![Vec::new(); joints];
     let (mut by_height, mut by_reach) = (Vec::new(), Vec::new());
-    for (t, r) in data.touches.iter().zip(&residuals) {
+    for (t, r) in data.obs.iter().zip(&residuals) {
         let Some(r) = r else { continue };
-        let mut jac = vec![[0.0; 9]; SUTA_JOINTS];
-        let pose = tool_pose_with_jacobian(model, &t.enc_deg, &columns, &mut jac);
-        let levers = gravity_levers(model, &t.enc_deg);
+        let mut jac = vec![[0.0; 9]; joints];
+        let pose = tool_pose_with_jacobian(model, &t.q_deg, &columns, &mut jac);
+        let levers = gravity_levers(model, &t.q_deg);
         by_height.push((pose.position_mm.z, r.norm()));
         by_reach.push((pose.position_mm.xy().norm(), r.norm()));
-        for j in 0..SUTA_JOINTS {
+        for j in 0..joints {
             let g = Vector3::new(jac[j][0], jac[j][1], jac[j][2]); // mm per degree
             let w = g.norm_squared();
             if w < 1e-9 {
                 continue;
             }
             let e = g.dot(r) / w;
-            per_joint[j].push((t.enc_deg[j], e, w));
+            per_joint[j].push((t.q_deg[j], e, w));
             gravity[j].push((levers[j], e));
             gravity_weights[j].push(w);
         }
     }
-    let joints = (0..SUTA_JOINTS)
+    let joints = (0..joints)
         .map(|j| {
             let points = std::mem::take(&mut per_joint[j]);
             let bins = (0..ANGLE_BINS)
@@ -486,21 +480,24 @@ fn joint_residuals(
 }
 
 /// Gravity lever of each joint at a touch (the compliance regressor), metres.
-fn gravity_levers(model: &ArmModel, enc_deg: &[f64; SUTA_JOINTS]) -> [f64; SUTA_JOINTS] {
+fn gravity_levers(model: &ArmModel, enc_deg: &[f64]) -> Vec<f64> {
     // ∂p/∂compliance_j = ∂p/∂θ_j · λ_j: the ratio of the two columns gives λ_j.
+    let joints = model.joints.len();
     let params: Vec<ParamId> =
-        (0..SUTA_JOINTS).flat_map(|j| [ParamId::Offset(j), ParamId::Compliance(j)]).collect();
+        (0..joints).flat_map(|j| [ParamId::Offset(j), ParamId::Compliance(j)]).collect();
     let mut jac = vec![[0.0; 9]; params.len()];
     tool_pose_with_jacobian(model, enc_deg, &ColumnMap::new(&params), &mut jac);
-    std::array::from_fn(|j| {
-        let (dtheta, dc) = (&jac[2 * j], &jac[2 * j + 1]);
-        let n: f64 = (0..3).map(|k| dtheta[k] * dtheta[k]).sum();
-        if n > 1e-12 {
-            (0..3).map(|k| dc[k] * dtheta[k]).sum::<f64>() / n
-        } else {
-            0.0
-        }
-    })
+    (0..joints)
+        .map(|j| {
+            let (dtheta, dc) = (&jac[2 * j], &jac[2 * j + 1]);
+            let n: f64 = (0..3).map(|k| dtheta[k] * dtheta[k]).sum();
+            if n > 1e-12 {
+                (0..3).map(|k| dc[k] * dtheta[k]).sum::<f64>() / n
+            } else {
+                0.0
+            }
+        })
+        .collect()
 }
 
 impl Candidate {
@@ -537,10 +534,10 @@ impl Candidate {
 }
 
 /// Mean square validation error per (placement, repeat) block.
-fn block_mse(errors: &[PairError], data: &Dataset) -> Vec<((usize, u32), f64)> {
+fn block_mse(errors: &[PairError], data: &Observations) -> Vec<((usize, u32), f64)> {
     let mut blocks: Vec<((usize, u32), f64, usize)> = Vec::new();
     for e in errors {
-        let key = (e.placement, data.touches[e.touches.0].repeat);
+        let key = (e.placement, data.obs[e.touches.0].repeat);
         match blocks.iter_mut().find(|b| b.0 == key) {
             Some(b) => {
                 b.1 += e.error_mm * e.error_mm;
@@ -564,7 +561,7 @@ struct Score {
 }
 
 impl Score {
-    fn of(errors: &[PairError], baseline_blocks: &[((usize, u32), f64)], val: &Dataset) -> Score {
+    fn of(errors: &[PairError], baseline_blocks: &[((usize, u32), f64)], val: &Observations) -> Score {
         let blocks = block_mse(errors, val);
         let ratios = log_ratios(baseline_blocks, &blocks);
         let per_placement = placement_means(&ratios);
@@ -657,8 +654,8 @@ fn bic(residuals: &[f64], params: usize) -> f64 {
     m * (rss / m).ln() + params as f64 * m.ln()
 }
 
-fn distance_residuals(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<f64> {
-    distance_errors(model, artefact, data).iter().map(|e| e.error_mm).collect()
+fn distance_residuals(model: &ArmModel, data: &Observations) -> Vec<f64> {
+    distance_errors(model, data).iter().map(|e| e.error_mm).collect()
 }
 
 /// Plain words for a fitted effect.
@@ -719,16 +716,16 @@ pub fn chi2_z(x: f64, k: usize) -> f64 {
 }
 
 /// `data` with at most [`SCREEN_BLOCKS`] (placement, repeat) blocks, evenly spaced.
-fn screening_subset(data: &Dataset) -> std::borrow::Cow<'_, Dataset> {
+fn screening_subset(data: &Observations) -> std::borrow::Cow<'_, Observations> {
     let blocks = crate::calib::data_errors::blocks(data);
     if blocks.len() <= SCREEN_BLOCKS {
         return std::borrow::Cow::Borrowed(data);
     }
     let keep: Vec<(usize, u32)> =
         (0..SCREEN_BLOCKS).map(|k| blocks[k * blocks.len() / SCREEN_BLOCKS].0).collect();
-    std::borrow::Cow::Owned(without(data, |t| {
-        let touch = &data.touches[t];
-        !keep.contains(&(touch.placement, touch.repeat))
+    std::borrow::Cow::Owned(data.without(|t| {
+        let touch = &data.obs[t];
+        !keep.contains(&(touch.group, touch.repeat))
     }))
 }
 
@@ -754,26 +751,18 @@ struct Screen {
 }
 
 impl Screen {
-    fn new(
-        calibrated: &ArmModel,
-        effects: &[Effect],
-        artefact: &Artefact,
-        cal: &Dataset,
-        options: &CalibrationOptions,
-    ) -> Screen {
+    fn new(calibrated: &ArmModel, effects: &[Effect], cal: &Observations, options: &SolveOptions) -> Screen {
         let mut augmented = calibrated.clone();
         for e in effects {
             e.add_to(&mut augmented);
         }
         let params: Vec<ParamId> = augmented.free.iter().map(|f| f.id).collect();
         let ranges: Vec<f64> = augmented.free.iter().map(|f| (f.upper - f.lower).max(1e-9)).collect();
-        let problem = CalibrationProblem::new(&augmented, params.clone(), artefact, cal, options.objective);
+        let resolved = options.resolve(cal);
+        let (r, jac) = dense_jacobian(&augmented, &params, cal, resolved.relative_lever_mm);
         let values = augmented.free_values();
-        let (rows, n) = (problem.len(), params.len());
-        let mut r = vec![0.0; rows];
-        let mut jac = vec![0.0; rows * n];
-        problem.evaluate(&values, &mut r, Some(&mut jac));
-        let loss = Loss::Huber(options.huber_delta_mm);
+        let (rows, n) = (r.len(), params.len());
+        let loss = resolved.loss;
         let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
         let (gram, grad) = normal_equations(&jac, &r, &weights, n);
         let current: Vec<ParamId> = calibrated.free.iter().map(|f| f.id).collect();
@@ -937,30 +926,29 @@ struct Fitted {
 /// Diagnose `calibrated` (whose free set and bounds are those it was calibrated with).
 pub fn diagnose(
     calibrated: &ArmModel,
-    artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
-    options: &CalibrationOptions,
+    cal: &Observations,
+    val: &Observations,
+    options: &SolveOptions,
 ) -> Diagnosis {
-    let baseline_errors = distance_errors(calibrated, artefact, val);
+    let baseline_errors = distance_errors(calibrated, val);
     let baseline = ErrorStats::of(&baseline_errors.iter().map(|e| e.error_mm).collect::<Vec<_>>());
-    let (joints, by_height, by_reach) = joint_residuals(calibrated, artefact, val);
+    let (joints, by_height, by_reach) = joint_residuals(calibrated, val);
     let current: Vec<ParamId> = calibrated.free.iter().map(|f| f.id).collect();
     // Refits and the calibration evidence use at most SCREEN_BLOCKS blocks; the held-out
     // scores always use every validation touch.
     let fit_data = screening_subset(cal);
-    let baseline_cal = distance_residuals(calibrated, artefact, &fit_data);
+    let baseline_cal = distance_residuals(calibrated, &fit_data);
     let baseline_bic = bic(&baseline_cal, current.len());
     let baseline_rss: f64 = baseline_cal.iter().map(|r| r * r).sum::<f64>().max(1e-300);
     let baseline_blocks = block_mse(&baseline_errors, val);
     let effects: Vec<Effect> =
         Effect::library(calibrated.joints.len()).into_iter().filter(|e| !e.is_in(calibrated)).collect();
-    let screen = Screen::new(calibrated, &effects, artefact, &fit_data, options);
+    let screen = Screen::new(calibrated, &effects, &fit_data, options);
     let base_params: Vec<ParamId> = screen.base.iter().map(|&c| screen.params[c]).collect();
-    let floor = noise_floor(calibrated, artefact, cal, val, screen.base.len())
-        .map(|f| f.with_estimate_noise(calibrated, &base_params, artefact, &fit_data, val));
+    let floor = noise_floor(calibrated, cal, val, screen.base.len())
+        .map(|f| f.with_estimate_noise(calibrated, &base_params, &fit_data, val));
     let (disturbed, mis_seated) = match &floor {
-        Some(f) => suspicious(calibrated, artefact, cal, f.touch_std_mm.powi(2)),
+        Some(f) => suspicious(calibrated, cal, f.touch_std_mm.powi(2)),
         None => (Vec::new(), Vec::new()),
     };
     let disturbed: Vec<DisturbedBlock> = disturbed.into_iter().take(MAX_FLAGGED).collect();
@@ -982,18 +970,18 @@ pub fn diagnose(
             let refit = (rank < REFITTED)
                 .then(|| {
                     let params: Vec<ParamId> = base_params.iter().chain(&c.added).copied().collect();
-                    solve_warm(&c.start(calibrated), &params, artefact, &fit_data, options).ok()
+                    solve_warm(&c.start(calibrated), &params, &fit_data, options).ok()
                 })
                 .flatten();
             let refitted = refit.is_some();
             let model = refit.unwrap_or_else(|| c.one_step(calibrated, &screen));
-            let errors = distance_errors(&model, artefact, val);
+            let errors = distance_errors(&model, val);
             let score = Score::of(&errors, &baseline_blocks, val);
             let k = c.added.len();
             // A refit replaces the score test's linearised drop by the exact one, on the same
             // scale: rows × (1 − RSS_after / RSS_before).
             let (delta_bic, z) = if refitted {
-                let residuals = distance_residuals(&model, artefact, &fit_data);
+                let residuals = distance_residuals(&model, &fit_data);
                 let rss: f64 = residuals.iter().map(|r| r * r).sum();
                 let exact = m_screen * (1.0 - rss / baseline_rss).max(0.0);
                 (bic(&residuals, current.len() + k) - baseline_bic, chi2_z(exact, k))
@@ -1035,21 +1023,18 @@ pub fn diagnose(
         .into_iter()
         .take(10)
         .map(|e| WorstPair {
-            placement: val.placements[e.placement].clone(),
-            landmarks: (
-                artefact.landmarks[e.landmarks.0].id.clone(),
-                artefact.landmarks[e.landmarks.1].id.clone(),
-            ),
+            placement: val.groups[e.placement].name.clone(),
+            landmarks: (val.landmarks[e.landmarks.0].id.clone(), val.landmarks[e.landmarks.1].id.clone()),
             error_mm: e.error_mm,
         })
         .collect();
     let by_placement = val
-        .placements
+        .groups
         .iter()
         .enumerate()
-        .map(|(p, name)| {
+        .map(|(p, group)| {
             (
-                name.clone(),
+                group.name.clone(),
                 rms(&baseline_errors.iter().filter(|e| e.placement == p).cloned().collect::<Vec<_>>()),
             )
         })
@@ -1058,7 +1043,6 @@ pub fn diagnose(
         &DataErrorInputs {
             calibrated,
             base_params: &base_params,
-            artefact,
             cal,
             fit_data: &fit_data,
             val,
@@ -1075,7 +1059,6 @@ pub fn diagnose(
     let (rivals, named) = rivals(
         &RivalInputs {
             calibrated,
-            artefact,
             fit_data: &fit_data,
             val,
             options,
@@ -1144,11 +1127,10 @@ fn helps_alone(c: &Candidate, baseline_rms_mm: f64) -> bool {
 /// What the rival tests need.
 struct RivalInputs<'a> {
     calibrated: &'a ArmModel,
-    artefact: &'a Artefact,
     /// The calibration data the refits use (a subsample at scale).
-    fit_data: &'a Dataset,
-    val: &'a Dataset,
-    options: &'a CalibrationOptions,
+    fit_data: &'a Observations,
+    val: &'a Observations,
+    options: &'a SolveOptions,
     screen: &'a Screen,
     base_params: &'a [ParamId],
     /// Validation RMS of the calibrated model, mm.
@@ -1203,8 +1185,8 @@ fn rivals(
             }
             let params: Vec<ParamId> =
                 x.base_params.iter().chain(&sa.added).chain(&sb.added).copied().collect();
-            let both = solve_warm(&start, &params, x.artefact, x.fit_data, x.options).ok()?;
-            let errors = distance_errors(&both, x.artefact, x.val);
+            let both = solve_warm(&start, &params, x.fit_data, x.options).ok()?;
+            let errors = distance_errors(&both, x.val);
             let b_adds = Score::of(&errors, &fits[lead].blocks, x.val);
             let a_adds = Score::of(&errors, &fits[k].blocks, x.val);
             let gain = |score: &Score, single: f64| {
@@ -1256,12 +1238,11 @@ struct DataErrorInputs<'a> {
     calibrated: &'a ArmModel,
     /// The identifiable parameters refitted.
     base_params: &'a [ParamId],
-    artefact: &'a Artefact,
-    cal: &'a Dataset,
+    cal: &'a Observations,
     /// The calibration data the landmark refits use (a subsample at scale).
-    fit_data: &'a Dataset,
-    val: &'a Dataset,
-    options: &'a CalibrationOptions,
+    fit_data: &'a Observations,
+    val: &'a Observations,
+    options: &'a SolveOptions,
     baseline: &'a ErrorStats,
     baseline_blocks: &'a [((usize, u32), f64)],
     baseline_bic: f64,
@@ -1273,27 +1254,27 @@ fn score_data_errors(
     disturbed: &[DisturbedBlock],
     mis_seated: &[MisSeatedTouch],
 ) -> Vec<Candidate> {
-    let refit = |data: &Dataset| solve_warm(x.calibrated, x.base_params, x.artefact, data, x.options);
+    let refit = |data: &Observations| solve_warm(x.calibrated, x.base_params, data, x.options);
     let candidate =
         |name: String, score: Score, delta_bic: f64, z: f64, evidence: String, action: String| Candidate {
             action: Some(action),
             ..Candidate::scored(name, &score, x.baseline.rms_mm, delta_bic, z, evidence)
         };
 
-    let mut out: Vec<Candidate> = (0..x.artefact.landmarks.len())
+    let mut out: Vec<Candidate> = (0..x.cal.landmarks.len())
         .into_par_iter()
         .filter_map(|l| {
             let (model, corrected) =
-                refit_with_landmark_freed(x.calibrated, x.base_params, x.artefact, x.fit_data, l, x.options).ok()?;
-            let errors = distance_errors(&model, &corrected, x.val);
+                refit_with_landmark_freed(x.calibrated, x.base_params, x.fit_data, l, x.options).ok()?;
+            let errors = distance_errors(&model, &x.val.with_landmarks(&corrected));
             let score = Score::of(&errors, x.baseline_blocks, x.val);
-            let residuals = distance_residuals(&model, &corrected, x.fit_data);
+            let residuals = distance_residuals(&model, &x.fit_data.with_landmarks(&corrected));
             let m = residuals.len().max(2) as f64;
             let delta_bic = bic(&residuals, x.calibrated.free.len() + 3) - x.baseline_bic;
             // Likelihood ratio of the freed certificate (3 parameters), from the BIC change.
             let z = chi2_z(-(delta_bic - 3.0 * m.ln()), 3);
-            let id = &x.artefact.landmarks[l].id;
-            let (was, now) = (x.artefact.landmarks[l].xyz_mm, corrected.landmarks[l].xyz_mm);
+            let id = &x.cal.landmarks[l].id;
+            let (was, now) = (x.cal.landmarks[l].xyz_mm, corrected[l].xyz_mm);
             let d = [now[0] - was[0], now[1] - was[1], now[2] - was[2]];
             let off = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             let evidence = format!(
@@ -1305,32 +1286,30 @@ fn score_data_errors(
         })
         .collect();
     for b in disturbed {
-        let name = format!("{}/{}", x.cal.placements[b.placement], b.repeat);
-        let kept = without(x.cal, |k| {
-            x.cal.touches[k].placement == b.placement && x.cal.touches[k].repeat == b.repeat
-        });
+        let name = format!("{}/{}", x.cal.groups[b.placement].name, b.repeat);
+        let kept = x.cal.without(|k| x.cal.obs[k].group == b.placement && x.cal.obs[k].repeat == b.repeat);
         let Ok(model) = refit(&kept) else { continue };
-        let score = Score::of(&distance_errors(&model, x.artefact, x.val), x.baseline_blocks, x.val);
+        let score = Score::of(&distance_errors(&model, x.val), x.baseline_blocks, x.val);
         let evidence = format!(
             "in calibration placement {} repeat {} the touches from #{} ({}) on sit {:.2} mm off the rigid placement of the first {} (χ² {:.0} for 6 degrees of freedom): the artefact moved during the repeat; without the block validation RMS goes from {:.3} to {:.3} mm",
-            x.cal.placements[b.placement], b.repeat, b.after_touch + 1, b.first_moved, b.moved_mm, b.after_touch, b.chi2, x.baseline.rms_mm, score.after
+            x.cal.groups[b.placement].name, b.repeat, b.after_touch + 1, b.first_moved, b.moved_mm, b.after_touch, b.chi2, x.baseline.rms_mm, score.after
         );
-        let action = format!("drop or re-measure calibration placement {} repeat {} (`kincal calibrate … --exclude-block {name}`)", x.cal.placements[b.placement], b.repeat);
+        let action = format!("drop or re-measure calibration placement {} repeat {} (`kincal calibrate … --exclude-block {name}`)", x.cal.groups[b.placement].name, b.repeat);
         out.push(candidate(format!("block:{name}"), score, f64::NAN, chi2_z(b.chi2, 6), evidence, action));
     }
     for m in mis_seated {
-        let t = &x.cal.touches[m.touch];
-        let id = &x.artefact.landmarks[t.landmark].id;
-        let name = format!("{}/{}/{id}", x.cal.placements[t.placement], t.repeat);
-        let Ok(model) = refit(&without(x.cal, |k| k == m.touch)) else { continue };
-        let score = Score::of(&distance_errors(&model, x.artefact, x.val), x.baseline_blocks, x.val);
+        let t = &x.cal.obs[m.touch];
+        let id = &x.cal.landmarks[t.touched()].id;
+        let name = format!("{}/{}/{id}", x.cal.groups[t.group].name, t.repeat);
+        let Ok(model) = refit(&x.cal.without(|k| k == m.touch)) else { continue };
+        let score = Score::of(&distance_errors(&model, x.val), x.baseline_blocks, x.val);
         let evidence = format!(
             "the touch of {id} in calibration placement {} repeat {} sits {:.2} mm off its block's rigid fit (χ² {:.0} for 3 degrees of freedom): mis-seated; without it validation RMS goes from {:.3} to {:.3} mm",
-            x.cal.placements[t.placement], t.repeat, m.residual_mm, m.chi2, x.baseline.rms_mm, score.after
+            x.cal.groups[t.group].name, t.repeat, m.residual_mm, m.chi2, x.baseline.rms_mm, score.after
         );
         let action = format!(
             "re-measure {id} in {} repeat {} or drop that touch",
-            x.cal.placements[t.placement], t.repeat
+            x.cal.groups[t.group].name, t.repeat
         );
         out.push(candidate(format!("touch:{name}"), score, f64::NAN, chi2_z(m.chi2, 3), evidence, action));
     }
@@ -1423,7 +1402,7 @@ fn summarise(
     baseline: &ErrorStats,
     gap: Option<&Gap>,
     floor: Option<&NoiseFloor>,
-    val: &Dataset,
+    val: &Observations,
     candidates: &[Candidate],
     data_errors: &[Candidate],
     joints: &[JointResiduals],
@@ -1432,7 +1411,7 @@ fn summarise(
 ) -> Vec<String> {
     let mut lines = vec![format!(
         "validation RMS of the calibrated model: {:.3} mm over {} pairs",
-        baseline.rms_mm, baseline.pairs
+        baseline.rms_mm, baseline.count
     )];
     if let Some(g) = gap {
         lines.push(g.sentence());
@@ -1512,7 +1491,7 @@ fn summarise(
             None => "no candidate effect improves the held-out error beyond noise (no repeated touches: the noise floor is unknown, so whether the model is complete cannot be told)".into(),
         }),
     }
-    let placements = val.placements.len();
+    let placements = val.groups.len();
     if (1..MIN_PLACEMENTS).contains(&placements) {
         lines.push(format!(
             "with {placements} validation placements the held-out test rests on {placements} numbers (the exact sign-flip test cannot go below 2⁻{placements}, only a t test on so few can pass): measure at least {MIN_PLACEMENTS} validation placements (8–10 with one repeat each carry more evidence than 5 × 3)"

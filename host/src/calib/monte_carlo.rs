@@ -6,9 +6,10 @@
 //! called significant, a block flagged as disturbed (a knock) or a touch as mis-seated, and the
 //! gap test saying the model misses something. Rates come with a 95 % Wilson interval.
 
-use crate::calib::calibrate::{calibrate, CalibrationError, CalibrationOptions};
 use crate::calib::diagnose::{diagnose, Diagnosis};
-use crate::data::Dataset;
+use crate::calib::fit::{calibrate, CalibError};
+use crate::calib::setup::SolveOptions;
+use crate::data::Observations;
 use crate::model::effects::{Effect, EffectKind};
 use crate::model::{ArmModel, ParamId};
 use crate::simulate::{simulate, SimulationOptions};
@@ -75,14 +76,14 @@ impl std::fmt::Display for Rate {
 
 /// Simulate the thesis-sized problem of `seed` with `hidden` effects, calibrate the thesis
 /// model (2 restarts) and diagnose it.
-pub fn simulate_and_diagnose(seed: u64, hidden: Vec<(ParamId, f64)>) -> Result<Diagnosis, CalibrationError> {
+pub fn simulate_and_diagnose(seed: u64, hidden: Vec<(ParamId, f64)>) -> Result<Diagnosis, CalibError> {
     let nominal = ArmModel::suta_nominal();
     let sim = simulate(&nominal, &SimulationOptions { seed, hidden, ..SimulationOptions::default() });
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
-    let fit = calibrate(&nominal, &sim.artefact, &cal, &options)?;
-    Ok(diagnose(&fit.model, &sim.artefact, &cal, &val, &options))
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+    let options = SolveOptions { restarts: Some(2), seed, ..SolveOptions::default() };
+    let fit = calibrate(&nominal, &cal, &options)?;
+    Ok(diagnose(&fit.model, &cal, &val, &options))
 }
 
 /// The false calls of a diagnosis of clean data.

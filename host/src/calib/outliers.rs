@@ -10,13 +10,12 @@
 //!
 //! A landmark is flagged when at least two metrics exceed their thresholds.
 
-use crate::calib::calibrate::{refit, Calibration, CalibrationOptions};
-use crate::calib::objective::{CalibrationProblem, Objective};
+use crate::calib::fit::{dense_jacobian, refit, Fit};
+use crate::calib::nuisance::frame::Frame;
+use crate::calib::setup::SolveOptions;
 use crate::calib::validate::{distance_errors, positions, ErrorStats};
-use crate::data::{Artefact, Dataset};
+use crate::data::Observations;
 use crate::model::ArmModel;
-use crate::numerics::geometry::absolute_orientation;
-use crate::numerics::solver::Residuals;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -45,23 +44,22 @@ pub struct LandmarkOutlier {
 }
 
 /// Per-landmark RMS residual after a rigid fit of the artefact in every placement, mm.
-pub fn landmark_bias(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<f64> {
+pub fn landmark_bias(model: &ArmModel, data: &Observations) -> Vec<f64> {
     let p = positions(model, data);
-    let mut sum = vec![0.0; artefact.landmarks.len()];
-    let mut count = vec![0usize; artefact.landmarks.len()];
-    for placement in 0..data.placements.len() {
-        let idx: Vec<usize> =
-            (0..data.touches.len()).filter(|&k| data.touches[k].placement == placement).collect();
+    let mut sum = vec![0.0; data.landmarks.len()];
+    let mut count = vec![0usize; data.landmarks.len()];
+    for placement in 0..data.groups.len() {
+        let idx: Vec<usize> = (0..data.obs.len()).filter(|&k| data.obs[k].group == placement).collect();
         if idx.len() < 3 {
             continue;
         }
         let q: Vec<Vector3<f64>> =
-            idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
+            idx.iter().map(|&k| Vector3::from(data.landmarks[data.obs[k].touched()].xyz_mm)).collect();
         let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
-        let (r, t) = absolute_orientation(&q, &pm);
+        let frame = Frame::fit(&q, &pm);
         for (i, &k) in idx.iter().enumerate() {
-            let l = data.touches[k].landmark;
-            sum[l] += (r * q[i] + t - pm[i]).norm_squared();
+            let l = data.obs[k].touched();
+            sum[l] += (frame.apply(&q[i]) - pm[i]).norm_squared();
             count[l] += 1;
         }
     }
@@ -70,34 +68,27 @@ pub fn landmark_bias(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> V
 
 /// Run the four metrics for every landmark touched in `cal`.
 pub fn landmark_outliers(
-    fit: &Calibration,
-    artefact: &Artefact,
-    cal: &Dataset,
-    val: Option<&Dataset>,
-    options: &CalibrationOptions,
+    fit: &Fit,
+    cal: &Observations,
+    val: Option<&Observations>,
+    options: &SolveOptions,
 ) -> Vec<LandmarkOutlier> {
-    let errors = distance_errors(&fit.model, artefact, cal);
+    let errors = distance_errors(&fit.model, cal);
     let total: f64 = errors.iter().map(|e| e.error_mm.powi(2)).sum::<f64>().max(1e-300);
     let touched: Vec<usize> =
-        (0..artefact.landmarks.len()).filter(|&l| cal.touches.iter().any(|t| t.landmark == l)).collect();
+        (0..cal.landmarks.len()).filter(|&l| cal.obs.iter().any(|t| t.landmark() == Some(l))).collect();
     let count = touched.len().max(1) as f64;
     let rms_on = |model: &ArmModel| {
         let data = val.unwrap_or(cal);
-        ErrorStats::of(&distance_errors(model, artefact, data).iter().map(|e| e.error_mm).collect::<Vec<_>>())
-            .rms_mm
+        ErrorStats::of(&distance_errors(model, data).iter().map(|e| e.error_mm).collect::<Vec<_>>()).rms_mm
     };
     let full_rms = rms_on(&fit.model).max(1e-300);
     // Cook's distance needs JᵀJ and the MSE of the full fit over the estimated parameters.
-    let problem =
-        CalibrationProblem::new(&fit.model, fit.estimated.clone(), artefact, cal, Objective::Distance);
-    let x_hat: Vec<f64> = fit.estimated.iter().map(|&id| fit.model.get(id)).collect();
-    let (m, p) = (problem.distance_rows(), x_hat.len());
-    let mut r = vec![0.0; problem.len()];
-    let mut jac = vec![0.0; problem.len() * p];
-    problem.evaluate(&x_hat, &mut r, Some(&mut jac));
+    let (r, jac) = dense_jacobian(&fit.model, &fit.estimated, cal, None);
+    let (m, p) = (r.len(), fit.estimated.len());
     let mse = r[..m].iter().map(|v| v * v).sum::<f64>() / (m as f64 - p as f64).max(1.0);
     let (jtj, _) = crate::numerics::solver::normal_equations(&jac[..m * p], &r[..m], &vec![1.0; m], p);
-    let bias = landmark_bias(&fit.model, artefact, cal);
+    let bias = landmark_bias(&fit.model, cal);
     // Refits without one landmark start from the full fit, on its base set.
     touched
         .par_iter()
@@ -109,18 +100,17 @@ pub fn landmark_outliers(
                     .map(|e| e.error_mm.powi(2))
                     .sum::<f64>()
                 / (2.0 * total);
-            let (cooks_distance, loo_impact_pct) =
-                match refit(fit, artefact, &cal.without_landmark(l), options) {
-                    Ok(model) => {
-                        let delta = nalgebra::DVector::from_iterator(
-                            p,
-                            fit.estimated.iter().map(|&id| model.get(id) - fit.model.get(id)),
-                        );
-                        let cook = delta.dot(&(&jtj * &delta)) / (p as f64 * mse.max(1e-300));
-                        (cook, 100.0 * (full_rms - rms_on(&model)) / full_rms)
-                    }
-                    Err(_) => (f64::NAN, f64::NAN),
-                };
+            let (cooks_distance, loo_impact_pct) = match refit(fit, &cal.without_landmark(l), options) {
+                Ok(model) => {
+                    let delta = nalgebra::DVector::from_iterator(
+                        p,
+                        fit.estimated.iter().map(|&id| model.get(id) - fit.model.get(id)),
+                    );
+                    let cook = delta.dot(&(&jtj * &delta)) / (p as f64 * mse.max(1e-300));
+                    (cook, 100.0 * (full_rms - rms_on(&model)) / full_rms)
+                }
+                Err(_) => (f64::NAN, f64::NAN),
+            };
             let mut exceeded = Vec::new();
             if contribution_pct > 1.5 * 100.0 / count {
                 exceeded.push("contribution");
@@ -135,7 +125,7 @@ pub fn landmark_outliers(
                 exceeded.push("bias");
             }
             LandmarkOutlier {
-                landmark: artefact.landmarks[l].id.clone(),
+                landmark: cal.landmarks[l].id.clone(),
                 contribution_pct,
                 cooks_distance,
                 loo_impact_pct,

@@ -30,13 +30,13 @@
 //! calibrated arm (random configuration per touch, seeded), kept when at least
 //! [`MIN_TOUCHES`] landmarks are reachable with every joint above the table.
 
-use crate::calib::calibrate::{calibrate, CalibrationError, CalibrationOptions};
 use crate::calib::diagnose::diagnose;
-use crate::data::{Artefact, Dataset, Session, Touch, SESSION_FORMAT};
+use crate::calib::fit::{calibrate, CalibError, Fit};
+use crate::calib::setup::SolveOptions;
+use crate::data::{Artefact, Joints, Observation, Observations, Session, SESSION_FORMAT};
 use crate::model::effects::{default_half_range, Effect};
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
-use crate::model::{ArmModel, ParamId, SUTA_JOINTS};
-use crate::numerics::geometry::absolute_orientation;
+use crate::model::{ArmModel, ParamId};
 use crate::simulate::{touch_encoders, Placement, SimulatedData, SimulationOptions};
 use nalgebra::{DMatrix, DVector, Vector3};
 use rand::{RngExt, SeedableRng};
@@ -77,7 +77,7 @@ pub struct CandidatePlacement {
     /// Where the artefact goes.
     pub placement: Placement,
     /// (landmark index, encoder angles deg) per reachable landmark.
-    pub touches: Vec<(usize, [f64; SUTA_JOINTS])>,
+    pub touches: Vec<(usize, Joints)>,
 }
 
 /// Artefact placements over the arm's table, each with the touches the arm can reach there.
@@ -97,12 +97,14 @@ pub fn candidate_placements(model: &ArmModel, artefact: &Artefact, seed: u64) ->
         .enumerate()
         .filter_map(|(k, placement)| {
             let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(1_000_003).wrapping_add(k as u64));
-            let touches: Vec<(usize, [f64; SUTA_JOINTS])> = artefact
+            let touches: Vec<(usize, Joints)> = artefact
                 .landmarks
                 .iter()
                 .enumerate()
                 .filter_map(|(l, landmark)| {
-                    touch_encoders(model, &placement, landmark, Vector3::zeros(), &mut rng).map(|e| (l, e))
+                    touch_encoders(model, &placement, landmark, Vector3::zeros(), &mut rng)
+                        .and_then(|e| Joints::new(&e))
+                        .map(|e| (l, e))
                 })
                 .collect();
             (touches.len() >= MIN_TOUCHES).then_some(CandidatePlacement { placement, touches })
@@ -112,12 +114,7 @@ pub fn candidate_placements(model: &ArmModel, artefact: &Artefact, seed: u64) ->
 
 /// The projected rows of one rigid block (3 per touch) for `params`, in scaled columns
 /// (column × scale).
-fn block_rows(
-    model: &ArmModel,
-    params: &[ParamId],
-    scale: &[f64],
-    encs: &[[f64; SUTA_JOINTS]],
-) -> DMatrix<f64> {
+fn block_rows(model: &ArmModel, params: &[ParamId], scale: &[f64], encs: &[Joints]) -> DMatrix<f64> {
     let columns = ColumnMap::new(params);
     let n = encs.len();
     let mut j = DMatrix::zeros(3 * n, params.len());
@@ -159,33 +156,30 @@ fn project_rigid(points: &[Vector3<f64>], j: DMatrix<f64>) -> DMatrix<f64> {
 }
 
 /// Residuals (3 per touch) of `model` after a rigid fit of the artefact to each block's touches.
-fn rigid_residuals(model: &ArmModel, artefact: &Artefact, touches: &[&Touch]) -> Option<DVector<f64>> {
+fn rigid_residuals(model: &ArmModel, artefact: &Artefact, touches: &[&Observation]) -> Option<DVector<f64>> {
     if touches.len() < 3 {
         return None;
     }
-    let p: Vec<Vector3<f64>> = touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
+    let p: Vec<Vector3<f64>> = touches.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
     let q: Vec<Vector3<f64>> =
-        touches.iter().map(|t| Vector3::from(artefact.landmarks[t.landmark].xyz_mm)).collect();
-    let (r, t) = absolute_orientation(&q, &p);
+        touches.iter().map(|t| Vector3::from(artefact.landmarks[t.touched()].xyz_mm)).collect();
+    let frame = crate::calib::nuisance::frame::Frame::fit(&q, &p);
     Some(DVector::from_iterator(
         3 * p.len(),
         p.iter().zip(&q).flat_map(|(p, q)| {
-            let e = p - (r * q + t);
+            let e = p - frame.apply(q);
             [e.x, e.y, e.z]
         }),
     ))
 }
 
 /// Touches of `data` grouped by (placement, repeat): one rigid block each.
-fn blocks(data: &Dataset) -> Vec<Vec<&Touch>> {
-    let mut out: Vec<((usize, u32), Vec<&Touch>)> = Vec::new();
-    for t in &data.touches {
-        match out.iter_mut().find(|b| b.0 == (t.placement, t.repeat)) {
-            Some(b) => b.1.push(t),
-            None => out.push(((t.placement, t.repeat), vec![t])),
-        }
-    }
-    out.into_iter().map(|b| b.1).filter(|b| b.len() >= 3).collect()
+fn blocks(data: &Observations) -> Vec<Vec<&Observation>> {
+    data.blocks
+        .iter()
+        .map(|b| b.members.iter().map(|&k| &data.obs[k]).collect::<Vec<_>>())
+        .filter(|b| b.len() >= 3)
+        .collect()
 }
 
 /// Scale of each parameter: its half-range (bounds of a free parameter, the library default
@@ -231,7 +225,7 @@ pub struct SuggestedPlacement {
     /// (joint 1-based, from deg, to deg) each joint passes over these touches.
     pub joint_ranges_deg: Vec<(usize, f64, f64)>,
     /// Encoder angles of each touch, deg (the pose list).
-    pub poses_deg: Vec<[f64; SUTA_JOINTS]>,
+    pub poses_deg: Vec<Joints>,
     /// The figure of merit after this placement is added (λ_AB + λ_BA in σ², or the log det
     /// gain).
     pub merit: f64,
@@ -249,7 +243,8 @@ impl SuggestedPlacement {
         let most = self.touch_differ_mm.iter().copied().fold(0.0, f64::max);
         let picked: Vec<usize> =
             (0..self.touch_differ_mm.len()).filter(|&k| self.touch_differ_mm[k] >= share * most).collect();
-        let ranges = (0..SUTA_JOINTS)
+        let joints = self.poses_deg.first().map_or(0, |p| p.len());
+        let ranges = (0..joints)
             .map(|j| {
                 let (from, to) =
                     joint_range_deg(&picked.iter().map(|&k| self.poses_deg[k][j]).collect::<Vec<_>>());
@@ -355,7 +350,7 @@ fn split_rows(
     m: usize,
     ra: &Rival,
     rb: &Rival,
-    encs: &[[f64; SUTA_JOINTS]],
+    encs: &[Joints],
 ) -> BlockRows {
     let x = block_rows(model, union, scale, encs);
     let pick = |ids: &[ParamId]| {
@@ -377,8 +372,8 @@ fn hcat(a: &DMatrix<f64>, b: &DMatrix<f64>) -> DMatrix<f64> {
 pub fn plan(
     calibrated: &ArmModel,
     artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
     rivals: Option<(&str, &str)>,
     options: &PlanOptions,
 ) -> Result<Plan, PlanError> {
@@ -421,12 +416,12 @@ fn suggestion(
     merit: f64,
     differ: Option<(DVector<f64>, DVector<f64>)>,
 ) -> SuggestedPlacement {
-    let encs: Vec<[f64; SUTA_JOINTS]> = c.touches.iter().map(|t| t.1).collect();
+    let encs: Vec<Joints> = c.touches.iter().map(|t| t.1).collect();
     SuggestedPlacement {
         origin_mm: c.placement.origin_mm,
         yaw_deg: c.placement.yaw_deg,
         landmarks: c.touches.iter().map(|t| artefact.landmarks[t.0].id.clone()).collect(),
-        joint_ranges_deg: (0..SUTA_JOINTS)
+        joint_ranges_deg: (0..encs.first().map_or(0, |e| e.len()))
             .map(|j| {
                 let (from, to) = joint_range_deg(&encs.iter().map(|e| e[j]).collect::<Vec<_>>());
                 (j + 1, from, to)
@@ -445,8 +440,8 @@ fn suggestion(
 fn plan_rivals(
     calibrated: &ArmModel,
     artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
     a: Effect,
     b: Effect,
     candidates: &[CandidatePlacement],
@@ -470,7 +465,7 @@ fn plan_rivals(
         .flat_map(blocks)
         .filter_map(|block| {
             let r = rigid_residuals(calibrated, artefact, &block)?;
-            let encs: Vec<[f64; SUTA_JOINTS]> = block.iter().map(|t| t.enc_deg).collect();
+            let encs: Vec<Joints> = block.iter().map(|t| t.q_deg).collect();
             Some((split_rows(calibrated, &union, &scale, m, &ra, &rb, &encs), r))
         })
         .collect();
@@ -500,7 +495,7 @@ fn plan_rivals(
     let candidate_rows: Vec<BlockRows> = candidates
         .par_iter()
         .map(|c| {
-            let encs: Vec<[f64; SUTA_JOINTS]> = c.touches.iter().map(|t| t.1).collect();
+            let encs: Vec<Joints> = c.touches.iter().map(|t| t.1).collect();
             split_rows(calibrated, &union, &scale, m, &ra, &rb, &encs)
         })
         .collect();
@@ -543,7 +538,7 @@ fn plan_rivals(
 fn plan_weak(
     calibrated: &ArmModel,
     artefact: &Artefact,
-    cal: &Dataset,
+    cal: &Observations,
     candidates: &[CandidatePlacement],
     options: &PlanOptions,
 ) -> WeakPlan {
@@ -556,7 +551,7 @@ fn plan_weak(
     let mut column_ss = vec![0.0; n];
     let mut rows_total = 0usize;
     for block in blocks(cal) {
-        let encs: Vec<[f64; SUTA_JOINTS]> = block.iter().map(|t| t.enc_deg).collect();
+        let encs: Vec<Joints> = block.iter().map(|t| t.q_deg).collect();
         let x = block_rows(calibrated, &params, &scale, &encs);
         f += x.transpose() * &x / sigma2;
         for (c, ss) in column_ss.iter_mut().enumerate() {
@@ -577,7 +572,7 @@ fn plan_weak(
     let candidate_info: Vec<DMatrix<f64>> = candidates
         .par_iter()
         .map(|c| {
-            let encs: Vec<[f64; SUTA_JOINTS]> = c.touches.iter().map(|t| t.1).collect();
+            let encs: Vec<Joints> = c.touches.iter().map(|t| t.1).collect();
             let x = block_rows(calibrated, &params, &scale, &encs);
             x.transpose() * &x / sigma2
         })
@@ -643,12 +638,15 @@ pub fn measure(
                     let draw = |rng: &mut ChaCha8Rng| seat.map_or(0.0, |n| n.sample(rng));
                     let noise = Vector3::new(draw(rng), draw(rng), draw(rng));
                     let landmark = &artefact.landmarks[*l];
+                    let Ok(near) = <[f64; crate::model::SUTA_JOINTS]>::try_from(&planned[..]) else {
+                        continue;
+                    };
                     let Some(enc) = crate::simulate::touch_encoders_from(
                         truth,
                         &c.placement,
                         landmark,
                         noise,
-                        planned,
+                        &near,
                         rng,
                     ) else {
                         continue;
@@ -677,7 +675,7 @@ pub fn measure(
 }
 
 /// Sum of squared touch residuals after a rigid fit per (placement, repeat), in σ².
-fn rigid_ssr(model: &ArmModel, artefact: &Artefact, data: &Dataset, sigma2: f64) -> f64 {
+fn rigid_ssr(model: &ArmModel, artefact: &Artefact, data: &Observations, sigma2: f64) -> f64 {
     blocks(data)
         .iter()
         .filter_map(|b| rigid_residuals(model, artefact, b))
@@ -693,16 +691,16 @@ fn rigid_ssr(model: &ArmModel, artefact: &Artefact, data: &Dataset, sigma2: f64)
 pub fn separation(
     calibrated: &ArmModel,
     artefact: &Artefact,
-    data: &Dataset,
+    data: &Observations,
     a: Effect,
     b: Effect,
     touch_std_mm: f64,
-) -> Result<f64, CalibrationError> {
-    let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
-    let ssr = |e: Effect| -> Result<f64, CalibrationError> {
+) -> Result<f64, CalibError> {
+    let options = SolveOptions { restarts: Some(0), ..SolveOptions::default() };
+    let ssr = |e: Effect| -> Result<f64, CalibError> {
         let mut model = calibrated.clone();
         e.add_to(&mut model);
-        let fit = calibrate(&model, artefact, data, &options)?;
+        let fit = calibrate(&model, data, &options)?;
         Ok(rigid_ssr(&fit.model, artefact, data, touch_std_mm.powi(2)))
     };
     Ok(ssr(b)? - ssr(a)?)
@@ -773,7 +771,7 @@ struct Trial {
     sim: SimulatedData,
     sim_options: SimulationOptions,
     old: Vec<Session>,
-    cal: Dataset,
+    cal: Observations,
 }
 
 impl Trial {
@@ -784,7 +782,7 @@ impl Trial {
             SimulationOptions { seed: trial.seed, hidden: hidden.to_vec(), ..SimulationOptions::default() };
         let sim = crate::simulate::simulate(nominal, &sim_options);
         let old = old_sessions(&sim, trial.placements);
-        let cal = Dataset::from_sessions(&old, &sim.artefact);
+        let cal = Observations::from_sessions(&old, &sim.artefact);
         Trial { sim, sim_options, old, cal }
     }
 
@@ -795,8 +793,8 @@ impl Trial {
         candidates: &[CandidatePlacement],
         suggested: &[SuggestedPlacement],
         trial: &TrialOptions,
-        figure: impl Fn(&Dataset) -> Result<f64, CalibrationError>,
-    ) -> Result<(f64, Vec<f64>), CalibrationError> {
+        figure: impl Fn(&Observations) -> Result<f64, CalibError>,
+    ) -> Result<(f64, Vec<f64>), CalibError> {
         let mut rng = ChaCha8Rng::seed_from_u64(trial.seed ^ 0x9e37_79b9);
         let score = |design: &[&CandidatePlacement], rng: &mut ChaCha8Rng| {
             let mut sessions = self.old.clone();
@@ -808,7 +806,7 @@ impl Trial {
                 "N",
                 rng,
             ));
-            figure(&Dataset::from_sessions(&sessions, &self.sim.artefact))
+            figure(&Observations::from_sessions(&sessions, &self.sim.artefact))
         };
         let with_plan = score(&chosen(candidates, suggested), &mut rng)?;
         let mut random = Vec::new();
@@ -853,15 +851,15 @@ pub fn rival_trial(
     a: Effect,
     b: Effect,
     trial: &TrialOptions,
-) -> Result<RivalOutcome, CalibrationError> {
+) -> Result<RivalOutcome, CalibError> {
     let sim_options =
         SimulationOptions { seed: trial.seed, hidden: hidden.to_vec(), ..SimulationOptions::default() };
     let sim = crate::simulate::simulate(nominal, &sim_options);
     let artefact = &sim.artefact;
-    let cal = Dataset::from_sessions(&sim.calibration, artefact);
-    let val = Dataset::from_sessions(&sim.validation, artefact);
-    let calibration = CalibrationOptions { restarts: 2, seed: trial.seed, ..CalibrationOptions::default() };
-    let fit = calibrate(nominal, artefact, &cal, &calibration)?;
+    let cal = Observations::from_sessions(&sim.calibration, artefact);
+    let val = Observations::from_sessions(&sim.validation, artefact);
+    let calibration = SolveOptions { restarts: Some(2), seed: trial.seed, ..SolveOptions::default() };
+    let fit = calibrate(nominal, &cal, &calibration)?;
     let sigma = sim_options.seating_noise_mm;
     let options = PlanOptions { count: trial.count, seed: trial.seed, touch_std_mm: sigma };
     let candidates = candidate_placements(&fit.model, artefact, trial.seed);
@@ -872,19 +870,24 @@ pub fn rival_trial(
         let new = measure(&sim.truth, artefact, design, &sim_options, "N", rng);
         let everything: Vec<Session> =
             sim.calibration.iter().chain(&sim.validation).chain(&new).cloned().collect();
-        let separated =
-            separation(&fit.model, artefact, &Dataset::from_sessions(&everything, artefact), a, b, sigma)?;
+        let separated = separation(
+            &fit.model,
+            artefact,
+            &Observations::from_sessions(&everything, artefact),
+            a,
+            b,
+            sigma,
+        )?;
         let sessions: Vec<Session> = sim.calibration.iter().chain(&new).cloned().collect();
-        let more = Dataset::from_sessions(&sessions, artefact);
-        let refit =
-            calibrate(&fit.model, artefact, &more, &CalibrationOptions { restarts: 0, ..calibration })?;
-        let named = diagnose(&refit.model, artefact, &more, &val, &calibration).named;
-        Ok::<_, CalibrationError>((named, separated))
+        let more = Observations::from_sessions(&sessions, artefact);
+        let refit = calibrate(&fit.model, &more, &SolveOptions { restarts: Some(0), ..calibration.clone() })?;
+        let named = diagnose(&refit.model, &more, &val, &calibration).named;
+        Ok::<_, CalibError>((named, separated))
     };
-    let before = diagnose(&fit.model, artefact, &cal, &val, &calibration).named;
+    let before = diagnose(&fit.model, &cal, &val, &calibration).named;
     let so_far: Vec<Session> = sim.calibration.iter().chain(&sim.validation).cloned().collect();
     let separated_before =
-        separation(&fit.model, artefact, &Dataset::from_sessions(&so_far, artefact), a, b, sigma)?;
+        separation(&fit.model, artefact, &Observations::from_sessions(&so_far, artefact), a, b, sigma)?;
     let mut rng = ChaCha8Rng::seed_from_u64(trial.seed ^ 0x9e37_79b9);
     let (named_planned, separated_planned) = outcome(&chosen(&candidates, &planned.placements), &mut rng)?;
     let (mut named_random, mut separated_random) = (Vec::new(), Vec::new());
@@ -910,25 +913,21 @@ pub fn rival_trial(
 /// calibration placements of a simulated arm, measure them, recalibrate, and compare the std of
 /// the parameter the plan names weakest with that after as many random placements. Returns the
 /// parameter and its stds (as the calibration reports them).
-pub fn weak_trial(
-    nominal: &ArmModel,
-    trial: &TrialOptions,
-) -> Result<(String, TrialOutcome), CalibrationError> {
+pub fn weak_trial(nominal: &ArmModel, trial: &TrialOptions) -> Result<(String, TrialOutcome), CalibError> {
     let t = Trial::new(nominal, &[], trial);
     let (artefact, cal) = (&t.sim.artefact, &t.cal);
-    let calibration = CalibrationOptions { restarts: 0, seed: trial.seed, ..CalibrationOptions::default() };
-    let fit = calibrate(nominal, artefact, cal, &calibration)?;
+    let calibration = SolveOptions { restarts: Some(0), seed: trial.seed, ..SolveOptions::default() };
+    let fit = calibrate(nominal, cal, &calibration)?;
     let options =
         PlanOptions { count: trial.count, seed: trial.seed, touch_std_mm: t.sim_options.seating_noise_mm };
     let candidates = candidate_placements(&fit.model, artefact, trial.seed);
     let planned = plan_weak(&fit.model, artefact, cal, &candidates, &options);
     let worst = planned.stds.first().map(|s| s.0.clone()).unwrap_or_default();
-    let std_of = |fit: &crate::calib::calibrate::Calibration| {
-        fit.estimates.iter().find(|e| e.param == worst).and_then(|e| e.std).unwrap_or(f64::NAN)
-    };
+    let std_of =
+        |fit: &Fit| fit.estimates.iter().find(|e| e.param == worst).and_then(|e| e.std).unwrap_or(f64::NAN);
     let before = std_of(&fit);
     let (planned_std, random) = t.planned_and_random(&candidates, &planned.placements, trial, |data| {
-        Ok(std_of(&calibrate(&fit.model, artefact, data, &calibration)?))
+        Ok(std_of(&calibrate(&fit.model, data, &calibration)?))
     })?;
     Ok((worst, TrialOutcome { before, planned: planned_std, random }))
 }

@@ -6,10 +6,11 @@
 //! calibration beyond the model-independent scales ([`crate::calib::trust`]) is not a sample: it
 //! is counted in `implausible`, its figure left out.
 
-use crate::calib::calibrate::{calibrate, CalibrationOptions};
+use crate::calib::fit::calibrate;
+use crate::calib::setup::SolveOptions;
 use crate::calib::trust::TrustScales;
 use crate::calib::validate::{distance_errors, ErrorStats};
-use crate::data::{Artefact, Dataset};
+use crate::data::Observations;
 use crate::model::ArmModel;
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::seq::SliceRandom;
@@ -18,14 +19,14 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 /// Settings of a study.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct StudyOptions {
     /// Random subsets per subset size.
     pub subsets: usize,
     /// Seed of the subset draws.
     pub seed: u64,
     /// Settings of each calibration.
-    pub calibration: CalibrationOptions,
+    pub calibration: SolveOptions,
     /// Draw a progress bar on stderr.
     pub progress: bool,
 }
@@ -131,8 +132,8 @@ pub enum StudyError {
 
 /// Refuse up front a study larger than [`MAX_STUDY_WORK`]: subset k of n placements holds about
 /// k/n of the touches, so the work is subsets × touches × (n + 1) / 2.
-pub fn check_study_size(cal: &Dataset, subsets: usize) -> Result<(), StudyError> {
-    let (placements, touches) = (cal.placements.len(), cal.touches.len());
+pub fn check_study_size(cal: &Observations, subsets: usize) -> Result<(), StudyError> {
+    let (placements, touches) = (cal.groups.len(), cal.obs.len());
     let work = subsets.saturating_mul(touches).saturating_mul(placements + 1) / 2;
     if work > MAX_STUDY_WORK {
         return Err(StudyError::TooLarge { subsets, placements, touches, work });
@@ -181,18 +182,17 @@ enum Outcome {
 /// Run the study. Uses every core rayon is given.
 pub fn study(
     nominal: &ArmModel,
-    artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
     options: &StudyOptions,
 ) -> Vec<StudyRow> {
-    let n = cal.placements.len();
+    let n = cal.groups.len();
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let mut tasks = Vec::new();
     for k in 1..=n {
         tasks.extend(distinct_subsets(n, k, options.subsets, &mut rng).into_iter().map(|s| (k, s)));
     }
-    let scales = TrustScales::of(nominal, artefact, cal, val);
+    let scales = TrustScales::of(nominal, cal, val);
     let bar = if options.progress { ProgressBar::new(tasks.len() as u64) } else { ProgressBar::hidden() };
     if let Ok(style) =
         ProgressStyle::with_template("{bar:40} {pos}/{len} calibrations, {elapsed} elapsed, ETA {eta}")
@@ -202,13 +202,12 @@ pub fn study(
     let results: Vec<(usize, Outcome)> = tasks
         .par_iter()
         .map(|(k, subset)| {
-            let outcome = match calibrate(nominal, artefact, &cal.subset(subset), &options.calibration) {
+            let outcome = match calibrate(nominal, &cal.subset(subset), &options.calibration) {
                 Err(_) => Outcome::Failed,
                 Ok(fit) => {
-                    let e: Vec<f64> =
-                        distance_errors(&fit.model, artefact, val).iter().map(|e| e.error_mm).collect();
+                    let e: Vec<f64> = distance_errors(&fit.model, val).iter().map(|e| e.error_mm).collect();
                     let v = ErrorStats::of(&e);
-                    if v.pairs == 0 || !v.rms_mm.is_finite() {
+                    if v.count == 0 || !v.rms_mm.is_finite() {
                         // A calibration whose validation is empty or not finite is a failed one.
                         Outcome::Failed
                     } else if !scales.calibration_beyond(fit.rms_mm).is_empty()
@@ -281,13 +280,13 @@ mod tests {
         let nominal = ArmModel::suta_nominal();
         let sim = simulate(&nominal, &SimulationOptions::default());
         let (cal, val) = (
-            Dataset::from_sessions(&sim.calibration, &sim.artefact),
-            Dataset::from_sessions(&sim.validation, &sim.artefact),
+            Observations::from_sessions(&sim.calibration, &sim.artefact),
+            Observations::from_sessions(&sim.validation, &sim.artefact),
         );
         let cal = cal.subset(&[0, 1, 2]);
-        let calibration = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
+        let calibration = SolveOptions { restarts: Some(0), ..SolveOptions::default() };
         let options = StudyOptions { subsets: 100, seed: 1, calibration, progress: false };
-        let rows = study(&nominal, &sim.artefact, &cal, &val, &options);
+        let rows = study(&nominal, &cal, &val, &options);
         let drawn: Vec<(usize, usize)> =
             rows.iter().map(|r| (r.calibrations + r.failed + r.implausible, r.possible_subsets)).collect();
         assert_eq!(drawn, vec![(3, 3), (3, 3), (1, 1)], "every subset once, never 100 copies");
@@ -295,7 +294,7 @@ mod tests {
         let mut wrong = nominal.clone();
         wrong.set(crate::model::ParamId::Length(4), -371.0);
         wrong.free_param(crate::model::ParamId::Length(4), -381.0, -361.0);
-        let rows = study(&wrong, &sim.artefact, &cal, &val, &options);
+        let rows = study(&wrong, &cal, &val, &options);
         assert!(
             rows.iter().all(|r| r.calibrations == 0 && r.rms_mm.is_empty()),
             "no figure of an absurd model"

@@ -38,7 +38,7 @@
 //! scored by `tracker_errors` (its offset is fitted on that session's own points, so the held-out
 //! test would be in-sample) and reported with its own rule.
 //!
-//! *Floor and the model-free check.* The floor is `tracker_run::floor` (repeated poses, else the
+//! *Floor and the model-free check.* The floor is [`point_floor`] (repeated poses, else the
 //! stated σ, else unknown: then the model is never said to explain the data). The model explains
 //! the data within [`EXPLAINS_WITHIN`] of the floor; it misses when the gap is beyond [`GAP_Z`]
 //! standard errors of what the fitted parameters and the sampling allow (`Gap`); in between,
@@ -52,16 +52,16 @@
 //! RMS below it says nothing (neighbours too far apart for a smooth error to agree).
 
 use crate::calib::diagnose::{chi2_z, held_out_p, DATA_ERROR_EXPLAINS, FAMILY_ALPHA, SIGNIFICANT_GAIN};
-use crate::calib::tracker::{
-    calibrate_tracker, calibration_errors, fit_session_with_tool, session_residuals, TrackerCalibration,
-    TrackerOptions,
-};
-use crate::calib::tracker_drift::DriftSpec;
+use crate::calib::fit::{calibrate, Fit};
+use crate::calib::floor::{point_floor, PointFloor};
+use crate::calib::nuisance::drift::DriftSpec;
+use crate::calib::run::{exclude_points, RunError, EXPLAINS_WITHIN};
+use crate::calib::setup::SolveOptions;
+use crate::calib::summary::{RunInputs, Summary};
+use crate::calib::tracker_errors::sessions;
 use crate::calib::tracker_errors::{data_error_candidates, DataError, MIN_GAIN};
-use crate::calib::tracker_run::{
-    floor, without_points, TrackerFloor, TrackerInputs, TrackerRunError, TrackerSummary, EXPLAINS_WITHIN,
-};
-use crate::data::tracker::{TrackerData, TrackerSession};
+use crate::calib::validate::{calibration_errors, fit_session_with_tool, session_residuals};
+use crate::data::Observations;
 use crate::model::effects::{Effect, EffectKind};
 use crate::model::ArmModel;
 use rayon::prelude::*;
@@ -100,7 +100,7 @@ pub struct TrackerSetup {
 
 impl TrackerSetup {
     /// The setup of a run's inputs, `model` being its nominal model with the added effects.
-    pub fn of(inputs: &TrackerInputs, model: ArmModel) -> TrackerSetup {
+    pub fn of(inputs: &RunInputs, model: ArmModel) -> TrackerSetup {
         TrackerSetup {
             model,
             added: inputs.add.clone(),
@@ -197,7 +197,7 @@ impl Change {
 #[derive(Clone, Debug)]
 pub struct Fitted {
     /// The calibration.
-    pub fit: TrackerCalibration,
+    pub fit: Fit,
     /// Position error of every held-out point, per held-out session in file order, mm (each
     /// session's base refitted, and its tool where it floats).
     pub held_out: Vec<Vec<f64>>,
@@ -215,20 +215,19 @@ fn pooled_rms<'a>(errors: impl Iterator<Item = &'a f64>) -> f64 {
     (sum / n.max(1) as f64).sqrt()
 }
 
-fn calibration_options(setup: &TrackerSetup, cal: &TrackerData) -> TrackerOptions {
-    let in_cal = |n: &&String| cal.sessions.iter().any(|s| &&s.name == n);
-    TrackerOptions {
-        huber_delta_mm: None,
-        float_tool: setup.float_tool.iter().filter(in_cal).cloned().collect(),
+fn calibration_options(setup: &TrackerSetup, cal: &Observations) -> SolveOptions {
+    SolveOptions {
+        float_tool: setup.float_tool.iter().filter(|n| cal.find_group(n).is_some()).cloned().collect(),
         orientation_sigma_deg: setup.orientation_sigma_deg,
         drift_sessions: setup.drift_sessions.clone(),
+        ..SolveOptions::default()
     }
 }
 
 /// The tool offset a held-out session gets: its own (fitted there) when it floats.
-fn held_out_offset(model: &ArmModel, session: &TrackerSession, float_tool: &[String]) -> [f64; 3] {
-    if float_tool.contains(&session.name) {
-        fit_session_with_tool(model, session).0.offset_mm
+fn held_out_offset(model: &ArmModel, val: &Observations, b: usize, float_tool: &[String]) -> [f64; 3] {
+    if float_tool.contains(&val.block_name(b)) {
+        fit_session_with_tool(model, val, b).0.offset_mm
     } else {
         [0.0; 3]
     }
@@ -238,22 +237,25 @@ fn held_out_offset(model: &ArmModel, session: &TrackerSession, float_tool: &[Str
 /// the tool of the sessions in `float_tool`).
 pub fn held_out_residuals(
     model: &ArmModel,
-    val: &TrackerData,
+    val: &Observations,
     float_tool: &[String],
 ) -> Vec<Vec<nalgebra::Vector3<f64>>> {
-    val.sessions.iter().map(|s| session_residuals(model, s, held_out_offset(model, s, float_tool))).collect()
+    sessions(val)
+        .into_iter()
+        .map(|b| session_residuals(model, val, b, held_out_offset(model, val, b, float_tool)))
+        .collect()
 }
 
 /// Calibrate `setup` (warm from `start` when given: a calibrated model with the same free
 /// parameters, or more) and validate it on `val`.
 pub fn fit_setup(
     setup: &TrackerSetup,
-    cal: &TrackerData,
-    val: &TrackerData,
+    cal: &Observations,
+    val: &Observations,
     start: Option<&ArmModel>,
-) -> Result<Fitted, TrackerRunError> {
-    let kept = without_points(cal, &setup.exclude_points)?;
-    let fit = calibrate_tracker(start.unwrap_or(&setup.model), &kept, &calibration_options(setup, &kept))?;
+) -> Result<Fitted, RunError> {
+    let kept = exclude_points(cal, &setup.exclude_points)?;
+    let fit = calibrate(start.unwrap_or(&setup.model), &kept, &calibration_options(setup, &kept))?;
     let held_out = held_out_residuals(&fit.model, val, &setup.float_tool)
         .iter()
         .map(|r| r.iter().map(|v| v.norm()).collect())
@@ -262,10 +264,10 @@ pub fn fit_setup(
 }
 
 /// The test units: contiguous pose blocks of each held-out session, `(session, first, end)`.
-pub fn test_units(val: &TrackerData) -> Vec<(usize, usize, usize)> {
+pub fn test_units(val: &Observations) -> Vec<(usize, usize, usize)> {
     let mut out = Vec::new();
-    for (s, session) in val.sessions.iter().enumerate() {
-        let n = session.points.len();
+    for (s, b) in sessions(val).into_iter().enumerate() {
+        let n = val.blocks[b].members.len();
         let blocks = (n / MIN_UNIT_POINTS).clamp(1, UNITS_PER_SESSION);
         out.extend((0..blocks).map(|b| (s, b * n / blocks, (b + 1) * n / blocks)));
     }
@@ -355,7 +357,7 @@ pub struct TrackerDiagnosis {
     /// Test units (contiguous pose blocks of the held-out sessions).
     pub units: usize,
     /// The floor.
-    pub floor: TrackerFloor,
+    pub floor: PointFloor,
     /// The neighbour bound of each held-out session with enough points.
     pub neighbours: Vec<NeighbourBound>,
     /// Arm effects, in the order of the fixed sequence (cross-validated first), then the others.
@@ -388,10 +390,10 @@ pub struct TrackerDiagnosis {
 }
 
 /// The neighbour bound of each held-out session with enough points, from its residuals.
-fn neighbour_bounds(val: &TrackerData, residuals: &[Vec<nalgebra::Vector3<f64>>]) -> Vec<NeighbourBound> {
+fn neighbour_bounds(val: &Observations, residuals: &[Vec<nalgebra::Vector3<f64>>]) -> Vec<NeighbourBound> {
     let mut out = Vec::new();
-    for (session, r) in val.sessions.iter().zip(residuals) {
-        let q: Vec<&[f64]> = session.points.iter().map(|p| p.q_deg.as_slice()).collect();
+    for (b, r) in sessions(val).into_iter().zip(residuals) {
+        let q: Vec<&[f64]> = val.blocks[b].members.iter().map(|&k| &val.obs[k].q_deg[..]).collect();
         if q.len() < MIN_NEIGHBOUR_POINTS {
             continue;
         }
@@ -410,7 +412,7 @@ fn neighbour_bounds(val: &TrackerData, residuals: &[Vec<nalgebra::Vector3<f64>>]
         let bound_mm = (squares.iter().sum::<f64>() / (2.0 * squares.len() as f64)).sqrt();
         let rms_mm = pooled_rms(r.iter().map(|v| v.norm()).collect::<Vec<_>>().iter());
         out.push(NeighbourBound {
-            session: session.name.clone(),
+            session: val.block_name(b),
             points: q.len(),
             rms_mm,
             bound_mm,
@@ -425,48 +427,56 @@ fn neighbour_bounds(val: &TrackerData, residuals: &[Vec<nalgebra::Vector3<f64>>]
 /// `None` for points the setup leaves out.
 fn cross_validate(
     setup: &TrackerSetup,
-    cal: &TrackerData,
+    cal: &Observations,
     start: &ArmModel,
 ) -> Option<Vec<Vec<Option<f64>>>> {
-    let kept_lines: Vec<Vec<bool>> = {
-        let kept = without_points(cal, &setup.exclude_points).ok()?;
-        cal.sessions
-            .iter()
-            .zip(&kept.sessions)
-            .map(|(s, k)| s.points.iter().map(|p| k.points.iter().any(|q| q.line == p.line)).collect())
-            .collect()
-    };
+    let mut kept = vec![true; cal.obs.len()];
+    for name in &setup.exclude_points {
+        let found = cal.find_point(name);
+        if found.is_empty() {
+            return None;
+        }
+        found.into_iter().for_each(|k| kept[k] = false);
+    }
+    let sessions = sessions(cal);
+    // Each observation's block size and place in its block.
+    let mut place = vec![(0usize, 0usize); cal.obs.len()];
+    for &b in &sessions {
+        let members = &cal.blocks[b].members;
+        for (i, &k) in members.iter().enumerate() {
+            place[k] = (members.len(), i);
+        }
+    }
     let fold_of = |n: usize, i: usize| i * FOLDS / n.max(1);
     let folds: Vec<Option<Vec<(usize, usize, f64)>>> = (0..FOLDS)
         .into_par_iter()
-        .map(|k| {
+        .map(|fold| {
             let pick = |leave: bool| {
-                let mut d = cal.clone();
-                for ((s, out), keep) in cal.sessions.iter().zip(&mut d.sessions).zip(&kept_lines) {
-                    let n = s.points.len();
-                    out.points = s
-                        .points
-                        .iter()
-                        .enumerate()
-                        .filter(|(i, _)| keep[*i] && ((fold_of(n, *i) == k) == leave))
-                        .map(|(_, p)| p.clone())
-                        .collect();
-                }
-                d
+                cal.without(|k| {
+                    let (n, i) = place[k];
+                    !(kept[k] && ((fold_of(n, i) == fold) == leave))
+                })
             };
             let (train, test) = (pick(false), pick(true));
-            let fit = calibrate_tracker(start, &train, &calibration_options(setup, &train)).ok()?;
+            let fit = calibrate(start, &train, &calibration_options(setup, &train)).ok()?;
             let errors = calibration_errors(&fit, &test);
+            let tested: Vec<String> = crate::calib::tracker_errors::sessions(&test)
+                .into_iter()
+                .map(|b| test.block_name(b))
+                .collect();
             let mut out = Vec::new();
-            for (s, (session, e)) in cal.sessions.iter().zip(&errors).enumerate() {
-                let n = session.points.len();
-                let indices = (0..n).filter(|&i| kept_lines[s][i] && fold_of(n, i) == k);
-                out.extend(indices.zip(e).map(|(i, &err)| (s, i, err)));
+            for (s, &b) in sessions.iter().enumerate() {
+                let Some(at) = tested.iter().position(|n| *n == cal.block_name(b)) else { continue };
+                let members = &cal.blocks[b].members;
+                let n = members.len();
+                let indices = (0..n).filter(|&i| kept[members[i]] && fold_of(n, i) == fold);
+                out.extend(indices.zip(&errors[at]).map(|(i, &err)| (s, i, err)));
             }
             Some(out)
         })
         .collect();
-    let mut out: Vec<Vec<Option<f64>>> = cal.sessions.iter().map(|s| vec![None; s.points.len()]).collect();
+    let mut out: Vec<Vec<Option<f64>>> =
+        sessions.iter().map(|&b| vec![None; cal.blocks[b].members.len()]).collect();
     for fold in folds {
         for (s, i, e) in fold? {
             out[s][i] = Some(e);
@@ -496,28 +506,29 @@ struct Scored {
     text: String,
 }
 
-fn calibration_z(baseline: &TrackerCalibration, with: &TrackerCalibration, k: usize) -> f64 {
-    let rss = |f: &TrackerCalibration| f.fit.rms_mm.powi(2) * f.fit.points as f64;
-    let rows = 3.0 * baseline.fit.points as f64;
+fn calibration_z(baseline: &Fit, with: &Fit, k: usize) -> f64 {
+    let points = |f: &Fit| f.stats.points.unwrap_or_default();
+    let rss = |f: &Fit| points(f).rms_mm.powi(2) * points(f).count as f64;
+    let rows = 3.0 * points(baseline).count as f64;
     // Points left out (bad points) change the sum itself: compare mean squares.
     let drop = rows
         * (1.0
-            - (rss(with) / with.fit.points.max(1) as f64)
-                / (rss(baseline) / baseline.fit.points.max(1) as f64).max(1e-300));
+            - (rss(with) / points(with).count.max(1) as f64)
+                / (rss(baseline) / points(baseline).count.max(1) as f64).max(1e-300));
     chi2_z(drop, k)
 }
 
 /// Diagnose the setup: score every candidate, test them, name what is missing.
 pub fn diagnose_tracker(
     setup: &TrackerSetup,
-    cal: &TrackerData,
-    val: &TrackerData,
-) -> Result<TrackerDiagnosis, TrackerRunError> {
+    cal: &Observations,
+    val: &Observations,
+) -> Result<TrackerDiagnosis, RunError> {
     let started = std::time::Instant::now();
     let baseline = fit_setup(setup, cal, val, None)?;
     let before_rms = baseline.held_out_rms_mm();
     let units = test_units(val);
-    let floor = floor(&val.sessions, setup.stated_sigma_mm);
+    let floor = point_floor(val, setup.stated_sigma_mm);
     let residuals = held_out_residuals(&baseline.fit.model, val, &setup.float_tool);
     let neighbours = neighbour_bounds(val, &residuals);
     // Arm effects, each refitted warm.
@@ -543,10 +554,10 @@ pub fn diagnose_tracker(
             continue;
         };
         let names: Vec<String> = e.params().iter().map(|p| p.to_string()).collect();
-        let ident = &fitted.fit.identifiability;
-        let estimated = names.iter().filter(|n| ident.estimated.contains(n)).count();
+        let estimated = e.params().iter().filter(|p| fitted.fit.estimated.contains(p)).count();
         if estimated == 0 {
-            let reason = ident
+            let reason = fitted
+                .fit
                 .statements
                 .iter()
                 .find(|s| names.iter().any(|n| s.starts_with(&format!("{n} "))))
@@ -566,8 +577,8 @@ pub fn diagnose_tracker(
     }
     effects.sort_by(|a, b| b.calibration_z.total_cmp(&a.calibration_z));
     // Data errors of the calibration sessions; a tool moved in a held-out session keeps its rule.
-    let options = TrackerOptions { float_tool: setup.float_tool.clone(), ..calibration_options(setup, cal) };
-    let kept = without_points(cal, &setup.exclude_points)?;
+    let options = SolveOptions { float_tool: setup.float_tool.clone(), ..calibration_options(setup, cal) };
+    let kept = exclude_points(cal, &setup.exclude_points)?;
     let found = data_error_candidates(&setup.model, &kept, val, &baseline.fit, &options);
     let held_out_tools: Vec<DataError> = found.iter().filter(|d| d.set == "validation").cloned().collect();
     let mut errors: Vec<Scored> = found
@@ -645,7 +656,7 @@ pub fn diagnose_tracker(
             name,
             kind: if is_error { "data error" } else { "effect" }.into(),
             action: s.change.action(),
-            calibration_rms_mm: s.fitted.fit.fit.rms_mm,
+            calibration_rms_mm: s.fitted.fit.rms_mm,
             calibration_z: s.calibration_z,
             cv_gain: s.cv_gain,
             held_out_rms_mm: after,
@@ -850,11 +861,10 @@ pub fn diagnose_tracker(
     }
     Ok(TrackerDiagnosis {
         held_out_rms_mm: before_rms,
-        sessions: val
-            .sessions
-            .iter()
+        sessions: sessions(val)
+            .into_iter()
             .zip(&baseline.held_out)
-            .map(|(s, e)| (s.name.clone(), e.len(), pooled_rms(e.iter())))
+            .map(|(b, e)| (val.block_name(b), e.len(), pooled_rms(e.iter())))
             .collect(),
         units: units.len(),
         floor,
@@ -890,12 +900,13 @@ struct Gap {
 }
 
 impl Gap {
-    fn of(floor_mm: f64, rms_mm: f64, fit: &TrackerCalibration, val: &TrackerData, repeats: bool) -> Gap {
-        let sessions = fit.bases.len() as f64;
-        let nu_cal = (3.0 * fit.fit.points as f64 - 6.0 * sessions).max(1.0);
-        let p = fit.identifiability.estimated.len() as f64;
+    fn of(floor_mm: f64, rms_mm: f64, fit: &Fit, val: &Observations, repeats: bool) -> Gap {
+        let frames = fit.frames.len() as f64;
+        let points = fit.stats.points.map_or(0, |p| p.count);
+        let nu_cal = (3.0 * points as f64 - 6.0 * frames).max(1.0_f64);
+        let p = fit.estimated.len() as f64;
         let expected_ms = floor_mm * floor_mm * (1.0 + p / nu_cal);
-        let nu_val = (3.0 * val.point_count() as f64 - 6.0 * val.sessions.len() as f64).max(1.0);
+        let nu_val = (3.0 * val.point_count() as f64 - 6.0 * sessions(val).len() as f64).max(1.0_f64);
         let nu_floor = if repeats { 3.0 * repeat_groups_dof(val) as f64 } else { f64::INFINITY };
         let standard_error = (2.0 / nu_val + 2.0 / nu_floor.max(1.0)).sqrt();
         let mut gap = Gap { expected_ms, standard_error, z: 0.0 };
@@ -910,11 +921,11 @@ impl Gap {
 }
 
 /// Degrees of freedom of the repeated poses of `val` (repeats beyond the first of each pose).
-fn repeat_groups_dof(val: &TrackerData) -> usize {
+fn repeat_groups_dof(val: &Observations) -> usize {
     let mut dof = 0;
-    for s in &val.sessions {
+    for b in sessions(val) {
         let mut groups: std::collections::BTreeMap<&str, usize> = std::collections::BTreeMap::new();
-        for p in &s.points {
+        for p in val.blocks[b].members.iter().map(|&k| &val.obs[k]) {
             if let Some(pose) = &p.pose {
                 *groups.entry(pose).or_default() += 1;
             }
@@ -975,10 +986,10 @@ pub struct TrackerAuto {
 /// significant, or `max_steps` changes.
 pub fn auto_tracker(
     setup: &TrackerSetup,
-    cal: &TrackerData,
-    val: &TrackerData,
+    cal: &Observations,
+    val: &Observations,
     max_steps: usize,
-) -> Result<(TrackerAuto, TrackerSetup), TrackerRunError> {
+) -> Result<(TrackerAuto, TrackerSetup), RunError> {
     let mut current = setup.clone();
     let mut steps = Vec::new();
     let mut pending: Option<(String, String, Option<f64>)> = None;
@@ -1026,7 +1037,7 @@ pub fn auto_tracker(
 pub enum TrackerDiagnoseError {
     /// Reading or calibrating failed.
     #[error(transparent)]
-    Run(#[from] TrackerRunError),
+    Run(#[from] RunError),
     /// The data are not those the RUN was made from.
     #[error("{path}: {what}; the data changed since the calibration (calibrate again)")]
     DataChanged {
@@ -1041,47 +1052,52 @@ pub enum TrackerDiagnoseError {
 /// the same sessions with the same point counts, the same held-out figures, and `calibration_rms_mm`
 /// (a fresh calibration of the setup) equal to the stored one.
 pub fn check_run_data(
-    summary: &TrackerSummary,
-    cal: &TrackerData,
-    val: &TrackerData,
+    summary: &Summary,
+    cal: &Observations,
+    val: &Observations,
     calibration_rms_mm: f64,
 ) -> Result<(), TrackerDiagnoseError> {
     let changed =
         |path: &std::path::Path, what: String| TrackerDiagnoseError::DataChanged { path: path.into(), what };
-    let kept = without_points(cal, &summary.inputs.exclude_points)?;
-    for (name, points) in &summary.calibration_sessions {
-        match kept.sessions.iter().find(|s| &s.name == name) {
+    let kept = exclude_points(cal, &summary.inputs.exclude_points)?;
+    let source = |data: &Observations, b: usize| data.groups[data.blocks[b].group].source.clone();
+    for (name, points) in &summary.calibration.groups {
+        match kept.find_group(name) {
             None => {
                 return Err(changed(
                     &summary.inputs.calibration,
                     format!("calibration session {name} is no longer there"),
                 ))
             }
-            Some(s) if s.points.len() != *points => {
-                return Err(changed(&s.path, format!("{} points used, {} now", points, s.points.len())))
+            Some(g) if kept.group_members(g).len() != *points => {
+                let now = kept.group_members(g).len();
+                return Err(changed(&kept.groups[g].source, format!("{points} points used, {now} now")));
             }
             Some(_) => {}
         }
     }
-    if let Some(s) = kept.sessions.iter().find(|s| !summary.calibration_sessions.contains_key(&s.name)) {
-        return Err(changed(&s.path, "a calibration session the run did not use".into()));
+    if let Some(b) =
+        sessions(&kept).into_iter().find(|&b| !summary.calibration.groups.contains_key(&kept.block_name(b)))
+    {
+        return Err(changed(&source(&kept, b), "a calibration session the run did not use".into()));
     }
-    for f in &summary.validation.sessions {
+    for f in summary.held_out_sessions() {
         let name = &f.calibrated.name;
-        let Some(s) = val.sessions.iter().find(|s| &s.name == name) else {
+        let Some(b) = val.find_block(name) else {
             return Err(changed(
                 &summary.inputs.validation,
                 format!("held-out session {name} is no longer there"),
             ));
         };
-        if s.points.len() != f.calibrated.points {
+        let now = val.blocks[b].members.len();
+        if now != f.calibrated.points {
             return Err(changed(
-                &s.path,
-                format!("{} points held out, {} now", f.calibrated.points, s.points.len()),
+                &source(val, b),
+                format!("{} points held out, {now} now", f.calibrated.points),
             ));
         }
     }
-    let stored = summary.fit.rms_mm;
+    let stored = summary.calibration.rms_mm;
     if (calibration_rms_mm - stored).abs() > 1e-6 * stored.max(1e-3) {
         return Err(changed(
             &summary.inputs.calibration,
@@ -1132,15 +1148,16 @@ pub struct TrackerComparison {
 /// Compare two calibrated models (`before`, `after`, each with its run's summary) on the held-out
 /// sessions `val` both runs validated on, with the same test units as the diagnosis.
 pub fn compare_tracker(
-    before: (&TrackerSummary, &ArmModel),
-    after: (&TrackerSummary, &ArmModel),
-    val: &TrackerData,
+    before: (&Summary, &ArmModel),
+    after: (&Summary, &ArmModel),
+    val: &Observations,
 ) -> TrackerComparison {
-    let shared =
-        |s: &TrackerSummary, name: &str| s.validation.sessions.iter().any(|f| f.calibrated.name == name);
-    let mut val = val.clone();
-    val.sessions.retain(|s| shared(before.0, &s.name) && shared(after.0, &s.name));
-    let errors = |run: (&TrackerSummary, &ArmModel)| -> Vec<Vec<f64>> {
+    let shared = |s: &Summary, name: &str| s.held_out_sessions().iter().any(|f| f.calibrated.name == name);
+    let keep: Vec<usize> = (0..val.groups.len())
+        .filter(|&g| shared(before.0, &val.groups[g].name) && shared(after.0, &val.groups[g].name))
+        .collect();
+    let val = val.subset(&keep);
+    let errors = |run: (&Summary, &ArmModel)| -> Vec<Vec<f64>> {
         held_out_residuals(run.1, &val, &run.0.inputs.float_tool)
             .iter()
             .map(|r| r.iter().map(|v| v.norm()).collect())
@@ -1151,23 +1168,24 @@ pub fn compare_tracker(
     let ratios = log_ratios(&b, &a, &units);
     let negated: Vec<f64> = ratios.iter().map(|r| -r).collect();
     let (p_better, p_worse) = (held_out_p(&ratios), held_out_p(&negated));
-    let pairwise = |s: &TrackerSummary, name: &str| {
-        s.validation
-            .sessions
+    let pairwise = |s: &Summary, name: &str| {
+        s.held_out_sessions()
             .iter()
             .find(|f| f.calibrated.name == name)
             .map_or(0.0, |f| f.calibrated.pairwise_rms_mm)
     };
-    let sessions: Vec<ComparedSession> = val
-        .sessions
-        .iter()
+    let sessions: Vec<ComparedSession> = sessions(&val)
+        .into_iter()
         .zip(b.iter().zip(&a))
-        .map(|(s, (eb, ea))| ComparedSession {
-            name: s.name.clone(),
-            points: s.points.len(),
-            before_rms_mm: pooled_rms(eb.iter()),
-            after_rms_mm: pooled_rms(ea.iter()),
-            pairwise_rms_mm: (pairwise(before.0, &s.name), pairwise(after.0, &s.name)),
+        .map(|(s, (eb, ea))| {
+            let name = val.block_name(s);
+            ComparedSession {
+                points: val.blocks[s].members.len(),
+                before_rms_mm: pooled_rms(eb.iter()),
+                after_rms_mm: pooled_rms(ea.iter()),
+                pairwise_rms_mm: (pairwise(before.0, &name), pairwise(after.0, &name)),
+                name,
+            }
         })
         .collect();
     let (rb, ra) = (pooled_rms(b.iter().flatten()), pooled_rms(a.iter().flatten()));
@@ -1181,14 +1199,18 @@ pub fn compare_tracker(
     } else {
         format!("no significant difference on the held-out sessions: {rb:.4} vs {ra:.4} mm ({improved}/{} blocks improved)", ratios.len())
     }];
-    if let Some(f) = after.0.floor.rms_mm {
+    if let Some(f) = after.0.point_floor().rms_mm {
         verdict.push(if ra <= EXPLAINS_WITHIN * f {
             format!(
                 "the second run explains the held-out data: {ra:.4} mm against a floor of {f:.4} mm ({})",
-                after.0.floor.source
+                after.0.point_floor().source
             )
         } else {
-            format!("the second run is {:.2}× its floor of {f:.4} mm ({})", ra / f, after.0.floor.source)
+            format!(
+                "the second run is {:.2}× its floor of {f:.4} mm ({})",
+                ra / f,
+                after.0.point_floor().source
+            )
         });
     } else {
         verdict.push("the second run's floor is unknown: it cannot be called explained".into());
@@ -1197,7 +1219,7 @@ pub fn compare_tracker(
         sessions,
         before_rms_mm: rb,
         after_rms_mm: ra,
-        floors_mm: (before.0.floor.rms_mm, after.0.floor.rms_mm),
+        floors_mm: (before.0.point_floor().rms_mm, after.0.point_floor().rms_mm),
         units_improved: (improved, ratios.len()),
         p_better,
         p_worse,

@@ -22,19 +22,19 @@
 //! while a session is measured, against time (`time_s`) or temperature (`temp_C`): a base shift
 //! X_i = B_s · F(q_i) · t + v_S · (τ_i − τ̄) or a length scale X_i = B_s · (1 + k_S · (τ_i − τ̄)) ·
 //! F(q_i) · t (the four kinds, their formulas and physical causes in
-//! [`crate::calib::tracker_drift`]). A calibration that holds S still spreads the creep over the
+//! [`crate::calib::nuisance::drift`]). A calibration that holds S still spreads the creep over the
 //! arm parameters. Each calibration session is refitted drifting each way its columns allow
 //! (`--drift-session S:KIND`, three unknowns for a shift, one for a scale) and scored, like the
 //! others, by the held-out error of the refit; a drift is called when its rate is beyond three of
 //! its standard deviations and the held-out error falls by [`MIN_GAIN`]. It claims no arm
 //! effect: the arm parameters are refitted, not changed by it.
 
-use crate::calib::tracker::{
-    calibrate_tracker, calibration_errors, fit_session_with_tool, orientation_spread_deg, validate_session,
-    TrackerCalibration, TrackerOptions, CONSTANT_ORIENTATION_DEG,
-};
-use crate::calib::tracker_drift::{DriftKind, DriftSpec};
-use crate::data::tracker::TrackerData;
+use crate::calib::fit::{calibrate, Fit, CONSTANT_ORIENTATION_DEG};
+use crate::calib::nuisance::drift::{DriftKind, DriftSpec};
+use crate::calib::nuisance::tool::orientation_spread_deg;
+use crate::calib::setup::SolveOptions;
+use crate::calib::validate::{calibration_errors, fit_session_with_tool, validate_session};
+use crate::data::{Kind, Observations};
 use crate::model::ArmModel;
 
 /// A data error of tracker sessions: a session whose tool point sits elsewhere, a session that
@@ -77,16 +77,21 @@ fn pooled_rms(parts: &[(f64, usize)]) -> f64 {
     (parts.iter().map(|(r, k)| r * r * *k as f64).sum::<f64>() / n.max(1) as f64).sqrt()
 }
 
-/// Held-out RMS of `model` over `val`, the sessions in `floating` with their tool refitted too.
-pub fn held_out_rms(model: &ArmModel, val: &TrackerData, floating: &[String]) -> f64 {
-    let parts: Vec<(f64, usize)> = val
-        .sessions
-        .iter()
-        .map(|s| {
-            let v = if floating.contains(&s.name) {
-                fit_session_with_tool(model, s).1
+/// The instrument sessions of `data` (blocks of tracker groups), in order.
+pub fn sessions(data: &Observations) -> Vec<usize> {
+    (0..data.blocks.len()).filter(|&b| data.groups[data.blocks[b].group].kind == Kind::Tracker).collect()
+}
+
+/// Held-out RMS of `model` over `val`'s sessions, the sessions in `floating` with their tool
+/// refitted too.
+pub fn held_out_rms(model: &ArmModel, val: &Observations, floating: &[String]) -> f64 {
+    let parts: Vec<(f64, usize)> = sessions(val)
+        .into_iter()
+        .map(|b| {
+            let v = if floating.contains(&val.block_name(b)) {
+                fit_session_with_tool(model, val, b).1
             } else {
-                validate_session(model, s, [0.0; 3])
+                validate_session(model, val, b, [0.0; 3])
             };
             (v.rms_mm, v.points)
         })
@@ -100,30 +105,29 @@ pub const BAD_POINT_FACTOR: f64 = 5.0;
 /// The bad-points candidate: calibration points far beyond the others, left out and refitted.
 fn bad_points_candidate(
     nominal: &ArmModel,
-    cal: &TrackerData,
-    val: &TrackerData,
-    fit: &TrackerCalibration,
-    options: &TrackerOptions,
+    cal: &Observations,
+    val: &Observations,
+    fit: &Fit,
+    options: &SolveOptions,
     before: f64,
 ) -> Option<DataError> {
     let errors = calibration_errors(fit, cal);
     let median = crate::numerics::stats::median(errors.iter().flatten().copied().collect());
     let mut bad = Vec::new();
-    let mut kept = cal.clone();
-    for ((session, e), out) in cal.sessions.iter().zip(&errors).zip(&mut kept.sessions) {
-        out.points.clear();
-        for (p, &err) in session.points.iter().zip(e) {
+    let mut dropped = vec![false; cal.obs.len()];
+    for (b, e) in sessions(cal).into_iter().zip(&errors) {
+        for (&k, &err) in cal.blocks[b].members.iter().zip(e) {
             if err > BAD_POINT_FACTOR * median {
-                bad.push((format!("{}:{}", session.name, p.line), err));
-            } else {
-                out.points.push(p.clone());
+                bad.push((cal.point_name(k), err));
+                dropped[k] = true;
             }
         }
     }
     if bad.is_empty() {
         return None;
     }
-    let refit = calibrate_tracker(nominal, &kept, options).ok()?;
+    let kept = cal.without(|k| dropped[k]);
+    let refit = calibrate(nominal, &kept, options).ok()?;
     let after = held_out_rms(&refit.model, val, &options.float_tool);
     let largest = bad.iter().map(|b| b.1).fold(0.0, f64::max);
     let names: Vec<&str> = bad.iter().map(|b| b.0.as_str()).collect();
@@ -154,22 +158,25 @@ fn bad_points_candidate(
 /// over the least span ([`DriftKind::applies_to`]), refitted drifting that way.
 fn drift_candidates(
     nominal: &ArmModel,
-    cal: &TrackerData,
-    val: &TrackerData,
-    options: &TrackerOptions,
+    cal: &Observations,
+    val: &Observations,
+    options: &SolveOptions,
     before: f64,
 ) -> Vec<DataError> {
     let mut out = Vec::new();
-    for s in cal.sessions.iter().filter(|s| !options.drift_sessions.iter().any(|d| d.session == s.name)) {
-        for kind in DriftKind::ALL.into_iter().filter(|k| k.applies_to(s)) {
+    for b in sessions(cal) {
+        let name = cal.block_name(b);
+        if options.drift_sessions.iter().any(|d| d.session == name) {
+            continue;
+        }
+        for kind in DriftKind::ALL.into_iter().filter(|k| k.applies_to(cal, b)) {
             let mut drift_sessions = options.drift_sessions.clone();
-            drift_sessions.push(DriftSpec { session: s.name.clone(), kind });
-            let Ok(refit) =
-                calibrate_tracker(nominal, cal, &TrackerOptions { drift_sessions, ..options.clone() })
+            drift_sessions.push(DriftSpec { session: name.clone(), kind });
+            let Ok(refit) = calibrate(nominal, cal, &SolveOptions { drift_sessions, ..options.clone() })
             else {
                 continue;
             };
-            let Some(drift) = refit.drifts.iter().find(|d| d.session == s.name) else { continue };
+            let Some(drift) = refit.drifts.iter().find(|d| d.session == name) else { continue };
             let after = held_out_rms(&refit.model, val, &options.float_tool);
             let (size, std) = (drift.size(), drift.rate_std);
             // A shift reads in µm (per hour or per kelvin), a scale in ppm.
@@ -196,7 +203,7 @@ fn drift_candidates(
             };
             out.push(DataError {
                 kind: "drift".into(),
-                session: s.name.clone(),
+                session: name.clone(),
                 set: "calibration".into(),
                 size_mm: size,
                 size_std_mm: std,
@@ -205,11 +212,11 @@ fn drift_candidates(
                 significant: size > 3.0 * std && after < (1.0 - MIN_GAIN) * before,
                 text: format!(
                     "session {} drifts ({}, against {}): {what}; held-out RMS {before:.4} → {after:.4} mm with it drifting",
-                    s.name,
+                    name,
                     kind.name(),
                     kind.column(),
                 ),
-                action: format!("--drift-session {}:{}", s.name, kind.name()),
+                action: format!("--drift-session {}:{}", name, kind.name()),
             });
         }
     }
@@ -221,10 +228,10 @@ fn drift_candidates(
 /// single bad points.
 pub fn data_error_candidates(
     nominal: &ArmModel,
-    cal: &TrackerData,
-    val: &TrackerData,
-    fit: &TrackerCalibration,
-    options: &TrackerOptions,
+    cal: &Observations,
+    val: &Observations,
+    fit: &Fit,
+    options: &SolveOptions,
 ) -> Vec<DataError> {
     let before = held_out_rms(&fit.model, val, &options.float_tool);
     let mut out = Vec::new();
@@ -249,34 +256,38 @@ pub fn data_error_candidates(
         }
     };
     // A calibration session's own tool needs the shared one fixed by other sessions that turn it.
-    let turns = |s: &&crate::data::tracker::TrackerSession| {
-        orientation_spread_deg(&fit.model, s) >= CONSTANT_ORIENTATION_DEG
+    let turning = |data: &Observations| -> Vec<usize> {
+        sessions(data)
+            .into_iter()
+            .filter(|&b| !options.float_tool.contains(&data.block_name(b)))
+            .filter(|&b| orientation_spread_deg(&fit.model, data, b) >= CONSTANT_ORIENTATION_DEG)
+            .collect()
     };
-    let turning = cal.sessions.iter().filter(turns).filter(|s| !options.float_tool.contains(&s.name)).count();
-    for s in cal.sessions.iter().filter(|s| !options.float_tool.contains(&s.name)).filter(turns) {
-        if turning < 2 {
+    let cal_turning = turning(cal);
+    for &b in &cal_turning {
+        if cal_turning.len() < 2 {
             break;
         }
+        let name = cal.block_name(b);
         let mut float_tool = options.float_tool.clone();
-        float_tool.push(s.name.clone());
-        let Ok(refit) = calibrate_tracker(
-            nominal,
-            cal,
-            &TrackerOptions { float_tool: float_tool.clone(), ..options.clone() },
-        ) else {
+        float_tool.push(name.clone());
+        let Ok(refit) =
+            calibrate(nominal, cal, &SolveOptions { float_tool: float_tool.clone(), ..options.clone() })
+        else {
             continue;
         };
-        let Some(tool) = refit.tool_offsets.iter().find(|t| t.session == s.name) else { continue };
+        let Some(tool) = refit.tool_offsets.iter().find(|t| t.session == name) else { continue };
         let after = held_out_rms(&refit.model, val, &options.float_tool);
-        out.push(verdict(&s.name, "calibration", tool.offset_mm, tool.size_std_mm, after));
+        out.push(verdict(&name, "calibration", tool.offset_mm, tool.size_std_mm, after));
     }
     // A held-out session whose orientation is constant cannot tell its tool from its base.
-    for s in val.sessions.iter().filter(|s| !options.float_tool.contains(&s.name)).filter(turns) {
-        let tool = fit_session_with_tool(&fit.model, s).0;
+    for b in turning(val) {
+        let name = val.block_name(b);
+        let tool = fit_session_with_tool(&fit.model, val, b).0;
         let mut floating = options.float_tool.clone();
-        floating.push(s.name.clone());
+        floating.push(name.clone());
         let after = held_out_rms(&fit.model, val, &floating);
-        out.push(verdict(&s.name, "validation", tool.offset_mm, tool.size_std_mm, after));
+        out.push(verdict(&name, "validation", tool.offset_mm, tool.size_std_mm, after));
     }
     out.extend(drift_candidates(nominal, cal, val, options, before));
     out.extend(bad_points_candidate(nominal, cal, val, fit, options, before));

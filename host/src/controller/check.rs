@@ -20,7 +20,7 @@ use crate::calib::floor::{gap, noise_floor, GAP_Z};
 use crate::calib::validate::validate;
 use crate::controller::link::{Link, LinkError};
 use crate::controller::record::{record, Guide, Plan, RecordError};
-use crate::data::{Artefact, Dataset, Session};
+use crate::data::{Artefact, Observations, Session};
 use crate::files::FileError;
 use crate::trace::ArmIdentity;
 use kincal_protocol::signed::SetTrace;
@@ -176,12 +176,11 @@ impl CheckResult {
 /// figures and the verdict; `None` when no landmark was touched twice (no floor).
 pub fn judge(
     model: &crate::model::ArmModel,
-    artefact: &Artefact,
-    data: &Dataset,
+    data: &Observations,
 ) -> Option<(f64, crate::calib::floor::NoiseFloor, crate::calib::floor::Gap, Verdict)> {
     // Nothing is fitted to these touches: the floor of a model that is right, no estimate share.
-    let floor = noise_floor(model, artefact, &Dataset::default(), data, 0)?;
-    let measured = validate(model, artefact, data).overall.rms_mm;
+    let floor = noise_floor(model, &Observations::default(), data, 0)?;
+    let measured = validate(model, data).overall.rms_mm;
     let g = gap(&floor, measured, data);
     let verdict = if g.z > GAP_Z {
         Verdict::DoesNotHold
@@ -222,9 +221,9 @@ pub fn check(
     let recorded = record(link, artefact, plan, guide)?;
     let session_path = plan.session_path();
     let session = Session::load(&session_path, artefact)?;
-    let data = Dataset::from_sessions(&[session], artefact);
+    let data = Observations::from_sessions(&[session], artefact);
     let (measured, floor, g, verdict) =
-        judge(&model, artefact, &data).ok_or_else(|| CheckError::NoRepeats(session_path.clone()))?;
+        judge(&model, &data).ok_or_else(|| CheckError::NoRepeats(session_path.clone()))?;
     let trace: SetTrace = signed.trace.unwrap_or_default();
     let nonzero = |v: u64| (v != 0).then_some(v);
     let result = CheckResult {
@@ -240,8 +239,8 @@ pub fn check(
         trace,
         session_sha256: crate::trace::hex(&crate::trace::file_sha256(&session_path)?),
         session: session_path,
-        touches: data.touches.len(),
-        distances: data.touch_pairs().len(),
+        touches: data.obs.len(),
+        distances: data.pair_count(),
         measured_rms_mm: measured,
         expected_rms_mm: g.expected_mm,
         touch_std_mm: floor.touch_std_mm,
@@ -267,10 +266,10 @@ mod tests {
 
     /// Touches of placement V_A by the arm of geometry `truth`, `repeats` repeats, 0.1 mm seating
     /// noise.
-    fn touches(truth: &ArmModel, artefact: &Artefact, repeats: u32, seed: u64) -> Dataset {
+    fn touches(truth: &ArmModel, artefact: &Artefact, repeats: u32, seed: u64) -> Observations {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let place = placement_named("V_A").unwrap();
-        Dataset::from_sessions(&[touch_placement(truth, artefact, &place, repeats, 0.1, &mut rng)], artefact)
+        Observations::from_sessions(&[touch_placement(truth, artefact, &place, repeats, 0.1, &mut rng)], artefact)
     }
 
     /// The stored model judged on its own arm holds (9 seeds of 10 at least, "does not hold"
@@ -285,7 +284,7 @@ mod tests {
         let mut verdicts = Vec::new();
         for seed in 0..10 {
             let (_, _, g, verdict) =
-                judge(&stored, &artefact, &touches(&stored, &artefact, 3, seed)).unwrap();
+                judge(&stored, &touches(&stored, &artefact, 3, seed)).unwrap();
             assert_ne!(verdict, Verdict::DoesNotHold, "seed {seed}: z {:.2}", g.z);
             verdicts.push(verdict);
         }
@@ -298,7 +297,7 @@ mod tests {
             let mut knocked = stored.clone();
             change(&mut knocked);
             let (measured, floor, g, verdict) =
-                judge(&stored, &artefact, &touches(&knocked, &artefact, 3, 1)).unwrap();
+                judge(&stored, &touches(&knocked, &artefact, 3, 1)).unwrap();
             assert_eq!(
                 verdict,
                 Verdict::DoesNotHold,
@@ -314,6 +313,6 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let artefact = suta_artefact(&mut rng);
         let model = ArmModel::suta_nominal();
-        assert!(judge(&model, &artefact, &touches(&model, &artefact, 1, 2)).is_none());
+        assert!(judge(&model, &touches(&model, &artefact, 1, 2)).is_none());
     }
 }

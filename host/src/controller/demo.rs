@@ -11,8 +11,10 @@
 //! system registers the tracker to the patient.
 
 use crate::calib::auto::{auto_loop, AutoLoop, Stop};
-use crate::calib::calibrate::{CalibrationError, CalibrationOptions};
-use crate::calib::run::{run, Run, RunError, RunInputs};
+use crate::calib::fit::CalibError;
+use crate::calib::run::{run, Run, RunError};
+use crate::calib::setup::SolveOptions;
+use crate::calib::summary::RunInputs;
 use crate::controller::link::{Link, LinkError};
 use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step, Verdict};
 use crate::controller::signing::StationKey;
@@ -91,13 +93,13 @@ pub enum LoopError {
     Run(#[from] RunError),
     /// The RUN folder could not be written.
     #[error(transparent)]
-    Output(#[from] crate::output::OutputError),
+    Output(#[from] crate::store::OutputError),
     /// A parameter set is outside what the controller accepts.
     #[error(transparent)]
     Params(#[from] crate::controller::device::DeviceParamsError),
     /// The diagnose → add loop could not recalibrate.
     #[error("diagnose → add: {0}")]
-    Added(#[from] CalibrationError),
+    Added(#[from] CalibError),
     /// The demo's station key could not be made or read.
     #[error(transparent)]
     Key(#[from] crate::controller::signing::KeyFileError),
@@ -146,32 +148,21 @@ impl Mission {
 /// and `out/run-added`.
 pub fn calibrate_diagnose_add(
     inputs: &RunInputs,
-    options: &CalibrationOptions,
+    options: &SolveOptions,
     out: &Path,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Mission, LoopError> {
     progress("calibrating the model as given");
-    let first = run(inputs, options, &[], 0, true)?;
-    crate::output::write_run(&first, &out.join("run"))?;
+    let first = run(inputs, options, 0, true)?;
+    crate::store::write_run(&first, &out.join("run"))?;
     progress("diagnosing, adding what the diagnosis names, recalibrating");
-    let cal = inputs.load_data(&first.artefact)?.0;
-    let auto = auto_loop(
-        &first.calibration.model,
-        &first.artefact,
-        &cal,
-        &first.validation_data,
-        options,
-        MAX_ADDED,
-    )?;
-    crate::output::write_auto(&auto, &out.join("run"))?;
-    let first_diagnosis = crate::calib::diagnose::diagnose(
-        &first.calibration.model,
-        &first.artefact,
-        &cal,
-        &first.validation_data,
-        options,
-    );
-    crate::output::write_diagnosis(&first_diagnosis, &out.join("run"))?;
+    let (cal, val) = inputs.read_folders()?;
+    let cal = inputs.exclude(&cal, &val)?.0;
+    let auto = auto_loop(&first.calibration.model, &cal, &first.validation_data, options, MAX_ADDED)?;
+    crate::store::write_auto(&auto, &out.join("run"))?;
+    let first_diagnosis =
+        crate::calib::diagnose::diagnose(&first.calibration.model, &cal, &first.validation_data, options);
+    crate::store::write_diagnosis(&first_diagnosis, &out.join("run"))?;
     let steps = auto
         .steps
         .iter()
@@ -188,8 +179,10 @@ pub fn calibrate_diagnose_add(
         None
     } else {
         progress(&format!("calibrating with {} added", added.join(", ")));
-        let last = run(inputs, options, &effects, 0, true)?;
-        crate::output::write_run(&last, &out.join("run-added"))?;
+        let with_effects =
+            RunInputs { add: effects.iter().map(ToString::to_string).collect(), ..inputs.clone() };
+        let last = run(&with_effects, options, 0, true)?;
+        crate::store::write_run(&last, &out.join("run-added"))?;
         Some(last)
     };
     Ok(Mission { first, auto, last, steps, added })
@@ -415,11 +408,11 @@ pub fn run_loop(
     }
     let inputs = RunInputs::new(
         data.join("nominal.toml"),
-        data.join("artefact.json"),
+        Some(data.join("artefact.json")),
         data.join("cal"),
         data.join("val"),
     );
-    let calibration = CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() };
+    let calibration = SolveOptions { seed: options.seed, ..SolveOptions::default() };
     let mission = calibrate_diagnose_add(&inputs, &calibration, &options.out, progress)?;
     let result = mission.final_run();
     // Pose check at one noise-free touch of every landmark of every validation placement.
@@ -462,8 +455,7 @@ pub fn run_loop(
         .iter()
         .map(|c| crate::model::kinematics::tool_pose(&result.calibration.model, &degrees_of(c)).position_mm)
         .collect();
-    let truth_validation =
-        crate::calib::validate::validate(&truth, &artefact, &result.validation_data).overall.rms_mm;
+    let truth_validation = crate::calib::validate::validate(&truth, &result.validation_data).overall.rms_mm;
     Ok(LoopReport {
         hidden: options.hidden.iter().map(|(id, d)| format!("{id} = {d:+}")).collect(),
         steps: mission.steps.clone(),
@@ -473,8 +465,8 @@ pub fn run_loop(
         truth_validation_rms_mm: truth_validation,
         host_calibrated_pose_rms_mm: registered_rms(&host_points, &truth_points),
         touches,
-        nominal_validation_rms_mm: mission.first.summary.nominal_validation.rms_mm,
-        calibrated_validation_rms_mm: result.summary.validation.rms_mm,
+        nominal_validation_rms_mm: mission.first.summary.nominal_held_out_rms_mm(),
+        calibrated_validation_rms_mm: result.summary.held_out_rms_mm(),
         nominal_pose_rms_mm: nominal_pose,
         calibrated_pose_rms_mm: calibrated_pose,
         floor_pose_rms_mm: floor_pose,

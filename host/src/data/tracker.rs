@@ -18,6 +18,7 @@
 //! pose id are repeats of one arm pose). Any other column is named in a warning and ignored.
 //! A folder is a tracker folder when it holds `*.csv` files whose first line is the tag.
 
+use crate::data::{Joints, Kind, Observation, Observations, Target};
 use crate::files::FileError;
 use crate::model::MAX_JOINTS;
 use nalgebra::{UnitQuaternion, Vector3};
@@ -32,72 +33,29 @@ pub const MAX_COORDINATE_MM: f64 = 100_000.0;
 /// How far a quaternion's norm may be from 1 before the row is refused.
 pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
 
-/// One measured row.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TrackerPoint {
-    /// Joint angles, degrees, one per joint.
-    pub q_deg: Vec<f64>,
-    /// The tool point in the instrument frame, mm.
-    pub point_mm: Vector3<f64>,
-    /// The probe's orientation in the instrument frame, for 6-DoF probes.
-    pub orientation: Option<UnitQuaternion<f64>>,
-    /// The instrument's stated standard uncertainty of the point, mm.
-    pub sigma_mm: Option<f64>,
-    /// Time of the measurement, s.
-    pub time_s: Option<f64>,
-    /// Temperature, °C.
-    pub temp_c: Option<f64>,
-    /// Pose id: rows with the same id are repeats.
-    pub pose: Option<String>,
-    /// Line in the file, 1-based.
-    pub line: usize,
-}
-
-/// One instrument placement: the rows of one CSV file.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TrackerSession {
-    /// File name without `.csv`.
-    pub name: String,
-    /// The file.
-    pub path: PathBuf,
-    /// Rows in file order.
-    pub points: Vec<TrackerPoint>,
-}
-
-/// The sessions of one folder.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TrackerData {
-    /// Joint count of every row.
-    pub joints: usize,
-    /// Sessions, by file name.
-    pub sessions: Vec<TrackerSession>,
-    /// Columns ignored and other things worth a look, one sentence each.
-    pub warnings: Vec<String>,
-}
-
-impl TrackerData {
-    /// Rows in all sessions.
-    pub fn point_count(&self) -> usize {
-        self.sessions.iter().map(|s| s.points.len()).sum()
-    }
-}
-
 /// True when `dir` holds a tracker session file (a `*.csv` starting with the tag line).
 pub fn is_tracker_folder(dir: &Path) -> bool {
     csv_files(dir).is_ok_and(|files| files.iter().any(|f| starts_with_tag(f)))
 }
 
-fn starts_with_tag(path: &Path) -> bool {
+/// True when the file's first line is the tag line.
+pub fn starts_with_tag(path: &Path) -> bool {
+    starts_with(path, TRACKER_FORMAT)
+}
+
+/// True when the file's first line is `# FORMAT`.
+pub fn starts_with(path: &Path, format: &str) -> bool {
     std::fs::read_to_string(path).is_ok_and(|t| {
-        t.lines().next().is_some_and(|l| l.trim_start_matches('\u{feff}').trim() == tag_line())
+        t.lines().next().is_some_and(|l| l.trim_start_matches('\u{feff}').trim() == tag_line(format))
     })
 }
 
-fn tag_line() -> String {
-    format!("# {TRACKER_FORMAT}")
+fn tag_line(format: &str) -> String {
+    format!("# {format}")
 }
 
-fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, FileError> {
+/// The `*.csv` files of `dir` (any case), sorted by name.
+pub fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, FileError> {
     let io = |source| FileError::Io { path: dir.to_owned(), source };
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(io)?
@@ -203,8 +161,28 @@ fn layout(
     Ok(out)
 }
 
+/// A session file read: its name and its rows as observations of group 0.
+pub struct SessionFile {
+    /// File name without `.csv`.
+    pub name: String,
+    /// The file.
+    pub path: PathBuf,
+    /// Rows in file order.
+    pub rows: Vec<Observation>,
+}
+
 /// Read one session file.
-pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSession, FileError> {
+pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<SessionFile, FileError> {
+    read_tagged_session(path, TRACKER_FORMAT, warnings)
+}
+
+/// Read one file of the tracker's columns whose tag line is `# FORMAT` (other readers of
+/// instrument points share the columns).
+pub fn read_tagged_session(
+    path: &Path,
+    format: &str,
+    warnings: &mut Vec<String>,
+) -> Result<SessionFile, FileError> {
     let text =
         std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
     let row_error = |line: usize, column: &str, message: String| FileError::Row {
@@ -218,14 +196,14 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
         .enumerate()
         .map(|(k, l)| (k + 1, l.trim_start_matches('\u{feff}').trim_end_matches('\r')));
     match lines.next() {
-        Some((_, first)) if first.trim() == tag_line() => {}
+        Some((_, first)) if first.trim() == tag_line(format) => {}
         first => {
             return Err(row_error(
                 1,
                 "format",
                 format!(
                     "expected the tag line \"{}\", found \"{}\"",
-                    tag_line(),
+                    tag_line(format),
                     first.map_or("", |f| f.1).chars().take(60).collect::<String>()
                 ),
             ))
@@ -262,7 +240,7 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
                 _ => Ok(None),
             }
         };
-        let mut q_deg = Vec::with_capacity(layout.q.len());
+        let mut q = Vec::with_capacity(layout.q.len());
         for &c in &layout.q {
             let v = number(c)?;
             if v.abs() > 3600.0 {
@@ -272,8 +250,9 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
                     format!("{v} degrees is beyond ten turns: another unit?"),
                 ));
             }
-            q_deg.push(v);
+            q.push(v);
         }
+        let q_deg = Joints::new(&q).ok_or_else(|| row_error(line, "q1_deg", "no joint angle".into()))?;
         let mut xyz = [0.0; 3];
         for k in 0..3 {
             xyz[k] = number(layout.xyz[k])?;
@@ -316,10 +295,13 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
             },
             None => None,
         };
-        points.push(TrackerPoint {
+        points.push(Observation {
+            block: 0,
+            group: 0,
+            repeat: 1,
             q_deg,
-            point_mm: Vector3::from(xyz),
-            orientation,
+            q_sigma_deg: None,
+            target: Target::Point { xyz_mm: Vector3::from(xyz), orientation },
             sigma_mm,
             time_s: optional(layout.time)?,
             temp_c: optional(layout.temp)?,
@@ -331,11 +313,13 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
         return Err(row_error(header_line, "header", "no data rows after the header".into()));
     }
     if points.len() >= 4 {
-        let (lo, hi) = points
-            .iter()
-            .fold((Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)), |(lo, hi), p| {
-                (lo.inf(&p.point_mm), hi.sup(&p.point_mm))
-            });
+        let (lo, hi) = points.iter().fold(
+            (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)),
+            |(lo, hi), p| {
+                let p = p.point_mm().unwrap_or_default();
+                (lo.inf(&p), hi.sup(&p))
+            },
+        );
         let span = (hi - lo).norm();
         if span < MIN_SESSION_SPAN_MM {
             return Err(row_error(
@@ -349,12 +333,17 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
         }
     }
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    Ok(TrackerSession { name, path: path.to_owned(), points })
+    Ok(SessionFile { name, path: path.to_owned(), rows: points })
 }
 
-/// Read every tracker session of `dir` (each `*.csv` file; files without the tag are refused).
-pub fn load_dir(dir: &Path) -> Result<TrackerData, FileError> {
-    let files = csv_files(dir)?;
+/// Read every tracker session of `dir` (each `*.csv` file; files without the tag are refused):
+/// one group and one block per session.
+pub fn load_dir(dir: &Path) -> Result<Observations, FileError> {
+    load_files(dir, &csv_files(dir)?)
+}
+
+/// Read the tracker sessions `files` of `dir` (files without the tag are refused).
+pub fn load_files(dir: &Path, files: &[PathBuf]) -> Result<Observations, FileError> {
     if files.is_empty() {
         return Err(FileError::Field {
             path: dir.to_owned(),
@@ -364,25 +353,29 @@ pub fn load_dir(dir: &Path) -> Result<TrackerData, FileError> {
             ),
         });
     }
-    let mut warnings = Vec::new();
-    let mut sessions: Vec<TrackerSession> = Vec::new();
-    for f in &files {
-        let session = read_session(f, &mut warnings)?;
-        if let Some(first) = sessions.first() {
-            let (a, b) = (first.points[0].q_deg.len(), session.points[0].q_deg.len());
-            if a != b {
+    let mut data = Observations::default();
+    let mut first: Option<(usize, PathBuf)> = None;
+    for f in files {
+        let session = read_session(f, &mut data.warnings)?;
+        let b = session.rows[0].q_deg.len();
+        if let Some((a, path)) = &first {
+            if *a != b {
                 return Err(FileError::Row {
                     path: f.clone(),
-                    line: session.points[0].line,
-                    column: format!("q{}_deg", a.min(b) + 1),
-                    message: format!("{b} joints here, {a} in {}", first.path.display()),
+                    line: session.rows[0].line,
+                    column: format!("q{}_deg", a.min(&b) + 1),
+                    message: format!("{b} joints here, {a} in {}", path.display()),
                 });
             }
+        } else {
+            first = Some((b, f.clone()));
         }
-        sessions.push(session);
+        let group = data.push_group(session.name, session.path, Kind::Tracker);
+        data.obs.extend(session.rows.into_iter().map(|o| Observation { group, ..o }));
     }
-    let joints = sessions[0].points[0].q_deg.len();
-    Ok(TrackerData { joints, sessions, warnings })
+    data.joints = first.map_or(0, |f| f.0);
+    data.rebuild_blocks();
+    Ok(data)
 }
 
 #[cfg(test)]
@@ -408,12 +401,12 @@ mod tests {
         assert!(is_tracker_folder(&dir));
         let data = load_dir(&dir).unwrap();
         assert_eq!(data.joints, 2);
-        let s = &data.sessions[0];
-        assert_eq!((s.name.as_str(), s.points.len()), ("day1", 4));
-        assert_eq!(s.points[0].sigma_mm, Some(0.01));
-        assert_eq!(s.points[2].sigma_mm, None);
-        assert_eq!(s.points[1].pose.as_deref(), Some("1"));
-        assert_eq!(s.points[3].line, 7);
+        let s = &data.obs;
+        assert_eq!((data.groups[0].name.as_str(), s.len(), data.blocks.len()), ("day1", 4, 1));
+        assert_eq!(s[0].sigma_mm, Some(0.01));
+        assert_eq!(s[2].sigma_mm, None);
+        assert_eq!(s[1].pose.as_deref(), Some("1"));
+        assert_eq!(s[3].line, 7);
         assert!(data.warnings.iter().any(|w| w.contains("`note`")), "{:?}", data.warnings);
         std::fs::remove_dir_all(dir).ok();
     }

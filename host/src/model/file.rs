@@ -105,6 +105,18 @@ fn check_joint_convention(joint: &mut Joint, convention: Convention) -> Result<(
     Ok(())
 }
 
+/// Where the SUTA model lives in the repository, and the name its built-in copy goes by.
+pub const SUTA_MODEL_PATH: &str = "examples/suta/model.toml";
+
+/// The SUTA nominal model file (thesis Table 3.2), built into kincal.
+pub const SUTA_MODEL_TOML: &str = include_str!("../../../examples/suta/model.toml");
+
+/// The built-in SUTA model ([`SUTA_MODEL_TOML`]); a test holds it to parse.
+pub(crate) fn suta_model() -> ArmModel {
+    ArmModel::parse(SUTA_MODEL_TOML, Path::new(SUTA_MODEL_PATH))
+        .unwrap_or_else(|e| unreachable!("the built-in SUTA model parses (tested): {e}"))
+}
+
 fn is_json(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"))
 }
@@ -122,11 +134,16 @@ impl ArmModel {
         files::check_regular_file(path)?;
         let text = std::fs::read_to_string(path)
             .map_err(|source| FileError::Io { path: path.to_owned(), source })?;
+        ArmModel::parse(&text, path)
+    }
+
+    /// A model from the text of a file named `path` (JSON by its extension, otherwise TOML).
+    fn parse(text: &str, path: &Path) -> Result<ArmModel, FileError> {
         let syntax = |message: String| FileError::Syntax { path: path.to_owned(), message };
         let file: ModelFile = if is_json(path) {
-            serde_json::from_str(&text).map_err(|e| files::json_error(path, &text, e))?
+            serde_json::from_str(text).map_err(|e| files::json_error(path, text, e))?
         } else {
-            toml::from_str(&text).map_err(|e| syntax(e.to_string()))?
+            toml::from_str(text).map_err(|e| syntax(e.to_string()))?
         };
         ArmModel::from_file(file, path)
     }
@@ -290,6 +307,15 @@ impl ArmModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_built_in_suta_model_is_the_repository_file() {
+        let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(SUTA_MODEL_PATH);
+        let model = ArmModel::suta_nominal();
+        assert_eq!(ArmModel::load(&file).unwrap(), model);
+        assert_eq!((model.joints.len(), model.free.len()), (6, 13));
+        assert_eq!(model.joints[2].d_mm, 571.0);
+    }
 
     #[test]
     fn model_round_trips_through_toml_and_json() {

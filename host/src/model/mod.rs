@@ -266,36 +266,10 @@ impl ArmModel {
     }
 
     /// The thesis Table 3.2 nominal SUTA model with its 13 calibrated parameters free
-    /// (six encoder offsets ±10°, six lengths d ±10 mm, TCP length ±10 mm).
+    /// (six encoder offsets ±10°, six lengths d ±10 mm, TCP length ±10 mm): the file
+    /// `examples/suta/model.toml`, built into kincal ([`file::SUTA_MODEL_TOML`]), so every
+    /// command that defaults to it works from any folder.
     pub fn suta_nominal() -> ArmModel {
-        let d = [47.0, 0.0, 571.0, 0.0, 371.0, 0.0];
-        let alpha = [90.0, 90.0, -90.0, 90.0, 90.0, 90.0];
-        let offset = [-1.6, 20.7, 201.3, 117.1, 88.7, -11.6];
-        let joints = (0..SUTA_JOINTS)
-            .map(|j| Joint {
-                offset_deg: offset[j],
-                d_mm: d[j],
-                a_mm: 0.0,
-                alpha_deg: alpha[j],
-                ..Joint::default()
-            })
-            .collect();
-        let mut model = ArmModel {
-            name: "SUTA nominal (thesis Table 3.2)".into(),
-            convention: Convention::Classic,
-            joints,
-            tcp_mm: [0.0, 0.0, 253.0],
-            scale_ppm: 0.0,
-            free: Vec::new(),
-            arm: None,
-        };
-        for (j, o) in offset.iter().enumerate() {
-            model.free_param(ParamId::Offset(j), o - 10.0, o + 10.0);
-        }
-        for (j, length) in d.iter().enumerate() {
-            model.free_param(ParamId::Length(j), length - 10.0, length + 10.0);
-        }
-        model.free_param(ParamId::Tcp(2), 243.0, 263.0);
-        model
+        file::suta_model()
     }
 }

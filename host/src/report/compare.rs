@@ -2,8 +2,8 @@
 
 use super::svg::{self, escape};
 use super::{page, table};
-use crate::calib::run::{RunFolder, StoredPairError, Summary};
-use crate::files::FileError;
+use crate::calib::summary::{StoredPairError, Summary, ValidationDetail};
+use crate::calib::validate::ErrorStats;
 use std::fmt::Write;
 
 /// One side of a comparison: what a RUN folder's typed files hold.
@@ -17,11 +17,13 @@ pub struct ComparedRun {
 }
 
 impl ComparedRun {
-    /// Read the typed files of a RUN folder.
-    pub fn load(dir: &std::path::Path) -> Result<ComparedRun, FileError> {
-        let folder = RunFolder::load(dir)?;
-        let residuals = folder.residuals()?;
-        Ok(ComparedRun { name: dir.display().to_string(), summary: folder.summary, residuals })
+    /// The held-out distances' figures (none without artefact placements held out).
+    fn distances(&self) -> (ErrorStats, Option<&ValidationDetail>) {
+        self.summary
+            .validation
+            .distances
+            .as_ref()
+            .map_or((ErrorStats::default(), None), |d| (d.calibrated, Some(&d.detail)))
     }
 }
 
@@ -36,8 +38,13 @@ impl Comparison {
         Comparison { runs: [before, after] }
     }
 
+    /// Each run's name and summary.
+    pub fn summaries(&self) -> [(&str, &Summary); 2] {
+        [0, 1].map(|k| (self.runs[k].name.as_str(), &self.runs[k].summary))
+    }
+
     fn stats(&self, k: usize) -> [(&'static str, f64); 4] {
-        let v = &self.runs[k].summary.validation;
+        let v = self.runs[k].distances().0;
         [("rms_mm", v.rms_mm), ("mean_mm", v.mean_mm), ("std_mm", v.std_mm), ("max_mm", v.max_mm)]
     }
 
@@ -47,7 +54,7 @@ impl Comparison {
         for ((key, a), (_, b)) in self.stats(0).into_iter().zip(self.stats(1)) {
             lines.push(format!("{key:<24} {a:>12.4} {b:>12.4}"));
         }
-        let effects = |k: usize| self.runs[k].summary.options.added_effects.join(", ");
+        let effects = |k: usize| self.runs[k].summary.inputs.add.join(", ");
         lines.push(format!("{:<24} {:>12} {:>12}", "added effects", effects(0), effects(1)));
         let figure = |v: f64| if v.is_finite() { format!("{v:.4}") } else { "–".into() };
         for (l, (a, b)) in self.per_landmark() {
@@ -59,11 +66,11 @@ impl Comparison {
     /// Per landmark: validation RMS before and after (NaN when the landmark is missing after).
     fn per_landmark(&self) -> Vec<(String, (f64, f64))> {
         let [before, after] = &self.runs;
-        let after = &after.summary.validation_detail.per_landmark;
+        let after = after.distances().1.map_or(&[][..], |d| &d.per_landmark);
         before
-            .summary
-            .validation_detail
-            .per_landmark
+            .distances()
+            .1
+            .map_or(&[][..], |d| &d.per_landmark)
             .iter()
             .map(|g| {
                 let y = after.iter().find(|h| h.name == g.name).map_or(f64::NAN, |h| h.stats.rms_mm);
@@ -110,7 +117,8 @@ impl Comparison {
             svg::histogram(&[("before", &a), ("after", &b)], 40, "distance error (mm)")
         );
         body.push_str("<h3>Residuals against each joint angle: before (left), after (right)</h3>");
-        for j in 0..crate::model::SUTA_JOINTS {
+        let joints = self.runs[0].residuals.first().map_or(0, |e| e.enc_deg.0.len());
+        for j in 0..joints {
             for k in 0..2 {
                 let pts: Vec<(f64, f64)> = self.runs[k]
                     .residuals

@@ -2,13 +2,12 @@
 //! never recompute them.
 
 pub mod auto_loop;
-pub mod calibration;
 pub mod compare;
 pub mod diagnosis;
 pub mod haptic;
+pub mod run;
 pub mod study;
 pub mod svg;
-pub mod tracker;
 pub mod tracker_diagnosis;
 
 use std::fmt::Write;

@@ -1,5 +1,36 @@
 //! Value parsers for numeric options: a number outside its range (NaN, ∞, negative, absurd) is
-//! refused by the argument parser with the range, before anything runs.
+//! refused by the argument parser with the range, before anything runs; and the built-in model
+//! that `--model` defaults to.
+
+use std::path::{Path, PathBuf};
+
+/// The SUTA model built into kincal, as a file for the length of one command: `simulate` reads
+/// `--model` from a path, and when the option is left out it reads this file, so it runs from
+/// any folder. The file is removed when the command ends.
+pub struct BuiltinModelFile(PathBuf);
+
+impl BuiltinModelFile {
+    /// Write the built-in model to a new file in the temporary folder.
+    pub fn write() -> std::io::Result<BuiltinModelFile> {
+        use std::io::Write;
+        let name = format!("kincal-suta-model-{}.toml", std::process::id());
+        let path = std::env::temp_dir().join(name);
+        let mut file = std::fs::OpenOptions::new().write(true).create_new(true).open(&path)?;
+        file.write_all(kincal::model::file::SUTA_MODEL_TOML.as_bytes())?;
+        Ok(BuiltinModelFile(path))
+    }
+
+    /// Where the file is.
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for BuiltinModelFile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
 
 /// A finite real number in `[min, max]`, in `unit`.
 pub fn real(min: f64, max: f64, unit: &'static str) -> impl Fn(&str) -> Result<f64, String> + Clone {

@@ -14,10 +14,11 @@
 //! [`plan_benchmark`]).
 
 use anyhow::{Context, Result};
-use kincal::calib::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::fit::calibrate;
 use kincal::calib::peer::{run_peer, thesis_sized_problem, write_peer_problem};
+use kincal::calib::setup::SolveOptions;
 use kincal::calib::study::{study, StudyOptions};
-use kincal::data::Dataset;
+use kincal::data::Observations;
 use kincal::model::ParamId;
 use kincal::numerics::stats::median;
 use kincal::simulate::{simulate, SimulationOptions};
@@ -210,7 +211,8 @@ fn plan_benchmark(seeds: u64) -> Result<()> {
 /// simulated placements, 20 repeats each, copied under new names with fresh encoder noise until
 /// the count is reached), and print the times beside the thesis-sized ones.
 fn scale_benchmark(touches: usize) -> Result<()> {
-    use kincal::calib::run::{run, RunInputs};
+    use kincal::calib::run::run;
+    use kincal::calib::summary::RunInputs;
     use rand::SeedableRng;
     use rand_distr::Distribution;
     let model = kincal::model::ArmModel::suta_nominal();
@@ -254,29 +256,33 @@ fn scale_benchmark(touches: usize) -> Result<()> {
         model.save(&folder.join("model.toml"))?;
         let inputs = RunInputs::new(
             folder.join("model.toml"),
-            folder.join("artefact.json"),
+            Some(folder.join("artefact.json")),
             folder.join("cal"),
             folder.join("val"),
         );
-        let options = CalibrationOptions::default();
+        let options = SolveOptions::default();
         let t = Instant::now();
-        let result = run(&inputs, &options, &[], 0, true)?;
+        let result = run(&inputs, &options, 0, true)?;
         let run_s = t.elapsed().as_secs_f64();
         let s = &result.summary;
         let (cal, val) = (
-            Dataset::load_dir(&inputs.calibration, &result.artefact, kincal::data::Purpose::Calibration)?,
+            Observations::load_artefact_dir(
+                &inputs.calibration,
+                &sim.artefact,
+                kincal::data::Purpose::Calibration,
+            )?,
             &result.validation_data,
         );
         let t = Instant::now();
-        kincal::calib::diagnose::diagnose(&result.calibration.model, &result.artefact, &cal, val, &options);
+        kincal::calib::diagnose::diagnose(&result.calibration.model, &cal, val, &options);
         let diagnose_s = t.elapsed().as_secs_f64();
         println!(
             "calibrate from files, {:>6} touches in {:>4} placements ({:>7} pairs): {run_s:6.2} s ({:.0} touches/s); diagnose {diagnose_s:6.2} s; validation RMS {:.3} mm",
-            s.calibration.touches,
-            cal.placements.len(),
+            s.calibration.observations,
+            cal.groups.len(),
             s.calibration.pairs,
-            s.calibration.touches as f64 / run_s,
-            s.validation.rms_mm
+            s.calibration.observations as f64 / run_s,
+            s.held_out_rms_mm()
         );
     }
     std::fs::remove_dir_all(&dir).ok();
@@ -299,19 +305,19 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
         return Ok(());
     }
     let (nominal, sim) = thesis_sized_problem(1);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let options = CalibrationOptions::default();
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+    let options = SolveOptions::default();
     if args.calibrate_only {
         println!("{}", whole_calibration(&sim, &options)?);
         return Ok(());
     }
-    println!("thesis-sized problem: {} placements, {} touches, {} pairs, {} free parameters, {} restarts + nominal start", cal.placements.len(), cal.touches.len(), cal.touch_pairs().len(), nominal.free.len(), options.restarts);
+    println!("thesis-sized problem: {} placements, {} touches, {} pairs, {} free parameters, {} restarts + nominal start", cal.groups.len(), cal.obs.len(), cal.landmark_pairs().len(), nominal.free.len(), options.resolve(&cal).restarts);
     let mut times = Vec::new();
     let mut fit = None;
     for _ in 0..args.repeats.max(1) {
         let t = Instant::now();
-        fit = Some(calibrate(&nominal, &sim.artefact, &cal, &options)?);
+        fit = Some(calibrate(&nominal, &cal, &options)?);
         times.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let single_ms = median(times.clone());
@@ -319,11 +325,11 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     let study_options = StudyOptions {
         subsets: args.study_subsets,
         seed: 1,
-        calibration: CalibrationOptions { restarts: 0, ..options },
+        calibration: SolveOptions { restarts: Some(0), ..options.clone() },
         progress: false,
     };
     let t = Instant::now();
-    let rows = study(&nominal, &sim.artefact, &cal, &val, &study_options);
+    let rows = study(&nominal, &cal, &val, &study_options);
     let study_s = t.elapsed().as_secs_f64();
     let count: usize = rows.iter().map(|r| r.calibrations + r.failed).sum();
     println!(
@@ -337,13 +343,12 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     };
     let sim_hidden = simulate(&nominal, &hidden);
     let (cal_h, val_h) = (
-        Dataset::from_sessions(&sim_hidden.calibration, &sim_hidden.artefact),
-        Dataset::from_sessions(&sim_hidden.validation, &sim_hidden.artefact),
+        Observations::from_sessions(&sim_hidden.calibration, &sim_hidden.artefact),
+        Observations::from_sessions(&sim_hidden.validation, &sim_hidden.artefact),
     );
-    let fit_h = calibrate(&nominal, &sim_hidden.artefact, &cal_h, &options)?;
+    let fit_h = calibrate(&nominal, &cal_h, &options)?;
     let t = Instant::now();
-    let diagnosis =
-        kincal::calib::diagnose::diagnose(&fit_h.model, &sim_hidden.artefact, &cal_h, &val_h, &options);
+    let diagnosis = kincal::calib::diagnose::diagnose(&fit_h.model, &cal_h, &val_h, &options);
     println!("diagnose, whole library ({} candidates scored, {} not identifiable), {} threads: {:.2} s  (target <= 2 s on 2 cores)", diagnosis.candidates.len(), diagnosis.not_identifiable.len(), rayon::current_num_threads(), t.elapsed().as_secs_f64());
     println!("{}", whole_calibration(&sim, &options)?);
     println!("{}", auto_loop_on_a_mixture(&nominal, &options)?);
@@ -364,17 +369,23 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     if args.no_scipy {
         return Ok(());
     }
-    let single = calibrate(&nominal, &sim.artefact, &cal, &CalibrationOptions { restarts: 0, ..options })?;
+    let single = calibrate(&nominal, &cal, &SolveOptions { restarts: Some(0), ..options.clone() })?;
     let t = Instant::now();
     let reps = 10;
     for _ in 0..reps {
-        calibrate(&nominal, &sim.artefact, &cal, &CalibrationOptions { restarts: 0, ..options })?;
+        calibrate(&nominal, &cal, &SolveOptions { restarts: Some(0), ..options.clone() })?;
     }
     let single_start_ms = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
     let dir = std::env::temp_dir().join(format!("kincal-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
     let problem = dir.join("problem.json");
-    write_peer_problem(&problem, &nominal, &single.estimated, &sim.artefact, &cal, options.huber_delta_mm)?;
+    write_peer_problem(
+        &problem,
+        &nominal,
+        &single.estimated,
+        &cal,
+        single.options.huber_delta_mm().unwrap_or_default(),
+    )?;
     let peer = run_peer(&args.python, &problem)?;
     std::fs::remove_dir_all(&dir).ok();
     println!(
@@ -423,28 +434,28 @@ pub(crate) fn children_cpu_ms() -> f64 {
 }
 
 /// Median wall time of the whole `kincal calibrate` process on `sim` written to disk.
-fn whole_calibration(sim: &kincal::simulate::SimulatedData, options: &CalibrationOptions) -> Result<String> {
+fn whole_calibration(sim: &kincal::simulate::SimulatedData, options: &SolveOptions) -> Result<String> {
     let dir = std::env::temp_dir().join(format!("kincal-bench-run-{}", std::process::id()));
     sim.write(&dir)?;
     kincal::model::ArmModel::suta_nominal().save(&dir.join("nominal.toml"))?;
-    let inputs = kincal::calib::run::RunInputs::new(
+    let inputs = kincal::calib::summary::RunInputs::new(
         dir.join("nominal.toml"),
-        dir.join("artefact.json"),
+        Some(dir.join("artefact.json")),
         dir.join("cal"),
         dir.join("val"),
     );
     let (mut wall, mut cpu, mut parts, mut report) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for _ in 0..10 {
         let (t, c) = (Instant::now(), process_cpu_ms());
-        let run = kincal::calib::run::run(&inputs, options, &[], 0, true)?;
+        let run = kincal::calib::run::run(&inputs, options, 0, true)?;
         let mut steps = run.steps.clone();
-        kincal::output::write_run(&run, &dir.join("run"))?;
+        kincal::store::write_run(&run, &dir.join("run"))?;
         steps.lap("report and write");
         wall.push(t.elapsed().as_secs_f64() * 1e3);
         cpu.push(process_cpu_ms() - c);
         parts.push(steps.ms);
         let t = Instant::now();
-        std::hint::black_box(kincal::report::calibration::calibration_report(&run));
+        std::hint::black_box(kincal::report::run::run_report(&run));
         report.push(t.elapsed().as_secs_f64() * 1e3);
     }
     std::fs::remove_dir_all(&dir).ok();
@@ -465,7 +476,7 @@ fn whole_calibration(sim: &kincal::simulate::SimulatedData, options: &Calibratio
 }
 
 /// Wall time of the auto loop on a mixture of four hidden effects.
-fn auto_loop_on_a_mixture(nominal: &kincal::model::ArmModel, options: &CalibrationOptions) -> Result<String> {
+fn auto_loop_on_a_mixture(nominal: &kincal::model::ArmModel, options: &SolveOptions) -> Result<String> {
     let hidden = SimulationOptions {
         seed: 105,
         hidden: vec![
@@ -477,11 +488,11 @@ fn auto_loop_on_a_mixture(nominal: &kincal::model::ArmModel, options: &Calibrati
         ..SimulationOptions::default()
     };
     let sim = simulate(nominal, &hidden);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let fit = calibrate(nominal, &sim.artefact, &cal, options)?;
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+    let fit = calibrate(nominal, &cal, options)?;
     let t = Instant::now();
-    let run = kincal::calib::auto::auto_loop(&fit.model, &sim.artefact, &cal, &val, options, 8)?;
+    let run = kincal::calib::auto::auto_loop(&fit.model, &cal, &val, options, 8)?;
     let added: Vec<&str> = run.steps.iter().filter_map(|s| s.added.as_deref()).collect();
     Ok(format!(
         "diagnose --auto on a 4-effect mixture: {:.2} s on {} threads, added {} ({:.3} → {:.3} mm)  (target <= 3 s on 2 cores)",

@@ -3,19 +3,19 @@
 use crate::arm::simulate_to;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
-use kincal::calib::calibrate::CalibrationOptions;
-use kincal::calib::run::RunInputs;
+use kincal::calib::setup::SolveOptions;
+use kincal::calib::summary::RunInputs;
 use kincal::controller::signing::{fingerprint, utc, StationKey};
-use kincal::data::{Artefact, Dataset};
+use kincal::data::{Artefact, Observations};
 use kincal::model::ArmModel;
 use kincal::simulate::SimulationOptions;
 use std::path::PathBuf;
 
 #[derive(Args)]
 pub struct DemoArgs {
-    /// Nominal arm model.
-    #[arg(long, default_value = "examples/suta/model.toml")]
-    model: PathBuf,
+    /// Nominal arm model (default: the SUTA model built into kincal, examples/suta/model.toml).
+    #[arg(long)]
+    model: Option<PathBuf>,
     /// Folder for the data and the runs (default `runs/demo`, with `--offline` `runs/demo-offline`,
     /// so the two demos never share a folder).
     #[arg(long)]
@@ -40,6 +40,26 @@ impl DemoArgs {
         self.out
             .clone()
             .unwrap_or_else(|| PathBuf::from(if self.offline { "runs/demo-offline" } else { "runs/demo" }))
+    }
+
+    /// The nominal model: `--model`, or the built-in SUTA model.
+    fn nominal(&self) -> Result<ArmModel> {
+        Ok(match &self.model {
+            Some(path) => ArmModel::load(path)?,
+            None => ArmModel::suta_nominal(),
+        })
+    }
+
+    /// The nominal model as a file the runs can name: `--model`, or the built-in SUTA model
+    /// written to OUT/nominal.toml.
+    fn nominal_file(&self) -> Result<PathBuf> {
+        if let Some(path) = &self.model {
+            return Ok(path.clone());
+        }
+        let path = self.out().join("nominal.toml");
+        std::fs::create_dir_all(self.out()).with_context(|| format!("creating {}", self.out().display()))?;
+        ArmModel::suta_nominal().save(&path)?;
+        Ok(path)
     }
 }
 
@@ -209,7 +229,7 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
     if a.offline {
         return cmd_demo_offline(a);
     }
-    let nominal = ArmModel::load(&a.model)?;
+    let nominal = a.nominal()?;
     println!("starting the emulated controller on QEMU (mps2-an386): {}", a.firmware.display());
     let (_emulator, mut link) = kincal::controller::emulator::Emulator::start(&a.firmware)?;
     link.hello()?;
@@ -851,28 +871,25 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
         "1/3 simulate: a true arm off the nominal model by degrees and millimetres, hiding {}",
         names.join(", ")
     );
-    simulate_to(
-        &a.model,
-        &data,
-        &SimulationOptions { seed: a.seed, hidden, ..SimulationOptions::default() },
-    )?;
+    let model = a.nominal_file()?;
+    simulate_to(&model, &data, &SimulationOptions { seed: a.seed, hidden, ..SimulationOptions::default() })?;
     println!(
         "2/3 calibrate on {}, validate on {}, diagnose, add",
         data.join("cal").display(),
         data.join("val").display()
     );
-    let inputs =
-        RunInputs::new(a.model.clone(), data.join("artefact.json"), data.join("cal"), data.join("val"));
+    let inputs = RunInputs::new(model, Some(data.join("artefact.json")), data.join("cal"), data.join("val"));
     let mission = kincal::controller::demo::calibrate_diagnose_add(
         &inputs,
-        &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() },
+        &SolveOptions { seed: a.seed, ..SolveOptions::default() },
         &a.out(),
         &mut |step| println!("  {step}"),
     )?;
     let truth = ArmModel::load(&data.join("truth.toml"))?;
-    let artefact = Artefact::load(&inputs.artefact)?;
-    let val = Dataset::load_dir(&inputs.validation, &artefact, kincal::data::Purpose::Validation)?;
-    let floor = kincal::calib::validate::validate(&truth, &artefact, &val).overall;
+    let artefact = Artefact::load(&data.join("artefact.json"))?;
+    let val =
+        Observations::load_artefact_dir(&inputs.validation, &artefact, kincal::data::Purpose::Validation)?;
+    let floor = kincal::calib::validate::validate(&truth, &val).overall;
     println!("3/3 the steps against the floor");
     print_mission(&mission.steps, floor.rms_mm, &kincal::controller::demo::stop_words(&mission.auto.stop));
     for line in &mission.auto.steps[0].summary {
@@ -885,10 +902,10 @@ pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
     let dir = if mission.last.is_some() { a.out().join("run-added") } else { a.out().join("run") };
     println!(
         "validation RMS  nominal {:.3} mm → as given {:.3} mm → with {} {:.3} mm; noise floor {:.3} mm; run: {}",
-        mission.first.summary.nominal_validation.rms_mm,
-        mission.first.summary.validation.rms_mm,
+        mission.first.summary.nominal_held_out_rms_mm(),
+        mission.first.summary.held_out_rms_mm(),
         if mission.added.is_empty() { "nothing".to_string() } else { mission.added.join(" + ") },
-        last.summary.validation.rms_mm,
+        last.summary.held_out_rms_mm(),
         floor.rms_mm,
         dir.display()
     );

@@ -2,7 +2,7 @@
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
-use kincal::output;
+use kincal::store;
 use std::path::PathBuf;
 
 #[derive(Subcommand)]
@@ -57,7 +57,7 @@ pub fn cmd_haptic_simulate(a: &HapticSimulateArgs) -> Result<()> {
         ..Default::default()
     };
     let (recording, _) = kincal::haptic::simulate::simulate_recording(&options);
-    output::write_haptic_recording(&recording, &a.out)?;
+    store::write_haptic_recording(&recording, &a.out)?;
     println!(
         "simulated recording (delay {} ms, {} gimbals) in {}",
         a.delay_ms,
@@ -70,8 +70,8 @@ pub fn cmd_haptic_simulate(a: &HapticSimulateArgs) -> Result<()> {
 pub fn cmd_haptic_calibrate(a: &HapticCalibrateArgs) -> Result<()> {
     use kincal::haptic::pipeline::{calibrate_recording, HapticFailure, HapticSummary};
     let write = |summary: &HapticSummary| -> Result<String> {
-        output::write_haptic(summary, &a.out, &a.recording)?;
-        Ok(output::haptic_json(summary))
+        store::write_haptic(summary, &a.out, &a.recording)?;
+        Ok(store::haptic_json(summary))
     };
     let recording = match kincal::haptic::recording::load(&a.recording) {
         Ok(r) => r,

@@ -4,17 +4,25 @@ mod args;
 mod arm;
 mod bench;
 mod bench_tracker;
+mod calibrate;
+#[cfg(test)]
+mod cli_reference;
 mod controller;
+mod diagnose;
 mod emulated_arm;
 mod haptic;
 mod model;
 mod plan;
-mod tracker;
 
-use clap::{Parser, Subcommand};
+use clap::parser::ValueSource;
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "kincal", version, about = "Calibrate tracker arms from artefact touches")]
+#[command(
+    name = "kincal",
+    version,
+    about = "Calibrate serial arms from artefact touches and tracker measurements"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -24,16 +32,17 @@ struct Cli {
 enum Command {
     /// Write an artefact and calibration/validation sessions from a simulated "true" arm.
     Simulate(arm::SimulateArgs),
-    /// Calibrate the arm model from artefact touches and validate it on held-out sessions.
-    Calibrate(arm::CalibrateArgs),
+    /// Calibrate the arm model from artefact touches, tracker sessions or both, and validate it on
+    /// held-out sessions.
+    Calibrate(Box<calibrate::CalibrateArgs>),
     /// Dataset-size study: calibrate on random subsets of placements, validate each.
     Study(arm::StudyArgs),
     /// Where the calibrated model of RUN fails and which physical effect is missing.
-    Diagnose(arm::DiagnoseArgs),
+    Diagnose(diagnose::DiagnoseArgs),
     /// What to measure next: placements that tell rival effects apart or pin down weak parameters.
     Plan(plan::PlanArgs),
     /// Compare two runs: validation errors, per landmark, residual plots side by side.
-    Compare(arm::CompareArgs),
+    Compare(diagnose::CompareArgs),
     /// The whole loop on the emulated controller: record, calibrate, upload, stream the pose.
     Demo(controller::DemoArgs),
     /// Controller identity, protocol match, stored parameters and encoder health.
@@ -60,7 +69,7 @@ enum Command {
     /// Haptic device (PHANToM) workspace calibration.
     #[command(subcommand)]
     Haptic(haptic::HapticCommand),
-    /// Model files: from and to URDF.
+    /// Model files: from and to URDF, and the built-in SUTA model.
     #[command(subcommand)]
     Model(model::ModelCommand),
     /// Benchmarks: calibration time, study throughput, and SciPy on the same problem.
@@ -74,13 +83,40 @@ fn main() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    let cli = Cli::parse();
-    let result = match cli.command {
+    let (cli, builtin_model) = parse();
+    let result = run(cli);
+    drop(builtin_model);
+    if let Err(e) = result {
+        eprintln!("error: {}", message(&e));
+        std::process::exit(1);
+    }
+}
+
+/// The command line; `simulate` without `--model` reads the built-in SUTA model from a file that
+/// lives as long as the command.
+fn parse() -> (Cli, Option<args::BuiltinModelFile>) {
+    let matches = Cli::command().get_matches();
+    let default_model = matches
+        .subcommand_matches("simulate")
+        .is_some_and(|m| m.value_source("model") == Some(ValueSource::DefaultValue));
+    if !default_model {
+        return (Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit()), None);
+    }
+    let file = args::BuiltinModelFile::write().unwrap_or_else(|e| {
+        eprintln!("error: writing the built-in SUTA model to the temporary folder: {e}");
+        std::process::exit(1)
+    });
+    let argv = std::env::args_os().chain(["--model".into(), file.path().as_os_str().to_owned()]);
+    (Cli::parse_from(argv), Some(file))
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
         Command::Simulate(a) => arm::cmd_simulate(&a),
-        Command::Calibrate(a) => arm::cmd_calibrate(&a),
+        Command::Calibrate(a) => calibrate::cmd_calibrate(&a),
         Command::Study(a) => arm::cmd_study(&a),
-        Command::Diagnose(a) => arm::cmd_diagnose(&a),
-        Command::Compare(a) => arm::cmd_compare(&a),
+        Command::Diagnose(a) => diagnose::cmd_diagnose(&a),
+        Command::Compare(a) => diagnose::cmd_compare(&a),
         Command::Plan(a) => plan::cmd_plan(&a),
         Command::Demo(a) => controller::cmd_demo(&a),
         Command::Info(a) => controller::cmd_info(&a),
@@ -95,10 +131,6 @@ fn main() {
         Command::Haptic(haptic::HapticCommand::Calibrate(a)) => haptic::cmd_haptic_calibrate(&a),
         Command::Model(c) => model::run(&c),
         Command::Bench(a) => bench::run_benchmarks(&a),
-    };
-    if let Err(e) = result {
-        eprintln!("error: {}", message(&e));
-        std::process::exit(1);
     }
 }
 

@@ -1,4 +1,4 @@
-//! `kincal model`: URDF in and out.
+//! `kincal model`: URDF in and out, and the built-in SUTA model.
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
@@ -13,6 +13,16 @@ pub enum ModelCommand {
     FromUrdf(FromUrdfArgs),
     /// Write a calibrated URDF model's joint origins back into a copy of the URDF.
     ToUrdf(ToUrdfArgs),
+    /// Write the SUTA nominal model built into kincal (thesis Table 3.2, the file
+    /// examples/suta/model.toml), to calibrate or to edit into your own arm's model.
+    Suta(SutaArgs),
+}
+
+#[derive(Args)]
+pub struct SutaArgs {
+    /// Model file to write (never replaced); without it the model is printed.
+    #[arg(long)]
+    out: Option<PathBuf>,
 }
 
 /// The chain of a URDF: its first and last link.
@@ -83,6 +93,30 @@ pub fn run(command: &ModelCommand) -> Result<()> {
             let text = calibrated_urdf(&a.urdf, &a.chain.base, &a.chain.tip, &model)?;
             std::fs::write(&a.out, text).with_context(|| format!("{}: cannot write", a.out.display()))?;
             println!("{}: {} joint origins calibrated", a.out.display(), model.joints.len());
+        }
+        ModelCommand::Suta(a) => {
+            let text = kincal::model::file::SUTA_MODEL_TOML;
+            match &a.out {
+                Some(out) => {
+                    if out.symlink_metadata().is_ok() {
+                        anyhow::bail!(
+                            "{} exists: kincal never replaces it; choose another name",
+                            out.display()
+                        );
+                    }
+                    kincal::files::write_atomic(out, text.as_bytes())
+                        .with_context(|| format!("{}: cannot write", out.display()))?;
+                    let model = ArmModel::suta_nominal();
+                    println!(
+                        "{}: {} ({} joints, {} free parameters)",
+                        out.display(),
+                        model.name,
+                        model.joints.len(),
+                        model.free.len()
+                    );
+                }
+                None => print!("{text}"),
+            }
         }
     }
     Ok(())

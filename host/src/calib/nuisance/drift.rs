@@ -22,8 +22,7 @@
 //! session and a span of at least [`MIN_SPAN_S`] of time or [`MIN_SPAN_C`] of temperature to be
 //! a data-error candidate.
 
-use crate::calib::tracker::TrackerError;
-use crate::data::tracker::{TrackerData, TrackerPoint, TrackerSession};
+use crate::data::{Observation, Observations};
 use nalgebra::Vector3;
 
 /// Least span of `time_s` within a session, s, for a drift in time to be a candidate.
@@ -99,7 +98,7 @@ impl DriftKind {
     }
 
     /// τ of a row: `time_s` in hours or `temp_C` in °C.
-    pub fn variable(self, p: &TrackerPoint) -> Option<f64> {
+    pub fn variable(self, p: &Observation) -> Option<f64> {
         if self.is_thermal() {
             p.temp_c
         } else {
@@ -107,13 +106,14 @@ impl DriftKind {
         }
     }
 
-    /// Whether `session` carries the kind's column on every row over the least span.
-    pub fn applies_to(self, session: &TrackerSession) -> bool {
-        let values: Vec<f64> = session.points.iter().filter_map(|p| self.variable(p)).collect();
+    /// Whether block `b` of `data` carries the kind's column on every row over the least span.
+    pub fn applies_to(self, data: &Observations, b: usize) -> bool {
+        let members = &data.blocks[b].members;
+        let values: Vec<f64> = members.iter().filter_map(|&k| self.variable(&data.obs[k])).collect();
         let span = values.iter().copied().fold(f64::NEG_INFINITY, f64::max)
             - values.iter().copied().fold(f64::INFINITY, f64::min);
         let least = if self.is_thermal() { MIN_SPAN_C } else { MIN_SPAN_S / 3600.0 };
-        values.len() == session.points.len() && span >= least
+        values.len() == members.len() && span >= least
     }
 
     /// The point's shift (mm, instrument frame) and growth factor from the rates and
@@ -220,16 +220,47 @@ impl SessionDrift {
     }
 
     /// The drift's shift and growth at row `p` (no drift when the row lacks the column).
-    pub fn effect_at(&self, p: &TrackerPoint) -> (Vector3<f64>, f64) {
+    pub fn effect_at(&self, p: &Observation) -> (Vector3<f64>, f64) {
         let delta = self.kind.variable(p).map_or(0.0, |v| v - self.centre);
         self.kind.effect(&self.rate, delta)
     }
 }
 
-/// A drifting session's unknowns in the calibration: its first column (counted from the first
+/// Why a drift cannot be fitted as asked.
+#[derive(Debug, thiserror::Error)]
+pub enum DriftError {
+    /// `--drift-session` names a session twice.
+    #[error("--drift-session {0}: the session is named twice (one drift kind per session)")]
+    Twice(String),
+    /// `--drift-session` names no calibration session.
+    #[error("--drift-session {0}: no calibration session of that name")]
+    Unknown(String),
+    /// A drifting session lacks the column its drift kind drifts against.
+    #[error("--drift-session {session}:{kind}: {path}:{line} has no {column} (the drift is against {column}, on every row)")]
+    Column {
+        /// The session.
+        session: String,
+        /// The drift kind.
+        kind: &'static str,
+        /// The missing column.
+        column: &'static str,
+        /// The session's file.
+        path: String,
+        /// The first row without it.
+        line: usize,
+    },
+    /// `--drift-session` names an artefact placement.
+    #[error(
+        "--drift-session {0}: a placement of artefact sessions; a drift is fitted on tracker sessions, whose \
+         rows carry time_s or temp_C (artefact sessions carry neither)"
+    )]
+    Artefact(String),
+}
+
+/// A drifting block's unknowns in the calibration: its first column (counted from the first
 /// drift column), the kind and τ̄.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct DriftSlot {
+pub struct DriftSlot {
     /// First column, from the first drift column.
     pub column: usize,
     /// What drifts against what.
@@ -238,56 +269,57 @@ pub(crate) struct DriftSlot {
     pub centre: f64,
 }
 
-/// Each session's drift slot from `--drift-session` (its columns, kind and τ̄), checked: the
-/// session exists, is named once, and has the kind's column on every row.
-pub(crate) fn drift_slots(
-    data: &TrackerData,
-    specs: &[DriftSpec],
-) -> Result<Vec<Option<DriftSlot>>, TrackerError> {
-    let mut slots = vec![None; data.sessions.len()];
+/// Each block's drift slot from `--drift-session` (its columns, kind and τ̄), checked: the
+/// session exists, is named once, is an instrument's session, and has the kind's column on every
+/// row. Columns are counted in the order the specs come.
+pub fn drift_slots(data: &Observations, specs: &[DriftSpec]) -> Result<Vec<Option<DriftSlot>>, DriftError> {
+    let mut slots = vec![None; data.blocks.len()];
     let mut column = 0;
     let named_before = |k: usize| specs[..k].iter().any(|e| e.session == specs[k].session);
     if let Some(k) = (0..specs.len()).find(|&k| named_before(k)) {
-        return Err(TrackerError::DriftTwice(specs[k].session.clone()));
+        return Err(DriftError::Twice(specs[k].session.clone()));
     }
     for spec in specs {
-        let s = data
-            .sessions
-            .iter()
-            .position(|s| s.name == spec.session)
-            .ok_or_else(|| TrackerError::UnknownSession(spec.to_string()))?;
-        let session = &data.sessions[s];
-        if let Some(p) = session.points.iter().find(|p| spec.kind.variable(p).is_none()) {
-            return Err(TrackerError::DriftColumn {
+        let b = data.find_block(&spec.session).ok_or_else(|| match data.find_group(&spec.session) {
+            Some(g) if data.groups[g].kind == crate::data::Kind::Artefact => {
+                DriftError::Artefact(spec.to_string())
+            }
+            _ => DriftError::Unknown(spec.to_string()),
+        })?;
+        let group = &data.groups[data.blocks[b].group];
+        if group.kind == crate::data::Kind::Artefact {
+            return Err(DriftError::Artefact(spec.to_string()));
+        }
+        let members = &data.blocks[b].members;
+        if let Some(&k) = members.iter().find(|&&k| spec.kind.variable(&data.obs[k]).is_none()) {
+            return Err(DriftError::Column {
                 session: spec.session.clone(),
                 kind: spec.kind.name(),
                 column: spec.kind.column(),
-                path: session.path.display().to_string(),
-                line: p.line,
+                path: group.source.display().to_string(),
+                line: data.obs[k].line,
             });
         }
-        slots[s] = Some(DriftSlot { column, kind: spec.kind, centre: 0.0 });
+        slots[b] = Some(DriftSlot { column, kind: spec.kind, centre: 0.0 });
         column += spec.kind.unknowns();
     }
     // τ̄: a session's own mean, except a scale against temperature, which is zero at the mean
     // temperature of the sessions that do not drift (the temperature the model is fitted at).
     let mean =
         |values: Vec<f64>| (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
-    let still: Vec<f64> = data
-        .sessions
-        .iter()
-        .zip(&slots)
-        .filter(|(_, slot)| slot.is_none())
-        .flat_map(|(s, _)| s.points.iter().filter_map(|p| p.temp_c))
-        .collect();
-    let every = data.sessions.iter().flat_map(|s| s.points.iter().filter_map(|p| p.temp_c)).collect();
+    let temperatures = |b: usize| data.blocks[b].members.iter().filter_map(|&k| data.obs[k].temp_c);
+    let still: Vec<f64> =
+        (0..data.blocks.len()).filter(|&b| slots[b].is_none()).flat_map(temperatures).collect();
+    let every = (0..data.blocks.len()).flat_map(temperatures).collect();
     let reference_c = mean(still).or(mean(every)).unwrap_or(0.0);
-    for (session, slot) in data.sessions.iter().zip(&mut slots) {
+    for (b, slot) in slots.iter_mut().enumerate() {
         if let Some(slot) = slot {
             slot.centre = if slot.kind == DriftKind::ScaleTemp {
                 reference_c
             } else {
-                mean(session.points.iter().filter_map(|p| slot.kind.variable(p)).collect()).unwrap_or(0.0)
+                let members = &data.blocks[b].members;
+                mean(members.iter().filter_map(|&k| slot.kind.variable(&data.obs[k])).collect())
+                    .unwrap_or(0.0)
             };
         }
     }

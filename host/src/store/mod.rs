@@ -1,4 +1,5 @@
-//! The folders and files kincal writes, and the rules that keep the user's own files safe.
+//! The folders and files kincal writes and reads back ([`run_folder`], with the formats of
+//! earlier versions in [`legacy`]), and the rules that keep the user's own files safe.
 //!
 //! Rules (stated in the README):
 //! - An output folder is written under a hidden staging name beside it and renamed into place only
@@ -18,6 +19,11 @@ use crate::calib::study::StudyRow;
 use crate::files::{write_atomic, FileError};
 use crate::haptic::pipeline::HapticSummary;
 use crate::report;
+
+pub mod legacy;
+pub mod run_folder;
+
+pub use run_folder::RunFolder;
 use std::path::{Path, PathBuf};
 
 /// Marker file kincal puts in every folder it writes; its text is the folder's kind.
@@ -351,25 +357,15 @@ pub fn run_json(run: &Run) -> String {
 
 /// Write RUN/ (model.toml, nominal.toml, summary.json, residuals.json, report.html) as one folder.
 pub fn write_run(run: &Run, dir: &Path) -> Result<(), OutputError> {
-    let inputs = &run.summary.inputs;
-    let inputs = [&*inputs.model, &*inputs.artefact, &*inputs.calibration, &*inputs.validation];
+    let i = &run.summary.inputs;
+    let mut inputs = vec![&*i.model, &*i.calibration, &*i.validation];
+    inputs.extend(i.artefact.as_deref());
     write_folder(dir, FolderKind::Run, &inputs, |staged| {
         run.calibration.model.save(&staged.join("model.toml"))?;
         run.nominal.save(&staged.join("nominal.toml"))?;
         put(staged, "residuals.json", json(&run.stored_residuals()).as_bytes())?;
         put(staged, "summary.json", run_json(run).as_bytes())?;
-        put(staged, "report.html", report::calibration::calibration_report(run).as_bytes())
-    })
-}
-
-/// Write a tracker RUN/ (model.toml, nominal.toml, summary.json, report.html) as one folder.
-pub fn write_tracker_run(run: &crate::calib::tracker_run::TrackerRun, dir: &Path) -> Result<(), OutputError> {
-    let i = &run.summary.inputs;
-    write_folder(dir, FolderKind::Run, &[&*i.model, &*i.calibration, &*i.validation], |staged| {
-        run.calibration.model.save(&staged.join("model.toml"))?;
-        run.nominal.save(&staged.join("nominal.toml"))?;
-        put(staged, "summary.json", json(&run.summary).as_bytes())?;
-        put(staged, "report.html", report::tracker::tracker_report(run).as_bytes())
+        put(staged, "report.html", report::run::run_report(run).as_bytes())
     })
 }
 

@@ -1,14 +1,16 @@
-//! `RUN/report.html` of a tracker run: where the model fails, pictures first (held-out RMS per
-//! session against nominal and the floor; every held-out point's residual against its order in
-//! the session, against each joint angle, and its direction), then summary.json's tables.
+//! `RUN/report.html`, one page for every kind of data: the verdict and the next command first,
+//! then where the model fails, pictures first — held-out distances of artefact placements
+//! (histograms, per landmark and placement, against each joint angle), held-out tracker sessions
+//! (RMS per session against nominal and the floor; every point's residual against its order,
+//! against each joint angle, and its direction) — then summary.json's tables: the fit, the
+//! estimates, what the data cannot separate, outliers, data errors, solver starts, inputs.
 
 use super::svg::{self, escape};
-use super::{page, table};
-use crate::calib::tracker::CONSTANT_ORIENTATION_DEG;
+use super::{mm, page, table};
+use crate::calib::fit::CONSTANT_ORIENTATION_DEG;
+use crate::calib::run::{PointResidual, Run, SessionResiduals};
+use crate::calib::summary::{SessionFigures, Summary};
 use crate::calib::tracker_errors::MIN_GAIN;
-use crate::calib::tracker_run::{
-    PointResidual, SessionFigures, SessionResiduals, TrackerRun, TrackerSummary,
-};
 use std::fmt::Write;
 
 /// The page is wider than the other reports: four residual plots side by side.
@@ -48,18 +50,27 @@ fn with_std(value: f64, std: Option<f64>) -> (String, String) {
     (num(value, decimals), std.map_or("—".into(), |s| num(s, decimals)))
 }
 
-/// The calibration report of a tracker run.
-pub fn tracker_report(run: &TrackerRun) -> String {
+/// The report of one run.
+pub fn run_report(run: &Run) -> String {
     let s = &run.summary;
     let mut body = String::from(WIDE);
+    if !s.not_trustworthy.is_empty() {
+        let items: String = s.not_trustworthy.iter().map(|p| format!("<li>{}</li>", escape(p))).collect();
+        let _ = write!(body, "<h2>Not trustworthy: these figures are not a result</h2><ul>{items}</ul>");
+    }
     verdict(&mut body, s);
-    rms_per_session(&mut body, s);
+    if run.distances.is_some() {
+        distance_plots(&mut body, run);
+    }
+    if s.validation.sessions.is_some() {
+        rms_per_session(&mut body, s);
+    }
     for session in &run.held_out {
-        let figures = s.validation.sessions.iter().find(|f| f.calibrated.name == session.name);
+        let figures = s.held_out_sessions().iter().find(|f| f.calibrated.name == session.name);
         held_out_plots(&mut body, session, figures, s.inputs.float_tool.contains(&session.name));
     }
     for session in &run.calibration_residuals {
-        let points = s.calibration_sessions.get(&session.name).copied().unwrap_or(session.points.len());
+        let points = s.calibration.groups.get(&session.name).copied().unwrap_or(session.points.len());
         let _ = write!(
             body,
             "<h2>Calibration session {}: the fit's residuals over {points} points</h2>",
@@ -68,24 +79,32 @@ pub fn tracker_report(run: &TrackerRun) -> String {
         residual_plots(&mut body, &session.points, "the base, tool and drift fitted with the arm");
     }
     directions(&mut body, s, &run.held_out);
+    distance_tables(&mut body, s);
     validation_tables(&mut body, s);
     floor_section(&mut body, s);
     calibration_tables(&mut body, s);
     identifiability(&mut body, s);
+    objective_comparison(&mut body, s);
+    outliers(&mut body, s);
+    if let Some(rows) = &s.study {
+        let _ = write!(body, "<h2>Dataset-size study</h2>{}", crate::report::study::study_body(rows));
+    }
     data_errors(&mut body, s);
+    starts(&mut body, s);
     inputs(&mut body, s);
-    page("kincal tracker calibration report", &body)
+    page("kincal calibration report", &body)
 }
 
-fn verdict(body: &mut String, s: &TrackerSummary) {
+fn verdict(body: &mut String, s: &Summary) {
     let items: String = s.verdict.iter().map(|v| format!("<li>{}</li>", escape(v))).collect();
     let _ = write!(body, "<h2>Verdict</h2><ul>{items}</ul>");
 }
 
 /// The floor in words: its value and source, or why it is unknown.
-fn floor_words(s: &TrackerSummary) -> String {
-    match s.floor.rms_mm.filter(|f| f.is_finite()) {
-        Some(f) => format!("The floor is {} mm ({})", mm4(f), escape(&s.floor.source)),
+fn floor_words(s: &Summary) -> String {
+    let floor = s.point_floor();
+    match floor.rms_mm.filter(|f| f.is_finite()) {
+        Some(f) => format!("The floor is {} mm ({})", mm4(f), escape(&floor.source)),
         None => "The floor is unknown: the held-out sessions have no repeated poses (rows sharing a <code>pose</code> id) \
                  and no stated uncertainty (a <code>sigma_mm</code> or <code>u95_mm</code> column, or \
                  <code>--sigma-mm</code>), so the model is never said to explain the data"
@@ -93,8 +112,8 @@ fn floor_words(s: &TrackerSummary) -> String {
     }
 }
 
-fn rms_per_session(body: &mut String, s: &TrackerSummary) {
-    let sessions = &s.validation.sessions;
+fn rms_per_session(body: &mut String, s: &Summary) {
+    let sessions = s.held_out_sessions();
     if sessions.is_empty() {
         return;
     }
@@ -106,7 +125,7 @@ fn rms_per_session(body: &mut String, s: &TrackerSummary) {
         ("calibrated", sessions.iter().map(|f| f.calibrated.rms_mm).collect::<Vec<_>>()),
         ("nominal", sessions.iter().map(|f| f.nominal.rms_mm).collect()),
     ];
-    if let Some(f) = s.floor.rms_mm.filter(|f| f.is_finite()) {
+    if let Some(f) = s.point_floor().rms_mm.filter(|f| f.is_finite()) {
         series.push(("floor", vec![f; sessions.len()]));
     }
     let failing: Vec<&str> =
@@ -244,13 +263,12 @@ const DIRECTION_CAP: f64 = 3.0;
 
 /// Every held-out residual's direction on one map, coloured by its size against its session's
 /// RMS (so that sessions of different sizes share the colours).
-fn directions(body: &mut String, s: &TrackerSummary, sessions: &[SessionResiduals]) {
+fn directions(body: &mut String, s: &Summary, sessions: &[SessionResiduals]) {
     let points: Vec<(f64, f64, f64)> = sessions
         .iter()
         .flat_map(|session| {
             let rms = s
-                .validation
-                .sessions
+                .held_out_sessions()
                 .iter()
                 .find(|f| f.calibrated.name == session.name)
                 .map_or(f64::NAN, |f| f.calibrated.rms_mm);
@@ -277,8 +295,8 @@ fn directions(body: &mut String, s: &TrackerSummary, sessions: &[SessionResidual
     );
 }
 
-fn validation_tables(body: &mut String, s: &TrackerSummary) {
-    let v = &s.validation;
+fn validation_tables(body: &mut String, s: &Summary) {
+    let Some(v) = &s.validation.sessions else { return };
     let mut rows: Vec<Vec<String>> = v
         .sessions
         .iter()
@@ -302,7 +320,7 @@ fn validation_tables(body: &mut String, s: &TrackerSummary) {
     let (o, n) = (&v.overall, &v.nominal_overall);
     rows.push(vec![
         "all held-out sessions".into(),
-        o.points.to_string(),
+        o.count.to_string(),
         mm4(o.rms_mm),
         mm4(o.mean_mm),
         mm4(o.max_mm),
@@ -371,8 +389,12 @@ fn validation_tables(body: &mut String, s: &TrackerSummary) {
     }
 }
 
-fn floor_section(body: &mut String, s: &TrackerSummary) {
-    let how = match s.floor.source.as_str() {
+fn floor_section(body: &mut String, s: &Summary) {
+    if let Some(g) = &s.floor.distance_gap {
+        let _ = write!(body, "<h2>Floor of the held-out distances</h2><p>{}</p>", escape(&g.sentence()));
+    }
+    let Some(floor) = &s.floor.points else { return };
+    let how = match floor.source.as_str() {
         "repeated poses" => {
             " The pooled scatter of rows sharing a pose id in the held-out sessions, shrunk by \
                              √(1 − 2/n) for the refitted base."
@@ -387,20 +409,48 @@ fn floor_section(body: &mut String, s: &TrackerSummary) {
     let _ = write!(body, "<h2>Floor</h2><p>{}.{how}</p>", floor_words(s));
 }
 
-fn calibration_tables(body: &mut String, s: &TrackerSummary) {
-    let sessions: Vec<Vec<String>> =
-        s.calibration_sessions.iter().map(|(name, points)| vec![escape(name), points.to_string()]).collect();
+fn calibration_tables(body: &mut String, s: &Summary) {
+    let c = &s.calibration;
+    let groups: Vec<Vec<String>> =
+        c.groups.iter().map(|(name, n)| vec![escape(name), n.to_string()]).collect();
+    let what = match (&c.distances, &c.points) {
+        (Some(d), _) => format!(
+            "calibration RMS {} mm on {} distance pairs from {} observations",
+            mm(d.rms_mm),
+            c.pairs,
+            c.observations
+        ),
+        (None, Some(p)) => format!(
+            "calibration RMS {} mm (mean {}, max {}) on {} points",
+            mm4(p.rms_mm),
+            mm4(p.mean_mm),
+            mm4(p.max_mm),
+            p.count
+        ),
+        (None, None) => format!("calibration RMS {} mm", mm4(c.rms_mm)),
+    };
+    let huber =
+        s.options.huber_delta_mm.map_or("plain least squares".into(), |d| format!("Huber δ = {d} mm"));
     let _ = write!(
         body,
-        "<h2>Calibration</h2><p>{} joints; calibration RMS {} mm (mean {}, max {}) on {} points.</p>{}",
+        "<h2>Calibration</h2><p>{} joints; {what}; objective {:?}, {huber}, {} random restarts (seed {}).</p>{}",
         s.joints,
-        mm4(s.fit.rms_mm),
-        mm4(s.fit.mean_mm),
-        mm4(s.fit.max_mm),
-        s.fit.points,
-        table(&["calibration session", "points"], &sessions)
+        s.options.objective,
+        s.options.restarts,
+        s.options.seed,
+        table(&["calibration placement or session", "observations"], &groups)
     );
-    if let Some(o) = &s.orientation_fit {
+    if let (Some(d), Some(p)) = (&c.distances, &c.points) {
+        let _ = write!(
+            body,
+            "<p>Distances {} mm RMS over {} pairs; points {} mm RMS over {}.</p>",
+            mm(d.rms_mm),
+            d.count,
+            mm4(p.rms_mm),
+            p.count
+        );
+    }
+    if let Some(o) = &c.orientations {
         let _ = write!(
             body,
             "<p>Calibration orientation RMS {}° (mean {}, max {}) on {} probe orientations.</p>",
@@ -410,8 +460,8 @@ fn calibration_tables(body: &mut String, s: &TrackerSummary) {
             o.orientations
         );
     }
-    let ident = &s.identifiability;
-    let rows: Vec<Vec<String>> = s
+    let ident = &s.identifiability.report;
+    let rows: Vec<Vec<String>> = c
         .estimates
         .iter()
         .map(|e| {
@@ -432,7 +482,7 @@ fn calibration_tables(body: &mut String, s: &TrackerSummary) {
         "<h3>Estimates</h3>{}",
         table(&["parameter", "unit", "nominal", "calibrated", "σ", "change", "status"], &rows)
     );
-    if let Some(t) = &s.tool_rotation {
+    if let Some(t) = &c.tool_rotation {
         let [x, y, z] = t.rotation_vector_deg;
         let std = t.std_deg.map_or("no deviation: the normal matrix is singular".into(), |[a, b, c]| {
             format!("σ about the probe's axes {}, {}, {}°", num(a, 5), num(b, 5), num(c, 5))
@@ -445,13 +495,19 @@ fn calibration_tables(body: &mut String, s: &TrackerSummary) {
             num(z, 4)
         );
     }
-    if !s.tool_offsets.is_empty() {
-        let rows: Vec<Vec<String>> = s
+    if !c.tool_offsets.is_empty() {
+        let rows: Vec<Vec<String>> = c
             .tool_offsets
             .iter()
             .map(|t| {
-                let [x, y, z] = t.offset_mm;
-                vec![escape(&t.session), mm4(x), mm4(y), mm4(z), mm4(t.size_std_mm)]
+                let cell = |k: usize| {
+                    if t.determined(k) {
+                        mm4(t.offset_mm[k])
+                    } else {
+                        format!("— (σ {})", mm4(t.std_mm[k]))
+                    }
+                };
+                vec![escape(&t.session), cell(0), cell(1), cell(2), mm4(t.size_std_mm)]
             })
             .collect();
         let _ = write!(
@@ -460,8 +516,8 @@ fn calibration_tables(body: &mut String, s: &TrackerSummary) {
             table(&["session", "x mm", "y mm", "z mm", "σ of the length mm"], &rows)
         );
     }
-    if !s.drifts.is_empty() {
-        let rows: Vec<Vec<String>> = s
+    if !c.drifts.is_empty() {
+        let rows: Vec<Vec<String>> = c
             .drifts
             .iter()
             .map(|d| {
@@ -484,8 +540,8 @@ fn calibration_tables(body: &mut String, s: &TrackerSummary) {
     }
 }
 
-fn identifiability(body: &mut String, s: &TrackerSummary) {
-    let ident = &s.identifiability;
+fn identifiability(body: &mut String, s: &Summary) {
+    let ident = &s.identifiability.report;
     let statements: String = ident.statements.iter().map(|t| format!("<li>{}</li>", escape(t))).collect();
     let _ = write!(
         body,
@@ -534,9 +590,206 @@ fn identifiability(body: &mut String, s: &TrackerSummary) {
             combos(&ident.poorly_identified)
         );
     }
+    if let Some(before) = &s.identifiability.before {
+        let _ = write!(
+            body,
+            "<p>Before solving (nominal values, block unknowns projected out): condition number {}; \
+             {} directions not determined, {} weakly.</p>",
+            sci(before.condition_number),
+            before.unidentifiable.len(),
+            before.poorly_identified.len()
+        );
+    }
+    let corr: Vec<Vec<String>> = s
+        .calibration
+        .correlations
+        .iter()
+        .map(|(a, b, r)| vec![escape(a), escape(b), format!("{r:+.3}")])
+        .collect();
+    if !corr.is_empty() {
+        let _ = write!(body, "<h3>Strong correlations (|ρ| &gt; 0.9)</h3>{}", table(&["a", "b", "ρ"], &corr));
+    }
 }
 
-fn data_errors(body: &mut String, s: &TrackerSummary) {
+/// The held-out distances of artefact placements: histograms, per landmark, against each joint.
+fn distance_plots(body: &mut String, run: &Run) {
+    let Some((calibrated, nominal)) = &run.distances else { return };
+    let errors = |v: &crate::calib::validate::Validation| -> Vec<f64> {
+        v.errors.iter().map(|e| e.error_mm).collect()
+    };
+    let _ = write!(
+        body,
+        "<h2>Held-out distances</h2><h3>Distance errors, nominal</h3>{}<h3>Distance errors, calibrated</h3>{}",
+        svg::histogram(&[("nominal", &errors(nominal))], 40, "distance error (mm)"),
+        svg::histogram(&[("calibrated", &errors(calibrated))], 40, "distance error (mm)")
+    );
+    let names: Vec<String> = calibrated.per_landmark.iter().map(|g| g.name.clone()).collect();
+    let rms: Vec<f64> = calibrated.per_landmark.iter().map(|g| g.stats.rms_mm).collect();
+    let _ = write!(
+        body,
+        "<h3>RMS error per landmark</h3>{}",
+        svg::bars(&names, &[("calibrated", rms)], "RMS (mm)")
+    );
+    let _ = write!(
+        body,
+        "<h3>Calibrated distance errors against each joint angle</h3><p class=note>Each held-out distance's \
+         error at both touches' angles: a pattern that follows one joint (a period in its angle) is a cause of \
+         that joint the model lacks.</p>"
+    );
+    let val = &run.validation_data;
+    for j in 0..run.nominal.joints.len() {
+        let pts: Vec<(f64, f64)> = calibrated
+            .errors
+            .iter()
+            .flat_map(|e| [e.touches.0, e.touches.1].map(|t| (val.obs[t].q_deg[j], e.error_mm)))
+            .collect();
+        figure(body, svg::scatter(&pts, &[], &format!("encoder {} (deg)", j + 1), "error (mm)"));
+    }
+}
+
+/// The held-out distances' tables: both models, per landmark, per placement, repeatability.
+fn distance_tables(body: &mut String, s: &Summary) {
+    let Some(v) = &s.validation.distances else { return };
+    let stats_row = |name: &str, v: &crate::calib::validate::ErrorStats| {
+        vec![name.to_string(), mm(v.rms_mm), mm(v.mean_mm), mm(v.std_mm), mm(v.max_mm), v.count.to_string()]
+    };
+    let _ = write!(
+        body,
+        "<h2>Validation (held-out placements)</h2>{}",
+        table(
+            &["model", "RMS mm", "mean mm", "std mm", "max mm", "pairs"],
+            &[stats_row("nominal", &v.nominal), stats_row("calibrated", &v.calibrated)]
+        )
+    );
+    let d = &v.detail;
+    let landmarks: Vec<Vec<String>> = d
+        .per_landmark
+        .iter()
+        .map(|c| {
+            let nominal =
+                d.nominal_per_landmark.iter().find(|g| g.name == c.name).map_or(f64::NAN, |g| g.stats.rms_mm);
+            vec![escape(&c.name), num(nominal, 3), mm(c.stats.rms_mm)]
+        })
+        .collect();
+    let _ = write!(body, "{}", table(&["landmark", "nominal RMS mm", "calibrated RMS mm"], &landmarks));
+    let placements: Vec<Vec<String>> = d
+        .per_placement
+        .iter()
+        .zip(&d.nominal_per_placement)
+        .map(|(c, n)| {
+            vec![escape(&c.name), mm(n.stats.rms_mm), mm(c.stats.rms_mm), c.stats.count.to_string()]
+        })
+        .collect();
+    let _ = write!(
+        body,
+        "<h3>Per placement</h3>{}",
+        table(&["placement", "nominal RMS mm", "calibrated RMS mm", "pairs"], &placements)
+    );
+    let rep: Vec<Vec<String>> = d
+        .repeatability
+        .iter()
+        .map(|r| vec![escape(&r.landmark), r.touches.to_string(), mm(r.rms_mm), mm(r.rp_mm)])
+        .collect();
+    let _ = write!(
+        body,
+        "<h3>Repeatability (ISO 9283 RP = mean + 3·std of distance to barycentre)</h3>{}",
+        table(&["landmark", "touches", "RMS mm", "RP mm"], &rep)
+    );
+}
+
+/// What relative orientation adds to distances (artefact touches).
+fn objective_comparison(body: &mut String, s: &Summary) {
+    let Some(oc) = &s.objective_comparison else { return };
+    let list = |v: &[String]| if v.is_empty() { "none".into() } else { escape(&v.join(", ")) };
+    let rows: Vec<Vec<String>> = oc
+        .std
+        .iter()
+        .map(|(p, a, b)| {
+            vec![escape(p), a.map_or("—".into(), |v| num(v, 4)), b.map_or("—".into(), |v| num(v, 4))]
+        })
+        .collect();
+    let _ = write!(
+        body,
+        "<h3>What relative orientation adds</h3><p>Identifiable from distances: {}. With relative orientation: {}. \
+         Gained: {}.</p>{}",
+        list(&oc.identifiable_by_distance),
+        list(&oc.identifiable_by_six_dof),
+        list(&oc.gained_by_orientation),
+        table(&["parameter", "std, distances", "std, + orientation"], &rows)
+    );
+}
+
+/// The appendix-F outlier metrics per landmark.
+fn outliers(body: &mut String, s: &Summary) {
+    if s.outliers_skipped {
+        body.push_str(
+            "<h2>Outlier diagnostics (thesis appendix F)</h2><p>Skipped (<code>--no-outliers</code>): no \
+             landmark was checked.</p>",
+        );
+        return;
+    }
+    if s.outliers.is_empty() {
+        return;
+    }
+    let rows: Vec<Vec<String>> = s
+        .outliers
+        .iter()
+        .map(|o| {
+            let cell = |v: f64, name: &str| {
+                if o.exceeded.iter().any(|e| e == name) {
+                    format!("<span class=flag>{}</span>", num(v, 3))
+                } else {
+                    num(v, 3)
+                }
+            };
+            vec![
+                escape(&o.landmark),
+                cell(o.contribution_pct, "contribution"),
+                cell(o.cooks_distance, "cooks_distance"),
+                cell(o.loo_impact_pct, "leave_one_out"),
+                cell(o.bias_mm, "bias"),
+                if o.flagged { "<span class=flag>flagged</span>".into() } else { String::new() },
+            ]
+        })
+        .collect();
+    let _ = write!(
+        body,
+        "<h2>Outlier diagnostics (thesis appendix F)</h2><p>Thresholds: contribution &gt; 1.5× its share, Cook's \
+         distance &gt; 4/L, leave-one-out improvement &gt; 5 %, bias &gt; 1 mm; flagged when two or more \
+         exceed.</p>{}",
+        table(&["landmark", "contribution %", "Cook's D", "LOO impact %", "bias mm", ""], &rows)
+    );
+}
+
+/// Every solver start.
+fn starts(body: &mut String, s: &Summary) {
+    let rows: Vec<Vec<String>> = s
+        .calibration
+        .starts
+        .iter()
+        .map(|st| {
+            vec![
+                st.start.to_string(),
+                num(st.initial_cost, 4),
+                num(st.final_cost, 6),
+                st.iterations.to_string(),
+                format!("{:?}", st.stop),
+            ]
+        })
+        .collect();
+    if !rows.is_empty() {
+        let _ = write!(
+            body,
+            "<h2>Solver starts</h2>{}",
+            table(&["start", "initial cost", "final cost", "iterations", "stop"], &rows)
+        );
+    }
+}
+
+fn data_errors(body: &mut String, s: &Summary) {
+    if s.validation.sessions.is_none() {
+        return;
+    }
     if s.data_errors.is_empty() {
         body.push_str("<h2>Data errors</h2><p>No candidate was scored.</p>");
         return;
@@ -568,13 +821,16 @@ fn data_errors(body: &mut String, s: &TrackerSummary) {
     );
 }
 
-fn inputs(body: &mut String, s: &TrackerSummary) {
+fn inputs(body: &mut String, s: &Summary) {
     let i = &s.inputs;
     let mut items = vec![
         format!("model <code>{}</code>", escape(&i.model.display().to_string())),
         format!("calibration sessions <code>{}</code>", escape(&i.calibration.display().to_string())),
         format!("held-out sessions <code>{}</code>", escape(&i.validation.display().to_string())),
     ];
+    if let Some(a) = &i.artefact {
+        items.insert(1, format!("artefact <code>{}</code>", escape(&a.display().to_string())));
+    }
     if let Some(sigma) = i.stated_sigma_mm {
         items.push(format!("<code>--sigma-mm {}</code>", num(sigma, 4)));
     }
@@ -583,9 +839,13 @@ fn inputs(body: &mut String, s: &TrackerSummary) {
     }
     let drifts: Vec<String> = i.drift_sessions.iter().map(ToString::to_string).collect();
     for (option, values) in [
+        ("--add", &i.add),
+        ("--exclude-landmark", &i.exclude_landmarks),
+        ("--exclude-block", &i.exclude_blocks),
         ("--float-tool", &i.float_tool),
         ("--exclude-point", &i.exclude_points),
         ("--drift-session", &drifts),
+        ("--same-base", &i.same_base),
     ] {
         for v in values {
             items.push(format!("<code>{option} {}</code>", escape(v)));

@@ -6,7 +6,7 @@
 //!
 //! | layer | modules | what it knows |
 //! | --- | --- | --- |
-//! | 0 | [`files`], [`numerics`], [`igtl`] | the user's files and their errors; solvers, geometry, statistics, stream delays, no arms; the OpenIGTLink wire format |
+//! | 0 | [`files`], [`numerics`], [`igtl`], [`trace`] | the user's files and their errors; solvers, geometry, statistics, stream delays, no arms; the OpenIGTLink wire format; arm identities and file hashes |
 //! | 1 | [`model`] (with its [`model::effects`]) | the arm's geometry and effects |
 //! | 2 | [`data`] | observations of every kind, in blocks, and their readers |
 //! | 3 | [`simulate`] | an independent forward path that makes data with known truth |
@@ -34,3 +34,4 @@ pub mod store;
 
 pub mod report;
 pub mod simulate;
+pub mod trace;

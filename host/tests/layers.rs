@@ -9,6 +9,7 @@ const LAYERS: &[(&str, u8)] = &[
     ("files", 0),
     ("numerics", 0),
     ("igtl", 0),
+    ("trace", 0),
     ("model", 1),
     ("data", 2),
     ("simulate", 3),

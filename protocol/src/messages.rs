@@ -11,7 +11,7 @@ use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
 /// Protocol version; bump on any incompatible change.
-pub const PROTOCOL_VERSION: u16 = 4;
+pub const PROTOCOL_VERSION: u16 = 5;
 /// Largest parameter chunk carried by one message, bytes.
 pub const PARAM_CHUNK: usize = 48;
 /// Joints read every tick.
@@ -242,6 +242,9 @@ pub enum Crash {
 }
 
 /// A frame from the controller.
+// A response can carry an `Info` (see [`Response`]); the frame lives on the stack only while it
+// is encoded or decoded, and no_std without alloc cannot box it.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub enum DeviceFrame {
     /// The answer to the request with sequence number `seq`.
@@ -261,8 +264,8 @@ pub enum DeviceFrame {
 }
 
 /// Successful answers, one variant per answer type.
-// `Info` (~290 bytes with the signer's key) is the large one; no_std without alloc cannot box it,
-// and an answer lives on the stack only while it is encoded.
+// `Info` (~340 bytes with the signer's key and the set's trace) is the large one; no_std without
+// alloc cannot box it, and an answer lives on the stack only while it is encoded.
 #[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub enum Response {
@@ -391,6 +394,9 @@ pub struct Info {
     /// report, e.g. the emulated board). Flash is programmed 32 bits at a time, which needs
     /// at least 2700 mV.
     pub brownout_mv: u16,
+    /// Where the stored set comes from: its RUN's hash, validation date and validity (all zero:
+    /// none stored, or a set that carries no trace). Added in protocol version 5.
+    pub param_trace: crate::signed::SetTrace,
 }
 
 /// Why the controller last started (reported by [`Info::reset_cause`]).

@@ -198,10 +198,10 @@ fn text_of(field: &[u8]) -> String {
 /// R12 … R33, then TX TY TZ in mm).
 pub fn transform_content(rows: &[[f32; 4]; 3]) -> [u8; TRANSFORM_BYTES] {
     let mut out = [0u8; TRANSFORM_BYTES];
-    for col in 0..4 {
-        for row in 0..3 {
+    for (row, values) in rows.iter().enumerate() {
+        for (col, value) in values.iter().enumerate() {
             let at = (col * 3 + row) * 4;
-            out[at..at + 4].copy_from_slice(&rows[row][col].to_be_bytes());
+            out[at..at + 4].copy_from_slice(&value.to_be_bytes());
         }
     }
     out

@@ -9,7 +9,7 @@
 //! 58-byte header and a few fixed layouts. Checked against pyigtl and the OpenIGTLink C++
 //! library in `tests/tests/igtl_peers.rs`.
 //!
-//! A message is a 58-byte header (big endian: version u16, type char[12], device name char[20],
+//! A message is a 58-byte header (big endian: version u16, type `char[12]`, device name `char[20]`,
 //! timestamp u64, body size u64, CRC-64 of the body u64) and a body. With header version 2 the
 //! body is an extended header (its size u16 = 12, metadata header size u16, metadata size u32,
 //! message id u32), the content, then the metadata: a header (count u16, then per entry key size

@@ -6,11 +6,11 @@
 //!
 //! | layer | modules | what it knows |
 //! | --- | --- | --- |
-//! | 0 | [`files`], [`numerics`] | the user's files and their errors; solvers, geometry, statistics, no arms |
+//! | 0 | [`files`], [`numerics`], [`igtl`], [`trace`] | the user's files and their errors; solvers, geometry, statistics, stream delays, no arms; the OpenIGTLink wire format; arm identities and file hashes |
 //! | 1 | [`model`] (with its [`model::effects`]) | the arm's geometry and effects |
 //! | 2 | [`data`] | observations of every kind, in blocks, and their readers |
 //! | 3 | [`simulate`] | an independent forward path that makes data with known truth |
-//! | 4 | [`calib`], [`haptic`] | the engine (terms, block unknowns, problem, fit, validation, floor), then what is built on it (the diagnosis, outliers, study, plan), then the run (three floors inside `calib`, checked too); the haptic pipeline |
+//! | 4 | [`calib`], [`haptic`], [`motion`] | the engine (terms, block unknowns, problem, fit, validation, floor), then what is built on it (the diagnosis, outliers, study, plan), then the run (three floors inside `calib`, checked too); the haptic pipeline; the arm in motion and its dynamic validation |
 //! | 5 | [`report`] | HTML pages and plots that read results, never recompute them |
 //! | 6 | [`store`] | the folders kincal writes and reads back (RUN/ of every version, diagnosis, study, simulated data, haptic) |
 //! | 7 | [`api`] | the facade the CLI and tests call: load, calibrate, validate, diagnose, auto, plan, compare |
@@ -26,9 +26,12 @@ pub mod controller;
 pub mod data;
 pub mod files;
 pub mod haptic;
+pub mod igtl;
 pub mod model;
+pub mod motion;
 pub mod numerics;
 pub mod store;
 
 pub mod report;
 pub mod simulate;
+pub mod trace;

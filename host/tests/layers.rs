@@ -8,15 +8,18 @@ use std::path::{Path, PathBuf};
 const LAYERS: &[(&str, u8)] = &[
     ("files", 0),
     ("numerics", 0),
-    ("model", 1),
-    ("data", 2),
-    ("simulate", 3),
-    ("calib", 4),
-    ("haptic", 4),
-    ("report", 5),
-    ("store", 6),
-    ("api", 7),
-    ("controller", 8),
+    ("igtl", 0),
+    ("trace", 1),
+    ("model", 2),
+    ("data", 3),
+    ("simulate", 4),
+    ("calib", 5),
+    ("haptic", 5),
+    ("motion", 5),
+    ("report", 6),
+    ("store", 7),
+    ("api", 8),
+    ("controller", 9),
 ];
 
 fn layer(module: &str) -> Option<u8> {

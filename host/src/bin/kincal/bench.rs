@@ -3,8 +3,8 @@
 //! * one calibration of a thesis-sized problem (5 placements × 15 landmarks × 3 repeats,
 //!   13 parameters, 8 random restarts, solved in parallel);
 //! * the 1000-calibration dataset-size study on every core;
-//! * SciPy `least_squares(method='trf', loss='huber')` on the same problem from the same start
-//!   (`bench/scipy_peer.py`), with the cost and time ratio;
+//! * kincal beside Ceres and SciPy on the same problems, with the limit of this machine
+//!   (`bench_peers.rs`; `--peers` runs only that, `--peers-check` only their agreement);
 //! * `kincal calibrate` as a whole (load, calibrate, validate, outliers with warm-started
 //!   leave-one-out refits, report, write RUN/) on the thesis-sized data;
 //! * `kincal diagnose --auto` on a mixture of four hidden effects;
@@ -13,9 +13,9 @@
 //! `kincal bench --plan` runs only the check of `kincal plan` on simulated data (see
 //! [`plan_benchmark`]).
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use kincal::calib::fit::calibrate;
-use kincal::calib::peer::{run_peer, thesis_sized_problem, write_peer_problem};
+use kincal::calib::peer::thesis_sized_problem;
 use kincal::calib::setup::{Setup, SolveOptions};
 use kincal::calib::study::{study, StudyOptions};
 use kincal::data::Observations;
@@ -39,6 +39,15 @@ pub struct BenchArgs {
     /// Skip the SciPy peer.
     #[arg(long)]
     pub no_scipy: bool,
+    /// Only kincal beside Ceres and SciPy on the same problems, with the limit of this machine.
+    #[arg(long)]
+    pub peers: bool,
+    /// Only check that kincal and Ceres reach the same cost on small instances (untimed).
+    #[arg(long)]
+    pub peers_check: bool,
+    /// Keep the peers' problem files in this folder (to run the peers again by hand).
+    #[arg(long, value_name = "DIR")]
+    pub peer_problems: Option<std::path::PathBuf>,
     /// Only the whole `kincal calibrate` process on thesis-sized data, with its parts.
     #[arg(long)]
     pub calibrate_only: bool,
@@ -307,7 +316,13 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     if args.diagnosis_seeds > 0 {
         return diagnosis_checks(args.diagnosis_seeds, args.power_seeds);
     }
-    crate::bench_tracker::tracker_benchmark(&args.python, !args.no_scipy)?;
+    if args.peers_check {
+        return crate::bench_peers::peers_check(args);
+    }
+    if args.peers {
+        return crate::bench_peers::peers_benchmark(args);
+    }
+    crate::bench_tracker::tracker_benchmark()?;
     if args.tracker_only {
         return Ok(());
     }
@@ -321,10 +336,9 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     }
     println!("thesis-sized problem: {} placements, {} touches, {} pairs, {} free parameters, {} restarts + nominal start", cal.groups.len(), cal.obs.len(), cal.landmark_pairs().len(), nominal.free.len(), options.resolve(&cal).restarts);
     let mut times = Vec::new();
-    let mut fit = None;
     for _ in 0..args.repeats.max(1) {
         let t = Instant::now();
-        fit = Some(calibrate(&nominal, &cal, &options)?);
+        calibrate(&nominal, &cal, &options)?;
         times.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let single_ms = median(times.clone());
@@ -374,44 +388,7 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     if args.scale_touches > 0 {
         scale_benchmark(args.scale_touches)?;
     }
-    if args.no_scipy {
-        return Ok(());
-    }
-    let single = calibrate(&nominal, &cal, &SolveOptions { restarts: Some(0), ..options.clone() })?;
-    let t = Instant::now();
-    let reps = 10;
-    for _ in 0..reps {
-        calibrate(&nominal, &cal, &SolveOptions { restarts: Some(0), ..options.clone() })?;
-    }
-    let single_start_ms = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
-    let dir = std::env::temp_dir().join(format!("kincal-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-    let problem = dir.join("problem.json");
-    write_peer_problem(
-        &problem,
-        &nominal,
-        &single.estimated,
-        &cal,
-        single.options.huber_delta_mm().unwrap_or_default(),
-    )?;
-    let peer = run_peer(&args.python, &problem)?;
-    std::fs::remove_dir_all(&dir).ok();
-    println!(
-        "SciPy least_squares(trf, huber), one start: {:.1} ms, {} evaluations, cost {:.9}",
-        peer.seconds * 1e3,
-        peer.nfev,
-        peer.cost
-    );
-    println!("kincal, same start and parameters:       {single_start_ms:.2} ms, cost {:.9}", single.cost);
-    println!(
-        "speed-up {:.0}x (target >= 300x); cost ratio kincal/SciPy {:.9}",
-        peer.seconds * 1e3 / single_start_ms,
-        single.cost / peer.cost
-    );
-    if let Some(fit) = fit {
-        println!("kincal with restarts: cost {:.9}; full 8-restart calibration is {:.0}x faster than one SciPy start", fit.cost, peer.seconds * 1e3 / single_ms);
-    }
-    Ok(())
+    crate::bench_peers::peers_benchmark(args)
 }
 
 /// CPU time of this process so far (every thread), ms: unlike the wall time, it does not grow

@@ -3,6 +3,8 @@
 mod args;
 mod arm;
 mod bench;
+mod bench_limit;
+mod bench_peers;
 mod bench_tracker;
 mod calibrate;
 #[cfg(test)]
@@ -59,7 +61,11 @@ enum Command {
     Stream(controller::StreamArgs),
     /// Guided measurement of one artefact placement; resumes an interrupted session.
     Record(controller::RecordArgs),
-    /// Emulated controller only: pose the arm, inject encoder noise and faults.
+    /// Does the arm still hold its stored calibration? A few touches judged with the stored set
+    /// against the floor of their repeats: holds (exit 0), does not hold (2), cannot tell (3).
+    Check(controller::CheckArgs),
+    /// Emulated controller: start one as an arm, pose it, script it from a geometry, inject
+    /// encoder noise and faults.
     #[command(subcommand)]
     EmulatedArm(emulated_arm::EmulatedArmCommand),
     /// Haptic device (PHANToM) workspace calibration.
@@ -68,7 +74,7 @@ enum Command {
     /// Model files: from and to URDF, and the built-in SUTA model.
     #[command(subcommand)]
     Model(model::ModelCommand),
-    /// Benchmarks: calibration time, study throughput, and SciPy on the same problem.
+    /// Benchmarks: calibration time, study throughput, and kincal beside Ceres and SciPy on the same problems.
     Bench(bench::BenchArgs),
 }
 
@@ -121,6 +127,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Key(controller::KeyCommand::New(a)) => controller::cmd_key_new(&a),
         Command::Stream(a) => controller::cmd_stream(&a),
         Command::Record(a) => controller::cmd_record(&a),
+        Command::Check(a) => controller::cmd_check(&a),
         Command::EmulatedArm(c) => emulated_arm::run(&c),
         Command::Haptic(haptic::HapticCommand::Simulate(a)) => haptic::cmd_haptic_simulate(&a),
         Command::Haptic(haptic::HapticCommand::Calibrate(a)) => haptic::cmd_haptic_calibrate(&a),

@@ -6,7 +6,7 @@
 //!   and the test of the gap on ln(M/E) with an equivalence test for "at the floor".
 //! * **Points** ([`crate::calib::floor::point_floor`]): the floor from repeated poses, else the
 //!   stated σ, else unknown (then the model is never said to explain the data); the model explains
-//!   the data within [`EXPLAINS_WITHIN`] of it and misses beyond [`crate::calib::floor::GAP_Z`]
+//!   the data within [`crate::calib::floor::EXPLAINS_WITHIN`] of it and misses beyond [`crate::calib::floor::GAP_Z`]
 //!   standard errors ([`point_gap`]). Whatever the floor, the *neighbour bound*
 //!   U = √(½ · mean |r_i − r_nn(i)|²), with r the held-out residuals (frame refitted) and nn(i)
 //!   the nearest other point of the same session in joint space (degrees), bounds from above the

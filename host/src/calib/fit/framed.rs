@@ -15,6 +15,31 @@ pub(super) struct Solved {
     pub(super) outcome: StartOutcome,
 }
 
+impl Solved {
+    /// Not solved yet: `model` with `frames` and the probe at `probe`, tools and drifts zero.
+    pub(super) fn at(
+        model: ArmModel,
+        frames: Vec<Frame>,
+        probe: Option<Matrix3<f64>>,
+        data: &Observations,
+    ) -> Solved {
+        Solved {
+            model,
+            frames,
+            tools: vec![Vector3::zeros(); data.groups.len()],
+            probe,
+            drifts: vec![Vec::new(); data.blocks.len()],
+            outcome: StartOutcome {
+                start: 0,
+                initial_cost: f64::NAN,
+                final_cost: f64::INFINITY,
+                iterations: 0,
+                stop: StopReason::NoProgress,
+            },
+        }
+    }
+}
+
 /// Solve for `estimated` from `start` (frames at `frames`, probe at `probe`) in passes, each
 /// re-centring the frames' rotations (and the probe's) at its solution.
 pub(super) fn solve_framed(
@@ -25,22 +50,9 @@ pub(super) fn solve_framed(
     probe: Option<Matrix3<f64>>,
     number: usize,
 ) -> Solved {
-    let data = pieces.data;
     let options = SolverOptions { loss: pieces.resolved.loss, ..FRAMED_SOLVER };
-    let mut s = Solved {
-        model: start,
-        frames,
-        tools: vec![Vector3::zeros(); data.groups.len()],
-        probe,
-        drifts: vec![Vec::new(); data.blocks.len()],
-        outcome: StartOutcome {
-            start: number,
-            initial_cost: f64::NAN,
-            final_cost: f64::INFINITY,
-            iterations: 0,
-            stop: StopReason::NoProgress,
-        },
-    };
+    let mut s = Solved::at(start, frames, probe, pieces.data);
+    s.outcome.start = number;
     let mut last_cost = f64::INFINITY;
     for pass in 0..PASSES {
         let problem = pieces.problem(estimated.to_vec(), &s.model, &s.frames, s.probe);
@@ -78,15 +90,10 @@ pub(super) fn calibrate_framed(nominal: &ArmModel, pieces: &Pieces) -> Result<Fi
     let start_frames = pieces.closed_form_frames(model);
     let probe = start_probe_rotation(model, data, &start_frames)
         .filter(|_| pieces.resolved.orientation_weight_mm_per_rad.is_some());
-    // Identifiability at the nominal values, frames at their closed form.
     let full = pieces.problem(all.clone(), model, &start_frames, probe);
     let tools0 = vec![Vector3::zeros(); data.groups.len()];
     let x0 = pieces.x_of(&full, model, &start_frames, &tools0, &vec![Vec::new(); data.blocks.len()]);
-    let factors = check_framed(&full, &x0)?;
-    let (raw, projected) = projected_arm_columns(&full.layout, &factors);
-    let ranges: Vec<f64> = all.iter().map(|&id| pieces.range(id)).collect();
-    let (kept, _) = identify::base_columns(&projected, all.len(), &ranges);
-    let before = identify::analyse(&projected, &all, &ranges);
+    let mut factors = check_framed(&full, &x0)?;
     let spreads: Vec<(String, f64)> = (0..data.blocks.len())
         .filter(|&b| pieces.framed[b])
         .map(|b| (data.block_name(b), orientation_spread_deg(model, data, b)))
@@ -95,6 +102,24 @@ pub(super) fn calibrate_framed(nominal: &ArmModel, pieces: &Pieces) -> Result<Fi
     // whatever a small model error makes the Jacobian say; it stays at its nominal value.
     let pinned = data.obs.iter().any(|o| o.landmark().is_some());
     let tool_turns = pinned || spreads.iter().any(|s| s.1 >= CONSTANT_ORIENTATION_DEG);
+    // Identifiability at the nominal arm with the tool point (and the probe's rotation, the
+    // frames) first fitted to the data: a model's tool point often lies on the last joint's axis
+    // (a URDF's tool0 or flange), where that axis' tilt moves no point, while the probe measured
+    // is off the axis. Decided at the nominal tool point, the tilt would be held because of a
+    // coincidence of the CAD values; decided at the fitted one, only what the data cannot
+    // determine is held.
+    let tool: Vec<ParamId> = all.iter().copied().filter(|p| matches!(p, ParamId::Tcp(_))).collect();
+    let mut start = Solved::at(model.clone(), start_frames, probe, data);
+    if tool_turns && !tool.is_empty() {
+        start = solve_framed(pieces, &tool, start.model, start.frames, start.probe, 0);
+        let full = pieces.problem(all.clone(), &start.model, &start.frames, start.probe);
+        let x = pieces.x_of(&full, &start.model, &start.frames, &start.tools, &start.drifts);
+        factors = check_framed(&full, &x)?;
+    }
+    let (raw, projected) = projected_arm_columns(&full.layout, &factors);
+    let ranges: Vec<f64> = all.iter().map(|&id| pieces.range(id)).collect();
+    let (kept, _) = identify::base_columns(&projected, all.len(), &ranges);
+    let before = identify::analyse(&projected, &all, &ranges);
     let is_tool = |c: &usize| matches!(all[*c], ParamId::Tcp(_));
     let estimated: Vec<ParamId> =
         kept.iter().filter(|c| tool_turns || !is_tool(c)).map(|&c| all[c]).collect();
@@ -102,8 +127,12 @@ pub(super) fn calibrate_framed(nominal: &ArmModel, pieces: &Pieces) -> Result<Fi
         (0..all.len()).filter(|c| !estimated.contains(&all[*c])).map(|c| all[c]).collect();
     let probe_turns = full.layout.rotation_column().is_some();
     let statements = identify::explain(&all, &raw, &projected, probe_turns, &fixed, &spreads, &ranges);
-    // Solve from the nominal values, then from the random starts.
-    let mut solved = solve_framed(pieces, &estimated, model.clone(), start_frames, probe, 0);
+    // Solve from the nominal values (the tool point as first fitted, held parameters at their
+    // nominal values), then from the random starts.
+    for id in &fixed {
+        start.model.set(*id, model.get(*id));
+    }
+    let mut solved = solve_framed(pieces, &estimated, start.model, start.frames, start.probe, 0);
     let restarts = pieces.resolved.restarts;
     let mut starts = vec![solved.outcome.clone()];
     if restarts > 0 {

@@ -9,7 +9,9 @@
 //! once, on the final base set, and the lowest cost wins (the earliest start on a tie).
 //!
 //! With block unknowns (instrument sessions), each session's frame starts at its closed form for
-//! the nominal arm ([`Frame::fit`]); identifiability sees the frames (they are projected out of
+//! the nominal arm ([`Frame::fit`]); the tool point (with the probe's rotation and the frames) is
+//! first fitted on the nominal arm, and identifiability is decided there, not at a nominal tool
+//! point that may lie on the last joint's axis; identifiability sees the frames (they are projected out of
 //! the arm's columns, [`Problem::group_factors`]); the tool point is freed (and held at its
 //! nominal value when no session turns it: then it and each frame's shift are one thing); the
 //! problem is solved in up to [`PASSES`] passes, each re-centring the frames' rotations at their

@@ -24,7 +24,6 @@
 //! what was computed up to that point.
 
 use super::clean::reject_wild;
-use super::delay::{estimate_delay_ms, DelayError, Signal};
 use super::gimbal::{calibrate_gimbals, linear_held_out_deg, GimbalModel, GimbalSample};
 use super::kinematics::{Device, SensorModel};
 use super::landmarks::{initial_transform, turret_axis, LandmarkError};
@@ -35,11 +34,16 @@ use super::position::{
 use super::recording::{DeviceStream, JointConvention, Recording, Step, TargetStream, Theta3};
 use super::reference::{orientation_reference, Pose, ReferenceError};
 use super::report_data::{error_maps, ErrorMaps, HeldOutSample};
+use crate::numerics::delay::{estimate_delay_ms, DelayError, DelayEstimate, Signal};
 use crate::numerics::stats::rms;
 use nalgebra::{Matrix3, Vector3};
 
 /// Smallest range each of θ1–θ3 must move through in `joints/`, degrees.
 pub const MIN_JOINT_RANGE_DEG: f64 = 20.0;
+/// The signal the delay is estimated on, with what to do when it hardly varies.
+const STYLUS_DISTANCE: &str =
+    "the stylus's distance from the device origin (move the stylus towards and away from the device)";
+
 /// The delay is settled when it changes by less than this between rounds, ms.
 pub const DELAY_SETTLED_MS: f64 = 0.05;
 /// Iterations (Horn + LM) of the joint calibration from each start when choosing between them.

@@ -148,7 +148,7 @@ impl Context<'_> {
         &self,
         joints: &[SensorModel; 3],
         eh: &Transform,
-    ) -> Result<crate::haptic::delay::DelayEstimate, HapticError> {
+    ) -> Result<DelayEstimate, HapticError> {
         let delay_step = step(self.rec, "delay")?;
         let hip = target(delay_step, "hip")?;
         let origin = Vector3::from(self.device.origin_mm);
@@ -162,8 +162,13 @@ impl Context<'_> {
         let trk_signal: Vec<f64> =
             poses(hip).iter().map(|p| (eh.0.transpose() * (self.hip(p) - eh.1) - origin).norm()).collect();
         Ok(estimate_delay_ms(
-            &Signal { name: "delay/device.csv", t_s: &delay_step.device.t_s, value: &dev_signal },
-            &Signal { name: "delay/hip.csv", t_s: &hip.t_s, value: &trk_signal },
+            &Signal {
+                name: "delay/device.csv",
+                what: STYLUS_DISTANCE,
+                t_s: &delay_step.device.t_s,
+                value: &dev_signal,
+            },
+            &Signal { name: "delay/hip.csv", what: STYLUS_DISTANCE, t_s: &hip.t_s, value: &trk_signal },
         )?)
     }
 
@@ -257,7 +262,7 @@ pub(super) fn reconverted(rec: &Recording, c: &JointConvention) -> Recording {
 }
 
 /// The first delay estimate: pose-based transform (Horn) on the delay step, uncalibrated joints.
-pub(super) fn first_delay(ctx: &Context) -> Result<crate::haptic::delay::DelayEstimate, HapticError> {
+pub(super) fn first_delay(ctx: &Context) -> Result<DelayEstimate, HapticError> {
     let delay_step = step(ctx.rec, "delay")?;
     let horn = pose_based_transform(&ctx.device, &ctx.correspondences(&ctx.aligned(delay_step, 0.0)?));
     ctx.delay(&[SensorModel::IDENTITY; 3], &horn)

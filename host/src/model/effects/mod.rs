@@ -206,7 +206,7 @@ pub fn default_half_range(p: ParamId) -> f64 {
     match p {
         ParamId::Offset(_) => 10.0,
         ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) | ParamId::OriginXyz(..) => 10.0,
-        ParamId::Twist(_) | ParamId::Axis(_) | ParamId::OriginRpy(..) => 5.0,
+        ParamId::Twist(_) | ParamId::Axis(_) | ParamId::OriginTurn(..) => 5.0,
         ParamId::EccSin(_) | ParamId::EccCos(_) => 2.0,
         ParamId::Ecc2Sin(_) | ParamId::Ecc2Cos(_) => 1.0,
         ParamId::Compliance(_) => 2.0,

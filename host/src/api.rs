@@ -7,7 +7,7 @@ use crate::calib::diagnose::auto::{auto_loop, AutoLoop};
 use crate::calib::diagnose::compare::{compare as compare_runs, Comparison, Side};
 use crate::calib::diagnose::{diagnose as diagnose_run, DiagnoseError, Diagnosis, Measure, RivalVerdict};
 use crate::calib::fit::CalibError;
-use crate::calib::floor::noise_floor;
+use crate::calib::floor::{noise_floor, point_floor};
 use crate::calib::plan::{plan as plan_placements, Plan, PlanError, PlanOptions};
 use crate::calib::run::check_same_data;
 use crate::calib::setup::Setup;
@@ -53,8 +53,10 @@ pub enum ApiError {
         /// What it needs.
         why: String,
     },
-    /// The plan needs the touch noise, and the RUN's data hold no repeated touches.
-    #[error("{0}: no repeated touches, so the touch noise is unknown; give --touch-std-mm")]
+    /// The plan needs the measurement noise, and the RUN's data give no floor.
+    #[error(
+        "{0}: no repeated touches or poses and no stated σ, so the noise is unknown; give --touch-std-mm"
+    )]
     UnknownTouchNoise(std::path::PathBuf),
     /// The two runs of a comparison hold different held-out data.
     #[error("{0} and {1}: compare needs two runs validated on the same held-out data")]
@@ -126,7 +128,7 @@ pub fn run_data(folder: &RunFolder) -> Result<(Setup, Observations, Observations
     let s = &folder.summary;
     let (cal, val) = folder.data()?;
     let groups: Vec<String> = cal.groups.iter().map(|g| g.name.clone()).collect();
-    let setup = Setup::of(&s.inputs, &s.options.solve_options(&s.inputs, &groups));
+    let setup = s.inputs.setup(&s.options.solve_options(&s.inputs, &groups));
     let refitted = match Measure::of(&val) {
         Some(Measure::Points) => Some(setup.calibrate(&folder.model, &cal)?.rms_mm),
         _ => None,
@@ -168,19 +170,14 @@ pub struct Planned {
     pub from_diagnosis: Option<Option<(String, String)>>,
 }
 
-/// What to measure next: placements that tell rivals apart and pin down weak parameters.
+/// What to measure next: artefact placements (for an artefact run) or sessions of arm poses
+/// (for an instrument run) that tell rivals apart and pin down weak parameters.
 pub fn plan(folder: &RunFolder, request: &PlanRequest) -> Result<Planned, ApiError> {
-    let kind = folder.summary.kind;
-    let Some(artefact) = folder.summary.inputs.artefact.as_deref().filter(|_| kind == DataKind::Artefact)
-    else {
-        return Err(ApiError::NotForKind {
-            command: "plan",
-            kind: kind.word(),
-            why: "it suggests artefact placements, and the RUN was calibrated on tracker sessions".into(),
-        });
-    };
-    let artefact = Artefact::load(artefact)?;
     let (setup, cal, val) = run_data(folder)?;
+    let artefact = match (Measure::of(&val), folder.summary.inputs.artefact.as_deref()) {
+        (Some(Measure::Distances), Some(path)) => Some(Artefact::load(path)?),
+        _ => None,
+    };
     let from_diagnosis = match request.rivals {
         Some(_) => None,
         None => {
@@ -196,15 +193,17 @@ pub fn plan(folder: &RunFolder, request: &PlanRequest) -> Result<Planned, ApiErr
     let rivals = request
         .rivals
         .or(from_diagnosis.as_ref().and_then(|p| p.as_ref()).map(|(a, b)| (a.as_str(), b.as_str())));
-    let touch_std_mm = match request.touch_std_mm {
-        Some(s) => s,
-        None => match noise_floor(&folder.model, &cal, &val, folder.model.free.len()) {
-            Some(f) => f.touch_std_mm,
-            None => return Err(ApiError::UnknownTouchNoise(folder.dir.clone())),
-        },
+    // The noise per axis: a touch's scatter from the repeats, or a held-out point's floor (its
+    // 3-D RMS) over √3.
+    let floor = match artefact {
+        Some(_) => noise_floor(&folder.model, &cal, &val, folder.model.free.len()).map(|f| f.touch_std_mm),
+        None => point_floor(&val, setup.stated_sigma_mm).rms_mm.map(|f| f / 3f64.sqrt()),
+    };
+    let Some(touch_std_mm) = request.touch_std_mm.or(floor) else {
+        return Err(ApiError::UnknownTouchNoise(folder.dir.clone()));
     };
     let options = PlanOptions { count: request.count, seed: request.seed, touch_std_mm };
-    let plan = plan_placements(&folder.model, &artefact, &cal, &val, rivals, &options)?;
+    let plan = plan_placements(&folder.model, artefact.as_ref(), &cal, &val, rivals, &options)?;
     Ok(Planned { plan, from_diagnosis })
 }
 

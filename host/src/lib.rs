@@ -10,7 +10,7 @@
 //! | 1 | [`model`] (with its [`model::effects`]) | the arm's geometry and effects |
 //! | 2 | [`data`] | observations of every kind, in blocks, and their readers |
 //! | 3 | [`simulate`] | an independent forward path that makes data with known truth |
-//! | 4 | [`calib`], [`haptic`], [`motion`] | the engine (terms, block unknowns, problem, fit), validation, diagnosis, study; the haptic pipeline; the arm in motion and its dynamic validation |
+//! | 4 | [`calib`], [`haptic`], [`motion`] | the engine (terms, block unknowns, problem, fit, validation, floor), then what is built on it (the diagnosis, outliers, study, plan), then the run (three floors inside `calib`, checked too); the haptic pipeline; the arm in motion and its dynamic validation |
 //! | 5 | [`report`] | HTML pages and plots that read results, never recompute them |
 //! | 6 | [`store`] | the folders kincal writes and reads back (RUN/ of every version, diagnosis, study, simulated data, haptic) |
 //! | 7 | [`api`] | the facade the CLI and tests call: load, calibrate, validate, diagnose, auto, plan, compare |

@@ -75,7 +75,7 @@ fn run_case(case: &Case) -> Outcome {
         leader.parts_improved,
         leader.mean_log_ratio,
         leader.p_value,
-        leader.delta_bic.unwrap_or(f64::NAN)
+        leader.ranking.delta_bic.unwrap_or(f64::NAN)
     );
     if !leader.equivalent.is_empty() {
         eprintln!("  leading group: {} ≡ {}", leader.name, leader.equivalent.join(", "));
@@ -92,16 +92,16 @@ fn run_case(case: &Case) -> Outcome {
 fn print_sequence(d: &kincal::calib::diagnose::Diagnosis) {
     let mut all: Vec<&kincal::calib::diagnose::Candidate> =
         d.candidates.iter().chain(&d.data_errors).collect();
-    all.sort_by(|a, b| b.calibration_z.total_cmp(&a.calibration_z));
+    all.sort_by(|a, b| b.ranking.calibration_z.total_cmp(&a.ranking.calibration_z));
     for c in all.iter().take(6) {
         eprintln!(
             "    z {:7.1} {:<18} {:.3} mm p {:.3} placements {:?} refitted {} significant {}",
-            c.calibration_z,
+            c.ranking.calibration_z,
             c.name,
             c.held_out_rms_mm,
             c.p_value,
             c.units_improved,
-            c.refitted,
+            c.ranking.refitted,
             c.significant
         );
     }
@@ -646,7 +646,7 @@ fn the_auto_loop_adds_a_mixture_of_four_effects_down_to_the_floor() {
             c.held_out_rms_mm,
             c.parts_improved,
             c.p_value,
-            c.delta_bic.unwrap_or(f64::NAN),
+            c.ranking.delta_bic.unwrap_or(f64::NAN),
             c.significant
         );
     }

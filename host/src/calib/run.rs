@@ -8,10 +8,11 @@
 //! frames) fitted on the calibration data, as an instrument user would use the vendor's model.
 
 use crate::calib::diagnose::data_errors::sessions::data_error_candidates;
+use crate::calib::diagnose::Measure;
 use crate::calib::fit::{calibrate, check_data, dense_jacobian, CalibError, Fit};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
-use crate::calib::outliers::landmark_outliers;
+use crate::calib::outliers::outliers as outlier_metrics;
 use crate::calib::setup::{SolveOptions, DEFAULT_LEVER_MM};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions};
 use crate::calib::summary::*;
@@ -343,16 +344,12 @@ pub fn check_run_data(
 /// (nothing is silently ignored): `--objective six-dof` without an orientation (relative
 /// orientation of artefact touches, or a 6-DoF probe's), `--orientation-sigma-deg` without a
 /// probe orientation, `--sigma-mm` and `--same-base` without held-out tracker sessions,
-/// `--drift-session` on an artefact placement, `--exclude-landmark` without artefact touches,
-/// and (until they score tracker sessions) `--study-subsets` and `--no-outliers` without
-/// artefact touches.
+/// `--drift-session` on an artefact placement, `--exclude-landmark` without artefact touches.
 pub fn check_options(
     cal: &Observations,
     val: &Observations,
     inputs: &RunInputs,
     options: &SolveOptions,
-    study_subsets: usize,
-    outliers: bool,
 ) -> Result<(), RunError> {
     let kind = cal.kind().unwrap_or(crate::data::DataKind::Artefact).word();
     let refuse =
@@ -408,12 +405,6 @@ pub fn check_options(
     }
     if !inputs.exclude_landmarks.is_empty() && !touches(cal) && !touches(val) {
         return Err(refuse("--exclude-landmark", "the data hold no artefact landmarks (tracker sessions)"));
-    }
-    if study_subsets > 0 && !touches(cal) {
-        return Err(refuse("--study-subsets", "the dataset-size study draws subsets of artefact placements"));
-    }
-    if !outliers && !touches(cal) {
-        return Err(refuse("--no-outliers", "the outlier metrics are computed per artefact landmark"));
     }
     Ok(())
 }
@@ -535,7 +526,7 @@ pub fn run_on(
     outliers: bool,
 ) -> Result<Run, RunError> {
     let mut steps = StepTimes::start();
-    check_options(cal, val, inputs, options, study_subsets, outliers)?;
+    check_options(cal, val, inputs, options)?;
     let (cal, val) = inputs.exclude(cal, val)?;
     let (cal, val) = (&cal, &val);
     steps.lap("load");
@@ -587,12 +578,12 @@ pub fn run_on(
     }
     steps.lap("trust scales");
     let study_rows = (study_subsets > 0).then(|| {
-        let calibration = SolveOptions { restarts: Some(0), ..options.clone() };
+        let setup = inputs.setup(&SolveOptions { restarts: Some(0), ..options.clone() });
         study(
             &nominal,
             cal,
             val,
-            &StudyOptions { subsets: study_subsets, seed: options.seed, calibration, progress: false },
+            &StudyOptions { subsets: study_subsets, seed: options.seed, setup, progress: false },
         )
     });
     if let Some(rows) = &study_rows {
@@ -600,8 +591,9 @@ pub fn run_on(
         steps.lap("study");
     }
     let outliers_skipped = !outliers;
-    let outliers = if outliers && touches(cal) {
-        landmark_outliers(&fit, cal, touches(val).then_some(val), options)
+    let outliers = if outliers {
+        let setup = inputs.setup(options);
+        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup)
     } else {
         Vec::new()
     };

@@ -13,7 +13,6 @@
 
 use crate::calib::fit::{calibrate, CalibError, Fit};
 use crate::calib::nuisance::drift::DriftSpec;
-use crate::calib::summary::RunInputs;
 use crate::data::Observations;
 use crate::model::effects::Effect;
 use crate::model::ArmModel;
@@ -275,27 +274,6 @@ impl Setup {
         Setup { float_tool: options.float_tool.clone(), options, ..Setup::default() }
     }
 
-    /// The setup of a run: its options, floated tools, σ and the options it was given.
-    pub fn of(inputs: &RunInputs, options: &SolveOptions) -> Setup {
-        let mut given: Vec<String> = inputs.add.iter().map(|e| format!("--add {e}")).collect();
-        given.extend(inputs.exclude_landmarks.iter().map(|l| format!("--exclude-landmark {l}")));
-        given.extend(inputs.exclude_blocks.iter().map(|b| format!("--exclude-block {b}")));
-        given.extend(inputs.exclude_points.iter().map(|p| format!("--exclude-point {p}")));
-        given.extend(inputs.float_tool.iter().map(|g| format!("--float-tool {g}")));
-        given.extend(inputs.drift_sessions.iter().map(|d| format!("--drift-session {d}")));
-        Setup {
-            options: SolveOptions {
-                orientation_sigma_deg: inputs.orientation_sigma_deg,
-                drift_sessions: inputs.drift_sessions.clone(),
-                ..options.clone()
-            },
-            float_tool: inputs.float_tool.clone(),
-            stated_sigma_mm: inputs.stated_sigma_mm,
-            changes: Vec::new(),
-            given,
-        }
-    }
-
     /// The setup and the model with `change` applied: an effect is added to the model (at zero,
     /// its parameters free), a data error's remedy to the setup.
     pub fn apply(&self, change: &Change, model: &ArmModel) -> (Setup, ArmModel) {
@@ -361,22 +339,6 @@ impl Setup {
     pub fn calibrate(&self, start: &ArmModel, cal: &Observations) -> Result<Fit, CalibError> {
         let kept = self.data(cal)?;
         calibrate(start, &kept, &self.solve_options(&kept))
-    }
-
-    /// `inputs` with the changes applied, as `kincal calibrate` would be given them.
-    pub fn inputs(&self, inputs: &RunInputs) -> RunInputs {
-        let mut out = inputs.clone();
-        for change in &self.changes {
-            match change {
-                Change::Effect(e) => out.add.push(e.to_string()),
-                Change::FloatTool(group) => out.float_tool.push(group.clone()),
-                Change::Drift(spec) => out.drift_sessions.push(spec.clone()),
-                Change::ExcludePoints(points) => out.exclude_points.extend(points.iter().cloned()),
-                Change::ExcludeBlock(block) => out.exclude_blocks.push(block.clone()),
-                Change::FreeLandmark(id) => out.exclude_landmarks.push(id.clone()),
-            }
-        }
-        out
     }
 
     /// The effects added by the changes.

@@ -13,7 +13,7 @@
 use crate::calib::diagnose::auto::{auto_loop, AutoLoop, Stop};
 use crate::calib::diagnose::{diagnose, DiagnoseError};
 use crate::calib::run::{run, Run, RunError};
-use crate::calib::setup::{Setup, SolveOptions};
+use crate::calib::setup::SolveOptions;
 use crate::calib::summary::RunInputs;
 use crate::controller::link::{Link, LinkError};
 use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step, Verdict};
@@ -157,7 +157,7 @@ pub fn calibrate_diagnose_add(
     progress("diagnosing, adding what the diagnosis names, recalibrating");
     let (cal, val) = inputs.read_folders()?;
     let cal = inputs.exclude(&cal, &val)?.0;
-    let setup = Setup::of(inputs, options);
+    let setup = inputs.setup(options);
     let val = &first.validation_data;
     let auto = auto_loop(&setup, &first.calibration.model, &cal, val, MAX_ADDED)?;
     crate::store::write_auto(&auto, &out.join("run"))?;
@@ -178,7 +178,7 @@ pub fn calibrate_diagnose_add(
         None
     } else {
         progress(&format!("calibrating with {} added", added.join(", ")));
-        let last = run(&auto.setup.inputs(inputs), options, 0, true)?;
+        let last = run(&inputs.with_changes(&auto.setup), options, 0, true)?;
         crate::store::write_run(&last, &out.join("run-added"))?;
         Some(last)
     };

@@ -720,12 +720,12 @@ fn objective_comparison(body: &mut String, s: &Summary) {
     );
 }
 
-/// The appendix-F outlier metrics per landmark.
+/// The appendix-F outlier metrics per landmark and per calibration session.
 fn outliers(body: &mut String, s: &Summary) {
     if s.outliers_skipped {
         body.push_str(
             "<h2>Outlier diagnostics (thesis appendix F)</h2><p>Skipped (<code>--no-outliers</code>): no \
-             landmark was checked.</p>",
+             landmark or session was checked.</p>",
         );
         return;
     }
@@ -744,7 +744,7 @@ fn outliers(body: &mut String, s: &Summary) {
                 }
             };
             vec![
-                escape(&o.landmark),
+                format!("{} {}", escape(&o.what), escape(&o.name)),
                 cell(o.contribution_pct, "contribution"),
                 cell(o.cooks_distance, "cooks_distance"),
                 cell(o.loo_impact_pct, "leave_one_out"),
@@ -756,9 +756,9 @@ fn outliers(body: &mut String, s: &Summary) {
     let _ = write!(
         body,
         "<h2>Outlier diagnostics (thesis appendix F)</h2><p>Thresholds: contribution &gt; 1.5× its share, Cook's \
-         distance &gt; 4/L, leave-one-out improvement &gt; 5 %, bias &gt; 1 mm; flagged when two or more \
-         exceed.</p>{}",
-        table(&["landmark", "contribution %", "Cook's D", "LOO impact %", "bias mm", ""], &rows)
+         distance &gt; 4/L, leave-one-out improvement &gt; 5 %, bias &gt; 1 mm (a landmark) or 1.5× the \
+         RMS of every point (a session); flagged when two or more exceed.</p>{}",
+        table(&["landmark or session", "contribution %", "Cook's D", "LOO impact %", "bias mm", ""], &rows)
     );
 }
 

@@ -9,7 +9,7 @@ use crate::calib::floor::PointFloor;
 use crate::calib::identify::Identifiability;
 use crate::calib::nuisance::drift::{DriftSpec, SessionDrift};
 use crate::calib::nuisance::tool::{FloatedTool, ToolRotation};
-use crate::calib::outliers::LandmarkOutlier;
+use crate::calib::outliers::Outlier;
 use crate::calib::setup::Objective;
 use crate::calib::study::StudyRow;
 use crate::calib::summary::*;
@@ -79,7 +79,7 @@ pub struct ArtefactRunV1 {
     validation: ErrorStats,
     nominal_validation: ErrorStats,
     validation_detail: ValidationDetail,
-    outliers: Vec<LandmarkOutlier>,
+    outliers: Vec<Outlier>,
     #[serde(default)]
     outliers_skipped: bool,
     objective_comparison: ObjectiveComparison,

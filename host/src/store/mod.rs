@@ -38,8 +38,9 @@ pub const HAPTIC_FORMAT: &str = "kincal-haptic/1";
 pub const AUTO_FORMAT: &str = "kincal-auto/2";
 /// Format tag of a plan (`kincal plan --out FILE`).
 pub const PLAN_FORMAT: &str = "kincal-plan/1";
-/// Header of a plan's pose list (`kincal plan --csv FILE`).
-pub const PLAN_CSV_HEADER: &str = "purpose,placement,origin_x_mm,origin_y_mm,origin_z_mm,yaw_deg,landmark,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg";
+/// Header of a plan's pose list (`kincal plan --csv FILE`), before a column per joint
+/// (`j1_deg`, …): an artefact placement's origin and yaw, or a session's name with them empty.
+pub const PLAN_CSV_HEADER: &str = "purpose,placement,origin_x_mm,origin_y_mm,origin_z_mm,yaw_deg,landmark";
 
 /// Why an output could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -419,21 +420,20 @@ pub fn plan_json(plan: &crate::calib::plan::Plan) -> String {
 
 /// The pose list of a plan: one row per suggested touch (rivals first, then weak parameters).
 pub fn plan_csv(plan: &crate::calib::plan::Plan) -> String {
-    let mut out = format!("{PLAN_CSV_HEADER}\n");
     let rivals = plan.rivals.iter().flat_map(|r| r.placements.iter().map(|p| ("rivals", p)));
     let weak = plan.weak.placements.iter().map(|p| ("weak", p));
-    for (k, (purpose, p)) in rivals.chain(weak).enumerate() {
+    let all: Vec<(&str, &crate::calib::plan::SuggestedPlacement)> = rivals.chain(weak).collect();
+    let joints = all.iter().flat_map(|(_, p)| p.poses_deg.first()).map(|q| q.len()).max().unwrap_or(0);
+    let columns: Vec<String> = (1..=joints).map(|j| format!("j{j}_deg")).collect();
+    let mut out = format!("{PLAN_CSV_HEADER},{}\n", columns.join(","));
+    for (k, (purpose, p)) in all.into_iter().enumerate() {
+        let place = match (p.origin_mm, p.yaw_deg) {
+            (Some(o), Some(yaw)) => format!("N{},{:.1},{:.1},{:.1},{yaw:.1}", k + 1, o[0], o[1], o[2]),
+            _ => format!("{},,,,", p.session.as_deref().unwrap_or("N")),
+        };
         for (landmark, pose) in p.landmarks.iter().zip(&p.poses_deg) {
             let angles: Vec<String> = pose.iter().map(|a| format!("{a:.4}")).collect();
-            out.push_str(&format!(
-                "{purpose},N{},{:.1},{:.1},{:.1},{:.1},{landmark},{}\n",
-                k + 1,
-                p.origin_mm[0],
-                p.origin_mm[1],
-                p.origin_mm[2],
-                p.yaw_deg,
-                angles.join(",")
-            ));
+            out.push_str(&format!("{purpose},{place},{landmark},{}\n", angles.join(",")));
         }
     }
     out

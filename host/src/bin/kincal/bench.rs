@@ -346,7 +346,7 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     let study_options = StudyOptions {
         subsets: args.study_subsets,
         seed: 1,
-        calibration: SolveOptions { restarts: Some(0), ..options.clone() },
+        setup: Setup::new(SolveOptions { restarts: Some(0), ..options.clone() }),
         progress: false,
     };
     let t = Instant::now();

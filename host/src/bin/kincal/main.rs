@@ -37,7 +37,7 @@ enum Command {
     /// Calibrate the arm model from artefact touches, tracker sessions or both, and validate it on
     /// held-out sessions.
     Calibrate(Box<calibrate::CalibrateArgs>),
-    /// Dataset-size study: calibrate on random subsets of placements, validate each.
+    /// Dataset-size study: calibrate on random subsets of placements or sessions, validate each.
     Study(arm::StudyArgs),
     /// Where the calibrated model of RUN fails and which physical effect is missing.
     Diagnose(diagnose::DiagnoseArgs),

@@ -12,11 +12,10 @@
 //! pairs of orders the visited angles cannot tell apart. The apparent error is also drawn
 //! against the joint's gravity lever, and |r| against height and reach.
 
-use crate::calib::nuisance::frame::Frame;
-use crate::calib::validate::{fit_session_with_tool, session_residuals_mm};
+use crate::calib::validate::{fit_session_with_tool, placement_residuals, session_residuals_mm};
 use crate::data::Observations;
 use crate::model::effects::Effect;
-use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
+use crate::model::kinematics::{tool_pose_with_jacobian, ColumnMap};
 use crate::model::{ArmModel, ParamId};
 use nalgebra::{DMatrix, DVector, Vector3};
 
@@ -185,23 +184,7 @@ fn coverage_deg(angles_deg: &[f64]) -> f64 {
 /// each held-out block's frame is refitted: a rigid fit of the artefact in each placement (four
 /// touches or more), or each session's frame (and tool, for the groups in `float_tool`).
 fn residuals(model: &ArmModel, data: &Observations, float_tool: &[String]) -> Vec<Option<Vector3<f64>>> {
-    let mut out = vec![None; data.obs.len()];
-    let p: Vec<Vector3<f64>> = data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
-    for placement in 0..data.groups.len() {
-        let idx: Vec<usize> = (0..p.len())
-            .filter(|&k| data.obs[k].group == placement && data.obs[k].landmark().is_some())
-            .collect();
-        if idx.len() < 4 {
-            continue;
-        }
-        let q: Vec<Vector3<f64>> =
-            idx.iter().map(|&k| Vector3::from(data.landmarks[data.obs[k].touched()].xyz_mm)).collect();
-        let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
-        let frame = Frame::fit(&q, &pm);
-        for (i, &k) in idx.iter().enumerate() {
-            out[k] = Some(pm[i] - frame.apply(&q[i]));
-        }
-    }
+    let mut out = placement_residuals(model, data, 4);
     for b in data.sessions() {
         let offset = if float_tool.contains(&data.block_name(b)) {
             fit_session_with_tool(model, data, b).0.offset_mm

@@ -20,7 +20,7 @@
 
 use super::data_errors::sessions::data_error_candidates;
 use super::data_errors::DataSet;
-use super::evidence::{Evidence, FittedValue, Flagged, NotIdentifiable, Refitted};
+use super::evidence::{Evidence, FittedValue, Flagged, NotIdentifiable, Ranking, Refitted};
 use super::floor::Floor;
 use super::units::Measure;
 use super::SIGNIFICANT_GAIN;
@@ -206,24 +206,27 @@ impl Evidence for CrossValidation<'_> {
                     })
                 })
                 .collect();
-            effects.push(Refitted {
-                change: Change::Effect(e),
-                errors,
+            let ranking = Ranking {
                 order: None,
                 calibration_z: calibration_z(&self.fit, &fit, estimated),
                 cv_gain: None,
                 delta_bic: None,
                 calibration_rms_mm: Some(fit.rms_mm),
                 refitted: true,
+            };
+            effects.push(Refitted {
+                change: Change::Effect(e),
+                errors,
+                ranking,
                 fitted,
                 words: String::new(),
             });
         }
-        effects.sort_by(|a, b| b.calibration_z.total_cmp(&a.calibration_z));
+        effects.sort_by(|a, b| b.ranking.calibration_z.total_cmp(&a.ranking.calibration_z));
         let orders: Vec<(Option<f64>, Option<f64>)> =
             effects.par_iter().take(CROSS_VALIDATED).map(|s| self.cross_validated(&s.change)).collect();
         for (s, (gain, order)) in effects.iter_mut().zip(orders) {
-            (s.cv_gain, s.order) = (gain, order);
+            (s.ranking.cv_gain, s.ranking.order) = (gain, order);
         }
         (effects, not_identifiable)
     }
@@ -245,18 +248,15 @@ impl Evidence for CrossValidation<'_> {
                 let change = d.change.clone()?;
                 let (fit, errors) = self.refit(&change)?;
                 let (cv_gain, order) = self.cross_validated(&change);
-                Some(Refitted {
-                    change,
-                    errors,
+                let ranking = Ranking {
                     order,
                     calibration_z: calibration_z(&self.fit, &fit, 3),
                     cv_gain,
                     delta_bic: None,
                     calibration_rms_mm: Some(fit.rms_mm),
                     refitted: true,
-                    fitted: Vec::new(),
-                    words: d.text.clone(),
-                })
+                };
+                Some(Refitted { change, errors, ranking, fitted: Vec::new(), words: d.text.clone() })
             })
             .collect();
         (errors, Flagged { held_out_tools, ..Flagged::default() })

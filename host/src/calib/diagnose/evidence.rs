@@ -21,13 +21,10 @@ use crate::calib::floor::Gap;
 use crate::calib::setup::Change;
 use crate::model::effects::{Effect, EffectKind};
 
-/// A candidate refitted on the calibration data, ready for the held-out test.
-#[derive(Clone, Debug)]
-pub struct Refitted {
-    /// The change.
-    pub change: Change,
-    /// Held-out errors with the change (the layout of [`super::units::Measure::errors`]).
-    pub errors: Vec<f64>,
+/// What the calibration data say about a candidate: its place in the fixed sequence and the
+/// figures behind it.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Ranking {
     /// Its place in the fixed sequence, larger first; `None`: the calibration data do not
     /// promise enough for it to be tested.
     pub order: Option<f64>,
@@ -42,6 +39,17 @@ pub struct Refitted {
     pub calibration_rms_mm: Option<f64>,
     /// Refitted (nonlinear) rather than scored from a linearised step.
     pub refitted: bool,
+}
+
+/// A candidate refitted on the calibration data, ready for the held-out test.
+#[derive(Clone, Debug)]
+pub struct Refitted {
+    /// The change.
+    pub change: Change,
+    /// Held-out errors with the change (the layout of [`super::units::Measure::errors`]).
+    pub errors: Vec<f64>,
+    /// What the calibration data say about it.
+    pub ranking: Ranking,
     /// The effect's parameters as fitted.
     pub fitted: Vec<FittedValue>,
     /// For a data error: what was found, in words. For an effect: what was held and why.

@@ -33,7 +33,7 @@ mod summary;
 pub mod units;
 
 pub use apparent::{JointResiduals, Sinusoid};
-pub use evidence::{FittedValue, NotIdentifiable};
+pub use evidence::{FittedValue, NotIdentifiable, Ranking};
 pub use floor::{Floor, NeighbourBound};
 pub use sequence::{Rival, RivalVerdict, DATA_ERROR_EXPLAINS, FAMILY_ALPHA, SIGNIFICANT_GAIN};
 pub use units::Measure;
@@ -87,20 +87,9 @@ pub struct Candidate {
     pub tested: bool,
     /// The fixed sequence found it significant (p and practical gain).
     pub significant: bool,
-    /// Its place in the fixed sequence from the calibration data (larger first; `None`: the
-    /// calibration data do not promise enough for a test).
-    pub order: Option<f64>,
-    /// Calibration evidence as a standard normal deviate.
-    pub calibration_z: f64,
-    /// ln(MSE_before / MSE_with) over the cross-validated calibration points, when
-    /// cross-validated.
-    pub cv_gain: Option<f64>,
-    /// Change of BIC on the calibration data (negative favours it), when computed.
-    pub delta_bic: Option<f64>,
-    /// Calibration RMS with the change, mm, when refitted in full.
-    pub calibration_rms_mm: Option<f64>,
-    /// Refitted in full (else scored from a shared Gauss–Newton step).
-    pub refitted: bool,
+    /// What the calibration data say about it, and its place in the fixed sequence.
+    #[serde(flatten)]
+    pub ranking: Ranking,
     /// The effect's parameters as fitted.
     pub fitted: Vec<FittedValue>,
     /// What it is and what it would do, in words.
@@ -205,12 +194,7 @@ fn scored(
         p_value: score.p_value,
         tested: false,
         significant: false,
-        order: r.order,
-        calibration_z: r.calibration_z,
-        cv_gain: r.cv_gain,
-        delta_bic: r.delta_bic,
-        calibration_rms_mm: r.calibration_rms_mm,
-        refitted: r.refitted,
+        ranking: r.ranking.clone(),
         fitted: r.fitted.clone(),
         evidence: words,
         equivalent: Vec::new(),

@@ -26,7 +26,7 @@
 //! touch χ²), refitted warm.
 
 use super::data_errors::touches::{refit_with_landmark_freed, suspicious, DisturbedBlock, MisSeatedTouch};
-use super::evidence::{mm, Evidence, FittedValue, Flagged, NotIdentifiable, Refitted};
+use super::evidence::{mm, Evidence, FittedValue, Flagged, NotIdentifiable, Ranking, Refitted};
 use super::floor::Floor;
 use crate::calib::fit::{dense_jacobian, solve_warm};
 use crate::calib::floor::{gap, noise_floor, Gap, NoiseFloor};
@@ -338,18 +338,15 @@ impl<'a> ScoreTest<'a> {
         delta_bic: Option<f64>,
         words: String,
     ) -> Refitted {
-        Refitted {
-            change,
-            errors,
+        let ranking = Ranking {
             order: Some(z),
             calibration_z: z,
             cv_gain: None,
             delta_bic,
             calibration_rms_mm: None,
             refitted: true,
-            fitted: Vec::new(),
-            words,
-        }
+        };
+        Refitted { change, errors, ranking, fitted: Vec::new(), words }
     }
 }
 
@@ -409,15 +406,18 @@ impl Evidence for ScoreTest<'_> {
                 } else {
                     format!(" (held at zero: {})", c.held_reason.join("; "))
                 };
-                Refitted {
-                    change: Change::Effect(c.effect),
-                    errors: distance_residuals(&model, self.val),
+                let ranking = Ranking {
                     order: Some(z),
                     calibration_z: z,
                     cv_gain: None,
                     delta_bic: Some(delta_bic),
                     calibration_rms_mm: None,
                     refitted,
+                };
+                Refitted {
+                    change: Change::Effect(c.effect),
+                    errors: distance_residuals(&model, self.val),
+                    ranking,
                     fitted,
                     words,
                 }

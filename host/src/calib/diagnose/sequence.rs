@@ -80,7 +80,7 @@ pub struct Rival {
 /// the calibration data favour it): significant when the fixed sequence reaches it, else still a
 /// rival of the leading candidate.
 fn helps_alone(c: &Candidate, baseline_rms_mm: f64) -> bool {
-    c.order.is_some_and(|o| o > 0.0)
+    c.ranking.order.is_some_and(|o| o > 0.0)
         && c.p_value <= FAMILY_ALPHA
         && c.held_out_rms_mm <= (1.0 - SIGNIFICANT_GAIN) * baseline_rms_mm
 }
@@ -88,8 +88,9 @@ fn helps_alone(c: &Candidate, baseline_rms_mm: f64) -> bool {
 /// Mark the candidates the fixed sequence reaches (`tested`) and those it finds significant.
 pub fn decide(candidates: &mut [Candidate], data_errors: &mut [Candidate], baseline_rms_mm: f64) {
     let mut sequence: Vec<&mut Candidate> =
-        candidates.iter_mut().chain(data_errors.iter_mut()).filter(|c| c.order.is_some()).collect();
-    sequence.sort_by(|a, b| b.order.unwrap_or(f64::MIN).total_cmp(&a.order.unwrap_or(f64::MIN)));
+        candidates.iter_mut().chain(data_errors.iter_mut()).filter(|c| c.ranking.order.is_some()).collect();
+    sequence
+        .sort_by(|a, b| b.ranking.order.unwrap_or(f64::MIN).total_cmp(&a.ranking.order.unwrap_or(f64::MIN)));
     for c in sequence {
         c.tested = true;
         if !helps_alone(c, baseline_rms_mm) {
@@ -195,7 +196,7 @@ pub fn rivals(x: &Contest, evidence: &dyn Evidence) -> (Vec<Rival>, Vec<String>)
     // A rival that explains what the leader does (and more) leads instead: of several, the one
     // with the strongest calibration evidence (data the held-out tests never saw).
     let evidence_of =
-        |name: &str| candidates.iter().find(|c| c.name == name).map_or(f64::MIN, |c| c.calibration_z);
+        |name: &str| candidates.iter().find(|c| c.name == name).map_or(f64::MIN, |c| c.ranking.calibration_z);
     let leader = tested
         .iter()
         .filter_map(|r| match &r.verdict {

@@ -19,7 +19,7 @@
 //!    its partials in the `AnglePartials` list (`ANGLE_DEPS`).
 //! 6. `simulate.rs`: the same term written again in the independent forward path
 //!    (`tool_frame_with`), so tests can hide it in data the fitting code did not make.
-//! 7. `calib/diagnose.rs`: the plain-words `evidence` for the kind.
+//! 7. `calib/diagnose/evidence.rs`: the plain words (`effect_words`) for the kind.
 //! 8. The controller: `protocol/src/params.rs` (the parameter blob), `controller/device.rs`
 //!    (the mapping) and the firmware kinematics — until then [`beyond_controller`] names the
 //!    parameters the controller cannot evaluate and `kincal upload` refuses such a model.

@@ -6,6 +6,7 @@
 pub mod demo;
 pub mod device;
 pub mod emulator;
+pub mod igtl_client;
 pub mod igtl_server;
 pub mod link;
 pub mod motion;

@@ -9,8 +9,10 @@ mod calibrate;
 mod cli_reference;
 mod controller;
 mod diagnose;
+mod dynamic;
 mod emulated_arm;
 mod haptic;
+mod igtl_record;
 mod model;
 mod plan;
 
@@ -59,6 +61,13 @@ enum Command {
     Stream(controller::StreamArgs),
     /// Guided measurement of one artefact placement; resumes an interrupted session.
     Record(controller::RecordArgs),
+    /// The streamed pose in motion against a reference tracker's recording of the same tool:
+    /// latency, clock offset and drift, path error at rest, in motion and at direction changes.
+    Dynamic(dynamic::DynamicArgs),
+    /// Record the TRANSFORMs an OpenIGTLink server sends (the arm's pose from `kincal stream
+    /// --igtl`, or an optical tracker through PLUS) as a client receives them, for `kincal
+    /// dynamic`.
+    IgtlRecord(igtl_record::IgtlRecordArgs),
     /// Emulated controller only: pose the arm, inject encoder noise and faults.
     #[command(subcommand)]
     EmulatedArm(emulated_arm::EmulatedArmCommand),
@@ -121,6 +130,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Key(controller::KeyCommand::New(a)) => controller::cmd_key_new(&a),
         Command::Stream(a) => controller::cmd_stream(&a),
         Command::Record(a) => controller::cmd_record(&a),
+        Command::Dynamic(a) => dynamic::cmd_dynamic(&a),
+        Command::IgtlRecord(a) => igtl_record::cmd_igtl_record(&a),
         Command::EmulatedArm(c) => emulated_arm::run(&c),
         Command::Haptic(haptic::HapticCommand::Simulate(a)) => haptic::cmd_haptic_simulate(&a),
         Command::Haptic(haptic::HapticCommand::Calibrate(a)) => haptic::cmd_haptic_calibrate(&a),

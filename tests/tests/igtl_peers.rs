@@ -13,7 +13,7 @@ use kincal_protocol::biss::counts_to_deg;
 use kincal_protocol::messages::{Request, SimFaults, TICK_HZ};
 use kincal_protocol::trajectory::counts_at;
 use std::collections::BTreeMap;
-use std::io::{BufRead, Read};
+use std::io::BufRead;
 use std::net::TcpStream;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
@@ -236,8 +236,9 @@ fn the_stream_command_serves_the_pose_and_keeps_invalid_poses_back() {
     link.upload(&kincal_e2e::signed_set(&kincal::model::ArmModel::suta_nominal(), 1)).unwrap();
     drop(link);
     let csv = dir.join("poses.csv");
+    // It streams until interrupted (Ctrl-C), so a slow machine cannot end it before pyigtl is in.
     let mut child = Command::new(kincal_bin())
-        .args(["stream", "--port", &fake.port, "--pose", "--igtl", "127.0.0.1:0", "--seconds", "4"])
+        .args(["stream", "--port", &fake.port, "--pose", "--igtl", "127.0.0.1:0", "--seconds", "300"])
         .arg("--csv")
         .arg(&csv)
         .stdout(Stdio::piped())
@@ -251,17 +252,45 @@ fn the_stream_command_serves_the_pose_and_keeps_invalid_poses_back() {
         .strip_prefix("OpenIGTLink server on ")
         .and_then(|r| r.split(':').take(2).collect::<Vec<_>>().join(":").parse().ok())
         .unwrap_or_else(|| panic!("{line}"));
+    let (lines, printed) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in stdout.lines().map_while(Result::ok) {
+            let _ = lines.send(line);
+        }
+    });
     let py_csv = dir.join("py.csv");
     let python = spawn_pyigtl(addr, &py_csv, false);
+    // kincal's own recording client, as `kincal dynamic` takes the pose from the OpenIGTLink side.
+    let recorded = dir.join("igtl-record.csv");
+    let recorder = Command::new(kincal_bin())
+        .args(["igtl-record", "--connect", &addr.to_string(), "--csv"])
+        .arg(&recorded)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut rest = Vec::new();
+    let joined = |lines: &[String]| {
+        lines.iter().filter(|l| l.contains("OpenIGTLink client") && l.contains("connected")).count()
+    };
+    while joined(&rest) < 2 {
+        rest.push(
+            printed.recv_timeout(Duration::from_secs(120)).expect("the CLI logs both clients' connections"),
+        );
+    }
     std::thread::sleep(Duration::from_millis(1200));
     fake.meddle_arm(Request::SimFaults(SimFaults { unplugged: 0b100, ..SimFaults::default() }));
     std::thread::sleep(Duration::from_millis(800));
     fake.meddle_arm(Request::SimFaults(SimFaults::default()));
-    let mut rest = String::new();
-    stdout.read_to_string(&mut rest).unwrap();
+    std::thread::sleep(Duration::from_millis(1000));
+    let interrupted = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(interrupted.success());
+    rest.extend(printed.iter());
+    let rest = rest.join("\n");
     assert!(child.wait().unwrap().success(), "{rest}");
-    assert!(rest.contains("OpenIGTLink client") && rest.contains("connected"), "{rest}");
     let _ = stdout_of(python);
+    let said = stdout_of(recorder);
+    assert!(said.contains("poses in") && said.contains("written to"), "{said}");
     let got = parse_pyigtl(&std::fs::read_to_string(&py_csv).unwrap());
     // The host's CSV: t_s of every valid and invalid row.
     let text = std::fs::read_to_string(&csv).unwrap();
@@ -281,5 +310,27 @@ fn the_stream_command_serves_the_pose_and_keeps_invalid_poses_back() {
     let near_invalid = |t: f64| invalid.iter().any(|i| (i - t).abs() < 2e-6);
     assert!(!transforms.iter().any(|m| near_invalid(m.t_s)), "an invalid pose was sent as a transform");
     assert!(got.iter().filter(|m| m.kind == "STATUS").count() >= 2, "pyigtl saw no STATUS");
+    // `kincal igtl-record` wrote every valid pose streamed while it was connected, and no other.
+    let positions: BTreeMap<i64, [f64; 3]> = text
+        .lines()
+        .skip(1)
+        .filter(|l| l.split(',').nth(2) == Some("1"))
+        .map(|l| {
+            let c: Vec<f64> = l.split(',').map(|v| v.parse().unwrap_or(f64::NAN)).collect();
+            ((igtl_seconds(c[14]) * 1e6).round() as i64, [c[5], c[6], c[7]])
+        })
+        .collect();
+    let track = kincal::motion::recording::read_track(&recorded).unwrap();
+    assert!(track.len() > 1500 && track.host_s.is_some(), "{} rows", track.len());
+    for (t, p) in track.t_s.iter().zip(&track.p) {
+        let key = (t * 1e6).round() as i64;
+        let host = positions.range(key - 1..=key + 1).next().map(|(_, p)| p);
+        let host = host.unwrap_or_else(|| panic!("{t}: no valid pose streamed then"));
+        assert!((0..3).all(|k| (host[k] - p[k]).abs() < 1e-3), "{t}: {p:?} vs {host:?}");
+    }
+    let (first, last) = (track.t_s[0], track.t_s[track.len() - 1]);
+    let streamed =
+        rows.iter().filter(|r| r.0 && (first - 1e-6..=last + 1e-6).contains(&igtl_seconds(r.1))).count();
+    assert_eq!(track.len(), streamed, "igtl-record lost poses");
     std::fs::remove_dir_all(&dir).ok();
 }

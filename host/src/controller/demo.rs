@@ -208,6 +208,32 @@ pub fn demo_station_key(out: &std::path::Path) -> Result<StationKey, LoopError> 
     Ok(StationKey::create(&path)?)
 }
 
+/// The demo's true arm for `seed`: `nominal` off by the simulation's perturbation, with the
+/// demo's hidden effect ([`DEMO_HIDDEN`]).
+pub fn demo_truth(nominal: &ArmModel, seed: u64) -> ArmModel {
+    true_arm(nominal, seed, &[DEMO_HIDDEN], &mut ChaCha8Rng::seed_from_u64(seed))
+}
+
+/// `nominal` off by the simulation's perturbation (drawn from `rng`), plus the `hidden` deltas.
+fn true_arm(nominal: &ArmModel, seed: u64, hidden: &[(ParamId, f64)], rng: &mut ChaCha8Rng) -> ArmModel {
+    let sim = SimulationOptions { seed, ..SimulationOptions::default() };
+    let mut truth = perturbed_truth(nominal, &sim, rng);
+    for (id, delta) in hidden {
+        truth.set(*id, truth.get(*id) + delta);
+    }
+    truth
+}
+
+/// Sign `model` with `key` as the next parameter version for the controller on `link` and
+/// upload it.
+pub fn upload_model(link: &mut Link, model: &ArmModel, key: &StationKey) -> Result<(), LoopError> {
+    let info = link.info()?;
+    let set =
+        crate::controller::device::signed_parameter_set(model, info.param_version + 1, &info.arm_id, key)?;
+    link.upload(&set)?;
+    Ok(())
+}
+
 /// What the loop measured.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct LoopReport {
@@ -350,12 +376,8 @@ pub fn run_loop(
 ) -> Result<LoopReport, LoopError> {
     let started = Instant::now();
     let files = |e: &dyn std::fmt::Display| LoopError::Files(e.to_string());
-    let sim = SimulationOptions { seed: options.seed, ..SimulationOptions::default() };
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
-    let mut truth = perturbed_truth(nominal, &sim, &mut rng);
-    for (id, delta) in &options.hidden {
-        truth.set(*id, truth.get(*id) + delta);
-    }
+    let truth = true_arm(nominal, options.seed, &options.hidden, &mut rng);
     let artefact = suta_artefact(&mut rng);
     let data = options.out.join("data");
     claim_data_folder(&data, options.seed)?;
@@ -432,14 +454,7 @@ pub fn run_loop(
             check_counts.len()
         ));
         let t = Instant::now();
-        let info = link.info()?;
-        let set = crate::controller::device::signed_parameter_set(
-            model,
-            info.param_version + 1,
-            &info.arm_id,
-            &key,
-        )?;
-        link.upload(&set)?;
+        upload_model(link, model, &key)?;
         let upload = t.elapsed().as_secs_f64();
         let points =
             check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;

@@ -9,6 +9,7 @@ pub mod demo;
 pub mod device;
 pub mod emulated_arm;
 pub mod emulator;
+pub mod igtl_client;
 pub mod igtl_server;
 pub mod link;
 pub mod motion;

@@ -72,6 +72,44 @@ impl Dynamic {
     pub fn error(&self, category: Category) -> &ErrorStat {
         &self.categories.iter().find(|c| c.0 == category).expect("every category is computed").1
     }
+
+    /// The latency in words, with its uncertainty.
+    pub fn latency_text(&self) -> String {
+        let l = &self.latency;
+        if l.from_arrivals {
+            format!(
+                "{:.2} ± {:.2} ms from a sample's instant to its arrival on the host (jitter {:.2} ms, 95th percentile {:.2} ms)",
+                l.mean_ms, l.u95_ms, l.jitter_ms, l.p95_ms
+            )
+        } else {
+            format!(
+                "{:.2} ± {:.2} ms by the tracker's timestamps, taken to be on the host's clock (the recording has no host_s column of arrival times)",
+                l.mean_ms, l.u95_ms
+            )
+        }
+    }
+
+    /// The verdict in lines: latency, clock, error at rest and in motion, where it grows.
+    pub fn summary(&self) -> Vec<String> {
+        let mut out = vec![format!("latency of the tracker behind the arm: {}", self.latency_text())];
+        if self.latency.from_arrivals {
+            out.push(format!(
+                "tracker clock: {:+.2} ± {:.2} ms against the arm's at its first sample, drift {:+.1} ± {:.1} ppm",
+                self.clock_offset_at_start_ms,
+                self.clock_offset_at_start_u95_ms,
+                self.clock.drift_ppm,
+                self.clock.drift_u95_ppm
+            ));
+        }
+        out.push(format!(
+            "path error after a rigid registration, the tracker's noise ({:.3} mm per axis) removed: at rest {}, in motion {}",
+            self.noise_mm,
+            self.error(Category::AtRest).text(),
+            self.error(Category::InMotion).text()
+        ));
+        out.extend(self.findings.iter().cloned());
+        out
+    }
 }
 
 impl ErrorStat {
@@ -486,8 +524,9 @@ mod tests {
             host_s: Some(samples.iter().map(|s| s.host_s).collect()),
             p: samples.iter().map(|s| s.p).collect(),
             gaps: 0,
+            unordered: 0,
         };
-        (Track { t_s, host_s: None, p, gaps: 0 }, tracker, samples)
+        (Track { t_s, host_s: None, p, gaps: 0, unordered: 0 }, tracker, samples)
     }
 
     /// Latency 5, 12 and 20 ms, the tracker's clock 3.7 s ahead and 40 ppm fast, noise 0.15 mm,
@@ -522,7 +561,7 @@ mod tests {
             assert!(d.tracker_gaps >= 1, "the occlusions show as gaps");
             let rows = against_truth(&d, &|k| {
                 let at = samples[k].taken_s;
-                (arm.true_point(at, o.flex_mm_per_m_s2), arm.rigid_point(at))
+                Some((arm.true_point(at, o.flex_mm_per_m_s2), arm.rigid_point(at)))
             });
             // The headline figures within their 95 % uncertainty; every category within 1.5 times
             // it (99.7 %): a 95 % interval misses in one case of twenty (the docs give the
@@ -593,6 +632,7 @@ mod tests {
             host_s: None,
             p: elsewhere.p[..200].to_vec(),
             gaps: 0,
+            unordered: 0,
         };
         assert!(analyze(&arm_track, &short).is_err());
     }

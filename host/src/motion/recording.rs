@@ -26,7 +26,14 @@ pub struct Track {
     pub p: Vec<[f64; 3]>,
     /// Rows that were gaps (invalid poses, empty positions).
     pub gaps: usize,
+    /// Rows skipped because their time did not come after the previous row's (a stream's first
+    /// frames read in one burst can share a stamp); at most [`MAX_UNORDERED`] of the rows.
+    pub unordered: usize,
 }
+
+/// Largest share of rows whose time does not increase that a recording may have (skipped, and
+/// counted); more is an error.
+pub const MAX_UNORDERED: f64 = 0.01;
 
 impl Track {
     /// Samples.
@@ -70,6 +77,7 @@ pub fn read_track(path: &Path) -> Result<Track, FileError> {
     }
     let (valid_col, host_col) = (find("valid"), find("host_s"));
     let mut track = Track { host_s: host_col.map(|_| Vec::new()), ..Track::default() };
+    let mut first_unordered: Option<(usize, f64, f64)> = None;
     for (n, line) in lines {
         let cells: Vec<&str> = line.split(',').map(str::trim).collect();
         let cell = |c: usize| cells.get(c).copied().unwrap_or("");
@@ -89,27 +97,40 @@ pub fn read_track(path: &Path) -> Result<Track, FileError> {
         }
         if let Some(&before) = track.t_s.last() {
             if t <= before {
-                return Err(row_error(
-                    n + 1,
-                    "t_s",
-                    format!("{t} does not come after the previous sample's {before}: times must increase"),
-                ));
+                first_unordered.get_or_insert((n + 1, t, before));
+                track.unordered += 1;
+                continue;
             }
         }
         let p = [number(required[1])?, number(required[2])?, number(required[3])?];
         if let (Some(c), Some(host)) = (host_col, track.host_s.as_mut()) {
             let h = number(c)?;
-            if host.last().is_some_and(|&b| h <= b) {
+            if host.last().is_some_and(|&b| h < b) {
                 return Err(row_error(
                     n + 1,
                     "host_s",
-                    format!("{h} does not come after the previous sample's: arrival times must increase"),
+                    format!(
+                        "{h} comes before the previous sample's arrival: arrival times must not decrease"
+                    ),
                 ));
             }
             host.push(h);
         }
         track.t_s.push(t);
         track.p.push(p);
+    }
+    if let Some((line, t, before)) = first_unordered {
+        if track.unordered as f64 > MAX_UNORDERED * (track.len() + track.unordered) as f64 {
+            return Err(row_error(
+                line,
+                "t_s",
+                format!(
+                    "{t} does not come after the previous sample's {before}, and {} rows in all do not: times must increase (at most {:.0} % of the rows may repeat a time; they are skipped)",
+                    track.unordered,
+                    MAX_UNORDERED * 100.0
+                ),
+            ));
+        }
     }
     if track.len() < 2 {
         return Err(row_error(
@@ -164,6 +185,7 @@ mod tests {
             host_s: Some(vec![5.0, 5.02]),
             p: vec![[1.0, 2.0, 3.0]; 2],
             gaps: 0,
+            unordered: 0,
         };
         assert_eq!(read_track(&file("tracker", &track_csv(&tracker))).unwrap(), tracker);
     }

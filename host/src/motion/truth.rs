@@ -22,16 +22,22 @@ pub struct TruthRow {
 }
 
 /// The true error by category; `points(k)` gives, for tracker sample k, the true tool point and
-/// the arm's reported point at the instant it was taken (both in the arm's base frame, mm).
-pub fn against_truth(d: &Dynamic, points: &dyn Fn(usize) -> (Vector3<f64>, Vector3<f64>)) -> Vec<TruthRow> {
-    let (from, to): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) = d.series.iter().map(|s| points(s.index)).unzip();
+/// the arm's reported point at the instant it was taken (both in the arm's base frame, mm), or
+/// None where the arm reported none (that sample is left out).
+pub fn against_truth(
+    d: &Dynamic,
+    points: &dyn Fn(usize) -> Option<(Vector3<f64>, Vector3<f64>)>,
+) -> Vec<TruthRow> {
+    let known: Vec<(&super::PathSample, (Vector3<f64>, Vector3<f64>))> =
+        d.series.iter().filter_map(|s| points(s.index).map(|p| (s, p))).collect();
+    let (from, to): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) = known.iter().map(|(_, p)| *p).unzip();
     let (r, t) = crate::numerics::geometry::absolute_orientation(&from, &to);
     let squared: Vec<f64> = from.iter().zip(&to).map(|(q, p)| (r * q + t - p).norm_squared()).collect();
     d.categories
         .iter()
         .map(|(category, measured)| {
             let e: Vec<f64> =
-                d.series.iter().zip(&squared).filter(|(s, _)| category.holds(s)).map(|(_, e)| *e).collect();
+                known.iter().zip(&squared).filter(|((s, _), _)| category.holds(s)).map(|(_, e)| *e).collect();
             let truth = (e.iter().sum::<f64>() / e.len().max(1) as f64).sqrt();
             let agrees = match (measured.rms_mm, measured.u95_mm, measured.below_mm) {
                 (Some(rms), Some(u), _) => (rms - truth).abs() <= u,

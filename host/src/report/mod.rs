@@ -4,6 +4,7 @@
 pub mod auto;
 pub mod compare;
 pub mod diagnosis;
+pub mod dynamic;
 pub mod haptic;
 pub mod run;
 pub mod study;

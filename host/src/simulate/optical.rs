@@ -59,7 +59,7 @@ impl Default for OpticalOptions {
             drift_ppm: 40.0,
             noise_mm: 0.15,
             occlusions_per_min: 6.0,
-            flex_mm_per_m_s2: 0.1,
+            flex_mm_per_m_s2: 0.2,
             seed: 1,
         }
     }

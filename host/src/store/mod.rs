@@ -32,6 +32,8 @@ pub const MARKER: &str = ".kincal-output";
 pub const STUDY_FORMAT: &str = "kincal-study/1";
 /// Format tag of `diagnosis.json` (every kind of held-out data; `measure` says which).
 pub const DIAGNOSIS_FORMAT: &str = "kincal-diagnosis/2";
+/// Format tag of a dynamic validation's `dynamic.json`.
+pub const DYNAMIC_FORMAT: &str = "kincal-dynamic/1";
 /// Format tag of a haptic calibration's `summary.json`.
 pub const HAPTIC_FORMAT: &str = "kincal-haptic/1";
 /// Format tag of the auto loop's `auto.json` (every kind of held-out data).
@@ -81,6 +83,8 @@ pub enum FolderKind {
     Simulation,
     /// A simulated haptic recording (`kincal haptic simulate`).
     HapticRecording,
+    /// A dynamic validation (`kincal dynamic`).
+    Dynamic,
 }
 
 impl FolderKind {
@@ -92,6 +96,7 @@ impl FolderKind {
             FolderKind::Auto => "auto",
             FolderKind::Simulation => "simulation",
             FolderKind::HapticRecording => "haptic-recording",
+            FolderKind::Dynamic => "dynamic",
         }
     }
 
@@ -151,6 +156,7 @@ impl FolderKind {
             FolderKind::Auto => &["auto.json", "report.html"],
             FolderKind::Simulation => &["artefact.json", "truth.toml"],
             FolderKind::HapticRecording => &["recording.json"],
+            FolderKind::Dynamic => &["dynamic.json", "report.html"],
         }
     }
 }
@@ -486,6 +492,36 @@ pub fn write_haptic(summary: &HapticSummary, dir: &Path, recording: &Path) -> Re
     write_folder(dir, FolderKind::Haptic, &[recording], |staged| {
         put(staged, "summary.json", haptic_json(summary).as_bytes())?;
         put(staged, "report.html", report::haptic::haptic_report(summary).as_bytes())
+    })
+}
+
+/// The JSON of a dynamic validation, as its `dynamic.json` holds it (with the true error by
+/// category when it is known).
+pub fn dynamic_json(d: &crate::motion::Dynamic, truth: Option<&[crate::motion::truth::TruthRow]>) -> String {
+    #[derive(serde::Serialize)]
+    struct WithTruth<'a> {
+        #[serde(flatten)]
+        result: &'a crate::motion::Dynamic,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        truth: Option<&'a [crate::motion::truth::TruthRow]>,
+    }
+    json(&Tagged { format: DYNAMIC_FORMAT, body: &WithTruth { result: d, truth } })
+}
+
+/// Write a dynamic validation folder (dynamic.json, report.html) from the recordings `arm` and
+/// `tracker`.
+pub fn write_dynamic(
+    d: &crate::motion::Dynamic,
+    truth: Option<&[crate::motion::truth::TruthRow]>,
+    dir: &Path,
+    arm: &Path,
+    tracker: &Path,
+) -> Result<(), OutputError> {
+    let (arm_name, tracker_name) = (arm.display().to_string(), tracker.display().to_string());
+    let inputs = report::dynamic::PageInputs { arm: &arm_name, tracker: &tracker_name };
+    write_folder(dir, FolderKind::Dynamic, &[arm, tracker], |staged| {
+        put(staged, "dynamic.json", dynamic_json(d, truth).as_bytes())?;
+        put(staged, "report.html", report::dynamic::dynamic_report(d, &inputs, truth).as_bytes())
     })
 }
 

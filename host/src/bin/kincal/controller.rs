@@ -32,6 +32,24 @@ pub struct DemoArgs {
     /// The emulated controller's firmware image (`cargo build-emulated` writes it here).
     #[arg(long, default_value = "firmware/target/thumbv7em-none-eabihf/release/emulated")]
     firmware: PathBuf,
+    /// Only the arm in motion (no recording, no calibration; the true arm's parameters are
+    /// uploaded): it follows a trajectory with direction changes, its pose is served over
+    /// OpenIGTLink and validated against a simulated optical tracker (latency, dynamic error).
+    /// Without it the whole demo ends with this step.
+    #[arg(long, conflicts_with = "offline")]
+    motion: bool,
+    /// Latency of the simulated optical tracker, ms (optical trackers: 5 to 20).
+    #[arg(long, default_value_t = 12.0, value_parser = tracker_latency_ms)]
+    tracker_latency_ms: f64,
+}
+
+/// `--tracker-latency-ms`: a latency the simulated tracker can have, 0 to 150 ms.
+fn tracker_latency_ms(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if (0.0..=150.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!("{v} ms is outside 0 to 150 ms (optical trackers deliver in 5 to 20 ms)")),
+        Err(_) => Err(format!("expected a number of milliseconds (e.g. 12), found `{text}`")),
+    }
 }
 
 impl DemoArgs {
@@ -163,7 +181,7 @@ pub struct StreamArgs {
 }
 
 /// `--igtl` as an address to listen on: a port alone means localhost.
-fn igtl_address(text: &str) -> Result<String, String> {
+pub fn igtl_address(text: &str) -> Result<String, String> {
     let text = text.trim();
     let addr = if text.parse::<u16>().is_ok() { format!("127.0.0.1:{text}") } else { text.to_string() };
     use std::net::ToSocketAddrs;
@@ -259,6 +277,13 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
     link.hello()?;
     let info = link.info()?;
     println!("connected: {} on {}", info.firmware, info.board);
+    if a.motion {
+        let truth = kincal::controller::demo::demo_truth(&nominal, a.seed);
+        let key = kincal::controller::demo::demo_station_key(&a.out())?;
+        kincal::controller::demo::upload_model(&mut link, &truth, &key)?;
+        println!("uploaded the true arm's parameters (as after a perfect calibration; seed {})", a.seed);
+        return demo_motion(a, &mut link, &truth);
+    }
     let options = kincal::controller::demo::LoopOptions {
         seed: a.seed,
         window_ticks: a.window_ticks,
@@ -292,6 +317,65 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
         report.floor_pose_rms_mm
     );
     println!("parameter upload took {:.2} s; run: {}", report.upload_seconds, a.out().join("run").display());
+    let truth = ArmModel::load(&a.out().join("data").join("truth.toml"))?;
+    demo_motion(a, &mut link, &truth)
+}
+
+/// The demo's last step: the arm in motion, its pose over OpenIGTLink, latency and dynamic error
+/// against a simulated optical tracker, each beside its truth.
+fn demo_motion(a: &DemoArgs, link: &mut kincal::controller::link::Link, truth: &ArmModel) -> Result<()> {
+    let tracker = kincal::simulate::optical::OpticalOptions {
+        latency_ms: a.tracker_latency_ms,
+        seed: a.seed,
+        ..kincal::simulate::optical::OpticalOptions::default()
+    };
+    println!("the arm in motion:");
+    let r =
+        kincal::controller::motion::motion_demo(link, truth, &tracker, &a.out(), &mut |s| println!("  {s}"))?;
+    println!(
+        "OpenIGTLink: the client received {} transforms of the {} valid poses streamed while it was connected ({} lost), {}; controller link: {} frames lost",
+        r.received,
+        r.received + r.lost_by_client,
+        r.lost_by_client,
+        r.received_vs_streamed_um
+            .map_or("none matched the host's poses".into(), |u| format!("each within {u:.2} µm of the host's pose")),
+        r.stream.lost
+    );
+    let d = &r.dynamic;
+    println!(
+        "latency of the tracker behind the arm: {} (true {:.2} ms)",
+        d.latency_text(),
+        r.tracker.latency_ms
+    );
+    println!(
+        "tracker clock: {:+.2} ± {:.2} ms at its first sample, drift {:+.1} ± {:.1} ppm (true {:+.2} ms, {:+.1} ppm)",
+        d.clock_offset_at_start_ms,
+        d.clock_offset_at_start_u95_ms,
+        d.clock.drift_ppm,
+        d.clock.drift_u95_ppm,
+        r.tracker.clock_offset_s * 1000.0,
+        r.tracker.drift_ppm
+    );
+    println!("dynamic error after a rigid registration, the tracker's noise ({:.3} mm) removed:", d.noise_mm);
+    for row in &r.truth {
+        println!(
+            "  {:<48} {:>34}   true {:.3} mm{}",
+            row.category.label(),
+            row.measured.text(),
+            row.truth_rms_mm,
+            if row.agrees { "" } else { "  (outside the uncertainty)" }
+        );
+    }
+    for f in &d.findings {
+        println!("  {f}");
+    }
+    println!(
+        "report: {}; again from the recordings: kincal dynamic --arm {} --tracker {} --out {}",
+        r.report_dir.join("report.html").display(),
+        r.arm_csv.display(),
+        r.tracker_csv.display(),
+        r.report_dir.display()
+    );
     Ok(())
 }
 

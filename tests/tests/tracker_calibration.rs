@@ -722,3 +722,60 @@ fn a_thermal_scale_drift_in_one_session_is_named_by_kind_and_its_action_reaches_
         std::fs::remove_dir_all(dir).ok();
     }
 }
+
+/// Must show (issue 27): a held-out 6-DoF session whose points lie on one line (the probe moved
+/// along a straight line at one orientation, IK on the true arm) leaves its base's rotation about
+/// that line free: it gets no orientation figure and a sentence why, while its position figures
+/// stand, and the other held-out session keeps its orientation figure.
+#[test]
+fn a_collinear_six_dof_session_gets_no_orientation_figure_and_says_why() {
+    use kincal_e2e::tracker_gen::{inverse_kinematics, quaternion_of, Pose};
+    let dir = scratch("collinear");
+    let mut generated = generate(&GenOptions::industrial_6dof(4));
+    let (truth, base) = (generated.truth.truth.clone(), generated.truth.bases[3]);
+    let template = generated.sessions[3].rows[0].clone();
+    let start = truth.tool_pose(&template.q_deg);
+    let step_mm = [12.0, -5.0, 3.0];
+    let mut rows = Vec::new();
+    let mut q = template.q_deg.clone();
+    for k in 0..20 {
+        let shift = step_mm.map(|v| v * (k as f64 - 10.0));
+        let target =
+            Pose { translation_mm: std::array::from_fn(|i| start.translation_mm[i] + shift[i]), ..start };
+        q = inverse_kinematics(&truth, &target, &q).expect("the line is reachable");
+        let measured = base.then(&truth.tool_pose(&q));
+        // Noise of a few µm across the line: the points lie on it to the instrument's noise.
+        let noise = [0.003, -0.002, 0.004].map(|v| v * if k % 2 == 0 { 1.0 } else { -1.0 });
+        rows.push(kincal_e2e::tracker_gen::Row {
+            pose: k,
+            q_deg: q.clone(),
+            x_mm: std::array::from_fn(|i| measured.translation_mm[i] + noise[i]),
+            exact_mm: measured.translation_mm,
+            quaternion: Some(quaternion_of(&measured.rotation)),
+            exact_rotation: measured.rotation,
+            tool_in_base: truth.tool_pose(&q),
+            ..template.clone()
+        });
+    }
+    generated.sessions[3].rows = rows;
+    let inputs = run_folders(&generated, &dir, &[0, 1], Some(0.005));
+    let run = run_tracker(&inputs).expect("runs");
+    let v = run.summary.validation.sessions.as_ref().expect("held-out sessions");
+    let collinear = v.sessions.iter().find(|s| s.calibrated.name == "day_4").expect("day_4 held out");
+    let other = v.sessions.iter().find(|s| s.calibrated.name == "day_3").expect("day_3 held out");
+    let why = collinear.orientation_withheld.as_deref().expect("a sentence why");
+    println!("{why}");
+    assert!(
+        why.contains("session day_4") && why.contains("lie on one line") && why.contains("not determined"),
+        "{why}"
+    );
+    assert!(collinear.orientation.is_none() && collinear.nominal_orientation.is_none());
+    assert!(collinear.calibrated.rms_mm < 0.05, "position figures stand: {}", collinear.calibrated.rms_mm);
+    assert!(other.orientation.is_some() && other.orientation_withheld.is_none());
+    // The pooled orientation figure is the other session's alone.
+    let pooled = v.orientation_overall.as_ref().expect("pooled orientation");
+    assert_eq!(pooled.orientations, other.orientation.as_ref().map_or(0, |o| o.orientations));
+    let held = run.held_out.iter().find(|h| h.name == "day_4").expect("day_4's residuals");
+    assert!(held.points.iter().all(|p| p.orientation_error_deg.is_none()), "no per-point angle either");
+    std::fs::remove_dir_all(dir).ok();
+}

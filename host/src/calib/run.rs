@@ -18,8 +18,8 @@ use crate::calib::tracker_errors::{data_error_candidates, sessions};
 use crate::calib::trust::{result_problems, TrustScales};
 use crate::calib::validate::{
     calibration_residuals_mm, errors_in_calibration_session, fit_session_with_tool, orientation_errors_deg,
-    session_residuals_mm, validate, validate_orientations, validate_session, AngleStats, ErrorStats,
-    SessionValidation, Validation,
+    session_residuals_mm, undetermined_rotation, validate, validate_orientations, validate_session,
+    AngleStats, ErrorStats, SessionValidation, Validation,
 };
 use crate::data::{load_folder, Artefact, Observations, Purpose};
 use crate::files::FileError;
@@ -489,7 +489,8 @@ pub fn run_on(
     check_run_data(&nominal, cal, val, inputs, options)?;
     check_study_size(cal, study_subsets)?;
     steps.lap("input checks");
-    let fit = calibrate(&nominal, cal, options)?;
+    let mut fit = calibrate(&nominal, cal, options)?;
+    let on_bounds = mark_bounds(&mut fit);
     steps.lap("fit");
     let mut verdict = Vec::new();
     let mut not_trustworthy = Vec::new();
@@ -605,7 +606,7 @@ pub fn run_on(
         data_errors: tracker.as_ref().map_or_else(Vec::new, |t| t.data_errors.clone()),
         verdict,
         not_trustworthy,
-        warnings: cal.warnings.iter().chain(&val.warnings).cloned().collect(),
+        warnings: cal.warnings.iter().chain(&val.warnings).cloned().chain(on_bounds).collect(),
     };
     let calibration_residuals = sessions(cal)
         .into_iter()
@@ -622,6 +623,34 @@ pub fn run_on(
         validation_data: val.clone(),
         steps,
     })
+}
+
+/// Share of a parameter's bound width within which an estimate counts as on its bound.
+pub const ON_BOUND_WITHIN: f64 = 1e-6;
+
+/// Mark each estimated parameter of `fit` that ended on one of its bounds (its status says
+/// which) and say, per parameter, that its value is not a result: the data pushed it there.
+fn mark_bounds(fit: &mut Fit) -> Vec<String> {
+    let mut sentences = Vec::new();
+    for e in fit.estimates.iter_mut().filter(|e| e.status == "estimated") {
+        let Some(bound) = fit.model.free.iter().find(|f| f.id.to_string() == e.param) else { continue };
+        let near = ON_BOUND_WITHIN * (bound.upper - bound.lower).abs().max(1e-12);
+        let side = if (e.value - bound.lower).abs() <= near {
+            ("lower", bound.lower)
+        } else if (bound.upper - e.value).abs() <= near {
+            ("upper", bound.upper)
+        } else {
+            continue;
+        };
+        e.status = format!("estimated, on its {} bound", side.0);
+        sentences.push(format!(
+            "{} ended on its {} bound ({} {}, nominal {} {}): the data pushed it there, so its value is not a \
+             result; an effect the model lacks may have leaked into it (kincal diagnose RUN names it), or its \
+             bounds are too tight (widen them in the model's [free] table, or hold it by removing it there)",
+            e.param, side.0, side.1, e.unit, e.nominal, e.unit
+        ));
+    }
+    sentences
 }
 
 /// What one objective can determine at the calibrated model: distances alone, and with the
@@ -726,9 +755,11 @@ fn sessions_section(
             ([0.0; 3], validate_session(model, val, b, [0.0; 3]))
         }
     };
+    // A session whose points leave its base's rotation free has no orientation figure.
     let orientations = |fit: &Fit, b: usize| {
         fit.tool_rotation
             .as_ref()
+            .filter(|_| undetermined_rotation(val, b).is_none())
             .and_then(|t| validate_orientations(&fit.model, val, b, [0.0; 3], &t.rotation()))
     };
     let mut verdict = Vec::new();
@@ -739,10 +770,13 @@ fn sessions_section(
         let (offset_mm, c) = figures(&fit.model, b);
         let n = figures(&reference.model, b).1;
         let residuals = session_residuals_mm(&fit.model, val, b, offset_mm);
-        let angles = fit.tool_rotation.as_ref().map_or_else(
-            || vec![None; val.blocks[b].members.len()],
-            |t| orientation_errors_deg(&fit.model, val, b, [0.0; 3], &t.rotation()),
-        );
+        let orientation_withheld = fit.tool_rotation.as_ref().and_then(|_| undetermined_rotation(val, b));
+        let angles = match &fit.tool_rotation {
+            Some(t) if orientation_withheld.is_none() => {
+                orientation_errors_deg(&fit.model, val, b, [0.0; 3], &t.rotation())
+            }
+            _ => vec![None; val.blocks[b].members.len()],
+        };
         held_out.push(session_residuals(val, b, residuals, angles));
         let orientation = orientations(fit, b);
         angle_parts.extend(orientation);
@@ -771,6 +805,7 @@ fn sessions_section(
             transfers,
             orientation,
             nominal_orientation: orientations(&reference, b),
+            orientation_withheld,
             same_base,
         });
     }

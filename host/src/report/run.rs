@@ -377,7 +377,9 @@ fn validation_tables(body: &mut String, s: &Summary) {
             String::new(),
         ]);
     }
-    if !angle_rows.is_empty() {
+    let withheld: Vec<String> =
+        v.sessions.iter().filter_map(|f| f.orientation_withheld.as_deref()).map(escape).collect();
+    if !angle_rows.is_empty() || !withheld.is_empty() {
         let _ = write!(
             body,
             "<h3>Orientation (6-DoF probe), held out</h3>{}",
@@ -386,6 +388,9 @@ fn validation_tables(body: &mut String, s: &Summary) {
                 &angle_rows
             )
         );
+        for why in withheld {
+            let _ = write!(body, "<p class=note>No orientation figure for {why}.</p>");
+        }
     }
 }
 
@@ -468,7 +473,7 @@ fn calibration_tables(body: &mut String, s: &Summary) {
             let (value, std) = with_std(e.value, e.std);
             let change = with_std(e.value - e.nominal, e.std).0;
             let status = if ident.estimated.contains(&e.param) {
-                "estimated"
+                e.status.as_str()
             } else if ident.fixed.contains(&e.param) {
                 "held at nominal: not identifiable"
             } else {

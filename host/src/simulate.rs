@@ -8,6 +8,8 @@
 //! so a bug there cannot hide in data made here. Touches the arm cannot reach without passing
 //! a joint below the table are skipped, as an operator would.
 
+pub mod optical;
+
 use crate::data::{Artefact, Landmark, Measurement, Session, ARTEFACT_FORMAT, SESSION_FORMAT};
 use crate::model::{ArmModel, Convention, ParamId, SUTA_JOINTS};
 use crate::numerics::solver::{self, Residuals, SolverOptions};

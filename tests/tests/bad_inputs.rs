@@ -2014,6 +2014,195 @@ fn key_cases(cases: &mut Vec<Case>) {
     ));
 }
 
+/// Arm identities, RUN dates and validity periods (issue 32), refused before any controller is
+/// contacted (the port has none behind it), and the emulated arm's script options.
+fn trace_cases(cases: &mut Vec<Case>) {
+    const SECRET: &str = "4b1d2c3e4f5a6b7c8d9e0f1a2b3c4d5e6f7a8b9c0d1e2f3a4b5c6d7e8f9a0b1c";
+    let append = |file: &'static str, text: &'static str| -> Setup {
+        Box::new(move |d: &Path| {
+            let t = std::fs::read_to_string(d.join(file)).unwrap();
+            std::fs::write(d.join(file), format!("{t}\n{text}")).unwrap();
+        })
+    };
+    for (name, text, needles) in [
+        (
+            "arm id with a space",
+            "[arm]\nid = \"lab arm\"\n",
+            &["model.toml", "arm.id", "not an arm identity"][..],
+        ),
+        ("arm id empty", "[arm]\nid = \"\"\n", &["model.toml", "arm.id"]),
+        ("arm id of 25 characters", "[arm]\nid = \"aaaaaaaaaaaaaaaaaaaaaaaaa\"\n", &["model.toml", "arm.id"]),
+        ("arm without id", "[arm]\nfirmware = \"fw\"\n", &["model.toml", "id"]),
+        ("arm with an unknown key", "[arm]\nid = \"a\"\nserial = 7\n", &["model.toml", "serial"]),
+        (
+            "arm firmware with a newline",
+            "[arm]\nid = \"a\"\nfirmware = \"fw\\n2\"\n",
+            &["model.toml", "arm.firmware"],
+        ),
+    ] {
+        cases.push(Case::fails(
+            &format!("trace/model {name}"),
+            append("model.toml", text),
+            words(&cal(), &[]),
+            needles,
+        ));
+    }
+    let key = || write("station.key", &format!("kincal-station-key/1\n{SECRET}\n"));
+    let upload = |model: &str, extra: &[&str]| {
+        words(&["upload", "--key", "station.key", "--port", "tcp:127.0.0.1:9", model], extra)
+    };
+    let mut fails = |name: &str, setup: Setup, args: Vec<String>, needles: &[&str]| {
+        cases.push(Case::fails(&format!("trace/{name}"), setup, args, needles))
+    };
+    fails(
+        "upload --valid-days of a model not in a RUN",
+        key(),
+        upload("model.toml", &["--valid-days", "30"]),
+        &["--valid-days", "model.toml", "not a RUN's model"],
+    );
+    fails(
+        "upload --valid-days 0",
+        key(),
+        upload("run/model.toml", &["--valid-days", "0"]),
+        &["--valid-days 0"],
+    );
+    fails("upload --valid-days -3", key(), upload("run/model.toml", &["--valid-days=-3"]), &["--valid-days"]);
+    fails(
+        "upload a validity that has passed",
+        all(vec![key(), edit_json("run/summary.json", |v| v["validated_at_unix_s"] = json!(1_000_000_000))]),
+        upload("run/model.toml", &["--valid-days", "365"]),
+        &["valid for 365 days", "2002-09-09", "before this upload"],
+    );
+    fails(
+        "upload a RUN whose date is text",
+        all(vec![key(), edit_json("run/summary.json", |v| v["validated_at_unix_s"] = json!("yesterday"))]),
+        upload("run/model.toml", &[]),
+        &["summary.json", "validated_at_unix_s", "Unix seconds"],
+    );
+    fails(
+        "upload a RUN whose date is 0",
+        all(vec![key(), edit_json("run/summary.json", |v| v["validated_at_unix_s"] = json!(0))]),
+        upload("run/model.toml", &[]),
+        &["summary.json", "validated_at_unix_s"],
+    );
+    fails(
+        "upload a RUN without its summary's file",
+        all(vec![key(), Box::new(|d: &Path| std::fs::create_dir_all(d.join("run/summary.json.d")).unwrap())]),
+        upload("run/nominal.toml", &["--valid-days", "5"]),
+        &["nominal.toml", "not a RUN's model"],
+    );
+    fails(
+        "check with one repeat",
+        unchanged(),
+        words(
+            &[
+                "check",
+                "--port",
+                "tcp:127.0.0.1:9",
+                "--artefact",
+                "data/artefact.json",
+                "--placement",
+                "V_A",
+                "--out",
+                "c",
+                "--repeats",
+                "1",
+            ],
+            &[],
+        ),
+        &["--repeats", "1"],
+    );
+    let script = |extra: &[&str]| {
+        words(
+            &[
+                "emulated-arm",
+                "script",
+                "--geometry",
+                "data/truth.toml",
+                "--artefact",
+                "data/artefact.json",
+                "--placement",
+                "V_A",
+            ],
+            extra,
+        )
+    };
+    fails(
+        "script knock without a delta",
+        unchanged(),
+        script(&["--knock", "offset:2", "--out", "s.json"]),
+        &["--knock offset:2", "PARAM=DELTA"],
+    );
+    fails(
+        "script knock of an unknown parameter",
+        unchanged(),
+        script(&["--knock", "wobble:2=1", "--out", "s.json"]),
+        &["--knock wobble:2=1"],
+    );
+    fails(
+        "script knock of a joint the arm lacks",
+        unchanged(),
+        script(&["--knock", "offset:9=1", "--out", "s.json"]),
+        &["--knock offset:9=1"],
+    );
+    fails(
+        "script knock nan",
+        unchanged(),
+        script(&["--knock", "offset:2=nan", "--out", "s.json"]),
+        &["--knock offset:2=nan"],
+    );
+    fails(
+        "script over an existing file",
+        unchanged(),
+        script(&["--out", "model.toml"]),
+        &["model.toml exists", "never replaces"],
+    );
+    fails(
+        "script seating noise negative",
+        unchanged(),
+        script(&["--seating-noise-mm=-1", "--out", "s.json"]),
+        &["--seating-noise-mm"],
+    );
+    fails(
+        "script of a 7-joint geometry",
+        unchanged(),
+        words(
+            &[
+                "emulated-arm",
+                "script",
+                "--geometry",
+                "tracker/model.toml",
+                "--artefact",
+                "data/artefact.json",
+                "--placement",
+                "V_A",
+                "--out",
+                "s.json",
+            ],
+            &[],
+        ),
+        &["tracker/model.toml", "6 joints"],
+    );
+    fails(
+        "start with a bad arm id",
+        unchanged(),
+        words(&["emulated-arm", "start", "--arm-id", "arm,A"], &[]),
+        &["--arm-id", "arm,A"],
+    );
+    cases.push(Case::succeeds(
+        "trace/script of the simulated arm",
+        unchanged(),
+        script(&["--repeats", "2", "--out", "s.json"]),
+        Some(Box::new(|dir: &Path| {
+            let text = std::fs::read_to_string(dir.join("s.json")).map_err(|e| e.to_string())?;
+            let steps = serde_json::from_str::<Value>(&text).map_err(|e| e.to_string())?["steps"]
+                .as_array()
+                .map_or(0, |s| s.len());
+            (steps == 30).then_some(()).ok_or(format!("{steps} steps, expected 15 landmarks × 2"))
+        })),
+    ));
+}
+
 fn corpus(template: &Path) -> Vec<Case> {
     let mut cases = Vec::new();
     random_cases(&mut cases, template);
@@ -2031,6 +2220,7 @@ fn corpus(template: &Path) -> Vec<Case> {
     tracker_file_cases(&mut cases);
     urdf_cases(&mut cases);
     key_cases(&mut cases);
+    trace_cases(&mut cases);
     cases
 }
 

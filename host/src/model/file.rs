@@ -15,6 +15,9 @@
 //! effects = ["eccentricity:5"]    # optional: effects whose parameters are free (default bounds)
 //! [free]                          # parameters the calibration may move: [lower, upper]
 //! "offset:2" = [10.7, 30.7]
+//! [arm]                           # optional: the arm this model was calibrated on
+//! id = "lab-arm-2"                # its controller's identity (what `kincal upload` checks)
+//! firmware = "kincal-fw 0.1.0"    # optional
 //! ```
 
 use super::urdf::UrdfSource;
@@ -45,6 +48,8 @@ struct ModelFile {
     free: BTreeMap<String, Vec<f64>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     urdf: Option<UrdfSource>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    arm: Option<crate::trace::ArmIdentity>,
 }
 
 /// Largest magnitude a parameter may plausibly have, with the unit, by kind: anything larger is a
@@ -229,6 +234,9 @@ impl ArmModel {
                 ));
             }
         }
+        if let Some(arm) = &file.arm {
+            arm.check().map_err(|(key, message)| field(format!("arm.{key}"), message))?;
+        }
         let mut model = ArmModel {
             name: file.name,
             convention: file.convention,
@@ -237,6 +245,7 @@ impl ArmModel {
             scale_ppm: file.scale_ppm,
             free: Vec::new(),
             urdf: file.urdf,
+            arm: file.arm,
         };
         if let Some((name, message)) = model.implausible() {
             return Err(field(name, message));
@@ -332,6 +341,7 @@ impl ArmModel {
                 .collect(),
             free: self.free.iter().map(|f| (f.id.to_string(), vec![f.lower, f.upper])).collect(),
             urdf: self.urdf.clone(),
+            arm: self.arm.clone(),
         };
         if json {
             serde_json::to_string_pretty(&file).unwrap_or_default()
@@ -390,6 +400,37 @@ mod tests {
             let path = dir.join(name);
             model.save(&path).unwrap();
             assert_eq!(ArmModel::load(&path).unwrap(), model, "{name}");
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A model may name its arm; the identity round-trips, a model without one reads as before,
+    /// and a bad identity names `arm.id` or an unknown key.
+    #[test]
+    fn a_model_carries_its_arms_identity() {
+        let dir = std::env::temp_dir().join(format!("kincal-model-arm-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut model = ArmModel::suta_nominal();
+        model.arm = Some(crate::trace::ArmIdentity {
+            firmware: Some("kincal-fw 0.1.0".into()),
+            ..crate::trace::ArmIdentity::of("lab-arm-2")
+        });
+        for name in ["m.toml", "m.json"] {
+            let path = dir.join(name);
+            model.save(&path).unwrap();
+            assert_eq!(ArmModel::load(&path).unwrap(), model, "{name}");
+        }
+        let text = model.to_text(false);
+        assert!(text.contains("[arm]\nid = \"lab-arm-2\""), "{text}");
+        assert!(!ArmModel::suta_nominal().to_text(false).contains("[arm]"), "none written when none");
+        let path = dir.join("bad.toml");
+        for (bad, named) in [
+            (text.replace("\"lab-arm-2\"", "\"lab arm 2\""), "arm.id"),
+            (text.replace("id = \"lab-arm-2\"", "serial = \"7\""), "serial"),
+        ] {
+            std::fs::write(&path, bad).unwrap();
+            let err = ArmModel::load(&path).unwrap_err().to_string();
+            assert!(err.contains("bad.toml") && err.contains(named), "{err}");
         }
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -199,6 +199,9 @@ pub struct ArmModel {
     /// The URDF chain the model was made from (`kincal model from-urdf`), if any: `to-urdf`
     /// writes the model into that chain only.
     pub urdf: Option<urdf::UrdfSource>,
+    /// The arm this model is of (calibrated from its sessions); `None` for a nominal, simulated
+    /// or hand-written model.
+    pub arm: Option<crate::trace::ArmIdentity>,
 }
 
 impl ArmModel {

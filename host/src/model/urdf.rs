@@ -488,6 +488,7 @@ impl Document<'_> {
             scale_ppm: 0.0,
             free: Vec::new(),
             urdf: Some(source),
+            arm: None,
         };
         if let Some((name, message)) = model.implausible() {
             return Err(field(self.path, format!("chain {base} → {tip}: {name}"), message));

@@ -1,4 +1,6 @@
-//! Data errors of tracker sessions, as candidates scored on held-out sessions.
+//! Data errors of instrument sessions: a re-mounted tool, a drift, single bad points. Each is
+//! refitted and scored on the held-out sessions by its own rule (what `kincal calibrate` reports);
+//! the diagnosis scores the calibration sessions' ones again by the held-out test.
 //!
 //! **Single bad points.** A beam broken and caught again on the wrong spot of the reflector, a
 //! probe bumped: one point carries a gross error e_i, X_i = B_s · F(q_i) · t + e_i. A calibration
@@ -29,41 +31,16 @@
 //! its standard deviations and the held-out error falls by [`MIN_GAIN`]. It claims no arm
 //! effect: the arm parameters are refitted, not changed by it.
 
+use super::{DataError, DataErrorKind, DataSet};
+use crate::calib::diagnose::units::Measure;
 use crate::calib::fit::{calibrate, Fit, CONSTANT_ORIENTATION_DEG};
 use crate::calib::nuisance::drift::{DriftKind, DriftSpec};
 use crate::calib::nuisance::tool::orientation_spread_deg;
-use crate::calib::setup::SolveOptions;
-use crate::calib::validate::{calibration_errors, fit_session_with_tool, validate_session};
-use crate::data::{Kind, Observations};
+use crate::calib::setup::{Change, SolveOptions};
+use crate::calib::validate::{calibration_errors, fit_session_with_tool};
+use crate::data::Observations;
 use crate::model::ArmModel;
-
-/// A data error of tracker sessions: a session whose tool point sits elsewhere, a session that
-/// drifts, or single bad points.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct DataError {
-    /// `tool moved`, `drift` or `bad points`.
-    pub kind: String,
-    /// The session (for bad points, the sessions holding them).
-    pub session: String,
-    /// `calibration` or `validation`: where the session is.
-    pub set: String,
-    /// The tool point's displacement (flange frame), the largest bad point's error (mm), or the
-    /// length of a drift's rate (mm/h, mm/K, ppm/h or ppm/K, as its text says).
-    pub size_mm: f64,
-    /// Standard deviation of the displacement's length, the points' robust σ (mm), or of the
-    /// drift rate's length (its unit).
-    pub size_std_mm: f64,
-    /// Held-out RMS without the candidate, mm.
-    pub held_out_before_mm: f64,
-    /// Held-out RMS with it, mm.
-    pub held_out_after_mm: f64,
-    /// Beyond 3 σ and the held-out error falls.
-    pub significant: bool,
-    /// The sentence a user reads.
-    pub text: String,
-    /// The command-line option that applies it.
-    pub action: String,
-}
+use crate::numerics::stats::rms;
 
 /// Largest tool displacement taken for a re-mount, mm: a probe put back sits within millimetres;
 /// more is the session's model error, not a tool.
@@ -72,31 +49,10 @@ pub const MAX_REMOUNT_MM: f64 = 10.0;
 /// Least share of the held-out error a data error must remove to be called.
 pub const MIN_GAIN: f64 = 0.05;
 
-fn pooled_rms(parts: &[(f64, usize)]) -> f64 {
-    let n: usize = parts.iter().map(|p| p.1).sum();
-    (parts.iter().map(|(r, k)| r * r * *k as f64).sum::<f64>() / n.max(1) as f64).sqrt()
-}
-
-/// The instrument sessions of `data` (blocks of tracker groups), in order.
-pub fn sessions(data: &Observations) -> Vec<usize> {
-    (0..data.blocks.len()).filter(|&b| data.groups[data.blocks[b].group].kind == Kind::Tracker).collect()
-}
-
 /// Held-out RMS of `model` over `val`'s sessions, the sessions in `floating` with their tool
 /// refitted too.
 pub fn held_out_rms(model: &ArmModel, val: &Observations, floating: &[String]) -> f64 {
-    let parts: Vec<(f64, usize)> = sessions(val)
-        .into_iter()
-        .map(|b| {
-            let v = if floating.contains(&val.block_name(b)) {
-                fit_session_with_tool(model, val, b).1
-            } else {
-                validate_session(model, val, b, [0.0; 3])
-            };
-            (v.rms_mm, v.points)
-        })
-        .collect();
-    pooled_rms(&parts)
+    rms(&Measure::Points.errors(model, val, floating))
 }
 
 /// A calibration point beyond this many times the median error is a bad-point candidate.
@@ -115,10 +71,10 @@ fn bad_points_candidate(
     let median = crate::numerics::stats::median(errors.iter().flatten().copied().collect());
     let mut bad = Vec::new();
     let mut dropped = vec![false; cal.obs.len()];
-    for (b, e) in sessions(cal).into_iter().zip(&errors) {
+    for (b, e) in cal.sessions().into_iter().zip(&errors) {
         for (&k, &err) in cal.blocks[b].members.iter().zip(e) {
             if err > BAD_POINT_FACTOR * median {
-                bad.push((cal.point_name(k), err));
+                bad.push((cal.point_name(k), err, cal.block_name(b)));
                 dropped[k] = true;
             }
         }
@@ -131,12 +87,13 @@ fn bad_points_candidate(
     let after = held_out_rms(&refit.model, val, &options.float_tool);
     let largest = bad.iter().map(|b| b.1).fold(0.0, f64::max);
     let names: Vec<&str> = bad.iter().map(|b| b.0.as_str()).collect();
-    let mut sessions: Vec<&str> = names.iter().filter_map(|n| n.rsplit_once(':').map(|x| x.0)).collect();
+    let mut sessions: Vec<&str> = bad.iter().map(|b| b.2.as_str()).collect();
     sessions.dedup();
+    let change = Change::ExcludePoints(names.iter().map(|n| n.to_string()).collect());
     Some(DataError {
-        kind: "bad points".into(),
+        kind: DataErrorKind::BadPoints,
         session: sessions.join(", "),
-        set: "calibration".into(),
+        set: DataSet::Calibration,
         size_mm: largest,
         size_std_mm: median / 1.538,
         held_out_before_mm: before,
@@ -150,7 +107,8 @@ fn bad_points_candidate(
             names.join(", "),
             if bad.len() == 1 { "it" } else { "them" }
         ),
-        action: names.iter().map(|n| format!("--exclude-point {n}")).collect::<Vec<_>>().join(" "),
+        action: change.action(),
+        change: Some(change),
     })
 }
 
@@ -164,7 +122,7 @@ fn drift_candidates(
     before: f64,
 ) -> Vec<DataError> {
     let mut out = Vec::new();
-    for b in sessions(cal) {
+    for b in cal.sessions() {
         let name = cal.block_name(b);
         if options.drift_sessions.iter().any(|d| d.session == name) {
             continue;
@@ -201,10 +159,11 @@ fn drift_candidates(
                     along.join(", ")
                 )
             };
+            let change = Change::Drift(DriftSpec { session: name.clone(), kind });
             out.push(DataError {
-                kind: "drift".into(),
+                kind: DataErrorKind::Drift,
                 session: name.clone(),
-                set: "calibration".into(),
+                set: DataSet::Calibration,
                 size_mm: size,
                 size_std_mm: std,
                 held_out_before_mm: before,
@@ -216,7 +175,8 @@ fn drift_candidates(
                     kind.name(),
                     kind.column(),
                 ),
-                action: format!("--drift-session {}:{}", name, kind.name()),
+                action: change.action(),
+                change: Some(change),
             });
         }
     }
@@ -235,13 +195,14 @@ pub fn data_error_candidates(
 ) -> Vec<DataError> {
     let before = held_out_rms(&fit.model, val, &options.float_tool);
     let mut out = Vec::new();
-    let verdict = |session: &str, set: &str, offset: [f64; 3], std: f64, after: f64| {
+    let verdict = |session: &str, set: DataSet, offset: [f64; 3], std: f64, after: f64| {
         let size = offset.iter().map(|v| v * v).sum::<f64>().sqrt();
         let significant = size > 3.0 * std && size <= MAX_REMOUNT_MM && after < (1.0 - MIN_GAIN) * before;
+        let change = Change::FloatTool(session.to_string());
         DataError {
-            kind: "tool moved".into(),
+            kind: DataErrorKind::ToolMoved,
             session: session.into(),
-            set: set.into(),
+            set,
             size_mm: size,
             size_std_mm: std,
             held_out_before_mm: before,
@@ -252,12 +213,13 @@ pub fn data_error_candidates(
                  held-out RMS {before:.4} → {after:.4} mm with it floating",
                 offset[0], offset[1], offset[2]
             ),
-            action: format!("--float-tool {session}"),
+            action: change.action(),
+            change: Some(change),
         }
     };
     // A calibration session's own tool needs the shared one fixed by other sessions that turn it.
     let turning = |data: &Observations| -> Vec<usize> {
-        sessions(data)
+        data.sessions()
             .into_iter()
             .filter(|&b| !options.float_tool.contains(&data.block_name(b)))
             .filter(|&b| orientation_spread_deg(&fit.model, data, b) >= CONSTANT_ORIENTATION_DEG)
@@ -278,7 +240,7 @@ pub fn data_error_candidates(
         };
         let Some(tool) = refit.tool_offsets.iter().find(|t| t.session == name) else { continue };
         let after = held_out_rms(&refit.model, val, &options.float_tool);
-        out.push(verdict(&name, "calibration", tool.offset_mm, tool.size_std_mm, after));
+        out.push(verdict(&name, DataSet::Calibration, tool.offset_mm, tool.size_std_mm, after));
     }
     // A held-out session whose orientation is constant cannot tell its tool from its base.
     for b in turning(val) {
@@ -287,7 +249,7 @@ pub fn data_error_candidates(
         let mut floating = options.float_tool.clone();
         floating.push(name.clone());
         let after = held_out_rms(&fit.model, val, &floating);
-        out.push(verdict(&name, "validation", tool.offset_mm, tool.size_std_mm, after));
+        out.push(verdict(&name, DataSet::HeldOut, tool.offset_mm, tool.size_std_mm, after));
     }
     out.extend(drift_candidates(nominal, cal, val, options, before));
     out.extend(bad_points_candidate(nominal, cal, val, fit, options, before));

@@ -1,7 +1,10 @@
-//! Time delay between the external tracker and the haptic device.
+//! Time delay between two streams of the same motion: a device (the reference, densely
+//! sampled) and a tracker that may lag it (sparser, with occlusion gaps).
 //!
-//! Both streams, in a common frame, are reduced to one signal each (the distance from the
-//! device origin) on a 1 ms grid. The tracker stream is cut at its occlusion gaps (never
+//! Used by the haptic calibration (tracker ↔ PHANToM) and the dynamic validation of a tracker
+//! arm (optical tracker ↔ streamed pose). Both streams are reduced to one signal each by the
+//! caller (e.g. the distance from the device origin, or the position along the path's main
+//! direction after a registration) and put on a 1 ms grid. The tracker stream is cut at its occlusion gaps (never
 //! interpolated across one) and its unbroken pieces into chunks of up to [`CHUNK_MS`] (at least
 //! [`MIN_CHUNK_MS`]); for every lag in ±[`MAX_LAG_MS`] the Pearson correlation of each chunk with
 //! the device signal shifted by that lag is averaged over the chunks, weighted by their length
@@ -10,7 +13,29 @@
 //! the tracker's samples arrive later than the device's for the same motion. A peak at the edge
 //! of the window or a weak peak is an error, never a result.
 
-use super::recording::{segments, SEGMENT_GAP_FACTOR};
+/// A gap longer than this many median sample periods is an occlusion: it splits a stream.
+pub const SEGMENT_GAP_FACTOR: f64 = 3.0;
+
+/// Unbroken index ranges of increasing times `t_s`, split where a step exceeds `factor` median
+/// steps.
+pub fn segments(t_s: &[f64], factor: f64) -> Vec<std::ops::Range<usize>> {
+    if t_s.len() < 2 {
+        return std::iter::once(0..t_s.len()).collect();
+    }
+    let mut periods: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
+    periods.sort_by(f64::total_cmp);
+    let limit = periods[periods.len() / 2] * factor;
+    let mut out = Vec::new();
+    let mut start = 0;
+    for i in 1..t_s.len() {
+        if t_s[i] - t_s[i - 1] > limit {
+            out.push(start..i);
+            start = i;
+        }
+    }
+    out.push(start..t_s.len());
+    out
+}
 
 /// Resampling step, ms.
 pub const STEP_MS: f64 = 1.0;
@@ -50,9 +75,11 @@ pub enum DelayError {
         /// Needed, ms.
         needed_ms: usize,
     },
-    /// The stylus hardly moved relative to the device origin.
-    #[error("too little motion for a delay estimate: the distance from the device origin varies by {std_mm:.2} mm (std); move the stylus towards and away from the device (≥ {MIN_MOTION_MM} mm)")]
+    /// The signal hardly varies: the motion does not show in it.
+    #[error("too little motion for a delay estimate: {what} varies by {std_mm:.2} mm (std), at least {MIN_MOTION_MM} mm are needed")]
     TooLittleMotion {
+        /// What the signal is (the tracker's [`Signal::what`]), with advice.
+        what: &'static str,
         /// Standard deviation of the signal, mm.
         std_mm: f64,
     },
@@ -76,6 +103,9 @@ pub enum DelayError {
 pub struct Signal<'a> {
     /// Name for error messages.
     pub name: &'static str,
+    /// What the values are, for the message when they hardly vary (e.g. "the stylus's distance
+    /// from the device origin (move the stylus towards and away from the device)").
+    pub what: &'static str,
     /// Times, seconds.
     pub t_s: &'a [f64],
     /// Values.
@@ -179,7 +209,7 @@ pub fn estimate_delay_ms(device: &Signal, tracker: &Signal) -> Result<DelayEstim
     let mean = all.iter().sum::<f64>() / all.len() as f64;
     let std_mm = (all.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / all.len() as f64).sqrt();
     if std_mm < MIN_MOTION_MM {
-        return Err(DelayError::TooLittleMotion { std_mm });
+        return Err(DelayError::TooLittleMotion { what: tracker.what, std_mm });
     }
     let score = |lag: i64| -> f64 {
         chunks
@@ -233,8 +263,8 @@ mod tests {
                 .map(|(k, &t)| motion(t - true_ms / 1000.0) + 0.05 * (((k * 31) % 17) as f64 - 8.0) / 8.0)
                 .collect();
             let got = estimate_delay_ms(
-                &Signal { name: "device", t_s: &dev_t, value: &dev_v },
-                &Signal { name: "tracker", t_s: &trk_t, value: &trk_v },
+                &Signal { name: "device", what: "x", t_s: &dev_t, value: &dev_v },
+                &Signal { name: "tracker", what: "x", t_s: &trk_t, value: &trk_v },
             )
             .unwrap()
             .delay_ms;
@@ -249,7 +279,7 @@ mod tests {
         let still = vec![150.0; t.len()];
         let mut back = t.clone();
         back[100] = back[99];
-        let s = |name, t_s, value| Signal { name, t_s, value };
+        let s = |name, t_s, value| Signal { name, what: "x", t_s, value };
         assert!(matches!(
             estimate_delay_ms(&s("device", &back, &v), &s("tracker", &t, &v)),
             Err(DelayError::NotMonotonic { stream: "device", index: 100, .. })
@@ -280,8 +310,8 @@ mod tests {
         };
         let (t, v) = tracker(11.6);
         let got = estimate_delay_ms(
-            &Signal { name: "device", t_s: &dev_t, value: &dev_v },
-            &Signal { name: "tracker", t_s: &t, value: &v },
+            &Signal { name: "device", what: "x", t_s: &dev_t, value: &dev_v },
+            &Signal { name: "tracker", what: "x", t_s: &t, value: &v },
         )
         .unwrap();
         assert!((got.delay_ms - 11.6).abs() < 0.25, "{got:?}");
@@ -289,8 +319,8 @@ mod tests {
         assert!(lost_ms > 3000.0 && got.used_ms < 30_000.0 - lost_ms, "the gaps are not used: {got:?}");
         let (t, v) = tracker(450.0);
         let err = estimate_delay_ms(
-            &Signal { name: "device", t_s: &dev_t, value: &dev_v },
-            &Signal { name: "tracker", t_s: &t, value: &v },
+            &Signal { name: "device", what: "x", t_s: &dev_t, value: &dev_v },
+            &Signal { name: "tracker", what: "x", t_s: &t, value: &v },
         )
         .unwrap_err();
         assert!(matches!(err, DelayError::AtWindowEdge { .. } | DelayError::NoClearPeak { .. }), "{err}");

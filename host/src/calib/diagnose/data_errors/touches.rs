@@ -1,4 +1,5 @@
-//! Data errors: faults of the measurement rather than of the arm, found from the same touches.
+//! Data errors of artefact placements: faults of the measurement rather than of the arm, found
+//! from the same touches.
 //!
 //! * **A wrong certificate** (`landmark:ID`): the landmark's certified position is freed. The
 //!   arm is refitted without the landmark's touches, the landmark's position in the artefact

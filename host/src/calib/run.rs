@@ -19,8 +19,8 @@ use crate::calib::summary::*;
 use crate::calib::trust::{result_problems, TrustScales};
 use crate::calib::validate::{
     calibration_residuals_mm, errors_in_calibration_session, fit_session_with_tool, orientation_errors_deg,
-    session_residuals_mm, undetermined_rotation, validate, validate_orientations, validate_session,
-    AngleStats, ErrorStats, SessionValidation, Validation,
+    session_probe_rotation, session_residuals_mm, undetermined_rotation, validate, validate_orientations,
+    validate_session, AngleStats, ErrorStats, SessionValidation, Validation,
 };
 use crate::data::{load_folder, Artefact, Observations, Purpose};
 use crate::files::FileError;
@@ -814,12 +814,19 @@ fn sessions_section(
             ([0.0; 3], validate_session(model, val, b, [0.0; 3]))
         }
     };
-    // A session whose points leave its base's rotation free has no orientation figure.
-    let orientations = |fit: &Fit, b: usize| {
-        fit.tool_rotation
-            .as_ref()
-            .filter(|_| undetermined_rotation(val, b).is_none())
-            .and_then(|t| validate_orientations(&fit.model, val, b, [0.0; 3], &t.rotation()))
+    // The probe's rotation on the flange in session b: the shared one, or, where the tool floats
+    // (the probe re-mounted, perhaps turned on its mount), the session's own. A session whose
+    // points leave its base's rotation free has none: no orientation figure.
+    let probe = |fit: &Fit, b: usize, offset_mm: [f64; 3]| {
+        let shared = fit.tool_rotation.as_ref().filter(|_| undetermined_rotation(val, b).is_none())?;
+        if floated(b) {
+            session_probe_rotation(&fit.model, val, b, offset_mm)
+        } else {
+            Some(shared.rotation())
+        }
+    };
+    let orientations = |fit: &Fit, b: usize, offset_mm: [f64; 3]| {
+        probe(fit, b, offset_mm).and_then(|p| validate_orientations(&fit.model, val, b, offset_mm, &p))
     };
     let mut verdict = Vec::new();
     let (mut session_figures, mut held_out) = (Vec::new(), Vec::new());
@@ -827,17 +834,15 @@ fn sessions_section(
     for b in held {
         let name = val.block_name(b);
         let (offset_mm, c) = figures(&fit.model, b);
-        let n = figures(&reference.model, b).1;
+        let (nominal_offset_mm, n) = figures(&reference.model, b);
         let residuals = session_residuals_mm(&fit.model, val, b, offset_mm);
         let orientation_withheld = fit.tool_rotation.as_ref().and_then(|_| undetermined_rotation(val, b));
-        let angles = match &fit.tool_rotation {
-            Some(t) if orientation_withheld.is_none() => {
-                orientation_errors_deg(&fit.model, val, b, [0.0; 3], &t.rotation())
-            }
-            _ => vec![None; val.blocks[b].members.len()],
+        let angles = match probe(fit, b, offset_mm) {
+            Some(p) => orientation_errors_deg(&fit.model, val, b, offset_mm, &p),
+            None => vec![None; val.blocks[b].members.len()],
         };
         held_out.push(session_residuals(val, b, residuals, angles));
-        let orientation = orientations(fit, b);
+        let orientation = orientations(fit, b, offset_mm);
         angle_parts.extend(orientation);
         let transfers = c.rms_mm <= n.rms_mm;
         if !transfers {
@@ -863,7 +868,7 @@ fn sessions_section(
             nominal: n,
             transfers,
             orientation,
-            nominal_orientation: orientations(&reference, b),
+            nominal_orientation: orientations(&reference, b, nominal_offset_mm),
             orientation_withheld,
             same_base,
         });

@@ -421,6 +421,22 @@ pub fn undetermined_rotation(data: &Observations, b: usize) -> Option<String> {
     })
 }
 
+/// Block `b`'s own probe rotation R_t,S (flange ← probe), its frame refitted from the positions
+/// with the tool offset `tool_offset_mm`: the chordal mean of R_Fᵀ·R_Sᵀ·R_meas over its oriented
+/// points. A probe turned on its mount in that session is R_t,S = Q·R_t, Q its turn in the flange
+/// frame. `None` without orientations.
+pub fn session_probe_rotation(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    tool_offset_mm: [f64; 3],
+) -> Option<Matrix3<f64>> {
+    let one = data.subset(&[data.blocks[b].group]);
+    let frames: Vec<Frame> =
+        (0..one.blocks.len()).map(|k| block_frame(model, &one, k, &Vector3::from(tool_offset_mm))).collect();
+    crate::calib::nuisance::tool::start_probe_rotation(model, &one, &frames)
+}
+
 /// Orientation errors of `model` with the probe rotation `probe` on block `b`, its frame
 /// refitted from the positions (closed form); `None` when the block has no orientations.
 pub fn validate_orientations(

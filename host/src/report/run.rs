@@ -804,7 +804,11 @@ fn data_errors(body: &mut String, s: &Summary) {
         .data_errors
         .iter()
         .map(|d| {
-            let unit = if d.kind == DataErrorKind::Drift { "mm/h" } else { "mm" };
+            let unit = match d.kind {
+                DataErrorKind::Drift => "mm/h",
+                DataErrorKind::ProbeTurned => "°",
+                _ => "mm",
+            };
             vec![
                 escape(d.kind.word()),
                 escape(&d.session),

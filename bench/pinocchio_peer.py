@@ -5,12 +5,13 @@ Independent of kincal: pinocchio (`pip install pin`) reads the URDF and computes
 this script only chooses joint readings, perturbs the URDF text, places the instrument and adds
 noise. Nothing here is shared with kincal's code.
 
-  pinocchio_peer.py fk URDF --base LINK --tip LINK --q-file POSES.json
+  pinocchio_peer.py fk URDF [URDF …] --base LINK --tip LINK --q-file POSES.json
       POSES.json: [[q1_deg, …], …], one reading per chain joint (base to tip; fixed joints
       skipped). Prints JSON {"joints": [names], "poses": [{"position_mm": [x, y, z] (tip in the
-      base frame), "rotation": 3×3 (the last chain joint's frame in the base frame)}, …]}.
+      base frame), "rotation": 3×3 (the last chain joint's frame in the base frame)}, …]}, or a
+      list of them, one per URDF, when several are given.
 
-  pinocchio_peer.py sessions URDF --base LINK --tip LINK --seed N --tool on|off --out DIR
+  pinocchio_peer.py sessions URDF --base LINK --tip LINK --seed N[,M…] --tool on|off|on,off --out DIR
       The true arm: each revolute origin of the chain moved by 0.5–2 mm (random direction) and
       turned by 0.05–0.3° (random axis, about its own frame), written as DIR/true.urdf. The tool
       point: on the last joint's axis (`on`: 40–80 mm beyond the tip along it) or off it (`off`:
@@ -20,6 +21,7 @@ noise. Nothing here is shared with kincal's code.
       1–4 in DIR/cal, session 5 in DIR/val, as kincal-tracker/1 CSV files. DIR/truth.json: the
       perturbations, the tool point, the bases and the true floor of the held-out session (the
       3-D RMS the true arm leaves on its noisy points after their base is refitted, Horn/Kabsch).
+      Several seeds or tool points: one folder DIR/TOOL-SEED (e.g. DIR/off-2) per case.
 
 Errors go to stderr with exit status 2.
 """
@@ -108,16 +110,19 @@ class Arm:
 
 
 def cmd_fk(args):
-    arm = Arm(args.urdf, args.base, args.tip)
     with open(args.q_file) as f:
         poses = json.load(f)
-    out = []
-    for q in poses:
-        if len(q) != len(arm.ids):
-            raise PeerError(f"{len(q)} readings given, the chain has {len(arm.ids)} joints")
-        tip, last = arm.fk(q)
-        out.append({"position_mm": (tip.translation * 1000.0).tolist(), "rotation": last.rotation.tolist()})
-    json.dump({"joints": arm.names, "poses": out}, sys.stdout)
+    results = []
+    for urdf in args.urdf:
+        arm = Arm(urdf, args.base, args.tip)
+        out = []
+        for q in poses:
+            if len(q) != len(arm.ids):
+                raise PeerError(f"{len(q)} readings given, the chain has {len(arm.ids)} joints")
+            tip, last = arm.fk(q)
+            out.append({"position_mm": (tip.translation * 1000.0).tolist(), "rotation": last.rotation.tolist()})
+        results.append({"joints": arm.names, "poses": out})
+    json.dump(results[0] if len(results) == 1 else results, sys.stdout)
     print()
 
 
@@ -161,20 +166,33 @@ def kabsch(p, x):
 
 
 def cmd_sessions(args):
-    rng = np.random.default_rng(args.seed)
-    with open(args.urdf, encoding="utf-8") as f:
+    seeds = [int(v) for v in args.seed.split(",")]
+    tools = args.tool.split(",")
+    for tool in tools:
+        if tool not in ("on", "off"):
+            raise PeerError(f"--tool {tool}: expected on or off")
+    cases = [(seed, tool) for tool in tools for seed in seeds]
+    for seed, tool in cases:
+        out = args.out if len(cases) == 1 else os.path.join(args.out, f"{tool}-{seed}")
+        write_sessions(args.urdf, args.base, args.tip, seed, tool, out)
+
+
+def write_sessions(urdf, base, tip, seed, tool_kind, out):
+    """The true arm, the sessions and truth.json of one seed and tool point, in the folder `out`."""
+    rng = np.random.default_rng(seed)
+    with open(urdf, encoding="utf-8") as f:
         text = f.read()
-    true_text, moves = perturbed_urdf(text, args.base, args.tip, rng)
-    os.makedirs(args.out, exist_ok=True)
-    true_path = os.path.join(args.out, "true.urdf")
+    true_text, moves = perturbed_urdf(text, base, tip, rng)
+    os.makedirs(out, exist_ok=True)
+    true_path = os.path.join(out, "true.urdf")
     with open(true_path, "w", encoding="utf-8") as f:
         f.write(true_text)
-    arm = Arm(true_path, args.base, args.tip)
+    arm = Arm(true_path, base, tip)
     # The tool point in the tip frame: along the last joint's axis, and across it when "off".
     tip0, last0 = arm.fk([0.0] * len(arm.ids))
     axis_tip = tip0.rotation.T @ (last0.rotation @ arm.last_axis)
     tool = axis_tip * rng.uniform(40.0, 80.0)
-    if args.tool == "off":
+    if tool_kind == "off":
         across = np.cross(axis_tip, random_unit(rng))
         tool = tool + across / np.linalg.norm(across) * rng.uniform(20.0, 60.0)
     limits = arm.limits_deg()
@@ -190,13 +208,13 @@ def cmd_sessions(args):
     floors = {}
     for s, (r, t) in enumerate(bases):
         name = f"session_{s + 1}"
-        folder = os.path.join(args.out, "val" if s >= SESSIONS - HELD_OUT else "cal")
+        folder = os.path.join(out, "val" if s >= SESSIONS - HELD_OUT else "cal")
         os.makedirs(folder, exist_ok=True)
         rows, exact, measured = [], [], []
         for k in range(POSES):
             q = [round(rng.uniform(lo, hi), 6) for lo, hi in limits]
-            tip, _ = arm.fk(q)
-            p = tip.translation * 1000.0 + tip.rotation @ tool
+            tip_pose, _ = arm.fk(q)
+            p = tip_pose.translation * 1000.0 + tip_pose.rotation @ tool
             x = r @ p + t + rng.normal(size=3) * SIGMA_MM
             exact.append(p)
             measured.append(x)
@@ -212,11 +230,11 @@ def cmd_sessions(args):
         floors[name] = float(np.sqrt(np.mean(np.sum((p @ fr.T + ft - x) ** 2, axis=1))))
     held_out = [f"session_{s + 1}" for s in range(SESSIONS - HELD_OUT, SESSIONS)]
     truth = {
-        "urdf": args.urdf,
-        "base": args.base,
-        "tip": args.tip,
-        "seed": args.seed,
-        "tool": args.tool,
+        "urdf": urdf,
+        "base": base,
+        "tip": tip,
+        "seed": seed,
+        "tool": tool_kind,
         "tool_mm": tool.tolist(),
         "sigma_mm": SIGMA_MM,
         "moves": moves,
@@ -225,7 +243,7 @@ def cmd_sessions(args):
         "held_out": held_out,
         "held_out_floor_mm": float(np.sqrt(np.mean([floors[h] ** 2 for h in held_out]))),
     }
-    with open(os.path.join(args.out, "truth.json"), "w") as f:
+    with open(os.path.join(out, "truth.json"), "w") as f:
         json.dump(truth, f, indent=1)
     json.dump({"held_out_floor_mm": truth["held_out_floor_mm"], "tool_mm": truth["tool_mm"]}, sys.stdout)
     print()
@@ -236,14 +254,14 @@ def main():
     sub = parser.add_subparsers(dest="command", required=True)
     for name in ("fk", "sessions"):
         p = sub.add_parser(name)
-        p.add_argument("urdf")
+        p.add_argument("urdf", nargs="+" if name == "fk" else None)
         p.add_argument("--base", required=True)
         p.add_argument("--tip", required=True)
         if name == "fk":
             p.add_argument("--q-file", required=True)
         else:
-            p.add_argument("--seed", type=int, required=True)
-            p.add_argument("--tool", choices=["on", "off"], required=True)
+            p.add_argument("--seed", required=True, help="N, or N,M,… for several")
+            p.add_argument("--tool", required=True, help="on, off, or on,off for both")
             p.add_argument("--out", required=True)
     args = parser.parse_args()
     try:

@@ -47,8 +47,8 @@ def measure(kincal, arm, seed, tool, work):
         floor = json.load(f)["held_out_floor_mm"]
     with open(os.path.join(folder, "run", "summary.json")) as f:
         summary = json.load(f)
-    held_out = summary["validation"]["overall"]["rms_mm"]
-    return held_out, floor, len(summary["identifiability"]["fixed"])
+    held_out = summary["validation"]["sessions"]["overall"]["rms_mm"]
+    return held_out, floor, len(summary["identifiability"]["report"]["fixed"])
 
 
 def main():

@@ -923,6 +923,16 @@ pub struct ToolRemount {
     pub size_mm: f64,
 }
 
+/// A 6-DoF probe put back turned on its mount in one session: its rotation on the flange and its
+/// point turn about the flange z axis, `R_t,S = Rz(θ)·R_t`, `t_S = Rz(θ)·t`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ProbeTurn {
+    /// Session index (0-based).
+    pub session: usize,
+    /// The turn θ about the flange z axis, degrees.
+    pub angle_deg: f64,
+}
+
 /// Instrument drift within one session (the tracker's stand or the floor under it settling): the
 /// robot base slides linearly in the instrument frame, `X = B_s · p + v · t`, with |v| =
 /// `mm_per_hour` / 3600 s in a seeded random direction.
@@ -1006,6 +1016,8 @@ pub struct TrackerOptions {
     pub repeats: usize,
     /// Tool re-mounted in one session.
     pub tool_remount: Option<ToolRemount>,
+    /// A 6-DoF probe turned on its mount in one session.
+    pub probe_turn: Option<ProbeTurn>,
     /// Thermal drift within each session; also writes `time_s` and `temp_C`.
     pub thermal: Option<ThermalDrift>,
     /// Write `time_s` and `temp_C` even without thermal drift (`temp_C` is then 20 °C).
@@ -1052,6 +1064,7 @@ impl TrackerOptions {
             uncertainty: UncertaintyColumn::SigmaMm,
             repeats: 1,
             tool_remount: None,
+            probe_turn: None,
             thermal: None,
             time_columns: false,
             instrument_drift: None,
@@ -1296,6 +1309,12 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
             if session == s {
                 arm.tool_mm = v_add(arm.tool_mm, offset);
             }
+        }
+        if let Some(turn) = options.probe_turn.filter(|t| t.session == s) {
+            let rz = axis_angle([0.0, 0.0, 1.0], turn.angle_deg.to_radians());
+            let rpy = arm.tool_rpy_deg.map(f64::to_radians);
+            arm.tool_mm = m_vec(&rz, arm.tool_mm);
+            arm.tool_rpy_deg = rpy_of(&m_mul(&rz, &rpy_matrix(rpy))).map(f64::to_degrees);
         }
         let qs: Vec<Vec<f64>> = if !plan.joints_deg.is_empty() {
             plan.joints_deg.clone()

@@ -286,6 +286,16 @@ fn tracker_file_cases(cases: &mut Vec<Case>) {
             &[],
             &["--artefact is required", "tracker/cal holds no tracker sessions", "# kincal-tracker/1"],
         ),
+        fails(
+            "joint angles in radians (ROS joint_states) under q1_deg",
+            edit_text(S1, |t| joints_in_radians(t, false)),
+            &[],
+            &["session_1.csv:2: column `q1_deg`", "within ±2π", "radians", "q1_rad … q7_rad"],
+        ),
+        passes(
+            "joint angles in radians under q1_rad … q7_rad",
+            edit_text(S1, |t| joints_in_radians(t, true)),
+        ),
         passes("a byte-order mark", edit_text(S1, |t| format!("\u{feff}{t}"))),
         passes("CRLF line ends", edit_text(S1, |t| t.replace('\n', "\r\n"))),
         fails(
@@ -323,6 +333,29 @@ fn tracker_file_cases(cases: &mut Vec<Case>) {
             &["--drift-session session_9:scale-time", "no calibration session"],
         ),
     ]);
+}
+
+/// A tracker CSV with its seven joint columns in radians, as ROS `joint_states` gives them; the
+/// header renamed to `qN_rad` when `rename`.
+fn joints_in_radians(text: &str, rename: bool) -> String {
+    let mut lines = text.lines();
+    let mut out = format!("{}\n", lines.next().unwrap_or_default());
+    let header = lines.next().unwrap_or_default();
+    out += &if rename { header.replace("_deg", "_rad") } else { header.to_string() };
+    out.push('\n');
+    for line in lines {
+        let cells: Vec<String> = line
+            .split(',')
+            .enumerate()
+            .map(|(c, v)| match (c, v.parse::<f64>()) {
+                (1..=7, Ok(deg)) => format!("{:.9}", deg.to_radians()),
+                _ => v.to_string(),
+            })
+            .collect();
+        out += &cells.join(",");
+        out.push('\n');
+    }
+    out
 }
 
 /// `kincal model from-urdf` on the template's URDF into m.toml, with other words.

@@ -19,8 +19,8 @@ use crate::calib::summary::*;
 use crate::calib::trust::{result_problems, TrustScales};
 use crate::calib::validate::{
     calibration_residuals_mm, errors_in_calibration_session, fit_session_with_tool, orientation_errors_deg,
-    session_residuals_mm, validate, validate_orientations, validate_session, AngleStats, ErrorStats,
-    SessionValidation, Validation,
+    session_probe_rotation, session_residuals_mm, undetermined_rotation, validate, validate_orientations,
+    validate_session, AngleStats, ErrorStats, SessionValidation, Validation,
 };
 use crate::data::{load_folder, Artefact, Observations, Purpose};
 use crate::files::FileError;
@@ -546,7 +546,8 @@ pub fn run_on(
     check_run_data(&nominal, cal, val, inputs, options)?;
     check_study_size(cal, study_subsets)?;
     steps.lap("input checks");
-    let fit = calibrate(&nominal, cal, options)?;
+    let mut fit = calibrate(&nominal, cal, options)?;
+    let on_bounds = mark_bounds(&mut fit);
     steps.lap("fit");
     let mut verdict = Vec::new();
     let mut not_trustworthy = Vec::new();
@@ -663,7 +664,7 @@ pub fn run_on(
         data_errors: tracker.as_ref().map_or_else(Vec::new, |t| t.data_errors.clone()),
         verdict,
         not_trustworthy,
-        warnings: cal.warnings.iter().chain(&val.warnings).cloned().collect(),
+        warnings: cal.warnings.iter().chain(&val.warnings).cloned().chain(on_bounds).collect(),
     };
     let calibration_residuals = cal
         .sessions()
@@ -681,6 +682,34 @@ pub fn run_on(
         validation_data: val.clone(),
         steps,
     })
+}
+
+/// Share of a parameter's bound width within which an estimate counts as on its bound.
+pub const ON_BOUND_WITHIN: f64 = 1e-6;
+
+/// Mark each estimated parameter of `fit` that ended on one of its bounds (its status says
+/// which) and say, per parameter, that its value is not a result: the data pushed it there.
+fn mark_bounds(fit: &mut Fit) -> Vec<String> {
+    let mut sentences = Vec::new();
+    for e in fit.estimates.iter_mut().filter(|e| e.status == "estimated") {
+        let Some(bound) = fit.model.free.iter().find(|f| f.id.to_string() == e.param) else { continue };
+        let near = ON_BOUND_WITHIN * (bound.upper - bound.lower).abs().max(1e-12);
+        let side = if (e.value - bound.lower).abs() <= near {
+            ("lower", bound.lower)
+        } else if (bound.upper - e.value).abs() <= near {
+            ("upper", bound.upper)
+        } else {
+            continue;
+        };
+        e.status = format!("estimated, on its {} bound", side.0);
+        sentences.push(format!(
+            "{} ended on its {} bound ({} {}, nominal {} {}): the data pushed it there, so its value is not a \
+             result; an effect the model lacks may have leaked into it (kincal diagnose RUN names it), or its \
+             bounds are too tight (widen them in the model's [free] table, or hold it by removing it there)",
+            e.param, side.0, side.1, e.unit, e.nominal, e.unit
+        ));
+    }
+    sentences
 }
 
 /// What one objective can determine at the calibrated model: distances alone, and with the
@@ -785,10 +814,19 @@ fn sessions_section(
             ([0.0; 3], validate_session(model, val, b, [0.0; 3]))
         }
     };
-    let orientations = |fit: &Fit, b: usize| {
-        fit.tool_rotation
-            .as_ref()
-            .and_then(|t| validate_orientations(&fit.model, val, b, [0.0; 3], &t.rotation()))
+    // The probe's rotation on the flange in session b: the shared one, or, where the tool floats
+    // (the probe re-mounted, perhaps turned on its mount), the session's own. A session whose
+    // points leave its base's rotation free has none: no orientation figure.
+    let probe = |fit: &Fit, b: usize, offset_mm: [f64; 3]| {
+        let shared = fit.tool_rotation.as_ref().filter(|_| undetermined_rotation(val, b).is_none())?;
+        if floated(b) {
+            session_probe_rotation(&fit.model, val, b, offset_mm)
+        } else {
+            Some(shared.rotation())
+        }
+    };
+    let orientations = |fit: &Fit, b: usize, offset_mm: [f64; 3]| {
+        probe(fit, b, offset_mm).and_then(|p| validate_orientations(&fit.model, val, b, offset_mm, &p))
     };
     let mut verdict = Vec::new();
     let (mut session_figures, mut held_out) = (Vec::new(), Vec::new());
@@ -796,14 +834,15 @@ fn sessions_section(
     for b in held {
         let name = val.block_name(b);
         let (offset_mm, c) = figures(&fit.model, b);
-        let n = figures(&reference.model, b).1;
+        let (nominal_offset_mm, n) = figures(&reference.model, b);
         let residuals = session_residuals_mm(&fit.model, val, b, offset_mm);
-        let angles = fit.tool_rotation.as_ref().map_or_else(
-            || vec![None; val.blocks[b].members.len()],
-            |t| orientation_errors_deg(&fit.model, val, b, [0.0; 3], &t.rotation()),
-        );
+        let orientation_withheld = fit.tool_rotation.as_ref().and_then(|_| undetermined_rotation(val, b));
+        let angles = match probe(fit, b, offset_mm) {
+            Some(p) => orientation_errors_deg(&fit.model, val, b, offset_mm, &p),
+            None => vec![None; val.blocks[b].members.len()],
+        };
         held_out.push(session_residuals(val, b, residuals, angles));
-        let orientation = orientations(fit, b);
+        let orientation = orientations(fit, b, offset_mm);
         angle_parts.extend(orientation);
         let transfers = c.rms_mm <= n.rms_mm;
         if !transfers {
@@ -829,7 +868,8 @@ fn sessions_section(
             nominal: n,
             transfers,
             orientation,
-            nominal_orientation: orientations(&reference, b),
+            nominal_orientation: orientations(&reference, b, nominal_offset_mm),
+            orientation_withheld,
             same_base,
         });
     }

@@ -310,6 +310,9 @@ pub struct SessionFigures {
     /// The nominal model's orientation figures on the same session.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nominal_orientation: Option<AngleStats>,
+    /// Why a 6-DoF session has no orientation figures (its points leave its base's rotation free).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub orientation_withheld: Option<String>,
     /// With a calibration session's frame (`--same-base`, protocol S).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub same_base: Option<SameBaseFigures>,

@@ -195,7 +195,7 @@ pub fn result_problems(fit: &Fit, validation: &Validation, scales: &TrustScales)
         problems.push("no validation pair: the fit was not checked on held-out touches".to_string());
     }
     problems.extend(scales.beyond(fit.rms_mm, if v.count > 0 { v.rms_mm } else { 0.0 }));
-    let moved = fit.estimates.iter().any(|e| e.status == "estimated" && e.value != e.nominal);
+    let moved = fit.estimates.iter().any(|e| e.status.starts_with("estimated") && e.value != e.nominal);
     if !moved && fit.rms_mm > RMS_ALWAYS_SUSPECT_MM {
         problems.push(format!(
             "the fit did not move from its start (calibration RMS {:.3} mm): the solver found no step \

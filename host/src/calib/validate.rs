@@ -396,6 +396,47 @@ pub fn fit_session_with_tool(
     (tool, validate_session(model, data, b, offset.into()))
 }
 
+/// RMS distance, mm, of a session's points from the line through them below which they count as
+/// lying on one line: the rotation of the session's base about that line is then set by this
+/// spread and the noise alone (0.02 mm of noise across 1 mm turns it by about 1°).
+pub const COLLINEAR_SPREAD_MM: f64 = 1.0;
+
+/// Why block `b`'s points do not determine its base's rotation: they lie on one line, about which
+/// the base can turn freely; `None` when they determine it. A session's orientation error, its
+/// base refitted from its points, is then arbitrary and is not scored.
+pub fn undetermined_rotation(data: &Observations, b: usize) -> Option<String> {
+    let points: Vec<Vector3<f64>> = points_of(data, b).map(|p| p.point_mm().unwrap_or_default()).collect();
+    let n = points.len().max(1) as f64;
+    let centre = points.iter().sum::<Vector3<f64>>() / n;
+    let scatter = points.iter().map(|p| (p - centre) * (p - centre).transpose()).sum::<Matrix3<f64>>() / n;
+    let mut variances: Vec<f64> = scatter.symmetric_eigenvalues().iter().map(|v| v.max(0.0)).collect();
+    variances.sort_by(|a, b| b.total_cmp(a));
+    let (along, across) = (variances[0].sqrt(), (variances[1] + variances[2]).sqrt());
+    (across < COLLINEAR_SPREAD_MM).then(|| {
+        format!(
+            "session {}: its points lie on one line (RMS {across:.3} mm across it, {along:.0} mm along it), so the \
+             rotation of its base about that line is not determined and no orientation error is scored",
+            data.block_name(b)
+        )
+    })
+}
+
+/// Block `b`'s own probe rotation R_t,S (flange ← probe), its frame refitted from the positions
+/// with the tool offset `tool_offset_mm`: the chordal mean of R_Fᵀ·R_Sᵀ·R_meas over its oriented
+/// points. A probe turned on its mount in that session is R_t,S = Q·R_t, Q its turn in the flange
+/// frame. `None` without orientations.
+pub fn session_probe_rotation(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    tool_offset_mm: [f64; 3],
+) -> Option<Matrix3<f64>> {
+    let one = data.subset(&[data.blocks[b].group]);
+    let frames: Vec<Frame> =
+        (0..one.blocks.len()).map(|k| block_frame(model, &one, k, &Vector3::from(tool_offset_mm))).collect();
+    crate::calib::nuisance::tool::start_probe_rotation(model, &one, &frames)
+}
+
 /// Orientation errors of `model` with the probe rotation `probe` on block `b`, its frame
 /// refitted from the positions (closed form); `None` when the block has no orientations.
 pub fn validate_orientations(

@@ -11,8 +11,11 @@
 //! 1,10.0,-20.0,35.0,0.0,40.0,5.0,1234.567,-45.678,890.123,0.012
 //! ```
 //!
-//! Required: `q1_deg … qN_deg` (joint angles as the controller reports them, N = 1…12) and
-//! `x_mm, y_mm, z_mm` (the tool point in the instrument frame). Optional: `qw, qx, qy, qz` (the
+//! Required: `q1_deg … qN_deg` (joint angles as the controller reports them, N = 1…12; or
+//! `q1_rad … qN_rad` for radians, as ROS `joint_states` gives them, converted to degrees) and
+//! `x_mm, y_mm, z_mm` (the tool point in the instrument frame). A session of at least
+//! [`RADIANS_MIN_ROWS`] rows whose degree columns all stay within ±2π holds radians, not degrees:
+//! it is refused, naming the file and the columns to rename. Optional: `qw, qx, qy, qz` (the
 //! probe's orientation in the instrument frame, scalar first), `sigma_mm` or `u95_mm` (the
 //! instrument's stated uncertainty; σ = U95/2), `time_s`, `temp_C`, `pose` (rows with the same
 //! pose id are repeats of one arm pose). Any other column is named in a warning and ignored.
@@ -30,6 +33,8 @@ pub const TRACKER_FORMAT: &str = "kincal-tracker/1";
 pub const MIN_SESSION_SPAN_MM: f64 = 5.0;
 /// Largest plausible coordinate, mm (a tracker measures within tens of metres).
 pub const MAX_COORDINATE_MM: f64 = 100_000.0;
+/// Fewest rows of a session whose degree columns, all within ±2π, are taken for radians.
+pub const RADIANS_MIN_ROWS: usize = 5;
 /// How far a quaternion's norm may be from 1 before the row is refused.
 pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
 
@@ -70,6 +75,8 @@ pub fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, FileError> {
 #[derive(Default)]
 struct Layout {
     q: Vec<usize>,
+    /// The joint columns are `qN_rad`: radians, converted to degrees.
+    radians: bool,
     xyz: [usize; 3],
     quaternion: Option<[usize; 4]>,
     sigma: Option<(usize, f64)>,
@@ -92,22 +99,36 @@ fn layout(
         }
     }
     let mut out = Layout::default();
+    let any = |unit: &str| (1..=MAX_JOINTS + 1).any(|j| find(&format!("q{j}_{unit}")).is_some());
+    out.radians = match (any("deg"), any("rad")) {
+        (true, true) => {
+            return Err(row(
+                "q1_rad",
+                "give every joint in degrees (qN_deg) or every joint in radians (qN_rad), not both".into(),
+            ))
+        }
+        (deg, rad) => rad && !deg,
+    };
+    let unit = if out.radians { "rad" } else { "deg" };
     for j in 1..=MAX_JOINTS + 1 {
-        match find(&format!("q{j}_deg")) {
+        match find(&format!("q{j}_{unit}")) {
             Some(c) if j <= MAX_JOINTS => out.q.push(c),
-            Some(_) => return Err(row(&format!("q{j}_deg"), format!("at most {MAX_JOINTS} joints"))),
+            Some(_) => return Err(row(&format!("q{j}_{unit}"), format!("at most {MAX_JOINTS} joints"))),
             None => break,
         }
     }
     if out.q.is_empty() {
-        return Err(row("q1_deg", "missing: expected joint columns q1_deg … qN_deg (degrees)".into()));
+        return Err(row(
+            "q1_deg",
+            "missing: expected joint columns q1_deg … qN_deg (degrees) or q1_rad … qN_rad (radians)".into(),
+        ));
     }
     let gap = out.q.len() + 1;
-    if let Some(later) = (gap + 1..=MAX_JOINTS).find(|j| find(&format!("q{j}_deg")).is_some()) {
+    if let Some(later) = (gap + 1..=MAX_JOINTS).find(|j| find(&format!("q{j}_{unit}")).is_some()) {
         return Err(row(
-            &format!("q{gap}_deg"),
+            &format!("q{gap}_{unit}"),
             format!(
-                "missing, while q{later}_deg is there: expected joint columns q1_deg … qN_deg without a gap"
+                "missing, while q{later}_{unit} is there: expected joint columns q1_{unit} … qN_{unit} without a gap"
             ),
         ));
     }
@@ -232,7 +253,7 @@ pub fn read_tagged_session(
         };
         let mut q = Vec::with_capacity(layout.q.len());
         for &c in &layout.q {
-            let v = number(c)?;
+            let v = if layout.radians { number(c)?.to_degrees() } else { number(c)? };
             if v.abs() > 3600.0 {
                 return Err(row_error(
                     line,
@@ -301,6 +322,20 @@ pub fn read_tagged_session(
     }
     if points.is_empty() {
         return Err(row_error(header_line, "header", "no data rows after the header".into()));
+    }
+    let largest_deg = points.iter().flat_map(|p| p.q_deg.iter()).fold(0.0_f64, |a, v| a.max(v.abs()));
+    if !layout.radians && points.len() >= RADIANS_MIN_ROWS && largest_deg <= std::f64::consts::TAU {
+        let n = layout.q.len();
+        return Err(row_error(
+            header_line,
+            header[layout.q[0]],
+            format!(
+                "every joint angle of the session's {} rows lies within ±2π (the largest is {largest_deg:.3}): \
+                 these are radians (ROS joint_states), not degrees; name the columns q1_rad … q{n}_rad to have \
+                 kincal convert them, or write degrees",
+                points.len()
+            ),
+        ));
     }
     if points.len() >= 4 {
         let (lo, hi) = points.iter().fold(
@@ -423,10 +458,42 @@ mod tests {
         let e = load_dir(&dir).unwrap_err().to_string();
         assert!(e.contains("m.csv:3") && e.contains("metres"), "{e}");
         std::fs::remove_dir_all(dir).ok();
+        let both = GOOD.replace("q2_deg", "q2_rad");
+        let dir = folder("both", &[("b.csv", &both)]);
+        let e = load_dir(&dir).unwrap_err().to_string();
+        assert!(e.contains("b.csv:3: column `q1_rad`") && e.contains("not both"), "{e}");
+        std::fs::remove_dir_all(dir).ok();
         let q = "# kincal-tracker/1\nq1_deg,x_mm,y_mm,z_mm,qw,qx,qy,qz\n0,1,2,3,1,0,0,0.5\n";
         let dir = folder("quat", &[("q.csv", q)]);
         let e = load_dir(&dir).unwrap_err().to_string();
         assert!(e.contains("q.csv:3: column `qw`") && e.contains("unit quaternion"), "{e}");
+        std::fs::remove_dir_all(dir).ok();
+    }
+
+    /// ROS joint_states in radians: read as degrees they would be a session that barely moves.
+    const RADIANS: &str = "# kincal-tracker/1\npose,q1_deg,q2_deg,x_mm,y_mm,z_mm\n1,0.1,-1.2,100,0,0\n\
+                           2,0.5,1.3,0,200,0\n3,-2.9,0.2,0,0,300\n4,3.1,-0.7,10,20,30\n5,1.7,2.2,40,0,90\n";
+
+    #[test]
+    fn radians_in_degree_columns_are_refused_and_radian_columns_converted() {
+        let dir = folder("radians", &[("ros.csv", RADIANS)]);
+        let e = load_dir(&dir).unwrap_err().to_string();
+        assert!(
+            e.contains("ros.csv:2: column `q1_deg`")
+                && e.contains("within ±2π")
+                && e.contains("q1_rad … q2_rad"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(dir).ok();
+        let dir = folder("rad-columns", &[("ros.csv", &RADIANS.replace("_deg", "_rad"))]);
+        let data = load_dir(&dir).unwrap();
+        assert!((data.obs[2].q_deg[0] - (-2.9_f64).to_degrees()).abs() < 1e-12, "{:?}", data.obs[2].q_deg);
+        assert!((data.obs[4].q_deg[1] - 2.2_f64.to_degrees()).abs() < 1e-12);
+        std::fs::remove_dir_all(dir).ok();
+        // Four rows cannot tell: a short session in degrees within ±2π is read as it is.
+        let short: String = RADIANS.lines().take(6).map(|l| format!("{l}\n")).collect();
+        let dir = folder("rad-short", &[("s.csv", &short)]);
+        assert_eq!(load_dir(&dir).unwrap().obs.len(), 4);
         std::fs::remove_dir_all(dir).ok();
     }
 }

@@ -378,7 +378,9 @@ fn validation_tables(body: &mut String, s: &Summary) {
             String::new(),
         ]);
     }
-    if !angle_rows.is_empty() {
+    let withheld: Vec<String> =
+        v.sessions.iter().filter_map(|f| f.orientation_withheld.as_deref()).map(escape).collect();
+    if !angle_rows.is_empty() || !withheld.is_empty() {
         let _ = write!(
             body,
             "<h3>Orientation (6-DoF probe), held out</h3>{}",
@@ -387,6 +389,9 @@ fn validation_tables(body: &mut String, s: &Summary) {
                 &angle_rows
             )
         );
+        for why in withheld {
+            let _ = write!(body, "<p class=note>No orientation figure for {why}.</p>");
+        }
     }
 }
 
@@ -469,7 +474,7 @@ fn calibration_tables(body: &mut String, s: &Summary) {
             let (value, std) = with_std(e.value, e.std);
             let change = with_std(e.value - e.nominal, e.std).0;
             let status = if ident.estimated.contains(&e.param) {
-                "estimated"
+                e.status.as_str()
             } else if ident.fixed.contains(&e.param) {
                 "held at nominal: not identifiable"
             } else {
@@ -799,7 +804,11 @@ fn data_errors(body: &mut String, s: &Summary) {
         .data_errors
         .iter()
         .map(|d| {
-            let unit = if d.kind == DataErrorKind::Drift { "mm/h" } else { "mm" };
+            let unit = match d.kind {
+                DataErrorKind::Drift => "mm/h",
+                DataErrorKind::ProbeTurned => "°",
+                _ => "mm",
+            };
             vec![
                 escape(d.kind.word()),
                 escape(&d.session),

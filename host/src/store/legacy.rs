@@ -155,7 +155,7 @@ impl ArtefactRunV1 {
     pub fn into_summary(self, joints: usize) -> Summary {
         let i = self.inputs;
         let c = self.calibration;
-        let status = |e: &Estimate| e.status == "estimated";
+        let status = |e: &Estimate| e.status.starts_with("estimated");
         let report = IdentifiabilityReport {
             estimated: c.estimates.iter().filter(|e| status(e)).map(|e| e.param.clone()).collect(),
             fixed: c.fixed_unidentifiable.clone(),

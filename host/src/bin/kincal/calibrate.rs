@@ -345,6 +345,9 @@ fn print_sessions(v: &kincal::calib::summary::SessionsValidation) {
                 f.calibrated.name, c.rms_deg, c.mean_deg, c.max_deg, n.rms_deg
             );
         }
+        if let Some(why) = &f.orientation_withheld {
+            println!("  {:<22} no orientation figure: {why}", f.calibrated.name);
+        }
     }
     let (o, n) = (&v.overall, &v.nominal_overall);
     println!(

@@ -307,12 +307,19 @@ pub fn diagnose(
         baseline_rms_mm: baseline.rms_mm,
     };
     let (rivals, mut named) = sequence::rivals(&contest, evidence.as_ref());
-    let change = match sequence::named_data_error(&data_errors, &candidates, &named) {
-        Some(d) => {
+    // A held-out session's own data error (its tool moved, its probe turned) spoils the held-out
+    // test of every arm effect: it is named alone, and no arm effect is claimed.
+    let held_out_error = flagged.held_out_tools.iter().find(|t| t.significant).and_then(|t| t.change.clone());
+    let change = match (sequence::named_data_error(&data_errors, &candidates, &named), held_out_error) {
+        (Some(d), _) => {
             named = vec![d.name.clone()];
             Some(d.change.clone())
         }
-        None => {
+        (None, Some(change)) => {
+            named = vec![change.name()];
+            Some(change)
+        }
+        (None, None) => {
             named.first().and_then(|n| candidates.iter().find(|c| c.name == *n)).map(|c| c.change.clone())
         }
     };

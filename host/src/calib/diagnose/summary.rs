@@ -134,6 +134,13 @@ pub(super) fn lines(d: &Diagnosis, setup: &Setup, with: Option<&Gap>) -> Vec<Str
     }
     for t in d.held_out_tools.iter().filter(|t| t.significant) {
         lines.push(format!("data error in a held-out session: {} (apply with {})", t.text, t.action));
+        if first.is_none() && d.change.as_ref().is_some_and(|c| c.action() == t.action) {
+            lines.push(
+                "no arm effect is claimed: a held-out session's own error spoils the held-out test of every arm \
+                 effect; apply it and diagnose again"
+                    .into(),
+            );
+        }
     }
     lines.extend(d.floor.neighbour_lines());
     if let (Some(c), Some(g), Some(after)) = (first, &d.floor.gap, with) {
@@ -147,7 +154,7 @@ pub(super) fn lines(d: &Diagnosis, setup: &Setup, with: Option<&Gap>) -> Vec<Str
             ));
         }
     }
-    if d.incomplete && first.is_none() {
+    if d.incomplete && first.is_none() && d.change.is_none() {
         lines.push("the cause is not in the effect library nor among the data errors kincal scores".into());
     }
     lines

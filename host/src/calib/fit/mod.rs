@@ -148,7 +148,8 @@ pub struct Estimate {
     pub value: f64,
     /// One standard deviation from the covariance, when estimated.
     pub std: Option<f64>,
-    /// `estimated`, or `fixed: unidentifiable` when the data cannot determine it.
+    /// `estimated`, or `fixed: unidentifiable` when the data cannot determine it; a run marks an
+    /// estimate that ended on a bound `estimated, on its lower bound` (or upper).
     #[serde(default = "estimated")]
     pub status: String,
 }

@@ -1,7 +1,7 @@
 //! Data errors: faults of the measurement rather than of the arm, each found by a detector of its
 //! kind of block and remedied by a typed [`Change`] — a wrong certificate, an artefact moved
-//! within a repeat, a mis-seated touch ([`touches`]); a re-mounted tool, a drifting session,
-//! single bad points ([`sessions`]). The diagnosis scores their remedies on the held-out data
+//! within a repeat, a mis-seated touch ([`touches`]); a re-mounted tool, a probe turned on its
+//! mount, a drifting session, single bad points ([`sessions`]). The diagnosis scores their remedies on the held-out data
 //! beside the arm effects, by the same test.
 
 pub mod sessions;
@@ -21,6 +21,9 @@ pub enum DataErrorKind {
     /// Single points far beyond the others.
     #[serde(rename = "bad points")]
     BadPoints,
+    /// A 6-DoF probe turned on its mount in one session (its rotation and its point with it).
+    #[serde(rename = "probe turned")]
+    ProbeTurned,
 }
 
 impl DataErrorKind {
@@ -30,6 +33,7 @@ impl DataErrorKind {
             DataErrorKind::ToolMoved => "tool moved",
             DataErrorKind::Drift => "drift",
             DataErrorKind::BadPoints => "bad points",
+            DataErrorKind::ProbeTurned => "probe turned",
         }
     }
 }
@@ -65,11 +69,12 @@ pub struct DataError {
     pub session: String,
     /// Where the session is.
     pub set: DataSet,
-    /// The tool point's displacement (flange frame), the largest bad point's error (mm), or the
-    /// length of a drift's rate (mm/h, mm/K, ppm/h or ppm/K, as its text says).
+    /// The tool point's displacement (flange frame), the largest bad point's error (mm), the
+    /// length of a drift's rate (mm/h, mm/K, ppm/h or ppm/K, as its text says), or a turned
+    /// probe's angle (degrees).
     pub size_mm: f64,
-    /// Standard deviation of the displacement's length, the points' robust σ (mm), or of the
-    /// drift rate's length (its unit).
+    /// Standard deviation of the displacement's length, the points' robust σ (mm), of the
+    /// drift rate's length (its unit), or of the probe's angle (degrees).
     pub size_std_mm: f64,
     /// Held-out RMS without the candidate, mm.
     pub held_out_before_mm: f64,

@@ -20,6 +20,18 @@
 //! |Δ_S| is beyond three of its standard deviations and the held-out error falls: the others
 //! were scored against a model the best one still bends (apply it, and score again).
 //!
+//! **A 6-DoF probe turned on its mount.** A probe taken off and put back turned about the
+//! flange (a T-Mac-type probe on a later day, a half turn): in session S the probe's rotation on
+//! the flange is R_t,S = Q_S·R_t and its point Q_S·t, Q_S the turn in the flange frame. Its
+//! positions show a re-mounted tool (Δ_S = (Q_S − I)·t, as large as twice the tool's distance
+//! from the turn's axis), its orientations a constant rotation: in a held-out session S whose
+//! orientation varies and whose points determine its base's rotation, R_t,S is the chordal mean
+//! of R_Fᵀ·R_Sᵀ·R_meas (its base refitted with its tool floated), and Q_S = R_t,S·R_tᵀ. It is
+//! called, in place of the re-mounted tool, when |Q_S| is beyond three of its standard deviations
+//! (the orientation residual per axis over √n) and the held-out orientation error falls by
+//! [`MIN_GAIN`]; the action is the re-mounted tool's (`--float-tool S`), which in a held-out 6-DoF
+//! session refits the probe's rotation with its point.
+//!
 //! **Drift within a session.** The instrument, its stand, its length scale or the arm creeps
 //! while a session is measured, against time (`time_s`) or temperature (`temp_C`): a base shift
 //! X_i = B_s · F(q_i) · t + v_S · (τ_i − τ̄) or a length scale X_i = B_s · (1 + k_S · (τ_i − τ̄)) ·
@@ -35,12 +47,17 @@ use super::{DataError, DataErrorKind, DataSet};
 use crate::calib::diagnose::units::Measure;
 use crate::calib::fit::{calibrate, Fit, CONSTANT_ORIENTATION_DEG};
 use crate::calib::nuisance::drift::{DriftKind, DriftSpec};
+use crate::calib::nuisance::frame::rotation_vector;
 use crate::calib::nuisance::tool::orientation_spread_deg;
 use crate::calib::setup::{Change, SolveOptions};
-use crate::calib::validate::{calibration_errors, fit_session_with_tool};
+use crate::calib::validate::{
+    calibration_errors, fit_session_with_tool, session_probe_rotation, undetermined_rotation,
+    validate_orientations,
+};
 use crate::data::Observations;
 use crate::model::ArmModel;
 use crate::numerics::stats::rms;
+use nalgebra::{Matrix3, Vector3};
 
 /// Largest tool displacement taken for a re-mount, mm: a probe put back sits within millimetres;
 /// more is the session's model error, not a tool.
@@ -183,6 +200,94 @@ fn drift_candidates(
     out
 }
 
+/// A 6-DoF probe's turn on its mount in one held-out session (see the module doc).
+struct ProbeTurn {
+    /// Q_S, the turn in the flange frame.
+    turn: Matrix3<f64>,
+    /// |Q_S|, degrees.
+    angle_deg: f64,
+    /// Its standard deviation, degrees.
+    std_deg: f64,
+    /// The session's held-out orientation RMS with the shared probe rotation, degrees.
+    before_deg: f64,
+    /// With its own, degrees.
+    after_deg: f64,
+}
+
+/// Half-angle of the cone about the flange's z axis within which a turn's axis is named "the
+/// flange z axis", degrees.
+const FLANGE_Z_WITHIN_DEG: f64 = 10.0;
+
+/// The probe's turn in held-out session `b` (its tool offset `offset_mm` refitted): `None` without
+/// a fitted probe rotation, without orientations, or when the session's points leave its base's
+/// rotation free.
+fn probe_turn(fit: &Fit, val: &Observations, b: usize, offset_mm: [f64; 3]) -> Option<ProbeTurn> {
+    let shared = fit.tool_rotation.as_ref()?.rotation();
+    if undetermined_rotation(val, b).is_some() {
+        return None;
+    }
+    let own = session_probe_rotation(&fit.model, val, b, offset_mm)?;
+    let before = validate_orientations(&fit.model, val, b, offset_mm, &shared)?;
+    let after = validate_orientations(&fit.model, val, b, offset_mm, &own)?;
+    let turn = own * shared.transpose();
+    // The residual angle's RMS spreads over three axes; the turn's angle is a mean of n of them.
+    let std_deg = after.rms_deg / (3.0 * after.orientations as f64).sqrt();
+    Some(ProbeTurn {
+        turn,
+        angle_deg: rotation_vector(&turn).norm().to_degrees(),
+        std_deg,
+        before_deg: before.rms_deg,
+        after_deg: after.rms_deg,
+    })
+}
+
+impl ProbeTurn {
+    /// Beyond three standard deviations, the orientation error falling by [`MIN_GAIN`], and the
+    /// tool point's displacement `offset_mm` the turn's own within [`MAX_REMOUNT_MM`].
+    fn called(&self, fit: &Fit, offset_mm: &[f64; 3]) -> bool {
+        let t = Vector3::from(fit.model.tcp_mm);
+        let unexplained = (Vector3::from(*offset_mm) - (self.turn - Matrix3::identity()) * t).norm();
+        self.angle_deg > 3.0 * self.std_deg
+            && self.after_deg < (1.0 - MIN_GAIN) * self.before_deg
+            && unexplained <= MAX_REMOUNT_MM
+    }
+
+    /// The turn's axis in words: "the flange z axis" (its sign in the angle), or its direction.
+    fn about(&self) -> (f64, String) {
+        let w = rotation_vector(&self.turn);
+        let axis = w / w.norm().max(1e-300);
+        if axis.z.abs() >= FLANGE_Z_WITHIN_DEG.to_radians().cos() {
+            (self.angle_deg * axis.z.signum(), "the flange z axis".into())
+        } else {
+            (self.angle_deg, format!("the flange axis ({:.3}, {:.3}, {:.3})", axis.x, axis.y, axis.z))
+        }
+    }
+
+    /// The data error, in place of the re-mounted tool `moved` of the same session.
+    fn data_error(&self, moved: DataError) -> DataError {
+        let (angle, about) = self.about();
+        DataError {
+            kind: DataErrorKind::ProbeTurned,
+            size_mm: self.angle_deg,
+            size_std_mm: self.std_deg,
+            // Called: its angle is determined and the orientation error falls.
+            significant: true,
+            text: format!(
+                "the probe is turned {angle:.3} ± {:.3}° about {about} in session {} (its point moved {:.3} mm with it); \
+                 held-out orientation RMS {:.3}° → {:.3}°, position RMS {:.4} → {:.4} mm with its probe floating",
+                self.std_deg,
+                moved.session,
+                moved.size_mm,
+                self.before_deg,
+                self.after_deg,
+                moved.held_out_before_mm,
+                moved.held_out_after_mm
+            ),
+            ..moved
+        }
+    }
+}
+
 /// Score the data errors, best first: "the tool moved in session S" for every session not
 /// already floating, "session S drifts" for every drift kind a session's columns allow, and
 /// single bad points.
@@ -249,7 +354,11 @@ pub fn data_error_candidates(
         let mut floating = options.float_tool.clone();
         floating.push(name.clone());
         let after = held_out_rms(&fit.model, val, &floating);
-        out.push(verdict(&name, DataSet::HeldOut, tool.offset_mm, tool.size_std_mm, after));
+        let moved = verdict(&name, DataSet::HeldOut, tool.offset_mm, tool.size_std_mm, after);
+        out.push(match probe_turn(fit, val, b, tool.offset_mm) {
+            Some(turn) if turn.called(fit, &tool.offset_mm) => turn.data_error(moved),
+            _ => moved,
+        });
     }
     out.extend(drift_candidates(nominal, cal, val, options, before));
     out.extend(bad_points_candidate(nominal, cal, val, fit, options, before));

@@ -435,7 +435,7 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
         s.floor.points.as_mut().expect("a point floor").rms_mm = Some(f64::NAN);
         s.calibration.estimates[0].std = Some(f64::INFINITY);
         run.held_out[0].points[0].residual_mm[2] = f64::NAN;
-        let html = kincal::report::run::run_report(&run);
+        let html = kincal::report::run::run_report(&run, std::path::Path::new("run"));
         for word in ["NaN", "inf"] {
             assert!(!html.contains(word), "{word} in the report of poisoned figures");
         }

@@ -13,6 +13,7 @@ use crate::calib::fit::CONSTANT_ORIENTATION_DEG;
 use crate::calib::run::{PointResidual, Run, SessionResiduals};
 use crate::calib::summary::{SessionFigures, Summary};
 use std::fmt::Write;
+use std::path::Path;
 
 /// The page is wider than the other reports: four residual plots side by side.
 const WIDE: &str =
@@ -51,15 +52,42 @@ fn with_std(value: f64, std: Option<f64>) -> (String, String) {
     (num(value, decimals), std.map_or("—".into(), |s| num(s, decimals)))
 }
 
-/// The report of one run.
-pub fn run_report(run: &Run) -> String {
+/// A path as one shell word: as it is when it needs no quoting, else in single quotes.
+pub fn shell_word(path: &Path) -> String {
+    let text = path.display().to_string();
+    let plain =
+        !text.is_empty() && text.chars().all(|c| c.is_ascii_alphanumeric() || "/._-+:,@%".contains(c));
+    if plain {
+        text
+    } else {
+        format!("'{}'", text.replace('\'', r"'\''"))
+    }
+}
+
+/// The run's verdict as the CLI prints it and the page shows it: the next command names the run's
+/// folder `run_dir` (summary.json keeps the placeholder `RUN`, as it may be moved).
+pub fn verdict_lines(s: &Summary, run_dir: &Path) -> Vec<String> {
+    s.verdict.iter().map(|v| name_run(v, run_dir)).collect()
+}
+
+/// A line with the placeholder `RUN` of `kincal diagnose RUN` or `kincal plan RUN` replaced by
+/// the run's folder, so the next command can be pasted as it is.
+pub fn name_run(line: &str, run_dir: &Path) -> String {
+    let run = shell_word(run_dir);
+    ["diagnose", "plan"].iter().fold(line.to_string(), |text, command| {
+        text.replace(&format!("kincal {command} RUN"), &format!("kincal {command} {run}"))
+    })
+}
+
+/// The report of one run, written into `run_dir`.
+pub fn run_report(run: &Run, run_dir: &Path) -> String {
     let s = &run.summary;
     let mut body = String::from(WIDE);
     if !s.not_trustworthy.is_empty() {
         let items: String = s.not_trustworthy.iter().map(|p| format!("<li>{}</li>", escape(p))).collect();
         let _ = write!(body, "<h2>Not trustworthy: these figures are not a result</h2><ul>{items}</ul>");
     }
-    verdict(&mut body, s);
+    verdict(&mut body, s, run_dir);
     if run.distances.is_some() {
         distance_plots(&mut body, run);
     }
@@ -96,8 +124,8 @@ pub fn run_report(run: &Run) -> String {
     page("kincal calibration report", &body)
 }
 
-fn verdict(body: &mut String, s: &Summary) {
-    let items: String = s.verdict.iter().map(|v| format!("<li>{}</li>", escape(v))).collect();
+fn verdict(body: &mut String, s: &Summary, run_dir: &Path) {
+    let items: String = verdict_lines(s, run_dir).iter().map(|v| format!("<li>{}</li>", escape(v))).collect();
     let _ = write!(body, "<h2>Verdict</h2><ul>{items}</ul>");
 }
 
@@ -737,7 +765,8 @@ fn outliers(body: &mut String, s: &Summary) {
         .iter()
         .map(|o| {
             let cell = |v: f64, name: &str| {
-                if o.exceeded.iter().any(|e| e == name) {
+                // Only a flagged row is coloured: one metric over its threshold is common on clean data.
+                if o.flagged && o.exceeded.iter().any(|e| e == name) {
                     format!("<span class=flag>{}</span>", num(v, 3))
                 } else {
                     num(v, 3)

@@ -11,7 +11,9 @@ use crate::calib::diagnose::data_errors::sessions::MIN_GAIN;
 use crate::calib::diagnose::data_errors::DataErrorKind;
 use crate::calib::fit::CONSTANT_ORIENTATION_DEG;
 use crate::calib::run::{PointResidual, Run, SessionResiduals};
+use crate::calib::setup::Objective;
 use crate::calib::summary::{SessionFigures, Summary};
+use crate::numerics::solver::StopReason;
 use std::fmt::Write;
 use std::path::Path;
 
@@ -462,9 +464,9 @@ fn calibration_tables(body: &mut String, s: &Summary) {
         s.options.huber_delta_mm.map_or("plain least squares".into(), |d| format!("Huber δ = {d} mm"));
     let _ = write!(
         body,
-        "<h2>Calibration</h2><p>{} joints; {what}; objective {:?}, {huber}, {} random restarts (seed {}).</p>{}",
+        "<h2>Calibration</h2><p>{} joints; {what}; objective: {}, {huber}, {} random restarts (seed {}).</p>{}",
         s.joints,
-        s.options.objective,
+        objective_words(&s.options.objective),
         s.options.restarts,
         s.options.seed,
         table(&["calibration placement or session", "observations"], &groups)
@@ -791,6 +793,26 @@ fn outliers(body: &mut String, s: &Summary) {
     );
 }
 
+/// Why a solver start stopped, in words.
+fn stop_words(stop: StopReason) -> &'static str {
+    match stop {
+        StopReason::CostConverged => "the cost stopped falling",
+        StopReason::StepConverged => "the step became negligible",
+        StopReason::GradientConverged => "the gradient vanished",
+        StopReason::NoProgress => "no step lowered the cost",
+        StopReason::IterationLimit => "iteration limit",
+    }
+}
+
+/// The objective in words.
+fn objective_words(objective: &Objective) -> String {
+    match objective {
+        Objective::Distance => "positions only".into(),
+        Objective::SixDof { lever_mm: Some(l) } => format!("positions and orientations ({l} mm per radian)"),
+        Objective::SixDof { lever_mm: None } => "positions and orientations".into(),
+    }
+}
+
 /// Every solver start.
 fn starts(body: &mut String, s: &Summary) {
     let rows: Vec<Vec<String>> = s
@@ -803,7 +825,7 @@ fn starts(body: &mut String, s: &Summary) {
                 num(st.initial_cost, 4),
                 num(st.final_cost, 6),
                 st.iterations.to_string(),
-                format!("{:?}", st.stop),
+                stop_words(st.stop).into(),
             ]
         })
         .collect();

@@ -407,7 +407,9 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
             f4(&overall["rms_mm"])
         )));
         for v in summary["verdict"].as_array().expect("verdict") {
-            let sentence = v.as_str().expect("a sentence").replace('&', "&amp;").replace('<', "&lt;");
+            // The page names the run's folder where summary.json keeps the placeholder RUN.
+            let sentence = kincal::report::run::name_run(v.as_str().expect("a sentence"), &out);
+            let sentence = sentence.replace('&', "&amp;").replace('<', "&lt;");
             assert!(html.contains(&sentence), "verdict {sentence} not in the report");
         }
         for e in summary["identifiability"]["report"]["estimated"].as_array().expect("estimated") {

@@ -7,6 +7,29 @@ fn kincal(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_kincal")).args(args).output().expect("kincal runs")
 }
 
+/// Whether a page's first section is its verdict, the verdict names a next step, and no internal
+/// name reaches the reader; the failure says which.
+fn check_leads_with_verdict(page: &Path) {
+    let html = std::fs::read_to_string(page).unwrap_or_else(|e| panic!("{}: {e}", page.display()));
+    let first = html.find("<h2>").map(|k| &html[k..]).unwrap_or_default();
+    assert!(
+        first.starts_with("<h2>Verdict</h2>"),
+        "{}: the first section is not the verdict",
+        page.display()
+    );
+    let verdict = &first[..first[4..].find("<h2>").map_or(first.len(), |k| k + 4)];
+    assert!(
+        ["next:", "what to do", "what to measure next"].iter().any(|w| verdict.contains(w)),
+        "{}: the verdict names no next step: {verdict}",
+        page.display()
+    );
+    for internal in
+        ["AtFloor", "NothingSignificant", "CannotTell", "CostConverged", "Quadratic", "kincal diagnose RUN"]
+    {
+        assert!(!html.contains(internal), "{}: {internal:?} reaches the reader", page.display());
+    }
+}
+
 fn example_model() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/suta/model.toml")
 }
@@ -222,7 +245,16 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
         page.to_str().unwrap(),
     ]);
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && text.contains("rms_mm") && text.contains("eccentricity:5"), "{text}");
+    assert!(out.status.success() && text.contains("RMS mm") && text.contains("eccentricity:5"), "{text}");
+    assert!(text.starts_with("the second run"), "compare prints its verdict first: {text}");
+    for page in [before.join("report.html"), before.join("diagnosis.html"), page.clone()] {
+        check_leads_with_verdict(&page);
+    }
+    let report = std::fs::read_to_string(before.join("report.html")).unwrap();
+    assert!(
+        report.contains(&format!("kincal diagnose {}", before.display())),
+        "the next command names the run"
+    );
     let rms = |run: &Path| -> f64 { kincal::api::load(run).expect("typed RUN").summary.held_out_rms_mm() };
     assert!(rms(&after) < 0.6 * rms(&before), "{} → {}", rms(&before), rms(&after));
     assert!(std::fs::read_to_string(&page).unwrap().contains("<svg"));
@@ -306,6 +338,7 @@ fn haptic_simulate_and_calibrate_write_the_summary_and_refuse_bad_recordings() {
     );
     assert_eq!(s["gimbal_model"], "quadratic");
     assert!(std::fs::read_to_string(run.join("report.html")).unwrap().contains("Hammer"));
+    check_leads_with_verdict(&run.join("report.html"));
     // A stream with a time going backwards is named by file and line; nothing panics.
     let device = rec.join("joints/device.csv");
     let text = std::fs::read_to_string(&device).unwrap();
@@ -347,6 +380,9 @@ fn demo_offline_and_simulate_run_from_an_empty_folder_outside_the_repository() {
     let out = dir.join("runs/demo-offline");
     for file in ["nominal.toml", "run/diagnosis.html", "run/report.html", "run-added/model.toml"] {
         assert!(out.join(file).exists(), "demo --offline wrote no {file}");
+    }
+    for page in ["run/report.html", "run/diagnosis.html", "run/auto/report.html", "run-added/report.html"] {
+        check_leads_with_verdict(&out.join(page));
     }
     let nominal = kincal::model::ArmModel::load(&out.join("nominal.toml")).unwrap();
     assert_eq!(nominal, kincal::model::ArmModel::load(&example_model()).unwrap());

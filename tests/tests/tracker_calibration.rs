@@ -407,7 +407,9 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
             f4(&overall["rms_mm"])
         )));
         for v in summary["verdict"].as_array().expect("verdict") {
-            let sentence = v.as_str().expect("a sentence").replace('&', "&amp;").replace('<', "&lt;");
+            // The page names the run's folder where summary.json keeps the placeholder RUN.
+            let sentence = kincal::report::run::name_run(v.as_str().expect("a sentence"), &out);
+            let sentence = sentence.replace('&', "&amp;").replace('<', "&lt;");
             assert!(html.contains(&sentence), "verdict {sentence} not in the report");
         }
         for e in summary["identifiability"]["report"]["estimated"].as_array().expect("estimated") {
@@ -435,7 +437,7 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
         s.floor.points.as_mut().expect("a point floor").rms_mm = Some(f64::NAN);
         s.calibration.estimates[0].std = Some(f64::INFINITY);
         run.held_out[0].points[0].residual_mm[2] = f64::NAN;
-        let html = kincal::report::run::run_report(&run);
+        let html = kincal::report::run::run_report(&run, std::path::Path::new("run"));
         for word in ["NaN", "inf"] {
             assert!(!html.contains(word), "{word} in the report of poisoned figures");
         }

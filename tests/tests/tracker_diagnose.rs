@@ -205,7 +205,11 @@ fn the_cli_diagnoses_compares_and_refuses_moved_or_changed_data() {
     let (ok, stdout, stderr) = kincal(&dir, &["diagnose", "before", "--auto"]);
     println!("{stdout}");
     assert!(ok, "{stderr}");
-    assert!(stdout.contains("stopped: AtFloor"), "{stdout}");
+    assert!(
+        stdout.contains("stopped after 1 steps")
+            && stdout.contains("at the floor: the model explains the data"),
+        "{stdout}"
+    );
     assert!(dir.join("before/auto/step-1.toml").is_file() && dir.join("before/auto/report.html").is_file());
     calibrate("after", &["--add", "compliance:2"]);
     let (ok, stdout, stderr) = kincal(&dir, &["compare", "before", "after", "--out", "compare.html"]);
@@ -276,7 +280,7 @@ fn the_apparent_joint_errors_of_held_out_sessions_show_a_hidden_harmonic() {
     assert_eq!(joint4.points.len(), val.point_count(), "one apparent error per held-out point");
     assert_eq!(*order, 2, "{:?}", joint4.spectrum);
     assert!((fit.amplitude_deg - 0.0224).abs() < 0.4 * 0.0224, "amplitude {} vs 0.0224", fit.amplitude_deg);
-    let page = kincal::report::diagnosis::diagnosis_report(&d);
+    let page = kincal::report::diagnosis::diagnosis_report(&d, std::path::Path::new("run"));
     assert!((1..=7).all(|j| page.contains(&format!("joint {j} (deg)"))), "an apparent-error plot per joint");
     std::fs::remove_dir_all(dir).ok();
 }

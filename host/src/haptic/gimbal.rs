@@ -38,6 +38,16 @@ pub enum GimbalModel {
     Quadratic,
 }
 
+impl GimbalModel {
+    /// The model in words, as the CLI and the report say it.
+    pub fn words(self) -> &'static str {
+        match self {
+            GimbalModel::Linear => "linear (θ = k·raw + m)",
+            GimbalModel::Quadratic => "quadratic (θ = j·raw² + k·raw + m)",
+        }
+    }
+}
+
 /// Result of the gimbal calibration.
 #[derive(Clone, Debug)]
 pub struct GimbalCalibration {

@@ -49,14 +49,25 @@ fn per_landmark(runs: &[ComparedRun; 2]) -> Vec<(String, (f64, f64))> {
         .collect()
 }
 
-/// The printed comparison: each held-out group, then the verdict, then (held-out distances) the
-/// runs' statistics and each landmark.
+/// The comparison's verdict and the next command.
+fn verdict_lines(c: &Comparison, runs: &[ComparedRun; 2]) -> Vec<String> {
+    let mut lines = c.verdict.clone();
+    lines.push(format!(
+        "next: kincal diagnose {} says what the second run still misses",
+        super::run::shell_word(std::path::Path::new(&runs[1].name))
+    ));
+    lines
+}
+
+/// The printed comparison: the verdict, each held-out group, then (held-out distances) the runs'
+/// statistics and each landmark.
 pub fn compare_lines(c: &Comparison, runs: &[ComparedRun; 2]) -> Vec<String> {
     let figure = |v: Option<f64>| v.filter(|v| v.is_finite()).map_or("–".into(), |v| format!("{v:.4}"));
-    let mut lines = vec![format!(
+    let mut lines = verdict_lines(c, runs);
+    lines.push(format!(
         "  {:<22} {:>7} {:>12} {:>12} {:>14} {:>14}",
         "held-out group", "errors", "(1) RMS mm", "(2) RMS mm", "(1) pairwise", "(2) pairwise"
-    )];
+    ));
     for g in &c.groups {
         lines.push(format!(
             "  {:<22} {:>7} {:>12.4} {:>12.4} {:>14} {:>14}",
@@ -75,14 +86,13 @@ pub fn compare_lines(c: &Comparison, runs: &[ComparedRun; 2]) -> Vec<String> {
         c.before_rms_mm,
         c.after_rms_mm
     ));
-    lines.extend(c.verdict.iter().cloned());
     if let (Some((a, _)), Some((b, _))) = (runs[0].distances(), runs[1].distances()) {
         lines.push(format!("{:<24} {:>12} {:>12}", "validation", "before", "after"));
         for (key, x, y) in [
-            ("rms_mm", a.rms_mm, b.rms_mm),
-            ("mean_mm", a.mean_mm, b.mean_mm),
-            ("std_mm", a.std_mm, b.std_mm),
-            ("max_mm", a.max_mm, b.max_mm),
+            ("RMS mm", a.rms_mm, b.rms_mm),
+            ("mean mm", a.mean_mm, b.mean_mm),
+            ("standard deviation mm", a.std_mm, b.std_mm),
+            ("largest mm", a.max_mm, b.max_mm),
         ] {
             lines.push(format!("{key:<24} {x:>12.4} {y:>12.4}"));
         }
@@ -107,8 +117,9 @@ pub fn compare_report(c: &Comparison, runs: &[ComparedRun; 2]) -> String {
         .iter()
         .flat_map(|g| {
             [
-                (format!("{} (1)", g.name), g.before_rms_mm, false),
-                (format!("{} (2)", g.name), g.after_rms_mm, true),
+                // Before in orange and after in blue, as in the page's other plots.
+                (format!("{} (1)", g.name), g.before_rms_mm, true),
+                (format!("{} (2)", g.name), g.after_rms_mm, false),
             ]
         })
         .collect();
@@ -118,7 +129,7 @@ pub fn compare_report(c: &Comparison, runs: &[ComparedRun; 2]) -> String {
         "<p>(1) {}<br>(2) {}</p><h2>Verdict</h2><ul>{}</ul><figure>{}<figcaption>held-out RMS per group (each held-out frame refitted)</figcaption></figure>{}",
         escape(&runs[0].name),
         escape(&runs[1].name),
-        c.verdict.iter().map(|l| format!("<li>{}</li>", escape(l))).collect::<String>(),
+        verdict_lines(c, runs).iter().map(|l| format!("<li>{}</li>", escape(l))).collect::<String>(),
         svg::hbars(&bars, &references, "held-out RMS (mm)"),
         table(&["held-out group", "errors", "RMS mm (1)", "RMS mm (2)"], &rows)
     );
@@ -149,16 +160,23 @@ pub fn compare_report(c: &Comparison, runs: &[ComparedRun; 2]) -> String {
         body.push_str("<h3>Residuals against each joint angle: before (left), after (right)</h3>");
         let joints = runs[0].residuals.first().map_or(0, |e| e.enc_deg.0.len());
         for j in 0..joints {
-            for run in runs {
-                let pts: Vec<(f64, f64)> = run
-                    .residuals
-                    .iter()
-                    .flat_map(|e| [(e.enc_deg.0[j], e.error_mm), (e.enc_deg.1[j], e.error_mm)])
-                    .collect();
+            let pts: Vec<Vec<(f64, f64)>> = runs
+                .iter()
+                .map(|run| {
+                    run.residuals
+                        .iter()
+                        .flat_map(|e| [(e.enc_deg.0[j], e.error_mm), (e.enc_deg.1[j], e.error_mm)])
+                        .collect()
+                })
+                .collect();
+            // One y axis for before and after, so the fall is seen, not rescaled away.
+            let ys: Vec<f64> = pts.iter().flatten().map(|p| p.1).collect();
+            let y = svg::robust_range(&ys);
+            for run_pts in &pts {
                 let _ = write!(
                     body,
                     "<figure>{}</figure>",
-                    svg::scatter(&pts, &[], &format!("encoder {} (deg)", j + 1), "error (mm)")
+                    svg::scatter_on(run_pts, &[], &format!("encoder {} (deg)", j + 1), "error (mm)", y)
                 );
             }
             body.push_str("<br>");

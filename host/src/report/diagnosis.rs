@@ -1,10 +1,45 @@
 //! `RUN/diagnosis.html`: the verdict, where the model fails and what is missing, for every kind of
 //! held-out data.
 
+use super::run::name_run;
 use super::svg::{self, escape};
 use super::{mm, page, table};
 use crate::calib::diagnose::{Candidate, Diagnosis, Measure, RivalVerdict};
 use std::fmt::Write;
+use std::path::Path;
+
+/// The diagnosis's summary as the CLI prints it and the page leads with it: the run's folder in
+/// its commands, and a next step when the summary names none.
+pub fn summary_lines(d: &Diagnosis, run_dir: &Path) -> Vec<String> {
+    let mut lines: Vec<String> = d.summary.iter().map(|l| name_run(l, run_dir)).collect();
+    let names_a_step = lines.iter().any(|l| {
+        [
+            "what to do",
+            "what to measure next",
+            "fix the data",
+            "measure at least",
+            "hold out more",
+            "apply with",
+        ]
+        .iter()
+        .any(|w| l.contains(w))
+    });
+    if !names_a_step {
+        lines.push(match &d.floor.gap {
+            Some(g) if g.at_floor => {
+                format!("next: nothing to add; {}/model.toml is the calibration to keep", run_dir.display())
+            }
+            Some(g) if g.significant => {
+                "next: the model lacks something outside the effect library: the apparent joint \
+                                         errors below show which joint and how it varies"
+                    .into()
+            }
+            _ => "next: more held-out data (placements or sessions) would tell whether anything is missing"
+                .into(),
+        });
+    }
+    lines
+}
 
 fn list(lines: &[String]) -> String {
     format!("<ul>{}</ul>", lines.iter().map(|l| format!("<li>{}</li>", escape(l))).collect::<String>())
@@ -65,12 +100,12 @@ fn candidate_table(candidates: &[Candidate], units: &str) -> String {
 }
 
 /// The diagnosis page: the verdict first, then the pictures, then the tables.
-pub fn diagnosis_report(d: &Diagnosis) -> String {
+pub fn diagnosis_report(d: &Diagnosis, run_dir: &Path) -> String {
     let (units, unit_words) = match d.measure {
         Measure::Distances => ("placements improved", "validation placements (their repeats averaged)"),
         Measure::Points => ("blocks improved", "contiguous blocks of poses of the held-out sessions"),
     };
-    let mut body = format!("<h2>Summary</h2>{}", list(&d.summary));
+    let mut body = format!("<h2>Verdict</h2>{}", list(&summary_lines(d, run_dir)));
     // Pictures first: the gap, candidates and data errors against the floor, per-joint patterns.
     let mut bars: Vec<(String, f64, bool)> = vec![("now (as calibrated)".into(), d.baseline.rms_mm, false)];
     bars.extend(
@@ -100,7 +135,7 @@ pub fn diagnosis_report(d: &Diagnosis) -> String {
         svg::hbars(&bars, &references, "held-out RMS (mm)"),
         escape(&d.floor.source)
     );
-    body.push_str("<h2>Where it fails</h2><h3>Apparent joint error against joint angle (the curve: harmonics 1–4 fitted together, drawn where observations are)</h3><p>Observations where a joint barely moves the tip (its Jacobian column near zero, close to a singularity) give huge apparent errors of that joint; the axes are set by the bulk of the observations and such points are drawn as triangles at the edge.</p>");
+    body.push_str("<h2>Where it fails</h2><h3>Apparent joint error against joint angle (the curve: harmonics 1–4 fitted together, drawn where observations are)</h3><p>Where a joint is seen over part of its turn only, the harmonics and the mean trade off and the once-per-revolution amplitude is not given. Observations where a joint barely moves the tip (its Jacobian column near zero, close to a singularity) give huge apparent errors of that joint; the axes are set by the bulk of the observations and such points are drawn as triangles at the edge.</p>");
     for j in &d.joints {
         let pts: Vec<(f64, f64)> = j.points.iter().map(|p| (p.0, p.1)).collect();
         let s = j.sinusoid;
@@ -122,20 +157,31 @@ pub fn diagnosis_report(d: &Diagnosis) -> String {
                 (phi, value + s.mean_deg)
             })
             .collect();
+        // Over a part of the turn the 1/rev amplitude is an extrapolation (the harmonics and the
+        // mean trade off): give it only when the drawn curve's half-range where the joint was
+        // seen reaches it.
+        let (low, high) =
+            curve.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), c| (a.min(c.1), b.max(c.1)));
+        let half_range = if high >= low { 0.5 * (high - low) } else { 0.0 };
+
+        let once = if s.amplitude_deg <= 1.5 * half_range + 1e-6 {
+            format!("1/rev {:.3}°", s.amplitude_deg)
+        } else {
+            "1/rev not determined over the angles seen".to_string()
+        };
         let _ = write!(
             body,
-            "<figure>{}<figcaption>joint {}: 1/rev {:.3}°, {:.0} % explained</figcaption></figure>",
+            "<figure>{}<figcaption>joint {}: {once}, {:.0} % explained</figcaption></figure>",
             svg::scatter(&pts, &curve, &format!("joint {} (deg)", j.joint), "apparent error (deg)"),
             j.joint,
-            s.amplitude_deg,
             100.0 * s.explained
         );
     }
-    body.push_str("<h3>Apparent joint error against gravity lever</h3>");
+    body.push_str("<h3>Apparent joint error against gravity lever</h3><p>The lever is the gravity torque on the joint per unit weight of each link beyond it, summed over those links (so it can exceed the arm's reach). The slope is the raw trend of the residuals: the calibrated parameters absorb part of a sag, so it can differ from a fitted compliance, whose value the verdict gives.</p>");
     for j in d.joints.iter().filter(|j| j.gravity.iter().any(|g| g.0.abs() > 1e-6)) {
         let _ = write!(
             body,
-            "<figure>{}<figcaption>joint {}: slope {:+.3} °/m</figcaption></figure>",
+            "<figure>{}<figcaption>joint {}: raw slope {:+.3} °/m</figcaption></figure>",
             svg::scatter(
                 &j.gravity,
                 &[],

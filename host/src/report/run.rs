@@ -11,8 +11,11 @@ use crate::calib::diagnose::data_errors::sessions::MIN_GAIN;
 use crate::calib::diagnose::data_errors::DataErrorKind;
 use crate::calib::fit::CONSTANT_ORIENTATION_DEG;
 use crate::calib::run::{PointResidual, Run, SessionResiduals};
+use crate::calib::setup::Objective;
 use crate::calib::summary::{SessionFigures, Summary};
+use crate::numerics::solver::StopReason;
 use std::fmt::Write;
+use std::path::Path;
 
 /// The page is wider than the other reports: four residual plots side by side.
 const WIDE: &str =
@@ -51,15 +54,42 @@ fn with_std(value: f64, std: Option<f64>) -> (String, String) {
     (num(value, decimals), std.map_or("—".into(), |s| num(s, decimals)))
 }
 
-/// The report of one run.
-pub fn run_report(run: &Run) -> String {
+/// A path as one shell word: as it is when it needs no quoting, else in single quotes.
+pub fn shell_word(path: &Path) -> String {
+    let text = path.display().to_string();
+    let plain =
+        !text.is_empty() && text.chars().all(|c| c.is_ascii_alphanumeric() || "/._-+:,@%".contains(c));
+    if plain {
+        text
+    } else {
+        format!("'{}'", text.replace('\'', r"'\''"))
+    }
+}
+
+/// The run's verdict as the CLI prints it and the page shows it: the next command names the run's
+/// folder `run_dir` (summary.json keeps the placeholder `RUN`, as it may be moved).
+pub fn verdict_lines(s: &Summary, run_dir: &Path) -> Vec<String> {
+    s.verdict.iter().map(|v| name_run(v, run_dir)).collect()
+}
+
+/// A line with the placeholder `RUN` of `kincal diagnose RUN` or `kincal plan RUN` replaced by
+/// the run's folder, so the next command can be pasted as it is.
+pub fn name_run(line: &str, run_dir: &Path) -> String {
+    let run = shell_word(run_dir);
+    ["diagnose", "plan"].iter().fold(line.to_string(), |text, command| {
+        text.replace(&format!("kincal {command} RUN"), &format!("kincal {command} {run}"))
+    })
+}
+
+/// The report of one run, written into `run_dir`.
+pub fn run_report(run: &Run, run_dir: &Path) -> String {
     let s = &run.summary;
     let mut body = String::from(WIDE);
     if !s.not_trustworthy.is_empty() {
         let items: String = s.not_trustworthy.iter().map(|p| format!("<li>{}</li>", escape(p))).collect();
         let _ = write!(body, "<h2>Not trustworthy: these figures are not a result</h2><ul>{items}</ul>");
     }
-    verdict(&mut body, s);
+    verdict(&mut body, s, run_dir);
     if run.distances.is_some() {
         distance_plots(&mut body, run);
     }
@@ -96,8 +126,8 @@ pub fn run_report(run: &Run) -> String {
     page("kincal calibration report", &body)
 }
 
-fn verdict(body: &mut String, s: &Summary) {
-    let items: String = s.verdict.iter().map(|v| format!("<li>{}</li>", escape(v))).collect();
+fn verdict(body: &mut String, s: &Summary, run_dir: &Path) {
+    let items: String = verdict_lines(s, run_dir).iter().map(|v| format!("<li>{}</li>", escape(v))).collect();
     let _ = write!(body, "<h2>Verdict</h2><ul>{items}</ul>");
 }
 
@@ -439,9 +469,9 @@ fn calibration_tables(body: &mut String, s: &Summary) {
         s.options.huber_delta_mm.map_or("plain least squares".into(), |d| format!("Huber δ = {d} mm"));
     let _ = write!(
         body,
-        "<h2>Calibration</h2><p>{} joints; {what}; objective {:?}, {huber}, {} random restarts (seed {}).</p>{}",
+        "<h2>Calibration</h2><p>{} joints; {what}; objective: {}, {huber}, {} random restarts (seed {}).</p>{}",
         s.joints,
-        s.options.objective,
+        objective_words(&s.options.objective),
         s.options.restarts,
         s.options.seed,
         table(&["calibration placement or session", "observations"], &groups)
@@ -742,7 +772,8 @@ fn outliers(body: &mut String, s: &Summary) {
         .iter()
         .map(|o| {
             let cell = |v: f64, name: &str| {
-                if o.exceeded.iter().any(|e| e == name) {
+                // Only a flagged row is coloured: one metric over its threshold is common on clean data.
+                if o.flagged && o.exceeded.iter().any(|e| e == name) {
                     format!("<span class=flag>{}</span>", num(v, 3))
                 } else {
                     num(v, 3)
@@ -767,6 +798,26 @@ fn outliers(body: &mut String, s: &Summary) {
     );
 }
 
+/// Why a solver start stopped, in words.
+fn stop_words(stop: StopReason) -> &'static str {
+    match stop {
+        StopReason::CostConverged => "the cost stopped falling",
+        StopReason::StepConverged => "the step became negligible",
+        StopReason::GradientConverged => "the gradient vanished",
+        StopReason::NoProgress => "no step lowered the cost",
+        StopReason::IterationLimit => "iteration limit",
+    }
+}
+
+/// The objective in words.
+fn objective_words(objective: &Objective) -> String {
+    match objective {
+        Objective::Distance => "positions only".into(),
+        Objective::SixDof { lever_mm: Some(l) } => format!("positions and orientations ({l} mm per radian)"),
+        Objective::SixDof { lever_mm: None } => "positions and orientations".into(),
+    }
+}
+
 /// Every solver start.
 fn starts(body: &mut String, s: &Summary) {
     let rows: Vec<Vec<String>> = s
@@ -779,7 +830,7 @@ fn starts(body: &mut String, s: &Summary) {
                 num(st.initial_cost, 4),
                 num(st.final_cost, 6),
                 st.iterations.to_string(),
-                format!("{:?}", st.stop),
+                stop_words(st.stop).into(),
             ]
         })
         .collect();

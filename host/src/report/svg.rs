@@ -235,7 +235,7 @@ pub fn bars(categories: &[String], series: &[(&str, Vec<f64>)], y_label: &str) -
 
 /// Robust axis range of `values`: the 2nd to 98th percentile widened by half its span, never
 /// beyond the data. Points outside are drawn at the edge and counted.
-fn robust_range(values: &[f64]) -> (f64, f64) {
+pub(crate) fn robust_range(values: &[f64]) -> (f64, f64) {
     let mut v: Vec<f64> = values.iter().copied().filter(|x| x.abs() <= PLOTTABLE).collect();
     if v.is_empty() {
         return (f64::INFINITY, f64::NEG_INFINITY);
@@ -251,9 +251,19 @@ fn robust_range(values: &[f64]) -> (f64, f64) {
 /// few far points (a touch near a singularity) are drawn as triangles at the edge, and the plot
 /// says how many.
 pub fn scatter(points: &[(f64, f64)], curve: &[(f64, f64)], x_label: &str, y_label: &str) -> String {
-    let (x0, x1) = range(points.iter().map(|p| p.0));
     let ys: Vec<f64> = points.iter().chain(curve).map(|p| p.1).collect();
-    let (y0, y1) = robust_range(&ys);
+    scatter_on(points, curve, x_label, y_label, robust_range(&ys))
+}
+
+/// [`scatter`] on a given y axis `(y0, y1)`, so that plots side by side share it.
+pub fn scatter_on(
+    points: &[(f64, f64)],
+    curve: &[(f64, f64)],
+    x_label: &str,
+    y_label: &str,
+    (y0, y1): (f64, f64),
+) -> String {
+    let (x0, x1) = range(points.iter().map(|p| p.0));
     if !x0.is_finite() || !y0.is_finite() {
         return String::new();
     }

@@ -368,7 +368,7 @@ pub fn write_run(run: &Run, dir: &Path) -> Result<(), OutputError> {
         run.nominal.save(&staged.join("nominal.toml"))?;
         put(staged, "residuals.json", json(&run.stored_residuals()).as_bytes())?;
         put(staged, "summary.json", run_json(run).as_bytes())?;
-        put(staged, "report.html", report::run::run_report(run).as_bytes())
+        put(staged, "report.html", report::run::run_report(run, dir).as_bytes())
     })
 }
 
@@ -395,7 +395,7 @@ pub fn write_diagnosis(diagnosis: &Diagnosis, run_dir: &Path) -> Result<(), Outp
     put_together(
         run_dir,
         &[
-            ("diagnosis.html", report::diagnosis::diagnosis_report(diagnosis)),
+            ("diagnosis.html", report::diagnosis::diagnosis_report(diagnosis, run_dir)),
             ("diagnosis.json", diagnosis_json(diagnosis)),
         ],
     )
@@ -478,7 +478,7 @@ pub fn write_auto(run: &AutoLoop, run_dir: &Path) -> Result<(), OutputError> {
             model.save(&staged.join(format!("step-{k}.toml")))?;
         }
         put(staged, "auto.json", auto_json(run).as_bytes())?;
-        put(staged, "report.html", report::auto::auto_report(run).as_bytes())
+        put(staged, "report.html", report::auto::auto_report(run, run_dir).as_bytes())
     })
 }
 
@@ -491,7 +491,7 @@ pub fn haptic_json(summary: &HapticSummary) -> String {
 pub fn write_haptic(summary: &HapticSummary, dir: &Path, recording: &Path) -> Result<(), OutputError> {
     write_folder(dir, FolderKind::Haptic, &[recording], |staged| {
         put(staged, "summary.json", haptic_json(summary).as_bytes())?;
-        put(staged, "report.html", report::haptic::haptic_report(summary).as_bytes())
+        put(staged, "report.html", report::haptic::haptic_report(summary, dir).as_bytes())
     })
 }
 

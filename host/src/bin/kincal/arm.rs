@@ -170,6 +170,9 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     }
     let total: usize = rows.iter().map(|r| r.calibrations + r.failed).sum();
     println!("{total} calibrations in {elapsed:.2} s on {} threads", rayon::current_num_threads());
+    for line in kincal::report::study::verdict_lines(&rows) {
+        println!("  {line}");
+    }
     println!("    groups  distinct subsets  calibrations  mean mm   std mm    min mm    max mm");
     for r in &rows {
         let drawn = r.calibrations + r.failed + r.implausible;

@@ -440,7 +440,7 @@ fn whole_calibration(sim: &kincal::simulate::SimulatedData, options: &SolveOptio
         cpu.push(process_cpu_ms() - c);
         parts.push(steps.ms);
         let t = Instant::now();
-        std::hint::black_box(kincal::report::run::run_report(&run));
+        std::hint::black_box(kincal::report::run::run_report(&run, std::path::Path::new("RUN")));
         report.push(t.elapsed().as_secs_f64() * 1e3);
     }
     std::fs::remove_dir_all(&dir).ok();

@@ -208,12 +208,16 @@ fn headline(s: &Summary, seconds: f64) -> String {
     }
 }
 
-/// Print a run's figures: the calibration, each kind of held-out data, the verdict.
+/// Print a run: the verdict and the next command first, then the figures of the calibration and
+/// of each kind of held-out data.
 fn print_run(s: &Summary, out: &Path, seconds: f64) {
     for w in &s.warnings {
         println!("warning: {w}");
     }
     println!("{}", headline(s, seconds));
+    for v in kincal::report::run::verdict_lines(s, out) {
+        println!("  {v}");
+    }
     let c = &s.calibration;
     if let Some(d) = &c.distances {
         println!("  calibration RMS            {:8.3} mm", d.rms_mm);
@@ -286,7 +290,14 @@ fn print_run(s: &Summary, out: &Path, seconds: f64) {
         println!("  outlier metrics skipped (--no-outliers): no landmark or session was checked");
     }
     for o in s.outliers.iter().filter(|o| o.flagged) {
-        println!("  {} {} flagged as outlier ({})", o.what, o.name, o.exceeded.join(", "));
+        let metrics: Vec<&str> = o.exceeded.iter().map(|e| outlier_metric_words(e)).collect();
+        println!(
+            "  {} {} stands out: {} (a screen, not a verdict: kincal diagnose {} tests it as a data error)",
+            o.what,
+            o.name,
+            metrics.join(", "),
+            kincal::report::run::shell_word(out)
+        );
     }
     if let Some(rows) = &s.study {
         let means: Vec<String> = rows.iter().map(|r| format!("{}: {:.3}", r.groups, r.mean_mm)).collect();
@@ -300,10 +311,18 @@ fn print_run(s: &Summary, out: &Path, seconds: f64) {
             None => println!("  floor unknown"),
         }
     }
-    for v in &s.verdict {
-        println!("  {v}");
-    }
     println!("  report: {}", out.join("report.html").display());
+}
+
+/// An outlier metric over its threshold (summary.json's name), in words.
+fn outlier_metric_words(metric: &str) -> &str {
+    match metric {
+        "contribution" => "a large share of the cost",
+        "cooks_distance" => "a large pull on the parameters (Cook's distance)",
+        "leave_one_out" => "the fit improves when it is left out",
+        "bias" => "a mean error well away from zero",
+        other => other,
+    }
 }
 
 /// The held-out sessions' table.

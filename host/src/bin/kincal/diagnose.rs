@@ -55,7 +55,7 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
         println!("{}", store::diagnosis_json(&d));
         return Ok(());
     }
-    print_diagnosis(&d);
+    print_diagnosis(&d, &a.run);
     println!("report: {}", a.run.join("diagnosis.html").display());
     Ok(())
 }
@@ -82,8 +82,8 @@ fn row(c: &Candidate) -> String {
 }
 
 /// The diagnosis: the summary, then the candidates and data errors best first.
-fn print_diagnosis(d: &Diagnosis) {
-    for line in &d.summary {
+fn print_diagnosis(d: &Diagnosis, run: &std::path::Path) {
+    for line in kincal::report::diagnosis::summary_lines(d, run) {
         println!("{line}");
     }
     println!(
@@ -126,6 +126,11 @@ fn print_auto(a: &DiagnoseArgs, folder: &RunFolder, run: &AutoLoop, elapsed: f64
         println!("{}", store::auto_json(run));
         return Ok(());
     }
+    println!(
+        "stopped after {} steps in {elapsed:.2} s: {}",
+        run.steps.len() - 1,
+        kincal::report::auto::stop_words(&run.stop)
+    );
     println!("step  added              val RMS mm  expected mm  held-out p");
     for (k, s) in run.steps.iter().enumerate() {
         println!(
@@ -137,9 +142,8 @@ fn print_auto(a: &DiagnoseArgs, folder: &RunFolder, run: &AutoLoop, elapsed: f64
         );
     }
     for line in &run.last.summary {
-        println!("{line}");
+        println!("{}", kincal::report::run::name_run(line, &a.run));
     }
-    println!("stopped: {:?} after {} steps in {elapsed:.2} s", run.stop, run.steps.len() - 1);
     let i = &folder.summary.inputs;
     let artefact = i.artefact.as_ref().map_or(String::new(), |p| format!(" --artefact {}", p.display()));
     println!(

@@ -107,6 +107,9 @@ pub fn cmd_haptic_calibrate(a: &HapticCalibrateArgs) -> Result<()> {
         return Ok(());
     }
     println!("calibrated in {seconds:.2} s");
+    for line in kincal::report::haptic::verdict_lines(&result, &a.out) {
+        println!("  {line}");
+    }
     println!("  delay        {:8.2} ms (tracker behind device)", result.delay_ms);
     println!(
         "  position     {:8.3} mm → {:.3} mm (RMS, {} held-out samples)",
@@ -116,7 +119,7 @@ pub fn cmd_haptic_calibrate(a: &HapticCalibrateArgs) -> Result<()> {
         "  orientation  {:8.3} °  → {:.3} °",
         result.orientation_deg.before, result.orientation_deg.after
     );
-    println!("  gimbals      {:?} sensor model (chosen on held-out error)", result.gimbal_model);
+    println!("  gimbals      {} sensor model (chosen on held-out error)", result.gimbal_model.words());
     println!(
         "  start        {} (held-out joint residual: landmark {}, pose-based {:.3} mm)",
         result.start.chosen,

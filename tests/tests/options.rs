@@ -191,7 +191,7 @@ fn every_calibrate_and_diagnose_option_works_on_both_kinds_or_is_refused_naming_
         );
         let auto = diagnose(&["--auto", "--max-steps", "1"]);
         assert!(
-            auto.contains("stopped:") && !auto.contains("   2  "),
+            auto.contains("stopped after") && !auto.contains("   2  "),
             "{kind}: --auto --max-steps 1: {auto}"
         );
     }

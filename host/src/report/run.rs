@@ -86,7 +86,8 @@ pub fn run_report(run: &Run, run_dir: &Path) -> String {
     let s = &run.summary;
     let mut body = String::from(WIDE);
     if !s.not_trustworthy.is_empty() {
-        let items: String = s.not_trustworthy.iter().map(|p| format!("<li>{}</li>", escape(p))).collect();
+        let items: String =
+            s.not_trustworthy.iter().map(|p| format!("<li>{}</li>", escape(&name_run(p, run_dir)))).collect();
         let _ = write!(body, "<h2>Not trustworthy: these figures are not a result</h2><ul>{items}</ul>");
     }
     verdict(&mut body, s, run_dir);
@@ -122,7 +123,7 @@ pub fn run_report(run: &Run, run_dir: &Path) -> String {
     }
     data_errors(&mut body, s);
     starts(&mut body, s);
-    inputs(&mut body, s);
+    inputs(&mut body, s, run_dir);
     page("kincal calibration report", &body)
 }
 
@@ -882,7 +883,7 @@ fn data_errors(body: &mut String, s: &Summary) {
     );
 }
 
-fn inputs(body: &mut String, s: &Summary) {
+fn inputs(body: &mut String, s: &Summary, run_dir: &Path) {
     let i = &s.inputs;
     let mut items = vec![
         format!("model <code>{}</code>", escape(&i.model.display().to_string())),
@@ -912,7 +913,7 @@ fn inputs(body: &mut String, s: &Summary) {
             items.push(format!("<code>{option} {}</code>", escape(v)));
         }
     }
-    items.extend(s.warnings.iter().map(|w| format!("warning: {}", escape(w))));
+    items.extend(s.warnings.iter().map(|w| format!("warning: {}", escape(&name_run(w, run_dir)))));
     let list: String = items.iter().map(|t| format!("<li>{t}</li>")).collect();
     let _ = write!(body, "<h2>Inputs</h2><ul>{list}</ul><p>kincal {}</p>", escape(&s.kincal_version));
 }

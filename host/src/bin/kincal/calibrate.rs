@@ -178,7 +178,11 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
         bail!(
             "the calibration is not trustworthy; no figure is reported as a result:\n  - {}\n\
              {} written for inspection (summary.json lists these reasons under `not_trustworthy`)",
-            s.not_trustworthy.join("\n  - "),
+            s.not_trustworthy
+                .iter()
+                .map(|r| kincal::report::run::name_run(r, &a.out))
+                .collect::<Vec<_>>()
+                .join("\n  - "),
             a.out.display()
         );
     }
@@ -212,7 +216,7 @@ fn headline(s: &Summary, seconds: f64) -> String {
 /// of each kind of held-out data.
 fn print_run(s: &Summary, out: &Path, seconds: f64) {
     for w in &s.warnings {
-        println!("warning: {w}");
+        println!("warning: {}", kincal::report::run::name_run(w, out));
     }
     println!("{}", headline(s, seconds));
     for v in kincal::report::run::verdict_lines(s, out) {

@@ -661,6 +661,7 @@ pub fn measure(
                         std_deg: None,
                         samples: None,
                         rejected: None,
+                        at_unix_s: None,
                     });
                 }
             }
@@ -669,6 +670,7 @@ pub fn measure(
                 placement: format!("{name_prefix}{}", k + 1),
                 purpose: "calibration".into(),
                 measurements,
+                arm: None,
             }
         })
         .collect()

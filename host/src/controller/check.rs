@@ -269,7 +269,10 @@ mod tests {
     fn touches(truth: &ArmModel, artefact: &Artefact, repeats: u32, seed: u64) -> Observations {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let place = placement_named("V_A").unwrap();
-        Observations::from_sessions(&[touch_placement(truth, artefact, &place, repeats, 0.1, &mut rng)], artefact)
+        Observations::from_sessions(
+            &[touch_placement(truth, artefact, &place, repeats, 0.1, &mut rng)],
+            artefact,
+        )
     }
 
     /// The stored model judged on its own arm holds (9 seeds of 10 at least, "does not hold"
@@ -283,8 +286,7 @@ mod tests {
         let stored = ArmModel::suta_nominal();
         let mut verdicts = Vec::new();
         for seed in 0..10 {
-            let (_, _, g, verdict) =
-                judge(&stored, &touches(&stored, &artefact, 3, seed)).unwrap();
+            let (_, _, g, verdict) = judge(&stored, &touches(&stored, &artefact, 3, seed)).unwrap();
             assert_ne!(verdict, Verdict::DoesNotHold, "seed {seed}: z {:.2}", g.z);
             verdicts.push(verdict);
         }
@@ -296,8 +298,7 @@ mod tests {
         ] {
             let mut knocked = stored.clone();
             change(&mut knocked);
-            let (measured, floor, g, verdict) =
-                judge(&stored, &touches(&knocked, &artefact, 3, 1)).unwrap();
+            let (measured, floor, g, verdict) = judge(&stored, &touches(&knocked, &artefact, 3, 1)).unwrap();
             assert_eq!(
                 verdict,
                 Verdict::DoesNotHold,

@@ -55,6 +55,8 @@ pub struct LoopOptions {
     pub hidden: Vec<(ParamId, f64)>,
     /// Where data and the run go.
     pub out: PathBuf,
+    /// Days the uploaded calibration stays valid, from its validation (`None`: no period).
+    pub valid_days: Option<u32>,
 }
 
 /// The demo arm's hidden effect: joint 2 sags under gravity by 0.3°/m of lever (compliance of
@@ -75,6 +77,7 @@ impl Default for LoopOptions {
             calibration_placements: 5,
             hidden: vec![DEMO_HIDDEN],
             out: PathBuf::from("runs/loop"),
+            valid_days: Some(365),
         }
     }
 }
@@ -247,6 +250,8 @@ pub struct LoopReport {
     pub poses: usize,
     /// Time to upload one parameter set, s.
     pub upload_seconds: f64,
+    /// The RUN whose model was uploaded last (its hash signed with it, the upload recorded in it).
+    pub uploaded_run: PathBuf,
     /// Wall time of the whole loop, s.
     pub seconds: f64,
 }
@@ -429,28 +434,52 @@ pub fn run_loop(
         .map(|c| reference_tool_frame(&truth, &degrees_of(c)).0.fixed_view::<3, 1>(0, 3).into_owned())
         .collect();
     let key = demo_station_key(&options.out)?;
-    let mut pose_rms = |model: &ArmModel, label: &str, link: &mut Link| -> Result<(f64, f64), LoopError> {
+    // Each set is signed for the connected arm; the calibrated one carries its RUN's hash and
+    // date, and the RUN records the upload, as `kincal upload RUN/model.toml` does.
+    let mut pose_rms = |model: &ArmModel,
+                        label: &str,
+                        run: Option<&Path>,
+                        link: &mut Link|
+     -> Result<(f64, f64), LoopError> {
         progress(&format!(
             "uploading the {label} parameters and streaming the pose at {} validation touches",
             check_counts.len()
         ));
         let t = Instant::now();
         let info = link.info()?;
-        let set = crate::controller::device::signed_parameter_set(
+        let origin = match run {
+            Some(run) => crate::trace::run_origin(&run.join("model.toml")).map_err(|e| files(&e))?,
+            None => None,
+        };
+        let now = crate::controller::traceability::unix_now();
+        let valid_days = origin.as_ref().and(options.valid_days);
+        let trace =
+            crate::controller::traceability::upload_trace(Path::new(""), origin.as_ref(), valid_days, now)
+                .map_err(|e| files(&e))?;
+        let set = crate::controller::device::traced_parameter_set(
             model,
             info.param_version + 1,
             &info.arm_id,
             &key,
+            &trace,
         )?;
         link.upload(&set)?;
         let upload = t.elapsed().as_secs_f64();
+        if let Some(origin) = &origin {
+            let arm = crate::controller::record::connected_arm(link)?;
+            if let Some(record) = crate::controller::traceability::upload_record(&arm, &set) {
+                crate::trace::record_upload(&origin.run, &record).map_err(|e| files(&e))?;
+            }
+        }
         let points =
             check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;
         Ok((registered_rms(&points, &truth_points), upload))
     };
-    let (nominal_pose, _) = pose_rms(nominal, "nominal", link)?;
-    let (floor_pose, _) = pose_rms(&truth, "true arm's", link)?;
-    let (calibrated_pose, upload_seconds) = pose_rms(&result.calibration.model, "calibrated", link)?;
+    let (nominal_pose, _) = pose_rms(nominal, "nominal", None, link)?;
+    let (floor_pose, _) = pose_rms(&truth, "true arm's", None, link)?;
+    let final_run = options.out.join(if mission.last.is_some() { "run-added" } else { "run" });
+    let (calibrated_pose, upload_seconds) =
+        pose_rms(&result.calibration.model, "calibrated", Some(&final_run), link)?;
     let host_points: Vec<Vector3<f64>> = check_counts
         .iter()
         .map(|c| crate::model::kinematics::tool_pose(&result.calibration.model, &degrees_of(c)).position_mm)
@@ -472,6 +501,7 @@ pub fn run_loop(
         floor_pose_rms_mm: floor_pose,
         poses: check_counts.len(),
         upload_seconds,
+        uploaded_run: final_run,
         seconds: started.elapsed().as_secs_f64(),
     })
 }

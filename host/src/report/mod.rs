@@ -2,6 +2,7 @@
 //! never recompute them.
 
 pub mod auto_loop;
+pub mod certificate;
 pub mod compare;
 pub mod diagnosis;
 pub mod haptic;

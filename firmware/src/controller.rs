@@ -284,7 +284,10 @@ impl<F: NorFlash> Controller<F> {
                 Err(e) => none(Err(e)),
             },
             Request::Reset(Reset) => Reply::Now(typed::<Reset>(Ok(Ack)), Action::Reset),
-            Request::SimSetPose(_) | Request::SimFaults(_) => {
+            Request::SimSetPose(_)
+            | Request::SimFaults(_)
+            | Request::SimWaypoint(_)
+            | Request::SimPlay(_) => {
                 if self.simulated {
                     Reply::Now(typed::<SimSetPose>(Ok(Ack)), Action::Simulate(request))
                 } else {

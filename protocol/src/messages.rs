@@ -98,6 +98,10 @@ pub enum Request {
     SimSetPose(SimSetPose),
     /// Emulated board only: noise and faults of the emulated encoder bus.
     SimFaults(SimFaults),
+    /// Emulated board only: one waypoint of the trajectory the emulated arm will follow.
+    SimWaypoint(SimWaypoint),
+    /// Emulated board only: follow the stored waypoints from a given tick, or stop.
+    SimPlay(SimPlay),
 }
 
 /// Version and schema check; must come first. Answer: [`HelloReply`].
@@ -199,6 +203,30 @@ pub struct SimFaults {
     /// A firmware fault to inject now, to test that the watchdog and the panic handler reset
     /// the controller.
     pub crash: Crash,
+}
+
+/// Emulated board only: store waypoint `index` of the trajectory the emulated arm follows
+/// ([`crate::trajectory`]). Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct SimWaypoint {
+    /// Position in the trajectory (0..[`crate::trajectory::MAX_WAYPOINTS`]).
+    pub index: u8,
+    /// The waypoint.
+    pub waypoint: crate::trajectory::Waypoint,
+}
+
+/// Emulated board only: the emulated arm follows waypoints `0..waypoints` ([`SimWaypoint`])
+/// from controller tick `start_tick` on ([`Info::ticks`] counts the same ticks); before it, it
+/// holds the first waypoint. `waypoints` 0 stops the motion where the arm is; [`SimSetPose`]
+/// stops it too. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct SimPlay {
+    /// Waypoints to follow (0: stop).
+    pub waypoints: u8,
+    /// Controller tick at which the trajectory's time 0 falls.
+    pub start_tick: u32,
+    /// Start again at the end (the first and last waypoints should be the same pose).
+    pub repeat: bool,
 }
 
 /// A firmware fault the emulated controller injects on request ([`SimFaults::crash`]).
@@ -566,6 +594,8 @@ endpoints! {
     Reset => Ack, "reset";
     SimSetPose => Ack, "emulated pose";
     SimFaults => Ack, "emulated encoder faults";
+    SimWaypoint => Ack, "emulated trajectory waypoint";
+    SimPlay => Ack, "emulated trajectory start";
 }
 
 /// A stream topic: one of the items the controller streams, with its own type.

@@ -703,12 +703,15 @@ fn an_unplugged_joint_mid_stream_is_named_and_marked_and_valid_again_when_plugge
     assert!(stdout.contains("poses INVALID (joints 3 not read"), "{stdout}");
     let text = std::fs::read_to_string(&csv).unwrap();
     let mut lines = text.lines();
-    assert_eq!(lines.next(), Some("seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz"));
+    assert_eq!(
+        lines.next(),
+        Some("seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz,xx,xy,xz,t_s,host_s")
+    );
     // valid, stale joints and whether a position is written, row by row; runs of equal rows.
     let mut runs: Vec<(String, String, bool, usize)> = Vec::new();
     for line in lines {
         let cells: Vec<&str> = line.split(',').collect();
-        assert_eq!(cells.len(), 11, "{line}");
+        assert_eq!(cells.len(), 16, "{line}");
         let row = (cells[2].to_string(), cells[3].to_string(), !cells[5].is_empty());
         match runs.last_mut() {
             Some(r) if (r.0.as_str(), r.1.as_str(), r.2) == (row.0.as_str(), row.1.as_str(), row.2) => {

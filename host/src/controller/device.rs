@@ -86,6 +86,7 @@ pub fn model_from_params(params: &ArmParams) -> ArmModel {
         tcp_mm: params.tcp_mm,
         scale_ppm: params.scale_ppm,
         free: Vec::new(),
+        urdf: None,
         arm: None,
     }
 }

@@ -57,6 +57,9 @@ pub enum KeyFileError {
     /// The system's random source failed.
     #[error("no random numbers from the operating system: {0}")]
     Random(String),
+    /// Not a regular file (a FIFO, a device, a folder, a dangling link): never opened.
+    #[error(transparent)]
+    NotAFile(crate::files::FileError),
 }
 
 /// A station's signing key, read from its file.
@@ -117,6 +120,10 @@ impl StationKey {
 
     /// Read the key at `path`; warns when others may read the file.
     pub fn load(path: &Path) -> Result<LoadedKey, KeyFileError> {
+        if std::fs::symlink_metadata(path).is_ok() {
+            // Before opening: a FIFO would block and /dev/zero never end.
+            crate::files::check_regular_file(path).map_err(KeyFileError::NotAFile)?;
+        }
         let text = match std::fs::read(path) {
             Ok(bytes) => bytes,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {

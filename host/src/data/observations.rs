@@ -460,6 +460,11 @@ impl Observations {
         (0..self.obs.len()).filter(|&k| self.point_name(k) == name).collect()
     }
 
+    /// The instrument sessions (blocks of tracker groups), in order.
+    pub fn sessions(&self) -> Vec<usize> {
+        (0..self.blocks.len()).filter(|&b| self.groups[self.blocks[b].group].kind == Kind::Tracker).collect()
+    }
+
     /// The canonical name of block `b` (`--exclude-block`): `PLACEMENT/REPEAT`, or the session.
     pub fn block_name(&self, b: usize) -> String {
         let block = &self.blocks[b];

@@ -7,6 +7,11 @@
 //! about axis a that is a × (E_m v_{>m}); for a translation along a it is a. One forward pass for
 //! the prefix rotations and one backward pass for the tool point give every column exactly.
 //!
+//! A URDF joint origin's calibrated turn is one op exp(ω) after its fixed nominal orientation
+//! R(rpy). Moving ω by δ turns the frame by exp(J_l(ω)·δ)·exp(ω) (J_l the left Jacobian of
+//! SO(3)), so its columns are those of rotations about the axes J_l(ω)·e_k: at ω = 0 the three
+//! frame axes themselves, whatever the nominal orientation (no gimbal lock).
+//!
 //! The joint rotation θ_j = φ_j + δθ_j + Δθ_ecc(φ_j) + c_j·λ_j (see [`crate::model::effects`]) depends on
 //! several parameters; its op carries each with ∂θ/∂q. The gravity lever λ_j is itself a
 //! function of the geometry; that second-order dependence (c·∂λ/∂q) is left out of the Jacobian,
@@ -15,7 +20,7 @@
 use super::params::PARAM_SLOTS;
 use super::{ArmModel, Convention, ParamId, MAX_JOINTS};
 use crate::model::effects::{compliance, eccentricity, harmonic};
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, Rotation3, Vector3};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
@@ -88,8 +93,14 @@ impl Axis {
 
 #[derive(Clone, Copy)]
 enum OpKind {
+    /// A rotation by the op's value (rad) about an axis.
     Rotate(Axis),
+    /// A translation by the op's value (mm) along an axis.
     Translate(Axis),
+    /// A fixed rotation (a URDF origin's nominal roll-pitch-yaw).
+    Orient(Matrix3<f64>),
+    /// A rotation by the rotation vector ω (rad): exp([ω]×).
+    Turn(Vector3<f64>),
 }
 
 /// Parameters a joint angle depends on: offset, four eccentricity terms, four higher
@@ -106,6 +117,10 @@ enum Dep {
     Param(ParamId, f64),
     /// Joint j's angle (see [`AnglePartials`]).
     JointAngle(usize),
+    /// Joint j's origin turn ω: `origin_rx:j`, `origin_ry:j`, `origin_rz:j`.
+    OriginTurn(usize),
+    /// Nothing: a constant of the model.
+    Fixed,
 }
 
 /// One elementary transform.
@@ -120,6 +135,8 @@ impl Op {
     fn rotation(&self) -> Matrix3<f64> {
         match self.kind {
             OpKind::Translate(_) => Matrix3::identity(),
+            OpKind::Orient(r) => r,
+            OpKind::Turn(w) => Rotation3::new(w).into_inner(),
             OpKind::Rotate(axis) => {
                 let (s, c) = self.value.sin_cos();
                 match axis {
@@ -137,16 +154,30 @@ impl Op {
     }
 }
 
-/// Elementary ops per joint row: five for DH (θ, d, a, α, β), seven for URDF (x, y, z, yaw,
-/// pitch, roll, θ).
+/// Elementary ops per joint row: five for DH (θ, d, a, α, β), six for URDF (x, y, z, nominal
+/// orientation, turn ω, θ).
 fn ops_per_joint(convention: Convention) -> usize {
     match convention {
         Convention::Classic | Convention::Modified => 5,
-        Convention::Urdf => 7,
+        Convention::Urdf => 6,
     }
 }
-/// Most elementary ops of a chain: seven per joint and three for the tool point.
-const MAX_OPS: usize = MAX_JOINTS * 7 + 3;
+/// Most elementary ops of a chain: six per joint and three for the tool point.
+const MAX_OPS: usize = MAX_JOINTS * 6 + 3;
+
+/// The left Jacobian of SO(3) at ω (rad): exp(ω + δ) = exp(J_l(ω)·δ)·exp(ω) to first order.
+/// J_l = I + (1 − cos θ)/θ² [ω]× + (θ − sin θ)/θ³ [ω]×², θ = |ω| (series below 1e-4 rad).
+fn left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
+    let theta = w.norm();
+    let k = w.cross_matrix();
+    let (a, b) = if theta < 1e-4 {
+        let t2 = theta * theta;
+        (0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0)
+    } else {
+        ((1.0 - theta.cos()) / (theta * theta), (theta - theta.sin()) / (theta * theta * theta))
+    };
+    Matrix3::identity() + k * a + k * k * b
+}
 
 fn rot(axis: Axis, value_deg: f64, id: ParamId) -> Op {
     Op { kind: OpKind::Rotate(axis), value: value_deg * DEG, dep: Dep::Param(id, DEG) }
@@ -198,7 +229,7 @@ fn joint_op_in_row(convention: Convention) -> usize {
     match convention {
         Convention::Classic => 0,
         Convention::Modified => 3,
-        Convention::Urdf => 6,
+        Convention::Urdf => 5,
     }
 }
 
@@ -213,14 +244,15 @@ fn chain(model: &ArmModel, theta_deg: &[f64]) -> ([Op; MAX_OPS], usize) {
             let axis = Axis::Unit(Vector3::from(joint.axis));
             let theta = Op { kind: OpKind::Rotate(axis), value: theta_deg[j] * DEG, dep: Dep::JointAngle(j) };
             let [x, y, z] = joint.origin_xyz_mm;
-            let [roll, pitch, yaw] = joint.origin_rpy_deg;
+            let [roll, pitch, yaw] = joint.origin_rpy_deg.map(|v| v * DEG);
+            let nominal = Rotation3::from_euler_angles(roll, pitch, yaw).into_inner();
+            let turn = Vector3::from(joint.origin_turn_deg) * DEG;
             row.copy_from_slice(&[
                 shift(Axis::X, x, ParamId::OriginXyz(j, 0)),
                 shift(Axis::Y, y, ParamId::OriginXyz(j, 1)),
                 shift(Axis::Z, z, ParamId::OriginXyz(j, 2)),
-                rot(Axis::Z, yaw, ParamId::OriginRpy(j, 2)),
-                rot(Axis::Y, pitch, ParamId::OriginRpy(j, 1)),
-                rot(Axis::X, roll, ParamId::OriginRpy(j, 0)),
+                Op { kind: OpKind::Orient(nominal), value: 0.0, dep: Dep::Fixed },
+                Op { kind: OpKind::Turn(turn), value: 0.0, dep: Dep::OriginTurn(j) },
                 theta,
             ]);
             continue;
@@ -272,7 +304,7 @@ fn gravity_levers(model: &ArmModel, theta_deg: &[f64]) -> [f64; MAX_JOINTS] {
         before[m] = (rotation, origin);
         match op.kind {
             OpKind::Translate(axis) => origin += rotation * axis.unit() * op.value,
-            OpKind::Rotate(_) => rotation *= op.rotation(),
+            OpKind::Rotate(_) | OpKind::Orient(_) | OpKind::Turn(_) => rotation *= op.rotation(),
         }
     }
     before[count] = (rotation, origin);
@@ -365,42 +397,63 @@ fn evaluate(
         let op = &ops[m];
         match op.kind {
             OpKind::Translate(axis) => point += axis.unit() * op.value,
-            OpKind::Rotate(_) => {
+            OpKind::Rotate(_) | OpKind::Orient(_) | OpKind::Turn(_) => {
                 point = rotations[m] * point;
                 x_axis = rotations[m] * x_axis;
                 z_axis = rotations[m] * z_axis;
             }
         }
         let Some((columns, jac)) = wanted.as_mut() else { continue };
+        // The pose's derivative per unit motion of this op: a translation along `a` or a rotation
+        // about `a` (both in the frame before op m), mapped to the base frame.
+        let motion = |a: Vector3<f64>, rotate: bool| {
+            let (dp, dx, dz) = if rotate {
+                (a.cross(&point), a.cross(&x_axis), a.cross(&z_axis))
+            } else {
+                (a, Vector3::zeros(), Vector3::zeros())
+            };
+            let r = &prefix[m];
+            (r * dp * scale, r * dx, r * dz)
+        };
+        let add = |col: &mut PoseDerivative,
+                   (dp, dx, dz): (Vector3<f64>, Vector3<f64>, Vector3<f64>),
+                   dvalue: f64| {
+            for k in 0..3 {
+                col[k] += dp[k] * dvalue;
+                col[3 + k] += dx[k] * dvalue;
+                col[6 + k] += dz[k] * dvalue;
+            }
+        };
         let single;
         let deps: &[(ParamId, f64)] = match op.dep {
+            Dep::Fixed => continue,
+            Dep::OriginTurn(j) => {
+                if let OpKind::Turn(w) = op.kind {
+                    let jl = left_jacobian(&w);
+                    for k in 0..3 {
+                        if let Some(c) = columns.column(ParamId::OriginTurn(j, k)) {
+                            add(&mut jac[c], motion(jl.column(k).into_owned(), true), DEG);
+                        }
+                    }
+                }
+                continue;
+            }
             Dep::Param(id, d) => {
                 single = [(id, d)];
                 &single
             }
             Dep::JointAngle(j) => &angles[j].1,
         };
+        // Computed once per op, for every parameter the op's value depends on.
         let mut unit_derivative = None;
         for (id, dvalue) in deps {
             let Some(c) = columns.column(*id) else { continue };
-            // Derivative of the pose per unit of this op's value, computed once per op.
-            let (dp, dx, dz) = *unit_derivative.get_or_insert_with(|| {
-                let (dp, dx, dz) = match op.kind {
-                    OpKind::Translate(axis) => (axis.unit(), Vector3::zeros(), Vector3::zeros()),
-                    OpKind::Rotate(axis) => {
-                        let a = axis.unit();
-                        (a.cross(&point), a.cross(&x_axis), a.cross(&z_axis))
-                    }
-                };
-                let r = &prefix[m];
-                (r * dp * scale, r * dx, r * dz)
+            let derivative = *unit_derivative.get_or_insert_with(|| match op.kind {
+                OpKind::Translate(axis) => motion(axis.unit(), false),
+                OpKind::Rotate(axis) => motion(axis.unit(), true),
+                OpKind::Orient(_) | OpKind::Turn(_) => (Vector3::zeros(), Vector3::zeros(), Vector3::zeros()),
             });
-            let col = &mut jac[c];
-            for k in 0..3 {
-                col[k] += dp[k] * dvalue;
-                col[3 + k] += dx[k] * dvalue;
-                col[6 + k] += dz[k] * dvalue;
-            }
+            add(&mut jac[c], derivative, *dvalue);
         }
     }
     if let Some((columns, jac)) = wanted {
@@ -514,6 +567,8 @@ mod tests {
                     let s = j as f64;
                     joint.origin_xyz_mm = [10.0 * s, -20.0 + s, joint.d_mm];
                     joint.origin_rpy_deg = [joint.alpha_deg, 7.0 * s, -3.0 * s];
+                    // A calibrated turn away from zero: its columns use J_l(ω), not the identity.
+                    joint.origin_turn_deg = [2.0 - s, 0.5 * s, 9.0 - 3.0 * s];
                     let n = (1.0 + 0.04 * s * s).sqrt();
                     joint.axis = [0.2 * s / n, 0.0, 1.0 / n];
                     (joint.d_mm, joint.a_mm, joint.alpha_deg, joint.axis_deg) = (0.0, 0.0, 0.0, 0.0);
@@ -552,5 +607,66 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// UR's shoulder and wrist origins sit at pitch ±90°, where roll and yaw turn about one axis.
+    /// The origin's turn ω about its own frame moves the tool frame in three independent
+    /// directions there (and at pitch 0, and at UR's rounded 1.570796325 rad): the tool frame's
+    /// angular velocities per degree of the three turns have rank 3, all singular values one
+    /// degree (no direction weaker than another).
+    /// Roll-pitch-yaw as parameters would lose one: their derivatives' rotation axes at pitch 90°
+    /// are parallel, as the last assertion shows.
+    #[test]
+    fn an_origin_at_pitch_90_degrees_loses_no_rotation_direction() {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = Convention::Urdf;
+        model.joints.truncate(3);
+        model.free.clear();
+        for joint in &mut model.joints {
+            (joint.d_mm, joint.alpha_deg, joint.offset_deg) = (0.0, 0.0, 0.0);
+        }
+        model.joints[0].origin_xyz_mm = [0.0, 0.0, 89.159];
+        model.joints[1].origin_xyz_mm = [0.0, 135.85, 0.0];
+        model.joints[1].axis = [0.0, 1.0, 0.0];
+        model.joints[2].origin_xyz_mm = [0.0, -119.7, 425.0];
+        model.joints[2].axis = [0.0, 1.0, 0.0];
+        model.tcp_mm = [0.0, 0.0, 392.25];
+        let turns: Vec<ParamId> = (0..3).map(|k| ParamId::OriginTurn(1, k)).collect();
+        for pitch_deg in [90.0, -90.0, 1.570796325_f64.to_degrees(), 0.0] {
+            model.joints[1].origin_rpy_deg = [0.0, pitch_deg, 0.0];
+            for enc in [[0.0, 0.0, 0.0], [30.0, -60.0, 45.0]] {
+                let mut jac = vec![[0.0; 9]; 3];
+                let pose = tool_pose_with_jacobian(&model, &enc, &ColumnMap::new(&turns), &mut jac);
+                // The tool frame's angular velocity per degree of each turn: w = x × dx − (y·dz) x.
+                let (x, z) = (pose.x_axis, pose.z_axis);
+                let y = z.cross(&x);
+                let w = Matrix3::from_fn(|r, c| {
+                    let (dx, dz) =
+                        (Vector3::from_fn(|k, _| jac[c][3 + k]), Vector3::from_fn(|k, _| jac[c][6 + k]));
+                    (x.cross(&dx) - x * y.dot(&dz))[r]
+                });
+                let sv = w.singular_values();
+                for s in sv.iter() {
+                    assert!(
+                        (s - DEG).abs() < 1e-9,
+                        "pitch {pitch_deg}: singular values {sv}, expected 3 × {DEG}"
+                    );
+                }
+            }
+        }
+        // Roll-pitch-yaw at pitch 90°: ∂R/∂roll and ∂R/∂yaw turn about the same axis.
+        let rpy = |r: f64, p: f64, y: f64| Rotation3::from_euler_angles(r, p, y).into_inner();
+        let h = 1e-7;
+        let axis_of = |d: Matrix3<f64>| {
+            let w = d * rpy(0.0, std::f64::consts::FRAC_PI_2, 0.0).transpose();
+            Vector3::new(w[(2, 1)], w[(0, 2)], w[(1, 0)]).normalize()
+        };
+        let half = std::f64::consts::FRAC_PI_2;
+        let d_roll = (rpy(h, half, 0.0) - rpy(-h, half, 0.0)) / (2.0 * h);
+        let d_yaw = (rpy(0.0, half, h) - rpy(0.0, half, -h)) / (2.0 * h);
+        assert!(
+            axis_of(d_roll).cross(&axis_of(d_yaw)).norm() < 1e-6,
+            "roll and yaw are one direction at pitch 90°"
+        );
     }
 }

@@ -9,7 +9,6 @@ use crate::calib::validate;
 use crate::data::Observations;
 use crate::files::{check_regular_file, field_error, json_error, read_tagged, FileError};
 use crate::model::ArmModel;
-use crate::report::compare::ComparedRun;
 use std::path::{Path, PathBuf};
 
 /// A RUN folder read back as types.
@@ -105,11 +104,4 @@ impl RunFolder {
         }
         Ok((kept, held))
     }
-}
-
-/// One side of `kincal compare`: a RUN folder's summary and held-out distance errors.
-pub fn compared_run(dir: &Path) -> Result<ComparedRun, FileError> {
-    let folder = RunFolder::load(dir)?;
-    let residuals = folder.residuals()?;
-    Ok(ComparedRun { name: dir.display().to_string(), summary: folder.summary, residuals })
 }

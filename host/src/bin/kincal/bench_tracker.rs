@@ -1,6 +1,6 @@
 //! `kincal bench`, tracker case: 3 600 points of a 7-joint arm in 5 sessions, 26 free
-//! parameters (23 of the arm, the tool point), calibrate and validate on a held-out session,
-//! beside SciPy on the same problem (`bench/tracker_peer.py`). The points come from kincal's own
+//! parameters (23 of the arm, the tool point), calibrate and validate on a held-out session (the
+//! same problem beside Ceres and SciPy: `bench_peers.rs`). The points come from kincal's own
 //! kinematics with noise: this measures speed only (accuracy is tested on the independent
 //! generator in `tests/`).
 
@@ -23,7 +23,8 @@ use std::time::Instant;
 const SESSIONS: usize = 5;
 const POINTS: usize = 3600;
 
-fn arm() -> ArmModel {
+/// The 7-joint bench arm, its 23 free parameters bounded.
+pub(crate) fn arm() -> ArmModel {
     let alpha = [-90.0, 90.0, 90.0, -90.0, -90.0, 90.0, 0.0];
     let d = [360.0, 0.0, 420.0, 0.0, 400.0, 0.0, 126.0];
     let mut model = ArmModel::suta_nominal();
@@ -44,7 +45,8 @@ fn arm() -> ArmModel {
     model
 }
 
-fn sessions(truth: &ArmModel, count: usize, points: usize, seed: u64) -> Result<Observations> {
+/// `count` sessions of `points` random poses of `truth`, each seen from its own base, with 0.02 mm noise.
+pub(crate) fn sessions(truth: &ArmModel, count: usize, points: usize, seed: u64) -> Result<Observations> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let noise = rand_distr::Normal::new(0.0, 0.02)?;
     let mut data = Observations::new(7, Vec::new());
@@ -97,7 +99,11 @@ fn write_sessions(data: &Observations, dir: &Path) -> Result<()> {
 /// Median wall and CPU time (all threads), s, of the whole `kincal calibrate` process (this
 /// executable: reading the files, calibrating, validating, scoring the data errors, writing
 /// RUN/) on `cal` and `val`, and the runs.
-fn whole_process(nominal: &ArmModel, cal: &Observations, val: &Observations) -> Result<(f64, f64, usize)> {
+pub(crate) fn whole_process(
+    nominal: &ArmModel,
+    cal: &Observations,
+    val: &Observations,
+) -> Result<(f64, f64, usize)> {
     let dir = std::env::temp_dir().join(format!("kincal-bench-tracker-run-{}", std::process::id()));
     write_sessions(cal, &dir.join("cal"))?;
     write_sessions(val, &dir.join("val"))?;
@@ -131,42 +137,30 @@ fn whole_process(nominal: &ArmModel, cal: &Observations, val: &Observations) -> 
     Ok((median(wall), median(cpu), RUNS))
 }
 
-fn peer_problem(nominal: &ArmModel, data: &Observations) -> serde_json::Value {
-    let free: Vec<(&str, usize)> = nominal
-        .free
-        .iter()
-        .filter_map(|f| match f.id {
-            ParamId::Offset(j) => Some(("offset", j)),
-            ParamId::Length(j) => Some(("length", j)),
-            ParamId::LinkOffset(j) => Some(("link_offset", j)),
-            ParamId::Twist(j) => Some(("twist", j)),
-            _ => None,
-        })
-        .collect();
-    serde_json::json!({
-        "dh": nominal.joints.iter().map(|j| [j.offset_deg, j.d_mm, j.a_mm, j.alpha_deg]).collect::<Vec<_>>(),
-        "tool_mm": nominal.tcp_mm,
-        "free": free,
-        "sessions": (0..data.groups.len()).map(|g| {
-            let points: Vec<&Observation> = data.obs.iter().filter(|o| o.group == g).collect();
-            serde_json::json!({
-                "q_deg": points.iter().map(|p| p.q_deg.to_vec()).collect::<Vec<_>>(),
-                "x_mm": points.iter().map(|p| { let x = p.point_mm().unwrap_or_default(); [x.x, x.y, x.z] }).collect::<Vec<_>>(),
-            })
-        }).collect::<Vec<_>>(),
-    })
-}
-
-/// Print the tracker figures: kincal's calibrate + validate, and SciPy's time on the same problem.
-pub fn tracker_benchmark(python: &str, scipy: bool) -> Result<()> {
-    let nominal = arm();
+/// The bench arm's truth: every free parameter moved by up to 0.2 from its nominal value.
+pub(crate) fn truth(nominal: &ArmModel) -> ArmModel {
     let mut truth = nominal.clone();
     for (k, f) in nominal.free.iter().enumerate() {
         truth.set(f.id, nominal.get(f.id) + 0.2 * ((k as f64 * 1.7).sin()));
     }
+    truth
+}
+
+/// The bench problem: the nominal arm, 5 calibration sessions (3 600 points) and a held-out one.
+pub(crate) fn bench_problem() -> Result<(ArmModel, Observations, Observations)> {
+    let nominal = arm();
+    let truth = truth(&nominal);
     let cal = sessions(&truth, SESSIONS, POINTS / SESSIONS, 1)?;
     let mut val = sessions(&truth, 1, POINTS / SESSIONS, 2)?;
     val.groups[0].name = "bench_held_out".into();
+    Ok((nominal, cal, val))
+}
+
+/// Print the tracker figures: kincal's calibrate + validate, the whole process, the cost per
+/// point (beside Ceres and SciPy: `bench_peers.rs`).
+pub fn tracker_benchmark() -> Result<()> {
+    let (nominal, cal, val) = bench_problem()?;
+    let truth = truth(&nominal);
     let mut times = Vec::new();
     let mut last = None;
     for _ in 0..5 {
@@ -213,26 +207,5 @@ pub fn tracker_benchmark(python: &str, scipy: bool) -> Result<()> {
             cpu * 1e6 / n as f64,
         );
     }
-    if !scipy {
-        return Ok(());
-    }
-    let dir = std::env::temp_dir().join(format!("kincal-bench-tracker-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-    let problem = dir.join("tracker_problem.json");
-    std::fs::write(&problem, peer_problem(&nominal, &cal).to_string())?;
-    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../bench/tracker_peer.py");
-    let out = std::process::Command::new(python).arg(script).arg(&problem).output()?;
-    std::fs::remove_dir_all(&dir).ok();
-    if !out.status.success() {
-        anyhow::bail!("SciPy peer failed: {}", String::from_utf8_lossy(&out.stderr));
-    }
-    let peer: serde_json::Value = serde_json::from_slice(&out.stdout)?;
-    println!(
-        "tracker, SciPy least_squares(trf) on the same problem: {:.2} s, {} evaluations, fit {:.4} mm (kincal {:.4} mm)",
-        peer["seconds"].as_f64().unwrap_or(f64::NAN),
-        peer["nfev"],
-        peer["rms_mm"].as_f64().unwrap_or(f64::NAN),
-        fit.rms_mm
-    );
     Ok(())
 }

@@ -32,6 +32,24 @@ pub struct DemoArgs {
     /// The emulated controller's firmware image (`cargo build-emulated` writes it here).
     #[arg(long, default_value = "firmware/target/thumbv7em-none-eabihf/release/emulated")]
     firmware: PathBuf,
+    /// Only the arm in motion (no recording, no calibration; the true arm's parameters are
+    /// uploaded): it follows a trajectory with direction changes, its pose is served over
+    /// OpenIGTLink and validated against a simulated optical tracker (latency, dynamic error).
+    /// Without it the whole demo ends with this step.
+    #[arg(long, conflicts_with = "offline")]
+    motion: bool,
+    /// Latency of the simulated optical tracker, ms (optical trackers: 5 to 20).
+    #[arg(long, default_value_t = 12.0, value_parser = tracker_latency_ms)]
+    tracker_latency_ms: f64,
+}
+
+/// `--tracker-latency-ms`: a latency the simulated tracker can have, 0 to 150 ms.
+fn tracker_latency_ms(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if (0.0..=150.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!("{v} ms is outside 0 to 150 ms (optical trackers deliver in 5 to 20 ms)")),
+        Err(_) => Err(format!("expected a number of milliseconds (e.g. 12), found `{text}`")),
+    }
 }
 
 impl DemoArgs {
@@ -147,6 +165,30 @@ pub struct StreamArgs {
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long)]
     seconds: Option<f64>,
+    /// Also serve the pose to navigation software over OpenIGTLink on [HOST:]PORT (default
+    /// 18944 on localhost; 0.0.0.0:18944 for every interface): a TRANSFORM every tick, stamped
+    /// with the controller's sample instant.
+    #[arg(long, requires = "pose", num_args = 0..=1, default_missing_value = "18944", value_name = "[HOST:]PORT", value_parser = igtl_address)]
+    igtl: Option<String>,
+    /// Name of the OpenIGTLink transform, PLUS's FromToTo convention.
+    #[arg(long, requires = "igtl", default_value = kincal::controller::igtl_server::DEFAULT_NAME)]
+    igtl_name: String,
+    /// Also send invalid poses to clients that speak header version 2, as TRANSFORMs marked
+    /// TransformStatus=INVALID with a NaN matrix (PLUS's SendValidTransformsOnly="false"); by
+    /// default an invalid pose sends no transform, only a STATUS message.
+    #[arg(long, requires = "igtl")]
+    igtl_send_invalid: bool,
+}
+
+/// `--igtl` as an address to listen on: a port alone means localhost.
+pub fn igtl_address(text: &str) -> Result<String, String> {
+    let text = text.trim();
+    let addr = if text.parse::<u16>().is_ok() { format!("127.0.0.1:{text}") } else { text.to_string() };
+    use std::net::ToSocketAddrs;
+    match addr.to_socket_addrs().map(|mut a| a.next()) {
+        Ok(Some(_)) => Ok(addr),
+        _ => Err(format!("expected PORT or HOST:PORT (e.g. 18944 or 0.0.0.0:18944), found `{text}`")),
+    }
 }
 
 #[derive(Args)]
@@ -235,6 +277,13 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
     link.hello()?;
     let info = link.info()?;
     println!("connected: {} on {}", info.firmware, info.board);
+    if a.motion {
+        let truth = kincal::controller::demo::demo_truth(&nominal, a.seed);
+        let key = kincal::controller::demo::demo_station_key(&a.out())?;
+        kincal::controller::demo::upload_model(&mut link, &truth, &key, None)?;
+        println!("uploaded the true arm's parameters (as after a perfect calibration; seed {})", a.seed);
+        return demo_motion(a, &mut link, &truth);
+    }
     let options = kincal::controller::demo::LoopOptions {
         seed: a.seed,
         window_ticks: a.window_ticks,
@@ -272,6 +321,65 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
         kincal::api::certificate(&report.uploaded_run, None, kincal::controller::traceability::unix_now())?;
     let path = kincal::store::certificate::write_certificate(&certificate, None)?;
     println!("certificate of the uploaded RUN: {} ({})", path.display(), certificate.verdict().headline);
+    let truth = ArmModel::load(&a.out().join("data").join("truth.toml"))?;
+    demo_motion(a, &mut link, &truth)
+}
+
+/// The demo's last step: the arm in motion, its pose over OpenIGTLink, latency and dynamic error
+/// against a simulated optical tracker, each beside its truth.
+fn demo_motion(a: &DemoArgs, link: &mut kincal::controller::link::Link, truth: &ArmModel) -> Result<()> {
+    let tracker = kincal::simulate::optical::OpticalOptions {
+        latency_ms: a.tracker_latency_ms,
+        seed: a.seed,
+        ..kincal::simulate::optical::OpticalOptions::default()
+    };
+    println!("the arm in motion:");
+    let r =
+        kincal::controller::motion::motion_demo(link, truth, &tracker, &a.out(), &mut |s| println!("  {s}"))?;
+    println!(
+        "OpenIGTLink: the client received {} transforms of the {} valid poses streamed while it was connected ({} lost), {}; controller link: {} frames lost",
+        r.received,
+        r.received + r.lost_by_client,
+        r.lost_by_client,
+        r.received_vs_streamed_um
+            .map_or("none matched the host's poses".into(), |u| format!("each within {u:.2} µm of the host's pose")),
+        r.stream.lost
+    );
+    let d = &r.dynamic;
+    println!(
+        "latency of the tracker behind the arm: {} (true {:.2} ms)",
+        d.latency_text(),
+        r.tracker.latency_ms
+    );
+    println!(
+        "tracker clock: {:+.2} ± {:.2} ms at its first sample, drift {:+.1} ± {:.1} ppm (true {:+.2} ms, {:+.1} ppm)",
+        d.clock_offset_at_start_ms,
+        d.clock_offset_at_start_u95_ms,
+        d.clock.drift_ppm,
+        d.clock.drift_u95_ppm,
+        r.tracker.clock_offset_s * 1000.0,
+        r.tracker.drift_ppm
+    );
+    println!("dynamic error after a rigid registration, the tracker's noise ({:.3} mm) removed:", d.noise_mm);
+    for row in &r.truth {
+        println!(
+            "  {:<48} {:>34}   true {:.3} mm{}",
+            row.category.label(),
+            row.measured.text(),
+            row.truth_rms_mm,
+            if row.agrees { "" } else { "  (outside the uncertainty)" }
+        );
+    }
+    for f in &d.findings {
+        println!("  {f}");
+    }
+    println!(
+        "report: {}; again from the recordings: kincal dynamic --arm {} --tracker {} --out {}",
+        r.report_dir.join("report.html").display(),
+        r.arm_csv.display(),
+        r.tracker_csv.display(),
+        r.report_dir.display()
+    );
     Ok(())
 }
 
@@ -604,12 +712,30 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
         CsvRecording::refuse_existing(path)?;
     }
     let mut link = connect(&a.port)?;
-    if a.pose && link.info()?.param_version == 0 {
+    let info = link.info()?;
+    if a.pose && info.param_version == 0 {
         bail!(
             "the controller on {} holds no parameters: no pose to stream (kincal upload first)",
             a.port.port
         );
     }
+    let server = match &a.igtl {
+        Some(addr) => {
+            let options = kincal::controller::igtl_server::ServerOptions {
+                name: a.igtl_name.clone(),
+                send_invalid: a.igtl_send_invalid,
+            };
+            let server = kincal::controller::igtl_server::PoseServer::start(addr, options)?;
+            println!(
+                "OpenIGTLink server on {}: TRANSFORM {} (tool in the arm's base frame, mm) every tick, stamped with the controller's sample instant; in Slicer: OpenIGTLinkIF, a client connector to this host and port",
+                server.local_addr(),
+                a.igtl_name
+            );
+            Some(server)
+        }
+        None => None,
+    };
+    let mut clock = kincal::controller::pose_stream::PoseClock::new(info.ticks);
     catch_ctrl_c();
     let mut csv = match &a.csv {
         Some(path) => Some(CsvRecording::create(path)?),
@@ -621,7 +747,7 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             w,
             "{}",
             if a.pose {
-                "seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz"
+                "seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz,xx,xy,xz,t_s,host_s"
             } else {
                 "seq,tick,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg,rejected"
             }
@@ -668,6 +794,16 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             lost_seen = link.stats.stream_gaps;
         }
         frames += 1;
+        let timed = match &item {
+            Stream::Pose(p) => Some(clock.time(seq, *p, Instant::now())),
+            _ => None,
+        };
+        if let (Some(server), Some(pose)) = (&server, &timed) {
+            server.publish(pose);
+        }
+        for event in server.iter().flat_map(|s| s.events()) {
+            println!("{event}");
+        }
         match &item {
             Stream::Pose(p) => {
                 watch.see(p);
@@ -694,31 +830,29 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
                         .collect();
                     writeln!(w, "{seq},{},{},{}", r.tick, cells.join(","), r.rejected)?;
                 }
-                Stream::Pose(p) if p.valid => writeln!(
-                    w,
-                    "{seq},{},1,,0,{},{},{},{},{},{}",
-                    p.tick,
-                    p.position_mm[0],
-                    p.position_mm[1],
-                    p.position_mm[2],
-                    p.z_axis[0],
-                    p.z_axis[1],
-                    p.z_axis[2]
-                )?,
-                Stream::Pose(p) => writeln!(
-                    w,
-                    "{seq},{},0,{},{},,,,,,",
-                    p.tick,
-                    joint_list(!p.fresh & kincal_protocol::messages::ALL_JOINTS),
-                    p.stale_ticks
-                )?,
+                Stream::Pose(p) => {
+                    let (tick, t_s, host_s) = timed.map_or((0, 0.0, 0.0), |t| (t.tick, t.t_s, t.host_s));
+                    if p.valid {
+                        let [x, y, z] = p.position_mm;
+                        let ([zx, zy, zz], [xx, xy, xz]) = (p.z_axis, p.x_axis);
+                        writeln!(w, "{seq},{tick},1,,0,{x},{y},{z},{zx},{zy},{zz},{xx},{xy},{xz},{t_s:.6},{host_s:.6}")?
+                    } else {
+                        let stale = joint_list(!p.fresh & kincal_protocol::messages::ALL_JOINTS);
+                        writeln!(w, "{seq},{tick},0,{stale},{},,,,,,,,,,{t_s:.6},{host_s:.6}", p.stale_ticks)?
+                    }
+                }
                 Stream::Window(_) => {}
             }
         }
         if last_report.elapsed().as_secs_f64() >= 1.0 {
             last_report = Instant::now();
+            let clients = server.as_ref().map_or(String::new(), |s| {
+                let c = s.clients();
+                let dropped: u64 = c.iter().map(|c| c.dropped).sum();
+                format!("; {} OpenIGTLink clients, {dropped} messages dropped for slow readers", c.len())
+            });
             eprintln!(
-                "{:.0} frames/s, {} lost, {} corrupt{}{}",
+                "{:.0} frames/s, {} lost, {} corrupt{}{}{clients}",
                 frames as f64 / started.elapsed().as_secs_f64(),
                 link.stats.stream_gaps,
                 link.stats.bad_frames,

@@ -23,6 +23,27 @@ pub enum EmulatedArmCommand {
     Pose(PoseArgs),
     /// Encoder noise and fault rates of the emulated bus (all 0: a clean bus).
     Faults(FaultArgs),
+    /// Move the arm along joint waypoints with times (a CSV file), smoothly, from 0.5 s after
+    /// the command; `kincal stream --pose` then streams the moving pose.
+    Trajectory(TrajectoryArgs),
+}
+
+/// `kincal emulated-arm trajectory`.
+#[derive(Args)]
+pub struct TrajectoryArgs {
+    /// The emulated controller: pty path or tcp:HOST:PORT.
+    #[arg(long)]
+    port: String,
+    /// Waypoints: `t_s,j1_deg,…,j6_deg` rows (encoder angles, unwrapped); `--demo` writes one.
+    #[arg(long, required_unless_present = "write_demo")]
+    file: Option<std::path::PathBuf>,
+    /// Start again at the end, until another pose or trajectory is set (the first and last
+    /// waypoints must then be the same pose).
+    #[arg(long)]
+    repeat: bool,
+    /// Write the demo's trajectory (around the arm's present pose) to this new file and play it.
+    #[arg(long, conflicts_with = "file")]
+    write_demo: Option<std::path::PathBuf>,
 }
 
 /// `kincal emulated-arm start`.
@@ -133,6 +154,7 @@ pub fn run(command: &EmulatedArmCommand) -> Result<()> {
         EmulatedArmCommand::Script(a) => script(a),
         EmulatedArmCommand::Pose(a) => pose(a),
         EmulatedArmCommand::Faults(a) => faults(a),
+        EmulatedArmCommand::Trajectory(a) => trajectory(a),
     }
 }
 
@@ -266,5 +288,39 @@ fn faults(a: &FaultArgs) -> Result<()> {
     if a.crash.is_some() {
         println!("failure injected: the controller resets (`kincal info` reports why)");
     }
+    Ok(())
+}
+
+fn trajectory(a: &TrajectoryArgs) -> Result<()> {
+    use kincal::motion::trajectory::Trajectory;
+    let mut link = greeted(&a.port)?;
+    let trajectory = match (&a.file, &a.write_demo) {
+        (Some(file), _) => Trajectory::load(file)?,
+        (None, Some(out)) => {
+            if out.exists() {
+                bail!("{} exists; choose a new file for the demo trajectory", out.display());
+            }
+            let window = measure_window(&mut link, 16)?;
+            let here = window.joints.map(|j| counts_to_deg(j.mean_counts));
+            let demo = Trajectory::demo(here);
+            kincal::files::write_atomic(out, demo.to_csv().as_bytes())
+                .with_context(|| format!("writing {}", out.display()))?;
+            println!("demo trajectory around the present pose written to {}", out.display());
+            demo
+        }
+        (None, None) => bail!("--file or --write-demo is needed"),
+    };
+    if a.repeat
+        && trajectory.waypoints.first().map(|w| w.counts) != trajectory.waypoints.last().map(|w| w.counts)
+    {
+        bail!("--repeat needs the last waypoint at the first one's pose, or the arm would jump at every restart");
+    }
+    let start = kincal::controller::motion::play(&mut link, &trajectory, a.repeat)?;
+    println!(
+        "the emulated arm follows {} waypoints over {:.1} s{} from controller tick {start} (0.5 s from now)",
+        trajectory.waypoints.len(),
+        trajectory.duration_s(),
+        if a.repeat { ", repeated" } else { "" }
+    );
     Ok(())
 }

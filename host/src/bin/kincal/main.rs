@@ -3,6 +3,8 @@
 mod args;
 mod arm;
 mod bench;
+mod bench_limit;
+mod bench_peers;
 mod bench_tracker;
 mod calibrate;
 mod certificate;
@@ -10,8 +12,10 @@ mod certificate;
 mod cli_reference;
 mod controller;
 mod diagnose;
+mod dynamic;
 mod emulated_arm;
 mod haptic;
+mod igtl_record;
 mod model;
 mod plan;
 
@@ -40,7 +44,7 @@ enum Command {
     /// reference and data, the result against the floor, the validity, what it does not cover and
     /// how to re-check it. Exit 2 when no calibration can be certified.
     Certificate(certificate::CertificateArgs),
-    /// Dataset-size study: calibrate on random subsets of placements, validate each.
+    /// Dataset-size study: calibrate on random subsets of placements or sessions, validate each.
     Study(arm::StudyArgs),
     /// Where the calibrated model of RUN fails and which physical effect is missing.
     Diagnose(diagnose::DiagnoseArgs),
@@ -67,6 +71,13 @@ enum Command {
     /// Does the arm still hold its stored calibration? A few touches judged with the stored set
     /// against the floor of their repeats: holds (exit 0), does not hold (2), cannot tell (3).
     Check(controller::CheckArgs),
+    /// The streamed pose in motion against a reference tracker's recording of the same tool:
+    /// latency, clock offset and drift, path error at rest, in motion and at direction changes.
+    Dynamic(dynamic::DynamicArgs),
+    /// Record the TRANSFORMs an OpenIGTLink server sends (the arm's pose from `kincal stream
+    /// --igtl`, or an optical tracker through PLUS) as a client receives them, for `kincal
+    /// dynamic`.
+    IgtlRecord(igtl_record::IgtlRecordArgs),
     /// Emulated controller: start one as an arm, pose it, script it from a geometry, inject
     /// encoder noise and faults.
     #[command(subcommand)]
@@ -77,7 +88,7 @@ enum Command {
     /// Model files: from and to URDF, and the built-in SUTA model.
     #[command(subcommand)]
     Model(model::ModelCommand),
-    /// Benchmarks: calibration time, study throughput, and SciPy on the same problem.
+    /// Benchmarks: calibration time, study throughput, and kincal beside Ceres and SciPy on the same problems.
     Bench(bench::BenchArgs),
 }
 
@@ -132,6 +143,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Stream(a) => controller::cmd_stream(&a),
         Command::Record(a) => controller::cmd_record(&a),
         Command::Check(a) => controller::cmd_check(&a),
+        Command::Dynamic(a) => dynamic::cmd_dynamic(&a),
+        Command::IgtlRecord(a) => igtl_record::cmd_igtl_record(&a),
         Command::EmulatedArm(c) => emulated_arm::run(&c),
         Command::Haptic(haptic::HapticCommand::Simulate(a)) => haptic::cmd_haptic_simulate(&a),
         Command::Haptic(haptic::HapticCommand::Calibrate(a)) => haptic::cmd_haptic_calibrate(&a),

@@ -758,7 +758,11 @@ fn artefact_cases(cases: &mut Vec<Case>) {
             &["landmarks[7].xyz_mm", "cannot share a point"],
         ),
         ("duplicate id", lm(|l| l[5]["id"] = l[2]["id"].clone()), &["landmarks[5].id", "duplicate"]),
-        ("empty certificate", edit_json(a, |v| v["certificate"] = json!(" ")), &["artefact.json", "certificate"]),
+        (
+            "empty certificate",
+            edit_json(a, |v| v["certificate"] = json!(" ")),
+            &["artefact.json", "certificate"],
+        ),
         ("empty id", lm(|l| l[5]["id"] = json!(" ")), &["landmarks[5].id"]),
         ("xyz null", lm(|l| l[2]["xyz_mm"][1] = Value::Null), &["artefact.json", "xyz_mm"]),
         ("xyz text", lm(|l| l[2]["xyz_mm"][1] = json!("12")), &["artefact.json", "xyz_mm"]),
@@ -898,7 +902,11 @@ fn session_cases(cases: &mut Vec<Case>) {
                 edit_json("data/cal/C_A.json", |v| v["arm"] = json!({"id": "lab-arm-A"})),
                 edit_json("data/cal/C_B.json", |v| v["arm"] = json!({"id": "lab-arm-B"})),
             ]),
-            &["C_A.json was recorded on arm lab-arm-A", "C_B.json on arm lab-arm-B", "one calibration is of one arm"],
+            &[
+                "C_A.json was recorded on arm lab-arm-A",
+                "C_B.json on arm lab-arm-B",
+                "one calibration is of one arm",
+            ],
         ),
         (
             "one session names its arm, the others none",

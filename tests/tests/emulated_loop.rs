@@ -89,8 +89,18 @@ fn the_whole_loop_brings_the_streamed_pose_to_the_noise_floor() {
     let year = uploads[0].valid_until_unix_s.unwrap() - uploads[0].validated_at_unix_s;
     assert_eq!(year, 365 * 86_400);
     let info = link.info().unwrap();
-    assert_eq!(info.param_trace.run_sha256, kincal::trace::run_sha256(run).unwrap(), "the stored set names the RUN");
+    assert_eq!(
+        info.param_trace.run_sha256,
+        kincal::trace::run_sha256(run).unwrap(),
+        "the stored set names the RUN"
+    );
     let certificate = kincal::api::certificate(run, None, 0).unwrap();
+    let reference = certificate.summary.provenance.artefact_certificate.as_deref();
+    assert_eq!(
+        reference,
+        Some("none: simulated by kincal demo, seed 3"),
+        "the reference says it is simulated"
+    );
     let verdict = certificate.verdict();
     assert_eq!((verdict.class, verdict.headline.as_str()), ("pass", "CALIBRATED"), "{}", verdict.sentence);
     std::fs::remove_dir_all(&dir).ok();

@@ -211,6 +211,23 @@ pub fn demo_station_key(out: &std::path::Path) -> Result<StationKey, LoopError> 
     Ok(StationKey::create(&path)?)
 }
 
+/// Drop the upload records (`uploads.json`) of an earlier demo's runs in `out`: the sets they
+/// record were stored on an emulated controller that ended with that demo, so no controller holds
+/// them and the new demo may replace those runs (a RUN whose set a controller may hold is never
+/// replaced; [`crate::store::check_output_folder`]).
+pub fn forget_emulated_uploads(out: &Path) -> Result<(), LoopError> {
+    for run in ["run", "run-added"] {
+        let path = out.join(run).join(crate::trace::UPLOADS_FILE);
+        match std::fs::remove_file(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(LoopError::Files(format!("{}: {e}", path.display())))
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// The demo's true arm for `seed`: `nominal` off by the simulation's perturbation, with the
 /// demo's hidden effect ([`DEMO_HIDDEN`]).
 pub fn demo_truth(nominal: &ArmModel, seed: u64) -> ArmModel {
@@ -394,7 +411,11 @@ pub fn run_loop(
     let files = |e: &dyn std::fmt::Display| LoopError::Files(e.to_string());
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let truth = true_arm(nominal, options.seed, &options.hidden, &mut rng);
-    let artefact = suta_artefact(&mut rng);
+    // A simulated artefact has no calibration lab's certificate; its reference says so.
+    let artefact = Artefact {
+        certificate: Some(format!("none: simulated by kincal demo, seed {}", options.seed)),
+        ..suta_artefact(&mut rng)
+    };
     let data = options.out.join("data");
     claim_data_folder(&data, options.seed)?;
     artefact.save(&data.join("artefact.json")).map_err(|e| files(&e))?;

@@ -303,7 +303,7 @@ fn gap_verdict(g: &Gap) -> (&'static str, &'static str, String) {
 
 fn arm_words(s: &Summary) -> String {
     match &s.provenance.arm {
-        Some(arm) => format!("Arm {arm}"),
+        Some(arm) => format!("Arm {}", arm.id),
         None => "No identified arm".into(),
     }
 }
@@ -602,7 +602,8 @@ pub fn certificate_page(c: &Certificate) -> String {
         ));
     }
     // A direction of a single parameter already listed as held says nothing more.
-    let listed = |c: &&crate::calib::identify::Combination| c.terms.len() == 1 && report.fixed.contains(&c.terms[0].0);
+    let listed =
+        |c: &&crate::calib::identify::Combination| c.terms.len() == 1 && report.fixed.contains(&c.terms[0].0);
     for combination in report.unidentifiable.iter().filter(|c| !listed(c)) {
         limits.push(format!("Not separable by these data: {}.", code(&combination.text)));
     }
@@ -613,11 +614,18 @@ pub fn certificate_page(c: &Certificate) -> String {
             .iter()
             .enumerate()
             .map(|(j, a)| {
-                let gap = JointArc { from_deg: (a.from_deg + a.span_deg).rem_euclid(360.0), span_deg: 360.0 - a.span_deg };
+                let gap = JointArc {
+                    from_deg: (a.from_deg + a.span_deg).rem_euclid(360.0),
+                    span_deg: 360.0 - a.span_deg,
+                };
                 vec![
                     format!("joint {}", j + 1),
                     format!("{} ({:.0}°)", arc_words(a), a.span_deg),
-                    if gap.span_deg < 0.05 { "—".into() } else { format!("{} ({:.0}°)", arc_words(&gap), gap.span_deg) },
+                    if gap.span_deg < 0.05 {
+                        "—".into()
+                    } else {
+                        format!("{} ({:.0}°)", arc_words(&gap), gap.span_deg)
+                    },
                 ]
             })
             .collect();

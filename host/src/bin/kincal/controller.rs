@@ -284,6 +284,7 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
         println!("uploaded the true arm's parameters (as after a perfect calibration; seed {})", a.seed);
         return demo_motion(a, &mut link, &truth);
     }
+    kincal::controller::demo::forget_emulated_uploads(&a.out())?;
     let options = kincal::controller::demo::LoopOptions {
         seed: a.seed,
         window_ticks: a.window_ticks,

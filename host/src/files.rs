@@ -223,23 +223,54 @@ fn key_before(text: &str, line: usize, column: usize) -> Option<String> {
     Some(prefix[open + 1..colon].to_string())
 }
 
-/// Read a JSON file kincal wrote, checking its `format` tag first so that a file of another kind or
-/// version is named as such instead of failing on some later field.
+/// A JSON file kincal wrote, read whole, with its `format` tag (`None` when it has none).
+pub struct TaggedJson {
+    path: PathBuf,
+    text: String,
+    /// The file's `format` tag.
+    pub format: Option<String>,
+}
+
+impl TaggedJson {
+    /// Read `path` (a regular file) and its `format` tag.
+    pub fn read(path: &Path) -> Result<TaggedJson, FileError> {
+        #[derive(serde::Deserialize)]
+        struct Tag {
+            format: Option<String>,
+        }
+        check_regular_file(path)?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| FileError::Io { path: path.to_owned(), source })?;
+        let tag: Tag = serde_json::from_str(&text).map_err(|e| json_error(path, &text, e))?;
+        Ok(TaggedJson { path: path.to_owned(), text, format: tag.format })
+    }
+
+    /// The file as a `T`, whatever its tag.
+    pub fn parse<T: serde::de::DeserializeOwned>(&self) -> Result<T, FileError> {
+        serde_json::from_str(&self.text).map_err(|e| json_error(&self.path, &self.text, e))
+    }
+
+    /// The file as a `T` when its tag is `format`; a file of another kind or version is named as
+    /// such instead of failing on some later field.
+    pub fn parse_tagged<T: serde::de::DeserializeOwned>(&self, format: &str) -> Result<T, FileError> {
+        match self.format.as_deref() {
+            Some(found) if found == format => self.parse(),
+            Some(found) => {
+                Err(field_error(&self.path, "format", format!("expected \"{format}\", found \"{found}\"")))
+            }
+            None => Err(field_error(&self.path, "format", format!("missing; expected \"{format}\""))),
+        }
+    }
+}
+
+/// Read a JSON file kincal wrote whose `format` tag must be `format` ([`TaggedJson::parse_tagged`]).
 pub fn read_tagged<T: serde::de::DeserializeOwned>(path: &Path, format: &str) -> Result<T, FileError> {
-    #[derive(serde::Deserialize)]
-    struct Tag {
-        format: Option<String>,
-    }
-    check_regular_file(path)?;
-    let text =
-        std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
-    let syntax = |e: serde_json::Error| json_error(path, &text, e);
-    let tag: Tag = serde_json::from_str(&text).map_err(syntax)?;
-    match tag.format.as_deref() {
-        Some(found) if found == format => serde_json::from_str(&text).map_err(syntax),
-        Some(found) => Err(field_error(path, "format", format!("expected \"{format}\", found \"{found}\""))),
-        None => Err(field_error(path, "format", format!("missing; expected \"{format}\""))),
-    }
+    TaggedJson::read(path)?.parse_tagged(format)
+}
+
+/// The error for a row of a text file (`line` 1-based) whose `column` holds what cannot be used.
+pub fn row_error(path: &Path, line: usize, column: &str, message: impl Into<String>) -> FileError {
+    FileError::Row { path: path.to_owned(), line, column: column.to_string(), message: message.into() }
 }
 
 /// The error for a field that holds a value that cannot be used.

@@ -475,17 +475,8 @@ impl Observations {
                 };
                 data.joints = data.joints.max(q_deg.len());
                 data.obs.push(Observation {
-                    block: 0,
-                    group,
-                    repeat: m.repeat,
-                    q_deg,
                     q_sigma_deg,
-                    target: Target::Landmark(landmark),
-                    sigma_mm: None,
-                    time_s: None,
-                    temp_c: None,
-                    pose: None,
-                    line: i + 1,
+                    ..Observation::touch(group, landmark, m.repeat, q_deg, i + 1)
                 });
             }
         }

@@ -204,6 +204,24 @@ pub struct Observation {
 }
 
 impl Observation {
+    /// An artefact touch of `landmark` in `group` at `q_deg` (block set by
+    /// [`Observations::rebuild_blocks`]); `line` is its 1-based measurement number.
+    pub fn touch(group: usize, landmark: usize, repeat: u32, q_deg: Joints, line: usize) -> Observation {
+        Observation {
+            block: 0,
+            group,
+            repeat,
+            q_deg,
+            q_sigma_deg: None,
+            target: Target::Landmark(landmark),
+            sigma_mm: None,
+            time_s: None,
+            temp_c: None,
+            pose: None,
+            line,
+        }
+    }
+
     /// The landmark touched, for an artefact touch.
     pub fn landmark(&self) -> Option<usize> {
         match self.target {
@@ -279,19 +297,7 @@ impl Observations {
         }
         for (i, &(group, landmark, repeat, q)) in touches.iter().enumerate() {
             let Some(q_deg) = Joints::new(q) else { continue };
-            data.obs.push(Observation {
-                block: 0,
-                group,
-                repeat,
-                q_deg,
-                q_sigma_deg: None,
-                target: Target::Landmark(landmark),
-                sigma_mm: None,
-                time_s: None,
-                temp_c: None,
-                pose: None,
-                line: i + 1,
-            });
+            data.obs.push(Observation::touch(group, landmark, repeat, q_deg, i + 1));
         }
         data.rebuild_blocks();
         data
@@ -545,19 +551,7 @@ mod tests {
     use super::*;
 
     fn touch(group: usize, landmark: usize, repeat: u32) -> Observation {
-        Observation {
-            block: 0,
-            group,
-            repeat,
-            q_deg: Joints::new(&[0.0; 6]).unwrap(),
-            q_sigma_deg: None,
-            target: Target::Landmark(landmark),
-            sigma_mm: None,
-            time_s: None,
-            temp_c: None,
-            pose: None,
-            line: 1,
-        }
+        Observation::touch(group, landmark, repeat, Joints::new(&[0.0; 6]).unwrap(), 1)
     }
 
     #[test]

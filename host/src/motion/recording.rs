@@ -12,7 +12,7 @@
 //!
 //! Columns are found by name, in any order; other columns are ignored; `#` lines are comments.
 
-use crate::files::FileError;
+use crate::files::{row_error, FileError};
 use std::path::Path;
 
 /// A stream of tool positions.
@@ -52,12 +52,7 @@ impl Track {
 pub fn read_track(path: &Path) -> Result<Track, FileError> {
     let text =
         std::fs::read_to_string(path).map_err(|e| FileError::Io { path: path.to_path_buf(), source: e })?;
-    let row_error = |line: usize, column: &str, message: String| FileError::Row {
-        path: path.to_path_buf(),
-        line,
-        column: column.to_string(),
-        message,
-    };
+    let row_error = |line: usize, column: &str, message: String| row_error(path, line, column, message);
     let mut lines =
         text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
     let Some((header_line, header)) = lines.next() else {

@@ -12,7 +12,7 @@
 //! report, unwrapped: from 359° to 361° is 2°, from 359° to 1° is 358°. Two rows with the same
 //! angles hold the arm still between their times.
 
-use crate::files::FileError;
+use crate::files::{row_error, FileError};
 use kincal_protocol::biss::COUNTS_PER_TURN;
 use kincal_protocol::messages::{JOINTS, TICK_HZ};
 use kincal_protocol::trajectory::{duration_ticks, position_at, Waypoint, MAX_WAYPOINTS};
@@ -119,12 +119,7 @@ impl Trajectory {
     pub fn load(path: &Path) -> Result<Trajectory, FileError> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| FileError::Io { path: path.to_path_buf(), source: e })?;
-        let err = |line: usize, column: &str, message: String| FileError::Row {
-            path: path.to_path_buf(),
-            line,
-            column: column.to_string(),
-            message,
-        };
+        let err = |line: usize, column: &str, message: String| row_error(path, line, column, message);
         let mut lines = text
             .lines()
             .enumerate()

@@ -21,14 +21,15 @@ pub struct TruthRow {
     pub agrees: bool,
 }
 
+/// The true tool point and the arm's reported point at one instant, both in the arm's base
+/// frame, mm.
+type PointPair = (Vector3<f64>, Vector3<f64>);
+
 /// The true error by category; `points(k)` gives, for tracker sample k, the true tool point and
 /// the arm's reported point at the instant it was taken (both in the arm's base frame, mm), or
 /// None where the arm reported none (that sample is left out).
-pub fn against_truth(
-    d: &Dynamic,
-    points: &dyn Fn(usize) -> Option<(Vector3<f64>, Vector3<f64>)>,
-) -> Vec<TruthRow> {
-    let known: Vec<(&super::PathSample, (Vector3<f64>, Vector3<f64>))> =
+pub fn against_truth(d: &Dynamic, points: &dyn Fn(usize) -> Option<PointPair>) -> Vec<TruthRow> {
+    let known: Vec<(&super::PathSample, PointPair)> =
         d.series.iter().filter_map(|s| points(s.index).map(|p| (s, p))).collect();
     let (from, to): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) = known.iter().map(|(_, p)| *p).unzip();
     let (r, t) = crate::numerics::geometry::absolute_orientation(&from, &to);

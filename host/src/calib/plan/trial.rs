@@ -82,7 +82,7 @@ fn rigid_ssr(model: &ArmModel, data: &Observations, sigma2: f64) -> f64 {
 
 /// How clearly `data` tell rival `a` (the true one) from `b`: each is added to `calibrated`
 /// and refitted on `data` (warm start, no restarts); the result is (SSR_b − SSR_a)/σ² of the
-/// touch residuals after a rigid fit per block. Above [`SEPARABLE_SIGMA2`] the data prefer `a`
+/// touch residuals after a rigid fit per block. Above [`super::SEPARABLE_SIGMA2`] the data prefer `a`
 /// clearly.
 pub fn separation(
     calibrated: &ArmModel,

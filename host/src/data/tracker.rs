@@ -187,12 +187,7 @@ fn arm_line(path: &Path, text: &str) -> Result<Option<ArmIdentity>, FileError> {
             continue;
         }
         let arm = ArmIdentity::of(value.trim());
-        arm.check().map_err(|(_, message)| FileError::Row {
-            path: path.to_owned(),
-            line: k + 1,
-            column: "arm".into(),
-            message,
-        })?;
+        arm.check().map_err(|(_, message)| crate::files::row_error(path, k + 1, "arm", message))?;
         return Ok(Some(arm));
     }
     Ok(None)

@@ -3,8 +3,10 @@
 //! compiled here against Debian's `libopenigtlink-dev`). Both are installed by
 //! `scripts/setup.sh`; a missing one fails the test with what to install, never skips it.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::thread::JoinHandle;
 
 fn peers_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("peers")
@@ -45,18 +47,49 @@ pub fn require_pyigtl() {
     }
 }
 
+/// A client process whose standard output is read as it comes, so that it never blocks on a
+/// full pipe while the test waits (a blocked client would stop reading the server).
+pub struct Peer {
+    child: Child,
+    output: JoinHandle<String>,
+}
+
+impl Peer {
+    /// Start `cmd`; `what` names it when it cannot start.
+    pub fn start(cmd: &mut Command, what: &str) -> Peer {
+        let mut child = cmd
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .unwrap_or_else(|e| panic!("{what}: {e}"));
+        let mut stdout = child.stdout.take().expect("stdout is piped");
+        let output = std::thread::spawn(move || {
+            let mut text = String::new();
+            let _ = stdout.read_to_string(&mut text);
+            text
+        });
+        Peer { child, output }
+    }
+
+    /// Wait for it to end: its exit status and all it printed.
+    pub fn finish(mut self) -> (ExitStatus, String) {
+        let status = self.child.wait().expect("the peer is waited for");
+        (status, self.output.join().unwrap_or_default())
+    }
+}
+
 /// Start the C++ client on `addr` (`HOST:PORT`), asking for TDATA every `tdata_ms` if given.
-pub fn spawn_cpp(exe: &Path, addr: std::net::SocketAddr, tdata_ms: Option<u32>) -> Child {
+pub fn spawn_cpp(exe: &Path, addr: std::net::SocketAddr, tdata_ms: Option<u32>) -> Peer {
     let mut cmd = Command::new(exe);
     cmd.arg(addr.ip().to_string()).arg(addr.port().to_string());
     if let Some(ms) = tdata_ms {
         cmd.arg(ms.to_string());
     }
-    cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("the C++ client starts")
+    Peer::start(&mut cmd, "the C++ client starts")
 }
 
 /// Start the pyigtl recorder on `addr`, writing `csv`; `v2`: it first sends a header-2 message.
-pub fn spawn_pyigtl(addr: std::net::SocketAddr, csv: &Path, v2: bool) -> Child {
+pub fn spawn_pyigtl(addr: std::net::SocketAddr, csv: &Path, v2: bool) -> Peer {
     let mut cmd = Command::new("python3");
     cmd.arg(peers_dir().join("pyigtl_record.py"))
         .arg(addr.ip().to_string())
@@ -65,7 +98,7 @@ pub fn spawn_pyigtl(addr: std::net::SocketAddr, csv: &Path, v2: bool) -> Child {
     if v2 {
         cmd.arg("--v2");
     }
-    cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("python3 starts")
+    Peer::start(&mut cmd, "python3 starts")
 }
 
 /// One message as a peer received it.

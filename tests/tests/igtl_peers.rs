@@ -6,7 +6,7 @@ use kincal::controller::igtl_server::{PoseServer, ServerEvent, ServerOptions, DE
 use kincal::controller::pose_stream::{stream_poses, Flow, TimedPose};
 use kincal::motion::trajectory::Trajectory;
 use kincal_e2e::peers::{
-    cpp_client, parse_cpp, parse_pyigtl, require_pyigtl, spawn_cpp, spawn_pyigtl, Received,
+    cpp_client, parse_cpp, parse_pyigtl, require_pyigtl, spawn_cpp, spawn_pyigtl, Peer, Received,
 };
 use kincal_e2e::{emulated_firmware, kincal_bin, FakeController};
 use kincal_protocol::biss::counts_to_deg;
@@ -16,7 +16,7 @@ use std::collections::BTreeMap;
 use std::io::BufRead;
 use std::net::TcpStream;
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 fn scratch(name: &str) -> PathBuf {
@@ -51,10 +51,10 @@ fn difference(m: &[f64], pose: &TimedPose) -> f64 {
     (0..12).map(|k| (m[k] - rows[k % 3][k / 3] as f64).abs()).fold(0.0, f64::max)
 }
 
-fn stdout_of(child: Child) -> String {
-    let out = child.wait_with_output().unwrap();
-    assert!(out.status.success(), "a peer failed: {:?}", out.status);
-    String::from_utf8_lossy(&out.stdout).into_owned()
+fn stdout_of(peer: Peer) -> String {
+    let (status, out) = peer.finish();
+    assert!(status.success(), "a peer failed: {status:?}");
+    out
 }
 
 /// 60 s of the emulated controller's calibrated pose at 768 Hz, moving along a trajectory, to
@@ -189,6 +189,10 @@ fn pyigtl_and_the_cpp_library_receive_the_moving_pose_for_a_minute() {
     // STATUS naming joint 3 when it went and an OK when it came back.
     let transforms: Vec<&Received> = plain.iter().filter(|m| m.kind == "TRANSFORM").collect();
     let expected: Vec<&TimedPose> = window(&plain).filter(|p| p.report.valid).collect();
+    // The window is the span the client received: it must be the whole minute, or a client that
+    // stopped reading would pass unseen.
+    let span = transforms.last().map_or(0.0, |m| m.t_s) - transforms.first().map_or(0.0, |m| m.t_s);
+    assert!(span > 55.0, "the C++ client received {span:.1} s of the 60 s stream");
     assert_eq!(transforms.len(), expected.len(), "the C++ client lost transforms");
     assert!(plain.iter().all(|m| m.crc_ok), "the library's CRC check failed");
     let worst = transforms.iter().map(|m| difference(&m.matrix, &pose_of(&host, m))).fold(0.0, f64::max);
@@ -242,7 +246,7 @@ fn the_stream_command_serves_the_pose_and_keeps_invalid_poses_back() {
         .arg("--csv")
         .arg(&csv)
         .stdout(Stdio::piped())
-        .stderr(Stdio::null())
+        .stderr(std::fs::File::create(dir.join("stream.err")).unwrap())
         .spawn()
         .unwrap();
     let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
@@ -262,13 +266,12 @@ fn the_stream_command_serves_the_pose_and_keeps_invalid_poses_back() {
     let python = spawn_pyigtl(addr, &py_csv, false);
     // kincal's own recording client, as `kincal dynamic` takes the pose from the OpenIGTLink side.
     let recorded = dir.join("igtl-record.csv");
-    let recorder = Command::new(kincal_bin())
-        .args(["igtl-record", "--connect", &addr.to_string(), "--csv"])
-        .arg(&recorded)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let recorder = Peer::start(
+        Command::new(kincal_bin())
+            .args(["igtl-record", "--connect", &addr.to_string(), "--csv"])
+            .arg(&recorded),
+        "kincal igtl-record starts",
+    );
     let mut rest = Vec::new();
     let joined = |lines: &[String]| {
         lines.iter().filter(|l| l.contains("OpenIGTLink client") && l.contains("connected")).count()
@@ -287,7 +290,9 @@ fn the_stream_command_serves_the_pose_and_keeps_invalid_poses_back() {
     assert!(interrupted.success());
     rest.extend(printed.iter());
     let rest = rest.join("\n");
-    assert!(child.wait().unwrap().success(), "{rest}");
+    let status = child.wait().unwrap();
+    let errors = std::fs::read_to_string(dir.join("stream.err")).unwrap_or_default();
+    assert!(status.success(), "kincal stream ended {status:?}: {rest}\n{errors}");
     let _ = stdout_of(python);
     let said = stdout_of(recorder);
     assert!(said.contains("poses in") && said.contains("written to"), "{said}");

@@ -63,6 +63,16 @@ pub enum ApiError {
     KindsDiffer(String, String),
 }
 
+/// The calibration certificate of the RUN in `dir`, issued by `operator` at `now` (Unix
+/// seconds); [`crate::store::certificate::write_certificate`] writes it.
+pub fn certificate(
+    dir: &Path,
+    operator: Option<&str>,
+    now: u64,
+) -> Result<crate::report::certificate::Certificate, crate::store::certificate::CertificateError> {
+    crate::store::certificate::gather(dir, operator, now)
+}
+
 /// Read a RUN folder (any version kincal wrote).
 pub fn load(dir: &Path) -> Result<RunFolder, ApiError> {
     Ok(RunFolder::load(dir)?)

@@ -165,7 +165,7 @@ pub fn suta_artefact(rng: &mut ChaCha8Rng) -> Artefact {
         .into_iter()
         .map(|(id, xyz_mm)| Landmark { id, xyz_mm, yaw_deg: (rng.random::<f64>() * 90.0 - 45.0).round() })
         .collect();
-    Artefact { format: ARTEFACT_FORMAT.into(), landmarks }
+    Artefact { format: ARTEFACT_FORMAT.into(), landmarks, certificate: None }
 }
 
 /// Plain homogeneous-matrix forward kinematics of `model` (the independent path), with the
@@ -478,6 +478,7 @@ fn record_with(
                 std_deg: Some(vec![options.encoder_noise_deg * 39.2; SUTA_JOINTS]),
                 samples: Some(1536),
                 rejected: Some(0),
+                at_unix_s: None,
             });
         }
     }
@@ -487,6 +488,7 @@ fn record_with(
             placement: place.name.clone(),
             purpose: purpose.into(),
             measurements,
+            arm: None,
         },
         skipped,
     )

@@ -9,6 +9,8 @@
 //!   `sha256sum model.toml summary.json` prints in the RUN folder, so anyone can recompute it
 //!   with standard tools (`cd RUN && sha256sum model.toml summary.json | sha256sum`).
 //! * [`hash_inputs`]: SHA-256 of every input file (folders expanded), for a RUN's record.
+//! * [`UploadRecord`]: where a RUN's model went (`RUN/uploads.json`, appended by `kincal
+//!   upload`): the arm, the set's version, the key that signed it and the validity.
 
 use crate::files::FileError;
 use sha2::{Digest, Sha256};
@@ -53,19 +55,20 @@ impl ArmIdentity {
         }
         for (field, text) in [("firmware", &self.firmware), ("board", &self.board)] {
             if let Some(text) = text {
-                if text.trim().is_empty()
-                    || text.chars().count() > MAX_LABEL
-                    || text.chars().any(|c| c.is_control())
-                {
-                    return Err((
-                        field,
-                        format!("expected 1 to {MAX_LABEL} printable characters, found {text:?}"),
-                    ));
-                }
+                check_label(text).map_err(|message| (field, message))?;
             }
         }
         Ok(())
     }
+}
+
+/// Whether `text` is a label a record may carry (a firmware, a board, a certificate number, an
+/// operator): 1 to [`MAX_LABEL`] printable characters; `Err(what was expected)` otherwise.
+pub fn check_label(text: &str) -> Result<(), String> {
+    if text.trim().is_empty() || text.chars().count() > MAX_LABEL || text.chars().any(|c| c.is_control()) {
+        return Err(format!("expected 1 to {MAX_LABEL} printable characters, found {text:?}"));
+    }
+    Ok(())
 }
 
 impl std::fmt::Display for ArmIdentity {
@@ -113,32 +116,45 @@ pub enum MixedArms {
 }
 
 /// The one arm `sessions` (file, the arm it names) were recorded on: `None` when none names an
-/// arm; refused when two arms are named, or when some sessions name an arm and others do not.
-/// The firmware may differ between sessions (an update between placements), the arm may not.
+/// arm; refused when two arms are named (the first file of each named), else when some sessions
+/// name an arm and others do not. The firmware may differ between sessions (an update between
+/// placements), the arm may not.
 pub fn one_arm(sessions: &[(PathBuf, Option<ArmIdentity>)]) -> Result<Option<ArmIdentity>, MixedArms> {
-    let identified = sessions.iter().find_map(|(path, arm)| arm.as_ref().map(|a| (path, a)));
-    let Some((first, arm)) = identified else { return Ok(None) };
-    for (path, other) in sessions {
-        match other {
-            Some(o) if o.id != arm.id => {
-                return Err(MixedArms::TwoArms {
-                    first: first.clone(),
-                    first_arm: arm.id.clone(),
-                    other: path.clone(),
-                    other_arm: o.id.clone(),
-                })
-            }
-            Some(_) => {}
-            None => {
-                return Err(MixedArms::Unidentified {
-                    identified: first.clone(),
-                    arm: arm.id.clone(),
-                    unidentified: path.clone(),
-                })
-            }
-        }
+    let mut named = sessions.iter().filter_map(|(path, arm)| arm.as_ref().map(|a| (path, a)));
+    let Some((first, arm)) = named.next() else { return Ok(None) };
+    if let Some((other, o)) = named.find(|(_, o)| o.id != arm.id) {
+        return Err(MixedArms::TwoArms {
+            first: first.clone(),
+            first_arm: arm.id.clone(),
+            other: other.clone(),
+            other_arm: o.id.clone(),
+        });
+    }
+    if let Some((unidentified, _)) = sessions.iter().find(|(_, a)| a.is_none()) {
+        return Err(MixedArms::Unidentified {
+            identified: first.clone(),
+            arm: arm.id.clone(),
+            unidentified: unidentified.clone(),
+        });
     }
     Ok(Some(arm.clone()))
+}
+
+/// `unix_s` as UTC date and time (`2026-11-24 06:15:00 UTC`).
+pub fn utc(unix_s: u64) -> String {
+    let days = (unix_s / 86_400) as i64;
+    let secs = unix_s % 86_400;
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + (month <= 2) as i64;
+    format!("{year:04}-{month:02}-{day:02} {:02}:{:02}:{:02} UTC", secs / 3600, secs / 60 % 60, secs % 60)
 }
 
 /// Lower-case hex of `bytes`.
@@ -256,6 +272,65 @@ pub fn hash_inputs(paths: &[&Path]) -> Result<Vec<FileHash>, FileError> {
     Ok(out)
 }
 
+/// The file in a RUN folder that records where its model was uploaded.
+pub const UPLOADS_FILE: &str = "uploads.json";
+/// Format tag of [`UPLOADS_FILE`].
+pub const UPLOADS_FORMAT: &str = "kincal-uploads/1";
+
+/// One upload of a RUN's model to a controller, as `kincal upload` records it.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct UploadRecord {
+    /// The controller's arm (what the set is signed for).
+    pub arm: ArmIdentity,
+    /// Version of the stored parameter set.
+    pub param_version: u32,
+    /// Fingerprint of the station key that signed it (`ed25519:…`).
+    pub signer: String,
+    /// When it was signed, Unix seconds.
+    pub signed_at_unix_s: u64,
+    /// The RUN hash the set carries (hex).
+    pub run_sha256: String,
+    /// The validation date the set carries, Unix seconds.
+    pub validated_at_unix_s: u64,
+    /// End of the validity period, Unix seconds (`None`: no period).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub valid_until_unix_s: Option<u64>,
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct UploadsFile {
+    format: String,
+    uploads: Vec<UploadRecord>,
+}
+
+/// The uploads recorded in `run` (oldest first; none when the file does not exist).
+pub fn read_uploads(run: &Path) -> Result<Vec<UploadRecord>, FileError> {
+    let path = run.join(UPLOADS_FILE);
+    if !path.exists() {
+        return Ok(Vec::new());
+    }
+    let file: UploadsFile = crate::files::read_json(&path)?;
+    if file.format != UPLOADS_FORMAT {
+        return Err(crate::files::field_error(
+            &path,
+            "format",
+            format!("expected \"{UPLOADS_FORMAT}\", found \"{}\"", file.format),
+        ));
+    }
+    Ok(file.uploads)
+}
+
+/// Append `record` to `run`'s uploads, atomically (the earlier records kept).
+pub fn record_upload(run: &Path, record: &UploadRecord) -> Result<(), FileError> {
+    let mut uploads = read_uploads(run)?;
+    uploads.push(record.clone());
+    let path = run.join(UPLOADS_FILE);
+    let text = serde_json::to_string_pretty(&UploadsFile { format: UPLOADS_FORMAT.into(), uploads })
+        .unwrap_or_default();
+    crate::files::write_atomic(&path, text.as_bytes()).map_err(|source| FileError::Io { path, source })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -351,9 +426,39 @@ mod tests {
         let text = two.to_string();
         assert!(text.contains("1.json") && text.contains("arm-A") && text.contains("3.json"), "{text}");
         assert!(text.contains("arm-B"), "{text}");
+        let two_and_unnamed =
+            one_arm(&[s("0.json", None), s("1.json", Some(&a)), s("3.json", Some(&b))]).unwrap_err();
+        assert!(
+            matches!(two_and_unnamed, MixedArms::TwoArms { .. }),
+            "two arms told first: {two_and_unnamed}"
+        );
         let unnamed = one_arm(&[s("1.json", None), s("2.json", Some(&b))]).unwrap_err();
         assert!(matches!(unnamed, MixedArms::Unidentified { .. }), "{unnamed}");
         assert!(unnamed.to_string().contains("1.json names no arm"), "{unnamed}");
+    }
+
+    #[test]
+    fn uploads_are_appended_and_read_back() {
+        let dir = temp("uploads");
+        assert_eq!(read_uploads(&dir).unwrap(), []);
+        let first = UploadRecord {
+            arm: ArmIdentity::of("arm-A"),
+            param_version: 1,
+            signer: "ed25519:0011223344556677".into(),
+            signed_at_unix_s: 1_790_000_000,
+            run_sha256: "ab".repeat(32),
+            validated_at_unix_s: 1_789_999_000,
+            valid_until_unix_s: None,
+        };
+        let second =
+            UploadRecord { param_version: 2, valid_until_unix_s: Some(1_821_535_000), ..first.clone() };
+        record_upload(&dir, &first).unwrap();
+        record_upload(&dir, &second).unwrap();
+        assert_eq!(read_uploads(&dir).unwrap(), [first, second]);
+        std::fs::write(dir.join(UPLOADS_FILE), r#"{"format":"other/1","uploads":[]}"#).unwrap();
+        let err = read_uploads(&dir).unwrap_err().to_string();
+        assert!(err.contains("uploads.json") && err.contains("kincal-uploads/1"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

@@ -791,6 +791,11 @@ fn artefact_cases(cases: &mut Vec<Case>) {
             &["landmarks[7].xyz_mm", "cannot share a point"],
         ),
         ("duplicate id", lm(|l| l[5]["id"] = l[2]["id"].clone()), &["landmarks[5].id", "duplicate"]),
+        (
+            "empty certificate",
+            edit_json(a, |v| v["certificate"] = json!(" ")),
+            &["artefact.json", "certificate"],
+        ),
         ("empty id", lm(|l| l[5]["id"] = json!(" ")), &["landmarks[5].id"]),
         ("xyz null", lm(|l| l[2]["xyz_mm"][1] = Value::Null), &["artefact.json", "xyz_mm"]),
         ("xyz text", lm(|l| l[2]["xyz_mm"][1] = json!("12")), &["artefact.json", "xyz_mm"]),
@@ -918,6 +923,29 @@ fn session_cases(cases: &mut Vec<Case>) {
             &["not trustworthy"],
         ),
         ("repeat 0", m0(|m| m["repeat"] = json!(0)), &["measurements[0].repeat", "from 1"]),
+        (
+            "arm id with a space",
+            session(CA, |v| v["arm"] = json!({"id": "lab arm"})),
+            &["C_A.json", "arm.id", "not an arm identity"],
+        ),
+        ("arm without id", session(CA, |v| v["arm"] = json!({"board": "b"})), &["C_A.json", "id"]),
+        (
+            "one session of another arm",
+            all(vec![
+                edit_json("data/cal/C_A.json", |v| v["arm"] = json!({"id": "lab-arm-A"})),
+                edit_json("data/cal/C_B.json", |v| v["arm"] = json!({"id": "lab-arm-B"})),
+            ]),
+            &[
+                "C_A.json was recorded on arm lab-arm-A",
+                "C_B.json on arm lab-arm-B",
+                "one calibration is of one arm",
+            ],
+        ),
+        (
+            "one session names its arm, the others none",
+            edit_json("data/cal/C_A.json", |v| v["arm"] = json!({"id": "lab-arm-A"})),
+            &["C_A.json was recorded on arm lab-arm-A", "names no arm"],
+        ),
         ("repeat -1", m0(|m| m["repeat"] = json!(-1)), &["C_A.json", "repeat"]),
         ("repeat 1.5", m0(|m| m["repeat"] = json!(1.5)), &["C_A.json", "repeat"]),
         (

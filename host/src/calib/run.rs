@@ -125,6 +125,9 @@ pub enum RunError {
         /// The model's joints.
         joints: usize,
     },
+    /// The sessions were measured on two arms, or some name their arm and others do not.
+    #[error(transparent)]
+    MixedArms(#[from] crate::trace::MixedArms),
     /// The data are not those the RUN was made from.
     #[error("{path}: {what}; the data changed since the calibration (calibrate again)")]
     DataChanged {
@@ -301,7 +304,7 @@ fn copied_placement(cal: &Observations, val: &Observations) -> Option<(String, S
 
 /// Every refusal of a run's data before anything is fitted, shared by `calibrate` (on the
 /// nominal model) and `diagnose` (on the RUN's calibrated model) so both refuse the same data with
-/// the same message: a held-out artefact folder without a distance, an artefact out of the arm's
+/// the same message: sessions of two arms, a held-out artefact folder without a distance, an artefact out of the arm's
 /// reach, a validation placement copied from the calibration data, a session in both folders,
 /// and whatever [`check_data`] refuses.
 pub fn check_run_data(
@@ -311,6 +314,7 @@ pub fn check_run_data(
     inputs: &RunInputs,
     options: &SolveOptions,
 ) -> Result<(), RunError> {
+    cal.one_arm(&[val])?;
     let touches = |d: &Observations| d.obs.iter().any(|o| o.landmark().is_some());
     if touches(val) && val.pair_count() == 0 {
         return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
@@ -526,6 +530,7 @@ pub fn run_on(
     outliers: bool,
 ) -> Result<Run, RunError> {
     let mut steps = StepTimes::start();
+    let arm = cal.one_arm(&[val])?;
     check_options(cal, val, inputs, options)?;
     let (cal, val) = inputs.exclude(cal, val)?;
     let (cal, val) = (&cal, &val);
@@ -548,6 +553,9 @@ pub fn run_on(
     steps.lap("input checks");
     let mut fit = calibrate(&nominal, cal, options)?;
     let on_bounds = mark_bounds(&mut fit);
+    // The calibrated model is of the arm its sessions were measured on, whatever the model it
+    // started from names.
+    fit.model.arm = arm.clone();
     steps.lap("fit");
     let mut verdict = Vec::new();
     let mut not_trustworthy = Vec::new();
@@ -609,6 +617,7 @@ pub fn run_on(
     let summary = Summary {
         format: RUN_FORMAT.to_string(),
         kincal_version: env!("CARGO_PKG_VERSION").to_string(),
+        provenance: provenance(arm, inputs, cal, val)?,
         kind: cal.kind().unwrap_or(crate::data::DataKind::Artefact),
         joints: nominal.joints.len(),
         inputs: inputs.clone(),
@@ -710,6 +719,34 @@ fn mark_bounds(fit: &mut Fit) -> Vec<String> {
         ));
     }
     sentences
+}
+
+/// The run's [`Provenance`]: `arm`, now as the validation date, the artefact's certificate
+/// number, and the SHA-256 of the model, the artefact and every session file read (`cal` and
+/// `val`'s groups; data made in memory have no file).
+fn provenance(
+    arm: Option<crate::trace::ArmIdentity>,
+    inputs: &RunInputs,
+    cal: &Observations,
+    val: &Observations,
+) -> Result<Provenance, RunError> {
+    let artefact_certificate = match &inputs.artefact {
+        Some(path) => Artefact::load(path)?.certificate,
+        None => None,
+    };
+    let sessions = cal.groups.iter().chain(&val.groups).map(|g| g.source.as_path());
+    let files: Vec<&Path> = std::iter::once(inputs.model.as_path())
+        .chain(inputs.artefact.as_deref())
+        .chain(sessions)
+        .filter(|p| !p.as_os_str().is_empty())
+        .collect();
+    let validated_at = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH);
+    Ok(Provenance {
+        arm,
+        validated_at_unix_s: validated_at.ok().map(|d| d.as_secs()),
+        artefact_certificate,
+        input_files: crate::trace::hash_inputs(&files)?,
+    })
 }
 
 /// What one objective can determine at the calibrated model: distances alone, and with the

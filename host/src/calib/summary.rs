@@ -19,6 +19,7 @@ use crate::calib::validate::{AngleStats, ErrorStats, GroupStats, Repeatability, 
 use crate::data::{DataKind, Joints, MAX_ARTEFACT_SPAN_MM};
 use crate::model::effects::Effect;
 use crate::model::file::MAX_REACH_MM;
+use crate::trace::{ArmIdentity, FileHash};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
@@ -357,6 +358,27 @@ pub struct FloorSummary {
     pub points: Option<PointFloor>,
 }
 
+/// What ties a RUN to its arm and its inputs: the arm the sessions were measured on, when the
+/// run validated the model, and the SHA-256 of every file it read. RUNs written before kincal
+/// recorded these read back without them.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct Provenance {
+    /// The arm every session names (`None`: none names one; a calibration of sessions of two
+    /// arms is refused).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arm: Option<ArmIdentity>,
+    /// When the run validated the calibrated model on the held-out data, Unix seconds (the
+    /// date a signed set carries: [`crate::trace::VALIDATED_AT_FIELD`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validated_at_unix_s: Option<u64>,
+    /// The artefact's certificate number, when its file states one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub artefact_certificate: Option<String>,
+    /// SHA-256 of every file read: the model, the artefact, each session.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub input_files: Vec<FileHash>,
+}
+
 /// Everything `summary.json` holds.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Summary {
@@ -364,6 +386,9 @@ pub struct Summary {
     pub format: String,
     /// Tool version.
     pub kincal_version: String,
+    /// The arm, the validation date and the inputs' hashes.
+    #[serde(flatten)]
+    pub provenance: Provenance,
     /// What the calibration data hold: `artefact`, `tracker` or `mixed`.
     pub kind: DataKind,
     /// Joints of the arm.

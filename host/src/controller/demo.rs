@@ -54,6 +54,8 @@ pub struct LoopOptions {
     pub hidden: Vec<(ParamId, f64)>,
     /// Where data and the run go.
     pub out: PathBuf,
+    /// Days the uploaded calibration stays valid, from its validation (`None`: no period).
+    pub valid_days: Option<u32>,
 }
 
 /// The demo arm's hidden effect: joint 2 sags under gravity by 0.3°/m of lever (compliance of
@@ -74,6 +76,7 @@ impl Default for LoopOptions {
             calibration_placements: 5,
             hidden: vec![DEMO_HIDDEN],
             out: PathBuf::from("runs/loop"),
+            valid_days: Some(365),
         }
     }
 }
@@ -208,6 +211,23 @@ pub fn demo_station_key(out: &std::path::Path) -> Result<StationKey, LoopError> 
     Ok(StationKey::create(&path)?)
 }
 
+/// Drop the upload records (`uploads.json`) of an earlier demo's runs in `out`: the sets they
+/// record were stored on an emulated controller that ended with that demo, so no controller holds
+/// them and the new demo may replace those runs (a RUN whose set a controller may hold is never
+/// replaced; [`crate::store::check_output_folder`]).
+pub fn forget_emulated_uploads(out: &Path) -> Result<(), LoopError> {
+    for run in ["run", "run-added"] {
+        let path = out.join(run).join(crate::trace::UPLOADS_FILE);
+        match std::fs::remove_file(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(LoopError::Files(format!("{}: {e}", path.display())))
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// The demo's true arm for `seed`: `nominal` off by the simulation's perturbation, with the
 /// demo's hidden effect ([`DEMO_HIDDEN`]).
 pub fn demo_truth(nominal: &ArmModel, seed: u64) -> ArmModel {
@@ -224,14 +244,25 @@ fn true_arm(nominal: &ArmModel, seed: u64, hidden: &[(ParamId, f64)], rng: &mut 
     truth
 }
 
-/// Sign `model` with `key` as the next parameter version for the controller on `link` and
-/// upload it.
-pub fn upload_model(link: &mut Link, model: &ArmModel, key: &StationKey) -> Result<(), LoopError> {
+/// Sign `model` with `key` as the next parameter version for the controller on `link`, with
+/// `trace` (its RUN's hash, validation date and validity) when given, and upload it; returns the
+/// signed set.
+pub fn upload_model(
+    link: &mut Link,
+    model: &ArmModel,
+    key: &StationKey,
+    trace: Option<&kincal_protocol::signed::SetTrace>,
+) -> Result<Vec<u8>, LoopError> {
     let info = link.info()?;
-    let set =
-        crate::controller::device::signed_parameter_set(model, info.param_version + 1, &info.arm_id, key)?;
+    let version = info.param_version + 1;
+    let set = match trace {
+        Some(trace) => {
+            crate::controller::device::traced_parameter_set(model, version, &info.arm_id, key, trace)?
+        }
+        None => crate::controller::device::signed_parameter_set(model, version, &info.arm_id, key)?,
+    };
     link.upload(&set)?;
-    Ok(())
+    Ok(set)
 }
 
 /// What the loop measured.
@@ -270,6 +301,8 @@ pub struct LoopReport {
     pub poses: usize,
     /// Time to upload one parameter set, s.
     pub upload_seconds: f64,
+    /// The RUN whose model was uploaded last (its hash signed with it, the upload recorded in it).
+    pub uploaded_run: PathBuf,
     /// Wall time of the whole loop, s.
     pub seconds: f64,
 }
@@ -378,7 +411,11 @@ pub fn run_loop(
     let files = |e: &dyn std::fmt::Display| LoopError::Files(e.to_string());
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let truth = true_arm(nominal, options.seed, &options.hidden, &mut rng);
-    let artefact = suta_artefact(&mut rng);
+    // A simulated artefact has no calibration lab's certificate; its reference says so.
+    let artefact = Artefact {
+        certificate: Some(format!("none: simulated by kincal demo, seed {}", options.seed)),
+        ..suta_artefact(&mut rng)
+    };
     let data = options.out.join("data");
     claim_data_folder(&data, options.seed)?;
     artefact.save(&data.join("artefact.json")).map_err(|e| files(&e))?;
@@ -448,21 +485,51 @@ pub fn run_loop(
         .map(|c| reference_tool_frame(&truth, &degrees_of(c)).0.fixed_view::<3, 1>(0, 3).into_owned())
         .collect();
     let key = demo_station_key(&options.out)?;
-    let mut pose_rms = |model: &ArmModel, label: &str, link: &mut Link| -> Result<(f64, f64), LoopError> {
+    // Each set is signed for the connected arm; the calibrated one carries its RUN's hash and
+    // date, and the RUN records the upload, as `kincal upload RUN/model.toml` does.
+    let mut pose_rms = |model: &ArmModel,
+                        label: &str,
+                        run: Option<&Path>,
+                        link: &mut Link|
+     -> Result<(f64, f64), LoopError> {
         progress(&format!(
             "uploading the {label} parameters and streaming the pose at {} validation touches",
             check_counts.len()
         ));
         let t = Instant::now();
-        upload_model(link, model, &key)?;
+        let origin = match run {
+            Some(run) => crate::trace::run_origin(&run.join("model.toml")).map_err(|e| files(&e))?,
+            None => None,
+        };
+        let trace = match &origin {
+            Some(origin) => Some(
+                crate::controller::traceability::upload_trace(
+                    Path::new(""),
+                    Some(origin),
+                    options.valid_days,
+                    crate::controller::traceability::unix_now(),
+                )
+                .map_err(|e| files(&e))?,
+            ),
+            None => None,
+        };
+        let set = upload_model(link, model, &key, trace.as_ref())?;
         let upload = t.elapsed().as_secs_f64();
+        if let Some(origin) = &origin {
+            let arm = crate::controller::record::connected_arm(link)?;
+            if let Some(record) = crate::controller::traceability::upload_record(&arm, &set) {
+                crate::trace::record_upload(&origin.run, &record).map_err(|e| files(&e))?;
+            }
+        }
         let points =
             check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;
         Ok((registered_rms(&points, &truth_points), upload))
     };
-    let (nominal_pose, _) = pose_rms(nominal, "nominal", link)?;
-    let (floor_pose, _) = pose_rms(&truth, "true arm's", link)?;
-    let (calibrated_pose, upload_seconds) = pose_rms(&result.calibration.model, "calibrated", link)?;
+    let (nominal_pose, _) = pose_rms(nominal, "nominal", None, link)?;
+    let (floor_pose, _) = pose_rms(&truth, "true arm's", None, link)?;
+    let final_run = options.out.join(if mission.last.is_some() { "run-added" } else { "run" });
+    let (calibrated_pose, upload_seconds) =
+        pose_rms(&result.calibration.model, "calibrated", Some(&final_run), link)?;
     let host_points: Vec<Vector3<f64>> = check_counts
         .iter()
         .map(|c| crate::model::kinematics::tool_pose(&result.calibration.model, &degrees_of(c)).position_mm)
@@ -484,6 +551,7 @@ pub fn run_loop(
         floor_pose_rms_mm: floor_pose,
         poses: check_counts.len(),
         upload_seconds,
+        uploaded_run: final_run,
         seconds: started.elapsed().as_secs_f64(),
     })
 }

@@ -57,6 +57,7 @@ pub fn touch_placement(
                 std_deg: None,
                 samples: None,
                 rejected: None,
+                at_unix_s: None,
             });
         }
     }
@@ -65,6 +66,7 @@ pub fn touch_placement(
         placement: place.name.clone(),
         purpose: "validation".into(),
         measurements,
+        arm: None,
     }
 }
 

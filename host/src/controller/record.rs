@@ -13,7 +13,7 @@
 //! resumed only on the same arm and firmware, so no file holds touches of two arms.
 
 use crate::controller::link::{Link, LinkError};
-use crate::data::{session_arm, Artefact, Measurement, Session, SESSION_FORMAT};
+use crate::data::{Artefact, Measurement, Session, SESSION_FORMAT};
 use crate::files::FileError;
 use crate::trace::ArmIdentity;
 use kincal_protocol::biss::counts_to_deg;
@@ -294,6 +294,7 @@ pub fn to_measurement(landmark: &str, repeat: u32, w: &WindowReport) -> (Measure
             std_deg: Some(std_deg),
             samples: Some(samples),
             rejected: Some(quality.rejected),
+            at_unix_s: None,
         },
         quality,
     )
@@ -306,20 +307,7 @@ pub fn connected_arm(link: &mut Link) -> Result<ArmIdentity, LinkError> {
     Ok(ArmIdentity { id: info.arm_id.to_string(), firmware: text(&info.firmware), board: text(&info.board) })
 }
 
-/// Write `session`, recorded on `arm`, atomically (the session's fields and `"arm"`).
-pub fn save_session(path: &Path, session: &Session, arm: &ArmIdentity) -> Result<(), FileError> {
-    #[derive(serde::Serialize)]
-    struct Named<'a> {
-        #[serde(flatten)]
-        session: &'a Session,
-        arm: &'a ArmIdentity,
-    }
-    let text = serde_json::to_string_pretty(&Named { session, arm }).unwrap_or_default();
-    crate::files::write_atomic(path, text.as_bytes())
-        .map_err(|source| FileError::Io { path: path.to_owned(), source })
-}
-
-/// Load the session to resume (recorded on `arm`), or start an empty one.
+/// Load the session to resume (recorded on `arm`), or start an empty one; either names `arm`.
 fn resume(plan: &Plan, artefact: &Artefact, arm: &ArmIdentity) -> Result<Session, RecordError> {
     let path = plan.session_path();
     if !path.exists() {
@@ -328,11 +316,12 @@ fn resume(plan: &Plan, artefact: &Artefact, arm: &ArmIdentity) -> Result<Session
             placement: plan.placement.clone(),
             purpose: plan.purpose.clone(),
             measurements: Vec::new(),
+            arm: Some(arm.clone()),
         });
     }
-    let session = Session::load(&path, artefact)?;
-    match session_arm(&path)? {
-        Some(found) if found != *arm => {
+    let mut session = Session::load(&path, artefact)?;
+    match &session.arm {
+        Some(found) if found != arm => {
             return Err(RecordError::OtherArm { path, found: found.to_string(), connected: arm.to_string() })
         }
         None if !session.measurements.is_empty() => {
@@ -349,6 +338,7 @@ fn resume(plan: &Plan, artefact: &Artefact, arm: &ArmIdentity) -> Result<Session
             found_purpose: session.purpose,
         });
     }
+    session.arm = Some(arm.clone());
     Ok(session)
 }
 
@@ -435,8 +425,9 @@ pub fn record(
                 summary.skipped += 1;
                 continue;
             };
-            session.measurements.push(measurement);
-            save_session(&plan.session_path(), &session, &arm)?;
+            let at_unix_s = Some(crate::controller::traceability::unix_now());
+            session.measurements.push(Measurement { at_unix_s, ..measurement });
+            session.save(&plan.session_path())?;
             summary.measured += 1;
         }
     }
@@ -637,6 +628,7 @@ mod tests {
             std_deg: Some(vec![std_deg; 6]),
             samples: Some(samples),
             rejected: Some(0),
+            at_unix_s: None,
         }
     }
 

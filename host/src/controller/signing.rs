@@ -8,6 +8,8 @@
 //! builds into the real controller (`KINCAL_TRUSTED_KEY`).
 
 use crate::trace::hex;
+/// `unix_s` as UTC date and time (in [`crate::trace`], which the reports share).
+pub use crate::trace::utc;
 use ed25519_dalek::{Signer, SigningKey, VerifyingKey};
 use kincal_protocol::params::MAX_PARAM_BLOB;
 use kincal_protocol::signed::{
@@ -294,23 +296,6 @@ pub fn provenance(set: &[u8]) -> Option<SetProvenance> {
         signature_valid,
         trace: s.trace,
     })
-}
-
-/// `unix_s` as UTC date and time (`2026-11-24 06:15:00 UTC`).
-pub fn utc(unix_s: u64) -> String {
-    let days = (unix_s / 86_400) as i64;
-    let secs = unix_s % 86_400;
-    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + (month <= 2) as i64;
-    format!("{year:04}-{month:02}-{day:02} {:02}:{:02}:{:02} UTC", secs / 3600, secs / 60 % 60, secs % 60)
 }
 
 #[cfg(test)]

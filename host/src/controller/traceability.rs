@@ -160,8 +160,23 @@ pub fn upload_trace(
     })
 }
 
-fn utc(unix_s: u64) -> String {
-    crate::controller::signing::utc(unix_s)
+use crate::trace::utc;
+
+/// What `RUN/uploads.json` records of the signed `set` stored on `arm`: `None` when the set is
+/// not signed, not decodable or carries no RUN hash (not a RUN's model).
+pub fn upload_record(arm: &ArmIdentity, set: &[u8]) -> Option<crate::trace::UploadRecord> {
+    let signed = crate::controller::signing::provenance(set)?;
+    let params = kincal_protocol::params::decode_blob(&signed.blob).ok()?;
+    let trace = signed.trace.filter(|t| t.run_sha256 != [0; 32])?;
+    Some(crate::trace::UploadRecord {
+        arm: arm.clone(),
+        param_version: params.version,
+        signer: crate::controller::signing::fingerprint(&signed.signer),
+        signed_at_unix_s: signed.signed_at_unix_s,
+        run_sha256: crate::trace::hex(&trace.run_sha256),
+        validated_at_unix_s: trace.validated_at_unix_s,
+        valid_until_unix_s: (trace.valid_until_unix_s != 0).then_some(trace.valid_until_unix_s),
+    })
 }
 
 /// Whole days from `from` to `to` (rounded down; 0 when `to` is not later), in words.

@@ -86,6 +86,10 @@ pub struct Artefact {
     pub format: String,
     /// Landmarks in measuring order.
     pub landmarks: Vec<Landmark>,
+    /// The number of the certificate that states these positions (the calibration lab's), as
+    /// a calibration's record names its reference; optional.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub certificate: Option<String>,
 }
 
 /// One averaged touch of a landmark.
@@ -106,6 +110,9 @@ pub struct Measurement {
     /// Samples rejected (bad CRC, error bit, no answer).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rejected: Option<u32>,
+    /// When the touch was taken (the host's clock), Unix seconds; `kincal record` writes it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub at_unix_s: Option<u64>,
 }
 
 /// All touches of one artefact placement.
@@ -119,6 +126,10 @@ pub struct Session {
     pub purpose: String,
     /// Touches in recording order.
     pub measurements: Vec<Measurement>,
+    /// The arm the touches were recorded on (`kincal record` writes it; older, simulated and
+    /// hand-written sessions name none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arm: Option<crate::trace::ArmIdentity>,
 }
 
 impl Artefact {
@@ -169,6 +180,9 @@ impl Artefact {
                     format!("duplicate landmark id \"{}\" (also landmarks[{first}])", l.id),
                 ));
             }
+        }
+        if let Some(text) = &artefact.certificate {
+            crate::trace::check_label(text).map_err(|message| field_error(path, "certificate", message))?;
         }
         artefact.check_geometry(path)?;
         Ok(artefact)
@@ -288,6 +302,9 @@ impl Session {
                 "purpose",
                 format!("expected \"calibration\" or \"validation\", found \"{}\"", session.purpose),
             ));
+        }
+        if let Some(arm) = &session.arm {
+            arm.check().map_err(|(key, message)| field_error(path, format!("arm.{key}"), message))?;
         }
         let joints = session_joints(path, &session)?;
         let mut taken: HashMap<(&str, u32), usize> = HashMap::new();
@@ -445,6 +462,7 @@ impl Observations {
         let mut data = Observations::new(0, artefact.landmarks.clone());
         for (s, source) in sessions {
             let group = data.push_group(s.placement.clone(), source, Kind::Artefact);
+            data.groups[group].arm = s.arm.clone();
             for (i, m) in s.measurements.iter().enumerate() {
                 let Some(landmark) = artefact.index_of(&m.landmark) else { continue };
                 let Some(q_deg) = Joints::new(&m.joints_deg) else { continue };
@@ -660,6 +678,7 @@ mod tests {
                 Landmark { id: "O".into(), xyz_mm: [0.0, 0.0, 40.0], yaw_deg: 0.0 },
                 Landmark { id: "M1".into(), xyz_mm: [30.0, 40.0, 40.0], yaw_deg: 10.0 },
             ],
+            certificate: None,
         }
     }
 
@@ -732,12 +751,14 @@ mod tests {
         ];
         for (i, (landmarks, expect)) in cases.into_iter().enumerate() {
             let path = dir.join(format!("a{i}.json"));
-            Artefact { format: ARTEFACT_FORMAT.into(), landmarks }.save(&path).unwrap();
+            Artefact { format: ARTEFACT_FORMAT.into(), landmarks, certificate: None }.save(&path).unwrap();
             let err = Artefact::load(&path).unwrap_err().to_string();
             assert!(err.contains(expect), "{err} should say {expect}");
         }
         let path = dir.join("ok.json");
-        Artefact { format: ARTEFACT_FORMAT.into(), landmarks: grid(100.0) }.save(&path).unwrap();
+        Artefact { format: ARTEFACT_FORMAT.into(), landmarks: grid(100.0), certificate: None }
+            .save(&path)
+            .unwrap();
         assert_eq!(Artefact::load(&path).unwrap().span_mm(), 100.0 * 2.0_f64.sqrt());
         std::fs::remove_dir_all(&dir).ok();
     }
@@ -761,8 +782,11 @@ mod tests {
         let arm = session_arm(&path).unwrap().unwrap();
         assert_eq!((arm.id.as_str(), arm.firmware.as_deref()), ("lab-arm-2", Some("kincal-fw 0.1.0")));
         assert_eq!(Session::load(&path, &artefact()).unwrap().measurements.len(), 1, "read as a session");
+        assert_eq!(Session::load(&path, &artefact()).unwrap().arm, Some(arm), "Session carries it");
         std::fs::write(&path, named.replace("lab-arm-2", "lab arm 2")).unwrap();
         let err = session_arm(&path).unwrap_err().to_string();
+        assert!(err.contains("s.json") && err.contains("arm.id"), "{err}");
+        let err = Session::load(&path, &artefact()).unwrap_err().to_string();
         assert!(err.contains("s.json") && err.contains("arm.id"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
     }
@@ -779,12 +803,14 @@ mod tests {
             std_deg: None,
             samples: Some(100),
             rejected: Some(0),
+            at_unix_s: None,
         };
         let session = |placement: &str, purpose: &str, measurements| Session {
             format: SESSION_FORMAT.into(),
             placement: placement.into(),
             purpose: purpose.into(),
             measurements,
+            arm: None,
         };
         let good = session("A", "calibration", vec![touch("O", 1), touch("M1", 1)]);
         let mut no_samples = good.clone();

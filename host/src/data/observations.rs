@@ -160,6 +160,8 @@ pub struct Group {
     pub source: PathBuf,
     /// Which reader made it.
     pub kind: Kind,
+    /// The arm it was measured on, when its file names one.
+    pub arm: Option<crate::trace::ArmIdentity>,
 }
 
 /// Observations that share unknowns: a placement × repeat, or a session.
@@ -303,7 +305,7 @@ impl Observations {
 
     /// Add a group; returns its index.
     pub fn push_group(&mut self, name: String, source: PathBuf, kind: Kind) -> usize {
-        self.groups.push(Group { name, source, kind });
+        self.groups.push(Group { name, source, kind, arm: None });
         self.groups.len() - 1
     }
 
@@ -489,6 +491,45 @@ impl Observations {
         self.groups.iter().position(|g| g.name == name)
     }
 
+    /// The one arm every group of `self` and `others` was measured on (see
+    /// [`crate::trace::one_arm`]): `None` when none names one; refused, naming files and arms,
+    /// for groups of two arms or of a named and an unnamed arm.
+    pub fn one_arm(
+        &self,
+        others: &[&Observations],
+    ) -> Result<Option<crate::trace::ArmIdentity>, crate::trace::MixedArms> {
+        let groups: Vec<_> = std::iter::once(self)
+            .chain(others.iter().copied())
+            .flat_map(|d| d.groups.iter().map(|g| (g.source.clone(), g.arm.clone())))
+            .collect();
+        crate::trace::one_arm(&groups)
+    }
+
+    /// Per joint, the readings the observations of `self` and `others` visited: the shortest arc
+    /// of the circle holding them all, `(from_deg in [0, 360), span_deg)`; empty without
+    /// observations.
+    pub fn joint_arcs(&self, others: &[&Observations]) -> Vec<(f64, f64)> {
+        let all: Vec<&Observation> =
+            std::iter::once(self).chain(others.iter().copied()).flat_map(|d| &d.obs).collect();
+        let joints = all.iter().map(|o| o.q_deg.len()).max().unwrap_or(0);
+        (0..joints)
+            .map(|j| {
+                let mut angles: Vec<f64> =
+                    all.iter().filter_map(|o| o.q_deg.get(j)).map(|a| a.rem_euclid(360.0)).collect();
+                angles.sort_by(f64::total_cmp);
+                // The arc is the circle less its largest gap between neighbouring readings.
+                let n = angles.len();
+                let (gap, after) = (0..n)
+                    .map(|k| {
+                        let next = if k + 1 < n { angles[k + 1] } else { angles[0] + 360.0 };
+                        (next - angles[k], (k + 1) % n)
+                    })
+                    .fold((f64::NEG_INFINITY, 0), |best, g| if g.0 > best.0 { g } else { best });
+                (angles[after], 360.0 - gap)
+            })
+            .collect()
+    }
+
     /// Observations and blocks of `other` after these (the same arm and joint count; landmarks
     /// from whichever has them).
     pub fn merge(mut self, other: Observations) -> Observations {
@@ -511,6 +552,22 @@ mod tests {
 
     fn touch(group: usize, landmark: usize, repeat: u32) -> Observation {
         Observation::touch(group, landmark, repeat, Joints::new(&[0.0; 6]).unwrap(), 1)
+    }
+
+    #[test]
+    fn joint_arcs_are_the_shortest_arcs_holding_every_reading() {
+        let mut data = Observations::new(2, Vec::new());
+        data.push_group("A".into(), "A.json".into(), Kind::Artefact);
+        for q in [[350.0, 10.0], [20.0, 100.0], [5.0, 200.0]] {
+            data.obs.push(Observation { q_deg: Joints::new(&q).unwrap(), ..touch(0, 0, 1) });
+        }
+        let mut other = Observations::new(2, Vec::new());
+        other.obs.push(Observation { q_deg: Joints::new(&[-15.0, 150.0]).unwrap(), ..touch(0, 0, 1) });
+        let arcs = data.joint_arcs(&[&other]);
+        // Joint 1 wraps through 0°: from 345° (−15°) over 35°; joint 2 from 10° to 200°.
+        assert!((arcs[0].0 - 345.0).abs() < 1e-9 && (arcs[0].1 - 35.0).abs() < 1e-9, "{arcs:?}");
+        assert!((arcs[1].0 - 10.0).abs() < 1e-9 && (arcs[1].1 - 190.0).abs() < 1e-9, "{arcs:?}");
+        assert_eq!(Observations::default().joint_arcs(&[]), []);
     }
 
     #[test]

@@ -50,6 +50,7 @@ pub fn load_files(dir: &Path, files: &[PathBuf]) -> Result<Observations, FileErr
         }
         data.joints = joints;
         let group = data.push_group(session.name, session.path, Kind::PointDistances);
+        data.groups[group].arm = session.arm;
         data.obs.extend(session.rows.into_iter().map(|o| Observation {
             group,
             target: Target::Unframed { xyz_mm: o.point_mm().unwrap_or_default() },

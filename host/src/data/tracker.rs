@@ -19,11 +19,15 @@
 //! probe's orientation in the instrument frame, scalar first), `sigma_mm` or `u95_mm` (the
 //! instrument's stated uncertainty; σ = U95/2), `time_s`, `temp_C`, `pose` (rows with the same
 //! pose id are repeats of one arm pose). Any other column is named in a warning and ignored.
+//! A comment line `# arm: ID` before the header names the arm the session was measured on (its
+//! controller's identity, as `kincal record` writes it into artefact sessions): a calibration
+//! refuses sessions of two arms.
 //! A folder is a tracker folder when it holds `*.csv` files whose first line is the tag.
 
 use crate::data::{Joints, Kind, Observation, Observations, Target};
 use crate::files::{row_error, FileError};
 use crate::model::MAX_JOINTS;
+use crate::trace::ArmIdentity;
 use nalgebra::{UnitQuaternion, Vector3};
 use std::path::{Path, PathBuf};
 
@@ -185,6 +189,29 @@ pub struct SessionFile {
     pub path: PathBuf,
     /// Rows in file order.
     pub rows: Vec<Observation>,
+    /// The arm a `# arm: ID` line names.
+    pub arm: Option<ArmIdentity>,
+}
+
+/// The arm a `# arm: ID` comment line before the header names, checked (the line and the
+/// column `arm` named when it is not an identity).
+fn arm_line(path: &Path, text: &str) -> Result<Option<ArmIdentity>, FileError> {
+    let comments = text
+        .lines()
+        .enumerate()
+        .skip(1)
+        .take_while(|(_, l)| l.trim().is_empty() || l.trim_start().starts_with('#'));
+    for (k, line) in comments {
+        let body = line.trim().trim_start_matches('#').trim();
+        let Some((key, value)) = body.split_once(':') else { continue };
+        if !key.trim().eq_ignore_ascii_case("arm") {
+            continue;
+        }
+        let arm = ArmIdentity::of(value.trim());
+        arm.check().map_err(|(_, message)| crate::files::row_error(path, k + 1, "arm", message))?;
+        return Ok(Some(arm));
+    }
+    Ok(None)
 }
 
 /// Read one session file.
@@ -358,7 +385,7 @@ pub fn read_tagged_session(
         }
     }
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    Ok(SessionFile { name, path: path.to_owned(), rows: points })
+    Ok(SessionFile { name, path: path.to_owned(), rows: points, arm: arm_line(path, &text)? })
 }
 
 /// Read every tracker session of `dir` (each `*.csv` file; files without the tag are refused):
@@ -396,6 +423,7 @@ pub fn load_files(dir: &Path, files: &[PathBuf]) -> Result<Observations, FileErr
             first = Some((b, f.clone()));
         }
         let group = data.push_group(session.name, session.path, Kind::Tracker);
+        data.groups[group].arm = session.arm;
         data.obs.extend(session.rows.into_iter().map(|o| Observation { group, ..o }));
     }
     data.joints = first.map_or(0, |f| f.0);
@@ -436,6 +464,17 @@ mod tests {
         std::fs::remove_dir_all(dir).ok();
     }
 
+    /// A `# arm: ID` line before the header names the session's arm; without one it names none.
+    #[test]
+    fn a_session_names_its_arm_in_a_comment_line() {
+        let named = GOOD.replace("# a comment", "# a comment\n#  Arm :  lab-arm-2 ");
+        let dir = folder("arm", &[("a.csv", &named), ("b.csv", GOOD)]);
+        let data = load_dir(&dir).unwrap();
+        let arms: Vec<_> = data.groups.iter().map(|g| g.arm.as_ref().map(|a| a.id.as_str())).collect();
+        assert_eq!(arms, [Some("lab-arm-2"), None]);
+        std::fs::remove_dir_all(dir).ok();
+    }
+
     #[test]
     fn bad_rows_name_the_file_line_and_column() {
         let cases = [
@@ -445,6 +484,7 @@ mod tests {
             (GOOD.replace("3,60,-10,0,0,300,0.02,d", "3,60,-10,0,0"), ":7:", "cells"),
             (GOOD.replace("100.01", "inf"), ":5: column `x_mm`", "finite"),
             (GOOD.replace("u95_mm,note", "sigma_mm,u95_mm"), ":3: column `u95_mm`", "not both"),
+            (GOOD.replace("# a comment", "# arm: lab arm 2"), ":2: column `arm`", "not an arm identity"),
         ];
         for (k, (text, place, what)) in cases.iter().enumerate() {
             let dir = folder(&format!("bad{k}"), &[("s.csv", text)]);

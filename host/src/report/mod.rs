@@ -2,6 +2,7 @@
 //! never recompute them.
 
 pub mod auto;
+pub mod certificate;
 pub mod compare;
 pub mod diagnosis;
 pub mod dynamic;

@@ -167,6 +167,7 @@ impl ArtefactRunV1 {
         Summary {
             format: RUN_FORMAT.into(),
             kincal_version: self.kincal_version,
+            provenance: Provenance::default(),
             kind: DataKind::Artefact,
             joints,
             inputs: RunInputs {
@@ -233,6 +234,7 @@ impl TrackerRunV1 {
         Summary {
             format: RUN_FORMAT.into(),
             kincal_version: self.kincal_version,
+            provenance: Provenance::default(),
             kind: DataKind::Tracker,
             joints: self.joints,
             inputs: RunInputs {

@@ -20,6 +20,7 @@ use crate::files::{write_atomic, FileError};
 use crate::haptic::pipeline::HapticSummary;
 use crate::report;
 
+pub mod certificate;
 pub mod legacy;
 pub mod run_folder;
 
@@ -38,6 +39,8 @@ pub const DYNAMIC_FORMAT: &str = "kincal-dynamic/1";
 pub const HAPTIC_FORMAT: &str = "kincal-haptic/1";
 /// Format tag of the auto loop's `auto.json` (every kind of held-out data).
 pub const AUTO_FORMAT: &str = "kincal-auto/2";
+/// The calibration certificate `kincal certificate RUN` writes into the RUN folder.
+pub const CERTIFICATE_FILE: &str = "certificate.html";
 /// Format tag of a plan (`kincal plan --out FILE`).
 pub const PLAN_FORMAT: &str = "kincal-plan/1";
 /// Header of a plan's pose list (`kincal plan --csv FILE`), before a column per joint
@@ -150,6 +153,8 @@ impl FolderKind {
                 "report.html",
                 "diagnosis.json",
                 "diagnosis.html",
+                CERTIFICATE_FILE,
+                crate::trace::UPLOADS_FILE,
             ],
             FolderKind::Study => &["study.json", "report.html"],
             FolderKind::Haptic => &["summary.json", "report.html"],
@@ -191,6 +196,9 @@ pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Re
     if !meta.is_dir() {
         return Err(refused(dir, "exists and is not a folder"));
     }
+    if kind == FolderKind::Run {
+        refuse_uploaded_run(dir)?;
+    }
     let mut foreign = Vec::new();
     let mut any = false;
     let mut marked = false;
@@ -231,6 +239,29 @@ pub fn check_output_folder(dir: &Path, kind: FolderKind, inputs: &[&Path]) -> Re
         return Err(refused(dir, "holds data kincal did not write (no .kincal-output marker)"));
     }
     Ok(any)
+}
+
+/// A RUN whose model was uploaded is never replaced: a controller holds a set that names its
+/// hash, and its certificate and upload record would be lost.
+fn refuse_uploaded_run(dir: &Path) -> Result<(), OutputError> {
+    if !dir.join(crate::trace::UPLOADS_FILE).exists() {
+        return Ok(());
+    }
+    let arms = match crate::trace::read_uploads(dir) {
+        Ok(uploads) => {
+            let mut arms: Vec<String> = uploads.into_iter().map(|u| u.arm.id).collect();
+            arms.dedup();
+            format!("arm {}", arms.join(", arm "))
+        }
+        Err(_) => "a controller".into(),
+    };
+    Err(refused(
+        dir,
+        format!(
+            "its model was uploaded to {arms} ({}): the stored set names this RUN's hash, so the RUN is kept",
+            crate::trace::UPLOADS_FILE
+        ),
+    ))
 }
 
 /// Entries of a sub-folder kincal writes (`cal/` of simulated data) that are not among `allowed`.

@@ -164,6 +164,10 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
         ..a.inputs.inputs()
     };
     let options = a.solve.options()?;
+    // Refused before the work, not after: a folder holding the user's files or an uploaded RUN.
+    let mut input_paths = vec![&*inputs.model, &*inputs.calibration, &*inputs.validation];
+    input_paths.extend(inputs.artefact.as_deref());
+    kincal::store::check_output_folder(&a.out, kincal::store::FolderKind::Run, &input_paths)?;
     let started = std::time::Instant::now();
     let spinner = crate::arm::spinner("calibrating");
     let result = api::calibrate(&inputs, &options, a.study_subsets, !a.no_outliers);
@@ -221,6 +225,9 @@ fn print_run(s: &Summary, out: &Path, seconds: f64) {
     println!("{}", headline(s, seconds));
     for v in kincal::report::run::verdict_lines(s, out) {
         println!("  {v}");
+    }
+    if let Some(arm) = &s.provenance.arm {
+        println!("  arm {arm}: named by every session; {}/model.toml names it", out.display());
     }
     let c = &s.calibration;
     if let Some(d) = &c.distances {

@@ -280,10 +280,11 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
     if a.motion {
         let truth = kincal::controller::demo::demo_truth(&nominal, a.seed);
         let key = kincal::controller::demo::demo_station_key(&a.out())?;
-        kincal::controller::demo::upload_model(&mut link, &truth, &key)?;
+        kincal::controller::demo::upload_model(&mut link, &truth, &key, None)?;
         println!("uploaded the true arm's parameters (as after a perfect calibration; seed {})", a.seed);
         return demo_motion(a, &mut link, &truth);
     }
+    kincal::controller::demo::forget_emulated_uploads(&a.out())?;
     let options = kincal::controller::demo::LoopOptions {
         seed: a.seed,
         window_ticks: a.window_ticks,
@@ -317,6 +318,10 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
         report.floor_pose_rms_mm
     );
     println!("parameter upload took {:.2} s; run: {}", report.upload_seconds, a.out().join("run").display());
+    let certificate =
+        kincal::api::certificate(&report.uploaded_run, None, kincal::controller::traceability::unix_now())?;
+    let path = kincal::store::certificate::write_certificate(&certificate, None)?;
+    println!("certificate of the uploaded RUN: {} ({})", path.display(), certificate.verdict().headline);
     let truth = ArmModel::load(&a.out().join("data").join("truth.toml"))?;
     demo_motion(a, &mut link, &truth)
 }
@@ -656,6 +661,25 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     }
     if trace.valid_until_unix_s != 0 {
         println!("valid until {}", utc(trace.valid_until_unix_s));
+    }
+    if let Some(o) = &origin {
+        let arm = kincal::controller::record::connected_arm(&mut link)
+            .unwrap_or_else(|_| kincal::trace::ArmIdentity::of(&info.arm_id));
+        let recorded = kincal::controller::traceability::upload_record(&arm, &blob)
+            .map(|record| kincal::trace::record_upload(&o.run, &record));
+        match recorded {
+            Some(Ok(())) => println!(
+                "recorded in {} (`kincal certificate {}` shows it)",
+                o.run.join(kincal::trace::UPLOADS_FILE).display(),
+                o.run.display()
+            ),
+            Some(Err(e)) => {
+                eprintln!("warning: the set is stored, but recording the upload in the RUN failed: {e}")
+            }
+            None => eprintln!(
+                "warning: the set is stored, but its record could not be read back from the signed set"
+            ),
+        }
     }
     // The commit is confirmed: what follows only reports, and its failure changes nothing stored.
     match link.held_params() {

@@ -7,6 +7,7 @@ mod bench_limit;
 mod bench_peers;
 mod bench_tracker;
 mod calibrate;
+mod certificate;
 #[cfg(test)]
 mod cli_reference;
 mod controller;
@@ -39,6 +40,10 @@ enum Command {
     /// Calibrate the arm model from artefact touches, tracker sessions or both, and validate it on
     /// held-out sessions.
     Calibrate(Box<calibrate::CalibrateArgs>),
+    /// The calibration certificate of RUN (RUN/certificate.html): the arm, the RUN hash, the
+    /// reference and data, the result against the floor, the validity, what it does not cover and
+    /// how to re-check it. Exit 2 when no calibration can be certified.
+    Certificate(certificate::CertificateArgs),
     /// Dataset-size study: calibrate on random subsets of placements or sessions, validate each.
     Study(arm::StudyArgs),
     /// Where the calibrated model of RUN fails and which physical effect is missing.
@@ -125,6 +130,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Simulate(a) => arm::cmd_simulate(&a),
         Command::Calibrate(a) => calibrate::cmd_calibrate(&a),
+        Command::Certificate(a) => certificate::cmd_certificate(&a),
         Command::Study(a) => arm::cmd_study(&a),
         Command::Diagnose(a) => diagnose::cmd_diagnose(&a),
         Command::Compare(a) => diagnose::cmd_compare(&a),

@@ -59,6 +59,7 @@ pub fn measure(
                         std_deg: None,
                         samples: None,
                         rejected: None,
+                        at_unix_s: None,
                     });
                 }
             }
@@ -67,6 +68,7 @@ pub fn measure(
                 placement: format!("{name_prefix}{}", k + 1),
                 purpose: "calibration".into(),
                 measurements,
+                arm: None,
             })
         })
         .collect()

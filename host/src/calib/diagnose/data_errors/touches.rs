@@ -336,6 +336,7 @@ mod tests {
                     Landmark { id: format!("L{i}"), xyz_mm: [q.x, q.y, q.z], yaw_deg: 0.0 }
                 })
                 .collect(),
+            certificate: None,
         };
         let touches: Vec<(usize, usize, u32, &[f64])> = (0..4).map(|l| (0, l, 1, &enc[l][..])).collect();
         let data = Observations::from_touches(&["A"], artefact.landmarks.clone(), &touches);

@@ -12,8 +12,8 @@
 //! the nominal arm ([`Frame::fit`]); identifiability sees the frames (they are projected out of
 //! the arm's columns, [`Problem::group_factors`]); the tool point is freed (and held at its
 //! nominal value when no session turns it: then it and each frame's shift are one thing); the
-//! problem is solved in up to [`PASSES`] passes, each re-centring the frames' rotations at their
-//! solution. Restarts, when asked for, start the arm at random points inside its bounds, with
+//! problem is solved, and solved again with the frames' rotations re-centred at the solution
+//! (up to [`PASSES`] passes) only when a solve stops without converging. Restarts, when asked for, start the arm at random points inside its bounds, with
 //! each frame at its closed form for that arm.
 
 use crate::calib::identify::{self, Identifiability};
@@ -29,7 +29,7 @@ use crate::calib::terms::{self, Term, TermChoice};
 use crate::calib::validate::{AngleStats, ErrorStats};
 use crate::data::{Kind, Observations};
 use crate::model::{ArmModel, ParamId};
-use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason};
+use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason, Termination};
 use nalgebra::{Matrix3, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -47,8 +47,14 @@ const MAX_IDENTIFIABILITY_PASSES: usize = 3;
 /// Change of a residual, mm, over a parameter's whole range below which it counts as none.
 const NEGLIGIBLE_MM: f64 = 1e-9;
 /// Solver settings of each pass when frames are fitted (the passes re-centre between solves).
-const FRAMED_SOLVER: SolverOptions =
-    SolverOptions { loss: Loss::Linear, max_iterations: 100, ftol: 1e-10, xtol: 1e-10, gtol: 1e-10 };
+const FRAMED_SOLVER: SolverOptions = SolverOptions {
+    loss: Loss::Linear,
+    max_iterations: 100,
+    ftol: 1e-10,
+    xtol: 1e-10,
+    gtol: 1e-10,
+    termination: Termination::Ceres,
+};
 
 /// Why a calibration could not run.
 #[derive(Debug, thiserror::Error)]
@@ -680,8 +686,9 @@ struct Solved {
     outcome: StartOutcome,
 }
 
-/// Solve for `estimated` from `start` (frames at `frames`, probe at `probe`) in passes, each
-/// re-centring the frames' rotations (and the probe's) at its solution.
+/// Solve for `estimated` from `start` (frames at `frames`, probe at `probe`); again from its
+/// solution with the frames' rotations (and the probe's) re-centred, while a solve stops without
+/// converging (up to [`PASSES`] passes).
 fn solve_framed(
     pieces: &Pieces,
     estimated: &[ParamId],
@@ -727,9 +734,15 @@ fn solve_framed(
         s.probe = s.probe.map(|_| state.probe);
         s.drifts = state.drifts;
         s.model = state.model;
+        // The rotations' Jacobians are exact at any ω (J_l): a solve that stopped on a tolerance
+        // is at the minimum; another pass re-centres one that hit its limit or lost progress.
+        let settled = matches!(
+            solution.stop,
+            StopReason::CostConverged | StopReason::GradientConverged | StopReason::StepConverged
+        );
         let converged = (last_cost - solution.cost).abs() <= 1e-9 * solution.cost.max(1e-12);
         last_cost = solution.cost;
-        if converged {
+        if settled || converged {
             break;
         }
     }

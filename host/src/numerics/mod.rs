@@ -2,5 +2,7 @@
 //! solver, rigid-body geometry and small statistics.
 
 pub mod geometry;
+pub mod normal;
+pub mod qr;
 pub mod solver;
 pub mod stats;

@@ -3,19 +3,18 @@
 //! [`diagnose`], [`auto`], [`plan`], [`compare`]. Each takes any kind of data (artefact
 //! placements, tracker sessions, both) or refuses naming the command and the kind.
 
-use crate::calib::auto::{auto_loop, AutoLoop};
-use crate::calib::diagnose::{diagnose as diagnose_distances, RivalVerdict};
+use crate::calib::diagnose::auto::{auto_loop, AutoLoop};
+use crate::calib::diagnose::compare::{compare as compare_runs, Comparison, Side};
+use crate::calib::diagnose::{diagnose as diagnose_run, DiagnoseError, Diagnosis, Measure, RivalVerdict};
 use crate::calib::fit::CalibError;
-use crate::calib::floor::noise_floor;
+use crate::calib::floor::{noise_floor, point_floor};
 use crate::calib::plan::{plan as plan_placements, Plan, PlanError, PlanOptions};
-use crate::calib::tracker_diagnose::{
-    auto_tracker, check_run_data, compare_tracker, diagnose_tracker, fit_setup, TrackerAuto,
-    TrackerComparison, TrackerDiagnoseError, TrackerDiagnosis, TrackerSetup,
-};
+use crate::calib::run::check_same_data;
+use crate::calib::setup::Setup;
 use crate::data::{Artefact, DataKind, Observations};
 use crate::files::FileError;
-use crate::report::compare::Comparison as DistanceComparison;
-use crate::store::{run_folder::compared_run, OutputError};
+use crate::report::compare::ComparedRun;
+use crate::store::OutputError;
 use std::path::Path;
 
 pub use crate::calib::run::{run_on, Run, RunError};
@@ -35,9 +34,9 @@ pub enum ApiError {
     /// An output could not be written.
     #[error(transparent)]
     Output(#[from] OutputError),
-    /// The diagnosis of tracker sessions could not run.
+    /// The diagnosis could not run.
     #[error(transparent)]
-    Diagnose(#[from] TrackerDiagnoseError),
+    Diagnose(#[from] DiagnoseError),
     /// A calibration inside the loop failed.
     #[error(transparent)]
     Calibration(#[from] CalibError),
@@ -54,11 +53,13 @@ pub enum ApiError {
         /// What it needs.
         why: String,
     },
-    /// The plan needs the touch noise, and the RUN's data hold no repeated touches.
-    #[error("{0}: no repeated touches, so the touch noise is unknown; give --touch-std-mm")]
+    /// The plan needs the measurement noise, and the RUN's data give no floor.
+    #[error(
+        "{0}: no repeated touches or poses and no stated σ, so the noise is unknown; give --touch-std-mm"
+    )]
     UnknownTouchNoise(std::path::PathBuf),
-    /// The two runs of a comparison hold different kinds of held-out data.
-    #[error("{0} and {1}: compare needs two runs validated on the same kind of data (artefact or tracker)")]
+    /// The two runs of a comparison hold different held-out data.
+    #[error("{0} and {1}: compare needs two runs validated on the same held-out data")]
     KindsDiffer(String, String),
 }
 
@@ -103,7 +104,7 @@ pub fn validate(folder: &RunFolder, held_out: &Path) -> Result<Run, ApiError> {
             .zip(&s.calibration.estimates)
             .all(|(a, b)| (a.value - b.value).abs() <= 1e-9 * a.value.abs().max(1.0));
     if !same {
-        return Err(TrackerDiagnoseError::DataChanged {
+        return Err(RunError::DataChanged {
             path: s.inputs.calibration.clone(),
             what: "calibrated again, the model differs from the RUN's".into(),
         }
@@ -112,67 +113,40 @@ pub fn validate(folder: &RunFolder, held_out: &Path) -> Result<Run, ApiError> {
     Ok(run)
 }
 
-/// The diagnosis of a RUN, of its kind of data.
-pub enum Diagnosis {
-    /// Held-out distances of artefact placements.
-    Distances(crate::calib::diagnose::Diagnosis),
-    /// Held-out tracker sessions.
-    Sessions(TrackerDiagnosis),
-}
-
-/// The data of a tracker RUN as read (exclusions not applied: the setup carries them), and its
-/// setup, checked to be the data the RUN was made from.
-fn tracker_data(folder: &RunFolder) -> Result<(TrackerSetup, Observations, Observations), ApiError> {
-    let (cal, val) = folder.summary.inputs.read_folders()?;
-    let setup = TrackerSetup::of(&folder.summary.inputs, folder.nominal()?);
-    let fitted = fit_setup(&setup, &cal, &val, None)?;
-    check_run_data(&folder.summary, &cal, &val, fitted.fit.rms_mm)?;
-    Ok((setup, cal, val))
-}
-
-/// Refuse mixed data until the diagnosis scores both kinds of held-out data together.
-fn kind_of(folder: &RunFolder, command: &'static str) -> Result<DataKind, ApiError> {
-    match folder.summary.kind {
-        DataKind::Mixed => Err(ApiError::NotForKind {
-            command,
+/// A RUN's setup and data (its exclusions applied), checked to be the data it was made from: the
+/// same groups and counts, and for held-out sessions the same calibration RMS when the setup is
+/// calibrated again (warm from the RUN's model).
+pub fn run_data(folder: &RunFolder) -> Result<(Setup, Observations, Observations), ApiError> {
+    if folder.summary.kind == DataKind::Mixed {
+        return Err(ApiError::NotForKind {
+            command: "diagnose",
             kind: "mixed",
-            why: "the diagnosis scores artefact distances or tracker sessions, one kind at a time".into(),
-        }),
-        kind => Ok(kind),
+            why: "the held-out test compares units of one kind: validate on artefact placements or on instrument sessions"
+                .into(),
+        });
     }
+    let s = &folder.summary;
+    let (cal, val) = folder.data()?;
+    let groups: Vec<String> = cal.groups.iter().map(|g| g.name.clone()).collect();
+    let setup = s.inputs.setup(&s.options.solve_options(&s.inputs, &groups));
+    let refitted = match Measure::of(&val) {
+        Some(Measure::Points) => Some(setup.calibrate(&folder.model, &cal)?.rms_mm),
+        _ => None,
+    };
+    check_same_data(s, &cal, &val, refitted)?;
+    Ok((setup, cal, val))
 }
 
 /// Where the calibrated model of `folder` fails and what is missing (an effect or a data error).
 pub fn diagnose(folder: &RunFolder) -> Result<Diagnosis, ApiError> {
-    if kind_of(folder, "diagnose")? == DataKind::Tracker {
-        let (setup, cal, val) = tracker_data(folder)?;
-        return Ok(Diagnosis::Sessions(diagnose_tracker(&setup, &cal, &val)?));
-    }
-    let (cal, val) = folder.data()?;
-    let groups: Vec<String> = cal.groups.iter().map(|g| g.name.clone()).collect();
-    let options = folder.summary.options.solve_options(&folder.summary.inputs, &groups);
-    Ok(Diagnosis::Distances(diagnose_distances(&folder.model, &cal, &val, &options)))
+    let (setup, cal, val) = run_data(folder)?;
+    Ok(diagnose_run(&setup, &folder.model, &cal, &val)?)
 }
 
-/// The loop of a RUN, of its kind of data.
-pub enum Auto {
-    /// On held-out distances.
-    Distances(Box<AutoLoop>),
-    /// On held-out tracker sessions, with the setup of its last step.
-    Sessions(Box<(TrackerAuto, TrackerSetup)>),
-}
-
-/// Add what the diagnosis names, refit and repeat, at most `max_steps` times, until the floor.
-pub fn auto(folder: &RunFolder, max_steps: usize) -> Result<Auto, ApiError> {
-    if kind_of(folder, "diagnose --auto")? == DataKind::Tracker {
-        let (setup, cal, val) = tracker_data(folder)?;
-        let (result, last) = auto_tracker(&setup, &cal, &val, max_steps)?;
-        return Ok(Auto::Sessions(Box::new((result, last))));
-    }
-    let (cal, val) = folder.data()?;
-    let groups: Vec<String> = cal.groups.iter().map(|g| g.name.clone()).collect();
-    let options = folder.summary.options.solve_options(&folder.summary.inputs, &groups);
-    Ok(Auto::Distances(Box::new(auto_loop(&folder.model, &cal, &val, &options, max_steps)?)))
+/// Apply what the diagnosis names, refit and repeat, at most `max_steps` times, until the floor.
+pub fn auto(folder: &RunFolder, max_steps: usize) -> Result<AutoLoop, ApiError> {
+    let (setup, cal, val) = run_data(folder)?;
+    Ok(auto_loop(&setup, &folder.model, &cal, &val, max_steps)?)
 }
 
 /// What `plan` was asked, beyond the RUN.
@@ -196,77 +170,93 @@ pub struct Planned {
     pub from_diagnosis: Option<Option<(String, String)>>,
 }
 
-/// What to measure next: placements that tell rivals apart and pin down weak parameters.
+/// What to measure next: artefact placements (for an artefact run) or sessions of arm poses
+/// (for an instrument run) that tell rivals apart and pin down weak parameters.
 pub fn plan(folder: &RunFolder, request: &PlanRequest) -> Result<Planned, ApiError> {
-    let kind = folder.summary.kind;
-    let Some(artefact) = folder.summary.inputs.artefact.as_deref().filter(|_| kind == DataKind::Artefact)
-    else {
-        return Err(ApiError::NotForKind {
-            command: "plan",
-            kind: kind.word(),
-            why: "it suggests artefact placements, and the RUN was calibrated on tracker sessions".into(),
-        });
+    let (setup, cal, val) = run_data(folder)?;
+    let artefact = match (Measure::of(&val), folder.summary.inputs.artefact.as_deref()) {
+        (Some(Measure::Distances), Some(path)) => Some(Artefact::load(path)?),
+        _ => None,
     };
-    let artefact = Artefact::load(artefact)?;
-    let (cal, val) = folder.data()?;
-    let from_diagnosis = request.rivals.is_none().then(|| {
-        let groups: Vec<String> = cal.groups.iter().map(|g| g.name.clone()).collect();
-        let options = folder.summary.options.solve_options(&folder.summary.inputs, &groups);
-        let d = diagnose_distances(&folder.model, &cal, &val, &options);
-        d.rivals.iter().find(|r| r.verdict == RivalVerdict::CannotTell).map(|r| (r.a.clone(), r.b.clone()))
-    });
+    let from_diagnosis = match request.rivals {
+        Some(_) => None,
+        None => {
+            let d = diagnose_run(&setup, &folder.model, &cal, &val)?;
+            Some(
+                d.rivals
+                    .iter()
+                    .find(|r| r.verdict == RivalVerdict::CannotTell)
+                    .map(|r| (r.a.clone(), r.b.clone())),
+            )
+        }
+    };
     let rivals = request
         .rivals
         .or(from_diagnosis.as_ref().and_then(|p| p.as_ref()).map(|(a, b)| (a.as_str(), b.as_str())));
-    let touch_std_mm = match request.touch_std_mm {
-        Some(s) => s,
-        None => match noise_floor(&folder.model, &cal, &val, folder.model.free.len()) {
-            Some(f) => f.touch_std_mm,
-            None => return Err(ApiError::UnknownTouchNoise(folder.dir.clone())),
-        },
+    // The noise per axis: a touch's scatter from the repeats, or a held-out point's floor (its
+    // 3-D RMS) over √3.
+    let floor = match artefact {
+        Some(_) => noise_floor(&folder.model, &cal, &val, folder.model.free.len()).map(|f| f.touch_std_mm),
+        None => point_floor(&val, setup.stated_sigma_mm).rms_mm.map(|f| f / 3f64.sqrt()),
+    };
+    let Some(touch_std_mm) = request.touch_std_mm.or(floor) else {
+        return Err(ApiError::UnknownTouchNoise(folder.dir.clone()));
     };
     let options = PlanOptions { count: request.count, seed: request.seed, touch_std_mm };
-    let plan = plan_placements(&folder.model, &artefact, &cal, &val, rivals, &options)?;
+    let plan = plan_placements(&folder.model, artefact.as_ref(), &cal, &val, rivals, &options)?;
     Ok(Planned { plan, from_diagnosis })
 }
 
-/// Two runs side by side, of their kind of held-out data.
-pub enum Comparison {
-    /// Held-out distances.
-    Distances(Box<DistanceComparison>),
-    /// Held-out tracker sessions.
-    Sessions(TrackerComparison),
+/// Two runs compared on the held-out data both validated on, and the runs as read.
+pub struct Compared {
+    /// The held-out test of the second run against the first.
+    pub comparison: Comparison,
+    /// Each run's summary and stored residuals, for the side-by-side page.
+    pub runs: [ComparedRun; 2],
 }
 
-/// Compare the run `before` with the run `after` on the held-out data both validated on.
-pub fn compare(before: &Path, after: &Path) -> Result<Comparison, ApiError> {
-    let (a, b) = (load(before)?, load(after)?);
-    let sessions = |f: &RunFolder| f.summary.validation.distances.is_none();
-    match (sessions(&a), sessions(&b)) {
-        (false, false) => Ok(Comparison::Distances(Box::new(DistanceComparison::new(
-            compared_run(before)?,
-            compared_run(after)?,
-        )))),
-        (true, true) => {
-            let val = crate::data::tracker::load_dir(&a.summary.inputs.validation)?;
-            for f in a.summary.held_out_sessions() {
-                match val.find_block(&f.calibrated.name) {
-                    Some(k) if val.blocks[k].members.len() == f.calibrated.points => {}
-                    _ => {
-                        return Err(TrackerDiagnoseError::DataChanged {
-                            path: a.summary.inputs.validation.clone(),
-                            what: format!(
-                                "held-out session {} is not as {} used it",
-                                f.calibrated.name,
-                                before.display()
-                            ),
-                        }
-                        .into())
-                    }
-                }
-            }
-            Ok(Comparison::Sessions(compare_tracker((&a.summary, &a.model), (&b.summary, &b.model), &val)))
+/// The held-out groups `summary` validated on.
+fn held_out_groups(summary: &Summary) -> Vec<String> {
+    let sessions = summary.held_out_sessions().iter().map(|f| f.calibrated.name.clone());
+    let placements = summary
+        .validation
+        .distances
+        .iter()
+        .flat_map(|d| d.detail.per_placement.iter().map(|g| g.name.clone()));
+    sessions.chain(placements).collect()
+}
+
+/// One side of a comparison: the run's model, floated tools and floor verdict.
+fn side(folder: &RunFolder) -> Side<'_> {
+    let s = &folder.summary;
+    let (floor_mm, floor_source, at_floor) = match &s.floor.distance_gap {
+        Some(g) => (Some(g.expected_mm), "expected from repeatability".to_string(), g.at_floor),
+        None => {
+            let f = s.point_floor();
+            let at_floor =
+                f.rms_mm.is_some_and(|f| s.held_out_rms_mm() <= crate::calib::floor::EXPLAINS_WITHIN * f);
+            (f.rms_mm, f.source, at_floor)
         }
-        _ => Err(ApiError::KindsDiffer(before.display().to_string(), after.display().to_string())),
-    }
+    };
+    Side { model: &folder.model, float_tool: &s.inputs.float_tool, floor_mm, floor_source, at_floor }
+}
+
+/// Compare the run `before` with the run `after` on the held-out data both validated on (the
+/// data of `before`, checked to be those it was made from).
+pub fn compare(before: &Path, after: &Path) -> Result<Compared, ApiError> {
+    let (a, b) = (load(before)?, load(after)?);
+    let (cal, val) = a.data()?;
+    check_same_data(&a.summary, &cal, &val, None)?;
+    let differ = || ApiError::KindsDiffer(before.display().to_string(), after.display().to_string());
+    let shared = held_out_groups(&b.summary);
+    let keep: Vec<usize> = (0..val.groups.len()).filter(|&g| shared.contains(&val.groups[g].name)).collect();
+    let comparison = compare_runs(&side(&a), &side(&b), &val.subset(&keep)).ok_or_else(differ)?;
+    let run = |f: &RunFolder, dir: &Path| -> Result<ComparedRun, ApiError> {
+        Ok(ComparedRun {
+            name: dir.display().to_string(),
+            summary: f.summary.clone(),
+            residuals: f.residuals()?,
+        })
+    };
+    Ok(Compared { runs: [run(&a, before)?, run(&b, after)?], comparison })
 }

@@ -8,6 +8,8 @@
 //! so a bug there cannot hide in data made here. Touches the arm cannot reach without passing
 //! a joint below the table are skipped, as an operator would.
 
+pub mod optical;
+
 use crate::data::{Artefact, Landmark, Measurement, Session, ARTEFACT_FORMAT, SESSION_FORMAT};
 use crate::model::{ArmModel, Convention, ParamId, SUTA_JOINTS};
 use crate::numerics::solver::{self, Residuals, SolverOptions, Termination};
@@ -264,7 +266,8 @@ fn frames_at(
             Convention::Urdf => {
                 let [x, y, z] = row.origin_xyz_mm;
                 let [roll, pitch, yaw] = row.origin_rpy_deg.map(f64::to_radians);
-                t = t * tr(x, y, z) * rz(yaw) * ry(pitch) * rx(roll);
+                let turn = nalgebra::Rotation3::new(Vector3::from(row.origin_turn_deg.map(f64::to_radians)));
+                t = t * tr(x, y, z) * rz(yaw) * ry(pitch) * rx(roll) * turn.to_homogeneous();
                 let axis = Vector3::from(row.axis);
                 axes[j] = (axis_of(&t).0, t.fixed_view::<3, 3>(0, 0) * axis);
                 let turn = nalgebra::Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), theta);

@@ -198,12 +198,12 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let d: serde_json::Value = serde_json::from_slice(&out.stdout).expect("--json prints the diagnosis");
     let first = &d["candidates"][0];
-    assert_eq!(first["effect"], "eccentricity:5");
+    assert_eq!(first["name"], "eccentricity:5");
     assert_eq!(first["significant"], true);
     let explained = first["explained"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&explained) && explained > 0.5, "{explained}");
     assert!(first["evidence"].as_str().unwrap().contains("eccentricity"), "{}", first["evidence"]);
-    assert!(first["validation_rms_mm"].as_f64().unwrap() < d["baseline"]["rms_mm"].as_f64().unwrap());
+    assert!(first["held_out_rms_mm"].as_f64().unwrap() < d["baseline"]["rms_mm"].as_f64().unwrap());
     assert!(before.join("diagnosis.html").exists());
     let mut with = calibrate_args(data.to_str().unwrap(), after.to_str().unwrap(), model.to_str().unwrap());
     with.extend(["--add".to_string(), "eccentricity:5".to_string()]);

@@ -3,7 +3,8 @@
 //! files under `host/tests/legacy/`), are read as today's summary with every figure carried over,
 //! and diagnosed on their data.
 
-use kincal::api::{self, Diagnosis};
+use kincal::api;
+use kincal::calib::diagnose::Measure;
 use kincal::calib::summary::RUN_FORMAT;
 use kincal::data::DataKind;
 use serde_json::Value;
@@ -78,9 +79,8 @@ fn an_artefact_run_of_format_1_reads_as_today_and_is_diagnosed() {
         assert_eq!((e.param.as_str(), e.value), (o["param"].as_str().unwrap(), o["value"].as_f64().unwrap()));
     }
     // Diagnosed on its data: the held-out figure it starts from is the stored one.
-    let Diagnosis::Distances(diagnosis) = api::diagnose(&folder).expect("diagnoses") else {
-        panic!("an artefact run is diagnosed on its distances")
-    };
+    let diagnosis = api::diagnose(&folder).expect("diagnoses");
+    assert_eq!(diagnosis.measure, Measure::Distances, "an artefact run is diagnosed on its distances");
     assert!((diagnosis.baseline.rms_mm - d.calibrated.rms_mm).abs() < 1e-12, "{:?}", diagnosis.baseline);
     std::fs::remove_dir_all(dir).ok();
 }
@@ -119,14 +119,12 @@ fn a_tracker_run_of_format_1_reads_as_today_and_is_diagnosed_and_compared() {
     assert!(folder.residuals().expect("no distances, no residuals file needed").is_empty());
     // Diagnosed on its data (the data checked to be what it was made from: the same calibration
     // RMS refitted) and compared with itself.
-    let Diagnosis::Sessions(d) = api::diagnose(&folder).expect("diagnoses") else {
-        panic!("a tracker run is diagnosed on its sessions")
-    };
+    let d = api::diagnose(&folder).expect("diagnoses");
+    assert_eq!(d.measure, Measure::Points, "a tracker run is diagnosed on its sessions");
     let overall = old["validation"]["overall"]["rms_mm"].as_f64().unwrap();
-    assert!((d.held_out_rms_mm - overall).abs() < 1e-9 * overall, "{} vs {overall}", d.held_out_rms_mm);
-    let api::Comparison::Sessions(c) = api::compare(&run, &run).expect("compares") else {
-        panic!("two tracker runs compare on their sessions")
-    };
-    assert_eq!((c.before_rms_mm, c.after_rms_mm), (d.held_out_rms_mm, d.held_out_rms_mm));
+    assert!((d.baseline.rms_mm - overall).abs() < 1e-9 * overall, "{} vs {overall}", d.baseline.rms_mm);
+    let c = api::compare(&run, &run).expect("compares").comparison;
+    assert_eq!(c.measure, Measure::Points, "two tracker runs compare on their sessions");
+    assert_eq!((c.before_rms_mm, c.after_rms_mm), (d.baseline.rms_mm, d.baseline.rms_mm));
     std::fs::remove_dir_all(dir).ok();
 }

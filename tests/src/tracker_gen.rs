@@ -980,6 +980,8 @@ pub struct SessionPlan {
     /// A position grid at one fixed tool orientation (IK on the true arm), spaced
     /// `grid_spacing_mm`; otherwise random joint configurations.
     pub constant_orientation: bool,
+    /// The poses' joint angles given (deg, e.g. a plan's); empty: drawn as above.
+    pub joints_deg: Vec<Vec<f64>>,
 }
 
 /// Everything the generator does; presets in [`TrackerOptions::iiwa_five_sessions`] and
@@ -1038,7 +1040,12 @@ impl TrackerOptions {
             arm: Arm::iiwa7(),
             hidden: HiddenErrorSizes::default(),
             sessions: (1..=5)
-                .map(|k| SessionPlan { name: format!("session_{k}"), poses: 60, constant_orientation: false })
+                .map(|k| SessionPlan {
+                    name: format!("session_{k}"),
+                    poses: 60,
+                    constant_orientation: false,
+                    joints_deg: Vec::new(),
+                })
                 .collect(),
             noise_sigma_mm: 0.02,
             orientation_sigma_deg: None,
@@ -1064,7 +1071,12 @@ impl TrackerOptions {
         TrackerOptions {
             arm: Arm::industrial6(),
             sessions: (1..=4)
-                .map(|k| SessionPlan { name: format!("day_{k}"), poses: 50, constant_orientation: false })
+                .map(|k| SessionPlan {
+                    name: format!("day_{k}"),
+                    poses: 50,
+                    constant_orientation: false,
+                    joints_deg: Vec::new(),
+                })
                 .collect(),
             orientation_sigma_deg: Some(0.005),
             uncertainty: UncertaintyColumn::U95Mm,
@@ -1285,7 +1297,9 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
                 arm.tool_mm = v_add(arm.tool_mm, offset);
             }
         }
-        let qs: Vec<Vec<f64>> = if plan.constant_orientation {
+        let qs: Vec<Vec<f64>> = if !plan.joints_deg.is_empty() {
+            plan.joints_deg.clone()
+        } else if plan.constant_orientation {
             constant_orientation_q(&arm, plan.poses, options.grid_spacing_mm, &mut rng)
                 .into_iter()
                 .map(|q| q.into_iter().map(round6).collect())
@@ -1293,7 +1307,7 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
         } else {
             (0..plan.poses).map(|_| random_q(&options.arm, options.low_coverage, &mut rng)).collect()
         };
-        let measurements = plan.poses * options.repeats.max(1);
+        let measurements = qs.len() * options.repeats.max(1);
         let duration_s = options.seconds_per_point * measurements as f64;
         let mut rows = Vec::new();
         for (pose, q) in qs.iter().enumerate() {

@@ -2,12 +2,12 @@
 //! held-out error falls to the noise floor. Data come from the simulator's independent forward
 //! path (plain 4×4 matrices with the effects written out again), not from the model's code.
 
-use kincal::calib::auto::{auto_loop, Stop};
-use kincal::calib::data_errors::calibrate_with_landmark_freed;
+use kincal::calib::diagnose::auto::{auto_loop, Stop};
+use kincal::calib::diagnose::data_errors::touches::calibrate_with_landmark_freed;
 use kincal::calib::diagnose::diagnose;
 use kincal::calib::fit::calibrate;
 use kincal::calib::setup::Objective;
-use kincal::calib::setup::SolveOptions;
+use kincal::calib::setup::{Setup, SolveOptions};
 use kincal::calib::validate::validate;
 use kincal::data::Observations;
 use kincal::model::effects::Effect;
@@ -58,23 +58,27 @@ fn run_case(case: &Case) -> Outcome {
     let fit = calibrate(&nominal, &cal, &options).expect("calibrates");
     let floor = validate(&sim.truth, &val).overall.rms_mm;
     let before = validate(&fit.model, &val).overall.rms_mm;
-    let d = diagnose(&fit.model, &cal, &val, &options);
+    let d = diagnose(&Setup::new(options.clone()), &fit.model, &cal, &val).unwrap();
     let leader = d.candidates.first().expect("some candidate");
     // Effects the data cannot tell apart are reported together; the hidden one must lead or be
     // named in the leading group.
     let first = if leader.equivalent.iter().any(|e| e == case.effect) {
         case.effect.to_string()
     } else {
-        leader.effect.clone()
+        leader.name.clone()
     };
     let significant = leader.significant;
     print_sequence(&d);
     eprintln!(
         "  leader {}: blocks {:?} mean log ratio {:.3} p {:.2e} ΔBIC {:.1}",
-        leader.effect, leader.blocks_improved, leader.mean_log_ratio, leader.p_value, leader.delta_bic
+        leader.name,
+        leader.parts_improved,
+        leader.mean_log_ratio,
+        leader.p_value,
+        leader.ranking.delta_bic.unwrap_or(f64::NAN)
     );
     if !leader.equivalent.is_empty() {
-        eprintln!("  leading group: {} ≡ {}", leader.effect, leader.equivalent.join(", "));
+        eprintln!("  leading group: {} ≡ {}", leader.name, leader.equivalent.join(", "));
     }
     let mut with = nominal.clone();
     Effect::parse(case.effect).unwrap().add_to(&mut with);
@@ -88,23 +92,28 @@ fn run_case(case: &Case) -> Outcome {
 fn print_sequence(d: &kincal::calib::diagnose::Diagnosis) {
     let mut all: Vec<&kincal::calib::diagnose::Candidate> =
         d.candidates.iter().chain(&d.data_errors).collect();
-    all.sort_by(|a, b| b.calibration_z.total_cmp(&a.calibration_z));
+    all.sort_by(|a, b| b.ranking.calibration_z.total_cmp(&a.ranking.calibration_z));
     for c in all.iter().take(6) {
         eprintln!(
             "    z {:7.1} {:<18} {:.3} mm p {:.3} placements {:?} refitted {} significant {}",
-            c.calibration_z,
-            c.effect,
-            c.validation_rms_mm,
+            c.ranking.calibration_z,
+            c.name,
+            c.held_out_rms_mm,
             c.p_value,
-            c.placements_improved,
-            c.refitted,
+            c.units_improved,
+            c.ranking.refitted,
             c.significant
         );
     }
     for r in &d.rivals {
         eprintln!(
             "    rival {} vs {}: {:?} (p {:.3} / {:.3}, λ {:.1})",
-            r.a, r.b, r.verdict, r.a_adds_p, r.b_adds_p, r.separability
+            r.a,
+            r.b,
+            r.verdict,
+            r.a_adds_p,
+            r.b_adds_p,
+            r.separability.unwrap_or(f64::NAN)
         );
     }
     eprintln!("    named {:?}", d.named);
@@ -263,9 +272,9 @@ fn with_no_hidden_effect_nothing_is_significant_and_a_wrong_effect_does_not_help
         let val = Observations::from_sessions(&sim.validation, &sim.artefact);
         let options = SolveOptions { restarts: Some(2), seed, ..SolveOptions::default() };
         let fit = calibrate(&nominal, &cal, &options).unwrap();
-        let d = diagnose(&fit.model, &cal, &val, &options);
+        let d = diagnose(&Setup::new(options.clone()), &fit.model, &cal, &val).unwrap();
         let significant: Vec<&str> =
-            d.candidates.iter().filter(|c| c.significant).map(|c| c.effect.as_str()).collect();
+            d.candidates.iter().filter(|c| c.significant).map(|c| c.name.as_str()).collect();
         assert!(significant.is_empty(), "seed {seed}: spurious effects {significant:?}");
         let before = validate(&fit.model, &val).overall.rms_mm;
         for wrong in ["eccentricity:3", "compliance:2", "twist:2"] {
@@ -358,9 +367,9 @@ fn clean_data_floor_estimate_and_nothing_flagged() {
         // Two of the seeds with ten validation placements (30 blocks).
         let s = if seed >= 94 { with_ten_validation_placements(s, seed) } else { s };
         let fit = calibrate(&s.nominal, &s.cal, &s.options).unwrap();
-        let d = diagnose(&fit.model, &s.cal, &s.val, &s.options);
-        let floor = d.floor.as_ref().expect("repeats give a floor");
-        let gap = d.gap.as_ref().unwrap();
+        let d = diagnose(&Setup::new(s.options.clone()), &fit.model, &s.cal, &s.val).unwrap();
+        let floor = d.floor.distances.as_ref().expect("repeats give a floor");
+        let gap = d.floor.gap.as_ref().unwrap();
         eprintln!(
             "seed {seed} ({} validation placements): true floor {:.4} estimated {:.4} (encoder share {:.4}) expected {:.4} measured {:.4} z {:.2}",
             s.val.groups.len(),
@@ -386,10 +395,10 @@ fn clean_data_floor_estimate_and_nothing_flagged() {
             "seed {seed}: data errors flagged on clean data: {:?} {:?} {:?}",
             d.disturbed,
             d.mis_seated,
-            d.data_errors.iter().filter(|c| c.significant).map(|c| &c.effect).collect::<Vec<_>>()
+            d.data_errors.iter().filter(|c| c.significant).map(|c| &c.name).collect::<Vec<_>>()
         );
         let significant: Vec<&str> =
-            d.candidates.iter().filter(|c| c.significant).map(|c| c.effect.as_str()).collect();
+            d.candidates.iter().filter(|c| c.significant).map(|c| c.name.as_str()).collect();
         assert!(significant.is_empty(), "seed {seed}: spurious effects {significant:?}");
         // "At the floor" needs an equivalence test to pass; otherwise the report says it cannot
         // tell — never that the model misses something.
@@ -404,7 +413,7 @@ fn clean_data_floor_estimate_and_nothing_flagged() {
 
 fn calibrated(s: &Scenario) -> (ArmModel, kincal::calib::diagnose::Diagnosis) {
     let fit = calibrate(&s.nominal, &s.cal, &s.options).unwrap();
-    let d = diagnose(&fit.model, &s.cal, &s.val, &s.options);
+    let d = diagnose(&Setup::new(s.options.clone()), &fit.model, &s.cal, &s.val).unwrap();
     for line in &d.summary {
         eprintln!("  {line}");
     }
@@ -418,7 +427,7 @@ fn a_wrong_certificate_is_named_before_any_arm_effect_and_fixing_it_reaches_the_
     let s = scenario(101, vec![], errors, 5);
     let (_, d) = calibrated(&s);
     let first = d.data_errors.first().expect("data errors are scored");
-    assert_eq!(first.effect, "landmark:S2");
+    assert_eq!(first.name, "landmark:S2");
     assert!(first.significant, "{first:?}");
     assert!(d.summary.iter().any(|l| l.starts_with("data error: landmark:S2")), "{:?}", d.summary);
     assert!(
@@ -471,7 +480,7 @@ fn a_three_per_rev_error_shows_its_pattern_and_harmonic_3_reaches_the_floor() {
     let s =
         scenario(103, vec![], HiddenErrors { encoder_harmonics: vec![harmonic], ..Default::default() }, 5);
     let (_, d) = calibrated(&s);
-    assert!(d.gap.as_ref().unwrap().significant);
+    assert!(d.floor.gap.as_ref().unwrap().significant);
     assert!(
         d.summary.iter().any(|l| l.contains("joint 3") && l.contains("3 per revolution")),
         "the 3-per-rev pattern on joint 3 must be shown: {:?}",
@@ -522,18 +531,18 @@ fn a_small_three_per_rev_error_on_joint_3_is_named_and_the_loop_ends_at_the_floo
             "the periodic line must agree with the named effect: {:?}",
             d.summary
         );
-        let run = auto_loop(&fit, &s.cal, &s.val, &s.options, 4).unwrap();
+        let run = auto_loop(&Setup::new(s.options.clone()), &fit, &s.cal, &s.val, 4).unwrap();
         let last = run.steps.last().unwrap();
-        let added: Vec<&str> = run.steps.iter().filter_map(|s| s.added.as_deref()).collect();
+        let added: Vec<&str> = run.steps.iter().filter_map(|s| s.applied.as_deref()).collect();
         eprintln!(
             "seed {seed}: loop {added:?} ends at {:.4} (true floor {:.4}), stop {:?}",
-            last.validation_rms_mm, s.floor, run.stop
+            last.held_out_rms_mm, s.floor, run.stop
         );
         assert!(added.contains(&"harmonic:3:3"), "the loop must add harmonic:3:3: {added:?}");
         assert!(
-            last.validation_rms_mm <= 1.05 * s.floor,
+            last.held_out_rms_mm <= 1.05 * s.floor,
             "seed {seed}: the loop ends at {} vs true floor {}",
-            last.validation_rms_mm,
+            last.held_out_rms_mm,
             s.floor
         );
     }
@@ -588,13 +597,13 @@ fn with_three_validation_placements_a_large_effect_leads_and_the_report_warns() 
     let leader = &d.candidates[0];
     eprintln!(
         "{}: {:.3} → {:.3} blocks {:?} p {:.1e}",
-        leader.effect, d.baseline.rms_mm, leader.validation_rms_mm, leader.blocks_improved, leader.p_value
+        leader.name, d.baseline.rms_mm, leader.held_out_rms_mm, leader.parts_improved, leader.p_value
     );
-    assert_eq!(leader.blocks_improved.1, 9);
-    assert_eq!(leader.effect, "eccentricity:2");
-    assert!(d.baseline.rms_mm >= 3.0 * leader.validation_rms_mm, "the effect must cut validation RMS 3×");
+    assert_eq!(leader.parts_improved.1, 9);
+    assert_eq!(leader.name, "eccentricity:2");
+    assert!(d.baseline.rms_mm >= 3.0 * leader.held_out_rms_mm, "the effect must cut validation RMS 3×");
     // Three placements are three units: the report says so whatever the verdict.
-    assert_eq!(leader.placements_improved, (3, 3));
+    assert_eq!(leader.units_improved, (3, 3));
     assert!(
         d.summary.iter().any(|l| l.contains("with 3 validation placements") && l.contains("at least 5")),
         "{:?}",
@@ -615,13 +624,13 @@ fn the_auto_loop_adds_a_mixture_of_four_effects_down_to_the_floor() {
     let s = with_ten_validation_placements(scenario(105, hidden, HiddenErrors::default(), 5), 105);
     let fit = calibrate(&s.nominal, &s.cal, &s.options).unwrap();
     let started = std::time::Instant::now();
-    let run = auto_loop(&fit.model, &s.cal, &s.val, &s.options, 8).unwrap();
+    let run = auto_loop(&Setup::new(s.options.clone()), &fit.model, &s.cal, &s.val, 8).unwrap();
     eprintln!("auto loop: {:.2} s, stop {:?}", started.elapsed().as_secs_f64(), run.stop);
     for step in &run.steps {
         eprintln!(
             "  {:<16} {:.3} mm (expected {:.3}) p {:?}",
-            step.added.as_deref().unwrap_or("(start)"),
-            step.validation_rms_mm,
+            step.applied.as_deref().unwrap_or("(start)"),
+            step.held_out_rms_mm,
             step.expected_rms_mm.unwrap_or(f64::NAN),
             step.p_value
         );
@@ -633,19 +642,24 @@ fn the_auto_loop_adds_a_mixture_of_four_effects_down_to_the_floor() {
     for c in run.last.candidates.iter().take(3).chain(run.last.data_errors.iter().take(2)) {
         eprintln!(
             "   {} {:.4} blocks {:?} p {:.2e} ΔBIC {:.1} sig {}",
-            c.effect, c.validation_rms_mm, c.blocks_improved, c.p_value, c.delta_bic, c.significant
+            c.name,
+            c.held_out_rms_mm,
+            c.parts_improved,
+            c.p_value,
+            c.ranking.delta_bic.unwrap_or(f64::NAN),
+            c.significant
         );
     }
     let last = run.steps.last().unwrap();
     assert!(
-        last.validation_rms_mm <= 1.10 * s.floor,
+        last.held_out_rms_mm <= 1.10 * s.floor,
         "the loop ends at {} vs true floor {}",
-        last.validation_rms_mm,
+        last.held_out_rms_mm,
         s.floor
     );
     assert_eq!(run.stop, Stop::AtFloor);
     for pair in run.steps.windows(2) {
-        assert!(pair[1].validation_rms_mm < pair[0].validation_rms_mm, "each step lowers the error");
+        assert!(pair[1].held_out_rms_mm < pair[0].held_out_rms_mm, "each step lowers the error");
         assert!(pair[1].p_value.is_some_and(|p| p < 0.05), "each added effect is significant at its step");
     }
 }

@@ -61,7 +61,12 @@ fn artefact_placements_and_tracker_sessions_calibrate_together_to_the_floor_of_b
             tool_mm: 0.0,
         },
         sessions: (1..=3)
-            .map(|k| SessionPlan { name: format!("tracker_{k}"), poses: 60, constant_orientation: false })
+            .map(|k| SessionPlan {
+                name: format!("tracker_{k}"),
+                poses: 60,
+                constant_orientation: false,
+                joints_deg: Vec::new(),
+            })
             .collect(),
         ..TrackerOptions::iiwa_five_sessions(11)
     };

@@ -122,6 +122,14 @@ fn every_calibrate_and_diagnose_option_works_on_both_kinds_or_is_refused_naming_
         let group = if kind == "artefact" { "A_O" } else { "session_2" };
         let floated = run("float", &["--float-tool", group]);
         assert_eq!(floated["calibration"]["tool_offsets"][0]["session"], group, "{kind}: --float-tool");
+        // --study-subsets: the dataset-size study over calibration groups; --no-outliers: the
+        // per-landmark or per-session outlier metrics skipped.
+        let study = run("study", &["--study-subsets", "1"]);
+        assert!(study["study"].as_array().is_some_and(|r| !r.is_empty()), "{kind}: --study-subsets");
+        assert!(base["outliers"].as_array().is_some_and(|o| !o.is_empty()), "{kind}: outlier metrics");
+        let quick = run("no-outliers", &["--no-outliers"]);
+        assert_eq!(quick["outliers_skipped"], true, "{kind}: --no-outliers");
+        assert!(quick["outliers"].as_array().is_some_and(|o| o.is_empty()), "{kind}: --no-outliers");
         // --objective distance is the default on both; --lever-mm needs six-dof.
         let distance = run("distance", &["--objective", "distance"]);
         assert_eq!(distance["calibration"]["rms_mm"], base["calibration"]["rms_mm"], "{kind}");
@@ -134,10 +142,6 @@ fn every_calibrate_and_diagnose_option_works_on_both_kinds_or_is_refused_naming_
         if kind == "artefact" {
             let landmark = run("landmark", &["--exclude-landmark", "S2"]);
             assert!(obs(&landmark) < obs(&base), "--exclude-landmark");
-            let study = run("study", &["--study-subsets", "1"]);
-            assert!(study["study"].as_array().is_some_and(|r| !r.is_empty()), "--study-subsets");
-            let quick = run("no-outliers", &["--no-outliers"]);
-            assert_eq!(quick["outliers_skipped"], true, "--no-outliers");
             let six = run("six-dof", &["--objective", "six-dof", "--lever-mm", "50"]);
             assert_eq!(six["options"]["objective"]["six_dof"]["lever_mm"], 50.0, "--objective six-dof");
             for (option, needle) in [
@@ -162,8 +166,6 @@ fn every_calibrate_and_diagnose_option_works_on_both_kinds_or_is_refused_naming_
             assert_eq!(figures["calibration_session"], "session_1", "--same-base");
             for (option, needle) in [
                 (&["--exclude-landmark", "S2"][..], "--exclude-landmark: not for tracker data"),
-                (&["--study-subsets", "1"], "--study-subsets: not for tracker data"),
-                (&["--no-outliers"], "--no-outliers: not for tracker data"),
                 (&["--objective", "six-dof"], "--objective six-dof: not for tracker data"),
                 (&["--orientation-sigma-deg", "0.01"], "--orientation-sigma-deg: not for tracker data"),
             ] {

@@ -2,11 +2,12 @@
 //! code shared with kincal): accuracy against the true floor, recovered parameters against their
 //! stated deviations, a re-mounted tool, constant-orientation sessions.
 
+use kincal::calib::diagnose::data_errors::sessions::data_error_candidates;
+use kincal::calib::diagnose::data_errors::{DataError, DataErrorKind};
 use kincal::calib::fit::{calibrate, Fit};
 use kincal::calib::run::{run, Run, RunError};
 use kincal::calib::setup::SolveOptions;
 use kincal::calib::summary::RunInputs as TrackerInputs;
-use kincal::calib::tracker_errors::{data_error_candidates, DataError};
 use kincal::calib::validate::validate_session;
 use kincal::data::Observations;
 use kincal::model::ArmModel;
@@ -258,7 +259,6 @@ fn constant_orientation_sessions_report_tool_and_base_inseparable() {
 /// session and the tool, and after its action (`--float-tool`) the held-out RMS is ≤ 1.10 × floor.
 #[test]
 fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
-    use kincal::calib::tracker_errors::data_error_candidates;
     use kincal_e2e::tracker_gen::ToolRemount;
     let dir = scratch("remount");
     let mut options = GenOptions::iiwa_five_sessions(3);
@@ -449,7 +449,6 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
 /// by session and line, and leaving them out brings the held-out RMS back to the floor.
 #[test]
 fn single_bad_points_are_named_by_file_line_and_left_out() {
-    use kincal::calib::tracker_errors::data_error_candidates;
     use kincal_e2e::tracker_gen::BadPoints;
     let dir = scratch("bad-points");
     let mut options = GenOptions::iiwa_five_sessions(4);
@@ -460,7 +459,7 @@ fn single_bad_points_are_named_by_file_line_and_left_out() {
     let plain = SolveOptions::default();
     let fit = calibrate(&nominal, &cal, &plain).expect("calibrates");
     let candidates = data_error_candidates(&nominal, &cal, &val, &fit, &plain);
-    let bad = candidates.iter().find(|c| c.kind == "bad points").expect("a bad-points candidate");
+    let bad = candidates.iter().find(|c| c.kind == DataErrorKind::BadPoints).expect("a bad-points candidate");
     println!("{}\n{}", bad.text, bad.action);
     let in_cal: Vec<String> = generated
         .truth
@@ -627,7 +626,7 @@ fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
         let (nominal, cal, val, floor, fit, candidates) =
             scored(&generated, &dir, &format!("drifting {drifting}"));
         let plain = SolveOptions::default();
-        let drifts: Vec<_> = candidates.iter().filter(|c| c.kind == "drift").collect();
+        let drifts: Vec<_> = candidates.iter().filter(|c| c.kind == DataErrorKind::Drift).collect();
         // Offset and scale against time in each of the three sessions; temp_C is constant.
         assert_eq!(drifts.len(), 6, "every calibration session with times is scored: {candidates:?}");
         if !drifting {
@@ -636,7 +635,10 @@ fn drift_within_a_session_is_named_and_letting_it_drift_reaches_the_floor() {
             continue;
         }
         let best = &candidates[0];
-        assert!(best.significant && best.kind == "drift" && best.session == "session_2", "{best:?}");
+        assert!(
+            best.significant && best.kind == DataErrorKind::Drift && best.session == "session_2",
+            "{best:?}"
+        );
         assert!(
             best.text.starts_with("session session_2 drifts (offset-time, against time_s): its base moves")
                 && best.text.contains("µm/h"),
@@ -682,14 +684,14 @@ fn a_thermal_scale_drift_in_one_session_is_named_by_kind_and_its_action_reaches_
         let (nominal, _, val, floor, fit, candidates) =
             scored(&generated, &dir, &format!("k {expansion_per_c}"));
         if expansion_per_c == 0.0 {
-            let drifts = candidates.iter().filter(|c| c.kind == "drift").count();
+            let drifts = candidates.iter().filter(|c| c.kind == DataErrorKind::Drift).count();
             assert_eq!(drifts, 12, "four kinds in each of three sessions: {candidates:?}");
             assert!(candidates.iter().all(|c| !c.significant), "clean data: {candidates:?}");
             std::fs::remove_dir_all(dir).ok();
             continue;
         }
         let best = &candidates[0];
-        assert!(best.significant && best.kind == "drift", "{best:?}");
+        assert!(best.significant && best.kind == DataErrorKind::Drift, "{best:?}");
         assert_eq!(best.action, "--drift-session session_2:scale-temp", "{best:?}");
         assert!(
             candidates.iter().filter(|c| c.significant).count() == 1,

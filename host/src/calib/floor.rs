@@ -40,7 +40,7 @@
 //!   floor in quadrature (the validation RMS within 14 % of the expected);
 //! * otherwise *cannot tell*: neither a gap nor closeness to the floor is shown by these data.
 
-use crate::calib::fit::dense_jacobian;
+use crate::calib::fit::{dense_jacobian, Fit};
 use crate::data::Observations;
 use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
 use crate::model::{ArmModel, ParamId};
@@ -54,6 +54,10 @@ pub const GROUP_OUTLIER_Z: f64 = 4.0;
 /// Standard errors by which ln(measured / expected mean square) must exceed 0 for the gap to be
 /// called significant (one-sided normal tail 0.6 %).
 pub const GAP_Z: f64 = 2.5;
+
+/// Held-out RMS of instrument points within this factor of their floor: the model explains the
+/// data.
+pub const EXPLAINS_WITHIN: f64 = 1.10;
 
 /// Equivalence margin of "at the floor": the upper 95 % bound of M/E must be below 1 + this.
 pub const FLOOR_MARGIN: f64 = 0.3;
@@ -100,7 +104,8 @@ pub fn touch_std_mm(model: &ArmModel, data: &Observations) -> Option<f64> {
     noise_floor(model, data, &data.without(|_| true), 0).map(|f| f.touch_std_mm)
 }
 
-/// Measured validation error against the floor.
+/// Measured held-out error against what a complete model would leave: [`gap`] for distances
+/// between touches, [`point_gap`] for instrument points.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Gap {
     /// Validation distance RMS, mm.
@@ -115,7 +120,8 @@ pub struct Gap {
     pub significant: bool,
     /// Upper one-sided 95 % bound of M/E.
     pub ratio_upper_95: f64,
-    /// The equivalence test shows the error at the floor (upper bound below 1 + [`FLOOR_MARGIN`]).
+    /// The error is at the floor: for distances the equivalence test shows it (upper bound
+    /// below 1 + [`FLOOR_MARGIN`]); for points it is within [`EXPLAINS_WITHIN`] of the floor.
     pub at_floor: bool,
     /// Two-sided 95 % interval of the missing part √(M − E), mm (from ln(M/E) ± 1.96 SE).
     pub missing_95_mm: (f64, f64),
@@ -477,7 +483,7 @@ pub struct PointFloor {
 pub fn point_floor(val: &Observations, stated_sigma_mm: Option<f64>) -> PointFloor {
     let (mut sum, mut dof) = (0.0, 0usize);
     let mut fit_share = Vec::new();
-    let sessions = crate::calib::tracker_errors::sessions(val);
+    let sessions = val.sessions();
     for &b in &sessions {
         let members = &val.blocks[b].members;
         let mut groups: std::collections::BTreeMap<&str, Vec<Vector3<f64>>> = Default::default();
@@ -512,6 +518,55 @@ pub fn point_floor(val: &Observations, stated_sigma_mm: Option<f64>) -> PointFlo
         return PointFloor { source: "stated uncertainty".into(), rms_mm: Some(mean_square.sqrt() * shrink) };
     }
     PointFloor { source: "unknown".into(), rms_mm: None }
+}
+
+/// The gap of held-out instrument points: the held-out mean square M against what a complete
+/// model leaves, E = floor² · (1 + p / (ν_cal − 6·S)) (p the estimated arm and tool values of
+/// `fit`, ν_cal = 3 per calibration point, six frame values per calibration session), on the
+/// linear scale M/E − 1 with standard error √(2/ν_val + 2/ν_floor) (ν_val = 3 per held-out point
+/// less six per session; ν_floor from the repeats when the floor comes from them, none for a
+/// stated σ). Gaussian noise assumed. The model explains the data within [`EXPLAINS_WITHIN`] of
+/// the floor and misses beyond [`GAP_Z`] standard errors.
+pub fn point_gap(floor: &PointFloor, measured_mm: f64, fit: &Fit, val: &Observations) -> Option<Gap> {
+    let floor_mm = floor.rms_mm?;
+    let points = fit.stats.points.map_or(0, |p| p.count);
+    let nu_cal = (3.0 * points as f64 - 6.0 * fit.frames.len() as f64).max(1.0_f64);
+    let e = floor_mm * floor_mm * (1.0 + fit.estimated.len() as f64 / nu_cal);
+    let nu_val = (3.0 * val.point_count() as f64 - 6.0 * val.sessions().len() as f64).max(1.0_f64);
+    let nu_floor =
+        if floor.source == "repeated poses" { 3.0 * repeated_pose_dof(val) as f64 } else { f64::INFINITY };
+    let se = (2.0 / nu_val + 2.0 / nu_floor.max(1.0)).sqrt();
+    let m = measured_mm * measured_mm;
+    let ratio = m / e;
+    let z = (ratio - 1.0) / se;
+    let at_floor = measured_mm <= EXPLAINS_WITHIN * floor_mm;
+    let missing_at = |r: f64| (e * (r - 1.0)).max(0.0).sqrt();
+    Some(Gap {
+        measured_mm,
+        expected_mm: e.sqrt(),
+        missing_mm: (m - e).max(0.0).sqrt(),
+        z,
+        significant: !at_floor && z > GAP_Z,
+        ratio_upper_95: ratio + Z_95 * se,
+        at_floor,
+        missing_95_mm: (missing_at(ratio - Z_975 * se), missing_at(ratio + Z_975 * se)),
+        detectable_mm: missing_at(1.0 + GAP_Z * se),
+    })
+}
+
+/// Degrees of freedom of the repeated poses of `val` (repeats beyond the first of each pose).
+fn repeated_pose_dof(val: &Observations) -> usize {
+    let mut dof = 0;
+    for b in val.sessions() {
+        let mut groups: std::collections::BTreeMap<&str, usize> = std::collections::BTreeMap::new();
+        for p in val.blocks[b].members.iter().map(|&k| &val.obs[k]) {
+            if let Some(pose) = &p.pose {
+                *groups.entry(pose).or_default() += 1;
+            }
+        }
+        dof += groups.values().map(|n| n.saturating_sub(1)).sum::<usize>();
+    }
+    dof
 }
 
 #[cfg(test)]

@@ -5,8 +5,6 @@
 //! whether figures are a result (trust), the plan of what to measure next, the diagnosis of
 //! missing effects and data errors, and the whole run from input files to results.
 
-pub mod auto;
-pub mod data_errors;
 pub mod diagnose;
 pub mod fit;
 pub mod floor;
@@ -23,7 +21,5 @@ pub mod setup;
 pub mod study;
 pub mod summary;
 pub mod terms;
-pub mod tracker_diagnose;
-pub mod tracker_errors;
 pub mod trust;
 pub mod validate;

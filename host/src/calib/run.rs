@@ -7,14 +7,15 @@
 //! The nominal figures of tracker sessions are the nominal arm with only the tool point (and the
 //! frames) fitted on the calibration data, as an instrument user would use the vendor's model.
 
+use crate::calib::diagnose::data_errors::sessions::data_error_candidates;
+use crate::calib::diagnose::Measure;
 use crate::calib::fit::{calibrate, check_data, dense_jacobian, CalibError, Fit};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
-use crate::calib::outliers::landmark_outliers;
+use crate::calib::outliers::outliers as outlier_metrics;
 use crate::calib::setup::{SolveOptions, DEFAULT_LEVER_MM};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions};
 use crate::calib::summary::*;
-use crate::calib::tracker_errors::{data_error_candidates, sessions};
 use crate::calib::trust::{result_problems, TrustScales};
 use crate::calib::validate::{
     calibration_residuals_mm, errors_in_calibration_session, fit_session_with_tool, orientation_errors_deg,
@@ -29,8 +30,7 @@ use nalgebra::Vector3;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// Held-out RMS within this factor of the floor: the model explains the data.
-pub const EXPLAINS_WITHIN: f64 = 1.10;
+pub use crate::calib::floor::EXPLAINS_WITHIN;
 
 /// Why a run failed.
 #[derive(Debug, thiserror::Error)]
@@ -124,6 +124,14 @@ pub enum RunError {
         effect: String,
         /// The model's joints.
         joints: usize,
+    },
+    /// The data are not those the RUN was made from.
+    #[error("{path}: {what}; the data changed since the calibration (calibrate again)")]
+    DataChanged {
+        /// The file or folder.
+        path: PathBuf,
+        /// What differs.
+        what: String,
     },
     /// An input path could not be resolved.
     #[error("{path}: {source}")]
@@ -314,7 +322,7 @@ pub fn check_run_data(
     if let Some((validation, calibration)) = copied_placement(cal, val) {
         return Err(RunError::SameData { validation, calibration });
     }
-    if let Some(b) = sessions(val).into_iter().find(|&b| cal.find_block(&val.block_name(b)).is_some()) {
+    if let Some(b) = val.sessions().into_iter().find(|&b| cal.find_block(&val.block_name(b)).is_some()) {
         return Err(RunError::SameSession(val.block_name(b)));
     }
     if !val.obs.is_empty() && val.joints != model.joints.len() {
@@ -336,16 +344,12 @@ pub fn check_run_data(
 /// (nothing is silently ignored): `--objective six-dof` without an orientation (relative
 /// orientation of artefact touches, or a 6-DoF probe's), `--orientation-sigma-deg` without a
 /// probe orientation, `--sigma-mm` and `--same-base` without held-out tracker sessions,
-/// `--drift-session` on an artefact placement, `--exclude-landmark` without artefact touches,
-/// and (until they score tracker sessions) `--study-subsets` and `--no-outliers` without
-/// artefact touches.
+/// `--drift-session` on an artefact placement, `--exclude-landmark` without artefact touches.
 pub fn check_options(
     cal: &Observations,
     val: &Observations,
     inputs: &RunInputs,
     options: &SolveOptions,
-    study_subsets: usize,
-    outliers: bool,
 ) -> Result<(), RunError> {
     let kind = cal.kind().unwrap_or(crate::data::DataKind::Artefact).word();
     let refuse =
@@ -402,11 +406,64 @@ pub fn check_options(
     if !inputs.exclude_landmarks.is_empty() && !touches(cal) && !touches(val) {
         return Err(refuse("--exclude-landmark", "the data hold no artefact landmarks (tracker sessions)"));
     }
-    if study_subsets > 0 && !touches(cal) {
-        return Err(refuse("--study-subsets", "the dataset-size study draws subsets of artefact placements"));
+    Ok(())
+}
+
+/// Check that `cal` and `val` (read with the run's exclusions) are the data `summary` was made
+/// from: the same groups with the same observation counts, the same held-out sessions, and, when
+/// the setup was calibrated again on them, `calibration_rms_mm` equal to the stored one.
+pub fn check_same_data(
+    summary: &Summary,
+    cal: &Observations,
+    val: &Observations,
+    calibration_rms_mm: Option<f64>,
+) -> Result<(), RunError> {
+    let changed = |path: &Path, what: String| RunError::DataChanged { path: path.into(), what };
+    let source = |data: &Observations, b: usize| data.groups[data.blocks[b].group].source.clone();
+    for (name, count) in &summary.calibration.groups {
+        match cal.find_group(name) {
+            None => {
+                return Err(changed(
+                    &summary.inputs.calibration,
+                    format!("calibration group {name} is no longer there"),
+                ))
+            }
+            Some(g) if cal.group_members(g).len() != *count => {
+                let now = cal.group_members(g).len();
+                return Err(changed(&cal.groups[g].source, format!("{count} observations used, {now} now")));
+            }
+            Some(_) => {}
+        }
     }
-    if !outliers && !touches(cal) {
-        return Err(refuse("--no-outliers", "the outlier metrics are computed per artefact landmark"));
+    if !summary.calibration.groups.is_empty() {
+        if let Some(g) =
+            (0..cal.groups.len()).find(|&g| !summary.calibration.groups.contains_key(&cal.groups[g].name))
+        {
+            return Err(changed(&cal.groups[g].source, "a calibration group the run did not use".into()));
+        }
+    }
+    for f in summary.held_out_sessions() {
+        let name = &f.calibrated.name;
+        let Some(b) = val.find_block(name) else {
+            return Err(changed(
+                &summary.inputs.validation,
+                format!("held-out session {name} is no longer there"),
+            ));
+        };
+        let now = val.blocks[b].members.len();
+        if now != f.calibrated.points {
+            return Err(changed(
+                &source(val, b),
+                format!("{} points held out, {now} now", f.calibrated.points),
+            ));
+        }
+    }
+    let stored = summary.calibration.rms_mm;
+    if let Some(rms) = calibration_rms_mm.filter(|rms| (rms - stored).abs() > 1e-6 * stored.max(1e-3)) {
+        return Err(changed(
+            &summary.inputs.calibration,
+            format!("calibration RMS {stored:.6} mm in summary.json, {rms:.6} mm on these files"),
+        ));
     }
     Ok(())
 }
@@ -469,7 +526,7 @@ pub fn run_on(
     outliers: bool,
 ) -> Result<Run, RunError> {
     let mut steps = StepTimes::start();
-    check_options(cal, val, inputs, options, study_subsets, outliers)?;
+    check_options(cal, val, inputs, options)?;
     let (cal, val) = inputs.exclude(cal, val)?;
     let (cal, val) = (&cal, &val);
     steps.lap("load");
@@ -521,12 +578,12 @@ pub fn run_on(
     }
     steps.lap("trust scales");
     let study_rows = (study_subsets > 0).then(|| {
-        let calibration = SolveOptions { restarts: Some(0), ..options.clone() };
+        let setup = inputs.setup(&SolveOptions { restarts: Some(0), ..options.clone() });
         study(
             &nominal,
             cal,
             val,
-            &StudyOptions { subsets: study_subsets, seed: options.seed, calibration, progress: false },
+            &StudyOptions { subsets: study_subsets, seed: options.seed, setup, progress: false },
         )
     });
     if let Some(rows) = &study_rows {
@@ -534,8 +591,9 @@ pub fn run_on(
         steps.lap("study");
     }
     let outliers_skipped = !outliers;
-    let outliers = if outliers && touches(cal) {
-        landmark_outliers(&fit, cal, touches(val).then_some(val), options)
+    let outliers = if outliers {
+        let setup = inputs.setup(options);
+        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup)
     } else {
         Vec::new()
     };
@@ -607,7 +665,8 @@ pub fn run_on(
         not_trustworthy,
         warnings: cal.warnings.iter().chain(&val.warnings).cloned().collect(),
     };
-    let calibration_residuals = sessions(cal)
+    let calibration_residuals = cal
+        .sessions()
         .into_iter()
         .zip(calibration_residuals_mm(&fit, cal))
         .map(|(b, residuals)| session_residuals(cal, b, residuals, vec![None; cal.blocks[b].members.len()]))
@@ -662,7 +721,7 @@ fn objective_comparison(fit: &Fit, cal: &Observations) -> ObjectiveComparison {
 struct SessionsSection {
     validation: SessionsValidation,
     floor: crate::calib::floor::PointFloor,
-    data_errors: Vec<crate::calib::tracker_errors::DataError>,
+    data_errors: Vec<crate::calib::diagnose::data_errors::DataError>,
     verdict: Vec<String>,
     held_out: Vec<SessionResiduals>,
 }
@@ -711,7 +770,7 @@ fn sessions_section(
     options: &SolveOptions,
     same_base: &BTreeMap<String, String>,
 ) -> Result<Option<SessionsSection>, RunError> {
-    let held = sessions(val);
+    let held = val.sessions();
     if held.is_empty() {
         return Ok(None);
     }
@@ -779,7 +838,7 @@ fn sessions_section(
     };
     let overall = pooled(&calibrated_parts);
     let floor = point_floor(val, inputs.stated_sigma_mm);
-    let data_errors = if sessions(cal).is_empty() {
+    let data_errors = if cal.sessions().is_empty() {
         Vec::new()
     } else {
         let all_floating = SolveOptions { float_tool: inputs.float_tool.clone(), ..options.clone() };

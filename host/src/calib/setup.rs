@@ -11,9 +11,13 @@
 //!   weighed σ_position/σ_orientation; the artefact's relative orientations only with
 //!   `--objective six-dof`.
 
+use crate::calib::fit::{calibrate, CalibError, Fit};
 use crate::calib::nuisance::drift::DriftSpec;
 use crate::data::Observations;
+use crate::model::effects::Effect;
+use crate::model::ArmModel;
 use crate::numerics::solver::{Loss, SolverOptions};
+use std::borrow::Cow;
 
 /// Huber threshold δ on artefact touches when none is given, mm (thesis: 1.35 mm).
 pub const DEFAULT_HUBER_DELTA_MM: f64 = 1.35;
@@ -185,5 +189,177 @@ impl Resolved {
             Loss::Huber(d) => Some(d),
             Loss::Linear => None,
         }
+    }
+}
+
+/// One change to a calibration: an effect added to the model, or the remedy of a data error.
+/// Typed: the diagnosis proposes changes and the auto loop applies them; their command-line
+/// text ([`Change::action`]) is only ever written, never read back.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Change {
+    /// Add a library effect to the model (`--add`).
+    Effect(Effect),
+    /// Let the tool float in a group, calibration or held out: a re-mounted tool or probe
+    /// (`--float-tool`).
+    FloatTool(String),
+    /// Let a calibration session drift (`--drift-session`).
+    Drift(DriftSpec),
+    /// Leave calibration observations out, named `SESSION:LINE` or `PLACEMENT/REPEAT/LANDMARK`
+    /// (`--exclude-point`).
+    ExcludePoints(Vec<String>),
+    /// Leave a calibration block out: `PLACEMENT/REPEAT` (the artefact moved), or a session
+    /// (`--exclude-block`).
+    ExcludeBlock(String),
+    /// A landmark's certified position is wrong: scored with the position freed; its remedy
+    /// leaves the landmark out of both folders (`--exclude-landmark`) until the certificate is
+    /// checked.
+    FreeLandmark(String),
+}
+
+impl Change {
+    /// Its name in a diagnosis: the effect, or the data error's kind and place.
+    pub fn name(&self) -> String {
+        match self {
+            Change::Effect(e) => e.to_string(),
+            Change::FloatTool(group) => format!("tool moved: {group}"),
+            Change::Drift(spec) => format!("drift: {spec}"),
+            Change::ExcludePoints(points) => format!("bad points: {}", points.join(", ")),
+            Change::ExcludeBlock(block) => format!("block:{block}"),
+            Change::FreeLandmark(id) => format!("landmark:{id}"),
+        }
+    }
+
+    /// The `kincal calibrate` options that apply it.
+    pub fn action(&self) -> String {
+        match self {
+            Change::Effect(e) => format!("--add {e}"),
+            Change::FloatTool(group) => format!("--float-tool {group}"),
+            Change::Drift(spec) => format!("--drift-session {spec}"),
+            Change::ExcludePoints(points) => {
+                points.iter().map(|p| format!("--exclude-point {p}")).collect::<Vec<_>>().join(" ")
+            }
+            Change::ExcludeBlock(block) => format!("--exclude-block {block}"),
+            Change::FreeLandmark(id) => format!("--exclude-landmark {id}"),
+        }
+    }
+
+    /// A data error's remedy (every change but an effect).
+    pub fn is_data_error(&self) -> bool {
+        !matches!(self, Change::Effect(_))
+    }
+}
+
+/// What a calibration is asked besides the model: the solve options, the groups whose tool
+/// floats (held-out ones too: their tool is refitted with their frame), the stated σ of held-out
+/// points, and the changes a diagnosis applied on top of the data it was given (which already
+/// lack what the run itself left out).
+#[derive(Clone, Debug, Default)]
+pub struct Setup {
+    /// Loss, restarts, seed, objective, the probe's σ and the drifting sessions.
+    pub options: SolveOptions,
+    /// Groups whose tool floats, calibration and held out.
+    pub float_tool: Vec<String>,
+    /// The instrument's stated σ per axis of held-out points that carry none, mm.
+    pub stated_sigma_mm: Option<f64>,
+    /// The changes applied, in order.
+    pub changes: Vec<Change>,
+    /// The run's own options beyond its data and model, as `kincal calibrate` spells them.
+    pub given: Vec<String>,
+}
+
+impl Setup {
+    /// A setup of these solve options alone (their floated tools too).
+    pub fn new(options: SolveOptions) -> Setup {
+        Setup { float_tool: options.float_tool.clone(), options, ..Setup::default() }
+    }
+
+    /// The setup and the model with `change` applied: an effect is added to the model (at zero,
+    /// its parameters free), a data error's remedy to the setup.
+    pub fn apply(&self, change: &Change, model: &ArmModel) -> (Setup, ArmModel) {
+        let (mut setup, mut model) = (self.clone(), model.clone());
+        match change {
+            Change::Effect(e) => e.add_to(&mut model),
+            Change::FloatTool(group) => setup.float_tool.push(group.clone()),
+            Change::Drift(spec) => setup.options.drift_sessions.push(spec.clone()),
+            Change::ExcludePoints(_) | Change::ExcludeBlock(_) | Change::FreeLandmark(_) => {}
+        }
+        setup.changes.push(change.clone());
+        (setup, model)
+    }
+
+    /// The solve options for calibration data `cal`: the floated tools of its groups.
+    pub fn solve_options(&self, cal: &Observations) -> SolveOptions {
+        SolveOptions {
+            float_tool: self.float_tool.iter().filter(|n| cal.find_group(n).is_some()).cloned().collect(),
+            ..self.options.clone()
+        }
+    }
+
+    /// Which observations of `cal` the changes leave out (named observations, blocks,
+    /// landmarks).
+    pub fn left_out(&self, cal: &Observations) -> Result<Vec<bool>, CalibError> {
+        let mut out = vec![false; cal.obs.len()];
+        for change in &self.changes {
+            let drop: Vec<usize> = match change {
+                Change::ExcludePoints(names) => {
+                    let mut found = Vec::new();
+                    for name in names {
+                        let named = cal.find_point(name);
+                        if named.is_empty() {
+                            return Err(CalibError::NotInData(change.action()));
+                        }
+                        found.extend(named);
+                    }
+                    found
+                }
+                Change::ExcludeBlock(name) => {
+                    let b = cal.find_block(name).ok_or_else(|| CalibError::NotInData(change.action()))?;
+                    cal.blocks[b].members.clone()
+                }
+                Change::FreeLandmark(id) => {
+                    let l = cal.landmark_index(id).ok_or_else(|| CalibError::NotInData(change.action()))?;
+                    (0..cal.obs.len()).filter(|&k| cal.obs[k].landmark() == Some(l)).collect()
+                }
+                Change::Effect(_) | Change::FloatTool(_) | Change::Drift(_) => Vec::new(),
+            };
+            drop.into_iter().for_each(|k| out[k] = true);
+        }
+        Ok(out)
+    }
+
+    /// `cal` without what the changes leave out ([`Setup::left_out`]).
+    pub fn data<'a>(&self, cal: &'a Observations) -> Result<Cow<'a, Observations>, CalibError> {
+        let out = self.left_out(cal)?;
+        Ok(if out.contains(&true) { Cow::Owned(cal.without(|k| out[k])) } else { Cow::Borrowed(cal) })
+    }
+
+    /// Calibrate `start` (a model with this setup's effects, often a calibrated one: a warm
+    /// start) on `cal` as this setup asks.
+    pub fn calibrate(&self, start: &ArmModel, cal: &Observations) -> Result<Fit, CalibError> {
+        let kept = self.data(cal)?;
+        calibrate(start, &kept, &self.solve_options(&kept))
+    }
+
+    /// The effects added by the changes.
+    pub fn added(&self) -> Vec<String> {
+        self.changes
+            .iter()
+            .filter_map(|c| match c {
+                Change::Effect(e) => Some(e.to_string()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// The command-line options that make this setup, beyond the data folders and the model:
+    /// the run's own, then the changes'.
+    pub fn options_text(&self) -> String {
+        self.given
+            .iter()
+            .cloned()
+            .chain(self.changes.iter().map(Change::action))
+            .collect::<Vec<_>>()
+            .join(" ")
     }
 }

@@ -4,15 +4,17 @@
 //! checked for plausibility ([`Summary::check_figures`]) and every recorded option against the
 //! command line's limits ([`SummaryOptions::check`]): diagnose refits with them.
 
+use crate::calib::diagnose::data_errors::DataError;
 use crate::calib::fit::{Estimate, IdentifiabilityReport, StartOutcome};
 use crate::calib::floor::{Gap, NoiseFloor, PointFloor};
 use crate::calib::identify::Identifiability;
 use crate::calib::nuisance::drift::{DriftSpec, SessionDrift};
 use crate::calib::nuisance::tool::{FloatedTool, ToolRotation};
-use crate::calib::outliers::LandmarkOutlier;
-use crate::calib::setup::{Objective, SolveOptions, HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS};
+use crate::calib::outliers::Outlier;
+use crate::calib::setup::{
+    Change, Objective, Setup, SolveOptions, HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS,
+};
 use crate::calib::study::StudyRow;
-use crate::calib::tracker_errors::DataError;
 use crate::calib::validate::{AngleStats, ErrorStats, GroupStats, Repeatability, SessionValidation};
 use crate::data::{DataKind, Joints, MAX_ARTEFACT_SPAN_MM};
 use crate::model::effects::Effect;
@@ -68,6 +70,45 @@ pub struct RunInputs {
 }
 
 impl RunInputs {
+    /// The setup of a run of these inputs with `options`: its options, floated tools, σ and the
+    /// options it was given.
+    pub fn setup(&self, options: &SolveOptions) -> Setup {
+        let mut given: Vec<String> = self.add.iter().map(|e| format!("--add {e}")).collect();
+        given.extend(self.exclude_landmarks.iter().map(|l| format!("--exclude-landmark {l}")));
+        given.extend(self.exclude_blocks.iter().map(|b| format!("--exclude-block {b}")));
+        given.extend(self.exclude_points.iter().map(|p| format!("--exclude-point {p}")));
+        given.extend(self.float_tool.iter().map(|g| format!("--float-tool {g}")));
+        given.extend(self.drift_sessions.iter().map(|d| format!("--drift-session {d}")));
+        Setup {
+            options: SolveOptions {
+                orientation_sigma_deg: self.orientation_sigma_deg,
+                drift_sessions: self.drift_sessions.clone(),
+                ..options.clone()
+            },
+            float_tool: self.float_tool.clone(),
+            stated_sigma_mm: self.stated_sigma_mm,
+            changes: Vec::new(),
+            given,
+        }
+    }
+
+    /// These inputs with the changes of `setup` applied, as `kincal calibrate` would be given
+    /// them.
+    pub fn with_changes(&self, setup: &Setup) -> RunInputs {
+        let mut out = self.clone();
+        for change in &setup.changes {
+            match change {
+                Change::Effect(e) => out.add.push(e.to_string()),
+                Change::FloatTool(group) => out.float_tool.push(group.clone()),
+                Change::Drift(spec) => out.drift_sessions.push(spec.clone()),
+                Change::ExcludePoints(points) => out.exclude_points.extend(points.iter().cloned()),
+                Change::ExcludeBlock(block) => out.exclude_blocks.push(block.clone()),
+                Change::FreeLandmark(id) => out.exclude_landmarks.push(id.clone()),
+            }
+        }
+        out
+    }
+
     /// Inputs from the model, artefact (if any) and the two folders, nothing else set.
     pub fn new(
         model: PathBuf,
@@ -339,7 +380,7 @@ pub struct Summary {
     pub floor: FloorSummary,
     /// Appendix-F outlier metrics per landmark or session (calibration data).
     #[serde(default)]
-    pub outliers: Vec<LandmarkOutlier>,
+    pub outliers: Vec<Outlier>,
     /// The outlier metrics were not computed (`--no-outliers`).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub outliers_skipped: bool,

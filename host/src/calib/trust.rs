@@ -89,9 +89,10 @@ impl TrustScales {
         TrustScales { span_mm: cal.landmark_span_mm(), repeat_spread_mm }
     }
 
-    /// Largest distance RMS, mm, any calibration on the artefact may have.
-    pub fn artefact_limit_mm(&self) -> f64 {
-        SPAN_FRACTION * self.span_mm
+    /// Largest distance RMS, mm, any calibration on the artefact may have (`None` without
+    /// landmarks: instrument points alone have no artefact to bound them).
+    pub fn artefact_limit_mm(&self) -> Option<f64> {
+        (self.span_mm > 0.0).then_some(SPAN_FRACTION * self.span_mm)
     }
 
     /// Largest calibration RMS, mm, the touches' spread allows.
@@ -150,10 +151,11 @@ impl TrustScales {
 
     /// Why an RMS (mm) is not finite or beyond the artefact's scale.
     fn artefact_beyond(&self, what: &str, rms_mm: f64) -> Option<String> {
-        let limit = self.artefact_limit_mm();
         if !rms_mm.is_finite() {
-            Some(format!("the {what} RMS is not a finite number"))
-        } else if rms_mm > limit {
+            return Some(format!("the {what} RMS is not a finite number"));
+        }
+        let limit = self.artefact_limit_mm()?;
+        if rms_mm > limit {
             Some(format!(
                 "{what} RMS {rms_mm:.3} mm exceeds {:.0} % of the artefact's largest certified distance \
                  ({:.1} mm → {limit:.3} mm): no calibration measures distances this badly — {CAUSE}",

@@ -174,6 +174,33 @@ pub fn distance_errors(model: &ArmModel, data: &Observations) -> Vec<PairError> 
         .collect()
 }
 
+/// Each touch's residual after a rigid fit of the artefact to the touched positions of its
+/// placement (all its repeats together; placements with at least `min_touches` touches): the
+/// tool point less the fitted landmark, in the arm's base frame, mm.
+pub fn placement_residuals(
+    model: &ArmModel,
+    data: &Observations,
+    min_touches: usize,
+) -> Vec<Option<Vector3<f64>>> {
+    let p = positions(model, data);
+    let mut out = vec![None; data.obs.len()];
+    for placement in 0..data.groups.len() {
+        let idx: Vec<usize> = (0..data.obs.len())
+            .filter(|&k| data.obs[k].group == placement && data.obs[k].landmark().is_some())
+            .collect();
+        if idx.len() < min_touches {
+            continue;
+        }
+        let q: Vec<Vector3<f64>> =
+            idx.iter().map(|&k| Vector3::from(data.landmarks[data.obs[k].touched()].xyz_mm)).collect();
+        let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
+        for (&k, r) in idx.iter().zip(Frame::residuals(&q, &pm)) {
+            out[k] = Some(r);
+        }
+    }
+    out
+}
+
 /// Validate `model` on `data`.
 pub fn validate(model: &ArmModel, data: &Observations) -> Validation {
     let errors = distance_errors(model, data);
@@ -411,14 +438,8 @@ pub fn session_residuals_mm(
     b: usize,
     tool_offset_mm: [f64; 3],
 ) -> Vec<Vector3<f64>> {
-    let offset = &Vector3::from(tool_offset_mm);
-    let frame = block_frame(model, data, b, offset);
-    points_of(data, b)
-        .map(|p| {
-            frame.rotation.transpose()
-                * (p.point_mm().unwrap_or_default() - frame.apply(&model_point(model, &p.q_deg, offset)))
-        })
-        .collect()
+    let (frame, residuals) = session_fit(model, data, b, tool_offset_mm);
+    residuals.iter().map(|r| frame.rotation.transpose() * -r).collect()
 }
 
 impl SessionValidation {
@@ -437,6 +458,22 @@ impl SessionValidation {
 /// Most points of a session whose pairwise distances are compared (evenly spaced beyond).
 pub const MAX_PAIRWISE_POINTS: usize = 2000;
 
+/// Block `b`'s frame for `model` (closed form) and the position error of every point with it, in
+/// file order, in the instrument's frame (predicted − measured), mm.
+fn session_fit(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    tool_offset_mm: [f64; 3],
+) -> (Frame, Vec<Vector3<f64>>) {
+    let offset = &Vector3::from(tool_offset_mm);
+    let frame = block_frame(model, data, b, offset);
+    let residuals = points_of(data, b)
+        .map(|p| frame.apply(&model_point(model, &p.q_deg, offset)) - p.point_mm().unwrap_or_default())
+        .collect();
+    (frame, residuals)
+}
+
 /// Position error of every point of block `b` for `model`, its frame refitted (closed form), in
 /// file order, in the instrument's frame, mm.
 pub fn session_residuals(
@@ -445,11 +482,7 @@ pub fn session_residuals(
     b: usize,
     tool_offset_mm: [f64; 3],
 ) -> Vec<Vector3<f64>> {
-    let offset = &Vector3::from(tool_offset_mm);
-    let frame = block_frame(model, data, b, offset);
-    points_of(data, b)
-        .map(|p| frame.apply(&model_point(model, &p.q_deg, offset)) - p.point_mm().unwrap_or_default())
-        .collect()
+    session_fit(model, data, b, tool_offset_mm).1
 }
 
 /// Lengths of [`session_residuals`], mm.

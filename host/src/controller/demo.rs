@@ -10,8 +10,8 @@
 //! after a rigid registration of the streamed tool points to the true ones, as a navigation
 //! system registers the tracker to the patient.
 
-use crate::calib::auto::{auto_loop, AutoLoop, Stop};
-use crate::calib::fit::CalibError;
+use crate::calib::diagnose::auto::{auto_loop, AutoLoop, Stop};
+use crate::calib::diagnose::{diagnose, DiagnoseError};
 use crate::calib::run::{run, Run, RunError};
 use crate::calib::setup::SolveOptions;
 use crate::calib::summary::RunInputs;
@@ -19,7 +19,6 @@ use crate::controller::link::{Link, LinkError};
 use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step, Verdict};
 use crate::controller::signing::StationKey;
 use crate::data::Artefact;
-use crate::model::effects::Effect;
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::geometry::absolute_orientation;
 use crate::simulate::{
@@ -99,7 +98,7 @@ pub enum LoopError {
     Params(#[from] crate::controller::device::DeviceParamsError),
     /// The diagnose → add loop could not recalibrate.
     #[error("diagnose → add: {0}")]
-    Added(#[from] CalibError),
+    Added(#[from] DiagnoseError),
     /// The demo's station key could not be made or read.
     #[error(transparent)]
     Key(#[from] crate::controller::signing::KeyFileError),
@@ -111,7 +110,7 @@ pub enum LoopError {
 /// One step of diagnose → add: what was added and where the validation error is.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct MissionStep {
-    /// Effect added at this step (`None` for the model as given).
+    /// What was applied at this step (`None` for the model as given).
     pub added: Option<String>,
     /// Validation distance RMS of this step's calibrated model, mm.
     pub validation_rms_mm: f64,
@@ -131,7 +130,7 @@ pub struct Mission {
     pub last: Option<Run>,
     /// Every step, the model as given first.
     pub steps: Vec<MissionStep>,
-    /// Effects added, in order.
+    /// Changes applied, in order.
     pub added: Vec<String>,
 }
 
@@ -158,30 +157,28 @@ pub fn calibrate_diagnose_add(
     progress("diagnosing, adding what the diagnosis names, recalibrating");
     let (cal, val) = inputs.read_folders()?;
     let cal = inputs.exclude(&cal, &val)?.0;
-    let auto = auto_loop(&first.calibration.model, &cal, &first.validation_data, options, MAX_ADDED)?;
+    let setup = inputs.setup(options);
+    let val = &first.validation_data;
+    let auto = auto_loop(&setup, &first.calibration.model, &cal, val, MAX_ADDED)?;
     crate::store::write_auto(&auto, &out.join("run"))?;
-    let first_diagnosis =
-        crate::calib::diagnose::diagnose(&first.calibration.model, &cal, &first.validation_data, options);
+    let first_diagnosis = diagnose(&setup, &first.calibration.model, &cal, val)?;
     crate::store::write_diagnosis(&first_diagnosis, &out.join("run"))?;
     let steps = auto
         .steps
         .iter()
         .map(|s| MissionStep {
-            added: s.added.clone(),
-            validation_rms_mm: s.validation_rms_mm,
+            added: s.applied.clone(),
+            validation_rms_mm: s.held_out_rms_mm,
             expected_floor_mm: s.expected_rms_mm,
             p_value: s.p_value,
         })
         .collect();
-    let added: Vec<String> = auto.steps.iter().filter_map(|s| s.added.clone()).collect();
-    let effects: Vec<Effect> = added.iter().filter_map(|a| Effect::parse(a)).collect();
-    let last = if effects.is_empty() {
+    let added: Vec<String> = auto.steps.iter().filter_map(|s| s.applied.clone()).collect();
+    let last = if added.is_empty() {
         None
     } else {
         progress(&format!("calibrating with {} added", added.join(", ")));
-        let with_effects =
-            RunInputs { add: effects.iter().map(ToString::to_string).collect(), ..inputs.clone() };
-        let last = run(&with_effects, options, 0, true)?;
+        let last = run(&inputs.with_changes(&auto.setup), options, 0, true)?;
         crate::store::write_run(&last, &out.join("run-added"))?;
         Some(last)
     };
@@ -209,6 +206,32 @@ pub fn demo_station_key(out: &std::path::Path) -> Result<StationKey, LoopError> 
     }
     std::fs::create_dir_all(out).map_err(|e| LoopError::Files(format!("{}: {e}", out.display())))?;
     Ok(StationKey::create(&path)?)
+}
+
+/// The demo's true arm for `seed`: `nominal` off by the simulation's perturbation, with the
+/// demo's hidden effect ([`DEMO_HIDDEN`]).
+pub fn demo_truth(nominal: &ArmModel, seed: u64) -> ArmModel {
+    true_arm(nominal, seed, &[DEMO_HIDDEN], &mut ChaCha8Rng::seed_from_u64(seed))
+}
+
+/// `nominal` off by the simulation's perturbation (drawn from `rng`), plus the `hidden` deltas.
+fn true_arm(nominal: &ArmModel, seed: u64, hidden: &[(ParamId, f64)], rng: &mut ChaCha8Rng) -> ArmModel {
+    let sim = SimulationOptions { seed, ..SimulationOptions::default() };
+    let mut truth = perturbed_truth(nominal, &sim, rng);
+    for (id, delta) in hidden {
+        truth.set(*id, truth.get(*id) + delta);
+    }
+    truth
+}
+
+/// Sign `model` with `key` as the next parameter version for the controller on `link` and
+/// upload it.
+pub fn upload_model(link: &mut Link, model: &ArmModel, key: &StationKey) -> Result<(), LoopError> {
+    let info = link.info()?;
+    let set =
+        crate::controller::device::signed_parameter_set(model, info.param_version + 1, &info.arm_id, key)?;
+    link.upload(&set)?;
+    Ok(())
 }
 
 /// What the loop measured.
@@ -353,12 +376,8 @@ pub fn run_loop(
 ) -> Result<LoopReport, LoopError> {
     let started = Instant::now();
     let files = |e: &dyn std::fmt::Display| LoopError::Files(e.to_string());
-    let sim = SimulationOptions { seed: options.seed, ..SimulationOptions::default() };
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
-    let mut truth = perturbed_truth(nominal, &sim, &mut rng);
-    for (id, delta) in &options.hidden {
-        truth.set(*id, truth.get(*id) + delta);
-    }
+    let truth = true_arm(nominal, options.seed, &options.hidden, &mut rng);
     let artefact = suta_artefact(&mut rng);
     let data = options.out.join("data");
     claim_data_folder(&data, options.seed)?;
@@ -435,14 +454,7 @@ pub fn run_loop(
             check_counts.len()
         ));
         let t = Instant::now();
-        let info = link.info()?;
-        let set = crate::controller::device::signed_parameter_set(
-            model,
-            info.param_version + 1,
-            &info.arm_id,
-            &key,
-        )?;
-        link.upload(&set)?;
+        upload_model(link, model, &key)?;
         let upload = t.elapsed().as_secs_f64();
         let points =
             check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;

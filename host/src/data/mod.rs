@@ -9,7 +9,10 @@
 //! ```
 //! `std_deg`, `samples` and `rejected` are optional; sessions may miss landmarks. A session
 //! holds one angle per joint of the arm (1 to 12; six for the SUTA), the same count in every
-//! measurement. Tracker sessions (points measured by an instrument) are read by [`tracker`].
+//! measurement. A session recorded by `kincal record` also names the arm it was recorded on
+//! (`"arm": {"id": "lab-arm-2", "firmware": "kincal-fw 0.1.0", "board": "…"}`, read by
+//! [`session_arm`]); older sessions have none.
+//! Tracker sessions (points measured by an instrument) are read by [`tracker`].
 //! Both readers make [`Observations`], the one shape everything downstream reads
 //! ([`observations`]); [`load_folder`] reads a folder of either kind or of both.
 
@@ -366,6 +369,22 @@ impl Session {
     }
 }
 
+/// The arm a session file names (`"arm"`, written by `kincal record`), checked; `None` for a
+/// session that names none (recorded before kincal wrote it, simulated or written by hand).
+pub fn session_arm(path: &Path) -> Result<Option<crate::trace::ArmIdentity>, FileError> {
+    #[derive(serde::Deserialize)]
+    struct Named {
+        #[serde(default)]
+        arm: Option<crate::trace::ArmIdentity>,
+    }
+    check_size(path)?;
+    let named: Named = read_json(path)?;
+    if let Some(arm) = &named.arm {
+        arm.check().map_err(|(key, message)| field_error(path, format!("arm.{key}"), message))?;
+    }
+    Ok(named.arm)
+}
+
 /// The joint count of a session's measurements: the count most of them hold (1 to
 /// [`MAX_JOINTS`]), so that the one measurement that differs is the one named.
 fn session_joints(path: &Path, session: &Session) -> Result<usize, FileError> {
@@ -438,17 +457,8 @@ impl Observations {
                 };
                 data.joints = data.joints.max(q_deg.len());
                 data.obs.push(Observation {
-                    block: 0,
-                    group,
-                    repeat: m.repeat,
-                    q_deg,
                     q_sigma_deg,
-                    target: Target::Landmark(landmark),
-                    sigma_mm: None,
-                    time_s: None,
-                    temp_c: None,
-                    pose: None,
-                    line: i + 1,
+                    ..Observation::touch(group, landmark, m.repeat, q_deg, i + 1)
                 });
             }
         }
@@ -729,6 +739,31 @@ mod tests {
         let path = dir.join("ok.json");
         Artefact { format: ARTEFACT_FORMAT.into(), landmarks: grid(100.0) }.save(&path).unwrap();
         assert_eq!(Artefact::load(&path).unwrap().span_mm(), 100.0 * 2.0_f64.sqrt());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A session names its arm or not; both are read as sessions, and a bad identity names its
+    /// field.
+    #[test]
+    fn a_session_names_its_arm_or_none() {
+        let dir = std::env::temp_dir().join(format!("kincal-session-arm-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let old = r#"{"format":"suta-session/1","placement":"A","purpose":"calibration","measurements":
+            [{"landmark":"O","repeat":1,"joints_deg":[1,2,3,4,5,6]}]}"#;
+        let path = dir.join("s.json");
+        std::fs::write(&path, old).unwrap();
+        assert_eq!(session_arm(&path).unwrap(), None);
+        let named = old.replace(
+            r#""purpose""#,
+            r#""arm":{"id":"lab-arm-2","firmware":"kincal-fw 0.1.0","board":"mps2"},"purpose""#,
+        );
+        std::fs::write(&path, &named).unwrap();
+        let arm = session_arm(&path).unwrap().unwrap();
+        assert_eq!((arm.id.as_str(), arm.firmware.as_deref()), ("lab-arm-2", Some("kincal-fw 0.1.0")));
+        assert_eq!(Session::load(&path, &artefact()).unwrap().measurements.len(), 1, "read as a session");
+        std::fs::write(&path, named.replace("lab-arm-2", "lab arm 2")).unwrap();
+        let err = session_arm(&path).unwrap_err().to_string();
+        assert!(err.contains("s.json") && err.contains("arm.id"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
     }
 

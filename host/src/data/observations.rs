@@ -202,6 +202,24 @@ pub struct Observation {
 }
 
 impl Observation {
+    /// An artefact touch of `landmark` in `group` at `q_deg` (block set by
+    /// [`Observations::rebuild_blocks`]); `line` is its 1-based measurement number.
+    pub fn touch(group: usize, landmark: usize, repeat: u32, q_deg: Joints, line: usize) -> Observation {
+        Observation {
+            block: 0,
+            group,
+            repeat,
+            q_deg,
+            q_sigma_deg: None,
+            target: Target::Landmark(landmark),
+            sigma_mm: None,
+            time_s: None,
+            temp_c: None,
+            pose: None,
+            line,
+        }
+    }
+
     /// The landmark touched, for an artefact touch.
     pub fn landmark(&self) -> Option<usize> {
         match self.target {
@@ -277,19 +295,7 @@ impl Observations {
         }
         for (i, &(group, landmark, repeat, q)) in touches.iter().enumerate() {
             let Some(q_deg) = Joints::new(q) else { continue };
-            data.obs.push(Observation {
-                block: 0,
-                group,
-                repeat,
-                q_deg,
-                q_sigma_deg: None,
-                target: Target::Landmark(landmark),
-                sigma_mm: None,
-                time_s: None,
-                temp_c: None,
-                pose: None,
-                line: i + 1,
-            });
+            data.obs.push(Observation::touch(group, landmark, repeat, q_deg, i + 1));
         }
         data.rebuild_blocks();
         data
@@ -458,6 +464,11 @@ impl Observations {
         (0..self.obs.len()).filter(|&k| self.point_name(k) == name).collect()
     }
 
+    /// The instrument sessions (blocks of tracker groups), in order.
+    pub fn sessions(&self) -> Vec<usize> {
+        (0..self.blocks.len()).filter(|&b| self.groups[self.blocks[b].group].kind == Kind::Tracker).collect()
+    }
+
     /// The canonical name of block `b` (`--exclude-block`): `PLACEMENT/REPEAT`, or the session.
     pub fn block_name(&self, b: usize) -> String {
         let block = &self.blocks[b];
@@ -499,19 +510,7 @@ mod tests {
     use super::*;
 
     fn touch(group: usize, landmark: usize, repeat: u32) -> Observation {
-        Observation {
-            block: 0,
-            group,
-            repeat,
-            q_deg: Joints::new(&[0.0; 6]).unwrap(),
-            q_sigma_deg: None,
-            target: Target::Landmark(landmark),
-            sigma_mm: None,
-            time_s: None,
-            temp_c: None,
-            pose: None,
-            line: 1,
-        }
+        Observation::touch(group, landmark, repeat, Joints::new(&[0.0; 6]).unwrap(), 1)
     }
 
     #[test]

@@ -19,7 +19,7 @@
 //! A folder is a tracker folder when it holds `*.csv` files whose first line is the tag.
 
 use crate::data::{Joints, Kind, Observation, Observations, Target};
-use crate::files::FileError;
+use crate::files::{row_error, FileError};
 use crate::model::MAX_JOINTS;
 use nalgebra::{UnitQuaternion, Vector3};
 use std::path::{Path, PathBuf};
@@ -84,12 +84,7 @@ fn layout(
     header: &[&str],
     warnings: &mut Vec<String>,
 ) -> Result<Layout, FileError> {
-    let row = |column: &str, message: String| FileError::Row {
-        path: path.to_owned(),
-        line,
-        column: column.to_string(),
-        message,
-    };
+    let row = |column: &str, message: String| row_error(path, line, column, message);
     let find = |name: &str| header.iter().position(|h| *h == name);
     for (k, h) in header.iter().enumerate() {
         if header[..k].contains(h) {
@@ -185,12 +180,7 @@ pub fn read_tagged_session(
 ) -> Result<SessionFile, FileError> {
     let text =
         std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
-    let row_error = |line: usize, column: &str, message: String| FileError::Row {
-        path: path.to_owned(),
-        line,
-        column: column.to_string(),
-        message,
-    };
+    let row_error = |line: usize, column: &str, message: String| row_error(path, line, column, message);
     let mut lines = text
         .lines()
         .enumerate()

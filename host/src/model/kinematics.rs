@@ -12,6 +12,12 @@
 //! becomes dp = W × p + V, dx = W × x, dz = W × z once p, x and z are known: every column exact,
 //! no backward pass, no stored prefix.
 //!
+//! A URDF joint origin's calibrated turn is one rotation exp(ω) after its fixed nominal
+//! orientation R(rpy), applied as one fixed op R(rpy)·exp(ω). Moving ω by δ turns the frame by
+//! exp(J_l(ω)·δ)·exp(ω) (J_l the left Jacobian of SO(3)), so its columns are those of rotations
+//! about the axes R(rpy)·J_l(ω)·e_k: at ω = 0 the three frame axes themselves, whatever the
+//! nominal orientation (no gimbal lock).
+//!
 //! A [`Chain`] holds what does not change from one pose to the next (the ops of one model, the
 //! fixed rotations' sines and cosines): build it once per model and evaluate it per pose
 //! (pinocchio's model/data split); [`tool_pose`] and [`tool_pose_with_jacobian`] build one per call.
@@ -29,7 +35,7 @@
 use super::params::PARAM_SLOTS;
 use super::{ArmModel, Convention, ParamId, MAX_JOINTS};
 use crate::model::effects::{compliance, eccentricity, harmonic};
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, Rotation3, Vector3};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
@@ -123,8 +129,13 @@ enum Axis {
 
 #[derive(Clone, Copy)]
 enum OpKind {
+    /// A rotation by the op's value (rad) about an axis.
     Rotate(Axis),
+    /// A translation by the op's value (mm) along an axis.
     Translate(Axis),
+    /// A fixed rotation: a URDF origin's nominal roll-pitch-yaw and its calibrated turn,
+    /// R(rpy)·exp([ω]×).
+    Orient(Matrix3<f64>),
 }
 
 /// What an op's value depends on.
@@ -134,6 +145,9 @@ enum Dep {
     Param(usize, f64),
     /// Joint j's angle (see [`Chain::joint_angle`]).
     JointAngle(usize),
+    /// Joint j's origin turn ω (`origin_rx:j`, `origin_ry:j`, `origin_rz:j`): the columns of
+    /// R(rpy)·J_l(ω) are the axes, in the frame before the op, the frame turns about per radian.
+    OriginTurn(usize, Matrix3<f64>),
 }
 
 /// One elementary transform; a rotation carries its angle's sine and cosine.
@@ -202,26 +216,44 @@ impl Frame {
                 }
                 w
             }
+            OpKind::Orient(m) => {
+                self.turn(&m);
+                Vector3::zeros()
+            }
         }
+    }
+
+    /// R·m.
+    fn turn(&mut self, m: &Matrix3<f64>) {
+        let [x, y, z] = self.axes;
+        self.axes = [0, 1, 2].map(|i| x * m[(0, i)] + y * m[(1, i)] + z * m[(2, i)]);
     }
 
     /// R·(I + sin θ K + (1 − cos θ) K²), K the cross matrix of the unit axis `u` (Rodrigues).
     #[inline(never)]
     fn rotate_about(&mut self, u: &Vector3<f64>, s: f64, c: f64) {
-        let [x, y, z] = self.axes;
         let k = u.cross_matrix();
         let m: Matrix3<f64> = Matrix3::identity() + k * s + k * k * (1.0 - c);
-        self.axes = [0, 1, 2].map(|i| x * m[(0, i)] + y * m[(1, i)] + z * m[(2, i)]);
+        self.turn(&m);
     }
 }
 
-/// Elementary ops per joint row: five for DH (θ, d, a, α, β), seven for URDF (x, y, z, yaw,
-/// pitch, roll, θ).
-fn ops_per_joint(convention: Convention) -> usize {
-    match convention {
-        Convention::Classic | Convention::Modified => 5,
-        Convention::Urdf => 7,
-    }
+/// Elementary ops per joint row: five for DH (θ, d, a, α, β) and for URDF (x, y, z, the
+/// origin's orientation, θ).
+const OPS_PER_JOINT: usize = 5;
+
+/// The left Jacobian of SO(3) at ω (rad): exp(ω + δ) = exp(J_l(ω)·δ)·exp(ω) to first order.
+/// J_l = I + (1 − cos θ)/θ² [ω]× + (θ − sin θ)/θ³ [ω]×², θ = |ω| (series below 1e-4 rad).
+fn left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
+    let theta = w.norm();
+    let k = w.cross_matrix();
+    let (a, b) = if theta < 1e-4 {
+        let t2 = theta * theta;
+        (0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0)
+    } else {
+        ((1.0 - theta.cos()) / (theta * theta), (theta - theta.sin()) / (theta * theta * theta))
+    };
+    Matrix3::identity() + k * a + k * k * b
 }
 
 /// Parameters a joint angle depends on: offset, four eccentricity terms, four higher
@@ -247,7 +279,7 @@ impl<'m> Chain<'m> {
     /// The chain of `model`.
     pub fn new(model: &'m ArmModel) -> Chain<'m> {
         let joints = model.joints.len().min(MAX_JOINTS);
-        let mut ops = Vec::with_capacity(joints * ops_per_joint(model.convention) + 3);
+        let mut ops = Vec::with_capacity(joints * OPS_PER_JOINT + 3);
         for (j, joint) in model.joints.iter().take(joints).enumerate() {
             let theta_axis = match model.convention {
                 Convention::Urdf => Axis::Unit(Vector3::from(joint.axis)),
@@ -261,14 +293,20 @@ impl<'m> Chain<'m> {
             };
             if model.convention == Convention::Urdf {
                 let [x, y, z] = joint.origin_xyz_mm;
-                let [roll, pitch, yaw] = joint.origin_rpy_deg;
+                let [roll, pitch, yaw] = joint.origin_rpy_deg.map(|v| v * DEG);
+                let nominal = Rotation3::from_euler_angles(roll, pitch, yaw).into_inner();
+                let turn = Vector3::from(joint.origin_turn_deg) * DEG;
+                let orient = Op {
+                    kind: OpKind::Orient(nominal * Rotation3::new(turn).into_inner()),
+                    value: 0.0,
+                    sin_cos: (0.0, 1.0),
+                    dep: Dep::OriginTurn(j, nominal * left_jacobian(&turn)),
+                };
                 ops.extend([
                     shift(Axis::X, x, ParamId::OriginXyz(j, 0)),
                     shift(Axis::Y, y, ParamId::OriginXyz(j, 1)),
                     shift(Axis::Z, z, ParamId::OriginXyz(j, 2)),
-                    rot(Axis::Z, yaw, ParamId::OriginRpy(j, 2)),
-                    rot(Axis::Y, pitch, ParamId::OriginRpy(j, 1)),
-                    rot(Axis::X, roll, ParamId::OriginRpy(j, 0)),
+                    orient,
                     theta,
                 ]);
                 continue;
@@ -394,7 +432,7 @@ impl<'m> Chain<'m> {
 
     /// Gravity levers λ_j (m) of every joint on the arm without compliance deflection.
     fn gravity_levers(&self, enc: impl Fn(usize) -> f64, harmonics: bool) -> [f64; MAX_JOINTS] {
-        let per_joint = ops_per_joint(self.model.convention);
+        let per_joint = OPS_PER_JOINT;
         // Per joint: its axis' point and direction (before its θ op) and the origin at its row's end.
         let mut axes = [(Vector3::zeros(), Vector3::zeros()); MAX_JOINTS];
         let mut masses = [Vector3::zeros(); MAX_JOINTS + 1];
@@ -407,7 +445,7 @@ impl<'m> Chain<'m> {
                     let (theta, ..) = self.joint_angle(j, enc(j), 0.0, harmonics, false);
                     frame.apply(&Self::with_angle(op, theta));
                 }
-                Dep::Param(..) => {
+                Dep::Param(..) | Dep::OriginTurn(..) => {
                     frame.apply(op);
                 }
             }
@@ -452,6 +490,17 @@ impl<'m> Chain<'m> {
                     if let (Some(c), Some((_, jac))) = (column, wanted.as_mut()) {
                         gather(&mut jac[c], op, &dir, &origin, dv);
                     }
+                }
+                Dep::OriginTurn(j, axes) => {
+                    if let Some((columns, jac)) = wanted.as_mut() {
+                        for k in 0..3 {
+                            if let Some(c) = columns.column(ParamId::OriginTurn(j, k).dense_index()) {
+                                let dir = frame.direction(Axis::Unit(axes.column(k).into_owned()));
+                                gather_rotation(&mut jac[c], &dir, &origin, DEG);
+                            }
+                        }
+                    }
+                    frame.apply(op);
                 }
                 Dep::JointAngle(j) => {
                     let (theta, partials, count) =
@@ -507,13 +556,17 @@ fn gather(col: &mut PoseDerivative, op: &Op, dir: &Vector3<f64>, origin: &Vector
                 col[k] += dir[k] * dv;
             }
         }
-        OpKind::Rotate(_) => {
-            let v = dir.cross(origin);
-            for k in 0..3 {
-                col[k] -= v[k] * dv;
-                col[3 + k] += dir[k] * dv;
-            }
-        }
+        OpKind::Rotate(_) | OpKind::Orient(_) => gather_rotation(col, dir, origin, dv),
+    }
+}
+
+/// Add a rotation's share to a column (see [`gather`]): about `dir` through `origin`.
+#[inline(always)]
+fn gather_rotation(col: &mut PoseDerivative, dir: &Vector3<f64>, origin: &Vector3<f64>, dv: f64) {
+    let v = dir.cross(origin);
+    for k in 0..3 {
+        col[k] -= v[k] * dv;
+        col[3 + k] += dir[k] * dv;
     }
 }
 
@@ -640,6 +693,8 @@ mod tests {
                     let s = j as f64;
                     joint.origin_xyz_mm = [10.0 * s, -20.0 + s, joint.d_mm];
                     joint.origin_rpy_deg = [joint.alpha_deg, 7.0 * s, -3.0 * s];
+                    // A calibrated turn away from zero: its columns use J_l(ω), not the identity.
+                    joint.origin_turn_deg = [2.0 - s, 0.5 * s, 9.0 - 3.0 * s];
                     let n = (1.0 + 0.04 * s * s).sqrt();
                     joint.axis = [0.2 * s / n, 0.0, 1.0 / n];
                     (joint.d_mm, joint.a_mm, joint.alpha_deg, joint.axis_deg) = (0.0, 0.0, 0.0, 0.0);
@@ -678,5 +733,66 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// UR's shoulder and wrist origins sit at pitch ±90°, where roll and yaw turn about one axis.
+    /// The origin's turn ω about its own frame moves the tool frame in three independent
+    /// directions there (and at pitch 0, and at UR's rounded 1.570796325 rad): the tool frame's
+    /// angular velocities per degree of the three turns have rank 3, all singular values one
+    /// degree (no direction weaker than another).
+    /// Roll-pitch-yaw as parameters would lose one: their derivatives' rotation axes at pitch 90°
+    /// are parallel, as the last assertion shows.
+    #[test]
+    fn an_origin_at_pitch_90_degrees_loses_no_rotation_direction() {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = Convention::Urdf;
+        model.joints.truncate(3);
+        model.free.clear();
+        for joint in &mut model.joints {
+            (joint.d_mm, joint.alpha_deg, joint.offset_deg) = (0.0, 0.0, 0.0);
+        }
+        model.joints[0].origin_xyz_mm = [0.0, 0.0, 89.159];
+        model.joints[1].origin_xyz_mm = [0.0, 135.85, 0.0];
+        model.joints[1].axis = [0.0, 1.0, 0.0];
+        model.joints[2].origin_xyz_mm = [0.0, -119.7, 425.0];
+        model.joints[2].axis = [0.0, 1.0, 0.0];
+        model.tcp_mm = [0.0, 0.0, 392.25];
+        let turns: Vec<ParamId> = (0..3).map(|k| ParamId::OriginTurn(1, k)).collect();
+        for pitch_deg in [90.0, -90.0, 1.570796325_f64.to_degrees(), 0.0] {
+            model.joints[1].origin_rpy_deg = [0.0, pitch_deg, 0.0];
+            for enc in [[0.0, 0.0, 0.0], [30.0, -60.0, 45.0]] {
+                let mut jac = vec![[0.0; 9]; 3];
+                let pose = tool_pose_with_jacobian(&model, &enc, &ColumnMap::new(&turns), &mut jac);
+                // The tool frame's angular velocity per degree of each turn: w = x × dx − (y·dz) x.
+                let (x, z) = (pose.x_axis, pose.z_axis);
+                let y = z.cross(&x);
+                let w = Matrix3::from_fn(|r, c| {
+                    let (dx, dz) =
+                        (Vector3::from_fn(|k, _| jac[c][3 + k]), Vector3::from_fn(|k, _| jac[c][6 + k]));
+                    (x.cross(&dx) - x * y.dot(&dz))[r]
+                });
+                let sv = w.singular_values();
+                for s in sv.iter() {
+                    assert!(
+                        (s - DEG).abs() < 1e-9,
+                        "pitch {pitch_deg}: singular values {sv}, expected 3 × {DEG}"
+                    );
+                }
+            }
+        }
+        // Roll-pitch-yaw at pitch 90°: ∂R/∂roll and ∂R/∂yaw turn about the same axis.
+        let rpy = |r: f64, p: f64, y: f64| Rotation3::from_euler_angles(r, p, y).into_inner();
+        let h = 1e-7;
+        let axis_of = |d: Matrix3<f64>| {
+            let w = d * rpy(0.0, std::f64::consts::FRAC_PI_2, 0.0).transpose();
+            Vector3::new(w[(2, 1)], w[(0, 2)], w[(1, 0)]).normalize()
+        };
+        let half = std::f64::consts::FRAC_PI_2;
+        let d_roll = (rpy(h, half, 0.0) - rpy(-h, half, 0.0)) / (2.0 * h);
+        let d_yaw = (rpy(0.0, half, h) - rpy(0.0, half, -h)) / (2.0 * h);
+        assert!(
+            axis_of(d_roll).cross(&axis_of(d_yaw)).norm() < 1e-6,
+            "roll and yaw are one direction at pitch 90°"
+        );
     }
 }

@@ -7,10 +7,11 @@
 
 use super::svg::{self, escape};
 use super::{mm, page, table};
+use crate::calib::diagnose::data_errors::sessions::MIN_GAIN;
+use crate::calib::diagnose::data_errors::DataErrorKind;
 use crate::calib::fit::CONSTANT_ORIENTATION_DEG;
 use crate::calib::run::{PointResidual, Run, SessionResiduals};
 use crate::calib::summary::{SessionFigures, Summary};
-use crate::calib::tracker_errors::MIN_GAIN;
 use std::fmt::Write;
 
 /// The page is wider than the other reports: four residual plots side by side.
@@ -719,12 +720,12 @@ fn objective_comparison(body: &mut String, s: &Summary) {
     );
 }
 
-/// The appendix-F outlier metrics per landmark.
+/// The appendix-F outlier metrics per landmark and per calibration session.
 fn outliers(body: &mut String, s: &Summary) {
     if s.outliers_skipped {
         body.push_str(
             "<h2>Outlier diagnostics (thesis appendix F)</h2><p>Skipped (<code>--no-outliers</code>): no \
-             landmark was checked.</p>",
+             landmark or session was checked.</p>",
         );
         return;
     }
@@ -743,7 +744,7 @@ fn outliers(body: &mut String, s: &Summary) {
                 }
             };
             vec![
-                escape(&o.landmark),
+                format!("{} {}", escape(&o.what), escape(&o.name)),
                 cell(o.contribution_pct, "contribution"),
                 cell(o.cooks_distance, "cooks_distance"),
                 cell(o.loo_impact_pct, "leave_one_out"),
@@ -755,9 +756,9 @@ fn outliers(body: &mut String, s: &Summary) {
     let _ = write!(
         body,
         "<h2>Outlier diagnostics (thesis appendix F)</h2><p>Thresholds: contribution &gt; 1.5× its share, Cook's \
-         distance &gt; 4/L, leave-one-out improvement &gt; 5 %, bias &gt; 1 mm; flagged when two or more \
-         exceed.</p>{}",
-        table(&["landmark", "contribution %", "Cook's D", "LOO impact %", "bias mm", ""], &rows)
+         distance &gt; 4/L, leave-one-out improvement &gt; 5 %, bias &gt; 1 mm (a landmark) or 1.5× the \
+         RMS of every point (a session); flagged when two or more exceed.</p>{}",
+        table(&["landmark or session", "contribution %", "Cook's D", "LOO impact %", "bias mm", ""], &rows)
     );
 }
 
@@ -798,11 +799,11 @@ fn data_errors(body: &mut String, s: &Summary) {
         .data_errors
         .iter()
         .map(|d| {
-            let unit = if d.kind == "drift" { "mm/h" } else { "mm" };
+            let unit = if d.kind == DataErrorKind::Drift { "mm/h" } else { "mm" };
             vec![
-                escape(&d.kind),
+                escape(d.kind.word()),
                 escape(&d.session),
-                escape(&d.set),
+                escape(d.set.word()),
                 format!("{} ± {} {unit}", mm4(d.size_mm), mm4(d.size_std_mm)),
                 format!("{} → {}", mm4(d.held_out_before_mm), mm4(d.held_out_after_mm)),
                 if d.significant { "<span class=flag>called</span>".into() } else { "not called".into() },

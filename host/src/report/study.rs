@@ -1,4 +1,5 @@
-//! The dataset-size study page (thesis §4.3): validation RMS against the number of placements.
+//! The dataset-size study page (thesis §4.3): held-out RMS against the number of calibration
+//! groups (placements or sessions).
 
 use super::{page, svg, table};
 use crate::calib::study::StudyRow;
@@ -14,7 +15,7 @@ pub fn study_body(rows: &[StudyRow]) -> String {
         .iter()
         .map(|r| {
             vec![
-                r.placements.to_string(),
+                r.groups.to_string(),
                 format!("{} of {}", r.calibrations + r.failed + r.implausible, r.possible_subsets),
                 r.calibrations.to_string(),
                 format!("{:.3}", r.mean_mm),
@@ -25,14 +26,14 @@ pub fn study_body(rows: &[StudyRow]) -> String {
         })
         .collect();
     let groups: Vec<(String, Vec<f64>)> =
-        rows.iter().map(|r| (r.placements.to_string(), r.rms_mm.clone())).collect();
+        rows.iter().map(|r| (r.groups.to_string(), r.rms_mm.clone())).collect();
     format!(
-        "<p>Validation RMS of calibrations on distinct random subsets of the calibration placements \
-         (every subset once when there are no more than asked for).</p>{}{}",
+        "<p>Held-out RMS of calibrations on distinct random subsets of the calibration groups \
+         (placements or sessions; every subset once when there are no more than asked for).</p>{}{}",
         table(
-            &["placements", "distinct subsets", "calibrations", "mean mm", "std mm", "min mm", "max mm"],
+            &["groups", "distinct subsets", "calibrations", "mean mm", "std mm", "min mm", "max mm"],
             &cells
         ),
-        svg::boxplot(&groups, "validation RMS (mm)")
+        svg::boxplot(&groups, "held-out RMS (mm)")
     )
 }

@@ -322,6 +322,43 @@ pub fn scatter(points: &[(f64, f64)], curve: &[(f64, f64)], x_label: &str, y_lab
     out + "</svg>"
 }
 
+/// A wide time plot: each series' points in its colour, over thin vertical marks (events such
+/// as direction changes); the y axis from zero.
+pub fn timeline(series: &[(&str, &[(f64, f64)])], marks: &[f64], x_label: &str, y_label: &str) -> String {
+    let all = || series.iter().flat_map(|(_, p)| p.iter());
+    let (x0, x1) = range(all().map(|p| p.0));
+    let ys: Vec<f64> = all().map(|p| p.1).collect();
+    let (_, y1) = robust_range(&ys);
+    if !x0.is_finite() || !y1.is_finite() {
+        return String::new();
+    }
+    let frame = Frame::new(940.0, 240.0, (x0, x1), (0.0, y1));
+    let mut out = String::new();
+    frame.open(&mut out, x_label, y_label, true);
+    for &m in marks.iter().filter(|m| (frame.x.0..=frame.x.1).contains(*m)) {
+        let _ = write!(
+            out,
+            r##"<line x1="{x:.1}" x2="{x:.1}" y1="{}" y2="{}" stroke="#bbb" stroke-dasharray="3,3"/>"##,
+            frame.py(frame.y.1),
+            frame.py(frame.y.0),
+            x = frame.px(m)
+        );
+    }
+    for (k, (_, points)) in series.iter().enumerate() {
+        for (x, y) in points.iter() {
+            let _ = write!(
+                out,
+                r#"<circle cx="{:.1}" cy="{:.1}" r="1.6" fill="{}" fill-opacity="0.6"/>"#,
+                frame.px(*x),
+                frame.py(y.clamp(frame.y.0, frame.y.1)),
+                COLORS[k % COLORS.len()]
+            );
+        }
+    }
+    legend(&mut out, &frame, &series.iter().map(|s| s.0).collect::<Vec<_>>());
+    out + "</svg>"
+}
+
 /// Horizontal bars, one per row (name, value, highlighted), against labelled reference lines
 /// (name, value) such as the noise floor.
 pub fn hbars(rows: &[(String, f64, bool)], references: &[(&str, f64)], x_label: &str) -> String {

@@ -3,16 +3,16 @@
 //! (`kincal-tracker-run/1`: held-out sessions, the floor, the data errors). Nothing writes them any
 //! more; a RUN folder of either kind stays readable by `diagnose`, `compare` and `plan`.
 
+use crate::calib::diagnose::data_errors::DataError;
 use crate::calib::fit::{Estimate, IdentifiabilityReport, StartOutcome};
 use crate::calib::floor::PointFloor;
 use crate::calib::identify::Identifiability;
 use crate::calib::nuisance::drift::{DriftSpec, SessionDrift};
 use crate::calib::nuisance::tool::{FloatedTool, ToolRotation};
-use crate::calib::outliers::LandmarkOutlier;
+use crate::calib::outliers::Outlier;
 use crate::calib::setup::Objective;
 use crate::calib::study::StudyRow;
 use crate::calib::summary::*;
-use crate::calib::tracker_errors::DataError;
 use crate::calib::validate::{AngleStats, ErrorStats};
 use crate::data::DataKind;
 use std::collections::BTreeMap;
@@ -79,7 +79,7 @@ pub struct ArtefactRunV1 {
     validation: ErrorStats,
     nominal_validation: ErrorStats,
     validation_detail: ValidationDetail,
-    outliers: Vec<LandmarkOutlier>,
+    outliers: Vec<Outlier>,
     #[serde(default)]
     outliers_skipped: bool,
     objective_comparison: ObjectiveComparison,

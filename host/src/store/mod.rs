@@ -12,7 +12,7 @@
 //! - Single files (`diagnosis.json` inside a RUN, the compare page) are written atomically; an
 //!   existing file is replaced only when kincal wrote it.
 
-use crate::calib::auto::AutoLoop;
+use crate::calib::diagnose::auto::AutoLoop;
 use crate::calib::diagnose::Diagnosis;
 use crate::calib::run::Run;
 use crate::calib::study::StudyRow;
@@ -30,20 +30,19 @@ use std::path::{Path, PathBuf};
 pub const MARKER: &str = ".kincal-output";
 /// Format tag of `study.json`.
 pub const STUDY_FORMAT: &str = "kincal-study/1";
-/// Format tag of `diagnosis.json`.
-pub const DIAGNOSIS_FORMAT: &str = "kincal-diagnosis/1";
+/// Format tag of `diagnosis.json` (every kind of held-out data; `measure` says which).
+pub const DIAGNOSIS_FORMAT: &str = "kincal-diagnosis/2";
+/// Format tag of a dynamic validation's `dynamic.json`.
+pub const DYNAMIC_FORMAT: &str = "kincal-dynamic/1";
 /// Format tag of a haptic calibration's `summary.json`.
 pub const HAPTIC_FORMAT: &str = "kincal-haptic/1";
-/// Format tag of the auto loop's `auto.json`.
-pub const AUTO_FORMAT: &str = "kincal-auto/1";
-/// Format tag of a tracker run's `diagnosis.json`.
-pub const TRACKER_DIAGNOSIS_FORMAT: &str = "kincal-tracker-diagnosis/1";
-/// Format tag of a tracker run's `auto/auto.json`.
-pub const TRACKER_AUTO_FORMAT: &str = "kincal-tracker-auto/1";
+/// Format tag of the auto loop's `auto.json` (every kind of held-out data).
+pub const AUTO_FORMAT: &str = "kincal-auto/2";
 /// Format tag of a plan (`kincal plan --out FILE`).
 pub const PLAN_FORMAT: &str = "kincal-plan/1";
-/// Header of a plan's pose list (`kincal plan --csv FILE`).
-pub const PLAN_CSV_HEADER: &str = "purpose,placement,origin_x_mm,origin_y_mm,origin_z_mm,yaw_deg,landmark,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg";
+/// Header of a plan's pose list (`kincal plan --csv FILE`), before a column per joint
+/// (`j1_deg`, …): an artefact placement's origin and yaw, or a session's name with them empty.
+pub const PLAN_CSV_HEADER: &str = "purpose,placement,origin_x_mm,origin_y_mm,origin_z_mm,yaw_deg,landmark";
 
 /// Why an output could not be written.
 #[derive(Debug, thiserror::Error)]
@@ -84,6 +83,8 @@ pub enum FolderKind {
     Simulation,
     /// A simulated haptic recording (`kincal haptic simulate`).
     HapticRecording,
+    /// A dynamic validation (`kincal dynamic`).
+    Dynamic,
 }
 
 impl FolderKind {
@@ -95,6 +96,7 @@ impl FolderKind {
             FolderKind::Auto => "auto",
             FolderKind::Simulation => "simulation",
             FolderKind::HapticRecording => "haptic-recording",
+            FolderKind::Dynamic => "dynamic",
         }
     }
 
@@ -154,6 +156,7 @@ impl FolderKind {
             FolderKind::Auto => &["auto.json", "report.html"],
             FolderKind::Simulation => &["artefact.json", "truth.toml"],
             FolderKind::HapticRecording => &["recording.json"],
+            FolderKind::Dynamic => &["dynamic.json", "report.html"],
         }
     }
 }
@@ -398,45 +401,6 @@ pub fn write_diagnosis(diagnosis: &Diagnosis, run_dir: &Path) -> Result<(), Outp
     )
 }
 
-/// The JSON of a tracker run's diagnosis, as its `diagnosis.json` holds it.
-pub fn tracker_diagnosis_json(diagnosis: &crate::calib::tracker_diagnose::TrackerDiagnosis) -> String {
-    json(&Tagged { format: TRACKER_DIAGNOSIS_FORMAT, body: diagnosis })
-}
-
-/// Write `diagnosis.html` and `diagnosis.json` of a tracker run into its RUN folder, both or neither.
-pub fn write_tracker_diagnosis(
-    diagnosis: &crate::calib::tracker_diagnose::TrackerDiagnosis,
-    run_dir: &Path,
-) -> Result<(), OutputError> {
-    put_together(
-        run_dir,
-        &[
-            ("diagnosis.html", report::tracker_diagnosis::tracker_diagnosis_report(diagnosis)),
-            ("diagnosis.json", tracker_diagnosis_json(diagnosis)),
-        ],
-    )
-}
-
-/// The JSON of a tracker run's auto loop, as `auto.json` holds it.
-pub fn tracker_auto_json(run: &crate::calib::tracker_diagnose::TrackerAuto) -> String {
-    json(&Tagged { format: TRACKER_AUTO_FORMAT, body: run })
-}
-
-/// Write RUN/auto of a tracker run: each step's calibrated model (`step-K.toml`), `auto.json`
-/// and the error-by-step page.
-pub fn write_tracker_auto(
-    run: &crate::calib::tracker_diagnose::TrackerAuto,
-    run_dir: &Path,
-) -> Result<(), OutputError> {
-    write_folder(&run_dir.join("auto"), FolderKind::Auto, &[], |staged| {
-        for (k, model) in run.steps.iter().enumerate().filter_map(|(k, s)| Some((k, s.model.as_ref()?))) {
-            model.save(&staged.join(format!("step-{k}.toml")))?;
-        }
-        put(staged, "auto.json", tracker_auto_json(run).as_bytes())?;
-        put(staged, "report.html", report::tracker_diagnosis::tracker_auto_report(run).as_bytes())
-    })
-}
-
 /// Write several files into `dir` so that a failure (a full disk) leaves the old ones, not a mix:
 /// every file is first written and synced under a temporary name, then all are renamed.
 fn put_together(dir: &Path, files: &[(&str, String)]) -> Result<(), OutputError> {
@@ -462,21 +426,20 @@ pub fn plan_json(plan: &crate::calib::plan::Plan) -> String {
 
 /// The pose list of a plan: one row per suggested touch (rivals first, then weak parameters).
 pub fn plan_csv(plan: &crate::calib::plan::Plan) -> String {
-    let mut out = format!("{PLAN_CSV_HEADER}\n");
     let rivals = plan.rivals.iter().flat_map(|r| r.placements.iter().map(|p| ("rivals", p)));
     let weak = plan.weak.placements.iter().map(|p| ("weak", p));
-    for (k, (purpose, p)) in rivals.chain(weak).enumerate() {
+    let all: Vec<(&str, &crate::calib::plan::SuggestedPlacement)> = rivals.chain(weak).collect();
+    let joints = all.iter().flat_map(|(_, p)| p.poses_deg.first()).map(|q| q.len()).max().unwrap_or(0);
+    let columns: Vec<String> = (1..=joints).map(|j| format!("j{j}_deg")).collect();
+    let mut out = format!("{PLAN_CSV_HEADER},{}\n", columns.join(","));
+    for (k, (purpose, p)) in all.into_iter().enumerate() {
+        let place = match (p.origin_mm, p.yaw_deg) {
+            (Some(o), Some(yaw)) => format!("N{},{:.1},{:.1},{:.1},{yaw:.1}", k + 1, o[0], o[1], o[2]),
+            _ => format!("{},,,,", p.session.as_deref().unwrap_or("N")),
+        };
         for (landmark, pose) in p.landmarks.iter().zip(&p.poses_deg) {
             let angles: Vec<String> = pose.iter().map(|a| format!("{a:.4}")).collect();
-            out.push_str(&format!(
-                "{purpose},N{},{:.1},{:.1},{:.1},{:.1},{landmark},{}\n",
-                k + 1,
-                p.origin_mm[0],
-                p.origin_mm[1],
-                p.origin_mm[2],
-                p.yaw_deg,
-                angles.join(",")
-            ));
+            out.push_str(&format!("{purpose},{place},{landmark},{}\n", angles.join(",")));
         }
     }
     out
@@ -511,11 +474,11 @@ pub fn auto_json(run: &AutoLoop) -> String {
 /// Write RUN/auto: each step's model (`step-K.toml`), `auto.json` and the error-by-step page.
 pub fn write_auto(run: &AutoLoop, run_dir: &Path) -> Result<(), OutputError> {
     write_folder(&run_dir.join("auto"), FolderKind::Auto, &[], |staged| {
-        for (k, step) in run.steps.iter().enumerate() {
-            step.model.save(&staged.join(format!("step-{k}.toml")))?;
+        for (k, model) in run.steps.iter().enumerate().filter_map(|(k, s)| Some((k, s.model.as_ref()?))) {
+            model.save(&staged.join(format!("step-{k}.toml")))?;
         }
         put(staged, "auto.json", auto_json(run).as_bytes())?;
-        put(staged, "report.html", report::auto_loop::auto_loop_report(run).as_bytes())
+        put(staged, "report.html", report::auto::auto_report(run).as_bytes())
     })
 }
 
@@ -529,6 +492,36 @@ pub fn write_haptic(summary: &HapticSummary, dir: &Path, recording: &Path) -> Re
     write_folder(dir, FolderKind::Haptic, &[recording], |staged| {
         put(staged, "summary.json", haptic_json(summary).as_bytes())?;
         put(staged, "report.html", report::haptic::haptic_report(summary).as_bytes())
+    })
+}
+
+/// The JSON of a dynamic validation, as its `dynamic.json` holds it (with the true error by
+/// category when it is known).
+pub fn dynamic_json(d: &crate::motion::Dynamic, truth: Option<&[crate::motion::truth::TruthRow]>) -> String {
+    #[derive(serde::Serialize)]
+    struct WithTruth<'a> {
+        #[serde(flatten)]
+        result: &'a crate::motion::Dynamic,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        truth: Option<&'a [crate::motion::truth::TruthRow]>,
+    }
+    json(&Tagged { format: DYNAMIC_FORMAT, body: &WithTruth { result: d, truth } })
+}
+
+/// Write a dynamic validation folder (dynamic.json, report.html) from the recordings `arm` and
+/// `tracker`.
+pub fn write_dynamic(
+    d: &crate::motion::Dynamic,
+    truth: Option<&[crate::motion::truth::TruthRow]>,
+    dir: &Path,
+    arm: &Path,
+    tracker: &Path,
+) -> Result<(), OutputError> {
+    let (arm_name, tracker_name) = (arm.display().to_string(), tracker.display().to_string());
+    let inputs = report::dynamic::PageInputs { arm: &arm_name, tracker: &tracker_name };
+    write_folder(dir, FolderKind::Dynamic, &[arm, tracker], |staged| {
+        put(staged, "dynamic.json", dynamic_json(d, truth).as_bytes())?;
+        put(staged, "report.html", report::dynamic::dynamic_report(d, &inputs, truth).as_bytes())
     })
 }
 

@@ -7,9 +7,8 @@ use crate::calib::summary::{StoredPairError, StoredResiduals, Summary, RESIDUALS
 use crate::calib::trust::TrustScales;
 use crate::calib::validate;
 use crate::data::Observations;
-use crate::files::{check_regular_file, field_error, json_error, read_tagged, FileError};
+use crate::files::{field_error, read_tagged, FileError, TaggedJson};
 use crate::model::ArmModel;
-use crate::report::compare::ComparedRun;
 use std::path::{Path, PathBuf};
 
 /// A RUN folder read back as types.
@@ -26,20 +25,12 @@ pub struct RunFolder {
 
 /// Read `summary.json` of any version kincal wrote, as today's [`Summary`].
 fn read_summary(path: &Path, joints: usize) -> Result<(Summary, String), FileError> {
-    #[derive(serde::Deserialize)]
-    struct Tag {
-        format: Option<String>,
-    }
-    check_regular_file(path)?;
-    let text =
-        std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
-    let syntax = |e: serde_json::Error| json_error(path, &text, e);
-    let tag: Tag = serde_json::from_str(&text).map_err(syntax)?;
-    let format = tag.format.unwrap_or_default();
+    let json = TaggedJson::read(path)?;
+    let format = json.format.clone().unwrap_or_default();
     let summary = match format.as_str() {
-        ARTEFACT_RUN_V1 => serde_json::from_str::<ArtefactRunV1>(&text).map_err(syntax)?.into_summary(joints),
-        TRACKER_RUN_V1 => serde_json::from_str::<TrackerRunV1>(&text).map_err(syntax)?.into_summary(),
-        _ => read_tagged(path, RUN_FORMAT)?,
+        ARTEFACT_RUN_V1 => json.parse::<ArtefactRunV1>()?.into_summary(joints),
+        TRACKER_RUN_V1 => json.parse::<TrackerRunV1>()?.into_summary(),
+        _ => json.parse_tagged(RUN_FORMAT)?,
     };
     Ok((summary, format))
 }
@@ -105,11 +96,4 @@ impl RunFolder {
         }
         Ok((kept, held))
     }
-}
-
-/// One side of `kincal compare`: a RUN folder's summary and held-out distance errors.
-pub fn compared_run(dir: &Path) -> Result<ComparedRun, FileError> {
-    let folder = RunFolder::load(dir)?;
-    let residuals = folder.residuals()?;
-    Ok(ComparedRun { name: dir.display().to_string(), summary: folder.summary, residuals })
 }

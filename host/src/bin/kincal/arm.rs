@@ -4,9 +4,8 @@ use anyhow::{bail, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use kincal::calib::run::RunError;
-use kincal::calib::setup::{SolveOptions, MAX_RESTARTS};
+use kincal::calib::setup::{Setup, SolveOptions, MAX_RESTARTS};
 use kincal::calib::study::{check_study_size, study, study_problems, StudyOptions};
-use kincal::data::DataKind;
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
 use kincal::simulate::{simulate, SimulationOptions};
@@ -88,7 +87,7 @@ pub struct StudyArgs {
     /// Output folder: study.json and report.html.
     #[arg(long)]
     out: PathBuf,
-    /// Random subsets per number of placements.
+    /// Random subsets per number of calibration groups (placements or sessions).
     #[arg(long, default_value_t = 100, allow_negative_numbers = true, value_parser = count(1, MAX_SUBSETS))]
     subsets: usize,
     /// Seed of the subset draws and restarts.
@@ -147,20 +146,13 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     let inputs = a.inputs.inputs();
     let nominal = ArmModel::load(&inputs.model)?;
     let (cal, val) = inputs.read_folders()?;
-    if let Some(kind) = cal.kind().filter(|k| *k != DataKind::Artefact) {
-        return Err(RunError::NotForKind {
-            option: "kincal study".into(),
-            kind: kind.word(),
-            why: "the dataset-size study draws subsets of artefact placements".into(),
-        }
-        .into());
-    }
-    if val.pair_count() == 0 {
+    if val.pair_count() == 0 && val.point_count() == 0 {
         return Err(RunError::NoValidationPairs { path: a.inputs.validate.clone() }.into());
     }
     check_study_size(&cal, a.subsets)?;
     let calibration = SolveOptions { restarts: Some(a.restarts), seed: a.seed, ..SolveOptions::default() };
-    let options = StudyOptions { subsets: a.subsets, seed: a.seed, calibration, progress: !a.json };
+    let options =
+        StudyOptions { subsets: a.subsets, seed: a.seed, setup: Setup::new(calibration), progress: !a.json };
     let started = std::time::Instant::now();
     let rows = study(&nominal, &cal, &val, &options);
     let elapsed = started.elapsed().as_secs_f64();
@@ -178,20 +170,20 @@ pub fn cmd_study(a: &StudyArgs) -> Result<()> {
     }
     let total: usize = rows.iter().map(|r| r.calibrations + r.failed).sum();
     println!("{total} calibrations in {elapsed:.2} s on {} threads", rayon::current_num_threads());
-    println!("placements  distinct subsets  calibrations  mean mm   std mm    min mm    max mm");
+    println!("    groups  distinct subsets  calibrations  mean mm   std mm    min mm    max mm");
     for r in &rows {
         let drawn = r.calibrations + r.failed + r.implausible;
         let subsets = format!("{drawn} of {}", possible(r.possible_subsets));
         if r.calibrations == 0 {
             println!(
                 "{:>10}  {subsets:>16}  {:>12}  no calibration succeeded ({} failed)",
-                r.placements, 0, r.failed
+                r.groups, 0, r.failed
             );
             continue;
         }
         println!(
             "{:>10}  {subsets:>16}  {:>12}  {:7.3}  {:7.3}  {:7.3}  {:7.3}",
-            r.placements, r.calibrations, r.mean_mm, r.std_mm, r.min_mm, r.max_mm
+            r.groups, r.calibrations, r.mean_mm, r.std_mm, r.min_mm, r.max_mm
         );
     }
     println!("report: {}", a.out.join("report.html").display());

@@ -16,7 +16,7 @@
 use anyhow::Result;
 use kincal::calib::fit::calibrate;
 use kincal::calib::peer::thesis_sized_problem;
-use kincal::calib::setup::SolveOptions;
+use kincal::calib::setup::{Setup, SolveOptions};
 use kincal::calib::study::{study, StudyOptions};
 use kincal::data::Observations;
 use kincal::model::ParamId;
@@ -90,11 +90,11 @@ fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
     println!("  a data error:             {}", Rate::of(&calls, |c| c.data_error));
     println!("  a knock or mis-seated:    {}", Rate::of(&calls, |c| c.knock));
     println!("  \"misses\" (gap test):      {}", Rate::of(&calls, |c| c.misses));
-    let gaps: Vec<_> = clean.iter().filter_map(|c| c.1.gap.clone()).collect();
+    let gaps: Vec<_> = clean.iter().filter_map(|c| c.1.floor.gap.clone()).collect();
     println!("  \"at the floor\" shown:     {}; otherwise \"cannot tell\"", Rate::of(&gaps, |g| g.at_floor));
     // The effects identifiable next to the thesis model (from the first clean run).
     let Some((_, first)) = clean.first() else { return Ok(()) };
-    let effects: Vec<Effect> = first.candidates.iter().filter_map(|c| Effect::parse(&c.effect)).collect();
+    let effects: Vec<Effect> = first.candidates.iter().filter_map(|c| Effect::parse(&c.name)).collect();
     println!("power: each of {} identifiable library effects hidden alone, {power_seeds} seeds each (named first, or among rivals the data cannot tell apart, or exactly equivalent):", effects.len());
     let t = Instant::now();
     let mut all = Vec::new();
@@ -104,10 +104,10 @@ fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
             .map(|k| simulate_and_diagnose(2000 + k, hidden_for(effect)))
             .collect::<Result<_, _>>()?;
         let named = Rate::of(&runs, |d| names(d, effect));
-        let misses = Rate::of(&runs, |d| d.gap.as_ref().is_some_and(|g| g.significant));
+        let misses = Rate::of(&runs, |d| d.floor.gap.as_ref().is_some_and(|g| g.significant));
         let lift = runs
             .iter()
-            .map(|d| d.gap.as_ref().map_or(f64::NAN, |g| g.measured_mm / g.expected_mm))
+            .map(|d| d.floor.gap.as_ref().map_or(f64::NAN, |g| g.measured_mm / g.expected_mm))
             .sum::<f64>()
             / runs.len().max(1) as f64;
         let wrong: Vec<String> = runs
@@ -125,7 +125,9 @@ fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
             misses.runs,
             if wrong.is_empty() { String::new() } else { format!("; otherwise {}", wrong.join(", ")) }
         );
-        all.extend(runs.iter().map(|d| (names(d, effect), d.gap.as_ref().is_some_and(|g| g.significant))));
+        all.extend(
+            runs.iter().map(|d| (names(d, effect), d.floor.gap.as_ref().is_some_and(|g| g.significant))),
+        );
     }
     println!("  all effects together: {} ({:.0} s)", Rate::of(&all, |n| n.0), t.elapsed().as_secs_f64());
     println!("  gap test \"misses\" with an effect hidden: {}", Rate::of(&all, |n| n.1));
@@ -283,7 +285,12 @@ fn scale_benchmark(touches: usize) -> Result<()> {
             &result.validation_data,
         );
         let t = Instant::now();
-        kincal::calib::diagnose::diagnose(&result.calibration.model, &cal, val, &options);
+        kincal::calib::diagnose::diagnose(
+            &Setup::new(options.clone()),
+            &result.calibration.model,
+            &cal,
+            val,
+        )?;
         let diagnose_s = t.elapsed().as_secs_f64();
         println!(
             "calibrate from files, {:>6} touches in {:>4} placements ({:>7} pairs): {run_s:6.2} s ({:.0} touches/s); diagnose {diagnose_s:6.2} s; validation RMS {:.3} mm",
@@ -339,7 +346,7 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     let study_options = StudyOptions {
         subsets: args.study_subsets,
         seed: 1,
-        calibration: SolveOptions { restarts: Some(0), ..options.clone() },
+        setup: Setup::new(SolveOptions { restarts: Some(0), ..options.clone() }),
         progress: false,
     };
     let t = Instant::now();
@@ -362,7 +369,8 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     );
     let fit_h = calibrate(&nominal, &cal_h, &options)?;
     let t = Instant::now();
-    let diagnosis = kincal::calib::diagnose::diagnose(&fit_h.model, &cal_h, &val_h, &options);
+    let diagnosis =
+        kincal::calib::diagnose::diagnose(&Setup::new(options.clone()), &fit_h.model, &cal_h, &val_h)?;
     println!("diagnose, whole library ({} candidates scored, {} not identifiable), {} threads: {:.2} s  (target <= 2 s on 2 cores)", diagnosis.candidates.len(), diagnosis.not_identifiable.len(), rayon::current_num_threads(), t.elapsed().as_secs_f64());
     println!("{}", whole_calibration(&sim, &options)?);
     println!("{}", auto_loop_on_a_mixture(&nominal, &options)?);
@@ -469,14 +477,15 @@ fn auto_loop_on_a_mixture(nominal: &kincal::model::ArmModel, options: &SolveOpti
     let val = Observations::from_sessions(&sim.validation, &sim.artefact);
     let fit = calibrate(nominal, &cal, options)?;
     let t = Instant::now();
-    let run = kincal::calib::auto::auto_loop(&fit.model, &cal, &val, options, 8)?;
-    let added: Vec<&str> = run.steps.iter().filter_map(|s| s.added.as_deref()).collect();
+    let run =
+        kincal::calib::diagnose::auto::auto_loop(&Setup::new(options.clone()), &fit.model, &cal, &val, 8)?;
+    let added: Vec<&str> = run.steps.iter().filter_map(|s| s.applied.as_deref()).collect();
     Ok(format!(
         "diagnose --auto on a 4-effect mixture: {:.2} s on {} threads, added {} ({:.3} → {:.3} mm)  (target <= 3 s on 2 cores)",
         t.elapsed().as_secs_f64(),
         rayon::current_num_threads(),
         added.join(", "),
-        run.steps.first().map_or(f64::NAN, |s| s.validation_rms_mm),
-        run.steps.last().map_or(f64::NAN, |s| s.validation_rms_mm)
+        run.steps.first().map_or(f64::NAN, |s| s.held_out_rms_mm),
+        run.steps.last().map_or(f64::NAN, |s| s.held_out_rms_mm)
     ))
 }

@@ -98,7 +98,8 @@ pub struct CalibrateArgs {
     out: PathBuf,
     #[command(flatten)]
     solve: SolveArgs,
-    /// Also run the dataset-size study with this many subsets per placement count (0: no study).
+    /// Also run the dataset-size study with this many subsets per count of calibration groups
+    /// (placements or sessions; 0: no study).
     #[arg(long, default_value_t = 0, allow_negative_numbers = true, value_parser = count(0, MAX_SUBSETS))]
     study_subsets: usize,
     /// Add an effect of the library to the model, e.g. eccentricity:5 (repeatable).
@@ -116,9 +117,9 @@ pub struct CalibrateArgs {
     /// suggests; repeatable).
     #[arg(long, value_name = "POINT")]
     exclude_point: Vec<String>,
-    /// Skip the per-landmark outlier metrics (Cook's distance and the leave-one-out refit of each
-    /// landmark): about a third of the process's work on thesis-sized data; summary.json then says
-    /// `outliers_skipped` and no landmark is flagged.
+    /// Skip the outlier metrics per landmark and per calibration session (Cook's distance and the
+    /// leave-one-out refit of each): about a third of the process's work on thesis-sized data;
+    /// summary.json then says `outliers_skipped` and nothing is flagged.
     #[arg(long)]
     no_outliers: bool,
     /// Let the tool float in a placement or session (its own tool offset: the probe or ball was
@@ -281,15 +282,15 @@ fn print_run(s: &Summary, out: &Path, seconds: f64) {
             d.rate_std
         );
     }
-    if s.outliers_skipped && s.validation.distances.is_some() {
-        println!("  outlier metrics skipped (--no-outliers): no landmark was checked");
+    if s.outliers_skipped {
+        println!("  outlier metrics skipped (--no-outliers): no landmark or session was checked");
     }
     for o in s.outliers.iter().filter(|o| o.flagged) {
-        println!("  landmark {} flagged as outlier ({})", o.landmark, o.exceeded.join(", "));
+        println!("  {} {} flagged as outlier ({})", o.what, o.name, o.exceeded.join(", "));
     }
     if let Some(rows) = &s.study {
-        let means: Vec<String> = rows.iter().map(|r| format!("{}: {:.3}", r.placements, r.mean_mm)).collect();
-        println!("  study, mean validation RMS by placements used: {} mm", means.join(", "));
+        let means: Vec<String> = rows.iter().map(|r| format!("{}: {:.3}", r.groups, r.mean_mm)).collect();
+        println!("  study, mean held-out RMS by calibration groups used: {} mm", means.join(", "));
     }
     if let Some(v) = &s.validation.sessions {
         print_sessions(v);

@@ -32,6 +32,24 @@ pub struct DemoArgs {
     /// The emulated controller's firmware image (`cargo build-emulated` writes it here).
     #[arg(long, default_value = "firmware/target/thumbv7em-none-eabihf/release/emulated")]
     firmware: PathBuf,
+    /// Only the arm in motion (no recording, no calibration; the true arm's parameters are
+    /// uploaded): it follows a trajectory with direction changes, its pose is served over
+    /// OpenIGTLink and validated against a simulated optical tracker (latency, dynamic error).
+    /// Without it the whole demo ends with this step.
+    #[arg(long, conflicts_with = "offline")]
+    motion: bool,
+    /// Latency of the simulated optical tracker, ms (optical trackers: 5 to 20).
+    #[arg(long, default_value_t = 12.0, value_parser = tracker_latency_ms)]
+    tracker_latency_ms: f64,
+}
+
+/// `--tracker-latency-ms`: a latency the simulated tracker can have, 0 to 150 ms.
+fn tracker_latency_ms(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if (0.0..=150.0).contains(&v) => Ok(v),
+        Ok(v) => Err(format!("{v} ms is outside 0 to 150 ms (optical trackers deliver in 5 to 20 ms)")),
+        Err(_) => Err(format!("expected a number of milliseconds (e.g. 12), found `{text}`")),
+    }
 }
 
 impl DemoArgs {
@@ -84,10 +102,16 @@ pub struct UploadArgs {
     /// version + 1). Older values go back only as a new, higher version.
     #[arg(long)]
     version: Option<u32>,
-    /// The arm identity the set is for; refused before anything is sent when the controller has
-    /// another (default: the controller's, printed).
-    #[arg(long)]
-    arm: Option<String>,
+    /// The arm a model that names none (a nominal, simulated or hand-written model) is for; it
+    /// must be the connected controller's. Without it such a model is not uploaded. A model that
+    /// names its arm (`[arm] id`, as a calibrated RUN/model.toml does) goes only to that arm.
+    #[arg(long = "for-arm", alias = "arm", value_name = "ID")]
+    for_arm: Option<String>,
+    /// Days the calibration stays valid, counted from its validation (the RUN's date); the
+    /// host warns at every connect once they have passed, and `kincal check` re-validates.
+    /// Default: no validity period.
+    #[arg(long, value_name = "DAYS")]
+    valid_days: Option<u32>,
 }
 
 #[derive(Subcommand)]
@@ -141,10 +165,50 @@ pub struct StreamArgs {
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long)]
     seconds: Option<f64>,
+    /// Also serve the pose to navigation software over OpenIGTLink on [HOST:]PORT (default
+    /// 18944 on localhost; 0.0.0.0:18944 for every interface): a TRANSFORM every tick, stamped
+    /// with the controller's sample instant.
+    #[arg(long, requires = "pose", num_args = 0..=1, default_missing_value = "18944", value_name = "[HOST:]PORT", value_parser = igtl_address)]
+    igtl: Option<String>,
+    /// Name of the OpenIGTLink transform, PLUS's FromToTo convention.
+    #[arg(long, requires = "igtl", default_value = kincal::controller::igtl_server::DEFAULT_NAME)]
+    igtl_name: String,
+    /// Also send invalid poses to clients that speak header version 2, as TRANSFORMs marked
+    /// TransformStatus=INVALID with a NaN matrix (PLUS's SendValidTransformsOnly="false"); by
+    /// default an invalid pose sends no transform, only a STATUS message.
+    #[arg(long, requires = "igtl")]
+    igtl_send_invalid: bool,
+}
+
+/// `--igtl` as an address to listen on: a port alone means localhost.
+pub fn igtl_address(text: &str) -> Result<String, String> {
+    let text = text.trim();
+    let addr = if text.parse::<u16>().is_ok() { format!("127.0.0.1:{text}") } else { text.to_string() };
+    use std::net::ToSocketAddrs;
+    match addr.to_socket_addrs().map(|mut a| a.next()) {
+        Ok(Some(_)) => Ok(addr),
+        _ => Err(format!("expected PORT or HOST:PORT (e.g. 18944 or 0.0.0.0:18944), found `{text}`")),
+    }
 }
 
 #[derive(Args)]
 pub struct RecordArgs {
+    #[command(flatten)]
+    touches: TouchArgs,
+    /// calibration or validation.
+    #[arg(long, default_value = "calibration")]
+    purpose: String,
+    /// Output folder; the session is OUT/<placement>.json.
+    #[arg(long)]
+    out: PathBuf,
+    /// Repeats of the sequence.
+    #[arg(long, default_value_t = 3)]
+    repeats: u32,
+}
+
+/// What a recording of touches needs, for `record` and `check`.
+#[derive(Args)]
+pub struct TouchArgs {
     #[command(flatten)]
     port: PortArgs,
     /// Artefact file.
@@ -153,24 +217,54 @@ pub struct RecordArgs {
     /// Placement name, e.g. C_A.
     #[arg(long)]
     placement: String,
-    /// calibration or validation.
-    #[arg(long, default_value = "calibration")]
-    purpose: String,
-    /// Output folder; the session is OUT/<placement>.json.
-    #[arg(long)]
-    out: PathBuf,
     /// Landmark order, comma separated (default: the artefact file's).
     #[arg(long, value_delimiter = ',')]
     order: Vec<String>,
-    /// Repeats of the sequence.
-    #[arg(long, default_value_t = 3)]
-    repeats: u32,
     /// Window per touch, ticks (1536 = 2 s).
     #[arg(long, default_value_t = 1536)]
     window_ticks: u16,
-    /// Non-interactive: steps from a JSON script (landmarks, emulated poses, skips).
+    /// Non-interactive: steps from a JSON script (landmarks, emulated poses, skips;
+    /// `kincal emulated-arm script` writes one for the emulated arm).
     #[arg(long)]
     script: Option<PathBuf>,
+}
+
+impl TouchArgs {
+    /// The artefact and the plan of a recording for `purpose`, `repeats` times, into `out`.
+    fn plan(
+        &self,
+        purpose: &str,
+        repeats: u32,
+        out: &std::path::Path,
+    ) -> Result<(Artefact, kincal::controller::record::Plan)> {
+        let artefact = Artefact::load(&self.artefact)?;
+        let order = if self.order.is_empty() {
+            artefact.landmarks.iter().map(|l| l.id.clone()).collect()
+        } else {
+            self.order.clone()
+        };
+        let plan = kincal::controller::record::Plan {
+            placement: self.placement.clone(),
+            purpose: purpose.into(),
+            order,
+            repeats,
+            window_ticks: self.window_ticks,
+            out: out.to_path_buf(),
+        };
+        Ok((artefact, plan))
+    }
+
+    /// Run `f` with the guide of the recording: the script's steps, or the operator at the
+    /// keyboard.
+    fn guided<R>(
+        &self,
+        f: impl FnOnce(&mut dyn kincal::controller::record::Guide) -> Result<R>,
+    ) -> Result<R> {
+        match &self.script {
+            Some(path) => f(&mut kincal::controller::record::Script::load(path)?),
+            None => f(&mut kincal::controller::record::Operator::default()),
+        }
+    }
 }
 
 pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
@@ -183,6 +277,13 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
     link.hello()?;
     let info = link.info()?;
     println!("connected: {} on {}", info.firmware, info.board);
+    if a.motion {
+        let truth = kincal::controller::demo::demo_truth(&nominal, a.seed);
+        let key = kincal::controller::demo::demo_station_key(&a.out())?;
+        kincal::controller::demo::upload_model(&mut link, &truth, &key)?;
+        println!("uploaded the true arm's parameters (as after a perfect calibration; seed {})", a.seed);
+        return demo_motion(a, &mut link, &truth);
+    }
     let options = kincal::controller::demo::LoopOptions {
         seed: a.seed,
         window_ticks: a.window_ticks,
@@ -216,6 +317,65 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
         report.floor_pose_rms_mm
     );
     println!("parameter upload took {:.2} s; run: {}", report.upload_seconds, a.out().join("run").display());
+    let truth = ArmModel::load(&a.out().join("data").join("truth.toml"))?;
+    demo_motion(a, &mut link, &truth)
+}
+
+/// The demo's last step: the arm in motion, its pose over OpenIGTLink, latency and dynamic error
+/// against a simulated optical tracker, each beside its truth.
+fn demo_motion(a: &DemoArgs, link: &mut kincal::controller::link::Link, truth: &ArmModel) -> Result<()> {
+    let tracker = kincal::simulate::optical::OpticalOptions {
+        latency_ms: a.tracker_latency_ms,
+        seed: a.seed,
+        ..kincal::simulate::optical::OpticalOptions::default()
+    };
+    println!("the arm in motion:");
+    let r =
+        kincal::controller::motion::motion_demo(link, truth, &tracker, &a.out(), &mut |s| println!("  {s}"))?;
+    println!(
+        "OpenIGTLink: the client received {} transforms of the {} valid poses streamed while it was connected ({} lost), {}; controller link: {} frames lost",
+        r.received,
+        r.received + r.lost_by_client,
+        r.lost_by_client,
+        r.received_vs_streamed_um
+            .map_or("none matched the host's poses".into(), |u| format!("each within {u:.2} µm of the host's pose")),
+        r.stream.lost
+    );
+    let d = &r.dynamic;
+    println!(
+        "latency of the tracker behind the arm: {} (true {:.2} ms)",
+        d.latency_text(),
+        r.tracker.latency_ms
+    );
+    println!(
+        "tracker clock: {:+.2} ± {:.2} ms at its first sample, drift {:+.1} ± {:.1} ppm (true {:+.2} ms, {:+.1} ppm)",
+        d.clock_offset_at_start_ms,
+        d.clock_offset_at_start_u95_ms,
+        d.clock.drift_ppm,
+        d.clock.drift_u95_ppm,
+        r.tracker.clock_offset_s * 1000.0,
+        r.tracker.drift_ppm
+    );
+    println!("dynamic error after a rigid registration, the tracker's noise ({:.3} mm) removed:", d.noise_mm);
+    for row in &r.truth {
+        println!(
+            "  {:<48} {:>34}   true {:.3} mm{}",
+            row.category.label(),
+            row.measured.text(),
+            row.truth_rms_mm,
+            if row.agrees { "" } else { "  (outside the uncertainty)" }
+        );
+    }
+    for f in &d.findings {
+        println!("  {f}");
+    }
+    println!(
+        "report: {}; again from the recordings: kincal dynamic --arm {} --tracker {} --out {}",
+        r.report_dir.join("report.html").display(),
+        r.arm_csv.display(),
+        r.tracker_csv.display(),
+        r.report_dir.display()
+    );
     Ok(())
 }
 
@@ -235,10 +395,30 @@ fn print_mission(steps: &[kincal::controller::demo::MissionStep], truth_rms_mm: 
     println!("diagnose → add stopped: {stop}; true arm on the same validation data {truth_rms_mm:.3} mm");
 }
 
+/// Open and greet the controller on `port`; warns when the stored calibration's validity has
+/// passed.
 pub fn connect(port: &PortArgs) -> Result<kincal::controller::link::Link> {
     let mut link = kincal::controller::link::Link::open(&port.port)?;
     link.hello().with_context(|| format!("handshake with the controller on {}", port.port))?;
+    let info = link.info()?;
+    if let Some(warning) = kincal::controller::traceability::expiry_warning(
+        &info.arm_id,
+        info.param_version,
+        &info.param_trace,
+        kincal::controller::traceability::unix_now(),
+    ) {
+        eprintln!("{warning}");
+    }
     Ok(link)
+}
+
+/// The stored set's trace, one line each, labelled for `info`'s layout.
+fn print_trace(trace: &kincal_protocol::signed::SetTrace, labelled: impl Fn(&str, &str)) {
+    for (label, text) in
+        kincal::controller::traceability::trace_lines(trace, kincal::controller::traceability::unix_now())
+    {
+        labelled(label, &text);
+    }
 }
 
 pub fn cmd_info(a: &PortArgs) -> Result<()> {
@@ -266,6 +446,7 @@ pub fn cmd_info(a: &PortArgs) -> Result<()> {
     } else {
         println!("parameters version {} (CRC-32 {:08x})", info.param_version, info.param_crc);
         println!("signed by  {} at {}", fingerprint(&info.param_signer), utc(info.param_signed_at_unix_s));
+        print_trace(&info.param_trace, |label, text| println!("{label:<10} {text}"));
     }
     println!("reset      {}", reset_cause_text(info.reset_cause));
     match info.brownout_mv {
@@ -390,6 +571,7 @@ pub fn cmd_params(a: &PortArgs) -> Result<()> {
         utc(signed.signed_at_unix_s),
         if signed.signature_valid { "valid (checked here too)" } else { "INVALID (checked here)" }
     );
+    print_trace(&signed.trace.unwrap_or_default(), |label, text| eprintln!("{label} {text}"));
     println!("{}", serde_json::to_string_pretty(&params)?);
     if !signed.signature_valid {
         bail!("the stored set's signature does not verify on this host");
@@ -417,16 +599,17 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     // Checked before connecting: a bad model never reaches the controller.
     kincal::controller::device::parameter_blob(&model, a.version.unwrap_or(1))
         .with_context(|| format!("{}: parameters", a.model.display()))?;
+    use kincal::controller::traceability::{check_upload_arm, unix_now, upload_trace};
+    let origin = kincal::trace::run_origin(&a.model)?;
+    let trace = upload_trace(&a.model, origin.as_ref(), a.valid_days, unix_now())?;
     let mut link = connect(&a.port)?;
     let started = std::time::Instant::now();
     let info = link.info()?;
     let before = kincal::controller::link::HeldParams { version: info.param_version, crc: info.param_crc };
-    if let Some(arm) = a.arm.as_deref().filter(|arm| *arm != info.arm_id.as_str()) {
-        bail!("the controller is arm {}, not {arm}; nothing was uploaded", info.arm_id);
-    }
+    check_upload_arm(&a.model, model.arm.as_ref(), a.for_arm.as_deref(), &info.arm_id)?;
     let version = kincal::controller::device::next_version(info.param_version, a.version)
         .map_err(|e| anyhow::anyhow!("{e}; nothing was uploaded"))?;
-    let blob = kincal::controller::device::signed_parameter_set(&model, version, &info.arm_id, &key)
+    let blob = kincal::controller::device::traced_parameter_set(&model, version, &info.arm_id, &key, &trace)
         .with_context(|| format!("{}: parameters version {version}", a.model.display()))?;
     let uploaded = match link.upload(&blob) {
         Ok(u) => u,
@@ -457,6 +640,23 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     }
     let elapsed = started.elapsed().as_secs_f64();
     let signed = format!("signed by {} for arm {}", fingerprint(&key.public_key()), info.arm_id);
+    match &origin {
+        Some(o) => println!(
+            "from RUN {}: sha256:{}, validated {}{}",
+            o.run.display(),
+            kincal::trace::hex(&o.sha256),
+            utc(o.validated_at_unix_s),
+            if o.date_from_file_time {
+                " (summary.json's modification time: this RUN records no validation date)"
+            } else {
+                ""
+            }
+        ),
+        None => println!("not from a RUN: the set carries no RUN hash or validation date"),
+    }
+    if trace.valid_until_unix_s != 0 {
+        println!("valid until {}", utc(trace.valid_until_unix_s));
+    }
     // The commit is confirmed: what follows only reports, and its failure changes nothing stored.
     match link.held_params() {
         Ok(now) => println!(
@@ -489,12 +689,30 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
         CsvRecording::refuse_existing(path)?;
     }
     let mut link = connect(&a.port)?;
-    if a.pose && link.info()?.param_version == 0 {
+    let info = link.info()?;
+    if a.pose && info.param_version == 0 {
         bail!(
             "the controller on {} holds no parameters: no pose to stream (kincal upload first)",
             a.port.port
         );
     }
+    let server = match &a.igtl {
+        Some(addr) => {
+            let options = kincal::controller::igtl_server::ServerOptions {
+                name: a.igtl_name.clone(),
+                send_invalid: a.igtl_send_invalid,
+            };
+            let server = kincal::controller::igtl_server::PoseServer::start(addr, options)?;
+            println!(
+                "OpenIGTLink server on {}: TRANSFORM {} (tool in the arm's base frame, mm) every tick, stamped with the controller's sample instant; in Slicer: OpenIGTLinkIF, a client connector to this host and port",
+                server.local_addr(),
+                a.igtl_name
+            );
+            Some(server)
+        }
+        None => None,
+    };
+    let mut clock = kincal::controller::pose_stream::PoseClock::new(info.ticks);
     catch_ctrl_c();
     let mut csv = match &a.csv {
         Some(path) => Some(CsvRecording::create(path)?),
@@ -506,7 +724,7 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             w,
             "{}",
             if a.pose {
-                "seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz"
+                "seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz,xx,xy,xz,t_s,host_s"
             } else {
                 "seq,tick,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg,rejected"
             }
@@ -553,6 +771,16 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             lost_seen = link.stats.stream_gaps;
         }
         frames += 1;
+        let timed = match &item {
+            Stream::Pose(p) => Some(clock.time(seq, *p, Instant::now())),
+            _ => None,
+        };
+        if let (Some(server), Some(pose)) = (&server, &timed) {
+            server.publish(pose);
+        }
+        for event in server.iter().flat_map(|s| s.events()) {
+            println!("{event}");
+        }
         match &item {
             Stream::Pose(p) => {
                 watch.see(p);
@@ -579,31 +807,29 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
                         .collect();
                     writeln!(w, "{seq},{},{},{}", r.tick, cells.join(","), r.rejected)?;
                 }
-                Stream::Pose(p) if p.valid => writeln!(
-                    w,
-                    "{seq},{},1,,0,{},{},{},{},{},{}",
-                    p.tick,
-                    p.position_mm[0],
-                    p.position_mm[1],
-                    p.position_mm[2],
-                    p.z_axis[0],
-                    p.z_axis[1],
-                    p.z_axis[2]
-                )?,
-                Stream::Pose(p) => writeln!(
-                    w,
-                    "{seq},{},0,{},{},,,,,,",
-                    p.tick,
-                    joint_list(!p.fresh & kincal_protocol::messages::ALL_JOINTS),
-                    p.stale_ticks
-                )?,
+                Stream::Pose(p) => {
+                    let (tick, t_s, host_s) = timed.map_or((0, 0.0, 0.0), |t| (t.tick, t.t_s, t.host_s));
+                    if p.valid {
+                        let [x, y, z] = p.position_mm;
+                        let ([zx, zy, zz], [xx, xy, xz]) = (p.z_axis, p.x_axis);
+                        writeln!(w, "{seq},{tick},1,,0,{x},{y},{z},{zx},{zy},{zz},{xx},{xy},{xz},{t_s:.6},{host_s:.6}")?
+                    } else {
+                        let stale = joint_list(!p.fresh & kincal_protocol::messages::ALL_JOINTS);
+                        writeln!(w, "{seq},{tick},0,{stale},{},,,,,,,,,,{t_s:.6},{host_s:.6}", p.stale_ticks)?
+                    }
+                }
                 Stream::Window(_) => {}
             }
         }
         if last_report.elapsed().as_secs_f64() >= 1.0 {
             last_report = Instant::now();
+            let clients = server.as_ref().map_or(String::new(), |s| {
+                let c = s.clients();
+                let dropped: u64 = c.iter().map(|c| c.dropped).sum();
+                format!("; {} OpenIGTLink clients, {dropped} messages dropped for slow readers", c.len())
+            });
             eprintln!(
-                "{:.0} frames/s, {} lost, {} corrupt{}{}",
+                "{:.0} frames/s, {} lost, {} corrupt{}{}{clients}",
                 frames as f64 / started.elapsed().as_secs_f64(),
                 link.stats.stream_gaps,
                 link.stats.bad_frames,
@@ -711,41 +937,64 @@ pub fn catch_ctrl_c() {
 }
 
 pub fn cmd_record(a: &RecordArgs) -> Result<()> {
-    let artefact = Artefact::load(&a.artefact)?;
-    let order = if a.order.is_empty() {
-        artefact.landmarks.iter().map(|l| l.id.clone()).collect()
-    } else {
-        a.order.clone()
-    };
-    let plan = kincal::controller::record::Plan {
-        placement: a.placement.clone(),
-        purpose: a.purpose.clone(),
-        order,
-        repeats: a.repeats,
-        window_ticks: a.window_ticks,
-        out: a.out.clone(),
-    };
-    let mut link = connect(&a.port)?;
-    let mut script;
-    let mut operator = kincal::controller::record::Operator::default();
-    let guide: &mut dyn kincal::controller::record::Guide = match &a.script {
-        Some(path) => {
-            script = kincal::controller::record::Script::load(path)?;
-            &mut script
-        }
-        None => &mut operator,
-    };
-    let done = kincal::controller::record::record(&mut link, &artefact, &plan, guide)?;
+    let (artefact, plan) = a.touches.plan(&a.purpose, a.repeats, &a.out)?;
+    let mut link = connect(&a.touches.port)?;
+    let done = a
+        .touches
+        .guided(|guide| Ok(kincal::controller::record::record(&mut link, &artefact, &plan, guide)?))?;
     println!(
-        "{}: {} measured now, {} resumed from disk, {} skipped, {} re-taken → {}",
+        "{}: {} measured now, {} resumed from disk, {} skipped, {} re-taken → {}{}",
         plan.placement,
         done.measured,
         done.resumed,
         done.skipped,
         done.retakes,
-        plan.session_path().display()
+        plan.session_path().display(),
+        done.arm.map_or(String::new(), |arm| format!(" (recorded on arm {arm})"))
     );
     Ok(())
+}
+
+#[derive(Args)]
+pub struct CheckArgs {
+    #[command(flatten)]
+    touches: TouchArgs,
+    /// A new folder for the check: its session OUT/<placement>.json and its result OUT/check.json
+    /// (a check measures afresh: an earlier check is never judged again or replaced).
+    #[arg(long)]
+    out: PathBuf,
+    /// Repeats of the sequence (at least 2: the repeats give the floor the error is judged
+    /// against).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(2..=20))]
+    repeats: u32,
+}
+
+/// Exit status of `kincal check` when the arm does not hold its calibration.
+pub const CHECK_DOES_NOT_HOLD: i32 = 2;
+/// Exit status of `kincal check` when the touches decide neither way.
+pub const CHECK_CANNOT_TELL: i32 = 3;
+
+pub fn cmd_check(a: &CheckArgs) -> Result<()> {
+    use kincal::controller::check::{check, Verdict};
+    let (artefact, plan) = a.touches.plan(kincal::data::Purpose::Validation.as_str(), a.repeats, &a.out)?;
+    let mut link = connect(&a.touches.port)?;
+    let result = a.touches.guided(|guide| Ok(check(&mut link, &artefact, &plan, guide)?))?;
+    println!("arm        {}", result.arm);
+    println!("parameters version {} signed by {}", result.param_version, result.signer);
+    print_trace(&result.trace, |label, text| println!("{label:<10} {text}"));
+    println!(
+        "check      {} touches at {}, {} distances → {}",
+        result.touches,
+        a.touches.placement,
+        result.distances,
+        a.out.join("check.json").display()
+    );
+    println!("{}: {}", result.verdict.to_string().to_uppercase(), result.sentence());
+    match result.verdict {
+        Verdict::Holds => Ok(()),
+        Verdict::DoesNotHold => std::process::exit(CHECK_DOES_NOT_HOLD),
+        Verdict::CannotTell => std::process::exit(CHECK_CANNOT_TELL),
+    }
 }
 
 pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {

@@ -1,13 +1,11 @@
 //! `kincal diagnose RUN [--auto]` and `kincal compare RUN_A RUN_B`: one path for every kind of
-//! data; the library ([`kincal::api`]) picks what the RUN's data call for, this prints it.
+//! held-out data; the library ([`kincal::api`]) diagnoses, this prints it.
 
 use anyhow::Result;
 use clap::Args;
-use kincal::api::{self, Auto, Comparison, Diagnosis, RunFolder};
-use kincal::calib::auto::AutoLoop;
-use kincal::calib::tracker_diagnose::{
-    TrackerAuto, TrackerCandidate, TrackerComparison, TrackerDiagnosis, TrackerSetup,
-};
+use kincal::api::{self, RunFolder};
+use kincal::calib::diagnose::auto::AutoLoop;
+use kincal::calib::diagnose::{Candidate, Diagnosis, Measure};
 use kincal::store;
 use std::path::PathBuf;
 
@@ -45,123 +43,83 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
     }
     let started = std::time::Instant::now();
     if a.auto {
-        match api::auto(&folder, a.max_steps)? {
-            Auto::Distances(run) => print_auto(a, &run, started.elapsed().as_secs_f64())?,
-            Auto::Sessions(run) => print_tracker_auto(a, &folder, &run.0, &run.1, started)?,
-        }
-        return Ok(());
+        let run = api::auto(&folder, a.max_steps)?;
+        return print_auto(a, &folder, &run, started.elapsed().as_secs_f64());
     }
     let spinner = crate::arm::spinner("diagnosing");
     let diagnosis = api::diagnose(&folder);
     spinner.finish_and_clear();
-    match diagnosis? {
-        Diagnosis::Distances(d) => {
-            store::write_diagnosis(&d, &a.run)?;
-            if a.json {
-                println!("{}", store::diagnosis_json(&d));
-                return Ok(());
-            }
-            print_distances(&d, started.elapsed().as_secs_f64());
-        }
-        Diagnosis::Sessions(d) => {
-            store::write_tracker_diagnosis(&d, &a.run)?;
-            if a.json {
-                println!("{}", store::tracker_diagnosis_json(&d));
-                return Ok(());
-            }
-            print_sessions(&d);
-        }
+    let d = diagnosis?;
+    store::write_diagnosis(&d, &a.run)?;
+    if a.json {
+        println!("{}", store::diagnosis_json(&d));
+        return Ok(());
     }
+    print_diagnosis(&d);
     println!("report: {}", a.run.join("diagnosis.html").display());
     Ok(())
 }
 
-/// The diagnosis of held-out distances.
-fn print_distances(diagnosis: &kincal::calib::diagnose::Diagnosis, elapsed: f64) {
-    for line in &diagnosis.summary {
+/// The held-out units' word in tables.
+fn units_word(measure: Measure) -> &'static str {
+    match measure {
+        Measure::Distances => "placements",
+        Measure::Points => "blocks",
+    }
+}
+
+/// A candidate's row: name, held-out RMS, share explained, units improved, significant.
+fn row(c: &Candidate) -> String {
+    let units = format!("{}/{}", c.units_improved.0, c.units_improved.1);
+    format!(
+        "  {:<16} {:>10.3} {:>9.2} {:>10}  {}",
+        c.name,
+        c.held_out_rms_mm,
+        c.explained,
+        units,
+        if c.significant { "yes" } else { "no" }
+    )
+}
+
+/// The diagnosis: the summary, then the candidates and data errors best first.
+fn print_diagnosis(d: &Diagnosis) {
+    for line in &d.summary {
         println!("{line}");
     }
     println!(
-        "\n{} candidate effects scored in {elapsed:.2} s (held-out validation RMS, best first):",
-        diagnosis.candidates.len()
+        "\n{} candidate effects scored in {:.2} s (held-out validation RMS, best first):",
+        d.candidates.len(),
+        d.seconds
     );
-    println!("  {:<16} {:>10} {:>9} {:>10}  significant", "effect", "val RMS mm", "explained", "placements");
-    for c in diagnosis.candidates.iter().filter(|c| c.equivalent_to.is_none()).take(8) {
-        let blocks = format!("{}/{}", c.placements_improved.0, c.placements_improved.1);
+    println!(
+        "  {:<16} {:>10} {:>9} {:>10}  significant",
+        "effect",
+        "val RMS mm",
+        "explained",
+        units_word(d.measure)
+    );
+    for c in d.candidates.iter().filter(|c| c.equivalent_to.is_none()).take(8) {
         let same = if c.equivalent.is_empty() {
             String::new()
         } else {
             format!("  (indistinguishable here: {})", c.equivalent.join(", "))
         };
-        println!(
-            "  {:<16} {:>10.3} {:>9.2} {:>10}  {}{same}",
-            c.effect,
-            c.validation_rms_mm,
-            c.explained,
-            blocks,
-            if c.significant { "yes" } else { "no" }
-        );
-    }
-    if !diagnosis.not_identifiable.is_empty() {
-        let names: Vec<&str> = diagnosis.not_identifiable.iter().map(|n| n.effect.as_str()).collect();
-        println!("  not identifiable from these touches: {}", names.join(", "));
-    }
-    println!("\ndata errors scored beside them (best first):");
-    for c in diagnosis.data_errors.iter().take(4) {
-        let blocks = format!("{}/{}", c.placements_improved.0, c.placements_improved.1);
-        let yes = if c.significant { "yes" } else { "no" };
-        println!(
-            "  {:<16} {:>10.3} {:>9.2} {:>10}  {yes}",
-            c.effect, c.validation_rms_mm, c.explained, blocks
-        );
-    }
-}
-
-/// The diagnosis of held-out tracker sessions.
-fn print_sessions(d: &TrackerDiagnosis) {
-    for line in &d.summary {
-        println!("{line}");
-    }
-    let tested = d.candidates.iter().filter(|c| c.cv_gain.is_some()).count();
-    println!(
-        "\n{} candidate effects refitted, {tested} cross-validated, tested on {} held-out blocks in {:.2} s (test order):",
-        d.candidates.len(),
-        d.units,
-        d.seconds
-    );
-    let header = format!(
-        "  {:<28} {:>10} {:>8} {:>8} {:>9}  significant",
-        "candidate", "held-out mm", "blocks", "CV gain", "p"
-    );
-    let row = |c: &TrackerCandidate| {
-        format!(
-            "  {:<28} {:>10.4} {:>8} {:>8} {:>9}  {}",
-            c.name,
-            c.held_out_rms_mm,
-            format!("{}/{}", c.units_improved.0, c.units_improved.1),
-            c.cv_gain.map_or("–".into(), |g| format!("{g:+.3}")),
-            c.p_value.map_or("–".into(), |p| format!("{p:.1e}")),
-            if c.significant { "yes" } else { "no" }
-        )
-    };
-    println!("{header}");
-    for c in d.candidates.iter().take(8) {
-        println!("{}", row(c));
+        println!("{}{same}", row(c));
     }
     if !d.not_identifiable.is_empty() {
         let names: Vec<&str> = d.not_identifiable.iter().map(|n| n.effect.as_str()).collect();
-        println!("  not identifiable from these sessions: {}", names.join(", "));
+        println!("  not identifiable from these data: {}", names.join(", "));
     }
     if !d.data_errors.is_empty() {
-        println!("\ndata errors scored beside them:\n{header}");
-        for c in &d.data_errors {
+        println!("\ndata errors scored beside them (best first):");
+        for c in d.data_errors.iter().take(4) {
             println!("{}", row(c));
         }
     }
 }
 
-/// The loop on held-out distances.
-fn print_auto(a: &DiagnoseArgs, run: &AutoLoop, elapsed: f64) -> Result<()> {
+/// The loop: each step, the last diagnosis, why it stopped and the last step as a run.
+fn print_auto(a: &DiagnoseArgs, folder: &RunFolder, run: &AutoLoop, elapsed: f64) -> Result<()> {
     store::write_auto(run, &a.run)?;
     let dir = a.run.join("auto");
     if a.json {
@@ -172,8 +130,8 @@ fn print_auto(a: &DiagnoseArgs, run: &AutoLoop, elapsed: f64) -> Result<()> {
     for (k, s) in run.steps.iter().enumerate() {
         println!(
             "{k:>4}  {:<18} {:>10.3}  {:>11}  {}",
-            s.added.as_deref().unwrap_or("(start)"),
-            s.validation_rms_mm,
+            s.applied.as_deref().unwrap_or("(start)"),
+            s.held_out_rms_mm,
             s.expected_rms_mm.map_or("–".into(), |e| format!("{e:.3}")),
             s.p_value.map_or("–".into(), |p| format!("{p:.1e}"))
         );
@@ -182,6 +140,16 @@ fn print_auto(a: &DiagnoseArgs, run: &AutoLoop, elapsed: f64) -> Result<()> {
         println!("{line}");
     }
     println!("stopped: {:?} after {} steps in {elapsed:.2} s", run.stop, run.steps.len() - 1);
+    let i = &folder.summary.inputs;
+    let artefact = i.artefact.as_ref().map_or(String::new(), |p| format!(" --artefact {}", p.display()));
+    println!(
+        "the last step as a run: kincal calibrate --model {}{artefact} --data {} --validate {} --out RUN2 {}{}",
+        i.model.display(),
+        i.calibration.display(),
+        i.validation.display(),
+        run.options,
+        i.stated_sigma_mm.map_or(String::new(), |s| format!(" --sigma-mm {s}"))
+    );
     println!(
         "models: {}/step-0.toml … step-{}.toml; report: {}",
         dir.display(),
@@ -191,92 +159,18 @@ fn print_auto(a: &DiagnoseArgs, run: &AutoLoop, elapsed: f64) -> Result<()> {
     Ok(())
 }
 
-/// The loop on held-out tracker sessions.
-fn print_tracker_auto(
-    a: &DiagnoseArgs,
-    folder: &RunFolder,
-    result: &TrackerAuto,
-    last: &TrackerSetup,
-    started: std::time::Instant,
-) -> Result<()> {
-    store::write_tracker_auto(result, &a.run)?;
-    if a.json {
-        println!("{}", store::tracker_auto_json(result));
-        return Ok(());
+pub fn cmd_compare(a: &CompareArgs) -> Result<()> {
+    let compared = api::compare(&a.before, &a.after)?;
+    for run in &compared.runs {
+        for problem in &run.summary.not_trustworthy {
+            eprintln!("warning: {} is marked not trustworthy: {problem}", run.name);
+        }
     }
-    println!("step  applied                  held-out RMS mm   floor mm  held-out p");
-    for (k, s) in result.steps.iter().enumerate() {
-        println!(
-            "{k:>4}  {:<24} {:>15.4}  {:>9}  {}",
-            s.applied.as_deref().unwrap_or("(start)"),
-            s.held_out_rms_mm,
-            s.floor_mm.map_or("unknown".into(), |f| format!("{f:.4}")),
-            s.p_value.map_or("–".into(), |p| format!("{p:.1e}"))
-        );
-    }
-    for line in &result.last.summary {
+    for line in kincal::report::compare::compare_lines(&compared.comparison, &compared.runs) {
         println!("{line}");
     }
-    println!(
-        "stopped: {:?} after {} steps in {:.2} s",
-        result.stop,
-        result.steps.len() - 1,
-        started.elapsed().as_secs_f64()
-    );
-    let i = &folder.summary.inputs;
-    println!(
-        "the last step as a run: kincal calibrate --model {} --data {} --validate {} --out RUN2 {}{}",
-        i.model.display(),
-        i.calibration.display(),
-        i.validation.display(),
-        last.options_text(),
-        i.stated_sigma_mm.map_or(String::new(), |s| format!(" --sigma-mm {s}"))
-    );
-    println!("report: {}", a.run.join("auto").join("report.html").display());
-    Ok(())
-}
-
-pub fn cmd_compare(a: &CompareArgs) -> Result<()> {
-    match api::compare(&a.before, &a.after)? {
-        Comparison::Distances(comparison) => {
-            for (name, summary) in comparison.summaries() {
-                for problem in &summary.not_trustworthy {
-                    eprintln!("warning: {name} is marked not trustworthy: {problem}");
-                }
-            }
-            for line in comparison.table_lines() {
-                println!("{line}");
-            }
-            store::write_page(&a.out, "<title>kincal compare</title>", &comparison.html())?;
-        }
-        Comparison::Sessions(c) => {
-            print_compared_sessions(&c);
-            let names = (a.before.display().to_string(), a.after.display().to_string());
-            let html = kincal::report::tracker_diagnosis::tracker_compare_report(&c, (&names.0, &names.1));
-            store::write_page(&a.out, "<title>kincal compare (tracker runs)</title>", &html)?;
-        }
-    }
+    let html = kincal::report::compare::compare_report(&compared.comparison, &compared.runs);
+    store::write_page(&a.out, "<title>kincal compare</title>", &html)?;
     println!("side by side: {}", a.out.display());
     Ok(())
-}
-
-/// Two tracker runs' held-out sessions side by side.
-fn print_compared_sessions(c: &TrackerComparison) {
-    println!("  held-out session        points   (1) RMS mm   (2) RMS mm   (1) pairwise   (2) pairwise");
-    for s in &c.sessions {
-        println!(
-            "  {:<22} {:>7} {:>12.4} {:>12.4} {:>14.4} {:>14.4}",
-            s.name, s.points, s.before_rms_mm, s.after_rms_mm, s.pairwise_rms_mm.0, s.pairwise_rms_mm.1
-        );
-    }
-    println!(
-        "  {:<22} {:>7} {:>12.4} {:>12.4}",
-        "all",
-        c.sessions.iter().map(|s| s.points).sum::<usize>(),
-        c.before_rms_mm,
-        c.after_rms_mm
-    );
-    for v in &c.verdict {
-        println!("{v}");
-    }
 }

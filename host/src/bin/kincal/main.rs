@@ -11,8 +11,10 @@ mod calibrate;
 mod cli_reference;
 mod controller;
 mod diagnose;
+mod dynamic;
 mod emulated_arm;
 mod haptic;
+mod igtl_record;
 mod model;
 mod plan;
 
@@ -37,7 +39,7 @@ enum Command {
     /// Calibrate the arm model from artefact touches, tracker sessions or both, and validate it on
     /// held-out sessions.
     Calibrate(Box<calibrate::CalibrateArgs>),
-    /// Dataset-size study: calibrate on random subsets of placements, validate each.
+    /// Dataset-size study: calibrate on random subsets of placements or sessions, validate each.
     Study(arm::StudyArgs),
     /// Where the calibrated model of RUN fails and which physical effect is missing.
     Diagnose(diagnose::DiagnoseArgs),
@@ -61,7 +63,18 @@ enum Command {
     Stream(controller::StreamArgs),
     /// Guided measurement of one artefact placement; resumes an interrupted session.
     Record(controller::RecordArgs),
-    /// Emulated controller only: pose the arm, inject encoder noise and faults.
+    /// Does the arm still hold its stored calibration? A few touches judged with the stored set
+    /// against the floor of their repeats: holds (exit 0), does not hold (2), cannot tell (3).
+    Check(controller::CheckArgs),
+    /// The streamed pose in motion against a reference tracker's recording of the same tool:
+    /// latency, clock offset and drift, path error at rest, in motion and at direction changes.
+    Dynamic(dynamic::DynamicArgs),
+    /// Record the TRANSFORMs an OpenIGTLink server sends (the arm's pose from `kincal stream
+    /// --igtl`, or an optical tracker through PLUS) as a client receives them, for `kincal
+    /// dynamic`.
+    IgtlRecord(igtl_record::IgtlRecordArgs),
+    /// Emulated controller: start one as an arm, pose it, script it from a geometry, inject
+    /// encoder noise and faults.
     #[command(subcommand)]
     EmulatedArm(emulated_arm::EmulatedArmCommand),
     /// Haptic device (PHANToM) workspace calibration.
@@ -123,6 +136,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Key(controller::KeyCommand::New(a)) => controller::cmd_key_new(&a),
         Command::Stream(a) => controller::cmd_stream(&a),
         Command::Record(a) => controller::cmd_record(&a),
+        Command::Check(a) => controller::cmd_check(&a),
+        Command::Dynamic(a) => dynamic::cmd_dynamic(&a),
+        Command::IgtlRecord(a) => igtl_record::cmd_igtl_record(&a),
         Command::EmulatedArm(c) => emulated_arm::run(&c),
         Command::Haptic(haptic::HapticCommand::Simulate(a)) => haptic::cmd_haptic_simulate(&a),
         Command::Haptic(haptic::HapticCommand::Calibrate(a)) => haptic::cmd_haptic_calibrate(&a),

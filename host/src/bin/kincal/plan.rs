@@ -1,5 +1,6 @@
-//! `kincal plan RUN`: what to measure next — placements that tell two rival effects apart, and
-//! placements that pin down the weakest parameters.
+//! `kincal plan RUN`: what to measure next — artefact placements (or, for an instrument run,
+//! sessions of arm poses) that tell two rival effects apart, and ones that pin down the weakest
+//! parameters.
 
 use anyhow::{bail, Result};
 use clap::Args;
@@ -34,14 +35,20 @@ pub struct PlanArgs {
 }
 
 fn place(p: &kincal::calib::plan::SuggestedPlacement) -> String {
-    format!(
-        "artefact origin at ({:.0}, {:.0}, {:.0}) mm, yaw {:+.0}°, {} landmarks",
-        p.origin_mm[0],
-        p.origin_mm[1],
-        p.origin_mm[2],
-        p.yaw_deg,
-        p.landmarks.len()
-    )
+    match (p.origin_mm, p.yaw_deg) {
+        (Some(o), Some(yaw)) => format!(
+            "artefact origin at ({:.0}, {:.0}, {:.0}) mm, yaw {yaw:+.0}°, {} landmarks",
+            o[0],
+            o[1],
+            o[2],
+            p.landmarks.len()
+        ),
+        _ => format!(
+            "a new session {} of {} poses (the instrument anywhere it sees the tool)",
+            p.session.as_deref().unwrap_or(""),
+            p.poses_deg.len()
+        ),
+    }
 }
 
 fn ranges(joint_ranges_deg: &[(usize, f64, f64)], joints: &[usize]) -> String {
@@ -88,9 +95,16 @@ pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
         }
         None => {}
     }
+    let sessions = plan.weak.placements.first().is_some_and(|p| p.session.is_some());
     println!(
-        "{} reachable candidate placements, touch noise {:.3} mm per axis; planned in {:.1} s",
+        "{} {}, {} noise {:.3} mm per axis; planned in {:.1} s",
         plan.candidates,
+        if sessions {
+            "candidate sessions of poses within the joint ranges the data visit"
+        } else {
+            "reachable candidate placements"
+        },
+        if sessions { "point" } else { "touch" },
         plan.touch_std_mm,
         started.elapsed().as_secs_f64()
     );
@@ -116,7 +130,7 @@ pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
         for (k, p) in r.placements.iter().enumerate() {
             let (ab, ba) = p.differ_mm.unwrap_or((0.0, 0.0));
             println!("  {}. {}: {}", k + 1, place(p), ranges(&p.joint_ranges_deg, &joints));
-            println!("     the two explanations differ by {ab:.3} mm per touch there if {ra} is the cause ({ba:.3} mm if {rb}); landmarks {}", p.landmarks.join(" "));
+            println!("     the two explanations differ by {ab:.3} mm per touch there if {ra} is the cause ({ba:.3} mm if {rb}); measure {}", p.landmarks.join(" "));
             let most = p.touch_differ_mm.iter().copied().fold(0.0, f64::max);
             let (marks, there) = p.where_rivals_differ(0.5);
             println!(

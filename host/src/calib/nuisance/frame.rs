@@ -35,6 +35,13 @@ impl Frame {
         Frame { rotation, translation_mm }
     }
 
+    /// What is left of `to` once `from` is fitted onto it: to_i − frame(from_i), mm, with the
+    /// frame of [`Frame::fit`].
+    pub fn residuals(from: &[Vector3<f64>], to: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        let frame = Frame::fit(from, to);
+        from.iter().zip(to).map(|(f, t)| t - frame.apply(f)).collect()
+    }
+
     /// R·p + t.
     pub fn apply(&self, p: &Vector3<f64>) -> Vector3<f64> {
         self.rotation * p + self.translation_mm

@@ -503,16 +503,23 @@ impl<'m> Chain<'m> {
                     frame.apply(op);
                 }
                 Dep::JointAngle(j) => {
+                    // The encoder's sine and cosine kept and θ = φ + δθ: angle addition, and the
+                    // offset is the only parameter θ reads.
+                    if let Some(&(s, c)) =
+                        enc_sin_cos.and_then(|sc| sc.get(j)).filter(|_| !harmonics && !compliance)
+                    {
+                        let (so, co) = self.offset_sin_cos[j];
+                        let dir = frame.apply(&Op { sin_cos: (s * co + c * so, c * co - s * so), ..*op });
+                        if let Some((columns, jac)) = wanted.as_mut() {
+                            if let Some(c) = columns.column(ParamId::Offset(j).dense_index()) {
+                                gather(&mut jac[c], op, &dir, &origin, DEG);
+                            }
+                        }
+                        continue;
+                    }
                     let (theta, partials, count) =
                         self.joint_angle(j, enc(j), levers[j], harmonics, compliance);
-                    let rotated = match enc_sin_cos.and_then(|sc| sc.get(j)) {
-                        Some(&(s, c)) if !harmonics && !compliance => {
-                            let (so, co) = self.offset_sin_cos[j];
-                            Op { sin_cos: (s * co + c * so, c * co - s * so), ..*op }
-                        }
-                        _ => Self::with_angle(op, theta),
-                    };
-                    let dir = frame.apply(&rotated);
+                    let dir = frame.apply(&Self::with_angle(op, theta));
                     if let Some((columns, jac)) = wanted.as_mut() {
                         for &(slot, dv) in &partials[..count] {
                             if let Some(c) = columns.column(slot) {

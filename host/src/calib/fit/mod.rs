@@ -23,7 +23,7 @@ use crate::calib::layout::Layout;
 use crate::calib::nuisance::drift::{drift_slots, DriftError, DriftSlot, SessionDrift};
 use crate::calib::nuisance::frame::{rotation_vector, Frame, FRAME_UNKNOWNS};
 use crate::calib::nuisance::tool::{
-    length_std, model_point, orientation_spread_deg, start_probe_rotation, FloatedTool, ToolRotation,
+    length_std, model_points, orientation_spread_deg, start_probe_rotation, FloatedTool, ToolRotation,
 };
 use crate::calib::problem::{projected_arm_columns, Problem};
 use crate::calib::setup::{Resolved, SolveOptions};

@@ -1,4 +1,9 @@
-//! Profiling harness (not committed).
+//! Profiling harness for the calibration's speed (under `perf record --call-graph dwarf`, or by
+//! its own CPU and wall times, median over N runs):
+//! `cargo run --release -p kincal --example prof -- MODE [N]`, MODE one of `artefact` (nominal +
+//! 8 restarts), `one` (nominal start), `tracker` (one calibration of the bench arm's 5 sessions),
+//! `fk` (one pose with and without its Jacobian), `evals` (one residual and one normal-equation
+//! evaluation of each problem), or `write DIR` (the problems' files, for `kincal calibrate`).
 use anyhow::{Context, Result};
 use kincal::calib::fit::calibrate;
 use kincal::calib::setup::SolveOptions;

@@ -12,7 +12,7 @@ pub mod optical;
 
 use crate::data::{Artefact, Landmark, Measurement, Session, ARTEFACT_FORMAT, SESSION_FORMAT};
 use crate::model::{ArmModel, Convention, ParamId, SUTA_JOINTS};
-use crate::numerics::solver::{self, Residuals, SolverOptions};
+use crate::numerics::solver::{self, Residuals, SolverOptions, Termination};
 use nalgebra::{Matrix4, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -333,7 +333,11 @@ fn solve_touch(
     first: Option<&[f64; SUTA_JOINTS]>,
     rng: &mut ChaCha8Rng,
 ) -> Option<[f64; SUTA_JOINTS]> {
-    let options = SolverOptions { max_iterations: 100, ..SolverOptions::default() };
+    let options = SolverOptions {
+        max_iterations: 100,
+        termination: Termination::AcceptedSteps,
+        ..SolverOptions::default()
+    };
     for attempt in 0..25 {
         let start: Vec<f64> = match first.filter(|_| attempt == 0) {
             Some(f) => f.to_vec(),

@@ -42,7 +42,7 @@
 
 use crate::calib::fit::{dense_jacobian, Fit};
 use crate::data::Observations;
-use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
+use crate::model::kinematics::{Chain, ColumnMap};
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::stats::chi2_quantile;
 use nalgebra::{DMatrix, Matrix3, Vector3};
@@ -176,7 +176,7 @@ pub fn noise_floor(
     }
     let mut groups: Vec<Group> = Vec::new();
     for data in [cal, val] {
-        let p: Vec<Vector3<f64>> = data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
+        let p: Vec<Vector3<f64>> = crate::calib::validate::positions(model, data);
         for placement in 0..data.groups.len() {
             for landmark in 0..data.landmarks.len() {
                 let idx: Vec<usize> = (0..p.len())
@@ -238,7 +238,7 @@ pub fn noise_floor(
         return None;
     }
     let cov = pooled / dof as f64;
-    let p: Vec<Vector3<f64>> = val.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
+    let p: Vec<Vector3<f64>> = crate::calib::validate::positions(model, val);
     let pairs = val.landmark_pairs();
     let floor_ms = if pairs.is_empty() {
         2.0 * cov.trace() / 3.0
@@ -390,12 +390,13 @@ fn encoder_floor(
     let offsets: Vec<ParamId> = (0..joints).map(ParamId::Offset).collect();
     let columns = ColumnMap::new(&offsets);
     let mut jac = vec![[0.0; 9]; joints];
+    let chain = Chain::new(model);
     let per_touch: Vec<Option<Matrix3<f64>>> = val
         .obs
         .iter()
         .map(|t| {
             let sigma = t.q_sigma_deg?;
-            tool_pose_with_jacobian(model, &t.q_deg, &columns, &mut jac);
+            chain.pose_with_jacobian(&t.q_deg, &columns, &mut jac);
             Some((0..joints).fold(Matrix3::zeros(), |acc, j| {
                 let g = Vector3::new(jac[j][0], jac[j][1], jac[j][2]); // mm per degree
                 acc + g * g.transpose() * sigma[j].powi(2)

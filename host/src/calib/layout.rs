@@ -8,7 +8,7 @@
 //! rows block by block and eliminate them.
 
 use crate::calib::nuisance::drift::DriftSlot;
-use crate::calib::nuisance::frame::{Frame, FRAME_UNKNOWNS};
+use crate::calib::nuisance::frame::{left_jacobian, Frame, FRAME_UNKNOWNS};
 use crate::calib::nuisance::tool::{probe_rotation_at, TOOL_UNKNOWNS};
 use crate::model::kinematics::ColumnMap;
 use crate::model::{ArmModel, ParamId};
@@ -104,10 +104,16 @@ pub struct State {
     pub model: ArmModel,
     /// Per block, its frame (the identity for a block without one).
     pub frames: Vec<Frame>,
+    /// Per block, how its frame's rotation turns per unit of its unknowns (mrad): a change δω
+    /// turns it by `frame_turns[b]·δω` rad, J_l(ω)·10⁻³ ([`left_jacobian`]).
+    pub frame_turns: Vec<Matrix3<f64>>,
     /// Per group, its tool offset in the flange frame (zero unless floated), mm.
     pub tools: Vec<Vector3<f64>>,
     /// The probe's rotation on the flange (the identity without one).
     pub probe: Matrix3<f64>,
+    /// How the probe's rotation turns, in its own frame, per unit of its unknowns (mrad):
+    /// J_r(ψ)·10⁻³ = J_l(ψ)ᵀ·10⁻³.
+    pub probe_turn: Matrix3<f64>,
     /// Per block, its drift rates (empty unless drifting).
     pub drifts: Vec<Vec<f64>>,
 }
@@ -126,7 +132,13 @@ impl Layout {
         for (id, v) in self.arm.iter().zip(x) {
             m.set(*id, *v);
         }
+        let turn = |c: Option<usize>| {
+            c.map_or(Matrix3::identity(), |c| left_jacobian(&(Vector3::new(x[c], x[c + 1], x[c + 2]) * 1e-3)))
+                * 1e-3
+        };
         State {
+            frame_turns: (0..self.frame.len()).map(|b| turn(self.frame_column(b))).collect(),
+            probe_turn: turn(self.rotation).transpose(),
             model: m,
             frames: (0..self.frame.len())
                 .map(|b| match self.frame_column(b) {

@@ -3,7 +3,8 @@
 //!
 //! Each evaluation turns the unknowns into values once, computes the tool pose of every
 //! observation a term reads once (with its derivatives over the arm's columns when a Jacobian is
-//! wanted), and lets every term read them. Without block unknowns (artefact distances alone) the
+//! wanted; the encoder angles' sines and cosines kept from the problem's making), and lets every
+//! term read them. Without block unknowns (artefact distances alone) the
 //! solver gets the dense m × n Jacobian. With them, no m × n Jacobian is formed: each term's
 //! derivatives over its own columns (the arm's, its block's frame, tool and drift, the probe
 //! rotation's) are added into JᵀWJ and JᵀWr as it is evaluated, in fixed blocks of terms summed in
@@ -18,19 +19,22 @@
 use crate::calib::layout::{Layout, State};
 use crate::calib::terms::{Poses, Term, TermInput, TermJacobian};
 use crate::data::Observations;
-use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian};
+use crate::model::kinematics::{encoder_sin_cos, Chain};
 use crate::model::ArmModel;
-use crate::numerics::solver::{Loss, Residuals};
+use crate::numerics::normal::{add_gram_by_four, NormalSums};
+use crate::numerics::qr::r_factor;
+use crate::numerics::solver::{symmetric, Loss, Residuals};
 use nalgebra::{DMatrix, DVector, Matrix3};
 use rayon::prelude::*;
 
 /// Some terms and their residual rows.
 type Chunk<'t, 'r> = (&'t [Box<dyn Term>], Vec<&'r mut [f64]>);
 
-/// Fewest observations whose poses one thread computes (a pose with its Jacobian takes a few µs).
-const MIN_POSES_PER_TASK: usize = 64;
-/// Fewest terms one thread evaluates (a term takes a fraction of a µs).
-const MIN_TERMS_PER_TASK: usize = 1024;
+/// Fewest observations whose poses one thread computes (a pose with its Jacobian takes a
+/// fraction of a µs: fewer are not worth waking a thread for).
+const MIN_POSES_PER_TASK: usize = 256;
+/// Fewest terms one thread evaluates (a term takes tens of ns).
+const MIN_TERMS_PER_TASK: usize = 4096;
 
 /// Most blocks the terms of the normal equations are summed in (each holds an n × n sum).
 const MAX_BLOCKS: usize = 16;
@@ -49,6 +53,9 @@ pub struct Problem<'a> {
     offsets: Vec<usize>,
     rows: usize,
     read: Vec<bool>,
+    /// Per observation read, the sine and cosine of each encoder angle (`joints` per observation).
+    sin_cos: Vec<(f64, f64)>,
+    joints: usize,
     frame_start: Vec<Matrix3<f64>>,
     probe_start: Option<Matrix3<f64>>,
 }
@@ -57,7 +64,7 @@ impl<'a> Problem<'a> {
     /// The problem of `terms` over `layout`; parameters not in `layout.arm` keep their values in
     /// `model`; each block's frame starts at `frame_start[b]`, the probe at `probe_start`.
     pub fn new(
-        layout: Layout,
+        mut layout: Layout,
         model: &'a ArmModel,
         data: &'a Observations,
         terms: &'a [Box<dyn Term>],
@@ -74,7 +81,23 @@ impl<'a> Problem<'a> {
                 read[k] = true;
             }
         }
-        Problem { layout, model, data, terms, offsets, rows, read, frame_start, probe_start }
+        // Terms of positions alone read no derivative of the tool's axes.
+        if terms.iter().all(|t| t.is_position()) {
+            layout.columns = layout.columns.positions_only();
+        }
+        let joints = data.joints;
+        let mut sin_cos = vec![(0.0, 1.0); data.obs.len() * joints];
+        for (k, o) in data.obs.iter().enumerate().filter(|(k, _)| read[*k]) {
+            for (sc, &q) in sin_cos[k * joints..(k + 1) * joints].iter_mut().zip(o.q_deg.iter()) {
+                *sc = encoder_sin_cos(q);
+            }
+        }
+        Problem { layout, model, data, terms, offsets, rows, read, sin_cos, joints, frame_start, probe_start }
+    }
+
+    /// Observation `k`'s encoder sines and cosines.
+    fn sin_cos(&self, k: usize) -> &[(f64, f64)] {
+        &self.sin_cos[k * self.joints..(k + 1) * self.joints]
     }
 
     /// The terms.
@@ -107,6 +130,7 @@ impl<'a> Problem<'a> {
         let arm = self.layout.arm.len();
         let columns = &self.layout.columns;
         let data = self.data;
+        let kinematics = Chain::new(&state.model);
         let mut chain = if jacobian { vec![[0.0; 9]; data.obs.len() * arm] } else { Vec::new() };
         let pose = if jacobian && arm > 0 {
             chain
@@ -114,8 +138,14 @@ impl<'a> Problem<'a> {
                 .enumerate()
                 .with_min_len(MIN_POSES_PER_TASK)
                 .map(|(k, d)| {
-                    self.read[k]
-                        .then(|| tool_pose_with_jacobian(&state.model, &data.obs[k].q_deg, columns, d))
+                    self.read[k].then(|| {
+                        kinematics.pose_with_sin_cos_and_jacobian(
+                            &data.obs[k].q_deg,
+                            self.sin_cos(k),
+                            columns,
+                            d,
+                        )
+                    })
                 })
                 .collect()
         } else {
@@ -124,8 +154,13 @@ impl<'a> Problem<'a> {
                 .with_min_len(MIN_POSES_PER_TASK)
                 .map(|k| {
                     self.read[k].then(|| match jacobian {
-                        true => tool_pose_with_jacobian(&state.model, &data.obs[k].q_deg, columns, &mut []),
-                        false => tool_pose(&state.model, &data.obs[k].q_deg),
+                        true => kinematics.pose_with_sin_cos_and_jacobian(
+                            &data.obs[k].q_deg,
+                            self.sin_cos(k),
+                            columns,
+                            &mut [],
+                        ),
+                        false => kinematics.pose_with_sin_cos(&data.obs[k].q_deg, self.sin_cos(k)),
                     })
                 })
                 .collect()
@@ -150,11 +185,13 @@ impl<'a> Problem<'a> {
         let mut wanted = vec![false; last + 1 - first];
         read().for_each(|k| wanted[k - first] = true);
         let mut chain = vec![[0.0; 9]; wanted.len() * arm];
+        let kinematics = Chain::new(&state.model);
         let pose = (first..=last)
             .map(|k| {
                 let d = &mut chain[(k - first) * arm..(k - first + 1) * arm];
                 wanted[k - first].then(|| {
-                    tool_pose_with_jacobian(&state.model, &self.data.obs[k].q_deg, &self.layout.columns, d)
+                    let q = &self.data.obs[k].q_deg;
+                    kinematics.pose_with_sin_cos_and_jacobian(q, self.sin_cos(k), &self.layout.columns, d)
                 })
             })
             .collect();
@@ -225,7 +262,9 @@ impl Residuals for Problem<'_> {
             let mut jacobian = vec![0.0; r.len() * n];
             self.evaluate(x, r, Some(&mut jacobian));
             let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
-            return crate::numerics::solver::normal_equations(&jacobian, r, &weights, n);
+            let (mut upper, mut g) = (vec![0.0; n * n], vec![0.0; n]);
+            add_gram_by_four(&mut upper, &mut g, n, &jacobian, &weights, r);
+            return (symmetric(n, &upper), DVector::from_vec(g));
         }
         let state = self.state(x);
         let block = self.terms.len().div_ceil(MAX_BLOCKS).max(MIN_BLOCK_TERMS);
@@ -243,25 +282,15 @@ impl Residuals for Problem<'_> {
             .map(|(terms, rs)| {
                 let poses = self.chunk_poses(&state, terms);
                 let input = TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
-                let (mut h, mut g, mut jac) = (vec![0.0; n * n], vec![0.0; n], TermJacobian::default());
-                let mut w = Vec::new();
-                let mut wv = Vec::new();
+                let (mut sums, mut jac, mut w) = (NormalSums::new(n), TermJacobian::default(), Vec::new());
                 for (t, r) in terms.iter().zip(rs) {
                     jac.reset(t.rows());
                     t.evaluate(&input, r, Some(&mut jac));
                     w.clear();
                     w.extend(r.iter().map(|&v| loss.weight(v)));
-                    for (p, &cp) in jac.columns.iter().enumerate() {
-                        let vp = jac.column(p);
-                        wv.clear();
-                        wv.extend(w.iter().zip(vp).map(|(w, v)| w * v));
-                        g[cp] += dot(&wv, r);
-                        for (q, &cq) in jac.columns.iter().enumerate().skip(p) {
-                            h[cp.min(cq) * n + cp.max(cq)] += dot(&wv, jac.column(q));
-                        }
-                    }
+                    sums.add(&jac.columns, &jac.values, r, &w);
                 }
-                (h, g)
+                sums.finish()
             })
             .collect();
         let (mut upper, mut g) = (vec![0.0; n * n], vec![0.0; n]);
@@ -269,23 +298,8 @@ impl Residuals for Problem<'_> {
             upper.iter_mut().zip(&h_block).for_each(|(a, b)| *a += b);
             g.iter_mut().zip(&g_block).for_each(|(a, b)| *a += b);
         }
-        let mut h = DMatrix::from_row_slice(n, n, &upper);
-        for a in 0..n {
-            for b in 0..a {
-                h[(a, b)] = h[(b, a)];
-            }
-        }
-        (h, DVector::from_vec(g))
+        (symmetric(n, &upper), DVector::from_vec(g))
     }
-}
-
-/// Σ a_i·b_i summed from the first term on.
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut s = a[0] * b[0];
-    for i in 1..a.len() {
-        s += a[i] * b[i];
-    }
-    s
 }
 
 /// A group's rows of the Jacobian in a small matrix: the R factor of its columns [its own |
@@ -352,7 +366,7 @@ impl Problem<'_> {
                             }
                             at += t.rows();
                         }
-                        finite.then(|| block.qr().r())
+                        finite.then(|| r_factor(block))
                     })
                     .collect();
                 // Folded in order: the same factor whatever the thread count.
@@ -376,7 +390,7 @@ fn fold(top: DMatrix<f64>, bottom: DMatrix<f64>) -> DMatrix<f64> {
     let mut stacked = DMatrix::zeros(top.nrows() + bottom.nrows(), top.ncols());
     stacked.rows_mut(0, top.nrows()).copy_from(&top);
     stacked.rows_mut(top.nrows(), bottom.nrows()).copy_from(&bottom);
-    stacked.qr().r()
+    r_factor(stacked)
 }
 
 /// `m` with the directions of `basis`'s columns above `1e-12` of its largest singular value

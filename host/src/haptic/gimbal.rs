@@ -8,7 +8,7 @@
 //! when it lowers the held-out error by more than [`QUADRATIC_GAIN`].
 
 use super::kinematics::{Device, SensorModel};
-use crate::numerics::solver::{self, Residuals, SolverOptions};
+use crate::numerics::solver::{self, Residuals, SolverOptions, Termination};
 use crate::numerics::stats::rms;
 use nalgebra::{DMatrix, DVector, Vector3};
 
@@ -142,7 +142,11 @@ fn fit(device: &Device, samples: &[GimbalSample], quadratic: bool) -> [SensorMod
         &x0,
         &lower,
         &upper,
-        &SolverOptions { max_iterations: 100, ..SolverOptions::default() },
+        &SolverOptions {
+            max_iterations: 100,
+            termination: Termination::AcceptedSteps,
+            ..SolverOptions::default()
+        },
     );
     let (g4, g5) = problem.models(&solved.x);
     // θ6 by linear least squares on (raw², raw, 1) or (raw, 1), over the samples with a roll.

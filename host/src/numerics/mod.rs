@@ -4,6 +4,8 @@
 
 pub mod delay;
 pub mod geometry;
+pub mod normal;
+pub mod qr;
 pub mod significance;
 pub mod solver;
 pub mod stats;

@@ -40,8 +40,9 @@ impl Solved {
     }
 }
 
-/// Solve for `estimated` from `start` (frames at `frames`, probe at `probe`) in passes, each
-/// re-centring the frames' rotations (and the probe's) at its solution.
+/// Solve for `estimated` from `start` (frames at `frames`, probe at `probe`); again from its
+/// solution with the frames' rotations (and the probe's) re-centred, while a solve stops without
+/// converging (up to [`PASSES`] passes).
 pub(super) fn solve_framed(
     pieces: &Pieces,
     estimated: &[ParamId],
@@ -74,9 +75,15 @@ pub(super) fn solve_framed(
         s.probe = s.probe.map(|_| state.probe);
         s.drifts = state.drifts;
         s.model = state.model;
+        // The rotations' Jacobians are exact at any ω (J_l): a solve that stopped on a tolerance
+        // is at the minimum; another pass re-centres one that hit its limit or lost progress.
+        let settled = matches!(
+            solution.stop,
+            StopReason::CostConverged | StopReason::GradientConverged | StopReason::StepConverged
+        );
         let converged = (last_cost - solution.cost).abs() <= 1e-9 * solution.cost.max(1e-12);
         last_cost = solution.cost;
-        if converged {
+        if settled || converged {
             break;
         }
     }
@@ -93,7 +100,6 @@ pub(super) fn calibrate_framed(nominal: &ArmModel, pieces: &Pieces) -> Result<Fi
     let full = pieces.problem(all.clone(), model, &start_frames, probe);
     let tools0 = vec![Vector3::zeros(); data.groups.len()];
     let x0 = pieces.x_of(&full, model, &start_frames, &tools0, &vec![Vec::new(); data.blocks.len()]);
-    let mut factors = check_framed(&full, &x0)?;
     let spreads: Vec<(String, f64)> = (0..data.blocks.len())
         .filter(|&b| pieces.framed[b])
         .map(|b| (data.block_name(b), orientation_spread_deg(model, data, b)))
@@ -110,12 +116,16 @@ pub(super) fn calibrate_framed(nominal: &ArmModel, pieces: &Pieces) -> Result<Fi
     // determine is held.
     let tool: Vec<ParamId> = all.iter().copied().filter(|p| matches!(p, ParamId::Tcp(_))).collect();
     let mut start = Solved::at(model.clone(), start_frames, probe, data);
-    if tool_turns && !tool.is_empty() {
+    let factors = if tool_turns && !tool.is_empty() {
+        // The factors are taken after the tool's fit: at the start only the checks.
+        check_residuals(&full, &x0)?;
         start = solve_framed(pieces, &tool, start.model, start.frames, start.probe, 0);
         let full = pieces.problem(all.clone(), &start.model, &start.frames, start.probe);
         let x = pieces.x_of(&full, &start.model, &start.frames, &start.tools, &start.drifts);
-        factors = check_framed(&full, &x)?;
-    }
+        check_framed(&full, &x)?
+    } else {
+        check_framed(&full, &x0)?
+    };
     let (raw, projected) = projected_arm_columns(&full.layout, &factors);
     let ranges: Vec<f64> = all.iter().map(|&id| pieces.range(id)).collect();
     let (kept, _) = identify::base_columns(&projected, all.len(), &ranges);

@@ -14,8 +14,8 @@
 //! point that may lie on the last joint's axis; identifiability sees the frames (they are projected out of
 //! the arm's columns, [`Problem::group_factors`]); the tool point is freed (and held at its
 //! nominal value when no session turns it: then it and each frame's shift are one thing); the
-//! problem is solved in up to [`PASSES`] passes, each re-centring the frames' rotations at their
-//! solution. Restarts, when asked for, start the arm at random points inside its bounds, with
+//! problem is solved, and solved again with the frames' rotations re-centred at the solution
+//! (up to [`PASSES`] passes) only when a solve stops without converging. Restarts, when asked for, start the arm at random points inside its bounds, with
 //! each frame at its closed form for that arm.
 
 use crate::calib::identify::{self, Identifiability};
@@ -23,7 +23,7 @@ use crate::calib::layout::Layout;
 use crate::calib::nuisance::drift::{drift_slots, DriftError, DriftSlot, SessionDrift};
 use crate::calib::nuisance::frame::{rotation_vector, Frame, FRAME_UNKNOWNS};
 use crate::calib::nuisance::tool::{
-    length_std, model_point, orientation_spread_deg, start_probe_rotation, FloatedTool, ToolRotation,
+    length_std, model_points, orientation_spread_deg, start_probe_rotation, FloatedTool, ToolRotation,
 };
 use crate::calib::problem::{projected_arm_columns, Problem};
 use crate::calib::setup::{Resolved, SolveOptions};
@@ -31,7 +31,7 @@ use crate::calib::terms::{self, Term, TermChoice};
 use crate::calib::validate::{AngleStats, ErrorStats};
 use crate::data::{Kind, Observations};
 use crate::model::{ArmModel, ParamId};
-use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason};
+use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason, Termination};
 use nalgebra::{Matrix3, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -49,8 +49,14 @@ const MAX_IDENTIFIABILITY_PASSES: usize = 3;
 /// Change of a residual, mm, over a parameter's whole range below which it counts as none.
 const NEGLIGIBLE_MM: f64 = 1e-9;
 /// Solver settings of each pass when frames are fitted (the passes re-centre between solves).
-const FRAMED_SOLVER: SolverOptions =
-    SolverOptions { loss: Loss::Linear, max_iterations: 100, ftol: 1e-10, xtol: 1e-10, gtol: 1e-10 };
+const FRAMED_SOLVER: SolverOptions = SolverOptions {
+    loss: Loss::Linear,
+    max_iterations: 100,
+    ftol: 1e-10,
+    xtol: 1e-10,
+    gtol: 1e-10,
+    termination: Termination::Ceres,
+};
 
 /// Why a calibration could not run.
 #[derive(Debug, thiserror::Error)]

@@ -113,8 +113,7 @@ impl<'a> Pieces<'a> {
                     return Frame::identity();
                 }
                 let members = &data.blocks[b].members;
-                let robot: Vec<Vector3<f64>> =
-                    members.iter().map(|&k| model_point(model, &data.obs[k].q_deg, &zero)).collect();
+                let robot = model_points(model, members.iter().map(|&k| &data.obs[k].q_deg[..]), &zero);
                 let measured: Vec<Vector3<f64>> =
                     members.iter().map(|&k| data.obs[k].point_mm().unwrap_or_default()).collect();
                 Frame::fit(&robot, &measured)
@@ -291,4 +290,19 @@ pub(super) fn check_framed(
         return Err(CalibError::TooFewResiduals { residuals: full.len(), unknowns });
     }
     full.group_factors(x0).ok_or(CalibError::NonFinite)
+}
+
+/// The checks of [`check_framed`] on the residuals alone (no derivatives, no factors): enough
+/// residuals for the unknowns, all finite at `x0`.
+pub(super) fn check_residuals(full: &Problem, x0: &[f64]) -> Result<(), CalibError> {
+    let unknowns = full.layout.unknowns();
+    if full.len() < unknowns {
+        return Err(CalibError::TooFewResiduals { residuals: full.len(), unknowns });
+    }
+    let mut r = vec![0.0; full.len()];
+    full.evaluate(x0, &mut r, None);
+    match r.iter().all(|v| v.is_finite()) {
+        true => Ok(()),
+        false => Err(CalibError::NonFinite),
+    }
 }

@@ -69,14 +69,14 @@ impl Term for Orientation {
             jac.push3(c, to_body * spin * -w);
         }
         if let Some(b) = at.layout.frame_column(s) {
-            let g = predicted.transpose() * (-1e-3 * w);
+            let g = predicted.transpose() * at.state.frame_turns[s] * -w;
             for k in 0..3 {
                 jac.push3(b + k, g.column(k).into_owned());
             }
         }
         if let Some(t) = at.layout.rotation_column() {
             for k in 0..3 {
-                jac.push3(t + k, Vector3::ith(k, -1e-3 * w));
+                jac.push3(t + k, at.state.probe_turn.column(k) * -w);
             }
         }
     }

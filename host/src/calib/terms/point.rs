@@ -74,8 +74,9 @@ impl Term for Point {
             jac.push3(c, base.rotation * Vector3::new(d[0], d[1], d[2]) * growth);
         }
         if let Some(b) = at.layout.frame_column(s) {
+            let turns = &at.state.frame_turns[s];
             for k in 0..3 {
-                jac.push3(b + k, Vector3::ith(k, 1e-3).cross(&y) * growth);
+                jac.push3(b + k, turns.column(k).cross(&y) * growth);
             }
             for k in 0..3 {
                 jac.push3(b + 3 + k, Vector3::ith(k, 1.0));

@@ -30,7 +30,6 @@ use crate::calib::floor::{same_configuration, same_pose};
 use crate::calib::nuisance::frame::Frame;
 use crate::calib::setup::SolveOptions;
 use crate::data::{Landmark, Observations};
-use crate::model::kinematics::tool_pose;
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::stats::{chi2_quantile, f_upper_tail, normal_upper_tail};
 use nalgebra::Vector3;
@@ -88,7 +87,7 @@ pub fn suspicious(
     data: &Observations,
     sigma2_mm2: f64,
 ) -> (Vec<DisturbedBlock>, Vec<MisSeatedTouch>) {
-    let p: Vec<Vector3<f64>> = data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
+    let p: Vec<Vector3<f64>> = crate::calib::validate::positions(model, data);
     let mut splits = Vec::new();
     let mut singles = Vec::new();
     for group in repeat_groups(data) {
@@ -215,7 +214,7 @@ pub fn suspicious(
 /// (positions from `model`), each mapped back through a rigid fit of the other landmarks of its
 /// block; `None` when no block has it and three others.
 pub fn locate_landmark(model: &ArmModel, data: &Observations, landmark: usize) -> Option<[f64; 3]> {
-    let p: Vec<Vector3<f64>> = data.obs.iter().map(|t| tool_pose(model, &t.q_deg).position_mm).collect();
+    let p: Vec<Vector3<f64>> = crate::calib::validate::positions(model, data);
     let mut sum = Vector3::zeros();
     let mut n = 0usize;
     for (_, touches) in blocks(data) {
@@ -303,6 +302,7 @@ fn repeat_groups(data: &Observations) -> Vec<Vec<usize>> {
 mod tests {
     use super::*;
     use crate::data::{Artefact, Landmark, ARTEFACT_FORMAT};
+    use crate::model::kinematics::tool_pose;
 
     #[test]
     fn blocks_keep_the_measured_order() {

@@ -17,7 +17,7 @@ use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 
 /// Longest firmware or board text kept, characters.
-const MAX_LABEL: usize = 64;
+pub const MAX_LABEL: usize = 64;
 
 /// An arm's identity as its controller reports it.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]

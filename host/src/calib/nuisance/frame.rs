@@ -58,7 +58,7 @@ impl Frame {
 }
 
 /// The left Jacobian of SO(3) at the rotation vector φ (rad): exp(φ + δ) = exp(J_l(φ)·δ)·exp(φ)
-/// to first order in δ, J_l(φ) = I + (1 − cos θ)/θ²·[φ]× + (θ − sin θ)/θ³·[φ]×², θ = ‖φ‖ (the
+/// to first order in δ, J_l(φ) = I + (1 − cos θ)/θ²·\[φ\]× + (θ − sin θ)/θ³·\[φ\]×², θ = ‖φ‖ (the
 /// identity at φ = 0). The right Jacobian, exp(φ + δ) = exp(φ)·exp(J_r(φ)·δ), is its transpose.
 pub fn left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
     let theta = phi.norm();

@@ -559,8 +559,11 @@ fn six_dof_seed(seed: u64) {
 /// summary.json of a run on 6-DoF sessions: the probe rotation, the calibration's orientation
 /// RMS and each held-out session's `orientation.rms_deg` beside the nominal one.
 fn summary_has_orientation_figures(nominal: ArmModel, cal: &Observations, val: &Observations) {
+    // The run hashes its input files: the model is one.
+    let model = std::env::temp_dir().join(format!("kincal-probe-nominal-{}.toml", std::process::id()));
+    nominal.save(&model).expect("the nominal model is written");
     let inputs = TrackerInputs {
-        model: "nominal.toml".into(),
+        model: model.clone(),
         orientation_sigma_deg: Some(0.005),
         ..run_inputs(std::path::Path::new(""))
     };
@@ -580,6 +583,7 @@ fn summary_has_orientation_figures(nominal: ArmModel, cal: &Observations, val: &
             && json["calibration"]["orientations"]["rms_deg"].is_number()
     );
     assert!(json["validation"]["sessions"]["orientation_overall"]["rms_deg"].is_number(), "{json}");
+    std::fs::remove_file(model).ok();
 }
 
 fn transpose(a: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {

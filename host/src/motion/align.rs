@@ -17,7 +17,7 @@
 //!
 //! Run on the tracker's own timestamps it gives its clock against the arm's sample instants.
 
-use crate::numerics::delay::{estimate_delay_ms, segments, DelayError, Signal, SEGMENT_GAP_FACTOR};
+use crate::numerics::delay::{estimate_delay_ms_at_least, segments, DelayError, Signal, SEGMENT_GAP_FACTOR};
 use crate::numerics::stats::t_upper_tail;
 use nalgebra::{Matrix3, Vector3};
 
@@ -33,6 +33,11 @@ pub const VELOCITY_HALF_S: f64 = 0.005;
 const COARSE_STEP_S: f64 = 0.01;
 /// Half-width of the speed's central difference, s.
 const SPEED_HALF_S: f64 = 0.05;
+/// Smallest mean correlation of the speeds accepted when refining the coarse lag. Lower than a
+/// lag found from nothing ([`crate::numerics::delay::MIN_PEAK_CORRELATION`]): the coarse
+/// alignment has already found the peak, the tracker's speed is the derivative of a noisy
+/// 60–120 Hz position over ±50 ms, and the chunks where the arm rests correlate at noise level.
+const REFINE_MIN_CORRELATION: f64 = 0.75;
 /// Least overlap of the two recordings in the coarse search, s.
 const MIN_OVERLAP_S: f64 = 3.0;
 
@@ -166,9 +171,10 @@ pub fn refine_on_speed(arm: &Path, tracker: &Path, lag_s: f64) -> Result<f64, Al
     };
     let (at, av) = speed(arm, arm.t, 0.0);
     let (tt, tv) = speed(tracker, tracker.t, lag_s);
-    let est = estimate_delay_ms(
+    let est = estimate_delay_ms_at_least(
         &Signal { name: "arm pose", what: "the tool's speed (mm/s)", t_s: &at, value: &av },
         &Signal { name: "tracker", what: "the tool's speed (mm/s)", t_s: &tt, value: &tv },
+        REFINE_MIN_CORRELATION,
     )?;
     Ok(lag_s + est.delay_ms / 1000.0)
 }

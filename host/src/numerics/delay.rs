@@ -90,12 +90,14 @@ pub enum DelayError {
         lag_ms: f64,
     },
     /// No lag makes the two signals agree.
-    #[error("no clear correlation peak: the best lag ({lag_ms:+.1} ms) correlates the streams by {correlation:.2} only (≥ {MIN_PEAK_CORRELATION} needed); the tracker may be more than {MAX_LAG_MS} ms off, or the streams are not of the same motion")]
+    #[error("no clear correlation peak: the best lag ({lag_ms:+.1} ms) correlates the streams by {correlation:.2} only (≥ {needed} needed); the tracker may be more than {MAX_LAG_MS} ms off, or the streams are not of the same motion")]
     NoClearPeak {
         /// The best lag, ms.
         lag_ms: f64,
         /// Its mean correlation.
         correlation: f64,
+        /// The correlation needed.
+        needed: f64,
     },
 }
 
@@ -170,6 +172,17 @@ struct Chunk {
 
 /// Estimate by how much `tracker` lags `device`.
 pub fn estimate_delay_ms(device: &Signal, tracker: &Signal) -> Result<DelayEstimate, DelayError> {
+    estimate_delay_ms_at_least(device, tracker, MIN_PEAK_CORRELATION)
+}
+
+/// As [`estimate_delay_ms`], accepting a peak whose mean correlation is at least
+/// `min_peak_correlation` (a refinement of a lag already found by other means may accept less
+/// than [`MIN_PEAK_CORRELATION`]).
+pub fn estimate_delay_ms_at_least(
+    device: &Signal,
+    tracker: &Signal,
+    min_peak_correlation: f64,
+) -> Result<DelayEstimate, DelayError> {
     check(device)?;
     check(tracker)?;
     let too_short = |usable_ms: f64| DelayError::TooShort { usable_ms, needed_ms: CHUNK_MS };
@@ -227,8 +240,12 @@ pub fn estimate_delay_ms(device: &Signal, tracker: &Signal) -> Result<DelayEstim
     if best == 0 || best + 1 >= scores.len() {
         return Err(DelayError::AtWindowEdge { lag_ms: lag * STEP_MS });
     }
-    if scores[best] < MIN_PEAK_CORRELATION {
-        return Err(DelayError::NoClearPeak { lag_ms: lag * STEP_MS, correlation: scores[best] });
+    if scores[best] < min_peak_correlation {
+        return Err(DelayError::NoClearPeak {
+            lag_ms: lag * STEP_MS,
+            correlation: scores[best],
+            needed: min_peak_correlation,
+        });
     }
     let (a, b, c) = (scores[best - 1], scores[best], scores[best + 1]);
     let denom = a - 2.0 * b + c;

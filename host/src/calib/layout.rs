@@ -8,10 +8,11 @@
 //! rows block by block and eliminate them.
 
 use crate::calib::nuisance::drift::DriftSlot;
-use crate::calib::nuisance::frame::{left_jacobian, Frame, FRAME_UNKNOWNS};
+use crate::calib::nuisance::frame::{Frame, FRAME_UNKNOWNS};
 use crate::calib::nuisance::tool::{probe_rotation_at, TOOL_UNKNOWNS};
 use crate::model::kinematics::ColumnMap;
 use crate::model::{ArmModel, ParamId};
+use crate::numerics::geometry::left_jacobian;
 use nalgebra::{Matrix3, Vector3};
 
 /// The columns of every unknown.

@@ -35,6 +35,7 @@
 use super::params::PARAM_SLOTS;
 use super::{ArmModel, Convention, ParamId, MAX_JOINTS};
 use crate::model::effects::{compliance, eccentricity, harmonic};
+use crate::numerics::geometry::left_jacobian;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
@@ -241,20 +242,6 @@ impl Frame {
 /// Elementary ops per joint row: five for DH (θ, d, a, α, β) and for URDF (x, y, z, the
 /// origin's orientation, θ).
 const OPS_PER_JOINT: usize = 5;
-
-/// The left Jacobian of SO(3) at ω (rad): exp(ω + δ) = exp(J_l(ω)·δ)·exp(ω) to first order.
-/// J_l = I + (1 − cos θ)/θ² [ω]× + (θ − sin θ)/θ³ [ω]×², θ = |ω| (series below 1e-4 rad).
-fn left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
-    let theta = w.norm();
-    let k = w.cross_matrix();
-    let (a, b) = if theta < 1e-4 {
-        let t2 = theta * theta;
-        (0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0)
-    } else {
-        ((1.0 - theta.cos()) / (theta * theta), (theta - theta.sin()) / (theta * theta * theta))
-    };
-    Matrix3::identity() + k * a + k * k * b
-}
 
 /// Parameters a joint angle depends on: offset, four eccentricity terms, four higher
 /// harmonic terms, compliance.

@@ -5,7 +5,7 @@
 //! of points onto another ([`Frame::fit`]). In a calibration a session's frame is an unknown of
 //! its own, started at the closed form for the nominal arm and moved by a small rotation ω (mrad,
 //! left of the start R⁰) and a shift t (mm): R = exp(ω)·R⁰ (the manifold of a rotation). A change
-//! δω turns R by J_l(ω)·δω ([`left_jacobian`]), so the Jacobian is exact at any ω, not only at the
+//! δω turns R by J_l(ω)·δω ([`left_jacobian`](crate::numerics::geometry::left_jacobian)), so the Jacobian is exact at any ω, not only at the
 //! start.
 
 use crate::numerics::geometry::absolute_orientation;
@@ -55,22 +55,6 @@ impl Frame {
             translation_mm: Vector3::new(x[3], x[4], x[5]),
         }
     }
-}
-
-/// The left Jacobian of SO(3) at the rotation vector φ (rad): exp(φ + δ) = exp(J_l(φ)·δ)·exp(φ)
-/// to first order in δ, J_l(φ) = I + (1 − cos θ)/θ²·\[φ\]× + (θ − sin θ)/θ³·\[φ\]×², θ = ‖φ‖ (the
-/// identity at φ = 0). The right Jacobian, exp(φ + δ) = exp(φ)·exp(J_r(φ)·δ), is its transpose.
-pub fn left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
-    let theta = phi.norm();
-    let k = phi.cross_matrix();
-    let (a, b) = if theta < 1e-4 {
-        // The series, exact to rounding below 1e-4 rad.
-        let t2 = theta * theta;
-        (0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0)
-    } else {
-        ((1.0 - theta.cos()) / (theta * theta), (theta - theta.sin()) / (theta * theta * theta))
-    };
-    Matrix3::identity() + k * a + k * k * b
 }
 
 /// Axis · angle (rad) of a rotation matrix.

@@ -11,6 +11,7 @@ mod certificate;
 #[cfg(test)]
 mod cli_reference;
 mod controller;
+mod demo;
 mod diagnose;
 mod dynamic;
 mod emulated_arm;
@@ -53,7 +54,7 @@ enum Command {
     /// Compare two runs: validation errors, per landmark, residual plots side by side.
     Compare(diagnose::CompareArgs),
     /// The whole loop on the emulated controller: record, calibrate, upload, stream the pose.
-    Demo(controller::DemoArgs),
+    Demo(demo::DemoArgs),
     /// Controller identity, protocol match, stored parameters and encoder health.
     Info(controller::PortArgs),
     /// Read back the parameters stored on the controller.
@@ -135,7 +136,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Diagnose(a) => diagnose::cmd_diagnose(&a),
         Command::Compare(a) => diagnose::cmd_compare(&a),
         Command::Plan(a) => plan::cmd_plan(&a),
-        Command::Demo(a) => controller::cmd_demo(&a),
+        Command::Demo(a) => demo::cmd_demo(&a),
         Command::Info(a) => controller::cmd_info(&a),
         Command::Params(a) => controller::cmd_params(&a),
         Command::Upload(a) => controller::cmd_upload(&a),

@@ -51,7 +51,7 @@ fn a_session_with_a_remounted_tool_is_flagged_and_no_other() {
         let report = outliers(&fit, &cal, Some(&val), &setup);
         for o in &report {
             eprintln!(
-                "{} {}: contribution {:.1} % Cook {:.3} LOO {:.1} % bias {:.4} mm {:?}",
+                "{} {}: contribution {:.1} % Cook {:?} LOO {:?} % bias {:.4} mm {:?}",
                 o.what, o.name, o.contribution_pct, o.cooks_distance, o.loo_impact_pct, o.bias_mm, o.exceeded
             );
         }

@@ -284,3 +284,32 @@ fn the_apparent_joint_errors_of_held_out_sessions_show_a_hidden_harmonic() {
     assert!((1..=7).all(|j| page.contains(&format!("joint {j} (deg)"))), "an apparent-error plot per joint");
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// One calibration session (a common first measurement): the leave-one-session-out metrics have
+/// no figure (leaving the only session out leaves nothing to calibrate), and the RUN they are
+/// written into is read back by diagnose instead of being refused.
+#[test]
+fn a_single_calibration_session_is_calibrated_and_diagnosed() {
+    let options = five_sessions(43);
+    let dir = scratch("tracker-diagnose", "one-session");
+    let generated = generate(&options);
+    nominal_model(&generated, &dir);
+    split(&generated, &dir, &[0]);
+    let (ok, stdout, stderr) = kincal(
+        &dir,
+        &["calibrate", "--model", "nominal.toml", "--data", "cal", "--validate", "val", "--out", "run"],
+    );
+    assert!(ok, "{stdout}{stderr}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("run/summary.json")).expect("summary"))
+            .expect("json");
+    let only = &summary["outliers"][0];
+    assert_eq!(only["what"], "session", "{only}");
+    assert!(only["cooks_distance"].is_null() && only["loo_impact_pct"].is_null(), "{only}");
+    let (ok, stdout, stderr) = kincal(&dir, &["diagnose", "run"]);
+    println!("{stdout}");
+    assert!(ok, "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(dir.join("run/diagnosis.html").is_file());
+    std::fs::remove_dir_all(dir).ok();
+}

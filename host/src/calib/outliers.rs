@@ -45,10 +45,12 @@ pub struct Outlier {
     pub name: String,
     /// Share of the squared calibration error, percent.
     pub contribution_pct: f64,
-    /// Cook's distance of leaving the unit out.
-    pub cooks_distance: f64,
-    /// Held-out RMS improvement when the unit is left out, percent.
-    pub loo_impact_pct: f64,
+    /// Cook's distance of leaving the unit out; `None` when the data without the unit cannot be
+    /// calibrated (the only session, or too few points left).
+    pub cooks_distance: Option<f64>,
+    /// Held-out RMS improvement when the unit is left out, percent; `None` as for
+    /// `cooks_distance`.
+    pub loo_impact_pct: Option<f64>,
     /// A landmark's residual after a rigid fit of the artefact per placement, or a session's
     /// point errors with its frame refitted, RMS, mm.
     pub bias_mm: f64,
@@ -175,20 +177,20 @@ pub fn outliers(fit: &Fit, cal: &Observations, val: Option<&Observations>, setup
                     let (moved, _) = rows(&model, cal, setup);
                     let change: f64 = full.iter().zip(&moved).map(|(a, b)| (a - b).powi(2)).sum();
                     (
-                        change / (p.max(1) as f64 * mse.max(1e-300)),
-                        100.0 * (full_rms - rms_on(&model)) / full_rms,
+                        Some(change / (p.max(1) as f64 * mse.max(1e-300))),
+                        Some(100.0 * (full_rms - rms_on(&model)) / full_rms).filter(|v| v.is_finite()),
                     )
                 }
-                Err(_) => (f64::NAN, f64::NAN),
+                Err(_) => (None, None),
             };
             let mut exceeded = Vec::new();
             if contribution_pct > 1.5 * 100.0 / count {
                 exceeded.push("contribution");
             }
-            if cooks_distance > 4.0 / count {
+            if cooks_distance.is_some_and(|d| d > 4.0 / count) {
                 exceeded.push("cooks_distance");
             }
-            if loo_impact_pct > LOO_IMPACT_PCT {
+            if loo_impact_pct.is_some_and(|v| v > LOO_IMPACT_PCT) {
                 exceeded.push("leave_one_out");
             }
             if biased {

@@ -251,7 +251,20 @@ pub fn motion_demo(
     let arm = rec.moving_arm(truth);
     let t = &rec.received.track.t_s;
     if t.len() < 2 {
-        return Err(MotionError::Stream("the OpenIGTLink client received no pose".into()));
+        let r = &rec.received;
+        return Err(MotionError::Stream(format!(
+            "the OpenIGTLink client recorded {} poses: {} TRANSFORM messages ({} invalid, {} out of order), {} STATUS, {} bad CRC; the host streamed {} poses ({} valid) over controller ticks {}–{}",
+            t.len(),
+            r.transforms,
+            r.invalid,
+            r.unordered,
+            r.status,
+            r.bad_crc,
+            rec.poses.len(),
+            rec.poses.iter().filter(|p| p.report.valid).count(),
+            rec.poses.first().map_or(0, |p| p.tick),
+            rec.poses.last().map_or(0, |p| p.tick),
+        )));
     }
     let samples = record(&arm, t[0] + 0.2, t[t.len() - 1] - 0.2, tracker);
     let tracker_rec = tracker_track(&samples);

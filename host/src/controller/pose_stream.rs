@@ -76,10 +76,12 @@ impl PoseClock {
     fn unwrap(&mut self, tick16: u16, at: Instant) -> u64 {
         let (last, last_at) = self.last;
         let step = tick16.wrapping_sub(last as u16) as i64;
-        // Turns of the 16-bit counter that the time since the last frame asks for.
+        // Turns of the 16-bit counter that the time since the last frame asks for: the count
+        // nearest the expected one. It may be a turn back: the first frame can have been sampled
+        // a few ticks before the reference count the clock started from (`ticks_now`).
         let expected = at.saturating_duration_since(last_at).as_secs_f64() * TICK_HZ as f64;
-        let turns = ((expected - step as f64) / 65_536.0).round().max(0.0) as i64;
-        let tick = (last as i64 + step + turns * 65_536) as u64;
+        let turns = ((expected - step as f64) / 65_536.0).round() as i64;
+        let tick = (last as i64 + step + turns * 65_536).max(0) as u64;
         self.last = (tick, at);
         tick
     }
@@ -196,6 +198,18 @@ mod tests {
         // 100 000 ticks later (130 s of silence): one more turn than the 16 bits show.
         let far = 65_538 + 100_000;
         assert_eq!(clock.time(2, report(far as u16), at(100_008.0)).tick, far);
+    }
+
+    /// The first frame may have been sampled a few ticks before the count the clock started
+    /// from: it is those ticks earlier, not a turn of the counter (85 s) later.
+    #[test]
+    fn a_first_frame_older_than_the_reference_count_is_not_a_turn_ahead() {
+        let t0 = Instant::now();
+        let reference = 118_449u32;
+        let mut clock = PoseClock::new(reference);
+        let at = t0 + Duration::from_millis(30);
+        assert_eq!(clock.time(0, report((reference - 4) as u16), at).tick, reference as u64 - 4);
+        assert_eq!(clock.time(1, report((reference - 3) as u16), at).tick, reference as u64 - 3);
     }
 
     /// The stamp is the sample instant: frames delayed by a varying amount get the stamps of

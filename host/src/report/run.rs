@@ -772,7 +772,9 @@ fn outliers(body: &mut String, s: &Summary) {
         .outliers
         .iter()
         .map(|o| {
-            let cell = |v: f64, name: &str| {
+            let cell = |v: Option<f64>, name: &str| {
+                // No figure when the refit without the unit was impossible (the only session).
+                let Some(v) = v else { return "–".to_string() };
                 // Only a flagged row is coloured: one metric over its threshold is common on clean data.
                 if o.flagged && o.exceeded.iter().any(|e| e == name) {
                     format!("<span class=flag>{}</span>", num(v, 3))
@@ -782,10 +784,10 @@ fn outliers(body: &mut String, s: &Summary) {
             };
             vec![
                 format!("{} {}", escape(&o.what), escape(&o.name)),
-                cell(o.contribution_pct, "contribution"),
+                cell(Some(o.contribution_pct), "contribution"),
                 cell(o.cooks_distance, "cooks_distance"),
                 cell(o.loo_impact_pct, "leave_one_out"),
-                cell(o.bias_mm, "bias"),
+                cell(Some(o.bias_mm), "bias"),
                 if o.flagged { "<span class=flag>flagged</span>".into() } else { String::new() },
             ]
         })

@@ -41,6 +41,13 @@ pub struct DemoArgs {
     /// Latency of the simulated optical tracker, ms (optical trackers: 5 to 20).
     #[arg(long, default_value_t = 12.0, value_parser = tracker_latency_ms)]
     tracker_latency_ms: f64,
+    /// Days the uploaded calibration stays valid, counted from its validation; the host warns at
+    /// every connect once they have passed.
+    #[arg(long, default_value_t = 365, conflicts_with = "offline")]
+    valid_days: u32,
+    /// Who issues the uploaded RUN's certificate (its "issued by" field).
+    #[arg(long, default_value = "kincal demo (simulated arm)", conflicts_with = "offline")]
+    operator: String,
 }
 
 /// `--tracker-latency-ms`: a latency the simulated tracker can have, 0 to 150 ms.
@@ -103,6 +110,7 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
         seed: a.seed,
         window_ticks: a.window_ticks,
         out: a.out(),
+        valid_days: Some(a.valid_days),
         ..Default::default()
     };
     let report =
@@ -132,8 +140,11 @@ pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
         report.floor_pose_rms_mm
     );
     println!("parameter upload took {:.2} s; run: {}", report.upload_seconds, a.out().join("run").display());
-    let certificate =
-        kincal::api::certificate(&report.uploaded_run, None, kincal::controller::traceability::unix_now())?;
+    let certificate = kincal::api::certificate(
+        &report.uploaded_run,
+        Some(&a.operator),
+        kincal::controller::traceability::unix_now(),
+    )?;
     let path = kincal::store::certificate::write_certificate(&certificate, None)?;
     println!("certificate of the uploaded RUN: {} ({})", path.display(), certificate.verdict().headline);
     let truth = ArmModel::load(&a.out().join("data").join("truth.toml"))?;

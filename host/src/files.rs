@@ -285,6 +285,18 @@ pub fn null_as_infinity<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D
     Ok(value.unwrap_or(f64::INFINITY))
 }
 
+/// A path as one shell word: as it is when it needs no quoting, else in single quotes.
+pub fn shell_word(path: &Path) -> String {
+    let text = path.display().to_string();
+    let plain =
+        !text.is_empty() && text.chars().all(|c| c.is_ascii_alphanumeric() || "/._-+:,@%=".contains(c));
+    if plain {
+        text
+    } else {
+        format!("'{}'", text.replace('\'', r"'\''"))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

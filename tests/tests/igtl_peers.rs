@@ -98,8 +98,8 @@ fn pyigtl_and_the_cpp_library_receive_the_moving_pose_for_a_minute() {
     let last_valid = std::cell::Cell::new(None);
     let count = stream_poses(
         &mut link,
-        Some(&server),
         |p| {
+            server.publish(p);
             poses.push(*p);
             last_valid.set(Some(p.report.valid));
         },

@@ -199,6 +199,13 @@ fn the_cli_diagnoses_compares_and_refuses_moved_or_changed_data() {
     assert!(ok, "{stderr}");
     assert!(stdout.contains("missing effect: compliance:2"), "{stdout}");
     assert!(stdout.contains("--add compliance:2"), "{stdout}");
+    // The next command is spelled out whole: run as printed, it calibrates with the effect added.
+    let next = stdout.lines().find_map(|l| l.strip_prefix("what to do: kincal ")).expect("what to do");
+    let words: Vec<&str> = next.split_whitespace().map(|w| if w == "RUN2" { "next" } else { w }).collect();
+    let (ok, out, err) = kincal(&dir, &words);
+    assert!(ok, "{next}: {out}{err}");
+    let summary = std::fs::read_to_string(dir.join("next/summary.json")).expect("summary.json");
+    assert!(summary.contains("\"compliance:2\""), "{next}");
     for file in ["diagnosis.json", "diagnosis.html"] {
         assert!(dir.join("before").join(file).is_file(), "{file}");
     }
@@ -280,7 +287,7 @@ fn the_apparent_joint_errors_of_held_out_sessions_show_a_hidden_harmonic() {
     assert_eq!(joint4.points.len(), val.point_count(), "one apparent error per held-out point");
     assert_eq!(*order, 2, "{:?}", joint4.spectrum);
     assert!((fit.amplitude_deg - 0.0224).abs() < 0.4 * 0.0224, "amplitude {} vs 0.0224", fit.amplitude_deg);
-    let page = kincal::report::diagnosis::diagnosis_report(&d, std::path::Path::new("run"));
+    let page = kincal::report::diagnosis::diagnosis_report(&d, std::path::Path::new("run"), None);
     assert!((1..=7).all(|j| page.contains(&format!("joint {j} (deg)"))), "an apparent-error plot per joint");
     std::fs::remove_dir_all(dir).ok();
 }

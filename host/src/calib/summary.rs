@@ -96,18 +96,48 @@ impl RunInputs {
     /// These inputs with the changes of `setup` applied, as `kincal calibrate` would be given
     /// them.
     pub fn with_changes(&self, setup: &Setup) -> RunInputs {
+        setup.changes.iter().fold(self.clone(), |inputs, change| inputs.with_change(change))
+    }
+
+    /// These inputs with `change` applied, as `kincal calibrate` would be given them.
+    pub fn with_change(&self, change: &Change) -> RunInputs {
         let mut out = self.clone();
-        for change in &setup.changes {
-            match change {
-                Change::Effect(e) => out.add.push(e.to_string()),
-                Change::FloatTool(group) => out.float_tool.push(group.clone()),
-                Change::Drift(spec) => out.drift_sessions.push(spec.clone()),
-                Change::ExcludePoints(points) => out.exclude_points.extend(points.iter().cloned()),
-                Change::ExcludeBlock(block) => out.exclude_blocks.push(block.clone()),
-                Change::FreeLandmark(id) => out.exclude_landmarks.push(id.clone()),
-            }
+        match change {
+            Change::Effect(e) => out.add.push(e.to_string()),
+            Change::FloatTool(group) => out.float_tool.push(group.clone()),
+            Change::Drift(spec) => out.drift_sessions.push(spec.clone()),
+            Change::ExcludePoints(points) => out.exclude_points.extend(points.iter().cloned()),
+            Change::ExcludeBlock(block) => out.exclude_blocks.push(block.clone()),
+            Change::FreeLandmark(id) => out.exclude_landmarks.push(id.clone()),
         }
         out
+    }
+
+    /// The whole `kincal calibrate` command of these inputs, writing the RUN folder `out`: every
+    /// input, option and stated σ (the solver's options stay at the defaults for the data).
+    pub fn calibrate_command(&self, out: &str) -> String {
+        let path = |p: &std::path::Path| crate::files::shell_word(p);
+        let word = |t: &str| crate::files::shell_word(std::path::Path::new(t));
+        let mut words = vec!["kincal calibrate".to_string(), format!("--model {}", path(&self.model))];
+        words.extend(self.artefact.as_ref().map(|a| format!("--artefact {}", path(a))));
+        words.push(format!("--data {}", path(&self.calibration)));
+        words.push(format!("--validate {}", path(&self.validation)));
+        words.push(format!("--out {}", word(out)));
+        let repeated: [(&str, Vec<String>); 7] = [
+            ("--add", self.add.clone()),
+            ("--exclude-landmark", self.exclude_landmarks.clone()),
+            ("--exclude-block", self.exclude_blocks.clone()),
+            ("--exclude-point", self.exclude_points.clone()),
+            ("--float-tool", self.float_tool.clone()),
+            ("--drift-session", self.drift_sessions.iter().map(ToString::to_string).collect()),
+            ("--same-base", self.same_base.clone()),
+        ];
+        for (option, values) in repeated {
+            words.extend(values.iter().map(|v| format!("{option} {}", word(v))));
+        }
+        words.extend(self.stated_sigma_mm.map(|s| format!("--sigma-mm {s}")));
+        words.extend(self.orientation_sigma_deg.map(|s| format!("--orientation-sigma-deg {s}")));
+        words.join(" ")
     }
 
     /// Inputs from the model, artefact (if any) and the two folders, nothing else set.

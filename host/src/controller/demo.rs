@@ -165,7 +165,7 @@ pub fn calibrate_diagnose_add(
     let auto = auto_loop(&setup, &first.calibration.model, &cal, val, MAX_ADDED)?;
     crate::store::write_auto(&auto, &out.join("run"))?;
     let first_diagnosis = diagnose(&setup, &first.calibration.model, &cal, val)?;
-    crate::store::write_diagnosis(&first_diagnosis, &out.join("run"))?;
+    crate::store::write_diagnosis(&first_diagnosis, &out.join("run"), Some(inputs))?;
     let steps = auto
         .steps
         .iter()

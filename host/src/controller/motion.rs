@@ -172,8 +172,8 @@ pub fn record_motion(
     let last_tick = std::cell::Cell::new(0u64);
     let stream = stream_poses(
         link,
-        Some(&server),
         |p| {
+            server.publish(p);
             last_tick.set(p.tick);
             poses.push(*p);
         },

@@ -13,7 +13,6 @@
 //!
 //! [`Info::ticks`]: kincal_protocol::messages::Info::ticks
 
-use crate::controller::igtl_server::PoseServer;
 use crate::controller::link::{Link, LinkError};
 use kincal_protocol::messages::{PoseReport, Stream, StreamPose, TICK_HZ};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -126,13 +125,12 @@ pub enum Flow {
     Stop,
 }
 
-/// Stream the pose every tick from `link` (greeted, parameters stored): stamp every frame, hand
-/// it to `server` (the OpenIGTLink clients) and to `on_pose`; between frames (at least every
+/// Stream the pose every tick from `link` (greeted, parameters stored): stamp every frame and
+/// hand it to `on_pose` (e.g. to publish it to OpenIGTLink clients); between frames (at least every
 /// 5 ms) `between` may use the link (e.g. move the emulated arm) and ends the stream. The pose
 /// stream is switched off at the end, also after an error.
 pub fn stream_poses(
     link: &mut Link,
-    server: Option<&PoseServer>,
     mut on_pose: impl FnMut(&TimedPose),
     mut between: impl FnMut(&mut Link, &StreamCount) -> Result<Flow, LinkError>,
 ) -> Result<StreamCount, LinkError> {
@@ -147,9 +145,6 @@ pub fn stream_poses(
                 let pose = clock.time(seq, report, Instant::now());
                 count.poses += 1;
                 count.invalid += !report.valid as u64;
-                if let Some(server) = server {
-                    server.publish(&pose);
-                }
                 on_pose(&pose);
             }
             Ok(_) => {}

@@ -1,10 +1,11 @@
 //! `RUN/auto/report.html`: the held-out error step by step as `diagnose --auto` applies what the
 //! diagnosis names.
 
-use super::run::{name_run, shell_word};
+use super::run::name_run;
 use super::svg::{self, escape};
 use super::{mm, page, table};
 use crate::calib::diagnose::auto::{AutoLoop, Stop};
+use crate::files::shell_word;
 use std::fmt::Write;
 use std::path::Path;
 

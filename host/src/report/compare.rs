@@ -54,7 +54,7 @@ fn verdict_lines(c: &Comparison, runs: &[ComparedRun; 2]) -> Vec<String> {
     let mut lines = c.verdict.clone();
     lines.push(format!(
         "next: kincal diagnose {} says what the second run still misses",
-        super::run::shell_word(std::path::Path::new(&runs[1].name))
+        crate::files::shell_word(std::path::Path::new(&runs[1].name))
     ));
     lines
 }

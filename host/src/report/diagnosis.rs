@@ -4,14 +4,28 @@
 use super::run::name_run;
 use super::svg::{self, escape};
 use super::{mm, page, table};
+use crate::calib::diagnose::summary::WHAT_TO_DO;
 use crate::calib::diagnose::{Candidate, Diagnosis, Measure, RivalVerdict};
+use crate::calib::summary::RunInputs;
 use std::fmt::Write;
 use std::path::Path;
 
 /// The diagnosis's summary as the CLI prints it and the page leads with it: the run's folder in
-/// its commands, and a next step when the summary names none.
-pub fn summary_lines(d: &Diagnosis, run_dir: &Path) -> Vec<String> {
-    let mut lines: Vec<String> = d.summary.iter().map(|l| name_run(l, run_dir)).collect();
+/// its commands, the whole next `kincal calibrate` command when the RUN's `inputs` are known,
+/// and a next step when the summary names none.
+pub fn summary_lines(d: &Diagnosis, run_dir: &Path, inputs: Option<&RunInputs>) -> Vec<String> {
+    let next = match (inputs, &d.change) {
+        (Some(inputs), Some(change)) => Some(inputs.with_change(change).calibrate_command("RUN2")),
+        _ => None,
+    };
+    let mut lines: Vec<String> = d
+        .summary
+        .iter()
+        .map(|l| match &next {
+            Some(command) if l.starts_with(WHAT_TO_DO) => format!("what to do: {command}"),
+            _ => name_run(l, run_dir),
+        })
+        .collect();
     let names_a_step = lines.iter().any(|l| {
         [
             "what to do",
@@ -100,12 +114,12 @@ fn candidate_table(candidates: &[Candidate], units: &str) -> String {
 }
 
 /// The diagnosis page: the verdict first, then the pictures, then the tables.
-pub fn diagnosis_report(d: &Diagnosis, run_dir: &Path) -> String {
+pub fn diagnosis_report(d: &Diagnosis, run_dir: &Path, inputs: Option<&RunInputs>) -> String {
     let (units, unit_words) = match d.measure {
         Measure::Distances => ("placements improved", "validation placements (their repeats averaged)"),
         Measure::Points => ("blocks improved", "contiguous blocks of poses of the held-out sessions"),
     };
-    let mut body = format!("<h2>Verdict</h2>{}", list(&summary_lines(d, run_dir)));
+    let mut body = format!("<h2>Verdict</h2>{}", list(&summary_lines(d, run_dir, inputs)));
     // Pictures first: the gap, candidates and data errors against the floor, per-joint patterns.
     let mut bars: Vec<(String, f64, bool)> = vec![("now (as calibrated)".into(), d.baseline.rms_mm, false)];
     bars.extend(

@@ -13,6 +13,7 @@ use crate::calib::fit::CONSTANT_ORIENTATION_DEG;
 use crate::calib::run::{PointResidual, Run, SessionResiduals};
 use crate::calib::setup::Objective;
 use crate::calib::summary::{SessionFigures, Summary};
+use crate::files::shell_word;
 use crate::numerics::solver::StopReason;
 use std::fmt::Write;
 use std::path::Path;
@@ -52,18 +53,6 @@ fn with_std(value: f64, std: Option<f64>) -> (String, String) {
         _ => 4,
     };
     (num(value, decimals), std.map_or("—".into(), |s| num(s, decimals)))
-}
-
-/// A path as one shell word: as it is when it needs no quoting, else in single quotes.
-pub fn shell_word(path: &Path) -> String {
-    let text = path.display().to_string();
-    let plain =
-        !text.is_empty() && text.chars().all(|c| c.is_ascii_alphanumeric() || "/._-+:,@%".contains(c));
-    if plain {
-        text
-    } else {
-        format!("'{}'", text.replace('\'', r"'\''"))
-    }
 }
 
 /// The run's verdict as the CLI prints it and the page shows it: the next command names the run's

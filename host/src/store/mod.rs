@@ -421,12 +421,17 @@ pub fn diagnosis_json(diagnosis: &Diagnosis) -> String {
     json(&Tagged { format: DIAGNOSIS_FORMAT, body: diagnosis })
 }
 
-/// Write `diagnosis.html` and `diagnosis.json` into an existing RUN folder, both or neither.
-pub fn write_diagnosis(diagnosis: &Diagnosis, run_dir: &Path) -> Result<(), OutputError> {
+/// Write `diagnosis.html` and `diagnosis.json` into an existing RUN folder, both or neither; the
+/// page spells the next command out from the RUN's `inputs` when given.
+pub fn write_diagnosis(
+    diagnosis: &Diagnosis,
+    run_dir: &Path,
+    inputs: Option<&crate::calib::summary::RunInputs>,
+) -> Result<(), OutputError> {
     put_together(
         run_dir,
         &[
-            ("diagnosis.html", report::diagnosis::diagnosis_report(diagnosis, run_dir)),
+            ("diagnosis.html", report::diagnosis::diagnosis_report(diagnosis, run_dir, inputs)),
             ("diagnosis.json", diagnosis_json(diagnosis)),
         ],
     )

@@ -307,7 +307,7 @@ fn print_run(s: &Summary, out: &Path, seconds: f64) {
             o.what,
             o.name,
             metrics.join(", "),
-            kincal::report::run::shell_word(out)
+            kincal::files::shell_word(out)
         );
     }
     if let Some(rows) = &s.study {

@@ -50,12 +50,12 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
     let diagnosis = api::diagnose(&folder);
     spinner.finish_and_clear();
     let d = diagnosis?;
-    store::write_diagnosis(&d, &a.run)?;
+    store::write_diagnosis(&d, &a.run, Some(&folder.summary.inputs))?;
     if a.json {
         println!("{}", store::diagnosis_json(&d));
         return Ok(());
     }
-    print_diagnosis(&d, &a.run);
+    print_diagnosis(&d, &a.run, &folder.summary.inputs);
     println!("report: {}", a.run.join("diagnosis.html").display());
     Ok(())
 }
@@ -82,8 +82,8 @@ fn row(c: &Candidate) -> String {
 }
 
 /// The diagnosis: the summary, then the candidates and data errors best first.
-fn print_diagnosis(d: &Diagnosis, run: &std::path::Path) {
-    for line in kincal::report::diagnosis::summary_lines(d, run) {
+fn print_diagnosis(d: &Diagnosis, run: &std::path::Path, inputs: &kincal::calib::summary::RunInputs) {
+    for line in kincal::report::diagnosis::summary_lines(d, run, Some(inputs)) {
         println!("{line}");
     }
     println!(
@@ -144,15 +144,9 @@ fn print_auto(a: &DiagnoseArgs, folder: &RunFolder, run: &AutoLoop, elapsed: f64
     for line in &run.last.summary {
         println!("{}", kincal::report::run::name_run(line, &a.run));
     }
-    let i = &folder.summary.inputs;
-    let artefact = i.artefact.as_ref().map_or(String::new(), |p| format!(" --artefact {}", p.display()));
     println!(
-        "the last step as a run: kincal calibrate --model {}{artefact} --data {} --validate {} --out RUN2 {}{}",
-        i.model.display(),
-        i.calibration.display(),
-        i.validation.display(),
-        run.options,
-        i.stated_sigma_mm.map_or(String::new(), |s| format!(" --sigma-mm {s}"))
+        "the last step as a run: {}",
+        folder.summary.inputs.with_changes(&run.setup).calibrate_command("RUN2")
     );
     println!(
         "models: {}/step-0.toml … step-{}.toml; report: {}",

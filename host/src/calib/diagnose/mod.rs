@@ -29,7 +29,7 @@ pub mod evidence;
 pub mod floor;
 pub mod screen;
 pub mod sequence;
-mod summary;
+pub mod summary;
 pub mod units;
 
 pub use apparent::{JointResiduals, Sinusoid};

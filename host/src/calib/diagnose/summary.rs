@@ -10,11 +10,15 @@ use crate::calib::setup::{Change, Setup};
 /// Held-out units below which the summary says the test rests on too few numbers.
 const MIN_UNITS: usize = 5;
 
+/// How the line naming the next calibration starts; where the RUN's inputs are known, the line
+/// is given the whole command instead ([`crate::calib::summary::RunInputs::calibrate_command`]).
+pub const WHAT_TO_DO: &str = "what to do: kincal calibrate … ";
+
 /// "what to do: kincal calibrate … OPTIONS (the run's options: …)".
 fn what_to_do(c: &Candidate, setup: &Setup) -> String {
     let given = setup.options_text();
     format!(
-        "what to do: kincal calibrate … {} (the run's options: {})",
+        "{WHAT_TO_DO}{} (the run's options: {})",
         c.action,
         if given.is_empty() { "none" } else { &given }
     )

@@ -17,8 +17,9 @@ use crate::calibrate::{InputArgs, MAX_SUBSETS};
 
 #[derive(Args)]
 pub struct SimulateArgs {
-    /// Nominal arm model; the truth is this model with its free parameters perturbed.
-    #[arg(long, default_value = "examples/suta/model.toml")]
+    /// Nominal arm model; the truth is this model with its free parameters perturbed. Default:
+    /// the SUTA model built into kincal (the file examples/suta/model.toml where it exists).
+    #[arg(long, default_value = kincal::model::file::SUTA_MODEL_PATH, hide_default_value = true)]
     model: PathBuf,
     /// Output folder: artefact.json, truth.toml, cal/, val/.
     #[arg(long)]

@@ -4,96 +4,17 @@
 //! 8 restarts), `one` (nominal start), `tracker` (one calibration of the bench arm's 5 sessions),
 //! `fk` (one pose with and without its Jacobian), `evals` (one residual and one normal-equation
 //! evaluation of each problem), or `write DIR` (the problems' files, for `kincal calibrate`).
+//!
+//! The tracker problem is `kincal bench`'s ([`kincal::calib::bench_problem`]).
 use anyhow::{Context, Result};
+use kincal::calib::bench_problem;
 use kincal::calib::fit::calibrate;
 use kincal::calib::setup::SolveOptions;
-use kincal::data::tracker::TRACKER_FORMAT;
-use kincal::data::{Joints, Kind, Observation, Observations, Target};
+use kincal::data::Observations;
 use kincal::model::kinematics::tool_pose;
-use kincal::model::{ArmModel, Joint, ParamId};
-use nalgebra::{Rotation3, Vector3};
-use rand::{RngExt, SeedableRng};
-use rand_distr::Distribution;
+use kincal::model::ParamId;
 use std::path::Path;
 use std::time::Instant;
-
-fn arm() -> ArmModel {
-    let alpha = [-90.0, 90.0, 90.0, -90.0, -90.0, 90.0, 0.0];
-    let d = [360.0, 0.0, 420.0, 0.0, 400.0, 0.0, 126.0];
-    let mut model = ArmModel::suta_nominal();
-    model.name = "7R bench arm".into();
-    model.joints = (0..7).map(|j| Joint { d_mm: d[j], alpha_deg: alpha[j], ..Joint::default() }).collect();
-    model.tcp_mm = [40.0, -25.0, 120.0];
-    model.free.clear();
-    for j in 1..7 {
-        model.free_param(ParamId::Offset(j), -5.0, 5.0);
-    }
-    for (j, dj) in d.iter().enumerate().take(6).skip(1) {
-        model.free_param(ParamId::Length(j), dj - 10.0, dj + 10.0);
-    }
-    for (j, aj) in alpha.iter().enumerate().take(6) {
-        model.free_param(ParamId::LinkOffset(j), -10.0, 10.0);
-        model.free_param(ParamId::Twist(j), aj - 5.0, aj + 5.0);
-    }
-    model
-}
-
-fn sessions(truth: &ArmModel, count: usize, points: usize, seed: u64) -> Result<Observations> {
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let noise = rand_distr::Normal::new(0.0, 0.02)?;
-    let mut data = Observations::new(7, Vec::new());
-    for s in 0..count {
-        let group = data.push_group(format!("bench_{}", s + 1), "bench.csv".into(), Kind::Tracker);
-        let rotation = Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64).into_inner();
-        let shift = Vector3::new(2500.0, -300.0 * s as f64, 400.0);
-        for i in 0..points {
-            let q: Vec<f64> = (0..7).map(|_| rng.random_range(-120.0..120.0)).collect();
-            let p = rotation * tool_pose(truth, &q).position_mm + shift;
-            let n = Vector3::from_fn(|_, _| noise.sample(&mut rng));
-            data.obs.push(Observation {
-                block: 0,
-                group,
-                repeat: 1,
-                q_deg: Joints::new(&q).context("seven joint angles")?,
-                q_sigma_deg: None,
-                target: Target::Point { xyz_mm: p + n, orientation: None },
-                sigma_mm: Some(0.02),
-                time_s: None,
-                temp_c: None,
-                pose: None,
-                line: i + 3,
-            });
-        }
-    }
-    data.rebuild_blocks();
-    Ok(data)
-}
-
-fn write_sessions(data: &Observations, dir: &Path) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
-    for (g, group) in data.groups.iter().enumerate() {
-        let mut text = format!("# {TRACKER_FORMAT}\n");
-        let joints: Vec<String> = (1..=data.joints).map(|j| format!("q{j}_deg")).collect();
-        text += &format!("{},x_mm,y_mm,z_mm,sigma_mm\n", joints.join(","));
-        for p in data.obs.iter().filter(|o| o.group == g) {
-            let q: Vec<String> = p.q_deg.iter().map(|v| format!("{v:?}")).collect();
-            let point = p.point_mm().unwrap_or_default();
-            let [x, y, z] = [point.x, point.y, point.z];
-            text += &format!("{},{x:?},{y:?},{z:?},{:?}\n", q.join(","), p.sigma_mm.unwrap_or(0.02));
-        }
-        let path = dir.join(format!("{}.csv", group.name));
-        std::fs::write(&path, text).with_context(|| path.display().to_string())?;
-    }
-    Ok(())
-}
-
-fn truth(nominal: &ArmModel) -> ArmModel {
-    let mut truth = nominal.clone();
-    for (k, f) in nominal.free.iter().enumerate() {
-        truth.set(f.id, nominal.get(f.id) + 0.2 * ((k as f64 * 1.7).sin()));
-    }
-    truth
-}
 
 fn cpu_ms() -> f64 {
     let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
@@ -104,25 +25,19 @@ fn cpu_ms() -> f64 {
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let n: usize = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(20);
-    match args[1].as_str() {
+    match args.get(1).map_or("", String::as_str) {
         "write" => {
-            let nominal = arm();
-            let t = truth(&nominal);
-            let cal = sessions(&t, 5, 720, 1)?;
-            let mut val = sessions(&t, 1, 720, 2)?;
-            val.groups[0].name = "bench_held_out".into();
-            let dir = Path::new(&args[2]);
-            write_sessions(&cal, &dir.join("cal"))?;
-            write_sessions(&val, &dir.join("val"))?;
+            let (nominal, cal, val) = bench_problem::problem();
+            let dir = Path::new(args.get(2).context("write DIR")?);
+            bench_problem::write_sessions(&cal, &dir.join("cal")).context("writing the sessions")?;
+            bench_problem::write_sessions(&val, &dir.join("val")).context("writing the sessions")?;
             nominal.save(&dir.join("nominal.toml"))?;
             let (nom, sim) = kincal::calib::peer::thesis_sized_problem(1);
             sim.write(&dir.join("art"))?;
             nom.save(&dir.join("art/nominal.toml"))?;
         }
         "tracker" => {
-            let nominal = arm();
-            let t = truth(&nominal);
-            let cal = sessions(&t, 5, 720, 1)?;
+            let (nominal, cal, _) = bench_problem::problem();
             let mut times = vec![];
             let mut fit = None;
             for _ in 0..n {
@@ -164,7 +79,7 @@ fn main() -> Result<()> {
             );
         }
         "fk" => {
-            let nominal = arm();
+            let nominal = bench_problem::arm();
             let ids: Vec<ParamId> = nominal
                 .free
                 .iter()
@@ -268,9 +183,7 @@ fn main() -> Result<()> {
                 t2
             );
             // tracker
-            let nominal = arm();
-            let t = truth(&nominal);
-            let cal = sessions(&t, 5, 720, 1)?;
+            let (nominal, cal, _) = bench_problem::problem();
             let fit = calibrate(&nominal, &cal, &SolveOptions::default())?;
             let terms = build(
                 &cal,

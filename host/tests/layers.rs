@@ -47,6 +47,7 @@ const CALIB_FLOORS: &[(&str, u8)] = &[
     ("plan", 1),
     ("monte_carlo", 1),
     ("peer", 1),
+    ("bench_problem", 1),
     ("run", 2),
     ("summary", 2),
 ];

@@ -5,6 +5,7 @@
 //! whether figures are a result (trust), the plan of what to measure next, the diagnosis of
 //! missing effects and data errors, and the whole run from input files to results.
 
+pub mod bench_problem;
 pub mod diagnose;
 pub mod fit;
 pub mod floor;

@@ -26,6 +26,7 @@ use crate::numerics::qr::r_factor;
 use crate::numerics::solver::{symmetric, Loss, Residuals};
 use nalgebra::{DMatrix, DVector, Matrix3};
 use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// Some terms and their residual rows.
 type Chunk<'t, 'r> = (&'t [Box<dyn Term>], Vec<&'r mut [f64]>);
@@ -54,7 +55,7 @@ pub struct Problem<'a> {
     rows: usize,
     read: Vec<bool>,
     /// Per observation read, the sine and cosine of each encoder angle (`joints` per observation).
-    sin_cos: Vec<(f64, f64)>,
+    sin_cos: Cow<'a, [(f64, f64)]>,
     joints: usize,
     frame_start: Vec<Matrix3<f64>>,
     probe_start: Option<Matrix3<f64>>,
@@ -64,34 +65,41 @@ impl<'a> Problem<'a> {
     /// The problem of `terms` over `layout`; parameters not in `layout.arm` keep their values in
     /// `model`; each block's frame starts at `frame_start[b]`, the probe at `probe_start`.
     pub fn new(
-        mut layout: Layout,
+        layout: Layout,
         model: &'a ArmModel,
         data: &'a Observations,
         terms: &'a [Box<dyn Term>],
         frame_start: Vec<Matrix3<f64>>,
         probe_start: Option<Matrix3<f64>>,
     ) -> Problem<'a> {
+        let sin_cos = Cow::Owned(encoder_table(data, terms));
+        Problem::with_encoder_table(layout, model, data, terms, frame_start, probe_start, sin_cos)
+    }
+
+    /// As [`Problem::new`], with the encoder angles' sines and cosines `sin_cos` of
+    /// [`encoder_table`] for these `data` and `terms` (kept by a caller that makes many problems
+    /// of the same terms).
+    pub fn with_encoder_table(
+        mut layout: Layout,
+        model: &'a ArmModel,
+        data: &'a Observations,
+        terms: &'a [Box<dyn Term>],
+        frame_start: Vec<Matrix3<f64>>,
+        probe_start: Option<Matrix3<f64>>,
+        sin_cos: Cow<'a, [(f64, f64)]>,
+    ) -> Problem<'a> {
         let mut offsets = Vec::with_capacity(terms.len());
         let mut rows = 0;
-        let mut read = vec![false; data.obs.len()];
         for t in terms {
             offsets.push(rows);
             rows += t.rows();
-            for &k in t.observations() {
-                read[k] = true;
-            }
         }
+        let read = observations_read(data, terms);
         // Terms of positions alone read no derivative of the tool's axes.
         if terms.iter().all(|t| t.is_position()) {
             layout.columns = layout.columns.positions_only();
         }
         let joints = data.joints;
-        let mut sin_cos = vec![(0.0, 1.0); data.obs.len() * joints];
-        for (k, o) in data.obs.iter().enumerate().filter(|(k, _)| read[*k]) {
-            for (sc, &q) in sin_cos[k * joints..(k + 1) * joints].iter_mut().zip(o.q_deg.iter()) {
-                *sc = encoder_sin_cos(q);
-            }
-        }
         Problem { layout, model, data, terms, offsets, rows, read, sin_cos, joints, frame_start, probe_start }
     }
 
@@ -209,6 +217,31 @@ impl<'a> Problem<'a> {
         }
         out
     }
+}
+
+/// Which observations `terms` read.
+fn observations_read(data: &Observations, terms: &[Box<dyn Term>]) -> Vec<bool> {
+    let mut read = vec![false; data.obs.len()];
+    for t in terms {
+        for &k in t.observations() {
+            read[k] = true;
+        }
+    }
+    read
+}
+
+/// The sine and cosine of each encoder angle of every observation `terms` read (`data.joints`
+/// per observation; (0, 1) for one no term reads).
+pub fn encoder_table(data: &Observations, terms: &[Box<dyn Term>]) -> Vec<(f64, f64)> {
+    let read = observations_read(data, terms);
+    let joints = data.joints;
+    let mut sin_cos = vec![(0.0, 1.0); data.obs.len() * joints];
+    for (k, o) in data.obs.iter().enumerate().filter(|(k, _)| read[*k]) {
+        for (sc, &q) in sin_cos[k * joints..(k + 1) * joints].iter_mut().zip(o.q_deg.iter()) {
+            *sc = encoder_sin_cos(q);
+        }
+    }
+    sin_cos
 }
 
 impl Residuals for Problem<'_> {

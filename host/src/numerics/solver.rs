@@ -114,6 +114,17 @@ pub enum Termination {
     AcceptedSteps,
 }
 
+impl Termination {
+    /// The damping λ of the first step: Ceres' 10⁻⁴ (its trust region's first radius, 10⁴), or
+    /// the 10⁻³ the results of [`Termination::AcceptedSteps`] were generated with.
+    pub fn initial_damping(self) -> f64 {
+        match self {
+            Termination::Ceres => 1e-4,
+            Termination::AcceptedSteps => 1e-3,
+        }
+    }
+}
+
 /// Why the solver stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -185,7 +196,7 @@ pub fn solve(
     let mut r = vec![0.0; m];
     let (mut h, mut g) = problem.normal_equations(&x, &mut r, loss);
     let mut cost = loss.cost(&r);
-    let mut lambda = 1e-3;
+    let mut lambda = options.termination.initial_damping();
     let mut nu = 2.0;
     let mut trial = vec![0.0; n];
     let mut r_trial = vec![0.0; m];

@@ -13,6 +13,7 @@
 use crate::bench::{children_cpu_ms, process_cpu_ms, BenchArgs};
 use crate::bench_limit;
 use anyhow::{bail, Context, Result};
+use kincal::calib::bench_problem;
 use kincal::calib::fit::{calibrate, Fit, TOOL_HALF_RANGE_MM};
 use kincal::calib::peer::{thesis_sized_problem, write_peer_problem};
 use kincal::calib::setup::SolveOptions;
@@ -284,15 +285,11 @@ fn problems(dir: &Path, seed: u64, restarts: usize, points: Option<usize>) -> Re
     let fit = calibrate(&nominal, &cal, &options)?;
     let artefact_file = dir.join("artefact_problem.json");
     write_artefact_problem(&artefact_file, &nominal, &fit, &cal)?;
-    let (tracker_nominal, mut tracker_cal, tracker_val) = crate::bench_tracker::bench_problem()?;
+    let (tracker_nominal, mut tracker_cal, tracker_val) = bench_problem::problem();
     if let Some(n) = points {
-        let truth = crate::bench_tracker::truth(&tracker_nominal);
-        tracker_cal = crate::bench_tracker::sessions(
-            &truth,
-            tracker_cal.groups.len(),
-            n / tracker_cal.groups.len(),
-            3,
-        )?;
+        let truth = bench_problem::truth(&tracker_nominal);
+        let count = tracker_cal.groups.len();
+        tracker_cal = bench_problem::sessions(&truth, count, n / count, 3);
     }
     let tracker_fit = calibrate(&tracker_nominal, &tracker_cal, &SolveOptions::default())?;
     let tracker_file = dir.join("tracker_problem.json");
@@ -583,8 +580,8 @@ pub fn peers_benchmark(args: &BenchArgs) -> Result<()> {
         );
     }
     println!(
-        "  whole process: `kincal calibrate` (artefact with --no-outliers; tracker with its data-error scoring: 7 \
-         calibrations), median of 5; the Ceres peer reading its problem file and solving once (artefact: every \
+        "  whole process: `kincal calibrate` (artefact with --no-outliers; tracker with its outlier metrics and data-error \
+         scoring: the fit and 10 warm refits), median of 5; the Ceres peer reading its problem file and solving once (artefact: every \
          start), run once; SciPy's interpreter with its imports, once"
     );
     println!(

@@ -29,31 +29,28 @@ impl Solved {
             tools: vec![Vector3::zeros(); data.groups.len()],
             probe,
             drifts: vec![Vec::new(); data.blocks.len()],
-            outcome: StartOutcome {
-                start: 0,
-                initial_cost: f64::NAN,
-                final_cost: f64::INFINITY,
-                iterations: 0,
-                stop: StopReason::NoProgress,
-            },
+            outcome: unsolved(0),
         }
     }
 }
 
-/// Solve for `estimated` from `start` (frames at `frames`, probe at `probe`); again from its
+/// Start `number`'s outcome before its solve.
+fn unsolved(number: usize) -> StartOutcome {
+    StartOutcome {
+        start: number,
+        initial_cost: f64::NAN,
+        final_cost: f64::INFINITY,
+        iterations: 0,
+        stop: StopReason::NoProgress,
+    }
+}
+
+/// Solve for `estimated` from `start` (its arm, frames, tools, probe and drifts); again from its
 /// solution with the frames' rotations (and the probe's) re-centred, while a solve stops without
 /// converging (up to [`PASSES`] passes).
-pub(super) fn solve_framed(
-    pieces: &Pieces,
-    estimated: &[ParamId],
-    start: ArmModel,
-    frames: Vec<Frame>,
-    probe: Option<Matrix3<f64>>,
-    number: usize,
-) -> Solved {
+pub(super) fn solve_framed(pieces: &Pieces, estimated: &[ParamId], start: Solved, number: usize) -> Solved {
     let options = SolverOptions { loss: pieces.resolved.loss, ..FRAMED_SOLVER };
-    let mut s = Solved::at(start, frames, probe, pieces.data);
-    s.outcome.start = number;
+    let mut s = Solved { outcome: unsolved(number), ..start };
     let mut last_cost = f64::INFINITY;
     for pass in 0..PASSES {
         let problem = pieces.problem(estimated.to_vec(), &s.model, &s.frames, s.probe);
@@ -90,20 +87,71 @@ pub(super) fn solve_framed(
     s
 }
 
-pub(super) fn calibrate_framed(nominal: &ArmModel, pieces: &Pieces) -> Result<Fit, CalibError> {
+/// The start of a refit from `warm`'s solution: its values of the free parameters, each framed
+/// block's frame (by name; the closed form for that arm where `warm` has none), each floated
+/// group's tool offset and each drift (zero where `warm` has none), and its probe rotation (or
+/// the probe's start for that arm).
+pub(super) fn warm_start(pieces: &Pieces, warm: &Fit) -> Solved {
+    let data = pieces.data;
+    let mut model = pieces.model.clone();
+    for f in &pieces.model.free {
+        model.set(f.id, warm.model.get(f.id));
+    }
+    let names: Vec<String> = (0..data.blocks.len()).map(|b| data.block_name(b)).collect();
+    let known: Vec<Option<Frame>> = (0..data.blocks.len())
+        .map(|b| if pieces.framed[b] { warm.frame(&names[b]) } else { Some(Frame::identity()) })
+        .collect();
+    let frames: Vec<Frame> = if known.iter().all(Option::is_some) {
+        known.into_iter().flatten().collect()
+    } else {
+        let closed = pieces.closed_form_frames(&model);
+        known.into_iter().zip(closed).map(|(k, c)| k.unwrap_or(c)).collect()
+    };
+    let probe = match warm.tool_rotation {
+        Some(t) => Some(t.rotation()),
+        None => start_probe_rotation(&model, data, &frames),
+    }
+    .filter(|_| pieces.resolved.orientation_weight_mm_per_rad.is_some());
+    let mut start = Solved::at(model, frames, probe, data);
+    start.tools = data.groups.iter().map(|g| warm.tool_offset(&g.name)).collect();
+    for (b, slot) in pieces.drift.iter().enumerate() {
+        let same = |d: &&SessionDrift| Some(d.kind) == slot.map(|s| s.kind) && d.session == names[b];
+        if let Some(d) = warm.drifts.iter().find(same) {
+            start.drifts[b] = d.rate.clone();
+        }
+    }
+    start
+}
+
+/// Calibrate with block unknowns from the nominal values, or, given `warm`, from a previous
+/// solution of close data or options (the tool point's first fit skipped: `warm` has it).
+pub(super) fn calibrate_framed(
+    nominal: &ArmModel,
+    pieces: &Pieces,
+    warm: Option<&Fit>,
+) -> Result<Fit, CalibError> {
     let data = pieces.data;
     let model = &pieces.model;
     let all: Vec<ParamId> = model.free.iter().map(|f| f.id).collect();
-    let start_frames = pieces.closed_form_frames(model);
-    let probe = start_probe_rotation(model, data, &start_frames)
-        .filter(|_| pieces.resolved.orientation_weight_mm_per_rad.is_some());
-    let full = pieces.problem(all.clone(), model, &start_frames, probe);
-    let tools0 = vec![Vector3::zeros(); data.groups.len()];
-    let x0 = pieces.x_of(&full, model, &start_frames, &tools0, &vec![Vec::new(); data.blocks.len()]);
-    let spreads: Vec<(String, f64)> = (0..data.blocks.len())
-        .filter(|&b| pieces.framed[b])
-        .map(|b| (data.block_name(b), orientation_spread_deg(model, data, b)))
-        .collect();
+    let mut start = match warm {
+        Some(warm) => warm_start(pieces, warm),
+        None => {
+            let frames = pieces.closed_form_frames(model);
+            let probe = start_probe_rotation(model, data, &frames)
+                .filter(|_| pieces.resolved.orientation_weight_mm_per_rad.is_some());
+            Solved::at(model.clone(), frames, probe, data)
+        }
+    };
+    // Over every free parameter (their values from `x0`, the rest from the model).
+    let full = pieces.problem(all.clone(), model, &start.frames, start.probe);
+    let x0 = pieces.x_of(&full, &start.model, &start.frames, &start.tools, &start.drifts);
+    let spreads: Vec<(String, f64)> = match warm {
+        Some(warm) => warm.orientation_spread_deg.clone(),
+        None => (0..data.blocks.len())
+            .filter(|&b| pieces.framed[b])
+            .map(|b| (data.block_name(b), orientation_spread_deg(model, data, b)))
+            .collect(),
+    };
     // No session turns the tool and no touch pins it: its point is the frames' translation,
     // whatever a small model error makes the Jacobian say; it stays at its nominal value.
     let pinned = data.obs.iter().any(|o| o.landmark().is_some());
@@ -115,34 +163,48 @@ pub(super) fn calibrate_framed(nominal: &ArmModel, pieces: &Pieces) -> Result<Fi
     // coincidence of the CAD values; decided at the fitted one, only what the data cannot
     // determine is held.
     let tool: Vec<ParamId> = all.iter().copied().filter(|p| matches!(p, ParamId::Tcp(_))).collect();
-    let mut start = Solved::at(model.clone(), start_frames, probe, data);
-    let factors = if tool_turns && !tool.is_empty() {
-        // The factors are taken after the tool's fit: at the start only the checks.
-        check_residuals(&full, &x0)?;
-        start = solve_framed(pieces, &tool, start.model, start.frames, start.probe, 0);
-        let full = pieces.problem(all.clone(), &start.model, &start.frames, start.probe);
-        let x = pieces.x_of(&full, &start.model, &start.frames, &start.tools, &start.drifts);
-        check_framed(&full, &x)?
-    } else {
-        check_framed(&full, &x0)?
+    let (before, estimated, fixed, statements) = match warm {
+        // A refit keeps the base set of the solution it starts from.
+        Some(warm) => {
+            check_residuals(&full, &x0)?;
+            let (estimated, fixed): (Vec<ParamId>, Vec<ParamId>) =
+                all.iter().partition(|id| warm.estimated.contains(id));
+            (warm.before.clone(), estimated, fixed, warm.statements.clone())
+        }
+        None => {
+            let factors = if tool_turns && !tool.is_empty() {
+                // The factors are taken after the tool's fit: at the start only the checks.
+                check_residuals(&full, &x0)?;
+                start = solve_framed(pieces, &tool, start, 0);
+                let full = pieces.problem(all.clone(), &start.model, &start.frames, start.probe);
+                let x = pieces.x_of(&full, &start.model, &start.frames, &start.tools, &start.drifts);
+                check_framed(&full, &x)?
+            } else {
+                check_framed(&full, &x0)?
+            };
+            let (raw, projected) = projected_arm_columns(&full.layout, &factors);
+            let ranges: Vec<f64> = all.iter().map(|&id| pieces.range(id)).collect();
+            let (kept, _) = identify::base_columns(&projected, all.len(), &ranges);
+            let before = identify::analyse(&projected, &all, &ranges);
+            let is_tool = |c: &usize| matches!(all[*c], ParamId::Tcp(_));
+            let estimated: Vec<ParamId> =
+                kept.iter().filter(|c| tool_turns || !is_tool(c)).map(|&c| all[c]).collect();
+            let fixed: Vec<ParamId> =
+                (0..all.len()).filter(|c| !estimated.contains(&all[*c])).map(|c| all[c]).collect();
+            let probe_turns = full.layout.rotation_column().is_some();
+            let statements =
+                identify::explain(&all, &raw, &projected, probe_turns, &fixed, &spreads, &ranges);
+            // The tool's first fit only placed the tool point: tools and drifts start at zero.
+            start = Solved::at(start.model, start.frames, start.probe, data);
+            (before, estimated, fixed, statements)
+        }
     };
-    let (raw, projected) = projected_arm_columns(&full.layout, &factors);
-    let ranges: Vec<f64> = all.iter().map(|&id| pieces.range(id)).collect();
-    let (kept, _) = identify::base_columns(&projected, all.len(), &ranges);
-    let before = identify::analyse(&projected, &all, &ranges);
-    let is_tool = |c: &usize| matches!(all[*c], ParamId::Tcp(_));
-    let estimated: Vec<ParamId> =
-        kept.iter().filter(|c| tool_turns || !is_tool(c)).map(|&c| all[c]).collect();
-    let fixed: Vec<ParamId> =
-        (0..all.len()).filter(|c| !estimated.contains(&all[*c])).map(|c| all[c]).collect();
-    let probe_turns = full.layout.rotation_column().is_some();
-    let statements = identify::explain(&all, &raw, &projected, probe_turns, &fixed, &spreads, &ranges);
     // Solve from the nominal values (the tool point as first fitted, held parameters at their
     // nominal values), then from the random starts.
     for id in &fixed {
         start.model.set(*id, model.get(*id));
     }
-    let mut solved = solve_framed(pieces, &estimated, start.model, start.frames, start.probe, 0);
+    let mut solved = solve_framed(pieces, &estimated, start, 0);
     let restarts = pieces.resolved.restarts;
     let mut starts = vec![solved.outcome.clone()];
     if restarts > 0 {
@@ -159,7 +221,7 @@ pub(super) fn calibrate_framed(nominal: &ArmModel, pieces: &Pieces) -> Result<Fi
                 let frames = pieces.closed_form_frames(&start);
                 let probe = start_probe_rotation(&start, data, &frames)
                     .filter(|_| pieces.resolved.orientation_weight_mm_per_rad.is_some());
-                solve_framed(pieces, &estimated, start, frames, probe, *k)
+                solve_framed(pieces, &estimated, Solved::at(start, frames, probe, data), *k)
             })
             .collect();
         for other in others {

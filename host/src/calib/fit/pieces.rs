@@ -2,6 +2,8 @@
 //! observations, the starts, and the checks before any solve.
 
 use super::*;
+use crate::calib::problem::encoder_table;
+use std::borrow::Cow;
 
 /// What a calibration of some observations is made of, whatever the arm's values.
 pub(super) struct Pieces<'a> {
@@ -12,6 +14,8 @@ pub(super) struct Pieces<'a> {
     pub(super) floated: Vec<bool>,
     pub(super) drift: Vec<Option<DriftSlot>>,
     pub(super) resolved: Resolved,
+    /// The encoder angles' sines and cosines, once for every problem of these terms.
+    sin_cos: Vec<(f64, f64)>,
 }
 
 impl<'a> Pieces<'a> {
@@ -71,7 +75,9 @@ impl<'a> Pieces<'a> {
             orientation_weight_mm_per_rad: resolved.orientation_weight_mm_per_rad,
             point_weight: resolved.point_weight,
         };
-        Ok(Pieces { data, model, terms: terms::build(data, &choice), framed, floated, drift, resolved })
+        let terms = terms::build(data, &choice);
+        let sin_cos = encoder_table(data, &terms);
+        Ok(Pieces { data, model, terms, framed, floated, drift, resolved, sin_cos })
     }
 
     /// Whether any block or group has unknowns of its own (frames, floated tools, drifts).
@@ -92,13 +98,14 @@ impl<'a> Pieces<'a> {
         frames: &[Frame],
         probe: Option<Matrix3<f64>>,
     ) -> Problem<'p> {
-        Problem::new(
+        Problem::with_encoder_table(
             self.layout(arm),
             model,
             self.data,
             &self.terms,
             frames.iter().map(|f| f.rotation).collect(),
             probe.filter(|_| self.resolved.orientation_weight_mm_per_rad.is_some()),
+            Cow::Borrowed(&self.sin_cos),
         )
     }
 

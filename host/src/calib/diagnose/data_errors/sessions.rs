@@ -45,7 +45,7 @@
 
 use super::{DataError, DataErrorKind, DataSet};
 use crate::calib::diagnose::units::Measure;
-use crate::calib::fit::{calibrate, Fit, CONSTANT_ORIENTATION_DEG};
+use crate::calib::fit::{recalibrate, Fit, CONSTANT_ORIENTATION_DEG};
 use crate::calib::nuisance::drift::{DriftKind, DriftSpec};
 use crate::calib::nuisance::frame::rotation_vector;
 use crate::calib::nuisance::tool::orientation_spread_deg;
@@ -100,7 +100,7 @@ fn bad_points_candidate(
         return None;
     }
     let kept = cal.without(|k| dropped[k]);
-    let refit = calibrate(nominal, &kept, options).ok()?;
+    let refit = recalibrate(nominal, &kept, options, fit).ok()?;
     let after = held_out_rms(&refit.model, val, &options.float_tool);
     let largest = bad.iter().map(|b| b.1).fold(0.0, f64::max);
     let names: Vec<&str> = bad.iter().map(|b| b.0.as_str()).collect();
@@ -130,11 +130,12 @@ fn bad_points_candidate(
 }
 
 /// The drift candidates: each calibration session, with each drift kind whose column it carries
-/// over the least span ([`DriftKind::applies_to`]), refitted drifting that way.
+/// over the least span ([`DriftKind::applies_to`]), refitted drifting that way (from `fit`).
 fn drift_candidates(
     nominal: &ArmModel,
     cal: &Observations,
     val: &Observations,
+    fit: &Fit,
     options: &SolveOptions,
     before: f64,
 ) -> Vec<DataError> {
@@ -147,8 +148,8 @@ fn drift_candidates(
         for kind in DriftKind::ALL.into_iter().filter(|k| k.applies_to(cal, b)) {
             let mut drift_sessions = options.drift_sessions.clone();
             drift_sessions.push(DriftSpec { session: name.clone(), kind });
-            let Ok(refit) = calibrate(nominal, cal, &SolveOptions { drift_sessions, ..options.clone() })
-            else {
+            let drifting = SolveOptions { drift_sessions, ..options.clone() };
+            let Ok(refit) = recalibrate(nominal, cal, &drifting, fit) else {
                 continue;
             };
             let Some(drift) = refit.drifts.iter().find(|d| d.session == name) else { continue };
@@ -338,9 +339,8 @@ pub fn data_error_candidates(
         let name = cal.block_name(b);
         let mut float_tool = options.float_tool.clone();
         float_tool.push(name.clone());
-        let Ok(refit) =
-            calibrate(nominal, cal, &SolveOptions { float_tool: float_tool.clone(), ..options.clone() })
-        else {
+        let floated = SolveOptions { float_tool: float_tool.clone(), ..options.clone() };
+        let Ok(refit) = recalibrate(nominal, cal, &floated, fit) else {
             continue;
         };
         let Some(tool) = refit.tool_offsets.iter().find(|t| t.session == name) else { continue };
@@ -360,7 +360,7 @@ pub fn data_error_candidates(
             _ => moved,
         });
     }
-    out.extend(drift_candidates(nominal, cal, val, options, before));
+    out.extend(drift_candidates(nominal, cal, val, fit, options, before));
     out.extend(bad_points_candidate(nominal, cal, val, fit, options, before));
     out.sort_by(|a, b| a.held_out_after_mm.total_cmp(&b.held_out_after_mm));
     // One data error at a time: the others are scored against a model the best one still bends,

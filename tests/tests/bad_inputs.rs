@@ -2095,6 +2095,29 @@ fn trace_cases(cases: &mut Vec<Case>) {
         &["--valid-days 0"],
     );
     fails("upload --valid-days -3", key(), upload("run/model.toml", &["--valid-days=-3"]), &["--valid-days"]);
+    // Issue 27: a parameter on its bound is never uploaded silently; --allow-on-bound lets it
+    // through (here the upload then stops at the port with no controller behind it).
+    let on_bound = || {
+        all(vec![key(), replace("model.toml", "tcp_mm = [0.0, 0.0, 253.0]", "tcp_mm = [0.0, 0.0, 243.0]")])
+    };
+    fails(
+        "upload a parameter on its bound",
+        on_bound(),
+        upload("model.toml", &[]),
+        &[
+            "model.toml",
+            "tcp.z on its lower bound (243)",
+            "not a result",
+            "--allow-on-bound",
+            "nothing was uploaded",
+        ],
+    );
+    fails(
+        "upload a parameter on its bound, allowed",
+        on_bound(),
+        upload("model.toml", &["--allow-on-bound"]),
+        &["tcp:127.0.0.1:9"],
+    );
     fails(
         "upload a validity that has passed",
         all(vec![key(), edit_json("run/summary.json", |v| v["validated_at_unix_s"] = json!(1_000_000_000))]),

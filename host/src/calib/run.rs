@@ -696,20 +696,40 @@ pub fn run_on(
 /// Share of a parameter's bound width within which an estimate counts as on its bound.
 pub const ON_BOUND_WITHIN: f64 = 1e-6;
 
+/// Which bound of `bound` the value `value` sits on (within [`ON_BOUND_WITHIN`] of its width):
+/// ("lower" or "upper", the bound), or `None`.
+pub fn bound_side(bound: &crate::model::FreeParam, value: f64) -> Option<(&'static str, f64)> {
+    let near = ON_BOUND_WITHIN * (bound.upper - bound.lower).abs().max(1e-12);
+    if (value - bound.lower).abs() <= near {
+        Some(("lower", bound.lower))
+    } else if (bound.upper - value).abs() <= near {
+        Some(("upper", bound.upper))
+    } else {
+        None
+    }
+}
+
+/// The free parameters of `model` whose value sits on one of their bounds, each as "NAME on its
+/// SIDE bound (VALUE)": a calibrated model holding one carries a value the data pushed there,
+/// not a result (`kincal upload` refuses it unless told otherwise).
+pub fn parameters_on_bounds(model: &ArmModel) -> Vec<String> {
+    model
+        .free
+        .iter()
+        .filter_map(|f| {
+            let value = model.get(f.id);
+            bound_side(f, value).map(|(side, at)| format!("{} on its {side} bound ({at})", f.id))
+        })
+        .collect()
+}
+
 /// Mark each estimated parameter of `fit` that ended on one of its bounds (its status says
 /// which) and say, per parameter, that its value is not a result: the data pushed it there.
 fn mark_bounds(fit: &mut Fit) -> Vec<String> {
     let mut sentences = Vec::new();
     for e in fit.estimates.iter_mut().filter(|e| e.status == "estimated") {
         let Some(bound) = fit.model.free.iter().find(|f| f.id.to_string() == e.param) else { continue };
-        let near = ON_BOUND_WITHIN * (bound.upper - bound.lower).abs().max(1e-12);
-        let side = if (e.value - bound.lower).abs() <= near {
-            ("lower", bound.lower)
-        } else if (bound.upper - e.value).abs() <= near {
-            ("upper", bound.upper)
-        } else {
-            continue;
-        };
+        let Some(side) = bound_side(bound, e.value) else { continue };
         e.status = format!("estimated, on its {} bound", side.0);
         sentences.push(format!(
             "{} ended on its {} bound ({} {}, nominal {} {}): the data pushed it there, so its value is not a \

@@ -100,6 +100,10 @@ fn tracker_template(t: &Path) {
             "tracker/urdf_model.toml",
         ],
     );
+    // A tracker RUN, read back by diagnose and compare (issue 27).
+    let run: Vec<String> =
+        tracker_cal(&[]).into_iter().map(|a| if a == "tout" { "trun".into() } else { a }).collect();
+    kincal(t, &run.iter().map(String::as_str).collect::<Vec<_>>());
 }
 
 /// `kincal calibrate` on the tracker sessions into `tout/`, with `extra` options.
@@ -230,7 +234,7 @@ fn tracker_file_cases(cases: &mut Vec<Case>) {
             "a negative u95_mm",
             all(vec![csv_line(S1, 2, |l| l.replace("sigma_mm", "u95_mm")), csv_cell(S1, 4, 11, "-0.04")]),
             &[],
-            &["session_1.csv:4: column `u95_mm`", "0 <= value"],
+            &["session_1.csv:4: column `u95_mm`", "<= value < 100 mm"],
         ),
         fails(
             "a NaN sigma_mm",
@@ -429,6 +433,7 @@ fn urdf_cases(cases: &mut Vec<Case>) {
 
 fn tracker_cases(cases: &mut Vec<Case>) {
     const S1: &str = "tracker/cal/session_1.csv";
+    const V4: &str = "tracker/val/session_4.csv";
     cases.push(Case::succeeds(
         "tracker/valid sessions",
         unchanged(),
@@ -466,7 +471,19 @@ fn tracker_cases(cases: &mut Vec<Case>) {
             "12000",
             &["session_1.csv:5: column `q3_deg`", "ten turns"][..],
         ),
-        ("a negative sigma", 11, "-0.02", &["session_1.csv:5: column `sigma_mm`", "0 <= value"][..]),
+        ("a negative sigma", 11, "-0.02", &["session_1.csv:5: column `sigma_mm`", "<= value < 100 mm"][..]),
+        (
+            "a zero sigma (a zero floor)",
+            11,
+            "0",
+            &["session_1.csv:5: column `sigma_mm`", "0.0001 <= value", "zero floor"][..],
+        ),
+        (
+            "a sigma of 1e-300 mm",
+            11,
+            "1e-300",
+            &["session_1.csv:5: column `sigma_mm`", "0.0001 <= value"][..],
+        ),
     ] {
         cases.push(Case::fails(
             &format!("tracker/{what}"),
@@ -514,6 +531,72 @@ fn tracker_cases(cases: &mut Vec<Case>) {
         )),
         fails("--float-tool of no session", unchanged(), &["--float-tool", "session_9"], &["--float-tool / --drift-session session_9", "no calibration session"]),
         fails("--sigma-mm NaN", unchanged(), &["--sigma-mm", "NaN"], &["--sigma-mm"]),
+        fails("--sigma-mm 0 (a zero floor)", unchanged(), &["--sigma-mm", "0"], &["--sigma-mm"]),
+        fails("--sigma-mm 1e-300", unchanged(), &["--sigma-mm", "1e-300"], &["--sigma-mm"]),
+        // Issue 27: what users get wrong, each refused naming the file, line, column or option.
+        fails(
+            "a time_s of 1e300 with --drift-session",
+            edit_text(S1, |t| {
+                t.lines()
+                    .enumerate()
+                    .map(|(k, l)| match k {
+                        0 => l.to_string(),
+                        1 => format!("{l},time_s"),
+                        4 => format!("{l},1e300"),
+                        _ => format!("{l},{}", 10 * k),
+                    })
+                    .collect::<Vec<_>>()
+                    .join("\n")
+                    + "\n"
+            }),
+            &["--drift-session", "session_1"],
+            &["session_1.csv:5: column `time_s`", "another unit"],
+        ),
+        fails(
+            "one pose id on two poses",
+            csv_cell(V4, 5, 0, "1"),
+            &[],
+            &["session_4.csv:5: column `pose`", "pose id 1", "line 3", "give each pose its own id"],
+        ),
+        fails(
+            "a held-out session of 2 points",
+            edit_text(V4, |t| t.lines().take(4).map(|l| format!("{l}\n")).collect()),
+            &[],
+            &["session_4.csv", "held-out session session_4 has 2 points", "at least 3", "--same-base"],
+        ),
+        fails(
+            "a held-out session of 1 point",
+            edit_text(V4, |t| t.lines().take(3).map(|l| format!("{l}\n")).collect()),
+            &[],
+            &["session_4.csv", "held-out session session_4 has 1 point:"],
+        ),
+        fails(
+            "--float-tool on every calibration session",
+            unchanged(),
+            &["--float-tool", "session_1", "--float-tool", "session_2", "--float-tool", "session_3"],
+            &["--float-tool", "every calibration session floats its tool", "session_1, session_2, session_3"],
+        ),
+        fails("--add compliance:8 on a 7-joint arm", unchanged(), &["--add", "compliance:8"], &["--add compliance:8", "7 joints"]),
+        fails(
+            "x and y columns swapped",
+            all(["cal/session_1.csv", "cal/session_2.csv", "cal/session_3.csv", "val/session_4.csv", "val/session_5.csv"]
+                .map(|f| Box::new(move |d: &Path| {
+                    let path = d.join("tracker").join(f);
+                    let text = std::fs::read_to_string(&path).unwrap();
+                    std::fs::write(&path, text.replacen("x_mm,y_mm", "y_mm,x_mm", 1)).unwrap();
+                }) as Setup)
+                .into()),
+            &[],
+            &["not trustworthy", "of the arm's reach", "columns swapped"],
+        ),
+        fails(
+            "an artefact session in a tracker folder",
+            Box::new(|d: &Path| {
+                std::fs::copy(d.join(CA), d.join("tracker/cal/C_A.json")).unwrap();
+            }),
+            &[],
+            &["tracker/cal", "--artefact is required", "1 artefact session files"],
+        ),
         fails("validation = calibration", unchanged(), &[], &["in both the calibration and the validation folder"]).with_args(words(
             &["calibrate", "--model", "tracker/model.toml", "--data", "tracker/cal", "--validate", "tracker/cal", "--out", "tout"],
             &[],
@@ -1713,6 +1796,41 @@ type EntryCase = (&'static str, &'static str, fn(&Path), &'static [&'static str]
 
 /// Session-folder entries that are not regular files (issue 21, item 1): named and refused by
 /// every command that reads the folder, never skipped.
+/// Tracker RUNs read back (issue 27): a figure out of range, another arm's model beside the
+/// summary, a comparison with no held-out session in common; each refused naming the file and
+/// field, never evaluated.
+fn tracker_run_cases(cases: &mut Vec<Case>) {
+    let diagnose = || words(&["diagnose", "trun"], &[]);
+    cases.push(Case::fails(
+        "tracker run/a held-out rms_mm of 1e308",
+        edit_json("trun/summary.json", |v| {
+            v["validation"]["sessions"]["sessions"][0]["rms_mm"] = json!(1e308)
+        }),
+        diagnose(),
+        &["trun/summary.json", "validation.sessions.sessions[0].rms_mm", "1e308"],
+    ));
+    cases.push(Case::fails(
+        "tracker run/a calibration rms_mm of 1e308",
+        edit_json("trun/summary.json", |v| v["calibration"]["rms_mm"] = json!(1e308)),
+        diagnose(),
+        &["trun/summary.json", "calibration.rms_mm", "1e308"],
+    ));
+    cases.push(Case::fails(
+        "tracker run/another arm's model.toml",
+        Box::new(|d: &Path| {
+            std::fs::copy(d.join("model.toml"), d.join("trun/model.toml")).unwrap();
+        }),
+        diagnose(),
+        &["trun/summary.json", "joints", "7 joints", "has 6"],
+    ));
+    cases.push(Case::fails(
+        "tracker run/compare with no held-out session in common",
+        unchanged(),
+        words(&["compare", "run", "trun", "--out", "c.html"], &[]),
+        &["run and trun", "the same held-out data"],
+    ));
+}
+
 fn entry_cases(cases: &mut Vec<Case>) {
     let list: [EntryCase; 5] = [
         (
@@ -1759,6 +1877,19 @@ fn entry_cases(cases: &mut Vec<Case>) {
             all(vec![run_reads_case_data(), entry(name, make)]),
             words(&["diagnose", "run"], &[]),
             needles,
+        ));
+    }
+    // The same entries named *.csv in a tracker folder (issue 27).
+    for (what, name, make, needles) in list {
+        let csv = name.replace(".json", ".csv");
+        let needles: Vec<String> =
+            needles.iter().map(|n| n.replace(".json", ".csv")).chain(["tracker/cal".into()]).collect();
+        let needles: Vec<&str> = needles.iter().map(String::as_str).collect();
+        cases.push(Case::fails(
+            &format!("entries/tracker folder: {what}"),
+            Box::new(move |d: &Path| make(&d.join("tracker/cal").join(&csv))),
+            tracker_cal(&[]),
+            &needles,
         ));
     }
     cases.push(Case::fails(
@@ -2095,6 +2226,29 @@ fn trace_cases(cases: &mut Vec<Case>) {
         &["--valid-days 0"],
     );
     fails("upload --valid-days -3", key(), upload("run/model.toml", &["--valid-days=-3"]), &["--valid-days"]);
+    // Issue 27: a parameter on its bound is never uploaded silently; --allow-on-bound lets it
+    // through (here the upload then stops at the port with no controller behind it).
+    let on_bound = || {
+        all(vec![key(), replace("model.toml", "tcp_mm = [0.0, 0.0, 253.0]", "tcp_mm = [0.0, 0.0, 243.0]")])
+    };
+    fails(
+        "upload a parameter on its bound",
+        on_bound(),
+        upload("model.toml", &[]),
+        &[
+            "model.toml",
+            "tcp.z on its lower bound (243)",
+            "not a result",
+            "--allow-on-bound",
+            "nothing was uploaded",
+        ],
+    );
+    fails(
+        "upload a parameter on its bound, allowed",
+        on_bound(),
+        upload("model.toml", &["--allow-on-bound"]),
+        &["tcp:127.0.0.1:9"],
+    );
     fails(
         "upload a validity that has passed",
         all(vec![key(), edit_json("run/summary.json", |v| v["validated_at_unix_s"] = json!(1_000_000_000))]),
@@ -2241,6 +2395,7 @@ fn corpus(template: &Path) -> Vec<Case> {
     output_cases(&mut cases);
     run_folder_cases(&mut cases);
     entry_cases(&mut cases);
+    tracker_run_cases(&mut cases);
     wrong_model_cases(&mut cases);
     diagnose_refusal_cases(&mut cases);
     disk_full_cases(&mut cases);

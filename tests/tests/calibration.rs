@@ -157,19 +157,12 @@ fn the_readme_loop_leaves_no_parameter_silently_on_its_bound() {
         "--hidden",
         "eccentricity_cos:5=-0.1",
     ]);
-    let said = kincal(&[
-        "calibrate",
-        "--model",
-        "model.toml",
-        "--artefact",
-        "data/artefact.json",
-        "--data",
-        "data/cal",
-        "--validate",
-        "data/val",
-        "--out",
-        "before",
-    ]);
+    // The README's calibrate step into `out`, with `extra` options.
+    let calibrate = |out: &str, extra: &[&str]| {
+        let inputs = ["--model", "model.toml", "--artefact", "data/artefact.json", "--data", "data/cal"];
+        kincal(&[&["calibrate"], &inputs[..], &["--validate", "data/val", "--out", out], extra].concat())
+    };
+    let said = calibrate("before", &[]);
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("before/summary.json")).unwrap()).unwrap();
     let model = ArmModel::load(&dir.join("model.toml")).unwrap();
@@ -192,5 +185,23 @@ fn the_readme_loop_leaves_no_parameter_silently_on_its_bound() {
     }
     println!("on a bound: {on_bound:?}");
     assert_eq!(on_bound, ["tcp.z"], "the leak the README's loop shows lands in the tool length");
+    // Not uploaded unless the user says so (refused before any key or port is touched).
+    let upload = Command::new(kincal_e2e::kincal_bin())
+        .args(["upload", "--port", "tcp:127.0.0.1:9", "before/model.toml"])
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    let refused = String::from_utf8_lossy(&upload.stderr);
+    assert!(!upload.status.success(), "uploaded: {refused}");
+    assert!(
+        refused.contains("before/model.toml: tcp.z on its lower bound")
+            && refused.contains("--allow-on-bound"),
+        "{refused}"
+    );
+    // With the missing effect added (the loop's next step) nothing is left on a bound.
+    let said = calibrate("after", &["--add", "eccentricity:5"]);
+    assert!(!said.contains("bound"), "{said}");
+    let after = ArmModel::load(&dir.join("after/model.toml")).unwrap();
+    assert_eq!(kincal::calib::run::parameters_on_bounds(&after), Vec::<String>::new());
     std::fs::remove_dir_all(&dir).ok();
 }

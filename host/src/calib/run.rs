@@ -38,6 +38,48 @@ pub enum RunError {
     /// An input file was unusable.
     #[error(transparent)]
     Data(#[from] FileError),
+    /// One pose id names two different arm poses in one session.
+    #[error(
+        "{path}:{line}: column `pose`: pose id {pose} was given at line {first_line} too, but joint {joint} differs \
+         by {differs_deg:.3}° between them: rows with one pose id must be repeats of one arm pose (their joint angles \
+         within {}°), else the floor from repeats is not a floor; give each pose its own id",
+        crate::calib::trust::SAME_POSE_DEG
+    )]
+    RepeatedPose {
+        /// The session file.
+        path: PathBuf,
+        /// The later row's line.
+        line: usize,
+        /// The first row's line.
+        first_line: usize,
+        /// The pose id.
+        pose: String,
+        /// The joint (1-based) that differs most.
+        joint: usize,
+        /// By how much, degrees.
+        differs_deg: f64,
+    },
+    /// Every calibration session's tool floats: the shared tool point is determined by none.
+    #[error(
+        "--float-tool: every calibration session floats its tool ({0}), so no session determines the shared tool \
+         point the held-out sessions are predicted with; float the tool in the sessions where it was re-mounted only"
+    )]
+    EveryToolFloated(String),
+    /// A held-out session too small to fit its own base.
+    #[error(
+        "{path}: held-out session {session} has {points} point{}: its own base (6 unknowns) needs at least 3 points \
+         to be fitted, so its error cannot be scored; measure more points there, move it to the calibration folder \
+         if it shares no base, or name the calibration session it shares its base with (--same-base {session}=CAL)",
+        if *points == 1 { "" } else { "s" }
+    )]
+    HeldOutTooSmall {
+        /// The session file.
+        path: PathBuf,
+        /// The session.
+        session: String,
+        /// Its points.
+        points: usize,
+    },
     /// The calibration could not run.
     #[error(transparent)]
     Calibration(#[from] CalibError),
@@ -340,7 +382,55 @@ pub fn check_run_data(
         }
         .into());
     }
+    for data in [cal, val] {
+        check_pose_ids(data)?;
+    }
+    let sessions: Vec<String> = cal
+        .sessions()
+        .into_iter()
+        .filter(|&b| cal.blocks[b].members.iter().any(|&k| cal.obs[k].point_mm().is_some()))
+        .map(|b| cal.block_name(b))
+        .collect();
+    if !sessions.is_empty() && sessions.iter().all(|s| options.float_tool.contains(s)) {
+        return Err(RunError::EveryToolFloated(sessions.join(", ")));
+    }
+    for b in val.sessions() {
+        let (name, members) = (val.block_name(b), &val.blocks[b].members);
+        let points = members.iter().filter(|&&k| val.obs[k].point_mm().is_some()).count();
+        let shares = inputs.same_base.iter().any(|pair| pair.split_once('=').is_some_and(|(v, _)| v == name));
+        if points > 0 && points < 3 && !shares {
+            let path = val.groups[val.blocks[b].group].source.clone();
+            return Err(RunError::HeldOutTooSmall { path, session: name, points });
+        }
+    }
     check_data(model, cal, options)?;
+    Ok(())
+}
+
+/// Refuse a pose id given to two different arm poses in one group (a joint apart by more than
+/// [`crate::calib::trust::SAME_POSE_DEG`]; a repeat reads the same angles to the encoders' noise) (see [`RunError::RepeatedPose`]).
+fn check_pose_ids(data: &Observations) -> Result<(), RunError> {
+    let mut first: BTreeMap<(usize, &str), usize> = BTreeMap::new();
+    for (k, o) in data.obs.iter().enumerate() {
+        let Some(pose) = o.pose.as_deref() else { continue };
+        let Some(&j) = first.get(&(o.group, pose)) else {
+            first.insert((o.group, pose), k);
+            continue;
+        };
+        let earlier = &data.obs[j];
+        let differs = o.q_deg.iter().zip(earlier.q_deg.iter()).map(|(a, b)| (a - b).abs()).enumerate();
+        let Some((joint, differs_deg)) = differs.max_by(|a, b| a.1.total_cmp(&b.1)) else { continue };
+        if differs_deg > crate::calib::trust::SAME_POSE_DEG {
+            return Err(RunError::RepeatedPose {
+                path: data.groups[o.group].source.clone(),
+                line: o.line,
+                first_line: earlier.line,
+                pose: pose.to_string(),
+                joint: joint + 1,
+                differs_deg,
+            });
+        }
+    }
     Ok(())
 }
 
@@ -582,6 +672,7 @@ pub fn run_on(
     // Tracker sessions held out: each frame refitted, against the nominal arm with its tool fitted.
     let tracker = sessions_section(&nominal, &fit, cal, val, inputs, options, &same_base)?;
     if let Some(t) = &tracker {
+        not_trustworthy.extend(crate::calib::trust::point_problems(&fit, nominal.reach_mm()));
         verdict.extend(t.verdict.iter().cloned());
         floor.points = Some(t.floor.clone());
     }
@@ -696,20 +787,40 @@ pub fn run_on(
 /// Share of a parameter's bound width within which an estimate counts as on its bound.
 pub const ON_BOUND_WITHIN: f64 = 1e-6;
 
+/// Which bound of `bound` the value `value` sits on (within [`ON_BOUND_WITHIN`] of its width):
+/// ("lower" or "upper", the bound), or `None`.
+pub fn bound_side(bound: &crate::model::FreeParam, value: f64) -> Option<(&'static str, f64)> {
+    let near = ON_BOUND_WITHIN * (bound.upper - bound.lower).abs().max(1e-12);
+    if (value - bound.lower).abs() <= near {
+        Some(("lower", bound.lower))
+    } else if (bound.upper - value).abs() <= near {
+        Some(("upper", bound.upper))
+    } else {
+        None
+    }
+}
+
+/// The free parameters of `model` whose value sits on one of their bounds, each as "NAME on its
+/// SIDE bound (VALUE)": a calibrated model holding one carries a value the data pushed there,
+/// not a result (`kincal upload` refuses it unless told otherwise).
+pub fn parameters_on_bounds(model: &ArmModel) -> Vec<String> {
+    model
+        .free
+        .iter()
+        .filter_map(|f| {
+            let value = model.get(f.id);
+            bound_side(f, value).map(|(side, at)| format!("{} on its {side} bound ({at})", f.id))
+        })
+        .collect()
+}
+
 /// Mark each estimated parameter of `fit` that ended on one of its bounds (its status says
 /// which) and say, per parameter, that its value is not a result: the data pushed it there.
 fn mark_bounds(fit: &mut Fit) -> Vec<String> {
     let mut sentences = Vec::new();
     for e in fit.estimates.iter_mut().filter(|e| e.status == "estimated") {
         let Some(bound) = fit.model.free.iter().find(|f| f.id.to_string() == e.param) else { continue };
-        let near = ON_BOUND_WITHIN * (bound.upper - bound.lower).abs().max(1e-12);
-        let side = if (e.value - bound.lower).abs() <= near {
-            ("lower", bound.lower)
-        } else if (bound.upper - e.value).abs() <= near {
-            ("upper", bound.upper)
-        } else {
-            continue;
-        };
+        let Some(side) = bound_side(bound, e.value) else { continue };
         e.status = format!("estimated, on its {} bound", side.0);
         sentences.push(format!(
             "{} ended on its {} bound ({} {}, nominal {} {}): the data pushed it there, so its value is not a \

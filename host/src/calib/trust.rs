@@ -216,6 +216,23 @@ pub fn result_problems(fit: &Fit, validation: &Validation, scales: &TrustScales)
     problems
 }
 
+/// Why the figures of a calibration on instrument points cannot be a result: a calibration RMS
+/// beyond [`SPAN_FRACTION`] of the arm's reach `reach_mm` (a model-independent scale: no
+/// calibrated model of the right arm misses its own points by that much).
+pub fn point_problems(fit: &Fit, reach_mm: f64) -> Vec<String> {
+    let limit = SPAN_FRACTION * reach_mm;
+    if fit.rms_mm.is_finite() && fit.rms_mm <= limit.max(RMS_ALWAYS_SUSPECT_MM) {
+        return Vec::new();
+    }
+    vec![format!(
+        "calibration RMS {:.3} mm is beyond {:.0} % of the arm's reach ({reach_mm:.0} mm): no calibrated model of \
+         this arm misses its own points by that much — columns swapped or mislabelled, angles in another unit, a \
+         quaternion written scalar-last under qw,qx,qy,qz, or another arm's model",
+        fit.rms_mm,
+        100.0 * SPAN_FRACTION
+    )]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

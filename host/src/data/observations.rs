@@ -351,6 +351,24 @@ impl Observations {
         out
     }
 
+    /// A copy whose groups named in `groups` carry no measured orientation, or `None` when none of
+    /// them carries one. A 6-DoF probe's orientation in a group whose tool floats (re-mounted,
+    /// perhaps turned on its mount) is not the shared probe's: it informs only that group's own
+    /// probe rotation, estimated afterwards from it.
+    pub fn without_orientations_of(&self, groups: &[String]) -> Option<Observations> {
+        let named = |o: &Observation| groups.contains(&self.groups[o.group].name);
+        if !self.obs.iter().any(|o| named(o) && o.orientation().is_some()) {
+            return None;
+        }
+        let mut out = self.clone();
+        for o in out.obs.iter_mut().filter(|o| groups.contains(&self.groups[o.group].name)) {
+            if let Target::Point { orientation, .. } = &mut o.target {
+                *orientation = None;
+            }
+        }
+        Some(out)
+    }
+
     /// A copy holding only the groups listed (by index), in that order.
     pub fn subset(&self, groups: &[usize]) -> Observations {
         let mut out = self.clone_empty();

@@ -63,14 +63,25 @@ fn tag_line(format: &str) -> String {
     format!("# {format}")
 }
 
-/// The `*.csv` files of `dir` (any case), sorted by name.
+/// Least stated σ of a point, mm: a tenth of a micrometre, beyond any instrument's.
+pub const MIN_SIGMA_MM: f64 = 1e-4;
+
+/// Largest |time_s|, s (over 3000 years: Unix seconds are 1.8e9).
+pub const MAX_TIME_S: f64 = 1e11;
+
+/// The `*.csv` files of `dir` (any case), sorted by name. An entry so named that is
+/// not a regular file (a folder, a FIFO, a device, a dangling link) is refused, naming it, never
+/// skipped.
 pub fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, FileError> {
     let io = |source| FileError::Io { path: dir.to_owned(), source };
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(io)?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && p.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")))
-        .collect();
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(io)? {
+        let path = entry.map_err(io)?.path();
+        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")) {
+            crate::files::check_regular_file(&path)?;
+            files.push(path);
+        }
+    }
     files.sort();
     Ok(files)
 }
@@ -321,18 +332,34 @@ pub fn read_tagged_session(
         };
         let sigma_mm = match layout.sigma {
             Some((c, factor)) => match optional(Some(c))? {
-                Some(v) if (0.0..100.0).contains(&v) => Some(v * factor),
+                Some(v) if (MIN_SIGMA_MM / factor..100.0).contains(&v) => Some(v * factor),
                 Some(v) => {
                     return Err(row_error(
                         line,
                         header[c],
-                        format!("expected 0 <= value < 100 mm, found {v}"),
+                        format!(
+                            "expected {} <= value < 100 mm (no instrument is sure to a tenth of a µm: a zero σ would \
+                             make a zero floor), found {v}",
+                            MIN_SIGMA_MM / factor
+                        ),
                     ));
                 }
                 None => None,
             },
             None => None,
         };
+        let time_s = optional(layout.time)?;
+        if let (Some(t), Some(c)) = (time_s, layout.time) {
+            if t.abs() > MAX_TIME_S {
+                return Err(row_error(
+                    line,
+                    header[c],
+                    format!(
+                        "expected seconds within ±{MAX_TIME_S:e} (over 3000 years), found {t:e}: another unit?"
+                    ),
+                ));
+            }
+        }
         points.push(Observation {
             block: 0,
             group: 0,
@@ -341,7 +368,7 @@ pub fn read_tagged_session(
             q_sigma_deg: None,
             target: Target::Point { xyz_mm: Vector3::from(xyz), orientation },
             sigma_mm,
-            time_s: optional(layout.time)?,
+            time_s,
             temp_c: optional(layout.temp)?,
             pose: layout.pose.map(|c| cells[c].to_string()).filter(|p| !p.is_empty()),
             line,

@@ -38,6 +38,10 @@ pub struct UploadArgs {
     /// Default: no validity period.
     #[arg(long, value_name = "DAYS")]
     valid_days: Option<u32>,
+    /// Upload a model with a free parameter on its bound (a value the data pushed there, not a
+    /// result: `kincal calibrate` warns of it). Without it such a model is not uploaded.
+    #[arg(long)]
+    allow_on_bound: bool,
 }
 
 #[derive(Subcommand)]
@@ -386,6 +390,18 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
             "{}: the controller cannot evaluate {} (harmonics above the second); nothing was uploaded",
             a.model.display(),
             names.join(", ")
+        );
+    }
+    let on_bounds = kincal::calib::run::parameters_on_bounds(&model);
+    if !on_bounds.is_empty() && !a.allow_on_bound {
+        bail!(
+            "{}: {}: the data pushed {} there, so {} not a result (an effect the model lacks may have leaked \
+             in: `kincal diagnose RUN` names it; or widen the bounds in the model's [free] table and calibrate \
+             again); pass --allow-on-bound to upload it anyway; nothing was uploaded",
+            a.model.display(),
+            on_bounds.join(", "),
+            if on_bounds.len() == 1 { "it" } else { "them" },
+            if on_bounds.len() == 1 { "its value is" } else { "their values are" }
         );
     }
     let Some(key_path) = &a.key else {

@@ -287,6 +287,9 @@ use pieces::*;
 /// observations that carry no information. `calibrate` refuses with these errors, and so does
 /// `diagnose` on a RUN's data, with the same messages.
 pub fn check_data(model: &ArmModel, data: &Observations, options: &SolveOptions) -> Result<(), CalibError> {
+    if let Some(own) = data.without_orientations_of(&options.float_tool) {
+        return check_data(model, &own, options);
+    }
     let pieces = Pieces::new(model, data, options)?;
     let all: Vec<ParamId> = pieces.model.free.iter().map(|f| f.id).collect();
     if pieces.blocked() {
@@ -302,6 +305,9 @@ pub fn check_data(model: &ArmModel, data: &Observations, options: &SolveOptions)
 
 /// Calibrate the free parameters of `nominal` on `data` (see the module doc).
 pub fn calibrate(nominal: &ArmModel, data: &Observations, options: &SolveOptions) -> Result<Fit, CalibError> {
+    if let Some(own) = data.without_orientations_of(&options.float_tool) {
+        return calibrate(nominal, &own, options);
+    }
     let pieces = Pieces::new(nominal, data, options)?;
     if pieces.blocked() {
         calibrate_framed(nominal, &pieces, None)
@@ -323,6 +329,9 @@ pub fn recalibrate(
     options: &SolveOptions,
     warm: &Fit,
 ) -> Result<Fit, CalibError> {
+    if let Some(own) = data.without_orientations_of(&options.float_tool) {
+        return recalibrate(nominal, &own, options, warm);
+    }
     let pieces = Pieces::new(nominal, data, options)?;
     if pieces.blocked() {
         calibrate_framed(nominal, &pieces, Some(warm))
@@ -352,6 +361,9 @@ fn solve_warm_from(
     options: &SolveOptions,
     warm: Option<&Fit>,
 ) -> Result<ArmModel, CalibError> {
+    if let Some(own) = data.without_orientations_of(&options.float_tool) {
+        return solve_warm_from(start, params, &own, options, warm);
+    }
     let pieces = Pieces::new(start, data, options)?;
     if pieces.blocked() {
         let from = match warm {

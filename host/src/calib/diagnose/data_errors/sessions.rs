@@ -30,7 +30,12 @@
 //! called, in place of the re-mounted tool, when |Q_S| is beyond three of its standard deviations
 //! (the orientation residual per axis over √n) and the held-out orientation error falls by
 //! [`MIN_GAIN`]; the action is the re-mounted tool's (`--float-tool S`), which in a held-out 6-DoF
-//! session refits the probe's rotation with its point.
+//! session refits the probe's rotation with its point. In a calibration session S the shared
+//! probe rotation would spread Q_S over the arm parameters (and a half turn breaks the fit): the
+//! candidate refits with S's tool floating, which leaves S's orientations out of the fit (they
+//! are its own probe's, [`Observations::without_orientations_of`]), and Q_S is found, as in a
+//! held-out session, from S's orientations at the refit and its shared probe rotation; it is
+//! called by the same rule, S's own orientation error falling with it.
 //!
 //! **Drift within a session.** The instrument, its stand, its length scale or the arm creeps
 //! while a session is measured, against time (`time_s`) or temperature (`temp_C`): a base shift
@@ -219,17 +224,18 @@ struct ProbeTurn {
 /// flange z axis", degrees.
 const FLANGE_Z_WITHIN_DEG: f64 = 10.0;
 
-/// The probe's turn in held-out session `b` (its tool offset `offset_mm` refitted): `None` without
-/// a fitted probe rotation, without orientations, or when the session's points leave its base's
-/// rotation free.
-fn probe_turn(fit: &Fit, val: &Observations, b: usize, offset_mm: [f64; 3]) -> Option<ProbeTurn> {
+/// The probe's turn in session `b` of `data` (its tool offset `offset_mm` refitted), against the
+/// shared probe rotation of `fit` (for a calibration session, the refit with its tool floating,
+/// which leaves its orientations out): `None` without a fitted probe rotation, without
+/// orientations, or when the session's points leave its base's rotation free.
+fn probe_turn(fit: &Fit, data: &Observations, b: usize, offset_mm: [f64; 3]) -> Option<ProbeTurn> {
     let shared = fit.tool_rotation.as_ref()?.rotation();
-    if undetermined_rotation(val, b).is_some() {
+    if undetermined_rotation(data, b).is_some() {
         return None;
     }
-    let own = session_probe_rotation(&fit.model, val, b, offset_mm)?;
-    let before = validate_orientations(&fit.model, val, b, offset_mm, &shared)?;
-    let after = validate_orientations(&fit.model, val, b, offset_mm, &own)?;
+    let own = session_probe_rotation(&fit.model, data, b, offset_mm)?;
+    let before = validate_orientations(&fit.model, data, b, offset_mm, &shared)?;
+    let after = validate_orientations(&fit.model, data, b, offset_mm, &own)?;
     let turn = own * shared.transpose();
     // The residual angle's RMS spreads over three axes; the turn's angle is a mean of n of them.
     let std_deg = after.rms_deg / (3.0 * after.orientations as f64).sqrt();
@@ -267,6 +273,12 @@ impl ProbeTurn {
     /// The data error, in place of the re-mounted tool `moved` of the same session.
     fn data_error(&self, moved: DataError) -> DataError {
         let (angle, about) = self.about();
+        // A held-out session's orientation is scored with the shared probe and with its own; a
+        // calibration session's, at the refit that leaves it out, the same way.
+        let whose = match moved.set {
+            DataSet::HeldOut => "held-out orientation RMS",
+            DataSet::Calibration => "its orientation RMS",
+        };
         DataError {
             kind: DataErrorKind::ProbeTurned,
             size_mm: self.angle_deg,
@@ -275,7 +287,7 @@ impl ProbeTurn {
             significant: true,
             text: format!(
                 "the probe is turned {angle:.3} ± {:.3}° about {about} in session {} (its point moved {:.3} mm with it); \
-                 held-out orientation RMS {:.3}° → {:.3}°, position RMS {:.4} → {:.4} mm with its probe floating",
+                 {whose} {:.3}° → {:.3}°, held-out position RMS {:.4} → {:.4} mm with its probe floating",
                 self.std_deg,
                 moved.session,
                 moved.size_mm,
@@ -345,7 +357,11 @@ pub fn data_error_candidates(
         };
         let Some(tool) = refit.tool_offsets.iter().find(|t| t.session == name) else { continue };
         let after = held_out_rms(&refit.model, val, &options.float_tool);
-        out.push(verdict(&name, DataSet::Calibration, tool.offset_mm, tool.size_std_mm, after));
+        let moved = verdict(&name, DataSet::Calibration, tool.offset_mm, tool.size_std_mm, after);
+        out.push(match probe_turn(&refit, cal, b, tool.offset_mm) {
+            Some(turn) if turn.called(&refit, &tool.offset_mm) => turn.data_error(moved),
+            _ => moved,
+        });
     }
     // A held-out session whose orientation is constant cannot tell its tool from its base.
     for b in turning(val) {

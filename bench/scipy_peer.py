@@ -7,8 +7,11 @@ Reads a problem file written by kincal (``kincal bench`` or the peer test):
    "landmarks_mm": [[x,y,z], ...],
    "touches": [{"placement", "landmark", "repeat", "enc_deg": [6]}],
    "params": ["offset:2", ...], "x0": [...], "lower": [...], "upper": [...],
-   "huber_delta_mm": 1.35}
-and prints {"cost", "x", "seconds", "nfev"} as JSON. The forward kinematics here is written
+   "huber_delta_mm": 1.35,
+   "starts": [[...], ...]}          (optional: kincal's random restarts, solved with --all-starts)
+and prints {"cost", "x", "seconds", "cpu_seconds", "nfev", "rms_mm", "scipy_version"} as JSON: from x0,
+or with --all-starts from x0 and every start (the lowest cost kept, the earliest on a tie; the
+times and evaluations summed, "starts" listing each start's cost and evaluations). The forward kinematics here is written
 from the DH definition with numpy, independent of kincal's Rust code.
 Cost convention: SciPy's 0.5 * f_scale**2 * sum(rho((f/f_scale)**2)), the same as kincal's.
 """
@@ -17,6 +20,7 @@ import sys
 import time
 
 import numpy as np
+import scipy
 from scipy.optimize import least_squares
 
 
@@ -81,11 +85,18 @@ def main():
         pts = np.array([tool_point(m, t["enc_deg"]) for t in touches])
         return np.linalg.norm(pts[ia] - pts[ib], axis=1) - certified
 
-    started = time.perf_counter()
-    result = least_squares(residuals, np.array(problem["x0"]), bounds=(problem["lower"], problem["upper"]),
-                           method="trf", loss="huber", f_scale=problem["huber_delta_mm"])
-    seconds = time.perf_counter() - started
-    print(json.dumps({"cost": float(result.cost), "x": result.x.tolist(), "seconds": seconds, "nfev": int(result.nfev)}))
+    starts = [problem["x0"]] + (problem.get("starts", []) if "--all-starts" in sys.argv[2:] else [])
+    wall, cpu = time.perf_counter(), time.process_time()
+    results = [least_squares(residuals, np.array(x0), bounds=(problem["lower"], problem["upper"]),
+                             method="trf", loss="huber", f_scale=problem["huber_delta_mm"]) for x0 in starts]
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    best = min(range(len(results)), key=lambda k: (results[k].cost, k))
+    result = results[best]
+    print(json.dumps({"cost": float(result.cost), "x": result.x.tolist(), "seconds": wall, "cpu_seconds": cpu,
+                      "nfev": sum(int(r.nfev) for r in results), "best_start": best,
+                      "rms_mm": float(np.sqrt(np.mean(residuals(result.x) ** 2))),
+                      "starts": [{"cost": float(r.cost), "nfev": int(r.nfev)} for r in results],
+                      "scipy_version": scipy.__version__}))
 
 
 if __name__ == "__main__":

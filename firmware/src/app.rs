@@ -141,14 +141,15 @@ pub async fn serve_host<F: NorFlash>(shared: &SharedCell<F>, mut act: impl FnMut
                 Action::None => {}
                 Action::Verify => verify_and_commit(shared),
                 Action::Simulate(request) => {
-                    let moved = matches!(request, Request::SimSetPose(_));
+                    let moved = matches!(request, Request::SimSetPose(_) | Request::SimPlay(_));
                     if let Request::SimFaults(SimFaults { crash: Crash::Panic | Crash::Hang, .. }) = request {
                         // Let the acknowledgement leave before the board fails on purpose.
                         answers_sent().await;
                     }
                     act(Action::Simulate(request));
                     if moved {
-                        // The emulated arm jumped to the new pose: not a fault of its encoders.
+                        // The emulated arm jumped to the new pose (or to a trajectory's start):
+                        // not a fault of its encoders.
                         shared.lock(|cell| cell.borrow_mut().sampler.forget_positions());
                     }
                 }

@@ -13,7 +13,7 @@ use kincal_protocol::messages::{
     ALL_JOINTS, LINK_BYTES_PER_S, MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH, TICK_HZ,
 };
 use kincal_protocol::params::{ArmParams, BLOB_CRC, MAX_PARAM_BLOB};
-use kincal_protocol::signed::SignatureRefusal;
+use kincal_protocol::signed::{SetTrace, SignatureRefusal};
 
 /// What the board must do after a request.
 #[derive(Clone, Debug, PartialEq)]
@@ -284,7 +284,10 @@ impl<F: NorFlash> Controller<F> {
                 Err(e) => none(Err(e)),
             },
             Request::Reset(Reset) => Reply::Now(typed::<Reset>(Ok(Ack)), Action::Reset),
-            Request::SimSetPose(_) | Request::SimFaults(_) => {
+            Request::SimSetPose(_)
+            | Request::SimFaults(_)
+            | Request::SimWaypoint(_)
+            | Request::SimPlay(_) => {
                 if self.simulated {
                     Reply::Now(typed::<SimSetPose>(Ok(Ack)), Action::Simulate(request))
                 } else {
@@ -349,6 +352,7 @@ impl<F: NorFlash> Controller<F> {
             encoders: sampler.health,
             reset_cause: self.reset_cause,
             brownout_mv: self.brownout_mv,
+            param_trace: self.provenance().map_or(SetTrace::default(), |p| p.trace),
         }
     }
 
@@ -487,7 +491,7 @@ mod tests {
     use super::*;
     use crate::flash::RamNor;
     use kincal_protocol::params::encode_blob;
-    use kincal_protocol::signed::{signing_message, TrustMode};
+    use kincal_protocol::signed::{signing_message, traced_signing_message, TrustMode};
 
     type Ctl = Controller<RamNor<4096>>;
 
@@ -987,6 +991,50 @@ mod tests {
             upload_set(&mut rebooted, &signed_for(&set(4), &station(2), ARM, 5)),
             Err(WireError::ParamSignature(SignatureRefusal::UntrustedKey))
         );
+    }
+
+    /// A traced set (`KSG2`) is stored like any other; `info` reports its trace, and it
+    /// survives a reboot. Every byte of the trace is covered by the signature. A `KSG1` set
+    /// after it reports no trace.
+    #[test]
+    fn a_traced_set_reports_its_run_and_validity_and_its_trace_is_signed() {
+        let trace = SetTrace {
+            run_sha256: core::array::from_fn(|k| k as u8),
+            validated_at_unix_s: 1_789_000_000,
+            valid_until_unix_s: 1_800_000_000,
+        };
+        let traced = |params: &ArmParams| {
+            let mut blob = [0u8; MAX_PARAM_BLOB];
+            let n = encode_blob(params, &mut blob).unwrap();
+            let mut out = [0u8; MAX_PARAM_BLOB];
+            let m = traced_signing_message(&blob[..n], &trace, ARM, 1_790_000_000, &station(1).pk, &mut out)
+                .unwrap();
+            let mut set = out[..m].to_vec();
+            set.extend_from_slice(station(1).sk.sign(&set, None).as_ref());
+            (set, n)
+        };
+        let mut c = controller(RamNor::new());
+        hello(&mut c);
+        let (first, blob_len) = traced(&set(1));
+        for at in blob_len..blob_len + kincal_protocol::signed::TRACE_BYTES {
+            let mut bad = first.clone();
+            bad[at] ^= 0x01;
+            assert_eq!(
+                upload_set(&mut c, &bad),
+                Err(WireError::ParamSignature(SignatureRefusal::BadSignature)),
+                "trace byte {}",
+                at - blob_len
+            );
+            wait_out_backoff(&mut c);
+        }
+        assert_eq!(c.params(), None);
+        assert_eq!(upload_set(&mut c, &first), Ok(Response::Ack));
+        assert_eq!(c.info(&Sampler::default()).param_trace, trace);
+        let mut rebooted = controller(c.into_flash());
+        hello(&mut rebooted);
+        assert_eq!(rebooted.info(&Sampler::default()).param_trace, trace, "kept over a reboot");
+        assert_eq!(upload_set(&mut rebooted, &signed(&set(2))), Ok(Response::Ack));
+        assert!(rebooted.info(&Sampler::default()).param_trace.is_none(), "a KSG1 set carries none");
     }
 
     /// With a key built in, only that key is trusted, also for the first set; a stored set

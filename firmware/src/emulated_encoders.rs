@@ -1,5 +1,6 @@
 //! Emulated encoders behind the same SPI trait as the real ones: the SLO bit stream of six
-//! BiSS-C encoders at a pose the host sets, with noise and injected faults (CRC errors,
+//! BiSS-C encoders at a pose the host sets, or moving along a trajectory the host sends
+//! ([`kincal_protocol::trajectory`]), with noise and injected faults (CRC errors,
 //! dropouts, error and warning bits, unplugged joints, a hang). Each encoder is a
 //! [`kincal_biss_slave::Slave`], the slave model written from the BiSS-C description: its ACK
 //! starts after the second MA edge, lasts 1 to 8 bits, and joint j's line delays it by
@@ -15,11 +16,30 @@ use embassy_sync::blocking_mutex::Mutex;
 use embedded_hal_async::spi::{ErrorType, Operation, SpiDevice};
 use kincal_biss_slave::{Line, Slave};
 use kincal_protocol::biss::COUNTS_PER_TURN;
-use kincal_protocol::messages::{Crash, Request, SimFaults, SimSetPose, JOINTS, TICK_HZ};
+use kincal_protocol::messages::{
+    Crash, Request, SimFaults, SimPlay, SimSetPose, SimWaypoint, JOINTS, TICK_HZ,
+};
+use kincal_protocol::trajectory::{counts_at, Waypoint, MAX_WAYPOINTS};
+
+/// The trajectory being followed: waypoints `0..len` of the stored ones, time 0 at `start_tick`.
+#[derive(Clone, Copy)]
+struct Playing {
+    len: usize,
+    start_tick: u32,
+    repeat: bool,
+}
 
 /// The six emulated encoders' state.
+///
+/// Their clock is the controller's tick: every read of joint 1 starts a new tick (the master
+/// reads all joints once per tick, base first), so the sample of controller tick `k` (counted
+/// from 1 since boot, as [`kincal_protocol::messages::Info::ticks`]) is the trajectory's
+/// position at `k − start_tick`.
 pub struct EmulatedEncoders {
     counts: [u32; JOINTS],
+    tick: u32,
+    waypoints: [Waypoint; MAX_WAYPOINTS],
+    playing: Option<Playing>,
     noise_counts: u16,
     crc_errors: u16,
     dropouts: u16,
@@ -41,6 +61,9 @@ impl EmulatedEncoders {
     pub const fn new() -> Self {
         EmulatedEncoders {
             counts: [0; JOINTS],
+            tick: 0,
+            waypoints: [Waypoint { at_tick: 0, counts: [0; JOINTS] }; MAX_WAYPOINTS],
+            playing: None,
             noise_counts: 0,
             crc_errors: 0,
             dropouts: 0,
@@ -55,7 +78,20 @@ impl EmulatedEncoders {
     /// Apply a simulation request ([`Request::SimSetPose`], [`Request::SimFaults`]).
     pub fn apply(&mut self, request: &Request) {
         match *request {
-            Request::SimSetPose(SimSetPose { counts }) => self.counts = counts.map(|c| c % COUNTS_PER_TURN),
+            Request::SimSetPose(SimSetPose { counts }) => {
+                self.counts = counts.map(|c| c % COUNTS_PER_TURN);
+                self.playing = None;
+            }
+            Request::SimWaypoint(SimWaypoint { index, waypoint }) => {
+                if let Some(slot) = self.waypoints.get_mut(index as usize) {
+                    *slot = waypoint;
+                }
+            }
+            Request::SimPlay(SimPlay { waypoints, start_tick, repeat }) => {
+                let len = (waypoints as usize).min(MAX_WAYPOINTS);
+                self.playing = (len > 0).then_some(Playing { len, start_tick, repeat });
+                self.follow();
+            }
             Request::SimFaults(SimFaults {
                 noise_counts,
                 crc_errors_per_10k,
@@ -101,8 +137,22 @@ impl EmulatedEncoders {
         sum * self.noise_counts as i32 / 1155
     }
 
+    /// Put the encoders where the trajectory is at the present tick.
+    fn follow(&mut self) {
+        if let Some(p) = self.playing {
+            let t = self.tick.wrapping_sub(p.start_tick);
+            // Before the start (the difference wrapped) the arm holds the first waypoint.
+            let t = if t > u32::MAX / 2 { 0 } else { t };
+            self.counts = counts_at(&self.waypoints[..p.len], t, p.repeat);
+        }
+    }
+
     /// What the master samples from encoder `joint` in one read (a tick after the last).
     pub fn answer(&mut self, joint: usize) -> [u8; TRANSFER_BYTES] {
+        if joint == 0 {
+            self.tick = self.tick.wrapping_add(1);
+            self.follow();
+        }
         let connected = self.unplugged & (1 << joint) == 0 && !self.chance(self.dropouts);
         let position =
             (self.counts[joint] as i64 + self.noise() as i64).rem_euclid(COUNTS_PER_TURN as i64) as u32;
@@ -169,5 +219,42 @@ impl<M: RawMutex> SpiDevice for EmulatedEncoder<'_, M> {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::biss_master::BissMaster;
+    use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+
+    /// Tick k's reads (the k-th read of joint 1 since boot) are the trajectory at k − start;
+    /// before the start the arm holds the first waypoint, a new pose stops the motion.
+    #[test]
+    fn the_encoders_follow_the_trajectory_tick_by_tick() {
+        let encoders: SharedEncoders<NoopRawMutex> = Mutex::new(RefCell::new(EmulatedEncoders::new()));
+        let mut master = BissMaster::new(EmulatedEncoder::all(&encoders));
+        let w =
+            |at_tick, c: i32| Waypoint { at_tick, counts: [c, 2 * c, -c, 0, 5, COUNTS_PER_TURN as i32 - c] };
+        let path = [w(0, 1000), w(300, 90_000), w(500, 20_000), w(900, 20_000)];
+        for (index, waypoint) in path.iter().enumerate() {
+            encoders.lock(|e| {
+                e.borrow_mut()
+                    .apply(&Request::SimWaypoint(SimWaypoint { index: index as u8, waypoint: *waypoint }))
+            });
+        }
+        let start_tick = 40;
+        encoders.lock(|e| {
+            e.borrow_mut().apply(&Request::SimPlay(SimPlay { waypoints: 4, start_tick, repeat: false }))
+        });
+        for tick in 1..=1000u32 {
+            let read = embassy_futures::block_on(master.read_all());
+            let got: [u32; JOINTS] = core::array::from_fn(|j| read[j].expect("a clean bus").position_counts);
+            let t = tick.saturating_sub(start_tick);
+            assert_eq!(got, counts_at(&path, t, false), "tick {tick}");
+        }
+        encoders.lock(|e| e.borrow_mut().apply(&Request::SimSetPose(SimSetPose { counts: [7; JOINTS] })));
+        let read = embassy_futures::block_on(master.read_all());
+        assert!(read.iter().all(|r| r.expect("clean").position_counts == 7), "a pose stops the motion");
     }
 }

@@ -12,7 +12,7 @@
 use kincal_protocol::messages::WireError;
 use kincal_protocol::params::{decode_blob, ArmParams, BlobError};
 use kincal_protocol::signed::{
-    split_signed, valid_arm_id, ArmId, SignatureRefusal, TrustMode, PUBLIC_KEY_BYTES,
+    split_signed, valid_arm_id, ArmId, SetTrace, SignatureRefusal, TrustMode, PUBLIC_KEY_BYTES,
 };
 
 include!(concat!(env!("OUT_DIR"), "/provisioning.rs"));
@@ -27,6 +27,8 @@ pub struct Provenance {
     pub signer: [u8; PUBLIC_KEY_BYTES],
     /// Time signed, Unix seconds (the station's clock).
     pub signed_at_unix_s: u64,
+    /// The RUN and validity the set was signed with (zero for a set that carries none).
+    pub trace: SetTrace,
 }
 
 /// The arm's identity and the key built into the firmware, if any.
@@ -96,7 +98,14 @@ impl Trust {
                 return Err(WireError::ParamRollback { stored: current.version, offered: params.version });
             }
         }
-        Ok((params, Provenance { signer: *signed.public_key, signed_at_unix_s: signed.signed_at_unix_s }))
+        Ok((
+            params,
+            Provenance {
+                signer: *signed.public_key,
+                signed_at_unix_s: signed.signed_at_unix_s,
+                trace: signed.trace.unwrap_or_default(),
+            },
+        ))
     }
 
     /// The stored set at boot: used only if it still passes every check but the version (so a

@@ -8,9 +8,11 @@
 //! so a bug there cannot hide in data made here. Touches the arm cannot reach without passing
 //! a joint below the table are skipped, as an operator would.
 
+pub mod optical;
+
 use crate::data::{Artefact, Landmark, Measurement, Session, ARTEFACT_FORMAT, SESSION_FORMAT};
 use crate::model::{ArmModel, Convention, ParamId, SUTA_JOINTS};
-use crate::numerics::solver::{self, Residuals, SolverOptions};
+use crate::numerics::solver::{self, Residuals, SolverOptions, Termination};
 use nalgebra::{Matrix4, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -163,7 +165,7 @@ pub fn suta_artefact(rng: &mut ChaCha8Rng) -> Artefact {
         .into_iter()
         .map(|(id, xyz_mm)| Landmark { id, xyz_mm, yaw_deg: (rng.random::<f64>() * 90.0 - 45.0).round() })
         .collect();
-    Artefact { format: ARTEFACT_FORMAT.into(), landmarks }
+    Artefact { format: ARTEFACT_FORMAT.into(), landmarks, certificate: None }
 }
 
 /// Plain homogeneous-matrix forward kinematics of `model` (the independent path), with the
@@ -264,7 +266,8 @@ fn frames_at(
             Convention::Urdf => {
                 let [x, y, z] = row.origin_xyz_mm;
                 let [roll, pitch, yaw] = row.origin_rpy_deg.map(f64::to_radians);
-                t = t * tr(x, y, z) * rz(yaw) * ry(pitch) * rx(roll);
+                let turn = nalgebra::Rotation3::new(Vector3::from(row.origin_turn_deg.map(f64::to_radians)));
+                t = t * tr(x, y, z) * rz(yaw) * ry(pitch) * rx(roll) * turn.to_homogeneous();
                 let axis = Vector3::from(row.axis);
                 axes[j] = (axis_of(&t).0, t.fixed_view::<3, 3>(0, 0) * axis);
                 let turn = nalgebra::Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), theta);
@@ -330,7 +333,11 @@ fn solve_touch(
     first: Option<&[f64; SUTA_JOINTS]>,
     rng: &mut ChaCha8Rng,
 ) -> Option<[f64; SUTA_JOINTS]> {
-    let options = SolverOptions { max_iterations: 100, ..SolverOptions::default() };
+    let options = SolverOptions {
+        max_iterations: 100,
+        termination: Termination::AcceptedSteps,
+        ..SolverOptions::default()
+    };
     for attempt in 0..25 {
         let start: Vec<f64> = match first.filter(|_| attempt == 0) {
             Some(f) => f.to_vec(),
@@ -475,6 +482,7 @@ fn record_with(
                 std_deg: Some(vec![options.encoder_noise_deg * 39.2; SUTA_JOINTS]),
                 samples: Some(1536),
                 rejected: Some(0),
+                at_unix_s: None,
             });
         }
     }
@@ -484,6 +492,7 @@ fn record_with(
             placement: place.name.clone(),
             purpose: purpose.into(),
             measurements,
+            arm: None,
         },
         skipped,
     )

@@ -7,6 +7,29 @@ fn kincal(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_kincal")).args(args).output().expect("kincal runs")
 }
 
+/// Whether a page's first section is its verdict, the verdict names a next step, and no internal
+/// name reaches the reader; the failure says which.
+fn check_leads_with_verdict(page: &Path) {
+    let html = std::fs::read_to_string(page).unwrap_or_else(|e| panic!("{}: {e}", page.display()));
+    let first = html.find("<h2>").map(|k| &html[k..]).unwrap_or_default();
+    assert!(
+        first.starts_with("<h2>Verdict</h2>"),
+        "{}: the first section is not the verdict",
+        page.display()
+    );
+    let verdict = &first[..first[4..].find("<h2>").map_or(first.len(), |k| k + 4)];
+    assert!(
+        ["next:", "what to do", "what to measure next"].iter().any(|w| verdict.contains(w)),
+        "{}: the verdict names no next step: {verdict}",
+        page.display()
+    );
+    for internal in
+        ["AtFloor", "NothingSignificant", "CannotTell", "CostConverged", "Quadratic", "kincal diagnose RUN"]
+    {
+        assert!(!html.contains(internal), "{}: {internal:?} reaches the reader", page.display());
+    }
+}
+
 fn example_model() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/suta/model.toml")
 }
@@ -69,17 +92,19 @@ fn calibrate_writes_a_run_whose_model_loads_again() {
     let stored: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap();
     assert_eq!(printed, stored);
-    for key in ["rms_mm", "mean_mm", "std_mm", "max_mm", "pairs"] {
+    for key in ["rms_mm", "mean_mm", "std_mm", "max_mm", "count"] {
         assert!(
-            stored["validation"][key].is_number() && stored["nominal_validation"][key].is_number(),
+            stored["validation"]["distances"]["calibrated"][key].is_number()
+                && stored["validation"]["distances"]["nominal"][key].is_number(),
             "{key}"
         );
     }
     // The same file read back as the type diagnose and compare use.
-    let folder = kincal::calib::run::RunFolder::load(&run).expect("RUN reads back as kincal-run/1");
-    assert_eq!(folder.summary.format, kincal::calib::run::RUN_FORMAT);
-    assert!(folder.summary.calibration.rms_mm < folder.summary.nominal_validation.rms_mm);
-    assert_eq!(folder.residuals().expect("residuals.json reads back").len(), folder.summary.validation.pairs);
+    let folder = kincal::api::load(&run).expect("RUN reads back as kincal-run/2");
+    assert_eq!(folder.summary.format, kincal::calib::summary::RUN_FORMAT);
+    let distances = folder.summary.validation.distances.as_ref().expect("held-out distances");
+    assert!(folder.summary.calibration.rms_mm < distances.nominal.rms_mm);
+    assert_eq!(folder.residuals().expect("residuals.json reads back").len(), distances.calibrated.count);
     let calibrated =
         kincal::model::ArmModel::load(&run.join("model.toml")).expect("calibrated model loads again");
     assert_eq!(calibrated.free.len(), kincal::model::ArmModel::load(&model).unwrap().free.len());
@@ -196,12 +221,12 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let d: serde_json::Value = serde_json::from_slice(&out.stdout).expect("--json prints the diagnosis");
     let first = &d["candidates"][0];
-    assert_eq!(first["effect"], "eccentricity:5");
+    assert_eq!(first["name"], "eccentricity:5");
     assert_eq!(first["significant"], true);
     let explained = first["explained"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&explained) && explained > 0.5, "{explained}");
     assert!(first["evidence"].as_str().unwrap().contains("eccentricity"), "{}", first["evidence"]);
-    assert!(first["validation_rms_mm"].as_f64().unwrap() < d["baseline"]["rms_mm"].as_f64().unwrap());
+    assert!(first["held_out_rms_mm"].as_f64().unwrap() < d["baseline"]["rms_mm"].as_f64().unwrap());
     assert!(before.join("diagnosis.html").exists());
     let mut with = calibrate_args(data.to_str().unwrap(), after.to_str().unwrap(), model.to_str().unwrap());
     with.extend(["--add".to_string(), "eccentricity:5".to_string()]);
@@ -220,10 +245,17 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
         page.to_str().unwrap(),
     ]);
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && text.contains("rms_mm") && text.contains("eccentricity:5"), "{text}");
-    let rms = |run: &Path| -> f64 {
-        kincal::calib::run::RunFolder::load(run).expect("typed RUN").summary.validation.rms_mm
-    };
+    assert!(out.status.success() && text.contains("RMS mm") && text.contains("eccentricity:5"), "{text}");
+    assert!(text.starts_with("the second run"), "compare prints its verdict first: {text}");
+    for page in [before.join("report.html"), before.join("diagnosis.html"), page.clone()] {
+        check_leads_with_verdict(&page);
+    }
+    let report = std::fs::read_to_string(before.join("report.html")).unwrap();
+    assert!(
+        report.contains(&format!("kincal diagnose {}", before.display())),
+        "the next command names the run"
+    );
+    let rms = |run: &Path| -> f64 { kincal::api::load(run).expect("typed RUN").summary.held_out_rms_mm() };
     assert!(rms(&after) < 0.6 * rms(&before), "{} → {}", rms(&before), rms(&after));
     assert!(std::fs::read_to_string(&page).unwrap().contains("<svg"));
     // What to measure next: rivals and weak parameters, a pose list, the plan as JSON.
@@ -259,7 +291,7 @@ fn the_whole_loop_finds_adds_and_compares_a_hidden_effect() {
     assert!(after[0].as_f64().unwrap() >= now[0].as_f64().unwrap(), "{now} → {after}");
     let csv = std::fs::read_to_string(&poses).unwrap();
     assert!(
-        csv.starts_with(kincal::output::PLAN_CSV_HEADER) && csv.lines().count() > 2 * 6,
+        csv.starts_with(kincal::store::PLAN_CSV_HEADER) && csv.lines().count() > 2 * 6,
         "header and two placements of at least 6 touches: {csv}"
     );
     // Bad effect names and bad runs are reported, not panicked on.
@@ -306,6 +338,7 @@ fn haptic_simulate_and_calibrate_write_the_summary_and_refuse_bad_recordings() {
     );
     assert_eq!(s["gimbal_model"], "quadratic");
     assert!(std::fs::read_to_string(run.join("report.html")).unwrap().contains("Hammer"));
+    check_leads_with_verdict(&run.join("report.html"));
     // A stream with a time going backwards is named by file and line; nothing panics.
     let device = rec.join("joints/device.csv");
     let text = std::fs::read_to_string(&device).unwrap();
@@ -347,6 +380,9 @@ fn demo_offline_and_simulate_run_from_an_empty_folder_outside_the_repository() {
     let out = dir.join("runs/demo-offline");
     for file in ["nominal.toml", "run/diagnosis.html", "run/report.html", "run-added/model.toml"] {
         assert!(out.join(file).exists(), "demo --offline wrote no {file}");
+    }
+    for page in ["run/report.html", "run/diagnosis.html", "run/auto/report.html", "run-added/report.html"] {
+        check_leads_with_verdict(&out.join(page));
     }
     let nominal = kincal::model::ArmModel::load(&out.join("nominal.toml")).unwrap();
     assert_eq!(nominal, kincal::model::ArmModel::load(&example_model()).unwrap());

@@ -8,18 +8,70 @@ use std::path::{Path, PathBuf};
 const LAYERS: &[(&str, u8)] = &[
     ("files", 0),
     ("numerics", 0),
-    ("model", 1),
-    ("data", 2),
-    ("simulate", 3),
-    ("calib", 4),
-    ("haptic", 4),
-    ("report", 5),
-    ("output", 6),
-    ("controller", 7),
+    ("igtl", 0),
+    ("trace", 1),
+    ("model", 2),
+    ("data", 3),
+    ("simulate", 4),
+    ("calib", 5),
+    ("haptic", 5),
+    ("motion", 5),
+    ("report", 6),
+    ("store", 7),
+    ("api", 8),
+    ("controller", 9),
 ];
 
 fn layer(module: &str) -> Option<u8> {
     LAYERS.iter().find(|(m, _)| *m == module).map(|(_, l)| *l)
+}
+
+/// The floors inside `calib`, lowest first: the engine (residual terms, block unknowns, the
+/// problem, the setup, the fit, identifiability, validation, the floor); what is built on it (the
+/// diagnosis, outliers, the study, trust, the plan and their checks); the run from input files to
+/// its summary. Modules of one floor may use each other; none uses a floor above.
+const CALIB_FLOORS: &[(&str, u8)] = &[
+    ("terms", 0),
+    ("nuisance", 0),
+    ("layout", 0),
+    ("problem", 0),
+    ("setup", 0),
+    ("fit", 0),
+    ("identify", 0),
+    ("validate", 0),
+    ("floor", 0),
+    ("diagnose", 1),
+    ("outliers", 1),
+    ("study", 1),
+    ("trust", 1),
+    ("plan", 1),
+    ("monte_carlo", 1),
+    ("peer", 1),
+    ("run", 2),
+    ("summary", 2),
+];
+
+fn calib_floor(module: &str) -> Option<u8> {
+    CALIB_FLOORS.iter().find(|(m, _)| *m == module).map(|(_, l)| *l)
+}
+
+/// The violations in one file of `calib`'s module `own`: `(line, used calib module)`.
+fn calib_violations(own: &str, text: &str) -> Vec<(usize, String)> {
+    let Some(own_floor) = calib_floor(own) else { return Vec::new() };
+    let calib: Vec<(usize, String)> = text
+        .lines()
+        .enumerate()
+        .flat_map(|(k, line)| {
+            let code = line.split("//").next().unwrap_or("");
+            code.match_indices("crate::calib::")
+                .map(|(at, m)| {
+                    let rest = &code[at + m.len()..];
+                    (k + 1, rest.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect::<String>())
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    calib.into_iter().filter(|(_, used)| calib_floor(used).is_some_and(|f| f > own_floor)).collect()
 }
 
 /// Every `crate::MODULE` a source text names, with its line number: plain paths, and the
@@ -106,9 +158,32 @@ fn no_module_imports_from_its_own_or_a_higher_layer() {
         for (line, used) in violations(own, &text) {
             problems.push(format!("{}:{line}: `{own}` uses `{used}`", relative.display()));
         }
+        if own == "calib" {
+            let sub = relative.components().nth(1).map(|c| c.as_os_str().to_string_lossy().into_owned());
+            let sub = sub.as_deref().unwrap_or("").trim_end_matches(".rs").to_string();
+            if calib_floor(&sub).is_none() && sub != "mod" {
+                problems.push(format!("{}: `calib::{sub}` has no floor in CALIB_FLOORS", relative.display()));
+            }
+            for (line, used) in calib_violations(&sub, &text) {
+                problems.push(format!("{}:{line}: `calib::{sub}` uses `calib::{used}`", relative.display()));
+            }
+        }
     }
     assert!(checked > 40, "only {checked} source files found under {}", src.display());
     assert!(problems.is_empty(), "imports against the layers:\n{}", problems.join("\n"));
+}
+
+#[test]
+fn the_check_catches_an_upward_import_inside_calib() {
+    assert_eq!(
+        calib_violations("fit", "use crate::calib::diagnose::Diagnosis;"),
+        [(1, "diagnose".to_string())]
+    );
+    assert_eq!(calib_violations("diagnose", "x\nuse crate::calib::run::Run;"), [(2, "run".to_string())]);
+    assert!(
+        calib_violations("diagnose", "use crate::calib::fit::Fit; use crate::calib::study::x;").is_empty()
+    );
+    assert!(calib_violations("run", "use crate::calib::diagnose::Diagnosis;").is_empty());
 }
 
 #[test]

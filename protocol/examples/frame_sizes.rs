@@ -43,6 +43,11 @@ fn main() {
         encoders: [health; JOINTS],
         reset_cause: ResetCause::Unknown,
         brownout_mv: u16::MAX,
+        param_trace: kincal_protocol::signed::SetTrace {
+            run_sha256: [0xFF; 32],
+            validated_at_unix_s: u64::MAX,
+            valid_until_unix_s: u64::MAX,
+        },
     };
     let rows = [
         (

@@ -7,7 +7,7 @@
 use serde::{de::DeserializeOwned, Serialize};
 
 /// Largest encoded message (postcard bytes, before CRC and COBS).
-pub const MAX_MESSAGE: usize = 384;
+pub const MAX_MESSAGE: usize = 448;
 /// Largest frame on the wire: COBS overhead, CRC and delimiter included.
 pub const MAX_FRAME: usize = MAX_MESSAGE + 2 + MAX_MESSAGE / 254 + 2 + 1;
 
@@ -317,6 +317,11 @@ mod tests {
             encoders: [health; JOINTS],
             reset_cause: ResetCause::Watchdog,
             brownout_mv: 2700,
+            param_trace: crate::signed::SetTrace {
+                run_sha256: [0xA5; 32],
+                validated_at_unix_s: 1_789_000_000,
+                valid_until_unix_s: 1_820_000_000,
+            },
         };
         let chunk = heapless::Vec::from_slice(&[1, 2, 0, 0, 255]).unwrap();
         let responses = [
@@ -509,6 +514,11 @@ mod tests {
             encoders: [health; JOINTS],
             reset_cause: ResetCause::Unknown,
             brownout_mv: u16::MAX,
+            param_trace: crate::signed::SetTrace {
+                run_sha256: [0xFF; 32],
+                validated_at_unix_s: u64::MAX,
+                valid_until_unix_s: u64::MAX,
+            },
         };
         round_trip(&DeviceFrame::Response { seq: u16::MAX, response: Ok(Response::Info(info)) });
     }

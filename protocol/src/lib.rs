@@ -7,6 +7,8 @@
 //! * [`biss`] — the BiSS-C single-cycle frame of a 22-bit absolute encoder, with its CRC-6.
 //! * [`params`] — the calibrated arm model as stored on the controller (version, CRC, size limit).
 //! * [`signed`] — the signed parameter set: blob, arm identity, time, Ed25519 key and signature.
+//! * [`trajectory`] — the emulated arm's motion: joint waypoints with times and the smooth path
+//!   through them, evaluated alike by the emulated encoders and the host.
 //!
 //! The `std` feature adds what the host needs (allocation-backed helpers).
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
@@ -18,3 +20,4 @@ pub mod framing;
 pub mod messages;
 pub mod params;
 pub mod signed;
+pub mod trajectory;

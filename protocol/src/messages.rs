@@ -11,7 +11,7 @@ use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
 /// Protocol version; bump on any incompatible change.
-pub const PROTOCOL_VERSION: u16 = 4;
+pub const PROTOCOL_VERSION: u16 = 5;
 /// Largest parameter chunk carried by one message, bytes.
 pub const PARAM_CHUNK: usize = 48;
 /// Joints read every tick.
@@ -98,6 +98,10 @@ pub enum Request {
     SimSetPose(SimSetPose),
     /// Emulated board only: noise and faults of the emulated encoder bus.
     SimFaults(SimFaults),
+    /// Emulated board only: one waypoint of the trajectory the emulated arm will follow.
+    SimWaypoint(SimWaypoint),
+    /// Emulated board only: follow the stored waypoints from a given tick, or stop.
+    SimPlay(SimPlay),
 }
 
 /// Version and schema check; must come first. Answer: [`HelloReply`].
@@ -201,6 +205,30 @@ pub struct SimFaults {
     pub crash: Crash,
 }
 
+/// Emulated board only: store waypoint `index` of the trajectory the emulated arm follows
+/// ([`crate::trajectory`]). Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct SimWaypoint {
+    /// Position in the trajectory (0..[`crate::trajectory::MAX_WAYPOINTS`]).
+    pub index: u8,
+    /// The waypoint.
+    pub waypoint: crate::trajectory::Waypoint,
+}
+
+/// Emulated board only: the emulated arm follows waypoints `0..waypoints` ([`SimWaypoint`])
+/// from controller tick `start_tick` on ([`Info::ticks`] counts the same ticks); before it, it
+/// holds the first waypoint. `waypoints` 0 stops the motion where the arm is; [`SimSetPose`]
+/// stops it too. Answer: [`Ack`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Schema)]
+pub struct SimPlay {
+    /// Waypoints to follow (0: stop).
+    pub waypoints: u8,
+    /// Controller tick at which the trajectory's time 0 falls.
+    pub start_tick: u32,
+    /// Start again at the end (the first and last waypoints should be the same pose).
+    pub repeat: bool,
+}
+
 /// A firmware fault the emulated controller injects on request ([`SimFaults::crash`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub enum Crash {
@@ -214,6 +242,9 @@ pub enum Crash {
 }
 
 /// A frame from the controller.
+// A response can carry an `Info` (see [`Response`]); the frame lives on the stack only while it
+// is encoded or decoded, and no_std without alloc cannot box it.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub enum DeviceFrame {
     /// The answer to the request with sequence number `seq`.
@@ -233,8 +264,8 @@ pub enum DeviceFrame {
 }
 
 /// Successful answers, one variant per answer type.
-// `Info` (~290 bytes with the signer's key) is the large one; no_std without alloc cannot box it,
-// and an answer lives on the stack only while it is encoded.
+// `Info` (~340 bytes with the signer's key and the set's trace) is the large one; no_std without
+// alloc cannot box it, and an answer lives on the stack only while it is encoded.
 #[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Schema)]
 pub enum Response {
@@ -363,6 +394,9 @@ pub struct Info {
     /// report, e.g. the emulated board). Flash is programmed 32 bits at a time, which needs
     /// at least 2700 mV.
     pub brownout_mv: u16,
+    /// Where the stored set comes from: its RUN's hash, validation date and validity (all zero:
+    /// none stored, or a set that carries no trace). Added in protocol version 5.
+    pub param_trace: crate::signed::SetTrace,
 }
 
 /// Why the controller last started (reported by [`Info::reset_cause`]).
@@ -560,6 +594,8 @@ endpoints! {
     Reset => Ack, "reset";
     SimSetPose => Ack, "emulated pose";
     SimFaults => Ack, "emulated encoder faults";
+    SimWaypoint => Ack, "emulated trajectory waypoint";
+    SimPlay => Ack, "emulated trajectory start";
 }
 
 /// A stream topic: one of the items the controller streams, with its own type.

@@ -332,3 +332,23 @@ pub fn run_corpus(
     });
     failures.into_inner().unwrap()
 }
+
+/// Run `cases` (unique names asserted) on all cores, each in a fresh copy of `template` under
+/// `work`, and panic with every failure.
+pub fn assert_all_pass(bin: &Path, template: &Path, work: &Path, cases: &[Case], timeout: Duration) {
+    let mut names: Vec<&str> = cases.iter().map(|c| c.name.as_str()).collect();
+    names.sort_unstable();
+    names.dedup();
+    assert_eq!(names.len(), cases.len(), "case names must be unique");
+    let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let started = Instant::now();
+    let failures = run_corpus(bin, template, work, cases, threads, timeout);
+    println!("{} cases in {:.1} s on {threads} threads", cases.len(), started.elapsed().as_secs_f64());
+    assert!(
+        failures.is_empty(),
+        "{} of {} cases failed:\n{}",
+        failures.len(),
+        cases.len(),
+        failures.join("\n\n")
+    );
+}

@@ -9,6 +9,8 @@ pub mod corpus;
 
 pub mod doc_examples;
 
+pub mod peers;
+
 pub mod haptic_gen;
 
 pub mod tracker_gen;
@@ -224,7 +226,7 @@ fn serve(
                             })) => Some(ResetCause::Watchdog),
                             Action::Simulate(request) => {
                                 encoders.lock(|e| e.borrow_mut().apply(&request));
-                                if matches!(request, Request::SimSetPose(_)) {
+                                if matches!(request, Request::SimSetPose(_) | Request::SimPlay(_)) {
                                     sampler.forget_positions();
                                 }
                                 None

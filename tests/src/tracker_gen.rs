@@ -923,6 +923,16 @@ pub struct ToolRemount {
     pub size_mm: f64,
 }
 
+/// A 6-DoF probe put back turned on its mount in one session: its rotation on the flange and its
+/// point turn about the flange z axis, `R_t,S = Rz(θ)·R_t`, `t_S = Rz(θ)·t`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ProbeTurn {
+    /// Session index (0-based).
+    pub session: usize,
+    /// The turn θ about the flange z axis, degrees.
+    pub angle_deg: f64,
+}
+
 /// Instrument drift within one session (the tracker's stand or the floor under it settling): the
 /// robot base slides linearly in the instrument frame, `X = B_s · p + v · t`, with |v| =
 /// `mm_per_hour` / 3600 s in a seeded random direction.
@@ -980,6 +990,8 @@ pub struct SessionPlan {
     /// A position grid at one fixed tool orientation (IK on the true arm), spaced
     /// `grid_spacing_mm`; otherwise random joint configurations.
     pub constant_orientation: bool,
+    /// The poses' joint angles given (deg, e.g. a plan's); empty: drawn as above.
+    pub joints_deg: Vec<Vec<f64>>,
 }
 
 /// Everything the generator does; presets in [`TrackerOptions::iiwa_five_sessions`] and
@@ -1004,6 +1016,8 @@ pub struct TrackerOptions {
     pub repeats: usize,
     /// Tool re-mounted in one session.
     pub tool_remount: Option<ToolRemount>,
+    /// A 6-DoF probe turned on its mount in one session.
+    pub probe_turn: Option<ProbeTurn>,
     /// Thermal drift within each session; also writes `time_s` and `temp_C`.
     pub thermal: Option<ThermalDrift>,
     /// Write `time_s` and `temp_C` even without thermal drift (`temp_C` is then 20 °C).
@@ -1038,13 +1052,19 @@ impl TrackerOptions {
             arm: Arm::iiwa7(),
             hidden: HiddenErrorSizes::default(),
             sessions: (1..=5)
-                .map(|k| SessionPlan { name: format!("session_{k}"), poses: 60, constant_orientation: false })
+                .map(|k| SessionPlan {
+                    name: format!("session_{k}"),
+                    poses: 60,
+                    constant_orientation: false,
+                    joints_deg: Vec::new(),
+                })
                 .collect(),
             noise_sigma_mm: 0.02,
             orientation_sigma_deg: None,
             uncertainty: UncertaintyColumn::SigmaMm,
             repeats: 1,
             tool_remount: None,
+            probe_turn: None,
             thermal: None,
             time_columns: false,
             instrument_drift: None,
@@ -1064,7 +1084,12 @@ impl TrackerOptions {
         TrackerOptions {
             arm: Arm::industrial6(),
             sessions: (1..=4)
-                .map(|k| SessionPlan { name: format!("day_{k}"), poses: 50, constant_orientation: false })
+                .map(|k| SessionPlan {
+                    name: format!("day_{k}"),
+                    poses: 50,
+                    constant_orientation: false,
+                    joints_deg: Vec::new(),
+                })
                 .collect(),
             orientation_sigma_deg: Some(0.005),
             uncertainty: UncertaintyColumn::U95Mm,
@@ -1285,7 +1310,15 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
                 arm.tool_mm = v_add(arm.tool_mm, offset);
             }
         }
-        let qs: Vec<Vec<f64>> = if plan.constant_orientation {
+        if let Some(turn) = options.probe_turn.filter(|t| t.session == s) {
+            let rz = axis_angle([0.0, 0.0, 1.0], turn.angle_deg.to_radians());
+            let rpy = arm.tool_rpy_deg.map(f64::to_radians);
+            arm.tool_mm = m_vec(&rz, arm.tool_mm);
+            arm.tool_rpy_deg = rpy_of(&m_mul(&rz, &rpy_matrix(rpy))).map(f64::to_degrees);
+        }
+        let qs: Vec<Vec<f64>> = if !plan.joints_deg.is_empty() {
+            plan.joints_deg.clone()
+        } else if plan.constant_orientation {
             constant_orientation_q(&arm, plan.poses, options.grid_spacing_mm, &mut rng)
                 .into_iter()
                 .map(|q| q.into_iter().map(round6).collect())
@@ -1293,7 +1326,7 @@ pub fn generate(options: &TrackerOptions) -> TrackerData {
         } else {
             (0..plan.poses).map(|_| random_q(&options.arm, options.low_coverage, &mut rng)).collect()
         };
-        let measurements = plan.poses * options.repeats.max(1);
+        let measurements = qs.len() * options.repeats.max(1);
         let duration_s = options.seconds_per_point * measurements as f64;
         let mut rows = Vec::new();
         for (pose, q) in qs.iter().enumerate() {

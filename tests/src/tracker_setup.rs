@@ -3,7 +3,8 @@
 //! held-out folders. Only kincal's reader and model file loader are used, no forward code.
 
 use crate::tracker_gen::TrackerData as Generated;
-use kincal::data::tracker::{load_dir, TrackerData};
+use kincal::data::tracker::load_dir;
+use kincal::data::Observations;
 use kincal::model::{ArmModel, ParamId};
 use std::path::{Path, PathBuf};
 
@@ -38,7 +39,7 @@ pub fn nominal_model(generated: &Generated, dir: &Path) -> ArmModel {
 
 /// Write the generated sessions into `dir/cal` (the indices `cal`) and `dir/val` and read them
 /// back.
-pub fn split(generated: &Generated, dir: &Path, cal: &[usize]) -> (TrackerData, TrackerData) {
+pub fn split(generated: &Generated, dir: &Path, cal: &[usize]) -> (Observations, Observations) {
     let all = dir.join("all");
     generated.write(&all).expect("sessions written");
     let (c, v) = (dir.join("cal"), dir.join("val"));

@@ -5,7 +5,7 @@
 //! changed, no staging folder left. Cases run in parallel, each in its own copy of the inputs.
 
 use kincal_e2e::corpus::{
-    all, copy_tree, edit_json, replace, run_corpus, unchanged, words, write, Case, Check, Expect, Setup,
+    all, assert_all_pass, copy_tree, edit_json, replace, unchanged, words, write, Case, Check, Expect, Setup,
 };
 use kincal_e2e::kincal_bin;
 use serde_json::{json, Value};
@@ -286,6 +286,16 @@ fn tracker_file_cases(cases: &mut Vec<Case>) {
             &[],
             &["--artefact is required", "tracker/cal holds no tracker sessions", "# kincal-tracker/1"],
         ),
+        fails(
+            "joint angles in radians (ROS joint_states) under q1_deg",
+            edit_text(S1, |t| joints_in_radians(t, false)),
+            &[],
+            &["session_1.csv:2: column `q1_deg`", "within ±2π", "radians", "q1_rad … q7_rad"],
+        ),
+        passes(
+            "joint angles in radians under q1_rad … q7_rad",
+            edit_text(S1, |t| joints_in_radians(t, true)),
+        ),
         passes("a byte-order mark", edit_text(S1, |t| format!("\u{feff}{t}"))),
         passes("CRLF line ends", edit_text(S1, |t| t.replace('\n', "\r\n"))),
         fails(
@@ -323,6 +333,29 @@ fn tracker_file_cases(cases: &mut Vec<Case>) {
             &["--drift-session session_9:scale-time", "no calibration session"],
         ),
     ]);
+}
+
+/// A tracker CSV with its seven joint columns in radians, as ROS `joint_states` gives them; the
+/// header renamed to `qN_rad` when `rename`.
+fn joints_in_radians(text: &str, rename: bool) -> String {
+    let mut lines = text.lines();
+    let mut out = format!("{}\n", lines.next().unwrap_or_default());
+    let header = lines.next().unwrap_or_default();
+    out += &if rename { header.replace("_deg", "_rad") } else { header.to_string() };
+    out.push('\n');
+    for line in lines {
+        let cells: Vec<String> = line
+            .split(',')
+            .enumerate()
+            .map(|(c, v)| match (c, v.parse::<f64>()) {
+                (1..=7, Ok(deg)) => format!("{:.9}", deg.to_radians()),
+                _ => v.to_string(),
+            })
+            .collect();
+        out += &cells.join(",");
+        out.push('\n');
+    }
+    out
 }
 
 /// `kincal model from-urdf` on the template's URDF into m.toml, with other words.
@@ -390,7 +423,7 @@ fn urdf_cases(cases: &mut Vec<Case>) {
         fails("to-urdf of a DH model", unchanged(), to_urdf("tracker/model.toml"), &["robot.urdf", "the model is not this chain", "7 Classic joints"]),
         fails("to-urdf of the six-joint SUTA model", unchanged(), to_urdf("model.toml"), &["the model is not this chain", "6 Classic joints", "7 revolute joints"]),
         fails("to-urdf into another URDF", replace_nth(U, 4, "<axis xyz=\"0 0 1\"/>", "<axis xyz=\"0 1 0\"/>"), to_urdf("tracker/urdf_model.toml"), &["robot.urdf:30: <joint name=\"joint_4\">/<axis>", "the model's joint 4 turns about", "not made from this chain"]),
-        fails("to-urdf over its own URDF", unchanged(), words(&["model", "to-urdf", "tracker/urdf_model.toml", "--urdf", U, "--out", U], CHAIN), &["--out tracker/robot.urdf is the URDF it is made from"]),
+        fails("to-urdf over its own URDF", unchanged(), words(&["model", "to-urdf", "tracker/urdf_model.toml", "--urdf", U, "--out", U], CHAIN), &["tracker/robot.urdf", "--out", "is the same file as the input tracker/robot.urdf"]),
     ]);
 }
 
@@ -405,9 +438,9 @@ fn tracker_cases(cases: &mut Vec<Case>) {
                 &std::fs::read_to_string(dir.join("tout/summary.json")).map_err(|e| e.to_string())?,
             )
             .map_err(|e| e.to_string())?;
-            let rms = s["validation"]["sessions"][0]["rms_mm"]
+            let rms = s["validation"]["sessions"]["sessions"][0]["rms_mm"]
                 .as_f64()
-                .ok_or("no validation.sessions[0].rms_mm")?;
+                .ok_or("no validation.sessions.sessions[0].rms_mm")?;
             (rms > 0.0 && rms < 1.0).then_some(()).ok_or(format!("held-out RMS {rms}"))
         })),
     ));
@@ -489,8 +522,8 @@ fn tracker_cases(cases: &mut Vec<Case>) {
             &["calibrate", "--model", "tracker/model.toml", "--data", "tracker/cal", "--validate", "tracker", "--out", "tout"],
             &[],
         )),
-        fails("--float-tool on artefact data", unchanged(), &[], &["--float-tool, --exclude-point, --drift-session and --orientation-sigma-deg apply to tracker sessions"]).with_args(
-            [cal(), vec!["--float-tool", "C_A"]].concat().into_iter().map(String::from).collect(),
+        fails("--orientation-sigma-deg on artefact data", unchanged(), &[], &["--orientation-sigma-deg: not for artefact data", "no probe orientation"]).with_args(
+            [cal(), vec!["--orientation-sigma-deg", "0.01"]].concat().into_iter().map(String::from).collect(),
         ),
     ]);
 }
@@ -500,9 +533,9 @@ fn calibrated(out: &'static str, touches: u64) -> Option<Check> {
     Some(Box::new(move |dir: &Path| {
         let text = std::fs::read_to_string(dir.join(out).join("summary.json")).map_err(|e| e.to_string())?;
         let s: Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
-        let rms = s["validation"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
-        let pairs = s["validation"]["pairs"].as_u64().unwrap_or(0);
-        let used = s["calibration"]["touches"].as_u64().unwrap_or(0);
+        let rms = s["validation"]["distances"]["calibrated"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
+        let pairs = s["validation"]["distances"]["calibrated"]["count"].as_u64().unwrap_or(0);
+        let used = s["calibration"]["observations"].as_u64().unwrap_or(0);
         if !(rms.is_finite() && rms > 0.0 && rms < 1.0 && pairs > 0) {
             return Err(format!("validation RMS {rms} mm over {pairs} pairs is not a plausible result"));
         }
@@ -594,7 +627,7 @@ const MODEL_TEXT_EDITS: &[TextEdit] = &[
         "seven joints",
         "\n[free]\n",
         "\n[[joint]]\noffset_deg = 0\nd_mm = 0\na_mm = 0\nalpha_deg = 0\n[free]\n",
-        &["artefact sessions record the SUTA's 6 encoder angles", "the model has 7 joints"],
+        &["artefact sessions record 6 encoder angles", "the model has 7 joints"],
     ),
     ("unknown key", SCALE, "scale_ppm = 0.0\nscael = 1", &["model.toml", "scael"]),
     ("unknown effect", SCALE, "scale_ppm = 0.0\neffects = [\"wobble:2\"]", &["wobble:2", "unknown effect"]),
@@ -758,6 +791,11 @@ fn artefact_cases(cases: &mut Vec<Case>) {
             &["landmarks[7].xyz_mm", "cannot share a point"],
         ),
         ("duplicate id", lm(|l| l[5]["id"] = l[2]["id"].clone()), &["landmarks[5].id", "duplicate"]),
+        (
+            "empty certificate",
+            edit_json(a, |v| v["certificate"] = json!(" ")),
+            &["artefact.json", "certificate"],
+        ),
         ("empty id", lm(|l| l[5]["id"] = json!(" ")), &["landmarks[5].id"]),
         ("xyz null", lm(|l| l[2]["xyz_mm"][1] = Value::Null), &["artefact.json", "xyz_mm"]),
         ("xyz text", lm(|l| l[2]["xyz_mm"][1] = json!("12")), &["artefact.json", "xyz_mm"]),
@@ -885,6 +923,29 @@ fn session_cases(cases: &mut Vec<Case>) {
             &["not trustworthy"],
         ),
         ("repeat 0", m0(|m| m["repeat"] = json!(0)), &["measurements[0].repeat", "from 1"]),
+        (
+            "arm id with a space",
+            session(CA, |v| v["arm"] = json!({"id": "lab arm"})),
+            &["C_A.json", "arm.id", "not an arm identity"],
+        ),
+        ("arm without id", session(CA, |v| v["arm"] = json!({"board": "b"})), &["C_A.json", "id"]),
+        (
+            "one session of another arm",
+            all(vec![
+                edit_json("data/cal/C_A.json", |v| v["arm"] = json!({"id": "lab-arm-A"})),
+                edit_json("data/cal/C_B.json", |v| v["arm"] = json!({"id": "lab-arm-B"})),
+            ]),
+            &[
+                "C_A.json was recorded on arm lab-arm-A",
+                "C_B.json on arm lab-arm-B",
+                "one calibration is of one arm",
+            ],
+        ),
+        (
+            "one session names its arm, the others none",
+            edit_json("data/cal/C_A.json", |v| v["arm"] = json!({"id": "lab-arm-A"})),
+            &["C_A.json was recorded on arm lab-arm-A", "names no arm"],
+        ),
         ("repeat -1", m0(|m| m["repeat"] = json!(-1)), &["C_A.json", "repeat"]),
         ("repeat 1.5", m0(|m| m["repeat"] = json!(1.5)), &["C_A.json", "repeat"]),
         (
@@ -1445,18 +1506,18 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
     let list: Vec<(&str, Setup, &[&str])> = vec![
         (
             "validation rms null",
-            edit_json(s, |v| v["validation"]["rms_mm"] = Value::Null),
+            edit_json(s, |v| v["validation"]["distances"]["calibrated"]["rms_mm"] = Value::Null),
             &["summary.json", "rms_mm"],
         ),
         (
             "validation rms text",
-            edit_json(s, |v| v["validation"]["rms_mm"] = json!("0.15")),
+            edit_json(s, |v| v["validation"]["distances"]["calibrated"]["rms_mm"] = json!("0.15")),
             &["summary.json", "rms_mm"],
         ),
         (
             "pairs negative",
-            edit_json(s, |v| v["validation"]["pairs"] = json!(-3)),
-            &["summary.json", "pairs"],
+            edit_json(s, |v| v["validation"]["distances"]["calibrated"]["count"] = json!(-3)),
+            &["summary.json", "count"],
         ),
         (
             "calibration missing",
@@ -1488,13 +1549,13 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
         ),
         (
             "unknown added effect",
-            edit_json(s, |v| v["options"]["added_effects"] = json!(["nonsense:9"])),
-            &["summary.json", "options.added_effects", "nonsense:9"],
+            edit_json(s, |v| v["inputs"]["add"] = json!(["nonsense:9"])),
+            &["summary.json", "inputs.add", "nonsense:9"],
         ),
         (
             "format of a study",
             edit_json(s, |v| v["format"] = json!("kincal-study/1")),
-            &["summary.json", "format", "kincal-run/1"],
+            &["summary.json", "format", "kincal-run/2"],
         ),
         (
             "format missing",
@@ -1568,7 +1629,7 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
         ),
         (
             "summary null rms",
-            edit_json(s, |v| v["nominal_validation"]["rms_mm"] = Value::Null),
+            edit_json(s, |v| v["validation"]["distances"]["nominal"]["rms_mm"] = Value::Null),
             &["summary.json", "rms_mm"],
         ),
         (
@@ -1588,13 +1649,15 @@ fn run_folder_cases(cases: &mut Vec<Case>) {
         ),
         (
             "summary validation rms 1e308",
-            edit_json(s, |v| v["validation"]["rms_mm"] = json!(1e308)),
-            &["summary.json", "validation.rms_mm", "1e308"],
+            edit_json(s, |v| v["validation"]["distances"]["calibrated"]["rms_mm"] = json!(1e308)),
+            &["summary.json", "validation.distances.calibrated.rms_mm", "1e308"],
         ),
         (
             "summary per-landmark max -5",
-            edit_json(s, |v| v["validation_detail"]["per_landmark"][2]["stats"]["max_mm"] = json!(-5.0)),
-            &["summary.json", "validation_detail.per_landmark[2].stats.max_mm"],
+            edit_json(s, |v| {
+                v["validation"]["distances"]["detail"]["per_landmark"][2]["stats"]["max_mm"] = json!(-5.0)
+            }),
+            &["summary.json", "validation.distances.detail.per_landmark[2].stats.max_mm"],
         ),
         (
             "summary calibration rms 1e300",
@@ -1894,8 +1957,8 @@ fn random_cases(cases: &mut Vec<Case>, template: &Path) {
                 &std::fs::read_to_string(dir.join("out/summary.json")).map_err(|e| e.to_string())?,
             )
             .map_err(|e| e.to_string())?;
-            let rms = s["validation"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
-            let pairs = s["validation"]["pairs"].as_u64().unwrap_or(0);
+            let rms = s["validation"]["distances"]["calibrated"]["rms_mm"].as_f64().unwrap_or(f64::NAN);
+            let pairs = s["validation"]["distances"]["calibrated"]["count"].as_u64().unwrap_or(0);
             (rms.is_finite() && pairs > 0)
                 .then_some(())
                 .ok_or(format!("validation {rms} mm over {pairs} pairs"))
@@ -1979,6 +2042,195 @@ fn key_cases(cases: &mut Vec<Case>) {
     ));
 }
 
+/// Arm identities, RUN dates and validity periods (issue 32), refused before any controller is
+/// contacted (the port has none behind it), and the emulated arm's script options.
+fn trace_cases(cases: &mut Vec<Case>) {
+    const SECRET: &str = "4b1d2c3e4f5a6b7c8d9e0f1a2b3c4d5e6f7a8b9c0d1e2f3a4b5c6d7e8f9a0b1c";
+    let append = |file: &'static str, text: &'static str| -> Setup {
+        Box::new(move |d: &Path| {
+            let t = std::fs::read_to_string(d.join(file)).unwrap();
+            std::fs::write(d.join(file), format!("{t}\n{text}")).unwrap();
+        })
+    };
+    for (name, text, needles) in [
+        (
+            "arm id with a space",
+            "[arm]\nid = \"lab arm\"\n",
+            &["model.toml", "arm.id", "not an arm identity"][..],
+        ),
+        ("arm id empty", "[arm]\nid = \"\"\n", &["model.toml", "arm.id"]),
+        ("arm id of 25 characters", "[arm]\nid = \"aaaaaaaaaaaaaaaaaaaaaaaaa\"\n", &["model.toml", "arm.id"]),
+        ("arm without id", "[arm]\nfirmware = \"fw\"\n", &["model.toml", "id"]),
+        ("arm with an unknown key", "[arm]\nid = \"a\"\nserial = 7\n", &["model.toml", "serial"]),
+        (
+            "arm firmware with a newline",
+            "[arm]\nid = \"a\"\nfirmware = \"fw\\n2\"\n",
+            &["model.toml", "arm.firmware"],
+        ),
+    ] {
+        cases.push(Case::fails(
+            &format!("trace/model {name}"),
+            append("model.toml", text),
+            words(&cal(), &[]),
+            needles,
+        ));
+    }
+    let key = || write("station.key", &format!("kincal-station-key/1\n{SECRET}\n"));
+    let upload = |model: &str, extra: &[&str]| {
+        words(&["upload", "--key", "station.key", "--port", "tcp:127.0.0.1:9", model], extra)
+    };
+    let mut fails = |name: &str, setup: Setup, args: Vec<String>, needles: &[&str]| {
+        cases.push(Case::fails(&format!("trace/{name}"), setup, args, needles))
+    };
+    fails(
+        "upload --valid-days of a model not in a RUN",
+        key(),
+        upload("model.toml", &["--valid-days", "30"]),
+        &["--valid-days", "model.toml", "not a RUN's model"],
+    );
+    fails(
+        "upload --valid-days 0",
+        key(),
+        upload("run/model.toml", &["--valid-days", "0"]),
+        &["--valid-days 0"],
+    );
+    fails("upload --valid-days -3", key(), upload("run/model.toml", &["--valid-days=-3"]), &["--valid-days"]);
+    fails(
+        "upload a validity that has passed",
+        all(vec![key(), edit_json("run/summary.json", |v| v["validated_at_unix_s"] = json!(1_000_000_000))]),
+        upload("run/model.toml", &["--valid-days", "365"]),
+        &["valid for 365 days", "2002-09-09", "before this upload"],
+    );
+    fails(
+        "upload a RUN whose date is text",
+        all(vec![key(), edit_json("run/summary.json", |v| v["validated_at_unix_s"] = json!("yesterday"))]),
+        upload("run/model.toml", &[]),
+        &["summary.json", "validated_at_unix_s", "Unix seconds"],
+    );
+    fails(
+        "upload a RUN whose date is 0",
+        all(vec![key(), edit_json("run/summary.json", |v| v["validated_at_unix_s"] = json!(0))]),
+        upload("run/model.toml", &[]),
+        &["summary.json", "validated_at_unix_s"],
+    );
+    fails(
+        "upload a RUN without its summary's file",
+        all(vec![key(), Box::new(|d: &Path| std::fs::create_dir_all(d.join("run/summary.json.d")).unwrap())]),
+        upload("run/nominal.toml", &["--valid-days", "5"]),
+        &["nominal.toml", "not a RUN's model"],
+    );
+    fails(
+        "check with one repeat",
+        unchanged(),
+        words(
+            &[
+                "check",
+                "--port",
+                "tcp:127.0.0.1:9",
+                "--artefact",
+                "data/artefact.json",
+                "--placement",
+                "V_A",
+                "--out",
+                "c",
+                "--repeats",
+                "1",
+            ],
+            &[],
+        ),
+        &["--repeats", "1"],
+    );
+    let script = |extra: &[&str]| {
+        words(
+            &[
+                "emulated-arm",
+                "script",
+                "--geometry",
+                "data/truth.toml",
+                "--artefact",
+                "data/artefact.json",
+                "--placement",
+                "V_A",
+            ],
+            extra,
+        )
+    };
+    fails(
+        "script knock without a delta",
+        unchanged(),
+        script(&["--knock", "offset:2", "--out", "s.json"]),
+        &["--knock offset:2", "PARAM=DELTA"],
+    );
+    fails(
+        "script knock of an unknown parameter",
+        unchanged(),
+        script(&["--knock", "wobble:2=1", "--out", "s.json"]),
+        &["--knock wobble:2=1"],
+    );
+    fails(
+        "script knock of a joint the arm lacks",
+        unchanged(),
+        script(&["--knock", "offset:9=1", "--out", "s.json"]),
+        &["--knock offset:9=1"],
+    );
+    fails(
+        "script knock nan",
+        unchanged(),
+        script(&["--knock", "offset:2=nan", "--out", "s.json"]),
+        &["--knock offset:2=nan"],
+    );
+    fails(
+        "script over an existing file",
+        unchanged(),
+        script(&["--out", "model.toml"]),
+        &["model.toml exists", "never replaces"],
+    );
+    fails(
+        "script seating noise negative",
+        unchanged(),
+        script(&["--seating-noise-mm=-1", "--out", "s.json"]),
+        &["--seating-noise-mm"],
+    );
+    fails(
+        "script of a 7-joint geometry",
+        unchanged(),
+        words(
+            &[
+                "emulated-arm",
+                "script",
+                "--geometry",
+                "tracker/model.toml",
+                "--artefact",
+                "data/artefact.json",
+                "--placement",
+                "V_A",
+                "--out",
+                "s.json",
+            ],
+            &[],
+        ),
+        &["tracker/model.toml", "6 joints"],
+    );
+    fails(
+        "start with a bad arm id",
+        unchanged(),
+        words(&["emulated-arm", "start", "--arm-id", "arm,A"], &[]),
+        &["--arm-id", "arm,A"],
+    );
+    cases.push(Case::succeeds(
+        "trace/script of the simulated arm",
+        unchanged(),
+        script(&["--repeats", "2", "--out", "s.json"]),
+        Some(Box::new(|dir: &Path| {
+            let text = std::fs::read_to_string(dir.join("s.json")).map_err(|e| e.to_string())?;
+            let steps = serde_json::from_str::<Value>(&text).map_err(|e| e.to_string())?["steps"]
+                .as_array()
+                .map_or(0, |s| s.len());
+            (steps == 30).then_some(()).ok_or(format!("{steps} steps, expected 15 landmarks × 2"))
+        })),
+    ));
+}
+
 fn corpus(template: &Path) -> Vec<Case> {
     let mut cases = Vec::new();
     random_cases(&mut cases, template);
@@ -1996,6 +2248,7 @@ fn corpus(template: &Path) -> Vec<Case> {
     tracker_file_cases(&mut cases);
     urdf_cases(&mut cases);
     key_cases(&mut cases);
+    trace_cases(&mut cases);
     cases
 }
 
@@ -2005,23 +2258,7 @@ fn every_bad_input_ends_in_a_clear_error_or_a_correct_result() {
     let _ = std::fs::remove_dir_all(&root);
     let template = template(&root);
     let cases = corpus(&template);
-    let mut names: Vec<&str> = cases.iter().map(|c| c.name.as_str()).collect();
-    names.sort_unstable();
-    names.dedup();
-    assert_eq!(names.len(), cases.len(), "case names must be unique");
     assert!(cases.len() >= 300, "only {} cases", cases.len());
-
-    let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
-    let started = std::time::Instant::now();
-    let failures =
-        run_corpus(&kincal_bin(), &template, &root.join("cases"), &cases, threads, Duration::from_secs(60));
-    println!("{} cases in {:.1} s on {threads} threads", cases.len(), started.elapsed().as_secs_f64());
-    assert!(
-        failures.is_empty(),
-        "{} of {} cases failed:\n{}",
-        failures.len(),
-        cases.len(),
-        failures.join("\n\n")
-    );
+    assert_all_pass(&kincal_bin(), &template, &root.join("cases"), &cases, Duration::from_secs(60));
     std::fs::remove_dir_all(&root).ok();
 }

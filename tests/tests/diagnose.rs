@@ -2,13 +2,14 @@
 //! held-out error falls to the noise floor. Data come from the simulator's independent forward
 //! path (plain 4×4 matrices with the effects written out again), not from the model's code.
 
-use kincal::calib::auto::{auto_loop, Stop};
-use kincal::calib::calibrate::{calibrate, CalibrationOptions};
-use kincal::calib::data_errors::{calibrate_with_landmark_freed, without};
+use kincal::calib::diagnose::auto::{auto_loop, Stop};
+use kincal::calib::diagnose::data_errors::touches::calibrate_with_landmark_freed;
 use kincal::calib::diagnose::diagnose;
-use kincal::calib::objective::Objective;
+use kincal::calib::fit::calibrate;
+use kincal::calib::setup::Objective;
+use kincal::calib::setup::{Setup, SolveOptions};
 use kincal::calib::validate::validate;
-use kincal::data::Dataset;
+use kincal::data::Observations;
 use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
 use kincal::simulate::{
@@ -46,39 +47,43 @@ fn run_case(case: &Case) -> Outcome {
         &nominal,
         &SimulationOptions { seed: case.seed, hidden: case.hidden.clone(), ..SimulationOptions::default() },
     );
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let options = CalibrationOptions {
-        restarts: 2,
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+    let options = SolveOptions {
+        restarts: Some(2),
         seed: case.seed,
-        objective: case.objective,
-        ..CalibrationOptions::default()
+        objective: Some(case.objective),
+        ..SolveOptions::default()
     };
-    let fit = calibrate(&nominal, &sim.artefact, &cal, &options).expect("calibrates");
-    let floor = validate(&sim.truth, &sim.artefact, &val).overall.rms_mm;
-    let before = validate(&fit.model, &sim.artefact, &val).overall.rms_mm;
-    let d = diagnose(&fit.model, &sim.artefact, &cal, &val, &options);
+    let fit = calibrate(&nominal, &cal, &options).expect("calibrates");
+    let floor = validate(&sim.truth, &val).overall.rms_mm;
+    let before = validate(&fit.model, &val).overall.rms_mm;
+    let d = diagnose(&Setup::new(options.clone()), &fit.model, &cal, &val).unwrap();
     let leader = d.candidates.first().expect("some candidate");
     // Effects the data cannot tell apart are reported together; the hidden one must lead or be
     // named in the leading group.
     let first = if leader.equivalent.iter().any(|e| e == case.effect) {
         case.effect.to_string()
     } else {
-        leader.effect.clone()
+        leader.name.clone()
     };
     let significant = leader.significant;
     print_sequence(&d);
     eprintln!(
         "  leader {}: blocks {:?} mean log ratio {:.3} p {:.2e} ΔBIC {:.1}",
-        leader.effect, leader.blocks_improved, leader.mean_log_ratio, leader.p_value, leader.delta_bic
+        leader.name,
+        leader.parts_improved,
+        leader.mean_log_ratio,
+        leader.p_value,
+        leader.ranking.delta_bic.unwrap_or(f64::NAN)
     );
     if !leader.equivalent.is_empty() {
-        eprintln!("  leading group: {} ≡ {}", leader.effect, leader.equivalent.join(", "));
+        eprintln!("  leading group: {} ≡ {}", leader.name, leader.equivalent.join(", "));
     }
     let mut with = nominal.clone();
     Effect::parse(case.effect).unwrap().add_to(&mut with);
-    let refit = calibrate(&with, &sim.artefact, &cal, &options).expect("calibrates with the effect");
-    let after = validate(&refit.model, &sim.artefact, &val).overall.rms_mm;
+    let refit = calibrate(&with, &cal, &options).expect("calibrates with the effect");
+    let after = validate(&refit.model, &val).overall.rms_mm;
     eprintln!("{:<16} floor {floor:.3}  before {before:.3} ({:+.0} %)  first {first} significant {significant}  after {after:.3} ({:+.1} %)", case.effect, 100.0 * (before / floor - 1.0), 100.0 * (after / floor - 1.0));
     Outcome { floor, before, first, significant, after }
 }
@@ -87,23 +92,28 @@ fn run_case(case: &Case) -> Outcome {
 fn print_sequence(d: &kincal::calib::diagnose::Diagnosis) {
     let mut all: Vec<&kincal::calib::diagnose::Candidate> =
         d.candidates.iter().chain(&d.data_errors).collect();
-    all.sort_by(|a, b| b.calibration_z.total_cmp(&a.calibration_z));
+    all.sort_by(|a, b| b.ranking.calibration_z.total_cmp(&a.ranking.calibration_z));
     for c in all.iter().take(6) {
         eprintln!(
             "    z {:7.1} {:<18} {:.3} mm p {:.3} placements {:?} refitted {} significant {}",
-            c.calibration_z,
-            c.effect,
-            c.validation_rms_mm,
+            c.ranking.calibration_z,
+            c.name,
+            c.held_out_rms_mm,
             c.p_value,
-            c.placements_improved,
-            c.refitted,
+            c.units_improved,
+            c.ranking.refitted,
             c.significant
         );
     }
     for r in &d.rivals {
         eprintln!(
             "    rival {} vs {}: {:?} (p {:.3} / {:.3}, λ {:.1})",
-            r.a, r.b, r.verdict, r.a_adds_p, r.b_adds_p, r.separability
+            r.a,
+            r.b,
+            r.verdict,
+            r.a_adds_p,
+            r.b_adds_p,
+            r.separability.unwrap_or(f64::NAN)
         );
     }
     eprintln!("    named {:?}", d.named);
@@ -235,7 +245,7 @@ fn tool_offset_is_found_when_the_tool_flange_length_is_trusted() {
         effect: "tcp",
         fixed: vec![p("length:6")],
         seed: 61,
-        objective: Objective::SixDof { lever_mm: 100.0 },
+        objective: Objective::SixDof { lever_mm: Some(100.0) },
     });
 }
 
@@ -258,20 +268,20 @@ fn with_no_hidden_effect_nothing_is_significant_and_a_wrong_effect_does_not_help
     for seed in [81, 82] {
         let nominal = ArmModel::suta_nominal();
         let sim = simulate(&nominal, &SimulationOptions { seed, ..SimulationOptions::default() });
-        let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-        let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-        let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
-        let fit = calibrate(&nominal, &sim.artefact, &cal, &options).unwrap();
-        let d = diagnose(&fit.model, &sim.artefact, &cal, &val, &options);
+        let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+        let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+        let options = SolveOptions { restarts: Some(2), seed, ..SolveOptions::default() };
+        let fit = calibrate(&nominal, &cal, &options).unwrap();
+        let d = diagnose(&Setup::new(options.clone()), &fit.model, &cal, &val).unwrap();
         let significant: Vec<&str> =
-            d.candidates.iter().filter(|c| c.significant).map(|c| c.effect.as_str()).collect();
+            d.candidates.iter().filter(|c| c.significant).map(|c| c.name.as_str()).collect();
         assert!(significant.is_empty(), "seed {seed}: spurious effects {significant:?}");
-        let before = validate(&fit.model, &sim.artefact, &val).overall.rms_mm;
+        let before = validate(&fit.model, &val).overall.rms_mm;
         for wrong in ["eccentricity:3", "compliance:2", "twist:2"] {
             let mut with = nominal.clone();
             Effect::parse(wrong).unwrap().add_to(&mut with);
-            let refit = calibrate(&with, &sim.artefact, &cal, &options).unwrap();
-            let after = validate(&refit.model, &sim.artefact, &val).overall.rms_mm;
+            let refit = calibrate(&with, &cal, &options).unwrap();
+            let after = validate(&refit.model, &val).overall.rms_mm;
             assert!(
                 after >= 0.99 * before,
                 "seed {seed}: adding {wrong} lowered validation RMS {before} → {after}"
@@ -284,10 +294,10 @@ fn with_no_hidden_effect_nothing_is_significant_and_a_wrong_effect_does_not_help
 /// model; returns the simulation, datasets, fit, options and the true floor.
 struct Scenario {
     sim: kincal::simulate::SimulatedData,
-    cal: Dataset,
-    val: Dataset,
+    cal: Observations,
+    val: Observations,
     nominal: ArmModel,
-    options: CalibrationOptions,
+    options: SolveOptions,
     /// Validation RMS of the true arm against the true artefact: the noise floor.
     floor: f64,
 }
@@ -306,13 +316,13 @@ fn scenario(
         &errors,
     );
     sim.validation.truncate(validation_placements);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+    let options = SolveOptions { restarts: Some(2), seed, ..SolveOptions::default() };
     // The true arm's model cannot hold an error outside the library: its floor is that of the
     // same arm and noise without it (a twin dataset of the same seed).
     let floor = if errors.encoder_harmonics.is_empty() {
-        validate(&sim.truth, &sim.true_artefact, &val).overall.rms_mm
+        validate(&sim.truth, &val.with_landmarks(&sim.true_artefact.landmarks)).overall.rms_mm
     } else {
         let twin = simulate(
             &nominal,
@@ -320,9 +330,7 @@ fn scenario(
         );
         let mut twin_val = twin.validation;
         twin_val.truncate(validation_placements);
-        validate(&twin.truth, &twin.artefact, &Dataset::from_sessions(&twin_val, &twin.artefact))
-            .overall
-            .rms_mm
+        validate(&twin.truth, &Observations::from_sessions(&twin_val, &twin.artefact)).overall.rms_mm
     };
     Scenario { sim, cal, val, nominal, options, floor }
 }
@@ -347,8 +355,8 @@ fn with_ten_validation_placements(mut s: Scenario, seed: u64) -> Scenario {
             record_placement(&s.sim.truth, &s.sim.artefact, &place, "validation", &options, &mut rng);
         s.sim.validation.push(session);
     }
-    s.val = Dataset::from_sessions(&s.sim.validation, &s.sim.artefact);
-    s.floor = validate(&s.sim.truth, &s.sim.true_artefact, &s.val).overall.rms_mm;
+    s.val = Observations::from_sessions(&s.sim.validation, &s.sim.artefact);
+    s.floor = validate(&s.sim.truth, &s.val.with_landmarks(&s.sim.true_artefact.landmarks)).overall.rms_mm;
     s
 }
 
@@ -358,13 +366,13 @@ fn clean_data_floor_estimate_and_nothing_flagged() {
         let s = scenario(seed, vec![], HiddenErrors::default(), 5);
         // Two of the seeds with ten validation placements (30 blocks).
         let s = if seed >= 94 { with_ten_validation_placements(s, seed) } else { s };
-        let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
-        let d = diagnose(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options);
-        let floor = d.floor.as_ref().expect("repeats give a floor");
-        let gap = d.gap.as_ref().unwrap();
+        let fit = calibrate(&s.nominal, &s.cal, &s.options).unwrap();
+        let d = diagnose(&Setup::new(s.options.clone()), &fit.model, &s.cal, &s.val).unwrap();
+        let floor = d.floor.distances.as_ref().expect("repeats give a floor");
+        let gap = d.floor.gap.as_ref().unwrap();
         eprintln!(
             "seed {seed} ({} validation placements): true floor {:.4} estimated {:.4} (encoder share {:.4}) expected {:.4} measured {:.4} z {:.2}",
-            s.val.placements.len(),
+            s.val.groups.len(),
             s.floor,
             floor.distance_rms_mm,
             floor.encoder_rms_mm.unwrap_or(f64::NAN),
@@ -387,10 +395,10 @@ fn clean_data_floor_estimate_and_nothing_flagged() {
             "seed {seed}: data errors flagged on clean data: {:?} {:?} {:?}",
             d.disturbed,
             d.mis_seated,
-            d.data_errors.iter().filter(|c| c.significant).map(|c| &c.effect).collect::<Vec<_>>()
+            d.data_errors.iter().filter(|c| c.significant).map(|c| &c.name).collect::<Vec<_>>()
         );
         let significant: Vec<&str> =
-            d.candidates.iter().filter(|c| c.significant).map(|c| c.effect.as_str()).collect();
+            d.candidates.iter().filter(|c| c.significant).map(|c| c.name.as_str()).collect();
         assert!(significant.is_empty(), "seed {seed}: spurious effects {significant:?}");
         // "At the floor" needs an equivalence test to pass; otherwise the report says it cannot
         // tell — never that the model misses something.
@@ -404,8 +412,8 @@ fn clean_data_floor_estimate_and_nothing_flagged() {
 }
 
 fn calibrated(s: &Scenario) -> (ArmModel, kincal::calib::diagnose::Diagnosis) {
-    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
-    let d = diagnose(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options);
+    let fit = calibrate(&s.nominal, &s.cal, &s.options).unwrap();
+    let d = diagnose(&Setup::new(s.options.clone()), &fit.model, &s.cal, &s.val).unwrap();
     for line in &d.summary {
         eprintln!("  {line}");
     }
@@ -419,7 +427,7 @@ fn a_wrong_certificate_is_named_before_any_arm_effect_and_fixing_it_reaches_the_
     let s = scenario(101, vec![], errors, 5);
     let (_, d) = calibrated(&s);
     let first = d.data_errors.first().expect("data errors are scored");
-    assert_eq!(first.effect, "landmark:S2");
+    assert_eq!(first.name, "landmark:S2");
     assert!(first.significant, "{first:?}");
     assert!(d.summary.iter().any(|l| l.starts_with("data error: landmark:S2")), "{:?}", d.summary);
     assert!(
@@ -429,13 +437,11 @@ fn a_wrong_certificate_is_named_before_any_arm_effect_and_fixing_it_reaches_the_
     );
     // The suggested actions: drop the landmark, or fit its position.
     let s2 = s.sim.artefact.index_of("S2").unwrap();
-    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal.without_landmark(s2), &s.options).unwrap();
-    let excluded = validate(&fit.model, &s.sim.artefact, &s.val.without_landmark(s2)).overall.rms_mm;
-    let floor_without =
-        validate(&s.sim.truth, &s.sim.true_artefact, &s.val.without_landmark(s2)).overall.rms_mm;
-    let (freed, corrected) =
-        calibrate_with_landmark_freed(&s.nominal, &s.sim.artefact, &s.cal, s2, &s.options).unwrap();
-    let with_freed = validate(&freed.model, &corrected, &s.val).overall.rms_mm;
+    let fit = calibrate(&s.nominal, &s.cal.without_landmark(s2), &s.options).unwrap();
+    let excluded = validate(&fit.model, &s.val.without_landmark(s2)).overall.rms_mm;
+    let floor_without = validate(&s.sim.truth, &s.val.without_landmark(s2)).overall.rms_mm;
+    let (freed, corrected) = calibrate_with_landmark_freed(&s.nominal, &s.cal, s2, &s.options).unwrap();
+    let with_freed = validate(&freed.model, &s.val.with_landmarks(&corrected)).overall.rms_mm;
     eprintln!("floor {:.3} / {floor_without:.3}; excluded {excluded:.3}; freed {with_freed:.3}", s.floor);
     assert!(excluded <= 1.15 * floor_without, "excluding S2: {excluded} vs floor {floor_without}");
     assert!(with_freed <= 1.15 * s.floor, "freeing S2: {with_freed} vs floor {}", s.floor);
@@ -453,7 +459,7 @@ fn an_artefact_knocked_within_a_repeat_is_named_with_its_touch() {
     let s = scenario(102, vec![], HiddenErrors { knock: Some(knock), ..Default::default() }, 5);
     let (_, d) = calibrated(&s);
     let block = d.disturbed.first().expect("the knocked block is flagged");
-    assert_eq!((s.cal.placements[block.placement].as_str(), block.repeat, block.after_touch), ("C_A", 2, 8));
+    assert_eq!((s.cal.groups[block.placement].name.as_str(), block.repeat, block.after_touch), ("C_A", 2, 8));
     assert_eq!(d.disturbed.len(), 1, "{:?}", d.disturbed);
     assert!(d.summary.iter().any(|l| l.contains("block:C_A/2") && l.contains("#9")), "{:?}", d.summary);
     assert!(
@@ -461,10 +467,9 @@ fn an_artefact_knocked_within_a_repeat_is_named_with_its_touch() {
         "an arm effect is claimed: {:?}",
         d.summary
     );
-    let kept =
-        without(&s.cal, |k| s.cal.touches[k].placement == block.placement && s.cal.touches[k].repeat == 2);
-    let fit = calibrate(&s.nominal, &s.sim.artefact, &kept, &s.options).unwrap();
-    let after = validate(&fit.model, &s.sim.artefact, &s.val).overall.rms_mm;
+    let kept = s.cal.without(|k| s.cal.obs[k].group == block.placement && s.cal.obs[k].repeat == 2);
+    let fit = calibrate(&s.nominal, &kept, &s.options).unwrap();
+    let after = validate(&fit.model, &s.val).overall.rms_mm;
     eprintln!("floor {:.3} after excluding the block {after:.3}", s.floor);
     assert!(after <= 1.15 * s.floor, "{after} vs floor {}", s.floor);
 }
@@ -475,7 +480,7 @@ fn a_three_per_rev_error_shows_its_pattern_and_harmonic_3_reaches_the_floor() {
     let s =
         scenario(103, vec![], HiddenErrors { encoder_harmonics: vec![harmonic], ..Default::default() }, 5);
     let (_, d) = calibrated(&s);
-    assert!(d.gap.as_ref().unwrap().significant);
+    assert!(d.floor.gap.as_ref().unwrap().significant);
     assert!(
         d.summary.iter().any(|l| l.contains("joint 3") && l.contains("3 per revolution")),
         "the 3-per-rev pattern on joint 3 must be shown: {:?}",
@@ -494,8 +499,8 @@ fn a_three_per_rev_error_shows_its_pattern_and_harmonic_3_reaches_the_floor() {
     assert_eq!(d.named.first().map(String::as_str), Some("harmonic:3:3"), "{:?}", d.summary);
     let mut with = s.nominal.clone();
     Effect::parse("harmonic:3:3").unwrap().add_to(&mut with);
-    let refit = calibrate(&with, &s.sim.artefact, &s.cal, &s.options).unwrap();
-    let after = validate(&refit.model, &s.sim.artefact, &s.val).overall.rms_mm;
+    let refit = calibrate(&with, &s.cal, &s.options).unwrap();
+    let after = validate(&refit.model, &s.val).overall.rms_mm;
     eprintln!("harmonic:3:3 brings {:.3} to {after:.3} (floor {:.3})", d.baseline.rms_mm, s.floor);
     assert!(after <= 1.15 * s.floor, "{after} vs floor {}", s.floor);
 }
@@ -526,18 +531,18 @@ fn a_small_three_per_rev_error_on_joint_3_is_named_and_the_loop_ends_at_the_floo
             "the periodic line must agree with the named effect: {:?}",
             d.summary
         );
-        let run = auto_loop(&fit, &s.sim.artefact, &s.cal, &s.val, &s.options, 4).unwrap();
+        let run = auto_loop(&Setup::new(s.options.clone()), &fit, &s.cal, &s.val, 4).unwrap();
         let last = run.steps.last().unwrap();
-        let added: Vec<&str> = run.steps.iter().filter_map(|s| s.added.as_deref()).collect();
+        let added: Vec<&str> = run.steps.iter().filter_map(|s| s.applied.as_deref()).collect();
         eprintln!(
             "seed {seed}: loop {added:?} ends at {:.4} (true floor {:.4}), stop {:?}",
-            last.validation_rms_mm, s.floor, run.stop
+            last.held_out_rms_mm, s.floor, run.stop
         );
         assert!(added.contains(&"harmonic:3:3"), "the loop must add harmonic:3:3: {added:?}");
         assert!(
-            last.validation_rms_mm <= 1.05 * s.floor,
+            last.held_out_rms_mm <= 1.05 * s.floor,
             "seed {seed}: the loop ends at {} vs true floor {}",
-            last.validation_rms_mm,
+            last.held_out_rms_mm,
             s.floor
         );
     }
@@ -549,12 +554,12 @@ fn compliance_on_joint_3_is_named_not_a_harmonic_and_no_knock_is_flagged() {
         let s = scenario(seed, vec![(p("compliance:3"), 0.2)], HiddenErrors::default(), 5);
         // The repeats are taken in other arm configurations: the knock detector must not read
         // the configuration-dependent sag as the artefact moving.
-        let other_configuration = s.cal.touches.iter().any(|t| {
-            s.cal.touches.iter().any(|u| {
-                u.placement == t.placement
-                    && u.landmark == t.landmark
+        let other_configuration = s.cal.obs.iter().any(|t| {
+            s.cal.obs.iter().any(|u| {
+                u.group == t.group
+                    && u.landmark() == t.landmark()
                     && u.repeat != t.repeat
-                    && !kincal::calib::floor::same_pose(&t.enc_deg, &u.enc_deg)
+                    && !kincal::calib::floor::same_pose(&t.q_deg, &u.q_deg)
             })
         });
         assert!(other_configuration, "seed {seed}: the data must have repeats in other configurations");
@@ -592,13 +597,13 @@ fn with_three_validation_placements_a_large_effect_leads_and_the_report_warns() 
     let leader = &d.candidates[0];
     eprintln!(
         "{}: {:.3} → {:.3} blocks {:?} p {:.1e}",
-        leader.effect, d.baseline.rms_mm, leader.validation_rms_mm, leader.blocks_improved, leader.p_value
+        leader.name, d.baseline.rms_mm, leader.held_out_rms_mm, leader.parts_improved, leader.p_value
     );
-    assert_eq!(leader.blocks_improved.1, 9);
-    assert_eq!(leader.effect, "eccentricity:2");
-    assert!(d.baseline.rms_mm >= 3.0 * leader.validation_rms_mm, "the effect must cut validation RMS 3×");
+    assert_eq!(leader.parts_improved.1, 9);
+    assert_eq!(leader.name, "eccentricity:2");
+    assert!(d.baseline.rms_mm >= 3.0 * leader.held_out_rms_mm, "the effect must cut validation RMS 3×");
     // Three placements are three units: the report says so whatever the verdict.
-    assert_eq!(leader.placements_improved, (3, 3));
+    assert_eq!(leader.units_improved, (3, 3));
     assert!(
         d.summary.iter().any(|l| l.contains("with 3 validation placements") && l.contains("at least 5")),
         "{:?}",
@@ -617,15 +622,15 @@ fn the_auto_loop_adds_a_mixture_of_four_effects_down_to_the_floor() {
     // Ten validation placements: with the placement as the test's unit, five are too few to
     // confirm a third and fourth effect whose gain one placement does not share.
     let s = with_ten_validation_placements(scenario(105, hidden, HiddenErrors::default(), 5), 105);
-    let fit = calibrate(&s.nominal, &s.sim.artefact, &s.cal, &s.options).unwrap();
+    let fit = calibrate(&s.nominal, &s.cal, &s.options).unwrap();
     let started = std::time::Instant::now();
-    let run = auto_loop(&fit.model, &s.sim.artefact, &s.cal, &s.val, &s.options, 8).unwrap();
+    let run = auto_loop(&Setup::new(s.options.clone()), &fit.model, &s.cal, &s.val, 8).unwrap();
     eprintln!("auto loop: {:.2} s, stop {:?}", started.elapsed().as_secs_f64(), run.stop);
     for step in &run.steps {
         eprintln!(
             "  {:<16} {:.3} mm (expected {:.3}) p {:?}",
-            step.added.as_deref().unwrap_or("(start)"),
-            step.validation_rms_mm,
+            step.applied.as_deref().unwrap_or("(start)"),
+            step.held_out_rms_mm,
             step.expected_rms_mm.unwrap_or(f64::NAN),
             step.p_value
         );
@@ -637,19 +642,24 @@ fn the_auto_loop_adds_a_mixture_of_four_effects_down_to_the_floor() {
     for c in run.last.candidates.iter().take(3).chain(run.last.data_errors.iter().take(2)) {
         eprintln!(
             "   {} {:.4} blocks {:?} p {:.2e} ΔBIC {:.1} sig {}",
-            c.effect, c.validation_rms_mm, c.blocks_improved, c.p_value, c.delta_bic, c.significant
+            c.name,
+            c.held_out_rms_mm,
+            c.parts_improved,
+            c.p_value,
+            c.ranking.delta_bic.unwrap_or(f64::NAN),
+            c.significant
         );
     }
     let last = run.steps.last().unwrap();
     assert!(
-        last.validation_rms_mm <= 1.10 * s.floor,
+        last.held_out_rms_mm <= 1.10 * s.floor,
         "the loop ends at {} vs true floor {}",
-        last.validation_rms_mm,
+        last.held_out_rms_mm,
         s.floor
     );
     assert_eq!(run.stop, Stop::AtFloor);
     for pair in run.steps.windows(2) {
-        assert!(pair[1].validation_rms_mm < pair[0].validation_rms_mm, "each step lowers the error");
+        assert!(pair[1].held_out_rms_mm < pair[0].held_out_rms_mm, "each step lowers the error");
         assert!(pair[1].p_value.is_some_and(|p| p < 0.05), "each added effect is significant at its step");
     }
 }

@@ -75,6 +75,34 @@ fn the_whole_loop_brings_the_streamed_pose_to_the_noise_floor() {
     assert!(r.calibrated_pose_rms_mm < 0.15, "calibrated pose error {} mm", r.calibrated_pose_rms_mm);
     assert!(r.floor_pose_rms_mm < 0.01, "floor {}", r.floor_pose_rms_mm);
     assert!(dir.join("run/summary.json").exists() && dir.join("data/cal/A_O.json").exists());
+    // The uploaded RUN belongs to the emulated arm: its model names it, the stored set carries
+    // its hash and a year's validity (recorded in RUN/uploads.json), and its certificate says
+    // calibrated.
+    let run = &r.uploaded_run;
+    assert_eq!(run, &dir.join("run-added"));
+    let model = kincal::model::ArmModel::load(&run.join("model.toml")).unwrap();
+    assert_eq!(model.arm.map(|a| a.id), Some("emulated-arm".to_string()));
+    let uploads = kincal::trace::read_uploads(run).unwrap();
+    let hash = kincal::trace::hex(&kincal::trace::run_sha256(run).unwrap());
+    assert_eq!(uploads.len(), 1, "{uploads:?}");
+    assert_eq!((uploads[0].arm.id.as_str(), uploads[0].run_sha256.as_str()), ("emulated-arm", hash.as_str()));
+    let year = uploads[0].valid_until_unix_s.unwrap() - uploads[0].validated_at_unix_s;
+    assert_eq!(year, 365 * 86_400);
+    let info = link.info().unwrap();
+    assert_eq!(
+        info.param_trace.run_sha256,
+        kincal::trace::run_sha256(run).unwrap(),
+        "the stored set names the RUN"
+    );
+    let certificate = kincal::api::certificate(run, None, 0).unwrap();
+    let reference = certificate.summary.provenance.artefact_certificate.as_deref();
+    assert_eq!(
+        reference,
+        Some("none: simulated by kincal demo, seed 3"),
+        "the reference says it is simulated"
+    );
+    let verdict = certificate.verdict();
+    assert_eq!((verdict.class, verdict.headline.as_str()), ("pass", "CALIBRATED"), "{}", verdict.sentence);
     std::fs::remove_dir_all(&dir).ok();
 }
 

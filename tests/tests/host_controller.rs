@@ -34,6 +34,13 @@ fn script(dir: &Path, artefact: &Artefact) -> PathBuf {
     path
 }
 
+/// The nominal model as calibrated on the fake controller's arm (it names that arm).
+fn model_of_the_fake_arm() -> kincal::model::ArmModel {
+    let mut model = kincal::model::ArmModel::suta_nominal();
+    model.arm = Some(kincal::trace::ArmIdentity::of("emulated-arm"));
+    model
+}
+
 fn measured(path: &Path, artefact: &Artefact) -> Vec<(String, u32)> {
     Session::load(path, artefact)
         .map(|s| s.measurements.into_iter().map(|m| (m.landmark, m.repeat)).collect())
@@ -82,6 +89,22 @@ fn a_killed_record_resumes_without_losing_or_repeating_landmarks() {
         let k = artefact.index_of(&m.landmark).unwrap() as f64;
         assert!((m.joints_deg[0] - k * 1000.0 * 360.0 / 4_194_304.0).abs() < 1e-6, "{m:?}");
     }
+    // The session names the arm it was recorded on; touches of another arm are never added.
+    let arm = kincal::data::session_arm(&session).unwrap().expect("the session names its arm");
+    assert_eq!(
+        (arm.id.as_str(), arm.firmware.as_deref(), arm.board.as_deref()),
+        ("emulated-arm", Some("kincal-fw fake"), Some("host (fake)"))
+    );
+    let text = std::fs::read_to_string(&session).unwrap();
+    std::fs::write(&session, text.replace("\"emulated-arm\"", "\"lab-arm-7\"")).unwrap();
+    let out = Command::new(kincal_bin()).args(args("96")).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("C_A.json: recorded on lab-arm-7") && err.contains("is emulated-arm"), "{err}");
+    std::fs::write(&session, text.replace("\"arm\"", "\"arm_before\"")).unwrap();
+    let out = Command::new(kincal_bin()).args(args("96")).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("names no arm") && err.contains("another --out"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -138,7 +161,7 @@ fn info_params_and_upload_commands_work_through_the_cli() {
     let key_file = kincal_e2e::station_key_file(&dir);
     let key = key_file.to_str().unwrap();
     let model = dir.join("model.toml");
-    kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
+    model_of_the_fake_arm().save(&model).unwrap();
     let run = |args: &[&str]| {
         let out = Command::new(kincal_bin()).args(args).output().unwrap();
         assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
@@ -173,6 +196,19 @@ fn info_params_and_upload_commands_work_through_the_cli() {
     assert!(err.contains("would be a rollback") && err.contains("--version 6"), "{err}");
     assert!(run(&["upload", "--key", key, "--port", &fake.port, model_arg])
         .contains("now holds parameters version 6"));
+    // A model that names no arm goes only where its arm is named, and only to that arm.
+    let unnamed = dir.join("nominal.toml");
+    kincal::model::ArmModel::suta_nominal().save(&unnamed).unwrap();
+    let unnamed = unnamed.to_str().unwrap();
+    let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, unnamed]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("nominal.toml names no arm") && err.contains("--for-arm"), "{err}");
+    let (code, _, err) =
+        kincal(&["upload", "--key", key, "--port", &fake.port, unnamed, "--for-arm", "arm-B"]);
+    assert_eq!(code, Some(1));
+    assert!(err.contains("--for-arm arm-B") && err.contains("controller is arm emulated-arm"), "{err}");
+    let named = run(&["upload", "--key", key, "--port", &fake.port, unnamed, "--for-arm", "emulated-arm"]);
+    assert!(named.contains("now holds parameters version 7") && named.contains("not from a RUN"), "{named}");
     let stream = run(&[
         "stream",
         "--port",
@@ -239,7 +275,7 @@ fn upload_fixture(name: &str) -> (FakeController, PathBuf, String, String) {
     let dir = scratch(name);
     let key = kincal_e2e::station_key_file(&dir).to_str().unwrap().to_string();
     let model = dir.join("model.toml");
-    kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
+    model_of_the_fake_arm().save(&model).unwrap();
     (FakeController::start(1), dir.clone(), key, model.to_str().unwrap().to_string())
 }
 
@@ -282,7 +318,7 @@ fn version_0_and_absurd_sets_are_refused_by_the_host_and_by_the_controller() {
     let key_file = kincal_e2e::station_key_file(&dir);
     let key = key_file.to_str().unwrap();
     let path = dir.join("model.toml");
-    let mut far = kincal::model::ArmModel::suta_nominal();
+    let mut far = model_of_the_fake_arm();
     // Plausible for a model file (≤ 5000 mm), outside what the controller accepts (±2000 mm).
     far.joints[2].a_mm = 3e3;
     far.save(&path).unwrap();
@@ -297,7 +333,7 @@ fn version_0_and_absurd_sets_are_refused_by_the_host_and_by_the_controller() {
         kincal(&["upload", "--key", key, "--port", &fake.port, path.to_str().unwrap(), "--version", "3"]);
     assert_eq!(code, Some(1));
     assert!(err.contains("link_offset:3") && err.contains("beyond any plausible arm"), "{err}");
-    kincal::model::ArmModel::suta_nominal().save(&path).unwrap();
+    model_of_the_fake_arm().save(&path).unwrap();
     let (code, _, err) =
         kincal(&["upload", "--key", key, "--port", &fake.port, path.to_str().unwrap(), "--version", "0"]);
     assert_eq!(code, Some(1));
@@ -643,7 +679,7 @@ fn an_unplugged_joint_mid_stream_is_named_and_marked_and_valid_again_when_plugge
     let fake = FakeController::start(1);
     let dir = scratch("unplug");
     let model = dir.join("model.toml");
-    kincal::model::ArmModel::suta_nominal().save(&model).unwrap();
+    model_of_the_fake_arm().save(&model).unwrap();
     let key_file = kincal_e2e::station_key_file(&dir);
     let key = key_file.to_str().unwrap();
     let (code, _, err) = kincal(&["upload", "--key", key, "--port", &fake.port, model.to_str().unwrap()]);
@@ -667,12 +703,15 @@ fn an_unplugged_joint_mid_stream_is_named_and_marked_and_valid_again_when_plugge
     assert!(stdout.contains("poses INVALID (joints 3 not read"), "{stdout}");
     let text = std::fs::read_to_string(&csv).unwrap();
     let mut lines = text.lines();
-    assert_eq!(lines.next(), Some("seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz"));
+    assert_eq!(
+        lines.next(),
+        Some("seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz,xx,xy,xz,t_s,host_s")
+    );
     // valid, stale joints and whether a position is written, row by row; runs of equal rows.
     let mut runs: Vec<(String, String, bool, usize)> = Vec::new();
     for line in lines {
         let cells: Vec<&str> = line.split(',').collect();
-        assert_eq!(cells.len(), 11, "{line}");
+        assert_eq!(cells.len(), 16, "{line}");
         let row = (cells[2].to_string(), cells[3].to_string(), !cells[5].is_empty());
         match runs.last_mut() {
             Some(r) if (r.0.as_str(), r.1.as_str(), r.2) == (row.0.as_str(), row.1.as_str(), row.2) => {

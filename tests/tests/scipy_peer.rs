@@ -3,9 +3,10 @@
 //! Needs python3 with numpy and scipy (`scripts/test.sh` installs them); set KINCAL_NO_PEER=1 to
 //! skip it deliberately (the skip is printed).
 
-use kincal::calib::calibrate::{calibrate, CalibrationOptions};
+use kincal::calib::fit::calibrate;
 use kincal::calib::peer::{run_peer, thesis_sized_problem, write_peer_problem};
-use kincal::data::Dataset;
+use kincal::calib::setup::SolveOptions;
+use kincal::data::Observations;
 
 #[test]
 fn kincal_reaches_scipys_cost_or_lower() {
@@ -14,14 +15,20 @@ fn kincal_reaches_scipys_cost_or_lower() {
         return;
     }
     let (nominal, sim) = thesis_sized_problem(2);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
-    let fit = calibrate(&nominal, &sim.artefact, &cal, &options).expect("calibrates");
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let options = SolveOptions { restarts: Some(0), ..SolveOptions::default() };
+    let fit = calibrate(&nominal, &cal, &options).expect("calibrates");
     let dir = std::env::temp_dir().join(format!("kincal-peer-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let problem = dir.join("problem.json");
-    write_peer_problem(&problem, &nominal, &fit.estimated, &sim.artefact, &cal, options.huber_delta_mm)
-        .unwrap();
+    write_peer_problem(
+        &problem,
+        &nominal,
+        &fit.estimated,
+        &cal,
+        fit.options.huber_delta_mm().unwrap_or_default(),
+    )
+    .unwrap();
     let peer = run_peer("python3", &problem).unwrap_or_else(|e| {
         panic!("{e}\ninstall the peer with `pip install numpy scipy`, or set KINCAL_NO_PEER=1")
     });

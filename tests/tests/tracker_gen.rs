@@ -224,7 +224,8 @@ fn inverse_kinematics_reaches_targets_and_constant_orientation_sessions_hold_it(
     }
 
     let mut options = TrackerOptions::iiwa_five_sessions(9);
-    options.sessions[1] = SessionPlan { name: "grid".into(), poses: 27, constant_orientation: true };
+    options.sessions[1] =
+        SessionPlan { name: "grid".into(), poses: 27, constant_orientation: true, joints_deg: Vec::new() };
     let data = generate(&options);
     let grid = &data.sessions[1].rows;
     assert_eq!(grid.len(), 27);

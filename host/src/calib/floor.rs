@@ -40,11 +40,10 @@
 //!   floor in quadrature (the validation RMS within 14 % of the expected);
 //! * otherwise *cannot tell*: neither a gap nor closeness to the floor is shown by these data.
 
-use crate::calib::objective::{CalibrationProblem, Objective};
-use crate::data::{Artefact, Dataset};
-use crate::model::kinematics::{tool_pose, tool_pose_with_jacobian, ColumnMap};
-use crate::model::{ArmModel, ParamId, SUTA_JOINTS};
-use crate::numerics::solver::Residuals;
+use crate::calib::fit::{dense_jacobian, Fit};
+use crate::data::Observations;
+use crate::model::kinematics::{Chain, ColumnMap};
+use crate::model::{ArmModel, ParamId};
 use crate::numerics::stats::chi2_quantile;
 use nalgebra::{DMatrix, Matrix3, Vector3};
 
@@ -56,6 +55,10 @@ pub const GROUP_OUTLIER_Z: f64 = 4.0;
 /// called significant (one-sided normal tail 0.6 %).
 pub const GAP_Z: f64 = 2.5;
 
+/// Held-out RMS of instrument points within this factor of their floor: the model explains the
+/// data.
+pub const EXPLAINS_WITHIN: f64 = 1.10;
+
 /// Equivalence margin of "at the floor": the upper 95 % bound of M/E must be below 1 + this.
 pub const FLOOR_MARGIN: f64 = 0.3;
 
@@ -65,7 +68,7 @@ const Z_95: f64 = 1.644_853_6;
 const Z_975: f64 = 1.959_964;
 
 /// The noise floor estimated from repeated touches.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct NoiseFloor {
     /// RMS scatter of one touch about its group mean, per axis, mm.
     pub touch_std_mm: f64,
@@ -95,8 +98,15 @@ pub struct NoiseFloor {
     pub extrapolation: Option<f64>,
 }
 
-/// Measured validation error against the floor.
-#[derive(Clone, Debug, serde::Serialize)]
+/// Per-axis scatter of one touch about its group mean, mm, from the repeated touches of `data`
+/// alone (see [`NoiseFloor::touch_std_mm`]); `None` without a landmark touched twice.
+pub fn touch_std_mm(model: &ArmModel, data: &Observations) -> Option<f64> {
+    noise_floor(model, data, &data.without(|_| true), 0).map(|f| f.touch_std_mm)
+}
+
+/// Measured held-out error against what a complete model would leave: [`gap`] for distances
+/// between touches, [`point_gap`] for instrument points.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Gap {
     /// Validation distance RMS, mm.
     pub measured_mm: f64,
@@ -110,7 +120,8 @@ pub struct Gap {
     pub significant: bool,
     /// Upper one-sided 95 % bound of M/E.
     pub ratio_upper_95: f64,
-    /// The equivalence test shows the error at the floor (upper bound below 1 + [`FLOOR_MARGIN`]).
+    /// The error is at the floor: for distances the equivalence test shows it (upper bound
+    /// below 1 + [`FLOOR_MARGIN`]); for points it is within [`EXPLAINS_WITHIN`] of the floor.
     pub at_floor: bool,
     /// Two-sided 95 % interval of the missing part √(M − E), mm (from ln(M/E) ± 1.96 SE).
     pub missing_95_mm: (f64, f64),
@@ -120,15 +131,8 @@ pub struct Gap {
 }
 
 /// Independent observations of a dataset: 3 per touch less 6 per (placement, repeat) block.
-pub fn observation_dof(data: &Dataset) -> usize {
-    let mut blocks: Vec<((usize, u32), usize)> = Vec::new();
-    for t in &data.touches {
-        match blocks.iter_mut().find(|b| b.0 == (t.placement, t.repeat)) {
-            Some(b) => b.1 += 1,
-            None => blocks.push(((t.placement, t.repeat), 1)),
-        }
-    }
-    blocks.iter().map(|b| (3 * b.1).saturating_sub(6)).sum()
+pub fn observation_dof(data: &Observations) -> usize {
+    data.blocks.iter().map(|b| (3 * b.members.len()).saturating_sub(6)).sum()
 }
 
 /// Joint angles (degrees, every joint) within which two touches count as the same arm
@@ -138,15 +142,15 @@ pub const SAME_CONFIGURATION_DEG: f64 = 3.0;
 
 /// Two touches' angles are the same arm configuration: every joint within
 /// [`SAME_CONFIGURATION_DEG`] (across 0°/360° too).
-pub fn same_pose(a: &[f64; SUTA_JOINTS], b: &[f64; SUTA_JOINTS]) -> bool {
-    (0..SUTA_JOINTS).all(|j| ((a[j] - b[j] + 180.0).rem_euclid(360.0) - 180.0).abs() < SAME_CONFIGURATION_DEG)
+pub fn same_pose(a: &[f64], b: &[f64]) -> bool {
+    a.iter().zip(b).all(|(a, b)| ((a - b + 180.0).rem_euclid(360.0) - 180.0).abs() < SAME_CONFIGURATION_DEG)
 }
 
 /// Split touches `idx` of one landmark in one placement into groups of the same configuration.
-pub fn same_configuration(data: &Dataset, idx: &[usize]) -> Vec<Vec<usize>> {
+pub fn same_configuration(data: &Observations, idx: &[usize]) -> Vec<Vec<usize>> {
     let mut groups: Vec<Vec<usize>> = Vec::new();
     for &k in idx {
-        let close = |g: &Vec<usize>| same_pose(&data.touches[g[0]].enc_deg, &data.touches[k].enc_deg);
+        let close = |g: &Vec<usize>| same_pose(&data.obs[g[0]].q_deg, &data.obs[k].q_deg);
         match groups.iter_mut().find(|g| close(g)) {
             Some(g) => g.push(k),
             None => groups.push(vec![k]),
@@ -160,9 +164,8 @@ pub fn same_configuration(data: &Dataset, idx: &[usize]) -> Vec<Vec<usize>> {
 /// on `cal`. `None` when no landmark was touched twice in one placement.
 pub fn noise_floor(
     model: &ArmModel,
-    artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
     parameters: usize,
 ) -> Option<NoiseFloor> {
     struct Group {
@@ -173,14 +176,11 @@ pub fn noise_floor(
     }
     let mut groups: Vec<Group> = Vec::new();
     for data in [cal, val] {
-        let p: Vec<Vector3<f64>> =
-            data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
-        for placement in 0..data.placements.len() {
-            for landmark in 0..artefact.landmarks.len() {
+        let p: Vec<Vector3<f64>> = crate::calib::validate::positions(model, data);
+        for placement in 0..data.groups.len() {
+            for landmark in 0..data.landmarks.len() {
                 let idx: Vec<usize> = (0..p.len())
-                    .filter(|&k| {
-                        data.touches[k].placement == placement && data.touches[k].landmark == landmark
-                    })
+                    .filter(|&k| data.obs[k].group == placement && data.obs[k].landmark() == Some(landmark))
                     .collect();
                 for members in same_configuration(data, &idx) {
                     if members.len() < 2 {
@@ -189,7 +189,7 @@ pub fn noise_floor(
                     let mean = members.iter().map(|&k| p[k]).sum::<Vector3<f64>>() / members.len() as f64;
                     let scatter = members.iter().map(|&k| (p[k] - mean) * (p[k] - mean).transpose()).sum();
                     groups.push(Group {
-                        placement: data.placements[placement].clone(),
+                        placement: data.groups[placement].name.clone(),
                         landmark,
                         scatter,
                         dof: members.len() - 1,
@@ -229,7 +229,7 @@ pub fn noise_floor(
         } else {
             inconsistent.push((
                 g.placement.clone(),
-                artefact.landmarks[g.landmark].id.clone(),
+                cal.landmarks[g.landmark].id.clone(),
                 per_axis(g).sqrt(),
             ));
         }
@@ -238,8 +238,8 @@ pub fn noise_floor(
         return None;
     }
     let cov = pooled / dof as f64;
-    let p: Vec<Vector3<f64>> = val.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect();
-    let pairs = val.touch_pairs();
+    let p: Vec<Vector3<f64>> = crate::calib::validate::positions(model, val);
+    let pairs = val.landmark_pairs();
     let floor_ms = if pairs.is_empty() {
         2.0 * cov.trace() / 3.0
     } else {
@@ -278,11 +278,10 @@ impl NoiseFloor {
         mut self,
         model: &ArmModel,
         params: &[ParamId],
-        artefact: &Artefact,
-        cal: &Dataset,
-        val: &Dataset,
+        cal: &Observations,
+        val: &Observations,
     ) -> NoiseFloor {
-        let Some((extrapolation, dof)) = leverage_ratio(model, params, artefact, cal, val) else {
+        let Some((extrapolation, dof)) = leverage_ratio(model, params, cal, val) else {
             return self;
         };
         self.estimate_share *= extrapolation;
@@ -294,14 +293,9 @@ impl NoiseFloor {
 }
 
 /// Jacobian of the distance errors of `data`'s pairs with respect to `params` (rows × params).
-fn pair_jacobian(model: &ArmModel, params: &[ParamId], artefact: &Artefact, data: &Dataset) -> DMatrix<f64> {
-    let problem = CalibrationProblem::new(model, params.to_vec(), artefact, data, Objective::Distance);
-    let values: Vec<f64> = params.iter().map(|&p| model.get(p)).collect();
-    let (rows, n) = (problem.len(), params.len());
-    let mut r = vec![0.0; rows];
-    let mut jac = vec![0.0; rows * n];
-    problem.evaluate(&values, &mut r, Some(&mut jac));
-    DMatrix::from_row_slice(rows, n, &jac)
+fn pair_jacobian(model: &ArmModel, params: &[ParamId], data: &Observations) -> DMatrix<f64> {
+    let (r, jac) = dense_jacobian(model, params, data, None);
+    DMatrix::from_row_slice(r.len(), params.len(), &jac)
 }
 
 /// (mean leverage of a `val` pair / mean leverage of a `cal` pair, effective degrees of freedom
@@ -310,14 +304,13 @@ fn pair_jacobian(model: &ArmModel, params: &[ParamId], artefact: &Artefact, data
 fn leverage_ratio(
     model: &ArmModel,
     params: &[ParamId],
-    artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
 ) -> Option<(f64, f64)> {
     if params.is_empty() {
         return None;
     }
-    let (jc, jv) = (pair_jacobian(model, params, artefact, cal), pair_jacobian(model, params, artefact, val));
+    let (jc, jv) = (pair_jacobian(model, params, cal), pair_jacobian(model, params, val));
     if jc.nrows() <= params.len() || jv.nrows() == 0 {
         return None;
     }
@@ -338,11 +331,16 @@ fn leverage_ratio(
 /// Satterthwaite degrees of freedom of the mean square of the distance errors of `pairs`
 /// (positions `p`, touch covariance `cov`): (Σ tr C_b)² / Σ tr(C_b²) over the (placement,
 /// repeat) blocks, C_b the noise covariance of a block's pair errors.
-fn effective_dof(data: &Dataset, p: &[Vector3<f64>], pairs: &[(usize, usize)], cov: &Matrix3<f64>) -> f64 {
+fn effective_dof(
+    data: &Observations,
+    p: &[Vector3<f64>],
+    pairs: &[(usize, usize)],
+    cov: &Matrix3<f64>,
+) -> f64 {
     type Rows = Vec<(usize, usize, Vector3<f64>)>;
     let mut by_block: Vec<((usize, u32), Rows)> = Vec::new();
     for &(a, b) in pairs {
-        let key = (data.touches[a].placement, data.touches[a].repeat);
+        let key = (data.obs[a].group, data.obs[a].repeat);
         let u = (p[a] - p[b]).normalize();
         match by_block.iter_mut().find(|g| g.0 == key) {
             Some(g) => g.1.push((a, b, u)),
@@ -384,20 +382,22 @@ fn effective_dof(data: &Dataset, p: &[Vector3<f64>], pairs: &[(usize, usize)], c
 /// propagated through ∂p/∂θ; `None` unless every touch of a pair reports them.
 fn encoder_floor(
     model: &ArmModel,
-    val: &Dataset,
+    val: &Observations,
     p: &[Vector3<f64>],
     pairs: &[(usize, usize)],
 ) -> Option<f64> {
-    let offsets: Vec<ParamId> = (0..SUTA_JOINTS).map(ParamId::Offset).collect();
+    let joints = model.joints.len();
+    let offsets: Vec<ParamId> = (0..joints).map(ParamId::Offset).collect();
     let columns = ColumnMap::new(&offsets);
-    let mut jac = vec![[0.0; 9]; SUTA_JOINTS];
+    let mut jac = vec![[0.0; 9]; joints];
+    let chain = Chain::new(model);
     let per_touch: Vec<Option<Matrix3<f64>>> = val
-        .touches
+        .obs
         .iter()
         .map(|t| {
-            let sigma = t.enc_sigma_deg?;
-            tool_pose_with_jacobian(model, &t.enc_deg, &columns, &mut jac);
-            Some((0..SUTA_JOINTS).fold(Matrix3::zeros(), |acc, j| {
+            let sigma = t.q_sigma_deg?;
+            chain.pose_with_jacobian(&t.q_deg, &columns, &mut jac);
+            Some((0..joints).fold(Matrix3::zeros(), |acc, j| {
                 let g = Vector3::new(jac[j][0], jac[j][1], jac[j][2]); // mm per degree
                 acc + g * g.transpose() * sigma[j].powi(2)
             }))
@@ -416,7 +416,7 @@ fn encoder_floor(
 
 /// Compare a measured validation RMS on `val` with the floor: the test on ln(M/E) (see the
 /// module doc).
-pub fn gap(floor: &NoiseFloor, measured_mm: f64, val: &Dataset) -> Gap {
+pub fn gap(floor: &NoiseFloor, measured_mm: f64, val: &Observations) -> Gap {
     let (m, e) = (measured_mm.powi(2), floor.expected_rms_mm.powi(2).max(1e-300));
     let nu_val =
         if floor.validation_dof > 0.0 { floor.validation_dof } else { observation_dof(val).max(1) as f64 };
@@ -466,22 +466,125 @@ impl Gap {
     }
 }
 
+/// The floor of held-out instrument points: the expected held-out RMS of a perfect model, mm.
+///
+/// The pooled scatter of repeated poses (rows of one session sharing a `pose` id), else the
+/// stated instrument uncertainty (σ per axis, σ = U95/2, so a point's 3-D RMS is σ·√3; from the
+/// rows, or `--sigma-mm` for rows that carry none), each scaled by √(1 − 2/n) for the six values
+/// of a refitted frame; otherwise unknown, and then the model is never said to explain the data.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct PointFloor {
+    /// `repeated poses`, `stated uncertainty` or `unknown`.
+    pub source: String,
+    /// Expected held-out RMS of a perfect model, mm.
+    pub rms_mm: Option<f64>,
+}
+
+/// The floor of the instrument sessions of `val` (see [`PointFloor`]).
+pub fn point_floor(val: &Observations, stated_sigma_mm: Option<f64>) -> PointFloor {
+    let (mut sum, mut dof) = (0.0, 0usize);
+    let mut fit_share = Vec::new();
+    let sessions = val.sessions();
+    for &b in &sessions {
+        let members = &val.blocks[b].members;
+        let mut groups: std::collections::BTreeMap<&str, Vec<Vector3<f64>>> = Default::default();
+        for p in members.iter().map(|&k| &val.obs[k]) {
+            if let (Some(pose), Some(x)) = (&p.pose, p.point_mm()) {
+                groups.entry(pose).or_default().push(x);
+            }
+        }
+        for g in groups.values().filter(|g| g.len() > 1) {
+            let mean = g.iter().sum::<Vector3<f64>>() / g.len() as f64;
+            sum += g.iter().map(|v| (v - mean).norm_squared()).sum::<f64>();
+            dof += g.len() - 1;
+        }
+        fit_share.push((1.0 - 2.0 / members.len().max(3) as f64, members.len()));
+    }
+    let points: usize = fit_share.iter().map(|f| f.1).sum();
+    let shrink =
+        (fit_share.iter().map(|f| f.0 * f.1 as f64).sum::<f64>() / points.max(1) as f64).max(0.0).sqrt();
+    if dof > 0 {
+        return PointFloor {
+            source: "repeated poses".into(),
+            rms_mm: Some((sum / dof as f64).sqrt() * shrink),
+        };
+    }
+    let sigmas: Vec<f64> = sessions
+        .iter()
+        .flat_map(|&b| val.blocks[b].members.iter().map(|&k| &val.obs[k]))
+        .filter_map(|p| p.sigma_mm.or(stated_sigma_mm))
+        .collect();
+    if !sigmas.is_empty() && sigmas.len() == points {
+        let mean_square = sigmas.iter().map(|s| 3.0 * s * s).sum::<f64>() / sigmas.len() as f64;
+        return PointFloor { source: "stated uncertainty".into(), rms_mm: Some(mean_square.sqrt() * shrink) };
+    }
+    PointFloor { source: "unknown".into(), rms_mm: None }
+}
+
+/// The gap of held-out instrument points: the held-out mean square M against what a complete
+/// model leaves, E = floor² · (1 + p / (ν_cal − 6·S)) (p the estimated arm and tool values of
+/// `fit`, ν_cal = 3 per calibration point, six frame values per calibration session), on the
+/// linear scale M/E − 1 with standard error √(2/ν_val + 2/ν_floor) (ν_val = 3 per held-out point
+/// less six per session; ν_floor from the repeats when the floor comes from them, none for a
+/// stated σ). Gaussian noise assumed. The model explains the data within [`EXPLAINS_WITHIN`] of
+/// the floor and misses beyond [`GAP_Z`] standard errors.
+pub fn point_gap(floor: &PointFloor, measured_mm: f64, fit: &Fit, val: &Observations) -> Option<Gap> {
+    let floor_mm = floor.rms_mm?;
+    let points = fit.stats.points.map_or(0, |p| p.count);
+    let nu_cal = (3.0 * points as f64 - 6.0 * fit.frames.len() as f64).max(1.0_f64);
+    let e = floor_mm * floor_mm * (1.0 + fit.estimated.len() as f64 / nu_cal);
+    let nu_val = (3.0 * val.point_count() as f64 - 6.0 * val.sessions().len() as f64).max(1.0_f64);
+    let nu_floor =
+        if floor.source == "repeated poses" { 3.0 * repeated_pose_dof(val) as f64 } else { f64::INFINITY };
+    let se = (2.0 / nu_val + 2.0 / nu_floor.max(1.0)).sqrt();
+    let m = measured_mm * measured_mm;
+    let ratio = m / e;
+    let z = (ratio - 1.0) / se;
+    let at_floor = measured_mm <= EXPLAINS_WITHIN * floor_mm;
+    let missing_at = |r: f64| (e * (r - 1.0)).max(0.0).sqrt();
+    Some(Gap {
+        measured_mm,
+        expected_mm: e.sqrt(),
+        missing_mm: (m - e).max(0.0).sqrt(),
+        z,
+        significant: !at_floor && z > GAP_Z,
+        ratio_upper_95: ratio + Z_95 * se,
+        at_floor,
+        missing_95_mm: (missing_at(ratio - Z_975 * se), missing_at(ratio + Z_975 * se)),
+        detectable_mm: missing_at(1.0 + GAP_Z * se),
+    })
+}
+
+/// Degrees of freedom of the repeated poses of `val` (repeats beyond the first of each pose).
+fn repeated_pose_dof(val: &Observations) -> usize {
+    let mut dof = 0;
+    for b in val.sessions() {
+        let mut groups: std::collections::BTreeMap<&str, usize> = std::collections::BTreeMap::new();
+        for p in val.blocks[b].members.iter().map(|&k| &val.obs[k]) {
+            if let Some(pose) = &p.pose {
+                *groups.entry(pose).or_default() += 1;
+            }
+        }
+        dof += groups.values().map(|n| n.saturating_sub(1)).sum::<usize>();
+    }
+    dof
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::Touch;
 
     #[test]
     fn repeats_in_another_configuration_are_not_pooled() {
-        let touch = |enc_deg| Touch { placement: 0, landmark: 0, repeat: 1, enc_deg, enc_sigma_deg: None };
-        let data = Dataset {
-            placements: vec!["A".into()],
-            touches: vec![
-                touch([10.0, 20.0, 30.0, 40.0, 50.0, 359.5]),
-                touch([10.5, 20.2, 29.8, 40.1, 50.0, 0.5]), // across 0°/360°: same configuration
-                touch([10.0, 20.0, 30.0, 220.0, 310.0, 180.0]), // wrist flipped
+        let data = Observations::from_touches(
+            &["A"],
+            Vec::new(),
+            &[
+                (0, 0, 1, &[10.0, 20.0, 30.0, 40.0, 50.0, 359.5]),
+                (0, 0, 1, &[10.5, 20.2, 29.8, 40.1, 50.0, 0.5]), // across 0°/360°: same configuration
+                (0, 0, 1, &[10.0, 20.0, 30.0, 220.0, 310.0, 180.0]), // wrist flipped
             ],
-        };
+        );
         assert_eq!(same_configuration(&data, &[0, 1, 2]), vec![vec![0, 1], vec![2]]);
     }
 }

@@ -200,6 +200,69 @@ pub fn covariance_of_normal(h: DMatrix<f64>, variance: f64) -> Option<DMatrix<f6
     h.cholesky().map(|c| c.inverse() * variance)
 }
 
+/// Sentences on what the data cannot separate when frames are fitted; `raw` and `projected` are
+/// the arm columns before and after the frames (and floated tools, drifts, the probe rotation)
+/// are projected out (row-major, `all.len()` columns); `spreads` the orientation spread of each
+/// session, degrees; `probe_turns` when a probe's rotation is fitted.
+pub fn explain(
+    all: &[ParamId],
+    raw: &[f64],
+    projected: &[f64],
+    probe_turns: bool,
+    fixed: &[ParamId],
+    spreads: &[(String, f64)],
+    ranges: &[f64],
+) -> Vec<String> {
+    use crate::calib::fit::CONSTANT_ORIENTATION_DEG;
+    let a = all.len();
+    let norm = |m: &[f64], stride: usize, c: usize| {
+        m.chunks_exact(stride).map(|row| row[c] * row[c]).sum::<f64>().sqrt()
+    };
+    let mut out = Vec::new();
+    let constant: Vec<&str> =
+        spreads.iter().filter(|s| s.1 < CONSTANT_ORIENTATION_DEG).map(|s| s.0.as_str()).collect();
+    let tool_fixed: Vec<String> =
+        fixed.iter().filter(|p| matches!(p, ParamId::Tcp(_))).map(|p| p.to_string()).collect();
+    if !constant.is_empty() {
+        out.push(format!(
+            "the tool orientation is constant (within {CONSTANT_ORIENTATION_DEG}°) in session{} {}: there, the \
+             tool point and the base translation are one thing{}",
+            if constant.len() == 1 { "" } else { "s" },
+            constant.join(", "),
+            if probe_turns {
+                " (the probe's orientations do not separate them: R_s·R_F·t is one constant vector there)"
+            } else {
+                ""
+            }
+        ));
+    }
+    if !tool_fixed.is_empty() {
+        out.push(format!(
+            "{} cannot be separated from the session bases' translations (no session turns the tool): held at \
+             the nominal value; no figure depends on this split, each session's base absorbs it",
+            tool_fixed.join(", ")
+        ));
+    }
+    let largest = (0..a).map(|c| norm(raw, a, c) * ranges[c]).fold(0.0, f64::max).max(1e-300);
+    for p in fixed.iter().filter(|p| !matches!(p, ParamId::Tcp(_))) {
+        let Some(c) = all.iter().position(|q| q == p) else { continue };
+        let (raw, rest) = (norm(raw, a, c) * ranges[c], norm(projected, a, c) * ranges[c]);
+        out.push(if raw < ZERO_COLUMN_BELOW * largest {
+            format!("{p} moves no measured point: held at its nominal value")
+        } else if rest < UNIDENTIFIABLE_BELOW * largest && probe_turns {
+            format!(
+                "{p} is absorbed by the session bases and the probe's orientation on the flange (a base rotation or \
+                 shift, or a turn of the probe with the tool point, reproduces it): held at its nominal value"
+            )
+        } else if rest < UNIDENTIFIABLE_BELOW * largest {
+            format!("{p} is absorbed by the session bases (a base rotation or shift reproduces it): held at its nominal value")
+        } else {
+            format!("{p} cannot be separated from the other free parameters on this data: held at its nominal value")
+        });
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

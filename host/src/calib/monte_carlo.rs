@@ -6,9 +6,10 @@
 //! called significant, a block flagged as disturbed (a knock) or a touch as mis-seated, and the
 //! gap test saying the model misses something. Rates come with a 95 % Wilson interval.
 
-use crate::calib::calibrate::{calibrate, CalibrationError, CalibrationOptions};
-use crate::calib::diagnose::{diagnose, Diagnosis};
-use crate::data::Dataset;
+use crate::calib::diagnose::{diagnose, DiagnoseError, Diagnosis};
+use crate::calib::fit::calibrate;
+use crate::calib::setup::{Setup, SolveOptions};
+use crate::data::Observations;
 use crate::model::effects::{Effect, EffectKind};
 use crate::model::{ArmModel, ParamId};
 use crate::simulate::{simulate, SimulationOptions};
@@ -75,14 +76,14 @@ impl std::fmt::Display for Rate {
 
 /// Simulate the thesis-sized problem of `seed` with `hidden` effects, calibrate the thesis
 /// model (2 restarts) and diagnose it.
-pub fn simulate_and_diagnose(seed: u64, hidden: Vec<(ParamId, f64)>) -> Result<Diagnosis, CalibrationError> {
+pub fn simulate_and_diagnose(seed: u64, hidden: Vec<(ParamId, f64)>) -> Result<Diagnosis, DiagnoseError> {
     let nominal = ArmModel::suta_nominal();
     let sim = simulate(&nominal, &SimulationOptions { seed, hidden, ..SimulationOptions::default() });
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let options = CalibrationOptions { restarts: 2, seed, ..CalibrationOptions::default() };
-    let fit = calibrate(&nominal, &sim.artefact, &cal, &options)?;
-    Ok(diagnose(&fit.model, &sim.artefact, &cal, &val, &options))
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+    let options = SolveOptions { restarts: Some(2), seed, ..SolveOptions::default() };
+    let fit = calibrate(&nominal, &cal, &options)?;
+    diagnose(&Setup::new(options), &fit.model, &cal, &val)
 }
 
 /// The false calls of a diagnosis of clean data.
@@ -91,7 +92,7 @@ pub fn false_calls(d: &Diagnosis) -> FalseCalls {
         effect: d.candidates.iter().any(|c| c.significant),
         data_error: d.data_errors.iter().any(|c| c.significant),
         knock: !d.disturbed.is_empty() || !d.mis_seated.is_empty(),
-        misses: d.gap.as_ref().is_some_and(|g| g.significant),
+        misses: d.floor.gap.as_ref().is_some_and(|g| g.significant),
     }
 }
 
@@ -118,6 +119,6 @@ pub fn names(d: &Diagnosis, effect: Effect) -> bool {
     d.named.contains(&name)
         || d.named
             .first()
-            .and_then(|n| d.candidates.iter().find(|c| c.effect == *n))
+            .and_then(|n| d.candidates.iter().find(|c| c.name == *n))
             .is_some_and(|c| c.equivalent.contains(&name))
 }

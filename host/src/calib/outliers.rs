@@ -1,42 +1,56 @@
-//! Per-landmark outlier diagnostics (thesis appendix F), each metric with the thesis threshold:
+//! Outlier metrics (thesis appendix F) of what a user can leave out of the calibration data: a
+//! landmark of the artefact (its touches in every placement), or an instrument session. Each
+//! metric with its threshold:
 //!
-//! * error contribution: Σ_{pairs ∋ i} e² / (2 Σ_pairs e²) · 100 %, flagged above 1.5 × 100/L %;
-//! * Cook's distance D_i = Δβᵀ JᵀJ Δβ / (p · MSE), Δβ the change of the estimates when landmark
-//!   i is left out, flagged above 4/L;
-//! * leave-one-landmark-out impact (RMS_full − RMS_without_i)/RMS_full · 100 % on the validation
-//!   data (calibration data if none), flagged above 5 %;
-//! * systematic bias: RMS of the landmark's residual after a rigid fit of the artefact to the
-//!   measured positions of each placement, flagged above 1.0 mm.
+//! * error contribution: the unit's share of the squared calibration residual (a distance shared
+//!   by two landmarks counts half for each), flagged above 1.5 × 100/L %;
+//! * Cook's distance D = Σ (ŷ − ŷ₍ᵤ₎)² / (p · MSE) over every calibration residual, ŷ₍ᵤ₎ those of
+//!   the model refitted without unit u (a session's frame refitted in closed form for each model),
+//!   flagged above 4/L;
+//! * leave-one-out impact (RMS_full − RMS_without)/RMS_full · 100 % on the held-out data
+//!   (calibration data if none), flagged above 5 %;
+//! * systematic bias: for a landmark, the RMS of its residual after a rigid fit of the artefact
+//!   to the measured positions of each placement, flagged above [`BIAS_MM`]; for a session, the
+//!   RMS of its point errors (its frame refitted), flagged above [`SESSION_BIAS_FACTOR`] × the
+//!   RMS of every calibration point.
 //!
-//! A landmark is flagged when at least two metrics exceed their thresholds.
+//! A unit is flagged when at least two metrics exceed their thresholds.
 
-use crate::calib::calibrate::{refit, Calibration, CalibrationOptions};
-use crate::calib::objective::{CalibrationProblem, Objective};
-use crate::calib::validate::{distance_errors, positions, ErrorStats};
-use crate::data::{Artefact, Dataset};
+use crate::calib::diagnose::Measure;
+use crate::calib::fit::{refit, Fit};
+use crate::calib::setup::Setup;
+use crate::calib::validate::{
+    distance_errors, fit_session_with_tool, placement_residuals, session_residuals,
+};
+use crate::data::Observations;
 use crate::model::ArmModel;
-use crate::numerics::geometry::absolute_orientation;
-use crate::numerics::solver::Residuals;
-use nalgebra::Vector3;
+use crate::numerics::stats::rms;
 use rayon::prelude::*;
 
-/// Leave-one-out impact (percent) above which a landmark is suspicious.
+/// Leave-one-out impact (percent) above which a unit is suspicious.
 pub const LOO_IMPACT_PCT: f64 = 5.0;
-/// Systematic bias (mm) above which a landmark is suspicious.
+/// Systematic bias of a landmark (mm) above which it is suspicious.
 pub const BIAS_MM: f64 = 1.0;
+/// A session whose points' RMS is this many times that of every calibration point is suspicious.
+pub const SESSION_BIAS_FACTOR: f64 = 1.5;
 
-/// The four metrics of one landmark.
+/// The four metrics of one landmark or session.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct LandmarkOutlier {
-    /// Landmark id.
-    pub landmark: String,
+pub struct Outlier {
+    /// `landmark` or `session`.
+    #[serde(default = "landmark")]
+    pub what: String,
+    /// Landmark id, or session name.
+    #[serde(alias = "landmark")]
+    pub name: String,
     /// Share of the squared calibration error, percent.
     pub contribution_pct: f64,
-    /// Cook's distance of leaving the landmark out.
+    /// Cook's distance of leaving the unit out.
     pub cooks_distance: f64,
-    /// Validation RMS improvement when the landmark is left out, percent.
+    /// Held-out RMS improvement when the unit is left out, percent.
     pub loo_impact_pct: f64,
-    /// Residual after a rigid fit of the artefact per placement, RMS, mm.
+    /// A landmark's residual after a rigid fit of the artefact per placement, or a session's
+    /// point errors with its frame refitted, RMS, mm.
     pub bias_mm: f64,
     /// Metrics beyond their thresholds.
     pub exceeded: Vec<String>,
@@ -44,83 +58,129 @@ pub struct LandmarkOutlier {
     pub flagged: bool,
 }
 
+fn landmark() -> String {
+    "landmark".into()
+}
+
 /// Per-landmark RMS residual after a rigid fit of the artefact in every placement, mm.
-pub fn landmark_bias(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<f64> {
-    let p = positions(model, data);
-    let mut sum = vec![0.0; artefact.landmarks.len()];
-    let mut count = vec![0usize; artefact.landmarks.len()];
-    for placement in 0..data.placements.len() {
-        let idx: Vec<usize> =
-            (0..data.touches.len()).filter(|&k| data.touches[k].placement == placement).collect();
-        if idx.len() < 3 {
-            continue;
-        }
-        let q: Vec<Vector3<f64>> =
-            idx.iter().map(|&k| Vector3::from(artefact.landmarks[data.touches[k].landmark].xyz_mm)).collect();
-        let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
-        let (r, t) = absolute_orientation(&q, &pm);
-        for (i, &k) in idx.iter().enumerate() {
-            let l = data.touches[k].landmark;
-            sum[l] += (r * q[i] + t - pm[i]).norm_squared();
-            count[l] += 1;
-        }
+pub fn landmark_bias(model: &ArmModel, data: &Observations) -> Vec<f64> {
+    let mut sum = vec![0.0; data.landmarks.len()];
+    let mut count = vec![0usize; data.landmarks.len()];
+    for (k, r) in placement_residuals(model, data, 3).into_iter().enumerate() {
+        let Some(r) = r else { continue };
+        let l = data.obs[k].touched();
+        sum[l] += r.norm_squared();
+        count[l] += 1;
     }
     sum.iter().zip(&count).map(|(s, &c)| if c > 0 { (s / c as f64).sqrt() } else { 0.0 }).collect()
 }
 
-/// Run the four metrics for every landmark touched in `cal`.
-pub fn landmark_outliers(
-    fit: &Calibration,
-    artefact: &Artefact,
-    cal: &Dataset,
-    val: Option<&Dataset>,
-    options: &CalibrationOptions,
-) -> Vec<LandmarkOutlier> {
-    let errors = distance_errors(&fit.model, artefact, cal);
-    let total: f64 = errors.iter().map(|e| e.error_mm.powi(2)).sum::<f64>().max(1e-300);
-    let touched: Vec<usize> =
-        (0..artefact.landmarks.len()).filter(|&l| cal.touches.iter().any(|t| t.landmark == l)).collect();
-    let count = touched.len().max(1) as f64;
+/// What can be left out.
+#[derive(Clone, Copy)]
+enum Unit {
+    /// A landmark (index).
+    Landmark(usize),
+    /// An instrument session (block).
+    Session(usize),
+}
+
+/// The calibration residual rows of `model` on `cal`, and which unit each belongs to: a
+/// distance between two touches (both landmarks), or a coordinate of a point error (its session's
+/// frame refitted in closed form, its tool floated where the setup floats it).
+fn rows(model: &ArmModel, cal: &Observations, setup: &Setup) -> (Vec<f64>, Vec<Vec<usize>>) {
+    let mut values = Vec::new();
+    let mut owners = Vec::new();
+    for e in distance_errors(model, cal) {
+        values.push(e.error_mm);
+        owners.push(vec![e.landmarks.0, e.landmarks.1]);
+    }
+    for b in cal.sessions() {
+        let offset = if setup.float_tool.contains(&cal.block_name(b)) {
+            fit_session_with_tool(model, cal, b).0.offset_mm
+        } else {
+            [0.0; 3]
+        };
+        for r in session_residuals(model, cal, b, offset) {
+            for v in [r.x, r.y, r.z] {
+                values.push(v);
+                owners.push(vec![cal.landmarks.len() + b]);
+            }
+        }
+    }
+    (values, owners)
+}
+
+/// The metrics of every landmark touched in `cal` and every calibration session, for the
+/// calibration `fit` of `setup`.
+pub fn outliers(fit: &Fit, cal: &Observations, val: Option<&Observations>, setup: &Setup) -> Vec<Outlier> {
+    let options = setup.solve_options(cal);
+    let units: Vec<Unit> = (0..cal.landmarks.len())
+        .filter(|&l| cal.obs.iter().any(|t| t.landmark() == Some(l)))
+        .map(Unit::Landmark)
+        .chain(cal.sessions().into_iter().map(Unit::Session))
+        .collect();
+    let count = units.len().max(1) as f64;
+    let key = |u: Unit| match u {
+        Unit::Landmark(l) => l,
+        Unit::Session(b) => cal.landmarks.len() + b,
+    };
+    let (full, owners) = rows(&fit.model, cal, setup);
+    let total: f64 = full.iter().map(|v| v * v).sum::<f64>().max(1e-300);
+    let held_out = val.unwrap_or(cal);
     let rms_on = |model: &ArmModel| {
-        let data = val.unwrap_or(cal);
-        ErrorStats::of(&distance_errors(model, artefact, data).iter().map(|e| e.error_mm).collect::<Vec<_>>())
-            .rms_mm
+        Measure::of(held_out).map_or(f64::NAN, |m| rms(&m.errors(model, held_out, &setup.float_tool)))
     };
     let full_rms = rms_on(&fit.model).max(1e-300);
-    // Cook's distance needs JᵀJ and the MSE of the full fit over the estimated parameters.
-    let problem =
-        CalibrationProblem::new(&fit.model, fit.estimated.clone(), artefact, cal, Objective::Distance);
-    let x_hat: Vec<f64> = fit.estimated.iter().map(|&id| fit.model.get(id)).collect();
-    let (m, p) = (problem.distance_rows(), x_hat.len());
-    let mut r = vec![0.0; problem.len()];
-    let mut jac = vec![0.0; problem.len() * p];
-    problem.evaluate(&x_hat, &mut r, Some(&mut jac));
-    let mse = r[..m].iter().map(|v| v * v).sum::<f64>() / (m as f64 - p as f64).max(1.0);
-    let (jtj, _) = crate::numerics::solver::normal_equations(&jac[..m * p], &r[..m], &vec![1.0; m], p);
-    let bias = landmark_bias(&fit.model, artefact, cal);
-    // Refits without one landmark start from the full fit, on its base set.
-    touched
+    let p = fit.estimated.len();
+    let dof = full.len() as f64 - p as f64 - 6.0 * cal.sessions().len() as f64;
+    let mse = total / dof.max(1.0);
+    let bias = landmark_bias(&fit.model, cal);
+    let points_rms =
+        |rows: &[f64]| (rows.iter().map(|v| v * v).sum::<f64>() / (rows.len() / 3).max(1) as f64).sqrt();
+    let session_rows = |b: usize| -> Vec<f64> {
+        full.iter()
+            .zip(&owners)
+            .filter(|(_, o)| o.contains(&(cal.landmarks.len() + b)))
+            .map(|(v, _)| *v)
+            .collect()
+    };
+    let all_points: Vec<f64> =
+        full.iter().zip(&owners).filter(|(_, o)| o[0] >= cal.landmarks.len()).map(|(v, _)| *v).collect();
+    units
         .par_iter()
-        .map(|&l| {
-            let contribution_pct = 100.0
-                * errors
-                    .iter()
-                    .filter(|e| e.landmarks.0 == l || e.landmarks.1 == l)
-                    .map(|e| e.error_mm.powi(2))
-                    .sum::<f64>()
-                / (2.0 * total);
-            let (cooks_distance, loo_impact_pct) =
-                match refit(fit, artefact, &cal.without_landmark(l), options) {
-                    Ok(model) => {
-                        let delta = nalgebra::DVector::from_iterator(
-                            p,
-                            fit.estimated.iter().map(|&id| model.get(id) - fit.model.get(id)),
-                        );
-                        let cook = delta.dot(&(&jtj * &delta)) / (p as f64 * mse.max(1e-300));
-                        (cook, 100.0 * (full_rms - rms_on(&model)) / full_rms)
-                    }
-                    Err(_) => (f64::NAN, f64::NAN),
-                };
+        .map(|&u| {
+            let own: f64 =
+                full.iter().zip(&owners).filter(|(_, o)| o.contains(&key(u))).map(|(v, _)| v * v).sum();
+            let (what, name, share, without, bias_mm, biased) = match u {
+                Unit::Landmark(l) => {
+                    let name = cal.landmarks[l].id.clone();
+                    ("landmark", name, 2.0, cal.without_landmark(l), bias[l], bias[l] > BIAS_MM)
+                }
+                Unit::Session(b) => {
+                    let own_rms = points_rms(&session_rows(b));
+                    let biased = own_rms > SESSION_BIAS_FACTOR * points_rms(&all_points);
+                    (
+                        "session",
+                        cal.block_name(b),
+                        1.0,
+                        cal.without(|k| cal.obs[k].block == b),
+                        own_rms,
+                        biased,
+                    )
+                }
+            };
+            let contribution_pct = 100.0 * own / (share * total);
+            let (cooks_distance, loo_impact_pct) = match refit(fit, &without, &options) {
+                Ok(model) => {
+                    let (moved, _) = rows(&model, cal, setup);
+                    let change: f64 = full.iter().zip(&moved).map(|(a, b)| (a - b).powi(2)).sum();
+                    (
+                        change / (p.max(1) as f64 * mse.max(1e-300)),
+                        100.0 * (full_rms - rms_on(&model)) / full_rms,
+                    )
+                }
+                Err(_) => (f64::NAN, f64::NAN),
+            };
             let mut exceeded = Vec::new();
             if contribution_pct > 1.5 * 100.0 / count {
                 exceeded.push("contribution");
@@ -131,15 +191,16 @@ pub fn landmark_outliers(
             if loo_impact_pct > LOO_IMPACT_PCT {
                 exceeded.push("leave_one_out");
             }
-            if bias[l] > BIAS_MM {
+            if biased {
                 exceeded.push("bias");
             }
-            LandmarkOutlier {
-                landmark: artefact.landmarks[l].id.clone(),
+            Outlier {
+                what: what.into(),
+                name,
                 contribution_pct,
                 cooks_distance,
                 loo_impact_pct,
-                bias_mm: bias[l],
+                bias_mm,
                 flagged: exceeded.len() >= 2,
                 exceeded: exceeded.into_iter().map(String::from).collect(),
             }

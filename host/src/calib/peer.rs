@@ -2,7 +2,7 @@
 //! solves with `least_squares(method='trf', loss='huber')` and its own numpy kinematics, so that
 //! kincal's solver can be compared with an independent one (test `scipy_peer`, `kincal bench`).
 
-use crate::data::{Artefact, Dataset};
+use crate::data::Observations;
 use crate::model::{ArmModel, ParamId};
 use crate::simulate::{simulate, SimulatedData, SimulationOptions};
 use std::path::{Path, PathBuf};
@@ -23,7 +23,7 @@ pub enum PeerError {
     Peer(String),
     /// The calibration could not run.
     #[error(transparent)]
-    Calibration(#[from] crate::calib::calibrate::CalibrationError),
+    Calibration(#[from] crate::calib::fit::CalibError),
 }
 
 /// What the SciPy peer reports.
@@ -51,8 +51,7 @@ pub fn write_peer_problem(
     path: &Path,
     nominal: &ArmModel,
     params: &[ParamId],
-    artefact: &Artefact,
-    data: &Dataset,
+    data: &Observations,
     huber_delta_mm: f64,
 ) -> Result<(), PeerError> {
     let bounds: Vec<_> = params
@@ -69,8 +68,8 @@ pub fn write_peer_problem(
         serde_json::from_str(&nominal.to_text(true)).map_err(|e| PeerError::Peer(e.to_string()))?;
     let problem = serde_json::json!({
         "model": model,
-        "landmarks_mm": artefact.landmarks.iter().map(|l| l.xyz_mm).collect::<Vec<_>>(),
-        "touches": data.touches.iter().map(|t| serde_json::json!({"placement": t.placement, "landmark": t.landmark, "repeat": t.repeat, "enc_deg": t.enc_deg})).collect::<Vec<_>>(),
+        "landmarks_mm": data.landmarks.iter().map(|l| l.xyz_mm).collect::<Vec<_>>(),
+        "touches": data.obs.iter().map(|t| serde_json::json!({"placement": t.group, "landmark": t.touched(), "repeat": t.repeat, "enc_deg": t.q_deg})).collect::<Vec<_>>(),
         "params": params.iter().map(|p| p.to_string()).collect::<Vec<_>>(),
         "x0": params.iter().map(|p| nominal.get(*p)).collect::<Vec<_>>(),
         "lower": bounds.iter().map(|b| b.0).collect::<Vec<_>>(),

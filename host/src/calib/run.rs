@@ -1,29 +1,36 @@
-//! `kincal calibrate`: the whole job from input files to results, and the typed files of a RUN
-//! folder read back.
+//! `kincal calibrate`: the whole job from input files to results, for every kind of data — read
+//! the folders (artefact placements, tracker sessions, or both), calibrate, validate on the held-out
+//! folder (distances of artefact touches; points of tracker sessions, each frame refitted) against
+//! the nominal model, the floor, the data-error candidates, whether the figures are a result, and
+//! the verdict, as [`Summary`] holds them. Writing the RUN folder is [`crate::store`]'s job.
 //!
-//! RUN/ holds `model.toml` (the calibrated model, loadable again), `nominal.toml` (the model it
-//! started from, with any added effects), `summary.json` ([`Summary`], format [`RUN_FORMAT`]),
-//! `residuals.json` ([`StoredResiduals`], every validation distance error, for `kincal compare`)
-//! and `report.html`. Writing the folder is [`crate::output`]'s job.
+//! The nominal figures of tracker sessions are the nominal arm with only the tool point (and the
+//! frames) fitted on the calibration data, as an instrument user would use the vendor's model.
 
-use crate::calib::calibrate::{
-    calibrate, check_data, Calibration, CalibrationError, CalibrationOptions, Estimate, StartOutcome,
-    HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS,
-};
-use crate::calib::identify::{self, Identifiability};
-use crate::calib::objective::{CalibrationProblem, Objective};
-use crate::calib::outliers::{landmark_outliers, LandmarkOutlier};
-use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions, StudyRow};
+use crate::calib::diagnose::data_errors::sessions::data_error_candidates;
+use crate::calib::diagnose::Measure;
+use crate::calib::fit::{calibrate, check_data, dense_jacobian, CalibError, Fit};
+use crate::calib::floor::{gap, noise_floor, point_floor};
+use crate::calib::identify;
+use crate::calib::outliers::outliers as outlier_metrics;
+use crate::calib::setup::{SolveOptions, DEFAULT_LEVER_MM};
+use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions};
+use crate::calib::summary::*;
 use crate::calib::trust::{result_problems, TrustScales};
-use crate::calib::validate::{self, validate, ErrorStats, GroupStats, Repeatability, Validation};
-use crate::data::{Artefact, Dataset, Purpose, MAX_ARTEFACT_SPAN_MM};
+use crate::calib::validate::{
+    calibration_residuals_mm, errors_in_calibration_session, fit_session_with_tool, orientation_errors_deg,
+    session_probe_rotation, session_residuals_mm, undetermined_rotation, validate, validate_orientations,
+    validate_session, AngleStats, ErrorStats, SessionValidation, Validation,
+};
+use crate::data::{load_folder, Artefact, Observations, Purpose};
 use crate::files::FileError;
-use crate::files::{field_error, read_tagged};
 use crate::model::effects::Effect;
-use crate::model::file::MAX_REACH_MM;
-use crate::model::ArmModel;
-use crate::numerics::solver::Residuals;
+use crate::model::{ArmModel, ParamId};
+use nalgebra::Vector3;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+pub use crate::calib::floor::EXPLAINS_WITHIN;
 
 /// Why a run failed.
 #[derive(Debug, thiserror::Error)]
@@ -33,8 +40,8 @@ pub enum RunError {
     Data(#[from] FileError),
     /// The calibration could not run.
     #[error(transparent)]
-    Calibration(#[from] CalibrationError),
-    /// `--exclude-landmark` or `--exclude-block` names nothing in the data.
+    Calibration(#[from] CalibError),
+    /// `--exclude-landmark`, `--exclude-block` or `--exclude-point` names nothing in the data.
     #[error("{0}")]
     Exclusion(String),
     /// The artefact is larger than the arm can span.
@@ -71,6 +78,38 @@ pub enum RunError {
         /// The calibration placement it copies.
         calibration: String,
     },
+    /// A validation session has the name of a calibration session.
+    #[error(
+        "session \"{0}\" is in both the calibration and the validation folder: validation must be held out"
+    )]
+    SameSession(String),
+    /// `--same-base` does not pair a held-out session with a calibration session.
+    #[error(
+        "--same-base {0}: expected HELD_OUT=CALIBRATION, a held-out session and the calibration session whose \
+         instrument placement it shares"
+    )]
+    SameBase(String),
+    /// An option that has no meaning on the data given (named, with the kind of data).
+    #[error("{option}: not for {kind} data: {why}")]
+    NotForKind {
+        /// The option, as the command line spells it.
+        option: String,
+        /// The kind of data it was given (`artefact`, `tracker`, `mixed`).
+        kind: &'static str,
+        /// What it needs.
+        why: String,
+    },
+    /// An option that would change nothing on the data given (named, with why).
+    #[error("{option}: it would change nothing: {why}")]
+    NoEffect {
+        /// The option, as the command line spells it.
+        option: String,
+        /// Why nothing would change.
+        why: String,
+    },
+    /// `--add` names no effect of the library.
+    #[error("--add {0}: not an effect of the library (e.g. compliance:2, harmonic:3:2, twist:4, scale)")]
+    UnknownEffect(String),
     /// The model's figures on the data are beyond the model-independent scales (see
     /// [`crate::calib::trust`]): nothing computed from the model is a result.
     #[error(
@@ -86,6 +125,17 @@ pub enum RunError {
         /// The model's joints.
         joints: usize,
     },
+    /// The sessions were measured on two arms, or some name their arm and others do not.
+    #[error(transparent)]
+    MixedArms(#[from] crate::trace::MixedArms),
+    /// The data are not those the RUN was made from.
+    #[error("{path}: {what}; the data changed since the calibration (calibrate again)")]
+    DataChanged {
+        /// The file or folder.
+        path: PathBuf,
+        /// What differs.
+        what: String,
+    },
     /// An input path could not be resolved.
     #[error("{path}: {source}")]
     Input {
@@ -96,426 +146,117 @@ pub enum RunError {
     },
 }
 
-/// Input files of a run (absolute once the run has loaded them).
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct RunInputs {
-    /// Arm model file.
-    pub model: PathBuf,
-    /// Artefact file.
-    pub artefact: PathBuf,
-    /// Folder of calibration sessions.
-    pub calibration: PathBuf,
-    /// Folder of validation sessions.
-    pub validation: PathBuf,
-    /// Landmark ids whose touches are left out of both datasets (a wrong certificate).
-    #[serde(default)]
-    pub exclude_landmarks: Vec<String>,
-    /// Calibration blocks `PLACEMENT/REPEAT` left out (the artefact moved during the repeat).
-    #[serde(default)]
-    pub exclude_blocks: Vec<String>,
-}
-
 impl RunInputs {
-    /// Inputs from the four paths, nothing excluded.
-    pub fn new(model: PathBuf, artefact: PathBuf, calibration: PathBuf, validation: PathBuf) -> RunInputs {
-        RunInputs {
-            model,
-            artefact,
-            calibration,
-            validation,
-            exclude_landmarks: Vec::new(),
-            exclude_blocks: Vec::new(),
+    /// The nominal model (the model file's arm with the added effects).
+    pub fn nominal(&self) -> Result<ArmModel, RunError> {
+        let mut nominal = ArmModel::load(&self.model)?;
+        for name in &self.add {
+            let effect = Effect::parse(name).ok_or_else(|| RunError::UnknownEffect(name.clone()))?;
+            if effect.joint.is_some_and(|j| j >= nominal.joints.len()) {
+                return Err(RunError::NoSuchJoint {
+                    effect: effect.to_string(),
+                    joints: nominal.joints.len(),
+                });
+            }
+            effect.add_to(&mut nominal);
         }
+        Ok(nominal)
     }
 
-    /// Load the calibration and validation sessions with the exclusions applied.
-    pub fn load_data(&self, artefact: &Artefact) -> Result<(Dataset, Dataset), RunError> {
-        let mut cal = Dataset::load_dir(&self.calibration, artefact, Purpose::Calibration)?;
-        let mut val = Dataset::load_dir(&self.validation, artefact, Purpose::Validation)?;
+    /// Both folders, as read: the calibration and validation observations (the artefact file
+    /// read when given).
+    pub fn read_folders(&self) -> Result<(Observations, Observations), RunError> {
+        let artefact = self.artefact.as_deref().map(Artefact::load).transpose()?;
+        let cal = load_folder(&self.calibration, artefact.as_ref(), Purpose::Calibration)?;
+        let val = load_folder(&self.validation, artefact.as_ref(), Purpose::Validation)?;
+        Ok((cal, val))
+    }
+
+    /// The observations with the exclusions applied: landmarks out of both folders, blocks and
+    /// observations out of the calibration folder.
+    pub fn exclude(
+        &self,
+        cal: &Observations,
+        val: &Observations,
+    ) -> Result<(Observations, Observations), RunError> {
+        let (mut cal, mut val) = (cal.clone(), val.clone());
         for id in &self.exclude_landmarks {
-            let l = artefact.index_of(id).ok_or_else(|| {
-                RunError::Exclusion(format!(
+            let Some(l) = cal.landmark_index(id) else {
+                let artefact = self.artefact.as_deref().unwrap_or(Path::new("the artefact"));
+                return Err(RunError::Exclusion(format!(
                     "--exclude-landmark {id}: no landmark \"{id}\" in {}",
-                    self.artefact.display()
-                ))
-            })?;
+                    artefact.display()
+                )));
+            };
             cal = cal.without_landmark(l);
             val = val.without_landmark(l);
         }
         for block in &self.exclude_blocks {
-            let found = block.rsplit_once('/').and_then(|(p, r)| {
-                let repeat: u32 = r.parse().ok()?;
-                let placement = cal.placements.iter().position(|n| n == p)?;
-                Some((placement, repeat))
-            });
-            let Some((placement, repeat)) =
-                found.filter(|(p, r)| cal.touches.iter().any(|t| t.placement == *p && t.repeat == *r))
-            else {
+            let Some(b) = cal.find_block(block) else {
                 return Err(RunError::Exclusion(format!(
-                    "--exclude-block {block}: expected PLACEMENT/REPEAT of a calibration block in {}",
+                    "--exclude-block {block}: expected PLACEMENT/REPEAT of a calibration block, or a calibration \
+                     session, in {}",
                     self.calibration.display()
                 )));
             };
-            cal.touches.retain(|t| !(t.placement == placement && t.repeat == repeat));
+            cal = cal.without(|k| cal.obs[k].block == b);
         }
-        Ok((cal, val))
-    }
-}
-
-/// What one objective can determine at the calibrated model.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct ObjectiveComparison {
-    /// Free parameters identifiable from distances alone.
-    pub identifiable_by_distance: Vec<String>,
-    /// Free parameters identifiable with distances plus relative orientation.
-    pub identifiable_by_six_dof: Vec<String>,
-    /// Identifiable with orientation but not with distances.
-    pub gained_by_orientation: Vec<String>,
-    /// Standard deviations of each estimated parameter under both objectives (same residual
-    /// variance), `[param, distance, six_dof]`.
-    pub std: Vec<(String, Option<f64>, Option<f64>)>,
-}
-
-/// Everything `summary.json` holds.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct Summary {
-    /// Always [`RUN_FORMAT`].
-    pub format: String,
-    /// Tool version.
-    pub kincal_version: String,
-    /// Input files.
-    pub inputs: RunInputs,
-    /// Options used.
-    pub options: SummaryOptions,
-    /// Calibration figures.
-    pub calibration: CalibrationSummary,
-    /// Identifiability before and after solving.
-    pub identifiability: IdentifiabilitySummary,
-    /// Calibrated model on the validation sessions.
-    pub validation: ErrorStats,
-    /// Nominal model on the validation sessions.
-    pub nominal_validation: ErrorStats,
-    /// Per landmark and per placement, nominal vs calibrated.
-    pub validation_detail: ValidationDetail,
-    /// Appendix-F outlier metrics per landmark (calibration data).
-    pub outliers: Vec<LandmarkOutlier>,
-    /// The outlier metrics were not computed (`--no-outliers`): `outliers` is empty because
-    /// nothing was looked at, not because nothing was found.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub outliers_skipped: bool,
-    /// What relative orientation adds to distances.
-    pub objective_comparison: ObjectiveComparison,
-    /// Dataset-size study, when asked for (`--study-subsets`).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub study: Option<Vec<StudyRow>>,
-    /// Why the figures are not a result, with the likely cause ([`result_problems`]); empty when
-    /// they are. A RUN with problems is written for inspection and the command exits non-zero.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub not_trustworthy: Vec<String>,
-}
-
-/// The first validation placement that copies a calibration placement touch for touch.
-fn copied_placement(cal: &Dataset, val: &Dataset) -> Option<(String, String)> {
-    let key = |data: &Dataset, p: usize| -> Vec<(usize, u32, [u64; crate::model::SUTA_JOINTS])> {
-        let mut v: Vec<_> = data
-            .touches
-            .iter()
-            .filter(|t| t.placement == p)
-            .map(|t| (t.landmark, t.repeat, t.enc_deg.map(f64::to_bits)))
-            .collect();
-        v.sort_unstable();
-        v
-    };
-    let cal_keys: std::collections::HashMap<_, usize> =
-        (0..cal.placements.len()).map(|p| (key(cal, p), p)).collect();
-    (0..val.placements.len()).find_map(|p| {
-        let k = key(val, p);
-        (!k.is_empty())
-            .then(|| cal_keys.get(&k))
-            .flatten()
-            .map(|&c| (val.placements[p].clone(), cal.placements[c].clone()))
-    })
-}
-
-/// Options recorded in the summary.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct SummaryOptions {
-    /// Huber threshold, mm.
-    pub huber_delta_mm: f64,
-    /// Random restarts.
-    pub restarts: usize,
-    /// Seed.
-    pub seed: u64,
-    /// Objective minimised.
-    pub objective: Objective,
-    /// Effects added to the input model with `--add`.
-    #[serde(default)]
-    pub added_effects: Vec<String>,
-}
-
-impl SummaryOptions {
-    /// Whether the recorded options are within the limits the command line accepts:
-    /// `Err((field, what was expected))` otherwise.
-    pub fn check(&self) -> Result<(), (String, String)> {
-        let within = |v: f64, (lo, hi): (f64, f64)| v.is_finite() && (lo..=hi).contains(&v);
-        if !within(self.huber_delta_mm, HUBER_DELTA_RANGE_MM) {
-            let (lo, hi) = HUBER_DELTA_RANGE_MM;
-            return Err((
-                "options.huber_delta_mm".into(),
-                format!("expected {lo} to {hi} mm, found {}", self.huber_delta_mm),
-            ));
-        }
-        if self.restarts > MAX_RESTARTS {
-            return Err((
-                "options.restarts".into(),
-                format!("expected at most {MAX_RESTARTS}, found {}", self.restarts),
-            ));
-        }
-        if let Objective::SixDof { lever_mm } = self.objective {
-            if !within(lever_mm, LEVER_RANGE_MM) {
-                let (lo, hi) = LEVER_RANGE_MM;
-                return Err((
-                    "options.objective.lever_mm".into(),
-                    format!("expected {lo} to {hi}, found {lever_mm}"),
-                ));
-            }
-        }
-        if let Some(bad) = self.added_effects.iter().find(|e| Effect::parse(e).is_none()) {
-            return Err(("options.added_effects".into(), format!("unknown effect `{bad}`")));
-        }
-        Ok(())
+        Ok((exclude_points(&cal, &self.exclude_points)?, val))
     }
 
-    /// The calibration options these record.
-    pub fn calibration_options(&self) -> CalibrationOptions {
-        CalibrationOptions {
-            huber_delta_mm: self.huber_delta_mm,
-            restarts: self.restarts,
-            seed: self.seed,
-            objective: self.objective,
-            ..CalibrationOptions::default()
+    /// The solve options of `options` with this setup (the floated tools of the calibration
+    /// groups, the drifts, the probe's σ).
+    pub fn solve_options(&self, options: &SolveOptions, cal: &Observations) -> SolveOptions {
+        SolveOptions {
+            float_tool: self.float_tool.iter().filter(|n| cal.find_group(n).is_some()).cloned().collect(),
+            drift_sessions: self.drift_sessions.clone(),
+            orientation_sigma_deg: self.orientation_sigma_deg,
+            ..options.clone()
         }
     }
 }
 
-/// One validation distance error as stored in `residuals.json`.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct StoredPairError {
-    /// Placement name.
-    pub placement: String,
-    /// Landmark ids.
-    pub landmarks: (String, String),
-    /// Repeat.
-    pub repeat: u32,
-    /// Measured minus certified distance, mm.
-    pub error_mm: f64,
-    /// Raw encoder angles of the two touches, degrees.
-    pub enc_deg: ([f64; crate::model::SUTA_JOINTS], [f64; crate::model::SUTA_JOINTS]),
-}
-
-/// Format tag of `summary.json`.
-pub const RUN_FORMAT: &str = "kincal-run/1";
-/// Format tag of `residuals.json`.
-pub const RESIDUALS_FORMAT: &str = "kincal-residuals/1";
-
-/// `residuals.json`: every validation distance error of the calibrated model.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct StoredResiduals {
-    /// Always [`RESIDUALS_FORMAT`].
-    pub format: String,
-    /// One entry per validation pair.
-    pub pairs: Vec<StoredPairError>,
-}
-
-/// Largest distance figure (an error, an RMS, a bias), mm, a RUN can hold: two tool positions of
-/// the longest arm a model may describe plus the largest artefact. Read back, a larger figure (or
-/// a non-finite one) is a damaged or edited file, refused like an implausible input.
-pub const MAX_STORED_MM: f64 = 2.0 * MAX_REACH_MM + MAX_ARTEFACT_SPAN_MM;
-
-/// `Err((field, what was expected))` when a stored distance figure is not finite or beyond
-/// [`MAX_STORED_MM`] (or negative where it cannot be).
-fn check_mm(field: &str, value: f64, signed: bool) -> Result<(), (String, String)> {
-    let ok = value.is_finite() && value.abs() <= MAX_STORED_MM && (signed || value >= 0.0);
-    if ok {
-        return Ok(());
+/// `cal` without the observations named `SESSION:LINE` or `PLACEMENT/REPEAT/LANDMARK`
+/// (`--exclude-point`).
+pub fn exclude_points(cal: &Observations, names: &[String]) -> Result<Observations, RunError> {
+    let mut dropped = vec![false; cal.obs.len()];
+    for name in names {
+        let found = cal.find_point(name);
+        if found.is_empty() {
+            return Err(RunError::Exclusion(format!(
+                "--exclude-point {name}: no calibration observation of that name (expected SESSION:LINE, or \
+                 PLACEMENT/REPEAT/LANDMARK for a touch)"
+            )));
+        }
+        found.into_iter().for_each(|k| dropped[k] = true);
     }
-    let range = if signed { format!("±{MAX_STORED_MM}") } else { format!("0 to {MAX_STORED_MM}") };
-    let found = if value.abs() < 1e6 { format!("{value}") } else { format!("{value:e}") };
-    Err((field.to_string(), format!("expected a finite distance figure of {range} mm, found {found}")))
+    Ok(cal.without(|k| dropped[k]))
 }
 
-impl ErrorStats {
-    fn check(&self, field: &str) -> Result<(), (String, String)> {
-        check_mm(&format!("{field}.rms_mm"), self.rms_mm, false)?;
-        check_mm(&format!("{field}.mean_mm"), self.mean_mm, true)?;
-        check_mm(&format!("{field}.std_mm"), self.std_mm, false)?;
-        check_mm(&format!("{field}.max_mm"), self.max_mm, false)
-    }
+/// One point as the calibrated model leaves it.
+#[derive(Clone, Debug)]
+pub struct PointResidual {
+    /// Line in the session's file.
+    pub line: usize,
+    /// Pose id, when the file has a `pose` column.
+    pub pose: Option<String>,
+    /// Time of the measurement, s, when the file has a `time_s` column.
+    pub time_s: Option<f64>,
+    /// Joint angles, degrees.
+    pub q_deg: Vec<f64>,
+    /// Measured − predicted, in the robot's base frame, mm.
+    pub residual_mm: [f64; 3],
+    /// Orientation error, degrees (6-DoF probes).
+    pub orientation_error_deg: Option<f64>,
 }
 
-impl Summary {
-    /// Whether every figure read back is plausible (finite, within [`MAX_STORED_MM`] for
-    /// distances): `Err((field, what was expected))` otherwise.
-    pub fn check_figures(&self) -> Result<(), (String, String)> {
-        check_mm("calibration.rms_mm", self.calibration.rms_mm, false)?;
-        if !(self.calibration.cost.is_finite() && self.calibration.cost >= 0.0) {
-            return Err((
-                "calibration.cost".into(),
-                format!("expected a finite non-negative cost, found {}", self.calibration.cost),
-            ));
-        }
-        self.validation.check("validation")?;
-        self.nominal_validation.check("nominal_validation")?;
-        let d = &self.validation_detail;
-        for (name, groups) in [
-            ("per_landmark", &d.per_landmark),
-            ("nominal_per_landmark", &d.nominal_per_landmark),
-            ("per_placement", &d.per_placement),
-            ("nominal_per_placement", &d.nominal_per_placement),
-        ] {
-            for (i, g) in groups.iter().enumerate() {
-                g.stats.check(&format!("validation_detail.{name}[{i}].stats"))?;
-            }
-        }
-        for (i, r) in d.repeatability.iter().enumerate() {
-            check_mm(&format!("validation_detail.repeatability[{i}].rms_mm"), r.rms_mm, false)?;
-            check_mm(&format!("validation_detail.repeatability[{i}].rp_mm"), r.rp_mm, false)?;
-        }
-        for (i, o) in self.outliers.iter().enumerate() {
-            check_mm(&format!("outliers[{i}].bias_mm"), o.bias_mm, true)?;
-        }
-        for (i, e) in self.calibration.estimates.iter().enumerate() {
-            let figures = [e.nominal, e.value].into_iter().chain(e.std);
-            if figures.into_iter().any(|v| !v.is_finite()) {
-                return Err((
-                    format!("calibration.estimates[{i}]"),
-                    format!("{}: expected finite nominal, value and std", e.param),
-                ));
-            }
-        }
-        for (i, row) in self.study.iter().flatten().enumerate() {
-            let figures = [row.mean_mm, row.std_mm, row.min_mm, row.max_mm];
-            for v in figures.into_iter().chain(row.rms_mm.iter().copied()) {
-                check_mm(&format!("study[{i}]"), v, false)?;
-            }
-        }
-        Ok(())
-    }
-}
-
-impl StoredResiduals {
-    /// Whether every stored pair is plausible: a finite error within [`MAX_STORED_MM`] and raw
-    /// encoder angles in [0, 360) degrees, as the sessions they came from had to hold.
-    pub fn check(&self) -> Result<(), (String, String)> {
-        for (i, p) in self.pairs.iter().enumerate() {
-            check_mm(&format!("pairs[{i}].error_mm"), p.error_mm, true)?;
-            for (side, angles) in [p.enc_deg.0, p.enc_deg.1].iter().enumerate() {
-                if let Some(k) = angles.iter().position(|v| !(v.is_finite() && (0.0..360.0).contains(v))) {
-                    return Err((
-                        format!("pairs[{i}].enc_deg[{side}][{k}]"),
-                        format!("expected a raw encoder angle in [0, 360) degrees, found {}", angles[k]),
-                    ));
-                }
-            }
-        }
-        Ok(())
-    }
-}
-
-/// A RUN folder read back as types.
-pub struct RunFolder {
-    /// The folder.
-    pub dir: PathBuf,
-    /// The calibrated model (`model.toml`).
-    pub model: ArmModel,
-    /// `summary.json`.
-    pub summary: Summary,
-}
-
-impl RunFolder {
-    /// Read `model.toml` and `summary.json` of a RUN folder; the recorded options are checked
-    /// against the same limits as the command line's, since diagnose refits with them, and every
-    /// figure for plausibility ([`Summary::check_figures`]).
-    pub fn load(dir: &Path) -> Result<RunFolder, FileError> {
-        let model = ArmModel::load(&dir.join("model.toml"))?;
-        let path = dir.join("summary.json");
-        let summary: Summary = read_tagged(&path, RUN_FORMAT)?;
-        summary.options.check().map_err(|(field, message)| field_error(&path, field, message))?;
-        summary.check_figures().map_err(|(field, message)| field_error(&path, field, message))?;
-        Ok(RunFolder { dir: dir.to_owned(), model, summary })
-    }
-
-    /// Read `residuals.json`, its figures checked as [`StoredResiduals::check`] says.
-    pub fn residuals(&self) -> Result<Vec<StoredPairError>, FileError> {
-        let path = self.dir.join("residuals.json");
-        let stored: StoredResiduals = read_tagged(&path, RESIDUALS_FORMAT)?;
-        stored.check().map_err(|(field, message)| field_error(&path, field, message))?;
-        Ok(stored.pairs)
-    }
-
-    /// Load the artefact and both datasets the run used, refused as `calibrate` refuses them
-    /// ([`check_run_data`]), and refused when the RUN's model is beyond the model-independent
-    /// scales on them ([`TrustScales`], with `nominal.toml` as the nominal model): a diagnosis of
-    /// an absurd model would blame landmarks and effects for what the model gets wrong.
-    pub fn data(&self) -> Result<(Artefact, Dataset, Dataset), RunError> {
-        let inputs = &self.summary.inputs;
-        let artefact = Artefact::load(&inputs.artefact)?;
-        let (cal, val) = inputs.load_data(&artefact)?;
-        check_run_data(&self.model, &artefact, &cal, &val, inputs, self.summary.options.objective)?;
-        let nominal = ArmModel::load(&self.dir.join("nominal.toml"))?;
-        let scales = TrustScales::of(&nominal, &artefact, &cal, &val);
-        let rms = |data: &Dataset| validate::validate(&self.model, &artefact, data).overall.rms_mm;
-        let beyond = scales.beyond(rms(&cal), rms(&val));
-        if !beyond.is_empty() {
-            return Err(RunError::NotACalibration(beyond));
-        }
-        Ok((artefact, cal, val))
-    }
-}
-
-/// Calibration figures in the summary.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct CalibrationSummary {
-    /// RMS distance residual on the calibration data, mm.
-    pub rms_mm: f64,
-    /// Robust cost Σρ at the solution.
-    pub cost: f64,
-    /// Distance pairs used.
-    pub pairs: usize,
-    /// Touches used.
-    pub touches: usize,
-    /// Each parameter: nominal, calibrated, std, status.
-    pub estimates: Vec<Estimate>,
-    /// Parameters fixed at nominal because the data cannot determine them.
-    pub fixed_unidentifiable: Vec<String>,
-    /// Strongly correlated estimated pairs.
-    pub correlations: Vec<(String, String, f64)>,
-    /// Every solver start.
-    pub starts: Vec<StartOutcome>,
-}
-
-/// Identifiability in the summary.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct IdentifiabilitySummary {
-    /// At the nominal values.
-    pub before: Identifiability,
-    /// At the solution.
-    pub after: Identifiability,
-}
-
-/// Validation detail in the summary.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-pub struct ValidationDetail {
-    /// Calibrated model, per landmark.
-    pub per_landmark: Vec<GroupStats>,
-    /// Nominal model, per landmark.
-    pub nominal_per_landmark: Vec<GroupStats>,
-    /// Calibrated model, per placement.
-    pub per_placement: Vec<GroupStats>,
-    /// Nominal model, per placement.
-    pub nominal_per_placement: Vec<GroupStats>,
-    /// Repeatability per landmark (calibrated model, validation data).
-    pub repeatability: Vec<Repeatability>,
+/// The residuals of one session's points, in file order.
+#[derive(Clone, Debug)]
+pub struct SessionResiduals {
+    /// Session name.
+    pub name: String,
+    /// Its points.
+    pub points: Vec<PointResidual>,
 }
 
 /// A finished run: results plus what the report draws.
@@ -525,32 +266,496 @@ pub struct Run {
     /// The summary written to `summary.json`.
     pub summary: Summary,
     /// The calibration itself.
-    pub calibration: Calibration,
-    /// Calibrated model on the validation data.
-    pub validation: Validation,
-    /// Nominal model on the validation data.
-    pub nominal_validation: Validation,
-    /// The data, for plots.
-    pub artefact: Artefact,
-    /// Validation touches, for plots.
-    pub validation_data: Dataset,
+    pub calibration: Fit,
+    /// Calibrated and nominal model on the held-out distances (artefact placements).
+    pub distances: Option<(Validation, Validation)>,
+    /// Every held-out point's residual (its session's frame refitted), per session.
+    pub held_out: Vec<SessionResiduals>,
+    /// Every calibration point's residual at the solution, per session.
+    pub calibration_residuals: Vec<SessionResiduals>,
+    /// The held-out observations, for plots.
+    pub validation_data: Observations,
     /// How long each step took.
     pub steps: StepTimes,
 }
 
-fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -> ObjectiveComparison {
+/// The first validation placement that copies a calibration placement touch for touch.
+fn copied_placement(cal: &Observations, val: &Observations) -> Option<(String, String)> {
+    let key = |data: &Observations, p: usize| -> Vec<(usize, u32, Vec<u64>)> {
+        let mut v: Vec<_> = data
+            .obs
+            .iter()
+            .filter(|t| t.group == p && t.landmark().is_some())
+            .map(|t| (t.touched(), t.repeat, t.q_deg.iter().map(|v| v.to_bits()).collect::<Vec<u64>>()))
+            .collect();
+        v.sort_unstable();
+        v
+    };
+    let cal_keys: std::collections::HashMap<_, usize> =
+        (0..cal.groups.len()).map(|p| (key(cal, p), p)).collect();
+    (0..val.groups.len()).find_map(|p| {
+        let k = key(val, p);
+        (!k.is_empty())
+            .then(|| cal_keys.get(&k))
+            .flatten()
+            .map(|&c| (val.groups[p].name.clone(), cal.groups[c].name.clone()))
+    })
+}
+
+/// Every refusal of a run's data before anything is fitted, shared by `calibrate` (on the
+/// nominal model) and `diagnose` (on the RUN's calibrated model) so both refuse the same data with
+/// the same message: sessions of two arms, a held-out artefact folder without a distance, an artefact out of the arm's
+/// reach, a validation placement copied from the calibration data, a session in both folders,
+/// and whatever [`check_data`] refuses.
+pub fn check_run_data(
+    model: &ArmModel,
+    cal: &Observations,
+    val: &Observations,
+    inputs: &RunInputs,
+    options: &SolveOptions,
+) -> Result<(), RunError> {
+    cal.one_arm(&[val])?;
+    let touches = |d: &Observations| d.obs.iter().any(|o| o.landmark().is_some());
+    if touches(val) && val.pair_count() == 0 {
+        return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
+    }
+    let (span, reach) = (cal.landmark_span_mm(), model.reach_mm());
+    if touches(cal) && span > 2.0 * reach {
+        return Err(RunError::OutOfReach { span, reach });
+    }
+    if let Some((validation, calibration)) = copied_placement(cal, val) {
+        return Err(RunError::SameData { validation, calibration });
+    }
+    if let Some(b) = val.sessions().into_iter().find(|&b| cal.find_block(&val.block_name(b)).is_some()) {
+        return Err(RunError::SameSession(val.block_name(b)));
+    }
+    if !val.obs.is_empty() && val.joints != model.joints.len() {
+        let tracker = val.point_count() > 0;
+        return Err(CalibError::JointCount {
+            kind: if tracker { "tracker" } else { "artefact" },
+            record: if tracker { "have" } else { "record" },
+            data: val.joints,
+            what: if tracker { "joint columns (q1_deg …)" } else { "encoder angles" },
+            model: model.joints.len(),
+        }
+        .into());
+    }
+    check_data(model, cal, options)?;
+    Ok(())
+}
+
+/// Every option the data given cannot use, refused naming the option and the kind of data
+/// (nothing is silently ignored): `--objective six-dof` without an orientation (relative
+/// orientation of artefact touches, or a 6-DoF probe's), `--orientation-sigma-deg` without a
+/// probe orientation, `--sigma-mm` and `--same-base` without held-out tracker sessions,
+/// `--drift-session` on an artefact placement, `--exclude-landmark` without artefact touches.
+pub fn check_options(
+    cal: &Observations,
+    val: &Observations,
+    inputs: &RunInputs,
+    options: &SolveOptions,
+) -> Result<(), RunError> {
+    let kind = cal.kind().unwrap_or(crate::data::DataKind::Artefact).word();
+    let refuse =
+        |option: &str, why: &str| RunError::NotForKind { option: option.into(), kind, why: why.into() };
+    let touches = |d: &Observations| d.obs.iter().any(|o| o.landmark().is_some());
+    let oriented = cal.obs.iter().any(|o| o.orientation().is_some());
+    let held_out_points = val.point_count() > 0;
+    if matches!(options.objective, Some(crate::calib::setup::Objective::SixDof { .. }))
+        && !touches(cal)
+        && !oriented
+    {
+        return Err(refuse(
+            "--objective six-dof",
+            "it fits orientations: the relative orientation of artefact touches, or a 6-DoF probe's (qw,qx,qy,qz \
+             columns), and these calibration sessions carry neither",
+        ));
+    }
+    if inputs.orientation_sigma_deg.is_some() && !oriented {
+        return Err(refuse(
+            "--orientation-sigma-deg",
+            "it states a 6-DoF probe's orientation σ, and the calibration data carry no probe orientation (qw,qx,qy,qz)",
+        ));
+    }
+    if inputs.stated_sigma_mm.is_some() && !held_out_points {
+        return Err(refuse(
+            "--sigma-mm",
+            "it states the instrument's σ of tracker points; the floor of artefact distances comes from repeated touches",
+        ));
+    }
+    let all_stated = val.obs.iter().filter(|o| o.point_mm().is_some()).all(|o| o.sigma_mm.is_some());
+    if inputs.stated_sigma_mm.is_some() && held_out_points && all_stated {
+        return Err(RunError::NoEffect {
+            option: "--sigma-mm".into(),
+            why: "every held-out point states its own σ (a sigma_mm or u95_mm column), which the floor uses"
+                .into(),
+        });
+    }
+    if !inputs.same_base.is_empty() && !held_out_points {
+        return Err(refuse(
+            "--same-base",
+            "it pairs a held-out tracker session with a calibration session's frame",
+        ));
+    }
+    for spec in &inputs.drift_sessions {
+        let touched =
+            cal.find_group(&spec.session).is_some_and(|g| cal.groups[g].kind == crate::data::Kind::Artefact);
+        if touched {
+            return Err(refuse(
+                &format!("--drift-session {spec}"),
+                "a drift is fitted against a session's time_s or temp_C, which artefact placements do not carry",
+            ));
+        }
+    }
+    if !inputs.exclude_landmarks.is_empty() && !touches(cal) && !touches(val) {
+        return Err(refuse("--exclude-landmark", "the data hold no artefact landmarks (tracker sessions)"));
+    }
+    Ok(())
+}
+
+/// Check that `cal` and `val` (read with the run's exclusions) are the data `summary` was made
+/// from: the same groups with the same observation counts, the same held-out sessions, and, when
+/// the setup was calibrated again on them, `calibration_rms_mm` equal to the stored one.
+pub fn check_same_data(
+    summary: &Summary,
+    cal: &Observations,
+    val: &Observations,
+    calibration_rms_mm: Option<f64>,
+) -> Result<(), RunError> {
+    let changed = |path: &Path, what: String| RunError::DataChanged { path: path.into(), what };
+    let source = |data: &Observations, b: usize| data.groups[data.blocks[b].group].source.clone();
+    for (name, count) in &summary.calibration.groups {
+        match cal.find_group(name) {
+            None => {
+                return Err(changed(
+                    &summary.inputs.calibration,
+                    format!("calibration group {name} is no longer there"),
+                ))
+            }
+            Some(g) if cal.group_members(g).len() != *count => {
+                let now = cal.group_members(g).len();
+                return Err(changed(&cal.groups[g].source, format!("{count} observations used, {now} now")));
+            }
+            Some(_) => {}
+        }
+    }
+    if !summary.calibration.groups.is_empty() {
+        if let Some(g) =
+            (0..cal.groups.len()).find(|&g| !summary.calibration.groups.contains_key(&cal.groups[g].name))
+        {
+            return Err(changed(&cal.groups[g].source, "a calibration group the run did not use".into()));
+        }
+    }
+    for f in summary.held_out_sessions() {
+        let name = &f.calibrated.name;
+        let Some(b) = val.find_block(name) else {
+            return Err(changed(
+                &summary.inputs.validation,
+                format!("held-out session {name} is no longer there"),
+            ));
+        };
+        let now = val.blocks[b].members.len();
+        if now != f.calibrated.points {
+            return Err(changed(
+                &source(val, b),
+                format!("{} points held out, {now} now", f.calibrated.points),
+            ));
+        }
+    }
+    let stored = summary.calibration.rms_mm;
+    if let Some(rms) = calibration_rms_mm.filter(|rms| (rms - stored).abs() > 1e-6 * stored.max(1e-3)) {
+        return Err(changed(
+            &summary.inputs.calibration,
+            format!("calibration RMS {stored:.6} mm in summary.json, {rms:.6} mm on these files"),
+        ));
+    }
+    Ok(())
+}
+
+/// Wall time of each step of a run, in order, for `kincal bench`'s breakdown.
+#[derive(Clone, Debug)]
+pub struct StepTimes {
+    last: std::time::Instant,
+    /// (step, milliseconds).
+    pub ms: Vec<(&'static str, f64)>,
+}
+
+impl StepTimes {
+    /// Start timing.
+    pub fn start() -> StepTimes {
+        StepTimes { last: std::time::Instant::now(), ms: Vec::new() }
+    }
+
+    /// The step `name` ended now.
+    pub fn lap(&mut self, name: &'static str) {
+        let now = std::time::Instant::now();
+        self.ms.push((name, (now - self.last).as_secs_f64() * 1e3));
+        self.last = now;
+    }
+}
+
+/// Load the inputs, calibrate, validate and judge: see [`run_on`].
+pub fn run(
+    inputs: &RunInputs,
+    options: &SolveOptions,
+    study_subsets: usize,
+    outliers: bool,
+) -> Result<Run, RunError> {
+    let absolute =
+        |p: &Path| std::fs::canonicalize(p).map_err(|source| RunError::Input { path: p.to_owned(), source });
+    let inputs = &RunInputs {
+        model: absolute(&inputs.model)?,
+        artefact: inputs.artefact.as_deref().map(absolute).transpose()?,
+        calibration: absolute(&inputs.calibration)?,
+        validation: absolute(&inputs.validation)?,
+        ..inputs.clone()
+    };
+    let nominal = inputs.nominal()?;
+    let (cal, val) = inputs.read_folders()?;
+    run_on(nominal, &cal, &val, inputs, options, study_subsets, outliers)
+}
+
+/// [`run`] on folders already read: apply the exclusions, check, calibrate, validate on `val`
+/// (artefact distances and tracker sessions, each against the nominal model), the floor, the
+/// data-error candidates of tracker sessions, the outlier metrics (with `outliers`), the
+/// dataset-size study (with `study_subsets` > 0 random subsets per group count), whether the
+/// figures are a result, and the verdict.
+pub fn run_on(
+    nominal: ArmModel,
+    cal: &Observations,
+    val: &Observations,
+    inputs: &RunInputs,
+    options: &SolveOptions,
+    study_subsets: usize,
+    outliers: bool,
+) -> Result<Run, RunError> {
+    let mut steps = StepTimes::start();
+    let arm = cal.one_arm(&[val])?;
+    check_options(cal, val, inputs, options)?;
+    let (cal, val) = inputs.exclude(cal, val)?;
+    let (cal, val) = (&cal, &val);
+    steps.lap("load");
+    let options = &inputs.solve_options(options, cal);
+    for name in &inputs.float_tool {
+        if cal.find_group(name).is_none() && val.find_group(name).is_none() {
+            return Err(CalibError::UnknownSession(name.clone()).into());
+        }
+    }
+    let mut same_base = BTreeMap::new();
+    for pair in &inputs.same_base {
+        let named =
+            pair.split_once('=').filter(|(v, c)| val.find_block(v).is_some() && cal.find_block(c).is_some());
+        let Some((held_out, calibration)) = named else { return Err(RunError::SameBase(pair.clone())) };
+        same_base.insert(held_out.to_string(), calibration.to_string());
+    }
+    check_run_data(&nominal, cal, val, inputs, options)?;
+    check_study_size(cal, study_subsets)?;
+    steps.lap("input checks");
+    let mut fit = calibrate(&nominal, cal, options)?;
+    let on_bounds = mark_bounds(&mut fit);
+    // The calibrated model is of the arm its sessions were measured on, whatever the model it
+    // started from names.
+    fit.model.arm = arm.clone();
+    steps.lap("fit");
+    let mut verdict = Vec::new();
+    let mut not_trustworthy = Vec::new();
+    let mut floor = FloorSummary::default();
+    let touches = |d: &Observations| d.obs.iter().any(|o| o.landmark().is_some());
+    // Artefact placements held out: distances, calibrated and nominal, against the floor.
+    let distances = touches(val).then(|| (validate(&fit.model, val), validate(&nominal, val)));
+    if let Some((v, n)) = &distances {
+        let scales = TrustScales::of(&nominal, cal, val);
+        not_trustworthy.extend(result_problems(&fit, v, &scales));
+        floor.distances = noise_floor(&fit.model, cal, val, fit.estimated.len())
+            .map(|f| f.with_estimate_noise(&fit.model, &fit.estimated, cal, val));
+        floor.distance_gap = floor.distances.as_ref().map(|f| gap(f, v.overall.rms_mm, val));
+        verdict.push(match &floor.distance_gap {
+            Some(g) => format!("held-out distances: {}", g.sentence()),
+            None => format!(
+                "held-out distances: {:.3} mm RMS over {} pairs (nominal {:.3} mm); no landmark was touched twice in a \
+                 placement, so the floor is unknown and the model cannot be called explained",
+                v.overall.rms_mm, v.overall.count, n.overall.rms_mm
+            ),
+        });
+    }
+    steps.lap("validation");
+    // Tracker sessions held out: each frame refitted, against the nominal arm with its tool fitted.
+    let tracker = sessions_section(&nominal, &fit, cal, val, inputs, options, &same_base)?;
+    if let Some(t) = &tracker {
+        verdict.extend(t.verdict.iter().cloned());
+        floor.points = Some(t.floor.clone());
+    }
+    steps.lap("trust scales");
+    let study_rows = (study_subsets > 0).then(|| {
+        let setup = inputs.setup(&SolveOptions { restarts: Some(0), ..options.clone() });
+        study(
+            &nominal,
+            cal,
+            val,
+            &StudyOptions { subsets: study_subsets, seed: options.seed, setup, progress: false },
+        )
+    });
+    if let Some(rows) = &study_rows {
+        not_trustworthy.extend(study_problems(rows).into_iter().map(|p| format!("study: {p}")));
+        steps.lap("study");
+    }
+    let outliers_skipped = !outliers;
+    let outliers = if outliers {
+        let setup = inputs.setup(options);
+        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup)
+    } else {
+        Vec::new()
+    };
+    steps.lap("outliers");
+    let objective_comparison = touches(cal).then(|| objective_comparison(&fit, cal));
+    steps.lap("6-DoF comparison");
+    verdict.push(
+        "next: kincal diagnose RUN names what the model misses (an effect of the library or a data error)"
+            .into(),
+    );
+    let stats = &fit.stats;
+    let summary = Summary {
+        format: RUN_FORMAT.to_string(),
+        kincal_version: env!("CARGO_PKG_VERSION").to_string(),
+        provenance: provenance(arm, inputs, cal, val)?,
+        kind: cal.kind().unwrap_or(crate::data::DataKind::Artefact),
+        joints: nominal.joints.len(),
+        inputs: inputs.clone(),
+        options: SummaryOptions {
+            huber_delta_mm: fit.options.huber_delta_mm(),
+            restarts: fit.options.restarts,
+            seed: fit.options.seed,
+            objective: fit.options.objective,
+            point_weight: (fit.options.point_weight != 1.0).then_some(fit.options.point_weight),
+        },
+        calibration: CalibrationSummary {
+            rms_mm: fit.rms_mm,
+            cost: Some(fit.cost),
+            distances: stats.distances,
+            points: stats.points,
+            orientations: stats.orientations,
+            pairs: cal.landmark_pairs().len(),
+            observations: cal.obs.len(),
+            groups: (0..cal.groups.len())
+                .map(|g| (cal.groups[g].name.clone(), cal.group_members(g).len()))
+                .collect(),
+            estimates: fit.estimates.clone(),
+            correlations: fit.correlations.clone(),
+            starts: fit.starts.clone(),
+            tool_offsets: fit.tool_offsets.clone(),
+            drifts: fit.drifts.clone(),
+            tool_rotation: fit.tool_rotation,
+        },
+        identifiability: IdentifiabilitySummary {
+            before: Some(fit.before.clone()),
+            after: fit.after.clone(),
+            report: fit.identifiability(),
+        },
+        validation: ValidationSummary {
+            distances: distances.as_ref().map(|(v, n)| DistanceValidation {
+                calibrated: v.overall,
+                nominal: n.overall,
+                detail: ValidationDetail {
+                    per_landmark: v.per_landmark.clone(),
+                    nominal_per_landmark: n.per_landmark.clone(),
+                    per_placement: v.per_placement.clone(),
+                    nominal_per_placement: n.per_placement.clone(),
+                    repeatability: v.repeatability.clone(),
+                },
+            }),
+            sessions: tracker.as_ref().map(|t| t.validation.clone()),
+        },
+        floor,
+        outliers,
+        outliers_skipped,
+        objective_comparison,
+        study: study_rows,
+        data_errors: tracker.as_ref().map_or_else(Vec::new, |t| t.data_errors.clone()),
+        verdict,
+        not_trustworthy,
+        warnings: cal.warnings.iter().chain(&val.warnings).cloned().chain(on_bounds).collect(),
+    };
+    let calibration_residuals = cal
+        .sessions()
+        .into_iter()
+        .zip(calibration_residuals_mm(&fit, cal))
+        .map(|(b, residuals)| session_residuals(cal, b, residuals, vec![None; cal.blocks[b].members.len()]))
+        .collect();
+    Ok(Run {
+        nominal,
+        summary,
+        calibration: fit,
+        distances,
+        held_out: tracker.map_or_else(Vec::new, |t| t.held_out),
+        calibration_residuals,
+        validation_data: val.clone(),
+        steps,
+    })
+}
+
+/// Share of a parameter's bound width within which an estimate counts as on its bound.
+pub const ON_BOUND_WITHIN: f64 = 1e-6;
+
+/// Mark each estimated parameter of `fit` that ended on one of its bounds (its status says
+/// which) and say, per parameter, that its value is not a result: the data pushed it there.
+fn mark_bounds(fit: &mut Fit) -> Vec<String> {
+    let mut sentences = Vec::new();
+    for e in fit.estimates.iter_mut().filter(|e| e.status == "estimated") {
+        let Some(bound) = fit.model.free.iter().find(|f| f.id.to_string() == e.param) else { continue };
+        let near = ON_BOUND_WITHIN * (bound.upper - bound.lower).abs().max(1e-12);
+        let side = if (e.value - bound.lower).abs() <= near {
+            ("lower", bound.lower)
+        } else if (bound.upper - e.value).abs() <= near {
+            ("upper", bound.upper)
+        } else {
+            continue;
+        };
+        e.status = format!("estimated, on its {} bound", side.0);
+        sentences.push(format!(
+            "{} ended on its {} bound ({} {}, nominal {} {}): the data pushed it there, so its value is not a \
+             result; an effect the model lacks may have leaked into it (kincal diagnose RUN names it), or its \
+             bounds are too tight (widen them in the model's [free] table, or hold it by removing it there)",
+            e.param, side.0, side.1, e.unit, e.nominal, e.unit
+        ));
+    }
+    sentences
+}
+
+/// The run's [`Provenance`]: `arm`, now as the validation date, the artefact's certificate
+/// number, and the SHA-256 of the model, the artefact and every session file read (`cal` and
+/// `val`'s groups; data made in memory have no file).
+fn provenance(
+    arm: Option<crate::trace::ArmIdentity>,
+    inputs: &RunInputs,
+    cal: &Observations,
+    val: &Observations,
+) -> Result<Provenance, RunError> {
+    let artefact_certificate = match &inputs.artefact {
+        Some(path) => Artefact::load(path)?.certificate,
+        None => None,
+    };
+    let sessions = cal.groups.iter().chain(&val.groups).map(|g| g.source.as_path());
+    let files: Vec<&Path> = std::iter::once(inputs.model.as_path())
+        .chain(inputs.artefact.as_deref())
+        .chain(sessions)
+        .filter(|p| !p.as_os_str().is_empty())
+        .collect();
+    let validated_at = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH);
+    Ok(Provenance {
+        arm,
+        validated_at_unix_s: validated_at.ok().map(|d| d.as_secs()),
+        artefact_certificate,
+        input_files: crate::trace::hash_inputs(&files)?,
+    })
+}
+
+/// What one objective can determine at the calibrated model: distances alone, and with the
+/// relative orientation of the asymmetric pillars.
+fn objective_comparison(fit: &Fit, cal: &Observations) -> ObjectiveComparison {
     let all: Vec<_> = fit.model.free.iter().map(|f| f.id).collect();
     let ranges: Vec<f64> = fit.model.free.iter().map(|f| (f.upper - f.lower).max(1e-9)).collect();
-    let x = fit.model.free_values();
-    let jacobian = |objective| {
-        let problem = CalibrationProblem::new(&fit.model, all.clone(), artefact, cal, objective);
-        let mut r = vec![0.0; problem.len()];
-        let mut jac = vec![0.0; problem.len() * all.len()];
-        problem.evaluate(&x, &mut r, Some(&mut jac));
-        jac
-    };
-    let (distance, six_dof) =
-        (jacobian(Objective::Distance), jacobian(Objective::SixDof { lever_mm: 100.0 }));
+    let jacobian = |lever_mm| dense_jacobian(&fit.model, &all, cal, lever_mm).1;
+    let (distance, six_dof) = (jacobian(None), jacobian(Some(DEFAULT_LEVER_MM)));
     let names = |jac: &[f64]| -> Vec<String> {
         identify::base_columns(jac, all.len(), &ranges).0.into_iter().map(|c| all[c].to_string()).collect()
     };
@@ -578,164 +783,173 @@ fn objective_comparison(fit: &Calibration, artefact: &Artefact, cal: &Dataset) -
     }
 }
 
-/// Every refusal of a RUN's inputs before anything is fitted, shared by `calibrate` (on the
-/// nominal model) and `diagnose` (on the RUN's calibrated model) so both refuse the same data with
-/// the same message: no validation pair, an artefact out of the arm's reach, a validation placement
-/// copied from the calibration data, and whatever [`check_data`] refuses (no free parameter, too
-/// few distance pairs, non-finite positions, touches without information).
-pub fn check_run_data(
-    model: &ArmModel,
-    artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
-    inputs: &RunInputs,
-    objective: Objective,
-) -> Result<(), RunError> {
-    if val.pair_count() == 0 {
-        return Err(RunError::NoValidationPairs { path: inputs.validation.clone() });
-    }
-    let (span, reach) = (artefact.span_mm(), model.reach_mm());
-    if span > 2.0 * reach {
-        return Err(RunError::OutOfReach { span, reach });
-    }
-    if let Some((validation, calibration)) = copied_placement(cal, val) {
-        return Err(RunError::SameData { validation, calibration });
-    }
-    check_data(model, artefact, cal, objective)?;
-    Ok(())
+/// The held-out tracker sessions' section of a run.
+struct SessionsSection {
+    validation: SessionsValidation,
+    floor: crate::calib::floor::PointFloor,
+    data_errors: Vec<crate::calib::diagnose::data_errors::DataError>,
+    verdict: Vec<String>,
+    held_out: Vec<SessionResiduals>,
 }
 
-/// Load the inputs, add `effects` to the model, calibrate, validate and (with `outliers`) compute
-/// the per-landmark outlier metrics, whose leave-one-out refits are about a third of the work;
-/// with `study_subsets` > 0 also run the dataset-size study with that many random subsets per
-/// placement count.
-pub fn run(
+/// The nominal arm with only its tool point free.
+fn tool_only(nominal: &ArmModel) -> ArmModel {
+    let mut m = nominal.clone();
+    m.free.retain(|f| matches!(f.id, ParamId::Tcp(_)));
+    m
+}
+
+/// Block `b`'s points with their residuals and orientation errors.
+fn session_residuals(
+    data: &Observations,
+    b: usize,
+    residuals: Vec<Vector3<f64>>,
+    angles: Vec<Option<f64>>,
+) -> SessionResiduals {
+    let points = data.blocks[b]
+        .members
+        .iter()
+        .map(|&k| &data.obs[k])
+        .zip(residuals)
+        .zip(angles)
+        .map(|((p, r), angle)| PointResidual {
+            line: p.line,
+            pose: p.pose.clone(),
+            time_s: p.time_s,
+            q_deg: p.q_deg.to_vec(),
+            residual_mm: r.into(),
+            orientation_error_deg: angle,
+        })
+        .collect();
+    SessionResiduals { name: data.block_name(b), points }
+}
+
+/// Validate `fit` on the held-out sessions of `val` (each frame refitted, and each tool that
+/// floats) against the nominal arm with its tool fitted on `cal`; the floor, the data errors and
+/// the verdict. `None` when `val` holds no session.
+fn sessions_section(
+    nominal: &ArmModel,
+    fit: &Fit,
+    cal: &Observations,
+    val: &Observations,
     inputs: &RunInputs,
-    options: &CalibrationOptions,
-    effects: &[Effect],
-    study_subsets: usize,
-    outliers: bool,
-) -> Result<Run, RunError> {
-    let absolute =
-        |p: &Path| std::fs::canonicalize(p).map_err(|source| RunError::Input { path: p.to_owned(), source });
-    let inputs = &RunInputs {
-        model: absolute(&inputs.model)?,
-        artefact: absolute(&inputs.artefact)?,
-        calibration: absolute(&inputs.calibration)?,
-        validation: absolute(&inputs.validation)?,
-        ..inputs.clone()
-    };
-    let mut steps = StepTimes::start();
-    let mut nominal = ArmModel::load(&inputs.model)?;
-    for effect in effects {
-        if effect.joint.is_some_and(|j| j >= nominal.joints.len()) {
-            return Err(RunError::NoSuchJoint { effect: effect.to_string(), joints: nominal.joints.len() });
+    options: &SolveOptions,
+    same_base: &BTreeMap<String, String>,
+) -> Result<Option<SessionsSection>, RunError> {
+    let held = val.sessions();
+    if held.is_empty() {
+        return Ok(None);
+    }
+    let reference = calibrate(&tool_only(nominal), cal, options)?;
+    let floated = |b: usize| inputs.float_tool.contains(&val.groups[val.blocks[b].group].name);
+    // The session's tool offset (its own when floated) and its figures.
+    let figures = |model: &ArmModel, b: usize| {
+        if floated(b) {
+            let (tool, figures) = fit_session_with_tool(model, val, b);
+            (tool.offset_mm, figures)
+        } else {
+            ([0.0; 3], validate_session(model, val, b, [0.0; 3]))
         }
-        effect.add_to(&mut nominal);
-    }
-    let artefact = Artefact::load(&inputs.artefact)?;
-    let (cal, val) = inputs.load_data(&artefact)?;
-    steps.lap("load");
-    check_run_data(&nominal, &artefact, &cal, &val, inputs, options.objective)?;
-    check_study_size(&cal, study_subsets)?;
-    steps.lap("input checks");
-    let fit = calibrate(&nominal, &artefact, &cal, options)?;
-    steps.lap("fit");
-    let validation = validate(&fit.model, &artefact, &val);
-    let nominal_validation = validate(&nominal, &artefact, &val);
-    steps.lap("validation");
-    let scales = TrustScales::of(&nominal, &artefact, &cal, &val);
-    let mut not_trustworthy = result_problems(&fit, &validation, &scales);
-    steps.lap("trust scales");
-    let study_rows = (study_subsets > 0).then(|| {
-        let calibration = CalibrationOptions { restarts: 0, ..*options };
-        study(
-            &nominal,
-            &artefact,
-            &cal,
-            &val,
-            &StudyOptions { subsets: study_subsets, seed: options.seed, calibration, progress: false },
-        )
-    });
-    if let Some(rows) = &study_rows {
-        not_trustworthy.extend(study_problems(rows).into_iter().map(|p| format!("study: {p}")));
-        steps.lap("study");
-    }
-    let outliers_skipped = !outliers;
-    let outliers =
-        if outliers { landmark_outliers(&fit, &artefact, &cal, Some(&val), options) } else { Vec::new() };
-    steps.lap("outliers");
-    let objective_comparison = objective_comparison(&fit, &artefact, &cal);
-    steps.lap("6-DoF comparison");
-    let summary = Summary {
-        format: RUN_FORMAT.to_string(),
-        kincal_version: env!("CARGO_PKG_VERSION").to_string(),
-        inputs: inputs.clone(),
-        options: SummaryOptions {
-            huber_delta_mm: options.huber_delta_mm,
-            restarts: options.restarts,
-            seed: options.seed,
-            objective: options.objective,
-            added_effects: effects.iter().map(|e| e.to_string()).collect(),
-        },
-        calibration: CalibrationSummary {
-            rms_mm: fit.rms_mm,
-            cost: fit.cost,
-            pairs: cal.touch_pairs().len(),
-            touches: cal.touches.len(),
-            estimates: fit.estimates.clone(),
-            fixed_unidentifiable: fit.fixed.iter().map(|p| p.to_string()).collect(),
-            correlations: fit.correlations.clone(),
-            starts: fit.starts.clone(),
-        },
-        identifiability: IdentifiabilitySummary { before: fit.before.clone(), after: fit.after.clone() },
-        validation: validation.overall,
-        nominal_validation: nominal_validation.overall,
-        validation_detail: ValidationDetail {
-            per_landmark: validation.per_landmark.clone(),
-            nominal_per_landmark: nominal_validation.per_landmark.clone(),
-            per_placement: validation.per_placement.clone(),
-            nominal_per_placement: nominal_validation.per_placement.clone(),
-            repeatability: validation.repeatability.clone(),
-        },
-        outliers_skipped,
-        outliers,
-        objective_comparison,
-        study: study_rows,
-        not_trustworthy,
     };
-    Ok(Run {
-        nominal,
-        summary,
-        calibration: fit,
-        validation,
-        nominal_validation,
-        artefact,
-        validation_data: val,
-        steps,
-    })
-}
-
-/// Wall time of each step of a run, in order, for `kincal bench`'s breakdown.
-#[derive(Clone, Debug)]
-pub struct StepTimes {
-    last: std::time::Instant,
-    /// (step, milliseconds).
-    pub ms: Vec<(&'static str, f64)>,
-}
-
-impl StepTimes {
-    /// Start timing.
-    pub fn start() -> StepTimes {
-        StepTimes { last: std::time::Instant::now(), ms: Vec::new() }
+    // The probe's rotation on the flange in session b: the shared one, or, where the tool floats
+    // (the probe re-mounted, perhaps turned on its mount), the session's own. A session whose
+    // points leave its base's rotation free has none: no orientation figure.
+    let probe = |fit: &Fit, b: usize, offset_mm: [f64; 3]| {
+        let shared = fit.tool_rotation.as_ref().filter(|_| undetermined_rotation(val, b).is_none())?;
+        if floated(b) {
+            session_probe_rotation(&fit.model, val, b, offset_mm)
+        } else {
+            Some(shared.rotation())
+        }
+    };
+    let orientations = |fit: &Fit, b: usize, offset_mm: [f64; 3]| {
+        probe(fit, b, offset_mm).and_then(|p| validate_orientations(&fit.model, val, b, offset_mm, &p))
+    };
+    let mut verdict = Vec::new();
+    let (mut session_figures, mut held_out) = (Vec::new(), Vec::new());
+    let (mut calibrated_parts, mut nominal_parts, mut angle_parts) = (Vec::new(), Vec::new(), Vec::new());
+    for b in held {
+        let name = val.block_name(b);
+        let (offset_mm, c) = figures(&fit.model, b);
+        let (nominal_offset_mm, n) = figures(&reference.model, b);
+        let residuals = session_residuals_mm(&fit.model, val, b, offset_mm);
+        let orientation_withheld = fit.tool_rotation.as_ref().and_then(|_| undetermined_rotation(val, b));
+        let angles = match probe(fit, b, offset_mm) {
+            Some(p) => orientation_errors_deg(&fit.model, val, b, offset_mm, &p),
+            None => vec![None; val.blocks[b].members.len()],
+        };
+        held_out.push(session_residuals(val, b, residuals, angles));
+        let orientation = orientations(fit, b, offset_mm);
+        angle_parts.extend(orientation);
+        let transfers = c.rms_mm <= n.rms_mm;
+        if !transfers {
+            verdict.push(format!(
+                "the calibration does not transfer to session {}: {:.4} mm calibrated vs {:.4} mm nominal (base refitted)",
+                name, c.rms_mm, n.rms_mm
+            ));
+        }
+        let same_base = same_base.get(&name).and_then(|calibration| {
+            let stats = |fit: &Fit| {
+                errors_in_calibration_session(fit, cal, calibration, val, b).map(|e| ErrorStats::of(&e))
+            };
+            Some(SameBaseFigures {
+                calibration_session: calibration.clone(),
+                calibrated: stats(fit)?,
+                nominal: stats(&reference)?,
+            })
+        });
+        calibrated_parts.push(c.clone());
+        nominal_parts.push(n.clone());
+        session_figures.push(SessionFigures {
+            calibrated: c,
+            nominal: n,
+            transfers,
+            orientation,
+            nominal_orientation: orientations(&reference, b, nominal_offset_mm),
+            orientation_withheld,
+            same_base,
+        });
     }
-
-    /// The step `name` ended now.
-    pub fn lap(&mut self, name: &'static str) {
-        let now = std::time::Instant::now();
-        self.ms.push((name, (now - self.last).as_secs_f64() * 1e3));
-        self.last = now;
+    let pooled = |parts: &[SessionValidation]| {
+        ErrorStats::pooled(&parts.iter().map(SessionValidation::stats).collect::<Vec<_>>())
+    };
+    let overall = pooled(&calibrated_parts);
+    let floor = point_floor(val, inputs.stated_sigma_mm);
+    let data_errors = if cal.sessions().is_empty() {
+        Vec::new()
+    } else {
+        let all_floating = SolveOptions { float_tool: inputs.float_tool.clone(), ..options.clone() };
+        data_error_candidates(nominal, cal, val, fit, &all_floating)
+    };
+    if let Some(best) = data_errors.iter().find(|d| d.significant) {
+        verdict.push(format!("data error: {}; apply it with {}", best.text, best.action));
     }
+    verdict.push(match floor.rms_mm {
+        Some(f) if overall.rms_mm <= EXPLAINS_WITHIN * f => format!(
+            "the model explains the held-out data: {:.4} mm against a floor of {f:.4} mm ({})",
+            overall.rms_mm, floor.source
+        ),
+        Some(f) => format!(
+            "the model is incomplete: {:.4} mm held out against a floor of {f:.4} mm ({}); the cause is not in the model",
+            overall.rms_mm, floor.source
+        ),
+        None => format!(
+            "the floor is unknown (no repeated poses, no stated uncertainty): {:.4} mm held out cannot be called explained",
+            overall.rms_mm
+        ),
+    });
+    Ok(Some(SessionsSection {
+        validation: SessionsValidation {
+            sessions: session_figures,
+            overall,
+            nominal_overall: pooled(&nominal_parts),
+            orientation_overall: AngleStats::pooled(&angle_parts),
+        },
+        floor,
+        data_errors,
+        verdict,
+        held_out,
+    }))
 }
 
 impl Run {
@@ -743,18 +957,15 @@ impl Run {
     pub fn stored_residuals(&self) -> StoredResiduals {
         let val = &self.validation_data;
         let pairs = self
-            .validation
-            .errors
+            .distances
             .iter()
+            .flat_map(|(v, _)| &v.errors)
             .map(|e| StoredPairError {
-                placement: val.placements[e.placement].clone(),
-                landmarks: (
-                    self.artefact.landmarks[e.landmarks.0].id.clone(),
-                    self.artefact.landmarks[e.landmarks.1].id.clone(),
-                ),
-                repeat: val.touches[e.touches.0].repeat,
+                placement: val.groups[e.placement].name.clone(),
+                landmarks: (val.landmarks[e.landmarks.0].id.clone(), val.landmarks[e.landmarks.1].id.clone()),
+                repeat: val.obs[e.touches.0].repeat,
                 error_mm: e.error_mm,
-                enc_deg: (val.touches[e.touches.0].enc_deg, val.touches[e.touches.1].enc_deg),
+                enc_deg: (val.obs[e.touches.0].q_deg, val.obs[e.touches.1].q_deg),
             })
             .collect();
         StoredResiduals { format: RESIDUALS_FORMAT.to_string(), pairs }
@@ -764,6 +975,7 @@ impl Run {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calib::fit::calibrate;
     use crate::simulate::{simulate, SimulationOptions};
 
     #[test]
@@ -771,14 +983,14 @@ mod tests {
         let nominal = ArmModel::suta_nominal();
         let ours = simulate(&nominal, &SimulationOptions::default());
         let other = simulate(&nominal, &SimulationOptions { seed: 2, ..SimulationOptions::default() });
-        let cal = Dataset::from_sessions(&ours.calibration, &ours.artefact);
-        let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
-        let fit = calibrate(&nominal, &ours.artefact, &cal, &options).unwrap();
-        let val = Dataset::from_sessions(&ours.validation, &ours.artefact);
-        let scales = TrustScales::of(&nominal, &ours.artefact, &cal, &val);
-        assert!(result_problems(&fit, &validate(&fit.model, &ours.artefact, &val), &scales).is_empty());
-        let foreign = Dataset::from_sessions(&other.validation, &ours.artefact);
-        let problems = result_problems(&fit, &validate(&fit.model, &ours.artefact, &foreign), &scales);
+        let cal = Observations::from_sessions(&ours.calibration, &ours.artefact);
+        let options = SolveOptions { restarts: Some(0), ..SolveOptions::default() };
+        let fit = calibrate(&nominal, &cal, &options).unwrap();
+        let val = Observations::from_sessions(&ours.validation, &ours.artefact);
+        let scales = TrustScales::of(&nominal, &cal, &val);
+        assert!(result_problems(&fit, &validate(&fit.model, &val), &scales).is_empty());
+        let foreign = Observations::from_sessions(&other.validation, &ours.artefact);
+        let problems = result_problems(&fit, &validate(&fit.model, &foreign), &scales);
         assert!(problems.iter().any(|p| p.contains("another arm")), "{problems:?}");
         assert_eq!(copied_placement(&cal, &val), None);
         assert_eq!(copied_placement(&cal, &cal), Some(("A_O".into(), "A_O".into())));

@@ -1,15 +1,17 @@
-//! `kincal study`: the dataset-size study (thesis §4.3). For 1..N calibration placements,
-//! up to K distinct subsets each are calibrated and validated on the held-out sessions; the
-//! table gives mean, standard deviation and range of the validation RMS per subset size. When
-//! there are no more than K subsets of a size (C(N, k) ≤ K, always at k = N) each is calibrated
-//! once: the row's sample is every subset there is, never one subset counted K times. A
-//! calibration beyond the model-independent scales ([`crate::calib::trust`]) is not a sample: it
-//! is counted in `implausible`, its figure left out.
+//! `kincal study`: the dataset-size study (thesis §4.3). For 1..N calibration groups (artefact
+//! placements or instrument sessions), up to K distinct subsets each are calibrated and validated
+//! on the held-out data (distances, or points with each session's frame refitted); the table gives
+//! mean, standard deviation and range of the held-out RMS per subset size. When there are no more
+//! than K subsets of a size (C(N, k) ≤ K, always at k = N) each is calibrated once: the row's
+//! sample is every subset there is, never one subset counted K times. A calibration beyond the
+//! model-independent scales ([`crate::calib::trust`]) is not a sample: it is counted in
+//! `implausible`, its figure left out.
 
-use crate::calib::calibrate::{calibrate, CalibrationOptions};
+use crate::calib::diagnose::Measure;
+use crate::calib::setup::Setup;
 use crate::calib::trust::TrustScales;
-use crate::calib::validate::{distance_errors, ErrorStats};
-use crate::data::{Artefact, Dataset};
+use crate::calib::validate::ErrorStats;
+use crate::data::Observations;
 use crate::model::ArmModel;
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::seq::SliceRandom;
@@ -18,14 +20,14 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 /// Settings of a study.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct StudyOptions {
     /// Random subsets per subset size.
     pub subsets: usize,
     /// Seed of the subset draws.
     pub seed: u64,
-    /// Settings of each calibration.
-    pub calibration: CalibrationOptions,
+    /// What each calibration is asked (its options, the floated tools).
+    pub setup: Setup,
     /// Draw a progress bar on stderr.
     pub progress: bool,
 }
@@ -33,8 +35,9 @@ pub struct StudyOptions {
 /// Results for one subset size.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct StudyRow {
-    /// Placements used for calibration.
-    pub placements: usize,
+    /// Calibration groups (placements or sessions) used.
+    #[serde(alias = "placements")]
+    pub groups: usize,
     /// Calibrations run (failed ones are counted in `failed`).
     pub calibrations: usize,
     /// Calibrations that could not run (too few pairs).
@@ -113,29 +116,29 @@ pub const MAX_STUDY_WORK: usize = 10_000_000;
 pub enum StudyError {
     /// The study would run far too long.
     #[error(
-        "a study of {subsets} subsets per placement count over {placements} placements and {touches} \
-         touches means {work} touch-calibrations; at most {MAX_STUDY_WORK} are run (about 12 minutes on \
-         two cores): use fewer subsets"
+        "a study of {subsets} subsets per group count over {groups} calibration groups and {touches} \
+         observations means {work} touch-calibrations (observations × calibrations); at most {MAX_STUDY_WORK} \
+         are run (about 12 minutes on two cores): use fewer subsets"
     )]
     TooLarge {
-        /// Subsets per placement count.
+        /// Subsets per group count.
         subsets: usize,
-        /// Calibration placements.
-        placements: usize,
-        /// Calibration touches.
+        /// Calibration groups.
+        groups: usize,
+        /// Calibration observations.
         touches: usize,
         /// Touch-calibrations it would take.
         work: usize,
     },
 }
 
-/// Refuse up front a study larger than [`MAX_STUDY_WORK`]: subset k of n placements holds about
-/// k/n of the touches, so the work is subsets × touches × (n + 1) / 2.
-pub fn check_study_size(cal: &Dataset, subsets: usize) -> Result<(), StudyError> {
-    let (placements, touches) = (cal.placements.len(), cal.touches.len());
-    let work = subsets.saturating_mul(touches).saturating_mul(placements + 1) / 2;
+/// Refuse up front a study larger than [`MAX_STUDY_WORK`]: subset k of n groups holds about
+/// k/n of the observations, so the work is subsets × observations × (n + 1) / 2.
+pub fn check_study_size(cal: &Observations, subsets: usize) -> Result<(), StudyError> {
+    let (groups, touches) = (cal.groups.len(), cal.obs.len());
+    let work = subsets.saturating_mul(touches).saturating_mul(groups + 1) / 2;
     if work > MAX_STUDY_WORK {
-        return Err(StudyError::TooLarge { subsets, placements, touches, work });
+        return Err(StudyError::TooLarge { subsets, groups, touches, work });
     }
     Ok(())
 }
@@ -147,21 +150,21 @@ pub fn study_problems(rows: &[StudyRow]) -> Vec<String> {
     if implausible > 0 {
         problems.push(format!(
             "{implausible} subset calibrations are beyond the model-independent scales (the artefact's \
-             size, the touches' spread through the nominal model): the model does not describe these \
-             touches, so no row is a result — check the model file (a sign, a unit, an offset, joints \
-             in another order, another arm) and the artefact file"
+             size, the repeats' spread through the nominal model): the model does not describe these \
+             measurements, so no row is a result — check the model file (a sign, a unit, an offset, \
+             joints in another order, another arm) and the artefact file"
         ));
     } else if rows.iter().all(|r| r.calibrations == 0) {
         problems.push(
-            "no calibration of any subset succeeded: too few landmark pairs per placement for the free \
-             parameters, or no validation pairs"
+            "no calibration of any subset succeeded: too few measurements per group for the free \
+             parameters, or no held-out data"
                 .to_string(),
         );
     }
     for r in rows {
         let figures = [r.mean_mm, r.std_mm, r.min_mm, r.max_mm].into_iter().chain(r.rms_mm.iter().copied());
         if figures.into_iter().any(|v| !v.is_finite()) {
-            problems.push(format!("the row for {} placements holds a non-finite figure", r.placements));
+            problems.push(format!("the row for {} groups holds a non-finite figure", r.groups));
         }
     }
     problems
@@ -181,18 +184,17 @@ enum Outcome {
 /// Run the study. Uses every core rayon is given.
 pub fn study(
     nominal: &ArmModel,
-    artefact: &Artefact,
-    cal: &Dataset,
-    val: &Dataset,
+    cal: &Observations,
+    val: &Observations,
     options: &StudyOptions,
 ) -> Vec<StudyRow> {
-    let n = cal.placements.len();
+    let n = cal.groups.len();
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let mut tasks = Vec::new();
     for k in 1..=n {
         tasks.extend(distinct_subsets(n, k, options.subsets, &mut rng).into_iter().map(|s| (k, s)));
     }
-    let scales = TrustScales::of(nominal, artefact, cal, val);
+    let scales = TrustScales::of(nominal, cal, val);
     let bar = if options.progress { ProgressBar::new(tasks.len() as u64) } else { ProgressBar::hidden() };
     if let Ok(style) =
         ProgressStyle::with_template("{bar:40} {pos}/{len} calibrations, {elapsed} elapsed, ETA {eta}")
@@ -202,19 +204,17 @@ pub fn study(
     let results: Vec<(usize, Outcome)> = tasks
         .par_iter()
         .map(|(k, subset)| {
-            let outcome = match calibrate(nominal, artefact, &cal.subset(subset), &options.calibration) {
-                Err(_) => Outcome::Failed,
-                Ok(fit) => {
-                    let e: Vec<f64> =
-                        distance_errors(&fit.model, artefact, val).iter().map(|e| e.error_mm).collect();
-                    let v = ErrorStats::of(&e);
-                    if v.pairs == 0 || !v.rms_mm.is_finite() {
+            let outcome = match (options.setup.calibrate(nominal, &cal.subset(subset)), Measure::of(val)) {
+                (Err(_), _) | (_, None) => Outcome::Failed,
+                (Ok(fit), Some(measure)) => {
+                    let v = ErrorStats::of(&measure.errors(&fit.model, val, &options.setup.float_tool));
+                    if v.count == 0 || !v.rms_mm.is_finite() {
                         // A calibration whose validation is empty or not finite is a failed one.
                         Outcome::Failed
                     } else if !scales.calibration_beyond(fit.rms_mm).is_empty()
-                        || v.rms_mm > scales.artefact_limit_mm()
+                        || scales.artefact_limit_mm().is_some_and(|limit| v.rms_mm > limit)
                     {
-                        // Few placements may validate poorly; only the artefact bounds their
+                        // Few groups may validate poorly; only an artefact bounds their
                         // validation, while the fit itself must be a calibration.
                         Outcome::Implausible
                     } else {
@@ -241,7 +241,7 @@ pub fn study(
             let min = rms_mm.iter().copied().reduce(f64::min).unwrap_or(0.0);
             let max = rms_mm.iter().copied().fold(0.0_f64, f64::max);
             StudyRow {
-                placements: k,
+                groups: k,
                 calibrations: rms_mm.len(),
                 failed,
                 implausible,
@@ -281,13 +281,13 @@ mod tests {
         let nominal = ArmModel::suta_nominal();
         let sim = simulate(&nominal, &SimulationOptions::default());
         let (cal, val) = (
-            Dataset::from_sessions(&sim.calibration, &sim.artefact),
-            Dataset::from_sessions(&sim.validation, &sim.artefact),
+            Observations::from_sessions(&sim.calibration, &sim.artefact),
+            Observations::from_sessions(&sim.validation, &sim.artefact),
         );
         let cal = cal.subset(&[0, 1, 2]);
-        let calibration = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
-        let options = StudyOptions { subsets: 100, seed: 1, calibration, progress: false };
-        let rows = study(&nominal, &sim.artefact, &cal, &val, &options);
+        let calibration = crate::calib::setup::SolveOptions { restarts: Some(0), ..Default::default() };
+        let options = StudyOptions { subsets: 100, seed: 1, setup: Setup::new(calibration), progress: false };
+        let rows = study(&nominal, &cal, &val, &options);
         let drawn: Vec<(usize, usize)> =
             rows.iter().map(|r| (r.calibrations + r.failed + r.implausible, r.possible_subsets)).collect();
         assert_eq!(drawn, vec![(3, 3), (3, 3), (1, 1)], "every subset once, never 100 copies");
@@ -295,7 +295,7 @@ mod tests {
         let mut wrong = nominal.clone();
         wrong.set(crate::model::ParamId::Length(4), -371.0);
         wrong.free_param(crate::model::ParamId::Length(4), -381.0, -361.0);
-        let rows = study(&wrong, &sim.artefact, &cal, &val, &options);
+        let rows = study(&wrong, &cal, &val, &options);
         assert!(
             rows.iter().all(|r| r.calibrations == 0 && r.rms_mm.is_empty()),
             "no figure of an absurd model"

@@ -17,9 +17,9 @@
 //! arm's geometry, a 180° offset) leaves the fit far beyond both; a fitted model measured against
 //! itself (its own repeatability) could look fine.
 
-use crate::calib::calibrate::Calibration;
+use crate::calib::fit::Fit;
 use crate::calib::validate::{positions, Validation};
-use crate::data::{Artefact, Dataset};
+use crate::data::Observations;
 use crate::model::ArmModel;
 use std::collections::HashMap;
 
@@ -63,18 +63,20 @@ pub struct TrustScales {
 
 impl TrustScales {
     /// The scales of these touches on this artefact, the touches taken through `nominal`.
-    pub fn of(nominal: &ArmModel, artefact: &Artefact, cal: &Dataset, val: &Dataset) -> TrustScales {
+    pub fn of(nominal: &ArmModel, cal: &Observations, val: &Observations) -> TrustScales {
         let (mut sum_sq, mut pairs) = (0.0, 0usize);
         for data in [cal, val] {
             let positions = positions(nominal, data);
             let mut groups: HashMap<(usize, usize), Vec<usize>> = HashMap::new();
-            for (k, t) in data.touches.iter().enumerate() {
-                groups.entry((t.placement, t.landmark)).or_default().push(k);
+            for (k, t) in data.obs.iter().enumerate() {
+                if let Some(l) = t.landmark() {
+                    groups.entry((t.group, l)).or_default().push(k);
+                }
             }
             for touches in groups.values() {
                 for (i, &a) in touches.iter().enumerate() {
                     for &b in &touches[i + 1..] {
-                        if same_pose(&data.touches[a].enc_deg, &data.touches[b].enc_deg) {
+                        if same_pose(&data.obs[a].q_deg, &data.obs[b].q_deg) {
                             // Each touch lies half the difference from the pair's barycentre.
                             sum_sq += ((positions[a] - positions[b]).norm() / 2.0).powi(2);
                             pairs += 1;
@@ -84,12 +86,13 @@ impl TrustScales {
             }
         }
         let repeat_spread_mm = (pairs > 0).then(|| (sum_sq / pairs as f64).sqrt());
-        TrustScales { span_mm: artefact.span_mm(), repeat_spread_mm }
+        TrustScales { span_mm: cal.landmark_span_mm(), repeat_spread_mm }
     }
 
-    /// Largest distance RMS, mm, any calibration on the artefact may have.
-    pub fn artefact_limit_mm(&self) -> f64 {
-        SPAN_FRACTION * self.span_mm
+    /// Largest distance RMS, mm, any calibration on the artefact may have (`None` without
+    /// landmarks: instrument points alone have no artefact to bound them).
+    pub fn artefact_limit_mm(&self) -> Option<f64> {
+        (self.span_mm > 0.0).then_some(SPAN_FRACTION * self.span_mm)
     }
 
     /// Largest calibration RMS, mm, the touches' spread allows.
@@ -148,10 +151,11 @@ impl TrustScales {
 
     /// Why an RMS (mm) is not finite or beyond the artefact's scale.
     fn artefact_beyond(&self, what: &str, rms_mm: f64) -> Option<String> {
-        let limit = self.artefact_limit_mm();
         if !rms_mm.is_finite() {
-            Some(format!("the {what} RMS is not a finite number"))
-        } else if rms_mm > limit {
+            return Some(format!("the {what} RMS is not a finite number"));
+        }
+        let limit = self.artefact_limit_mm()?;
+        if rms_mm > limit {
             Some(format!(
                 "{what} RMS {rms_mm:.3} mm exceeds {:.0} % of the artefact's largest certified distance \
                  ({:.1} mm → {limit:.3} mm): no calibration measures distances this badly — {CAUSE}",
@@ -179,7 +183,7 @@ const CAUSE: &str = "a model file of another arm or with a wrong number (a sign,
 /// Why the figures of a finished calibration cannot be taken as a result: a non-finite figure,
 /// figures beyond the model-independent `scales`, a fit that did not move from its start, a
 /// validation error far beyond the calibration error. Each reason names the likely cause.
-pub fn result_problems(fit: &Calibration, validation: &Validation, scales: &TrustScales) -> Vec<String> {
+pub fn result_problems(fit: &Fit, validation: &Validation, scales: &TrustScales) -> Vec<String> {
     let mut problems = Vec::new();
     let v = &validation.overall;
     let figures = [fit.rms_mm, fit.cost, v.rms_mm, v.mean_mm, v.std_mm, v.max_mm];
@@ -187,11 +191,11 @@ pub fn result_problems(fit: &Calibration, validation: &Validation, scales: &Trus
         problems.push("a calibration or validation figure is not a finite number".to_string());
         return problems;
     }
-    if v.pairs == 0 {
+    if v.count == 0 {
         problems.push("no validation pair: the fit was not checked on held-out touches".to_string());
     }
-    problems.extend(scales.beyond(fit.rms_mm, if v.pairs > 0 { v.rms_mm } else { 0.0 }));
-    let moved = fit.estimates.iter().any(|e| e.status == "estimated" && e.value != e.nominal);
+    problems.extend(scales.beyond(fit.rms_mm, if v.count > 0 { v.rms_mm } else { 0.0 }));
+    let moved = fit.estimates.iter().any(|e| e.status.starts_with("estimated") && e.value != e.nominal);
     if !moved && fit.rms_mm > RMS_ALWAYS_SUSPECT_MM {
         problems.push(format!(
             "the fit did not move from its start (calibration RMS {:.3} mm): the solver found no step \
@@ -200,7 +204,7 @@ pub fn result_problems(fit: &Calibration, validation: &Validation, scales: &Trus
             fit.rms_mm
         ));
     }
-    if v.pairs > 0 && v.rms_mm > (VALIDATION_FACTOR * fit.rms_mm).max(RMS_ALWAYS_SUSPECT_MM) {
+    if v.count > 0 && v.rms_mm > (VALIDATION_FACTOR * fit.rms_mm).max(RMS_ALWAYS_SUSPECT_MM) {
         problems.push(format!(
             "validation RMS {:.3} mm is {:.0}× the calibration RMS {:.3} mm: the validation sessions look \
              like another arm, another artefact or a moved setup, or the calibration data is too thin",
@@ -215,7 +219,8 @@ pub fn result_problems(fit: &Calibration, validation: &Validation, scales: &Trus
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::calibrate::{calibrate, CalibrationOptions};
+    use crate::calib::fit::calibrate;
+    use crate::calib::setup::SolveOptions;
     use crate::calib::validate::validate;
     use crate::model::{ArmModel, Joint, ParamId};
     use crate::simulate::{simulate, SimulationOptions};
@@ -273,20 +278,20 @@ mod tests {
     fn wrong_but_valid_models_are_never_a_calibration() {
         let truth_nominal = ArmModel::suta_nominal();
         let sim = simulate(&truth_nominal, &SimulationOptions::default());
-        let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-        let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-        let options = CalibrationOptions { restarts: 0, ..CalibrationOptions::default() };
-        let right = calibrate(&truth_nominal, &sim.artefact, &cal, &options).unwrap();
-        let scales = TrustScales::of(&truth_nominal, &sim.artefact, &cal, &val);
-        let fine = result_problems(&right, &validate(&right.model, &sim.artefact, &val), &scales);
+        let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+        let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+        let options = SolveOptions { restarts: Some(0), ..SolveOptions::default() };
+        let right = calibrate(&truth_nominal, &cal, &options).unwrap();
+        let scales = TrustScales::of(&truth_nominal, &cal, &val);
+        let fine = result_problems(&right, &validate(&right.model, &val), &scales);
         assert!(fine.is_empty(), "the right model: {fine:?}");
         for (name, wrong) in wrong_models() {
-            let scales = TrustScales::of(&wrong, &sim.artefact, &cal, &val);
+            let scales = TrustScales::of(&wrong, &cal, &val);
             // The touches' spread through the wrong model stays a repeatability (sub-millimetre):
             // the scale does not grow with the model's error.
             assert!(scales.repeat_spread_mm.is_some_and(|s| s < 1.0), "{name}: {scales:?}");
-            let fit = calibrate(&wrong, &sim.artefact, &cal, &options).expect("a fit, however bad");
-            let validation = validate(&fit.model, &sim.artefact, &val);
+            let fit = calibrate(&wrong, &cal, &options).expect("a fit, however bad");
+            let validation = validate(&fit.model, &val);
             let problems = result_problems(&fit, &validation, &scales);
             assert!(
                 !problems.is_empty(),

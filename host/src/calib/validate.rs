@@ -1,10 +1,21 @@
-//! Validation metrics: pairwise distance errors of a model on a dataset, per landmark, per
-//! placement, and repeatability per landmark (ISO 9283 style).
+//! Validation: what a model leaves on held-out observations, each block's own unknowns refitted.
+//!
+//! * Artefact touches: pairwise distance errors (frame-free), per landmark, per placement, and
+//!   repeatability per landmark (ISO 9283 style).
+//! * Instrument points: each held-out session's frame refitted in closed form (Horn), the point
+//!   errors and the frame-free pairwise-distance errors; with the session's own tool offset
+//!   refitted too when its tool floats; orientation errors of a 6-DoF probe.
 
-use crate::data::{Artefact, Dataset};
-use crate::model::kinematics::tool_pose;
+use crate::calib::fit::Fit;
+use crate::calib::layout::Layout;
+use crate::calib::nuisance::frame::{rotation_vector, Frame};
+use crate::calib::nuisance::tool::{flange_rotation, model_points, with_offset, FloatedTool};
+use crate::calib::problem::Problem;
+use crate::data::{Observation, Observations};
+use crate::model::kinematics::{tool_pose, Chain};
 use crate::model::ArmModel;
-use nalgebra::Vector3;
+use crate::numerics::solver::{self, Loss, Residuals, SolverOptions};
+use nalgebra::{Matrix3, Vector3};
 
 /// Error of one measured distance.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -19,7 +30,7 @@ pub struct PairError {
     pub error_mm: f64,
 }
 
-/// Summary statistics of distance errors, mm.
+/// Statistics of errors, mm: signed distance errors, or lengths of point errors.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ErrorStats {
     /// Root mean square error.
@@ -27,11 +38,13 @@ pub struct ErrorStats {
     /// Mean (signed) error.
     pub mean_mm: f64,
     /// Standard deviation of the error.
+    #[serde(default)]
     pub std_mm: f64,
     /// Largest absolute error.
     pub max_mm: f64,
-    /// Number of distances.
-    pub pairs: usize,
+    /// Number of errors (distances or points).
+    #[serde(alias = "pairs", alias = "points")]
+    pub count: usize,
 }
 
 impl ErrorStats {
@@ -45,7 +58,58 @@ impl ErrorStats {
         let rms = (errors.iter().map(|e| e * e).sum::<f64>() / n as f64).sqrt();
         let std = (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / n as f64).sqrt();
         let max = errors.iter().fold(0.0_f64, |a, e| a.max(e.abs()));
-        ErrorStats { rms_mm: rms, mean_mm: mean, std_mm: std, max_mm: max, pairs: n }
+        ErrorStats { rms_mm: rms, mean_mm: mean, std_mm: std, max_mm: max, count: n }
+    }
+
+    /// The statistics of several parts pooled (weighted by their counts); the std of the pool
+    /// from the parts' means and stds.
+    pub fn pooled(parts: &[ErrorStats]) -> ErrorStats {
+        let count: usize = parts.iter().map(|p| p.count).sum();
+        let n = count.max(1) as f64;
+        let mean = parts.iter().map(|p| p.mean_mm * p.count as f64).sum::<f64>() / n;
+        let second =
+            parts.iter().map(|p| (p.std_mm.powi(2) + p.mean_mm.powi(2)) * p.count as f64).sum::<f64>() / n;
+        ErrorStats {
+            count,
+            rms_mm: (parts.iter().map(|p| p.rms_mm.powi(2) * p.count as f64).sum::<f64>() / n).sqrt(),
+            mean_mm: mean,
+            std_mm: (second - mean * mean).max(0.0).sqrt(),
+            max_mm: parts.iter().map(|p| p.max_mm).fold(0.0, f64::max),
+        }
+    }
+}
+
+/// Orientation-error statistics (the angle of R_predᵀ·R_meas), degrees.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct AngleStats {
+    /// Orientations.
+    pub orientations: usize,
+    /// RMS angle, degrees.
+    pub rms_deg: f64,
+    /// Mean angle, degrees.
+    pub mean_deg: f64,
+    /// Largest angle, degrees.
+    pub max_deg: f64,
+}
+
+impl AngleStats {
+    /// Statistics of error angles (degrees).
+    pub fn of(angles_deg: &[f64]) -> AngleStats {
+        let e = ErrorStats::of(angles_deg);
+        AngleStats { orientations: e.count, rms_deg: e.rms_mm, mean_deg: e.mean_mm, max_deg: e.max_mm }
+    }
+
+    /// Orientation figures pooled over sessions; `None` without any.
+    pub fn pooled(parts: &[AngleStats]) -> Option<AngleStats> {
+        let orientations: usize = parts.iter().map(|p| p.orientations).sum();
+        let n = orientations as f64;
+        (orientations > 0).then(|| AngleStats {
+            orientations,
+            rms_deg: (parts.iter().map(|p| p.rms_deg.powi(2) * p.orientations as f64).sum::<f64>() / n)
+                .sqrt(),
+            mean_deg: parts.iter().map(|p| p.mean_deg * p.orientations as f64).sum::<f64>() / n,
+            max_deg: parts.iter().map(|p| p.max_deg).fold(0.0, f64::max),
+        })
     }
 }
 
@@ -87,33 +151,62 @@ pub struct Validation {
     pub errors: Vec<PairError>,
 }
 
-/// Tool positions of every touch, mm.
-pub fn positions(model: &ArmModel, data: &Dataset) -> Vec<Vector3<f64>> {
-    data.touches.iter().map(|t| tool_pose(model, &t.enc_deg).position_mm).collect()
+/// Tool positions of every observation, mm.
+pub fn positions(model: &ArmModel, data: &Observations) -> Vec<Vector3<f64>> {
+    let chain = Chain::new(model);
+    data.obs.iter().map(|t| chain.pose(&t.q_deg).position_mm).collect()
 }
 
 /// Distance errors of `model` on `data`.
-pub fn distance_errors(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<PairError> {
+pub fn distance_errors(model: &ArmModel, data: &Observations) -> Vec<PairError> {
     let p = positions(model, data);
-    data.touch_pairs()
+    data.landmark_pairs()
         .into_iter()
         .map(|(a, b)| {
-            let (ta, tb) = (&data.touches[a], &data.touches[b]);
+            let (ta, tb) = (&data.obs[a], &data.obs[b]);
+            let (la, lb) = (ta.landmark().unwrap_or(0), tb.landmark().unwrap_or(0));
             PairError {
-                placement: ta.placement,
-                landmarks: (ta.landmark, tb.landmark),
+                placement: ta.group,
+                landmarks: (la, lb),
                 touches: (a, b),
-                error_mm: (p[a] - p[b]).norm() - artefact.distance_mm(ta.landmark, tb.landmark),
+                error_mm: (p[a] - p[b]).norm() - data.landmark_distance_mm(la, lb),
             }
         })
         .collect()
 }
 
+/// Each touch's residual after a rigid fit of the artefact to the touched positions of its
+/// placement (all its repeats together; placements with at least `min_touches` touches): the
+/// tool point less the fitted landmark, in the arm's base frame, mm.
+pub fn placement_residuals(
+    model: &ArmModel,
+    data: &Observations,
+    min_touches: usize,
+) -> Vec<Option<Vector3<f64>>> {
+    let p = positions(model, data);
+    let mut out = vec![None; data.obs.len()];
+    for placement in 0..data.groups.len() {
+        let idx: Vec<usize> = (0..data.obs.len())
+            .filter(|&k| data.obs[k].group == placement && data.obs[k].landmark().is_some())
+            .collect();
+        if idx.len() < min_touches {
+            continue;
+        }
+        let q: Vec<Vector3<f64>> =
+            idx.iter().map(|&k| Vector3::from(data.landmarks[data.obs[k].touched()].xyz_mm)).collect();
+        let pm: Vec<Vector3<f64>> = idx.iter().map(|&k| p[k]).collect();
+        for (&k, r) in idx.iter().zip(Frame::residuals(&q, &pm)) {
+            out[k] = Some(r);
+        }
+    }
+    out
+}
+
 /// Validate `model` on `data`.
-pub fn validate(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Validation {
-    let errors = distance_errors(model, artefact, data);
+pub fn validate(model: &ArmModel, data: &Observations) -> Validation {
+    let errors = distance_errors(model, data);
     let all: Vec<f64> = errors.iter().map(|e| e.error_mm).collect();
-    let per_landmark = artefact
+    let per_landmark = data
         .landmarks
         .iter()
         .enumerate()
@@ -125,36 +218,38 @@ pub fn validate(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Valida
                 .collect();
             GroupStats { name: l.id.clone(), stats: ErrorStats::of(&e) }
         })
-        .filter(|g| g.stats.pairs > 0)
+        .filter(|g| g.stats.count > 0)
         .collect();
     let per_placement = data
-        .placements
+        .groups
         .iter()
         .enumerate()
-        .map(|(p, name)| {
+        .map(|(p, group)| {
             let e: Vec<f64> = errors.iter().filter(|e| e.placement == p).map(|e| e.error_mm).collect();
-            GroupStats { name: name.clone(), stats: ErrorStats::of(&e) }
+            GroupStats { name: group.name.clone(), stats: ErrorStats::of(&e) }
         })
         .collect();
     Validation {
         overall: ErrorStats::of(&all),
         per_landmark,
         per_placement,
-        repeatability: repeatability(model, artefact, data),
+        repeatability: repeatability(model, data),
         errors,
     }
 }
 
 /// Repeatability per landmark from touches repeated within one placement.
-pub fn repeatability(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> Vec<Repeatability> {
+pub fn repeatability(model: &ArmModel, data: &Observations) -> Vec<Repeatability> {
     let p = positions(model, data);
     // Touches grouped by (landmark, placement) once: linear in the number of touches.
     let mut groups: std::collections::BTreeMap<(usize, usize), Vec<usize>> = Default::default();
-    for (k, t) in data.touches.iter().enumerate() {
-        groups.entry((t.landmark, t.placement)).or_default().push(k);
+    for (k, t) in data.obs.iter().enumerate() {
+        if let Some(l) = t.landmark() {
+            groups.entry((l, t.group)).or_default().push(k);
+        }
     }
     let mut out = Vec::new();
-    for (i, l) in artefact.landmarks.iter().enumerate() {
+    for (i, l) in data.landmarks.iter().enumerate() {
         let mut spreads = Vec::new();
         for (_, idx) in groups.range((i, 0)..(i + 1, 0)) {
             if idx.len() < 2 {
@@ -180,6 +275,306 @@ pub fn repeatability(model: &ArmModel, artefact: &Artefact, data: &Dataset) -> V
     out
 }
 
+/// Validation of a model on one held-out session, its frame refitted (closed form).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct SessionValidation {
+    /// Session name.
+    pub name: String,
+    /// Points.
+    pub points: usize,
+    /// RMS position error, mm.
+    pub rms_mm: f64,
+    /// Mean position error, mm.
+    pub mean_mm: f64,
+    /// Standard deviation of the position error, mm.
+    #[serde(default)]
+    pub std_mm: f64,
+    /// Largest position error, mm.
+    pub max_mm: f64,
+    /// RMS of the frame-free pairwise-distance error inside the session, mm.
+    pub pairwise_rms_mm: f64,
+    /// Pairs of points compared.
+    pub pairs: usize,
+}
+
+/// The instrument points of block `b`.
+fn points_of(data: &Observations, b: usize) -> impl Iterator<Item = &Observation> + '_ {
+    data.blocks[b].members.iter().map(|&k| &data.obs[k]).filter(|o| o.point_mm().is_some())
+}
+
+/// Block `b`'s frame for `model` (tool offset `offset_mm` in the flange frame), closed form.
+pub fn block_frame(model: &ArmModel, data: &Observations, b: usize, offset_mm: &Vector3<f64>) -> Frame {
+    block_frame_of(&model_points(model, points_of(data, b).map(|p| &p.q_deg[..]), offset_mm), data, b)
+}
+
+/// Block `b`'s frame (closed form) for the model's points `robot` of its points in order.
+fn block_frame_of(robot: &[Vector3<f64>], data: &Observations, b: usize) -> Frame {
+    let measured: Vec<Vector3<f64>> = points_of(data, b).map(|p| p.point_mm().unwrap_or_default()).collect();
+    Frame::fit(robot, &measured)
+}
+
+/// Position error of every calibration point at the solution, per framed block in order, mm.
+pub fn calibration_errors(fit: &Fit, data: &Observations) -> Vec<Vec<f64>> {
+    calibration_residuals_mm(fit, data)
+        .into_iter()
+        .map(|block| block.iter().map(|r| r.norm()).collect())
+        .collect()
+}
+
+/// Residual of every point at the solution, per instrument session of `data` in order (empty for
+/// a session `fit` has no frame of): measured − predicted (its session's fitted frame, tool offset
+/// and drift), in the robot's base frame, mm.
+pub fn calibration_residuals_mm(fit: &Fit, data: &Observations) -> Vec<Vec<Vector3<f64>>> {
+    (0..data.blocks.len())
+        .filter(|&b| data.groups[data.blocks[b].group].kind == crate::data::Kind::Tracker)
+        .map(|b| match fit.frame(&data.block_name(b)) {
+            Some(frame) => residuals_with_frame(fit, data, b, &frame, points_of(data, b)),
+            None => Vec::new(),
+        })
+        .collect()
+}
+
+/// Position errors, mm, of the points of `val`'s block `held_out` measured from calibration
+/// session `session`'s instrument placement (protocol S: a held-out set of the same session), with
+/// that session's calibrated frame, its floated tool and its drift; `None` when `session` is not a
+/// calibration session of `cal`.
+pub fn errors_in_calibration_session(
+    fit: &Fit,
+    cal: &Observations,
+    session: &str,
+    val: &Observations,
+    held_out: usize,
+) -> Option<Vec<f64>> {
+    let b = cal.find_block(session)?;
+    let frame = fit.frame(session)?;
+    let residuals = residuals_with_frame(fit, cal, b, &frame, points_of(val, held_out));
+    Some(residuals.iter().map(|r| r.norm()).collect())
+}
+
+/// Residuals (measured − predicted, robot base frame, mm) of `points` with `frame` and the tool
+/// offset and drift `fit` gives block `b` of `data`.
+fn residuals_with_frame<'a>(
+    fit: &Fit,
+    data: &Observations,
+    b: usize,
+    frame: &Frame,
+    points: impl Iterator<Item = &'a Observation>,
+) -> Vec<Vector3<f64>> {
+    let offset = fit.tool_offset(&data.groups[data.blocks[b].group].name);
+    let name = data.block_name(b);
+    let drift = fit.drifts.iter().find(|d| d.session == name);
+    let chain = Chain::new(&fit.model);
+    points
+        .map(|p| {
+            let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
+            let y = frame.rotation * with_offset(&chain.pose(&p.q_deg), &offset);
+            frame.rotation.transpose()
+                * (p.point_mm().unwrap_or_default() - (y * growth + frame.translation_mm + shift))
+        })
+        .collect()
+}
+
+/// Fit block `b`'s frame and its own tool offset for a fixed `model` (the tool floated there),
+/// and validate with both refitted.
+pub fn fit_session_with_tool(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+) -> (FloatedTool, SessionValidation) {
+    let group = data.blocks[b].group;
+    let one = data.subset(&[group]);
+    let start = block_frame(model, &one, 0, &Vector3::zeros());
+    let terms = crate::calib::terms::point::terms(&one, 1.0);
+    let layout = Layout::new(Vec::new(), &[true], &[true], false, &[None]);
+    let problem = Problem::new(layout, model, &one, &terms, vec![start.rotation], None);
+    let t = start.translation_mm;
+    let x0 = [0.0, 0.0, 0.0, t.x, t.y, t.z, 0.0, 0.0, 0.0];
+    let options = SolverOptions { max_iterations: 100, ..SolverOptions::default() };
+    let solution = solver::solve(&problem, &x0, &[-1e9; 9], &[1e9; 9], &options);
+    let mut r = vec![0.0; problem.len()];
+    let (normal, _) = problem.normal_equations(&solution.x, &mut r, Loss::Linear);
+    let variance = r.iter().map(|v| v * v).sum::<f64>() / (r.len() as f64 - 9.0).max(1.0);
+    let cov = crate::calib::identify::covariance_of_normal(normal, variance);
+    let offset = problem.state(&solution.x).tools[0];
+    let block = cov.as_ref().map_or(Matrix3::zeros(), |c| c.fixed_view::<3, 3>(6, 6).into_owned());
+    let tool = FloatedTool::new(data.groups[group].name.clone(), &offset, &block);
+    (tool, validate_session(model, data, b, offset.into()))
+}
+
+/// RMS distance, mm, of a session's points from the line through them below which they count as
+/// lying on one line: the rotation of the session's base about that line is then set by this
+/// spread and the noise alone (0.02 mm of noise across 1 mm turns it by about 1°).
+pub const COLLINEAR_SPREAD_MM: f64 = 1.0;
+
+/// Why block `b`'s points do not determine its base's rotation: they lie on one line, about which
+/// the base can turn freely; `None` when they determine it. A session's orientation error, its
+/// base refitted from its points, is then arbitrary and is not scored.
+pub fn undetermined_rotation(data: &Observations, b: usize) -> Option<String> {
+    let points: Vec<Vector3<f64>> = points_of(data, b).map(|p| p.point_mm().unwrap_or_default()).collect();
+    let n = points.len().max(1) as f64;
+    let centre = points.iter().sum::<Vector3<f64>>() / n;
+    let scatter = points.iter().map(|p| (p - centre) * (p - centre).transpose()).sum::<Matrix3<f64>>() / n;
+    let mut variances: Vec<f64> = scatter.symmetric_eigenvalues().iter().map(|v| v.max(0.0)).collect();
+    variances.sort_by(|a, b| b.total_cmp(a));
+    let (along, across) = (variances[0].sqrt(), (variances[1] + variances[2]).sqrt());
+    (across < COLLINEAR_SPREAD_MM).then(|| {
+        format!(
+            "session {}: its points lie on one line (RMS {across:.3} mm across it, {along:.0} mm along it), so the \
+             rotation of its base about that line is not determined and no orientation error is scored",
+            data.block_name(b)
+        )
+    })
+}
+
+/// Block `b`'s own probe rotation R_t,S (flange ← probe), its frame refitted from the positions
+/// with the tool offset `tool_offset_mm`: the chordal mean of R_Fᵀ·R_Sᵀ·R_meas over its oriented
+/// points. A probe turned on its mount in that session is R_t,S = Q·R_t, Q its turn in the flange
+/// frame. `None` without orientations.
+pub fn session_probe_rotation(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    tool_offset_mm: [f64; 3],
+) -> Option<Matrix3<f64>> {
+    let one = data.subset(&[data.blocks[b].group]);
+    let frames: Vec<Frame> =
+        (0..one.blocks.len()).map(|k| block_frame(model, &one, k, &Vector3::from(tool_offset_mm))).collect();
+    crate::calib::nuisance::tool::start_probe_rotation(model, &one, &frames)
+}
+
+/// Orientation errors of `model` with the probe rotation `probe` on block `b`, its frame
+/// refitted from the positions (closed form); `None` when the block has no orientations.
+pub fn validate_orientations(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    tool_offset_mm: [f64; 3],
+    probe: &Matrix3<f64>,
+) -> Option<AngleStats> {
+    let angles_deg: Vec<f64> =
+        orientation_errors_deg(model, data, b, tool_offset_mm, probe).into_iter().flatten().collect();
+    (!angles_deg.is_empty()).then(|| AngleStats::of(&angles_deg))
+}
+
+/// The orientation error (angle of R_predᵀ·R_meas, degrees) of every point of block `b`, its
+/// frame refitted from the positions (closed form); `None` for a row without an orientation.
+pub fn orientation_errors_deg(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    tool_offset_mm: [f64; 3],
+    probe: &Matrix3<f64>,
+) -> Vec<Option<f64>> {
+    let frame = block_frame(model, data, b, &Vector3::from(tool_offset_mm));
+    points_of(data, b)
+        .map(|p| {
+            let measured = p.orientation()?.to_rotation_matrix().into_inner();
+            let predicted = frame.rotation * flange_rotation(&tool_pose(model, &p.q_deg)) * probe;
+            Some(rotation_vector(&(predicted.transpose() * measured)).norm().to_degrees())
+        })
+        .collect()
+}
+
+/// The residual of every point of block `b` for `model`, its frame refitted (closed form):
+/// measured − predicted, rotated into the robot's base frame so that sessions compare, mm. Its
+/// lengths are the errors [`validate_session`] summarises.
+pub fn session_residuals_mm(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    tool_offset_mm: [f64; 3],
+) -> Vec<Vector3<f64>> {
+    let (frame, residuals) = session_fit(model, data, b, tool_offset_mm);
+    residuals.iter().map(|r| frame.rotation.transpose() * -r).collect()
+}
+
+impl SessionValidation {
+    /// The point-error statistics.
+    pub fn stats(&self) -> ErrorStats {
+        ErrorStats {
+            count: self.points,
+            rms_mm: self.rms_mm,
+            mean_mm: self.mean_mm,
+            std_mm: self.std_mm,
+            max_mm: self.max_mm,
+        }
+    }
+}
+
+/// Most points of a session whose pairwise distances are compared (evenly spaced beyond).
+pub const MAX_PAIRWISE_POINTS: usize = 2000;
+
+/// Block `b`'s frame for `model` (closed form) and the position error of every point with it, in
+/// file order, in the instrument's frame (predicted − measured), mm.
+fn session_fit(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    tool_offset_mm: [f64; 3],
+) -> (Frame, Vec<Vector3<f64>>) {
+    let offset = &Vector3::from(tool_offset_mm);
+    let robot = model_points(model, points_of(data, b).map(|p| &p.q_deg[..]), offset);
+    let frame = block_frame_of(&robot, data, b);
+    let residuals = points_of(data, b)
+        .zip(&robot)
+        .map(|(p, y)| frame.apply(y) - p.point_mm().unwrap_or_default())
+        .collect();
+    (frame, residuals)
+}
+
+/// Position error of every point of block `b` for `model`, its frame refitted (closed form), in
+/// file order, in the instrument's frame, mm.
+pub fn session_residuals(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    tool_offset_mm: [f64; 3],
+) -> Vec<Vector3<f64>> {
+    session_fit(model, data, b, tool_offset_mm).1
+}
+
+/// Lengths of [`session_residuals`], mm.
+pub fn session_errors(model: &ArmModel, data: &Observations, b: usize, tool_offset_mm: [f64; 3]) -> Vec<f64> {
+    session_residuals(model, data, b, tool_offset_mm).iter().map(|r| r.norm()).collect()
+}
+
+/// Errors of `model` on block `b` with its frame refitted (closed form), and the pairwise figures.
+pub fn validate_session(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    tool_offset_mm: [f64; 3],
+) -> SessionValidation {
+    let offset = &Vector3::from(tool_offset_mm);
+    let points: Vec<&Observation> = points_of(data, b).collect();
+    let robot = model_points(model, points.iter().map(|p| &p.q_deg[..]), offset);
+    let errors = session_errors(model, data, b, tool_offset_mm);
+    let stats = ErrorStats::of(&errors);
+    let step = points.len().div_ceil(MAX_PAIRWISE_POINTS).max(1);
+    let picked: Vec<usize> = (0..points.len()).step_by(step).collect();
+    let mut sum = 0.0;
+    let mut pairs = 0usize;
+    for (k, &a) in picked.iter().enumerate() {
+        for &c in &picked[k + 1..] {
+            let measured =
+                points[a].point_mm().unwrap_or_default() - points[c].point_mm().unwrap_or_default();
+            let e = (robot[a] - robot[c]).norm() - measured.norm();
+            sum += e * e;
+            pairs += 1;
+        }
+    }
+    SessionValidation {
+        name: data.block_name(b),
+        points: stats.count,
+        rms_mm: stats.rms_mm,
+        mean_mm: stats.mean_mm,
+        std_mm: stats.std_mm,
+        max_mm: stats.max_mm,
+        pairwise_rms_mm: if pairs > 0 { (sum / pairs as f64).sqrt() } else { 0.0 },
+        pairs,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -188,7 +583,7 @@ mod tests {
     fn stats_of_known_errors() {
         let s = ErrorStats::of(&[1.0, -1.0, 3.0, -3.0]);
         assert!((s.rms_mm - 5.0_f64.sqrt()).abs() < 1e-12);
-        assert_eq!((s.mean_mm, s.max_mm, s.pairs), (0.0, 3.0, 4));
-        assert_eq!(ErrorStats::of(&[]).pairs, 0);
+        assert_eq!((s.mean_mm, s.max_mm, s.count), (0.0, 3.0, 4));
+        assert_eq!(ErrorStats::of(&[]).count, 0);
     }
 }

@@ -10,14 +10,15 @@
 //! after a rigid registration of the streamed tool points to the true ones, as a navigation
 //! system registers the tracker to the patient.
 
-use crate::calib::auto::{auto_loop, AutoLoop, Stop};
-use crate::calib::calibrate::{CalibrationError, CalibrationOptions};
-use crate::calib::run::{run, Run, RunError, RunInputs};
+use crate::calib::diagnose::auto::{auto_loop, AutoLoop, Stop};
+use crate::calib::diagnose::{diagnose, DiagnoseError};
+use crate::calib::run::{run, Run, RunError};
+use crate::calib::setup::SolveOptions;
+use crate::calib::summary::RunInputs;
 use crate::controller::link::{Link, LinkError};
 use crate::controller::record::{record, Guide, Plan, Quality, RecordError, Step, Verdict};
 use crate::controller::signing::StationKey;
 use crate::data::Artefact;
-use crate::model::effects::Effect;
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::geometry::absolute_orientation;
 use crate::simulate::{
@@ -53,6 +54,8 @@ pub struct LoopOptions {
     pub hidden: Vec<(ParamId, f64)>,
     /// Where data and the run go.
     pub out: PathBuf,
+    /// Days the uploaded calibration stays valid, from its validation (`None`: no period).
+    pub valid_days: Option<u32>,
 }
 
 /// The demo arm's hidden effect: joint 2 sags under gravity by 0.3°/m of lever (compliance of
@@ -73,6 +76,7 @@ impl Default for LoopOptions {
             calibration_placements: 5,
             hidden: vec![DEMO_HIDDEN],
             out: PathBuf::from("runs/loop"),
+            valid_days: Some(365),
         }
     }
 }
@@ -91,13 +95,13 @@ pub enum LoopError {
     Run(#[from] RunError),
     /// The RUN folder could not be written.
     #[error(transparent)]
-    Output(#[from] crate::output::OutputError),
+    Output(#[from] crate::store::OutputError),
     /// A parameter set is outside what the controller accepts.
     #[error(transparent)]
     Params(#[from] crate::controller::device::DeviceParamsError),
     /// The diagnose → add loop could not recalibrate.
     #[error("diagnose → add: {0}")]
-    Added(#[from] CalibrationError),
+    Added(#[from] DiagnoseError),
     /// The demo's station key could not be made or read.
     #[error(transparent)]
     Key(#[from] crate::controller::signing::KeyFileError),
@@ -109,7 +113,7 @@ pub enum LoopError {
 /// One step of diagnose → add: what was added and where the validation error is.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct MissionStep {
-    /// Effect added at this step (`None` for the model as given).
+    /// What was applied at this step (`None` for the model as given).
     pub added: Option<String>,
     /// Validation distance RMS of this step's calibrated model, mm.
     pub validation_rms_mm: f64,
@@ -129,7 +133,7 @@ pub struct Mission {
     pub last: Option<Run>,
     /// Every step, the model as given first.
     pub steps: Vec<MissionStep>,
-    /// Effects added, in order.
+    /// Changes applied, in order.
     pub added: Vec<String>,
 }
 
@@ -146,50 +150,39 @@ impl Mission {
 /// and `out/run-added`.
 pub fn calibrate_diagnose_add(
     inputs: &RunInputs,
-    options: &CalibrationOptions,
+    options: &SolveOptions,
     out: &Path,
     progress: &mut dyn FnMut(&str),
 ) -> Result<Mission, LoopError> {
     progress("calibrating the model as given");
-    let first = run(inputs, options, &[], 0, true)?;
-    crate::output::write_run(&first, &out.join("run"))?;
+    let first = run(inputs, options, 0, true)?;
+    crate::store::write_run(&first, &out.join("run"))?;
     progress("diagnosing, adding what the diagnosis names, recalibrating");
-    let cal = inputs.load_data(&first.artefact)?.0;
-    let auto = auto_loop(
-        &first.calibration.model,
-        &first.artefact,
-        &cal,
-        &first.validation_data,
-        options,
-        MAX_ADDED,
-    )?;
-    crate::output::write_auto(&auto, &out.join("run"))?;
-    let first_diagnosis = crate::calib::diagnose::diagnose(
-        &first.calibration.model,
-        &first.artefact,
-        &cal,
-        &first.validation_data,
-        options,
-    );
-    crate::output::write_diagnosis(&first_diagnosis, &out.join("run"))?;
+    let (cal, val) = inputs.read_folders()?;
+    let cal = inputs.exclude(&cal, &val)?.0;
+    let setup = inputs.setup(options);
+    let val = &first.validation_data;
+    let auto = auto_loop(&setup, &first.calibration.model, &cal, val, MAX_ADDED)?;
+    crate::store::write_auto(&auto, &out.join("run"))?;
+    let first_diagnosis = diagnose(&setup, &first.calibration.model, &cal, val)?;
+    crate::store::write_diagnosis(&first_diagnosis, &out.join("run"))?;
     let steps = auto
         .steps
         .iter()
         .map(|s| MissionStep {
-            added: s.added.clone(),
-            validation_rms_mm: s.validation_rms_mm,
+            added: s.applied.clone(),
+            validation_rms_mm: s.held_out_rms_mm,
             expected_floor_mm: s.expected_rms_mm,
             p_value: s.p_value,
         })
         .collect();
-    let added: Vec<String> = auto.steps.iter().filter_map(|s| s.added.clone()).collect();
-    let effects: Vec<Effect> = added.iter().filter_map(|a| Effect::parse(a)).collect();
-    let last = if effects.is_empty() {
+    let added: Vec<String> = auto.steps.iter().filter_map(|s| s.applied.clone()).collect();
+    let last = if added.is_empty() {
         None
     } else {
         progress(&format!("calibrating with {} added", added.join(", ")));
-        let last = run(inputs, options, &effects, 0, true)?;
-        crate::output::write_run(&last, &out.join("run-added"))?;
+        let last = run(&inputs.with_changes(&auto.setup), options, 0, true)?;
+        crate::store::write_run(&last, &out.join("run-added"))?;
         Some(last)
     };
     Ok(Mission { first, auto, last, steps, added })
@@ -216,6 +209,60 @@ pub fn demo_station_key(out: &std::path::Path) -> Result<StationKey, LoopError> 
     }
     std::fs::create_dir_all(out).map_err(|e| LoopError::Files(format!("{}: {e}", out.display())))?;
     Ok(StationKey::create(&path)?)
+}
+
+/// Drop the upload records (`uploads.json`) of an earlier demo's runs in `out`: the sets they
+/// record were stored on an emulated controller that ended with that demo, so no controller holds
+/// them and the new demo may replace those runs (a RUN whose set a controller may hold is never
+/// replaced; [`crate::store::check_output_folder`]).
+pub fn forget_emulated_uploads(out: &Path) -> Result<(), LoopError> {
+    for run in ["run", "run-added"] {
+        let path = out.join(run).join(crate::trace::UPLOADS_FILE);
+        match std::fs::remove_file(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(LoopError::Files(format!("{}: {e}", path.display())))
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// The demo's true arm for `seed`: `nominal` off by the simulation's perturbation, with the
+/// demo's hidden effect ([`DEMO_HIDDEN`]).
+pub fn demo_truth(nominal: &ArmModel, seed: u64) -> ArmModel {
+    true_arm(nominal, seed, &[DEMO_HIDDEN], &mut ChaCha8Rng::seed_from_u64(seed))
+}
+
+/// `nominal` off by the simulation's perturbation (drawn from `rng`), plus the `hidden` deltas.
+fn true_arm(nominal: &ArmModel, seed: u64, hidden: &[(ParamId, f64)], rng: &mut ChaCha8Rng) -> ArmModel {
+    let sim = SimulationOptions { seed, ..SimulationOptions::default() };
+    let mut truth = perturbed_truth(nominal, &sim, rng);
+    for (id, delta) in hidden {
+        truth.set(*id, truth.get(*id) + delta);
+    }
+    truth
+}
+
+/// Sign `model` with `key` as the next parameter version for the controller on `link`, with
+/// `trace` (its RUN's hash, validation date and validity) when given, and upload it; returns the
+/// signed set.
+pub fn upload_model(
+    link: &mut Link,
+    model: &ArmModel,
+    key: &StationKey,
+    trace: Option<&kincal_protocol::signed::SetTrace>,
+) -> Result<Vec<u8>, LoopError> {
+    let info = link.info()?;
+    let version = info.param_version + 1;
+    let set = match trace {
+        Some(trace) => {
+            crate::controller::device::traced_parameter_set(model, version, &info.arm_id, key, trace)?
+        }
+        None => crate::controller::device::signed_parameter_set(model, version, &info.arm_id, key)?,
+    };
+    link.upload(&set)?;
+    Ok(set)
 }
 
 /// What the loop measured.
@@ -254,6 +301,8 @@ pub struct LoopReport {
     pub poses: usize,
     /// Time to upload one parameter set, s.
     pub upload_seconds: f64,
+    /// The RUN whose model was uploaded last (its hash signed with it, the upload recorded in it).
+    pub uploaded_run: PathBuf,
     /// Wall time of the whole loop, s.
     pub seconds: f64,
 }
@@ -360,13 +409,13 @@ pub fn run_loop(
 ) -> Result<LoopReport, LoopError> {
     let started = Instant::now();
     let files = |e: &dyn std::fmt::Display| LoopError::Files(e.to_string());
-    let sim = SimulationOptions { seed: options.seed, ..SimulationOptions::default() };
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
-    let mut truth = perturbed_truth(nominal, &sim, &mut rng);
-    for (id, delta) in &options.hidden {
-        truth.set(*id, truth.get(*id) + delta);
-    }
-    let artefact = suta_artefact(&mut rng);
+    let truth = true_arm(nominal, options.seed, &options.hidden, &mut rng);
+    // A simulated artefact has no calibration lab's certificate; its reference says so.
+    let artefact = Artefact {
+        certificate: Some(format!("none: simulated by kincal demo, seed {}", options.seed)),
+        ..suta_artefact(&mut rng)
+    };
     let data = options.out.join("data");
     claim_data_folder(&data, options.seed)?;
     artefact.save(&data.join("artefact.json")).map_err(|e| files(&e))?;
@@ -415,11 +464,11 @@ pub fn run_loop(
     }
     let inputs = RunInputs::new(
         data.join("nominal.toml"),
-        data.join("artefact.json"),
+        Some(data.join("artefact.json")),
         data.join("cal"),
         data.join("val"),
     );
-    let calibration = CalibrationOptions { seed: options.seed, ..CalibrationOptions::default() };
+    let calibration = SolveOptions { seed: options.seed, ..SolveOptions::default() };
     let mission = calibrate_diagnose_add(&inputs, &calibration, &options.out, progress)?;
     let result = mission.final_run();
     // Pose check at one noise-free touch of every landmark of every validation placement.
@@ -436,34 +485,56 @@ pub fn run_loop(
         .map(|c| reference_tool_frame(&truth, &degrees_of(c)).0.fixed_view::<3, 1>(0, 3).into_owned())
         .collect();
     let key = demo_station_key(&options.out)?;
-    let mut pose_rms = |model: &ArmModel, label: &str, link: &mut Link| -> Result<(f64, f64), LoopError> {
+    // Each set is signed for the connected arm; the calibrated one carries its RUN's hash and
+    // date, and the RUN records the upload, as `kincal upload RUN/model.toml` does.
+    let mut pose_rms = |model: &ArmModel,
+                        label: &str,
+                        run: Option<&Path>,
+                        link: &mut Link|
+     -> Result<(f64, f64), LoopError> {
         progress(&format!(
             "uploading the {label} parameters and streaming the pose at {} validation touches",
             check_counts.len()
         ));
         let t = Instant::now();
-        let info = link.info()?;
-        let set = crate::controller::device::signed_parameter_set(
-            model,
-            info.param_version + 1,
-            &info.arm_id,
-            &key,
-        )?;
-        link.upload(&set)?;
+        let origin = match run {
+            Some(run) => crate::trace::run_origin(&run.join("model.toml")).map_err(|e| files(&e))?,
+            None => None,
+        };
+        let trace = match &origin {
+            Some(origin) => Some(
+                crate::controller::traceability::upload_trace(
+                    Path::new(""),
+                    Some(origin),
+                    options.valid_days,
+                    crate::controller::traceability::unix_now(),
+                )
+                .map_err(|e| files(&e))?,
+            ),
+            None => None,
+        };
+        let set = upload_model(link, model, &key, trace.as_ref())?;
         let upload = t.elapsed().as_secs_f64();
+        if let Some(origin) = &origin {
+            let arm = crate::controller::record::connected_arm(link)?;
+            if let Some(record) = crate::controller::traceability::upload_record(&arm, &set) {
+                crate::trace::record_upload(&origin.run, &record).map_err(|e| files(&e))?;
+            }
+        }
         let points =
             check_counts.iter().map(|c| streamed_point(link, *c, 8)).collect::<Result<Vec<_>, _>>()?;
         Ok((registered_rms(&points, &truth_points), upload))
     };
-    let (nominal_pose, _) = pose_rms(nominal, "nominal", link)?;
-    let (floor_pose, _) = pose_rms(&truth, "true arm's", link)?;
-    let (calibrated_pose, upload_seconds) = pose_rms(&result.calibration.model, "calibrated", link)?;
+    let (nominal_pose, _) = pose_rms(nominal, "nominal", None, link)?;
+    let (floor_pose, _) = pose_rms(&truth, "true arm's", None, link)?;
+    let final_run = options.out.join(if mission.last.is_some() { "run-added" } else { "run" });
+    let (calibrated_pose, upload_seconds) =
+        pose_rms(&result.calibration.model, "calibrated", Some(&final_run), link)?;
     let host_points: Vec<Vector3<f64>> = check_counts
         .iter()
         .map(|c| crate::model::kinematics::tool_pose(&result.calibration.model, &degrees_of(c)).position_mm)
         .collect();
-    let truth_validation =
-        crate::calib::validate::validate(&truth, &artefact, &result.validation_data).overall.rms_mm;
+    let truth_validation = crate::calib::validate::validate(&truth, &result.validation_data).overall.rms_mm;
     Ok(LoopReport {
         hidden: options.hidden.iter().map(|(id, d)| format!("{id} = {d:+}")).collect(),
         steps: mission.steps.clone(),
@@ -473,13 +544,14 @@ pub fn run_loop(
         truth_validation_rms_mm: truth_validation,
         host_calibrated_pose_rms_mm: registered_rms(&host_points, &truth_points),
         touches,
-        nominal_validation_rms_mm: mission.first.summary.nominal_validation.rms_mm,
-        calibrated_validation_rms_mm: result.summary.validation.rms_mm,
+        nominal_validation_rms_mm: mission.first.summary.nominal_held_out_rms_mm(),
+        calibrated_validation_rms_mm: result.summary.held_out_rms_mm(),
         nominal_pose_rms_mm: nominal_pose,
         calibrated_pose_rms_mm: calibrated_pose,
         floor_pose_rms_mm: floor_pose,
         poses: check_counts.len(),
         upload_seconds,
+        uploaded_run: final_run,
         seconds: started.elapsed().as_secs_f64(),
     })
 }

@@ -1,6 +1,6 @@
 //! The calibrated model as the controller stores it (the protocol's parameter blob).
 
-use crate::model::{ArmModel, Convention, SUTA_JOINTS};
+use crate::model::{ArmModel, Convention, Joint, SUTA_JOINTS};
 use kincal_protocol::params::{
     check_envelope, encode_blob, envelope, ArmParams, EnvelopeViolation, JointParams, MAX_PARAM_BLOB,
 };
@@ -60,6 +60,37 @@ pub fn device_params(model: &ArmModel, version: u32) -> Result<ArmParams, Device
     })
 }
 
+/// The host model of a parameter set as the controller evaluates it (no free parameters): what
+/// `kincal check` re-validates.
+pub fn model_from_params(params: &ArmParams) -> ArmModel {
+    ArmModel {
+        name: format!("stored on the controller (parameters version {})", params.version),
+        convention: if params.modified_dh { Convention::Modified } else { Convention::Classic },
+        joints: params
+            .joints
+            .iter()
+            .map(|j| Joint {
+                offset_deg: j.offset_deg,
+                d_mm: j.d_mm,
+                a_mm: j.a_mm,
+                alpha_deg: j.alpha_deg,
+                axis_deg: j.axis_deg,
+                eccentricity_sin_deg: j.eccentricity_deg[0],
+                eccentricity_cos_deg: j.eccentricity_deg[1],
+                eccentricity2_sin_deg: j.eccentricity2_deg[0],
+                eccentricity2_cos_deg: j.eccentricity2_deg[1],
+                compliance_deg_per_m: j.compliance_deg_per_m,
+                ..Joint::default()
+            })
+            .collect(),
+        tcp_mm: params.tcp_mm,
+        scale_ppm: params.scale_ppm,
+        free: Vec::new(),
+        urdf: None,
+        arm: None,
+    }
+}
+
 /// The parameter blob of `model` (see [`kincal_protocol::params`]), checked against the same
 /// envelope the controller applies (version ≥ 1, finite f32, lengths, angles, scale).
 pub fn parameter_blob(model: &ArmModel, version: u32) -> Result<Vec<u8>, DeviceParamsError> {
@@ -79,8 +110,19 @@ pub fn signed_parameter_set(
     key: &crate::controller::signing::StationKey,
 ) -> Result<Vec<u8>, DeviceParamsError> {
     let blob = parameter_blob(model, version)?;
-    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
-    Ok(key.sign(&blob, arm_id, now)?)
+    Ok(key.sign(&blob, arm_id, crate::controller::traceability::unix_now())?)
+}
+
+/// [`signed_parameter_set`] carrying `trace` (the RUN's hash, validation date and validity).
+pub fn traced_parameter_set(
+    model: &ArmModel,
+    version: u32,
+    arm_id: &str,
+    key: &crate::controller::signing::StationKey,
+    trace: &kincal_protocol::signed::SetTrace,
+) -> Result<Vec<u8>, DeviceParamsError> {
+    let blob = parameter_blob(model, version)?;
+    Ok(key.sign_traced(&blob, trace, arm_id, crate::controller::traceability::unix_now())?)
 }
 
 /// Why no version can be given to a new set.
@@ -139,6 +181,30 @@ mod tests {
         let e = parameter_blob(&model, 1).unwrap_err();
         assert!(matches!(e, DeviceParamsError::JointCount(7)), "{e}");
         assert!(e.to_string().contains("holds 6 joints"), "{e}");
+    }
+
+    /// What the controller holds, read back as a host model, is the same set again.
+    #[test]
+    fn a_stored_set_reads_back_as_the_model_it_came_from() {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = Convention::Modified;
+        for (j, row) in model.joints.iter_mut().enumerate() {
+            row.a_mm = j as f64 * 0.5;
+            row.axis_deg = 0.01 * j as f64;
+            row.eccentricity_sin_deg = 0.02;
+            row.eccentricity_cos_deg = -0.03;
+            row.eccentricity2_sin_deg = 0.004;
+            row.eccentricity2_cos_deg = -0.005;
+            row.compliance_deg_per_m = 0.3;
+        }
+        model.scale_ppm = 12.0;
+        let params = device_params(&model, 9).unwrap();
+        let back = model_from_params(&params);
+        assert_eq!(device_params(&back, 9).unwrap(), params);
+        assert_eq!(
+            (back.joints, back.tcp_mm, back.convention),
+            (model.joints, model.tcp_mm, model.convention)
+        );
     }
 
     #[test]

@@ -57,12 +57,24 @@ fn qemu(elf: &Path, serial: &str, arm_id: Option<&str>) -> Result<Emulator, Link
 }
 
 impl Emulator {
+    /// Whether QEMU is still running (it stops on a firmware failure it cannot reset from, or
+    /// when killed).
+    pub fn running(&mut self) -> bool {
+        matches!(self.child.try_wait(), Ok(None))
+    }
+
     /// Start QEMU with UART0 as a TCP server on 127.0.0.1; returns the guard and the port
     /// (`tcp:127.0.0.1:PORT`) to open links to — several in turn, as a serial port.
     pub fn start_server(elf: &Path) -> Result<(Emulator, String), LinkError> {
+        Self::start_server_as(elf, None)
+    }
+
+    /// [`Emulator::start_server`] with the emulated arm's identity `arm_id` (default
+    /// `emulated-arm`): several emulators with their own identities are several arms.
+    pub fn start_server_as(elf: &Path, arm_id: Option<&str>) -> Result<(Emulator, String), LinkError> {
         let open_error = |message: String| LinkError::Open { port: "emulated controller".into(), message };
         let port = TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-        let guard = qemu(elf, &format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on"), None)?;
+        let guard = qemu(elf, &format!("tcp:127.0.0.1:{port},server=on,wait=off,nodelay=on"), arm_id)?;
         let deadline = Instant::now() + Duration::from_secs(10);
         while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
             if Instant::now() > deadline {

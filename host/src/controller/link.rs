@@ -272,7 +272,16 @@ impl Link {
         let n = match self.transport.read(&mut bytes) {
             Ok(0) => return Err(LinkError::Closed),
             Ok(n) => n,
-            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+            // A read interrupted by a signal (Ctrl-C ending a stream) read nothing: the caller
+            // checks its flag and reads again.
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock
+                        | std::io::ErrorKind::TimedOut
+                        | std::io::ErrorKind::Interrupted
+                ) =>
+            {
                 return Ok(true)
             }
             Err(e)

@@ -8,11 +8,14 @@
 //! skips or stops. Every measured landmark is
 //! written to `OUT/<placement>.json` (`suta-session/1`) atomically before the next one starts, so
 //! an interrupted session loses nothing; started again, it resumes with the first landmark and
-//! repeat not yet on disk and never measures one twice.
+//! repeat not yet on disk and never measures one twice. Every session names the arm it was
+//! recorded on (the controller's identity, firmware and board, [`ArmIdentity`]); a session is
+//! resumed only on the same arm and firmware, so no file holds touches of two arms.
 
 use crate::controller::link::{Link, LinkError};
 use crate::data::{Artefact, Measurement, Session, SESSION_FORMAT};
 use crate::files::FileError;
+use crate::trace::ArmIdentity;
 use kincal_protocol::biss::counts_to_deg;
 use kincal_protocol::messages::{
     ticks_to_seconds, JointWindow, SimSetPose, StartWindow, WindowReport, WireError, MAX_WINDOW_TICKS,
@@ -45,6 +48,28 @@ pub enum RecordError {
         found_placement: String,
         /// Purpose in the file.
         found_purpose: String,
+    },
+    /// The existing session file was recorded on another arm or firmware.
+    #[error(
+        "{path}: recorded on {found}, and the connected controller is {connected}: one session holds          one arm's touches; record into another --out"
+    )]
+    OtherArm {
+        /// The file.
+        path: PathBuf,
+        /// The arm the file names (identity, firmware, board).
+        found: String,
+        /// The connected controller's.
+        connected: String,
+    },
+    /// The existing session file names no arm, so new touches cannot be added to it.
+    #[error(
+        "{path}: names no arm (recorded before kincal wrote the arm's identity, or by hand): touches of          arm {connected} cannot be added to it; record into another --out"
+    )]
+    Unidentified {
+        /// The file.
+        path: PathBuf,
+        /// The connected controller's arm.
+        connected: String,
     },
     /// A landmark named in the order is not in the artefact.
     #[error("landmark {0:?} is not in the artefact file")]
@@ -269,13 +294,21 @@ pub fn to_measurement(landmark: &str, repeat: u32, w: &WindowReport) -> (Measure
             std_deg: Some(std_deg),
             samples: Some(samples),
             rejected: Some(quality.rejected),
+            at_unix_s: None,
         },
         quality,
     )
 }
 
-/// Load the session to resume, or start an empty one.
-fn resume(plan: &Plan, artefact: &Artefact) -> Result<Session, RecordError> {
+/// The identity of the arm on `link` (its controller's identity, firmware and board).
+pub fn connected_arm(link: &mut Link) -> Result<ArmIdentity, LinkError> {
+    let info = link.info()?;
+    let text = |s: &str| Some(s.trim().to_string()).filter(|s| !s.is_empty());
+    Ok(ArmIdentity { id: info.arm_id.to_string(), firmware: text(&info.firmware), board: text(&info.board) })
+}
+
+/// Load the session to resume (recorded on `arm`), or start an empty one; either names `arm`.
+fn resume(plan: &Plan, artefact: &Artefact, arm: &ArmIdentity) -> Result<Session, RecordError> {
     let path = plan.session_path();
     if !path.exists() {
         return Ok(Session {
@@ -283,9 +316,19 @@ fn resume(plan: &Plan, artefact: &Artefact) -> Result<Session, RecordError> {
             placement: plan.placement.clone(),
             purpose: plan.purpose.clone(),
             measurements: Vec::new(),
+            arm: Some(arm.clone()),
         });
     }
-    let session = Session::load(&path, artefact)?;
+    let mut session = Session::load(&path, artefact)?;
+    match &session.arm {
+        Some(found) if found != arm => {
+            return Err(RecordError::OtherArm { path, found: found.to_string(), connected: arm.to_string() })
+        }
+        None if !session.measurements.is_empty() => {
+            return Err(RecordError::Unidentified { path, connected: arm.id.clone() })
+        }
+        _ => {}
+    }
     if session.placement != plan.placement || session.purpose != plan.purpose {
         return Err(RecordError::Mismatch {
             path,
@@ -295,6 +338,7 @@ fn resume(plan: &Plan, artefact: &Artefact) -> Result<Session, RecordError> {
             found_purpose: session.purpose,
         });
     }
+    session.arm = Some(arm.clone());
     Ok(session)
 }
 
@@ -309,6 +353,8 @@ pub struct Recorded {
     pub skipped: usize,
     /// Re-takes.
     pub retakes: usize,
+    /// The arm the session was recorded on.
+    pub arm: Option<ArmIdentity>,
 }
 
 /// Run the guided sequence of `plan`, resuming what is on disk.
@@ -322,8 +368,10 @@ pub fn record(
         return Err(RecordError::UnknownLandmark(unknown.clone()));
     }
     std::fs::create_dir_all(&plan.out).map_err(|source| FileError::Io { path: plan.out.clone(), source })?;
-    let mut session = resume(plan, artefact)?;
-    let mut summary = Recorded { resumed: session.measurements.len(), ..Recorded::default() };
+    let arm = connected_arm(link)?;
+    let mut session = resume(plan, artefact, &arm)?;
+    let mut summary =
+        Recorded { resumed: session.measurements.len(), arm: Some(arm.clone()), ..Recorded::default() };
     for repeat in 1..=plan.repeats {
         for (k, landmark) in plan.order.iter().enumerate() {
             if session.measurements.iter().any(|m| &m.landmark == landmark && m.repeat == repeat) {
@@ -377,7 +425,8 @@ pub fn record(
                 summary.skipped += 1;
                 continue;
             };
-            session.measurements.push(measurement);
+            let at_unix_s = Some(crate::controller::traceability::unix_now());
+            session.measurements.push(Measurement { at_unix_s, ..measurement });
             session.save(&plan.session_path())?;
             summary.measured += 1;
         }
@@ -388,14 +437,14 @@ pub fn record(
 /// A scripted session (`--script FILE`): `{"steps":[{"landmark":"M1","repeat":1,
 /// "pose_counts":[6 counts]}, {"landmark":"S2","skip":true}, {"stop":true}]}`. `pose_counts`
 /// poses the emulated arm; steps are matched by landmark and repeat (repeat defaults to 1).
-#[derive(Clone, Debug, Default, serde::Deserialize)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct Script {
     /// The steps.
     pub steps: Vec<ScriptStep>,
 }
 
 /// One step of a [`Script`].
-#[derive(Clone, Debug, Default, serde::Deserialize)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct ScriptStep {
     /// Landmark id.
     #[serde(default)]
@@ -579,6 +628,7 @@ mod tests {
             std_deg: Some(vec![std_deg; 6]),
             samples: Some(samples),
             rejected: Some(0),
+            at_unix_s: None,
         }
     }
 

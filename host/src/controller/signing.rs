@@ -7,9 +7,14 @@
 //! beside it as `FILE.pub` (`kincal-station-public-key/1` and 64 hex digits): it is what a lab
 //! builds into the real controller (`KINCAL_TRUSTED_KEY`).
 
+use crate::trace::hex;
+/// `unix_s` as UTC date and time (in [`crate::trace`], which the reports share).
+pub use crate::trace::utc;
 use ed25519_dalek::{Signer, SigningKey, VerifyingKey};
 use kincal_protocol::params::MAX_PARAM_BLOB;
-use kincal_protocol::signed::{signing_message, split_signed, LayoutError, PUBLIC_KEY_BYTES};
+use kincal_protocol::signed::{
+    signing_message, split_signed, traced_signing_message, LayoutError, SetTrace, PUBLIC_KEY_BYTES,
+};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 
@@ -52,6 +57,9 @@ pub enum KeyFileError {
     /// The system's random source failed.
     #[error("no random numbers from the operating system: {0}")]
     Random(String),
+    /// Not a regular file (a FIFO, a device, a folder, a dangling link): never opened.
+    #[error(transparent)]
+    NotAFile(crate::files::FileError),
 }
 
 /// A station's signing key, read from its file.
@@ -71,10 +79,6 @@ pub struct LoadedKey {
 pub fn fingerprint(public_key: &[u8; PUBLIC_KEY_BYTES]) -> String {
     let digest = Sha256::digest(public_key);
     format!("ed25519:{}", hex(&digest[..8]))
-}
-
-fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 fn unhex32(text: &str) -> Option<[u8; 32]> {
@@ -116,6 +120,10 @@ impl StationKey {
 
     /// Read the key at `path`; warns when others may read the file.
     pub fn load(path: &Path) -> Result<LoadedKey, KeyFileError> {
+        if std::fs::symlink_metadata(path).is_ok() {
+            // Before opening: a FIFO would block and /dev/zero never end.
+            crate::files::check_regular_file(path).map_err(KeyFileError::NotAFile)?;
+        }
         let text = match std::fs::read(path) {
             Ok(bytes) => bytes,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
@@ -178,15 +186,40 @@ impl StationKey {
         hex(&self.public_key())
     }
 
-    /// Sign `blob` for arm `arm_id` at `signed_at_unix_s`: the set to upload.
+    /// Sign `blob` for arm `arm_id` at `signed_at_unix_s`: the set to upload (`KSG1`, no trace).
     pub fn sign(&self, blob: &[u8], arm_id: &str, signed_at_unix_s: u64) -> Result<Vec<u8>, SignError> {
+        self.sign_with(blob, None, arm_id, signed_at_unix_s)
+    }
+
+    /// [`StationKey::sign`] with where the set comes from (`KSG2`): the RUN's hash, the date of
+    /// its validation and the end of its validity, all signed.
+    pub fn sign_traced(
+        &self,
+        blob: &[u8],
+        trace: &SetTrace,
+        arm_id: &str,
+        signed_at_unix_s: u64,
+    ) -> Result<Vec<u8>, SignError> {
+        self.sign_with(blob, Some(trace), arm_id, signed_at_unix_s)
+    }
+
+    fn sign_with(
+        &self,
+        blob: &[u8],
+        trace: Option<&SetTrace>,
+        arm_id: &str,
+        signed_at_unix_s: u64,
+    ) -> Result<Vec<u8>, SignError> {
         let mut out = [0u8; MAX_PARAM_BLOB];
-        let n = signing_message(blob, arm_id, signed_at_unix_s, &self.public_key(), &mut out).map_err(
-            |e| match e {
-                LayoutError::ArmId => SignError::ArmId(arm_id.to_string()),
-                LayoutError::TooLarge => SignError::TooLarge,
-            },
-        )?;
+        let key = self.public_key();
+        let laid_out = match trace {
+            Some(trace) => traced_signing_message(blob, trace, arm_id, signed_at_unix_s, &key, &mut out),
+            None => signing_message(blob, arm_id, signed_at_unix_s, &key, &mut out),
+        };
+        let n = laid_out.map_err(|e| match e {
+            LayoutError::ArmId => SignError::ArmId(arm_id.to_string()),
+            LayoutError::TooLarge => SignError::TooLarge,
+        })?;
         let mut set = out[..n].to_vec();
         set.extend_from_slice(&self.key.sign(&set).to_bytes());
         Ok(set)
@@ -245,6 +278,8 @@ pub struct SetProvenance {
     pub signer: [u8; PUBLIC_KEY_BYTES],
     /// The signature verifies (Ed25519, strict).
     pub signature_valid: bool,
+    /// The RUN and validity it was signed with (`None`: a set that carries none).
+    pub trace: Option<SetTrace>,
 }
 
 /// Read the signed fields of `set` and verify its signature here; `None` when it is not signed.
@@ -259,24 +294,8 @@ pub fn provenance(set: &[u8]) -> Option<SetProvenance> {
         signed_at_unix_s: s.signed_at_unix_s,
         signer: *s.public_key,
         signature_valid,
+        trace: s.trace,
     })
-}
-
-/// `unix_s` as UTC date and time (`2026-11-24 06:15:00 UTC`).
-pub fn utc(unix_s: u64) -> String {
-    let days = (unix_s / 86_400) as i64;
-    let secs = unix_s % 86_400;
-    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + (month <= 2) as i64;
-    format!("{year:04}-{month:02}-{day:02} {:02}:{:02}:{:02} UTC", secs / 3600, secs / 60 % 60, secs % 60)
 }
 
 #[cfg(test)]
@@ -316,6 +335,12 @@ mod tests {
         let mut flipped = set.clone();
         flipped[1] ^= 1;
         assert!(!provenance(&flipped).unwrap().signature_valid);
+        assert_eq!(p.trace, None);
+        let trace = SetTrace { run_sha256: [3; 32], validated_at_unix_s: 5, valid_until_unix_s: 9 };
+        let traced = key.sign_traced(&[1, 2, 3], &trace, "arm-1", 1_790_000_000).unwrap();
+        let t = provenance(&traced).unwrap();
+        assert!(t.signature_valid);
+        assert_eq!((t.blob.as_slice(), t.trace), (&[1u8, 2, 3][..], Some(trace)));
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -7,13 +7,23 @@
 //!  "measurements":[{"landmark":"M1","repeat":1,"joints_deg":[6 raw encoder angles in [0,360)],
 //!                   "std_deg":[…6],"samples":1536,"rejected":0}, …]}
 //! ```
-//! `std_deg`, `samples` and `rejected` are optional; sessions may miss landmarks.
-//! Tracker sessions (points measured by an instrument, any serial arm) are read by [`tracker`].
+//! `std_deg`, `samples` and `rejected` are optional; sessions may miss landmarks. A session
+//! holds one angle per joint of the arm (1 to 12; six for the SUTA), the same count in every
+//! measurement. A session recorded by `kincal record` also names the arm it was recorded on
+//! (`"arm": {"id": "lab-arm-2", "firmware": "kincal-fw 0.1.0", "board": "…"}`, read by
+//! [`session_arm`]); older sessions have none.
+//! Tracker sessions (points measured by an instrument) are read by [`tracker`].
+//! Both readers make [`Observations`], the one shape everything downstream reads
+//! ([`observations`]); [`load_folder`] reads a folder of either kind or of both.
 
+pub mod observations;
+pub mod point_distances;
 pub mod tracker;
 
+pub use observations::{Block, DataKind, Group, Joints, Kind, Observation, Observations, Target};
+
 use crate::files::{self, check_regular_file, field_error, read_json, FileError};
-use crate::model::SUTA_JOINTS;
+use crate::model::MAX_JOINTS;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -76,6 +86,10 @@ pub struct Artefact {
     pub format: String,
     /// Landmarks in measuring order.
     pub landmarks: Vec<Landmark>,
+    /// The number of the certificate that states these positions (the calibration lab's), as
+    /// a calibration's record names its reference; optional.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub certificate: Option<String>,
 }
 
 /// One averaged touch of a landmark.
@@ -96,6 +110,9 @@ pub struct Measurement {
     /// Samples rejected (bad CRC, error bit, no answer).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rejected: Option<u32>,
+    /// When the touch was taken (the host's clock), Unix seconds; `kincal record` writes it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub at_unix_s: Option<u64>,
 }
 
 /// All touches of one artefact placement.
@@ -109,6 +126,10 @@ pub struct Session {
     pub purpose: String,
     /// Touches in recording order.
     pub measurements: Vec<Measurement>,
+    /// The arm the touches were recorded on (`kincal record` writes it; older, simulated and
+    /// hand-written sessions name none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arm: Option<crate::trace::ArmIdentity>,
 }
 
 impl Artefact {
@@ -159,6 +180,9 @@ impl Artefact {
                     format!("duplicate landmark id \"{}\" (also landmarks[{first}])", l.id),
                 ));
             }
+        }
+        if let Some(text) = &artefact.certificate {
+            crate::trace::check_label(text).map_err(|message| field_error(path, "certificate", message))?;
         }
         artefact.check_geometry(path)?;
         Ok(artefact)
@@ -279,6 +303,10 @@ impl Session {
                 format!("expected \"calibration\" or \"validation\", found \"{}\"", session.purpose),
             ));
         }
+        if let Some(arm) = &session.arm {
+            arm.check().map_err(|(key, message)| field_error(path, format!("arm.{key}"), message))?;
+        }
+        let joints = session_joints(path, &session)?;
         let mut taken: HashMap<(&str, u32), usize> = HashMap::new();
         for (i, m) in session.measurements.iter().enumerate() {
             let at = |f: &str| format!("measurements[{i}].{f}");
@@ -322,11 +350,14 @@ impl Session {
                     format!("unknown landmark \"{}\" (not in the artefact file)", m.landmark),
                 ));
             }
-            if m.joints_deg.len() != SUTA_JOINTS {
+            if m.joints_deg.len() != joints {
                 return Err(field_error(
                     path,
                     at("joints_deg"),
-                    format!("expected {SUTA_JOINTS} encoder angles, found {}", m.joints_deg.len()),
+                    format!(
+                        "expected {joints} encoder angles as in the session's other measurements, found {}",
+                        m.joints_deg.len()
+                    ),
                 ));
             }
             if let Some(k) = m.joints_deg.iter().position(|v| !(v.is_finite() && (0.0..360.0).contains(v))) {
@@ -337,11 +368,11 @@ impl Session {
                 ));
             }
             if let Some(std) = &m.std_deg {
-                if std.len() != SUTA_JOINTS || std.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+                if std.len() != joints || std.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
                     return Err(field_error(
                         path,
                         at("std_deg"),
-                        format!("expected {SUTA_JOINTS} finite non-negative values"),
+                        format!("expected {joints} finite non-negative values, one per encoder angle"),
                     ));
                 }
             }
@@ -353,6 +384,44 @@ impl Session {
     pub fn save(&self, path: &Path) -> Result<(), FileError> {
         write_json(path, self)
     }
+}
+
+/// The arm a session file names (`"arm"`, written by `kincal record`), checked; `None` for a
+/// session that names none (recorded before kincal wrote it, simulated or written by hand).
+pub fn session_arm(path: &Path) -> Result<Option<crate::trace::ArmIdentity>, FileError> {
+    #[derive(serde::Deserialize)]
+    struct Named {
+        #[serde(default)]
+        arm: Option<crate::trace::ArmIdentity>,
+    }
+    check_size(path)?;
+    let named: Named = read_json(path)?;
+    if let Some(arm) = &named.arm {
+        arm.check().map_err(|(key, message)| field_error(path, format!("arm.{key}"), message))?;
+    }
+    Ok(named.arm)
+}
+
+/// The joint count of a session's measurements: the count most of them hold (1 to
+/// [`MAX_JOINTS`]), so that the one measurement that differs is the one named.
+fn session_joints(path: &Path, session: &Session) -> Result<usize, FileError> {
+    let mut counts: HashMap<usize, usize> = HashMap::new();
+    for m in &session.measurements {
+        *counts.entry(m.joints_deg.len()).or_default() += 1;
+    }
+    let joints = counts.iter().max_by_key(|(n, c)| (**c, std::cmp::Reverse(**n))).map_or(0, |(n, _)| *n);
+    if session.measurements.is_empty() {
+        return Ok(0);
+    }
+    if !(1..=MAX_JOINTS).contains(&joints) {
+        let i = session.measurements.iter().position(|m| m.joints_deg.len() == joints).unwrap_or(0);
+        return Err(field_error(
+            path,
+            format!("measurements[{i}].joints_deg"),
+            format!("expected 1 to {MAX_JOINTS} encoder angles (one per joint), found {joints}"),
+        ));
+    }
+    Ok(joints)
 }
 
 /// Refuse a file larger than [`MAX_FILE_BYTES`] before reading it.
@@ -379,193 +448,223 @@ fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<(), FileErr
         .map_err(|source| FileError::Io { path: path.to_owned(), source })
 }
 
-/// One touch ready for the kinematics.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Touch {
-    /// Index into [`Dataset::placements`].
-    pub placement: usize,
-    /// Index into the artefact's landmarks.
-    pub landmark: usize,
-    /// Repeat number within the placement.
-    pub repeat: u32,
-    /// Raw encoder angles, degrees.
-    pub enc_deg: [f64; SUTA_JOINTS],
-    /// Standard error of each averaged encoder angle (window std / √accepted samples), degrees,
-    /// when the session reports it.
-    pub enc_sigma_deg: Option<[f64; SUTA_JOINTS]>,
-}
+impl Observations {
+    /// Observations of artefact sessions already checked against `artefact`: one group per
+    /// session (placement), one block per placement × repeat.
+    pub fn from_sessions(sessions: &[Session], artefact: &Artefact) -> Observations {
+        Observations::from_session_files(sessions.iter().map(|s| (s, PathBuf::new())), artefact)
+    }
 
-/// The touches of several sessions.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Dataset {
-    /// Placement names, indexed by [`Touch::placement`].
-    pub placements: Vec<String>,
-    /// All touches.
-    pub touches: Vec<Touch>,
-}
-
-impl Dataset {
-    /// Build a dataset from sessions already checked against `artefact`.
-    pub fn from_sessions(sessions: &[Session], artefact: &Artefact) -> Dataset {
-        let mut data = Dataset::default();
-        for s in sessions {
-            let placement = data.placements.len();
-            data.placements.push(s.placement.clone());
-            for m in &s.measurements {
+    fn from_session_files<'a>(
+        sessions: impl Iterator<Item = (&'a Session, PathBuf)>,
+        artefact: &Artefact,
+    ) -> Observations {
+        let mut data = Observations::new(0, artefact.landmarks.clone());
+        for (s, source) in sessions {
+            let group = data.push_group(s.placement.clone(), source, Kind::Artefact);
+            data.groups[group].arm = s.arm.clone();
+            for (i, m) in s.measurements.iter().enumerate() {
                 let Some(landmark) = artefact.index_of(&m.landmark) else { continue };
-                let Ok(enc_deg) = <[f64; SUTA_JOINTS]>::try_from(m.joints_deg.as_slice()) else { continue };
+                let Some(q_deg) = Joints::new(&m.joints_deg) else { continue };
                 let accepted = m.samples.map(|n| n.saturating_sub(m.rejected.unwrap_or(0)));
-                let enc_sigma_deg = match (&m.std_deg, accepted) {
-                    (Some(std), Some(n)) if n > 0 && std.len() == SUTA_JOINTS => {
-                        Some(std::array::from_fn(|k| std[k] / (n as f64).sqrt()))
+                let q_sigma_deg = match (&m.std_deg, accepted) {
+                    (Some(std), Some(n)) if n > 0 && std.len() == q_deg.len() => {
+                        Joints::new(std).map(|s| s.map(|v| v / (n as f64).sqrt()))
                     }
                     _ => None,
                 };
-                data.touches.push(Touch { placement, landmark, repeat: m.repeat, enc_deg, enc_sigma_deg });
+                data.joints = data.joints.max(q_deg.len());
+                data.obs.push(Observation {
+                    q_sigma_deg,
+                    ..Observation::touch(group, landmark, m.repeat, q_deg, i + 1)
+                });
             }
         }
+        data.rebuild_blocks();
         data
     }
 
-    /// Read every session in `dir` (files named `*.json`, any case, not hidden; sorted by name),
-    /// refusing two files of one placement, sessions of the other purpose, and more than
-    /// [`MAX_SESSION_FILES`] files or [`MAX_TOUCHES`] touches.
-    pub fn load_dir(dir: &Path, artefact: &Artefact, purpose: Purpose) -> Result<Dataset, FileError> {
-        let entries =
-            std::fs::read_dir(dir).map_err(|source| FileError::Io { path: dir.to_owned(), source })?;
-        let mut files: Vec<PathBuf> = Vec::new();
-        for entry in entries {
-            let path = entry.map_err(|source| FileError::Io { path: dir.to_owned(), source })?.path();
-            let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            if !name.starts_with('.') && path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
-                check_regular_file(&path)?;
-                files.push(path);
-            }
-        }
-        files.sort();
+    /// Read every artefact session in `dir` (files named `*.json`, any case, not hidden; sorted
+    /// by name), refusing two files of one placement, sessions of the other purpose, sessions of
+    /// different joint counts, and more than [`MAX_SESSION_FILES`] files or [`MAX_TOUCHES`]
+    /// touches.
+    pub fn load_artefact_dir(
+        dir: &Path,
+        artefact: &Artefact,
+        purpose: Purpose,
+    ) -> Result<Observations, FileError> {
+        let files = session_files(dir)?;
         if files.is_empty() {
             return Err(FileError::EmptyFolder { path: dir.to_owned() });
         }
-        if files.len() > MAX_SESSION_FILES {
+        read_artefact_sessions(dir, &files, artefact, purpose)
+    }
+}
+
+/// Session files (`*.json`, any case, not hidden) in `dir`, sorted by name.
+fn session_files(dir: &Path) -> Result<Vec<PathBuf>, FileError> {
+    let entries = std::fs::read_dir(dir).map_err(|source| FileError::Io { path: dir.to_owned(), source })?;
+    let mut files: Vec<PathBuf> = Vec::new();
+    for entry in entries {
+        let path = entry.map_err(|source| FileError::Io { path: dir.to_owned(), source })?.path();
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        if !name.starts_with('.') && path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+            check_regular_file(&path)?;
+            files.push(path);
+        }
+    }
+    files.sort();
+    if files.len() > MAX_SESSION_FILES {
+        return Err(FileError::Field {
+            path: dir.to_owned(),
+            field: "(folder)".into(),
+            message: format!(
+                "{} session files; at most {MAX_SESSION_FILES} are read in one folder",
+                files.len()
+            ),
+        });
+    }
+    Ok(files)
+}
+
+fn read_artefact_sessions(
+    dir: &Path,
+    files: &[PathBuf],
+    artefact: &Artefact,
+    purpose: Purpose,
+) -> Result<Observations, FileError> {
+    let mut sessions = Vec::with_capacity(files.len());
+    let mut placements: HashMap<String, &Path> = HashMap::new();
+    let mut touches = 0;
+    let mut joints: Option<(usize, &Path)> = None;
+    for file in files {
+        let session = Session::load(file, artefact)?;
+        if session.purpose != purpose.as_str() {
+            return Err(field_error(
+                file,
+                "purpose",
+                format!(
+                    "a {} session in the folder of {} sessions ({}): move it to the other folder",
+                    session.purpose,
+                    purpose.as_str(),
+                    dir.display()
+                ),
+            ));
+        }
+        if let Some(first) = placements.insert(session.placement.clone(), file) {
+            return Err(field_error(
+                file,
+                "placement",
+                format!(
+                    "placement \"{}\" is also in {}: one file per placement (a copied file?)",
+                    session.placement,
+                    first.display()
+                ),
+            ));
+        }
+        if let Some(m) = session.measurements.first() {
+            match joints {
+                Some((n, first)) if n != m.joints_deg.len() => {
+                    return Err(field_error(
+                        file,
+                        "measurements[0].joints_deg",
+                        format!(
+                            "{} encoder angles here, {n} in {}: the sessions of one folder come from one arm",
+                            m.joints_deg.len(),
+                            first.display()
+                        ),
+                    ));
+                }
+                Some(_) => {}
+                None => joints = Some((m.joints_deg.len(), file)),
+            }
+        }
+        touches += session.measurements.len();
+        if touches > MAX_TOUCHES {
+            return Err(FileError::Field {
+                path: dir.to_owned(),
+                field: "(folder)".into(),
+                message: format!("more than {MAX_TOUCHES} touches; at most {MAX_TOUCHES} are read"),
+            });
+        }
+        sessions.push(session);
+    }
+    let data = Observations::from_session_files(sessions.iter().zip(files.iter().cloned()), artefact);
+    let pairs = data.pair_count();
+    if pairs > MAX_PAIRS {
+        return Err(FileError::Field {
+            path: dir.to_owned(),
+            field: "(folder)".into(),
+            message: format!(
+                "the sessions form {pairs} distance pairs; at most {MAX_PAIRS} are used (fewer landmarks \
+                 per placement and repeat, or fewer placements)"
+            ),
+        });
+    }
+    Ok(data)
+}
+
+/// Read a folder of sessions of any kinds: artefact sessions (`*.json`, read with `artefact`),
+/// tracker sessions (`*.csv` starting with `# kincal-tracker/1`; `*.csv` files are tracker
+/// sessions when one of them carries the tag, and then all must but those of another reader) and
+/// frame-free distance sessions (`*.csv` starting with `# kincal-point-distances/1`). A folder of
+/// artefact sessions without an artefact file is refused, naming `--artefact`.
+pub fn load_folder(
+    dir: &Path,
+    artefact: Option<&Artefact>,
+    purpose: Purpose,
+) -> Result<Observations, FileError> {
+    let json = session_files(dir)?;
+    let (distances, csv): (Vec<PathBuf>, Vec<PathBuf>) =
+        tracker::csv_files(dir)?.into_iter().partition(|f| point_distances::is_one(f));
+    let tagged = csv.iter().any(|f| tracker::starts_with_tag(f));
+    let required = |what: String| FileError::Field {
+        path: dir.to_owned(),
+        field: "--artefact".into(),
+        message: format!("--artefact is required: {} {what}", dir.display()),
+    };
+    if json.is_empty() && !tagged && distances.is_empty() {
+        return match (artefact, csv.is_empty()) {
+            (Some(_), _) => Err(FileError::EmptyFolder { path: dir.to_owned() }),
+            (None, true) => tracker::load_dir(dir),
+            (None, false) => Err(required(format!(
+                "holds no tracker sessions (*.csv starting with \"# {}\")",
+                tracker::TRACKER_FORMAT
+            ))),
+        };
+    }
+    let artefact_part = match (json.is_empty(), artefact) {
+        (true, _) => None,
+        (false, Some(artefact)) => Some(read_artefact_sessions(dir, &json, artefact, purpose)?),
+        (false, None) => {
+            return Err(required(format!(
+                "holds {} artefact session files (*.json) to read with it",
+                json.len()
+            )))
+        }
+    };
+    let tracker_part = tagged.then(|| tracker::load_files(dir, &csv)).transpose()?;
+    let distance_part =
+        (!distances.is_empty()).then(|| point_distances::load_files(dir, &distances)).transpose()?;
+    let mut parts = [artefact_part, tracker_part, distance_part].into_iter().flatten();
+    let Some(mut all) = parts.next() else { return Err(FileError::EmptyFolder { path: dir.to_owned() }) };
+    for part in parts {
+        if part.joints != all.joints {
             return Err(FileError::Field {
                 path: dir.to_owned(),
                 field: "(folder)".into(),
                 message: format!(
-                    "{} session files; at most {MAX_SESSION_FILES} are read in one folder",
-                    files.len()
+                    "the {} sessions have {} joints, the {} sessions {}: the sessions of one folder come from one arm",
+                    all.groups[0].kind.word(),
+                    all.joints,
+                    part.groups[0].kind.word(),
+                    part.joints
                 ),
             });
         }
-        let mut sessions = Vec::with_capacity(files.len());
-        let mut placements: HashMap<String, &Path> = HashMap::new();
-        let mut touches = 0;
-        for file in &files {
-            let session = Session::load(file, artefact)?;
-            if session.purpose != purpose.as_str() {
-                return Err(field_error(
-                    file,
-                    "purpose",
-                    format!(
-                        "a {} session in the folder of {} sessions ({}): move it to the other folder",
-                        session.purpose,
-                        purpose.as_str(),
-                        dir.display()
-                    ),
-                ));
-            }
-            if let Some(first) = placements.insert(session.placement.clone(), file) {
-                return Err(field_error(
-                    file,
-                    "placement",
-                    format!(
-                        "placement \"{}\" is also in {}: one file per placement (a copied file?)",
-                        session.placement,
-                        first.display()
-                    ),
-                ));
-            }
-            touches += session.measurements.len();
-            if touches > MAX_TOUCHES {
-                return Err(FileError::Field {
-                    path: dir.to_owned(),
-                    field: "(folder)".into(),
-                    message: format!("more than {MAX_TOUCHES} touches; at most {MAX_TOUCHES} are read"),
-                });
-            }
-            sessions.push(session);
-        }
-        let data = Dataset::from_sessions(&sessions, artefact);
-        let pairs = data.pair_count();
-        if pairs > MAX_PAIRS {
-            return Err(FileError::Field {
-                path: dir.to_owned(),
-                field: "(folder)".into(),
-                message: format!(
-                    "the sessions form {pairs} distance pairs; at most {MAX_PAIRS} are used (fewer landmarks \
-                     per placement and repeat, or fewer placements)"
-                ),
-            });
-        }
-        Ok(data)
+        all = all.merge(part);
     }
-
-    /// How many pairs [`Dataset::touch_pairs`] returns, counted without forming them.
-    pub fn pair_count(&self) -> usize {
-        let mut groups: HashMap<(usize, u32), HashMap<usize, usize>> = HashMap::new();
-        for t in &self.touches {
-            *groups.entry((t.placement, t.repeat)).or_default().entry(t.landmark).or_default() += 1;
-        }
-        let pairs = |k: usize| k * k.saturating_sub(1) / 2;
-        groups
-            .values()
-            .map(|by_landmark| {
-                pairs(by_landmark.values().sum()) - by_landmark.values().map(|&c| pairs(c)).sum::<usize>()
-            })
-            .sum()
-    }
-
-    /// A dataset holding only the placements listed (by index).
-    pub fn subset(&self, placements: &[usize]) -> Dataset {
-        let mut out = Dataset::default();
-        for &p in placements {
-            let new = out.placements.len();
-            out.placements.push(self.placements[p].clone());
-            out.touches.extend(
-                self.touches
-                    .iter()
-                    .filter(|t| t.placement == p)
-                    .map(|t| Touch { placement: new, ..t.clone() }),
-            );
-        }
-        out
-    }
-
-    /// A copy without the touches of one landmark.
-    pub fn without_landmark(&self, landmark: usize) -> Dataset {
-        Dataset {
-            placements: self.placements.clone(),
-            touches: self.touches.iter().filter(|t| t.landmark != landmark).cloned().collect(),
-        }
-    }
-
-    /// Pairs of touches of different landmarks taken in the same placement and repeat
-    /// (thesis eq. 3.1), as `(touch_a, touch_b)` indices.
-    pub fn touch_pairs(&self) -> Vec<(usize, usize)> {
-        // Group by (placement, repeat) so the cost is that of the pairs, not of all touches squared.
-        let mut groups: HashMap<(usize, u32), Vec<usize>> = HashMap::new();
-        for (i, t) in self.touches.iter().enumerate() {
-            groups.entry((t.placement, t.repeat)).or_default().push(i);
-        }
-        let mut pairs = Vec::new();
-        for (a, ta) in self.touches.iter().enumerate() {
-            let group = &groups[&(ta.placement, ta.repeat)];
-            let after = group.partition_point(|&b| b <= a);
-            pairs.extend(
-                group[after..].iter().filter(|&&b| self.touches[b].landmark != ta.landmark).map(|&b| (a, b)),
-            );
-        }
-        pairs
-    }
+    Ok(all)
 }
 
 #[cfg(test)]
@@ -579,24 +678,12 @@ mod tests {
                 Landmark { id: "O".into(), xyz_mm: [0.0, 0.0, 40.0], yaw_deg: 0.0 },
                 Landmark { id: "M1".into(), xyz_mm: [30.0, 40.0, 40.0], yaw_deg: 10.0 },
             ],
+            certificate: None,
         }
     }
 
     #[test]
-    fn pairs_stay_within_one_placement_and_repeat() {
-        let t = |placement, landmark, repeat| Touch {
-            placement,
-            landmark,
-            repeat,
-            enc_deg: [0.0; 6],
-            enc_sigma_deg: None,
-        };
-        let data = Dataset {
-            placements: vec!["A".into(), "B".into()],
-            touches: vec![t(0, 0, 1), t(0, 1, 1), t(0, 1, 2), t(1, 0, 1), t(1, 1, 1)],
-        };
-        assert_eq!(data.touch_pairs(), vec![(0, 1), (3, 4)]);
-        assert_eq!(data.pair_count(), 2);
+    fn certified_distances() {
         assert!((artefact().distance_mm(0, 1) - 50.0).abs() < 1e-12);
     }
 
@@ -608,7 +695,12 @@ mod tests {
         let cases = [
             (ok.replace("suta-session/1", "suta-session/9"), "`format`"),
             (ok.replace("\"M1\"", "\"Z9\""), "measurements[0].landmark"),
-            (ok.replace("[1,2,3,4,5,6]", "[1,2,3,4,5]"), "measurements[0].joints_deg"),
+            (ok.replace("[1,2,3,4,5,6]", "[1,2,3,4,5,6,7,8,9,10,11,12,13]"), "measurements[0].joints_deg"),
+            (
+                ok.replace("]}]}", "]},{\"landmark\":\"O\",\"repeat\":1,\"joints_deg\":[1,2,3,4,5]}]}")
+                    .replace("}]}", "},{\"landmark\":\"O\",\"repeat\":2,\"joints_deg\":[1,2,3,4,5,6]}]}"),
+                "measurements[1].joints_deg",
+            ),
             (ok.replace("[1,2,3,4,5,6]", "[1,2,3,4,5,400]"), "measurements[0].joints_deg[5]"),
             (ok.replace("[1,2,3,4,5,6]", "[1,2,3,4,5,NaN]"), "line 1"),
             (ok[..40].to_string(), "EOF"),
@@ -628,7 +720,7 @@ mod tests {
         let empty = dir.join("empty");
         std::fs::create_dir_all(&empty).unwrap();
         assert!(matches!(
-            Dataset::load_dir(&empty, &artefact(), Purpose::Calibration),
+            Observations::load_artefact_dir(&empty, &artefact(), Purpose::Calibration),
             Err(FileError::EmptyFolder { .. })
         ));
         std::fs::remove_dir_all(&dir).ok();
@@ -659,13 +751,43 @@ mod tests {
         ];
         for (i, (landmarks, expect)) in cases.into_iter().enumerate() {
             let path = dir.join(format!("a{i}.json"));
-            Artefact { format: ARTEFACT_FORMAT.into(), landmarks }.save(&path).unwrap();
+            Artefact { format: ARTEFACT_FORMAT.into(), landmarks, certificate: None }.save(&path).unwrap();
             let err = Artefact::load(&path).unwrap_err().to_string();
             assert!(err.contains(expect), "{err} should say {expect}");
         }
         let path = dir.join("ok.json");
-        Artefact { format: ARTEFACT_FORMAT.into(), landmarks: grid(100.0) }.save(&path).unwrap();
+        Artefact { format: ARTEFACT_FORMAT.into(), landmarks: grid(100.0), certificate: None }
+            .save(&path)
+            .unwrap();
         assert_eq!(Artefact::load(&path).unwrap().span_mm(), 100.0 * 2.0_f64.sqrt());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A session names its arm or not; both are read as sessions, and a bad identity names its
+    /// field.
+    #[test]
+    fn a_session_names_its_arm_or_none() {
+        let dir = std::env::temp_dir().join(format!("kincal-session-arm-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let old = r#"{"format":"suta-session/1","placement":"A","purpose":"calibration","measurements":
+            [{"landmark":"O","repeat":1,"joints_deg":[1,2,3,4,5,6]}]}"#;
+        let path = dir.join("s.json");
+        std::fs::write(&path, old).unwrap();
+        assert_eq!(session_arm(&path).unwrap(), None);
+        let named = old.replace(
+            r#""purpose""#,
+            r#""arm":{"id":"lab-arm-2","firmware":"kincal-fw 0.1.0","board":"mps2"},"purpose""#,
+        );
+        std::fs::write(&path, &named).unwrap();
+        let arm = session_arm(&path).unwrap().unwrap();
+        assert_eq!((arm.id.as_str(), arm.firmware.as_deref()), ("lab-arm-2", Some("kincal-fw 0.1.0")));
+        assert_eq!(Session::load(&path, &artefact()).unwrap().measurements.len(), 1, "read as a session");
+        assert_eq!(Session::load(&path, &artefact()).unwrap().arm, Some(arm), "Session carries it");
+        std::fs::write(&path, named.replace("lab-arm-2", "lab arm 2")).unwrap();
+        let err = session_arm(&path).unwrap_err().to_string();
+        assert!(err.contains("s.json") && err.contains("arm.id"), "{err}");
+        let err = Session::load(&path, &artefact()).unwrap_err().to_string();
+        assert!(err.contains("s.json") && err.contains("arm.id"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
     }
 
@@ -681,12 +803,14 @@ mod tests {
             std_deg: None,
             samples: Some(100),
             rejected: Some(0),
+            at_unix_s: None,
         };
         let session = |placement: &str, purpose: &str, measurements| Session {
             format: SESSION_FORMAT.into(),
             placement: placement.into(),
             purpose: purpose.into(),
             measurements,
+            arm: None,
         };
         let good = session("A", "calibration", vec![touch("O", 1), touch("M1", 1)]);
         let mut no_samples = good.clone();
@@ -706,12 +830,14 @@ mod tests {
             assert!(err.contains(expect), "{err} should say {expect}");
         }
         good.save(&cal.join("A.JSON")).unwrap();
-        let data = Dataset::load_dir(&cal, &artefact(), Purpose::Calibration).unwrap();
-        assert_eq!((data.touches.len(), data.pair_count()), (2, 1), "upper-case .JSON is read");
-        let err = Dataset::load_dir(&cal, &artefact(), Purpose::Validation).unwrap_err().to_string();
+        let data = Observations::load_artefact_dir(&cal, &artefact(), Purpose::Calibration).unwrap();
+        assert_eq!((data.obs.len(), data.pair_count()), (2, 1), "upper-case .JSON is read");
+        let err =
+            Observations::load_artefact_dir(&cal, &artefact(), Purpose::Validation).unwrap_err().to_string();
         assert!(err.contains("folder of validation"), "{err}");
         good.save(&cal.join("B.json")).unwrap();
-        let err = Dataset::load_dir(&cal, &artefact(), Purpose::Calibration).unwrap_err().to_string();
+        let err =
+            Observations::load_artefact_dir(&cal, &artefact(), Purpose::Calibration).unwrap_err().to_string();
         assert!(err.contains("also in") && err.contains("A.JSON"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
     }

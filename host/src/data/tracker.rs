@@ -11,15 +11,23 @@
 //! 1,10.0,-20.0,35.0,0.0,40.0,5.0,1234.567,-45.678,890.123,0.012
 //! ```
 //!
-//! Required: `q1_deg … qN_deg` (joint angles as the controller reports them, N = 1…12) and
-//! `x_mm, y_mm, z_mm` (the tool point in the instrument frame). Optional: `qw, qx, qy, qz` (the
+//! Required: `q1_deg … qN_deg` (joint angles as the controller reports them, N = 1…12; or
+//! `q1_rad … qN_rad` for radians, as ROS `joint_states` gives them, converted to degrees) and
+//! `x_mm, y_mm, z_mm` (the tool point in the instrument frame). A session of at least
+//! [`RADIANS_MIN_ROWS`] rows whose degree columns all stay within ±2π holds radians, not degrees:
+//! it is refused, naming the file and the columns to rename. Optional: `qw, qx, qy, qz` (the
 //! probe's orientation in the instrument frame, scalar first), `sigma_mm` or `u95_mm` (the
 //! instrument's stated uncertainty; σ = U95/2), `time_s`, `temp_C`, `pose` (rows with the same
 //! pose id are repeats of one arm pose). Any other column is named in a warning and ignored.
+//! A comment line `# arm: ID` before the header names the arm the session was measured on (its
+//! controller's identity, as `kincal record` writes it into artefact sessions): a calibration
+//! refuses sessions of two arms.
 //! A folder is a tracker folder when it holds `*.csv` files whose first line is the tag.
 
-use crate::files::FileError;
+use crate::data::{Joints, Kind, Observation, Observations, Target};
+use crate::files::{row_error, FileError};
 use crate::model::MAX_JOINTS;
+use crate::trace::ArmIdentity;
 use nalgebra::{UnitQuaternion, Vector3};
 use std::path::{Path, PathBuf};
 
@@ -29,75 +37,34 @@ pub const TRACKER_FORMAT: &str = "kincal-tracker/1";
 pub const MIN_SESSION_SPAN_MM: f64 = 5.0;
 /// Largest plausible coordinate, mm (a tracker measures within tens of metres).
 pub const MAX_COORDINATE_MM: f64 = 100_000.0;
+/// Fewest rows of a session whose degree columns, all within ±2π, are taken for radians.
+pub const RADIANS_MIN_ROWS: usize = 5;
 /// How far a quaternion's norm may be from 1 before the row is refused.
 pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
-
-/// One measured row.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TrackerPoint {
-    /// Joint angles, degrees, one per joint.
-    pub q_deg: Vec<f64>,
-    /// The tool point in the instrument frame, mm.
-    pub point_mm: Vector3<f64>,
-    /// The probe's orientation in the instrument frame, for 6-DoF probes.
-    pub orientation: Option<UnitQuaternion<f64>>,
-    /// The instrument's stated standard uncertainty of the point, mm.
-    pub sigma_mm: Option<f64>,
-    /// Time of the measurement, s.
-    pub time_s: Option<f64>,
-    /// Temperature, °C.
-    pub temp_c: Option<f64>,
-    /// Pose id: rows with the same id are repeats.
-    pub pose: Option<String>,
-    /// Line in the file, 1-based.
-    pub line: usize,
-}
-
-/// One instrument placement: the rows of one CSV file.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TrackerSession {
-    /// File name without `.csv`.
-    pub name: String,
-    /// The file.
-    pub path: PathBuf,
-    /// Rows in file order.
-    pub points: Vec<TrackerPoint>,
-}
-
-/// The sessions of one folder.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TrackerData {
-    /// Joint count of every row.
-    pub joints: usize,
-    /// Sessions, by file name.
-    pub sessions: Vec<TrackerSession>,
-    /// Columns ignored and other things worth a look, one sentence each.
-    pub warnings: Vec<String>,
-}
-
-impl TrackerData {
-    /// Rows in all sessions.
-    pub fn point_count(&self) -> usize {
-        self.sessions.iter().map(|s| s.points.len()).sum()
-    }
-}
 
 /// True when `dir` holds a tracker session file (a `*.csv` starting with the tag line).
 pub fn is_tracker_folder(dir: &Path) -> bool {
     csv_files(dir).is_ok_and(|files| files.iter().any(|f| starts_with_tag(f)))
 }
 
-fn starts_with_tag(path: &Path) -> bool {
+/// True when the file's first line is the tag line.
+pub fn starts_with_tag(path: &Path) -> bool {
+    starts_with(path, TRACKER_FORMAT)
+}
+
+/// True when the file's first line is `# FORMAT`.
+pub fn starts_with(path: &Path, format: &str) -> bool {
     std::fs::read_to_string(path).is_ok_and(|t| {
-        t.lines().next().is_some_and(|l| l.trim_start_matches('\u{feff}').trim() == tag_line())
+        t.lines().next().is_some_and(|l| l.trim_start_matches('\u{feff}').trim() == tag_line(format))
     })
 }
 
-fn tag_line() -> String {
-    format!("# {TRACKER_FORMAT}")
+fn tag_line(format: &str) -> String {
+    format!("# {format}")
 }
 
-fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, FileError> {
+/// The `*.csv` files of `dir` (any case), sorted by name.
+pub fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, FileError> {
     let io = |source| FileError::Io { path: dir.to_owned(), source };
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(io)?
@@ -112,6 +79,8 @@ fn csv_files(dir: &Path) -> Result<Vec<PathBuf>, FileError> {
 #[derive(Default)]
 struct Layout {
     q: Vec<usize>,
+    /// The joint columns are `qN_rad`: radians, converted to degrees.
+    radians: bool,
     xyz: [usize; 3],
     quaternion: Option<[usize; 4]>,
     sigma: Option<(usize, f64)>,
@@ -126,12 +95,7 @@ fn layout(
     header: &[&str],
     warnings: &mut Vec<String>,
 ) -> Result<Layout, FileError> {
-    let row = |column: &str, message: String| FileError::Row {
-        path: path.to_owned(),
-        line,
-        column: column.to_string(),
-        message,
-    };
+    let row = |column: &str, message: String| row_error(path, line, column, message);
     let find = |name: &str| header.iter().position(|h| *h == name);
     for (k, h) in header.iter().enumerate() {
         if header[..k].contains(h) {
@@ -139,22 +103,36 @@ fn layout(
         }
     }
     let mut out = Layout::default();
+    let any = |unit: &str| (1..=MAX_JOINTS + 1).any(|j| find(&format!("q{j}_{unit}")).is_some());
+    out.radians = match (any("deg"), any("rad")) {
+        (true, true) => {
+            return Err(row(
+                "q1_rad",
+                "give every joint in degrees (qN_deg) or every joint in radians (qN_rad), not both".into(),
+            ))
+        }
+        (deg, rad) => rad && !deg,
+    };
+    let unit = if out.radians { "rad" } else { "deg" };
     for j in 1..=MAX_JOINTS + 1 {
-        match find(&format!("q{j}_deg")) {
+        match find(&format!("q{j}_{unit}")) {
             Some(c) if j <= MAX_JOINTS => out.q.push(c),
-            Some(_) => return Err(row(&format!("q{j}_deg"), format!("at most {MAX_JOINTS} joints"))),
+            Some(_) => return Err(row(&format!("q{j}_{unit}"), format!("at most {MAX_JOINTS} joints"))),
             None => break,
         }
     }
     if out.q.is_empty() {
-        return Err(row("q1_deg", "missing: expected joint columns q1_deg … qN_deg (degrees)".into()));
+        return Err(row(
+            "q1_deg",
+            "missing: expected joint columns q1_deg … qN_deg (degrees) or q1_rad … qN_rad (radians)".into(),
+        ));
     }
     let gap = out.q.len() + 1;
-    if let Some(later) = (gap + 1..=MAX_JOINTS).find(|j| find(&format!("q{j}_deg")).is_some()) {
+    if let Some(later) = (gap + 1..=MAX_JOINTS).find(|j| find(&format!("q{j}_{unit}")).is_some()) {
         return Err(row(
-            &format!("q{gap}_deg"),
+            &format!("q{gap}_{unit}"),
             format!(
-                "missing, while q{later}_deg is there: expected joint columns q1_deg … qN_deg without a gap"
+                "missing, while q{later}_{unit} is there: expected joint columns q1_{unit} … qN_{unit} without a gap"
             ),
         ));
     }
@@ -203,29 +181,67 @@ fn layout(
     Ok(out)
 }
 
+/// A session file read: its name and its rows as observations of group 0.
+pub struct SessionFile {
+    /// File name without `.csv`.
+    pub name: String,
+    /// The file.
+    pub path: PathBuf,
+    /// Rows in file order.
+    pub rows: Vec<Observation>,
+    /// The arm a `# arm: ID` line names.
+    pub arm: Option<ArmIdentity>,
+}
+
+/// The arm a `# arm: ID` comment line before the header names, checked (the line and the
+/// column `arm` named when it is not an identity).
+fn arm_line(path: &Path, text: &str) -> Result<Option<ArmIdentity>, FileError> {
+    let comments = text
+        .lines()
+        .enumerate()
+        .skip(1)
+        .take_while(|(_, l)| l.trim().is_empty() || l.trim_start().starts_with('#'));
+    for (k, line) in comments {
+        let body = line.trim().trim_start_matches('#').trim();
+        let Some((key, value)) = body.split_once(':') else { continue };
+        if !key.trim().eq_ignore_ascii_case("arm") {
+            continue;
+        }
+        let arm = ArmIdentity::of(value.trim());
+        arm.check().map_err(|(_, message)| crate::files::row_error(path, k + 1, "arm", message))?;
+        return Ok(Some(arm));
+    }
+    Ok(None)
+}
+
 /// Read one session file.
-pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSession, FileError> {
+pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<SessionFile, FileError> {
+    read_tagged_session(path, TRACKER_FORMAT, warnings)
+}
+
+/// Read one file of the tracker's columns whose tag line is `# FORMAT` (other readers of
+/// instrument points share the columns).
+pub fn read_tagged_session(
+    path: &Path,
+    format: &str,
+    warnings: &mut Vec<String>,
+) -> Result<SessionFile, FileError> {
     let text =
         std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
-    let row_error = |line: usize, column: &str, message: String| FileError::Row {
-        path: path.to_owned(),
-        line,
-        column: column.to_string(),
-        message,
-    };
+    let row_error = |line: usize, column: &str, message: String| row_error(path, line, column, message);
     let mut lines = text
         .lines()
         .enumerate()
         .map(|(k, l)| (k + 1, l.trim_start_matches('\u{feff}').trim_end_matches('\r')));
     match lines.next() {
-        Some((_, first)) if first.trim() == tag_line() => {}
+        Some((_, first)) if first.trim() == tag_line(format) => {}
         first => {
             return Err(row_error(
                 1,
                 "format",
                 format!(
                     "expected the tag line \"{}\", found \"{}\"",
-                    tag_line(),
+                    tag_line(format),
                     first.map_or("", |f| f.1).chars().take(60).collect::<String>()
                 ),
             ))
@@ -262,9 +278,9 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
                 _ => Ok(None),
             }
         };
-        let mut q_deg = Vec::with_capacity(layout.q.len());
+        let mut q = Vec::with_capacity(layout.q.len());
         for &c in &layout.q {
-            let v = number(c)?;
+            let v = if layout.radians { number(c)?.to_degrees() } else { number(c)? };
             if v.abs() > 3600.0 {
                 return Err(row_error(
                     line,
@@ -272,8 +288,9 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
                     format!("{v} degrees is beyond ten turns: another unit?"),
                 ));
             }
-            q_deg.push(v);
+            q.push(v);
         }
+        let q_deg = Joints::new(&q).ok_or_else(|| row_error(line, "q1_deg", "no joint angle".into()))?;
         let mut xyz = [0.0; 3];
         for k in 0..3 {
             xyz[k] = number(layout.xyz[k])?;
@@ -316,10 +333,13 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
             },
             None => None,
         };
-        points.push(TrackerPoint {
+        points.push(Observation {
+            block: 0,
+            group: 0,
+            repeat: 1,
             q_deg,
-            point_mm: Vector3::from(xyz),
-            orientation,
+            q_sigma_deg: None,
+            target: Target::Point { xyz_mm: Vector3::from(xyz), orientation },
             sigma_mm,
             time_s: optional(layout.time)?,
             temp_c: optional(layout.temp)?,
@@ -330,12 +350,28 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
     if points.is_empty() {
         return Err(row_error(header_line, "header", "no data rows after the header".into()));
     }
+    let largest_deg = points.iter().flat_map(|p| p.q_deg.iter()).fold(0.0_f64, |a, v| a.max(v.abs()));
+    if !layout.radians && points.len() >= RADIANS_MIN_ROWS && largest_deg <= std::f64::consts::TAU {
+        let n = layout.q.len();
+        return Err(row_error(
+            header_line,
+            header[layout.q[0]],
+            format!(
+                "every joint angle of the session's {} rows lies within ±2π (the largest is {largest_deg:.3}): \
+                 these are radians (ROS joint_states), not degrees; name the columns q1_rad … q{n}_rad to have \
+                 kincal convert them, or write degrees",
+                points.len()
+            ),
+        ));
+    }
     if points.len() >= 4 {
-        let (lo, hi) = points
-            .iter()
-            .fold((Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)), |(lo, hi), p| {
-                (lo.inf(&p.point_mm), hi.sup(&p.point_mm))
-            });
+        let (lo, hi) = points.iter().fold(
+            (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY)),
+            |(lo, hi), p| {
+                let p = p.point_mm().unwrap_or_default();
+                (lo.inf(&p), hi.sup(&p))
+            },
+        );
         let span = (hi - lo).norm();
         if span < MIN_SESSION_SPAN_MM {
             return Err(row_error(
@@ -349,12 +385,17 @@ pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<TrackerSe
         }
     }
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    Ok(TrackerSession { name, path: path.to_owned(), points })
+    Ok(SessionFile { name, path: path.to_owned(), rows: points, arm: arm_line(path, &text)? })
 }
 
-/// Read every tracker session of `dir` (each `*.csv` file; files without the tag are refused).
-pub fn load_dir(dir: &Path) -> Result<TrackerData, FileError> {
-    let files = csv_files(dir)?;
+/// Read every tracker session of `dir` (each `*.csv` file; files without the tag are refused):
+/// one group and one block per session.
+pub fn load_dir(dir: &Path) -> Result<Observations, FileError> {
+    load_files(dir, &csv_files(dir)?)
+}
+
+/// Read the tracker sessions `files` of `dir` (files without the tag are refused).
+pub fn load_files(dir: &Path, files: &[PathBuf]) -> Result<Observations, FileError> {
     if files.is_empty() {
         return Err(FileError::Field {
             path: dir.to_owned(),
@@ -364,25 +405,30 @@ pub fn load_dir(dir: &Path) -> Result<TrackerData, FileError> {
             ),
         });
     }
-    let mut warnings = Vec::new();
-    let mut sessions: Vec<TrackerSession> = Vec::new();
-    for f in &files {
-        let session = read_session(f, &mut warnings)?;
-        if let Some(first) = sessions.first() {
-            let (a, b) = (first.points[0].q_deg.len(), session.points[0].q_deg.len());
-            if a != b {
+    let mut data = Observations::default();
+    let mut first: Option<(usize, PathBuf)> = None;
+    for f in files {
+        let session = read_session(f, &mut data.warnings)?;
+        let b = session.rows[0].q_deg.len();
+        if let Some((a, path)) = &first {
+            if *a != b {
                 return Err(FileError::Row {
                     path: f.clone(),
-                    line: session.points[0].line,
-                    column: format!("q{}_deg", a.min(b) + 1),
-                    message: format!("{b} joints here, {a} in {}", first.path.display()),
+                    line: session.rows[0].line,
+                    column: format!("q{}_deg", a.min(&b) + 1),
+                    message: format!("{b} joints here, {a} in {}", path.display()),
                 });
             }
+        } else {
+            first = Some((b, f.clone()));
         }
-        sessions.push(session);
+        let group = data.push_group(session.name, session.path, Kind::Tracker);
+        data.groups[group].arm = session.arm;
+        data.obs.extend(session.rows.into_iter().map(|o| Observation { group, ..o }));
     }
-    let joints = sessions[0].points[0].q_deg.len();
-    Ok(TrackerData { joints, sessions, warnings })
+    data.joints = first.map_or(0, |f| f.0);
+    data.rebuild_blocks();
+    Ok(data)
 }
 
 #[cfg(test)]
@@ -408,13 +454,24 @@ mod tests {
         assert!(is_tracker_folder(&dir));
         let data = load_dir(&dir).unwrap();
         assert_eq!(data.joints, 2);
-        let s = &data.sessions[0];
-        assert_eq!((s.name.as_str(), s.points.len()), ("day1", 4));
-        assert_eq!(s.points[0].sigma_mm, Some(0.01));
-        assert_eq!(s.points[2].sigma_mm, None);
-        assert_eq!(s.points[1].pose.as_deref(), Some("1"));
-        assert_eq!(s.points[3].line, 7);
+        let s = &data.obs;
+        assert_eq!((data.groups[0].name.as_str(), s.len(), data.blocks.len()), ("day1", 4, 1));
+        assert_eq!(s[0].sigma_mm, Some(0.01));
+        assert_eq!(s[2].sigma_mm, None);
+        assert_eq!(s[1].pose.as_deref(), Some("1"));
+        assert_eq!(s[3].line, 7);
         assert!(data.warnings.iter().any(|w| w.contains("`note`")), "{:?}", data.warnings);
+        std::fs::remove_dir_all(dir).ok();
+    }
+
+    /// A `# arm: ID` line before the header names the session's arm; without one it names none.
+    #[test]
+    fn a_session_names_its_arm_in_a_comment_line() {
+        let named = GOOD.replace("# a comment", "# a comment\n#  Arm :  lab-arm-2 ");
+        let dir = folder("arm", &[("a.csv", &named), ("b.csv", GOOD)]);
+        let data = load_dir(&dir).unwrap();
+        let arms: Vec<_> = data.groups.iter().map(|g| g.arm.as_ref().map(|a| a.id.as_str())).collect();
+        assert_eq!(arms, [Some("lab-arm-2"), None]);
         std::fs::remove_dir_all(dir).ok();
     }
 
@@ -427,6 +484,7 @@ mod tests {
             (GOOD.replace("3,60,-10,0,0,300,0.02,d", "3,60,-10,0,0"), ":7:", "cells"),
             (GOOD.replace("100.01", "inf"), ":5: column `x_mm`", "finite"),
             (GOOD.replace("u95_mm,note", "sigma_mm,u95_mm"), ":3: column `u95_mm`", "not both"),
+            (GOOD.replace("# a comment", "# arm: lab arm 2"), ":2: column `arm`", "not an arm identity"),
         ];
         for (k, (text, place, what)) in cases.iter().enumerate() {
             let dir = folder(&format!("bad{k}"), &[("s.csv", text)]);
@@ -440,10 +498,42 @@ mod tests {
         let e = load_dir(&dir).unwrap_err().to_string();
         assert!(e.contains("m.csv:3") && e.contains("metres"), "{e}");
         std::fs::remove_dir_all(dir).ok();
+        let both = GOOD.replace("q2_deg", "q2_rad");
+        let dir = folder("both", &[("b.csv", &both)]);
+        let e = load_dir(&dir).unwrap_err().to_string();
+        assert!(e.contains("b.csv:3: column `q1_rad`") && e.contains("not both"), "{e}");
+        std::fs::remove_dir_all(dir).ok();
         let q = "# kincal-tracker/1\nq1_deg,x_mm,y_mm,z_mm,qw,qx,qy,qz\n0,1,2,3,1,0,0,0.5\n";
         let dir = folder("quat", &[("q.csv", q)]);
         let e = load_dir(&dir).unwrap_err().to_string();
         assert!(e.contains("q.csv:3: column `qw`") && e.contains("unit quaternion"), "{e}");
+        std::fs::remove_dir_all(dir).ok();
+    }
+
+    /// ROS joint_states in radians: read as degrees they would be a session that barely moves.
+    const RADIANS: &str = "# kincal-tracker/1\npose,q1_deg,q2_deg,x_mm,y_mm,z_mm\n1,0.1,-1.2,100,0,0\n\
+                           2,0.5,1.3,0,200,0\n3,-2.9,0.2,0,0,300\n4,3.1,-0.7,10,20,30\n5,1.7,2.2,40,0,90\n";
+
+    #[test]
+    fn radians_in_degree_columns_are_refused_and_radian_columns_converted() {
+        let dir = folder("radians", &[("ros.csv", RADIANS)]);
+        let e = load_dir(&dir).unwrap_err().to_string();
+        assert!(
+            e.contains("ros.csv:2: column `q1_deg`")
+                && e.contains("within ±2π")
+                && e.contains("q1_rad … q2_rad"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(dir).ok();
+        let dir = folder("rad-columns", &[("ros.csv", &RADIANS.replace("_deg", "_rad"))]);
+        let data = load_dir(&dir).unwrap();
+        assert!((data.obs[2].q_deg[0] - (-2.9_f64).to_degrees()).abs() < 1e-12, "{:?}", data.obs[2].q_deg);
+        assert!((data.obs[4].q_deg[1] - 2.2_f64.to_degrees()).abs() < 1e-12);
+        std::fs::remove_dir_all(dir).ok();
+        // Four rows cannot tell: a short session in degrees within ±2π is read as it is.
+        let short: String = RADIANS.lines().take(6).map(|l| format!("{l}\n")).collect();
+        let dir = folder("rad-short", &[("s.csv", &short)]);
+        assert_eq!(load_dir(&dir).unwrap().obs.len(), 4);
         std::fs::remove_dir_all(dir).ok();
     }
 }

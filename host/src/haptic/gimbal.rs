@@ -8,7 +8,7 @@
 //! when it lowers the held-out error by more than [`QUADRATIC_GAIN`].
 
 use super::kinematics::{Device, SensorModel};
-use crate::numerics::solver::{self, Residuals, SolverOptions};
+use crate::numerics::solver::{self, Residuals, SolverOptions, Termination};
 use crate::numerics::stats::rms;
 use nalgebra::{DMatrix, DVector, Vector3};
 
@@ -36,6 +36,16 @@ pub enum GimbalModel {
     Linear,
     /// θ = j·raw² + k·raw + m.
     Quadratic,
+}
+
+impl GimbalModel {
+    /// The model in words, as the CLI and the report say it.
+    pub fn words(self) -> &'static str {
+        match self {
+            GimbalModel::Linear => "linear (θ = k·raw + m)",
+            GimbalModel::Quadratic => "quadratic (θ = j·raw² + k·raw + m)",
+        }
+    }
 }
 
 /// Result of the gimbal calibration.
@@ -132,7 +142,11 @@ fn fit(device: &Device, samples: &[GimbalSample], quadratic: bool) -> [SensorMod
         &x0,
         &lower,
         &upper,
-        &SolverOptions { max_iterations: 100, ..SolverOptions::default() },
+        &SolverOptions {
+            max_iterations: 100,
+            termination: Termination::AcceptedSteps,
+            ..SolverOptions::default()
+        },
     );
     let (g4, g5) = problem.models(&solved.x);
     // θ6 by linear least squares on (raw², raw, 1) or (raw, 1), over the samples with a roll.

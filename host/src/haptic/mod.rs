@@ -2,7 +2,8 @@
 //!
 //! Follows the workspace-calibration paper (shared/papers):
 //! * [`recording`] — the recording folder (`haptic-recording/1`), checked sample by sample;
-//! * [`delay`] — tracker ↔ device time delay (chunked Pearson, sub-millisecond peak);
+//! * the tracker ↔ device time delay is [`crate::numerics::delay`] (chunked Pearson,
+//!   sub-millisecond peak), shared with the dynamic validation of tracker arms;
 //! * [`pivot`] — tooltip calibration (Tuceryan); absolute orientation (Horn) is
 //!   [`crate::numerics::geometry::absolute_orientation`];
 //! * [`landmarks`] — the landmark-based initial transform (eqs. 1–6);
@@ -20,7 +21,6 @@
 //! * [`select`] — k-means sample selection (N = 200, seeded, re-clustered every iteration).
 
 pub mod clean;
-pub mod delay;
 pub mod gimbal;
 pub mod kinematics;
 pub mod landmarks;

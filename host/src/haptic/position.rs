@@ -13,7 +13,7 @@
 
 use super::kinematics::{Device, SensorModel};
 use crate::numerics::geometry::absolute_orientation;
-use crate::numerics::solver::{self, Residuals, SolverOptions};
+use crate::numerics::solver::{self, Residuals, SolverOptions, Termination};
 use nalgebra::{Matrix3, Vector3};
 
 /// Samples farther than this from the device origin are not used for EH, mm.
@@ -187,7 +187,11 @@ pub fn calibrate_position(
             &x0,
             &lower,
             &upper,
-            &SolverOptions { max_iterations: 50, ..SolverOptions::default() },
+            &SolverOptions {
+                max_iterations: 50,
+                termination: Termination::AcceptedSteps,
+                ..SolverOptions::default()
+            },
         );
         let candidate = JointProblem::joints(&solved.x);
         let candidate_eh = estimate_transform(device, &candidate, samples, spacing);

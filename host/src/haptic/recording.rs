@@ -33,8 +33,7 @@ pub const REQUIRED_STEPS: [(&str, &[&str]); 5] = [
 ];
 /// A device-stream gap longer than this many median sample periods is an error.
 pub const MAX_GAP_FACTOR: f64 = 10.0;
-/// A tracker-stream gap longer than this many median sample periods starts a new segment.
-pub const SEGMENT_GAP_FACTOR: f64 = 3.0;
+pub use crate::numerics::delay::{segments, SEGMENT_GAP_FACTOR};
 /// … but never shorter than this, s.
 pub const MIN_GAP_S: f64 = 0.05;
 const DEVICE_HEADER: &str = "t_s,raw1,raw2,raw3,raw4,raw5,raw6";
@@ -225,27 +224,6 @@ impl TargetStream {
             rotation: keep.iter().map(|&i| self.rotation[i]).collect(),
         }
     }
-}
-
-/// Unbroken index ranges of increasing times `t_s`, split where a step exceeds `factor` median
-/// steps.
-pub fn segments(t_s: &[f64], factor: f64) -> Vec<std::ops::Range<usize>> {
-    if t_s.len() < 2 {
-        return std::iter::once(0..t_s.len()).collect();
-    }
-    let mut periods: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
-    periods.sort_by(f64::total_cmp);
-    let limit = periods[periods.len() / 2] * factor;
-    let mut out = Vec::new();
-    let mut start = 0;
-    for i in 1..t_s.len() {
-        if t_s[i] - t_s[i - 1] > limit {
-            out.push(start..i);
-            start = i;
-        }
-    }
-    out.push(start..t_s.len());
-    out
 }
 
 /// One step of the procedure.

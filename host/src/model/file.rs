@@ -15,8 +15,12 @@
 //! effects = ["eccentricity:5"]    # optional: effects whose parameters are free (default bounds)
 //! [free]                          # parameters the calibration may move: [lower, upper]
 //! "offset:2" = [10.7, 30.7]
+//! [arm]                           # optional: the arm this model was calibrated on
+//! id = "lab-arm-2"                # its controller's identity (what `kincal upload` checks)
+//! firmware = "kincal-fw 0.1.0"    # optional
 //! ```
 
+use super::urdf::UrdfSource;
 use super::{ArmModel, Convention, FreeParam, Joint, ParamId, MAX_JOINTS};
 use crate::files::{self, FileError};
 use crate::model::effects::Effect;
@@ -42,6 +46,10 @@ struct ModelFile {
     effects: Vec<String>,
     #[serde(default)]
     free: BTreeMap<String, Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    urdf: Option<UrdfSource>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    arm: Option<crate::trace::ArmIdentity>,
 }
 
 /// Largest magnitude a parameter may plausibly have, with the unit, by kind: anything larger is a
@@ -50,7 +58,10 @@ struct ModelFile {
 pub fn plausible_limit(id: ParamId) -> f64 {
     match id {
         ParamId::Offset(_) => 720.0,
-        ParamId::Twist(_) | ParamId::Axis(_) | ParamId::OriginRpy(..) => 360.0,
+        ParamId::Twist(_) | ParamId::Axis(_) => 360.0,
+        // A turn about the nominal origin: far beyond any CAD error, and below the half turn where
+        // the rotation vector would wrap.
+        ParamId::OriginTurn(..) => 90.0,
         ParamId::EccSin(_)
         | ParamId::EccCos(_)
         | ParamId::Ecc2Sin(_)
@@ -77,13 +88,19 @@ pub const MIN_REACH_MM: f64 = 10.0;
 /// Check a joint row holds only its convention's geometry, and normalise a URDF axis.
 fn check_joint_convention(joint: &mut Joint, convention: Convention) -> Result<(), String> {
     let dh = [joint.d_mm, joint.a_mm, joint.alpha_deg, joint.axis_deg];
-    let urdf = joint.origin_xyz_mm.iter().chain(&joint.origin_rpy_deg);
+    let urdf = joint.origin_xyz_mm.iter().chain(&joint.origin_rpy_deg).chain(&joint.origin_turn_deg);
     match convention {
         Convention::Urdf => {
             if dh.iter().any(|v| *v != 0.0) {
                 return Err("a URDF joint holds origin_xyz_mm, origin_rpy_deg and axis; d_mm, a_mm, \
                             alpha_deg and axis_deg must be 0"
                     .into());
+            }
+            if !joint.origin_rpy_deg.iter().all(|v| v.is_finite() && v.abs() <= 360.0) {
+                return Err(format!(
+                    "origin_rpy_deg {:?} must be finite angles within ±360°",
+                    joint.origin_rpy_deg
+                ));
             }
             let norm = joint.axis.iter().map(|x| x * x).sum::<f64>().sqrt();
             if !(norm.is_finite() && norm > 1e-9) {
@@ -93,7 +110,10 @@ fn check_joint_convention(joint: &mut Joint, convention: Convention) -> Result<(
         }
         Convention::Classic | Convention::Modified => {
             if urdf.into_iter().any(|v| *v != 0.0) || joint.axis != [0.0, 0.0, 1.0] {
-                return Err("origin_xyz_mm, origin_rpy_deg and axis belong to convention = \"urdf\"".into());
+                return Err(
+                    "origin_xyz_mm, origin_rpy_deg, origin_turn_deg and axis belong to convention = \"urdf\""
+                        .into(),
+                );
             }
         }
     }
@@ -122,6 +142,37 @@ impl ArmModel {
         let norm = |v: &[f64; 3]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
         self.joints.iter().map(|j| j.d_mm.abs() + j.a_mm.abs() + norm(&j.origin_xyz_mm)).sum::<f64>()
             + self.tcp_mm.iter().map(|v| v * v).sum::<f64>().sqrt()
+    }
+
+    /// The first value no arm can have, as (field, what is wrong): a non-finite or implausibly
+    /// large parameter ([`plausible_limit`]) or a reach outside [`MIN_REACH_MM`]…[`MAX_REACH_MM`].
+    pub fn implausible(&self) -> Option<(String, String)> {
+        for id in self.params() {
+            let (value, limit) = (self.get(id), plausible_limit(id));
+            if !value.is_finite() {
+                return Some((id.to_string(), "must be a finite number".into()));
+            }
+            if value.abs() > limit {
+                return Some((
+                    id.to_string(),
+                    format!(
+                        "{value} {} is beyond any plausible arm (|value| <= {limit}): a unit mistake?",
+                        id.unit()
+                    ),
+                ));
+            }
+        }
+        let reach = self.reach_mm();
+        if !(MIN_REACH_MM..=MAX_REACH_MM).contains(&reach) {
+            return Some((
+                "joint".into(),
+                format!(
+                    "the arm's reach (Σ|d| + |a| + |origin| + |tool|) is {reach:.3} mm; expected {MIN_REACH_MM} \
+                     to {MAX_REACH_MM} mm: lengths are in millimetres"
+                ),
+            ));
+        }
+        None
     }
 
     /// Read a model file (`.toml`, or `.json`).
@@ -169,6 +220,23 @@ impl ArmModel {
         let tcp_mm: [f64; 3] = file.tcp_mm.clone().try_into().map_err(|_| {
             field("tcp_mm".into(), format!("expected 3 numbers [x, y, z] in mm, found {}", file.tcp_mm.len()))
         })?;
+        if let Some(source) = &file.urdf {
+            if file.convention != Convention::Urdf || source.joint.len() != joints.len() {
+                return Err(field(
+                    "urdf".into(),
+                    format!(
+                        "records a URDF chain of {} joints for a {:?} model of {} joints: the [urdf] table \
+                         belongs to the model `kincal model from-urdf` made of that chain",
+                        source.joint.len(),
+                        file.convention,
+                        joints.len()
+                    ),
+                ));
+            }
+        }
+        if let Some(arm) = &file.arm {
+            arm.check().map_err(|(key, message)| field(format!("arm.{key}"), message))?;
+        }
         let mut model = ArmModel {
             name: file.name,
             convention: file.convention,
@@ -176,31 +244,11 @@ impl ArmModel {
             tcp_mm,
             scale_ppm: file.scale_ppm,
             free: Vec::new(),
+            urdf: file.urdf,
+            arm: file.arm,
         };
-        for id in model.params() {
-            let (value, limit) = (model.get(id), plausible_limit(id));
-            if !value.is_finite() {
-                return Err(field(id.to_string(), "must be a finite number".into()));
-            }
-            if value.abs() > limit {
-                return Err(field(
-                    id.to_string(),
-                    format!(
-                        "{value} {} is beyond any plausible arm (|value| <= {limit}): a unit mistake?",
-                        id.unit()
-                    ),
-                ));
-            }
-        }
-        let reach = model.reach_mm();
-        if !(MIN_REACH_MM..=MAX_REACH_MM).contains(&reach) {
-            return Err(field(
-                "joint".into(),
-                format!(
-                    "the arm's reach (Σ|d| + |a| + |tool|) is {reach:.3} mm; expected {MIN_REACH_MM} to \
-                     {MAX_REACH_MM} mm: lengths are in millimetres"
-                ),
-            ));
+        if let Some((name, message)) = model.implausible() {
+            return Err(field(name, message));
         }
         for name in &file.effects {
             let effect = Effect::parse(name).ok_or_else(|| {
@@ -220,7 +268,20 @@ impl ArmModel {
         for (name, bounds) in file.free {
             let key = format!("free.\"{name}\"");
             let id = ParamId::parse(&name).ok_or_else(|| {
-                field(key.clone(), "unknown parameter; expected e.g. offset:1, length:3, link_offset:2, twist:5, axis:2, tcp.z, scale".into())
+                let replaced = ["origin_roll:", "origin_pitch:", "origin_yaw:"].iter().any(|p| name.starts_with(p));
+                field(
+                    key.clone(),
+                    if replaced {
+                        "origin_roll, origin_pitch and origin_yaw are no longer parameters (gimbal-locked at pitch \
+                         ±90°): a URDF origin now turns by origin_rx, origin_ry, origin_rz about its nominal frame; \
+                         make the model again with `kincal model from-urdf`"
+                            .into()
+                    } else {
+                        "unknown parameter; expected e.g. offset:1, length:3, link_offset:2, twist:5, axis:2, \
+                         origin_x:2, origin_rz:2, tcp.z, scale"
+                            .into()
+                    },
+                )
             })?;
             if id.joint().is_some_and(|j| j >= model.joints.len()) {
                 return Err(field(
@@ -279,6 +340,8 @@ impl ArmModel {
                 .map(|e| e.to_string())
                 .collect(),
             free: self.free.iter().map(|f| (f.id.to_string(), vec![f.lower, f.upper])).collect(),
+            urdf: self.urdf.clone(),
+            arm: self.arm.clone(),
         };
         if json {
             serde_json::to_string_pretty(&file).unwrap_or_default()
@@ -291,6 +354,25 @@ impl ArmModel {
     pub fn save(&self, path: &Path) -> Result<(), FileError> {
         files::write_atomic(path, self.to_text(is_json(path)).as_bytes())
             .map_err(|source| FileError::Io { path: path.to_owned(), source })
+    }
+
+    /// Write the model to the file the user named with `option` ([`files::write_output`]:
+    /// refused over one of `inputs` or a file kincal did not write). A TOML file starts with
+    /// `# written by kincal NOTE`, so a later run may replace it (JSON has no comments: an existing
+    /// JSON file is never replaced).
+    pub fn save_output(
+        &self,
+        path: &Path,
+        option: &str,
+        inputs: &[&Path],
+        note: &str,
+    ) -> Result<(), FileError> {
+        let text = if is_json(path) {
+            self.to_text(true)
+        } else {
+            format!("# {} {note}\n{}", files::WRITTEN_BY, self.to_text(false))
+        };
+        files::write_output(path, option, inputs, text.as_bytes())
     }
 }
 
@@ -318,6 +400,37 @@ mod tests {
             let path = dir.join(name);
             model.save(&path).unwrap();
             assert_eq!(ArmModel::load(&path).unwrap(), model, "{name}");
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A model may name its arm; the identity round-trips, a model without one reads as before,
+    /// and a bad identity names `arm.id` or an unknown key.
+    #[test]
+    fn a_model_carries_its_arms_identity() {
+        let dir = std::env::temp_dir().join(format!("kincal-model-arm-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut model = ArmModel::suta_nominal();
+        model.arm = Some(crate::trace::ArmIdentity {
+            firmware: Some("kincal-fw 0.1.0".into()),
+            ..crate::trace::ArmIdentity::of("lab-arm-2")
+        });
+        for name in ["m.toml", "m.json"] {
+            let path = dir.join(name);
+            model.save(&path).unwrap();
+            assert_eq!(ArmModel::load(&path).unwrap(), model, "{name}");
+        }
+        let text = model.to_text(false);
+        assert!(text.contains("[arm]\nid = \"lab-arm-2\""), "{text}");
+        assert!(!ArmModel::suta_nominal().to_text(false).contains("[arm]"), "none written when none");
+        let path = dir.join("bad.toml");
+        for (bad, named) in [
+            (text.replace("\"lab-arm-2\"", "\"lab arm 2\""), "arm.id"),
+            (text.replace("id = \"lab-arm-2\"", "serial = \"7\""), "serial"),
+        ] {
+            std::fs::write(&path, bad).unwrap();
+            let err = ArmModel::load(&path).unwrap_err().to_string();
+            assert!(err.contains("bad.toml") && err.contains(named), "{err}");
         }
         std::fs::remove_dir_all(&dir).ok();
     }
@@ -373,6 +486,43 @@ mod tests {
             assert!(err.contains("bad"), "{err}");
             assert!(err.contains(field), "{err} should name {field}");
         }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A model made from a URDF keeps its source (file, chain, hash, joint names and limits) and
+    /// its origin turns through TOML and JSON; a file with the old roll-pitch-yaw parameter
+    /// names is refused with the way forward.
+    #[test]
+    fn a_urdf_model_keeps_its_source_and_old_parameter_names_are_explained() {
+        let dir = std::env::temp_dir().join(format!("kincal-urdfmodel-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let urdf = dir.join("r.urdf");
+        std::fs::write(
+            &urdf,
+            "<robot name=\"r\"><link name=\"a\"/><link name=\"b\"/><link name=\"c\"/>\
+             <joint name=\"shoulder\" type=\"revolute\"><parent link=\"a\"/><child link=\"b\"/><origin xyz=\"0 0 0.3\" rpy=\"0 1.5707963 0\"/><axis xyz=\"0 1 0\"/><limit lower=\"-1\" upper=\"1\" effort=\"1\" velocity=\"1\"/></joint>\
+             <joint name=\"elbow\" type=\"continuous\"><parent link=\"b\"/><child link=\"c\"/><origin xyz=\"0.4 0 0\"/><axis xyz=\"0 0 1\"/></joint></robot>",
+        )
+        .unwrap();
+        let mut model = crate::model::urdf::model_from_urdf(&urdf, "a", "c").unwrap();
+        model.joints[1].origin_turn_deg = [0.1, -0.2, 0.3];
+        for name in ["m.toml", "m.json"] {
+            let path = dir.join(name);
+            model.save(&path).unwrap();
+            let back = ArmModel::load(&path).unwrap();
+            assert_eq!(back, model, "{name}");
+            let source = back.urdf.unwrap();
+            assert_eq!((source.base.as_str(), source.tip.as_str(), source.joint.len()), ("a", "c", 2));
+            assert_eq!(source.joint[0].name, "shoulder");
+        }
+        let text = model.to_text(false).replace("origin_rx:1", "origin_roll:1");
+        let path = dir.join("old.toml");
+        std::fs::write(&path, text).unwrap();
+        let err = ArmModel::load(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("origin_roll:1") && err.contains("origin_rx") && err.contains("from-urdf"),
+            "{err}"
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 }

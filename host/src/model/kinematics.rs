@@ -1,11 +1,31 @@
 //! Forward kinematics of the arm model and its exact Jacobian.
 //!
 //! The chain is a product of elementary transforms E_1 … E_M (rotations about and translations
-//! along x, y, z). For an elementary op m whose value depends on a parameter q, the derivative of
-//! the tool point is dp/dq = R_{<m} · (∂E_m/∂v · v_{>m}) · ∂v/∂q, where R_{<m} is the rotation of
-//! the ops before m and v_{>m} is the tool point expressed in the frame after op m. For a rotation
-//! about axis a that is a × (E_m v_{>m}); for a translation along a it is a. One forward pass for
-//! the prefix rotations and one backward pass for the tool point give every column exactly.
+//! along x, y, z). One pass from the base carries the frame (R, o) through them; for op m, before
+//! it is applied, w_m = R·a is its axis in the base frame and o_m its origin. The tool point
+//! p = o_M (plus the tool offset ops) moves with op m's value as
+//! - a rotation about a: dp = w_m × (p − o_m), and the tool axes dx = w_m × x, dz = w_m × z;
+//! - a translation along a: dp = w_m, the axes not at all.
+//!
+//! Since w_m × (p − o_m) = w_m × p − w_m × o_m is linear in the final p, each column gathers W =
+//! Σ w_m·∂v_m/∂q and V = Σ (translation w_m or −w_m × o_m)·∂v_m/∂q during the one pass, and
+//! becomes dp = W × p + V, dx = W × x, dz = W × z once p, x and z are known: every column exact,
+//! no backward pass, no stored prefix.
+//!
+//! A URDF joint origin's calibrated turn is one rotation exp(ω) after its fixed nominal
+//! orientation R(rpy), applied as one fixed op R(rpy)·exp(ω). Moving ω by δ turns the frame by
+//! exp(J_l(ω)·δ)·exp(ω) (J_l the left Jacobian of SO(3)), so its columns are those of rotations
+//! about the axes R(rpy)·J_l(ω)·e_k: at ω = 0 the three frame axes themselves, whatever the
+//! nominal orientation (no gimbal lock).
+//!
+//! A [`Chain`] holds what does not change from one pose to the next (the ops of one model, the
+//! fixed rotations' sines and cosines): build it once per model and evaluate it per pose
+//! (pinocchio's model/data split); [`tool_pose`] and [`tool_pose_with_jacobian`] build one per call.
+//! A caller that evaluates the same poses again and again (a solver's iterations) keeps each
+//! encoder angle's sine and cosine ([`encoder_sin_cos`]) and hands them in: the joint rotation
+//! then takes them by angle addition with the chain's offset, sin(φ + δθ) = sin φ cos δθ +
+//! cos φ sin δθ, and no sine or cosine is left per pose (while no encoder harmonic or compliance
+//! makes θ a function of φ beyond the offset).
 //!
 //! The joint rotation θ_j = φ_j + δθ_j + Δθ_ecc(φ_j) + c_j·λ_j (see [`crate::model::effects`]) depends on
 //! several parameters; its op carries each with ∂θ/∂q. The gravity lever λ_j is itself a
@@ -15,7 +35,8 @@
 use super::params::PARAM_SLOTS;
 use super::{ArmModel, Convention, ParamId, MAX_JOINTS};
 use crate::model::effects::{compliance, eccentricity, harmonic};
-use nalgebra::{Matrix3, Vector3};
+use crate::numerics::geometry::left_jacobian;
+use nalgebra::{Matrix3, Rotation3, Vector3};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
@@ -34,11 +55,29 @@ pub struct ToolPose {
 /// `[dp_x, dp_y, dp_z, dx_x, dx_y, dx_z, dz_x, dz_y, dz_z]` (mm or 1 per parameter unit).
 pub type PoseDerivative = [f64; 9];
 
+/// Harmonic encoder-error parameters of one joint (eccentricity and higher harmonics).
+const HARMONICS: [fn(usize) -> ParamId; 8] = [
+    ParamId::EccSin,
+    ParamId::EccCos,
+    ParamId::Ecc2Sin,
+    ParamId::Ecc2Cos,
+    ParamId::Harm3Sin,
+    ParamId::Harm3Cos,
+    ParamId::Harm4Sin,
+    ParamId::Harm4Cos,
+];
+
 /// Maps each parameter to its Jacobian column, if it is one of the columns wanted.
 #[derive(Clone, Debug)]
 pub struct ColumnMap {
     slots: [Option<usize>; PARAM_SLOTS],
     len: usize,
+    /// Some harmonic encoder-error column is wanted.
+    harmonics: bool,
+    /// Some compliance column is wanted.
+    compliance: bool,
+    /// The tool axes' derivatives are wanted (not only the position's).
+    axes: bool,
 }
 
 impl ColumnMap {
@@ -48,7 +87,21 @@ impl ColumnMap {
         for (c, p) in params.iter().enumerate() {
             slots[p.dense_index()] = Some(c);
         }
-        ColumnMap { slots, len: params.len() }
+        let any =
+            |kind: fn(usize) -> ParamId| (0..MAX_JOINTS).any(|j| slots[kind(j).dense_index()].is_some());
+        ColumnMap {
+            slots,
+            len: params.len(),
+            harmonics: HARMONICS.into_iter().any(any),
+            compliance: any(ParamId::Compliance),
+            axes: true,
+        }
+    }
+
+    /// The same columns for the position alone: the axes' derivatives are left at zero (for
+    /// residuals that read positions only).
+    pub fn positions_only(self) -> ColumnMap {
+        ColumnMap { axes: false, ..self }
     }
 
     /// Number of columns.
@@ -61,8 +114,8 @@ impl ColumnMap {
         self.len == 0
     }
 
-    fn column(&self, id: ParamId) -> Option<usize> {
-        self.slots[id.dense_index()]
+    fn column(&self, slot: usize) -> Option<usize> {
+        self.slots[slot]
     }
 }
 
@@ -75,177 +128,451 @@ enum Axis {
     Unit(Vector3<f64>),
 }
 
-impl Axis {
-    fn unit(self) -> Vector3<f64> {
-        match self {
-            Axis::X => Vector3::x(),
-            Axis::Y => Vector3::y(),
-            Axis::Z => Vector3::z(),
-            Axis::Unit(u) => u,
-        }
+#[derive(Clone, Copy)]
+enum OpKind {
+    /// A rotation by the op's value (rad) about an axis.
+    Rotate(Axis),
+    /// A translation by the op's value (mm) along an axis.
+    Translate(Axis),
+    /// A fixed rotation: a URDF origin's nominal roll-pitch-yaw and its calibrated turn,
+    /// R(rpy)·exp([ω]×).
+    Orient(Matrix3<f64>),
+}
+
+/// What an op's value depends on.
+#[derive(Clone, Copy)]
+enum Dep {
+    /// One parameter (its dense index), with dvalue/dparam.
+    Param(usize, f64),
+    /// Joint j's angle (see [`Chain::joint_angle`]).
+    JointAngle(usize),
+    /// Joint j's origin turn ω (`origin_rx:j`, `origin_ry:j`, `origin_rz:j`): the columns of
+    /// R(rpy)·J_l(ω) are the axes, in the frame before the op, the frame turns about per radian.
+    OriginTurn(usize, Matrix3<f64>),
+}
+
+/// One elementary transform; a rotation carries its angle's sine and cosine.
+#[derive(Clone, Copy)]
+struct Op {
+    kind: OpKind,
+    value: f64,
+    sin_cos: (f64, f64),
+    dep: Dep,
+}
+
+fn rot(axis: Axis, value_deg: f64, id: ParamId) -> Op {
+    let value = value_deg * DEG;
+    Op { kind: OpKind::Rotate(axis), value, sin_cos: value.sin_cos(), dep: Dep::Param(id.dense_index(), DEG) }
+}
+
+fn shift(axis: Axis, value_mm: f64, id: ParamId) -> Op {
+    Op {
+        kind: OpKind::Translate(axis),
+        value: value_mm,
+        sin_cos: (0.0, 1.0),
+        dep: Dep::Param(id.dense_index(), 1.0),
     }
 }
 
-#[derive(Clone, Copy)]
-enum OpKind {
-    Rotate(Axis),
-    Translate(Axis),
+/// A frame carried from the base: its axes (the columns of R) and origin.
+struct Frame {
+    axes: [Vector3<f64>; 3],
+    origin: Vector3<f64>,
 }
+
+impl Frame {
+    fn base() -> Frame {
+        Frame { axes: [Vector3::x(), Vector3::y(), Vector3::z()], origin: Vector3::zeros() }
+    }
+
+    /// R·a.
+    fn direction(&self, axis: Axis) -> Vector3<f64> {
+        match axis {
+            Axis::X => self.axes[0],
+            Axis::Y => self.axes[1],
+            Axis::Z => self.axes[2],
+            Axis::Unit(u) => self.axes[0] * u.x + self.axes[1] * u.y + self.axes[2] * u.z,
+        }
+    }
+
+    /// Apply `op`; its direction in the base frame before it (R·a).
+    #[inline]
+    fn apply(&mut self, op: &Op) -> Vector3<f64> {
+        match op.kind {
+            OpKind::Translate(axis) => {
+                let t = self.direction(axis);
+                self.origin += t * op.value;
+                t
+            }
+            OpKind::Rotate(axis) => {
+                let w = self.direction(axis);
+                let (s, c) = op.sin_cos;
+                let [x, y, z] = self.axes;
+                // R·Rx, R·Ry, R·Rz column by column; any axis by Rodrigues' I + sin θ K + (1 − cos θ) K².
+                match axis {
+                    Axis::X => self.axes = [x, y * c + z * s, z * c - y * s],
+                    Axis::Y => self.axes = [x * c - z * s, y, x * s + z * c],
+                    Axis::Z => self.axes = [x * c + y * s, y * c - x * s, z],
+                    Axis::Unit(u) => self.rotate_about(&u, s, c),
+                }
+                w
+            }
+            OpKind::Orient(m) => {
+                self.turn(&m);
+                Vector3::zeros()
+            }
+        }
+    }
+
+    /// R·m.
+    fn turn(&mut self, m: &Matrix3<f64>) {
+        let [x, y, z] = self.axes;
+        self.axes = [0, 1, 2].map(|i| x * m[(0, i)] + y * m[(1, i)] + z * m[(2, i)]);
+    }
+
+    /// R·(I + sin θ K + (1 − cos θ) K²), K the cross matrix of the unit axis `u` (Rodrigues).
+    #[inline(never)]
+    fn rotate_about(&mut self, u: &Vector3<f64>, s: f64, c: f64) {
+        let k = u.cross_matrix();
+        let m: Matrix3<f64> = Matrix3::identity() + k * s + k * k * (1.0 - c);
+        self.turn(&m);
+    }
+}
+
+/// Elementary ops per joint row: five for DH (θ, d, a, α, β) and for URDF (x, y, z, the
+/// origin's orientation, θ).
+const OPS_PER_JOINT: usize = 5;
 
 /// Parameters a joint angle depends on: offset, four eccentricity terms, four higher
 /// harmonic terms, compliance.
 const ANGLE_DEPS: usize = 10;
 
-/// ∂θ_j/∂q (rad per parameter unit) for the parameters θ_j depends on.
-type AnglePartials = [(ParamId, f64); ANGLE_DEPS];
-
-/// What an op's value depends on.
-#[derive(Clone, Copy)]
-enum Dep {
-    /// One parameter, with dvalue/dparam.
-    Param(ParamId, f64),
-    /// Joint j's angle (see [`AnglePartials`]).
-    JointAngle(usize),
+/// The chain of one model: its elementary ops with the fixed rotations' sines and cosines, built
+/// once and evaluated at any joint angles.
+pub struct Chain<'m> {
+    model: &'m ArmModel,
+    ops: Vec<Op>,
+    joints: usize,
+    /// Some harmonic encoder error is non-zero.
+    harmonics: bool,
+    /// Some compliance is non-zero.
+    compliant: bool,
+    scale: f64,
+    /// Per joint, the sine and cosine of its offset δθ.
+    offset_sin_cos: [(f64, f64); MAX_JOINTS],
 }
 
-/// One elementary transform.
-#[derive(Clone, Copy)]
-struct Op {
-    kind: OpKind,
-    value: f64,
-    dep: Dep,
-}
+impl<'m> Chain<'m> {
+    /// The chain of `model`.
+    pub fn new(model: &'m ArmModel) -> Chain<'m> {
+        let joints = model.joints.len().min(MAX_JOINTS);
+        let mut ops = Vec::with_capacity(joints * OPS_PER_JOINT + 3);
+        for (j, joint) in model.joints.iter().take(joints).enumerate() {
+            let theta_axis = match model.convention {
+                Convention::Urdf => Axis::Unit(Vector3::from(joint.axis)),
+                Convention::Classic | Convention::Modified => Axis::Z,
+            };
+            let theta = Op {
+                kind: OpKind::Rotate(theta_axis),
+                value: 0.0,
+                sin_cos: (0.0, 1.0),
+                dep: Dep::JointAngle(j),
+            };
+            if model.convention == Convention::Urdf {
+                let [x, y, z] = joint.origin_xyz_mm;
+                let [roll, pitch, yaw] = joint.origin_rpy_deg.map(|v| v * DEG);
+                let nominal = Rotation3::from_euler_angles(roll, pitch, yaw).into_inner();
+                let turn = Vector3::from(joint.origin_turn_deg) * DEG;
+                let orient = Op {
+                    kind: OpKind::Orient(nominal * Rotation3::new(turn).into_inner()),
+                    value: 0.0,
+                    sin_cos: (0.0, 1.0),
+                    dep: Dep::OriginTurn(j, nominal * left_jacobian(&turn)),
+                };
+                ops.extend([
+                    shift(Axis::X, x, ParamId::OriginXyz(j, 0)),
+                    shift(Axis::Y, y, ParamId::OriginXyz(j, 1)),
+                    shift(Axis::Z, z, ParamId::OriginXyz(j, 2)),
+                    orient,
+                    theta,
+                ]);
+                continue;
+            }
+            let d = shift(Axis::Z, joint.d_mm, ParamId::Length(j));
+            let a = shift(Axis::X, joint.a_mm, ParamId::LinkOffset(j));
+            let alpha = rot(Axis::X, joint.alpha_deg, ParamId::Twist(j));
+            let beta = rot(Axis::Y, joint.axis_deg, ParamId::Axis(j));
+            ops.extend(match model.convention {
+                Convention::Modified => [alpha, beta, a, theta, d],
+                Convention::Classic | Convention::Urdf => [theta, d, a, alpha, beta],
+            });
+        }
+        for (k, axis) in [Axis::X, Axis::Y, Axis::Z].into_iter().enumerate() {
+            ops.push(shift(axis, model.tcp_mm[k], ParamId::Tcp(k)));
+        }
+        let joint_rows = &model.joints[..joints];
+        let mut offset_sin_cos = [(0.0, 1.0); MAX_JOINTS];
+        for (sc, joint) in offset_sin_cos.iter_mut().zip(joint_rows) {
+            *sc = (joint.offset_deg * DEG).sin_cos();
+        }
+        Chain {
+            offset_sin_cos,
+            model,
+            ops,
+            joints,
+            harmonics: joint_rows.iter().any(|j| {
+                j.eccentricity_sin_deg != 0.0
+                    || j.eccentricity_cos_deg != 0.0
+                    || j.eccentricity2_sin_deg != 0.0
+                    || j.eccentricity2_cos_deg != 0.0
+                    || j.harmonic3_sin_deg != 0.0
+                    || j.harmonic3_cos_deg != 0.0
+                    || j.harmonic4_sin_deg != 0.0
+                    || j.harmonic4_cos_deg != 0.0
+            }),
+            compliant: joint_rows.iter().any(|j| j.compliance_deg_per_m != 0.0),
+            scale: 1.0 + model.scale_ppm * 1e-6,
+        }
+    }
 
-impl Op {
-    fn rotation(&self) -> Matrix3<f64> {
-        match self.kind {
-            OpKind::Translate(_) => Matrix3::identity(),
-            OpKind::Rotate(axis) => {
-                let (s, c) = self.value.sin_cos();
-                match axis {
-                    Axis::X => Matrix3::new(1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c),
-                    Axis::Y => Matrix3::new(c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c),
-                    Axis::Z => Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0),
-                    // Rodrigues: I + sin θ K + (1 − cos θ) K².
-                    Axis::Unit(u) => {
-                        let k = u.cross_matrix();
-                        Matrix3::identity() + k * s + k * k * (1.0 - c)
+    /// Tool pose for raw encoder angles `enc_deg` (degrees, one per joint; a missing angle reads
+    /// as 0).
+    pub fn pose(&self, enc_deg: &[f64]) -> ToolPose {
+        self.evaluate(enc_deg, None, None)
+    }
+
+    /// As [`Chain::pose`] with each encoder angle's sine and cosine given (see the module doc).
+    pub fn pose_with_sin_cos(&self, enc_deg: &[f64], enc_sin_cos: &[(f64, f64)]) -> ToolPose {
+        self.evaluate(enc_deg, Some(enc_sin_cos), None)
+    }
+
+    /// As [`Chain::pose_with_jacobian`] with each encoder angle's sine and cosine given (see the
+    /// module doc).
+    pub fn pose_with_sin_cos_and_jacobian(
+        &self,
+        enc_deg: &[f64],
+        enc_sin_cos: &[(f64, f64)],
+        columns: &ColumnMap,
+        jacobian: &mut [PoseDerivative],
+    ) -> ToolPose {
+        self.evaluate(enc_deg, Some(enc_sin_cos), Some((columns, jacobian)))
+    }
+
+    /// Tool pose and its derivatives for the parameters in `columns`, written to `jacobian` (one
+    /// [`PoseDerivative`] per column; `jacobian.len()` must be `columns.len()`).
+    pub fn pose_with_jacobian(
+        &self,
+        enc_deg: &[f64],
+        columns: &ColumnMap,
+        jacobian: &mut [PoseDerivative],
+    ) -> ToolPose {
+        self.evaluate(enc_deg, None, Some((columns, jacobian)))
+    }
+
+    /// Joint angle θ = φ + δθ + Δθ_ecc(φ) + c·λ (degrees) and its partials ∂θ/∂q (rad per
+    /// parameter unit, parameters by dense index), how many. The harmonics are evaluated (and
+    /// their partials given) only when `harmonics`, the compliance's partial only when
+    /// `compliance`.
+    fn joint_angle(
+        &self,
+        j: usize,
+        enc_deg: f64,
+        lever_m: f64,
+        harmonics: bool,
+        compliance: bool,
+    ) -> (f64, [(usize, f64); ANGLE_DEPS], usize) {
+        let joint = &self.model.joints[j];
+        let mut partials = [(0, 0.0); ANGLE_DEPS];
+        partials[0] = (ParamId::Offset(j).dense_index(), DEG);
+        let mut count = 1;
+        let mut ecc = 0.0;
+        if harmonics {
+            let [s1, c1, s2, c2] = eccentricity::partials(enc_deg);
+            let [s3, c3] = harmonic::partials(enc_deg, 3);
+            let [s4, c4] = harmonic::partials(enc_deg, 4);
+            ecc = joint.eccentricity_sin_deg * s1
+                + joint.eccentricity_cos_deg * c1
+                + joint.eccentricity2_sin_deg * s2
+                + joint.eccentricity2_cos_deg * c2
+                + joint.harmonic3_sin_deg * s3
+                + joint.harmonic3_cos_deg * c3
+                + joint.harmonic4_sin_deg * s4
+                + joint.harmonic4_cos_deg * c4;
+            for (kind, v) in HARMONICS.into_iter().zip([s1, c1, s2, c2, s3, c3, s4, c4]) {
+                partials[count] = (kind(j).dense_index(), DEG * v);
+                count += 1;
+            }
+        }
+        if compliance {
+            partials[count] = (ParamId::Compliance(j).dense_index(), DEG * lever_m);
+            count += 1;
+        }
+        let theta = enc_deg + joint.offset_deg + ecc + joint.compliance_deg_per_m * lever_m;
+        (theta, partials, count)
+    }
+
+    /// Op `op` with joint j's angle θ_j (degrees) set.
+    fn with_angle(op: &Op, theta_deg: f64) -> Op {
+        let value = theta_deg * DEG;
+        Op { value, sin_cos: value.sin_cos(), ..*op }
+    }
+
+    /// Gravity levers λ_j (m) of every joint on the arm without compliance deflection.
+    fn gravity_levers(&self, enc: impl Fn(usize) -> f64, harmonics: bool) -> [f64; MAX_JOINTS] {
+        let per_joint = OPS_PER_JOINT;
+        // Per joint: its axis' point and direction (before its θ op) and the origin at its row's end.
+        let mut axes = [(Vector3::zeros(), Vector3::zeros()); MAX_JOINTS];
+        let mut masses = [Vector3::zeros(); MAX_JOINTS + 1];
+        let mut frame = Frame::base();
+        for (m, op) in self.ops.iter().enumerate() {
+            match op.dep {
+                Dep::JointAngle(j) => {
+                    let OpKind::Rotate(axis) = op.kind else { unreachable!("a joint angle is a rotation") };
+                    axes[j] = (frame.origin, frame.direction(axis));
+                    let (theta, ..) = self.joint_angle(j, enc(j), 0.0, harmonics, false);
+                    frame.apply(&Self::with_angle(op, theta));
+                }
+                Dep::Param(..) | Dep::OriginTurn(..) => {
+                    frame.apply(op);
+                }
+            }
+            if (m + 1) % per_joint == 0 && (m + 1) / per_joint <= self.joints {
+                masses[(m + 1) / per_joint - 1] = frame.origin;
+            }
+        }
+        masses[self.joints] = frame.origin;
+        std::array::from_fn(|j| {
+            if j >= self.joints {
+                return 0.0;
+            }
+            compliance::gravity_lever_m(&axes[j].0, &axes[j].1, &masses[j..=self.joints])
+        })
+    }
+
+    fn evaluate(
+        &self,
+        enc_deg: &[f64],
+        enc_sin_cos: Option<&[(f64, f64)]>,
+        mut wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
+    ) -> ToolPose {
+        let harmonics = self.harmonics || wanted.as_ref().is_some_and(|(c, _)| c.harmonics);
+        let compliance = self.compliant || wanted.as_ref().is_some_and(|(c, _)| c.compliance);
+        let enc = |j: usize| enc_deg.get(j).copied().unwrap_or(0.0);
+        let levers = if compliance { self.gravity_levers(enc, harmonics) } else { [0.0; MAX_JOINTS] };
+        if let Some((_, jac)) = wanted.as_mut() {
+            jac.iter_mut().for_each(|col| *col = [0.0; 9]);
+        }
+        // Each wanted column gathers V (in 0..3) and W (in 3..6), see the module doc.
+        let mut frame = Frame::base();
+        for op in &self.ops {
+            let origin = frame.origin;
+            match op.dep {
+                Dep::Param(slot, dv) => {
+                    let column = wanted.as_ref().and_then(|(columns, _)| columns.column(slot));
+                    // A rotation or shift by zero that no column asks for leaves the frame as is.
+                    if op.value == 0.0 && column.is_none() {
+                        continue;
+                    }
+                    let dir = frame.apply(op);
+                    if let (Some(c), Some((_, jac))) = (column, wanted.as_mut()) {
+                        gather(&mut jac[c], op, &dir, &origin, dv);
+                    }
+                }
+                Dep::OriginTurn(j, axes) => {
+                    if let Some((columns, jac)) = wanted.as_mut() {
+                        for k in 0..3 {
+                            if let Some(c) = columns.column(ParamId::OriginTurn(j, k).dense_index()) {
+                                let dir = frame.direction(Axis::Unit(axes.column(k).into_owned()));
+                                gather_rotation(&mut jac[c], &dir, &origin, DEG);
+                            }
+                        }
+                    }
+                    frame.apply(op);
+                }
+                Dep::JointAngle(j) => {
+                    // The encoder's sine and cosine kept and θ = φ + δθ: angle addition, and the
+                    // offset is the only parameter θ reads.
+                    if let Some(&(s, c)) =
+                        enc_sin_cos.and_then(|sc| sc.get(j)).filter(|_| !harmonics && !compliance)
+                    {
+                        let (so, co) = self.offset_sin_cos[j];
+                        let dir = frame.apply(&Op { sin_cos: (s * co + c * so, c * co - s * so), ..*op });
+                        if let Some((columns, jac)) = wanted.as_mut() {
+                            if let Some(c) = columns.column(ParamId::Offset(j).dense_index()) {
+                                gather(&mut jac[c], op, &dir, &origin, DEG);
+                            }
+                        }
+                        continue;
+                    }
+                    let (theta, partials, count) =
+                        self.joint_angle(j, enc(j), levers[j], harmonics, compliance);
+                    let dir = frame.apply(&Self::with_angle(op, theta));
+                    if let Some((columns, jac)) = wanted.as_mut() {
+                        for &(slot, dv) in &partials[..count] {
+                            if let Some(c) = columns.column(slot) {
+                                gather(&mut jac[c], op, &dir, &origin, dv);
+                            }
+                        }
                     }
                 }
             }
         }
-    }
-}
-
-/// Elementary ops per joint row: five for DH (θ, d, a, α, β), seven for URDF (x, y, z, yaw,
-/// pitch, roll, θ).
-fn ops_per_joint(convention: Convention) -> usize {
-    match convention {
-        Convention::Classic | Convention::Modified => 5,
-        Convention::Urdf => 7,
-    }
-}
-/// Most elementary ops of a chain: seven per joint and three for the tool point.
-const MAX_OPS: usize = MAX_JOINTS * 7 + 3;
-
-fn rot(axis: Axis, value_deg: f64, id: ParamId) -> Op {
-    Op { kind: OpKind::Rotate(axis), value: value_deg * DEG, dep: Dep::Param(id, DEG) }
-}
-
-fn shift(axis: Axis, value_mm: f64, id: ParamId) -> Op {
-    Op { kind: OpKind::Translate(axis), value: value_mm, dep: Dep::Param(id, 1.0) }
-}
-
-/// Joint angle θ = φ + δθ + Δθ_ecc(φ) + c·λ (degrees) and its partials. The harmonics are
-/// evaluated only when `harmonics` (some eccentricity is non-zero or wanted).
-fn joint_angle(
-    model: &ArmModel,
-    j: usize,
-    enc_deg: f64,
-    lever_m: f64,
-    harmonics: bool,
-) -> (f64, AnglePartials) {
-    let joint = &model.joints[j];
-    let [s1, c1, s2, c2] = if harmonics { eccentricity::partials(enc_deg) } else { [0.0; 4] };
-    let [s3, c3] = if harmonics { harmonic::partials(enc_deg, 3) } else { [0.0; 2] };
-    let [s4, c4] = if harmonics { harmonic::partials(enc_deg, 4) } else { [0.0; 2] };
-    let ecc = joint.eccentricity_sin_deg * s1
-        + joint.eccentricity_cos_deg * c1
-        + joint.eccentricity2_sin_deg * s2
-        + joint.eccentricity2_cos_deg * c2
-        + joint.harmonic3_sin_deg * s3
-        + joint.harmonic3_cos_deg * c3
-        + joint.harmonic4_sin_deg * s4
-        + joint.harmonic4_cos_deg * c4;
-    let theta = enc_deg + joint.offset_deg + ecc + joint.compliance_deg_per_m * lever_m;
-    let partials = [
-        (ParamId::Offset(j), DEG),
-        (ParamId::EccSin(j), DEG * s1),
-        (ParamId::EccCos(j), DEG * c1),
-        (ParamId::Ecc2Sin(j), DEG * s2),
-        (ParamId::Ecc2Cos(j), DEG * c2),
-        (ParamId::Harm3Sin(j), DEG * s3),
-        (ParamId::Harm3Cos(j), DEG * c3),
-        (ParamId::Harm4Sin(j), DEG * s4),
-        (ParamId::Harm4Cos(j), DEG * c4),
-        (ParamId::Compliance(j), DEG * lever_m),
-    ];
-    (theta, partials)
-}
-
-/// Index of joint j's rotation op within its row.
-fn joint_op_in_row(convention: Convention) -> usize {
-    match convention {
-        Convention::Classic => 0,
-        Convention::Modified => 3,
-        Convention::Urdf => 6,
-    }
-}
-
-/// The elementary ops of the chain for joint angles `theta_deg`, and how many of them there are.
-fn chain(model: &ArmModel, theta_deg: &[f64]) -> ([Op; MAX_OPS], usize) {
-    let mut ops = [Op { kind: OpKind::Translate(Axis::X), value: 0.0, dep: Dep::JointAngle(0) }; MAX_OPS];
-    let joints = model.joints.len().min(MAX_JOINTS);
-    let per_joint = ops_per_joint(model.convention);
-    for (j, joint) in model.joints.iter().take(joints).enumerate() {
-        let row = &mut ops[j * per_joint..(j + 1) * per_joint];
-        if model.convention == Convention::Urdf {
-            let axis = Axis::Unit(Vector3::from(joint.axis));
-            let theta = Op { kind: OpKind::Rotate(axis), value: theta_deg[j] * DEG, dep: Dep::JointAngle(j) };
-            let [x, y, z] = joint.origin_xyz_mm;
-            let [roll, pitch, yaw] = joint.origin_rpy_deg;
-            row.copy_from_slice(&[
-                shift(Axis::X, x, ParamId::OriginXyz(j, 0)),
-                shift(Axis::Y, y, ParamId::OriginXyz(j, 1)),
-                shift(Axis::Z, z, ParamId::OriginXyz(j, 2)),
-                rot(Axis::Z, yaw, ParamId::OriginRpy(j, 2)),
-                rot(Axis::Y, pitch, ParamId::OriginRpy(j, 1)),
-                rot(Axis::X, roll, ParamId::OriginRpy(j, 0)),
-                theta,
-            ]);
-            continue;
+        let point = frame.origin;
+        let [x_axis, _, z_axis] = frame.axes;
+        if let Some((columns, jac)) = wanted {
+            for col in jac.iter_mut() {
+                let w = Vector3::new(col[3], col[4], col[5]);
+                let dp = (w.cross(&point) + Vector3::new(col[0], col[1], col[2])) * self.scale;
+                *col = if columns.axes {
+                    let (dx, dz) = (w.cross(&x_axis), w.cross(&z_axis));
+                    [dp.x, dp.y, dp.z, dx.x, dx.y, dx.z, dz.x, dz.y, dz.z]
+                } else {
+                    [dp.x, dp.y, dp.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+                };
+            }
+            if let Some(c) = columns.column(ParamId::Scale.dense_index()) {
+                for k in 0..3 {
+                    jac[c][k] += point[k] * 1e-6;
+                }
+            }
         }
-        let theta = Op { kind: OpKind::Rotate(Axis::Z), value: theta_deg[j] * DEG, dep: Dep::JointAngle(j) };
-        let d = shift(Axis::Z, joint.d_mm, ParamId::Length(j));
-        let a = shift(Axis::X, joint.a_mm, ParamId::LinkOffset(j));
-        let alpha = rot(Axis::X, joint.alpha_deg, ParamId::Twist(j));
-        let beta = rot(Axis::Y, joint.axis_deg, ParamId::Axis(j));
-        row.copy_from_slice(&match model.convention {
-            Convention::Modified => [alpha, beta, a, theta, d],
-            Convention::Classic | Convention::Urdf => [theta, d, a, alpha, beta],
-        });
+        ToolPose { position_mm: point * self.scale, x_axis, z_axis }
     }
-    let tcp = &mut ops[joints * per_joint..];
-    for (k, axis) in [Axis::X, Axis::Y, Axis::Z].into_iter().enumerate() {
-        tcp[k] = shift(axis, model.tcp_mm[k], ParamId::Tcp(k));
+}
+
+/// Add op `op`'s share to a column gathering V (0..3) and W (3..6) (see the module doc): its
+/// direction `dir` and origin `origin` in the base frame, ∂value/∂parameter `dv`.
+#[inline(always)]
+fn gather(col: &mut PoseDerivative, op: &Op, dir: &Vector3<f64>, origin: &Vector3<f64>, dv: f64) {
+    match op.kind {
+        OpKind::Translate(_) => {
+            for k in 0..3 {
+                col[k] += dir[k] * dv;
+            }
+        }
+        OpKind::Rotate(_) | OpKind::Orient(_) => gather_rotation(col, dir, origin, dv),
     }
-    (ops, joints * per_joint + 3)
+}
+
+/// Add a rotation's share to a column (see [`gather`]): about `dir` through `origin`.
+#[inline(always)]
+fn gather_rotation(col: &mut PoseDerivative, dir: &Vector3<f64>, origin: &Vector3<f64>, dv: f64) {
+    let v = dir.cross(origin);
+    for k in 0..3 {
+        col[k] -= v[k] * dv;
+        col[3 + k] += dir[k] * dv;
+    }
+}
+
+/// The sine and cosine of an encoder angle (degrees), as [`Chain::pose_with_sin_cos`] takes them.
+pub fn encoder_sin_cos(enc_deg: f64) -> (f64, f64) {
+    (enc_deg * DEG).sin_cos()
 }
 
 /// Tool pose for raw encoder angles `enc_deg` (degrees, one per joint of the model; a missing
 /// angle reads as 0).
 pub fn tool_pose(model: &ArmModel, enc_deg: &[f64]) -> ToolPose {
-    evaluate(model, enc_deg, None)
+    Chain::new(model).pose(enc_deg)
 }
 
 /// Tool pose and its derivatives for the parameters in `columns`, written to `jacobian`
@@ -256,161 +583,7 @@ pub fn tool_pose_with_jacobian(
     columns: &ColumnMap,
     jacobian: &mut [PoseDerivative],
 ) -> ToolPose {
-    evaluate(model, enc_deg, Some((columns, jacobian)))
-}
-
-/// Gravity levers λ_j (m) of every joint on the arm without compliance deflection.
-fn gravity_levers(model: &ArmModel, theta_deg: &[f64]) -> [f64; MAX_JOINTS] {
-    let (ops, count) = chain(model, theta_deg);
-    let per_joint = ops_per_joint(model.convention);
-    let joints = (count - 3) / per_joint;
-    // Pose (rotation, origin) before each op, and the tool point after all.
-    let mut rotation = Matrix3::identity();
-    let mut origin = Vector3::zeros();
-    let mut before = [(Matrix3::identity(), Vector3::zeros()); MAX_OPS + 1];
-    for (m, op) in ops[..count].iter().enumerate() {
-        before[m] = (rotation, origin);
-        match op.kind {
-            OpKind::Translate(axis) => origin += rotation * axis.unit() * op.value,
-            OpKind::Rotate(_) => rotation *= op.rotation(),
-        }
-    }
-    before[count] = (rotation, origin);
-    let row_end = |j: usize| before[(j + 1) * per_joint].1;
-    let tool = before[count].1;
-    let at = joint_op_in_row(model.convention);
-    std::array::from_fn(|j| {
-        if j >= joints {
-            return 0.0;
-        }
-        let (r, o) = before[j * per_joint + at];
-        let masses: Vec<Vector3<f64>> = (j..joints).map(row_end).chain([tool]).collect();
-        let axis = if model.convention == Convention::Urdf {
-            Vector3::from(model.joints[j].axis)
-        } else {
-            Vector3::z()
-        };
-        compliance::gravity_lever_m(&o, &(r * axis), &masses)
-    })
-}
-
-fn evaluate(
-    model: &ArmModel,
-    enc_deg: &[f64],
-    mut wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
-) -> ToolPose {
-    let wants = |kind: fn(usize) -> ParamId| {
-        wanted.as_ref().is_some_and(|(c, _)| (0..model.joints.len()).any(|j| c.column(kind(j)).is_some()))
-    };
-    let harmonics = [
-        ParamId::EccSin,
-        ParamId::EccCos,
-        ParamId::Ecc2Sin,
-        ParamId::Ecc2Cos,
-        ParamId::Harm3Sin,
-        ParamId::Harm3Cos,
-        ParamId::Harm4Sin,
-        ParamId::Harm4Cos,
-    ]
-    .into_iter()
-    .any(wants)
-        || model.joints.iter().any(|j| {
-            j.eccentricity_sin_deg != 0.0
-                || j.eccentricity_cos_deg != 0.0
-                || j.eccentricity2_sin_deg != 0.0
-                || j.eccentricity2_cos_deg != 0.0
-                || j.harmonic3_sin_deg != 0.0
-                || j.harmonic3_cos_deg != 0.0
-                || j.harmonic4_sin_deg != 0.0
-                || j.harmonic4_cos_deg != 0.0
-        });
-    let joints = model.joints.len().min(MAX_JOINTS);
-    let enc = |j: usize| enc_deg.get(j).copied().unwrap_or(0.0);
-    let rigid: [(f64, AnglePartials); MAX_JOINTS] = std::array::from_fn(|j| {
-        if j < joints {
-            joint_angle(model, j, enc(j), 0.0, harmonics)
-        } else {
-            (0.0, [(ParamId::Offset(j), 0.0); ANGLE_DEPS])
-        }
-    });
-    let angles = if wants(ParamId::Compliance) || model.joints.iter().any(|j| j.compliance_deg_per_m != 0.0) {
-        let levers = gravity_levers(model, &rigid.map(|a| a.0));
-        std::array::from_fn(|j| {
-            if j < joints {
-                joint_angle(model, j, enc(j), levers[j], harmonics)
-            } else {
-                rigid[j]
-            }
-        })
-    } else {
-        rigid
-    };
-    let (ops, count) = chain(model, &angles.map(|a| a.0));
-    let rotations: [Matrix3<f64>; MAX_OPS] =
-        std::array::from_fn(|m| if m < count { ops[m].rotation() } else { Matrix3::identity() });
-    // prefix[m] = rotation of ops 0..m (exclusive).
-    let mut prefix = [Matrix3::identity(); MAX_OPS + 1];
-    for m in 0..count {
-        prefix[m + 1] = prefix[m] * rotations[m];
-    }
-    let scale = 1.0 + model.scale_ppm * 1e-6;
-    if let Some((_, jac)) = wanted.as_mut() {
-        jac.iter_mut().for_each(|col| *col = [0.0; 9]);
-    }
-    // Walk back from the tool: point and axes expressed in the frame before op m.
-    let mut point = Vector3::zeros();
-    let mut x_axis = Vector3::x();
-    let mut z_axis = Vector3::z();
-    for m in (0..count).rev() {
-        let op = &ops[m];
-        match op.kind {
-            OpKind::Translate(axis) => point += axis.unit() * op.value,
-            OpKind::Rotate(_) => {
-                point = rotations[m] * point;
-                x_axis = rotations[m] * x_axis;
-                z_axis = rotations[m] * z_axis;
-            }
-        }
-        let Some((columns, jac)) = wanted.as_mut() else { continue };
-        let single;
-        let deps: &[(ParamId, f64)] = match op.dep {
-            Dep::Param(id, d) => {
-                single = [(id, d)];
-                &single
-            }
-            Dep::JointAngle(j) => &angles[j].1,
-        };
-        let mut unit_derivative = None;
-        for (id, dvalue) in deps {
-            let Some(c) = columns.column(*id) else { continue };
-            // Derivative of the pose per unit of this op's value, computed once per op.
-            let (dp, dx, dz) = *unit_derivative.get_or_insert_with(|| {
-                let (dp, dx, dz) = match op.kind {
-                    OpKind::Translate(axis) => (axis.unit(), Vector3::zeros(), Vector3::zeros()),
-                    OpKind::Rotate(axis) => {
-                        let a = axis.unit();
-                        (a.cross(&point), a.cross(&x_axis), a.cross(&z_axis))
-                    }
-                };
-                let r = &prefix[m];
-                (r * dp * scale, r * dx, r * dz)
-            });
-            let col = &mut jac[c];
-            for k in 0..3 {
-                col[k] += dp[k] * dvalue;
-                col[3 + k] += dx[k] * dvalue;
-                col[6 + k] += dz[k] * dvalue;
-            }
-        }
-    }
-    if let Some((columns, jac)) = wanted {
-        if let Some(c) = columns.column(ParamId::Scale) {
-            for k in 0..3 {
-                jac[c][k] += point[k] * 1e-6;
-            }
-        }
-    }
-    ToolPose { position_mm: point * scale, x_axis, z_axis }
+    Chain::new(model).pose_with_jacobian(enc_deg, columns, jacobian)
 }
 
 #[cfg(test)]
@@ -514,6 +687,8 @@ mod tests {
                     let s = j as f64;
                     joint.origin_xyz_mm = [10.0 * s, -20.0 + s, joint.d_mm];
                     joint.origin_rpy_deg = [joint.alpha_deg, 7.0 * s, -3.0 * s];
+                    // A calibrated turn away from zero: its columns use J_l(ω), not the identity.
+                    joint.origin_turn_deg = [2.0 - s, 0.5 * s, 9.0 - 3.0 * s];
                     let n = (1.0 + 0.04 * s * s).sqrt();
                     joint.axis = [0.2 * s / n, 0.0, 1.0 / n];
                     (joint.d_mm, joint.a_mm, joint.alpha_deg, joint.axis_deg) = (0.0, 0.0, 0.0, 0.0);
@@ -552,5 +727,66 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// UR's shoulder and wrist origins sit at pitch ±90°, where roll and yaw turn about one axis.
+    /// The origin's turn ω about its own frame moves the tool frame in three independent
+    /// directions there (and at pitch 0, and at UR's rounded 1.570796325 rad): the tool frame's
+    /// angular velocities per degree of the three turns have rank 3, all singular values one
+    /// degree (no direction weaker than another).
+    /// Roll-pitch-yaw as parameters would lose one: their derivatives' rotation axes at pitch 90°
+    /// are parallel, as the last assertion shows.
+    #[test]
+    fn an_origin_at_pitch_90_degrees_loses_no_rotation_direction() {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = Convention::Urdf;
+        model.joints.truncate(3);
+        model.free.clear();
+        for joint in &mut model.joints {
+            (joint.d_mm, joint.alpha_deg, joint.offset_deg) = (0.0, 0.0, 0.0);
+        }
+        model.joints[0].origin_xyz_mm = [0.0, 0.0, 89.159];
+        model.joints[1].origin_xyz_mm = [0.0, 135.85, 0.0];
+        model.joints[1].axis = [0.0, 1.0, 0.0];
+        model.joints[2].origin_xyz_mm = [0.0, -119.7, 425.0];
+        model.joints[2].axis = [0.0, 1.0, 0.0];
+        model.tcp_mm = [0.0, 0.0, 392.25];
+        let turns: Vec<ParamId> = (0..3).map(|k| ParamId::OriginTurn(1, k)).collect();
+        for pitch_deg in [90.0, -90.0, 1.570796325_f64.to_degrees(), 0.0] {
+            model.joints[1].origin_rpy_deg = [0.0, pitch_deg, 0.0];
+            for enc in [[0.0, 0.0, 0.0], [30.0, -60.0, 45.0]] {
+                let mut jac = vec![[0.0; 9]; 3];
+                let pose = tool_pose_with_jacobian(&model, &enc, &ColumnMap::new(&turns), &mut jac);
+                // The tool frame's angular velocity per degree of each turn: w = x × dx − (y·dz) x.
+                let (x, z) = (pose.x_axis, pose.z_axis);
+                let y = z.cross(&x);
+                let w = Matrix3::from_fn(|r, c| {
+                    let (dx, dz) =
+                        (Vector3::from_fn(|k, _| jac[c][3 + k]), Vector3::from_fn(|k, _| jac[c][6 + k]));
+                    (x.cross(&dx) - x * y.dot(&dz))[r]
+                });
+                let sv = w.singular_values();
+                for s in sv.iter() {
+                    assert!(
+                        (s - DEG).abs() < 1e-9,
+                        "pitch {pitch_deg}: singular values {sv}, expected 3 × {DEG}"
+                    );
+                }
+            }
+        }
+        // Roll-pitch-yaw at pitch 90°: ∂R/∂roll and ∂R/∂yaw turn about the same axis.
+        let rpy = |r: f64, p: f64, y: f64| Rotation3::from_euler_angles(r, p, y).into_inner();
+        let h = 1e-7;
+        let axis_of = |d: Matrix3<f64>| {
+            let w = d * rpy(0.0, std::f64::consts::FRAC_PI_2, 0.0).transpose();
+            Vector3::new(w[(2, 1)], w[(0, 2)], w[(1, 0)]).normalize()
+        };
+        let half = std::f64::consts::FRAC_PI_2;
+        let d_roll = (rpy(h, half, 0.0) - rpy(-h, half, 0.0)) / (2.0 * h);
+        let d_yaw = (rpy(0.0, half, h) - rpy(0.0, half, -h)) / (2.0 * h);
+        assert!(
+            axis_of(d_roll).cross(&axis_of(d_yaw)).norm() < 1e-6,
+            "roll and yaw are one direction at pitch 90°"
+        );
     }
 }

@@ -12,6 +12,8 @@ pub mod urdf;
 
 pub use params::ParamId;
 
+use nalgebra::{Rotation3, Vector3};
+
 /// Number of joints of the SUTA arm: the encoders the controller reads, the rows its flash holds
 /// and the angles an artefact session (`suta-session/1`) records.
 pub const SUTA_JOINTS: usize = 6;
@@ -26,8 +28,9 @@ pub enum Convention {
     Classic,
     /// Modified (Craig) DH: Rx(α)·Tx(a)·Rz(θ)·Tz(d), row i holding α_{i−1}, a_{i−1}.
     Modified,
-    /// URDF joint: origin Tx·Ty·Tz·Rz(yaw)·Ry(pitch)·Rx(roll), then a rotation by θ about the
-    /// joint's unit `axis` (the row's d, a, α and β stay zero).
+    /// URDF joint: origin Tx·Ty·Tz·Rz(yaw)·Ry(pitch)·Rx(roll)·exp(ω), then a rotation by θ about
+    /// the joint's unit `axis` (the row's d, a, α and β stay zero). roll, pitch, yaw are the
+    /// nominal orientation; the calibration moves the small rotation ω (see [`Joint::origin_turn_deg`]).
     Urdf,
 }
 
@@ -76,9 +79,18 @@ pub struct Joint {
     /// URDF joint origin translation from the previous joint's frame, millimetres.
     #[serde(default, skip_serializing_if = "is_zero3")]
     pub origin_xyz_mm: [f64; 3],
-    /// URDF joint origin fixed-axis roll, pitch, yaw (R = Rz(yaw)·Ry(pitch)·Rx(roll)), degrees.
+    /// URDF joint origin fixed-axis roll, pitch, yaw (R = Rz(yaw)·Ry(pitch)·Rx(roll)), degrees:
+    /// the nominal orientation, which the calibration never moves.
     #[serde(default, skip_serializing_if = "is_zero3")]
     pub origin_rpy_deg: [f64; 3],
+    /// URDF joint origin's calibrated turn: the rotation vector ω (degrees) of a rotation about
+    /// the nominal origin frame's own axes, applied after roll-pitch-yaw (R = R(rpy)·exp(ω)).
+    /// Roll-pitch-yaw values are gimbal-locked at pitch ±90° (UR's shoulder and wrist): roll and
+    /// yaw then turn about one axis and one direction is lost. A small ω about the nominal frame
+    /// moves every direction equally at any nominal, so these are the free parameters
+    /// (`origin_rx:j`, `origin_ry:j`, `origin_rz:j`); `kincal model to-urdf` folds ω back into rpy.
+    #[serde(default, skip_serializing_if = "is_zero3")]
+    pub origin_turn_deg: [f64; 3],
     /// URDF joint axis (unit vector in the joint frame); DH rows rotate about z.
     #[serde(default = "z_axis", skip_serializing_if = "is_z_axis")]
     pub axis: [f64; 3],
@@ -115,6 +127,7 @@ impl Default for Joint {
             compliance_deg_per_m: 0.0,
             origin_xyz_mm: [0.0; 3],
             origin_rpy_deg: [0.0; 3],
+            origin_turn_deg: [0.0; 3],
             axis: z_axis(),
         }
     }
@@ -125,6 +138,14 @@ fn is_zero(v: &f64) -> bool {
 }
 
 impl Joint {
+    /// The URDF origin's rotation R(rpy)·exp(ω): the nominal roll-pitch-yaw turned by the
+    /// calibrated rotation vector [`Joint::origin_turn_deg`].
+    pub fn origin_rotation(&self) -> Rotation3<f64> {
+        let [roll, pitch, yaw] = self.origin_rpy_deg.map(f64::to_radians);
+        Rotation3::from_euler_angles(roll, pitch, yaw)
+            * Rotation3::new(Vector3::from(self.origin_turn_deg.map(f64::to_radians)))
+    }
+
     /// The field a per-joint parameter lives in (whole-arm parameters map to `offset_deg`,
     /// never asked for by [`ArmModel`]).
     fn slot(&mut self, id: ParamId) -> &mut f64 {
@@ -143,7 +164,7 @@ impl Joint {
             ParamId::Harm4Sin(_) => &mut self.harmonic4_sin_deg,
             ParamId::Harm4Cos(_) => &mut self.harmonic4_cos_deg,
             ParamId::OriginXyz(_, k) => &mut self.origin_xyz_mm[k],
-            ParamId::OriginRpy(_, k) => &mut self.origin_rpy_deg[k],
+            ParamId::OriginTurn(_, k) => &mut self.origin_turn_deg[k],
             ParamId::Offset(_) | ParamId::Tcp(_) | ParamId::Scale => &mut self.offset_deg,
         }
     }
@@ -175,6 +196,12 @@ pub struct ArmModel {
     pub scale_ppm: f64,
     /// Parameters the calibration may move, in file order.
     pub free: Vec<FreeParam>,
+    /// The URDF chain the model was made from (`kincal model from-urdf`), if any: `to-urdf`
+    /// writes the model into that chain only.
+    pub urdf: Option<urdf::UrdfSource>,
+    /// The arm this model is of (calibrated from its sessions); `None` for a nominal, simulated
+    /// or hand-written model.
+    pub arm: Option<crate::trace::ArmIdentity>,
 }
 
 impl ArmModel {

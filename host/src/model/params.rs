@@ -1,4 +1,4 @@
-//! Parameter identifiers: `offset:3`, `length:1`, `twist:5`, `origin_yaw:2`, `tcp.z`, `scale`, …
+//! Parameter identifiers: `offset:3`, `length:1`, `twist:5`, `origin_rz:2`, `tcp.z`, `scale`, …
 
 use std::fmt;
 
@@ -35,8 +35,10 @@ pub enum ParamId {
     Compliance(usize),
     /// `origin_x:j`, `origin_y:j`, `origin_z:j` — URDF joint origin translation (mm), axis 0..3.
     OriginXyz(usize, usize),
-    /// `origin_roll:j`, `origin_pitch:j`, `origin_yaw:j` — URDF joint origin fixed-axis rpy (deg).
-    OriginRpy(usize, usize),
+    /// `origin_rx:j`, `origin_ry:j`, `origin_rz:j` — a small rotation of the URDF joint origin
+    /// about its own nominal x, y, z axes, component k of the rotation vector ω (deg): the origin
+    /// turns by R(rpy)·exp(ω), which has no gimbal lock at any nominal orientation.
+    OriginTurn(usize, usize),
     /// `tcp.x`, `tcp.y`, `tcp.z` — tool centre point in the last frame (mm).
     Tcp(usize),
     /// `scale` — length scale error (ppm).
@@ -64,9 +66,9 @@ const JOINT_KINDS: [&str; 20] = [
     "origin_x",
     "origin_y",
     "origin_z",
-    "origin_roll",
-    "origin_pitch",
-    "origin_yaw",
+    "origin_rx",
+    "origin_ry",
+    "origin_rz",
 ];
 const TCP_SLOT: usize = JOINT_KINDS.len() * super::MAX_JOINTS;
 const TCP_AXES: [&str; 3] = ["x", "y", "z"];
@@ -106,7 +108,7 @@ impl ParamId {
             ParamId::Harm4Sin(j) => (12, j),
             ParamId::Harm4Cos(j) => (13, j),
             ParamId::OriginXyz(j, k) => (14 + k, j),
-            ParamId::OriginRpy(j, k) => (17 + k, j),
+            ParamId::OriginTurn(j, k) => (17 + k, j),
             ParamId::Tcp(_) | ParamId::Scale => return None,
         })
     }
@@ -114,7 +116,7 @@ impl ParamId {
     fn from_joint_kind(kind: usize, j: usize) -> ParamId {
         match kind {
             14..=16 => return ParamId::OriginXyz(j, kind - 14),
-            17..=19 => return ParamId::OriginRpy(j, kind - 17),
+            17..=19 => return ParamId::OriginTurn(j, kind - 17),
             _ => {}
         }
         [
@@ -154,7 +156,7 @@ impl ParamId {
 
     /// True for a URDF joint origin value.
     pub fn is_urdf_geometry(self) -> bool {
-        matches!(self, ParamId::OriginXyz(..) | ParamId::OriginRpy(..))
+        matches!(self, ParamId::OriginXyz(..) | ParamId::OriginTurn(..))
     }
 
     /// The joint (0-based) of a per-joint parameter.
@@ -165,7 +167,7 @@ impl ParamId {
     /// The unit of the parameter's value.
     pub fn unit(self) -> &'static str {
         match self {
-            ParamId::Offset(_) | ParamId::Twist(_) | ParamId::Axis(_) | ParamId::OriginRpy(..) => "deg",
+            ParamId::Offset(_) | ParamId::Twist(_) | ParamId::Axis(_) | ParamId::OriginTurn(..) => "deg",
             ParamId::EccSin(_) | ParamId::EccCos(_) | ParamId::Ecc2Sin(_) | ParamId::Ecc2Cos(_) => "deg",
             ParamId::Harm3Sin(_) | ParamId::Harm3Cos(_) | ParamId::Harm4Sin(_) | ParamId::Harm4Cos(_) => {
                 "deg"

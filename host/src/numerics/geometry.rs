@@ -28,6 +28,22 @@ pub fn absolute_orientation(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> (Matrix3<
     (r, cb - r * ca)
 }
 
+/// The left Jacobian of SO(3) at the rotation vector φ (rad): exp(φ + δ) = exp(J_l(φ)·δ)·exp(φ)
+/// to first order in δ, J_l(φ) = I + (1 − cos θ)/θ²·\[φ\]× + (θ − sin θ)/θ³·\[φ\]×², θ = ‖φ‖ (the
+/// identity at φ = 0). The right Jacobian, exp(φ + δ) = exp(φ)·exp(J_r(φ)·δ), is its transpose.
+pub fn left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
+    let theta = phi.norm();
+    let k = phi.cross_matrix();
+    let (a, b) = if theta < 1e-4 {
+        // The series, exact to rounding below 1e-4 rad.
+        let t2 = theta * theta;
+        (0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0)
+    } else {
+        ((1.0 - theta.cos()) / (theta * theta), (theta - theta.sin()) / (theta * theta * theta))
+    };
+    Matrix3::identity() + k * a + k * k * b
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -6,7 +6,10 @@
 //! (H + λ·diag H) s = −g on the variables not held by an active bound, where
 //! g = Σ ρ′(r_i) r_i ∇r_i and H = Σ w_i ∇r_i ∇r_iᵀ with IRLS weights w_i = ρ′(r_i)/r_i·r_i;
 //! the step is projected onto the bounds and accepted on a positive gain ratio
-//! (Nielsen's update of λ).
+//! (Nielsen's update of λ). It stops on Ceres' tests ([`Termination::Ceres`]): the projected
+//! gradient (gradient tolerance), a step too short to matter, checked before its point is
+//! evaluated (parameter tolerance), or a step that changes the cost by too little either way
+//! (function tolerance).
 
 use nalgebra::{DMatrix, DVector};
 
@@ -78,12 +81,37 @@ pub struct SolverOptions {
     pub xtol: f64,
     /// Stop when the projected gradient's largest entry is below `gtol`.
     pub gtol: f64,
+    /// Which steps the cost and step tests apply to.
+    pub termination: Termination,
 }
 
 impl Default for SolverOptions {
     fn default() -> Self {
-        SolverOptions { loss: Loss::Linear, max_iterations: 200, ftol: 1e-12, xtol: 1e-12, gtol: 1e-10 }
+        SolverOptions {
+            loss: Loss::Linear,
+            max_iterations: 200,
+            ftol: 1e-12,
+            xtol: 1e-12,
+            gtol: 1e-10,
+            termination: Termination::Ceres,
+        }
     }
+}
+
+/// Which steps end a solve besides the gradient test.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Termination {
+    /// Ceres' tests: a step shorter than `xtol`·(‖x‖ + `xtol`) ends the solve before its point is
+    /// evaluated (parameter tolerance), and a step that changes the cost by less than
+    /// `ftol`·cost, lower or higher, ends it (function tolerance; taken when it lowers the cost).
+    /// A solve near its minimum stops at its first negligible step instead of shrinking the trust
+    /// region step after step.
+    Ceres,
+    /// Only accepted steps end a solve, by a fall of the cost below `ftol`·cost or a length
+    /// below `xtol`·(‖x‖ + `xtol`); rejected steps shrink the trust region until one is accepted.
+    /// Kept by the simulator's inverse kinematics and the haptic fits, whose results were
+    /// generated with it.
+    AcceptedSteps,
 }
 
 /// Why the solver stopped.
@@ -124,27 +152,14 @@ pub fn normal_equations(
     weights: &[f64],
     n: usize,
 ) -> (DMatrix<f64>, DVector<f64>) {
-    let mut h = DMatrix::zeros(n, n);
-    let mut g = DVector::zeros(n);
-    for (i, row) in jacobian.chunks_exact(n).enumerate() {
-        let w = weights[i];
-        for a in 0..n {
-            let wa = w * row[a];
-            if wa == 0.0 {
-                continue;
-            }
-            g[a] += wa * r[i];
-            for b in a..n {
-                h[(a, b)] += wa * row[b];
-            }
-        }
-    }
-    for a in 0..n {
-        for b in 0..a {
-            h[(a, b)] = h[(b, a)];
-        }
-    }
-    (h, g)
+    let (mut upper, mut g) = (vec![0.0; n * n], vec![0.0; n]);
+    crate::numerics::normal::add_gram(&mut upper, &mut g, n, &jacobian[..r.len() * n], weights, r);
+    (symmetric(n, &upper), DVector::from_vec(g))
+}
+
+/// The symmetric n × n matrix whose upper triangle is `upper` (row-major).
+pub fn symmetric(n: usize, upper: &[f64]) -> DMatrix<f64> {
+    DMatrix::from_fn(n, n, |a, b| upper[a.min(b) * n + a.max(b)])
 }
 
 /// Minimise Σρ(r(x)) over lower ≤ x ≤ upper from `x0` (clamped into the bounds first).
@@ -163,8 +178,10 @@ pub fn solve(
             x[i] = x[i].clamp(lower[i], upper[i]);
         }
     };
+    let ceres = options.termination == Termination::Ceres;
     let mut x = x0.to_vec();
     clamp(&mut x);
+    // The residuals at x, always (a step taken swaps in its point's).
     let mut r = vec![0.0; m];
     let (mut h, mut g) = problem.normal_equations(&x, &mut r, loss);
     let mut cost = loss.cost(&r);
@@ -214,14 +231,26 @@ pub fn solve(
         }
         clamp(&mut trial);
         let s = DVector::from_iterator(n, trial.iter().zip(&x).map(|(t, v)| t - v));
+        let x_norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let short = s.norm() < options.xtol * (x_norm + options.xtol);
+        if ceres && short {
+            break StopReason::StepConverged;
+        }
         let predicted = -(g.dot(&s) + 0.5 * s.dot(&(&h * &s)));
         problem.evaluate(&trial, &mut r_trial, None);
         let trial_cost = loss.cost(&r_trial);
         let actual = cost - trial_cost;
+        if ceres && actual.abs() < options.ftol * cost {
+            if actual > 0.0 {
+                x.copy_from_slice(&trial);
+                std::mem::swap(&mut r, &mut r_trial);
+            }
+            break StopReason::CostConverged;
+        }
         if actual > 0.0 && predicted > 0.0 {
             let ratio = actual / predicted;
-            let x_norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
             x.copy_from_slice(&trial);
+            std::mem::swap(&mut r, &mut r_trial);
             cost = trial_cost;
             lambda *= (1.0_f64 / 3.0).max(1.0 - (2.0 * ratio - 1.0).powi(3));
             nu = 2.0;
@@ -229,7 +258,7 @@ pub fn solve(
             if actual < options.ftol * cost {
                 break StopReason::CostConverged;
             }
-            if s.norm() < options.xtol * (x_norm + options.xtol) {
+            if short {
                 break StopReason::StepConverged;
             }
         } else {
@@ -240,7 +269,10 @@ pub fn solve(
             }
         }
     };
-    problem.evaluate(&x, &mut r, None);
+    if !ceres {
+        // Evaluated again as these results were generated (the same values).
+        problem.evaluate(&x, &mut r, None);
+    }
     Solution { cost: loss.cost(&r), x, residuals: r, iterations, stop }
 }
 

@@ -1,9 +1,11 @@
-//! `kincal compare`: two runs side by side.
+//! `kincal compare`: two runs side by side, the held-out test of the second against the first
+//! first.
 
 use super::svg::{self, escape};
-use super::{page, table};
-use crate::calib::run::{RunFolder, StoredPairError, Summary};
-use crate::files::FileError;
+use super::{mm, page, table};
+use crate::calib::diagnose::compare::Comparison;
+use crate::calib::summary::{StoredPairError, Summary, ValidationDetail};
+use crate::calib::validate::ErrorStats;
 use std::fmt::Write;
 
 /// One side of a comparison: what a RUN folder's typed files hold.
@@ -12,83 +14,127 @@ pub struct ComparedRun {
     pub name: String,
     /// Its `summary.json`.
     pub summary: Summary,
-    /// Its `residuals.json`.
+    /// Its `residuals.json` (empty without held-out distances).
     pub residuals: Vec<StoredPairError>,
 }
 
 impl ComparedRun {
-    /// Read the typed files of a RUN folder.
-    pub fn load(dir: &std::path::Path) -> Result<ComparedRun, FileError> {
-        let folder = RunFolder::load(dir)?;
-        let residuals = folder.residuals()?;
-        Ok(ComparedRun { name: dir.display().to_string(), summary: folder.summary, residuals })
-    }
-}
-
-/// Two runs side by side.
-pub struct Comparison {
-    runs: [ComparedRun; 2],
-}
-
-impl Comparison {
-    /// Compare `before` with `after`.
-    pub fn new(before: ComparedRun, after: ComparedRun) -> Comparison {
-        Comparison { runs: [before, after] }
+    /// The held-out distances' figures (none without artefact placements held out).
+    fn distances(&self) -> Option<(ErrorStats, &ValidationDetail)> {
+        self.summary.validation.distances.as_ref().map(|d| (d.calibrated, &d.detail))
     }
 
-    fn stats(&self, k: usize) -> [(&'static str, f64); 4] {
-        let v = &self.runs[k].summary.validation;
-        [("rms_mm", v.rms_mm), ("mean_mm", v.mean_mm), ("std_mm", v.std_mm), ("max_mm", v.max_mm)]
-    }
-
-    /// The printed comparison table.
-    pub fn table_lines(&self) -> Vec<String> {
-        let mut lines = vec![format!("{:<24} {:>12} {:>12}", "validation", "before", "after")];
-        for ((key, a), (_, b)) in self.stats(0).into_iter().zip(self.stats(1)) {
-            lines.push(format!("{key:<24} {a:>12.4} {b:>12.4}"));
-        }
-        let effects = |k: usize| self.runs[k].summary.options.added_effects.join(", ");
-        lines.push(format!("{:<24} {:>12} {:>12}", "added effects", effects(0), effects(1)));
-        let figure = |v: f64| if v.is_finite() { format!("{v:.4}") } else { "–".into() };
-        for (l, (a, b)) in self.per_landmark() {
-            lines.push(format!("  landmark {:<14} {:>12} {:>12}", l, figure(a), figure(b)));
-        }
-        lines
-    }
-
-    /// Per landmark: validation RMS before and after (NaN when the landmark is missing after).
-    fn per_landmark(&self) -> Vec<(String, (f64, f64))> {
-        let [before, after] = &self.runs;
-        let after = &after.summary.validation_detail.per_landmark;
-        before
-            .summary
-            .validation_detail
-            .per_landmark
+    /// A held-out session's frame-free pairwise-distance RMS, mm.
+    fn pairwise_mm(&self, session: &str) -> Option<f64> {
+        self.summary
+            .held_out_sessions()
             .iter()
-            .map(|g| {
-                let y = after.iter().find(|h| h.name == g.name).map_or(f64::NAN, |h| h.stats.rms_mm);
-                (g.name.clone(), (g.stats.rms_mm, y))
-            })
-            .collect()
+            .find(|f| f.calibrated.name == session)
+            .map(|f| f.calibrated.pairwise_rms_mm)
     }
+}
 
-    /// The side-by-side page.
-    pub fn html(&self) -> String {
-        let mut body = String::new();
-        let rows: Vec<Vec<String>> = self
-            .stats(0)
-            .into_iter()
-            .zip(self.stats(1))
-            .map(|((k, a), (_, b))| vec![k.to_string(), format!("{a:.4}"), format!("{b:.4}")])
-            .collect();
-        let _ = write!(
-            body,
-            "<p>Before: {}<br>After: {}</p>{}",
-            escape(&self.runs[0].name),
-            escape(&self.runs[1].name),
-            table(&["validation", "before", "after"], &rows)
-        );
-        let lm = self.per_landmark();
+/// Per landmark: held-out RMS before and after (NaN where the landmark is missing after).
+fn per_landmark(runs: &[ComparedRun; 2]) -> Vec<(String, (f64, f64))> {
+    let (Some((_, before)), Some((_, after))) = (runs[0].distances(), runs[1].distances()) else {
+        return Vec::new();
+    };
+    before
+        .per_landmark
+        .iter()
+        .map(|g| {
+            let y = after.per_landmark.iter().find(|h| h.name == g.name).map_or(f64::NAN, |h| h.stats.rms_mm);
+            (g.name.clone(), (g.stats.rms_mm, y))
+        })
+        .collect()
+}
+
+/// The comparison's verdict and the next command.
+fn verdict_lines(c: &Comparison, runs: &[ComparedRun; 2]) -> Vec<String> {
+    let mut lines = c.verdict.clone();
+    lines.push(format!(
+        "next: kincal diagnose {} says what the second run still misses",
+        super::run::shell_word(std::path::Path::new(&runs[1].name))
+    ));
+    lines
+}
+
+/// The printed comparison: the verdict, each held-out group, then (held-out distances) the runs'
+/// statistics and each landmark.
+pub fn compare_lines(c: &Comparison, runs: &[ComparedRun; 2]) -> Vec<String> {
+    let figure = |v: Option<f64>| v.filter(|v| v.is_finite()).map_or("–".into(), |v| format!("{v:.4}"));
+    let mut lines = verdict_lines(c, runs);
+    lines.push(format!(
+        "  {:<22} {:>7} {:>12} {:>12} {:>14} {:>14}",
+        "held-out group", "errors", "(1) RMS mm", "(2) RMS mm", "(1) pairwise", "(2) pairwise"
+    ));
+    for g in &c.groups {
+        lines.push(format!(
+            "  {:<22} {:>7} {:>12.4} {:>12.4} {:>14} {:>14}",
+            g.name,
+            g.count,
+            g.before_rms_mm,
+            g.after_rms_mm,
+            figure(runs[0].pairwise_mm(&g.name)),
+            figure(runs[1].pairwise_mm(&g.name))
+        ));
+    }
+    lines.push(format!(
+        "  {:<22} {:>7} {:>12.4} {:>12.4}",
+        "all",
+        c.groups.iter().map(|g| g.count).sum::<usize>(),
+        c.before_rms_mm,
+        c.after_rms_mm
+    ));
+    if let (Some((a, _)), Some((b, _))) = (runs[0].distances(), runs[1].distances()) {
+        lines.push(format!("{:<24} {:>12} {:>12}", "validation", "before", "after"));
+        for (key, x, y) in [
+            ("RMS mm", a.rms_mm, b.rms_mm),
+            ("mean mm", a.mean_mm, b.mean_mm),
+            ("standard deviation mm", a.std_mm, b.std_mm),
+            ("largest mm", a.max_mm, b.max_mm),
+        ] {
+            lines.push(format!("{key:<24} {x:>12.4} {y:>12.4}"));
+        }
+    }
+    let effects = |k: usize| runs[k].summary.inputs.add.join(", ");
+    lines.push(format!("{:<24} {:>12} {:>12}", "added effects", effects(0), effects(1)));
+    for (l, (a, b)) in per_landmark(runs) {
+        lines.push(format!("  landmark {:<14} {:>12} {:>12}", l, figure(Some(a)), figure(Some(b))));
+    }
+    lines
+}
+
+/// The side-by-side page.
+pub fn compare_report(c: &Comparison, runs: &[ComparedRun; 2]) -> String {
+    let rows: Vec<Vec<String>> = c
+        .groups
+        .iter()
+        .map(|g| vec![escape(&g.name), g.count.to_string(), mm(g.before_rms_mm), mm(g.after_rms_mm)])
+        .collect();
+    let bars: Vec<(String, f64, bool)> = c
+        .groups
+        .iter()
+        .flat_map(|g| {
+            [
+                // Before in orange and after in blue, as in the page's other plots.
+                (format!("{} (1)", g.name), g.before_rms_mm, true),
+                (format!("{} (2)", g.name), g.after_rms_mm, false),
+            ]
+        })
+        .collect();
+    let references: Vec<(&str, f64)> =
+        c.floors_mm.1.map(|f| ("floor of the second run", f)).into_iter().collect();
+    let mut body = format!(
+        "<p>(1) {}<br>(2) {}</p><h2>Verdict</h2><ul>{}</ul><figure>{}<figcaption>held-out RMS per group (each held-out frame refitted)</figcaption></figure>{}",
+        escape(&runs[0].name),
+        escape(&runs[1].name),
+        verdict_lines(c, runs).iter().map(|l| format!("<li>{}</li>", escape(l))).collect::<String>(),
+        svg::hbars(&bars, &references, "held-out RMS (mm)"),
+        table(&["held-out group", "errors", "RMS mm (1)", "RMS mm (2)"], &rows)
+    );
+    let lm = per_landmark(runs);
+    if !lm.is_empty() {
         let names: Vec<String> = lm.iter().map(|l| l.0.clone()).collect();
         let _ = write!(
             body,
@@ -102,29 +148,39 @@ impl Comparison {
                 "RMS (mm)"
             )
         );
-        let errors = |k: usize| self.runs[k].residuals.iter().map(|e| e.error_mm).collect::<Vec<f64>>();
-        let (a, b) = (errors(0), errors(1));
+    }
+    let errors = |k: usize| runs[k].residuals.iter().map(|e| e.error_mm).collect::<Vec<f64>>();
+    let (a, b) = (errors(0), errors(1));
+    if !a.is_empty() || !b.is_empty() {
         let _ = write!(
             body,
             "<h3>Distance errors</h3>{}",
             svg::histogram(&[("before", &a), ("after", &b)], 40, "distance error (mm)")
         );
         body.push_str("<h3>Residuals against each joint angle: before (left), after (right)</h3>");
-        for j in 0..crate::model::SUTA_JOINTS {
-            for k in 0..2 {
-                let pts: Vec<(f64, f64)> = self.runs[k]
-                    .residuals
-                    .iter()
-                    .flat_map(|e| [(e.enc_deg.0[j], e.error_mm), (e.enc_deg.1[j], e.error_mm)])
-                    .collect();
+        let joints = runs[0].residuals.first().map_or(0, |e| e.enc_deg.0.len());
+        for j in 0..joints {
+            let pts: Vec<Vec<(f64, f64)>> = runs
+                .iter()
+                .map(|run| {
+                    run.residuals
+                        .iter()
+                        .flat_map(|e| [(e.enc_deg.0[j], e.error_mm), (e.enc_deg.1[j], e.error_mm)])
+                        .collect()
+                })
+                .collect();
+            // One y axis for before and after, so the fall is seen, not rescaled away.
+            let ys: Vec<f64> = pts.iter().flatten().map(|p| p.1).collect();
+            let y = svg::robust_range(&ys);
+            for run_pts in &pts {
                 let _ = write!(
                     body,
                     "<figure>{}</figure>",
-                    svg::scatter(&pts, &[], &format!("encoder {} (deg)", j + 1), "error (mm)")
+                    svg::scatter_on(run_pts, &[], &format!("encoder {} (deg)", j + 1), "error (mm)", y)
                 );
             }
             body.push_str("<br>");
         }
-        page("kincal compare", &body)
     }
+    page("kincal compare", &body)
 }

@@ -3,11 +3,39 @@
 
 use super::svg::{self, escape};
 use super::{page, table};
+use crate::haptic::pipeline::HapticCalibration;
 use std::fmt::Write;
+use std::path::Path;
+
+/// The verdict of a haptic calibration written into `dir`: the held-out position error against
+/// the tracker's noise at the tip (the pivot residual), and the next step.
+pub fn verdict_lines(c: &HapticCalibration, dir: &Path) -> Vec<String> {
+    let (after, noise) = (c.position_mm.after, c.tip_mm.1);
+    let ratio = after / noise;
+    let times = if !ratio.is_finite() {
+        "against an unknown tracker noise".to_string()
+    } else if ratio > 100.0 {
+        format!("more than 100× the tracker's noise at the tip ({noise:.3} mm, pivot residual)")
+    } else {
+        format!("≈ {ratio:.1}× the tracker's noise at the tip ({noise:.3} mm, pivot residual)")
+    };
+    let judged = if ratio.is_finite() && ratio <= 1.5 {
+        "what remains is about the tracker's own noise"
+    } else {
+        "the device model leaves an error the tracker's noise does not explain: the maps below show where"
+    };
+    vec![
+        format!("position error {after:.3} mm RMS on held-out samples (from {:.3} mm), {times}: {judged}", c.position_mm.before),
+        format!(
+            "next: the calibration (sensor models, delay, device → tracker) is in {}; calibrating a new recording the same way checks that it holds",
+            dir.join("summary.json").display()
+        ),
+    ]
+}
 
 /// The report of a haptic calibration (or of a refused one: the failing step and what was
-/// computed up to it).
-pub fn haptic_report(summary: &crate::haptic::pipeline::HapticSummary) -> String {
+/// computed up to it) written into `dir`.
+pub fn haptic_report(summary: &crate::haptic::pipeline::HapticSummary, dir: &Path) -> String {
     use crate::haptic::report_data::Cell;
     let mut body = String::new();
     if let Some(f) = &summary.failure {
@@ -77,11 +105,16 @@ pub fn haptic_report(summary: &crate::haptic::pipeline::HapticSummary) -> String
     ];
     let _ = write!(
         body,
-        "<p>Delay of the tracker behind the device: {:.2} ms (rounds: {}; peak correlation {:.4}). Gimbal sensor model: {:?} (held-out axis error linear {:.3}°, quadratic {:.3}°). Errors on {} held-out samples. Start of the joint calibration: {} (held-out residual: landmark {}, pose-based {:.3} mm{}). Wild tracker samples rejected: {}; occlusion gaps: {}. Tracker noise at the HIP (pivot RMS): {:.3} mm. Joint convention: <code>{}</code>.</p>{}",
+        "<h2>Verdict</h2><ul>{}</ul>",
+        verdict_lines(c, dir).iter().map(|l| format!("<li>{}</li>", escape(l))).collect::<String>()
+    );
+    let _ = write!(
+        body,
+        "<p>Delay of the tracker behind the device: {:.2} ms (rounds: {}; peak correlation {:.4}). Gimbal sensor model: {} (held-out axis error linear {:.3}°, quadratic {:.3}°). Errors on {} held-out samples. Start of the joint calibration: {} (held-out residual: landmark {}, pose-based {:.3} mm{}). Wild tracker samples rejected: {}; occlusion gaps: {}. Tracker noise at the HIP (pivot RMS): {:.3} mm. Joint convention: <code>{}</code>.</p>{}",
         c.delay_ms,
         c.delay_rounds_ms.iter().map(|d| format!("{d:.3}")).collect::<Vec<_>>().join(" → "),
         c.delay_correlation,
-        c.gimbal_model,
+        c.gimbal_model.words(),
         c.gimbal_held_out_deg.0,
         c.gimbal_held_out_deg.1,
         c.held_out,

@@ -1,15 +1,15 @@
 //! The HTML pages a person opens: one file per report, plots in [`svg`]. Reports read results and
 //! never recompute them.
 
-pub mod auto_loop;
-pub mod calibration;
+pub mod auto;
+pub mod certificate;
 pub mod compare;
 pub mod diagnosis;
+pub mod dynamic;
 pub mod haptic;
+pub mod run;
 pub mod study;
 pub mod svg;
-pub mod tracker;
-pub mod tracker_diagnosis;
 
 use std::fmt::Write;
 use svg::escape;

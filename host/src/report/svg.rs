@@ -235,7 +235,7 @@ pub fn bars(categories: &[String], series: &[(&str, Vec<f64>)], y_label: &str) -
 
 /// Robust axis range of `values`: the 2nd to 98th percentile widened by half its span, never
 /// beyond the data. Points outside are drawn at the edge and counted.
-fn robust_range(values: &[f64]) -> (f64, f64) {
+pub(crate) fn robust_range(values: &[f64]) -> (f64, f64) {
     let mut v: Vec<f64> = values.iter().copied().filter(|x| x.abs() <= PLOTTABLE).collect();
     if v.is_empty() {
         return (f64::INFINITY, f64::NEG_INFINITY);
@@ -251,9 +251,19 @@ fn robust_range(values: &[f64]) -> (f64, f64) {
 /// few far points (a touch near a singularity) are drawn as triangles at the edge, and the plot
 /// says how many.
 pub fn scatter(points: &[(f64, f64)], curve: &[(f64, f64)], x_label: &str, y_label: &str) -> String {
-    let (x0, x1) = range(points.iter().map(|p| p.0));
     let ys: Vec<f64> = points.iter().chain(curve).map(|p| p.1).collect();
-    let (y0, y1) = robust_range(&ys);
+    scatter_on(points, curve, x_label, y_label, robust_range(&ys))
+}
+
+/// [`scatter`] on a given y axis `(y0, y1)`, so that plots side by side share it.
+pub fn scatter_on(
+    points: &[(f64, f64)],
+    curve: &[(f64, f64)],
+    x_label: &str,
+    y_label: &str,
+    (y0, y1): (f64, f64),
+) -> String {
+    let (x0, x1) = range(points.iter().map(|p| p.0));
     if !x0.is_finite() || !y0.is_finite() {
         return String::new();
     }
@@ -319,6 +329,43 @@ pub fn scatter(points: &[(f64, f64)], curve: &[(f64, f64)], x_label: &str, y_lab
             if beyond == 1 { "" } else { "s" }
         );
     }
+    out + "</svg>"
+}
+
+/// A wide time plot: each series' points in its colour, over thin vertical marks (events such
+/// as direction changes); the y axis from zero.
+pub fn timeline(series: &[(&str, &[(f64, f64)])], marks: &[f64], x_label: &str, y_label: &str) -> String {
+    let all = || series.iter().flat_map(|(_, p)| p.iter());
+    let (x0, x1) = range(all().map(|p| p.0));
+    let ys: Vec<f64> = all().map(|p| p.1).collect();
+    let (_, y1) = robust_range(&ys);
+    if !x0.is_finite() || !y1.is_finite() {
+        return String::new();
+    }
+    let frame = Frame::new(940.0, 240.0, (x0, x1), (0.0, y1));
+    let mut out = String::new();
+    frame.open(&mut out, x_label, y_label, true);
+    for &m in marks.iter().filter(|m| (frame.x.0..=frame.x.1).contains(*m)) {
+        let _ = write!(
+            out,
+            r##"<line x1="{x:.1}" x2="{x:.1}" y1="{}" y2="{}" stroke="#bbb" stroke-dasharray="3,3"/>"##,
+            frame.py(frame.y.1),
+            frame.py(frame.y.0),
+            x = frame.px(m)
+        );
+    }
+    for (k, (_, points)) in series.iter().enumerate() {
+        for (x, y) in points.iter() {
+            let _ = write!(
+                out,
+                r#"<circle cx="{:.1}" cy="{:.1}" r="1.6" fill="{}" fill-opacity="0.6"/>"#,
+                frame.px(*x),
+                frame.py(y.clamp(frame.y.0, frame.y.1)),
+                COLORS[k % COLORS.len()]
+            );
+        }
+    }
+    legend(&mut out, &frame, &series.iter().map(|s| s.0).collect::<Vec<_>>());
     out + "</svg>"
 }
 

@@ -3,8 +3,8 @@
 //! * one calibration of a thesis-sized problem (5 placements × 15 landmarks × 3 repeats,
 //!   13 parameters, 8 random restarts, solved in parallel);
 //! * the 1000-calibration dataset-size study on every core;
-//! * SciPy `least_squares(method='trf', loss='huber')` on the same problem from the same start
-//!   (`bench/scipy_peer.py`), with the cost and time ratio;
+//! * kincal beside Ceres and SciPy on the same problems, with the limit of this machine
+//!   (`bench_peers.rs`; `--peers` runs only that, `--peers-check` only their agreement);
 //! * `kincal calibrate` as a whole (load, calibrate, validate, outliers with warm-started
 //!   leave-one-out refits, report, write RUN/) on the thesis-sized data;
 //! * `kincal diagnose --auto` on a mixture of four hidden effects;
@@ -13,11 +13,12 @@
 //! `kincal bench --plan` runs only the check of `kincal plan` on simulated data (see
 //! [`plan_benchmark`]).
 
-use anyhow::{Context, Result};
-use kincal::calib::calibrate::{calibrate, CalibrationOptions};
-use kincal::calib::peer::{run_peer, thesis_sized_problem, write_peer_problem};
+use anyhow::Result;
+use kincal::calib::fit::calibrate;
+use kincal::calib::peer::thesis_sized_problem;
+use kincal::calib::setup::{Setup, SolveOptions};
 use kincal::calib::study::{study, StudyOptions};
-use kincal::data::Dataset;
+use kincal::data::Observations;
 use kincal::model::ParamId;
 use kincal::numerics::stats::median;
 use kincal::simulate::{simulate, SimulationOptions};
@@ -38,6 +39,15 @@ pub struct BenchArgs {
     /// Skip the SciPy peer.
     #[arg(long)]
     pub no_scipy: bool,
+    /// Only kincal beside Ceres and SciPy on the same problems, with the limit of this machine.
+    #[arg(long)]
+    pub peers: bool,
+    /// Only check that kincal and Ceres reach the same cost on small instances (untimed).
+    #[arg(long)]
+    pub peers_check: bool,
+    /// Keep the peers' problem files in this folder (to run the peers again by hand).
+    #[arg(long, value_name = "DIR")]
+    pub peer_problems: Option<std::path::PathBuf>,
     /// Only the whole `kincal calibrate` process on thesis-sized data, with its parts.
     #[arg(long)]
     pub calibrate_only: bool,
@@ -80,11 +90,11 @@ fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
     println!("  a data error:             {}", Rate::of(&calls, |c| c.data_error));
     println!("  a knock or mis-seated:    {}", Rate::of(&calls, |c| c.knock));
     println!("  \"misses\" (gap test):      {}", Rate::of(&calls, |c| c.misses));
-    let gaps: Vec<_> = clean.iter().filter_map(|c| c.1.gap.clone()).collect();
+    let gaps: Vec<_> = clean.iter().filter_map(|c| c.1.floor.gap.clone()).collect();
     println!("  \"at the floor\" shown:     {}; otherwise \"cannot tell\"", Rate::of(&gaps, |g| g.at_floor));
     // The effects identifiable next to the thesis model (from the first clean run).
     let Some((_, first)) = clean.first() else { return Ok(()) };
-    let effects: Vec<Effect> = first.candidates.iter().filter_map(|c| Effect::parse(&c.effect)).collect();
+    let effects: Vec<Effect> = first.candidates.iter().filter_map(|c| Effect::parse(&c.name)).collect();
     println!("power: each of {} identifiable library effects hidden alone, {power_seeds} seeds each (named first, or among rivals the data cannot tell apart, or exactly equivalent):", effects.len());
     let t = Instant::now();
     let mut all = Vec::new();
@@ -94,10 +104,10 @@ fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
             .map(|k| simulate_and_diagnose(2000 + k, hidden_for(effect)))
             .collect::<Result<_, _>>()?;
         let named = Rate::of(&runs, |d| names(d, effect));
-        let misses = Rate::of(&runs, |d| d.gap.as_ref().is_some_and(|g| g.significant));
+        let misses = Rate::of(&runs, |d| d.floor.gap.as_ref().is_some_and(|g| g.significant));
         let lift = runs
             .iter()
-            .map(|d| d.gap.as_ref().map_or(f64::NAN, |g| g.measured_mm / g.expected_mm))
+            .map(|d| d.floor.gap.as_ref().map_or(f64::NAN, |g| g.measured_mm / g.expected_mm))
             .sum::<f64>()
             / runs.len().max(1) as f64;
         let wrong: Vec<String> = runs
@@ -115,7 +125,9 @@ fn diagnosis_checks(seeds: usize, power_seeds: usize) -> Result<()> {
             misses.runs,
             if wrong.is_empty() { String::new() } else { format!("; otherwise {}", wrong.join(", ")) }
         );
-        all.extend(runs.iter().map(|d| (names(d, effect), d.gap.as_ref().is_some_and(|g| g.significant))));
+        all.extend(
+            runs.iter().map(|d| (names(d, effect), d.floor.gap.as_ref().is_some_and(|g| g.significant))),
+        );
     }
     println!("  all effects together: {} ({:.0} s)", Rate::of(&all, |n| n.0), t.elapsed().as_secs_f64());
     println!("  gap test \"misses\" with an effect hidden: {}", Rate::of(&all, |n| n.1));
@@ -210,7 +222,8 @@ fn plan_benchmark(seeds: u64) -> Result<()> {
 /// simulated placements, 20 repeats each, copied under new names with fresh encoder noise until
 /// the count is reached), and print the times beside the thesis-sized ones.
 fn scale_benchmark(touches: usize) -> Result<()> {
-    use kincal::calib::run::{run, RunInputs};
+    use kincal::calib::run::run;
+    use kincal::calib::summary::RunInputs;
     use rand::SeedableRng;
     use rand_distr::Distribution;
     let model = kincal::model::ArmModel::suta_nominal();
@@ -254,29 +267,38 @@ fn scale_benchmark(touches: usize) -> Result<()> {
         model.save(&folder.join("model.toml"))?;
         let inputs = RunInputs::new(
             folder.join("model.toml"),
-            folder.join("artefact.json"),
+            Some(folder.join("artefact.json")),
             folder.join("cal"),
             folder.join("val"),
         );
-        let options = CalibrationOptions::default();
+        let options = SolveOptions::default();
         let t = Instant::now();
-        let result = run(&inputs, &options, &[], 0, true)?;
+        let result = run(&inputs, &options, 0, true)?;
         let run_s = t.elapsed().as_secs_f64();
         let s = &result.summary;
         let (cal, val) = (
-            Dataset::load_dir(&inputs.calibration, &result.artefact, kincal::data::Purpose::Calibration)?,
+            Observations::load_artefact_dir(
+                &inputs.calibration,
+                &sim.artefact,
+                kincal::data::Purpose::Calibration,
+            )?,
             &result.validation_data,
         );
         let t = Instant::now();
-        kincal::calib::diagnose::diagnose(&result.calibration.model, &result.artefact, &cal, val, &options);
+        kincal::calib::diagnose::diagnose(
+            &Setup::new(options.clone()),
+            &result.calibration.model,
+            &cal,
+            val,
+        )?;
         let diagnose_s = t.elapsed().as_secs_f64();
         println!(
             "calibrate from files, {:>6} touches in {:>4} placements ({:>7} pairs): {run_s:6.2} s ({:.0} touches/s); diagnose {diagnose_s:6.2} s; validation RMS {:.3} mm",
-            s.calibration.touches,
-            cal.placements.len(),
+            s.calibration.observations,
+            cal.groups.len(),
             s.calibration.pairs,
-            s.calibration.touches as f64 / run_s,
-            s.validation.rms_mm
+            s.calibration.observations as f64 / run_s,
+            s.held_out_rms_mm()
         );
     }
     std::fs::remove_dir_all(&dir).ok();
@@ -294,24 +316,29 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     if args.diagnosis_seeds > 0 {
         return diagnosis_checks(args.diagnosis_seeds, args.power_seeds);
     }
-    crate::bench_tracker::tracker_benchmark(&args.python, !args.no_scipy)?;
+    if args.peers_check {
+        return crate::bench_peers::peers_check(args);
+    }
+    if args.peers {
+        return crate::bench_peers::peers_benchmark(args);
+    }
+    crate::bench_tracker::tracker_benchmark()?;
     if args.tracker_only {
         return Ok(());
     }
     let (nominal, sim) = thesis_sized_problem(1);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let options = CalibrationOptions::default();
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+    let options = SolveOptions::default();
     if args.calibrate_only {
         println!("{}", whole_calibration(&sim, &options)?);
         return Ok(());
     }
-    println!("thesis-sized problem: {} placements, {} touches, {} pairs, {} free parameters, {} restarts + nominal start", cal.placements.len(), cal.touches.len(), cal.touch_pairs().len(), nominal.free.len(), options.restarts);
+    println!("thesis-sized problem: {} placements, {} touches, {} pairs, {} free parameters, {} restarts + nominal start", cal.groups.len(), cal.obs.len(), cal.landmark_pairs().len(), nominal.free.len(), options.resolve(&cal).restarts);
     let mut times = Vec::new();
-    let mut fit = None;
     for _ in 0..args.repeats.max(1) {
         let t = Instant::now();
-        fit = Some(calibrate(&nominal, &sim.artefact, &cal, &options)?);
+        calibrate(&nominal, &cal, &options)?;
         times.push(t.elapsed().as_secs_f64() * 1e3);
     }
     let single_ms = median(times.clone());
@@ -319,11 +346,11 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     let study_options = StudyOptions {
         subsets: args.study_subsets,
         seed: 1,
-        calibration: CalibrationOptions { restarts: 0, ..options },
+        setup: Setup::new(SolveOptions { restarts: Some(0), ..options.clone() }),
         progress: false,
     };
     let t = Instant::now();
-    let rows = study(&nominal, &sim.artefact, &cal, &val, &study_options);
+    let rows = study(&nominal, &cal, &val, &study_options);
     let study_s = t.elapsed().as_secs_f64();
     let count: usize = rows.iter().map(|r| r.calibrations + r.failed).sum();
     println!(
@@ -337,13 +364,13 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     };
     let sim_hidden = simulate(&nominal, &hidden);
     let (cal_h, val_h) = (
-        Dataset::from_sessions(&sim_hidden.calibration, &sim_hidden.artefact),
-        Dataset::from_sessions(&sim_hidden.validation, &sim_hidden.artefact),
+        Observations::from_sessions(&sim_hidden.calibration, &sim_hidden.artefact),
+        Observations::from_sessions(&sim_hidden.validation, &sim_hidden.artefact),
     );
-    let fit_h = calibrate(&nominal, &sim_hidden.artefact, &cal_h, &options)?;
+    let fit_h = calibrate(&nominal, &cal_h, &options)?;
     let t = Instant::now();
     let diagnosis =
-        kincal::calib::diagnose::diagnose(&fit_h.model, &sim_hidden.artefact, &cal_h, &val_h, &options);
+        kincal::calib::diagnose::diagnose(&Setup::new(options.clone()), &fit_h.model, &cal_h, &val_h)?;
     println!("diagnose, whole library ({} candidates scored, {} not identifiable), {} threads: {:.2} s  (target <= 2 s on 2 cores)", diagnosis.candidates.len(), diagnosis.not_identifiable.len(), rayon::current_num_threads(), t.elapsed().as_secs_f64());
     println!("{}", whole_calibration(&sim, &options)?);
     println!("{}", auto_loop_on_a_mixture(&nominal, &options)?);
@@ -361,38 +388,7 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
     if args.scale_touches > 0 {
         scale_benchmark(args.scale_touches)?;
     }
-    if args.no_scipy {
-        return Ok(());
-    }
-    let single = calibrate(&nominal, &sim.artefact, &cal, &CalibrationOptions { restarts: 0, ..options })?;
-    let t = Instant::now();
-    let reps = 10;
-    for _ in 0..reps {
-        calibrate(&nominal, &sim.artefact, &cal, &CalibrationOptions { restarts: 0, ..options })?;
-    }
-    let single_start_ms = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
-    let dir = std::env::temp_dir().join(format!("kincal-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-    let problem = dir.join("problem.json");
-    write_peer_problem(&problem, &nominal, &single.estimated, &sim.artefact, &cal, options.huber_delta_mm)?;
-    let peer = run_peer(&args.python, &problem)?;
-    std::fs::remove_dir_all(&dir).ok();
-    println!(
-        "SciPy least_squares(trf, huber), one start: {:.1} ms, {} evaluations, cost {:.9}",
-        peer.seconds * 1e3,
-        peer.nfev,
-        peer.cost
-    );
-    println!("kincal, same start and parameters:       {single_start_ms:.2} ms, cost {:.9}", single.cost);
-    println!(
-        "speed-up {:.0}x (target >= 300x); cost ratio kincal/SciPy {:.9}",
-        peer.seconds * 1e3 / single_start_ms,
-        single.cost / peer.cost
-    );
-    if let Some(fit) = fit {
-        println!("kincal with restarts: cost {:.9}; full 8-restart calibration is {:.0}x faster than one SciPy start", fit.cost, peer.seconds * 1e3 / single_ms);
-    }
-    Ok(())
+    crate::bench_peers::peers_benchmark(args)
 }
 
 /// CPU time of this process so far (every thread), ms: unlike the wall time, it does not grow
@@ -423,28 +419,28 @@ pub(crate) fn children_cpu_ms() -> f64 {
 }
 
 /// Median wall time of the whole `kincal calibrate` process on `sim` written to disk.
-fn whole_calibration(sim: &kincal::simulate::SimulatedData, options: &CalibrationOptions) -> Result<String> {
+fn whole_calibration(sim: &kincal::simulate::SimulatedData, options: &SolveOptions) -> Result<String> {
     let dir = std::env::temp_dir().join(format!("kincal-bench-run-{}", std::process::id()));
     sim.write(&dir)?;
     kincal::model::ArmModel::suta_nominal().save(&dir.join("nominal.toml"))?;
-    let inputs = kincal::calib::run::RunInputs::new(
+    let inputs = kincal::calib::summary::RunInputs::new(
         dir.join("nominal.toml"),
-        dir.join("artefact.json"),
+        Some(dir.join("artefact.json")),
         dir.join("cal"),
         dir.join("val"),
     );
     let (mut wall, mut cpu, mut parts, mut report) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for _ in 0..10 {
         let (t, c) = (Instant::now(), process_cpu_ms());
-        let run = kincal::calib::run::run(&inputs, options, &[], 0, true)?;
+        let run = kincal::calib::run::run(&inputs, options, 0, true)?;
         let mut steps = run.steps.clone();
-        kincal::output::write_run(&run, &dir.join("run"))?;
+        kincal::store::write_run(&run, &dir.join("run"))?;
         steps.lap("report and write");
         wall.push(t.elapsed().as_secs_f64() * 1e3);
         cpu.push(process_cpu_ms() - c);
         parts.push(steps.ms);
         let t = Instant::now();
-        std::hint::black_box(kincal::report::calibration::calibration_report(&run));
+        std::hint::black_box(kincal::report::run::run_report(&run, std::path::Path::new("RUN")));
         report.push(t.elapsed().as_secs_f64() * 1e3);
     }
     std::fs::remove_dir_all(&dir).ok();
@@ -465,7 +461,7 @@ fn whole_calibration(sim: &kincal::simulate::SimulatedData, options: &Calibratio
 }
 
 /// Wall time of the auto loop on a mixture of four hidden effects.
-fn auto_loop_on_a_mixture(nominal: &kincal::model::ArmModel, options: &CalibrationOptions) -> Result<String> {
+fn auto_loop_on_a_mixture(nominal: &kincal::model::ArmModel, options: &SolveOptions) -> Result<String> {
     let hidden = SimulationOptions {
         seed: 105,
         hidden: vec![
@@ -477,18 +473,19 @@ fn auto_loop_on_a_mixture(nominal: &kincal::model::ArmModel, options: &Calibrati
         ..SimulationOptions::default()
     };
     let sim = simulate(nominal, &hidden);
-    let cal = Dataset::from_sessions(&sim.calibration, &sim.artefact);
-    let val = Dataset::from_sessions(&sim.validation, &sim.artefact);
-    let fit = calibrate(nominal, &sim.artefact, &cal, options)?;
+    let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let val = Observations::from_sessions(&sim.validation, &sim.artefact);
+    let fit = calibrate(nominal, &cal, options)?;
     let t = Instant::now();
-    let run = kincal::calib::auto::auto_loop(&fit.model, &sim.artefact, &cal, &val, options, 8)?;
-    let added: Vec<&str> = run.steps.iter().filter_map(|s| s.added.as_deref()).collect();
+    let run =
+        kincal::calib::diagnose::auto::auto_loop(&Setup::new(options.clone()), &fit.model, &cal, &val, 8)?;
+    let added: Vec<&str> = run.steps.iter().filter_map(|s| s.applied.as_deref()).collect();
     Ok(format!(
         "diagnose --auto on a 4-effect mixture: {:.2} s on {} threads, added {} ({:.3} → {:.3} mm)  (target <= 3 s on 2 cores)",
         t.elapsed().as_secs_f64(),
         rayon::current_num_threads(),
         added.join(", "),
-        run.steps.first().map_or(f64::NAN, |s| s.validation_rms_mm),
-        run.steps.last().map_or(f64::NAN, |s| s.validation_rms_mm)
+        run.steps.first().map_or(f64::NAN, |s| s.held_out_rms_mm),
+        run.steps.last().map_or(f64::NAN, |s| s.held_out_rms_mm)
     ))
 }

@@ -1,13 +1,16 @@
 //! `kincal bench`, tracker case: 3 600 points of a 7-joint arm in 5 sessions, 26 free
-//! parameters (23 of the arm, the tool point), calibrate and validate on a held-out session,
-//! beside SciPy on the same problem (`bench/tracker_peer.py`). The points come from kincal's own
+//! parameters (23 of the arm, the tool point), calibrate and validate on a held-out session (the
+//! same problem beside Ceres and SciPy: `bench_peers.rs`). The points come from kincal's own
 //! kinematics with noise: this measures speed only (accuracy is tested on the independent
 //! generator in `tests/`).
 
 use crate::bench::{children_cpu_ms, process_cpu_ms};
 use anyhow::{Context, Result};
-use kincal::calib::tracker::{calibrate_tracker, validate_session, TrackerOptions};
-use kincal::data::tracker::{TrackerData, TrackerPoint, TrackerSession, TRACKER_FORMAT};
+use kincal::calib::fit::calibrate;
+use kincal::calib::setup::SolveOptions;
+use kincal::calib::validate::validate_session;
+use kincal::data::tracker::TRACKER_FORMAT;
+use kincal::data::{Joints, Kind, Observation, Observations, Target};
 use kincal::model::kinematics::tool_pose;
 use kincal::model::{ArmModel, Joint, ParamId};
 use kincal::numerics::stats::median;
@@ -20,7 +23,8 @@ use std::time::Instant;
 const SESSIONS: usize = 5;
 const POINTS: usize = 3600;
 
-fn arm() -> ArmModel {
+/// The 7-joint bench arm, its 23 free parameters bounded.
+pub(crate) fn arm() -> ArmModel {
     let alpha = [-90.0, 90.0, 90.0, -90.0, -90.0, 90.0, 0.0];
     let d = [360.0, 0.0, 420.0, 0.0, 400.0, 0.0, 126.0];
     let mut model = ArmModel::suta_nominal();
@@ -41,49 +45,52 @@ fn arm() -> ArmModel {
     model
 }
 
-fn sessions(truth: &ArmModel, count: usize, points: usize, seed: u64) -> Result<TrackerData> {
+/// `count` sessions of `points` random poses of `truth`, each seen from its own base, with 0.02 mm noise.
+pub(crate) fn sessions(truth: &ArmModel, count: usize, points: usize, seed: u64) -> Result<Observations> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let noise = rand_distr::Normal::new(0.0, 0.02)?;
-    let sessions = (0..count)
-        .map(|s| {
-            let rotation = Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64).into_inner();
-            let shift = Vector3::new(2500.0, -300.0 * s as f64, 400.0);
-            let points = (0..points)
-                .map(|i| {
-                    let q: Vec<f64> = (0..7).map(|_| rng.random_range(-120.0..120.0)).collect();
-                    let p = rotation * tool_pose(truth, &q).position_mm + shift;
-                    let n = Vector3::from_fn(|_, _| noise.sample(&mut rng));
-                    TrackerPoint {
-                        q_deg: q,
-                        point_mm: p + n,
-                        orientation: None,
-                        sigma_mm: Some(0.02),
-                        time_s: None,
-                        temp_c: None,
-                        pose: None,
-                        line: i + 3,
-                    }
-                })
-                .collect();
-            TrackerSession { name: format!("bench_{}", s + 1), path: "bench.csv".into(), points }
-        })
-        .collect();
-    Ok(TrackerData { joints: 7, sessions, warnings: Vec::new() })
+    let mut data = Observations::new(7, Vec::new());
+    for s in 0..count {
+        let group = data.push_group(format!("bench_{}", s + 1), "bench.csv".into(), Kind::Tracker);
+        let rotation = Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64).into_inner();
+        let shift = Vector3::new(2500.0, -300.0 * s as f64, 400.0);
+        for i in 0..points {
+            let q: Vec<f64> = (0..7).map(|_| rng.random_range(-120.0..120.0)).collect();
+            let p = rotation * tool_pose(truth, &q).position_mm + shift;
+            let n = Vector3::from_fn(|_, _| noise.sample(&mut rng));
+            data.obs.push(Observation {
+                block: 0,
+                group,
+                repeat: 1,
+                q_deg: Joints::new(&q).context("seven joint angles")?,
+                q_sigma_deg: None,
+                target: Target::Point { xyz_mm: p + n, orientation: None },
+                sigma_mm: Some(0.02),
+                time_s: None,
+                temp_c: None,
+                pose: None,
+                line: i + 3,
+            });
+        }
+    }
+    data.rebuild_blocks();
+    Ok(data)
 }
 
 /// Write `data`'s sessions as `kincal-tracker/1` files into `dir` (full precision).
-fn write_sessions(data: &TrackerData, dir: &Path) -> Result<()> {
+fn write_sessions(data: &Observations, dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| dir.display().to_string())?;
-    for s in &data.sessions {
+    for (g, group) in data.groups.iter().enumerate() {
         let mut text = format!("# {TRACKER_FORMAT}\n");
         let joints: Vec<String> = (1..=data.joints).map(|j| format!("q{j}_deg")).collect();
         text += &format!("{},x_mm,y_mm,z_mm,sigma_mm\n", joints.join(","));
-        for p in &s.points {
+        for p in data.obs.iter().filter(|o| o.group == g) {
             let q: Vec<String> = p.q_deg.iter().map(|v| format!("{v:?}")).collect();
-            let [x, y, z] = [p.point_mm.x, p.point_mm.y, p.point_mm.z];
+            let point = p.point_mm().unwrap_or_default();
+            let [x, y, z] = [point.x, point.y, point.z];
             text += &format!("{},{x:?},{y:?},{z:?},{:?}\n", q.join(","), p.sigma_mm.unwrap_or(0.02));
         }
-        let path = dir.join(format!("{}.csv", s.name));
+        let path = dir.join(format!("{}.csv", group.name));
         std::fs::write(&path, text).with_context(|| path.display().to_string())?;
     }
     Ok(())
@@ -92,7 +99,11 @@ fn write_sessions(data: &TrackerData, dir: &Path) -> Result<()> {
 /// Median wall and CPU time (all threads), s, of the whole `kincal calibrate` process (this
 /// executable: reading the files, calibrating, validating, scoring the data errors, writing
 /// RUN/) on `cal` and `val`, and the runs.
-fn whole_process(nominal: &ArmModel, cal: &TrackerData, val: &TrackerData) -> Result<(f64, f64, usize)> {
+pub(crate) fn whole_process(
+    nominal: &ArmModel,
+    cal: &Observations,
+    val: &Observations,
+) -> Result<(f64, f64, usize)> {
     let dir = std::env::temp_dir().join(format!("kincal-bench-tracker-run-{}", std::process::id()));
     write_sessions(cal, &dir.join("cal"))?;
     write_sessions(val, &dir.join("val"))?;
@@ -126,45 +137,36 @@ fn whole_process(nominal: &ArmModel, cal: &TrackerData, val: &TrackerData) -> Re
     Ok((median(wall), median(cpu), RUNS))
 }
 
-fn peer_problem(nominal: &ArmModel, data: &TrackerData) -> serde_json::Value {
-    let free: Vec<(&str, usize)> = nominal
-        .free
-        .iter()
-        .filter_map(|f| match f.id {
-            ParamId::Offset(j) => Some(("offset", j)),
-            ParamId::Length(j) => Some(("length", j)),
-            ParamId::LinkOffset(j) => Some(("link_offset", j)),
-            ParamId::Twist(j) => Some(("twist", j)),
-            _ => None,
-        })
-        .collect();
-    serde_json::json!({
-        "dh": nominal.joints.iter().map(|j| [j.offset_deg, j.d_mm, j.a_mm, j.alpha_deg]).collect::<Vec<_>>(),
-        "tool_mm": nominal.tcp_mm,
-        "free": free,
-        "sessions": data.sessions.iter().map(|s| serde_json::json!({
-            "q_deg": s.points.iter().map(|p| p.q_deg.clone()).collect::<Vec<_>>(),
-            "x_mm": s.points.iter().map(|p| [p.point_mm.x, p.point_mm.y, p.point_mm.z]).collect::<Vec<_>>(),
-        })).collect::<Vec<_>>(),
-    })
-}
-
-/// Print the tracker figures: kincal's calibrate + validate, and SciPy's time on the same problem.
-pub fn tracker_benchmark(python: &str, scipy: bool) -> Result<()> {
-    let nominal = arm();
+/// The bench arm's truth: every free parameter moved by up to 0.2 from its nominal value.
+pub(crate) fn truth(nominal: &ArmModel) -> ArmModel {
     let mut truth = nominal.clone();
     for (k, f) in nominal.free.iter().enumerate() {
         truth.set(f.id, nominal.get(f.id) + 0.2 * ((k as f64 * 1.7).sin()));
     }
+    truth
+}
+
+/// The bench problem: the nominal arm, 5 calibration sessions (3 600 points) and a held-out one.
+pub(crate) fn bench_problem() -> Result<(ArmModel, Observations, Observations)> {
+    let nominal = arm();
+    let truth = truth(&nominal);
     let cal = sessions(&truth, SESSIONS, POINTS / SESSIONS, 1)?;
     let mut val = sessions(&truth, 1, POINTS / SESSIONS, 2)?;
-    val.sessions[0].name = "bench_held_out".into();
+    val.groups[0].name = "bench_held_out".into();
+    Ok((nominal, cal, val))
+}
+
+/// Print the tracker figures: kincal's calibrate + validate, the whole process, the cost per
+/// point (beside Ceres and SciPy: `bench_peers.rs`).
+pub fn tracker_benchmark() -> Result<()> {
+    let (nominal, cal, val) = bench_problem()?;
+    let truth = truth(&nominal);
     let mut times = Vec::new();
     let mut last = None;
     for _ in 0..5 {
         let t = Instant::now();
-        let fit = calibrate_tracker(&nominal, &cal, &TrackerOptions::default())?;
-        let v = validate_session(&fit.model, &val.sessions[0], [0.0; 3]);
+        let fit = calibrate(&nominal, &cal, &SolveOptions::default())?;
+        let v = validate_session(&fit.model, &val, 0, [0.0; 3]);
         times.push(t.elapsed().as_secs_f64());
         last = Some((fit, v));
     }
@@ -177,12 +179,12 @@ pub fn tracker_benchmark(python: &str, scipy: bool) -> Result<()> {
     println!(
         "tracker: {} points, {} sessions, {} free ({} estimated), {} threads: calibrate + validate median {:.3} s, min {best:.3} s  (target <= 1 s on 2 cores); fit {:.4} mm, held out {:.4} mm",
         cal.point_count(),
-        cal.sessions.len(),
+        cal.groups.len(),
         nominal.free.len() + 3,
-        fit.identifiability.estimated.len(),
+        fit.estimated.len(),
         rayon::current_num_threads(),
         median(times.clone()),
-        fit.fit.rms_mm,
+        fit.rms_mm,
         v.rms_mm
     );
     // Each size is calibrated several times (the median is printed): a single run of a few
@@ -194,7 +196,7 @@ pub fn tracker_benchmark(python: &str, scipy: bool) -> Result<()> {
         let mut iterations = 0;
         for _ in 0..runs {
             let (t, c) = (Instant::now(), process_cpu_ms());
-            iterations = calibrate_tracker(&nominal, &data, &TrackerOptions::default())?.iterations;
+            iterations = calibrate(&nominal, &data, &SolveOptions::default())?.iterations;
             seconds.push(t.elapsed().as_secs_f64());
             cpu_ms.push(process_cpu_ms() - c);
         }
@@ -205,26 +207,5 @@ pub fn tracker_benchmark(python: &str, scipy: bool) -> Result<()> {
             cpu * 1e6 / n as f64,
         );
     }
-    if !scipy {
-        return Ok(());
-    }
-    let dir = std::env::temp_dir().join(format!("kincal-bench-tracker-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-    let problem = dir.join("tracker_problem.json");
-    std::fs::write(&problem, peer_problem(&nominal, &cal).to_string())?;
-    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../bench/tracker_peer.py");
-    let out = std::process::Command::new(python).arg(script).arg(&problem).output()?;
-    std::fs::remove_dir_all(&dir).ok();
-    if !out.status.success() {
-        anyhow::bail!("SciPy peer failed: {}", String::from_utf8_lossy(&out.stderr));
-    }
-    let peer: serde_json::Value = serde_json::from_slice(&out.stdout)?;
-    println!(
-        "tracker, SciPy least_squares(trf) on the same problem: {:.2} s, {} evaluations, fit {:.4} mm (kincal {:.4} mm)",
-        peer["seconds"].as_f64().unwrap_or(f64::NAN),
-        peer["nfev"],
-        peer["rms_mm"].as_f64().unwrap_or(f64::NAN),
-        fit.fit.rms_mm
-    );
     Ok(())
 }

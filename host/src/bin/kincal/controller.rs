@@ -1,67 +1,11 @@
-//! Controller commands: info, params, upload, stream, record, and the demo loop.
+//! Controller commands: info, params, upload, stream, record, check.
 
-use crate::arm::simulate_to;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
-use kincal::calib::calibrate::CalibrationOptions;
-use kincal::calib::run::RunInputs;
 use kincal::controller::signing::{fingerprint, utc, StationKey};
-use kincal::data::{Artefact, Dataset};
+use kincal::data::Artefact;
 use kincal::model::ArmModel;
-use kincal::simulate::SimulationOptions;
 use std::path::PathBuf;
-
-#[derive(Args)]
-pub struct DemoArgs {
-    /// Nominal arm model (default: the SUTA model built into kincal, examples/suta/model.toml).
-    #[arg(long)]
-    model: Option<PathBuf>,
-    /// Folder for the data and the runs (default `runs/demo`, with `--offline` `runs/demo-offline`,
-    /// so the two demos never share a folder).
-    #[arg(long)]
-    out: Option<PathBuf>,
-    /// Seed.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Window per touch, ticks (1536 = 2 s as on the real arm).
-    #[arg(long, default_value_t = 96)]
-    window_ticks: u16,
-    /// Host only: simulate sessions directly and calibrate (no emulated controller).
-    #[arg(long)]
-    offline: bool,
-    /// The emulated controller's firmware image (`cargo build-emulated` writes it here).
-    #[arg(long, default_value = "firmware/target/thumbv7em-none-eabihf/release/emulated")]
-    firmware: PathBuf,
-}
-
-impl DemoArgs {
-    /// The folder this demo writes.
-    fn out(&self) -> PathBuf {
-        self.out
-            .clone()
-            .unwrap_or_else(|| PathBuf::from(if self.offline { "runs/demo-offline" } else { "runs/demo" }))
-    }
-
-    /// The nominal model: `--model`, or the built-in SUTA model.
-    fn nominal(&self) -> Result<ArmModel> {
-        Ok(match &self.model {
-            Some(path) => ArmModel::load(path)?,
-            None => ArmModel::suta_nominal(),
-        })
-    }
-
-    /// The nominal model as a file the runs can name: `--model`, or the built-in SUTA model
-    /// written to OUT/nominal.toml.
-    fn nominal_file(&self) -> Result<PathBuf> {
-        if let Some(path) = &self.model {
-            return Ok(path.clone());
-        }
-        let path = self.out().join("nominal.toml");
-        std::fs::create_dir_all(self.out()).with_context(|| format!("creating {}", self.out().display()))?;
-        ArmModel::suta_nominal().save(&path)?;
-        Ok(path)
-    }
-}
 
 #[derive(Args)]
 pub struct PortArgs {
@@ -84,10 +28,16 @@ pub struct UploadArgs {
     /// version + 1). Older values go back only as a new, higher version.
     #[arg(long)]
     version: Option<u32>,
-    /// The arm identity the set is for; refused before anything is sent when the controller has
-    /// another (default: the controller's, printed).
-    #[arg(long)]
-    arm: Option<String>,
+    /// The arm a model that names none (a nominal, simulated or hand-written model) is for; it
+    /// must be the connected controller's. Without it such a model is not uploaded. A model that
+    /// names its arm (`[arm] id`, as a calibrated RUN/model.toml does) goes only to that arm.
+    #[arg(long = "for-arm", alias = "arm", value_name = "ID")]
+    for_arm: Option<String>,
+    /// Days the calibration stays valid, counted from its validation (the RUN's date); the
+    /// host warns at every connect once they have passed, and `kincal check` re-validates.
+    /// Default: no validity period.
+    #[arg(long, value_name = "DAYS")]
+    valid_days: Option<u32>,
 }
 
 #[derive(Subcommand)]
@@ -141,10 +91,50 @@ pub struct StreamArgs {
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long)]
     seconds: Option<f64>,
+    /// Also serve the pose to navigation software over OpenIGTLink on [HOST:]PORT (default
+    /// 18944 on localhost; 0.0.0.0:18944 for every interface): a TRANSFORM every tick, stamped
+    /// with the controller's sample instant.
+    #[arg(long, requires = "pose", num_args = 0..=1, default_missing_value = "18944", value_name = "[HOST:]PORT", value_parser = igtl_address)]
+    igtl: Option<String>,
+    /// Name of the OpenIGTLink transform, PLUS's FromToTo convention.
+    #[arg(long, requires = "igtl", default_value = kincal::controller::igtl_server::DEFAULT_NAME)]
+    igtl_name: String,
+    /// Also send invalid poses to clients that speak header version 2, as TRANSFORMs marked
+    /// TransformStatus=INVALID with a NaN matrix (PLUS's SendValidTransformsOnly="false"); by
+    /// default an invalid pose sends no transform, only a STATUS message.
+    #[arg(long, requires = "igtl")]
+    igtl_send_invalid: bool,
+}
+
+/// `--igtl` as an address to listen on: a port alone means localhost.
+pub fn igtl_address(text: &str) -> Result<String, String> {
+    let text = text.trim();
+    let addr = if text.parse::<u16>().is_ok() { format!("127.0.0.1:{text}") } else { text.to_string() };
+    use std::net::ToSocketAddrs;
+    match addr.to_socket_addrs().map(|mut a| a.next()) {
+        Ok(Some(_)) => Ok(addr),
+        _ => Err(format!("expected PORT or HOST:PORT (e.g. 18944 or 0.0.0.0:18944), found `{text}`")),
+    }
 }
 
 #[derive(Args)]
 pub struct RecordArgs {
+    #[command(flatten)]
+    touches: TouchArgs,
+    /// calibration or validation.
+    #[arg(long, default_value = "calibration")]
+    purpose: String,
+    /// Output folder; the session is OUT/<placement>.json.
+    #[arg(long)]
+    out: PathBuf,
+    /// Repeats of the sequence.
+    #[arg(long, default_value_t = 3)]
+    repeats: u32,
+}
+
+/// What a recording of touches needs, for `record` and `check`.
+#[derive(Args)]
+pub struct TouchArgs {
     #[command(flatten)]
     port: PortArgs,
     /// Artefact file.
@@ -153,92 +143,80 @@ pub struct RecordArgs {
     /// Placement name, e.g. C_A.
     #[arg(long)]
     placement: String,
-    /// calibration or validation.
-    #[arg(long, default_value = "calibration")]
-    purpose: String,
-    /// Output folder; the session is OUT/<placement>.json.
-    #[arg(long)]
-    out: PathBuf,
     /// Landmark order, comma separated (default: the artefact file's).
     #[arg(long, value_delimiter = ',')]
     order: Vec<String>,
-    /// Repeats of the sequence.
-    #[arg(long, default_value_t = 3)]
-    repeats: u32,
     /// Window per touch, ticks (1536 = 2 s).
     #[arg(long, default_value_t = 1536)]
     window_ticks: u16,
-    /// Non-interactive: steps from a JSON script (landmarks, emulated poses, skips).
+    /// Non-interactive: steps from a JSON script (landmarks, emulated poses, skips;
+    /// `kincal emulated-arm script` writes one for the emulated arm).
     #[arg(long)]
     script: Option<PathBuf>,
 }
 
-pub fn cmd_demo(a: &DemoArgs) -> Result<()> {
-    if a.offline {
-        return cmd_demo_offline(a);
+impl TouchArgs {
+    /// The artefact and the plan of a recording for `purpose`, `repeats` times, into `out`.
+    fn plan(
+        &self,
+        purpose: &str,
+        repeats: u32,
+        out: &std::path::Path,
+    ) -> Result<(Artefact, kincal::controller::record::Plan)> {
+        let artefact = Artefact::load(&self.artefact)?;
+        let order = if self.order.is_empty() {
+            artefact.landmarks.iter().map(|l| l.id.clone()).collect()
+        } else {
+            self.order.clone()
+        };
+        let plan = kincal::controller::record::Plan {
+            placement: self.placement.clone(),
+            purpose: purpose.into(),
+            order,
+            repeats,
+            window_ticks: self.window_ticks,
+            out: out.to_path_buf(),
+        };
+        Ok((artefact, plan))
     }
-    let nominal = a.nominal()?;
-    println!("starting the emulated controller on QEMU (mps2-an386): {}", a.firmware.display());
-    let (_emulator, mut link) = kincal::controller::emulator::Emulator::start(&a.firmware)?;
-    link.hello()?;
-    let info = link.info()?;
-    println!("connected: {} on {}", info.firmware, info.board);
-    let options = kincal::controller::demo::LoopOptions {
-        seed: a.seed,
-        window_ticks: a.window_ticks,
-        out: a.out(),
-        ..Default::default()
-    };
-    let report =
-        kincal::controller::demo::run_loop(&mut link, &nominal, &options, &mut |step| println!("  {step}"))?;
-    println!("recorded {} touches through the controller; loop took {:.0} s", report.touches, report.seconds);
-    println!("the emulated arm hides {} (the nominal model lacks it)", report.hidden.join(", "));
-    for line in
-        report.diagnosis.iter().filter(|l| l.starts_with("missing effect") || l.contains("measured, ≈"))
-    {
-        println!("  {line}");
+
+    /// Run `f` with the guide of the recording: the script's steps, or the operator at the
+    /// keyboard.
+    fn guided<R>(
+        &self,
+        f: impl FnOnce(&mut dyn kincal::controller::record::Guide) -> Result<R>,
+    ) -> Result<R> {
+        match &self.script {
+            Some(path) => f(&mut kincal::controller::record::Script::load(path)?),
+            None => f(&mut kincal::controller::record::Operator::default()),
+        }
     }
-    print_mission(&report.steps, report.truth_validation_rms_mm, &report.stop);
-    println!(
-        "runs: {} (as given, with diagnosis.html and auto/), {} (with the added effects; uploaded)",
-        a.out().join("run").display(),
-        a.out().join("run-added").display()
-    );
-    println!("validation distance RMS   nominal {:8.3} mm   calibrated {:7.3} mm   true arm on the same data {:.3} mm (noise floor)", report.nominal_validation_rms_mm, report.calibrated_validation_rms_mm, report.truth_validation_rms_mm);
-    println!("streamed pose error (RMS after rigid registration, {} validation touches):", report.poses);
-    println!("  nominal parameters    {:8.3} mm", report.nominal_pose_rms_mm);
-    println!(
-        "  calibrated parameters {:8.3} mm   (the host predicts {:.3} mm for this model)",
-        report.calibrated_pose_rms_mm, report.host_calibrated_pose_rms_mm
-    );
-    println!(
-        "  true arm's parameters {:8.3} mm   (floor: encoder noise and f32 on the controller)",
-        report.floor_pose_rms_mm
-    );
-    println!("parameter upload took {:.2} s; run: {}", report.upload_seconds, a.out().join("run").display());
-    Ok(())
 }
 
-/// The calibrate → diagnose → add steps against the floor.
-fn print_mission(steps: &[kincal::controller::demo::MissionStep], truth_rms_mm: f64, stop: &str) {
-    println!("step  added              val RMS mm  floor (repeatability) mm  × true floor  held-out p");
-    for (k, s) in steps.iter().enumerate() {
-        println!(
-            "{k:>4}  {:<18} {:>10.3}  {:>24}  {:>12.2}  {}",
-            s.added.as_deref().unwrap_or("(as given)"),
-            s.validation_rms_mm,
-            s.expected_floor_mm.map_or("–".into(), |e| format!("{e:.3}")),
-            s.validation_rms_mm / truth_rms_mm.max(1e-12),
-            s.p_value.map_or("–".into(), |p| format!("{p:.1e}"))
-        );
-    }
-    println!("diagnose → add stopped: {stop}; true arm on the same validation data {truth_rms_mm:.3} mm");
-}
-
+/// Open and greet the controller on `port`; warns when the stored calibration's validity has
+/// passed.
 pub fn connect(port: &PortArgs) -> Result<kincal::controller::link::Link> {
     let mut link = kincal::controller::link::Link::open(&port.port)?;
     link.hello().with_context(|| format!("handshake with the controller on {}", port.port))?;
+    let info = link.info()?;
+    if let Some(warning) = kincal::controller::traceability::expiry_warning(
+        &info.arm_id,
+        info.param_version,
+        &info.param_trace,
+        kincal::controller::traceability::unix_now(),
+    ) {
+        eprintln!("{warning}");
+    }
     Ok(link)
+}
+
+/// The stored set's trace, one line each, labelled for `info`'s layout.
+fn print_trace(trace: &kincal_protocol::signed::SetTrace, labelled: impl Fn(&str, &str)) {
+    for (label, text) in
+        kincal::controller::traceability::trace_lines(trace, kincal::controller::traceability::unix_now())
+    {
+        labelled(label, &text);
+    }
 }
 
 pub fn cmd_info(a: &PortArgs) -> Result<()> {
@@ -266,6 +244,7 @@ pub fn cmd_info(a: &PortArgs) -> Result<()> {
     } else {
         println!("parameters version {} (CRC-32 {:08x})", info.param_version, info.param_crc);
         println!("signed by  {} at {}", fingerprint(&info.param_signer), utc(info.param_signed_at_unix_s));
+        print_trace(&info.param_trace, |label, text| println!("{label:<10} {text}"));
     }
     println!("reset      {}", reset_cause_text(info.reset_cause));
     match info.brownout_mv {
@@ -390,6 +369,7 @@ pub fn cmd_params(a: &PortArgs) -> Result<()> {
         utc(signed.signed_at_unix_s),
         if signed.signature_valid { "valid (checked here too)" } else { "INVALID (checked here)" }
     );
+    print_trace(&signed.trace.unwrap_or_default(), |label, text| eprintln!("{label} {text}"));
     println!("{}", serde_json::to_string_pretty(&params)?);
     if !signed.signature_valid {
         bail!("the stored set's signature does not verify on this host");
@@ -417,16 +397,17 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     // Checked before connecting: a bad model never reaches the controller.
     kincal::controller::device::parameter_blob(&model, a.version.unwrap_or(1))
         .with_context(|| format!("{}: parameters", a.model.display()))?;
+    use kincal::controller::traceability::{check_upload_arm, unix_now, upload_trace};
+    let origin = kincal::trace::run_origin(&a.model)?;
+    let trace = upload_trace(&a.model, origin.as_ref(), a.valid_days, unix_now())?;
     let mut link = connect(&a.port)?;
     let started = std::time::Instant::now();
     let info = link.info()?;
     let before = kincal::controller::link::HeldParams { version: info.param_version, crc: info.param_crc };
-    if let Some(arm) = a.arm.as_deref().filter(|arm| *arm != info.arm_id.as_str()) {
-        bail!("the controller is arm {}, not {arm}; nothing was uploaded", info.arm_id);
-    }
+    check_upload_arm(&a.model, model.arm.as_ref(), a.for_arm.as_deref(), &info.arm_id)?;
     let version = kincal::controller::device::next_version(info.param_version, a.version)
         .map_err(|e| anyhow::anyhow!("{e}; nothing was uploaded"))?;
-    let blob = kincal::controller::device::signed_parameter_set(&model, version, &info.arm_id, &key)
+    let blob = kincal::controller::device::traced_parameter_set(&model, version, &info.arm_id, &key, &trace)
         .with_context(|| format!("{}: parameters version {version}", a.model.display()))?;
     let uploaded = match link.upload(&blob) {
         Ok(u) => u,
@@ -457,6 +438,42 @@ pub fn cmd_upload(a: &UploadArgs) -> Result<()> {
     }
     let elapsed = started.elapsed().as_secs_f64();
     let signed = format!("signed by {} for arm {}", fingerprint(&key.public_key()), info.arm_id);
+    match &origin {
+        Some(o) => println!(
+            "from RUN {}: sha256:{}, validated {}{}",
+            o.run.display(),
+            kincal::trace::hex(&o.sha256),
+            utc(o.validated_at_unix_s),
+            if o.date_from_file_time {
+                " (summary.json's modification time: this RUN records no validation date)"
+            } else {
+                ""
+            }
+        ),
+        None => println!("not from a RUN: the set carries no RUN hash or validation date"),
+    }
+    if trace.valid_until_unix_s != 0 {
+        println!("valid until {}", utc(trace.valid_until_unix_s));
+    }
+    if let Some(o) = &origin {
+        let arm = kincal::controller::record::connected_arm(&mut link)
+            .unwrap_or_else(|_| kincal::trace::ArmIdentity::of(&info.arm_id));
+        let recorded = kincal::controller::traceability::upload_record(&arm, &blob)
+            .map(|record| kincal::trace::record_upload(&o.run, &record));
+        match recorded {
+            Some(Ok(())) => println!(
+                "recorded in {} (`kincal certificate {}` shows it)",
+                o.run.join(kincal::trace::UPLOADS_FILE).display(),
+                o.run.display()
+            ),
+            Some(Err(e)) => {
+                eprintln!("warning: the set is stored, but recording the upload in the RUN failed: {e}")
+            }
+            None => eprintln!(
+                "warning: the set is stored, but its record could not be read back from the signed set"
+            ),
+        }
+    }
     // The commit is confirmed: what follows only reports, and its failure changes nothing stored.
     match link.held_params() {
         Ok(now) => println!(
@@ -489,12 +506,30 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
         CsvRecording::refuse_existing(path)?;
     }
     let mut link = connect(&a.port)?;
-    if a.pose && link.info()?.param_version == 0 {
+    let info = link.info()?;
+    if a.pose && info.param_version == 0 {
         bail!(
             "the controller on {} holds no parameters: no pose to stream (kincal upload first)",
             a.port.port
         );
     }
+    let server = match &a.igtl {
+        Some(addr) => {
+            let options = kincal::controller::igtl_server::ServerOptions {
+                name: a.igtl_name.clone(),
+                send_invalid: a.igtl_send_invalid,
+            };
+            let server = kincal::controller::igtl_server::PoseServer::start(addr, options)?;
+            println!(
+                "OpenIGTLink server on {}: TRANSFORM {} (tool in the arm's base frame, mm) every tick, stamped with the controller's sample instant; in Slicer: OpenIGTLinkIF, a client connector to this host and port",
+                server.local_addr(),
+                a.igtl_name
+            );
+            Some(server)
+        }
+        None => None,
+    };
+    let mut clock = kincal::controller::pose_stream::PoseClock::new(info.ticks);
     catch_ctrl_c();
     let mut csv = match &a.csv {
         Some(path) => Some(CsvRecording::create(path)?),
@@ -506,7 +541,7 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             w,
             "{}",
             if a.pose {
-                "seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz"
+                "seq,tick,valid,stale_joints,stale_ticks,x_mm,y_mm,z_mm,zx,zy,zz,xx,xy,xz,t_s,host_s"
             } else {
                 "seq,tick,j1_deg,j2_deg,j3_deg,j4_deg,j5_deg,j6_deg,rejected"
             }
@@ -553,6 +588,16 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
             lost_seen = link.stats.stream_gaps;
         }
         frames += 1;
+        let timed = match &item {
+            Stream::Pose(p) => Some(clock.time(seq, *p, Instant::now())),
+            _ => None,
+        };
+        if let (Some(server), Some(pose)) = (&server, &timed) {
+            server.publish(pose);
+        }
+        for event in server.iter().flat_map(|s| s.events()) {
+            println!("{event}");
+        }
         match &item {
             Stream::Pose(p) => {
                 watch.see(p);
@@ -579,31 +624,29 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
                         .collect();
                     writeln!(w, "{seq},{},{},{}", r.tick, cells.join(","), r.rejected)?;
                 }
-                Stream::Pose(p) if p.valid => writeln!(
-                    w,
-                    "{seq},{},1,,0,{},{},{},{},{},{}",
-                    p.tick,
-                    p.position_mm[0],
-                    p.position_mm[1],
-                    p.position_mm[2],
-                    p.z_axis[0],
-                    p.z_axis[1],
-                    p.z_axis[2]
-                )?,
-                Stream::Pose(p) => writeln!(
-                    w,
-                    "{seq},{},0,{},{},,,,,,",
-                    p.tick,
-                    joint_list(!p.fresh & kincal_protocol::messages::ALL_JOINTS),
-                    p.stale_ticks
-                )?,
+                Stream::Pose(p) => {
+                    let (tick, t_s, host_s) = timed.map_or((0, 0.0, 0.0), |t| (t.tick, t.t_s, t.host_s));
+                    if p.valid {
+                        let [x, y, z] = p.position_mm;
+                        let ([zx, zy, zz], [xx, xy, xz]) = (p.z_axis, p.x_axis);
+                        writeln!(w, "{seq},{tick},1,,0,{x},{y},{z},{zx},{zy},{zz},{xx},{xy},{xz},{t_s:.6},{host_s:.6}")?
+                    } else {
+                        let stale = joint_list(!p.fresh & kincal_protocol::messages::ALL_JOINTS);
+                        writeln!(w, "{seq},{tick},0,{stale},{},,,,,,,,,,{t_s:.6},{host_s:.6}", p.stale_ticks)?
+                    }
+                }
                 Stream::Window(_) => {}
             }
         }
         if last_report.elapsed().as_secs_f64() >= 1.0 {
             last_report = Instant::now();
+            let clients = server.as_ref().map_or(String::new(), |s| {
+                let c = s.clients();
+                let dropped: u64 = c.iter().map(|c| c.dropped).sum();
+                format!("; {} OpenIGTLink clients, {dropped} messages dropped for slow readers", c.len())
+            });
             eprintln!(
-                "{:.0} frames/s, {} lost, {} corrupt{}{}",
+                "{:.0} frames/s, {} lost, {} corrupt{}{}{clients}",
                 frames as f64 / started.elapsed().as_secs_f64(),
                 link.stats.stream_gaps,
                 link.stats.bad_frames,
@@ -711,87 +754,62 @@ pub fn catch_ctrl_c() {
 }
 
 pub fn cmd_record(a: &RecordArgs) -> Result<()> {
-    let artefact = Artefact::load(&a.artefact)?;
-    let order = if a.order.is_empty() {
-        artefact.landmarks.iter().map(|l| l.id.clone()).collect()
-    } else {
-        a.order.clone()
-    };
-    let plan = kincal::controller::record::Plan {
-        placement: a.placement.clone(),
-        purpose: a.purpose.clone(),
-        order,
-        repeats: a.repeats,
-        window_ticks: a.window_ticks,
-        out: a.out.clone(),
-    };
-    let mut link = connect(&a.port)?;
-    let mut script;
-    let mut operator = kincal::controller::record::Operator::default();
-    let guide: &mut dyn kincal::controller::record::Guide = match &a.script {
-        Some(path) => {
-            script = kincal::controller::record::Script::load(path)?;
-            &mut script
-        }
-        None => &mut operator,
-    };
-    let done = kincal::controller::record::record(&mut link, &artefact, &plan, guide)?;
+    let (artefact, plan) = a.touches.plan(&a.purpose, a.repeats, &a.out)?;
+    let mut link = connect(&a.touches.port)?;
+    let done = a
+        .touches
+        .guided(|guide| Ok(kincal::controller::record::record(&mut link, &artefact, &plan, guide)?))?;
     println!(
-        "{}: {} measured now, {} resumed from disk, {} skipped, {} re-taken → {}",
+        "{}: {} measured now, {} resumed from disk, {} skipped, {} re-taken → {}{}",
         plan.placement,
         done.measured,
         done.resumed,
         done.skipped,
         done.retakes,
-        plan.session_path().display()
+        plan.session_path().display(),
+        done.arm.map_or(String::new(), |arm| format!(" (recorded on arm {arm})"))
     );
     Ok(())
 }
 
-pub fn cmd_demo_offline(a: &DemoArgs) -> Result<()> {
-    let data = a.out().join("data");
-    let hidden = vec![kincal::controller::demo::DEMO_HIDDEN];
-    let names: Vec<String> = hidden.iter().map(|(id, d)| format!("{id} = {d:+}")).collect();
+#[derive(Args)]
+pub struct CheckArgs {
+    #[command(flatten)]
+    touches: TouchArgs,
+    /// A new folder for the check: its session OUT/<placement>.json and its result OUT/check.json
+    /// (a check measures afresh: an earlier check is never judged again or replaced).
+    #[arg(long)]
+    out: PathBuf,
+    /// Repeats of the sequence (at least 2: the repeats give the floor the error is judged
+    /// against).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(2..=20))]
+    repeats: u32,
+}
+
+/// Exit status of `kincal check` when the arm does not hold its calibration.
+pub const CHECK_DOES_NOT_HOLD: i32 = 2;
+/// Exit status of `kincal check` when the touches decide neither way.
+pub const CHECK_CANNOT_TELL: i32 = 3;
+
+pub fn cmd_check(a: &CheckArgs) -> Result<()> {
+    use kincal::controller::check::{check, Verdict};
+    let (artefact, plan) = a.touches.plan(kincal::data::Purpose::Validation.as_str(), a.repeats, &a.out)?;
+    let mut link = connect(&a.touches.port)?;
+    let result = a.touches.guided(|guide| Ok(check(&mut link, &artefact, &plan, guide)?))?;
+    println!("arm        {}", result.arm);
+    println!("parameters version {} signed by {}", result.param_version, result.signer);
+    print_trace(&result.trace, |label, text| println!("{label:<10} {text}"));
     println!(
-        "1/3 simulate: a true arm off the nominal model by degrees and millimetres, hiding {}",
-        names.join(", ")
+        "check      {} touches at {}, {} distances → {}",
+        result.touches,
+        a.touches.placement,
+        result.distances,
+        a.out.join("check.json").display()
     );
-    let model = a.nominal_file()?;
-    simulate_to(&model, &data, &SimulationOptions { seed: a.seed, hidden, ..SimulationOptions::default() })?;
-    println!(
-        "2/3 calibrate on {}, validate on {}, diagnose, add",
-        data.join("cal").display(),
-        data.join("val").display()
-    );
-    let inputs = RunInputs::new(model, data.join("artefact.json"), data.join("cal"), data.join("val"));
-    let mission = kincal::controller::demo::calibrate_diagnose_add(
-        &inputs,
-        &CalibrationOptions { seed: a.seed, ..CalibrationOptions::default() },
-        &a.out(),
-        &mut |step| println!("  {step}"),
-    )?;
-    let truth = ArmModel::load(&data.join("truth.toml"))?;
-    let artefact = Artefact::load(&inputs.artefact)?;
-    let val = Dataset::load_dir(&inputs.validation, &artefact, kincal::data::Purpose::Validation)?;
-    let floor = kincal::calib::validate::validate(&truth, &artefact, &val).overall;
-    println!("3/3 the steps against the floor");
-    print_mission(&mission.steps, floor.rms_mm, &kincal::controller::demo::stop_words(&mission.auto.stop));
-    for line in &mission.auto.steps[0].summary {
-        println!("  {line}");
+    println!("{}: {}", result.verdict.to_string().to_uppercase(), result.sentence());
+    match result.verdict {
+        Verdict::Holds => Ok(()),
+        Verdict::DoesNotHold => std::process::exit(CHECK_DOES_NOT_HOLD),
+        Verdict::CannotTell => std::process::exit(CHECK_CANNOT_TELL),
     }
-    let last = mission.final_run();
-    if !last.summary.not_trustworthy.is_empty() {
-        bail!("the final calibration is not trustworthy: {}", last.summary.not_trustworthy.join("; "));
-    }
-    let dir = if mission.last.is_some() { a.out().join("run-added") } else { a.out().join("run") };
-    println!(
-        "validation RMS  nominal {:.3} mm → as given {:.3} mm → with {} {:.3} mm; noise floor {:.3} mm; run: {}",
-        mission.first.summary.nominal_validation.rms_mm,
-        mission.first.summary.validation.rms_mm,
-        if mission.added.is_empty() { "nothing".to_string() } else { mission.added.join(" + ") },
-        last.summary.validation.rms_mm,
-        floor.rms_mm,
-        dir.display()
-    );
-    Ok(())
 }

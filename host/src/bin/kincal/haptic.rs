@@ -2,7 +2,7 @@
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
-use kincal::output;
+use kincal::store;
 use std::path::PathBuf;
 
 #[derive(Subcommand)]
@@ -57,7 +57,7 @@ pub fn cmd_haptic_simulate(a: &HapticSimulateArgs) -> Result<()> {
         ..Default::default()
     };
     let (recording, _) = kincal::haptic::simulate::simulate_recording(&options);
-    output::write_haptic_recording(&recording, &a.out)?;
+    store::write_haptic_recording(&recording, &a.out)?;
     println!(
         "simulated recording (delay {} ms, {} gimbals) in {}",
         a.delay_ms,
@@ -70,8 +70,8 @@ pub fn cmd_haptic_simulate(a: &HapticSimulateArgs) -> Result<()> {
 pub fn cmd_haptic_calibrate(a: &HapticCalibrateArgs) -> Result<()> {
     use kincal::haptic::pipeline::{calibrate_recording, HapticFailure, HapticSummary};
     let write = |summary: &HapticSummary| -> Result<String> {
-        output::write_haptic(summary, &a.out, &a.recording)?;
-        Ok(output::haptic_json(summary))
+        store::write_haptic(summary, &a.out, &a.recording)?;
+        Ok(store::haptic_json(summary))
     };
     let recording = match kincal::haptic::recording::load(&a.recording) {
         Ok(r) => r,
@@ -107,6 +107,9 @@ pub fn cmd_haptic_calibrate(a: &HapticCalibrateArgs) -> Result<()> {
         return Ok(());
     }
     println!("calibrated in {seconds:.2} s");
+    for line in kincal::report::haptic::verdict_lines(&result, &a.out) {
+        println!("  {line}");
+    }
     println!("  delay        {:8.2} ms (tracker behind device)", result.delay_ms);
     println!(
         "  position     {:8.3} mm → {:.3} mm (RMS, {} held-out samples)",
@@ -116,7 +119,7 @@ pub fn cmd_haptic_calibrate(a: &HapticCalibrateArgs) -> Result<()> {
         "  orientation  {:8.3} °  → {:.3} °",
         result.orientation_deg.before, result.orientation_deg.after
     );
-    println!("  gimbals      {:?} sensor model (chosen on held-out error)", result.gimbal_model);
+    println!("  gimbals      {} sensor model (chosen on held-out error)", result.gimbal_model.words());
     println!(
         "  start        {} (held-out joint residual: landmark {}, pose-based {:.3} mm)",
         result.start.chosen,

@@ -3,21 +3,32 @@
 mod args;
 mod arm;
 mod bench;
+mod bench_limit;
+mod bench_peers;
 mod bench_tracker;
+mod calibrate;
+mod certificate;
 #[cfg(test)]
 mod cli_reference;
 mod controller;
+mod demo;
+mod diagnose;
+mod dynamic;
 mod emulated_arm;
 mod haptic;
+mod igtl_record;
 mod model;
 mod plan;
-mod tracker;
 
 use clap::parser::ValueSource;
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "kincal", version, about = "Calibrate tracker arms from artefact touches")]
+#[command(
+    name = "kincal",
+    version,
+    about = "Calibrate serial arms from artefact touches and tracker measurements"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -27,18 +38,23 @@ struct Cli {
 enum Command {
     /// Write an artefact and calibration/validation sessions from a simulated "true" arm.
     Simulate(arm::SimulateArgs),
-    /// Calibrate the arm model from artefact touches and validate it on held-out sessions.
-    Calibrate(arm::CalibrateArgs),
-    /// Dataset-size study: calibrate on random subsets of placements, validate each.
+    /// Calibrate the arm model from artefact touches, tracker sessions or both, and validate it on
+    /// held-out sessions.
+    Calibrate(Box<calibrate::CalibrateArgs>),
+    /// The calibration certificate of RUN (RUN/certificate.html): the arm, the RUN hash, the
+    /// reference and data, the result against the floor, the validity, what it does not cover and
+    /// how to re-check it. Exit 2 when no calibration can be certified.
+    Certificate(certificate::CertificateArgs),
+    /// Dataset-size study: calibrate on random subsets of placements or sessions, validate each.
     Study(arm::StudyArgs),
     /// Where the calibrated model of RUN fails and which physical effect is missing.
-    Diagnose(arm::DiagnoseArgs),
+    Diagnose(diagnose::DiagnoseArgs),
     /// What to measure next: placements that tell rival effects apart or pin down weak parameters.
     Plan(plan::PlanArgs),
     /// Compare two runs: validation errors, per landmark, residual plots side by side.
-    Compare(arm::CompareArgs),
+    Compare(diagnose::CompareArgs),
     /// The whole loop on the emulated controller: record, calibrate, upload, stream the pose.
-    Demo(controller::DemoArgs),
+    Demo(demo::DemoArgs),
     /// Controller identity, protocol match, stored parameters and encoder health.
     Info(controller::PortArgs),
     /// Read back the parameters stored on the controller.
@@ -53,7 +69,18 @@ enum Command {
     Stream(controller::StreamArgs),
     /// Guided measurement of one artefact placement; resumes an interrupted session.
     Record(controller::RecordArgs),
-    /// Emulated controller only: pose the arm, inject encoder noise and faults.
+    /// Does the arm still hold its stored calibration? A few touches judged with the stored set
+    /// against the floor of their repeats: holds (exit 0), does not hold (2), cannot tell (3).
+    Check(controller::CheckArgs),
+    /// The streamed pose in motion against a reference tracker's recording of the same tool:
+    /// latency, clock offset and drift, path error at rest, in motion and at direction changes.
+    Dynamic(dynamic::DynamicArgs),
+    /// Record the TRANSFORMs an OpenIGTLink server sends (the arm's pose from `kincal stream
+    /// --igtl`, or an optical tracker through PLUS) as a client receives them, for `kincal
+    /// dynamic`.
+    IgtlRecord(igtl_record::IgtlRecordArgs),
+    /// Emulated controller: start one as an arm, pose it, script it from a geometry, inject
+    /// encoder noise and faults.
     #[command(subcommand)]
     EmulatedArm(emulated_arm::EmulatedArmCommand),
     /// Haptic device (PHANToM) workspace calibration.
@@ -62,7 +89,7 @@ enum Command {
     /// Model files: from and to URDF, and the built-in SUTA model.
     #[command(subcommand)]
     Model(model::ModelCommand),
-    /// Benchmarks: calibration time, study throughput, and SciPy on the same problem.
+    /// Benchmarks: calibration time, study throughput, and kincal beside Ceres and SciPy on the same problems.
     Bench(bench::BenchArgs),
 }
 
@@ -103,18 +130,22 @@ fn parse() -> (Cli, Option<args::BuiltinModelFile>) {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Simulate(a) => arm::cmd_simulate(&a),
-        Command::Calibrate(a) => arm::cmd_calibrate(&a),
+        Command::Calibrate(a) => calibrate::cmd_calibrate(&a),
+        Command::Certificate(a) => certificate::cmd_certificate(&a),
         Command::Study(a) => arm::cmd_study(&a),
-        Command::Diagnose(a) => arm::cmd_diagnose(&a),
-        Command::Compare(a) => arm::cmd_compare(&a),
+        Command::Diagnose(a) => diagnose::cmd_diagnose(&a),
+        Command::Compare(a) => diagnose::cmd_compare(&a),
         Command::Plan(a) => plan::cmd_plan(&a),
-        Command::Demo(a) => controller::cmd_demo(&a),
+        Command::Demo(a) => demo::cmd_demo(&a),
         Command::Info(a) => controller::cmd_info(&a),
         Command::Params(a) => controller::cmd_params(&a),
         Command::Upload(a) => controller::cmd_upload(&a),
         Command::Key(controller::KeyCommand::New(a)) => controller::cmd_key_new(&a),
         Command::Stream(a) => controller::cmd_stream(&a),
         Command::Record(a) => controller::cmd_record(&a),
+        Command::Check(a) => controller::cmd_check(&a),
+        Command::Dynamic(a) => dynamic::cmd_dynamic(&a),
+        Command::IgtlRecord(a) => igtl_record::cmd_igtl_record(&a),
         Command::EmulatedArm(c) => emulated_arm::run(&c),
         Command::Haptic(haptic::HapticCommand::Simulate(a)) => haptic::cmd_haptic_simulate(&a),
         Command::Haptic(haptic::HapticCommand::Calibrate(a)) => haptic::cmd_haptic_calibrate(&a),

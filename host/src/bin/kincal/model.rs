@@ -2,6 +2,7 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
+use kincal::files::write_output;
 use kincal::model::urdf::{calibrated_urdf, model_from_urdf};
 use kincal::model::ArmModel;
 use std::path::PathBuf;
@@ -11,7 +12,8 @@ use std::path::PathBuf;
 pub enum ModelCommand {
     /// Write the chain BASE → TIP of a URDF as a kincal-arm/1 model (convention "urdf").
     FromUrdf(FromUrdfArgs),
-    /// Write a calibrated URDF model's joint origins back into a copy of the URDF.
+    /// Write a calibrated URDF model's joint origins back into a copy of the URDF it was made
+    /// from (only the kinematic `<joint>` origins change; the copy is read back and checked).
     ToUrdf(ToUrdfArgs),
     /// Write the SUTA nominal model built into kincal (thesis Table 3.2, the file
     /// examples/suta/model.toml), to calibrate or to edit into your own arm's model.
@@ -54,10 +56,13 @@ pub struct ToUrdfArgs {
     /// The URDF the model was made from.
     #[arg(long)]
     urdf: PathBuf,
-    /// The chain, as given to from-urdf.
-    #[command(flatten)]
-    chain: ChainArgs,
-    /// The calibrated URDF to write.
+    /// The chain's first link (recorded in the model; given, it must be the same).
+    #[arg(long)]
+    base: Option<String>,
+    /// The chain's last link (recorded in the model; given, it must be the same).
+    #[arg(long)]
+    tip: Option<String>,
+    /// The calibrated URDF to write (a new file, never one of the inputs).
     #[arg(long)]
     out: PathBuf,
 }
@@ -69,9 +74,15 @@ pub fn run(command: &ModelCommand) -> Result<()> {
             let model = model_from_urdf(&a.urdf, &a.chain.base, &a.chain.tip)?;
             match &a.out {
                 Some(out) => {
-                    model.save(out)?;
+                    let note = format!(
+                        "model from-urdf {} --base {} --tip {}",
+                        a.urdf.display(),
+                        a.chain.base,
+                        a.chain.tip
+                    );
+                    model.save_output(out, "--out", &[&a.urdf], &note)?;
                     println!(
-                        "{}: {} revolute joints, {} free parameters (origins ±{} mm / ±{} deg, offsets)",
+                        "{}: {} revolute joints, {} free parameters (origins ±{} mm, turns ±{} deg, offsets)",
                         out.display(),
                         model.joints.len(),
                         model.free.len(),
@@ -83,16 +94,28 @@ pub fn run(command: &ModelCommand) -> Result<()> {
             }
         }
         ModelCommand::ToUrdf(a) => {
-            if a.out.canonicalize().ok().is_some_and(|out| a.urdf.canonicalize().ok() == Some(out)) {
-                anyhow::bail!(
-                    "--out {} is the URDF it is made from: write the calibrated URDF to another file",
-                    a.out.display()
+            kincal::files::check_output(&a.out, "--out", &[&a.model, &a.urdf])?;
+            let model = ArmModel::load(&a.model)?;
+            let written = calibrated_urdf(&a.urdf, &model, &a.model, a.base.as_deref(), a.tip.as_deref())?;
+            write_output(&a.out, "--out", &[&a.model, &a.urdf], written.text.as_bytes())?;
+            println!(
+                "{}: {} joint origins calibrated ({})",
+                a.out.display(),
+                written.joints.len(),
+                written.joints.join(", ")
+            );
+            println!(
+                "  read back: forward kinematics within {:.1e} mm of {} at {} poses",
+                written.read_back_mm,
+                a.model.display(),
+                written.poses_checked
+            );
+            if let Some(source) = &model.urdf {
+                println!(
+                    "  the tool point stays in the model (tcp_mm); the URDF's tip {} is where it was",
+                    source.tip
                 );
             }
-            let model = ArmModel::load(&a.model)?;
-            let text = calibrated_urdf(&a.urdf, &a.chain.base, &a.chain.tip, &model)?;
-            std::fs::write(&a.out, text).with_context(|| format!("{}: cannot write", a.out.display()))?;
-            println!("{}: {} joint origins calibrated", a.out.display(), model.joints.len());
         }
         ModelCommand::Suta(a) => {
             let text = kincal::model::file::SUTA_MODEL_TOML;

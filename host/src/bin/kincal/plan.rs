@@ -1,11 +1,12 @@
-//! `kincal plan RUN`: what to measure next — placements that tell two rival effects apart, and
-//! placements that pin down the weakest parameters.
+//! `kincal plan RUN`: what to measure next — artefact placements (or, for an instrument run,
+//! sessions of arm poses) that tell two rival effects apart, and ones that pin down the weakest
+//! parameters.
 
 use anyhow::{bail, Result};
 use clap::Args;
-use kincal::calib::plan::{plan, PlanOptions, SEPARABLE_SIGMA2};
-use kincal::calib::run::RunFolder;
-use kincal::output;
+use kincal::api::{self, PlanRequest, Planned};
+use kincal::calib::plan::SEPARABLE_SIGMA2;
+use kincal::store;
 use std::path::PathBuf;
 
 #[derive(Args)]
@@ -34,14 +35,20 @@ pub struct PlanArgs {
 }
 
 fn place(p: &kincal::calib::plan::SuggestedPlacement) -> String {
-    format!(
-        "artefact origin at ({:.0}, {:.0}, {:.0}) mm, yaw {:+.0}°, {} landmarks",
-        p.origin_mm[0],
-        p.origin_mm[1],
-        p.origin_mm[2],
-        p.yaw_deg,
-        p.landmarks.len()
-    )
+    match (p.origin_mm, p.yaw_deg) {
+        (Some(o), Some(yaw)) => format!(
+            "artefact origin at ({:.0}, {:.0}, {:.0}) mm, yaw {yaw:+.0}°, {} landmarks",
+            o[0],
+            o[1],
+            o[2],
+            p.landmarks.len()
+        ),
+        _ => format!(
+            "a new session {} of {} poses (the instrument anywhere it sees the tool)",
+            p.session.as_deref().unwrap_or(""),
+            p.poses_deg.len()
+        ),
+    }
 }
 
 fn ranges(joint_ranges_deg: &[(usize, f64, f64)], joints: &[usize]) -> String {
@@ -62,67 +69,42 @@ fn ranges(joint_ranges_deg: &[(usize, f64, f64)], joints: &[usize]) -> String {
 pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
     // Refuse an output that would replace someone's file before any work is done.
     if let Some(path) = &a.out {
-        output::check_own_file(path, output::PLAN_FORMAT)?;
+        store::check_own_file(path, store::PLAN_FORMAT)?;
     }
     if let Some(path) = &a.csv {
-        output::check_own_file(path, output::PLAN_CSV_HEADER)?;
+        store::check_own_file(path, store::PLAN_CSV_HEADER)?;
     }
-    let folder = RunFolder::load(&a.run)?;
+    let folder = api::load(&a.run)?;
     for problem in &folder.summary.not_trustworthy {
         eprintln!("warning: this run is marked not trustworthy: {problem}");
     }
-    let (artefact, cal, val) = folder.data()?;
-    let from_diagnosis = if a.rivals.is_empty() {
-        let d = kincal::calib::diagnose::diagnose(
-            &folder.model,
-            &artefact,
-            &cal,
-            &val,
-            &folder.summary.options.calibration_options(),
-        );
-        let pair = d
-            .rivals
-            .iter()
-            .find(|r| r.verdict == kincal::calib::diagnose::RivalVerdict::CannotTell)
-            .map(|r| (r.a.clone(), r.b.clone()));
-        match &pair {
-            Some((x, y)) => println!("the diagnosis cannot tell {x} from {y}: planning to separate them"),
-            None => println!(
-                "the diagnosis names no rivals it cannot tell apart (give --rivals A,B to plan for a pair)"
-            ),
-        }
-        pair
-    } else {
-        None
-    };
-    let rivals = match (a.rivals.as_slice(), &from_diagnosis) {
-        ([], Some((x, y))) => Some((x.as_str(), y.as_str())),
-        ([], None) => None,
-        ([x, y], _) => Some((x.as_str(), y.as_str())),
-        (other, _) => bail!("--rivals takes two effects, A,B (got {})", other.len()),
-    };
-    let touch_std_mm = match a.touch_std_mm {
-        Some(s) => s,
-        None => match kincal::calib::floor::noise_floor(
-            &folder.model,
-            &artefact,
-            &cal,
-            &val,
-            folder.model.free.len(),
-        ) {
-            Some(f) => f.touch_std_mm,
-            None => bail!(
-                "{}: no repeated touches, so the touch noise is unknown; give --touch-std-mm",
-                a.run.display()
-            ),
-        },
+    let rivals = match a.rivals.as_slice() {
+        [] => None,
+        [x, y] => Some((x.as_str(), y.as_str())),
+        other => bail!("--rivals takes two effects, A,B (got {})", other.len()),
     };
     let started = std::time::Instant::now();
-    let options = PlanOptions { count: a.count, seed: a.seed, touch_std_mm };
-    let plan = plan(&folder.model, &artefact, &cal, &val, rivals, &options)?;
+    let request = PlanRequest { rivals, count: a.count, seed: a.seed, touch_std_mm: a.touch_std_mm };
+    let Planned { plan, from_diagnosis } = api::plan(&folder, &request)?;
+    match from_diagnosis {
+        Some(Some((x, y))) => println!("the diagnosis cannot tell {x} from {y}: planning to separate them"),
+        Some(None) => {
+            println!(
+                "the diagnosis names no rivals it cannot tell apart (give --rivals A,B to plan for a pair)"
+            )
+        }
+        None => {}
+    }
+    let sessions = plan.weak.placements.first().is_some_and(|p| p.session.is_some());
     println!(
-        "{} reachable candidate placements, touch noise {:.3} mm per axis; planned in {:.1} s",
+        "{} {}, {} noise {:.3} mm per axis; planned in {:.1} s",
         plan.candidates,
+        if sessions {
+            "candidate sessions of poses within the joint ranges the data visit"
+        } else {
+            "reachable candidate placements"
+        },
+        if sessions { "point" } else { "touch" },
         plan.touch_std_mm,
         started.elapsed().as_secs_f64()
     );
@@ -148,7 +130,7 @@ pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
         for (k, p) in r.placements.iter().enumerate() {
             let (ab, ba) = p.differ_mm.unwrap_or((0.0, 0.0));
             println!("  {}. {}: {}", k + 1, place(p), ranges(&p.joint_ranges_deg, &joints));
-            println!("     the two explanations differ by {ab:.3} mm per touch there if {ra} is the cause ({ba:.3} mm if {rb}); landmarks {}", p.landmarks.join(" "));
+            println!("     the two explanations differ by {ab:.3} mm per touch there if {ra} is the cause ({ba:.3} mm if {rb}); measure {}", p.landmarks.join(" "));
             let most = p.touch_differ_mm.iter().copied().fold(0.0, f64::max);
             let (marks, there) = p.where_rivals_differ(0.5);
             println!(
@@ -168,11 +150,11 @@ pub fn cmd_plan(a: &PlanArgs) -> Result<()> {
         println!("  {}. {}: {}", k + 1, place(p), ranges(&p.joint_ranges_deg, &[]));
     }
     if let Some(path) = &a.out {
-        output::write_own_file(path, &output::plan_json(&plan), output::PLAN_FORMAT)?;
+        store::write_own_file(path, &store::plan_json(&plan), store::PLAN_FORMAT)?;
         println!("plan: {}", path.display());
     }
     if let Some(path) = &a.csv {
-        output::write_own_file(path, &output::plan_csv(&plan), output::PLAN_CSV_HEADER)?;
+        store::write_own_file(path, &store::plan_csv(&plan), store::PLAN_CSV_HEADER)?;
         println!("pose list: {}", path.display());
     }
     Ok(())

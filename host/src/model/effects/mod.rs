@@ -19,7 +19,7 @@
 //!    its partials in the `AnglePartials` list (`ANGLE_DEPS`).
 //! 6. `simulate.rs`: the same term written again in the independent forward path
 //!    (`tool_frame_with`), so tests can hide it in data the fitting code did not make.
-//! 7. `calib/diagnose.rs`: the plain-words `evidence` for the kind.
+//! 7. `calib/diagnose/evidence.rs`: the plain words (`effect_words`) for the kind.
 //! 8. The controller: `protocol/src/params.rs` (the parameter blob), `controller/device.rs`
 //!    (the mapping) and the firmware kinematics — until then [`beyond_controller`] names the
 //!    parameters the controller cannot evaluate and `kincal upload` refuses such a model.
@@ -206,7 +206,7 @@ pub fn default_half_range(p: ParamId) -> f64 {
     match p {
         ParamId::Offset(_) => 10.0,
         ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) | ParamId::OriginXyz(..) => 10.0,
-        ParamId::Twist(_) | ParamId::Axis(_) | ParamId::OriginRpy(..) => 5.0,
+        ParamId::Twist(_) | ParamId::Axis(_) | ParamId::OriginTurn(..) => 5.0,
         ParamId::EccSin(_) | ParamId::EccCos(_) => 2.0,
         ParamId::Ecc2Sin(_) | ParamId::Ecc2Cos(_) => 1.0,
         ParamId::Compliance(_) => 2.0,
@@ -235,6 +235,21 @@ impl fmt::Display for Effect {
             Some(j) => write!(f, "{}:{}", self.kind.name(), j + 1),
             None => write!(f, "{}", self.kind.name()),
         }
+    }
+}
+
+impl serde::Serialize for Effect {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Effect {
+    /// An effect by its name (`compliance:2`, `harmonic:3:3`, `scale`).
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Effect, D::Error> {
+        let name = String::deserialize(d)?;
+        Effect::parse(&name)
+            .ok_or_else(|| serde::de::Error::custom(format!("\"{name}\" is not an effect of the library")))
     }
 }
 

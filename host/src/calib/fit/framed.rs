@@ -1,0 +1,233 @@
+//! Calibration with block unknowns (instrument sessions' frames, floated tools, drifts): the
+//! frames at their closed form, identifiability with them projected out, the passes re-centring
+//! them, and the covariance.
+
+use super::*;
+
+/// A solution with frames: the model, each block's frame, each group's tool, the probe and the
+/// drifts, with its cost, iterations and how its last pass stopped.
+pub(super) struct Solved {
+    pub(super) model: ArmModel,
+    pub(super) frames: Vec<Frame>,
+    pub(super) tools: Vec<Vector3<f64>>,
+    pub(super) probe: Option<Matrix3<f64>>,
+    pub(super) drifts: Vec<Vec<f64>>,
+    pub(super) outcome: StartOutcome,
+}
+
+impl Solved {
+    /// Not solved yet: `model` with `frames` and the probe at `probe`, tools and drifts zero.
+    pub(super) fn at(
+        model: ArmModel,
+        frames: Vec<Frame>,
+        probe: Option<Matrix3<f64>>,
+        data: &Observations,
+    ) -> Solved {
+        Solved {
+            model,
+            frames,
+            tools: vec![Vector3::zeros(); data.groups.len()],
+            probe,
+            drifts: vec![Vec::new(); data.blocks.len()],
+            outcome: StartOutcome {
+                start: 0,
+                initial_cost: f64::NAN,
+                final_cost: f64::INFINITY,
+                iterations: 0,
+                stop: StopReason::NoProgress,
+            },
+        }
+    }
+}
+
+/// Solve for `estimated` from `start` (frames at `frames`, probe at `probe`); again from its
+/// solution with the frames' rotations (and the probe's) re-centred, while a solve stops without
+/// converging (up to [`PASSES`] passes).
+pub(super) fn solve_framed(
+    pieces: &Pieces,
+    estimated: &[ParamId],
+    start: ArmModel,
+    frames: Vec<Frame>,
+    probe: Option<Matrix3<f64>>,
+    number: usize,
+) -> Solved {
+    let options = SolverOptions { loss: pieces.resolved.loss, ..FRAMED_SOLVER };
+    let mut s = Solved::at(start, frames, probe, pieces.data);
+    s.outcome.start = number;
+    let mut last_cost = f64::INFINITY;
+    for pass in 0..PASSES {
+        let problem = pieces.problem(estimated.to_vec(), &s.model, &s.frames, s.probe);
+        let n = problem.layout.unknowns();
+        let x0 = pieces.x_of(&problem, &s.model, &s.frames, &s.tools, &s.drifts);
+        let (lower, upper) = pieces.bounds(estimated, n);
+        if pass == 0 {
+            let mut r0 = vec![0.0; problem.len()];
+            problem.evaluate(&x0, &mut r0, None);
+            s.outcome.initial_cost = options.loss.cost(&r0);
+        }
+        let solution = solver::solve(&problem, &x0, &lower, &upper, &options);
+        s.outcome.iterations += solution.iterations;
+        s.outcome.stop = solution.stop;
+        s.outcome.final_cost = solution.cost;
+        let state = problem.state(&solution.x);
+        s.tools = state.tools;
+        s.frames = state.frames;
+        s.probe = s.probe.map(|_| state.probe);
+        s.drifts = state.drifts;
+        s.model = state.model;
+        // The rotations' Jacobians are exact at any ω (J_l): a solve that stopped on a tolerance
+        // is at the minimum; another pass re-centres one that hit its limit or lost progress.
+        let settled = matches!(
+            solution.stop,
+            StopReason::CostConverged | StopReason::GradientConverged | StopReason::StepConverged
+        );
+        let converged = (last_cost - solution.cost).abs() <= 1e-9 * solution.cost.max(1e-12);
+        last_cost = solution.cost;
+        if settled || converged {
+            break;
+        }
+    }
+    s
+}
+
+pub(super) fn calibrate_framed(nominal: &ArmModel, pieces: &Pieces) -> Result<Fit, CalibError> {
+    let data = pieces.data;
+    let model = &pieces.model;
+    let all: Vec<ParamId> = model.free.iter().map(|f| f.id).collect();
+    let start_frames = pieces.closed_form_frames(model);
+    let probe = start_probe_rotation(model, data, &start_frames)
+        .filter(|_| pieces.resolved.orientation_weight_mm_per_rad.is_some());
+    let full = pieces.problem(all.clone(), model, &start_frames, probe);
+    let tools0 = vec![Vector3::zeros(); data.groups.len()];
+    let x0 = pieces.x_of(&full, model, &start_frames, &tools0, &vec![Vec::new(); data.blocks.len()]);
+    let spreads: Vec<(String, f64)> = (0..data.blocks.len())
+        .filter(|&b| pieces.framed[b])
+        .map(|b| (data.block_name(b), orientation_spread_deg(model, data, b)))
+        .collect();
+    // No session turns the tool and no touch pins it: its point is the frames' translation,
+    // whatever a small model error makes the Jacobian say; it stays at its nominal value.
+    let pinned = data.obs.iter().any(|o| o.landmark().is_some());
+    let tool_turns = pinned || spreads.iter().any(|s| s.1 >= CONSTANT_ORIENTATION_DEG);
+    // Identifiability at the nominal arm with the tool point (and the probe's rotation, the
+    // frames) first fitted to the data: a model's tool point often lies on the last joint's axis
+    // (a URDF's tool0 or flange), where that axis' tilt moves no point, while the probe measured
+    // is off the axis. Decided at the nominal tool point, the tilt would be held because of a
+    // coincidence of the CAD values; decided at the fitted one, only what the data cannot
+    // determine is held.
+    let tool: Vec<ParamId> = all.iter().copied().filter(|p| matches!(p, ParamId::Tcp(_))).collect();
+    let mut start = Solved::at(model.clone(), start_frames, probe, data);
+    let factors = if tool_turns && !tool.is_empty() {
+        // The factors are taken after the tool's fit: at the start only the checks.
+        check_residuals(&full, &x0)?;
+        start = solve_framed(pieces, &tool, start.model, start.frames, start.probe, 0);
+        let full = pieces.problem(all.clone(), &start.model, &start.frames, start.probe);
+        let x = pieces.x_of(&full, &start.model, &start.frames, &start.tools, &start.drifts);
+        check_framed(&full, &x)?
+    } else {
+        check_framed(&full, &x0)?
+    };
+    let (raw, projected) = projected_arm_columns(&full.layout, &factors);
+    let ranges: Vec<f64> = all.iter().map(|&id| pieces.range(id)).collect();
+    let (kept, _) = identify::base_columns(&projected, all.len(), &ranges);
+    let before = identify::analyse(&projected, &all, &ranges);
+    let is_tool = |c: &usize| matches!(all[*c], ParamId::Tcp(_));
+    let estimated: Vec<ParamId> =
+        kept.iter().filter(|c| tool_turns || !is_tool(c)).map(|&c| all[c]).collect();
+    let fixed: Vec<ParamId> =
+        (0..all.len()).filter(|c| !estimated.contains(&all[*c])).map(|c| all[c]).collect();
+    let probe_turns = full.layout.rotation_column().is_some();
+    let statements = identify::explain(&all, &raw, &projected, probe_turns, &fixed, &spreads, &ranges);
+    // Solve from the nominal values (the tool point as first fitted, held parameters at their
+    // nominal values), then from the random starts.
+    for id in &fixed {
+        start.model.set(*id, model.get(*id));
+    }
+    let mut solved = solve_framed(pieces, &estimated, start.model, start.frames, start.probe, 0);
+    let restarts = pieces.resolved.restarts;
+    let mut starts = vec![solved.outcome.clone()];
+    if restarts > 0 {
+        let x_nominal: Vec<f64> = estimated.iter().map(|&id| model.get(id)).collect();
+        let (lower, upper) = pieces.bounds(&estimated, estimated.len());
+        let points = start_points(&x_nominal, &lower, &upper, pieces.resolved.seed, 1..=restarts);
+        let others: Vec<Solved> = points
+            .par_iter()
+            .map(|(k, x)| {
+                let mut start = model.clone();
+                for (id, v) in estimated.iter().zip(x) {
+                    start.set(*id, *v);
+                }
+                let frames = pieces.closed_form_frames(&start);
+                let probe = start_probe_rotation(&start, data, &frames)
+                    .filter(|_| pieces.resolved.orientation_weight_mm_per_rad.is_some());
+                solve_framed(pieces, &estimated, start, frames, probe, *k)
+            })
+            .collect();
+        for other in others {
+            starts.push(other.outcome.clone());
+            if other.outcome.final_cost < solved.outcome.final_cost {
+                solved = other;
+            }
+        }
+    }
+    // Uncertainty at the solution (frames, floated tools and drifts marginalised).
+    let problem = pieces.problem(estimated.clone(), &solved.model, &solved.frames, solved.probe);
+    let x = pieces.x_of(&problem, &solved.model, &solved.frames, &solved.tools, &solved.drifts);
+    let mut r = vec![0.0; problem.len()];
+    let loss = pieces.resolved.loss;
+    let (normal, _) = problem.normal_equations(&x, &mut r, loss);
+    let n = problem.layout.unknowns();
+    let dof = (r.len() as f64 - n as f64).max(1.0);
+    let variance = r.iter().map(|&v| loss.weight(v) * v * v).sum::<f64>() / dof;
+    let cov = identify::covariance_of_normal(normal, variance);
+    let stats = residual_stats(&problem, &r);
+    let tool_rotation =
+        problem.layout.rotation_column().zip(solved.probe).map(|(c, rotation)| ToolRotation {
+            rotation_vector_deg: rotation_vector(&rotation).map(f64::to_degrees).into(),
+            std_deg: cov
+                .as_ref()
+                .map(|m| [0, 1, 2].map(|k| (m[(c + k, c + k)].max(0.0).sqrt() * 1e-3).to_degrees())),
+        });
+    let drifts = (0..data.blocks.len())
+        .filter_map(|b| {
+            let (c, d) = problem.layout.drift(b)?;
+            let rate = solved.drifts[b].clone();
+            let rate_std = if d.kind.is_scale() {
+                cov.as_ref().map_or(0.0, |m| m[(c, c)].max(0.0).sqrt())
+            } else {
+                length_std(&Vector3::from_column_slice(&rate), &covariance_block(cov.as_ref(), c))
+            };
+            Some(SessionDrift {
+                session: data.block_name(b),
+                kind: d.kind,
+                rate,
+                rate_std,
+                unit: d.kind.unit().into(),
+                centre: d.centre,
+            })
+        })
+        .collect();
+    Ok(Fit {
+        estimates: estimates(nominal, &solved.model, &all, &estimated, cov.as_ref()),
+        correlations: correlations(&estimated, cov.as_ref()),
+        tool_offsets: floated_tools(&problem, data, &solved.tools, cov.as_ref()),
+        rms_mm: stats.distances.or(stats.points).map_or(0.0, |s| s.rms_mm),
+        stats,
+        options: pieces.resolved,
+        cost: solved.outcome.final_cost,
+        before,
+        after: None,
+        statements,
+        orientation_spread_deg: spreads,
+        estimated,
+        fixed,
+        iterations: solved.outcome.iterations,
+        starts,
+        frames: (0..data.blocks.len())
+            .filter(|&b| pieces.framed[b])
+            .map(|b| (data.block_name(b), solved.frames[b]))
+            .collect(),
+        drifts,
+        tool_rotation,
+        model: solved.model,
+    })
+}

@@ -1,0 +1,376 @@
+//! Calibration: the checks, identifiability, the solve (passes and seeded restarts) and the
+//! covariance, for every kind of observation (Ceres' Solve and Covariance over the problem).
+//!
+//! Without block unknowns (artefact distances) the identifiable base set is chosen on the dense
+//! Jacobian at the nominal values; after solving from the nominal start it is checked again at
+//! the solution (a parameter can lose its lever once the model fits, e.g. the tool length when
+//! every touch holds the tool vertical) and the problem is solved again without the parameters
+//! that became unidentifiable, which stay at their nominal values. The random restarts then run
+//! once, on the final base set, and the lowest cost wins (the earliest start on a tie).
+//!
+//! With block unknowns (instrument sessions), each session's frame starts at its closed form for
+//! the nominal arm ([`Frame::fit`]); the tool point (with the probe's rotation and the frames) is
+//! first fitted on the nominal arm, and identifiability is decided there, not at a nominal tool
+//! point that may lie on the last joint's axis; identifiability sees the frames (they are projected out of
+//! the arm's columns, [`Problem::group_factors`]); the tool point is freed (and held at its
+//! nominal value when no session turns it: then it and each frame's shift are one thing); the
+//! problem is solved, and solved again with the frames' rotations re-centred at the solution
+//! (up to [`PASSES`] passes) only when a solve stops without converging. Restarts, when asked for, start the arm at random points inside its bounds, with
+//! each frame at its closed form for that arm.
+
+use crate::calib::identify::{self, Identifiability};
+use crate::calib::layout::Layout;
+use crate::calib::nuisance::drift::{drift_slots, DriftError, DriftSlot, SessionDrift};
+use crate::calib::nuisance::frame::{rotation_vector, Frame, FRAME_UNKNOWNS};
+use crate::calib::nuisance::tool::{
+    length_std, model_points, orientation_spread_deg, start_probe_rotation, FloatedTool, ToolRotation,
+};
+use crate::calib::problem::{projected_arm_columns, Problem};
+use crate::calib::setup::{Resolved, SolveOptions};
+use crate::calib::terms::{self, Term, TermChoice};
+use crate::calib::validate::{AngleStats, ErrorStats};
+use crate::data::{Kind, Observations};
+use crate::model::{ArmModel, ParamId};
+use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason, Termination};
+use nalgebra::{Matrix3, Vector3};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+/// Spread of the tool orientation within a session, degrees, below which the session is said
+/// to hold the orientation constant.
+pub const CONSTANT_ORIENTATION_DEG: f64 = 1.0;
+/// Half-range of the tool point when the model does not free it and frames are fitted, mm.
+pub const TOOL_HALF_RANGE_MM: f64 = 500.0;
+/// Most Gauss–Newton passes with frames, each re-centring the frames at their solution.
+pub const PASSES: usize = 3;
+/// Most times the base set is re-checked at a solution and the problem solved again.
+const MAX_IDENTIFIABILITY_PASSES: usize = 3;
+/// Change of a residual, mm, over a parameter's whole range below which it counts as none.
+const NEGLIGIBLE_MM: f64 = 1e-9;
+/// Solver settings of each pass when frames are fitted (the passes re-centre between solves).
+const FRAMED_SOLVER: SolverOptions = SolverOptions {
+    loss: Loss::Linear,
+    max_iterations: 100,
+    ftol: 1e-10,
+    xtol: 1e-10,
+    gtol: 1e-10,
+    termination: Termination::Ceres,
+};
+
+/// Why a calibration could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibError {
+    /// The sessions' joint count differs from the model's.
+    #[error("the {kind} sessions {record} {data} {what}, the model has {model} joints")]
+    JointCount {
+        /// `artefact` or `tracker`.
+        kind: &'static str,
+        /// How the sessions hold the joints.
+        record: &'static str,
+        /// Joints in the data.
+        data: usize,
+        /// What they are.
+        what: &'static str,
+        /// Joints of the model.
+        model: usize,
+    },
+    /// Too few distances for the free parameters.
+    #[error("{pairs} landmark pairs cannot determine {params} parameters: touch more landmarks per placement and repeat")]
+    TooFewPairs {
+        /// Distance residuals available.
+        pairs: usize,
+        /// Parameters to determine.
+        params: usize,
+    },
+    /// More unknowns than residuals.
+    #[error("{residuals} measured coordinates cannot determine {unknowns} unknowns: measure more points")]
+    TooFewResiduals {
+        /// Residual rows.
+        residuals: usize,
+        /// Unknowns (arm, tool, frames).
+        unknowns: usize,
+    },
+    /// A session has too few points to place its frame.
+    #[error(
+        "{path}: session \"{session}\" has {points} points: at least 3 not on one line are needed to place its base"
+    )]
+    TooFewPoints {
+        /// The session's file.
+        path: String,
+        /// The session.
+        session: String,
+        /// Its points.
+        points: usize,
+    },
+    /// A change names an observation, block or landmark the data do not hold.
+    #[error("{0}: not in these data")]
+    NotInData(String),
+    /// A group named by `--float-tool` is not in the data.
+    #[error("--float-tool / --drift-session {0}: no calibration session of that name")]
+    UnknownSession(String),
+    /// A drift asked for cannot be fitted.
+    #[error(transparent)]
+    Drift(#[from] DriftError),
+    /// The model has no free parameter.
+    #[error("the model has no free parameter: give bounds in its [free] table")]
+    NothingFree,
+    /// No free parameter changes any residual on these observations.
+    #[error(
+        "none of the free parameters changes any measured distance: the touches carry no information \
+         (all at one pose, or the same joint angles copied into every measurement?)"
+    )]
+    NothingIdentifiable,
+    /// The model gives positions that are not finite numbers.
+    #[error("the model gives non-finite tool positions on these touches: check the model's numbers")]
+    NonFinite,
+}
+
+/// The outcome of one start of the solver.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct StartOutcome {
+    /// 0 for the nominal start, then 1.. for random starts.
+    pub start: usize,
+    /// Cost at the start.
+    pub initial_cost: f64,
+    /// Cost reached.
+    pub final_cost: f64,
+    /// Jacobian evaluations.
+    pub iterations: usize,
+    /// Why it stopped.
+    pub stop: StopReason,
+}
+
+/// How one parameter came out.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Estimate {
+    /// Parameter name.
+    pub param: String,
+    /// Unit of the values.
+    pub unit: String,
+    /// Nominal value.
+    pub nominal: f64,
+    /// Calibrated value.
+    pub value: f64,
+    /// One standard deviation from the covariance, when estimated.
+    pub std: Option<f64>,
+    /// `estimated`, or `fixed: unidentifiable` when the data cannot determine it; a run marks an
+    /// estimate that ended on a bound `estimated, on its lower bound` (or upper).
+    #[serde(default = "estimated")]
+    pub status: String,
+}
+
+fn estimated() -> String {
+    "estimated".into()
+}
+
+/// The residuals at the solution, per kind.
+#[derive(Clone, Debug, Default)]
+pub struct FitStats {
+    /// Distance errors between touches, mm.
+    pub distances: Option<ErrorStats>,
+    /// Lengths of the point errors, mm.
+    pub points: Option<ErrorStats>,
+    /// Angles of the orientation errors, degrees.
+    pub orientations: Option<AngleStats>,
+}
+
+/// The result of a calibration.
+#[derive(Clone, Debug)]
+pub struct Fit {
+    /// The calibrated model (same free set and bounds as the one calibrated, the tool point freed
+    /// when frames are fitted).
+    pub model: ArmModel,
+    /// The options as they applied.
+    pub options: Resolved,
+    /// Cost Σρ at the solution.
+    pub cost: f64,
+    /// Calibration RMS, mm: of the distances when there are touches, else of the point errors.
+    pub rms_mm: f64,
+    /// The residuals at the solution, per kind.
+    pub stats: FitStats,
+    /// Identifiability of all free parameters at the nominal values (the frames projected out).
+    pub before: Identifiability,
+    /// Identifiability at the solution (without block unknowns).
+    pub after: Option<Identifiability>,
+    /// Sentences on what the data cannot separate and what was held therefore.
+    pub statements: Vec<String>,
+    /// Orientation spread of the tool within each session, degrees (session, spread).
+    pub orientation_spread_deg: Vec<(String, f64)>,
+    /// Parameters estimated.
+    pub estimated: Vec<ParamId>,
+    /// Parameters held because the data cannot determine them.
+    pub fixed: Vec<ParamId>,
+    /// Estimates with standard deviations.
+    pub estimates: Vec<Estimate>,
+    /// Parameter pairs correlated beyond ±0.9.
+    pub correlations: Vec<(String, String, f64)>,
+    /// Every start, in order.
+    pub starts: Vec<StartOutcome>,
+    /// Jacobian evaluations over all passes of the start kept.
+    pub iterations: usize,
+    /// Each framed block's frame, by block name.
+    pub frames: Vec<(String, Frame)>,
+    /// Tool offsets of the floated groups.
+    pub tool_offsets: Vec<FloatedTool>,
+    /// Drift rates of the drifting sessions.
+    pub drifts: Vec<SessionDrift>,
+    /// The probe's orientation on the flange (6-DoF probes).
+    pub tool_rotation: Option<ToolRotation>,
+}
+
+/// What the data can and cannot determine, in words, as a run's summary holds it.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct IdentifiabilityReport {
+    /// Free parameters estimated.
+    pub estimated: Vec<String>,
+    /// Free parameters held at their nominal value because the data cannot determine them.
+    pub fixed: Vec<String>,
+    /// Sentences a user reads: what cannot be separated, and why.
+    #[serde(default)]
+    pub statements: Vec<String>,
+    /// Directions of the arm parameters (frames projected out) the data cannot determine.
+    pub unidentifiable: Vec<identify::Combination>,
+    /// Directions it determines only weakly.
+    pub poorly_identified: Vec<identify::Combination>,
+    /// Orientation spread of the tool within each session, degrees (session, spread).
+    #[serde(default)]
+    pub orientation_spread_deg: Vec<(String, f64)>,
+}
+
+impl Fit {
+    /// What the data determine, in words.
+    pub fn identifiability(&self) -> IdentifiabilityReport {
+        IdentifiabilityReport {
+            estimated: self.estimated.iter().map(|p| p.to_string()).collect(),
+            fixed: self.fixed.iter().map(|p| p.to_string()).collect(),
+            statements: self.statements.clone(),
+            unidentifiable: self.before.unidentifiable.clone(),
+            poorly_identified: self.before.poorly_identified.clone(),
+            orientation_spread_deg: self.orientation_spread_deg.clone(),
+        }
+    }
+
+    /// Group `name`'s floated tool offset (zero unless floated), mm.
+    pub fn tool_offset(&self, name: &str) -> Vector3<f64> {
+        self.tool_offsets
+            .iter()
+            .find(|t| t.session == name)
+            .map_or(Vector3::zeros(), |t| Vector3::from(t.offset_mm))
+    }
+
+    /// Block `name`'s frame, when it has one.
+    pub fn frame(&self, name: &str) -> Option<Frame> {
+        self.frames.iter().find(|f| f.0 == name).map(|f| f.1)
+    }
+
+    /// The probe's rotation on the flange (the identity without one).
+    pub fn probe(&self) -> Matrix3<f64> {
+        self.tool_rotation.map_or(Matrix3::identity(), |t| t.rotation())
+    }
+}
+
+mod dense;
+mod framed;
+mod outcome;
+mod pieces;
+#[cfg(test)]
+mod tests;
+
+use dense::*;
+use framed::*;
+use outcome::*;
+use pieces::*;
+
+/// Every refusal of `data` for calibrating `model` before any solving: the joint count, a session
+/// too small for its frame, no free parameter, too few residuals, non-finite positions, or
+/// observations that carry no information. `calibrate` refuses with these errors, and so does
+/// `diagnose` on a RUN's data, with the same messages.
+pub fn check_data(model: &ArmModel, data: &Observations, options: &SolveOptions) -> Result<(), CalibError> {
+    let pieces = Pieces::new(model, data, options)?;
+    let all: Vec<ParamId> = pieces.model.free.iter().map(|f| f.id).collect();
+    if pieces.blocked() {
+        let frames = pieces.closed_form_frames(&pieces.model);
+        let probe = start_probe_rotation(&pieces.model, data, &frames);
+        let full = pieces.problem(all, &pieces.model, &frames, probe);
+        let tools = vec![Vector3::zeros(); data.groups.len()];
+        let x0 = pieces.x_of(&full, &pieces.model, &frames, &tools, &vec![Vec::new(); data.blocks.len()]);
+        return check_framed(&full, &x0).map(|_| ());
+    }
+    check_dense(&pieces, &all).map(|_| ())
+}
+
+/// Calibrate the free parameters of `nominal` on `data` (see the module doc).
+pub fn calibrate(nominal: &ArmModel, data: &Observations, options: &SolveOptions) -> Result<Fit, CalibError> {
+    let pieces = Pieces::new(nominal, data, options)?;
+    if pieces.blocked() {
+        calibrate_framed(nominal, &pieces)
+    } else {
+        calibrate_dense(nominal, &pieces, options)
+    }
+}
+
+/// Solve for `params` (free in `start`, with its bounds) on `data` from `start`'s values: one
+/// warm start, no identifiability analysis, no restarts, no uncertainty. For refits whose base
+/// set is already known (leave-one-out refits, the diagnosis' candidate refits).
+pub fn solve_warm(
+    start: &ArmModel,
+    params: &[ParamId],
+    data: &Observations,
+    options: &SolveOptions,
+) -> Result<ArmModel, CalibError> {
+    let pieces = Pieces::new(start, data, options)?;
+    if pieces.blocked() {
+        let frames = pieces.closed_form_frames(start);
+        let probe = start_probe_rotation(start, data, &frames)
+            .filter(|_| pieces.resolved.orientation_weight_mm_per_rad.is_some());
+        return Ok(solve_framed(&pieces, params, start.clone(), frames, probe, 0).model);
+    }
+    let frames = vec![Frame::identity(); data.blocks.len()];
+    let problem = pieces.problem(params.to_vec(), start, &frames, None);
+    let pairs = pieces.distance_rows();
+    if pairs < params.len() {
+        return Err(CalibError::TooFewPairs { pairs, params: params.len() });
+    }
+    let n = problem.layout.unknowns();
+    let (lower, upper) = pieces.bounds(params, n);
+    let mut x0: Vec<f64> = params.iter().map(|&id| start.get(id)).collect();
+    x0.resize(n, 0.0);
+    let solver_options = SolverOptions { loss: pieces.resolved.loss, ..options.solver };
+    let (solution, _) =
+        solve_from_starts(&problem, &x0, &lower, &upper, &solver_options, options.seed, 0..=0);
+    Ok(problem.state(&solution.x).model)
+}
+
+/// The residuals and the dense Jacobian (row-major, `params.len()` columns) of the frame-free
+/// terms of `data` (artefact distances, with their relative orientations when `lever_mm` is
+/// given) at `model`'s values of `params`.
+pub fn dense_jacobian(
+    model: &ArmModel,
+    params: &[ParamId],
+    data: &Observations,
+    lever_mm: Option<f64>,
+) -> (Vec<f64>, Vec<f64>) {
+    let pairs = data.landmark_pairs();
+    let mut terms = terms::distance::terms(data, &pairs);
+    if let Some(lever) = lever_mm {
+        terms.extend(terms::relative_orientation::terms(data, &pairs, lever));
+    }
+    let layout = Layout::new(
+        params.to_vec(),
+        &vec![false; data.blocks.len()],
+        &vec![false; data.groups.len()],
+        false,
+        &vec![None; data.blocks.len()],
+    );
+    let problem =
+        Problem::new(layout, model, data, &terms, vec![Matrix3::identity(); data.blocks.len()], None);
+    let x: Vec<f64> = params.iter().map(|&id| model.get(id)).collect();
+    jacobian_at(&problem, &x)
+}
+
+/// Solve again for the parameters `fit` estimated, on other data (a landmark or block left out),
+/// starting from `fit`'s solution: no identifiability analysis, no restarts, no uncertainty.
+pub fn refit(fit: &Fit, data: &Observations, options: &SolveOptions) -> Result<ArmModel, CalibError> {
+    solve_warm(&fit.model, &fit.estimated, data, options)
+}

@@ -1,0 +1,308 @@
+//! What a calibration is made of, whatever the arm's values: the terms and unknowns of the
+//! observations, the starts, and the checks before any solve.
+
+use super::*;
+
+/// What a calibration of some observations is made of, whatever the arm's values.
+pub(super) struct Pieces<'a> {
+    pub(super) data: &'a Observations,
+    pub(super) model: ArmModel,
+    pub(super) terms: Vec<Box<dyn Term>>,
+    pub(super) framed: Vec<bool>,
+    pub(super) floated: Vec<bool>,
+    pub(super) drift: Vec<Option<DriftSlot>>,
+    pub(super) resolved: Resolved,
+}
+
+impl<'a> Pieces<'a> {
+    /// Check `data` against `nominal` and `options` and assemble the terms and the unknowns.
+    pub(super) fn new(
+        nominal: &ArmModel,
+        data: &'a Observations,
+        options: &SolveOptions,
+    ) -> Result<Pieces<'a>, CalibError> {
+        if !data.obs.is_empty() && nominal.joints.len() != data.joints {
+            let tracker = data.obs.iter().any(|o| o.point_mm().is_some());
+            return Err(CalibError::JointCount {
+                kind: if tracker { "tracker" } else { "artefact" },
+                record: if tracker { "have" } else { "record" },
+                data: data.joints,
+                what: if tracker { "joint columns (q1_deg …)" } else { "encoder angles" },
+                model: nominal.joints.len(),
+            });
+        }
+        let framed: Vec<bool> =
+            data.blocks.iter().map(|b| data.groups[b.group].kind == Kind::Tracker).collect();
+        for (b, block) in data.blocks.iter().enumerate().filter(|(b, _)| framed[*b]) {
+            if block.members.len() < 3 {
+                let group = &data.groups[block.group];
+                return Err(CalibError::TooFewPoints {
+                    path: group.source.display().to_string(),
+                    session: data.block_name(b),
+                    points: block.members.len(),
+                });
+            }
+        }
+        for name in &options.float_tool {
+            if data.find_group(name).is_none() {
+                return Err(CalibError::UnknownSession(name.clone()));
+            }
+        }
+        let floated = data.groups.iter().map(|g| options.float_tool.contains(&g.name)).collect();
+        let drift = drift_slots(data, &options.drift_sessions)?;
+        let mut model = nominal.clone();
+        // An instrument's tool point (a reflector, a probe) is never known to the data's accuracy.
+        let instrument = framed.iter().any(|f| *f) || data.obs.iter().any(|o| o.unframed_mm().is_some());
+        if instrument {
+            for k in 0..3 {
+                if !model.free.iter().any(|f| f.id == ParamId::Tcp(k)) {
+                    let v = model.tcp_mm[k];
+                    model.free_param(ParamId::Tcp(k), v - TOOL_HALF_RANGE_MM, v + TOOL_HALF_RANGE_MM);
+                }
+            }
+        }
+        let mut resolved = options.resolve(data);
+        if data.kind() == Some(crate::data::DataKind::Mixed) {
+            let touch_std_mm = crate::calib::floor::touch_std_mm(nominal, data);
+            resolved.point_weight = options.point_weight(data, touch_std_mm);
+        }
+        let choice = TermChoice {
+            relative_orientation_lever_mm: resolved.relative_lever_mm,
+            orientation_weight_mm_per_rad: resolved.orientation_weight_mm_per_rad,
+            point_weight: resolved.point_weight,
+        };
+        Ok(Pieces { data, model, terms: terms::build(data, &choice), framed, floated, drift, resolved })
+    }
+
+    /// Whether any block or group has unknowns of its own (frames, floated tools, drifts).
+    pub(super) fn blocked(&self) -> bool {
+        self.framed.iter().chain(&self.floated).any(|f| *f) || self.drift.iter().any(Option::is_some)
+    }
+
+    pub(super) fn layout(&self, arm: Vec<ParamId>) -> Layout {
+        let rotation = self.resolved.orientation_weight_mm_per_rad.is_some();
+        Layout::new(arm, &self.framed, &self.floated, rotation, &self.drift)
+    }
+
+    /// The problem over `arm` around `model`, frames starting at `frames`, the probe at `probe`.
+    pub(super) fn problem<'p>(
+        &'p self,
+        arm: Vec<ParamId>,
+        model: &'p ArmModel,
+        frames: &[Frame],
+        probe: Option<Matrix3<f64>>,
+    ) -> Problem<'p> {
+        Problem::new(
+            self.layout(arm),
+            model,
+            self.data,
+            &self.terms,
+            frames.iter().map(|f| f.rotation).collect(),
+            probe.filter(|_| self.resolved.orientation_weight_mm_per_rad.is_some()),
+        )
+    }
+
+    /// Each block's frame at its closed form for `model` (tool offsets zero), the identity for a
+    /// block without one.
+    pub(super) fn closed_form_frames(&self, model: &ArmModel) -> Vec<Frame> {
+        let data = self.data;
+        let zero = Vector3::zeros();
+        (0..data.blocks.len())
+            .map(|b| {
+                if !self.framed[b] {
+                    return Frame::identity();
+                }
+                let members = &data.blocks[b].members;
+                let robot = model_points(model, members.iter().map(|&k| &data.obs[k].q_deg[..]), &zero);
+                let measured: Vec<Vector3<f64>> =
+                    members.iter().map(|&k| data.obs[k].point_mm().unwrap_or_default()).collect();
+                Frame::fit(&robot, &measured)
+            })
+            .collect()
+    }
+
+    /// The unknowns at `model`'s values with `frames` (rotations re-centred), the groups' tool
+    /// offsets `tools`, the probe at its start and the drifts `drifts`.
+    pub(super) fn x_of(
+        &self,
+        problem: &Problem,
+        model: &ArmModel,
+        frames: &[Frame],
+        tools: &[Vector3<f64>],
+        drifts: &[Vec<f64>],
+    ) -> Vec<f64> {
+        let layout = &problem.layout;
+        let mut x: Vec<f64> = layout.arm.iter().map(|id| model.get(*id)).collect();
+        x.resize(layout.unknowns(), 0.0);
+        for (b, f) in frames.iter().enumerate() {
+            if let Some(c) = layout.frame_column(b) {
+                x[c..c + 3].copy_from_slice(&[0.0; 3]);
+                x[c + 3..c + FRAME_UNKNOWNS].copy_from_slice(f.translation_mm.as_slice());
+            }
+        }
+        for (g, t) in tools.iter().enumerate() {
+            if let Some(c) = layout.tool_column(g) {
+                x[c..c + 3].copy_from_slice(t.as_slice());
+            }
+        }
+        for (b, d) in drifts.iter().enumerate() {
+            if let Some((c, slot)) = layout.drift(b) {
+                for k in 0..slot.kind.unknowns() {
+                    x[c + k] = d.get(k).copied().unwrap_or(0.0);
+                }
+            }
+        }
+        x
+    }
+
+    pub(super) fn bounds(&self, params: &[ParamId], unknowns: usize) -> (Vec<f64>, Vec<f64>) {
+        let bound = |id: &ParamId| self.model.free.iter().find(|f| f.id == *id);
+        let mut lower: Vec<f64> =
+            params.iter().map(|id| bound(id).map_or(f64::NEG_INFINITY, |f| f.lower)).collect();
+        let mut upper: Vec<f64> =
+            params.iter().map(|id| bound(id).map_or(f64::INFINITY, |f| f.upper)).collect();
+        lower.resize(unknowns, -1e9);
+        upper.resize(unknowns, 1e9);
+        (lower, upper)
+    }
+
+    pub(super) fn range(&self, id: ParamId) -> f64 {
+        self.model.free.iter().find(|f| f.id == id).map_or(1.0, |f| (f.upper - f.lower).max(1e-9))
+    }
+
+    pub(super) fn distance_rows(&self) -> usize {
+        self.terms.iter().filter(|t| t.rows() == 1 && t.is_position()).count()
+    }
+}
+
+pub(super) fn jacobian_at(problem: &Problem, x: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let m = problem.len();
+    let mut r = vec![0.0; m];
+    let mut jac = vec![0.0; m * x.len()];
+    problem.evaluate(x, &mut r, Some(&mut jac));
+    (r, jac)
+}
+
+/// Solve from the nominal values (start 0) or from random points inside the bounds (starts 1..),
+/// keeping the lowest cost (the earliest start on a tie). Random start k is the same point
+/// whichever starts are run; the starts run in parallel on every core.
+pub(super) fn solve_from_starts(
+    problem: &Problem,
+    x_nominal: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    options: &SolverOptions,
+    seed: u64,
+    starts: std::ops::RangeInclusive<usize>,
+) -> (solver::Solution, Vec<StartOutcome>) {
+    let points = start_points(x_nominal, lower, upper, seed, starts);
+    let solved: Vec<(StartOutcome, solver::Solution)> = points
+        .par_iter()
+        .map(|(start, x0)| {
+            let mut r0 = vec![0.0; problem.len()];
+            problem.evaluate(x0, &mut r0, None);
+            let s = solver::solve(problem, x0, lower, upper, options);
+            let outcome = StartOutcome {
+                start: *start,
+                initial_cost: options.loss.cost(&r0),
+                final_cost: s.cost,
+                iterations: s.iterations,
+                stop: s.stop,
+            };
+            (outcome, s)
+        })
+        .collect();
+    let mut outcomes = Vec::new();
+    let mut best: Option<solver::Solution> = None;
+    for (outcome, s) in solved {
+        outcomes.push(outcome);
+        if best.as_ref().is_none_or(|b| s.cost < b.cost) {
+            best = Some(s);
+        }
+    }
+    let best = best.unwrap_or_else(|| solver::solve(problem, x_nominal, lower, upper, options));
+    (best, outcomes)
+}
+
+/// The start points `starts`: 0 the nominal values, k ≥ 1 the k-th seeded random point inside the
+/// bounds (the same whichever starts are run).
+pub(super) fn start_points(
+    x_nominal: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    seed: u64,
+    starts: std::ops::RangeInclusive<usize>,
+) -> Vec<(usize, Vec<f64>)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..=*starts.end())
+        .map(|start| {
+            let x0: Vec<f64> = if start == 0 {
+                x_nominal.to_vec()
+            } else {
+                lower.iter().zip(upper).map(|(l, u)| l + (u - l) * rng.random::<f64>()).collect()
+            };
+            (start, x0)
+        })
+        .filter(|(start, _)| starts.contains(start))
+        .collect()
+}
+
+/// The dense Jacobian at the nominal values after the checks of a problem without frames.
+pub(super) fn check_dense<'p>(
+    pieces: &'p Pieces,
+    all: &[ParamId],
+) -> Result<(Problem<'p>, Vec<f64>), CalibError> {
+    if all.is_empty() {
+        return Err(CalibError::NothingFree);
+    }
+    let full =
+        pieces.problem(all.to_vec(), &pieces.model, &vec![Frame::identity(); pieces.data.blocks.len()], None);
+    let unknowns = full.layout.unknowns();
+    let pairs = pieces.distance_rows();
+    if pairs < all.len() {
+        return Err(CalibError::TooFewPairs { pairs, params: all.len() });
+    }
+    if full.len() < unknowns {
+        return Err(CalibError::TooFewResiduals { residuals: full.len(), unknowns });
+    }
+    let mut x0 = pieces.model.free_values();
+    x0.resize(unknowns, 0.0);
+    let (r0, jac) = jacobian_at(&full, &x0);
+    if !r0.iter().chain(&jac).all(|v| v.is_finite()) {
+        return Err(CalibError::NonFinite);
+    }
+    // Over its whole range, no free parameter moves any residual by a measurable amount.
+    let ranges: Vec<f64> = all.iter().map(|&id| pieces.range(id)).collect();
+    let n = unknowns;
+    if jac.iter().enumerate().all(|(k, v)| k % n >= all.len() || (v * ranges[k % n]).abs() < NEGLIGIBLE_MM) {
+        return Err(CalibError::NothingIdentifiable);
+    }
+    Ok((full, jac))
+}
+
+/// The group factors at `x0` after the checks of a problem with frames.
+pub(super) fn check_framed(
+    full: &Problem,
+    x0: &[f64],
+) -> Result<Vec<crate::calib::problem::GroupFactor>, CalibError> {
+    let unknowns = full.layout.unknowns();
+    if full.len() < unknowns {
+        return Err(CalibError::TooFewResiduals { residuals: full.len(), unknowns });
+    }
+    full.group_factors(x0).ok_or(CalibError::NonFinite)
+}
+
+/// The checks of [`check_framed`] on the residuals alone (no derivatives, no factors): enough
+/// residuals for the unknowns, all finite at `x0`.
+pub(super) fn check_residuals(full: &Problem, x0: &[f64]) -> Result<(), CalibError> {
+    let unknowns = full.layout.unknowns();
+    if full.len() < unknowns {
+        return Err(CalibError::TooFewResiduals { residuals: full.len(), unknowns });
+    }
+    let mut r = vec![0.0; full.len()];
+    full.evaluate(x0, &mut r, None);
+    match r.iter().all(|v| v.is_finite()) {
+        true => Ok(()),
+        false => Err(CalibError::NonFinite),
+    }
+}

@@ -1,0 +1,162 @@
+//! The fit's own checks: consistency of the solver with kincal's kinematics (accuracy is tested
+//! on the independent generators in `tests/`).
+
+use super::*;
+use crate::calib::validate::validate_session;
+use crate::data::{Joints, Landmark, Observation, Target};
+use crate::model::kinematics::tool_pose;
+use crate::model::Joint;
+use nalgebra::{Rotation3, UnitQuaternion};
+
+/// A 7-joint arm with lengths and twists free (consistency of the solver with its own
+/// kinematics only; accuracy is tested on the independent generator in `tests/`).
+fn arm() -> ArmModel {
+    let alpha = [-90.0, 90.0, -90.0, 90.0, -90.0, 90.0, 0.0];
+    let d = [340.0, 0.0, 400.0, 0.0, 400.0, 0.0, 126.0];
+    let mut model = ArmModel::suta_nominal();
+    model.joints = (0..7).map(|j| Joint { d_mm: d[j], alpha_deg: alpha[j], ..Joint::default() }).collect();
+    model.tcp_mm = [10.0, 20.0, 80.0];
+    model.free.clear();
+    for (j, dj) in d.iter().enumerate() {
+        model.free_param(ParamId::Offset(j), -5.0, 5.0);
+        model.free_param(ParamId::Length(j), dj - 10.0, dj + 10.0);
+    }
+    model
+}
+
+/// Three sessions of 40 noise-free points of `truth`, each seen from its own frame, with the
+/// probe's orientation when `probe` is given.
+fn sessions(truth: &ArmModel, probe: Option<Matrix3<f64>>) -> Observations {
+    let mut data = Observations::new(7, Vec::new());
+    for s in 0..3 {
+        let group = data.push_group(format!("s{s}"), "s.csv".into(), Kind::Tracker);
+        let frame = Frame {
+            rotation: Rotation3::from_euler_angles(0.1 * s as f64, -0.05, 0.3 * s as f64).into_inner(),
+            translation_mm: Vector3::new(2000.0, -500.0 * s as f64, 300.0),
+        };
+        for i in 0..40 {
+            let f = (i + 40 * s) as f64;
+            let q: Vec<f64> = (0..7).map(|j| 60.0 * (0.37 * f * (j + 1) as f64).sin()).collect();
+            let pose = tool_pose(truth, &q);
+            let orientation = probe.map(|p| {
+                let r = frame.rotation * crate::calib::nuisance::tool::flange_rotation(&pose) * p;
+                UnitQuaternion::from_matrix(&r)
+            });
+            data.obs.push(Observation {
+                block: 0,
+                group,
+                repeat: 1,
+                q_deg: Joints::new(&q).unwrap(),
+                q_sigma_deg: None,
+                target: Target::Point { xyz_mm: frame.apply(&pose.position_mm), orientation },
+                sigma_mm: None,
+                time_s: None,
+                temp_c: None,
+                pose: None,
+                line: i + 3,
+            });
+        }
+    }
+    data.rebuild_blocks();
+    data
+}
+
+#[test]
+fn noise_free_points_of_its_own_kinematics_are_fitted_exactly() {
+    let nominal = arm();
+    let mut truth = nominal.clone();
+    truth.joints[2].d_mm += 1.5;
+    truth.joints[3].offset_deg += 0.2;
+    truth.tcp_mm[2] += 2.0;
+    let data = sessions(&truth, None);
+    let fit = calibrate(&nominal, &data, &SolveOptions::default()).unwrap();
+    assert!(fit.rms_mm < 1e-6, "{:?}", fit.stats);
+    assert!(fit.fixed.contains(&ParamId::Offset(0)), "{:?}", fit.fixed);
+    assert!(
+        fit.statements.iter().any(|s| s.contains("offset:1 is absorbed by the session bases")),
+        "{:?}",
+        fit.statements
+    );
+    let v = validate_session(&fit.model, &data, 1, [0.0; 3]);
+    assert!(v.rms_mm < 1e-6 && v.pairwise_rms_mm < 1e-6, "{v:?}");
+}
+
+/// ∂r/∂x of `problem` at `x` by central differences against its own Jacobian, and its sparse
+/// normal equations against JᵀJ of the dense one. (A floated tool's offset Δ is taken at zero:
+/// the arm columns leave out ∂(R_F·Δ)/∂θ, second order for an offset of millimetres.)
+fn check_jacobian(problem: &Problem, x: &[f64], h: f64) {
+    let (m, n) = (problem.len(), x.len());
+    let (r, jac) = jacobian_at(problem, x);
+    for c in 0..n {
+        let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
+        xp[c] += h;
+        xm[c] -= h;
+        let (mut rp, mut rm) = (vec![0.0; m], vec![0.0; m]);
+        problem.evaluate(&xp, &mut rp, None);
+        problem.evaluate(&xm, &mut rm, None);
+        for i in 0..m {
+            let fd = (rp[i] - rm[i]) / (2.0 * h);
+            assert!(
+                (jac[i * n + c] - fd).abs() < 1e-4 * (1.0 + fd.abs()),
+                "row {i} column {c}: {} vs {fd}",
+                jac[i * n + c]
+            );
+        }
+    }
+    let mut r2 = vec![0.0; m];
+    let (h, g) = problem.normal_equations(x, &mut r2, Loss::Linear);
+    let (hd, gd) = solver::normal_equations(&jac, &r, &vec![1.0; m], n);
+    assert!((&h - &hd).norm() <= 1e-9 * hd.norm() && (&g - &gd).norm() <= 1e-9 * gd.norm().max(1.0));
+}
+
+#[test]
+fn six_dof_jacobian_matches_central_differences() {
+    let model = ArmModel::suta_nominal();
+    let landmarks: Vec<Landmark> = (0..3)
+        .map(|i| Landmark {
+            id: format!("L{i}"),
+            xyz_mm: [10.0 * i as f64, 5.0, 20.0],
+            yaw_deg: 30.0 * i as f64,
+        })
+        .collect();
+    let touches: [(usize, usize, u32, &[f64]); 3] = [
+        (0, 0, 1, &[10.0, 200.0, 30.0, 300.0, 40.0, 120.0]),
+        (0, 1, 1, &[12.0, 205.0, 28.0, 290.0, 45.0, 100.0]),
+        (0, 2, 1, &[8.0, 190.0, 35.0, 310.0, 50.0, 80.0]),
+    ];
+    let data = Observations::from_touches(&["A"], landmarks, &touches);
+    let params = ParamId::all();
+    let options = SolveOptions {
+        objective: Some(crate::calib::setup::Objective::SixDof { lever_mm: Some(100.0) }),
+        float_tool: vec!["A".into()],
+        ..SolveOptions::default()
+    };
+    let pieces = Pieces::new(&model, &data, &options).unwrap();
+    let frames = vec![Frame::identity(); data.blocks.len()];
+    let problem = pieces.problem(params.clone(), &model, &frames, None);
+    let mut x: Vec<f64> = params.iter().map(|p| model.get(*p)).collect();
+    x.extend([0.0; 3]);
+    check_jacobian(&problem, &x, 1e-6);
+}
+
+#[test]
+fn point_and_orientation_jacobians_match_central_differences() {
+    let nominal = arm();
+    let probe = Rotation3::from_euler_angles(0.2, -0.1, 0.4).into_inner();
+    let data = sessions(&nominal, Some(probe)).subset(&[0]);
+    let options = SolveOptions { float_tool: vec!["s0".into()], ..SolveOptions::default() };
+    let pieces = Pieces::new(&nominal, &data, &options).unwrap();
+    let frames = pieces.closed_form_frames(&pieces.model);
+    let start = start_probe_rotation(&pieces.model, &data, &frames);
+    let arm: Vec<ParamId> = pieces.model.free.iter().map(|f| f.id).collect();
+    let problem = pieces.problem(arm, &pieces.model, &frames, start);
+    let tools = vec![Vector3::zeros()];
+    // Near the solution: an orientation row's derivative takes its residual for small (and
+    // the rotation vector of a rotation of 1e-8 rad reads as zero).
+    let mut x = pieces.x_of(&problem, &pieces.model, &frames, &tools, &[Vec::new()]);
+    let c = problem.layout.rotation_column().expect("the probe rotation is fitted");
+    x[c..c + 3].copy_from_slice(&[0.02, -0.01, 0.015]);
+    // A larger step: the rotation vector of an orientation residual is extracted iteratively,
+    // to about 1e-12 rad, which a step of 1e-6 would show.
+    check_jacobian(&problem, &x, 1e-4);
+}

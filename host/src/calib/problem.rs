@@ -1,0 +1,443 @@
+//! The calibration problem (Ceres' Problem): the terms of every block over one parameter vector
+//! ([`crate::calib::layout`]), as the residuals the solver minimises.
+//!
+//! Each evaluation turns the unknowns into values once, computes the tool pose of every
+//! observation a term reads once (with its derivatives over the arm's columns when a Jacobian is
+//! wanted; the encoder angles' sines and cosines kept from the problem's making), and lets every
+//! term read them. Without block unknowns (artefact distances alone) the
+//! solver gets the dense m × n Jacobian. With them, no m × n Jacobian is formed: each term's
+//! derivatives over its own columns (the arm's, its block's frame, tool and drift, the probe
+//! rotation's) are added into JᵀWJ and JᵀWr as it is evaluated, in fixed blocks of terms summed in
+//! order (the same sums on any thread count); the cost per observation is O(own columns²), flat in
+//! the number of observations, and the memory beyond the poses is O(n²).
+//!
+//! Identifiability sees the block unknowns ([`Problem::group_factors`]): the rows of each group
+//! folded block by block by QR into a small R factor over [its own columns | the arm's | the
+//! probe rotation's], from which the own columns are projected out of the arm's (what a frame
+//! or a floated tool can reproduce, the data cannot attribute to the arm).
+
+use crate::calib::layout::{Layout, State};
+use crate::calib::terms::{Poses, Term, TermInput, TermJacobian};
+use crate::data::Observations;
+use crate::model::kinematics::{encoder_sin_cos, Chain};
+use crate::model::ArmModel;
+use crate::numerics::normal::{add_gram_by_four, NormalSums};
+use crate::numerics::qr::r_factor;
+use crate::numerics::solver::{symmetric, Loss, Residuals};
+use nalgebra::{DMatrix, DVector, Matrix3};
+use rayon::prelude::*;
+
+/// Some terms and their residual rows.
+type Chunk<'t, 'r> = (&'t [Box<dyn Term>], Vec<&'r mut [f64]>);
+
+/// Fewest observations whose poses one thread computes (a pose with its Jacobian takes a
+/// fraction of a µs: fewer are not worth waking a thread for).
+const MIN_POSES_PER_TASK: usize = 256;
+/// Fewest terms one thread evaluates (a term takes tens of ns).
+const MIN_TERMS_PER_TASK: usize = 4096;
+
+/// Most blocks the terms of the normal equations are summed in (each holds an n × n sum).
+const MAX_BLOCKS: usize = 16;
+/// Fewest terms of a block.
+const MIN_BLOCK_TERMS: usize = 64;
+/// Terms of a group folded into its factor by one QR.
+const FOLD_TERMS: usize = 128;
+
+/// The terms of some observations over one parameter vector.
+pub struct Problem<'a> {
+    /// Where each unknown sits.
+    pub layout: Layout,
+    model: &'a ArmModel,
+    data: &'a Observations,
+    terms: &'a [Box<dyn Term>],
+    offsets: Vec<usize>,
+    rows: usize,
+    read: Vec<bool>,
+    /// Per observation read, the sine and cosine of each encoder angle (`joints` per observation).
+    sin_cos: Vec<(f64, f64)>,
+    joints: usize,
+    frame_start: Vec<Matrix3<f64>>,
+    probe_start: Option<Matrix3<f64>>,
+}
+
+impl<'a> Problem<'a> {
+    /// The problem of `terms` over `layout`; parameters not in `layout.arm` keep their values in
+    /// `model`; each block's frame starts at `frame_start[b]`, the probe at `probe_start`.
+    pub fn new(
+        mut layout: Layout,
+        model: &'a ArmModel,
+        data: &'a Observations,
+        terms: &'a [Box<dyn Term>],
+        frame_start: Vec<Matrix3<f64>>,
+        probe_start: Option<Matrix3<f64>>,
+    ) -> Problem<'a> {
+        let mut offsets = Vec::with_capacity(terms.len());
+        let mut rows = 0;
+        let mut read = vec![false; data.obs.len()];
+        for t in terms {
+            offsets.push(rows);
+            rows += t.rows();
+            for &k in t.observations() {
+                read[k] = true;
+            }
+        }
+        // Terms of positions alone read no derivative of the tool's axes.
+        if terms.iter().all(|t| t.is_position()) {
+            layout.columns = layout.columns.positions_only();
+        }
+        let joints = data.joints;
+        let mut sin_cos = vec![(0.0, 1.0); data.obs.len() * joints];
+        for (k, o) in data.obs.iter().enumerate().filter(|(k, _)| read[*k]) {
+            for (sc, &q) in sin_cos[k * joints..(k + 1) * joints].iter_mut().zip(o.q_deg.iter()) {
+                *sc = encoder_sin_cos(q);
+            }
+        }
+        Problem { layout, model, data, terms, offsets, rows, read, sin_cos, joints, frame_start, probe_start }
+    }
+
+    /// Observation `k`'s encoder sines and cosines.
+    fn sin_cos(&self, k: usize) -> &[(f64, f64)] {
+        &self.sin_cos[k * self.joints..(k + 1) * self.joints]
+    }
+
+    /// The terms.
+    pub fn terms(&self) -> &[Box<dyn Term>] {
+        self.terms
+    }
+
+    /// First residual row of each term.
+    pub fn offsets(&self) -> &[usize] {
+        &self.offsets
+    }
+
+    /// The values at `x`.
+    pub fn state(&self, x: &[f64]) -> State {
+        self.layout.state(self.model, x, &self.frame_start, self.probe_start.as_ref())
+    }
+
+    /// Each block's start rotation.
+    pub fn frame_start(&self) -> &[Matrix3<f64>] {
+        &self.frame_start
+    }
+
+    /// The probe rotation's start.
+    pub fn probe_start(&self) -> Option<&Matrix3<f64>> {
+        self.probe_start.as_ref()
+    }
+
+    /// The tool pose of every observation a term reads, with its derivatives when `jacobian`.
+    pub fn poses(&self, state: &State, jacobian: bool) -> Poses {
+        let arm = self.layout.arm.len();
+        let columns = &self.layout.columns;
+        let data = self.data;
+        let kinematics = Chain::new(&state.model);
+        let mut chain = if jacobian { vec![[0.0; 9]; data.obs.len() * arm] } else { Vec::new() };
+        let pose = if jacobian && arm > 0 {
+            chain
+                .par_chunks_mut(arm)
+                .enumerate()
+                .with_min_len(MIN_POSES_PER_TASK)
+                .map(|(k, d)| {
+                    self.read[k].then(|| {
+                        kinematics.pose_with_sin_cos_and_jacobian(
+                            &data.obs[k].q_deg,
+                            self.sin_cos(k),
+                            columns,
+                            d,
+                        )
+                    })
+                })
+                .collect()
+        } else {
+            (0..data.obs.len())
+                .into_par_iter()
+                .with_min_len(MIN_POSES_PER_TASK)
+                .map(|k| {
+                    self.read[k].then(|| match jacobian {
+                        true => kinematics.pose_with_sin_cos_and_jacobian(
+                            &data.obs[k].q_deg,
+                            self.sin_cos(k),
+                            columns,
+                            &mut [],
+                        ),
+                        false => kinematics.pose_with_sin_cos(&data.obs[k].q_deg, self.sin_cos(k)),
+                    })
+                })
+                .collect()
+        };
+        Poses { first: 0, pose, chain, arm, jacobian }
+    }
+
+    /// The tool poses with their derivatives of the observations `terms` read (computed on this
+    /// thread, held only for them: the memory of a chunk, not of every observation).
+    fn chunk_poses(&self, state: &State, terms: &[Box<dyn Term>]) -> Poses {
+        self.chunk_poses_of(state, &terms.iter().map(|t| t.as_ref()).collect::<Vec<_>>())
+    }
+
+    /// As [`Problem::chunk_poses`] for terms given by reference.
+    fn chunk_poses_of(&self, state: &State, terms: &[&dyn Term]) -> Poses {
+        let arm = self.layout.arm.len();
+        let read = || terms.iter().flat_map(|t| t.observations().iter().copied());
+        let (first, last) = read().fold((usize::MAX, 0), |(a, b), k| (a.min(k), b.max(k)));
+        if first > last {
+            return Poses { first: 0, pose: Vec::new(), chain: Vec::new(), arm, jacobian: true };
+        }
+        let mut wanted = vec![false; last + 1 - first];
+        read().for_each(|k| wanted[k - first] = true);
+        let mut chain = vec![[0.0; 9]; wanted.len() * arm];
+        let kinematics = Chain::new(&state.model);
+        let pose = (first..=last)
+            .map(|k| {
+                let d = &mut chain[(k - first) * arm..(k - first + 1) * arm];
+                wanted[k - first].then(|| {
+                    let q = &self.data.obs[k].q_deg;
+                    kinematics.pose_with_sin_cos_and_jacobian(q, self.sin_cos(k), &self.layout.columns, d)
+                })
+            })
+            .collect();
+        Poses { first, pose, chain, arm, jacobian: true }
+    }
+
+    /// The residuals of each term at `x` (as written by [`Residuals::evaluate`]), split per term.
+    fn split<'r>(&self, r: &'r mut [f64]) -> Vec<&'r mut [f64]> {
+        let mut rest = r;
+        let mut out = Vec::with_capacity(self.terms.len());
+        for t in self.terms {
+            let (mine, after) = rest.split_at_mut(t.rows());
+            out.push(mine);
+            rest = after;
+        }
+        out
+    }
+}
+
+impl Residuals for Problem<'_> {
+    fn len(&self) -> usize {
+        self.rows
+    }
+
+    fn evaluate(&self, x: &[f64], r: &mut [f64], jacobian: Option<&mut [f64]>) {
+        let state = self.state(x);
+        let poses = self.poses(&state, jacobian.is_some());
+        let input = TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
+        let n = self.layout.unknowns();
+        let slices = self.split(r);
+        match jacobian {
+            Some(dense) => {
+                let mut rows = Vec::with_capacity(self.terms.len());
+                let mut rest = dense;
+                for t in self.terms {
+                    let (mine, after) = rest.split_at_mut(t.rows() * n);
+                    rows.push(mine);
+                    rest = after;
+                }
+                self.terms.par_iter().zip(slices).zip(rows).with_min_len(MIN_TERMS_PER_TASK).for_each_init(
+                    TermJacobian::default,
+                    |jac, ((t, r), dense)| {
+                        jac.reset(t.rows());
+                        t.evaluate(&input, r, Some(jac));
+                        dense.fill(0.0);
+                        for (p, &c) in jac.columns.iter().enumerate() {
+                            for (a, v) in jac.column(p).iter().enumerate() {
+                                dense[a * n + c] = *v;
+                            }
+                        }
+                    },
+                );
+            }
+            None => self
+                .terms
+                .par_iter()
+                .zip(slices)
+                .with_min_len(MIN_TERMS_PER_TASK)
+                .for_each(|(t, r)| t.evaluate(&input, r, None)),
+        }
+    }
+
+    /// Without block unknowns, from the dense Jacobian (the solver's default); with them, term by
+    /// term over each term's own columns, in fixed blocks summed in order (see the module doc).
+    fn normal_equations(&self, x: &[f64], r: &mut [f64], loss: Loss) -> (DMatrix<f64>, DVector<f64>) {
+        let n = self.layout.unknowns();
+        if !self.layout.has_block_unknowns() {
+            let mut jacobian = vec![0.0; r.len() * n];
+            self.evaluate(x, r, Some(&mut jacobian));
+            let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
+            let (mut upper, mut g) = (vec![0.0; n * n], vec![0.0; n]);
+            add_gram_by_four(&mut upper, &mut g, n, &jacobian, &weights, r);
+            return (symmetric(n, &upper), DVector::from_vec(g));
+        }
+        let state = self.state(x);
+        let block = self.terms.len().div_ceil(MAX_BLOCKS).max(MIN_BLOCK_TERMS);
+        let slices = self.split(r);
+        let chunks: Vec<Chunk> = {
+            let mut out = Vec::new();
+            let mut slices = slices.into_iter();
+            for terms in self.terms.chunks(block) {
+                out.push((terms, slices.by_ref().take(terms.len()).collect()));
+            }
+            out
+        };
+        let sums: Vec<(Vec<f64>, Vec<f64>)> = chunks
+            .into_par_iter()
+            .map(|(terms, rs)| {
+                let poses = self.chunk_poses(&state, terms);
+                let input = TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
+                let (mut sums, mut jac, mut w) = (NormalSums::new(n), TermJacobian::default(), Vec::new());
+                for (t, r) in terms.iter().zip(rs) {
+                    jac.reset(t.rows());
+                    t.evaluate(&input, r, Some(&mut jac));
+                    w.clear();
+                    w.extend(r.iter().map(|&v| loss.weight(v)));
+                    sums.add(&jac.columns, &jac.values, r, &w);
+                }
+                sums.finish()
+            })
+            .collect();
+        let (mut upper, mut g) = (vec![0.0; n * n], vec![0.0; n]);
+        for (h_block, g_block) in sums {
+            upper.iter_mut().zip(&h_block).for_each(|(a, b)| *a += b);
+            g.iter_mut().zip(&g_block).for_each(|(a, b)| *a += b);
+        }
+        (symmetric(n, &upper), DVector::from_vec(g))
+    }
+}
+
+/// A group's rows of the Jacobian in a small matrix: the R factor of its columns [its own |
+/// the arm's | the probe rotation's], folded block by block by QR. R has the column geometry of
+/// those rows (every inner product of two columns), so what is computed from it (projections,
+/// norms, singular values, pivoted QR) is what the m rows give, without an m × n matrix.
+pub struct GroupFactor {
+    /// The R factor.
+    pub r: DMatrix<f64>,
+    /// Its own columns (the first ones).
+    pub own: usize,
+}
+
+impl Problem<'_> {
+    /// Each group's factor at `x` (groups without terms left out); `None` when a residual or a
+    /// derivative is not finite.
+    pub fn group_factors(&self, x: &[f64]) -> Option<Vec<GroupFactor>> {
+        let state = self.state(x);
+        let (n, a) = (self.layout.unknowns(), self.layout.arm.len());
+        let rotation: Vec<usize> =
+            self.layout.rotation_column().map(|t| vec![t, t + 1, t + 2]).unwrap_or_default();
+        let mut by_group: Vec<Vec<usize>> = vec![Vec::new(); self.data.groups.len()];
+        for (i, t) in self.terms.iter().enumerate() {
+            by_group[self.data.blocks[t.block()].group].push(i);
+        }
+        by_group
+            .iter()
+            .enumerate()
+            .filter(|(_, mine)| !mine.is_empty())
+            .map(|(g, mine)| {
+                let blocks: Vec<usize> =
+                    (0..self.data.blocks.len()).filter(|&b| self.data.blocks[b].group == g).collect();
+                let own = self.layout.own_columns(g, &blocks);
+                let mut local = vec![None; n];
+                for (l, &c) in own.iter().chain(&(0..a).collect::<Vec<_>>()).chain(&rotation).enumerate() {
+                    local[c] = Some(l);
+                }
+                let width = own.len() + a + rotation.len();
+                let folded: Vec<Option<DMatrix<f64>>> = mine
+                    .par_chunks(FOLD_TERMS)
+                    .map_init(TermJacobian::default, |jac, chunk| {
+                        let chosen: Vec<&dyn Term> = chunk.iter().map(|&i| self.terms[i].as_ref()).collect();
+                        let poses = self.chunk_poses_of(&state, &chosen);
+                        let input =
+                            TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
+                        let rows: usize = chunk.iter().map(|&i| self.terms[i].rows()).sum();
+                        let mut block = DMatrix::zeros(rows, width);
+                        let mut finite = true;
+                        let mut at = 0;
+                        for &i in chunk {
+                            let t = &self.terms[i];
+                            let mut r = vec![0.0; t.rows()];
+                            jac.reset(t.rows());
+                            t.evaluate(&input, &mut r, Some(jac));
+                            finite &= r.iter().all(|v| v.is_finite());
+                            for (p, &c) in jac.columns.iter().enumerate() {
+                                let v = jac.column(p);
+                                finite &= v.iter().all(|v| v.is_finite());
+                                if let Some(l) = local[c] {
+                                    for (k, v) in v.iter().enumerate() {
+                                        block[(at + k, l)] = *v;
+                                    }
+                                }
+                            }
+                            at += t.rows();
+                        }
+                        finite.then(|| r_factor(block))
+                    })
+                    .collect();
+                // Folded in order: the same factor whatever the thread count.
+                let r = folded
+                    .into_iter()
+                    .try_fold(DMatrix::zeros(0, width), |top, bottom| Some(fold(top, bottom?)))?;
+                Some(GroupFactor { r, own: own.len() })
+            })
+            .collect()
+    }
+}
+
+/// The R factor of two factors stacked.
+fn fold(top: DMatrix<f64>, bottom: DMatrix<f64>) -> DMatrix<f64> {
+    if top.nrows() == 0 {
+        return bottom;
+    }
+    if bottom.nrows() == 0 {
+        return top;
+    }
+    let mut stacked = DMatrix::zeros(top.nrows() + bottom.nrows(), top.ncols());
+    stacked.rows_mut(0, top.nrows()).copy_from(&top);
+    stacked.rows_mut(top.nrows(), bottom.nrows()).copy_from(&bottom);
+    r_factor(stacked)
+}
+
+/// `m` with the directions of `basis`'s columns above `1e-12` of its largest singular value
+/// projected out of each column.
+fn project_out(m: &mut DMatrix<f64>, basis: &DMatrix<f64>) {
+    if basis.ncols() == 0 || basis.nrows() == 0 {
+        return;
+    }
+    let q = basis.clone().svd(true, false);
+    let Some(u) = q.u else { return };
+    let top = q.singular_values.iter().copied().fold(0.0, f64::max);
+    for k in (0..q.singular_values.len()).filter(|&k| q.singular_values[k] > 1e-12 * top) {
+        let uk = u.column(k);
+        for c in 0..m.ncols() {
+            let dot = uk.dot(&m.column(c));
+            m.column_mut(c).axpy(-dot, &uk, 1.0);
+        }
+    }
+}
+
+/// Row-major copy of a matrix.
+fn row_major(m: &DMatrix<f64>) -> Vec<f64> {
+    m.transpose().as_slice().to_vec()
+}
+
+/// The arm columns (raw, and with every group's own columns projected out per group, then the
+/// probe rotation's over all groups), row-major with the arm's columns, from the group factors:
+/// the column geometry of the full Jacobian's arm columns.
+pub fn projected_arm_columns(layout: &Layout, factors: &[GroupFactor]) -> (Vec<f64>, Vec<f64>) {
+    let a = layout.arm.len();
+    let t = if layout.rotation_column().is_some() { 3 } else { 0 };
+    let rows: usize = factors.iter().map(|f| f.r.nrows()).sum();
+    let (mut raw, mut projected, mut rotation) =
+        (DMatrix::zeros(rows, a), DMatrix::zeros(rows, a), DMatrix::zeros(rows, t));
+    let mut at = 0;
+    for f in factors {
+        let m = f.r.nrows();
+        let own = f.r.columns(0, f.own).into_owned();
+        let mut rest = f.r.columns(f.own, a + t).into_owned();
+        raw.rows_mut(at, m).copy_from(&rest.columns(0, a));
+        project_out(&mut rest, &own);
+        projected.rows_mut(at, m).copy_from(&rest.columns(0, a));
+        rotation.rows_mut(at, m).copy_from(&rest.columns(a, t));
+        at += m;
+    }
+    if t > 0 {
+        project_out(&mut projected, &rotation);
+    }
+    (row_major(&raw), row_major(&projected))
+}

@@ -1,0 +1,78 @@
+//! Distance between two touches of one block (thesis eq. 3.1): for touches a, b of different
+//! landmarks in one placement and repeat, r = ‖p_a − p_b‖ − D_ab (mm), D_ab the certified
+//! distance. Frame-free: the artefact's placement never enters. With the tool floated in the
+//! placement (`--float-tool`), p = p_flange + R_F·Δ; the arm's columns leave out ∂(R_F·Δ)/∂θ
+//! (second order for an offset of millimetres; the residuals themselves are exact).
+
+use super::{column, Term, TermInput, TermJacobian};
+use crate::calib::nuisance::tool::flange_rotation;
+use crate::data::Observations;
+
+/// ‖p_a − p_b‖ − D_ab.
+pub struct Distance {
+    obs: [usize; 2],
+    block: usize,
+    group: usize,
+    distance_mm: f64,
+}
+
+impl Distance {
+    /// The distance between the tool points of observations `a` and `b` of one block against
+    /// `distance_mm` (certified, or measured by a frame-free instrument).
+    pub fn new(data: &Observations, a: usize, b: usize, distance_mm: f64) -> Distance {
+        Distance { obs: [a, b], block: data.obs[a].block, group: data.obs[a].group, distance_mm }
+    }
+}
+
+/// The distance terms of `pairs` (touch indices of one block).
+pub fn terms(data: &Observations, pairs: &[(usize, usize)]) -> Vec<Box<dyn Term>> {
+    pairs
+        .iter()
+        .map(|&(a, b)| {
+            let (la, lb) = (data.obs[a].touched(), data.obs[b].touched());
+            Box::new(Distance::new(data, a, b, data.landmark_distance_mm(la, lb))) as Box<dyn Term>
+        })
+        .collect()
+}
+
+impl Term for Distance {
+    fn rows(&self) -> usize {
+        1
+    }
+
+    fn block(&self) -> usize {
+        self.block
+    }
+
+    fn observations(&self) -> &[usize] {
+        &self.obs
+    }
+
+    fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>) {
+        let [a, b] = self.obs;
+        let (pa, pb) = (at.poses.of(a), at.poses.of(b));
+        let tool = at.layout.tool_column(self.group);
+        let diff = match tool {
+            None => pa.position_mm - pb.position_mm,
+            Some(_) => {
+                let offset = &at.state.tools[self.group];
+                (pa.position_mm + flange_rotation(pa) * offset)
+                    - (pb.position_mm + flange_rotation(pb) * offset)
+            }
+        };
+        let length = diff.norm();
+        r[0] = length - self.distance_mm;
+        let Some(j) = jac else { return };
+        let u = diff / length.max(1e-12);
+        let (Some(da), Some(db)) = (at.poses.chain(a), at.poses.chain(b)) else { return };
+        for c in 0..at.poses.arm {
+            j.push(c, &[u.dot(&(column(&da[c], 0) - column(&db[c], 0)))]);
+        }
+        if let Some(t) = tool {
+            let g = (flange_rotation(pa) - flange_rotation(pb)).transpose() * u;
+            for k in 0..3 {
+                j.push(t + k, &[g[k]]);
+            }
+        }
+    }
+}

@@ -1,0 +1,159 @@
+//! Residual terms, one kind per file (Ceres' cost functions): each knows one measurement's
+//! geometry and reads the tool poses of its observations (computed once per observation, with
+//! their derivatives over the arm's columns, and shared by every term that reads them) and the
+//! unknowns of its own block (frame, floated tool, drift, the probe's rotation), never the arm.
+//!
+//! | term | rows | reads | residual |
+//! | --- | --- | --- | --- |
+//! | [`distance::Distance`] | 1 | two touches of one block | ‖p_a − p_b‖ − D_ab, mm |
+//! | [`relative_orientation::RelativeOrientation`] | 4 | the same pair | tool axes and yaw against the pillars', mm via a lever |
+//! | [`point::Point`] | 3 | one point, its session's frame, tool, drift | B_s·p − X, mm |
+//! | [`orientation::Orientation`] | 3 | one oriented point, its frame, the probe rotation | rotation vector of R_predᵀ·R_meas, mm via σ ratio |
+//! | [`point_distance`] | 1 | two frame-free points of one session | ‖p_a − p_b‖ − ‖X_a − X_b‖, mm |
+//!
+//! A new observation kind is one more file here: a struct implementing [`Term`] and the function
+//! that makes its terms from the observations ([`build`] calls it).
+
+pub mod distance;
+pub mod orientation;
+pub mod point;
+pub mod point_distance;
+pub mod relative_orientation;
+
+use crate::calib::layout::{Layout, State};
+use crate::data::Observations;
+use crate::model::kinematics::{PoseDerivative, ToolPose};
+use nalgebra::Vector3;
+
+/// The tool poses of some observations (those from `first` on) at one evaluation, with their
+/// derivatives over the arm's columns when a Jacobian is asked for.
+pub struct Poses {
+    /// The first observation held.
+    pub first: usize,
+    /// Per observation from `first`, its pose (`None` for one not asked for).
+    pub pose: Vec<Option<ToolPose>>,
+    /// Per observation, `arm` derivatives (empty without a Jacobian).
+    pub chain: Vec<PoseDerivative>,
+    /// Arm columns.
+    pub arm: usize,
+    /// Whether the derivatives were computed.
+    pub jacobian: bool,
+}
+
+impl Poses {
+    /// Observation `k`'s pose.
+    pub fn of(&self, k: usize) -> &ToolPose {
+        self.pose[k - self.first].as_ref().expect("the poses of every observation a term reads are computed")
+    }
+
+    /// Observation `k`'s derivatives over the arm's columns (`None` without a Jacobian).
+    pub fn chain(&self, k: usize) -> Option<&[PoseDerivative]> {
+        let at = k - self.first;
+        self.jacobian.then(|| &self.chain[at * self.arm..(at + 1) * self.arm])
+    }
+}
+
+/// What a term reads at one evaluation.
+pub struct TermInput<'a> {
+    /// The unknowns turned into values (model, frames, tools, probe rotation, drifts).
+    pub state: &'a State,
+    /// Where each unknown's columns are.
+    pub layout: &'a Layout,
+    /// The observations.
+    pub data: &'a Observations,
+    /// Their tool poses.
+    pub poses: &'a Poses,
+}
+
+/// The non-zero Jacobian columns of one term's rows: column `columns[k]` holds
+/// `values[k * rows .. (k + 1) * rows]`. Reused from term to term.
+#[derive(Clone, Default)]
+pub struct TermJacobian {
+    /// Rows of the term.
+    pub rows: usize,
+    /// Columns, in the order pushed.
+    pub columns: Vec<usize>,
+    /// Their derivatives, `rows` per column.
+    pub values: Vec<f64>,
+}
+
+impl TermJacobian {
+    /// Empty, for a term of `rows` rows.
+    pub fn reset(&mut self, rows: usize) {
+        self.rows = rows;
+        self.columns.clear();
+        self.values.clear();
+    }
+
+    /// Column `column` has the derivatives `values` (one per row).
+    pub fn push(&mut self, column: usize, values: &[f64]) {
+        self.columns.push(column);
+        self.values.extend_from_slice(values);
+    }
+
+    /// As [`TermJacobian::push`] for a three-row term.
+    pub fn push3(&mut self, column: usize, v: Vector3<f64>) {
+        self.push(column, v.as_slice());
+    }
+
+    /// The derivatives of the k-th column pushed.
+    pub fn column(&self, k: usize) -> &[f64] {
+        &self.values[k * self.rows..(k + 1) * self.rows]
+    }
+}
+
+/// One residual kind over the observations of one block.
+pub trait Term: Send + Sync {
+    /// Residual rows.
+    fn rows(&self) -> usize;
+    /// The block whose unknowns it reads.
+    fn block(&self) -> usize;
+    /// The observations whose tool poses it reads.
+    fn observations(&self) -> &[usize];
+    /// Its residuals into `r` (`rows` values); with `jac`, its non-zero Jacobian columns.
+    fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>);
+    /// Whether its rows are positions (mm) rather than orientations weighed into mm.
+    fn is_position(&self) -> bool {
+        true
+    }
+    /// The factor its rows carry (1 for a distance; a point's weight against touches in mixed
+    /// data; an orientation's mm per radian): a row divided by it is the measurement's error.
+    fn weight(&self) -> f64 {
+        1.0
+    }
+}
+
+/// Which terms the calibration minimises.
+#[derive(Clone, Copy, Debug)]
+pub struct TermChoice {
+    /// Relative orientation of touches (the asymmetric pillars), mm per radian.
+    pub relative_orientation_lever_mm: Option<f64>,
+    /// A 6-DoF probe's orientations, mm per radian.
+    pub orientation_weight_mm_per_rad: Option<f64>,
+    /// Weight of an instrument's rows (points, orientations) against distances between touches:
+    /// 1 unless both kinds are fitted together (see [`crate::calib::setup::Resolved::point_weight`]).
+    pub point_weight: f64,
+}
+
+/// Every term of `data`, kind after kind (the order of the rows): distances between touches,
+/// their relative orientations, measured points, frame-free distances between points, measured
+/// orientations.
+pub fn build(data: &Observations, choice: &TermChoice) -> Vec<Box<dyn Term>> {
+    let mut terms: Vec<Box<dyn Term>> = Vec::new();
+    let pairs = data.landmark_pairs();
+    terms.extend(distance::terms(data, &pairs));
+    if let Some(lever) = choice.relative_orientation_lever_mm {
+        terms.extend(relative_orientation::terms(data, &pairs, lever));
+    }
+    terms.extend(point::terms(data, choice.point_weight));
+    terms.extend(point_distance::terms(data));
+    if let Some(weight) = choice.orientation_weight_mm_per_rad {
+        terms.extend(orientation::terms(data, weight * choice.point_weight));
+    }
+    terms
+}
+
+/// Column `k` (0: position, 1: x axis, 2: z axis) of a pose derivative.
+pub fn column(d: &PoseDerivative, k: usize) -> Vector3<f64> {
+    Vector3::new(d[3 * k], d[3 * k + 1], d[3 * k + 2])
+}

@@ -62,6 +62,7 @@ fn sessions(truth: &ArmModel, count: usize, points: usize, seed: u64) -> Result<
                 temp_c: None,
                 pose: None,
                 line: i + 3,
+                tip: 0,
             });
         }
     }

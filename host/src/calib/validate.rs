@@ -12,7 +12,7 @@ use crate::calib::nuisance::frame::{rotation_vector, Frame};
 use crate::calib::nuisance::tool::{flange_rotation, model_points, with_offset, FloatedTool};
 use crate::calib::problem::Problem;
 use crate::data::{Observation, Observations};
-use crate::model::kinematics::{tool_pose, Chain};
+use crate::model::kinematics::{tool_pose, Tips};
 use crate::model::ArmModel;
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions};
 use nalgebra::{Matrix3, Vector3};
@@ -153,8 +153,8 @@ pub struct Validation {
 
 /// Tool positions of every observation, mm.
 pub fn positions(model: &ArmModel, data: &Observations) -> Vec<Vector3<f64>> {
-    let chain = Chain::new(model);
-    data.obs.iter().map(|t| chain.pose(&t.q_deg).position_mm).collect()
+    let tips = Tips::new(model);
+    data.obs.iter().map(|t| tips.tip(t.tip).pose(&t.q_deg).position_mm).collect()
 }
 
 /// Distance errors of `model` on `data`.
@@ -363,11 +363,11 @@ fn residuals_with_frame<'a>(
     let offset = fit.tool_offset(&data.groups[data.blocks[b].group].name);
     let name = data.block_name(b);
     let drift = fit.drifts.iter().find(|d| d.session == name);
-    let chain = Chain::new(&fit.model);
+    let tips = Tips::new(&fit.model);
     points
         .map(|p| {
             let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
-            let y = frame.rotation * with_offset(&chain.pose(&p.q_deg), &offset);
+            let y = frame.rotation * with_offset(&tips.tip(p.tip).pose(&p.q_deg), &offset);
             frame.rotation.transpose()
                 * (p.point_mm().unwrap_or_default() - (y * growth + frame.translation_mm + shift))
         })

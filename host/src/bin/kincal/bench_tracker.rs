@@ -70,6 +70,7 @@ pub(crate) fn sessions(truth: &ArmModel, count: usize, points: usize, seed: u64)
                 temp_c: None,
                 pose: None,
                 line: i + 3,
+                tip: 0,
             });
         }
     }

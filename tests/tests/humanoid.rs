@@ -81,12 +81,12 @@ fn model(dir: &Path, masses: bool) -> PathBuf {
 /// The sessions split: all but the last calibrate, the last is held out; read and bound to `model`.
 fn split(dir: &Path, model: &ArmModel) -> (Observations, Observations) {
     let (cal, val) = (dir.join("cal"), dir.join("val"));
-    let sessions = generated().0.join("sessions");
+    let source = generated().0.join("sessions");
     for (folder, sessions) in [(&cal, 1..SESSIONS), (&val, SESSIONS..SESSIONS + 1)] {
         std::fs::create_dir_all(folder).expect("folder");
         for s in sessions {
             let name = format!("S{s}.csv");
-            std::fs::copy(sessions.join(&name), folder.join(&name)).expect("session copied");
+            std::fs::copy(source.join(&name), folder.join(&name)).expect("session copied");
         }
     }
     let read = |folder: &Path, purpose| {
@@ -273,3 +273,4 @@ fn the_tip_mass_model_alone_leaves_a_sag_it_cannot_explain() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+

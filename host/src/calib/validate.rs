@@ -304,7 +304,7 @@ fn points_of(data: &Observations, b: usize) -> impl Iterator<Item = &Observation
 
 /// Block `b`'s frame for `model` (tool offset `offset_mm` in the flange frame), closed form.
 pub fn block_frame(model: &ArmModel, data: &Observations, b: usize, offset_mm: &Vector3<f64>) -> Frame {
-    block_frame_of(&model_points(model, points_of(data, b).map(|p| &p.q_deg[..]), offset_mm), data, b)
+    block_frame_of(&model_points(model, points_of(data, b), offset_mm), data, b)
 }
 
 /// Block `b`'s frame (closed form) for the model's points `robot` of its points in order.
@@ -513,7 +513,7 @@ fn session_fit(
     tool_offset_mm: [f64; 3],
 ) -> (Frame, Vec<Vector3<f64>>) {
     let offset = &Vector3::from(tool_offset_mm);
-    let robot = model_points(model, points_of(data, b).map(|p| &p.q_deg[..]), offset);
+    let robot = model_points(model, points_of(data, b), offset);
     let frame = block_frame_of(&robot, data, b);
     let residuals = points_of(data, b)
         .zip(&robot)
@@ -547,7 +547,7 @@ pub fn validate_session(
 ) -> SessionValidation {
     let offset = &Vector3::from(tool_offset_mm);
     let points: Vec<&Observation> = points_of(data, b).collect();
-    let robot = model_points(model, points.iter().map(|p| &p.q_deg[..]), offset);
+    let robot = model_points(model, points.iter().copied(), offset);
     let errors = session_errors(model, data, b, tool_offset_mm);
     let stats = ErrorStats::of(&errors);
     let step = points.len().div_ceil(MAX_PAIRWISE_POINTS).max(1);

@@ -760,6 +760,59 @@ mod tests {
         }
     }
 
+    /// A URDF arm of three joints with a mass table: the sag and bend columns are exact where
+    /// the compliances are zero (the loads' own change is of their order), within 1 % at a
+    /// humanoid's compliances; a sag turns the tool down.
+    #[test]
+    fn sag_and_bend_columns_match_central_differences() {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = Convention::Urdf;
+        model.free.clear();
+        model.joints = vec![
+            crate::model::Joint { origin_xyz_mm: [0.0, 0.0, 300.0], ..Default::default() },
+            crate::model::Joint {
+                origin_xyz_mm: [0.0, 80.0, 200.0],
+                axis: [0.0, 1.0, 0.0],
+                ..Default::default()
+            },
+            crate::model::Joint {
+                origin_xyz_mm: [400.0, 0.0, 0.0],
+                axis: [1.0, 0.0, 0.0],
+                ..Default::default()
+            },
+        ];
+        model.tcp_mm = [300.0, 20.0, -50.0];
+        model.tree.bodies = vec![
+            crate::model::Body { joint: 1, mass_kg: 5.0, com_mm: [200.0, 0.0, 10.0] },
+            crate::model::Body { joint: 2, mass_kg: 3.0, com_mm: [150.0, 30.0, -20.0] },
+        ];
+        let enc = [20.0, -15.0, 40.0];
+        let params: Vec<ParamId> = (0..3).flat_map(|j| [ParamId::Sag(j), ParamId::Bend(j)]).collect();
+        let rigid = tool_pose(&model, &enc).position_mm;
+        for (values, tolerance) in [(0.0, 1e-6), (8.0, 1e-2)] {
+            let mut m = model.clone();
+            params.iter().for_each(|p| m.set(*p, values));
+            let mut jac = vec![[0.0; 9]; params.len()];
+            let pose = tool_pose_with_jacobian(&m, &enc, &ColumnMap::new(&params), &mut jac);
+            if values > 0.0 {
+                assert!(pose.position_mm.z < rigid.z, "the arm sags: {} vs {}", pose.position_mm.z, rigid.z);
+            }
+            for (c, &id) in params.iter().enumerate() {
+                let h = 1e-4;
+                let (mut plus, mut minus) = (m.clone(), m.clone());
+                plus.set(id, values + h);
+                minus.set(id, values - h);
+                let fd =
+                    (tool_pose(&plus, &enc).position_mm - tool_pose(&minus, &enc).position_mm) / (2.0 * h);
+                let column = Vector3::new(jac[c][0], jac[c][1], jac[c][2]);
+                assert!(
+                    (column - fd).norm() <= tolerance * fd.norm().max(1e-3),
+                    "{id} at {values}: {column} vs {fd}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn jacobian_matches_central_differences_for_every_parameter() {
         for convention in [Convention::Classic, Convention::Modified, Convention::Urdf] {

@@ -428,7 +428,13 @@ pub fn read_tagged_session(
             sigma_mm,
             time_s: optional(layout.time)?,
             temp_c: optional(layout.temp)?,
-            pose: layout.pose.map(|c| cells[c].to_string()).filter(|p| !p.is_empty()),
+            // Two tips' points of one arm pose are no repeats of one point: the id names the tip too.
+            pose: layout.pose.map(|c| cells[c].to_string()).filter(|p| !p.is_empty()).map(|p| {
+                match layout.tip {
+                    Some(t) => format!("{p}/{}", cells[t]),
+                    None => p,
+                }
+            }),
             line,
             tip,
         });

@@ -103,7 +103,7 @@ pub fn run(command: &ModelCommand) -> Result<()> {
                     }
                     if let Some(kg) = mass_kg {
                         println!(
-                            "  mass table: {} bodies, {kg:.3} kg carried by the model's joints (add sag:J, bend:J)",
+                            "  mass table: {} bodies, {kg:.3} kg carried by the model's joints (the effects sag and bend deflect the joints under them)",
                             model.tree.bodies.len()
                         );
                     }

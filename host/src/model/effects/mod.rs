@@ -23,6 +23,10 @@
 //! 8. The controller: `protocol/src/params.rs` (the parameter blob), `controller/device.rs`
 //!    (the mapping) and the firmware kinematics — until then [`beyond_controller`] names the
 //!    parameters the controller cannot evaluate and `kincal upload` refuses such a model.
+//!
+//! `sag` and `bend` (deflections under the loads of a mass table, [`crate::model::tree`]) have no
+//! second forward path in `simulate.rs`: their independent peer is the pinocchio generator
+//! `tests/gen/humanoid.py`, which the humanoid test checks kincal's loads against.
 
 pub mod bend;
 pub mod compliance;
@@ -265,11 +269,19 @@ pub fn default_half_range(p: ParamId) -> f64 {
 }
 
 /// Parameters of `model` with a non-zero value that the controller's parameter blob cannot
-/// carry (the higher harmonics): uploading would silently drop them.
+/// carry (the higher harmonics, the compliances under a mass table's loads): uploading would
+/// silently drop them.
 pub fn beyond_controller(model: &ArmModel) -> Vec<ParamId> {
     (0..model.joints.len())
         .flat_map(|j| {
-            [ParamId::Harm3Sin(j), ParamId::Harm3Cos(j), ParamId::Harm4Sin(j), ParamId::Harm4Cos(j)]
+            [
+                ParamId::Harm3Sin(j),
+                ParamId::Harm3Cos(j),
+                ParamId::Harm4Sin(j),
+                ParamId::Harm4Cos(j),
+                ParamId::Sag(j),
+                ParamId::Bend(j),
+            ]
         })
         .filter(|p| model.get(*p) != 0.0)
         .collect()

@@ -79,6 +79,7 @@ pub fn sessions(truth: &ArmModel, count: usize, points: usize, seed: u64) -> Obs
                 temp_c: None,
                 pose: None,
                 line: i + 3,
+                tip: 0,
             });
         }
     }

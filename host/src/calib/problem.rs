@@ -19,7 +19,7 @@
 use crate::calib::layout::{Layout, State};
 use crate::calib::terms::{Poses, Term, TermInput, TermJacobian};
 use crate::data::Observations;
-use crate::model::kinematics::{encoder_sin_cos, Chain};
+use crate::model::kinematics::{encoder_sin_cos, Tips};
 use crate::model::ArmModel;
 use crate::numerics::normal::{add_gram_by_four, NormalSums};
 use crate::numerics::qr::r_factor;
@@ -138,7 +138,7 @@ impl<'a> Problem<'a> {
         let arm = self.layout.arm.len();
         let columns = &self.layout.columns;
         let data = self.data;
-        let kinematics = Chain::new(&state.model);
+        let kinematics = Tips::new(&state.model);
         let mut chain = if jacobian { vec![[0.0; 9]; data.obs.len() * arm] } else { Vec::new() };
         let pose = if jacobian && arm > 0 {
             chain
@@ -147,7 +147,7 @@ impl<'a> Problem<'a> {
                 .with_min_len(MIN_POSES_PER_TASK)
                 .map(|(k, d)| {
                     self.read[k].then(|| {
-                        kinematics.pose_with_sin_cos_and_jacobian(
+                        kinematics.tip(data.obs[k].tip).pose_with_sin_cos_and_jacobian(
                             &data.obs[k].q_deg,
                             self.sin_cos(k),
                             columns,
@@ -162,13 +162,15 @@ impl<'a> Problem<'a> {
                 .with_min_len(MIN_POSES_PER_TASK)
                 .map(|k| {
                     self.read[k].then(|| match jacobian {
-                        true => kinematics.pose_with_sin_cos_and_jacobian(
+                        true => kinematics.tip(data.obs[k].tip).pose_with_sin_cos_and_jacobian(
                             &data.obs[k].q_deg,
                             self.sin_cos(k),
                             columns,
                             &mut [],
                         ),
-                        false => kinematics.pose_with_sin_cos(&data.obs[k].q_deg, self.sin_cos(k)),
+                        false => kinematics
+                            .tip(data.obs[k].tip)
+                            .pose_with_sin_cos(&data.obs[k].q_deg, self.sin_cos(k)),
                     })
                 })
                 .collect()
@@ -193,13 +195,18 @@ impl<'a> Problem<'a> {
         let mut wanted = vec![false; last + 1 - first];
         read().for_each(|k| wanted[k - first] = true);
         let mut chain = vec![[0.0; 9]; wanted.len() * arm];
-        let kinematics = Chain::new(&state.model);
+        let kinematics = Tips::new(&state.model);
         let pose = (first..=last)
             .map(|k| {
                 let d = &mut chain[(k - first) * arm..(k - first + 1) * arm];
                 wanted[k - first].then(|| {
-                    let q = &self.data.obs[k].q_deg;
-                    kinematics.pose_with_sin_cos_and_jacobian(q, self.sin_cos(k), &self.layout.columns, d)
+                    let (q, tip) = (&self.data.obs[k].q_deg, self.data.obs[k].tip);
+                    kinematics.tip(tip).pose_with_sin_cos_and_jacobian(
+                        q,
+                        self.sin_cos(k),
+                        &self.layout.columns,
+                        d,
+                    )
                 })
             })
             .collect();

@@ -83,6 +83,9 @@ pub enum RunError {
     /// The calibration could not run.
     #[error(transparent)]
     Calibration(#[from] CalibError),
+    /// The sessions name joints or tips the model does not have.
+    #[error(transparent)]
+    Names(#[from] crate::data::BindError),
     /// `--exclude-landmark`, `--exclude-block` or `--exclude-point` names nothing in the data.
     #[error("{0}")]
     Exclusion(String),
@@ -209,8 +212,13 @@ impl RunInputs {
     /// read when given).
     pub fn read_folders(&self) -> Result<(Observations, Observations), RunError> {
         let artefact = self.artefact.as_deref().map(Artefact::load).transpose()?;
-        let cal = load_folder(&self.calibration, artefact.as_ref(), Purpose::Calibration)?;
-        let val = load_folder(&self.validation, artefact.as_ref(), Purpose::Validation)?;
+        let mut cal = load_folder(&self.calibration, artefact.as_ref(), Purpose::Calibration)?;
+        let mut val = load_folder(&self.validation, artefact.as_ref(), Purpose::Validation)?;
+        if cal.names.is_some() || val.names.is_some() {
+            let model = ArmModel::load(&self.model)?;
+            cal.bind(&model)?;
+            val.bind(&model)?;
+        }
         Ok((cal, val))
     }
 

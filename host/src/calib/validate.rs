@@ -12,7 +12,7 @@ use crate::calib::nuisance::frame::{rotation_vector, Frame};
 use crate::calib::nuisance::tool::{flange_rotation, model_points, with_offset, FloatedTool};
 use crate::calib::problem::Problem;
 use crate::data::{Observation, Observations};
-use crate::model::kinematics::{tool_pose, Chain};
+use crate::model::kinematics::{tool_pose, Tips};
 use crate::model::ArmModel;
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions};
 use nalgebra::{Matrix3, Vector3};
@@ -153,8 +153,8 @@ pub struct Validation {
 
 /// Tool positions of every observation, mm.
 pub fn positions(model: &ArmModel, data: &Observations) -> Vec<Vector3<f64>> {
-    let chain = Chain::new(model);
-    data.obs.iter().map(|t| chain.pose(&t.q_deg).position_mm).collect()
+    let tips = Tips::new(model);
+    data.obs.iter().map(|t| tips.tip(t.tip).pose(&t.q_deg).position_mm).collect()
 }
 
 /// Distance errors of `model` on `data`.
@@ -304,7 +304,7 @@ fn points_of(data: &Observations, b: usize) -> impl Iterator<Item = &Observation
 
 /// Block `b`'s frame for `model` (tool offset `offset_mm` in the flange frame), closed form.
 pub fn block_frame(model: &ArmModel, data: &Observations, b: usize, offset_mm: &Vector3<f64>) -> Frame {
-    block_frame_of(&model_points(model, points_of(data, b).map(|p| &p.q_deg[..]), offset_mm), data, b)
+    block_frame_of(&model_points(model, points_of(data, b), offset_mm), data, b)
 }
 
 /// Block `b`'s frame (closed form) for the model's points `robot` of its points in order.
@@ -363,11 +363,11 @@ fn residuals_with_frame<'a>(
     let offset = fit.tool_offset(&data.groups[data.blocks[b].group].name);
     let name = data.block_name(b);
     let drift = fit.drifts.iter().find(|d| d.session == name);
-    let chain = Chain::new(&fit.model);
+    let tips = Tips::new(&fit.model);
     points
         .map(|p| {
             let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
-            let y = frame.rotation * with_offset(&chain.pose(&p.q_deg), &offset);
+            let y = frame.rotation * with_offset(&tips.tip(p.tip).pose(&p.q_deg), &offset);
             frame.rotation.transpose()
                 * (p.point_mm().unwrap_or_default() - (y * growth + frame.translation_mm + shift))
         })
@@ -513,7 +513,7 @@ fn session_fit(
     tool_offset_mm: [f64; 3],
 ) -> (Frame, Vec<Vector3<f64>>) {
     let offset = &Vector3::from(tool_offset_mm);
-    let robot = model_points(model, points_of(data, b).map(|p| &p.q_deg[..]), offset);
+    let robot = model_points(model, points_of(data, b), offset);
     let frame = block_frame_of(&robot, data, b);
     let residuals = points_of(data, b)
         .zip(&robot)
@@ -547,7 +547,7 @@ pub fn validate_session(
 ) -> SessionValidation {
     let offset = &Vector3::from(tool_offset_mm);
     let points: Vec<&Observation> = points_of(data, b).collect();
-    let robot = model_points(model, points.iter().map(|p| &p.q_deg[..]), offset);
+    let robot = model_points(model, points.iter().copied(), offset);
     let errors = session_errors(model, data, b, tool_offset_mm);
     let stats = ErrorStats::of(&errors);
     let step = points.len().div_ceil(MAX_PAIRWISE_POINTS).max(1);

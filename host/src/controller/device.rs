@@ -88,6 +88,7 @@ pub fn model_from_params(params: &ArmParams) -> ArmModel {
         free: Vec::new(),
         urdf: None,
         arm: None,
+        tree: Default::default(),
     }
 }
 

@@ -20,7 +20,9 @@ pub mod observations;
 pub mod point_distances;
 pub mod tracker;
 
-pub use observations::{Block, DataKind, Group, Joints, Kind, Observation, Observations, Target};
+pub use observations::{
+    BindError, Block, ColumnNames, DataKind, Group, Joints, Kind, Observation, Observations, Target,
+};
 
 use crate::files::{self, check_regular_file, field_error, read_json, FileError};
 use crate::model::MAX_JOINTS;

@@ -1,6 +1,6 @@
 //! The one shape of every measurement: observations in blocks.
 //!
-//! An observation is the arm's joint angles (any count, 1 to [`MAX_JOINTS`]) and what the tool
+//! An observation is the arm's joint angles (any count, 1 to [`MAX_TREE_JOINTS`]: a chain's or a whole tree's) and what the tool
 //! was at: a certified landmark of an artefact, or a point (with an optional orientation)
 //! measured by an instrument in its own frame. Observations come in *blocks* that share
 //! unknowns: an artefact placement × repeat (the artefact sat still; distances between its
@@ -12,26 +12,26 @@
 //! [`Observations`] may hold both kinds (artefact placements and tracker sessions of one arm).
 
 use crate::data::Landmark;
-use crate::model::MAX_JOINTS;
+use crate::model::MAX_TREE_JOINTS;
 use nalgebra::{UnitQuaternion, Vector3};
 use std::collections::HashMap;
 use std::path::PathBuf;
 
-/// Joint angles of one observation, degrees: 1 to [`MAX_JOINTS`] values stored inline (no
+/// Joint angles of one observation, degrees: 1 to [`MAX_TREE_JOINTS`] values stored inline (no
 /// allocation, `Copy`); reads as a slice.
 #[derive(Clone, Copy)]
 pub struct Joints {
     len: u8,
-    deg: [f64; MAX_JOINTS],
+    deg: [f64; MAX_TREE_JOINTS],
 }
 
 impl Joints {
-    /// The angles of `values`; `None` when there are none or more than [`MAX_JOINTS`].
+    /// The angles of `values`; `None` when there are none or more than [`MAX_TREE_JOINTS`].
     pub fn new(values: &[f64]) -> Option<Joints> {
-        if values.is_empty() || values.len() > MAX_JOINTS {
+        if values.is_empty() || values.len() > MAX_TREE_JOINTS {
             return None;
         }
-        let mut deg = [0.0; MAX_JOINTS];
+        let mut deg = [0.0; MAX_TREE_JOINTS];
         deg[..values.len()].copy_from_slice(values);
         Some(Joints { len: values.len() as u8, deg })
     }
@@ -79,7 +79,10 @@ impl<'de> serde::Deserialize<'de> for Joints {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Joints, D::Error> {
         let values = Vec::<f64>::deserialize(d)?;
         Joints::new(&values).ok_or_else(|| {
-            serde::de::Error::custom(format!("expected 1 to {MAX_JOINTS} angles, found {}", values.len()))
+            serde::de::Error::custom(format!(
+                "expected 1 to {MAX_TREE_JOINTS} angles, found {}",
+                values.len()
+            ))
         })
     }
 }
@@ -201,6 +204,9 @@ pub struct Observation {
     pub pose: Option<String>,
     /// Line in the file (tracker CSV), or the 1-based measurement number (artefact session).
     pub line: usize,
+    /// The tip the tool point belongs to: an index into a branched model's tips (see
+    /// [`crate::model::Tree`]), 0 for a single chain.
+    pub tip: usize,
 }
 
 impl Observation {
@@ -219,6 +225,7 @@ impl Observation {
             temp_c: None,
             pose: None,
             line,
+            tip: 0,
         }
     }
 
@@ -276,6 +283,59 @@ pub struct Observations {
     pub obs: Vec<Observation>,
     /// Columns ignored and other things worth a look, one sentence each.
     pub warnings: Vec<String>,
+    /// The names a `kincal-tracker/2` file gives its joint columns and tips, until
+    /// [`Observations::bind`] puts the angles in the model's joint order.
+    pub names: Option<ColumnNames>,
+}
+
+/// Joint columns and tips named in the files (`kincal-tracker/2`), not yet bound to a model.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ColumnNames {
+    /// The joint each angle of an observation belongs to, in the files' column order.
+    pub joints: Vec<String>,
+    /// The tips, in the order first met: an observation's `tip` indexes this list.
+    pub tips: Vec<String>,
+    /// The file the names were read from (for messages).
+    pub source: PathBuf,
+}
+
+/// An observation's names that the model does not have.
+#[derive(Debug, thiserror::Error)]
+pub enum BindError {
+    /// The model records no joint names.
+    #[error("{file}: the sessions name their joint columns (kincal-tracker/2); the model records no joint names: make it with `kincal model from-urdf`")]
+    Unnamed {
+        /// The session file.
+        file: String,
+    },
+    /// A model joint has no column.
+    #[error("{file}: no column `{joint}_deg` (or `_rad`) for the model's joint {joint}")]
+    MissingJoint {
+        /// The session file.
+        file: String,
+        /// The joint's name.
+        joint: String,
+    },
+    /// A column names no joint of the model.
+    #[error("{file}: column `{joint}_deg`: the model has no joint {joint} (its joints: {known})")]
+    UnknownJoint {
+        /// The session file.
+        file: String,
+        /// The column's joint.
+        joint: String,
+        /// The model's joints.
+        known: String,
+    },
+    /// A tip the model does not have.
+    #[error("{file}: column `tip`: the model has no tip {tip} (its tips: {known})")]
+    UnknownTip {
+        /// The session file.
+        file: String,
+        /// The tip's name.
+        tip: String,
+        /// The model's tips.
+        known: String,
+    },
 }
 
 impl Observations {
@@ -403,6 +463,7 @@ impl Observations {
             blocks: Vec::new(),
             obs: Vec::new(),
             warnings: self.warnings.clone(),
+            names: self.names.clone(),
         }
     }
 
@@ -548,6 +609,53 @@ impl Observations {
             .collect()
     }
 
+    /// Put each observation's angles in `model`'s joint order and its tip in the model's tip
+    /// numbering, when the files named their joint columns and tips (`kincal-tracker/2`); the
+    /// names are then used up. Observations without names are left as they are.
+    pub fn bind(&mut self, model: &crate::model::ArmModel) -> Result<(), BindError> {
+        let Some(names) = self.names.take() else { return Ok(()) };
+        let file = names.source.display().to_string();
+        let Some(urdf) = model.urdf.as_ref() else { return Err(BindError::Unnamed { file }) };
+        let model_joints: Vec<&str> = urdf.joint.iter().map(|j| j.name.as_str()).collect();
+        for joint in &names.joints {
+            if !model_joints.contains(&joint.as_str()) {
+                let known = model_joints.join(", ");
+                return Err(BindError::UnknownJoint { file, joint: joint.clone(), known });
+            }
+        }
+        let mut order = Vec::with_capacity(model_joints.len());
+        for joint in &model_joints {
+            match names.joints.iter().position(|n| n == joint) {
+                Some(c) => order.push(c),
+                None => return Err(BindError::MissingJoint { file, joint: joint.to_string() }),
+            }
+        }
+        let model_tips: Vec<String> = match model.tree.is_branched() {
+            true => model.tree.tips.iter().map(|t| t.name.clone()).collect(),
+            false => vec![urdf.tip.clone()],
+        };
+        let mut tips = Vec::with_capacity(names.tips.len());
+        for tip in &names.tips {
+            match model_tips.iter().position(|t| t == tip) {
+                Some(t) => tips.push(t),
+                None => {
+                    return Err(BindError::UnknownTip {
+                        file,
+                        tip: tip.clone(),
+                        known: model_tips.join(", "),
+                    })
+                }
+            }
+        }
+        for o in &mut self.obs {
+            let q: Vec<f64> = order.iter().map(|&c| o.q_deg.get(c).copied().unwrap_or(0.0)).collect();
+            o.q_deg = Joints::new(&q).unwrap_or(o.q_deg);
+            o.tip = tips.get(o.tip).copied().unwrap_or(0);
+        }
+        self.joints = model_joints.len();
+        Ok(())
+    }
+
     /// Observations and blocks of `other` after these (the same arm and joint count; landmarks
     /// from whichever has them).
     pub fn merge(mut self, other: Observations) -> Observations {
@@ -606,7 +714,7 @@ mod tests {
     fn joints_hold_any_count_up_to_the_most() {
         let q = Joints::new(&[1.0, 2.0]).unwrap();
         assert_eq!((q.len(), q[1]), (2, 2.0));
-        assert!(Joints::new(&[]).is_none() && Joints::new(&[0.0; MAX_JOINTS + 1]).is_none());
+        assert!(Joints::new(&[]).is_none() && Joints::new(&[0.0; MAX_TREE_JOINTS + 1]).is_none());
         assert_eq!(serde_json::to_string(&q).unwrap(), "[1.0,2.0]");
         assert_eq!(serde_json::from_str::<Joints>("[1.0,2.0]").unwrap(), q);
     }

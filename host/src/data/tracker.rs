@@ -23,8 +23,15 @@
 //! controller's identity, as `kincal record` writes it into artefact sessions): a calibration
 //! refuses sessions of two arms.
 //! A folder is a tracker folder when it holds `*.csv` files whose first line is the tag.
+//!
+//! `kincal-tracker/2` is the same with named joints, for a branched robot (several tips) or any
+//! URDF model: the joint columns are `<URDF joint name>_deg` (or `_rad`), in any order and for
+//! every joint of the model's tree, and a column `tip` names the tip (a URDF link of the
+//! model's `--tip` list) each row's point belongs to (without it, every row is the first tip's).
+//! The angles are put in the model's joint order when the model is known
+//! ([`crate::data::Observations::bind`]). docs/src/humanoid-data.md has an example.
 
-use crate::data::{Joints, Kind, Observation, Observations, Target};
+use crate::data::{ColumnNames, Joints, Kind, Observation, Observations, Target};
 use crate::files::{row_error, FileError};
 use crate::model::MAX_JOINTS;
 use crate::trace::ArmIdentity;
@@ -33,6 +40,8 @@ use std::path::{Path, PathBuf};
 
 /// The tag line every tracker CSV starts with.
 pub const TRACKER_FORMAT: &str = "kincal-tracker/1";
+/// The tag line of tracker CSVs with named joint columns and a `tip` column.
+pub const NAMED_TRACKER_FORMAT: &str = "kincal-tracker/2";
 /// Smallest spread of a session's points, mm, below which its lengths are taken for metres.
 pub const MIN_SESSION_SPAN_MM: f64 = 5.0;
 /// Largest plausible coordinate, mm (a tracker measures within tens of metres).
@@ -47,9 +56,9 @@ pub fn is_tracker_folder(dir: &Path) -> bool {
     csv_files(dir).is_ok_and(|files| files.iter().any(|f| starts_with_tag(f)))
 }
 
-/// True when the file's first line is the tag line.
+/// True when the file's first line is a tracker tag line (either version).
 pub fn starts_with_tag(path: &Path) -> bool {
-    starts_with(path, TRACKER_FORMAT)
+    starts_with(path, TRACKER_FORMAT) || starts_with(path, NAMED_TRACKER_FORMAT)
 }
 
 /// True when the file's first line is `# FORMAT`.
@@ -98,22 +107,68 @@ struct Layout {
     time: Option<usize>,
     temp: Option<usize>,
     pose: Option<usize>,
+    /// `kincal-tracker/2`: the joint names of the `q` columns, and the `tip` column.
+    names: Vec<String>,
+    tip: Option<usize>,
 }
 
 fn layout(
     path: &Path,
     line: usize,
     header: &[&str],
+    named: bool,
     warnings: &mut Vec<String>,
 ) -> Result<Layout, FileError> {
     let row = |column: &str, message: String| row_error(path, line, column, message);
-    let find = |name: &str| header.iter().position(|h| *h == name);
     for (k, h) in header.iter().enumerate() {
         if header[..k].contains(h) {
             return Err(row(h, "named twice in the header".into()));
         }
     }
     let mut out = Layout::default();
+    if named {
+        named_joints(path, line, header, &mut out)?;
+    } else {
+        numbered_joints(path, line, header, &mut out)?;
+    }
+    rest(path, line, header, out, warnings)
+}
+
+/// The joint columns `<joint>_deg` (or `_rad`) of a `kincal-tracker/2` header, and its `tip`.
+fn named_joints(path: &Path, line: usize, header: &[&str], out: &mut Layout) -> Result<(), FileError> {
+    let row = |column: &str, message: String| row_error(path, line, column, message);
+    const OTHER: [&str; 4] = ["x_mm", "y_mm", "z_mm", "sigma_mm"];
+    let mut units = Vec::new();
+    for (c, h) in header.iter().enumerate().filter(|(_, h)| !OTHER.contains(h)) {
+        for (unit, radians) in [("_deg", false), ("_rad", true)] {
+            if let Some(name) = h.strip_suffix(unit).filter(|n| !n.is_empty()) {
+                out.q.push(c);
+                out.names.push(name.to_string());
+                units.push(radians);
+            }
+        }
+    }
+    if out.q.is_empty() {
+        return Err(row("header", "no joint column: expected <joint>_deg (or <joint>_rad) per joint".into()));
+    }
+    if out.q.len() > crate::model::MAX_TREE_JOINTS {
+        return Err(row(header[out.q[0]], format!("at most {} joints", crate::model::MAX_TREE_JOINTS)));
+    }
+    if units.iter().any(|r| *r != units[0]) {
+        return Err(row(
+            header[out.q[0]],
+            "give every joint in degrees (_deg) or every joint in radians (_rad)".into(),
+        ));
+    }
+    out.radians = units[0];
+    out.tip = header.iter().position(|h| *h == "tip");
+    Ok(())
+}
+
+/// The joint columns `q1_deg … qN_deg` (or `_rad`) of a `kincal-tracker/1` header.
+fn numbered_joints(path: &Path, line: usize, header: &[&str], out: &mut Layout) -> Result<(), FileError> {
+    let row = |column: &str, message: String| row_error(path, line, column, message);
+    let find = |name: &str| header.iter().position(|h| *h == name);
     let any = |unit: &str| (1..=MAX_JOINTS + 1).any(|j| find(&format!("q{j}_{unit}")).is_some());
     out.radians = match (any("deg"), any("rad")) {
         (true, true) => {
@@ -147,6 +202,19 @@ fn layout(
             ),
         ));
     }
+    Ok(())
+}
+
+/// The point, orientation and optional columns of a header, with its joint columns in `out`.
+fn rest(
+    path: &Path,
+    line: usize,
+    header: &[&str],
+    mut out: Layout,
+    warnings: &mut Vec<String>,
+) -> Result<Layout, FileError> {
+    let row = |column: &str, message: String| row_error(path, line, column, message);
+    let find = |name: &str| header.iter().position(|h| *h == name);
     for (k, name) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
         out.xyz[k] =
             find(name).ok_or_else(|| row(name, "missing: the measured point x_mm, y_mm, z_mm".into()))?;
@@ -179,6 +247,7 @@ fn layout(
         .chain(out.time)
         .chain(out.temp)
         .chain(out.pose)
+        .chain(out.tip)
         .collect();
     let unknown: Vec<&str> = (0..header.len()).filter(|c| !known.contains(c)).map(|c| header[c]).collect();
     if !unknown.is_empty() {
@@ -202,6 +271,9 @@ pub struct SessionFile {
     pub rows: Vec<Observation>,
     /// The arm a `# arm: ID` line names.
     pub arm: Option<ArmIdentity>,
+    /// `kincal-tracker/2`: the joints of the angle columns (file order) and the tips (the rows'
+    /// `tip` index this list); empty for `kincal-tracker/1`.
+    pub names: Option<ColumnNames>,
 }
 
 /// The arm a `# arm: ID` comment line before the header names, checked (the line and the
@@ -227,7 +299,8 @@ fn arm_line(path: &Path, text: &str) -> Result<Option<ArmIdentity>, FileError> {
 
 /// Read one session file.
 pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<SessionFile, FileError> {
-    read_tagged_session(path, TRACKER_FORMAT, warnings)
+    let format = if starts_with(path, NAMED_TRACKER_FORMAT) { NAMED_TRACKER_FORMAT } else { TRACKER_FORMAT };
+    read_tagged_session(path, format, warnings)
 }
 
 /// Read one file of the tracker's columns whose tag line is `# FORMAT` (other readers of
@@ -262,8 +335,9 @@ pub fn read_tagged_session(
     let (header_line, header) =
         lines.next().ok_or_else(|| row_error(2, "header", "missing header row".into()))?;
     let header: Vec<&str> = header.split(',').map(str::trim).collect();
-    let layout = layout(path, header_line, &header, warnings)?;
+    let layout = layout(path, header_line, &header, format == NAMED_TRACKER_FORMAT, warnings)?;
     let mut points = Vec::new();
+    let mut tips: Vec<String> = Vec::new();
     for (line, text) in lines {
         let cells: Vec<&str> = text.split(',').map(str::trim).collect();
         if cells.len() != header.len() {
@@ -302,6 +376,17 @@ pub fn read_tagged_session(
             q.push(v);
         }
         let q_deg = Joints::new(&q).ok_or_else(|| row_error(line, "q1_deg", "no joint angle".into()))?;
+        let tip = match layout.tip.map(|c| cells[c]) {
+            Some("") => return Err(row_error(line, "tip", "empty: expected the tip's name".into())),
+            Some(name) => match tips.iter().position(|t| t == name) {
+                Some(t) => t,
+                None => {
+                    tips.push(name.to_string());
+                    tips.len() - 1
+                }
+            },
+            None => 0,
+        };
         let mut xyz = [0.0; 3];
         for k in 0..3 {
             xyz[k] = number(layout.xyz[k])?;
@@ -370,8 +455,15 @@ pub fn read_tagged_session(
             sigma_mm,
             time_s,
             temp_c: optional(layout.temp)?,
-            pose: layout.pose.map(|c| cells[c].to_string()).filter(|p| !p.is_empty()),
+            // Two tips' points of one arm pose are no repeats of one point: the id names the tip too.
+            pose: layout.pose.map(|c| cells[c].to_string()).filter(|p| !p.is_empty()).map(|p| {
+                match layout.tip {
+                    Some(t) => format!("{p}/{}", cells[t]),
+                    None => p,
+                }
+            }),
             line,
+            tip,
         });
     }
     if points.is_empty() {
@@ -412,7 +504,12 @@ pub fn read_tagged_session(
         }
     }
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    Ok(SessionFile { name, path: path.to_owned(), rows: points, arm: arm_line(path, &text)? })
+    let names = (format == NAMED_TRACKER_FORMAT).then(|| ColumnNames {
+        joints: layout.names.clone(),
+        tips: if layout.tip.is_some() { tips } else { Vec::new() },
+        source: path.to_owned(),
+    });
+    Ok(SessionFile { name, path: path.to_owned(), rows: points, arm: arm_line(path, &text)?, names })
 }
 
 /// Read every tracker session of `dir` (each `*.csv` file; files without the tag are refused):
@@ -449,13 +546,61 @@ pub fn load_files(dir: &Path, files: &[PathBuf]) -> Result<Observations, FileErr
         } else {
             first = Some((b, f.clone()));
         }
+        let tips = merge_names(&mut data.names, session.names, f)?;
         let group = data.push_group(session.name, session.path, Kind::Tracker);
         data.groups[group].arm = session.arm;
-        data.obs.extend(session.rows.into_iter().map(|o| Observation { group, ..o }));
+        data.obs.extend(session.rows.into_iter().map(|o| Observation {
+            group,
+            tip: tips.get(o.tip).copied().unwrap_or(0),
+            ..o
+        }));
     }
     data.joints = first.map_or(0, |f| f.0);
     data.rebuild_blocks();
     Ok(data)
+}
+
+/// Merge a session's names into the folder's: the same joint columns in the same order as the
+/// first file, the tips added to the folder's list. Returns the folder's tip index of each of the
+/// session's tips.
+fn merge_names(
+    folder: &mut Option<ColumnNames>,
+    session: Option<ColumnNames>,
+    path: &Path,
+) -> Result<Vec<usize>, FileError> {
+    let mismatch =
+        |message: String| FileError::Row { path: path.to_owned(), line: 2, column: "header".into(), message };
+    let (Some(all), Some(mine)) = (folder.as_mut(), session.as_ref()) else {
+        return match (folder.is_some(), session) {
+            (false, Some(mine)) if !mine.tips.is_empty() || !mine.joints.is_empty() => {
+                let tips = (0..mine.tips.len()).collect();
+                *folder = Some(mine);
+                Ok(tips)
+            }
+            (true, None) => Err(mismatch(format!(
+                "a {TRACKER_FORMAT} file among {NAMED_TRACKER_FORMAT} files: name the joint columns in every file"
+            ))),
+            _ => Ok(Vec::new()),
+        };
+    };
+    if all.joints != mine.joints {
+        return Err(mismatch(format!(
+            "the joint columns differ from those of {}: expected {} in that order",
+            all.source.display(),
+            all.joints.iter().map(|j| format!("{j}_deg")).collect::<Vec<_>>().join(", ")
+        )));
+    }
+    Ok(mine
+        .tips
+        .iter()
+        .map(|t| match all.tips.iter().position(|a| a == t) {
+            Some(k) => k,
+            None => {
+                all.tips.push(t.clone());
+                all.tips.len() - 1
+            }
+        })
+        .collect())
 }
 
 #[cfg(test)]

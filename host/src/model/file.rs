@@ -19,9 +19,26 @@
 //! id = "lab-arm-2"                # its controller's identity (what `kincal upload` checks)
 //! firmware = "kincal-fw 0.1.0"    # optional
 //! ```
+//!
+//! A branched robot (convention "urdf", up to [`MAX_TREE_JOINTS`] joints, each tip's path at most
+//! [`MAX_JOINTS`]) adds each joint's parent and its named tips; any URDF model may carry a mass
+//! table (what the gravity loads of `sag:j` and `bend:j` read):
+//!
+//! ```toml
+//! parents = [0, 1, 2, 3, 4, 5]    # per joint, its parent joint (1-based), 0 = the base
+//! [[tip]]                         # the first tip's point is tcp_mm; its own tcp_mm is ignored
+//! name = "left_marker"
+//! joint = 11                      # its last joint (1-based)
+//! tcp_mm = [45.0, 30.0, 150.0]
+//! [[body]]                        # a mass carried by a joint, centre in the joint's frame
+//! joint = 1
+//! mass_kg = 6.0
+//! com_mm = [20.0, 10.0, 90.0]
+//! ```
 
+use super::params::MAX_TIPS;
 use super::urdf::UrdfSource;
-use super::{ArmModel, Convention, FreeParam, Joint, ParamId, MAX_JOINTS};
+use super::{ArmModel, Body, Convention, FreeParam, Joint, ParamId, Tip, Tree, MAX_JOINTS, MAX_TREE_JOINTS};
 use crate::files::{self, FileError};
 use crate::model::effects::Effect;
 use std::collections::BTreeMap;
@@ -50,6 +67,99 @@ struct ModelFile {
     urdf: Option<UrdfSource>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     arm: Option<crate::trace::ArmIdentity>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    parents: Vec<usize>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    tip: Vec<Tip>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    body: Vec<Body>,
+}
+
+/// Heaviest plausible body, kg.
+const MAX_BODY_KG: f64 = 10_000.0;
+
+/// The tree of a model file (1-based joints there, 0-based here), checked: parents before
+/// children, tips on joints the model has, each tip's path at most [`MAX_JOINTS`] joints,
+/// bodies with a positive finite mass on a joint the model has.
+fn tree_of(file: &ModelFile, joints: usize) -> Result<Tree, (String, String)> {
+    let branched = !file.parents.is_empty() || !file.tip.is_empty();
+    if branched && file.convention != Convention::Urdf {
+        return Err((
+            "parents".into(),
+            "a branched model (parents, [[tip]]) has convention = \"urdf\"".into(),
+        ));
+    }
+    if !file.body.is_empty() && file.convention != Convention::Urdf {
+        return Err((
+            "body".into(),
+            "a mass table ([[body]]) belongs to a model of convention = \"urdf\"".into(),
+        ));
+    }
+    if branched && (file.parents.len() != joints || file.tip.is_empty()) {
+        return Err((
+            "parents".into(),
+            format!(
+                "a branched model gives one parent per joint ({joints}, found {}) and at least one [[tip]]",
+                file.parents.len()
+            ),
+        ));
+    }
+    let mut tree = Tree::default();
+    for (j, &p) in file.parents.iter().enumerate() {
+        if p > j {
+            return Err((
+                format!("parents[{}]", j + 1),
+                format!(
+                    "joint {} has parent {p}: expected 0 (the base) or an earlier joint (1 to {j})",
+                    j + 1
+                ),
+            ));
+        }
+        tree.parents.push(p.checked_sub(1));
+    }
+    if file.tip.len() > MAX_TIPS {
+        return Err(("tip".into(), format!("at most {MAX_TIPS} tips, found {}", file.tip.len())));
+    }
+    for (t, tip) in file.tip.iter().enumerate() {
+        let key = format!("tip[{}]", t + 1);
+        if !(1..=joints).contains(&tip.joint) {
+            return Err((
+                format!("{key}.joint"),
+                format!("expected a joint 1 to {joints}, found {}", tip.joint),
+            ));
+        }
+        if file.tip[..t].iter().any(|o| o.name == tip.name) || tip.name.trim().is_empty() {
+            return Err((
+                format!("{key}.name"),
+                format!("\"{}\": expected a name no other tip has", tip.name),
+            ));
+        }
+        if !tip.tcp_mm.iter().all(|v| v.is_finite() && v.abs() <= MAX_LENGTH_MM) {
+            return Err((format!("{key}.tcp_mm"), format!("expected finite mm within ±{MAX_LENGTH_MM}")));
+        }
+        tree.tips.push(Tip { joint: tip.joint - 1, ..tip.clone() });
+        let path = tree.path(joints, t);
+        if path.len() > MAX_JOINTS {
+            return Err((key, format!("its chain has {} joints; at most {MAX_JOINTS}", path.len())));
+        }
+    }
+    for (b, body) in file.body.iter().enumerate() {
+        let key = format!("body[{}]", b + 1);
+        if !(1..=joints).contains(&body.joint) {
+            return Err((
+                format!("{key}.joint"),
+                format!("expected a joint 1 to {joints}, found {}", body.joint),
+            ));
+        }
+        if !(body.mass_kg.is_finite() && body.mass_kg > 0.0 && body.mass_kg <= MAX_BODY_KG) {
+            return Err((format!("{key}.mass_kg"), format!("expected a mass in kg, 0 < m <= {MAX_BODY_KG}")));
+        }
+        if !body.com_mm.iter().all(|v| v.is_finite() && v.abs() <= MAX_LENGTH_MM) {
+            return Err((format!("{key}.com_mm"), format!("expected finite mm within ±{MAX_LENGTH_MM}")));
+        }
+        tree.bodies.push(Body { joint: body.joint - 1, ..*body });
+    }
+    Ok(tree)
 }
 
 /// Largest magnitude a parameter may plausibly have, with the unit, by kind: anything larger is a
@@ -73,7 +183,10 @@ pub fn plausible_limit(id: ParamId) -> f64 {
         ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) | ParamId::OriginXyz(..) => {
             MAX_LENGTH_MM
         }
+        ParamId::TipTcp(..) => MAX_LENGTH_MM,
         ParamId::Compliance(_) => 100.0,
+        // deg per kN·m: a degree per metre of a 100 kg lever is about 1 deg/(kN·m).
+        ParamId::Sag(_) | ParamId::Bend(_) => 1000.0,
         ParamId::Scale => 100_000.0,
     }
 }
@@ -175,6 +288,22 @@ impl ArmModel {
         None
     }
 
+    /// Why the model has no parameter `id` although its joint exists: a tip it does not have,
+    /// or a mass-torque compliance without a mass table.
+    pub fn lacks(&self, id: ParamId) -> Option<String> {
+        match id {
+            ParamId::TipTcp(t, _) if t >= self.tree.tips.len() => {
+                Some(format!("the model has {} tip(s); no tip {}", self.tree.tip_count(), t + 1))
+            }
+            ParamId::Sag(_) | ParamId::Bend(_) if self.tree.bodies.is_empty() || self.convention != Convention::Urdf => {
+                Some("sag and bend deflect under the gravity loads of a mass table: a URDF model with [[body]] rows \
+                      (`kincal model from-urdf` reads them from <inertial>)"
+                    .into())
+            }
+            _ => None,
+        }
+    }
+
     /// Read a model file (`.toml`, or `.json`).
     pub fn load(path: &Path) -> Result<ArmModel, FileError> {
         files::check_regular_file(path)?;
@@ -203,15 +332,14 @@ impl ArmModel {
                 format!("expected \"{MODEL_FORMAT}\", found \"{}\"", file.format),
             ));
         }
-        if !(1..=MAX_JOINTS).contains(&file.joint.len()) {
+        let most = if file.parents.is_empty() { MAX_JOINTS } else { MAX_TREE_JOINTS };
+        if !(1..=most).contains(&file.joint.len()) {
             return Err(field(
                 "joint".into(),
-                format!(
-                    "expected 1 to {MAX_JOINTS} [[joint]] rows (revolute joints), found {}",
-                    file.joint.len()
-                ),
+                format!("expected 1 to {most} [[joint]] rows (revolute joints), found {}", file.joint.len()),
             ));
         }
+        let tree = tree_of(&file, file.joint.len()).map_err(|(name, message)| field(name, message))?;
         let mut joints = file.joint.clone();
         for (j, joint) in joints.iter_mut().enumerate() {
             check_joint_convention(joint, file.convention)
@@ -246,6 +374,7 @@ impl ArmModel {
             free: Vec::new(),
             urdf: file.urdf,
             arm: file.arm,
+            tree,
         };
         if let Some((name, message)) = model.implausible() {
             return Err(field(name, message));
@@ -262,6 +391,9 @@ impl ArmModel {
                     format!("effects[\"{name}\"]"),
                     format!("the model has {} joints; no such joint", model.joints.len()),
                 ));
+            }
+            if let Some(message) = effect.params().into_iter().find_map(|p| model.lacks(p)) {
+                return Err(field(format!("effects[\"{name}\"]"), message));
             }
             effect.add_to(&mut model);
         }
@@ -291,6 +423,9 @@ impl ArmModel {
                         model.joints.len()
                     ),
                 ));
+            }
+            if let Some(message) = model.lacks(id) {
+                return Err(field(key, message));
             }
             let [lower, upper] = <[f64; 2]>::try_from(bounds.as_slice()).map_err(|_| {
                 field(key.clone(), format!("expected 2 numbers [lower, upper], found {}", bounds.len()))
@@ -334,7 +469,7 @@ impl ArmModel {
             tcp_mm: self.tcp_mm.to_vec(),
             scale_ppm: self.scale_ppm,
             joint: self.joints.to_vec(),
-            effects: crate::model::effects::Effect::library(self.joints.len())
+            effects: crate::model::effects::Effect::library_for(self)
                 .into_iter()
                 .filter(|e| e.is_in(self) && e.kind.is_non_geometric())
                 .map(|e| e.to_string())
@@ -342,6 +477,12 @@ impl ArmModel {
             free: self.free.iter().map(|f| (f.id.to_string(), vec![f.lower, f.upper])).collect(),
             urdf: self.urdf.clone(),
             arm: self.arm.clone(),
+            parents: match self.tree.is_branched() {
+                true => (0..self.joints.len()).map(|j| self.tree.parent(j).map_or(0, |p| p + 1)).collect(),
+                false => Vec::new(),
+            },
+            tip: self.tree.tips.iter().map(|t| Tip { joint: t.joint + 1, ..t.clone() }).collect(),
+            body: self.tree.bodies.iter().map(|b| Body { joint: b.joint + 1, ..*b }).collect(),
         };
         if json {
             serde_json::to_string_pretty(&file).unwrap_or_default()

@@ -33,8 +33,9 @@
 //! which is exact whenever the compliances are zero.
 
 use super::params::PARAM_SLOTS;
-use super::{ArmModel, Convention, ParamId, MAX_JOINTS};
-use crate::model::effects::{compliance, eccentricity, harmonic};
+use super::tree::{self, Loads};
+use super::{ArmModel, Convention, ParamId, MAX_TREE_JOINTS};
+use crate::model::effects::{bend, compliance, eccentricity, harmonic, sag};
 use crate::numerics::geometry::left_jacobian;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
@@ -76,6 +77,8 @@ pub struct ColumnMap {
     harmonics: bool,
     /// Some compliance column is wanted.
     compliance: bool,
+    /// Some mass-torque compliance column (sag, bend) is wanted.
+    gravity: bool,
     /// The tool axes' derivatives are wanted (not only the position's).
     axes: bool,
 }
@@ -88,12 +91,13 @@ impl ColumnMap {
             slots[p.dense_index()] = Some(c);
         }
         let any =
-            |kind: fn(usize) -> ParamId| (0..MAX_JOINTS).any(|j| slots[kind(j).dense_index()].is_some());
+            |kind: fn(usize) -> ParamId| (0..MAX_TREE_JOINTS).any(|j| slots[kind(j).dense_index()].is_some());
         ColumnMap {
             slots,
             len: params.len(),
             harmonics: HARMONICS.into_iter().any(any),
             compliance: any(ParamId::Compliance),
+            gravity: any(ParamId::Sag) || any(ParamId::Bend),
             axes: true,
         }
     }
@@ -146,6 +150,9 @@ enum Dep {
     Param(usize, f64),
     /// Joint j's angle (see [`Chain::joint_angle`]).
     JointAngle(usize),
+    /// Joint j's lateral turn under its gravity moment (see [`bend`]): a rotation about the
+    /// moment's direction, set per pose.
+    Bend(usize),
     /// Joint j's origin turn ω (`origin_rx:j`, `origin_ry:j`, `origin_rz:j`): the columns of
     /// R(rpy)·J_l(ω) are the axes, in the frame before the op, the frame turns about per radian.
     OriginTurn(usize, Matrix3<f64>),
@@ -244,30 +251,45 @@ impl Frame {
 const OPS_PER_JOINT: usize = 5;
 
 /// Parameters a joint angle depends on: offset, four eccentricity terms, four higher
-/// harmonic terms, compliance.
-const ANGLE_DEPS: usize = 10;
+/// harmonic terms, compliance, sag.
+const ANGLE_DEPS: usize = 11;
 
-/// The chain of one model: its elementary ops with the fixed rotations' sines and cosines, built
-/// once and evaluated at any joint angles.
+/// The chain of one model's tip: its elementary ops with the fixed rotations' sines and cosines,
+/// built once and evaluated at any joint angles (of the whole tree: a tip's chain reads the
+/// angles of the joints on its path, and the gravity loads read them all).
 pub struct Chain<'m> {
     model: &'m ArmModel,
     ops: Vec<Op>,
-    joints: usize,
+    /// The op index at which each joint row of the path ends, base first.
+    row_ends: Vec<usize>,
+    /// The joints of the path, base first.
+    path: Vec<usize>,
     /// Some harmonic encoder error is non-zero.
     harmonics: bool,
     /// Some compliance is non-zero.
     compliant: bool,
+    /// Some mass-torque compliance (sag, bend) is non-zero on a model with masses.
+    loaded: bool,
     scale: f64,
     /// Per joint, the sine and cosine of its offset δθ.
-    offset_sin_cos: [(f64, f64); MAX_JOINTS],
+    offset_sin_cos: [(f64, f64); MAX_TREE_JOINTS],
 }
 
 impl<'m> Chain<'m> {
-    /// The chain of `model`.
+    /// The chain of `model` (of its first tip, for a tree).
     pub fn new(model: &'m ArmModel) -> Chain<'m> {
-        let joints = model.joints.len().min(MAX_JOINTS);
-        let mut ops = Vec::with_capacity(joints * OPS_PER_JOINT + 3);
-        for (j, joint) in model.joints.iter().take(joints).enumerate() {
+        Chain::for_tip(model, 0)
+    }
+
+    /// The chain of `model`'s tip `tip` (0-based; a chain has tip 0 only).
+    pub fn for_tip(model: &'m ArmModel, tip: usize) -> Chain<'m> {
+        let joints = model.joints.len().min(MAX_TREE_JOINTS);
+        let path = model.tree.path(joints, tip);
+        let masses = model.convention == Convention::Urdf && !model.tree.bodies.is_empty();
+        let mut ops = Vec::with_capacity(path.len() * (OPS_PER_JOINT + 1) + 3);
+        let mut row_ends = Vec::with_capacity(path.len());
+        for &j in &path {
+            let joint = &model.joints[j];
             let theta_axis = match model.convention {
                 Convention::Urdf => Axis::Unit(Vector3::from(joint.axis)),
                 Convention::Classic | Convention::Modified => Axis::Z,
@@ -296,6 +318,15 @@ impl<'m> Chain<'m> {
                     orient,
                     theta,
                 ]);
+                if masses {
+                    ops.push(Op {
+                        kind: OpKind::Rotate(Axis::Z),
+                        value: 0.0,
+                        sin_cos: (0.0, 1.0),
+                        dep: Dep::Bend(j),
+                    });
+                }
+                row_ends.push(ops.len() - 1);
                 continue;
             }
             let d = shift(Axis::Z, joint.d_mm, ParamId::Length(j));
@@ -306,12 +337,17 @@ impl<'m> Chain<'m> {
                 Convention::Modified => [alpha, beta, a, theta, d],
                 Convention::Classic | Convention::Urdf => [theta, d, a, alpha, beta],
             });
+            row_ends.push(ops.len() - 1);
         }
         for (k, axis) in [Axis::X, Axis::Y, Axis::Z].into_iter().enumerate() {
-            ops.push(shift(axis, model.tcp_mm[k], ParamId::Tcp(k)));
+            let (value, id) = match model.tree.tips.get(tip).filter(|_| tip > 0) {
+                Some(t) => (t.tcp_mm[k], ParamId::TipTcp(tip, k)),
+                None => (model.tcp_mm[k], ParamId::Tcp(k)),
+            };
+            ops.push(shift(axis, value, id));
         }
         let joint_rows = &model.joints[..joints];
-        let mut offset_sin_cos = [(0.0, 1.0); MAX_JOINTS];
+        let mut offset_sin_cos = [(0.0, 1.0); MAX_TREE_JOINTS];
         for (sc, joint) in offset_sin_cos.iter_mut().zip(joint_rows) {
             *sc = (joint.offset_deg * DEG).sin_cos();
         }
@@ -319,7 +355,10 @@ impl<'m> Chain<'m> {
             offset_sin_cos,
             model,
             ops,
-            joints,
+            row_ends,
+            path,
+            loaded: masses
+                && joint_rows.iter().any(|j| j.sag_deg_per_knm != 0.0 || j.bend_deg_per_knm != 0.0),
             harmonics: joint_rows.iter().any(|j| {
                 j.eccentricity_sin_deg != 0.0
                     || j.eccentricity_cos_deg != 0.0
@@ -369,15 +408,16 @@ impl<'m> Chain<'m> {
         self.evaluate(enc_deg, None, Some((columns, jacobian)))
     }
 
-    /// Joint angle θ = φ + δθ + Δθ_ecc(φ) + c·λ (degrees) and its partials ∂θ/∂q (rad per
-    /// parameter unit, parameters by dense index), how many. The harmonics are evaluated (and
-    /// their partials given) only when `harmonics`, the compliance's partial only when
-    /// `compliance`.
+    /// Joint angle θ = φ + δθ + Δθ_ecc(φ) + c·λ + s·τ/1000 (degrees) and its partials ∂θ/∂q
+    /// (rad per parameter unit, parameters by dense index), how many. The harmonics are
+    /// evaluated (and their partials given) only when `harmonics`, the compliance's partial only
+    /// when `compliance`, the sag's only when `torque_nm` is given.
     fn joint_angle(
         &self,
         j: usize,
         enc_deg: f64,
         lever_m: f64,
+        torque_nm: Option<f64>,
         harmonics: bool,
         compliance: bool,
     ) -> (f64, [(usize, f64); ANGLE_DEPS], usize) {
@@ -407,7 +447,12 @@ impl<'m> Chain<'m> {
             partials[count] = (ParamId::Compliance(j).dense_index(), DEG * lever_m);
             count += 1;
         }
-        let theta = enc_deg + joint.offset_deg + ecc + joint.compliance_deg_per_m * lever_m;
+        let mut theta = enc_deg + joint.offset_deg + ecc + joint.compliance_deg_per_m * lever_m;
+        if let Some(torque) = torque_nm {
+            partials[count] = (ParamId::Sag(j).dense_index(), DEG * sag::partial(torque));
+            count += 1;
+            theta += joint.sag_deg_per_knm * sag::partial(torque);
+        }
         (theta, partials, count)
     }
 
@@ -417,36 +462,37 @@ impl<'m> Chain<'m> {
         Op { value, sin_cos: value.sin_cos(), ..*op }
     }
 
-    /// Gravity levers λ_j (m) of every joint on the arm without compliance deflection.
-    fn gravity_levers(&self, enc: impl Fn(usize) -> f64, harmonics: bool) -> [f64; MAX_JOINTS] {
-        let per_joint = OPS_PER_JOINT;
-        // Per joint: its axis' point and direction (before its θ op) and the origin at its row's end.
-        let mut axes = [(Vector3::zeros(), Vector3::zeros()); MAX_JOINTS];
-        let mut masses = [Vector3::zeros(); MAX_JOINTS + 1];
+    /// Gravity levers λ_j (m) of every joint of the path on the arm without compliance
+    /// deflection, by tree joint.
+    fn gravity_levers(&self, enc: impl Fn(usize) -> f64, harmonics: bool) -> [f64; MAX_TREE_JOINTS] {
+        let rows = self.path.len();
+        // Per row: its axis' point and direction (before its θ op) and the origin at its end.
+        let mut axes = Vec::with_capacity(rows);
+        let mut masses = Vec::with_capacity(rows + 1);
         let mut frame = Frame::base();
         for (m, op) in self.ops.iter().enumerate() {
             match op.dep {
                 Dep::JointAngle(j) => {
                     let OpKind::Rotate(axis) = op.kind else { unreachable!("a joint angle is a rotation") };
-                    axes[j] = (frame.origin, frame.direction(axis));
-                    let (theta, ..) = self.joint_angle(j, enc(j), 0.0, harmonics, false);
+                    axes.push((frame.origin, frame.direction(axis)));
+                    let (theta, ..) = self.joint_angle(j, enc(j), 0.0, None, harmonics, false);
                     frame.apply(&Self::with_angle(op, theta));
                 }
                 Dep::Param(..) | Dep::OriginTurn(..) => {
                     frame.apply(op);
                 }
+                Dep::Bend(_) => {}
             }
-            if (m + 1) % per_joint == 0 && (m + 1) / per_joint <= self.joints {
-                masses[(m + 1) / per_joint - 1] = frame.origin;
+            if self.row_ends.contains(&m) {
+                masses.push(frame.origin);
             }
         }
-        masses[self.joints] = frame.origin;
-        std::array::from_fn(|j| {
-            if j >= self.joints {
-                return 0.0;
-            }
-            compliance::gravity_lever_m(&axes[j].0, &axes[j].1, &masses[j..=self.joints])
-        })
+        masses.push(frame.origin);
+        let mut levers = [0.0; MAX_TREE_JOINTS];
+        for (row, &j) in self.path.iter().enumerate() {
+            levers[j] = compliance::gravity_lever_m(&axes[row].0, &axes[row].1, &masses[row..]);
+        }
+        levers
     }
 
     fn evaluate(
@@ -458,7 +504,10 @@ impl<'m> Chain<'m> {
         let harmonics = self.harmonics || wanted.as_ref().is_some_and(|(c, _)| c.harmonics);
         let compliance = self.compliant || wanted.as_ref().is_some_and(|(c, _)| c.compliance);
         let enc = |j: usize| enc_deg.get(j).copied().unwrap_or(0.0);
-        let levers = if compliance { self.gravity_levers(enc, harmonics) } else { [0.0; MAX_JOINTS] };
+        let levers = if compliance { self.gravity_levers(enc, harmonics) } else { [0.0; MAX_TREE_JOINTS] };
+        let loads: Option<Loads> = (self.loaded || wanted.as_ref().is_some_and(|(c, _)| c.gravity))
+            .then(|| tree::loads(self.model, enc))
+            .flatten();
         if let Some((_, jac)) = wanted.as_mut() {
             jac.iter_mut().for_each(|col| *col = [0.0; 9]);
         }
@@ -489,11 +538,30 @@ impl<'m> Chain<'m> {
                     }
                     frame.apply(op);
                 }
+                Dep::Bend(j) => {
+                    let Some((axis, dv)) =
+                        loads.as_ref().and_then(|l| bend::direction_and_partial(&l.lateral_nm[j]))
+                    else {
+                        continue;
+                    };
+                    let turn = Op {
+                        kind: OpKind::Rotate(Axis::Unit(axis)),
+                        dep: Dep::Param(ParamId::Bend(j).dense_index(), DEG * dv),
+                        ..Self::with_angle(op, self.model.joints[j].bend_deg_per_knm * dv)
+                    };
+                    let dir = frame.apply(&turn);
+                    if let Some((columns, jac)) = wanted.as_mut() {
+                        if let Some(c) = columns.column(ParamId::Bend(j).dense_index()) {
+                            gather(&mut jac[c], &turn, &dir, &origin, DEG * dv);
+                        }
+                    }
+                }
                 Dep::JointAngle(j) => {
                     // The encoder's sine and cosine kept and θ = φ + δθ: angle addition, and the
                     // offset is the only parameter θ reads.
-                    if let Some(&(s, c)) =
-                        enc_sin_cos.and_then(|sc| sc.get(j)).filter(|_| !harmonics && !compliance)
+                    if let Some(&(s, c)) = enc_sin_cos
+                        .and_then(|sc| sc.get(j))
+                        .filter(|_| !harmonics && !compliance && loads.is_none())
                     {
                         let (so, co) = self.offset_sin_cos[j];
                         let dir = frame.apply(&Op { sin_cos: (s * co + c * so, c * co - s * so), ..*op });
@@ -504,8 +572,9 @@ impl<'m> Chain<'m> {
                         }
                         continue;
                     }
+                    let torque = loads.as_ref().map(|l| l.torque_nm[j]);
                     let (theta, partials, count) =
-                        self.joint_angle(j, enc(j), levers[j], harmonics, compliance);
+                        self.joint_angle(j, enc(j), levers[j], torque, harmonics, compliance);
                     let dir = frame.apply(&Self::with_angle(op, theta));
                     if let Some((columns, jac)) = wanted.as_mut() {
                         for &(slot, dv) in &partials[..count] {
@@ -537,6 +606,22 @@ impl<'m> Chain<'m> {
             }
         }
         ToolPose { position_mm: point * self.scale, x_axis, z_axis }
+    }
+}
+
+/// The chains of every tip of a model (one for a single chain): an observation is evaluated on
+/// the chain of the tip it names.
+pub struct Tips<'m>(Vec<Chain<'m>>);
+
+impl<'m> Tips<'m> {
+    /// The chains of `model`'s tips.
+    pub fn new(model: &'m ArmModel) -> Tips<'m> {
+        Tips((0..model.tree.tip_count()).map(|t| Chain::for_tip(model, t)).collect())
+    }
+
+    /// The chain of tip `tip` (the first one for a tip the model does not have).
+    pub fn tip(&self, tip: usize) -> &Chain<'m> {
+        self.0.get(tip).unwrap_or(&self.0[0])
     }
 }
 
@@ -670,6 +755,59 @@ mod tests {
                     "{id}[{k}]: {} vs {}",
                     jac[c][k],
                     fd[k]
+                );
+            }
+        }
+    }
+
+    /// A URDF arm of three joints with a mass table: the sag and bend columns are exact where
+    /// the compliances are zero (the loads' own change is of their order), within 1 % at a
+    /// humanoid's compliances; a sag turns the tool down.
+    #[test]
+    fn sag_and_bend_columns_match_central_differences() {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = Convention::Urdf;
+        model.free.clear();
+        model.joints = vec![
+            crate::model::Joint { origin_xyz_mm: [0.0, 0.0, 300.0], ..Default::default() },
+            crate::model::Joint {
+                origin_xyz_mm: [0.0, 80.0, 200.0],
+                axis: [0.0, 1.0, 0.0],
+                ..Default::default()
+            },
+            crate::model::Joint {
+                origin_xyz_mm: [400.0, 0.0, 0.0],
+                axis: [1.0, 0.0, 0.0],
+                ..Default::default()
+            },
+        ];
+        model.tcp_mm = [300.0, 20.0, -50.0];
+        model.tree.bodies = vec![
+            crate::model::Body { joint: 1, mass_kg: 5.0, com_mm: [200.0, 0.0, 10.0] },
+            crate::model::Body { joint: 2, mass_kg: 3.0, com_mm: [150.0, 30.0, -20.0] },
+        ];
+        let enc = [20.0, -15.0, 40.0];
+        let params: Vec<ParamId> = (0..3).flat_map(|j| [ParamId::Sag(j), ParamId::Bend(j)]).collect();
+        let rigid = tool_pose(&model, &enc).position_mm;
+        for (values, tolerance) in [(0.0, 1e-6), (8.0, 1e-2)] {
+            let mut m = model.clone();
+            params.iter().for_each(|p| m.set(*p, values));
+            let mut jac = vec![[0.0; 9]; params.len()];
+            let pose = tool_pose_with_jacobian(&m, &enc, &ColumnMap::new(&params), &mut jac);
+            if values > 0.0 {
+                assert!(pose.position_mm.z < rigid.z, "the arm sags: {} vs {}", pose.position_mm.z, rigid.z);
+            }
+            for (c, &id) in params.iter().enumerate() {
+                let h = 1e-4;
+                let (mut plus, mut minus) = (m.clone(), m.clone());
+                plus.set(id, values + h);
+                minus.set(id, values - h);
+                let fd =
+                    (tool_pose(&plus, &enc).position_mm - tool_pose(&minus, &enc).position_mm) / (2.0 * h);
+                let column = Vector3::new(jac[c][0], jac[c][1], jac[c][2]);
+                assert!(
+                    (column - fd).norm() <= tolerance * fd.norm().max(1e-3),
+                    "{id} at {values}: {column} vs {fd}"
                 );
             }
         }

@@ -8,17 +8,21 @@ pub mod effects;
 pub mod file;
 pub mod kinematics;
 pub mod params;
+pub mod tree;
 pub mod urdf;
 
 pub use params::ParamId;
+pub use tree::{Body, Tip, Tree};
 
 use nalgebra::{Rotation3, Vector3};
 
 /// Number of joints of the SUTA arm: the encoders the controller reads, the rows its flash holds
 /// and the angles an artefact session (`suta-session/1`) records.
 pub const SUTA_JOINTS: usize = 6;
-/// Most revolute joints a host model may have.
+/// Most revolute joints a host model's chain may have (a tree's path from the base to one tip).
 pub const MAX_JOINTS: usize = 12;
+/// Most revolute joints a tree model may have (several chains sharing joints, see [`Tree`]).
+pub const MAX_TREE_JOINTS: usize = 24;
 
 /// Which joint convention the joint rows follow (two Denavit–Hartenberg forms, or URDF).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -76,6 +80,14 @@ pub struct Joint {
     /// Gravity compliance (see [`crate::model::effects::compliance`]), degrees per metre of lever.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub compliance_deg_per_m: f64,
+    /// Joint compliance under the gravity torque of the masses beyond the joint (see
+    /// [`crate::model::effects::sag`]), degrees per kN·m.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub sag_deg_per_knm: f64,
+    /// Lateral compliance under the gravity moment perpendicular to the axis (see
+    /// [`crate::model::effects::bend`]), degrees per kN·m.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub bend_deg_per_knm: f64,
     /// URDF joint origin translation from the previous joint's frame, millimetres.
     #[serde(default, skip_serializing_if = "is_zero3")]
     pub origin_xyz_mm: [f64; 3],
@@ -125,6 +137,8 @@ impl Default for Joint {
             harmonic4_sin_deg: 0.0,
             harmonic4_cos_deg: 0.0,
             compliance_deg_per_m: 0.0,
+            sag_deg_per_knm: 0.0,
+            bend_deg_per_knm: 0.0,
             origin_xyz_mm: [0.0; 3],
             origin_rpy_deg: [0.0; 3],
             origin_turn_deg: [0.0; 3],
@@ -159,13 +173,17 @@ impl Joint {
             ParamId::Ecc2Sin(_) => &mut self.eccentricity2_sin_deg,
             ParamId::Ecc2Cos(_) => &mut self.eccentricity2_cos_deg,
             ParamId::Compliance(_) => &mut self.compliance_deg_per_m,
+            ParamId::Sag(_) => &mut self.sag_deg_per_knm,
+            ParamId::Bend(_) => &mut self.bend_deg_per_knm,
             ParamId::Harm3Sin(_) => &mut self.harmonic3_sin_deg,
             ParamId::Harm3Cos(_) => &mut self.harmonic3_cos_deg,
             ParamId::Harm4Sin(_) => &mut self.harmonic4_sin_deg,
             ParamId::Harm4Cos(_) => &mut self.harmonic4_cos_deg,
             ParamId::OriginXyz(_, k) => &mut self.origin_xyz_mm[k],
             ParamId::OriginTurn(_, k) => &mut self.origin_turn_deg[k],
-            ParamId::Offset(_) | ParamId::Tcp(_) | ParamId::Scale => &mut self.offset_deg,
+            ParamId::Offset(_) | ParamId::Tcp(_) | ParamId::TipTcp(..) | ParamId::Scale => {
+                &mut self.offset_deg
+            }
         }
     }
 }
@@ -188,9 +206,10 @@ pub struct ArmModel {
     pub name: String,
     /// DH convention of the joint rows.
     pub convention: Convention,
-    /// Joint rows, base to tip (1 to [`MAX_JOINTS`]).
+    /// Joint rows, base to tip (1 to [`MAX_JOINTS`]); in a tree, in topological order (a joint
+    /// after its parent; 1 to [`MAX_TREE_JOINTS`]).
     pub joints: Vec<Joint>,
-    /// Tool centre point in the last frame, millimetres.
+    /// Tool centre point in the last frame, millimetres (in a tree, the first tip's point).
     pub tcp_mm: [f64; 3],
     /// Length scale error, parts per million (thermal expansion, artefact scale).
     pub scale_ppm: f64,
@@ -202,6 +221,9 @@ pub struct ArmModel {
     /// The arm this model is of (calibrated from its sessions); `None` for a nominal, simulated
     /// or hand-written model.
     pub arm: Option<crate::trace::ArmIdentity>,
+    /// The joints' parents and the named tips of a branched robot, and the masses gravity pulls
+    /// on (empty for a single chain without a mass table).
+    pub tree: Tree,
 }
 
 impl ArmModel {
@@ -209,6 +231,7 @@ impl ArmModel {
     pub fn get(&self, id: ParamId) -> f64 {
         match id {
             ParamId::Tcp(k) => self.tcp_mm[k],
+            ParamId::TipTcp(t, k) => self.tree.tips.get(t).map_or(0.0, |tip| tip.tcp_mm[k]),
             ParamId::Scale => self.scale_ppm,
             _ => match self.joints.get(id.joint().unwrap_or(0)) {
                 Some(joint) => *joint.clone().slot(id),
@@ -227,6 +250,9 @@ impl ArmModel {
     fn slot(&mut self, id: ParamId) -> Option<&mut f64> {
         match id {
             ParamId::Tcp(k) => Some(&mut self.tcp_mm[k]),
+            ParamId::TipTcp(t, k) => {
+                self.tree.tips.get_mut(t).filter(|_| t > 0).map(|tip| &mut tip.tcp_mm[k])
+            }
             ParamId::Scale => Some(&mut self.scale_ppm),
             _ => self.joints.get_mut(id.joint().unwrap_or(0)).map(|j| j.slot(id)),
         }
@@ -244,6 +270,11 @@ impl ArmModel {
             .into_iter()
             .filter(|id| id.joint().is_none_or(|j| j < self.joints.len()))
             .filter(|id| id.is_urdf_geometry() == (self.convention == Convention::Urdf) || !id.is_geometry())
+            .filter(|id| match id {
+                ParamId::TipTcp(t, _) => *t < self.tree.tips.len(),
+                ParamId::Sag(_) | ParamId::Bend(_) => !self.tree.bodies.is_empty(),
+                _ => true,
+            })
             .collect()
     }
 

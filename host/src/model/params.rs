@@ -33,22 +33,33 @@ pub enum ParamId {
     Harm4Cos(usize),
     /// `compliance:j` — joint deflection per metre of unit-weight gravity lever (deg/m).
     Compliance(usize),
+    /// `sag:j` — joint deflection per gravity torque of the masses beyond the joint (deg/(kN·m)).
+    Sag(usize),
+    /// `bend:j` — lateral deflection per gravity moment perpendicular to the axis (deg/(kN·m)).
+    Bend(usize),
     /// `origin_x:j`, `origin_y:j`, `origin_z:j` — URDF joint origin translation (mm), axis 0..3.
     OriginXyz(usize, usize),
     /// `origin_rx:j`, `origin_ry:j`, `origin_rz:j` — a small rotation of the URDF joint origin
     /// about its own nominal x, y, z axes, component k of the rotation vector ω (deg): the origin
     /// turns by R(rpy)·exp(ω), which has no gimbal lock at any nominal orientation.
     OriginTurn(usize, usize),
-    /// `tcp.x`, `tcp.y`, `tcp.z` — tool centre point in the last frame (mm).
+    /// `tcp.x`, `tcp.y`, `tcp.z` — tool centre point in the last frame (mm); of the first tip in
+    /// a tree.
     Tcp(usize),
+    /// `tcpN.x`, `tcpN.y`, `tcpN.z` — the point of a tree's tip N (N = 2…[`MAX_TIPS`], 0-based
+    /// index t = N − 1 here) in its last joint's frame (mm), axis 0..3.
+    TipTcp(usize, usize),
     /// `scale` — length scale error (ppm).
     Scale,
 }
 
-/// Number of distinct parameter slots (see [`ParamId::dense_index`]).
-pub const PARAM_SLOTS: usize = JOINT_KINDS.len() * super::MAX_JOINTS + 4;
+/// Most tips (tool points) a tree model may have.
+pub const MAX_TIPS: usize = 4;
 
-const JOINT_KINDS: [&str; 20] = [
+/// Number of distinct parameter slots (see [`ParamId::dense_index`]).
+pub const PARAM_SLOTS: usize = JOINT_KINDS.len() * super::MAX_TREE_JOINTS + 3 * MAX_TIPS + 1;
+
+const JOINT_KINDS: [&str; 22] = [
     "offset",
     "length",
     "link_offset",
@@ -69,8 +80,10 @@ const JOINT_KINDS: [&str; 20] = [
     "origin_rx",
     "origin_ry",
     "origin_rz",
+    "sag",
+    "bend",
 ];
-const TCP_SLOT: usize = JOINT_KINDS.len() * super::MAX_JOINTS;
+const TCP_SLOT: usize = JOINT_KINDS.len() * super::MAX_TREE_JOINTS;
 const TCP_AXES: [&str; 3] = ["x", "y", "z"];
 
 impl ParamId {
@@ -82,10 +95,11 @@ impl ParamId {
     /// A dense index in `0..PARAM_SLOTS`, for lookup tables.
     pub fn dense_index(self) -> usize {
         match self.joint_kind() {
-            Some((kind, j)) => kind * super::MAX_JOINTS + j,
+            Some((kind, j)) => kind * super::MAX_TREE_JOINTS + j,
             None => match self {
                 ParamId::Tcp(k) => TCP_SLOT + k,
-                _ => TCP_SLOT + 3,
+                ParamId::TipTcp(t, k) => TCP_SLOT + 3 * t + k,
+                _ => TCP_SLOT + 3 * MAX_TIPS,
             },
         }
     }
@@ -109,7 +123,9 @@ impl ParamId {
             ParamId::Harm4Cos(j) => (13, j),
             ParamId::OriginXyz(j, k) => (14 + k, j),
             ParamId::OriginTurn(j, k) => (17 + k, j),
-            ParamId::Tcp(_) | ParamId::Scale => return None,
+            ParamId::Sag(j) => (20, j),
+            ParamId::Bend(j) => (21, j),
+            ParamId::Tcp(_) | ParamId::TipTcp(..) | ParamId::Scale => return None,
         })
     }
 
@@ -117,6 +133,8 @@ impl ParamId {
         match kind {
             14..=16 => return ParamId::OriginXyz(j, kind - 14),
             17..=19 => return ParamId::OriginTurn(j, kind - 17),
+            20 => return ParamId::Sag(j),
+            21 => return ParamId::Bend(j),
             _ => {}
         }
         [
@@ -138,11 +156,13 @@ impl ParamId {
     }
 
     fn from_dense_index(i: usize) -> ParamId {
-        let n = super::MAX_JOINTS;
+        let n = super::MAX_TREE_JOINTS;
         if i < TCP_SLOT {
             ParamId::from_joint_kind(i / n, i % n)
         } else if i < TCP_SLOT + 3 {
             ParamId::Tcp(i - TCP_SLOT)
+        } else if i < TCP_SLOT + 3 * MAX_TIPS {
+            ParamId::TipTcp((i - TCP_SLOT) / 3, (i - TCP_SLOT) % 3)
         } else {
             ParamId::Scale
         }
@@ -152,6 +172,11 @@ impl ParamId {
     pub fn is_geometry(self) -> bool {
         matches!(self, ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Twist(_) | ParamId::Axis(_))
             || self.is_urdf_geometry()
+    }
+
+    /// True for a compliance under the gravity loads of a mass table (`sag:j`, `bend:j`).
+    pub fn is_load_compliance(self) -> bool {
+        matches!(self, ParamId::Sag(_) | ParamId::Bend(_))
     }
 
     /// True for a URDF joint origin value.
@@ -173,7 +198,9 @@ impl ParamId {
                 "deg"
             }
             ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) | ParamId::OriginXyz(..) => "mm",
+            ParamId::TipTcp(..) => "mm",
             ParamId::Compliance(_) => "deg/m",
+            ParamId::Sag(_) | ParamId::Bend(_) => "deg/(kN·m)",
             ParamId::Scale => "ppm",
         }
     }
@@ -186,9 +213,14 @@ impl ParamId {
         if let Some(axis) = name.strip_prefix("tcp.") {
             return TCP_AXES.iter().position(|a| *a == axis).map(ParamId::Tcp);
         }
+        if let Some((tip, axis)) = name.strip_prefix("tcp").and_then(|rest| rest.split_once('.')) {
+            let t: usize = tip.parse().ok()?;
+            let k = TCP_AXES.iter().position(|a| *a == axis)?;
+            return (2..=MAX_TIPS).contains(&t).then_some(ParamId::TipTcp(t - 1, k));
+        }
         let (kind, joint) = name.split_once(':')?;
         let j: usize = joint.parse().ok()?;
-        if !(1..=super::MAX_JOINTS).contains(&j) {
+        if !(1..=super::MAX_TREE_JOINTS).contains(&j) {
             return None;
         }
         Some(ParamId::from_joint_kind(JOINT_KINDS.iter().position(|k| *k == kind)?, j - 1))
@@ -200,6 +232,7 @@ impl fmt::Display for ParamId {
         match (self.joint_kind(), *self) {
             (Some((kind, j)), _) => write!(f, "{}:{}", JOINT_KINDS[kind], j + 1),
             (None, ParamId::Tcp(k)) => write!(f, "tcp.{}", TCP_AXES[k]),
+            (None, ParamId::TipTcp(t, k)) => write!(f, "tcp{}.{}", t + 1, TCP_AXES[k]),
             (None, _) => write!(f, "scale"),
         }
     }
@@ -220,7 +253,9 @@ mod tests {
 
     #[test]
     fn bad_names_are_rejected() {
-        for bad in ["offset:0", "offset:13", "offset", "tcp.w", "warp:1", "length:x"] {
+        for bad in
+            ["offset:0", "offset:25", "offset", "tcp.w", "warp:1", "length:x", "tcp1.x", "tcp5.x", "tcp2.w"]
+        {
             assert_eq!(ParamId::parse(bad), None, "{bad}");
         }
     }

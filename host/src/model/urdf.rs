@@ -8,6 +8,11 @@
 //! joint into the tool point); continuous joints are revolute; any other joint type, and a joint
 //! that mimics another, in the chain is refused.
 //!
+//! Several tips (`--tip left_marker,right_marker`) make a branched model: the union of the chains
+//! base → tip, joints in the order the chains first reach them (a parent before its children),
+//! each tip with its last revolute joint and tool point (see [`crate::model::Tree`]). The mass
+//! table ([`read_masses`]) comes from the links' `<inertial>` elements.
+//!
 //! The model records where it came from ([`UrdfSource`]: the file, base, tip, a SHA-256 of the
 //! chain as the file states it, the joints' names and limits). Writing back refuses another
 //! chain, edits only the `<origin>` of each revolute joint of the chain among the `<robot>`'s own
@@ -15,10 +20,10 @@
 //! `<gazebo>`), so every other byte keeps its text, and reads the written text back to check that
 //! its forward kinematics is the calibrated model's.
 
-use super::{ArmModel, Convention, Joint, ParamId, MAX_JOINTS};
+use super::{ArmModel, Body, Convention, Joint, ParamId, Tip, Tree, MAX_JOINTS, MAX_TREE_JOINTS};
 use crate::files::FileError;
 use crate::model::file::MAX_LENGTH_MM;
-use crate::model::kinematics::tool_pose;
+use crate::model::kinematics::Chain as ModelChain;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
 use std::path::Path;
 
@@ -43,7 +48,7 @@ pub struct UrdfSource {
     pub robot: String,
     /// The chain's first link.
     pub base: String,
-    /// The chain's last link.
+    /// The chain's last link (the tips' links, comma-separated, for a branched model).
     pub tip: String,
     /// SHA-256 (hex) of the chain as the file states it: each joint's name, type, origin, axis
     /// and parent and child links, base to tip. Comments, meshes, limits and other elements do not
@@ -141,6 +146,17 @@ struct Chain {
     joints: Vec<ChainJoint>,
     /// The fixed transform after the last revolute joint.
     after: Isometry3<f64>,
+    sha256: String,
+}
+
+/// The chains base → each tip of a document, merged: every revolute joint once.
+struct Branches {
+    joints: Vec<ChainJoint>,
+    /// Each joint's parent joint (index into `joints`), `None` on the base.
+    parents: Vec<Option<usize>>,
+    /// Per tip: its link, its last joint (index into `joints`) and the fixed transform after it.
+    tips: Vec<(String, usize, Isometry3<f64>)>,
+    /// The one chain's hash, or the hash of the tips' hashes.
     sha256: String,
 }
 
@@ -397,6 +413,57 @@ impl Document<'_> {
         Ok(Chain { joints, after: folded, sha256 })
     }
 
+    /// The chains `base` → each of the comma-separated `tips`, merged (one tip: its chain).
+    fn branches(&self, base: &str, tips: &str) -> Result<Branches, FileError> {
+        let mut out =
+            Branches { joints: Vec::new(), parents: Vec::new(), tips: Vec::new(), sha256: String::new() };
+        let mut hashes = Vec::new();
+        for tip in tips.split(',').map(str::trim) {
+            let chain = self.chain(base, tip)?;
+            let mut parent = None;
+            for joint in chain.joints {
+                let at = match out.joints.iter().position(|j| j.name == joint.name) {
+                    Some(at) => at,
+                    None => {
+                        out.joints.push(joint);
+                        out.parents.push(parent);
+                        out.joints.len() - 1
+                    }
+                };
+                parent = Some(at);
+            }
+            let last = parent.unwrap_or(0);
+            if out.tips.iter().any(|t| t.0 == tip) {
+                return Err(field(
+                    self.path,
+                    format!("--tip {tips}"),
+                    format!("the tip {tip} is named twice"),
+                ));
+            }
+            out.tips.push((tip.to_string(), last, chain.after));
+            hashes.push(chain.sha256);
+        }
+        if out.joints.len() > MAX_TREE_JOINTS {
+            return Err(field(
+                self.path,
+                format!("chains {base} → {tips}"),
+                format!(
+                    "expected at most {MAX_TREE_JOINTS} revolute joints in all, found {}",
+                    out.joints.len()
+                ),
+            ));
+        }
+        out.sha256 = match hashes.len() {
+            1 => hashes.remove(0),
+            _ => {
+                use sha2::Digest;
+                let digest = sha2::Sha256::digest(hashes.join("\n").as_bytes());
+                digest.iter().map(|b| format!("{b:02x}")).collect()
+            }
+        };
+        Ok(out)
+    }
+
     /// One joint of the chain: a revolute, continuous or fixed joint of its own (no mimic) with a
     /// finite origin of arm size and an axis.
     fn check_joint(&self, joint: &urdf_rs::Joint, base: &str, tip: &str) -> Result<(), FileError> {
@@ -456,9 +523,10 @@ impl Document<'_> {
         Ok(())
     }
 
-    /// The chain as a model: origins and axes, the tool point, the source record.
-    fn model(&self, base: &str, tip: &str) -> Result<(ArmModel, Chain), FileError> {
-        let chain = self.chain(base, tip)?;
+    /// The chain (or the branches) as a model: origins and axes, the tool points, the source
+    /// record.
+    fn model(&self, base: &str, tip: &str) -> Result<(ArmModel, Branches), FileError> {
+        let chain = self.branches(base, tip)?;
         let joints = chain
             .joints
             .iter()
@@ -467,7 +535,26 @@ impl Document<'_> {
                 Joint { origin_xyz_mm, origin_rpy_deg, axis: c.axis.into(), ..Joint::default() }
             })
             .collect();
-        let t = chain.after.translation.vector;
+        let point = |after: &Isometry3<f64>| {
+            let t = after.translation.vector;
+            [t.x, t.y, t.z]
+        };
+        let tree = match chain.tips.len() {
+            1 => Tree::default(),
+            _ => Tree {
+                parents: chain.parents.clone(),
+                tips: chain
+                    .tips
+                    .iter()
+                    .map(|(name, joint, after)| Tip {
+                        name: name.clone(),
+                        joint: *joint,
+                        tcp_mm: point(after),
+                    })
+                    .collect(),
+                bodies: Vec::new(),
+            },
+        };
         let source = UrdfSource {
             file: self.path.display().to_string(),
             robot: self.robot.name.clone(),
@@ -484,11 +571,12 @@ impl Document<'_> {
             name: format!("{} ({base} → {tip}, from {})", self.robot.name, self.path.display()),
             convention: Convention::Urdf,
             joints,
-            tcp_mm: [t.x, t.y, t.z],
+            tcp_mm: point(&chain.tips[0].2),
             scale_ppm: 0.0,
             free: Vec::new(),
             urdf: Some(source),
             arm: None,
+            tree,
         };
         if let Some((name, message)) = model.implausible() {
             return Err(field(self.path, format!("chain {base} → {tip}: {name}"), message));
@@ -521,6 +609,12 @@ fn xyz_rpy(pose: &Isometry3<f64>) -> ([f64; 3], [f64; 3]) {
 /// joint (only its translation); the model records the chain ([`UrdfSource`]).
 pub fn model_from_urdf(path: &Path, base: &str, tip: &str) -> Result<ArmModel, FileError> {
     let (mut model, _) = read_file(path)?.model(base, tip)?;
+    for t in 1..model.tree.tips.len() {
+        for k in 0..3 {
+            let v = model.get(ParamId::TipTcp(t, k));
+            model.free_param(ParamId::TipTcp(t, k), v - ORIGIN_HALF_RANGE_MM, v + ORIGIN_HALF_RANGE_MM);
+        }
+    }
     for j in 0..model.joints.len() {
         let v = model.get(ParamId::Offset(j));
         model.free_param(ParamId::Offset(j), v - ORIGIN_HALF_RANGE_DEG, v + ORIGIN_HALF_RANGE_DEG);
@@ -533,6 +627,54 @@ pub fn model_from_urdf(path: &Path, base: &str, tip: &str) -> Result<ArmModel, F
     }
     model.free.sort_by_key(|f| f.id.dense_index());
     Ok(model)
+}
+
+/// Read the mass table of `model` (made by [`model_from_urdf`]) from the `<inertial>` elements of
+/// the URDF at `path`: each link with a mass becomes a [`Body`] of the model joint that carries
+/// it (the nearest revolute joint of the model above it, through fixed joints and joints the
+/// model does not hold, those taken at their zero), its centre of mass in that joint's frame.
+/// Links carried by no joint of the model (the base's) load none and are left out. Returns the
+/// total mass read, kg.
+pub fn read_masses(path: &Path, model: &mut ArmModel) -> Result<f64, FileError> {
+    let doc = read_file(path)?;
+    let Some(source) = model.urdf.as_ref().filter(|_| model.convention == Convention::Urdf) else {
+        return Err(field(
+            path,
+            "<inertial>".into(),
+            "the model records no URDF chain: make it with `kincal model from-urdf`".into(),
+        ));
+    };
+    let names: Vec<String> = source.joint.iter().map(|j| j.name.clone()).collect();
+    let mut bodies = Vec::new();
+    for link in &doc.robot.links {
+        let mass = link.inertial.mass.value;
+        if mass <= 0.0 {
+            continue;
+        }
+        if !mass.is_finite() || mass > 10_000.0 {
+            return Err(field(
+                path,
+                format!("<link name=\"{}\">/<inertial>/<mass>", link.name),
+                format!("{mass}: expected a mass in kg, 0 < m <= 10000"),
+            ));
+        }
+        let mut at = origin_of(&link.inertial.origin).translation.vector;
+        let mut current = link.name.as_str();
+        let carrier = loop {
+            let Some(joint) = doc.robot.joints.iter().find(|j| j.child.link == current) else { break None };
+            if let Some(j) = names.iter().position(|n| *n == joint.name) {
+                break Some(j);
+            }
+            at = (origin_of(&joint.origin) * nalgebra::Point3::from(at)).coords;
+            current = &joint.parent.link;
+        };
+        if let Some(joint) = carrier {
+            bodies.push(Body { joint, mass_kg: mass, com_mm: [at.x, at.y, at.z] });
+        }
+    }
+    let total = bodies.iter().map(|b| b.mass_kg).sum();
+    model.tree.bodies = bodies;
+    Ok(total)
 }
 
 /// A calibrated URDF: its text and how it was checked.
@@ -569,7 +711,7 @@ pub fn calibrated_urdf(
     let Some(source) = model.urdf.as_ref().filter(|_| model.convention == Convention::Urdf) else {
         let (base, tip) = (base.unwrap_or("?"), tip.unwrap_or("?"));
         let count = doc
-            .chain(base, tip)
+            .branches(base, tip)
             .map(|c| format!(", the chain {base} → {tip} {} revolute joints", c.joints.len()));
         return Err(field(
             urdf,
@@ -596,7 +738,7 @@ pub fn calibrated_urdf(
             ));
         }
     }
-    let chain = doc.chain(&source.base, &source.tip)?;
+    let chain = doc.branches(&source.base, &source.tip)?;
     let made_from = format!(
         "{m} was made from {} (robot {}, chain {} → {})",
         source.file, source.robot, source.base, source.tip
@@ -656,7 +798,11 @@ pub fn calibrated_urdf(
     let not_in_urdf: Vec<String> = model
         .params()
         .into_iter()
-        .filter(|id| !id.is_geometry() && !matches!(id, ParamId::Offset(_) | ParamId::Tcp(_)))
+        .filter(|id| {
+            !id.is_geometry()
+                && !matches!(id, ParamId::Offset(_) | ParamId::Tcp(_) | ParamId::TipTcp(..))
+                && !id.is_load_compliance()
+        })
         .filter(|id| model.get(*id) != 0.0)
         .map(|id| format!("{id} = {} {}", model.get(id), id.unit()))
         .collect();
@@ -704,6 +850,19 @@ pub fn calibrated_urdf(
         source.tip,
         urdf.display()
     );
+    let loads: Vec<String> = model
+        .params()
+        .into_iter()
+        .filter(|id| id.is_load_compliance() && model.get(*id) != 0.0)
+        .map(|id| format!("{id} = {} {}", model.get(id), id.unit()))
+        .collect();
+    let note = match loads.is_empty() {
+        true => note,
+        false => format!(
+            "{note}\n<!-- the compliances under gravity ({}) have no URDF element: they stay in {m} -->",
+            loads.join(", ")
+        ),
+    };
     mark(&mut text, &note);
     let (read_back_mm, poses_checked) = read_back(urdf, &text, model, source)?;
     Ok(CalibratedUrdf {
@@ -744,15 +903,21 @@ fn read_back(
 ) -> Result<(f64, usize), FileError> {
     let doc = read_document(urdf, text.to_string())?;
     let (mut written, _) = doc.model(&source.base, &source.tip)?;
+    // The rigid arm: the compliances under gravity stay in the model file.
     let mut calibrated = model.clone();
+    calibrated.tree.bodies.clear();
     let poses = source.spread_readings(READ_BACK_POSES);
     let mut worst: f64 = 0.0;
     for tcp in [[0.0; 3], [100.0, 0.0, 0.0], [0.0, 100.0, 0.0], [0.0, 0.0, 100.0]] {
         written.tcp_mm = tcp;
         calibrated.tcp_mm = tcp;
-        for q in &poses {
-            let d = (tool_pose(&written, q).position_mm - tool_pose(&calibrated, q).position_mm).norm();
-            worst = worst.max(d);
+        written.tree.tips.iter_mut().for_each(|t| t.tcp_mm = tcp);
+        calibrated.tree.tips.iter_mut().for_each(|t| t.tcp_mm = tcp);
+        for tip in 0..written.tree.tip_count() {
+            let (a, b) = (ModelChain::for_tip(&written, tip), ModelChain::for_tip(&calibrated, tip));
+            for q in &poses {
+                worst = worst.max((a.pose(q).position_mm - b.pose(q).position_mm).norm());
+            }
         }
     }
     if worst.is_nan() || worst > READ_BACK_TOLERANCE_MM {
@@ -772,6 +937,7 @@ fn read_back(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::kinematics::tool_pose;
 
     fn temp_dir(name: &str) -> std::path::PathBuf {
         let dir = std::env::temp_dir().join(format!("kincal-urdf-{name}-{}", std::process::id()));

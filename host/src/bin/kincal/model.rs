@@ -3,7 +3,7 @@
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use kincal::files::write_output;
-use kincal::model::urdf::{calibrated_urdf, model_from_urdf};
+use kincal::model::urdf::{calibrated_urdf, model_from_urdf, read_masses};
 use kincal::model::ArmModel;
 use std::path::PathBuf;
 
@@ -33,7 +33,9 @@ pub struct ChainArgs {
     /// The chain's first link.
     #[arg(long)]
     base: String,
-    /// The chain's last link (the tool point is its origin).
+    /// The chain's last link (the tool point is its origin); several, comma-separated, for a
+    /// branched robot (`left_marker,right_marker`: the chains share the joints they have in
+    /// common).
     #[arg(long)]
     tip: String,
 }
@@ -47,6 +49,10 @@ pub struct FromUrdfArgs {
     /// Model file to write (.toml or .json); without it the model is printed.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Read the links' masses and centres of mass (`<inertial>`) into the model's mass table:
+    /// what the compliances under gravity `sag:J` and `bend:J` need.
+    #[arg(long)]
+    masses: bool,
 }
 
 #[derive(Args)]
@@ -71,14 +77,16 @@ pub struct ToUrdfArgs {
 pub fn run(command: &ModelCommand) -> Result<()> {
     match command {
         ModelCommand::FromUrdf(a) => {
-            let model = model_from_urdf(&a.urdf, &a.chain.base, &a.chain.tip)?;
+            let mut model = model_from_urdf(&a.urdf, &a.chain.base, &a.chain.tip)?;
+            let mass_kg = if a.masses { Some(read_masses(&a.urdf, &mut model)?) } else { None };
             match &a.out {
                 Some(out) => {
                     let note = format!(
-                        "model from-urdf {} --base {} --tip {}",
+                        "model from-urdf {} --base {} --tip {}{}",
                         a.urdf.display(),
                         a.chain.base,
-                        a.chain.tip
+                        a.chain.tip,
+                        if a.masses { " --masses" } else { "" }
                     );
                     model.save_output(out, "--out", &[&a.urdf], &note)?;
                     println!(
@@ -89,6 +97,16 @@ pub fn run(command: &ModelCommand) -> Result<()> {
                         kincal::model::urdf::ORIGIN_HALF_RANGE_MM,
                         kincal::model::urdf::ORIGIN_HALF_RANGE_DEG
                     );
+                    if model.tree.is_branched() {
+                        let tips: Vec<&str> = model.tree.tips.iter().map(|t| t.name.as_str()).collect();
+                        println!("  a branched robot: tips {}", tips.join(", "));
+                    }
+                    if let Some(kg) = mass_kg {
+                        println!(
+                            "  mass table: {} bodies, {kg:.3} kg carried by the model's joints (the effects sag and bend deflect the joints under them)",
+                            model.tree.bodies.len()
+                        );
+                    }
                 }
                 None => print!("{}", model.to_text(false)),
             }

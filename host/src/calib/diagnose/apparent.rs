@@ -15,7 +15,7 @@
 use crate::calib::validate::{fit_session_with_tool, placement_residuals, session_residuals_mm};
 use crate::data::Observations;
 use crate::model::effects::Effect;
-use crate::model::kinematics::{tool_pose_with_jacobian, ColumnMap};
+use crate::model::kinematics::{Chain, ColumnMap};
 use crate::model::{ArmModel, ParamId};
 use nalgebra::{DMatrix, DVector, Vector3};
 
@@ -219,8 +219,9 @@ pub fn apparent(
     for (t, r) in data.obs.iter().zip(&residuals) {
         let Some(r) = r else { continue };
         let mut jac = vec![[0.0; 9]; joints];
-        let pose = tool_pose_with_jacobian(model, &t.q_deg, &columns, &mut jac);
-        let levers = gravity_levers(model, &t.q_deg);
+        let chain = Chain::for_tip(model, t.tip);
+        let pose = chain.pose_with_jacobian(&t.q_deg, &columns, &mut jac);
+        let levers = gravity_levers(model, &chain, &t.q_deg);
         by_height.push((pose.position_mm.z, r.norm()));
         by_reach.push((pose.position_mm.xy().norm(), r.norm()));
         for j in 0..joints {
@@ -273,13 +274,13 @@ pub fn apparent(
 }
 
 /// Gravity lever of each joint at a touch (the compliance regressor), metres.
-fn gravity_levers(model: &ArmModel, enc_deg: &[f64]) -> Vec<f64> {
+fn gravity_levers(model: &ArmModel, chain: &Chain, enc_deg: &[f64]) -> Vec<f64> {
     // ∂p/∂compliance_j = ∂p/∂θ_j · λ_j: the ratio of the two columns gives λ_j.
     let joints = model.joints.len();
     let params: Vec<ParamId> =
         (0..joints).flat_map(|j| [ParamId::Offset(j), ParamId::Compliance(j)]).collect();
     let mut jac = vec![[0.0; 9]; params.len()];
-    tool_pose_with_jacobian(model, enc_deg, &ColumnMap::new(&params), &mut jac);
+    chain.pose_with_jacobian(enc_deg, &ColumnMap::new(&params), &mut jac);
     (0..joints)
         .map(|j| {
             let (dtheta, dc) = (&jac[2 * j], &jac[2 * j + 1]);

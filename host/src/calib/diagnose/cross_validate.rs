@@ -165,7 +165,7 @@ impl Evidence for CrossValidation<'_> {
     }
 
     fn effects(&self) -> (Vec<Refitted>, Vec<NotIdentifiable>) {
-        let library: Vec<Effect> = Effect::library(self.fit.model.joints.len())
+        let library: Vec<Effect> = Effect::library_for(&self.fit.model)
             .into_iter()
             .filter(|e| e.kind != EffectKind::Tcp && !e.is_in(&self.fit.model))
             .collect();

@@ -160,6 +160,31 @@ pub fn effect_words(
             };
             format!("joint {j} sags under gravity: {seen}; compliance of joint {j} {gain}")
         }
+        EffectKind::Sag | EffectKind::Bend => {
+            let (what, cause) = match effect.kind {
+                EffectKind::Sag => (
+                    "sag",
+                    "sags under the torque of the links beyond it (every branch it carries), not only the tool's",
+                ),
+                _ => (
+                    "bend",
+                    "bends across its axis under the gravity moment of the links beyond it (bearing or link \
+                     compliance), which its own spring cannot give",
+                ),
+            };
+            if effect.joint.is_some() {
+                return format!("joint {j} {cause}: {what}:{j} = {:+.3} °/(kN·m) {gain}", value(0));
+            }
+            let mut largest: Vec<&FittedValue> = fitted.iter().filter(|f| f.change != 0.0).collect();
+            largest.sort_by(|a, b| b.change.abs().total_cmp(&a.change.abs()));
+            let named: Vec<String> =
+                largest.iter().take(4).map(|f| format!("{} {:+.2}", f.param, f.change)).collect();
+            format!(
+                "the load-bearing joints' deflection under the masses: each joint {cause} (largest {} °/(kN·m)); \
+                 {what} on every joint {gain}",
+                named.join(", ")
+            )
+        }
         EffectKind::Twist => format!("the axis after joint {j} is twisted by {:+.3}° more than the model says; twist of joint {j} {gain}", value(0)),
         EffectKind::Axis => format!("consecutive axes at joint {j} are tilted by {:+.3}° about y; axis misalignment of joint {j} {gain}", value(0)),
         EffectKind::LinkOffset => format!("axes at joint {j} miss each other by {:+.3} mm; link offset a{j} {gain}", value(0)),

@@ -292,7 +292,7 @@ impl<'a> ScoreTest<'a> {
     ) -> ScoreTest<'a> {
         let fit_data = screening_subset(cal);
         let effects: Vec<Effect> =
-            Effect::library(calibrated.joints.len()).into_iter().filter(|e| !e.is_in(calibrated)).collect();
+            Effect::library_for(calibrated).into_iter().filter(|e| !e.is_in(calibrated)).collect();
         let screen = Screen::new(calibrated, &effects, &fit_data, &options);
         let base_params: Vec<ParamId> = screen.base.iter().map(|&c| screen.params[c]).collect();
         let floor = noise_floor(calibrated, cal, val, screen.base.len())

@@ -24,6 +24,34 @@ fn what_to_do(c: &Candidate, setup: &Setup) -> String {
     )
 }
 
+/// On a model that lets its joints sag under a unit mass at the tool point (`compliance:J`) and
+/// has no mass table, while the model still misses the floor: the sag is not a tip mass's.
+fn tip_mass_line(d: &Diagnosis) -> Option<String> {
+    use crate::model::ParamId;
+    let model = d.model.as_ref()?;
+    let gap = d.floor.gap.as_ref().filter(|g| g.significant && d.incomplete)?;
+    if !model.tree.bodies.is_empty() {
+        return None;
+    }
+    let tip_levers: Vec<String> = model
+        .free
+        .iter()
+        .filter(|f| matches!(f.id, ParamId::Compliance(_)))
+        .map(|f| f.id.to_string())
+        .collect();
+    if tip_levers.is_empty() {
+        return None;
+    }
+    Some(format!(
+        "the sag is not explained by a tip mass alone: with {} (a unit mass at the tool point) the model still misses \
+         about {} mm; the links' own weight (and a branched robot's other branches) load the joints with torques a \
+         tool-point lever cannot follow: give the model a mass table (`kincal model from-urdf … --masses`) and add \
+         sag (and bend)",
+        tip_levers.join(", "),
+        mm(gap.missing_mm)
+    ))
+}
+
 /// The summary lines of `d`; `with` is the gap the named change would leave.
 pub(super) fn lines(d: &Diagnosis, setup: &Setup, with: Option<&Gap>) -> Vec<String> {
     let what = match d.measure {
@@ -158,6 +186,7 @@ pub(super) fn lines(d: &Diagnosis, setup: &Setup, with: Option<&Gap>) -> Vec<Str
             ));
         }
     }
+    lines.extend(tip_mass_line(d));
     if d.incomplete && first.is_none() && d.change.is_none() {
         lines.push("the cause is not in the effect library nor among the data errors kincal scores".into());
     }

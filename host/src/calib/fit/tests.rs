@@ -54,6 +54,7 @@ fn sessions(truth: &ArmModel, probe: Option<Matrix3<f64>>) -> Observations {
                 temp_c: None,
                 pose: None,
                 line: i + 3,
+                tip: 0,
             });
         }
     }

@@ -12,8 +12,8 @@
 //! mean of R_Fᵀ·R_sᵀ·R_meas over the oriented observations).
 
 use crate::calib::nuisance::frame::Frame;
-use crate::data::Observations;
-use crate::model::kinematics::{Chain, ToolPose};
+use crate::data::{Observation, Observations};
+use crate::model::kinematics::{Tips, ToolPose};
 use crate::model::ArmModel;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
@@ -31,15 +31,15 @@ pub fn with_offset(pose: &ToolPose, offset_mm: &Vector3<f64>) -> Vector3<f64> {
     pose.position_mm + flange_rotation(pose) * offset_mm
 }
 
-/// The tool point in the robot frame at each of `q_deg`, with an offset (flange frame), mm (one
-/// chain for all).
-pub fn model_points<'q>(
+/// The tool point in the robot frame of each observation of `observations` (on its tip's
+/// chain), with an offset (flange frame), mm.
+pub fn model_points<'o>(
     model: &ArmModel,
-    q_deg: impl IntoIterator<Item = &'q [f64]>,
+    observations: impl IntoIterator<Item = &'o Observation>,
     offset_mm: &Vector3<f64>,
 ) -> Vec<Vector3<f64>> {
-    let chain = Chain::new(model);
-    q_deg.into_iter().map(|q| with_offset(&chain.pose(q), offset_mm)).collect()
+    let tips = Tips::new(model);
+    observations.into_iter().map(|o| with_offset(&tips.tip(o.tip).pose(&o.q_deg), offset_mm)).collect()
 }
 
 /// The probe rotation at its unknowns `x` (mrad) right of its start.
@@ -115,10 +115,10 @@ pub fn length_std(v: &Vector3<f64>, c: &Matrix3<f64>) -> f64 {
 pub fn start_probe_rotation(model: &ArmModel, data: &Observations, frames: &[Frame]) -> Option<Matrix3<f64>> {
     let mut sum = Matrix3::zeros();
     let mut any = false;
-    let chain = Chain::new(model);
+    let tips = Tips::new(model);
     for o in &data.obs {
         let Some(measured) = o.orientation() else { continue };
-        let pose = chain.pose(&o.q_deg);
+        let pose = tips.tip(o.tip).pose(&o.q_deg);
         sum += flange_rotation(&pose).transpose()
             * frames[o.block].rotation.transpose()
             * measured.to_rotation_matrix().into_inner();
@@ -137,9 +137,12 @@ pub fn start_probe_rotation(model: &ArmModel, data: &Observations, frames: &[Fra
 /// Largest angle, degrees, between the tool orientation at any observation of block `b` and at
 /// its first (the model's flange orientation).
 pub fn orientation_spread_deg(model: &ArmModel, data: &Observations, b: usize) -> f64 {
-    let chain = Chain::new(model);
-    let rotations: Vec<Matrix3<f64>> =
-        data.blocks[b].members.iter().map(|&k| flange_rotation(&chain.pose(&data.obs[k].q_deg))).collect();
+    let tips = Tips::new(model);
+    let rotations: Vec<Matrix3<f64>> = data.blocks[b]
+        .members
+        .iter()
+        .map(|&k| flange_rotation(&tips.tip(data.obs[k].tip).pose(&data.obs[k].q_deg)))
+        .collect();
     let Some(first) = rotations.first() else { return 0.0 };
     rotations
         .iter()

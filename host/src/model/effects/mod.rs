@@ -23,13 +23,19 @@
 //! 8. The controller: `protocol/src/params.rs` (the parameter blob), `controller/device.rs`
 //!    (the mapping) and the firmware kinematics — until then [`beyond_controller`] names the
 //!    parameters the controller cannot evaluate and `kincal upload` refuses such a model.
+//!
+//! `sag` and `bend` (deflections under the loads of a mass table, [`crate::model::tree`]) have no
+//! second forward path in `simulate.rs`: their independent peer is the pinocchio generator
+//! `tests/gen/humanoid.py`, which the humanoid test checks kincal's loads against.
 
+pub mod bend;
 pub mod compliance;
 pub mod eccentricity;
 pub mod geometric;
 pub mod harmonic;
+pub mod sag;
 
-use crate::model::{ArmModel, ParamId, MAX_JOINTS};
+use crate::model::{ArmModel, ParamId, MAX_TREE_JOINTS};
 use std::fmt;
 
 /// Kinds of effect.
@@ -55,13 +61,17 @@ pub enum EffectKind {
     Harmonic3,
     /// Fourth-harmonic angle error.
     Harmonic4,
+    /// Joint compliance under the gravity torque of the masses beyond the joint.
+    Sag,
+    /// Lateral compliance under the gravity moment across the joint's axis.
+    Bend,
     /// 3-D tool offset.
     Tcp,
     /// Length scale.
     Scale,
 }
 
-const KINDS: [(EffectKind, &str); 12] = [
+const KINDS: [(EffectKind, &str); 14] = [
     (EffectKind::Offset, "offset"),
     (EffectKind::Length, "length"),
     (EffectKind::LinkOffset, "link_offset"),
@@ -72,11 +82,15 @@ const KINDS: [(EffectKind, &str); 12] = [
     (EffectKind::Compliance, "compliance"),
     (EffectKind::Harmonic3, "harmonic:3"),
     (EffectKind::Harmonic4, "harmonic:4"),
+    (EffectKind::Sag, "sag"),
+    (EffectKind::Bend, "bend"),
     (EffectKind::Tcp, "tcp"),
     (EffectKind::Scale, "scale"),
 ];
 
-/// One effect: a kind and, for per-joint kinds, the joint (0-based).
+/// One effect: a kind and, for per-joint kinds, the joint (0-based). The compliances under
+/// gravity (`sag`, `bend`) also come without a joint: every joint of the robot at once (the
+/// joints that carry no load are left to the identifiability step).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct Effect {
     /// What kind.
@@ -100,6 +114,8 @@ impl EffectKind {
                 | EffectKind::Harmonic3
                 | EffectKind::Harmonic4
                 | EffectKind::Compliance
+                | EffectKind::Sag
+                | EffectKind::Bend
         )
     }
 
@@ -117,6 +133,16 @@ impl EffectKind {
     fn per_joint(self) -> bool {
         !matches!(self, EffectKind::Tcp | EffectKind::Scale)
     }
+
+    /// Kinds that also stand for every joint at once (no joint given).
+    fn whole_robot(self) -> bool {
+        self.needs_masses()
+    }
+
+    /// Sag and bend: deflections under the gravity loads of a mass table.
+    pub fn needs_masses(self) -> bool {
+        matches!(self, EffectKind::Sag | EffectKind::Bend)
+    }
 }
 
 impl Effect {
@@ -129,7 +155,7 @@ impl Effect {
             4 => EffectKind::Harmonic4,
             _ => return None,
         };
-        (joint < MAX_JOINTS).then_some(Effect { kind, joint: Some(joint) })
+        (joint < MAX_TREE_JOINTS).then_some(Effect { kind, joint: Some(joint) })
     }
 
     /// Parse `eccentricity:5`, `harmonic:3:3` (joint 3, 3 per revolution), `tcp`, `scale`, …
@@ -145,17 +171,21 @@ impl Effect {
         };
         let kind = KINDS.iter().find(|k| k.1 == kind_name)?.0;
         match (kind.per_joint(), joint) {
-            (true, Some(j)) if (1..=MAX_JOINTS).contains(&j) => Some(Effect { kind, joint: Some(j - 1) }),
+            (true, Some(j)) if (1..=MAX_TREE_JOINTS).contains(&j) => {
+                Some(Effect { kind, joint: Some(j - 1) })
+            }
             (false, None) => Some(Effect { kind, joint: None }),
+            (true, None) if kind.whole_robot() => Some(Effect { kind, joint: None }),
             _ => None,
         }
     }
 
-    /// Every effect of the library for an arm of `joints` joints, per-joint kinds on every joint.
+    /// Every effect of the library for an arm of `joints` joints, per-joint kinds on every joint
+    /// (the compliances under gravity once, for every joint at once).
     pub fn library(joints: usize) -> Vec<Effect> {
         let mut out = Vec::new();
         for (kind, _) in KINDS {
-            if kind.per_joint() {
+            if kind.per_joint() && !kind.whole_robot() {
                 out.extend((0..joints).map(|j| Effect { kind, joint: Some(j) }));
             } else {
                 out.push(Effect { kind, joint: None });
@@ -164,9 +194,22 @@ impl Effect {
         out
     }
 
-    /// The model parameters this effect adds.
+    /// The effects of the library that apply to `model`: [`Effect::library`] for its joints,
+    /// without the mass-torque compliances when it has no mass table.
+    pub fn library_for(model: &ArmModel) -> Vec<Effect> {
+        let masses = !model.tree.bodies.is_empty();
+        Effect::library(model.joints.len()).into_iter().filter(|e| masses || !e.kind.needs_masses()).collect()
+    }
+
+    /// The model parameters this effect adds (of every joint a tree may have, for a whole-robot
+    /// effect: a model holds those of its own joints, see [`Effect::is_in`]).
     pub fn params(self) -> Vec<ParamId> {
         let j = self.joint.unwrap_or(0);
+        match (self.kind, self.joint) {
+            (EffectKind::Sag, None) => return (0..MAX_TREE_JOINTS).map(ParamId::Sag).collect(),
+            (EffectKind::Bend, None) => return (0..MAX_TREE_JOINTS).map(ParamId::Bend).collect(),
+            _ => {}
+        }
         match self.kind {
             EffectKind::Offset => vec![ParamId::Offset(j)],
             EffectKind::Length => vec![ParamId::Length(j)],
@@ -178,20 +221,28 @@ impl Effect {
             EffectKind::Compliance => vec![ParamId::Compliance(j)],
             EffectKind::Harmonic3 => vec![ParamId::Harm3Sin(j), ParamId::Harm3Cos(j)],
             EffectKind::Harmonic4 => vec![ParamId::Harm4Sin(j), ParamId::Harm4Cos(j)],
+            EffectKind::Sag => vec![ParamId::Sag(j)],
+            EffectKind::Bend => vec![ParamId::Bend(j)],
             EffectKind::Tcp => vec![ParamId::Tcp(0), ParamId::Tcp(1), ParamId::Tcp(2)],
             EffectKind::Scale => vec![ParamId::Scale],
         }
     }
 
-    /// True when every parameter of the effect is free in `model`.
+    /// The parameters of the effect that `model` holds (a whole-robot effect: those of its joints).
+    pub fn params_in(self, model: &ArmModel) -> Vec<ParamId> {
+        let joints = model.joints.len();
+        self.params().into_iter().filter(|p| p.joint().is_none_or(|j| j < joints)).collect()
+    }
+
+    /// True when every parameter of the effect that `model` holds is free in it.
     pub fn is_in(self, model: &ArmModel) -> bool {
-        self.params().iter().all(|p| model.free.iter().any(|f| f.id == *p))
+        self.params_in(model).iter().all(|p| model.free.iter().any(|f| f.id == *p))
     }
 
     /// Make the effect's parameters free in `model`, with bounds of ± the default half-range
     /// around their current values (parameters already free keep their bounds).
     pub fn add_to(self, model: &mut ArmModel) {
-        for p in self.params() {
+        for p in self.params_in(model) {
             if !model.free.iter().any(|f| f.id == p) {
                 let v = model.get(p);
                 let h = default_half_range(p);
@@ -206,6 +257,8 @@ pub fn default_half_range(p: ParamId) -> f64 {
     match p {
         ParamId::Offset(_) => 10.0,
         ParamId::Length(_) | ParamId::LinkOffset(_) | ParamId::Tcp(_) | ParamId::OriginXyz(..) => 10.0,
+        ParamId::TipTcp(..) => 10.0,
+        ParamId::Sag(_) | ParamId::Bend(_) => 30.0,
         ParamId::Twist(_) | ParamId::Axis(_) | ParamId::OriginTurn(..) => 5.0,
         ParamId::EccSin(_) | ParamId::EccCos(_) => 2.0,
         ParamId::Ecc2Sin(_) | ParamId::Ecc2Cos(_) => 1.0,
@@ -216,11 +269,19 @@ pub fn default_half_range(p: ParamId) -> f64 {
 }
 
 /// Parameters of `model` with a non-zero value that the controller's parameter blob cannot
-/// carry (the higher harmonics): uploading would silently drop them.
+/// carry (the higher harmonics, the compliances under a mass table's loads): uploading would
+/// silently drop them.
 pub fn beyond_controller(model: &ArmModel) -> Vec<ParamId> {
     (0..model.joints.len())
         .flat_map(|j| {
-            [ParamId::Harm3Sin(j), ParamId::Harm3Cos(j), ParamId::Harm4Sin(j), ParamId::Harm4Cos(j)]
+            [
+                ParamId::Harm3Sin(j),
+                ParamId::Harm3Cos(j),
+                ParamId::Harm4Sin(j),
+                ParamId::Harm4Cos(j),
+                ParamId::Sag(j),
+                ParamId::Bend(j),
+            ]
         })
         .filter(|p| model.get(*p) != 0.0)
         .collect()
@@ -260,7 +321,8 @@ mod tests {
     #[test]
     fn every_effect_name_parses_back() {
         let library = Effect::library(6);
-        assert_eq!(library.len(), 10 * 6 + 2);
+        assert_eq!(library.len(), 10 * 6 + 2 + 2);
+        assert_eq!(Effect::parse("sag:3").map(|e| e.to_string()).as_deref(), Some("sag:3"));
         for e in library {
             assert_eq!(Effect::parse(&e.to_string()), Some(e), "{e}");
         }

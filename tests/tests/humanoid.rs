@@ -145,7 +145,7 @@ fn the_true_robot_in_kincal_leaves_only_the_noise() {
 }
 
 #[test]
-fn the_loop_names_sag_then_bend_and_reaches_the_floor_on_a_humanoid() {
+fn the_loop_names_bend_and_sag_and_reaches_the_floor_on_a_humanoid() {
     let dir = scratch("humanoid", "links");
     let truth = &generated().1;
     let nominal = ArmModel::load(&model(&dir, true)).expect("the model loads");

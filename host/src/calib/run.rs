@@ -32,6 +32,10 @@ use std::path::{Path, PathBuf};
 
 pub use crate::calib::floor::EXPLAINS_WITHIN;
 
+/// Most calibration sessions (instrument placements) one calibration takes: each adds a base of
+/// 6 unknowns to one dense problem (256 sessions: 1 536 unknowns, about 19 MB per matrix).
+pub const MAX_CALIBRATION_SESSIONS: usize = 256;
+
 /// Why a run failed.
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
@@ -65,6 +69,23 @@ pub enum RunError {
          point the held-out sessions are predicted with; float the tool in the sessions where it was re-mounted only"
     )]
     EveryToolFloated(String),
+    /// More calibration sessions than one calibration takes.
+    #[error(
+        "{folder}: {count} calibration sessions (files), at most {MAX_CALIBRATION_SESSIONS} are taken: each \
+         session is one placement of the instrument with its own unknown base (6 unknowns), so {count} sessions \
+         of {median_points} point{} (median) leave little for the arm and make the problem too large to solve \
+         here; if the files are the poses of fewer placements (one file per pose?), put each placement's \
+         points into one file",
+        if *median_points == 1 { "" } else { "s" }
+    )]
+    TooManySessions {
+        /// The calibration folder.
+        folder: PathBuf,
+        /// Its sessions.
+        count: usize,
+        /// Their median number of points.
+        median_points: usize,
+    },
     /// A held-out session too small to fit its own base.
     #[error(
         "{path}: held-out session {session} has {points} point{}: its own base (6 unknowns) needs at least 3 points \
@@ -401,6 +422,16 @@ pub fn check_run_data(
         .collect();
     if !sessions.is_empty() && sessions.iter().all(|s| options.float_tool.contains(s)) {
         return Err(RunError::EveryToolFloated(sessions.join(", ")));
+    }
+    if sessions.len() > MAX_CALIBRATION_SESSIONS {
+        let mut points: Vec<usize> =
+            cal.sessions().into_iter().map(|b| cal.blocks[b].members.len()).collect();
+        points.sort_unstable();
+        return Err(RunError::TooManySessions {
+            folder: inputs.calibration.clone(),
+            count: sessions.len(),
+            median_points: points[points.len() / 2],
+        });
     }
     for b in val.sessions() {
         let (name, members) = (val.block_name(b), &val.blocks[b].members);

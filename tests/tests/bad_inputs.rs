@@ -1296,7 +1296,7 @@ fn option_cases(cases: &mut Vec<Case>) {
         (cal(), "--study-subsets", &["-1", "10001", "NaN"]),
         (cal(), "--seed", &["-1", "x"]),
         (cal(), "--objective", &["banana", ""]),
-        (cal(), "--add", &["wobble:2", "eccentricity:13", ""]),
+        (cal(), "--add", &["wobble:2", "eccentricity:25", ""]),
         (SIM.to_vec(), "--perturb-deg", &["NaN", "-1", "100", "inf"]),
         (SIM.to_vec(), "--perturb-mm", &["NaN", "-1", "1000"]),
         (SIM.to_vec(), "--seating-noise-mm", &["NaN", "-0.1", "1e9", "inf"]),
@@ -1305,7 +1305,7 @@ fn option_cases(cases: &mut Vec<Case>) {
         (
             SIM.to_vec(),
             "--hidden",
-            &["offset:13=1", "offset:2=NaN", "offset:2=1e9", "junk", "offset:2=", "scale=-1e6"],
+            &["offset:25=1", "offset:2=NaN", "offset:2=1e9", "junk", "offset:2=", "scale=-1e6"],
         ),
         (study(), "--subsets", &["0", "-1", "10001", "NaN"]),
         (study(), "--restarts", &["-1", "5000"]),
@@ -1328,7 +1328,7 @@ fn option_cases(cases: &mut Vec<Case>) {
             ));
         }
     }
-    // Joint 9 is a name kincal knows (up to 12 joints); the six-joint model has no such joint.
+    // Joint 9 is a name kincal knows (up to 24 joints in a tree); the six-joint model has no such joint.
     cases.push(Case::fails(
         "option/calibrate --add eccentricity:9 on six joints",
         unchanged(),

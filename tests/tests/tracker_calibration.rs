@@ -867,3 +867,27 @@ fn probe_turned_in(session: usize) {
         std::fs::remove_dir_all(dir).ok();
     }
 }
+
+/// A 6-DoF probe's quaternions exported scalar last (`qx, qy, qz, qw`) under `qw, qx, qy, qz`
+/// (issue 27's bad outcome: 330–619 mm "the model is incomplete", exit 0): the calibration is
+/// marked not trustworthy and `kincal calibrate` exits non-zero, printing no figure as a result.
+#[test]
+fn scalar_last_quaternions_are_not_taken_for_a_result() {
+    let mut options = GenOptions::industrial_6dof(5);
+    options.export_mistake = kincal_e2e::tracker_gen::ExportMistake::ScalarLastQuaternion;
+    let dir = kincal_e2e::tracker_setup::scratch("tracker-calibration", "scalar-last");
+    let generated = generate(&options);
+    nominal_model(&generated, &dir);
+    split(&generated, &dir, &[0, 1, 2]);
+    let out = std::process::Command::new(kincal_e2e::kincal_bin())
+        .args(["calibrate", "--model", "nominal.toml", "--data", "cal", "--validate", "val", "--out", "run"])
+        .current_dir(&dir)
+        .output()
+        .expect("kincal runs");
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    println!("{text}");
+    assert!(!out.status.success(), "{text}");
+    assert!(text.contains("not trustworthy") || text.contains("qw"), "{text}");
+    assert!(!text.contains("panicked"), "{text}");
+    std::fs::remove_dir_all(dir).ok();
+}

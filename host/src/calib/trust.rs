@@ -216,21 +216,36 @@ pub fn result_problems(fit: &Fit, validation: &Validation, scales: &TrustScales)
     problems
 }
 
+/// Largest calibration orientation RMS of a 6-DoF probe that can be a result, degrees: a probe on
+/// a calibrated arm misses its own orientations by hundredths of a degree.
+pub const ORIENTATION_SUSPECT_DEG: f64 = 10.0;
+
 /// Why the figures of a calibration on instrument points cannot be a result: a calibration RMS
 /// beyond [`SPAN_FRACTION`] of the arm's reach `reach_mm` (a model-independent scale: no
-/// calibrated model of the right arm misses its own points by that much).
+/// calibrated model of the right arm misses its own points by that much), or a probe's
+/// orientations missed by more than [`ORIENTATION_SUSPECT_DEG`].
 pub fn point_problems(fit: &Fit, reach_mm: f64) -> Vec<String> {
+    let mut problems = Vec::new();
     let limit = SPAN_FRACTION * reach_mm;
-    if fit.rms_mm.is_finite() && fit.rms_mm <= limit.max(RMS_ALWAYS_SUSPECT_MM) {
-        return Vec::new();
+    if !fit.rms_mm.is_finite() || fit.rms_mm > limit.max(RMS_ALWAYS_SUSPECT_MM) {
+        problems.push(format!(
+            "calibration RMS {:.3} mm is beyond {:.0} % of the arm's reach ({reach_mm:.0} mm): no calibrated model \
+             of this arm misses its own points by that much — columns swapped or mislabelled, angles in another \
+             unit, a quaternion written scalar-last under qw,qx,qy,qz, or another arm's model",
+            fit.rms_mm,
+            100.0 * SPAN_FRACTION
+        ));
     }
-    vec![format!(
-        "calibration RMS {:.3} mm is beyond {:.0} % of the arm's reach ({reach_mm:.0} mm): no calibrated model of \
-         this arm misses its own points by that much — columns swapped or mislabelled, angles in another unit, a \
-         quaternion written scalar-last under qw,qx,qy,qz, or another arm's model",
-        fit.rms_mm,
-        100.0 * SPAN_FRACTION
-    )]
+    if let Some(o) = fit.stats.orientations.as_ref().filter(|o| !(o.rms_deg <= ORIENTATION_SUSPECT_DEG)) {
+        problems.push(format!(
+            "calibration orientation RMS {:.1}° over {} probe orientations is beyond {ORIENTATION_SUSPECT_DEG}°: a \
+             probe on a calibrated arm misses its own orientations by hundredths of a degree — a quaternion written \
+             scalar-last (qx,qy,qz,qw) under qw,qx,qy,qz, the probe turned on its mount in a session (kincal \
+             diagnose RUN names it; --float-tool SESSION), or orientations in another frame than the probe's",
+            o.rms_deg, o.orientations
+        ));
+    }
+    problems
 }
 
 #[cfg(test)]

@@ -1080,7 +1080,7 @@ fn sessions_section(
             overall.rms_mm, floor.source
         ),
         Some(f) => format!(
-            "the model is incomplete: {:.4} mm held out against a floor of {f:.4} mm ({}); the cause is not in the model",
+            "the model is incomplete: {:.4} mm held out against a floor of {f:.4} mm ({}): something is missing (in the model or the data)",
             overall.rms_mm, floor.source
         ),
         None => format!(

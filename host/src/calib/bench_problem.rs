@@ -5,7 +5,7 @@
 //! in `tests/`).
 
 use crate::data::tracker::TRACKER_FORMAT;
-use crate::data::{Joints, Kind, Observation, Observations, Target};
+use crate::data::{Joints, Kind, Observation, Observations};
 use crate::model::kinematics::tool_pose;
 use crate::model::{ArmModel, Joint, ParamId};
 use nalgebra::{Rotation3, Vector3};
@@ -67,20 +67,8 @@ pub fn sessions(truth: &ArmModel, count: usize, points: usize, seed: u64) -> Obs
                 let z: f64 = StandardNormal.sample(&mut rng);
                 NOISE_MM * z
             });
-            data.obs.push(Observation {
-                block: 0,
-                group,
-                repeat: 1,
-                q_deg: Joints::new(&q).expect("seven joints are within Joints' capacity"),
-                q_sigma_deg: None,
-                target: Target::Point { xyz_mm: p + n, orientation: None },
-                sigma_mm: Some(NOISE_MM),
-                time_s: None,
-                temp_c: None,
-                pose: None,
-                line: i + 3,
-                tip: 0,
-            });
+            let q = Joints::new(&q).expect("seven joints are within Joints' capacity");
+            data.obs.push(Observation::point(group, q, p + n, None, Some(NOISE_MM), i + 3));
         }
     }
     data.rebuild_blocks();

@@ -236,7 +236,9 @@ pub fn point_problems(fit: &Fit, reach_mm: f64) -> Vec<String> {
             100.0 * SPAN_FRACTION
         ));
     }
-    if let Some(o) = fit.stats.orientations.as_ref().filter(|o| !(o.rms_deg <= ORIENTATION_SUSPECT_DEG)) {
+    if let Some(o) =
+        fit.stats.orientations.as_ref().filter(|o| o.rms_deg.is_nan() || o.rms_deg > ORIENTATION_SUSPECT_DEG)
+    {
         problems.push(format!(
             "calibration orientation RMS {:.1}° over {} probe orientations is beyond {ORIENTATION_SUSPECT_DEG}°: a \
              probe on a calibrated arm misses its own orientations by hundredths of a degree — a quaternion written \

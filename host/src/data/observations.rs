@@ -229,6 +229,23 @@ impl Observation {
         }
     }
 
+    /// An instrument's point `xyz_mm` (and a probe's `orientation`) of `group` at `q_deg`, with
+    /// its stated `sigma_mm` (block set by [`Observations::rebuild_blocks`]); `line` is its line.
+    pub fn point(
+        group: usize,
+        q_deg: Joints,
+        xyz_mm: Vector3<f64>,
+        orientation: Option<UnitQuaternion<f64>>,
+        sigma_mm: Option<f64>,
+        line: usize,
+    ) -> Observation {
+        Observation {
+            target: Target::Point { xyz_mm, orientation },
+            sigma_mm,
+            ..Observation::touch(group, 0, 1, q_deg, line)
+        }
+    }
+
     /// The landmark touched, for an artefact touch.
     pub fn landmark(&self) -> Option<usize> {
         match self.target {

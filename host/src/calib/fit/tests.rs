@@ -3,7 +3,7 @@
 
 use super::*;
 use crate::calib::validate::validate_session;
-use crate::data::{Joints, Landmark, Observation, Target};
+use crate::data::{Joints, Landmark, Observation};
 use crate::model::kinematics::tool_pose;
 use crate::model::Joint;
 use nalgebra::{Rotation3, UnitQuaternion};
@@ -42,20 +42,15 @@ fn sessions(truth: &ArmModel, probe: Option<Matrix3<f64>>) -> Observations {
                 let r = frame.rotation * crate::calib::nuisance::tool::flange_rotation(&pose) * p;
                 UnitQuaternion::from_matrix(&r)
             });
-            data.obs.push(Observation {
-                block: 0,
+            let point = frame.apply(&pose.position_mm);
+            data.obs.push(Observation::point(
                 group,
-                repeat: 1,
-                q_deg: Joints::new(&q).unwrap(),
-                q_sigma_deg: None,
-                target: Target::Point { xyz_mm: frame.apply(&pose.position_mm), orientation },
-                sigma_mm: None,
-                time_s: None,
-                temp_c: None,
-                pose: None,
-                line: i + 3,
-                tip: 0,
-            });
+                Joints::new(&q).unwrap(),
+                point,
+                orientation,
+                None,
+                i + 3,
+            ));
         }
     }
     data.rebuild_blocks();

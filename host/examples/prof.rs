@@ -22,6 +22,33 @@ fn cpu_ms() -> f64 {
     t.tv_sec as f64 * 1e3 + t.tv_nsec as f64 * 1e-6
 }
 
+/// The residual terms of `cal`'s positions (no orientation rows, unit weight).
+fn position_terms(cal: &Observations) -> Vec<Box<dyn kincal::calib::terms::Term>> {
+    kincal::calib::terms::build(
+        cal,
+        &kincal::calib::terms::TermChoice {
+            relative_orientation_lever_mm: None,
+            orientation_weight_mm_per_rad: None,
+            point_weight: 1.0,
+        },
+    )
+}
+
+/// The layout of `fit`'s estimated parameters on `cal`, with a frame per block when `framed`.
+fn arm_layout(
+    fit: &kincal::calib::fit::Fit,
+    cal: &Observations,
+    framed: bool,
+) -> kincal::calib::layout::Layout {
+    kincal::calib::layout::Layout::new(
+        fit.estimated.clone(),
+        &vec![framed; cal.blocks.len()],
+        &vec![false; cal.groups.len()],
+        false,
+        &vec![None; cal.blocks.len()],
+    )
+}
+
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let n: usize = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(20);
@@ -132,29 +159,14 @@ fn main() -> Result<()> {
             );
         }
         "evals" => {
-            use kincal::calib::layout::Layout;
             use kincal::calib::problem::Problem;
-            use kincal::calib::terms::{build, TermChoice};
             use kincal::numerics::solver::{Loss, Residuals};
             let (nominal, sim) = kincal::calib::peer::thesis_sized_problem(1);
             let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
             let fit =
                 calibrate(&nominal, &cal, &SolveOptions { restarts: Some(0), ..SolveOptions::default() })?;
-            let terms = build(
-                &cal,
-                &TermChoice {
-                    relative_orientation_lever_mm: None,
-                    orientation_weight_mm_per_rad: None,
-                    point_weight: 1.0,
-                },
-            );
-            let layout = Layout::new(
-                fit.estimated.clone(),
-                &vec![false; cal.blocks.len()],
-                &vec![false; cal.groups.len()],
-                false,
-                &vec![None; cal.blocks.len()],
-            );
+            let terms = position_terms(&cal);
+            let layout = arm_layout(&fit, &cal, false);
             let problem = Problem::new(
                 layout,
                 &nominal,
@@ -185,21 +197,8 @@ fn main() -> Result<()> {
             // tracker
             let (nominal, cal, _) = bench_problem::problem();
             let fit = calibrate(&nominal, &cal, &SolveOptions::default())?;
-            let terms = build(
-                &cal,
-                &TermChoice {
-                    relative_orientation_lever_mm: None,
-                    orientation_weight_mm_per_rad: None,
-                    point_weight: 1.0,
-                },
-            );
-            let layout = Layout::new(
-                fit.estimated.clone(),
-                &vec![true; cal.blocks.len()],
-                &vec![false; cal.groups.len()],
-                false,
-                &vec![None; cal.blocks.len()],
-            );
+            let terms = position_terms(&cal);
+            let layout = arm_layout(&fit, &cal, true);
             let frames: Vec<_> = fit.frames.iter().map(|f| f.1.rotation).collect();
             let problem = Problem::new(layout, &fit.model, &cal, &terms, frames, None);
             let mut x: Vec<f64> = fit.estimated.iter().map(|&id| fit.model.get(id)).collect();

@@ -1,5 +1,6 @@
 //! Prints the encoded size of each frame type (COBS, CRC and delimiter included), worst case.
 use kincal_protocol::framing::{encode, MAX_FRAME};
+use kincal_protocol::joints::{ALL_JOINTS, JOINTS};
 use kincal_protocol::messages::*;
 
 fn size<T: serde::Serialize>(m: &T) -> usize {

@@ -282,6 +282,7 @@ impl Decoder {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::joints::{ALL_JOINTS, JOINTS};
     use crate::messages::*;
     use rand::{RngExt, SeedableRng};
 

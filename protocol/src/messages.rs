@@ -7,6 +7,7 @@
 //! a controller with another version or schema answers [`WireError::VersionMismatch`] and the
 //! host reports both sides' versions.
 
+use crate::joints::JOINTS;
 use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
@@ -14,8 +15,6 @@ use serde::{Deserialize, Serialize};
 pub const PROTOCOL_VERSION: u16 = 5;
 /// Largest parameter chunk carried by one message, bytes.
 pub const PARAM_CHUNK: usize = 48;
-/// Joints read every tick.
-pub const JOINTS: usize = 6;
 /// Encoder sampling rate of the controller (one tick), Hz.
 pub const TICK_HZ: u32 = 768;
 /// Longest measurement window, ticks ([`Request::StartWindow`]).
@@ -33,8 +32,6 @@ pub const LINK_BYTES_PER_S: u32 = LINK_BAUD / 10;
 pub const RAW_FRAME_MAX_BYTES: u32 = 30;
 /// Longest pose stream frame on the wire (delimiter included), bytes.
 pub const POSE_FRAME_MAX_BYTES: u32 = 53;
-/// Bit mask of all joints (bit j: joint j + 1), as in [`PoseReport::fresh`].
-pub const ALL_JOINTS: u8 = (1 << JOINTS) - 1;
 
 /// Bytes per second the per-tick streams need: the raw stream if `raw`, and one pose frame every
 /// `pose_divider` ticks (0: no pose stream). The controller refuses settings above

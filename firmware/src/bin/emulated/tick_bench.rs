@@ -20,10 +20,11 @@ use kincal_firmware::flash::RamNor;
 use kincal_firmware::kinematics::Kinematics;
 use kincal_firmware::trust::Trust;
 use kincal_protocol::biss::TRANSFER_BITS;
+use kincal_protocol::joints::{ALL_JOINTS, JOINTS};
 use kincal_protocol::messages::{
     pack_counts, Crash, DeviceFrame, Hello, HostFrame, ParamBegin, ParamChunk, ParamCommit, PoseReport,
-    RawSample, Request, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, ALL_JOINTS,
-    JOINTS, PROTOCOL_VERSION, SCHEMA_HASH, TICK_HZ,
+    RawSample, Request, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, PROTOCOL_VERSION,
+    SCHEMA_HASH, TICK_HZ,
 };
 use kincal_protocol::params::{encode_blob, ArmParams, JointParams, BLOB_CRC, MAX_PARAM_BLOB};
 use kincal_protocol::signed::{signing_message, SIGNATURE_BYTES};

@@ -383,7 +383,10 @@ impl ArmModel {
             let effect = Effect::parse(name).ok_or_else(|| {
                 field(
                     format!("effects[\"{name}\"]"),
-                    "unknown effect; expected e.g. eccentricity:5, harmonic:3:3, compliance:2, twist:3, tcp, scale".into(),
+                    format!(
+                        "unknown effect; expected one of {} (J: a joint number, N: 1–4)",
+                        Effect::syntax()
+                    ),
                 )
             })?;
             if effect.joint.is_some_and(|j| j >= model.joints.len()) {

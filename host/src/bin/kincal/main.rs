@@ -19,6 +19,7 @@ mod haptic;
 mod igtl_record;
 mod model;
 mod plan;
+mod progress;
 
 use clap::parser::ValueSource;
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};

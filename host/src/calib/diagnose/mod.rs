@@ -31,6 +31,7 @@ pub mod screen;
 pub mod sequence;
 pub mod summary;
 pub mod units;
+pub mod words;
 
 pub use apparent::{JointResiduals, Sinusoid};
 pub use evidence::{FittedValue, NotIdentifiable, Ranking};

@@ -18,7 +18,7 @@ use crate::calib::study::StudyRow;
 use crate::calib::validate::{AngleStats, ErrorStats, GroupStats, Repeatability, SessionValidation};
 use crate::data::{DataKind, Joints, MAX_ARTEFACT_SPAN_MM};
 use crate::model::effects::Effect;
-use crate::model::file::MAX_REACH_MM;
+use crate::model::plausible::MAX_REACH_MM;
 use crate::trace::{ArmIdentity, FileHash};
 use std::collections::BTreeMap;
 use std::path::PathBuf;

@@ -79,7 +79,7 @@ pub fn parse_hidden(text: &str) -> Result<(ParamId, f64), String> {
     let (name, value) = text.split_once('=').ok_or("expected PARAM=DELTA, e.g. eccentricity_sin:5=0.3")?;
     let id = ParamId::parse(name.trim()).ok_or_else(|| format!("unknown parameter `{name}`"))?;
     let delta: f64 = value.trim().parse().map_err(|_| format!("`{value}` is not a number"))?;
-    let limit = kincal::model::file::plausible_limit(id);
+    let limit = kincal::model::plausible::plausible_limit(id);
     if !(delta.is_finite() && delta.abs() <= limit) {
         return Err(format!("`{value}`: expected a finite change of at most {limit} {}", id.unit()));
     }

@@ -396,6 +396,47 @@ pub struct Info {
     pub param_trace: crate::signed::SetTrace,
 }
 
+impl Info {
+    /// The `Info` with every field at its longest encoding: the longest response the controller
+    /// sends, for the frame budget ([`crate::framing::MAX_FRAME`]).
+    pub fn largest() -> Info {
+        fn full<const N: usize>() -> heapless::String<N> {
+            let mut text = heapless::String::new();
+            while text.push('z').is_ok() {}
+            text
+        }
+        let health = EncoderHealth {
+            accepted: u32::MAX,
+            crc_errors: u32::MAX,
+            error_bits: u32::MAX,
+            warnings: u32::MAX,
+            dropouts: u32::MAX,
+            frame_errors: u32::MAX,
+            jumps: u32::MAX,
+        };
+        Info {
+            firmware: full(),
+            board: full(),
+            param_version: u32::MAX,
+            param_crc: u32::MAX,
+            arm_id: full(),
+            trust: crate::signed::TrustMode::FirstUse,
+            param_signer: [0xFF; crate::signed::PUBLIC_KEY_BYTES],
+            param_signed_at_unix_s: u64::MAX,
+            ticks: u32::MAX,
+            late_ticks: u32::MAX,
+            encoders: [health; JOINTS],
+            reset_cause: ResetCause::Unknown,
+            brownout_mv: u16::MAX,
+            param_trace: crate::signed::SetTrace {
+                run_sha256: [0xFF; 32],
+                validated_at_unix_s: u64::MAX,
+                valid_until_unix_s: u64::MAX,
+            },
+        }
+    }
+}
+
 /// Why the controller last started (reported by [`Info::reset_cause`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, Schema)]
 pub enum ResetCause {

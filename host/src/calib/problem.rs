@@ -19,7 +19,7 @@
 use crate::calib::layout::{Layout, State};
 use crate::calib::terms::{Poses, Term, TermInput, TermJacobian};
 use crate::data::Observations;
-use crate::model::kinematics::{encoder_sin_cos, Tips};
+use crate::model::kinematics::{encoder_sin_cos, PoseDerivative, Tips};
 use crate::model::ArmModel;
 use crate::numerics::normal::{add_gram_by_four, NormalSums};
 use crate::numerics::qr::r_factor;
@@ -27,6 +27,7 @@ use crate::numerics::solver::{symmetric, Loss, Residuals};
 use nalgebra::{DMatrix, DVector, Matrix3};
 use rayon::prelude::*;
 use std::borrow::Cow;
+use std::sync::Mutex;
 
 /// Some terms and their residual rows.
 type Chunk<'t, 'r> = (&'t [Box<dyn Term>], Vec<&'r mut [f64]>);
@@ -59,6 +60,10 @@ pub struct Problem<'a> {
     joints: usize,
     frame_start: Vec<Matrix3<f64>>,
     probe_start: Option<Matrix3<f64>>,
+    /// The pose-derivative buffers of chunks evaluated, for the next chunks: a solve's
+    /// evaluations allocate and zero none (each pose writes its own columns; the entries of
+    /// observations a chunk does not read are never read).
+    spare: Mutex<Vec<Vec<PoseDerivative>>>,
 }
 
 impl<'a> Problem<'a> {
@@ -100,7 +105,20 @@ impl<'a> Problem<'a> {
             layout.columns = layout.columns.positions_only();
         }
         let joints = data.joints;
-        Problem { layout, model, data, terms, offsets, rows, read, sin_cos, joints, frame_start, probe_start }
+        Problem {
+            layout,
+            model,
+            data,
+            terms,
+            offsets,
+            rows,
+            read,
+            sin_cos,
+            joints,
+            frame_start,
+            probe_start,
+            spare: Mutex::new(Vec::new()),
+        }
     }
 
     /// Observation `k`'s encoder sines and cosines.
@@ -194,7 +212,8 @@ impl<'a> Problem<'a> {
         }
         let mut wanted = vec![false; last + 1 - first];
         read().for_each(|k| wanted[k - first] = true);
-        let mut chain = vec![[0.0; 9]; wanted.len() * arm];
+        let mut chain = self.spare.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
+        chain.resize(wanted.len() * arm, [0.0; 9]);
         let kinematics = Tips::new(&state.model);
         let pose = (first..=last)
             .map(|k| {
@@ -211,6 +230,13 @@ impl<'a> Problem<'a> {
             })
             .collect();
         Poses { first, pose, chain, arm, jacobian: true }
+    }
+
+    /// Keep the buffer of `poses` (of [`Problem::chunk_poses_of`]) for the next chunk.
+    fn recycle(&self, poses: Poses) {
+        if let Ok(mut spare) = self.spare.lock() {
+            spare.push(poses.chain);
+        }
     }
 
     /// The residuals of each term at `x` (as written by [`Residuals::evaluate`]), split per term.
@@ -330,6 +356,7 @@ impl Residuals for Problem<'_> {
                     w.extend(r.iter().map(|&v| loss.weight(v)));
                     sums.add(&jac.columns, &jac.values, r, &w);
                 }
+                self.recycle(poses);
                 sums.finish()
             })
             .collect();
@@ -406,6 +433,7 @@ impl Problem<'_> {
                             }
                             at += t.rows();
                         }
+                        self.recycle(poses);
                         finite.then(|| r_factor(block))
                     })
                     .collect();

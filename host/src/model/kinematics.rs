@@ -39,6 +39,8 @@ use crate::model::effects::{bend, compliance, eccentricity, harmonic, sag};
 use crate::numerics::geometry::left_jacobian;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
+mod dh;
+
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
 /// Pose of the tool in the base frame.
@@ -273,6 +275,10 @@ pub struct Chain<'m> {
     scale: f64,
     /// Per joint, the sine and cosine of its offset δθ.
     offset_sin_cos: [(f64, f64); MAX_TREE_JOINTS],
+    /// The rows of a DH chain, for its kernel ([`dh`]); `None` for a URDF model.
+    dh: Option<Vec<dh::Row>>,
+    /// The tool point's shifts along x, y, z: value (mm) and dense slot.
+    tool: [(f64, usize); 3],
 }
 
 impl<'m> Chain<'m> {
@@ -339,11 +345,13 @@ impl<'m> Chain<'m> {
             });
             row_ends.push(ops.len() - 1);
         }
+        let mut tool = [(0.0, 0); 3];
         for (k, axis) in [Axis::X, Axis::Y, Axis::Z].into_iter().enumerate() {
             let (value, id) = match model.tree.tips.get(tip).filter(|_| tip > 0) {
                 Some(t) => (t.tcp_mm[k], ParamId::TipTcp(tip, k)),
                 None => (model.tcp_mm[k], ParamId::Tcp(k)),
             };
+            tool[k] = (value, id.dense_index());
             ops.push(shift(axis, value, id));
         }
         let joint_rows = &model.joints[..joints];
@@ -353,6 +361,8 @@ impl<'m> Chain<'m> {
         }
         Chain {
             offset_sin_cos,
+            dh: dh::rows(model, &path),
+            tool,
             model,
             ops,
             row_ends,
@@ -495,7 +505,31 @@ impl<'m> Chain<'m> {
         levers
     }
 
+    /// The pose and the wanted columns: by the DH kernel when the model is a DH chain whose
+    /// angles read their offsets alone, else by the general pass over the ops.
     fn evaluate(
+        &self,
+        enc_deg: &[f64],
+        enc_sin_cos: Option<&[(f64, f64)]>,
+        mut wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
+    ) -> ToolPose {
+        let harmonics = self.harmonics || wanted.as_ref().is_some_and(|(c, _)| c.harmonics);
+        let compliance = self.compliant || wanted.as_ref().is_some_and(|(c, _)| c.compliance);
+        match self.dh.as_deref().filter(|_| !harmonics && !compliance) {
+            Some(rows) => {
+                if let Some((_, jac)) = wanted.as_mut() {
+                    jac.iter_mut().for_each(|col| *col = [0.0; 9]);
+                }
+                let gathering = wanted.as_mut().map(|(c, j)| (*c, &mut **j));
+                let (point, x_axis, z_axis) = self.dh_pass(rows, enc_deg, enc_sin_cos, gathering);
+                self.finish(point, x_axis, z_axis, wanted)
+            }
+            None => self.general_pass(enc_deg, enc_sin_cos, wanted),
+        }
+    }
+
+    /// The pose and the wanted columns by one pass over the chain's ops (see the module doc).
+    fn general_pass(
         &self,
         enc_deg: &[f64],
         enc_sin_cos: Option<&[(f64, f64)]>,
@@ -586,8 +620,19 @@ impl<'m> Chain<'m> {
                 }
             }
         }
-        let point = frame.origin;
         let [x_axis, _, z_axis] = frame.axes;
+        self.finish(frame.origin, x_axis, z_axis, wanted)
+    }
+
+    /// The pose at tool point `point` (before the scale) and axes `x_axis`, `z_axis`, each wanted
+    /// column turned from its W and V into the derivatives of the point and the axes.
+    fn finish(
+        &self,
+        point: Vector3<f64>,
+        x_axis: Vector3<f64>,
+        z_axis: Vector3<f64>,
+        wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
+    ) -> ToolPose {
         if let Some((columns, jac)) = wanted {
             for col in jac.iter_mut() {
                 let w = Vector3::new(col[3], col[4], col[5]);

@@ -91,9 +91,12 @@ impl TermJacobian {
         self.values.extend_from_slice(values);
     }
 
-    /// As [`TermJacobian::push`] for a three-row term.
+    /// As [`TermJacobian::push`] for a three-row term (three values written in place: no copy
+    /// of a slice per column).
+    #[inline]
     pub fn push3(&mut self, column: usize, v: Vector3<f64>) {
-        self.push(column, v.as_slice());
+        self.columns.push(column);
+        self.values.extend([v.x, v.y, v.z]);
     }
 
     /// The derivatives of the k-th column pushed.

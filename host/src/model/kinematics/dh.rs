@@ -1,0 +1,231 @@
+//! The plain Denavit–Hartenberg chain's kernel: a model in the classic or modified convention
+//! whose joint angles are θ_j = φ_j + δθ_j (no harmonic encoder error, no compliance) carried
+//! through its rows with each joint's five elementary transforms written out (Rz(θ), Tz(d),
+//! Tx(a), Rx(α), Ry(β), or α, β, a, θ, d in the modified convention), the derivatives gathered
+//! as the module above describes (W and V per column, finished once the tool frame is known).
+//!
+//! It computes what [`Chain`]'s general pass computes for such a model, with no op to interpret
+//! per transform: each transform's axis and its parameter's column are known where it is written,
+//! and a joint's angle takes its encoder's kept sine and cosine by angle addition with the
+//! offset's (or one sine and cosine of θ when none is kept).
+
+use super::{gather_rotation, Chain, ColumnMap, PoseDerivative, DEG};
+use crate::model::{ArmModel, Convention, ParamId};
+use nalgebra::Vector3;
+
+/// One DH row's constants.
+#[derive(Clone, Copy)]
+pub(super) struct Row {
+    /// The joint (of the model).
+    joint: usize,
+    d_mm: f64,
+    a_mm: f64,
+    /// Sine and cosine of the twist α.
+    alpha: (f64, f64),
+    /// Sine and cosine of the axis tilt β; `None` when β = 0.
+    beta: Option<(f64, f64)>,
+    /// Dense indices of the row's offset, length, link offset, twist and axis tilt.
+    slots: [usize; 5],
+}
+
+/// The rows of `model`'s `path` when the model is a DH chain; `None` for a URDF model.
+pub(super) fn rows(model: &ArmModel, path: &[usize]) -> Option<Vec<Row>> {
+    if model.convention == Convention::Urdf {
+        return None;
+    }
+    Some(
+        path.iter()
+            .map(|&j| {
+                let joint = &model.joints[j];
+                let beta = (joint.axis_deg != 0.0).then(|| (joint.axis_deg * DEG).sin_cos());
+                Row {
+                    joint: j,
+                    d_mm: joint.d_mm,
+                    a_mm: joint.a_mm,
+                    alpha: (joint.alpha_deg * DEG).sin_cos(),
+                    beta,
+                    slots: [
+                        ParamId::Offset(j),
+                        ParamId::Length(j),
+                        ParamId::LinkOffset(j),
+                        ParamId::Twist(j),
+                        ParamId::Axis(j),
+                    ]
+                    .map(ParamId::dense_index),
+                }
+            })
+            .collect(),
+    )
+}
+
+/// The frame carried from the base and the columns gathered so far.
+struct Pass<'w> {
+    axes: [Vector3<f64>; 3],
+    origin: Vector3<f64>,
+    wanted: Option<(&'w ColumnMap, &'w mut [PoseDerivative])>,
+}
+
+impl Pass<'_> {
+    /// Rotate by the angle of sine and cosine `s`, `c` about frame axis `axis` (0 x, 1 y, 2 z),
+    /// the parameter in dense slot `slot` moving the angle by one degree per unit.
+    #[inline(always)]
+    fn turn(&mut self, axis: usize, (s, c): (f64, f64), slot: usize) {
+        if let Some((columns, jac)) = self.wanted.as_mut() {
+            if let Some(col) = columns.column(slot) {
+                gather_rotation(&mut jac[col], &self.axes[axis], &self.origin, DEG);
+            }
+        }
+        let (i, k) = ((axis + 1) % 3, (axis + 2) % 3);
+        let (u, v) = (self.axes[i], self.axes[k]);
+        self.axes[i] = u * c + v * s;
+        self.axes[k] = v * c - u * s;
+    }
+
+    /// Translate by `value` (mm) along frame axis `axis`, the parameter in dense slot `slot`.
+    #[inline(always)]
+    fn shift(&mut self, axis: usize, value: f64, slot: usize) {
+        let t = self.axes[axis];
+        if let Some((columns, jac)) = self.wanted.as_mut() {
+            if let Some(col) = columns.column(slot) {
+                for k in 0..3 {
+                    jac[col][k] += t[k];
+                }
+            }
+        }
+        self.origin += t * value;
+    }
+
+    /// The tilt β about the frame's y axis, when it has one or its column is wanted.
+    #[inline(always)]
+    fn tilt(&mut self, row: &Row) {
+        let wanted = self.wanted.as_ref().is_some_and(|(columns, _)| columns.column(row.slots[4]).is_some());
+        if row.beta.is_some() || wanted {
+            self.turn(1, row.beta.unwrap_or((0.0, 1.0)), row.slots[4]);
+        }
+    }
+}
+
+impl Chain<'_> {
+    /// The pose (and the wanted columns) of a plain DH chain (see the module doc): the tool
+    /// point, x and z axes before the scale, and the columns' W and V.
+    pub(super) fn dh_pass(
+        &self,
+        rows: &[Row],
+        enc_deg: &[f64],
+        enc_sin_cos: Option<&[(f64, f64)]>,
+        wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
+    ) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
+        let mut pass =
+            Pass { axes: [Vector3::x(), Vector3::y(), Vector3::z()], origin: Vector3::zeros(), wanted };
+        let modified = self.model.convention == Convention::Modified;
+        for row in rows {
+            let j = row.joint;
+            let theta = match enc_sin_cos.and_then(|sc| sc.get(j)) {
+                Some(&(s, c)) => {
+                    let (so, co) = self.offset_sin_cos[j];
+                    (s * co + c * so, c * co - s * so)
+                }
+                None => ((enc_deg.get(j).copied().unwrap_or(0.0) + self.model.joints[j].offset_deg) * DEG)
+                    .sin_cos(),
+            };
+            if modified {
+                pass.turn(0, row.alpha, row.slots[3]);
+                pass.tilt(row);
+                pass.shift(0, row.a_mm, row.slots[2]);
+                pass.turn(2, theta, row.slots[0]);
+                pass.shift(2, row.d_mm, row.slots[1]);
+            } else {
+                pass.turn(2, theta, row.slots[0]);
+                pass.shift(2, row.d_mm, row.slots[1]);
+                pass.shift(0, row.a_mm, row.slots[2]);
+                pass.turn(0, row.alpha, row.slots[3]);
+                pass.tilt(row);
+            }
+        }
+        for (k, tool) in self.tool.into_iter().enumerate() {
+            pass.shift(k, tool.0, tool.1);
+        }
+        (pass.origin, pass.axes[0], pass.axes[2])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::kinematics::{encoder_sin_cos, ColumnMap};
+    use crate::model::Joint;
+
+    /// A 7-joint DH arm with every kind of row value (β on some rows, zero lengths on others).
+    fn arm(convention: Convention) -> ArmModel {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = convention;
+        model.free.clear();
+        model.joints = (0..7)
+            .map(|j| Joint {
+                offset_deg: 3.0 * j as f64 - 7.0,
+                d_mm: if j % 3 == 1 { 0.0 } else { 120.0 - 9.0 * j as f64 },
+                a_mm: if j % 2 == 0 { 0.0 } else { 35.0 + j as f64 },
+                alpha_deg: [90.0, -90.0, 0.3, 90.0, -89.0, 90.0, 0.0][j],
+                axis_deg: if j % 3 == 2 { 0.4 * j as f64 } else { 0.0 },
+                ..Default::default()
+            })
+            .collect();
+        model.tcp_mm = [12.0, -7.0, 140.0];
+        model.scale_ppm = 80.0;
+        model
+    }
+
+    /// The kernel gives what the general pass over the chain's ops gives, pose and every column
+    /// (offsets, lengths, link offsets, twists, axis tilts, the tool point, the scale), in both
+    /// conventions, with the encoders' sines and cosines kept and without.
+    #[test]
+    fn the_kernel_matches_the_general_pass() {
+        for convention in [Convention::Classic, Convention::Modified] {
+            let model = arm(convention);
+            let chain = Chain::new(&model);
+            assert!(chain.dh.is_some(), "a DH chain takes the kernel");
+            let params: Vec<ParamId> = (0..7)
+                .flat_map(|j| {
+                    [
+                        ParamId::Offset(j),
+                        ParamId::Length(j),
+                        ParamId::LinkOffset(j),
+                        ParamId::Twist(j),
+                        ParamId::Axis(j),
+                    ]
+                })
+                .chain([ParamId::Tcp(0), ParamId::Tcp(1), ParamId::Tcp(2), ParamId::Scale])
+                .collect();
+            for columns in [ColumnMap::new(&params), ColumnMap::new(&params[3..20]).positions_only()] {
+                for pose in 0..20 {
+                    let enc: Vec<f64> =
+                        (0..7).map(|j| ((pose * 7 + j) as f64 * 0.77).sin() * 170.0).collect();
+                    let sin_cos: Vec<(f64, f64)> = enc.iter().map(|&q| encoder_sin_cos(q)).collect();
+                    let mut general = vec![[0.0; 9]; columns.len()];
+                    let reference = chain.general_pass(&enc, None, Some((&columns, &mut general)));
+                    for kept in [None, Some(sin_cos.as_slice())] {
+                        let mut fast = vec![[0.0; 9]; columns.len()];
+                        let p = chain.evaluate(&enc, kept, Some((&columns, &mut fast)));
+                        let plain = chain.evaluate(&enc, kept, None);
+                        for (a, b) in [(p, reference), (plain, reference)] {
+                            assert!((a.position_mm - b.position_mm).norm() < 1e-10);
+                            assert!(
+                                (a.x_axis - b.x_axis).norm() < 1e-13 && (a.z_axis - b.z_axis).norm() < 1e-13
+                            );
+                        }
+                        for (c, (f, g)) in fast.iter().zip(&general).enumerate() {
+                            for k in 0..9 {
+                                assert!(
+                                    (f[k] - g[k]).abs() < 1e-11 * (1.0 + g[k].abs()),
+                                    "{convention:?} column {c} [{k}]: {} vs {}",
+                                    f[k],
+                                    g[k]
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}

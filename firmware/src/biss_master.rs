@@ -14,7 +14,7 @@
 
 use embedded_hal_async::spi::SpiDevice;
 use kincal_protocol::biss::{self, BissError, Reading, TRANSFER_BITS};
-use kincal_protocol::messages::{JOINTS, TICK_HZ};
+use kincal_protocol::{joints::JOINTS, messages::TICK_HZ};
 
 /// Bytes clocked per encoder read.
 pub const TRANSFER_BYTES: usize = (TRANSFER_BITS / 8) as usize;

@@ -6,11 +6,12 @@ use crate::kinematics::Kinematics;
 use crate::trust::{Provenance, Trust};
 use crate::window::Window;
 use embedded_storage::nor_flash::NorFlash;
+use kincal_protocol::joints::ALL_JOINTS;
 use kincal_protocol::messages::{
     pack_counts, stream_bytes_per_s, Ack, Answer, DeviceFrame, Endpoint, GetInfo, Hello, HelloReply,
     HostFrame, Info, ParamBegin, ParamChunk, ParamCommit, ParamData, ParamRead, PoseReport, RawSample,
     Request, Reset, ResetCause, Response, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, WireError,
-    ALL_JOINTS, LINK_BYTES_PER_S, MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH, TICK_HZ,
+    LINK_BYTES_PER_S, MAX_WINDOW_TICKS, PARAM_CHUNK, PROTOCOL_VERSION, SCHEMA_HASH, TICK_HZ,
 };
 use kincal_protocol::params::{ArmParams, BLOB_CRC, MAX_PARAM_BLOB};
 use kincal_protocol::signed::{SetTrace, SignatureRefusal};

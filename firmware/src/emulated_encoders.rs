@@ -16,9 +16,8 @@ use embassy_sync::blocking_mutex::Mutex;
 use embedded_hal_async::spi::{ErrorType, Operation, SpiDevice};
 use kincal_biss_slave::{Line, Slave};
 use kincal_protocol::biss::COUNTS_PER_TURN;
-use kincal_protocol::messages::{
-    Crash, Request, SimFaults, SimPlay, SimSetPose, SimWaypoint, JOINTS, TICK_HZ,
-};
+use kincal_protocol::joints::JOINTS;
+use kincal_protocol::messages::{Crash, Request, SimFaults, SimPlay, SimSetPose, SimWaypoint, TICK_HZ};
 use kincal_protocol::trajectory::{counts_at, Waypoint, MAX_WAYPOINTS};
 
 /// The trajectory being followed: waypoints `0..len` of the stored ones, time 0 at `start_tick`.

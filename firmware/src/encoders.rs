@@ -2,7 +2,10 @@
 
 use crate::biss_master::ReadError;
 use kincal_protocol::biss::{BissError, Reading, COUNTS_PER_TURN};
-use kincal_protocol::messages::{EncoderHealth, JOINTS, TICK_HZ};
+use kincal_protocol::{
+    joints::JOINTS,
+    messages::{EncoderHealth, TICK_HZ},
+};
 
 /// Fastest a joint of the hand-guided arm turns, turns per second: 3 turns/s = 1080 °/s, above
 /// the fastest wrist flick of a surgeon (about 1000 °/s peak) and far above a tracking motion.

@@ -9,7 +9,10 @@
 //! rejected more than [`MAX_REJECT_PER_1000`]‰ of its samples is flagged, not silently averaged.
 
 use kincal_protocol::biss::COUNTS_PER_TURN;
-use kincal_protocol::messages::{JointWindow, WindowReport, JOINTS, MAX_REJECT_PER_1000};
+use kincal_protocol::{
+    joints::JOINTS,
+    messages::{JointWindow, WindowReport, MAX_REJECT_PER_1000},
+};
 const HALF_TURN: i64 = (COUNTS_PER_TURN / 2) as i64;
 
 /// Signed shortest distance from `reference` to `counts`, in (−2²¹, 2²¹].

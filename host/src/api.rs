@@ -6,7 +6,7 @@
 use crate::calib::diagnose::auto::{auto_loop, AutoLoop};
 use crate::calib::diagnose::compare::{compare as compare_runs, Comparison, Side};
 use crate::calib::diagnose::{diagnose as diagnose_run, DiagnoseError, Diagnosis, Measure, RivalVerdict};
-use crate::calib::fit::CalibError;
+use crate::calib::error::CalibError;
 use crate::calib::floor::{noise_floor, point_floor};
 use crate::calib::plan::{plan as plan_placements, Plan, PlanError, PlanOptions};
 use crate::calib::run::check_same_data;

@@ -26,30 +26,34 @@ fn layer(module: &str) -> Option<u8> {
     LAYERS.iter().find(|(m, _)| *m == module).map(|(_, l)| *l)
 }
 
-/// The floors inside `calib`, lowest first: the engine (residual terms, block unknowns, the
-/// problem, the setup, the fit, identifiability, validation, the floor); what is built on it (the
-/// diagnosis, outliers, the study, trust, the plan and their checks); the run from input files to
-/// its summary. Modules of one floor may use each other; none uses a floor above.
+/// The floors inside `calib`, lowest first: the engine's parts (errors, residual terms, block
+/// unknowns, the problem, repeated touches, the setup), identifiability, the fit, validation,
+/// the noise floor; what is built on them (the diagnosis, outliers, the study, trust, the plan and
+/// their checks); the run from input files to its summary. Modules of one floor may use each
+/// other; none uses a floor above.
 const CALIB_FLOORS: &[(&str, u8)] = &[
+    ("error", 0),
+    ("error_stats", 0),
     ("terms", 0),
     ("nuisance", 0),
     ("layout", 0),
     ("problem", 0),
+    ("repeats", 0),
     ("setup", 0),
-    ("fit", 0),
-    ("identify", 0),
-    ("validate", 0),
-    ("floor", 0),
-    ("diagnose", 1),
-    ("outliers", 1),
-    ("study", 1),
-    ("trust", 1),
-    ("plan", 1),
-    ("monte_carlo", 1),
-    ("peer", 1),
-    ("bench_problem", 1),
-    ("run", 2),
-    ("summary", 2),
+    ("identify", 1),
+    ("fit", 2),
+    ("validate", 3),
+    ("floor", 4),
+    ("diagnose", 5),
+    ("outliers", 5),
+    ("study", 5),
+    ("trust", 5),
+    ("plan", 5),
+    ("monte_carlo", 5),
+    ("peer", 5),
+    ("bench_problem", 5),
+    ("run", 6),
+    ("summary", 6),
 ];
 
 fn calib_floor(module: &str) -> Option<u8> {
@@ -155,6 +159,9 @@ fn no_module_imports_from_its_own_or_a_higher_layer() {
             continue; // lib.rs and the CLI (bin/) may use everything
         }
         checked += 1;
+        if file.file_name().is_some_and(|n| n == "tests.rs") {
+            continue; // a module's unit tests may check it against anything above it
+        }
         let text = std::fs::read_to_string(&file).unwrap();
         for (line, used) in violations(own, &text) {
             problems.push(format!("{}:{line}: `{own}` uses `{used}`", relative.display()));

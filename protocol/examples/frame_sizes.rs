@@ -1,5 +1,6 @@
 //! Prints the encoded size of each frame type (COBS, CRC and delimiter included), worst case.
 use kincal_protocol::framing::{encode, MAX_FRAME};
+use kincal_protocol::joints::{ALL_JOINTS, JOINTS};
 use kincal_protocol::messages::*;
 
 fn size<T: serde::Serialize>(m: &T) -> usize {
@@ -20,35 +21,7 @@ fn main() {
         accepted: 4096,
         rejected: 4096,
     };
-    let health = EncoderHealth {
-        accepted: u32::MAX,
-        crc_errors: u32::MAX,
-        error_bits: u32::MAX,
-        warnings: u32::MAX,
-        dropouts: u32::MAX,
-        frame_errors: u32::MAX,
-        jumps: u32::MAX,
-    };
-    let info = Info {
-        firmware: heapless::String::try_from("kincal-fw 0.1.0").unwrap_or_default(),
-        board: heapless::String::try_from("mps2-an386 (emulated)").unwrap_or_default(),
-        param_version: u32::MAX,
-        param_crc: u32::MAX,
-        arm_id: heapless::String::try_from("z".repeat(24).as_str()).unwrap_or_default(),
-        trust: kincal_protocol::signed::TrustMode::FirstUse,
-        param_signer: [0xFF; 32],
-        param_signed_at_unix_s: u64::MAX,
-        ticks: u32::MAX,
-        late_ticks: u32::MAX,
-        encoders: [health; JOINTS],
-        reset_cause: ResetCause::Unknown,
-        brownout_mv: u16::MAX,
-        param_trace: kincal_protocol::signed::SetTrace {
-            run_sha256: [0xFF; 32],
-            validated_at_unix_s: u64::MAX,
-            valid_until_unix_s: u64::MAX,
-        },
-    };
+    let info = Info::largest();
     let rows = [
         (
             "raw sample (stream)",

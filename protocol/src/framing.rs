@@ -282,6 +282,7 @@ impl Decoder {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::joints::{ALL_JOINTS, JOINTS};
     use crate::messages::*;
     use rand::{RngExt, SeedableRng};
 
@@ -491,35 +492,7 @@ mod tests {
 
     #[test]
     fn the_largest_info_response_encodes() {
-        let health = EncoderHealth {
-            accepted: u32::MAX,
-            crc_errors: u32::MAX,
-            error_bits: u32::MAX,
-            warnings: u32::MAX,
-            dropouts: u32::MAX,
-            frame_errors: u32::MAX,
-            jumps: u32::MAX,
-        };
-        let info = Info {
-            firmware: heapless::String::try_from("x".repeat(24).as_str()).unwrap(),
-            board: heapless::String::try_from("y".repeat(24).as_str()).unwrap(),
-            param_version: u32::MAX,
-            param_crc: u32::MAX,
-            arm_id: heapless::String::try_from("z".repeat(24).as_str()).unwrap_or_default(),
-            trust: crate::signed::TrustMode::FirstUse,
-            param_signer: [0xFF; 32],
-            param_signed_at_unix_s: u64::MAX,
-            ticks: u32::MAX,
-            late_ticks: u32::MAX,
-            encoders: [health; JOINTS],
-            reset_cause: ResetCause::Unknown,
-            brownout_mv: u16::MAX,
-            param_trace: crate::signed::SetTrace {
-                run_sha256: [0xFF; 32],
-                validated_at_unix_s: u64::MAX,
-                valid_until_unix_s: u64::MAX,
-            },
-        };
+        let info = Info::largest();
         round_trip(&DeviceFrame::Response { seq: u16::MAX, response: Ok(Response::Info(info)) });
     }
 

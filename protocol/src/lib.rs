@@ -1,5 +1,6 @@
 //! Wire types shared by the kincal controller firmware and the host (`no_std`, no alloc).
 //!
+//! * [`joints`] — the joint count of the arm the controller reads.
 //! * [`messages`] — requests, responses and streamed frames, with a protocol version and a
 //!   schema hash exchanged on connect ([`messages::Request::Hello`]).
 //! * [`framing`] — one frame = COBS( postcard(message) ‖ CRC-16 ) followed by 0x00; the decoder
@@ -17,6 +18,7 @@
 
 pub mod biss;
 pub mod framing;
+pub mod joints;
 pub mod messages;
 pub mod params;
 pub mod signed;

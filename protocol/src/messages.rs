@@ -7,6 +7,7 @@
 //! a controller with another version or schema answers [`WireError::VersionMismatch`] and the
 //! host reports both sides' versions.
 
+use crate::joints::JOINTS;
 use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 
@@ -14,8 +15,6 @@ use serde::{Deserialize, Serialize};
 pub const PROTOCOL_VERSION: u16 = 5;
 /// Largest parameter chunk carried by one message, bytes.
 pub const PARAM_CHUNK: usize = 48;
-/// Joints read every tick.
-pub const JOINTS: usize = 6;
 /// Encoder sampling rate of the controller (one tick), Hz.
 pub const TICK_HZ: u32 = 768;
 /// Longest measurement window, ticks ([`Request::StartWindow`]).
@@ -33,8 +32,6 @@ pub const LINK_BYTES_PER_S: u32 = LINK_BAUD / 10;
 pub const RAW_FRAME_MAX_BYTES: u32 = 30;
 /// Longest pose stream frame on the wire (delimiter included), bytes.
 pub const POSE_FRAME_MAX_BYTES: u32 = 53;
-/// Bit mask of all joints (bit j: joint j + 1), as in [`PoseReport::fresh`].
-pub const ALL_JOINTS: u8 = (1 << JOINTS) - 1;
 
 /// Bytes per second the per-tick streams need: the raw stream if `raw`, and one pose frame every
 /// `pose_divider` ticks (0: no pose stream). The controller refuses settings above
@@ -397,6 +394,47 @@ pub struct Info {
     /// Where the stored set comes from: its RUN's hash, validation date and validity (all zero:
     /// none stored, or a set that carries no trace). Added in protocol version 5.
     pub param_trace: crate::signed::SetTrace,
+}
+
+impl Info {
+    /// The `Info` with every field at its longest encoding: the longest response the controller
+    /// sends, for the frame budget ([`crate::framing::MAX_FRAME`]).
+    pub fn largest() -> Info {
+        fn full<const N: usize>() -> heapless::String<N> {
+            let mut text = heapless::String::new();
+            while text.push('z').is_ok() {}
+            text
+        }
+        let health = EncoderHealth {
+            accepted: u32::MAX,
+            crc_errors: u32::MAX,
+            error_bits: u32::MAX,
+            warnings: u32::MAX,
+            dropouts: u32::MAX,
+            frame_errors: u32::MAX,
+            jumps: u32::MAX,
+        };
+        Info {
+            firmware: full(),
+            board: full(),
+            param_version: u32::MAX,
+            param_crc: u32::MAX,
+            arm_id: full(),
+            trust: crate::signed::TrustMode::FirstUse,
+            param_signer: [0xFF; crate::signed::PUBLIC_KEY_BYTES],
+            param_signed_at_unix_s: u64::MAX,
+            ticks: u32::MAX,
+            late_ticks: u32::MAX,
+            encoders: [health; JOINTS],
+            reset_cause: ResetCause::Unknown,
+            brownout_mv: u16::MAX,
+            param_trace: crate::signed::SetTrace {
+                run_sha256: [0xFF; 32],
+                validated_at_unix_s: u64::MAX,
+                valid_until_unix_s: u64::MAX,
+            },
+        }
+    }
 }
 
 /// Why the controller last started (reported by [`Info::reset_cause`]).

@@ -15,7 +15,7 @@
 //! through 0/2²² counts; [`counts_at`] wraps them as the encoder reports them).
 
 use crate::biss::COUNTS_PER_TURN;
-use crate::messages::JOINTS;
+use crate::joints::JOINTS;
 use postcard_schema::Schema;
 use serde::{Deserialize, Serialize};
 

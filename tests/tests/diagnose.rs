@@ -559,7 +559,7 @@ fn compliance_on_joint_3_is_named_not_a_harmonic_and_no_knock_is_flagged() {
                 u.group == t.group
                     && u.landmark() == t.landmark()
                     && u.repeat != t.repeat
-                    && !kincal::calib::floor::same_pose(&t.q_deg, &u.q_deg)
+                    && !kincal::calib::repeats::same_pose(&t.q_deg, &u.q_deg)
             })
         });
         assert!(other_configuration, "seed {seed}: the data must have repeats in other configurations");

@@ -65,16 +65,7 @@ fn a_two_second_window_returns_the_set_pose_including_one_at_the_wrap() {
     let (_g, _emu, mut link) = start();
     let counts = [100_000, COUNTS_PER_TURN - 2, 1, 2_097_152, 3_000_000, COUNTS_PER_TURN - 1];
     link.call(SimSetPose { counts }).unwrap();
-    link.call(SimFaults {
-        noise_counts: 3,
-        crc_errors_per_10k: 0,
-        dropouts_per_10k: 0,
-        error_bits_per_10k: 0,
-        warnings_per_10k: 0,
-        unplugged: 0,
-        crash: Crash::None,
-    })
-    .unwrap();
+    link.call(SimFaults { noise_counts: 3, ..SimFaults::default() }).unwrap();
     let started = Instant::now();
     let w = window(&mut link, 1536);
     let elapsed = started.elapsed();
@@ -93,16 +84,7 @@ fn injected_crc_errors_are_counted_and_excluded() {
     let (_g, _emu, mut link) = start();
     let counts = [1_000_000; 6];
     link.call(SimSetPose { counts }).unwrap();
-    link.call(SimFaults {
-        noise_counts: 0,
-        crc_errors_per_10k: 500,
-        dropouts_per_10k: 100,
-        error_bits_per_10k: 0,
-        warnings_per_10k: 0,
-        unplugged: 0,
-        crash: Crash::None,
-    })
-    .unwrap();
+    link.call(SimFaults { crc_errors_per_10k: 500, dropouts_per_10k: 100, ..SimFaults::default() }).unwrap();
     let w = window(&mut link, 768);
     for jw in &w.joints {
         assert!(jw.rejected > 10, "about 6 % of 768 samples rejected, got {}", jw.rejected);

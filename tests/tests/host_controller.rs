@@ -378,16 +378,7 @@ fn record_args<'a>(port: &'a str, artefact: &'a str, out: &'a str, window: &'a s
 fn set_dropouts(port: &str, dropouts_per_10k: u16) {
     let mut link = Link::open(port).unwrap();
     link.hello().unwrap();
-    link.call(SimFaults {
-        noise_counts: 0,
-        crc_errors_per_10k: 0,
-        dropouts_per_10k,
-        error_bits_per_10k: 0,
-        warnings_per_10k: 0,
-        unplugged: 0,
-        crash: kincal_protocol::messages::Crash::None,
-    })
-    .unwrap();
+    link.call(SimFaults { dropouts_per_10k, ..SimFaults::default() }).unwrap();
 }
 
 #[test]

@@ -18,7 +18,7 @@
 #![cfg_attr(not(test), no_std)]
 #![deny(missing_docs)]
 
-use kincal_protocol::messages::JOINTS;
+use kincal_protocol::joints::JOINTS;
 use kincal_protocol::params::ArmParams;
 
 type V3 = [f32; 3];

@@ -6,7 +6,7 @@
 //! pose. Their scatter about the group mean, pooled over every group of the calibration and
 //! validation data, gives the 3×3 covariance S of one touch (unbiased: Σ (p − p̄)(p − p̄)ᵀ /
 //! Σ (n − 1)). A group whose scatter is beyond the χ² quantile of the pooled variance at
-//! [`GROUP_OUTLIER_Z`] is left out and named: an artefact knocked between repeats, a
+//! [`GROUP_OUTLIER_Z`](crate::calib::repeats::GROUP_OUTLIER_Z) is left out and named: an artefact knocked between repeats, a
 //! mis-seated touch.
 //!
 //! *Expected distance error.* A distance between two touches a, b along u = (p_a − p_b)/‖·‖ has
@@ -41,15 +41,12 @@
 //! * otherwise *cannot tell*: neither a gap nor closeness to the floor is shown by these data.
 
 use crate::calib::fit::{dense_jacobian, Fit};
+use crate::calib::nuisance::tool::positions;
+use crate::calib::repeats::{pool_repeats, Repeats};
 use crate::data::Observations;
 use crate::model::kinematics::{Chain, ColumnMap};
 use crate::model::{ArmModel, ParamId};
-use crate::numerics::stats::chi2_quantile;
 use nalgebra::{DMatrix, Matrix3, Vector3};
-
-/// A (placement, landmark) group of repeats is left out of the floor when its scatter exceeds
-/// the χ² quantile at this many standard normal deviations (one-sided p ≈ 3·10⁻⁵).
-pub const GROUP_OUTLIER_Z: f64 = 4.0;
 
 /// Standard errors by which ln(measured / expected mean square) must exceed 0 for the gap to be
 /// called significant (one-sided normal tail 0.6 %).
@@ -98,12 +95,6 @@ pub struct NoiseFloor {
     pub extrapolation: Option<f64>,
 }
 
-/// Per-axis scatter of one touch about its group mean, mm, from the repeated touches of `data`
-/// alone (see [`NoiseFloor::touch_std_mm`]); `None` without a landmark touched twice.
-pub fn touch_std_mm(model: &ArmModel, data: &Observations) -> Option<f64> {
-    noise_floor(model, data, &data.without(|_| true), 0).map(|f| f.touch_std_mm)
-}
-
 /// Measured held-out error against what a complete model would leave: [`gap`] for distances
 /// between touches, [`point_gap`] for instrument points.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -135,30 +126,6 @@ pub fn observation_dof(data: &Observations) -> usize {
     data.blocks.iter().map(|b| (3 * b.members.len()).saturating_sub(6)).sum()
 }
 
-/// Joint angles (degrees, every joint) within which two touches count as the same arm
-/// configuration; repeats in another configuration (elbow or wrist flipped) carry other
-/// systematic errors and are not pooled as noise.
-pub const SAME_CONFIGURATION_DEG: f64 = 3.0;
-
-/// Two touches' angles are the same arm configuration: every joint within
-/// [`SAME_CONFIGURATION_DEG`] (across 0°/360° too).
-pub fn same_pose(a: &[f64], b: &[f64]) -> bool {
-    a.iter().zip(b).all(|(a, b)| ((a - b + 180.0).rem_euclid(360.0) - 180.0).abs() < SAME_CONFIGURATION_DEG)
-}
-
-/// Split touches `idx` of one landmark in one placement into groups of the same configuration.
-pub fn same_configuration(data: &Observations, idx: &[usize]) -> Vec<Vec<usize>> {
-    let mut groups: Vec<Vec<usize>> = Vec::new();
-    for &k in idx {
-        let close = |g: &Vec<usize>| same_pose(&data.obs[g[0]].q_deg, &data.obs[k].q_deg);
-        match groups.iter_mut().find(|g| close(g)) {
-            Some(g) => g.push(k),
-            None => groups.push(vec![k]),
-        }
-    }
-    groups
-}
-
 /// Estimate the floor from repeated touches in `datasets` (positions from `model`), and the
 /// expected validation RMS on `val` for a model with `parameters` identifiable parameters fitted
 /// on `cal`. `None` when no landmark was touched twice in one placement.
@@ -168,77 +135,8 @@ pub fn noise_floor(
     val: &Observations,
     parameters: usize,
 ) -> Option<NoiseFloor> {
-    struct Group {
-        placement: String,
-        landmark: usize,
-        scatter: Matrix3<f64>,
-        dof: usize,
-    }
-    let mut groups: Vec<Group> = Vec::new();
-    for data in [cal, val] {
-        let p: Vec<Vector3<f64>> = crate::calib::validate::positions(model, data);
-        for placement in 0..data.groups.len() {
-            for landmark in 0..data.landmarks.len() {
-                let idx: Vec<usize> = (0..p.len())
-                    .filter(|&k| data.obs[k].group == placement && data.obs[k].landmark() == Some(landmark))
-                    .collect();
-                for members in same_configuration(data, &idx) {
-                    if members.len() < 2 {
-                        continue;
-                    }
-                    let mean = members.iter().map(|&k| p[k]).sum::<Vector3<f64>>() / members.len() as f64;
-                    let scatter = members.iter().map(|&k| (p[k] - mean) * (p[k] - mean).transpose()).sum();
-                    groups.push(Group {
-                        placement: data.groups[placement].name.clone(),
-                        landmark,
-                        scatter,
-                        dof: members.len() - 1,
-                    });
-                }
-            }
-        }
-    }
-    if groups.is_empty() {
-        return None;
-    }
-    // Pool, then leave out groups beyond the χ² quantile of their own degrees of freedom, twice.
-    let per_axis = |g: &Group| g.scatter.trace() / (3 * g.dof) as f64;
-    let mut keep = vec![true; groups.len()];
-    for _ in 0..3 {
-        let (sum, n) = groups
-            .iter()
-            .zip(&keep)
-            .filter(|(_, k)| **k)
-            .fold((0.0, 0), |(s, n), (g, _)| (s + g.scatter.trace(), n + 3 * g.dof));
-        if n == 0 {
-            return None;
-        }
-        let sigma2 = sum / n as f64;
-        for (g, k) in groups.iter().zip(keep.iter_mut()) {
-            let nu = (3 * g.dof) as f64;
-            *k = per_axis(g) <= sigma2 * chi2_quantile(nu, GROUP_OUTLIER_Z) / nu;
-        }
-    }
-    let (mut pooled, mut dof, mut used) = (Matrix3::zeros(), 0, 0);
-    let mut inconsistent = Vec::new();
-    for (g, k) in groups.iter().zip(&keep) {
-        if *k {
-            pooled += g.scatter;
-            dof += g.dof;
-            used += 1;
-        } else {
-            inconsistent.push((
-                g.placement.clone(),
-                cal.landmarks[g.landmark].id.clone(),
-                per_axis(g).sqrt(),
-            ));
-        }
-    }
-    if dof == 0 {
-        return None;
-    }
-    let cov = pooled / dof as f64;
-    let p: Vec<Vector3<f64>> = crate::calib::validate::positions(model, val);
+    let Repeats { cov, dof, groups: used, inconsistent } = pool_repeats(model, cal, val)?;
+    let p: Vec<Vector3<f64>> = positions(model, val);
     let pairs = val.landmark_pairs();
     let floor_ms = if pairs.is_empty() {
         2.0 * cov.trace() / 3.0
@@ -568,23 +466,4 @@ fn repeated_pose_dof(val: &Observations) -> usize {
         dof += groups.values().map(|n| n.saturating_sub(1)).sum::<usize>();
     }
     dof
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn repeats_in_another_configuration_are_not_pooled() {
-        let data = Observations::from_touches(
-            &["A"],
-            Vec::new(),
-            &[
-                (0, 0, 1, &[10.0, 20.0, 30.0, 40.0, 50.0, 359.5]),
-                (0, 0, 1, &[10.5, 20.2, 29.8, 40.1, 50.0, 0.5]), // across 0°/360°: same configuration
-                (0, 0, 1, &[10.0, 20.0, 30.0, 220.0, 310.0, 180.0]), // wrist flipped
-            ],
-        );
-        assert_eq!(same_configuration(&data, &[0, 1, 2]), vec![vec![0, 1], vec![2]]);
-    }
 }

@@ -213,7 +213,7 @@ pub fn explain(
     spreads: &[(String, f64)],
     ranges: &[f64],
 ) -> Vec<String> {
-    use crate::calib::fit::CONSTANT_ORIENTATION_DEG;
+    use crate::calib::nuisance::tool::CONSTANT_ORIENTATION_DEG;
     let a = all.len();
     let norm = |m: &[f64], stride: usize, c: usize| {
         m.chunks_exact(stride).map(|row| row[c] * row[c]).sum::<f64>().sqrt()

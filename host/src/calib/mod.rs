@@ -7,6 +7,8 @@
 
 pub mod bench_problem;
 pub mod diagnose;
+pub mod error;
+pub mod error_stats;
 pub mod fit;
 pub mod floor;
 pub mod identify;
@@ -17,6 +19,7 @@ pub mod outliers;
 pub mod peer;
 pub mod plan;
 pub mod problem;
+pub mod repeats;
 pub mod run;
 pub mod setup;
 pub mod study;

@@ -23,7 +23,7 @@ pub enum PeerError {
     Peer(String),
     /// The calibration could not run.
     #[error(transparent)]
-    Calibration(#[from] crate::calib::fit::CalibError),
+    Calibration(#[from] crate::calib::error::CalibError),
 }
 
 /// What the SciPy peer reports.

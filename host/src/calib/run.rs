@@ -9,7 +9,9 @@
 
 use crate::calib::diagnose::data_errors::sessions::data_error_candidates;
 use crate::calib::diagnose::Measure;
-use crate::calib::fit::{calibrate, check_data, dense_jacobian, CalibError, Fit};
+use crate::calib::error::CalibError;
+use crate::calib::error_stats::{AngleStats, ErrorStats};
+use crate::calib::fit::{calibrate, check_data, dense_jacobian, Fit};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
 use crate::calib::outliers::outliers as outlier_metrics;
@@ -20,7 +22,7 @@ use crate::calib::trust::{result_problems, TrustScales};
 use crate::calib::validate::{
     calibration_residuals_mm, errors_in_calibration_session, fit_session_with_tool, orientation_errors_deg,
     session_probe_rotation, session_residuals_mm, undetermined_rotation, validate, validate_orientations,
-    validate_session, AngleStats, ErrorStats, SessionValidation, Validation,
+    validate_session, SessionValidation, Validation,
 };
 use crate::data::{load_folder, Artefact, Observations, Purpose};
 use crate::files::FileError;

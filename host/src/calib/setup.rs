@@ -11,7 +11,7 @@
 //!   weighed σ_position/σ_orientation; the artefact's relative orientations only with
 //!   `--objective six-dof`.
 
-use crate::calib::fit::{calibrate, CalibError, Fit};
+use crate::calib::error::CalibError;
 use crate::calib::nuisance::drift::DriftSpec;
 use crate::data::Observations;
 use crate::model::effects::Effect;
@@ -332,13 +332,6 @@ impl Setup {
     pub fn data<'a>(&self, cal: &'a Observations) -> Result<Cow<'a, Observations>, CalibError> {
         let out = self.left_out(cal)?;
         Ok(if out.contains(&true) { Cow::Owned(cal.without(|k| out[k])) } else { Cow::Borrowed(cal) })
-    }
-
-    /// Calibrate `start` (a model with this setup's effects, often a calibrated one: a warm
-    /// start) on `cal` as this setup asks.
-    pub fn calibrate(&self, start: &ArmModel, cal: &Observations) -> Result<Fit, CalibError> {
-        let kept = self.data(cal)?;
-        calibrate(start, &kept, &self.solve_options(&kept))
     }
 
     /// The effects added by the changes.

@@ -8,9 +8,9 @@
 //! `implausible`, its figure left out.
 
 use crate::calib::diagnose::Measure;
+use crate::calib::error_stats::ErrorStats;
 use crate::calib::setup::Setup;
 use crate::calib::trust::TrustScales;
-use crate::calib::validate::ErrorStats;
 use crate::data::Observations;
 use crate::model::ArmModel;
 use indicatif::{ProgressBar, ProgressStyle};

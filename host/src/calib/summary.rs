@@ -5,6 +5,7 @@
 //! command line's limits ([`SummaryOptions::check`]): diagnose refits with them.
 
 use crate::calib::diagnose::data_errors::DataError;
+use crate::calib::error_stats::{AngleStats, ErrorStats};
 use crate::calib::fit::{Estimate, IdentifiabilityReport, StartOutcome};
 use crate::calib::floor::{Gap, NoiseFloor, PointFloor};
 use crate::calib::identify::Identifiability;
@@ -15,10 +16,10 @@ use crate::calib::setup::{
     Change, Objective, Setup, SolveOptions, HUBER_DELTA_RANGE_MM, LEVER_RANGE_MM, MAX_RESTARTS,
 };
 use crate::calib::study::StudyRow;
-use crate::calib::validate::{AngleStats, ErrorStats, GroupStats, Repeatability, SessionValidation};
+use crate::calib::validate::{GroupStats, Repeatability, SessionValidation};
 use crate::data::{DataKind, Joints, MAX_ARTEFACT_SPAN_MM};
 use crate::model::effects::Effect;
-use crate::model::file::MAX_REACH_MM;
+use crate::model::plausible::MAX_REACH_MM;
 use crate::trace::{ArmIdentity, FileHash};
 use std::collections::BTreeMap;
 use std::path::PathBuf;

@@ -18,7 +18,8 @@
 //! itself (its own repeatability) could look fine.
 
 use crate::calib::fit::Fit;
-use crate::calib::validate::{positions, Validation};
+use crate::calib::nuisance::tool::positions;
+use crate::calib::validate::Validation;
 use crate::data::Observations;
 use crate::model::ArmModel;
 use std::collections::HashMap;

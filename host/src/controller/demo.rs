@@ -26,7 +26,7 @@ use crate::simulate::{
     validation_placements, Placement, SimulationOptions,
 };
 use kincal_protocol::biss::{counts_to_deg, deg_to_counts};
-use kincal_protocol::messages::{Crash, PoseReport, SimFaults, SimSetPose, StreamPose};
+use kincal_protocol::messages::{PoseReport, SimFaults, SimSetPose, StreamPose};
 use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -421,15 +421,7 @@ pub fn run_loop(
     artefact.save(&data.join("artefact.json")).map_err(|e| files(&e))?;
     truth.save(&data.join("truth.toml")).map_err(|e| files(&e))?;
     nominal.save(&data.join("nominal.toml")).map_err(|e| files(&e))?;
-    link.call(SimFaults {
-        noise_counts: options.encoder_noise_counts,
-        crc_errors_per_10k: 0,
-        dropouts_per_10k: 0,
-        error_bits_per_10k: 0,
-        warnings_per_10k: 0,
-        unplugged: 0,
-        crash: Crash::None,
-    })?;
+    link.call(SimFaults { noise_counts: options.encoder_noise_counts, ..SimFaults::default() })?;
     let seat = Normal::new(0.0, options.seating_noise_mm.max(0.0)).map_err(|e| files(&e))?;
     let order: Vec<String> = artefact.landmarks.iter().map(|l| l.id.clone()).collect();
     let mut touches = 0;

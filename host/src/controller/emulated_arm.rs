@@ -107,7 +107,7 @@ mod tests {
                 session.measurements.iter().find(|f| f.landmark == m.landmark && f.repeat == 1).unwrap();
             let a: [f64; 6] = m.joints_deg.as_slice().try_into().unwrap();
             let b: [f64; 6] = first.joints_deg.as_slice().try_into().unwrap();
-            assert!(crate::calib::floor::same_pose(&a, &b), "{} repeat {}", m.landmark, m.repeat);
+            assert!(crate::calib::repeats::same_pose(&a, &b), "{} repeat {}", m.landmark, m.repeat);
         }
         let script = script_of(&session);
         assert_eq!(script.steps.len(), session.measurements.len());

@@ -376,7 +376,7 @@ impl Encoded {
                 let content = if pose.report.valid {
                     igtl::status_content(igtl::status::OK, 0, "OK", "pose valid")
                 } else {
-                    let stale = !pose.report.fresh & kincal_protocol::messages::ALL_JOINTS;
+                    let stale = !pose.report.fresh & kincal_protocol::joints::ALL_JOINTS;
                     igtl::status_content(
                         igtl::status::HARDWARE_FAILURE,
                         stale as i64,

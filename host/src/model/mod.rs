@@ -8,6 +8,7 @@ pub mod effects;
 pub mod file;
 pub mod kinematics;
 pub mod params;
+pub mod plausible;
 pub mod tree;
 pub mod urdf;
 

@@ -22,8 +22,8 @@
 
 use super::{ArmModel, Body, Convention, Joint, ParamId, Tip, Tree, MAX_JOINTS, MAX_TREE_JOINTS};
 use crate::files::FileError;
-use crate::model::file::MAX_LENGTH_MM;
 use crate::model::kinematics::Chain as ModelChain;
+use crate::model::plausible::MAX_LENGTH_MM;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
 use std::path::Path;
 

@@ -14,8 +14,8 @@
 
 use crate::files::{row_error, FileError};
 use kincal_protocol::biss::COUNTS_PER_TURN;
-use kincal_protocol::messages::{JOINTS, TICK_HZ};
 use kincal_protocol::trajectory::{duration_ticks, position_at, Waypoint, MAX_WAYPOINTS};
+use kincal_protocol::{joints::JOINTS, messages::TICK_HZ};
 use std::path::Path;
 
 /// The header line of a trajectory file.

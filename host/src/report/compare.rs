@@ -4,8 +4,8 @@
 use super::svg::{self, escape};
 use super::{mm, page, table};
 use crate::calib::diagnose::compare::Comparison;
+use crate::calib::error_stats::ErrorStats;
 use crate::calib::summary::{StoredPairError, Summary, ValidationDetail};
-use crate::calib::validate::ErrorStats;
 use std::fmt::Write;
 
 /// One side of a comparison: what a RUN folder's typed files hold.

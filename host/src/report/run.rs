@@ -9,7 +9,7 @@ use super::svg::{self, escape};
 use super::{mm, page, table};
 use crate::calib::diagnose::data_errors::sessions::MIN_GAIN;
 use crate::calib::diagnose::data_errors::DataErrorKind;
-use crate::calib::fit::CONSTANT_ORIENTATION_DEG;
+use crate::calib::nuisance::tool::CONSTANT_ORIENTATION_DEG;
 use crate::calib::run::{PointResidual, Run, SessionResiduals};
 use crate::calib::setup::Objective;
 use crate::calib::summary::{SessionFigures, Summary};
@@ -676,7 +676,7 @@ fn distance_plots(body: &mut String, run: &Run) {
 /// The held-out distances' tables: both models, per landmark, per placement, repeatability.
 fn distance_tables(body: &mut String, s: &Summary) {
     let Some(v) = &s.validation.distances else { return };
-    let stats_row = |name: &str, v: &crate::calib::validate::ErrorStats| {
+    let stats_row = |name: &str, v: &crate::calib::error_stats::ErrorStats| {
         vec![name.to_string(), mm(v.rms_mm), mm(v.mean_mm), mm(v.std_mm), mm(v.max_mm), v.count.to_string()]
     };
     let _ = write!(

@@ -4,6 +4,7 @@
 //! more; a RUN folder of either kind stays readable by `diagnose`, `compare` and `plan`.
 
 use crate::calib::diagnose::data_errors::DataError;
+use crate::calib::error_stats::{AngleStats, ErrorStats};
 use crate::calib::fit::{Estimate, IdentifiabilityReport, StartOutcome};
 use crate::calib::floor::PointFloor;
 use crate::calib::identify::Identifiability;
@@ -13,7 +14,6 @@ use crate::calib::outliers::Outlier;
 use crate::calib::setup::Objective;
 use crate::calib::study::StudyRow;
 use crate::calib::summary::*;
-use crate::calib::validate::{AngleStats, ErrorStats};
 use crate::data::DataKind;
 use std::collections::BTreeMap;
 use std::path::PathBuf;

@@ -20,10 +20,11 @@ use kincal_firmware::flash::RamNor;
 use kincal_firmware::kinematics::Kinematics;
 use kincal_firmware::trust::Trust;
 use kincal_protocol::biss::TRANSFER_BITS;
+use kincal_protocol::joints::{ALL_JOINTS, JOINTS};
 use kincal_protocol::messages::{
     pack_counts, Crash, DeviceFrame, Hello, HostFrame, ParamBegin, ParamChunk, ParamCommit, PoseReport,
-    RawSample, Request, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, ALL_JOINTS,
-    JOINTS, PROTOCOL_VERSION, SCHEMA_HASH, TICK_HZ,
+    RawSample, Request, SimFaults, SimSetPose, StartWindow, Stream, StreamPose, StreamRaw, PROTOCOL_VERSION,
+    SCHEMA_HASH, TICK_HZ,
 };
 use kincal_protocol::params::{encode_blob, ArmParams, JointParams, BLOB_CRC, MAX_PARAM_BLOB};
 use kincal_protocol::signed::{signing_message, SIGNATURE_BYTES};
@@ -113,15 +114,7 @@ pub fn run() -> ! {
     bus.apply(&Request::SimSetPose(SimSetPose {
         counts: [100_000, 1_200_000, 2_000_000, 3_000_000, 4_000_000, 500],
     }));
-    bus.apply(&Request::SimFaults(SimFaults {
-        noise_counts: 3,
-        crc_errors_per_10k: 0,
-        dropouts_per_10k: 0,
-        error_bits_per_10k: 0,
-        warnings_per_10k: 0,
-        unplugged: 0,
-        crash: Crash::None,
-    }));
+    bus.apply(&Request::SimFaults(SimFaults { noise_counts: 3, ..SimFaults::default() }));
     // Frames go the app's way into TO_HOST, and leave it as the UART task takes them.
     let mut sender = FrameSender::new();
     let mut uart_chunk = [0u8; 256];

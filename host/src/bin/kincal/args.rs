@@ -1,7 +1,9 @@
-//! Value parsers for numeric options: a number outside its range (NaN, ∞, negative, absurd) is
-//! refused by the argument parser with the range, before anything runs; and the built-in model
-//! that `--model` defaults to.
+//! Value parsers for options: a number outside its range (NaN, ∞, negative, absurd) is refused
+//! by the argument parser with the range, before anything runs, and so is an unknown effect,
+//! parameter or drift kind; and the built-in model that `--model` defaults to.
 
+use kincal::model::effects::Effect;
+use kincal::model::ParamId;
 use std::path::{Path, PathBuf};
 
 /// The SUTA model built into kincal, as a file for the length of one command: `simulate` reads
@@ -55,6 +57,33 @@ pub fn count(min: usize, max: usize) -> impl Fn(&str) -> Result<usize, String> +
             Err(format!("expected a whole number from {min} to {max}, found {value}"))
         }
     }
+}
+
+/// `--add EFFECT`.
+pub fn parse_effect(text: &str) -> Result<Effect, String> {
+    Effect::parse(text).ok_or_else(|| {
+        format!(
+            "unknown effect `{text}`; expected one of {} (J: a joint number, N: 1–4 per revolution)",
+            Effect::syntax()
+        )
+    })
+}
+
+/// `--drift-session SESSION[:KIND]`.
+pub fn parse_drift(text: &str) -> Result<kincal::calib::nuisance::drift::DriftSpec, String> {
+    text.parse()
+}
+
+/// `--hidden PARAM=DELTA`.
+pub fn parse_hidden(text: &str) -> Result<(ParamId, f64), String> {
+    let (name, value) = text.split_once('=').ok_or("expected PARAM=DELTA, e.g. eccentricity_sin:5=0.3")?;
+    let id = ParamId::parse(name.trim()).ok_or_else(|| format!("unknown parameter `{name}`"))?;
+    let delta: f64 = value.trim().parse().map_err(|_| format!("`{value}` is not a number"))?;
+    let limit = kincal::model::plausible::plausible_limit(id);
+    if !(delta.is_finite() && delta.abs() <= limit) {
+        return Err(format!("`{value}`: expected a finite change of at most {limit} {}", id.unit()));
+    }
+    Ok((id, delta))
 }
 
 #[cfg(test)]

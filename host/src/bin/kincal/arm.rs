@@ -2,17 +2,15 @@
 
 use anyhow::{bail, Result};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use kincal::calib::run::RunError;
 use kincal::calib::setup::{Setup, SolveOptions, MAX_RESTARTS};
 use kincal::calib::study::{check_study_size, study, study_problems, StudyOptions};
-use kincal::model::effects::Effect;
 use kincal::model::{ArmModel, ParamId};
 use kincal::simulate::{simulate, SimulationOptions};
 use kincal::store;
 use std::path::{Path, PathBuf};
 
-use crate::args::{count, real};
+use crate::args::{count, parse_hidden, real};
 use crate::calibrate::{InputArgs, MAX_SUBSETS};
 
 #[derive(Args)]
@@ -45,40 +43,6 @@ pub struct SimulateArgs {
     /// Hidden effect: PARAM=DELTA added to the true arm, e.g. eccentricity_sin:5=0.3 (repeatable).
     #[arg(long, allow_negative_numbers = true, value_parser = parse_hidden)]
     hidden: Vec<(ParamId, f64)>,
-}
-
-/// A spinner with the elapsed time on stderr while a long step runs (hidden when stderr is not
-/// a terminal).
-pub fn spinner(what: &str) -> ProgressBar {
-    let bar = ProgressBar::new_spinner();
-    if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
-        bar.set_style(style);
-    }
-    bar.set_message(what.to_string());
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
-    bar
-}
-
-/// `--add EFFECT`.
-pub fn parse_effect(text: &str) -> Result<Effect, String> {
-    Effect::parse(text).ok_or_else(|| format!("unknown effect `{text}`; expected e.g. eccentricity:5, eccentricity2:3, harmonic:3:3 (joint 3, 3 per revolution), compliance:2, twist:4, link_offset:3, axis:2, tcp, scale"))
-}
-
-/// `--drift-session SESSION[:KIND]`.
-pub fn parse_drift(text: &str) -> Result<kincal::calib::nuisance::drift::DriftSpec, String> {
-    text.parse()
-}
-
-/// `--hidden PARAM=DELTA`.
-pub fn parse_hidden(text: &str) -> Result<(ParamId, f64), String> {
-    let (name, value) = text.split_once('=').ok_or("expected PARAM=DELTA, e.g. eccentricity_sin:5=0.3")?;
-    let id = ParamId::parse(name.trim()).ok_or_else(|| format!("unknown parameter `{name}`"))?;
-    let delta: f64 = value.trim().parse().map_err(|_| format!("`{value}` is not a number"))?;
-    let limit = kincal::model::file::plausible_limit(id);
-    if !(delta.is_finite() && delta.abs() <= limit) {
-        return Err(format!("`{value}`: expected a finite change of at most {limit} {}", id.unit()));
-    }
-    Ok((id, delta))
 }
 
 #[derive(Args)]

@@ -24,53 +24,8 @@ use kincal::numerics::stats::median;
 use kincal::simulate::{simulate, SimulationOptions};
 use std::time::Instant;
 
-/// Options of `kincal bench`.
-#[derive(Clone, Debug, clap::Args)]
-pub struct BenchArgs {
-    /// Timed repetitions of the single calibration.
-    #[arg(long, default_value_t = 20)]
-    pub repeats: usize,
-    /// Random subsets per placement count in the study (5 counts × 200 = 1000 calibrations).
-    #[arg(long, default_value_t = 200)]
-    pub study_subsets: usize,
-    /// Python interpreter with SciPy for the peer run.
-    #[arg(long, default_value = "python3")]
-    pub python: String,
-    /// Skip the SciPy peer.
-    #[arg(long)]
-    pub no_scipy: bool,
-    /// Only kincal beside Ceres and SciPy on the same problems, with the limit of this machine.
-    #[arg(long)]
-    pub peers: bool,
-    /// Only check that kincal and Ceres reach the same cost on small instances (untimed).
-    #[arg(long)]
-    pub peers_check: bool,
-    /// Keep the peers' problem files in this folder (to run the peers again by hand).
-    #[arg(long, value_name = "DIR")]
-    pub peer_problems: Option<std::path::PathBuf>,
-    /// Only the whole `kincal calibrate` process on thesis-sized data, with its parts.
-    #[arg(long)]
-    pub calibrate_only: bool,
-    /// Only the tracker case (3 600 points, 5 sessions, 26 free parameters).
-    #[arg(long)]
-    pub tracker_only: bool,
-    /// Calibration touches of the scale benchmark (calibrate and diagnose from files); 0 skips it.
-    #[arg(long, default_value_t = 10_000, value_parser = crate::args::count(0, kincal::data::MAX_TOUCHES))]
-    pub scale_touches: usize,
-    /// Only the check of `kincal plan`: planned against random placements over this many seeds.
-    #[arg(long, value_name = "SEEDS", num_args = 0..=1, default_missing_value = "10")]
-    pub plan: Option<u64>,
-    /// Run only the scale benchmark (with `--scale-touches`).
-    #[arg(long)]
-    pub scale_only: bool,
-    /// Run only the diagnosis' Monte Carlo checks: false calls on this many clean seeds, and
-    /// the power per library effect (see `--power-seeds`); 0 skips them.
-    #[arg(long, default_value_t = 0, value_parser = crate::args::count(0, 100_000))]
-    pub diagnosis_seeds: usize,
-    /// Seeds per library effect in the power check.
-    #[arg(long, default_value_t = 5, value_parser = crate::args::count(1, 10_000))]
-    pub power_seeds: usize,
-}
+use crate::bench_args::BenchArgs;
+use crate::cpu_time::process_cpu_ms;
 
 /// False calls on clean data over `seeds` seeds, and, over `power_seeds` seeds per effect, how
 /// often each identifiable library effect hidden alone is named.
@@ -389,33 +344,6 @@ pub fn run_benchmarks(args: &BenchArgs) -> Result<()> {
         scale_benchmark(args.scale_touches)?;
     }
     crate::bench_peers::peers_benchmark(args)
-}
-
-/// CPU time of this process so far (every thread), ms: unlike the wall time, it does not grow
-/// when other programs load the machine.
-pub(crate) fn process_cpu_ms() -> f64 {
-    let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-    // SAFETY: `t` is a valid timespec for the call to fill; the clock id is a constant.
-    let ok = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) } == 0;
-    if ok {
-        t.tv_sec as f64 * 1e3 + t.tv_nsec as f64 * 1e-6
-    } else {
-        f64::NAN
-    }
-}
-
-/// CPU time of the finished child processes so far (every thread), ms.
-pub(crate) fn children_cpu_ms() -> f64 {
-    // SAFETY: an all-zero rusage is a valid value for the call to fill.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: `usage` is a valid rusage for the call to fill; the target is a constant.
-    let ok = unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) } == 0;
-    let ms = |t: libc::timeval| t.tv_sec as f64 * 1e3 + t.tv_usec as f64 * 1e-3;
-    if ok {
-        ms(usage.ru_utime) + ms(usage.ru_stime)
-    } else {
-        f64::NAN
-    }
 }
 
 /// Median wall time of the whole `kincal calibrate` process on `sim` written to disk.

@@ -95,13 +95,13 @@ pub fn tracker(points: usize, joints: usize, params: usize, sessions: usize) -> 
 /// Repeat `kernel` (doing `flops` each) for at least `at_least`; flops per second of CPU time.
 fn rate(flops: f64, at_least: Duration, mut kernel: impl FnMut()) -> f64 {
     kernel();
-    let (start, cpu) = (Instant::now(), crate::bench::process_cpu_ms());
+    let (start, cpu) = (Instant::now(), crate::cpu_time::process_cpu_ms());
     let mut runs = 0;
     while start.elapsed() < at_least {
         kernel();
         runs += 1;
     }
-    flops * runs as f64 / ((crate::bench::process_cpu_ms() - cpu) * 1e-3)
+    flops * runs as f64 / ((crate::cpu_time::process_cpu_ms() - cpu) * 1e-3)
 }
 
 /// Measure this core's rates (about half a second, on this thread; the process's other threads

@@ -10,8 +10,9 @@
 //! random restarts are drawn here as kincal draws them and exported as points, and each start's
 //! initial cost is checked against kincal's own before any figure is printed.
 
-use crate::bench::{children_cpu_ms, process_cpu_ms, BenchArgs};
+use crate::bench_args::BenchArgs;
 use crate::bench_limit;
+use crate::cpu_time::{children_cpu_ms, process_cpu_ms};
 use anyhow::{bail, Context, Result};
 use kincal::calib::bench_problem;
 use kincal::calib::fit::{calibrate, Fit, TOOL_HALF_RANGE_MM};

@@ -2,7 +2,7 @@
 //! in 5 sessions, 26 free parameters (23 of the arm, the tool point), calibrate and validate on a
 //! held-out session (the same problem beside Ceres and SciPy: `bench_peers.rs`).
 
-use crate::bench::{children_cpu_ms, process_cpu_ms};
+use crate::cpu_time::{children_cpu_ms, process_cpu_ms};
 use anyhow::{Context, Result};
 use kincal::calib::bench_problem::{problem, sessions, truth, write_sessions, SESSIONS};
 use kincal::calib::fit::calibrate;

@@ -103,7 +103,7 @@ pub struct CalibrateArgs {
     #[arg(long, default_value_t = 0, allow_negative_numbers = true, value_parser = count(0, MAX_SUBSETS))]
     study_subsets: usize,
     /// Add an effect of the library to the model, e.g. eccentricity:5 (repeatable).
-    #[arg(long = "add", value_parser = crate::arm::parse_effect)]
+    #[arg(long = "add", value_parser = crate::args::parse_effect)]
     add: Vec<Effect>,
     /// Leave a landmark's touches out of both folders, e.g. a wrong certificate (repeatable).
     #[arg(long, value_name = "ID")]
@@ -138,7 +138,7 @@ pub struct CalibrateArgs {
     /// suggests (repeatable, one kind per session). KIND: offset-time (the default: the base
     /// shifts with time_s), scale-time (the length scale changes with time_s), offset-temp or
     /// scale-temp (the same against temp_C).
-    #[arg(long, value_name = "SESSION[:KIND]", value_parser = crate::arm::parse_drift)]
+    #[arg(long, value_name = "SESSION[:KIND]", value_parser = crate::args::parse_drift)]
     drift_session: Vec<DriftSpec>,
     /// Tracker sessions: held-out session HELD_OUT was measured from calibration session
     /// CALIBRATION's instrument placement (the instrument did not move): validate it with that
@@ -169,7 +169,7 @@ pub fn cmd_calibrate(a: &CalibrateArgs) -> Result<()> {
     input_paths.extend(inputs.artefact.as_deref());
     kincal::store::check_output_folder(&a.out, kincal::store::FolderKind::Run, &input_paths)?;
     let started = std::time::Instant::now();
-    let spinner = crate::arm::spinner("calibrating");
+    let spinner = crate::progress::spinner("calibrating");
     let result = api::calibrate(&inputs, &options, a.study_subsets, !a.no_outliers);
     spinner.finish_and_clear();
     let run = result?;

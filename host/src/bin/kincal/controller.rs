@@ -322,7 +322,7 @@ impl PoseWatch {
             return;
         }
         self.invalid_poses += 1;
-        self.stale_seen |= !p.fresh & kincal_protocol::messages::ALL_JOINTS;
+        self.stale_seen |= !p.fresh & kincal_protocol::joints::ALL_JOINTS;
         if self.invalid != Some(p.fresh) {
             self.invalid = Some(p.fresh);
             println!("tick {}: pose INVALID: {}", p.tick, stale_text(p));
@@ -346,7 +346,7 @@ fn stale_text(p: &kincal_protocol::messages::PoseReport) -> String {
 
 /// Joint numbers of a mask (bit j: joint j + 1), space separated (for CSV cells).
 fn joint_list(mask: u8) -> String {
-    let joints: Vec<String> = (0..kincal_protocol::messages::JOINTS)
+    let joints: Vec<String> = (0..kincal_protocol::joints::JOINTS)
         .filter(|j| mask & (1 << j) != 0)
         .map(|j| (j + 1).to_string())
         .collect();
@@ -635,7 +635,7 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
                     // as this tick's angle.
                     let deg = kincal_protocol::messages::unpack_counts(&r.packed)
                         .map(|c| kincal_protocol::biss::counts_to_deg(c as f64));
-                    let cells: Vec<String> = (0..kincal_protocol::messages::JOINTS)
+                    let cells: Vec<String> = (0..kincal_protocol::joints::JOINTS)
                         .map(|j| if r.rejected & (1 << j) != 0 { String::new() } else { deg[j].to_string() })
                         .collect();
                     writeln!(w, "{seq},{},{},{}", r.tick, cells.join(","), r.rejected)?;
@@ -647,7 +647,7 @@ pub fn cmd_stream(a: &StreamArgs) -> Result<()> {
                         let ([zx, zy, zz], [xx, xy, xz]) = (p.z_axis, p.x_axis);
                         writeln!(w, "{seq},{tick},1,,0,{x},{y},{z},{zx},{zy},{zz},{xx},{xy},{xz},{t_s:.6},{host_s:.6}")?
                     } else {
-                        let stale = joint_list(!p.fresh & kincal_protocol::messages::ALL_JOINTS);
+                        let stale = joint_list(!p.fresh & kincal_protocol::joints::ALL_JOINTS);
                         writeln!(w, "{seq},{tick},0,{stale},{},,,,,,,,,,{t_s:.6},{host_s:.6}", p.stale_ticks)?
                     }
                 }

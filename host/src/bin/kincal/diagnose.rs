@@ -46,7 +46,7 @@ pub fn cmd_diagnose(a: &DiagnoseArgs) -> Result<()> {
         let run = api::auto(&folder, a.max_steps)?;
         return print_auto(a, &folder, &run, started.elapsed().as_secs_f64());
     }
-    let spinner = crate::arm::spinner("diagnosing");
+    let spinner = crate::progress::spinner("diagnosing");
     let diagnosis = api::diagnose(&folder);
     spinner.finish_and_clear();
     let d = diagnosis?;

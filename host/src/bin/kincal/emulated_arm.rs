@@ -7,7 +7,10 @@ use clap::{Args, Subcommand};
 use kincal::controller::link::Link;
 use kincal::controller::record::measure_window;
 use kincal_protocol::biss::{counts_to_deg, deg_to_counts};
-use kincal_protocol::messages::{Crash, SimFaults, SimSetPose, JOINTS};
+use kincal_protocol::{
+    joints::JOINTS,
+    messages::{Crash, SimFaults, SimSetPose},
+};
 use std::path::PathBuf;
 
 /// What to do to the emulated arm.

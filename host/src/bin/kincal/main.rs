@@ -3,6 +3,7 @@
 mod args;
 mod arm;
 mod bench;
+mod bench_args;
 mod bench_limit;
 mod bench_peers;
 mod bench_tracker;
@@ -11,6 +12,7 @@ mod certificate;
 #[cfg(test)]
 mod cli_reference;
 mod controller;
+mod cpu_time;
 mod demo;
 mod diagnose;
 mod dynamic;
@@ -19,6 +21,7 @@ mod haptic;
 mod igtl_record;
 mod model;
 mod plan;
+mod progress;
 
 use clap::parser::ValueSource;
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
@@ -90,7 +93,7 @@ enum Command {
     #[command(subcommand)]
     Model(model::ModelCommand),
     /// Benchmarks: calibration time, study throughput, and kincal beside Ceres and SciPy on the same problems.
-    Bench(bench::BenchArgs),
+    Bench(bench_args::BenchArgs),
 }
 
 fn main() {

@@ -1,9 +1,9 @@
 //! One calibration against another on the held-out data both validated on, by the diagnosis'
 //! own test: the same units, the same sign-flip and t test, the same practical gain.
 
-use super::evidence::mm;
 use super::sequence::{FAMILY_ALPHA, SIGNIFICANT_GAIN};
 use super::units::Measure;
+use super::words::mm;
 use crate::data::Observations;
 use crate::model::ArmModel;
 use crate::numerics::significance::held_out_p;

@@ -24,7 +24,8 @@ use super::evidence::{Evidence, FittedValue, Flagged, NotIdentifiable, Ranking, 
 use super::floor::Floor;
 use super::units::Measure;
 use super::SIGNIFICANT_GAIN;
-use crate::calib::fit::{CalibError, Fit};
+use crate::calib::error::CalibError;
+use crate::calib::fit::Fit;
 use crate::calib::floor::{point_floor, point_gap, Gap};
 use crate::calib::setup::{Change, Setup};
 use crate::calib::validate::calibration_errors;

@@ -16,6 +16,7 @@
 use super::data_errors::touches::{DisturbedBlock, MisSeatedTouch};
 use super::data_errors::DataError;
 use super::floor::Floor;
+use super::words::mm;
 use super::JointResiduals;
 use crate::calib::floor::Gap;
 use crate::calib::setup::Change;
@@ -108,15 +109,6 @@ pub trait Evidence: Sync {
     fn floor(&self) -> Floor;
     /// The gap `rms_mm` held out would leave to the same floor.
     fn gap_at(&self, rms_mm: f64) -> Option<Gap>;
-}
-
-/// A length as the diagnosis writes it: three decimals from 0.1 mm, four below.
-pub fn mm(v: f64) -> String {
-    if v.abs() >= 0.1 {
-        format!("{v:.3}")
-    } else {
-        format!("{v:.4}")
-    }
 }
 
 /// Plain words for a fitted effect that brings the held-out RMS from `before` to `after`.

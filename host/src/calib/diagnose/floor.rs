@@ -16,7 +16,7 @@
 //!   joint space, beyond the noise: the model is called incomplete without any stated σ. A
 //!   held-out RMS below it says nothing (neighbours too far apart for a smooth error to agree).
 
-use super::evidence::mm;
+use super::words::mm;
 use crate::calib::fit::Fit;
 use crate::calib::floor::{gap, point_floor, point_gap, Gap, NoiseFloor};
 use crate::calib::setup::Setup;

@@ -31,6 +31,7 @@ pub mod screen;
 pub mod sequence;
 pub mod summary;
 pub mod units;
+pub mod words;
 
 pub use apparent::{JointResiduals, Sinusoid};
 pub use evidence::{FittedValue, NotIdentifiable, Ranking};
@@ -38,9 +39,9 @@ pub use floor::{Floor, NeighbourBound};
 pub use sequence::{Rival, RivalVerdict, DATA_ERROR_EXPLAINS, FAMILY_ALPHA, SIGNIFICANT_GAIN};
 pub use units::Measure;
 
-use crate::calib::fit::CalibError;
+use crate::calib::error::CalibError;
+use crate::calib::error_stats::ErrorStats;
 use crate::calib::setup::{Change, Setup};
-use crate::calib::validate::ErrorStats;
 use crate::data::Observations;
 use crate::model::ArmModel;
 use crate::numerics::stats::rms;

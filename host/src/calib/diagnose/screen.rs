@@ -26,8 +26,9 @@
 //! touch χ²), refitted warm.
 
 use super::data_errors::touches::{refit_with_landmark_freed, suspicious, DisturbedBlock, MisSeatedTouch};
-use super::evidence::{mm, Evidence, FittedValue, Flagged, NotIdentifiable, Ranking, Refitted};
+use super::evidence::{Evidence, FittedValue, Flagged, NotIdentifiable, Ranking, Refitted};
 use super::floor::Floor;
+use super::words::mm;
 use crate::calib::fit::{dense_jacobian, solve_warm};
 use crate::calib::floor::{gap, noise_floor, Gap, NoiseFloor};
 use crate::calib::identify;

@@ -1,8 +1,8 @@
 //! The diagnosis in words: the verdict first, then where it fails, what is named and what to do.
 
 use super::apparent::periodic_line;
-use super::evidence::mm;
 use super::sequence::RivalVerdict;
+use super::words::mm;
 use super::{Candidate, Diagnosis, Measure};
 use crate::calib::floor::Gap;
 use crate::calib::setup::{Change, Setup};

@@ -18,17 +18,19 @@
 //! (up to [`PASSES`] passes) only when a solve stops without converging. Restarts, when asked for, start the arm at random points inside its bounds, with
 //! each frame at its closed form for that arm.
 
+use crate::calib::error::CalibError;
+use crate::calib::error_stats::{AngleStats, ErrorStats};
 use crate::calib::identify::{self, Identifiability};
 use crate::calib::layout::Layout;
-use crate::calib::nuisance::drift::{drift_slots, DriftError, DriftSlot, SessionDrift};
+use crate::calib::nuisance::drift::{drift_slots, DriftSlot, SessionDrift};
 use crate::calib::nuisance::frame::{rotation_vector, Frame, FRAME_UNKNOWNS};
 use crate::calib::nuisance::tool::{
     length_std, model_points, orientation_spread_deg, start_probe_rotation, FloatedTool, ToolRotation,
+    CONSTANT_ORIENTATION_DEG,
 };
 use crate::calib::problem::{projected_arm_columns, Problem};
-use crate::calib::setup::{Resolved, SolveOptions};
+use crate::calib::setup::{Resolved, Setup, SolveOptions};
 use crate::calib::terms::{self, Term, TermChoice};
-use crate::calib::validate::{AngleStats, ErrorStats};
 use crate::data::{Kind, Observations};
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason, Termination};
@@ -37,9 +39,6 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-/// Spread of the tool orientation within a session, degrees, below which the session is said
-/// to hold the orientation constant.
-pub const CONSTANT_ORIENTATION_DEG: f64 = 1.0;
 /// Half-range of the tool point when the model does not free it and frames are fitted, mm.
 pub const TOOL_HALF_RANGE_MM: f64 = 500.0;
 /// Most Gauss–Newton passes with frames, each re-centring the frames at their solution.
@@ -57,74 +56,6 @@ const FRAMED_SOLVER: SolverOptions = SolverOptions {
     gtol: 1e-10,
     termination: Termination::Ceres,
 };
-
-/// Why a calibration could not run.
-#[derive(Debug, thiserror::Error)]
-pub enum CalibError {
-    /// The sessions' joint count differs from the model's.
-    #[error("the {kind} sessions {record} {data} {what}, the model has {model} joints")]
-    JointCount {
-        /// `artefact` or `tracker`.
-        kind: &'static str,
-        /// How the sessions hold the joints.
-        record: &'static str,
-        /// Joints in the data.
-        data: usize,
-        /// What they are.
-        what: &'static str,
-        /// Joints of the model.
-        model: usize,
-    },
-    /// Too few distances for the free parameters.
-    #[error("{pairs} landmark pairs cannot determine {params} parameters: touch more landmarks per placement and repeat")]
-    TooFewPairs {
-        /// Distance residuals available.
-        pairs: usize,
-        /// Parameters to determine.
-        params: usize,
-    },
-    /// More unknowns than residuals.
-    #[error("{residuals} measured coordinates cannot determine {unknowns} unknowns: measure more points")]
-    TooFewResiduals {
-        /// Residual rows.
-        residuals: usize,
-        /// Unknowns (arm, tool, frames).
-        unknowns: usize,
-    },
-    /// A session has too few points to place its frame.
-    #[error(
-        "{path}: session \"{session}\" has {points} points: at least 3 not on one line are needed to place its base"
-    )]
-    TooFewPoints {
-        /// The session's file.
-        path: String,
-        /// The session.
-        session: String,
-        /// Its points.
-        points: usize,
-    },
-    /// A change names an observation, block or landmark the data do not hold.
-    #[error("{0}: not in these data")]
-    NotInData(String),
-    /// A group named by `--float-tool` is not in the data.
-    #[error("--float-tool / --drift-session {0}: no calibration session of that name")]
-    UnknownSession(String),
-    /// A drift asked for cannot be fitted.
-    #[error(transparent)]
-    Drift(#[from] DriftError),
-    /// The model has no free parameter.
-    #[error("the model has no free parameter: give bounds in its [free] table")]
-    NothingFree,
-    /// No free parameter changes any residual on these observations.
-    #[error(
-        "none of the free parameters changes any measured distance: the touches carry no information \
-         (all at one pose, or the same joint angles copied into every measurement?)"
-    )]
-    NothingIdentifiable,
-    /// The model gives positions that are not finite numbers.
-    #[error("the model gives non-finite tool positions on these touches: check the model's numbers")]
-    NonFinite,
-}
 
 /// The outcome of one start of the solver.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -301,6 +232,15 @@ pub fn check_data(model: &ArmModel, data: &Observations, options: &SolveOptions)
         return check_framed(&full, &x0).map(|_| ());
     }
     check_dense(&pieces, &all).map(|_| ())
+}
+
+impl Setup {
+    /// Calibrate `start` (a model with this setup's effects, often a calibrated one: a warm
+    /// start) on `cal` as this setup asks.
+    pub fn calibrate(&self, start: &ArmModel, cal: &Observations) -> Result<Fit, CalibError> {
+        let kept = self.data(cal)?;
+        calibrate(start, &kept, &self.solve_options(&kept))
+    }
 }
 
 /// Calibrate the free parameters of `nominal` on `data` (see the module doc).

@@ -67,7 +67,7 @@ impl<'a> Pieces<'a> {
         }
         let mut resolved = options.resolve(data);
         if data.kind() == Some(crate::data::DataKind::Mixed) {
-            let touch_std_mm = crate::calib::floor::touch_std_mm(nominal, data);
+            let touch_std_mm = crate::calib::repeats::touch_std_mm(nominal, data);
             resolved.point_weight = options.point_weight(data, touch_std_mm);
         }
         let choice = TermChoice {

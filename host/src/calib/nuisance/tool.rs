@@ -42,6 +42,11 @@ pub fn model_points<'o>(
     observations.into_iter().map(|o| with_offset(&tips.tip(o.tip).pose(&o.q_deg), offset_mm)).collect()
 }
 
+/// The tool position of every observation of `data` (the model's own tool), mm.
+pub fn positions(model: &ArmModel, data: &Observations) -> Vec<Vector3<f64>> {
+    model_points(model, &data.obs, &Vector3::zeros())
+}
+
 /// The probe rotation at its unknowns `x` (mrad) right of its start.
 pub fn probe_rotation_at(start: &Matrix3<f64>, x: &[f64]) -> Matrix3<f64> {
     start * Rotation3::new(Vector3::new(x[0], x[1], x[2]) * 1e-3).into_inner()
@@ -133,6 +138,10 @@ pub fn start_probe_rotation(model: &ArmModel, data: &Observations, frames: &[Fra
     d[(2, 2)] = (u * v_t).determinant().signum();
     Some(u * d * v_t)
 }
+
+/// Spread of the tool orientation within a session, degrees, below which the session is said
+/// to hold the orientation constant.
+pub const CONSTANT_ORIENTATION_DEG: f64 = 1.0;
 
 /// Largest angle, degrees, between the tool orientation at any observation of block `b` and at
 /// its first (the model's flange orientation).

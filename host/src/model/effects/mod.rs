@@ -180,6 +180,23 @@ impl Effect {
         }
     }
 
+    /// The effect names [`Effect::parse`] reads, for error messages: `J` stands for a joint
+    /// number (1-based) and `N` for the harmonic's order per revolution.
+    pub fn syntax() -> String {
+        let mut names = Vec::new();
+        for (kind, name) in KINDS {
+            let name = match name.split_once(':') {
+                Some((harmonic, _)) if names.iter().any(|n: &String| n.starts_with(harmonic)) => continue,
+                Some((harmonic, _)) => format!("{harmonic}:J:N"),
+                None if kind.whole_robot() => format!("{name}[:J]"),
+                None if kind.per_joint() => format!("{name}:J"),
+                None => name.to_string(),
+            };
+            names.push(name);
+        }
+        names.join(", ")
+    }
+
     /// Every effect of the library for an arm of `joints` joints, per-joint kinds on every joint
     /// (the compliances under gravity once, for every joint at once).
     pub fn library(joints: usize) -> Vec<Effect> {
@@ -322,6 +339,11 @@ mod tests {
     fn every_effect_name_parses_back() {
         let library = Effect::library(6);
         assert_eq!(library.len(), 10 * 6 + 2 + 2);
+        for example in ["offset:2", "harmonic:3:3", "sag", "sag:2", "bend:1", "tcp"] {
+            assert!(Effect::parse(example).is_some(), "{example}");
+        }
+        assert_eq!(Effect::syntax().matches("harmonic").count(), 1, "{}", Effect::syntax());
+        assert!(Effect::syntax().contains("sag[:J]") && Effect::syntax().contains("eccentricity2:J"));
         assert_eq!(Effect::parse("sag:3").map(|e| e.to_string()).as_deref(), Some("sag:3"));
         for e in library {
             assert_eq!(Effect::parse(&e.to_string()), Some(e), "{e}");

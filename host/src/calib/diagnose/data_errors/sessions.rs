@@ -50,10 +50,11 @@
 
 use super::{DataError, DataErrorKind, DataSet};
 use crate::calib::diagnose::units::Measure;
-use crate::calib::fit::{recalibrate, Fit, CONSTANT_ORIENTATION_DEG};
+use crate::calib::fit::{recalibrate, Fit};
 use crate::calib::nuisance::drift::{DriftKind, DriftSpec};
 use crate::calib::nuisance::frame::rotation_vector;
 use crate::calib::nuisance::tool::orientation_spread_deg;
+use crate::calib::nuisance::tool::CONSTANT_ORIENTATION_DEG;
 use crate::calib::setup::{Change, SolveOptions};
 use crate::calib::validate::{
     calibration_errors, fit_session_with_tool, session_probe_rotation, undetermined_rotation,

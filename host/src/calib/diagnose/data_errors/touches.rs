@@ -25,9 +25,10 @@
 //!
 //! A flagged block or touch is scored by refitting without it.
 
-use crate::calib::fit::{calibrate, solve_warm, CalibError, Fit};
-use crate::calib::floor::{same_configuration, same_pose};
+use crate::calib::error::CalibError;
+use crate::calib::fit::{calibrate, solve_warm, Fit};
 use crate::calib::nuisance::frame::Frame;
+use crate::calib::repeats::{same_configuration, same_pose};
 use crate::calib::setup::SolveOptions;
 use crate::data::{Landmark, Observations};
 use crate::model::{ArmModel, ParamId};
@@ -87,7 +88,7 @@ pub fn suspicious(
     data: &Observations,
     sigma2_mm2: f64,
 ) -> (Vec<DisturbedBlock>, Vec<MisSeatedTouch>) {
-    let p: Vec<Vector3<f64>> = crate::calib::validate::positions(model, data);
+    let p: Vec<Vector3<f64>> = crate::calib::nuisance::tool::positions(model, data);
     let mut splits = Vec::new();
     let mut singles = Vec::new();
     for group in repeat_groups(data) {
@@ -214,7 +215,7 @@ pub fn suspicious(
 /// (positions from `model`), each mapped back through a rigid fit of the other landmarks of its
 /// block; `None` when no block has it and three others.
 pub fn locate_landmark(model: &ArmModel, data: &Observations, landmark: usize) -> Option<[f64; 3]> {
-    let p: Vec<Vector3<f64>> = crate::calib::validate::positions(model, data);
+    let p: Vec<Vector3<f64>> = crate::calib::nuisance::tool::positions(model, data);
     let mut sum = Vector3::zeros();
     let mut n = 0usize;
     for (_, touches) in blocks(data) {
@@ -280,7 +281,7 @@ fn located(model: &ArmModel, cal: &Observations, landmark: usize) -> Vec<Landmar
 }
 
 /// Touches of the same landmark, placement and arm configuration (see
-/// [`crate::calib::floor::same_configuration`]).
+/// [`crate::calib::repeats::same_configuration`]).
 fn repeat_groups(data: &Observations) -> Vec<Vec<usize>> {
     let mut out = Vec::new();
     for placement in 0..data.groups.len() {

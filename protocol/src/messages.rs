@@ -543,7 +543,7 @@ pub struct PoseReport {
     pub tick: u16,
     /// Every joint's count is fresh this tick and the pose was computed from them.
     pub valid: bool,
-    /// Bit j set: joint j + 1's frame of this tick was accepted ([`ALL_JOINTS`] when valid).
+    /// Bit j set: joint j + 1's frame of this tick was accepted ([`ALL_JOINTS`](crate::joints::ALL_JOINTS) when valid).
     pub fresh: u8,
     /// Ticks since the stalest joint's last accepted frame (0 when valid; `u16::MAX`: some
     /// joint was never read since boot, or longer ago than that).

@@ -173,9 +173,10 @@ fn the_loop_names_bend_and_sag_and_reaches_the_floor_on_a_humanoid() {
     let end = auto.steps.last().expect("steps").held_out_rms_mm;
     assert_eq!(auto.stop, Stop::AtFloor, "{:?}", auto.last.summary);
     assert!(end <= 1.10 * floor, "held out {end:.3} mm against the floor {floor:.3} mm");
-    // Every compliance the data determine to a quarter of its true value lies within 3 standard
-    // deviations of the truth, every one within 4 (the wrists' own compliances are weakly seen:
-    // with seed 1, sag:17 is 7.8 true, fitted −2.8 ± 3.0).
+    // Every compliance the data determine lies within 3 of its standard deviations of the truth.
+    // (A loop that refitted warm only, from the solution with `bend` alone, settled at a cost
+    // 0.45 % higher with sag:17 at −2.8 ± 3.0 against 7.8 true; the loop keeps the better of
+    // two starts, see `auto_loop`.)
     let last = auto.steps.last().and_then(|s| s.model.clone()).expect("the last step's model");
     let fit = auto.setup.calibrate(&last, &cal).expect("the last step refits");
     round_trip(&dir, &fit.model);
@@ -186,8 +187,7 @@ fn the_loop_names_bend_and_sag_and_reaches_the_floor_on_a_humanoid() {
         let t = truth_of(truth, id);
         let deviations = (e.value - t).abs() / std;
         println!("{id}: {:.3} ± {std:.3} deg/(kN·m), truth {t:.3} ({deviations:.1} σ)", e.value);
-        let limit = if std < 0.25 * t.abs() { 3.0 } else { 4.0 };
-        assert!(deviations <= limit, "{id}: {} ± {std} vs truth {t}", e.value);
+        assert!(deviations <= 3.0, "{id}: {} ± {std} vs truth {t}", e.value);
         checked += 1;
     }
     assert!(checked >= 30, "only {checked} compliances estimated");

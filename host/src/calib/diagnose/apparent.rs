@@ -41,6 +41,19 @@ pub struct Sinusoid {
     pub explained: f64,
 }
 
+impl Sinusoid {
+    /// True when the amplitude of order `order` is one an encoder error of the library could
+    /// have: within the bounds its effect is given ([`crate::model::effects::default_half_range`]).
+    /// A larger one is not a periodic error of that joint but the whole residual put on a joint
+    /// that barely moves the tip (on a humanoid's tip-mass model, the sag the model misses read as
+    /// a 39° wave of a wrist joint), and it is not a result to print.
+    pub fn is_plausible(&self, order: u32) -> bool {
+        Effect::harmonic(0, order)
+            .and_then(|e| e.params().first().copied())
+            .is_some_and(|p| self.amplitude_deg <= crate::model::effects::default_half_range(p))
+    }
+}
+
 /// Apparent error of one joint against its angle and its gravity lever.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct JointResiduals {
@@ -310,13 +323,13 @@ pub fn periodic_line(joints: &[JointResiduals], named: &[String]) -> Option<Stri
     let (joint, order, s) = match periodic {
         Some((j, order)) => {
             let r = joints.get(j)?;
-            (r, order, r.spectrum.iter().find(|s| s.0 == order)?.1)
+            (r, order, r.spectrum.iter().find(|s| s.0 == order && s.1.is_plausible(order))?.1)
         }
         None if !named.is_empty() => return None,
         None => joints
             .iter()
             .flat_map(|r| r.spectrum.iter().map(move |s| (r, s.0, s.1)))
-            .filter(|(_, _, s)| s.explained > 0.1)
+            .filter(|(_, order, s)| s.explained > 0.1 && s.is_plausible(*order))
             .max_by(|a, b| tip_amplitude_mm(a.0, &a.2).total_cmp(&tip_amplitude_mm(b.0, &b.2)))?,
     };
     let angle = if order == 1 { format!("θ{}", joint.joint) } else { format!("{order}θ{}", joint.joint) };
@@ -365,5 +378,32 @@ mod tests {
         let (_, aliased) = fit_spectrum(&narrow);
         assert!(!aliased.is_empty(), "a 40° range must show aliased orders");
         assert!((coverage_deg(&narrow.iter().map(|p| p.0).collect::<Vec<_>>()) - 39.0).abs() < 1e-9);
+    }
+
+    /// A wave an encoder error could have is printed; one beyond its effect's bounds (a residual
+    /// put on a joint that barely moves the tip) gives no figure.
+    #[test]
+    fn the_periodic_line_prints_no_amplitude_an_encoder_error_cannot_have() {
+        let joint = |amplitude_deg: f64| {
+            let points: Vec<(f64, f64, f64)> = (0..72)
+                .map(|k| (k as f64 * 5.0, amplitude_deg * (k as f64 * 5.0).to_radians().sin(), 1.0))
+                .collect();
+            let (spectrum, aliased) = fit_spectrum(&points);
+            JointResiduals {
+                joint: 7,
+                points,
+                bins: Vec::new(),
+                sinusoid: spectrum[0].1,
+                spectrum,
+                coverage_deg: 355.0,
+                aliased,
+                gravity: Vec::new(),
+                gravity_slope_deg_per_m: 0.0,
+            }
+        };
+        let line = periodic_line(&[joint(0.3)], &[]).expect("a 0.3° wave is a result");
+        assert!(line.contains("0.300° amplitude"), "{line}");
+        assert_eq!(periodic_line(&[joint(39.0)], &[]), None, "a 39° wave is no encoder error");
+        assert_eq!(periodic_line(&[joint(39.0)], &["eccentricity:7".into()]), None);
     }
 }

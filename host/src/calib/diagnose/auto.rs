@@ -1,5 +1,6 @@
 //! The loop in one call: diagnose, apply what the diagnosis names first (an effect, or the remedy
-//! of a data error), calibrate again (warm, from the step's model), repeat — until the held-out
+//! of a data error), calibrate again (from the step's model and from the first
+//! model with every change so far, the lower cost kept), repeat — until the held-out
 //! error is at the floor, nothing is significant, a certificate must be checked (the loop cannot
 //! fix the held-out data themselves), or the step limit. Each step selects and tests on the same
 //! held-out data, so the later steps' figures are not independent of the choices made before
@@ -81,6 +82,8 @@ pub fn auto_loop(
     max_steps: usize,
 ) -> Result<AutoLoop, DiagnoseError> {
     let (mut setup, mut model) = (setup.clone(), calibrated.clone());
+    // The loop's first model with every change applied so far: the second start of each step.
+    let mut first = calibrated.clone();
     let mut steps = Vec::new();
     let mut applied: Option<(String, String, String, f64)> = None;
     loop {
@@ -128,8 +131,17 @@ pub fn auto_loop(
             lead.map_or(f64::NAN, |c| c.p_value),
         ));
         let (next, start) = setup.apply(&change, &step_model);
-        // Warm start from this step's solution; the setup's restarts still guard the new terms.
-        model = next.calibrate(&start, cal)?.model;
+        first = setup.apply(&change, &first).1;
+        // Two starts, the lower cost kept: this step's solution (warm) and the first model with
+        // every change applied. A warm start alone can settle in a poorer minimum: on a humanoid,
+        // the solution with `bend` alone (its bends stretched to mimic the missing sag) led the
+        // refit with `sag` added to a cost 0.45 % above the one both starts can reach, and a
+        // weakly seen wrist compliance 3.5 standard deviations off.
+        let (warm, again) = rayon::join(|| next.calibrate(&start, cal), || next.calibrate(&first, cal));
+        model = match (warm?, again?) {
+            (w, a) if a.cost < w.cost => a.model,
+            (w, _) => w.model,
+        };
         setup = next;
     }
 }

@@ -130,7 +130,7 @@ pub fn effect_words(
                 .get(j.saturating_sub(1))
                 .and_then(|r| r.spectrum.iter().find(|s| s.0 == order).map(|s| s.1));
             let residual = match seen {
-                Some(s) if s.explained > 0.1 => format!("the residual follows sin {n}θ{j} with {:.3}° amplitude ({:.0} % of its variance); ", s.amplitude_deg, 100.0 * s.explained),
+                Some(s) if s.explained > 0.1 && s.is_plausible(order) => format!("the residual follows sin {n}θ{j} with {:.3}° amplitude ({:.0} % of its variance); ", s.amplitude_deg, 100.0 * s.explained),
                 _ => String::new(),
             };
             let what = match order {

@@ -52,6 +52,30 @@ fn tip_mass_line(d: &Diagnosis) -> Option<String> {
     ))
 }
 
+/// For rivals the data cannot tell apart that are joint compliance under the link masses
+/// (`sag`, `sag:J`) and lateral compliance (`bend`, `bend:J`) of the same joints: why they look
+/// alike, and that they are rivals, not one effect.
+fn deflection_rivals_line(rivals: &[super::Rival]) -> Option<String> {
+    use crate::model::effects::{Effect, EffectKind};
+    let r = rivals.iter().filter(|r| r.verdict == RivalVerdict::CannotTell).find(|r| {
+        match (Effect::parse(&r.a), Effect::parse(&r.b)) {
+            (Some(a), Some(b)) => {
+                let kinds = [a.kind, b.kind];
+                kinds.contains(&EffectKind::Sag) && kinds.contains(&EffectKind::Bend) && a.joint == b.joint
+            }
+            _ => false,
+        }
+    })?;
+    let (sag, bend) = if r.a.starts_with("sag") { (&r.a, &r.b) } else { (&r.b, &r.a) };
+    Some(format!(
+        "{sag} and {bend} are rivals: joint compliance under the link masses ({sag}: the joint turns about its axis by \
+         its compliance times the torque of the masses beyond it) and lateral compliance ({bend}: the joint's frame \
+         tilts across its axis under the moment the joint does not carry) deflect the tips alike on these data — where \
+         a joint's axis meets the next one at a right angle, the moment across one is the torque about the other; \
+         poses that load the joints with their axes apart tell them apart"
+    ))
+}
+
 /// The summary lines of `d`; `with` is the gap the named change would leave.
 pub(super) fn lines(d: &Diagnosis, setup: &Setup, with: Option<&Gap>) -> Vec<String> {
     let what = match d.measure {
@@ -103,6 +127,7 @@ pub(super) fn lines(d: &Diagnosis, setup: &Setup, with: Option<&Gap>) -> Vec<Str
                 d.named.join(" or "),
                 detail.join("; ")
             ));
+            lines.extend(deflection_rivals_line(&d.rivals));
             for n in &d.named {
                 if let Some(c) = d.candidate(n) {
                     lines.push(format!("  {} — {}", c.name, c.evidence));
@@ -191,4 +216,38 @@ pub(super) fn lines(d: &Diagnosis, setup: &Setup, with: Option<&Gap>) -> Vec<Str
         lines.push("the cause is not in the effect library nor among the data errors kincal scores".into());
     }
     lines
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::diagnose::Rival;
+
+    fn rival(a: &str, b: &str, verdict: RivalVerdict) -> Rival {
+        Rival {
+            a: a.into(),
+            b: b.into(),
+            both_rms_mm: 1.0,
+            a_adds_p: 0.4,
+            b_adds_p: 0.5,
+            separability: Some(2.0),
+            verdict,
+        }
+    }
+
+    /// Joint compliance and lateral compliance of the same joints that the data cannot tell apart
+    /// are stated as rivals, with why they look alike; other pairs, other joints or a verdict the
+    /// data reached are not.
+    #[test]
+    fn sag_and_bend_the_data_cannot_tell_apart_are_stated_as_rivals() {
+        for (a, b) in [("bend", "sag"), ("sag:5", "bend:5")] {
+            let line = deflection_rivals_line(&[rival(a, b, RivalVerdict::CannotTell)]).expect("a line");
+            let sag = if a.starts_with("sag") { a } else { b };
+            assert!(line.starts_with(&format!("{sag} and ")), "{line}");
+            assert!(line.contains("are rivals") && line.contains("torque about the other"), "{line}");
+        }
+        assert_eq!(deflection_rivals_line(&[rival("sag:5", "bend:6", RivalVerdict::CannotTell)]), None);
+        assert_eq!(deflection_rivals_line(&[rival("sag", "eccentricity:2", RivalVerdict::CannotTell)]), None);
+        assert_eq!(deflection_rivals_line(&[rival("bend", "sag", RivalVerdict::Both)]), None);
+    }
 }

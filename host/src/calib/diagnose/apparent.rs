@@ -313,6 +313,25 @@ fn tip_amplitude_mm(j: &JointResiduals, s: &Sinusoid) -> f64 {
     s.amplitude_deg * w.sqrt()
 }
 
+/// True when the wave `s` of order `order` at the tip holds no more than the joint's apparent
+/// error itself: Σ w·(a sin nφ + b cos nφ)² ≤ Σ w·e² over its touches. Fitted jointly with the
+/// other orders over part of a turn, two orders can take large opposite values that cancel; such
+/// an order's amplitude is not in the data, and it is not a result to print.
+fn within_the_residual(j: &JointResiduals, order: u32, s: &Sinusoid) -> bool {
+    let (sin_phase, cos_phase) = s.phase_deg.to_radians().sin_cos();
+    let (a, b) = (s.amplitude_deg * cos_phase, s.amplitude_deg * sin_phase);
+    let wave: f64 = j
+        .points
+        .iter()
+        .map(|&(phi, _, w)| {
+            let x = (order as f64 * phi).to_radians();
+            w * (a * x.sin() + b * x.cos()).powi(2)
+        })
+        .sum();
+    let data: f64 = j.points.iter().map(|&(_, e, w)| w * e * e).sum();
+    wave <= data * (1.0 + 1e-9)
+}
+
 /// The periodic-residual line: the named effect's joint and order when it is periodic; no line
 /// when a non-periodic effect is named; else the largest harmonic at the tip over every joint.
 pub fn periodic_line(joints: &[JointResiduals], named: &[String]) -> Option<String> {
@@ -323,13 +342,22 @@ pub fn periodic_line(joints: &[JointResiduals], named: &[String]) -> Option<Stri
     let (joint, order, s) = match periodic {
         Some((j, order)) => {
             let r = joints.get(j)?;
-            (r, order, r.spectrum.iter().find(|s| s.0 == order && s.1.is_plausible(order))?.1)
+            (
+                r,
+                order,
+                r.spectrum
+                    .iter()
+                    .find(|s| s.0 == order && s.1.is_plausible(order) && within_the_residual(r, order, &s.1))?
+                    .1,
+            )
         }
         None if !named.is_empty() => return None,
         None => joints
             .iter()
             .flat_map(|r| r.spectrum.iter().map(move |s| (r, s.0, s.1)))
-            .filter(|(_, order, s)| s.explained > 0.1 && s.is_plausible(*order))
+            .filter(|(r, order, s)| {
+                s.explained > 0.1 && s.is_plausible(*order) && within_the_residual(r, *order, s)
+            })
             .max_by(|a, b| tip_amplitude_mm(a.0, &a.2).total_cmp(&tip_amplitude_mm(b.0, &b.2)))?,
     };
     let angle = if order == 1 { format!("θ{}", joint.joint) } else { format!("{order}θ{}", joint.joint) };
@@ -405,5 +433,11 @@ mod tests {
         assert!(line.contains("0.300° amplitude"), "{line}");
         assert_eq!(periodic_line(&[joint(39.0)], &[]), None, "a 39° wave is no encoder error");
         assert_eq!(periodic_line(&[joint(39.0)], &["eccentricity:7".into()]), None);
+        // A wave larger at the tip than the apparent error it was fitted to (orders cancelling
+        // over part of a turn) is not in the data.
+        let mut cancelled = joint(0.3);
+        cancelled.points.iter_mut().for_each(|p| p.1 *= 0.1);
+        assert_eq!(periodic_line(&[cancelled.clone()], &[]), None);
+        assert_eq!(periodic_line(&[cancelled], &["eccentricity:7".into()]), None);
     }
 }

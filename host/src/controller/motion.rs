@@ -48,9 +48,16 @@ pub enum MotionError {
     /// The OpenIGTLink client failed.
     #[error("OpenIGTLink client: {0}")]
     Client(#[from] IgtlError),
-    /// The dynamic validation refused the recordings.
-    #[error(transparent)]
-    Dynamic(#[from] DynamicError),
+    /// The dynamic validation refused the recordings, which are kept in the files named.
+    #[error("{source} (the recordings are kept: {} and {})", arm_csv.display(), tracker_csv.display())]
+    Analysis {
+        /// The OpenIGTLink client's recording.
+        arm_csv: PathBuf,
+        /// The simulated tracker's recording.
+        tracker_csv: PathBuf,
+        /// Why the validation refused them.
+        source: DynamicError,
+    },
     /// Writing the recordings or the report failed.
     #[error(transparent)]
     Output(#[from] crate::store::OutputError),
@@ -277,18 +284,24 @@ pub fn motion_demo(
         tracker.clock_offset_s,
         tracker.drift_ppm
     ));
-    let dynamic = analyze(&rec.received.track, &tracker_rec)?;
-    let received = crate::motion::align::Path::new(&rec.received.track.t_s, &rec.received.track.p);
-    let truth_rows = against_truth(&dynamic, &|k| {
-        let at = samples[k].taken_s;
-        received.at(at).map(|reported| (arm.true_point(at, tracker.flex_mm_per_m_s2), reported))
-    });
+    // The recordings are kept before they are analysed: what was measured is never lost, and
+    // `kincal dynamic` can be run on them again.
     let folder = out.join("motion");
     let files = |e: std::io::Error| crate::store::OutputError::Io { path: folder.clone(), source: e };
     std::fs::create_dir_all(&folder).map_err(files)?;
     let (arm_csv, tracker_csv) = (folder.join("arm.csv"), folder.join("tracker.csv"));
     crate::files::write_atomic(&arm_csv, track_csv(&rec.received.track).as_bytes()).map_err(files)?;
     crate::files::write_atomic(&tracker_csv, track_csv(&tracker_rec).as_bytes()).map_err(files)?;
+    let dynamic = analyze(&rec.received.track, &tracker_rec).map_err(|e| MotionError::Analysis {
+        arm_csv: arm_csv.clone(),
+        tracker_csv: tracker_csv.clone(),
+        source: e,
+    })?;
+    let received = crate::motion::align::Path::new(&rec.received.track.t_s, &rec.received.track.p);
+    let truth_rows = against_truth(&dynamic, &|k| {
+        let at = samples[k].taken_s;
+        received.at(at).map(|reported| (arm.true_point(at, tracker.flex_mm_per_m_s2), reported))
+    });
     let report_dir = out.join("dynamic");
     crate::store::write_dynamic(&dynamic, Some(&truth_rows), &report_dir, &arm_csv, &tracker_csv)?;
     Ok(MotionReport {

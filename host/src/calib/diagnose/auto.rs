@@ -137,10 +137,15 @@ pub fn auto_loop(
         // the solution with `bend` alone (its bends stretched to mimic the missing sag) led the
         // refit with `sag` added to a cost 0.45 % above the one both starts can reach, and a
         // weakly seen wrist compliance 3.5 standard deviations off.
-        let (warm, again) = rayon::join(|| next.calibrate(&start, cal), || next.calibrate(&first, cal));
-        model = match (warm?, again?) {
-            (w, a) if a.cost < w.cost => a.model,
-            (w, _) => w.model,
+        // At the first step both starts are the same model: it is fitted once.
+        model = if first == start {
+            next.calibrate(&start, cal)?.model
+        } else {
+            let (warm, again) = rayon::join(|| next.calibrate(&start, cal), || next.calibrate(&first, cal));
+            match (warm?, again?) {
+                (w, a) if a.cost < w.cost => a.model,
+                (w, _) => w.model,
+            }
         };
         setup = next;
     }

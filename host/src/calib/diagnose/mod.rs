@@ -13,7 +13,8 @@
 //!    model's, unit by unit (a validation placement, or a block of poses of a held-out session:
 //!    the second per-kind part), by an exact sign-flip and a t test
 //!    ([`crate::numerics::significance`]); candidates in a fixed sequence, equivalents, rivals and
-//!    what is named ([`sequence`]).
+//!    what is named ([`sequence`]); of an effect and its refinement, the effect first
+//!    ([`hierarchy`]: joint compliance before lateral compliance).
 //! 4. *How far from done* ([`floor`]): the floor of the held-out data and the gap to it (the
 //!    third per-kind part), and the verdict in words.
 //!
@@ -27,6 +28,7 @@ pub mod cross_validate;
 pub mod data_errors;
 pub mod evidence;
 pub mod floor;
+pub mod hierarchy;
 pub mod screen;
 pub mod sequence;
 pub mod summary;
@@ -143,6 +145,9 @@ pub struct Diagnosis {
     pub rivals: Vec<Rival>,
     /// What is named: one change, or effects the data cannot tell apart (empty: nothing).
     pub named: Vec<String>,
+    /// A refinement the data name first, and whether its main effect is named in its place
+    /// ([`hierarchy`]).
+    pub refinement: Option<hierarchy::Refinement>,
     /// The `kincal calibrate` options of what is named first.
     pub action: Option<String>,
     /// The change of what is named first.
@@ -308,19 +313,23 @@ pub fn diagnose(
         baseline_rms_mm: baseline.rms_mm,
     };
     let (rivals, mut named) = sequence::rivals(&contest, evidence.as_ref());
+    let (main_first, mut refinement) = hierarchy::main_first(&named, &candidates, model);
     // A held-out session's own data error (its tool moved, its probe turned) spoils the held-out
     // test of every arm effect: it is named alone, and no arm effect is claimed.
     let held_out_error = flagged.held_out_tools.iter().find(|t| t.significant).and_then(|t| t.change.clone());
     let change = match (sequence::named_data_error(&data_errors, &candidates, &named), held_out_error) {
         (Some(d), _) => {
             named = vec![d.name.clone()];
+            refinement = None;
             Some(d.change.clone())
         }
         (None, Some(change)) => {
             named = vec![change.name()];
+            refinement = None;
             Some(change)
         }
         (None, None) => {
+            named = main_first;
             named.first().and_then(|n| candidates.iter().find(|c| c.name == *n)).map(|c| c.change.clone())
         }
     };
@@ -341,6 +350,7 @@ pub fn diagnose(
         held_out_tools: flagged.held_out_tools,
         rivals,
         named,
+        refinement,
         action: change.as_ref().map(Change::action),
         change,
         not_identifiable,

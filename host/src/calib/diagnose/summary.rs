@@ -6,6 +6,7 @@ use super::words::mm;
 use super::{Candidate, Diagnosis, Measure};
 use crate::calib::floor::Gap;
 use crate::calib::setup::{Change, Setup};
+use crate::model::tree::Tree;
 
 /// Held-out units below which the summary says the test rests on too few numbers.
 const MIN_UNITS: usize = 5;
@@ -53,15 +54,21 @@ fn tip_mass_line(d: &Diagnosis) -> Option<String> {
 }
 
 /// For rivals the data cannot tell apart that are joint compliance under the link masses
-/// (`sag`, `sag:J`) and lateral compliance (`bend`, `bend:J`) of the same joints: why they look
-/// alike, and that they are rivals, not one effect.
-fn deflection_rivals_line(rivals: &[super::Rival]) -> Option<String> {
+/// (`sag`, `sag:J`) and lateral compliance (`bend`, `bend:J`) of the same joints, or of joints
+/// next to each other in `tree` (`bend:J` turns the chain as `sag` of the joint after or before
+/// it does where their axes meet at a right angle): why they look alike, and that they are
+/// rivals, not one effect.
+fn deflection_rivals_line(rivals: &[super::Rival], tree: &Tree) -> Option<String> {
     use crate::model::effects::{Effect, EffectKind};
+    let near = |a: Option<usize>, b: Option<usize>| match (a, b) {
+        (Some(a), Some(b)) => a == b || tree.parent(a) == Some(b) || tree.parent(b) == Some(a),
+        (a, b) => a == b,
+    };
     let r = rivals.iter().filter(|r| r.verdict == RivalVerdict::CannotTell).find(|r| {
         match (Effect::parse(&r.a), Effect::parse(&r.b)) {
             (Some(a), Some(b)) => {
                 let kinds = [a.kind, b.kind];
-                kinds.contains(&EffectKind::Sag) && kinds.contains(&EffectKind::Bend) && a.joint == b.joint
+                kinds.contains(&EffectKind::Sag) && kinds.contains(&EffectKind::Bend) && near(a.joint, b.joint)
             }
             _ => false,
         }
@@ -127,7 +134,9 @@ pub(super) fn lines(d: &Diagnosis, setup: &Setup, with: Option<&Gap>) -> Vec<Str
                 d.named.join(" or "),
                 detail.join("; ")
             ));
-            lines.extend(deflection_rivals_line(&d.rivals));
+            let chain = Tree::default();
+            lines.extend(deflection_rivals_line(&d.rivals, d.model.as_ref().map_or(&chain, |m| &m.tree)));
+            lines.extend(d.refinement.as_ref().map(|r| r.line()));
             for n in &d.named {
                 if let Some(c) = d.candidate(n) {
                     lines.push(format!("  {} — {}", c.name, c.evidence));
@@ -146,6 +155,7 @@ pub(super) fn lines(d: &Diagnosis, setup: &Setup, with: Option<&Gap>) -> Vec<Str
                 format!(" (these data cannot tell it from {})", c.equivalent.join(", "))
             };
             lines.push(format!("missing effect: {} — {}{same}", c.name, c.evidence));
+            lines.extend(d.refinement.as_ref().map(|r| r.line()));
             for r in &d.rivals {
                 match &r.verdict {
                     RivalVerdict::Proxy { cause, proxy } => lines.push(format!(
@@ -235,19 +245,23 @@ mod tests {
         }
     }
 
-    /// Joint compliance and lateral compliance of the same joints that the data cannot tell apart
-    /// are stated as rivals, with why they look alike; other pairs, other joints or a verdict the
-    /// data reached are not.
+    /// Joint compliance and lateral compliance of the same joints, or of neighbours in the chain,
+    /// that the data cannot tell apart are stated as rivals, with why they look alike; other
+    /// pairs, joints apart or a verdict the data reached are not.
     #[test]
     fn sag_and_bend_the_data_cannot_tell_apart_are_stated_as_rivals() {
-        for (a, b) in [("bend", "sag"), ("sag:5", "bend:5")] {
-            let line = deflection_rivals_line(&[rival(a, b, RivalVerdict::CannotTell)]).expect("a line");
+        // Two branches on joint 1 (0-based 0): joints 2-3 and joints 4-5.
+        let tree = Tree { parents: vec![None, Some(0), Some(1), Some(0), Some(3)], ..Tree::default() };
+        for (a, b) in [("bend", "sag"), ("sag:5", "bend:5"), ("sag:3", "bend:2"), ("bend:4", "sag:1")] {
+            let line = deflection_rivals_line(&[rival(a, b, RivalVerdict::CannotTell)], &tree).expect("a line");
             let sag = if a.starts_with("sag") { a } else { b };
             assert!(line.starts_with(&format!("{sag} and ")), "{line}");
             assert!(line.contains("are rivals") && line.contains("torque about the other"), "{line}");
         }
-        assert_eq!(deflection_rivals_line(&[rival("sag:5", "bend:6", RivalVerdict::CannotTell)]), None);
-        assert_eq!(deflection_rivals_line(&[rival("sag", "eccentricity:2", RivalVerdict::CannotTell)]), None);
-        assert_eq!(deflection_rivals_line(&[rival("bend", "sag", RivalVerdict::Both)]), None);
+        for (a, b) in [("sag:4", "bend:3"), ("sag:2", "bend:4"), ("sag:5", "bend:3"), ("sag", "bend:2")] {
+            assert_eq!(deflection_rivals_line(&[rival(a, b, RivalVerdict::CannotTell)], &tree), None, "{a} {b}");
+        }
+        assert_eq!(deflection_rivals_line(&[rival("sag", "eccentricity:2", RivalVerdict::CannotTell)], &tree), None);
+        assert_eq!(deflection_rivals_line(&[rival("bend", "sag", RivalVerdict::Both)], &tree), None);
     }
 }

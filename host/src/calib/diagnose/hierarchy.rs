@@ -68,7 +68,11 @@ fn missing_main(effect: Effect, model: &ArmModel) -> Option<(Effect, &'static st
 /// Apply the rule (see the module doc) to the effects `named` (leader first) among `candidates`,
 /// for the calibrated `model`: the names in the order the diagnosis gives them, and what the rule
 /// did, if anything.
-pub fn main_first(named: &[String], candidates: &[Candidate], model: &ArmModel) -> (Vec<String>, Option<Refinement>) {
+pub fn main_first(
+    named: &[String],
+    candidates: &[Candidate],
+    model: &ArmModel,
+) -> (Vec<String>, Option<Refinement>) {
     let unchanged = || (named.to_vec(), None);
     let Some(lead) = named.first().and_then(|n| Effect::parse(n)) else { return unchanged() };
     let Some((main, why)) = missing_main(lead, model) else { return unchanged() };
@@ -143,7 +147,14 @@ mod tests {
         let (order, r) = main_first(&names(&["bend"]), &scored, &model);
         assert_eq!(order, names(&["sag"]));
         let r = r.expect("the rule applied");
-        assert!(r.main_first && r.line().starts_with("bend is offered once sag is in the model: lateral compliance refines joint compliance"), "{}", r.line());
+        assert!(
+            r.main_first
+                && r.line().starts_with(
+                    "bend is offered once sag is in the model: lateral compliance refines joint compliance"
+                ),
+            "{}",
+            r.line()
+        );
         let (order, _) = main_first(&names(&["bend", "sag"]), &scored, &model);
         assert_eq!(order, names(&["sag", "bend"]));
         let (order, _) = main_first(&names(&["bend", "eccentricity:2"]), &scored, &model);
@@ -156,11 +167,18 @@ mod tests {
         assert_eq!(order, names(&["bend"]));
         let r = r.expect("the rule is stated");
         assert!(!r.main_first && r.line().starts_with("bend is named without sag"), "{}", r.line());
-        assert_eq!(main_first(&names(&["bend"]), &scored[..1], &model).0, names(&["bend"]), "sag not determined");
+        assert_eq!(
+            main_first(&names(&["bend"]), &scored[..1], &model).0,
+            names(&["bend"]),
+            "sag not determined"
+        );
 
         let mut with_sag = model.clone();
         Effect::parse("sag").expect("sag").add_to(&mut with_sag);
         assert_eq!(main_first(&names(&["bend"]), &scored, &with_sag), (names(&["bend"]), None));
-        assert_eq!(main_first(&names(&["eccentricity:2"]), &scored, &model), (names(&["eccentricity:2"]), None));
+        assert_eq!(
+            main_first(&names(&["eccentricity:2"]), &scored, &model),
+            (names(&["eccentricity:2"]), None)
+        );
     }
 }

@@ -68,7 +68,9 @@ fn deflection_rivals_line(rivals: &[super::Rival], tree: &Tree) -> Option<String
         match (Effect::parse(&r.a), Effect::parse(&r.b)) {
             (Some(a), Some(b)) => {
                 let kinds = [a.kind, b.kind];
-                kinds.contains(&EffectKind::Sag) && kinds.contains(&EffectKind::Bend) && near(a.joint, b.joint)
+                kinds.contains(&EffectKind::Sag)
+                    && kinds.contains(&EffectKind::Bend)
+                    && near(a.joint, b.joint)
             }
             _ => false,
         }
@@ -253,15 +255,23 @@ mod tests {
         // Two branches on joint 1 (0-based 0): joints 2-3 and joints 4-5.
         let tree = Tree { parents: vec![None, Some(0), Some(1), Some(0), Some(3)], ..Tree::default() };
         for (a, b) in [("bend", "sag"), ("sag:5", "bend:5"), ("sag:3", "bend:2"), ("bend:4", "sag:1")] {
-            let line = deflection_rivals_line(&[rival(a, b, RivalVerdict::CannotTell)], &tree).expect("a line");
+            let line =
+                deflection_rivals_line(&[rival(a, b, RivalVerdict::CannotTell)], &tree).expect("a line");
             let sag = if a.starts_with("sag") { a } else { b };
             assert!(line.starts_with(&format!("{sag} and ")), "{line}");
             assert!(line.contains("are rivals") && line.contains("torque about the other"), "{line}");
         }
         for (a, b) in [("sag:4", "bend:3"), ("sag:2", "bend:4"), ("sag:5", "bend:3"), ("sag", "bend:2")] {
-            assert_eq!(deflection_rivals_line(&[rival(a, b, RivalVerdict::CannotTell)], &tree), None, "{a} {b}");
+            assert_eq!(
+                deflection_rivals_line(&[rival(a, b, RivalVerdict::CannotTell)], &tree),
+                None,
+                "{a} {b}"
+            );
         }
-        assert_eq!(deflection_rivals_line(&[rival("sag", "eccentricity:2", RivalVerdict::CannotTell)], &tree), None);
+        assert_eq!(
+            deflection_rivals_line(&[rival("sag", "eccentricity:2", RivalVerdict::CannotTell)], &tree),
+            None
+        );
         assert_eq!(deflection_rivals_line(&[rival("bend", "sag", RivalVerdict::Both)], &tree), None);
     }
 }

@@ -206,12 +206,10 @@ pub(super) fn solve_from_starts(
     let solved: Vec<(StartOutcome, solver::Solution)> = points
         .par_iter()
         .map(|(start, x0)| {
-            let mut r0 = vec![0.0; problem.len()];
-            problem.evaluate(x0, &mut r0, None);
             let s = solver::solve(problem, x0, lower, upper, options);
             let outcome = StartOutcome {
                 start: *start,
-                initial_cost: options.loss.cost(&r0),
+                initial_cost: initial_cost(problem, x0, lower, upper, &s, options.loss),
                 final_cost: s.cost,
                 iterations: s.iterations,
                 stop: s.stop,
@@ -229,6 +227,25 @@ pub(super) fn solve_from_starts(
     }
     let best = best.unwrap_or_else(|| solver::solve(problem, x_nominal, lower, upper, options));
     (best, outcomes)
+}
+
+/// The cost at `x0`: the solve's own first evaluation when `x0` lies inside the bounds (the
+/// solver starts at `x0` clamped), else an evaluation at `x0`.
+pub(super) fn initial_cost(
+    problem: &Problem,
+    x0: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    solution: &solver::Solution,
+    loss: Loss,
+) -> f64 {
+    let inside = x0.iter().zip(lower.iter().zip(upper)).all(|(v, (l, u))| l <= v && v <= u);
+    if inside {
+        return solution.initial_cost;
+    }
+    let mut r0 = vec![0.0; problem.len()];
+    problem.evaluate(x0, &mut r0, None);
+    loss.cost(&r0)
 }
 
 /// The start points `starts`: 0 the nominal values, k ≥ 1 the k-th seeded random point inside the

@@ -187,6 +187,19 @@ pub fn solve(
     upper: &[f64],
     options: &SolverOptions,
 ) -> Solution {
+    solve_from(problem, x0, lower, upper, options, None)
+}
+
+/// [`solve`], with the normal matrix and gradient at `x0` (inside the bounds) given when the
+/// caller has them (`first`): the solve then evaluates only the residuals there.
+pub fn solve_from(
+    problem: &dyn Residuals,
+    x0: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    options: &SolverOptions,
+    first: Option<(DMatrix<f64>, DVector<f64>)>,
+) -> Solution {
     let n = x0.len();
     let m = problem.len();
     let loss = options.loss;
@@ -200,7 +213,13 @@ pub fn solve(
     clamp(&mut x);
     // The residuals at x, always (a step taken swaps in its point's).
     let mut r = vec![0.0; m];
-    let (mut h, mut g) = problem.normal_equations(&x, &mut r, loss);
+    let (mut h, mut g) = match first {
+        Some(given) => {
+            problem.evaluate(&x, &mut r, None);
+            given
+        }
+        None => problem.normal_equations(&x, &mut r, loss),
+    };
     let mut cost = loss.cost(&r);
     let initial_cost = cost;
     let mut lambda = options.termination.initial_damping();

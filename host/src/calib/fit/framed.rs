@@ -53,6 +53,18 @@ fn unsolved(number: usize) -> StartOutcome {
 /// solution with the frames' rotations (and the probe's) re-centred, while a solve stops without
 /// converging (up to [`PASSES`] passes).
 pub(super) fn solve_framed(pieces: &Pieces, estimated: &[ParamId], start: Solved, number: usize) -> Solved {
+    solve_framed_from(pieces, estimated, start, number, None)
+}
+
+/// [`solve_framed`], the first pass' normal equations at `start` given by `first` (from the
+/// session sums of the solution it starts at) when it can give them.
+pub(super) fn solve_framed_from(
+    pieces: &Pieces,
+    estimated: &[ParamId],
+    start: Solved,
+    number: usize,
+    first: Option<&SessionSums>,
+) -> Solved {
     let options = SolverOptions { loss: pieces.resolved.loss, ..FRAMED_SOLVER };
     let mut s = Solved { outcome: unsolved(number), ..start };
     let mut last_cost = f64::INFINITY;
@@ -61,7 +73,8 @@ pub(super) fn solve_framed(pieces: &Pieces, estimated: &[ParamId], start: Solved
         let n = problem.layout.unknowns();
         let x0 = pieces.x_of(&problem, &s.model, &s.frames, &s.tools, &s.drifts);
         let (lower, upper) = pieces.bounds(estimated, n);
-        let solution = solver::solve(&problem, &x0, &lower, &upper, &options);
+        let given = first.filter(|_| pass == 0).and_then(|sums| sums.normal_at_start(pieces, &problem));
+        let solution = solver::solve_from(&problem, &x0, &lower, &upper, &options, given);
         if pass == 0 {
             s.outcome.initial_cost = initial_cost(&problem, &x0, &lower, &upper, &solution, options.loss);
         }
@@ -132,6 +145,7 @@ pub(super) fn calibrate_framed(
     nominal: &ArmModel,
     pieces: &Pieces,
     warm: Option<&Fit>,
+    sums: Option<&SessionSums>,
 ) -> Result<Fit, CalibError> {
     let data = pieces.data;
     let model = &pieces.model;
@@ -206,7 +220,8 @@ pub(super) fn calibrate_framed(
             let at_minimum =
                 matches!(start.outcome.stop, StopReason::StepConverged | StopReason::GradientConverged);
             let nothing_else = !pieces.floated.iter().any(|f| *f) && pieces.drift.iter().all(Option::is_none);
-            solved_already = tool_turns && !tool.is_empty() && estimated == tool && nothing_else && at_minimum;
+            solved_already =
+                tool_turns && !tool.is_empty() && estimated == tool && nothing_else && at_minimum;
             if !solved_already {
                 // The tool's first fit only placed the tool point: tools and drifts start at zero.
                 start = Solved::at(start.model, start.frames, start.probe, data);
@@ -219,7 +234,9 @@ pub(super) fn calibrate_framed(
     for id in &fixed {
         start.model.set(*id, model.get(*id));
     }
-    let mut solved = if solved_already { start } else { solve_framed(pieces, &estimated, start, 0) };
+    let first = sums.filter(|_| warm.is_some());
+    let mut solved =
+        if solved_already { start } else { solve_framed_from(pieces, &estimated, start, 0, first) };
     let restarts = pieces.resolved.restarts;
     let mut starts = vec![solved.outcome.clone()];
     if restarts > 0 {

@@ -80,6 +80,29 @@ impl<'a> Pieces<'a> {
         Ok(Pieces { data, model, terms, framed, floated, drift, resolved, sin_cos })
     }
 
+    /// These pieces on `sub`, block `b`'s observations alone (`data.without` every other block,
+    /// which keeps the groups): the same model, options and unknowns, so that each of its terms
+    /// is the term of these pieces on the same observation.
+    pub(super) fn for_block<'s>(&self, b: usize, sub: &'s Observations) -> Pieces<'s> {
+        let choice = TermChoice {
+            relative_orientation_lever_mm: self.resolved.relative_lever_mm,
+            orientation_weight_mm_per_rad: self.resolved.orientation_weight_mm_per_rad,
+            point_weight: self.resolved.point_weight,
+        };
+        let terms = terms::build(sub, &choice);
+        let sin_cos = encoder_table(sub, &terms);
+        Pieces {
+            data: sub,
+            model: self.model.clone(),
+            terms,
+            framed: vec![self.framed[b]; sub.blocks.len()],
+            floated: self.floated.clone(),
+            drift: vec![self.drift[b].map(|d| DriftSlot { column: 0, ..d }); sub.blocks.len()],
+            resolved: self.resolved,
+            sin_cos,
+        }
+    }
+
     /// Whether any block or group has unknowns of its own (frames, floated tools, drifts).
     pub(super) fn blocked(&self) -> bool {
         self.framed.iter().chain(&self.floated).any(|f| *f) || self.drift.iter().any(Option::is_some)

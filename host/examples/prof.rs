@@ -3,7 +3,9 @@
 //! `cargo run --release -p kincal --example prof -- MODE [N]`, MODE one of `artefact` (nominal +
 //! 8 restarts), `one` (nominal start), `tracker` (one calibration of the bench arm's 5 sessions),
 //! `fk` (one pose with and without its Jacobian), `evals` (one residual and one normal-equation
-//! evaluation of each problem), or `write DIR` (the problems' files, for `kincal calibrate`).
+//! evaluation of each problem), `write DIR` (the problems' files, for `kincal calibrate`), or
+//! `steps DIR [N]` (the run of `kincal calibrate` on `write`'s tracker files, in the library, N
+//! times: the median CPU time of the whole run and the wall time of each of its steps).
 //!
 //! The tracker problem is `kincal bench`'s ([`kincal::calib::bench_problem`]).
 use anyhow::{Context, Result};
@@ -62,6 +64,25 @@ fn main() -> Result<()> {
             let (nom, sim) = kincal::calib::peer::thesis_sized_problem(1);
             sim.write(&dir.join("art"))?;
             nom.save(&dir.join("art/nominal.toml"))?;
+        }
+        "steps" => {
+            let dir = Path::new(args.get(2).context("steps DIR")?);
+            let n: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(10);
+            let inputs = kincal::calib::summary::RunInputs {
+                model: dir.join("nominal.toml"),
+                calibration: dir.join("cal"),
+                validation: dir.join("val"),
+                ..Default::default()
+            };
+            let mut runs = vec![];
+            for _ in 0..n {
+                let c = cpu_ms();
+                let run = kincal::calib::run::run(&inputs, &SolveOptions::default(), 0, true)?;
+                runs.push((cpu_ms() - c, run.steps.ms));
+            }
+            runs.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let (cpu, steps) = &runs[runs.len() / 2];
+            println!("whole run (median of {n}): {cpu:.1} ms CPU; steps (wall ms) {steps:?}");
         }
         "tracker" => {
             let (nominal, cal, _) = bench_problem::problem();

@@ -17,7 +17,7 @@
 //! A unit is flagged when at least two metrics exceed their thresholds.
 
 use crate::calib::diagnose::Measure;
-use crate::calib::fit::{refit, Fit};
+use crate::calib::fit::{refit, refit_with, Fit, SessionSums};
 use crate::calib::setup::Setup;
 use crate::calib::validate::{
     distance_errors, fit_session_with_tool, placement_residuals, session_residuals,
@@ -146,6 +146,8 @@ pub fn outliers(fit: &Fit, cal: &Observations, val: Option<&Observations>, setup
             .map(|(v, _)| *v)
             .collect()
     };
+    // A session's refit starts from the other sessions' normal equations at the fit's solution.
+    let sums = SessionSums::of(&fit.model, fit, cal, &options);
     let all_points: Vec<f64> =
         full.iter().zip(&owners).filter(|(_, o)| o[0] >= cal.landmarks.len()).map(|(v, _)| *v).collect();
     units
@@ -172,7 +174,11 @@ pub fn outliers(fit: &Fit, cal: &Observations, val: Option<&Observations>, setup
                 }
             };
             let contribution_pct = 100.0 * own / (share * total);
-            let (cooks_distance, loo_impact_pct) = match refit(fit, &without, &options) {
+            let refitted = match (&sums, u) {
+                (Some(sums), Unit::Session(_)) => refit_with(sums, &without, &options),
+                _ => refit(fit, &without, &options),
+            };
+            let (cooks_distance, loo_impact_pct) = match refitted {
                 Ok(model) => {
                     let (moved, _) = rows(&model, cal, setup);
                     let change: f64 = full.iter().zip(&moved).map(|(a, b)| (a - b).powi(2)).sum();

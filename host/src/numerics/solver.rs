@@ -154,6 +154,12 @@ pub struct Solution {
     pub iterations: usize,
     /// Why it stopped.
     pub stop: StopReason,
+    /// Cost Σρ(r) at the start (`x0` clamped into the bounds).
+    pub initial_cost: f64,
+    /// The normal matrix JᵀWJ at `x` when the solve's last Jacobian evaluation was at `x` (it
+    /// stopped on a negligible step, a vanished gradient or a rejected step): the covariance at
+    /// the solution needs no evaluation more. `None` when its last step moved `x`.
+    pub normal_at_x: Option<DMatrix<f64>>,
 }
 
 /// Normal matrix JᵀWJ and gradient JᵀWr of a row-major Jacobian with per-row weights.
@@ -181,6 +187,19 @@ pub fn solve(
     upper: &[f64],
     options: &SolverOptions,
 ) -> Solution {
+    solve_from(problem, x0, lower, upper, options, None)
+}
+
+/// [`solve`], with the normal matrix and gradient at `x0` (inside the bounds) given when the
+/// caller has them (`first`): the solve then evaluates only the residuals there.
+pub fn solve_from(
+    problem: &dyn Residuals,
+    x0: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    options: &SolverOptions,
+    first: Option<(DMatrix<f64>, DVector<f64>)>,
+) -> Solution {
     let n = x0.len();
     let m = problem.len();
     let loss = options.loss;
@@ -194,8 +213,15 @@ pub fn solve(
     clamp(&mut x);
     // The residuals at x, always (a step taken swaps in its point's).
     let mut r = vec![0.0; m];
-    let (mut h, mut g) = problem.normal_equations(&x, &mut r, loss);
+    let (mut h, mut g) = match first {
+        Some(given) => {
+            problem.evaluate(&x, &mut r, None);
+            given
+        }
+        None => problem.normal_equations(&x, &mut r, loss),
+    };
     let mut cost = loss.cost(&r);
+    let initial_cost = cost;
     let mut lambda = options.termination.initial_damping();
     let mut nu = 2.0;
     let mut trial = vec![0.0; n];
@@ -255,6 +281,7 @@ pub fn solve(
             if actual > 0.0 {
                 x.copy_from_slice(&trial);
                 std::mem::swap(&mut r, &mut r_trial);
+                need_jacobian = true;
             }
             break StopReason::CostConverged;
         }
@@ -284,7 +311,9 @@ pub fn solve(
         // Evaluated again as these results were generated (the same values).
         problem.evaluate(&x, &mut r, None);
     }
-    Solution { cost: loss.cost(&r), x, residuals: r, iterations, stop }
+    // `need_jacobian`: a step was taken since the last evaluation of the normal equations.
+    let normal_at_x = (!need_jacobian).then_some(h);
+    Solution { cost: loss.cost(&r), x, residuals: r, iterations, stop, initial_cost, normal_at_x }
 }
 
 #[cfg(test)]

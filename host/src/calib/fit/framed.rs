@@ -13,6 +13,9 @@ pub(super) struct Solved {
     pub(super) probe: Option<Matrix3<f64>>,
     pub(super) drifts: Vec<Vec<f64>>,
     pub(super) outcome: StartOutcome,
+    /// The last pass' residuals at the solution and, when its last Jacobian evaluation was there,
+    /// its normal matrix (see [`solver::Solution::normal_at_x`]).
+    pub(super) at_solution: Option<(Vec<f64>, Option<nalgebra::DMatrix<f64>>)>,
 }
 
 impl Solved {
@@ -30,6 +33,7 @@ impl Solved {
             probe,
             drifts: vec![Vec::new(); data.blocks.len()],
             outcome: unsolved(0),
+            at_solution: None,
         }
     }
 }
@@ -49,6 +53,18 @@ fn unsolved(number: usize) -> StartOutcome {
 /// solution with the frames' rotations (and the probe's) re-centred, while a solve stops without
 /// converging (up to [`PASSES`] passes).
 pub(super) fn solve_framed(pieces: &Pieces, estimated: &[ParamId], start: Solved, number: usize) -> Solved {
+    solve_framed_from(pieces, estimated, start, number, None)
+}
+
+/// [`solve_framed`], the first pass' normal equations at `start` given by `first` (from the
+/// session sums of the solution it starts at) when it can give them.
+pub(super) fn solve_framed_from(
+    pieces: &Pieces,
+    estimated: &[ParamId],
+    start: Solved,
+    number: usize,
+    first: Option<&SessionSums>,
+) -> Solved {
     let options = SolverOptions { loss: pieces.resolved.loss, ..FRAMED_SOLVER };
     let mut s = Solved { outcome: unsolved(number), ..start };
     let mut last_cost = f64::INFINITY;
@@ -57,12 +73,11 @@ pub(super) fn solve_framed(pieces: &Pieces, estimated: &[ParamId], start: Solved
         let n = problem.layout.unknowns();
         let x0 = pieces.x_of(&problem, &s.model, &s.frames, &s.tools, &s.drifts);
         let (lower, upper) = pieces.bounds(estimated, n);
+        let given = first.filter(|_| pass == 0).and_then(|sums| sums.normal_at_start(pieces, &problem));
+        let solution = solver::solve_from(&problem, &x0, &lower, &upper, &options, given);
         if pass == 0 {
-            let mut r0 = vec![0.0; problem.len()];
-            problem.evaluate(&x0, &mut r0, None);
-            s.outcome.initial_cost = options.loss.cost(&r0);
+            s.outcome.initial_cost = initial_cost(&problem, &x0, &lower, &upper, &solution, options.loss);
         }
-        let solution = solver::solve(&problem, &x0, &lower, &upper, &options);
         s.outcome.iterations += solution.iterations;
         s.outcome.stop = solution.stop;
         s.outcome.final_cost = solution.cost;
@@ -72,6 +87,7 @@ pub(super) fn solve_framed(pieces: &Pieces, estimated: &[ParamId], start: Solved
         s.probe = s.probe.map(|_| state.probe);
         s.drifts = state.drifts;
         s.model = state.model;
+        s.at_solution = Some((solution.residuals, solution.normal_at_x));
         // The rotations' Jacobians are exact at any ω (J_l): a solve that stopped on a tolerance
         // is at the minimum; another pass re-centres one that hit its limit or lost progress.
         let settled = matches!(
@@ -129,6 +145,7 @@ pub(super) fn calibrate_framed(
     nominal: &ArmModel,
     pieces: &Pieces,
     warm: Option<&Fit>,
+    sums: Option<&SessionSums>,
 ) -> Result<Fit, CalibError> {
     let data = pieces.data;
     let model = &pieces.model;
@@ -163,6 +180,8 @@ pub(super) fn calibrate_framed(
     // coincidence of the CAD values; decided at the fitted one, only what the data cannot
     // determine is held.
     let tool: Vec<ParamId> = all.iter().copied().filter(|p| matches!(p, ParamId::Tcp(_))).collect();
+    // `start` is already the nominal start's solution (see below).
+    let mut solved_already = false;
     let (before, estimated, fixed, statements) = match warm {
         // A refit keeps the base set of the solution it starts from.
         Some(warm) => {
@@ -194,8 +213,19 @@ pub(super) fn calibrate_framed(
             let probe_turns = full.layout.rotation_column().is_some();
             let statements =
                 identify::explain(&all, &raw, &projected, probe_turns, &fixed, &spreads, &ranges);
-            // The tool's first fit only placed the tool point: tools and drifts start at zero.
-            start = Solved::at(start.model, start.frames, start.probe, data);
+            // With the tool point all there is to estimate (no floated tool, no drift) and its
+            // first fit stopped at its last evaluation (a negligible step or a vanished
+            // gradient), that fit is the nominal start's solve: solving again from its solution
+            // would evaluate the same point and stop there.
+            let at_minimum =
+                matches!(start.outcome.stop, StopReason::StepConverged | StopReason::GradientConverged);
+            let nothing_else = !pieces.floated.iter().any(|f| *f) && pieces.drift.iter().all(Option::is_none);
+            solved_already =
+                tool_turns && !tool.is_empty() && estimated == tool && nothing_else && at_minimum;
+            if !solved_already {
+                // The tool's first fit only placed the tool point: tools and drifts start at zero.
+                start = Solved::at(start.model, start.frames, start.probe, data);
+            }
             (before, estimated, fixed, statements)
         }
     };
@@ -204,7 +234,9 @@ pub(super) fn calibrate_framed(
     for id in &fixed {
         start.model.set(*id, model.get(*id));
     }
-    let mut solved = solve_framed(pieces, &estimated, start, 0);
+    let first = sums.filter(|_| warm.is_some());
+    let mut solved =
+        if solved_already { start } else { solve_framed_from(pieces, &estimated, start, 0, first) };
     let restarts = pieces.resolved.restarts;
     let mut starts = vec![solved.outcome.clone()];
     if restarts > 0 {
@@ -233,10 +265,22 @@ pub(super) fn calibrate_framed(
     }
     // Uncertainty at the solution (frames, floated tools and drifts marginalised).
     let problem = pieces.problem(estimated.clone(), &solved.model, &solved.frames, solved.probe);
-    let x = pieces.x_of(&problem, &solved.model, &solved.frames, &solved.tools, &solved.drifts);
-    let mut r = vec![0.0; problem.len()];
     let loss = pieces.resolved.loss;
-    let (normal, _) = problem.normal_equations(&x, &mut r, loss);
+    // The solve's last normal matrix when it was taken at the solution. Its frames' rotation
+    // columns are those of the pass' own centring, T·(these), T invertible block by block; the
+    // inverse's blocks of every other unknown (arm, tools, drifts) do not depend on T, so they
+    // equal those of an evaluation centred at the solution. The probe's rotation block would, so
+    // with a probe rotation the normal matrix is evaluated again.
+    let reused = match solved.at_solution.take() {
+        Some((r, Some(normal))) if problem.layout.rotation_column().is_none() => Some((r, normal)),
+        _ => None,
+    };
+    let (r, normal) = reused.unwrap_or_else(|| {
+        let x = pieces.x_of(&problem, &solved.model, &solved.frames, &solved.tools, &solved.drifts);
+        let mut r = vec![0.0; problem.len()];
+        let (normal, _) = problem.normal_equations(&x, &mut r, loss);
+        (r, normal)
+    });
     let n = problem.layout.unknowns();
     let dof = (r.len() as f64 - n as f64).max(1.0);
     let variance = r.iter().map(|&v| loss.weight(v) * v * v).sum::<f64>() / dof;

@@ -205,6 +205,7 @@ mod dense;
 mod framed;
 mod outcome;
 mod pieces;
+mod shared;
 #[cfg(test)]
 mod tests;
 
@@ -212,6 +213,7 @@ use dense::*;
 use framed::*;
 use outcome::*;
 use pieces::*;
+pub use shared::SessionSums;
 
 /// Every refusal of `data` for calibrating `model` before any solving: the joint count, a session
 /// too small for its frame, no free parameter, too few residuals, non-finite positions, or
@@ -250,7 +252,7 @@ pub fn calibrate(nominal: &ArmModel, data: &Observations, options: &SolveOptions
     }
     let pieces = Pieces::new(nominal, data, options)?;
     if pieces.blocked() {
-        calibrate_framed(nominal, &pieces, None)
+        calibrate_framed(nominal, &pieces, None, None)
     } else {
         calibrate_dense(nominal, &pieces, options)
     }
@@ -269,12 +271,33 @@ pub fn recalibrate(
     options: &SolveOptions,
     warm: &Fit,
 ) -> Result<Fit, CalibError> {
+    recalibrate_from(nominal, data, options, warm, None)
+}
+
+/// [`recalibrate`] from `sums.fit()`, its first normal equations assembled from `sums` (see
+/// [`SessionSums`]): the same solve, one evaluation of every session fewer.
+pub fn recalibrate_with(
+    nominal: &ArmModel,
+    data: &Observations,
+    options: &SolveOptions,
+    sums: &SessionSums,
+) -> Result<Fit, CalibError> {
+    recalibrate_from(nominal, data, options, sums.fit(), Some(sums))
+}
+
+fn recalibrate_from(
+    nominal: &ArmModel,
+    data: &Observations,
+    options: &SolveOptions,
+    warm: &Fit,
+    sums: Option<&SessionSums>,
+) -> Result<Fit, CalibError> {
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
-        return recalibrate(nominal, &own, options, warm);
+        return recalibrate_from(nominal, &own, options, warm, sums);
     }
     let pieces = Pieces::new(nominal, data, options)?;
     if pieces.blocked() {
-        calibrate_framed(nominal, &pieces, Some(warm))
+        calibrate_framed(nominal, &pieces, Some(warm), sums)
     } else {
         calibrate_dense(nominal, &pieces, options)
     }
@@ -289,7 +312,7 @@ pub fn solve_warm(
     data: &Observations,
     options: &SolveOptions,
 ) -> Result<ArmModel, CalibError> {
-    solve_warm_from(start, params, data, options, None)
+    solve_warm_from(start, params, data, options, None, None)
 }
 
 /// [`solve_warm`], with block unknowns started at `warm`'s solution when given (else the frames
@@ -300,9 +323,10 @@ fn solve_warm_from(
     data: &Observations,
     options: &SolveOptions,
     warm: Option<&Fit>,
+    sums: Option<&SessionSums>,
 ) -> Result<ArmModel, CalibError> {
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
-        return solve_warm_from(start, params, &own, options, warm);
+        return solve_warm_from(start, params, &own, options, warm, sums);
     }
     let pieces = Pieces::new(start, data, options)?;
     if pieces.blocked() {
@@ -315,7 +339,7 @@ fn solve_warm_from(
                 Solved::at(start.clone(), frames, probe, data)
             }
         };
-        return Ok(solve_framed(&pieces, params, from, 0).model);
+        return Ok(solve_framed_from(&pieces, params, from, 0, sums.filter(|_| warm.is_some())).model);
     }
     let frames = vec![Frame::identity(); data.blocks.len()];
     let problem = pieces.problem(params.to_vec(), start, &frames, None);
@@ -364,5 +388,16 @@ pub fn dense_jacobian(
 /// starting from `fit`'s solution (its frames, tools, drifts and probe too): no identifiability
 /// analysis, no restarts, no uncertainty.
 pub fn refit(fit: &Fit, data: &Observations, options: &SolveOptions) -> Result<ArmModel, CalibError> {
-    solve_warm_from(&fit.model, &fit.estimated, data, options, Some(fit))
+    solve_warm_from(&fit.model, &fit.estimated, data, options, Some(fit), None)
+}
+
+/// [`refit`] of `sums.fit()`, its first normal equations assembled from `sums` (see
+/// [`SessionSums`]): the same solve, one evaluation of every session fewer.
+pub fn refit_with(
+    sums: &SessionSums,
+    data: &Observations,
+    options: &SolveOptions,
+) -> Result<ArmModel, CalibError> {
+    let fit = sums.fit();
+    solve_warm_from(&fit.model, &fit.estimated, data, options, Some(fit), Some(sums))
 }

@@ -80,6 +80,29 @@ impl<'a> Pieces<'a> {
         Ok(Pieces { data, model, terms, framed, floated, drift, resolved, sin_cos })
     }
 
+    /// These pieces on `sub`, block `b`'s observations alone (`data.without` every other block,
+    /// which keeps the groups): the same model, options and unknowns, so that each of its terms
+    /// is the term of these pieces on the same observation.
+    pub(super) fn for_block<'s>(&self, b: usize, sub: &'s Observations) -> Pieces<'s> {
+        let choice = TermChoice {
+            relative_orientation_lever_mm: self.resolved.relative_lever_mm,
+            orientation_weight_mm_per_rad: self.resolved.orientation_weight_mm_per_rad,
+            point_weight: self.resolved.point_weight,
+        };
+        let terms = terms::build(sub, &choice);
+        let sin_cos = encoder_table(sub, &terms);
+        Pieces {
+            data: sub,
+            model: self.model.clone(),
+            terms,
+            framed: vec![self.framed[b]; sub.blocks.len()],
+            floated: self.floated.clone(),
+            drift: vec![self.drift[b].map(|d| DriftSlot { column: 0, ..d }); sub.blocks.len()],
+            resolved: self.resolved,
+            sin_cos,
+        }
+    }
+
     /// Whether any block or group has unknowns of its own (frames, floated tools, drifts).
     pub(super) fn blocked(&self) -> bool {
         self.framed.iter().chain(&self.floated).any(|f| *f) || self.drift.iter().any(Option::is_some)
@@ -206,12 +229,10 @@ pub(super) fn solve_from_starts(
     let solved: Vec<(StartOutcome, solver::Solution)> = points
         .par_iter()
         .map(|(start, x0)| {
-            let mut r0 = vec![0.0; problem.len()];
-            problem.evaluate(x0, &mut r0, None);
             let s = solver::solve(problem, x0, lower, upper, options);
             let outcome = StartOutcome {
                 start: *start,
-                initial_cost: options.loss.cost(&r0),
+                initial_cost: initial_cost(problem, x0, lower, upper, &s, options.loss),
                 final_cost: s.cost,
                 iterations: s.iterations,
                 stop: s.stop,
@@ -229,6 +250,25 @@ pub(super) fn solve_from_starts(
     }
     let best = best.unwrap_or_else(|| solver::solve(problem, x_nominal, lower, upper, options));
     (best, outcomes)
+}
+
+/// The cost at `x0`: the solve's own first evaluation when `x0` lies inside the bounds (the
+/// solver starts at `x0` clamped), else an evaluation at `x0`.
+pub(super) fn initial_cost(
+    problem: &Problem,
+    x0: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    solution: &solver::Solution,
+    loss: Loss,
+) -> f64 {
+    let inside = x0.iter().zip(lower.iter().zip(upper)).all(|(v, (l, u))| l <= v && v <= u);
+    if inside {
+        return solution.initial_cost;
+    }
+    let mut r0 = vec![0.0; problem.len()];
+    problem.evaluate(x0, &mut r0, None);
+    loss.cost(&r0)
 }
 
 /// The start points `starts`: 0 the nominal values, k ≥ 1 the k-th seeded random point inside the

@@ -10,7 +10,7 @@ use nalgebra::{Rotation3, UnitQuaternion};
 
 /// A 7-joint arm with lengths and twists free (consistency of the solver with its own
 /// kinematics only; accuracy is tested on the independent generator in `tests/`).
-fn arm() -> ArmModel {
+pub(super) fn arm() -> ArmModel {
     let alpha = [-90.0, 90.0, -90.0, 90.0, -90.0, 90.0, 0.0];
     let d = [340.0, 0.0, 400.0, 0.0, 400.0, 0.0, 126.0];
     let mut model = ArmModel::suta_nominal();
@@ -26,7 +26,7 @@ fn arm() -> ArmModel {
 
 /// Three sessions of 40 noise-free points of `truth`, each seen from its own frame, with the
 /// probe's orientation when `probe` is given.
-fn sessions(truth: &ArmModel, probe: Option<Matrix3<f64>>) -> Observations {
+pub(super) fn sessions(truth: &ArmModel, probe: Option<Matrix3<f64>>) -> Observations {
     let mut data = Observations::new(7, Vec::new());
     for s in 0..3 {
         let group = data.push_group(format!("s{s}"), "s.csv".into(), Kind::Tracker);

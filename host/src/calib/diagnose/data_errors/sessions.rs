@@ -50,7 +50,7 @@
 
 use super::{DataError, DataErrorKind, DataSet};
 use crate::calib::diagnose::units::Measure;
-use crate::calib::fit::{recalibrate, Fit};
+use crate::calib::fit::{recalibrate, recalibrate_with, Fit, SessionSums};
 use crate::calib::nuisance::drift::{DriftKind, DriftSpec};
 use crate::calib::nuisance::frame::rotation_vector;
 use crate::calib::nuisance::tool::orientation_spread_deg;
@@ -345,6 +345,8 @@ pub fn data_error_candidates(
             .collect()
     };
     let cal_turning = turning(cal);
+    // Each refit starts from the other sessions' normal equations at the fit's solution.
+    let sums = (cal_turning.len() >= 2).then(|| SessionSums::of(nominal, fit, cal, options)).flatten();
     for &b in &cal_turning {
         if cal_turning.len() < 2 {
             break;
@@ -353,7 +355,11 @@ pub fn data_error_candidates(
         let mut float_tool = options.float_tool.clone();
         float_tool.push(name.clone());
         let floated = SolveOptions { float_tool: float_tool.clone(), ..options.clone() };
-        let Ok(refit) = recalibrate(nominal, cal, &floated, fit) else {
+        let refitted = match &sums {
+            Some(sums) => recalibrate_with(nominal, cal, &floated, sums),
+            None => recalibrate(nominal, cal, &floated, fit),
+        };
+        let Ok(refit) = refitted else {
             continue;
         };
         let Some(tool) = refit.tool_offsets.iter().find(|t| t.session == name) else { continue };

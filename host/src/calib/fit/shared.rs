@@ -1,0 +1,284 @@
+//! The normal equations of a fit's solution, session by session, shared by the refits that start
+//! there (the outlier metrics' leave-one-session-out refits, the data-error scoring's refits).
+//!
+//! Every row of a tracker session reads the arm's columns and its own session's unknowns (its
+//! frame, its group's floated tool, its drift, the probe's rotation) and no other, so the normal
+//! equations JᵀWJ and JᵀWr of any set of sessions at one point are the sum of each session's
+//! own. A refit from the fit's solution ([`super::warm_start`]) evaluates its first normal
+//! equations exactly there, with the same parametrisation (frames' rotations centred at the
+//! solution): they are assembled from the sessions' sums, taken once, and only a session whose
+//! unknowns differ in the refit (its tool floated) is evaluated again, alone. The sums are the same
+//! rows summed in another order; the refit goes on as before from there (exact, not a one-step
+//! approximation).
+
+use super::*;
+use nalgebra::{DMatrix, DVector};
+
+/// An unknown a session's rows read, named independently of the layout's column order.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Key {
+    Arm(ParamId),
+    Frame(usize),
+    Tool(usize),
+    Probe(usize),
+    Drift(usize),
+}
+
+/// Block `b`'s unknowns in `layout` (its group `g`), with their columns.
+fn keys(layout: &Layout, b: usize, g: usize) -> Vec<(Key, usize)> {
+    let mut out: Vec<(Key, usize)> =
+        layout.arm.iter().enumerate().map(|(c, &id)| (Key::Arm(id), c)).collect();
+    let mut run = |first: Option<usize>, width: usize, key: fn(usize) -> Key| {
+        if let Some(c) = first {
+            out.extend((0..width).map(|k| (key(k), c + k)));
+        }
+    };
+    run(layout.frame_column(b), FRAME_UNKNOWNS, Key::Frame);
+    run(layout.tool_column(g), 3, Key::Tool);
+    run(layout.rotation_column(), 3, Key::Probe);
+    let drift = layout.drift(b);
+    run(drift.map(|d| d.0), drift.map_or(0, |d| d.1.kind.unknowns()), Key::Drift);
+    out
+}
+
+/// One session's normal equations over its own unknowns.
+struct SessionSum {
+    name: String,
+    keys: Vec<Key>,
+    h: DMatrix<f64>,
+    g: DVector<f64>,
+}
+
+impl SessionSum {
+    /// Block `b` of `pieces` alone at `fit`'s solution, over the arm's `arm` columns; `None` when
+    /// its evaluation is not finite.
+    fn of(pieces: &Pieces, b: usize, fit: &Fit, arm: &[ParamId]) -> Option<SessionSum> {
+        let data = pieces.data;
+        let sub = data.without(|k| data.obs[k].block != b);
+        let alone = pieces.for_block(b, &sub);
+        let start = warm_start(&alone, fit);
+        let problem = alone.problem(arm.to_vec(), &start.model, &start.frames, start.probe);
+        let x = alone.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
+        let mut r = vec![0.0; problem.len()];
+        let (h, g) = problem.normal_equations(&x, &mut r, alone.resolved.loss);
+        let columns = keys(&problem.layout, 0, sub.blocks[0].group);
+        let keys = columns.iter().map(|k| k.0).collect();
+        let h = DMatrix::from_fn(columns.len(), columns.len(), |i, j| h[(columns[i].1, columns[j].1)]);
+        let g = DVector::from_iterator(columns.len(), columns.iter().map(|c| g[c.1]));
+        (h.iter().all(|v| v.is_finite()) && g.iter().all(|v| v.is_finite())).then(|| SessionSum {
+            name: data.block_name(b),
+            keys,
+            h,
+            g,
+        })
+    }
+}
+
+/// The normal equations of `fit`'s solution on a set of tracker sessions, session by session.
+pub struct SessionSums<'f> {
+    fit: &'f Fit,
+    resolved: Resolved,
+    sessions: Vec<SessionSum>,
+}
+
+impl<'f> SessionSums<'f> {
+    /// Each session of `data` at `fit`'s solution (`model` the refits' starting model), with
+    /// `options`; `None` unless every block of `data` is a session with a frame (no artefact
+    /// touches, whose distances are shared by no session's unknowns alone) or when a sum is not
+    /// finite.
+    pub fn of(
+        model: &ArmModel,
+        fit: &'f Fit,
+        data: &Observations,
+        options: &SolveOptions,
+    ) -> Option<SessionSums<'f>> {
+        if let Some(own) = data.without_orientations_of(&options.float_tool) {
+            return SessionSums::of(model, fit, &own, options);
+        }
+        let pieces = Pieces::new(model, data, options).ok()?;
+        // Without the fit's probe rotation, a session alone would start its probe elsewhere.
+        let probe_unknown =
+            pieces.resolved.orientation_weight_mm_per_rad.is_some() && fit.tool_rotation.is_none();
+        if data.blocks.is_empty() || !pieces.framed.iter().all(|f| *f) || probe_unknown {
+            return None;
+        }
+        let sessions = (0..data.blocks.len())
+            .into_par_iter()
+            .map(|b| SessionSum::of(&pieces, b, fit, &fit.estimated))
+            .collect::<Option<Vec<_>>>()?;
+        Some(SessionSums { fit, resolved: pieces.resolved, sessions })
+    }
+
+    /// The fit these sums are of.
+    pub fn fit(&self) -> &'f Fit {
+        self.fit
+    }
+
+    /// The normal matrix and gradient of `problem` (of `pieces`, at `warm_start(pieces, fit)`),
+    /// from the sums: each block's by its session's name when its unknowns are the same, else
+    /// that block evaluated alone. `None` when `pieces` is not all framed sessions or resolves
+    /// its options otherwise than the sums.
+    pub(super) fn normal_at_start(
+        &self,
+        pieces: &Pieces,
+        problem: &Problem,
+    ) -> Option<(DMatrix<f64>, DVector<f64>)> {
+        let data = pieces.data;
+        if data.blocks.is_empty() || !pieces.framed.iter().all(|f| *f) || pieces.resolved != self.resolved {
+            return None;
+        }
+        let n = problem.layout.unknowns();
+        let (mut h, mut g) = (DMatrix::zeros(n, n), DVector::zeros(n));
+        for b in 0..data.blocks.len() {
+            let columns = keys(&problem.layout, b, data.blocks[b].group);
+            let name = data.block_name(b);
+            let same = |s: &&SessionSum| {
+                s.name == name
+                    && s.keys.len() == columns.len()
+                    && columns.iter().all(|c| s.keys.contains(&c.0))
+            };
+            let fresh;
+            let sum = match self.sessions.iter().find(same) {
+                Some(sum) => sum,
+                None => {
+                    fresh = SessionSum::of(pieces, b, self.fit, &problem.layout.arm)?;
+                    &fresh
+                }
+            };
+            let at: Vec<usize> = sum
+                .keys
+                .iter()
+                .map(|k| columns.iter().find(|c| c.0 == *k).map(|c| c.1))
+                .collect::<Option<Vec<_>>>()?;
+            for (i, &ci) in at.iter().enumerate() {
+                g[ci] += sum.g[i];
+                for (j, &cj) in at.iter().enumerate() {
+                    h[(ci, cj)] += sum.h[(i, j)];
+                }
+            }
+        }
+        Some((h, g))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::tests::{arm, sessions};
+    use super::*;
+
+    /// Largest entry difference of two matrices over the largest entry of the first.
+    fn relative_gap(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
+        (a - b).abs().max() / a.abs().max()
+    }
+
+    /// Three sessions of 40 points of an arm 1.5 mm and 0.2° from `arm()`, each point moved by a
+    /// fixed pattern of up to 0.05 mm (noise, so that leaving a session out moves the fit).
+    fn noisy_sessions(probe: Option<Matrix3<f64>>) -> (ArmModel, Observations) {
+        let nominal = arm();
+        let mut truth = nominal.clone();
+        truth.joints[2].d_mm += 1.5;
+        truth.joints[3].offset_deg += 0.2;
+        let mut data = sessions(&truth, probe);
+        for (k, o) in data.obs.iter_mut().enumerate() {
+            if let crate::data::Target::Point { xyz_mm, .. } = &mut o.target {
+                let f = k as f64;
+                *xyz_mm += 0.05 * Vector3::new((1.3 * f).sin(), (0.7 * f).cos(), (2.1 * f).sin());
+            }
+        }
+        (nominal, data)
+    }
+
+    /// The first normal equations assembled from the sums are those the refit evaluates itself
+    /// (one session left out; one session's tool floated, whose block is evaluated again), and
+    /// the refits that start from them reach the same solution as those that do not.
+    #[test]
+    fn refits_from_session_sums_are_the_refits() {
+        let (nominal, cal) = noisy_sessions(None);
+        let options = SolveOptions::default();
+        let fit = calibrate(&nominal, &cal, &options).expect("fit");
+        let sums = SessionSums::of(&fit.model, &fit, &cal, &options).expect("sums");
+        // Leave a session out.
+        for b in [0, 2] {
+            let without = cal.without(|k| cal.obs[k].block == b);
+            let pieces = Pieces::new(&fit.model, &without, &options).expect("pieces");
+            let start = warm_start(&pieces, &fit);
+            let problem = pieces.problem(fit.estimated.clone(), &start.model, &start.frames, start.probe);
+            let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
+            let mut r = vec![0.0; problem.len()];
+            let (own, own_g) = problem.normal_equations(&x, &mut r, Loss::Linear);
+            let (h, g) = sums.normal_at_start(&pieces, &problem).expect("assembled");
+            assert!(relative_gap(&own, &h) < 1e-12, "session {b}: {:e}", relative_gap(&own, &h));
+            assert!(own_g.abs().max() > 0.0);
+            assert!((&own_g - &g).abs().max() <= 1e-12 * own_g.abs().max());
+            let plain = refit(&fit, &without, &options).expect("refit");
+            let shared = refit_with(&sums, &without, &options).expect("refit with sums");
+            let moved = fit.estimated.iter().any(|id| (plain.get(*id) - fit.model.get(*id)).abs() > 1e-6);
+            assert!(moved, "leaving session {b} out moves the fit");
+            for id in &fit.estimated {
+                let (a, s) = (plain.get(*id), shared.get(*id));
+                assert!((a - s).abs() <= 1e-9 * a.abs().max(1.0), "{id}: {a} vs {s}");
+            }
+        }
+        // Float one session's tool: its block's unknowns differ from the sums'.
+        let name = cal.block_name(1);
+        let floated = SolveOptions { float_tool: vec![name.clone()], ..options.clone() };
+        let sums = SessionSums::of(&nominal, &fit, &cal, &options).expect("sums");
+        let pieces = Pieces::new(&nominal, &cal, &floated).expect("pieces");
+        let start = warm_start(&pieces, &fit);
+        let arm: Vec<ParamId> =
+            pieces.model.free.iter().map(|f| f.id).filter(|id| fit.estimated.contains(id)).collect();
+        let problem = pieces.problem(arm, &start.model, &start.frames, start.probe);
+        let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
+        let mut r = vec![0.0; problem.len()];
+        let (own, _) = problem.normal_equations(&x, &mut r, Loss::Linear);
+        let (h, _) = sums.normal_at_start(&pieces, &problem).expect("assembled");
+        assert_eq!(own.nrows(), fit.estimated.len() + 3 * FRAME_UNKNOWNS + 3);
+        assert!(relative_gap(&own, &h) < 1e-12, "floated tool: {:e}", relative_gap(&own, &h));
+        let plain = recalibrate(&nominal, &cal, &floated, &fit).expect("refit");
+        let shared = recalibrate_with(&nominal, &cal, &floated, &sums).expect("refit with sums");
+        assert!((plain.cost - shared.cost).abs() <= 1e-12 * plain.cost);
+        let (a, s) = (&plain.tool_offsets[0], &shared.tool_offsets[0]);
+        assert_eq!(a.session, name);
+        for k in 0..3 {
+            assert!((a.offset_mm[k] - s.offset_mm[k]).abs() <= 1e-9 * a.offset_mm[k].abs().max(1e-3));
+        }
+        assert!((a.size_std_mm - s.size_std_mm).abs() <= 1e-9 * a.size_std_mm);
+    }
+
+    /// With a 6-DoF probe, whose rotation every session's rows read, the assembled normal
+    /// equations are the refit's own too (the sessions with the probe's orientations, one left
+    /// out).
+    #[test]
+    fn a_probe_rotation_is_summed_over_the_sessions() {
+        let probe = nalgebra::Rotation3::from_euler_angles(0.2, -0.1, 0.4).into_inner();
+        let (nominal, data) = noisy_sessions(Some(probe));
+        let options = SolveOptions { orientation_sigma_deg: Some(0.05), ..SolveOptions::default() };
+        let mut fit = calibrate(&nominal, &data, &options).expect("fit");
+        // Away from the minimum, so that the residuals and the gradient are not zero.
+        fit.model.joints[2].d_mm += 0.3;
+        let sums = SessionSums::of(&fit.model, &fit, &data, &options).expect("sums");
+        let without = data.without(|k| data.obs[k].block == 1);
+        let pieces = Pieces::new(&fit.model, &without, &options).expect("pieces");
+        let start = warm_start(&pieces, &fit);
+        let problem = pieces.problem(fit.estimated.clone(), &start.model, &start.frames, start.probe);
+        assert!(problem.layout.rotation_column().is_some());
+        let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
+        let mut r = vec![0.0; problem.len()];
+        let (own, own_g) = problem.normal_equations(&x, &mut r, pieces.resolved.loss);
+        let (h, g) = sums.normal_at_start(&pieces, &problem).expect("assembled");
+        assert!(relative_gap(&own, &h) < 1e-12, "{:e}", relative_gap(&own, &h));
+        assert!(own_g.abs().max() > 0.0);
+        assert!((&own_g - &g).abs().max() <= 1e-12 * own_g.abs().max());
+    }
+
+    /// Artefact touches share their distances across blocks: no session sums.
+    #[test]
+    fn artefact_data_has_no_session_sums() {
+        let nominal = ArmModel::suta_nominal();
+        let sim = crate::simulate::simulate(&nominal, &crate::simulate::SimulationOptions::default());
+        let cal = Observations::from_sessions(&sim.calibration, &sim.artefact);
+        let options = SolveOptions { restarts: Some(0), ..SolveOptions::default() };
+        let fit = calibrate(&nominal, &cal, &options).expect("fit");
+        assert!(SessionSums::of(&fit.model, &fit, &cal, &options).is_none());
+    }
+}

@@ -13,7 +13,7 @@ use kincal::calib::validate::validate_session;
 use kincal::data::{load_folder, Observations, Purpose};
 use kincal::model::effects::Effect;
 use kincal::model::urdf::read_masses;
-use kincal::model::{ArmModel, ParamId};
+use kincal::model::ArmModel;
 use kincal_e2e::kincal_bin;
 use kincal_e2e::tracker_setup::scratch;
 use std::path::{Path, PathBuf};

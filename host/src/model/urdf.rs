@@ -917,8 +917,8 @@ pub fn calibrated_urdf(
         });
     }
     let (masses, kept_in_model) = mass_edits(&doc, model);
-    let weighed: Vec<String> = masses.iter().map(|m| m.0.clone()).collect();
-    edits.extend(masses.into_iter().map(|(_, start, end, value)| (start, end, value)));
+    let weighed: Vec<String> = masses.iter().map(|m| m.link.clone()).collect();
+    edits.extend(masses.into_iter().map(|m| (m.start, m.end, m.value)));
     edits.sort_by_key(|e| std::cmp::Reverse(e.0));
     let mut text = doc.text.clone();
     for (start, end, origin) in edits {
@@ -961,11 +961,18 @@ pub fn calibrated_urdf(
     })
 }
 
+/// One `<mass value>` edit: the link and the byte range of its value's text, and the new text.
+struct MassEdit {
+    link: String,
+    start: usize,
+    end: usize,
+    value: String,
+}
+
 /// The `<mass value>` edits that write the model's masses into the URDF: one per body named
-/// after a link with an `<inertial><mass>` whose mass the model changed, (link, start, end, new
-/// value text); and the masses that changed on bodies no link of the URDF holds (`mass:NAME =
-/// … kg`: they stay in the model file).
-fn mass_edits(doc: &Document, model: &ArmModel) -> (Vec<(String, usize, usize, String)>, Vec<String>) {
+/// after a link with an `<inertial><mass>` whose mass the model changed; and the fitted masses of
+/// bodies no link of the URDF holds (`mass:NAME = … kg`: they stay in the model file).
+fn mass_edits(doc: &Document, model: &ArmModel) -> (Vec<MassEdit>, Vec<String>) {
     let places = index_link_masses(&doc.text);
     let (mut edits, mut elsewhere) = (Vec::new(), Vec::new());
     for (b, body) in model.tree.bodies.iter().enumerate() {
@@ -974,9 +981,12 @@ fn mass_edits(doc: &Document, model: &ArmModel) -> (Vec<(String, usize, usize, S
             continue;
         }
         match places.iter().find(|p| p.0 == body.name).filter(|_| link.is_some()) {
-            Some((name, (start, end))) => {
-                edits.push((name.clone(), *start, *end, format!("{}", body.mass_kg)))
-            }
+            Some((name, (start, end))) => edits.push(MassEdit {
+                link: name.clone(),
+                start: *start,
+                end: *end,
+                value: format!("{}", body.mass_kg),
+            }),
             None if model.free.iter().any(|f| f.id == ParamId::Mass(b)) => {
                 elsewhere.push(format!("{} = {} kg", model.param_name(ParamId::Mass(b)), body.mass_kg))
             }

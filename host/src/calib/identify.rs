@@ -72,27 +72,38 @@ fn scaled(jac: &[f64], n: usize, ranges: &[f64], cols: &[usize]) -> DMatrix<f64>
     DMatrix::from_fn(m, cols.len(), |i, k| jac[i * n + cols[k]] * ranges[cols[k]])
 }
 
-fn describe(params: &[ParamId], direction: &[f64], relative: f64, unidentifiable: bool) -> Combination {
+fn describe(
+    params: &[ParamId],
+    names: &[String],
+    direction: &[f64],
+    relative: f64,
+    unidentifiable: bool,
+) -> Combination {
     let biggest = direction.iter().fold(0.0_f64, |a, v| a.max(v.abs())).max(1e-300);
-    let mut terms: Vec<(ParamId, f64)> = params
+    let mut terms: Vec<(&str, ParamId, f64)> = params
         .iter()
+        .zip(names)
         .zip(direction)
-        .map(|(p, v)| (*p, v / biggest))
-        .filter(|(_, v)| v.abs() > 0.05)
+        .map(|((p, name), v)| (name.as_str(), *p, v / biggest))
+        .filter(|(_, _, v)| v.abs() > 0.05)
         .collect();
-    terms.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
-    if terms.first().is_some_and(|t| t.1 < 0.0) {
-        terms.iter_mut().for_each(|t| t.1 = -t.1);
+    terms.sort_by(|a, b| b.2.abs().total_cmp(&a.2.abs()));
+    if terms.first().is_some_and(|t| t.2 < 0.0) {
+        terms.iter_mut().for_each(|t| t.2 = -t.2);
     }
     let text = if terms.len() == 1 {
         let effect = if unidentifiable { "changes no residual" } else { "barely changes the residuals" };
         format!("{} ({effect})", terms[0].0)
     } else {
-        terms.iter().map(|(p, v)| format!("{p} {v:+.3} {}", p.unit())).collect::<Vec<_>>().join(" ↔ ")
+        terms
+            .iter()
+            .map(|(name, p, v)| format!("{name} {v:+.3} {}", p.unit()))
+            .collect::<Vec<_>>()
+            .join(" ↔ ")
     };
     Combination {
         relative_singular_value: relative,
-        terms: terms.into_iter().map(|(p, v)| (p.to_string(), v)).collect(),
+        terms: terms.into_iter().map(|(name, _, v)| (name.to_string(), v)).collect(),
         text,
     }
 }
@@ -100,9 +111,15 @@ fn describe(params: &[ParamId], direction: &[f64], relative: f64, unidentifiable
 /// Analyse a row-major Jacobian (m × `params.len()`); `ranges` are the parameters' plausible
 /// ranges (bound widths) in their units.
 pub fn analyse(jac: &[f64], params: &[ParamId], ranges: &[f64]) -> Identifiability {
+    let names: Vec<String> = params.iter().map(|p| p.to_string()).collect();
+    analyse_named(jac, params, &names, ranges)
+}
+
+/// [`analyse`] with the parameters written as `names` (a model's names, e.g. `mass:payload`).
+pub fn analyse_named(jac: &[f64], params: &[ParamId], names: &[String], ranges: &[f64]) -> Identifiability {
     let n = params.len();
     let mut out = Identifiability {
-        params: params.iter().map(|p| p.to_string()).collect(),
+        params: names.to_vec(),
         singular_values: vec![],
         condition_number: f64::INFINITY,
         unidentifiable: vec![],
@@ -116,7 +133,7 @@ pub fn analyse(jac: &[f64], params: &[ParamId], ranges: &[f64]) -> Identifiabili
     for c in (0..n).filter(|&c| norms[c] == 0.0) {
         let mut dir = vec![0.0; n];
         dir[c] = 1.0;
-        out.unidentifiable.push(describe(params, &dir, 0.0, true));
+        out.unidentifiable.push(describe(params, names, &dir, 0.0, true));
     }
     let live: Vec<usize> = (0..n).filter(|&c| norms[c] > 0.0).collect();
     if live.is_empty() {
@@ -138,7 +155,7 @@ pub fn analyse(jac: &[f64], params: &[ParamId], ranges: &[f64]) -> Identifiabili
         for (k, &c) in live.iter().enumerate() {
             dir[c] = v_t[(i, k)] * ranges[c];
         }
-        let combo = describe(params, &dir, relative, relative < UNIDENTIFIABLE_BELOW);
+        let combo = describe(params, names, &dir, relative, relative < UNIDENTIFIABLE_BELOW);
         if relative < UNIDENTIFIABLE_BELOW {
             out.unidentifiable.push(combo);
         } else {
@@ -185,6 +202,57 @@ pub fn base_columns(jac: &[f64], n: usize, ranges: &[f64]) -> (Vec<usize>, Vec<u
     kept.sort_unstable();
     let dropped = (0..n).filter(|c| !kept.contains(c)).collect();
     (kept, dropped)
+}
+
+/// A column [`base_columns_last`] held: it adds no rank to the base set.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Held {
+    /// The column.
+    pub column: usize,
+    /// The kept columns it trades against (a share of at least a twentieth of the largest),
+    /// largest share first; empty when it moves no residual.
+    pub with: Vec<usize>,
+}
+
+/// The base set with the columns `last` taken after every other (a mass after the compliances
+/// it multiplies, so a scale neither the masses nor the compliances fix is held on the mass):
+/// [`base_columns`] of the other columns, then each of `last` in turn, kept when it adds rank to
+/// the columns kept so far ([`added_rank`]). Returns the kept columns (ascending) and the held
+/// ones of `last`.
+pub fn base_columns_last(jac: &[f64], n: usize, ranges: &[f64], last: &[usize]) -> (Vec<usize>, Vec<Held>) {
+    let first: Vec<f64> = (0..n).map(|c| if last.contains(&c) { 0.0 } else { ranges[c] }).collect();
+    let (kept, _) = base_columns(jac, n, &first);
+    add_last(jac, n, ranges, kept, last)
+}
+
+/// The columns `last` added in turn to the base set `kept` (see [`base_columns_last`]): the
+/// base set with those that add rank (ascending), and the held ones.
+pub fn add_last(
+    jac: &[f64],
+    n: usize,
+    ranges: &[f64],
+    mut kept: Vec<usize>,
+    last: &[usize],
+) -> (Vec<usize>, Vec<Held>) {
+    let mut held = Vec::new();
+    for &c in last {
+        let Some(rank) = added_rank(jac, n, ranges, &kept, &[c]).pop() else { continue };
+        if rank.adds {
+            kept.push(c);
+            continue;
+        }
+        let largest = rank.share.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
+        let mut with: Vec<(usize, f64)> = kept
+            .iter()
+            .zip(&rank.share)
+            .filter(|(_, s)| !rank.moves_nothing && largest > 0.0 && s.abs() >= 0.05 * largest)
+            .map(|(&k, s)| (k, s.abs()))
+            .collect();
+        with.sort_by(|a, b| b.1.total_cmp(&a.1));
+        held.push(Held { column: c, with: with.into_iter().map(|w| w.0).collect() });
+    }
+    kept.sort_unstable();
+    (kept, held)
 }
 
 /// Parameter covariance σ²·(JᵀWJ)⁻¹ from a row-major Jacobian, IRLS weights and the residual
@@ -295,6 +363,25 @@ mod tests {
         // The larger of two collinear columns stays in the base set.
         assert_eq!(kept, vec![1, 2]);
         assert_eq!(dropped, vec![0, 3]);
+    }
+
+    /// Columns a, b and c = a + b (a scale the "mass" c trades against), d zero: c is held
+    /// with a and b named, d held as moving nothing, a and b kept.
+    #[test]
+    fn a_column_taken_last_is_held_with_what_it_trades_against() {
+        let jac: Vec<f64> = (0..12)
+            .flat_map(|i| {
+                let t = i as f64;
+                let (a, b) = (t.sin(), (0.3 * t).cos());
+                [a, b, a + b, 0.0]
+            })
+            .collect();
+        let (kept, held) = base_columns_last(&jac, 4, &[1.0; 4], &[2, 3]);
+        assert_eq!(kept, vec![0, 1]);
+        assert_eq!(held, vec![Held { column: 2, with: vec![0, 1] }, Held { column: 3, with: vec![] }]);
+        // Without a, c adds rank and is kept.
+        let (kept, held) = base_columns_last(&jac, 4, &[0.0, 1.0, 1.0, 1.0], &[2]);
+        assert_eq!((kept, held.len()), (vec![1, 2], 0));
     }
 
     #[test]

@@ -185,13 +185,16 @@ pub enum RunError {
         .0.join("\n  - ")
     )]
     NotACalibration(Vec<String>),
-    /// An effect added on the command line names a joint the model does not have.
-    #[error("--add {effect}: the model has {joints} joints, there is no such joint")]
-    NoSuchJoint {
+    /// An effect added on the command line names a joint or a body the model does not have,
+    /// or needs a mass table it has not.
+    #[error("--add {effect}: {why} (model {})", model.display())]
+    EffectNotInModel {
         /// The effect.
         effect: String,
-        /// The model's joints.
-        joints: usize,
+        /// What the model lacks, and what it has.
+        why: String,
+        /// The model file.
+        model: PathBuf,
     },
     /// The sessions were measured on two arms, or some name their arm and others do not.
     #[error(transparent)]
@@ -220,10 +223,11 @@ impl RunInputs {
         let mut nominal = ArmModel::load(&self.model)?;
         for name in &self.add {
             let effect = Effect::parse(name).ok_or_else(|| RunError::UnknownEffect(name.clone()))?;
-            if effect.joint.is_some_and(|j| j >= nominal.joints.len()) {
-                return Err(RunError::NoSuchJoint {
+            if let Some(why) = effect.check_in(&nominal) {
+                return Err(RunError::EffectNotInModel {
                     effect: effect.to_string(),
-                    joints: nominal.joints.len(),
+                    why,
+                    model: self.model.clone(),
                 });
             }
             effect.add_to(&mut nominal);

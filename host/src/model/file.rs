@@ -31,6 +31,7 @@
 //! joint = 11                      # its last joint (1-based)
 //! tcp_mm = [45.0, 30.0, 150.0]
 //! [[body]]                        # a mass carried by a joint, centre in the joint's frame
+//! name = "payload"                # optional (default bodyN): `mass:payload` fits its mass
 //! joint = 1
 //! mass_kg = 6.0
 //! com_mm = [20.0, 10.0, 90.0]
@@ -38,8 +39,11 @@
 
 use super::params::MAX_TIPS;
 use super::plausible::{plausible_limit, MAX_LENGTH_MM};
+use super::tree::MAX_BODY_KG;
 use super::urdf::UrdfSource;
-use super::{ArmModel, Body, Convention, FreeParam, Joint, ParamId, Tip, Tree, MAX_JOINTS, MAX_TREE_JOINTS};
+use super::{
+    ArmModel, Body, Convention, FreeParam, Joint, ParamId, Tip, Tree, MAX_BODIES, MAX_JOINTS, MAX_TREE_JOINTS,
+};
 use crate::files::{self, FileError};
 use crate::model::effects::Effect;
 use std::collections::BTreeMap;
@@ -75,9 +79,6 @@ struct ModelFile {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     body: Vec<Body>,
 }
-
-/// Heaviest plausible body, kg.
-const MAX_BODY_KG: f64 = 10_000.0;
 
 /// The tree of a model file (1-based joints there, 0-based here), checked: parents before
 /// children, tips on joints the model has, each tip's path at most [`MAX_JOINTS`] joints,
@@ -144,21 +145,42 @@ fn tree_of(file: &ModelFile, joints: usize) -> Result<Tree, (String, String)> {
             return Err((key, format!("its chain has {} joints; at most {MAX_JOINTS}", path.len())));
         }
     }
+    if file.body.len() > MAX_BODIES {
+        return Err(("body".into(), format!("at most {MAX_BODIES} bodies, found {}", file.body.len())));
+    }
     for (b, body) in file.body.iter().enumerate() {
         let key = format!("body[{}]", b + 1);
+        let name = match body.name.trim() {
+            "" => format!("body{}", b + 1),
+            name => name.to_string(),
+        };
+        if name.chars().any(|c| c.is_whitespace() || c == ',')
+            || name.parse::<usize>().is_ok()
+            || tree.body_index(&name).is_some()
+        {
+            return Err((
+                format!("{key}.name"),
+                format!(
+                    "\"{name}\": expected a name no other body has, without spaces or commas, not a number"
+                ),
+            ));
+        }
         if !(1..=joints).contains(&body.joint) {
             return Err((
                 format!("{key}.joint"),
                 format!("expected a joint 1 to {joints}, found {}", body.joint),
             ));
         }
-        if !(body.mass_kg.is_finite() && body.mass_kg > 0.0 && body.mass_kg <= MAX_BODY_KG) {
-            return Err((format!("{key}.mass_kg"), format!("expected a mass in kg, 0 < m <= {MAX_BODY_KG}")));
+        if !(body.mass_kg.is_finite() && body.mass_kg >= 0.0 && body.mass_kg <= MAX_BODY_KG) {
+            return Err((
+                format!("{key}.mass_kg"),
+                format!("expected a mass in kg, 0 <= m <= {MAX_BODY_KG}"),
+            ));
         }
         if !body.com_mm.iter().all(|v| v.is_finite() && v.abs() <= MAX_LENGTH_MM) {
             return Err((format!("{key}.com_mm"), format!("expected finite mm within ±{MAX_LENGTH_MM}")));
         }
-        tree.bodies.push(Body { joint: body.joint - 1, ..*body });
+        tree.bodies.push(Body { name, joint: body.joint - 1, ..body.clone() });
     }
     Ok(tree)
 }
@@ -216,17 +238,25 @@ fn is_json(path: &Path) -> bool {
 
 impl ArmModel {
     /// Why the model has no parameter `id` although its joint exists: a tip it does not have,
-    /// or a mass-torque compliance without a mass table.
+    /// a mass-torque compliance or a mass without a mass table, a body the table does not have.
     pub fn lacks(&self, id: ParamId) -> Option<String> {
         match id {
             ParamId::TipTcp(t, _) if t >= self.tree.tips.len() => {
                 Some(format!("the model has {} tip(s); no tip {}", self.tree.tip_count(), t + 1))
             }
-            ParamId::Sag(_) | ParamId::Bend(_) if self.tree.bodies.is_empty() || self.convention != Convention::Urdf => {
-                Some("sag and bend deflect under the gravity loads of a mass table: a URDF model with [[body]] rows \
-                      (`kincal model from-urdf` reads them from <inertial>)"
+            ParamId::Sag(_) | ParamId::Bend(_) | ParamId::Mass(_)
+                if self.tree.bodies.is_empty() || self.convention != Convention::Urdf =>
+            {
+                Some("sag, bend and mass are the gravity loads of a mass table: a URDF model with [[body]] rows \
+                      (`kincal model from-urdf --masses` reads them from <inertial>); this model has no mass table"
                     .into())
             }
+            ParamId::Mass(b) if b >= self.tree.bodies.len() => Some(format!(
+                "the mass table has {} bodies ({}); no body {}",
+                self.tree.bodies.len(),
+                self.tree.body_names(),
+                b + 1
+            )),
             _ => None,
         }
     }
@@ -316,20 +346,14 @@ impl ArmModel {
                     ),
                 )
             })?;
-            if effect.joint.is_some_and(|j| j >= model.joints.len()) {
-                return Err(field(
-                    format!("effects[\"{name}\"]"),
-                    format!("the model has {} joints; no such joint", model.joints.len()),
-                ));
-            }
-            if let Some(message) = effect.params().into_iter().find_map(|p| model.lacks(p)) {
+            if let Some(message) = effect.check_in(&model) {
                 return Err(field(format!("effects[\"{name}\"]"), message));
             }
             effect.add_to(&mut model);
         }
         for (name, bounds) in file.free {
             let key = format!("free.\"{name}\"");
-            let id = ParamId::parse(&name).ok_or_else(|| {
+            let id = model.parse_param(&name).ok_or_else(|| {
                 let replaced = ["origin_roll:", "origin_pitch:", "origin_yaw:"].iter().any(|p| name.starts_with(p));
                 field(
                     key.clone(),
@@ -339,9 +363,11 @@ impl ArmModel {
                          make the model again with `kincal model from-urdf`"
                             .into()
                     } else {
-                        "unknown parameter; expected e.g. offset:1, length:3, link_offset:2, twist:5, axis:2, \
-                         origin_x:2, origin_rz:2, tcp.z, scale"
-                            .into()
+                        format!(
+                            "unknown parameter; expected e.g. offset:1, length:3, link_offset:2, twist:5, axis:2, \
+                             origin_x:2, origin_rz:2, tcp.z, scale, mass:BODY (bodies: {})",
+                            model.tree.body_names()
+                        )
                     },
                 )
             })?;
@@ -404,7 +430,7 @@ impl ArmModel {
                 .filter(|e| e.is_in(self) && e.kind.is_non_geometric())
                 .map(|e| e.to_string())
                 .collect(),
-            free: self.free.iter().map(|f| (f.id.to_string(), vec![f.lower, f.upper])).collect(),
+            free: self.free.iter().map(|f| (self.param_name(f.id), vec![f.lower, f.upper])).collect(),
             urdf: self.urdf.clone(),
             arm: self.arm.clone(),
             parents: match self.tree.is_branched() {
@@ -412,7 +438,7 @@ impl ArmModel {
                 false => Vec::new(),
             },
             tip: self.tree.tips.iter().map(|t| Tip { joint: t.joint + 1, ..t.clone() }).collect(),
-            body: self.tree.bodies.iter().map(|b| Body { joint: b.joint + 1, ..*b }).collect(),
+            body: self.tree.bodies.iter().map(|b| Body { joint: b.joint + 1, ..b.clone() }).collect(),
         };
         if json {
             serde_json::to_string_pretty(&file).unwrap_or_default()

@@ -34,8 +34,8 @@
 
 use super::params::PARAM_SLOTS;
 use super::tree::{self, Loads};
-use super::{ArmModel, Convention, ParamId, MAX_TREE_JOINTS};
-use crate::model::effects::{bend, compliance, eccentricity, harmonic, sag};
+use super::{ArmModel, Convention, ParamId, MAX_BODIES, MAX_TREE_JOINTS};
+use crate::model::effects::{bend, compliance, eccentricity, harmonic, mass, sag};
 use crate::numerics::geometry::left_jacobian;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
@@ -79,8 +79,10 @@ pub struct ColumnMap {
     harmonics: bool,
     /// Some compliance column is wanted.
     compliance: bool,
-    /// Some mass-torque compliance column (sag, bend) is wanted.
+    /// Some mass-torque compliance column (sag, bend) or mass column is wanted.
     gravity: bool,
+    /// The wanted mass columns: (body, column).
+    masses: Vec<(usize, usize)>,
     /// The tool axes' derivatives are wanted (not only the position's).
     axes: bool,
 }
@@ -94,12 +96,15 @@ impl ColumnMap {
         }
         let any =
             |kind: fn(usize) -> ParamId| (0..MAX_TREE_JOINTS).any(|j| slots[kind(j).dense_index()].is_some());
+        let masses: Vec<(usize, usize)> =
+            (0..MAX_BODIES).filter_map(|b| Some((b, slots[ParamId::Mass(b).dense_index()]?))).collect();
         ColumnMap {
             slots,
             len: params.len(),
             harmonics: HARMONICS.into_iter().any(any),
             compliance: any(ParamId::Compliance),
-            gravity: any(ParamId::Sag) || any(ParamId::Bend),
+            gravity: any(ParamId::Sag) || any(ParamId::Bend) || !masses.is_empty(),
+            masses,
             axes: true,
         }
     }
@@ -272,6 +277,8 @@ pub struct Chain<'m> {
     compliant: bool,
     /// Some mass-torque compliance (sag, bend) is non-zero on a model with masses.
     loaded: bool,
+    /// Per body of the mass table, the joints that carry it (bit j, see [`tree::Tree::carriers`]).
+    carriers: Vec<u32>,
     scale: f64,
     /// Per joint, the sine and cosine of its offset δθ.
     offset_sin_cos: [(f64, f64); MAX_TREE_JOINTS],
@@ -369,6 +376,7 @@ impl<'m> Chain<'m> {
             path,
             loaded: masses
                 && joint_rows.iter().any(|j| j.sag_deg_per_knm != 0.0 || j.bend_deg_per_knm != 0.0),
+            carriers: (0..model.tree.bodies.len()).map(|b| model.tree.carriers(b, joints)).collect(),
             harmonics: joint_rows.iter().any(|j| {
                 j.eccentricity_sin_deg != 0.0
                     || j.eccentricity_cos_deg != 0.0
@@ -464,6 +472,11 @@ impl<'m> Chain<'m> {
             theta += joint.sag_deg_per_knm * sag::partial(torque);
         }
         (theta, partials, count)
+    }
+
+    /// True when joint j carries body `b` of the mass table.
+    fn carries(&self, b: usize, j: usize) -> bool {
+        self.carriers.get(b).is_some_and(|bits| j < 32 && bits & (1 << j) != 0)
     }
 
     /// Op `op` with joint j's angle θ_j (degrees) set.
@@ -573,6 +586,21 @@ impl<'m> Chain<'m> {
                     frame.apply(op);
                 }
                 Dep::Bend(j) => {
+                    if let (Some((columns, jac)), Some(loads)) = (wanted.as_mut(), loads.as_ref()) {
+                        let compliance = self.model.joints[j].bend_deg_per_knm;
+                        for &(b, c) in columns.masses.iter().filter(|(b, _)| self.carries(*b, j)) {
+                            let (_, lateral) = loads.per_kg(&self.model.tree.bodies[b], j);
+                            let turn = mass::bend_partial(compliance, &lateral);
+                            if let Some(u) = turn.try_normalize(0.0) {
+                                gather_rotation(
+                                    &mut jac[c],
+                                    &frame.direction(Axis::Unit(u)),
+                                    &origin,
+                                    DEG * turn.norm(),
+                                );
+                            }
+                        }
+                    }
                     let Some((axis, dv)) =
                         loads.as_ref().and_then(|l| bend::direction_and_partial(&l.lateral_nm[j]))
                     else {
@@ -615,6 +643,18 @@ impl<'m> Chain<'m> {
                             if let Some(c) = columns.column(slot) {
                                 gather(&mut jac[c], op, &dir, &origin, dv);
                             }
+                        }
+                        let compliance = self.model.joints[j].sag_deg_per_knm;
+                        for &(b, c) in columns.masses.iter().filter(|(b, _)| self.carries(*b, j)) {
+                            let Some(loads) = loads.as_ref() else { break };
+                            let (torque, _) = loads.per_kg(&self.model.tree.bodies[b], j);
+                            gather(
+                                &mut jac[c],
+                                op,
+                                &dir,
+                                &origin,
+                                DEG * mass::angle_partial(compliance, torque),
+                            );
                         }
                     }
                 }
@@ -828,8 +868,8 @@ mod tests {
         ];
         model.tcp_mm = [300.0, 20.0, -50.0];
         model.tree.bodies = vec![
-            crate::model::Body { joint: 1, mass_kg: 5.0, com_mm: [200.0, 0.0, 10.0] },
-            crate::model::Body { joint: 2, mass_kg: 3.0, com_mm: [150.0, 30.0, -20.0] },
+            crate::model::Body { name: "upper".into(), joint: 1, mass_kg: 5.0, com_mm: [200.0, 0.0, 10.0] },
+            crate::model::Body { name: "hand".into(), joint: 2, mass_kg: 3.0, com_mm: [150.0, 30.0, -20.0] },
         ];
         let enc = [20.0, -15.0, 40.0];
         let params: Vec<ParamId> = (0..3).flat_map(|j| [ParamId::Sag(j), ParamId::Bend(j)]).collect();
@@ -856,6 +896,69 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The mass columns on the arm above (compliances of a humanoid's size) match central
+    /// differences within 1 % (the loads' own change is left out, as for sag and bend); at zero
+    /// compliance they are zero; and scaling every mass up and every compliance down together is
+    /// a direction the Jacobian does not see (Σ m_b·∂/∂m_b = Σ s_j·∂/∂s_j + Σ b_j·∂/∂b_j).
+    #[test]
+    fn mass_columns_match_central_differences_and_trade_against_the_compliances() {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = Convention::Urdf;
+        model.free.clear();
+        model.joints = vec![
+            crate::model::Joint { origin_xyz_mm: [0.0, 0.0, 300.0], ..Default::default() },
+            crate::model::Joint {
+                origin_xyz_mm: [0.0, 80.0, 200.0],
+                axis: [0.0, 1.0, 0.0],
+                ..Default::default()
+            },
+            crate::model::Joint {
+                origin_xyz_mm: [400.0, 0.0, 0.0],
+                axis: [1.0, 0.0, 0.0],
+                ..Default::default()
+            },
+        ];
+        model.tcp_mm = [300.0, 20.0, -50.0];
+        model.tree.bodies = vec![
+            crate::model::Body { name: "upper".into(), joint: 1, mass_kg: 5.0, com_mm: [200.0, 0.0, 10.0] },
+            crate::model::Body { name: "hand".into(), joint: 2, mass_kg: 3.0, com_mm: [150.0, 30.0, -20.0] },
+        ];
+        let enc = [20.0, -15.0, 40.0];
+        let masses = [ParamId::Mass(0), ParamId::Mass(1)];
+        let compliances: Vec<ParamId> = (0..3).flat_map(|j| [ParamId::Sag(j), ParamId::Bend(j)]).collect();
+        let params: Vec<ParamId> = masses.iter().chain(&compliances).copied().collect();
+        let mut jac = vec![[0.0; 9]; params.len()];
+        tool_pose_with_jacobian(&model, &enc, &ColumnMap::new(&params), &mut jac);
+        assert!(jac[..2].iter().flatten().all(|v| *v == 0.0), "no compliance: no mass moves the tool");
+        compliances.iter().enumerate().for_each(|(k, p)| model.set(*p, 6.0 + k as f64));
+        tool_pose_with_jacobian(&model, &enc, &ColumnMap::new(&params), &mut jac);
+        for (c, &id) in masses.iter().enumerate() {
+            let (h, v) = (1e-4, model.get(id));
+            let (mut plus, mut minus) = (model.clone(), model.clone());
+            plus.set(id, v + h);
+            minus.set(id, v - h);
+            let fd = (tool_pose(&plus, &enc).position_mm - tool_pose(&minus, &enc).position_mm) / (2.0 * h);
+            let column = Vector3::new(jac[c][0], jac[c][1], jac[c][2]);
+            assert!(fd.norm() > 1e-3 && (column - fd).norm() <= 1e-2 * fd.norm(), "{id}: {column} vs {fd}");
+        }
+        let trade: Vec<f64> = (0..9)
+            .map(|k| {
+                params
+                    .iter()
+                    .enumerate()
+                    .map(|(c, p)| {
+                        let sign = if matches!(p, ParamId::Mass(_)) { 1.0 } else { -1.0 };
+                        sign * model.get(*p) * jac[c][k]
+                    })
+                    .sum()
+            })
+            .collect();
+        let size = (0..2)
+            .map(|c| model.get(masses[c]) * Vector3::new(jac[c][0], jac[c][1], jac[c][2]).norm())
+            .sum::<f64>();
+        assert!(trade.iter().all(|v| v.abs() <= 1e-12 * size.max(1.0)), "{trade:?} vs {size}");
     }
 
     #[test]

@@ -13,7 +13,7 @@ pub mod tree;
 pub mod urdf;
 
 pub use params::ParamId;
-pub use tree::{Body, Tip, Tree};
+pub use tree::{Body, Tip, Tree, MAX_BODIES};
 
 use nalgebra::{Rotation3, Vector3};
 
@@ -182,9 +182,11 @@ impl Joint {
             ParamId::Harm4Cos(_) => &mut self.harmonic4_cos_deg,
             ParamId::OriginXyz(_, k) => &mut self.origin_xyz_mm[k],
             ParamId::OriginTurn(_, k) => &mut self.origin_turn_deg[k],
-            ParamId::Offset(_) | ParamId::Tcp(_) | ParamId::TipTcp(..) | ParamId::Scale => {
-                &mut self.offset_deg
-            }
+            ParamId::Offset(_)
+            | ParamId::Tcp(_)
+            | ParamId::TipTcp(..)
+            | ParamId::Scale
+            | ParamId::Mass(_) => &mut self.offset_deg,
         }
     }
 }
@@ -234,6 +236,7 @@ impl ArmModel {
             ParamId::Tcp(k) => self.tcp_mm[k],
             ParamId::TipTcp(t, k) => self.tree.tips.get(t).map_or(0.0, |tip| tip.tcp_mm[k]),
             ParamId::Scale => self.scale_ppm,
+            ParamId::Mass(b) => self.tree.bodies.get(b).map_or(0.0, |body| body.mass_kg),
             _ => match self.joints.get(id.joint().unwrap_or(0)) {
                 Some(joint) => *joint.clone().slot(id),
                 None => 0.0,
@@ -255,6 +258,7 @@ impl ArmModel {
                 self.tree.tips.get_mut(t).filter(|_| t > 0).map(|tip| &mut tip.tcp_mm[k])
             }
             ParamId::Scale => Some(&mut self.scale_ppm),
+            ParamId::Mass(b) => self.tree.bodies.get_mut(b).map(|body| &mut body.mass_kg),
             _ => self.joints.get_mut(id.joint().unwrap_or(0)).map(|j| j.slot(id)),
         }
     }
@@ -274,6 +278,7 @@ impl ArmModel {
             .filter(|id| match id {
                 ParamId::TipTcp(t, _) => *t < self.tree.tips.len(),
                 ParamId::Sag(_) | ParamId::Bend(_) => !self.tree.bodies.is_empty(),
+                ParamId::Mass(b) => *b < self.tree.bodies.len(),
                 _ => true,
             })
             .collect()
@@ -313,6 +318,27 @@ impl ArmModel {
             self.free_param(ParamId::Length(j), row.d_mm - length_mm, row.d_mm + length_mm);
             self.free_param(ParamId::LinkOffset(j), row.a_mm - length_mm, row.a_mm + length_mm);
             self.free_param(ParamId::Twist(j), row.alpha_deg - angle_deg, row.alpha_deg + angle_deg);
+        }
+    }
+
+    /// The parameter's name in this model: a body's mass by the body's name (`mass:payload`),
+    /// every other parameter as [`ParamId`] writes it.
+    pub fn param_name(&self, id: ParamId) -> String {
+        match id {
+            ParamId::Mass(b) => match self.tree.bodies.get(b) {
+                Some(body) => format!("mass:{}", body.name),
+                None => id.to_string(),
+            },
+            _ => id.to_string(),
+        }
+    }
+
+    /// The parameter named `name` in this model ([`ArmModel::param_name`]'s names, and every
+    /// name [`ParamId::parse`] reads).
+    pub fn parse_param(&self, name: &str) -> Option<ParamId> {
+        match name.strip_prefix("mass:").and_then(|body| self.tree.body_index(body)) {
+            Some(b) => Some(ParamId::Mass(b)),
+            None => ParamId::parse(name),
         }
     }
 

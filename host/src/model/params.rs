@@ -1,5 +1,6 @@
 //! Parameter identifiers: `offset:3`, `length:1`, `twist:5`, `origin_rz:2`, `tcp.z`, `scale`, …
 
+use super::tree::MAX_BODIES;
 use std::fmt;
 
 /// One scalar of the arm model. Joint indices are 0-based here, 1-based in names.
@@ -51,13 +52,18 @@ pub enum ParamId {
     TipTcp(usize, usize),
     /// `scale` — length scale error (ppm).
     Scale,
+    /// `mass:N` — the mass of body N of the mass table (N = 1…[`MAX_BODIES`], 0-based index
+    /// b = N − 1 here), kg; a model names it by the body's name (`mass:payload`, see
+    /// [`crate::model::ArmModel::param_name`]).
+    Mass(usize),
 }
 
 /// Most tips (tool points) a tree model may have.
 pub const MAX_TIPS: usize = 4;
 
 /// Number of distinct parameter slots (see [`ParamId::dense_index`]).
-pub const PARAM_SLOTS: usize = JOINT_KINDS.len() * super::MAX_TREE_JOINTS + 3 * MAX_TIPS + 1;
+pub const PARAM_SLOTS: usize = JOINT_KINDS.len() * super::MAX_TREE_JOINTS + 3 * MAX_TIPS + 1 + MAX_BODIES;
+const MASS_SLOT: usize = TCP_SLOT + 3 * MAX_TIPS + 1;
 
 const JOINT_KINDS: [&str; 22] = [
     "offset",
@@ -99,6 +105,7 @@ impl ParamId {
             None => match self {
                 ParamId::Tcp(k) => TCP_SLOT + k,
                 ParamId::TipTcp(t, k) => TCP_SLOT + 3 * t + k,
+                ParamId::Mass(b) => MASS_SLOT + b,
                 _ => TCP_SLOT + 3 * MAX_TIPS,
             },
         }
@@ -125,7 +132,7 @@ impl ParamId {
             ParamId::OriginTurn(j, k) => (17 + k, j),
             ParamId::Sag(j) => (20, j),
             ParamId::Bend(j) => (21, j),
-            ParamId::Tcp(_) | ParamId::TipTcp(..) | ParamId::Scale => return None,
+            ParamId::Tcp(_) | ParamId::TipTcp(..) | ParamId::Scale | ParamId::Mass(_) => return None,
         })
     }
 
@@ -163,8 +170,10 @@ impl ParamId {
             ParamId::Tcp(i - TCP_SLOT)
         } else if i < TCP_SLOT + 3 * MAX_TIPS {
             ParamId::TipTcp((i - TCP_SLOT) / 3, (i - TCP_SLOT) % 3)
-        } else {
+        } else if i < MASS_SLOT {
             ParamId::Scale
+        } else {
+            ParamId::Mass(i - MASS_SLOT)
         }
     }
 
@@ -202,6 +211,7 @@ impl ParamId {
             ParamId::Compliance(_) => "deg/m",
             ParamId::Sag(_) | ParamId::Bend(_) => "deg/(kN·m)",
             ParamId::Scale => "ppm",
+            ParamId::Mass(_) => "kg",
         }
     }
 
@@ -220,6 +230,9 @@ impl ParamId {
         }
         let (kind, joint) = name.split_once(':')?;
         let j: usize = joint.parse().ok()?;
+        if kind == "mass" {
+            return (1..=MAX_BODIES).contains(&j).then_some(ParamId::Mass(j - 1));
+        }
         if !(1..=super::MAX_TREE_JOINTS).contains(&j) {
             return None;
         }
@@ -233,6 +246,7 @@ impl fmt::Display for ParamId {
             (Some((kind, j)), _) => write!(f, "{}:{}", JOINT_KINDS[kind], j + 1),
             (None, ParamId::Tcp(k)) => write!(f, "tcp.{}", TCP_AXES[k]),
             (None, ParamId::TipTcp(t, k)) => write!(f, "tcp{}.{}", t + 1, TCP_AXES[k]),
+            (None, ParamId::Mass(b)) => write!(f, "mass:{}", b + 1),
             (None, _) => write!(f, "scale"),
         }
     }
@@ -253,9 +267,19 @@ mod tests {
 
     #[test]
     fn bad_names_are_rejected() {
-        for bad in
-            ["offset:0", "offset:25", "offset", "tcp.w", "warp:1", "length:x", "tcp1.x", "tcp5.x", "tcp2.w"]
-        {
+        for bad in [
+            "offset:0",
+            "offset:25",
+            "offset",
+            "tcp.w",
+            "warp:1",
+            "length:x",
+            "tcp1.x",
+            "tcp5.x",
+            "tcp2.w",
+            "mass:0",
+            "mass:49",
+        ] {
             assert_eq!(ParamId::parse(bad), None, "{bad}");
         }
     }

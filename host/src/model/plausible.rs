@@ -30,6 +30,7 @@ pub fn plausible_limit(id: ParamId) -> f64 {
         // deg per kN·m: a degree per metre of a 100 kg lever is about 1 deg/(kN·m).
         ParamId::Sag(_) | ParamId::Bend(_) => 1000.0,
         ParamId::Scale => 100_000.0,
+        ParamId::Mass(_) => super::tree::MAX_BODY_KG,
     }
 }
 

@@ -37,10 +37,19 @@ pub struct Tip {
     pub tcp_mm: [f64; 3],
 }
 
+/// Most bodies a mass table may hold.
+pub const MAX_BODIES: usize = 48;
+/// Heaviest plausible body, kg.
+pub const MAX_BODY_KG: f64 = 10_000.0;
+
 /// A point mass gravity pulls on: one link (or several merged) carried by a joint.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Body {
+    /// Its name (the URDF link, e.g. `payload`), by which `mass:NAME` fits its mass; a file
+    /// without one names it `bodyN` (N its row, 1-based).
+    #[serde(default)]
+    pub name: String,
     /// The joint that carries it (0-based in memory, 1-based in files).
     pub joint: usize,
     /// Its mass, kg.
@@ -97,6 +106,31 @@ impl Tree {
     pub fn tip_index(&self, name: &str) -> Option<usize> {
         self.tips.iter().position(|t| t.name == name)
     }
+
+    /// The body named `name` in the mass table, if any.
+    pub fn body_index(&self, name: &str) -> Option<usize> {
+        self.bodies.iter().position(|b| b.name == name)
+    }
+
+    /// The bodies' names, for messages (`hand, payload`; "none" for an empty table).
+    pub fn body_names(&self) -> String {
+        match self.bodies.is_empty() {
+            true => "none: the model has no mass table".into(),
+            false => self.bodies.iter().map(|b| b.name.as_str()).collect::<Vec<_>>().join(", "),
+        }
+    }
+
+    /// The joints (bit j) that carry body `b`: its joint and every joint before it on the path
+    /// to the base (0 for a body the table does not have).
+    pub fn carriers(&self, b: usize, joints: usize) -> u32 {
+        let mut bits = 0u32;
+        let mut j = self.bodies.get(b).map(|body| body.joint).filter(|j| *j < joints.min(32));
+        while let Some(k) = j.filter(|k| bits & (1 << k) == 0) {
+            bits |= 1 << k;
+            j = self.parent(k).filter(|p| *p < k);
+        }
+        bits
+    }
 }
 
 /// The gravity load of every joint at one pose, on the deflected robot.
@@ -106,6 +140,24 @@ pub struct Loads {
     pub torque_nm: [f64; MAX_TREE_JOINTS],
     /// M⊥_j: the gravity moment perpendicular to joint j's axis, in joint j's frame, N·m.
     pub lateral_nm: [Vector3<f64>; MAX_TREE_JOINTS],
+    /// Each joint's frame on the deflected robot (after its rotation and bend): its rotation
+    /// and origin (m) in the base frame, and its axis in the base frame.
+    frames: [(Rotation3<f64>, Vector3<f64>, Vector3<f64>); MAX_TREE_JOINTS],
+}
+
+impl Loads {
+    /// The load on joint j of one kilogram more of `body` (its centre where the table puts it):
+    /// ∂τ_j/∂m (N·m/kg) and ∂M⊥_j/∂m (N·m/kg, joint j's frame). Zero unless joint j carries the
+    /// body (see [`Tree::carriers`]; not checked here).
+    pub fn per_kg(&self, body: &Body, j: usize) -> (f64, Vector3<f64>) {
+        let (Some(at), Some(&(r, o, axis))) = (self.frames.get(body.joint), self.frames.get(j)) else {
+            return (0.0, Vector3::zeros());
+        };
+        let centre_m = at.1 + at.0 * Vector3::from(body.com_mm) / 1000.0;
+        let moment = (centre_m - o).cross(&Vector3::new(0.0, 0.0, -GRAVITY_MPS2));
+        let tau = axis.dot(&moment);
+        (tau, r.inverse() * (moment - axis * tau))
+    }
 }
 
 /// The loads of `model`'s joints at raw encoder angles `enc_deg` (degrees, one per joint of the
@@ -127,8 +179,11 @@ pub fn loads(model: &ArmModel, enc_deg: impl Fn(usize) -> f64) -> Option<Loads> 
     let deflects = model.joints[..n].iter().any(|j| j.sag_deg_per_knm != 0.0 || j.bend_deg_per_knm != 0.0);
     let mut theta = rigid.clone();
     let mut bend = vec![Vector3::zeros(); n];
-    let mut out =
-        Loads { torque_nm: [0.0; MAX_TREE_JOINTS], lateral_nm: [Vector3::zeros(); MAX_TREE_JOINTS] };
+    let mut out = Loads {
+        torque_nm: [0.0; MAX_TREE_JOINTS],
+        lateral_nm: [Vector3::zeros(); MAX_TREE_JOINTS],
+        frames: [(Rotation3::identity(), Vector3::zeros(), Vector3::zeros()); MAX_TREE_JOINTS],
+    };
     for _ in 0..MAX_ITERATIONS {
         moments(model, n, &theta, &bend, &mut out);
         if !deflects {
@@ -191,6 +246,7 @@ fn moments(model: &ArmModel, n: usize, theta: &[f64], bend: &[Vector3<f64>], out
         let tau = axes[j].dot(&about_joint);
         out.torque_nm[j] = tau;
         out.lateral_nm[j] = r.inverse() * (about_joint - axes[j] * tau);
+        out.frames[j] = (r, o / 1000.0, axes[j]);
     }
 }
 
@@ -204,7 +260,8 @@ mod tests {
         let mut model = ArmModel::suta_nominal();
         model.convention = Convention::Urdf;
         model.joints = vec![Joint { axis: [0.0, 1.0, 0.0], ..Default::default() }];
-        model.tree.bodies = vec![Body { joint: 0, mass_kg: 2.0, com_mm: [500.0, 0.0, 0.0] }];
+        model.tree.bodies =
+            vec![Body { name: "lever".into(), joint: 0, mass_kg: 2.0, com_mm: [500.0, 0.0, 0.0] }];
         model
     }
 
@@ -230,7 +287,12 @@ mod tests {
         let branch = Joint { origin_xyz_mm: [500.0, 0.0, 0.0], ..Default::default() };
         model.joints = vec![model.joints[0], branch, branch];
         model.tree.parents = vec![None, Some(0), Some(0)];
-        model.tree.bodies.extend([1, 2].map(|joint| Body { joint, mass_kg: 1.0, com_mm: [200.0, 0.0, 0.0] }));
+        model.tree.bodies.extend([1, 2].map(|joint| Body {
+            name: format!("b{joint}"),
+            joint,
+            mass_kg: 1.0,
+            com_mm: [200.0, 0.0, 0.0],
+        }));
         let loads = loads(&model, |j| if j == 2 { 90.0 } else { 0.0 }).expect("loads");
         // About joint 1 (y): 2 kg at 0.5 m, 1 kg at 0.7 m and 1 kg at 0.5 m (turned to +y).
         let expected = GRAVITY_MPS2 * (2.0 * 0.5 + 0.7 + 0.5);

@@ -222,6 +222,70 @@ fn index_joints(path: &Path, text: &str) -> Result<Vec<JointElement>, FileError>
     Ok(out)
 }
 
+/// The `<robot>`'s links with an `<inertial><mass value="…">`: each link's name and the byte
+/// range of its mass value (between the quotes), in file order.
+fn index_link_masses(text: &str) -> Vec<(String, (usize, usize))> {
+    use quick_xml::events::Event;
+    let mut reader = quick_xml::Reader::from_str(text);
+    let (mut depth, mut link, mut inertial, mut out) = (0usize, None::<String>, false, Vec::new());
+    let name_of = |e: &quick_xml::events::BytesStart| {
+        e.try_get_attribute("name")
+            .ok()
+            .flatten()
+            .and_then(|a| a.unescape_value().ok().map(|v| v.into_owned()))
+    };
+    loop {
+        let start = reader.buffer_position() as usize;
+        let Ok(event) = reader.read_event() else { break };
+        let end = reader.buffer_position() as usize;
+        match event {
+            Event::Start(e) | Event::Empty(e) => {
+                let empty = text[start..end].ends_with("/>");
+                match (depth, e.name().as_ref()) {
+                    (1, b"link") if !empty => link = name_of(&e),
+                    (2, b"inertial") if !empty => inertial = link.is_some(),
+                    (3, b"mass") if inertial => {
+                        if let (Some(name), Some(range)) = (link.clone(), value_range(&text[start..end])) {
+                            out.push((name, (start + range.0, start + range.1)));
+                        }
+                    }
+                    _ => {}
+                }
+                depth += usize::from(!empty);
+            }
+            Event::End(_) => {
+                depth = depth.saturating_sub(1);
+                match depth {
+                    1 => link = None,
+                    2 => inertial = false,
+                    _ => {}
+                }
+            }
+            Event::Eof => break,
+            _ => {}
+        }
+    }
+    out
+}
+
+/// The byte range of the `value` attribute's text (between its quotes) in an element's tag.
+fn value_range(tag: &str) -> Option<(usize, usize)> {
+    let mut from = 0;
+    while let Some(at) = tag[from..].find("value").map(|a| a + from) {
+        let before_ok = tag[..at].ends_with(|c: char| c.is_whitespace());
+        let rest = tag[at + 5..].trim_start();
+        if let (true, Some(after_eq)) = (before_ok, rest.strip_prefix('=')) {
+            let quoted = after_eq.trim_start();
+            let quote = quoted.chars().next().filter(|q| *q == '"' || *q == '\'')?;
+            let open = tag.len() - quoted.len() + 1;
+            let close = tag[open..].find(quote)? + open;
+            return Some((open, close));
+        }
+        from = at + 5;
+    }
+    None
+}
+
 /// Read the URDF text of `path`: refused when it is a xacro file, not XML or not a tree of
 /// declared links (a missing link, a link with two parents, a loop, two joints of one name).
 fn read_document<'a>(path: &'a Path, text: String) -> Result<Document<'a>, FileError> {
@@ -669,8 +733,19 @@ pub fn read_masses(path: &Path, model: &mut ArmModel) -> Result<f64, FileError> 
             current = &joint.parent.link;
         };
         if let Some(joint) = carrier {
-            bodies.push(Body { joint, mass_kg: mass, com_mm: [at.x, at.y, at.z] });
+            bodies.push(Body { name: link.name.clone(), joint, mass_kg: mass, com_mm: [at.x, at.y, at.z] });
         }
+    }
+    if bodies.len() > crate::model::MAX_BODIES {
+        return Err(field(
+            path,
+            "<inertial>".into(),
+            format!(
+                "{} links with a mass are carried by the chain; a mass table holds at most {} (merge links)",
+                bodies.len(),
+                crate::model::MAX_BODIES
+            ),
+        ));
     }
     let total = bodies.iter().map(|b| b.mass_kg).sum();
     model.tree.bodies = bodies;
@@ -684,6 +759,8 @@ pub struct CalibratedUrdf {
     pub text: String,
     /// The joints whose `<origin>` was rewritten, base to tip.
     pub joints: Vec<String>,
+    /// The links whose `<inertial><mass>` was rewritten (a body's fitted mass, `mass:BODY`).
+    pub masses: Vec<String>,
     /// Largest distance between the written file's forward kinematics and the model's, mm, over
     /// [`CalibratedUrdf::poses_checked`] poses (the last joint's frame origin and points 100 mm
     /// along its axes).
@@ -802,6 +879,7 @@ pub fn calibrated_urdf(
             !id.is_geometry()
                 && !matches!(id, ParamId::Offset(_) | ParamId::Tcp(_) | ParamId::TipTcp(..))
                 && !id.is_load_compliance()
+                && !matches!(id, ParamId::Mass(_))
         })
         .filter(|id| model.get(*id) != 0.0)
         .map(|id| format!("{id} = {} {}", model.get(id), id.unit()))
@@ -838,6 +916,9 @@ pub fn calibrated_urdf(
             None => (element.head_end, element.head_end, origin),
         });
     }
+    let (masses, kept_in_model) = mass_edits(&doc, model);
+    let weighed: Vec<String> = masses.iter().map(|m| m.link.clone()).collect();
+    edits.extend(masses.into_iter().map(|m| (m.start, m.end, m.value)));
     edits.sort_by_key(|e| std::cmp::Reverse(e.0));
     let mut text = doc.text.clone();
     for (start, end, origin) in edits {
@@ -850,16 +931,22 @@ pub fn calibrated_urdf(
         source.tip,
         urdf.display()
     );
+    let note = match weighed.is_empty() {
+        true => note,
+        false => format!("{note}\n<!-- the <mass> of the links {} fitted ({m}) -->", weighed.join(", ")),
+    };
     let loads: Vec<String> = model
         .params()
         .into_iter()
         .filter(|id| id.is_load_compliance() && model.get(*id) != 0.0)
         .map(|id| format!("{id} = {} {}", model.get(id), id.unit()))
+        .chain(kept_in_model)
         .collect();
     let note = match loads.is_empty() {
         true => note,
         false => format!(
-            "{note}\n<!-- the compliances under gravity ({}) have no URDF element: they stay in {m} -->",
+            "{note}\n<!-- the compliances under gravity and the masses of bodies that are not links here ({}) have no \
+             URDF element: they stay in {m} -->",
             loads.join(", ")
         ),
     };
@@ -867,10 +954,46 @@ pub fn calibrated_urdf(
     let (read_back_mm, poses_checked) = read_back(urdf, &text, model, source)?;
     Ok(CalibratedUrdf {
         text,
+        masses: weighed,
         joints: chain.joints.iter().map(|c| c.name.clone()).collect(),
         read_back_mm,
         poses_checked,
     })
+}
+
+/// One `<mass value>` edit: the link and the byte range of its value's text, and the new text.
+struct MassEdit {
+    link: String,
+    start: usize,
+    end: usize,
+    value: String,
+}
+
+/// The `<mass value>` edits that write the model's masses into the URDF: one per body named
+/// after a link with an `<inertial><mass>` whose mass the model changed; and the fitted masses of
+/// bodies no link of the URDF holds (`mass:NAME = … kg`: they stay in the model file).
+fn mass_edits(doc: &Document, model: &ArmModel) -> (Vec<MassEdit>, Vec<String>) {
+    let places = index_link_masses(&doc.text);
+    let (mut edits, mut elsewhere) = (Vec::new(), Vec::new());
+    for (b, body) in model.tree.bodies.iter().enumerate() {
+        let link = doc.robot.links.iter().find(|l| l.name == body.name);
+        if link.is_some_and(|l| l.inertial.mass.value == body.mass_kg) {
+            continue;
+        }
+        match places.iter().find(|p| p.0 == body.name).filter(|_| link.is_some()) {
+            Some((name, (start, end))) => edits.push(MassEdit {
+                link: name.clone(),
+                start: *start,
+                end: *end,
+                value: format!("{}", body.mass_kg),
+            }),
+            None if model.free.iter().any(|f| f.id == ParamId::Mass(b)) => {
+                elsewhere.push(format!("{} = {} kg", model.param_name(ParamId::Mass(b)), body.mass_kg))
+            }
+            None => {}
+        }
+    }
+    (edits, elsewhere)
 }
 
 /// Put `note` on a line of its own after the XML declaration (or first), in place of the note of
@@ -902,6 +1025,22 @@ fn read_back(
     source: &UrdfSource,
 ) -> Result<(f64, usize), FileError> {
     let doc = read_document(urdf, text.to_string())?;
+    for body in &model.tree.bodies {
+        let Some(link) = doc.robot.links.iter().find(|l| l.name == body.name && l.inertial.mass.value > 0.0)
+        else {
+            continue;
+        };
+        let (written, fitted) = (link.inertial.mass.value, body.mass_kg);
+        if (written - fitted).abs() > 1e-12 * fitted.abs().max(1.0) {
+            return Err(field(
+                urdf,
+                format!("<link name=\"{}\">/<inertial>/<mass>", body.name),
+                format!(
+                    "the URDF as written would hold {written} kg, the model {fitted} kg: nothing was written"
+                ),
+            ));
+        }
+    }
     let (mut written, _) = doc.model(&source.base, &source.tip)?;
     // The rigid arm: the compliances under gravity stay in the model file.
     let mut calibrated = model.clone();

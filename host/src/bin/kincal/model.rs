@@ -49,8 +49,9 @@ pub struct FromUrdfArgs {
     /// Model file to write (.toml or .json); without it the model is printed.
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Read the links' masses and centres of mass (`<inertial>`) into the model's mass table:
-    /// what the compliances under gravity `sag:J` and `bend:J` need.
+    /// Read the links' masses and centres of mass (`<inertial>`) into the model's mass table,
+    /// each body named after its link: what the compliances under gravity `sag:J` and `bend:J`
+    /// need, and what `mass:LINK` fits.
     #[arg(long)]
     masses: bool,
 }
@@ -122,6 +123,9 @@ pub fn run(command: &ModelCommand) -> Result<()> {
                 written.joints.len(),
                 written.joints.join(", ")
             );
+            if !written.masses.is_empty() {
+                println!("  fitted masses written into <inertial><mass> of {}", written.masses.join(", "));
+            }
             println!(
                 "  read back: forward kinematics within {:.1e} mm of {} at {} poses",
                 written.read_back_mm,

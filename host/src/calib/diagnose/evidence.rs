@@ -184,5 +184,9 @@ pub fn effect_words(
         EffectKind::Offset => format!("encoder {j} zero is off by {:+.3}°; {gain}", value(0)),
         EffectKind::Tcp => format!("the tool tip sits off by ({:+.3}, {:+.3}, {:+.3}) mm in the last frame; a 3-D tool offset {gain}", value(0), value(1), value(2)),
         EffectKind::Scale => format!("lengths scale by {:+.0} ppm (temperature or artefact scale); {gain}", value(0)),
+        EffectKind::Mass => {
+            let changes: Vec<String> = fitted.iter().map(|f| format!("{} {:+.3} kg", f.param, f.change)).collect();
+            format!("the arm carries other masses than its table says ({}); {gain}", changes.join(", "))
+        }
     }
 }

@@ -61,7 +61,7 @@ impl Refinement {
 /// `bend`, `sag`; for `bend:J`, `sag:J` (held too when the whole `sag` is in the model).
 fn missing_main(effect: Effect, model: &ArmModel) -> Option<(Effect, &'static str)> {
     let &(_, main, why) = REFINES.iter().find(|r| r.0 == effect.kind)?;
-    let main = Effect { kind: main, joint: effect.joint };
+    let main = Effect { kind: main, joint: effect.joint, body: None };
     (!main.is_in(model)).then_some((main, why))
 }
 
@@ -77,7 +77,7 @@ pub fn main_first(
     let Some(lead) = named.first().and_then(|n| Effect::parse(n)) else { return unchanged() };
     let Some((main, why)) = missing_main(lead, model) else { return unchanged() };
     // A per-joint main effect the library does not offer is stood for by its whole family.
-    let family = Effect { kind: main.kind, joint: None };
+    let family = Effect { kind: main.kind, joint: None, body: None };
     let found = [main, family].into_iter().find_map(|m| candidates.iter().find(|c| c.name == m.to_string()));
     let main_first = found.is_some_and(|c| c.significant);
     let refinement = Refinement {

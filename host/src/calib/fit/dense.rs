@@ -77,7 +77,7 @@ pub(super) fn calibrate_dense(
     let iterations = starts.iter().map(|s| s.iterations).sum();
     Ok(Fit {
         estimates: estimates(nominal, &model, &all, &estimated, cov.as_ref()),
-        correlations: correlations(&estimated, cov.as_ref()),
+        correlations: correlations(nominal, &estimated, cov.as_ref()),
         model,
         options: pieces.resolved,
         cost: best.cost,

@@ -3,6 +3,7 @@
 //! them, and the covariance.
 
 use super::*;
+use crate::model::effects::mass;
 
 /// A solution with frames: the model, each block's frame, each group's tool, the probe and the
 /// drifts, with its cost, iterations and how its last pass stopped.
@@ -203,16 +204,38 @@ pub(super) fn calibrate_framed(
             };
             let (raw, projected) = projected_arm_columns(&full.layout, &factors);
             let ranges: Vec<f64> = all.iter().map(|&id| pieces.range(id)).collect();
-            let (kept, _) = identify::base_columns(&projected, all.len(), &ranges);
-            let before = identify::analyse(&projected, &all, &ranges);
+            // A mass moves a point only through the compliances it loads: every other parameter
+            // is decided here, each mass after them where the compliances the data determine
+            // are of a typical size (see `effects::mass`).
+            let masses: Vec<usize> = (0..all.len()).filter(|&c| matches!(all[c], ParamId::Mass(_))).collect();
+            let (kept, _) = identify::base_columns_last(&projected, all.len(), &ranges, &masses);
+            let (kept, held, projected) = match masses.is_empty() {
+                true => (kept, Vec::new(), projected),
+                false => {
+                    let probe = mass::probe_model(&start.model, |id| kept.iter().any(|&c| all[c] == id));
+                    let full = pieces.problem(all.clone(), &probe, &start.frames, start.probe);
+                    let x = pieces.x_of(&full, &probe, &start.frames, &start.tools, &start.drifts);
+                    let (_, at_probe) = projected_arm_columns(&full.layout, &check_framed(&full, &x)?);
+                    let (kept, held) = identify::add_last(&at_probe, all.len(), &ranges, kept, &masses);
+                    (kept, held, at_probe)
+                }
+            };
+            let names: Vec<String> = all.iter().map(|&id| model.param_name(id)).collect();
+            let before = identify::analyse_named(&projected, &all, &names, &ranges);
             let is_tool = |c: &usize| matches!(all[*c], ParamId::Tcp(_));
             let estimated: Vec<ParamId> =
                 kept.iter().filter(|c| tool_turns || !is_tool(c)).map(|&c| all[c]).collect();
             let fixed: Vec<ParamId> =
                 (0..all.len()).filter(|c| !estimated.contains(&all[*c])).map(|c| all[c]).collect();
             let probe_turns = full.layout.rotation_column().is_some();
-            let statements =
-                identify::explain(&all, &raw, &projected, probe_turns, &fixed, &spreads, &ranges);
+            let others: Vec<ParamId> =
+                fixed.iter().copied().filter(|p| !matches!(p, ParamId::Mass(_))).collect();
+            let mut statements =
+                identify::explain(&all, &raw, &projected, probe_turns, &others, &spreads, &ranges);
+            statements.extend(held.iter().map(|h| {
+                let with: Vec<ParamId> = h.with.iter().map(|&k| all[k]).collect();
+                mass::held_statement(model, all[h.column], &with)
+            }));
             // With the tool point all there is to estimate (no floated tool, no drift) and its
             // first fit stopped at its last evaluation (a negligible step or a vanished
             // gradient), that fit is the nominal start's solve: solving again from its solution
@@ -314,7 +337,7 @@ pub(super) fn calibrate_framed(
         .collect();
     Ok(Fit {
         estimates: estimates(nominal, &solved.model, &all, &estimated, cov.as_ref()),
-        correlations: correlations(&estimated, cov.as_ref()),
+        correlations: correlations(nominal, &estimated, cov.as_ref()),
         tool_offsets: floated_tools(&problem, data, &solved.tools, cov.as_ref()),
         rms_mm: stats.distances.or(stats.points).map_or(0.0, |s| s.rms_mm),
         stats,

@@ -173,8 +173,8 @@ impl Fit {
     /// What the data determine, in words.
     pub fn identifiability(&self) -> IdentifiabilityReport {
         IdentifiabilityReport {
-            estimated: self.estimated.iter().map(|p| p.to_string()).collect(),
-            fixed: self.fixed.iter().map(|p| p.to_string()).collect(),
+            estimated: self.estimated.iter().map(|p| self.model.param_name(*p)).collect(),
+            fixed: self.fixed.iter().map(|p| self.model.param_name(*p)).collect(),
             statements: self.statements.clone(),
             unidentifiable: self.before.unidentifiable.clone(),
             poorly_identified: self.before.poorly_identified.clone(),

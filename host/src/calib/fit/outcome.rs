@@ -54,7 +54,7 @@ pub(super) fn estimates(
         .map(|&id| {
             let k = estimated.iter().position(|e| *e == id);
             Estimate {
-                param: id.to_string(),
+                param: nominal.param_name(id),
                 unit: id.unit().to_string(),
                 nominal: nominal.get(id),
                 value: model.get(id),
@@ -67,6 +67,7 @@ pub(super) fn estimates(
 
 /// Estimated pairs correlated beyond ±0.9.
 pub(super) fn correlations(
+    model: &ArmModel,
     estimated: &[ParamId],
     cov: Option<&nalgebra::DMatrix<f64>>,
 ) -> Vec<(String, String, f64)> {
@@ -77,7 +78,7 @@ pub(super) fn correlations(
             for b in a + 1..n {
                 let rho = c[(a, b)] / (c[(a, a)] * c[(b, b)]).sqrt();
                 if rho.abs() > 0.9 {
-                    out.push((estimated[a].to_string(), estimated[b].to_string(), rho));
+                    out.push((model.param_name(estimated[a]), model.param_name(estimated[b]), rho));
                 }
             }
         }

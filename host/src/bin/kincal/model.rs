@@ -49,9 +49,8 @@ pub struct FromUrdfArgs {
     /// Model file to write (.toml or .json); without it the model is printed.
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Read the links' masses and centres of mass (`<inertial>`) into the model's mass table,
-    /// each body named after its link: what the compliances under gravity `sag:J` and `bend:J`
-    /// need, and what `mass:LINK` fits.
+    /// Read the links' masses and centres of mass (`<inertial>`) into the model's mass table:
+    /// what the compliances under gravity `sag:J` and `bend:J` need.
     #[arg(long)]
     masses: bool,
 }

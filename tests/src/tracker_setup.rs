@@ -3,8 +3,9 @@
 //! held-out folders. Only kincal's reader and model file loader are used, no forward code.
 
 use crate::tracker_gen::TrackerData as Generated;
+use kincal::calib::validate::validate_session;
 use kincal::data::tracker::load_dir;
-use kincal::data::Observations;
+use kincal::data::{load_folder, Observations, Purpose};
 use kincal::model::{ArmModel, ParamId};
 use std::path::{Path, PathBuf};
 
@@ -51,4 +52,36 @@ pub fn split(generated: &Generated, dir: &Path, cal: &[usize]) -> (Observations,
         std::fs::rename(all.join(&name), to.join(&name)).expect("session moved");
     }
     (load_dir(&c).expect("calibration sessions"), load_dir(&v).expect("validation sessions"))
+}
+
+/// Pooled held-out RMS of `model` over the sessions of `val`, each session's base refitted, mm.
+pub fn held_out_rms(model: &ArmModel, val: &Observations) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for b in 0..val.blocks.len() {
+        let v = validate_session(model, val, b, [0.0; 3]);
+        sum += v.rms_mm * v.rms_mm * v.points as f64;
+        n += v.points;
+    }
+    (sum / n as f64).sqrt()
+}
+
+/// The sessions `S1.csv … Sn.csv` in `data/sessions` split into `dir/cal` (all but the last)
+/// and `dir/val` (the last, held out), read and bound to `model`.
+pub fn split_last_held_out(data: &Path, dir: &Path, model: &ArmModel) -> (Observations, Observations) {
+    let (cal, val) = (dir.join("cal"), dir.join("val"));
+    let source = data.join("sessions");
+    let n = std::fs::read_dir(&source).expect("sessions").count();
+    for (folder, sessions) in [(&cal, 1..n), (&val, n..n + 1)] {
+        std::fs::create_dir_all(folder).expect("folder");
+        for s in sessions {
+            let name = format!("S{s}.csv");
+            std::fs::copy(source.join(&name), folder.join(&name)).expect("session copied");
+        }
+    }
+    let read = |folder: &Path, purpose| {
+        let mut data = load_folder(folder, None, purpose).expect("kincal-tracker/2 sessions read");
+        data.bind(model).expect("the sessions' joints and tips are the model's");
+        data
+    };
+    (read(&cal, Purpose::Calibration), read(&val, Purpose::Validation))
 }

@@ -17,12 +17,12 @@ use kincal::calib::diagnose::auto::{auto_loop, AutoLoop, Stop};
 use kincal::calib::diagnose::{diagnose, held_out_rms_mm};
 use kincal::calib::setup::{Change, Setup};
 use kincal::calib::validate::validate_session;
-use kincal::data::{load_folder, Observations, Purpose};
+use kincal::data::{load_folder, Purpose};
 use kincal::model::effects::Effect;
 use kincal::model::kinematics::Chain;
 use kincal::model::{ArmModel, ParamId};
 use kincal_e2e::kincal_bin;
-use kincal_e2e::tracker_setup::scratch;
+use kincal_e2e::tracker_setup::{scratch, split_last_held_out};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -72,27 +72,6 @@ fn model(dir: &Path, masses: bool) -> PathBuf {
     assert!(out.status.success(), "from-urdf: {}", String::from_utf8_lossy(&out.stderr));
     println!("{}", String::from_utf8_lossy(&out.stdout));
     path
-}
-
-/// The sessions of the generated `data` split: all but the last calibrate, the last is held
-/// out; read and bound to `model`.
-fn split(data: &Path, dir: &Path, model: &ArmModel) -> (Observations, Observations) {
-    let (cal, val) = (dir.join("cal"), dir.join("val"));
-    let source = data.join("sessions");
-    let n = std::fs::read_dir(&source).expect("sessions").count();
-    for (folder, sessions) in [(&cal, 1..n), (&val, n..n + 1)] {
-        std::fs::create_dir_all(folder).expect("folder");
-        for s in sessions {
-            let name = format!("S{s}.csv");
-            std::fs::copy(source.join(&name), folder.join(&name)).expect("session copied");
-        }
-    }
-    let read = |folder: &Path, purpose| {
-        let mut data = load_folder(folder, None, purpose).expect("kincal-tracker/2 sessions read");
-        data.bind(model).expect("the sessions' joints and tips are the model's");
-        data
-    };
-    (read(&cal, Purpose::Calibration), read(&val, Purpose::Validation))
 }
 
 /// The true compliance of `param` in kincal's unit (deg/(kN·m)) from truth.json.
@@ -150,7 +129,7 @@ fn says(summary: &[String], start: &str) -> bool {
 /// The loop from the geometric calibration of `nominal` on the generated `data` (split in `dir`):
 /// its steps printed, and the last step refitted (its estimates with their deviations).
 fn run_loop(data: &Path, dir: &Path, nominal: &ArmModel) -> (AutoLoop, kincal::calib::fit::Fit) {
-    let (cal, val) = split(data, dir, nominal);
+    let (cal, val) = split_last_held_out(data, dir, nominal);
     let setup = Setup::default();
     let geometry = setup.calibrate(nominal, &cal).expect("calibrates").model;
     let auto = auto_loop(&setup, &geometry, &cal, &val, 3).expect("the loop runs");
@@ -241,7 +220,7 @@ fn lateral_compliance_alone_is_reached_after_sag_which_ends_at_zero() {
     let dir = scratch("humanoid", "lateral");
     let truth = generate(&dir, &["--poses", "240", "--repeats", "12", "--joint-compliance-scale", "0"]);
     let nominal = ArmModel::load(&model(&dir, true)).expect("the model loads");
-    let (cal, val) = split(&dir.join("data"), &dir, &nominal);
+    let (cal, val) = split_last_held_out(&dir.join("data"), &dir, &nominal);
     let setup = Setup::default();
     let geometry = setup.calibrate(&nominal, &cal).expect("calibrates").model;
     let d = diagnose(&setup, &geometry, &cal, &val).expect("diagnoses");
@@ -278,7 +257,7 @@ fn sag_and_bend_the_data_cannot_tell_apart_are_stated_as_rivals() {
     let options = ["--poses", "60", "--sessions", "2", "--repeats", "6", "--sigma-mm", "1.0"];
     generate(&dir, &[&options[..], &["--joint-compliance-scale", "0.3", "--lateral-scale", "0"]].concat());
     let nominal = ArmModel::load(&model(&dir, true)).expect("the model loads");
-    let (cal, val) = split(&dir.join("data"), &dir, &nominal);
+    let (cal, val) = split_last_held_out(&dir.join("data"), &dir, &nominal);
     let setup = Setup::default();
     let calibrated = setup.calibrate(&nominal, &cal).expect("calibrates").model;
     let d = diagnose(&setup, &calibrated, &cal, &val).expect("diagnoses");
@@ -367,7 +346,7 @@ fn the_tip_mass_model_alone_leaves_a_sag_it_cannot_explain() {
     for j in 1..nominal.joints.len() {
         Effect::parse(&format!("compliance:{}", j + 1)).expect("an effect").add_to(&mut nominal);
     }
-    let (cal, val) = split(&generated().0, &dir, &nominal);
+    let (cal, val) = split_last_held_out(&generated().0, &dir, &nominal);
     let setup = Setup::default();
     let calibrated = setup.calibrate(&nominal, &cal).expect("calibrates").model;
     let d = diagnose(&setup, &calibrated, &cal, &val).expect("diagnoses");

@@ -9,13 +9,11 @@
 //! mass table does not have, or a model without one, is refused with the bodies it has.
 
 use kincal::calib::setup::Setup;
-use kincal::calib::validate::validate_session;
-use kincal::data::{load_folder, Observations, Purpose};
 use kincal::model::effects::Effect;
 use kincal::model::urdf::read_masses;
 use kincal::model::ArmModel;
 use kincal_e2e::kincal_bin;
-use kincal_e2e::tracker_setup::scratch;
+use kincal_e2e::tracker_setup::{held_out_rms, scratch, split_last_held_out};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -97,36 +95,6 @@ fn with_effects(path: &Path, names: &[&str]) -> ArmModel {
     model
 }
 
-/// The sessions split (all but the last calibrate), read and bound to `model`.
-fn split(dir: &Path, model: &ArmModel) -> (Observations, Observations) {
-    let source = generated().0.join("sessions");
-    let (cal, val) = (dir.join("cal"), dir.join("val"));
-    for (folder, sessions) in [(&cal, 1..SESSIONS), (&val, SESSIONS..SESSIONS + 1)] {
-        std::fs::create_dir_all(folder).expect("folder");
-        for s in sessions {
-            let name = format!("S{s}.csv");
-            std::fs::copy(source.join(&name), folder.join(&name)).expect("session copied");
-        }
-    }
-    let read = |folder: &Path, purpose| {
-        let mut data = load_folder(folder, None, purpose).expect("kincal-tracker/2 sessions read");
-        data.bind(model).expect("the sessions' joints are the model's");
-        data
-    };
-    (read(&cal, Purpose::Calibration), read(&val, Purpose::Validation))
-}
-
-/// Pooled held-out RMS of `model`, each session's base refitted, mm.
-fn held_out_rms(model: &ArmModel, val: &Observations) -> f64 {
-    let (mut sum, mut n) = (0.0, 0usize);
-    for b in 0..val.blocks.len() {
-        let v = validate_session(model, val, b, [0.0; 3]);
-        sum += v.rms_mm * v.rms_mm * v.points as f64;
-        n += v.points;
-    }
-    (sum / n as f64).sqrt()
-}
-
 /// The links' masses known (the published inertials), the compliances free: the payload's mass
 /// is determined (known bodies load the same joints with other levers), fitted within 3σ of
 /// the truth, and the held-out error reaches the floor; the fitted mass goes into the model
@@ -138,7 +106,7 @@ fn a_payloads_mass_is_fitted_within_3_sigma_and_written_back() {
     let nominal = with_effects(&from_urdf(&dir, true), &["sag", "bend", "mass:payload"]);
     let payload = nominal.parse_param("mass:payload").expect("the payload is a body");
     assert_eq!(nominal.get(payload), GUESS_KG);
-    let (cal, val) = split(&dir, &nominal);
+    let (cal, val) = split_last_held_out(&generated().0, &dir, &nominal);
     let fit = Setup::default().calibrate(&nominal, &cal).expect("calibrates");
     let report = fit.identifiability();
     println!("{}", report.statements.join("\n"));
@@ -197,7 +165,7 @@ fn a_payloads_mass_is_fitted_within_3_sigma_and_written_back() {
 fn with_every_mass_and_compliance_free_the_report_holds_the_scale_and_names_it() {
     let dir = scratch("masses", "scale");
     let nominal = with_effects(&from_urdf(&dir, true), &["sag", "bend", "mass"]);
-    let (cal, _) = split(&dir, &nominal);
+    let (cal, _) = split_last_held_out(&generated().0, &dir, &nominal);
     let fit = Setup::default().calibrate(&nominal, &cal).expect("calibrates");
     let report = fit.identifiability();
     println!("{}", report.statements.join("\n"));

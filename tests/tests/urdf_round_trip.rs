@@ -8,7 +8,6 @@
 
 use kincal::calib::fit::{calibrate, Fit};
 use kincal::calib::setup::SolveOptions;
-use kincal::calib::validate::validate_session;
 use kincal::data::tracker::load_dir;
 use kincal::data::Observations;
 use kincal::model::kinematics::tool_pose;
@@ -17,6 +16,7 @@ use kincal::model::ArmModel;
 use kincal_e2e::tracker_gen::{
     axis_angle, generate, rpy_matrix, rpy_of, Mat3, TrackerData as Generated, TrackerOptions as GenOptions,
 };
+use kincal_e2e::tracker_setup::held_out_rms;
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -44,17 +44,6 @@ fn urdf_arm(name: &str, seed: u64) -> (PathBuf, Generated, ArmModel, Observation
     }
     let (cal, val) = (load_dir(&cal_dir).unwrap(), load_dir(&val_dir).unwrap());
     (dir, generated, nominal, cal, val)
-}
-
-/// Pooled held-out RMS of `model`, each session's base refitted, mm.
-fn held_out_rms(model: &ArmModel, val: &Observations) -> f64 {
-    let (mut sum, mut n) = (0.0, 0usize);
-    for b in 0..val.blocks.len() {
-        let v = validate_session(model, val, b, [0.0; 3]);
-        sum += v.rms_mm * v.rms_mm * v.points as f64;
-        n += v.points;
-    }
-    (sum / n as f64).sqrt()
 }
 
 #[test]

@@ -845,11 +845,9 @@ mod tests {
         }
     }
 
-    /// A URDF arm of three joints with a mass table: the sag and bend columns are exact where
-    /// the compliances are zero (the loads' own change is of their order), within 1 % at a
-    /// humanoid's compliances; a sag turns the tool down.
-    #[test]
-    fn sag_and_bend_columns_match_central_differences() {
+    /// A URDF arm of three joints (a vertical axis, then a horizontal one, then one along the
+    /// upper link) carrying an upper link of 5 kg and a hand of 3 kg: no compliance set.
+    fn three_joint_arm_with_masses() -> ArmModel {
         let mut model = ArmModel::suta_nominal();
         model.convention = Convention::Urdf;
         model.free.clear();
@@ -871,6 +869,15 @@ mod tests {
             crate::model::Body { name: "upper".into(), joint: 1, mass_kg: 5.0, com_mm: [200.0, 0.0, 10.0] },
             crate::model::Body { name: "hand".into(), joint: 2, mass_kg: 3.0, com_mm: [150.0, 30.0, -20.0] },
         ];
+        model
+    }
+
+    /// A URDF arm of three joints with a mass table: the sag and bend columns are exact where
+    /// the compliances are zero (the loads' own change is of their order), within 1 % at a
+    /// humanoid's compliances; a sag turns the tool down.
+    #[test]
+    fn sag_and_bend_columns_match_central_differences() {
+        let model = three_joint_arm_with_masses();
         let enc = [20.0, -15.0, 40.0];
         let params: Vec<ParamId> = (0..3).flat_map(|j| [ParamId::Sag(j), ParamId::Bend(j)]).collect();
         let rigid = tool_pose(&model, &enc).position_mm;
@@ -904,27 +911,7 @@ mod tests {
     /// a direction the Jacobian does not see (Σ m_b·∂/∂m_b = Σ s_j·∂/∂s_j + Σ b_j·∂/∂b_j).
     #[test]
     fn mass_columns_match_central_differences_and_trade_against_the_compliances() {
-        let mut model = ArmModel::suta_nominal();
-        model.convention = Convention::Urdf;
-        model.free.clear();
-        model.joints = vec![
-            crate::model::Joint { origin_xyz_mm: [0.0, 0.0, 300.0], ..Default::default() },
-            crate::model::Joint {
-                origin_xyz_mm: [0.0, 80.0, 200.0],
-                axis: [0.0, 1.0, 0.0],
-                ..Default::default()
-            },
-            crate::model::Joint {
-                origin_xyz_mm: [400.0, 0.0, 0.0],
-                axis: [1.0, 0.0, 0.0],
-                ..Default::default()
-            },
-        ];
-        model.tcp_mm = [300.0, 20.0, -50.0];
-        model.tree.bodies = vec![
-            crate::model::Body { name: "upper".into(), joint: 1, mass_kg: 5.0, com_mm: [200.0, 0.0, 10.0] },
-            crate::model::Body { name: "hand".into(), joint: 2, mass_kg: 3.0, com_mm: [150.0, 30.0, -20.0] },
-        ];
+        let mut model = three_joint_arm_with_masses();
         let enc = [20.0, -15.0, 40.0];
         let masses = [ParamId::Mass(0), ParamId::Mass(1)];
         let compliances: Vec<ParamId> = (0..3).flat_map(|j| [ParamId::Sag(j), ParamId::Bend(j)]).collect();

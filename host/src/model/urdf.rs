@@ -128,6 +128,8 @@ struct Document<'a> {
     text: String,
     robot: urdf_rs::Robot,
     joints: Vec<JointElement>,
+    /// Its links' mass values ([`Places::link_masses`]).
+    link_masses: Vec<(String, (usize, usize))>,
 }
 
 /// One revolute joint of the chain: its name in the URDF and the fixed joints folded before it.
@@ -168,96 +170,71 @@ fn line_of(text: &str, at: usize) -> usize {
     text[..at.min(text.len())].matches('\n').count() + 1
 }
 
-/// The `<robot>`'s own `<joint>` elements, in file order.
-fn index_joints(path: &Path, text: &str) -> Result<Vec<JointElement>, FileError> {
+/// Where the `<robot>`'s own elements an edit rewrites are in the text, from one pass over it.
+struct Places {
+    /// Its `<joint>` elements, in file order.
+    joints: Vec<JointElement>,
+    /// Its links with an `<inertial><mass value="…">`: each link's name and the byte range of
+    /// its mass value (between the quotes), in file order.
+    link_masses: Vec<(String, (usize, usize))>,
+}
+
+/// The [`Places`] of `text` (the URDF at `path`), refused with the line of an XML error.
+fn index_places(path: &Path, text: &str) -> Result<Places, FileError> {
     use quick_xml::events::Event;
     let mut reader = quick_xml::Reader::from_str(text);
     let syntax = |at: u64, what: String| FileError::Syntax {
         path: path.to_owned(),
         message: format!("line {}: not a URDF robot description: {what}", line_of(text, at as usize)),
     };
-    let name_of = |e: &quick_xml::events::BytesStart| -> Result<String, FileError> {
+    let name_of = |e: &quick_xml::events::BytesStart, at: usize| -> Result<String, FileError> {
         let attribute = e.try_get_attribute("name").ok().flatten();
         let value = attribute.map(|a| a.unescape_value().map(|v| v.into_owned()));
-        value.unwrap_or(Ok(String::new())).map_err(|err| syntax(0, err.to_string()))
+        value.unwrap_or(Ok(String::new())).map_err(|err| syntax(at as u64, err.to_string()))
     };
-    let (mut depth, mut out, mut current, mut origin_start) = (0usize, Vec::new(), None, None);
+    let mut places = Places { joints: Vec::new(), link_masses: Vec::new() };
+    let (mut depth, mut joint, mut origin_start) = (0usize, None::<JointElement>, None);
+    let (mut link, mut inertial) = (None::<String>, false);
     loop {
         let start = reader.buffer_position() as usize;
         let event = reader.read_event().map_err(|e| syntax(reader.error_position(), e.to_string()))?;
         let end = reader.buffer_position() as usize;
         match event {
-            Event::Start(e) => {
-                let tag = e.name().as_ref().to_vec();
-                if depth == 1 && tag == b"joint" {
-                    let name = name_of(&e)?;
-                    let line = line_of(text, start);
-                    current = Some(JointElement { name, head_end: end, origin: None, line });
-                } else if depth == 2 && tag == b"origin" && current.is_some() {
-                    origin_start = Some(start);
-                }
-                depth += 1;
-            }
-            Event::Empty(e) => {
-                let tag = e.name().as_ref().to_vec();
-                if let (2, b"origin", Some(joint)) = (depth, tag.as_slice(), current.as_mut()) {
-                    joint.origin.get_or_insert((start, end));
-                }
-            }
-            Event::End(e) => {
-                depth = depth.saturating_sub(1);
-                let tag = e.name().as_ref().to_vec();
-                if let (2, b"origin", Some(joint), Some(o)) =
-                    (depth, tag.as_slice(), current.as_mut(), origin_start.take())
-                {
-                    joint.origin.get_or_insert((o, end));
-                } else if depth == 1 && tag == b"joint" {
-                    out.extend(current.take());
-                }
-            }
-            Event::Eof => break,
-            _ => {}
-        }
-    }
-    Ok(out)
-}
-
-/// The `<robot>`'s links with an `<inertial><mass value="…">`: each link's name and the byte
-/// range of its mass value (between the quotes), in file order.
-fn index_link_masses(text: &str) -> Vec<(String, (usize, usize))> {
-    use quick_xml::events::Event;
-    let mut reader = quick_xml::Reader::from_str(text);
-    let (mut depth, mut link, mut inertial, mut out) = (0usize, None::<String>, false, Vec::new());
-    let name_of = |e: &quick_xml::events::BytesStart| {
-        e.try_get_attribute("name")
-            .ok()
-            .flatten()
-            .and_then(|a| a.unescape_value().ok().map(|v| v.into_owned()))
-    };
-    loop {
-        let start = reader.buffer_position() as usize;
-        let Ok(event) = reader.read_event() else { break };
-        let end = reader.buffer_position() as usize;
-        match event {
             Event::Start(e) | Event::Empty(e) => {
                 let empty = text[start..end].ends_with("/>");
-                match (depth, e.name().as_ref()) {
-                    (1, b"link") if !empty => link = name_of(&e),
-                    (2, b"inertial") if !empty => inertial = link.is_some(),
-                    (3, b"mass") if inertial => {
+                match (depth, e.name().as_ref(), empty) {
+                    (1, b"joint", false) => {
+                        let (name, line) = (name_of(&e, start)?, line_of(text, start));
+                        joint = Some(JointElement { name, head_end: end, origin: None, line });
+                    }
+                    (1, b"link", false) => link = Some(name_of(&e, start)?),
+                    (2, b"origin", true) => {
+                        if let Some(joint) = joint.as_mut() {
+                            joint.origin.get_or_insert((start, end));
+                        }
+                    }
+                    (2, b"origin", false) if joint.is_some() => origin_start = Some(start),
+                    (2, b"inertial", false) => inertial = link.is_some(),
+                    (3, b"mass", _) if inertial => {
                         if let (Some(name), Some(range)) = (link.clone(), value_range(&text[start..end])) {
-                            out.push((name, (start + range.0, start + range.1)));
+                            places.link_masses.push((name, (start + range.0, start + range.1)));
                         }
                     }
                     _ => {}
                 }
                 depth += usize::from(!empty);
             }
-            Event::End(_) => {
+            Event::End(e) => {
                 depth = depth.saturating_sub(1);
-                match depth {
-                    1 => link = None,
-                    2 => inertial = false,
+                match (depth, e.name().as_ref()) {
+                    (2, b"origin") => {
+                        if let (Some(joint), Some(o)) = (joint.as_mut(), origin_start.take()) {
+                            joint.origin.get_or_insert((o, end));
+                        }
+                    }
+                    (2, b"inertial") => inertial = false,
+                    (1, b"joint") => places.joints.extend(joint.take()),
+                    (1, _) => link = None,
                     _ => {}
                 }
             }
@@ -265,7 +242,7 @@ fn index_link_masses(text: &str) -> Vec<(String, (usize, usize))> {
             _ => {}
         }
     }
-    out
+    Ok(places)
 }
 
 /// The byte range of the `value` attribute's text (between its quotes) in an element's tag.
@@ -300,12 +277,12 @@ fn read_document<'a>(path: &'a Path, text: String) -> Result<Document<'a>, FileE
             ),
         });
     }
-    let joints = index_joints(path, &text)?;
+    let Places { joints, link_masses } = index_places(path, &text)?;
     let robot = urdf_rs::read_from_string(&text).map_err(|e| FileError::Syntax {
         path: path.to_owned(),
         message: format!("not a URDF robot description: {e}"),
     })?;
-    let doc = Document { path, text, robot, joints };
+    let doc = Document { path, text, robot, joints, link_masses };
     doc.check_tree()?;
     Ok(doc)
 }
@@ -973,14 +950,13 @@ struct MassEdit {
 /// after a link with an `<inertial><mass>` whose mass the model changed; and the fitted masses of
 /// bodies no link of the URDF holds (`mass:NAME = … kg`: they stay in the model file).
 fn mass_edits(doc: &Document, model: &ArmModel) -> (Vec<MassEdit>, Vec<String>) {
-    let places = index_link_masses(&doc.text);
     let (mut edits, mut elsewhere) = (Vec::new(), Vec::new());
     for (b, body) in model.tree.bodies.iter().enumerate() {
         let link = doc.robot.links.iter().find(|l| l.name == body.name);
         if link.is_some_and(|l| l.inertial.mass.value == body.mass_kg) {
             continue;
         }
-        match places.iter().find(|p| p.0 == body.name).filter(|_| link.is_some()) {
+        match doc.link_masses.iter().find(|p| p.0 == body.name).filter(|_| link.is_some()) {
             Some((name, (start, end))) => edits.push(MassEdit {
                 link: name.clone(),
                 start: *start,
@@ -1089,6 +1065,31 @@ mod tests {
          <joint name=\"f\" type=\"fixed\"><parent link=\"l1\"/><child link=\"m\"/><origin xyz=\"0.2 0 0\" rpy=\"0 0.3 0\"/></joint>\
          <joint name=\"j2\" type=\"continuous\"><parent link=\"m\"/><child link=\"l2\"/><origin xyz=\"0.1 0.05 0\" rpy=\"0 0 0.5\"/><axis xyz=\"0 1 1\"/></joint>\
          <joint name=\"t\" type=\"fixed\"><parent link=\"l2\"/><child link=\"tool\"/><origin xyz=\"0 0 0.1\"/></joint></robot>";
+
+    /// One pass finds the joints' origins and the links' masses, whatever the order of links and
+    /// joints and whether an origin is an empty or a full element; a name the XML cannot read is
+    /// refused with its line.
+    #[test]
+    fn one_pass_finds_joint_origins_and_link_masses() {
+        let text = "<robot name=\"t\">\n<link name=\"b\"><inertial><mass value=\"2.5\"/></inertial></link>\n\
+             <joint name=\"j1\" type=\"revolute\"><origin xyz=\"0 0 1\"></origin></joint>\n\
+             <link name=\"l1\"><visual/><inertial><origin xyz=\"0 0 0\"/><mass value='0.75'/></inertial></link>\n\
+             <joint name=\"j2\" type=\"revolute\"><origin xyz=\"0 0 2\"/></joint>\n<joint name=\"j3\"></joint></robot>";
+        let places = index_places(Path::new("r.urdf"), text).unwrap();
+        let names: Vec<&str> = places.joints.iter().map(|j| j.name.as_str()).collect();
+        assert_eq!(names, ["j1", "j2", "j3"]);
+        let origin = |k: usize| places.joints[k].origin.map(|(a, b)| &text[a..b]);
+        assert_eq!(origin(0), Some("<origin xyz=\"0 0 1\"></origin>"));
+        assert_eq!(origin(1), Some("<origin xyz=\"0 0 2\"/>"));
+        assert_eq!(origin(2), None);
+        assert_eq!(places.joints.iter().map(|j| j.line).collect::<Vec<_>>(), [3, 5, 6]);
+        let masses: Vec<(&str, &str)> =
+            places.link_masses.iter().map(|(name, (a, b))| (name.as_str(), &text[*a..*b])).collect();
+        assert_eq!(masses, [("b", "2.5"), ("l1", "0.75")]);
+        let bad = "<robot name=\"t\">\n<link name=\"b\"/>\n<joint name=\"j&bogus;\"></joint></robot>";
+        let error = index_places(Path::new("r.urdf"), bad).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(error.contains("r.urdf") && error.contains("line 3"), "{error}");
+    }
 
     /// A two-joint URDF with a fixed joint between and a tool joint after: the model's tool point
     /// equals the URDF chain multiplied out by hand, and writing the model back reproduces it.

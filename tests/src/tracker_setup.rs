@@ -9,12 +9,32 @@ use kincal::data::{load_folder, Observations, Purpose};
 use kincal::model::{ArmModel, ParamId};
 use std::path::{Path, PathBuf};
 
-/// A fresh scratch folder for one test.
+/// A fresh scratch folder for one test. The folders of earlier runs of the same test whose
+/// process has ended are removed first (a folder shared by a file's tests, held in a static,
+/// outlives its process: nothing drops it).
 pub fn scratch(prefix: &str, name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("kincal-{prefix}-{name}-{}", std::process::id()));
+    let stem = format!("kincal-{prefix}-{name}-");
+    remove_stale(&stem);
+    let dir = std::env::temp_dir().join(format!("{stem}{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("scratch folder");
     dir
+}
+
+/// Remove the temporary folders `stem` + a process id whose process no longer runs (Linux's
+/// `/proc` tells; elsewhere nothing is removed).
+fn remove_stale(stem: &str) {
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let pid = name.to_str().and_then(|n| n.strip_prefix(stem)).and_then(|p| p.parse::<u32>().ok());
+        let ended = pid.is_some_and(|p| {
+            cfg!(target_os = "linux") && p != std::process::id() && !Path::new(&format!("/proc/{p}")).exists()
+        });
+        if ended {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
 }
 
 /// The generator's nominal arm as a kincal model with every DH value free (the identifiability

@@ -64,6 +64,8 @@ pub struct Problem<'a> {
     /// evaluations allocate and zero none (each pose writes its own columns; the entries of
     /// observations a chunk does not read are never read).
     spare: Mutex<Vec<Vec<PoseDerivative>>>,
+    /// The normal sums of chunks evaluated, for the next chunks (their batches' buffers).
+    spare_sums: Mutex<Vec<NormalSums>>,
 }
 
 impl<'a> Problem<'a> {
@@ -118,6 +120,7 @@ impl<'a> Problem<'a> {
             frame_start,
             probe_start,
             spare: Mutex::new(Vec::new()),
+            spare_sums: Mutex::new(Vec::new()),
         }
     }
 
@@ -348,7 +351,9 @@ impl Residuals for Problem<'_> {
             .map(|(terms, rs)| {
                 let poses = self.chunk_poses(&state, terms);
                 let input = TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
-                let (mut sums, mut jac, mut w) = (NormalSums::new(n), TermJacobian::default(), Vec::new());
+                let spare = self.spare_sums.lock().ok().and_then(|mut spare| spare.pop());
+                let mut sums = spare.filter(|s| s.columns() == n).unwrap_or_else(|| NormalSums::new(n));
+                let (mut jac, mut w) = (TermJacobian::default(), Vec::new());
                 for (t, r) in terms.iter().zip(rs) {
                     jac.reset(t.rows());
                     t.evaluate(&input, r, Some(&mut jac));
@@ -357,7 +362,11 @@ impl Residuals for Problem<'_> {
                     sums.add(&jac.columns, &jac.values, r, &w);
                 }
                 self.recycle(poses);
-                sums.finish()
+                let out = sums.finish();
+                if let Ok(mut spare) = self.spare_sums.lock() {
+                    spare.push(sums);
+                }
+                out
             })
             .collect();
         let (mut upper, mut g) = (vec![0.0; n * n], vec![0.0; n]);

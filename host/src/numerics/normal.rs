@@ -1,12 +1,28 @@
-//! Normal equations JᵀWJ and JᵀWr (W the rows' IRLS weights) summed as outer products of the
-//! Jacobian's rows, as Ceres' dense normal Cholesky forms them: the inner loop over contiguous
-//! columns, one multiply and add per entry of the upper triangle (which the compiler
-//! vectorises), and nothing allocated per row.
+//! Normal equations JᵀWJ and JᵀWr (W the rows' IRLS weights), as Ceres' dense normal Cholesky
+//! forms them, of a Jacobian given in dense blocks of rows.
+//!
+//! [`add_gram_product`] takes one column-major block D (m × k): U = W·D (its rows times their
+//! weights, copied row by row, so that Uᵀ is column-major), JᵀWr = Uᵀr, and UᵀD by nalgebra's
+//! dense product, which hands blocks of this size to the `matrixmultiply` crate: register-tiled
+//! micro-kernels over packed panels, chosen at run time for the CPU (AVX2 and FMA where the
+//! processor has them, SSE2 otherwise). That is why these sums are not written here: a portable
+//! build cannot use those instructions without `unsafe`, which the library forbids, and the
+//! product computes the whole square (twice the triangle's work) at up to four times the rate of
+//! the best portable loop. Its order of summation depends on the CPU's kernel, so two CPUs agree
+//! to rounding, not to the bit; one machine gives the same sums on any thread count.
+//! [`add_gram`] keeps the plain order (for small problems that want it to the bit) and
+//! [`add_gram_by_four`] sums four rows at a time (a dense Jacobian of few columns, the
+//! artefact's: its Huber refits stop where their tolerances let them, so its figures keep the
+//! order they have).
 //!
 //! [`NormalSums`] sums terms that each touch a few of n columns (a point reads the arm's columns
-//! and its own session's frame): a batch of terms is laid out as dense rows over the union of
-//! their columns, its Gram matrix formed there and added into the n × n sums once per batch. The
-//! order of every sum depends on the terms' order only.
+//! and its own session's frame): each term's derivatives, column after column, are copied
+//! straight into a batch held column-major over the union of the batch's columns (one copy of a
+//! term's rows per column, no scatter of single entries), and the batch's Gram matrix is formed
+//! there by [`add_gram_product`] and added into the n × n sums once per batch. The order of every
+//! sum depends on the terms' order only.
+
+use nalgebra::{DMatrix, DMatrixView, Dyn};
 
 /// Add Σ_i w_i·a_i·a_iᵀ into the upper triangle of `h` (k × k, row-major) and Σ_i w_i·r_i·a_i
 /// into `g`, for the rows a_i of `rows` (row-major, k columns), `weights` and `r` one per row.
@@ -56,6 +72,72 @@ fn gram<const B: usize>(h: &mut [f64], g: &mut [f64], k: usize, rows: &[f64], we
     }
 }
 
+/// As [`add_gram`] for the m rows of a column-major block (column l's rows at
+/// `columns[l * stride ..]`, k columns), by the dense product (see the module doc; the plain
+/// sums to rounding). `buffers` holds the weighted copy and the product (kept by a caller
+/// summing many blocks).
+#[allow(clippy::too_many_arguments)]
+pub fn add_gram_product(
+    h: &mut [f64],
+    g: &mut [f64],
+    k: usize,
+    columns: &[f64],
+    stride: usize,
+    weights: &[f64],
+    r: &[f64],
+    buffers: &mut GramBuffers,
+) {
+    let m = weights.len();
+    debug_assert!(r.len() == m && h.len() == k * k && g.len() == k && m <= stride);
+    if m == 0 || k == 0 {
+        return;
+    }
+    // U = W·D row-major, so that Uᵀ (the product's left factor) is column-major.
+    let u = &mut buffers.weighted;
+    u.clear();
+    u.resize(m * k, 0.0);
+    for (l, column) in columns.chunks(stride).take(k).enumerate() {
+        for ((ui, v), w) in u[l..].iter_mut().step_by(k).zip(&column[..m]).zip(weights) {
+            *ui = w * v;
+        }
+    }
+    for (ui, ri) in u.chunks_exact(k).zip(r) {
+        g.iter_mut().zip(ui).for_each(|(gl, v)| *gl += v * ri);
+    }
+    let ut = DMatrixView::from_slice_with_strides(u, k, m, 1, k);
+    let d = DMatrixView::from_slice_with_strides(&columns[..(k - 1) * stride + m], m, k, 1, stride);
+    add_upper(h, &mut buffers.product, &ut, &d);
+}
+
+/// Add the upper triangle of a·b (k × k) into `h` (row-major), `product` its buffer. Both
+/// factors are column-major views (unit row stride: nalgebra's product for small sizes reads
+/// past the end of views with another row stride).
+fn add_upper(
+    h: &mut [f64],
+    product: &mut DMatrix<f64>,
+    a: &DMatrixView<f64, Dyn, Dyn>,
+    b: &DMatrixView<f64, Dyn, Dyn>,
+) {
+    debug_assert!(a.strides().0 == 1 && b.strides().0 == 1);
+    let k = a.nrows();
+    if product.shape() != (k, k) {
+        *product = DMatrix::zeros(k, k);
+    }
+    product.gemm(1.0, a, b, 0.0);
+    for p in 0..k {
+        for (q, hq) in h[p * k + p..(p + 1) * k].iter_mut().enumerate() {
+            *hq += product[(p, p + q)];
+        }
+    }
+}
+
+/// The buffers of [`add_gram_product`]: a block's weighted copy and its k × k product.
+#[derive(Default)]
+pub struct GramBuffers {
+    weighted: Vec<f64>,
+    product: DMatrix<f64>,
+}
+
 /// Rows a batch holds before its Gram matrix is formed.
 const BATCH_ROWS: usize = 256;
 /// Columns a batch may span before its Gram matrix is formed.
@@ -72,15 +154,14 @@ pub struct NormalSums {
     local: Vec<usize>,
     /// The batch's columns, by local index.
     globals: Vec<usize>,
-    /// The batch's terms: (first row, rows, first column entry, columns).
-    terms: Vec<(usize, usize, usize, usize)>,
-    columns: Vec<usize>,
-    values: Vec<f64>,
+    /// The batch's derivatives, column-major: local column l's rows at `l * BATCH_ROWS ..`
+    /// (zero where a term does not read the column).
+    dense: Vec<f64>,
     r: Vec<f64>,
     w: Vec<f64>,
-    dense: Vec<f64>,
     h_local: Vec<f64>,
     g_local: Vec<f64>,
+    buffers: GramBuffers,
 }
 
 impl NormalSums {
@@ -92,82 +173,81 @@ impl NormalSums {
             g: vec![0.0; n],
             local: vec![NONE; n],
             globals: Vec::new(),
-            terms: Vec::new(),
-            columns: Vec::new(),
-            values: Vec::new(),
-            r: Vec::new(),
-            w: Vec::new(),
             dense: Vec::new(),
+            r: Vec::with_capacity(BATCH_ROWS),
+            w: Vec::with_capacity(BATCH_ROWS),
             h_local: Vec::new(),
             g_local: Vec::new(),
+            buffers: GramBuffers::default(),
         }
     }
 
     /// Add one term: its rows' residuals `r` and weights `w`, its non-zero columns `columns`
     /// with their derivatives `values` (one per row, column after column).
     pub fn add(&mut self, columns: &[usize], values: &[f64], r: &[f64], w: &[f64]) {
+        let rows = r.len();
+        debug_assert!(rows <= BATCH_ROWS && values.len() == columns.len() * rows && w.len() == rows);
         let new = columns.iter().filter(|&&c| self.local[c] == NONE).count();
-        if self.r.len() + r.len() > BATCH_ROWS || self.globals.len() + new > BATCH_COLUMNS {
+        if self.r.len() + rows > BATCH_ROWS || self.globals.len() + new > BATCH_COLUMNS {
             self.flush();
         }
-        for &c in columns {
+        let first = self.r.len();
+        for (&c, v) in columns.iter().zip(values.chunks_exact(rows.max(1))) {
             if self.local[c] == NONE {
                 self.local[c] = self.globals.len();
                 self.globals.push(c);
+                if self.dense.len() < self.globals.len() * BATCH_ROWS {
+                    self.dense.resize(self.globals.len() * BATCH_ROWS, 0.0);
+                }
+            }
+            let at = self.local[c] * BATCH_ROWS + first;
+            for (d, v) in self.dense[at..at + rows].iter_mut().zip(v) {
+                *d += v;
             }
         }
-        self.terms.push((self.r.len(), r.len(), self.columns.len(), columns.len()));
-        self.columns.extend_from_slice(columns);
-        self.values.extend_from_slice(values);
         self.r.extend_from_slice(r);
         self.w.extend_from_slice(w);
     }
 
-    /// Form the batch's Gram matrix over its columns and add it into the sums.
+    /// Form the batch's Gram matrix over its columns, add it into the sums and empty the batch.
     fn flush(&mut self) {
         let (k, m) = (self.globals.len(), self.r.len());
-        if m == 0 {
-            return;
-        }
-        self.dense.clear();
-        self.dense.resize(m * k, 0.0);
-        let mut at = 0;
-        for &(row, rows, first, count) in &self.terms {
-            for &c in &self.columns[first..first + count] {
-                let l = self.local[c];
-                for (j, v) in self.values[at..at + rows].iter().enumerate() {
-                    self.dense[(row + j) * k + l] += v;
+        if m > 0 && k > 0 {
+            self.h_local.clear();
+            self.h_local.resize(k * k, 0.0);
+            self.g_local.clear();
+            self.g_local.resize(k, 0.0);
+            let (h, g, w, r) = (&mut self.h_local, &mut self.g_local, &self.w, &self.r);
+            add_gram_product(h, g, k, &self.dense, BATCH_ROWS, w, r, &mut self.buffers);
+            let n = self.n;
+            for (p, &a) in self.globals.iter().enumerate() {
+                self.g[a] += self.g_local[p];
+                for (q, &b) in self.globals.iter().enumerate().skip(p) {
+                    self.h[a.min(b) * n + a.max(b)] += self.h_local[p * k + q];
                 }
-                at += rows;
             }
         }
-        self.h_local.clear();
-        self.h_local.resize(k * k, 0.0);
-        self.g_local.clear();
-        self.g_local.resize(k, 0.0);
-        add_gram_by_four(&mut self.h_local, &mut self.g_local, k, &self.dense, &self.w, &self.r);
-        let n = self.n;
-        for (p, &a) in self.globals.iter().enumerate() {
-            self.g[a] += self.g_local[p];
-            for (q, &b) in self.globals.iter().enumerate().skip(p) {
-                self.h[a.min(b) * n + a.max(b)] += self.h_local[p * k + q];
-            }
-        }
-        for &c in &self.globals {
+        for (l, &c) in self.globals.iter().enumerate() {
+            self.dense[l * BATCH_ROWS..l * BATCH_ROWS + m].fill(0.0);
             self.local[c] = NONE;
         }
         self.globals.clear();
-        self.terms.clear();
-        self.columns.clear();
-        self.values.clear();
         self.r.clear();
         self.w.clear();
     }
 
-    /// The sums: the upper triangle of JᵀWJ (n × n, row-major) and JᵀWr.
-    pub fn finish(mut self) -> (Vec<f64>, Vec<f64>) {
+    /// The sums: the upper triangle of JᵀWJ (n × n, row-major) and JᵀWr. The sums start again
+    /// from zero; the batch's buffers are kept for them (no allocation or zeroing when they are
+    /// used again over as many columns).
+    pub fn finish(&mut self) -> (Vec<f64>, Vec<f64>) {
         self.flush();
-        (self.h, self.g)
+        let n = self.n;
+        (std::mem::replace(&mut self.h, vec![0.0; n * n]), std::mem::replace(&mut self.g, vec![0.0; n]))
+    }
+
+    /// Columns summed over.
+    pub fn columns(&self) -> usize {
+        self.n
     }
 }
 
@@ -246,6 +326,58 @@ mod tests {
             assert!((g[a] - gd[a]).abs() < 1e-12 * (1.0 + gd[a].abs()));
             for b in a..n {
                 assert!((h[a * n + b] - hd[a * n + b]).abs() < 1e-12 * (1.0 + hd[a * n + b].abs()));
+            }
+        }
+    }
+
+    /// The dense product's sums are the plain triple loop's to 1e-12 relative, on blocks whose
+    /// sizes are not multiples of any kernel's tile (one row, one column, odd counts, fewer than
+    /// nalgebra's threshold for the product and more), with zero weights and zero columns, given
+    /// column-major packed and with a stride, added onto sums already there.
+    #[test]
+    fn the_dense_product_gives_the_plain_sums() {
+        let value = |i: usize, l: usize| ((i * 17 + l * 29) as f64 * 0.61).sin() * (1.0 + l as f64);
+        let mut buffers = GramBuffers::default();
+        for (m, k) in
+            [(1, 1), (7, 1), (1, 9), (5, 5), (6, 6), (13, 3), (255, 31), (257, 37), (1575, 10), (100, 64)]
+        {
+            let rows: Vec<f64> =
+                (0..m * k).map(|e| if e % k == k / 2 && k > 2 { 0.0 } else { value(e / k, e % k) }).collect();
+            let w: Vec<f64> =
+                (0..m).map(|i| if i % 5 == 3 { 0.0 } else { 0.5 + value(i, 99).abs() }).collect();
+            let r: Vec<f64> = (0..m).map(|i| value(i, 98)).collect();
+            let (mut hd, mut gd) = plain(&rows, &w, &r, k);
+            let start = |e: usize| (e as f64 * 0.1).cos();
+            hd.iter_mut().enumerate().for_each(|(e, v)| *v += start(e));
+            gd.iter_mut().enumerate().for_each(|(e, v)| *v += start(e));
+            let scale = hd.iter().chain(&gd).fold(0.0f64, |a, v| a.max(v.abs()));
+            // Column-major with a stride longer than the column, as a batch holds it.
+            let stride = m + 3;
+            let mut columns = vec![f64::NAN; stride * k];
+            for i in 0..m {
+                for l in 0..k {
+                    columns[l * stride + i] = rows[i * k + l];
+                }
+            }
+            let packed: Vec<f64> =
+                (0..k).flat_map(|l| columns[l * stride..l * stride + m].to_vec()).collect();
+            for (data, stride) in [(&columns, stride), (&packed, m)] {
+                let (mut h, mut g): (Vec<f64>, Vec<f64>) =
+                    ((0..k * k).map(start).collect(), (0..k).map(start).collect());
+                add_gram_product(&mut h, &mut g, k, data, stride, &w, &r, &mut buffers);
+                for a in 0..k {
+                    assert!((g[a] - gd[a]).abs() <= 1e-12 * scale, "{m} × {k}: g[{a}] {} vs {}", g[a], gd[a]);
+                    for b in a..k {
+                        let (ours, theirs) = (h[a * k + b], hd[a * k + b]);
+                        assert!(
+                            (ours - theirs).abs() <= 1e-12 * scale,
+                            "{m} × {k}: h[{a},{b}] {ours} vs {theirs}"
+                        );
+                    }
+                    for b in 0..a {
+                        assert_eq!(h[a * k + b], start(a * k + b), "the lower triangle is left alone");
+                    }
+                }
             }
         }
     }

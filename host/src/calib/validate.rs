@@ -456,7 +456,12 @@ pub fn session_residuals(
 
 /// [`session_errors`] of held-out session `b` of `val`, its tool refitted too
 /// ([`fit_session_with_tool`]) when `float_tool` names it.
-pub fn held_out_session_errors(model: &ArmModel, val: &Observations, b: usize, float_tool: &[String]) -> Vec<f64> {
+pub fn held_out_session_errors(
+    model: &ArmModel,
+    val: &Observations,
+    b: usize,
+    float_tool: &[String],
+) -> Vec<f64> {
     let offset = if float_tool.contains(&val.block_name(b)) {
         fit_session_with_tool(model, val, b).0.offset_mm
     } else {

@@ -63,9 +63,11 @@ impl Measure {
     pub fn errors(self, model: &ArmModel, val: &Observations, float_tool: &[String]) -> Vec<f64> {
         match self {
             Measure::Distances => distance_errors(model, val).iter().map(|e| e.error_mm).collect(),
-            Measure::Points => {
-                val.sessions().into_iter().flat_map(|b| held_out_session_errors(model, val, b, float_tool)).collect()
-            }
+            Measure::Points => val
+                .sessions()
+                .into_iter()
+                .flat_map(|b| held_out_session_errors(model, val, b, float_tool))
+                .collect(),
         }
     }
 

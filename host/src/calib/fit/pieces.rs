@@ -32,13 +32,14 @@ const KEPT_TABLES: usize = 4;
 /// reference fit, the data-error scoring's refits, the outlier metrics' sums): the tables of the
 /// last few sets of angles are kept and found again by the angles' exact bits, so each set's
 /// sines and cosines are taken once.
-fn kept_encoder_table(data: &Observations) -> Arc<[(f64, f64)]> {
+pub(super) fn kept_encoder_table(data: &Observations) -> Arc<[(f64, f64)]> {
     let joints = data.joints;
-    let key: Vec<u64> = std::iter::once(joints as u64)
-        .chain(data.obs.iter().flat_map(|o| {
-            std::iter::once(o.q_deg.len() as u64).chain(o.q_deg.iter().map(|q| q.to_bits()))
-        }))
-        .collect();
+    let key: Vec<u64> =
+        std::iter::once(joints as u64)
+            .chain(data.obs.iter().flat_map(|o| {
+                std::iter::once(o.q_deg.len() as u64).chain(o.q_deg.iter().map(|q| q.to_bits()))
+            }))
+            .collect();
     let found = KEPT.lock().ok().and_then(|kept| kept.iter().find(|k| k.0 == key).map(|k| k.1.clone()));
     if let Some(table) = found {
         return table;

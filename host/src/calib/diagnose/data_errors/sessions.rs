@@ -57,8 +57,8 @@ use crate::calib::nuisance::tool::orientation_spread_deg;
 use crate::calib::nuisance::tool::CONSTANT_ORIENTATION_DEG;
 use crate::calib::setup::{Change, SolveOptions};
 use crate::calib::validate::{
-    calibration_errors, fit_session_with_tool, held_out_session_errors, session_errors, session_probe_rotation,
-    undetermined_rotation, validate_orientations,
+    calibration_errors, fit_session_with_tool, held_out_session_errors, session_errors,
+    session_probe_rotation, undetermined_rotation, validate_orientations,
 };
 use crate::data::Observations;
 use crate::model::ArmModel;

@@ -278,6 +278,9 @@ impl RunInputs {
             };
             cal = cal.without(|k| cal.obs[k].block == b);
         }
+        if self.exclude_points.is_empty() {
+            return Ok((cal, val));
+        }
         Ok((exclude_points(&cal, &self.exclude_points)?, val))
     }
 

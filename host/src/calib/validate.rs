@@ -71,8 +71,13 @@ pub struct Validation {
 
 /// Distance errors of `model` on `data`.
 pub fn distance_errors(model: &ArmModel, data: &Observations) -> Vec<PairError> {
+    let pairs = data.landmark_pairs();
+    if pairs.is_empty() {
+        // No touch of a landmark (instrument sessions alone): no pose to compute.
+        return Vec::new();
+    }
     let p = positions(model, data);
-    data.landmark_pairs()
+    pairs
         .into_iter()
         .map(|(a, b)| {
             let (ta, tb) = (&data.obs[a], &data.obs[b]);
@@ -425,10 +430,14 @@ fn session_fit(
     tool_offset_mm: [f64; 3],
 ) -> (Frame, Vec<Vector3<f64>>) {
     let offset = &Vector3::from(tool_offset_mm);
-    let robot = model_points(model, points_of(data, b), offset);
-    let frame = block_frame_of(&robot, data, b);
+    fit_of(&model_points(model, points_of(data, b), offset), data, b)
+}
+
+/// [`session_fit`] for the model's points `robot` of block `b`'s points in order.
+fn fit_of(robot: &[Vector3<f64>], data: &Observations, b: usize) -> (Frame, Vec<Vector3<f64>>) {
+    let frame = block_frame_of(robot, data, b);
     let residuals = points_of(data, b)
-        .zip(&robot)
+        .zip(robot)
         .map(|(p, y)| frame.apply(y) - p.point_mm().unwrap_or_default())
         .collect();
     (frame, residuals)
@@ -445,6 +454,22 @@ pub fn session_residuals(
     session_fit(model, data, b, tool_offset_mm).1
 }
 
+/// [`session_errors`] of held-out session `b` of `val`, its tool refitted too
+/// ([`fit_session_with_tool`]) when `float_tool` names it.
+pub fn held_out_session_errors(
+    model: &ArmModel,
+    val: &Observations,
+    b: usize,
+    float_tool: &[String],
+) -> Vec<f64> {
+    let offset = if float_tool.contains(&val.block_name(b)) {
+        fit_session_with_tool(model, val, b).0.offset_mm
+    } else {
+        [0.0; 3]
+    };
+    session_errors(model, val, b, offset)
+}
+
 /// Lengths of [`session_residuals`], mm.
 pub fn session_errors(model: &ArmModel, data: &Observations, b: usize, tool_offset_mm: [f64; 3]) -> Vec<f64> {
     session_residuals(model, data, b, tool_offset_mm).iter().map(|r| r.norm()).collect()
@@ -458,19 +483,17 @@ pub fn validate_session(
     tool_offset_mm: [f64; 3],
 ) -> SessionValidation {
     let offset = &Vector3::from(tool_offset_mm);
-    let points: Vec<&Observation> = points_of(data, b).collect();
-    let robot = model_points(model, points.iter().copied(), offset);
-    let errors = session_errors(model, data, b, tool_offset_mm);
+    let robot = model_points(model, points_of(data, b), offset);
+    let errors: Vec<f64> = fit_of(&robot, data, b).1.iter().map(|r| r.norm()).collect();
     let stats = ErrorStats::of(&errors);
+    let points: Vec<Vector3<f64>> = points_of(data, b).map(|p| p.point_mm().unwrap_or_default()).collect();
     let step = points.len().div_ceil(MAX_PAIRWISE_POINTS).max(1);
     let picked: Vec<usize> = (0..points.len()).step_by(step).collect();
     let mut sum = 0.0;
     let mut pairs = 0usize;
     for (k, &a) in picked.iter().enumerate() {
         for &c in &picked[k + 1..] {
-            let measured =
-                points[a].point_mm().unwrap_or_default() - points[c].point_mm().unwrap_or_default();
-            let e = (robot[a] - robot[c]).norm() - measured.norm();
+            let e = (robot[a] - robot[c]).norm() - (points[a] - points[c]).norm();
             sum += e * e;
             pairs += 1;
         }

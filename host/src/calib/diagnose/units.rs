@@ -16,7 +16,7 @@
 //!
 //! The units' numbers go to the sign-flip and t test of [`crate::numerics::significance`].
 
-use crate::calib::validate::{distance_errors, fit_session_with_tool, session_errors};
+use crate::calib::validate::{distance_errors, held_out_session_errors};
 use crate::data::Observations;
 use crate::model::ArmModel;
 use crate::numerics::significance::held_out_p;
@@ -66,14 +66,7 @@ impl Measure {
             Measure::Points => val
                 .sessions()
                 .into_iter()
-                .flat_map(|b| {
-                    let offset = if float_tool.contains(&val.block_name(b)) {
-                        fit_session_with_tool(model, val, b).0.offset_mm
-                    } else {
-                        [0.0; 3]
-                    };
-                    session_errors(model, val, b, offset)
-                })
+                .flat_map(|b| held_out_session_errors(model, val, b, float_tool))
                 .collect(),
         }
     }

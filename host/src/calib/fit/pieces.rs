@@ -2,8 +2,9 @@
 //! observations, the starts, and the checks before any solve.
 
 use super::*;
-use crate::calib::problem::encoder_table;
+use crate::model::kinematics::encoder_sin_cos;
 use std::borrow::Cow;
+use std::sync::{Arc, Mutex};
 
 /// What a calibration of some observations is made of, whatever the arm's values.
 pub(super) struct Pieces<'a> {
@@ -15,7 +16,48 @@ pub(super) struct Pieces<'a> {
     pub(super) drift: Vec<Option<DriftSlot>>,
     pub(super) resolved: Resolved,
     /// The encoder angles' sines and cosines, once for every problem of these terms.
-    sin_cos: Vec<(f64, f64)>,
+    sin_cos: Arc<[(f64, f64)]>,
+}
+
+/// Encoder tables [`kept_encoder_table`] keeps, the latest last.
+type Kept = Vec<(Vec<u64>, Arc<[(f64, f64)]>)>;
+static KEPT: Mutex<Kept> = Mutex::new(Vec::new());
+/// Sets of encoder angles whose tables are kept.
+const KEPT_TABLES: usize = 4;
+
+/// The sine and cosine of every encoder angle of `data` (`data.joints` per observation, (0, 1)
+/// for an angle an observation lacks): the table a problem reads
+/// ([`crate::calib::problem::encoder_table`], which leaves out observations no term reads). A
+/// run builds a dozen calibrations on the same observations (the input checks, the fit, the
+/// reference fit, the data-error scoring's refits, the outlier metrics' sums): the tables of the
+/// last few sets of angles are kept and found again by the angles' exact bits, so each set's
+/// sines and cosines are taken once.
+pub(super) fn kept_encoder_table(data: &Observations) -> Arc<[(f64, f64)]> {
+    let joints = data.joints;
+    let key: Vec<u64> =
+        std::iter::once(joints as u64)
+            .chain(data.obs.iter().flat_map(|o| {
+                std::iter::once(o.q_deg.len() as u64).chain(o.q_deg.iter().map(|q| q.to_bits()))
+            }))
+            .collect();
+    let found = KEPT.lock().ok().and_then(|kept| kept.iter().find(|k| k.0 == key).map(|k| k.1.clone()));
+    if let Some(table) = found {
+        return table;
+    }
+    let mut table = vec![(0.0, 1.0); data.obs.len() * joints];
+    for (row, o) in table.chunks_exact_mut(joints.max(1)).zip(&data.obs) {
+        for (sc, &q) in row.iter_mut().zip(o.q_deg.iter()) {
+            *sc = encoder_sin_cos(q);
+        }
+    }
+    let table: Arc<[(f64, f64)]> = table.into();
+    if let Ok(mut kept) = KEPT.lock() {
+        if kept.len() == KEPT_TABLES {
+            kept.remove(0);
+        }
+        kept.push((key, table.clone()));
+    }
+    table
 }
 
 impl<'a> Pieces<'a> {
@@ -76,7 +118,7 @@ impl<'a> Pieces<'a> {
             point_weight: resolved.point_weight,
         };
         let terms = terms::build(data, &choice);
-        let sin_cos = encoder_table(data, &terms);
+        let sin_cos = kept_encoder_table(data);
         Ok(Pieces { data, model, terms, framed, floated, drift, resolved, sin_cos })
     }
 
@@ -90,7 +132,13 @@ impl<'a> Pieces<'a> {
             point_weight: self.resolved.point_weight,
         };
         let terms = terms::build(sub, &choice);
-        let sin_cos = encoder_table(sub, &terms);
+        // The encoder table's rows of block b's observations: sub's terms read no other.
+        let joints = self.data.joints;
+        let sin_cos: Arc<[(f64, f64)]> = (0..self.data.obs.len())
+            .filter(|&k| self.data.obs[k].block == b)
+            .flat_map(|k| self.sin_cos[k * joints..(k + 1) * joints].iter().copied())
+            .collect();
+        debug_assert_eq!(sin_cos.len(), sub.obs.len() * joints);
         Pieces {
             data: sub,
             model: self.model.clone(),
@@ -128,7 +176,7 @@ impl<'a> Pieces<'a> {
             &self.terms,
             frames.iter().map(|f| f.rotation).collect(),
             probe.filter(|_| self.resolved.orientation_weight_mm_per_rad.is_some()),
-            Cow::Borrowed(&self.sin_cos),
+            Cow::Borrowed(&*self.sin_cos),
         )
     }
 

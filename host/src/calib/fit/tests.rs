@@ -156,3 +156,23 @@ fn point_and_orientation_jacobians_match_central_differences() {
     // to about 1e-12 rad, which a step of 1e-6 would show.
     check_jacobian(&problem, &x, 1e-4);
 }
+
+#[test]
+fn a_kept_encoder_table_is_that_of_its_angles_and_no_other() {
+    use crate::model::kinematics::encoder_sin_cos;
+    let mut data = sessions(&arm(), None);
+    let joints = data.joints;
+    let first = kept_encoder_table(&data);
+    for (k, o) in data.obs.iter().enumerate() {
+        for (j, &q) in o.q_deg.iter().enumerate() {
+            assert_eq!(first[k * joints + j], encoder_sin_cos(q));
+        }
+    }
+    // One angle moved by a hair: its own table, not the kept one.
+    data.obs[3].q_deg[2] += 1e-9;
+    let moved = kept_encoder_table(&data);
+    assert_eq!(moved[3 * joints + 2], encoder_sin_cos(data.obs[3].q_deg[2]));
+    assert_ne!(moved[3 * joints + 2], first[3 * joints + 2]);
+    // The same angles again: the same table (kept, or taken again after other tests' tables).
+    assert_eq!(*moved, *kept_encoder_table(&data));
+}

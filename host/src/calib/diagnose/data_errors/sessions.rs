@@ -57,8 +57,8 @@ use crate::calib::nuisance::tool::orientation_spread_deg;
 use crate::calib::nuisance::tool::CONSTANT_ORIENTATION_DEG;
 use crate::calib::setup::{Change, SolveOptions};
 use crate::calib::validate::{
-    calibration_errors, fit_session_with_tool, session_probe_rotation, undetermined_rotation,
-    validate_orientations,
+    calibration_errors, fit_session_with_tool, held_out_session_errors, session_errors,
+    session_probe_rotation, undetermined_rotation, validate_orientations,
 };
 use crate::data::Observations;
 use crate::model::ArmModel;
@@ -76,6 +76,20 @@ pub const MIN_GAIN: f64 = 0.05;
 /// refitted too.
 pub fn held_out_rms(model: &ArmModel, val: &Observations, floating: &[String]) -> f64 {
     rms(&Measure::Points.errors(model, val, floating))
+}
+
+/// The errors of `model` on each of `val`'s sessions in order (those in `floating` with their
+/// tool refitted), from which [`held_out_rms`] is taken.
+fn held_out_errors(model: &ArmModel, val: &Observations, floating: &[String]) -> Vec<(usize, Vec<f64>)> {
+    val.sessions().into_iter().map(|b| (b, held_out_session_errors(model, val, b, floating))).collect()
+}
+
+/// RMS of `errors`, those of session `b` replaced by `own`: [`held_out_rms`] with one session's
+/// tool placed at `own`'s.
+fn rms_with(errors: &[(usize, Vec<f64>)], b: usize, own: &[f64]) -> f64 {
+    let all: Vec<f64> =
+        errors.iter().flat_map(|(s, e)| if *s == b { own } else { e.as_slice() }).copied().collect();
+    rms(&all)
 }
 
 /// A calibration point beyond this many times the median error is a bad-point candidate.
@@ -312,7 +326,8 @@ pub fn data_error_candidates(
     fit: &Fit,
     options: &SolveOptions,
 ) -> Vec<DataError> {
-    let before = held_out_rms(&fit.model, val, &options.float_tool);
+    let errors = held_out_errors(&fit.model, val, &options.float_tool);
+    let before = rms(&errors.iter().flat_map(|(_, e)| e.iter().copied()).collect::<Vec<_>>());
     let mut out = Vec::new();
     let verdict = |session: &str, set: DataSet, offset: [f64; 3], std: f64, after: f64| {
         let size = offset.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -374,9 +389,7 @@ pub fn data_error_candidates(
     for b in turning(val) {
         let name = val.block_name(b);
         let tool = fit_session_with_tool(&fit.model, val, b).0;
-        let mut floating = options.float_tool.clone();
-        floating.push(name.clone());
-        let after = held_out_rms(&fit.model, val, &floating);
+        let after = rms_with(&errors, b, &session_errors(&fit.model, val, b, tool.offset_mm));
         let moved = verdict(&name, DataSet::HeldOut, tool.offset_mm, tool.size_std_mm, after);
         out.push(match probe_turn(fit, val, b, tool.offset_mm) {
             Some(turn) if turn.called(fit, &tool.offset_mm) => turn.data_error(moved),

@@ -2,10 +2,12 @@
 //! values and again at the solution, the passes, the seeded restarts and the covariance.
 //!
 //! Identifiability reads the column geometry of the Jacobian alone (the norms of its columns and
-//! the angles between them), which its R factor holds: the dense Jacobian over every free
-//! parameter is formed at the nominal values and at the solution and factored once at each, and
-//! every check (the base set, the singular values before and after, the base set again at the
-//! solution) reads the n × n factor instead of the m × n matrix.
+//! the angles between them), which an R factor of its rows holds: at the nominal values the
+//! factor of the dense Jacobian the checks formed, at a solution the groups' factors folded as
+//! their rows are evaluated ([`Problem::group_factors`], no m × n matrix). Every check (the base
+//! set, the singular values before and after, the base set again at the solution) reads those
+//! few rows instead of the m rows. The covariance takes JᵀWJ at the solution from the solve's
+//! last evaluation when it was there.
 
 use super::*;
 use crate::numerics::qr::r_factor;
@@ -28,7 +30,7 @@ pub(super) fn calibrate_dense(
     let seed = pieces.resolved.seed;
     let frames = vec![Frame::identity(); pieces.data.blocks.len()];
     let mut pass = 0;
-    let (problem, best, starts, at_best) = loop {
+    let (problem, mut best, starts, at_best) = loop {
         if estimated.is_empty() {
             return Err(CalibError::NothingIdentifiable);
         }
@@ -41,10 +43,10 @@ pub(super) fn calibrate_dense(
         x_nominal.resize(n, 0.0);
         let (nominal_start, mut starts) =
             solve_from_starts(&problem, &x_nominal, &lower, &upper, &solver_options, seed, 0..=0);
-        let at_start = FullJacobian::at(&full, &problem, &nominal_start.x);
+        let at_start = geometry_at(&full, &problem, &nominal_start.x)?;
         let columns = positions(&all, &estimated);
         let (kept, dropped) =
-            identify::base_columns(&at_start.geometry_of(&columns), estimated.len(), &ranges);
+            identify::base_columns(&select(&at_start, all.len(), &columns), estimated.len(), &ranges);
         if dropped.is_empty() || pass >= MAX_IDENTIFIABILITY_PASSES {
             let (mut best, mut at_best) = (nominal_start, at_start);
             let restarts = pieces.resolved.restarts;
@@ -60,7 +62,7 @@ pub(super) fn calibrate_dense(
                 );
                 starts.extend(more);
                 if restarted.cost < best.cost {
-                    at_best = FullJacobian::at(&full, &problem, &restarted.x);
+                    at_best = geometry_at(&full, &problem, &restarted.x)?;
                     best = restarted;
                 }
             }
@@ -71,14 +73,18 @@ pub(super) fn calibrate_dense(
     let fixed: Vec<ParamId> = all.iter().filter(|id| !estimated.contains(id)).copied().collect();
     let state = problem.state(&best.x);
     let model = state.model;
-    let after = identify::analyse(&at_best.geometry, &all, &all_ranges);
+    let after = identify::analyse(&at_best, &all, &all_ranges);
     let loss = pieces.resolved.loss;
     let n = problem.layout.unknowns();
-    let r = &at_best.residuals;
+    let r = &best.residuals;
     let dof = (r.len() as f64 - n as f64).max(1.0);
-    let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
-    let variance = r.iter().zip(&weights).map(|(v, w)| w * v * v).sum::<f64>() / dof;
-    let cov = identify::covariance(&at_best.columns(&positions(&all, &estimated)), &weights, n, variance);
+    let variance = r.iter().map(|&v| loss.weight(v) * v * v).sum::<f64>() / dof;
+    // JᵀWJ at the solution: the solve's last, when it was evaluated there.
+    let normal = best.normal_at_x.take().unwrap_or_else(|| {
+        let mut r = vec![0.0; problem.len()];
+        problem.normal_equations(&best.x, &mut r, loss).0
+    });
+    let cov = identify::covariance_of_normal(normal, variance);
     let stats = residual_stats(&problem, &best.residuals);
     let rms_mm = stats.distances.or(stats.points).map_or(0.0, |s| s.rms_mm);
     let iterations = starts.iter().map(|s| s.iterations).sum();
@@ -105,37 +111,15 @@ pub(super) fn calibrate_dense(
     })
 }
 
-/// The residuals and the Jacobian over every free parameter at one solution of a problem over
-/// some of them (the others at their nominal values), with the Jacobian's R factor.
-struct FullJacobian {
-    residuals: Vec<f64>,
-    /// Row-major, one column per free parameter.
-    jacobian: Vec<f64>,
-    /// The R factor of `jacobian` (row-major, square): its column geometry.
-    geometry: Vec<f64>,
-    width: usize,
-}
-
-impl FullJacobian {
-    /// At `problem`'s solution `x`, over the unknowns of `full` (every free parameter).
-    fn at(full: &Problem, problem: &Problem, x: &[f64]) -> FullJacobian {
-        let mut x_full = problem.state(x).model.free_values();
-        let width = full.layout.unknowns();
-        x_full.resize(width, 0.0);
-        let (residuals, jacobian) = jacobian_at(full, &x_full);
-        let geometry = column_geometry(&jacobian, width);
-        FullJacobian { residuals, jacobian, geometry, width }
-    }
-
-    /// The Jacobian's columns `columns` (row-major).
-    fn columns(&self, columns: &[usize]) -> Vec<f64> {
-        select(&self.jacobian, self.width, columns)
-    }
-
-    /// The column geometry of the columns `columns` (row-major, the R factor's rows).
-    fn geometry_of(&self, columns: &[usize]) -> Vec<f64> {
-        select(&self.geometry, self.width, columns)
-    }
+/// The column geometry (row-major, one column per free parameter) of the Jacobian over every
+/// free parameter at a solution `x` of `problem` (over some of them, the others at their nominal
+/// values): the R factors of its rows folded group by group ([`Problem::group_factors`]) and
+/// stacked, without an m × n matrix.
+fn geometry_at(full: &Problem, problem: &Problem, x: &[f64]) -> Result<Vec<f64>, CalibError> {
+    let mut x_full = problem.state(x).model.free_values();
+    x_full.resize(full.layout.unknowns(), 0.0);
+    let factors = full.group_factors(&x_full).ok_or(CalibError::NonFinite)?;
+    Ok(projected_arm_columns(&full.layout, &factors).0)
 }
 
 /// The column of each of `some` among `all`.

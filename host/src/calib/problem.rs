@@ -321,7 +321,7 @@ impl Residuals for Problem<'_> {
 
     /// Term by term over each term's own columns, in fixed blocks summed in order (see the
     /// module doc). Without block unknowns every term reads every column: its rows are laid out
-    /// densely as they come ([`DenseRows`]), and the blocks are larger (a block computes the
+    /// densely as they come (`DenseRows`), and the blocks are larger (a block computes the
     /// poses of each observation its terms read, so the pairs of one placement split over two
     /// blocks would compute its touches' poses twice).
     fn normal_equations(&self, x: &[f64], r: &mut [f64], loss: Loss) -> (DMatrix<f64>, DVector<f64>) {

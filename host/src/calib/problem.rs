@@ -4,8 +4,7 @@
 //! Each evaluation turns the unknowns into values once, computes the tool pose of every
 //! observation a term reads once (with its derivatives over the arm's columns when a Jacobian is
 //! wanted; the encoder angles' sines and cosines kept from the problem's making), and lets every
-//! term read them. Without block unknowns (artefact distances alone) the
-//! solver gets the dense m × n Jacobian. With them, no m × n Jacobian is formed: each term's
+//! term read them. The solver gets no m × n Jacobian: each term's
 //! derivatives over its own columns (the arm's, its block's frame, tool and drift, the probe
 //! rotation's) are added into JᵀWJ and JᵀWr as it is evaluated, in fixed blocks of terms summed in
 //! order (the same sums on any thread count); the cost per observation is O(own columns²), flat in
@@ -326,20 +325,17 @@ impl Residuals for Problem<'_> {
         }
     }
 
-    /// Without block unknowns, from the dense Jacobian (the solver's default); with them, term by
-    /// term over each term's own columns, in fixed blocks summed in order (see the module doc).
+    /// Term by term over each term's own columns, in fixed blocks summed in order (see the
+    /// module doc). Without block unknowns every term reads every column: its rows are laid out
+    /// densely as they come (`DenseRows`), and the blocks are larger (a block computes the
+    /// poses of each observation its terms read, so the pairs of one placement split over two
+    /// blocks would compute its touches' poses twice).
     fn normal_equations(&self, x: &[f64], r: &mut [f64], loss: Loss) -> (DMatrix<f64>, DVector<f64>) {
         let n = self.layout.unknowns();
-        if !self.layout.has_block_unknowns() {
-            let mut jacobian = vec![0.0; r.len() * n];
-            self.evaluate(x, r, Some(&mut jacobian));
-            let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
-            let (mut upper, mut g) = (vec![0.0; n * n], vec![0.0; n]);
-            add_gram_by_four(&mut upper, &mut g, n, &jacobian, &weights, r);
-            return (symmetric(n, &upper), DVector::from_vec(g));
-        }
         let state = self.state(x);
-        let block = self.terms.len().div_ceil(MAX_BLOCKS).max(MIN_BLOCK_TERMS);
+        let dense = !self.layout.has_block_unknowns();
+        let least = if dense { MIN_TERMS_PER_TASK } else { MIN_BLOCK_TERMS };
+        let block = self.terms.len().div_ceil(MAX_BLOCKS).max(least);
         let slices = self.split(r);
         let chunks: Vec<Chunk> = {
             let mut out = Vec::new();
@@ -352,9 +348,23 @@ impl Residuals for Problem<'_> {
         let sums: Vec<(Vec<f64>, Vec<f64>)> = chunks
             .into_par_iter()
             .map(|(terms, rs)| {
+                let mut jac = TermJacobian::default();
+                if dense {
+                    let poses = self.chunk_poses(&state, terms);
+                    let input =
+                        TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
+                    let mut rows = DenseRows::new(n);
+                    for (t, r) in terms.iter().zip(rs) {
+                        jac.reset(t.rows());
+                        t.evaluate(&input, r, Some(&mut jac));
+                        rows.add(&jac, r, loss);
+                    }
+                    self.recycle(poses);
+                    return rows.finish();
+                }
                 let spare = self.spare_sums.lock().ok().and_then(|mut spare| spare.pop());
                 let mut sums = spare.filter(|s| s.columns() == n).unwrap_or_else(|| NormalSums::new(n));
-                let (mut jac, mut w) = (TermJacobian::default(), Vec::new());
+                let mut w = Vec::new();
                 let mut rs = rs.into_iter();
                 // The poses of a few terms at a time: their derivatives are read while in cache.
                 for part in terms.chunks(POSES_AT_ONCE) {
@@ -383,6 +393,69 @@ impl Residuals for Problem<'_> {
             g.iter_mut().zip(&g_block).for_each(|(a, b)| *a += b);
         }
         (symmetric(n, &upper), DVector::from_vec(g))
+    }
+}
+
+/// Rows a [`DenseRows`] batch holds before their Gram matrix is added (a multiple of four: the
+/// sums are those of the whole Jacobian's rows four at a time).
+const DENSE_BATCH_ROWS: usize = 256;
+
+/// JᵀWJ (upper triangle, n × n row-major) and JᵀWr of terms whose rows read every one of n
+/// columns, their rows copied into a dense batch (no m × n Jacobian, no per-row column lookup).
+struct DenseRows {
+    n: usize,
+    h: Vec<f64>,
+    g: Vec<f64>,
+    rows: Vec<f64>,
+    r: Vec<f64>,
+    w: Vec<f64>,
+}
+
+impl DenseRows {
+    fn new(n: usize) -> DenseRows {
+        let batch = DENSE_BATCH_ROWS + 8;
+        DenseRows {
+            n,
+            h: vec![0.0; n * n],
+            g: vec![0.0; n],
+            rows: Vec::with_capacity(batch * n),
+            r: Vec::with_capacity(batch),
+            w: Vec::with_capacity(batch),
+        }
+    }
+
+    /// Add one term's rows: its Jacobian `jac`, residuals `r`, weighed by `loss`.
+    fn add(&mut self, jac: &TermJacobian, r: &[f64], loss: Loss) {
+        let (n, first) = (self.n, self.r.len());
+        let in_order = jac.columns.len() == n && jac.columns.iter().enumerate().all(|(k, &c)| k == c);
+        if jac.rows == 1 && in_order {
+            self.rows.extend_from_slice(&jac.values);
+        } else {
+            self.rows.resize((first + jac.rows) * n, 0.0);
+            for (p, &c) in jac.columns.iter().enumerate() {
+                for (a, v) in jac.column(p).iter().enumerate() {
+                    self.rows[(first + a) * n + c] = *v;
+                }
+            }
+        }
+        self.r.extend_from_slice(r);
+        self.w.extend(r.iter().map(|&v| loss.weight(v)));
+        if self.r.len() >= DENSE_BATCH_ROWS {
+            self.flush();
+        }
+    }
+
+    fn flush(&mut self) {
+        add_gram_by_four(&mut self.h, &mut self.g, self.n, &self.rows, &self.w, &self.r);
+        self.rows.clear();
+        self.r.clear();
+        self.w.clear();
+    }
+
+    /// The sums: the upper triangle of JᵀWJ and JᵀWr.
+    fn finish(mut self) -> (Vec<f64>, Vec<f64>) {
+        self.flush();
+        (self.h, self.g)
     }
 }
 

@@ -1,7 +1,17 @@
 //! Calibration without block unknowns (artefact distances): identifiability at the nominal
 //! values and again at the solution, the passes, the seeded restarts and the covariance.
+//!
+//! Identifiability reads the column geometry of the Jacobian alone (the norms of its columns and
+//! the angles between them), which an R factor of its rows holds: at the nominal values the
+//! factor of the dense Jacobian the checks formed, at a solution the groups' factors folded as
+//! their rows are evaluated ([`Problem::group_factors`], no m × n matrix). Every check (the base
+//! set, the singular values before and after, the base set again at the solution) reads those
+//! few rows instead of the m rows. The covariance takes JᵀWJ at the solution from the solve's
+//! last evaluation when it was there.
 
 use super::*;
+use crate::numerics::qr::r_factor;
+use nalgebra::DMatrix;
 
 pub(super) fn calibrate_dense(
     nominal: &ArmModel,
@@ -12,14 +22,15 @@ pub(super) fn calibrate_dense(
     let (full, jac) = check_dense(pieces, &all)?;
     let nominal_model = &pieces.model;
     let all_ranges: Vec<f64> = all.iter().map(|&id| pieces.range(id)).collect();
-    let before = identify::analyse(&jac, &all, &all_ranges);
-    let (kept, _) = identify::base_columns(&jac, all.len(), &all_ranges);
+    let geometry = column_geometry(&jac, all.len());
+    let before = identify::analyse(&geometry, &all, &all_ranges);
+    let (kept, _) = identify::base_columns(&geometry, all.len(), &all_ranges);
     let mut estimated: Vec<ParamId> = kept.iter().map(|&c| all[c]).collect();
     let solver_options = SolverOptions { loss: pieces.resolved.loss, ..options.solver };
     let seed = pieces.resolved.seed;
     let frames = vec![Frame::identity(); pieces.data.blocks.len()];
     let mut pass = 0;
-    let (problem, best, starts) = loop {
+    let (problem, mut best, starts, at_best) = loop {
         if estimated.is_empty() {
             return Err(CalibError::NothingIdentifiable);
         }
@@ -32,11 +43,12 @@ pub(super) fn calibrate_dense(
         x_nominal.resize(n, 0.0);
         let (nominal_start, mut starts) =
             solve_from_starts(&problem, &x_nominal, &lower, &upper, &solver_options, seed, 0..=0);
-        let (_, jac) = jacobian_at(&problem, &nominal_start.x);
+        let at_start = geometry_at(&full, &problem, &nominal_start.x)?;
+        let columns = positions(&all, &estimated);
         let (kept, dropped) =
-            identify::base_columns(&arm_columns(&jac, n, estimated.len()), estimated.len(), &ranges);
+            identify::base_columns(&select(&at_start, all.len(), &columns), estimated.len(), &ranges);
         if dropped.is_empty() || pass >= MAX_IDENTIFIABILITY_PASSES {
-            let mut best = nominal_start;
+            let (mut best, mut at_best) = (nominal_start, at_start);
             let restarts = pieces.resolved.restarts;
             if restarts > 0 {
                 let (restarted, more) = solve_from_starts(
@@ -50,28 +62,29 @@ pub(super) fn calibrate_dense(
                 );
                 starts.extend(more);
                 if restarted.cost < best.cost {
+                    at_best = geometry_at(&full, &problem, &restarted.x)?;
                     best = restarted;
                 }
             }
-            break (problem, best, starts);
+            break (problem, best, starts, at_best);
         }
         estimated = kept.iter().map(|&c| estimated[c]).collect();
     };
     let fixed: Vec<ParamId> = all.iter().filter(|id| !estimated.contains(id)).copied().collect();
     let state = problem.state(&best.x);
     let model = state.model;
-    let (r, jac) = jacobian_at(&problem, &best.x);
-    let mut x_full = model.free_values();
-    x_full.resize(full.layout.unknowns(), 0.0);
-    let (_, full_jac) = jacobian_at(&full, &x_full);
-    let after =
-        identify::analyse(&arm_columns(&full_jac, full.layout.unknowns(), all.len()), &all, &all_ranges);
+    let after = identify::analyse(&at_best, &all, &all_ranges);
     let loss = pieces.resolved.loss;
     let n = problem.layout.unknowns();
+    let r = &best.residuals;
     let dof = (r.len() as f64 - n as f64).max(1.0);
-    let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
-    let variance = r.iter().zip(&weights).map(|(v, w)| w * v * v).sum::<f64>() / dof;
-    let cov = identify::covariance(&jac, &weights, n, variance);
+    let variance = r.iter().map(|&v| loss.weight(v) * v * v).sum::<f64>() / dof;
+    // JᵀWJ at the solution: the solve's last, when it was evaluated there.
+    let normal = best.normal_at_x.take().unwrap_or_else(|| {
+        let mut r = vec![0.0; problem.len()];
+        problem.normal_equations(&best.x, &mut r, loss).0
+    });
+    let cov = identify::covariance_of_normal(normal, variance);
     let stats = residual_stats(&problem, &best.residuals);
     let rms_mm = stats.distances.or(stats.points).map_or(0.0, |s| s.rms_mm);
     let iterations = starts.iter().map(|s| s.iterations).sum();
@@ -98,10 +111,34 @@ pub(super) fn calibrate_dense(
     })
 }
 
-/// The first `arm` columns of a row-major Jacobian of `n` columns.
-pub(super) fn arm_columns(jac: &[f64], n: usize, arm: usize) -> std::borrow::Cow<'_, [f64]> {
-    if n == arm {
-        return std::borrow::Cow::Borrowed(jac);
+/// The column geometry (row-major, one column per free parameter) of the Jacobian over every
+/// free parameter at a solution `x` of `problem` (over some of them, the others at their nominal
+/// values): the R factors of its rows folded group by group ([`Problem::group_factors`]) and
+/// stacked, without an m × n matrix.
+fn geometry_at(full: &Problem, problem: &Problem, x: &[f64]) -> Result<Vec<f64>, CalibError> {
+    let mut x_full = problem.state(x).model.free_values();
+    x_full.resize(full.layout.unknowns(), 0.0);
+    let factors = full.group_factors(&x_full).ok_or(CalibError::NonFinite)?;
+    Ok(projected_arm_columns(&full.layout, &factors).0)
+}
+
+/// The column of each of `some` among `all`.
+fn positions(all: &[ParamId], some: &[ParamId]) -> Vec<usize> {
+    some.iter().filter_map(|id| all.iter().position(|a| a == id)).collect()
+}
+
+/// The columns `columns` of a row-major matrix of `width` columns, row-major.
+fn select(rows: &[f64], width: usize, columns: &[usize]) -> Vec<f64> {
+    rows.chunks_exact(width.max(1)).flat_map(|row| columns.iter().map(|&c| row[c])).collect()
+}
+
+/// The R factor (row-major, at most `n` × `n`) of a row-major Jacobian of `n` columns: the same
+/// inner product of any two columns, so the same column norms, singular values, right singular
+/// vectors and base set, from a matrix of n rows instead of m.
+fn column_geometry(jac: &[f64], n: usize) -> Vec<f64> {
+    if n == 0 || jac.is_empty() {
+        return Vec::new();
     }
-    std::borrow::Cow::Owned(jac.chunks_exact(n.max(1)).flat_map(|row| row[..arm].iter().copied()).collect())
+    let r = r_factor(DMatrix::from_row_slice(jac.len() / n, n, jac));
+    r.transpose().as_slice().to_vec()
 }

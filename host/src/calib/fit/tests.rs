@@ -133,6 +133,14 @@ fn six_dof_jacobian_matches_central_differences() {
     let mut x: Vec<f64> = params.iter().map(|p| model.get(*p)).collect();
     x.extend([0.0; 3]);
     check_jacobian(&problem, &x, 1e-6);
+    // Without the floated tool no term has unknowns of its own: the normal equations are summed
+    // from dense rows (one-row distances in place, four-row relative orientations scattered).
+    let options = SolveOptions { float_tool: Vec::new(), ..options };
+    let pieces = Pieces::new(&model, &data, &options).unwrap();
+    let problem = pieces.problem(params.clone(), &model, &frames, None);
+    assert!(!problem.layout.has_block_unknowns());
+    x.truncate(params.len());
+    check_jacobian(&problem, &x, 1e-6);
 }
 
 #[test]

@@ -4,7 +4,7 @@
 //! placement (`--float-tool`), p = p_flange + R_F·Δ; the arm's columns leave out ∂(R_F·Δ)/∂θ
 //! (second order for an offset of millimetres; the residuals themselves are exact).
 
-use super::{column, Term, TermInput, TermJacobian};
+use super::{Term, TermInput, TermJacobian};
 use crate::calib::nuisance::tool::flange_rotation;
 use crate::data::Observations;
 
@@ -65,9 +65,11 @@ impl Term for Distance {
         let Some(j) = jac else { return };
         let u = diff / length.max(1e-12);
         let (Some(da), Some(db)) = (at.poses.chain(a), at.poses.chain(b)) else { return };
-        for c in 0..at.poses.arm {
-            j.push(c, &[u.dot(&(column(&da[c], 0) - column(&db[c], 0)))]);
-        }
+        // One row: column c's derivative is u·(∂p_a/∂c − ∂p_b/∂c), written in place.
+        j.columns.extend(0..at.poses.arm);
+        j.values.extend(
+            da.iter().zip(db).map(|(a, b)| u.x * (a[0] - b[0]) + u.y * (a[1] - b[1]) + u.z * (a[2] - b[2])),
+        );
         if let Some(t) = tool {
             let g = (flange_rotation(pa) - flange_rotation(pb)).transpose() * u;
             for k in 0..3 {

@@ -17,6 +17,11 @@ pub const UNIDENTIFIABLE_BELOW: f64 = 1e-4;
 /// Residual norm of a range-scaled column after projecting out the kept ones, relative to the
 /// largest column, below which a parameter is left out of the base set.
 pub const BASE_SET_TOLERANCE: f64 = UNIDENTIFIABLE_BELOW;
+/// σ/σ₁ below which a direction is at rounding level: two or more such span a null space whose
+/// singular vectors rounding chooses, reported in its reduced echelon basis instead.
+pub const EXACT_NULL_BELOW: f64 = 1e-10;
+/// Entry of an orthonormal null-space basis below which a column is not an echelon pivot.
+const ECHELON_PIVOT_BELOW: f64 = 1e-6;
 /// σ/σ₁ below which a direction is reported poorly identified.
 pub const POORLY_IDENTIFIED_BELOW: f64 = 1e-2;
 
@@ -87,7 +92,10 @@ fn describe(
         .map(|((p, name), v)| (name.as_str(), *p, v / biggest))
         .filter(|(_, _, v)| v.abs() > 0.05)
         .collect();
-    terms.sort_by(|a, b| b.2.abs().total_cmp(&a.2.abs()));
+    // Largest share first as printed (three decimals), ties in the parameters' order: the same
+    // text whatever the rounding below the printed digits.
+    let printed = |v: f64| (v.abs() * 1000.0).round();
+    terms.sort_by(|a, b| printed(b.2).total_cmp(&printed(a.2)));
     if terms.first().is_some_and(|t| t.2 < 0.0) {
         terms.iter_mut().for_each(|t| t.2 = -t.2);
     }
@@ -139,15 +147,31 @@ pub fn analyse_named(jac: &[f64], params: &[ParamId], names: &[String], ranges: 
     if live.is_empty() {
         return out;
     }
-    let svd = scaled(jac, n, ranges, &live).svd(false, true);
+    let a = scaled(jac, n, ranges, &live);
+    let svd = a.clone().svd(false, true);
     let Some(v_t) = svd.v_t else { return out };
     let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
     order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
     let sv: Vec<f64> = order.iter().map(|&i| svd.singular_values[i]).collect();
     let top = sv.first().copied().unwrap_or(0.0).max(1e-300);
+    // Two or more directions at rounding level span a null space whose singular vectors are any
+    // basis of it (rounding picks one): it is reported in its one reduced echelon basis instead.
+    let null: Vec<usize> =
+        order.iter().zip(&sv).filter(|(_, &s)| s / top < EXACT_NULL_BELOW).map(|(&i, _)| i).collect();
+    if null.len() > 1 {
+        let basis = DMatrix::from_fn(null.len(), live.len(), |r, k| v_t[(null[r], k)]);
+        for w in echelon_rows(basis) {
+            let relative = (&a * DVector::from_row_slice(w.as_slice())).norm() / (w.norm() * top);
+            let mut dir = vec![0.0; n];
+            for (k, &c) in live.iter().enumerate() {
+                dir[c] = w[k] * ranges[c];
+            }
+            out.unidentifiable.push(describe(params, names, &dir, relative, true));
+        }
+    }
     for (&i, &s) in order.iter().zip(&sv) {
         let relative = s / top;
-        if relative >= POORLY_IDENTIFIED_BELOW {
+        if relative >= POORLY_IDENTIFIED_BELOW || (null.len() > 1 && relative < EXACT_NULL_BELOW) {
             continue;
         }
         // Direction in physical units: δq_c = v_c · range_c.
@@ -166,6 +190,38 @@ pub fn analyse_named(jac: &[f64], params: &[ParamId], names: &[String], ranges: 
     out.condition_number = if smallest > 0.0 { top / smallest } else { f64::INFINITY };
     out.singular_values = sv;
     out
+}
+
+/// The reduced row echelon form of the rows of `basis` (k × n, orthonormal rows spanning a
+/// subspace), its rows in order of their leading column: each leads with 1 in a column where
+/// every other row has 0. It depends on the subspace only, not on the basis given.
+fn echelon_rows(mut basis: DMatrix<f64>) -> Vec<nalgebra::RowDVector<f64>> {
+    let (k, n) = basis.shape();
+    let mut row = 0;
+    for c in 0..n {
+        if row == k {
+            break;
+        }
+        // The largest entry of this column among the rows left, as the pivot.
+        let Some(p) = (row..k).max_by(|&a, &b| basis[(a, c)].abs().total_cmp(&basis[(b, c)].abs())) else {
+            break;
+        };
+        if basis[(p, c)].abs() < ECHELON_PIVOT_BELOW {
+            continue;
+        }
+        basis.swap_rows(row, p);
+        let pivot = basis[(row, c)];
+        basis.row_mut(row).scale_mut(1.0 / pivot);
+        let lead = basis.row(row).into_owned();
+        for r in (0..k).filter(|&r| r != row) {
+            let factor = basis[(r, c)];
+            for (q, v) in lead.iter().enumerate() {
+                basis[(r, q)] -= factor * v;
+            }
+        }
+        row += 1;
+    }
+    (0..row).map(|r| basis.row(r).into_owned()).collect()
 }
 
 /// Split columns into an identifiable base set and the rest, by column-pivoted Gram–Schmidt
@@ -363,6 +419,43 @@ mod tests {
         // The larger of two collinear columns stays in the base set.
         assert_eq!(kept, vec![1, 2]);
         assert_eq!(dropped, vec![0, 3]);
+    }
+
+    /// A null space of two directions is reported in its one reduced echelon basis, the same
+    /// whatever basis the singular value decomposition picks: for columns a, b, a + b and a − b,
+    /// δa = (δ(a+b) + δ(a−b))/2 and δb = (δ(a+b) − δ(a−b))/2, whether the rows come as they are,
+    /// scaled or mixed by a rotation.
+    #[test]
+    fn a_null_space_of_two_directions_is_named_in_one_basis() {
+        let params = [ParamId::Length(0), ParamId::Length(1), ParamId::Tcp(0), ParamId::Tcp(1)];
+        let rows = |turn: f64, scale: f64| -> Vec<f64> {
+            let plain: Vec<[f64; 2]> = (0..9).map(|i| [(i as f64).sin(), (0.4 * i as f64).cos()]).collect();
+            let (c, s) = (turn.cos(), turn.sin());
+            (0..9)
+                .flat_map(|i| {
+                    let j = (i + 1) % 9;
+                    // Rows i and j mixed by a rotation, so the Jacobian's rows differ but not its columns' geometry.
+                    let [a, b] = [0, 1].map(|k| scale * (c * plain[i][k] + s * plain[j][k]));
+                    [a, b, a + b, a - b]
+                })
+                .collect()
+        };
+        let texts = |jac: Vec<f64>| -> Vec<String> {
+            let id = analyse(&jac, &params, &[1.0; 4]);
+            assert!(
+                id.unidentifiable.iter().all(|c| c.relative_singular_value < 1e-12),
+                "{:?}",
+                id.unidentifiable
+            );
+            id.unidentifiable.into_iter().map(|c| c.text).collect()
+        };
+        let expected = [
+            "length:1 +1.000 mm ↔ tcp.x -0.500 mm ↔ tcp.y -0.500 mm",
+            "length:2 +1.000 mm ↔ tcp.x -0.500 mm ↔ tcp.y +0.500 mm",
+        ];
+        for (turn, scale) in [(0.0, 1.0), (0.3, 1.0), (1.1, 7.0), (2.9, 0.01)] {
+            assert_eq!(texts(rows(turn, scale)), expected, "turn {turn}, scale {scale}");
+        }
     }
 
     /// Columns a, b and c = a + b (a scale the "mass" c trades against), d zero: c is held

@@ -147,8 +147,7 @@ pub fn analyse_named(jac: &[f64], params: &[ParamId], names: &[String], ranges: 
     if live.is_empty() {
         return out;
     }
-    let a = scaled(jac, n, ranges, &live);
-    let svd = a.clone().svd(false, true);
+    let svd = scaled(jac, n, ranges, &live).svd(false, true);
     let Some(v_t) = svd.v_t else { return out };
     let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
     order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
@@ -160,6 +159,7 @@ pub fn analyse_named(jac: &[f64], params: &[ParamId], names: &[String], ranges: 
         order.iter().zip(&sv).filter(|(_, &s)| s / top < EXACT_NULL_BELOW).map(|(&i, _)| i).collect();
     if null.len() > 1 {
         let basis = DMatrix::from_fn(null.len(), live.len(), |r, k| v_t[(null[r], k)]);
+        let a = scaled(jac, n, ranges, &live);
         for w in echelon_rows(basis) {
             let relative = (&a * DVector::from_row_slice(w.as_slice())).norm() / (w.norm() * top);
             let mut dir = vec![0.0; n];

@@ -530,11 +530,8 @@ impl<'m> Chain<'m> {
         let compliance = self.compliant || wanted.as_ref().is_some_and(|(c, _)| c.compliance);
         match self.dh.as_deref().filter(|_| !harmonics && !compliance) {
             Some(rows) => {
-                if let Some((_, jac)) = wanted.as_mut() {
-                    jac.iter_mut().for_each(|col| *col = [0.0; 9]);
-                }
                 let gathering = wanted.as_mut().map(|(c, j)| (*c, &mut **j));
-                let (point, x_axis, z_axis) = self.dh_pass(rows, enc_deg, enc_sin_cos, gathering);
+                let (point, x_axis, z_axis) = self.dh_columns(rows, enc_deg, enc_sin_cos, gathering);
                 self.finish(point, x_axis, z_axis, wanted)
             }
             None => self.general_pass(enc_deg, enc_sin_cos, wanted),

@@ -8,8 +8,13 @@
 //! per transform: each transform's axis and its parameter's column are known where it is written,
 //! and a joint's angle takes its encoder's kept sine and cosine by angle addition with the
 //! offset's (or one sine and cosine of θ when none is kept).
+//!
+//! Each parameter of a DH chain moves one transform only, so each wanted column is written
+//! once, W and V set rather than added: the caller's buffer needs no zeroing per pose (its
+//! columns the chain does not move are zeroed only when some are wanted, see
+//! [`Chain::dh_columns`]).
 
-use super::{gather_rotation, Chain, ColumnMap, PoseDerivative, DEG};
+use super::{Chain, ColumnMap, PoseDerivative, DEG};
 use crate::model::{ArmModel, Convention, ParamId};
 use nalgebra::Vector3;
 
@@ -58,11 +63,13 @@ pub(super) fn rows(model: &ArmModel, path: &[usize]) -> Option<Vec<Row>> {
     )
 }
 
-/// The frame carried from the base and the columns gathered so far.
+/// The frame carried from the base and the columns written so far.
 struct Pass<'w> {
     axes: [Vector3<f64>; 3],
     origin: Vector3<f64>,
     wanted: Option<(&'w ColumnMap, &'w mut [PoseDerivative])>,
+    /// Columns written.
+    written: usize,
 }
 
 impl Pass<'_> {
@@ -72,7 +79,17 @@ impl Pass<'_> {
     fn turn(&mut self, axis: usize, (s, c): (f64, f64), slot: usize) {
         if let Some((columns, jac)) = self.wanted.as_mut() {
             if let Some(col) = columns.column(slot) {
-                gather_rotation(&mut jac[col], &self.axes[axis], &self.origin, DEG);
+                // V = −w × o and W = w, per degree.
+                let (w, v) = (self.axes[axis], self.axes[axis].cross(&self.origin));
+                jac[col][..6].copy_from_slice(&[
+                    -v.x * DEG,
+                    -v.y * DEG,
+                    -v.z * DEG,
+                    w.x * DEG,
+                    w.y * DEG,
+                    w.z * DEG,
+                ]);
+                self.written += 1;
             }
         }
         let (i, k) = ((axis + 1) % 3, (axis + 2) % 3);
@@ -87,9 +104,8 @@ impl Pass<'_> {
         let t = self.axes[axis];
         if let Some((columns, jac)) = self.wanted.as_mut() {
             if let Some(col) = columns.column(slot) {
-                for k in 0..3 {
-                    jac[col][k] += t[k];
-                }
+                jac[col][..6].copy_from_slice(&[t.x, t.y, t.z, 0.0, 0.0, 0.0]);
+                self.written += 1;
             }
         }
         self.origin += t * value;
@@ -107,16 +123,46 @@ impl Pass<'_> {
 
 impl Chain<'_> {
     /// The pose (and the wanted columns) of a plain DH chain (see the module doc): the tool
-    /// point, x and z axes before the scale, and the columns' W and V.
-    pub(super) fn dh_pass(
+    /// point, x and z axes before the scale, and the columns' W and V (the scale's zero).
+    pub(super) fn dh_columns(
+        &self,
+        rows: &[Row],
+        enc_deg: &[f64],
+        enc_sin_cos: Option<&[(f64, f64)]>,
+        mut wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
+    ) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
+        let Some((columns, jac)) = wanted.as_mut() else {
+            return self.dh_pass(rows, enc_deg, enc_sin_cos, None).0;
+        };
+        let scale = columns.column(ParamId::Scale.dense_index());
+        let moved = columns.len() - usize::from(scale.is_some());
+        let (pose, written) = self.dh_pass(rows, enc_deg, enc_sin_cos, Some((*columns, &mut **jac)));
+        if written != moved {
+            // Some wanted column is none of the chain's parameters: every column zeroed, then
+            // written again.
+            jac.iter_mut().for_each(|col| *col = [0.0; 9]);
+            self.dh_pass(rows, enc_deg, enc_sin_cos, Some((*columns, &mut **jac)));
+        } else if let Some(c) = scale {
+            jac[c] = [0.0; 9];
+        }
+        pose
+    }
+
+    /// The pass of [`Chain::dh_columns`], with the count of columns it wrote.
+    #[inline(always)]
+    fn dh_pass(
         &self,
         rows: &[Row],
         enc_deg: &[f64],
         enc_sin_cos: Option<&[(f64, f64)]>,
         wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
-    ) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
-        let mut pass =
-            Pass { axes: [Vector3::x(), Vector3::y(), Vector3::z()], origin: Vector3::zeros(), wanted };
+    ) -> ((Vector3<f64>, Vector3<f64>, Vector3<f64>), usize) {
+        let mut pass = Pass {
+            axes: [Vector3::x(), Vector3::y(), Vector3::z()],
+            origin: Vector3::zeros(),
+            wanted,
+            written: 0,
+        };
         let modified = self.model.convention == Convention::Modified;
         for row in rows {
             let j = row.joint;
@@ -145,7 +191,7 @@ impl Chain<'_> {
         for (k, tool) in self.tool.into_iter().enumerate() {
             pass.shift(k, tool.0, tool.1);
         }
-        (pass.origin, pass.axes[0], pass.axes[2])
+        ((pass.origin, pass.axes[0], pass.axes[2]), pass.written)
     }
 }
 
@@ -176,8 +222,9 @@ mod tests {
     }
 
     /// The kernel gives what the general pass over the chain's ops gives, pose and every column
-    /// (offsets, lengths, link offsets, twists, axis tilts, the tool point, the scale), in both
-    /// conventions, with the encoders' sines and cosines kept and without.
+    /// (offsets, lengths, link offsets, twists, axis tilts, the tool point, the scale, a column
+    /// the chain does not move), in both conventions, with the encoders' sines and cosines kept
+    /// and without, into a buffer not zeroed beforehand.
     #[test]
     fn the_kernel_matches_the_general_pass() {
         for convention in [Convention::Classic, Convention::Modified] {
@@ -196,7 +243,14 @@ mod tests {
                 })
                 .chain([ParamId::Tcp(0), ParamId::Tcp(1), ParamId::Tcp(2), ParamId::Scale])
                 .collect();
-            for columns in [ColumnMap::new(&params), ColumnMap::new(&params[3..20]).positions_only()] {
+            // A column the chain does not move (a joint the arm does not have): zero.
+            let mut stray = params[3..20].to_vec();
+            stray.insert(5, ParamId::Offset(9));
+            for columns in [
+                ColumnMap::new(&params),
+                ColumnMap::new(&params[3..20]).positions_only(),
+                ColumnMap::new(&stray).positions_only(),
+            ] {
                 for pose in 0..20 {
                     let enc: Vec<f64> =
                         (0..7).map(|j| ((pose * 7 + j) as f64 * 0.77).sin() * 170.0).collect();
@@ -204,7 +258,8 @@ mod tests {
                     let mut general = vec![[0.0; 9]; columns.len()];
                     let reference = chain.general_pass(&enc, None, Some((&columns, &mut general)));
                     for kept in [None, Some(sin_cos.as_slice())] {
-                        let mut fast = vec![[0.0; 9]; columns.len()];
+                        // The kernel writes every column: a buffer of garbage (NaN) is no matter.
+                        let mut fast = vec![[f64::NAN; 9]; columns.len()];
                         let p = chain.evaluate(&enc, kept, Some((&columns, &mut fast)));
                         let plain = chain.evaluate(&enc, kept, None);
                         for (a, b) in [(p, reference), (plain, reference)] {

@@ -16,10 +16,11 @@
 //! order they have).
 //!
 //! [`NormalSums`] sums terms that each touch a few of n columns (a point reads the arm's columns
-//! and its own session's frame): each term's derivatives, column after column, are copied
-//! straight into a batch held column-major over the union of the batch's columns (one copy of a
-//! term's rows per column, no scatter of single entries), and the batch's Gram matrix is formed
-//! there by [`add_gram_product`] and added into the n × n sums once per batch. The order of every
+//! and its own session's frame): each term's derivatives are written straight into a batch D
+//! held row-major over the union of the batch's columns, and the batch's Gram matrix UᵀD
+//! (U = W·D, which is D itself while every row's weight is 1: no copy) is formed by the same
+//! dense product as [`add_gram_product`], reading D through both views, and added into the
+//! n × n sums once per batch. The order of every
 //! sum depends on the terms' order only.
 
 use nalgebra::{DMatrix, DMatrixView, Dyn};
@@ -101,29 +102,34 @@ pub fn add_gram_product(
             *ui = w * v;
         }
     }
-    for (ui, ri) in u.chunks_exact(k).zip(r) {
-        g.iter_mut().zip(ui).for_each(|(gl, v)| *gl += v * ri);
-    }
-    let ut = DMatrixView::from_slice_with_strides(u, k, m, 1, k);
     let d = DMatrixView::from_slice_with_strides(&columns[..(k - 1) * stride + m], m, k, 1, stride);
-    add_upper(h, &mut buffers.product, &ut, &d);
+    add_product(h, g, (u, k, k), &d, r, &mut buffers.product);
 }
 
-/// Add the upper triangle of a·b (k × k) into `h` (row-major), `product` its buffer. Both
-/// factors are column-major views (unit row stride: nalgebra's product for small sizes reads
-/// past the end of views with another row stride).
-fn add_upper(
+/// Add Uᵀr into `g` and the upper triangle of UᵀD into `h` (k × k, row-major), `product` the
+/// product's buffer: U (m × k) row-major with row stride `u_stride` (so that Uᵀ is a
+/// column-major view: nalgebra's product for small sizes reads past the end of views with
+/// another row stride); D may have any strides when every dimension is above nalgebra's small
+/// size (5), which hands the product to the `matrixmultiply` crate (any strides, the same sums
+/// as packed).
+fn add_product(
     h: &mut [f64],
+    g: &mut [f64],
+    (u, u_stride, k): (&[f64], usize, usize),
+    d: &DMatrixView<f64, Dyn, Dyn>,
+    r: &[f64],
     product: &mut DMatrix<f64>,
-    a: &DMatrixView<f64, Dyn, Dyn>,
-    b: &DMatrixView<f64, Dyn, Dyn>,
 ) {
-    debug_assert!(a.strides().0 == 1 && b.strides().0 == 1);
-    let k = a.nrows();
+    let m = r.len();
+    debug_assert!(d.strides().0 == 1 || m.min(k) > 5);
+    for (ui, ri) in u.chunks(u_stride).zip(r) {
+        g.iter_mut().zip(&ui[..k]).for_each(|(gl, v)| *gl += v * ri);
+    }
+    let ut = DMatrixView::from_slice_with_strides(&u[..(m - 1) * u_stride + k], k, m, 1, u_stride);
     if product.shape() != (k, k) {
         *product = DMatrix::zeros(k, k);
     }
-    product.gemm(1.0, a, b, 0.0);
+    product.gemm(1.0, &ut, d, 0.0);
     for p in 0..k {
         for (q, hq) in h[p * k + p..(p + 1) * k].iter_mut().enumerate() {
             *hq += product[(p, p + q)];
@@ -154,9 +160,12 @@ pub struct NormalSums {
     local: Vec<usize>,
     /// The batch's columns, by local index.
     globals: Vec<usize>,
-    /// The batch's derivatives, column-major: local column l's rows at `l * BATCH_ROWS ..`
+    /// The batch's derivatives D, row-major: row i's local columns at `i * BATCH_COLUMNS ..`
     /// (zero where a term does not read the column).
     dense: Vec<f64>,
+    /// U = W·D, laid out as D, once some row of the batch has a weight other than 1 (else U
+    /// is D: no copy).
+    weighted: Option<Vec<f64>>,
     r: Vec<f64>,
     w: Vec<f64>,
     h_local: Vec<f64>,
@@ -173,7 +182,8 @@ impl NormalSums {
             g: vec![0.0; n],
             local: vec![NONE; n],
             globals: Vec::new(),
-            dense: Vec::new(),
+            dense: vec![0.0; BATCH_ROWS * BATCH_COLUMNS],
+            weighted: None,
             r: Vec::with_capacity(BATCH_ROWS),
             w: Vec::with_capacity(BATCH_ROWS),
             h_local: Vec::new(),
@@ -192,17 +202,29 @@ impl NormalSums {
             self.flush();
         }
         let first = self.r.len();
+        let block = &mut self.dense[first * BATCH_COLUMNS..(first + rows) * BATCH_COLUMNS];
         for (&c, v) in columns.iter().zip(values.chunks_exact(rows.max(1))) {
             if self.local[c] == NONE {
                 self.local[c] = self.globals.len();
                 self.globals.push(c);
-                if self.dense.len() < self.globals.len() * BATCH_ROWS {
-                    self.dense.resize(self.globals.len() * BATCH_ROWS, 0.0);
-                }
             }
-            let at = self.local[c] * BATCH_ROWS + first;
-            for (d, v) in self.dense[at..at + rows].iter_mut().zip(v) {
-                *d += v;
+            let l = self.local[c];
+            for (row, v) in block.chunks_exact_mut(BATCH_COLUMNS).zip(v) {
+                row[l] += v;
+            }
+        }
+        if self.weighted.is_none() && w.iter().any(|&v| v != 1.0) {
+            // The batch's rows so far have weight 1: U starts as their copy.
+            let mut u = vec![0.0; BATCH_ROWS * BATCH_COLUMNS];
+            u[..first * BATCH_COLUMNS].copy_from_slice(&self.dense[..first * BATCH_COLUMNS]);
+            self.weighted = Some(u);
+        }
+        if let Some(u) = self.weighted.as_mut() {
+            let k = self.globals.len();
+            let span = first * BATCH_COLUMNS..(first + rows) * BATCH_COLUMNS;
+            let rows_u = u[span.clone()].chunks_exact_mut(BATCH_COLUMNS);
+            for ((ui, di), wi) in rows_u.zip(self.dense[span].chunks_exact(BATCH_COLUMNS)).zip(w) {
+                ui[..k].iter_mut().zip(&di[..k]).for_each(|(u, d)| *u = wi * d);
             }
         }
         self.r.extend_from_slice(r);
@@ -217,8 +239,18 @@ impl NormalSums {
             self.h_local.resize(k * k, 0.0);
             self.g_local.clear();
             self.g_local.resize(k, 0.0);
-            let (h, g, w, r) = (&mut self.h_local, &mut self.g_local, &self.w, &self.r);
-            add_gram_product(h, g, k, &self.dense, BATCH_ROWS, w, r, &mut self.buffers);
+            let (h, g) = (&mut self.h_local, &mut self.g_local);
+            let span = (m - 1) * BATCH_COLUMNS + k;
+            if m > 5 && k > 5 {
+                let u = self.weighted.as_deref().unwrap_or(&self.dense);
+                let d = DMatrixView::from_slice_with_strides(&self.dense[..span], m, k, BATCH_COLUMNS, 1);
+                add_product(h, g, (u, BATCH_COLUMNS, k), &d, &self.r, &mut self.buffers.product);
+            } else {
+                // Too small for the crate's product: packed column-major.
+                let packed: Vec<f64> =
+                    (0..k).flat_map(|l| self.dense[l..span].iter().step_by(BATCH_COLUMNS).copied()).collect();
+                add_gram_product(h, g, k, &packed, m, &self.w, &self.r, &mut self.buffers);
+            }
             let n = self.n;
             for (p, &a) in self.globals.iter().enumerate() {
                 self.g[a] += self.g_local[p];
@@ -227,8 +259,15 @@ impl NormalSums {
                 }
             }
         }
-        for (l, &c) in self.globals.iter().enumerate() {
-            self.dense[l * BATCH_ROWS..l * BATCH_ROWS + m].fill(0.0);
+        for row in self.dense.chunks_exact_mut(BATCH_COLUMNS).take(m) {
+            row[..k].fill(0.0);
+        }
+        if let Some(u) = self.weighted.as_mut() {
+            for row in u.chunks_exact_mut(BATCH_COLUMNS).take(m) {
+                row[..k].fill(0.0);
+            }
+        }
+        for &c in &self.globals {
             self.local[c] = NONE;
         }
         self.globals.clear();
@@ -271,14 +310,15 @@ mod tests {
 
     #[test]
     fn terms_on_few_columns_sum_to_the_dense_normal_equations() {
-        // 300 terms of 3 rows over 40 columns: each reads columns 0..5, a "session" block of 6
-        // (one of five) and sometimes a column seen by no other term.
+        // 256 terms of 3 rows over 40 columns: each reads columns 0..5, a "session" block of 6
+        // (one of five) and sometimes a column seen by no other term; the last batch of 3 rows
+        // (too few for the crate's product).
         let n = 40;
         let value = |t: usize, j: usize, c: usize| ((t * 31 + j * 7 + c * 13) as f64 * 0.37).sin();
         let mut jac = Vec::new();
         let (mut r, mut w) = (Vec::new(), Vec::new());
         let mut sums = NormalSums::new(n);
-        for t in 0..300 {
+        for t in 0..256 {
             let mut columns: Vec<usize> = (0..5).chain(5 + 6 * (t % 5)..11 + 6 * (t % 5)).collect();
             if t % 7 == 0 {
                 columns.push(35 + t % 5);
@@ -287,7 +327,10 @@ mod tests {
             let values: Vec<f64> =
                 columns.iter().flat_map(|&c| (0..rows).map(move |j| value(t, j, c))).collect();
             let tr: Vec<f64> = (0..rows).map(|j| value(t, j, 99)).collect();
-            let tw: Vec<f64> = (0..rows).map(|j| 0.5 + value(t, j, 98).abs()).collect();
+            // Weight 1 for the first terms (a batch that is its own weighted copy), others after
+            // (a batch whose weighted copy starts mid-way).
+            let tw: Vec<f64> =
+                (0..rows).map(|j| if t < 100 { 1.0 } else { 0.5 + value(t, j, 98).abs() }).collect();
             for j in 0..rows {
                 let mut row = vec![0.0; n];
                 for &c in &columns {

@@ -201,14 +201,20 @@ impl<'a> Problem<'a> {
         Poses { first: 0, pose, chain, arm, jacobian }
     }
 
-    /// The tool poses with their derivatives of the observations `terms` read (computed on this
-    /// thread, held only for them: the memory of a chunk, not of every observation).
-    fn chunk_poses(&self, state: &State, terms: &[Box<dyn Term>]) -> Poses {
-        self.chunk_poses_of(state, &terms.iter().map(|t| t.as_ref()).collect::<Vec<_>>())
+    /// The tool poses with their derivatives of the observations `terms` read, on the chains
+    /// `kinematics` of the state's model (computed on this thread, held only for them: the
+    /// memory of a chunk, not of every observation).
+    fn chunk_poses(&self, kinematics: &Tips, terms: &[Box<dyn Term>]) -> Poses {
+        self.chunk_poses_on(kinematics, &terms.iter().map(|t| t.as_ref()).collect::<Vec<_>>())
+    }
+
+    /// As [`Problem::chunk_poses`] for terms given by reference, on the chains of `state`.
+    fn chunk_poses_of(&self, state: &State, terms: &[&dyn Term]) -> Poses {
+        self.chunk_poses_on(&Tips::new(&state.model), terms)
     }
 
     /// As [`Problem::chunk_poses`] for terms given by reference.
-    fn chunk_poses_of(&self, state: &State, terms: &[&dyn Term]) -> Poses {
+    fn chunk_poses_on(&self, kinematics: &Tips, terms: &[&dyn Term]) -> Poses {
         let arm = self.layout.arm.len();
         let read = || terms.iter().flat_map(|t| t.observations().iter().copied());
         let (first, last) = read().fold((usize::MAX, 0), |(a, b), k| (a.min(k), b.max(k)));
@@ -219,7 +225,6 @@ impl<'a> Problem<'a> {
         read().for_each(|k| wanted[k - first] = true);
         let mut chain = self.spare.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
         chain.resize(wanted.len() * arm, [0.0; 9]);
-        let kinematics = Tips::new(&state.model);
         let pose = (first..=last)
             .map(|k| {
                 let d = &mut chain[(k - first) * arm..(k - first + 1) * arm];
@@ -337,6 +342,7 @@ impl Residuals for Problem<'_> {
         let least = if dense { MIN_TERMS_PER_TASK } else { MIN_BLOCK_TERMS };
         let block = self.terms.len().div_ceil(MAX_BLOCKS).max(least);
         let slices = self.split(r);
+        let kinematics = Tips::new(&state.model);
         let chunks: Vec<Chunk> = {
             let mut out = Vec::new();
             let mut slices = slices.into_iter();
@@ -350,7 +356,7 @@ impl Residuals for Problem<'_> {
             .map(|(terms, rs)| {
                 let mut jac = TermJacobian::default();
                 if dense {
-                    let poses = self.chunk_poses(&state, terms);
+                    let poses = self.chunk_poses(&kinematics, terms);
                     let input =
                         TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
                     let mut rows = DenseRows::new(n);
@@ -368,7 +374,7 @@ impl Residuals for Problem<'_> {
                 let mut rs = rs.into_iter();
                 // The poses of a few terms at a time: their derivatives are read while in cache.
                 for part in terms.chunks(POSES_AT_ONCE) {
-                    let poses = self.chunk_poses(&state, part);
+                    let poses = self.chunk_poses(&kinematics, part);
                     let input =
                         TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
                     for (t, r) in part.iter().zip(rs.by_ref()) {

@@ -99,6 +99,17 @@ impl TermJacobian {
         self.values.extend([v.x, v.y, v.z]);
     }
 
+    /// As [`TermJacobian::push3`] for the columns `first..`, one per value of `values`.
+    #[inline]
+    pub fn push3_from(&mut self, first: usize, values: impl ExactSizeIterator<Item = Vector3<f64>>) {
+        let (at, count) = (self.values.len(), values.len());
+        self.columns.extend(first..first + count);
+        self.values.resize(at + 3 * count, 0.0);
+        for (out, v) in self.values[at..].chunks_exact_mut(3).zip(values) {
+            out.copy_from_slice(v.as_slice());
+        }
+    }
+
     /// The derivatives of the k-th column pushed.
     pub fn column(&self, k: usize) -> &[f64] {
         &self.values[k * self.rows..(k + 1) * self.rows]

@@ -70,9 +70,7 @@ impl Term for Point {
             self.weigh(r, None);
             return;
         };
-        for (c, d) in chain.iter().enumerate() {
-            jac.push3(c, base.rotation * Vector3::new(d[0], d[1], d[2]) * growth);
-        }
+        jac.push3_from(0, chain.iter().map(|d| base.rotation * Vector3::new(d[0], d[1], d[2]) * growth));
         if let Some(b) = at.layout.frame_column(s) {
             let turns = &at.state.frame_turns[s];
             for k in 0..3 {

@@ -160,8 +160,10 @@ pub struct NormalSums {
     local: Vec<usize>,
     /// The batch's columns, by local index.
     globals: Vec<usize>,
-    /// The batch's derivatives D, row-major: row i's local columns at `i * BATCH_COLUMNS ..`
-    /// (zero where a term does not read the column).
+    /// Row stride of the batch: [`BATCH_COLUMNS`], or more after a term that reads more.
+    width: usize,
+    /// The batch's derivatives D, row-major: row i's local columns at `i * width ..` (zero
+    /// where a term does not read the column).
     dense: Vec<f64>,
     /// U = W·D, laid out as D, once some row of the batch has a weight other than 1 (else U
     /// is D: no copy).
@@ -182,6 +184,7 @@ impl NormalSums {
             g: vec![0.0; n],
             local: vec![NONE; n],
             globals: Vec::new(),
+            width: BATCH_COLUMNS,
             dense: vec![0.0; BATCH_ROWS * BATCH_COLUMNS],
             weighted: None,
             r: Vec::with_capacity(BATCH_ROWS),
@@ -197,33 +200,40 @@ impl NormalSums {
     pub fn add(&mut self, columns: &[usize], values: &[f64], r: &[f64], w: &[f64]) {
         let rows = r.len();
         debug_assert!(rows <= BATCH_ROWS && values.len() == columns.len() * rows && w.len() == rows);
-        let new = columns.iter().filter(|&&c| self.local[c] == NONE).count();
+        let mut new = columns.iter().filter(|&&c| self.local[c] == NONE).count();
         if self.r.len() + rows > BATCH_ROWS || self.globals.len() + new > BATCH_COLUMNS {
             self.flush();
+            new = columns.len();
         }
-        let first = self.r.len();
-        let block = &mut self.dense[first * BATCH_COLUMNS..(first + rows) * BATCH_COLUMNS];
+        if self.globals.len() + new > self.width {
+            // One term reading more columns than a batch spans (the batch is empty): wider rows.
+            self.width = new;
+            self.dense = vec![0.0; BATCH_ROWS * new];
+            self.weighted = None;
+        }
+        let (first, width) = (self.r.len(), self.width);
+        let block = &mut self.dense[first * width..(first + rows) * width];
         for (&c, v) in columns.iter().zip(values.chunks_exact(rows.max(1))) {
             if self.local[c] == NONE {
                 self.local[c] = self.globals.len();
                 self.globals.push(c);
             }
             let l = self.local[c];
-            for (row, v) in block.chunks_exact_mut(BATCH_COLUMNS).zip(v) {
+            for (row, v) in block.chunks_exact_mut(width).zip(v) {
                 row[l] += v;
             }
         }
         if self.weighted.is_none() && w.iter().any(|&v| v != 1.0) {
             // The batch's rows so far have weight 1: U starts as their copy.
-            let mut u = vec![0.0; BATCH_ROWS * BATCH_COLUMNS];
-            u[..first * BATCH_COLUMNS].copy_from_slice(&self.dense[..first * BATCH_COLUMNS]);
+            let mut u = vec![0.0; BATCH_ROWS * width];
+            u[..first * width].copy_from_slice(&self.dense[..first * width]);
             self.weighted = Some(u);
         }
         if let Some(u) = self.weighted.as_mut() {
             let k = self.globals.len();
-            let span = first * BATCH_COLUMNS..(first + rows) * BATCH_COLUMNS;
-            let rows_u = u[span.clone()].chunks_exact_mut(BATCH_COLUMNS);
-            for ((ui, di), wi) in rows_u.zip(self.dense[span].chunks_exact(BATCH_COLUMNS)).zip(w) {
+            let span = first * width..(first + rows) * width;
+            let rows_u = u[span.clone()].chunks_exact_mut(width);
+            for ((ui, di), wi) in rows_u.zip(self.dense[span].chunks_exact(width)).zip(w) {
                 ui[..k].iter_mut().zip(&di[..k]).for_each(|(u, d)| *u = wi * d);
             }
         }
@@ -233,22 +243,22 @@ impl NormalSums {
 
     /// Form the batch's Gram matrix over its columns, add it into the sums and empty the batch.
     fn flush(&mut self) {
-        let (k, m) = (self.globals.len(), self.r.len());
+        let (k, m, width) = (self.globals.len(), self.r.len(), self.width);
         if m > 0 && k > 0 {
             self.h_local.clear();
             self.h_local.resize(k * k, 0.0);
             self.g_local.clear();
             self.g_local.resize(k, 0.0);
             let (h, g) = (&mut self.h_local, &mut self.g_local);
-            let span = (m - 1) * BATCH_COLUMNS + k;
+            let span = (m - 1) * width + k;
             if m > 5 && k > 5 {
                 let u = self.weighted.as_deref().unwrap_or(&self.dense);
-                let d = DMatrixView::from_slice_with_strides(&self.dense[..span], m, k, BATCH_COLUMNS, 1);
-                add_product(h, g, (u, BATCH_COLUMNS, k), &d, &self.r, &mut self.buffers.product);
+                let d = DMatrixView::from_slice_with_strides(&self.dense[..span], m, k, width, 1);
+                add_product(h, g, (u, width, k), &d, &self.r, &mut self.buffers.product);
             } else {
                 // Too small for the crate's product: packed column-major.
                 let packed: Vec<f64> =
-                    (0..k).flat_map(|l| self.dense[l..span].iter().step_by(BATCH_COLUMNS).copied()).collect();
+                    (0..k).flat_map(|l| self.dense[l..span].iter().step_by(width).copied()).collect();
                 add_gram_product(h, g, k, &packed, m, &self.w, &self.r, &mut self.buffers);
             }
             let n = self.n;
@@ -259,11 +269,11 @@ impl NormalSums {
                 }
             }
         }
-        for row in self.dense.chunks_exact_mut(BATCH_COLUMNS).take(m) {
+        for row in self.dense.chunks_exact_mut(width).take(m) {
             row[..k].fill(0.0);
         }
         if let Some(u) = self.weighted.as_mut() {
-            for row in u.chunks_exact_mut(BATCH_COLUMNS).take(m) {
+            for row in u.chunks_exact_mut(width).take(m) {
                 row[..k].fill(0.0);
             }
         }
@@ -369,6 +379,45 @@ mod tests {
             assert!((g[a] - gd[a]).abs() < 1e-12 * (1.0 + gd[a].abs()));
             for b in a..n {
                 assert!((h[a * n + b] - hd[a * n + b]).abs() < 1e-12 * (1.0 + hd[a * n + b].abs()));
+            }
+        }
+    }
+
+    /// A term reading more columns than a batch spans gets a batch of wider rows (after terms
+    /// of fewer columns, and before them again).
+    #[test]
+    fn a_term_wider_than_a_batch_is_summed() {
+        let n = 130;
+        let value = |t: usize, j: usize, c: usize| ((t * 31 + j * 7 + c * 13) as f64 * 0.41).cos();
+        let mut sums = NormalSums::new(n);
+        let (mut jac, mut r, mut w) = (Vec::new(), Vec::new(), Vec::new());
+        for t in 0..40 {
+            let columns: Vec<usize> =
+                if t % 10 == 5 { (0..120).collect() } else { (t % 7..t % 7 + 9).collect() };
+            let values: Vec<f64> =
+                columns.iter().flat_map(|&c| (0..3).map(move |j| value(t, j, c))).collect();
+            let tr: Vec<f64> = (0..3).map(|j| value(t, j, 200)).collect();
+            let tw = [1.0, if t > 20 { 0.7 } else { 1.0 }, 1.0];
+            for j in 0..3 {
+                let mut row = vec![0.0; n];
+                for &c in &columns {
+                    row[c] = value(t, j, c);
+                }
+                jac.extend(row);
+            }
+            r.extend(&tr);
+            w.extend(tw);
+            sums.add(&columns, &values, &tr, &tw);
+        }
+        let (h, g) = sums.finish();
+        let (hd, gd) = plain(&jac, &w, &r, n);
+        for a in 0..n {
+            assert!((g[a] - gd[a]).abs() < 1e-12 * (1.0 + gd[a].abs()), "g[{a}]");
+            for b in a..n {
+                assert!(
+                    (h[a * n + b] - hd[a * n + b]).abs() < 1e-12 * (1.0 + hd[a * n + b].abs()),
+                    "h[{a},{b}]"
+                );
             }
         }
     }

@@ -605,3 +605,75 @@ pub fn projected_arm_columns(layout: &Layout, factors: &[GroupFactor]) -> (Vec<f
     }
     (row_major(&raw), row_major(&projected))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::bench_problem;
+    use crate::calib::terms::{build, TermChoice};
+    use nalgebra::Rotation3;
+
+    /// The normal equations summed term by term are those of the dense Jacobian, on turned
+    /// sessions with frames and floated tools, with every weight 1 (the batches that are their
+    /// own weighted copy) and with Huber weights that differ within a point.
+    #[test]
+    fn the_sums_of_points_are_the_dense_normal_equations() {
+        let nominal = bench_problem::arm();
+        let data = bench_problem::sessions(&bench_problem::truth(&nominal), 3, 40, 7);
+        let terms = build(
+            &data,
+            &TermChoice {
+                relative_orientation_lever_mm: None,
+                orientation_weight_mm_per_rad: None,
+                point_weight: 1.0,
+            },
+        );
+        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
+        let blocks = data.blocks.len();
+        let layout = Layout::new(
+            params.clone(),
+            &vec![true; blocks],
+            &vec![true; data.groups.len()],
+            false,
+            &vec![None; blocks],
+        );
+        let starts: Vec<Matrix3<f64>> = (0..blocks)
+            .map(|s| Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64 + 0.01).into_inner())
+            .collect();
+        let problem = Problem::new(layout, &nominal, &data, &terms, starts, None);
+        let n = problem.layout.unknowns();
+        let mut x = vec![0.0; n];
+        for (k, id) in params.iter().enumerate() {
+            x[k] = nominal.get(*id);
+        }
+        for b in 0..blocks {
+            let c = problem.layout.frame_column(b).expect("framed");
+            x[c..c + 6].copy_from_slice(&[1e-3, -2e-3, 0.5e-3, 2500.0, -300.0 * b as f64, 400.0]);
+        }
+        for g in 0..data.groups.len() {
+            let c = problem.layout.tool_column(g).expect("floated");
+            x[c..c + 3].copy_from_slice(&[0.3, -0.2, 0.1 * g as f64]);
+        }
+        let m = problem.len();
+        let (mut r, mut jac) = (vec![0.0; m], vec![0.0; m * n]);
+        problem.evaluate(&x, &mut r, Some(&mut jac));
+        let median = {
+            let mut a: Vec<f64> = r.iter().map(|v| v.abs()).collect();
+            a.sort_by(f64::total_cmp);
+            a[m / 2]
+        };
+        for loss in [Loss::Linear, Loss::Huber(median)] {
+            let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
+            if let Loss::Huber(_) = loss {
+                let mixed = weights.chunks(3).filter(|w| w.iter().any(|&v| v != w[0])).count();
+                assert!(mixed > 10, "points of unequal row weights: {mixed}");
+            }
+            let (hd, gd) = crate::numerics::solver::normal_equations(&jac, &r, &weights, n);
+            let mut r2 = vec![0.0; m];
+            let (h, g) = problem.normal_equations(&x, &mut r2, loss);
+            assert_eq!(r, r2, "the residuals are written as they are");
+            assert!((&h - &hd).norm() <= 1e-12 * hd.norm(), "{loss:?}: {:e}", (&h - &hd).norm() / hd.norm());
+            assert!((&g - &gd).norm() <= 1e-12 * gd.norm(), "{loss:?}: {:e}", (&g - &gd).norm() / gd.norm());
+        }
+    }
+}

@@ -63,6 +63,9 @@ pub(super) fn rows(model: &ArmModel, path: &[usize]) -> Option<Vec<Row>> {
     )
 }
 
+/// The tool point, x axis and z axis a pass ends at (before the scale).
+type TipFrame = (Vector3<f64>, Vector3<f64>, Vector3<f64>);
+
 /// The frame carried from the base and the columns written so far.
 struct Pass<'w> {
     axes: [Vector3<f64>; 3],
@@ -130,7 +133,7 @@ impl Chain<'_> {
         enc_deg: &[f64],
         enc_sin_cos: Option<&[(f64, f64)]>,
         mut wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
-    ) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
+    ) -> TipFrame {
         let Some((columns, jac)) = wanted.as_mut() else {
             return self.dh_pass(rows, enc_deg, enc_sin_cos, None).0;
         };
@@ -156,7 +159,7 @@ impl Chain<'_> {
         enc_deg: &[f64],
         enc_sin_cos: Option<&[(f64, f64)]>,
         wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
-    ) -> ((Vector3<f64>, Vector3<f64>, Vector3<f64>), usize) {
+    ) -> (TipFrame, usize) {
         let mut pass = Pass {
             axes: [Vector3::x(), Vector3::y(), Vector3::z()],
             origin: Vector3::zeros(),

@@ -1,5 +1,5 @@
 //! The R factor of a tall matrix by Householder reflections, blocked as LAPACK's `dgeqrf` is: a
-//! panel of [`PANEL`] columns is reflected column by column, its reflections gathered as
+//! panel of 8 columns is reflected column by column, its reflections gathered as
 //! I − V·T·Vᵀ (the compact WY form, LAPACK's `dlarft`), and the columns right of the panel are
 //! updated by two matrix products (`dlarfb`), which matrixmultiply runs with the vector
 //! instructions it finds on the processor at run time. Q is not formed. The same reflections as

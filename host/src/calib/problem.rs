@@ -21,7 +21,7 @@ use crate::data::Observations;
 use crate::model::kinematics::{encoder_sin_cos, PoseDerivative, Tips};
 use crate::model::ArmModel;
 use crate::numerics::normal::{add_gram_by_four, NormalSums};
-use crate::numerics::qr::r_factor;
+use crate::numerics::qr::{r_factor, r_factor_of_stacked};
 use crate::numerics::solver::{symmetric, Loss, Residuals};
 use nalgebra::{DMatrix, DVector, Matrix3};
 use rayon::prelude::*;
@@ -551,10 +551,7 @@ fn fold(top: DMatrix<f64>, bottom: DMatrix<f64>) -> DMatrix<f64> {
     if bottom.nrows() == 0 {
         return top;
     }
-    let mut stacked = DMatrix::zeros(top.nrows() + bottom.nrows(), top.ncols());
-    stacked.rows_mut(0, top.nrows()).copy_from(&top);
-    stacked.rows_mut(top.nrows(), bottom.nrows()).copy_from(&bottom);
-    r_factor(stacked)
+    r_factor_of_stacked(top, bottom)
 }
 
 /// `m` with the directions of `basis`'s columns above `1e-12` of its largest singular value

@@ -186,7 +186,9 @@ pub(super) fn calibrate_framed(
     let (before, estimated, fixed, statements) = match warm {
         // A refit keeps the base set of the solution it starts from.
         Some(warm) => {
-            check_residuals(&full, &x0)?;
+            // The residuals' finiteness at the start is checked on the solve's own first
+            // evaluation there (below): the same point, evaluated once.
+            check_rows(&full)?;
             let (estimated, fixed): (Vec<ParamId>, Vec<ParamId>) =
                 all.iter().partition(|id| warm.estimated.contains(id));
             (warm.before.clone(), estimated, fixed, warm.statements.clone())
@@ -260,6 +262,9 @@ pub(super) fn calibrate_framed(
     let first = sums.filter(|_| warm.is_some());
     let mut solved =
         if solved_already { start } else { solve_framed_from(pieces, &estimated, start, 0, first) };
+    if warm.is_some() && !solved.outcome.initial_cost.is_finite() {
+        return Err(CalibError::NonFinite);
+    }
     let restarts = pieces.resolved.restarts;
     let mut starts = vec![solved.outcome.clone()];
     if restarts > 0 {

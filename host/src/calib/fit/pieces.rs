@@ -387,13 +387,19 @@ pub(super) fn check_framed(
     full.group_factors(x0).ok_or(CalibError::NonFinite)
 }
 
+/// At least as many residuals as unknowns.
+pub(super) fn check_rows(full: &Problem) -> Result<(), CalibError> {
+    let unknowns = full.layout.unknowns();
+    match full.len() < unknowns {
+        true => Err(CalibError::TooFewResiduals { residuals: full.len(), unknowns }),
+        false => Ok(()),
+    }
+}
+
 /// The checks of [`check_framed`] on the residuals alone (no derivatives, no factors): enough
 /// residuals for the unknowns, all finite at `x0`.
 pub(super) fn check_residuals(full: &Problem, x0: &[f64]) -> Result<(), CalibError> {
-    let unknowns = full.layout.unknowns();
-    if full.len() < unknowns {
-        return Err(CalibError::TooFewResiduals { residuals: full.len(), unknowns });
-    }
+    check_rows(full)?;
     let mut r = vec![0.0; full.len()];
     full.evaluate(x0, &mut r, None);
     match r.iter().all(|v| v.is_finite()) {

@@ -7,11 +7,11 @@
 //! The nominal figures of tracker sessions are the nominal arm with only the tool point (and the
 //! frames) fitted on the calibration data, as an instrument user would use the vendor's model.
 
-use crate::calib::diagnose::data_errors::sessions::data_error_candidates;
+use crate::calib::diagnose::data_errors::sessions::data_error_candidates_with;
 use crate::calib::diagnose::Measure;
 use crate::calib::error::CalibError;
 use crate::calib::error_stats::{AngleStats, ErrorStats};
-use crate::calib::fit::{calibrate, check_data, dense_jacobian, Fit};
+use crate::calib::fit::{calibrate, check_data, dense_jacobian, Fit, SessionSums};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
 use crate::calib::outliers::outliers as outlier_metrics;
@@ -717,8 +717,14 @@ pub fn run_on(
         });
     }
     steps.lap("validation");
+    // The normal equations of the fit's solution, session by session: the first evaluation of
+    // the data-error scoring's refits and of the outlier metrics' leave-one-session-out refits.
+    let setup = inputs.setup(options);
+    let sums = (cal.sessions().len() >= 2 && (outliers || !val.sessions().is_empty()))
+        .then(|| SessionSums::of(&fit.model, &fit, cal, &setup.solve_options(cal)))
+        .flatten();
     // Tracker sessions held out: each frame refitted, against the nominal arm with its tool fitted.
-    let tracker = sessions_section(&nominal, &fit, cal, val, inputs, options, &same_base)?;
+    let tracker = sessions_section(&nominal, &fit, cal, val, inputs, options, &same_base, sums.as_ref())?;
     if let Some(t) = &tracker {
         not_trustworthy.extend(crate::calib::trust::point_problems(&fit, nominal.reach_mm()));
         verdict.extend(t.verdict.iter().cloned());
@@ -740,11 +746,11 @@ pub fn run_on(
     }
     let outliers_skipped = !outliers;
     let outliers = if outliers {
-        let setup = inputs.setup(options);
-        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup)
+        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup, sums.as_ref())
     } else {
         Vec::new()
     };
+    drop(sums);
     steps.lap("outliers");
     let objective_comparison = touches(cal).then(|| objective_comparison(&fit, cal));
     steps.lap("6-DoF comparison");
@@ -985,7 +991,9 @@ fn session_residuals(
 
 /// Validate `fit` on the held-out sessions of `val` (each frame refitted, and each tool that
 /// floats) against the nominal arm with its tool fitted on `cal`; the floor, the data errors and
-/// the verdict. `None` when `val` holds no session.
+/// the verdict (its refits' first normal equations from `sums` when given). `None` when `val`
+/// holds no session.
+#[allow(clippy::too_many_arguments)]
 fn sessions_section(
     nominal: &ArmModel,
     fit: &Fit,
@@ -994,6 +1002,7 @@ fn sessions_section(
     inputs: &RunInputs,
     options: &SolveOptions,
     same_base: &BTreeMap<String, String>,
+    sums: Option<&SessionSums>,
 ) -> Result<Option<SessionsSection>, RunError> {
     let held = val.sessions();
     if held.is_empty() {
@@ -1078,7 +1087,7 @@ fn sessions_section(
         Vec::new()
     } else {
         let all_floating = SolveOptions { float_tool: inputs.float_tool.clone(), ..options.clone() };
-        data_error_candidates(nominal, cal, val, fit, &all_floating)
+        data_error_candidates_with(nominal, cal, val, fit, &all_floating, sums)
     };
     if let Some(best) = data_errors.iter().find(|d| d.significant) {
         verdict.push(format!("data error: {}; apply it with {}", best.text, best.action));

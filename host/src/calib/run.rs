@@ -11,7 +11,7 @@ use crate::calib::diagnose::data_errors::sessions::data_error_candidates_with;
 use crate::calib::diagnose::Measure;
 use crate::calib::error::CalibError;
 use crate::calib::error_stats::{AngleStats, ErrorStats};
-use crate::calib::fit::{calibrate, check_data, dense_jacobian, Fit, SessionSums};
+use crate::calib::fit::{calibrate_on, check_data_on, dense_jacobian, Encoders, Fit, SessionSums};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
 use crate::calib::outliers::outliers as outlier_metrics;
@@ -394,6 +394,18 @@ pub fn check_run_data(
     inputs: &RunInputs,
     options: &SolveOptions,
 ) -> Result<(), RunError> {
+    check_run_data_on(model, cal, val, inputs, options, &Encoders::of(cal))
+}
+
+/// [`check_run_data`] with `cal`'s encoder table.
+fn check_run_data_on(
+    model: &ArmModel,
+    cal: &Observations,
+    val: &Observations,
+    inputs: &RunInputs,
+    options: &SolveOptions,
+    encoders: &Encoders,
+) -> Result<(), RunError> {
     cal.one_arm(&[val])?;
     let touches = |d: &Observations| d.obs.iter().any(|o| o.landmark().is_some());
     if touches(val) && val.pair_count() == 0 {
@@ -451,7 +463,7 @@ pub fn check_run_data(
             return Err(RunError::HeldOutTooSmall { path, session: name, points });
         }
     }
-    check_data(model, cal, options)?;
+    check_data_on(model, cal, encoders, options)?;
     Ok(())
 }
 
@@ -686,10 +698,12 @@ pub fn run_on(
         let Some((held_out, calibration)) = named else { return Err(RunError::SameBase(pair.clone())) };
         same_base.insert(held_out.to_string(), calibration.to_string());
     }
-    check_run_data(&nominal, cal, val, inputs, options)?;
+    // The encoder angles' sines and cosines, once for every calibration on `cal`.
+    let encoders = Encoders::of(cal);
+    check_run_data_on(&nominal, cal, val, inputs, options, &encoders)?;
     check_study_size(cal, study_subsets)?;
     steps.lap("input checks");
-    let mut fit = calibrate(&nominal, cal, options)?;
+    let mut fit = calibrate_on(&nominal, cal, &encoders, options)?;
     let on_bounds = mark_bounds(&mut fit);
     // The calibrated model is of the arm its sessions were measured on, whatever the model it
     // started from names.
@@ -1008,7 +1022,7 @@ fn sessions_section(
     if held.is_empty() {
         return Ok(None);
     }
-    let reference = calibrate(&tool_only(nominal), cal, options)?;
+    let reference = calibrate_on(&tool_only(nominal), cal, &fit.encoders, options)?;
     let floated = |b: usize| inputs.float_tool.contains(&val.groups[val.blocks[b].group].name);
     // The session's tool offset (its own when floated) and its figures.
     let figures = |model: &ArmModel, b: usize| {

@@ -363,5 +363,6 @@ pub(super) fn calibrate_framed(
         drifts,
         tool_rotation,
         model: solved.model,
+        encoders: pieces.encoders.clone(),
     })
 }

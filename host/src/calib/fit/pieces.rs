@@ -30,7 +30,7 @@ pub struct Encoders {
     joints: usize,
     /// Each observation's angle count and its angles' bits, `joints + 1` values per observation.
     angles: Arc<[u64]>,
-    table: Arc<[(f64, f64)]>,
+    pub(super) table: Arc<[(f64, f64)]>,
 }
 
 impl std::fmt::Debug for Encoders {

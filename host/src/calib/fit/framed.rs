@@ -195,9 +195,13 @@ pub(super) fn calibrate_framed(
         }
         None => {
             let factors = if tool_turns && !tool.is_empty() {
-                // The factors are taken after the tool's fit: at the start only the checks.
-                check_residuals(&full, &x0)?;
+                // The factors are taken after the tool's fit: at the start only the checks, the
+                // residuals' finiteness on that fit's own first evaluation (the same point).
+                check_rows(&full)?;
                 start = solve_framed(pieces, &tool, start, 0);
+                if !start.outcome.initial_cost.is_finite() {
+                    return Err(CalibError::NonFinite);
+                }
                 let full = pieces.problem(all.clone(), &start.model, &start.frames, start.probe);
                 let x = pieces.x_of(&full, &start.model, &start.frames, &start.tools, &start.drifts);
                 check_framed(&full, &x)?

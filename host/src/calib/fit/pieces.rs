@@ -433,15 +433,3 @@ pub(super) fn check_rows(full: &Problem) -> Result<(), CalibError> {
         false => Ok(()),
     }
 }
-
-/// The checks of [`check_framed`] on the residuals alone (no derivatives, no factors): enough
-/// residuals for the unknowns, all finite at `x0`.
-pub(super) fn check_residuals(full: &Problem, x0: &[f64]) -> Result<(), CalibError> {
-    check_rows(full)?;
-    let mut r = vec![0.0; full.len()];
-    full.evaluate(x0, &mut r, None);
-    match r.iter().all(|v| v.is_finite()) {
-        true => Ok(()),
-        false => Err(CalibError::NonFinite),
-    }
-}

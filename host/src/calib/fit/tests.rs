@@ -196,3 +196,20 @@ fn an_encoder_table_is_that_of_its_angles_and_no_other() {
     assert_ne!(row(&moved, 3, 2), row(&first, 3, 2));
     assert_eq!(*moved.table, *Encoders::of(&data).table);
 }
+
+/// A point that is not a number is refused (the residuals' finiteness is checked on the solve's
+/// first evaluation at the start): by a calibration and by a refit from a fit's solution.
+#[test]
+fn a_start_that_is_not_finite_is_refused() {
+    let nominal = arm();
+    let data = sessions(&nominal, None);
+    let options = SolveOptions::default();
+    let fit = calibrate(&nominal, &data, &options).expect("fit");
+    let mut broken = data.clone();
+    let k = broken.blocks[1].members[4];
+    if let crate::data::Target::Point { xyz_mm, .. } = &mut broken.obs[k].target {
+        xyz_mm.x = f64::NAN;
+    }
+    assert!(matches!(calibrate(&nominal, &broken, &options), Err(CalibError::NonFinite)));
+    assert!(matches!(recalibrate(&nominal, &broken, &options, &fit), Err(CalibError::NonFinite)));
+}

@@ -113,9 +113,14 @@ fn rows(model: &ArmModel, cal: &Observations, setup: &Setup) -> (Vec<f64>, Vec<V
 }
 
 /// The metrics of every landmark touched in `cal` and every calibration session, for the
-/// calibration `fit` of `setup`; the sessions' refits start from `sums` when they are of `fit`
-/// (else from sums taken here).
-pub fn outliers(
+/// calibration `fit` of `setup`.
+pub fn outliers(fit: &Fit, cal: &Observations, val: Option<&Observations>, setup: &Setup) -> Vec<Outlier> {
+    outliers_with(fit, cal, val, setup, None)
+}
+
+/// [`outliers`], the sessions' refits starting from `sums` when they are of `fit` (else from
+/// sums taken here): a run takes them once for these refits and the data-error scoring's.
+pub fn outliers_with(
     fit: &Fit,
     cal: &Observations,
     val: Option<&Observations>,

@@ -14,7 +14,7 @@ use crate::calib::error_stats::{AngleStats, ErrorStats};
 use crate::calib::fit::{calibrate_on, check_data_on, dense_jacobian, Encoders, Fit, SessionSums};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
-use crate::calib::outliers::outliers as outlier_metrics;
+use crate::calib::outliers::outliers_with as outlier_metrics;
 use crate::calib::setup::{SolveOptions, DEFAULT_LEVER_MM};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions};
 use crate::calib::summary::*;

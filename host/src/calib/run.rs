@@ -386,7 +386,7 @@ fn copied_placement(cal: &Observations, val: &Observations) -> Option<(String, S
 /// nominal model) and `diagnose` (on the RUN's calibrated model) so both refuse the same data with
 /// the same message: sessions of two arms, a held-out artefact folder without a distance, an artefact out of the arm's
 /// reach, a validation placement copied from the calibration data, a session in both folders,
-/// and whatever [`check_data`] refuses.
+/// and whatever [`check_data`](crate::calib::fit::check_data) refuses.
 pub fn check_run_data(
     model: &ArmModel,
     cal: &Observations,

@@ -115,6 +115,18 @@ fn rows(model: &ArmModel, cal: &Observations, setup: &Setup) -> (Vec<f64>, Vec<V
 /// The metrics of every landmark touched in `cal` and every calibration session, for the
 /// calibration `fit` of `setup`.
 pub fn outliers(fit: &Fit, cal: &Observations, val: Option<&Observations>, setup: &Setup) -> Vec<Outlier> {
+    outliers_with(fit, cal, val, setup, None)
+}
+
+/// [`outliers`], the sessions' refits starting from `sums` when they are of `fit` (else from
+/// sums taken here): a run takes them once for these refits and the data-error scoring's.
+pub fn outliers_with(
+    fit: &Fit,
+    cal: &Observations,
+    val: Option<&Observations>,
+    setup: &Setup,
+    sums: Option<&SessionSums>,
+) -> Vec<Outlier> {
     let options = setup.solve_options(cal);
     let units: Vec<Unit> = (0..cal.landmarks.len())
         .filter(|&l| cal.obs.iter().any(|t| t.landmark() == Some(l)))
@@ -147,7 +159,14 @@ pub fn outliers(fit: &Fit, cal: &Observations, val: Option<&Observations>, setup
             .collect()
     };
     // A session's refit starts from the other sessions' normal equations at the fit's solution.
-    let sums = SessionSums::of(&fit.model, fit, cal, &options);
+    let own;
+    let sums = match sums.filter(|s| std::ptr::eq(s.fit(), fit)) {
+        Some(sums) => Some(sums),
+        None => {
+            own = SessionSums::of(&fit.model, fit, cal, &options);
+            own.as_ref()
+        }
+    };
     let all_points: Vec<f64> =
         full.iter().zip(&owners).filter(|(_, o)| o[0] >= cal.landmarks.len()).map(|(v, _)| *v).collect();
     units
@@ -174,7 +193,7 @@ pub fn outliers(fit: &Fit, cal: &Observations, val: Option<&Observations>, setup
                 }
             };
             let contribution_pct = 100.0 * own / (share * total);
-            let refitted = match (&sums, u) {
+            let refitted = match (sums, u) {
                 (Some(sums), Unit::Session(_)) => refit_with(sums, &without, &options),
                 _ => refit(fit, &without, &options),
             };

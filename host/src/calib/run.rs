@@ -7,14 +7,14 @@
 //! The nominal figures of tracker sessions are the nominal arm with only the tool point (and the
 //! frames) fitted on the calibration data, as an instrument user would use the vendor's model.
 
-use crate::calib::diagnose::data_errors::sessions::data_error_candidates;
+use crate::calib::diagnose::data_errors::sessions::data_error_candidates_with;
 use crate::calib::diagnose::Measure;
 use crate::calib::error::CalibError;
 use crate::calib::error_stats::{AngleStats, ErrorStats};
-use crate::calib::fit::{calibrate, check_data, dense_jacobian, Fit};
+use crate::calib::fit::{calibrate_on, check_data_on, dense_jacobian, Encoders, Fit, SessionSums};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
-use crate::calib::outliers::outliers as outlier_metrics;
+use crate::calib::outliers::outliers_with as outlier_metrics;
 use crate::calib::setup::{SolveOptions, DEFAULT_LEVER_MM};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions};
 use crate::calib::summary::*;
@@ -386,13 +386,25 @@ fn copied_placement(cal: &Observations, val: &Observations) -> Option<(String, S
 /// nominal model) and `diagnose` (on the RUN's calibrated model) so both refuse the same data with
 /// the same message: sessions of two arms, a held-out artefact folder without a distance, an artefact out of the arm's
 /// reach, a validation placement copied from the calibration data, a session in both folders,
-/// and whatever [`check_data`] refuses.
+/// and whatever [`check_data`](crate::calib::fit::check_data) refuses.
 pub fn check_run_data(
     model: &ArmModel,
     cal: &Observations,
     val: &Observations,
     inputs: &RunInputs,
     options: &SolveOptions,
+) -> Result<(), RunError> {
+    check_run_data_on(model, cal, val, inputs, options, &Encoders::of(cal))
+}
+
+/// [`check_run_data`] with `cal`'s encoder table.
+fn check_run_data_on(
+    model: &ArmModel,
+    cal: &Observations,
+    val: &Observations,
+    inputs: &RunInputs,
+    options: &SolveOptions,
+    encoders: &Encoders,
 ) -> Result<(), RunError> {
     cal.one_arm(&[val])?;
     let touches = |d: &Observations| d.obs.iter().any(|o| o.landmark().is_some());
@@ -451,7 +463,7 @@ pub fn check_run_data(
             return Err(RunError::HeldOutTooSmall { path, session: name, points });
         }
     }
-    check_data(model, cal, options)?;
+    check_data_on(model, cal, encoders, options)?;
     Ok(())
 }
 
@@ -686,10 +698,12 @@ pub fn run_on(
         let Some((held_out, calibration)) = named else { return Err(RunError::SameBase(pair.clone())) };
         same_base.insert(held_out.to_string(), calibration.to_string());
     }
-    check_run_data(&nominal, cal, val, inputs, options)?;
+    // The encoder angles' sines and cosines, once for every calibration on `cal`.
+    let encoders = Encoders::of(cal);
+    check_run_data_on(&nominal, cal, val, inputs, options, &encoders)?;
     check_study_size(cal, study_subsets)?;
     steps.lap("input checks");
-    let mut fit = calibrate(&nominal, cal, options)?;
+    let mut fit = calibrate_on(&nominal, cal, &encoders, options)?;
     let on_bounds = mark_bounds(&mut fit);
     // The calibrated model is of the arm its sessions were measured on, whatever the model it
     // started from names.
@@ -717,8 +731,14 @@ pub fn run_on(
         });
     }
     steps.lap("validation");
+    // The normal equations of the fit's solution, session by session: the first evaluation of
+    // the data-error scoring's refits and of the outlier metrics' leave-one-session-out refits.
+    let setup = inputs.setup(options);
+    let sums = (cal.sessions().len() >= 2 && (outliers || !val.sessions().is_empty()))
+        .then(|| SessionSums::of(&fit.model, &fit, cal, &setup.solve_options(cal)))
+        .flatten();
     // Tracker sessions held out: each frame refitted, against the nominal arm with its tool fitted.
-    let tracker = sessions_section(&nominal, &fit, cal, val, inputs, options, &same_base)?;
+    let tracker = sessions_section(&nominal, &fit, cal, val, inputs, options, &same_base, sums.as_ref())?;
     if let Some(t) = &tracker {
         not_trustworthy.extend(crate::calib::trust::point_problems(&fit, nominal.reach_mm()));
         verdict.extend(t.verdict.iter().cloned());
@@ -740,11 +760,11 @@ pub fn run_on(
     }
     let outliers_skipped = !outliers;
     let outliers = if outliers {
-        let setup = inputs.setup(options);
-        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup)
+        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup, sums.as_ref())
     } else {
         Vec::new()
     };
+    drop(sums);
     steps.lap("outliers");
     let objective_comparison = touches(cal).then(|| objective_comparison(&fit, cal));
     steps.lap("6-DoF comparison");
@@ -985,7 +1005,9 @@ fn session_residuals(
 
 /// Validate `fit` on the held-out sessions of `val` (each frame refitted, and each tool that
 /// floats) against the nominal arm with its tool fitted on `cal`; the floor, the data errors and
-/// the verdict. `None` when `val` holds no session.
+/// the verdict (its refits' first normal equations from `sums` when given). `None` when `val`
+/// holds no session.
+#[allow(clippy::too_many_arguments)]
 fn sessions_section(
     nominal: &ArmModel,
     fit: &Fit,
@@ -994,12 +1016,13 @@ fn sessions_section(
     inputs: &RunInputs,
     options: &SolveOptions,
     same_base: &BTreeMap<String, String>,
+    sums: Option<&SessionSums>,
 ) -> Result<Option<SessionsSection>, RunError> {
     let held = val.sessions();
     if held.is_empty() {
         return Ok(None);
     }
-    let reference = calibrate(&tool_only(nominal), cal, options)?;
+    let reference = calibrate_on(&tool_only(nominal), cal, &fit.encoders, options)?;
     let floated = |b: usize| inputs.float_tool.contains(&val.groups[val.blocks[b].group].name);
     // The session's tool offset (its own when floated) and its figures.
     let figures = |model: &ArmModel, b: usize| {
@@ -1078,7 +1101,7 @@ fn sessions_section(
         Vec::new()
     } else {
         let all_floating = SolveOptions { float_tool: inputs.float_tool.clone(), ..options.clone() };
-        data_error_candidates(nominal, cal, val, fit, &all_floating)
+        data_error_candidates_with(nominal, cal, val, fit, &all_floating, sums)
     };
     if let Some(best) = data_errors.iter().find(|d| d.significant) {
         verdict.push(format!("data error: {}; apply it with {}", best.text, best.action));

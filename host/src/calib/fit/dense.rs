@@ -108,6 +108,7 @@ pub(super) fn calibrate_dense(
         tool_offsets: floated_tools(&problem, pieces.data, &state.tools, cov.as_ref()),
         drifts: Vec::new(),
         tool_rotation: None,
+        encoders: pieces.encoders.clone(),
     })
 }
 

@@ -186,16 +186,22 @@ pub(super) fn calibrate_framed(
     let (before, estimated, fixed, statements) = match warm {
         // A refit keeps the base set of the solution it starts from.
         Some(warm) => {
-            check_residuals(&full, &x0)?;
+            // The residuals' finiteness at the start is checked on the solve's own first
+            // evaluation there (below): the same point, evaluated once.
+            check_rows(&full)?;
             let (estimated, fixed): (Vec<ParamId>, Vec<ParamId>) =
                 all.iter().partition(|id| warm.estimated.contains(id));
             (warm.before.clone(), estimated, fixed, warm.statements.clone())
         }
         None => {
             let factors = if tool_turns && !tool.is_empty() {
-                // The factors are taken after the tool's fit: at the start only the checks.
-                check_residuals(&full, &x0)?;
+                // The factors are taken after the tool's fit: at the start only the checks, the
+                // residuals' finiteness on that fit's own first evaluation (the same point).
+                check_rows(&full)?;
                 start = solve_framed(pieces, &tool, start, 0);
+                if !start.outcome.initial_cost.is_finite() {
+                    return Err(CalibError::NonFinite);
+                }
                 let full = pieces.problem(all.clone(), &start.model, &start.frames, start.probe);
                 let x = pieces.x_of(&full, &start.model, &start.frames, &start.tools, &start.drifts);
                 check_framed(&full, &x)?
@@ -260,6 +266,9 @@ pub(super) fn calibrate_framed(
     let first = sums.filter(|_| warm.is_some());
     let mut solved =
         if solved_already { start } else { solve_framed_from(pieces, &estimated, start, 0, first) };
+    if warm.is_some() && !solved.outcome.initial_cost.is_finite() {
+        return Err(CalibError::NonFinite);
+    }
     let restarts = pieces.resolved.restarts;
     let mut starts = vec![solved.outcome.clone()];
     if restarts > 0 {
@@ -358,5 +367,6 @@ pub(super) fn calibrate_framed(
         drifts,
         tool_rotation,
         model: solved.model,
+        encoders: pieces.encoders.clone(),
     })
 }

@@ -148,6 +148,8 @@ pub struct Fit {
     pub drifts: Vec<SessionDrift>,
     /// The probe's orientation on the flange (6-DoF probes).
     pub tool_rotation: Option<ToolRotation>,
+    /// The sines and cosines of the encoder angles calibrated on, for the refits.
+    pub encoders: Encoders,
 }
 
 /// What the data can and cannot determine, in words, as a run's summary holds it.
@@ -212,6 +214,7 @@ mod tests;
 use dense::*;
 use framed::*;
 use outcome::*;
+pub use pieces::Encoders;
 use pieces::*;
 pub use shared::SessionSums;
 
@@ -220,10 +223,20 @@ pub use shared::SessionSums;
 /// observations that carry no information. `calibrate` refuses with these errors, and so does
 /// `diagnose` on a RUN's data, with the same messages.
 pub fn check_data(model: &ArmModel, data: &Observations, options: &SolveOptions) -> Result<(), CalibError> {
+    check_data_on(model, data, &Encoders::of(data), options)
+}
+
+/// [`check_data`] with `data`'s encoder table.
+pub fn check_data_on(
+    model: &ArmModel,
+    data: &Observations,
+    encoders: &Encoders,
+    options: &SolveOptions,
+) -> Result<(), CalibError> {
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
-        return check_data(model, &own, options);
+        return check_data_on(model, &own, encoders, options);
     }
-    let pieces = Pieces::new(model, data, options)?;
+    let pieces = Pieces::new(model, data, options, encoders)?;
     let all: Vec<ParamId> = pieces.model.free.iter().map(|f| f.id).collect();
     if pieces.blocked() {
         let frames = pieces.closed_form_frames(&pieces.model);
@@ -249,10 +262,20 @@ impl Setup {
 
 /// Calibrate the free parameters of `nominal` on `data` (see the module doc).
 pub fn calibrate(nominal: &ArmModel, data: &Observations, options: &SolveOptions) -> Result<Fit, CalibError> {
+    calibrate_on(nominal, data, &Encoders::of(data), options)
+}
+
+/// [`calibrate`] with `data`'s encoder table (a run's, shared by its calibrations).
+pub fn calibrate_on(
+    nominal: &ArmModel,
+    data: &Observations,
+    encoders: &Encoders,
+    options: &SolveOptions,
+) -> Result<Fit, CalibError> {
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
-        return calibrate(nominal, &own, options);
+        return calibrate_on(nominal, &own, encoders, options);
     }
-    let pieces = Pieces::new(nominal, data, options)?;
+    let pieces = Pieces::new(nominal, data, options, encoders)?;
     if pieces.blocked() {
         calibrate_framed(nominal, &pieces, None, None)
     } else {
@@ -297,7 +320,7 @@ fn recalibrate_from(
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
         return recalibrate_from(nominal, &own, options, warm, sums);
     }
-    let pieces = Pieces::new(nominal, data, options)?;
+    let pieces = Pieces::new(nominal, data, options, &warm.encoders)?;
     if pieces.blocked() {
         calibrate_framed(nominal, &pieces, Some(warm), sums)
     } else {
@@ -330,7 +353,8 @@ fn solve_warm_from(
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
         return solve_warm_from(start, params, &own, options, warm, sums);
     }
-    let pieces = Pieces::new(start, data, options)?;
+    let encoders = warm.map_or_else(|| Encoders::of(data), |w| w.encoders.clone());
+    let pieces = Pieces::new(start, data, options, &encoders)?;
     if pieces.blocked() {
         let from = match warm {
             Some(warm) => warm_start(&pieces, warm),

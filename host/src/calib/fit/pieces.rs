@@ -4,7 +4,7 @@
 use super::*;
 use crate::model::kinematics::encoder_sin_cos;
 use std::borrow::Cow;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 /// What a calibration of some observations is made of, whatever the arm's values.
 pub(super) struct Pieces<'a> {
@@ -16,48 +16,88 @@ pub(super) struct Pieces<'a> {
     pub(super) drift: Vec<Option<DriftSlot>>,
     pub(super) resolved: Resolved,
     /// The encoder angles' sines and cosines, once for every problem of these terms.
-    sin_cos: Arc<[(f64, f64)]>,
+    pub(super) encoders: Encoders,
 }
 
-/// Encoder tables [`kept_encoder_table`] keeps, the latest last.
-type Kept = Vec<(Vec<u64>, Arc<[(f64, f64)]>)>;
-static KEPT: Mutex<Kept> = Mutex::new(Vec::new());
-/// Sets of encoder angles whose tables are kept.
-const KEPT_TABLES: usize = 4;
+/// The sine and cosine of every encoder angle of some observations (`joints` per observation,
+/// (0, 1) for an angle an observation lacks): the table every problem of those observations
+/// reads ([`crate::calib::problem::encoder_table`], which leaves out observations no term reads).
+/// A run builds it once for its observations and hands it to the calibrations that share them
+/// (the input checks, the fit, the reference fit); each [`Fit`] keeps the table of its
+/// observations for its refits (pinocchio's constant model and per-algorithm data).
+#[derive(Clone)]
+pub struct Encoders {
+    joints: usize,
+    /// Each observation's angle count and its angles' bits, `joints + 1` values per observation.
+    angles: Arc<[u64]>,
+    pub(super) table: Arc<[(f64, f64)]>,
+}
 
-/// The sine and cosine of every encoder angle of `data` (`data.joints` per observation, (0, 1)
-/// for an angle an observation lacks): the table a problem reads
-/// ([`crate::calib::problem::encoder_table`], which leaves out observations no term reads). A
-/// run builds a dozen calibrations on the same observations (the input checks, the fit, the
-/// reference fit, the data-error scoring's refits, the outlier metrics' sums): the tables of the
-/// last few sets of angles are kept and found again by the angles' exact bits, so each set's
-/// sines and cosines are taken once.
-pub(super) fn kept_encoder_table(data: &Observations) -> Arc<[(f64, f64)]> {
-    let joints = data.joints;
-    let key: Vec<u64> =
-        std::iter::once(joints as u64)
-            .chain(data.obs.iter().flat_map(|o| {
-                std::iter::once(o.q_deg.len() as u64).chain(o.q_deg.iter().map(|q| q.to_bits()))
-            }))
-            .collect();
-    let found = KEPT.lock().ok().and_then(|kept| kept.iter().find(|k| k.0 == key).map(|k| k.1.clone()));
-    if let Some(table) = found {
-        return table;
+impl std::fmt::Debug for Encoders {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let observations = self.table.len() / self.joints.max(1);
+        write!(f, "Encoders {{ observations: {observations}, joints: {} }}", self.joints)
     }
-    let mut table = vec![(0.0, 1.0); data.obs.len() * joints];
-    for (row, o) in table.chunks_exact_mut(joints.max(1)).zip(&data.obs) {
-        for (sc, &q) in row.iter_mut().zip(o.q_deg.iter()) {
-            *sc = encoder_sin_cos(q);
+}
+
+impl Encoders {
+    /// The sines and cosines of `data`'s angles.
+    pub fn of(data: &Observations) -> Encoders {
+        let joints = data.joints;
+        let mut table = vec![(0.0, 1.0); data.obs.len() * joints];
+        let mut angles = vec![0; data.obs.len() * (joints + 1)];
+        for ((row, key), o) in
+            table.chunks_exact_mut(joints.max(1)).zip(angles.chunks_exact_mut(joints + 1)).zip(&data.obs)
+        {
+            key[0] = o.q_deg.len() as u64;
+            for ((sc, bits), &q) in row.iter_mut().zip(&mut key[1..]).zip(o.q_deg.iter()) {
+                *sc = encoder_sin_cos(q);
+                *bits = q.to_bits();
+            }
         }
+        Encoders { joints, angles: angles.into(), table: table.into() }
     }
-    let table: Arc<[(f64, f64)]> = table.into();
-    if let Ok(mut kept) = KEPT.lock() {
-        if kept.len() == KEPT_TABLES {
-            kept.remove(0);
+
+    /// Whether row `i` holds observation `o`'s angles (bit for bit).
+    fn holds(&self, i: usize, o: &crate::data::Observation) -> bool {
+        let key = &self.angles[i * (self.joints + 1)..(i + 1) * (self.joints + 1)];
+        key[0] == o.q_deg.len() as u64 && o.q_deg.iter().zip(&key[1..]).all(|(q, b)| q.to_bits() == *b)
+    }
+
+    /// The table of `data`, taken from this one when `data`'s observations are these or some of
+    /// them in the same order (another selection of the same observations: a session or a few
+    /// points left out, the orientations dropped), else built for `data`. A row depends on its
+    /// angles alone, so a row whose angles are bit for bit those of an observation is its row.
+    pub fn for_data(&self, data: &Observations) -> Encoders {
+        if data.joints != self.joints {
+            return Encoders::of(data);
         }
-        kept.push((key, table.clone()));
+        let rows = self.table.len() / self.joints.max(1);
+        let mut taken = Vec::with_capacity(data.obs.len());
+        let mut i = 0;
+        for o in &data.obs {
+            while i < rows && !self.holds(i, o) {
+                i += 1;
+            }
+            if i == rows {
+                return Encoders::of(data);
+            }
+            taken.push(i);
+            i += 1;
+        }
+        if taken.len() == rows {
+            return self.clone();
+        }
+        self.rows(&taken)
     }
-    table
+
+    /// The table of rows `taken`, in that order.
+    fn rows(&self, taken: &[usize]) -> Encoders {
+        let (joints, width) = (self.joints, self.joints + 1);
+        let table = taken.iter().flat_map(|&i| self.table[i * joints..(i + 1) * joints].iter().copied());
+        let angles = taken.iter().flat_map(|&i| self.angles[i * width..(i + 1) * width].iter().copied());
+        Encoders { joints, angles: angles.collect(), table: table.collect() }
+    }
 }
 
 impl<'a> Pieces<'a> {
@@ -66,6 +106,7 @@ impl<'a> Pieces<'a> {
         nominal: &ArmModel,
         data: &'a Observations,
         options: &SolveOptions,
+        encoders: &Encoders,
     ) -> Result<Pieces<'a>, CalibError> {
         if !data.obs.is_empty() && nominal.joints.len() != data.joints {
             let tracker = data.obs.iter().any(|o| o.point_mm().is_some());
@@ -118,8 +159,8 @@ impl<'a> Pieces<'a> {
             point_weight: resolved.point_weight,
         };
         let terms = terms::build(data, &choice);
-        let sin_cos = kept_encoder_table(data);
-        Ok(Pieces { data, model, terms, framed, floated, drift, resolved, sin_cos })
+        let encoders = encoders.for_data(data);
+        Ok(Pieces { data, model, terms, framed, floated, drift, resolved, encoders })
     }
 
     /// These pieces on `sub`, block `b`'s observations alone (`data.without` every other block,
@@ -133,12 +174,9 @@ impl<'a> Pieces<'a> {
         };
         let terms = terms::build(sub, &choice);
         // The encoder table's rows of block b's observations: sub's terms read no other.
-        let joints = self.data.joints;
-        let sin_cos: Arc<[(f64, f64)]> = (0..self.data.obs.len())
-            .filter(|&k| self.data.obs[k].block == b)
-            .flat_map(|k| self.sin_cos[k * joints..(k + 1) * joints].iter().copied())
-            .collect();
-        debug_assert_eq!(sin_cos.len(), sub.obs.len() * joints);
+        let rows: Vec<usize> = (0..self.data.obs.len()).filter(|&k| self.data.obs[k].block == b).collect();
+        let encoders = self.encoders.rows(&rows);
+        debug_assert_eq!(encoders.table.len(), sub.obs.len() * self.data.joints);
         Pieces {
             data: sub,
             model: self.model.clone(),
@@ -147,7 +185,7 @@ impl<'a> Pieces<'a> {
             floated: self.floated.clone(),
             drift: vec![self.drift[b].map(|d| DriftSlot { column: 0, ..d }); sub.blocks.len()],
             resolved: self.resolved,
-            sin_cos,
+            encoders,
         }
     }
 
@@ -176,7 +214,7 @@ impl<'a> Pieces<'a> {
             &self.terms,
             frames.iter().map(|f| f.rotation).collect(),
             probe.filter(|_| self.resolved.orientation_weight_mm_per_rad.is_some()),
-            Cow::Borrowed(&*self.sin_cos),
+            Cow::Borrowed(&*self.encoders.table),
         )
     }
 
@@ -387,17 +425,11 @@ pub(super) fn check_framed(
     full.group_factors(x0).ok_or(CalibError::NonFinite)
 }
 
-/// The checks of [`check_framed`] on the residuals alone (no derivatives, no factors): enough
-/// residuals for the unknowns, all finite at `x0`.
-pub(super) fn check_residuals(full: &Problem, x0: &[f64]) -> Result<(), CalibError> {
+/// At least as many residuals as unknowns.
+pub(super) fn check_rows(full: &Problem) -> Result<(), CalibError> {
     let unknowns = full.layout.unknowns();
-    if full.len() < unknowns {
-        return Err(CalibError::TooFewResiduals { residuals: full.len(), unknowns });
-    }
-    let mut r = vec![0.0; full.len()];
-    full.evaluate(x0, &mut r, None);
-    match r.iter().all(|v| v.is_finite()) {
-        true => Ok(()),
-        false => Err(CalibError::NonFinite),
+    match full.len() < unknowns {
+        true => Err(CalibError::TooFewResiduals { residuals: full.len(), unknowns }),
+        false => Ok(()),
     }
 }

@@ -95,7 +95,7 @@ impl<'f> SessionSums<'f> {
         if let Some(own) = data.without_orientations_of(&options.float_tool) {
             return SessionSums::of(model, fit, &own, options);
         }
-        let pieces = Pieces::new(model, data, options).ok()?;
+        let pieces = Pieces::new(model, data, options, &fit.encoders).ok()?;
         // Without the fit's probe rotation, a session alone would start its probe elsewhere.
         let probe_unknown =
             pieces.resolved.orientation_weight_mm_per_rad.is_some() && fit.tool_rotation.is_none();
@@ -200,7 +200,7 @@ mod tests {
         // Leave a session out.
         for b in [0, 2] {
             let without = cal.without(|k| cal.obs[k].block == b);
-            let pieces = Pieces::new(&fit.model, &without, &options).expect("pieces");
+            let pieces = Pieces::new(&fit.model, &without, &options, &fit.encoders).expect("pieces");
             let start = warm_start(&pieces, &fit);
             let problem = pieces.problem(fit.estimated.clone(), &start.model, &start.frames, start.probe);
             let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
@@ -223,7 +223,7 @@ mod tests {
         let name = cal.block_name(1);
         let floated = SolveOptions { float_tool: vec![name.clone()], ..options.clone() };
         let sums = SessionSums::of(&nominal, &fit, &cal, &options).expect("sums");
-        let pieces = Pieces::new(&nominal, &cal, &floated).expect("pieces");
+        let pieces = Pieces::new(&nominal, &cal, &floated, &fit.encoders).expect("pieces");
         let start = warm_start(&pieces, &fit);
         let arm: Vec<ParamId> =
             pieces.model.free.iter().map(|f| f.id).filter(|id| fit.estimated.contains(id)).collect();
@@ -258,7 +258,7 @@ mod tests {
         fit.model.joints[2].d_mm += 0.3;
         let sums = SessionSums::of(&fit.model, &fit, &data, &options).expect("sums");
         let without = data.without(|k| data.obs[k].block == 1);
-        let pieces = Pieces::new(&fit.model, &without, &options).expect("pieces");
+        let pieces = Pieces::new(&fit.model, &without, &options, &fit.encoders).expect("pieces");
         let start = warm_start(&pieces, &fit);
         let problem = pieces.problem(fit.estimated.clone(), &start.model, &start.frames, start.probe);
         assert!(problem.layout.rotation_column().is_some());

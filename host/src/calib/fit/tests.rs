@@ -127,7 +127,7 @@ fn six_dof_jacobian_matches_central_differences() {
         float_tool: vec!["A".into()],
         ..SolveOptions::default()
     };
-    let pieces = Pieces::new(&model, &data, &options).unwrap();
+    let pieces = Pieces::new(&model, &data, &options, &Encoders::of(&data)).unwrap();
     let frames = vec![Frame::identity(); data.blocks.len()];
     let problem = pieces.problem(params.clone(), &model, &frames, None);
     let mut x: Vec<f64> = params.iter().map(|p| model.get(*p)).collect();
@@ -136,7 +136,7 @@ fn six_dof_jacobian_matches_central_differences() {
     // Without the floated tool no term has unknowns of its own: the normal equations are summed
     // from dense rows (one-row distances in place, four-row relative orientations scattered).
     let options = SolveOptions { float_tool: Vec::new(), ..options };
-    let pieces = Pieces::new(&model, &data, &options).unwrap();
+    let pieces = Pieces::new(&model, &data, &options, &Encoders::of(&data)).unwrap();
     let problem = pieces.problem(params.clone(), &model, &frames, None);
     assert!(!problem.layout.has_block_unknowns());
     x.truncate(params.len());
@@ -149,7 +149,7 @@ fn point_and_orientation_jacobians_match_central_differences() {
     let probe = Rotation3::from_euler_angles(0.2, -0.1, 0.4).into_inner();
     let data = sessions(&nominal, Some(probe)).subset(&[0]);
     let options = SolveOptions { float_tool: vec!["s0".into()], ..SolveOptions::default() };
-    let pieces = Pieces::new(&nominal, &data, &options).unwrap();
+    let pieces = Pieces::new(&nominal, &data, &options, &Encoders::of(&data)).unwrap();
     let frames = pieces.closed_form_frames(&pieces.model);
     let start = start_probe_rotation(&pieces.model, &data, &frames);
     let arm: Vec<ParamId> = pieces.model.free.iter().map(|f| f.id).collect();
@@ -166,21 +166,50 @@ fn point_and_orientation_jacobians_match_central_differences() {
 }
 
 #[test]
-fn a_kept_encoder_table_is_that_of_its_angles_and_no_other() {
+fn an_encoder_table_is_that_of_its_angles_and_no_other() {
     use crate::model::kinematics::encoder_sin_cos;
     let mut data = sessions(&arm(), None);
     let joints = data.joints;
-    let first = kept_encoder_table(&data);
+    let first = Encoders::of(&data);
+    let row = |e: &Encoders, k: usize, j: usize| e.table[k * joints + j];
     for (k, o) in data.obs.iter().enumerate() {
         for (j, &q) in o.q_deg.iter().enumerate() {
-            assert_eq!(first[k * joints + j], encoder_sin_cos(q));
+            assert_eq!(row(&first, k, j), encoder_sin_cos(q));
         }
     }
-    // One angle moved by a hair: its own table, not the kept one.
+    // The same observations: the same table, shared.
+    assert!(std::sync::Arc::ptr_eq(&first.for_data(&data).table, &first.table));
+    // A session left out: the rows of the others, in their order.
+    let without = data.without(|k| data.obs[k].block == 1);
+    let kept: Vec<usize> = (0..data.obs.len()).filter(|&k| data.obs[k].block != 1).collect();
+    let taken = first.for_data(&without);
+    assert_eq!(taken.table.len(), without.obs.len() * joints);
+    for (i, &k) in kept.iter().enumerate() {
+        for j in 0..joints {
+            assert_eq!(row(&taken, i, j), row(&first, k, j));
+        }
+    }
+    // One angle moved by a hair: its own row, not the first table's.
     data.obs[3].q_deg[2] += 1e-9;
-    let moved = kept_encoder_table(&data);
-    assert_eq!(moved[3 * joints + 2], encoder_sin_cos(data.obs[3].q_deg[2]));
-    assert_ne!(moved[3 * joints + 2], first[3 * joints + 2]);
-    // The same angles again: the same table (kept, or taken again after other tests' tables).
-    assert_eq!(*moved, *kept_encoder_table(&data));
+    let moved = first.for_data(&data);
+    assert_eq!(row(&moved, 3, 2), encoder_sin_cos(data.obs[3].q_deg[2]));
+    assert_ne!(row(&moved, 3, 2), row(&first, 3, 2));
+    assert_eq!(*moved.table, *Encoders::of(&data).table);
+}
+
+/// A point that is not a number is refused (the residuals' finiteness is checked on the solve's
+/// first evaluation at the start): by a calibration and by a refit from a fit's solution.
+#[test]
+fn a_start_that_is_not_finite_is_refused() {
+    let nominal = arm();
+    let data = sessions(&nominal, None);
+    let options = SolveOptions::default();
+    let fit = calibrate(&nominal, &data, &options).expect("fit");
+    let mut broken = data.clone();
+    let k = broken.blocks[1].members[4];
+    if let crate::data::Target::Point { xyz_mm, .. } = &mut broken.obs[k].target {
+        xyz_mm.x = f64::NAN;
+    }
+    assert!(matches!(calibrate(&nominal, &broken, &options), Err(CalibError::NonFinite)));
+    assert!(matches!(recalibrate(&nominal, &broken, &options, &fit), Err(CalibError::NonFinite)));
 }

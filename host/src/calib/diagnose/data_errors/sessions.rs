@@ -326,6 +326,20 @@ pub fn data_error_candidates(
     fit: &Fit,
     options: &SolveOptions,
 ) -> Vec<DataError> {
+    data_error_candidates_with(nominal, cal, val, fit, options, None)
+}
+
+/// [`data_error_candidates`], the refits floating a session's tool starting from `sums` when
+/// they are of `fit` (else from sums taken here): a run takes them once for these refits and
+/// the outlier metrics' (see [`SessionSums`]).
+pub fn data_error_candidates_with(
+    nominal: &ArmModel,
+    cal: &Observations,
+    val: &Observations,
+    fit: &Fit,
+    options: &SolveOptions,
+    sums: Option<&SessionSums>,
+) -> Vec<DataError> {
     let errors = held_out_errors(&fit.model, val, &options.float_tool);
     let before = rms(&errors.iter().flat_map(|(_, e)| e.iter().copied()).collect::<Vec<_>>());
     let mut out = Vec::new();
@@ -361,7 +375,14 @@ pub fn data_error_candidates(
     };
     let cal_turning = turning(cal);
     // Each refit starts from the other sessions' normal equations at the fit's solution.
-    let sums = (cal_turning.len() >= 2).then(|| SessionSums::of(nominal, fit, cal, options)).flatten();
+    let own;
+    let sums = match sums.filter(|s| std::ptr::eq(s.fit(), fit)) {
+        Some(sums) => Some(sums),
+        None => {
+            own = (cal_turning.len() >= 2).then(|| SessionSums::of(nominal, fit, cal, options)).flatten();
+            own.as_ref()
+        }
+    };
     for &b in &cal_turning {
         if cal_turning.len() < 2 {
             break;
@@ -370,7 +391,7 @@ pub fn data_error_candidates(
         let mut float_tool = options.float_tool.clone();
         float_tool.push(name.clone());
         let floated = SolveOptions { float_tool: float_tool.clone(), ..options.clone() };
-        let refitted = match &sums {
+        let refitted = match sums {
             Some(sums) => recalibrate_with(nominal, cal, &floated, sums),
             None => recalibrate(nominal, cal, &floated, fit),
         };

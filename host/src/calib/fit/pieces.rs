@@ -418,11 +418,20 @@ pub(super) fn check_framed(
     full: &Problem,
     x0: &[f64],
 ) -> Result<Vec<crate::calib::problem::GroupFactor>, CalibError> {
-    let unknowns = full.layout.unknowns();
-    if full.len() < unknowns {
-        return Err(CalibError::TooFewResiduals { residuals: full.len(), unknowns });
-    }
+    check_rows(full)?;
     full.group_factors(x0).ok_or(CalibError::NonFinite)
+}
+
+/// The checks of [`check_framed`] on the residuals alone (no derivatives, no factors): enough
+/// residuals for the unknowns, all finite at `x0`.
+pub(super) fn check_residuals(full: &Problem, x0: &[f64]) -> Result<(), CalibError> {
+    check_rows(full)?;
+    let mut r = vec![0.0; full.len()];
+    full.evaluate(x0, &mut r, None);
+    match r.iter().all(|v| v.is_finite()) {
+        true => Ok(()),
+        false => Err(CalibError::NonFinite),
+    }
 }
 
 /// At least as many residuals as unknowns.

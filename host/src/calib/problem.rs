@@ -606,17 +606,42 @@ pub fn projected_arm_columns(layout: &Layout, factors: &[GroupFactor]) -> (Vec<f
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::bench_problem;
     use crate::calib::terms::{build, TermChoice};
-    use nalgebra::Rotation3;
+    use crate::data::{Joints, Kind, Observation};
+    use crate::model::kinematics::tool_pose;
+    use nalgebra::{Rotation3, Vector3};
+
+    /// Three sessions of 40 points of an arm moved from `nominal`, each seen from its own base.
+    fn sessions(nominal: &ArmModel) -> Observations {
+        let mut truth = nominal.clone();
+        for (k, f) in nominal.free.iter().enumerate() {
+            truth.set(f.id, nominal.get(f.id) + 0.1 * (k as f64 * 1.7).sin());
+        }
+        let joints = nominal.joints.len();
+        let mut data = Observations::new(joints, Vec::new());
+        for s in 0..3 {
+            let group = data.push_group(format!("s{s}"), "s.csv".into(), Kind::Tracker);
+            let rotation = Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64).into_inner();
+            let shift = Vector3::new(2500.0, -300.0 * s as f64, 400.0);
+            for i in 0..40 {
+                let q: Vec<f64> =
+                    (0..joints).map(|j| ((i * 7 + j * 3 + s) as f64 * 0.9).sin() * 100.0).collect();
+                let p = rotation * tool_pose(&truth, &q).position_mm + shift;
+                let q = Joints::new(&q).expect("the arm's joints fit in Joints");
+                data.obs.push(Observation::point(group, q, p, None, Some(0.02), i + 3));
+            }
+        }
+        data.rebuild_blocks();
+        data
+    }
 
     /// The normal equations summed term by term are those of the dense Jacobian, on turned
     /// sessions with frames and floated tools, with every weight 1 (the batches that are their
     /// own weighted copy) and with Huber weights that differ within a point.
     #[test]
     fn the_sums_of_points_are_the_dense_normal_equations() {
-        let nominal = bench_problem::arm();
-        let data = bench_problem::sessions(&bench_problem::truth(&nominal), 3, 40, 7);
+        let nominal = ArmModel::suta_nominal();
+        let data = sessions(&nominal);
         let terms = build(
             &data,
             &TermChoice {

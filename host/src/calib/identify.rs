@@ -28,8 +28,9 @@ pub const POORLY_IDENTIFIED_BELOW: f64 = 1e-2;
 /// A direction in parameter space the data hardly sees.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Combination {
-    /// σ/σ₁ of this direction.
-    pub relative_singular_value: f64,
+    /// σ/σ₁ of this direction; `None` below [`EXACT_NULL_BELOW`], where it is zero at rounding
+    /// level and its digits are noise (they change with the order of the arithmetic), not a figure.
+    pub relative_singular_value: Option<f64>,
     /// Parameters and their share of the direction, in physical units, largest first,
     /// scaled so the largest is ±1.
     pub terms: Vec<(String, f64)>,
@@ -110,7 +111,7 @@ fn describe(
             .join(" ↔ ")
     };
     Combination {
-        relative_singular_value: relative,
+        relative_singular_value: (relative >= EXACT_NULL_BELOW).then_some(relative),
         terms: terms.into_iter().map(|(name, _, v)| (name.to_string(), v)).collect(),
         text,
     }
@@ -443,7 +444,7 @@ mod tests {
         let texts = |jac: Vec<f64>| -> Vec<String> {
             let id = analyse(&jac, &params, &[1.0; 4]);
             assert!(
-                id.unidentifiable.iter().all(|c| c.relative_singular_value < 1e-12),
+                id.unidentifiable.iter().all(|c| c.relative_singular_value.is_none()),
                 "{:?}",
                 id.unidentifiable
             );

@@ -599,7 +599,10 @@ fn identifiability(body: &mut String, s: &Summary) {
     }
     let combos = |list: &[crate::calib::identify::Combination]| -> String {
         list.iter()
-            .map(|c| format!("<li>{} (σ/σ₁ = {})</li>", escape(&c.text), sci(c.relative_singular_value)))
+            .map(|c| match c.relative_singular_value {
+                Some(relative) => format!("<li>{} (σ/σ₁ = {})</li>", escape(&c.text), sci(relative)),
+                None => format!("<li>{} (σ/σ₁ zero at rounding level)</li>", escape(&c.text)),
+            })
             .collect()
     };
     if !ident.unidentifiable.is_empty() {

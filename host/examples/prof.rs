@@ -1,4 +1,5 @@
-//! Profiling harness for the calibration's speed (under `perf record --call-graph dwarf`, or by
+//! Profiling harness for the calibration's speed (built with `--profile profiling` for line tables,
+//! under `perf record --call-graph dwarf` or `valgrind --tool=callgrind`, or by
 //! its own CPU and wall times, median over N runs):
 //! `cargo run --release -p kincal --example prof -- MODE [N]`, MODE one of `artefact` (nominal +
 //! 8 restarts), `one` (nominal start), `tracker` (one calibration of the bench arm's 5 sessions),

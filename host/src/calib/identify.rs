@@ -43,9 +43,10 @@ pub struct Combination {
 pub struct Identifiability {
     /// Parameter names, in column order.
     pub params: Vec<String>,
-    /// Singular values of the column-scaled Jacobian, largest first.
+    /// Singular values of the column-scaled Jacobian, largest first; 0 where below
+    /// [`EXACT_NULL_BELOW`] × σ₁ (zero at rounding level).
     pub singular_values: Vec<f64>,
-    /// σ₁/σ_n (infinite when rank-deficient).
+    /// σ₁/σ_n (infinite when rank-deficient, at rounding level included).
     #[serde(deserialize_with = "crate::files::null_as_infinity")]
     pub condition_number: f64,
     /// Directions the data cannot determine at all.
@@ -187,6 +188,9 @@ pub fn analyse_named(jac: &[f64], params: &[ParamId], names: &[String], ranges: 
             out.poorly_identified.push(combo);
         }
     }
+    // A singular value at rounding level is zero: its digits are the arithmetic's order, not the
+    // data's, so neither it nor the condition number it would give is a figure.
+    let sv: Vec<f64> = sv.into_iter().map(|s| if s / top < EXACT_NULL_BELOW { 0.0 } else { s }).collect();
     let smallest = if live.len() < n || sv.len() < n { 0.0 } else { sv[n - 1] };
     out.condition_number = if smallest > 0.0 { top / smallest } else { f64::INFINITY };
     out.singular_values = sv;
@@ -420,6 +424,27 @@ mod tests {
         // The larger of two collinear columns stays in the base set.
         assert_eq!(kept, vec![1, 2]);
         assert_eq!(dropped, vec![0, 3]);
+    }
+
+    /// A direction at rounding level (a column that is another's combination, computed with
+    /// rounding, so its singular value comes out ~1e-17, not 0) is zero: no singular value and no
+    /// condition number of rounding noise is reported as a figure.
+    #[test]
+    fn a_direction_at_rounding_level_gives_no_figure() {
+        let jac: Vec<f64> = (0..12)
+            .flat_map(|i| {
+                let (a, b) = ((i as f64 * 0.37).sin(), (i as f64 * 1.3).cos() * 3.1);
+                [a, b, 0.3 * a + 0.7 * b, (i as f64).sqrt()]
+            })
+            .collect();
+        let params = [ParamId::Length(0), ParamId::Length(1), ParamId::Tcp(0), ParamId::Tcp(1)];
+        let id = analyse(&jac, &params, &[1.0; 4]);
+        assert_eq!(id.singular_values.len(), 4);
+        assert_eq!(id.singular_values[3], 0.0, "{:?}", id.singular_values);
+        assert!(id.singular_values[..3].iter().all(|&s| s > EXACT_NULL_BELOW * id.singular_values[0]));
+        assert!(id.condition_number.is_infinite(), "{}", id.condition_number);
+        assert_eq!(id.unidentifiable.len(), 1);
+        assert_eq!(id.unidentifiable[0].relative_singular_value, None);
     }
 
     /// A null space of two directions is reported in its one reduced echelon basis, the same

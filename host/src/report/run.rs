@@ -624,7 +624,12 @@ fn identifiability(body: &mut String, s: &Summary) {
             body,
             "<p>Before solving (nominal values, block unknowns projected out): condition number {}; \
              {} directions not determined, {} weakly.</p>",
-            sci(before.condition_number),
+            // σ_n = 0 when a direction is not determined: the ratio is no number, it is unbounded.
+            if before.condition_number.is_finite() {
+                sci(before.condition_number)
+            } else {
+                "unbounded".into()
+            },
             before.unidentifiable.len(),
             before.poorly_identified.len()
         );
@@ -780,7 +785,7 @@ fn outliers(body: &mut String, s: &Summary) {
                 cell(o.cooks_distance, "cooks_distance"),
                 cell(o.loo_impact_pct, "leave_one_out"),
                 cell(Some(o.bias_mm), "bias"),
-                if o.flagged { "<span class=flag>flagged</span>".into() } else { String::new() },
+                if o.flagged { "<span class=flag>flagged</span>".into() } else { "not flagged".into() },
             ]
         })
         .collect();
@@ -789,7 +794,7 @@ fn outliers(body: &mut String, s: &Summary) {
         "<h2>Outlier diagnostics (thesis appendix F)</h2><p>Thresholds: contribution &gt; 1.5× its share, Cook's \
          distance &gt; 4/L, leave-one-out improvement &gt; 5 %, bias &gt; 1 mm (a landmark) or 1.5× the \
          RMS of every point (a session); flagged when two or more exceed.</p>{}",
-        table(&["landmark or session", "contribution %", "Cook's D", "LOO impact %", "bias mm", ""], &rows)
+        table(&["landmark or session", "contribution %", "Cook's D", "LOO impact %", "bias mm", "verdict"], &rows)
     );
 }
 

@@ -149,7 +149,11 @@ pub fn analyse_named(jac: &[f64], params: &[ParamId], names: &[String], ranges: 
     if live.is_empty() {
         return out;
     }
-    let svd = scaled(jac, n, ranges, &live).svd(false, true);
+    // With fewer rows than columns the thin decomposition lacks the null directions beyond the
+    // rows: zero rows make it square (they change no singular value and add those directions).
+    let a = scaled(jac, n, ranges, &live);
+    let rows = a.nrows().max(live.len());
+    let svd = a.resize_vertically(rows, 0.0).svd(false, true);
     let Some(v_t) = svd.v_t else { return out };
     let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
     order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
@@ -207,11 +211,14 @@ fn echelon_rows(mut basis: DMatrix<f64>) -> Vec<nalgebra::RowDVector<f64>> {
         if row == k {
             break;
         }
-        // The largest entry of this column among the rows left, as the pivot.
+        // A column is a pivot when the rows left reach it: its norm over them (at the first
+        // column, the subspace's projection of the axis, whatever the basis) is not below the
+        // threshold. Its largest entry among them is the pivot.
+        let reach = (row..k).map(|r| basis[(r, c)].powi(2)).sum::<f64>().sqrt();
         let Some(p) = (row..k).max_by(|&a, &b| basis[(a, c)].abs().total_cmp(&basis[(b, c)].abs())) else {
             break;
         };
-        if basis[(p, c)].abs() < ECHELON_PIVOT_BELOW {
+        if reach < ECHELON_PIVOT_BELOW {
             continue;
         }
         basis.swap_rows(row, p);
@@ -445,6 +452,29 @@ mod tests {
         assert!(id.condition_number.is_infinite(), "{}", id.condition_number);
         assert_eq!(id.unidentifiable.len(), 1);
         assert_eq!(id.unidentifiable[0].relative_singular_value, None);
+    }
+
+    /// Fewer residual rows than parameters (one point of a tracker session, say): the directions
+    /// beyond the rows are named too, not only the condition number made unbounded.
+    #[test]
+    fn fewer_rows_than_parameters_name_every_missing_direction() {
+        let jac = [1.0, 0.5, 0.0, 2.0, 0.0, 1.0, 3.0, -1.0];
+        let params = [ParamId::Length(0), ParamId::Length(1), ParamId::Tcp(0), ParamId::Tcp(1)];
+        let id = analyse(&jac, &params, &[1.0; 4]);
+        assert!(id.condition_number.is_infinite());
+        assert_eq!(id.unidentifiable.len(), 2, "{:?}", id.unidentifiable);
+        // Each named direction changes no residual.
+        for c in &id.unidentifiable {
+            let dir: Vec<f64> = id
+                .params
+                .iter()
+                .map(|name| c.terms.iter().find(|(n, _)| n == name).map_or(0.0, |t| t.1))
+                .collect();
+            for row in jac.chunks(4) {
+                let moved: f64 = row.iter().zip(&dir).map(|(j, d)| j * d).sum();
+                assert!(moved.abs() < 1e-9, "{} moves a residual by {moved}", c.text);
+            }
+        }
     }
 
     /// A null space of two directions is reported in its one reduced echelon basis, the same

@@ -226,12 +226,12 @@ impl ParamId {
         if let Some((tip, axis)) = name.strip_prefix("tcp").and_then(|rest| rest.split_once('.')) {
             let t: usize = tip.parse().ok()?;
             let k = TCP_AXES.iter().position(|a| *a == axis)?;
-            return (2..=MAX_TIPS).contains(&t).then_some(ParamId::TipTcp(t - 1, k));
+            return (2..=MAX_TIPS).contains(&t).then(|| ParamId::TipTcp(t - 1, k));
         }
         let (kind, joint) = name.split_once(':')?;
         let j: usize = joint.parse().ok()?;
         if kind == "mass" {
-            return (1..=MAX_BODIES).contains(&j).then_some(ParamId::Mass(j - 1));
+            return (1..=MAX_BODIES).contains(&j).then(|| ParamId::Mass(j - 1));
         }
         if !(1..=super::MAX_TREE_JOINTS).contains(&j) {
             return None;

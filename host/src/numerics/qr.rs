@@ -35,6 +35,9 @@ pub fn r_factor(mut a: DMatrix<f64>) -> DMatrix<f64> {
 pub fn r_factor_of_stacked(mut top: DMatrix<f64>, mut bottom: DMatrix<f64>) -> DMatrix<f64> {
     let (w, q) = (top.ncols(), bottom.nrows());
     debug_assert_eq!(bottom.ncols(), w);
+    // The fold reads only the upper trapezoids: anything below them would be silently ignored.
+    let upper = |m: &DMatrix<f64>| (0..m.ncols()).all(|j| (j + 1..m.nrows()).all(|i| m[(i, j)] == 0.0));
+    debug_assert!(upper(&top) && upper(&bottom), "r_factor_of_stacked takes two R factors");
     if top.nrows() != w {
         let mut stacked = DMatrix::zeros(top.nrows() + q, w);
         stacked.rows_mut(0, top.nrows()).copy_from(&top);

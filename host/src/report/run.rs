@@ -600,8 +600,11 @@ fn identifiability(body: &mut String, s: &Summary) {
     let combos = |list: &[crate::calib::identify::Combination]| -> String {
         list.iter()
             .map(|c| match c.relative_singular_value {
-                Some(relative) => format!("<li>{} (σ/σ₁ = {})</li>", escape(&c.text), sci(relative)),
-                None => format!("<li>{} (σ/σ₁ zero at rounding level)</li>", escape(&c.text)),
+                // Summaries written before the threshold carry rounding-level figures: not shown.
+                Some(relative) if relative >= crate::calib::identify::EXACT_NULL_BELOW => {
+                    format!("<li>{} (σ/σ₁ = {})</li>", escape(&c.text), sci(relative))
+                }
+                _ => format!("<li>{} (σ/σ₁ zero at rounding level)</li>", escape(&c.text)),
             })
             .collect()
     };

@@ -57,8 +57,8 @@ pub(super) fn solve_framed(pieces: &Pieces, estimated: &[ParamId], start: Solved
     solve_framed_from(pieces, estimated, start, number, None)
 }
 
-/// [`solve_framed`], the first pass' normal equations at `start` given by `first` (from the
-/// session sums of the solution it starts at) when it can give them.
+/// [`solve_framed`], the first pass' normal equations and cost at `start` given by `first` (from
+/// the session sums of the solution it starts at) when it can give them.
 pub(super) fn solve_framed_from(
     pieces: &Pieces,
     estimated: &[ParamId],

@@ -48,6 +48,10 @@ const MAX_IDENTIFIABILITY_PASSES: usize = 3;
 /// Change of a residual, mm, over a parameter's whole range below which it counts as none.
 const NEGLIGIBLE_MM: f64 = 1e-9;
 /// Solver settings of each pass when frames are fitted (the passes re-centre between solves).
+/// Gauss–Newton steps from a start near the data (the frames at their closed form, or a
+/// refit's warm start) are accepted nearly always: each trial point's normal equations are
+/// evaluated with its residuals, once, instead of its residuals first and the normal equations
+/// again once accepted.
 const FRAMED_SOLVER: SolverOptions = SolverOptions {
     loss: Loss::Linear,
     max_iterations: 100,
@@ -55,6 +59,7 @@ const FRAMED_SOLVER: SolverOptions = SolverOptions {
     xtol: 1e-10,
     gtol: 1e-10,
     termination: Termination::Ceres,
+    trial_normal: true,
 };
 
 /// The outcome of one start of the solver.

@@ -277,12 +277,40 @@ pub fn calibrate_on(
     encoders: &Encoders,
     options: &SolveOptions,
 ) -> Result<Fit, CalibError> {
+    calibrate_on_sharing(nominal, data, encoders, options, &ToolFirstFit::default())
+}
+
+/// [`calibrate_on`] of `nominal`, and of `reference` when given: the same arm's values with
+/// fewer parameters free, the tool point among them (a run's tool-only nominal model). With
+/// block unknowns both start with the tool point's first fit on these values, solved once.
+/// The reference's own error is its result's.
+pub fn calibrate_with_reference_on(
+    nominal: &ArmModel,
+    reference: Option<&ArmModel>,
+    data: &Observations,
+    encoders: &Encoders,
+    options: &SolveOptions,
+) -> Result<(Fit, Option<Result<Fit, CalibError>>), CalibError> {
+    let first_fit = ToolFirstFit::default();
+    let fit = calibrate_on_sharing(nominal, data, encoders, options, &first_fit)?;
+    let reference = reference.map(|r| calibrate_on_sharing(r, data, encoders, options, &first_fit));
+    Ok((fit, reference))
+}
+
+/// [`calibrate_on`], the tool point's first fit from `first_fit` (see [`ToolFirstFit`]).
+fn calibrate_on_sharing(
+    nominal: &ArmModel,
+    data: &Observations,
+    encoders: &Encoders,
+    options: &SolveOptions,
+    first_fit: &ToolFirstFit,
+) -> Result<Fit, CalibError> {
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
-        return calibrate_on(nominal, &own, encoders, options);
+        return calibrate_on_sharing(nominal, &own, encoders, options, first_fit);
     }
     let pieces = Pieces::new(nominal, data, options, encoders)?;
     if pieces.blocked() {
-        calibrate_framed(nominal, &pieces, None, None)
+        calibrate_framed(nominal, &pieces, None, None, first_fit)
     } else {
         calibrate_dense(nominal, &pieces, options)
     }
@@ -327,7 +355,7 @@ fn recalibrate_from(
     }
     let pieces = Pieces::new(nominal, data, options, &warm.encoders)?;
     if pieces.blocked() {
-        calibrate_framed(nominal, &pieces, Some(warm), sums)
+        calibrate_framed(nominal, &pieces, Some(warm), sums, &ToolFirstFit::default())
     } else {
         calibrate_dense(nominal, &pieces, options)
     }

@@ -11,7 +11,9 @@ use crate::calib::diagnose::data_errors::sessions::data_error_candidates_with;
 use crate::calib::diagnose::Measure;
 use crate::calib::error::CalibError;
 use crate::calib::error_stats::{AngleStats, ErrorStats};
-use crate::calib::fit::{calibrate_on, check_data_on, dense_jacobian, Encoders, Fit, SessionSums};
+use crate::calib::fit::{
+    calibrate_with_reference_on, check_data_on, dense_jacobian, Encoders, Fit, SessionSums,
+};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
 use crate::calib::outliers::outliers_with as outlier_metrics;
@@ -703,7 +705,12 @@ pub fn run_on(
     check_run_data_on(&nominal, cal, val, inputs, options, &encoders)?;
     check_study_size(cal, study_subsets)?;
     steps.lap("input checks");
-    let mut fit = calibrate_on(&nominal, cal, &encoders, options)?;
+    // The nominal figures of held-out sessions are the nominal arm's with its tool point fitted:
+    // that fit starts the calibration too.
+    let tool_only = (!val.sessions().is_empty()).then(|| tool_only(&nominal));
+    let (mut fit, reference) =
+        calibrate_with_reference_on(&nominal, tool_only.as_ref(), cal, &encoders, options)?;
+    let reference = reference.transpose()?;
     let on_bounds = mark_bounds(&mut fit);
     // The calibrated model is of the arm its sessions were measured on, whatever the model it
     // started from names.
@@ -738,7 +745,9 @@ pub fn run_on(
         .then(|| SessionSums::of(&fit.model, &fit, cal, &setup.solve_options(cal)))
         .flatten();
     // Tracker sessions held out: each frame refitted, against the nominal arm with its tool fitted.
-    let tracker = sessions_section(&nominal, &fit, cal, val, inputs, options, &same_base, sums.as_ref())?;
+    let tracker = reference.as_ref().map(|reference| {
+        sessions_section(&nominal, &fit, reference, cal, val, inputs, options, &same_base, sums.as_ref())
+    });
     if let Some(t) = &tracker {
         not_trustworthy.extend(crate::calib::trust::point_problems(&fit, nominal.reach_mm()));
         verdict.extend(t.verdict.iter().cloned());
@@ -1004,25 +1013,21 @@ fn session_residuals(
 }
 
 /// Validate `fit` on the held-out sessions of `val` (each frame refitted, and each tool that
-/// floats) against the nominal arm with its tool fitted on `cal`; the floor, the data errors and
-/// the verdict (its refits' first normal equations from `sums` when given). `None` when `val`
-/// holds no session.
+/// floats) against `reference`, the nominal arm with its tool fitted on `cal`; the floor, the
+/// data errors and the verdict (its refits' first normal equations from `sums` when given).
 #[allow(clippy::too_many_arguments)]
 fn sessions_section(
     nominal: &ArmModel,
     fit: &Fit,
+    reference: &Fit,
     cal: &Observations,
     val: &Observations,
     inputs: &RunInputs,
     options: &SolveOptions,
     same_base: &BTreeMap<String, String>,
     sums: Option<&SessionSums>,
-) -> Result<Option<SessionsSection>, RunError> {
+) -> SessionsSection {
     let held = val.sessions();
-    if held.is_empty() {
-        return Ok(None);
-    }
-    let reference = calibrate_on(&tool_only(nominal), cal, &fit.encoders, options)?;
     let floated = |b: usize| inputs.float_tool.contains(&val.groups[val.blocks[b].group].name);
     // The session's tool offset (its own when floated) and its figures.
     let figures = |model: &ArmModel, b: usize| {
@@ -1077,7 +1082,7 @@ fn sessions_section(
             Some(SameBaseFigures {
                 calibration_session: calibration.clone(),
                 calibrated: stats(fit)?,
-                nominal: stats(&reference)?,
+                nominal: stats(reference)?,
             })
         });
         calibrated_parts.push(c.clone());
@@ -1087,7 +1092,7 @@ fn sessions_section(
             nominal: n,
             transfers,
             orientation,
-            nominal_orientation: orientations(&reference, b, nominal_offset_mm),
+            nominal_orientation: orientations(reference, b, nominal_offset_mm),
             orientation_withheld,
             same_base,
         });
@@ -1120,7 +1125,7 @@ fn sessions_section(
             overall.rms_mm
         ),
     });
-    Ok(Some(SessionsSection {
+    SessionsSection {
         validation: SessionsValidation {
             sessions: session_figures,
             overall,
@@ -1131,7 +1136,7 @@ fn sessions_section(
         data_errors,
         verdict,
         held_out,
-    }))
+    }
 }
 
 impl Run {

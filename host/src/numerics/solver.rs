@@ -83,6 +83,11 @@ pub struct SolverOptions {
     pub gtol: f64,
     /// Which steps the cost and step tests apply to.
     pub termination: Termination,
+    /// Evaluate the normal equations (with the residuals) at every trial point instead of its
+    /// residuals alone: an accepted step needs them there next, so a solve whose steps are
+    /// accepted (a warm start near its minimum) evaluates each point once, and one that stops
+    /// on a lowered cost has its normal matrix at the solution. A rejected step costs a Jacobian.
+    pub trial_normal: bool,
 }
 
 impl Default for SolverOptions {
@@ -94,6 +99,7 @@ impl Default for SolverOptions {
             xtol: 1e-12,
             gtol: 1e-10,
             termination: Termination::Ceres,
+            trial_normal: false,
         }
     }
 }
@@ -190,15 +196,28 @@ pub fn solve(
     solve_from(problem, x0, lower, upper, options, None)
 }
 
-/// [`solve`], with the normal matrix and gradient at `x0` (inside the bounds) given when the
-/// caller has them (`first`): the solve then evaluates only the residuals there.
+/// What a caller already has at a solve's start point: the normal matrix, the gradient and the
+/// cost Σρ(r) there.
+#[derive(Clone, Debug)]
+pub struct KnownStart {
+    /// JᵀWJ.
+    pub normal: DMatrix<f64>,
+    /// JᵀWr.
+    pub gradient: DVector<f64>,
+    /// Σρ(r).
+    pub cost: f64,
+}
+
+/// [`solve`], with the normal equations and the cost at `x0` (inside the bounds) given when the
+/// caller has them (`first`): the solve then evaluates nothing there (its residuals only when
+/// it takes no step, to return them).
 pub fn solve_from(
     problem: &dyn Residuals,
     x0: &[f64],
     lower: &[f64],
     upper: &[f64],
     options: &SolverOptions,
-    first: Option<(DMatrix<f64>, DVector<f64>)>,
+    first: Option<KnownStart>,
 ) -> Solution {
     let n = x0.len();
     let m = problem.len();
@@ -211,17 +230,20 @@ pub fn solve_from(
     let ceres = options.termination == Termination::Ceres;
     let mut x = x0.to_vec();
     clamp(&mut x);
-    // The residuals at x, always (a step taken swaps in its point's).
+    // The residuals at x once evaluated there (a step taken swaps in its point's); a start
+    // given by its cost has none until a step is taken.
     let mut r = vec![0.0; m];
-    let (mut h, mut g) = match first {
-        Some(given) => {
-            problem.evaluate(&x, &mut r, None);
-            given
+    let mut r_at_x = first.is_none();
+    let (mut h, mut g, mut cost) = match first {
+        Some(known) => (known.normal, known.gradient, known.cost),
+        None => {
+            let (h, g) = problem.normal_equations(&x, &mut r, loss);
+            (h, g, loss.cost(&r))
         }
-        None => problem.normal_equations(&x, &mut r, loss),
     };
-    let mut cost = loss.cost(&r);
     let initial_cost = cost;
+    // The normal equations at x evaluated with its trial (`trial_normal`), not taken yet.
+    let mut pending: Option<(DMatrix<f64>, DVector<f64>)> = None;
     let mut lambda = options.termination.initial_damping();
     let mut nu = 2.0;
     let mut trial = vec![0.0; n];
@@ -233,7 +255,10 @@ pub fn solve_from(
             if iterations >= options.max_iterations {
                 break StopReason::IterationLimit;
             }
-            (h, g) = problem.normal_equations(&x, &mut r, loss);
+            (h, g) = match pending.take() {
+                Some(known) => known,
+                None => problem.normal_equations(&x, &mut r, loss),
+            };
             iterations += 1;
             need_jacobian = false;
         }
@@ -274,13 +299,20 @@ pub fn solve_from(
             break StopReason::StepConverged;
         }
         let predicted = -(g.dot(&s) + 0.5 * s.dot(&(&h * &s)));
-        problem.evaluate(&trial, &mut r_trial, None);
+        let trial_normal = if options.trial_normal {
+            Some(problem.normal_equations(&trial, &mut r_trial, loss))
+        } else {
+            problem.evaluate(&trial, &mut r_trial, None);
+            None
+        };
         let trial_cost = loss.cost(&r_trial);
         let actual = cost - trial_cost;
         if ceres && actual.abs() < options.ftol * cost {
             if actual > 0.0 {
                 x.copy_from_slice(&trial);
                 std::mem::swap(&mut r, &mut r_trial);
+                r_at_x = true;
+                pending = trial_normal;
                 need_jacobian = true;
             }
             break StopReason::CostConverged;
@@ -289,6 +321,8 @@ pub fn solve_from(
             let ratio = actual / predicted;
             x.copy_from_slice(&trial);
             std::mem::swap(&mut r, &mut r_trial);
+            r_at_x = true;
+            pending = trial_normal;
             cost = trial_cost;
             lambda *= (1.0_f64 / 3.0).max(1.0 - (2.0 * ratio - 1.0).powi(3));
             nu = 2.0;
@@ -307,12 +341,14 @@ pub fn solve_from(
             }
         }
     };
-    if !ceres {
-        // Evaluated again as these results were generated (the same values).
+    if !ceres || !r_at_x {
+        // Evaluated again as these results were generated (the same values), or for the first
+        // time at a given start the solve never left.
         problem.evaluate(&x, &mut r, None);
     }
-    // `need_jacobian`: a step was taken since the last evaluation of the normal equations.
-    let normal_at_x = (!need_jacobian).then_some(h);
+    // `need_jacobian`: a step was taken since the last evaluation of the normal equations (at
+    // its trial point when `trial_normal`).
+    let normal_at_x = if need_jacobian { pending.map(|known| known.0) } else { Some(h) };
     Solution { cost: loss.cost(&r), x, residuals: r, iterations, stop, initial_cost, normal_at_x }
 }
 
@@ -346,6 +382,61 @@ mod tests {
         // Unconstrained optimum (1, 1) lies outside x ≤ 0.5; constrained optimum has x = 0.5, y = 0.25.
         let s = solve(&Rosenbrock, &[-1.2, 1.0], &[-5.0, -5.0], &[0.5, 5.0], &SolverOptions::default());
         assert!((s.x[0] - 0.5).abs() < 1e-9 && (s.x[1] - 0.25).abs() < 1e-6, "{:?}", s.x);
+    }
+
+    /// Rosenbrock's residuals and Jacobian evaluations, counted.
+    struct Counted {
+        residuals: std::cell::Cell<usize>,
+        jacobians: std::cell::Cell<usize>,
+    }
+    impl Residuals for Counted {
+        fn len(&self) -> usize {
+            2
+        }
+        fn evaluate(&self, x: &[f64], r: &mut [f64], jacobian: Option<&mut [f64]>) {
+            let count = if jacobian.is_some() { &self.jacobians } else { &self.residuals };
+            count.set(count.get() + 1);
+            Rosenbrock.evaluate(x, r, jacobian);
+        }
+    }
+
+    fn counted() -> Counted {
+        Counted { residuals: 0.into(), jacobians: 0.into() }
+    }
+
+    /// Normal equations taken at each trial point (with rejected steps on Rosenbrock's valley)
+    /// and a start given by its normal equations and cost: the same solve as the plain one, with
+    /// no residual-only evaluation but the last, and the normal matrix at the solution.
+    #[test]
+    fn trial_normal_and_a_known_start_are_the_plain_solve() {
+        let (x0, lower, upper) = ([-1.2, 1.0], [-5.0; 2], [5.0; 2]);
+        let plain_problem = counted();
+        let plain = solve(&plain_problem, &x0, &lower, &upper, &SolverOptions::default());
+        let options = SolverOptions { trial_normal: true, ..SolverOptions::default() };
+        let mut r0 = [0.0; 2];
+        let (normal, gradient) = Rosenbrock.normal_equations(&x0, &mut r0, Loss::Linear);
+        let known = KnownStart { normal, gradient, cost: Loss::Linear.cost(&r0) };
+        let fast_problem = counted();
+        let fast = solve_from(&fast_problem, &x0, &lower, &upper, &options, Some(known));
+        assert!(plain.iterations > 10 && plain_problem.residuals.get() > plain.iterations, "{plain:?}");
+        assert_eq!((fast.x, fast.cost, fast.residuals), (plain.x, plain.cost, plain.residuals));
+        assert_eq!(
+            (fast.iterations, fast.stop, fast.initial_cost),
+            (plain.iterations, plain.stop, plain.initial_cost)
+        );
+        assert_eq!(fast_problem.residuals.get(), 0);
+        assert!(fast.normal_at_x.is_some());
+        // A known start the solve never leaves: its residuals are evaluated, once.
+        let at_minimum = counted();
+        let mut r = [0.0; 2];
+        let (normal, gradient) = Rosenbrock.normal_equations(&[1.0, 1.0], &mut r, Loss::Linear);
+        let known = KnownStart { normal, gradient, cost: 0.0 };
+        let stopped = solve_from(&at_minimum, &[1.0, 1.0], &lower, &upper, &options, Some(known));
+        assert_eq!(
+            (stopped.stop, stopped.residuals.as_slice()),
+            (StopReason::GradientConverged, &[0.0, 0.0][..])
+        );
+        assert_eq!((at_minimum.residuals.get(), at_minimum.jacobians.get()), (1, 0));
     }
 
     /// Line fit y = a + b t with one gross outlier.

@@ -4,9 +4,11 @@
 
 use super::*;
 use crate::model::effects::mass;
+use crate::model::FreeParam;
 
 /// A solution with frames: the model, each block's frame, each group's tool, the probe and the
 /// drifts, with its cost, iterations and how its last pass stopped.
+#[derive(Clone)]
 pub(super) struct Solved {
     pub(super) model: ArmModel,
     pub(super) frames: Vec<Frame>,
@@ -39,6 +41,34 @@ impl Solved {
     }
 }
 
+/// The tool point's first fit of a calibration from the nominal values (see [`calibrate_framed`]),
+/// kept for the next calibration on the same data whose arm has the same values and the same
+/// tool bounds (fewer other parameters free: a run's tool-only reference), which starts with
+/// the same fit.
+#[derive(Default)]
+pub(super) struct ToolFirstFit(pub(super) std::cell::RefCell<Option<(ArmModel, Vec<FreeParam>, Solved)>>);
+
+impl ToolFirstFit {
+    /// The tool point's fit over `tool` from `start` on `pieces` (closed-form frames of its
+    /// model): the kept one when its arm values and tool bounds are `pieces`', else solved.
+    fn solve(&self, pieces: &Pieces, tool: &[ParamId], start: Solved) -> Solved {
+        let values = ArmModel { free: Vec::new(), ..pieces.model.clone() };
+        let bounds: Vec<FreeParam> =
+            pieces.model.free.iter().filter(|f| tool.contains(&f.id)).copied().collect();
+        if let Some((kept_values, kept_bounds, solved)) = &*self.0.borrow() {
+            if *kept_values == values && *kept_bounds == bounds {
+                // The same point, of this calibration's model (its own free set).
+                let mut solved = solved.clone();
+                solved.model.free.clone_from(&pieces.model.free);
+                return solved;
+            }
+        }
+        let solved = solve_framed(pieces, tool, start, 0);
+        *self.0.borrow_mut() = Some((values, bounds, solved.clone()));
+        solved
+    }
+}
+
 /// Start `number`'s outcome before its solve.
 fn unsolved(number: usize) -> StartOutcome {
     StartOutcome {
@@ -57,8 +87,8 @@ pub(super) fn solve_framed(pieces: &Pieces, estimated: &[ParamId], start: Solved
     solve_framed_from(pieces, estimated, start, number, None)
 }
 
-/// [`solve_framed`], the first pass' normal equations at `start` given by `first` (from the
-/// session sums of the solution it starts at) when it can give them.
+/// [`solve_framed`], the first pass' normal equations and cost at `start` given by `first` (from
+/// the session sums of the solution it starts at) when it can give them.
 pub(super) fn solve_framed_from(
     pieces: &Pieces,
     estimated: &[ParamId],
@@ -141,12 +171,15 @@ pub(super) fn warm_start(pieces: &Pieces, warm: &Fit) -> Solved {
 }
 
 /// Calibrate with block unknowns from the nominal values, or, given `warm`, from a previous
-/// solution of close data or options (the tool point's first fit skipped: `warm` has it).
+/// solution of close data or options (the tool point's first fit skipped: `warm` has it). From
+/// the nominal values, the tool point's first fit is `first_fit`'s when it has it for these
+/// values, and kept there.
 pub(super) fn calibrate_framed(
     nominal: &ArmModel,
     pieces: &Pieces,
     warm: Option<&Fit>,
     sums: Option<&SessionSums>,
+    first_fit: &ToolFirstFit,
 ) -> Result<Fit, CalibError> {
     let data = pieces.data;
     let model = &pieces.model;
@@ -198,7 +231,7 @@ pub(super) fn calibrate_framed(
                 // The factors are taken after the tool's fit: at the start only the checks, the
                 // residuals' finiteness on that fit's own first evaluation (the same point).
                 check_rows(&full)?;
-                start = solve_framed(pieces, &tool, start, 0);
+                start = first_fit.solve(pieces, &tool, start);
                 if !start.outcome.initial_cost.is_finite() {
                     return Err(CalibError::NonFinite);
                 }

@@ -48,6 +48,10 @@ const MAX_IDENTIFIABILITY_PASSES: usize = 3;
 /// Change of a residual, mm, over a parameter's whole range below which it counts as none.
 const NEGLIGIBLE_MM: f64 = 1e-9;
 /// Solver settings of each pass when frames are fitted (the passes re-centre between solves).
+/// Gauss–Newton steps from a start near the data (the frames at their closed form, or a
+/// refit's warm start) are accepted nearly always: each trial point's normal equations are
+/// evaluated with its residuals, once, instead of its residuals first and the normal equations
+/// again once accepted.
 const FRAMED_SOLVER: SolverOptions = SolverOptions {
     loss: Loss::Linear,
     max_iterations: 100,
@@ -55,6 +59,7 @@ const FRAMED_SOLVER: SolverOptions = SolverOptions {
     xtol: 1e-10,
     gtol: 1e-10,
     termination: Termination::Ceres,
+    trial_normal: true,
 };
 
 /// The outcome of one start of the solver.
@@ -272,12 +277,40 @@ pub fn calibrate_on(
     encoders: &Encoders,
     options: &SolveOptions,
 ) -> Result<Fit, CalibError> {
+    calibrate_on_sharing(nominal, data, encoders, options, &ToolFirstFit::default())
+}
+
+/// [`calibrate_on`] of `nominal`, and of `reference` when given: the same arm's values with
+/// fewer parameters free, the tool point among them (a run's tool-only nominal model). With
+/// block unknowns both start with the tool point's first fit on these values, solved once.
+/// The reference's own error is its result's.
+pub fn calibrate_with_reference_on(
+    nominal: &ArmModel,
+    reference: Option<&ArmModel>,
+    data: &Observations,
+    encoders: &Encoders,
+    options: &SolveOptions,
+) -> Result<(Fit, Option<Result<Fit, CalibError>>), CalibError> {
+    let first_fit = ToolFirstFit::default();
+    let fit = calibrate_on_sharing(nominal, data, encoders, options, &first_fit)?;
+    let reference = reference.map(|r| calibrate_on_sharing(r, data, encoders, options, &first_fit));
+    Ok((fit, reference))
+}
+
+/// [`calibrate_on`], the tool point's first fit from `first_fit` (see [`ToolFirstFit`]).
+fn calibrate_on_sharing(
+    nominal: &ArmModel,
+    data: &Observations,
+    encoders: &Encoders,
+    options: &SolveOptions,
+    first_fit: &ToolFirstFit,
+) -> Result<Fit, CalibError> {
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
-        return calibrate_on(nominal, &own, encoders, options);
+        return calibrate_on_sharing(nominal, &own, encoders, options, first_fit);
     }
     let pieces = Pieces::new(nominal, data, options, encoders)?;
     if pieces.blocked() {
-        calibrate_framed(nominal, &pieces, None, None)
+        calibrate_framed(nominal, &pieces, None, None, first_fit)
     } else {
         calibrate_dense(nominal, &pieces, options)
     }
@@ -322,7 +355,7 @@ fn recalibrate_from(
     }
     let pieces = Pieces::new(nominal, data, options, &warm.encoders)?;
     if pieces.blocked() {
-        calibrate_framed(nominal, &pieces, Some(warm), sums)
+        calibrate_framed(nominal, &pieces, Some(warm), sums, &ToolFirstFit::default())
     } else {
         calibrate_dense(nominal, &pieces, options)
     }

@@ -12,6 +12,7 @@
 //! approximation).
 
 use super::*;
+use crate::numerics::solver::KnownStart;
 use nalgebra::{DMatrix, DVector};
 
 /// An unknown a session's rows read, named independently of the layout's column order.
@@ -41,12 +42,13 @@ fn keys(layout: &Layout, b: usize, g: usize) -> Vec<(Key, usize)> {
     out
 }
 
-/// One session's normal equations over its own unknowns.
+/// One session's normal equations over its own unknowns, and its cost.
 struct SessionSum {
     name: String,
     keys: Vec<Key>,
     h: DMatrix<f64>,
     g: DVector<f64>,
+    cost: f64,
 }
 
 impl SessionSum {
@@ -61,16 +63,13 @@ impl SessionSum {
         let x = alone.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
         let mut r = vec![0.0; problem.len()];
         let (h, g) = problem.normal_equations(&x, &mut r, alone.resolved.loss);
+        let cost = alone.resolved.loss.cost(&r);
         let columns = keys(&problem.layout, 0, sub.blocks[0].group);
         let keys = columns.iter().map(|k| k.0).collect();
         let h = DMatrix::from_fn(columns.len(), columns.len(), |i, j| h[(columns[i].1, columns[j].1)]);
         let g = DVector::from_iterator(columns.len(), columns.iter().map(|c| g[c.1]));
-        (h.iter().all(|v| v.is_finite()) && g.iter().all(|v| v.is_finite())).then(|| SessionSum {
-            name: data.block_name(b),
-            keys,
-            h,
-            g,
-        })
+        let finite = h.iter().all(|v| v.is_finite()) && g.iter().all(|v| v.is_finite()) && cost.is_finite();
+        finite.then(|| SessionSum { name: data.block_name(b), keys, h, g, cost })
     }
 }
 
@@ -114,21 +113,17 @@ impl<'f> SessionSums<'f> {
         self.fit
     }
 
-    /// The normal matrix and gradient of `problem` (of `pieces`, at `warm_start(pieces, fit)`),
-    /// from the sums: each block's by its session's name when its unknowns are the same, else
-    /// that block evaluated alone. `None` when `pieces` is not all framed sessions or resolves
-    /// its options otherwise than the sums.
-    pub(super) fn normal_at_start(
-        &self,
-        pieces: &Pieces,
-        problem: &Problem,
-    ) -> Option<(DMatrix<f64>, DVector<f64>)> {
+    /// The normal matrix, gradient and cost of `problem` (of `pieces`, at `warm_start(pieces,
+    /// fit)`), from the sums: each block's by its session's name when its unknowns are the same,
+    /// else that block evaluated alone. `None` when `pieces` is not all framed sessions or
+    /// resolves its options otherwise than the sums.
+    pub(super) fn normal_at_start(&self, pieces: &Pieces, problem: &Problem) -> Option<KnownStart> {
         let data = pieces.data;
         if data.blocks.is_empty() || !pieces.framed.iter().all(|f| *f) || pieces.resolved != self.resolved {
             return None;
         }
         let n = problem.layout.unknowns();
-        let (mut h, mut g) = (DMatrix::zeros(n, n), DVector::zeros(n));
+        let (mut h, mut g, mut cost) = (DMatrix::zeros(n, n), DVector::zeros(n), 0.0);
         for b in 0..data.blocks.len() {
             let columns = keys(&problem.layout, b, data.blocks[b].group);
             let name = data.block_name(b);
@@ -150,6 +145,7 @@ impl<'f> SessionSums<'f> {
                 .iter()
                 .map(|k| columns.iter().find(|c| c.0 == *k).map(|c| c.1))
                 .collect::<Option<Vec<_>>>()?;
+            cost += sum.cost;
             for (i, &ci) in at.iter().enumerate() {
                 g[ci] += sum.g[i];
                 for (j, &cj) in at.iter().enumerate() {
@@ -157,7 +153,7 @@ impl<'f> SessionSums<'f> {
                 }
             }
         }
-        Some((h, g))
+        Some(KnownStart { normal: h, gradient: g, cost })
     }
 }
 
@@ -206,7 +202,10 @@ mod tests {
             let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
             let mut r = vec![0.0; problem.len()];
             let (own, own_g) = problem.normal_equations(&x, &mut r, Loss::Linear);
-            let (h, g) = sums.normal_at_start(&pieces, &problem).expect("assembled");
+            let known = sums.normal_at_start(&pieces, &problem).expect("assembled");
+            let (h, g) = (known.normal, known.gradient);
+            let own_cost = Loss::Linear.cost(&r);
+            assert!((known.cost - own_cost).abs() <= 1e-12 * own_cost, "{} vs {own_cost}", known.cost);
             assert!(relative_gap(&own, &h) < 1e-12, "session {b}: {:e}", relative_gap(&own, &h));
             assert!(own_g.abs().max() > 0.0);
             assert!((&own_g - &g).abs().max() <= 1e-12 * own_g.abs().max());
@@ -231,7 +230,7 @@ mod tests {
         let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
         let mut r = vec![0.0; problem.len()];
         let (own, _) = problem.normal_equations(&x, &mut r, Loss::Linear);
-        let (h, _) = sums.normal_at_start(&pieces, &problem).expect("assembled");
+        let h = sums.normal_at_start(&pieces, &problem).expect("assembled").normal;
         assert_eq!(own.nrows(), fit.estimated.len() + 3 * FRAME_UNKNOWNS + 3);
         assert!(relative_gap(&own, &h) < 1e-12, "floated tool: {:e}", relative_gap(&own, &h));
         let plain = recalibrate(&nominal, &cal, &floated, &fit).expect("refit");
@@ -265,7 +264,10 @@ mod tests {
         let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
         let mut r = vec![0.0; problem.len()];
         let (own, own_g) = problem.normal_equations(&x, &mut r, pieces.resolved.loss);
-        let (h, g) = sums.normal_at_start(&pieces, &problem).expect("assembled");
+        let known = sums.normal_at_start(&pieces, &problem).expect("assembled");
+        let (h, g) = (known.normal, known.gradient);
+        let own_cost = pieces.resolved.loss.cost(&r);
+        assert!((known.cost - own_cost).abs() <= 1e-12 * own_cost, "{} vs {own_cost}", known.cost);
         assert!(relative_gap(&own, &h) < 1e-12, "{:e}", relative_gap(&own, &h));
         assert!(own_g.abs().max() > 0.0);
         assert!((&own_g - &g).abs().max() <= 1e-12 * own_g.abs().max());

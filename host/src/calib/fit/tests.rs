@@ -213,3 +213,42 @@ fn a_start_that_is_not_finite_is_refused() {
     assert!(matches!(calibrate(&nominal, &broken, &options), Err(CalibError::NonFinite)));
     assert!(matches!(recalibrate(&nominal, &broken, &options, &fit), Err(CalibError::NonFinite)));
 }
+
+/// A calibration that takes the tool point's first fit from another one's (a run's tool-only
+/// reference beside its calibration) is the one calibrated alone; on other arm values the kept
+/// fit is not taken.
+#[test]
+fn a_shared_tool_first_fit_is_the_calibration_alone() {
+    let nominal = arm();
+    let mut truth = nominal.clone();
+    truth.joints[2].d_mm += 1.5;
+    truth.joints[3].offset_deg += 0.2;
+    let data = sessions(&truth, None);
+    let (options, encoders) = (SolveOptions::default(), Encoders::of(&data));
+    let mut tool_only = nominal.clone();
+    tool_only.free.retain(|f| matches!(f.id, ParamId::Tcp(_)));
+    let (fit, reference) =
+        calibrate_with_reference_on(&nominal, Some(&tool_only), &data, &encoders, &options).expect("fit");
+    let reference = reference.expect("asked for").expect("reference");
+    let same = |a: &Fit, b: &Fit| {
+        assert_eq!(a.model, b.model);
+        assert_eq!((a.cost, &a.estimated, a.iterations), (b.cost, &b.estimated, b.iterations));
+        assert_eq!(a.frames.len(), b.frames.len());
+        for (f, g) in a.frames.iter().zip(&b.frames) {
+            assert_eq!((&f.0, f.1.rotation, f.1.translation_mm), (&g.0, g.1.rotation, g.1.translation_mm));
+        }
+    };
+    same(&fit, &calibrate_on(&nominal, &data, &encoders, &options).expect("alone"));
+    same(&reference, &calibrate_on(&tool_only, &data, &encoders, &options).expect("alone"));
+    assert!(
+        !reference.estimated.is_empty() && reference.estimated.iter().all(|p| matches!(p, ParamId::Tcp(_)))
+    );
+    // The first fit was kept and taken; an arm of other values solves its own.
+    let first_fit = ToolFirstFit::default();
+    calibrate_on_sharing(&nominal, &data, &encoders, &options, &first_fit).expect("fit");
+    assert!(first_fit.0.borrow().is_some());
+    let mut other = tool_only.clone();
+    other.joints[2].d_mm += 1.0;
+    let shared = calibrate_on_sharing(&other, &data, &encoders, &options, &first_fit).expect("other");
+    same(&shared, &calibrate_on(&other, &data, &encoders, &options).expect("alone"));
+}

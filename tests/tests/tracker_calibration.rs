@@ -3,7 +3,7 @@
 //! stated deviations, a re-mounted tool, constant-orientation sessions.
 
 use kincal::calib::diagnose::data_errors::sessions::data_error_candidates;
-use kincal::calib::diagnose::data_errors::{DataError, DataErrorKind};
+use kincal::calib::diagnose::data_errors::{DataError, DataErrorKind, DataSet};
 use kincal::calib::fit::{calibrate, Fit};
 use kincal::calib::run::{run, Run, RunError};
 use kincal::calib::setup::SolveOptions;
@@ -280,6 +280,17 @@ fn a_remounted_tool_is_named_and_floating_it_reaches_the_floor() {
     assert!((best.size_mm - 0.8).abs() < 3.0 * best.size_std_mm + 0.02, "{best:?}");
     assert_eq!(candidates.iter().filter(|c| c.significant).count(), 1, "only that session: {candidates:?}");
     assert_eq!(best.action, "--float-tool session_2");
+    // A held-out session's tool floating too (`--float-tool session_4`): the calibration
+    // sessions' refits still run (they float only calibration tools) and still name session_2.
+    let held_out_floating = SolveOptions { float_tool: vec!["session_4".into()], ..plain.clone() };
+    let with_held_out = data_error_candidates(&nominal, &cal, &val, &fit, &held_out_floating);
+    let named: Vec<&str> = with_held_out
+        .iter()
+        .filter(|c| c.kind == DataErrorKind::ToolMoved && c.set == DataSet::Calibration)
+        .map(|c| c.session.as_str())
+        .collect();
+    assert_eq!(named.len(), 3, "every calibration session is refitted: {with_held_out:?}");
+    assert_eq!(with_held_out[0].session, "session_2", "{with_held_out:?}");
     let floated = SolveOptions { float_tool: vec!["session_2".into()], ..plain };
     let refit = calibrate(&nominal, &cal, &floated).expect("calibrates");
     let after = held_out_rms(&refit, &val);

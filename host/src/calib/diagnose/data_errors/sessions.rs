@@ -95,15 +95,30 @@ fn rms_with(errors: &[(usize, Vec<f64>)], b: usize, own: &[f64]) -> f64 {
 /// A calibration point beyond this many times the median error is a bad-point candidate.
 pub const BAD_POINT_FACTOR: f64 = 5.0;
 
+/// The held-out sessions a candidate's refit is scored on: the sessions, the tools that float
+/// in them, and the fit's own held-out RMS (mm).
+struct HeldOut<'a> {
+    val: &'a Observations,
+    floating: &'a [String],
+    before: f64,
+}
+
+impl HeldOut<'_> {
+    /// The held-out RMS (mm) of `model`.
+    fn rms(&self, model: &ArmModel) -> f64 {
+        held_out_rms(model, self.val, self.floating)
+    }
+}
+
 /// The bad-points candidate: calibration points far beyond the others, left out and refitted.
 fn bad_points_candidate(
     nominal: &ArmModel,
     cal: &Observations,
-    val: &Observations,
     fit: &Fit,
     options: &SolveOptions,
-    before: f64,
+    held_out: &HeldOut,
 ) -> Option<DataError> {
+    let before = held_out.before;
     let errors = calibration_errors(fit, cal);
     let median = crate::numerics::stats::median(errors.iter().flatten().copied().collect());
     let mut bad = Vec::new();
@@ -121,7 +136,7 @@ fn bad_points_candidate(
     }
     let kept = cal.without(|k| dropped[k]);
     let refit = recalibrate(nominal, &kept, options, fit).ok()?;
-    let after = held_out_rms(&refit.model, val, &options.float_tool);
+    let after = held_out.rms(&refit.model);
     let largest = bad.iter().map(|b| b.1).fold(0.0, f64::max);
     let names: Vec<&str> = bad.iter().map(|b| b.0.as_str()).collect();
     let mut sessions: Vec<&str> = bad.iter().map(|b| b.2.as_str()).collect();
@@ -154,11 +169,11 @@ fn bad_points_candidate(
 fn drift_candidates(
     nominal: &ArmModel,
     cal: &Observations,
-    val: &Observations,
     fit: &Fit,
     options: &SolveOptions,
-    before: f64,
+    held_out: &HeldOut,
 ) -> Vec<DataError> {
+    let before = held_out.before;
     let mut out = Vec::new();
     for b in cal.sessions() {
         let name = cal.block_name(b);
@@ -173,7 +188,7 @@ fn drift_candidates(
                 continue;
             };
             let Some(drift) = refit.drifts.iter().find(|d| d.session == name) else { continue };
-            let after = held_out_rms(&refit.model, val, &options.float_tool);
+            let after = held_out.rms(&refit.model);
             let (size, std) = (drift.size(), drift.rate_std);
             // A shift reads in µm (per hour or per kelvin), a scale in ppm.
             let (scale, unit) = if kind.is_scale() {
@@ -342,6 +357,13 @@ pub fn data_error_candidates_with(
 ) -> Vec<DataError> {
     let errors = held_out_errors(&fit.model, val, &options.float_tool);
     let before = rms(&errors.iter().flat_map(|(_, e)| e.iter().copied()).collect::<Vec<_>>());
+    let held_out = HeldOut { val, floating: &options.float_tool, before };
+    // `options.float_tool` may name held-out sessions too (their tools float in the held-out
+    // errors); the refits float only the calibration's own, or every refit would be refused.
+    let refitting = &SolveOptions {
+        float_tool: options.float_tool.iter().filter(|n| cal.find_group(n).is_some()).cloned().collect(),
+        ..options.clone()
+    };
     let mut out = Vec::new();
     let verdict = |session: &str, set: DataSet, offset: [f64; 3], std: f64, after: f64| {
         let size = offset.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -379,7 +401,7 @@ pub fn data_error_candidates_with(
     let sums = match sums.filter(|s| std::ptr::eq(s.fit(), fit)) {
         Some(sums) => Some(sums),
         None => {
-            own = (cal_turning.len() >= 2).then(|| SessionSums::of(nominal, fit, cal, options)).flatten();
+            own = (cal_turning.len() >= 2).then(|| SessionSums::of(nominal, fit, cal, refitting)).flatten();
             own.as_ref()
         }
     };
@@ -388,9 +410,9 @@ pub fn data_error_candidates_with(
             break;
         }
         let name = cal.block_name(b);
-        let mut float_tool = options.float_tool.clone();
+        let mut float_tool = refitting.float_tool.clone();
         float_tool.push(name.clone());
-        let floated = SolveOptions { float_tool: float_tool.clone(), ..options.clone() };
+        let floated = SolveOptions { float_tool, ..refitting.clone() };
         let refitted = match sums {
             Some(sums) => recalibrate_with(nominal, cal, &floated, sums),
             None => recalibrate(nominal, cal, &floated, fit),
@@ -399,7 +421,7 @@ pub fn data_error_candidates_with(
             continue;
         };
         let Some(tool) = refit.tool_offsets.iter().find(|t| t.session == name) else { continue };
-        let after = held_out_rms(&refit.model, val, &options.float_tool);
+        let after = held_out.rms(&refit.model);
         let moved = verdict(&name, DataSet::Calibration, tool.offset_mm, tool.size_std_mm, after);
         out.push(match probe_turn(&refit, cal, b, tool.offset_mm) {
             Some(turn) if turn.called(&refit, &tool.offset_mm) => turn.data_error(moved),
@@ -417,8 +439,8 @@ pub fn data_error_candidates_with(
             _ => moved,
         });
     }
-    out.extend(drift_candidates(nominal, cal, val, fit, options, before));
-    out.extend(bad_points_candidate(nominal, cal, val, fit, options, before));
+    out.extend(drift_candidates(nominal, cal, fit, refitting, &held_out));
+    out.extend(bad_points_candidate(nominal, cal, fit, refitting, &held_out));
     out.sort_by(|a, b| a.held_out_after_mm.total_cmp(&b.held_out_after_mm));
     // One data error at a time: the others are scored against a model the best one still bends,
     // so only the best is called; apply it and score again.

@@ -230,11 +230,15 @@ impl NormalSums {
             self.weighted = Some(u);
         }
         if let Some(u) = self.weighted.as_mut() {
-            let k = self.globals.len();
+            // Only the term's columns: U is zero elsewhere in its rows, as D is (a term has
+            // tens of columns, a batch up to a hundred).
             let span = first * width..(first + rows) * width;
             let rows_u = u[span.clone()].chunks_exact_mut(width);
             for ((ui, di), wi) in rows_u.zip(self.dense[span].chunks_exact(width)).zip(w) {
-                ui[..k].iter_mut().zip(&di[..k]).for_each(|(u, d)| *u = wi * d);
+                for &c in columns {
+                    let l = self.local[c];
+                    ui[l] = wi * di[l];
+                }
             }
         }
         self.r.extend_from_slice(r);

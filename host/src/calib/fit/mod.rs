@@ -226,7 +226,9 @@ pub use shared::SessionSums;
 /// Every refusal of `data` for calibrating `model` before any solving: the joint count, a session
 /// too small for its frame, no free parameter, too few residuals, non-finite positions, or
 /// observations that carry no information. `calibrate` refuses with these errors, and so does
-/// `diagnose` on a RUN's data, with the same messages.
+/// `diagnose` on a RUN's data, with the same messages. Tracker sessions' data are checked by
+/// their residuals at the start only: data whose residuals are finite but whose derivatives are
+/// not pass here and are refused by `calibrate` (the same error) when it factors them.
 pub fn check_data(model: &ArmModel, data: &Observations, options: &SolveOptions) -> Result<(), CalibError> {
     check_data_on(model, data, &Encoders::of(data), options)
 }
@@ -249,8 +251,8 @@ pub fn check_data_on(
         let full = pieces.problem(all, &pieces.model, &frames, probe);
         let tools = vec![Vector3::zeros(); data.groups.len()];
         let x0 = pieces.x_of(&full, &pieces.model, &frames, &tools, &vec![Vec::new(); data.blocks.len()]);
-        // The residuals alone, as `calibrate_framed` checks its start (no derivatives, no factors:
-        // the fit factors the groups where it decides identifiability).
+        // The residuals alone (no derivatives, no factors: the fit factors the groups where it
+        // decides identifiability, and refuses non-finite derivatives there).
         return check_residuals(&full, &x0);
     }
     check_dense(&pieces, &all).map(|_| ())

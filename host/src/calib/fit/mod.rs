@@ -154,7 +154,7 @@ pub struct Fit {
     /// The probe's orientation on the flange (6-DoF probes).
     pub tool_rotation: Option<ToolRotation>,
     /// The sines and cosines of the encoder angles calibrated on, for the refits.
-    pub encoders: Encoders,
+    pub(crate) encoders: Encoders,
 }
 
 /// What the data can and cannot determine, in words, as a run's summary holds it.

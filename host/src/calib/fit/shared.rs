@@ -42,9 +42,17 @@ fn keys(layout: &Layout, b: usize, g: usize) -> Vec<(Key, usize)> {
     out
 }
 
+/// The source lines of block `b`'s points.
+fn session_lines(data: &Observations, b: usize) -> Vec<usize> {
+    data.blocks[b].members.iter().map(|&k| data.obs[k].line).collect()
+}
+
 /// One session's normal equations over its own unknowns, and its cost.
 struct SessionSum {
     name: String,
+    /// The source lines of the session's points: sums of other data (points left out) are not
+    /// taken for these.
+    lines: Vec<usize>,
     keys: Vec<Key>,
     h: DMatrix<f64>,
     g: DVector<f64>,
@@ -69,7 +77,8 @@ impl SessionSum {
         let h = DMatrix::from_fn(columns.len(), columns.len(), |i, j| h[(columns[i].1, columns[j].1)]);
         let g = DVector::from_iterator(columns.len(), columns.iter().map(|c| g[c.1]));
         let finite = h.iter().all(|v| v.is_finite()) && g.iter().all(|v| v.is_finite()) && cost.is_finite();
-        finite.then(|| SessionSum { name: data.block_name(b), keys, h, g, cost })
+        let lines = session_lines(data, b);
+        finite.then(|| SessionSum { name: data.block_name(b), lines, keys, h, g, cost })
     }
 }
 
@@ -127,8 +136,10 @@ impl<'f> SessionSums<'f> {
         for b in 0..data.blocks.len() {
             let columns = keys(&problem.layout, b, data.blocks[b].group);
             let name = data.block_name(b);
+            let lines = session_lines(data, b);
             let same = |s: &&SessionSum| {
                 s.name == name
+                    && s.lines == lines
                     && s.keys.len() == columns.len()
                     && columns.iter().all(|c| s.keys.contains(&c.0))
             };
@@ -242,6 +253,29 @@ mod tests {
             assert!((a.offset_mm[k] - s.offset_mm[k]).abs() <= 1e-9 * a.offset_mm[k].abs().max(1e-3));
         }
         assert!((a.size_std_mm - s.size_std_mm).abs() <= 1e-9 * a.size_std_mm);
+    }
+
+    /// Sums taken on other data are not taken for a session whose points differ (points left
+    /// out of it): that session is evaluated again, and the normal equations are the refit's own.
+    #[test]
+    fn a_session_with_points_left_out_is_evaluated_again() {
+        let (_, cal) = noisy_sessions(None);
+        let options = SolveOptions::default();
+        let fit = calibrate(&arm(), &cal, &options).expect("fit");
+        let sums = SessionSums::of(&fit.model, &fit, &cal, &options).expect("sums");
+        let first: Vec<usize> = cal.blocks[0].members[..3].to_vec();
+        let fewer = cal.without(|k| first.contains(&k));
+        let pieces = Pieces::new(&fit.model, &fewer, &options, &fit.encoders).expect("pieces");
+        let start = warm_start(&pieces, &fit);
+        let problem = pieces.problem(fit.estimated.clone(), &start.model, &start.frames, start.probe);
+        let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
+        let mut r = vec![0.0; problem.len()];
+        let (own, own_g) = problem.normal_equations(&x, &mut r, Loss::Linear);
+        let known = sums.normal_at_start(&pieces, &problem).expect("assembled");
+        assert!(relative_gap(&own, &known.normal) < 1e-12, "{:e}", relative_gap(&own, &known.normal));
+        assert!((&own_g - &known.gradient).abs().max() <= 1e-12 * own_g.abs().max());
+        let own_cost = Loss::Linear.cost(&r);
+        assert!((known.cost - own_cost).abs() <= 1e-12 * own_cost, "{} vs {own_cost}", known.cost);
     }
 
     /// With a 6-DoF probe, whose rotation every session's rows read, the assembled normal

@@ -178,6 +178,30 @@ mod tests {
         (a - b).abs().max() / a.abs().max()
     }
 
+    /// The normal equations, gradient and cost assembled from `sums` for `pieces` equal those of
+    /// its own evaluation at the warm start of `fit` (1e-12); the gradient is not zero. Returns
+    /// the problem's probe-rotation column.
+    fn assert_assembled_is_evaluated(
+        sums: &SessionSums,
+        pieces: &Pieces,
+        fit: &Fit,
+        label: &str,
+    ) -> Option<usize> {
+        let start = warm_start(pieces, fit);
+        let problem = pieces.problem(fit.estimated.clone(), &start.model, &start.frames, start.probe);
+        let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
+        let mut r = vec![0.0; problem.len()];
+        let (own, own_g) = problem.normal_equations(&x, &mut r, pieces.resolved.loss);
+        let known = sums.normal_at_start(pieces, &problem).expect("assembled");
+        let own_cost = pieces.resolved.loss.cost(&r);
+        assert!((known.cost - own_cost).abs() <= 1e-12 * own_cost, "{label}: {} vs {own_cost}", known.cost);
+        let gap = relative_gap(&own, &known.normal);
+        assert!(gap < 1e-12, "{label}: {gap:e}");
+        assert!(own_g.abs().max() > 0.0, "{label}");
+        assert!((&own_g - &known.gradient).abs().max() <= 1e-12 * own_g.abs().max(), "{label}");
+        problem.layout.rotation_column()
+    }
+
     /// Three sessions of 40 points of an arm 1.5 mm and 0.2° from `arm()`, each point moved by a
     /// fixed pattern of up to 0.05 mm (noise, so that leaving a session out moves the fit).
     fn noisy_sessions(probe: Option<Matrix3<f64>>) -> (ArmModel, Observations) {
@@ -208,18 +232,7 @@ mod tests {
         for b in [0, 2] {
             let without = cal.without(|k| cal.obs[k].block == b);
             let pieces = Pieces::new(&fit.model, &without, &options, &fit.encoders).expect("pieces");
-            let start = warm_start(&pieces, &fit);
-            let problem = pieces.problem(fit.estimated.clone(), &start.model, &start.frames, start.probe);
-            let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
-            let mut r = vec![0.0; problem.len()];
-            let (own, own_g) = problem.normal_equations(&x, &mut r, Loss::Linear);
-            let known = sums.normal_at_start(&pieces, &problem).expect("assembled");
-            let (h, g) = (known.normal, known.gradient);
-            let own_cost = Loss::Linear.cost(&r);
-            assert!((known.cost - own_cost).abs() <= 1e-12 * own_cost, "{} vs {own_cost}", known.cost);
-            assert!(relative_gap(&own, &h) < 1e-12, "session {b}: {:e}", relative_gap(&own, &h));
-            assert!(own_g.abs().max() > 0.0);
-            assert!((&own_g - &g).abs().max() <= 1e-12 * own_g.abs().max());
+            assert_assembled_is_evaluated(&sums, &pieces, &fit, &format!("session {b} left out"));
             let plain = refit(&fit, &without, &options).expect("refit");
             let shared = refit_with(&sums, &without, &options).expect("refit with sums");
             let moved = fit.estimated.iter().any(|id| (plain.get(*id) - fit.model.get(*id)).abs() > 1e-6);
@@ -266,16 +279,7 @@ mod tests {
         let first: Vec<usize> = cal.blocks[0].members[..3].to_vec();
         let fewer = cal.without(|k| first.contains(&k));
         let pieces = Pieces::new(&fit.model, &fewer, &options, &fit.encoders).expect("pieces");
-        let start = warm_start(&pieces, &fit);
-        let problem = pieces.problem(fit.estimated.clone(), &start.model, &start.frames, start.probe);
-        let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
-        let mut r = vec![0.0; problem.len()];
-        let (own, own_g) = problem.normal_equations(&x, &mut r, Loss::Linear);
-        let known = sums.normal_at_start(&pieces, &problem).expect("assembled");
-        assert!(relative_gap(&own, &known.normal) < 1e-12, "{:e}", relative_gap(&own, &known.normal));
-        assert!((&own_g - &known.gradient).abs().max() <= 1e-12 * own_g.abs().max());
-        let own_cost = Loss::Linear.cost(&r);
-        assert!((known.cost - own_cost).abs() <= 1e-12 * own_cost, "{} vs {own_cost}", known.cost);
+        assert_assembled_is_evaluated(&sums, &pieces, &fit, "three points left out");
     }
 
     /// With a 6-DoF probe, whose rotation every session's rows read, the assembled normal
@@ -292,19 +296,8 @@ mod tests {
         let sums = SessionSums::of(&fit.model, &fit, &data, &options).expect("sums");
         let without = data.without(|k| data.obs[k].block == 1);
         let pieces = Pieces::new(&fit.model, &without, &options, &fit.encoders).expect("pieces");
-        let start = warm_start(&pieces, &fit);
-        let problem = pieces.problem(fit.estimated.clone(), &start.model, &start.frames, start.probe);
-        assert!(problem.layout.rotation_column().is_some());
-        let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
-        let mut r = vec![0.0; problem.len()];
-        let (own, own_g) = problem.normal_equations(&x, &mut r, pieces.resolved.loss);
-        let known = sums.normal_at_start(&pieces, &problem).expect("assembled");
-        let (h, g) = (known.normal, known.gradient);
-        let own_cost = pieces.resolved.loss.cost(&r);
-        assert!((known.cost - own_cost).abs() <= 1e-12 * own_cost, "{} vs {own_cost}", known.cost);
-        assert!(relative_gap(&own, &h) < 1e-12, "{:e}", relative_gap(&own, &h));
-        assert!(own_g.abs().max() > 0.0);
-        assert!((&own_g - &g).abs().max() <= 1e-12 * own_g.abs().max());
+        let rotation = assert_assembled_is_evaluated(&sums, &pieces, &fit, "probe, session 1 left out");
+        assert!(rotation.is_some());
     }
 
     /// Artefact touches share their distances across blocks: no session sums.

@@ -89,7 +89,7 @@ pub const PLOTTABLE: f64 = 1e12;
 /// its whole time.
 fn push_tenths(out: &mut String, px: f64) {
     let tenths = (px * 10.0).round();
-    if !(tenths.abs() < 1e15) {
+    if tenths.is_nan() || tenths.abs() >= 1e15 {
         let _ = write!(out, "{px:.1}");
         return;
     }

@@ -293,7 +293,8 @@ pub fn scatter_on(
         return String::new();
     }
     let frame = Frame::new(310.0, 210.0, (x0, x1), (y0, y1));
-    let mut out = String::new();
+    // A point is one circle of about 80 bytes.
+    let mut out = String::with_capacity(2048 + 80 * points.len());
     frame.open(&mut out, x_label, y_label, true);
     let mut beyond = 0;
     for (x, y) in points {

@@ -746,7 +746,8 @@ pub fn run_on(
         .flatten();
     // Tracker sessions held out: each frame refitted, against the nominal arm with its tool fitted.
     let tracker = reference.as_ref().map(|reference| {
-        sessions_section(&nominal, &fit, reference, cal, val, inputs, options, &same_base, sums.as_ref())
+        let run = RunData { nominal: &nominal, cal, val, inputs, options };
+        sessions_section(run, &fit, reference, &same_base, sums.as_ref())
     });
     if let Some(t) = &tracker {
         not_trustworthy.extend(crate::calib::trust::point_problems(&fit, nominal.reach_mm()));
@@ -1012,21 +1013,29 @@ fn session_residuals(
     SessionResiduals { name: data.block_name(b), points }
 }
 
+/// What a run's steps read besides the fit: the nominal arm, the calibration and held-out data
+/// (exclusions applied), the run's inputs and its resolved solver options.
+#[derive(Clone, Copy)]
+struct RunData<'a> {
+    nominal: &'a ArmModel,
+    cal: &'a Observations,
+    val: &'a Observations,
+    inputs: &'a RunInputs,
+    options: &'a SolveOptions,
+}
+
 /// Validate `fit` on the held-out sessions of `val` (each frame refitted, and each tool that
 /// floats) against `reference`, the nominal arm with its tool fitted on `cal`; the floor, the
 /// data errors and the verdict (its refits' first normal equations from `sums` when given).
-#[allow(clippy::too_many_arguments)]
+/// `same_base` names each held-out session measured in a calibration session's base frame.
 fn sessions_section(
-    nominal: &ArmModel,
+    run: RunData,
     fit: &Fit,
     reference: &Fit,
-    cal: &Observations,
-    val: &Observations,
-    inputs: &RunInputs,
-    options: &SolveOptions,
     same_base: &BTreeMap<String, String>,
     sums: Option<&SessionSums>,
 ) -> SessionsSection {
+    let RunData { nominal, cal, val, inputs, options } = run;
     let held = val.sessions();
     let floated = |b: usize| inputs.float_tool.contains(&val.groups[val.blocks[b].group].name);
     // The session's tool offset (its own when floated) and its figures.

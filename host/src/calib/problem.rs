@@ -361,9 +361,7 @@ impl Residuals for Problem<'_> {
                         TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
                     let mut rows = DenseRows::new(n);
                     for (t, r) in terms.iter().zip(rs) {
-                        jac.reset(t.rows());
-                        t.evaluate(&input, r, Some(&mut jac));
-                        rows.add(&jac, r, loss);
+                        rows.add_term(t.as_ref(), &input, r, &mut jac, loss);
                     }
                     self.recycle(poses);
                     return rows.finish();
@@ -430,6 +428,31 @@ impl DenseRows {
         }
     }
 
+    /// Evaluate term `t` at `input` into `r` and add its rows weighed by `loss`: a one-row term
+    /// writes its row straight into the batch when it can ([`Term::evaluate_into_row`]), any
+    /// other through `jac`.
+    fn add_term(
+        &mut self,
+        t: &dyn Term,
+        input: &TermInput,
+        r: &mut [f64],
+        jac: &mut TermJacobian,
+        loss: Loss,
+    ) {
+        if let [residual] = r {
+            let at = self.rows.len();
+            self.rows.resize(at + self.n, 0.0);
+            if t.evaluate_into_row(input, residual, &mut self.rows[at..]) {
+                self.push_residuals(r, loss);
+                return;
+            }
+            self.rows.truncate(at);
+        }
+        jac.reset(t.rows());
+        t.evaluate(input, r, Some(jac));
+        self.add(jac, r, loss);
+    }
+
     /// Add one term's rows: its Jacobian `jac`, residuals `r`, weighed by `loss`.
     fn add(&mut self, jac: &TermJacobian, r: &[f64], loss: Loss) {
         let (n, first) = (self.n, self.r.len());
@@ -444,6 +467,11 @@ impl DenseRows {
                 }
             }
         }
+        self.push_residuals(r, loss);
+    }
+
+    /// The residuals `r` and weights of rows just written; the batch's sums once it is full.
+    fn push_residuals(&mut self, r: &[f64], loss: Loss) {
         self.r.extend_from_slice(r);
         self.w.extend(r.iter().map(|&v| loss.weight(v)));
         if self.r.len() >= DENSE_BATCH_ROWS {
@@ -633,6 +661,45 @@ mod tests {
         }
         data.rebuild_blocks();
         data
+    }
+
+    /// Without block unknowns the normal equations are those of the dense Jacobian: distances
+    /// written straight into the batch's rows, and through their Jacobian when a floated tool
+    /// adds columns or relative orientations (four rows) come between.
+    #[test]
+    fn the_sums_of_distances_are_the_dense_normal_equations() {
+        let (nominal, sim) = crate::calib::peer::thesis_sized_problem(1);
+        let data = Observations::from_sessions(&sim.calibration, &sim.artefact);
+        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
+        let blocks = data.blocks.len();
+        for (floated, lever_mm) in [(false, None), (true, None), (false, Some(150.0))] {
+            let choice = TermChoice {
+                relative_orientation_lever_mm: lever_mm,
+                orientation_weight_mm_per_rad: None,
+                point_weight: 1.0,
+            };
+            let terms = build(&data, &choice);
+            let tools = vec![floated; data.groups.len()];
+            let layout =
+                Layout::new(params.clone(), &vec![false; blocks], &tools, false, &vec![None; blocks]);
+            let frames = vec![Matrix3::identity(); blocks];
+            let problem = Problem::new(layout, &nominal, &data, &terms, frames, None);
+            let n = problem.layout.unknowns();
+            assert_eq!(n, params.len() + if floated { 3 * data.groups.len() } else { 0 });
+            let mut x: Vec<f64> = params.iter().map(|id| nominal.get(*id) + 1e-3).collect();
+            x.extend((params.len()..n).map(|c| 0.2 - 0.1 * c as f64));
+            let m = problem.len();
+            let (mut r, mut jac) = (vec![0.0; m], vec![0.0; m * n]);
+            problem.evaluate(&x, &mut r, Some(&mut jac));
+            let weights = vec![1.0; m];
+            let (hd, gd) = crate::numerics::solver::normal_equations(&jac, &r, &weights, n);
+            let mut r2 = vec![0.0; m];
+            let (h, g) = problem.normal_equations(&x, &mut r2, Loss::Linear);
+            let label = format!("floated {floated}, lever {lever_mm:?}");
+            assert_eq!(r, r2, "{label}: the residuals are written as they are");
+            assert!((&h - &hd).norm() <= 1e-12 * hd.norm(), "{label}: {:e}", (&h - &hd).norm() / hd.norm());
+            assert!((&g - &gd).norm() <= 1e-12 * gd.norm(), "{label}: {:e}", (&g - &gd).norm() / gd.norm());
+        }
     }
 
     /// The normal equations summed term by term are those of the dense Jacobian, on turned

@@ -7,6 +7,8 @@
 use super::{Term, TermInput, TermJacobian};
 use crate::calib::nuisance::tool::flange_rotation;
 use crate::data::Observations;
+use crate::model::kinematics::PoseDerivative;
+use nalgebra::Vector3;
 
 /// ‖p_a − p_b‖ − D_ab.
 pub struct Distance {
@@ -65,11 +67,8 @@ impl Term for Distance {
         let Some(j) = jac else { return };
         let u = diff / length.max(1e-12);
         let (Some(da), Some(db)) = (at.poses.chain(a), at.poses.chain(b)) else { return };
-        // One row: column c's derivative is u·(∂p_a/∂c − ∂p_b/∂c), written in place.
         j.columns.extend(0..at.poses.arm);
-        j.values.extend(
-            da.iter().zip(db).map(|(a, b)| u.x * (a[0] - b[0]) + u.y * (a[1] - b[1]) + u.z * (a[2] - b[2])),
-        );
+        j.values.extend(da.iter().zip(db).map(|(a, b)| arm_derivative(&u, a, b)));
         if let Some(t) = tool {
             let g = (flange_rotation(pa) - flange_rotation(pb)).transpose() * u;
             for k in 0..3 {
@@ -77,4 +76,26 @@ impl Term for Distance {
             }
         }
     }
+
+    fn evaluate_into_row(&self, at: &TermInput<'_>, r: &mut f64, row: &mut [f64]) -> bool {
+        let [a, b] = self.obs;
+        let derivatives = (at.poses.chain(a), at.poses.chain(b));
+        let (Some(da), Some(db)) = derivatives else { return false };
+        if at.layout.tool_column(self.group).is_some() || row.len() != da.len() {
+            return false;
+        }
+        let diff = at.poses.of(a).position_mm - at.poses.of(b).position_mm;
+        let length = diff.norm();
+        *r = length - self.distance_mm;
+        let u = diff / length.max(1e-12);
+        for ((out, a), b) in row.iter_mut().zip(da).zip(db) {
+            *out = arm_derivative(&u, a, b);
+        }
+        true
+    }
+}
+
+/// The row's derivative by one arm column: u·(∂p_a/∂c − ∂p_b/∂c), u the unit vector from b to a.
+fn arm_derivative(u: &Vector3<f64>, a: &PoseDerivative, b: &PoseDerivative) -> f64 {
+    u.x * (a[0] - b[0]) + u.y * (a[1] - b[1]) + u.z * (a[2] - b[2])
 }

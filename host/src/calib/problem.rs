@@ -405,7 +405,8 @@ impl Residuals for Problem<'_> {
 const DENSE_BATCH_ROWS: usize = 256;
 
 /// JᵀWJ (upper triangle, n × n row-major) and JᵀWr of terms whose rows read every one of n
-/// columns, their rows copied into a dense batch (no m × n Jacobian, no per-row column lookup).
+/// columns, their rows written into a dense batch (a distance's in place, another term's copied
+/// from its Jacobian): no m × n Jacobian, no per-row column lookup.
 struct DenseRows {
     n: usize,
     h: Vec<f64>,
@@ -456,15 +457,10 @@ impl DenseRows {
     /// Add one term's rows: its Jacobian `jac`, residuals `r`, weighed by `loss`.
     fn add(&mut self, jac: &TermJacobian, r: &[f64], loss: Loss) {
         let (n, first) = (self.n, self.r.len());
-        let in_order = jac.columns.len() == n && jac.columns.iter().enumerate().all(|(k, &c)| k == c);
-        if jac.rows == 1 && in_order {
-            self.rows.extend_from_slice(&jac.values);
-        } else {
-            self.rows.resize((first + jac.rows) * n, 0.0);
-            for (p, &c) in jac.columns.iter().enumerate() {
-                for (a, v) in jac.column(p).iter().enumerate() {
-                    self.rows[(first + a) * n + c] = *v;
-                }
+        self.rows.resize((first + jac.rows) * n, 0.0);
+        for (p, &c) in jac.columns.iter().enumerate() {
+            for (a, v) in jac.column(p).iter().enumerate() {
+                self.rows[(first + a) * n + c] = *v;
             }
         }
         self.push_residuals(r, loss);
@@ -663,31 +659,54 @@ mod tests {
         data
     }
 
+    /// A distance that writes its derivatives only through its Jacobian (the default path of
+    /// a one-row term).
+    struct ThroughJacobian(Box<dyn Term>);
+    impl Term for ThroughJacobian {
+        fn rows(&self) -> usize {
+            self.0.rows()
+        }
+        fn block(&self) -> usize {
+            self.0.block()
+        }
+        fn observations(&self) -> &[usize] {
+            self.0.observations()
+        }
+        fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>) {
+            self.0.evaluate(at, r, jac)
+        }
+    }
+
     /// Without block unknowns the normal equations are those of the dense Jacobian: distances
-    /// written straight into the batch's rows, and through their Jacobian when a floated tool
-    /// adds columns or relative orientations (four rows) come between.
+    /// written straight into the batch's rows, every other distance through its Jacobian (the
+    /// row written and then taken back), with relative orientations (four rows) between.
     #[test]
     fn the_sums_of_distances_are_the_dense_normal_equations() {
-        let (nominal, sim) = crate::calib::peer::thesis_sized_problem(1);
+        let nominal = ArmModel::suta_nominal();
+        let options = crate::simulate::SimulationOptions { seed: 1, ..Default::default() };
+        let sim = crate::simulate::simulate(&nominal, &options);
         let data = Observations::from_sessions(&sim.calibration, &sim.artefact);
         let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
         let blocks = data.blocks.len();
-        for (floated, lever_mm) in [(false, None), (true, None), (false, Some(150.0))] {
+        for lever_mm in [None, Some(150.0)] {
             let choice = TermChoice {
                 relative_orientation_lever_mm: lever_mm,
                 orientation_weight_mm_per_rad: None,
                 point_weight: 1.0,
             };
-            let terms = build(&data, &choice);
-            let tools = vec![floated; data.groups.len()];
+            let terms: Vec<Box<dyn Term>> = build(&data, &choice)
+                .into_iter()
+                .enumerate()
+                .map(|(k, t)| if k % 2 == 1 { Box::new(ThroughJacobian(t)) as Box<dyn Term> } else { t })
+                .collect();
+            let tools = vec![false; data.groups.len()];
             let layout =
                 Layout::new(params.clone(), &vec![false; blocks], &tools, false, &vec![None; blocks]);
             let frames = vec![Matrix3::identity(); blocks];
             let problem = Problem::new(layout, &nominal, &data, &terms, frames, None);
             let n = problem.layout.unknowns();
-            assert_eq!(n, params.len() + if floated { 3 * data.groups.len() } else { 0 });
-            let mut x: Vec<f64> = params.iter().map(|id| nominal.get(*id) + 1e-3).collect();
-            x.extend((params.len()..n).map(|c| 0.2 - 0.1 * c as f64));
+            assert!(!problem.layout.has_block_unknowns(), "the dense path");
+            let x: Vec<f64> = params.iter().map(|id| nominal.get(*id) + 1e-3).collect();
             let m = problem.len();
             let (mut r, mut jac) = (vec![0.0; m], vec![0.0; m * n]);
             problem.evaluate(&x, &mut r, Some(&mut jac));
@@ -695,7 +714,7 @@ mod tests {
             let (hd, gd) = crate::numerics::solver::normal_equations(&jac, &r, &weights, n);
             let mut r2 = vec![0.0; m];
             let (h, g) = problem.normal_equations(&x, &mut r2, Loss::Linear);
-            let label = format!("floated {floated}, lever {lever_mm:?}");
+            let label = format!("lever {lever_mm:?}");
             assert_eq!(r, r2, "{label}: the residuals are written as they are");
             assert!((&h - &hd).norm() <= 1e-12 * hd.norm(), "{label}: {:e}", (&h - &hd).norm() / hd.norm());
             assert!((&g - &gd).norm() <= 1e-12 * gd.norm(), "{label}: {:e}", (&g - &gd).norm() / gd.norm());

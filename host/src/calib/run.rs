@@ -746,7 +746,7 @@ pub fn run_on(
         .flatten();
     // Tracker sessions held out: each frame refitted, against the nominal arm with its tool fitted.
     let tracker = reference.as_ref().map(|reference| {
-        let run = RunData { nominal: &nominal, cal, val, inputs, options };
+        let run = RunContext { nominal: &nominal, cal, val, inputs, options };
         sessions_section(run, &fit, reference, &same_base, sums.as_ref())
     });
     if let Some(t) = &tracker {
@@ -1016,7 +1016,7 @@ fn session_residuals(
 /// What a run's steps read besides the fit: the nominal arm, the calibration and held-out data
 /// (exclusions applied), the run's inputs and its resolved solver options.
 #[derive(Clone, Copy)]
-struct RunData<'a> {
+struct RunContext<'a> {
     nominal: &'a ArmModel,
     cal: &'a Observations,
     val: &'a Observations,
@@ -1024,18 +1024,18 @@ struct RunData<'a> {
     options: &'a SolveOptions,
 }
 
-/// Validate `fit` on the held-out sessions of `val` (each frame refitted, and each tool that
-/// floats) against `reference`, the nominal arm with its tool fitted on `cal`; the floor, the
+/// Validate `fit` on the held-out sessions of `run.val` (each frame refitted, and each tool that
+/// floats) against `reference`, the nominal arm with its tool fitted on `run.cal`; the floor, the
 /// data errors and the verdict (its refits' first normal equations from `sums` when given).
 /// `same_base` names each held-out session measured in a calibration session's base frame.
 fn sessions_section(
-    run: RunData,
+    run: RunContext,
     fit: &Fit,
     reference: &Fit,
     same_base: &BTreeMap<String, String>,
     sums: Option<&SessionSums>,
 ) -> SessionsSection {
-    let RunData { nominal, cal, val, inputs, options } = run;
+    let RunContext { nominal, cal, val, inputs, options } = run;
     let held = val.sessions();
     let floated = |b: usize| inputs.float_tool.contains(&val.groups[val.blocks[b].group].name);
     // The session's tool offset (its own when floated) and its figures.

@@ -92,9 +92,9 @@ pub struct SessionSums<'f> {
 impl<'f> SessionSums<'f> {
     /// Each session of `data` at `fit`'s solution, with `options`. `model` is the model the
     /// refits are called with (its effects, free parameters, bounds and fixed values); its free
-    /// parameters take the fit's values, as in the refits' warm start. `None` unless every block
-    /// of `data` is a session with a frame (no artefact touches, whose distances are shared by no
-    /// session's unknowns alone) or when a sum is not finite.
+    /// parameters take the fit's values, as in the refits' warm start. `None` when a block of
+    /// `data` is not a session with a frame (artefact touches, whose distances are shared by no
+    /// session's unknowns alone), or when a sum is not finite.
     pub fn of(
         model: &ArmModel,
         fit: &'f Fit,

@@ -51,25 +51,16 @@ impl Term for Distance {
     }
 
     fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>) {
-        let [a, b] = self.obs;
-        let (pa, pb) = (at.poses.of(a), at.poses.of(b));
         let tool = at.layout.tool_column(self.group);
-        let diff = match tool {
-            None => pa.position_mm - pb.position_mm,
-            Some(_) => {
-                let offset = &at.state.tools[self.group];
-                (pa.position_mm + flange_rotation(pa) * offset)
-                    - (pb.position_mm + flange_rotation(pb) * offset)
-            }
-        };
-        let length = diff.norm();
-        r[0] = length - self.distance_mm;
+        let (residual, u) = self.residual_and_direction(at, tool.is_some());
+        r[0] = residual;
         let Some(j) = jac else { return };
-        let u = diff / length.max(1e-12);
+        let [a, b] = self.obs;
         let (Some(da), Some(db)) = (at.poses.chain(a), at.poses.chain(b)) else { return };
         j.columns.extend(0..at.poses.arm);
         j.values.extend(da.iter().zip(db).map(|(a, b)| arm_derivative(&u, a, b)));
         if let Some(t) = tool {
+            let (pa, pb) = (at.poses.of(a), at.poses.of(b));
             let g = (flange_rotation(pa) - flange_rotation(pb)).transpose() * u;
             for k in 0..3 {
                 j.push(t + k, &[g[k]]);
@@ -79,19 +70,33 @@ impl Term for Distance {
 
     fn evaluate_into_row(&self, at: &TermInput<'_>, r: &mut f64, row: &mut [f64]) -> bool {
         let [a, b] = self.obs;
-        let derivatives = (at.poses.chain(a), at.poses.chain(b));
-        let (Some(da), Some(db)) = derivatives else { return false };
+        let (Some(da), Some(db)) = (at.poses.chain(a), at.poses.chain(b)) else { return false };
         if at.layout.tool_column(self.group).is_some() || row.len() != da.len() {
             return false;
         }
-        let diff = at.poses.of(a).position_mm - at.poses.of(b).position_mm;
-        let length = diff.norm();
-        *r = length - self.distance_mm;
-        let u = diff / length.max(1e-12);
+        let u;
+        (*r, u) = self.residual_and_direction(at, false);
         for ((out, a), b) in row.iter_mut().zip(da).zip(db) {
             *out = arm_derivative(&u, a, b);
         }
         true
+    }
+}
+
+impl Distance {
+    /// The residual ‖p_a − p_b‖ − D_ab and the unit vector u from p_b to p_a, the tool points
+    /// carrying the group's offset when its tool floats (`floated`).
+    fn residual_and_direction(&self, at: &TermInput<'_>, floated: bool) -> (f64, Vector3<f64>) {
+        let [a, b] = self.obs;
+        let (pa, pb) = (at.poses.of(a), at.poses.of(b));
+        let diff = if floated {
+            let offset = &at.state.tools[self.group];
+            (pa.position_mm + flange_rotation(pa) * offset) - (pb.position_mm + flange_rotation(pb) * offset)
+        } else {
+            pa.position_mm - pb.position_mm
+        };
+        let length = diff.norm();
+        (length - self.distance_mm, diff / length.max(1e-12))
     }
 }
 

@@ -7,8 +7,8 @@
 //! micro-kernels over packed panels, chosen at run time for the CPU (AVX2 and FMA where the
 //! processor has them, SSE2 otherwise). That is why these sums are not written here: a portable
 //! build cannot use those instructions without `unsafe`, which the library forbids, and the
-//! product computes the whole square (twice the triangle's work) at up to four times the rate of
-//! the best portable loop. Its order of summation depends on the CPU's kernel, so two CPUs agree
+//! product computes the upper block triangle (up to 4/3 of the triangle's work) at up to four
+//! times the rate of the best portable loop. Its order of summation depends on the CPU's kernel, so two CPUs agree
 //! to rounding, not to the bit; one machine gives the same sums on any thread count.
 //! [`add_gram`] keeps the plain order (for small problems that want it to the bit) and
 //! [`add_gram_by_four`] sums four rows at a time (a dense Jacobian of few columns, the
@@ -23,7 +23,7 @@
 //! n × n sums once per batch. The order of every
 //! sum depends on the terms' order only.
 
-use nalgebra::{DMatrix, DMatrixView, Dyn};
+use nalgebra::{DMatrixView, DMatrixViewMut, Dyn};
 
 /// Add Σ_i w_i·a_i·a_iᵀ into the upper triangle of `h` (k × k, row-major) and Σ_i w_i·r_i·a_i
 /// into `g`, for the rows a_i of `rows` (row-major, k columns), `weights` and `r` one per row.
@@ -112,36 +112,68 @@ pub fn add_gram_product(
 /// another row stride); D may have any strides when every dimension is above nalgebra's small
 /// size (5), which hands the product to the `matrixmultiply` crate (any strides, the same sums
 /// as packed).
+///
+/// Only the upper block triangle is formed: the columns in up to three blocks, each block's
+/// columns against the rows up to its last (a third fewer products than the square). Each
+/// entry's sum runs over the m rows in the crate's order whatever block holds it, so the sums
+/// are the square's to the bit.
 fn add_product(
     h: &mut [f64],
     g: &mut [f64],
     (u, u_stride, k): (&[f64], usize, usize),
     d: &DMatrixView<f64, Dyn, Dyn>,
     r: &[f64],
-    product: &mut DMatrix<f64>,
+    product: &mut Vec<f64>,
 ) {
     let m = r.len();
-    debug_assert!(d.strides().0 == 1 || m.min(k) > 5);
+    debug_assert!(d.strides().0 == 1 || m.min(k) > NALGEBRA_SMALL);
     for (ui, ri) in u.chunks(u_stride).zip(r) {
         g.iter_mut().zip(&ui[..k]).for_each(|(gl, v)| *gl += v * ri);
     }
     let ut = DMatrixView::from_slice_with_strides(&u[..(m - 1) * u_stride + k], k, m, 1, u_stride);
-    if product.shape() != (k, k) {
-        *product = DMatrix::zeros(k, k);
+    product.resize(k * k, 0.0);
+    let edges = column_blocks(k);
+    for (&first, &end) in edges.iter().zip(&edges[1..]) {
+        // Row-major k × k: the rows 0..end of the columns first..end.
+        let mut block = DMatrixViewMut::from_slice_with_strides_mut(
+            &mut product[first..(end - 1) * k + end],
+            end,
+            end - first,
+            k,
+            1,
+        );
+        block.gemm(1.0, &ut.rows(0, end), &d.columns(first, end - first), 0.0);
     }
-    product.gemm(1.0, &ut, d, 0.0);
     for p in 0..k {
-        for (q, hq) in h[p * k + p..(p + 1) * k].iter_mut().enumerate() {
-            *hq += product[(p, p + q)];
-        }
+        let row = p * k + p..(p + 1) * k;
+        h[row.clone()].iter_mut().zip(&product[row]).for_each(|(hq, v)| *hq += v);
     }
 }
 
-/// The buffers of [`add_gram_product`]: a block's weighted copy and its k × k product.
+/// nalgebra's largest dimension for which its product does not call `matrixmultiply`.
+const NALGEBRA_SMALL: usize = 5;
+
+/// The column blocks of [`add_product`] for k columns: their edges, `[0, .., k]`. Three blocks
+/// from 48 columns, two from 24, else one; inner edges on multiples of 8 (the crate's tiles:
+/// no partial tiles inside), which leaves every block of a split wider than [`NALGEBRA_SMALL`].
+fn column_blocks(k: usize) -> Vec<usize> {
+    let blocks = match k {
+        48.. => 3,
+        24.. => 2,
+        _ => 1,
+    };
+    let mut edges: Vec<usize> = (0..blocks).map(|j| (k * j / blocks).next_multiple_of(8)).collect();
+    edges.push(k);
+    debug_assert!(blocks == 1 || edges.windows(2).all(|e| e[1] - e[0] > NALGEBRA_SMALL));
+    edges
+}
+
+/// The buffers of [`add_gram_product`]: a block's weighted copy and its k × k product
+/// (row-major).
 #[derive(Default)]
 pub struct GramBuffers {
     weighted: Vec<f64>,
-    product: DMatrix<f64>,
+    product: Vec<f64>,
 }
 
 /// Rows a batch holds before its Gram matrix is formed.
@@ -160,6 +192,8 @@ pub struct NormalSums {
     local: Vec<usize>,
     /// The batch's columns, by local index.
     globals: Vec<usize>,
+    /// The local indices of the term being added, one per column it reads.
+    term_locals: Vec<usize>,
     /// Row stride of the batch: [`BATCH_COLUMNS`], or more after a term that reads more.
     width: usize,
     /// The batch's derivatives D, row-major: row i's local columns at `i * width ..` (zero
@@ -184,6 +218,7 @@ impl NormalSums {
             g: vec![0.0; n],
             local: vec![NONE; n],
             globals: Vec::new(),
+            term_locals: Vec::new(),
             width: BATCH_COLUMNS,
             dense: vec![0.0; BATCH_ROWS * BATCH_COLUMNS],
             weighted: None,
@@ -211,15 +246,19 @@ impl NormalSums {
             self.dense = vec![0.0; BATCH_ROWS * new];
             self.weighted = None;
         }
-        let (first, width) = (self.r.len(), self.width);
-        let block = &mut self.dense[first * width..(first + rows) * width];
-        for (&c, v) in columns.iter().zip(values.chunks_exact(rows.max(1))) {
+        self.term_locals.clear();
+        for &c in columns {
             if self.local[c] == NONE {
                 self.local[c] = self.globals.len();
                 self.globals.push(c);
             }
-            let l = self.local[c];
-            for (row, v) in block.chunks_exact_mut(width).zip(v) {
+            self.term_locals.push(self.local[c]);
+        }
+        let (first, width) = (self.r.len(), self.width);
+        let block = &mut self.dense[first * width..(first + rows) * width];
+        for (i, row) in block.chunks_exact_mut(width).enumerate() {
+            // Row i of the term: its derivatives are `values[i]`, `values[i + rows]`, ...
+            for (&l, &v) in self.term_locals.iter().zip(values[i..].iter().step_by(rows)) {
                 row[l] += v;
             }
         }
@@ -235,8 +274,7 @@ impl NormalSums {
             let span = first * width..(first + rows) * width;
             let rows_u = u[span.clone()].chunks_exact_mut(width);
             for ((ui, di), wi) in rows_u.zip(self.dense[span].chunks_exact(width)).zip(w) {
-                for &c in columns {
-                    let l = self.local[c];
+                for &l in &self.term_locals {
                     ui[l] = wi * di[l];
                 }
             }
@@ -422,6 +460,32 @@ mod tests {
                     (h[a * n + b] - hd[a * n + b]).abs() < 1e-12 * (1.0 + hd[a * n + b].abs()),
                     "h[{a},{b}]"
                 );
+            }
+        }
+    }
+
+    /// The product by column blocks gives the whole square's sums to the bit (the same sums in
+    /// the same order), for column counts of one, two and three blocks, a row-strided D (as a
+    /// batch holds it) and weights.
+    #[test]
+    fn the_block_triangle_is_the_square_to_the_bit() {
+        let value = |i: usize, l: usize| ((i * 13 + l * 31) as f64 * 0.43).cos() * (1.0 + l as f64);
+        let mut product = Vec::new();
+        for (m, k) in [(40, 12), (256, 24), (97, 47), (256, 48), (200, 61), (256, 96)] {
+            let width = k + 5;
+            let d: Vec<f64> = (0..m * width).map(|e| value(e / width, e % width)).collect();
+            let u: Vec<f64> = d.iter().enumerate().map(|(e, v)| v * (0.5 + (e / width % 3) as f64)).collect();
+            let r: Vec<f64> = (0..m).map(|i| value(i, 97)).collect();
+            let dv = DMatrixView::from_slice_with_strides(&d[..(m - 1) * width + k], m, k, width, 1);
+            let (mut h, mut g) = (vec![0.0; k * k], vec![0.0; k]);
+            add_product(&mut h, &mut g, (&u, width, k), &dv, &r, &mut product);
+            let ut = DMatrixView::from_slice_with_strides(&u[..(m - 1) * width + k], k, m, 1, width);
+            let mut square = nalgebra::DMatrix::zeros(k, k);
+            square.gemm(1.0, &ut, &dv, 0.0);
+            for p in 0..k {
+                for q in p..k {
+                    assert_eq!(h[p * k + q].to_bits(), square[(p, q)].to_bits(), "{m} × {k}: h[{p},{q}]");
+                }
             }
         }
     }

@@ -8,8 +8,9 @@
 //! processor has them, SSE2 otherwise). That is why these sums are not written here: a portable
 //! build cannot use those instructions without `unsafe`, which the library forbids, and the
 //! product computes the upper block triangle (up to 4/3 of the triangle's work) at up to four
-//! times the rate of the best portable loop. Its order of summation depends on the CPU's kernel, so two CPUs agree
-//! to rounding, not to the bit; one machine gives the same sums on any thread count.
+//! times the rate of the best portable loop. Its order of summation depends on the CPU's kernel,
+//! so two CPUs agree to rounding, not to the bit; one machine gives the same sums on any thread
+//! count.
 //! [`add_gram`] keeps the plain order (for small problems that want it to the bit) and
 //! [`add_gram_by_four`] sums four rows at a time (a dense Jacobian of few columns, the
 //! artefact's: its Huber refits stop where their tolerances let them, so its figures keep the

@@ -171,7 +171,7 @@ impl<'f> SessionSums<'f> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::tests::{arm, sessions};
+    use super::super::tests::{arm, arm_and_truth, sessions};
     use super::*;
 
     /// Largest entry difference of two matrices over the largest entry of the first.
@@ -206,10 +206,7 @@ mod tests {
     /// Three sessions of 40 points of an arm 1.5 mm and 0.2° from `arm()`, each point moved by a
     /// fixed pattern of up to 0.05 mm (noise, so that leaving a session out moves the fit).
     fn noisy_sessions(probe: Option<Matrix3<f64>>) -> (ArmModel, Observations) {
-        let nominal = arm();
-        let mut truth = nominal.clone();
-        truth.joints[2].d_mm += 1.5;
-        truth.joints[3].offset_deg += 0.2;
+        let (nominal, truth) = arm_and_truth();
         let mut data = sessions(&truth, probe);
         for (k, o) in data.obs.iter_mut().enumerate() {
             if let crate::data::Target::Point { xyz_mm, .. } = &mut o.target {

@@ -133,7 +133,8 @@ fn add_product(
     }
     let ut = DMatrixView::from_slice_with_strides(&u[..(m - 1) * u_stride + k], k, m, 1, u_stride);
     product.resize(k * k, 0.0);
-    let edges = column_blocks(k);
+    let (edges, blocks) = column_blocks(k);
+    let edges = &edges[..=blocks];
     for (&first, &end) in edges.iter().zip(&edges[1..]) {
         // Row-major k × k: the rows 0..end of the columns first..end.
         let mut block = DMatrixViewMut::from_slice_with_strides_mut(
@@ -154,19 +155,22 @@ fn add_product(
 /// nalgebra's largest dimension for which its product does not call `matrixmultiply`.
 const NALGEBRA_SMALL: usize = 5;
 
-/// The column blocks of [`add_product`] for k columns: their edges, `[0, .., k]`. Three blocks
-/// from 48 columns, two from 24, else one; inner edges on multiples of 8 (the crate's tiles:
-/// no partial tiles inside), which leaves every block of a split wider than [`NALGEBRA_SMALL`].
-fn column_blocks(k: usize) -> Vec<usize> {
+/// The column blocks of [`add_product`] for k columns: their edges `[0, .., k]` (the first
+/// count + 1 entries: no allocation per batch) and their count. Three blocks from 48 columns,
+/// two from 24, else one; inner edges on multiples of 8 (the crate's tiles: no partial tiles
+/// inside), which leaves every block of a split wider than [`NALGEBRA_SMALL`].
+fn column_blocks(k: usize) -> ([usize; 4], usize) {
     let blocks = match k {
         48.. => 3,
         24.. => 2,
         _ => 1,
     };
-    let mut edges: Vec<usize> = (0..blocks).map(|j| (k * j / blocks).next_multiple_of(8)).collect();
-    edges.push(k);
-    debug_assert!(blocks == 1 || edges.windows(2).all(|e| e[1] - e[0] > NALGEBRA_SMALL));
-    edges
+    let mut edges = [k; 4];
+    for (j, edge) in edges.iter_mut().take(blocks).enumerate() {
+        *edge = (k * j / blocks).next_multiple_of(8);
+    }
+    debug_assert!(blocks == 1 || edges[..=blocks].windows(2).all(|e| e[1] - e[0] > NALGEBRA_SMALL));
+    (edges, blocks)
 }
 
 /// The buffers of [`add_gram_product`]: a block's weighted copy and its k × k product

@@ -44,33 +44,55 @@ pub fn add_gram_by_four(h: &mut [f64], g: &mut [f64], k: usize, rows: &[f64], we
 fn gram<const B: usize>(h: &mut [f64], g: &mut [f64], k: usize, rows: &[f64], weights: &[f64], r: &[f64]) {
     debug_assert!(rows.len() == weights.len() * k && r.len() == weights.len());
     debug_assert!(h.len() == k * k && g.len() == k);
+    if k == 0 {
+        return;
+    }
     let whole = weights.len() / B * B;
-    for i in (0..whole).step_by(B) {
-        let a: [&[f64]; B] = std::array::from_fn(|b| &rows[(i + b) * k..(i + b + 1) * k]);
-        for p in 0..k {
-            let u: [f64; B] = std::array::from_fn(|b| weights[i + b] * a[b][p]);
+    let groups = rows[..whole * k].chunks_exact(B * k).zip(weights.chunks_exact(B)).zip(r.chunks_exact(B));
+    for ((block, w), r) in groups {
+        let a: [&[f64]; B] = std::array::from_fn(|b| &block[b * k..(b + 1) * k]);
+        for (p, h_row) in h.chunks_exact_mut(k).enumerate() {
+            let u: [f64; B] = std::array::from_fn(|b| w[b] * a[b][p]);
             if u.iter().all(|&v| v == 0.0) {
                 continue;
             }
-            let mut gp = u[0] * r[i];
+            let mut gp = u[0] * r[0];
             for b in 1..B {
-                gp += u[b] * r[i + b];
+                gp += u[b] * r[b];
             }
             g[p] += gp;
-            let row = &mut h[p * k + p..(p + 1) * k];
-            let len = row.len();
-            let columns: [&[f64]; B] = std::array::from_fn(|b| &a[b][p..p + len]);
-            for q in 0..len {
-                let mut s = u[0] * columns[0][q];
-                for b in 1..B {
-                    s += u[b] * columns[b][q];
-                }
-                row[q] += s;
-            }
+            add_weighted_rows(&mut h_row[p..], &u, &std::array::from_fn(|b| &a[b][p..]));
         }
     }
     if whole < weights.len() && B > 1 {
         gram::<1>(h, g, k, &rows[whole * k..], &weights[whole..], &r[whole..]);
+    }
+}
+
+/// `out[q] += Σ_b u_b·c_b[q]` for every q, the products summed in b's order (the plain loop's
+/// arithmetic), two q at a time: the compiler keeps each pair in one vector register, which it
+/// does not for a loop over q of a row this short (a dozen columns).
+#[inline(always)]
+fn add_weighted_rows<const B: usize>(out: &mut [f64], u: &[f64; B], c: &[&[f64]; B]) {
+    let n = out.len();
+    let c: [&[f64]; B] = std::array::from_fn(|b| &c[b][..n]);
+    let mut pairs = out.chunks_exact_mut(2);
+    for (pair, q) in (&mut pairs).zip((0..n).step_by(2)) {
+        let mut s = [u[0] * c[0][q], u[0] * c[0][q + 1]];
+        for b in 1..B {
+            s[0] += u[b] * c[b][q];
+            s[1] += u[b] * c[b][q + 1];
+        }
+        pair[0] += s[0];
+        pair[1] += s[1];
+    }
+    if let [last] = pairs.into_remainder() {
+        let q = n - 1;
+        let mut s = u[0] * c[0][q];
+        for b in 1..B {
+            s += u[b] * c[b][q];
+        }
+        *last += s;
     }
 }
 
@@ -422,12 +444,44 @@ mod tests {
         }
         let (mut h, mut g) = (vec![0.0; n * n], vec![0.0; n]);
         add_gram_by_four(&mut h, &mut g, n, &jac[..m * n], &w[..m], &r[..m]);
+        let (h4, g4) = plain_by_four(&jac[..m * n], &w[..m], &r[..m], n);
         for a in 0..n {
             assert!((g[a] - gd[a]).abs() < 1e-12 * (1.0 + gd[a].abs()));
+            assert_eq!(g[a], g4[a], "g[{a}] by four");
             for b in a..n {
                 assert!((h[a * n + b] - hd[a * n + b]).abs() < 1e-12 * (1.0 + hd[a * n + b].abs()));
+                assert_eq!(h[a * n + b], h4[a * n + b], "h[{a},{b}] by four");
             }
         }
+    }
+
+    /// The upper triangle of JᵀWJ and JᵀWr summed four rows at a time, each entry gaining
+    /// ((u₀c₀ + u₁c₁) + u₂c₂) + u₃c₃ (u = w·row[a], c = row[b]), the rows past the last four
+    /// one by one: the order [`add_gram_by_four`] keeps, written as a plain loop.
+    fn plain_by_four(rows: &[f64], w: &[f64], r: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
+        let (mut h, mut g) = (vec![0.0; n * n], vec![0.0; n]);
+        let whole = w.len() / 4 * 4;
+        for i in (0..whole).step_by(4) {
+            let row = |b: usize| &rows[(i + b) * n..(i + b + 1) * n];
+            for a in 0..n {
+                let u: Vec<f64> = (0..4).map(|b| w[i + b] * row(b)[a]).collect();
+                g[a] += ((u[0] * r[i] + u[1] * r[i + 1]) + u[2] * r[i + 2]) + u[3] * r[i + 3];
+                for c in a..n {
+                    let s = ((u[0] * row(0)[c] + u[1] * row(1)[c]) + u[2] * row(2)[c]) + u[3] * row(3)[c];
+                    h[a * n + c] += s;
+                }
+            }
+        }
+        for i in whole..w.len() {
+            let row = &rows[i * n..(i + 1) * n];
+            for a in 0..n {
+                g[a] += w[i] * row[a] * r[i];
+                for c in a..n {
+                    h[a * n + c] += w[i] * row[a] * row[c];
+                }
+            }
+        }
+        (h, g)
     }
 
     /// A term reading more columns than a batch spans gets a batch of wider rows (after terms

@@ -53,6 +53,9 @@ struct SessionSum {
     /// The source lines of the session's points: sums of other data (points left out) are not
     /// taken for these.
     lines: Vec<usize>,
+    /// Whether the session's rows include measured orientations (which a refit floating its
+    /// tool leaves out).
+    orientations: bool,
     keys: Vec<Key>,
     h: DMatrix<f64>,
     g: DVector<f64>,
@@ -78,7 +81,38 @@ impl SessionSum {
         let g = DVector::from_iterator(columns.len(), columns.iter().map(|c| g[c.1]));
         let finite = h.iter().all(|v| v.is_finite()) && g.iter().all(|v| v.is_finite()) && cost.is_finite();
         let lines = session_lines(data, b);
-        finite.then(|| SessionSum { name: data.block_name(b), lines, keys, h, g, cost })
+        let orientations = data.blocks[b].members.iter().any(|&k| data.obs[k].orientation().is_some());
+        finite.then(|| SessionSum { name: data.block_name(b), lines, orientations, keys, h, g, cost })
+    }
+
+    /// This sum with its session's tool floated: three more unknowns, the offset Δ (`Key::Tool`),
+    /// when the tool point's own values (`tool`, arm parameters) are among its unknowns and it
+    /// has no orientation rows. A point's derivative by Δ is R_s·R_F·e_k, by the tool point's
+    /// own value along the same flange axis R_s·s·R_F·e_k (the chain's point scaled by `scale`
+    /// s = 1 + scale_ppm·10⁻⁶), times the same drift growth and weight: the tool point's columns
+    /// over s. At the refit's warm start Δ = 0, so the rows, their cost and gradient are this
+    /// sum's; the session is not evaluated again.
+    fn with_floated_tool(&self, tool: [ParamId; 3], scale: f64) -> Option<SessionSum> {
+        if self.orientations || self.keys.iter().any(|k| matches!(k, Key::Tool(_))) {
+            return None;
+        }
+        let at: Vec<usize> = tool
+            .iter()
+            .map(|&id| self.keys.iter().position(|k| *k == Key::Arm(id)))
+            .collect::<Option<Vec<_>>>()?;
+        let (n, wide) = (self.keys.len(), self.keys.len() + 3);
+        // Column c of the floated sum: its own column, or the tool point's over s.
+        let source = |c: usize| if c < n { (c, 1.0) } else { (at[c - n], 1.0 / scale) };
+        let h = DMatrix::from_fn(wide, wide, |i, j| {
+            let ((a, fa), (b, fb)) = (source(i), source(j));
+            self.h[(a, b)] * fa * fb
+        });
+        let g = DVector::from_fn(wide, |i, _| {
+            let (a, f) = source(i);
+            self.g[a] * f
+        });
+        let keys = self.keys.iter().copied().chain((0..3).map(Key::Tool)).collect();
+        Some(SessionSum { keys, h, g, name: self.name.clone(), lines: self.lines.clone(), ..*self })
     }
 }
 
@@ -148,7 +182,11 @@ impl<'f> SessionSums<'f> {
             let sum = match self.sessions.iter().find(same) {
                 Some(sum) => sum,
                 None => {
-                    fresh = SessionSum::of(pieces, b, self.fit, &problem.layout.arm)?;
+                    let floated = self.floated_tool(pieces, b, &lines, &columns);
+                    fresh = match floated {
+                        Some(sum) => sum,
+                        None => SessionSum::of(pieces, b, self.fit, &problem.layout.arm)?,
+                    };
                     &fresh
                 }
             };
@@ -166,6 +204,32 @@ impl<'f> SessionSums<'f> {
             }
         }
         Some(KnownStart { normal: h, gradient: g, cost })
+    }
+
+    /// Block `b`'s sum (its source `lines`, its unknowns `columns`) from its session's kept one
+    /// when they differ by its tool floated alone ([`SessionSum::with_floated_tool`]).
+    fn floated_tool(
+        &self,
+        pieces: &Pieces,
+        b: usize,
+        lines: &[usize],
+        columns: &[(Key, usize)],
+    ) -> Option<SessionSum> {
+        let data = pieces.data;
+        let name = data.block_name(b);
+        let kept = self.sessions.iter().find(|s| s.name == name && s.lines == lines)?;
+        let members = &data.blocks[b].members;
+        let tip = data.obs[*members.first()?].tip;
+        if members.iter().any(|&k| data.obs[k].tip != tip) {
+            return None;
+        }
+        let tool = std::array::from_fn(|k| if tip > 0 { ParamId::TipTcp(tip, k) } else { ParamId::Tcp(k) });
+        // The arm's scale at the warm start: the fit's when free, else the model's.
+        let free = pieces.model.free.iter().any(|f| f.id == ParamId::Scale);
+        let scale_ppm = if free { self.fit.model.scale_ppm } else { pieces.model.scale_ppm };
+        let sum = kept.with_floated_tool(tool, 1.0 + scale_ppm * 1e-6)?;
+        let same = sum.keys.len() == columns.len() && columns.iter().all(|c| sum.keys.contains(&c.0));
+        same.then_some(sum)
     }
 }
 
@@ -264,6 +328,34 @@ mod tests {
             assert!((a.offset_mm[k] - s.offset_mm[k]).abs() <= 1e-9 * a.offset_mm[k].abs().max(1e-3));
         }
         assert!((a.size_std_mm - s.size_std_mm).abs() <= 1e-9 * a.size_std_mm);
+    }
+
+    /// A session's sums with its tool floated are taken from its kept sums (the tool point's
+    /// columns over the arm's scale, here 150 ppm from 1), not evaluated again, and are those
+    /// of its own evaluation.
+    #[test]
+    fn a_floated_tool_is_summed_from_the_tool_points_columns() {
+        let (mut nominal, cal) = noisy_sessions(None);
+        nominal.scale_ppm = 150.0;
+        for k in 0..3 {
+            nominal.free_param(ParamId::Tcp(k), nominal.tcp_mm[k] - 20.0, nominal.tcp_mm[k] + 20.0);
+        }
+        nominal.free_param(ParamId::Scale, -500.0, 500.0);
+        let options = SolveOptions::default();
+        let fit = calibrate(&nominal, &cal, &options).expect("fit");
+        assert!((0..3).all(|k| fit.estimated.contains(&ParamId::Tcp(k))), "{:?}", fit.estimated);
+        assert!(fit.model.scale_ppm.abs() > 1.0);
+        let sums = SessionSums::of(&nominal, &fit, &cal, &options).expect("sums");
+        let b = 1;
+        let floated = SolveOptions { float_tool: vec![cal.block_name(b)], ..options.clone() };
+        let pieces = Pieces::new(&nominal, &cal, &floated, &fit.encoders).expect("pieces");
+        let start = warm_start(&pieces, &fit);
+        let problem = pieces.problem(fit.estimated.clone(), &start.model, &start.frames, start.probe);
+        let columns = keys(&problem.layout, b, cal.blocks[b].group);
+        assert!(columns.iter().any(|c| matches!(c.0, Key::Tool(_))));
+        let derived = sums.floated_tool(&pieces, b, &session_lines(&cal, b), &columns);
+        assert!(derived.is_some(), "the floated session is summed from its kept sums");
+        assert_assembled_is_evaluated(&sums, &pieces, &fit, "floated tool");
     }
 
     /// Sums taken on other data are not taken for a session whose points differ (points left

@@ -6,10 +6,11 @@
 //! equations JᵀWJ and JᵀWr of any set of sessions at one point are the sum of each session's
 //! own. A refit from the fit's solution ([`super::warm_start`]) evaluates its first normal
 //! equations exactly there, with the same parametrisation (frames' rotations centred at the
-//! solution): they are assembled from the sessions' sums, taken once, and only a session whose
-//! unknowns differ in the refit (its tool floated) is evaluated again, alone. The sums are the same
-//! rows summed in another order; the refit goes on as before from there (exact, not a one-step
-//! approximation).
+//! solution): they are assembled from the sessions' sums, taken once. A session whose tool the
+//! refit floats (and the sums do not) has its sums extended by the offset's columns, which are the
+//! tool point's own (see [`SessionSum::with_floated_tool`]); any other session whose unknowns
+//! differ in the refit is evaluated again, alone. The sums are the same rows summed in another
+//! order; the refit goes on as before from there (exact, not a one-step approximation).
 
 use super::*;
 use crate::numerics::solver::KnownStart;
@@ -56,6 +57,8 @@ struct SessionSum {
     /// Whether the session's rows include measured orientations (which a refit floating its
     /// tool leaves out).
     orientations: bool,
+    /// The arm's scale s = 1 + scale_ppm·10⁻⁶ the rows were taken at.
+    scale: f64,
     keys: Vec<Key>,
     h: DMatrix<f64>,
     g: DVector<f64>,
@@ -82,17 +85,19 @@ impl SessionSum {
         let finite = h.iter().all(|v| v.is_finite()) && g.iter().all(|v| v.is_finite()) && cost.is_finite();
         let lines = session_lines(data, b);
         let orientations = data.blocks[b].members.iter().any(|&k| data.obs[k].orientation().is_some());
-        finite.then(|| SessionSum { name: data.block_name(b), lines, orientations, keys, h, g, cost })
+        let scale = 1.0 + start.model.scale_ppm * 1e-6;
+        finite.then(|| SessionSum { name: data.block_name(b), lines, orientations, scale, keys, h, g, cost })
     }
 
     /// This sum with its session's tool floated: three more unknowns, the offset Δ (`Key::Tool`),
     /// when the tool point's own values (`tool`, arm parameters) are among its unknowns and it
     /// has no orientation rows. A point's derivative by Δ is R_s·R_F·e_k, by the tool point's
-    /// own value along the same flange axis R_s·s·R_F·e_k (the chain's point scaled by `scale`
-    /// s = 1 + scale_ppm·10⁻⁶), times the same drift growth and weight: the tool point's columns
-    /// over s. At the refit's warm start Δ = 0, so the rows, their cost and gradient are this
-    /// sum's; the session is not evaluated again.
-    fn with_floated_tool(&self, tool: [ParamId; 3], scale: f64) -> Option<SessionSum> {
+    /// own value along the same flange axis R_s·s·R_F·e_k (the chain's point scaled by its scale
+    /// s), times the same drift growth and weight: the tool point's columns over s (equal to
+    /// rounding: the chain carries the flange's y axis, the point term forms it as z × x). Only
+    /// for a refit that starts its offset at Δ = 0, where the rows, their cost and gradient are
+    /// this sum's (the caller checks it).
+    fn with_floated_tool(&self, tool: [ParamId; 3]) -> Option<SessionSum> {
         if self.orientations || self.keys.iter().any(|k| matches!(k, Key::Tool(_))) {
             return None;
         }
@@ -102,7 +107,7 @@ impl SessionSum {
             .collect::<Option<Vec<_>>>()?;
         let (n, wide) = (self.keys.len(), self.keys.len() + 3);
         // Column c of the floated sum: its own column, or the tool point's over s.
-        let source = |c: usize| if c < n { (c, 1.0) } else { (at[c - n], 1.0 / scale) };
+        let source = |c: usize| if c < n { (c, 1.0) } else { (at[c - n], 1.0 / self.scale) };
         let h = DMatrix::from_fn(wide, wide, |i, j| {
             let ((a, fa), (b, fb)) = (source(i), source(j));
             self.h[(a, b)] * fa * fb
@@ -207,7 +212,8 @@ impl<'f> SessionSums<'f> {
     }
 
     /// Block `b`'s sum (its source `lines`, its unknowns `columns`) from its session's kept one
-    /// when they differ by its tool floated alone ([`SessionSum::with_floated_tool`]).
+    /// when they differ by its tool floated alone ([`SessionSum::with_floated_tool`]) and the
+    /// refit starts the offset at zero (the fit did not float that tool).
     fn floated_tool(
         &self,
         pieces: &Pieces,
@@ -223,11 +229,11 @@ impl<'f> SessionSums<'f> {
         if members.iter().any(|&k| data.obs[k].tip != tip) {
             return None;
         }
+        if self.fit.tool_offset(&data.groups[data.blocks[b].group].name) != Vector3::zeros() {
+            return None;
+        }
         let tool = std::array::from_fn(|k| if tip > 0 { ParamId::TipTcp(tip, k) } else { ParamId::Tcp(k) });
-        // The arm's scale at the warm start: the fit's when free, else the model's.
-        let free = pieces.model.free.iter().any(|f| f.id == ParamId::Scale);
-        let scale_ppm = if free { self.fit.model.scale_ppm } else { pieces.model.scale_ppm };
-        let sum = kept.with_floated_tool(tool, 1.0 + scale_ppm * 1e-6)?;
+        let sum = kept.with_floated_tool(tool)?;
         let same = sum.keys.len() == columns.len() && columns.iter().all(|c| sum.keys.contains(&c.0));
         same.then_some(sum)
     }
@@ -282,7 +288,8 @@ mod tests {
     }
 
     /// The first normal equations assembled from the sums are those the refit evaluates itself
-    /// (one session left out; one session's tool floated, whose block is evaluated again), and
+    /// (one session left out; one session's tool floated, whose block is evaluated again: the
+    /// tool point is not estimated, so its columns are not in the sums), and
     /// the refits that start from them reach the same solution as those that do not.
     #[test]
     fn refits_from_session_sums_are_the_refits() {
@@ -356,6 +363,37 @@ mod tests {
         let derived = sums.floated_tool(&pieces, b, &session_lines(&cal, b), &columns);
         assert!(derived.is_some(), "the floated session is summed from its kept sums");
         assert_assembled_is_evaluated(&sums, &pieces, &fit, "floated tool");
+    }
+
+    /// A fit that floated a session's tool starts its refits there with that offset, not zero:
+    /// the session's kept sums (taken without the offset) are not extended but evaluated again,
+    /// and the assembled start is the refit's own.
+    #[test]
+    fn a_tool_floated_by_the_fit_is_evaluated_again() {
+        let (mut nominal, cal) = noisy_sessions(None);
+        for k in 0..3 {
+            nominal.free_param(ParamId::Tcp(k), nominal.tcp_mm[k] - 20.0, nominal.tcp_mm[k] + 20.0);
+        }
+        let b = 1;
+        let floated = SolveOptions { float_tool: vec![cal.block_name(b)], ..SolveOptions::default() };
+        let fit = calibrate(&nominal, &cal, &floated).expect("fit");
+        assert!(fit.tool_offset(&cal.block_name(b)).norm() > 0.0);
+        let sums = SessionSums::of(&nominal, &fit, &cal, &SolveOptions::default()).expect("sums");
+        let pieces = Pieces::new(&nominal, &cal, &floated, &fit.encoders).expect("pieces");
+        let start = warm_start(&pieces, &fit);
+        let problem = pieces.problem(fit.estimated.clone(), &start.model, &start.frames, start.probe);
+        let columns = keys(&problem.layout, b, cal.blocks[b].group);
+        assert!(sums.floated_tool(&pieces, b, &session_lines(&cal, b), &columns).is_none());
+        // The refit floats what the fit floated: it starts at the fit's minimum, where the
+        // gradient is rounding (compared on the normal matrix's scale).
+        let x = pieces.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
+        let mut r = vec![0.0; problem.len()];
+        let (own, own_g) = problem.normal_equations(&x, &mut r, pieces.resolved.loss);
+        let known = sums.normal_at_start(&pieces, &problem).expect("assembled");
+        let own_cost = pieces.resolved.loss.cost(&r);
+        assert!((known.cost - own_cost).abs() <= 1e-12 * own_cost, "{} vs {own_cost}", known.cost);
+        assert!(relative_gap(&own, &known.normal) < 1e-12);
+        assert!((&own_g - &known.gradient).abs().max() <= 1e-12 * own.abs().max());
     }
 
     /// Sums taken on other data are not taken for a session whose points differ (points left

@@ -513,6 +513,36 @@ mod tests {
         }
     }
 
+    /// Terms writing their rows through [`RowTarget::rows`] give the sums of the same terms
+    /// given to [`NormalSums::add`] to the bit: batches closed by their rows and by their
+    /// columns (terms over spans of 10 of 200 columns beside 8 every term reads, whose new columns overflow a batch and
+    /// are assigned again in the next), with weights 1 and others.
+    #[test]
+    fn rows_written_in_place_give_the_sums_of_added_terms() {
+        let n = 200;
+        let value = |t: usize, j: usize, c: usize| ((t * 29 + j * 11 + c * 7) as f64 * 0.53).sin();
+        let (mut direct, mut added) = (NormalSums::new(n), NormalSums::new(n));
+        for t in 0..300 {
+            let spans = [0..8, 8 + (t * 13) % 180..18 + (t * 13) % 180];
+            let columns: Vec<usize> = spans.iter().flat_map(|s| s.clone()).collect();
+            let r: Vec<f64> = (0..3).map(|j| value(t, j, 999)).collect();
+            let w: Vec<f64> =
+                (0..3).map(|j| if t < 120 { 1.0 } else { 0.3 + value(t, j, 998).abs() }).collect();
+            let mut rows = direct.rows(3, &spans);
+            for &c in &columns {
+                rows.set3(c, [value(t, 0, c), value(t, 1, c), value(t, 2, c)]);
+            }
+            direct.close(&r, &w);
+            let values: Vec<f64> =
+                columns.iter().flat_map(|&c| (0..3).map(move |j| value(t, j, c))).collect();
+            added.add(&columns, &values, &r, &w);
+        }
+        let ((h, g), (ha, ga)) = (direct.finish(), added.finish());
+        assert!(h.iter().zip(&ha).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWJ");
+        assert!(g.iter().zip(&ga).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWr");
+        assert!(h[n + 1] != 0.0 && h[196 * n + 196] != 0.0, "sums over the first and last columns");
+    }
+
     /// A term reading more columns than a batch spans gets a batch of wider rows (after terms
     /// of fewer columns, and before them again).
     #[test]

@@ -376,11 +376,20 @@ impl Residuals for Problem<'_> {
                     let input =
                         TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
                     for (t, r) in part.iter().zip(rs.by_ref()) {
-                        jac.reset(t.rows());
-                        t.evaluate(&input, r, Some(&mut jac));
+                        // A point writes its rows straight into the batch; any other term
+                        // through its Jacobian.
+                        let direct = t.evaluate_into_rows(&input, r, &mut sums);
+                        if !direct {
+                            jac.reset(t.rows());
+                            t.evaluate(&input, r, Some(&mut jac));
+                        }
                         w.clear();
                         w.extend(r.iter().map(|&v| loss.weight(v)));
-                        sums.add(&jac.columns, &jac.values, r, &w);
+                        if direct {
+                            sums.close(r, &w);
+                        } else {
+                            sums.add(&jac.columns, &jac.values, r, &w);
+                        }
                     }
                     self.recycle(poses);
                 }
@@ -659,8 +668,7 @@ mod tests {
         data
     }
 
-    /// A distance that writes its derivatives only through its Jacobian (the default path of
-    /// a one-row term).
+    /// A term that writes its derivatives only through its Jacobian (the default path).
     struct ThroughJacobian(Box<dyn Term>);
     impl Term for ThroughJacobian {
         fn rows(&self) -> usize {
@@ -718,6 +726,81 @@ mod tests {
             assert_eq!(r, r2, "{label}: the residuals are written as they are");
             assert!((&h - &hd).norm() <= 1e-12 * hd.norm(), "{label}: {:e}", (&h - &hd).norm() / hd.norm());
             assert!((&g - &gd).norm() <= 1e-12 * gd.norm(), "{label}: {:e}", (&g - &gd).norm() / gd.norm());
+        }
+    }
+
+    /// Points written straight into the batch's rows give the sums of the same points through
+    /// their Jacobians to the bit (the same values in the same batch positions): frames, floated
+    /// tools, a session drifting in scale and one in offset, a point weight other than 1, and
+    /// weights 1 and Huber weights.
+    #[test]
+    fn points_written_into_the_rows_give_the_sums_of_their_jacobians() {
+        use crate::calib::nuisance::drift::{DriftKind, DriftSlot};
+        let nominal = ArmModel::suta_nominal();
+        let mut data = sessions(&nominal);
+        for (k, o) in data.obs.iter_mut().enumerate() {
+            o.time_s = Some(60.0 * k as f64);
+        }
+        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
+        let blocks = data.blocks.len();
+        let drift = |column, kind| Some(DriftSlot { column, kind, centre: 0.5 });
+        let drifts = [None, drift(0, DriftKind::ScaleTime), drift(1, DriftKind::OffsetTime)];
+        for point_weight in [1.0, 0.4] {
+            let choice = TermChoice {
+                relative_orientation_lever_mm: None,
+                orientation_weight_mm_per_rad: None,
+                point_weight,
+            };
+            let direct = build(&data, &choice);
+            let through: Vec<Box<dyn Term>> = build(&data, &choice)
+                .into_iter()
+                .map(|t| Box::new(ThroughJacobian(t)) as Box<dyn Term>)
+                .collect();
+            let layout = || {
+                let tools = vec![true; data.groups.len()];
+                Layout::new(params.clone(), &vec![true; blocks], &tools, false, &drifts[..blocks])
+            };
+            let starts: Vec<Matrix3<f64>> = (0..blocks)
+                .map(|s| Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64 + 0.01).into_inner())
+                .collect();
+            let ours = Problem::new(layout(), &nominal, &data, &direct, starts.clone(), None);
+            let theirs = Problem::new(layout(), &nominal, &data, &through, starts, None);
+            let n = ours.layout.unknowns();
+            let mut x = vec![0.0; n];
+            for (k, id) in params.iter().enumerate() {
+                x[k] = nominal.get(*id);
+            }
+            for b in 0..blocks {
+                let c = ours.layout.frame_column(b).expect("framed");
+                x[c..c + 6].copy_from_slice(&[1e-3, -2e-3, 0.5e-3, 2500.0, -300.0 * b as f64, 400.0]);
+                if let Some((c, d)) = ours.layout.drift(b) {
+                    for k in 0..d.kind.unknowns() {
+                        x[c + k] = 0.3 - 0.2 * k as f64;
+                    }
+                }
+            }
+            for g in 0..data.groups.len() {
+                let c = ours.layout.tool_column(g).expect("floated");
+                x[c..c + 3].copy_from_slice(&[0.3, -0.2, 0.1 * g as f64]);
+            }
+            let m = ours.len();
+            let mut r = vec![0.0; m];
+            ours.evaluate(&x, &mut r, None);
+            let median = {
+                let mut a: Vec<f64> = r.iter().map(|v| v.abs()).collect();
+                a.sort_by(f64::total_cmp);
+                a[m / 2]
+            };
+            for loss in [Loss::Linear, Loss::Huber(median)] {
+                let (mut r_ours, mut r_theirs) = (vec![0.0; m], vec![0.0; m]);
+                let (h, g) = ours.normal_equations(&x, &mut r_ours, loss);
+                let (hj, gj) = theirs.normal_equations(&x, &mut r_theirs, loss);
+                let label = format!("point weight {point_weight}, {loss:?}");
+                assert_eq!(r_ours, r_theirs, "{label}: residuals");
+                assert!(h.iter().zip(&hj).all(|(a, b)| a.to_bits() == b.to_bits()), "{label}: JᵀWJ");
+                assert!(g.iter().zip(&gj).all(|(a, b)| a.to_bits() == b.to_bits()), "{label}: JᵀWr");
+                assert!(hj.norm() > 0.0 && gj.norm() > 0.0, "{label}: sums of something");
+            }
         }
     }
 

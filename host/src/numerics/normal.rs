@@ -18,13 +18,16 @@
 //!
 //! [`NormalSums`] sums terms that each touch a few of n columns (a point reads the arm's columns
 //! and its own session's frame): each term's derivatives are written straight into a batch D
-//! held row-major over the union of the batch's columns, and the batch's Gram matrix UᵀD
+//! held row-major over the union of the batch's columns (by the term itself, into the rows
+//! [`RowTarget::rows`] gives it at the batch's places of its columns, or scattered from its
+//! column list by [`NormalSums::add`]), and the batch's Gram matrix UᵀD
 //! (U = W·D, which is D itself while every row's weight is 1: no copy) is formed by the same
 //! dense product as [`add_gram_product`], reading D through both views, and added into the
 //! n × n sums once per batch. The order of every
 //! sum depends on the terms' order only.
 
 use nalgebra::{DMatrixView, DMatrixViewMut, Dyn};
+use std::ops::Range;
 
 /// Add Σ_i w_i·a_i·a_iᵀ into the upper triangle of `h` (k × k, row-major) and Σ_i w_i·r_i·a_i
 /// into `g`, for the rows a_i of `rows` (row-major, k columns), `weights` and `r` one per row.
@@ -203,6 +206,42 @@ pub struct GramBuffers {
     product: Vec<f64>,
 }
 
+/// Where a term writes its rows itself: rows of a batch that sums them into normal equations.
+pub trait RowTarget {
+    /// Room for a term of `rows` rows (at most a batch's) reading the columns of `columns`:
+    /// its rows, zero, for it to write its derivatives into. A term asks once and writes
+    /// every derivative it has.
+    fn rows<'a>(&'a mut self, rows: usize, columns: &'a [Range<usize>]) -> TermRows<'a>;
+}
+
+/// A term's rows in a batch: row i's derivative by column c at `rows[i * stride + local[c]]`.
+pub struct TermRows<'a> {
+    rows: &'a mut [f64],
+    stride: usize,
+    local: &'a [usize],
+    columns: &'a [Range<usize>],
+}
+
+impl TermRows<'_> {
+    /// The derivatives of the first three rows by column `column`.
+    #[inline]
+    pub fn set3(&mut self, column: usize, values: [f64; 3]) {
+        let (l, stride) = (self.local[column], self.stride);
+        self.rows[l] = values[0];
+        self.rows[stride + l] = values[1];
+        self.rows[2 * stride + l] = values[2];
+    }
+
+    /// Every derivative written times `factor`.
+    pub fn scale(&mut self, factor: f64) {
+        for row in self.rows.chunks_exact_mut(self.stride) {
+            for span in self.columns {
+                self.local[span.clone()].iter().for_each(|&l| row[l] *= factor);
+            }
+        }
+    }
+}
+
 /// Rows a batch holds before its Gram matrix is formed.
 const BATCH_ROWS: usize = 256;
 /// Columns a batch may span before its Gram matrix is formed.
@@ -219,7 +258,8 @@ pub struct NormalSums {
     local: Vec<usize>,
     /// The batch's columns, by local index.
     globals: Vec<usize>,
-    /// The local indices of the term being added, one per column it reads.
+    /// The local indices of the term being added by [`NormalSums::add`], one per column it
+    /// reads.
     term_locals: Vec<usize>,
     /// Row stride of the batch: [`BATCH_COLUMNS`], or more after a term that reads more.
     width: usize,
@@ -261,26 +301,14 @@ impl NormalSums {
     /// with their derivatives `values` (one per row, column after column).
     pub fn add(&mut self, columns: &[usize], values: &[f64], r: &[f64], w: &[f64]) {
         let rows = r.len();
-        debug_assert!(rows <= BATCH_ROWS && values.len() == columns.len() * rows && w.len() == rows);
-        let mut new = columns.iter().filter(|&&c| self.local[c] == NONE).count();
-        if self.r.len() + rows > BATCH_ROWS || self.globals.len() + new > BATCH_COLUMNS {
-            self.flush();
-            new = columns.len();
-        }
-        if self.globals.len() + new > self.width {
-            // One term reading more columns than a batch spans (the batch is empty): wider rows.
-            self.width = new;
-            self.dense = vec![0.0; BATCH_ROWS * new];
-            self.weighted = None;
-        }
-        self.term_locals.clear();
-        for &c in columns {
-            if self.local[c] == NONE {
-                self.local[c] = self.globals.len();
-                self.globals.push(c);
+        debug_assert!(values.len() == columns.len() * rows);
+        self.admit(rows, |sums| {
+            for &c in columns {
+                sums.assign(c..c + 1);
             }
-            self.term_locals.push(self.local[c]);
-        }
+        });
+        self.term_locals.clear();
+        self.term_locals.extend(columns.iter().map(|&c| self.local[c]));
         let (first, width) = (self.r.len(), self.width);
         let block = &mut self.dense[first * width..(first + rows) * width];
         for (i, row) in block.chunks_exact_mut(width).enumerate() {
@@ -289,6 +317,51 @@ impl NormalSums {
                 row[l] += v;
             }
         }
+        self.close(r, w);
+    }
+
+    /// Make room in the batch for a term of `rows` rows whose columns `assign` gives their
+    /// local indices ([`NormalSums::assign`]): when the batch would hold too many rows or
+    /// columns, its Gram matrix is formed first and the columns are assigned again in a new
+    /// batch. (Assigned before the test: one pass over the term's columns, most of them in the
+    /// batch already.)
+    fn admit(&mut self, rows: usize, assign: impl Fn(&mut NormalSums)) {
+        debug_assert!(rows <= BATCH_ROWS);
+        let before = self.globals.len();
+        assign(self);
+        if self.r.len() + rows > BATCH_ROWS || self.globals.len() > BATCH_COLUMNS {
+            for &c in &self.globals[before..] {
+                self.local[c] = NONE;
+            }
+            self.globals.truncate(before);
+            self.flush();
+            assign(self);
+        }
+        if self.globals.len() > self.width {
+            // One term reading more columns than a batch spans (the batch is empty): wider rows.
+            self.width = self.globals.len();
+            self.dense = vec![0.0; BATCH_ROWS * self.width];
+            self.weighted = None;
+        }
+    }
+
+    /// Give each column of `span` new to the batch the next free index in it.
+    #[inline]
+    fn assign(&mut self, span: Range<usize>) {
+        for (c, l) in span.clone().zip(&mut self.local[span]) {
+            if *l == NONE {
+                *l = self.globals.len();
+                self.globals.push(c);
+            }
+        }
+    }
+
+    /// The residuals `r` and weights `w` of the term whose rows were just written into the
+    /// batch (by [`NormalSums::add`], or by the term itself into the rows of
+    /// [`RowTarget::rows`]).
+    pub fn close(&mut self, r: &[f64], w: &[f64]) {
+        let (first, rows, width, k) = (self.r.len(), r.len(), self.width, self.globals.len());
+        debug_assert!(w.len() == rows && first + rows <= BATCH_ROWS);
         if self.weighted.is_none() && w.iter().any(|&v| v != 1.0) {
             // The batch's rows so far have weight 1: U starts as their copy.
             let mut u = vec![0.0; BATCH_ROWS * width];
@@ -296,14 +369,11 @@ impl NormalSums {
             self.weighted = Some(u);
         }
         if let Some(u) = self.weighted.as_mut() {
-            // Only the term's columns: U is zero elsewhere in its rows, as D is (a term has
-            // tens of columns, a batch up to a hundred).
+            // The batch's columns so far: the term's, and zeros in U as in D elsewhere.
             let span = first * width..(first + rows) * width;
             let rows_u = u[span.clone()].chunks_exact_mut(width);
             for ((ui, di), wi) in rows_u.zip(self.dense[span].chunks_exact(width)).zip(w) {
-                for &l in &self.term_locals {
-                    ui[l] = wi * di[l];
-                }
+                ui[..k].iter_mut().zip(&di[..k]).for_each(|(u, d)| *u = wi * d);
             }
         }
         self.r.extend_from_slice(r);
@@ -366,6 +436,19 @@ impl NormalSums {
     /// Columns summed over.
     pub fn columns(&self) -> usize {
         self.n
+    }
+}
+
+impl RowTarget for NormalSums {
+    fn rows<'a>(&'a mut self, rows: usize, columns: &'a [Range<usize>]) -> TermRows<'a> {
+        self.admit(rows, |sums| {
+            for span in columns {
+                sums.assign(span.clone());
+            }
+        });
+        let (first, width) = (self.r.len(), self.width);
+        let rows = &mut self.dense[first * width..(first + rows) * width];
+        TermRows { rows, stride: width, local: &self.local, columns }
     }
 }
 
@@ -482,6 +565,36 @@ mod tests {
             }
         }
         (h, g)
+    }
+
+    /// Terms writing their rows through [`RowTarget::rows`] give the sums of the same terms
+    /// given to [`NormalSums::add`] to the bit: batches closed by their rows and by their
+    /// columns (terms over spans of 10 of 200 columns beside 8 every term reads, whose new columns overflow a batch and
+    /// are assigned again in the next), with weights 1 and others.
+    #[test]
+    fn rows_written_in_place_give_the_sums_of_added_terms() {
+        let n = 200;
+        let value = |t: usize, j: usize, c: usize| ((t * 29 + j * 11 + c * 7) as f64 * 0.53).sin();
+        let (mut direct, mut added) = (NormalSums::new(n), NormalSums::new(n));
+        for t in 0..300 {
+            let spans = [0..8, 8 + (t * 13) % 180..18 + (t * 13) % 180];
+            let columns: Vec<usize> = spans.iter().flat_map(|s| s.clone()).collect();
+            let r: Vec<f64> = (0..3).map(|j| value(t, j, 999)).collect();
+            let w: Vec<f64> =
+                (0..3).map(|j| if t < 120 { 1.0 } else { 0.3 + value(t, j, 998).abs() }).collect();
+            let mut rows = direct.rows(3, &spans);
+            for &c in &columns {
+                rows.set3(c, [value(t, 0, c), value(t, 1, c), value(t, 2, c)]);
+            }
+            direct.close(&r, &w);
+            let values: Vec<f64> =
+                columns.iter().flat_map(|&c| (0..3).map(move |j| value(t, j, c))).collect();
+            added.add(&columns, &values, &r, &w);
+        }
+        let ((h, g), (ha, ga)) = (direct.finish(), added.finish());
+        assert!(h.iter().zip(&ha).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWJ");
+        assert!(g.iter().zip(&ga).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWr");
+        assert!(h[n + 1] != 0.0 && h[196 * n + 196] != 0.0, "sums over the first and last columns");
     }
 
     /// A term reading more columns than a batch spans gets a batch of wider rows (after terms

@@ -23,6 +23,7 @@ pub mod relative_orientation;
 use crate::calib::layout::{Layout, State};
 use crate::data::Observations;
 use crate::model::kinematics::{PoseDerivative, ToolPose};
+use crate::numerics::normal::{RowTarget, TermRows};
 use nalgebra::Vector3;
 
 /// The tool poses of some observations (those from `first` on) at one evaluation, with their
@@ -116,6 +117,37 @@ impl TermJacobian {
     }
 }
 
+/// Where a three-row term writes its derivatives column by column: its [`TermJacobian`] or its
+/// rows in a batch ([`Term::evaluate_into_rows`]); one computation serves both.
+pub trait Derivatives3 {
+    /// Column `column`'s derivatives (rows 0, 1, 2).
+    fn put(&mut self, column: usize, v: Vector3<f64>);
+    /// The columns `first..`, one per value of `values`.
+    fn put_from(&mut self, first: usize, values: impl ExactSizeIterator<Item = Vector3<f64>>) {
+        for (c, v) in (first..).zip(values) {
+            self.put(c, v);
+        }
+    }
+}
+
+impl Derivatives3 for TermJacobian {
+    #[inline]
+    fn put(&mut self, column: usize, v: Vector3<f64>) {
+        self.push3(column, v);
+    }
+
+    fn put_from(&mut self, first: usize, values: impl ExactSizeIterator<Item = Vector3<f64>>) {
+        self.push3_from(first, values);
+    }
+}
+
+impl Derivatives3 for TermRows<'_> {
+    #[inline]
+    fn put(&mut self, column: usize, v: Vector3<f64>) {
+        self.set3(column, [v.x, v.y, v.z]);
+    }
+}
+
 /// One residual kind over the observations of one block.
 pub trait Term: Send + Sync {
     /// Residual rows.
@@ -131,6 +163,13 @@ pub trait Term: Send + Sync {
     /// [`TermJacobian`] copied into the row afterwards; `false` when the term reads other
     /// columns or has no such path (the default): the caller then evaluates it.
     fn evaluate_into_row(&self, _at: &TermInput<'_>, _r: &mut f64, _row: &mut [f64]) -> bool {
+        false
+    }
+    /// As [`Term::evaluate_into_row`] for a problem with block unknowns: its residuals into `r`
+    /// and its derivatives straight into rows of `target` (asked for once, over the columns it
+    /// reads), instead of through a [`TermJacobian`] scattered into the rows afterwards; `false`,
+    /// without asking for rows, when it has no such path (the default).
+    fn evaluate_into_rows(&self, _at: &TermInput<'_>, _r: &mut [f64], _target: &mut dyn RowTarget) -> bool {
         false
     }
     /// Whether its rows are positions (mm) rather than orientations weighed into mm.

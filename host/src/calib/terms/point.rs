@@ -6,10 +6,14 @@
 //! the measured point, mm, three rows. The arm's columns leave out ∂(R_F·Δ_s)/∂θ: a re-mount's
 //! offset is millimetres, so the term is second order (the residuals themselves are exact).
 
-use super::{Term, TermInput, TermJacobian};
-use crate::calib::nuisance::tool::flange_rotation;
+use super::{Derivatives3, Term, TermInput, TermJacobian};
+use crate::calib::nuisance::drift::DriftKind;
+use crate::calib::nuisance::frame::FRAME_UNKNOWNS;
+use crate::calib::nuisance::tool::{flange_rotation, TOOL_UNKNOWNS};
 use crate::data::Observations;
-use nalgebra::Vector3;
+use crate::model::kinematics::PoseDerivative;
+use crate::numerics::normal::RowTarget;
+use nalgebra::{Matrix3, Vector3};
 
 /// B_s · F(q) · (t + Δ_s) (+ drift) − X, times the weight of instrument rows in mixed data.
 pub struct Point {
@@ -48,6 +52,62 @@ impl Term for Point {
     }
 
     fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>) {
+        let point = self.residuals(at, r);
+        let Some(jac) = jac else {
+            self.weigh(r, None);
+            return;
+        };
+        let Some(chain) = at.poses.chain(self.obs[0]) else {
+            self.weigh(r, None);
+            return;
+        };
+        self.derivatives(at, &point, chain, jac);
+        self.weigh(r, Some(jac));
+    }
+
+    fn evaluate_into_rows(&self, at: &TermInput<'_>, r: &mut [f64], target: &mut dyn RowTarget) -> bool {
+        let Some(chain) = at.poses.chain(self.obs[0]) else { return false };
+        let point = self.residuals(at, r);
+        let (s, layout) = (self.block, at.layout);
+        let spans = [
+            0..chain.len(),
+            layout.frame_column(s).map_or(0..0, |b| b..b + FRAME_UNKNOWNS),
+            layout.tool_column(self.group).map_or(0..0, |t| t..t + TOOL_UNKNOWNS),
+            point.drift.map_or(0..0, |d| d.column..d.column + d.kind.unknowns()),
+        ];
+        let mut rows = target.rows(3, &spans);
+        self.derivatives(at, &point, chain, &mut rows);
+        self.weigh(r, None);
+        if self.weight != 1.0 {
+            rows.scale(self.weight);
+        }
+        true
+    }
+}
+
+/// What a point's derivatives read of its residual's computation.
+struct Evaluated {
+    /// The flange's rotation.
+    flange: Matrix3<f64>,
+    /// The point in the instrument's axes before the frame's shift and the drift (R_s·p).
+    y: Vector3<f64>,
+    /// The drift's growth (1 without a drift).
+    growth: f64,
+    drift: Option<DriftAt>,
+}
+
+/// A drifting session's unknowns at one point.
+#[derive(Clone, Copy)]
+struct DriftAt {
+    column: usize,
+    kind: DriftKind,
+    /// The point's time or temperature from the drift's centre.
+    delta: f64,
+}
+
+impl Point {
+    /// Its residuals (before the weight) into `r`, and what its derivatives read.
+    fn residuals(&self, at: &TermInput<'_>, r: &mut [f64]) -> Evaluated {
         let (k, s) = (self.obs[0], self.block);
         let p = &at.data.obs[k];
         let pose = at.poses.of(k);
@@ -55,47 +115,56 @@ impl Term for Point {
         let robot = pose.position_mm + flange * at.state.tools[self.group];
         let base = &at.state.frames[s];
         let y = base.rotation * robot;
-        let drift = at.layout.drift(s).map(|(c, d)| {
+        let drift = at.layout.drift(s).map(|(column, d)| {
             let delta = d.kind.variable(p).map_or(0.0, |v| v - d.centre);
-            (c, d.kind, delta, d.kind.effect(&at.state.drifts[s], delta))
+            (DriftAt { column, kind: d.kind, delta }, d.kind.effect(&at.state.drifts[s], delta))
         });
-        let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.3);
+        let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.1);
         let e = y * growth + base.translation_mm + shift - p.point_mm().unwrap_or_default();
         r.copy_from_slice(e.as_slice());
-        let Some(jac) = jac else {
-            self.weigh(r, None);
-            return;
-        };
-        let Some(chain) = at.poses.chain(k) else {
-            self.weigh(r, None);
-            return;
-        };
-        jac.push3_from(0, chain.iter().map(|d| base.rotation * Vector3::new(d[0], d[1], d[2]) * growth));
+        Evaluated { flange, y, growth, drift: drift.map(|d| d.0) }
+    }
+
+    /// Its derivatives (before the weight) by the arm's columns (`chain`), its frame's, its
+    /// tool's and its drift's, in that order, into `out`.
+    fn derivatives(
+        &self,
+        at: &TermInput<'_>,
+        point: &Evaluated,
+        chain: &[PoseDerivative],
+        out: &mut impl Derivatives3,
+    ) {
+        let s = self.block;
+        let (base, y, growth) = (&at.state.frames[s], &point.y, point.growth);
+        let arm = chain.iter().map(|d| base.rotation * Vector3::new(d[0], d[1], d[2]));
+        // Without a drift's growth, no product by 1 per column (the same values).
+        if growth == 1.0 {
+            out.put_from(0, arm);
+        } else {
+            out.put_from(0, arm.map(|v| v * growth));
+        }
         if let Some(b) = at.layout.frame_column(s) {
             let turns = &at.state.frame_turns[s];
             for k in 0..3 {
-                jac.push3(b + k, turns.column(k).cross(&y) * growth);
+                out.put(b + k, turns.column(k).cross(y) * growth);
             }
             for k in 0..3 {
-                jac.push3(b + 3 + k, Vector3::ith(k, 1.0));
+                out.put(b + 3 + k, Vector3::ith(k, 1.0));
             }
         }
         if let Some(t) = at.layout.tool_column(self.group) {
-            let g = base.rotation * flange * growth;
+            let g = base.rotation * point.flange * growth;
             for k in 0..3 {
-                jac.push3(t + k, g.column(k).into_owned());
+                out.put(t + k, g.column(k).into_owned());
             }
         }
-        if let Some((c, kind, delta, _)) = drift {
-            for k in 0..kind.unknowns() {
-                jac.push3(c + k, kind.derivative(k, delta, &y));
+        if let Some(d) = point.drift {
+            for k in 0..d.kind.unknowns() {
+                out.put(d.column + k, d.kind.derivative(k, d.delta, y));
             }
         }
-        self.weigh(r, Some(jac));
     }
-}
 
-impl Point {
     /// The rows (and derivatives) times the weight; nothing to do at weight 1 (one kind alone).
     fn weigh(&self, r: &mut [f64], jac: Option<&mut TermJacobian>) {
         if self.weight == 1.0 {

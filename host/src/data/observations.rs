@@ -11,7 +11,9 @@
 //! tracker CSVs in [`crate::data::tracker`]); nothing downstream knows the format. One
 //! [`Observations`] may hold both kinds (artefact placements and tracker sessions of one arm).
 
-use crate::data::Landmark;
+use crate::data::encoders::EncoderCache;
+use crate::data::{Encoders, Landmark};
+use crate::model::kinematics::{Tips, ToolPose};
 use crate::model::MAX_TREE_JOINTS;
 use nalgebra::{UnitQuaternion, Vector3};
 use std::collections::HashMap;
@@ -303,6 +305,8 @@ pub struct Observations {
     /// The names a `kincal-tracker/2` file gives its joint columns and tips, until
     /// [`Observations::bind`] puts the angles in the model's joint order.
     pub names: Option<ColumnNames>,
+    /// The encoder angles' sines and cosines, built at the first [`Observations::encoders`].
+    encoders: EncoderCache,
 }
 
 /// Joint columns and tips named in the files (`kincal-tracker/2`), not yet bound to a model.
@@ -417,6 +421,20 @@ impl Observations {
         self.groups[self.obs[k].group].kind
     }
 
+    /// The sine and cosine of every encoder angle, computed at the first call and kept (by copies
+    /// and selections too): what every pose of these observations reads
+    /// ([`Observations::pose_on`]). A row whose observation's angles changed since is not read.
+    pub fn encoders(&self) -> &Encoders {
+        self.encoders.of(self)
+    }
+
+    /// Observation `k`'s tool pose on its tip's chain of `tips`, its encoder angles' sines and
+    /// cosines read from [`Observations::encoders`].
+    pub fn pose_on(&self, tips: &Tips, k: usize) -> ToolPose {
+        let o = &self.obs[k];
+        self.encoders().pose(tips.tip(o.tip), k, o)
+    }
+
     /// A copy without the observations for which `drop` (of their index) is true; groups stay.
     pub fn without(&self, drop: impl Fn(usize) -> bool) -> Observations {
         let mut out = Observations {
@@ -424,6 +442,7 @@ impl Observations {
             blocks: Vec::new(),
             ..self.clone_empty()
         };
+        out.encoders = self.encoders.for_selection(&out);
         out.rebuild_blocks();
         out
     }
@@ -457,6 +476,7 @@ impl Observations {
                 self.obs.iter().filter(|o| o.group == g).map(|o| Observation { group: new, ..o.clone() }),
             );
         }
+        out.encoders = self.encoders.for_selection(&out);
         out.rebuild_blocks();
         out
     }
@@ -481,6 +501,7 @@ impl Observations {
             obs: Vec::new(),
             warnings: self.warnings.clone(),
             names: self.names.clone(),
+            encoders: EncoderCache::default(),
         }
     }
 

@@ -147,7 +147,7 @@ impl<'a> Pieces<'a> {
                     return Frame::identity();
                 }
                 let members = &data.blocks[b].members;
-                let robot = model_points(model, members.iter().map(|&k| &data.obs[k]), &zero);
+                let robot = model_points(model, data, members.iter().copied(), &zero);
                 let measured: Vec<Vector3<f64>> =
                     members.iter().map(|&k| data.obs[k].point_mm().unwrap_or_default()).collect();
                 Frame::fit(&robot, &measured)

@@ -128,11 +128,12 @@ impl EncoderCache {
         self.0.get_or_init(|| Encoders::of(data))
     }
 
-    /// The cache of `selection`, some of these observations in their order: their rows
-    /// ([`Encoders::for_data`]) when this table is built, else empty.
-    pub(super) fn for_selection(&self, selection: &Observations) -> EncoderCache {
-        match self.0.get() {
-            Some(encoders) => EncoderCache(OnceLock::from(encoders.for_data(selection))),
+    /// The cache of a selection of these observations (`kept`, in order): their rows when this
+    /// table is built (a row no longer holding its observation's angles is no more read there
+    /// than here), else empty.
+    pub(super) fn rows_of(&self, kept: &[usize]) -> EncoderCache {
+        match self.0.get().filter(|e| kept.iter().all(|&k| k < e.rows())) {
+            Some(encoders) => EncoderCache(OnceLock::from(encoders.rows_of(kept))),
             None => EncoderCache::default(),
         }
     }
@@ -246,8 +247,12 @@ mod tests {
         // Rows of another set of observations are not read either.
         let other = touches();
         assert_eq!(other.encoders().pose(tips.tip(0), 3, &data.obs[3]), moved);
+        // A selection takes the rows of its observations, the changed one's not read there either.
         for selection in [data.without(|k| k % 3 == 1), data.subset(&[1])] {
-            assert_eq!(selection.encoders().table(), Encoders::of(&selection).table());
+            let fresh = Encoders::of(&selection);
+            for (k, o) in selection.obs.iter().enumerate() {
+                assert_eq!(selection.pose_on(&tips, k), fresh.pose(tips.tip(0), k, o));
+            }
         }
     }
 }

@@ -437,12 +437,13 @@ impl Observations {
 
     /// A copy without the observations for which `drop` (of their index) is true; groups stay.
     pub fn without(&self, drop: impl Fn(usize) -> bool) -> Observations {
+        let kept: Vec<usize> = (0..self.obs.len()).filter(|&k| !drop(k)).collect();
         let mut out = Observations {
-            obs: self.obs.iter().enumerate().filter(|(k, _)| !drop(*k)).map(|(_, o)| o.clone()).collect(),
+            obs: kept.iter().map(|&k| self.obs[k].clone()).collect(),
             blocks: Vec::new(),
+            encoders: self.encoders.rows_of(&kept),
             ..self.clone_empty()
         };
-        out.encoders = self.encoders.for_selection(&out);
         out.rebuild_blocks();
         out
     }
@@ -469,14 +470,15 @@ impl Observations {
     pub fn subset(&self, groups: &[usize]) -> Observations {
         let mut out = self.clone_empty();
         out.groups.clear();
+        let mut kept = Vec::new();
         for &g in groups {
             let new = out.groups.len();
             out.groups.push(self.groups[g].clone());
-            out.obs.extend(
-                self.obs.iter().filter(|o| o.group == g).map(|o| Observation { group: new, ..o.clone() }),
-            );
+            let members = self.group_members(g);
+            out.obs.extend(members.iter().map(|&k| Observation { group: new, ..self.obs[k].clone() }));
+            kept.extend(members);
         }
-        out.encoders = self.encoders.for_selection(&out);
+        out.encoders = self.encoders.rows_of(&kept);
         out.rebuild_blocks();
         out
     }

@@ -292,9 +292,12 @@ fn encoder_floor(
     let per_touch: Vec<Option<Matrix3<f64>>> = val
         .obs
         .iter()
-        .map(|t| {
+        .enumerate()
+        .map(|(k, t)| {
             let sigma = t.q_sigma_deg?;
-            chain.pose_with_jacobian(&t.q_deg, &columns, &mut jac);
+            val.encoders().with_row(k, t, |sin_cos| {
+                chain.pose_with_sin_cos_and_jacobian(&t.q_deg, sin_cos, &columns, &mut jac)
+            });
             Some((0..joints).fold(Matrix3::zeros(), |acc, j| {
                 let g = Vector3::new(jac[j][0], jac[j][1], jac[j][2]); // mm per degree
                 acc + g * g.transpose() * sigma[j].powi(2)

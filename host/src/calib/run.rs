@@ -11,9 +11,7 @@ use crate::calib::diagnose::data_errors::sessions::data_error_candidates_with;
 use crate::calib::diagnose::Measure;
 use crate::calib::error::CalibError;
 use crate::calib::error_stats::{AngleStats, ErrorStats};
-use crate::calib::fit::{
-    calibrate_with_reference_on, check_data_on, dense_jacobian, Encoders, Fit, SessionSums,
-};
+use crate::calib::fit::{calibrate_with_reference_on, check_data_on, dense_jacobian, Fit, SessionSums};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
 use crate::calib::outliers::outliers_with as outlier_metrics;
@@ -26,7 +24,7 @@ use crate::calib::validate::{
     session_probe_rotation, session_residuals_mm, undetermined_rotation, validate, validate_orientations,
     validate_session, SessionValidation, Validation,
 };
-use crate::data::{load_folder, Artefact, Observations, Purpose};
+use crate::data::{load_folder, Artefact, Encoders, Observations, Purpose};
 use crate::files::FileError;
 use crate::model::effects::Effect;
 use crate::model::{ArmModel, ParamId};
@@ -396,7 +394,7 @@ pub fn check_run_data(
     inputs: &RunInputs,
     options: &SolveOptions,
 ) -> Result<(), RunError> {
-    check_run_data_on(model, cal, val, inputs, options, &Encoders::of(cal))
+    check_run_data_on(model, cal, val, inputs, options, cal.encoders())
 }
 
 /// [`check_run_data`] with `cal`'s encoder table.
@@ -700,16 +698,16 @@ pub fn run_on(
         let Some((held_out, calibration)) = named else { return Err(RunError::SameBase(pair.clone())) };
         same_base.insert(held_out.to_string(), calibration.to_string());
     }
-    // The encoder angles' sines and cosines, once for every calibration on `cal`.
-    let encoders = Encoders::of(cal);
-    check_run_data_on(&nominal, cal, val, inputs, options, &encoders)?;
+    // The encoder angles' sines and cosines, once for every calibration and pose on `cal`.
+    let encoders = cal.encoders();
+    check_run_data_on(&nominal, cal, val, inputs, options, encoders)?;
     check_study_size(cal, study_subsets)?;
     steps.lap("input checks");
     // The nominal figures of held-out sessions are the nominal arm's with its tool point fitted:
     // that fit starts the calibration too.
     let tool_only = (!val.sessions().is_empty()).then(|| tool_only(&nominal));
     let (mut fit, reference) =
-        calibrate_with_reference_on(&nominal, tool_only.as_ref(), cal, &encoders, options)?;
+        calibrate_with_reference_on(&nominal, tool_only.as_ref(), cal, encoders, options)?;
     let reference = reference.transpose()?;
     let on_bounds = mark_bounds(&mut fit);
     // The calibrated model is of the arm its sessions were measured on, whatever the model it

@@ -13,7 +13,7 @@ use crate::calib::nuisance::frame::{rotation_vector, Frame};
 use crate::calib::nuisance::tool::{flange_rotation, model_points, positions, with_offset, FloatedTool};
 use crate::calib::problem::Problem;
 use crate::data::{Observation, Observations};
-use crate::model::kinematics::{tool_pose, Tips};
+use crate::model::kinematics::{Chain, Tips};
 use crate::model::ArmModel;
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions};
 use nalgebra::{Matrix3, Vector3};
@@ -216,12 +216,17 @@ pub struct SessionValidation {
 
 /// The instrument points of block `b`.
 fn points_of(data: &Observations, b: usize) -> impl Iterator<Item = &Observation> + '_ {
-    data.blocks[b].members.iter().map(|&k| &data.obs[k]).filter(|o| o.point_mm().is_some())
+    point_members(data, b).map(|k| &data.obs[k])
+}
+
+/// The indices of [`points_of`].
+fn point_members(data: &Observations, b: usize) -> impl Iterator<Item = usize> + '_ {
+    data.blocks[b].members.iter().copied().filter(|&k| data.obs[k].point_mm().is_some())
 }
 
 /// Block `b`'s frame for `model` (tool offset `offset_mm` in the flange frame), closed form.
 pub fn block_frame(model: &ArmModel, data: &Observations, b: usize, offset_mm: &Vector3<f64>) -> Frame {
-    block_frame_of(&model_points(model, points_of(data, b), offset_mm), data, b)
+    block_frame_of(&model_points(model, data, point_members(data, b), offset_mm), data, b)
 }
 
 /// Block `b`'s frame (closed form) for the model's points `robot` of its points in order.
@@ -245,7 +250,7 @@ pub fn calibration_residuals_mm(fit: &Fit, data: &Observations) -> Vec<Vec<Vecto
     (0..data.blocks.len())
         .filter(|&b| data.groups[data.blocks[b].group].kind == crate::data::Kind::Tracker)
         .map(|b| match fit.frame(&data.block_name(b)) {
-            Some(frame) => residuals_with_frame(fit, data, b, &frame, points_of(data, b)),
+            Some(frame) => residuals_with_frame(fit, data, b, &frame, data, point_members(data, b)),
             None => Vec::new(),
         })
         .collect()
@@ -264,27 +269,29 @@ pub fn errors_in_calibration_session(
 ) -> Option<Vec<f64>> {
     let b = cal.find_block(session)?;
     let frame = fit.frame(session)?;
-    let residuals = residuals_with_frame(fit, cal, b, &frame, points_of(val, held_out));
+    let residuals = residuals_with_frame(fit, cal, b, &frame, val, point_members(val, held_out));
     Some(residuals.iter().map(|r| r.norm()).collect())
 }
 
-/// Residuals (measured − predicted, robot base frame, mm) of `points` with `frame` and the tool
-/// offset and drift `fit` gives block `b` of `data`.
-fn residuals_with_frame<'a>(
+/// Residuals (measured − predicted, robot base frame, mm) of the points `members` of `points`
+/// with `frame` and the tool offset and drift `fit` gives block `b` of `data`.
+fn residuals_with_frame(
     fit: &Fit,
     data: &Observations,
     b: usize,
     frame: &Frame,
-    points: impl Iterator<Item = &'a Observation>,
+    points: &Observations,
+    members: impl Iterator<Item = usize>,
 ) -> Vec<Vector3<f64>> {
     let offset = fit.tool_offset(&data.groups[data.blocks[b].group].name);
     let name = data.block_name(b);
     let drift = fit.drifts.iter().find(|d| d.session == name);
     let tips = Tips::new(&fit.model);
-    points
-        .map(|p| {
+    members
+        .map(|k| {
+            let p = &points.obs[k];
             let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
-            let y = frame.rotation * with_offset(&tips.tip(p.tip).pose(&p.q_deg), &offset);
+            let y = frame.rotation * with_offset(&points.pose_on(&tips, k), &offset);
             frame.rotation.transpose()
                 * (p.point_mm().unwrap_or_default() - (y * growth + frame.translation_mm + shift))
         })
@@ -383,10 +390,13 @@ pub fn orientation_errors_deg(
     probe: &Matrix3<f64>,
 ) -> Vec<Option<f64>> {
     let frame = block_frame(model, data, b, &Vector3::from(tool_offset_mm));
-    points_of(data, b)
-        .map(|p| {
+    let chain = Chain::new(model);
+    point_members(data, b)
+        .map(|k| {
+            let p = &data.obs[k];
             let measured = p.orientation()?.to_rotation_matrix().into_inner();
-            let predicted = frame.rotation * flange_rotation(&tool_pose(model, &p.q_deg)) * probe;
+            let pose = data.encoders().pose(&chain, k, p);
+            let predicted = frame.rotation * flange_rotation(&pose) * probe;
             Some(rotation_vector(&(predicted.transpose() * measured)).norm().to_degrees())
         })
         .collect()
@@ -430,7 +440,7 @@ fn session_fit(
     tool_offset_mm: [f64; 3],
 ) -> (Frame, Vec<Vector3<f64>>) {
     let offset = &Vector3::from(tool_offset_mm);
-    fit_of(&model_points(model, points_of(data, b), offset), data, b)
+    fit_of(&model_points(model, data, point_members(data, b), offset), data, b)
 }
 
 /// [`session_fit`] for the model's points `robot` of block `b`'s points in order.
@@ -483,7 +493,7 @@ pub fn validate_session(
     tool_offset_mm: [f64; 3],
 ) -> SessionValidation {
     let offset = &Vector3::from(tool_offset_mm);
-    let robot = model_points(model, points_of(data, b), offset);
+    let robot = model_points(model, data, point_members(data, b), offset);
     let errors: Vec<f64> = fit_of(&robot, data, b).1.iter().map(|r| r.norm()).collect();
     let stats = ErrorStats::of(&errors);
     let points: Vec<Vector3<f64>> = points_of(data, b).map(|p| p.point_mm().unwrap_or_default()).collect();

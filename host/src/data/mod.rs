@@ -16,10 +16,12 @@
 //! Both readers make [`Observations`], the one shape everything downstream reads
 //! ([`observations`]); [`load_folder`] reads a folder of either kind or of both.
 
+pub mod encoders;
 pub mod observations;
 pub mod point_distances;
 pub mod tracker;
 
+pub use encoders::Encoders;
 pub use observations::{
     BindError, Block, ColumnNames, DataKind, Group, Joints, Kind, Observation, Observations, Target,
 };

@@ -11,7 +11,9 @@
 //! tracker CSVs in [`crate::data::tracker`]); nothing downstream knows the format. One
 //! [`Observations`] may hold both kinds (artefact placements and tracker sessions of one arm).
 
-use crate::data::Landmark;
+use crate::data::encoders::EncoderCache;
+use crate::data::{Encoders, Landmark};
+use crate::model::kinematics::{Tips, ToolPose};
 use crate::model::MAX_TREE_JOINTS;
 use nalgebra::{UnitQuaternion, Vector3};
 use std::collections::HashMap;
@@ -303,6 +305,8 @@ pub struct Observations {
     /// The names a `kincal-tracker/2` file gives its joint columns and tips, until
     /// [`Observations::bind`] puts the angles in the model's joint order.
     pub names: Option<ColumnNames>,
+    /// The encoder angles' sines and cosines, built at the first [`Observations::encoders`].
+    encoders: EncoderCache,
 }
 
 /// Joint columns and tips named in the files (`kincal-tracker/2`), not yet bound to a model.
@@ -417,11 +421,27 @@ impl Observations {
         self.groups[self.obs[k].group].kind
     }
 
+    /// The sine and cosine of every encoder angle, computed at the first call and kept (by copies
+    /// and selections too): what every pose of these observations reads
+    /// ([`Observations::pose_on`]). A row whose observation's angles changed since is not read.
+    pub fn encoders(&self) -> &Encoders {
+        self.encoders.of(self)
+    }
+
+    /// Observation `k`'s tool pose on its tip's chain of `tips`, its encoder angles' sines and
+    /// cosines read from [`Observations::encoders`].
+    pub fn pose_on(&self, tips: &Tips, k: usize) -> ToolPose {
+        let o = &self.obs[k];
+        self.encoders().pose(tips.tip(o.tip), k, o)
+    }
+
     /// A copy without the observations for which `drop` (of their index) is true; groups stay.
     pub fn without(&self, drop: impl Fn(usize) -> bool) -> Observations {
+        let kept: Vec<usize> = (0..self.obs.len()).filter(|&k| !drop(k)).collect();
         let mut out = Observations {
-            obs: self.obs.iter().enumerate().filter(|(k, _)| !drop(*k)).map(|(_, o)| o.clone()).collect(),
+            obs: kept.iter().map(|&k| self.obs[k].clone()).collect(),
             blocks: Vec::new(),
+            encoders: self.encoders.rows_of(&kept),
             ..self.clone_empty()
         };
         out.rebuild_blocks();
@@ -450,13 +470,15 @@ impl Observations {
     pub fn subset(&self, groups: &[usize]) -> Observations {
         let mut out = self.clone_empty();
         out.groups.clear();
+        let mut kept = Vec::new();
         for &g in groups {
             let new = out.groups.len();
             out.groups.push(self.groups[g].clone());
-            out.obs.extend(
-                self.obs.iter().filter(|o| o.group == g).map(|o| Observation { group: new, ..o.clone() }),
-            );
+            let members = self.group_members(g);
+            out.obs.extend(members.iter().map(|&k| Observation { group: new, ..self.obs[k].clone() }));
+            kept.extend(members);
         }
+        out.encoders = self.encoders.rows_of(&kept);
         out.rebuild_blocks();
         out
     }
@@ -481,6 +503,7 @@ impl Observations {
             obs: Vec::new(),
             warnings: self.warnings.clone(),
             names: self.names.clone(),
+            encoders: EncoderCache::default(),
         }
     }
 

@@ -229,11 +229,13 @@ pub fn apparent(
     let mut gravity: Vec<Vec<(f64, f64)>> = vec![Vec::new(); joints];
     let mut gravity_weights: Vec<Vec<f64>> = vec![Vec::new(); joints];
     let (mut by_height, mut by_reach) = (Vec::new(), Vec::new());
-    for (t, r) in data.obs.iter().zip(&residuals) {
+    for (k, (t, r)) in data.obs.iter().zip(&residuals).enumerate() {
         let Some(r) = r else { continue };
         let mut jac = vec![[0.0; 9]; joints];
         let chain = Chain::for_tip(model, t.tip);
-        let pose = chain.pose_with_jacobian(&t.q_deg, &columns, &mut jac);
+        let pose = data.encoders().with_row(k, t, |sin_cos| {
+            chain.pose_with_sin_cos_and_jacobian(&t.q_deg, sin_cos, &columns, &mut jac)
+        });
         let levers = gravity_levers(model, &chain, &t.q_deg);
         by_height.push((pose.position_mm.z, r.norm()));
         by_reach.push((pose.position_mm.xy().norm(), r.norm()));

@@ -31,7 +31,7 @@ use crate::calib::nuisance::tool::{
 use crate::calib::problem::{projected_arm_columns, Problem};
 use crate::calib::setup::{Resolved, Setup, SolveOptions};
 use crate::calib::terms::{self, Term, TermChoice};
-use crate::data::{Kind, Observations};
+use crate::data::{Encoders, Kind, Observations};
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason, Termination};
 use nalgebra::{Matrix3, Vector3};
@@ -219,7 +219,6 @@ mod tests;
 use dense::*;
 use framed::*;
 use outcome::*;
-pub use pieces::Encoders;
 use pieces::*;
 pub use shared::SessionSums;
 
@@ -230,7 +229,7 @@ pub use shared::SessionSums;
 /// their residuals at the start only: data whose residuals are finite but whose derivatives are
 /// not pass here and are refused by `calibrate` (the same error) when it factors them.
 pub fn check_data(model: &ArmModel, data: &Observations, options: &SolveOptions) -> Result<(), CalibError> {
-    check_data_on(model, data, &Encoders::of(data), options)
+    check_data_on(model, data, data.encoders(), options)
 }
 
 /// [`check_data`] with `data`'s encoder table.
@@ -269,7 +268,7 @@ impl Setup {
 
 /// Calibrate the free parameters of `nominal` on `data` (see the module doc).
 pub fn calibrate(nominal: &ArmModel, data: &Observations, options: &SolveOptions) -> Result<Fit, CalibError> {
-    calibrate_on(nominal, data, &Encoders::of(data), options)
+    calibrate_on(nominal, data, data.encoders(), options)
 }
 
 /// [`calibrate`] with `data`'s encoder table (a run's, shared by its calibrations).
@@ -388,7 +387,7 @@ fn solve_warm_from(
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
         return solve_warm_from(start, params, &own, options, warm, sums);
     }
-    let encoders = warm.map_or_else(|| Encoders::of(data), |w| w.encoders.clone());
+    let encoders = warm.map_or_else(|| data.encoders().clone(), |w| w.encoders.clone());
     let pieces = Pieces::new(start, data, options, &encoders)?;
     if pieces.blocked() {
         let from = match warm {

@@ -2,9 +2,8 @@
 //! observations, the starts, and the checks before any solve.
 
 use super::*;
-use crate::model::kinematics::encoder_sin_cos;
+use crate::data::Encoders;
 use std::borrow::Cow;
-use std::sync::Arc;
 
 /// What a calibration of some observations is made of, whatever the arm's values.
 pub(super) struct Pieces<'a> {
@@ -17,87 +16,6 @@ pub(super) struct Pieces<'a> {
     pub(super) resolved: Resolved,
     /// The encoder angles' sines and cosines, once for every problem of these terms.
     pub(super) encoders: Encoders,
-}
-
-/// The sine and cosine of every encoder angle of some observations (`joints` per observation,
-/// (0, 1) for an angle an observation lacks): the table every problem of those observations
-/// reads ([`crate::calib::problem::encoder_table`], which leaves out observations no term reads).
-/// A run builds it once for its observations and hands it to the calibrations that share them
-/// (the input checks, the fit, the reference fit); each [`Fit`] keeps the table of its
-/// observations for its refits (pinocchio's constant model and per-algorithm data).
-#[derive(Clone)]
-pub struct Encoders {
-    joints: usize,
-    /// Each observation's angle count and its angles' bits, `joints + 1` values per observation.
-    angles: Arc<[u64]>,
-    pub(super) table: Arc<[(f64, f64)]>,
-}
-
-impl std::fmt::Debug for Encoders {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let observations = self.table.len() / self.joints.max(1);
-        write!(f, "Encoders {{ observations: {observations}, joints: {} }}", self.joints)
-    }
-}
-
-impl Encoders {
-    /// The sines and cosines of `data`'s angles.
-    pub fn of(data: &Observations) -> Encoders {
-        let joints = data.joints;
-        let mut table = vec![(0.0, 1.0); data.obs.len() * joints];
-        let mut angles = vec![0; data.obs.len() * (joints + 1)];
-        for ((row, key), o) in
-            table.chunks_exact_mut(joints.max(1)).zip(angles.chunks_exact_mut(joints + 1)).zip(&data.obs)
-        {
-            key[0] = o.q_deg.len() as u64;
-            for ((sc, bits), &q) in row.iter_mut().zip(&mut key[1..]).zip(o.q_deg.iter()) {
-                *sc = encoder_sin_cos(q);
-                *bits = q.to_bits();
-            }
-        }
-        Encoders { joints, angles: angles.into(), table: table.into() }
-    }
-
-    /// Whether row `i` holds observation `o`'s angles (bit for bit).
-    fn holds(&self, i: usize, o: &crate::data::Observation) -> bool {
-        let key = &self.angles[i * (self.joints + 1)..(i + 1) * (self.joints + 1)];
-        key[0] == o.q_deg.len() as u64 && o.q_deg.iter().zip(&key[1..]).all(|(q, b)| q.to_bits() == *b)
-    }
-
-    /// The table of `data`, taken from this one when `data`'s observations are these or some of
-    /// them in the same order (another selection of the same observations: a session or a few
-    /// points left out, the orientations dropped), else built for `data`. A row depends on its
-    /// angles alone, so a row whose angles are bit for bit those of an observation is its row.
-    pub fn for_data(&self, data: &Observations) -> Encoders {
-        if data.joints != self.joints {
-            return Encoders::of(data);
-        }
-        let rows = self.table.len() / self.joints.max(1);
-        let mut taken = Vec::with_capacity(data.obs.len());
-        let mut i = 0;
-        for o in &data.obs {
-            while i < rows && !self.holds(i, o) {
-                i += 1;
-            }
-            if i == rows {
-                return Encoders::of(data);
-            }
-            taken.push(i);
-            i += 1;
-        }
-        if taken.len() == rows {
-            return self.clone();
-        }
-        self.rows(&taken)
-    }
-
-    /// The table of rows `taken`, in that order.
-    fn rows(&self, taken: &[usize]) -> Encoders {
-        let (joints, width) = (self.joints, self.joints + 1);
-        let table = taken.iter().flat_map(|&i| self.table[i * joints..(i + 1) * joints].iter().copied());
-        let angles = taken.iter().flat_map(|&i| self.angles[i * width..(i + 1) * width].iter().copied());
-        Encoders { joints, angles: angles.collect(), table: table.collect() }
-    }
 }
 
 impl<'a> Pieces<'a> {
@@ -175,8 +93,8 @@ impl<'a> Pieces<'a> {
         let terms = terms::build(sub, &choice);
         // The encoder table's rows of block b's observations: sub's terms read no other.
         let rows: Vec<usize> = (0..self.data.obs.len()).filter(|&k| self.data.obs[k].block == b).collect();
-        let encoders = self.encoders.rows(&rows);
-        debug_assert_eq!(encoders.table.len(), sub.obs.len() * self.data.joints);
+        let encoders = self.encoders.rows_of(&rows);
+        debug_assert_eq!(encoders.table().len(), sub.obs.len() * self.data.joints);
         Pieces {
             data: sub,
             model: self.model.clone(),
@@ -214,7 +132,7 @@ impl<'a> Pieces<'a> {
             &self.terms,
             frames.iter().map(|f| f.rotation).collect(),
             probe.filter(|_| self.resolved.orientation_weight_mm_per_rad.is_some()),
-            Cow::Borrowed(&*self.encoders.table),
+            Cow::Borrowed(self.encoders.table()),
         )
     }
 
@@ -229,7 +147,7 @@ impl<'a> Pieces<'a> {
                     return Frame::identity();
                 }
                 let members = &data.blocks[b].members;
-                let robot = model_points(model, members.iter().map(|&k| &data.obs[k]), &zero);
+                let robot = model_points(model, data, members.iter().copied(), &zero);
                 let measured: Vec<Vector3<f64>> =
                     members.iter().map(|&k| data.obs[k].point_mm().unwrap_or_default()).collect();
                 Frame::fit(&robot, &measured)

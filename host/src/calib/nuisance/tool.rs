@@ -12,7 +12,7 @@
 //! mean of R_Fᵀ·R_sᵀ·R_meas over the oriented observations).
 
 use crate::calib::nuisance::frame::Frame;
-use crate::data::{Observation, Observations};
+use crate::data::Observations;
 use crate::model::kinematics::{Tips, ToolPose};
 use crate::model::ArmModel;
 use nalgebra::{Matrix3, Rotation3, Vector3};
@@ -31,20 +31,21 @@ pub fn with_offset(pose: &ToolPose, offset_mm: &Vector3<f64>) -> Vector3<f64> {
     pose.position_mm + flange_rotation(pose) * offset_mm
 }
 
-/// The tool point in the robot frame of each observation of `observations` (on its tip's
+/// The tool point in the robot frame of each observation `members` of `data` (on its tip's
 /// chain), with an offset (flange frame), mm.
-pub fn model_points<'o>(
+pub fn model_points(
     model: &ArmModel,
-    observations: impl IntoIterator<Item = &'o Observation>,
+    data: &Observations,
+    members: impl IntoIterator<Item = usize>,
     offset_mm: &Vector3<f64>,
 ) -> Vec<Vector3<f64>> {
     let tips = Tips::new(model);
-    observations.into_iter().map(|o| with_offset(&tips.tip(o.tip).pose(&o.q_deg), offset_mm)).collect()
+    members.into_iter().map(|k| with_offset(&data.pose_on(&tips, k), offset_mm)).collect()
 }
 
 /// The tool position of every observation of `data` (the model's own tool), mm.
 pub fn positions(model: &ArmModel, data: &Observations) -> Vec<Vector3<f64>> {
-    model_points(model, &data.obs, &Vector3::zeros())
+    model_points(model, data, 0..data.obs.len(), &Vector3::zeros())
 }
 
 /// The probe rotation at its unknowns `x` (mrad) right of its start.
@@ -121,9 +122,9 @@ pub fn start_probe_rotation(model: &ArmModel, data: &Observations, frames: &[Fra
     let mut sum = Matrix3::zeros();
     let mut any = false;
     let tips = Tips::new(model);
-    for o in &data.obs {
+    for (k, o) in data.obs.iter().enumerate() {
         let Some(measured) = o.orientation() else { continue };
-        let pose = tips.tip(o.tip).pose(&o.q_deg);
+        let pose = data.pose_on(&tips, k);
         sum += flange_rotation(&pose).transpose()
             * frames[o.block].rotation.transpose()
             * measured.to_rotation_matrix().into_inner();
@@ -147,11 +148,8 @@ pub const CONSTANT_ORIENTATION_DEG: f64 = 1.0;
 /// its first (the model's flange orientation).
 pub fn orientation_spread_deg(model: &ArmModel, data: &Observations, b: usize) -> f64 {
     let tips = Tips::new(model);
-    let rotations: Vec<Matrix3<f64>> = data.blocks[b]
-        .members
-        .iter()
-        .map(|&k| flange_rotation(&tips.tip(data.obs[k].tip).pose(&data.obs[k].q_deg)))
-        .collect();
+    let rotations: Vec<Matrix3<f64>> =
+        data.blocks[b].members.iter().map(|&k| flange_rotation(&data.pose_on(&tips, k))).collect();
     let Some(first) = rotations.first() else { return 0.0 };
     rotations
         .iter()

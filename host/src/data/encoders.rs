@@ -1,0 +1,258 @@
+//! The sine and cosine of every encoder angle of a set of observations, computed once: every pose
+//! of those observations on any arm reads them ([`Chain::pose_with_sin_cos`]), so that no fit
+//! iteration, validated arm or diagnosis takes the sine of the same angle again.
+
+use super::{Observation, Observations};
+use crate::model::kinematics::{encoder_sin_cos, Chain, ToolPose};
+use crate::model::MAX_TREE_JOINTS;
+use std::sync::{Arc, OnceLock};
+
+/// The sine and cosine of every encoder angle of some observations (`joints` per observation,
+/// (0, 1) for an angle an observation lacks). [`Observations::encoders`] builds it at its first
+/// use and keeps it; the fit's problems read it ([`crate::calib::problem::encoder_table`], which
+/// leaves out observations no term reads, makes the same rows), and each [`crate::calib::fit::Fit`]
+/// keeps the table of its observations for its refits (pinocchio's constant model and
+/// per-algorithm data).
+#[derive(Clone)]
+pub struct Encoders {
+    joints: usize,
+    /// Each observation's angle count and its angles' bits, `joints + 1` values per observation.
+    angles: Arc<[u64]>,
+    table: Arc<[(f64, f64)]>,
+}
+
+impl std::fmt::Debug for Encoders {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Encoders {{ observations: {}, joints: {} }}", self.rows(), self.joints)
+    }
+}
+
+impl Encoders {
+    /// The sines and cosines of `data`'s angles.
+    pub fn of(data: &Observations) -> Encoders {
+        let joints = data.joints;
+        let mut table = vec![(0.0, 1.0); data.obs.len() * joints];
+        let mut angles = vec![0; data.obs.len() * (joints + 1)];
+        for ((row, key), o) in
+            table.chunks_exact_mut(joints.max(1)).zip(angles.chunks_exact_mut(joints + 1)).zip(&data.obs)
+        {
+            key[0] = o.q_deg.len() as u64;
+            for ((sc, bits), &q) in row.iter_mut().zip(&mut key[1..]).zip(o.q_deg.iter()) {
+                *sc = encoder_sin_cos(q);
+                *bits = q.to_bits();
+            }
+        }
+        Encoders { joints, angles: angles.into(), table: table.into() }
+    }
+
+    /// Every row, `joints` per observation, in the observations' order.
+    pub fn table(&self) -> &[(f64, f64)] {
+        &self.table
+    }
+
+    /// How many observations the table holds.
+    fn rows(&self) -> usize {
+        self.table.len() / self.joints.max(1)
+    }
+
+    /// Whether row `i` holds observation `o`'s angles (bit for bit).
+    fn holds(&self, i: usize, o: &Observation) -> bool {
+        let key = &self.angles[i * (self.joints + 1)..(i + 1) * (self.joints + 1)];
+        key[0] == o.q_deg.len() as u64 && o.q_deg.iter().zip(&key[1..]).all(|(q, b)| q.to_bits() == *b)
+    }
+
+    /// `f` of observation `o`'s sines and cosines: row `k` when it holds `o`'s angles, else
+    /// [`encoder_sin_cos`] of each angle taken here (the same values), whatever the table holds.
+    pub fn with_row<R>(&self, k: usize, o: &Observation, f: impl FnOnce(&[(f64, f64)]) -> R) -> R {
+        if k < self.rows() && self.holds(k, o) {
+            return f(&self.table[k * self.joints..(k + 1) * self.joints]);
+        }
+        let mut own = [(0.0, 1.0); MAX_TREE_JOINTS];
+        for (sc, &q) in own.iter_mut().zip(o.q_deg.iter()) {
+            *sc = encoder_sin_cos(q);
+        }
+        f(&own[..o.q_deg.len()])
+    }
+
+    /// Observation `o` (row `k`)'s tool pose on `chain` (its tip's): [`Chain::pose_with_sin_cos`]
+    /// of its row ([`Encoders::with_row`]).
+    pub fn pose(&self, chain: &Chain, k: usize, o: &Observation) -> ToolPose {
+        self.with_row(k, o, |sin_cos| chain.pose_with_sin_cos(&o.q_deg, sin_cos))
+    }
+
+    /// The table of `data`, taken from this one when `data`'s observations are these or some of
+    /// them in the same order (another selection of the same observations: a session or a few
+    /// points left out, the orientations dropped), else built for `data`. A row depends on its
+    /// angles alone, so a row whose angles are bit for bit those of an observation is its row.
+    pub fn for_data(&self, data: &Observations) -> Encoders {
+        if data.joints != self.joints {
+            return Encoders::of(data);
+        }
+        let rows = self.rows();
+        let mut taken = Vec::with_capacity(data.obs.len());
+        let mut i = 0;
+        for o in &data.obs {
+            while i < rows && !self.holds(i, o) {
+                i += 1;
+            }
+            if i == rows {
+                return Encoders::of(data);
+            }
+            taken.push(i);
+            i += 1;
+        }
+        if taken.len() == rows {
+            return self.clone();
+        }
+        self.rows_of(&taken)
+    }
+
+    /// The table of rows `taken`, in that order.
+    pub(crate) fn rows_of(&self, taken: &[usize]) -> Encoders {
+        let (joints, width) = (self.joints, self.joints + 1);
+        let table = taken.iter().flat_map(|&i| self.table[i * joints..(i + 1) * joints].iter().copied());
+        let angles = taken.iter().flat_map(|&i| self.angles[i * width..(i + 1) * width].iter().copied());
+        Encoders { joints, angles: angles.collect(), table: table.collect() }
+    }
+}
+
+/// The [`Encoders`] of a set of observations, built at its first use. It is no part of their
+/// value (equal observations are equal whatever their caches hold), and a row that no longer holds
+/// its observation's angles (the observations changed since) is not read.
+#[derive(Clone, Default)]
+pub(super) struct EncoderCache(OnceLock<Encoders>);
+
+impl EncoderCache {
+    /// The table of `data`, whose cache this is.
+    pub(super) fn of(&self, data: &Observations) -> &Encoders {
+        self.0.get_or_init(|| Encoders::of(data))
+    }
+
+    /// The cache of a selection of these observations (`kept`, in order): their rows when this
+    /// table is built (a row no longer holding its observation's angles is no more read there
+    /// than here), else empty.
+    pub(super) fn rows_of(&self, kept: &[usize]) -> EncoderCache {
+        match self.0.get().filter(|e| kept.iter().all(|&k| k < e.rows())) {
+            Some(encoders) => EncoderCache(OnceLock::from(encoders.rows_of(kept))),
+            None => EncoderCache::default(),
+        }
+    }
+}
+
+impl PartialEq for EncoderCache {
+    fn eq(&self, _: &EncoderCache) -> bool {
+        true
+    }
+}
+
+impl std::fmt::Debug for EncoderCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.0.get() {
+            Some(e) => e.fmt(f),
+            None => f.write_str("Encoders (not built)"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::Landmark;
+    use crate::model::kinematics::Tips;
+    use crate::model::{ArmModel, Convention};
+
+    /// Touches of two placements at varied angles, one of them lacking its last two angles.
+    fn touches() -> Observations {
+        let angles: Vec<Vec<f64>> = (0..12)
+            .map(|t| {
+                let count = if t == 5 { 4 } else { 6 };
+                (0..count).map(|j| ((t * 7 + j) as f64 * 0.77).sin() * 170.0).collect()
+            })
+            .collect();
+        let touches: Vec<(usize, usize, u32, &[f64])> =
+            angles.iter().enumerate().map(|(t, q)| (t % 2, t % 3, 1, q.as_slice())).collect();
+        let landmarks = (0..3)
+            .map(|l| Landmark { id: format!("L{l}"), xyz_mm: [l as f64, 0.0, 0.0], yaw_deg: 0.0 })
+            .collect();
+        Observations::from_touches(&["A", "B"], landmarks, &touches)
+    }
+
+    /// The SUTA with encoder offsets and a scale, in `convention`.
+    fn offset_arm(convention: Convention) -> ArmModel {
+        let mut model = ArmModel::suta_nominal();
+        model.convention = convention;
+        for (j, joint) in model.joints.iter_mut().enumerate() {
+            joint.offset_deg = 3.1 * j as f64 - 7.3;
+        }
+        model.scale_ppm = 80.0;
+        model
+    }
+
+    /// `data`'s poses on `model` from the table and from each observation's own angles.
+    fn poses(model: &ArmModel, data: &Observations) -> Vec<(ToolPose, ToolPose, ToolPose)> {
+        let tips = Tips::new(model);
+        (0..data.obs.len())
+            .map(|k| {
+                let (chain, q) = (tips.tip(data.obs[k].tip), &data.obs[k].q_deg);
+                let own: Vec<(f64, f64)> = q.iter().map(|&a| encoder_sin_cos(a)).collect();
+                (data.pose_on(&tips, k), chain.pose_with_sin_cos(q, &own), chain.pose(q))
+            })
+            .collect()
+    }
+
+    /// A pose read from the table is, bit for bit, the pose of the observation's own angles'
+    /// sines and cosines; that is `Chain::pose` to rounding (θ = φ + δθ by angle addition), and
+    /// to the bit without offsets or with an encoder harmonic (whose θ reads no table).
+    #[test]
+    fn table_poses_are_the_poses_of_the_angles() {
+        let data = touches();
+        assert_eq!(data.obs[5].q_deg.len(), 4, "a touch lacks angles");
+        for convention in [Convention::Classic, Convention::Modified] {
+            for (table, own, plain) in poses(&offset_arm(convention), &data) {
+                assert_eq!(table, own);
+                assert!((table.position_mm - plain.position_mm).norm() < 1e-9);
+                assert!(
+                    (table.x_axis - plain.x_axis).norm() < 1e-14
+                        && (table.z_axis - plain.z_axis).norm() < 1e-14
+                );
+            }
+        }
+        let mut no_offsets = offset_arm(Convention::Classic);
+        no_offsets.joints.iter_mut().for_each(|j| j.offset_deg = 0.0);
+        let mut harmonic = offset_arm(Convention::Classic);
+        harmonic.joints[1].eccentricity_sin_deg = 0.02;
+        for model in [no_offsets, harmonic] {
+            for (table, own, plain) in poses(&model, &data) {
+                assert_eq!((table, own), (plain, plain));
+            }
+        }
+    }
+
+    /// A row is read only while it holds its observation's angles: an angle changed after the
+    /// table was built is posed from its new value; a selection of the observations takes their
+    /// rows.
+    #[test]
+    fn a_row_is_that_of_its_angles() {
+        let model = offset_arm(Convention::Classic);
+        let tips = Tips::new(&model);
+        let mut data = touches();
+        let before = data.pose_on(&tips, 3);
+        let built = data.encoders().table().as_ptr();
+        data.obs[3].q_deg[2] += 1.0;
+        let moved = data.pose_on(&tips, 3);
+        assert_eq!(data.encoders().table().as_ptr(), built, "the table is kept");
+        assert_ne!(moved, before);
+        let fresh = Encoders::of(&data);
+        assert_eq!(moved, fresh.pose(tips.tip(0), 3, &data.obs[3]));
+        // Rows of another set of observations are not read either.
+        let other = touches();
+        assert_eq!(other.encoders().pose(tips.tip(0), 3, &data.obs[3]), moved);
+        // A selection takes the rows of its observations, the changed one's not read there either.
+        for selection in [data.without(|k| k % 3 == 1), data.subset(&[1])] {
+            let fresh = Encoders::of(&selection);
+            for (k, o) in selection.obs.iter().enumerate() {
+                assert_eq!(selection.pose_on(&tips, k), fresh.pose(tips.tip(0), k, o));
+            }
+        }
+    }
+}

@@ -729,6 +729,38 @@ mod tests {
         }
     }
 
+    /// The point the framed tests evaluate at: `nominal`'s values of `params` (the first
+    /// columns), each session's frame turned and shifted a little, each floated tool offset and
+    /// each drift's rates set.
+    fn framed_point(problem: &Problem, params: &[crate::model::ParamId], nominal: &ArmModel) -> Vec<f64> {
+        let layout = &problem.layout;
+        let mut x = vec![0.0; layout.unknowns()];
+        for (k, id) in params.iter().enumerate() {
+            x[k] = nominal.get(*id);
+        }
+        for b in 0..problem.data.blocks.len() {
+            let c = layout.frame_column(b).expect("framed");
+            x[c..c + 6].copy_from_slice(&[1e-3, -2e-3, 0.5e-3, 2500.0, -300.0 * b as f64, 400.0]);
+            if let Some((c, d)) = layout.drift(b) {
+                for k in 0..d.kind.unknowns() {
+                    x[c + k] = 0.3 - 0.2 * k as f64;
+                }
+            }
+        }
+        for g in 0..problem.data.groups.len() {
+            let c = layout.tool_column(g).expect("floated");
+            x[c..c + 3].copy_from_slice(&[0.3, -0.2, 0.1 * g as f64]);
+        }
+        x
+    }
+
+    /// The median of the residuals' sizes: a Huber threshold that weighs half the rows.
+    fn median_abs(r: &[f64]) -> f64 {
+        let mut a: Vec<f64> = r.iter().map(|v| v.abs()).collect();
+        a.sort_by(f64::total_cmp);
+        a[a.len() / 2]
+    }
+
     /// Points written straight into the batch's rows give the sums of the same points through
     /// their Jacobians to the bit (the same values in the same batch positions): frames, floated
     /// tools, a session drifting in scale and one in offset, a point weight other than 1, and
@@ -765,33 +797,11 @@ mod tests {
                 .collect();
             let ours = Problem::new(layout(), &nominal, &data, &direct, starts.clone(), None);
             let theirs = Problem::new(layout(), &nominal, &data, &through, starts, None);
-            let n = ours.layout.unknowns();
-            let mut x = vec![0.0; n];
-            for (k, id) in params.iter().enumerate() {
-                x[k] = nominal.get(*id);
-            }
-            for b in 0..blocks {
-                let c = ours.layout.frame_column(b).expect("framed");
-                x[c..c + 6].copy_from_slice(&[1e-3, -2e-3, 0.5e-3, 2500.0, -300.0 * b as f64, 400.0]);
-                if let Some((c, d)) = ours.layout.drift(b) {
-                    for k in 0..d.kind.unknowns() {
-                        x[c + k] = 0.3 - 0.2 * k as f64;
-                    }
-                }
-            }
-            for g in 0..data.groups.len() {
-                let c = ours.layout.tool_column(g).expect("floated");
-                x[c..c + 3].copy_from_slice(&[0.3, -0.2, 0.1 * g as f64]);
-            }
+            let x = framed_point(&ours, &params, &nominal);
             let m = ours.len();
             let mut r = vec![0.0; m];
             ours.evaluate(&x, &mut r, None);
-            let median = {
-                let mut a: Vec<f64> = r.iter().map(|v| v.abs()).collect();
-                a.sort_by(f64::total_cmp);
-                a[m / 2]
-            };
-            for loss in [Loss::Linear, Loss::Huber(median)] {
+            for loss in [Loss::Linear, Loss::Huber(median_abs(&r))] {
                 let (mut r_ours, mut r_theirs) = (vec![0.0; m], vec![0.0; m]);
                 let (h, g) = ours.normal_equations(&x, &mut r_ours, loss);
                 let (hj, gj) = theirs.normal_equations(&x, &mut r_theirs, loss);
@@ -833,27 +843,11 @@ mod tests {
             .collect();
         let problem = Problem::new(layout, &nominal, &data, &terms, starts, None);
         let n = problem.layout.unknowns();
-        let mut x = vec![0.0; n];
-        for (k, id) in params.iter().enumerate() {
-            x[k] = nominal.get(*id);
-        }
-        for b in 0..blocks {
-            let c = problem.layout.frame_column(b).expect("framed");
-            x[c..c + 6].copy_from_slice(&[1e-3, -2e-3, 0.5e-3, 2500.0, -300.0 * b as f64, 400.0]);
-        }
-        for g in 0..data.groups.len() {
-            let c = problem.layout.tool_column(g).expect("floated");
-            x[c..c + 3].copy_from_slice(&[0.3, -0.2, 0.1 * g as f64]);
-        }
+        let x = framed_point(&problem, &params, &nominal);
         let m = problem.len();
         let (mut r, mut jac) = (vec![0.0; m], vec![0.0; m * n]);
         problem.evaluate(&x, &mut r, Some(&mut jac));
-        let median = {
-            let mut a: Vec<f64> = r.iter().map(|v| v.abs()).collect();
-            a.sort_by(f64::total_cmp);
-            a[m / 2]
-        };
-        for loss in [Loss::Linear, Loss::Huber(median)] {
+        for loss in [Loss::Linear, Loss::Huber(median_abs(&r))] {
             let weights: Vec<f64> = r.iter().map(|&v| loss.weight(v)).collect();
             if let Loss::Huber(_) = loss {
                 let mixed = weights.chunks(3).filter(|w| w.iter().any(|&v| v != w[0])).count();

@@ -460,14 +460,20 @@ mod tests {
     fn plain(jac: &[f64], w: &[f64], r: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
         let (mut h, mut g) = (vec![0.0; n * n], vec![0.0; n]);
         for (i, row) in jac.chunks_exact(n).enumerate() {
-            for a in 0..n {
-                g[a] += w[i] * row[a] * r[i];
-                for b in 0..n {
-                    h[a * n + b] += w[i] * row[a] * row[b];
-                }
-            }
+            add_row(&mut h, &mut g, row, w[i], r[i]);
         }
         (h, g)
+    }
+
+    /// Add w·row·rowᵀ into `h` (n × n) and w·r·row into `g`, entry by entry.
+    fn add_row(h: &mut [f64], g: &mut [f64], row: &[f64], w: f64, r: f64) {
+        let n = row.len();
+        for a in 0..n {
+            g[a] += w * row[a] * r;
+            for b in 0..n {
+                h[a * n + b] += w * row[a] * row[b];
+            }
+        }
     }
 
     #[test]
@@ -556,21 +562,15 @@ mod tests {
             }
         }
         for i in whole..w.len() {
-            let row = &rows[i * n..(i + 1) * n];
-            for a in 0..n {
-                g[a] += w[i] * row[a] * r[i];
-                for c in a..n {
-                    h[a * n + c] += w[i] * row[a] * row[c];
-                }
-            }
+            add_row(&mut h, &mut g, &rows[i * n..(i + 1) * n], w[i], r[i]);
         }
         (h, g)
     }
 
     /// Terms writing their rows through [`RowTarget::rows`] give the sums of the same terms
     /// given to [`NormalSums::add`] to the bit: batches closed by their rows and by their
-    /// columns (terms over spans of 10 of 200 columns beside 8 every term reads, whose new columns overflow a batch and
-    /// are assigned again in the next), with weights 1 and others.
+    /// columns (terms over spans of 10 of 200 columns beside 8 every term reads, whose new
+    /// columns overflow a batch and are assigned again in the next), with weights 1 and others.
     #[test]
     fn rows_written_in_place_give_the_sums_of_added_terms() {
         let n = 200;

@@ -685,6 +685,30 @@ mod tests {
         }
     }
 
+    /// A term that writes its derivatives through its Jacobian with its columns in the reverse
+    /// order: the first in a batch places the arm's columns there backwards.
+    struct Reversed(Box<dyn Term>);
+    impl Term for Reversed {
+        fn rows(&self) -> usize {
+            self.0.rows()
+        }
+        fn block(&self) -> usize {
+            self.0.block()
+        }
+        fn observations(&self) -> &[usize] {
+            self.0.observations()
+        }
+        fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>) {
+            let Some(jac) = jac else { return self.0.evaluate(at, r, None) };
+            let mut forward = TermJacobian::default();
+            forward.reset(jac.rows);
+            self.0.evaluate(at, r, Some(&mut forward));
+            for k in (0..forward.columns.len()).rev() {
+                jac.push(forward.columns[k], forward.column(k));
+            }
+        }
+    }
+
     /// Without block unknowns the normal equations are those of the dense Jacobian: distances
     /// written straight into the batch's rows, every other distance through its Jacobian (the
     /// row written and then taken back), with relative orientations (four rows) between.
@@ -812,6 +836,54 @@ mod tests {
                 assert!(hj.norm() > 0.0 && gj.norm() > 0.0, "{label}: sums of something");
             }
         }
+    }
+
+    /// Points written straight into a batch whose arm columns are not in order (placed backwards
+    /// by the term before) give the sums of the same points through their Jacobians to the bit:
+    /// the arm's rows are written column by column there, not as one run.
+    #[test]
+    fn points_written_into_rows_out_of_order_give_the_sums_of_their_jacobians() {
+        let nominal = ArmModel::suta_nominal();
+        let data = sessions(&nominal);
+        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
+        let blocks = data.blocks.len();
+        let choice = TermChoice {
+            relative_orientation_lever_mm: None,
+            orientation_weight_mm_per_rad: None,
+            point_weight: 1.0,
+        };
+        // Every other term reversed; the rest written into the rows (ours) or through their
+        // Jacobians (theirs): the same columns in the same batch places.
+        let mixed = |direct: bool| -> Vec<Box<dyn Term>> {
+            build(&data, &choice)
+                .into_iter()
+                .enumerate()
+                .map(|(k, t)| match (k % 2, direct) {
+                    (0, _) => Box::new(Reversed(t)) as Box<dyn Term>,
+                    (_, true) => t,
+                    (_, false) => Box::new(ThroughJacobian(t)) as Box<dyn Term>,
+                })
+                .collect()
+        };
+        let (direct, through) = (mixed(true), mixed(false));
+        let layout = || {
+            let tools = vec![true; data.groups.len()];
+            Layout::new(params.clone(), &vec![true; blocks], &tools, false, &vec![None; blocks])
+        };
+        let starts: Vec<Matrix3<f64>> = (0..blocks)
+            .map(|s| Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64 + 0.01).into_inner())
+            .collect();
+        let ours = Problem::new(layout(), &nominal, &data, &direct, starts.clone(), None);
+        let theirs = Problem::new(layout(), &nominal, &data, &through, starts, None);
+        let x = framed_point(&ours, &params, &nominal);
+        let m = ours.len();
+        let (mut r_ours, mut r_theirs) = (vec![0.0; m], vec![0.0; m]);
+        let (h, g) = ours.normal_equations(&x, &mut r_ours, Loss::Linear);
+        let (hj, gj) = theirs.normal_equations(&x, &mut r_theirs, Loss::Linear);
+        assert_eq!(r_ours, r_theirs, "residuals");
+        assert!(h.iter().zip(&hj).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWJ");
+        assert!(g.iter().zip(&gj).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWr");
+        assert!(hj.norm() > 0.0 && gj.norm() > 0.0, "sums of something");
     }
 
     /// The normal equations summed term by term are those of the dense Jacobian, on turned

@@ -671,15 +671,24 @@ impl<'m> Chain<'m> {
         wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
     ) -> ToolPose {
         if let Some((columns, jac)) = wanted {
-            for col in jac.iter_mut() {
+            let scale = self.scale;
+            let moved = |col: &PoseDerivative| {
                 let w = Vector3::new(col[3], col[4], col[5]);
-                let dp = (w.cross(&point) + Vector3::new(col[0], col[1], col[2])) * self.scale;
-                *col = if columns.axes {
+                (w, (w.cross(&point) + Vector3::new(col[0], col[1], col[2])) * scale)
+            };
+            // One loop per case, none with a branch per column (the positions' loop then
+            // takes two columns at a time).
+            if columns.axes {
+                for col in jac.iter_mut() {
+                    let (w, dp) = moved(col);
                     let (dx, dz) = (w.cross(&x_axis), w.cross(&z_axis));
-                    [dp.x, dp.y, dp.z, dx.x, dx.y, dx.z, dz.x, dz.y, dz.z]
-                } else {
-                    [dp.x, dp.y, dp.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-                };
+                    *col = [dp.x, dp.y, dp.z, dx.x, dx.y, dx.z, dz.x, dz.y, dz.z];
+                }
+            } else {
+                for col in jac.iter_mut() {
+                    let (_, dp) = moved(col);
+                    *col = [dp.x, dp.y, dp.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+                }
             }
             if let Some(c) = columns.column(ParamId::Scale.dense_index()) {
                 for k in 0..3 {

@@ -232,6 +232,25 @@ impl TermRows<'_> {
         self.rows[2 * stride + l] = values[2];
     }
 
+    /// The derivatives of the first three rows by the columns `span`, one slice per row, when
+    /// the batch holds those columns at consecutive places in their order (as it does for a
+    /// span some term asked for first); `None` otherwise.
+    #[inline]
+    pub fn span3(&mut self, span: Range<usize>) -> Option<[&mut [f64]; 3]> {
+        let locals = &self.local[span];
+        let first = *locals.first()?;
+        // Every place compared, no early exit: a loop of a few instructions per two columns.
+        let misplaced = locals.iter().zip(first..).fold(0, |any, (&l, expected)| any | (l ^ expected));
+        if misplaced != 0 {
+            return None;
+        }
+        let (stride, count) = (self.stride, locals.len());
+        let (row0, rest) = self.rows.split_at_mut(stride);
+        let (row1, row2) = rest.split_at_mut(stride);
+        let at = first..first + count;
+        Some([&mut row0[at.clone()], &mut row1[at.clone()], &mut row2[at]])
+    }
+
     /// Every derivative written times `factor`.
     pub fn scale(&mut self, factor: f64) {
         for row in self.rows.chunks_exact_mut(self.stride) {
@@ -474,6 +493,27 @@ mod tests {
                 h[a * n + b] += w * row[a] * row[b];
             }
         }
+    }
+
+    /// A term's rows give their columns as one run per row only where the batch holds them in
+    /// order: after a term that placed them backwards, or another column between, none.
+    #[test]
+    fn a_span_of_rows_is_given_only_where_its_columns_are_in_order() {
+        let mut sums = NormalSums::new(8);
+        let three = [1.0, 2.0, 3.0];
+        sums.add(&[6, 5, 4], &[0.0; 9], &three, &three);
+        sums.add(&[1], &[0.0; 3], &three, &three);
+        let spans = [0..4, 4..8];
+        let mut rows = sums.rows(3, &spans);
+        assert!(rows.span3(4..7).is_none(), "placed backwards");
+        assert!(rows.span3(0..3).is_none(), "column 1 placed before 0 and 2");
+        assert!(rows.span3(6..7).is_some() && rows.span3(2..4).is_some(), "placed in order");
+        let [x, y, z] = rows.span3(2..4).expect("in order");
+        (x[1], y[1], z[0]) = (7.0, 8.0, 9.0);
+        // Columns 0, 2 and 3 came after the terms' 6, 5, 4 and 1: places 4, 5 and 6; rows 6 to 8.
+        let width = sums.width;
+        let written = [sums.dense[6 * width + 6], sums.dense[7 * width + 6], sums.dense[8 * width + 5]];
+        assert_eq!(written, [7.0, 8.0, 9.0]);
     }
 
     #[test]

@@ -24,7 +24,7 @@ use crate::calib::layout::{Layout, State};
 use crate::data::Observations;
 use crate::model::kinematics::{PoseDerivative, ToolPose};
 use crate::numerics::normal::{RowTarget, TermRows};
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 /// The tool poses of some observations (those from `first` on) at one evaluation, with their
 /// derivatives over the arm's columns when a Jacobian is asked for.
@@ -128,6 +128,23 @@ pub trait Derivatives3 {
             self.put(c, v);
         }
     }
+    /// The arm's columns `0..chain.len()`: each pose derivative's position part turned by
+    /// `rotation`, times `growth`.
+    fn put_arm(&mut self, chain: &[PoseDerivative], rotation: &Matrix3<f64>, growth: f64) {
+        // Without a drift's growth, no product by 1 per column (the same values).
+        if growth == 1.0 {
+            self.put_from(0, chain.iter().map(|d| turned(rotation, d)));
+        } else {
+            self.put_from(0, chain.iter().map(|d| turned(rotation, d) * growth));
+        }
+    }
+}
+
+/// R·dp, dp the position part of `d`, written out (R·v's sums in nalgebra's order) for the
+/// loops over columns to compile to plain arithmetic.
+#[inline(always)]
+fn turned(r: &Matrix3<f64>, d: &PoseDerivative) -> Vector3<f64> {
+    Vector3::from_fn(|i, _| r[(i, 0)] * d[0] + r[(i, 1)] * d[1] + r[(i, 2)] * d[2])
 }
 
 impl Derivatives3 for TermJacobian {
@@ -145,6 +162,27 @@ impl Derivatives3 for TermRows<'_> {
     #[inline]
     fn put(&mut self, column: usize, v: Vector3<f64>) {
         self.set3(column, [v.x, v.y, v.z]);
+    }
+
+    /// Straight into the three rows' runs when the batch holds the arm's columns in order (no
+    /// place looked up per column), else column by column.
+    fn put_arm(&mut self, chain: &[PoseDerivative], rotation: &Matrix3<f64>, growth: f64) {
+        let Some([x, y, z]) = self.span3(0..chain.len()) else {
+            for (c, d) in chain.iter().enumerate() {
+                self.put(c, turned(rotation, d) * growth);
+            }
+            return;
+        };
+        let rows = x.iter_mut().zip(y.iter_mut()).zip(z.iter_mut());
+        if growth == 1.0 {
+            for (((x, y), z), d) in rows.zip(chain) {
+                [*x, *y, *z] = turned(rotation, d).into();
+            }
+        } else {
+            for (((x, y), z), d) in rows.zip(chain) {
+                [*x, *y, *z] = (turned(rotation, d) * growth).into();
+            }
+        }
     }
 }
 

@@ -136,13 +136,7 @@ impl Point {
     ) {
         let s = self.block;
         let (base, y, growth) = (&at.state.frames[s], &point.y, point.growth);
-        let arm = chain.iter().map(|d| base.rotation * Vector3::new(d[0], d[1], d[2]));
-        // Without a drift's growth, no product by 1 per column (the same values).
-        if growth == 1.0 {
-            out.put_from(0, arm);
-        } else {
-            out.put_from(0, arm.map(|v| v * growth));
-        }
+        out.put_arm(chain, &base.rotation, growth);
         if let Some(b) = at.layout.frame_column(s) {
             let turns = &at.state.frame_turns[s];
             for k in 0..3 {

@@ -286,4 +286,31 @@ mod tests {
             }
         }
     }
+
+    /// The columns of the position alone are the full columns' positions to the bit (their
+    /// finish is a loop of its own), the axes' derivatives zero: both conventions (offsets, β
+    /// tilts, a scale other than one) and a URDF arm (the general pass).
+    #[test]
+    fn positions_alone_are_the_full_columns_positions() {
+        let mut urdf = ArmModel::suta_nominal();
+        urdf.convention = Convention::Urdf;
+        urdf.scale_ppm = -40.0;
+        for model in [arm(Convention::Classic), arm(Convention::Modified), urdf] {
+            let chain = Chain::new(&model);
+            let params = ParamId::all();
+            let (full, positions) = (ColumnMap::new(&params), ColumnMap::new(&params).positions_only());
+            for pose in 0..10 {
+                let enc: Vec<f64> = (0..7).map(|j| ((pose * 7 + j) as f64 * 0.61).cos() * 150.0).collect();
+                let mut both = [vec![[f64::NAN; 9]; params.len()], vec![[f64::NAN; 9]; params.len()]];
+                chain.pose_with_jacobian(&enc, &full, &mut both[0]);
+                chain.pose_with_jacobian(&enc, &positions, &mut both[1]);
+                for (c, (f, p)) in both[0].iter().zip(&both[1]).enumerate() {
+                    let label = format!("{:?} column {c}", model.convention);
+                    assert!(f[..3].iter().zip(&p[..3]).all(|(a, b)| a.to_bits() == b.to_bits()), "{label}");
+                    assert_eq!(p[3..], [0.0; 6], "{label}");
+                }
+                assert!(both[1].iter().any(|p| p[0] != 0.0), "columns of something");
+            }
+        }
+    }
 }

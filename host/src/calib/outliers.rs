@@ -19,9 +19,7 @@
 use crate::calib::diagnose::Measure;
 use crate::calib::fit::{refit, refit_with, Fit, SessionSums};
 use crate::calib::setup::Setup;
-use crate::calib::validate::{
-    distance_errors, fit_session_with_tool, placement_residuals, session_residuals,
-};
+use crate::calib::validate::{distance_errors, placement_residuals, session_residuals, session_tool};
 use crate::data::Observations;
 use crate::model::ArmModel;
 use crate::numerics::stats::rms;
@@ -98,7 +96,7 @@ fn rows(model: &ArmModel, cal: &Observations, setup: &Setup) -> (Vec<f64>, Vec<V
     }
     for b in cal.sessions() {
         let offset = if setup.float_tool.contains(&cal.block_name(b)) {
-            fit_session_with_tool(model, cal, b).0.offset_mm
+            session_tool(model, cal, b).offset_mm
         } else {
             [0.0; 3]
         };

@@ -53,12 +53,13 @@ use crate::calib::diagnose::units::Measure;
 use crate::calib::fit::{recalibrate, recalibrate_with, Fit, SessionSums};
 use crate::calib::nuisance::drift::{DriftKind, DriftSpec};
 use crate::calib::nuisance::frame::rotation_vector;
+use crate::calib::nuisance::frame::Frame;
 use crate::calib::nuisance::tool::orientation_spread_deg;
 use crate::calib::nuisance::tool::CONSTANT_ORIENTATION_DEG;
 use crate::calib::setup::{Change, SolveOptions};
 use crate::calib::validate::{
-    calibration_errors, fit_session_with_tool, held_out_session_errors, session_errors,
-    session_probe_rotation, undetermined_rotation, validate_orientations,
+    angle_stats, block_frame, calibration_errors, held_out_session_errors, orientation_errors_in_frame_deg,
+    session_probe_rotation, session_tool, undetermined_rotation, SessionFit,
 };
 use crate::data::Observations;
 use crate::model::ArmModel;
@@ -254,18 +255,29 @@ struct ProbeTurn {
 /// flange z axis", degrees.
 const FLANGE_Z_WITHIN_DEG: f64 = 10.0;
 
-/// The probe's turn in session `b` of `data` (its tool offset `offset_mm` refitted), against the
-/// shared probe rotation of `fit` (for a calibration session, the refit with its tool floating,
-/// which leaves its orientations out): `None` without a fitted probe rotation, without
-/// orientations, or when the session's points leave its base's rotation free.
-fn probe_turn(fit: &Fit, data: &Observations, b: usize, offset_mm: [f64; 3]) -> Option<ProbeTurn> {
+/// The probe's turn in session `b` of `data` (its tool offset `offset_mm` refitted, its frame
+/// refitted with it given by `frame`, asked only when there is a turn to score), against the shared probe rotation of `fit` (for a calibration
+/// session, the refit with its tool floating, which leaves its orientations out): `None` without
+/// a fitted probe rotation, without orientations, or when the session's points leave its base's
+/// rotation free.
+fn probe_turn(
+    fit: &Fit,
+    data: &Observations,
+    b: usize,
+    offset_mm: [f64; 3],
+    frame: impl FnOnce() -> Frame,
+) -> Option<ProbeTurn> {
     let shared = fit.tool_rotation.as_ref()?.rotation();
     if undetermined_rotation(data, b).is_some() {
         return None;
     }
     let own = session_probe_rotation(&fit.model, data, b, offset_mm)?;
-    let before = validate_orientations(&fit.model, data, b, offset_mm, &shared)?;
-    let after = validate_orientations(&fit.model, data, b, offset_mm, &own)?;
+    let frame = frame();
+    let stats = |probe: &Matrix3<f64>| {
+        angle_stats(&orientation_errors_in_frame_deg(&fit.model, data, b, &frame, probe))
+    };
+    let before = stats(&shared)?;
+    let after = stats(&own)?;
     let turn = own * shared.transpose();
     // The residual angle's RMS spreads over three axes; the turn's angle is a mean of n of them.
     let std_deg = after.rms_deg / (3.0 * after.orientations as f64).sqrt();
@@ -423,7 +435,8 @@ pub fn data_error_candidates_with(
         let Some(tool) = refit.tool_offsets.iter().find(|t| t.session == name) else { continue };
         let after = held_out.rms(&refit.model);
         let moved = verdict(&name, DataSet::Calibration, tool.offset_mm, tool.size_std_mm, after);
-        out.push(match probe_turn(&refit, cal, b, tool.offset_mm) {
+        let frame = || block_frame(&refit.model, cal, b, &Vector3::from(tool.offset_mm));
+        out.push(match probe_turn(&refit, cal, b, tool.offset_mm, frame) {
             Some(turn) if turn.called(&refit, &tool.offset_mm) => turn.data_error(moved),
             _ => moved,
         });
@@ -431,10 +444,11 @@ pub fn data_error_candidates_with(
     // A held-out session whose orientation is constant cannot tell its tool from its base.
     for b in turning(val) {
         let name = val.block_name(b);
-        let tool = fit_session_with_tool(&fit.model, val, b).0;
-        let after = rms_with(&errors, b, &session_errors(&fit.model, val, b, tool.offset_mm));
+        let tool = session_tool(&fit.model, val, b);
+        let session = SessionFit::of(&fit.model, val, b, tool.offset_mm);
+        let after = rms_with(&errors, b, &session.errors());
         let moved = verdict(&name, DataSet::HeldOut, tool.offset_mm, tool.size_std_mm, after);
-        out.push(match probe_turn(fit, val, b, tool.offset_mm) {
+        out.push(match probe_turn(fit, val, b, tool.offset_mm, || session.frame) {
             Some(turn) if turn.called(fit, &tool.offset_mm) => turn.data_error(moved),
             _ => moved,
         });

@@ -15,6 +15,7 @@ use crate::calib::fit::{calibrate_with_reference_on, check_data_on, dense_jacobi
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
 use crate::calib::nuisance::frame::Frame;
+use crate::calib::nuisance::tool::Poses;
 use crate::calib::outliers::outliers_with as outlier_metrics;
 use crate::calib::setup::{SolveOptions, DEFAULT_LEVER_MM};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions};
@@ -737,6 +738,9 @@ pub fn run_on(
         });
     }
     steps.lap("validation");
+    // The fit's pose of every calibration observation, read by the calibration sessions'
+    // residuals, the outlier rows and the data-error scoring.
+    let cal_poses = (!cal.sessions().is_empty()).then(|| Poses::of(&fit.model, cal));
     // The normal equations of the fit's solution, session by session: the first evaluation of
     // the data-error scoring's refits and of the outlier metrics' leave-one-session-out refits.
     let setup = inputs.setup(options);
@@ -746,7 +750,7 @@ pub fn run_on(
     // Tracker sessions held out: each frame refitted, against the nominal arm with its tool fitted.
     let tracker = reference.as_ref().map(|reference| {
         let run = RunContext { nominal: &nominal, cal, val, inputs, options };
-        sessions_section(run, &fit, reference, &same_base, sums.as_ref())
+        sessions_section(run, &fit, reference, &same_base, sums.as_ref(), cal_poses.as_ref())
     });
     if let Some(t) = &tracker {
         not_trustworthy.extend(crate::calib::trust::point_problems(&fit, nominal.reach_mm()));
@@ -769,7 +773,7 @@ pub fn run_on(
     }
     let outliers_skipped = !outliers;
     let outliers = if outliers {
-        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup, sums.as_ref())
+        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup, sums.as_ref(), cal_poses.as_ref())
     } else {
         Vec::new()
     };
@@ -846,7 +850,11 @@ pub fn run_on(
     let calibration_residuals = cal
         .sessions()
         .into_iter()
-        .zip(calibration_residuals_mm(&fit, cal))
+        .zip(calibration_residuals_mm(
+            &fit,
+            cal,
+            cal_poses.as_ref().and_then(|p| p.of_model(&fit.model, cal)),
+        ))
         .map(|(b, residuals)| session_residuals(cal, b, residuals, vec![None; cal.blocks[b].members.len()]))
         .collect();
     Ok(Run {
@@ -1025,7 +1033,8 @@ struct RunContext<'a> {
 
 /// Validate `fit` on the held-out sessions of `run.val` (each frame refitted, and each tool that
 /// floats) against `reference`, the nominal arm with its tool fitted on `run.cal`; the floor, the
-/// data errors and the verdict (its refits' first normal equations from `sums` when given).
+/// data errors and the verdict (its refits' first normal equations from `sums`, the fit's poses
+/// of the calibration observations from `cal_poses`, when given).
 /// `same_base` names each held-out session measured in a calibration session's base frame.
 fn sessions_section(
     run: RunContext,
@@ -1033,6 +1042,7 @@ fn sessions_section(
     reference: &Fit,
     same_base: &BTreeMap<String, String>,
     sums: Option<&SessionSums>,
+    cal_poses: Option<&Poses>,
 ) -> SessionsSection {
     let RunContext { nominal, cal, val, inputs, options } = run;
     let held = val.sessions();
@@ -1113,7 +1123,7 @@ fn sessions_section(
         Vec::new()
     } else {
         let all_floating = SolveOptions { float_tool: inputs.float_tool.clone(), ..options.clone() };
-        data_error_candidates_with(nominal, cal, val, fit, &all_floating, sums)
+        data_error_candidates_with(nominal, cal, val, fit, &all_floating, sums, cal_poses)
     };
     if let Some(best) = data_errors.iter().find(|d| d.significant) {
         verdict.push(format!("data error: {}; apply it with {}", best.text, best.action));

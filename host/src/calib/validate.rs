@@ -13,6 +13,7 @@ use crate::calib::nuisance::frame::{rotation_vector, Frame};
 use crate::calib::nuisance::tool::{flange_rotation, model_points, positions, with_offset, FloatedTool};
 use crate::calib::problem::Problem;
 use crate::data::{Observation, Observations};
+use crate::model::kinematics::ToolPose;
 use crate::model::kinematics::{Chain, Tips};
 use crate::model::ArmModel;
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions};
@@ -235,9 +236,10 @@ fn block_frame_of(robot: &[Vector3<f64>], data: &Observations, b: usize) -> Fram
     Frame::fit(robot, &measured)
 }
 
-/// Position error of every calibration point at the solution, per framed block in order, mm.
-pub fn calibration_errors(fit: &Fit, data: &Observations) -> Vec<Vec<f64>> {
-    calibration_residuals_mm(fit, data)
+/// Position error of every calibration point at the solution, per framed block in order, mm;
+/// the poses read from `poses` when they are of the fit's model on `data`.
+pub fn calibration_errors(fit: &Fit, data: &Observations, poses: Option<&[ToolPose]>) -> Vec<Vec<f64>> {
+    calibration_residuals_mm(fit, data, poses)
         .into_iter()
         .map(|block| block.iter().map(|r| r.norm()).collect())
         .collect()
@@ -245,12 +247,17 @@ pub fn calibration_errors(fit: &Fit, data: &Observations) -> Vec<Vec<f64>> {
 
 /// Residual of every point at the solution, per instrument session of `data` in order (empty for
 /// a session `fit` has no frame of): measured − predicted (its session's fitted frame, tool offset
-/// and drift), in the robot's base frame, mm.
-pub fn calibration_residuals_mm(fit: &Fit, data: &Observations) -> Vec<Vec<Vector3<f64>>> {
+/// and drift), in the robot's base frame, mm; the poses read from `poses` (of every observation
+/// of `data` on the fit's model) when given.
+pub fn calibration_residuals_mm(
+    fit: &Fit,
+    data: &Observations,
+    poses: Option<&[ToolPose]>,
+) -> Vec<Vec<Vector3<f64>>> {
     (0..data.blocks.len())
         .filter(|&b| data.groups[data.blocks[b].group].kind == crate::data::Kind::Tracker)
         .map(|b| match fit.frame(&data.block_name(b)) {
-            Some(frame) => residuals_with_frame(fit, data, b, &frame, data, point_members(data, b)),
+            Some(frame) => residuals_with_frame(fit, data, b, &frame, data, point_members(data, b), poses),
             None => Vec::new(),
         })
         .collect()
@@ -269,12 +276,13 @@ pub fn errors_in_calibration_session(
 ) -> Option<Vec<f64>> {
     let b = cal.find_block(session)?;
     let frame = fit.frame(session)?;
-    let residuals = residuals_with_frame(fit, cal, b, &frame, val, point_members(val, held_out));
+    let residuals = residuals_with_frame(fit, cal, b, &frame, val, point_members(val, held_out), None);
     Some(residuals.iter().map(|r| r.norm()).collect())
 }
 
 /// Residuals (measured − predicted, robot base frame, mm) of the points `members` of `points`
-/// with `frame` and the tool offset and drift `fit` gives block `b` of `data`.
+/// with `frame` and the tool offset and drift `fit` gives block `b` of `data`; their poses read
+/// from `poses` (of every observation of `points`) when given.
 fn residuals_with_frame(
     fit: &Fit,
     data: &Observations,
@@ -282,6 +290,7 @@ fn residuals_with_frame(
     frame: &Frame,
     points: &Observations,
     members: impl Iterator<Item = usize>,
+    poses: Option<&[ToolPose]>,
 ) -> Vec<Vector3<f64>> {
     let offset = fit.tool_offset(&data.groups[data.blocks[b].group].name);
     let name = data.block_name(b);
@@ -291,7 +300,8 @@ fn residuals_with_frame(
         .map(|k| {
             let p = &points.obs[k];
             let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
-            let y = frame.rotation * with_offset(&points.pose_on(&tips, k), &offset);
+            let pose = poses.map_or_else(|| points.pose_on(&tips, k), |poses| poses[k]);
+            let y = frame.rotation * with_offset(&pose, &offset);
             frame.rotation.transpose()
                 * (p.point_mm().unwrap_or_default() - (y * growth + frame.translation_mm + shift))
         })
@@ -460,7 +470,23 @@ impl SessionFit {
     /// Block `b` of `data` for `model` with the tool offset `tool_offset_mm` (flange frame).
     pub fn of(model: &ArmModel, data: &Observations, b: usize, tool_offset_mm: [f64; 3]) -> SessionFit {
         let offset = &Vector3::from(tool_offset_mm);
-        let robot = model_points(model, data, point_members(data, b), offset);
+        SessionFit::of_points(model_points(model, data, point_members(data, b), offset), data, b)
+    }
+
+    /// [`SessionFit::of`] read from the poses `poses` of every observation of `data` on the model.
+    pub fn of_poses(
+        poses: &[ToolPose],
+        data: &Observations,
+        b: usize,
+        tool_offset_mm: [f64; 3],
+    ) -> SessionFit {
+        let offset = &Vector3::from(tool_offset_mm);
+        let robot = point_members(data, b).map(|k| with_offset(&poses[k], offset)).collect();
+        SessionFit::of_points(robot, data, b)
+    }
+
+    /// The fit of block `b` for the model's points `robot` of its points, in order.
+    fn of_points(robot: Vec<Vector3<f64>>, data: &Observations, b: usize) -> SessionFit {
         let frame = block_frame_of(&robot, data, b);
         let residuals = points_of(data, b)
             .zip(&robot)
@@ -681,6 +707,37 @@ mod tests {
             );
             assert!(v.rms_mm > 0.1, "the nominal arm misses the truth's points: {v:?}");
         }
+    }
+
+    /// Figures read from a fit's poses taken once ([`Poses`]) are those computed from the model:
+    /// a session's fit, its orientation spread, the calibration residuals; the poses are read only
+    /// for the model and data they were taken of.
+    #[test]
+    fn figures_from_shared_poses_are_those_of_the_model() {
+        use crate::calib::bench_problem;
+        use crate::calib::nuisance::tool::{orientation_spread_deg, orientation_spread_of, Poses};
+        let nominal = bench_problem::arm();
+        let data = bench_problem::sessions(&bench_problem::truth(&nominal), 2, 60, 11);
+        let options = crate::calib::setup::SolveOptions::default();
+        let fit = crate::calib::fit::calibrate(&nominal, &data, &options).expect("fit");
+        let shared = Poses::of(&fit.model, &data);
+        let poses = shared.of_model(&fit.model, &data).expect("the poses of the fit's model");
+        assert!(
+            shared.of_model(&nominal, &data).is_none()
+                && shared.of_model(&fit.model, &data.clone()).is_none()
+        );
+        for b in 0..2 {
+            let offset_mm = [0.2, 0.0, -0.7];
+            let (alone, read) = (
+                SessionFit::of(&fit.model, &data, b, offset_mm),
+                SessionFit::of_poses(poses, &data, b, offset_mm),
+            );
+            assert_eq!((alone.frame, alone.residuals()), (read.frame, read.residuals()));
+            assert_eq!(orientation_spread_deg(&fit.model, &data, b), orientation_spread_of(poses, &data, b));
+        }
+        let residuals = calibration_residuals_mm(&fit, &data, None);
+        assert_eq!(residuals.iter().map(Vec::len).collect::<Vec<_>>(), [60, 60]);
+        assert_eq!(residuals, calibration_residuals_mm(&fit, &data, Some(poses)));
     }
 
     /// The row-buffered pairwise sum is the plain loop's to the bit, with and without points

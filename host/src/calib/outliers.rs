@@ -18,11 +18,11 @@
 
 use crate::calib::diagnose::Measure;
 use crate::calib::fit::{refit, refit_with, Fit, SessionSums};
+use crate::calib::nuisance::tool::Poses;
 use crate::calib::setup::Setup;
-use crate::calib::validate::{
-    distance_errors, fit_session_with_tool, placement_residuals, session_residuals,
-};
+use crate::calib::validate::{distance_errors, placement_residuals, session_tool, SessionFit};
 use crate::data::Observations;
+use crate::model::kinematics::ToolPose;
 use crate::model::ArmModel;
 use crate::numerics::stats::rms;
 use rayon::prelude::*;
@@ -88,8 +88,14 @@ enum Unit {
 
 /// The calibration residual rows of `model` on `cal`, and which unit each belongs to: a
 /// distance between two touches (both landmarks), or a coordinate of a point error (its session's
-/// frame refitted in closed form, its tool floated where the setup floats it).
-fn rows(model: &ArmModel, cal: &Observations, setup: &Setup) -> (Vec<f64>, Vec<Vec<usize>>) {
+/// frame refitted in closed form, its tool floated where the setup floats it); the points' poses
+/// read from `poses` (of every observation of `cal` on `model`) when given.
+fn rows(
+    model: &ArmModel,
+    cal: &Observations,
+    setup: &Setup,
+    poses: Option<&[ToolPose]>,
+) -> (Vec<f64>, Vec<Vec<usize>>) {
     let mut values = Vec::new();
     let mut owners = Vec::new();
     for e in distance_errors(model, cal) {
@@ -98,11 +104,15 @@ fn rows(model: &ArmModel, cal: &Observations, setup: &Setup) -> (Vec<f64>, Vec<V
     }
     for b in cal.sessions() {
         let offset = if setup.float_tool.contains(&cal.block_name(b)) {
-            fit_session_with_tool(model, cal, b).0.offset_mm
+            session_tool(model, cal, b).offset_mm
         } else {
             [0.0; 3]
         };
-        for r in session_residuals(model, cal, b, offset) {
+        let fit = match poses {
+            Some(poses) => SessionFit::of_poses(poses, cal, b, offset),
+            None => SessionFit::of(model, cal, b, offset),
+        };
+        for r in fit.residuals() {
             for v in [r.x, r.y, r.z] {
                 values.push(v);
                 owners.push(vec![cal.landmarks.len() + b]);
@@ -115,17 +125,20 @@ fn rows(model: &ArmModel, cal: &Observations, setup: &Setup) -> (Vec<f64>, Vec<V
 /// The metrics of every landmark touched in `cal` and every calibration session, for the
 /// calibration `fit` of `setup`.
 pub fn outliers(fit: &Fit, cal: &Observations, val: Option<&Observations>, setup: &Setup) -> Vec<Outlier> {
-    outliers_with(fit, cal, val, setup, None)
+    outliers_with(fit, cal, val, setup, None, None)
 }
 
 /// [`outliers`], the sessions' refits starting from `sums` when they are of `fit` (else from
-/// sums taken here): a run takes them once for these refits and the data-error scoring's.
+/// sums taken here): a run takes them once for these refits and the data-error scoring's; the
+/// fit's rows read from `poses` when they are of its model on `cal` (a run takes them once for
+/// these rows, the calibration residuals and the data-error scoring).
 pub fn outliers_with(
     fit: &Fit,
     cal: &Observations,
     val: Option<&Observations>,
     setup: &Setup,
     sums: Option<&SessionSums>,
+    poses: Option<&Poses>,
 ) -> Vec<Outlier> {
     let options = setup.solve_options(cal);
     let units: Vec<Unit> = (0..cal.landmarks.len())
@@ -138,7 +151,7 @@ pub fn outliers_with(
         Unit::Landmark(l) => l,
         Unit::Session(b) => cal.landmarks.len() + b,
     };
-    let (full, owners) = rows(&fit.model, cal, setup);
+    let (full, owners) = rows(&fit.model, cal, setup, poses.and_then(|p| p.of_model(&fit.model, cal)));
     let total: f64 = full.iter().map(|v| v * v).sum::<f64>().max(1e-300);
     let held_out = val.unwrap_or(cal);
     let rms_on = |model: &ArmModel| {
@@ -199,7 +212,7 @@ pub fn outliers_with(
             };
             let (cooks_distance, loo_impact_pct) = match refitted {
                 Ok(model) => {
-                    let (moved, _) = rows(&model, cal, setup);
+                    let (moved, _) = rows(&model, cal, setup, None);
                     let change: f64 = full.iter().zip(&moved).map(|(a, b)| (a - b).powi(2)).sum();
                     (
                         Some(change / (p.max(1) as f64 * mse.max(1e-300))),

@@ -14,15 +14,17 @@ use crate::calib::error_stats::{AngleStats, ErrorStats};
 use crate::calib::fit::{calibrate_with_reference_on, check_data_on, dense_jacobian, Fit, SessionSums};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
+use crate::calib::nuisance::frame::Frame;
+use crate::calib::nuisance::tool::Poses;
 use crate::calib::outliers::outliers_with as outlier_metrics;
 use crate::calib::setup::{SolveOptions, DEFAULT_LEVER_MM};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions};
 use crate::calib::summary::*;
 use crate::calib::trust::{result_problems, TrustScales};
 use crate::calib::validate::{
-    calibration_residuals_mm, errors_in_calibration_session, fit_session_with_tool, orientation_errors_deg,
-    session_probe_rotation, session_residuals_mm, undetermined_rotation, validate, validate_orientations,
-    validate_session, SessionValidation, Validation,
+    angle_stats, calibration_residuals_mm, errors_in_calibration_session, orientation_errors_in_frame_deg,
+    session_probe_rotation, session_tool, undetermined_rotation, validate, SessionFit, SessionValidation,
+    Validation,
 };
 use crate::data::{load_folder, Artefact, Encoders, Observations, Purpose};
 use crate::files::FileError;
@@ -736,6 +738,9 @@ pub fn run_on(
         });
     }
     steps.lap("validation");
+    // The fit's pose of every calibration observation, read by the calibration sessions'
+    // residuals, the outlier rows and the data-error scoring.
+    let cal_poses = (!cal.sessions().is_empty()).then(|| Poses::of(&fit.model, cal));
     // The normal equations of the fit's solution, session by session: the first evaluation of
     // the data-error scoring's refits and of the outlier metrics' leave-one-session-out refits.
     let setup = inputs.setup(options);
@@ -745,7 +750,7 @@ pub fn run_on(
     // Tracker sessions held out: each frame refitted, against the nominal arm with its tool fitted.
     let tracker = reference.as_ref().map(|reference| {
         let run = RunContext { nominal: &nominal, cal, val, inputs, options };
-        sessions_section(run, &fit, reference, &same_base, sums.as_ref())
+        sessions_section(run, &fit, reference, &same_base, sums.as_ref(), cal_poses.as_ref())
     });
     if let Some(t) = &tracker {
         not_trustworthy.extend(crate::calib::trust::point_problems(&fit, nominal.reach_mm()));
@@ -768,7 +773,7 @@ pub fn run_on(
     }
     let outliers_skipped = !outliers;
     let outliers = if outliers {
-        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup, sums.as_ref())
+        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup, sums.as_ref(), cal_poses.as_ref())
     } else {
         Vec::new()
     };
@@ -845,7 +850,11 @@ pub fn run_on(
     let calibration_residuals = cal
         .sessions()
         .into_iter()
-        .zip(calibration_residuals_mm(&fit, cal))
+        .zip(calibration_residuals_mm(
+            &fit,
+            cal,
+            cal_poses.as_ref().and_then(|p| p.of_model(&fit.model, cal)),
+        ))
         .map(|(b, residuals)| session_residuals(cal, b, residuals, vec![None; cal.blocks[b].members.len()]))
         .collect();
     Ok(Run {
@@ -1024,7 +1033,8 @@ struct RunContext<'a> {
 
 /// Validate `fit` on the held-out sessions of `run.val` (each frame refitted, and each tool that
 /// floats) against `reference`, the nominal arm with its tool fitted on `run.cal`; the floor, the
-/// data errors and the verdict (its refits' first normal equations from `sums` when given).
+/// data errors and the verdict (its refits' first normal equations from `sums`, the fit's poses
+/// of the calibration observations from `cal_poses`, when given).
 /// `same_base` names each held-out session measured in a calibration session's base frame.
 fn sessions_section(
     run: RunContext,
@@ -1032,18 +1042,16 @@ fn sessions_section(
     reference: &Fit,
     same_base: &BTreeMap<String, String>,
     sums: Option<&SessionSums>,
+    cal_poses: Option<&Poses>,
 ) -> SessionsSection {
     let RunContext { nominal, cal, val, inputs, options } = run;
     let held = val.sessions();
     let floated = |b: usize| inputs.float_tool.contains(&val.groups[val.blocks[b].group].name);
-    // The session's tool offset (its own when floated) and its figures.
-    let figures = |model: &ArmModel, b: usize| {
-        if floated(b) {
-            let (tool, figures) = fit_session_with_tool(model, val, b);
-            (tool.offset_mm, figures)
-        } else {
-            ([0.0; 3], validate_session(model, val, b, [0.0; 3]))
-        }
+    // The session's tool offset (its own when floated) and its closed-form fit with it, from
+    // which every figure of the session for that model is read.
+    let session_fit = |model: &ArmModel, b: usize| {
+        let offset_mm = if floated(b) { session_tool(model, val, b).offset_mm } else { [0.0; 3] };
+        (offset_mm, SessionFit::of(model, val, b, offset_mm))
     };
     // The probe's rotation on the flange in session b: the shared one, or, where the tool floats
     // (the probe re-mounted, perhaps turned on its mount), the session's own. A session whose
@@ -1056,24 +1064,24 @@ fn sessions_section(
             Some(shared.rotation())
         }
     };
-    let orientations = |fit: &Fit, b: usize, offset_mm: [f64; 3]| {
-        probe(fit, b, offset_mm).and_then(|p| validate_orientations(&fit.model, val, b, offset_mm, &p))
+    // The orientation error of every point of session b (its frame `frame`, refitted with the
+    // tool offset), when it has a probe rotation.
+    let angles = |fit: &Fit, b: usize, offset_mm: [f64; 3], frame: &Frame| {
+        probe(fit, b, offset_mm).map(|p| orientation_errors_in_frame_deg(&fit.model, val, b, frame, &p))
     };
     let mut verdict = Vec::new();
     let (mut session_figures, mut held_out) = (Vec::new(), Vec::new());
     let (mut calibrated_parts, mut nominal_parts, mut angle_parts) = (Vec::new(), Vec::new(), Vec::new());
     for b in held {
         let name = val.block_name(b);
-        let (offset_mm, c) = figures(&fit.model, b);
-        let (nominal_offset_mm, n) = figures(&reference.model, b);
-        let residuals = session_residuals_mm(&fit.model, val, b, offset_mm);
+        let (offset_mm, calibrated) = session_fit(&fit.model, b);
+        let (nominal_offset_mm, nominal_fit) = session_fit(&reference.model, b);
+        let (c, n) = (calibrated.validation(val, b), nominal_fit.validation(val, b));
         let orientation_withheld = fit.tool_rotation.as_ref().and_then(|_| undetermined_rotation(val, b));
-        let angles = match probe(fit, b, offset_mm) {
-            Some(p) => orientation_errors_deg(&fit.model, val, b, offset_mm, &p),
-            None => vec![None; val.blocks[b].members.len()],
-        };
-        held_out.push(session_residuals(val, b, residuals, angles));
-        let orientation = orientations(fit, b, offset_mm);
+        let point_angles = angles(fit, b, offset_mm, &calibrated.frame);
+        let orientation = point_angles.as_deref().and_then(angle_stats);
+        let point_angles = point_angles.unwrap_or_else(|| vec![None; val.blocks[b].members.len()]);
+        held_out.push(session_residuals(val, b, calibrated.residuals_mm(), point_angles));
         angle_parts.extend(orientation);
         let transfers = c.rms_mm <= n.rms_mm;
         if !transfers {
@@ -1099,7 +1107,9 @@ fn sessions_section(
             nominal: n,
             transfers,
             orientation,
-            nominal_orientation: orientations(reference, b, nominal_offset_mm),
+            nominal_orientation: angles(reference, b, nominal_offset_mm, &nominal_fit.frame)
+                .as_deref()
+                .and_then(angle_stats),
             orientation_withheld,
             same_base,
         });
@@ -1113,7 +1123,7 @@ fn sessions_section(
         Vec::new()
     } else {
         let all_floating = SolveOptions { float_tool: inputs.float_tool.clone(), ..options.clone() };
-        data_error_candidates_with(nominal, cal, val, fit, &all_floating, sums)
+        data_error_candidates_with(nominal, cal, val, fit, &all_floating, sums, cal_poses)
     };
     if let Some(best) = data_errors.iter().find(|d| d.significant) {
         verdict.push(format!("data error: {}; apply it with {}", best.text, best.action));

@@ -13,6 +13,7 @@ use crate::calib::nuisance::frame::{rotation_vector, Frame};
 use crate::calib::nuisance::tool::{flange_rotation, model_points, positions, with_offset, FloatedTool};
 use crate::calib::problem::Problem;
 use crate::data::{Observation, Observations};
+use crate::model::kinematics::ToolPose;
 use crate::model::kinematics::{Chain, Tips};
 use crate::model::ArmModel;
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions};
@@ -235,9 +236,10 @@ fn block_frame_of(robot: &[Vector3<f64>], data: &Observations, b: usize) -> Fram
     Frame::fit(robot, &measured)
 }
 
-/// Position error of every calibration point at the solution, per framed block in order, mm.
-pub fn calibration_errors(fit: &Fit, data: &Observations) -> Vec<Vec<f64>> {
-    calibration_residuals_mm(fit, data)
+/// Position error of every calibration point at the solution, per framed block in order, mm;
+/// the poses read from `poses` when they are of the fit's model on `data`.
+pub fn calibration_errors(fit: &Fit, data: &Observations, poses: Option<&[ToolPose]>) -> Vec<Vec<f64>> {
+    calibration_residuals_mm(fit, data, poses)
         .into_iter()
         .map(|block| block.iter().map(|r| r.norm()).collect())
         .collect()
@@ -245,12 +247,17 @@ pub fn calibration_errors(fit: &Fit, data: &Observations) -> Vec<Vec<f64>> {
 
 /// Residual of every point at the solution, per instrument session of `data` in order (empty for
 /// a session `fit` has no frame of): measured − predicted (its session's fitted frame, tool offset
-/// and drift), in the robot's base frame, mm.
-pub fn calibration_residuals_mm(fit: &Fit, data: &Observations) -> Vec<Vec<Vector3<f64>>> {
+/// and drift), in the robot's base frame, mm; the poses read from `poses` (of every observation
+/// of `data` on the fit's model) when given.
+pub fn calibration_residuals_mm(
+    fit: &Fit,
+    data: &Observations,
+    poses: Option<&[ToolPose]>,
+) -> Vec<Vec<Vector3<f64>>> {
     (0..data.blocks.len())
         .filter(|&b| data.groups[data.blocks[b].group].kind == crate::data::Kind::Tracker)
         .map(|b| match fit.frame(&data.block_name(b)) {
-            Some(frame) => residuals_with_frame(fit, data, b, &frame, data, point_members(data, b)),
+            Some(frame) => residuals_with_frame(fit, data, b, &frame, data, point_members(data, b), poses),
             None => Vec::new(),
         })
         .collect()
@@ -269,12 +276,13 @@ pub fn errors_in_calibration_session(
 ) -> Option<Vec<f64>> {
     let b = cal.find_block(session)?;
     let frame = fit.frame(session)?;
-    let residuals = residuals_with_frame(fit, cal, b, &frame, val, point_members(val, held_out));
+    let residuals = residuals_with_frame(fit, cal, b, &frame, val, point_members(val, held_out), None);
     Some(residuals.iter().map(|r| r.norm()).collect())
 }
 
 /// Residuals (measured − predicted, robot base frame, mm) of the points `members` of `points`
-/// with `frame` and the tool offset and drift `fit` gives block `b` of `data`.
+/// with `frame` and the tool offset and drift `fit` gives block `b` of `data`; their poses read
+/// from `poses` (of every observation of `points`) when given.
 fn residuals_with_frame(
     fit: &Fit,
     data: &Observations,
@@ -282,6 +290,7 @@ fn residuals_with_frame(
     frame: &Frame,
     points: &Observations,
     members: impl Iterator<Item = usize>,
+    poses: Option<&[ToolPose]>,
 ) -> Vec<Vector3<f64>> {
     let offset = fit.tool_offset(&data.groups[data.blocks[b].group].name);
     let name = data.block_name(b);
@@ -291,20 +300,18 @@ fn residuals_with_frame(
         .map(|k| {
             let p = &points.obs[k];
             let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
-            let y = frame.rotation * with_offset(&points.pose_on(&tips, k), &offset);
+            let pose = poses.map_or_else(|| points.pose_on(&tips, k), |poses| poses[k]);
+            let y = frame.rotation * with_offset(&pose, &offset);
             frame.rotation.transpose()
                 * (p.point_mm().unwrap_or_default() - (y * growth + frame.translation_mm + shift))
         })
         .collect()
 }
 
-/// Fit block `b`'s frame and its own tool offset for a fixed `model` (the tool floated there),
-/// and validate with both refitted.
-pub fn fit_session_with_tool(
-    model: &ArmModel,
-    data: &Observations,
-    b: usize,
-) -> (FloatedTool, SessionValidation) {
+/// Fit block `b`'s frame and its own tool offset for a fixed `model` (the tool floated there):
+/// the offset with its covariance. [`validate_session`] at its offset validates with both
+/// refitted.
+pub fn session_tool(model: &ArmModel, data: &Observations, b: usize) -> FloatedTool {
     let group = data.blocks[b].group;
     let one = data.subset(&[group]);
     let start = block_frame(model, &one, 0, &Vector3::zeros());
@@ -321,8 +328,7 @@ pub fn fit_session_with_tool(
     let cov = crate::calib::identify::covariance_of_normal(normal, variance);
     let offset = problem.state(&solution.x).tools[0];
     let block = cov.as_ref().map_or(Matrix3::zeros(), |c| c.fixed_view::<3, 3>(6, 6).into_owned());
-    let tool = FloatedTool::new(data.groups[group].name.clone(), &offset, &block);
-    (tool, validate_session(model, data, b, offset.into()))
+    FloatedTool::new(data.groups[group].name.clone(), &offset, &block)
 }
 
 /// RMS distance, mm, of a session's points from the line through them below which they count as
@@ -375,8 +381,13 @@ pub fn validate_orientations(
     tool_offset_mm: [f64; 3],
     probe: &Matrix3<f64>,
 ) -> Option<AngleStats> {
-    let angles_deg: Vec<f64> =
-        orientation_errors_deg(model, data, b, tool_offset_mm, probe).into_iter().flatten().collect();
+    angle_stats(&orientation_errors_deg(model, data, b, tool_offset_mm, probe))
+}
+
+/// The statistics of the orientation errors `errors_deg` of a block's points (those it has);
+/// `None` when it has none.
+pub fn angle_stats(errors_deg: &[Option<f64>]) -> Option<AngleStats> {
+    let angles_deg: Vec<f64> = errors_deg.iter().flatten().copied().collect();
     (!angles_deg.is_empty()).then(|| AngleStats::of(&angles_deg))
 }
 
@@ -390,6 +401,18 @@ pub fn orientation_errors_deg(
     probe: &Matrix3<f64>,
 ) -> Vec<Option<f64>> {
     let frame = block_frame(model, data, b, &Vector3::from(tool_offset_mm));
+    orientation_errors_in_frame_deg(model, data, b, &frame, probe)
+}
+
+/// [`orientation_errors_deg`] with block `b`'s frame `frame` already refitted (a
+/// [`SessionFit`]'s).
+pub fn orientation_errors_in_frame_deg(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    frame: &Frame,
+    probe: &Matrix3<f64>,
+) -> Vec<Option<f64>> {
     let chain = Chain::new(model);
     point_members(data, b)
         .map(|k| {
@@ -411,8 +434,7 @@ pub fn session_residuals_mm(
     b: usize,
     tool_offset_mm: [f64; 3],
 ) -> Vec<Vector3<f64>> {
-    let (frame, residuals) = session_fit(model, data, b, tool_offset_mm);
-    residuals.iter().map(|r| frame.rotation.transpose() * -r).collect()
+    SessionFit::of(model, data, b, tool_offset_mm).residuals_mm()
 }
 
 impl SessionValidation {
@@ -431,26 +453,81 @@ impl SessionValidation {
 /// Most points of a session whose pairwise distances are compared (evenly spaced beyond).
 pub const MAX_PAIRWISE_POINTS: usize = 2000;
 
-/// Block `b`'s frame for `model` (closed form) and the position error of every point with it, in
-/// file order, in the instrument's frame (predicted − measured), mm.
-fn session_fit(
-    model: &ArmModel,
-    data: &Observations,
-    b: usize,
-    tool_offset_mm: [f64; 3],
-) -> (Frame, Vec<Vector3<f64>>) {
-    let offset = &Vector3::from(tool_offset_mm);
-    fit_of(&model_points(model, data, point_members(data, b), offset), data, b)
+/// Block `b`'s closed-form fit for a model: the model's points of its points, its frame and the
+/// position error of every point with it. Every figure of a session for one model and tool offset
+/// (its validation, its residuals, its orientation errors) is read from one of these, so that its
+/// points are posed and its frame fitted once.
+pub struct SessionFit {
+    /// The model's tool points of the block's points, in file order, robot frame, mm.
+    robot: Vec<Vector3<f64>>,
+    /// The refitted frame (robot → instrument).
+    pub frame: Frame,
+    /// Predicted − measured of every point, in file order, in the instrument's frame, mm.
+    residuals: Vec<Vector3<f64>>,
 }
 
-/// [`session_fit`] for the model's points `robot` of block `b`'s points in order.
-fn fit_of(robot: &[Vector3<f64>], data: &Observations, b: usize) -> (Frame, Vec<Vector3<f64>>) {
-    let frame = block_frame_of(robot, data, b);
-    let residuals = points_of(data, b)
-        .zip(robot)
-        .map(|(p, y)| frame.apply(y) - p.point_mm().unwrap_or_default())
-        .collect();
-    (frame, residuals)
+impl SessionFit {
+    /// Block `b` of `data` for `model` with the tool offset `tool_offset_mm` (flange frame).
+    pub fn of(model: &ArmModel, data: &Observations, b: usize, tool_offset_mm: [f64; 3]) -> SessionFit {
+        let offset = &Vector3::from(tool_offset_mm);
+        SessionFit::of_points(model_points(model, data, point_members(data, b), offset), data, b)
+    }
+
+    /// [`SessionFit::of`] read from the poses `poses` of every observation of `data` on the model.
+    pub fn of_poses(
+        poses: &[ToolPose],
+        data: &Observations,
+        b: usize,
+        tool_offset_mm: [f64; 3],
+    ) -> SessionFit {
+        let offset = &Vector3::from(tool_offset_mm);
+        let robot = point_members(data, b).map(|k| with_offset(&poses[k], offset)).collect();
+        SessionFit::of_points(robot, data, b)
+    }
+
+    /// The fit of block `b` for the model's points `robot` of its points, in order.
+    fn of_points(robot: Vec<Vector3<f64>>, data: &Observations, b: usize) -> SessionFit {
+        let frame = block_frame_of(&robot, data, b);
+        let residuals = points_of(data, b)
+            .zip(&robot)
+            .map(|(p, y)| frame.apply(y) - p.point_mm().unwrap_or_default())
+            .collect();
+        SessionFit { robot, frame, residuals }
+    }
+
+    /// Position error of every point, in file order, in the instrument's frame, mm.
+    pub fn residuals(&self) -> &[Vector3<f64>] {
+        &self.residuals
+    }
+
+    /// Lengths of the residuals, mm.
+    pub fn errors(&self) -> Vec<f64> {
+        self.residuals.iter().map(|r| r.norm()).collect()
+    }
+
+    /// Measured − predicted of every point, rotated into the robot's base frame so that sessions
+    /// compare, mm.
+    pub fn residuals_mm(&self) -> Vec<Vector3<f64>> {
+        self.residuals.iter().map(|r| self.frame.rotation.transpose() * -r).collect()
+    }
+
+    /// The error statistics and the pairwise figure of block `b` of `data` (whose fit this is).
+    pub fn validation(&self, data: &Observations, b: usize) -> SessionValidation {
+        let stats = ErrorStats::of(&self.errors());
+        let points: Vec<Vector3<f64>> =
+            points_of(data, b).map(|p| p.point_mm().unwrap_or_default()).collect();
+        let (sum, pairs) = pairwise_square_sum(&self.robot, &points);
+        SessionValidation {
+            name: data.block_name(b),
+            points: stats.count,
+            rms_mm: stats.rms_mm,
+            mean_mm: stats.mean_mm,
+            std_mm: stats.std_mm,
+            max_mm: stats.max_mm,
+            pairwise_rms_mm: if pairs > 0 { (sum / pairs as f64).sqrt() } else { 0.0 },
+            pairs,
+        }
+    }
 }
 
 /// Position error of every point of block `b` for `model`, its frame refitted (closed form), in
@@ -461,11 +538,11 @@ pub fn session_residuals(
     b: usize,
     tool_offset_mm: [f64; 3],
 ) -> Vec<Vector3<f64>> {
-    session_fit(model, data, b, tool_offset_mm).1
+    SessionFit::of(model, data, b, tool_offset_mm).residuals
 }
 
 /// [`session_errors`] of held-out session `b` of `val`, its tool refitted too
-/// ([`fit_session_with_tool`]) when `float_tool` names it.
+/// ([`session_tool`]) when `float_tool` names it.
 pub fn held_out_session_errors(
     model: &ArmModel,
     val: &Observations,
@@ -473,7 +550,7 @@ pub fn held_out_session_errors(
     float_tool: &[String],
 ) -> Vec<f64> {
     let offset = if float_tool.contains(&val.block_name(b)) {
-        fit_session_with_tool(model, val, b).0.offset_mm
+        session_tool(model, val, b).offset_mm
     } else {
         [0.0; 3]
     };
@@ -482,7 +559,7 @@ pub fn held_out_session_errors(
 
 /// Lengths of [`session_residuals`], mm.
 pub fn session_errors(model: &ArmModel, data: &Observations, b: usize, tool_offset_mm: [f64; 3]) -> Vec<f64> {
-    session_residuals(model, data, b, tool_offset_mm).iter().map(|r| r.norm()).collect()
+    SessionFit::of(model, data, b, tool_offset_mm).errors()
 }
 
 /// Errors of `model` on block `b` with its frame refitted (closed form), and the pairwise figures.
@@ -492,32 +569,62 @@ pub fn validate_session(
     b: usize,
     tool_offset_mm: [f64; 3],
 ) -> SessionValidation {
-    let offset = &Vector3::from(tool_offset_mm);
-    let robot = model_points(model, data, point_members(data, b), offset);
-    let errors: Vec<f64> = fit_of(&robot, data, b).1.iter().map(|r| r.norm()).collect();
-    let stats = ErrorStats::of(&errors);
-    let points: Vec<Vector3<f64>> = points_of(data, b).map(|p| p.point_mm().unwrap_or_default()).collect();
-    let step = points.len().div_ceil(MAX_PAIRWISE_POINTS).max(1);
-    let picked: Vec<usize> = (0..points.len()).step_by(step).collect();
-    let mut sum = 0.0;
-    let mut pairs = 0usize;
-    for (k, &a) in picked.iter().enumerate() {
-        for &c in &picked[k + 1..] {
-            let e = (robot[a] - robot[c]).norm() - (points[a] - points[c]).norm();
-            sum += e * e;
-            pairs += 1;
+    SessionFit::of(model, data, b, tool_offset_mm).validation(data, b)
+}
+
+/// Points' coordinates as three arrays, so that a loop over many points reads each coordinate
+/// contiguously (and vectorises).
+struct Coordinates {
+    x: Vec<f64>,
+    y: Vec<f64>,
+    z: Vec<f64>,
+}
+
+impl Coordinates {
+    /// The coordinates of `points[i]` for each `i` of `picked`, in that order.
+    fn of(points: &[Vector3<f64>], picked: impl Iterator<Item = usize> + Clone) -> Coordinates {
+        let axis = |j: usize| picked.clone().map(|i| points[i][j]).collect();
+        Coordinates { x: axis(0), y: axis(1), z: axis(2) }
+    }
+
+    /// Point `a`'s distance to each point after it, into `out` (as long as the points after it).
+    /// The sum of squares in `Vector3::norm`'s order, so each distance is its norm to the bit.
+    fn distances_after(&self, a: usize, out: &mut [f64]) {
+        let n = out.len();
+        let (x, y, z) = (&self.x[a + 1..][..n], &self.y[a + 1..][..n], &self.z[a + 1..][..n]);
+        let (xa, ya, za) = (self.x[a], self.y[a], self.z[a]);
+        for i in 0..n {
+            let (dx, dy, dz) = (xa - x[i], ya - y[i], za - z[i]);
+            out[i] = (dx * dx + dy * dy + dz * dz).sqrt();
         }
     }
-    SessionValidation {
-        name: data.block_name(b),
-        points: stats.count,
-        rms_mm: stats.rms_mm,
-        mean_mm: stats.mean_mm,
-        std_mm: stats.std_mm,
-        max_mm: stats.max_mm,
-        pairwise_rms_mm: if pairs > 0 { (sum / pairs as f64).sqrt() } else { 0.0 },
-        pairs,
+}
+
+/// The frame-free pairwise figure of a session: Σ (|yₐ − y_c| − |pₐ − p_c|)² over the pairs
+/// a < c of its points (`robot` the model's, `measured` the instrument's, in order; at most
+/// [`MAX_PAIRWISE_POINTS`] of them, evenly spaced), and the number of pairs. Each row of pairs'
+/// squares is taken into a buffer, a loop that vectorises, then added in the pairs' order: the
+/// sum of the plain pair-by-pair loop, to the bit.
+fn pairwise_square_sum(robot: &[Vector3<f64>], measured: &[Vector3<f64>]) -> (f64, usize) {
+    let step = measured.len().div_ceil(MAX_PAIRWISE_POINTS).max(1);
+    let picked = (0..measured.len()).step_by(step);
+    let (robot, measured) = (Coordinates::of(robot, picked.clone()), Coordinates::of(measured, picked));
+    let n = measured.x.len();
+    let (mut model_mm, mut measured_mm) = (vec![0.0; n], vec![0.0; n]);
+    let mut sum = 0.0;
+    for a in 0..n {
+        let (model_mm, measured_mm) = (&mut model_mm[..n - a - 1], &mut measured_mm[..n - a - 1]);
+        robot.distances_after(a, model_mm);
+        measured.distances_after(a, measured_mm);
+        for (m, d) in model_mm.iter_mut().zip(measured_mm.iter()) {
+            let e = *m - d;
+            *m = e * e;
+        }
+        for square in model_mm.iter() {
+            sum += square;
+        }
     }
+    (sum, n * n.saturating_sub(1) / 2)
 }
 
 #[cfg(test)]
@@ -530,5 +637,118 @@ mod tests {
         assert!((s.rms_mm - 5.0_f64.sqrt()).abs() < 1e-12);
         assert_eq!((s.mean_mm, s.max_mm, s.count), (0.0, 3.0, 4));
         assert_eq!(ErrorStats::of(&[]).count, 0);
+    }
+
+    /// The pairwise figure of the plain loop: every pair's vectors' norms, one pair at a time.
+    fn plain_pairwise(robot: &[Vector3<f64>], measured: &[Vector3<f64>]) -> (f64, usize) {
+        let step = measured.len().div_ceil(MAX_PAIRWISE_POINTS).max(1);
+        let picked: Vec<usize> = (0..measured.len()).step_by(step).collect();
+        let (mut sum, mut pairs) = (0.0, 0);
+        for (k, &a) in picked.iter().enumerate() {
+            for &c in &picked[k + 1..] {
+                let e = (robot[a] - robot[c]).norm() - (measured[a] - measured[c]).norm();
+                sum += e * e;
+                pairs += 1;
+            }
+        }
+        (sum, pairs)
+    }
+
+    /// Scattered points of a session, the measured ones the model's moved by a little noise.
+    fn session_points(n: usize) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+        let at = |i: usize, j: usize| ((i * 3 + j) as f64 * 0.7351).sin() * 900.0 + j as f64 * 130.0;
+        let robot: Vec<Vector3<f64>> = (0..n).map(|i| Vector3::new(at(i, 0), at(i, 1), at(i, 2))).collect();
+        let noise = |i: usize, j: usize| ((i * 5 + j) as f64 * 1.913).cos() * 0.03;
+        let measured = robot
+            .iter()
+            .enumerate()
+            .map(|(i, p)| p + Vector3::new(noise(i, 0), noise(i, 1), noise(i, 2)))
+            .collect();
+        (robot, measured)
+    }
+
+    /// A session's figures read from one closed-form fit are those computed each on its own: the
+    /// frame [`block_frame`] fits (the one the orientation errors read), the errors, the residuals
+    /// in the base frame, and the statistics with the plain loop's pairwise figure.
+    #[test]
+    fn a_session_fit_gives_each_figure_computed_alone() {
+        use crate::calib::bench_problem;
+        let nominal = bench_problem::arm();
+        let data = bench_problem::sessions(&bench_problem::truth(&nominal), 2, 60, 7);
+        for (b, offset_mm) in [(0, [0.0; 3]), (1, [0.4, -0.3, 1.1])] {
+            let offset = Vector3::from(offset_mm);
+            let fit = SessionFit::of(&nominal, &data, b, offset_mm);
+            assert_eq!(fit.frame, block_frame(&nominal, &data, b, &offset));
+            let robot = model_points(&nominal, &data, point_members(&data, b), &offset);
+            let measured: Vec<Vector3<f64>> =
+                points_of(&data, b).map(|p| p.point_mm().unwrap_or_default()).collect();
+            let frame = Frame::fit(&robot, &measured);
+            let residuals: Vec<Vector3<f64>> =
+                robot.iter().zip(&measured).map(|(y, p)| frame.apply(y) - p).collect();
+            let errors: Vec<f64> = residuals.iter().map(|r| r.norm()).collect();
+            assert_eq!(fit.residuals(), residuals.as_slice());
+            assert_eq!(fit.errors(), errors);
+            let in_base: Vec<Vector3<f64>> =
+                residuals.iter().map(|r| frame.rotation.transpose() * -r).collect();
+            assert_eq!(fit.residuals_mm(), in_base);
+            let (v, stats) = (fit.validation(&data, b), ErrorStats::of(&errors));
+            let (sum, pairs) = plain_pairwise(&robot, &measured);
+            assert_eq!(
+                (v.points, v.rms_mm, v.mean_mm, v.std_mm, v.max_mm, v.pairs, v.pairwise_rms_mm),
+                (
+                    60,
+                    stats.rms_mm,
+                    stats.mean_mm,
+                    stats.std_mm,
+                    stats.max_mm,
+                    pairs,
+                    (sum / pairs as f64).sqrt()
+                )
+            );
+            assert!(v.rms_mm > 0.1, "the nominal arm misses the truth's points: {v:?}");
+        }
+    }
+
+    /// Figures read from a fit's poses taken once ([`Poses`]) are those computed from the model:
+    /// a session's fit, its orientation spread, the calibration residuals; the poses are read only
+    /// for the model and data they were taken of.
+    #[test]
+    fn figures_from_shared_poses_are_those_of_the_model() {
+        use crate::calib::bench_problem;
+        use crate::calib::nuisance::tool::{orientation_spread_deg, orientation_spread_of, Poses};
+        let nominal = bench_problem::arm();
+        let data = bench_problem::sessions(&bench_problem::truth(&nominal), 2, 60, 11);
+        let options = crate::calib::setup::SolveOptions::default();
+        let fit = crate::calib::fit::calibrate(&nominal, &data, &options).expect("fit");
+        let shared = Poses::of(&fit.model, &data);
+        let poses = shared.of_model(&fit.model, &data).expect("the poses of the fit's model");
+        assert!(
+            shared.of_model(&nominal, &data).is_none()
+                && shared.of_model(&fit.model, &data.clone()).is_none()
+        );
+        for b in 0..2 {
+            let offset_mm = [0.2, 0.0, -0.7];
+            let (alone, read) = (
+                SessionFit::of(&fit.model, &data, b, offset_mm),
+                SessionFit::of_poses(poses, &data, b, offset_mm),
+            );
+            assert_eq!((alone.frame, alone.residuals()), (read.frame, read.residuals()));
+            assert_eq!(orientation_spread_deg(&fit.model, &data, b), orientation_spread_of(poses, &data, b));
+        }
+        let residuals = calibration_residuals_mm(&fit, &data, None);
+        assert_eq!(residuals.iter().map(Vec::len).collect::<Vec<_>>(), [60, 60]);
+        assert_eq!(residuals, calibration_residuals_mm(&fit, &data, Some(poses)));
+    }
+
+    /// The row-buffered pairwise sum is the plain loop's to the bit, with and without points
+    /// left out by the cap on their number, and for no pair at all.
+    #[test]
+    fn pairwise_sum_is_the_plain_loops() {
+        for n in [0, 1, 2, 3, 17, 250, MAX_PAIRWISE_POINTS + 7] {
+            let (robot, measured) = session_points(n);
+            let (fast, plain) = (pairwise_square_sum(&robot, &measured), plain_pairwise(&robot, &measured));
+            assert_eq!((fast.0.to_bits(), fast.1), (plain.0.to_bits(), plain.1), "{n} points");
+            assert!(n < 3 || fast.0 > 0.0, "the noise leaves a figure");
+        }
     }
 }

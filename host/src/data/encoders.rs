@@ -80,11 +80,16 @@ impl Encoders {
         self.with_row(k, o, |sin_cos| chain.pose_with_sin_cos(&o.q_deg, sin_cos))
     }
 
-    /// The table of `data`, taken from this one when `data`'s observations are these or some of
-    /// them in the same order (another selection of the same observations: a session or a few
-    /// points left out, the orientations dropped), else built for `data`. A row depends on its
-    /// angles alone, so a row whose angles are bit for bit those of an observation is its row.
+    /// The table of `data`: its own when built (a selection of observations whose table was
+    /// built takes its rows, [`Observations::without`]), else taken from this one when `data`'s
+    /// observations are these or some of them in the same order (another selection of the same
+    /// observations: a session or a few points left out, the orientations dropped), else built
+    /// for `data`. A row depends on its angles alone, so a row whose angles are bit for bit those
+    /// of an observation is its row, whichever table holds it.
     pub fn for_data(&self, data: &Observations) -> Encoders {
+        if let Some(own) = data.built_encoders() {
+            return own.clone();
+        }
         if data.joints != self.joints {
             return Encoders::of(data);
         }
@@ -110,9 +115,15 @@ impl Encoders {
     /// The table of rows `taken`, in that order.
     pub(crate) fn rows_of(&self, taken: &[usize]) -> Encoders {
         let (joints, width) = (self.joints, self.joints + 1);
-        let table = taken.iter().flat_map(|&i| self.table[i * joints..(i + 1) * joints].iter().copied());
-        let angles = taken.iter().flat_map(|&i| self.angles[i * width..(i + 1) * width].iter().copied());
-        Encoders { joints, angles: angles.collect(), table: table.collect() }
+        // Whole rows copied into vectors sized once (an element-wise collect of the flattened
+        // rows grows them one value at a time).
+        let mut table = Vec::with_capacity(taken.len() * joints);
+        let mut angles = Vec::with_capacity(taken.len() * width);
+        for &i in taken {
+            table.extend_from_slice(&self.table[i * joints..(i + 1) * joints]);
+            angles.extend_from_slice(&self.angles[i * width..(i + 1) * width]);
+        }
+        Encoders { joints, angles: angles.into(), table: table.into() }
     }
 }
 
@@ -126,6 +137,11 @@ impl EncoderCache {
     /// The table of `data`, whose cache this is.
     pub(super) fn of(&self, data: &Observations) -> &Encoders {
         self.0.get_or_init(|| Encoders::of(data))
+    }
+
+    /// The table when built.
+    pub(super) fn built(&self) -> Option<&Encoders> {
+        self.0.get()
     }
 
     /// The cache of a selection of these observations (`kept`, in order): their rows when this
@@ -226,6 +242,24 @@ mod tests {
                 assert_eq!((table, own), (plain, plain));
             }
         }
+    }
+
+    /// A selection of observations whose table is built reads that table (its rows not copied
+    /// again); one whose table is not built takes its rows from another table, the rows its own
+    /// angles give.
+    #[test]
+    fn a_selection_reads_its_own_table() {
+        let data = touches();
+        let full = data.encoders().clone();
+        let selection = data.without(|k| k % 3 == 1);
+        let own = selection.built_encoders().expect("a selection of a built table is built");
+        assert_eq!(full.for_data(&selection).table().as_ptr(), own.table().as_ptr());
+        assert_eq!(own.table(), Encoders::of(&selection).table());
+        let unbuilt = touches().without(|k| k % 4 == 2);
+        assert!(unbuilt.built_encoders().is_none());
+        let (taken, fresh) = (full.for_data(&unbuilt), Encoders::of(&unbuilt));
+        assert_ne!(taken.table().len(), full.table().len(), "rows were left out");
+        assert_eq!((taken.table(), &taken.angles), (fresh.table(), &fresh.angles));
     }
 
     /// A row is read only while it holds its observation's angles: an angle changed after the

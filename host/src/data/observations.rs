@@ -428,6 +428,11 @@ impl Observations {
         self.encoders.of(self)
     }
 
+    /// [`Observations::encoders`] when already built, without building it.
+    pub(crate) fn built_encoders(&self) -> Option<&Encoders> {
+        self.encoders.built()
+    }
+
     /// Observation `k`'s tool pose on its tip's chain of `tips`, its encoder angles' sines and
     /// cosines read from [`Observations::encoders`].
     pub fn pose_on(&self, tips: &Tips, k: usize) -> ToolPose {

@@ -12,7 +12,7 @@
 //! pairs of orders the visited angles cannot tell apart. The apparent error is also drawn
 //! against the joint's gravity lever, and |r| against height and reach.
 
-use crate::calib::validate::{fit_session_with_tool, placement_residuals, session_residuals_mm};
+use crate::calib::validate::{placement_residuals, session_residuals_mm, session_tool};
 use crate::data::Observations;
 use crate::model::effects::Effect;
 use crate::model::kinematics::{Chain, ColumnMap};
@@ -200,7 +200,7 @@ fn residuals(model: &ArmModel, data: &Observations, float_tool: &[String]) -> Ve
     let mut out = placement_residuals(model, data, 4);
     for b in data.sessions() {
         let offset = if float_tool.contains(&data.block_name(b)) {
-            fit_session_with_tool(model, data, b).0.offset_mm
+            session_tool(model, data, b).offset_mm
         } else {
             [0.0; 3]
         };

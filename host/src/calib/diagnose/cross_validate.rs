@@ -65,7 +65,7 @@ fn cross_validate(setup: &Setup, cal: &Observations, start: &ArmModel) -> Option
             };
             let (train, test) = (pick(false), pick(true));
             let fit = crate::calib::fit::calibrate(start, &train, &setup.solve_options(&train)).ok()?;
-            let errors = calibration_errors(&fit, &test);
+            let errors = calibration_errors(&fit, &test, None);
             let tested: Vec<String> = test.sessions().into_iter().map(|b| test.block_name(b)).collect();
             let mut out = Vec::new();
             for (s, &b) in sessions.iter().enumerate() {

@@ -20,7 +20,7 @@ use super::words::mm;
 use crate::calib::fit::Fit;
 use crate::calib::floor::{gap, point_floor, point_gap, Gap, NoiseFloor};
 use crate::calib::setup::Setup;
-use crate::calib::validate::{fit_session_with_tool, session_residuals};
+use crate::calib::validate::{session_residuals, session_tool};
 use crate::data::Observations;
 use crate::model::ArmModel;
 use crate::numerics::stats::{median, rms};
@@ -119,7 +119,7 @@ impl Floor {
             .into_iter()
             .map(|b| {
                 let offset = if setup.float_tool.contains(&val.block_name(b)) {
-                    fit_session_with_tool(model, val, b).0.offset_mm
+                    session_tool(model, val, b).offset_mm
                 } else {
                     [0.0; 3]
                 };

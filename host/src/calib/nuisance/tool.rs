@@ -43,6 +43,27 @@ pub fn model_points(
     members.into_iter().map(|k| with_offset(&data.pose_on(&tips, k), offset_mm)).collect()
 }
 
+/// The tool pose of every observation of `data` on a model, taken once for the several figures a
+/// run reads from them (the calibration residuals, the outlier rows, the data-error scoring).
+pub struct Poses<'a> {
+    model: &'a ArmModel,
+    data: &'a Observations,
+    poses: Vec<ToolPose>,
+}
+
+impl<'a> Poses<'a> {
+    /// Every observation of `data` on `model` (on its tip's chain).
+    pub fn of(model: &'a ArmModel, data: &'a Observations) -> Poses<'a> {
+        let tips = Tips::new(model);
+        Poses { model, data, poses: (0..data.obs.len()).map(|k| data.pose_on(&tips, k)).collect() }
+    }
+
+    /// The poses, when they are those of `model` on `data` (the very values, not equal copies).
+    pub fn of_model(&self, model: &ArmModel, data: &Observations) -> Option<&[ToolPose]> {
+        (std::ptr::eq(self.model, model) && std::ptr::eq(self.data, data)).then_some(self.poses.as_slice())
+    }
+}
+
 /// The tool position of every observation of `data` (the model's own tool), mm.
 pub fn positions(model: &ArmModel, data: &Observations) -> Vec<Vector3<f64>> {
     model_points(model, data, 0..data.obs.len(), &Vector3::zeros())
@@ -148,8 +169,18 @@ pub const CONSTANT_ORIENTATION_DEG: f64 = 1.0;
 /// its first (the model's flange orientation).
 pub fn orientation_spread_deg(model: &ArmModel, data: &Observations, b: usize) -> f64 {
     let tips = Tips::new(model);
-    let rotations: Vec<Matrix3<f64>> =
-        data.blocks[b].members.iter().map(|&k| flange_rotation(&data.pose_on(&tips, k))).collect();
+    spread_deg(data.blocks[b].members.iter().map(|&k| flange_rotation(&data.pose_on(&tips, k))))
+}
+
+/// [`orientation_spread_deg`] read from the poses `poses` of every observation of `data` (on
+/// the model, [`Poses`]).
+pub fn orientation_spread_of(poses: &[ToolPose], data: &Observations, b: usize) -> f64 {
+    spread_deg(data.blocks[b].members.iter().map(|&k| flange_rotation(&poses[k])))
+}
+
+/// Largest angle, degrees, between any of `rotations` and the first.
+fn spread_deg(rotations: impl Iterator<Item = Matrix3<f64>>) -> f64 {
+    let rotations: Vec<Matrix3<f64>> = rotations.collect();
     let Some(first) = rotations.first() else { return 0.0 };
     rotations
         .iter()

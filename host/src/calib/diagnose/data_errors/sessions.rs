@@ -53,14 +53,16 @@ use crate::calib::diagnose::units::Measure;
 use crate::calib::fit::{recalibrate, recalibrate_with, Fit, SessionSums};
 use crate::calib::nuisance::drift::{DriftKind, DriftSpec};
 use crate::calib::nuisance::frame::rotation_vector;
-use crate::calib::nuisance::tool::orientation_spread_deg;
+use crate::calib::nuisance::frame::Frame;
 use crate::calib::nuisance::tool::CONSTANT_ORIENTATION_DEG;
+use crate::calib::nuisance::tool::{orientation_spread_deg, orientation_spread_of, Poses};
 use crate::calib::setup::{Change, SolveOptions};
 use crate::calib::validate::{
-    calibration_errors, fit_session_with_tool, held_out_session_errors, session_errors,
-    session_probe_rotation, undetermined_rotation, validate_orientations,
+    angle_stats, block_frame, calibration_errors, held_out_session_errors, orientation_errors_in_frame_deg,
+    session_probe_rotation, session_tool, undetermined_rotation, SessionFit,
 };
 use crate::data::Observations;
+use crate::model::kinematics::ToolPose;
 use crate::model::ArmModel;
 use crate::numerics::stats::rms;
 use nalgebra::{Matrix3, Vector3};
@@ -117,9 +119,10 @@ fn bad_points_candidate(
     fit: &Fit,
     options: &SolveOptions,
     held_out: &HeldOut,
+    poses: Option<&[ToolPose]>,
 ) -> Option<DataError> {
     let before = held_out.before;
-    let errors = calibration_errors(fit, cal);
+    let errors = calibration_errors(fit, cal, poses);
     let median = crate::numerics::stats::median(errors.iter().flatten().copied().collect());
     let mut bad = Vec::new();
     let mut dropped = vec![false; cal.obs.len()];
@@ -254,18 +257,29 @@ struct ProbeTurn {
 /// flange z axis", degrees.
 const FLANGE_Z_WITHIN_DEG: f64 = 10.0;
 
-/// The probe's turn in session `b` of `data` (its tool offset `offset_mm` refitted), against the
-/// shared probe rotation of `fit` (for a calibration session, the refit with its tool floating,
-/// which leaves its orientations out): `None` without a fitted probe rotation, without
-/// orientations, or when the session's points leave its base's rotation free.
-fn probe_turn(fit: &Fit, data: &Observations, b: usize, offset_mm: [f64; 3]) -> Option<ProbeTurn> {
+/// The probe's turn in session `b` of `data` (its tool offset `offset_mm` refitted, its frame
+/// refitted with it given by `frame`, asked only when there is a turn to score), against the shared probe rotation of `fit` (for a calibration
+/// session, the refit with its tool floating, which leaves its orientations out): `None` without
+/// a fitted probe rotation, without orientations, or when the session's points leave its base's
+/// rotation free.
+fn probe_turn(
+    fit: &Fit,
+    data: &Observations,
+    b: usize,
+    offset_mm: [f64; 3],
+    frame: impl FnOnce() -> Frame,
+) -> Option<ProbeTurn> {
     let shared = fit.tool_rotation.as_ref()?.rotation();
     if undetermined_rotation(data, b).is_some() {
         return None;
     }
     let own = session_probe_rotation(&fit.model, data, b, offset_mm)?;
-    let before = validate_orientations(&fit.model, data, b, offset_mm, &shared)?;
-    let after = validate_orientations(&fit.model, data, b, offset_mm, &own)?;
+    let frame = frame();
+    let stats = |probe: &Matrix3<f64>| {
+        angle_stats(&orientation_errors_in_frame_deg(&fit.model, data, b, &frame, probe))
+    };
+    let before = stats(&shared)?;
+    let after = stats(&own)?;
     let turn = own * shared.transpose();
     // The residual angle's RMS spreads over three axes; the turn's angle is a mean of n of them.
     let std_deg = after.rms_deg / (3.0 * after.orientations as f64).sqrt();
@@ -341,12 +355,13 @@ pub fn data_error_candidates(
     fit: &Fit,
     options: &SolveOptions,
 ) -> Vec<DataError> {
-    data_error_candidates_with(nominal, cal, val, fit, options, None)
+    data_error_candidates_with(nominal, cal, val, fit, options, None, None)
 }
 
 /// [`data_error_candidates`], the refits floating a session's tool starting from `sums` when
 /// they are of `fit` (else from sums taken here): a run takes them once for these refits and
-/// the outlier metrics' (see [`SessionSums`]).
+/// the outlier metrics' (see [`SessionSums`]); the fit's poses of the calibration points read
+/// from `poses` when they are of its model on `cal` (a run takes them once, see [`Poses`]).
 pub fn data_error_candidates_with(
     nominal: &ArmModel,
     cal: &Observations,
@@ -354,7 +369,9 @@ pub fn data_error_candidates_with(
     fit: &Fit,
     options: &SolveOptions,
     sums: Option<&SessionSums>,
+    poses: Option<&Poses>,
 ) -> Vec<DataError> {
+    let cal_poses = poses.and_then(|p| p.of_model(&fit.model, cal));
     let errors = held_out_errors(&fit.model, val, &options.float_tool);
     let before = rms(&errors.iter().flat_map(|(_, e)| e.iter().copied()).collect::<Vec<_>>());
     let held_out = HeldOut { val, floating: &options.float_tool, before };
@@ -388,14 +405,18 @@ pub fn data_error_candidates_with(
         }
     };
     // A calibration session's own tool needs the shared one fixed by other sessions that turn it.
-    let turning = |data: &Observations| -> Vec<usize> {
+    let turning = |data: &Observations, poses: Option<&[ToolPose]>| -> Vec<usize> {
+        let spread = |b: usize| match poses {
+            Some(poses) => orientation_spread_of(poses, data, b),
+            None => orientation_spread_deg(&fit.model, data, b),
+        };
         data.sessions()
             .into_iter()
             .filter(|&b| !options.float_tool.contains(&data.block_name(b)))
-            .filter(|&b| orientation_spread_deg(&fit.model, data, b) >= CONSTANT_ORIENTATION_DEG)
+            .filter(|&b| spread(b) >= CONSTANT_ORIENTATION_DEG)
             .collect()
     };
-    let cal_turning = turning(cal);
+    let cal_turning = turning(cal, cal_poses);
     // Each refit starts from the other sessions' normal equations at the fit's solution.
     let own;
     let sums = match sums.filter(|s| std::ptr::eq(s.fit(), fit)) {
@@ -423,24 +444,26 @@ pub fn data_error_candidates_with(
         let Some(tool) = refit.tool_offsets.iter().find(|t| t.session == name) else { continue };
         let after = held_out.rms(&refit.model);
         let moved = verdict(&name, DataSet::Calibration, tool.offset_mm, tool.size_std_mm, after);
-        out.push(match probe_turn(&refit, cal, b, tool.offset_mm) {
+        let frame = || block_frame(&refit.model, cal, b, &Vector3::from(tool.offset_mm));
+        out.push(match probe_turn(&refit, cal, b, tool.offset_mm, frame) {
             Some(turn) if turn.called(&refit, &tool.offset_mm) => turn.data_error(moved),
             _ => moved,
         });
     }
     // A held-out session whose orientation is constant cannot tell its tool from its base.
-    for b in turning(val) {
+    for b in turning(val, None) {
         let name = val.block_name(b);
-        let tool = fit_session_with_tool(&fit.model, val, b).0;
-        let after = rms_with(&errors, b, &session_errors(&fit.model, val, b, tool.offset_mm));
+        let tool = session_tool(&fit.model, val, b);
+        let session = SessionFit::of(&fit.model, val, b, tool.offset_mm);
+        let after = rms_with(&errors, b, &session.errors());
         let moved = verdict(&name, DataSet::HeldOut, tool.offset_mm, tool.size_std_mm, after);
-        out.push(match probe_turn(fit, val, b, tool.offset_mm) {
+        out.push(match probe_turn(fit, val, b, tool.offset_mm, || session.frame) {
             Some(turn) if turn.called(fit, &tool.offset_mm) => turn.data_error(moved),
             _ => moved,
         });
     }
     out.extend(drift_candidates(nominal, cal, fit, refitting, &held_out));
-    out.extend(bad_points_candidate(nominal, cal, fit, refitting, &held_out));
+    out.extend(bad_points_candidate(nominal, cal, fit, refitting, &held_out, cal_poses));
     out.sort_by(|a, b| a.held_out_after_mm.total_cmp(&b.held_out_after_mm));
     // One data error at a time: the others are scored against a model the best one still bends,
     // so only the best is called; apply it and score again.

@@ -20,12 +20,13 @@ use crate::calib::terms::{Poses, Term, TermInput, TermJacobian};
 use crate::data::Observations;
 use crate::model::kinematics::{encoder_sin_cos, PoseDerivative, Tips};
 use crate::model::ArmModel;
-use crate::numerics::normal::{add_gram_by_four, NormalSums};
+use crate::numerics::normal::{add_gram_by_four, NormalSums, RowTarget, TermRows};
 use crate::numerics::qr::{r_factor, r_factor_of_stacked};
 use crate::numerics::solver::{symmetric, Loss, Residuals};
 use nalgebra::{DMatrix, DVector, Matrix3};
 use rayon::prelude::*;
 use std::borrow::Cow;
+use std::ops::Range;
 use std::sync::Mutex;
 
 /// Some terms and their residual rows.
@@ -529,9 +530,10 @@ impl Problem<'_> {
                 let blocks: Vec<usize> =
                     (0..self.data.blocks.len()).filter(|&b| self.data.blocks[b].group == g).collect();
                 let own = self.layout.own_columns(g, &blocks);
-                let mut local = vec![None; n];
+                // Per column, its place in the group's rows (none: `usize::MAX`).
+                let mut local = vec![usize::MAX; n];
                 for (l, &c) in own.iter().chain(&(0..a).collect::<Vec<_>>()).chain(&rotation).enumerate() {
-                    local[c] = Some(l);
+                    local[c] = l;
                 }
                 let width = own.len() + a + rotation.len();
                 let folded: Vec<Option<DMatrix<f64>>> = mine
@@ -542,28 +544,28 @@ impl Problem<'_> {
                         let input =
                             TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
                         let rows: usize = chunk.iter().map(|&i| self.terms[i].rows()).sum();
-                        let mut block = DMatrix::zeros(rows, width);
+                        let mut block = FactorRows {
+                            values: vec![0.0; rows * width],
+                            width,
+                            local: &local,
+                            at: 0,
+                            finite: true,
+                        };
                         let mut finite = true;
-                        let mut at = 0;
                         for &i in chunk {
                             let t = &self.terms[i];
                             let mut r = vec![0.0; t.rows()];
-                            jac.reset(t.rows());
-                            t.evaluate(&input, &mut r, Some(jac));
-                            finite &= r.iter().all(|v| v.is_finite());
-                            for (p, &c) in jac.columns.iter().enumerate() {
-                                let v = jac.column(p);
-                                finite &= v.iter().all(|v| v.is_finite());
-                                if let Some(l) = local[c] {
-                                    for (k, v) in v.iter().enumerate() {
-                                        block[(at + k, l)] = *v;
-                                    }
-                                }
+                            // A point writes its rows in place; any other term through its Jacobian.
+                            if !t.evaluate_into_rows(&input, &mut r, &mut block) {
+                                jac.reset(t.rows());
+                                t.evaluate(&input, &mut r, Some(jac));
+                                block.add(jac);
                             }
-                            at += t.rows();
+                            finite &= r.iter().all(|v| v.is_finite());
                         }
                         self.recycle(poses);
-                        finite.then(|| r_factor(block))
+                        finite &= block.finite && block.values.iter().all(|v| v.is_finite());
+                        finite.then(|| r_factor(DMatrix::from_row_slice(rows, width, &block.values)))
                     })
                     .collect();
                 // Folded in order: the same factor whatever the thread count.
@@ -573,6 +575,44 @@ impl Problem<'_> {
                 Some(GroupFactor { r, own: own.len() })
             })
             .collect()
+    }
+}
+
+/// A group's Jacobian rows for its factor, row-major over the group's columns: a term writes
+/// its rows in place ([`Term::evaluate_into_rows`]) or has them copied from its Jacobian.
+struct FactorRows<'l> {
+    values: Vec<f64>,
+    width: usize,
+    /// Per column of the problem, its place in a row (`usize::MAX`: not the group's).
+    local: &'l [usize],
+    /// Rows written.
+    at: usize,
+    /// No derivative copied from a Jacobian (of the group's columns or not) is infinite or NaN.
+    finite: bool,
+}
+
+impl FactorRows<'_> {
+    /// The next term's rows from its Jacobian `jac` (columns that are not the group's left out).
+    fn add(&mut self, jac: &TermJacobian) {
+        let rows = &mut self.values[self.at * self.width..(self.at + jac.rows) * self.width];
+        for (p, &c) in jac.columns.iter().enumerate() {
+            let column = jac.column(p);
+            self.finite &= column.iter().all(|v| v.is_finite());
+            if let Some(l) = Some(self.local[c]).filter(|&l| l < self.width) {
+                for (k, &v) in column.iter().enumerate() {
+                    rows[k * self.width + l] = v;
+                }
+            }
+        }
+        self.at += jac.rows;
+    }
+}
+
+impl RowTarget for FactorRows<'_> {
+    fn rows<'a>(&'a mut self, rows: usize, columns: &'a [Range<usize>]) -> TermRows<'a> {
+        let span = self.at * self.width..(self.at + rows) * self.width;
+        self.at += rows;
+        TermRows::new(&mut self.values[span], self.width, self.local, columns)
     }
 }
 
@@ -884,6 +924,50 @@ mod tests {
         assert!(h.iter().zip(&hj).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWJ");
         assert!(g.iter().zip(&gj).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWr");
         assert!(hj.norm() > 0.0 && gj.norm() > 0.0, "sums of something");
+    }
+
+    /// The groups' factors of points written straight into their rows are those of the same
+    /// points through their Jacobians to the bit: frames, floated tools, a drifting session and
+    /// a point weight other than 1.
+    #[test]
+    fn group_factors_of_points_written_into_rows_are_those_of_their_jacobians() {
+        use crate::calib::nuisance::drift::{DriftKind, DriftSlot};
+        let nominal = ArmModel::suta_nominal();
+        let mut data = sessions(&nominal);
+        for (k, o) in data.obs.iter_mut().enumerate() {
+            o.time_s = Some(60.0 * k as f64);
+        }
+        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
+        let blocks = data.blocks.len();
+        let drifts = [None, Some(DriftSlot { column: 0, kind: DriftKind::ScaleTime, centre: 0.5 }), None];
+        let choice = TermChoice {
+            relative_orientation_lever_mm: None,
+            orientation_weight_mm_per_rad: None,
+            point_weight: 0.4,
+        };
+        let direct = build(&data, &choice);
+        let through: Vec<Box<dyn Term>> = build(&data, &choice)
+            .into_iter()
+            .map(|t| Box::new(ThroughJacobian(t)) as Box<dyn Term>)
+            .collect();
+        let layout = || {
+            let tools = vec![true; data.groups.len()];
+            Layout::new(params.clone(), &vec![true; blocks], &tools, false, &drifts[..blocks])
+        };
+        let starts: Vec<Matrix3<f64>> = (0..blocks)
+            .map(|s| Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64 + 0.01).into_inner())
+            .collect();
+        let ours = Problem::new(layout(), &nominal, &data, &direct, starts.clone(), None);
+        let theirs = Problem::new(layout(), &nominal, &data, &through, starts, None);
+        let x = framed_point(&ours, &params, &nominal);
+        let mine = ours.group_factors(&x).expect("finite");
+        let reference = theirs.group_factors(&x).expect("finite");
+        assert_eq!(mine.len(), reference.len());
+        for (a, b) in mine.iter().zip(&reference) {
+            assert_eq!((a.own, a.r.shape()), (b.own, b.r.shape()));
+            assert!(a.r.iter().zip(&b.r).all(|(u, v)| u.to_bits() == v.to_bits()), "R factors");
+            assert!(b.r.norm() > 0.0 && a.own > 0, "a factor of something, with own columns");
+        }
     }
 
     /// The normal equations summed term by term are those of the dense Jacobian, on turned

@@ -222,7 +222,15 @@ pub struct TermRows<'a> {
     columns: &'a [Range<usize>],
 }
 
-impl TermRows<'_> {
+impl<'a> TermRows<'a> {
+    /// A term's rows at the start of `rows` (row i at `rows[i * stride ..]`), column c at place
+    /// `local[c]` of each row, for a term reading the columns of `columns` (each of which must
+    /// have a place).
+    pub fn new(rows: &'a mut [f64], stride: usize, local: &'a [usize], columns: &'a [Range<usize>]) -> Self {
+        debug_assert!(columns.iter().flat_map(Clone::clone).all(|c| local[c] < stride));
+        TermRows { rows, stride, local, columns }
+    }
+
     /// The derivatives of the first three rows by column `column`.
     #[inline]
     pub fn set3(&mut self, column: usize, values: [f64; 3]) {
@@ -466,8 +474,7 @@ impl RowTarget for NormalSums {
             }
         });
         let (first, width) = (self.r.len(), self.width);
-        let rows = &mut self.dense[first * width..(first + rows) * width];
-        TermRows { rows, stride: width, local: &self.local, columns }
+        TermRows::new(&mut self.dense[first * width..(first + rows) * width], width, &self.local, columns)
     }
 }
 

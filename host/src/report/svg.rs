@@ -91,7 +91,7 @@ pub const PLOTTABLE: f64 = 1e12;
 /// integer arithmetic (no `round` call, a library call on the baseline x86-64 target).
 fn tenths(px: f64) -> Option<(bool, u64)> {
     let scaled = px * 10.0;
-    if !(scaled.abs() < 1e15) {
+    if scaled.is_nan() || scaled.abs() >= 1e15 {
         return None;
     }
     let whole = scaled as i64;

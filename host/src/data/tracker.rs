@@ -723,6 +723,30 @@ mod tests {
         std::fs::remove_dir_all(dir).ok();
     }
 
+    /// The file is read once and its tag line picks the format: a `kincal-tracker/2` file (after a
+    /// byte-order mark) is read with named joints, and its bad cells and an unreadable file are
+    /// named as before.
+    #[test]
+    fn the_tag_line_read_with_the_rows_picks_the_format() {
+        let named = "\u{feff}# kincal-tracker/2\nshoulder_deg,elbow_deg,x_mm,y_mm,z_mm,tip\n\
+                     0,10,100,0,0,hand\n30,10,0,200,0,hand\n60,-10,0,0,300,hand\n";
+        let dir = folder("named", &[("n.csv", named), ("bad.csv", &named.replace("30,10", "30,ten"))]);
+        let mut warnings = Vec::new();
+        let session = read_session(&dir.join("n.csv"), &mut warnings).unwrap();
+        let names = session.names.expect("kincal-tracker/2 names its joints");
+        assert_eq!(
+            (names.joints, names.tips),
+            (vec!["shoulder".into(), "elbow".into()], vec!["hand".into()])
+        );
+        assert_eq!((session.rows.len(), session.rows[1].q_deg[0], session.rows[2].line), (3, 30.0, 5));
+        let e = read_session(&dir.join("bad.csv"), &mut warnings).err().expect("a bad cell").to_string();
+        assert!(e.contains("bad.csv:4: column `elbow_deg`") && e.contains("\"ten\""), "{e}");
+        let missing = dir.join("missing.csv");
+        let e = read_session(&missing, &mut warnings).err().expect("no file");
+        assert!(matches!(&e, FileError::Io { path, .. } if *path == missing), "{e}");
+        std::fs::remove_dir_all(dir).ok();
+    }
+
     /// The cells are those of `split(',')` and `trim`, whatever the spaces and empty cells.
     #[test]
     fn cells_are_split_and_trimmed_as_split_and_trim_do() {

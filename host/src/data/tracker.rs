@@ -63,9 +63,12 @@ pub fn starts_with_tag(path: &Path) -> bool {
 
 /// True when the file's first line is `# FORMAT`.
 pub fn starts_with(path: &Path, format: &str) -> bool {
-    std::fs::read_to_string(path).is_ok_and(|t| {
-        t.lines().next().is_some_and(|l| l.trim_start_matches('\u{feff}').trim() == tag_line(format))
-    })
+    std::fs::read_to_string(path).is_ok_and(|t| text_starts_with(&t, format))
+}
+
+/// True when `text`'s first line is `# FORMAT`.
+fn text_starts_with(text: &str, format: &str) -> bool {
+    text.lines().next().is_some_and(|l| l.trim_start_matches('\u{feff}').trim() == tag_line(format))
 }
 
 fn tag_line(format: &str) -> String {
@@ -299,8 +302,14 @@ fn arm_line(path: &Path, text: &str) -> Result<Option<ArmIdentity>, FileError> {
 
 /// Read one session file.
 pub fn read_session(path: &Path, warnings: &mut Vec<String>) -> Result<SessionFile, FileError> {
-    let format = if starts_with(path, NAMED_TRACKER_FORMAT) { NAMED_TRACKER_FORMAT } else { TRACKER_FORMAT };
-    read_tagged_session(path, format, warnings)
+    let text = read_text(path)?;
+    let format =
+        if text_starts_with(&text, NAMED_TRACKER_FORMAT) { NAMED_TRACKER_FORMAT } else { TRACKER_FORMAT };
+    parse_session(path, &text, format, warnings)
+}
+
+fn read_text(path: &Path) -> Result<String, FileError> {
+    std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })
 }
 
 /// Read one file of the tracker's columns whose tag line is `# FORMAT` (other readers of
@@ -310,8 +319,16 @@ pub fn read_tagged_session(
     format: &str,
     warnings: &mut Vec<String>,
 ) -> Result<SessionFile, FileError> {
-    let text =
-        std::fs::read_to_string(path).map_err(|source| FileError::Io { path: path.to_owned(), source })?;
+    parse_session(path, &read_text(path)?, format, warnings)
+}
+
+/// [`read_tagged_session`] of the file's `text`.
+fn parse_session(
+    path: &Path,
+    text: &str,
+    format: &str,
+    warnings: &mut Vec<String>,
+) -> Result<SessionFile, FileError> {
     let row_error = |line: usize, column: &str, message: String| row_error(path, line, column, message);
     let mut lines = text
         .lines()
@@ -334,12 +351,17 @@ pub fn read_tagged_session(
     let mut lines = lines.filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
     let (header_line, header) =
         lines.next().ok_or_else(|| row_error(2, "header", "missing header row".into()))?;
-    let header: Vec<&str> = header.split(',').map(str::trim).collect();
+    let mut header_cells = Vec::new();
+    split_cells(header, &mut header_cells);
+    let header = header_cells;
     let layout = layout(path, header_line, &header, format == NAMED_TRACKER_FORMAT, warnings)?;
     let mut points = Vec::new();
     let mut tips: Vec<String> = Vec::new();
+    // One row's cells and angles, their buffers kept from row to row.
+    let mut cells: Vec<&str> = Vec::with_capacity(header.len());
+    let mut q = Vec::with_capacity(layout.q.len());
     for (line, text) in lines {
-        let cells: Vec<&str> = text.split(',').map(str::trim).collect();
+        split_cells(text, &mut cells);
         if cells.len() != header.len() {
             return Err(row_error(
                 line,
@@ -363,7 +385,7 @@ pub fn read_tagged_session(
                 _ => Ok(None),
             }
         };
-        let mut q = Vec::with_capacity(layout.q.len());
+        q.clear();
         for &c in &layout.q {
             let v = if layout.radians { number(c)?.to_degrees() } else { number(c)? };
             if v.abs() > 3600.0 {
@@ -509,7 +531,26 @@ pub fn read_tagged_session(
         tips: if layout.tip.is_some() { tips } else { Vec::new() },
         source: path.to_owned(),
     });
-    Ok(SessionFile { name, path: path.to_owned(), rows: points, arm: arm_line(path, &text)?, names })
+    Ok(SessionFile { name, path: path.to_owned(), rows: points, arm: arm_line(path, text)?, names })
+}
+
+/// Split a CSV row at its commas into `cells`, each trimmed, as `row.split(',').map(str::trim)`
+/// does; a scan of the bytes, as the cells are short (a search per cell cost more than the scan),
+/// and a cell that starts and ends in a visible ASCII character is taken as it is.
+fn split_cells<'a>(row: &'a str, cells: &mut Vec<&'a str>) {
+    let trim = |cell: &'a str| match (cell.as_bytes().first(), cell.as_bytes().last()) {
+        (Some(first), Some(last)) if first.is_ascii_graphic() && last.is_ascii_graphic() => cell,
+        _ => cell.trim(),
+    };
+    cells.clear();
+    let mut start = 0;
+    for (k, &byte) in row.as_bytes().iter().enumerate() {
+        if byte == b',' {
+            cells.push(trim(&row[start..k]));
+            start = k + 1;
+        }
+    }
+    cells.push(trim(&row[start..]));
 }
 
 /// Read every tracker session of `dir` (each `*.csv` file; files without the tag are refused):
@@ -680,6 +721,51 @@ mod tests {
         let e = load_dir(&dir).unwrap_err().to_string();
         assert!(e.contains("q.csv:3: column `qw`") && e.contains("unit quaternion"), "{e}");
         std::fs::remove_dir_all(dir).ok();
+    }
+
+    /// The file is read once and its tag line picks the format: a `kincal-tracker/2` file (after a
+    /// byte-order mark) is read with named joints, and its bad cells and an unreadable file are
+    /// named as before.
+    #[test]
+    fn the_tag_line_read_with_the_rows_picks_the_format() {
+        let named = "\u{feff}# kincal-tracker/2\nshoulder_deg,elbow_deg,x_mm,y_mm,z_mm,tip\n\
+                     0,10,100,0,0,hand\n30,10,0,200,0,hand\n60,-10,0,0,300,hand\n";
+        let dir = folder("named", &[("n.csv", named), ("bad.csv", &named.replace("30,10", "30,ten"))]);
+        let mut warnings = Vec::new();
+        let session = read_session(&dir.join("n.csv"), &mut warnings).unwrap();
+        let names = session.names.expect("kincal-tracker/2 names its joints");
+        assert_eq!(
+            (names.joints, names.tips),
+            (vec!["shoulder".into(), "elbow".into()], vec!["hand".into()])
+        );
+        assert_eq!((session.rows.len(), session.rows[1].q_deg[0], session.rows[2].line), (3, 30.0, 5));
+        let e = read_session(&dir.join("bad.csv"), &mut warnings).err().expect("a bad cell").to_string();
+        assert!(e.contains("bad.csv:4: column `elbow_deg`") && e.contains("\"ten\""), "{e}");
+        let missing = dir.join("missing.csv");
+        let e = read_session(&missing, &mut warnings).err().expect("no file");
+        assert!(matches!(&e, FileError::Io { path, .. } if *path == missing), "{e}");
+        std::fs::remove_dir_all(dir).ok();
+    }
+
+    /// The cells are those of `split(',')` and `trim`, whatever the spaces and empty cells.
+    #[test]
+    fn cells_are_split_and_trimmed_as_split_and_trim_do() {
+        let rows = [
+            "",
+            ",",
+            "a",
+            "1,2.5,-3e2",
+            " 1 ,\t2\t, 3,",
+            ",,x,, ,",
+            "\u{a0}é,ü\u{2003},\u{feff}q ,  ",
+            "pose,q1_deg, x_mm ,y_mm,z_mm,,",
+        ];
+        let mut cells = vec!["left over"];
+        for row in rows {
+            split_cells(row, &mut cells);
+            let expected: Vec<&str> = row.split(',').map(str::trim).collect();
+            assert_eq!(cells, expected, "{row:?}");
+        }
     }
 
     /// ROS joint_states in radians: read as degrees they would be a session that barely moves.

@@ -18,7 +18,21 @@ const STYLE: &str = "body{font-family:sans-serif;max-width:1000px;margin:2em aut
 
 /// Wrap body HTML into a page.
 pub fn page(title: &str, body: &str) -> String {
-    format!("<!doctype html><html><head><meta charset=\"utf-8\"><title>{t}</title><style>{STYLE}</style></head><body><h1>{t}</h1>{body}</body></html>", t = escape(title))
+    let mut html = page_start(title);
+    html.push_str(body);
+    page_end(html)
+}
+
+/// A page's text up to its body, for a report that writes its body after it (a large page is then
+/// not copied into [`page`]'s); [`page_end`] closes it.
+pub(crate) fn page_start(title: &str) -> String {
+    format!("<!doctype html><html><head><meta charset=\"utf-8\"><title>{t}</title><style>{STYLE}</style></head><body><h1>{t}</h1>", t = escape(title))
+}
+
+/// Close a page begun with [`page_start`].
+pub(crate) fn page_end(mut html: String) -> String {
+    html.push_str("</body></html>");
+    html
 }
 
 /// HTML table from a header and rows of already formatted cells.

@@ -6,7 +6,7 @@
 //! estimates, what the data cannot separate, outliers, data errors, solver starts, inputs.
 
 use super::svg::{self, escape};
-use super::{mm, page, table};
+use super::{mm, page_end, page_start, table};
 use crate::calib::diagnose::data_errors::sessions::MIN_GAIN;
 use crate::calib::diagnose::data_errors::DataErrorKind;
 use crate::calib::nuisance::tool::CONSTANT_ORIENTATION_DEG;
@@ -73,7 +73,8 @@ pub fn name_run(line: &str, run_dir: &Path) -> String {
 /// The report of one run, written into `run_dir`.
 pub fn run_report(run: &Run, run_dir: &Path) -> String {
     let s = &run.summary;
-    let mut body = String::from(WIDE);
+    let mut body = page_start("kincal calibration report");
+    body.push_str(WIDE);
     if !s.not_trustworthy.is_empty() {
         let items: String =
             s.not_trustworthy.iter().map(|p| format!("<li>{}</li>", escape(&name_run(p, run_dir)))).collect();
@@ -113,7 +114,7 @@ pub fn run_report(run: &Run, run_dir: &Path) -> String {
     data_errors(&mut body, s);
     starts(&mut body, s);
     inputs(&mut body, s, run_dir);
-    page("kincal calibration report", &body)
+    page_end(body)
 }
 
 fn verdict(body: &mut String, s: &Summary, run_dir: &Path) {
@@ -212,9 +213,15 @@ fn order_axis(points: &[PointResidual]) -> (Vec<f64>, &'static str) {
     ((1..=points.len()).map(|k| k as f64).collect(), "point (file order)")
 }
 
-fn figure(body: &mut String, svg: String) {
-    if !svg.is_empty() {
-        let _ = write!(body, "<figure>{svg}</figure>");
+/// A [`svg::scatter`] of `points` in a `<figure>`, written straight into the page; nothing when
+/// there is nothing to draw.
+fn scatter_figure(body: &mut String, points: &[(f64, f64)], x_label: &str, y_label: &str) {
+    let start = body.len();
+    body.push_str("<figure>");
+    if svg::scatter_into(body, points, &[], x_label, y_label) {
+        body.push_str("</figure>");
+    } else {
+        body.truncate(start);
     }
 }
 
@@ -255,17 +262,14 @@ fn residual_plots(body: &mut String, points: &[PointResidual], base: &str) {
          point against {order_label}: its size, then its x, y and z components. A trend or a \
          period here is drift or a cause that repeats with the motion.</p>"
     );
-    figure(body, svg::scatter(&against(&size), &[], order_label, "|residual| (mm)"));
+    scatter_figure(body, &against(&size), order_label, "|residual| (mm)");
     for (k, axis) in ["x", "y", "z"].iter().enumerate() {
-        figure(
-            body,
-            svg::scatter(&against(&|p| p.residual_mm[k]), &[], order_label, &format!("{axis} residual (mm)")),
-        );
+        scatter_figure(body, &against(&|p| p.residual_mm[k]), order_label, &format!("{axis} residual (mm)"));
     }
     if points.iter().any(|p| p.orientation_error_deg.is_some()) {
         let angles: Vec<(f64, f64)> =
             order.iter().zip(points).filter_map(|(x, p)| Some((*x, p.orientation_error_deg?))).collect();
-        figure(body, svg::scatter(&angles, &[], order_label, "orientation error (deg)"));
+        scatter_figure(body, &angles, order_label, "orientation error (deg)");
     }
     let _ = write!(
         body,
@@ -275,7 +279,7 @@ fn residual_plots(body: &mut String, points: &[PointResidual], base: &str) {
     let joints = points.iter().map(|p| p.q_deg.len()).max().unwrap_or(0);
     for j in 0..joints {
         let pts: Vec<(f64, f64)> = points.iter().filter_map(|p| Some((*p.q_deg.get(j)?, size(p)))).collect();
-        figure(body, svg::scatter(&pts, &[], &format!("q{} (deg)", j + 1), "|residual| (mm)"));
+        scatter_figure(body, &pts, &format!("q{} (deg)", j + 1), "|residual| (mm)");
     }
 }
 
@@ -680,7 +684,7 @@ fn distance_plots(body: &mut String, run: &Run) {
             .iter()
             .flat_map(|e| [e.touches.0, e.touches.1].map(|t| (val.obs[t].q_deg[j], e.error_mm)))
             .collect();
-        figure(body, svg::scatter(&pts, &[], &format!("encoder {} (deg)", j + 1), "error (mm)"));
+        scatter_figure(body, &pts, &format!("encoder {} (deg)", j + 1), "error (mm)");
     }
 }
 

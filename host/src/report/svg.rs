@@ -81,22 +81,60 @@ impl Frame {
 /// out of the axis range, so one absurd value cannot turn every coordinate into `inf`.
 pub const PLOTTABLE: f64 = 1e12;
 
-/// Write the pixel coordinate `px` with one decimal, the text `{:.1}` writes, without the
-/// formatter's exact decimal expansion (a scatter plot writes two per point: the plots of a
-/// 3 600-point run were a fourteenth of its instructions). The rounded product px·10 differs from
-/// the exact one's rounding only where it lands on a half (halves are exact in binary and
-/// rounding is monotone), where the formatter writes it.
-fn push_tenths(out: &mut String, px: f64) {
+/// The pixel coordinate `px` in tenths, rounded as `{:.1}` writes it, and whether a minus sign
+/// leads it (`-0.0` has one, as in the formatter's text); `None` where only the formatter can tell
+/// (not finite, beyond 10¹⁵ tenths, or px·10 on a half). The formatter's exact decimal expansion
+/// is costly: a scatter plot writes two coordinates per point and the plots of a 3 600-point run
+/// were a fourteenth of its instructions. The rounded product px·10 differs from the exact one's
+/// rounding only where it lands on a half (halves are exact in binary and rounding is monotone).
+/// Below 10¹⁵ the product's whole part and fraction are exact in `f64`, so the rounding is
+/// integer arithmetic (no `round` call, a library call on the baseline x86-64 target).
+fn tenths(px: f64) -> Option<(bool, u64)> {
     let scaled = px * 10.0;
-    if scaled.is_nan() || scaled.abs() >= 1e15 || scaled.fract().abs() == 0.5 {
+    if scaled.is_nan() || scaled.abs() >= 1e15 {
+        return None;
+    }
+    let whole = scaled as i64;
+    let fraction = (scaled - whole as f64).abs();
+    if fraction == 0.5 {
+        return None;
+    }
+    Some((px.is_sign_negative(), whole.unsigned_abs() + u64::from(fraction > 0.5)))
+}
+
+/// Write `<circle cx="X" cy="Y" ` with the coordinates as `{:.1}` writes them; the caller writes
+/// the rest of the element.
+fn open_circle(out: &mut String, cx: f64, cy: f64) {
+    out.push_str(r#"<circle cx=""#);
+    push_tenths(out, cx);
+    out.push_str(r#"" cy=""#);
+    push_tenths(out, cy);
+    out.push_str(r#"" "#);
+}
+
+/// Write the pixel coordinate `px` as `{:.1}` writes it, by [`tenths`] where it can.
+fn push_tenths(out: &mut String, px: f64) {
+    let Some((negative, tenths)) = tenths(px) else {
         let _ = write!(out, "{px:.1}");
         return;
-    }
-    if px.is_sign_negative() {
+    };
+    if negative {
         out.push('-');
     }
-    let tenths = scaled.round().abs() as u64;
-    out.push_str(itoa::Buffer::new().format(tenths / 10));
+    let mut digits = [0u8; 20];
+    let mut start = digits.len();
+    let mut whole = tenths / 10;
+    loop {
+        start -= 1;
+        digits[start] = b'0' + (whole % 10) as u8;
+        whole /= 10;
+        if whole == 0 {
+            break;
+        }
+    }
+    for &d in &digits[start..] {
+        out.push(char::from(d));
+    }
     out.push('.');
     out.push(char::from(b'0' + (tenths % 10) as u8));
 }
@@ -274,8 +312,22 @@ pub(crate) fn robust_range(values: &[f64]) -> (f64, f64) {
 /// few far points (a touch near a singularity) are drawn as triangles at the edge, and the plot
 /// says how many.
 pub fn scatter(points: &[(f64, f64)], curve: &[(f64, f64)], x_label: &str, y_label: &str) -> String {
+    let mut out = String::new();
+    scatter_into(&mut out, points, curve, x_label, y_label);
+    out
+}
+
+/// [`scatter`] written at the end of `out` (a page holding many plots is written once, not
+/// copied from each plot); false when there is nothing to draw (and nothing was written).
+pub fn scatter_into(
+    out: &mut String,
+    points: &[(f64, f64)],
+    curve: &[(f64, f64)],
+    x_label: &str,
+    y_label: &str,
+) -> bool {
     let ys: Vec<f64> = points.iter().chain(curve).map(|p| p.1).collect();
-    scatter_on(points, curve, x_label, y_label, robust_range(&ys))
+    scatter_on_into(out, points, curve, x_label, y_label, robust_range(&ys))
 }
 
 /// [`scatter`] on a given y axis `(y0, y1)`, so that plots side by side share it.
@@ -284,16 +336,31 @@ pub fn scatter_on(
     curve: &[(f64, f64)],
     x_label: &str,
     y_label: &str,
-    (y0, y1): (f64, f64),
+    y_range: (f64, f64),
 ) -> String {
+    let mut out = String::new();
+    scatter_on_into(&mut out, points, curve, x_label, y_label, y_range);
+    out
+}
+
+/// [`scatter_on`] written at the end of `out`; false when there is nothing to draw.
+fn scatter_on_into(
+    out: &mut String,
+    points: &[(f64, f64)],
+    curve: &[(f64, f64)],
+    x_label: &str,
+    y_label: &str,
+    (y0, y1): (f64, f64),
+) -> bool {
     let (x0, x1) = range(points.iter().map(|p| p.0));
     if !x0.is_finite() || !y0.is_finite() {
-        return String::new();
+        return false;
     }
     let frame = Frame::new(310.0, 210.0, (x0, x1), (y0, y1));
     // A point is one circle of about 80 bytes.
-    let mut out = String::with_capacity(2048 + 80 * points.len());
-    frame.open(&mut out, x_label, y_label, true);
+    out.reserve(2048 + 80 * points.len());
+    frame.open(out, x_label, y_label, true);
+    let dot = format!(r#"r="1.6" fill="{}" fill-opacity="0.5"/>"#, COLORS[1]);
     let mut beyond = 0;
     for (x, y) in points {
         let clipped = y.clamp(frame.y.0, frame.y.1);
@@ -314,13 +381,8 @@ pub fn scatter_on(
             );
             continue;
         }
-        out.push_str(r#"<circle cx=""#);
-        push_tenths(&mut out, frame.px(*x));
-        out.push_str(r#"" cy=""#);
-        push_tenths(&mut out, frame.py(*y));
-        out.push_str(r#"" r="1.6" fill=""#);
-        out.push_str(COLORS[1]);
-        out.push_str(r#"" fill-opacity="0.5"/>"#);
+        open_circle(out, frame.px(*x), frame.py(*y));
+        out.push_str(&dot);
     }
     // The curve as polylines, broken where its x steps jump (a gap in the data).
     let step = curve.windows(2).map(|w| w[1].0 - w[0].0).filter(|d| *d > 0.0).fold(f64::INFINITY, f64::min);
@@ -353,7 +415,8 @@ pub fn scatter_on(
             if beyond == 1 { "" } else { "s" }
         );
     }
-    out + "</svg>"
+    out.push_str("</svg>");
+    true
 }
 
 /// A wide time plot: each series' points in its colour, over thin vertical marks (events such
@@ -379,14 +442,10 @@ pub fn timeline(series: &[(&str, &[(f64, f64)])], marks: &[f64], x_label: &str, 
         );
     }
     for (k, (_, points)) in series.iter().enumerate() {
+        let dot = format!(r#"r="1.6" fill="{}" fill-opacity="0.6"/>"#, COLORS[k % COLORS.len()]);
         for (x, y) in points.iter() {
-            let _ = write!(
-                out,
-                r#"<circle cx="{:.1}" cy="{:.1}" r="1.6" fill="{}" fill-opacity="0.6"/>"#,
-                frame.px(*x),
-                frame.py(y.clamp(frame.y.0, frame.y.1)),
-                COLORS[k % COLORS.len()]
-            );
+            open_circle(&mut out, frame.px(*x), frame.py(y.clamp(frame.y.0, frame.y.1)));
+            out.push_str(&dot);
         }
     }
     legend(&mut out, &frame, &series.iter().map(|s| s.0).collect::<Vec<_>>());
@@ -531,9 +590,10 @@ pub fn hammer_map(points: &[(f64, f64, f64)], label: &str) -> String {
         let (x, y) = project(lon, lat);
         let (x, y) = (on_canvas(x), on_canvas(y));
         let f = if v.is_nan() { 0.0 } else { (v / top).clamp(0.0, 1.0) };
+        open_circle(&mut out, x, y);
         let _ = write!(
             out,
-            r#"<circle cx="{x:.1}" cy="{y:.1}" r="2.2" fill="rgb({},{},{})"/>"#,
+            r#"r="2.2" fill="rgb({},{},{})"/>"#,
             (255.0 * f) as u8,
             60,
             (255.0 * (1.0 - f)) as u8
@@ -557,9 +617,10 @@ mod tests {
     fn coordinates_are_written_as_the_formatter_writes_them() {
         let written = |px: f64| {
             let mut out = String::new();
-            push_tenths(&mut out, px);
+            open_circle(&mut out, px, -px);
             out
         };
+        let formatted = |px: f64| format!(r#"<circle cx="{px:.1}" cy="{:.1}" "#, -px);
         let mut rng = 0x2545_f491_4f6c_dd1d_u64;
         for k in 0..40_000 {
             rng ^= rng << 13;
@@ -572,11 +633,52 @@ mod tests {
             } else {
                 (uniform * 240_000.0).round() / 100.0 - 1200.0
             };
-            assert_eq!(written(px), format!("{px:.1}"), "{px}");
+            assert_eq!(written(px), formatted(px), "{px}");
         }
-        for px in [0.35, 0.15, 0.25, -0.25, 1.45, -0.0, -0.04, -0.06, 309.96, 999_999.95, -1e6, f64::NAN] {
-            assert_eq!(written(px), format!("{px:.1}"), "{px}");
+        let edges = [
+            0.0,
+            -0.0,
+            0.35,
+            0.15,
+            0.25,
+            -0.25,
+            1.45,
+            0.05,
+            -0.05,
+            0.95,
+            -0.95,
+            9.95,
+            99.95,
+            -0.04,
+            -0.06,
+            309.96,
+            999_999.95,
+            999_999.96,
+            -1e6,
+            1e6,
+            123_456_789.05,
+            9.9e13,
+            -9.99e13,
+            1e14 + 0.25,
+            2e14,
+            1e16,
+            f64::MAX,
+            f64::MIN_POSITIVE,
+            -f64::MIN_POSITIVE,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+        ];
+        for px in edges {
+            assert_eq!(written(px), formatted(px), "{px}");
         }
+        // The integer path, not the formatter's, writes these: beside a half the fraction
+        // rounds, and zero keeps its sign.
+        assert_eq!(tenths(0.26), Some((false, 3)));
+        assert_eq!(tenths(-0.04), Some((true, 0)));
+        assert_eq!(tenths(-1234.56), Some((true, 12346)));
+        assert_eq!(tenths(0.25), None);
+        assert_eq!(tenths(f64::NAN), None);
     }
 
     #[test]

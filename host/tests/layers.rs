@@ -27,7 +27,8 @@ fn layer(module: &str) -> Option<u8> {
 }
 
 /// The floors inside `calib`, lowest first: the engine's parts (errors, residual terms, block
-/// unknowns, the problem, repeated touches, the setup), identifiability, the fit, validation,
+/// unknowns, the problem, repeated touches, the setup, the bench problem's arm and sessions, which
+/// read no other part of `calib`), identifiability, the fit, validation,
 /// the noise floor; what is built on them (the diagnosis, outliers, the study, trust, the plan and
 /// their checks); the run from input files to its summary. Modules of one floor may use each
 /// other; none uses a floor above.
@@ -40,6 +41,7 @@ const CALIB_FLOORS: &[(&str, u8)] = &[
     ("problem", 0),
     ("repeats", 0),
     ("setup", 0),
+    ("bench_problem", 0),
     ("identify", 1),
     ("fit", 2),
     ("validate", 3),
@@ -51,7 +53,6 @@ const CALIB_FLOORS: &[(&str, u8)] = &[
     ("plan", 5),
     ("monte_carlo", 5),
     ("peer", 5),
-    ("bench_problem", 5),
     ("run", 6),
     ("summary", 6),
 ];

@@ -18,9 +18,9 @@
 
 use crate::calib::diagnose::Measure;
 use crate::calib::fit::{refit, refit_with, Fit, SessionSums};
-use crate::calib::nuisance::tool::Poses;
+use crate::calib::nuisance::tool::ModelPoses;
 use crate::calib::setup::Setup;
-use crate::calib::validate::{distance_errors, placement_residuals, session_tool, SessionFit};
+use crate::calib::validate::{distance_errors, placement_residuals, session_offset_mm, SessionFit};
 use crate::data::Observations;
 use crate::model::kinematics::ToolPose;
 use crate::model::ArmModel;
@@ -103,11 +103,7 @@ fn rows(
         owners.push(vec![e.landmarks.0, e.landmarks.1]);
     }
     for b in cal.sessions() {
-        let offset = if setup.float_tool.contains(&cal.block_name(b)) {
-            session_tool(model, cal, b).offset_mm
-        } else {
-            [0.0; 3]
-        };
+        let offset = session_offset_mm(model, cal, b, &setup.float_tool);
         let fit = match poses {
             Some(poses) => SessionFit::of_poses(poses, cal, b, offset),
             None => SessionFit::of(model, cal, b, offset),
@@ -138,7 +134,7 @@ pub fn outliers_with(
     val: Option<&Observations>,
     setup: &Setup,
     sums: Option<&SessionSums>,
-    poses: Option<&Poses>,
+    poses: Option<&ModelPoses>,
 ) -> Vec<Outlier> {
     let options = setup.solve_options(cal);
     let units: Vec<Unit> = (0..cal.landmarks.len())

@@ -826,11 +826,12 @@ mod tests {
     }
 
     /// Points written straight into the batch's rows give the sums of the same points through
-    /// their Jacobians to the bit (the same values in the same batch positions): frames, floated
-    /// tools, a session drifting in scale and one in offset, a point weight other than 1, and
-    /// weights 1 and Huber weights.
+    /// their Jacobians to the bit (the same values in the same batch positions), and so do the
+    /// groups' identifiability factors written into their rows: frames, floated tools, a session
+    /// drifting in scale and one in offset, a point weight other than 1, and weights 1 and Huber
+    /// weights.
     #[test]
-    fn points_written_into_the_rows_give_the_sums_of_their_jacobians() {
+    fn points_written_into_the_rows_give_the_sums_and_factors_of_their_jacobians() {
         use crate::calib::nuisance::drift::{DriftKind, DriftSlot};
         let nominal = ArmModel::suta_nominal();
         let mut data = sessions(&nominal);
@@ -862,6 +863,14 @@ mod tests {
             let ours = Problem::new(layout(), &nominal, &data, &direct, starts.clone(), None);
             let theirs = Problem::new(layout(), &nominal, &data, &through, starts, None);
             let x = framed_point(&ours, &params, &nominal);
+            let (mine, reference) = (ours.group_factors(&x), theirs.group_factors(&x));
+            let (mine, reference) = (mine.expect("finite"), reference.expect("finite"));
+            assert_eq!(mine.len(), reference.len());
+            for (a, b) in mine.iter().zip(&reference) {
+                assert_eq!((a.own, a.r.shape()), (b.own, b.r.shape()));
+                assert!(a.r.iter().zip(&b.r).all(|(u, v)| u.to_bits() == v.to_bits()), "R factors");
+                assert!(b.r.norm() > 0.0 && a.own > 0, "a factor of something, with own columns");
+            }
             let m = ours.len();
             let mut r = vec![0.0; m];
             ours.evaluate(&x, &mut r, None);
@@ -924,50 +933,6 @@ mod tests {
         assert!(h.iter().zip(&hj).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWJ");
         assert!(g.iter().zip(&gj).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWr");
         assert!(hj.norm() > 0.0 && gj.norm() > 0.0, "sums of something");
-    }
-
-    /// The groups' factors of points written straight into their rows are those of the same
-    /// points through their Jacobians to the bit: frames, floated tools, a drifting session and
-    /// a point weight other than 1.
-    #[test]
-    fn group_factors_of_points_written_into_rows_are_those_of_their_jacobians() {
-        use crate::calib::nuisance::drift::{DriftKind, DriftSlot};
-        let nominal = ArmModel::suta_nominal();
-        let mut data = sessions(&nominal);
-        for (k, o) in data.obs.iter_mut().enumerate() {
-            o.time_s = Some(60.0 * k as f64);
-        }
-        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
-        let blocks = data.blocks.len();
-        let drifts = [None, Some(DriftSlot { column: 0, kind: DriftKind::ScaleTime, centre: 0.5 }), None];
-        let choice = TermChoice {
-            relative_orientation_lever_mm: None,
-            orientation_weight_mm_per_rad: None,
-            point_weight: 0.4,
-        };
-        let direct = build(&data, &choice);
-        let through: Vec<Box<dyn Term>> = build(&data, &choice)
-            .into_iter()
-            .map(|t| Box::new(ThroughJacobian(t)) as Box<dyn Term>)
-            .collect();
-        let layout = || {
-            let tools = vec![true; data.groups.len()];
-            Layout::new(params.clone(), &vec![true; blocks], &tools, false, &drifts[..blocks])
-        };
-        let starts: Vec<Matrix3<f64>> = (0..blocks)
-            .map(|s| Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64 + 0.01).into_inner())
-            .collect();
-        let ours = Problem::new(layout(), &nominal, &data, &direct, starts.clone(), None);
-        let theirs = Problem::new(layout(), &nominal, &data, &through, starts, None);
-        let x = framed_point(&ours, &params, &nominal);
-        let mine = ours.group_factors(&x).expect("finite");
-        let reference = theirs.group_factors(&x).expect("finite");
-        assert_eq!(mine.len(), reference.len());
-        for (a, b) in mine.iter().zip(&reference) {
-            assert_eq!((a.own, a.r.shape()), (b.own, b.r.shape()));
-            assert!(a.r.iter().zip(&b.r).all(|(u, v)| u.to_bits() == v.to_bits()), "R factors");
-            assert!(b.r.norm() > 0.0 && a.own > 0, "a factor of something, with own columns");
-        }
     }
 
     /// The normal equations summed term by term are those of the dense Jacobian, on turned

@@ -15,7 +15,7 @@ use crate::calib::fit::{calibrate_with_reference_on, check_data_on, dense_jacobi
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
 use crate::calib::nuisance::frame::Frame;
-use crate::calib::nuisance::tool::Poses;
+use crate::calib::nuisance::tool::ModelPoses;
 use crate::calib::outliers::outliers_with as outlier_metrics;
 use crate::calib::setup::{SolveOptions, DEFAULT_LEVER_MM};
 use crate::calib::study::{check_study_size, study, study_problems, StudyError, StudyOptions};
@@ -740,7 +740,7 @@ pub fn run_on(
     steps.lap("validation");
     // The fit's pose of every calibration observation, read by the calibration sessions'
     // residuals, the outlier rows and the data-error scoring.
-    let cal_poses = (!cal.sessions().is_empty()).then(|| Poses::of(&fit.model, cal));
+    let cal_poses = (!cal.sessions().is_empty()).then(|| ModelPoses::of(&fit.model, cal));
     // The normal equations of the fit's solution, session by session: the first evaluation of
     // the data-error scoring's refits and of the outlier metrics' leave-one-session-out refits.
     let setup = inputs.setup(options);
@@ -1042,7 +1042,7 @@ fn sessions_section(
     reference: &Fit,
     same_base: &BTreeMap<String, String>,
     sums: Option<&SessionSums>,
-    cal_poses: Option<&Poses>,
+    cal_poses: Option<&ModelPoses>,
 ) -> SessionsSection {
     let RunContext { nominal, cal, val, inputs, options } = run;
     let held = val.sessions();

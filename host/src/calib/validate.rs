@@ -331,6 +331,16 @@ pub fn session_tool(model: &ArmModel, data: &Observations, b: usize) -> FloatedT
     FloatedTool::new(data.groups[group].name.clone(), &offset, &block)
 }
 
+/// Block `b`'s tool offset (flange frame, mm) for `model`: its own fit ([`session_tool`]) when
+/// `float_tool` names the block, else zero.
+pub fn session_offset_mm(model: &ArmModel, data: &Observations, b: usize, float_tool: &[String]) -> [f64; 3] {
+    if float_tool.contains(&data.block_name(b)) {
+        session_tool(model, data, b).offset_mm
+    } else {
+        [0.0; 3]
+    }
+}
+
 /// RMS distance, mm, of a session's points from the line through them below which they count as
 /// lying on one line: the rotation of the session's base about that line is then set by this
 /// spread and the noise alone (0.02 mm of noise across 1 mm turns it by about 1°).
@@ -549,12 +559,7 @@ pub fn held_out_session_errors(
     b: usize,
     float_tool: &[String],
 ) -> Vec<f64> {
-    let offset = if float_tool.contains(&val.block_name(b)) {
-        session_tool(model, val, b).offset_mm
-    } else {
-        [0.0; 3]
-    };
-    session_errors(model, val, b, offset)
+    session_errors(model, val, b, session_offset_mm(model, val, b, float_tool))
 }
 
 /// Lengths of [`session_residuals`], mm.
@@ -709,18 +714,18 @@ mod tests {
         }
     }
 
-    /// Figures read from a fit's poses taken once ([`Poses`]) are those computed from the model:
+    /// Figures read from a fit's poses taken once ([`ModelPoses`]) are those computed from the model:
     /// a session's fit, its orientation spread, the calibration residuals; the poses are read only
     /// for the model and data they were taken of.
     #[test]
     fn figures_from_shared_poses_are_those_of_the_model() {
         use crate::calib::bench_problem;
-        use crate::calib::nuisance::tool::{orientation_spread_deg, orientation_spread_of, Poses};
+        use crate::calib::nuisance::tool::{orientation_spread_deg, orientation_spread_of, ModelPoses};
         let nominal = bench_problem::arm();
         let data = bench_problem::sessions(&bench_problem::truth(&nominal), 2, 60, 11);
         let options = crate::calib::setup::SolveOptions::default();
         let fit = crate::calib::fit::calibrate(&nominal, &data, &options).expect("fit");
-        let shared = Poses::of(&fit.model, &data);
+        let shared = ModelPoses::of(&fit.model, &data);
         let poses = shared.of_model(&fit.model, &data).expect("the poses of the fit's model");
         assert!(
             shared.of_model(&nominal, &data).is_none()

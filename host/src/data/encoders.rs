@@ -61,6 +61,14 @@ impl Encoders {
         key[0] == o.q_deg.len() as u64 && o.q_deg.iter().zip(&key[1..]).all(|(q, b)| q.to_bits() == *b)
     }
 
+    /// Whether row k holds observation k's angles for every observation of `data`, and no row
+    /// more (a table a problem may read by index).
+    fn holds_all(&self, data: &Observations) -> bool {
+        self.joints == data.joints
+            && self.rows() == data.obs.len()
+            && data.obs.iter().enumerate().all(|(k, o)| self.holds(k, o))
+    }
+
     /// `f` of observation `o`'s sines and cosines: row `k` when it holds `o`'s angles, else
     /// [`encoder_sin_cos`] of each angle taken here (the same values), whatever the table holds.
     pub fn with_row<R>(&self, k: usize, o: &Observation, f: impl FnOnce(&[(f64, f64)]) -> R) -> R {
@@ -80,14 +88,15 @@ impl Encoders {
         self.with_row(k, o, |sin_cos| chain.pose_with_sin_cos(&o.q_deg, sin_cos))
     }
 
-    /// The table of `data`: its own when built (a selection of observations whose table was
+    /// The table of `data`: its own when built and every row still holds its observation's
+    /// angles (a selection of observations whose table was
     /// built takes its rows, [`Observations::without`]), else taken from this one when `data`'s
     /// observations are these or some of them in the same order (another selection of the same
     /// observations: a session or a few points left out, the orientations dropped), else built
     /// for `data`. A row depends on its angles alone, so a row whose angles are bit for bit those
     /// of an observation is its row, whichever table holds it.
     pub fn for_data(&self, data: &Observations) -> Encoders {
-        if let Some(own) = data.built_encoders() {
+        if let Some(own) = data.built_encoders().filter(|own| own.holds_all(data)) {
             return own.clone();
         }
         if data.joints != self.joints {
@@ -288,5 +297,10 @@ mod tests {
                 assert_eq!(selection.pose_on(&tips, k), fresh.pose(tips.tip(0), k, o));
             }
         }
+        // The table a problem reads by index is never the stale one: the changed angle's row is
+        // built again (and an unchanged table is the data's own).
+        let given = other.encoders().for_data(&data);
+        assert_eq!((given.table(), &given.angles), (fresh.table(), &fresh.angles));
+        assert_eq!(other.encoders().for_data(&other).table().as_ptr(), other.encoders().table().as_ptr());
     }
 }

@@ -12,7 +12,7 @@
 //! pairs of orders the visited angles cannot tell apart. The apparent error is also drawn
 //! against the joint's gravity lever, and |r| against height and reach.
 
-use crate::calib::validate::{placement_residuals, session_residuals_mm, session_tool};
+use crate::calib::validate::{placement_residuals, session_offset_mm, session_residuals_mm};
 use crate::data::Observations;
 use crate::model::effects::Effect;
 use crate::model::kinematics::{Chain, ColumnMap};
@@ -199,11 +199,7 @@ fn coverage_deg(angles_deg: &[f64]) -> f64 {
 fn residuals(model: &ArmModel, data: &Observations, float_tool: &[String]) -> Vec<Option<Vector3<f64>>> {
     let mut out = placement_residuals(model, data, 4);
     for b in data.sessions() {
-        let offset = if float_tool.contains(&data.block_name(b)) {
-            session_tool(model, data, b).offset_mm
-        } else {
-            [0.0; 3]
-        };
+        let offset = session_offset_mm(model, data, b, float_tool);
         let points = data.blocks[b].members.iter().filter(|&&k| data.obs[k].point_mm().is_some());
         for (&k, r) in points.zip(session_residuals_mm(model, data, b, offset)) {
             out[k] = Some(-r);

@@ -20,7 +20,7 @@ use super::words::mm;
 use crate::calib::fit::Fit;
 use crate::calib::floor::{gap, point_floor, point_gap, Gap, NoiseFloor};
 use crate::calib::setup::Setup;
-use crate::calib::validate::{session_residuals, session_tool};
+use crate::calib::validate::{session_offset_mm, session_residuals};
 use crate::data::Observations;
 use crate::model::ArmModel;
 use crate::numerics::stats::{median, rms};
@@ -118,11 +118,7 @@ impl Floor {
             .sessions()
             .into_iter()
             .map(|b| {
-                let offset = if setup.float_tool.contains(&val.block_name(b)) {
-                    session_tool(model, val, b).offset_mm
-                } else {
-                    [0.0; 3]
-                };
+                let offset = session_offset_mm(model, val, b, &setup.float_tool);
                 session_residuals(model, val, b, offset)
             })
             .collect();

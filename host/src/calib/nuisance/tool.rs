@@ -45,17 +45,17 @@ pub fn model_points(
 
 /// The tool pose of every observation of `data` on a model, taken once for the several figures a
 /// run reads from them (the calibration residuals, the outlier rows, the data-error scoring).
-pub struct Poses<'a> {
+pub struct ModelPoses<'a> {
     model: &'a ArmModel,
     data: &'a Observations,
     poses: Vec<ToolPose>,
 }
 
-impl<'a> Poses<'a> {
+impl<'a> ModelPoses<'a> {
     /// Every observation of `data` on `model` (on its tip's chain).
-    pub fn of(model: &'a ArmModel, data: &'a Observations) -> Poses<'a> {
+    pub fn of(model: &'a ArmModel, data: &'a Observations) -> ModelPoses<'a> {
         let tips = Tips::new(model);
-        Poses { model, data, poses: (0..data.obs.len()).map(|k| data.pose_on(&tips, k)).collect() }
+        ModelPoses { model, data, poses: (0..data.obs.len()).map(|k| data.pose_on(&tips, k)).collect() }
     }
 
     /// The poses, when they are those of `model` on `data` (the very values, not equal copies).
@@ -173,7 +173,7 @@ pub fn orientation_spread_deg(model: &ArmModel, data: &Observations, b: usize) -
 }
 
 /// [`orientation_spread_deg`] read from the poses `poses` of every observation of `data` (on
-/// the model, [`Poses`]).
+/// the model, [`ModelPoses`]).
 pub fn orientation_spread_of(poses: &[ToolPose], data: &Observations, b: usize) -> f64 {
     spread_deg(data.blocks[b].members.iter().map(|&k| flange_rotation(&poses[k])))
 }

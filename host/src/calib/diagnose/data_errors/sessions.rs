@@ -55,7 +55,7 @@ use crate::calib::nuisance::drift::{DriftKind, DriftSpec};
 use crate::calib::nuisance::frame::rotation_vector;
 use crate::calib::nuisance::frame::Frame;
 use crate::calib::nuisance::tool::CONSTANT_ORIENTATION_DEG;
-use crate::calib::nuisance::tool::{orientation_spread_deg, orientation_spread_of, Poses};
+use crate::calib::nuisance::tool::{orientation_spread_deg, orientation_spread_of, ModelPoses};
 use crate::calib::setup::{Change, SolveOptions};
 use crate::calib::validate::{
     angle_stats, block_frame, calibration_errors, held_out_session_errors, orientation_errors_in_frame_deg,
@@ -258,8 +258,9 @@ struct ProbeTurn {
 const FLANGE_Z_WITHIN_DEG: f64 = 10.0;
 
 /// The probe's turn in session `b` of `data` (its tool offset `offset_mm` refitted, its frame
-/// refitted with it given by `frame`, asked only when there is a turn to score), against the shared probe rotation of `fit` (for a calibration
-/// session, the refit with its tool floating, which leaves its orientations out): `None` without
+/// refitted with it given by `frame`, asked only when there is a turn to score), against the
+/// shared probe rotation of `fit` (for a calibration session, the refit with its tool floating,
+/// which leaves its orientations out): `None` without
 /// a fitted probe rotation, without orientations, or when the session's points leave its base's
 /// rotation free.
 fn probe_turn(
@@ -361,7 +362,7 @@ pub fn data_error_candidates(
 /// [`data_error_candidates`], the refits floating a session's tool starting from `sums` when
 /// they are of `fit` (else from sums taken here): a run takes them once for these refits and
 /// the outlier metrics' (see [`SessionSums`]); the fit's poses of the calibration points read
-/// from `poses` when they are of its model on `cal` (a run takes them once, see [`Poses`]).
+/// from `poses` when they are of its model on `cal` (a run takes them once, see [`ModelPoses`]).
 pub fn data_error_candidates_with(
     nominal: &ArmModel,
     cal: &Observations,
@@ -369,7 +370,7 @@ pub fn data_error_candidates_with(
     fit: &Fit,
     options: &SolveOptions,
     sums: Option<&SessionSums>,
-    poses: Option<&Poses>,
+    poses: Option<&ModelPoses>,
 ) -> Vec<DataError> {
     let cal_poses = poses.and_then(|p| p.of_model(&fit.model, cal));
     let errors = held_out_errors(&fit.model, val, &options.float_tool);

@@ -708,41 +708,42 @@ mod tests {
         data
     }
 
-    /// A term that writes its derivatives only through its Jacobian (the default path).
-    struct ThroughJacobian(Box<dyn Term>);
-    impl Term for ThroughJacobian {
-        fn rows(&self) -> usize {
-            self.0.rows()
-        }
-        fn block(&self) -> usize {
-            self.0.block()
-        }
-        fn observations(&self) -> &[usize] {
-            self.0.observations()
-        }
-        fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>) {
-            self.0.evaluate(at, r, jac)
-        }
+    /// A term that writes its derivatives only through its Jacobian (the default path), its
+    /// columns in their order or, `reversed`, backwards (the first term in a batch then places
+    /// the arm's columns there backwards).
+    struct ThroughJacobian {
+        term: Box<dyn Term>,
+        reversed: bool,
     }
 
-    /// A term that writes its derivatives through its Jacobian with its columns in the reverse
-    /// order: the first in a batch places the arm's columns there backwards.
-    struct Reversed(Box<dyn Term>);
-    impl Term for Reversed {
+    /// `term` through its Jacobian.
+    fn through(term: Box<dyn Term>) -> Box<dyn Term> {
+        Box::new(ThroughJacobian { term, reversed: false })
+    }
+
+    /// `term` through its Jacobian, its columns backwards.
+    fn reversed(term: Box<dyn Term>) -> Box<dyn Term> {
+        Box::new(ThroughJacobian { term, reversed: true })
+    }
+
+    impl Term for ThroughJacobian {
         fn rows(&self) -> usize {
-            self.0.rows()
+            self.term.rows()
         }
         fn block(&self) -> usize {
-            self.0.block()
+            self.term.block()
         }
         fn observations(&self) -> &[usize] {
-            self.0.observations()
+            self.term.observations()
         }
         fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>) {
-            let Some(jac) = jac else { return self.0.evaluate(at, r, None) };
+            let jac = match jac {
+                Some(jac) if self.reversed => jac,
+                plain => return self.term.evaluate(at, r, plain),
+            };
             let mut forward = TermJacobian::default();
             forward.reset(jac.rows);
-            self.0.evaluate(at, r, Some(&mut forward));
+            self.term.evaluate(at, r, Some(&mut forward));
             for k in (0..forward.columns.len()).rev() {
                 jac.push(forward.columns[k], forward.column(k));
             }
@@ -769,7 +770,7 @@ mod tests {
             let terms: Vec<Box<dyn Term>> = build(&data, &choice)
                 .into_iter()
                 .enumerate()
-                .map(|(k, t)| if k % 2 == 1 { Box::new(ThroughJacobian(t)) as Box<dyn Term> } else { t })
+                .map(|(k, t)| if k % 2 == 1 { through(t) } else { t })
                 .collect();
             let tools = vec![false; data.groups.len()];
             let layout =
@@ -849,10 +850,7 @@ mod tests {
                 point_weight,
             };
             let direct = build(&data, &choice);
-            let through: Vec<Box<dyn Term>> = build(&data, &choice)
-                .into_iter()
-                .map(|t| Box::new(ThroughJacobian(t)) as Box<dyn Term>)
-                .collect();
+            let through: Vec<Box<dyn Term>> = build(&data, &choice).into_iter().map(through).collect();
             let layout = || {
                 let tools = vec![true; data.groups.len()];
                 Layout::new(params.clone(), &vec![true; blocks], &tools, false, &drifts[..blocks])
@@ -908,9 +906,9 @@ mod tests {
                 .into_iter()
                 .enumerate()
                 .map(|(k, t)| match (k % 2, direct) {
-                    (0, _) => Box::new(Reversed(t)) as Box<dyn Term>,
+                    (0, _) => reversed(t),
                     (_, true) => t,
-                    (_, false) => Box::new(ThroughJacobian(t)) as Box<dyn Term>,
+                    (_, false) => through(t),
                 })
                 .collect()
         };

@@ -819,6 +819,14 @@ mod tests {
         x
     }
 
+    /// The frames' rotations the framed tests start at: each session's turned a little off the
+    /// rotation its points were made with.
+    fn start_rotations(blocks: usize) -> Vec<Matrix3<f64>> {
+        (0..blocks)
+            .map(|s| Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64 + 0.01).into_inner())
+            .collect()
+    }
+
     /// The median of the residuals' sizes: a Huber threshold that weighs half the rows.
     fn median_abs(r: &[f64]) -> f64 {
         let mut a: Vec<f64> = r.iter().map(|v| v.abs()).collect();
@@ -855,9 +863,7 @@ mod tests {
                 let tools = vec![true; data.groups.len()];
                 Layout::new(params.clone(), &vec![true; blocks], &tools, false, &drifts[..blocks])
             };
-            let starts: Vec<Matrix3<f64>> = (0..blocks)
-                .map(|s| Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64 + 0.01).into_inner())
-                .collect();
+            let starts = start_rotations(blocks);
             let ours = Problem::new(layout(), &nominal, &data, &direct, starts.clone(), None);
             let theirs = Problem::new(layout(), &nominal, &data, &through, starts, None);
             let x = framed_point(&ours, &params, &nominal);
@@ -917,9 +923,7 @@ mod tests {
             let tools = vec![true; data.groups.len()];
             Layout::new(params.clone(), &vec![true; blocks], &tools, false, &vec![None; blocks])
         };
-        let starts: Vec<Matrix3<f64>> = (0..blocks)
-            .map(|s| Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64 + 0.01).into_inner())
-            .collect();
+        let starts = start_rotations(blocks);
         let ours = Problem::new(layout(), &nominal, &data, &direct, starts.clone(), None);
         let theirs = Problem::new(layout(), &nominal, &data, &through, starts, None);
         let x = framed_point(&ours, &params, &nominal);
@@ -957,9 +961,7 @@ mod tests {
             false,
             &vec![None; blocks],
         );
-        let starts: Vec<Matrix3<f64>> = (0..blocks)
-            .map(|s| Rotation3::from_euler_angles(0.1, -0.05, 1.2 * s as f64 + 0.01).into_inner())
-            .collect();
+        let starts = start_rotations(blocks);
         let problem = Problem::new(layout, &nominal, &data, &terms, starts, None);
         let n = problem.layout.unknowns();
         let x = framed_point(&problem, &params, &nominal);

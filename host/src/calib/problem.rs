@@ -827,6 +827,19 @@ mod tests {
             .collect()
     }
 
+    /// `ours` and `theirs` give the same residuals and normal equations at `x` to the bit, and
+    /// sums of something.
+    fn assert_same_sums(ours: &Problem, theirs: &Problem, x: &[f64], loss: Loss, label: &str) {
+        let m = ours.len();
+        let (mut r_ours, mut r_theirs) = (vec![0.0; m], vec![0.0; m]);
+        let (h, g) = ours.normal_equations(x, &mut r_ours, loss);
+        let (hj, gj) = theirs.normal_equations(x, &mut r_theirs, loss);
+        assert_eq!(r_ours, r_theirs, "{label}: residuals");
+        assert!(h.iter().zip(&hj).all(|(a, b)| a.to_bits() == b.to_bits()), "{label}: JᵀWJ");
+        assert!(g.iter().zip(&gj).all(|(a, b)| a.to_bits() == b.to_bits()), "{label}: JᵀWr");
+        assert!(hj.norm() > 0.0 && gj.norm() > 0.0, "{label}: sums of something");
+    }
+
     /// The median of the residuals' sizes: a Huber threshold that weighs half the rows.
     fn median_abs(r: &[f64]) -> f64 {
         let mut a: Vec<f64> = r.iter().map(|v| v.abs()).collect();
@@ -879,14 +892,7 @@ mod tests {
             let mut r = vec![0.0; m];
             ours.evaluate(&x, &mut r, None);
             for loss in [Loss::Linear, Loss::Huber(median_abs(&r))] {
-                let (mut r_ours, mut r_theirs) = (vec![0.0; m], vec![0.0; m]);
-                let (h, g) = ours.normal_equations(&x, &mut r_ours, loss);
-                let (hj, gj) = theirs.normal_equations(&x, &mut r_theirs, loss);
-                let label = format!("point weight {point_weight}, {loss:?}");
-                assert_eq!(r_ours, r_theirs, "{label}: residuals");
-                assert!(h.iter().zip(&hj).all(|(a, b)| a.to_bits() == b.to_bits()), "{label}: JᵀWJ");
-                assert!(g.iter().zip(&gj).all(|(a, b)| a.to_bits() == b.to_bits()), "{label}: JᵀWr");
-                assert!(hj.norm() > 0.0 && gj.norm() > 0.0, "{label}: sums of something");
+                assert_same_sums(&ours, &theirs, &x, loss, &format!("point weight {point_weight}, {loss:?}"));
             }
         }
     }
@@ -927,14 +933,7 @@ mod tests {
         let ours = Problem::new(layout(), &nominal, &data, &direct, starts.clone(), None);
         let theirs = Problem::new(layout(), &nominal, &data, &through, starts, None);
         let x = framed_point(&ours, &params, &nominal);
-        let m = ours.len();
-        let (mut r_ours, mut r_theirs) = (vec![0.0; m], vec![0.0; m]);
-        let (h, g) = ours.normal_equations(&x, &mut r_ours, Loss::Linear);
-        let (hj, gj) = theirs.normal_equations(&x, &mut r_theirs, Loss::Linear);
-        assert_eq!(r_ours, r_theirs, "residuals");
-        assert!(h.iter().zip(&hj).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWJ");
-        assert!(g.iter().zip(&gj).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWr");
-        assert!(hj.norm() > 0.0 && gj.norm() > 0.0, "sums of something");
+        assert_same_sums(&ours, &theirs, &x, Loss::Linear, "reversed batches");
     }
 
     /// The normal equations summed term by term are those of the dense Jacobian, on turned

@@ -86,21 +86,22 @@ enum Unit {
     Session(usize),
 }
 
-/// The calibration residual rows of `model` on `cal`, and which unit each belongs to: a
-/// distance between two touches (both landmarks), or a coordinate of a point error (its session's
-/// frame refitted in closed form, its tool floated where the setup floats it); the points' poses
-/// read from `poses` (of every observation of `cal` on `model`) when given.
+/// The calibration residual rows of `model` on `cal`, and the units each belongs to (two keys,
+/// the same one twice for a single unit): a distance between two touches (both landmarks), or a
+/// coordinate of a point error (its session's frame refitted in closed form, its tool floated
+/// where the setup floats it); the points' poses read from `poses` (of every observation of
+/// `cal` on `model`) when given.
 fn rows(
     model: &ArmModel,
     cal: &Observations,
     setup: &Setup,
     poses: Option<&[ToolPose]>,
-) -> (Vec<f64>, Vec<Vec<usize>>) {
+) -> (Vec<f64>, Vec<[usize; 2]>) {
     let mut values = Vec::new();
     let mut owners = Vec::new();
     for e in distance_errors(model, cal) {
         values.push(e.error_mm);
-        owners.push(vec![e.landmarks.0, e.landmarks.1]);
+        owners.push([e.landmarks.0, e.landmarks.1]);
     }
     for b in cal.sessions() {
         let offset = session_offset_mm(model, cal, b, &setup.float_tool);
@@ -111,7 +112,7 @@ fn rows(
         for r in fit.residuals() {
             for v in [r.x, r.y, r.z] {
                 values.push(v);
-                owners.push(vec![cal.landmarks.len() + b]);
+                owners.push([cal.landmarks.len() + b; 2]);
             }
         }
     }

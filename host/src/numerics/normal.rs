@@ -11,20 +11,17 @@
 //! times the rate of the best portable loop. Its order of summation depends on the CPU's kernel,
 //! so two CPUs agree to rounding, not to the bit; one machine gives the same sums on any thread
 //! count.
-//! [`add_gram`] keeps the plain order (for small problems that want it to the bit) and
-//! [`add_gram_by_four`] sums four rows at a time (a dense Jacobian of few columns, the
-//! artefact's: its Huber refits stop where their tolerances let them, so its figures keep the
-//! order they have).
+//! [`add_rows_gram`] does the same for a batch of rows held row-major (a dense Jacobian of few
+//! columns, the artefact's, a batch at a time: U is D itself while every row's weight is 1).
+//! [`add_gram`] keeps the plain order (for small problems that want it to the bit).
 //!
 //! [`NormalSums`] sums terms that each touch a few of n columns (a point reads the arm's columns
 //! and its own session's frame): each term's derivatives are written straight into a batch D
 //! held row-major over the union of the batch's columns (by the term itself, into the rows
 //! [`RowTarget::rows`] gives it at the batch's places of its columns, or scattered from its
-//! column list by [`NormalSums::add`]), and the batch's Gram matrix UᵀD
-//! (U = W·D, which is D itself while every row's weight is 1: no copy) is formed by the same
-//! dense product as [`add_gram_product`], reading D through both views, and added into the
-//! n × n sums once per batch. The order of every
-//! sum depends on the terms' order only.
+//! column list by [`NormalSums::add`]), and the batch's Gram matrix UᵀD is formed by
+//! [`add_rows_gram`] and added into the n × n sums once per batch. The order of every sum
+//! depends on the terms' order only.
 
 use nalgebra::{DMatrixView, DMatrixViewMut, Dyn};
 use std::ops::Range;
@@ -34,68 +31,37 @@ use std::ops::Range;
 /// Row after row, each entry gains (w_i·a_ip)·a_iq (nothing for w_i·a_ip = 0): the same
 /// arithmetic in the same order as the plain triple loop, so the same sums to the last bit.
 pub fn add_gram(h: &mut [f64], g: &mut [f64], k: usize, rows: &[f64], weights: &[f64], r: &[f64]) {
-    gram::<1>(h, g, k, rows, weights, r);
-}
-
-/// As [`add_gram`], four rows at a time: each entry of the triangle is read and written once per
-/// four rows (about three times faster; the sums in another order, so equal to rounding).
-pub fn add_gram_by_four(h: &mut [f64], g: &mut [f64], k: usize, rows: &[f64], weights: &[f64], r: &[f64]) {
-    gram::<4>(h, g, k, rows, weights, r);
-}
-
-/// As [`add_gram`], `B` rows at a time.
-fn gram<const B: usize>(h: &mut [f64], g: &mut [f64], k: usize, rows: &[f64], weights: &[f64], r: &[f64]) {
     debug_assert!(rows.len() == weights.len() * k && r.len() == weights.len());
     debug_assert!(h.len() == k * k && g.len() == k);
     if k == 0 {
         return;
     }
-    let whole = weights.len() / B * B;
-    let groups = rows[..whole * k].chunks_exact(B * k).zip(weights.chunks_exact(B)).zip(r.chunks_exact(B));
-    for ((block, w), r) in groups {
-        let a: [&[f64]; B] = std::array::from_fn(|b| &block[b * k..(b + 1) * k]);
+    for ((a, w), r) in rows.chunks_exact(k).zip(weights).zip(r) {
         for (p, h_row) in h.chunks_exact_mut(k).enumerate() {
-            let u: [f64; B] = std::array::from_fn(|b| w[b] * a[b][p]);
-            if u.iter().all(|&v| v == 0.0) {
+            let u = w * a[p];
+            if u == 0.0 {
                 continue;
             }
-            let mut gp = u[0] * r[0];
-            for b in 1..B {
-                gp += u[b] * r[b];
-            }
-            g[p] += gp;
-            add_weighted_rows(&mut h_row[p..], &u, &std::array::from_fn(|b| &a[b][p..]));
+            g[p] += u * r;
+            add_scaled_row(&mut h_row[p..], u, &a[p..]);
         }
-    }
-    if whole < weights.len() && B > 1 {
-        gram::<1>(h, g, k, &rows[whole * k..], &weights[whole..], &r[whole..]);
     }
 }
 
-/// `out[q] += Σ_b u_b·c_b[q]` for every q, the products summed in b's order (the plain loop's
-/// arithmetic), two q at a time: the compiler keeps each pair in one vector register, which it
-/// does not for a loop over q of a row this short (a dozen columns).
+/// `out[q] += u·c[q]` for every q, two q at a time: the compiler keeps each pair in one vector
+/// register, which it does not for a loop over q of a row this short (a dozen columns).
 #[inline(always)]
-fn add_weighted_rows<const B: usize>(out: &mut [f64], u: &[f64; B], c: &[&[f64]; B]) {
+fn add_scaled_row(out: &mut [f64], u: f64, c: &[f64]) {
     let n = out.len();
-    let c: [&[f64]; B] = std::array::from_fn(|b| &c[b][..n]);
+    let c = &c[..n];
     let mut pairs = out.chunks_exact_mut(2);
     for (pair, q) in (&mut pairs).zip((0..n).step_by(2)) {
-        let mut s = [u[0] * c[0][q], u[0] * c[0][q + 1]];
-        for b in 1..B {
-            s[0] += u[b] * c[b][q];
-            s[1] += u[b] * c[b][q + 1];
-        }
+        let s = [u * c[q], u * c[q + 1]];
         pair[0] += s[0];
         pair[1] += s[1];
     }
     if let [last] = pairs.into_remainder() {
-        let q = n - 1;
-        let mut s = u[0] * c[0][q];
-        for b in 1..B {
-            s += u[b] * c[b][q];
-        }
-        *last += s;
+        *last += u * c[n - 1];
     }
 }
 
@@ -130,6 +96,45 @@ pub fn add_gram_product(
     }
     let d = DMatrixView::from_slice_with_strides(&columns[..(k - 1) * stride + m], m, k, 1, stride);
     add_product(h, g, (u, k, k), &d, r, &mut buffers.product);
+}
+
+/// As [`add_gram`] for the rows of a batch held row-major, `(rows, width, k)`: row i's k
+/// columns at `rows[i * width ..]` (k ≤ `width`), one weight and one residual per row; by the
+/// dense product (see the module doc; the plain sums to rounding). U = W·D is copied into
+/// `buffers` (which also holds the product) unless every weight is 1: U is then D itself.
+pub fn add_rows_gram(
+    h: &mut [f64],
+    g: &mut [f64],
+    (rows, width, k): (&[f64], usize, usize),
+    weights: &[f64],
+    r: &[f64],
+    buffers: &mut GramBuffers,
+) {
+    let m = weights.len();
+    debug_assert!(r.len() == m && h.len() == k * k && g.len() == k && k <= width);
+    if m == 0 || k == 0 {
+        return;
+    }
+    let span = (m - 1) * width + k;
+    if m <= NALGEBRA_SMALL || k <= NALGEBRA_SMALL {
+        // Too small for the crate's product, which reads a row-major D only above that size:
+        // packed column-major.
+        let packed: Vec<f64> = (0..k).flat_map(|l| rows[l..span].iter().step_by(width).copied()).collect();
+        add_gram_product(h, g, k, &packed, m, weights, r, buffers);
+        return;
+    }
+    let d = DMatrixView::from_slice_with_strides(&rows[..span], m, k, width, 1);
+    if weights.iter().all(|&w| w == 1.0) {
+        add_product(h, g, (rows, width, k), &d, r, &mut buffers.product);
+        return;
+    }
+    let u = &mut buffers.weighted;
+    // Grown, never shrunk: a short last batch leaves no room to be zeroed again for the next.
+    u.resize(u.len().max(m * k), 0.0);
+    for ((ui, row), w) in u.chunks_exact_mut(k).zip(rows.chunks(width)).zip(weights) {
+        ui.iter_mut().zip(&row[..k]).for_each(|(u, v)| *u = w * v);
+    }
+    add_product(h, g, (&u[..m * k], k, k), &d, r, &mut buffers.product);
 }
 
 /// Add Uᵀr into `g` and the upper triangle of UᵀD into `h` (k × k, row-major), `product` the
@@ -293,9 +298,6 @@ pub struct NormalSums {
     /// The batch's derivatives D, row-major: row i's local columns at `i * width ..` (zero
     /// where a term does not read the column).
     dense: Vec<f64>,
-    /// U = W·D, laid out as D, once some row of the batch has a weight other than 1 (else U
-    /// is D: no copy).
-    weighted: Option<Vec<f64>>,
     r: Vec<f64>,
     w: Vec<f64>,
     h_local: Vec<f64>,
@@ -315,7 +317,6 @@ impl NormalSums {
             term_locals: Vec::new(),
             width: BATCH_COLUMNS,
             dense: vec![0.0; BATCH_ROWS * BATCH_COLUMNS],
-            weighted: None,
             r: Vec::with_capacity(BATCH_ROWS),
             w: Vec::with_capacity(BATCH_ROWS),
             h_local: Vec::new(),
@@ -368,7 +369,6 @@ impl NormalSums {
             // One term reading more columns than a batch spans (the batch is empty): wider rows.
             self.width = self.globals.len();
             self.dense = vec![0.0; BATCH_ROWS * self.width];
-            self.weighted = None;
         }
     }
 
@@ -387,22 +387,7 @@ impl NormalSums {
     /// batch (by [`NormalSums::add`], or by the term itself into the rows of
     /// [`RowTarget::rows`]).
     pub fn close(&mut self, r: &[f64], w: &[f64]) {
-        let (first, rows, width, k) = (self.r.len(), r.len(), self.width, self.globals.len());
-        debug_assert!(w.len() == rows && first + rows <= BATCH_ROWS);
-        if self.weighted.is_none() && w.iter().any(|&v| v != 1.0) {
-            // The batch's rows so far have weight 1: U starts as their copy.
-            let mut u = vec![0.0; BATCH_ROWS * width];
-            u[..first * width].copy_from_slice(&self.dense[..first * width]);
-            self.weighted = Some(u);
-        }
-        if let Some(u) = self.weighted.as_mut() {
-            // The batch's columns so far: the term's, and zeros in U as in D elsewhere.
-            let span = first * width..(first + rows) * width;
-            let rows_u = u[span.clone()].chunks_exact_mut(width);
-            for ((ui, di), wi) in rows_u.zip(self.dense[span].chunks_exact(width)).zip(w) {
-                ui[..k].iter_mut().zip(&di[..k]).for_each(|(u, d)| *u = wi * d);
-            }
-        }
+        debug_assert!(w.len() == r.len() && self.r.len() + r.len() <= BATCH_ROWS);
         self.r.extend_from_slice(r);
         self.w.extend_from_slice(w);
     }
@@ -415,18 +400,8 @@ impl NormalSums {
             self.h_local.resize(k * k, 0.0);
             self.g_local.clear();
             self.g_local.resize(k, 0.0);
-            let (h, g) = (&mut self.h_local, &mut self.g_local);
-            let span = (m - 1) * width + k;
-            if m > 5 && k > 5 {
-                let u = self.weighted.as_deref().unwrap_or(&self.dense);
-                let d = DMatrixView::from_slice_with_strides(&self.dense[..span], m, k, width, 1);
-                add_product(h, g, (u, width, k), &d, &self.r, &mut self.buffers.product);
-            } else {
-                // Too small for the crate's product: packed column-major.
-                let packed: Vec<f64> =
-                    (0..k).flat_map(|l| self.dense[l..span].iter().step_by(width).copied()).collect();
-                add_gram_product(h, g, k, &packed, m, &self.w, &self.r, &mut self.buffers);
-            }
+            let rows = (&self.dense[..], width, k);
+            add_rows_gram(&mut self.h_local, &mut self.g_local, rows, &self.w, &self.r, &mut self.buffers);
             let n = self.n;
             for (p, &a) in self.globals.iter().enumerate() {
                 self.g[a] += self.g_local[p];
@@ -437,11 +412,6 @@ impl NormalSums {
         }
         for row in self.dense.chunks_exact_mut(width).take(m) {
             row[..k].fill(0.0);
-        }
-        if let Some(u) = self.weighted.as_mut() {
-            for row in u.chunks_exact_mut(width).take(m) {
-                row[..k].fill(0.0);
-            }
         }
         for &c in &self.globals {
             self.local[c] = NONE;
@@ -566,8 +536,7 @@ mod tests {
                 assert!((ours - hd[a * n + b]).abs() < 1e-12 * (1.0 + hd[a * n + b].abs()), "h[{a},{b}]");
             }
         }
-        // And the dense kernels on the whole Jacobian, with a row count not a multiple of four:
-        // the plain order to the last bit, four rows at a time to rounding.
+        // And the plain kernel on the whole Jacobian: the plain order to the last bit.
         let m = r.len() - 1;
         let (hd, gd) = plain(&jac[..m * n], &w[..m], &r[..m], n);
         let (mut h, mut g) = (vec![0.0; n * n], vec![0.0; n]);
@@ -578,40 +547,67 @@ mod tests {
                 assert_eq!(h[a * n + b], hd[a * n + b]);
             }
         }
-        let (mut h, mut g) = (vec![0.0; n * n], vec![0.0; n]);
-        add_gram_by_four(&mut h, &mut g, n, &jac[..m * n], &w[..m], &r[..m]);
-        let (h4, g4) = plain_by_four(&jac[..m * n], &w[..m], &r[..m], n);
-        for a in 0..n {
-            assert!((g[a] - gd[a]).abs() < 1e-12 * (1.0 + gd[a].abs()));
-            assert_eq!(g[a], g4[a], "g[{a}] by four");
-            for b in a..n {
-                assert!((h[a * n + b] - hd[a * n + b]).abs() < 1e-12 * (1.0 + hd[a * n + b].abs()));
-                assert_eq!(h[a * n + b], h4[a * n + b], "h[{a},{b}] by four");
-            }
-        }
     }
 
-    /// The upper triangle of JᵀWJ and JᵀWr summed four rows at a time, each entry gaining
-    /// ((u₀c₀ + u₁c₁) + u₂c₂) + u₃c₃ (u = w·row[a], c = row[b]), the rows past the last four
-    /// one by one: the order [`add_gram_by_four`] keeps, written as a plain loop.
-    fn plain_by_four(rows: &[f64], w: &[f64], r: &[f64], n: usize) -> (Vec<f64>, Vec<f64>) {
-        let (mut h, mut g) = (vec![0.0; n * n], vec![0.0; n]);
-        let whole = w.len() / 4 * 4;
-        for i in (0..whole).step_by(4) {
-            let row = |b: usize| &rows[(i + b) * n..(i + b + 1) * n];
-            for a in 0..n {
-                let u: Vec<f64> = (0..4).map(|b| w[i + b] * row(b)[a]).collect();
-                g[a] += ((u[0] * r[i] + u[1] * r[i + 1]) + u[2] * r[i + 2]) + u[3] * r[i + 3];
-                for c in a..n {
-                    let s = ((u[0] * row(0)[c] + u[1] * row(1)[c]) + u[2] * row(2)[c]) + u[3] * row(3)[c];
-                    h[a * n + c] += s;
+    /// Batches of rows held row-major, one to three of them summed one after the other into the
+    /// same sums (as the dense terms' batches are), give the plain sums to 1e-12 relative: 13
+    /// columns (not a multiple of the crate's tiles), batches of every weight 1 (no weighted
+    /// copy), of weights far from 1 and zero, of zero rows, of fewer rows than the crate's
+    /// product takes, rows with a stride past their columns, and column counts of the small
+    /// product and of one above.
+    #[test]
+    fn batches_of_rows_give_the_plain_sums() {
+        let value = |i: usize, l: usize| ((i * 19 + l * 23) as f64 * 0.47).sin() * (1.0 + l as f64);
+        let mut buffers = GramBuffers::default();
+        let batches: [&[usize]; 4] = [&[256], &[256, 256, 63], &[3, 200], &[100, 1, 7]];
+        for k in [13, 5, 6, 31] {
+            for sizes in batches {
+                for width in [k, k + 3] {
+                    let (mut h, mut g) = (vec![0.0; k * k], vec![0.0; k]);
+                    let (mut jac, mut w, mut r) = (Vec::new(), Vec::new(), Vec::new());
+                    for (b, &m) in sizes.iter().enumerate() {
+                        let first = w.len();
+                        let weight = |i: usize| match (b, i % 4) {
+                            (0, _) => 1.0,
+                            (_, 0) => 0.0,
+                            (_, 1) => 0.05 + value(i, 99).abs(),
+                            _ => 1.0,
+                        };
+                        // Every fifth row of a later batch is zero.
+                        let row = |i: usize, l: usize| if b > 0 && i % 5 == 2 { 0.0 } else { value(i, l) };
+                        let mut rows = vec![f64::NAN; m * width];
+                        for i in first..first + m {
+                            for l in 0..k {
+                                rows[(i - first) * width + l] = row(i, l);
+                                jac.push(row(i, l));
+                            }
+                            w.push(weight(i));
+                            r.push(value(i, 98));
+                        }
+                        let (wb, rb) = (&w[first..], &r[first..]);
+                        add_rows_gram(&mut h, &mut g, (&rows, width, k), wb, rb, &mut buffers);
+                    }
+                    let (hd, gd) = plain(&jac, &w, &r, k);
+                    let scale = hd.iter().chain(&gd).fold(0.0f64, |a, v| a.max(v.abs()));
+                    let label = format!("{k} columns, batches {sizes:?}, width {width}");
+                    for a in 0..k {
+                        assert!(
+                            (g[a] - gd[a]).abs() <= 1e-12 * scale,
+                            "{label}: g[{a}] {} vs {}",
+                            g[a],
+                            gd[a]
+                        );
+                        for c in 0..k {
+                            let (ours, theirs) = (h[a * k + c], if c >= a { hd[a * k + c] } else { 0.0 });
+                            assert!(
+                                (ours - theirs).abs() <= 1e-12 * scale,
+                                "{label}: h[{a},{c}] {ours} vs {theirs}"
+                            );
+                        }
+                    }
                 }
             }
         }
-        for i in whole..w.len() {
-            add_row(&mut h, &mut g, &rows[i * n..(i + 1) * n], w[i], r[i]);
-        }
-        (h, g)
     }
 
     /// Terms writing their rows through [`RowTarget::rows`] give the sums of the same terms

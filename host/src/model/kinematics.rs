@@ -37,9 +37,11 @@ use super::tree::{self, Loads};
 use super::{ArmModel, Convention, ParamId, MAX_BODIES, MAX_TREE_JOINTS};
 use crate::model::effects::{bend, compliance, eccentricity, harmonic, mass, sag};
 use crate::numerics::geometry::left_jacobian;
+use lanes::lane;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
 mod dh;
+mod lanes;
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
@@ -518,24 +520,60 @@ impl<'m> Chain<'m> {
         levers
     }
 
-    /// The pose and the wanted columns: by the DH kernel when the model is a DH chain whose
-    /// angles read their offsets alone, else by the general pass over the ops.
+    /// The rows of the DH kernel when this chain takes it for `columns`: a DH chain whose
+    /// angles read their offsets alone.
+    fn kernel(&self, columns: Option<&ColumnMap>) -> Option<&[dh::Row]> {
+        let harmonics = self.harmonics || columns.is_some_and(|c| c.harmonics);
+        let compliance = self.compliant || columns.is_some_and(|c| c.compliance);
+        self.dh.as_deref().filter(|_| !harmonics && !compliance)
+    }
+
+    /// The pose and the wanted columns: by the DH kernel when the chain takes it, else by the
+    /// general pass over the ops.
     fn evaluate(
         &self,
         enc_deg: &[f64],
         enc_sin_cos: Option<&[(f64, f64)]>,
-        mut wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
+        wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
     ) -> ToolPose {
-        let harmonics = self.harmonics || wanted.as_ref().is_some_and(|(c, _)| c.harmonics);
-        let compliance = self.compliant || wanted.as_ref().is_some_and(|(c, _)| c.compliance);
-        match self.dh.as_deref().filter(|_| !harmonics && !compliance) {
+        match self.kernel(wanted.as_ref().map(|(c, _)| *c)) {
             Some(rows) => {
-                let gathering = wanted.as_mut().map(|(c, j)| (*c, &mut **j));
-                let (point, x_axis, z_axis) = self.dh_columns(rows, enc_deg, enc_sin_cos, gathering);
-                self.finish(point, x_axis, z_axis, wanted)
+                let (columns, jac) = wanted.map_or((None, None), |(c, j)| (Some(c), Some(j)));
+                let mut jacs = jac.map(|j| [j]);
+                let gathering = columns.zip(jacs.as_mut());
+                let [point, x_axis, z_axis] = self.dh_columns(rows, [(enc_deg, enc_sin_cos)], gathering);
+                let wanted = columns.zip(jacs.map(|[j]| j));
+                self.finish(lane(&point, 0), lane(&x_axis, 0), lane(&z_axis, 0), wanted)
             }
             None => self.general_pass(enc_deg, enc_sin_cos, wanted),
         }
+    }
+
+    /// As [`Chain::pose_with_sin_cos_and_jacobian`] for two poses: carried through the chain
+    /// together (two to an SSE2 register) when the chain takes the DH kernel, else one after
+    /// the other; to the bit what two calls give.
+    pub fn pose_pair_with_sin_cos_and_jacobian(
+        &self,
+        enc_deg: [&[f64]; 2],
+        enc_sin_cos: [&[(f64, f64)]; 2],
+        columns: &ColumnMap,
+        jacobian: [&mut [PoseDerivative]; 2],
+    ) -> [ToolPose; 2] {
+        let Some(rows) = self.kernel(Some(columns)) else {
+            let [first, second] = jacobian;
+            return [
+                self.evaluate(enc_deg[0], Some(enc_sin_cos[0]), Some((columns, first))),
+                self.evaluate(enc_deg[1], Some(enc_sin_cos[1]), Some((columns, second))),
+            ];
+        };
+        let mut jacs = jacobian;
+        let enc = [0, 1].map(|i| (enc_deg[i], Some(enc_sin_cos[i])));
+        let [point, x_axis, z_axis] = self.dh_columns(rows, enc, Some((columns, &mut jacs)));
+        let [first, second] = jacs;
+        [
+            self.finish(lane(&point, 0), lane(&x_axis, 0), lane(&z_axis, 0), Some((columns, first))),
+            self.finish(lane(&point, 1), lane(&x_axis, 1), lane(&z_axis, 1), Some((columns, second))),
+        ]
     }
 
     /// The pose and the wanted columns by one pass over the chain's ops (see the module doc).

@@ -14,7 +14,7 @@
 //! columns the chain does not move are zeroed only when some are wanted, see
 //! [`Chain::dh_columns`]).
 
-use super::lanes::{cross, difference, scaled, sum, Lanes, Vec3};
+use super::lanes::{cross, difference, gathered, scaled, sum, Lanes, Vec3};
 use super::{Chain, ColumnMap, PoseDerivative, DEG};
 use crate::model::{ArmModel, Convention, ParamId};
 
@@ -64,7 +64,7 @@ pub(super) fn rows(model: &ArmModel, path: &[usize]) -> Option<Vec<Row>> {
 }
 
 /// The tool point, x axis and z axis a pass ends at (before the scale), per pose.
-type TipFrame<const N: usize> = [Vec3<N>; 3];
+pub(super) type TipFrame<const N: usize> = [Vec3<N>; 3];
 
 /// Per pose, its encoder angles (degrees) and, when kept, their sines and cosines.
 pub(super) type Encoders<'e> = (&'e [f64], Option<&'e [(f64, f64)]>);
@@ -82,8 +82,8 @@ struct Pass<'c, 'j, const N: usize> {
 }
 
 impl<const N: usize> Pass<'_, '_, N> {
-    /// Write W (3..6) and V (0..3), of `values()`, to the column of dense slot `slot` if it is
-    /// wanted.
+    /// Write V and W, of `values()`, to the column of dense slot `slot` if it is wanted (where
+    /// [`gathered`] says).
     #[inline(always)]
     fn put(&mut self, slot: usize, values: impl FnOnce(&Self) -> [Lanes<N>; 6]) {
         let Some(col) = self.wanted.as_ref().and_then(|(columns, _)| columns.column(slot)) else {
@@ -91,8 +91,9 @@ impl<const N: usize> Pass<'_, '_, N> {
         };
         let values = values(self);
         if let Some((_, jacs)) = self.wanted.as_mut() {
-            for (i, jac) in jacs.iter_mut().enumerate() {
-                jac[col][..6].copy_from_slice(&values.map(|v| v.0[i]));
+            // Each buffer's six values written at once: a store of one reads its slice anew.
+            for (buffer, jac) in jacs.iter_mut().enumerate() {
+                jac[col][..6].copy_from_slice(&gathered(&values, buffer));
             }
         }
         self.written += 1;

@@ -91,3 +91,31 @@ pub(super) fn difference<const N: usize>(a: &Vec3<N>, b: &Vec3<N>) -> Vec3<N> {
 pub(super) fn lane<const N: usize>(v: &Vec3<N>, i: usize) -> nalgebra::Vector3<f64> {
     nalgebra::Vector3::new(v[0].0[i], v[1].0[i], v[2].0[i])
 }
+
+/// The six entries of buffer `buffer` of a column whose values (V's x, y, z, then W's, see the
+/// module above) are `values`, among `N` poses' buffers while the columns are gathered: value k
+/// of pose i at flat index k·N + i, buffer flat / 6, entry flat % 6. For one pose, V in entries
+/// 0..3 and W in 3..6; for two, the first buffer holds both poses' V and the second their W,
+/// pose after pose, so that each component of the pair is stored and read as one register.
+#[inline(always)]
+pub(super) fn gathered<const N: usize>(values: &[Lanes<N>; 6], buffer: usize) -> [f64; 6] {
+    let mut entries = [0.0; 6];
+    for (entry, e) in entries.iter_mut().enumerate() {
+        let flat = 6 * buffer + entry;
+        *e = values[flat / N].0[flat % N];
+    }
+    entries
+}
+
+/// The values of a column gathered in `entries` (each buffer's six, see [`gathered`]).
+#[inline(always)]
+pub(super) fn ungathered<const N: usize>(entries: &[[f64; 6]; N]) -> [Lanes<N>; 6] {
+    let mut values = [Lanes::splat(0.0); 6];
+    for (k, value) in values.iter_mut().enumerate() {
+        for (i, v) in value.0.iter_mut().enumerate() {
+            let flat = k * N + i;
+            *v = entries[flat / 6][flat % 6];
+        }
+    }
+    values
+}

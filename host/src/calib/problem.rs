@@ -226,20 +226,39 @@ impl<'a> Problem<'a> {
         read().for_each(|k| wanted[k - first] = true);
         let mut chain = self.spare.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
         chain.resize(wanted.len() * arm, [0.0; 9]);
-        let pose = (first..=last)
-            .map(|k| {
-                let d = &mut chain[(k - first) * arm..(k - first + 1) * arm];
-                wanted[k - first].then(|| {
-                    let (q, tip) = (&self.data.obs[k].q_deg, self.data.obs[k].tip);
-                    kinematics.tip(tip).pose_with_sin_cos_and_jacobian(
-                        q,
-                        self.sin_cos(k),
-                        &self.layout.columns,
-                        d,
-                    )
-                })
-            })
-            .collect();
+        let mut pose = vec![None; wanted.len()];
+        let columns = &self.layout.columns;
+        let single = |k: usize, chain: &mut [PoseDerivative]| {
+            let (q, tip) = (&self.data.obs[k].q_deg, self.data.obs[k].tip);
+            let d = &mut chain[(k - first) * arm..(k - first + 1) * arm];
+            Some(kinematics.tip(tip).pose_with_sin_cos_and_jacobian(q, self.sin_cos(k), columns, d))
+        };
+        // Two observations of one tip at a time: their poses are carried through the chain
+        // together.
+        let mut waiting = None;
+        for b in (first..=last).filter(|k| wanted[k - first]) {
+            let Some(a) = waiting.take() else {
+                waiting = Some(b);
+                continue;
+            };
+            let (oa, ob) = (&self.data.obs[a], &self.data.obs[b]);
+            if oa.tip != ob.tip {
+                pose[a - first] = single(a, &mut chain);
+                waiting = Some(b);
+                continue;
+            }
+            let (before, after) = chain.split_at_mut((b - first) * arm);
+            let [pa, pb] = kinematics.tip(oa.tip).pose_pair_with_sin_cos_and_jacobian(
+                [&oa.q_deg, &ob.q_deg],
+                [self.sin_cos(a), self.sin_cos(b)],
+                columns,
+                [&mut before[(a - first) * arm..][..arm], &mut after[..arm]],
+            );
+            (pose[a - first], pose[b - first]) = (Some(pa), Some(pb));
+        }
+        if let Some(a) = waiting {
+            pose[a - first] = single(a, &mut chain);
+        }
         Poses { first, pose, chain, arm, jacobian: true }
     }
 

@@ -37,9 +37,11 @@ use super::tree::{self, Loads};
 use super::{ArmModel, Convention, ParamId, MAX_BODIES, MAX_TREE_JOINTS};
 use crate::model::effects::{bend, compliance, eccentricity, harmonic, mass, sag};
 use crate::numerics::geometry::left_jacobian;
+use lanes::{lane, Lanes};
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
 mod dh;
+mod lanes;
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
@@ -518,24 +520,55 @@ impl<'m> Chain<'m> {
         levers
     }
 
-    /// The pose and the wanted columns: by the DH kernel when the model is a DH chain whose
-    /// angles read their offsets alone, else by the general pass over the ops.
+    /// The rows of the DH kernel when this chain takes it for `columns`: a DH chain whose
+    /// angles read their offsets alone.
+    fn kernel(&self, columns: Option<&ColumnMap>) -> Option<&[dh::Row]> {
+        let harmonics = self.harmonics || columns.is_some_and(|c| c.harmonics);
+        let compliance = self.compliant || columns.is_some_and(|c| c.compliance);
+        self.dh.as_deref().filter(|_| !harmonics && !compliance)
+    }
+
+    /// The pose and the wanted columns: by the DH kernel when the chain takes it, else by the
+    /// general pass over the ops.
     fn evaluate(
         &self,
         enc_deg: &[f64],
         enc_sin_cos: Option<&[(f64, f64)]>,
-        mut wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
+        wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
     ) -> ToolPose {
-        let harmonics = self.harmonics || wanted.as_ref().is_some_and(|(c, _)| c.harmonics);
-        let compliance = self.compliant || wanted.as_ref().is_some_and(|(c, _)| c.compliance);
-        match self.dh.as_deref().filter(|_| !harmonics && !compliance) {
+        match self.kernel(wanted.as_ref().map(|(c, _)| *c)) {
             Some(rows) => {
-                let gathering = wanted.as_mut().map(|(c, j)| (*c, &mut **j));
-                let (point, x_axis, z_axis) = self.dh_columns(rows, enc_deg, enc_sin_cos, gathering);
-                self.finish(point, x_axis, z_axis, wanted)
+                let (columns, jac) = wanted.map_or((None, None), |(c, j)| (Some(c), Some(j)));
+                let mut jacs = jac.map(|j| [j]);
+                let frame = self.dh_columns(rows, [(enc_deg, enc_sin_cos)], columns.zip(jacs.as_mut()));
+                let [pose] = self.finish(frame, columns.zip(jacs.as_mut()));
+                pose
             }
             None => self.general_pass(enc_deg, enc_sin_cos, wanted),
         }
+    }
+
+    /// As [`Chain::pose_with_sin_cos_and_jacobian`] for two poses: carried through the chain
+    /// together (two to an SSE2 register) when the chain takes the DH kernel, else one after
+    /// the other; to the bit what two calls give.
+    pub fn pose_pair_with_sin_cos_and_jacobian(
+        &self,
+        enc_deg: [&[f64]; 2],
+        enc_sin_cos: [&[(f64, f64)]; 2],
+        columns: &ColumnMap,
+        jacobian: [&mut [PoseDerivative]; 2],
+    ) -> [ToolPose; 2] {
+        let mut jacs = jacobian;
+        let Some(rows) = self.kernel(Some(columns)) else {
+            let [first, second] = jacs;
+            return [
+                self.evaluate(enc_deg[0], Some(enc_sin_cos[0]), Some((columns, first))),
+                self.evaluate(enc_deg[1], Some(enc_sin_cos[1]), Some((columns, second))),
+            ];
+        };
+        let enc = [(enc_deg[0], Some(enc_sin_cos[0])), (enc_deg[1], Some(enc_sin_cos[1]))];
+        let frame = self.dh_columns(rows, enc, Some((columns, &mut jacs)));
+        self.finish(frame, Some((columns, &mut jacs)))
     }
 
     /// The pose and the wanted columns by one pass over the chain's ops (see the module doc).
@@ -658,45 +691,67 @@ impl<'m> Chain<'m> {
             }
         }
         let [x_axis, _, z_axis] = frame.axes;
-        self.finish(frame.origin, x_axis, z_axis, wanted)
+        let frame = [frame.origin, x_axis, z_axis].map(|v| v.map(|c| Lanes([c])).into());
+        let (columns, mut jac) = wanted.map_or((None, None), |(c, j)| (Some(c), Some([j])));
+        let [pose] = self.finish(frame, columns.zip(jac.as_mut()));
+        pose
     }
 
-    /// The pose at tool point `point` (before the scale) and axes `x_axis`, `z_axis`, each wanted
-    /// column turned from its W and V into the derivatives of the point and the axes.
-    fn finish(
+    /// The poses at `N` poses' tool points (before the scale) and x and z axes `frame`, each
+    /// wanted column turned from its V and W (laid out as [`lanes::gathered`] says) into the
+    /// derivatives of the point and the axes.
+    #[inline(always)]
+    fn finish<const N: usize>(
         &self,
-        point: Vector3<f64>,
-        x_axis: Vector3<f64>,
-        z_axis: Vector3<f64>,
-        wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
-    ) -> ToolPose {
-        if let Some((columns, jac)) = wanted {
-            let scale = self.scale;
-            let moved = |col: &PoseDerivative| {
-                let w = Vector3::new(col[3], col[4], col[5]);
-                (w, (w.cross(&point) + Vector3::new(col[0], col[1], col[2])) * scale)
+        [point, x_axis, z_axis]: dh::TipFrame<N>,
+        wanted: Option<(&ColumnMap, &mut [&mut [PoseDerivative]; N])>,
+    ) -> [ToolPose; N] {
+        if let Some((columns, jacs)) = wanted {
+            let scale = Lanes::splat(self.scale);
+            let count = jacs.iter().map(|jac| jac.len()).min().unwrap_or(0);
+            // Local slices of `count` columns each: no bounds check per column.
+            let mut jacs: [&mut [PoseDerivative]; N] = jacs.each_mut().map(|jac| &mut jac[..count]);
+            // V and W of column c; dp = (W × p + V)·scale.
+            let moved = |jacs: &[&mut [PoseDerivative]; N], c: usize| {
+                let mut entries = [[0.0; 6]; N];
+                for (e, jac) in entries.iter_mut().zip(jacs) {
+                    e.copy_from_slice(&jac[c][..6]);
+                }
+                let vw = lanes::ungathered(&entries);
+                let w = [vw[3], vw[4], vw[5]];
+                (w, lanes::scaled(&lanes::sum(&lanes::cross(&w, &point), &[vw[0], vw[1], vw[2]]), scale))
             };
-            // One loop per case, none with a branch per column (the positions' loop then
-            // takes two columns at a time).
+            // One loop per case, none with a branch per column.
             if columns.axes {
-                for col in jac.iter_mut() {
-                    let (w, dp) = moved(col);
-                    let (dx, dz) = (w.cross(&x_axis), w.cross(&z_axis));
-                    *col = [dp.x, dp.y, dp.z, dx.x, dx.y, dx.z, dz.x, dz.y, dz.z];
+                for c in 0..count {
+                    let (w, dp) = moved(&jacs, c);
+                    let (dx, dz) = (lanes::cross(&w, &x_axis), lanes::cross(&w, &z_axis));
+                    for (i, jac) in jacs.iter_mut().enumerate() {
+                        let [p, x, z] = [dp, dx, dz];
+                        jac[c] = [p[0], p[1], p[2], x[0], x[1], x[2], z[0], z[1], z[2]].map(|v| v.0[i]);
+                    }
                 }
             } else {
-                for col in jac.iter_mut() {
-                    let (_, dp) = moved(col);
-                    *col = [dp.x, dp.y, dp.z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+                for c in 0..count {
+                    let (_, dp) = moved(&jacs, c);
+                    for (i, jac) in jacs.iter_mut().enumerate() {
+                        jac[c] = [dp[0].0[i], dp[1].0[i], dp[2].0[i], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+                    }
                 }
             }
             if let Some(c) = columns.column(ParamId::Scale.dense_index()) {
-                for k in 0..3 {
-                    jac[c][k] += point[k] * 1e-6;
+                for (i, jac) in jacs.iter_mut().enumerate() {
+                    for k in 0..3 {
+                        jac[c][k] += point[k].0[i] * 1e-6;
+                    }
                 }
             }
         }
-        ToolPose { position_mm: point * self.scale, x_axis, z_axis }
+        std::array::from_fn(|i| ToolPose {
+            position_mm: lane(&point, i) * self.scale,
+            x_axis: lane(&x_axis, i),
+            z_axis: lane(&z_axis, i),
+        })
     }
 }
 

@@ -14,9 +14,9 @@
 //! columns the chain does not move are zeroed only when some are wanted, see
 //! [`Chain::dh_columns`]).
 
+use super::lanes::{cross, difference, gathered, scaled, sum, Lanes, Vec3};
 use super::{Chain, ColumnMap, PoseDerivative, DEG};
 use crate::model::{ArmModel, Convention, ParamId};
-use nalgebra::Vector3;
 
 /// One DH row's constants.
 #[derive(Clone, Copy)]
@@ -63,55 +63,65 @@ pub(super) fn rows(model: &ArmModel, path: &[usize]) -> Option<Vec<Row>> {
     )
 }
 
-/// The tool point, x axis and z axis a pass ends at (before the scale).
-type TipFrame = (Vector3<f64>, Vector3<f64>, Vector3<f64>);
+/// The tool point, x axis and z axis a pass ends at (before the scale), per pose.
+pub(super) type TipFrame<const N: usize> = [Vec3<N>; 3];
 
-/// The frame carried from the base and the columns written so far.
-struct Pass<'w> {
-    axes: [Vector3<f64>; 3],
-    origin: Vector3<f64>,
-    wanted: Option<(&'w ColumnMap, &'w mut [PoseDerivative])>,
-    /// Columns written.
+/// Per pose, its encoder angles (degrees) and, when kept, their sines and cosines.
+pub(super) type Encoders<'e> = (&'e [f64], Option<&'e [(f64, f64)]>);
+
+/// The wanted columns and, per pose, the buffer they are written to.
+pub(super) type Wanted<'c, 'j, const N: usize> = (&'c ColumnMap, &'c mut [&'j mut [PoseDerivative]; N]);
+
+/// The frames carried from the base (one per pose) and the columns written so far.
+struct Pass<'c, 'j, const N: usize> {
+    axes: [Vec3<N>; 3],
+    origin: Vec3<N>,
+    wanted: Option<Wanted<'c, 'j, N>>,
+    /// Columns written (per pose).
     written: usize,
 }
 
-impl Pass<'_> {
+impl<const N: usize> Pass<'_, '_, N> {
+    /// Write V and W, of `values()`, to the column of dense slot `slot` if it is wanted (where
+    /// [`gathered`] says).
+    #[inline(always)]
+    fn put(&mut self, slot: usize, values: impl FnOnce(&Self) -> [Lanes<N>; 6]) {
+        let Some(col) = self.wanted.as_ref().and_then(|(columns, _)| columns.column(slot)) else {
+            return;
+        };
+        let values = values(self);
+        if let Some((_, jacs)) = self.wanted.as_mut() {
+            // Each buffer's six values written at once: a store of one reads its slice anew.
+            for (buffer, jac) in jacs.iter_mut().enumerate() {
+                jac[col][..6].copy_from_slice(&gathered(&values, buffer));
+            }
+        }
+        self.written += 1;
+    }
+
     /// Rotate by the angle of sine and cosine `s`, `c` about frame axis `axis` (0 x, 1 y, 2 z),
     /// the parameter in dense slot `slot` moving the angle by one degree per unit.
     #[inline(always)]
-    fn turn(&mut self, axis: usize, (s, c): (f64, f64), slot: usize) {
-        if let Some((columns, jac)) = self.wanted.as_mut() {
-            if let Some(col) = columns.column(slot) {
-                // V = −w × o and W = w, per degree.
-                let (w, v) = (self.axes[axis], self.axes[axis].cross(&self.origin));
-                jac[col][..6].copy_from_slice(&[
-                    -v.x * DEG,
-                    -v.y * DEG,
-                    -v.z * DEG,
-                    w.x * DEG,
-                    w.y * DEG,
-                    w.z * DEG,
-                ]);
-                self.written += 1;
-            }
-        }
+    fn turn(&mut self, axis: usize, (s, c): (Lanes<N>, Lanes<N>), slot: usize) {
+        self.put(slot, |pass| {
+            // V = −w × o and W = w, per degree.
+            let (w, v) = (pass.axes[axis], cross(&pass.axes[axis], &pass.origin));
+            let deg = Lanes::splat(DEG);
+            [-v[0] * deg, -v[1] * deg, -v[2] * deg, w[0] * deg, w[1] * deg, w[2] * deg]
+        });
         let (i, k) = ((axis + 1) % 3, (axis + 2) % 3);
         let (u, v) = (self.axes[i], self.axes[k]);
-        self.axes[i] = u * c + v * s;
-        self.axes[k] = v * c - u * s;
+        self.axes[i] = sum(&scaled(&u, c), &scaled(&v, s));
+        self.axes[k] = difference(&scaled(&v, c), &scaled(&u, s));
     }
 
     /// Translate by `value` (mm) along frame axis `axis`, the parameter in dense slot `slot`.
     #[inline(always)]
     fn shift(&mut self, axis: usize, value: f64, slot: usize) {
         let t = self.axes[axis];
-        if let Some((columns, jac)) = self.wanted.as_mut() {
-            if let Some(col) = columns.column(slot) {
-                jac[col][..6].copy_from_slice(&[t.x, t.y, t.z, 0.0, 0.0, 0.0]);
-                self.written += 1;
-            }
-        }
-        self.origin += t * value;
+        let zero = Lanes::splat(0.0);
+        self.put(slot, |_| [t[0], t[1], t[2], zero, zero, zero]);
+        self.origin = sum(&self.origin, &scaled(&t, Lanes::splat(value)));
     }
 
     /// The tilt β about the frame's y axis, when it has one or its column is wanted.
@@ -119,66 +129,76 @@ impl Pass<'_> {
     fn tilt(&mut self, row: &Row) {
         let wanted = self.wanted.as_ref().is_some_and(|(columns, _)| columns.column(row.slots[4]).is_some());
         if row.beta.is_some() || wanted {
-            self.turn(1, row.beta.unwrap_or((0.0, 1.0)), row.slots[4]);
+            let (s, c) = row.beta.unwrap_or((0.0, 1.0));
+            self.turn(1, (Lanes::splat(s), Lanes::splat(c)), row.slots[4]);
         }
     }
 }
 
 impl Chain<'_> {
-    /// The pose (and the wanted columns) of a plain DH chain (see the module doc): the tool
-    /// point, x and z axes before the scale, and the columns' W and V (the scale's zero).
-    pub(super) fn dh_columns(
+    /// The poses (and the wanted columns) of a plain DH chain (see the module doc) at `N` poses'
+    /// encoders `enc`, carried through the chain in lockstep: the tool point, x and z axes
+    /// before the scale, and the columns' W and V (the scale's zero).
+    pub(super) fn dh_columns<const N: usize>(
         &self,
         rows: &[Row],
-        enc_deg: &[f64],
-        enc_sin_cos: Option<&[(f64, f64)]>,
-        mut wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
-    ) -> TipFrame {
-        let Some((columns, jac)) = wanted.as_mut() else {
-            return self.dh_pass(rows, enc_deg, enc_sin_cos, None).0;
+        enc: [Encoders<'_>; N],
+        mut wanted: Option<Wanted<'_, '_, N>>,
+    ) -> TipFrame<N> {
+        let Some((columns, jacs)) = wanted.as_mut() else {
+            return self.dh_pass(rows, &enc, None).0;
         };
         let scale = columns.column(ParamId::Scale.dense_index());
         let moved = columns.len() - usize::from(scale.is_some());
-        let (pose, written) = self.dh_pass(rows, enc_deg, enc_sin_cos, Some((*columns, &mut **jac)));
+        let (pose, written) = self.dh_pass(rows, &enc, Some((*columns, &mut **jacs)));
+        for jac in jacs.iter_mut() {
+            if written != moved {
+                // Some wanted column is none of the chain's parameters: every column zeroed,
+                // then written again.
+                jac.iter_mut().for_each(|col| *col = [0.0; 9]);
+            } else if let Some(c) = scale {
+                jac[c] = [0.0; 9];
+            }
+        }
         if written != moved {
-            // Some wanted column is none of the chain's parameters: every column zeroed, then
-            // written again.
-            jac.iter_mut().for_each(|col| *col = [0.0; 9]);
-            self.dh_pass(rows, enc_deg, enc_sin_cos, Some((*columns, &mut **jac)));
-        } else if let Some(c) = scale {
-            jac[c] = [0.0; 9];
+            self.dh_pass(rows, &enc, Some((*columns, &mut **jacs)));
         }
         pose
     }
 
     /// The pass of [`Chain::dh_columns`], with the count of columns it wrote.
     #[inline(always)]
-    fn dh_pass(
+    fn dh_pass<const N: usize>(
         &self,
         rows: &[Row],
-        enc_deg: &[f64],
-        enc_sin_cos: Option<&[(f64, f64)]>,
-        wanted: Option<(&ColumnMap, &mut [PoseDerivative])>,
-    ) -> (TipFrame, usize) {
+        enc: &[Encoders<'_>; N],
+        wanted: Option<Wanted<'_, '_, N>>,
+    ) -> (TipFrame<N>, usize) {
+        let (zero, one) = (Lanes::splat(0.0), Lanes::splat(1.0));
         let mut pass = Pass {
-            axes: [Vector3::x(), Vector3::y(), Vector3::z()],
-            origin: Vector3::zeros(),
+            axes: [[one, zero, zero], [zero, one, zero], [zero, zero, one]],
+            origin: [zero; 3],
             wanted,
             written: 0,
         };
         let modified = self.model.convention == Convention::Modified;
         for row in rows {
             let j = row.joint;
-            let theta = match enc_sin_cos.and_then(|sc| sc.get(j)) {
-                Some(&(s, c)) => {
-                    let (so, co) = self.offset_sin_cos[j];
-                    (s * co + c * so, c * co - s * so)
-                }
-                None => ((enc_deg.get(j).copied().unwrap_or(0.0) + self.model.joints[j].offset_deg) * DEG)
-                    .sin_cos(),
-            };
+            let mut theta = (Lanes::splat(0.0), Lanes::splat(1.0));
+            for (i, &(enc_deg, enc_sin_cos)) in enc.iter().enumerate() {
+                (theta.0 .0[i], theta.1 .0[i]) = match enc_sin_cos.and_then(|sc| sc.get(j)) {
+                    Some(&(s, c)) => {
+                        let (so, co) = self.offset_sin_cos[j];
+                        (s * co + c * so, c * co - s * so)
+                    }
+                    None => ((enc_deg.get(j).copied().unwrap_or(0.0) + self.model.joints[j].offset_deg)
+                        * DEG)
+                        .sin_cos(),
+                };
+            }
+            let alpha = (Lanes::splat(row.alpha.0), Lanes::splat(row.alpha.1));
             if modified {
-                pass.turn(0, row.alpha, row.slots[3]);
+                pass.turn(0, alpha, row.slots[3]);
                 pass.tilt(row);
                 pass.shift(0, row.a_mm, row.slots[2]);
                 pass.turn(2, theta, row.slots[0]);
@@ -187,21 +207,21 @@ impl Chain<'_> {
                 pass.turn(2, theta, row.slots[0]);
                 pass.shift(2, row.d_mm, row.slots[1]);
                 pass.shift(0, row.a_mm, row.slots[2]);
-                pass.turn(0, row.alpha, row.slots[3]);
+                pass.turn(0, alpha, row.slots[3]);
                 pass.tilt(row);
             }
         }
         for (k, tool) in self.tool.into_iter().enumerate() {
             pass.shift(k, tool.0, tool.1);
         }
-        ((pass.origin, pass.axes[0], pass.axes[2]), pass.written)
+        ([pass.origin, pass.axes[0], pass.axes[2]], pass.written)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::kinematics::{encoder_sin_cos, ColumnMap};
+    use crate::model::kinematics::{encoder_sin_cos, ColumnMap, ToolPose};
     use crate::model::Joint;
 
     /// A 7-joint DH arm with every kind of row value (β on some rows, zero lengths on others).
@@ -224,6 +244,22 @@ mod tests {
         model
     }
 
+    /// The parameters of the arm above the kernel moves: its rows', the tool point's, the scale.
+    fn dh_params() -> Vec<ParamId> {
+        (0..7)
+            .flat_map(|j| {
+                [
+                    ParamId::Offset(j),
+                    ParamId::Length(j),
+                    ParamId::LinkOffset(j),
+                    ParamId::Twist(j),
+                    ParamId::Axis(j),
+                ]
+            })
+            .chain([ParamId::Tcp(0), ParamId::Tcp(1), ParamId::Tcp(2), ParamId::Scale])
+            .collect()
+    }
+
     /// The kernel gives what the general pass over the chain's ops gives, pose and every column
     /// (offsets, lengths, link offsets, twists, axis tilts, the tool point, the scale, a column
     /// the chain does not move), in both conventions, with the encoders' sines and cosines kept
@@ -234,18 +270,7 @@ mod tests {
             let model = arm(convention);
             let chain = Chain::new(&model);
             assert!(chain.dh.is_some(), "a DH chain takes the kernel");
-            let params: Vec<ParamId> = (0..7)
-                .flat_map(|j| {
-                    [
-                        ParamId::Offset(j),
-                        ParamId::Length(j),
-                        ParamId::LinkOffset(j),
-                        ParamId::Twist(j),
-                        ParamId::Axis(j),
-                    ]
-                })
-                .chain([ParamId::Tcp(0), ParamId::Tcp(1), ParamId::Tcp(2), ParamId::Scale])
-                .collect();
+            let params = dh_params();
             // A column the chain does not move (a joint the arm does not have): zero.
             let mut stray = params[3..20].to_vec();
             stray.insert(5, ParamId::Offset(9));
@@ -282,6 +307,62 @@ mod tests {
                             }
                         }
                     }
+                }
+            }
+        }
+    }
+
+    /// Two poses carried together are, to the bit, the two carried alone (pose and every column),
+    /// in both conventions, for all the columns, those of the position alone and a set with a
+    /// column the chain does not move, into buffers of garbage; a URDF arm (no kernel) too.
+    #[test]
+    fn two_poses_together_are_the_two_alone() {
+        let mut urdf = arm(Convention::Urdf);
+        for joint in &mut urdf.joints {
+            joint.origin_xyz_mm = [joint.a_mm, 0.0, joint.d_mm];
+        }
+        let params = dh_params();
+        let mut stray = params[2..30].to_vec();
+        stray.insert(4, ParamId::Offset(9));
+        for model in [arm(Convention::Classic), arm(Convention::Modified), urdf] {
+            let chain = Chain::new(&model);
+            for columns in [
+                ColumnMap::new(&params),
+                ColumnMap::new(&params[1..25]).positions_only(),
+                ColumnMap::new(&stray).positions_only(),
+                ColumnMap::new(&ParamId::all()),
+            ] {
+                for pose in 0..10 {
+                    let enc: [Vec<f64>; 2] = [0, 1].map(|lane| {
+                        (0..7).map(|j| ((pose * 14 + lane * 7 + j) as f64 * 0.53).sin() * 175.0).collect()
+                    });
+                    let sin_cos =
+                        enc.clone().map(|e| e.iter().map(|&q| encoder_sin_cos(q)).collect::<Vec<_>>());
+                    let mut alone = [0, 1].map(|_| vec![[f64::NAN; 9]; columns.len()]);
+                    let mut together = alone.clone();
+                    let single: Vec<ToolPose> = alone
+                        .iter_mut()
+                        .zip(&enc)
+                        .zip(&sin_cos)
+                        .map(|((jac, e), sc)| chain.pose_with_sin_cos_and_jacobian(e, sc, &columns, jac))
+                        .collect();
+                    let [first, second] = &mut together;
+                    let pair = chain.pose_pair_with_sin_cos_and_jacobian(
+                        [&enc[0], &enc[1]],
+                        [&sin_cos[0], &sin_cos[1]],
+                        &columns,
+                        [first, second],
+                    );
+                    let bits =
+                        |p: &ToolPose| [p.position_mm, p.x_axis, p.z_axis].map(|v| v.map(f64::to_bits));
+                    for lane in 0..2 {
+                        let label = format!("{:?} pose {pose} lane {lane}", model.convention);
+                        assert_eq!(bits(&pair[lane]), bits(&single[lane]), "{label}");
+                        for (c, (t, a)) in together[lane].iter().zip(&alone[lane]).enumerate() {
+                            assert_eq!(t.map(f64::to_bits), a.map(f64::to_bits), "{label} column {c}");
+                        }
+                    }
+                    assert_ne!(single[0].position_mm, single[1].position_mm, "two different poses");
                 }
             }
         }

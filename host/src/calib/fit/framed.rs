@@ -41,30 +41,61 @@ impl Solved {
     }
 }
 
-/// The tool point's first fit of a calibration from the nominal values (see [`calibrate_framed`]),
-/// kept for the next calibration on the same data whose arm has the same values and the same
-/// tool bounds (fewer other parameters free: a run's tool-only reference), which starts with
-/// the same fit.
+/// What calibrations from the nominal values of one arm on the same data share: each block's
+/// frame at its closed form and each session's orientation spread (both of the arm's values
+/// alone), and the tool point's first fit (see [`calibrate_framed`]) for the tool bounds it was
+/// solved with. A run's tool-only reference (the same values, fewer other parameters free)
+/// starts with all of them.
 #[derive(Default)]
-pub(super) struct ToolFirstFit(pub(super) std::cell::RefCell<Option<(ArmModel, Vec<FreeParam>, Solved)>>);
+pub(super) struct ToolFirstFit(pub(super) std::cell::RefCell<Option<NominalStart>>);
+
+/// The start [`ToolFirstFit`] keeps for one arm's values.
+pub(super) struct NominalStart {
+    /// The arm's values (no free parameters) the start is of.
+    values: ArmModel,
+    frames: Vec<Frame>,
+    spreads: Vec<(String, f64)>,
+    /// The tool point's fit with the tool bounds it had.
+    pub(super) tool_fit: Option<(Vec<FreeParam>, Solved)>,
+}
 
 impl ToolFirstFit {
+    /// The closed-form frames and the orientation spreads of `pieces`' arm: the kept ones when
+    /// they are of its values, else computed (and kept, the tool point's fit forgotten).
+    pub(super) fn frames_and_spreads(&self, pieces: &Pieces) -> (Vec<Frame>, Vec<(String, f64)>) {
+        let values = ArmModel { free: Vec::new(), ..pieces.model.clone() };
+        if let Some(kept) = self.0.borrow().as_ref().filter(|k| k.values == values) {
+            return (kept.frames.clone(), kept.spreads.clone());
+        }
+        let (model, data) = (&pieces.model, pieces.data);
+        let frames = pieces.closed_form_frames(model);
+        let spreads: Vec<(String, f64)> = (0..data.blocks.len())
+            .filter(|&b| pieces.framed[b])
+            .map(|b| (data.block_name(b), orientation_spread_deg(model, data, b)))
+            .collect();
+        let kept = NominalStart { values, frames: frames.clone(), spreads: spreads.clone(), tool_fit: None };
+        *self.0.borrow_mut() = Some(kept);
+        (frames, spreads)
+    }
+
     /// The tool point's fit over `tool` from `start` on `pieces` (closed-form frames of its
     /// model): the kept one when its arm values and tool bounds are `pieces`', else solved.
     fn solve(&self, pieces: &Pieces, tool: &[ParamId], start: Solved) -> Solved {
         let values = ArmModel { free: Vec::new(), ..pieces.model.clone() };
         let bounds: Vec<FreeParam> =
             pieces.model.free.iter().filter(|f| tool.contains(&f.id)).copied().collect();
-        if let Some((kept_values, kept_bounds, solved)) = &*self.0.borrow() {
-            if *kept_values == values && *kept_bounds == bounds {
-                // The same point, of this calibration's model (its own free set).
-                let mut solved = solved.clone();
-                solved.model.free.clone_from(&pieces.model.free);
-                return solved;
-            }
+        let mut kept = self.0.borrow_mut();
+        let kept = kept.as_mut().filter(|k| k.values == values);
+        if let Some((_, solved)) = kept.as_ref().and_then(|k| k.tool_fit.as_ref()).filter(|f| f.0 == bounds) {
+            // The same point, of this calibration's model (its own free set).
+            let mut solved = solved.clone();
+            solved.model.free.clone_from(&pieces.model.free);
+            return solved;
         }
         let solved = solve_framed(pieces, tool, start, 0);
-        *self.0.borrow_mut() = Some((values, bounds, solved.clone()));
+        if let Some(kept) = kept {
+            kept.tool_fit = Some((bounds, solved.clone()));
+        }
         solved
     }
 }
@@ -172,8 +203,8 @@ pub(super) fn warm_start(pieces: &Pieces, warm: &Fit) -> Solved {
 
 /// Calibrate with block unknowns from the nominal values, or, given `warm`, from a previous
 /// solution of close data or options (the tool point's first fit skipped: `warm` has it). From
-/// the nominal values, the tool point's first fit is `first_fit`'s when it has it for these
-/// values, and kept there.
+/// the nominal values, the closed-form frames, the orientation spreads and the tool point's first
+/// fit are `first_fit`'s when it has them for these values, and kept there.
 pub(super) fn calibrate_framed(
     nominal: &ArmModel,
     pieces: &Pieces,
@@ -184,25 +215,18 @@ pub(super) fn calibrate_framed(
     let data = pieces.data;
     let model = &pieces.model;
     let all: Vec<ParamId> = model.free.iter().map(|f| f.id).collect();
-    let mut start = match warm {
-        Some(warm) => warm_start(pieces, warm),
+    let (mut start, spreads) = match warm {
+        Some(warm) => (warm_start(pieces, warm), warm.orientation_spread_deg.clone()),
         None => {
-            let frames = pieces.closed_form_frames(model);
+            let (frames, spreads) = first_fit.frames_and_spreads(pieces);
             let probe = start_probe_rotation(model, data, &frames)
                 .filter(|_| pieces.resolved.orientation_weight_mm_per_rad.is_some());
-            Solved::at(model.clone(), frames, probe, data)
+            (Solved::at(model.clone(), frames, probe, data), spreads)
         }
     };
     // Over every free parameter (their values from `x0`, the rest from the model).
     let full = pieces.problem(all.clone(), model, &start.frames, start.probe);
     let x0 = pieces.x_of(&full, &start.model, &start.frames, &start.tools, &start.drifts);
-    let spreads: Vec<(String, f64)> = match warm {
-        Some(warm) => warm.orientation_spread_deg.clone(),
-        None => (0..data.blocks.len())
-            .filter(|&b| pieces.framed[b])
-            .map(|b| (data.block_name(b), orientation_spread_deg(model, data, b)))
-            .collect(),
-    };
     // No session turns the tool and no touch pins it: its point is the frames' translation,
     // whatever a small model error makes the Jacobian say; it stays at its nominal value.
     let pinned = data.obs.iter().any(|o| o.landmark().is_some());

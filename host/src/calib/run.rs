@@ -11,7 +11,9 @@ use crate::calib::diagnose::data_errors::sessions::{data_error_candidates_with, 
 use crate::calib::diagnose::Measure;
 use crate::calib::error::CalibError;
 use crate::calib::error_stats::{AngleStats, ErrorStats};
-use crate::calib::fit::{calibrate_with_reference_on, check_data_on, dense_jacobian, Fit, SessionSums};
+use crate::calib::fit::{
+    calibrate_with_reference_on, check_data_sharing, dense_jacobian, Fit, SessionSums, ToolFirstFit,
+};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
 use crate::calib::nuisance::frame::Frame;
@@ -395,10 +397,11 @@ pub fn check_run_data(
     inputs: &RunInputs,
     options: &SolveOptions,
 ) -> Result<(), RunError> {
-    check_run_data_on(model, cal, val, inputs, options, cal.encoders())
+    check_run_data_on(model, cal, val, inputs, options, cal.encoders(), &ToolFirstFit::default())
 }
 
-/// [`check_run_data`] with `cal`'s encoder table.
+/// [`check_run_data`] with `cal`'s encoder table, the nominal arm's closed-form frames taken from
+/// (and kept in) `start`.
 fn check_run_data_on(
     model: &ArmModel,
     cal: &Observations,
@@ -406,6 +409,7 @@ fn check_run_data_on(
     inputs: &RunInputs,
     options: &SolveOptions,
     encoders: &Encoders,
+    start: &ToolFirstFit,
 ) -> Result<(), RunError> {
     cal.one_arm(&[val])?;
     let touches = |d: &Observations| d.obs.iter().any(|o| o.landmark().is_some());
@@ -464,7 +468,7 @@ fn check_run_data_on(
             return Err(RunError::HeldOutTooSmall { path, session: name, points });
         }
     }
-    check_data_on(model, cal, encoders, options)?;
+    check_data_sharing(model, cal, encoders, options, start)?;
     Ok(())
 }
 
@@ -701,14 +705,16 @@ pub fn run_on(
     }
     // The encoder angles' sines and cosines, once for every calibration and pose on `cal`.
     let encoders = cal.encoders();
-    check_run_data_on(&nominal, cal, val, inputs, options, encoders)?;
+    // The closed-form frames of the nominal arm, taken by the check and kept for the calibrations.
+    let start = ToolFirstFit::default();
+    check_run_data_on(&nominal, cal, val, inputs, options, encoders, &start)?;
     check_study_size(cal, study_subsets)?;
     steps.lap("input checks");
     // The nominal figures of held-out sessions are the nominal arm's with its tool point fitted:
     // that fit starts the calibration too.
     let tool_only = (!val.sessions().is_empty()).then(|| tool_only(&nominal));
     let (mut fit, reference) =
-        calibrate_with_reference_on(&nominal, tool_only.as_ref(), cal, encoders, options)?;
+        calibrate_with_reference_on(&nominal, tool_only.as_ref(), cal, encoders, options, &start)?;
     let reference = reference.transpose()?;
     let on_bounds = mark_bounds(&mut fit);
     // The calibrated model is of the arm its sessions were measured on, whatever the model it

@@ -5,6 +5,7 @@
 use super::*;
 use crate::model::effects::mass;
 use crate::model::FreeParam;
+use std::cell::{RefCell, RefMut};
 
 /// A solution with frames: the model, each block's frame, each group's tool, the probe and the
 /// drifts, with its cost, iterations and how its last pass stopped.
@@ -44,58 +45,67 @@ impl Solved {
 /// What calibrations from the nominal values of one arm on the same data share: each block's
 /// frame at its closed form and each session's orientation spread (both of the arm's values
 /// alone), and the tool point's first fit (see [`calibrate_framed`]) for the tool bounds it was
-/// solved with. A run's tool-only reference (the same values, fewer other parameters free)
-/// starts with all of them.
+/// solved with, each taken once when first asked for. A run's check of its data takes the
+/// frames, its calibration the rest; its tool-only reference (the same values, fewer other
+/// parameters free) starts with all of them. Give one only to calls on the same data.
 #[derive(Default)]
-pub(super) struct ToolFirstFit(pub(super) std::cell::RefCell<Option<NominalStart>>);
+pub struct ToolFirstFit(pub(super) RefCell<Option<KeptStart>>);
 
 /// The start [`ToolFirstFit`] keeps for one arm's values.
-pub(super) struct NominalStart {
+pub(super) struct KeptStart {
     /// The arm's values (no free parameters) the start is of.
     values: ArmModel,
-    frames: Vec<Frame>,
-    spreads: Vec<(String, f64)>,
+    frames: Option<Vec<Frame>>,
+    spreads: Option<Vec<(String, f64)>>,
     /// The tool point's fit with the tool bounds it had.
     pub(super) tool_fit: Option<(Vec<FreeParam>, Solved)>,
 }
 
 impl ToolFirstFit {
-    /// The closed-form frames and the orientation spreads of `pieces`' arm: the kept ones when
-    /// they are of its values, else computed (and kept, the tool point's fit forgotten).
-    pub(super) fn frames_and_spreads(&self, pieces: &Pieces) -> (Vec<Frame>, Vec<(String, f64)>) {
+    /// The start kept for `pieces`' arm values: an empty one, in place of what was kept, when
+    /// that was of other values.
+    fn kept(&self, pieces: &Pieces) -> RefMut<'_, KeptStart> {
         let values = ArmModel { free: Vec::new(), ..pieces.model.clone() };
-        if let Some(kept) = self.0.borrow().as_ref().filter(|k| k.values == values) {
-            return (kept.frames.clone(), kept.spreads.clone());
+        let mut kept = self.0.borrow_mut();
+        if kept.as_ref().is_some_and(|k| k.values != values) {
+            *kept = None;
         }
+        RefMut::map(kept, |k| {
+            k.get_or_insert_with(|| KeptStart { values, frames: None, spreads: None, tool_fit: None })
+        })
+    }
+
+    /// Each block's frame at its closed form for `pieces`' arm (kept).
+    pub(super) fn closed_form_frames(&self, pieces: &Pieces) -> Vec<Frame> {
+        let mut kept = self.kept(pieces);
+        kept.frames.get_or_insert_with(|| pieces.closed_form_frames(&pieces.model)).clone()
+    }
+
+    /// The orientation spread of each framed block of `pieces` on its arm (kept).
+    pub(super) fn spreads(&self, pieces: &Pieces) -> Vec<(String, f64)> {
         let (model, data) = (&pieces.model, pieces.data);
-        let frames = pieces.closed_form_frames(model);
-        let spreads: Vec<(String, f64)> = (0..data.blocks.len())
-            .filter(|&b| pieces.framed[b])
-            .map(|b| (data.block_name(b), orientation_spread_deg(model, data, b)))
-            .collect();
-        let kept = NominalStart { values, frames: frames.clone(), spreads: spreads.clone(), tool_fit: None };
-        *self.0.borrow_mut() = Some(kept);
-        (frames, spreads)
+        let spreads_of = || {
+            (0..data.blocks.len())
+                .filter(|&b| pieces.framed[b])
+                .map(|b| (data.block_name(b), orientation_spread_deg(model, data, b)))
+                .collect()
+        };
+        self.kept(pieces).spreads.get_or_insert_with(spreads_of).clone()
     }
 
     /// The tool point's fit over `tool` from `start` on `pieces` (closed-form frames of its
-    /// model): the kept one when its arm values and tool bounds are `pieces`', else solved.
+    /// model): the kept one when its tool bounds are `pieces`', else solved (and kept).
     fn solve(&self, pieces: &Pieces, tool: &[ParamId], start: Solved) -> Solved {
-        let values = ArmModel { free: Vec::new(), ..pieces.model.clone() };
         let bounds: Vec<FreeParam> =
             pieces.model.free.iter().filter(|f| tool.contains(&f.id)).copied().collect();
-        let mut kept = self.0.borrow_mut();
-        let kept = kept.as_mut().filter(|k| k.values == values);
-        if let Some((_, solved)) = kept.as_ref().and_then(|k| k.tool_fit.as_ref()).filter(|f| f.0 == bounds) {
+        if let Some((_, solved)) = self.kept(pieces).tool_fit.as_ref().filter(|f| f.0 == bounds) {
             // The same point, of this calibration's model (its own free set).
             let mut solved = solved.clone();
             solved.model.free.clone_from(&pieces.model.free);
             return solved;
         }
         let solved = solve_framed(pieces, tool, start, 0);
-        if let Some(kept) = kept {
-            kept.tool_fit = Some((bounds, solved.clone()));
-        }
+        self.kept(pieces).tool_fit = Some((bounds, solved.clone()));
         solved
     }
 }
@@ -218,7 +228,7 @@ pub(super) fn calibrate_framed(
     let (mut start, spreads) = match warm {
         Some(warm) => (warm_start(pieces, warm), warm.orientation_spread_deg.clone()),
         None => {
-            let (frames, spreads) = first_fit.frames_and_spreads(pieces);
+            let (frames, spreads) = (first_fit.closed_form_frames(pieces), first_fit.spreads(pieces));
             let probe = start_probe_rotation(model, data, &frames)
                 .filter(|_| pieces.resolved.orientation_weight_mm_per_rad.is_some());
             (Solved::at(model.clone(), frames, probe, data), spreads)

@@ -231,8 +231,13 @@ fn a_shared_tool_first_fit_is_the_calibration_alone() {
     let (options, encoders) = (SolveOptions::default(), Encoders::of(&data));
     let mut tool_only = nominal.clone();
     tool_only.free.retain(|f| matches!(f.id, ParamId::Tcp(_)));
+    // As a run: the check of the data takes the closed-form frames, the calibrations the rest.
+    let start = ToolFirstFit::default();
+    check_data_sharing(&nominal, &data, &encoders, &options, &start).expect("checked");
+    assert!(start.0.borrow().as_ref().is_some_and(|kept| kept.tool_fit.is_none()));
     let (fit, reference) =
-        calibrate_with_reference_on(&nominal, Some(&tool_only), &data, &encoders, &options).expect("fit");
+        calibrate_with_reference_on(&nominal, Some(&tool_only), &data, &encoders, &options, &start)
+            .expect("fit");
     let reference = reference.expect("asked for").expect("reference");
     let same = |a: &Fit, b: &Fit| {
         assert_eq!(a.model, b.model);
@@ -280,7 +285,7 @@ fn kept_frames_and_spreads_are_those_of_the_arm() {
     let mut kept = Vec::new();
     for model in [&nominal, &other, &nominal] {
         let pieces = Pieces::new(model, &data, &options, &encoders).expect("pieces");
-        let (frames, spreads) = first_fit.frames_and_spreads(&pieces);
+        let (frames, spreads) = (first_fit.closed_form_frames(&pieces), first_fit.spreads(&pieces));
         assert_eq!(frames, pieces.closed_form_frames(&pieces.model));
         assert_eq!(spreads, spreads_of(model));
         kept.push((frames, spreads));

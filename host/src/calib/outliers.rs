@@ -22,7 +22,6 @@ use crate::calib::nuisance::tool::ModelPoses;
 use crate::calib::setup::Setup;
 use crate::calib::validate::{distance_errors, placement_residuals, session_offset_mm, SessionFit};
 use crate::data::Observations;
-use crate::model::kinematics::ToolPose;
 use crate::model::ArmModel;
 use crate::numerics::stats::rms;
 use rayon::prelude::*;
@@ -89,13 +88,13 @@ enum Unit {
 /// The calibration residual rows of `model` on `cal`, and the units each belongs to (two keys,
 /// the same one twice for a single unit): a distance between two touches (both landmarks), or a
 /// coordinate of a point error (its session's frame refitted in closed form, its tool floated
-/// where the setup floats it); the points' poses read from `poses` (of every observation of
-/// `cal` on `model`) when given.
+/// where the setup floats it); the points' poses read from `poses` when they are of `model` on
+/// `cal`.
 fn rows(
     model: &ArmModel,
     cal: &Observations,
     setup: &Setup,
-    poses: Option<&[ToolPose]>,
+    poses: Option<&ModelPoses>,
 ) -> (Vec<f64>, Vec<[usize; 2]>) {
     let mut values = Vec::new();
     let mut owners = Vec::new();
@@ -105,10 +104,7 @@ fn rows(
     }
     for b in cal.sessions() {
         let offset = session_offset_mm(model, cal, b, &setup.float_tool);
-        let fit = match poses {
-            Some(poses) => SessionFit::of_poses(poses, cal, b, offset),
-            None => SessionFit::of(model, cal, b, offset),
-        };
+        let fit = SessionFit::with_poses(model, cal, b, offset, poses);
         for r in fit.residuals() {
             for v in [r.x, r.y, r.z] {
                 values.push(v);
@@ -148,7 +144,7 @@ pub fn outliers_with(
         Unit::Landmark(l) => l,
         Unit::Session(b) => cal.landmarks.len() + b,
     };
-    let (full, owners) = rows(&fit.model, cal, setup, poses.and_then(|p| p.of_model(&fit.model, cal)));
+    let (full, owners) = rows(&fit.model, cal, setup, poses);
     let total: f64 = full.iter().map(|v| v * v).sum::<f64>().max(1e-300);
     let held_out = val.unwrap_or(cal);
     let rms_on = |model: &ArmModel| {

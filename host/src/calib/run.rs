@@ -7,11 +7,13 @@
 //! The nominal figures of tracker sessions are the nominal arm with only the tool point (and the
 //! frames) fitted on the calibration data, as an instrument user would use the vendor's model.
 
-use crate::calib::diagnose::data_errors::sessions::data_error_candidates_with;
+use crate::calib::diagnose::data_errors::sessions::{data_error_candidates_with, TakenOfFit};
 use crate::calib::diagnose::Measure;
 use crate::calib::error::CalibError;
 use crate::calib::error_stats::{AngleStats, ErrorStats};
-use crate::calib::fit::{calibrate_with_reference_on, check_data_on, dense_jacobian, Fit, SessionSums};
+use crate::calib::fit::{
+    calibrate_with_reference_on, check_data_sharing, dense_jacobian, Fit, SessionSums, ToolFirstFit,
+};
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
 use crate::calib::nuisance::frame::Frame;
@@ -23,8 +25,7 @@ use crate::calib::summary::*;
 use crate::calib::trust::{result_problems, TrustScales};
 use crate::calib::validate::{
     angle_stats, calibration_residuals_mm, errors_in_calibration_session, orientation_errors_in_frame_deg,
-    session_probe_rotation, session_tool, undetermined_rotation, validate, SessionFit, SessionValidation,
-    Validation,
+    session_probe_rotation, undetermined_rotation, validate, SessionFits, SessionValidation, Validation,
 };
 use crate::data::{load_folder, Artefact, Encoders, Observations, Purpose};
 use crate::files::FileError;
@@ -396,10 +397,11 @@ pub fn check_run_data(
     inputs: &RunInputs,
     options: &SolveOptions,
 ) -> Result<(), RunError> {
-    check_run_data_on(model, cal, val, inputs, options, cal.encoders())
+    check_run_data_on(model, cal, val, inputs, options, cal.encoders(), &ToolFirstFit::default())
 }
 
-/// [`check_run_data`] with `cal`'s encoder table.
+/// [`check_run_data`] with `cal`'s encoder table, the nominal arm's closed-form frames taken from
+/// (and kept in) `start`.
 fn check_run_data_on(
     model: &ArmModel,
     cal: &Observations,
@@ -407,6 +409,7 @@ fn check_run_data_on(
     inputs: &RunInputs,
     options: &SolveOptions,
     encoders: &Encoders,
+    start: &ToolFirstFit,
 ) -> Result<(), RunError> {
     cal.one_arm(&[val])?;
     let touches = |d: &Observations| d.obs.iter().any(|o| o.landmark().is_some());
@@ -465,7 +468,7 @@ fn check_run_data_on(
             return Err(RunError::HeldOutTooSmall { path, session: name, points });
         }
     }
-    check_data_on(model, cal, encoders, options)?;
+    check_data_sharing(model, cal, encoders, options, start)?;
     Ok(())
 }
 
@@ -702,14 +705,16 @@ pub fn run_on(
     }
     // The encoder angles' sines and cosines, once for every calibration and pose on `cal`.
     let encoders = cal.encoders();
-    check_run_data_on(&nominal, cal, val, inputs, options, encoders)?;
+    // The closed-form frames of the nominal arm, taken by the check and kept for the calibrations.
+    let start = ToolFirstFit::default();
+    check_run_data_on(&nominal, cal, val, inputs, options, encoders, &start)?;
     check_study_size(cal, study_subsets)?;
     steps.lap("input checks");
     // The nominal figures of held-out sessions are the nominal arm's with its tool point fitted:
     // that fit starts the calibration too.
     let tool_only = (!val.sessions().is_empty()).then(|| tool_only(&nominal));
     let (mut fit, reference) =
-        calibrate_with_reference_on(&nominal, tool_only.as_ref(), cal, encoders, options)?;
+        calibrate_with_reference_on(&nominal, tool_only.as_ref(), cal, encoders, options, &start)?;
     let reference = reference.transpose()?;
     let on_bounds = mark_bounds(&mut fit);
     // The calibrated model is of the arm its sessions were measured on, whatever the model it
@@ -850,11 +855,7 @@ pub fn run_on(
     let calibration_residuals = cal
         .sessions()
         .into_iter()
-        .zip(calibration_residuals_mm(
-            &fit,
-            cal,
-            cal_poses.as_ref().and_then(|p| p.of_model(&fit.model, cal)),
-        ))
+        .zip(calibration_residuals_mm(&fit, cal, cal_poses.as_ref()))
         .map(|(b, residuals)| session_residuals(cal, b, residuals, vec![None; cal.blocks[b].members.len()]))
         .collect();
     Ok(Run {
@@ -1045,14 +1046,12 @@ fn sessions_section(
     cal_poses: Option<&ModelPoses>,
 ) -> SessionsSection {
     let RunContext { nominal, cal, val, inputs, options } = run;
-    let held = val.sessions();
     let floated = |b: usize| inputs.float_tool.contains(&val.groups[val.blocks[b].group].name);
-    // The session's tool offset (its own when floated) and its closed-form fit with it, from
-    // which every figure of the session for that model is read.
-    let session_fit = |model: &ArmModel, b: usize| {
-        let offset_mm = if floated(b) { session_tool(model, val, b).offset_mm } else { [0.0; 3] };
-        (offset_mm, SessionFit::of(model, val, b, offset_mm))
-    };
+    // Each session's tool offset (its own when floated) and its closed-form fit with it, from
+    // which every figure of the session for that model is read (for the fit, the data-error
+    // scoring's too).
+    let calibrated_fits = SessionFits::of(&fit.model, val, &inputs.float_tool);
+    let nominal_fits = SessionFits::of(&reference.model, val, &inputs.float_tool);
     // The probe's rotation on the flange in session b: the shared one, or, where the tool floats
     // (the probe re-mounted, perhaps turned on its mount), the session's own. A session whose
     // points leave its base's rotation free has none: no orientation figure.
@@ -1072,13 +1071,14 @@ fn sessions_section(
     let mut verdict = Vec::new();
     let (mut session_figures, mut held_out) = (Vec::new(), Vec::new());
     let (mut calibrated_parts, mut nominal_parts, mut angle_parts) = (Vec::new(), Vec::new(), Vec::new());
-    for b in held {
+    for ((b, offset_mm, calibrated), (_, nominal_offset_mm, nominal_fit)) in
+        calibrated_fits.fits().iter().zip(nominal_fits.fits())
+    {
+        let (b, offset_mm, nominal_offset_mm) = (*b, *offset_mm, *nominal_offset_mm);
         let name = val.block_name(b);
-        let (offset_mm, calibrated) = session_fit(&fit.model, b);
-        let (nominal_offset_mm, nominal_fit) = session_fit(&reference.model, b);
-        let (c, n) = (calibrated.validation(val, b), nominal_fit.validation(val, b));
+        let (c, n) = (calibrated.validation(), nominal_fit.validation());
         let orientation_withheld = fit.tool_rotation.as_ref().and_then(|_| undetermined_rotation(val, b));
-        let point_angles = angles(fit, b, offset_mm, &calibrated.frame);
+        let point_angles = angles(fit, b, offset_mm, calibrated.frame());
         let orientation = point_angles.as_deref().and_then(angle_stats);
         let point_angles = point_angles.unwrap_or_else(|| vec![None; val.blocks[b].members.len()]);
         held_out.push(session_residuals(val, b, calibrated.residuals_mm(), point_angles));
@@ -1107,7 +1107,7 @@ fn sessions_section(
             nominal: n,
             transfers,
             orientation,
-            nominal_orientation: angles(reference, b, nominal_offset_mm, &nominal_fit.frame)
+            nominal_orientation: angles(reference, b, nominal_offset_mm, nominal_fit.frame())
                 .as_deref()
                 .and_then(angle_stats),
             orientation_withheld,
@@ -1123,7 +1123,8 @@ fn sessions_section(
         Vec::new()
     } else {
         let all_floating = SolveOptions { float_tool: inputs.float_tool.clone(), ..options.clone() };
-        data_error_candidates_with(nominal, cal, val, fit, &all_floating, sums, cal_poses)
+        let taken = TakenOfFit { sums, poses: cal_poses, held_out: Some(&calibrated_fits) };
+        data_error_candidates_with(nominal, cal, val, fit, &all_floating, taken)
     };
     if let Some(best) = data_errors.iter().find(|d| d.significant) {
         verdict.push(format!("data error: {}; apply it with {}", best.text, best.action));

@@ -10,11 +10,12 @@ use crate::calib::error_stats::{AngleStats, ErrorStats};
 use crate::calib::fit::Fit;
 use crate::calib::layout::Layout;
 use crate::calib::nuisance::frame::{rotation_vector, Frame};
-use crate::calib::nuisance::tool::{flange_rotation, model_points, positions, with_offset, FloatedTool};
+use crate::calib::nuisance::tool::{
+    flange_rotation, model_points, positions, with_offset, FloatedTool, ModelPoses, PoseSource,
+};
 use crate::calib::problem::Problem;
 use crate::data::{Observation, Observations};
-use crate::model::kinematics::ToolPose;
-use crate::model::kinematics::{Chain, Tips};
+use crate::model::kinematics::Chain;
 use crate::model::ArmModel;
 use crate::numerics::solver::{self, Loss, Residuals, SolverOptions};
 use nalgebra::{Matrix3, Vector3};
@@ -238,7 +239,7 @@ fn block_frame_of(robot: &[Vector3<f64>], data: &Observations, b: usize) -> Fram
 
 /// Position error of every calibration point at the solution, per framed block in order, mm;
 /// the poses read from `poses` when they are of the fit's model on `data`.
-pub fn calibration_errors(fit: &Fit, data: &Observations, poses: Option<&[ToolPose]>) -> Vec<Vec<f64>> {
+pub fn calibration_errors(fit: &Fit, data: &Observations, poses: Option<&ModelPoses>) -> Vec<Vec<f64>> {
     calibration_residuals_mm(fit, data, poses)
         .into_iter()
         .map(|block| block.iter().map(|r| r.norm()).collect())
@@ -247,12 +248,12 @@ pub fn calibration_errors(fit: &Fit, data: &Observations, poses: Option<&[ToolPo
 
 /// Residual of every point at the solution, per instrument session of `data` in order (empty for
 /// a session `fit` has no frame of): measured − predicted (its session's fitted frame, tool offset
-/// and drift), in the robot's base frame, mm; the poses read from `poses` (of every observation
-/// of `data` on the fit's model) when given.
+/// and drift), in the robot's base frame, mm; the poses read from `poses` when they are of the
+/// fit's model on `data`.
 pub fn calibration_residuals_mm(
     fit: &Fit,
     data: &Observations,
-    poses: Option<&[ToolPose]>,
+    poses: Option<&ModelPoses>,
 ) -> Vec<Vec<Vector3<f64>>> {
     (0..data.blocks.len())
         .filter(|&b| data.groups[data.blocks[b].group].kind == crate::data::Kind::Tracker)
@@ -282,7 +283,7 @@ pub fn errors_in_calibration_session(
 
 /// Residuals (measured − predicted, robot base frame, mm) of the points `members` of `points`
 /// with `frame` and the tool offset and drift `fit` gives block `b` of `data`; their poses read
-/// from `poses` (of every observation of `points`) when given.
+/// from `poses` when they are of the fit's model on `points`.
 fn residuals_with_frame(
     fit: &Fit,
     data: &Observations,
@@ -290,22 +291,18 @@ fn residuals_with_frame(
     frame: &Frame,
     points: &Observations,
     members: impl Iterator<Item = usize>,
-    poses: Option<&[ToolPose]>,
+    poses: Option<&ModelPoses>,
 ) -> Vec<Vector3<f64>> {
     let offset = fit.tool_offset(&data.groups[data.blocks[b].group].name);
     let name = data.block_name(b);
     let drift = fit.drifts.iter().find(|d| d.session == name);
-    let tips = Tips::new(&fit.model);
-    members
-        .map(|k| {
-            let p = &points.obs[k];
-            let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
-            let pose = poses.map_or_else(|| points.pose_on(&tips, k), |poses| poses[k]);
-            let y = frame.rotation * with_offset(&pose, &offset);
-            frame.rotation.transpose()
-                * (p.point_mm().unwrap_or_default() - (y * growth + frame.translation_mm + shift))
-        })
-        .collect()
+    PoseSource::new(&fit.model, points, poses).map(members, |k, pose| {
+        let p = &points.obs[k];
+        let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.effect_at(p));
+        let y = frame.rotation * with_offset(pose, &offset);
+        frame.rotation.transpose()
+            * (p.point_mm().unwrap_or_default() - (y * growth + frame.translation_mm + shift))
+    })
 }
 
 /// Fit block `b`'s frame and its own tool offset for a fixed `model` (the tool floated there):
@@ -467,42 +464,50 @@ pub const MAX_PAIRWISE_POINTS: usize = 2000;
 /// position error of every point with it. Every figure of a session for one model and tool offset
 /// (its validation, its residuals, its orientation errors) is read from one of these, so that its
 /// points are posed and its frame fitted once.
-pub struct SessionFit {
+pub struct SessionFit<'a> {
+    /// The data and the block fitted.
+    data: &'a Observations,
+    b: usize,
     /// The model's tool points of the block's points, in file order, robot frame, mm.
     robot: Vec<Vector3<f64>>,
     /// The refitted frame (robot → instrument).
-    pub frame: Frame,
+    frame: Frame,
     /// Predicted − measured of every point, in file order, in the instrument's frame, mm.
     residuals: Vec<Vector3<f64>>,
 }
 
-impl SessionFit {
+impl<'a> SessionFit<'a> {
     /// Block `b` of `data` for `model` with the tool offset `tool_offset_mm` (flange frame).
-    pub fn of(model: &ArmModel, data: &Observations, b: usize, tool_offset_mm: [f64; 3]) -> SessionFit {
-        let offset = &Vector3::from(tool_offset_mm);
-        SessionFit::of_points(model_points(model, data, point_members(data, b), offset), data, b)
-    }
-
-    /// [`SessionFit::of`] read from the poses `poses` of every observation of `data` on the model.
-    pub fn of_poses(
-        poses: &[ToolPose],
-        data: &Observations,
+    pub fn of(
+        model: &ArmModel,
+        data: &'a Observations,
         b: usize,
         tool_offset_mm: [f64; 3],
-    ) -> SessionFit {
-        let offset = &Vector3::from(tool_offset_mm);
-        let robot = point_members(data, b).map(|k| with_offset(&poses[k], offset)).collect();
-        SessionFit::of_points(robot, data, b)
+    ) -> SessionFit<'a> {
+        SessionFit::with_poses(model, data, b, tool_offset_mm, None)
     }
 
-    /// The fit of block `b` for the model's points `robot` of its points, in order.
-    fn of_points(robot: Vec<Vector3<f64>>, data: &Observations, b: usize) -> SessionFit {
+    /// [`SessionFit::of`], the poses read from `poses` when they are of `model` on `data`.
+    pub fn with_poses(
+        model: &ArmModel,
+        data: &'a Observations,
+        b: usize,
+        tool_offset_mm: [f64; 3],
+        poses: Option<&ModelPoses>,
+    ) -> SessionFit<'a> {
+        let (offset, poses) = (&Vector3::from(tool_offset_mm), PoseSource::new(model, data, poses));
+        let robot = poses.map(point_members(data, b), |_, pose| with_offset(pose, offset));
         let frame = block_frame_of(&robot, data, b);
         let residuals = points_of(data, b)
             .zip(&robot)
             .map(|(p, y)| frame.apply(y) - p.point_mm().unwrap_or_default())
             .collect();
-        SessionFit { robot, frame, residuals }
+        SessionFit { data, b, robot, frame, residuals }
+    }
+
+    /// The refitted frame (robot → instrument).
+    pub fn frame(&self) -> &Frame {
+        &self.frame
     }
 
     /// Position error of every point, in file order, in the instrument's frame, mm.
@@ -521,8 +526,9 @@ impl SessionFit {
         self.residuals.iter().map(|r| self.frame.rotation.transpose() * -r).collect()
     }
 
-    /// The error statistics and the pairwise figure of block `b` of `data` (whose fit this is).
-    pub fn validation(&self, data: &Observations, b: usize) -> SessionValidation {
+    /// The error statistics and the pairwise figure of the block.
+    pub fn validation(&self) -> SessionValidation {
+        let (data, b) = (self.data, self.b);
         let stats = ErrorStats::of(&self.errors());
         let points: Vec<Vector3<f64>> =
             points_of(data, b).map(|p| p.point_mm().unwrap_or_default()).collect();
@@ -536,6 +542,57 @@ impl SessionFit {
             max_mm: stats.max_mm,
             pairwise_rms_mm: if pairs > 0 { (sum / pairs as f64).sqrt() } else { 0.0 },
             pairs,
+        }
+    }
+}
+
+/// Every instrument session of one data set for one model, each tool that floats refitted
+/// first ([`session_offset_mm`]): taken once for the figures read from them (a run's held-out
+/// validation and its data-error scoring's held-out errors).
+pub struct SessionFits<'a> {
+    model: &'a ArmModel,
+    data: &'a Observations,
+    float_tool: &'a [String],
+    /// Each session with its tool offset (its own where it floats, flange frame, mm) and its fit.
+    fits: Vec<(usize, [f64; 3], SessionFit<'a>)>,
+}
+
+impl<'a> SessionFits<'a> {
+    /// Every session of `data` for `model`, the tools `float_tool` names refitted.
+    pub fn of(model: &'a ArmModel, data: &'a Observations, float_tool: &'a [String]) -> SessionFits<'a> {
+        let fits = (data.sessions().into_iter())
+            .map(|b| {
+                let offset_mm = session_offset_mm(model, data, b, float_tool);
+                (b, offset_mm, SessionFit::of(model, data, b, offset_mm))
+            })
+            .collect();
+        SessionFits { model, data, float_tool, fits }
+    }
+
+    /// Each session, its tool offset and its fit, in order.
+    pub fn fits(&self) -> &[(usize, [f64; 3], SessionFit<'a>)] {
+        &self.fits
+    }
+
+    /// The errors of `model` on each session of `data` in order, the tools `float_tool` names
+    /// refitted ([`held_out_session_errors`]): `taken`'s when it is of that very model and data
+    /// with the same tools floated, else taken here.
+    pub fn errors(
+        taken: Option<&SessionFits>,
+        model: &ArmModel,
+        data: &Observations,
+        float_tool: &[String],
+    ) -> Vec<(usize, Vec<f64>)> {
+        let same = |t: &&SessionFits| {
+            std::ptr::eq(t.model, model) && std::ptr::eq(t.data, data) && t.float_tool == float_tool
+        };
+        match taken.filter(same) {
+            Some(taken) => taken.fits.iter().map(|(b, _, fit)| (*b, fit.errors())).collect(),
+            None => data
+                .sessions()
+                .into_iter()
+                .map(|b| (b, held_out_session_errors(model, data, b, float_tool)))
+                .collect(),
         }
     }
 }
@@ -574,7 +631,7 @@ pub fn validate_session(
     b: usize,
     tool_offset_mm: [f64; 3],
 ) -> SessionValidation {
-    SessionFit::of(model, data, b, tool_offset_mm).validation(data, b)
+    SessionFit::of(model, data, b, tool_offset_mm).validation()
 }
 
 /// Points' coordinates as three arrays, so that a loop over many points reads each coordinate
@@ -683,7 +740,7 @@ mod tests {
         for (b, offset_mm) in [(0, [0.0; 3]), (1, [0.4, -0.3, 1.1])] {
             let offset = Vector3::from(offset_mm);
             let fit = SessionFit::of(&nominal, &data, b, offset_mm);
-            assert_eq!(fit.frame, block_frame(&nominal, &data, b, &offset));
+            assert_eq!(*fit.frame(), block_frame(&nominal, &data, b, &offset));
             let robot = model_points(&nominal, &data, point_members(&data, b), &offset);
             let measured: Vec<Vector3<f64>> =
                 points_of(&data, b).map(|p| p.point_mm().unwrap_or_default()).collect();
@@ -696,7 +753,7 @@ mod tests {
             let in_base: Vec<Vector3<f64>> =
                 residuals.iter().map(|r| frame.rotation.transpose() * -r).collect();
             assert_eq!(fit.residuals_mm(), in_base);
-            let (v, stats) = (fit.validation(&data, b), ErrorStats::of(&errors));
+            let (v, stats) = (fit.validation(), ErrorStats::of(&errors));
             let (sum, pairs) = plain_pairwise(&robot, &measured);
             assert_eq!(
                 (v.points, v.rms_mm, v.mean_mm, v.std_mm, v.max_mm, v.pairs, v.pairwise_rms_mm),
@@ -714,35 +771,82 @@ mod tests {
         }
     }
 
-    /// Figures read from a fit's poses taken once ([`ModelPoses`]) are those computed from the model:
-    /// a session's fit, its orientation spread, the calibration residuals; the poses are read only
-    /// for the model and data they were taken of.
+    /// Figures read from a fit's poses taken once ([`ModelPoses`]) are those computed from the model,
+    /// to the bit: a session's fit, its orientation spread, the calibration residuals. The poses
+    /// are read only for the very model and data they were taken of: another model (or a copy of
+    /// the data) is posed again, and its figures are its own.
     #[test]
     fn figures_from_shared_poses_are_those_of_the_model() {
         use crate::calib::bench_problem;
-        use crate::calib::nuisance::tool::{orientation_spread_deg, orientation_spread_of, ModelPoses};
+        use crate::calib::nuisance::tool::{orientation_spread_deg, orientation_spread_with};
         let nominal = bench_problem::arm();
         let data = bench_problem::sessions(&bench_problem::truth(&nominal), 2, 60, 11);
         let options = crate::calib::setup::SolveOptions::default();
         let fit = crate::calib::fit::calibrate(&nominal, &data, &options).expect("fit");
         let shared = ModelPoses::of(&fit.model, &data);
-        let poses = shared.of_model(&fit.model, &data).expect("the poses of the fit's model");
-        assert!(
-            shared.of_model(&nominal, &data).is_none()
-                && shared.of_model(&fit.model, &data.clone()).is_none()
-        );
+        assert!(matches!(PoseSource::new(&fit.model, &data, Some(&shared)), PoseSource::Taken(_)));
+        let copy = data.clone();
+        for (model, data) in [(&nominal, &data), (&fit.model, &copy)] {
+            assert!(matches!(PoseSource::new(model, data, Some(&shared)), PoseSource::Posed(..)));
+        }
+        let offset_mm = [0.2, 0.0, -0.7];
         for b in 0..2 {
-            let offset_mm = [0.2, 0.0, -0.7];
-            let (alone, read) = (
+            for model in [&fit.model, &nominal] {
+                let (alone, read) = (
+                    SessionFit::of(model, &data, b, offset_mm),
+                    SessionFit::with_poses(model, &data, b, offset_mm, Some(&shared)),
+                );
+                assert_eq!((alone.frame(), alone.residuals()), (read.frame(), read.residuals()));
+                let spread = orientation_spread_deg(model, &data, b);
+                assert_eq!(spread, orientation_spread_with(model, &data, b, Some(&shared)));
+            }
+            // The two models' figures differ: reading the fit's poses for the nominal arm would fail.
+            let (fitted, nominal_fit) = (
                 SessionFit::of(&fit.model, &data, b, offset_mm),
-                SessionFit::of_poses(poses, &data, b, offset_mm),
+                SessionFit::of(&nominal, &data, b, offset_mm),
             );
-            assert_eq!((alone.frame, alone.residuals()), (read.frame, read.residuals()));
-            assert_eq!(orientation_spread_deg(&fit.model, &data, b), orientation_spread_of(poses, &data, b));
+            assert!(fitted.residuals() != nominal_fit.residuals());
         }
         let residuals = calibration_residuals_mm(&fit, &data, None);
         assert_eq!(residuals.iter().map(Vec::len).collect::<Vec<_>>(), [60, 60]);
-        assert_eq!(residuals, calibration_residuals_mm(&fit, &data, Some(poses)));
+        assert_eq!(residuals, calibration_residuals_mm(&fit, &data, Some(&shared)));
+        let other = ModelPoses::of(&nominal, &data);
+        assert_eq!(residuals, calibration_residuals_mm(&fit, &data, Some(&other)));
+    }
+
+    /// A held-out validation's session fits give the data-error scoring its errors, those of
+    /// [`held_out_session_errors`] to the bit (a floated tool refitted); they are read only for the
+    /// very model and data with the same tools floated: otherwise the errors are taken again.
+    #[test]
+    fn held_out_errors_from_session_fits_are_those_taken_again() {
+        use crate::calib::bench_problem;
+        let nominal = bench_problem::arm();
+        let truth = bench_problem::truth(&nominal);
+        let data = bench_problem::sessions(&truth, 2, 60, 5);
+        let (none, one) = (Vec::new(), vec![data.block_name(1)]);
+        let fits = SessionFits::of(&nominal, &data, &one);
+        assert_eq!(fits.fits()[0].1, [0.0; 3]);
+        assert!(fits.fits()[1].1 != [0.0; 3], "the floated tool is refitted");
+        let again =
+            |model: &ArmModel, data: &Observations, float_tool: &[String]| -> Vec<(usize, Vec<f64>)> {
+                data.sessions()
+                    .into_iter()
+                    .map(|b| (b, held_out_session_errors(model, data, b, float_tool)))
+                    .collect()
+            };
+        let copy = data.clone();
+        for (model, data, float_tool) in [
+            (&nominal, &data, &one),
+            (&truth, &data, &one),
+            (&nominal, &copy, &one),
+            (&nominal, &data, &none),
+        ] {
+            let read = SessionFits::errors(Some(&fits), model, data, float_tool);
+            assert_eq!(read, again(model, data, float_tool));
+        }
+        // The other model's and the other tools' errors differ from these fits': reading them there fails.
+        let own = again(&nominal, &data, &one);
+        assert!(own != again(&truth, &data, &one) && own != again(&nominal, &data, &none));
     }
 
     /// The row-buffered pairwise sum is the plain loop's to the bit, with and without points

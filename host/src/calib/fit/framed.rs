@@ -5,6 +5,7 @@
 use super::*;
 use crate::model::effects::mass;
 use crate::model::FreeParam;
+use std::cell::{RefCell, RefMut};
 
 /// A solution with frames: the model, each block's frame, each group's tool, the probe and the
 /// drifts, with its cost, iterations and how its last pass stopped.
@@ -41,30 +42,70 @@ impl Solved {
     }
 }
 
-/// The tool point's first fit of a calibration from the nominal values (see [`calibrate_framed`]),
-/// kept for the next calibration on the same data whose arm has the same values and the same
-/// tool bounds (fewer other parameters free: a run's tool-only reference), which starts with
-/// the same fit.
+/// What calibrations from the nominal values of one arm on the same data share: each block's
+/// frame at its closed form and each session's orientation spread (both of the arm's values
+/// alone), and the tool point's first fit (see [`calibrate_framed`]) for the tool bounds it was
+/// solved with, each taken once when first asked for. A run's check of its data takes the
+/// frames, its calibration the rest; its tool-only reference (the same values, fewer other
+/// parameters free) starts with all of them. Give one only to calls on the same data.
 #[derive(Default)]
-pub(super) struct ToolFirstFit(pub(super) std::cell::RefCell<Option<(ArmModel, Vec<FreeParam>, Solved)>>);
+pub struct ToolFirstFit(pub(super) RefCell<Option<KeptStart>>);
+
+/// The start [`ToolFirstFit`] keeps for one arm's values.
+pub(super) struct KeptStart {
+    /// The arm's values (no free parameters) the start is of.
+    values: ArmModel,
+    frames: Option<Vec<Frame>>,
+    spreads: Option<Vec<(String, f64)>>,
+    /// The tool point's fit with the tool bounds it had.
+    pub(super) tool_fit: Option<(Vec<FreeParam>, Solved)>,
+}
 
 impl ToolFirstFit {
-    /// The tool point's fit over `tool` from `start` on `pieces` (closed-form frames of its
-    /// model): the kept one when its arm values and tool bounds are `pieces`', else solved.
-    fn solve(&self, pieces: &Pieces, tool: &[ParamId], start: Solved) -> Solved {
+    /// The start kept for `pieces`' arm values: an empty one, in place of what was kept, when
+    /// that was of other values.
+    fn kept(&self, pieces: &Pieces) -> RefMut<'_, KeptStart> {
         let values = ArmModel { free: Vec::new(), ..pieces.model.clone() };
+        let mut kept = self.0.borrow_mut();
+        if kept.as_ref().is_some_and(|k| k.values != values) {
+            *kept = None;
+        }
+        RefMut::map(kept, |k| {
+            k.get_or_insert_with(|| KeptStart { values, frames: None, spreads: None, tool_fit: None })
+        })
+    }
+
+    /// Each block's frame at its closed form for `pieces`' arm (kept).
+    pub(super) fn closed_form_frames(&self, pieces: &Pieces) -> Vec<Frame> {
+        let mut kept = self.kept(pieces);
+        kept.frames.get_or_insert_with(|| pieces.closed_form_frames(&pieces.model)).clone()
+    }
+
+    /// The orientation spread of each framed block of `pieces` on its arm (kept).
+    pub(super) fn spreads(&self, pieces: &Pieces) -> Vec<(String, f64)> {
+        let (model, data) = (&pieces.model, pieces.data);
+        let spreads_of = || {
+            (0..data.blocks.len())
+                .filter(|&b| pieces.framed[b])
+                .map(|b| (data.block_name(b), orientation_spread_deg(model, data, b)))
+                .collect()
+        };
+        self.kept(pieces).spreads.get_or_insert_with(spreads_of).clone()
+    }
+
+    /// The tool point's fit over `tool` from `start` on `pieces` (closed-form frames of its
+    /// model): the kept one when its tool bounds are `pieces`', else solved (and kept).
+    fn solve(&self, pieces: &Pieces, tool: &[ParamId], start: Solved) -> Solved {
         let bounds: Vec<FreeParam> =
             pieces.model.free.iter().filter(|f| tool.contains(&f.id)).copied().collect();
-        if let Some((kept_values, kept_bounds, solved)) = &*self.0.borrow() {
-            if *kept_values == values && *kept_bounds == bounds {
-                // The same point, of this calibration's model (its own free set).
-                let mut solved = solved.clone();
-                solved.model.free.clone_from(&pieces.model.free);
-                return solved;
-            }
+        if let Some((_, solved)) = self.kept(pieces).tool_fit.as_ref().filter(|f| f.0 == bounds) {
+            // The same point, of this calibration's model (its own free set).
+            let mut solved = solved.clone();
+            solved.model.free.clone_from(&pieces.model.free);
+            return solved;
         }
         let solved = solve_framed(pieces, tool, start, 0);
-        *self.0.borrow_mut() = Some((values, bounds, solved.clone()));
+        self.kept(pieces).tool_fit = Some((bounds, solved.clone()));
         solved
     }
 }
@@ -172,8 +213,8 @@ pub(super) fn warm_start(pieces: &Pieces, warm: &Fit) -> Solved {
 
 /// Calibrate with block unknowns from the nominal values, or, given `warm`, from a previous
 /// solution of close data or options (the tool point's first fit skipped: `warm` has it). From
-/// the nominal values, the tool point's first fit is `first_fit`'s when it has it for these
-/// values, and kept there.
+/// the nominal values, the closed-form frames, the orientation spreads and the tool point's first
+/// fit are `first_fit`'s when it has them for these values, and kept there.
 pub(super) fn calibrate_framed(
     nominal: &ArmModel,
     pieces: &Pieces,
@@ -184,25 +225,18 @@ pub(super) fn calibrate_framed(
     let data = pieces.data;
     let model = &pieces.model;
     let all: Vec<ParamId> = model.free.iter().map(|f| f.id).collect();
-    let mut start = match warm {
-        Some(warm) => warm_start(pieces, warm),
+    let (mut start, spreads) = match warm {
+        Some(warm) => (warm_start(pieces, warm), warm.orientation_spread_deg.clone()),
         None => {
-            let frames = pieces.closed_form_frames(model);
+            let (frames, spreads) = (first_fit.closed_form_frames(pieces), first_fit.spreads(pieces));
             let probe = start_probe_rotation(model, data, &frames)
                 .filter(|_| pieces.resolved.orientation_weight_mm_per_rad.is_some());
-            Solved::at(model.clone(), frames, probe, data)
+            (Solved::at(model.clone(), frames, probe, data), spreads)
         }
     };
     // Over every free parameter (their values from `x0`, the rest from the model).
     let full = pieces.problem(all.clone(), model, &start.frames, start.probe);
     let x0 = pieces.x_of(&full, &start.model, &start.frames, &start.tools, &start.drifts);
-    let spreads: Vec<(String, f64)> = match warm {
-        Some(warm) => warm.orientation_spread_deg.clone(),
-        None => (0..data.blocks.len())
-            .filter(|&b| pieces.framed[b])
-            .map(|b| (data.block_name(b), orientation_spread_deg(model, data, b)))
-            .collect(),
-    };
     // No session turns the tool and no touch pins it: its point is the frames' translation,
     // whatever a small model error makes the Jacobian say; it stays at its nominal value.
     let pinned = data.obs.iter().any(|o| o.landmark().is_some());

@@ -217,6 +217,7 @@ mod shared;
 mod tests;
 
 use dense::*;
+pub use framed::ToolFirstFit;
 use framed::*;
 use outcome::*;
 use pieces::*;
@@ -239,13 +240,25 @@ pub fn check_data_on(
     encoders: &Encoders,
     options: &SolveOptions,
 ) -> Result<(), CalibError> {
+    check_data_sharing(model, data, encoders, options, &ToolFirstFit::default())
+}
+
+/// [`check_data_on`], the closed-form frames of `model` taken from `start` (and kept there for
+/// the calibrations from `model` on `data`, see [`ToolFirstFit`]).
+pub fn check_data_sharing(
+    model: &ArmModel,
+    data: &Observations,
+    encoders: &Encoders,
+    options: &SolveOptions,
+    start: &ToolFirstFit,
+) -> Result<(), CalibError> {
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
-        return check_data_on(model, &own, encoders, options);
+        return check_data_sharing(model, &own, encoders, options, start);
     }
     let pieces = Pieces::new(model, data, options, encoders)?;
     let all: Vec<ParamId> = pieces.model.free.iter().map(|f| f.id).collect();
     if pieces.blocked() {
-        let frames = pieces.closed_form_frames(&pieces.model);
+        let frames = start.closed_form_frames(&pieces);
         let probe = start_probe_rotation(&pieces.model, data, &frames);
         let full = pieces.problem(all, &pieces.model, &frames, probe);
         let tools = vec![Vector3::zeros(); data.groups.len()];
@@ -283,7 +296,8 @@ pub fn calibrate_on(
 
 /// [`calibrate_on`] of `nominal`, and of `reference` when given: the same arm's values with
 /// fewer parameters free, the tool point among them (a run's tool-only nominal model). With
-/// block unknowns both start with the tool point's first fit on these values, solved once.
+/// block unknowns both start with the closed-form frames, orientation spreads and tool point's
+/// first fit of these values, each taken once (or taken from `start`, see [`ToolFirstFit`]).
 /// The reference's own error is its result's.
 pub fn calibrate_with_reference_on(
     nominal: &ArmModel,
@@ -291,10 +305,10 @@ pub fn calibrate_with_reference_on(
     data: &Observations,
     encoders: &Encoders,
     options: &SolveOptions,
+    start: &ToolFirstFit,
 ) -> Result<(Fit, Option<Result<Fit, CalibError>>), CalibError> {
-    let first_fit = ToolFirstFit::default();
-    let fit = calibrate_on_sharing(nominal, data, encoders, options, &first_fit)?;
-    let reference = reference.map(|r| calibrate_on_sharing(r, data, encoders, options, &first_fit));
+    let fit = calibrate_on_sharing(nominal, data, encoders, options, start)?;
+    let reference = reference.map(|r| calibrate_on_sharing(r, data, encoders, options, start));
     Ok((fit, reference))
 }
 

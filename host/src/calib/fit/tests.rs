@@ -231,8 +231,13 @@ fn a_shared_tool_first_fit_is_the_calibration_alone() {
     let (options, encoders) = (SolveOptions::default(), Encoders::of(&data));
     let mut tool_only = nominal.clone();
     tool_only.free.retain(|f| matches!(f.id, ParamId::Tcp(_)));
+    // As a run: the check of the data takes the closed-form frames, the calibrations the rest.
+    let start = ToolFirstFit::default();
+    check_data_sharing(&nominal, &data, &encoders, &options, &start).expect("checked");
+    assert!(start.0.borrow().as_ref().is_some_and(|kept| kept.tool_fit.is_none()));
     let (fit, reference) =
-        calibrate_with_reference_on(&nominal, Some(&tool_only), &data, &encoders, &options).expect("fit");
+        calibrate_with_reference_on(&nominal, Some(&tool_only), &data, &encoders, &options, &start)
+            .expect("fit");
     let reference = reference.expect("asked for").expect("reference");
     let same = |a: &Fit, b: &Fit| {
         assert_eq!(a.model, b.model);
@@ -250,9 +255,40 @@ fn a_shared_tool_first_fit_is_the_calibration_alone() {
     // The first fit was kept and taken; an arm of other values solves its own.
     let first_fit = ToolFirstFit::default();
     calibrate_on_sharing(&nominal, &data, &encoders, &options, &first_fit).expect("fit");
-    assert!(first_fit.0.borrow().is_some());
+    assert!(first_fit.0.borrow().as_ref().is_some_and(|kept| kept.tool_fit.is_some()));
     let mut other = tool_only.clone();
     other.joints[2].d_mm += 1.0;
     let shared = calibrate_on_sharing(&other, &data, &encoders, &options, &first_fit).expect("other");
     same(&shared, &calibrate_on(&other, &data, &encoders, &options).expect("alone"));
+}
+
+/// The closed-form frames and orientation spreads a calibration from the nominal values keeps
+/// for the next one on the same data (a run's tool-only reference) are those of the arm's values
+/// computed again, to the bit; for an arm of other values its own are computed.
+#[test]
+fn kept_frames_and_spreads_are_those_of_the_arm() {
+    let (nominal, truth) = arm_and_truth();
+    let data = sessions(&truth, None);
+    let (options, encoders) = (SolveOptions::default(), Encoders::of(&data));
+    let first_fit = ToolFirstFit::default();
+    let fit = calibrate_on_sharing(&nominal, &data, &encoders, &options, &first_fit).expect("fit");
+    let spreads_of = |model: &ArmModel| -> Vec<(String, f64)> {
+        (0..data.blocks.len())
+            .map(|b| (data.block_name(b), orientation_spread_deg(model, &data, b)))
+            .collect()
+    };
+    assert_eq!(fit.orientation_spread_deg, spreads_of(&nominal));
+    assert!(fit.orientation_spread_deg.iter().all(|s| s.1 > CONSTANT_ORIENTATION_DEG));
+    let mut other = nominal.clone();
+    other.joints[2].d_mm += 1.0;
+    other.joints[4].alpha_deg += 0.5;
+    let mut kept = Vec::new();
+    for model in [&nominal, &other, &nominal] {
+        let pieces = Pieces::new(model, &data, &options, &encoders).expect("pieces");
+        let (frames, spreads) = (first_fit.closed_form_frames(&pieces), first_fit.spreads(&pieces));
+        assert_eq!(frames, pieces.closed_form_frames(&pieces.model));
+        assert_eq!(spreads, spreads_of(model));
+        kept.push((frames, spreads));
+    }
+    assert!(kept[0].0 != kept[1].0 && kept[0].1 != kept[1].1, "other values, other frames and spreads");
 }

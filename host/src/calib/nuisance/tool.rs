@@ -59,8 +59,41 @@ impl<'a> ModelPoses<'a> {
     }
 
     /// The poses, when they are those of `model` on `data` (the very values, not equal copies).
-    pub fn of_model(&self, model: &ArmModel, data: &Observations) -> Option<&[ToolPose]> {
+    fn of_model(&self, model: &ArmModel, data: &Observations) -> Option<&[ToolPose]> {
         (std::ptr::eq(self.model, model) && std::ptr::eq(self.data, data)).then_some(self.poses.as_slice())
+    }
+}
+
+/// The tool pose of any observation of one data set on one model: read from poses taken once
+/// ([`ModelPoses`]) when they are of that very model and data, else posed.
+pub enum PoseSource<'a> {
+    /// The poses of every observation, taken once.
+    Taken(&'a [ToolPose]),
+    /// The model's chains and the data, posed on demand.
+    Posed(Tips<'a>, &'a Observations),
+}
+
+impl<'a> PoseSource<'a> {
+    /// The poses of `model` on `data`: from `taken` when it holds that very model's on that very
+    /// data, else posed.
+    pub fn new(model: &'a ArmModel, data: &'a Observations, taken: Option<&'a ModelPoses>) -> PoseSource<'a> {
+        match taken.and_then(|t| t.of_model(model, data)) {
+            Some(poses) => PoseSource::Taken(poses),
+            None => PoseSource::Posed(Tips::new(model), data),
+        }
+    }
+
+    /// `f` of each observation `k` of `members` and its tool pose, in order (the source decided
+    /// once, outside the loop).
+    pub fn map<T>(
+        &self,
+        members: impl Iterator<Item = usize>,
+        mut f: impl FnMut(usize, &ToolPose) -> T,
+    ) -> Vec<T> {
+        match self {
+            PoseSource::Taken(poses) => members.map(|k| f(k, &poses[k])).collect(),
+            PoseSource::Posed(tips, data) => members.map(|k| f(k, &data.pose_on(tips, k))).collect(),
+        }
     }
 }
 
@@ -168,14 +201,18 @@ pub const CONSTANT_ORIENTATION_DEG: f64 = 1.0;
 /// Largest angle, degrees, between the tool orientation at any observation of block `b` and at
 /// its first (the model's flange orientation).
 pub fn orientation_spread_deg(model: &ArmModel, data: &Observations, b: usize) -> f64 {
-    let tips = Tips::new(model);
-    spread_deg(data.blocks[b].members.iter().map(|&k| flange_rotation(&data.pose_on(&tips, k))))
+    orientation_spread_with(model, data, b, None)
 }
 
-/// [`orientation_spread_deg`] read from the poses `poses` of every observation of `data` (on
-/// the model, [`ModelPoses`]).
-pub fn orientation_spread_of(poses: &[ToolPose], data: &Observations, b: usize) -> f64 {
-    spread_deg(data.blocks[b].members.iter().map(|&k| flange_rotation(&poses[k])))
+/// [`orientation_spread_deg`], the poses read from `taken` when they are of `model` on `data`.
+pub fn orientation_spread_with(
+    model: &ArmModel,
+    data: &Observations,
+    b: usize,
+    taken: Option<&ModelPoses>,
+) -> f64 {
+    let poses = PoseSource::new(model, data, taken);
+    spread_deg(poses.map(data.blocks[b].members.iter().copied(), |_, pose| flange_rotation(pose)).into_iter())
 }
 
 /// Largest angle, degrees, between any of `rotations` and the first.

@@ -55,14 +55,13 @@ use crate::calib::nuisance::drift::{DriftKind, DriftSpec};
 use crate::calib::nuisance::frame::rotation_vector;
 use crate::calib::nuisance::frame::Frame;
 use crate::calib::nuisance::tool::CONSTANT_ORIENTATION_DEG;
-use crate::calib::nuisance::tool::{orientation_spread_deg, orientation_spread_of, ModelPoses};
+use crate::calib::nuisance::tool::{orientation_spread_with, ModelPoses};
 use crate::calib::setup::{Change, SolveOptions};
 use crate::calib::validate::{
-    angle_stats, block_frame, calibration_errors, held_out_session_errors, orientation_errors_in_frame_deg,
-    session_probe_rotation, session_tool, undetermined_rotation, SessionFit,
+    angle_stats, block_frame, calibration_errors, orientation_errors_in_frame_deg, session_probe_rotation,
+    session_tool, undetermined_rotation, SessionFit, SessionFits,
 };
 use crate::data::Observations;
-use crate::model::kinematics::ToolPose;
 use crate::model::ArmModel;
 use crate::numerics::stats::rms;
 use nalgebra::{Matrix3, Vector3};
@@ -78,12 +77,6 @@ pub const MIN_GAIN: f64 = 0.05;
 /// refitted too.
 pub fn held_out_rms(model: &ArmModel, val: &Observations, floating: &[String]) -> f64 {
     rms(&Measure::Points.errors(model, val, floating))
-}
-
-/// The errors of `model` on each of `val`'s sessions in order (those in `floating` with their
-/// tool refitted), from which [`held_out_rms`] is taken.
-fn held_out_errors(model: &ArmModel, val: &Observations, floating: &[String]) -> Vec<(usize, Vec<f64>)> {
-    val.sessions().into_iter().map(|b| (b, held_out_session_errors(model, val, b, floating))).collect()
 }
 
 /// RMS of `errors`, those of session `b` replaced by `own`: [`held_out_rms`] with one session's
@@ -119,7 +112,7 @@ fn bad_points_candidate(
     fit: &Fit,
     options: &SolveOptions,
     held_out: &HeldOut,
-    poses: Option<&[ToolPose]>,
+    poses: Option<&ModelPoses>,
 ) -> Option<DataError> {
     let before = held_out.before;
     let errors = calibration_errors(fit, cal, poses);
@@ -356,24 +349,34 @@ pub fn data_error_candidates(
     fit: &Fit,
     options: &SolveOptions,
 ) -> Vec<DataError> {
-    data_error_candidates_with(nominal, cal, val, fit, options, None, None)
+    data_error_candidates_with(nominal, cal, val, fit, options, TakenOfFit::default())
 }
 
-/// [`data_error_candidates`], the refits floating a session's tool starting from `sums` when
-/// they are of `fit` (else from sums taken here): a run takes them once for these refits and
-/// the outlier metrics' (see [`SessionSums`]); the fit's poses of the calibration points read
-/// from `poses` when they are of its model on `cal` (a run takes them once, see [`ModelPoses`]).
+/// What a run has already taken of its fit, read by the data-error scoring instead of taking it
+/// again; each only where it is of that fit (else taken here).
+#[derive(Clone, Copy, Default)]
+pub struct TakenOfFit<'a> {
+    /// The normal equations of the fit's solution, session by session ([`SessionSums`]): the
+    /// first evaluation of the refits floating a session's tool.
+    pub sums: Option<&'a SessionSums<'a>>,
+    /// The fit's poses of the calibration observations ([`ModelPoses`]).
+    pub poses: Option<&'a ModelPoses<'a>>,
+    /// The fit's held-out sessions' closed-form fits ([`SessionFits`], its tools floated).
+    pub held_out: Option<&'a SessionFits<'a>>,
+}
+
+/// [`data_error_candidates`], reading what a run has already taken of `fit` from `taken`.
 pub fn data_error_candidates_with(
     nominal: &ArmModel,
     cal: &Observations,
     val: &Observations,
     fit: &Fit,
     options: &SolveOptions,
-    sums: Option<&SessionSums>,
-    poses: Option<&ModelPoses>,
+    taken: TakenOfFit,
 ) -> Vec<DataError> {
-    let cal_poses = poses.and_then(|p| p.of_model(&fit.model, cal));
-    let errors = held_out_errors(&fit.model, val, &options.float_tool);
+    let TakenOfFit { sums, poses, held_out: held_out_fits } = taken;
+    // The fit's errors on each of `val`'s sessions in order, from which [`held_out_rms`] is taken.
+    let errors = SessionFits::errors(held_out_fits, &fit.model, val, &options.float_tool);
     let before = rms(&errors.iter().flat_map(|(_, e)| e.iter().copied()).collect::<Vec<_>>());
     let held_out = HeldOut { val, floating: &options.float_tool, before };
     // `options.float_tool` may name held-out sessions too (their tools float in the held-out
@@ -406,18 +409,14 @@ pub fn data_error_candidates_with(
         }
     };
     // A calibration session's own tool needs the shared one fixed by other sessions that turn it.
-    let turning = |data: &Observations, poses: Option<&[ToolPose]>| -> Vec<usize> {
-        let spread = |b: usize| match poses {
-            Some(poses) => orientation_spread_of(poses, data, b),
-            None => orientation_spread_deg(&fit.model, data, b),
-        };
+    let turning = |data: &Observations, poses: Option<&ModelPoses>| -> Vec<usize> {
         data.sessions()
             .into_iter()
             .filter(|&b| !options.float_tool.contains(&data.block_name(b)))
-            .filter(|&b| spread(b) >= CONSTANT_ORIENTATION_DEG)
+            .filter(|&b| orientation_spread_with(&fit.model, data, b, poses) >= CONSTANT_ORIENTATION_DEG)
             .collect()
     };
-    let cal_turning = turning(cal, cal_poses);
+    let cal_turning = turning(cal, poses);
     // Each refit starts from the other sessions' normal equations at the fit's solution.
     let own;
     let sums = match sums.filter(|s| std::ptr::eq(s.fit(), fit)) {
@@ -458,13 +457,13 @@ pub fn data_error_candidates_with(
         let session = SessionFit::of(&fit.model, val, b, tool.offset_mm);
         let after = rms_with(&errors, b, &session.errors());
         let moved = verdict(&name, DataSet::HeldOut, tool.offset_mm, tool.size_std_mm, after);
-        out.push(match probe_turn(fit, val, b, tool.offset_mm, || session.frame) {
+        out.push(match probe_turn(fit, val, b, tool.offset_mm, || *session.frame()) {
             Some(turn) if turn.called(fit, &tool.offset_mm) => turn.data_error(moved),
             _ => moved,
         });
     }
     out.extend(drift_candidates(nominal, cal, fit, refitting, &held_out));
-    out.extend(bad_points_candidate(nominal, cal, fit, refitting, &held_out, cal_poses));
+    out.extend(bad_points_candidate(nominal, cal, fit, refitting, &held_out, poses));
     out.sort_by(|a, b| a.held_out_after_mm.total_cmp(&b.held_out_after_mm));
     // One data error at a time: the others are scored against a model the best one still bends,
     // so only the best is called; apply it and score again.

@@ -47,9 +47,10 @@ impl Solved {
 /// alone), and the tool point's first fit (see [`calibrate_framed`]) for the tool bounds it was
 /// solved with, each taken once when first asked for. A run's check of its data takes the
 /// frames, its calibration the rest; its tool-only reference (the same values, fewer other
-/// parameters free) starts with all of them. Give one only to calls on the same data.
+/// parameters free) starts with all of them. Only the arm's values are checked: it is the
+/// crate's, given only to calls on the same data with the same options (a run's).
 #[derive(Default)]
-pub struct ToolFirstFit(pub(super) RefCell<Option<KeptStart>>);
+pub(crate) struct ToolFirstFit(pub(super) RefCell<Option<KeptStart>>);
 
 /// The start [`ToolFirstFit`] keeps for one arm's values.
 pub(super) struct KeptStart {

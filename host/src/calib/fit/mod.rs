@@ -217,7 +217,7 @@ mod shared;
 mod tests;
 
 use dense::*;
-pub use framed::ToolFirstFit;
+pub(crate) use framed::ToolFirstFit;
 use framed::*;
 use outcome::*;
 use pieces::*;
@@ -245,7 +245,7 @@ pub fn check_data_on(
 
 /// [`check_data_on`], the closed-form frames of `model` taken from `start` (and kept there for
 /// the calibrations from `model` on `data`, see [`ToolFirstFit`]).
-pub fn check_data_sharing(
+pub(crate) fn check_data_sharing(
     model: &ArmModel,
     data: &Observations,
     encoders: &Encoders,
@@ -299,7 +299,7 @@ pub fn calibrate_on(
 /// block unknowns both start with the closed-form frames, orientation spreads and tool point's
 /// first fit of these values, each taken once (or taken from `start`, see [`ToolFirstFit`]).
 /// The reference's own error is its result's.
-pub fn calibrate_with_reference_on(
+pub(crate) fn calibrate_with_reference_on(
     nominal: &ArmModel,
     reference: Option<&ArmModel>,
     data: &Observations,

@@ -676,8 +676,9 @@ mod tests {
         assert!(igtl::transform_rows(&got[2].content).unwrap().iter().flatten().all(|v| v.is_nan()));
     }
 
-    /// A client that never reads loses its oldest frames; one that reads gets every frame; one
-    /// that asks for 50 ms gets TDATA no closer than that; one that leaves is logged.
+    /// A client that never reads loses its oldest frames and delays no one; one that reads keeps
+    /// up with the controller's rate and gets every frame; one that asks for 50 ms gets TDATA no
+    /// closer than that; one that leaves is logged.
     #[test]
     fn a_stalled_client_drops_frames_and_delays_no_one() {
         let server = PoseServer::start("127.0.0.1:0", ServerOptions::default()).unwrap();
@@ -721,13 +722,18 @@ mod tests {
             }
             got
         });
-        // The time spent inside `publish`: a stalled client must delay no one.
+        // The time spent inside `publish` (a stalled client must delay no one), and the whole
+        // stream's: the reading client must keep up with the controller, its 7 680 frames read
+        // in less than their 10 s.
+        let real_time = Duration::from_secs_f64(n as f64 / 768.0);
         let mut publishing = Duration::ZERO;
+        let streaming = std::time::Instant::now();
         for tick in 1..=n {
-            let waited = std::time::Instant::now();
-            while tick > read.load(Ordering::SeqCst) + QUEUE_FRAMES as u64 / 2
-                && waited.elapsed().as_secs() < 10
-            {
+            while tick > read.load(Ordering::SeqCst) + QUEUE_FRAMES as u64 / 2 {
+                assert!(
+                    !collect.is_finished() && streaming.elapsed() < real_time,
+                    "the reading client stopped, or fell behind the controller's rate, at frame {tick}"
+                );
                 std::thread::sleep(Duration::from_millis(1));
             }
             let started = std::time::Instant::now();
@@ -738,6 +744,8 @@ mod tests {
             }
         }
         let got = collect.join().unwrap();
+        let streamed = streaming.elapsed();
+        assert!(streamed < real_time, "the reading client took {streamed:?} for {real_time:?} of frames");
         let ticks: Vec<u64> =
             got.iter().map(|m| igtl::transform_rows(&m.content).unwrap()[0][3] as u64 - 100).collect();
         assert_eq!(ticks, (1..=n).collect::<Vec<_>>(), "the reading client gets every frame in order");

@@ -56,7 +56,9 @@ pub(crate) struct ToolFirstFit(pub(super) RefCell<Option<KeptStart>>);
 pub(super) struct KeptStart {
     /// The arm's values (no free parameters) the start is of.
     values: ArmModel,
+    /// Each block's frame at its closed form for these values, once asked for.
     frames: Option<Vec<Frame>>,
+    /// Each framed session's orientation spread (name, degrees), once asked for.
     spreads: Option<Vec<(String, f64)>>,
     /// The tool point's fit with the tool bounds it had.
     pub(super) tool_fit: Option<(Vec<FreeParam>, Solved)>,

@@ -326,12 +326,24 @@ mod tests {
         stray.insert(4, ParamId::Offset(9));
         for model in [arm(Convention::Classic), arm(Convention::Modified), urdf] {
             let chain = Chain::new(&model);
-            for columns in [
+            for (set, columns) in [
                 ColumnMap::new(&params),
                 ColumnMap::new(&params[1..25]).positions_only(),
                 ColumnMap::new(&stray).positions_only(),
                 ColumnMap::new(&ParamId::all()),
-            ] {
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                // The DH arms take the two-pose kernel for the first three sets (every
+                // parameter's set has harmonics and compliance: the general pass, as the URDF arm).
+                let kernel = model.convention != Convention::Urdf && set < 3;
+                assert_eq!(
+                    chain.kernel(Some(&columns)).is_some(),
+                    kernel,
+                    "{:?} set {set}",
+                    model.convention
+                );
                 for pose in 0..10 {
                     let enc: [Vec<f64>; 2] = [0, 1].map(|lane| {
                         (0..7).map(|j| ((pose * 14 + lane * 7 + j) as f64 * 0.53).sin() * 175.0).collect()

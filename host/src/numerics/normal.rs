@@ -129,7 +129,8 @@ pub fn add_rows_gram(
         return;
     }
     let u = &mut buffers.weighted;
-    // Grown, never shrunk: a short last batch leaves no room to be zeroed again for the next.
+    // Only its first m·k entries are written and read: kept at the largest size asked for, never
+    // shrunk or zeroed again.
     u.resize(u.len().max(m * k), 0.0);
     for ((ui, row), w) in u.chunks_exact_mut(k).zip(rows.chunks(width)).zip(weights) {
         ui.iter_mut().zip(&row[..k]).for_each(|(u, v)| *u = w * v);

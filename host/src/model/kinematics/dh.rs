@@ -91,7 +91,8 @@ impl<const N: usize> Pass<'_, '_, N> {
         };
         let values = values(self);
         if let Some((_, jacs)) = self.wanted.as_mut() {
-            // Each buffer's six values written at once: a store of one reads its slice anew.
+            // Each buffer's six values built locally and copied at once: stored one by one, each
+            // store may alias the buffers, so the compiler reloads and bounds-checks per value.
             for (buffer, jac) in jacs.iter_mut().enumerate() {
                 jac[col][..6].copy_from_slice(&gathered(&values, buffer));
             }

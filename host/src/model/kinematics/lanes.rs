@@ -93,7 +93,7 @@ pub(super) fn lane<const N: usize>(v: &Vec3<N>, i: usize) -> nalgebra::Vector3<f
 }
 
 /// The six entries of buffer `buffer` of a column whose values (V's x, y, z, then W's, see the
-/// module above) are `values`, among `N` poses' buffers while the columns are gathered: value k
+/// [kinematics module](super)) are `values`, among `N` poses' buffers while the columns are gathered: value k
 /// of pose i at flat index k·N + i, buffer flat / 6, entry flat % 6. For one pose, V in entries
 /// 0..3 and W in 3..6; for two, the first buffer holds both poses' V and the second their W,
 /// pose after pose, so that each component of the pair is stored and read as one register.

@@ -96,9 +96,10 @@ fn rows(
     setup: &Setup,
     poses: Option<&ModelPoses>,
 ) -> (Vec<f64>, Vec<[usize; 2]>) {
-    let mut values = Vec::new();
-    let mut owners = Vec::new();
-    for e in distance_errors(model, cal) {
+    let distances = distance_errors(model, cal);
+    let count = distances.len() + 3 * cal.point_count();
+    let (mut values, mut owners) = (Vec::with_capacity(count), Vec::with_capacity(count));
+    for e in distances {
         values.push(e.error_mm);
         owners.push([e.landmarks.0, e.landmarks.1]);
     }

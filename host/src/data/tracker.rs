@@ -535,22 +535,46 @@ fn parse_session(
 }
 
 /// Split a CSV row at its commas into `cells`, each trimmed, as `row.split(',').map(str::trim)`
-/// does; a scan of the bytes, as the cells are short (a search per cell cost more than the scan),
-/// and a cell that starts and ends in a visible ASCII character is taken as it is.
+/// does; the commas found eight bytes at a time (the cells are short: a search per cell cost more
+/// than a scan, and a scan of single bytes was a fifth of the parse), and a cell that starts and
+/// ends in a visible ASCII character is taken as it is. A comma is one byte in UTF-8, never part
+/// of another character's bytes, so each cut is at a character's boundary.
 fn split_cells<'a>(row: &'a str, cells: &mut Vec<&'a str>) {
     let trim = |cell: &'a str| match (cell.as_bytes().first(), cell.as_bytes().last()) {
         (Some(first), Some(last)) if first.is_ascii_graphic() && last.is_ascii_graphic() => cell,
         _ => cell.trim(),
     };
     cells.clear();
+    let bytes = row.as_bytes();
+    let (words, _) = bytes.as_chunks::<8>();
     let mut start = 0;
-    for (k, &byte) in row.as_bytes().iter().enumerate() {
-        if byte == b',' {
+    for (w, word) in words.iter().enumerate() {
+        let mut commas = comma_bytes(u64::from_le_bytes(*word));
+        while commas != 0 {
+            let k = 8 * w + (commas.trailing_zeros() / 8) as usize;
+            cells.push(trim(&row[start..k]));
+            start = k + 1;
+            commas &= commas - 1;
+        }
+    }
+    for k in 8 * words.len()..bytes.len() {
+        if bytes[k] == b',' {
             cells.push(trim(&row[start..k]));
             start = k + 1;
         }
     }
     cells.push(trim(&row[start..]));
+}
+
+/// The high bit of each byte of `word` that is a comma, and no other bit. The usual
+/// `(x − 0x01…) & !x` test also marks a byte above a zero one that held 0x01 (a `-` after a
+/// comma); here no carry crosses from byte to byte.
+fn comma_bytes(word: u64) -> u64 {
+    const LOW_SEVEN: u64 = 0x7f7f_7f7f_7f7f_7f7f;
+    // Zero exactly where the byte is a comma.
+    let x = word ^ 0x2c2c_2c2c_2c2c_2c2c;
+    // Each byte 0xff where x's byte is not zero, 0x7f where it is.
+    !(((x & LOW_SEVEN) + LOW_SEVEN) | x | LOW_SEVEN)
 }
 
 /// Read every tracker session of `dir` (each `*.csv` file; files without the tag are refused):
@@ -765,6 +789,31 @@ mod tests {
             split_cells(row, &mut cells);
             let expected: Vec<&str> = row.split(',').map(str::trim).collect();
             assert_eq!(cells, expected, "{row:?}");
+        }
+        // Rows of every length from characters that test each byte of a word: a comma, a minus
+        // (one above a comma's byte), spaces, and characters of two and three bytes.
+        let alphabet = [",", "-", "1", " ", "\t", "é", "\u{a0}", "\u{2003}", ",-", "x"];
+        let mut rng = 0x9e37_79b9_7f4a_7c15_u64;
+        for k in 0..20_000 {
+            let mut row = String::new();
+            for _ in 0..k % 41 {
+                rng ^= rng << 13;
+                rng ^= rng >> 7;
+                rng ^= rng << 17;
+                row.push_str(alphabet[(rng % alphabet.len() as u64) as usize]);
+            }
+            let mut cells = Vec::new();
+            split_cells(&row, &mut cells);
+            let expected: Vec<&str> = row.split(',').map(str::trim).collect();
+            assert_eq!(cells, expected, "{row:?}");
+        }
+        for byte in 0..=255u8 {
+            let word = u64::from_le_bytes([byte, b',', byte, b'-', 0x2d, 0x01, b',', 0x2c ^ 0x80]);
+            let expected = (0..8).fold(0, |bits, k| {
+                let b = word.to_le_bytes()[k];
+                bits | if b == b',' { 0x80 << (8 * k) } else { 0 }
+            });
+            assert_eq!(comma_bytes(word), expected, "{word:#x}");
         }
     }
 

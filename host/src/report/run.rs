@@ -74,6 +74,7 @@ pub fn name_run(line: &str, run_dir: &Path) -> String {
 pub fn run_report(run: &Run, run_dir: &Path) -> String {
     let s = &run.summary;
     let mut body = page_start("kincal calibration report");
+    body.reserve(residual_plot_bytes(run));
     body.push_str(WIDE);
     if !s.not_trustworthy.is_empty() {
         let items: String =
@@ -115,6 +116,25 @@ pub fn run_report(run: &Run, run_dir: &Path) -> String {
     starts(&mut body, s);
     inputs(&mut body, s, run_dir);
     page_end(body)
+}
+
+/// About the size of a scatter plot's point (one `<circle>` element) and of a plot's frame.
+const POINT_BYTES: usize = 80;
+const PLOT_BYTES: usize = 4096;
+
+/// About the bytes of the sessions' residual plots, reserved for the page at its start: they are
+/// most of it (megabytes), and growing the page as they are written copied it again and again.
+fn residual_plot_bytes(run: &Run) -> usize {
+    run.held_out
+        .iter()
+        .chain(&run.calibration_residuals)
+        .map(|session| {
+            let joints = session.points.iter().map(|p| p.q_deg.len()).max().unwrap_or(0);
+            // Size, three components, orientation, and one plot per joint.
+            let plots = 5 + joints;
+            plots * (PLOT_BYTES + POINT_BYTES * session.points.len())
+        })
+        .sum()
 }
 
 fn verdict(body: &mut String, s: &Summary, run_dir: &Path) {
@@ -251,7 +271,9 @@ fn residual_plots(body: &mut String, points: &[PointResidual], base: &str) {
     if points.is_empty() {
         return;
     }
-    let size = |p: &PointResidual| p.residual_mm.iter().map(|v| v * v).sum::<f64>().sqrt();
+    // Each point's size once, for its plot against the order and those against each joint.
+    let sizes: Vec<f64> =
+        points.iter().map(|p| p.residual_mm.iter().map(|v| v * v).sum::<f64>().sqrt()).collect();
     let (order, order_label) = order_axis(points);
     let against = |values: &dyn Fn(&PointResidual) -> f64| -> Vec<(f64, f64)> {
         order.iter().zip(points).map(|(x, p)| (*x, values(p))).collect()
@@ -262,7 +284,8 @@ fn residual_plots(body: &mut String, points: &[PointResidual], base: &str) {
          point against {order_label}: its size, then its x, y and z components. A trend or a \
          period here is drift or a cause that repeats with the motion.</p>"
     );
-    scatter_figure(body, &against(&size), order_label, "|residual| (mm)");
+    let size_points: Vec<(f64, f64)> = order.iter().copied().zip(sizes.iter().copied()).collect();
+    scatter_figure(body, &size_points, order_label, "|residual| (mm)");
     for (k, axis) in ["x", "y", "z"].iter().enumerate() {
         scatter_figure(body, &against(&|p| p.residual_mm[k]), order_label, &format!("{axis} residual (mm)"));
     }
@@ -278,7 +301,8 @@ fn residual_plots(body: &mut String, points: &[PointResidual], base: &str) {
     );
     let joints = points.iter().map(|p| p.q_deg.len()).max().unwrap_or(0);
     for j in 0..joints {
-        let pts: Vec<(f64, f64)> = points.iter().filter_map(|p| Some((*p.q_deg.get(j)?, size(p)))).collect();
+        let pts: Vec<(f64, f64)> =
+            points.iter().zip(&sizes).filter_map(|(p, size)| Some((*p.q_deg.get(j)?, *size))).collect();
         scatter_figure(body, &pts, &format!("q{} (deg)", j + 1), "|residual| (mm)");
     }
 }

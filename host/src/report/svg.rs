@@ -40,23 +40,25 @@ impl Frame {
             x1 - x0,
             y0 - y1
         );
+        // Each figure the ticks repeat is formatted once (a page has a hundred plots).
+        let (left, right, label_x) = (x0.to_string(), x1.to_string(), (x0 - 4.0).to_string());
         for v in nice_ticks(self.y) {
             let y = self.py(v);
+            let y_text = y.to_string();
             let _ = write!(
                 out,
-                r##"<line x1="{x0}" x2="{x1}" y1="{y}" y2="{y}" stroke="#eee"/><text x="{}" y="{}" text-anchor="end">{}</text>"##,
-                x0 - 4.0,
+                r##"<line x1="{left}" x2="{right}" y1="{y_text}" y2="{y_text}" stroke="#eee"/><text x="{label_x}" y="{}" text-anchor="end">{}</text>"##,
                 y + 4.0,
                 tick(v, self.y)
             );
         }
         if x_ticks {
+            let label_y = (y0 + 14.0).to_string();
             for u in nice_ticks(self.x) {
                 let _ = write!(
                     out,
-                    r#"<text x="{}" y="{}" text-anchor="middle">{}</text>"#,
+                    r#"<text x="{}" y="{label_y}" text-anchor="middle">{}</text>"#,
                     self.px(u),
-                    y0 + 14.0,
                     tick(u, self.x)
                 );
             }
@@ -102,42 +104,149 @@ fn tenths(px: f64) -> Option<(bool, u64)> {
     Some((px.is_sign_negative(), whole.unsigned_abs() + u64::from(fraction > 0.5)))
 }
 
-/// Write `<circle cx="X" cy="Y" ` with the coordinates as `{:.1}` writes them; the caller writes
-/// the rest of the element.
-fn open_circle(out: &mut String, cx: f64, cy: f64) {
-    out.push_str(r#"<circle cx=""#);
-    push_tenths(out, cx);
-    out.push_str(r#"" cy=""#);
-    push_tenths(out, cy);
-    out.push_str(r#"" "#);
+/// A plot's points, `<circle>` elements and the like, as bytes, put on the page at once by
+/// [`Dots::finish`]. A page of scatter plots is mostly these elements (a tracker run's report:
+/// 48 000 of them). Digits written as bytes must be checked as UTF-8 before a `String` takes
+/// them, and a copy of a piece of varying length is a library call: so each element is put
+/// together in a buffer of fixed size, copied whole, and the plot's text is checked once.
+struct Dots {
+    bytes: Vec<u8>,
+    /// The rest of each circle element after its coordinates.
+    tail: String,
+    /// The tail padded to a fixed size, when it fits.
+    padded_tail: Option<[u8; TAIL_BYTES]>,
 }
 
-/// Write the pixel coordinate `px` as `{:.1}` writes it, by [`tenths`] where it can.
-fn push_tenths(out: &mut String, px: f64) {
-    let Some((negative, tenths)) = tenths(px) else {
-        let _ = write!(out, "{px:.1}");
-        return;
-    };
-    if negative {
-        out.push('-');
+/// Longest tail of a circle element [`Dots`] copies as a block; a longer one is copied as it is.
+const TAIL_BYTES: usize = 64;
+/// The buffer of one element: `<circle cx="` (12 bytes), two coordinates of at most 18 bytes
+/// each, `" cy="` and `" ` (8 bytes), the tail, and room for a coordinate written as a block.
+const ELEMENT_BYTES: usize = 12 + 2 * 18 + 8 + TAIL_BYTES + 8;
+
+impl Dots {
+    /// Room for about `points` circle elements, each ending in `tail`.
+    fn new(points: usize, tail: &str) -> Dots {
+        let padded_tail = (tail.len() <= TAIL_BYTES).then(|| {
+            let mut padded = [0; TAIL_BYTES];
+            padded[..tail.len()].copy_from_slice(tail.as_bytes());
+            padded
+        });
+        Dots { bytes: Vec::with_capacity(points * (48 + tail.len())), tail: tail.to_string(), padded_tail }
     }
-    let mut digits = [0u8; 20];
-    let mut start = digits.len();
-    let mut whole = tenths / 10;
-    loop {
-        start -= 1;
-        digits[start] = b'0' + (whole % 10) as u8;
-        whole /= 10;
-        if whole == 0 {
-            break;
+
+    /// Append `<circle cx="X" cy="Y" ` and the tail, the coordinates as `{:.1}` writes them.
+    fn circle(&mut self, cx: f64, cy: f64) {
+        let mut text = [0u8; ELEMENT_BYTES];
+        text[..12].copy_from_slice(br#"<circle cx=""#);
+        let written = put_tenths(&mut text, 12, cx).and_then(|len| {
+            text[len..len + 6].copy_from_slice(br#"" cy=""#);
+            put_tenths(&mut text, len + 6, cy)
+        });
+        let Some(len) = written else {
+            let head = format!(r#"<circle cx="{cx:.1}" cy="{cy:.1}" "#);
+            self.bytes.extend_from_slice(head.as_bytes());
+            self.bytes.extend_from_slice(self.tail.as_bytes());
+            return;
+        };
+        text[len..len + 2].copy_from_slice(br#"" "#);
+        let len = len + 2;
+        match &self.padded_tail {
+            Some(padded) => {
+                text[len..len + TAIL_BYTES].copy_from_slice(padded);
+                let start = self.bytes.len();
+                self.bytes.extend_from_slice(&text);
+                self.bytes.truncate(start + len + self.tail.len());
+            }
+            None => {
+                self.bytes.extend_from_slice(&text[..len]);
+                self.bytes.extend_from_slice(self.tail.as_bytes());
+            }
         }
     }
-    for &d in &digits[start..] {
-        out.push(char::from(d));
+
+    /// Put the plot's points on the page. Every piece written is text, so the bytes are text;
+    /// `from_utf8_lossy` would check them a byte at a time, `from_utf8` a word at a time.
+    fn finish(self, out: &mut String) {
+        match std::str::from_utf8(&self.bytes) {
+            Ok(text) => out.push_str(text),
+            Err(_) => out.push_str(&String::from_utf8_lossy(&self.bytes)),
+        }
     }
-    out.push('.');
-    out.push(char::from(b'0' + (tenths % 10) as u8));
 }
+
+impl Write for Dots {
+    fn write_str(&mut self, s: &str) -> std::fmt::Result {
+        self.bytes.extend_from_slice(s.as_bytes());
+        Ok(())
+    }
+}
+
+/// Write the pixel coordinate `px` into `text` at `at` as `{:.1}` writes it, by [`tenths`];
+/// where the text ends, or `None` where only the formatter can tell. It takes at most 18 bytes
+/// (a sign, 15 digits, the point and a tenth) and may write a byte beyond its end.
+#[inline]
+fn put_tenths(text: &mut [u8; ELEMENT_BYTES], at: usize, px: f64) -> Option<usize> {
+    let (negative, tenths) = tenths(px)?;
+    let at = if negative {
+        text[at] = b'-';
+        at + 1
+    } else {
+        at
+    };
+    if tenths < 10_000 {
+        // Below 1000 px (every coordinate of a plot in its frame): the whole part and the point
+        // from a table, written as a block.
+        let whole = (tenths / 10) as usize;
+        text[at..at + 4].copy_from_slice(&WHOLE_AND_POINT[whole]);
+        let end = at + 2 + usize::from(whole >= 10) + usize::from(whole >= 100);
+        text[end] = b'0' + (tenths % 10) as u8;
+        return Some(end + 1);
+    }
+    let mut whole = tenths / 10;
+    let digits = 1 + POWERS_OF_TEN.iter().take_while(|&&p| whole >= p).count();
+    let end = at + digits;
+    for slot in text[at..end].iter_mut().rev() {
+        *slot = b'0' + (whole % 10) as u8;
+        whole /= 10;
+    }
+    text[end] = b'.';
+    text[end + 1] = b'0' + (tenths % 10) as u8;
+    Some(end + 2)
+}
+
+/// The text of each whole number below 1000 and a point after it (`5.`, `42.`, `123.`), padded
+/// to four bytes.
+const WHOLE_AND_POINT: [[u8; 4]; 1000] = {
+    let mut table = [[0u8; 4]; 1000];
+    let mut n = 0;
+    while n < 1000 {
+        table[n] = if n < 10 {
+            [ascii_digit(n), b'.', 0, 0]
+        } else if n < 100 {
+            [ascii_digit(n / 10), ascii_digit(n), b'.', 0]
+        } else {
+            [ascii_digit(n / 100), ascii_digit(n / 10), ascii_digit(n), b'.']
+        };
+        n += 1;
+    }
+    table
+};
+
+/// The last decimal digit of `n` as ASCII.
+const fn ascii_digit(n: usize) -> u8 {
+    b'0' + (n % 10) as u8
+}
+
+/// 10, 100, … 10¹⁴: a whole number of tenths below 10¹⁵ has at most 15 digits before the point.
+const POWERS_OF_TEN: [u64; 14] = {
+    let mut powers = [10u64; 14];
+    let mut k = 1;
+    while k < powers.len() {
+        powers[k] = powers[k - 1] * 10;
+        k += 1;
+    }
+    powers
+};
 
 /// A pixel coordinate that SVG can hold: never `inf` or `NaN`, even for a value outside the
 /// axis range (it lands far off the canvas instead).
@@ -295,15 +404,24 @@ pub fn bars(categories: &[String], series: &[(&str, Vec<f64>)], y_label: &str) -
 /// beyond the data. Points outside are drawn at the edge and counted.
 pub(crate) fn robust_range(values: &[f64]) -> (f64, f64) {
     let mut v: Vec<f64> = values.iter().copied().filter(|x| x.abs() <= PLOTTABLE).collect();
-    let (first, last) = (v.iter().copied().min_by(f64::total_cmp), v.iter().copied().max_by(f64::total_cmp));
-    let (Some(first), Some(last)) = (first, last) else {
+    if v.is_empty() {
         return (f64::INFINITY, f64::NEG_INFINITY);
+    }
+    let rank = |p: f64| ((v.len() - 1) as f64 * p).round() as usize;
+    let (low_rank, high_rank) = (rank(0.02), rank(0.98));
+    // The second rank is selected among the values above the first, and each extreme among the
+    // values beyond its rank: no pass over all of them after the first selection. Values equal
+    // in the total order are the same bits, so the figures are those of a full sort.
+    let smaller = |a: f64, b: f64| if b.total_cmp(&a).is_lt() { b } else { a };
+    let larger = |a: f64, b: f64| if b.total_cmp(&a).is_gt() { b } else { a };
+    let (below, &mut lo, above) = v.select_nth_unstable_by(low_rank, f64::total_cmp);
+    let first = below.iter().copied().fold(lo, smaller);
+    let (hi, last) = if high_rank == low_rank {
+        (lo, above.iter().copied().fold(lo, larger))
+    } else {
+        let (_, &mut hi, top) = above.select_nth_unstable_by(high_rank - low_rank - 1, f64::total_cmp);
+        (hi, top.iter().copied().fold(hi, larger))
     };
-    let mut q = |p: f64| {
-        let rank = ((v.len() - 1) as f64 * p).round() as usize;
-        *v.select_nth_unstable_by(rank, f64::total_cmp).1
-    };
-    let (lo, hi) = (q(0.02), q(0.98));
     let margin = 0.5 * (hi - lo);
     ((lo - margin).max(first), (hi + margin).min(last))
 }
@@ -362,6 +480,7 @@ fn scatter_on_into(
     frame.open(out, x_label, y_label, true);
     let dot = format!(r#"r="1.6" fill="{}" fill-opacity="0.5"/>"#, COLORS[1]);
     let mut beyond = 0;
+    let mut dots = Dots::new(points.len(), &dot);
     for (x, y) in points {
         let clipped = y.clamp(frame.y.0, frame.y.1);
         if clipped != *y {
@@ -369,7 +488,7 @@ fn scatter_on_into(
             let (cx, cy) = (frame.px(*x), frame.py(clipped));
             let dir = if *y > clipped { -1.0 } else { 1.0 };
             let _ = write!(
-                out,
+                dots,
                 r#"<polygon points="{:.1},{:.1} {:.1},{:.1} {:.1},{:.1}" fill="{}"/>"#,
                 cx,
                 cy + dir * 0.5,
@@ -381,9 +500,9 @@ fn scatter_on_into(
             );
             continue;
         }
-        open_circle(out, frame.px(*x), frame.py(*y));
-        out.push_str(&dot);
+        dots.circle(frame.px(*x), frame.py(*y));
     }
+    dots.finish(out);
     // The curve as polylines, broken where its x steps jump (a gap in the data).
     let step = curve.windows(2).map(|w| w[1].0 - w[0].0).filter(|d| *d > 0.0).fold(f64::INFINITY, f64::min);
     let mut runs: Vec<Vec<(f64, f64)>> = Vec::new();
@@ -443,10 +562,11 @@ pub fn timeline(series: &[(&str, &[(f64, f64)])], marks: &[f64], x_label: &str, 
     }
     for (k, (_, points)) in series.iter().enumerate() {
         let dot = format!(r#"r="1.6" fill="{}" fill-opacity="0.6"/>"#, COLORS[k % COLORS.len()]);
+        let mut dots = Dots::new(points.len(), &dot);
         for (x, y) in points.iter() {
-            open_circle(&mut out, frame.px(*x), frame.py(y.clamp(frame.y.0, frame.y.1)));
-            out.push_str(&dot);
+            dots.circle(frame.px(*x), frame.py(y.clamp(frame.y.0, frame.y.1)));
         }
+        dots.finish(&mut out);
     }
     legend(&mut out, &frame, &series.iter().map(|s| s.0).collect::<Vec<_>>());
     out + "</svg>"
@@ -586,19 +706,21 @@ pub fn hammer_map(points: &[(f64, f64, f64)], label: &str) -> String {
         w / 2.0 - 20.0,
         h / 2.0 - 30.0
     );
+    let mut dots = Dots::new(points.len(), "");
     for &(lon, lat, v) in points {
         let (x, y) = project(lon, lat);
         let (x, y) = (on_canvas(x), on_canvas(y));
         let f = if v.is_nan() { 0.0 } else { (v / top).clamp(0.0, 1.0) };
-        open_circle(&mut out, x, y);
+        dots.circle(x, y);
         let _ = write!(
-            out,
+            dots,
             r#"r="2.2" fill="rgb({},{},{})"/>"#,
             (255.0 * f) as u8,
             60,
             (255.0 * (1.0 - f)) as u8
         );
     }
+    dots.finish(&mut out);
     let _ = write!(
         out,
         r#"<text x="10" y="{}">{} — blue 0, red {:.3}</text></svg>"#,
@@ -616,11 +738,14 @@ mod tests {
     #[test]
     fn coordinates_are_written_as_the_formatter_writes_them() {
         let written = |px: f64| {
+            let tail = r#"r="1"/>"#;
+            let mut dots = Dots::new(1, tail);
+            dots.circle(px, -px);
             let mut out = String::new();
-            open_circle(&mut out, px, -px);
+            dots.finish(&mut out);
             out
         };
-        let formatted = |px: f64| format!(r#"<circle cx="{px:.1}" cy="{:.1}" "#, -px);
+        let formatted = |px: f64| format!(r#"<circle cx="{px:.1}" cy="{:.1}" r="1"/>"#, -px);
         let mut rng = 0x2545_f491_4f6c_dd1d_u64;
         for k in 0..40_000 {
             rng ^= rng << 13;
@@ -672,6 +797,35 @@ mod tests {
         for px in edges {
             assert_eq!(written(px), formatted(px), "{px}");
         }
+        // Every tenth below 1000 px, and beside it.
+        for tenths in 0..10_000 {
+            let px = f64::from(tenths) / 10.0;
+            for px in [px, px + 0.03, px - 0.04] {
+                assert_eq!(written(px), formatted(px), "{px}");
+            }
+        }
+        // Each count of digits, at and beside its powers of ten.
+        for k in 0..15 {
+            let power = 10f64.powi(k);
+            for px in [power, power - 0.05, power - 0.04, power + 0.04, power + 0.06, 9.96 * power] {
+                assert_eq!(written(px), formatted(px), "{px}");
+                assert_eq!(written(-px), formatted(-px), "{}", -px);
+            }
+        }
+        // A tail too long for the element's buffer is written after it, and the elements of a
+        // plot follow one another.
+        for tail in ["x".repeat(TAIL_BYTES), "y".repeat(TAIL_BYTES + 1), String::new()] {
+            let mut dots = Dots::new(2, &tail);
+            dots.circle(1.25, 2.0);
+            dots.circle(-1e7, 999.96);
+            let mut out = String::from("<svg>");
+            dots.finish(&mut out);
+            let expected = format!(
+                r#"<svg><circle cx="{:.1}" cy="2.0" {tail}<circle cx="{:.1}" cy="{:.1}" {tail}"#,
+                1.25, -1e7, 999.96
+            );
+            assert_eq!(out, expected);
+        }
         // The integer path, not the formatter's, writes these: beside a half the fraction
         // rounds, and zero keeps its sign.
         assert_eq!(tenths(0.26), Some((false, 3)));
@@ -692,6 +846,40 @@ mod tests {
         far[0] = 1e5;
         assert_eq!(robust_range(&far), (0.0, 146.0));
         assert_eq!(robust_range(&[f64::NAN]), (f64::INFINITY, f64::NEG_INFINITY));
+        // The same figures, to the bit, as the quantiles and extremes of a full sort.
+        let sorted_range = |values: &[f64]| {
+            let mut v: Vec<f64> = values.iter().copied().filter(|x| x.abs() <= PLOTTABLE).collect();
+            v.sort_by(f64::total_cmp);
+            let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+            let (lo, hi) = (q(0.02), q(0.98));
+            let margin = 0.5 * (hi - lo);
+            ((lo - margin).max(v[0]), (hi + margin).min(v[v.len() - 1]))
+        };
+        let mut rng = 0x2545_f491_4f6c_dd1d_u64;
+        for n in 1..400 {
+            let values: Vec<f64> = (0..n)
+                .map(|_| {
+                    rng ^= rng << 13;
+                    rng ^= rng >> 7;
+                    rng ^= rng << 17;
+                    // Repeated values, both zeros, and values no plot takes.
+                    match rng % 16 {
+                        0 => -0.0,
+                        1 => 0.0,
+                        2 => f64::NAN,
+                        3 => -1e300,
+                        _ => ((rng >> 11) % 64) as f64 - 32.0 + if rng.is_multiple_of(3) { 0.5 } else { 0.0 },
+                    }
+                })
+                .collect();
+            let (lo, hi) = robust_range(&values);
+            if values.iter().all(|x| x.abs() > PLOTTABLE || x.is_nan()) {
+                assert_eq!((lo, hi), (f64::INFINITY, f64::NEG_INFINITY));
+                continue;
+            }
+            let (a, b) = sorted_range(&values);
+            assert_eq!((lo.to_bits(), hi.to_bits()), (a.to_bits(), b.to_bits()), "{values:?}");
+        }
     }
 
     #[test]

@@ -381,6 +381,50 @@ mod tests {
         }
     }
 
+    /// Two poses carried together without columns are, to the bit, the two carried alone: the
+    /// DH arms (a tool point, a scale) through the two-pose kernel; a URDF arm and DH arms with a
+    /// compliance or an encoder harmonic through the general pass. A pose with a NaN angle
+    /// leaves the other lane as it is, and a pose lacking angles reads them as zero in either.
+    #[test]
+    fn two_poses_without_columns_are_the_two_alone() {
+        let mut urdf = arm(Convention::Urdf);
+        for joint in &mut urdf.joints {
+            joint.origin_xyz_mm = [joint.a_mm, 0.0, joint.d_mm];
+        }
+        let mut compliant = arm(Convention::Classic);
+        compliant.joints[1].compliance_deg_per_m = 0.5;
+        let mut harmonic = arm(Convention::Modified);
+        harmonic.joints[2].eccentricity_sin_deg = 0.03;
+        let models = [(arm(Convention::Classic), true), (arm(Convention::Modified), true)];
+        for (model, kernel) in
+            models.into_iter().chain([(urdf, false), (compliant, false), (harmonic, false)])
+        {
+            let chain = Chain::new(&model);
+            assert_eq!(chain.kernel(None).is_some(), kernel, "{:?}", model.convention);
+            for pose in 0..12 {
+                let mut enc: [Vec<f64>; 2] = [0, 1].map(|lane| {
+                    (0..7).map(|j| ((pose * 14 + lane * 7 + j) as f64 * 0.41).cos() * 165.0).collect()
+                });
+                match pose {
+                    3 => enc[1][4] = f64::NAN,
+                    4 => enc[0][0] = f64::NAN,
+                    5 => enc[1].truncate(5),
+                    _ => {}
+                }
+                let sin_cos = enc.clone().map(|e| e.iter().map(|&q| encoder_sin_cos(q)).collect::<Vec<_>>());
+                let pair = chain.pose_pair_with_sin_cos([&enc[0], &enc[1]], [&sin_cos[0], &sin_cos[1]]);
+                let bits = |p: &ToolPose| [p.position_mm, p.x_axis, p.z_axis].map(|v| v.map(f64::to_bits));
+                for lane in 0..2 {
+                    let alone = chain.pose_with_sin_cos(&enc[lane], &sin_cos[lane]);
+                    let label = format!("{:?} kernel {kernel} pose {pose} lane {lane}", model.convention);
+                    assert_eq!(bits(&pair[lane]), bits(&alone), "{label}");
+                    let nan = enc[lane].iter().any(|q| q.is_nan());
+                    assert_eq!(alone.position_mm.x.is_nan(), nan, "{label}");
+                }
+            }
+        }
+    }
+
     /// The columns of the position alone are the full columns' positions to the bit (their
     /// finish is a loop of its own), the axes' derivatives zero: both conventions (offsets, β
     /// tilts, a scale other than one) and a URDF arm (the general pass).

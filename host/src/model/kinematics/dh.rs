@@ -184,19 +184,7 @@ impl Chain<'_> {
         };
         let modified = self.model.convention == Convention::Modified;
         for row in rows {
-            let j = row.joint;
-            let mut theta = (Lanes::splat(0.0), Lanes::splat(1.0));
-            for (i, &(enc_deg, enc_sin_cos)) in enc.iter().enumerate() {
-                (theta.0 .0[i], theta.1 .0[i]) = match enc_sin_cos.and_then(|sc| sc.get(j)) {
-                    Some(&(s, c)) => {
-                        let (so, co) = self.offset_sin_cos[j];
-                        (s * co + c * so, c * co - s * so)
-                    }
-                    None => ((enc_deg.get(j).copied().unwrap_or(0.0) + self.model.joints[j].offset_deg)
-                        * DEG)
-                        .sin_cos(),
-                };
-            }
+            let theta = self.theta_sin_cos(row.joint, enc);
             let alpha = (Lanes::splat(row.alpha.0), Lanes::splat(row.alpha.1));
             if modified {
                 pass.turn(0, alpha, row.slots[3]);
@@ -216,6 +204,30 @@ impl Chain<'_> {
             pass.shift(k, tool.0, tool.1);
         }
         ([pass.origin, pass.axes[0], pass.axes[2]], pass.written)
+    }
+
+    /// The sine and cosine of joint j's angle θ = φ + δθ per pose: by angle addition of the
+    /// encoder's kept sine and cosine and the offset's (every lane in one go when every pose has
+    /// them kept: the same operations on each), else one sine and cosine of θ.
+    #[inline(always)]
+    fn theta_sin_cos<const N: usize>(&self, j: usize, enc: &[Encoders<'_>; N]) -> (Lanes<N>, Lanes<N>) {
+        let (so, co) = self.offset_sin_cos[j];
+        let kept = enc.map(|(_, sin_cos)| sin_cos.and_then(|sc| sc.get(j)).copied());
+        if kept.iter().all(Option::is_some) {
+            let sin_cos = kept.map(Option::unwrap_or_default);
+            let (s, c) = (Lanes(sin_cos.map(|sc| sc.0)), Lanes(sin_cos.map(|sc| sc.1)));
+            let (so, co) = (Lanes::splat(so), Lanes::splat(co));
+            return (s * co + c * so, c * co - s * so);
+        }
+        let mut theta = (Lanes::splat(0.0), Lanes::splat(1.0));
+        for (i, (&(enc_deg, _), kept)) in enc.iter().zip(kept).enumerate() {
+            (theta.0 .0[i], theta.1 .0[i]) = match kept {
+                Some((s, c)) => (s * co + c * so, c * co - s * so),
+                None => ((enc_deg.get(j).copied().unwrap_or(0.0) + self.model.joints[j].offset_deg) * DEG)
+                    .sin_cos(),
+            };
+        }
+        theta
     }
 }
 

@@ -3,7 +3,7 @@
 //! iteration, validated arm or diagnosis takes the sine of the same angle again.
 
 use super::{Observation, Observations};
-use crate::model::kinematics::{encoder_sin_cos, Chain, ToolPose};
+use crate::model::kinematics::{encoder_sin_cos, Chain, Tips, ToolPose};
 use crate::model::MAX_TREE_JOINTS;
 use std::sync::{Arc, OnceLock};
 
@@ -72,20 +72,78 @@ impl Encoders {
     /// `f` of observation `o`'s sines and cosines: row `k` when it holds `o`'s angles, else
     /// [`encoder_sin_cos`] of each angle taken here (the same values), whatever the table holds.
     pub fn with_row<R>(&self, k: usize, o: &Observation, f: impl FnOnce(&[(f64, f64)]) -> R) -> R {
+        f(self.row(k, o, &mut None))
+    }
+
+    /// Observation `o`'s sines and cosines as [`Encoders::with_row`] hands them over: row `k`, or
+    /// those of its angles written to `own` (set up only then: most poses read the table).
+    fn row<'r>(
+        &'r self,
+        k: usize,
+        o: &Observation,
+        own: &'r mut Option<[(f64, f64); MAX_TREE_JOINTS]>,
+    ) -> &'r [(f64, f64)] {
         if k < self.rows() && self.holds(k, o) {
-            return f(&self.table[k * self.joints..(k + 1) * self.joints]);
+            return &self.table[k * self.joints..(k + 1) * self.joints];
         }
-        let mut own = [(0.0, 1.0); MAX_TREE_JOINTS];
+        let own = own.insert([(0.0, 1.0); MAX_TREE_JOINTS]);
         for (sc, &q) in own.iter_mut().zip(o.q_deg.iter()) {
             *sc = encoder_sin_cos(q);
         }
-        f(&own[..o.q_deg.len()])
+        &own[..o.q_deg.len()]
     }
 
     /// Observation `o` (row `k`)'s tool pose on `chain` (its tip's): [`Chain::pose_with_sin_cos`]
     /// of its row ([`Encoders::with_row`]).
     pub fn pose(&self, chain: &Chain, k: usize, o: &Observation) -> ToolPose {
         self.with_row(k, o, |sin_cos| chain.pose_with_sin_cos(&o.q_deg, sin_cos))
+    }
+
+    /// `f` of each observation `k` of `members` (indices into `obs`, whose row k this table's
+    /// row k is meant to be) and its tool pose on its tip's chain of `tips`, in `members`' order:
+    /// [`Encoders::pose`] to the bit, taken two at a time where consecutive members share a
+    /// chain ([`Chain::pose_pair_with_sin_cos`]).
+    pub fn for_each_pose(
+        &self,
+        tips: &Tips,
+        obs: &[Observation],
+        members: impl IntoIterator<Item = usize>,
+        mut f: impl FnMut(usize, &ToolPose),
+    ) {
+        let same_chain = |a: usize, b: usize| {
+            let (ta, tb) = (obs[a].tip, obs[b].tip);
+            ta == tb || std::ptr::eq(tips.tip(ta), tips.tip(tb))
+        };
+        let mut own = [None, None];
+        for (a, second) in pairs(members.into_iter(), same_chain) {
+            let [own_a, own_b] = &mut own;
+            let oa = &obs[a];
+            let rows_a = self.row(a, oa, own_a);
+            let chain = tips.tip(oa.tip);
+            match second {
+                Some(b) => {
+                    let ob = &obs[b];
+                    let [pa, pb] = chain
+                        .pose_pair_with_sin_cos([&oa.q_deg, &ob.q_deg], [rows_a, self.row(b, ob, own_b)]);
+                    f(a, &pa);
+                    f(b, &pb);
+                }
+                None => f(a, &chain.pose_with_sin_cos(&oa.q_deg, rows_a)),
+            }
+        }
+    }
+
+    /// The tool pose of each observation `members` of `obs` on its tip's chain of `tips`, in
+    /// order ([`Encoders::for_each_pose`]).
+    pub fn poses_on(
+        &self,
+        tips: &Tips,
+        obs: &[Observation],
+        members: impl ExactSizeIterator<Item = usize>,
+    ) -> Vec<ToolPose> {
+        let mut poses = Vec::with_capacity(members.len());
+        self.for_each_pose(tips, obs, members, |_, pose| poses.push(*pose));
+        poses
     }
 
     /// The table of `data`: its own when built and every row still holds its observation's
@@ -134,6 +192,18 @@ impl Encoders {
         }
         Encoders { joints, angles: angles.into(), table: table.into() }
     }
+}
+
+/// `members` in order, two at a time where `same` holds of the first and the next (else one).
+fn pairs(
+    members: impl Iterator<Item = usize>,
+    same: impl Fn(usize, usize) -> bool,
+) -> impl Iterator<Item = (usize, Option<usize>)> {
+    let mut members = members.peekable();
+    std::iter::from_fn(move || {
+        let first = members.next()?;
+        Some((first, members.next_if(|&next| same(first, next))))
+    })
 }
 
 /// The [`Encoders`] of a set of observations, built at its first use. It is no part of their
@@ -251,6 +321,71 @@ mod tests {
                 assert_eq!((table, own), (plain, plain));
             }
         }
+    }
+
+    /// Poses taken two at a time ([`Encoders::for_each_pose`], [`Encoders::poses_on`]) are
+    /// [`Encoders::pose`]'s to the bit and in the members' order: DH arms with a tool point (the
+    /// two-pose kernel), a URDF arm, a compliance and an encoder harmonic (the general pass);
+    /// every count of members (the last of an odd count alone), a selection out of order; a NaN
+    /// angle in the table, a touch lacking angles, a row no longer holding its angles (posed from
+    /// its own), a touch naming a tip the model lacks (its first chain's).
+    #[test]
+    fn poses_two_at_a_time_are_the_poses_alone() {
+        let mut data = touches();
+        data.obs[4].q_deg[3] = f64::NAN;
+        data.obs[9].tip = 1;
+        data.encoders();
+        data.obs[7].q_deg[1] += 0.5;
+        let mut urdf = offset_arm(Convention::Urdf);
+        for joint in &mut urdf.joints {
+            joint.origin_xyz_mm = [joint.a_mm, 0.0, joint.d_mm];
+        }
+        let mut compliant = offset_arm(Convention::Classic);
+        compliant.joints[2].compliance_deg_per_m = 0.4;
+        let mut harmonic = offset_arm(Convention::Modified);
+        harmonic.joints[1].eccentricity_cos_deg = -0.02;
+        let selections: Vec<Vec<usize>> =
+            (0..=12).map(|n| (0..n).collect()).chain([vec![11, 3, 4, 8, 7], vec![9, 2]]).collect();
+        for mut model in
+            [offset_arm(Convention::Classic), offset_arm(Convention::Modified), urdf, compliant, harmonic]
+        {
+            model.tcp_mm = [14.0, -6.0, 180.0];
+            let tips = Tips::new(&model);
+            let encoders = data.encoders();
+            for members in &selections {
+                let mut paired = Vec::new();
+                encoders.for_each_pose(&tips, &data.obs, members.iter().copied(), |k, pose| {
+                    paired.push((k, *pose))
+                });
+                let bits = |p: &ToolPose| [p.position_mm, p.x_axis, p.z_axis].map(|v| v.map(f64::to_bits));
+                let alone: Vec<(usize, ToolPose)> = members
+                    .iter()
+                    .map(|&k| (k, encoders.pose(tips.tip(data.obs[k].tip), k, &data.obs[k])))
+                    .collect();
+                let label = format!("{:?} {members:?}", model.convention);
+                assert_eq!(paired.len(), alone.len(), "{label}");
+                for ((k, p), (m, a)) in paired.iter().zip(&alone) {
+                    assert_eq!((k, bits(p)), (m, bits(a)), "{label}");
+                    assert_eq!(p.position_mm.x.is_nan(), *k == 4, "{label} {k}");
+                }
+                let listed = encoders.poses_on(&tips, &data.obs, members.iter().copied());
+                assert!(listed.iter().zip(&alone).all(|(l, (_, a))| bits(l) == bits(a)), "{label}");
+                assert_eq!(listed.len(), alone.len());
+            }
+        }
+    }
+
+    /// Members pair up two at a time while they share a chain; one left over (an odd run, a
+    /// chain change) is taken alone.
+    #[test]
+    fn consecutive_members_of_one_chain_pair_up() {
+        let chains = [0, 0, 1, 1, 1, 0, 2, 2];
+        let same = |a: usize, b: usize| chains[a] == chains[b];
+        let got: Vec<_> = pairs(0..8, same).collect();
+        assert_eq!(got, [(0, Some(1)), (2, Some(3)), (4, None), (5, None), (6, Some(7))]);
+        let got: Vec<_> = pairs([7, 6, 0].into_iter(), same).collect();
+        assert_eq!(got, [(7, Some(6)), (0, None)]);
+        assert_eq!(pairs(0..0, same).count(), 0);
     }
 
     /// A selection of observations whose table is built reads that table (its rows not copied

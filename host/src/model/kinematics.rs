@@ -571,6 +571,21 @@ impl<'m> Chain<'m> {
         self.finish(frame, Some((columns, &mut jacs)))
     }
 
+    /// As [`Chain::pose_with_sin_cos`] for two poses: carried through the chain together (two to
+    /// an SSE2 register) when the chain takes the DH kernel, else one after the other; to the bit
+    /// what two calls give.
+    pub fn pose_pair_with_sin_cos(
+        &self,
+        enc_deg: [&[f64]; 2],
+        enc_sin_cos: [&[(f64, f64)]; 2],
+    ) -> [ToolPose; 2] {
+        let enc = [(enc_deg[0], Some(enc_sin_cos[0])), (enc_deg[1], Some(enc_sin_cos[1]))];
+        match self.kernel(None) {
+            Some(rows) => self.finish(self.dh_columns(rows, enc, None), None),
+            None => enc.map(|(deg, sin_cos)| self.general_pass(deg, sin_cos, None)),
+        }
+    }
+
     /// The pose and the wanted columns by one pass over the chain's ops (see the module doc).
     fn general_pass(
         &self,

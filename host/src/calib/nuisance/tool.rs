@@ -39,8 +39,7 @@ pub fn model_points(
     members: impl IntoIterator<Item = usize>,
     offset_mm: &Vector3<f64>,
 ) -> Vec<Vector3<f64>> {
-    let tips = Tips::new(model);
-    members.into_iter().map(|k| with_offset(&data.pose_on(&tips, k), offset_mm)).collect()
+    PoseSource::Posed(Tips::new(model), data).map(members.into_iter(), |_, pose| with_offset(pose, offset_mm))
 }
 
 /// The tool pose of every observation of `data` on a model, taken once for the several figures a
@@ -54,8 +53,8 @@ pub struct ModelPoses<'a> {
 impl<'a> ModelPoses<'a> {
     /// Every observation of `data` on `model` (on its tip's chain).
     pub fn of(model: &'a ArmModel, data: &'a Observations) -> ModelPoses<'a> {
-        let tips = Tips::new(model);
-        ModelPoses { model, data, poses: (0..data.obs.len()).map(|k| data.pose_on(&tips, k)).collect() }
+        let poses = data.encoders().poses_on(&Tips::new(model), &data.obs, 0..data.obs.len());
+        ModelPoses { model, data, poses }
     }
 
     /// The poses, when they are those of `model` on `data` (the very values, not equal copies).
@@ -84,7 +83,7 @@ impl<'a> PoseSource<'a> {
     }
 
     /// `f` of each observation `k` of `members` and its tool pose, in order (the source decided
-    /// once, outside the loop).
+    /// once, outside the loop; posed two at a time, [`crate::data::Encoders::for_each_pose`]).
     pub fn map<T>(
         &self,
         members: impl Iterator<Item = usize>,
@@ -92,7 +91,11 @@ impl<'a> PoseSource<'a> {
     ) -> Vec<T> {
         match self {
             PoseSource::Taken(poses) => members.map(|k| f(k, &poses[k])).collect(),
-            PoseSource::Posed(tips, data) => members.map(|k| f(k, &data.pose_on(tips, k))).collect(),
+            PoseSource::Posed(tips, data) => {
+                let mut out = Vec::with_capacity(members.size_hint().0);
+                data.encoders().for_each_pose(tips, &data.obs, members, |k, pose| out.push(f(k, pose)));
+                out
+            }
         }
     }
 }

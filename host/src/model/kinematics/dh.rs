@@ -184,19 +184,7 @@ impl Chain<'_> {
         };
         let modified = self.model.convention == Convention::Modified;
         for row in rows {
-            let j = row.joint;
-            let mut theta = (Lanes::splat(0.0), Lanes::splat(1.0));
-            for (i, &(enc_deg, enc_sin_cos)) in enc.iter().enumerate() {
-                (theta.0 .0[i], theta.1 .0[i]) = match enc_sin_cos.and_then(|sc| sc.get(j)) {
-                    Some(&(s, c)) => {
-                        let (so, co) = self.offset_sin_cos[j];
-                        (s * co + c * so, c * co - s * so)
-                    }
-                    None => ((enc_deg.get(j).copied().unwrap_or(0.0) + self.model.joints[j].offset_deg)
-                        * DEG)
-                        .sin_cos(),
-                };
-            }
+            let theta = self.theta_sin_cos(row.joint, enc);
             let alpha = (Lanes::splat(row.alpha.0), Lanes::splat(row.alpha.1));
             if modified {
                 pass.turn(0, alpha, row.slots[3]);
@@ -216,6 +204,30 @@ impl Chain<'_> {
             pass.shift(k, tool.0, tool.1);
         }
         ([pass.origin, pass.axes[0], pass.axes[2]], pass.written)
+    }
+
+    /// The sine and cosine of joint j's angle θ = φ + δθ per pose: by angle addition of the
+    /// encoder's kept sine and cosine and the offset's (every lane in one go when every pose has
+    /// them kept: the same operations on each), else one sine and cosine of θ.
+    #[inline(always)]
+    fn theta_sin_cos<const N: usize>(&self, j: usize, enc: &[Encoders<'_>; N]) -> (Lanes<N>, Lanes<N>) {
+        let (so, co) = self.offset_sin_cos[j];
+        let kept = enc.map(|(_, sin_cos)| sin_cos.and_then(|sc| sc.get(j)).copied());
+        if kept.iter().all(Option::is_some) {
+            let sin_cos = kept.map(Option::unwrap_or_default);
+            let (s, c) = (Lanes(sin_cos.map(|sc| sc.0)), Lanes(sin_cos.map(|sc| sc.1)));
+            let (so, co) = (Lanes::splat(so), Lanes::splat(co));
+            return (s * co + c * so, c * co - s * so);
+        }
+        let mut theta = (Lanes::splat(0.0), Lanes::splat(1.0));
+        for (i, (&(enc_deg, _), kept)) in enc.iter().zip(kept).enumerate() {
+            (theta.0 .0[i], theta.1 .0[i]) = match kept {
+                Some((s, c)) => (s * co + c * so, c * co - s * so),
+                None => ((enc_deg.get(j).copied().unwrap_or(0.0) + self.model.joints[j].offset_deg) * DEG)
+                    .sin_cos(),
+            };
+        }
+        theta
     }
 }
 
@@ -376,6 +388,50 @@ mod tests {
                         }
                     }
                     assert_ne!(single[0].position_mm, single[1].position_mm, "two different poses");
+                }
+            }
+        }
+    }
+
+    /// Two poses carried together without columns are, to the bit, the two carried alone: the
+    /// DH arms (a tool point, a scale) through the two-pose kernel; a URDF arm and DH arms with a
+    /// compliance or an encoder harmonic through the general pass. A pose with a NaN angle
+    /// leaves the other lane as it is, and a pose lacking angles reads them as zero in either.
+    #[test]
+    fn two_poses_without_columns_are_the_two_alone() {
+        let mut urdf = arm(Convention::Urdf);
+        for joint in &mut urdf.joints {
+            joint.origin_xyz_mm = [joint.a_mm, 0.0, joint.d_mm];
+        }
+        let mut compliant = arm(Convention::Classic);
+        compliant.joints[1].compliance_deg_per_m = 0.5;
+        let mut harmonic = arm(Convention::Modified);
+        harmonic.joints[2].eccentricity_sin_deg = 0.03;
+        let models = [(arm(Convention::Classic), true), (arm(Convention::Modified), true)];
+        for (model, kernel) in
+            models.into_iter().chain([(urdf, false), (compliant, false), (harmonic, false)])
+        {
+            let chain = Chain::new(&model);
+            assert_eq!(chain.kernel(None).is_some(), kernel, "{:?}", model.convention);
+            for pose in 0..12 {
+                let mut enc: [Vec<f64>; 2] = [0, 1].map(|lane| {
+                    (0..7).map(|j| ((pose * 14 + lane * 7 + j) as f64 * 0.41).cos() * 165.0).collect()
+                });
+                match pose {
+                    3 => enc[1][4] = f64::NAN,
+                    4 => enc[0][0] = f64::NAN,
+                    5 => enc[1].truncate(5),
+                    _ => {}
+                }
+                let sin_cos = enc.clone().map(|e| e.iter().map(|&q| encoder_sin_cos(q)).collect::<Vec<_>>());
+                let pair = chain.pose_pair_with_sin_cos([&enc[0], &enc[1]], [&sin_cos[0], &sin_cos[1]]);
+                let bits = |p: &ToolPose| [p.position_mm, p.x_axis, p.z_axis].map(|v| v.map(f64::to_bits));
+                for lane in 0..2 {
+                    let alone = chain.pose_with_sin_cos(&enc[lane], &sin_cos[lane]);
+                    let label = format!("{:?} kernel {kernel} pose {pose} lane {lane}", model.convention);
+                    assert_eq!(bits(&pair[lane]), bits(&alone), "{label}");
+                    let nan = enc[lane].iter().any(|q| q.is_nan());
+                    assert_eq!(alone.position_mm.x.is_nan(), nan, "{label}");
                 }
             }
         }

@@ -85,6 +85,19 @@ pub fn add_gram_product(
     if m == 0 || k == 0 {
         return;
     }
+    add_upper(h, columns_product(g, (columns, stride, k), weights, r, buffers), k);
+}
+
+/// As [`add_gram_product`], the Gram matrix returned (k × k row-major, its upper triangle, in
+/// `buffers`) instead of added into sums; m and k not zero.
+fn columns_product<'b>(
+    g: &mut [f64],
+    (columns, stride, k): (&[f64], usize, usize),
+    weights: &[f64],
+    r: &[f64],
+    buffers: &'b mut GramBuffers,
+) -> &'b [f64] {
+    let m = weights.len();
     // U = W·D row-major, so that Uᵀ (the product's left factor) is column-major.
     let u = &mut buffers.weighted;
     u.clear();
@@ -95,7 +108,8 @@ pub fn add_gram_product(
         }
     }
     let d = DMatrixView::from_slice_with_strides(&columns[..(k - 1) * stride + m], m, k, 1, stride);
-    add_product(h, g, (u, k, k), &d, r, &mut buffers.product);
+    product_into(g, (u, k, k), &d, r, &mut buffers.product);
+    &buffers.product
 }
 
 /// As [`add_gram`] for the rows of a batch held row-major, `(rows, width, k)`: row i's k
@@ -115,18 +129,31 @@ pub fn add_rows_gram(
     if m == 0 || k == 0 {
         return;
     }
+    add_upper(h, rows_product(g, (rows, width, k), weights, r, buffers), k);
+}
+
+/// As [`add_rows_gram`], the Gram matrix returned (k × k row-major, its upper triangle, in
+/// `buffers`) instead of added into sums, for a caller that adds it where its columns belong;
+/// m and k not zero.
+fn rows_product<'b>(
+    g: &mut [f64],
+    (rows, width, k): (&[f64], usize, usize),
+    weights: &[f64],
+    r: &[f64],
+    buffers: &'b mut GramBuffers,
+) -> &'b [f64] {
+    let m = weights.len();
     let span = (m - 1) * width + k;
     if m <= NALGEBRA_SMALL || k <= NALGEBRA_SMALL {
         // Too small for the crate's product, which reads a row-major D only above that size:
         // packed column-major.
         let packed: Vec<f64> = (0..k).flat_map(|l| rows[l..span].iter().step_by(width).copied()).collect();
-        add_gram_product(h, g, k, &packed, m, weights, r, buffers);
-        return;
+        return columns_product(g, (&packed, m, k), weights, r, buffers);
     }
     let d = DMatrixView::from_slice_with_strides(&rows[..span], m, k, width, 1);
     if weights.iter().all(|&w| w == 1.0) {
-        add_product(h, g, (rows, width, k), &d, r, &mut buffers.product);
-        return;
+        product_into(g, (rows, width, k), &d, r, &mut buffers.product);
+        return &buffers.product;
     }
     let u = &mut buffers.weighted;
     // Only its first m·k entries are written and read: kept at the largest size asked for, never
@@ -135,22 +162,30 @@ pub fn add_rows_gram(
     for ((ui, row), w) in u.chunks_exact_mut(k).zip(rows.chunks(width)).zip(weights) {
         ui.iter_mut().zip(&row[..k]).for_each(|(u, v)| *u = w * v);
     }
-    add_product(h, g, (&u[..m * k], k, k), &d, r, &mut buffers.product);
+    product_into(g, (&u[..m * k], k, k), &d, r, &mut buffers.product);
+    &buffers.product
 }
 
-/// Add Uᵀr into `g` and the upper triangle of UᵀD into `h` (k × k, row-major), `product` the
-/// product's buffer: U (m × k) row-major with row stride `u_stride` (so that Uᵀ is a
-/// column-major view: nalgebra's product for small sizes reads past the end of views with
-/// another row stride); D may have any strides when every dimension is above nalgebra's small
-/// size (5), which hands the product to the `matrixmultiply` crate (any strides, the same sums
-/// as packed).
+/// Add the upper triangle of `product` (k × k, row-major) into `h`'s.
+fn add_upper(h: &mut [f64], product: &[f64], k: usize) {
+    for p in 0..k {
+        let row = p * k + p..(p + 1) * k;
+        h[row.clone()].iter_mut().zip(&product[row]).for_each(|(hq, v)| *hq += v);
+    }
+}
+
+/// Add Uᵀr into `g` and set the upper triangle of UᵀD into `product` (k × k, row-major; the
+/// lower triangle is left partly unset): U (m × k) row-major with row stride `u_stride` (so
+/// that Uᵀ is a column-major view: nalgebra's product for small sizes reads past the end of
+/// views with another row stride); D may have any strides when every dimension is above
+/// nalgebra's small size (5), which hands the product to the `matrixmultiply` crate (any
+/// strides, the same sums as packed).
 ///
 /// Only the upper block triangle is formed: the columns in up to three blocks, each block's
 /// columns against the rows up to its last (a third fewer products than the square). Each
 /// entry's sum runs over the m rows in the crate's order whatever block holds it, so the sums
 /// are the square's to the bit.
-fn add_product(
-    h: &mut [f64],
+fn product_into(
     g: &mut [f64],
     (u, u_stride, k): (&[f64], usize, usize),
     d: &DMatrixView<f64, Dyn, Dyn>,
@@ -159,9 +194,7 @@ fn add_product(
 ) {
     let m = r.len();
     debug_assert!(d.strides().0 == 1 || m.min(k) > NALGEBRA_SMALL);
-    for (ui, ri) in u.chunks(u_stride).zip(r) {
-        g.iter_mut().zip(&ui[..k]).for_each(|(gl, v)| *gl += v * ri);
-    }
+    add_transposed(g, (u, u_stride, k), r);
     let ut = DMatrixView::from_slice_with_strides(&u[..(m - 1) * u_stride + k], k, m, 1, u_stride);
     product.resize(k * k, 0.0);
     let (edges, blocks) = column_blocks(k);
@@ -177,16 +210,30 @@ fn add_product(
         );
         block.gemm(1.0, &ut.rows(0, end), &d.columns(first, end - first), 0.0);
     }
-    for p in 0..k {
-        let row = p * k + p..(p + 1) * k;
-        h[row.clone()].iter_mut().zip(&product[row]).for_each(|(hq, v)| *hq += v);
+}
+
+/// Add Uᵀr into `g` (U as in [`product_into`]), each entry's sum row after row as by one row
+/// at a time, but four rows per pass over `g`: a quarter of its loads and stores.
+fn add_transposed(g: &mut [f64], (u, u_stride, k): (&[f64], usize, usize), r: &[f64]) {
+    let g = &mut g[..k];
+    let row = |i: usize| &u[i * u_stride..i * u_stride + k];
+    let fours = r.chunks_exact(4);
+    let last = fours.remainder();
+    for (i, [r0, r1, r2, r3]) in fours.map(|f| [f[0], f[1], f[2], f[3]]).enumerate() {
+        let rows = row(4 * i).iter().zip(row(4 * i + 1)).zip(row(4 * i + 2)).zip(row(4 * i + 3));
+        for (gl, (((a, b), c), d)) in g.iter_mut().zip(rows) {
+            *gl = *gl + a * r0 + b * r1 + c * r2 + d * r3;
+        }
+    }
+    for (i, ri) in (r.len() - last.len()..).zip(last) {
+        g.iter_mut().zip(row(i)).for_each(|(gl, v)| *gl += v * ri);
     }
 }
 
 /// nalgebra's largest dimension for which its product does not call `matrixmultiply`.
 const NALGEBRA_SMALL: usize = 5;
 
-/// The column blocks of [`add_product`] for k columns: their edges `[0, .., k]` (the first
+/// The column blocks of [`product_into`] for k columns: their edges `[0, .., k]` (the first
 /// count + 1 entries: no allocation per batch) and their count. Three blocks from 48 columns,
 /// two from 24, else one; inner edges on multiples of 8 (the crate's tiles: no partial tiles
 /// inside), which leaves every block of a split wider than [`NALGEBRA_SMALL`].
@@ -215,8 +262,9 @@ pub struct GramBuffers {
 /// Where a term writes its rows itself: rows of a batch that sums them into normal equations.
 pub trait RowTarget {
     /// Room for a term of `rows` rows (at most a batch's) reading the columns of `columns`:
-    /// its rows, zero, for it to write its derivatives into. A term asks once and writes
-    /// every derivative it has.
+    /// its rows, for it to write its derivatives into. A term asks once, over disjoint spans,
+    /// and writes every column of `columns` (the rows are zero at the batch's other columns,
+    /// any values at these).
     fn rows<'a>(&'a mut self, rows: usize, columns: &'a [Range<usize>]) -> TermRows<'a>;
 }
 
@@ -226,6 +274,8 @@ pub struct TermRows<'a> {
     stride: usize,
     local: &'a [usize],
     columns: &'a [Range<usize>],
+    /// Bit i set: span i of `columns` is known to be at consecutive places in its order.
+    in_order: u64,
 }
 
 impl<'a> TermRows<'a> {
@@ -234,7 +284,7 @@ impl<'a> TermRows<'a> {
     /// have a place).
     pub fn new(rows: &'a mut [f64], stride: usize, local: &'a [usize], columns: &'a [Range<usize>]) -> Self {
         debug_assert!(columns.iter().flat_map(Clone::clone).all(|c| local[c] < stride));
-        TermRows { rows, stride, local, columns }
+        TermRows { rows, stride, local, columns, in_order: 0 }
     }
 
     /// The derivatives of the first three rows by column `column`.
@@ -251,13 +301,10 @@ impl<'a> TermRows<'a> {
     /// span some term asked for first); `None` otherwise.
     #[inline]
     pub fn span3(&mut self, span: Range<usize>) -> Option<[&mut [f64]; 3]> {
+        let known =
+            self.columns.iter().zip(0..u64::BITS).any(|(c, i)| self.in_order >> i & 1 == 1 && *c == span);
         let locals = &self.local[span];
-        let first = *locals.first()?;
-        // Every place compared, no early exit: a loop of a few instructions per two columns.
-        let misplaced = locals.iter().zip(first..).fold(0, |any, (&l, expected)| any | (l ^ expected));
-        if misplaced != 0 {
-            return None;
-        }
+        let first = if known { locals[0] } else { first_in_order(locals)? };
         let (stride, count) = (self.stride, locals.len());
         let (row0, rest) = self.rows.split_at_mut(stride);
         let (row1, row2) = rest.split_at_mut(stride);
@@ -273,6 +320,14 @@ impl<'a> TermRows<'a> {
             }
         }
     }
+}
+
+/// The first of `locals` when they are consecutive and in order (and not empty).
+fn first_in_order(locals: &[usize]) -> Option<usize> {
+    let first = *locals.first()?;
+    // Every place compared, no early exit: a loop of a few instructions per two columns.
+    let misplaced = locals.iter().zip(first..).fold(0, |any, (&l, expected)| any | (l ^ expected));
+    (misplaced == 0).then_some(first)
 }
 
 /// Rows a batch holds before its Gram matrix is formed.
@@ -294,15 +349,27 @@ pub struct NormalSums {
     /// The local indices of the term being added by [`NormalSums::add`], one per column it
     /// reads.
     term_locals: Vec<usize>,
+    /// The column spans of the last term given rows by [`RowTarget::rows`] while they are all
+    /// in the batch (empty after a flush): the next term over the same spans (a point of the
+    /// same session) has its columns' places already.
+    placed: Vec<Range<usize>>,
+    /// Bit i set: span i of `placed` is at consecutive places in its order (see
+    /// [`TermRows::span3`]).
+    placed_in_order: u64,
     /// Row stride of the batch: [`BATCH_COLUMNS`], or more after a term that reads more.
     width: usize,
     /// The batch's derivatives D, row-major: row i's local columns at `i * width ..` (zero
-    /// where a term does not read the column).
+    /// where a term does not read the column). Only the batch's rows and columns are kept so;
+    /// the rest holds what earlier batches left (a new column is zeroed over the rows before
+    /// it, a term's rows where it writes less than every column), so that no row is zeroed
+    /// after each batch.
     dense: Vec<f64>,
     r: Vec<f64>,
     w: Vec<f64>,
-    h_local: Vec<f64>,
     g_local: Vec<f64>,
+    /// Per local column, how many local columns from it on hold consecutive columns: the
+    /// batch's Gram matrix is added into the sums a run at a time.
+    runs: Vec<usize>,
     buffers: GramBuffers,
 }
 
@@ -316,12 +383,14 @@ impl NormalSums {
             local: vec![NONE; n],
             globals: Vec::new(),
             term_locals: Vec::new(),
+            placed: Vec::new(),
+            placed_in_order: 0,
             width: BATCH_COLUMNS,
             dense: vec![0.0; BATCH_ROWS * BATCH_COLUMNS],
             r: Vec::with_capacity(BATCH_ROWS),
             w: Vec::with_capacity(BATCH_ROWS),
-            h_local: Vec::new(),
             g_local: Vec::new(),
+            runs: Vec::new(),
             buffers: GramBuffers::default(),
         }
     }
@@ -338,9 +407,10 @@ impl NormalSums {
         });
         self.term_locals.clear();
         self.term_locals.extend(columns.iter().map(|&c| self.local[c]));
-        let (first, width) = (self.r.len(), self.width);
+        let (first, width, k) = (self.r.len(), self.width, self.globals.len());
         let block = &mut self.dense[first * width..(first + rows) * width];
         for (i, row) in block.chunks_exact_mut(width).enumerate() {
+            row[..k].fill(0.0);
             // Row i of the term: its derivatives are `values[i]`, `values[i + rows]`, ...
             for (&l, &v) in self.term_locals.iter().zip(values[i..].iter().step_by(rows)) {
                 row[l] += v;
@@ -373,13 +443,19 @@ impl NormalSums {
         }
     }
 
-    /// Give each column of `span` new to the batch the next free index in it.
+    /// Give each column of `span` new to the batch the next free index in it, zero over the
+    /// batch's rows so far.
     #[inline]
     fn assign(&mut self, span: Range<usize>) {
+        let (m, width) = (self.r.len(), self.width);
         for (c, l) in span.clone().zip(&mut self.local[span]) {
             if *l == NONE {
                 *l = self.globals.len();
                 self.globals.push(c);
+                // (A place past the rows' width is never written: the batch is full.)
+                if *l < width {
+                    self.dense[*l..].iter_mut().step_by(width).take(m).for_each(|v| *v = 0.0);
+                }
             }
         }
     }
@@ -397,29 +473,55 @@ impl NormalSums {
     fn flush(&mut self) {
         let (k, m, width) = (self.globals.len(), self.r.len(), self.width);
         if m > 0 && k > 0 {
-            self.h_local.clear();
-            self.h_local.resize(k * k, 0.0);
             self.g_local.clear();
             self.g_local.resize(k, 0.0);
+            // The product added where its columns belong, with no zeroed k × k sums between
+            // (the same sums: each entry was added once onto zero there).
+            let mut buffers = std::mem::take(&mut self.buffers);
             let rows = (&self.dense[..], width, k);
-            add_rows_gram(&mut self.h_local, &mut self.g_local, rows, &self.w, &self.r, &mut self.buffers);
-            let n = self.n;
-            for (p, &a) in self.globals.iter().enumerate() {
-                self.g[a] += self.g_local[p];
-                for (q, &b) in self.globals.iter().enumerate().skip(p) {
-                    self.h[a.min(b) * n + a.max(b)] += self.h_local[p * k + q];
-                }
-            }
-        }
-        for row in self.dense.chunks_exact_mut(width).take(m) {
-            row[..k].fill(0.0);
+            let product = rows_product(&mut self.g_local, rows, &self.w, &self.r, &mut buffers);
+            self.add_local(product);
+            self.buffers = buffers;
         }
         for &c in &self.globals {
             self.local[c] = NONE;
         }
         self.globals.clear();
+        self.placed.clear();
         self.r.clear();
         self.w.clear();
+    }
+
+    /// Add the batch's Gram matrix `h_local` (k × k row-major, its upper triangle) and
+    /// `g_local` into the sums at the batch's columns: a run of consecutive columns at a time,
+    /// into a run of a row of the sums (or of a column, for columns before the row's).
+    fn add_local(&mut self, h_local: &[f64]) {
+        let (k, n) = (self.globals.len(), self.n);
+        self.runs.clear();
+        self.runs.resize(k, 1);
+        for q in (0..k.saturating_sub(1)).rev() {
+            if self.globals[q + 1] == self.globals[q] + 1 {
+                self.runs[q] = self.runs[q + 1] + 1;
+            }
+        }
+        for (p, &a) in self.globals.iter().enumerate() {
+            self.g[a] += self.g_local[p];
+            let mut q = p;
+            while q < k {
+                let (b, run) = (self.globals[q], self.runs[q]);
+                let values = &h_local[p * k + q..p * k + q + run];
+                // A run holds columns b..b + run: from a on (the first run, from a itself) or all
+                // before a (a is in no other run).
+                if b >= a {
+                    let sums = &mut self.h[a * n + b..a * n + b + run];
+                    sums.iter_mut().zip(values).for_each(|(s, v)| *s += v);
+                } else {
+                    let sums = self.h[b * n + a..].iter_mut().step_by(n);
+                    sums.zip(values).for_each(|(s, v)| *s += v);
+                }
+                q += run;
+            }
+        }
     }
 
     /// The sums: the upper triangle of JᵀWJ (n × n, row-major) and JᵀWr. The sums start again
@@ -439,13 +541,27 @@ impl NormalSums {
 
 impl RowTarget for NormalSums {
     fn rows<'a>(&'a mut self, rows: usize, columns: &'a [Range<usize>]) -> TermRows<'a> {
-        self.admit(rows, |sums| {
-            for span in columns {
-                sums.assign(span.clone());
-            }
-        });
-        let (first, width) = (self.r.len(), self.width);
-        TermRows::new(&mut self.dense[first * width..(first + rows) * width], width, &self.local, columns)
+        if self.placed != columns || self.r.len() + rows > BATCH_ROWS {
+            self.admit(rows, |sums| {
+                for span in columns {
+                    sums.assign(span.clone());
+                }
+            });
+            self.placed.clear();
+            self.placed.extend_from_slice(columns);
+            let local = &self.local;
+            self.placed_in_order = (columns.iter().zip(0..u64::BITS))
+                .filter(|(span, _)| first_in_order(&local[(*span).clone()]).is_some())
+                .fold(0, |bits, (_, i)| bits | 1 << i);
+        }
+        let (first, width, k) = (self.r.len(), self.width, self.globals.len());
+        let block = &mut self.dense[first * width..(first + rows) * width];
+        // The term writes its own columns; any other of the batch's must be zero.
+        debug_assert!(columns.iter().flat_map(Clone::clone).all(|c| self.local[c] != NONE));
+        if columns.iter().map(ExactSizeIterator::len).sum::<usize>() < k {
+            block.chunks_exact_mut(width).for_each(|row| row[..k].fill(0.0));
+        }
+        TermRows { in_order: self.placed_in_order, ..TermRows::new(block, width, &self.local, columns) }
     }
 }
 
@@ -492,6 +608,15 @@ mod tests {
         let width = sums.width;
         let written = [sums.dense[6 * width + 6], sums.dense[7 * width + 6], sums.dense[8 * width + 5]];
         assert_eq!(written, [7.0, 8.0, 9.0]);
+        // Whole spans the batch knows in order (2..4 at places 5 and 6) or not (4..7): the same.
+        sums.close(&three, &three);
+        let spans = [2..4, 4..7];
+        let mut rows = sums.rows(3, &spans);
+        assert_eq!(rows.in_order, 0b01, "only the first span in order");
+        assert!(rows.span3(4..7).is_none(), "placed backwards");
+        let [x, _, z] = rows.span3(2..4).expect("in order");
+        (x[0], z[1]) = (5.0, 6.0);
+        assert_eq!([sums.dense[9 * width + 5], sums.dense[11 * width + 6]], [5.0, 6.0]);
     }
 
     #[test]
@@ -641,6 +766,74 @@ mod tests {
         assert!(h[n + 1] != 0.0 && h[196 * n + 196] != 0.0, "sums over the first and last columns");
     }
 
+    /// Runs of terms over the same spans (the points of one session, their columns placed
+    /// once), sessions changing within a batch (new columns zeroed over the rows before them,
+    /// the rows of a term that reads less than every column of the batch zeroed), batches over
+    /// rows other batches left values in, a drifting session's extra span, and a term of
+    /// another kind added between: the sums of the same terms added column by column to the
+    /// bit, and the plain sums to 1e-12.
+    #[test]
+    fn runs_of_terms_over_the_same_spans_give_the_sums_of_added_terms() {
+        let n = 60;
+        let value = |t: usize, j: usize, c: usize| ((t * 37 + j * 13 + c * 5) as f64 * 0.29).sin();
+        let (mut direct, mut added) = (NormalSums::new(n), NormalSums::new(n));
+        let (mut jac, mut r_all, mut w_all) = (Vec::new(), Vec::new(), Vec::new());
+        let mut plain_row = |columns: &[usize], values: &dyn Fn(usize) -> f64| {
+            let mut row = vec![0.0; n];
+            columns.iter().for_each(|&c| row[c] = values(c));
+            jac.extend(row);
+        };
+        for t in 0..700 {
+            // Sessions of 37 points: 8 arm columns, the session's 6 frame columns, 3 tool
+            // columns at the end (places after the frame's: columns before them in a batch's
+            // next session), 2 drift columns for one session.
+            let s = t / 37 % 6;
+            let drift = if s == 3 { 50..52 } else { 0..0 };
+            let spans = [0..8, 8 + 6 * s..14 + 6 * s, 57..60, drift];
+            let columns: Vec<usize> = spans.iter().flat_map(Clone::clone).collect();
+            let r: Vec<f64> = (0..3).map(|j| value(t, j, 999)).collect();
+            let w: Vec<f64> =
+                (0..3).map(|j| if t % 200 < 90 { 1.0 } else { 0.2 + value(t, j, 998).abs() }).collect();
+            let mut rows = direct.rows(3, &spans);
+            for &c in &columns {
+                rows.set3(c, [value(t, 0, c), value(t, 1, c), value(t, 2, c)]);
+            }
+            direct.close(&r, &w);
+            let values: Vec<f64> =
+                columns.iter().flat_map(|&c| (0..3).map(move |j| value(t, j, c))).collect();
+            added.add(&columns, &values, &r, &w);
+            for j in 0..3 {
+                plain_row(&columns, &|c| value(t, j, c));
+            }
+            r_all.extend(&r);
+            w_all.extend(&w);
+            if t % 50 == 25 {
+                let (columns, r, w) = ([2, 45, 46], [value(t, 5, 997)], [1.0]);
+                let values = columns.map(|c| value(t, 5, c));
+                direct.add(&columns, &values, &r, &w);
+                added.add(&columns, &values, &r, &w);
+                plain_row(&columns, &|c| value(t, 5, c));
+                r_all.extend(r);
+                w_all.extend(w);
+            }
+        }
+        let ((h, g), (ha, ga)) = (direct.finish(), added.finish());
+        assert!(h.iter().zip(&ha).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWJ");
+        assert!(g.iter().zip(&ga).all(|(a, b)| a.to_bits() == b.to_bits()), "JᵀWr");
+        let (hd, gd) = plain(&jac, &w_all, &r_all, n);
+        for a in 0..n {
+            assert!((g[a] - gd[a]).abs() < 1e-12 * (1.0 + gd[a].abs()), "g[{a}]");
+            for b in a..n {
+                let (ours, theirs) = (h[a * n + b], hd[a * n + b]);
+                assert!(
+                    (ours - theirs).abs() < 1e-12 * (1.0 + theirs.abs()),
+                    "h[{a},{b}] {ours} vs {theirs}"
+                );
+            }
+        }
+        assert!(h[50 * n + 51] != 0.0 && h[8 * n + 59] != 0.0, "the drift's and the frames' sums");
+    }
+
     /// A term reading more columns than a batch spans gets a batch of wider rows (after terms
     /// of fewer columns, and before them again).
     #[test]
@@ -680,6 +873,26 @@ mod tests {
         }
     }
 
+    /// Uᵀr four rows at a time is the sums of one row at a time to the bit, for row counts with
+    /// every remainder, onto sums already there, with a row stride past the columns.
+    #[test]
+    fn the_transposed_product_four_rows_at_a_time_is_the_plain_one() {
+        let value = |i: usize, l: usize| ((i * 11 + l * 17) as f64 * 0.71).sin() * (1.0 + l as f64);
+        for (m, k, stride) in
+            [(1, 3, 3), (2, 7, 9), (3, 7, 7), (4, 5, 8), (7, 13, 13), (9, 1, 2), (256, 35, 96)]
+        {
+            let u: Vec<f64> = (0..(m - 1) * stride + k).map(|e| value(e / stride, e % stride)).collect();
+            let r: Vec<f64> = (0..m).map(|i| value(i, 99)).collect();
+            let mut plain: Vec<f64> = (0..k).map(|l| value(1000, l)).collect();
+            let mut ours = plain.clone();
+            for (ui, ri) in u.chunks(stride).zip(&r) {
+                plain.iter_mut().zip(&ui[..k]).for_each(|(gl, v)| *gl += v * ri);
+            }
+            add_transposed(&mut ours, (&u, stride, k), &r);
+            assert!(ours.iter().zip(&plain).all(|(a, b)| a.to_bits() == b.to_bits()), "{m} × {k}");
+        }
+    }
+
     /// The product by column blocks gives the whole square's sums to the bit (the same sums in
     /// the same order), for column counts of one, two and three blocks, a row-strided D (as a
     /// batch holds it) and weights.
@@ -694,7 +907,8 @@ mod tests {
             let r: Vec<f64> = (0..m).map(|i| value(i, 97)).collect();
             let dv = DMatrixView::from_slice_with_strides(&d[..(m - 1) * width + k], m, k, width, 1);
             let (mut h, mut g) = (vec![0.0; k * k], vec![0.0; k]);
-            add_product(&mut h, &mut g, (&u, width, k), &dv, &r, &mut product);
+            product_into(&mut g, (&u, width, k), &dv, &r, &mut product);
+            add_upper(&mut h, &product, k);
             let ut = DMatrixView::from_slice_with_strides(&u[..(m - 1) * width + k], k, m, 1, width);
             let mut square = nalgebra::DMatrix::zeros(k, k);
             square.gemm(1.0, &ut, &dv, 0.0);

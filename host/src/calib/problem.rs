@@ -574,9 +574,11 @@ impl Problem<'_> {
                             finite: true,
                         };
                         let mut finite = true;
+                        let mut r = Vec::new();
                         for &i in chunk {
                             let t = &self.terms[i];
-                            let mut r = vec![0.0; t.rows()];
+                            r.clear();
+                            r.resize(t.rows(), 0.0);
                             // A point writes its rows in place; any other term through its Jacobian.
                             if !t.evaluate_into_rows(&input, &mut r, &mut block) {
                                 jac.reset(t.rows());

@@ -37,6 +37,16 @@ pub(super) struct Pieces<'a> {
     pub(super) encoders: Encoders,
 }
 
+/// The terms and encoder table of some pieces, kept for other pieces of the same observations
+/// and term choice ([`Pieces::new_sharing`]). The observations are borrowed for as long as they
+/// are kept: they cannot change meanwhile, so the same address is the same observations.
+pub(super) struct KeptTerms<'a> {
+    data: &'a Observations,
+    choice: TermChoice,
+    terms: Terms<'a>,
+    encoders: Encoders,
+}
+
 impl<'a> Pieces<'a> {
     /// Check `data` against `nominal` and `options` and assemble the terms and the unknowns.
     pub(super) fn new(
@@ -44,6 +54,18 @@ impl<'a> Pieces<'a> {
         data: &'a Observations,
         options: &SolveOptions,
         encoders: &Encoders,
+    ) -> Result<Pieces<'a>, CalibError> {
+        Pieces::new_sharing(nominal, data, options, encoders, None)
+    }
+
+    /// [`Pieces::new`], the terms and encoder table borrowed from `kept` when it holds those of
+    /// these observations (the same, by address) and term choice, instead of built again.
+    pub(super) fn new_sharing(
+        nominal: &ArmModel,
+        data: &'a Observations,
+        options: &SolveOptions,
+        encoders: &Encoders,
+        kept: Option<&'a KeptTerms>,
     ) -> Result<Pieces<'a>, CalibError> {
         if !data.obs.is_empty() && nominal.joints.len() != data.joints {
             let tracker = data.obs.iter().any(|o| o.point_mm().is_some());
@@ -90,9 +112,22 @@ impl<'a> Pieces<'a> {
             let touch_std_mm = crate::calib::repeats::touch_std_mm(nominal, data);
             resolved.point_weight = options.point_weight(data, touch_std_mm);
         }
-        let terms = Terms::Built(terms::build(data, &term_choice(&resolved)));
-        let encoders = encoders.for_data(data);
+        let choice = term_choice(&resolved);
+        let (terms, encoders) = match kept.filter(|k| std::ptr::eq(k.data, data) && k.choice == choice) {
+            Some(kept) => (Terms::Borrowed(&kept.terms), kept.encoders.clone()),
+            None => (Terms::Built(terms::build(data, &choice)), encoders.for_data(data)),
+        };
         Ok(Pieces { data, model, terms, framed, floated, drift, resolved, encoders })
+    }
+
+    /// The terms and encoder table of these pieces, kept for others of the same observations.
+    pub(super) fn keep(self) -> KeptTerms<'a> {
+        KeptTerms {
+            data: self.data,
+            choice: term_choice(&self.resolved),
+            terms: self.terms,
+            encoders: self.encoders,
+        }
     }
 
     /// These pieces on block `b`'s observations alone: the same model, options and unknowns

@@ -139,6 +139,9 @@ pub struct SessionSums<'f> {
     fit: &'f Fit,
     resolved: Resolved,
     sessions: Vec<SessionSum>,
+    /// The terms and encoder table of the observations the sums were taken on, for the refits
+    /// on them (the data-error scoring's); `None` when taken on a copy (orientations left out).
+    kept: Option<KeptTerms<'f>>,
 }
 
 impl<'f> SessionSums<'f> {
@@ -150,13 +153,23 @@ impl<'f> SessionSums<'f> {
     pub fn of(
         model: &ArmModel,
         fit: &'f Fit,
-        data: &Observations,
+        data: &'f Observations,
         options: &SolveOptions,
     ) -> Option<SessionSums<'f>> {
         if let Some(own) = data.without_orientations_of(&options.float_tool) {
-            return SessionSums::of(model, fit, &own, options);
+            let (resolved, sessions) =
+                SessionSums::sums(&Pieces::new(model, &own, options, &fit.encoders).ok()?, fit)?;
+            return Some(SessionSums { fit, resolved, sessions, kept: None });
         }
         let pieces = Pieces::new(model, data, options, &fit.encoders).ok()?;
+        let (resolved, sessions) = SessionSums::sums(&pieces, fit)?;
+        Some(SessionSums { fit, resolved, sessions, kept: Some(pieces.keep()) })
+    }
+
+    /// The options as resolved and each session's sum of `pieces` at `fit`'s solution (see
+    /// [`SessionSums::of`]).
+    fn sums(pieces: &Pieces, fit: &Fit) -> Option<(Resolved, Vec<SessionSum>)> {
+        let data = pieces.data;
         // Without the fit's probe rotation, a session alone would start its probe elsewhere.
         let probe_unknown =
             pieces.resolved.orientation_weight_mm_per_rad.is_some() && fit.tool_rotation.is_none();
@@ -165,9 +178,14 @@ impl<'f> SessionSums<'f> {
         }
         let sessions = (0..data.blocks.len())
             .into_par_iter()
-            .map(|b| SessionSum::of(&pieces, b, fit, &fit.estimated))
+            .map(|b| SessionSum::of(pieces, b, fit, &fit.estimated))
             .collect::<Option<Vec<_>>>()?;
-        Some(SessionSums { fit, resolved: pieces.resolved, sessions })
+        Some((pieces.resolved, sessions))
+    }
+
+    /// The terms and encoder table of the observations these sums were taken on.
+    pub(super) fn kept(&self) -> Option<&KeptTerms<'f>> {
+        self.kept.as_ref()
     }
 
     /// The fit these sums are of.
@@ -478,6 +496,35 @@ mod tests {
         let options = SolveOptions { orientation_sigma_deg: Some(0.05), ..SolveOptions::default() };
         let pieces = Pieces::new(&nominal, &data, &options, data.encoders()).expect("pieces");
         assert!(pieces.block_borrowed(1).is_none());
+    }
+
+    /// The sums keep the terms of the observations they were taken on: a refit of those same
+    /// observations borrows them, one of a copy (equal, at another address) builds its own, and
+    /// both refits are the same to the bit.
+    #[test]
+    fn refits_of_the_summed_observations_borrow_their_terms() {
+        let (nominal, cal) = noisy_sessions(None);
+        let options = SolveOptions::default();
+        let fit = calibrate(&nominal, &cal, &options).expect("fit");
+        let sums = SessionSums::of(&nominal, &fit, &cal, &options).expect("sums");
+        let floated = SolveOptions { float_tool: vec![cal.block_name(1)], ..options.clone() };
+        let copy = cal.clone();
+        let same = Pieces::new_sharing(&nominal, &cal, &floated, &fit.encoders, sums.kept()).expect("pieces");
+        let other =
+            Pieces::new_sharing(&nominal, &copy, &floated, &fit.encoders, sums.kept()).expect("pieces");
+        assert!(matches!(same.terms, Terms::Borrowed(_)));
+        assert!(matches!(other.terms, Terms::Built(_)));
+        let shared = recalibrate_with(&nominal, &cal, &floated, &sums).expect("refit");
+        let built = recalibrate_with(&nominal, &copy, &floated, &sums).expect("refit");
+        assert_eq!(shared.cost.to_bits(), built.cost.to_bits());
+        assert!(shared.tool_offsets[0].offset_mm.iter().any(|v| *v != 0.0));
+        assert_eq!(
+            shared.tool_offsets[0].offset_mm.map(f64::to_bits),
+            built.tool_offsets[0].offset_mm.map(f64::to_bits)
+        );
+        for id in &fit.estimated {
+            assert_eq!(shared.model.get(*id).to_bits(), built.model.get(*id).to_bits(), "{id}");
+        }
     }
 
     /// Artefact touches share their distances across blocks: no session sums.

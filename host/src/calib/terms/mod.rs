@@ -222,7 +222,7 @@ pub trait Term: Send + Sync {
 }
 
 /// Which terms the calibration minimises.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TermChoice {
     /// Relative orientation of touches (the asymmetric pillars), mm per radian.
     pub relative_orientation_lever_mm: Option<f64>,

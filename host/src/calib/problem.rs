@@ -18,7 +18,7 @@
 use crate::calib::layout::{Layout, State};
 use crate::calib::terms::{Poses, Term, TermInput, TermJacobian};
 use crate::data::Observations;
-use crate::model::kinematics::{encoder_sin_cos, PoseDerivative, Tips};
+use crate::model::kinematics::{encoder_sin_cos, PoseDerivative, Tips, ToolPose};
 use crate::model::ArmModel;
 use crate::numerics::normal::{add_rows_gram, GramBuffers, NormalSums, RowTarget, TermRows};
 use crate::numerics::qr::{r_factor, r_factor_of_stacked};
@@ -48,6 +48,9 @@ const POSES_AT_ONCE: usize = 32;
 /// Terms of a group folded into its factor by one QR.
 const FOLD_TERMS: usize = 128;
 
+/// A chunk's buffers of pose derivatives and poses (those of [`Poses`]).
+type ChunkBuffers = (Vec<PoseDerivative>, Vec<Option<ToolPose>>);
+
 /// The terms of some observations over one parameter vector.
 pub struct Problem<'a> {
     /// Where each unknown sits.
@@ -63,10 +66,12 @@ pub struct Problem<'a> {
     joints: usize,
     frame_start: Vec<Matrix3<f64>>,
     probe_start: Option<Matrix3<f64>>,
-    /// The pose-derivative buffers of chunks evaluated, for the next chunks: a solve's
+    /// The pose-derivative and pose buffers of chunks evaluated, for the next chunks: a solve's
     /// evaluations allocate and zero none (each pose writes its own columns; the entries of
-    /// observations a chunk does not read are never read).
-    spare: Mutex<Vec<Vec<PoseDerivative>>>,
+    /// observations a chunk does not read are never read; the poses are set to `None` first).
+    spare: Mutex<Vec<ChunkBuffers>>,
+    /// Which observations a chunk reads, a buffer per chunk evaluated at once.
+    spare_wanted: Mutex<Vec<Vec<bool>>>,
     /// The normal sums of chunks evaluated, for the next chunks (their batches' buffers).
     spare_sums: Mutex<Vec<NormalSums>>,
 }
@@ -123,6 +128,7 @@ impl<'a> Problem<'a> {
             frame_start,
             probe_start,
             spare: Mutex::new(Vec::new()),
+            spare_wanted: Mutex::new(Vec::new()),
             spare_sums: Mutex::new(Vec::new()),
         }
     }
@@ -222,11 +228,15 @@ impl<'a> Problem<'a> {
         if first > last {
             return Poses { first: 0, pose: Vec::new(), chain: Vec::new(), arm, jacobian: true };
         }
-        let mut wanted = vec![false; last + 1 - first];
+        let mut wanted = self.spare_wanted.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
+        wanted.clear();
+        wanted.resize(last + 1 - first, false);
         read().for_each(|k| wanted[k - first] = true);
-        let mut chain = self.spare.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
+        let (mut chain, mut pose) =
+            self.spare.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
         chain.resize(wanted.len() * arm, [0.0; 9]);
-        let mut pose = vec![None; wanted.len()];
+        pose.clear();
+        pose.resize(wanted.len(), None);
         let columns = &self.layout.columns;
         let single = |k: usize, chain: &mut [PoseDerivative]| {
             let (q, tip) = (&self.data.obs[k].q_deg, self.data.obs[k].tip);
@@ -259,13 +269,16 @@ impl<'a> Problem<'a> {
         if let Some(a) = waiting {
             pose[a - first] = single(a, &mut chain);
         }
+        if let Ok(mut spare) = self.spare_wanted.lock() {
+            spare.push(wanted);
+        }
         Poses { first, pose, chain, arm, jacobian: true }
     }
 
-    /// Keep the buffer of `poses` (of [`Problem::chunk_poses_of`]) for the next chunk.
+    /// Keep the buffers of `poses` (of [`Problem::chunk_poses_of`]) for the next chunk.
     fn recycle(&self, poses: Poses) {
         if let Ok(mut spare) = self.spare.lock() {
-            spare.push(poses.chain);
+            spare.push((poses.chain, poses.pose));
         }
     }
 
@@ -574,9 +587,11 @@ impl Problem<'_> {
                             finite: true,
                         };
                         let mut finite = true;
+                        let mut r = Vec::new();
                         for &i in chunk {
                             let t = &self.terms[i];
-                            let mut r = vec![0.0; t.rows()];
+                            r.clear();
+                            r.resize(t.rows(), 0.0);
                             // A point writes its rows in place; any other term through its Jacobian.
                             if !t.evaluate_into_rows(&input, &mut r, &mut block) {
                                 jac.reset(t.rows());
@@ -921,6 +936,36 @@ mod tests {
             for loss in [Loss::Linear, Loss::Huber(median_abs(&r))] {
                 assert_same_sums(&ours, &theirs, &x, loss, &format!("point weight {point_weight}, {loss:?}"));
             }
+        }
+    }
+
+    /// A problem's next evaluation, whose chunks take the buffers (pose derivatives, poses,
+    /// observations read) the chunks before left, gives the sums of a fresh problem's first to
+    /// the bit (two counts of arm columns).
+    #[test]
+    fn kept_chunk_buffers_give_the_first_sums() {
+        let nominal = ArmModel::suta_nominal();
+        let data = sessions(&nominal);
+        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
+        let blocks = data.blocks.len();
+        let choice = TermChoice {
+            relative_orientation_lever_mm: None,
+            orientation_weight_mm_per_rad: None,
+            point_weight: 1.0,
+        };
+        let terms = build(&data, &choice);
+        let layout = |arm: &[crate::model::ParamId]| {
+            let tools = vec![true; data.groups.len()];
+            Layout::new(arm.to_vec(), &vec![true; blocks], &tools, false, &vec![None; blocks])
+        };
+        let starts = start_rotations(blocks);
+        for arm in [&params[..], &params[..params.len() - 3]] {
+            let kept = Problem::new(layout(arm), &nominal, &data, &terms, starts.clone(), None);
+            let x = framed_point(&kept, arm, &nominal);
+            let mut r = vec![0.0; kept.len()];
+            kept.normal_equations(&x, &mut r, Loss::Linear);
+            let fresh = Problem::new(layout(arm), &nominal, &data, &terms, starts.clone(), None);
+            assert_same_sums(&kept, &fresh, &x, Loss::Linear, &format!("{} arm columns", arm.len()));
         }
     }
 

@@ -395,11 +395,17 @@ impl Observations {
     pub fn rebuild_blocks(&mut self) {
         let mut index: HashMap<(usize, u32), usize> = HashMap::new();
         self.blocks.clear();
+        // A block's observations mostly come in one run: the index is asked at a run's start.
+        let mut last: Option<(usize, u32, usize)> = None;
         for (k, o) in self.obs.iter_mut().enumerate() {
-            let b = *index.entry((o.group, o.repeat)).or_insert_with(|| {
-                self.blocks.push(Block { group: o.group, repeat: o.repeat, members: Vec::new() });
-                self.blocks.len() - 1
-            });
+            let b = match last.filter(|l| (l.0, l.1) == (o.group, o.repeat)) {
+                Some(l) => l.2,
+                None => *index.entry((o.group, o.repeat)).or_insert_with(|| {
+                    self.blocks.push(Block { group: o.group, repeat: o.repeat, members: Vec::new() });
+                    self.blocks.len() - 1
+                }),
+            };
+            last = Some((o.group, o.repeat, b));
             self.blocks[b].members.push(k);
             o.block = b;
         }
@@ -739,6 +745,25 @@ mod tests {
         assert!((arcs[0].0 - 345.0).abs() < 1e-9 && (arcs[0].1 - 35.0).abs() < 1e-9, "{arcs:?}");
         assert!((arcs[1].0 - 10.0).abs() < 1e-9 && (arcs[1].1 - 190.0).abs() < 1e-9, "{arcs:?}");
         assert_eq!(Observations::default().joint_arcs(&[]), []);
+    }
+
+    /// Blocks come in the order of their first observation, whatever order the observations
+    /// of different blocks interleave in (runs and single observations).
+    #[test]
+    fn blocks_gather_interleaved_observations() {
+        let mut data = Observations::new(6, Vec::new());
+        data.push_group("A".into(), "A.json".into(), Kind::Artefact);
+        data.push_group("B".into(), "B.json".into(), Kind::Artefact);
+        let order = [(1, 2), (1, 2), (0, 1), (1, 2), (0, 2), (0, 1), (0, 1), (1, 1), (0, 2), (1, 2)];
+        data.obs.extend(order.iter().map(|&(g, repeat)| touch(g, 0, repeat)));
+        data.rebuild_blocks();
+        let blocks: Vec<(usize, u32, Vec<usize>)> =
+            data.blocks.iter().map(|b| (b.group, b.repeat, b.members.clone())).collect();
+        let expected =
+            vec![(1, 2, vec![0, 1, 3, 9]), (0, 1, vec![2, 5, 6]), (0, 2, vec![4, 8]), (1, 1, vec![7])];
+        assert_eq!(blocks, expected);
+        let of: Vec<usize> = data.obs.iter().map(|o| o.block).collect();
+        assert_eq!(of, [0, 0, 1, 0, 2, 1, 1, 3, 2, 0]);
     }
 
     #[test]

@@ -368,7 +368,7 @@ fn recalibrate_from(
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
         return recalibrate_from(nominal, &own, options, warm, sums);
     }
-    let pieces = Pieces::new(nominal, data, options, &warm.encoders)?;
+    let pieces = Pieces::new_sharing(nominal, data, options, &warm.encoders, sums.and_then(|s| s.kept()))?;
     if pieces.blocked() {
         calibrate_framed(nominal, &pieces, Some(warm), sums, &ToolFirstFit::default())
     } else {

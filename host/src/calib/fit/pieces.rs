@@ -4,18 +4,47 @@
 use super::*;
 use crate::data::Encoders;
 use std::borrow::Cow;
+use std::ops::Deref;
+
+/// The terms of some pieces: built for their observations, or a run of another pieces' terms on
+/// the same observations (a block's alone, [`Pieces::block_alone`]).
+pub(super) enum Terms<'a> {
+    Built(Vec<Box<dyn Term>>),
+    Borrowed(&'a [Box<dyn Term>]),
+}
+
+impl Deref for Terms<'_> {
+    type Target = [Box<dyn Term>];
+
+    fn deref(&self) -> &[Box<dyn Term>] {
+        match self {
+            Terms::Built(terms) => terms,
+            Terms::Borrowed(terms) => terms,
+        }
+    }
+}
 
 /// What a calibration of some observations is made of, whatever the arm's values.
 pub(super) struct Pieces<'a> {
     pub(super) data: &'a Observations,
     pub(super) model: ArmModel,
-    pub(super) terms: Vec<Box<dyn Term>>,
+    pub(super) terms: Terms<'a>,
     pub(super) framed: Vec<bool>,
     pub(super) floated: Vec<bool>,
     pub(super) drift: Vec<Option<DriftSlot>>,
     pub(super) resolved: Resolved,
     /// The encoder angles' sines and cosines, once for every problem of these terms.
     pub(super) encoders: Encoders,
+}
+
+/// The terms and encoder table of some pieces, kept for other pieces of the same observations
+/// and term choice ([`Pieces::new_sharing`]). The observations are borrowed for as long as they
+/// are kept: they cannot change meanwhile, so the same address is the same observations.
+pub(super) struct KeptTerms<'a> {
+    data: &'a Observations,
+    choice: TermChoice,
+    terms: Terms<'a>,
+    encoders: Encoders,
 }
 
 impl<'a> Pieces<'a> {
@@ -25,6 +54,18 @@ impl<'a> Pieces<'a> {
         data: &'a Observations,
         options: &SolveOptions,
         encoders: &Encoders,
+    ) -> Result<Pieces<'a>, CalibError> {
+        Pieces::new_sharing(nominal, data, options, encoders, None)
+    }
+
+    /// [`Pieces::new`], the terms and encoder table borrowed from `kept` when it holds those of
+    /// these observations (the same, by address) and term choice, instead of built again.
+    pub(super) fn new_sharing(
+        nominal: &ArmModel,
+        data: &'a Observations,
+        options: &SolveOptions,
+        encoders: &Encoders,
+        kept: Option<&'a KeptTerms>,
     ) -> Result<Pieces<'a>, CalibError> {
         if !data.obs.is_empty() && nominal.joints.len() != data.joints {
             let tracker = data.obs.iter().any(|o| o.point_mm().is_some());
@@ -71,26 +112,67 @@ impl<'a> Pieces<'a> {
             let touch_std_mm = crate::calib::repeats::touch_std_mm(nominal, data);
             resolved.point_weight = options.point_weight(data, touch_std_mm);
         }
-        let choice = TermChoice {
-            relative_orientation_lever_mm: resolved.relative_lever_mm,
-            orientation_weight_mm_per_rad: resolved.orientation_weight_mm_per_rad,
-            point_weight: resolved.point_weight,
+        let choice = term_choice(&resolved);
+        let (terms, encoders) = match kept.filter(|k| std::ptr::eq(k.data, data) && k.choice == choice) {
+            Some(kept) => (Terms::Borrowed(&kept.terms), kept.encoders.clone()),
+            None => (Terms::Built(terms::build(data, &choice)), encoders.for_data(data)),
         };
-        let terms = terms::build(data, &choice);
-        let encoders = encoders.for_data(data);
         Ok(Pieces { data, model, terms, framed, floated, drift, resolved, encoders })
     }
 
-    /// These pieces on `sub`, block `b`'s observations alone (`data.without` every other block,
-    /// which keeps the groups): the same model, options and unknowns, so that each of its terms
-    /// is the term of these pieces on the same observation.
-    pub(super) fn for_block<'s>(&self, b: usize, sub: &'s Observations) -> Pieces<'s> {
-        let choice = TermChoice {
-            relative_orientation_lever_mm: self.resolved.relative_lever_mm,
-            orientation_weight_mm_per_rad: self.resolved.orientation_weight_mm_per_rad,
-            point_weight: self.resolved.point_weight,
-        };
-        let terms = terms::build(sub, &choice);
+    /// The terms and encoder table of these pieces, kept for others of the same observations.
+    pub(super) fn keep(self) -> KeptTerms<'a> {
+        KeptTerms {
+            data: self.data,
+            choice: term_choice(&self.resolved),
+            terms: self.terms,
+            encoders: self.encoders,
+        }
+    }
+
+    /// These pieces on block `b`'s observations alone: the same model, options and unknowns
+    /// (block `b`'s own, the arm's, the floated tools and the probe's, in the same columns), so
+    /// that each of its terms is the term of these pieces on the same observation. Borrowed
+    /// ([`Pieces::block_borrowed`]) when it can be, else on a copy of block `b`'s observations
+    /// put in `sub` ([`Pieces::block_copied`]). Returns the pieces and block `b`'s index in their
+    /// observations.
+    pub(super) fn block_alone<'s>(
+        &'s self,
+        b: usize,
+        sub: &'s mut Option<Observations>,
+    ) -> (Pieces<'s>, usize) {
+        match self.block_borrowed(b) {
+            Some(alone) => (alone, b),
+            None => (self.block_copied(b, sub.insert(self.data.without(|k| self.data.obs[k].block != b))), 0),
+        }
+    }
+
+    /// [`Pieces::block_alone`] on these observations, block `b`'s terms borrowed, when they are
+    /// one run of these terms (a tracker session without orientations): every other block has
+    /// no unknowns and no terms.
+    pub(super) fn block_borrowed(&self, b: usize) -> Option<Pieces<'_>> {
+        let run = self.run_of(b)?;
+        let blocks = self.data.blocks.len();
+        let mut framed = vec![false; blocks];
+        framed[b] = self.framed[b];
+        let mut drift = vec![None; blocks];
+        drift[b] = self.drift[b].map(|d| DriftSlot { column: 0, ..d });
+        Some(Pieces {
+            data: self.data,
+            model: self.model.clone(),
+            terms: Terms::Borrowed(&self.terms[run]),
+            framed,
+            floated: self.floated.clone(),
+            drift,
+            resolved: self.resolved,
+            encoders: self.encoders.clone(),
+        })
+    }
+
+    /// [`Pieces::block_alone`] on `sub`, block `b`'s observations alone (`data.without` every
+    /// other block, which keeps the groups): its terms built there.
+    pub(super) fn block_copied<'s>(&self, b: usize, sub: &'s Observations) -> Pieces<'s> {
+        let terms = Terms::Built(terms::build(sub, &term_choice(&self.resolved)));
         // The encoder table's rows of block b's observations: sub's terms read no other.
         let rows: Vec<usize> = (0..self.data.obs.len()).filter(|&k| self.data.obs[k].block == b).collect();
         let encoders = self.encoders.rows_of(&rows);
@@ -105,6 +187,14 @@ impl<'a> Pieces<'a> {
             resolved: self.resolved,
             encoders,
         }
+    }
+
+    /// The terms of block `b`, when they are one run of these terms.
+    fn run_of(&self, b: usize) -> Option<std::ops::Range<usize>> {
+        let first = self.terms.iter().position(|t| t.block() == b).unwrap_or(0);
+        let count = self.terms.iter().filter(|t| t.block() == b).count();
+        let run = first..first + count;
+        self.terms[run.clone()].iter().all(|t| t.block() == b).then_some(run)
     }
 
     /// Whether any block or group has unknowns of its own (frames, floated tools, drifts).
@@ -206,6 +296,15 @@ impl<'a> Pieces<'a> {
 
     pub(super) fn distance_rows(&self) -> usize {
         self.terms.iter().filter(|t| t.rows() == 1 && t.is_position()).count()
+    }
+}
+
+/// The terms `resolved` asks for.
+fn term_choice(resolved: &Resolved) -> TermChoice {
+    TermChoice {
+        relative_orientation_lever_mm: resolved.relative_lever_mm,
+        orientation_weight_mm_per_rad: resolved.orientation_weight_mm_per_rad,
+        point_weight: resolved.point_weight,
     }
 }
 

@@ -69,16 +69,29 @@ impl SessionSum {
     /// Block `b` of `pieces` alone at `fit`'s solution, over the arm's `arm` columns; `None` when
     /// its evaluation is not finite.
     fn of(pieces: &Pieces, b: usize, fit: &Fit, arm: &[ParamId]) -> Option<SessionSum> {
+        let mut sub = None;
+        let (alone, own) = pieces.block_alone(b, &mut sub);
+        SessionSum::on(pieces, b, &alone, own, fit, arm)
+    }
+
+    /// [`SessionSum::of`] evaluated on `alone`, block `b` of `pieces` alone
+    /// ([`Pieces::block_alone`]), where it is block `own`.
+    fn on(
+        pieces: &Pieces,
+        b: usize,
+        alone: &Pieces,
+        own: usize,
+        fit: &Fit,
+        arm: &[ParamId],
+    ) -> Option<SessionSum> {
         let data = pieces.data;
-        let sub = data.without(|k| data.obs[k].block != b);
-        let alone = pieces.for_block(b, &sub);
-        let start = warm_start(&alone, fit);
+        let start = warm_start(alone, fit);
         let problem = alone.problem(arm.to_vec(), &start.model, &start.frames, start.probe);
         let x = alone.x_of(&problem, &start.model, &start.frames, &start.tools, &start.drifts);
         let mut r = vec![0.0; problem.len()];
         let (h, g) = problem.normal_equations(&x, &mut r, alone.resolved.loss);
         let cost = alone.resolved.loss.cost(&r);
-        let columns = keys(&problem.layout, 0, sub.blocks[0].group);
+        let columns = keys(&problem.layout, own, data.blocks[b].group);
         let keys = columns.iter().map(|k| k.0).collect();
         let h = DMatrix::from_fn(columns.len(), columns.len(), |i, j| h[(columns[i].1, columns[j].1)]);
         let g = DVector::from_iterator(columns.len(), columns.iter().map(|c| g[c.1]));
@@ -126,6 +139,9 @@ pub struct SessionSums<'f> {
     fit: &'f Fit,
     resolved: Resolved,
     sessions: Vec<SessionSum>,
+    /// The terms and encoder table of the observations the sums were taken on, for the refits
+    /// on them (the data-error scoring's); `None` when taken on a copy (orientations left out).
+    kept: Option<KeptTerms<'f>>,
 }
 
 impl<'f> SessionSums<'f> {
@@ -137,13 +153,23 @@ impl<'f> SessionSums<'f> {
     pub fn of(
         model: &ArmModel,
         fit: &'f Fit,
-        data: &Observations,
+        data: &'f Observations,
         options: &SolveOptions,
     ) -> Option<SessionSums<'f>> {
         if let Some(own) = data.without_orientations_of(&options.float_tool) {
-            return SessionSums::of(model, fit, &own, options);
+            let (resolved, sessions) =
+                SessionSums::sums(&Pieces::new(model, &own, options, &fit.encoders).ok()?, fit)?;
+            return Some(SessionSums { fit, resolved, sessions, kept: None });
         }
         let pieces = Pieces::new(model, data, options, &fit.encoders).ok()?;
+        let (resolved, sessions) = SessionSums::sums(&pieces, fit)?;
+        Some(SessionSums { fit, resolved, sessions, kept: Some(pieces.keep()) })
+    }
+
+    /// The options as resolved and each session's sum of `pieces` at `fit`'s solution (see
+    /// [`SessionSums::of`]).
+    fn sums(pieces: &Pieces, fit: &Fit) -> Option<(Resolved, Vec<SessionSum>)> {
+        let data = pieces.data;
         // Without the fit's probe rotation, a session alone would start its probe elsewhere.
         let probe_unknown =
             pieces.resolved.orientation_weight_mm_per_rad.is_some() && fit.tool_rotation.is_none();
@@ -152,9 +178,14 @@ impl<'f> SessionSums<'f> {
         }
         let sessions = (0..data.blocks.len())
             .into_par_iter()
-            .map(|b| SessionSum::of(&pieces, b, fit, &fit.estimated))
+            .map(|b| SessionSum::of(pieces, b, fit, &fit.estimated))
             .collect::<Option<Vec<_>>>()?;
-        Some(SessionSums { fit, resolved: pieces.resolved, sessions })
+        Some((pieces.resolved, sessions))
+    }
+
+    /// The terms and encoder table of the observations these sums were taken on.
+    pub(super) fn kept(&self) -> Option<&KeptTerms<'f>> {
+        self.kept.as_ref()
     }
 
     /// The fit these sums are of.
@@ -243,6 +274,7 @@ impl<'f> SessionSums<'f> {
 mod tests {
     use super::super::tests::{arm, arm_and_truth, sessions};
     use super::*;
+    use crate::calib::nuisance::drift::{DriftKind, DriftSpec};
 
     /// Largest entry difference of two matrices over the largest entry of the first.
     fn relative_gap(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
@@ -426,6 +458,73 @@ mod tests {
         let pieces = Pieces::new(&fit.model, &without, &options, &fit.encoders).expect("pieces");
         let rotation = assert_assembled_is_evaluated(&sums, &pieces, &fit, "probe, session 1 left out");
         assert!(rotation.is_some());
+    }
+
+    /// A session's terms borrowed on the whole data give the sums of its observations copied
+    /// alone, to the bit (with a drift, a floated tool, the arm's scale free); a session whose
+    /// terms are not one run (its orientations after every point) is not borrowed.
+    #[test]
+    fn a_borrowed_session_sums_as_its_copy() {
+        let (mut nominal, mut cal) = noisy_sessions(None);
+        nominal.free_param(ParamId::Scale, -500.0, 500.0);
+        for (k, o) in cal.obs.iter_mut().enumerate() {
+            o.time_s = Some(60.0 * k as f64);
+        }
+        let drift = DriftSpec { session: cal.block_name(2), kind: DriftKind::OffsetTime };
+        let floated = SolveOptions {
+            float_tool: vec![cal.block_name(1)],
+            drift_sessions: vec![drift],
+            ..SolveOptions::default()
+        };
+        let fit = calibrate(&nominal, &cal, &floated).expect("fit");
+        let pieces = Pieces::new(&nominal, &cal, &floated, &fit.encoders).expect("pieces");
+        for b in 0..cal.blocks.len() {
+            let borrowed = pieces.block_borrowed(b).expect("one run");
+            let sub = cal.without(|k| cal.obs[k].block != b);
+            let copied = pieces.block_copied(b, &sub);
+            let ours = SessionSum::on(&pieces, b, &borrowed, b, &fit, &fit.estimated).expect("borrowed");
+            let theirs = SessionSum::on(&pieces, b, &copied, 0, &fit, &fit.estimated).expect("copied");
+            assert_eq!(ours.keys, theirs.keys, "session {b}");
+            let bits = |m: &[f64]| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(ours.h.as_slice()), bits(theirs.h.as_slice()), "session {b}");
+            assert_eq!(bits(ours.g.as_slice()), bits(theirs.g.as_slice()), "session {b}");
+            assert_eq!(ours.cost.to_bits(), theirs.cost.to_bits(), "session {b}");
+            assert!(ours.g.abs().max() > 0.0 && ours.keys.len() > fit.estimated.len(), "session {b}");
+        }
+        let probe = nalgebra::Rotation3::from_euler_angles(0.2, -0.1, 0.4).into_inner();
+        let (nominal, data) = noisy_sessions(Some(probe));
+        let options = SolveOptions { orientation_sigma_deg: Some(0.05), ..SolveOptions::default() };
+        let pieces = Pieces::new(&nominal, &data, &options, data.encoders()).expect("pieces");
+        assert!(pieces.block_borrowed(1).is_none());
+    }
+
+    /// The sums keep the terms of the observations they were taken on: a refit of those same
+    /// observations borrows them, one of a copy (equal, at another address) builds its own, and
+    /// both refits are the same to the bit.
+    #[test]
+    fn refits_of_the_summed_observations_borrow_their_terms() {
+        let (nominal, cal) = noisy_sessions(None);
+        let options = SolveOptions::default();
+        let fit = calibrate(&nominal, &cal, &options).expect("fit");
+        let sums = SessionSums::of(&nominal, &fit, &cal, &options).expect("sums");
+        let floated = SolveOptions { float_tool: vec![cal.block_name(1)], ..options.clone() };
+        let copy = cal.clone();
+        let same = Pieces::new_sharing(&nominal, &cal, &floated, &fit.encoders, sums.kept()).expect("pieces");
+        let other =
+            Pieces::new_sharing(&nominal, &copy, &floated, &fit.encoders, sums.kept()).expect("pieces");
+        assert!(matches!(same.terms, Terms::Borrowed(_)));
+        assert!(matches!(other.terms, Terms::Built(_)));
+        let shared = recalibrate_with(&nominal, &cal, &floated, &sums).expect("refit");
+        let built = recalibrate_with(&nominal, &copy, &floated, &sums).expect("refit");
+        assert_eq!(shared.cost.to_bits(), built.cost.to_bits());
+        assert!(shared.tool_offsets[0].offset_mm.iter().any(|v| *v != 0.0));
+        assert_eq!(
+            shared.tool_offsets[0].offset_mm.map(f64::to_bits),
+            built.tool_offsets[0].offset_mm.map(f64::to_bits)
+        );
+        for id in &fit.estimated {
+            assert_eq!(shared.model.get(*id).to_bits(), built.model.get(*id).to_bits(), "{id}");
+        }
     }
 
     /// Artefact touches share their distances across blocks: no session sums.

@@ -222,7 +222,7 @@ pub trait Term: Send + Sync {
 }
 
 /// Which terms the calibration minimises.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TermChoice {
     /// Relative orientation of touches (the asymmetric pillars), mm per radian.
     pub relative_orientation_lever_mm: Option<f64>,
@@ -237,16 +237,24 @@ pub struct TermChoice {
 /// their relative orientations, measured points, frame-free distances between points, measured
 /// orientations.
 pub fn build(data: &Observations, choice: &TermChoice) -> Vec<Box<dyn Term>> {
-    let mut terms: Vec<Box<dyn Term>> = Vec::new();
+    // Each kind's terms appended to the kinds before them; the first kind that has terms is
+    // kept as made (one kind alone, a tracker's points, is not copied).
+    let append = |mut terms: Vec<Box<dyn Term>>, mut more: Vec<Box<dyn Term>>| {
+        if terms.is_empty() {
+            return more;
+        }
+        terms.append(&mut more);
+        terms
+    };
     let pairs = data.landmark_pairs();
-    terms.extend(distance::terms(data, &pairs));
+    let mut terms = distance::terms(data, &pairs);
     if let Some(lever) = choice.relative_orientation_lever_mm {
-        terms.extend(relative_orientation::terms(data, &pairs, lever));
+        terms = append(terms, relative_orientation::terms(data, &pairs, lever));
     }
-    terms.extend(point::terms(data, choice.point_weight));
-    terms.extend(point_distance::terms(data));
+    terms = append(terms, point::terms(data, choice.point_weight));
+    terms = append(terms, point_distance::terms(data));
     if let Some(weight) = choice.orientation_weight_mm_per_rad {
-        terms.extend(orientation::terms(data, weight * choice.point_weight));
+        terms = append(terms, orientation::terms(data, weight * choice.point_weight));
     }
     terms
 }

@@ -17,6 +17,7 @@
 
 use crate::calib::layout::{Layout, State};
 use crate::calib::terms::{Poses, Term, TermInput, TermJacobian};
+use crate::data::encoders::pairs;
 use crate::data::Observations;
 use crate::model::kinematics::{encoder_sin_cos, PoseDerivative, Tips, ToolPose};
 use crate::model::ArmModel;
@@ -186,26 +187,49 @@ impl<'a> Problem<'a> {
                     })
                 })
                 .collect()
-        } else {
+        } else if jacobian {
             (0..data.obs.len())
                 .into_par_iter()
                 .with_min_len(MIN_POSES_PER_TASK)
                 .map(|k| {
-                    self.read[k].then(|| match jacobian {
-                        true => kinematics.tip(data.obs[k].tip).pose_with_sin_cos_and_jacobian(
+                    self.read[k].then(|| {
+                        kinematics.tip(data.obs[k].tip).pose_with_sin_cos_and_jacobian(
                             &data.obs[k].q_deg,
                             self.sin_cos(k),
                             columns,
                             &mut [],
-                        ),
-                        false => kinematics
-                            .tip(data.obs[k].tip)
-                            .pose_with_sin_cos(&data.obs[k].q_deg, self.sin_cos(k)),
+                        )
                     })
                 })
                 .collect()
+        } else {
+            let mut pose = vec![None; data.obs.len()];
+            pose.par_chunks_mut(MIN_POSES_PER_TASK)
+                .enumerate()
+                .for_each(|(chunk, out)| self.poses_into(&kinematics, chunk * MIN_POSES_PER_TASK, out));
+            pose
         };
         Poses { first: 0, pose, chain, arm, jacobian }
+    }
+
+    /// The tool pose of each observation a term reads among `out.len()` from `first` into `out`,
+    /// two observations of one tip at a time (the same poses, to the bit, as one at a time).
+    fn poses_into(&self, kinematics: &Tips, first: usize, out: &mut [Option<ToolPose>]) {
+        let obs = &self.data.obs;
+        let read = (first..first + out.len()).filter(|&k| self.read[k]);
+        for (a, second) in pairs(read, |a, b| obs[a].tip == obs[b].tip) {
+            let chain = kinematics.tip(obs[a].tip);
+            match second {
+                Some(b) => {
+                    let [pa, pb] = chain.pose_pair_with_sin_cos(
+                        [&obs[a].q_deg, &obs[b].q_deg],
+                        [self.sin_cos(a), self.sin_cos(b)],
+                    );
+                    (out[a - first], out[b - first]) = (Some(pa), Some(pb));
+                }
+                None => out[a - first] = Some(chain.pose_with_sin_cos(&obs[a].q_deg, self.sin_cos(a))),
+            }
+        }
     }
 
     /// The tool poses with their derivatives of the observations `terms` read, on the chains
@@ -245,18 +269,14 @@ impl<'a> Problem<'a> {
         };
         // Two observations of one tip at a time: their poses are carried through the chain
         // together.
-        let mut waiting = None;
-        for b in (first..=last).filter(|k| wanted[k - first]) {
-            let Some(a) = waiting.take() else {
-                waiting = Some(b);
+        let obs = &self.data.obs;
+        let read = (first..=last).filter(|k| wanted[k - first]);
+        for (a, second) in pairs(read, |a, b| obs[a].tip == obs[b].tip) {
+            let Some(b) = second else {
+                pose[a - first] = single(a, &mut chain);
                 continue;
             };
-            let (oa, ob) = (&self.data.obs[a], &self.data.obs[b]);
-            if oa.tip != ob.tip {
-                pose[a - first] = single(a, &mut chain);
-                waiting = Some(b);
-                continue;
-            }
+            let (oa, ob) = (&obs[a], &obs[b]);
             let (before, after) = chain.split_at_mut((b - first) * arm);
             let [pa, pb] = kinematics.tip(oa.tip).pose_pair_with_sin_cos_and_jacobian(
                 [&oa.q_deg, &ob.q_deg],
@@ -265,9 +285,6 @@ impl<'a> Problem<'a> {
                 [&mut before[(a - first) * arm..][..arm], &mut after[..arm]],
             );
             (pose[a - first], pose[b - first]) = (Some(pa), Some(pb));
-        }
-        if let Some(a) = waiting {
-            pose[a - first] = single(a, &mut chain);
         }
         if let Ok(mut spare) = self.spare_wanted.lock() {
             spare.push(wanted);
@@ -967,6 +984,50 @@ mod tests {
             let fresh = Problem::new(layout(arm), &nominal, &data, &terms, starts.clone(), None);
             assert_same_sums(&kept, &fresh, &x, Loss::Linear, &format!("{} arm columns", arm.len()));
         }
+    }
+
+    /// The poses of an evaluation without derivatives, taken two at a time, are each
+    /// observation's pose alone to the bit, and an observation no term reads has none: terms over
+    /// two points of three, a tip change that breaks a pair, chunks of the parallel split that end
+    /// on an odd observation.
+    #[test]
+    fn poses_without_derivatives_are_the_poses_one_at_a_time() {
+        let nominal = ArmModel::suta_nominal();
+        let mut data = sessions(&nominal);
+        let copies = data.obs.clone();
+        for _ in 0..2 {
+            data.obs.extend(copies.iter().cloned());
+        }
+        data.rebuild_blocks();
+        for k in [5, 6, 255, 300] {
+            data.obs[k].tip = 1;
+        }
+        let choice = TermChoice {
+            relative_orientation_lever_mm: None,
+            orientation_weight_mm_per_rad: None,
+            point_weight: 1.0,
+        };
+        let terms: Vec<Box<dyn Term>> = build(&data, &choice)
+            .into_iter()
+            .enumerate()
+            .filter(|(i, _)| i % 3 != 1)
+            .map(|(_, t)| t)
+            .collect();
+        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
+        let blocks = data.blocks.len();
+        let tools = vec![true; data.groups.len()];
+        let layout = Layout::new(params.clone(), &vec![true; blocks], &tools, false, &vec![None; blocks]);
+        let problem = Problem::new(layout, &nominal, &data, &terms, start_rotations(blocks), None);
+        let state = problem.state(&framed_point(&problem, &params, &nominal));
+        let poses = problem.poses(&state, false);
+        let tips = Tips::new(&state.model);
+        assert!(data.obs.len() > MIN_POSES_PER_TASK && poses.pose.len() == data.obs.len());
+        for (k, o) in data.obs.iter().enumerate() {
+            let alone =
+                problem.read[k].then(|| tips.tip(o.tip).pose_with_sin_cos(&o.q_deg, problem.sin_cos(k)));
+            assert_eq!(poses.pose[k], alone, "observation {k}");
+        }
+        assert_eq!(poses.pose.iter().filter(|p| p.is_none()).count(), data.obs.len() / 3);
     }
 
     /// Points written straight into a batch whose arm columns are not in order (placed backwards

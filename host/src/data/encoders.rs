@@ -195,14 +195,23 @@ impl Encoders {
 }
 
 /// `members` in order, two at a time where `same` holds of the first and the next (else one).
-fn pairs(
-    members: impl Iterator<Item = usize>,
+pub(crate) fn pairs(
+    mut members: impl Iterator<Item = usize>,
     same: impl Fn(usize, usize) -> bool,
 ) -> impl Iterator<Item = (usize, Option<usize>)> {
-    let mut members = members.peekable();
+    // By hand rather than `Peekable::next_if`, which the compiler leaves as a call per member
+    // on the kinematics' hot loop.
+    let mut next = members.next();
     std::iter::from_fn(move || {
-        let first = members.next()?;
-        Some((first, members.next_if(|&next| same(first, next))))
+        let first = next.take()?;
+        next = members.next();
+        match next {
+            Some(second) if same(first, second) => {
+                next = members.next();
+                Some((first, Some(second)))
+            }
+            _ => Some((first, None)),
+        }
     })
 }
 

@@ -762,6 +762,15 @@ mod tests {
         data
     }
 
+    /// The terms of positions alone, unweighted.
+    fn positions_only() -> TermChoice {
+        TermChoice {
+            relative_orientation_lever_mm: None,
+            orientation_weight_mm_per_rad: None,
+            point_weight: 1.0,
+        }
+    }
+
     /// A term that writes its derivatives only through its Jacobian (the default path), its
     /// columns in their order or, `reversed`, backwards (the first term in a batch then places
     /// the arm's columns there backwards).
@@ -965,11 +974,7 @@ mod tests {
         let data = sessions(&nominal);
         let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
         let blocks = data.blocks.len();
-        let choice = TermChoice {
-            relative_orientation_lever_mm: None,
-            orientation_weight_mm_per_rad: None,
-            point_weight: 1.0,
-        };
+        let choice = positions_only();
         let terms = build(&data, &choice);
         let layout = |arm: &[crate::model::ParamId]| {
             let tools = vec![true; data.groups.len()];
@@ -1002,11 +1007,7 @@ mod tests {
         for k in [5, 6, 255, 300] {
             data.obs[k].tip = 1;
         }
-        let choice = TermChoice {
-            relative_orientation_lever_mm: None,
-            orientation_weight_mm_per_rad: None,
-            point_weight: 1.0,
-        };
+        let choice = positions_only();
         let terms: Vec<Box<dyn Term>> = build(&data, &choice)
             .into_iter()
             .enumerate()
@@ -1039,11 +1040,7 @@ mod tests {
         let data = sessions(&nominal);
         let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
         let blocks = data.blocks.len();
-        let choice = TermChoice {
-            relative_orientation_lever_mm: None,
-            orientation_weight_mm_per_rad: None,
-            point_weight: 1.0,
-        };
+        let choice = positions_only();
         // Every other term reversed; the rest written into the rows (ours) or through their
         // Jacobians (theirs): the same columns in the same batch places.
         let mixed = |direct: bool| -> Vec<Box<dyn Term>> {

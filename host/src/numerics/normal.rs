@@ -1,7 +1,7 @@
 //! Normal equations JᵀWJ and JᵀWr (W the rows' IRLS weights), as Ceres' dense normal Cholesky
 //! forms them, of a Jacobian given in dense blocks of rows.
 //!
-//! [`add_gram_product`] takes one column-major block D (m × k): U = W·D (its rows times their
+//! The dense product takes one column-major block D (m × k): U = W·D (its rows times their
 //! weights, copied row by row, so that Uᵀ is column-major), JᵀWr = Uᵀr, and UᵀD by nalgebra's
 //! dense product, which hands blocks of this size to the `matrixmultiply` crate: register-tiled
 //! micro-kernels over packed panels, chosen at run time for the CPU (AVX2 and FMA where the
@@ -65,31 +65,10 @@ fn add_scaled_row(out: &mut [f64], u: f64, c: &[f64]) {
     }
 }
 
-/// As [`add_gram`] for the m rows of a column-major block (column l's rows at
-/// `columns[l * stride ..]`, k columns), by the dense product (see the module doc; the plain
-/// sums to rounding). `buffers` holds the weighted copy and the product (kept by a caller
-/// summing many blocks).
-#[allow(clippy::too_many_arguments)]
-pub fn add_gram_product(
-    h: &mut [f64],
-    g: &mut [f64],
-    k: usize,
-    columns: &[f64],
-    stride: usize,
-    weights: &[f64],
-    r: &[f64],
-    buffers: &mut GramBuffers,
-) {
-    let m = weights.len();
-    debug_assert!(r.len() == m && h.len() == k * k && g.len() == k && m <= stride);
-    if m == 0 || k == 0 {
-        return;
-    }
-    add_upper(h, columns_product(g, (columns, stride, k), weights, r, buffers), k);
-}
-
-/// As [`add_gram_product`], the Gram matrix returned (k × k row-major, its upper triangle, in
-/// `buffers`) instead of added into sums; m and k not zero.
+/// The Gram matrix of the m rows of a column-major block (column l's rows at
+/// `columns[l * stride ..]`, k columns) by the dense product, returned (k × k row-major, its
+/// upper triangle, in `buffers`, which holds the weighted copy too), Uᵀr added into `g`; m and
+/// k not zero.
 fn columns_product<'b>(
     g: &mut [f64],
     (columns, stride, k): (&[f64], usize, usize),
@@ -251,7 +230,7 @@ fn column_blocks(k: usize) -> ([usize; 4], usize) {
     (edges, blocks)
 }
 
-/// The buffers of [`add_gram_product`]: a block's weighted copy and its k × k product
+/// The buffers of [`add_rows_gram`]: a block's weighted copy and its k × k product
 /// (row-major).
 #[derive(Default)]
 pub struct GramBuffers {
@@ -263,8 +242,9 @@ pub struct GramBuffers {
 pub trait RowTarget {
     /// Room for a term of `rows` rows (at most a batch's) reading the columns of `columns`:
     /// its rows, for it to write its derivatives into. A term asks once, over disjoint spans,
-    /// and writes every column of `columns` (the rows are zero at the batch's other columns,
-    /// any values at these).
+    /// and must write every column of `columns`, a zero derivative too: the rows are zero at the
+    /// batch's other columns but hold any values at these (an earlier batch's; NaN in a build
+    /// with debug assertions, so that a column left unwritten poisons the sums there).
     fn rows<'a>(&'a mut self, rows: usize, columns: &'a [Range<usize>]) -> TermRows<'a>;
 }
 
@@ -558,8 +538,17 @@ impl RowTarget for NormalSums {
         let block = &mut self.dense[first * width..(first + rows) * width];
         // The term writes its own columns; any other of the batch's must be zero.
         debug_assert!(columns.iter().flat_map(Clone::clone).all(|c| self.local[c] != NONE));
+        debug_assert!(
+            columns
+                .iter()
+                .enumerate()
+                .all(|(i, a)| columns[..i].iter().all(|b| a.end <= b.start || b.end <= a.start)),
+            "the spans of a term overlap: {columns:?}"
+        );
         if columns.iter().map(ExactSizeIterator::len).sum::<usize>() < k {
             block.chunks_exact_mut(width).for_each(|row| row[..k].fill(0.0));
+        } else if cfg!(debug_assertions) {
+            block.chunks_exact_mut(width).for_each(|row| row[..k].fill(f64::NAN));
         }
         TermRows { in_order: self.placed_in_order, ..TermRows::new(block, width, &self.local, columns) }
     }
@@ -954,7 +943,7 @@ mod tests {
             for (data, stride) in [(&columns, stride), (&packed, m)] {
                 let (mut h, mut g): (Vec<f64>, Vec<f64>) =
                     ((0..k * k).map(start).collect(), (0..k).map(start).collect());
-                add_gram_product(&mut h, &mut g, k, data, stride, &w, &r, &mut buffers);
+                add_upper(&mut h, columns_product(&mut g, (data, stride, k), &w, &r, &mut buffers), k);
                 for a in 0..k {
                     assert!((g[a] - gd[a]).abs() <= 1e-12 * scale, "{m} × {k}: g[{a}] {} vs {}", g[a], gd[a]);
                     for b in a..k {

@@ -118,8 +118,9 @@ pub fn run_report(run: &Run, run_dir: &Path) -> String {
     page_end(body)
 }
 
-/// About the size of a scatter plot's point (one `<circle>` element) and of a plot's frame.
+/// About the size of a scatter plot's point (one `<circle>` element).
 const POINT_BYTES: usize = 80;
+/// About the size of a scatter plot's frame (axes, ticks, labels).
 const PLOT_BYTES: usize = 4096;
 
 /// About the bytes of the sessions' residual plots, reserved for the page at its start: they are

@@ -169,6 +169,7 @@ impl Dots {
     fn finish(self, out: &mut String) {
         match std::str::from_utf8(&self.bytes) {
             Ok(text) => out.push_str(text),
+            // Not reached (every piece is text); kept so that a mistake costs a character, not a panic.
             Err(_) => out.push_str(&String::from_utf8_lossy(&self.bytes)),
         }
     }

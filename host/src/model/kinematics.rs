@@ -37,7 +37,7 @@ use super::tree::{self, Loads};
 use super::{ArmModel, Convention, ParamId, MAX_BODIES, MAX_TREE_JOINTS};
 use crate::model::effects::{bend, compliance, eccentricity, harmonic, mass, sag};
 use crate::numerics::geometry::left_jacobian;
-use lanes::{lane, Lanes};
+use lanes::{lane, Lanes, Poses, Width};
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
 mod dh;
@@ -706,7 +706,7 @@ impl<'m> Chain<'m> {
             }
         }
         let [x_axis, _, z_axis] = frame.axes;
-        let frame = [frame.origin, x_axis, z_axis].map(|v| v.map(|c| Lanes([c])).into());
+        let frame = [frame.origin, x_axis, z_axis].map(|v| [v.x, v.y, v.z].map(Lanes::<1>::splat));
         let (columns, mut jac) = wanted.map_or((None, None), |(c, j)| (Some(c), Some([j])));
         let [pose] = self.finish(frame, columns.zip(jac.as_mut()));
         pose
@@ -720,7 +720,10 @@ impl<'m> Chain<'m> {
         &self,
         [point, x_axis, z_axis]: dh::TipFrame<N>,
         wanted: Option<(&ColumnMap, &mut [&mut [PoseDerivative]; N])>,
-    ) -> [ToolPose; N] {
+    ) -> [ToolPose; N]
+    where
+        Poses<N>: Width,
+    {
         if let Some((columns, jacs)) = wanted {
             let scale = Lanes::splat(self.scale);
             let count = jacs.iter().map(|jac| jac.len()).min().unwrap_or(0);
@@ -743,21 +746,21 @@ impl<'m> Chain<'m> {
                     let (dx, dz) = (lanes::cross(&w, &x_axis), lanes::cross(&w, &z_axis));
                     for (i, jac) in jacs.iter_mut().enumerate() {
                         let [p, x, z] = [dp, dx, dz];
-                        jac[c] = [p[0], p[1], p[2], x[0], x[1], x[2], z[0], z[1], z[2]].map(|v| v.0[i]);
+                        jac[c] = [p[0], p[1], p[2], x[0], x[1], x[2], z[0], z[1], z[2]].map(|v| v.lane(i));
                     }
                 }
             } else {
                 for c in 0..count {
                     let (_, dp) = moved(&jacs, c);
                     for (i, jac) in jacs.iter_mut().enumerate() {
-                        jac[c] = [dp[0].0[i], dp[1].0[i], dp[2].0[i], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+                        jac[c] = [dp[0].lane(i), dp[1].lane(i), dp[2].lane(i), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
                     }
                 }
             }
             if let Some(c) = columns.column(ParamId::Scale.dense_index()) {
                 for (i, jac) in jacs.iter_mut().enumerate() {
                     for k in 0..3 {
-                        jac[c][k] += point[k].0[i] * 1e-6;
+                        jac[c][k] += point[k].lane(i) * 1e-6;
                     }
                 }
             }

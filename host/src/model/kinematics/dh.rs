@@ -14,7 +14,7 @@
 //! columns the chain does not move are zeroed only when some are wanted, see
 //! [`Chain::dh_columns`]).
 
-use super::lanes::{cross, difference, gathered, scaled, sum, Lanes, Vec3};
+use super::lanes::{cross, difference, gathered, scaled, sum, Lanes, Poses, Vec3, Width};
 use super::{Chain, ColumnMap, PoseDerivative, DEG};
 use crate::model::{ArmModel, Convention, ParamId};
 
@@ -73,7 +73,10 @@ pub(super) type Encoders<'e> = (&'e [f64], Option<&'e [(f64, f64)]>);
 pub(super) type Wanted<'c, 'j, const N: usize> = (&'c ColumnMap, &'c mut [&'j mut [PoseDerivative]; N]);
 
 /// The frames carried from the base (one per pose) and the columns written so far.
-struct Pass<'c, 'j, const N: usize> {
+struct Pass<'c, 'j, const N: usize>
+where
+    Poses<N>: Width,
+{
     axes: [Vec3<N>; 3],
     origin: Vec3<N>,
     wanted: Option<Wanted<'c, 'j, N>>,
@@ -81,7 +84,10 @@ struct Pass<'c, 'j, const N: usize> {
     written: usize,
 }
 
-impl<const N: usize> Pass<'_, '_, N> {
+impl<const N: usize> Pass<'_, '_, N>
+where
+    Poses<N>: Width,
+{
     /// Write V and W, of `values()`, to the column of dense slot `slot` if it is wanted (where
     /// [`gathered`] says).
     #[inline(always)]
@@ -145,7 +151,10 @@ impl Chain<'_> {
         rows: &[Row],
         enc: [Encoders<'_>; N],
         mut wanted: Option<Wanted<'_, '_, N>>,
-    ) -> TipFrame<N> {
+    ) -> TipFrame<N>
+    where
+        Poses<N>: Width,
+    {
         let Some((columns, jacs)) = wanted.as_mut() else {
             return self.dh_pass(rows, &enc, None).0;
         };
@@ -174,7 +183,10 @@ impl Chain<'_> {
         rows: &[Row],
         enc: &[Encoders<'_>; N],
         wanted: Option<Wanted<'_, '_, N>>,
-    ) -> (TipFrame<N>, usize) {
+    ) -> (TipFrame<N>, usize)
+    where
+        Poses<N>: Width,
+    {
         let (zero, one) = (Lanes::splat(0.0), Lanes::splat(1.0));
         let mut pass = Pass {
             axes: [[one, zero, zero], [zero, one, zero], [zero, zero, one]],
@@ -210,24 +222,25 @@ impl Chain<'_> {
     /// encoder's kept sine and cosine and the offset's (every lane in one go when every pose has
     /// them kept: the same operations on each), else one sine and cosine of θ.
     #[inline(always)]
-    fn theta_sin_cos<const N: usize>(&self, j: usize, enc: &[Encoders<'_>; N]) -> (Lanes<N>, Lanes<N>) {
+    fn theta_sin_cos<const N: usize>(&self, j: usize, enc: &[Encoders<'_>; N]) -> (Lanes<N>, Lanes<N>)
+    where
+        Poses<N>: Width,
+    {
         let (so, co) = self.offset_sin_cos[j];
         let kept = enc.map(|(_, sin_cos)| sin_cos.and_then(|sc| sc.get(j)).copied());
         if kept.iter().all(Option::is_some) {
             let sin_cos = kept.map(Option::unwrap_or_default);
-            let (s, c) = (Lanes(sin_cos.map(|sc| sc.0)), Lanes(sin_cos.map(|sc| sc.1)));
+            let (s, c) = (Lanes::from_fn(|i| sin_cos[i].0), Lanes::from_fn(|i| sin_cos[i].1));
             let (so, co) = (Lanes::splat(so), Lanes::splat(co));
             return (s * co + c * so, c * co - s * so);
         }
-        let mut theta = (Lanes::splat(0.0), Lanes::splat(1.0));
-        for (i, (&(enc_deg, _), kept)) in enc.iter().zip(kept).enumerate() {
-            (theta.0 .0[i], theta.1 .0[i]) = match kept {
-                Some((s, c)) => (s * co + c * so, c * co - s * so),
-                None => ((enc_deg.get(j).copied().unwrap_or(0.0) + self.model.joints[j].offset_deg) * DEG)
-                    .sin_cos(),
-            };
-        }
-        theta
+        let theta: [(f64, f64); N] = std::array::from_fn(|i| match kept[i] {
+            Some((s, c)) => (s * co + c * so, c * co - s * so),
+            None => {
+                ((enc[i].0.get(j).copied().unwrap_or(0.0) + self.model.joints[j].offset_deg) * DEG).sin_cos()
+            }
+        });
+        (Lanes::from_fn(|i| theta[i].0), Lanes::from_fn(|i| theta[i].1))
     }
 }
 
@@ -325,19 +338,33 @@ mod tests {
         }
     }
 
-    /// Two poses carried together are, to the bit, the two carried alone (pose and every column),
-    /// in both conventions, for all the columns, those of the position alone and a set with a
-    /// column the chain does not move, into buffers of garbage; a URDF arm (no kernel) too.
-    #[test]
-    fn two_poses_together_are_the_two_alone() {
+    /// A URDF arm of the DH arm's lengths, and DH arms with a compliance or an encoder harmonic:
+    /// chains the two-pose kernel does not take (the general pass, one pose after the other).
+    fn arms_off_the_kernel() -> [ArmModel; 3] {
         let mut urdf = arm(Convention::Urdf);
         for joint in &mut urdf.joints {
             joint.origin_xyz_mm = [joint.a_mm, 0.0, joint.d_mm];
         }
+        let mut compliant = arm(Convention::Classic);
+        compliant.joints[1].compliance_deg_per_m = 0.5;
+        let mut harmonic = arm(Convention::Modified);
+        harmonic.joints[2].eccentricity_sin_deg = 0.03;
+        [urdf, compliant, harmonic]
+    }
+
+    /// Two poses carried together are, to the bit, the two carried alone (pose and every column),
+    /// in both conventions, for all the columns, those of the position alone and a set with a
+    /// column the chain does not move, into buffers of garbage; the arms off the kernel too. A
+    /// pose with a NaN angle leaves the other lane's pose and columns as they are (NaN on its
+    /// own), and a pose lacking angles reads them as zero in either lane.
+    #[test]
+    fn two_poses_together_are_the_two_alone() {
         let params = dh_params();
         let mut stray = params[2..30].to_vec();
         stray.insert(4, ParamId::Offset(9));
-        for model in [arm(Convention::Classic), arm(Convention::Modified), urdf] {
+        let [urdf, compliant, harmonic] = arms_off_the_kernel();
+        let models = [(arm(Convention::Classic), true), (arm(Convention::Modified), true), (urdf, false)];
+        for (model, dh) in models.into_iter().chain([(compliant, false), (harmonic, false)]) {
             let chain = Chain::new(&model);
             for (set, columns) in [
                 ColumnMap::new(&params),
@@ -348,9 +375,9 @@ mod tests {
             .into_iter()
             .enumerate()
             {
-                // The DH arms take the two-pose kernel for the first three sets (every
-                // parameter's set has harmonics and compliance: the general pass, as the URDF arm).
-                let kernel = model.convention != Convention::Urdf && set < 3;
+                // The plain DH arms take the two-pose kernel for the first three sets (every
+                // parameter's set has harmonics and compliance: the general pass).
+                let kernel = dh && set < 3;
                 assert_eq!(
                     chain.kernel(Some(&columns)).is_some(),
                     kernel,
@@ -358,9 +385,15 @@ mod tests {
                     model.convention
                 );
                 for pose in 0..10 {
-                    let enc: [Vec<f64>; 2] = [0, 1].map(|lane| {
+                    let mut enc: [Vec<f64>; 2] = [0, 1].map(|lane| {
                         (0..7).map(|j| ((pose * 14 + lane * 7 + j) as f64 * 0.53).sin() * 175.0).collect()
                     });
+                    match pose {
+                        3 => enc[1][4] = f64::NAN,
+                        4 => enc[0][0] = f64::NAN,
+                        5 => enc[1].truncate(5),
+                        _ => {}
+                    }
                     let sin_cos =
                         enc.clone().map(|e| e.iter().map(|&q| encoder_sin_cos(q)).collect::<Vec<_>>());
                     let mut alone = [0, 1].map(|_| vec![[f64::NAN; 9]; columns.len()]);
@@ -381,10 +414,15 @@ mod tests {
                     let bits =
                         |p: &ToolPose| [p.position_mm, p.x_axis, p.z_axis].map(|v| v.map(f64::to_bits));
                     for lane in 0..2 {
-                        let label = format!("{:?} pose {pose} lane {lane}", model.convention);
+                        let label = format!("{:?} kernel {kernel} pose {pose} lane {lane}", model.convention);
                         assert_eq!(bits(&pair[lane]), bits(&single[lane]), "{label}");
                         for (c, (t, a)) in together[lane].iter().zip(&alone[lane]).enumerate() {
                             assert_eq!(t.map(f64::to_bits), a.map(f64::to_bits), "{label} column {c}");
+                        }
+                        let nan = enc[lane].iter().any(|q| q.is_nan());
+                        assert_eq!(single[lane].position_mm.x.is_nan(), nan, "{label}");
+                        if !nan {
+                            assert!(alone[lane].iter().flatten().all(|v| v.is_finite()), "{label}");
                         }
                     }
                     assert_ne!(single[0].position_mm, single[1].position_mm, "two different poses");
@@ -399,14 +437,7 @@ mod tests {
     /// leaves the other lane as it is, and a pose lacking angles reads them as zero in either.
     #[test]
     fn two_poses_without_columns_are_the_two_alone() {
-        let mut urdf = arm(Convention::Urdf);
-        for joint in &mut urdf.joints {
-            joint.origin_xyz_mm = [joint.a_mm, 0.0, joint.d_mm];
-        }
-        let mut compliant = arm(Convention::Classic);
-        compliant.joints[1].compliance_deg_per_m = 0.5;
-        let mut harmonic = arm(Convention::Modified);
-        harmonic.joints[2].eccentricity_sin_deg = 0.03;
+        let [urdf, compliant, harmonic] = arms_off_the_kernel();
         let models = [(arm(Convention::Classic), true), (arm(Convention::Modified), true)];
         for (model, kernel) in
             models.into_iter().chain([(urdf, false), (compliant, false), (harmonic, false)])

@@ -540,7 +540,8 @@ impl<'m> Chain<'m> {
             Some(rows) => {
                 let (columns, jac) = wanted.map_or((None, None), |(c, j)| (Some(c), Some(j)));
                 let mut jacs = jac.map(|j| [j]);
-                let frame = self.dh_columns(rows, [(enc_deg, enc_sin_cos)], columns.zip(jacs.as_mut()));
+                let enc = [(enc_deg, enc_sin_cos.unwrap_or_default())];
+                let frame = self.dh_columns(rows, enc, columns.zip(jacs.as_mut()));
                 let [pose] = self.finish(frame, columns.zip(jacs.as_mut()));
                 pose
             }
@@ -566,8 +567,8 @@ impl<'m> Chain<'m> {
                 self.evaluate(enc_deg[1], Some(enc_sin_cos[1]), Some((columns, second))),
             ];
         };
-        let enc = [(enc_deg[0], Some(enc_sin_cos[0])), (enc_deg[1], Some(enc_sin_cos[1]))];
-        let frame = self.dh_columns(rows, enc, Some((columns, &mut jacs)));
+        let frame =
+            self.dh_columns(rows, [0, 1].map(|i| (enc_deg[i], enc_sin_cos[i])), Some((columns, &mut jacs)));
         self.finish(frame, Some((columns, &mut jacs)))
     }
 
@@ -579,10 +580,11 @@ impl<'m> Chain<'m> {
         enc_deg: [&[f64]; 2],
         enc_sin_cos: [&[(f64, f64)]; 2],
     ) -> [ToolPose; 2] {
-        let enc = [(enc_deg[0], Some(enc_sin_cos[0])), (enc_deg[1], Some(enc_sin_cos[1]))];
         match self.kernel(None) {
-            Some(rows) => self.finish(self.dh_columns(rows, enc, None), None),
-            None => enc.map(|(deg, sin_cos)| self.general_pass(deg, sin_cos, None)),
+            Some(rows) => {
+                self.finish(self.dh_columns(rows, [0, 1].map(|i| (enc_deg[i], enc_sin_cos[i])), None), None)
+            }
+            None => [0, 1].map(|i| self.general_pass(enc_deg[i], Some(enc_sin_cos[i]), None)),
         }
     }
 

@@ -66,8 +66,9 @@ pub(super) fn rows(model: &ArmModel, path: &[usize]) -> Option<Vec<Row>> {
 /// The tool point, x axis and z axis a pass ends at (before the scale), per pose.
 pub(super) type TipFrame<const N: usize> = [Vec3<N>; 3];
 
-/// Per pose, its encoder angles (degrees) and, when kept, their sines and cosines.
-pub(super) type Encoders<'e> = (&'e [f64], Option<&'e [(f64, f64)]>);
+/// Per pose, its encoder angles (degrees) and their kept sines and cosines (none kept: empty;
+/// a slice rather than an option, so that a joint's pair is one bounds check away per pose).
+pub(super) type Encoders<'e> = (&'e [f64], &'e [(f64, f64)]);
 
 /// The wanted columns and, per pose, the buffer they are written to.
 pub(super) type Wanted<'c, 'j, const N: usize> = (&'c ColumnMap, &'c mut [&'j mut [PoseDerivative]; N]);
@@ -227,7 +228,7 @@ impl Chain<'_> {
         Poses<N>: Width,
     {
         let (so, co) = self.offset_sin_cos[j];
-        let kept = enc.map(|(_, sin_cos)| sin_cos.and_then(|sc| sc.get(j)).copied());
+        let kept = enc.map(|(_, sin_cos)| sin_cos.get(j).copied());
         if kept.iter().all(Option::is_some) {
             let sin_cos = kept.map(Option::unwrap_or_default);
             let (s, c) = (Lanes::from_fn(|i| sin_cos[i].0), Lanes::from_fn(|i| sin_cos[i].1));

@@ -618,7 +618,7 @@ impl Problem<'_> {
                             finite &= r.iter().all(|v| v.is_finite());
                         }
                         self.recycle(poses);
-                        finite &= block.finite && block.values.iter().all(|v| v.is_finite());
+                        finite &= block.all_finite();
                         finite.then(|| r_factor(DMatrix::from_row_slice(rows, width, &block.values)))
                     })
                     .collect();
@@ -646,6 +646,15 @@ struct FactorRows<'l> {
 }
 
 impl FactorRows<'_> {
+    /// Every value written, and every derivative copied, is finite. The rows are read eight
+    /// values at a time without stopping inside a chunk, which the compiler turns into vector
+    /// comparisons (stopping at the first one not finite took three times the instructions).
+    fn all_finite(&self) -> bool {
+        let (chunks, tail) = self.values.as_chunks::<8>();
+        let chunk_finite = |c: &[f64; 8]| c.iter().fold(true, |all, v| all & v.is_finite());
+        self.finite && chunks.iter().all(chunk_finite) && tail.iter().all(|v| v.is_finite())
+    }
+
     /// The next term's rows from its Jacobian `jac` (columns that are not the group's left out).
     fn add(&mut self, jac: &TermJacobian) {
         let rows = &mut self.values[self.at * self.width..(self.at + jac.rows) * self.width];
@@ -961,6 +970,24 @@ mod tests {
             ours.evaluate(&x, &mut r, None);
             for loss in [Loss::Linear, Loss::Huber(median_abs(&r))] {
                 assert_same_sums(&ours, &theirs, &x, loss, &format!("point weight {point_weight}, {loss:?}"));
+            }
+        }
+    }
+
+    /// A factor's rows are finite exactly when every value is, wherever the one that is not lies
+    /// (in a chunk of eight or in the tail), and not when a copied derivative was not.
+    #[test]
+    fn factor_rows_are_finite_exactly_when_every_value_is() {
+        let local = [0, 1, 2];
+        let rows = |values: Vec<f64>, finite| FactorRows { values, width: 3, local: &local, at: 0, finite };
+        let values: Vec<f64> = (0..27).map(|k| k as f64 - 13.5).collect();
+        assert!(rows(values.clone(), true).all_finite());
+        assert!(!rows(values.clone(), false).all_finite());
+        for k in [0, 7, 8, 23, 24, 26] {
+            for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                let mut with_bad = values.clone();
+                with_bad[k] = bad;
+                assert!(!rows(with_bad, true).all_finite(), "{bad} at {k}");
             }
         }
     }

@@ -1,15 +1,22 @@
 //! The R factor of a tall matrix by Householder reflections, blocked as LAPACK's `dgeqrf` is: a
 //! panel of 8 columns is reflected column by column, its reflections gathered as
 //! I − V·T·Vᵀ (the compact WY form, LAPACK's `dlarft`), and the columns right of the panel are
-//! updated by two matrix products (`dlarfb`), which matrixmultiply runs with the vector
-//! instructions it finds on the processor at run time. Q is not formed. The same reflections as
-//! the unblocked algorithm, so the same backward stability; only the summation order differs.
+//! updated by two matrix products (`dlarfb`: [VᵀV | VᵀC] in one, then C − V·W), which
+//! matrixmultiply runs with the vector instructions it finds on the processor at run time. Q is
+//! not formed. The same reflections as the unblocked algorithm, so the same backward stability;
+//! only the summation order differs.
+//!
+//! The reflections within a panel, and the updates too small for matrixmultiply, are loops
+//! written here (nalgebra's own loops for small products index element by element): the
+//! library forbids `unsafe`, so they are the portable build's two-lane vector instructions,
+//! shaped so that the compiler emits them (a dot product in two partial sums over eight terms a
+//! pass, two columns updated per pass over a reflection's vector).
 
 use nalgebra::{DMatrix, DMatrixView};
 
-/// Columns reflected one by one before the columns right of them are updated by one product
-/// (on the tracker's groups of about 30 columns, 6 and 10 took 25 % more instructions than 8,
-/// the height of matrixmultiply's kernel).
+/// Columns reflected one by one before the columns right of them are updated by products (on
+/// the tracker's blocks of 384 × 35, 6, 10, 12 and 16 took 9 % to 16 % more instructions than
+/// 8, the height of matrixmultiply's kernel).
 const PANEL: usize = 8;
 
 /// The R factor of `a` (m × w): min(m, w) × w, upper triangular, with RᵀR = aᵀa (the row signs
@@ -23,6 +30,9 @@ pub fn r_factor(mut a: DMatrix<f64>) -> DMatrix<f64> {
         panel.reflect(&mut a, start, width);
         if start + width < w {
             panel.update(&mut a, start, width);
+        }
+        for (i, &alpha) in panel.alpha.iter().enumerate() {
+            a[(start + i, start + i)] = alpha;
         }
     }
     DMatrix::from_fn(k, w, |i, j| if i <= j { a[(i, j)] } else { 0.0 })
@@ -63,9 +73,7 @@ pub fn r_factor_of_stacked(mut top: DMatrix<f64>, mut bottom: DMatrix<f64>) -> D
         for (c, column) in (j + 1..w).zip(rest.chunks_exact_mut(q)) {
             let d = scale * (v0 * top[(j, c)] + dot(v, &column[..len]));
             top[(j, c)] -= d * v0;
-            for (ci, vi) in column[..len].iter_mut().zip(v.iter()) {
-                *ci -= d * vi;
-            }
+            axpy(-d, v, &mut column[..len]);
         }
         top[(j, j)] = alpha;
         v.fill(0.0);
@@ -73,97 +81,168 @@ pub fn r_factor_of_stacked(mut top: DMatrix<f64>, mut bottom: DMatrix<f64>) -> D
     top
 }
 
-/// One panel's reflections: V (their vectors, column-major, from the panel's first row down,
-/// zero above each one's start), Vᵀ row by row, T, and the buffers of the update.
+/// Sizes above which nalgebra hands a product to matrixmultiply (at or below it, its own loop,
+/// which reads past the end of views whose row stride is not 1).
+const NALGEBRA_SMALL: usize = 5;
+
+/// One panel's reflections and the buffers of its update, kept for every panel of a factor.
+/// The reflections' vectors v stay in the panel's columns of the matrix, from its diagonal down
+/// (V, m × b below the entries of R above the diagonal), until the update is done.
 #[derive(Default)]
 struct Panel {
-    v: DMatrix<f64>,
-    vt: DMatrix<f64>,
+    /// R's diagonal entries, written over the vectors' first entries once they are applied.
+    alpha: Vec<f64>,
+    /// The reflections' factors 2/vᵀv.
     tau: Vec<f64>,
-    t: DMatrix<f64>,
-    w: DMatrix<f64>,
+    /// R's entries above the panel's diagonal, while V's zeros stand in their place.
+    above: Vec<f64>,
+    /// [VᵀV | W]: V's Gram matrix, then Vᵀ·C, then Tᵀ·Vᵀ·C.
+    products: DMatrix<f64>,
+    /// T (upper triangular, column-major).
+    t: Vec<f64>,
 }
 
 impl Panel {
     /// Reflect columns `start..start + width` of `a` (rows from `start` down), leaving R's part
-    /// in place and the reflections' vectors and factors 2/vᵀv in `self`.
+    /// above the diagonal and the vectors from it down, the diagonal of R in `alpha`.
     fn reflect(&mut self, a: &mut DMatrix<f64>, start: usize, width: usize) {
         let m = a.nrows();
-        let rows = m - start;
-        self.v = DMatrix::zeros(rows, width);
+        self.alpha.clear();
         self.tau.clear();
         let data = a.as_mut_slice();
         for i in 0..width {
             let j = start + i;
             let (done, rest) = data.split_at_mut((j + 1) * m);
             let v = &mut done[j * m + j..];
-            let norm = dot(v, v).sqrt();
+            let below = dot(&v[1..], &v[1..]);
+            let x0 = v[0];
+            let norm = (x0 * x0 + below).sqrt();
             if norm == 0.0 {
+                // A zero column: no reflection (v = 0).
+                self.alpha.push(0.0);
                 self.tau.push(0.0);
                 continue;
             }
             // v = x − α·e₁ with α of the sign opposite to x₀ (no cancellation); H = I − 2vvᵀ/vᵀv.
-            let alpha = if v[0] > 0.0 { -norm } else { norm };
-            v[0] -= alpha;
-            let scale = 2.0 / dot(v, v);
-            for column in rest.chunks_exact_mut(m).take(width - i - 1) {
-                let c = &mut column[j..];
-                let d = scale * dot(v, c);
-                for (ci, vi) in c.iter_mut().zip(v.iter()) {
-                    *ci -= d * vi;
-                }
-            }
-            self.v.column_mut(i).as_mut_slice()[i..].copy_from_slice(v);
+            let alpha = if x0 > 0.0 { -norm } else { norm };
+            v[0] = x0 - alpha;
+            let scale = 2.0 / (v[0] * v[0] + below);
+            reflect_columns(v, scale, &mut rest[..(width - i - 1) * m], j);
+            self.alpha.push(alpha);
             self.tau.push(scale);
-            v[0] = alpha;
         }
     }
 
-    /// Apply the panel's reflections to the columns right of it: C − V·(Tᵀ·(Vᵀ·C)), with
-    /// H₁⋯H_b = I − V·T·Vᵀ.
+    /// Apply the panel's reflections to the columns right of it: by products when they are
+    /// large enough for matrixmultiply, otherwise one by one.
     fn update(&mut self, a: &mut DMatrix<f64>, start: usize, width: usize) {
+        if width <= NALGEBRA_SMALL || a.ncols() - start - width <= NALGEBRA_SMALL {
+            self.update_one_by_one(a, start, width);
+        } else {
+            self.update_by_products(a, start, width);
+        }
+    }
+
+    /// Apply the panel's reflections to the columns right of it one after the other.
+    fn update_one_by_one(&self, a: &mut DMatrix<f64>, start: usize, width: usize) {
+        let m = a.nrows();
+        let (panel, c) = a.as_mut_slice().split_at_mut((start + width) * m);
+        for (i, &scale) in self.tau.iter().enumerate() {
+            let j = start + i;
+            reflect_columns(&panel[j * m + j..(j + 1) * m], scale, c, j);
+        }
+    }
+
+    /// Apply the panel's reflections to the columns right of it (more than [`NALGEBRA_SMALL`]
+    /// of them, the panel as wide) by three products: C − V·(Tᵀ·(Vᵀ·C)), with
+    /// H₁⋯H_b = I − V·T·Vᵀ.
+    fn update_by_products(&mut self, a: &mut DMatrix<f64>, start: usize, width: usize) {
         let (m, w) = a.shape();
         let (rows, right) = (m - start, w - start - width);
-        self.vt = self.v.transpose();
-        // T (upper triangular) column by column: T[..i, i] = −τᵢ·T[..i, ..i]·(V[:, ..i]ᵀ·vᵢ).
-        let mut gram = DMatrix::zeros(width, width);
-        gram.gemm(1.0, &self.vt, &self.v, 0.0);
-        self.t = DMatrix::zeros(width, width);
+        // V: zeros above the diagonal (R's entries kept aside meanwhile).
+        let places = (1..width).flat_map(|i| (0..i).map(move |l| (start + l, start + i)));
+        self.above.clear();
+        self.above.extend(places.clone().map(|place| std::mem::take(&mut a[place])));
+        // [VᵀV | VᵀC] in one product, Vᵀ read from V's columns row by row (every size above
+        // NALGEBRA_SMALL: no view with another row stride reaches nalgebra's own loop).
+        let vt = DMatrixView::from_slice_with_strides(&a.as_slice()[start * m + start..], width, rows, m, 1);
+        let vc = a.view((start, start), (rows, width + right));
+        self.products.resize_mut(width, width + right, 0.0);
+        self.products.gemm(1.0, &vt, &vc, 0.0);
+        let (gram, wc) = self.products.as_mut_slice().split_at_mut(width * width);
+        // T column by column: T[..i, i] = −τᵢ·T[..i, ..i]·(V[:, ..i]ᵀ·vᵢ).
+        let t = &mut self.t;
+        t.clear();
+        t.resize(width * width, 0.0);
         for i in 0..width {
-            self.t[(i, i)] = self.tau[i];
+            let g = &gram[i * width..i * width + i];
+            t[i * width + i] = self.tau[i];
             for l in 0..i {
-                let s: f64 = (l..i).map(|p| self.t[(l, p)] * gram[(p, i)]).sum();
-                self.t[(l, i)] = -self.tau[i] * s;
+                let s: f64 = (l..i).map(|p| t[p * width + l] * g[p]).sum();
+                t[i * width + l] = -self.tau[i] * s;
             }
         }
-        // Unit row strides in every view (nalgebra's product for small sizes reads past the end
-        // of views with another row stride).
-        let c: DMatrixView<f64> = a.view((start, start + width), (rows, right));
-        if self.w.shape() != (width, right) {
-            self.w = DMatrix::zeros(width, right);
-        }
-        self.w.gemm(1.0, &self.vt, &c, 0.0);
-        // W ← Tᵀ·W, from the last row up (row i reads rows l ≤ i).
-        for col in 0..right {
+        // W ← Tᵀ·W column by column, from the last row up (row i reads rows l ≤ i).
+        for column in wc.chunks_exact_mut(width) {
             for i in (0..width).rev() {
-                self.w[(i, col)] = (0..=i).map(|l| self.t[(l, i)] * self.w[(l, col)]).sum();
+                column[i] = t[i * width..=i * width + i].iter().zip(&column[..=i]).map(|(t, w)| t * w).sum();
             }
         }
-        a.view_mut((start, start + width), (rows, right)).gemm(-1.0, &self.v, &self.w, 1.0);
+        let w_view = self.products.columns(width, right);
+        let (v, mut c) = a.columns_range_pair_mut(start..start + width, start + width..);
+        c.rows_mut(start, rows).gemm(-1.0, &v.rows(start, rows), &w_view, 1.0);
+        let places = (1..width).flat_map(|i| (0..i).map(move |l| (start + l, start + i)));
+        for (place, &entry) in places.zip(&self.above) {
+            a[place] = entry;
+        }
     }
 }
 
-/// Σ a_i·b_i in four interleaved partial sums (independent additions the processor overlaps).
+/// Apply H = I − scale·vvᵀ to the rows `first..` of each column of `columns` (column-major,
+/// each as long as the rows of `v` from `first` on plus `first`), two columns per pass over `v`.
+fn reflect_columns(v: &[f64], scale: f64, columns: &mut [f64], first: usize) {
+    let m = first + v.len();
+    let mut pairs = columns.chunks_exact_mut(2 * m);
+    for pair in &mut pairs {
+        let (c1, c2) = pair.split_at_mut(m);
+        let (c1, c2) = (&mut c1[first..], &mut c2[first..]);
+        let (d1, d2) = (scale * dot(v, c1), scale * dot(v, c2));
+        axpy2(-d1, -d2, v, c1, c2);
+    }
+    if let Some(last) = pairs.into_remainder().get_mut(first..).filter(|c| !c.is_empty()) {
+        let d = scale * dot(v, last);
+        axpy(-d, v, last);
+    }
+}
+
+/// Σ a_i·b_i in two partial sums (the two lanes of one vector instruction), eight terms a pass.
 fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut s = [0.0; 4];
-    let (a4, b4) = (a.chunks_exact(4), b.chunks_exact(4));
-    let tail: f64 = a4.remainder().iter().zip(b4.remainder()).map(|(x, y)| x * y).sum();
-    for (x, y) in a4.zip(b4) {
-        for k in 0..4 {
-            s[k] += x[k] * y[k];
+    let (a8, at) = a.as_chunks::<8>();
+    let (b8, bt) = b[..a.len()].as_chunks::<8>();
+    let mut s = [0.0; 2];
+    for (x, y) in a8.iter().zip(b8) {
+        for k in (0..8).step_by(2) {
+            s[0] += x[k] * y[k];
+            s[1] += x[k + 1] * y[k + 1];
         }
     }
-    (s[0] + s[1]) + (s[2] + s[3]) + tail
+    let tail: f64 = at.iter().zip(bt).map(|(x, y)| x * y).sum();
+    s[0] + s[1] + tail
+}
+
+/// y ← y + α·x.
+fn axpy(alpha: f64, x: &[f64], y: &mut [f64]) {
+    for (yi, xi) in y.iter_mut().zip(x) {
+        *yi += alpha * xi;
+    }
+}
+
+/// y ← y + α·x and z ← z + β·x in one pass over `x`.
+fn axpy2(alpha: f64, beta: f64, x: &[f64], y: &mut [f64], z: &mut [f64]) {
+    for ((yi, zi), xi) in y.iter_mut().zip(z.iter_mut()).zip(x) {
+        *yi += alpha * xi;
+        *zi += beta * xi;
+    }
 }
 
 #[cfg(test)]
@@ -219,6 +298,29 @@ mod tests {
         let r = r_factor(a.clone());
         assert_geometry_of(&r, &a);
         assert!(r[(11, 11)].abs() <= 1e-12 * r.norm());
+    }
+
+    #[test]
+    fn a_panel_updates_the_same_by_products_as_one_by_one() {
+        // Panels at the top and lower down, narrower than the others, as tall as wide.
+        for (m, w, start, width) in [(60, 30, 0, 8), (60, 30, 8, 8), (40, 30, 16, 7), (14, 24, 8, 6)] {
+            let mut a = sample(m, w, 4);
+            let mut panel = Panel::default();
+            for before in (0..start).step_by(PANEL) {
+                panel.reflect(&mut a, before, PANEL);
+                panel.update_one_by_one(&mut a, before, PANEL);
+            }
+            panel.reflect(&mut a, start, width);
+            let (mut by_products, mut one_by_one) = (a.clone(), a.clone());
+            panel.update_by_products(&mut by_products, start, width);
+            panel.update_one_by_one(&mut one_by_one, start, width);
+            assert!((&by_products - &one_by_one).norm() <= 1e-13 * a.norm(), "{m} × {w} from {start}");
+            // The panel's columns (R's part and the vectors) are left as they were, the others
+            // are reflected.
+            let (done, right) = (start + width, w - start - width);
+            assert_eq!(by_products.columns(0, done), a.columns(0, done));
+            assert!((by_products.columns(done, right) - a.columns(done, right)).norm() > 1e-3 * a.norm());
+        }
     }
 
     #[test]

@@ -139,6 +139,11 @@ impl<'a> Problem<'a> {
         &self.sin_cos[k * self.joints..(k + 1) * self.joints]
     }
 
+    /// The observations the terms read.
+    pub fn data(&self) -> &'a Observations {
+        self.data
+    }
+
     /// The terms.
     pub fn terms(&self) -> &[Box<dyn Term>] {
         self.terms
@@ -560,6 +565,14 @@ pub struct GroupFactor {
     pub r: DMatrix<f64>,
     /// Its own columns (the first ones).
     pub own: usize,
+    /// The problem's column of each of R's columns.
+    pub columns: Vec<usize>,
+    /// Jᵀr over the group's columns (in R's order), the rows unweighted.
+    pub gradient: DVector<f64>,
+    /// Σ ½r² over the group's residuals.
+    pub half_squares: f64,
+    /// The largest |r| of the group's residuals.
+    pub largest_residual: f64,
 }
 
 impl Problem<'_> {
@@ -582,13 +595,15 @@ impl Problem<'_> {
                 let blocks: Vec<usize> =
                     (0..self.data.blocks.len()).filter(|&b| self.data.blocks[b].group == g).collect();
                 let own = self.layout.own_columns(g, &blocks);
+                let columns: Vec<usize> =
+                    own.iter().copied().chain(0..a).chain(rotation.iter().copied()).collect();
                 // Per column, its place in the group's rows (none: `usize::MAX`).
                 let mut local = vec![usize::MAX; n];
-                for (l, &c) in own.iter().chain(&(0..a).collect::<Vec<_>>()).chain(&rotation).enumerate() {
+                for (l, &c) in columns.iter().enumerate() {
                     local[c] = l;
                 }
-                let width = own.len() + a + rotation.len();
-                let folded: Vec<Option<DMatrix<f64>>> = mine
+                let width = columns.len();
+                let folded: Vec<Option<ChunkFactor>> = mine
                     .par_chunks(FOLD_TERMS)
                     .map_init(TermJacobian::default, |jac, chunk| {
                         let chosen: Vec<&dyn Term> = chunk.iter().map(|&i| self.terms[i].as_ref()).collect();
@@ -603,30 +618,36 @@ impl Problem<'_> {
                             at: 0,
                             finite: true,
                         };
-                        let mut finite = true;
-                        let mut r = Vec::new();
+                        let mut r = vec![0.0; rows];
+                        let mut at = 0;
                         for &i in chunk {
                             let t = &self.terms[i];
-                            r.clear();
-                            r.resize(t.rows(), 0.0);
+                            let mine = &mut r[at..at + t.rows()];
+                            at += t.rows();
                             // A point writes its rows in place; any other term through its Jacobian.
-                            if !t.evaluate_into_rows(&input, &mut r, &mut block) {
+                            if !t.evaluate_into_rows(&input, mine, &mut block) {
                                 jac.reset(t.rows());
-                                t.evaluate(&input, &mut r, Some(jac));
+                                t.evaluate(&input, mine, Some(jac));
                                 block.add(jac);
                             }
-                            finite &= r.iter().all(|v| v.is_finite());
                         }
                         self.recycle(poses);
-                        finite &= block.all_finite();
-                        finite.then(|| r_factor(DMatrix::from_row_slice(rows, width, &block.values)))
+                        let finite = r.iter().all(|v| v.is_finite()) && block.all_finite();
+                        finite.then(|| ChunkFactor::of(&block.values, width, &r))
                     })
                     .collect();
                 // Folded in order: the same factor whatever the thread count.
-                let r = folded
+                let folded = folded
                     .into_iter()
-                    .try_fold(DMatrix::zeros(0, width), |top, bottom| Some(fold(top, bottom?)))?;
-                Some(GroupFactor { r, own: own.len() })
+                    .try_fold(ChunkFactor::empty(width), |top, bottom| Some(top.fold(bottom?)))?;
+                Some(GroupFactor {
+                    r: folded.r,
+                    own: own.len(),
+                    columns,
+                    gradient: folded.gradient,
+                    half_squares: folded.half_squares,
+                    largest_residual: folded.largest_residual,
+                })
             })
             .collect()
     }
@@ -676,6 +697,50 @@ impl RowTarget for FactorRows<'_> {
         let span = self.at * self.width..(self.at + rows) * self.width;
         self.at += rows;
         TermRows::new(&mut self.values[span], self.width, self.local, columns)
+    }
+}
+
+/// A chunk of a group's rows reduced: their R factor, Jᵀr, Σ ½r² and largest |r|.
+struct ChunkFactor {
+    r: DMatrix<f64>,
+    gradient: DVector<f64>,
+    half_squares: f64,
+    largest_residual: f64,
+}
+
+impl ChunkFactor {
+    /// No rows, over `width` columns.
+    fn empty(width: usize) -> ChunkFactor {
+        ChunkFactor {
+            r: DMatrix::zeros(0, width),
+            gradient: DVector::zeros(width),
+            half_squares: 0.0,
+            largest_residual: 0.0,
+        }
+    }
+
+    /// The rows `values` (row-major, `width` columns) with their residuals `r`.
+    fn of(values: &[f64], width: usize, r: &[f64]) -> ChunkFactor {
+        let mut gradient = DVector::zeros(width);
+        for (row, ri) in values.chunks_exact(width).zip(r) {
+            gradient.iter_mut().zip(row).for_each(|(g, v)| *g += v * ri);
+        }
+        ChunkFactor {
+            r: r_factor(DMatrix::from_row_slice(r.len(), width, values)),
+            gradient,
+            half_squares: r.iter().map(|v| 0.5 * v * v).sum(),
+            largest_residual: r.iter().fold(0.0, |m, v| v.abs().max(m)),
+        }
+    }
+
+    /// This chunk's rows and then `bottom`'s.
+    fn fold(self, bottom: ChunkFactor) -> ChunkFactor {
+        ChunkFactor {
+            r: fold(self.r, bottom.r),
+            gradient: self.gradient + bottom.gradient,
+            half_squares: self.half_squares + bottom.half_squares,
+            largest_residual: self.largest_residual.max(bottom.largest_residual),
+        }
     }
 }
 

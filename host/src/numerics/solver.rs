@@ -208,9 +208,9 @@ pub struct KnownStart {
     pub cost: f64,
 }
 
-/// [`solve`], with the normal equations and the cost at `x0` (inside the bounds) given when the
-/// caller has them (`first`): the solve then evaluates nothing there (its residuals only when
-/// it takes no step, to return them).
+/// [`solve`], with the normal equations and the cost at `x0` given when the caller has them
+/// (`first`, taken only when x0 is inside the bounds): the solve then evaluates nothing there
+/// (its residuals only when it takes no step, to return them).
 pub fn solve_from(
     problem: &dyn Residuals,
     x0: &[f64],
@@ -230,6 +230,8 @@ pub fn solve_from(
     let ceres = options.termination == Termination::Ceres;
     let mut x = x0.to_vec();
     clamp(&mut x);
+    // What the caller knows is of x0 itself: not of the point the bounds move it to.
+    let first = first.filter(|_| x == x0);
     // The residuals at x once evaluated there (a step taken swaps in its point's); a start
     // given by its cost has none until a step is taken.
     let mut r = vec![0.0; m];

@@ -128,7 +128,7 @@ fn unsolved(number: usize) -> StartOutcome {
 /// solution with the frames' rotations (and the probe's) re-centred, while a solve stops without
 /// converging (up to [`PASSES`] passes).
 pub(super) fn solve_framed(pieces: &Pieces, estimated: &[ParamId], start: Solved, number: usize) -> Solved {
-    solve_framed_from(pieces, estimated, start, number, None)
+    solve_framed_from(pieces, estimated, start, number, |_: &Problem, _: &[f64]| None)
 }
 
 /// [`solve_framed`], the first pass' normal equations and cost at `start` given by `first` (from
@@ -138,17 +138,18 @@ pub(super) fn solve_framed_from(
     estimated: &[ParamId],
     start: Solved,
     number: usize,
-    first: Option<&SessionSums>,
+    first: impl FnOnce(&Problem, &[f64]) -> Option<KnownStart>,
 ) -> Solved {
     let options = SolverOptions { loss: pieces.resolved.loss, ..FRAMED_SOLVER };
     let mut s = Solved { outcome: unsolved(number), ..start };
     let mut last_cost = f64::INFINITY;
+    let mut first = Some(first);
     for pass in 0..PASSES {
         let problem = pieces.problem(estimated.to_vec(), &s.model, &s.frames, s.probe);
         let n = problem.layout.unknowns();
         let x0 = pieces.x_of(&problem, &s.model, &s.frames, &s.tools, &s.drifts);
         let (lower, upper) = pieces.bounds(estimated, n);
-        let given = first.filter(|_| pass == 0).and_then(|sums| sums.normal_at_start(pieces, &problem));
+        let given = first.take().and_then(|known| known(&problem, &x0));
         let solution = solver::solve_from(&problem, &x0, &lower, &upper, &options, given);
         if pass == 0 {
             s.outcome.initial_cost = initial_cost(&problem, &x0, &lower, &upper, &solution, options.loss);
@@ -253,6 +254,8 @@ pub(super) fn calibrate_framed(
     let tool: Vec<ParamId> = all.iter().copied().filter(|p| matches!(p, ParamId::Tcp(_))).collect();
     // `start` is already the nominal start's solution (see below).
     let mut solved_already = false;
+    // The factors identifiability was decided on, with their problem and point.
+    let mut factored = None;
     let (before, estimated, fixed, statements) = match warm {
         // A refit keeps the base set of the solution it starts from.
         Some(warm) => {
@@ -264,7 +267,7 @@ pub(super) fn calibrate_framed(
             (warm.before.clone(), estimated, fixed, warm.statements.clone())
         }
         None => {
-            let factors = if tool_turns && !tool.is_empty() {
+            let (full, x) = if tool_turns && !tool.is_empty() {
                 // The factors are taken after the tool's fit: at the start only the checks, the
                 // residuals' finiteness on that fit's own first evaluation (the same point).
                 check_rows(&full)?;
@@ -274,11 +277,12 @@ pub(super) fn calibrate_framed(
                 }
                 let full = pieces.problem(all.clone(), &start.model, &start.frames, start.probe);
                 let x = pieces.x_of(&full, &start.model, &start.frames, &start.tools, &start.drifts);
-                check_framed(&full, &x)?
+                (full, x)
             } else {
-                check_framed(&full, &x0)?
+                (full, x0)
             };
-            let (raw, projected) = projected_arm_columns(&full.layout, &factors);
+            let factors = Factored::new(&full, &x, check_framed(&full, &x)?, data);
+            let (raw, projected) = projected_arm_columns(&full.layout, factors.factors());
             let ranges: Vec<f64> = all.iter().map(|&id| pieces.range(id)).collect();
             // A mass moves a point only through the compliances it loads: every other parameter
             // is decided here, each mass after them where the compliances the data determine
@@ -325,6 +329,7 @@ pub(super) fn calibrate_framed(
                 // The tool's first fit only placed the tool point: tools and drifts start at zero.
                 start = Solved::at(start.model, start.frames, start.probe, data);
             }
+            factored = Some(factors);
             (before, estimated, fixed, statements)
         }
     };
@@ -333,9 +338,16 @@ pub(super) fn calibrate_framed(
     for id in &fixed {
         start.model.set(*id, model.get(*id));
     }
-    let first = sums.filter(|_| warm.is_some());
+    // The first normal equations from the warm fit's session sums, or from the factors when the
+    // solve starts where they were taken.
+    let sums = sums.filter(|_| warm.is_some());
+    let loss = pieces.resolved.loss;
+    let given = |problem: &Problem, x0: &[f64]| match &factored {
+        Some(factored) => factored.normal_at(problem, x0, loss),
+        None => sums.and_then(|s| s.normal_at_start(pieces, problem)),
+    };
     let mut solved =
-        if solved_already { start } else { solve_framed_from(pieces, &estimated, start, 0, first) };
+        if solved_already { start } else { solve_framed_from(pieces, &estimated, start, 0, given) };
     if warm.is_some() && !solved.outcome.initial_cost.is_finite() {
         return Err(CalibError::NonFinite);
     }

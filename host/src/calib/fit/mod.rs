@@ -12,7 +12,8 @@
 //! the nominal arm ([`Frame::fit`]); the tool point (with the probe's rotation and the frames) is
 //! first fitted on the nominal arm, and identifiability is decided there, not at a nominal tool
 //! point that may lie on the last joint's axis; identifiability sees the frames (they are projected out of
-//! the arm's columns, [`Problem::group_factors`]); the tool point is freed (and held at its
+//! the arm's columns, [`Problem::group_factors`], and the solve from that point takes its first
+//! normal equations from those factors, `factored`); the tool point is freed (and held at its
 //! nominal value when no session turns it: then it and each frame's shift are one thing); the
 //! problem is solved, and solved again with the frames' rotations re-centred at the solution
 //! (up to [`PASSES`] passes) only when a solve stops without converging. Restarts, when asked for, start the arm at random points inside its bounds, with
@@ -33,7 +34,7 @@ use crate::calib::setup::{Resolved, Setup, SolveOptions};
 use crate::calib::terms::{self, Term, TermChoice};
 use crate::data::{Encoders, Kind, Observations};
 use crate::model::{ArmModel, ParamId};
-use crate::numerics::solver::{self, Loss, Residuals, SolverOptions, StopReason, Termination};
+use crate::numerics::solver::{self, KnownStart, Loss, Residuals, SolverOptions, StopReason, Termination};
 use nalgebra::{Matrix3, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -209,6 +210,8 @@ impl Fit {
 }
 
 mod dense;
+mod factored;
+use factored::Factored;
 mod framed;
 mod outcome;
 mod pieces;
@@ -413,7 +416,9 @@ fn solve_warm_from(
                 Solved::at(start.clone(), frames, probe, data)
             }
         };
-        return Ok(solve_framed_from(&pieces, params, from, 0, sums.filter(|_| warm.is_some())).model);
+        let sums = sums.filter(|_| warm.is_some());
+        let given = |problem: &Problem, _: &[f64]| sums.and_then(|s| s.normal_at_start(&pieces, problem));
+        return Ok(solve_framed_from(&pieces, params, from, 0, given).model);
     }
     let frames = vec![Frame::identity(); data.blocks.len()];
     let problem = pieces.problem(params.to_vec(), start, &frames, None);

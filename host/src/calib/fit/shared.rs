@@ -18,7 +18,7 @@ use nalgebra::{DMatrix, DVector};
 
 /// An unknown a session's rows read, named independently of the layout's column order.
 #[derive(Clone, Copy, Debug, PartialEq)]
-enum Key {
+pub(super) enum Key {
     Arm(ParamId),
     Frame(usize),
     Tool(usize),
@@ -27,7 +27,7 @@ enum Key {
 }
 
 /// Block `b`'s unknowns in `layout` (its group `g`), with their columns.
-fn keys(layout: &Layout, b: usize, g: usize) -> Vec<(Key, usize)> {
+pub(super) fn keys(layout: &Layout, b: usize, g: usize) -> Vec<(Key, usize)> {
     let mut out: Vec<(Key, usize)> =
         layout.arm.iter().enumerate().map(|(c, &id)| (Key::Arm(id), c)).collect();
     let mut run = |first: Option<usize>, width: usize, key: fn(usize) -> Key| {

@@ -292,3 +292,41 @@ fn kept_frames_and_spreads_are_those_of_the_arm() {
     }
     assert!(kept[0].0 != kept[1].0 && kept[0].1 != kept[1].1, "other values, other frames and spreads");
 }
+
+/// The first normal equations a solve takes from the group factors of every free parameter at
+/// its start are the ones it would evaluate there, to rounding, over the columns it keeps (an
+/// arm column fewer, the sessions' frames, a floated tool); there are none when it starts
+/// elsewhere or a residual is beyond a Huber threshold (the factors' rows are unweighted).
+#[test]
+fn the_factors_give_the_first_normal_equations_of_a_solve_at_their_point() {
+    let (nominal, truth) = arm_and_truth();
+    let data = sessions(&truth, None);
+    let options = SolveOptions { float_tool: vec!["s1".into()], ..SolveOptions::default() };
+    let pieces = Pieces::new(&nominal, &data, &options, &Encoders::of(&data)).unwrap();
+    let frames = pieces.closed_form_frames(&pieces.model);
+    let (tools, drifts) =
+        (vec![Vector3::new(0.5, -0.2, 0.1); data.groups.len()], vec![Vec::new(); data.blocks.len()]);
+    let all: Vec<ParamId> = pieces.model.free.iter().map(|f| f.id).collect();
+    let full = pieces.problem(all.clone(), &pieces.model, &frames, None);
+    let x = pieces.x_of(&full, &pieces.model, &frames, &tools, &drifts);
+    let factored = Factored::new(&full, &x, pieces::check_framed(&full, &x).unwrap(), &data);
+    let problem = pieces.problem(all[1..].to_vec(), &pieces.model, &frames, None);
+    assert!(problem.layout.unknowns() < full.layout.unknowns() && problem.layout.tool_column(1).is_some());
+    let x0 = pieces.x_of(&problem, &pieces.model, &frames, &tools, &drifts);
+    let known = factored.normal_at(&problem, &x0, Loss::Linear).expect("the same point");
+    let mut r = vec![0.0; problem.len()];
+    let (h, g) = problem.normal_equations(&x0, &mut r, Loss::Linear);
+    let close = |a: f64, b: f64, scale: f64| (a - b).abs() <= 1e-10 * scale;
+    let (h_scale, g_scale) = (h.amax(), g.amax());
+    assert!(h_scale > 0.0 && g_scale > 0.0);
+    assert!(known.normal.iter().zip(h.iter()).all(|(a, b)| close(*a, *b, h_scale)), "normal matrix");
+    assert!(known.gradient.iter().zip(g.iter()).all(|(a, b)| close(*a, *b, g_scale)), "gradient");
+    let cost = Loss::Linear.cost(&r);
+    assert!(cost > 0.0 && close(known.cost, cost, cost), "cost {} against {cost}", known.cost);
+    let mut moved = x0.clone();
+    moved[0] += 1e-3;
+    assert!(factored.normal_at(&problem, &moved, Loss::Linear).is_none(), "another point");
+    let largest = r.iter().fold(0.0, |m: f64, v| v.abs().max(m));
+    assert!(factored.normal_at(&problem, &x0, Loss::Huber(0.5 * largest)).is_none(), "weighted rows");
+    assert!(factored.normal_at(&problem, &x0, Loss::Huber(2.0 * largest)).is_some(), "unit weights");
+}

@@ -4,6 +4,7 @@
 use super::*;
 use crate::data::Encoders;
 use std::borrow::Cow;
+use std::cell::OnceCell;
 use std::ops::Deref;
 
 /// The terms of some pieces: built for their observations, or a run of another pieces' terms on
@@ -47,6 +48,49 @@ pub(super) struct KeptTerms<'a> {
     encoders: Encoders,
 }
 
+/// Where some pieces may take their terms and encoder table from instead of building them.
+#[derive(Clone, Copy)]
+pub(super) enum TermSource<'a> {
+    /// Another pieces' terms ([`Pieces::keep`]).
+    Kept(&'a KeptTerms<'a>),
+    /// The terms of a run's calibration data ([`SharedTerms`]).
+    Shared(&'a SharedTerms<'a>),
+}
+
+/// The terms and encoder table of one run's calibration data, built by the first pieces of those
+/// observations that ask (its check) and borrowed by the others of the same term choice (its
+/// calibrations, its session sums) instead of built again: a box per point, built once.
+#[derive(Default)]
+pub(crate) struct SharedTerms<'a>(OnceCell<KeptTerms<'a>>);
+
+impl<'a> SharedTerms<'a> {
+    /// The terms kept of `data` with `choice`, from `build` when none are kept yet; `None` when
+    /// those kept are of other observations or another choice.
+    fn of(
+        &'a self,
+        data: &'a Observations,
+        choice: TermChoice,
+        build: impl FnOnce() -> KeptTerms<'a>,
+    ) -> Option<&'a KeptTerms<'a>> {
+        Some(self.0.get_or_init(build)).filter(|kept| kept.holds(data, choice))
+    }
+}
+
+impl SharedTerms<'_> {
+    /// Whether terms are kept.
+    #[cfg(test)]
+    pub(super) fn is_built(&self) -> bool {
+        self.0.get().is_some()
+    }
+}
+
+impl KeptTerms<'_> {
+    /// Whether these are the terms of `data` (the same, by address) with `choice`.
+    fn holds(&self, data: &Observations, choice: TermChoice) -> bool {
+        std::ptr::eq(self.data, data) && self.choice == choice
+    }
+}
+
 impl<'a> Pieces<'a> {
     /// Check `data` against `nominal` and `options` and assemble the terms and the unknowns.
     pub(super) fn new(
@@ -59,13 +103,14 @@ impl<'a> Pieces<'a> {
     }
 
     /// [`Pieces::new`], the terms and encoder table borrowed from `kept` when it holds those of
-    /// these observations (the same, by address) and term choice, instead of built again.
+    /// these observations (the same, by address) and term choice, instead of built again (built
+    /// and kept there first when it is a [`SharedTerms`] holding none yet).
     pub(super) fn new_sharing(
         nominal: &ArmModel,
         data: &'a Observations,
         options: &SolveOptions,
         encoders: &Encoders,
-        kept: Option<&'a KeptTerms>,
+        kept: Option<TermSource<'a>>,
     ) -> Result<Pieces<'a>, CalibError> {
         if !data.obs.is_empty() && nominal.joints.len() != data.joints {
             let tracker = data.obs.iter().any(|o| o.point_mm().is_some());
@@ -113,9 +158,23 @@ impl<'a> Pieces<'a> {
             resolved.point_weight = options.point_weight(data, touch_std_mm);
         }
         let choice = term_choice(&resolved);
-        let (terms, encoders) = match kept.filter(|k| std::ptr::eq(k.data, data) && k.choice == choice) {
+        let build = || KeptTerms {
+            data,
+            choice,
+            terms: Terms::Built(terms::build(data, &choice)),
+            encoders: encoders.for_data(data),
+        };
+        let kept = match kept {
+            Some(TermSource::Kept(kept)) => Some(kept).filter(|k| k.holds(data, choice)),
+            Some(TermSource::Shared(shared)) => shared.of(data, choice, build),
+            None => None,
+        };
+        let (terms, encoders) = match kept {
             Some(kept) => (Terms::Borrowed(&kept.terms), kept.encoders.clone()),
-            None => (Terms::Built(terms::build(data, &choice)), encoders.for_data(data)),
+            None => {
+                let KeptTerms { terms, encoders, .. } = build();
+                (terms, encoders)
+            }
         };
         Ok(Pieces { data, model, terms, framed, floated, drift, resolved, encoders })
     }
@@ -191,10 +250,10 @@ impl<'a> Pieces<'a> {
 
     /// The terms of block `b`, when they are one run of these terms.
     fn run_of(&self, b: usize) -> Option<std::ops::Range<usize>> {
-        let first = self.terms.iter().position(|t| t.block() == b).unwrap_or(0);
-        let count = self.terms.iter().filter(|t| t.block() == b).count();
-        let run = first..first + count;
-        self.terms[run.clone()].iter().all(|t| t.block() == b).then_some(run)
+        let first = self.terms.iter().position(|t| t.block() == b).unwrap_or(self.terms.len());
+        let end = first + self.terms[first..].iter().take_while(|t| t.block() == b).count();
+        let run = first..end;
+        self.terms[end..].iter().all(|t| t.block() != b).then_some(run)
     }
 
     /// Whether any block or group has unknowns of its own (frames, floated tools, drifts).

@@ -2,10 +2,11 @@
 //! observations, the starts, and the checks before any solve.
 
 use super::*;
+use crate::calib::problem::{KeptForTerms, TermIndex};
 use crate::data::Encoders;
-use std::borrow::Cow;
 use std::cell::OnceCell;
 use std::ops::Deref;
+use std::sync::OnceLock;
 
 /// The terms of some pieces: built for their observations, or a run of another pieces' terms on
 /// the same observations (a block's alone, [`Pieces::block_alone`]).
@@ -36,6 +37,24 @@ pub(super) struct Pieces<'a> {
     pub(super) resolved: Resolved,
     /// The encoder angles' sines and cosines, once for every problem of these terms.
     pub(super) encoders: Encoders,
+    /// The terms' index, once for every problem of these terms (its buffers too).
+    index: IndexCell<'a>,
+}
+
+/// Where some pieces' term index is kept: their own (taken at their first problem), or that of
+/// the pieces whose terms (the same, of the same observations) they borrow.
+enum IndexCell<'a> {
+    Own(OnceLock<TermIndex>),
+    Kept(&'a OnceLock<TermIndex>),
+}
+
+impl IndexCell<'_> {
+    fn cell(&self) -> &OnceLock<TermIndex> {
+        match self {
+            IndexCell::Own(cell) => cell,
+            IndexCell::Kept(cell) => cell,
+        }
+    }
 }
 
 /// The terms and encoder table of some pieces, kept for other pieces of the same observations
@@ -46,6 +65,7 @@ pub(super) struct KeptTerms<'a> {
     choice: TermChoice,
     terms: Terms<'a>,
     encoders: Encoders,
+    index: IndexCell<'a>,
 }
 
 /// Where some pieces may take their terms and encoder table from instead of building them.
@@ -163,20 +183,23 @@ impl<'a> Pieces<'a> {
             choice,
             terms: Terms::Built(terms::build(data, &choice)),
             encoders: encoders.for_data(data),
+            index: IndexCell::Own(OnceLock::new()),
         };
         let kept = match kept {
             Some(TermSource::Kept(kept)) => Some(kept).filter(|k| k.holds(data, choice)),
             Some(TermSource::Shared(shared)) => shared.of(data, choice, build),
             None => None,
         };
-        let (terms, encoders) = match kept {
-            Some(kept) => (Terms::Borrowed(&kept.terms), kept.encoders.clone()),
+        let (terms, encoders, index) = match kept {
+            Some(kept) => {
+                (Terms::Borrowed(&kept.terms), kept.encoders.clone(), IndexCell::Kept(kept.index.cell()))
+            }
             None => {
-                let KeptTerms { terms, encoders, .. } = build();
-                (terms, encoders)
+                let KeptTerms { terms, encoders, index, .. } = build();
+                (terms, encoders, index)
             }
         };
-        Ok(Pieces { data, model, terms, framed, floated, drift, resolved, encoders })
+        Ok(Pieces { data, model, terms, framed, floated, drift, resolved, encoders, index })
     }
 
     /// The terms and encoder table of these pieces, kept for others of the same observations.
@@ -186,6 +209,7 @@ impl<'a> Pieces<'a> {
             choice: term_choice(&self.resolved),
             terms: self.terms,
             encoders: self.encoders,
+            index: self.index,
         }
     }
 
@@ -225,6 +249,7 @@ impl<'a> Pieces<'a> {
             drift,
             resolved: self.resolved,
             encoders: self.encoders.clone(),
+            index: IndexCell::Own(OnceLock::new()),
         })
     }
 
@@ -245,6 +270,7 @@ impl<'a> Pieces<'a> {
             drift: vec![self.drift[b].map(|d| DriftSlot { column: 0, ..d }); sub.blocks.len()],
             resolved: self.resolved,
             encoders,
+            index: IndexCell::Own(OnceLock::new()),
         }
     }
 
@@ -274,14 +300,15 @@ impl<'a> Pieces<'a> {
         frames: &[Frame],
         probe: Option<Matrix3<f64>>,
     ) -> Problem<'p> {
-        Problem::with_encoder_table(
+        let index = self.index.cell().get_or_init(|| TermIndex::of(self.data, &self.terms));
+        Problem::with_kept(
             self.layout(arm),
             model,
             self.data,
             &self.terms,
             frames.iter().map(|f| f.rotation).collect(),
             probe.filter(|_| self.resolved.orientation_weight_mm_per_rad.is_some()),
-            Cow::Borrowed(self.encoders.table()),
+            KeptForTerms { sin_cos: self.encoders.table(), index },
         )
     }
 

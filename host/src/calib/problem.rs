@@ -21,7 +21,7 @@ use crate::data::encoders::pairs;
 use crate::data::Observations;
 use crate::model::kinematics::{encoder_sin_cos, PoseDerivative, Tips, ToolPose};
 use crate::model::ArmModel;
-use crate::numerics::normal::{add_rows_gram, GramBuffers, NormalSums, RowTarget, TermRows};
+use crate::numerics::normal::{add_and_clear, add_rows_gram, GramBuffers, NormalSums, RowTarget, TermRows};
 use crate::numerics::qr::{r_factor, r_factor_of_stacked};
 use crate::numerics::solver::{symmetric, Loss, Residuals};
 use nalgebra::{DMatrix, DVector, Matrix3};
@@ -52,21 +52,15 @@ const FOLD_TERMS: usize = 128;
 /// A chunk's buffers of pose derivatives and poses (those of [`Poses`]).
 type ChunkBuffers = (Vec<PoseDerivative>, Vec<Option<ToolPose>>);
 
-/// The terms of some observations over one parameter vector.
-pub struct Problem<'a> {
-    /// Where each unknown sits.
-    pub layout: Layout,
-    model: &'a ArmModel,
-    data: &'a Observations,
-    terms: &'a [Box<dyn Term>],
+/// What every problem of the same terms of the same observations shares, whatever its layout and
+/// values: each term's first residual row, which observations the terms read and whether they
+/// are all positions (taken once), and the buffers evaluations leave for the next (of any of
+/// these problems: a caller making many, a solve's passes and a refit's, keeps one index).
+pub struct TermIndex {
     offsets: Vec<usize>,
     rows: usize,
     read: Vec<bool>,
-    /// Per observation read, the sine and cosine of each encoder angle (`joints` per observation).
-    sin_cos: Cow<'a, [(f64, f64)]>,
-    joints: usize,
-    frame_start: Vec<Matrix3<f64>>,
-    probe_start: Option<Matrix3<f64>>,
+    positions_only: bool,
     /// The pose-derivative and pose buffers of chunks evaluated, for the next chunks: a solve's
     /// evaluations allocate and zero none (each pose writes its own columns; the entries of
     /// observations a chunk does not read are never read; the poses are set to `None` first).
@@ -75,6 +69,72 @@ pub struct Problem<'a> {
     spare_wanted: Mutex<Vec<Vec<bool>>>,
     /// The normal sums of chunks evaluated, for the next chunks (their batches' buffers).
     spare_sums: Mutex<Vec<NormalSums>>,
+    /// Zeroed sums (n × n and n) for the next chunks' normal sums to start on: each chunk's sums
+    /// are zeroed as they are added into the totals, instead of allocated zeroed again.
+    spare_zeroed: Mutex<Vec<(Vec<f64>, Vec<f64>)>>,
+}
+
+impl TermIndex {
+    /// The index of `terms` of `data`.
+    pub fn of(data: &Observations, terms: &[Box<dyn Term>]) -> TermIndex {
+        let mut offsets = Vec::with_capacity(terms.len());
+        let mut rows = 0;
+        for t in terms {
+            offsets.push(rows);
+            rows += t.rows();
+        }
+        TermIndex {
+            offsets,
+            rows,
+            read: observations_read(data, terms),
+            positions_only: terms.iter().all(|t| t.is_position()),
+            spare: Mutex::new(Vec::new()),
+            spare_wanted: Mutex::new(Vec::new()),
+            spare_sums: Mutex::new(Vec::new()),
+            spare_zeroed: Mutex::new(Vec::new()),
+        }
+    }
+}
+
+/// A problem's term index: its own, or one kept by its caller.
+enum Index<'a> {
+    Own(TermIndex),
+    Kept(&'a TermIndex),
+}
+
+impl std::ops::Deref for Index<'_> {
+    type Target = TermIndex;
+
+    fn deref(&self) -> &TermIndex {
+        match self {
+            Index::Own(index) => index,
+            Index::Kept(index) => index,
+        }
+    }
+}
+
+/// What a caller that makes many problems of the same terms keeps for them: the encoder angles'
+/// sines and cosines of [`encoder_table`] and the [`TermIndex`] of those terms and observations.
+pub struct KeptForTerms<'a> {
+    /// `data.joints` sines and cosines per observation.
+    pub sin_cos: &'a [(f64, f64)],
+    /// The terms' index.
+    pub index: &'a TermIndex,
+}
+
+/// The terms of some observations over one parameter vector.
+pub struct Problem<'a> {
+    /// Where each unknown sits.
+    pub layout: Layout,
+    model: &'a ArmModel,
+    data: &'a Observations,
+    terms: &'a [Box<dyn Term>],
+    index: Index<'a>,
+    /// Per observation read, the sine and cosine of each encoder angle (`joints` per observation).
+    sin_cos: Cow<'a, [(f64, f64)]>,
+    joints: usize,
+    frame_start: Vec<Matrix3<f64>>,
+    probe_start: Option<Matrix3<f64>>,
 }
 
 impl<'a> Problem<'a> {
@@ -89,49 +149,41 @@ impl<'a> Problem<'a> {
         probe_start: Option<Matrix3<f64>>,
     ) -> Problem<'a> {
         let sin_cos = Cow::Owned(encoder_table(data, terms));
-        Problem::with_encoder_table(layout, model, data, terms, frame_start, probe_start, sin_cos)
+        let index = Index::Own(TermIndex::of(data, terms));
+        Problem::with_index(layout, model, data, terms, frame_start, probe_start, (sin_cos, index))
     }
 
-    /// As [`Problem::new`], with the encoder angles' sines and cosines `sin_cos` of
-    /// [`encoder_table`] for these `data` and `terms` (kept by a caller that makes many problems
-    /// of the same terms).
-    pub fn with_encoder_table(
+    /// As [`Problem::new`], with the encoder table and term index `kept` by a caller that makes
+    /// many problems of the same `data` and `terms`.
+    pub fn with_kept(
+        layout: Layout,
+        model: &'a ArmModel,
+        data: &'a Observations,
+        terms: &'a [Box<dyn Term>],
+        frame_start: Vec<Matrix3<f64>>,
+        probe_start: Option<Matrix3<f64>>,
+        kept: KeptForTerms<'a>,
+    ) -> Problem<'a> {
+        debug_assert_eq!(kept.index.offsets.len(), terms.len());
+        let shared = (Cow::Borrowed(kept.sin_cos), Index::Kept(kept.index));
+        Problem::with_index(layout, model, data, terms, frame_start, probe_start, shared)
+    }
+
+    fn with_index(
         mut layout: Layout,
         model: &'a ArmModel,
         data: &'a Observations,
         terms: &'a [Box<dyn Term>],
         frame_start: Vec<Matrix3<f64>>,
         probe_start: Option<Matrix3<f64>>,
-        sin_cos: Cow<'a, [(f64, f64)]>,
+        (sin_cos, index): (Cow<'a, [(f64, f64)]>, Index<'a>),
     ) -> Problem<'a> {
-        let mut offsets = Vec::with_capacity(terms.len());
-        let mut rows = 0;
-        for t in terms {
-            offsets.push(rows);
-            rows += t.rows();
-        }
-        let read = observations_read(data, terms);
         // Terms of positions alone read no derivative of the tool's axes.
-        if terms.iter().all(|t| t.is_position()) {
+        if index.positions_only {
             layout.columns = layout.columns.positions_only();
         }
         let joints = data.joints;
-        Problem {
-            layout,
-            model,
-            data,
-            terms,
-            offsets,
-            rows,
-            read,
-            sin_cos,
-            joints,
-            frame_start,
-            probe_start,
-            spare: Mutex::new(Vec::new()),
-            spare_wanted: Mutex::new(Vec::new()),
-            spare_sums: Mutex::new(Vec::new()),
-        }
+        Problem { layout, model, data, terms, index, sin_cos, joints, frame_start, probe_start }
     }
 
     /// Observation `k`'s encoder sines and cosines.
@@ -151,7 +203,7 @@ impl<'a> Problem<'a> {
 
     /// First residual row of each term.
     pub fn offsets(&self) -> &[usize] {
-        &self.offsets
+        &self.index.offsets
     }
 
     /// The values at `x`.
@@ -182,7 +234,7 @@ impl<'a> Problem<'a> {
                 .enumerate()
                 .with_min_len(MIN_POSES_PER_TASK)
                 .map(|(k, d)| {
-                    self.read[k].then(|| {
+                    self.index.read[k].then(|| {
                         kinematics.tip(data.obs[k].tip).pose_with_sin_cos_and_jacobian(
                             &data.obs[k].q_deg,
                             self.sin_cos(k),
@@ -197,7 +249,7 @@ impl<'a> Problem<'a> {
                 .into_par_iter()
                 .with_min_len(MIN_POSES_PER_TASK)
                 .map(|k| {
-                    self.read[k].then(|| {
+                    self.index.read[k].then(|| {
                         kinematics.tip(data.obs[k].tip).pose_with_sin_cos_and_jacobian(
                             &data.obs[k].q_deg,
                             self.sin_cos(k),
@@ -221,7 +273,7 @@ impl<'a> Problem<'a> {
     /// two observations of one tip at a time (the same poses, to the bit, as one at a time).
     fn poses_into(&self, kinematics: &Tips, first: usize, out: &mut [Option<ToolPose>]) {
         let obs = &self.data.obs;
-        let read = (first..first + out.len()).filter(|&k| self.read[k]);
+        let read = (first..first + out.len()).filter(|&k| self.index.read[k]);
         for (a, second) in pairs(read, |a, b| obs[a].tip == obs[b].tip) {
             let chain = kinematics.tip(obs[a].tip);
             match second {
@@ -257,12 +309,13 @@ impl<'a> Problem<'a> {
         if first > last {
             return Poses { first: 0, pose: Vec::new(), chain: Vec::new(), arm, jacobian: true };
         }
-        let mut wanted = self.spare_wanted.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
+        let mut wanted =
+            self.index.spare_wanted.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
         wanted.clear();
         wanted.resize(last + 1 - first, false);
         read().for_each(|k| wanted[k - first] = true);
         let (mut chain, mut pose) =
-            self.spare.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
+            self.index.spare.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
         chain.resize(wanted.len() * arm, [0.0; 9]);
         pose.clear();
         pose.resize(wanted.len(), None);
@@ -291,7 +344,7 @@ impl<'a> Problem<'a> {
             );
             (pose[a - first], pose[b - first]) = (Some(pa), Some(pb));
         }
-        if let Ok(mut spare) = self.spare_wanted.lock() {
+        if let Ok(mut spare) = self.index.spare_wanted.lock() {
             spare.push(wanted);
         }
         Poses { first, pose, chain, arm, jacobian: true }
@@ -299,7 +352,7 @@ impl<'a> Problem<'a> {
 
     /// Keep the buffers of `poses` (of [`Problem::chunk_poses_of`]) for the next chunk.
     fn recycle(&self, poses: Poses) {
-        if let Ok(mut spare) = self.spare.lock() {
+        if let Ok(mut spare) = self.index.spare.lock() {
             spare.push((poses.chain, poses.pose));
         }
     }
@@ -344,7 +397,7 @@ pub fn encoder_table(data: &Observations, terms: &[Box<dyn Term>]) -> Vec<(f64, 
 
 impl Residuals for Problem<'_> {
     fn len(&self) -> usize {
-        self.rows
+        self.index.rows
     }
 
     fn evaluate(&self, x: &[f64], r: &mut [f64], jacobian: Option<&mut [f64]>) {
@@ -421,7 +474,7 @@ impl Residuals for Problem<'_> {
                     self.recycle(poses);
                     return rows.finish();
                 }
-                let spare = self.spare_sums.lock().ok().and_then(|mut spare| spare.pop());
+                let spare = self.index.spare_sums.lock().ok().and_then(|mut spare| spare.pop());
                 let mut sums = spare.filter(|s| s.columns() == n).unwrap_or_else(|| NormalSums::new(n));
                 let mut w = Vec::new();
                 let mut rs = rs.into_iter();
@@ -448,17 +501,23 @@ impl Residuals for Problem<'_> {
                     }
                     self.recycle(poses);
                 }
-                let out = sums.finish();
-                if let Ok(mut spare) = self.spare_sums.lock() {
+                let zeroed = self.index.spare_zeroed.lock().ok().and_then(|mut spare| spare.pop());
+                let out = sums.finish_on(zeroed);
+                if let Ok(mut spare) = self.index.spare_sums.lock() {
                     spare.push(sums);
                 }
                 out
             })
             .collect();
         let (mut upper, mut g) = (vec![0.0; n * n], vec![0.0; n]);
-        for (h_block, g_block) in sums {
-            upper.iter_mut().zip(&h_block).for_each(|(a, b)| *a += b);
-            g.iter_mut().zip(&g_block).for_each(|(a, b)| *a += b);
+        let mut zeroed = Vec::with_capacity(sums.len());
+        for (mut h_block, mut g_block) in sums {
+            add_and_clear(&mut upper, &mut h_block);
+            add_and_clear(&mut g, &mut g_block);
+            zeroed.push((h_block, g_block));
+        }
+        if let Ok(mut spare) = self.index.spare_zeroed.lock() {
+            spare.append(&mut zeroed);
         }
         (symmetric(n, &upper), DVector::from_vec(g))
     }
@@ -1058,8 +1117,9 @@ mod tests {
     }
 
     /// A problem's next evaluation, whose chunks take the buffers (pose derivatives, poses,
-    /// observations read) the chunks before left, gives the sums of a fresh problem's first to
-    /// the bit (two counts of arm columns).
+    /// observations read, zeroed sums) the chunks before left, gives the sums of a fresh
+    /// problem's first to the bit (two counts of arm columns); so does a problem on a term index
+    /// kept across problems of either count (their buffers left by the problems before).
     #[test]
     fn kept_chunk_buffers_give_the_first_sums() {
         let nominal = ArmModel::suta_nominal();
@@ -1073,13 +1133,24 @@ mod tests {
             Layout::new(arm.to_vec(), &vec![true; blocks], &tools, false, &vec![None; blocks])
         };
         let starts = start_rotations(blocks);
-        for arm in [&params[..], &params[..params.len() - 3]] {
+        let (index, sin_cos) = (TermIndex::of(&data, &terms), encoder_table(&data, &terms));
+        for arm in [&params[..], &params[..params.len() - 3], &params[..]] {
             let kept = Problem::new(layout(arm), &nominal, &data, &terms, starts.clone(), None);
             let x = framed_point(&kept, arm, &nominal);
             let mut r = vec![0.0; kept.len()];
             kept.normal_equations(&x, &mut r, Loss::Linear);
             let fresh = Problem::new(layout(arm), &nominal, &data, &terms, starts.clone(), None);
             assert_same_sums(&kept, &fresh, &x, Loss::Linear, &format!("{} arm columns", arm.len()));
+            let on_index = KeptForTerms { sin_cos: &sin_cos, index: &index };
+            let shared =
+                Problem::with_kept(layout(arm), &nominal, &data, &terms, starts.clone(), None, on_index);
+            assert_same_sums(
+                &shared,
+                &fresh,
+                &x,
+                Loss::Linear,
+                &format!("{} arm columns, kept index", arm.len()),
+            );
         }
     }
 
@@ -1116,8 +1187,8 @@ mod tests {
         let tips = Tips::new(&state.model);
         assert!(data.obs.len() > MIN_POSES_PER_TASK && poses.pose.len() == data.obs.len());
         for (k, o) in data.obs.iter().enumerate() {
-            let alone =
-                problem.read[k].then(|| tips.tip(o.tip).pose_with_sin_cos(&o.q_deg, problem.sin_cos(k)));
+            let alone = problem.index.read[k]
+                .then(|| tips.tip(o.tip).pose_with_sin_cos(&o.q_deg, problem.sin_cos(k)));
             assert_eq!(poses.pose[k], alone, "observation {k}");
         }
         assert_eq!(poses.pose.iter().filter(|p| p.is_none()).count(), data.obs.len() / 3);

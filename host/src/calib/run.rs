@@ -12,7 +12,8 @@ use crate::calib::diagnose::Measure;
 use crate::calib::error::CalibError;
 use crate::calib::error_stats::{AngleStats, ErrorStats};
 use crate::calib::fit::{
-    calibrate_with_reference_on, check_data_sharing, dense_jacobian, Fit, SessionSums, ToolFirstFit,
+    calibrate_with_reference_on, check_data_sharing, dense_jacobian, Fit, SessionSums, SharedTerms,
+    ToolFirstFit,
 };
 use crate::calib::floor::{gap, noise_floor, point_floor};
 use crate::calib::identify;
@@ -27,7 +28,7 @@ use crate::calib::validate::{
     angle_stats, calibration_residuals_mm, errors_in_calibration_session, orientation_errors_in_frame_deg,
     session_probe_rotation, undetermined_rotation, validate, SessionFits, SessionValidation, Validation,
 };
-use crate::data::{load_folder, Artefact, Encoders, Observations, Purpose};
+use crate::data::{load_folder, Artefact, Observations, Purpose};
 use crate::files::FileError;
 use crate::model::effects::Effect;
 use crate::model::{ArmModel, ParamId};
@@ -397,19 +398,19 @@ pub fn check_run_data(
     inputs: &RunInputs,
     options: &SolveOptions,
 ) -> Result<(), RunError> {
-    check_run_data_on(model, cal, val, inputs, options, cal.encoders(), &ToolFirstFit::default())
+    check_run_data_on(model, cal, val, inputs, options, &ToolFirstFit::default(), None)
 }
 
-/// [`check_run_data`] with `cal`'s encoder table, the nominal arm's closed-form frames taken from
-/// (and kept in) `start`.
-fn check_run_data_on(
+/// [`check_run_data`], the nominal arm's closed-form frames taken from (and kept in) `start` and
+/// the terms of `cal` from `terms` when given (built there by this check).
+fn check_run_data_on<'a>(
     model: &ArmModel,
-    cal: &Observations,
+    cal: &'a Observations,
     val: &Observations,
     inputs: &RunInputs,
     options: &SolveOptions,
-    encoders: &Encoders,
     start: &ToolFirstFit,
+    terms: Option<&'a SharedTerms<'a>>,
 ) -> Result<(), RunError> {
     cal.one_arm(&[val])?;
     let touches = |d: &Observations| d.obs.iter().any(|o| o.landmark().is_some());
@@ -468,7 +469,7 @@ fn check_run_data_on(
             return Err(RunError::HeldOutTooSmall { path, session: name, points });
         }
     }
-    check_data_sharing(model, cal, encoders, options, start)?;
+    check_data_sharing(model, cal, cal.encoders(), options, start, terms)?;
     Ok(())
 }
 
@@ -707,14 +708,23 @@ pub fn run_on(
     let encoders = cal.encoders();
     // The closed-form frames of the nominal arm, taken by the check and kept for the calibrations.
     let start = ToolFirstFit::default();
-    check_run_data_on(&nominal, cal, val, inputs, options, encoders, &start)?;
+    // The terms of `cal`, built by the check and borrowed by the calibrations and session sums.
+    let terms = SharedTerms::default();
+    check_run_data_on(&nominal, cal, val, inputs, options, &start, Some(&terms))?;
     check_study_size(cal, study_subsets)?;
     steps.lap("input checks");
     // The nominal figures of held-out sessions are the nominal arm's with its tool point fitted:
     // that fit starts the calibration too.
     let tool_only = (!val.sessions().is_empty()).then(|| tool_only(&nominal));
-    let (mut fit, reference) =
-        calibrate_with_reference_on(&nominal, tool_only.as_ref(), cal, encoders, options, &start)?;
+    let (mut fit, reference) = calibrate_with_reference_on(
+        &nominal,
+        tool_only.as_ref(),
+        cal,
+        encoders,
+        options,
+        &start,
+        Some(&terms),
+    )?;
     let reference = reference.transpose()?;
     let on_bounds = mark_bounds(&mut fit);
     // The calibrated model is of the arm its sessions were measured on, whatever the model it
@@ -750,7 +760,7 @@ pub fn run_on(
     // the data-error scoring's refits and of the outlier metrics' leave-one-session-out refits.
     let setup = inputs.setup(options);
     let sums = (cal.sessions().len() >= 2 && (outliers || !val.sessions().is_empty()))
-        .then(|| SessionSums::of(&fit.model, &fit, cal, &setup.solve_options(cal)))
+        .then(|| SessionSums::of_sharing(&fit.model, &fit, cal, &setup.solve_options(cal), Some(&terms)))
         .flatten();
     // Tracker sessions held out: each frame refitted, against the nominal arm with its tool fitted.
     let tracker = reference.as_ref().map(|reference| {

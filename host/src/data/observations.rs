@@ -464,12 +464,13 @@ impl Observations {
     /// perhaps turned on its mount) is not the shared probe's: it informs only that group's own
     /// probe rotation, estimated afterwards from it.
     pub fn without_orientations_of(&self, groups: &[String]) -> Option<Observations> {
-        let named = |o: &Observation| groups.contains(&self.groups[o.group].name);
-        if !self.obs.iter().any(|o| named(o) && o.orientation().is_some()) {
+        // The names compared once per group, not once per observation.
+        let named: Vec<bool> = self.groups.iter().map(|g| groups.contains(&g.name)).collect();
+        if !named.contains(&true) || !self.obs.iter().any(|o| named[o.group] && o.orientation().is_some()) {
             return None;
         }
         let mut out = self.clone();
-        for o in out.obs.iter_mut().filter(|o| groups.contains(&self.groups[o.group].name)) {
+        for o in out.obs.iter_mut().filter(|o| named[o.group]) {
             if let Target::Point { orientation, .. } = &mut o.target {
                 *orientation = None;
             }

@@ -508,14 +508,35 @@ impl NormalSums {
     /// from zero; the batch's buffers are kept for them (no allocation or zeroing when they are
     /// used again over as many columns).
     pub fn finish(&mut self) -> (Vec<f64>, Vec<f64>) {
+        self.finish_on(None)
+    }
+
+    /// [`NormalSums::finish`], the sums starting again on `zeroed` (n × n and n zeros, such as
+    /// [`add_and_clear`] leaves a finished pair) when given, instead of on buffers allocated
+    /// zeroed.
+    pub fn finish_on(&mut self, zeroed: Option<(Vec<f64>, Vec<f64>)>) -> (Vec<f64>, Vec<f64>) {
         self.flush();
         let n = self.n;
-        (std::mem::replace(&mut self.h, vec![0.0; n * n]), std::mem::replace(&mut self.g, vec![0.0; n]))
+        let (h, g) = zeroed
+            .filter(|(h, g)| h.len() == n * n && g.len() == n)
+            .unwrap_or_else(|| (vec![0.0; n * n], vec![0.0; n]));
+        debug_assert!(h.iter().chain(&g).all(|v| *v == 0.0), "the sums start on zeros");
+        (std::mem::replace(&mut self.h, h), std::mem::replace(&mut self.g, g))
     }
 
     /// Columns summed over.
     pub fn columns(&self) -> usize {
         self.n
+    }
+}
+
+/// Add `sums` into `total` entry by entry and zero them: a chunk's finished sums (see
+/// [`NormalSums::finish_on`]) added into the totals, left zeroed for the next chunk to start on.
+pub fn add_and_clear(total: &mut [f64], sums: &mut [f64]) {
+    debug_assert_eq!(total.len(), sums.len());
+    for (t, s) in total.iter_mut().zip(sums.iter_mut()) {
+        *t += *s;
+        *s = 0.0;
     }
 }
 

@@ -223,6 +223,7 @@ use dense::*;
 pub(crate) use framed::ToolFirstFit;
 use framed::*;
 use outcome::*;
+pub(crate) use pieces::SharedTerms;
 use pieces::*;
 pub use shared::SessionSums;
 
@@ -243,22 +244,24 @@ pub fn check_data_on(
     encoders: &Encoders,
     options: &SolveOptions,
 ) -> Result<(), CalibError> {
-    check_data_sharing(model, data, encoders, options, &ToolFirstFit::default())
+    check_data_sharing(model, data, encoders, options, &ToolFirstFit::default(), None)
 }
 
 /// [`check_data_on`], the closed-form frames of `model` taken from `start` (and kept there for
-/// the calibrations from `model` on `data`, see [`ToolFirstFit`]).
-pub(crate) fn check_data_sharing(
+/// the calibrations from `model` on `data`, see [`ToolFirstFit`]), the terms of `data` from
+/// `terms` when given (built and kept there when it holds none yet).
+pub(crate) fn check_data_sharing<'a>(
     model: &ArmModel,
-    data: &Observations,
+    data: &'a Observations,
     encoders: &Encoders,
     options: &SolveOptions,
     start: &ToolFirstFit,
+    terms: Option<&'a SharedTerms<'a>>,
 ) -> Result<(), CalibError> {
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
-        return check_data_sharing(model, &own, encoders, options, start);
+        return check_data_sharing(model, &own, encoders, options, start, None);
     }
-    let pieces = Pieces::new(model, data, options, encoders)?;
+    let pieces = Pieces::new_sharing(model, data, options, encoders, terms.map(TermSource::Shared))?;
     let all: Vec<ParamId> = pieces.model.free.iter().map(|f| f.id).collect();
     if pieces.blocked() {
         let frames = start.closed_form_frames(&pieces);
@@ -294,39 +297,43 @@ pub fn calibrate_on(
     encoders: &Encoders,
     options: &SolveOptions,
 ) -> Result<Fit, CalibError> {
-    calibrate_on_sharing(nominal, data, encoders, options, &ToolFirstFit::default())
+    calibrate_on_sharing(nominal, data, encoders, options, &ToolFirstFit::default(), None)
 }
 
 /// [`calibrate_on`] of `nominal`, and of `reference` when given: the same arm's values with
 /// fewer parameters free, the tool point among them (a run's tool-only nominal model). With
 /// block unknowns both start with the closed-form frames, orientation spreads and tool point's
 /// first fit of these values, each taken once (or taken from `start`, see [`ToolFirstFit`]).
-/// The reference's own error is its result's.
-pub(crate) fn calibrate_with_reference_on(
+/// Both take the terms of `data` from `terms` when given ([`SharedTerms`]). The reference's own
+/// error is its result's.
+pub(crate) fn calibrate_with_reference_on<'a>(
     nominal: &ArmModel,
     reference: Option<&ArmModel>,
-    data: &Observations,
+    data: &'a Observations,
     encoders: &Encoders,
     options: &SolveOptions,
     start: &ToolFirstFit,
+    terms: Option<&'a SharedTerms<'a>>,
 ) -> Result<(Fit, Option<Result<Fit, CalibError>>), CalibError> {
-    let fit = calibrate_on_sharing(nominal, data, encoders, options, start)?;
-    let reference = reference.map(|r| calibrate_on_sharing(r, data, encoders, options, start));
+    let fit = calibrate_on_sharing(nominal, data, encoders, options, start, terms)?;
+    let reference = reference.map(|r| calibrate_on_sharing(r, data, encoders, options, start, terms));
     Ok((fit, reference))
 }
 
-/// [`calibrate_on`], the tool point's first fit from `first_fit` (see [`ToolFirstFit`]).
-fn calibrate_on_sharing(
+/// [`calibrate_on`], the tool point's first fit from `first_fit` (see [`ToolFirstFit`]), the
+/// terms from `terms` when given.
+fn calibrate_on_sharing<'a>(
     nominal: &ArmModel,
-    data: &Observations,
+    data: &'a Observations,
     encoders: &Encoders,
     options: &SolveOptions,
     first_fit: &ToolFirstFit,
+    terms: Option<&'a SharedTerms<'a>>,
 ) -> Result<Fit, CalibError> {
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
-        return calibrate_on_sharing(nominal, &own, encoders, options, first_fit);
+        return calibrate_on_sharing(nominal, &own, encoders, options, first_fit, None);
     }
-    let pieces = Pieces::new(nominal, data, options, encoders)?;
+    let pieces = Pieces::new_sharing(nominal, data, options, encoders, terms.map(TermSource::Shared))?;
     if pieces.blocked() {
         calibrate_framed(nominal, &pieces, None, None, first_fit)
     } else {
@@ -371,7 +378,8 @@ fn recalibrate_from(
     if let Some(own) = data.without_orientations_of(&options.float_tool) {
         return recalibrate_from(nominal, &own, options, warm, sums);
     }
-    let pieces = Pieces::new_sharing(nominal, data, options, &warm.encoders, sums.and_then(|s| s.kept()))?;
+    let kept = sums.and_then(|s| s.kept()).map(TermSource::Kept);
+    let pieces = Pieces::new_sharing(nominal, data, options, &warm.encoders, kept)?;
     if pieces.blocked() {
         calibrate_framed(nominal, &pieces, Some(warm), sums, &ToolFirstFit::default())
     } else {

@@ -2,9 +2,11 @@
 //! observations, the starts, and the checks before any solve.
 
 use super::*;
+use crate::calib::problem::{KeptForTerms, TermIndex};
 use crate::data::Encoders;
-use std::borrow::Cow;
+use std::cell::OnceCell;
 use std::ops::Deref;
+use std::sync::OnceLock;
 
 /// The terms of some pieces: built for their observations, or a run of another pieces' terms on
 /// the same observations (a block's alone, [`Pieces::block_alone`]).
@@ -35,6 +37,24 @@ pub(super) struct Pieces<'a> {
     pub(super) resolved: Resolved,
     /// The encoder angles' sines and cosines, once for every problem of these terms.
     pub(super) encoders: Encoders,
+    /// The terms' index, once for every problem of these terms (its buffers too).
+    index: IndexCell<'a>,
+}
+
+/// Where some pieces' term index is kept: their own (taken at their first problem), or that of
+/// the pieces whose terms (the same, of the same observations) they borrow.
+enum IndexCell<'a> {
+    Own(OnceLock<TermIndex>),
+    Kept(&'a OnceLock<TermIndex>),
+}
+
+impl IndexCell<'_> {
+    fn cell(&self) -> &OnceLock<TermIndex> {
+        match self {
+            IndexCell::Own(cell) => cell,
+            IndexCell::Kept(cell) => cell,
+        }
+    }
 }
 
 /// The terms and encoder table of some pieces, kept for other pieces of the same observations
@@ -45,6 +65,50 @@ pub(super) struct KeptTerms<'a> {
     choice: TermChoice,
     terms: Terms<'a>,
     encoders: Encoders,
+    index: IndexCell<'a>,
+}
+
+/// Where some pieces may take their terms and encoder table from instead of building them.
+#[derive(Clone, Copy)]
+pub(super) enum TermSource<'a> {
+    /// Another pieces' terms ([`Pieces::keep`]).
+    Kept(&'a KeptTerms<'a>),
+    /// The terms of a run's calibration data ([`SharedTerms`]).
+    Shared(&'a SharedTerms<'a>),
+}
+
+/// The terms and encoder table of one run's calibration data, built by the first pieces of those
+/// observations that ask (its check) and borrowed by the others of the same term choice (its
+/// calibrations, its session sums) instead of built again: a box per point, built once.
+#[derive(Default)]
+pub(crate) struct SharedTerms<'a>(OnceCell<KeptTerms<'a>>);
+
+impl<'a> SharedTerms<'a> {
+    /// The terms kept of `data` with `choice`, from `build` when none are kept yet; `None` when
+    /// those kept are of other observations or another choice.
+    fn of(
+        &'a self,
+        data: &'a Observations,
+        choice: TermChoice,
+        build: impl FnOnce() -> KeptTerms<'a>,
+    ) -> Option<&'a KeptTerms<'a>> {
+        Some(self.0.get_or_init(build)).filter(|kept| kept.holds(data, choice))
+    }
+}
+
+impl SharedTerms<'_> {
+    /// Whether terms are kept.
+    #[cfg(test)]
+    pub(super) fn is_built(&self) -> bool {
+        self.0.get().is_some()
+    }
+}
+
+impl KeptTerms<'_> {
+    /// Whether these are the terms of `data` (the same, by address) with `choice`.
+    fn holds(&self, data: &Observations, choice: TermChoice) -> bool {
+        std::ptr::eq(self.data, data) && self.choice == choice
+    }
 }
 
 impl<'a> Pieces<'a> {
@@ -59,13 +123,14 @@ impl<'a> Pieces<'a> {
     }
 
     /// [`Pieces::new`], the terms and encoder table borrowed from `kept` when it holds those of
-    /// these observations (the same, by address) and term choice, instead of built again.
+    /// these observations (the same, by address) and term choice, instead of built again (built
+    /// and kept there first when it is a [`SharedTerms`] holding none yet).
     pub(super) fn new_sharing(
         nominal: &ArmModel,
         data: &'a Observations,
         options: &SolveOptions,
         encoders: &Encoders,
-        kept: Option<&'a KeptTerms>,
+        kept: Option<TermSource<'a>>,
     ) -> Result<Pieces<'a>, CalibError> {
         if !data.obs.is_empty() && nominal.joints.len() != data.joints {
             let tracker = data.obs.iter().any(|o| o.point_mm().is_some());
@@ -113,11 +178,28 @@ impl<'a> Pieces<'a> {
             resolved.point_weight = options.point_weight(data, touch_std_mm);
         }
         let choice = term_choice(&resolved);
-        let (terms, encoders) = match kept.filter(|k| std::ptr::eq(k.data, data) && k.choice == choice) {
-            Some(kept) => (Terms::Borrowed(&kept.terms), kept.encoders.clone()),
-            None => (Terms::Built(terms::build(data, &choice)), encoders.for_data(data)),
+        let build = || KeptTerms {
+            data,
+            choice,
+            terms: Terms::Built(terms::build(data, &choice)),
+            encoders: encoders.for_data(data),
+            index: IndexCell::Own(OnceLock::new()),
         };
-        Ok(Pieces { data, model, terms, framed, floated, drift, resolved, encoders })
+        let kept = match kept {
+            Some(TermSource::Kept(kept)) => Some(kept).filter(|k| k.holds(data, choice)),
+            Some(TermSource::Shared(shared)) => shared.of(data, choice, build),
+            None => None,
+        };
+        let (terms, encoders, index) = match kept {
+            Some(kept) => {
+                (Terms::Borrowed(&kept.terms), kept.encoders.clone(), IndexCell::Kept(kept.index.cell()))
+            }
+            None => {
+                let KeptTerms { terms, encoders, index, .. } = build();
+                (terms, encoders, index)
+            }
+        };
+        Ok(Pieces { data, model, terms, framed, floated, drift, resolved, encoders, index })
     }
 
     /// The terms and encoder table of these pieces, kept for others of the same observations.
@@ -127,6 +209,7 @@ impl<'a> Pieces<'a> {
             choice: term_choice(&self.resolved),
             terms: self.terms,
             encoders: self.encoders,
+            index: self.index,
         }
     }
 
@@ -166,6 +249,7 @@ impl<'a> Pieces<'a> {
             drift,
             resolved: self.resolved,
             encoders: self.encoders.clone(),
+            index: IndexCell::Own(OnceLock::new()),
         })
     }
 
@@ -186,15 +270,16 @@ impl<'a> Pieces<'a> {
             drift: vec![self.drift[b].map(|d| DriftSlot { column: 0, ..d }); sub.blocks.len()],
             resolved: self.resolved,
             encoders,
+            index: IndexCell::Own(OnceLock::new()),
         }
     }
 
     /// The terms of block `b`, when they are one run of these terms.
     fn run_of(&self, b: usize) -> Option<std::ops::Range<usize>> {
-        let first = self.terms.iter().position(|t| t.block() == b).unwrap_or(0);
-        let count = self.terms.iter().filter(|t| t.block() == b).count();
-        let run = first..first + count;
-        self.terms[run.clone()].iter().all(|t| t.block() == b).then_some(run)
+        let first = self.terms.iter().position(|t| t.block() == b).unwrap_or(self.terms.len());
+        let end = first + self.terms[first..].iter().take_while(|t| t.block() == b).count();
+        let run = first..end;
+        self.terms[end..].iter().all(|t| t.block() != b).then_some(run)
     }
 
     /// Whether any block or group has unknowns of its own (frames, floated tools, drifts).
@@ -215,14 +300,15 @@ impl<'a> Pieces<'a> {
         frames: &[Frame],
         probe: Option<Matrix3<f64>>,
     ) -> Problem<'p> {
-        Problem::with_encoder_table(
+        let index = self.index.cell().get_or_init(|| TermIndex::of(self.data, &self.terms));
+        Problem::with_kept(
             self.layout(arm),
             model,
             self.data,
             &self.terms,
             frames.iter().map(|f| f.rotation).collect(),
             probe.filter(|_| self.resolved.orientation_weight_mm_per_rad.is_some()),
-            Cow::Borrowed(self.encoders.table()),
+            KeptForTerms { sin_cos: self.encoders.table(), index },
         )
     }
 

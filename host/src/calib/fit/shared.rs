@@ -156,12 +156,25 @@ impl<'f> SessionSums<'f> {
         data: &'f Observations,
         options: &SolveOptions,
     ) -> Option<SessionSums<'f>> {
+        SessionSums::of_sharing(model, fit, data, options, None)
+    }
+
+    /// [`SessionSums::of`], the terms of `data` from `terms` when given (a run's, see
+    /// [`SharedTerms`]).
+    pub(crate) fn of_sharing(
+        model: &ArmModel,
+        fit: &'f Fit,
+        data: &'f Observations,
+        options: &SolveOptions,
+        terms: Option<&'f SharedTerms<'f>>,
+    ) -> Option<SessionSums<'f>> {
         if let Some(own) = data.without_orientations_of(&options.float_tool) {
             let (resolved, sessions) =
                 SessionSums::sums(&Pieces::new(model, &own, options, &fit.encoders).ok()?, fit)?;
             return Some(SessionSums { fit, resolved, sessions, kept: None });
         }
-        let pieces = Pieces::new(model, data, options, &fit.encoders).ok()?;
+        let source = terms.map(TermSource::Shared);
+        let pieces = Pieces::new_sharing(model, data, options, &fit.encoders, source).ok()?;
         let (resolved, sessions) = SessionSums::sums(&pieces, fit)?;
         Some(SessionSums { fit, resolved, sessions, kept: Some(pieces.keep()) })
     }
@@ -498,6 +511,28 @@ mod tests {
         assert!(pieces.block_borrowed(1).is_none());
     }
 
+    /// Sums taken on a run's terms (built by its check, borrowed here) are those taken on terms
+    /// of their own, to the bit.
+    #[test]
+    fn sums_on_a_runs_terms_are_the_sums_on_their_own() {
+        let (nominal, cal) = noisy_sessions(None);
+        let options = SolveOptions::default();
+        let fit = calibrate(&nominal, &cal, &options).expect("fit");
+        let terms = SharedTerms::default();
+        let start = ToolFirstFit::default();
+        check_data_sharing(&nominal, &cal, &fit.encoders, &options, &start, Some(&terms)).expect("checked");
+        assert!(terms.is_built());
+        let shared = SessionSums::of_sharing(&nominal, &fit, &cal, &options, Some(&terms)).expect("sums");
+        let own = SessionSums::of(&nominal, &fit, &cal, &options).expect("sums");
+        assert_eq!(shared.sessions.len(), cal.blocks.len());
+        let bits = |m: &[f64]| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        for (a, b) in shared.sessions.iter().zip(&own.sessions) {
+            assert_eq!((&a.name, &a.keys, a.cost.to_bits()), (&b.name, &b.keys, b.cost.to_bits()));
+            assert_eq!(bits(a.h.as_slice()), bits(b.h.as_slice()), "{}", a.name);
+            assert_eq!(bits(a.g.as_slice()), bits(b.g.as_slice()), "{}", a.name);
+        }
+    }
+
     /// The sums keep the terms of the observations they were taken on: a refit of those same
     /// observations borrows them, one of a copy (equal, at another address) builds its own, and
     /// both refits are the same to the bit.
@@ -509,9 +544,9 @@ mod tests {
         let sums = SessionSums::of(&nominal, &fit, &cal, &options).expect("sums");
         let floated = SolveOptions { float_tool: vec![cal.block_name(1)], ..options.clone() };
         let copy = cal.clone();
-        let same = Pieces::new_sharing(&nominal, &cal, &floated, &fit.encoders, sums.kept()).expect("pieces");
-        let other =
-            Pieces::new_sharing(&nominal, &copy, &floated, &fit.encoders, sums.kept()).expect("pieces");
+        let kept = sums.kept().map(TermSource::Kept);
+        let same = Pieces::new_sharing(&nominal, &cal, &floated, &fit.encoders, kept).expect("pieces");
+        let other = Pieces::new_sharing(&nominal, &copy, &floated, &fit.encoders, kept).expect("pieces");
         assert!(matches!(same.terms, Terms::Borrowed(_)));
         assert!(matches!(other.terms, Terms::Built(_)));
         let shared = recalibrate_with(&nominal, &cal, &floated, &sums).expect("refit");

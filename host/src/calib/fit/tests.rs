@@ -231,13 +231,22 @@ fn a_shared_tool_first_fit_is_the_calibration_alone() {
     let (options, encoders) = (SolveOptions::default(), Encoders::of(&data));
     let mut tool_only = nominal.clone();
     tool_only.free.retain(|f| matches!(f.id, ParamId::Tcp(_)));
-    // As a run: the check of the data takes the closed-form frames, the calibrations the rest.
-    let start = ToolFirstFit::default();
-    check_data_sharing(&nominal, &data, &encoders, &options, &start).expect("checked");
+    // As a run: the check of the data takes the closed-form frames and builds the terms, the
+    // calibrations take the rest and borrow the terms.
+    let (start, terms) = (ToolFirstFit::default(), SharedTerms::default());
+    check_data_sharing(&nominal, &data, &encoders, &options, &start, Some(&terms)).expect("checked");
     assert!(start.0.borrow().as_ref().is_some_and(|kept| kept.tool_fit.is_none()));
-    let (fit, reference) =
-        calibrate_with_reference_on(&nominal, Some(&tool_only), &data, &encoders, &options, &start)
-            .expect("fit");
+    assert!(terms.is_built());
+    let (fit, reference) = calibrate_with_reference_on(
+        &nominal,
+        Some(&tool_only),
+        &data,
+        &encoders,
+        &options,
+        &start,
+        Some(&terms),
+    )
+    .expect("fit");
     let reference = reference.expect("asked for").expect("reference");
     let same = |a: &Fit, b: &Fit| {
         assert_eq!(a.model, b.model);
@@ -254,11 +263,11 @@ fn a_shared_tool_first_fit_is_the_calibration_alone() {
     );
     // The first fit was kept and taken; an arm of other values solves its own.
     let first_fit = ToolFirstFit::default();
-    calibrate_on_sharing(&nominal, &data, &encoders, &options, &first_fit).expect("fit");
+    calibrate_on_sharing(&nominal, &data, &encoders, &options, &first_fit, None).expect("fit");
     assert!(first_fit.0.borrow().as_ref().is_some_and(|kept| kept.tool_fit.is_some()));
     let mut other = tool_only.clone();
     other.joints[2].d_mm += 1.0;
-    let shared = calibrate_on_sharing(&other, &data, &encoders, &options, &first_fit).expect("other");
+    let shared = calibrate_on_sharing(&other, &data, &encoders, &options, &first_fit, None).expect("other");
     same(&shared, &calibrate_on(&other, &data, &encoders, &options).expect("alone"));
 }
 
@@ -271,7 +280,7 @@ fn kept_frames_and_spreads_are_those_of_the_arm() {
     let data = sessions(&truth, None);
     let (options, encoders) = (SolveOptions::default(), Encoders::of(&data));
     let first_fit = ToolFirstFit::default();
-    let fit = calibrate_on_sharing(&nominal, &data, &encoders, &options, &first_fit).expect("fit");
+    let fit = calibrate_on_sharing(&nominal, &data, &encoders, &options, &first_fit, None).expect("fit");
     let spreads_of = |model: &ArmModel| -> Vec<(String, f64)> {
         (0..data.blocks.len())
             .map(|b| (data.block_name(b), orientation_spread_deg(model, &data, b)))

@@ -30,8 +30,8 @@ use std::borrow::Cow;
 use std::ops::Range;
 use std::sync::Mutex;
 
-/// Some terms and their residual rows.
-type Chunk<'t, 'r> = (&'t [Box<dyn Term>], Vec<&'r mut [f64]>);
+/// A run of terms: the first one's index, the terms, their residual rows.
+type Run<'t, 'r> = (usize, &'t [Box<dyn Term>], &'r mut [f64]);
 
 /// Fewest observations whose poses one thread computes (a pose with its Jacobian takes a
 /// fraction of a µs: fewer are not worth waking a thread for).
@@ -60,6 +60,8 @@ pub struct TermIndex {
     offsets: Vec<usize>,
     rows: usize,
     read: Vec<bool>,
+    /// The observations from the first to the last one a term reads.
+    read_span: Range<usize>,
     positions_only: bool,
     /// The pose-derivative and pose buffers of chunks evaluated, for the next chunks: a solve's
     /// evaluations allocate and zero none (each pose writes its own columns; the entries of
@@ -83,10 +85,16 @@ impl TermIndex {
             offsets.push(rows);
             rows += t.rows();
         }
+        let read = observations_read(data, terms);
+        let read_span = read.iter().position(|&r| r).map_or(0..0, |first| {
+            let last = read.iter().rposition(|&r| r).unwrap_or(first);
+            first..last + 1
+        });
         TermIndex {
             offsets,
             rows,
-            read: observations_read(data, terms),
+            read,
+            read_span,
             positions_only: terms.iter().all(|t| t.is_position()),
             spare: Mutex::new(Vec::new()),
             spare_wanted: Mutex::new(Vec::new()),
@@ -293,6 +301,15 @@ impl<'a> Problem<'a> {
     /// `kinematics` of the state's model (computed on this thread, held only for them: the
     /// memory of a chunk, not of every observation).
     fn chunk_poses(&self, kinematics: &Tips, terms: &[Box<dyn Term>]) -> Poses {
+        if terms.len() == self.terms.len() && !self.index.read_span.is_empty() {
+            // Every term (the dense problem's one chunk): the observations read are known from
+            // the problem's making, not looked up term by term at each evaluation.
+            return self.wanted_poses(
+                kinematics,
+                self.index.read_span.start,
+                &self.index.read[self.index.read_span.clone()],
+            );
+        }
         self.chunk_poses_on(kinematics, &terms.iter().map(|t| t.as_ref()).collect::<Vec<_>>())
     }
 
@@ -303,17 +320,34 @@ impl<'a> Problem<'a> {
 
     /// As [`Problem::chunk_poses`] for terms given by reference.
     fn chunk_poses_on(&self, kinematics: &Tips, terms: &[&dyn Term]) -> Poses {
-        let arm = self.layout.arm.len();
         let read = || terms.iter().flat_map(|t| t.observations().iter().copied());
         let (first, last) = read().fold((usize::MAX, 0), |(a, b), k| (a.min(k), b.max(k)));
         if first > last {
-            return Poses { first: 0, pose: Vec::new(), chain: Vec::new(), arm, jacobian: true };
+            return Poses {
+                first: 0,
+                pose: Vec::new(),
+                chain: Vec::new(),
+                arm: self.layout.arm.len(),
+                jacobian: true,
+            };
         }
         let mut wanted =
             self.index.spare_wanted.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
         wanted.clear();
         wanted.resize(last + 1 - first, false);
         read().for_each(|k| wanted[k - first] = true);
+        let poses = self.wanted_poses(kinematics, first, &wanted);
+        if let Ok(mut spare) = self.index.spare_wanted.lock() {
+            spare.push(wanted);
+        }
+        poses
+    }
+
+    /// The tool poses with their derivatives of the observations `first + k` for which
+    /// `wanted[k]` (at least one), on the chains `kinematics`.
+    fn wanted_poses(&self, kinematics: &Tips, first: usize, wanted: &[bool]) -> Poses {
+        let arm = self.layout.arm.len();
+        let last = first + wanted.len() - 1;
         let (mut chain, mut pose) =
             self.index.spare.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
         chain.resize(wanted.len() * arm, [0.0; 9]);
@@ -344,9 +378,6 @@ impl<'a> Problem<'a> {
             );
             (pose[a - first], pose[b - first]) = (Some(pa), Some(pb));
         }
-        if let Ok(mut spare) = self.index.spare_wanted.lock() {
-            spare.push(wanted);
-        }
         Poses { first, pose, chain, arm, jacobian: true }
     }
 
@@ -357,16 +388,36 @@ impl<'a> Problem<'a> {
         }
     }
 
-    /// The residuals of each term at `x` (as written by [`Residuals::evaluate`]), split per term.
-    fn split<'r>(&self, r: &'r mut [f64]) -> Vec<&'r mut [f64]> {
+    /// The terms in runs of `len` (the last one shorter), each with its first term's index and
+    /// its residual rows split off `r` (the rows of every term, as written by
+    /// [`Residuals::evaluate`]).
+    fn runs<'r>(&self, len: usize, r: &'r mut [f64]) -> Vec<Run<'a, 'r>> {
         let mut rest = r;
-        let mut out = Vec::with_capacity(self.terms.len());
-        for t in self.terms {
-            let (mine, after) = rest.split_at_mut(t.rows());
-            out.push(mine);
+        let mut out = Vec::with_capacity(self.terms.len().div_ceil(len));
+        for (k, terms) in self.terms.chunks(len).enumerate() {
+            let first = k * len;
+            let end = self.index.offsets.get(first + terms.len()).copied().unwrap_or(self.index.rows);
+            let (mine, after) = rest.split_at_mut(end - self.index.offsets[first]);
+            out.push((first, terms, mine));
             rest = after;
         }
         out
+    }
+
+    /// The residual rows of each term from term `first` on, split off `r` (theirs, in order)
+    /// by the offsets kept (no call per term to ask its rows); as many as `r` holds.
+    fn term_rows<'s, 'r: 's>(
+        &'s self,
+        first: usize,
+        r: &'r mut [f64],
+    ) -> impl Iterator<Item = &'r mut [f64]> + 's {
+        let mut rest = r;
+        let ends = self.index.offsets[first + 1..].iter().copied().chain([self.index.rows]);
+        self.index.offsets[first..].iter().zip(ends).map_while(move |(&start, end)| {
+            let (mine, after) = std::mem::take(&mut rest).split_at_mut_checked(end - start)?;
+            rest = after;
+            Some(mine)
+        })
     }
 }
 
@@ -405,7 +456,6 @@ impl Residuals for Problem<'_> {
         let poses = self.poses(&state, jacobian.is_some());
         let input = TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
         let n = self.layout.unknowns();
-        let slices = self.split(r);
         match jacobian {
             Some(dense) => {
                 let mut rows = Vec::with_capacity(self.terms.len());
@@ -415,6 +465,7 @@ impl Residuals for Problem<'_> {
                     rows.push(mine);
                     rest = after;
                 }
+                let slices: Vec<&mut [f64]> = self.term_rows(0, r).collect();
                 self.terms.par_iter().zip(slices).zip(rows).with_min_len(MIN_TERMS_PER_TASK).for_each_init(
                     TermJacobian::default,
                     |jac, ((t, r), dense)| {
@@ -429,12 +480,11 @@ impl Residuals for Problem<'_> {
                     },
                 );
             }
-            None => self
-                .terms
-                .par_iter()
-                .zip(slices)
-                .with_min_len(MIN_TERMS_PER_TASK)
-                .for_each(|(t, r)| t.evaluate(&input, r, None)),
+            None => self.runs(MIN_TERMS_PER_TASK, r).into_par_iter().for_each(|(first, terms, r)| {
+                for (t, r) in terms.iter().zip(self.term_rows(first, r)) {
+                    t.evaluate(&input, r, None);
+                }
+            }),
         }
     }
 
@@ -449,20 +499,13 @@ impl Residuals for Problem<'_> {
         let dense = !self.layout.has_block_unknowns();
         let least = if dense { MIN_TERMS_PER_TASK } else { MIN_BLOCK_TERMS };
         let block = self.terms.len().div_ceil(MAX_BLOCKS).max(least);
-        let slices = self.split(r);
         let kinematics = Tips::new(&state.model);
-        let chunks: Vec<Chunk> = {
-            let mut out = Vec::new();
-            let mut slices = slices.into_iter();
-            for terms in self.terms.chunks(block) {
-                out.push((terms, slices.by_ref().take(terms.len()).collect()));
-            }
-            out
-        };
-        let sums: Vec<(Vec<f64>, Vec<f64>)> = chunks
+        let sums: Vec<(Vec<f64>, Vec<f64>)> = self
+            .runs(block, r)
             .into_par_iter()
-            .map(|(terms, rs)| {
+            .map(|(first, terms, r)| {
                 let mut jac = TermJacobian::default();
+                let mut rs = self.term_rows(first, r);
                 if dense {
                     let poses = self.chunk_poses(&kinematics, terms);
                     let input =
@@ -477,7 +520,6 @@ impl Residuals for Problem<'_> {
                 let spare = self.index.spare_sums.lock().ok().and_then(|mut spare| spare.pop());
                 let mut sums = spare.filter(|s| s.columns() == n).unwrap_or_else(|| NormalSums::new(n));
                 let mut w = Vec::new();
-                let mut rs = rs.into_iter();
                 // The poses of a few terms at a time: their derivatives are read while in cache.
                 for part in terms.chunks(POSES_AT_ONCE) {
                     let poses = self.chunk_poses(&kinematics, part);
@@ -534,6 +576,9 @@ struct DenseRows {
     n: usize,
     h: Vec<f64>,
     g: Vec<f64>,
+    /// The batch's rows (row-major, the first `r.len()` rows), kept at the largest size reached
+    /// and not zeroed for each row: a row written in place is written whole, one copied from a
+    /// Jacobian is zeroed first.
     rows: Vec<f64>,
     r: Vec<f64>,
     w: Vec<f64>,
@@ -547,11 +592,20 @@ impl DenseRows {
             n,
             h: vec![0.0; n * n],
             g: vec![0.0; n],
-            rows: Vec::with_capacity(batch * n),
+            rows: vec![0.0; batch * n],
             r: Vec::with_capacity(batch),
             w: Vec::with_capacity(batch),
             buffers: GramBuffers::default(),
         }
+    }
+
+    /// Rows `first..first + count` of the batch, grown to hold them.
+    fn rows_at(&mut self, first: usize, count: usize) -> &mut [f64] {
+        let span = first * self.n..(first + count) * self.n;
+        if self.rows.len() < span.end {
+            self.rows.resize(span.end, 0.0);
+        }
+        &mut self.rows[span]
     }
 
     /// Evaluate term `t` at `input` into `r` and add its rows weighed by `loss`: a one-row term
@@ -566,13 +620,16 @@ impl DenseRows {
         loss: Loss,
     ) {
         if let [residual] = r {
-            let at = self.rows.len();
-            self.rows.resize(at + self.n, 0.0);
-            if t.evaluate_into_row(input, residual, &mut self.rows[at..]) {
+            let row = self.rows_at(self.r.len(), 1);
+            if cfg!(debug_assertions) {
+                // A column the term leaves unwritten poisons the sums instead of reading an
+                // earlier row.
+                row.fill(f64::NAN);
+            }
+            if t.evaluate_into_row(input, residual, row) {
                 self.push_residuals(r, loss);
                 return;
             }
-            self.rows.truncate(at);
         }
         jac.reset(t.rows());
         t.evaluate(input, r, Some(jac));
@@ -581,29 +638,32 @@ impl DenseRows {
 
     /// Add one term's rows: its Jacobian `jac`, residuals `r`, weighed by `loss`.
     fn add(&mut self, jac: &TermJacobian, r: &[f64], loss: Loss) {
-        let (n, first) = (self.n, self.r.len());
-        self.rows.resize((first + jac.rows) * n, 0.0);
+        let n = self.n;
+        let rows = self.rows_at(self.r.len(), jac.rows);
+        rows.fill(0.0);
         for (p, &c) in jac.columns.iter().enumerate() {
             for (a, v) in jac.column(p).iter().enumerate() {
-                self.rows[(first + a) * n + c] = *v;
+                rows[a * n + c] = *v;
             }
         }
         self.push_residuals(r, loss);
     }
 
-    /// The residuals `r` and weights of rows just written; the batch's sums once it is full.
+    /// The residuals `r` and weights of rows just written (pushed one by one: a term has one
+    /// row or a few); the batch's sums once it is full.
     fn push_residuals(&mut self, r: &[f64], loss: Loss) {
-        self.r.extend_from_slice(r);
-        self.w.extend(r.iter().map(|&v| loss.weight(v)));
+        for &v in r {
+            self.r.push(v);
+            self.w.push(loss.weight(v));
+        }
         if self.r.len() >= DENSE_BATCH_ROWS {
             self.flush();
         }
     }
 
     fn flush(&mut self) {
-        let rows = (&self.rows[..], self.n, self.n);
+        let rows = (&self.rows[..self.r.len() * self.n], self.n, self.n);
         add_rows_gram(&mut self.h, &mut self.g, rows, &self.w, &self.r, &mut self.buffers);
-        self.rows.clear();
         self.r.clear();
         self.w.clear();
     }

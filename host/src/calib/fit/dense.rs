@@ -26,7 +26,7 @@ pub(super) fn calibrate_dense(
     let before = identify::analyse(&geometry, &all, &all_ranges);
     let (kept, _) = identify::base_columns(&geometry, all.len(), &all_ranges);
     let mut estimated: Vec<ParamId> = kept.iter().map(|&c| all[c]).collect();
-    let solver_options = SolverOptions { loss: pieces.resolved.loss, ..options.solver };
+    let solver_options = dense_solver(pieces, options);
     let seed = pieces.resolved.seed;
     let frames = vec![Frame::identity(); pieces.data.blocks.len()];
     let mut pass = 0;
@@ -110,6 +110,16 @@ pub(super) fn calibrate_dense(
         tool_rotation: None,
         encoders: pieces.encoders.clone(),
     })
+}
+
+/// The solver's settings for a problem without block unknowns: `options.solver` with the
+/// problem's loss, each trial point's normal equations evaluated with its residuals
+/// ([`SolverOptions::trial_normal`]). Nearly every step of a distance fit is accepted, from a
+/// random start too (and each solve stops on a lowered cost), so a trial's residuals would be
+/// followed by its normal equations at the same point: one evaluation instead of two, and the
+/// normal matrix at the solution for the covariance. The same steps and results.
+pub(super) fn dense_solver(pieces: &Pieces, options: &SolveOptions) -> SolverOptions {
+    SolverOptions { loss: pieces.resolved.loss, trial_normal: true, ..options.solver }
 }
 
 /// The column geometry (row-major, one column per free parameter) of the Jacobian over every

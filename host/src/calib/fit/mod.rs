@@ -438,7 +438,7 @@ fn solve_warm_from(
     let (lower, upper) = pieces.bounds(params, n);
     let mut x0: Vec<f64> = params.iter().map(|&id| start.get(id)).collect();
     x0.resize(n, 0.0);
-    let solver_options = SolverOptions { loss: pieces.resolved.loss, ..options.solver };
+    let solver_options = dense::dense_solver(&pieces, options);
     let (solution, _) =
         solve_from_starts(&problem, &x0, &lower, &upper, &solver_options, options.seed, 0..=0);
     Ok(problem.state(&solution.x).model)

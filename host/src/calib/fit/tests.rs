@@ -339,3 +339,34 @@ fn the_factors_give_the_first_normal_equations_of_a_solve_at_their_point() {
     assert!(factored.normal_at(&problem, &x0, Loss::Huber(0.5 * largest)).is_none(), "weighted rows");
     assert!(factored.normal_at(&problem, &x0, Loss::Huber(2.0 * largest)).is_some(), "unit weights");
 }
+
+/// The artefact's solves with each trial point's normal equations ([`dense::dense_solver`]) are
+/// the plain ones to the bit (a distance's residuals are the same from either evaluation), from
+/// the nominal start and from random ones, with the normal matrix at the solution.
+#[test]
+fn a_distance_fit_with_normal_equations_at_its_trials_is_the_plain_one() {
+    let nominal = ArmModel::suta_nominal();
+    let sim = crate::simulate::simulate(&nominal, &crate::simulate::SimulationOptions::default());
+    let data = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let options = SolveOptions::default();
+    let pieces = Pieces::new(&nominal, &data, &options, &Encoders::of(&data)).unwrap();
+    assert!(!pieces.blocked());
+    let params: Vec<ParamId> = nominal.free.iter().map(|f| f.id).collect();
+    let problem = pieces.problem(params.clone(), &nominal, &vec![Frame::identity(); data.blocks.len()], None);
+    let n = problem.layout.unknowns();
+    let (lower, upper) = pieces.bounds(&params, n);
+    let x_nominal: Vec<f64> = params.iter().map(|&id| nominal.get(id)).collect();
+    let trial = dense::dense_solver(&pieces, &options);
+    let plain = SolverOptions { trial_normal: false, ..trial };
+    assert!(trial.trial_normal && matches!(trial.loss, Loss::Huber(_)));
+    for (start, x0) in start_points(&x_nominal, &lower, &upper, 7, 0..=2) {
+        let a = solver::solve(&problem, &x0, &lower, &upper, &plain);
+        let b = solver::solve(&problem, &x0, &lower, &upper, &trial);
+        assert!(a.iterations > 2, "start {start}: {a:?}");
+        assert_eq!((&a.x, a.cost, &a.residuals), (&b.x, b.cost, &b.residuals), "start {start}");
+        assert_eq!((a.iterations, a.stop, a.initial_cost), (b.iterations, b.stop, b.initial_cost));
+        let mut r = vec![0.0; problem.len()];
+        let at_x = problem.normal_equations(&b.x, &mut r, trial.loss).0;
+        assert_eq!(b.normal_at_x, Some(at_x), "start {start}");
+    }
+}

@@ -52,9 +52,13 @@ impl Term for Distance {
 
     fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>) {
         let tool = at.layout.tool_column(self.group);
+        let Some(j) = jac else {
+            // No direction without derivatives: the length alone.
+            r[0] = self.difference(at, tool.is_some()).norm() - self.distance_mm;
+            return;
+        };
         let (residual, u) = self.residual_and_direction(at, tool.is_some());
         r[0] = residual;
-        let Some(j) = jac else { return };
         let [a, b] = self.obs;
         let (Some(da), Some(db)) = (at.poses.chain(a), at.poses.chain(b)) else { return };
         j.columns.extend(0..at.poses.arm);
@@ -87,20 +91,74 @@ impl Distance {
     /// The residual ‖p_a − p_b‖ − D_ab and the unit vector u from p_b to p_a, the tool points
     /// carrying the group's offset when its tool floats (`floated`).
     fn residual_and_direction(&self, at: &TermInput<'_>, floated: bool) -> (f64, Vector3<f64>) {
+        let diff = self.difference(at, floated);
+        let length = diff.norm();
+        (length - self.distance_mm, diff / length.max(1e-12))
+    }
+
+    /// p_a − p_b, the tool points carrying the group's offset when its tool floats (`floated`).
+    fn difference(&self, at: &TermInput<'_>, floated: bool) -> Vector3<f64> {
         let [a, b] = self.obs;
         let (pa, pb) = (at.poses.of(a), at.poses.of(b));
-        let diff = if floated {
+        if floated {
             let offset = &at.state.tools[self.group];
             (pa.position_mm + flange_rotation(pa) * offset) - (pb.position_mm + flange_rotation(pb) * offset)
         } else {
             pa.position_mm - pb.position_mm
-        };
-        let length = diff.norm();
-        (length - self.distance_mm, diff / length.max(1e-12))
+        }
     }
 }
 
 /// The row's derivative by one arm column: u·(∂p_a/∂c − ∂p_b/∂c), u the unit vector from b to a.
 fn arm_derivative(u: &Vector3<f64>, a: &PoseDerivative, b: &PoseDerivative) -> f64 {
     u.x * (a[0] - b[0]) + u.y * (a[1] - b[1]) + u.z * (a[2] - b[2])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::layout::Layout;
+    use crate::calib::problem::Problem;
+    use crate::calib::terms::{build, TermChoice};
+    use crate::model::ArmModel;
+    use nalgebra::Matrix3;
+
+    /// The residual alone (no direction computed) is the one evaluated with the Jacobian, to the
+    /// bit, with the tool fixed or floated.
+    #[test]
+    fn the_residual_alone_is_the_one_with_the_jacobian() {
+        let nominal = ArmModel::suta_nominal();
+        let options = crate::simulate::SimulationOptions { seed: 3, ..Default::default() };
+        let sim = crate::simulate::simulate(&nominal, &options);
+        let data = Observations::from_sessions(&sim.calibration, &sim.artefact);
+        let choice = TermChoice {
+            relative_orientation_lever_mm: None,
+            orientation_weight_mm_per_rad: None,
+            point_weight: 1.0,
+        };
+        let terms = build(&data, &choice);
+        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
+        let blocks = data.blocks.len();
+        for floated in [false, true] {
+            let tools = vec![floated; data.groups.len()];
+            let layout =
+                Layout::new(params.clone(), &vec![false; blocks], &tools, false, &vec![None; blocks]);
+            let problem =
+                Problem::new(layout, &nominal, &data, &terms, vec![Matrix3::identity(); blocks], None);
+            let mut x: Vec<f64> = params.iter().map(|id| nominal.get(*id) + 1e-3).collect();
+            x.resize(problem.layout.unknowns(), 0.5);
+            let state = problem.state(&x);
+            let poses = problem.poses(&state, true);
+            let at = TermInput { state: &state, layout: &problem.layout, data: &data, poses: &poses };
+            let mut jac = TermJacobian::default();
+            assert!(terms.len() > 100);
+            for t in &terms {
+                let (mut alone, mut with_jacobian) = ([0.0], [0.0]);
+                t.evaluate(&at, &mut alone, None);
+                jac.reset(1);
+                t.evaluate(&at, &mut with_jacobian, Some(&mut jac));
+                assert_eq!(alone, with_jacobian, "floated {floated}");
+            }
+        }
+    }
 }

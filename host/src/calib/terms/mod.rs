@@ -196,8 +196,9 @@ pub trait Term: Send + Sync {
     fn observations(&self) -> &[usize];
     /// Its residuals into `r` (`rows` values); with `jac`, its non-zero Jacobian columns.
     fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>);
-    /// A one-row term's residual into `r` and its derivatives straight into `row` (zeroed, one
-    /// value per column of a problem whose columns are the arm's alone), instead of through a
+    /// A one-row term's residual into `r` and its derivatives straight into `row` (one value per
+    /// column of a problem whose columns are the arm's alone, every one written: `row` holds
+    /// anything before), instead of through a
     /// [`TermJacobian`] copied into the row afterwards; `false` when the term reads other
     /// columns or has no such path (the default): the caller then evaluates it.
     fn evaluate_into_row(&self, _at: &TermInput<'_>, _r: &mut f64, _row: &mut [f64]) -> bool {

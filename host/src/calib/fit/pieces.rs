@@ -44,7 +44,7 @@ pub(super) struct Pieces<'a> {
 /// Where some pieces' term index is kept: their own (taken at their first problem), or that of
 /// the pieces whose terms (the same, of the same observations) they borrow.
 enum IndexCell<'a> {
-    Own(OnceLock<TermIndex>),
+    Own(Box<OnceLock<TermIndex>>),
     Kept(&'a OnceLock<TermIndex>),
 }
 
@@ -183,7 +183,7 @@ impl<'a> Pieces<'a> {
             choice,
             terms: Terms::Built(terms::build(data, &choice)),
             encoders: encoders.for_data(data),
-            index: IndexCell::Own(OnceLock::new()),
+            index: IndexCell::Own(Box::default()),
         };
         let kept = match kept {
             Some(TermSource::Kept(kept)) => Some(kept).filter(|k| k.holds(data, choice)),
@@ -249,7 +249,7 @@ impl<'a> Pieces<'a> {
             drift,
             resolved: self.resolved,
             encoders: self.encoders.clone(),
-            index: IndexCell::Own(OnceLock::new()),
+            index: IndexCell::Own(Box::default()),
         })
     }
 
@@ -270,7 +270,7 @@ impl<'a> Pieces<'a> {
             drift: vec![self.drift[b].map(|d| DriftSlot { column: 0, ..d }); sub.blocks.len()],
             resolved: self.resolved,
             encoders,
-            index: IndexCell::Own(OnceLock::new()),
+            index: IndexCell::Own(Box::default()),
         }
     }
 

@@ -156,36 +156,27 @@ impl<'a> Problem<'a> {
         frame_start: Vec<Matrix3<f64>>,
         probe_start: Option<Matrix3<f64>>,
     ) -> Problem<'a> {
-        let sin_cos = Cow::Owned(encoder_table(data, terms));
-        let index = Index::Own(TermIndex::of(data, terms));
-        Problem::with_index(layout, model, data, terms, frame_start, probe_start, (sin_cos, index))
+        Problem::with_kept(layout, model, data, terms, frame_start, probe_start, None)
     }
 
     /// As [`Problem::new`], with the encoder table and term index `kept` by a caller that makes
-    /// many problems of the same `data` and `terms`.
+    /// many problems of the same `data` and `terms` (made here when none are kept).
     pub fn with_kept(
-        layout: Layout,
-        model: &'a ArmModel,
-        data: &'a Observations,
-        terms: &'a [Box<dyn Term>],
-        frame_start: Vec<Matrix3<f64>>,
-        probe_start: Option<Matrix3<f64>>,
-        kept: KeptForTerms<'a>,
-    ) -> Problem<'a> {
-        debug_assert_eq!(kept.index.offsets.len(), terms.len());
-        let shared = (Cow::Borrowed(kept.sin_cos), Index::Kept(kept.index));
-        Problem::with_index(layout, model, data, terms, frame_start, probe_start, shared)
-    }
-
-    fn with_index(
         mut layout: Layout,
         model: &'a ArmModel,
         data: &'a Observations,
         terms: &'a [Box<dyn Term>],
         frame_start: Vec<Matrix3<f64>>,
         probe_start: Option<Matrix3<f64>>,
-        (sin_cos, index): (Cow<'a, [(f64, f64)]>, Index<'a>),
+        kept: Option<KeptForTerms<'a>>,
     ) -> Problem<'a> {
+        let (sin_cos, index) = match kept {
+            Some(kept) => {
+                debug_assert_eq!(kept.index.offsets.len(), terms.len());
+                (Cow::Borrowed(kept.sin_cos), Index::Kept(kept.index))
+            }
+            None => (Cow::Owned(encoder_table(data, terms)), Index::Own(TermIndex::of(data, terms))),
+        };
         // Terms of positions alone read no derivative of the tool's axes.
         if index.positions_only {
             layout.columns = layout.columns.positions_only();
@@ -1202,8 +1193,15 @@ mod tests {
             let fresh = Problem::new(layout(arm), &nominal, &data, &terms, starts.clone(), None);
             assert_same_sums(&kept, &fresh, &x, Loss::Linear, &format!("{} arm columns", arm.len()));
             let on_index = KeptForTerms { sin_cos: &sin_cos, index: &index };
-            let shared =
-                Problem::with_kept(layout(arm), &nominal, &data, &terms, starts.clone(), None, on_index);
+            let shared = Problem::with_kept(
+                layout(arm),
+                &nominal,
+                &data,
+                &terms,
+                starts.clone(),
+                None,
+                Some(on_index),
+            );
             assert_same_sums(
                 &shared,
                 &fresh,

@@ -29,7 +29,8 @@ pub struct SolveArgs {
     #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     pub seed: u64,
     /// Random restarts inside the bounds (besides the nominal start) [default: 8 with artefact
-    /// touches, 0 on tracker points alone].
+    /// touches, 0 on tracker points alone]. The start of lowest cost is kept; costs apart by less
+    /// than the solver's function tolerance (relative) are a tie, won by the earliest start.
     #[arg(long, allow_negative_numbers = true, value_parser = count(0, MAX_RESTARTS))]
     pub restarts: Option<usize>,
     /// Huber threshold δ, mm [default: 1.35 with artefact touches; plain least squares on

@@ -61,7 +61,7 @@ pub(super) fn calibrate_dense(
                     1..=restarts,
                 );
                 starts.extend(more);
-                if restarted.cost < best.cost {
+                if beats(restarted.cost, best.cost, solver_options.ftol) {
                     at_best = geometry_at(&full, &problem, &restarted.x)?;
                     best = restarted;
                 }

@@ -372,7 +372,7 @@ pub(super) fn calibrate_framed(
             .collect();
         for other in others {
             starts.push(other.outcome.clone());
-            if other.outcome.final_cost < solved.outcome.final_cost {
+            if beats(other.outcome.final_cost, solved.outcome.final_cost, FRAMED_SOLVER.ftol) {
                 solved = other;
             }
         }

@@ -433,12 +433,20 @@ pub(super) fn solve_from_starts(
     let mut best: Option<solver::Solution> = None;
     for (outcome, s) in solved {
         outcomes.push(outcome);
-        if best.as_ref().is_none_or(|b| s.cost < b.cost) {
+        if best.as_ref().is_none_or(|b| beats(s.cost, b.cost, options.ftol)) {
             best = Some(s);
         }
     }
     let best = best.unwrap_or_else(|| solver::solve(problem, x_nominal, lower, upper, options));
     (best, outcomes)
+}
+
+/// Whether a later start's cost `candidate` beats the best so far, `best`: lower by more than
+/// the solver's function tolerance, `ftol`·best. Starts that reach one minimum end with costs
+/// apart by rounding, and which of them counts as lowest must not turn on it: the earliest start
+/// wins a tie. A finite cost beats a best that is not.
+pub(super) fn beats(candidate: f64, best: f64, ftol: f64) -> bool {
+    candidate.is_finite() && (!best.is_finite() || candidate < best - ftol * best.abs())
 }
 
 /// The cost at `x0`: the solve's own first evaluation when `x0` lies inside the bounds (the

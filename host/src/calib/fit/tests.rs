@@ -3,7 +3,7 @@
 
 use super::*;
 use crate::calib::validate::validate_session;
-use crate::data::{Joints, Landmark, Observation};
+use crate::data::{Joints, Landmark, Observation, Target};
 use crate::model::kinematics::tool_pose;
 use crate::model::Joint;
 use nalgebra::{Rotation3, UnitQuaternion};
@@ -214,7 +214,7 @@ fn a_start_that_is_not_finite_is_refused() {
     let fit = calibrate(&nominal, &data, &options).expect("fit");
     let mut broken = data.clone();
     let k = broken.blocks[1].members[4];
-    if let crate::data::Target::Point { xyz_mm, .. } = &mut broken.obs[k].target {
+    if let Target::Point { xyz_mm, .. } = &mut broken.obs[k].target {
         xyz_mm.x = f64::NAN;
     }
     assert!(matches!(calibrate(&nominal, &broken, &options), Err(CalibError::NonFinite)));
@@ -369,4 +369,42 @@ fn a_distance_fit_with_normal_equations_at_its_trials_is_the_plain_one() {
         let at_x = problem.normal_equations(&b.x, &mut r, trial.loss).0;
         assert_eq!(b.normal_at_x, Some(at_x), "start {start}");
     }
+}
+
+/// Restarts that reach the calibration's own minimum leave it as it is: their costs differ from
+/// the nominal start's by rounding, which is a tie, and the earliest start wins a tie. Which
+/// start counts as lowest must not turn on rounding (a lower cost by 1e-14 relative once picked
+/// a point 1e-7 away and moved a leave-one-out figure by 1e-4).
+#[test]
+fn restarts_reaching_the_same_minimum_keep_the_nominal_start_s_solution() {
+    let (nominal, truth) = arm_and_truth();
+    let mut data = sessions(&truth, None);
+    // 0.05 mm of deterministic scatter: a cost well above zero, whose rounding differs by start.
+    for (i, o) in data.obs.iter_mut().enumerate() {
+        if let Target::Point { xyz_mm, .. } = &mut o.target {
+            let f = i as f64;
+            *xyz_mm += Vector3::new((1.3 * f).sin(), (2.9 * f).cos(), (0.7 * f).sin()) * 0.05;
+        }
+    }
+    let alone = calibrate(&nominal, &data, &SolveOptions::default()).expect("nominal start");
+    let options = SolveOptions { restarts: Some(6), seed: 11, ..SolveOptions::default() };
+    let restarted = calibrate(&nominal, &data, &options).expect("restarts");
+    let costs: Vec<f64> = restarted.starts.iter().map(|s| s.final_cost).collect();
+    assert_eq!(restarted.starts[0].final_cost, alone.cost, "{costs:?}");
+    assert!(costs.iter().all(|c| (c - alone.cost).abs() <= 1e-9 * alone.cost), "one minimum: {costs:?}");
+    // The check has teeth: some start ended lower by rounding, which a plain `<` would take.
+    assert!(costs.iter().any(|&c| c < alone.cost), "no restart lower by rounding: {costs:?}");
+    assert_eq!(restarted.model, alone.model);
+    assert_eq!(restarted.cost, alone.cost);
+}
+
+#[test]
+fn a_later_start_beats_the_best_only_by_more_than_the_function_tolerance() {
+    assert!(!beats(1.0 - 1e-13, 1.0, 1e-10), "a rounding-size difference is a tie");
+    assert!(!beats(1.0, 1.0, 1e-10));
+    assert!(beats(1.0 - 1e-9, 1.0, 1e-10));
+    assert!(!beats(f64::NAN, 1.0, 1e-10));
+    assert!(beats(1.0, f64::NAN, 1e-10), "a finite cost beats one that is not");
+    assert!(beats(1.0, f64::INFINITY, 1e-10));
+    assert!(!beats(f64::INFINITY, f64::INFINITY, 1e-10));
 }

@@ -609,9 +609,9 @@ impl DenseRows {
         let mut jac = TermJacobian::default();
         // The batch's first row in `r`.
         let mut batch = 0;
-        for (k, t) in terms.iter().enumerate() {
-            let start = offsets[k] - base;
-            let end = offsets.get(k + 1).map_or(r.len(), |&o| o - base);
+        let ends = offsets[1..].iter().map(|&o| o - base).chain([r.len()]);
+        for ((t, &first), end) in terms.iter().zip(offsets).zip(ends) {
+            let start = first - base;
             if !self.write_row(t.as_ref(), input, &mut r[start..end], start - batch) {
                 jac.reset(end - start);
                 t.evaluate(input, &mut r[start..end], Some(&mut jac));
@@ -635,7 +635,8 @@ impl DenseRows {
     /// ([`Term::evaluate_into_row`]); `false` when it has more rows or no such path.
     fn write_row(&mut self, t: &dyn Term, input: &TermInput, r: &mut [f64], at: usize) -> bool {
         let ([residual], Some(positions)) = (r, &self.positions) else { return false };
-        let row = batch_rows(&mut self.rows, self.n, at, 1);
+        // The batch holds more rows than a batch starts at: no growing for one row.
+        let Some(row) = self.rows.get_mut(at * self.n..(at + 1) * self.n) else { return false };
         if cfg!(debug_assertions) {
             // A column the term leaves unwritten poisons the sums instead of reading an earlier
             // row.

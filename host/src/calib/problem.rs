@@ -16,7 +16,7 @@
 //! or a floated tool can reproduce, the data cannot attribute to the arm).
 
 use crate::calib::layout::{Layout, State};
-use crate::calib::terms::{Poses, Term, TermInput, TermJacobian};
+use crate::calib::terms::{ArmPositions, Poses, Term, TermInput, TermJacobian};
 use crate::data::encoders::pairs;
 use crate::data::Observations;
 use crate::model::kinematics::{encoder_sin_cos, PoseDerivative, Tips, ToolPose};
@@ -495,19 +495,17 @@ impl Residuals for Problem<'_> {
             .runs(block, r)
             .into_par_iter()
             .map(|(first, terms, r)| {
-                let mut jac = TermJacobian::default();
-                let mut rs = self.term_rows(first, r);
                 if dense {
                     let poses = self.chunk_poses(&kinematics, terms);
                     let input =
                         TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
-                    let mut rows = DenseRows::new(n);
-                    for (t, r) in terms.iter().zip(rs) {
-                        rows.add_term(t.as_ref(), &input, r, &mut jac, loss);
-                    }
+                    let mut rows = DenseRows::new(n, &poses);
+                    rows.add_terms(terms, &self.index.offsets[first..], &input, r, loss);
                     self.recycle(poses);
-                    return rows.finish();
+                    return (rows.h, rows.g);
                 }
+                let mut jac = TermJacobian::default();
+                let mut rs = self.term_rows(first, r);
                 let spare = self.index.spare_sums.lock().ok().and_then(|mut spare| spare.pop());
                 let mut sums = spare.filter(|s| s.columns() == n).unwrap_or_else(|| NormalSums::new(n));
                 let mut w = Vec::new();
@@ -567,103 +565,102 @@ struct DenseRows {
     n: usize,
     h: Vec<f64>,
     g: Vec<f64>,
-    /// The batch's rows (row-major, the first `r.len()` rows), kept at the largest size reached
+    /// The batch's rows (row-major, as many as the batch has), kept at the largest size reached
     /// and not zeroed for each row: a row written in place is written whole, one copied from a
     /// Jacobian is zeroed first.
     rows: Vec<f64>,
-    r: Vec<f64>,
+    /// The batch's weights.
     w: Vec<f64>,
     buffers: GramBuffers,
+    /// The position derivatives of the terms' poses as their rows read them.
+    positions: Option<ArmPositions>,
 }
 
 impl DenseRows {
-    fn new(n: usize) -> DenseRows {
+    /// Empty sums over n columns, for terms reading `poses`.
+    fn new(n: usize, poses: &Poses) -> DenseRows {
         let batch = DENSE_BATCH_ROWS + 8;
         DenseRows {
             n,
+            positions: ArmPositions::of(poses),
             h: vec![0.0; n * n],
             g: vec![0.0; n],
             rows: vec![0.0; batch * n],
-            r: Vec::with_capacity(batch),
             w: Vec::with_capacity(batch),
             buffers: GramBuffers::default(),
         }
     }
 
-    /// Rows `first..first + count` of the batch, grown to hold them.
-    fn rows_at(&mut self, first: usize, count: usize) -> &mut [f64] {
-        let span = first * self.n..(first + count) * self.n;
-        if self.rows.len() < span.end {
-            self.rows.resize(span.end, 0.0);
-        }
-        &mut self.rows[span]
-    }
-
-    /// Evaluate term `t` at `input` into `r` and add its rows weighed by `loss`: a one-row term
-    /// writes its row straight into the batch when it can ([`Term::evaluate_into_row`]), any
-    /// other through `jac`.
-    fn add_term(
+    /// Evaluate `terms` at `input` into their residual rows `r` (theirs in order, the first
+    /// term's first row `offsets[0]`, each term's first row in `offsets`) and add their rows
+    /// weighed by `loss`: a one-row term writes its row straight into the batch when it can
+    /// ([`Term::evaluate_into_row`]), any other through a [`TermJacobian`]. A batch's residuals
+    /// are read where the terms wrote them in `r` (no copy per row), its weights taken when it
+    /// is summed.
+    fn add_terms(
         &mut self,
-        t: &dyn Term,
+        terms: &[Box<dyn Term>],
+        offsets: &[usize],
         input: &TermInput,
         r: &mut [f64],
-        jac: &mut TermJacobian,
         loss: Loss,
     ) {
-        if let [residual] = r {
-            let row = self.rows_at(self.r.len(), 1);
-            if cfg!(debug_assertions) {
-                // A column the term leaves unwritten poisons the sums instead of reading an
-                // earlier row.
-                row.fill(f64::NAN);
+        let (n, base) = (self.n, offsets.first().copied().unwrap_or(0));
+        let mut jac = TermJacobian::default();
+        // The batch's first row in `r`.
+        let mut batch = 0;
+        let ends = offsets[1..].iter().map(|&o| o - base).chain([r.len()]);
+        for ((t, &first), end) in terms.iter().zip(offsets).zip(ends) {
+            let start = first - base;
+            if !self.write_row(t.as_ref(), input, &mut r[start..end], start - batch) {
+                jac.reset(end - start);
+                t.evaluate(input, &mut r[start..end], Some(&mut jac));
+                let rows = batch_rows(&mut self.rows, n, start - batch, end - start);
+                rows.fill(0.0);
+                for (p, &c) in jac.columns.iter().enumerate() {
+                    for (a, v) in jac.column(p).iter().enumerate() {
+                        rows[a * n + c] = *v;
+                    }
+                }
             }
-            if t.evaluate_into_row(input, residual, row) {
-                self.push_residuals(r, loss);
-                return;
-            }
-        }
-        jac.reset(t.rows());
-        t.evaluate(input, r, Some(jac));
-        self.add(jac, r, loss);
-    }
-
-    /// Add one term's rows: its Jacobian `jac`, residuals `r`, weighed by `loss`.
-    fn add(&mut self, jac: &TermJacobian, r: &[f64], loss: Loss) {
-        let n = self.n;
-        let rows = self.rows_at(self.r.len(), jac.rows);
-        rows.fill(0.0);
-        for (p, &c) in jac.columns.iter().enumerate() {
-            for (a, v) in jac.column(p).iter().enumerate() {
-                rows[a * n + c] = *v;
+            if end - batch >= DENSE_BATCH_ROWS {
+                self.flush(&r[batch..end], loss);
+                batch = end;
             }
         }
-        self.push_residuals(r, loss);
+        self.flush(&r[batch..], loss);
     }
 
-    /// The residuals `r` and weights of rows just written (pushed one by one: a term has one
-    /// row or a few); the batch's sums once it is full.
-    fn push_residuals(&mut self, r: &[f64], loss: Loss) {
-        for &v in r {
-            self.r.push(v);
-            self.w.push(loss.weight(v));
+    /// A one-row term's residual into `r` and its row straight into row `at` of the batch
+    /// ([`Term::evaluate_into_row`]); `false` when it has more rows or no such path.
+    fn write_row(&mut self, t: &dyn Term, input: &TermInput, r: &mut [f64], at: usize) -> bool {
+        let ([residual], Some(positions)) = (r, &self.positions) else { return false };
+        // The batch holds more rows than a batch starts at: no growing for one row.
+        let Some(row) = self.rows.get_mut(at * self.n..(at + 1) * self.n) else { return false };
+        if cfg!(debug_assertions) {
+            // A column the term leaves unwritten poisons the sums instead of reading an earlier
+            // row.
+            row.fill(f64::NAN);
         }
-        if self.r.len() >= DENSE_BATCH_ROWS {
-            self.flush();
-        }
+        t.evaluate_into_row(input, positions, residual, row)
     }
 
-    fn flush(&mut self) {
-        let rows = (&self.rows[..self.r.len() * self.n], self.n, self.n);
-        add_rows_gram(&mut self.h, &mut self.g, rows, &self.w, &self.r, &mut self.buffers);
-        self.r.clear();
+    /// Add the batch's rows, their residuals `r` weighed by `loss`, into the sums.
+    fn flush(&mut self, r: &[f64], loss: Loss) {
         self.w.clear();
+        self.w.extend(r.iter().map(|&v| loss.weight(v)));
+        let rows = (&self.rows[..r.len() * self.n], self.n, self.n);
+        add_rows_gram(&mut self.h, &mut self.g, rows, &self.w, r, &mut self.buffers);
     }
+}
 
-    /// The sums: the upper triangle of JᵀWJ and JᵀWr.
-    fn finish(mut self) -> (Vec<f64>, Vec<f64>) {
-        self.flush();
-        (self.h, self.g)
+/// Rows `first..first + count` of a batch of rows of `n` columns (row-major), grown to hold them.
+fn batch_rows(rows: &mut Vec<f64>, n: usize, first: usize, count: usize) -> &mut [f64] {
+    let span = first * n..(first + count) * n;
+    if rows.len() < span.end {
+        rows.resize(span.end, 0.0);
     }
+    &mut rows[span]
 }
 
 /// A group's rows of the Jacobian in a small matrix: the R factor of its columns [its own |
@@ -983,6 +980,9 @@ mod tests {
         fn observations(&self) -> &[usize] {
             self.term.observations()
         }
+        fn is_position(&self) -> bool {
+            self.term.is_position()
+        }
         fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>) {
             let jac = match jac {
                 Some(jac) if self.reversed => jac,
@@ -1043,6 +1043,36 @@ mod tests {
                 let (dh, dg) = ((&h - &hd).norm() / hd.norm(), (&g - &gd).norm() / gd.norm());
                 assert!(dh <= 1e-12 && dg <= 1e-12, "{label}: {dh:e} {dg:e}");
             }
+        }
+    }
+
+    /// Distances written straight into the batch's rows (read from the laid-out position
+    /// derivatives) give the sums of the same distances through their Jacobians to the bit, with
+    /// relative orientations (four rows) between: the same rows in the same batch positions.
+    #[test]
+    fn distances_written_into_rows_give_the_sums_of_their_jacobians() {
+        let nominal = ArmModel::suta_nominal();
+        let options = crate::simulate::SimulationOptions { seed: 2, ..Default::default() };
+        let sim = crate::simulate::simulate(&nominal, &options);
+        let data = Observations::from_sessions(&sim.calibration, &sim.artefact);
+        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
+        let blocks = data.blocks.len();
+        let choice = TermChoice { relative_orientation_lever_mm: Some(150.0), ..positions_only() };
+        let direct = build(&data, &choice);
+        let jacobians: Vec<Box<dyn Term>> = build(&data, &choice).into_iter().map(through).collect();
+        let layout = || {
+            let tools = vec![false; data.groups.len()];
+            Layout::new(params.clone(), &vec![false; blocks], &tools, false, &vec![None; blocks])
+        };
+        let frames = vec![Matrix3::identity(); blocks];
+        let ours = Problem::new(layout(), &nominal, &data, &direct, frames.clone(), None);
+        let theirs = Problem::new(layout(), &nominal, &data, &jacobians, frames, None);
+        assert!(ours.len() > 2 * DENSE_BATCH_ROWS, "more than one batch");
+        let x: Vec<f64> = params.iter().map(|id| nominal.get(*id) + 1e-3).collect();
+        let mut r = vec![0.0; ours.len()];
+        ours.evaluate(&x, &mut r, None);
+        for loss in [Loss::Linear, Loss::Huber(median_abs(&r))] {
+            assert_same_sums(&ours, &theirs, &x, loss, &format!("{loss:?}"));
         }
     }
 

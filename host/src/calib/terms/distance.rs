@@ -4,11 +4,12 @@
 //! placement (`--float-tool`), p = p_flange + R_F·Δ; the arm's columns leave out ∂(R_F·Δ)/∂θ
 //! (second order for an offset of millimetres; the residuals themselves are exact).
 
-use super::{Term, TermInput, TermJacobian};
+use super::{ArmPositions, Term, TermInput, TermJacobian};
 use crate::calib::nuisance::tool::flange_rotation;
 use crate::data::Observations;
 use crate::model::kinematics::PoseDerivative;
 use nalgebra::Vector3;
+use wide::f64x2;
 
 /// ‖p_a − p_b‖ − D_ab.
 pub struct Distance {
@@ -72,17 +73,20 @@ impl Term for Distance {
         }
     }
 
-    fn evaluate_into_row(&self, at: &TermInput<'_>, r: &mut f64, row: &mut [f64]) -> bool {
-        let [a, b] = self.obs;
-        let (Some(da), Some(db)) = (at.poses.chain(a), at.poses.chain(b)) else { return false };
-        if at.layout.tool_column(self.group).is_some() || row.len() != da.len() {
+    fn evaluate_into_row(
+        &self,
+        at: &TermInput<'_>,
+        positions: &ArmPositions,
+        r: &mut f64,
+        row: &mut [f64],
+    ) -> bool {
+        if at.layout.tool_column(self.group).is_some() || row.len() != positions.arm() {
             return false;
         }
         let u;
         (*r, u) = self.residual_and_direction(at, false);
-        for ((out, a), b) in row.iter_mut().zip(da).zip(db) {
-            *out = arm_derivative(&u, a, b);
-        }
+        let [a, b] = self.obs;
+        arm_row(&u, positions.of_observation(a), positions.of_observation(b), row);
         true
     }
 }
@@ -114,14 +118,68 @@ fn arm_derivative(u: &Vector3<f64>, a: &PoseDerivative, b: &PoseDerivative) -> f
     u.x * (a[0] - b[0]) + u.y * (a[1] - b[1]) + u.z * (a[2] - b[2])
 }
 
+/// The row's derivatives by every arm column ([`arm_derivative`] of each, the same operations in
+/// the same order) from the pairs of columns of the two touches' position derivatives (of
+/// [`ArmPositions`]), two columns per `f64x2`: one packed subtract, multiply or add serves both
+/// (no fused multiply-add: the values are those of one column alone, to the bit).
+fn arm_row(u: &Vector3<f64>, a: &[[f64; 6]], b: &[[f64; 6]], row: &mut [f64]) {
+    let [ux, uy, uz] = [u.x, u.y, u.z].map(f64x2::splat);
+    let values = |a: &[f64; 6], b: &[f64; 6]| {
+        let axis = |k: usize| f64x2::new([a[k], a[k + 1]]) - f64x2::new([b[k], b[k + 1]]);
+        ux * axis(0) + uy * axis(2) + uz * axis(4)
+    };
+    let (whole, last) = row.as_chunks_mut::<2>();
+    for ((out, a), b) in whole.iter_mut().zip(a).zip(b) {
+        *out = values(a, b).to_array();
+    }
+    // An odd column count: the last column is its pair's first lane.
+    if let ([last], Some(a), Some(b)) = (last, a.get(whole.len()), b.get(whole.len())) {
+        *last = values(a, b).as_array()[0];
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::calib::layout::Layout;
     use crate::calib::problem::Problem;
-    use crate::calib::terms::{build, TermChoice};
+    use crate::calib::terms::{build, Poses, TermChoice};
     use crate::model::ArmModel;
     use nalgebra::Matrix3;
+
+    /// A row read from the laid-out position derivatives is [`arm_derivative`] of each column
+    /// to the bit, for odd and even column counts, with derivatives that are not finite (a
+    /// NaN, an infinity) among them.
+    #[test]
+    fn a_row_from_the_laid_out_positions_is_each_columns_derivative() {
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let same = |a: f64, b: f64| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
+        for arm in [1, 2, 13, 14, 25] {
+            let observations = 5;
+            let mut chain: Vec<PoseDerivative> =
+                (0..observations * arm).map(|_| std::array::from_fn(|_| next() * 1e3)).collect();
+            chain[arm][0] = f64::NAN;
+            chain[2 * arm + arm - 1][2] = f64::INFINITY;
+            let poses = Poses { first: 7, pose: vec![None; observations], chain, arm, jacobian: true };
+            let positions = ArmPositions::of(&poses).expect("derivatives");
+            let mut row = vec![0.0; arm];
+            for (a, b) in [(7, 8), (9, 7), (10, 11), (11, 9)] {
+                let u = Vector3::new(next(), next(), next()).normalize();
+                arm_row(&u, positions.of_observation(a), positions.of_observation(b), &mut row);
+                let (da, db) = (poses.chain(a).expect("jacobian"), poses.chain(b).expect("jacobian"));
+                for (c, v) in row.iter().enumerate() {
+                    let plain = arm_derivative(&u, &da[c], &db[c]);
+                    assert!(same(*v, plain), "{arm} columns, pair {a} {b}, column {c}: {v} {plain}");
+                }
+            }
+        }
+    }
 
     /// The residual alone (no direction computed) is the one evaluated with the Jacobian, to the
     /// bit, with the tool fixed or floated.

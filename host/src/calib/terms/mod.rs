@@ -54,6 +54,48 @@ impl Poses {
     }
 }
 
+/// The position part of the arm derivatives of some [`Poses`], laid out for rows over the arm's
+/// columns: per observation, per pair of consecutive columns c, c + 1, the six values
+/// [x_c, x_c+1, y_c, y_c+1, z_c, z_c+1] (an odd last column paired with zeros). A row reads two
+/// columns' values per axis from consecutive places, one load each, instead of gathering 3 of
+/// every 9 values of each column's [`PoseDerivative`]; laid out once per evaluation, read by
+/// every term of the observation (a touch is in a dozen distances).
+pub struct ArmPositions {
+    first: usize,
+    arm: usize,
+    pairs: Vec<[f64; 6]>,
+}
+
+impl ArmPositions {
+    /// The layout of the derivatives of `poses` (`None` without them or without arm columns).
+    pub fn of(poses: &Poses) -> Option<ArmPositions> {
+        let arm = poses.arm;
+        if !poses.jacobian || arm == 0 {
+            return None;
+        }
+        let mut pairs = Vec::with_capacity(poses.pose.len() * arm.div_ceil(2));
+        for derivatives in poses.chain.chunks_exact(arm).take(poses.pose.len()) {
+            let (whole, last) = derivatives.as_chunks::<2>();
+            pairs.extend(whole.iter().map(|[c, d]| [c[0], d[0], c[1], d[1], c[2], d[2]]));
+            if let [c] = last {
+                pairs.push([c[0], 0.0, c[1], 0.0, c[2], 0.0]);
+            }
+        }
+        Some(ArmPositions { first: poses.first, arm, pairs })
+    }
+
+    /// Arm columns.
+    pub fn arm(&self) -> usize {
+        self.arm
+    }
+
+    /// Observation `k`'s pairs of columns.
+    pub fn of_observation(&self, k: usize) -> &[[f64; 6]] {
+        let count = self.arm.div_ceil(2);
+        &self.pairs[(k - self.first) * count..][..count]
+    }
+}
+
 /// What a term reads at one evaluation.
 pub struct TermInput<'a> {
     /// The unknowns turned into values (model, frames, tools, probe rotation, drifts).
@@ -198,10 +240,16 @@ pub trait Term: Send + Sync {
     fn evaluate(&self, at: &TermInput<'_>, r: &mut [f64], jac: Option<&mut TermJacobian>);
     /// A one-row term's residual into `r` and its derivatives straight into `row` (one value per
     /// column of a problem whose columns are the arm's alone, every one written: `row` holds
-    /// anything before), instead of through a
-    /// [`TermJacobian`] copied into the row afterwards; `false` when the term reads other
-    /// columns or has no such path (the default): the caller then evaluates it.
-    fn evaluate_into_row(&self, _at: &TermInput<'_>, _r: &mut f64, _row: &mut [f64]) -> bool {
+    /// anything before), read from `positions` (the layout of `at`'s pose derivatives) instead
+    /// of through a [`TermJacobian`] copied into the row afterwards; `false` when the term reads
+    /// other columns or has no such path (the default): the caller then evaluates it.
+    fn evaluate_into_row(
+        &self,
+        _at: &TermInput<'_>,
+        _positions: &ArmPositions,
+        _r: &mut f64,
+        _row: &mut [f64],
+    ) -> bool {
         false
     }
     /// As [`Term::evaluate_into_row`] for a problem with block unknowns: its residuals into `r`

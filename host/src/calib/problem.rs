@@ -1094,8 +1094,7 @@ mod tests {
                 }
             }
         }
-        for g in 0..problem.data.groups.len() {
-            let c = layout.tool_column(g).expect("floated");
+        for (g, c) in (0..problem.data.groups.len()).filter_map(|g| Some((g, layout.tool_column(g)?))) {
             x[c..c + 3].copy_from_slice(&[0.3, -0.2, 0.1 * g as f64]);
         }
         x
@@ -1177,6 +1176,40 @@ mod tests {
                 assert_same_sums(&ours, &theirs, &x, loss, &format!("point weight {point_weight}, {loss:?}"));
             }
         }
+    }
+
+    /// A point of a tool that does not float (no product by its zero offset, no flange
+    /// rotation) has the residuals of the same point with its tool floated at a zero offset, to
+    /// the bit: sessions without a drift (no product by a growth of 1) and drifting in scale and
+    /// in offset.
+    #[test]
+    fn a_point_of_a_fixed_tool_is_one_of_a_floated_tool_at_zero() {
+        use crate::calib::nuisance::drift::{DriftKind, DriftSlot};
+        let nominal = ArmModel::suta_nominal();
+        let mut data = sessions(&nominal);
+        for (k, o) in data.obs.iter_mut().enumerate() {
+            o.time_s = Some(60.0 * k as f64);
+        }
+        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
+        let blocks = data.blocks.len();
+        let drift = |column, kind| Some(DriftSlot { column, kind, centre: 0.5 });
+        let drifts = [None, drift(0, DriftKind::ScaleTime), drift(1, DriftKind::OffsetTime)];
+        let terms = build(&data, &positions_only());
+        let residuals = |floated: bool| {
+            let tools = vec![floated; data.groups.len()];
+            let layout = Layout::new(params.clone(), &vec![true; blocks], &tools, false, &drifts[..blocks]);
+            let problem = Problem::new(layout, &nominal, &data, &terms, start_rotations(blocks), None);
+            let mut x = framed_point(&problem, &params, &nominal);
+            for c in (0..data.groups.len()).filter_map(|g| problem.layout.tool_column(g)) {
+                x[c..c + 3].fill(0.0);
+            }
+            let mut r = vec![0.0; problem.len()];
+            problem.evaluate(&x, &mut r, None);
+            r
+        };
+        let (fixed, floated) = (residuals(false), residuals(true));
+        assert!(fixed.iter().zip(&floated).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert!(fixed.iter().any(|v| *v != 0.0));
     }
 
     /// A factor's rows are finite exactly when every value is, wherever the one that is not lies

@@ -87,8 +87,8 @@ impl Term for Point {
 
 /// What a point's derivatives read of its residual's computation.
 struct Evaluated {
-    /// The flange's rotation.
-    flange: Matrix3<f64>,
+    /// A floated tool's first column and the flange's rotation.
+    tool: Option<(usize, Matrix3<f64>)>,
     /// The point in the instrument's axes before the frame's shift and the drift (R_s·p).
     y: Vector3<f64>,
     /// The drift's growth (1 without a drift).
@@ -111,18 +111,27 @@ impl Point {
         let (k, s) = (self.obs[0], self.block);
         let p = &at.data.obs[k];
         let pose = at.poses.of(k);
-        let flange = flange_rotation(pose);
-        let robot = pose.position_mm + flange * at.state.tools[self.group];
+        // A tool that does not float has no offset (zero): the flange's point, with no product
+        // by zeros and no flange rotation, which only a floated tool's columns read.
+        let tool = at.layout.tool_column(self.group).map(|column| (column, flange_rotation(pose)));
+        let robot = match &tool {
+            Some((_, flange)) => pose.position_mm + flange * at.state.tools[self.group],
+            None => pose.position_mm,
+        };
         let base = &at.state.frames[s];
         let y = base.rotation * robot;
         let drift = at.layout.drift(s).map(|(column, d)| {
             let delta = d.kind.variable(p).map_or(0.0, |v| v - d.centre);
             (DriftAt { column, kind: d.kind, delta }, d.kind.effect(&at.state.drifts[s], delta))
         });
-        let (shift, growth) = drift.map_or((Vector3::zeros(), 1.0), |d| d.1);
-        let e = y * growth + base.translation_mm + shift - p.point_mm().unwrap_or_default();
+        let measured = p.point_mm().unwrap_or_default();
+        // Without a drift, no product by a growth of 1 nor sum with a zero shift.
+        let (e, growth) = match drift {
+            Some((_, (shift, growth))) => (y * growth + base.translation_mm + shift - measured, growth),
+            None => (y + base.translation_mm - measured, 1.0),
+        };
         r.copy_from_slice(e.as_slice());
-        Evaluated { flange, y, growth, drift: drift.map(|d| d.0) }
+        Evaluated { tool, y, growth, drift: drift.map(|d| d.0) }
     }
 
     /// Its derivatives (before the weight) by the arm's columns (`chain`), its frame's, its
@@ -146,8 +155,8 @@ impl Point {
                 out.put(b + 3 + k, Vector3::ith(k, 1.0));
             }
         }
-        if let Some(t) = at.layout.tool_column(self.group) {
-            let g = base.rotation * point.flange * growth;
+        if let Some((t, flange)) = &point.tool {
+            let (t, g) = (*t, base.rotation * flange * growth);
             for k in 0..3 {
                 out.put(t + k, g.column(k).into_owned());
             }

@@ -10,7 +10,8 @@ Reads a problem file written by kincal (``kincal bench`` or the peer test):
    "huber_delta_mm": 1.35,
    "starts": [[...], ...]}          (optional: kincal's random restarts, solved with --all-starts)
 and prints {"cost", "x", "seconds", "cpu_seconds", "nfev", "rms_mm", "scipy_version"} as JSON: from x0,
-or with --all-starts from x0 and every start (the lowest cost kept, the earliest on a tie; the
+or with --all-starts from x0 and every start (the lowest cost kept, the earliest on an equal one; kincal
+also counts costs within its function tolerance as equal, the same minimum; the
 times and evaluations summed, "starts" listing each start's cost and evaluations). The forward kinematics here is written
 from the DH definition with numpy, independent of kincal's Rust code.
 Cost convention: SciPy's 0.5 * f_scale**2 * sum(rho((f/f_scale)**2)), the same as kincal's.

@@ -155,7 +155,8 @@ int main(int argc, char** argv) {
       if (starts == 0 || starts > problem.starts.size()) starts = problem.starts.size();
       std::vector<Outcome> all;
       json solve = Timed(repeats, [&] { all = SolveArtefact(problem, starts, settings); });
-      // The lowest cost, the earliest start on a tie (as kincal keeps it).
+      // The lowest cost, the earliest start on an equal one (kincal also counts costs within its
+      // function tolerance as equal: the same minimum; the costs are compared to 1e-9).
       size_t best = 0;
       for (size_t s = 1; s < all.size(); ++s) {
         if (all[s].final_cost < all[best].final_cost) best = s;

@@ -8,6 +8,7 @@
 //! step by step ("watch the error fall").
 
 use super::{diagnose, DiagnoseError, Diagnosis};
+use crate::calib::fit::{beats, TIE_FTOL};
 use crate::calib::setup::{Change, Setup};
 use crate::data::Observations;
 use crate::model::ArmModel;
@@ -132,7 +133,7 @@ pub fn auto_loop(
         ));
         let (next, start) = setup.apply(&change, &step_model);
         first = setup.apply(&change, &first).1;
-        // Two starts, the lower cost kept: this step's solution (warm) and the first model with
+        // Two starts, the lower cost kept (the warm one on a tie): this step's solution (warm) and the first model with
         // every change applied. A warm start alone can settle in a poorer minimum: on a humanoid,
         // the solution with `bend` alone (its bends stretched to mimic the missing sag) led the
         // refit with `sag` added to a cost 0.45 % above the one both starts can reach, and a
@@ -143,7 +144,7 @@ pub fn auto_loop(
         } else {
             let (warm, again) = rayon::join(|| next.calibrate(&start, cal), || next.calibrate(&first, cal));
             match (warm?, again?) {
-                (w, a) if a.cost < w.cost => a.model,
+                (w, a) if beats(a.cost, w.cost, TIE_FTOL) => a.model,
                 (w, _) => w.model,
             }
         };

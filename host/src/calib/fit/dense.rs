@@ -41,8 +41,8 @@ pub(super) fn calibrate_dense(
         let ranges: Vec<f64> = estimated.iter().map(|&id| pieces.range(id)).collect();
         let mut x_nominal: Vec<f64> = estimated.iter().map(|&id| nominal_model.get(id)).collect();
         x_nominal.resize(n, 0.0);
-        let (nominal_start, mut starts) =
-            solve_from_starts(&problem, &x_nominal, &lower, &upper, &solver_options, seed, 0..=0);
+        let (_, nominal_start, mut starts) =
+            solve_from_starts(&problem, &x_nominal, (&lower, &upper), &solver_options, seed, 0..=0, None);
         let at_start = geometry_at(&full, &problem, &nominal_start.x)?;
         let columns = positions(&all, &estimated);
         let (kept, dropped) =
@@ -51,20 +51,23 @@ pub(super) fn calibrate_dense(
             let (mut best, mut at_best) = (nominal_start, at_start);
             let restarts = pieces.resolved.restarts;
             if restarts > 0 {
-                let (restarted, more) = solve_from_starts(
+                // One scan in start order from the nominal start: a tie is not transitive, so
+                // the restarts' own best compared with it could keep the nominal where a later
+                // start is lower than it by more than the tolerance.
+                let (kept, solution, more) = solve_from_starts(
                     &problem,
                     &x_nominal,
-                    &lower,
-                    &upper,
+                    (&lower, &upper),
                     &solver_options,
                     seed,
                     1..=restarts,
+                    Some((0, best)),
                 );
                 starts.extend(more);
-                if beats(restarted.cost, best.cost, solver_options.ftol) {
-                    at_best = geometry_at(&full, &problem, &restarted.x)?;
-                    best = restarted;
+                if kept != 0 {
+                    at_best = geometry_at(&full, &problem, &solution.x)?;
                 }
+                best = solution;
             }
             break (problem, best, starts, at_best);
         }

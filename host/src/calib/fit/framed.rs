@@ -372,7 +372,7 @@ pub(super) fn calibrate_framed(
             .collect();
         for other in others {
             starts.push(other.outcome.clone());
-            if beats(other.outcome.final_cost, solved.outcome.final_cost, FRAMED_SOLVER.ftol) {
+            if beats(other.outcome.final_cost, solved.outcome.final_cost, TIE_FTOL) {
                 solved = other;
             }
         }

@@ -48,6 +48,10 @@ pub const PASSES: usize = 3;
 const MAX_IDENTIFIABILITY_PASSES: usize = 3;
 /// Change of a residual, mm, over a parameter's whole range below which it counts as none.
 const NEGLIGIBLE_MM: f64 = 1e-9;
+/// Relative cost difference within which two calibrations of one problem reached the same
+/// minimum as far as the solver can tell: the framed solves' function tolerance, and at least
+/// the dense solves' (1e-12). A choice between them keeps the earlier on a tie ([`beats`]).
+pub(crate) const TIE_FTOL: f64 = 1e-10;
 /// Solver settings of each pass when frames are fitted (the passes re-centre between solves).
 /// Gauss–Newton steps from a start near the data (the frames at their closed form, or a
 /// refit's warm start) are accepted nearly always: each trial point's normal equations are
@@ -56,7 +60,7 @@ const NEGLIGIBLE_MM: f64 = 1e-9;
 const FRAMED_SOLVER: SolverOptions = SolverOptions {
     loss: Loss::Linear,
     max_iterations: 100,
-    ftol: 1e-10,
+    ftol: TIE_FTOL,
     xtol: 1e-10,
     gtol: 1e-10,
     termination: Termination::Ceres,
@@ -223,6 +227,7 @@ use dense::*;
 pub(crate) use framed::ToolFirstFit;
 use framed::*;
 use outcome::*;
+pub(crate) use pieces::beats;
 pub(crate) use pieces::SharedTerms;
 use pieces::*;
 pub use shared::SessionSums;
@@ -439,8 +444,8 @@ fn solve_warm_from(
     let mut x0: Vec<f64> = params.iter().map(|&id| start.get(id)).collect();
     x0.resize(n, 0.0);
     let solver_options = dense::dense_solver(&pieces, options);
-    let (solution, _) =
-        solve_from_starts(&problem, &x0, &lower, &upper, &solver_options, options.seed, 0..=0);
+    let (_, solution, _) =
+        solve_from_starts(&problem, &x0, (&lower, &upper), &solver_options, options.seed, 0..=0, None);
     Ok(problem.state(&solution.x).model)
 }
 

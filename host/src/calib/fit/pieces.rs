@@ -403,17 +403,19 @@ pub(super) fn jacobian_at(problem: &Problem, x: &[f64]) -> (Vec<f64>, Vec<f64>) 
 }
 
 /// Solve from the nominal values (start 0) or from random points inside the bounds (starts 1..),
-/// keeping the lowest cost (the earliest start on a tie). Random start k is the same point
-/// whichever starts are run; the starts run in parallel on every core.
+/// keeping the lowest cost (the earliest start on a tie) inside the bounds (lower, upper), scanned from `incumbent` (a start
+/// solved before, with its number) when given: the start kept, its number, and each start's
+/// outcome. Random start k is the same point whichever starts are run; the starts run in
+/// parallel on every core.
 pub(super) fn solve_from_starts(
     problem: &Problem,
     x_nominal: &[f64],
-    lower: &[f64],
-    upper: &[f64],
+    (lower, upper): (&[f64], &[f64]),
     options: &SolverOptions,
     seed: u64,
     starts: std::ops::RangeInclusive<usize>,
-) -> (solver::Solution, Vec<StartOutcome>) {
+    incumbent: Option<(usize, solver::Solution)>,
+) -> (usize, solver::Solution, Vec<StartOutcome>) {
     let points = start_points(x_nominal, lower, upper, seed, starts);
     let solved: Vec<(StartOutcome, solver::Solution)> = points
         .par_iter()
@@ -430,22 +432,22 @@ pub(super) fn solve_from_starts(
         })
         .collect();
     let mut outcomes = Vec::new();
-    let mut best: Option<solver::Solution> = None;
+    let mut best = incumbent;
     for (outcome, s) in solved {
-        outcomes.push(outcome);
-        if best.as_ref().is_none_or(|b| beats(s.cost, b.cost, options.ftol)) {
-            best = Some(s);
+        if best.as_ref().is_none_or(|(_, b)| beats(s.cost, b.cost, options.ftol)) {
+            best = Some((outcome.start, s));
         }
+        outcomes.push(outcome);
     }
-    let best = best.unwrap_or_else(|| solver::solve(problem, x_nominal, lower, upper, options));
-    (best, outcomes)
+    let (start, best) = best.unwrap_or_else(|| (0, solver::solve(problem, x_nominal, lower, upper, options)));
+    (start, best, outcomes)
 }
 
 /// Whether a later start's cost `candidate` beats the best so far, `best`: lower by more than
 /// the solver's function tolerance, `ftol`·best. Starts that reach one minimum end with costs
 /// apart by rounding, and which of them counts as lowest must not turn on it: the earliest start
 /// wins a tie. A finite cost beats a best that is not.
-pub(super) fn beats(candidate: f64, best: f64, ftol: f64) -> bool {
+pub(crate) fn beats(candidate: f64, best: f64, ftol: f64) -> bool {
     candidate.is_finite() && (!best.is_finite() || candidate < best - ftol * best.abs())
 }
 

@@ -408,3 +408,23 @@ fn a_later_start_beats_the_best_only_by_more_than_the_function_tolerance() {
     assert!(beats(1.0, f64::INFINITY, 1e-10));
     assert!(!beats(f64::INFINITY, f64::INFINITY, 1e-10));
 }
+
+/// The same on artefact distances (the dense path, whose nominal start is solved before its
+/// restarts): restarts that reach the nominal start's minimum leave its solution as it is.
+#[test]
+fn artefact_restarts_reaching_the_same_minimum_keep_the_nominal_start_s_solution() {
+    let nominal = ArmModel::suta_nominal();
+    let sim = crate::simulate::simulate(&nominal, &crate::simulate::SimulationOptions::default());
+    let data = Observations::from_sessions(&sim.calibration, &sim.artefact);
+    let alone = calibrate(&nominal, &data, &SolveOptions { restarts: Some(0), ..SolveOptions::default() })
+        .expect("nominal start");
+    let restarted =
+        calibrate(&nominal, &data, &SolveOptions { restarts: Some(8), ..SolveOptions::default() })
+            .expect("restarts");
+    let costs: Vec<f64> = restarted.starts.iter().map(|s| s.final_cost).collect();
+    assert_eq!(restarted.starts[0].final_cost, alone.cost, "{costs:?}");
+    assert!(costs.iter().all(|c| (c - alone.cost).abs() <= 1e-12 * alone.cost), "one minimum: {costs:?}");
+    assert!(costs.iter().any(|&c| c < alone.cost), "no restart lower by rounding: {costs:?}");
+    assert_eq!(restarted.model, alone.model);
+    assert_eq!(restarted.cost, alone.cost);
+}

@@ -609,7 +609,7 @@ impl DenseRows {
         let mut jac = TermJacobian::default();
         // The batch's first row in `r`.
         let mut batch = 0;
-        let ends = offsets[1..].iter().map(|&o| o - base).chain([r.len()]);
+        let ends = offsets.get(1..).unwrap_or_default().iter().map(|&o| o - base).chain([r.len()]);
         for ((t, &first), end) in terms.iter().zip(offsets).zip(ends) {
             let start = first - base;
             if !self.write_row(t.as_ref(), input, &mut r[start..end], start - batch) {
@@ -1128,6 +1128,31 @@ mod tests {
         a[a.len() / 2]
     }
 
+    /// [`sessions`] with a time on every point, the nominal arm's free parameters, and session
+    /// drifts for up to three blocks: none, one in scale and one in offset.
+    struct Timed {
+        nominal: ArmModel,
+        data: Observations,
+        params: Vec<crate::model::ParamId>,
+        blocks: usize,
+        drifts: [Option<crate::calib::nuisance::drift::DriftSlot>; 3],
+    }
+
+    fn timed_sessions() -> Timed {
+        use crate::calib::nuisance::drift::{DriftKind, DriftSlot};
+        let nominal = ArmModel::suta_nominal();
+        let mut data = sessions(&nominal);
+        for (k, o) in data.obs.iter_mut().enumerate() {
+            o.time_s = Some(60.0 * k as f64);
+        }
+        let params = nominal.free.iter().map(|f| f.id).collect();
+        let blocks = data.blocks.len();
+        assert!(blocks <= 3, "a drift per block");
+        let drift = |column, kind| Some(DriftSlot { column, kind, centre: 0.5 });
+        let drifts = [None, drift(0, DriftKind::ScaleTime), drift(1, DriftKind::OffsetTime)];
+        Timed { nominal, data, params, blocks, drifts }
+    }
+
     /// Points written straight into the batch's rows give the sums of the same points through
     /// their Jacobians to the bit (the same values in the same batch positions), and so do the
     /// groups' identifiability factors written into their rows: frames, floated tools, a session
@@ -1135,16 +1160,7 @@ mod tests {
     /// weights.
     #[test]
     fn points_written_into_the_rows_give_the_sums_and_factors_of_their_jacobians() {
-        use crate::calib::nuisance::drift::{DriftKind, DriftSlot};
-        let nominal = ArmModel::suta_nominal();
-        let mut data = sessions(&nominal);
-        for (k, o) in data.obs.iter_mut().enumerate() {
-            o.time_s = Some(60.0 * k as f64);
-        }
-        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
-        let blocks = data.blocks.len();
-        let drift = |column, kind| Some(DriftSlot { column, kind, centre: 0.5 });
-        let drifts = [None, drift(0, DriftKind::ScaleTime), drift(1, DriftKind::OffsetTime)];
+        let Timed { nominal, data, params, blocks, drifts } = timed_sessions();
         for point_weight in [1.0, 0.4] {
             let choice = TermChoice {
                 relative_orientation_lever_mm: None,
@@ -1184,16 +1200,7 @@ mod tests {
     /// in offset.
     #[test]
     fn a_point_of_a_fixed_tool_is_one_of_a_floated_tool_at_zero() {
-        use crate::calib::nuisance::drift::{DriftKind, DriftSlot};
-        let nominal = ArmModel::suta_nominal();
-        let mut data = sessions(&nominal);
-        for (k, o) in data.obs.iter_mut().enumerate() {
-            o.time_s = Some(60.0 * k as f64);
-        }
-        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
-        let blocks = data.blocks.len();
-        let drift = |column, kind| Some(DriftSlot { column, kind, centre: 0.5 });
-        let drifts = [None, drift(0, DriftKind::ScaleTime), drift(1, DriftKind::OffsetTime)];
+        let Timed { nominal, data, params, blocks, drifts } = timed_sessions();
         let terms = build(&data, &positions_only());
         let residuals = |floated: bool| {
             let tools = vec![floated; data.groups.len()];

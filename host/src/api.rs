@@ -104,7 +104,7 @@ pub fn validate(folder: &RunFolder, held_out: &Path) -> Result<Run, ApiError> {
     let (cal, val) = inputs.read_folders()?;
     let groups: Vec<String> = cal.groups.iter().map(|g| g.name.clone()).collect();
     let options = s.options.solve_options(&inputs, &groups);
-    let run = run_on(nominal, &cal, &val, &inputs, &options, 0, !s.outliers_skipped)?;
+    let run = run_on(nominal, cal, val, &inputs, &options, 0, !s.outliers_skipped)?;
     let same = run.calibration.model.free.iter().zip(&folder.model.free).all(|(a, b)| a.id == b.id)
         && run.calibration.model.free.len() == folder.model.free.len()
         && run

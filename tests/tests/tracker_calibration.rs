@@ -558,7 +558,7 @@ fn six_dof_seed(seed: u64) {
     }
     let std_deg = probe.std_deg.expect("the probe rotation has a deviation");
     if seed == 11 {
-        summary_has_orientation_figures(nominal, &cal, &val);
+        summary_has_orientation_figures(nominal, cal, val);
     }
     println!("probe rotation error {error_deg:?}° vs σ {std_deg:?}°");
     for k in 0..3 {
@@ -569,7 +569,7 @@ fn six_dof_seed(seed: u64) {
 
 /// summary.json of a run on 6-DoF sessions: the probe rotation, the calibration's orientation
 /// RMS and each held-out session's `orientation.rms_deg` beside the nominal one.
-fn summary_has_orientation_figures(nominal: ArmModel, cal: &Observations, val: &Observations) {
+fn summary_has_orientation_figures(nominal: ArmModel, cal: Observations, val: Observations) {
     // The run hashes its input files: the model is one.
     let model = std::env::temp_dir().join(format!("kincal-probe-nominal-{}.toml", std::process::id()));
     nominal.save(&model).expect("the nominal model is written");

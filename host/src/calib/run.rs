@@ -254,13 +254,13 @@ impl RunInputs {
     }
 
     /// The observations with the exclusions applied: landmarks out of both folders, blocks and
-    /// observations out of the calibration folder.
+    /// observations out of the calibration folder. Taken by value: without exclusions they are
+    /// handed back as they came (a copy of a calibration folder is megabytes of fresh memory).
     pub fn exclude(
         &self,
-        cal: &Observations,
-        val: &Observations,
+        mut cal: Observations,
+        mut val: Observations,
     ) -> Result<(Observations, Observations), RunError> {
-        let (mut cal, mut val) = (cal.clone(), val.clone());
         for id in &self.exclude_landmarks {
             let Some(l) = cal.landmark_index(id) else {
                 let artefact = self.artefact.as_deref().unwrap_or(Path::new("the artefact"));
@@ -668,7 +668,7 @@ pub fn run(
     };
     let nominal = inputs.nominal()?;
     let (cal, val) = inputs.read_folders()?;
-    run_on(nominal, &cal, &val, inputs, options, study_subsets, outliers)
+    run_on(nominal, cal, val, inputs, options, study_subsets, outliers)
 }
 
 /// [`run`] on folders already read: apply the exclusions, check, calibrate, validate on `val`
@@ -678,18 +678,18 @@ pub fn run(
 /// figures are a result, and the verdict.
 pub fn run_on(
     nominal: ArmModel,
-    cal: &Observations,
-    val: &Observations,
+    cal: Observations,
+    val: Observations,
     inputs: &RunInputs,
     options: &SolveOptions,
     study_subsets: usize,
     outliers: bool,
 ) -> Result<Run, RunError> {
     let mut steps = StepTimes::start();
-    let arm = cal.one_arm(&[val])?;
-    check_options(cal, val, inputs, options)?;
-    let (cal, val) = inputs.exclude(cal, val)?;
-    let (cal, val) = (&cal, &val);
+    let arm = cal.one_arm(&[&val])?;
+    check_options(&cal, &val, inputs, options)?;
+    let (cal_kept, val_kept) = inputs.exclude(cal, val)?;
+    let (cal, val) = (&cal_kept, &val_kept);
     steps.lap("load");
     let options = &inputs.solve_options(options, cal);
     for name in &inputs.float_tool {
@@ -875,7 +875,7 @@ pub fn run_on(
         distances,
         held_out: tracker.map_or_else(Vec::new, |t| t.held_out),
         calibration_residuals,
-        validation_data: val.clone(),
+        validation_data: val_kept,
         steps,
     })
 }

@@ -159,7 +159,7 @@ pub fn calibrate_diagnose_add(
     crate::store::write_run(&first, &out.join("run"))?;
     progress("diagnosing, adding what the diagnosis names, recalibrating");
     let (cal, val) = inputs.read_folders()?;
-    let cal = inputs.exclude(&cal, &val)?.0;
+    let cal = inputs.exclude(cal, val)?.0;
     let setup = inputs.setup(options);
     let val = &first.validation_data;
     let auto = auto_loop(&setup, &first.calibration.model, &cal, val, MAX_ADDED)?;

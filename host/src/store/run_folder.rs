@@ -83,7 +83,7 @@ impl RunFolder {
         let (cal, val) = inputs.read_folders()?;
         let groups: Vec<String> = cal.groups.iter().map(|g| g.name.clone()).collect();
         let options = self.summary.options.solve_options(inputs, &groups);
-        let (kept, held) = inputs.exclude(&cal, &val)?;
+        let (kept, held) = inputs.exclude(cal, val)?;
         check_run_data(&self.model, &kept, &held, inputs, &options)?;
         if self.summary.validation.distances.is_some() {
             let nominal = self.nominal()?;

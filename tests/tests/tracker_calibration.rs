@@ -357,6 +357,8 @@ fn the_tracker_report_shows_summary_json_and_never_a_figure_that_is_not_one() {
         let out = dir.join("RUN");
         kincal::store::write_run(&run, &out).expect("RUN written");
         let html = std::fs::read_to_string(out.join("report.html")).expect("report.html written");
+        // The file is written a session's plots at a time: its pieces are the page made whole.
+        assert!(html == kincal::report::run::run_report(&run, &out), "report.html is not the whole page");
         let summary: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary.json"))
                 .expect("summary.json parses");

@@ -72,50 +72,70 @@ pub fn name_run(line: &str, run_dir: &Path) -> String {
 
 /// The report of one run, written into `run_dir`.
 pub fn run_report(run: &Run, run_dir: &Path) -> String {
+    let mut page = String::with_capacity(residual_plot_bytes(run));
+    let Ok(()) = run_report_in_parts(run, run_dir, &mut page, |_| Ok::<(), std::convert::Infallible>(()));
+    page
+}
+
+/// [`run_report`] written at the end of `body` and handed to `part` piece by piece (after the
+/// first sections, after each session's plots, at the end), which may take the text away: a
+/// tracker run's page is megabytes of plots, and written to its file as it is made it is never
+/// that much fresh memory at once. The pieces in order are the page; `part`'s error stops it.
+pub fn run_report_in_parts<E>(
+    run: &Run,
+    run_dir: &Path,
+    body: &mut String,
+    mut part: impl FnMut(&mut String) -> Result<(), E>,
+) -> Result<(), E> {
     let s = &run.summary;
-    let mut body = page_start("kincal calibration report");
-    body.reserve(residual_plot_bytes(run));
+    body.push_str(&page_start("kincal calibration report"));
     body.push_str(WIDE);
     if !s.not_trustworthy.is_empty() {
         let items: String =
             s.not_trustworthy.iter().map(|p| format!("<li>{}</li>", escape(&name_run(p, run_dir)))).collect();
         let _ = write!(body, "<h2>Not trustworthy: these figures are not a result</h2><ul>{items}</ul>");
     }
-    verdict(&mut body, s, run_dir);
+    verdict(body, s, run_dir);
     if run.distances.is_some() {
-        distance_plots(&mut body, run);
+        distance_plots(body, run);
     }
     if s.validation.sessions.is_some() {
-        rms_per_session(&mut body, s);
+        rms_per_session(body, s);
     }
+    part(body)?;
     for session in &run.held_out {
+        body.reserve(session_plot_bytes(session));
         let figures = s.held_out_sessions().iter().find(|f| f.calibrated.name == session.name);
-        held_out_plots(&mut body, session, figures, s.inputs.float_tool.contains(&session.name));
+        held_out_plots(body, session, figures, s.inputs.float_tool.contains(&session.name));
+        part(body)?;
     }
     for session in &run.calibration_residuals {
+        body.reserve(session_plot_bytes(session));
         let points = s.calibration.groups.get(&session.name).copied().unwrap_or(session.points.len());
         let _ = write!(
             body,
             "<h2>Calibration session {}: the fit's residuals over {points} points</h2>",
             escape(&session.name)
         );
-        residual_plots(&mut body, &session.points, "the base, tool and drift fitted with the arm");
+        residual_plots(body, &session.points, "the base, tool and drift fitted with the arm");
+        part(body)?;
     }
-    directions(&mut body, s, &run.held_out);
-    distance_tables(&mut body, s);
-    validation_tables(&mut body, s);
-    floor_section(&mut body, s);
-    calibration_tables(&mut body, s);
-    identifiability(&mut body, s);
-    objective_comparison(&mut body, s);
-    outliers(&mut body, s);
+    directions(body, s, &run.held_out);
+    distance_tables(body, s);
+    validation_tables(body, s);
+    floor_section(body, s);
+    calibration_tables(body, s);
+    identifiability(body, s);
+    objective_comparison(body, s);
+    outliers(body, s);
     if let Some(rows) = &s.study {
         let _ = write!(body, "<h2>Dataset-size study</h2>{}", crate::report::study::study_body(rows));
     }
-    data_errors(&mut body, s);
-    starts(&mut body, s);
-    inputs(&mut body, s, run_dir);
-    page_end(body)
+    data_errors(body, s);
+    starts(body, s);
+    inputs(body, s, run_dir);
+    *body = page_end(std::mem::take(body));
+    part(body)
 }
 
 /// About the size of a scatter plot's point (one `<circle>` element).
@@ -123,19 +143,18 @@ const POINT_BYTES: usize = 80;
 /// About the size of a scatter plot's frame (axes, ticks, labels).
 const PLOT_BYTES: usize = 4096;
 
-/// About the bytes of the sessions' residual plots, reserved for the page at its start: they are
-/// most of it (megabytes), and growing the page as they are written copied it again and again.
+/// About the bytes of the sessions' residual plots, reserved for a whole page at its start: they
+/// are most of it (megabytes), and growing the page as they are written copied it again and again.
 fn residual_plot_bytes(run: &Run) -> usize {
-    run.held_out
-        .iter()
-        .chain(&run.calibration_residuals)
-        .map(|session| {
-            let joints = session.points.iter().map(|p| p.q_deg.len()).max().unwrap_or(0);
-            // Size, three components, orientation, and one plot per joint.
-            let plots = 5 + joints;
-            plots * (PLOT_BYTES + POINT_BYTES * session.points.len())
-        })
-        .sum()
+    run.held_out.iter().chain(&run.calibration_residuals).map(session_plot_bytes).sum()
+}
+
+/// About the bytes of one session's residual plots.
+fn session_plot_bytes(session: &SessionResiduals) -> usize {
+    let joints = session.points.iter().map(|p| p.q_deg.len()).max().unwrap_or(0);
+    // Size, three components, orientation, and one plot per joint.
+    let plots = 5 + joints;
+    plots * (PLOT_BYTES + POINT_BYTES * session.points.len())
 }
 
 fn verdict(body: &mut String, s: &Summary, run_dir: &Path) {

@@ -399,8 +399,23 @@ pub fn write_run(run: &Run, dir: &Path) -> Result<(), OutputError> {
         run.nominal.save(&staged.join("nominal.toml"))?;
         put(staged, "residuals.json", json(&run.stored_residuals()).as_bytes())?;
         put(staged, "summary.json", run_json(run).as_bytes())?;
-        put(staged, "report.html", report::run::run_report(run, dir).as_bytes())
+        put_run_report(staged, run, dir)
     })
+}
+
+/// Write `report.html` of `run` (in `dir`) into `staged` as the page is made, a session's plots at
+/// a time: the whole page is megabytes.
+fn put_run_report(staged: &Path, run: &Run, dir: &Path) -> Result<(), OutputError> {
+    use std::io::Write;
+    let path = staged.join("report.html");
+    let mut file = std::fs::File::create(&path).map_err(io(&path))?;
+    let mut page = String::new();
+    report::run::run_report_in_parts(run, dir, &mut page, |text| {
+        file.write_all(text.as_bytes())?;
+        text.clear();
+        Ok(())
+    })
+    .map_err(io(&path))
 }
 
 /// The JSON of a study, as `study.json` holds it.

@@ -294,7 +294,7 @@ fn encoder_floor(
         .iter()
         .enumerate()
         .map(|(k, t)| {
-            let sigma = t.q_sigma_deg?;
+            let sigma = t.q_sigma_deg.as_deref()?;
             val.encoders().with_row(k, t, |sin_cos| {
                 chain.pose_with_sin_cos_and_jacobian(&t.q_deg, sin_cos, &columns, &mut jac)
             });

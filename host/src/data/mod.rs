@@ -473,7 +473,7 @@ impl Observations {
                 let accepted = m.samples.map(|n| n.saturating_sub(m.rejected.unwrap_or(0)));
                 let q_sigma_deg = match (&m.std_deg, accepted) {
                     (Some(std), Some(n)) if n > 0 && std.len() == q_deg.len() => {
-                        Joints::new(std).map(|s| s.map(|v| v / (n as f64).sqrt()))
+                        Joints::new(std).map(|s| Box::new(s.map(|v| v / (n as f64).sqrt())))
                     }
                     _ => None,
                 };

@@ -192,8 +192,9 @@ pub struct Observation {
     /// Joint angles as the controller reports them, degrees (raw encoder angles in [0, 360) for
     /// artefact sessions).
     pub q_deg: Joints,
-    /// Standard error of each averaged joint angle, degrees, when the file reports it.
-    pub q_sigma_deg: Option<Joints>,
+    /// Standard error of each averaged joint angle, degrees, when the file reports it. Boxed: few
+    /// files report it, and inline it was a third of every observation that the refits copy.
+    pub q_sigma_deg: Option<Box<Joints>>,
     /// What the tool was at.
     pub target: Target,
     /// The instrument's stated standard uncertainty of the point per axis, mm.

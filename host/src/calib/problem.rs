@@ -19,7 +19,7 @@ use crate::calib::layout::{Layout, State};
 use crate::calib::terms::{ArmPositions, Poses, Term, TermInput, TermJacobian};
 use crate::data::encoders::pairs;
 use crate::data::Observations;
-use crate::model::kinematics::{encoder_sin_cos, PoseDerivative, Tips, ToolPose};
+use crate::model::kinematics::{encoder_sin_cos, Flange, PoseDerivative, Tips, ToolPose};
 use crate::model::ArmModel;
 use crate::numerics::normal::{add_and_clear, add_rows_gram, GramBuffers, NormalSums, RowTarget, TermRows};
 use crate::numerics::qr::{r_factor, r_factor_of_stacked};
@@ -28,7 +28,7 @@ use nalgebra::{DMatrix, DVector, Matrix3};
 use rayon::prelude::*;
 use std::borrow::Cow;
 use std::ops::Range;
-use std::sync::Mutex;
+use std::sync::{Mutex, OnceLock};
 
 /// A run of terms: the first one's index, the terms, their residual rows.
 type Run<'t, 'r> = (usize, &'t [Box<dyn Term>], &'r mut [f64]);
@@ -143,6 +143,12 @@ pub struct Problem<'a> {
     joints: usize,
     frame_start: Vec<Matrix3<f64>>,
     probe_start: Option<Matrix3<f64>>,
+    /// Per observation, its pose's frame at the flange (those of observations no term reads at
+    /// their default), taken at the first evaluation with derivatives when every chain starts
+    /// its poses there for the columns ([`Tips::start_at_flange`]; `None` inside otherwise):
+    /// the unknowns then move the tool point and the scale alone, so every evaluation's flanges
+    /// are the same.
+    flanges: OnceLock<Option<Vec<Flange>>>,
 }
 
 impl<'a> Problem<'a> {
@@ -182,7 +188,25 @@ impl<'a> Problem<'a> {
             layout.columns = layout.columns.positions_only();
         }
         let joints = data.joints;
-        Problem { layout, model, data, terms, index, sin_cos, joints, frame_start, probe_start }
+        Problem {
+            layout,
+            model,
+            data,
+            terms,
+            index,
+            sin_cos,
+            joints,
+            frame_start,
+            probe_start,
+            flanges: OnceLock::new(),
+        }
+    }
+
+    /// The problem taking the whole pass for every pose, its flanges never kept (the plain path
+    /// the flanges' must equal).
+    #[cfg(test)]
+    fn with_whole_passes(self) -> Self {
+        Problem { flanges: OnceLock::from(None), ..self }
     }
 
     /// Observation `k`'s encoder sines and cosines.
@@ -335,7 +359,8 @@ impl<'a> Problem<'a> {
     }
 
     /// The tool poses with their derivatives of the observations `first + k` for which
-    /// `wanted[k]` (at least one), on the chains `kinematics`.
+    /// `wanted[k]` (at least one), on the chains `kinematics` (from their flanges when the
+    /// problem keeps them).
     fn wanted_poses(&self, kinematics: &Tips, first: usize, wanted: &[bool]) -> Poses {
         let arm = self.layout.arm.len();
         let last = first + wanted.len() - 1;
@@ -345,10 +370,15 @@ impl<'a> Problem<'a> {
         pose.clear();
         pose.resize(wanted.len(), None);
         let columns = &self.layout.columns;
+        let flanges = self.flanges(kinematics);
         let single = |k: usize, chain: &mut [PoseDerivative]| {
             let (q, tip) = (&self.data.obs[k].q_deg, self.data.obs[k].tip);
             let d = &mut chain[(k - first) * arm..(k - first + 1) * arm];
-            Some(kinematics.tip(tip).pose_with_sin_cos_and_jacobian(q, self.sin_cos(k), columns, d))
+            let chain = kinematics.tip(tip);
+            Some(match flanges {
+                Some(flanges) => chain.pose_from_flange(&flanges[k], columns, d),
+                None => chain.pose_with_sin_cos_and_jacobian(q, self.sin_cos(k), columns, d),
+            })
         };
         // Two observations of one tip at a time: their poses are carried through the chain
         // together.
@@ -361,15 +391,49 @@ impl<'a> Problem<'a> {
             };
             let (oa, ob) = (&obs[a], &obs[b]);
             let (before, after) = chain.split_at_mut((b - first) * arm);
-            let [pa, pb] = kinematics.tip(oa.tip).pose_pair_with_sin_cos_and_jacobian(
-                [&oa.q_deg, &ob.q_deg],
-                [self.sin_cos(a), self.sin_cos(b)],
-                columns,
-                [&mut before[(a - first) * arm..][..arm], &mut after[..arm]],
-            );
+            let jacobian = [&mut before[(a - first) * arm..][..arm], &mut after[..arm]];
+            let tip = kinematics.tip(oa.tip);
+            let [pa, pb] = match flanges {
+                Some(flanges) => tip.pose_pair_from_flanges([&flanges[a], &flanges[b]], columns, jacobian),
+                None => tip.pose_pair_with_sin_cos_and_jacobian(
+                    [&oa.q_deg, &ob.q_deg],
+                    [self.sin_cos(a), self.sin_cos(b)],
+                    columns,
+                    jacobian,
+                ),
+            };
             (pose[a - first], pose[b - first]) = (Some(pa), Some(pb));
         }
         Poses { first, pose, chain, arm, jacobian: true }
+    }
+
+    /// The flanges the problem keeps (see its field), taken on `kinematics` (the chains of any
+    /// state: the parameters they read before the tool do not change) at the first call, in one
+    /// pass on the calling thread: taken in parallel, the thread taking them could steal a task
+    /// of the same evaluation that waits for them, and so wait for itself.
+    fn flanges(&self, kinematics: &Tips) -> Option<&[Flange]> {
+        let take = || {
+            if !kinematics.start_at_flange(&self.layout.columns) {
+                return None;
+            }
+            let obs = &self.data.obs;
+            let mut flanges = vec![Flange::default(); obs.len()];
+            let read = self.index.read_span.clone().filter(|&k| self.index.read[k]);
+            for (a, second) in pairs(read, |a, b| obs[a].tip == obs[b].tip) {
+                let chain = kinematics.tip(obs[a].tip);
+                match second {
+                    Some(b) => {
+                        [flanges[a], flanges[b]] = chain.flange_pair(
+                            [&obs[a].q_deg, &obs[b].q_deg],
+                            [self.sin_cos(a), self.sin_cos(b)],
+                        )?;
+                    }
+                    None => flanges[a] = chain.flange(&obs[a].q_deg, self.sin_cos(a))?,
+                }
+            }
+            Some(flanges)
+        };
+        self.flanges.get_or_init(take).as_deref()
     }
 
     /// Keep the buffers of `poses` (of [`Problem::chunk_poses_of`]) for the next chunk.
@@ -1192,6 +1256,65 @@ mod tests {
                 assert_same_sums(&ours, &theirs, &x, loss, &format!("point weight {point_weight}, {loss:?}"));
             }
         }
+    }
+
+    /// The tool point's first fit (its columns, the frames) solved with each pose started at
+    /// its flange is, to the bit, the fit by the whole pass: every step's residuals and sums,
+    /// so the solution, its cost, residuals and normal matrix; with the scale, floated tools,
+    /// drifts and a Huber loss too. A fit of a row's parameter keeps no flanges.
+    #[test]
+    fn the_tool_fit_from_the_flanges_is_the_fit_by_the_whole_pass() {
+        use crate::model::ParamId;
+        use crate::numerics::solver::{solve_from, SolverOptions};
+        let Timed { nominal, data, blocks, drifts, .. } = timed_sessions();
+        let terms = build(&data, &positions_only());
+        let tcp = [ParamId::Tcp(0), ParamId::Tcp(1), ParamId::Tcp(2)];
+        let scaled = [tcp.as_slice(), &[ParamId::Scale]].concat();
+        let none = [None, None, None];
+        let floated = vec![true; data.groups.len()];
+        let plain = vec![false; data.groups.len()];
+        let cases = [
+            (tcp.to_vec(), &plain, &none, false),
+            (scaled.clone(), &plain, &none, true),
+            (scaled, &floated, &drifts, true),
+        ];
+        for (case, (params, tools, drifts, huber)) in cases.into_iter().enumerate() {
+            let layout = || Layout::new(params.clone(), &vec![true; blocks], tools, false, &drifts[..blocks]);
+            let starts = start_rotations(blocks);
+            let problem = || Problem::new(layout(), &nominal, &data, &terms, starts.clone(), None);
+            let (ours, theirs) = (problem(), problem().with_whole_passes());
+            let x0 = framed_point(&ours, &params, &nominal);
+            let mut r = vec![0.0; ours.len()];
+            ours.evaluate(&x0, &mut r, None);
+            let loss = if huber { Loss::Huber(median_abs(&r)) } else { Loss::Linear };
+            let n = x0.len();
+            let (lower, upper) = (vec![f64::NEG_INFINITY; n], vec![f64::INFINITY; n]);
+            for trial_normal in [true, false] {
+                let options = SolverOptions { loss, trial_normal, ..SolverOptions::default() };
+                let [a, b] = [&ours, &theirs].map(|p| solve_from(p, &x0, &lower, &upper, &options, None));
+                let label = format!("case {case}, trial normal {trial_normal}");
+                let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&a.x), bits(&b.x), "{label}: solution");
+                assert_eq!(a.cost.to_bits(), b.cost.to_bits(), "{label}: cost");
+                assert_eq!(bits(&a.residuals), bits(&b.residuals), "{label}: residuals");
+                assert_eq!((a.iterations, format!("{:?}", a.stop)), (b.iterations, format!("{:?}", b.stop)));
+                let normal = |s: &crate::numerics::solver::Solution| {
+                    s.normal_at_x.as_ref().map(|m| bits(m.as_slice()))
+                };
+                assert_eq!(normal(&a), normal(&b), "{label}: normal matrix");
+                assert!(a.iterations > 1 && a.x[..3] != x0[..3], "{label}: a fit that moved the tool");
+            }
+            assert!(ours.flanges.get().is_some_and(Option::is_some), "case {case}: flanges kept");
+            assert!(theirs.flanges.get().is_some_and(Option::is_none), "case {case}: none kept");
+            assert_same_sums(&ours, &theirs, &x0, loss, &format!("case {case}"));
+        }
+        // A row's parameter moves the flanges: none kept.
+        let params = vec![ParamId::Tcp(0), ParamId::Length(2)];
+        let layout = Layout::new(params.clone(), &vec![true; blocks], &plain, false, &none[..blocks]);
+        let problem = Problem::new(layout, &nominal, &data, &terms, start_rotations(blocks), None);
+        let x = framed_point(&problem, &params, &nominal);
+        problem.normal_equations(&x, &mut vec![0.0; problem.len()], Loss::Linear);
+        assert!(problem.flanges.get().is_some_and(Option::is_none), "a row's parameter: no flanges");
     }
 
     /// A point of a tool that does not float (no product by its zero offset, no flange

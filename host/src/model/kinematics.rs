@@ -56,6 +56,16 @@ pub struct ToolPose {
     pub z_axis: Vector3<f64>,
 }
 
+/// One pose's frame at the chain's flange, before the tool shift: its origin (mm) and its x, y,
+/// z axes, in the base frame. A caller evaluating the same poses again at values that move only
+/// the tool point and the scale keeps it and starts each pose there (see
+/// [`Chain::starts_at_flange`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Flange {
+    origin_mm: [f64; 3],
+    axes: [[f64; 3]; 3],
+}
+
 /// Derivatives of one [`ToolPose`] with respect to one parameter:
 /// `[dp_x, dp_y, dp_z, dx_x, dx_y, dx_z, dz_x, dz_y, dz_z]` (mm or 1 per parameter unit).
 pub type PoseDerivative = [f64; 9];
@@ -588,6 +598,74 @@ impl<'m> Chain<'m> {
         }
     }
 
+    /// True when the poses with `columns` may start at their flanges: the chain takes the DH
+    /// kernel and every wanted column is its tool point's or the scale's, which move nothing
+    /// before the tool shift. The flanges of one such chain then serve every chain of its model
+    /// at other values of those parameters alone. Off the kernel (a URDF chain, a compliance,
+    /// an encoder harmonic) the whole pass is taken.
+    pub fn starts_at_flange(&self, columns: &ColumnMap) -> bool {
+        let after_flange =
+            |slot: usize| slot == ParamId::Scale.dense_index() || self.tool.iter().any(|&(_, s)| s == slot);
+        self.kernel(Some(columns)).is_some()
+            && columns.slots.iter().enumerate().all(|(slot, c)| c.is_none() || after_flange(slot))
+    }
+
+    /// The frames at the flange of two poses, as [`Chain::pose_pair_with_sin_cos`] carries them
+    /// before the tool shift; `None` off the DH kernel.
+    pub fn flange_pair(&self, enc_deg: [&[f64]; 2], enc_sin_cos: [&[(f64, f64)]; 2]) -> Option<[Flange; 2]> {
+        let rows = self.kernel(None)?;
+        Some(self.dh_flanges(rows, [0, 1].map(|i| (enc_deg[i], enc_sin_cos[i]))))
+    }
+
+    /// As [`Chain::flange_pair`] for one pose.
+    pub fn flange(&self, enc_deg: &[f64], enc_sin_cos: &[(f64, f64)]) -> Option<Flange> {
+        let rows = self.kernel(None)?;
+        let [flange] = self.dh_flanges(rows, [(enc_deg, enc_sin_cos)]);
+        Some(flange)
+    }
+
+    /// As [`Chain::pose_pair_with_sin_cos_and_jacobian`] from the two poses' flanges (of
+    /// [`Chain::flange_pair`] on a chain of this model at any values of `columns`' parameters),
+    /// when the chain [starts at the flange](Chain::starts_at_flange) for `columns`: the tool
+    /// shift alone, to the bit what the whole pass gives.
+    pub fn pose_pair_from_flanges(
+        &self,
+        flanges: [&Flange; 2],
+        columns: &ColumnMap,
+        jacobian: [&mut [PoseDerivative]; 2],
+    ) -> [ToolPose; 2] {
+        self.poses_at_flanges(flanges, columns, jacobian)
+    }
+
+    /// As [`Chain::pose_pair_from_flanges`] for one pose.
+    pub fn pose_from_flange(
+        &self,
+        flange: &Flange,
+        columns: &ColumnMap,
+        jacobian: &mut [PoseDerivative],
+    ) -> ToolPose {
+        let [pose] = self.poses_at_flanges([flange], columns, [jacobian]);
+        pose
+    }
+
+    /// The poses and columns of [`Chain::pose_pair_from_flanges`] for `N` poses.
+    fn poses_at_flanges<const N: usize>(
+        &self,
+        flanges: [&Flange; N],
+        columns: &ColumnMap,
+        mut jacs: [&mut [PoseDerivative]; N],
+    ) -> [ToolPose; N]
+    where
+        Poses<N>: Width,
+    {
+        debug_assert!(
+            self.starts_at_flange(columns),
+            "a pose starts at its flange only when nothing before moves"
+        );
+        let frame = self.dh_tool_columns(flanges, Some((columns, &mut jacs)));
+        self.finish(frame, Some((columns, &mut jacs)))
+    }
+
     /// The pose and the wanted columns by one pass over the chain's ops (see the module doc).
     fn general_pass(
         &self,
@@ -783,6 +861,11 @@ impl<'m> Tips<'m> {
     /// The chains of `model`'s tips.
     pub fn new(model: &'m ArmModel) -> Tips<'m> {
         Tips((0..model.tree.tip_count()).map(|t| Chain::for_tip(model, t)).collect())
+    }
+
+    /// True when every tip's chain [starts at the flange](Chain::starts_at_flange) for `columns`.
+    pub fn start_at_flange(&self, columns: &ColumnMap) -> bool {
+        self.0.iter().all(|chain| chain.starts_at_flange(columns))
     }
 
     /// The chain of tip `tip` (the first one for a tip the model does not have).

@@ -15,7 +15,7 @@
 //! [`Chain::dh_columns`]).
 
 use super::lanes::{cross, difference, gathered, scaled, sum, Lanes, Poses, Vec3, Width};
-use super::{Chain, ColumnMap, PoseDerivative, DEG};
+use super::{Chain, ColumnMap, Flange, PoseDerivative, DEG};
 use crate::model::{ArmModel, Convention, ParamId};
 
 /// One DH row's constants.
@@ -85,10 +85,35 @@ where
     written: usize,
 }
 
-impl<const N: usize> Pass<'_, '_, N>
+impl<'c, 'j, const N: usize> Pass<'c, 'j, N>
 where
     Poses<N>: Width,
 {
+    /// The base frame, no column written.
+    #[inline(always)]
+    fn base(wanted: Option<Wanted<'c, 'j, N>>) -> Self {
+        let (zero, one) = (Lanes::splat(0.0), Lanes::splat(1.0));
+        Pass {
+            axes: [[one, zero, zero], [zero, one, zero], [zero, zero, one]],
+            origin: [zero; 3],
+            wanted,
+            written: 0,
+        }
+    }
+
+    /// The poses' frames at the flange `flanges`, no column written.
+    #[inline(always)]
+    fn at(flanges: [&Flange; N], wanted: Option<Wanted<'c, 'j, N>>) -> Self {
+        let vector =
+            |v: fn(&Flange) -> &[f64; 3]| std::array::from_fn(|k| Lanes::from_fn(|i| v(flanges[i])[k]));
+        Pass {
+            axes: [vector(|f| &f.axes[0]), vector(|f| &f.axes[1]), vector(|f| &f.axes[2])],
+            origin: vector(|f| &f.origin_mm),
+            wanted,
+            written: 0,
+        }
+    }
+
     /// Write V and W, of `values()`, to the column of dense slot `slot` if it is wanted (where
     /// [`gathered`] says).
     #[inline(always)]
@@ -151,50 +176,92 @@ impl Chain<'_> {
         &self,
         rows: &[Row],
         enc: [Encoders<'_>; N],
+        wanted: Option<Wanted<'_, '_, N>>,
+    ) -> TipFrame<N>
+    where
+        Poses<N>: Width,
+    {
+        self.columns_by(
+            wanted,
+            #[inline(always)]
+            |wanted| {
+                let mut pass = Pass::base(wanted);
+                self.dh_rows(rows, &enc, &mut pass);
+                self.tool_shift(pass)
+            },
+        )
+    }
+
+    /// As [`Chain::dh_columns`] from the poses' frames at the flange (of a pass over the same
+    /// rows at the same values but the tool point's and the scale's): the tool shift alone, the
+    /// same operations on the same frames as the whole pass ends with.
+    pub(super) fn dh_tool_columns<const N: usize>(
+        &self,
+        flanges: [&Flange; N],
+        wanted: Option<Wanted<'_, '_, N>>,
+    ) -> TipFrame<N>
+    where
+        Poses<N>: Width,
+    {
+        self.columns_by(
+            wanted,
+            #[inline(always)]
+            |wanted| self.tool_shift(Pass::at(flanges, wanted)),
+        )
+    }
+
+    /// The frames at the flange of `N` poses: the pass over `rows` without columns (a pass
+    /// with columns carries the same frames: writing a column moves none).
+    pub(super) fn dh_flanges<const N: usize>(&self, rows: &[Row], enc: [Encoders<'_>; N]) -> [Flange; N]
+    where
+        Poses<N>: Width,
+    {
+        let mut pass = Pass::base(None);
+        self.dh_rows(rows, &enc, &mut pass);
+        std::array::from_fn(|i| Flange {
+            origin_mm: pass.origin.map(|c| c.lane(i)),
+            axes: pass.axes.map(|axis| axis.map(|c| c.lane(i))),
+        })
+    }
+
+    /// The frame and the wanted columns of a pass `pass` (given the columns, or none, it
+    /// returns the tool frame and the count of columns it wrote), every column written: when a
+    /// wanted column is none of the chain's parameters, all zeroed and the pass run again; the
+    /// scale's zero (the finish adds its share).
+    #[inline(always)]
+    fn columns_by<const N: usize>(
+        &self,
         mut wanted: Option<Wanted<'_, '_, N>>,
+        pass: impl Fn(Option<Wanted<'_, '_, N>>) -> (TipFrame<N>, usize),
     ) -> TipFrame<N>
     where
         Poses<N>: Width,
     {
         let Some((columns, jacs)) = wanted.as_mut() else {
-            return self.dh_pass(rows, &enc, None).0;
+            return pass(None).0;
         };
         let scale = columns.column(ParamId::Scale.dense_index());
         let moved = columns.len() - usize::from(scale.is_some());
-        let (pose, written) = self.dh_pass(rows, &enc, Some((*columns, &mut **jacs)));
+        let (pose, written) = pass(Some((*columns, &mut **jacs)));
         for jac in jacs.iter_mut() {
             if written != moved {
-                // Some wanted column is none of the chain's parameters: every column zeroed,
-                // then written again.
                 jac.iter_mut().for_each(|col| *col = [0.0; 9]);
             } else if let Some(c) = scale {
                 jac[c] = [0.0; 9];
             }
         }
         if written != moved {
-            self.dh_pass(rows, &enc, Some((*columns, &mut **jacs)));
+            pass(Some((*columns, &mut **jacs)));
         }
         pose
     }
 
-    /// The pass of [`Chain::dh_columns`], with the count of columns it wrote.
+    /// Carry the frames of `pass` through `rows`.
     #[inline(always)]
-    fn dh_pass<const N: usize>(
-        &self,
-        rows: &[Row],
-        enc: &[Encoders<'_>; N],
-        wanted: Option<Wanted<'_, '_, N>>,
-    ) -> (TipFrame<N>, usize)
+    fn dh_rows<const N: usize>(&self, rows: &[Row], enc: &[Encoders<'_>; N], pass: &mut Pass<'_, '_, N>)
     where
         Poses<N>: Width,
     {
-        let (zero, one) = (Lanes::splat(0.0), Lanes::splat(1.0));
-        let mut pass = Pass {
-            axes: [[one, zero, zero], [zero, one, zero], [zero, zero, one]],
-            origin: [zero; 3],
-            wanted,
-            written: 0,
-        };
         let modified = self.model.convention == Convention::Modified;
         for row in rows {
             let theta = self.theta_sin_cos(row.joint, enc);
@@ -213,6 +280,15 @@ impl Chain<'_> {
                 pass.tilt(row);
             }
         }
+    }
+
+    /// The tool shift ending a pass at the flange: the tool frame and the count of columns the
+    /// whole pass wrote.
+    #[inline(always)]
+    fn tool_shift<const N: usize>(&self, mut pass: Pass<'_, '_, N>) -> (TipFrame<N>, usize)
+    where
+        Poses<N>: Width,
+    {
         for (k, tool) in self.tool.into_iter().enumerate() {
             pass.shift(k, tool.0, tool.1);
         }
@@ -248,7 +324,7 @@ impl Chain<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::kinematics::{encoder_sin_cos, ColumnMap, ToolPose};
+    use crate::model::kinematics::{encoder_sin_cos, ColumnMap, Tips, ToolPose};
     use crate::model::Joint;
 
     /// A 7-joint DH arm with every kind of row value (β on some rows, zero lengths on others).
@@ -466,6 +542,130 @@ mod tests {
                     assert_eq!(alone.position_mm.x.is_nan(), nan, "{label}");
                 }
             }
+        }
+    }
+
+    /// [`arm`] with a second tip on its fifth joint (a branched model; both tips on the kernel).
+    fn branched(convention: Convention) -> ArmModel {
+        use crate::model::tree::Tip;
+        let mut model = arm(convention);
+        model.tree.parents = (0..7_usize).map(|j| j.checked_sub(1)).collect();
+        let tip = |name: &str, joint, tcp_mm| Tip { name: name.into(), joint, tcp_mm };
+        model.tree.tips = vec![tip("end", 6, [0.0; 3]), tip("side", 4, [-20.0, 15.0, 60.0])];
+        model
+    }
+
+    /// Poses started at their flanges are, to the bit, the whole pass' (the pose and every
+    /// column, into buffers of garbage), two together and one alone, in both conventions and on
+    /// both tips of a branched model, for the tool point's columns with the scale, without it,
+    /// of the position alone, one of them, and none; the flanges taken on the chain of other
+    /// values of those parameters (they read none of them). A chain whose columns move anything
+    /// before the tool, or off the kernel, does not start there; nor does a tip for another
+    /// tip's tool point.
+    #[test]
+    fn poses_from_their_flanges_are_the_whole_pass() {
+        let tcp =
+            |tip: usize| [0, 1, 2].map(|k| if tip == 0 { ParamId::Tcp(k) } else { ParamId::TipTcp(tip, k) });
+        for model in
+            [Convention::Classic, Convention::Modified].into_iter().flat_map(|c| [arm(c), branched(c)])
+        {
+            let tips = model.tree.tip_count();
+            for tip in 0..tips {
+                let [x, y, z] = tcp(tip);
+                let sets = [
+                    ColumnMap::new(&[x, y, z, ParamId::Scale]),
+                    ColumnMap::new(&[ParamId::Scale, z, x]),
+                    ColumnMap::new(&[x, y, z]).positions_only(),
+                    ColumnMap::new(&[y]),
+                    ColumnMap::new(&[]),
+                ];
+                let chain = Chain::for_tip(&model, tip);
+                // The flanges' chain: every parameter the columns may move, moved.
+                let mut other = model.clone();
+                for id in [x, y, z, ParamId::Scale] {
+                    other.set(id, other.get(id) * 1.3 + 4.5);
+                }
+                let flanges_of = Chain::for_tip(&other, tip);
+                for (set, columns) in sets.iter().enumerate() {
+                    let label = format!("{:?} tip {tip} of {tips}, set {set}", model.convention);
+                    assert!(chain.starts_at_flange(columns), "{label}");
+                    for pose in 0..8 {
+                        let mut enc: [Vec<f64>; 2] = [0, 1].map(|lane| {
+                            (0..7).map(|j| ((pose * 14 + lane * 7 + j) as f64 * 0.37).sin() * 170.0).collect()
+                        });
+                        if pose == 3 {
+                            enc[1][2] = f64::NAN;
+                        }
+                        let sin_cos =
+                            enc.clone().map(|e| e.iter().map(|&q| encoder_sin_cos(q)).collect::<Vec<_>>());
+                        let flanges = flanges_of
+                            .flange_pair([&enc[0], &enc[1]], [&sin_cos[0], &sin_cos[1]])
+                            .expect("a DH chain");
+                        for lane in 0..2 {
+                            let alone = flanges_of.flange(&enc[lane], &sin_cos[lane]).expect("a DH chain");
+                            assert_eq!(
+                                format!("{alone:?}"),
+                                format!("{:?}", flanges[lane]),
+                                "{label}: a flange of two is one alone"
+                            );
+                        }
+                        let mut whole = [0, 1].map(|_| vec![[f64::NAN; 9]; columns.len()]);
+                        let (mut started, mut single) = (whole.clone(), whole.clone());
+                        let [w0, w1] = &mut whole;
+                        let reference = chain.pose_pair_with_sin_cos_and_jacobian(
+                            [&enc[0], &enc[1]],
+                            [&sin_cos[0], &sin_cos[1]],
+                            columns,
+                            [w0, w1],
+                        );
+                        let [s0, s1] = &mut started;
+                        let pair =
+                            chain.pose_pair_from_flanges([&flanges[0], &flanges[1]], columns, [s0, s1]);
+                        let one: Vec<ToolPose> = (0..2)
+                            .map(|lane| chain.pose_from_flange(&flanges[lane], columns, &mut single[lane]))
+                            .collect();
+                        let bits =
+                            |p: &ToolPose| [p.position_mm, p.x_axis, p.z_axis].map(|v| v.map(f64::to_bits));
+                        let column_bits = |jac: &[PoseDerivative]| {
+                            jac.iter().map(|c| c.map(f64::to_bits)).collect::<Vec<_>>()
+                        };
+                        for lane in 0..2 {
+                            let label = format!("{label} pose {pose} lane {lane}");
+                            for (p, j) in [(&pair[lane], &started[lane]), (&one[lane], &single[lane])] {
+                                assert_eq!(bits(p), bits(&reference[lane]), "{label}");
+                                assert_eq!(column_bits(j), column_bits(&whole[lane]), "{label}");
+                            }
+                            let nan = enc[lane].iter().any(|q| q.is_nan());
+                            assert_eq!(reference[lane].position_mm.x.is_nan(), nan, "{label}");
+                            if !nan && set < 4 {
+                                assert!(whole[lane].iter().flatten().any(|v| *v != 0.0), "{label}: columns");
+                            }
+                        }
+                    }
+                }
+                // A row's parameter, another tip's tool point: the whole pass.
+                let chain_parameter = ColumnMap::new(&[x, ParamId::Length(2)]);
+                let [a, b, c] = tcp(tips - 1 - tip);
+                let another_tool = ColumnMap::new(&[a, b, c]);
+                assert!(!chain.starts_at_flange(&chain_parameter), "{:?} tip {tip}", model.convention);
+                assert_eq!(
+                    chain.starts_at_flange(&another_tool),
+                    tips == 1,
+                    "{:?} tip {tip}",
+                    model.convention
+                );
+            }
+            let columns = ColumnMap::new(&tcp(0));
+            assert_eq!(Tips::new(&model).start_at_flange(&columns), tips == 1, "{:?}", model.convention);
+        }
+        // A URDF arm, a compliance, an encoder harmonic: no flange.
+        for model in arms_off_the_kernel() {
+            let chain = Chain::new(&model);
+            let label = format!("{:?}", model.convention);
+            assert!(!chain.starts_at_flange(&ColumnMap::new(&[ParamId::Tcp(0)])), "{label}");
+            let enc = [10.0; 7];
+            let sin_cos = enc.map(encoder_sin_cos);
+            assert!(chain.flange(&enc, &sin_cos).is_none(), "{label}");
         }
     }
 

@@ -184,11 +184,7 @@ impl Chain<'_> {
         self.columns_by(
             wanted,
             #[inline(always)]
-            |wanted| {
-                let mut pass = Pass::base(wanted);
-                self.dh_rows(rows, &enc, &mut pass);
-                self.tool_shift(pass)
-            },
+            |wanted| self.tool_shift(self.dh_rows(rows, &enc, Pass::base(wanted))),
         )
     }
 
@@ -216,8 +212,7 @@ impl Chain<'_> {
     where
         Poses<N>: Width,
     {
-        let mut pass = Pass::base(None);
-        self.dh_rows(rows, &enc, &mut pass);
+        let pass = self.dh_rows(rows, &enc, Pass::base(None));
         std::array::from_fn(|i| Flange {
             origin_mm: pass.origin.map(|c| c.lane(i)),
             axes: pass.axes.map(|axis| axis.map(|c| c.lane(i))),
@@ -240,9 +235,9 @@ impl Chain<'_> {
         let Some((columns, jacs)) = wanted.as_mut() else {
             return pass(None).0;
         };
+        let (pose, written) = pass(Some((*columns, &mut **jacs)));
         let scale = columns.column(ParamId::Scale.dense_index());
         let moved = columns.len() - usize::from(scale.is_some());
-        let (pose, written) = pass(Some((*columns, &mut **jacs)));
         for jac in jacs.iter_mut() {
             if written != moved {
                 jac.iter_mut().for_each(|col| *col = [0.0; 9]);
@@ -256,9 +251,14 @@ impl Chain<'_> {
         pose
     }
 
-    /// Carry the frames of `pass` through `rows`.
+    /// `pass` carried through `rows`.
     #[inline(always)]
-    fn dh_rows<const N: usize>(&self, rows: &[Row], enc: &[Encoders<'_>; N], pass: &mut Pass<'_, '_, N>)
+    fn dh_rows<'c, 'j, const N: usize>(
+        &self,
+        rows: &[Row],
+        enc: &[Encoders<'_>; N],
+        mut pass: Pass<'c, 'j, N>,
+    ) -> Pass<'c, 'j, N>
     where
         Poses<N>: Width,
     {
@@ -280,6 +280,7 @@ impl Chain<'_> {
                 pass.tilt(row);
             }
         }
+        pass
     }
 
     /// The tool shift ending a pass at the flange: the tool frame and the count of columns the

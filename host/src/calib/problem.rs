@@ -22,7 +22,7 @@ use crate::data::Observations;
 use crate::model::kinematics::{encoder_sin_cos, Flange, PoseDerivative, Tips, ToolPose};
 use crate::model::ArmModel;
 use crate::numerics::normal::{add_and_clear, add_rows_gram, GramBuffers, NormalSums, RowTarget, TermRows};
-use crate::numerics::qr::{r_factor, r_factor_of_stacked};
+use crate::numerics::qr::{r_factor_of_stacked, r_factor_overwriting};
 use crate::numerics::solver::{symmetric, Loss, Residuals};
 use nalgebra::{DMatrix, DVector, Matrix3};
 use rayon::prelude::*;
@@ -755,6 +755,9 @@ impl Problem<'_> {
         let rotation: Vec<usize> =
             self.layout.rotation_column().map(|t| vec![t, t + 1, t + 2]).unwrap_or_default();
         let mut by_group: Vec<Vec<usize>> = vec![Vec::new(); self.data.groups.len()];
+        // The buffers of chunks done, for the next chunks of any group (a group is often one
+        // chunk).
+        let spare: Mutex<Vec<FactorBuffers>> = Mutex::new(Vec::new());
         for (i, t) in self.terms.iter().enumerate() {
             by_group[self.data.blocks[t.block()].group].push(i);
         }
@@ -776,20 +779,28 @@ impl Problem<'_> {
                 let width = columns.len();
                 let folded: Vec<Option<ChunkFactor>> = mine
                     .par_chunks(FOLD_TERMS)
-                    .map_init(TermJacobian::default, |jac, chunk| {
+                    .map(|chunk| {
+                        let mut buffers =
+                            spare.lock().ok().and_then(|mut spare| spare.pop()).unwrap_or_default();
                         let chosen: Vec<&dyn Term> = chunk.iter().map(|&i| self.terms[i].as_ref()).collect();
                         let poses = self.chunk_poses_of(&state, &chosen);
                         let input =
                             TermInput { state: &state, layout: &self.layout, data: self.data, poses: &poses };
                         let rows: usize = chunk.iter().map(|&i| self.terms[i].rows()).sum();
+                        let FactorBuffers { jac, values, columns, r } = &mut buffers;
+                        // Zero already (each chunk's factor leaves its rows so): grown, not cleared.
+                        if values.len() < rows * width {
+                            values.resize(rows * width, 0.0);
+                        }
                         let mut block = FactorRows {
-                            values: vec![0.0; rows * width],
+                            values: &mut values[..rows * width],
                             width,
                             local: &local,
                             at: 0,
                             finite: true,
                         };
-                        let mut r = vec![0.0; rows];
+                        r.clear();
+                        r.resize(rows, 0.0);
                         let mut at = 0;
                         for &i in chunk {
                             let t = &self.terms[i];
@@ -803,8 +814,11 @@ impl Problem<'_> {
                             }
                         }
                         self.recycle(poses);
-                        let finite = r.iter().all(|v| v.is_finite()) && block.all_finite();
-                        finite.then(|| ChunkFactor::of(&block.values, width, &r))
+                        let factor = block.factor(r, columns);
+                        if let Ok(mut spare) = spare.lock() {
+                            spare.push(buffers);
+                        }
+                        factor
                     })
                     .collect();
                 // Folded in order: the same factor whatever the thread count.
@@ -824,10 +838,23 @@ impl Problem<'_> {
     }
 }
 
+/// A chunk's buffers for its factor, left for the next chunk.
+#[derive(Default)]
+struct FactorBuffers {
+    jac: TermJacobian,
+    /// Room for a chunk's rows, all zero between chunks.
+    values: Vec<f64>,
+    /// The rows column-major, overwritten by their QR.
+    columns: Vec<f64>,
+    /// A chunk's residuals.
+    r: Vec<f64>,
+}
+
 /// A group's Jacobian rows for its factor, row-major over the group's columns: a term writes
 /// its rows in place ([`Term::evaluate_into_rows`]) or has them copied from its Jacobian.
 struct FactorRows<'l> {
-    values: Vec<f64>,
+    /// Zero before the first term writes.
+    values: &'l mut [f64],
     width: usize,
     /// Per column of the problem, its place in a row (`usize::MAX`: not the group's).
     local: &'l [usize],
@@ -838,15 +865,6 @@ struct FactorRows<'l> {
 }
 
 impl FactorRows<'_> {
-    /// Every value written, and every derivative copied, is finite. The rows are read eight
-    /// values at a time without stopping inside a chunk, which the compiler turns into vector
-    /// comparisons (stopping at the first one not finite took three times the instructions).
-    fn all_finite(&self) -> bool {
-        let (chunks, tail) = self.values.as_chunks::<8>();
-        let chunk_finite = |c: &[f64; 8]| c.iter().fold(true, |all, v| all & v.is_finite());
-        self.finite && chunks.iter().all(chunk_finite) && tail.iter().all(|v| v.is_finite())
-    }
-
     /// The next term's rows from its Jacobian `jac` (columns that are not the group's left out).
     fn add(&mut self, jac: &TermJacobian) {
         let rows = &mut self.values[self.at * self.width..(self.at + jac.rows) * self.width];
@@ -861,6 +879,82 @@ impl FactorRows<'_> {
         }
         self.at += jac.rows;
     }
+
+    /// The factor of the rows with their residuals `r` (`columns` its buffer); `None` when a
+    /// value, a derivative copied or a residual is not finite. The rows are left zero either
+    /// way, for the next chunk to write into without clearing them.
+    fn factor(self, r: &[f64], columns: &mut Vec<f64>) -> Option<ChunkFactor> {
+        let width = self.width;
+        let mut gradient = DVector::zeros(width);
+        columns.resize(r.len() * width, 0.0);
+        take_transposed(self.values, r, columns, gradient.as_mut_slice());
+        // With finite residuals, a value that is not finite leaves its column's sum not finite
+        // (NaN, or ±∞ that no later product brings back): a finite gradient proves every value
+        // finite, and only one that overflowed has the values read again.
+        let finite = self.finite
+            && r.iter().all(|v| v.is_finite())
+            && (gradient.as_slice().iter().all(|g| g.is_finite()) || all_finite(columns));
+        finite.then(|| {
+            let mut rows = DMatrix::from_vec(r.len(), width, std::mem::take(columns));
+            let factor = r_factor_overwriting(&mut rows);
+            *columns = rows.data.into();
+            ChunkFactor {
+                r: factor,
+                gradient,
+                half_squares: r.iter().map(|v| 0.5 * v * v).sum(),
+                largest_residual: r.iter().fold(0.0, |m, v| v.abs().max(m)),
+            }
+        })
+    }
+}
+
+/// The rows `values` (row-major, as many as `r` has residuals) into `out` column-major, each
+/// value replaced by zero, and Jᵀr summed row after row into `gradient` (one value per
+/// column): one pass, two rows by two columns at a time, which the compiler keeps in vector
+/// instructions (two values loaded, multiplied, summed, zeroed and stored in one each).
+fn take_transposed(values: &mut [f64], r: &[f64], out: &mut [f64], gradient: &mut [f64]) {
+    let (m, width) = (r.len(), gradient.len());
+    if out.is_empty() {
+        return;
+    }
+    let mut row_pairs = values.chunks_exact_mut(2 * width);
+    for ((pair, ri), i) in (&mut row_pairs).zip(r.as_chunks::<2>().0).zip((0..m).step_by(2)) {
+        let (top, bottom) = pair.split_at_mut(width);
+        let ((top, top_last), (bottom, bottom_last)) =
+            (top.as_chunks_mut::<2>(), bottom.as_chunks_mut::<2>());
+        let (sums, sum_last) = gradient.as_chunks_mut::<2>();
+        let mut columns = out.chunks_exact_mut(2 * m);
+        // Everything read into locals before the stores: nothing is read again after one.
+        let [r0, r1] = *ri;
+        for (((t, b), g), two) in top.iter_mut().zip(bottom).zip(sums).zip(&mut columns) {
+            let ([t0, t1], [b0, b1]) = (std::mem::take(t), std::mem::take(b));
+            *g = [g[0] + t0 * r0 + b0 * r1, g[1] + t1 * r0 + b1 * r1];
+            let (left, right) = two.split_at_mut(m);
+            left[i..i + 2].copy_from_slice(&[t0, b0]);
+            right[i..i + 2].copy_from_slice(&[t1, b1]);
+        }
+        // An odd column.
+        if let ([t], [b], [g]) = (top_last, bottom_last, sum_last) {
+            let (t, b) = (std::mem::take(t), std::mem::take(b));
+            *g = *g + t * r0 + b * r1;
+            columns.into_remainder()[i..i + 2].copy_from_slice(&[t, b]);
+        }
+    }
+    // An odd row.
+    let last = row_pairs.into_remainder();
+    for ((v, g), column) in last.iter_mut().zip(gradient).zip(out.chunks_exact_mut(m)) {
+        *g += *v * r[m - 1];
+        column[m - 1] = std::mem::take(v);
+    }
+}
+
+/// Every value is finite. Read eight values at a time without stopping inside a chunk, which
+/// the compiler turns into vector comparisons (stopping at the first one not finite took three
+/// times the instructions).
+fn all_finite(values: &[f64]) -> bool {
+    let (chunks, tail) = values.as_chunks::<8>();
+    let chunk_finite = |c: &[f64; 8]| c.iter().fold(true, |all, v| all & v.is_finite());
+    chunks.iter().all(chunk_finite) && tail.iter().all(|v| v.is_finite())
 }
 
 impl RowTarget for FactorRows<'_> {
@@ -887,20 +981,6 @@ impl ChunkFactor {
             gradient: DVector::zeros(width),
             half_squares: 0.0,
             largest_residual: 0.0,
-        }
-    }
-
-    /// The rows `values` (row-major, `width` columns) with their residuals `r`.
-    fn of(values: &[f64], width: usize, r: &[f64]) -> ChunkFactor {
-        let mut gradient = DVector::zeros(width);
-        for (row, ri) in values.chunks_exact(width).zip(r) {
-            gradient.iter_mut().zip(row).for_each(|(g, v)| *g += v * ri);
-        }
-        ChunkFactor {
-            r: r_factor(DMatrix::from_row_slice(r.len(), width, values)),
-            gradient,
-            half_squares: r.iter().map(|v| 0.5 * v * v).sum(),
-            largest_residual: r.iter().fold(0.0, |m, v| v.abs().max(m)),
         }
     }
 
@@ -981,6 +1061,7 @@ mod tests {
     use crate::calib::terms::{build, TermChoice};
     use crate::data::{Joints, Kind, Observation};
     use crate::model::kinematics::tool_pose;
+    use crate::numerics::qr::r_factor;
     use nalgebra::{Rotation3, Vector3};
 
     /// Three sessions of 40 points of an arm moved from `nominal`, each seen from its own base.
@@ -1342,22 +1423,65 @@ mod tests {
         assert!(fixed.iter().any(|v| *v != 0.0));
     }
 
-    /// A factor's rows are finite exactly when every value is, wherever the one that is not lies
-    /// (in a chunk of eight or in the tail), and not when a copied derivative was not.
+    /// A chunk's factor is that of its rows read as they were written (R of the row-major
+    /// matrix, Jᵀr summed row by row, to the bit), and it leaves the rows zero: rows and
+    /// columns in even and odd counts, one buffer for every chunk's copy of the rows.
     #[test]
-    fn factor_rows_are_finite_exactly_when_every_value_is() {
+    fn a_chunk_factor_is_that_of_its_rows_and_leaves_them_zero() {
+        let mut columns = Vec::new();
+        for (m, width) in [(40, 7), (41, 7), (40, 8), (41, 8), (1, 3), (3, 1), (2, 2), (5, 12)] {
+            let local: Vec<usize> = (0..width).collect();
+            let values: Vec<f64> = (0..m * width).map(|k| (k as f64 * 0.37).sin() * 10.0).collect();
+            let r: Vec<f64> = (0..m).map(|i| (i as f64 * 0.71).cos()).collect();
+            let mut rows = values.clone();
+            let block = FactorRows { values: &mut rows, width, local: &local, at: m, finite: true };
+            let factor = block.factor(&r, &mut columns).expect("finite");
+            assert!(rows.iter().all(|&v| v == 0.0), "{m} × {width}");
+            let same = |a: &[f64], b: &[f64]| {
+                a.len() == b.len() && a.iter().zip(b).all(|(u, v)| u.to_bits() == v.to_bits())
+            };
+            let reference = r_factor(DMatrix::from_row_slice(m, width, &values));
+            assert!(same(factor.r.as_slice(), reference.as_slice()), "R factors, {m} × {width}");
+            let gradient: Vec<f64> =
+                (0..width).map(|l| (0..m).fold(0.0, |g, i| g + values[i * width + l] * r[i])).collect();
+            assert!(same(factor.gradient.as_slice(), &gradient), "gradients, {m} × {width}");
+            assert_eq!(factor.half_squares.to_bits(), r.iter().map(|v| 0.5 * v * v).sum::<f64>().to_bits());
+            assert_eq!(factor.largest_residual, r.iter().fold(0.0, |l: f64, v| l.max(v.abs())));
+        }
+    }
+
+    /// A chunk has a factor exactly when every value, copied derivative and residual is finite:
+    /// wherever the value that is not lies (in a chunk of eight or in the tail), and when finite
+    /// values overflow the gradient. Its rows are left zero either way.
+    #[test]
+    fn a_chunk_has_a_factor_exactly_when_everything_is_finite() {
         let local = [0, 1, 2];
-        let rows = |values: Vec<f64>, finite| FactorRows { values, width: 3, local: &local, at: 0, finite };
-        let values: Vec<f64> = (0..27).map(|k| k as f64 - 13.5).collect();
-        assert!(rows(values.clone(), true).all_finite());
-        assert!(!rows(values.clone(), false).all_finite());
-        for k in [0, 7, 8, 23, 24, 26] {
-            for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+        let (values, r): (Vec<f64>, Vec<f64>) = ((0..27).map(|k| k as f64 - 13.5).collect(), vec![0.5; 9]);
+        let factor = |mut values: Vec<f64>, r: &[f64], finite| {
+            let block = FactorRows { values: &mut values, width: 3, local: &local, at: 9, finite };
+            let factor = block.factor(r, &mut Vec::new());
+            assert!(values.iter().all(|&v| v == 0.0), "rows left zero");
+            factor.is_some()
+        };
+        assert!(factor(values.clone(), &r, true));
+        assert!(!factor(values.clone(), &r, false));
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            for k in [0, 7, 8, 23, 24, 26] {
                 let mut with_bad = values.clone();
                 with_bad[k] = bad;
-                assert!(!rows(with_bad, true).all_finite(), "{bad} at {k}");
+                assert!(!factor(with_bad, &r, true), "{bad} at {k}");
+                // A zero residual on its row: the product is NaN, not zero.
+                let mut zero_residual = r.clone();
+                zero_residual[k / 3] = 0.0;
+                let mut with_bad = values.clone();
+                with_bad[k] = bad;
+                assert!(!factor(with_bad, &zero_residual, true), "{bad} at {k}, zero residual");
             }
+            let mut bad_residual = r.clone();
+            bad_residual[4] = bad;
+            assert!(!factor(values.clone(), &bad_residual, true), "residual {bad}");
         }
+        assert!(factor(vec![1e300; 27], &[1e10; 9], true), "finite values, a gradient that overflows");
     }
 
     /// A problem's next evaluation, whose chunks take the buffers (pose derivatives, poses,

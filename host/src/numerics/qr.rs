@@ -22,14 +22,20 @@ const PANEL: usize = 8;
 /// The R factor of `a` (m × w): min(m, w) × w, upper triangular, with RᵀR = aᵀa (the row signs
 /// of R are those of the reflections; any sign makes the same column geometry).
 pub fn r_factor(mut a: DMatrix<f64>) -> DMatrix<f64> {
+    r_factor_overwriting(&mut a)
+}
+
+/// [`r_factor`] of `a`, whose entries it overwrites (with the reflections' vectors below R):
+/// for a caller that keeps the matrix's storage for the next one.
+pub fn r_factor_overwriting(a: &mut DMatrix<f64>) -> DMatrix<f64> {
     let (m, w) = a.shape();
     let k = m.min(w);
     let mut panel = Panel::default();
     for start in (0..k).step_by(PANEL) {
         let width = PANEL.min(k - start);
-        panel.reflect(&mut a, start, width);
+        panel.reflect(a, start, width);
         if start + width < w {
-            panel.update(&mut a, start, width);
+            panel.update(a, start, width);
         }
         for (i, &alpha) in panel.alpha.iter().enumerate() {
             a[(start + i, start + i)] = alpha;

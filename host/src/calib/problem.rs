@@ -144,7 +144,7 @@ pub struct Problem<'a> {
     frame_start: Vec<Matrix3<f64>>,
     probe_start: Option<Matrix3<f64>>,
     /// Per observation, its pose's frame at the flange (those of observations no term reads at
-    /// their default), taken at the first evaluation with derivatives when every chain starts
+    /// their default), taken at the first normal equations or group factors when every chain starts
     /// its poses there for the columns ([`Tips::start_at_flange`]; `None` inside otherwise):
     /// the unknowns then move the tool point and the scale alone, so every evaluation's flanges
     /// are the same.
@@ -411,11 +411,13 @@ impl<'a> Problem<'a> {
     /// state: the parameters they read before the tool do not change) at the first call, in one
     /// pass on the calling thread: taken in parallel, the thread taking them could steal a task
     /// of the same evaluation that waits for them, and so wait for itself.
+    /// The columns are checked at every call, not only when the flanges are taken: a layout
+    /// changed since then to a column of the arm's rows takes the whole pass.
     fn flanges(&self, kinematics: &Tips) -> Option<&[Flange]> {
+        if !kinematics.start_at_flange(&self.layout.columns) {
+            return None;
+        }
         let take = || {
-            if !kinematics.start_at_flange(&self.layout.columns) {
-                return None;
-            }
             let obs = &self.data.obs;
             let mut flanges = vec![Flange::default(); obs.len()];
             let read = self.index.read_span.clone().filter(|&k| self.index.read[k]);
@@ -1253,6 +1255,18 @@ mod tests {
             .collect()
     }
 
+    /// `a` and `b` have the same group factors at `x` to the bit: each R factor, gradient, sum
+    /// of squares and largest residual.
+    fn assert_same_factors(a: &Problem, b: &Problem, x: &[f64], label: &str) {
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let key = |f: &GroupFactor| {
+            let sums = [f.half_squares, f.largest_residual];
+            (bits(f.r.as_slice()), bits(f.gradient.as_slice()), bits(&sums), f.columns.clone(), f.own)
+        };
+        let [fa, fb] = [a, b].map(|p| p.group_factors(x).expect("finite factors"));
+        assert_eq!(fa.iter().map(key).collect::<Vec<_>>(), fb.iter().map(key).collect::<Vec<_>>(), "{label}");
+    }
+
     /// `ours` and `theirs` give the same residuals and normal equations at `x` to the bit, and
     /// sums of something.
     fn assert_same_sums(ours: &Problem, theirs: &Problem, x: &[f64], loss: Loss, label: &str) {
@@ -1388,14 +1402,34 @@ mod tests {
             assert!(ours.flanges.get().is_some_and(Option::is_some), "case {case}: flanges kept");
             assert!(theirs.flanges.get().is_some_and(Option::is_none), "case {case}: none kept");
             assert_same_sums(&ours, &theirs, &x0, loss, &format!("case {case}"));
+            assert_same_factors(&ours, &theirs, &x0, &format!("case {case}"));
         }
+        // Without frames (the dense path, its chunks over the whole span read).
+        let layout = || Layout::new(tcp.to_vec(), &vec![false; blocks], &plain, false, &none[..blocks]);
+        let problem = || Problem::new(layout(), &nominal, &data, &terms, start_rotations(blocks), None);
+        let (ours, theirs) = (problem(), problem().with_whole_passes());
+        let values =
+            |params: &[ParamId]| params.iter().map(|id| nominal.get(*id) + 0.3).collect::<Vec<f64>>();
+        let x0 = values(&tcp);
+        assert_same_sums(&ours, &theirs, &x0, Loss::Linear, "no frames");
+        assert_same_factors(&ours, &theirs, &x0, "no frames");
+        assert!(ours.flanges.get().is_some_and(Option::is_some), "no frames: flanges kept");
+        // A layout changed after the flanges were kept to a row's parameter takes the whole pass.
+        let mut changed = problem();
+        changed.normal_equations(&x0, &mut vec![0.0; changed.len()], Loss::Linear);
+        let rows = vec![ParamId::Tcp(0), ParamId::Length(2)];
+        changed.layout = Layout::new(rows.clone(), &vec![false; blocks], &plain, false, &none[..blocks]);
+        let whole =
+            Problem::new(changed.layout.clone(), &nominal, &data, &terms, start_rotations(blocks), None);
+        let x = values(&rows);
+        assert_same_sums(&changed, &whole.with_whole_passes(), &x, Loss::Linear, "a changed layout");
         // A row's parameter moves the flanges: none kept.
         let params = vec![ParamId::Tcp(0), ParamId::Length(2)];
         let layout = Layout::new(params.clone(), &vec![true; blocks], &plain, false, &none[..blocks]);
         let problem = Problem::new(layout, &nominal, &data, &terms, start_rotations(blocks), None);
         let x = framed_point(&problem, &params, &nominal);
         problem.normal_equations(&x, &mut vec![0.0; problem.len()], Loss::Linear);
-        assert!(problem.flanges.get().is_some_and(Option::is_none), "a row's parameter: no flanges");
+        assert!(problem.flanges.get().and_then(Option::as_ref).is_none(), "a row's parameter: no flanges");
     }
 
     /// A point of a tool that does not float (no product by its zero offset, no flange

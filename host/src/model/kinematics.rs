@@ -60,8 +60,8 @@ pub struct ToolPose {
 /// z axes, in the base frame. A caller evaluating the same poses again at values that move only
 /// the tool point and the scale keeps it and starts each pose there (see
 /// [`Chain::starts_at_flange`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Flange {
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Flange {
     origin_mm: [f64; 3],
     axes: [[f64; 3]; 3],
 }
@@ -603,7 +603,7 @@ impl<'m> Chain<'m> {
     /// before the tool shift. The flanges of one such chain then serve every chain of its model
     /// at other values of those parameters alone. Off the kernel (a URDF chain, a compliance,
     /// an encoder harmonic) the whole pass is taken.
-    pub fn starts_at_flange(&self, columns: &ColumnMap) -> bool {
+    pub(crate) fn starts_at_flange(&self, columns: &ColumnMap) -> bool {
         let after_flange =
             |slot: usize| slot == ParamId::Scale.dense_index() || self.tool.iter().any(|&(_, s)| s == slot);
         self.kernel(Some(columns)).is_some()
@@ -612,13 +612,17 @@ impl<'m> Chain<'m> {
 
     /// The frames at the flange of two poses, as [`Chain::pose_pair_with_sin_cos`] carries them
     /// before the tool shift; `None` off the DH kernel.
-    pub fn flange_pair(&self, enc_deg: [&[f64]; 2], enc_sin_cos: [&[(f64, f64)]; 2]) -> Option<[Flange; 2]> {
+    pub(crate) fn flange_pair(
+        &self,
+        enc_deg: [&[f64]; 2],
+        enc_sin_cos: [&[(f64, f64)]; 2],
+    ) -> Option<[Flange; 2]> {
         let rows = self.kernel(None)?;
         Some(self.dh_flanges(rows, [0, 1].map(|i| (enc_deg[i], enc_sin_cos[i]))))
     }
 
     /// As [`Chain::flange_pair`] for one pose.
-    pub fn flange(&self, enc_deg: &[f64], enc_sin_cos: &[(f64, f64)]) -> Option<Flange> {
+    pub(crate) fn flange(&self, enc_deg: &[f64], enc_sin_cos: &[(f64, f64)]) -> Option<Flange> {
         let rows = self.kernel(None)?;
         let [flange] = self.dh_flanges(rows, [(enc_deg, enc_sin_cos)]);
         Some(flange)
@@ -628,7 +632,7 @@ impl<'m> Chain<'m> {
     /// [`Chain::flange_pair`] on a chain of this model at any values of `columns`' parameters),
     /// when the chain [starts at the flange](Chain::starts_at_flange) for `columns`: the tool
     /// shift alone, to the bit what the whole pass gives.
-    pub fn pose_pair_from_flanges(
+    pub(crate) fn pose_pair_from_flanges(
         &self,
         flanges: [&Flange; 2],
         columns: &ColumnMap,
@@ -638,7 +642,7 @@ impl<'m> Chain<'m> {
     }
 
     /// As [`Chain::pose_pair_from_flanges`] for one pose.
-    pub fn pose_from_flange(
+    pub(crate) fn pose_from_flange(
         &self,
         flange: &Flange,
         columns: &ColumnMap,
@@ -864,7 +868,7 @@ impl<'m> Tips<'m> {
     }
 
     /// True when every tip's chain [starts at the flange](Chain::starts_at_flange) for `columns`.
-    pub fn start_at_flange(&self, columns: &ColumnMap) -> bool {
+    pub(crate) fn start_at_flange(&self, columns: &ColumnMap) -> bool {
         self.0.iter().all(|chain| chain.starts_at_flange(columns))
     }
 

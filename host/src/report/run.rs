@@ -81,7 +81,7 @@ pub fn run_report(run: &Run, run_dir: &Path) -> String {
 /// first sections, after each session's plots, at the end), which may take the text away: a
 /// tracker run's page is megabytes of plots, and written to its file as it is made it is never
 /// that much fresh memory at once. The pieces in order are the page; `part`'s error stops it.
-pub fn run_report_in_parts<E>(
+pub(crate) fn run_report_in_parts<E>(
     run: &Run,
     run_dir: &Path,
     body: &mut String,

@@ -389,10 +389,17 @@ fn restarts_reaching_the_same_minimum_keep_the_nominal_start_s_solution() {
     let alone = calibrate(&nominal, &data, &SolveOptions::default()).expect("nominal start");
     let options = SolveOptions { restarts: Some(6), seed: 11, ..SolveOptions::default() };
     let restarted = calibrate(&nominal, &data, &options).expect("restarts");
+    assert_the_nominal_start_is_kept(&alone, &restarted, 1e-9);
+}
+
+/// `restarted`'s starts all reach `alone`'s minimum (costs within `tolerance` relative), some
+/// lower by rounding (the check has teeth: a plain `<` would take that start), and its solution
+/// is the nominal start's, `alone`'s, to the bit.
+#[track_caller]
+fn assert_the_nominal_start_is_kept(alone: &Fit, restarted: &Fit, tolerance: f64) {
     let costs: Vec<f64> = restarted.starts.iter().map(|s| s.final_cost).collect();
     assert_eq!(restarted.starts[0].final_cost, alone.cost, "{costs:?}");
-    assert!(costs.iter().all(|c| (c - alone.cost).abs() <= 1e-9 * alone.cost), "one minimum: {costs:?}");
-    // The check has teeth: some start ended lower by rounding, which a plain `<` would take.
+    assert!(costs.iter().all(|c| (c - alone.cost).abs() <= tolerance * alone.cost), "one minimum: {costs:?}");
     assert!(costs.iter().any(|&c| c < alone.cost), "no restart lower by rounding: {costs:?}");
     assert_eq!(restarted.model, alone.model);
     assert_eq!(restarted.cost, alone.cost);
@@ -421,10 +428,5 @@ fn artefact_restarts_reaching_the_same_minimum_keep_the_nominal_start_s_solution
     let restarted =
         calibrate(&nominal, &data, &SolveOptions { restarts: Some(8), ..SolveOptions::default() })
             .expect("restarts");
-    let costs: Vec<f64> = restarted.starts.iter().map(|s| s.final_cost).collect();
-    assert_eq!(restarted.starts[0].final_cost, alone.cost, "{costs:?}");
-    assert!(costs.iter().all(|c| (c - alone.cost).abs() <= 1e-12 * alone.cost), "one minimum: {costs:?}");
-    assert!(costs.iter().any(|&c| c < alone.cost), "no restart lower by rounding: {costs:?}");
-    assert_eq!(restarted.model, alone.model);
-    assert_eq!(restarted.cost, alone.cost);
+    assert_the_nominal_start_is_kept(&alone, &restarted, 1e-12);
 }

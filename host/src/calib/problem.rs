@@ -20,7 +20,7 @@ use crate::calib::terms::{ArmPositions, Poses, Term, TermInput, TermJacobian};
 use crate::data::encoders::pairs;
 use crate::data::Observations;
 use crate::model::kinematics::{encoder_sin_cos, Flange, PoseDerivative, Tips, ToolPose};
-use crate::model::ArmModel;
+use crate::model::{ArmModel, ParamId};
 use crate::numerics::normal::{add_and_clear, add_rows_gram, GramBuffers, NormalSums, RowTarget, TermRows};
 use crate::numerics::qr::{r_factor_of_stacked, r_factor_overwriting};
 use crate::numerics::solver::{symmetric, Loss, Residuals};
@@ -147,8 +147,9 @@ pub struct Problem<'a> {
     /// their default), taken at the first normal equations or group factors when every chain starts
     /// its poses there for the columns ([`Tips::start_at_flange`]; `None` inside otherwise):
     /// the unknowns then move the tool point and the scale alone, so every evaluation's flanges
-    /// are the same.
-    flanges: OnceLock<Option<Vec<Flange>>>,
+    /// are the same. Kept with the arm's columns they were taken for: a layout changed since
+    /// then takes the whole pass.
+    flanges: OnceLock<Option<(Vec<ParamId>, Vec<Flange>)>>,
 }
 
 impl<'a> Problem<'a> {
@@ -411,13 +412,13 @@ impl<'a> Problem<'a> {
     /// state: the parameters they read before the tool do not change) at the first call, in one
     /// pass on the calling thread: taken in parallel, the thread taking them could steal a task
     /// of the same evaluation that waits for them, and so wait for itself.
-    /// The columns are checked at every call, not only when the flanges are taken: a layout
-    /// changed since then to a column of the arm's rows takes the whole pass.
+    /// A layout whose arm columns are not those the flanges were taken for (changed since) gets
+    /// none: one comparison per call, not the columns' check.
     fn flanges(&self, kinematics: &Tips) -> Option<&[Flange]> {
-        if !kinematics.start_at_flange(&self.layout.columns) {
-            return None;
-        }
         let take = || {
+            if !kinematics.start_at_flange(&self.layout.columns) {
+                return None;
+            }
             let obs = &self.data.obs;
             let mut flanges = vec![Flange::default(); obs.len()];
             let read = self.index.read_span.clone().filter(|&k| self.index.read[k]);
@@ -433,9 +434,10 @@ impl<'a> Problem<'a> {
                     None => flanges[a] = chain.flange(&obs[a].q_deg, self.sin_cos(a))?,
                 }
             }
-            Some(flanges)
+            Some((self.layout.arm.clone(), flanges))
         };
-        self.flanges.get_or_init(take).as_deref()
+        let (arm, flanges) = self.flanges.get_or_init(take).as_ref()?;
+        (*arm == self.layout.arm).then_some(flanges.as_slice())
     }
 
     /// Keep the buffers of `poses` (of [`Problem::chunk_poses_of`]) for the next chunk.

@@ -762,17 +762,36 @@ pub fn run_on(
     let sums = (cal.sessions().len() >= 2 && (outliers || !val.sessions().is_empty()))
         .then(|| SessionSums::of_sharing(&fit.model, &fit, cal, &setup.solve_options(cal), Some(&terms)))
         .flatten();
-    // Tracker sessions held out: each frame refitted, against the nominal arm with its tool fitted.
-    let tracker = reference.as_ref().map(|reference| {
-        let run = RunContext { nominal: &nominal, cal, val, inputs, options };
-        sessions_section(run, &fit, reference, &same_base, sums.as_ref(), cal_poses.as_ref())
-    });
+    // Tracker sessions held out (each frame refitted, against the nominal arm with its tool
+    // fitted) and the outlier metrics: independent given the fit, its poses and its sums, so
+    // computed side by side (each refits five times; together they keep both threads busy).
+    let outliers_skipped = !outliers;
+    let (tracker, outliers) = rayon::join(
+        || {
+            reference.as_ref().map(|reference| {
+                let run = RunContext { nominal: &nominal, cal, val, inputs, options };
+                sessions_section(run, &fit, reference, &same_base, sums.as_ref(), cal_poses.as_ref())
+            })
+        },
+        || match outliers {
+            true => outlier_metrics(
+                &fit,
+                cal,
+                Measure::of(val).map(|_| val),
+                &setup,
+                sums.as_ref(),
+                cal_poses.as_ref(),
+            ),
+            false => Vec::new(),
+        },
+    );
+    drop(sums);
     if let Some(t) = &tracker {
         not_trustworthy.extend(crate::calib::trust::point_problems(&fit, nominal.reach_mm()));
         verdict.extend(t.verdict.iter().cloned());
         floor.points = Some(t.floor.clone());
     }
-    steps.lap("trust scales");
+    steps.lap("trust scales and outliers");
     let study_rows = (study_subsets > 0).then(|| {
         let setup = inputs.setup(&SolveOptions { restarts: Some(0), ..options.clone() });
         study(
@@ -786,14 +805,6 @@ pub fn run_on(
         not_trustworthy.extend(study_problems(rows).into_iter().map(|p| format!("study: {p}")));
         steps.lap("study");
     }
-    let outliers_skipped = !outliers;
-    let outliers = if outliers {
-        outlier_metrics(&fit, cal, Measure::of(val).map(|_| val), &setup, sums.as_ref(), cal_poses.as_ref())
-    } else {
-        Vec::new()
-    };
-    drop(sums);
-    steps.lap("outliers");
     let objective_comparison = touches(cal).then(|| objective_comparison(&fit, cal));
     steps.lap("6-DoF comparison");
     verdict.push(

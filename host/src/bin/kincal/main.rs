@@ -103,12 +103,29 @@ fn main() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    keep_freed_memory();
     let (cli, builtin_model) = parse();
     let result = run(cli);
     drop(builtin_model);
     if let Err(e) = result {
         eprintln!("error: {}", message(&e));
         std::process::exit(1);
+    }
+}
+
+/// Let glibc's allocator keep the memory the process frees for its next allocations instead of
+/// handing it back to the kernel: a calibration's refits allocate and free blocks of the same
+/// sizes (subsets of the observations, their encoder rows, the product's buffers) over and over,
+/// and each page handed back is faulted in again when touched (about 1.6 µs a page on a virtual
+/// machine). Blocks up to 32 MB (glibc's largest threshold) come from the heap, and the heap's
+/// free top is not trimmed: the whole tracker run takes about 20 % fewer page faults and 2 %
+/// less CPU. The process still holds no more than its peak.
+fn keep_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets the allocator's parameters; called before any thread starts.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
     }
 }
 

@@ -12,13 +12,19 @@ use std::sync::{Arc, OnceLock};
 /// use and keeps it; the fit's problems read it ([`crate::calib::problem::encoder_table`], which
 /// leaves out observations no term reads, makes the same rows), and each [`crate::calib::fit::Fit`]
 /// keeps the table of its observations for its refits (pinocchio's constant model and
-/// per-algorithm data).
+/// per-algorithm data). A selection of consecutive rows (one session's, [`Encoders::rows_of`])
+/// shares the rows of the table it was taken from.
 #[derive(Clone)]
 pub struct Encoders {
     joints: usize,
-    /// Each observation's angle count and its angles' bits, `joints + 1` values per observation.
+    /// Each observation's angle count and its angles' bits, `joints + 1` values per row shared.
     angles: Arc<[u64]>,
+    /// `joints` sines and cosines per row shared.
     table: Arc<[(f64, f64)]>,
+    /// The first row shared that this table holds (its row 0).
+    first: usize,
+    /// How many rows shared from `first` on this table holds.
+    rows: usize,
 }
 
 impl std::fmt::Debug for Encoders {
@@ -42,22 +48,35 @@ impl Encoders {
                 *bits = q.to_bits();
             }
         }
-        Encoders { joints, angles: angles.into(), table: table.into() }
+        Encoders::whole(joints, angles.into(), table.into(), data.obs.len())
+    }
+
+    /// The table of all `rows` rows of `angles` and `table`.
+    fn whole(joints: usize, angles: Arc<[u64]>, table: Arc<[(f64, f64)]>, rows: usize) -> Encoders {
+        Encoders { joints, angles, table, first: 0, rows }
     }
 
     /// Every row, `joints` per observation, in the observations' order.
     pub fn table(&self) -> &[(f64, f64)] {
-        &self.table
+        &self.table[self.first * self.joints..(self.first + self.rows) * self.joints]
+    }
+
+    /// Each row's angle count and its angles' bits, `joints + 1` values per row, in order.
+    fn angles(&self) -> &[u64] {
+        let width = self.joints + 1;
+        &self.angles[self.first * width..(self.first + self.rows) * width]
     }
 
     /// How many observations the table holds.
     fn rows(&self) -> usize {
-        self.table.len() / self.joints.max(1)
+        self.rows
     }
 
     /// Whether row `i` holds observation `o`'s angles (bit for bit).
+    #[inline]
     fn holds(&self, i: usize, o: &Observation) -> bool {
-        let key = &self.angles[i * (self.joints + 1)..(i + 1) * (self.joints + 1)];
+        let width = self.joints + 1;
+        let key = &self.angles[(self.first + i) * width..(self.first + i + 1) * width];
         key[0] == o.q_deg.len() as u64 && o.q_deg.iter().zip(&key[1..]).all(|(q, b)| q.to_bits() == *b)
     }
 
@@ -83,8 +102,9 @@ impl Encoders {
         o: &Observation,
         own: &'r mut Option<[(f64, f64); MAX_TREE_JOINTS]>,
     ) -> &'r [(f64, f64)] {
-        if k < self.rows() && self.holds(k, o) {
-            return &self.table[k * self.joints..(k + 1) * self.joints];
+        if k < self.rows && self.holds(k, o) {
+            let row = self.first + k;
+            return &self.table[row * self.joints..(row + 1) * self.joints];
         }
         let own = own.insert([(0.0, 1.0); MAX_TREE_JOINTS]);
         for (sc, &q) in own.iter_mut().zip(o.q_deg.iter()) {
@@ -179,18 +199,29 @@ impl Encoders {
         self.rows_of(&taken)
     }
 
-    /// The table of rows `taken`, in that order.
+    /// The table of rows `taken`, in that order: these rows shared when `taken` are one run of
+    /// consecutive rows (one session's), else copied.
     pub(crate) fn rows_of(&self, taken: &[usize]) -> Encoders {
+        // The length of the run of consecutive rows `taken` starts with.
+        let run = |taken: &[usize]| taken.iter().enumerate().take_while(|&(n, &i)| i == taken[0] + n).count();
+        if run(taken) == taken.len() {
+            let first = self.first + taken.first().copied().unwrap_or(0);
+            return Encoders { first, rows: taken.len(), ..self.clone() };
+        }
         let (joints, width) = (self.joints, self.joints + 1);
-        // Whole rows copied into vectors sized once (an element-wise collect of the flattened
-        // rows grows them one value at a time).
+        let (table_in, angles_in) = (self.table(), self.angles());
+        // Runs of rows copied whole into vectors sized once (an element-wise collect of the
+        // flattened rows grows them one value at a time).
         let mut table = Vec::with_capacity(taken.len() * joints);
         let mut angles = Vec::with_capacity(taken.len() * width);
-        for &i in taken {
-            table.extend_from_slice(&self.table[i * joints..(i + 1) * joints]);
-            angles.extend_from_slice(&self.angles[i * width..(i + 1) * width]);
+        let mut rest = taken;
+        while let Some(&start) = rest.first() {
+            let end = start + run(rest);
+            table.extend_from_slice(&table_in[start * joints..end * joints]);
+            angles.extend_from_slice(&angles_in[start * width..end * width]);
+            rest = &rest[end - start..];
         }
-        Encoders { joints, angles: angles.into(), table: table.into() }
+        Encoders::whole(joints, angles.into(), table.into(), taken.len())
     }
 }
 
@@ -412,7 +443,51 @@ mod tests {
         assert!(unbuilt.built_encoders().is_none());
         let (taken, fresh) = (full.for_data(&unbuilt), Encoders::of(&unbuilt));
         assert_ne!(taken.table().len(), full.table().len(), "rows were left out");
-        assert_eq!((taken.table(), &taken.angles), (fresh.table(), &fresh.angles));
+        assert_eq!((taken.table(), taken.angles()), (fresh.table(), fresh.angles()));
+    }
+
+    /// A selection of one run of rows shares the table it was taken from (no row copied) and
+    /// reads the rows and poses a copied selection reads, as does a selection of that selection
+    /// (a run of it shared again, rows out of a run copied); every selection's rows are those of
+    /// a table built for its observations.
+    #[test]
+    fn a_run_of_rows_is_shared() {
+        let model = offset_arm(Convention::Modified);
+        let tips = Tips::new(&model);
+        let data = touches();
+        let full = data.encoders();
+        let rows = |e: &Encoders| (e.table().to_vec(), e.angles().to_vec());
+        let shares =
+            |e: &Encoders| Arc::ptr_eq(&e.table, &full.table) && Arc::ptr_eq(&e.angles, &full.angles);
+        // Observations 3..9 (a run), then 4..6 of those (a run of a run) and 0, 2, 5 of them.
+        let run = data.without(|k| !(3..9).contains(&k));
+        let shared = run.built_encoders().expect("a selection of a built table is built");
+        assert!(shares(shared) && shared.table().len() == 6 * data.joints);
+        let copied = full.rows_of(&[3, 4, 6, 5, 7, 8]).rows_of(&[0, 1, 3, 2, 4, 5]);
+        assert!(!shares(&copied), "rows out of order are copied");
+        assert_eq!(rows(shared), rows(&copied));
+        assert_eq!(rows(shared), rows(&Encoders::of(&run)));
+        for (k, o) in run.obs.iter().enumerate() {
+            let chain = tips.tip(o.tip);
+            assert_eq!(shared.pose(chain, k, o), copied.pose(chain, k, o));
+            assert_eq!(run.pose_on(&tips, k), data.pose_on(&tips, k + 3));
+        }
+        for (kept, from) in [(vec![1, 2, 3], 4), (vec![0, 2, 5], 3)] {
+            let sub = run.without(|k| !kept.contains(&k));
+            let own = sub.built_encoders().expect("a selection of a built table is built");
+            assert_eq!(shares(own), kept[2] - kept[0] == 2, "{kept:?}");
+            assert_eq!(rows(own), rows(&Encoders::of(&sub)), "{kept:?}");
+            assert_eq!(rows(own), rows(&full.rows_of(&kept.iter().map(|k| k + 3).collect::<Vec<_>>())));
+            for (k, o) in sub.obs.iter().enumerate() {
+                assert_eq!(sub.pose_on(&tips, k), Encoders::of(&sub).pose(tips.tip(o.tip), k, o), "{kept:?}");
+            }
+            assert_eq!((sub.obs[0].q_deg, sub.obs[0].line), (data.obs[from].q_deg, data.obs[from].line));
+        }
+        // A session alone (a group's touches are not one run here: copied) and no row at all.
+        let group = data.subset(&[1]);
+        assert_eq!(rows(group.built_encoders().expect("built")), rows(&Encoders::of(&group)));
+        let none = full.rows_of(&[]);
+        assert!(none.table().is_empty() && none.angles().is_empty() && shares(&none));
     }
 
     /// A row is read only while it holds its observation's angles: an angle changed after the
@@ -444,7 +519,7 @@ mod tests {
         // The table a problem reads by index is never the stale one: the changed angle's row is
         // built again (and an unchanged table is the data's own).
         let given = other.encoders().for_data(&data);
-        assert_eq!((given.table(), &given.angles), (fresh.table(), &fresh.angles));
+        assert_eq!((given.table(), given.angles()), (fresh.table(), fresh.angles()));
         assert_eq!(other.encoders().for_data(&other).table().as_ptr(), other.encoders().table().as_ptr());
     }
 }

@@ -5,6 +5,7 @@
 use super::{Observation, Observations};
 use crate::model::kinematics::{encoder_sin_cos, Chain, Tips, ToolPose};
 use crate::model::MAX_TREE_JOINTS;
+use std::borrow::Cow;
 use std::sync::{Arc, OnceLock};
 
 /// The sine and cosine of every encoder angle of some observations (`joints` per observation,
@@ -12,8 +13,8 @@ use std::sync::{Arc, OnceLock};
 /// use and keeps it; the fit's problems read it ([`crate::calib::problem::encoder_table`], which
 /// leaves out observations no term reads, makes the same rows), and each [`crate::calib::fit::Fit`]
 /// keeps the table of its observations for its refits (pinocchio's constant model and
-/// per-algorithm data). A selection of consecutive rows (one session's, [`Encoders::rows_of`])
-/// shares the rows of the table it was taken from.
+/// per-algorithm data). A selection of its rows ([`Encoders::rows_of`]: a session's, a session
+/// left out) shares the rows of the table it was taken from.
 #[derive(Clone)]
 pub struct Encoders {
     joints: usize,
@@ -21,10 +22,22 @@ pub struct Encoders {
     angles: Arc<[u64]>,
     /// `joints` sines and cosines per row shared.
     table: Arc<[(f64, f64)]>,
-    /// The first row shared that this table holds (its row 0).
-    first: usize,
-    /// How many rows shared from `first` on this table holds.
-    rows: usize,
+    /// Which rows shared this table holds, in its order.
+    rows: Rows,
+}
+
+/// The rows shared that an [`Encoders`] holds.
+#[derive(Clone)]
+enum Rows {
+    /// `count` consecutive rows from `first` on (every row of a table built, one session's).
+    Run {
+        /// The first row shared held (row 0).
+        first: usize,
+        /// How many rows are held.
+        count: usize,
+    },
+    /// These rows shared, row `k` the `k`-th (a selection that is no run: a session left out).
+    Picked(Arc<[usize]>),
 }
 
 impl std::fmt::Debug for Encoders {
@@ -48,35 +61,58 @@ impl Encoders {
                 *bits = q.to_bits();
             }
         }
-        Encoders::whole(joints, angles.into(), table.into(), data.obs.len())
+        let rows = Rows::Run { first: 0, count: data.obs.len() };
+        Encoders { joints, angles: angles.into(), table: table.into(), rows }
     }
 
-    /// The table of all `rows` rows of `angles` and `table`.
-    fn whole(joints: usize, angles: Arc<[u64]>, table: Arc<[(f64, f64)]>, rows: usize) -> Encoders {
-        Encoders { joints, angles, table, first: 0, rows }
+    /// Every row, `joints` per observation, in the observations' order: borrowed when the rows
+    /// are one run of the rows shared, else copied.
+    pub fn table(&self) -> Cow<'_, [(f64, f64)]> {
+        match self.by_index() {
+            (rows, None) => Cow::Borrowed(rows),
+            (rows, Some(picked)) => {
+                let joints = self.joints;
+                Cow::Owned(
+                    picked.iter().flat_map(|&r| &rows[r * joints..(r + 1) * joints]).copied().collect(),
+                )
+            }
+        }
     }
 
-    /// Every row, `joints` per observation, in the observations' order.
-    pub fn table(&self) -> &[(f64, f64)] {
-        &self.table[self.first * self.joints..(self.first + self.rows) * self.joints]
-    }
-
-    /// Each row's angle count and its angles' bits, `joints + 1` values per row, in order.
-    fn angles(&self) -> &[u64] {
-        let width = self.joints + 1;
-        &self.angles[self.first * width..(self.first + self.rows) * width]
+    /// Every row as a problem reads them by index ([`crate::calib::problem::KeptForTerms`]):
+    /// row `k` is `joints` values from `joints * r` on of the rows returned, where `r` is the
+    /// `k`-th index returned when there are indices, else `k`.
+    pub(crate) fn by_index(&self) -> (&[(f64, f64)], Option<&[usize]>) {
+        match &self.rows {
+            Rows::Run { first, count } => {
+                (&self.table[first * self.joints..(first + count) * self.joints], None)
+            }
+            Rows::Picked(picked) => (&self.table, Some(picked)),
+        }
     }
 
     /// How many observations the table holds.
     fn rows(&self) -> usize {
-        self.rows
+        match &self.rows {
+            Rows::Run { count, .. } => *count,
+            Rows::Picked(picked) => picked.len(),
+        }
+    }
+
+    /// The row shared that holds row `i`.
+    #[inline]
+    fn shared(&self, i: usize) -> usize {
+        match &self.rows {
+            Rows::Run { first, .. } => first + i,
+            Rows::Picked(picked) => picked[i],
+        }
     }
 
     /// Whether row `i` holds observation `o`'s angles (bit for bit).
     #[inline]
     fn holds(&self, i: usize, o: &Observation) -> bool {
-        let width = self.joints + 1;
-        let key = &self.angles[(self.first + i) * width..(self.first + i + 1) * width];
+        let (width, r) = (self.joints + 1, self.shared(i));
+        let key = &self.angles[r * width..(r + 1) * width];
         key[0] == o.q_deg.len() as u64 && o.q_deg.iter().zip(&key[1..]).all(|(q, b)| q.to_bits() == *b)
     }
 
@@ -102,9 +138,9 @@ impl Encoders {
         o: &Observation,
         own: &'r mut Option<[(f64, f64); MAX_TREE_JOINTS]>,
     ) -> &'r [(f64, f64)] {
-        if k < self.rows && self.holds(k, o) {
-            let row = self.first + k;
-            return &self.table[row * self.joints..(row + 1) * self.joints];
+        if k < self.rows() && self.holds(k, o) {
+            let r = self.shared(k);
+            return &self.table[r * self.joints..(r + 1) * self.joints];
         }
         let own = own.insert([(0.0, 1.0); MAX_TREE_JOINTS]);
         for (sc, &q) in own.iter_mut().zip(o.q_deg.iter()) {
@@ -199,29 +235,28 @@ impl Encoders {
         self.rows_of(&taken)
     }
 
-    /// The table of rows `taken`, in that order: these rows shared when `taken` are one run of
-    /// consecutive rows (one session's), else copied.
+    /// The table of rows `taken`, in that order, sharing these rows (one run of them when
+    /// `taken` are consecutive).
     pub(crate) fn rows_of(&self, taken: &[usize]) -> Encoders {
-        // The length of the run of consecutive rows `taken` starts with.
-        let run = |taken: &[usize]| taken.iter().enumerate().take_while(|&(n, &i)| i == taken[0] + n).count();
-        if run(taken) == taken.len() {
-            let first = self.first + taken.first().copied().unwrap_or(0);
-            return Encoders { first, rows: taken.len(), ..self.clone() };
-        }
-        let (joints, width) = (self.joints, self.joints + 1);
-        let (table_in, angles_in) = (self.table(), self.angles());
-        // Runs of rows copied whole into vectors sized once (an element-wise collect of the
-        // flattened rows grows them one value at a time).
-        let mut table = Vec::with_capacity(taken.len() * joints);
-        let mut angles = Vec::with_capacity(taken.len() * width);
-        let mut rest = taken;
-        while let Some(&start) = rest.first() {
-            let end = start + run(rest);
-            table.extend_from_slice(&table_in[start * joints..end * joints]);
-            angles.extend_from_slice(&angles_in[start * width..end * width]);
-            rest = &rest[end - start..];
-        }
-        Encoders::whole(joints, angles.into(), table.into(), taken.len())
+        let consecutive = taken.windows(2).all(|w| w[1] == w[0] + 1);
+        let rows = match (&self.rows, taken.first()) {
+            (Rows::Run { first, .. }, Some(&i)) if consecutive => {
+                Rows::Run { first: first + i, count: taken.len() }
+            }
+            (_, None) => Rows::Run { first: 0, count: 0 },
+            _ => Rows::Picked(taken.iter().map(|&i| self.shared(i)).collect()),
+        };
+        Encoders { rows, ..self.clone() }
+    }
+
+    /// Each row's angle count and its angles' bits, `joints + 1` values per row, in order.
+    #[cfg(test)]
+    fn angles(&self) -> Vec<u64> {
+        let width = self.joints + 1;
+        (0..self.rows())
+            .flat_map(|i| &self.angles[self.shared(i) * width..(self.shared(i) + 1) * width])
+            .copied()
+            .collect()
     }
 }
 
@@ -437,7 +472,7 @@ mod tests {
         let full = data.encoders().clone();
         let selection = data.without(|k| k % 3 == 1);
         let own = selection.built_encoders().expect("a selection of a built table is built");
-        assert_eq!(full.for_data(&selection).table().as_ptr(), own.table().as_ptr());
+        assert_eq!(read_at(&full.for_data(&selection)), read_at(own));
         assert_eq!(own.table(), Encoders::of(&selection).table());
         let unbuilt = touches().without(|k| k % 4 == 2);
         assert!(unbuilt.built_encoders().is_none());
@@ -446,46 +481,66 @@ mod tests {
         assert_eq!((taken.table(), taken.angles()), (fresh.table(), fresh.angles()));
     }
 
-    /// A selection of one run of rows shares the table it was taken from (no row copied) and
-    /// reads the rows and poses a copied selection reads, as does a selection of that selection
-    /// (a run of it shared again, rows out of a run copied); every selection's rows are those of
-    /// a table built for its observations.
+    /// Where a problem reads a table's rows ([`Encoders::by_index`]).
+    fn read_at(e: &Encoders) -> (*const (f64, f64), Option<*const usize>) {
+        let (rows, picked) = e.by_index();
+        (rows.as_ptr(), picked.map(<[usize]>::as_ptr))
+    }
+
+    /// A selection of rows shares the table it was taken from (no row copied), one run of rows
+    /// read as a slice of it, other rows by index, and reads the rows and poses of a table
+    /// built for its observations, as does a selection of that selection (a run of a run, of
+    /// picked rows; picked rows of either); no row at all.
     #[test]
-    fn a_run_of_rows_is_shared() {
+    fn a_selection_shares_its_rows() {
         let model = offset_arm(Convention::Modified);
         let tips = Tips::new(&model);
         let data = touches();
         let full = data.encoders();
-        let rows = |e: &Encoders| (e.table().to_vec(), e.angles().to_vec());
+        let rows = |e: &Encoders| (e.table().to_vec(), e.angles());
         let shares =
             |e: &Encoders| Arc::ptr_eq(&e.table, &full.table) && Arc::ptr_eq(&e.angles, &full.angles);
-        // Observations 3..9 (a run), then 4..6 of those (a run of a run) and 0, 2, 5 of them.
+        let by_index = |e: &Encoders| {
+            let (rows, picked) = e.by_index();
+            let joints = e.joints;
+            (0..e.rows())
+                .map(|k| picked.map_or(k, |p| p[k]))
+                .flat_map(|r| rows[r * joints..(r + 1) * joints].to_vec())
+                .collect::<Vec<_>>()
+        };
+        let check = |sub: &Observations, label: &str| {
+            let own = sub.built_encoders().expect("a selection of a built table is built");
+            let fresh = Encoders::of(sub);
+            assert!(shares(own), "{label}");
+            assert_eq!(rows(own), rows(&fresh), "{label}");
+            assert_eq!(by_index(own), *fresh.table(), "{label}");
+            for (k, o) in sub.obs.iter().enumerate() {
+                assert_eq!(sub.pose_on(&tips, k), fresh.pose(tips.tip(o.tip), k, o), "{label} {k}");
+            }
+            own.clone()
+        };
+        // Observations 3..9 (a run) and all but 3..9 (picked).
         let run = data.without(|k| !(3..9).contains(&k));
-        let shared = run.built_encoders().expect("a selection of a built table is built");
-        assert!(shares(shared) && shared.table().len() == 6 * data.joints);
-        let copied = full.rows_of(&[3, 4, 6, 5, 7, 8]).rows_of(&[0, 1, 3, 2, 4, 5]);
-        assert!(!shares(&copied), "rows out of order are copied");
-        assert_eq!(rows(shared), rows(&copied));
-        assert_eq!(rows(shared), rows(&Encoders::of(&run)));
-        for (k, o) in run.obs.iter().enumerate() {
-            let chain = tips.tip(o.tip);
-            assert_eq!(shared.pose(chain, k, o), copied.pose(chain, k, o));
+        let own = check(&run, "a run");
+        assert_eq!(read_at(&own), (full.table()[3 * data.joints..].as_ptr(), None));
+        assert_eq!(own.table().as_ptr(), full.table()[3 * data.joints..].as_ptr(), "borrowed");
+        for k in 0..6 {
             assert_eq!(run.pose_on(&tips, k), data.pose_on(&tips, k + 3));
         }
-        for (kept, from) in [(vec![1, 2, 3], 4), (vec![0, 2, 5], 3)] {
-            let sub = run.without(|k| !kept.contains(&k));
-            let own = sub.built_encoders().expect("a selection of a built table is built");
-            assert_eq!(shares(own), kept[2] - kept[0] == 2, "{kept:?}");
-            assert_eq!(rows(own), rows(&Encoders::of(&sub)), "{kept:?}");
-            assert_eq!(rows(own), rows(&full.rows_of(&kept.iter().map(|k| k + 3).collect::<Vec<_>>())));
-            for (k, o) in sub.obs.iter().enumerate() {
-                assert_eq!(sub.pose_on(&tips, k), Encoders::of(&sub).pose(tips.tip(o.tip), k, o), "{kept:?}");
+        let picked = data.without(|k| (3..9).contains(&k));
+        assert!(read_at(&check(&picked, "picked")).1.is_some());
+        for (from, name, of_a_run) in [(&run, "a run's", true), (&picked, "picked", false)] {
+            for kept in [vec![1, 2, 3], vec![0, 2, 5]] {
+                let sub = from.without(|k| !kept.contains(&k));
+                let own = check(&sub, &format!("{name} {kept:?}"));
+                let one_run = of_a_run && kept[2] - kept[0] == 2;
+                assert_eq!(read_at(&own).1.is_none(), one_run, "{name} {kept:?}");
             }
-            assert_eq!((sub.obs[0].q_deg, sub.obs[0].line), (data.obs[from].q_deg, data.obs[from].line));
         }
-        // A session alone (a group's touches are not one run here: copied) and no row at all.
-        let group = data.subset(&[1]);
-        assert_eq!(rows(group.built_encoders().expect("built")), rows(&Encoders::of(&group)));
+        let joints = data.joints;
+        let out_of_order: Vec<(f64, f64)> =
+            [4, 3, 5].iter().flat_map(|&r| full.table()[r * joints..(r + 1) * joints].to_vec()).collect();
+        assert_eq!(*full.rows_of(&[4, 3, 5]).table(), out_of_order[..]);
         let none = full.rows_of(&[]);
         assert!(none.table().is_empty() && none.angles().is_empty() && shares(&none));
     }

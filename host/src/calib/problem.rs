@@ -127,7 +127,7 @@ pub struct KeptForTerms<'a> {
     /// `data.joints` sines and cosines per row.
     pub sin_cos: &'a [(f64, f64)],
     /// Observation `k`'s row, when not row `k` (a selection of a table's rows, read where they
-    /// are: [`Encoders::by_index`]).
+    /// are: `Encoders::by_index`).
     pub rows: Option<&'a [usize]>,
     /// The terms' index.
     pub index: &'a TermIndex,

@@ -13,7 +13,7 @@ use std::sync::{Arc, OnceLock};
 /// use and keeps it; the fit's problems read it ([`crate::calib::problem::encoder_table`], which
 /// leaves out observations no term reads, makes the same rows), and each [`crate::calib::fit::Fit`]
 /// keeps the table of its observations for its refits (pinocchio's constant model and
-/// per-algorithm data). A selection of its rows ([`Encoders::rows_of`]: a session's, a session
+/// per-algorithm data). A selection of its rows (`Encoders::rows_of`: a session's, a session
 /// left out) shares the rows of the table it was taken from.
 #[derive(Clone)]
 pub struct Encoders {

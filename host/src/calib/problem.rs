@@ -18,7 +18,7 @@
 use crate::calib::layout::{Layout, State};
 use crate::calib::terms::{ArmPositions, Poses, Term, TermInput, TermJacobian};
 use crate::data::encoders::pairs;
-use crate::data::Observations;
+use crate::data::{Encoders, Observations};
 use crate::model::kinematics::{encoder_sin_cos, Flange, PoseDerivative, Tips, ToolPose};
 use crate::model::{ArmModel, ParamId};
 use crate::numerics::normal::{add_and_clear, add_rows_gram, GramBuffers, NormalSums, RowTarget, TermRows};
@@ -124,10 +124,22 @@ impl std::ops::Deref for Index<'_> {
 /// What a caller that makes many problems of the same terms keeps for them: the encoder angles'
 /// sines and cosines of [`encoder_table`] and the [`TermIndex`] of those terms and observations.
 pub struct KeptForTerms<'a> {
-    /// `data.joints` sines and cosines per observation.
+    /// `data.joints` sines and cosines per row.
     pub sin_cos: &'a [(f64, f64)],
+    /// Observation `k`'s row, when not row `k` (a selection of a table's rows, read where they
+    /// are: `Encoders::by_index`).
+    pub rows: Option<&'a [usize]>,
     /// The terms' index.
     pub index: &'a TermIndex,
+}
+
+impl<'a> KeptForTerms<'a> {
+    /// The rows of `encoders` (which hold the observations' angles: [`Encoders::for_data`]) and
+    /// the terms' `index`.
+    pub(crate) fn of(encoders: &'a Encoders, index: &'a TermIndex) -> KeptForTerms<'a> {
+        let (sin_cos, rows) = encoders.by_index();
+        KeptForTerms { sin_cos, rows, index }
+    }
 }
 
 /// The terms of some observations over one parameter vector.
@@ -138,8 +150,10 @@ pub struct Problem<'a> {
     data: &'a Observations,
     terms: &'a [Box<dyn Term>],
     index: Index<'a>,
-    /// Per observation read, the sine and cosine of each encoder angle (`joints` per observation).
+    /// Per observation read, the sine and cosine of each encoder angle (`joints` per row).
     sin_cos: Cow<'a, [(f64, f64)]>,
+    /// Observation `k`'s row of `sin_cos`, when not row `k` ([`KeptForTerms::rows`]).
+    rows: Option<&'a [usize]>,
     joints: usize,
     frame_start: Vec<Matrix3<f64>>,
     probe_start: Option<Matrix3<f64>>,
@@ -177,12 +191,12 @@ impl<'a> Problem<'a> {
         probe_start: Option<Matrix3<f64>>,
         kept: Option<KeptForTerms<'a>>,
     ) -> Problem<'a> {
-        let (sin_cos, index) = match kept {
+        let (sin_cos, rows, index) = match kept {
             Some(kept) => {
                 debug_assert_eq!(kept.index.offsets.len(), terms.len());
-                (Cow::Borrowed(kept.sin_cos), Index::Kept(kept.index))
+                (Cow::Borrowed(kept.sin_cos), kept.rows, Index::Kept(kept.index))
             }
-            None => (Cow::Owned(encoder_table(data, terms)), Index::Own(TermIndex::of(data, terms))),
+            None => (Cow::Owned(encoder_table(data, terms)), None, Index::Own(TermIndex::of(data, terms))),
         };
         // Terms of positions alone read no derivative of the tool's axes.
         if index.positions_only {
@@ -196,6 +210,7 @@ impl<'a> Problem<'a> {
             terms,
             index,
             sin_cos,
+            rows,
             joints,
             frame_start,
             probe_start,
@@ -212,7 +227,8 @@ impl<'a> Problem<'a> {
 
     /// Observation `k`'s encoder sines and cosines.
     fn sin_cos(&self, k: usize) -> &[(f64, f64)] {
-        &self.sin_cos[k * self.joints..(k + 1) * self.joints]
+        let r = self.rows.map_or(k, |rows| rows[k]);
+        &self.sin_cos[r * self.joints..(r + 1) * self.joints]
     }
 
     /// The observations the terms read.
@@ -1545,7 +1561,7 @@ mod tests {
             kept.normal_equations(&x, &mut r, Loss::Linear);
             let fresh = Problem::new(layout(arm), &nominal, &data, &terms, starts.clone(), None);
             assert_same_sums(&kept, &fresh, &x, Loss::Linear, &format!("{} arm columns", arm.len()));
-            let on_index = KeptForTerms { sin_cos: &sin_cos, index: &index };
+            let on_index = KeptForTerms { sin_cos: &sin_cos, rows: None, index: &index };
             let shared = Problem::with_kept(
                 layout(arm),
                 &nominal,
@@ -1563,6 +1579,32 @@ mod tests {
                 &format!("{} arm columns, kept index", arm.len()),
             );
         }
+    }
+
+    /// A problem on a session left out of the others, its rows read by index out of the whole
+    /// table ([`KeptForTerms::of`] a selection's [`Encoders`]), gives the sums and group factors
+    /// of a problem whose table is its own, to the bit.
+    #[test]
+    fn rows_read_by_index_are_the_rows_of_a_table_of_their_own() {
+        let nominal = ArmModel::suta_nominal();
+        let data = sessions(&nominal);
+        let params: Vec<_> = nominal.free.iter().map(|f| f.id).collect();
+        data.encoders();
+        let without = data.without(|k| data.obs[k].block == 1);
+        let encoders = without.encoders();
+        assert!(encoders.by_index().1.is_some(), "rows picked out of the whole table");
+        let terms = build(&without, &positions_only());
+        let blocks = without.blocks.len();
+        let tools = vec![true; without.groups.len()];
+        let layout = Layout::new(params.clone(), &vec![true; blocks], &tools, false, &vec![None; blocks]);
+        let index = TermIndex::of(&without, &terms);
+        let kept = Some(KeptForTerms::of(encoders, &index));
+        let (starts, model) = (start_rotations(blocks), &nominal);
+        let picked = Problem::with_kept(layout.clone(), model, &without, &terms, starts.clone(), None, kept);
+        let own = Problem::new(layout, model, &without, &terms, starts, None);
+        let x = framed_point(&picked, &params, model);
+        assert_same_sums(&picked, &own, &x, Loss::Linear, "rows read by index");
+        assert_same_factors(&picked, &own, &x, "rows read by index");
     }
 
     /// The poses of an evaluation without derivatives, taken two at a time, are each

@@ -5,6 +5,7 @@
 use super::{Observation, Observations};
 use crate::model::kinematics::{encoder_sin_cos, Chain, Tips, ToolPose};
 use crate::model::MAX_TREE_JOINTS;
+use std::borrow::Cow;
 use std::sync::{Arc, OnceLock};
 
 /// The sine and cosine of every encoder angle of some observations (`joints` per observation,
@@ -12,13 +13,31 @@ use std::sync::{Arc, OnceLock};
 /// use and keeps it; the fit's problems read it ([`crate::calib::problem::encoder_table`], which
 /// leaves out observations no term reads, makes the same rows), and each [`crate::calib::fit::Fit`]
 /// keeps the table of its observations for its refits (pinocchio's constant model and
-/// per-algorithm data).
+/// per-algorithm data). A selection of its rows (`Encoders::rows_of`: a session's, a session
+/// left out) shares the rows of the table it was taken from.
 #[derive(Clone)]
 pub struct Encoders {
     joints: usize,
-    /// Each observation's angle count and its angles' bits, `joints + 1` values per observation.
+    /// Each observation's angle count and its angles' bits, `joints + 1` values per row shared.
     angles: Arc<[u64]>,
+    /// `joints` sines and cosines per row shared.
     table: Arc<[(f64, f64)]>,
+    /// Which rows shared this table holds, in its order.
+    rows: Rows,
+}
+
+/// The rows shared that an [`Encoders`] holds.
+#[derive(Clone)]
+enum Rows {
+    /// `count` consecutive rows from `first` on (every row of a table built, one session's).
+    Run {
+        /// The first row shared held (row 0).
+        first: usize,
+        /// How many rows are held.
+        count: usize,
+    },
+    /// These rows shared, row `k` the `k`-th (a selection that is no run: a session left out).
+    Picked(Arc<[usize]>),
 }
 
 impl std::fmt::Debug for Encoders {
@@ -42,22 +61,58 @@ impl Encoders {
                 *bits = q.to_bits();
             }
         }
-        Encoders { joints, angles: angles.into(), table: table.into() }
+        let rows = Rows::Run { first: 0, count: data.obs.len() };
+        Encoders { joints, angles: angles.into(), table: table.into(), rows }
     }
 
-    /// Every row, `joints` per observation, in the observations' order.
-    pub fn table(&self) -> &[(f64, f64)] {
-        &self.table
+    /// Every row, `joints` per observation, in the observations' order: borrowed when the rows
+    /// are one run of the rows shared, else copied.
+    pub fn table(&self) -> Cow<'_, [(f64, f64)]> {
+        match self.by_index() {
+            (rows, None) => Cow::Borrowed(rows),
+            (rows, Some(picked)) => {
+                let joints = self.joints;
+                Cow::Owned(
+                    picked.iter().flat_map(|&r| &rows[r * joints..(r + 1) * joints]).copied().collect(),
+                )
+            }
+        }
+    }
+
+    /// Every row as a problem reads them by index ([`crate::calib::problem::KeptForTerms`]):
+    /// row `k` is `joints` values from `joints * r` on of the rows returned, where `r` is the
+    /// `k`-th index returned when there are indices, else `k`.
+    pub(crate) fn by_index(&self) -> (&[(f64, f64)], Option<&[usize]>) {
+        match &self.rows {
+            Rows::Run { first, count } => {
+                (&self.table[first * self.joints..(first + count) * self.joints], None)
+            }
+            Rows::Picked(picked) => (&self.table, Some(picked)),
+        }
     }
 
     /// How many observations the table holds.
     fn rows(&self) -> usize {
-        self.table.len() / self.joints.max(1)
+        match &self.rows {
+            Rows::Run { count, .. } => *count,
+            Rows::Picked(picked) => picked.len(),
+        }
+    }
+
+    /// The row shared that holds row `i`.
+    #[inline]
+    fn shared(&self, i: usize) -> usize {
+        match &self.rows {
+            Rows::Run { first, .. } => first + i,
+            Rows::Picked(picked) => picked[i],
+        }
     }
 
     /// Whether row `i` holds observation `o`'s angles (bit for bit).
+    #[inline]
     fn holds(&self, i: usize, o: &Observation) -> bool {
-        let key = &self.angles[i * (self.joints + 1)..(i + 1) * (self.joints + 1)];
+        let (width, r) = (self.joints + 1, self.shared(i));
+        let key = &self.angles[r * width..(r + 1) * width];
         key[0] == o.q_deg.len() as u64 && o.q_deg.iter().zip(&key[1..]).all(|(q, b)| q.to_bits() == *b)
     }
 
@@ -84,7 +139,8 @@ impl Encoders {
         own: &'r mut Option<[(f64, f64); MAX_TREE_JOINTS]>,
     ) -> &'r [(f64, f64)] {
         if k < self.rows() && self.holds(k, o) {
-            return &self.table[k * self.joints..(k + 1) * self.joints];
+            let r = self.shared(k);
+            return &self.table[r * self.joints..(r + 1) * self.joints];
         }
         let own = own.insert([(0.0, 1.0); MAX_TREE_JOINTS]);
         for (sc, &q) in own.iter_mut().zip(o.q_deg.iter()) {
@@ -179,18 +235,28 @@ impl Encoders {
         self.rows_of(&taken)
     }
 
-    /// The table of rows `taken`, in that order.
+    /// The table of rows `taken`, in that order, sharing these rows (one run of them when
+    /// `taken` are consecutive).
     pub(crate) fn rows_of(&self, taken: &[usize]) -> Encoders {
-        let (joints, width) = (self.joints, self.joints + 1);
-        // Whole rows copied into vectors sized once (an element-wise collect of the flattened
-        // rows grows them one value at a time).
-        let mut table = Vec::with_capacity(taken.len() * joints);
-        let mut angles = Vec::with_capacity(taken.len() * width);
-        for &i in taken {
-            table.extend_from_slice(&self.table[i * joints..(i + 1) * joints]);
-            angles.extend_from_slice(&self.angles[i * width..(i + 1) * width]);
-        }
-        Encoders { joints, angles: angles.into(), table: table.into() }
+        let consecutive = taken.windows(2).all(|w| w[1] == w[0] + 1);
+        let rows = match (&self.rows, taken.first()) {
+            (Rows::Run { first, .. }, Some(&i)) if consecutive => {
+                Rows::Run { first: first + i, count: taken.len() }
+            }
+            (_, None) => Rows::Run { first: 0, count: 0 },
+            _ => Rows::Picked(taken.iter().map(|&i| self.shared(i)).collect()),
+        };
+        Encoders { rows, ..self.clone() }
+    }
+
+    /// Each row's angle count and its angles' bits, `joints + 1` values per row, in order.
+    #[cfg(test)]
+    fn angles(&self) -> Vec<u64> {
+        let width = self.joints + 1;
+        (0..self.rows())
+            .flat_map(|i| &self.angles[self.shared(i) * width..(self.shared(i) + 1) * width])
+            .copied()
+            .collect()
     }
 }
 
@@ -406,13 +472,77 @@ mod tests {
         let full = data.encoders().clone();
         let selection = data.without(|k| k % 3 == 1);
         let own = selection.built_encoders().expect("a selection of a built table is built");
-        assert_eq!(full.for_data(&selection).table().as_ptr(), own.table().as_ptr());
+        assert_eq!(read_at(&full.for_data(&selection)), read_at(own));
         assert_eq!(own.table(), Encoders::of(&selection).table());
         let unbuilt = touches().without(|k| k % 4 == 2);
         assert!(unbuilt.built_encoders().is_none());
         let (taken, fresh) = (full.for_data(&unbuilt), Encoders::of(&unbuilt));
         assert_ne!(taken.table().len(), full.table().len(), "rows were left out");
-        assert_eq!((taken.table(), &taken.angles), (fresh.table(), &fresh.angles));
+        assert_eq!((taken.table(), taken.angles()), (fresh.table(), fresh.angles()));
+    }
+
+    /// Where a problem reads a table's rows ([`Encoders::by_index`]).
+    fn read_at(e: &Encoders) -> (*const (f64, f64), Option<*const usize>) {
+        let (rows, picked) = e.by_index();
+        (rows.as_ptr(), picked.map(<[usize]>::as_ptr))
+    }
+
+    /// A selection of rows shares the table it was taken from (no row copied), one run of rows
+    /// read as a slice of it, other rows by index, and reads the rows and poses of a table
+    /// built for its observations, as does a selection of that selection (a run of a run, of
+    /// picked rows; picked rows of either); no row at all.
+    #[test]
+    fn a_selection_shares_its_rows() {
+        let model = offset_arm(Convention::Modified);
+        let tips = Tips::new(&model);
+        let data = touches();
+        let full = data.encoders();
+        let rows = |e: &Encoders| (e.table().to_vec(), e.angles());
+        let shares =
+            |e: &Encoders| Arc::ptr_eq(&e.table, &full.table) && Arc::ptr_eq(&e.angles, &full.angles);
+        let by_index = |e: &Encoders| {
+            let (rows, picked) = e.by_index();
+            let joints = e.joints;
+            (0..e.rows())
+                .map(|k| picked.map_or(k, |p| p[k]))
+                .flat_map(|r| rows[r * joints..(r + 1) * joints].to_vec())
+                .collect::<Vec<_>>()
+        };
+        let check = |sub: &Observations, label: &str| {
+            let own = sub.built_encoders().expect("a selection of a built table is built");
+            let fresh = Encoders::of(sub);
+            assert!(shares(own), "{label}");
+            assert_eq!(rows(own), rows(&fresh), "{label}");
+            assert_eq!(by_index(own), *fresh.table(), "{label}");
+            for (k, o) in sub.obs.iter().enumerate() {
+                assert_eq!(sub.pose_on(&tips, k), fresh.pose(tips.tip(o.tip), k, o), "{label} {k}");
+            }
+            own.clone()
+        };
+        // Observations 3..9 (a run) and all but 3..9 (picked).
+        let run = data.without(|k| !(3..9).contains(&k));
+        let own = check(&run, "a run");
+        assert_eq!(read_at(&own), (full.table()[3 * data.joints..].as_ptr(), None));
+        assert_eq!(own.table().as_ptr(), full.table()[3 * data.joints..].as_ptr(), "borrowed");
+        for k in 0..6 {
+            assert_eq!(run.pose_on(&tips, k), data.pose_on(&tips, k + 3));
+        }
+        let picked = data.without(|k| (3..9).contains(&k));
+        assert!(read_at(&check(&picked, "picked")).1.is_some());
+        for (from, name, of_a_run) in [(&run, "a run's", true), (&picked, "picked", false)] {
+            for kept in [vec![1, 2, 3], vec![0, 2, 5]] {
+                let sub = from.without(|k| !kept.contains(&k));
+                let own = check(&sub, &format!("{name} {kept:?}"));
+                let one_run = of_a_run && kept[2] - kept[0] == 2;
+                assert_eq!(read_at(&own).1.is_none(), one_run, "{name} {kept:?}");
+            }
+        }
+        let joints = data.joints;
+        let out_of_order: Vec<(f64, f64)> =
+            [4, 3, 5].iter().flat_map(|&r| full.table()[r * joints..(r + 1) * joints].to_vec()).collect();
+        assert_eq!(*full.rows_of(&[4, 3, 5]).table(), out_of_order[..]);
+        let none = full.rows_of(&[]);
+        assert!(none.table().is_empty() && none.angles().is_empty() && shares(&none));
     }
 
     /// A row is read only while it holds its observation's angles: an angle changed after the
@@ -444,7 +574,7 @@ mod tests {
         // The table a problem reads by index is never the stale one: the changed angle's row is
         // built again (and an unchanged table is the data's own).
         let given = other.encoders().for_data(&data);
-        assert_eq!((given.table(), &given.angles), (fresh.table(), &fresh.angles));
+        assert_eq!((given.table(), given.angles()), (fresh.table(), fresh.angles()));
         assert_eq!(other.encoders().for_data(&other).table().as_ptr(), other.encoders().table().as_ptr());
     }
 }

@@ -308,7 +308,7 @@ impl<'a> Pieces<'a> {
             &self.terms,
             frames.iter().map(|f| f.rotation).collect(),
             probe.filter(|_| self.resolved.orientation_weight_mm_per_rad.is_some()),
-            Some(KeptForTerms { sin_cos: self.encoders.table(), index }),
+            Some(KeptForTerms::of(&self.encoders, index)),
         )
     }
 

@@ -85,23 +85,31 @@ pub const PLOTTABLE: f64 = 1e12;
 
 /// The pixel coordinate `px` in tenths, rounded as `{:.1}` writes it, and whether a minus sign
 /// leads it (`-0.0` has one, as in the formatter's text); `None` where only the formatter can tell
-/// (not finite, beyond 10¹⁵ tenths, or px·10 on a half). The formatter's exact decimal expansion
-/// is costly: a scatter plot writes two coordinates per point and the plots of a 3 600-point run
-/// were a fourteenth of its instructions. The rounded product px·10 differs from the exact one's
-/// rounding only where it lands on a half (halves are exact in binary and rounding is monotone).
-/// Below 10¹⁵ the product's whole part and fraction are exact in `f64`, so the rounding is
-/// integer arithmetic (no `round` call, a library call on the baseline x86-64 target).
+/// (not finite, or beyond 10¹⁵ tenths). The formatter's exact decimal expansion is costly: a
+/// scatter plot writes two coordinates per point and the plots of a 3 600-point run were a
+/// fourteenth of its instructions. The rounded product |px|·10 differs from the exact one's
+/// rounding only where it lands on a half (halves are exact in binary and rounding is monotone);
+/// there the product's rounding error, exact as 2|px| − (|px|·10 − 8|px|) (both terms exact
+/// multiples by powers of two, the larger first: Fast2Sum), says to which side the exact product
+/// lies, and an exact half goes to the even tenth as the formatter's does. Below 10¹⁵ the
+/// product's whole part and fraction are exact in `f64`, so the rounding is integer arithmetic
+/// (no `round` call, a library call on the baseline x86-64 target).
 fn tenths(px: f64) -> Option<(bool, u64)> {
-    let scaled = px * 10.0;
-    if scaled.is_nan() || scaled.abs() >= 1e15 {
+    let magnitude = px.abs();
+    let scaled = magnitude * 10.0;
+    if scaled.is_nan() || scaled >= 1e15 {
         return None;
     }
+    // Through `i64`: the conversions of an unsigned integer take several instructions on x86-64.
     let whole = scaled as i64;
-    let fraction = (scaled - whole as f64).abs();
-    if fraction == 0.5 {
-        return None;
-    }
-    Some((px.is_sign_negative(), whole.unsigned_abs() + u64::from(fraction > 0.5)))
+    let fraction = scaled - whole as f64;
+    let up = if fraction == 0.5 {
+        let error = 2.0 * magnitude - (scaled - 8.0 * magnitude);
+        error > 0.0 || (error == 0.0 && whole % 2 == 1)
+    } else {
+        fraction > 0.5
+    };
+    Some((px.is_sign_negative(), whole.unsigned_abs() + u64::from(up)))
 }
 
 /// A plot's points, `<circle>` elements and the like, as bytes, put on the page at once by
@@ -828,12 +836,40 @@ mod tests {
             assert_eq!(out, expected);
         }
         // The integer path, not the formatter's, writes these: beside a half the fraction
-        // rounds, and zero keeps its sign.
+        // rounds, zero keeps its sign, a product rounded onto a half goes to the exact product's
+        // side (0.05 is a little above, 0.15 a little below) and an exact half to the even tenth.
         assert_eq!(tenths(0.26), Some((false, 3)));
         assert_eq!(tenths(-0.04), Some((true, 0)));
         assert_eq!(tenths(-1234.56), Some((true, 12346)));
-        assert_eq!(tenths(0.25), None);
+        assert_eq!(tenths(0.05), Some((false, 1)));
+        assert_eq!(tenths(0.15), Some((false, 1)));
+        assert_eq!(tenths(0.25), Some((false, 2)));
+        assert_eq!(tenths(-0.75), Some((true, 8)));
         assert_eq!(tenths(f64::NAN), None);
+        assert_eq!(tenths(f64::INFINITY), None);
+        assert_eq!(tenths(1e15), None);
+        // Every value near a half of a tenth below 10 000 px (the decimals k/20, most not exact,
+        // and their neighbours one ulp away), the exact halves k/4 below 50 000 px, both signs:
+        // the integer path writes each (no formatter), as the formatter does.
+        let text = |px: f64| {
+            let (negative, tenths) = tenths(px).expect("finite and below 10¹⁵ tenths");
+            format!("{}{}.{}", if negative { "-" } else { "" }, tenths / 10, tenths % 10)
+        };
+        for k in 0..200_000u32 {
+            let half = f64::from(k) / 20.0;
+            for px in [half, f64::from(k) / 4.0, half.next_up(), half.next_down()] {
+                for px in [px, -px] {
+                    assert_eq!(text(px), format!("{px:.1}"), "{px:e}");
+                }
+            }
+        }
+        // Large values near halves (ulps of a tenth and more) likewise.
+        for k in 0..40u32 {
+            let power = 10f64.powi(i32::try_from(k % 14).unwrap_or(0));
+            for px in [power * 1.25, power * 7.75 + 0.05, (power * 3.0 + 0.25).next_up(), power * 9.95] {
+                assert_eq!(text(px), format!("{px:.1}"), "{px:e}");
+            }
+        }
     }
 
     #[test]

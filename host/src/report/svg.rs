@@ -484,12 +484,13 @@ fn scatter_on_into(
         return false;
     }
     let frame = Frame::new(310.0, 210.0, (x0, x1), (y0, y1));
-    // A point is one circle of about 80 bytes.
-    out.reserve(2048 + 80 * points.len());
+    // A point is one circle of about 40 bytes.
+    out.reserve(2048 + 40 * points.len());
     frame.open(out, x_label, y_label, true);
-    let dot = format!(r#"r="1.6" fill="{}" fill-opacity="0.5"/>"#, COLORS[1]);
+    // The dots' fill in one group around them, not on each dot (it was 59 % of a page's bytes).
+    let _ = write!(out, r#"<g fill="{}" fill-opacity="0.5">"#, COLORS[1]);
     let mut beyond = 0;
-    let mut dots = Dots::new(points.len(), &dot);
+    let mut dots = Dots::new(points.len(), r#"r="1.6"/>"#);
     for (x, y) in points {
         let clipped = y.clamp(frame.y.0, frame.y.1);
         if clipped != *y {
@@ -498,7 +499,7 @@ fn scatter_on_into(
             let dir = if *y > clipped { -1.0 } else { 1.0 };
             let _ = write!(
                 dots,
-                r#"<polygon points="{:.1},{:.1} {:.1},{:.1} {:.1},{:.1}" fill="{}"/>"#,
+                r#"<polygon points="{:.1},{:.1} {:.1},{:.1} {:.1},{:.1}" fill="{}" fill-opacity="1"/>"#,
                 cx,
                 cy + dir * 0.5,
                 cx - 3.5,
@@ -512,6 +513,7 @@ fn scatter_on_into(
         dots.circle(frame.px(*x), frame.py(*y));
     }
     dots.finish(out);
+    out.push_str("</g>");
     // The curve as polylines, broken where its x steps jump (a gap in the data).
     let step = curve.windows(2).map(|w| w[1].0 - w[0].0).filter(|d| *d > 0.0).fold(f64::INFINITY, f64::min);
     let mut runs: Vec<Vec<(f64, f64)>> = Vec::new();
@@ -570,12 +572,13 @@ pub fn timeline(series: &[(&str, &[(f64, f64)])], marks: &[f64], x_label: &str, 
         );
     }
     for (k, (_, points)) in series.iter().enumerate() {
-        let dot = format!(r#"r="1.6" fill="{}" fill-opacity="0.6"/>"#, COLORS[k % COLORS.len()]);
-        let mut dots = Dots::new(points.len(), &dot);
+        let _ = write!(out, r#"<g fill="{}" fill-opacity="0.6">"#, COLORS[k % COLORS.len()]);
+        let mut dots = Dots::new(points.len(), r#"r="1.6"/>"#);
         for (x, y) in points.iter() {
             dots.circle(frame.px(*x), frame.py(y.clamp(frame.y.0, frame.y.1)));
         }
         dots.finish(&mut out);
+        out.push_str("</g>");
     }
     legend(&mut out, &frame, &series.iter().map(|s| s.0).collect::<Vec<_>>());
     out + "</svg>"

@@ -810,14 +810,11 @@ impl<'m> Chain<'m> {
     {
         if let Some((columns, jacs)) = wanted {
             let scale = Lanes::splat(self.scale);
-            let count = jacs.iter().map(|jac| jac.len()).min().unwrap_or(0);
-            // Local slices of `count` columns each: no bounds check per column.
-            let mut jacs: [&mut [PoseDerivative]; N] = jacs.each_mut().map(|jac| &mut jac[..count]);
-            // V and W of column c; dp = (W × p + V)·scale.
-            let moved = |jacs: &[&mut [PoseDerivative]; N], c: usize| {
+            // V and W of a column (one per pose); dp = (W × p + V)·scale.
+            let moved = |cols: &[&mut PoseDerivative]| {
                 let mut entries = [[0.0; 6]; N];
-                for (e, jac) in entries.iter_mut().zip(jacs) {
-                    e.copy_from_slice(&jac[c][..6]);
+                for (e, col) in entries.iter_mut().zip(cols) {
+                    e.copy_from_slice(&col[..6]);
                 }
                 let vw = lanes::ungathered(&entries);
                 let w = [vw[3], vw[4], vw[5]];
@@ -825,21 +822,21 @@ impl<'m> Chain<'m> {
             };
             // One loop per case, none with a branch per column.
             if columns.axes {
-                for c in 0..count {
-                    let (w, dp) = moved(&jacs, c);
+                Poses::<N>::each_column(jacs, |cols| {
+                    let (w, dp) = moved(cols);
                     let (dx, dz) = (lanes::cross(&w, &x_axis), lanes::cross(&w, &z_axis));
-                    for (i, jac) in jacs.iter_mut().enumerate() {
+                    for (i, col) in cols.iter_mut().enumerate() {
                         let [p, x, z] = [dp, dx, dz];
-                        jac[c] = [p[0], p[1], p[2], x[0], x[1], x[2], z[0], z[1], z[2]].map(|v| v.lane(i));
+                        **col = [p[0], p[1], p[2], x[0], x[1], x[2], z[0], z[1], z[2]].map(|v| v.lane(i));
                     }
-                }
+                });
             } else {
-                for c in 0..count {
-                    let (_, dp) = moved(&jacs, c);
-                    for (i, jac) in jacs.iter_mut().enumerate() {
-                        jac[c] = [dp[0].lane(i), dp[1].lane(i), dp[2].lane(i), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+                Poses::<N>::each_column(jacs, |cols| {
+                    let (_, dp) = moved(cols);
+                    for (i, col) in cols.iter_mut().enumerate() {
+                        **col = [dp[0].lane(i), dp[1].lane(i), dp[2].lane(i), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
                     }
-                }
+                });
             }
             if let Some(c) = columns.column(ParamId::Scale.dense_index()) {
                 for (i, jac) in jacs.iter_mut().enumerate() {

@@ -74,42 +74,52 @@ pub(super) type Encoders<'e> = (&'e [f64], &'e [(f64, f64)]);
 pub(super) type Wanted<'c, 'j, const N: usize> = (&'c ColumnMap, &'c mut [&'j mut [PoseDerivative]; N]);
 
 /// The frames carried from the base (one per pose) and the columns written so far.
-struct Pass<'c, 'j, const N: usize>
+struct Pass<'c, const N: usize>
 where
     Poses<N>: Width,
 {
     axes: [Vec3<N>; 3],
     origin: Vec3<N>,
-    wanted: Option<Wanted<'c, 'j, N>>,
+    /// The wanted columns and, per pose, its buffer cut to the columns every pose's holds (held
+    /// here, not behind the caller's array: the stores cannot alias them, so each column's
+    /// buffers take no reload and one bounds check for all poses).
+    wanted: Option<(&'c ColumnMap, [&'c mut [PoseDerivative]; N])>,
     /// Columns written (per pose).
     written: usize,
 }
 
-impl<'c, 'j, const N: usize> Pass<'c, 'j, N>
+impl<'c, const N: usize> Pass<'c, N>
 where
     Poses<N>: Width,
 {
     /// The base frame, no column written.
     #[inline(always)]
-    fn base(wanted: Option<Wanted<'c, 'j, N>>) -> Self {
+    fn base(wanted: Option<Wanted<'c, '_, N>>) -> Self {
         let (zero, one) = (Lanes::splat(0.0), Lanes::splat(1.0));
         Pass {
             axes: [[one, zero, zero], [zero, one, zero], [zero, zero, one]],
             origin: [zero; 3],
-            wanted,
+            wanted: wanted.map(Self::cut),
             written: 0,
         }
     }
 
+    /// The wanted columns with each pose's buffer cut to the columns every pose's holds.
+    #[inline(always)]
+    fn cut((columns, jacs): Wanted<'c, '_, N>) -> (&'c ColumnMap, [&'c mut [PoseDerivative]; N]) {
+        let count = jacs.iter().map(|jac| jac.len()).min().unwrap_or(0);
+        (columns, jacs.each_mut().map(|jac| &mut jac[..count]))
+    }
+
     /// The poses' frames at the flange `flanges`, no column written.
     #[inline(always)]
-    fn at(flanges: [&Flange; N], wanted: Option<Wanted<'c, 'j, N>>) -> Self {
+    fn at(flanges: [&Flange; N], wanted: Option<Wanted<'c, '_, N>>) -> Self {
         let vector =
             |v: fn(&Flange) -> &[f64; 3]| std::array::from_fn(|k| Lanes::from_fn(|i| v(flanges[i])[k]));
         Pass {
             axes: [vector(|f| &f.axes[0]), vector(|f| &f.axes[1]), vector(|f| &f.axes[2])],
             origin: vector(|f| &f.origin_mm),
-            wanted,
+            wanted: wanted.map(Self::cut),
             written: 0,
         }
     }
@@ -253,12 +263,12 @@ impl Chain<'_> {
 
     /// `pass` carried through `rows`.
     #[inline(always)]
-    fn dh_rows<'c, 'j, const N: usize>(
+    fn dh_rows<'c, const N: usize>(
         &self,
         rows: &[Row],
         enc: &[Encoders<'_>; N],
-        mut pass: Pass<'c, 'j, N>,
-    ) -> Pass<'c, 'j, N>
+        mut pass: Pass<'c, N>,
+    ) -> Pass<'c, N>
     where
         Poses<N>: Width,
     {
@@ -286,7 +296,7 @@ impl Chain<'_> {
     /// The tool shift ending a pass at the flange: the tool frame and the count of columns the
     /// whole pass wrote.
     #[inline(always)]
-    fn tool_shift<const N: usize>(&self, mut pass: Pass<'_, '_, N>) -> (TipFrame<N>, usize)
+    fn tool_shift<const N: usize>(&self, mut pass: Pass<'_, N>) -> (TipFrame<N>, usize)
     where
         Poses<N>: Width,
     {

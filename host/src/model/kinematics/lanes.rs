@@ -13,6 +13,7 @@
 //! `unsafe`, which `core::arch` would need). No fused multiply-add anywhere: it rounds once
 //! where the scalar code rounds twice.
 
+use super::PoseDerivative;
 use std::ops::{Add, Mul, Neg, Sub};
 use wide::f64x2;
 
@@ -30,6 +31,9 @@ pub(super) trait Width {
     fn from_fn(value: impl FnMut(usize) -> f64) -> Self::Register;
     /// The value of lane `i`.
     fn lane(register: Self::Register, i: usize) -> f64;
+    /// Calls `each` with every column the poses' buffers `buffers` (one per pose) all hold, one
+    /// per buffer, the buffers walked together (no bounds check per column).
+    fn each_column(buffers: &mut [&mut [PoseDerivative]], each: impl FnMut(&mut [&mut PoseDerivative]));
 }
 
 /// `N` poses carried together (one or two: a [`Width`] for each).
@@ -49,6 +53,13 @@ impl Width for Poses<1> {
     fn lane(register: f64, _: usize) -> f64 {
         register
     }
+    #[inline(always)]
+    fn each_column(buffers: &mut [&mut [PoseDerivative]], mut each: impl FnMut(&mut [&mut PoseDerivative])) {
+        debug_assert_eq!(buffers.len(), 1, "one buffer per pose");
+        if let [first] = buffers {
+            first.iter_mut().for_each(|a| each(&mut [a]));
+        }
+    }
 }
 
 impl Width for Poses<2> {
@@ -64,6 +75,13 @@ impl Width for Poses<2> {
     #[inline(always)]
     fn lane(register: f64x2, i: usize) -> f64 {
         register.as_array()[i]
+    }
+    #[inline(always)]
+    fn each_column(buffers: &mut [&mut [PoseDerivative]], mut each: impl FnMut(&mut [&mut PoseDerivative])) {
+        debug_assert_eq!(buffers.len(), 2, "one buffer per pose");
+        if let [first, second] = buffers {
+            first.iter_mut().zip(second.iter_mut()).for_each(|(a, b)| each(&mut [a, b]));
+        }
     }
 }
 
@@ -270,6 +288,32 @@ mod tests {
                 assert_eq!(lanes(Lanes::splat(a)), [bits(a); 2], "{label} splat");
             }
         }
+    }
+
+    /// The columns walked together are every column the buffers all hold, in order, each
+    /// pose's from its own buffer (the longer buffer's last column left alone), for one pose and
+    /// two.
+    #[test]
+    fn columns_walked_together_are_each_buffers_columns_in_order() {
+        let column = |pose: usize, c: usize| [(10 * pose + c) as f64; 9];
+        let mut one: Vec<PoseDerivative> = (0..3).map(|c| column(0, c)).collect();
+        let mut seen = Vec::new();
+        Poses::<1>::each_column(&mut [&mut one], |cols| {
+            seen.push(cols.iter().map(|col| col[0]).collect::<Vec<_>>());
+            cols.iter_mut().for_each(|col| col[8] = -1.0);
+        });
+        assert_eq!(seen, [[0.0], [1.0], [2.0]]);
+        assert!(one.iter().all(|col| col[8] == -1.0));
+        let (mut a, mut b): (Vec<PoseDerivative>, Vec<PoseDerivative>) =
+            ((0..3).map(|c| column(0, c)).collect(), (0..4).map(|c| column(1, c)).collect());
+        let mut seen = Vec::new();
+        Poses::<2>::each_column(&mut [&mut a, &mut b], |cols| {
+            seen.push(cols.iter().map(|col| col[0]).collect::<Vec<_>>());
+            cols.iter_mut().for_each(|col| col[8] = -1.0);
+        });
+        assert_eq!(seen, [[0.0, 10.0], [1.0, 11.0], [2.0, 12.0]]);
+        assert!(a.iter().chain(&b[..3]).all(|col| col[8] == -1.0));
+        assert_eq!(b[3], column(1, 3), "the column only one buffer holds");
     }
 
     /// A column's values gathered into the buffers and read back are the values, for one pose

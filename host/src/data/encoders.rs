@@ -236,8 +236,10 @@ impl Encoders {
     }
 
     /// The table of rows `taken`, in that order, sharing these rows (one run of them when
-    /// `taken` are consecutive).
+    /// `taken` are consecutive); every row taken is one of this table's (a run past its end
+    /// would read the shared rows after it).
     pub(crate) fn rows_of(&self, taken: &[usize]) -> Encoders {
+        debug_assert!(taken.iter().all(|&i| i < self.rows()), "a row past the table's end");
         let consecutive = taken.windows(2).all(|w| w[1] == w[0] + 1);
         let rows = match (&self.rows, taken.first()) {
             (Rows::Run { first, .. }, Some(&i)) if consecutive => {

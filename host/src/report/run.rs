@@ -138,8 +138,8 @@ pub(crate) fn run_report_in_parts<E>(
     part(body)
 }
 
-/// About the size of a scatter plot's point (one `<circle>` element).
-const POINT_BYTES: usize = 80;
+/// About the size of a scatter plot's point (one `<circle>` element, its fill the group's).
+const POINT_BYTES: usize = 40;
 /// About the size of a scatter plot's frame (axes, ticks, labels).
 const PLOT_BYTES: usize = 4096;
 

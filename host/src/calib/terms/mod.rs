@@ -25,6 +25,7 @@ use crate::data::Observations;
 use crate::model::kinematics::{PoseDerivative, ToolPose};
 use crate::numerics::normal::{RowTarget, TermRows};
 use nalgebra::{Matrix3, Vector3};
+use wide::f64x2;
 
 /// The tool poses of some observations (those from `first` on) at one evaluation, with their
 /// derivatives over the arm's columns when a Jacobian is asked for.
@@ -207,24 +208,51 @@ impl Derivatives3 for TermRows<'_> {
     }
 
     /// Straight into the three rows' runs when the batch holds the arm's columns in order (no
-    /// place looked up per column), else column by column.
+    /// place looked up per column, two columns at a time: [`turned_rows`]), else column by
+    /// column.
     fn put_arm(&mut self, chain: &[PoseDerivative], rotation: &Matrix3<f64>, growth: f64) {
-        let Some([x, y, z]) = self.span3(0..chain.len()) else {
+        let Some(rows) = self.span3(0..chain.len()) else {
             for (c, d) in chain.iter().enumerate() {
                 self.put(c, turned(rotation, d) * growth);
             }
             return;
         };
-        let rows = x.iter_mut().zip(y.iter_mut()).zip(z.iter_mut());
+        // Without a drift's growth, no product by 1 per column (the same values).
         if growth == 1.0 {
-            for (((x, y), z), d) in rows.zip(chain) {
-                [*x, *y, *z] = turned(rotation, d).into();
-            }
+            turned_rows(rows, chain, rotation, |v| v);
         } else {
-            for (((x, y), z), d) in rows.zip(chain) {
-                [*x, *y, *z] = (turned(rotation, d) * growth).into();
-            }
+            let growth = f64x2::splat(growth);
+            turned_rows(rows, chain, rotation, |v| v * growth);
         }
+    }
+}
+
+/// Rows x, y, z of the columns of `chain` (a value per column in each) from [`turned`] of each
+/// pose derivative, its three values then passed through `then`: two columns per `f64x2`, one
+/// packed multiply or add serving both (no fused multiply-add: each lane's values are those of
+/// its column alone, to the bit); an odd last column is its pair's first lane (the pair made of
+/// it twice).
+#[inline(always)]
+fn turned_rows(
+    [x, y, z]: [&mut [f64]; 3],
+    chain: &[PoseDerivative],
+    rotation: &Matrix3<f64>,
+    then: impl Fn(f64x2) -> f64x2,
+) {
+    let r: [[f64x2; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|k| f64x2::splat(rotation[(i, k)])));
+    let pair = |a: &PoseDerivative, b: &PoseDerivative| {
+        let [d0, d1, d2] = std::array::from_fn(|k| f64x2::new([a[k], b[k]]));
+        r.map(|[r0, r1, r2]| then(r0 * d0 + r1 * d1 + r2 * d2))
+    };
+    let (pairs, last) = chain.as_chunks::<2>();
+    let ((xs, x_last), (ys, y_last), (zs, z_last)) =
+        (x.as_chunks_mut(), y.as_chunks_mut(), z.as_chunks_mut());
+    let rows = xs.iter_mut().zip(ys.iter_mut()).zip(zs.iter_mut());
+    for (((x, y), z), [a, b]) in rows.zip(pairs) {
+        [*x, *y, *z] = pair(a, b).map(f64x2::to_array);
+    }
+    if let ([d], [x], [y], [z]) = (last, x_last, y_last, z_last) {
+        [*x, *y, *z] = pair(d, d).map(|v| v.as_array()[0]);
     }
 }
 
@@ -336,6 +364,48 @@ mod tests {
                 turned.iter().zip(&product).all(|(a, b)| a.to_bits() == b.to_bits()),
                 "{turned} {product}"
             );
+        }
+    }
+
+    /// The arm's columns written into a batch's rows two at a time are those written one column
+    /// at a time (each [`turned`] times the growth, through [`Derivatives3::put`]) to the bit, for
+    /// odd and even column counts, with and without a growth, with derivatives that are not
+    /// finite (a NaN, an infinity) among them.
+    #[test]
+    fn the_arm_rows_two_columns_at_a_time_are_those_column_by_column() {
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let same = |a: f64, b: f64| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
+        for arm in [0, 1, 2, 3, 13, 14, 25] {
+            // The arm's columns at places 2.. of rows of `stride` values (the batch's order).
+            let stride = arm + 4;
+            let local: Vec<usize> = (2..arm + 2).collect();
+            let span = 0..arm;
+            let columns = std::slice::from_ref(&span);
+            for k in 0..80 {
+                let growth = if k % 2 == 0 { 1.0 } else { 1.0 + 1e-4 * next() };
+                let r = Matrix3::from_fn(|_, _| next());
+                let mut chain: Vec<PoseDerivative> =
+                    (0..arm).map(|_| std::array::from_fn(|_| next() * 1e3)).collect();
+                if arm > 2 {
+                    chain[1][0] = f64::NAN;
+                    chain[arm - 1][2] = f64::INFINITY;
+                }
+                let (mut pairs, mut single) = (vec![0.5; 3 * stride], vec![0.5; 3 * stride]);
+                TermRows::new(&mut pairs, stride, &local, columns).put_arm(&chain, &r, growth);
+                let mut rows = TermRows::new(&mut single, stride, &local, columns);
+                for (c, d) in chain.iter().enumerate() {
+                    rows.put(c, turned(&r, d) * growth);
+                }
+                for (p, (a, b)) in pairs.iter().zip(&single).enumerate() {
+                    assert!(same(*a, *b), "{arm} columns, growth {growth}, place {p}: {a} {b}");
+                }
+            }
         }
     }
 }

@@ -414,8 +414,9 @@ impl ScipyRuns {
 }
 
 /// The artefact's whole `kincal calibrate --no-outliers` process on `p`'s data written to files:
-/// median CPU (all threads) and wall time over `runs`.
-fn artefact_process(p: &Problems, dir: &Path, runs: usize) -> Result<Figure> {
+/// median CPU (all threads) and wall time over `runs`; and those of `peer`, run after each of them
+/// (interleaved: the same load for both).
+fn artefact_process(p: &Problems, dir: &Path, runs: usize, peer: &mut Command) -> Result<(Figure, Figure)> {
     p.sim.write(&dir.join("data"))?;
     p.nominal.save(&dir.join("nominal.toml"))?;
     let exe = std::env::current_exe()?;
@@ -434,16 +435,22 @@ fn artefact_process(p: &Problems, dir: &Path, runs: usize) -> Result<Figure> {
         "--no-outliers".into(),
         "--json".into(),
     ];
-    let mut figures = Vec::new();
+    let (mut figures, mut peer_figures) = (Vec::new(), Vec::new());
     for _ in 0..runs {
         let (_, figure) = run_json(Command::new(&exe).arg("calibrate").args(&arguments))?;
         figures.push(figure);
+        peer_figures.push(run_json(peer)?.1);
     }
-    Ok(Figure {
+    Ok((median_figure(&figures), median_figure(&peer_figures)))
+}
+
+/// The median CPU and wall time of `figures`.
+fn median_figure(figures: &[Figure]) -> Figure {
+    Figure {
         cpu_ms: median(figures.iter().map(|f| f.cpu_ms).collect()),
         wall_ms: median(figures.iter().map(|f| f.wall_ms).collect()),
         iterations: None,
-    })
+    }
 }
 
 /// `kincal bench --peers`: the table of the three tools and the limit, and the agreement.
@@ -485,18 +492,26 @@ pub fn peers_benchmark(args: &BenchArgs) -> Result<()> {
     };
     let (ceres_all, ceres_one, ceres_tracker) =
         (inside(&artefact)?, inside(&artefact_one)?, inside(&tracker)?);
-    let (_, ceres_artefact_process) = run_json(Command::new(&ceres).arg("artefact").arg(&p.artefact_file))?;
-    let (_, ceres_tracker_process) = run_json(Command::new(&ceres).arg("tracker").arg(&p.tracker_file))?;
 
     // SciPy: once each (seconds).
     let scipy = if args.no_scipy { None } else { Some(ScipyRuns::run(python, &p)?) };
 
-    // The whole processes, kincal's last (seconds each).
+    // The whole processes, kincal's and Ceres' interleaved, last (seconds each).
     let artefact_dir = Scratch::new("peers-artefact-run")?;
-    let kincal_artefact_process = artefact_process(&p, &artefact_dir.0, 5)?;
-    let (wall_s, cpu_s, _) =
-        crate::bench_tracker::whole_process(&p.tracker_nominal, &p.tracker_cal, &p.tracker_val)?;
+    let (kincal_artefact_process, ceres_artefact_process) =
+        artefact_process(&p, &artefact_dir.0, 9, Command::new(&ceres).arg("artefact").arg(&p.artefact_file))?;
+    let mut ceres_tracker_command = Command::new(&ceres);
+    ceres_tracker_command.arg("tracker").arg(&p.tracker_file);
+    let ((wall_s, cpu_s), _, peer) = crate::bench_tracker::whole_process(
+        &p.tracker_nominal,
+        &p.tracker_cal,
+        &p.tracker_val,
+        Some(&mut ceres_tracker_command),
+    )?;
     let kincal_tracker_process = Figure { cpu_ms: cpu_s * 1e3, wall_ms: wall_s * 1e3, iterations: None };
+    let (peer_wall_s, peer_cpu_s) = peer.context("the Ceres tracker process was not run")?;
+    let ceres_tracker_process =
+        Figure { cpu_ms: peer_cpu_s * 1e3, wall_ms: peer_wall_s * 1e3, iterations: None };
 
     // The limit: the fewer Jacobian evaluations of kincal and Ceres, at this core's rates.
     let joints = p.nominal.joints.len();
@@ -582,8 +597,8 @@ pub fn peers_benchmark(args: &BenchArgs) -> Result<()> {
     }
     println!(
         "  whole process: `kincal calibrate` (artefact with --no-outliers; tracker with its outlier metrics and data-error \
-         scoring: the fit and 10 warm refits), median of 5; the Ceres peer reading its problem file and solving once (artefact: every \
-         start), run once; SciPy's interpreter with its imports, once"
+         scoring: the fit and 10 warm refits) and the Ceres peer reading its problem file and solving once (artefact: every \
+         start), run one after the other 9 times, the median of each; SciPy's interpreter with its imports, once"
     );
     println!(
         "  limit: one Gauss–Newton iteration {:.2} Mflop (artefact), {:.2} Mflop (tracker), times the fewer \

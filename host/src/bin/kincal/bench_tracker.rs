@@ -13,21 +13,28 @@ use kincal::model::ArmModel;
 use kincal::numerics::stats::median;
 use std::time::Instant;
 
+/// Wall and CPU time (all threads), s.
+pub(crate) type WallCpuS = (f64, f64);
+
 /// Median wall and CPU time (all threads), s, of the whole `kincal calibrate` process (this
 /// executable: reading the files, calibrating, validating, scoring the data errors, writing
-/// RUN/) on `cal` and `val`, and the runs.
+/// RUN/) on `cal` and `val`, and the runs; with `peer`, that command run after each of them
+/// (interleaved, so that both see the same load of a shared machine) and its median wall and CPU
+/// time, s.
 pub(crate) fn whole_process(
     nominal: &ArmModel,
     cal: &Observations,
     val: &Observations,
-) -> Result<(f64, f64, usize)> {
+    mut peer: Option<&mut std::process::Command>,
+) -> Result<(WallCpuS, usize, Option<WallCpuS>)> {
     let dir = std::env::temp_dir().join(format!("kincal-bench-tracker-run-{}", std::process::id()));
     write_sessions(cal, &dir.join("cal")).with_context(|| dir.display().to_string())?;
     write_sessions(val, &dir.join("val")).with_context(|| dir.display().to_string())?;
     nominal.save(&dir.join("nominal.toml"))?;
     let exe = std::env::current_exe()?;
     let (mut wall, mut cpu) = (Vec::new(), Vec::new());
-    const RUNS: usize = 5;
+    let (mut peer_wall, mut peer_cpu) = (Vec::new(), Vec::new());
+    const RUNS: usize = 9;
     for _ in 0..RUNS {
         let (t, c) = (Instant::now(), children_cpu_ms());
         let out = std::process::Command::new(&exe)
@@ -49,9 +56,19 @@ pub(crate) fn whole_process(
                 String::from_utf8_lossy(&out.stderr)
             );
         }
+        if let Some(command) = peer.as_deref_mut() {
+            let (t, c) = (Instant::now(), children_cpu_ms());
+            let out = command.output().with_context(|| format!("could not start {command:?}"))?;
+            peer_wall.push(t.elapsed().as_secs_f64());
+            peer_cpu.push((children_cpu_ms() - c) * 1e-3);
+            if !out.status.success() {
+                anyhow::bail!("{command:?} failed: {}", String::from_utf8_lossy(&out.stderr).trim());
+            }
+        }
     }
     std::fs::remove_dir_all(&dir).ok();
-    Ok((median(wall), median(cpu), RUNS))
+    let peer = (!peer_cpu.is_empty()).then(|| (median(peer_wall), median(peer_cpu)));
+    Ok(((median(wall), median(cpu)), RUNS, peer))
 }
 
 /// Print the tracker figures: kincal's calibrate + validate, the whole process, the cost per
@@ -69,7 +86,7 @@ pub fn tracker_benchmark() -> Result<()> {
         last = Some((fit, v));
     }
     let Some((fit, v)) = last else { return Ok(()) };
-    let (whole, whole_cpu, runs) = whole_process(&nominal, &cal, &val)?;
+    let ((whole, whole_cpu), runs, _) = whole_process(&nominal, &cal, &val, None)?;
     println!(
         "tracker: whole `kincal calibrate` process on the same files (read, calibrate, validate, outlier metrics and data errors: the fit and 10 warm refits; write RUN/): median {whole:.3} s wall, {whole_cpu:.3} s CPU (all threads) over {runs} runs  (target <= 1 s on 2 cores)"
     );

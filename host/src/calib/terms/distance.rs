@@ -152,13 +152,7 @@ mod tests {
     /// NaN, an infinity) among them.
     #[test]
     fn a_row_from_the_laid_out_positions_is_each_columns_derivative() {
-        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut next = crate::calib::terms::uniform_signed(0x9e37_79b9_7f4a_7c15_u64);
         let same = |a: f64, b: f64| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
         for arm in [1, 2, 13, 14, 25] {
             let observations = 5;

@@ -341,6 +341,18 @@ pub fn column(d: &PoseDerivative, k: usize) -> Vector3<f64> {
     Vector3::new(d[3 * k], d[3 * k + 1], d[3 * k + 2])
 }
 
+/// Values uniform in [−1, 1) from a xorshift generator started at `state` (not zero): the
+/// tests' reproducible randomness.
+#[cfg(test)]
+pub(crate) fn uniform_signed(mut state: u64) -> impl FnMut() -> f64 {
+    move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -349,13 +361,7 @@ mod tests {
     /// the bit (its sums in the same order): the direct rows equal the Jacobian path's.
     #[test]
     fn a_turned_column_is_the_matrix_product() {
-        let mut state = 0x2545_f491_4f6c_dd1d_u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut next = uniform_signed(0x2545_f491_4f6c_dd1d_u64);
         for _ in 0..20_000 {
             let r = Matrix3::from_fn(|_, _| next());
             let d: PoseDerivative = std::array::from_fn(|_| next() * 1e3);
@@ -373,13 +379,7 @@ mod tests {
     /// finite (a NaN, an infinity) among them.
     #[test]
     fn the_arm_rows_two_columns_at_a_time_are_those_column_by_column() {
-        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut next = uniform_signed(0x9e37_79b9_7f4a_7c15_u64);
         let same = |a: f64, b: f64| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
         for arm in [0, 1, 2, 3, 13, 14, 25] {
             // The arm's columns at places 2.. of rows of `stride` values (the batch's order).

@@ -208,7 +208,7 @@ impl Derivatives3 for TermRows<'_> {
     }
 
     /// Straight into the three rows' runs when the batch holds the arm's columns in order (no
-    /// place looked up per column, two columns at a time: [`turned_rows`]), else column by
+    /// place looked up per column, two columns at a time: `turned_rows`), else column by
     /// column.
     fn put_arm(&mut self, chain: &[PoseDerivative], rotation: &Matrix3<f64>, growth: f64) {
         let Some(rows) = self.span3(0..chain.len()) else {
